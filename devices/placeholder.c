@@ -1,0 +1,2 @@
+/* Until devices/ has sources of its own. */
+typedef int fracnav_devices_placeholder;

@@ -1,0 +1,2 @@
+/* Until sim/ has sources of its own. */
+typedef int fracnav_sim_placeholder;

@@ -1,0 +1,26 @@
+/* cmd: the CLI's subcommands. Each takes argv with argv[0] = its name, prints its own --help,
+ * and returns the process exit status (0 success, 1 runtime failure, 2 usage error). */
+#ifndef FN_CMD_H
+#define FN_CMD_H
+
+#define CMD_LIST(X)                                                                          \
+    X(demo, "run the built-in demo on the example CT")                                      \
+    X(info, "print a volume's dimensions, type, spacing, geometry and range")                \
+    X(segment, "segment a CT into bone fragments and save a case")                           \
+    X(edit, "correct a case: merge, split, erase, keep or drop fragments")                   \
+    X(fracture, "make a synthetic fracture with ground truth from a CT")                     \
+    X(devices, "list connected 6-DOF controllers")                                           \
+    X(device_test, "live view of a controller's axes and buttons")                           \
+    X(record, "record raw reports from a controller to a .fnrec file")                       \
+    X(replay, "replay a .fnrec recording through the navigation loop")                      \
+    X(navigate, "steer fragments with a 6-DOF controller, collision-checked")               \
+    X(bench, "benchmarks with JSON output: collision, build, loop")
+
+#define CMD_DECLARE(name, help) int cmd_##name(int argc, char **argv);
+CMD_LIST(CMD_DECLARE)
+#undef CMD_DECLARE
+
+/* True when argv holds -h or --help. */
+int cmd_wants_help(int argc, char **argv);
+
+#endif

@@ -1,0 +1,111 @@
+#include "testutil.h"
+
+#include <stdarg.h>
+#include <stddef.h>
+#include <setjmp.h>
+#include <stdint.h>
+#include <cmocka.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+char *tu_tmpdir(const char *tag)
+{
+    const char *base = getenv("TMPDIR");
+    char *p = malloc(4096);
+    snprintf(p, 4096, "%s/fracnav-%s-XXXXXX", base && *base ? base : "/tmp", tag);
+    if (!mkdtemp(p))
+        fail_msg("mkdtemp %s failed", p);
+    return p;
+}
+
+void tu_rmtree(const char *dir)
+{
+    char cmd[4200];
+    if (!dir || strncmp(dir, "/tmp/", 5) != 0)
+        return;
+    snprintf(cmd, sizeof cmd, "rm -rf '%s'", dir);
+    if (system(cmd) != 0)
+        fprintf(stderr, "could not remove %s\n", dir);
+}
+
+const char *tu_example_ct(void)
+{
+    static char path[4096];
+    const char *d = getenv("FRACNAV_DATA");
+    snprintf(path, sizeof path, "%s/Cranium.inv3", d && *d ? d : "/var/cache/fracnav");
+    if (access(path, R_OK) != 0)
+        fail_msg("example CT %s is missing: run .ci/setup (README, first command)", path);
+    return path;
+}
+
+const char *tu_shared_data(const char *name)
+{
+    static char path[4096];
+    const char *s = getenv("FRACNAV_SHARED");
+    snprintf(path, sizeof path, "%s/data/%s", s && *s ? s : "../shared", name);
+    if (access(path, R_OK) != 0)
+        fail_msg("shared data %s is missing", path);
+    return path;
+}
+
+int tu_run_cli(char **out, const char *fmt, ...)
+{
+    char args[8192], cmd[9000];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(args, sizeof args, fmt, ap);
+    va_end(ap);
+    const char *bin = getenv("FRACNAV_BIN");
+    snprintf(cmd, sizeof cmd, "'%s' %s 2>&1", bin && *bin ? bin : "fracnav", args);
+    FILE *f = popen(cmd, "r");
+    if (!f)
+        return -1;
+    size_t cap = 4096, n = 0;
+    char *buf = malloc(cap);
+    size_t got;
+    while ((got = fread(buf + n, 1, cap - n - 1, f)) > 0) {
+        n += got;
+        if (cap - n < 2)
+            buf = realloc(buf, cap *= 2);
+    }
+    buf[n] = '\0';
+    int st = pclose(f);
+    if (out)
+        *out = buf;
+    else
+        free(buf);
+    return WIFEXITED(st) ? WEXITSTATUS(st) : -1;
+}
+
+char *tu_slurp(const char *path, size_t *len)
+{
+    FILE *f = fopen(path, "rb");
+    if (!f)
+        return NULL;
+    fseek(f, 0, SEEK_END);
+    long n = ftell(f);
+    fseek(f, 0, SEEK_SET);
+    char *b = malloc((size_t)n + 1);
+    if (fread(b, 1, (size_t)n, f) != (size_t)n) {
+        free(b);
+        fclose(f);
+        return NULL;
+    }
+    b[n] = '\0';
+    fclose(f);
+    if (len)
+        *len = (size_t)n;
+    return b;
+}
+
+void tu_write_file(const char *path, const void *data, size_t len)
+{
+    FILE *f = fopen(path, "wb");
+    assert_non_null(f);
+    assert_int_equal(fwrite(data, 1, len, f), len);
+    fclose(f);
+}

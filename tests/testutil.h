@@ -1,0 +1,23 @@
+/* Shared helpers for the cmocka tests. Include after <cmocka.h>'s prerequisites. */
+#ifndef FN_TESTUTIL_H
+#define FN_TESTUTIL_H
+
+#include <stddef.h>
+
+/* A fresh empty directory under $TMPDIR for this test; removed by tu_rmtree. Returns a static-owned
+ * copy the caller must free(). */
+char *tu_tmpdir(const char *tag);
+void tu_rmtree(const char *dir);
+/* Path of the example CT (Cranium.inv3): $FRACNAV_DATA/Cranium.inv3, else
+ * /var/cache/fracnav/Cranium.inv3. Fails the test with a hint to run .ci/setup when missing. */
+const char *tu_example_ct(void);
+/* ../shared/data/NAME; fails the test when missing. */
+const char *tu_shared_data(const char *name);
+/* Runs `fracnav ARGS` (the built CLI) through /bin/sh, capturing stdout+stderr into out (malloc'd,
+ * NUL-terminated; may be NULL). Returns the exit status (or -1). */
+int tu_run_cli(char **out, const char *fmt, ...);
+/* Whole file into a malloc'd NUL-terminated buffer; NULL if unreadable. */
+char *tu_slurp(const char *path, size_t *len);
+void tu_write_file(const char *path, const void *data, size_t len);
+
+#endif
