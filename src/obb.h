@@ -106,11 +106,12 @@ void obb_cache_reset(obb_cache *c);
 int obb_collide(const obb_tree *a, const pose *a_world, const obb_tree *b, const pose *b_world,
                 const obb_query *q, obb_cache *cache, obb_result *r);
 
-/* Reference: every voxel pair that can matter, exactly by the definition above. Pairs are only
- * skipped when a voxel's box lies entirely outside the other fragment's world box (the box of all
- * its voxel boxes), which is obviously safe. params must match those of the trees compared.
- * separation_mm is the exact minimum over pairs of the per-pair separating-axis gap (a lower
- * bound on the distance) when apart, else like obb_collide. Slow: for tests and benchmarks. */
+/* Reference: every voxel pair that can matter, exactly by the definition above. A voxel of B is
+ * skipped only when its A-frame bounding box misses A's crop, and it is tested against every A voxel
+ * inside that bounding box (plus a margin): obviously safe. params must match those of the trees
+ * compared (NULL = {0, 1}). separation_mm: minus the smallest overlap depth of the first colliding
+ * pair found (the deepest of all with want_pairs); NAN when apart (not computed). Slow: for tests
+ * and benchmarks. */
 int obb_collide_brute(const frag *a, const pose *a_world, const frag *b, const pose *b_world,
                       const obb_params *params, const obb_query *q, obb_result *r);
 
