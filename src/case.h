@@ -50,8 +50,9 @@ int case_save(fcase *c);
 void case_free(fcase *c);
 
 /* Rebuilds the fragments from c->labels after an edit: fragments keep their pose, name, colour and
- * truth by id; new ids inherit from `parent_of(id)` when given (split), else identity; ids that
- * vanished are removed (the fixed index follows its fragment or becomes -1). 0 or FN_E*. */
+ * truth by id; fragment new_id (when > 0) inherits pose and truth from parent_id (a split), other
+ * new ids get identity; ids that vanished are removed (the fixed index follows its fragment or
+ * becomes -1). Labels must be integers 0..65535. 0 or FN_E*. */
 int case_rebuild(fcase *c, int new_id, int parent_id);
 
 /* Index of the fragment with label id, or -1. */
@@ -59,5 +60,22 @@ int case_find(const fcase *c, int id);
 
 /* sha256 of a file's bytes as 64 hex digits. 0 or FN_EIO. */
 int case_file_sha256(const char *path, char hex[65]);
+
+/* Edits. Each changes c->labels and rebuilds the fragments (case_rebuild); the caller saves.
+ * A bad id is FN_EINVAL naming it and listing the ids the case has. Volumes: world LPS mm. */
+/* Fragment b joins fragment a (b's voxels take label a). */
+int case_merge(fcase *c, int a, int b);
+/* The voxels of id on the side of the plane (point p, normal n) that n points to become a new
+ * fragment (the next free id, returned); it inherits id's pose and truth. */
+int case_split(fcase *c, int id, const double p[3], const double n[3]);
+/* Voxel centres inside the box (any two opposite corners) or sphere become background; only those
+ * of fragment id when id > 0. Returns the number of voxels erased. */
+long case_erase_box(fcase *c, const double a[3], const double b[3], int id);
+long case_erase_sphere(fcase *c, const double centre[3], double radius, int id);
+/* Keeps only, or drops, the listed fragments. */
+int case_keep(fcase *c, const int *ids, int n);
+int case_drop(fcase *c, const int *ids, int n);
+/* Makes id the fixed fragment (0: none). */
+int case_fix(fcase *c, int id);
 
 #endif
