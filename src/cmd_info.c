@@ -26,9 +26,9 @@ static void print_text(const char *path, const vol *v, float lo, float hi)
     printf("voxel type:  %s\n", vol_type_name(v->src_type));
     printf("spacing:     %.6g %.6g %.6g mm\n", v->spacing[0], v->spacing[1], v->spacing[2]);
     printf("index to world (LPS mm):\n");
-    for (int r = 0; r < 3; r++)
-        printf("  [ %12.6f %12.6f %12.6f %12.6f ]\n", v->affine[r][0], v->affine[r][1],
-               v->affine[r][2], v->affine[r][3]);
+    for (int r = 0; r < 3; r++) /* + 0.0 prints -0 as 0 */
+        printf("  [ %12.6f %12.6f %12.6f %12.6f ]\n", v->affine[r][0] + 0.0, v->affine[r][1] + 0.0,
+               v->affine[r][2] + 0.0, v->affine[r][3] + 0.0);
     printf("range:       %.6g .. %.6g\n", lo, hi);
 }
 
