@@ -193,7 +193,7 @@ int case_save(fcase *c)
         rc = case_file_sha256(ltmp, lsha);
     if (rc == 0) {
         json_t *root = case_json(c, lsha);
-        char *text = json_dumps(root, JSON_INDENT(2) | JSON_REAL_PRECISION(17));
+        char *text = json_dumps(root, JSON_INDENT(2) | JSON_REAL_PRECISION(15));
         json_decref(root);
         if (!text)
             rc = fn_err_set(FN_ENOMEM, "%s: cannot serialise the case", jfin);

@@ -125,15 +125,11 @@ int seg_components(const uint8_t *mask, const int dim[3], int32_t *lab)
                 }
                 lab[idx] = mine;
             }
-    /* Roots get consecutive final labels in order of first appearance. */
+    /* Roots get consecutive final labels (stored negated) in order of first appearance. A parent
+     * is never larger than its child, so it is already resolved when the child is reached. */
     int32_t nfinal = 0;
-    for (int32_t l = 1; l < next; l++) {
-        int32_t r = uf_find(parent, l);
-        parent[l] = r == l ? -(++nfinal) : r;
-    }
     for (int32_t l = 1; l < next; l++)
-        if (parent[l] > 0)
-            parent[l] = parent[parent[l]];
+        parent[l] = parent[l] == l ? -(++nfinal) : parent[parent[l]];
     for (size_t i = 0; i < n; i++)
         if (lab[i])
             lab[i] = -parent[lab[i]];
