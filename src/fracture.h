@@ -3,8 +3,8 @@
  * The bone (the largest component at `threshold`) is cut pieces-1 times; each cut splits the
  * currently largest piece with a rough surface: a plane (normal near the piece's main axis, through
  * a point near its centroid) displaced along its normal by fractal value noise (fBm, 4 octaves).
- * bone_loss_mm of bone around each cut is replaced by `fill` (soft tissue). Piece 1 (the largest)
- * stays fixed; every other piece is moved by a random rigid transform (rotation of rotate_deg about
+ * bone_loss_mm of bone around each cut is replaced by `fill` (soft tissue). The new piece of a
+ * cut is its smaller side. Piece 1 (what is left of the bone's first piece) stays fixed; every other piece is moved by a random rigid transform (rotation of rotate_deg about
  * its centroid, translation of displace_mm pointing away from the fixed bone, pushed further out in
  * 1 mm steps while it would land on another piece) and resampled (nearest neighbour) into the
  * output CT, which shows the DISPLACED configuration; where a piece left, `fill` is written.
