@@ -3,11 +3,13 @@
  * The bone (the largest component at `threshold`) is cut pieces-1 times; each cut splits the
  * currently largest piece with a rough surface: a plane (normal near the piece's main axis, through
  * a point near its centroid) displaced along its normal by fractal value noise (fBm, 4 octaves).
- * bone_loss_mm of bone around each cut is replaced by `fill` (soft tissue). The new piece of a
- * cut is its smaller side. Piece 1 (what is left of the bone's first piece) stays fixed; every other piece is moved by a random rigid transform (rotation of rotate_deg about
- * its centroid, translation of displace_mm pointing away from the fixed bone, pushed further out in
- * 1 mm steps while it would land on another piece) and resampled (nearest neighbour) into the
- * output CT, which shows the DISPLACED configuration; where a piece left, `fill` is written.
+ * The new piece of a cut is its smaller side. bone_loss_mm of bone around each cut is replaced by
+ * `fill` (soft tissue). Piece 1 (what is left of the first piece) stays fixed; every other piece
+ * is moved by a random rigid transform (rotation of rotate_deg about its centroid, translation of
+ * displace_mm pointing away from the bone it was cut from, pushed further out in 1 mm steps while
+ * it would land on another piece) and resampled (nearest neighbour) into the output CT, which
+ * shows the DISPLACED configuration; where a piece left, `fill` is written. The displaced labels
+ * are built from the pieces, not re-segmented, so touching pieces stay apart.
  * truth[i] maps piece i+1's displaced position back to where it belongs (identity for piece 1).
  *
  * Randomness comes only from splitmix64 seeded with `seed`, and the arithmetic uses + - * / and
