@@ -35,7 +35,7 @@ int obb_box_overlap(const double R[3][3], const double t[3], const double ca[3],
     obb__carry(&rel, cb, bt);
     for (int i = 0; i < 3; i++)
         T[i] = bt[i] - ca[i];
-    return obb__sat(&rel, 1, T, ha, hb, 1, gap);
+    return obb__sat(&rel, 1, 1, T, ha, hb, 1, gap);
 }
 
 int obb__check_query(const obb_query *q, const double sa[3], const double sb[3])
@@ -51,6 +51,8 @@ int obb__check_query(const obb_query *q, const double sa[3], const double sb[3])
     if (q->want_pairs && !q->pairs && q->max_pairs)
         return fn_err_set(FN_EINVAL, "obb query: want_pairs with max_pairs %zu but no pairs buffer",
                           q->max_pairs);
+    if (q->inner_axes != 0 && q->inner_axes != 6 && q->inner_axes != 15)
+        return fn_err_set(FN_EINVAL, "obb query: inner_axes %d is not 0, 6 or 15", q->inner_axes);
     if (q->order != OBB_DEPTH_FIRST && q->order != OBB_BREADTH_FIRST)
         return fn_err_set(FN_EINVAL, "obb query: order %d is neither depth- nor breadth-first",
                           q->order);
@@ -121,7 +123,7 @@ static int test_voxel(brute *c, const uint16_t vb[3], int eb)
                 for (int a = 0; a < 3; a++)
                     T[a] = bt[a] - ca[a];
                 c->r->tests++;
-                if (!obb__sat(&c->rel, 1, T, ha, hb, 1, &gap))
+                if (!obb__sat(&c->rel, 1, 1, T, ha, hb, 1, &gap))
                     continue;
                 obb_result *r = c->r;
                 if (c->want_pairs && r->npairs < c->q->max_pairs) {

@@ -38,13 +38,13 @@ static inline void obb__carry(const obb__rel *rel, const double cb[3], double bt
 }
 
 /* The 15-axis separating-axis test on the centre offset T = bt - ca (A's frame) and the
- * half-extents. exact: |R| and slack 0, returns 1 when the open boxes overlap; else |R| + eps and
- * OBB__SLACK, returns 0 only when an axis separates them by OBB__SLACK or more (so it never rejects
- * what the exact test accepts). *gap (when non-NULL and full): the largest per-axis gap / |axis|,
+ * half-extents. exact: all 15 axes, |R| and slack 0, returns 1 when the open boxes overlap; else
+ * |R| + eps and OBB__SLACK, the 9 edge axes only with edges, and returns 0 only when an axis
+ * separates them by OBB__SLACK or more (so it never rejects what the exact test accepts). *gap (when non-NULL and full): the largest per-axis gap / |axis|,
  * a lower bound on the distance when apart, minus the smallest overlap depth when overlapping;
  * without full it stops at the first separating axis and gives that axis' gap. */
-static inline int obb__sat(const obb__rel *rel, int exact, const double T[3], const double ha[3],
-             const double hb[3], int full, double *gap)
+static inline int obb__sat(const obb__rel *rel, int exact, int edges, const double T[3],
+                           const double ha[3], const double hb[3], int full, double *gap)
 {
     const double(*R)[3] = rel->R, (*AR)[3] = exact ? rel->AR0 : rel->AR;
     double slack = exact ? 0 : OBB__SLACK;
@@ -64,7 +64,7 @@ static inline int obb__sat(const obb__rel *rel, int exact, const double T[3], co
     for (int j = 0; j < 3; j++)
         AXIS(fabs(T[0] * R[0][j] + T[1] * R[1][j] + T[2] * R[2][j]) -
              (ha[0] * AR[0][j] + ha[1] * AR[1][j] + ha[2] * AR[2][j] + hb[j]));
-    for (int i = 0; i < 3; i++) {
+    for (int i = 0; i < 3 && (edges || exact); i++) {
         int i1 = (i + 1) % 3, i2 = (i + 2) % 3;
         for (int j = 0; j < 3; j++) {
             double inv = rel->inv_len[i][j];

@@ -18,7 +18,7 @@ typedef struct ctx {
     obb__rel rel;
     const obb_node *na, *nb;
     double sa[3], sb[3], tol;
-    int thr, want_pairs;
+    int thr, want_pairs, edges;
     const obb_query *q;
     obb_result *r;
     obb_cache *cache;
@@ -122,15 +122,15 @@ static int test(ctx *c, const obb_node *a, const double ca[3], const double ha[3
     double T[3] = {bt[0] - ca[0], bt[1] - ca[1], bt[2] - ca[2]}, gap;
     int exact = is_voxel(a) && is_voxel(b);
     c->r->tests++;
-    if (obb__sat(&c->rel, exact, T, ha, hb, 0, &gap)) {
+    if (obb__sat(&c->rel, exact, c->edges, T, ha, hb, 0, &gap)) {
         if (!exact)
             return 1;
-        obb__sat(&c->rel, 1, T, ha, hb, 1, &gap);
+        obb__sat(&c->rel, 1, 1, T, ha, hb, 1, &gap);
         record(c, a, b, gap);
         return 0;
     }
     if (gap < c->best_gap) {
-        obb__sat(&c->rel, exact, T, ha, hb, 1, &gap);
+        obb__sat(&c->rel, exact, c->edges, T, ha, hb, 1, &gap);
         c->best_gap = gap < c->best_gap ? gap : c->best_gap;
     }
     return 0;
@@ -239,6 +239,7 @@ int obb_collide(const obb_tree *a, const pose *a_world, const obb_tree *b, const
     c.thr = obb__threshold(c.q->threshold);
     c.tol = c.q->tolerance_mm;
     c.want_pairs = c.q->want_pairs;
+    c.edges = c.q->inner_axes == 15;
     memcpy(c.sa, obb_tree_spacing(a), sizeof c.sa);
     memcpy(c.sb, obb_tree_spacing(b), sizeof c.sb);
     if (!obb_tree_nodes(a) || !obb_tree_nodes(b)) {
@@ -257,12 +258,12 @@ int obb_collide(const obb_tree *a, const pose *a_world, const obb_tree *b, const
         c.best_gap = INFINITY; /* a witness gap says nothing about the other pairs */
     }
     npair root = {c.na[0], c.nb[0]};
-    if (!test_pair(&c, &root))
-        ;
-    else if (c.q->order == OBB_BREADTH_FIRST)
-        breadth_first(&c, &root);
-    else
-        depth_first(&c, &root);
+    if (test_pair(&c, &root)) {
+        if (c.q->order == OBB_BREADTH_FIRST)
+            breadth_first(&c, &root);
+        else
+            depth_first(&c, &root);
+    }
     if (r->collides)
         r->separation_mm = c.pen;
     else
