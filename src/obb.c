@@ -65,39 +65,66 @@ static size_t cidx(const level *L, const uint16_t c[3])
     return ((size_t)c[2] * (size_t)L->dim[1] + c[1]) * (size_t)L->dim[0] + c[0];
 }
 
-/* Level 1 from the voxels, row by row so the inner loop streams memory. */
+/* One level-1 cell from its (up to) 8 voxels: rows[dz*2+dy] (NULL when outside the crop), x the
+ * first voxel's column, two voxels when pair. */
+static void cell1(const builder *b, const uint8_t *const rows[4], size_t x, int pair, uint8_t *mn,
+                  uint8_t *mx, uint8_t *mask)
+{
+    uint8_t lo = 255, hi = 0, m = 0;
+    for (int r = 0; r < 4; r++) {
+        if (!rows[r])
+            continue;
+        for (int dx = 0; dx <= pair; dx++) {
+            uint8_t e = b->lut[rows[r][x + dx]];
+            lo = e < lo ? e : lo;
+            hi = e > hi ? e : hi;
+            m |= e ? (uint8_t)(1u << (r * 2 + dx)) : 0;
+        }
+    }
+    *mn = lo, *mx = hi, *mask = m;
+}
+
+static uint64_t load8(const uint8_t *p)
+{
+    uint64_t v;
+    memcpy(&v, p, sizeof v);
+    return v;
+}
+
+/* Level 1 from the voxels. Runs of 4 cells whose 32 voxels are all air (or all certain bone, when
+ * that maps to 255) are settled by word compares: most of a crop is one or the other. */
 static void level1(builder *b)
 {
     level *L = &b->lv[1];
     const int *d0 = b->lv[0].dim;
-    size_t nx = (size_t)L->dim[0];
-    memset(L->mn, 255, cells(L->dim));
-    memset(L->mx, 0, cells(L->dim));
-    memset(L->mask, 0, cells(L->dim));
+    size_t nx = (size_t)L->dim[0], full = (size_t)d0[0] / 8;
+    int solid_fast = b->lut[255] == 255;
     for (int ck = 0; ck < L->dim[2]; ck++)
         for (int cj = 0; cj < L->dim[1]; cj++) {
             size_t row = ((size_t)ck * L->dim[1] + cj) * nx;
-            uint8_t *mn = L->mn + row, *mx = L->mx + row, *mk = L->mask + row;
-            for (int dz = 0; dz < 2 && 2 * ck + dz < d0[2]; dz++)
-                for (int dy = 0; dy < 2 && 2 * cj + dy < d0[1]; dy++) {
-                    const uint8_t *src =
-                        b->prob + ((size_t)(2 * ck + dz) * d0[1] + (2 * cj + dy)) * (size_t)d0[0];
-                    uint8_t bit = (uint8_t)(1u << (dz * 4 + dy * 2));
-                    size_t pairs = (size_t)d0[0] / 2;
-                    for (size_t ci = 0; ci < pairs; ci++) {
-                        uint8_t e = b->lut[src[2 * ci]], f = b->lut[src[2 * ci + 1]];
-                        uint8_t lo = e < f ? e : f, hi = e > f ? e : f;
-                        mn[ci] = mn[ci] < lo ? mn[ci] : lo;
-                        mx[ci] = mx[ci] > hi ? mx[ci] : hi;
-                        mk[ci] |= (uint8_t)((e ? bit : 0) | (f ? bit << 1 : 0));
-                    }
-                    if (d0[0] % 2) {
-                        uint8_t e = b->lut[src[2 * pairs]];
-                        mn[pairs] = mn[pairs] < e ? mn[pairs] : e;
-                        mx[pairs] = mx[pairs] > e ? mx[pairs] : e;
-                        mk[pairs] |= e ? bit : 0;
+            const uint8_t *rows[4];
+            int present = 1;
+            for (int r = 0; r < 4; r++) {
+                int z = 2 * ck + (r >> 1), y = 2 * cj + (r & 1);
+                rows[r] = z < d0[2] && y < d0[1] ? b->prob + ((size_t)z * d0[1] + y) * d0[0] : NULL;
+                present &= rows[r] != NULL;
+            }
+            for (size_t g = 0; g < nx; g++) {
+                if (present && (g & 3) == 0 && g / 4 < full) {
+                    uint64_t w[4], any = 0, all = ~0ull;
+                    for (int r = 0; r < 4; r++)
+                        w[r] = load8(rows[r] + 2 * g), any |= w[r], all &= w[r];
+                    if (any == 0 || (solid_fast && all == ~0ull)) {
+                        memset(L->mn + row + g, any ? 255 : 0, 4);
+                        memset(L->mx + row + g, any ? 255 : 0, 4);
+                        memset(L->mask + row + g, any ? 255 : 0, 4);
+                        g += 3;
+                        continue;
                     }
                 }
+                cell1(b, rows, 2 * g, 2 * g + 1 < (size_t)d0[0], L->mn + row + g, L->mx + row + g,
+                      L->mask + row + g);
+            }
         }
 }
 
