@@ -37,11 +37,13 @@ typedef struct pending {
 typedef struct builder {
     const uint8_t *prob;
     uint8_t lut[256];
+    uint8_t lo_off[256], hi_off[256]; /* level-1 box offsets from the mask: bit i = axis i */
     level lv[MAX_LEVELS];
     int top;
     obb_node *nodes;
-    pending *pend;
+    pending *pend;   /* per emitted node; left unset for voxel leaves */
     size_t n, cap;
+    int depth;       /* deepest node so far (root = 1) */
 } builder;
 
 uint8_t obb_effective_prob(uint8_t p, const obb_params *params)
@@ -135,11 +137,10 @@ static void cell_box(const builder *b, int l, const uint16_t c[3], uint16_t lo[3
         memcpy(lo, c, 3 * sizeof *c);
         memcpy(hi, c, 3 * sizeof *c);
     } else if (l == 1) {
-        static const uint8_t low[3] = {0x55, 0x33, 0x0f}; /* bits of the lower half on each axis */
-        uint8_t m = b->lv[1].mask[cidx(&b->lv[1], c)];
+        uint8_t m = b->lv[1].mask[cidx(&b->lv[1], c)], lo_o = b->lo_off[m], hi_o = b->hi_off[m];
         for (int i = 0; i < 3; i++) {
-            lo[i] = (uint16_t)(2 * c[i] + ((m & low[i]) ? 0 : 1));
-            hi[i] = (uint16_t)(2 * c[i] + ((m & (uint8_t)~low[i]) ? 1 : 0));
+            lo[i] = (uint16_t)(2 * c[i] + ((lo_o >> i) & 1));
+            hi[i] = (uint16_t)(2 * c[i] + ((hi_o >> i) & 1));
         }
     } else {
         const uint16_t *box = b->lv[l].box[cidx(&b->lv[l], c)];
@@ -151,43 +152,89 @@ static void cell_box(const builder *b, int l, const uint16_t c[3], uint16_t lo[3
 /* Coordinates of child `bit` of cell c. */
 static void child(const uint16_t c[3], int bit, uint16_t out[3])
 {
-    for (int i = 0; i < 3; i++)
-        out[i] = (uint16_t)(2 * c[i] + ((bit >> i) & 1));
+    out[0] = (uint16_t)(2 * c[0] + (bit & 1));
+    out[1] = (uint16_t)(2 * c[1] + ((bit >> 1) & 1));
+    out[2] = (uint16_t)(2 * c[2] + ((bit >> 2) & 1));
 }
 
-/* Levels >= 2 from the level below: min, max, bone-child mask and the union of the children's
- * boxes. */
+/* The box offsets of a level-1 cell from its occupancy mask. */
+static void mask_tables(builder *b)
+{
+    static const uint8_t low[3] = {0x55, 0x33, 0x0f}; /* bits of the lower half on each axis */
+    for (int m = 0; m < 256; m++) {
+        b->lo_off[m] = b->hi_off[m] = 0;
+        for (int i = 0; i < 3; i++) {
+            b->lo_off[m] |= (uint8_t)(((m & low[i]) ? 0 : 1) << i);
+            b->hi_off[m] |= (uint8_t)(((m & (uint8_t)~low[i]) ? 1 : 0) << i);
+        }
+    }
+}
+
+/* The union of the boxes of the bone children (mask m) of cell c at level l. */
+static void union_box(const builder *b, int l, const uint16_t c[3], uint8_t m, uint16_t box[6])
+{
+    box[0] = box[1] = box[2] = UINT16_MAX;
+    box[3] = box[4] = box[5] = 0;
+    for (int bit = 0; bit < 8; bit++) {
+        if (!(m >> bit & 1))
+            continue;
+        uint16_t cc[3], lo[3], hi[3];
+        child(c, bit, cc);
+        cell_box(b, l - 1, cc, lo, hi);
+        for (int i = 0; i < 3; i++) {
+            box[i] = lo[i] < box[i] ? lo[i] : box[i];
+            box[3 + i] = hi[i] > box[3 + i] ? hi[i] : box[3 + i];
+        }
+    }
+}
+
+/* Levels >= 2 from the level below: min, max and bone-child mask, row by row; the tight box is the
+ * clipped cell when solid, else the union of the children's boxes (unused when empty). */
 static void level_up(builder *b, int l)
 {
     level *L = &b->lv[l];
     const level *C = &b->lv[l - 1];
+    const int *d0 = b->lv[0].dim;
     size_t idx = 0;
     uint16_t c[3];
     for (c[2] = 0; c[2] < L->dim[2]; c[2]++)
-        for (c[1] = 0; c[1] < L->dim[1]; c[1]++)
+        for (c[1] = 0; c[1] < L->dim[1]; c[1]++) {
+            const uint8_t *rmn[4] = {NULL, NULL, NULL, NULL}, *rmx[4] = {NULL, NULL, NULL, NULL};
+            for (int r = 0; r < 4; r++) {
+                int z = 2 * c[2] + (r >> 1), y = 2 * c[1] + (r & 1);
+                if (z >= C->dim[2] || y >= C->dim[1])
+                    continue;
+                size_t base = ((size_t)z * C->dim[1] + y) * C->dim[0];
+                rmn[r] = C->mn + base, rmx[r] = C->mx + base;
+            }
             for (c[0] = 0; c[0] < L->dim[0]; c[0]++, idx++) {
                 uint8_t mn = 255, mx = 0, mask = 0;
-                uint16_t box[6] = {UINT16_MAX, UINT16_MAX, UINT16_MAX, 0, 0, 0};
-                for (int bit = 0; bit < 8; bit++) {
-                    uint16_t cc[3], lo[3], hi[3];
-                    child(c, bit, cc);
-                    if (cc[0] >= C->dim[0] || cc[1] >= C->dim[1] || cc[2] >= C->dim[2])
+                int x0 = 2 * c[0], pair = x0 + 1 < C->dim[0];
+                for (int r = 0; r < 4; r++) {
+                    if (!rmn[r])
                         continue;
-                    size_t k = cidx(C, cc);
-                    mn = C->mn[k] < mn ? C->mn[k] : mn;
-                    if (!C->mx[k])
-                        continue;
-                    mx = C->mx[k] > mx ? C->mx[k] : mx;
-                    mask |= (uint8_t)(1u << bit);
-                    cell_box(b, l - 1, cc, lo, hi);
-                    for (int i = 0; i < 3; i++) {
-                        box[i] = lo[i] < box[i] ? lo[i] : box[i];
-                        box[3 + i] = hi[i] > box[3 + i] ? hi[i] : box[3 + i];
+                    for (int dx = 0; dx <= pair; dx++) {
+                        uint8_t a = rmn[r][x0 + dx], z = rmx[r][x0 + dx];
+                        mn = a < mn ? a : mn;
+                        mx = z > mx ? z : mx;
+                        mask |= z ? (uint8_t)(1u << (r * 2 + dx)) : 0;
                     }
                 }
                 L->mn[idx] = mn, L->mx[idx] = mx, L->mask[idx] = mask;
-                memcpy(L->box[idx], box, sizeof box);
+                uint16_t *box = L->box[idx];
+                if (!mx)
+                    continue;
+                if (mn != 255) {
+                    union_box(b, l, c, mask, box);
+                    continue;
+                }
+                for (int i = 0; i < 3; i++) {
+                    int lo = c[i] << l, hi = ((c[i] + 1) << l) - 1;
+                    box[i] = (uint16_t)lo;
+                    box[3 + i] = (uint16_t)(hi < d0[i] ? hi : d0[i] - 1);
+                }
             }
+        }
 }
 
 static uint8_t cell_mn(const builder *b, int l, const uint16_t c[3])
@@ -251,28 +298,51 @@ static int emit(builder *b, int l, const uint16_t c[3], int depth)
     memcpy(p->c, c, sizeof p->c);
     p->level = (uint8_t)l;
     p->depth = (uint8_t)depth;
+    b->depth = depth > b->depth ? depth : b->depth;
+    return 0;
+}
+
+/* The voxel children (mask m) of level-1 cell c, as leaves: nothing below them to collapse. */
+static int emit_voxels(builder *b, const uint16_t c[3], uint8_t m, int depth)
+{
+    b->depth = depth > b->depth ? depth : b->depth;
+    const int *d = b->lv[0].dim;
+    for (int bit = 0; bit < 8; bit++) {
+        if (!(m >> bit & 1))
+            continue;
+        int rc = b->n == b->cap ? grow(b) : 0;
+        if (rc)
+            return rc;
+        obb_node *o = &b->nodes[b->n++];
+        child(c, bit, o->lo);
+        memcpy(o->hi, o->lo, sizeof o->hi);
+        size_t idx = ((size_t)o->lo[2] * d[1] + o->lo[1]) * d[0] + o->lo[0];
+        o->info = 0x80000000u | b->lut[b->prob[idx]];
+    }
     return 0;
 }
 
 /* Stage two: breadth-first from the root; children of each inner node are emitted contiguously. */
-static int prune(builder *b, int *depth)
+static int prune(builder *b)
 {
     int l = b->top;
     uint16_t c[3] = {0, 0, 0};
-    *depth = 0;
     if (!cell_mx(b, l, c))
         return 0;
     collapse(b, &l, c);
     int rc = emit(b, l, c, 1);
     for (size_t i = 0; rc == 0 && i < b->n; i++) {
-        pending p = b->pend[i];
-        *depth = p.depth > *depth ? p.depth : *depth;
         if (b->nodes[i].info & 0x80000000u)
             continue;
+        pending p = b->pend[i];
         uint8_t m = b->lv[p.level].mask[cidx(&b->lv[p.level], p.c)];
         size_t first = b->n;
         int nk = 0;
-        for (int bit = 0; bit < 8 && rc == 0; bit++) {
+        if (p.level == 1) {
+            rc = emit_voxels(b, p.c, m, p.depth + 1);
+            nk = (int)(b->n - first);
+        }
+        for (int bit = 0; bit < 8 && rc == 0 && p.level > 1; bit++) {
             if (!(m >> bit & 1))
                 continue;
             int cl = p.level - 1;
@@ -346,6 +416,7 @@ obb_tree *obb_tree_build(const frag *f, const obb_params *params)
     builder b = {.prob = f->prob};
     for (int v = 0; v < 256; v++)
         b.lut[v] = obb_effective_prob((uint8_t)v, &p);
+    mask_tables(&b);
     obb_tree *t = calloc(1, sizeof *t);
     int rc = t ? alloc_levels(&b, f->dim) : fn_err_set(FN_ENOMEM, "out of memory for a tree");
     if (rc == 0) {
@@ -353,7 +424,8 @@ obb_tree *obb_tree_build(const frag *f, const obb_params *params)
             level1(&b);
         for (int l = 2; l <= b.top; l++)
             level_up(&b, l);
-        rc = prune(&b, &t->depth);
+        rc = prune(&b);
+        t->depth = b.depth;
     }
     builder_free(&b);
     if (rc) {
