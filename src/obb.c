@@ -26,6 +26,7 @@ typedef struct level {
     int dim[3];
     uint8_t *mn, *mx, *mask;
     uint16_t (*box)[6];
+    uint8_t (*vox)[8]; /* level 1, mixed cells only: the 8 effective voxel values by child bit */
 } level;
 
 /* An emitted node's cell, kept while the breadth-first pass still has to expand it. */
@@ -70,7 +71,7 @@ static size_t cidx(const level *L, const uint16_t c[3])
 /* One level-1 cell from its (up to) 8 voxels: rows[dz*2+dy] (NULL when outside the crop), x the
  * first voxel's column, two voxels when pair. */
 static void cell1(const builder *b, const uint8_t *const rows[4], size_t x, int pair, uint8_t *mn,
-                  uint8_t *mx, uint8_t *mask)
+                  uint8_t *mx, uint8_t *mask, uint8_t vox[8])
 {
     uint8_t lo = 255, hi = 0, m = 0;
     for (int r = 0; r < 4; r++) {
@@ -81,6 +82,7 @@ static void cell1(const builder *b, const uint8_t *const rows[4], size_t x, int 
             lo = e < lo ? e : lo;
             hi = e > hi ? e : hi;
             m |= e ? (uint8_t)(1u << (r * 2 + dx)) : 0;
+            vox[r * 2 + dx] = e;
         }
     }
     *mn = lo, *mx = hi, *mask = m;
@@ -125,7 +127,7 @@ static void level1(builder *b)
                     }
                 }
                 cell1(b, rows, 2 * g, 2 * g + 1 < (size_t)d0[0], L->mn + row + g, L->mx + row + g,
-                      L->mask + row + g);
+                      L->mask + row + g, L->vox[row + g]);
             }
         }
 }
@@ -306,7 +308,7 @@ static int emit(builder *b, int l, const uint16_t c[3], int depth)
 static int emit_voxels(builder *b, const uint16_t c[3], uint8_t m, int depth)
 {
     b->depth = depth > b->depth ? depth : b->depth;
-    const int *d = b->lv[0].dim;
+    const uint8_t *vox = b->lv[1].vox[cidx(&b->lv[1], c)];
     for (int bit = 0; bit < 8; bit++) {
         if (!(m >> bit & 1))
             continue;
@@ -316,8 +318,7 @@ static int emit_voxels(builder *b, const uint16_t c[3], uint8_t m, int depth)
         obb_node *o = &b->nodes[b->n++];
         child(c, bit, o->lo);
         memcpy(o->hi, o->lo, sizeof o->hi);
-        size_t idx = ((size_t)o->lo[2] * d[1] + o->lo[1]) * d[0] + o->lo[0];
-        o->info = 0x80000000u | b->lut[b->prob[idx]];
+        o->info = 0x80000000u | vox[bit];
     }
     return 0;
 }
@@ -373,7 +374,9 @@ static int alloc_levels(builder *b, const int d0[3])
         L->mask = malloc(n);
         if (l >= 2)
             L->box = malloc(n * sizeof *L->box);
-        if (!L->mn || !L->mx || !L->mask || (l >= 2 && !L->box))
+        else
+            L->vox = malloc(n * sizeof *L->vox);
+        if (!L->mn || !L->mx || !L->mask || (l >= 2 ? !L->box : !L->vox))
             return fn_err_set(FN_ENOMEM, "out of memory for the hierarchy pyramid (%zu cells)", n);
     }
     return 0;
@@ -386,6 +389,7 @@ static void builder_free(builder *b)
         free(b->lv[l].mx);
         free(b->lv[l].mask);
         free(b->lv[l].box);
+        free(b->lv[l].vox);
     }
     free(b->pend);
 }
