@@ -89,15 +89,34 @@ typedef struct obb_result {
     size_t tests;        /* box tests done (for benchmarks) */
 } obb_result;
 
-/* Temporal coherence for one ordered pair of trees: the last witness (colliding voxel pair) and the
- * last separating axis. Caller-owned, plain data: zero it (or obb_cache_reset) before first use
- * and whenever a tree of the pair is rebuilt. Never share one cache between threads. */
+/* Temporal coherence for one ordered pair of trees. Caller-owned plain data (about 160 KB): zero it
+ * (or obb_cache_reset) before first use; it notices a different tree or query setting by itself,
+ * but not a tree rebuilt at the same address: reset it then. Never share one between threads.
+ * - witness: the last colliding voxel pair, tried first (a colliding pose stays colliding while
+ *   the user pushes into contact: answered in one test).
+ * - front: every node pair the last full search rejected, with its gap, for the relative pose it
+ *   was made at. A later query moves B by at most delta relative to A (from the two poses and B's
+ *   root box); a pair whose gap exceeds delta is still apart and is skipped, the rest are searched
+ *   again, so the answer stays exact. When too many pairs need a look, the search runs from the
+ *   root and makes a new front (also when the front would exceed OBB_FRONT_MAX pairs: no front). */
+#define OBB_FRONT_MAX 4096
+
+typedef struct obb_front_pair {
+    obb_node a, b;
+    double gap; /* mm, a lower bound on the distance between the two boxes at the reference pose */
+} obb_front_pair;
+
 typedef struct obb_cache {
-    int valid;
-    obb_node wa, wb;     /* last colliding leaf pair */
     int has_witness;
-    double axis[3];      /* last root separating axis, in A's frame */
-    int has_axis;
+    obb_node wa, wb;           /* last colliding voxel pair */
+    int front_valid;
+    size_t front_n;
+    const obb_tree *ta, *tb;   /* what the front was made for */
+    double threshold, tolerance_mm;
+    int inner_axes;
+    double ref_R[3][3], ref_t[3]; /* B's frame in A's frame when the front was made */
+    size_t reuses, rebuilds;   /* queries answered from the front / that made a new one */
+    obb_front_pair front[OBB_FRONT_MAX];
 } obb_cache;
 
 void obb_cache_reset(obb_cache *c);
