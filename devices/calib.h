@@ -48,6 +48,8 @@ typedef struct calib {
     int8_t bnmap[CALIB_BUTTONS];  /* device button i reported as button bnmap[i] (-1: dropped) */
     calib_action bnact[CALIB_BUTTONS]; /* action of device button i (instead of a button) */
     int led;               /* 0 off, 1 on, 2 auto (on while a fragment is held) */
+    float sens_base;       /* what sensitivity-reset returns to (the configured value) */
+    uint16_t keys_held[6]; /* key codes seen last (edge detection for report 0x1C) */
 } calib;
 
 /* Defaults: sensitivity 1, no dead zone beyond 0.01 per axis, linear, identity map, no locks,

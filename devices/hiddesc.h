@@ -9,6 +9,7 @@
 
 #define HIDDESC_REPORTS_MAX 64
 #define HIDDESC_USAGES_MAX 16
+#define HIDDESC_REPORT_BYTES_MAX 64 /* per report, ID byte included */
 
 typedef enum hiddesc_kind { HIDDESC_INPUT = 0, HIDDESC_OUTPUT = 1, HIDDESC_FEATURE = 2 } hiddesc_kind;
 
