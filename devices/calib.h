@@ -87,6 +87,10 @@ int calib_load(calib *c, const char *path, char *used, size_t used_cap, char *di
  * (excluding the NUL; truncated to cap). */
 size_t calib_format_spnavrc(const calib *c, char *out, size_t cap);
 
+/* Whether the LED should be lit: the `led` setting (on, off, or auto = while a fragment is held).
+ * The loop calls dev_set_led(d, calib_led(c, holding)) when either changes. */
+int calib_led(const calib *c, int holding);
+
 /* Action names in spnavrc ("sensitivity-up", ...), NULL for none; and back (-1 unknown). */
 const char *calib_action_name(calib_action a);
 int calib_action_parse(const char *name);
