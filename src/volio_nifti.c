@@ -251,7 +251,7 @@ int volio__write_nifti(const vol *v, const char *path, vol_type type)
     nifti_image_write(nim);
     nifti_image_free(nim);
     struct stat st;
-    if (stat(path, &st) != 0 || st.st_size < HDR_SIZE)
+    if (stat(path, &st) != 0 || st.st_size < (nifti_is_gzfile(path) ? 18 : HDR_SIZE))
         return fn_err_set(FN_EIO, "%s: write failed (disk full?)", path);
     return 0;
 }
