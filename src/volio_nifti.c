@@ -125,7 +125,7 @@ static int precheck(const char *path)
         return fn_err_set(FN_EFORMAT, "%s: dim %lldx%lldx%lld needs %llu bytes, more than a %llu-byte "
                           ".gz can hold", path, (long long)dim[0], (long long)dim[1], (long long)dim[2],
                           (unsigned long long)bytes, (unsigned long long)have);
-    char what[300];
+    char what[4200];
     snprintf(what, sizeof what, "%s: dim", path);
     return vol_check_dims(dim, sizeof(float) + (size_t)(bytes / ((uint64_t)dim[0] * dim[1] * dim[2])), what);
 }
