@@ -183,6 +183,41 @@ static void test_nifti_qform_only(void **st)
     free(dir);
 }
 
+/* The written qform alone (sform_code zeroed) gives the same geometry, for a right-handed grid
+ * and for a left-handed one like the InVesalius layout (qfac -1). */
+static void test_nifti_qform_written(void **st)
+{
+    char *dir = tu_tmpdir("qfac");
+    char path[4200];
+    snprintf(path, sizeof path, "%s/q.nii", dir);
+    for (int left = 0; left < 2; left++) {
+        vol *v = oblique_volume();
+        if (left)
+            for (int r = 0; r < 3; r++)
+                v->affine[r][1] = -v->affine[r][1];
+        assert_int_equal(volio_write(v, path, VOL_F32), 0);
+        size_t n;
+        char *b = tu_slurp(path, &n);
+        assert_non_null(b);
+        nifti_1_header h;
+        memcpy(&h, b, sizeof h);
+        assert_int_equal(h.qform_code, 1);
+        assert_int_equal(h.sform_code, 1);
+        assert_true(h.pixdim[0] == (left ? -1.0f : 1.0f));
+        h.sform_code = 0;
+        memcpy(b, &h, sizeof h);
+        tu_write_file(path, b, n);
+        free(b);
+        vol *w = volio_read(path);
+        assert_non_null(w);
+        assert_affine_near(v, w, 1e-4);
+        vol_free(w);
+        vol_free(v);
+    }
+    tu_rmtree(dir);
+    free(dir);
+}
+
 static void test_unknown_extension(void **st)
 {
     vol *v = oblique_volume();
@@ -317,6 +352,7 @@ int main(void)
         cmocka_unit_test(test_round_trip_compressed_and_detached),
         cmocka_unit_test(test_nrrd_spaces),
         cmocka_unit_test(test_nifti_qform_only),
+        cmocka_unit_test(test_nifti_qform_written),
         cmocka_unit_test(test_unknown_extension),
         cmocka_unit_test(test_example_ct_header),
         cmocka_unit_test(test_ct_pitch_geometry),
