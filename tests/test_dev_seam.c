@@ -235,12 +235,36 @@ static void test_keyboard_keys(void **s)
     free(dir);
 }
 
+/* Terminal mouse (SGR reports) and arrow keys through the same fallback. */
+static void test_keyboard_mouse(void **s)
+{
+    char *dir = tu_tmpdir("mouse");
+    char path[4200], spec[4300];
+    snprintf(path, sizeof path, "%s/events", dir);
+    /* left press at (10,10), drag to (12,9): rz +2 cells, rx +1 cell; then right-arrow; wheel */
+    const char ev1[] = "\033[<0;10;10M\033[<32;12;9M\033[C\033[<65;12;9M\033[<0;12;9m";
+    tu_write_file(path, ev1, sizeof ev1 - 1);
+    snprintf(spec, sizeof spec, "keyboard:%s", path);
+    dev_device *d = dev_open(spec);
+    assert_non_null(d);
+    dev_event ev;
+    assert_int_equal(dev_poll(d, &ev, 0), 1);
+    const float want[6] = {250, 0, 250, 70, 0, 140};
+    for (int i = 0; i < 6; i++)
+        if (fabsf(ev.axis[i] - want[i] / 350.0f) > 1e-6f)
+            fail_msg("axis %d: %g, want %g", i, ev.axis[i] * 350.0f, want[i]);
+    dev_close(d);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_registry),       cmocka_unit_test(test_drain_newest_state),
         cmocka_unit_test(test_unplug_replug),  cmocka_unit_test(test_led_and_serial),
         cmocka_unit_test(test_hidraw_path_errors), cmocka_unit_test(test_keyboard_keys),
+        cmocka_unit_test(test_keyboard_mouse),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
