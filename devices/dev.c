@@ -27,6 +27,8 @@ struct dev_device {
     devparse_state ps;
     char reopen[256];
     int64_t next_try_us;
+    dev_raw_hook hook;
+    void *hook_ctx;
 };
 
 int64_t dev_now_us(void)
@@ -263,6 +265,8 @@ int dev_poll(dev_device *d, dev_event *ev, int timeout_ms)
             return n;
         if (n == 0)
             break;
+        if (d->hook)
+            d->hook(d->hook_ctx, buf, (size_t)n, t_us);
         dev_event e;
         if (!devparse_report(&d->ps, buf, (size_t)n, t_us, &e))
             continue;
@@ -273,6 +277,12 @@ int dev_poll(dev_device *d, dev_event *ev, int timeout_ms)
         got = 1;
     }
     return got;
+}
+
+void dev_set_raw_hook(dev_device *d, dev_raw_hook hook, void *ctx)
+{
+    d->hook = hook;
+    d->hook_ctx = ctx;
 }
 
 int dev_set_led(dev_device *d, int on)

@@ -118,6 +118,15 @@ static void test_registry(void **s)
     assert_non_null(strstr(fn_err_msg(), "unknown transport 'nosuch'"));
 }
 
+static size_t hook_reports, hook_bytes;
+
+static void count_raw(void *ctx, const uint8_t *report, size_t len, int64_t t_us)
+{
+    hook_reports++;
+    hook_bytes += len;
+    assert_ptr_equal(ctx, &hook_reports);
+}
+
 /* A burst of queued motion is drained in one poll; only the newest state counts. */
 static void test_drain_newest_state(void **s)
 {
@@ -133,8 +142,11 @@ static void test_drain_newest_state(void **s)
     }
     const uint8_t junk[] = {0x42, 1, 2};
     push(junk, sizeof junk);
+    dev_set_raw_hook(d, count_raw, &hook_reports);
     dev_event ev;
     assert_int_equal(dev_poll(d, &ev, 0), 1);
+    assert_int_equal(hook_reports, 121); /* every raw report, the skipped one too */
+    assert_int_equal(hook_bytes, 120 * 7 + 3);
     assert_true(fabsf(ev.axis[0] - 60 / 350.0f) < 1e-6f);
     assert_true(fabsf(ev.axis[5] + 60 / 350.0f) < 1e-6f);
     assert_int_equal(fake.head, fake.tail); /* nothing stale left behind */
