@@ -281,14 +281,22 @@ static int emit(render *r, int64_t t, fnrec_dir dir, const uint8_t *b, int n)
 }
 
 /* The deflection for one tick: the target level plus the carried rounding error. */
-static void dither(render *r, int16_t out[6])
+static void dither(const render *r, int16_t out[6])
 {
-    for (int a = 0; a < 6; a++) {
-        double want = r->level[a] + r->carry[a];
-        double q = r->level[a] == 0 ? 0 : round(want);
-        out[a] = (int16_t)q;
-        r->carry[a] = r->level[a] == 0 ? 0 : want - q;
-    }
+    for (int a = 0; a < 6; a++)
+        out[a] = (int16_t)(r->level[a] == 0 ? 0 : round(r->level[a] + r->carry[a]));
+}
+
+/* The carry moves on only for the axes the report just sent carried. */
+static void commit_carry(render *r, const int16_t sent[6], const uint8_t *report, int n)
+{
+    int first = 0, count = 6;
+    if (n == 0 || report[0] > 2)
+        return;
+    if (r->dev.p->format == SIMDEV_SPLIT)
+        first = report[0] == 1 ? 0 : 3, count = 3;
+    for (int a = first; a < first + count; a++)
+        r->carry[a] = r->level[a] == 0 ? 0 : r->level[a] + r->carry[a] - sent[a];
 }
 
 /* Runs the device's periods up to (not including) t_end. */
@@ -300,6 +308,7 @@ static int run_until(render *r, int64_t t_end)
         simdev_set(&r->dev, a, r->dev.buttons);
         uint8_t buf[64];
         int n = simdev_next(&r->dev, buf, sizeof buf);
+        commit_carry(r, a, buf, n);
         int rc = n && r->plugged ? emit(r, r->next_tick, FNREC_IN, buf, n) : 0;
         if (rc)
             return rc;
