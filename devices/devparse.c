@@ -2,6 +2,8 @@
 
 #include <string.h>
 
+#include "err.h"
+
 enum { ID_MOTION = 1, ID_ROTATION = 2, ID_BUTTONS = 3, ID_BATTERY = 0x17, ID_KEYS = 0x1C };
 
 void devparse_init(devparse_state *st, const devtab_row *row, int axis_max)
@@ -161,4 +163,103 @@ size_t devparse_make_buttons(uint8_t *buf, uint32_t bits)
     for (int i = 0; i < 4; i++)
         buf[1 + i] = (uint8_t)(bits >> 8 * i);
     return 5;
+}
+
+size_t devparse_reports(const devtab_row *row, devparse_spec *out, size_t cap)
+{
+    devparse_spec all[12];
+    size_t n = 0;
+    if (row->format == DEVTAB_COMBINED)
+        all[n++] = (devparse_spec){0, ID_MOTION, 13};
+    else {
+        all[n++] = (devparse_spec){0, ID_MOTION, 7};
+        all[n++] = (devparse_spec){0, ID_ROTATION, 7};
+    }
+    if (row->nbuttons) {
+        int top = 0; /* highest raw bit used, for the report length */
+        for (int i = 0; i < 32; i++)
+            if (row->button_mask >> i & 1)
+                top = i + 1;
+        all[n++] = (devparse_spec){0, ID_BUTTONS, 1 + (size_t)(top + 7) / 8};
+    }
+    if (row->flags & DEVTAB_F_BATTERY)
+        all[n++] = (devparse_spec){0, ID_BATTERY, 2};
+    if (row->flags & DEVTAB_F_KEYCODES)
+        all[n++] = (devparse_spec){0, ID_KEYS, 13};
+    if (row->flags & DEVTAB_F_LED)
+        all[n++] = (devparse_spec){1, 4, 2};
+    if (row->flags & DEVTAB_F_OPEN) {
+        all[n++] = (devparse_spec){2, DEVPARSE_FEAT_INFO, 7};
+        all[n++] = (devparse_spec){2, DEVPARSE_FEAT_ZERO, 13};
+        all[n++] = (devparse_spec){2, DEVPARSE_FEAT_SETTINGS, 4};
+    }
+    for (size_t i = 0; i < n && i < cap; i++)
+        out[i] = all[i];
+    return n;
+}
+
+static int feature_check(const uint8_t *buf, size_t len, uint8_t id, size_t want)
+{
+    if (len != want || buf[0] != id)
+        return fn_err_set(FN_EFORMAT, "feature report 0x%02x: expected %zu bytes with ID 0x%02x, got %zu bytes "
+                          "with ID 0x%02x", id, want, id, len, len ? buf[0] : 0);
+    return 0;
+}
+
+int devparse_open_info_parse(const uint8_t *buf, size_t len, devparse_open_info *out)
+{
+    if (feature_check(buf, len, DEVPARSE_FEAT_INFO, 7))
+        return FN_EFORMAT;
+    *out = (devparse_open_info){buf[1], buf[2], buf[3], buf[4], le16(buf + 5)};
+    if (out->protocol != 1 || out->cadence_ms == 0 || out->axis_max <= 0)
+        return fn_err_set(FN_EFORMAT, "feature report 0x20: protocol %u (want 1), cadence %u ms, axis max %d: "
+                          "not a valid open controller", out->protocol, out->cadence_ms, out->axis_max);
+    return 0;
+}
+
+size_t devparse_open_info_make(uint8_t *buf, const devparse_open_info *in)
+{
+    buf[0] = DEVPARSE_FEAT_INFO;
+    buf[1] = in->protocol, buf[2] = in->fw_major, buf[3] = in->fw_minor, buf[4] = in->cadence_ms;
+    put16(buf + 5, in->axis_max);
+    return 7;
+}
+
+int devparse_open_zero_parse(const uint8_t *buf, size_t len, int16_t zero[6])
+{
+    if (feature_check(buf, len, DEVPARSE_FEAT_ZERO, 13))
+        return FN_EFORMAT;
+    for (int i = 0; i < 6; i++) {
+        zero[i] = le16(buf + 1 + 2 * i);
+        if (zero[i] < -350 || zero[i] > 350)
+            return fn_err_set(FN_EFORMAT, "feature report 0x21: zero offset of axis %d is %d (outside -350..350, "
+                              "offset %d)", i, zero[i], 1 + 2 * i);
+    }
+    return 0;
+}
+
+size_t devparse_open_zero_make(uint8_t *buf, const int16_t zero[6])
+{
+    buf[0] = DEVPARSE_FEAT_ZERO;
+    for (int i = 0; i < 6; i++)
+        put16(buf + 1 + 2 * i, zero[i] < -350 ? -350 : zero[i] > 350 ? 350 : zero[i]);
+    return 13;
+}
+
+int devparse_open_settings_parse(const uint8_t *buf, size_t len, devparse_open_settings *out)
+{
+    if (feature_check(buf, len, DEVPARSE_FEAT_SETTINGS, 4))
+        return FN_EFORMAT;
+    *out = (devparse_open_settings){buf[1], buf[2], buf[3]};
+    if (out->cadence_ms == 0 || out->led_mode > 1)
+        return fn_err_set(FN_EFORMAT, "feature report 0x22: cadence %u ms (offset 1) or LED mode %u (offset 3) "
+                          "out of range", out->cadence_ms, out->led_mode);
+    return 0;
+}
+
+size_t devparse_open_settings_make(uint8_t *buf, const devparse_open_settings *in)
+{
+    buf[0] = DEVPARSE_FEAT_SETTINGS;
+    buf[1] = in->cadence_ms, buf[2] = in->idle_zeros, buf[3] = in->led_mode;
+    return 4;
 }

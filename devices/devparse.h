@@ -48,4 +48,33 @@ size_t devparse_make_combined(uint8_t *buf, const int v[6]);
 size_t devparse_make_split(uint8_t *buf, int id, const int v[3]);
 size_t devparse_make_buttons(uint8_t *buf, uint32_t bits);
 
+/* The reports the parser and the device layer accept for a row: input reports (by the row's
+ * format and flags), output report 4 (LED rows), the open controller's feature reports. This is
+ * what firmware-spec's descriptor must declare, exactly (tests/test_dev_spec.c). */
+typedef struct devparse_spec {
+    int kind;   /* 0 input, 1 output, 2 feature (hiddesc_kind values) */
+    uint8_t id;
+    size_t len; /* bytes on the wire, report ID included */
+} devparse_spec;
+size_t devparse_reports(const devtab_row *row, devparse_spec *out, size_t cap);
+
+/* The open controller's feature reports (firmware-spec/open-controller.md). */
+enum { DEVPARSE_FEAT_INFO = 0x20, DEVPARSE_FEAT_ZERO = 0x21, DEVPARSE_FEAT_SETTINGS = 0x22 };
+typedef struct devparse_open_info {
+    uint8_t protocol, fw_major, fw_minor, cadence_ms;
+    int16_t axis_max;
+} devparse_open_info;
+typedef struct devparse_open_settings {
+    uint8_t cadence_ms; /* 1..255, default 8 */
+    uint8_t idle_zeros; /* zero reports after release, default 3 */
+    uint8_t led_mode;   /* 0 host-controlled (report 4), 1 lit while the cap is deflected */
+} devparse_open_settings;
+/* Parse (return 0 or FN_EFORMAT naming the report and field) and build (return the length). */
+int devparse_open_info_parse(const uint8_t *buf, size_t len, devparse_open_info *out);
+size_t devparse_open_info_make(uint8_t *buf, const devparse_open_info *in);
+int devparse_open_zero_parse(const uint8_t *buf, size_t len, int16_t zero[6]);
+size_t devparse_open_zero_make(uint8_t *buf, const int16_t zero[6]);
+int devparse_open_settings_parse(const uint8_t *buf, size_t len, devparse_open_settings *out);
+size_t devparse_open_settings_make(uint8_t *buf, const devparse_open_settings *in);
+
 #endif

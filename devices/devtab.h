@@ -47,7 +47,7 @@ typedef struct devtab_row {
 const devtab_row *devtab_rows(size_t *n);
 /* The row for vid:pid, or NULL when the device is not a supported 6-DOF controller. */
 const devtab_row *devtab_find(uint16_t vid, uint16_t pid);
-/* A synthetic row by name ("spnav", "keyboard"), NULL if absent. */
+/* A synthetic row by name ("spnav", "keyboard", "generic"), NULL if absent. */
 const devtab_row *devtab_synthetic(const char *name);
 /* "split", "combined", "legacy". */
 const char *devtab_format_name(devtab_format f);
