@@ -30,6 +30,11 @@ static void usage(FILE *out)
                  "Calibration comes from ~/.config/fracnav/spnavrc, else /etc/spnavrc, or --config.\n");
 }
 
+static void count_report(void *ctx, const uint8_t *report, size_t len, int64_t t_us)
+{
+    ++*(long *)ctx;
+}
+
 static void show(FILE *out, const dev_event *ev, const float cal[6], int battery, double rate, int tty)
 {
     static const char *const names[6] = {"x", "y", "z", "rx", "ry", "rz"};
@@ -37,6 +42,8 @@ static void show(FILE *out, const dev_event *ev, const float cal[6], int battery
     for (int i = 0; i < 6; i++)
         fprintf(out, "%s %+5.2f>%+5.2f ", names[i], ev->axis[i], cal[i]);
     fprintf(out, "| buttons %08x", ev->buttons);
+    if (ev->pressed || ev->released)
+        fprintf(out, " (+%x -%x)", ev->pressed, ev->released);
     for (int i = 0; i < 6 && ev->keys[i]; i++)
         fprintf(out, "%s%u", i ? "," : " keys ", ev->keys[i]);
     if (battery >= 0)
@@ -110,8 +117,9 @@ int cmd_device_test(int argc, char **argv)
     int tty = isatty(STDOUT_FILENO);
     int64_t start = dev_now_us(), end = seconds > 0 ? start + (int64_t)(seconds * 1e6) : INT64_MAX;
     int64_t last_line = 0, window = start;
-    long reports = 0;
+    long reports = 0; /* raw reports, counted as they are read */
     double rate = 0;
+    dev_set_raw_hook(d, count_report, &reports);
     while (!stop && dev_now_us() < end) {
         dev_event ev;
         int r = dev_poll(d, &ev, 50);
@@ -127,7 +135,6 @@ int cmd_device_test(int argc, char **argv)
         }
         if (r == 0)
             continue;
-        reports++;
         if (ev.flags & (DEV_EV_UNPLUG | DEV_EV_REPLUG))
             printf("%s%s\n", tty ? "\n" : "", ev.flags & DEV_EV_UNPLUG ? "unplugged: waiting for it to return"
                                                                          : "plugged in again");
