@@ -7,7 +7,9 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <fcntl.h>
 #include <sys/stat.h>
+#include <unistd.h>
 
 #include "err.h"
 
@@ -399,7 +401,7 @@ size_t calib_format_spnavrc(const calib *c, char *out, size_t cap)
         if (c->map[i] >= 0)
             put(out, cap, "axismap%d = %d\n", c->map[i], i);
     for (int i = 0; i < CALIB_BUTTONS; i++) {
-        if (c->bnmap[i] >= 0)
+        if (c->bnmap[i] >= 0 && c->bnmap[i] != i)
             put(out, cap, "bnmap%d = %d\n", i, c->bnmap[i]);
         if (c->bnact[i] != CALIB_ACT_NONE)
             put(out, cap, "bnact%d = %s\n", i, calib_action_name(c->bnact[i]));
@@ -411,4 +413,44 @@ size_t calib_format_spnavrc(const calib *c, char *out, size_t cap)
     for (int i = 0; i < 6; i++)
         put(out, cap, "zero-offset%d = %g\n", i, c->zero[i]);
     return strlen(out);
+}
+
+static int default_path(char *out, size_t cap)
+{
+    const char *home = getenv("HOME");
+    if (!home || !*home)
+        return fn_err_set(FN_EIO, "calibration: $HOME is not set: give a file to save to");
+    char dir[512];
+    snprintf(dir, sizeof dir, "%s/.config", home);
+    mkdir(dir, 0755);
+    snprintf(dir, sizeof dir, "%s/.config/fracnav", home);
+    if (mkdir(dir, 0755) && errno != EEXIST)
+        return fn_err_set(FN_EIO, "%s: %s", dir, strerror(errno));
+    snprintf(out, cap, "%s/spnavrc", dir);
+    return 0;
+}
+
+int calib_save(const calib *c, const char *path, char *used, size_t used_cap)
+{
+    char def[600], tmp[700], text[8192];
+    if (!path) {
+        if (default_path(def, sizeof def))
+            return FN_EIO;
+        path = def;
+    }
+    size_t n = calib_format_spnavrc(c, text, sizeof text);
+    snprintf(tmp, sizeof tmp, "%s.tmp", path);
+    int fd = open(tmp, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+    if (fd < 0)
+        return fn_err_set(FN_EIO, "%s: %s", tmp, strerror(errno));
+    int ok = write(fd, text, n) == (ssize_t)n && fsync(fd) == 0;
+    ok = close(fd) == 0 && ok;
+    if (!ok || rename(tmp, path) != 0) {
+        int e = errno;
+        unlink(tmp);
+        return fn_err_set(FN_EIO, "%s: cannot save the calibration: %s", path, strerror(e));
+    }
+    if (used && used_cap)
+        snprintf(used, used_cap, "%s", path);
+    return 0;
 }
