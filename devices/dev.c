@@ -198,7 +198,8 @@ static void lost(dev_device *d, dev_event *ev)
     ev->battery = -1;
 }
 
-/* Same path first; else the same vid:pid:serial wherever it reappeared. */
+/* Same path first; else the same vid:pid:serial wherever it reappeared (a replugged device may get
+ * another hidraw number; devices without a serial number match on vid:pid). */
 static int try_reopen(dev_device *d)
 {
     dev_handle *h = NULL;
@@ -207,7 +208,7 @@ static int try_reopen(dev_device *d)
         return 1;
     }
     dev_info found[16];
-    int n = d->t->enumerate && d->info.serial[0] ? d->t->enumerate(found, 16) : 0;
+    int n = d->t->enumerate && d->info.vid ? d->t->enumerate(found, 16) : 0;
     for (int k = 0; k < n && k < 16; k++)
         if (found[k].vid == d->info.vid && found[k].pid == d->info.pid &&
             !strcmp(found[k].serial, d->info.serial) && d->t->open(found[k].path, &h) == 0) {

@@ -25,6 +25,7 @@ static struct {
     uint8_t out[8];
     size_t out_len;
     char serial[16];
+    char path[16]; /* where the device is now ("" = anywhere) */
 } fake;
 
 struct dev_handle {
@@ -39,7 +40,7 @@ static void push(const uint8_t *r, size_t n)
 
 static int f_open(const char *path, dev_handle **out)
 {
-    if (!fake.plugged)
+    if (!fake.plugged || (path && fake.path[0] && strcmp(path, "any") && strcmp(path, fake.path)))
         return fn_err_set(FN_ENODEV, "fake: %s not plugged", path ? path : "(first)");
     *out = calloc(1, sizeof **out);
     fake.opens++;
@@ -68,7 +69,7 @@ static int f_write(dev_handle *h, const uint8_t *buf, size_t len)
 static int f_info(dev_handle *h, dev_info *out)
 {
     memset(out, 0, sizeof *out);
-    strcpy(out->path, "fake0");
+    strcpy(out->path, fake.path[0] ? fake.path : "fake0");
     out->vid = 0x046d, out->pid = 0xc626; /* a SpaceNavigator: split format, LED */
     strcpy(out->serial, fake.serial);
     return 0;
@@ -270,13 +271,34 @@ static void test_keyboard_mouse(void **s)
     free(dir);
 }
 
+/* Replugged under another name (a new hidraw number): found again by vid:pid:serial. */
+static void test_replug_elsewhere(void **s)
+{
+    reset_fake();
+    strcpy(fake.path, "fake0");
+    dev_device *d = dev_open("fake:fake0");
+    assert_non_null(d);
+    dev_event ev;
+    fake.plugged = 0;
+    assert_int_equal(dev_poll(d, &ev, 0), 1);
+    assert_true(ev.flags & DEV_EV_UNPLUG);
+    strcpy(fake.path, "fake7");
+    fake.plugged = 1;
+    int back = 0;
+    for (int i = 0; i < 20 && !back; i++)
+        back = dev_poll(d, &ev, 100) == 1 && (ev.flags & DEV_EV_REPLUG);
+    assert_true(back);
+    assert_true(dev_connected(d));
+    dev_close(d);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_registry),       cmocka_unit_test(test_drain_newest_state),
         cmocka_unit_test(test_unplug_replug),  cmocka_unit_test(test_led_and_serial),
         cmocka_unit_test(test_hidraw_path_errors), cmocka_unit_test(test_keyboard_keys),
-        cmocka_unit_test(test_keyboard_mouse),
+        cmocka_unit_test(test_keyboard_mouse),     cmocka_unit_test(test_replug_elsewhere),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
