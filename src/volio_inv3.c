@@ -455,7 +455,9 @@ static int next_entry(stream *s, entry *e)
     for (;;) {
         int64_t at = gztell(s->gz);
         int got = gzread(s->gz, h, sizeof h);
-        if (got == 0)
+        int zerr = Z_OK;
+        gzerror(s->gz, &zerr);
+        if (got == 0 && zerr == Z_OK)
             return 0; /* a tar without its end blocks: accept, as GNU tar does */
         if (got != (int)sizeof h)
             return gz_fail(s, at, "a tar header", sizeof h, got);
