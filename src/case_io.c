@@ -193,7 +193,7 @@ int case_save(fcase *c)
         rc = case_file_sha256(ltmp, lsha);
     if (rc == 0) {
         json_t *root = case_json(c, lsha);
-        char *text = json_dumps(root, JSON_INDENT(2) | JSON_REAL_PRECISION(15));
+        char *text = json_dumps(root, JSON_INDENT(2) | JSON_REAL_PRECISION(17));
         json_decref(root);
         if (!text)
             rc = fn_err_set(FN_ENOMEM, "%s: cannot serialise the case", jfin);
@@ -310,8 +310,10 @@ static int get_pose(struct reader *r, json_t *obj, const char *prefix, const cha
     if (get_nums(r, o, pre, "q", p->q, 4) < 0 || get_nums(r, o, pre, "t", p->t, 3) < 0)
         return FN_EFORMAT;
     double n2 = p->q[0] * p->q[0] + p->q[1] * p->q[1] + p->q[2] * p->q[2] + p->q[3] * p->q[3];
-    if (fabs(n2 - 1) > 1e-6)
+    if (fabs(n2 - 1) > 1e-6) {
+        snprintf(r->field, sizeof r->field, "%sq", pre);
         return bad(r, "the quaternion is not of unit length");
+    }
     return 0;
 }
 
