@@ -91,6 +91,8 @@ static int parse(int argc, char **argv, fracture_params *p, const char **in, con
     }
     if (!*in || !*out || !have_seed)
         return bad_usage("%s", "needs VOLUME, -o CASE and --seed N");
+    if (fracture_check(p) < 0)
+        return bad_usage("%s", fn_err_msg());
     return 0;
 }
 

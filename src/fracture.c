@@ -332,7 +332,7 @@ static vol *vol_clone(const vol *v)
     return c;
 }
 
-static int validate(const fracture_params *p)
+int fracture_check(const fracture_params *p)
 {
     if (p->pieces < 2 || p->pieces > 16)
         return fn_err_set(FN_EINVAL, "fracture: pieces must be 2..16 (got %d)", p->pieces);
@@ -385,7 +385,7 @@ static int displace_pieces(fracture_result *r, const vol *ct, uint64_t *rng,
 int fracture_make(const vol *ct, const fracture_params *p, fracture_result *out)
 {
     memset(out, 0, sizeof *out);
-    int rc = validate(p);
+    int rc = fracture_check(p);
     if (rc < 0)
         return rc;
     seg_params sp;

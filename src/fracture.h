@@ -46,6 +46,8 @@ typedef struct fracture_result {
 /* Defaults: 2 pieces, 3 mm, 3 degrees, no bone loss, roughness 3 mm, wavelength 24 mm, 300 HU,
  * fill 40 HU, seed 1. */
 void fracture_defaults(fracture_params *p);
+/* 0 if the parameters are in range, else FN_EINVAL saying which. */
+int fracture_check(const fracture_params *p);
 /* 0 and *out filled (free with fracture_result_free), or a negative FN_E* code. */
 int fracture_make(const vol *ct, const fracture_params *p, fracture_result *out);
 void fracture_result_free(fracture_result *r);
