@@ -30,7 +30,7 @@ static void usage(FILE *out)
             "  --displace MM          translation of each moved piece (default 3)\n"
             "  --rotate DEG           rotation of each moved piece about its centroid (default 3)\n"
             "  --bone-loss MM         thickness of bone lost along each cut (default 0)\n"
-            "  --roughness MM         amplitude of the fracture surface's relief (default 3)\n"
+            "  --roughness MM         RMS relief of the fracture surface (default 2)\n"
             "  --threshold HU         bone threshold (default 300)\n"
             "  --help                 this text\n");
 }

@@ -15,8 +15,8 @@ void fracture_defaults(fracture_params *p)
     p->pieces = 2;
     p->displace_mm = 3;
     p->rotate_deg = 3;
-    p->roughness_mm = 3;
-    p->wavelength_mm = 24;
+    p->roughness_mm = 2;
+    p->wavelength_mm = 16;
     p->threshold = 300;
     p->fill = 40;
 }
@@ -70,7 +70,8 @@ double fracture_fbm(uint64_t seed, const double x[3])
         for (int a = 0; a < 3; a++)
             p[a] = p[a] * 2 + 17.25;
     }
-    return sum / norm;
+    /* Octave-normalised value noise has a standard deviation of about 0.23: scale it to ~1. */
+    return sum / norm * 4.3;
 }
 
 /* sin and cos of x in [-pi, pi] by Taylor series: the same bits on every machine, unlike libm. */
