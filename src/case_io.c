@@ -119,7 +119,8 @@ static json_t *case_json(const fcase *c, const char *labels_sha)
     json_object_set_new(root, "labels", l);
     json_t *sg = json_object();
     json_object_set_new(sg, "threshold", json_real(c->seg.threshold));
-    json_object_set_new(sg, "threshold_auto", json_boolean(c->seg.threshold_auto));
+    static const char *modes[] = {"value", "auto", "auto-bone"};
+    json_object_set_new(sg, "threshold_mode", json_string(modes[c->seg.threshold_auto % 3]));
     json_object_set_new(sg, "min_volume_ml", json_real(c->seg.min_volume_ml));
     json_object_set_new(sg, "exclude_below_peak",
                         c->seg.exclude_peak ? json_real(c->seg.exclude_below_peak) : json_null());
@@ -329,10 +330,13 @@ static int read_seg(struct reader *r, json_t *root, seg_params *sp)
         get_int(r, sg, p, "keep", 0, 1000000, &keep) < 0 || get_num(r, sg, p, "ramp", &sp->ramp) < 0)
         return FN_EFORMAT;
     sp->keep = (int)keep;
-    json_t *a = get(r, sg, p, "threshold_auto");
-    if (!a || !json_is_boolean(a))
-        return a ? bad(r, "expected true or false") : FN_EFORMAT;
-    sp->threshold_auto = json_is_true(a);
+    const char *mode = get_str(r, sg, p, "threshold_mode");
+    if (!mode)
+        return FN_EFORMAT;
+    if (!strcmp(mode, "value") || !strcmp(mode, "auto") || !strcmp(mode, "auto-bone"))
+        sp->threshold_auto = mode[0] == 'v' ? 0 : strlen(mode) > 4 ? 2 : 1;
+    else
+        return bad(r, "expected \"value\", \"auto\" or \"auto-bone\"");
     json_t *e = get(r, sg, p, "exclude_below_peak");
     if (!e)
         return FN_EFORMAT;

@@ -173,6 +173,52 @@ static void test_filters(void **st)
     vol_free(v);
 }
 
+/* Air, a big block of tissue and a smaller bone inside it: auto splits air from tissue, auto-bone
+ * finds the bone. */
+static void test_otsu_twice_finds_bone(void **st)
+{
+    vol *v = vol_new(30, 30, 30);
+    for (int k = 0; k < 30; k++)
+        for (int j = 0; j < 30; j++)
+            for (int i = 0; i < 30; i++) {
+                float x = (float)((i + 2 * j + 3 * k) % 5);
+                int tissue = i >= 3 && i < 27 && j >= 3 && j < 27 && k >= 3 && k < 27;
+                int bone = i >= 10 && i < 16 && j >= 10 && j < 16 && k >= 10 && k < 16;
+                v->data[vol_idx(v, i, j, k)] = bone ? 200 + x : tissue ? 80 + x : x;
+            }
+    seg_params p;
+    seg_defaults(&p);
+    p.min_volume_ml = 0;
+    p.threshold_auto = 1;
+    seg_result r;
+    assert_int_equal(seg_run(v, &p, &r), 0);
+    assert_int_equal((int)r.comp[0].voxels, 24 * 24 * 24);
+    seg_result_free(&r);
+    p.threshold_auto = 2;
+    assert_int_equal(seg_run(v, &p, &r), 0);
+    assert_true(r.threshold > 84 && r.threshold <= 200);
+    assert_int_equal(r.ncomp, 1);
+    assert_int_equal((int)r.comp[0].voxels, 216);
+    seg_result_free(&r);
+    vol_free(v);
+}
+
+static void test_cli_usage(void **st)
+{
+    char *out;
+    assert_int_equal(tu_run_cli(&out, "segment --help"), 0);
+    assert_non_null(strstr(out, "--exclude-below-peak"));
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "segment /nonexistent.nii.gz"), 2);
+    assert_non_null(strstr(out, "fracnav segment: needs VOLUME and -o CASE"));
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "segment x.nii -o y --threshold lots"), 2);
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "segment /nonexistent.nii.gz -o /tmp/never-made"), 1);
+    assert_non_null(strstr(out, "fracnav segment: /nonexistent.nii.gz"));
+    free(out);
+}
+
 static void test_prob_ramp(void **st)
 {
     assert_int_equal(seg_prob(300, 300, 200), 128);
@@ -297,6 +343,8 @@ int main(void)
         cmocka_unit_test(test_components_join_late),
         cmocka_unit_test(test_otsu_splits_two_classes),
         cmocka_unit_test(test_filters),
+        cmocka_unit_test(test_otsu_twice_finds_bone),
+        cmocka_unit_test(test_cli_usage),
         cmocka_unit_test(test_prob_ramp),
         cmocka_unit_test(test_eigen),
         cmocka_unit_test(test_fragment_geometry),
