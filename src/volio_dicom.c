@@ -103,7 +103,7 @@ vol *volio__read_dicom(const char *dir)
 {
     const char *tmp = getenv("TMPDIR");
     char out[PATH_CAP], log[PATH_CAP + 16], pick[PATH_CAP + 300], why[256];
-    snprintf(out, sizeof out, "%s/fracnav-dicom-XXXXXX", tmp && *tmp ? tmp : "/tmp");
+    snprintf(out, sizeof out, "%s/fracnav-dcm2niix-XXXXXX", tmp && *tmp ? tmp : "/tmp");
     if (!mkdtemp(out)) {
         fn_err_set(FN_EIO, "%s: cannot make a temporary folder %s: %s", dir, out, strerror(errno));
         return NULL;

@@ -402,7 +402,7 @@ static const char *base_name(const char *p)
 static vol *read_matrix(stream *s, const inv3_info *info, int64_t size)
 {
     int64_t dim[3] = {info->shape[2], info->shape[1], info->shape[0]};
-    char what[300];
+    char what[4200];
     snprintf(what, sizeof what, "%s: main.plist: matrix.shape", s->path);
     if (vol_check_dims(dim, sizeof(float), what) < 0)
         return NULL;

@@ -125,7 +125,7 @@ static int precheck(const char *path)
         return fn_err_set(FN_EFORMAT, "%s: dim %lldx%lldx%lld needs %llu bytes, more than a %llu-byte "
                           ".gz can hold", path, (long long)dim[0], (long long)dim[1], (long long)dim[2],
                           (unsigned long long)bytes, (unsigned long long)have);
-    char what[300];
+    char what[4200];
     snprintf(what, sizeof what, "%s: dim", path);
     return vol_check_dims(dim, sizeof(float) + (size_t)(bytes / ((uint64_t)dim[0] * dim[1] * dim[2])), what);
 }
@@ -172,7 +172,9 @@ static int load_data(const nifti_image *nim, const char *path, vol_type t, vol *
         return fn_err_set(FN_EIO, "%s: cannot open: %s", path, strerror(errno ? errno : ENOMEM));
     gzbuffer(gz, 1 << 17);
     _Alignas(8) unsigned char buf[1 << 16];
-    int rc = gzseek(gz, nim->iname_offset, SEEK_SET) == nim->iname_offset ? 0 : -1;
+    int rc = gzseek(gz, nim->iname_offset, SEEK_SET) == nim->iname_offset
+                 ? 0
+                 : fn_err_set(FN_EFORMAT, "%s: data truncated before vox_offset %d", path, nim->iname_offset);
     for (size_t done = 0; rc == 0 && done < n;) {
         size_t m = n - done < sizeof buf / es ? n - done : sizeof buf / es;
         if (gzread(gz, buf, (unsigned)(m * es)) != (int)(m * es)) {
@@ -190,8 +192,6 @@ static int load_data(const nifti_image *nim, const char *path, vol_type t, vol *
         volio__to_float(buf, t, m, slope, inter, v->data + done);
         done += m;
     }
-    if (rc < 0 && !strstr(fn_err_msg(), path))
-        rc = fn_err_set(FN_EFORMAT, "%s: data truncated before vox_offset %d", path, nim->iname_offset);
     gzclose(gz);
     return rc;
 }

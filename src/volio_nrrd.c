@@ -42,9 +42,9 @@ static int teem_error(int code, const char *path, const char *what)
             *--end = '\0';
         char *line = strrchr(e, '\n');
         line = line ? line + 1 : e;
-        char *colon = line[0] == '[' ? strstr(line, ": ") : NULL;
         while (*line == ' ')
             line++;
+        char *colon = line[0] == '[' ? strstr(line, ": ") : NULL;
         cause = colon ? colon + 2 : line;
     }
     fn_err_set(code, "%s: %s: %s", path, what, cause);
@@ -55,6 +55,9 @@ static int teem_error(int code, const char *path, const char *what)
 /* Bytes of data the header promises, against what the (first) data file holds. */
 static int check_size(NrrdIoState *nio, const char *path, int64_t dim[3], vol_type t)
 {
+    for (int a = 0; a < 3; a++)
+        if (dim[a] <= 0 || dim[a] > (1 << 20))
+            return 0; /* vol_check_dims names these */
     uint64_t bytes = (uint64_t)dim[0] * (uint64_t)dim[1] * (uint64_t)dim[2] * volio__type_size(t);
     struct stat st;
     if (!nio->dataFile || nio->byteSkip < 0 || fstat(fileno(nio->dataFile), &st) != 0)
@@ -92,7 +95,7 @@ static int precheck(const char *path)
         int64_t dim[3];
         for (int a = 0; a < 3; a++)
             dim[a] = n->axis[a].size > (size_t)INT64_MAX ? -1 : (int64_t)n->axis[a].size;
-        char what[300];
+        char what[4200];
         snprintf(what, sizeof what, "%s: sizes", path);
         rc = check_size(nio, path, dim, t);
         if (rc == 0)

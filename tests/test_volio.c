@@ -12,6 +12,7 @@
 #include "volio.h"
 
 #include <math.h>
+#include <nifti1.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -104,6 +105,117 @@ static void test_round_trip_compressed_and_detached(void **st)
     round_trip(".nii.gz", VOL_F32, 1e-4);
     round_trip(".nhdr", VOL_U16, 1e-9);
     round_trip(".nhdr", VOL_F64, 1e-9);
+}
+
+static vol *read_text_nrrd(const char *dir, const char *name, const char *header)
+{
+    char path[4200];
+    snprintf(path, sizeof path, "%s/%s", dir, name);
+    size_t hl = strlen(header);
+    unsigned char *b = calloc(1, hl + 8);
+    memcpy(b, header, hl);
+    tu_write_file(path, b, hl + 8); /* 2x2x2 uint8 of zeros */
+    free(b);
+    vol *v = volio_read(path);
+    if (!v)
+        fail_msg("%s: %s", name, fn_err_msg());
+    return v;
+}
+
+#define HEAD2 "NRRD0004\ntype: uchar\ndimension: 3\nencoding: raw\nsizes: 2 2 2\n"
+
+static void test_nrrd_spaces(void **st)
+{
+    char *dir = tu_tmpdir("spaces");
+    static const double lps[3][4] = {{-1, 0, 0, -10}, {0, -2, 0, -20}, {0, 0, 3, 30}};
+    vol *v = read_text_nrrd(dir, "ras.nrrd", HEAD2 "space: right-anterior-superior\n"
+                            "space directions: (1,0,0) (0,2,0) (0,0,3)\nspace origin: (10,20,30)\n\n");
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 4; c++)
+            assert_true(v->affine[r][c] == lps[r][c]);
+    vol_free(v);
+    v = read_text_nrrd(dir, "scanner.nrrd", HEAD2 "space: scanner-xyz\n"
+                       "space directions: (-1,0,0) (0,-2,0) (0,0,3)\nspace origin: (-10,-20,30)\n\n");
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 4; c++)
+            assert_true(v->affine[r][c] == lps[r][c]);
+    vol_free(v);
+    v = read_text_nrrd(dir, "bare.nrrd", HEAD2 "spacings: 2 3 4\n\n");
+    assert_true(v->affine[0][0] == 2 && v->affine[1][1] == 3 && v->affine[2][2] == 4);
+    assert_true(v->affine[0][1] == 0 && v->affine[0][3] == 0);
+    vol_free(v);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* A qform-only NIfTI (no sform): a rotation of 30 degrees about z, read as LPS. */
+static void test_nifti_qform_only(void **st)
+{
+    nifti_1_header h;
+    memset(&h, 0, sizeof h);
+    h.sizeof_hdr = 348;
+    h.dim[0] = 3, h.dim[1] = h.dim[2] = h.dim[3] = 2;
+    h.dim[4] = h.dim[5] = h.dim[6] = h.dim[7] = 1;
+    h.datatype = DT_UINT8, h.bitpix = 8;
+    h.pixdim[0] = 1, h.pixdim[1] = 0.5f, h.pixdim[2] = 1.5f, h.pixdim[3] = 2.5f;
+    h.vox_offset = 352;
+    h.qform_code = 1;
+    double th = 30 * M_PI / 180;
+    h.quatern_d = (float)sin(th / 2);
+    h.qoffset_x = 5, h.qoffset_y = -6, h.qoffset_z = 7;
+    memcpy(h.magic, "n+1", 4);
+    unsigned char b[360] = {0};
+    memcpy(b, &h, sizeof h);
+    char *dir = tu_tmpdir("qform");
+    char path[4200];
+    snprintf(path, sizeof path, "%s/q.nii", dir);
+    tu_write_file(path, b, sizeof b);
+    vol *v = volio_read(path);
+    if (!v)
+        fail_msg("%s", fn_err_msg());
+    const double ras[3][4] = {{0.5 * cos(th), -1.5 * sin(th), 0, 5}, {0.5 * sin(th), 1.5 * cos(th), 0, -6},
+                              {0, 0, 2.5, 7}};
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 4; c++)
+            assert_true(fabs(v->affine[r][c] - (r < 2 ? -ras[r][c] : ras[r][c])) < 1e-5);
+    vol_free(v);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* The written qform alone (sform_code zeroed) gives the same geometry, for a right-handed grid
+ * and for a left-handed one like the InVesalius layout (qfac -1). */
+static void test_nifti_qform_written(void **st)
+{
+    char *dir = tu_tmpdir("qfac");
+    char path[4200];
+    snprintf(path, sizeof path, "%s/q.nii", dir);
+    for (int left = 0; left < 2; left++) {
+        vol *v = oblique_volume();
+        if (left)
+            for (int r = 0; r < 3; r++)
+                v->affine[r][1] = -v->affine[r][1];
+        assert_int_equal(volio_write(v, path, VOL_F32), 0);
+        size_t n;
+        char *b = tu_slurp(path, &n);
+        assert_non_null(b);
+        nifti_1_header h;
+        memcpy(&h, b, sizeof h);
+        assert_int_equal(h.qform_code, 1);
+        assert_int_equal(h.sform_code, 1);
+        assert_true(h.pixdim[0] == (left ? -1.0f : 1.0f));
+        h.sform_code = 0;
+        memcpy(b, &h, sizeof h);
+        tu_write_file(path, b, n);
+        free(b);
+        vol *w = volio_read(path);
+        assert_non_null(w);
+        assert_affine_near(v, w, 1e-4);
+        vol_free(w);
+        vol_free(v);
+    }
+    tu_rmtree(dir);
+    free(dir);
 }
 
 static void test_unknown_extension(void **st)
@@ -238,6 +350,9 @@ int main(void)
         cmocka_unit_test(test_round_trip_nii_all_types),
         cmocka_unit_test(test_round_trip_nrrd_all_types),
         cmocka_unit_test(test_round_trip_compressed_and_detached),
+        cmocka_unit_test(test_nrrd_spaces),
+        cmocka_unit_test(test_nifti_qform_only),
+        cmocka_unit_test(test_nifti_qform_written),
         cmocka_unit_test(test_unknown_extension),
         cmocka_unit_test(test_example_ct_header),
         cmocka_unit_test(test_ct_pitch_geometry),
