@@ -11,7 +11,6 @@ void seg_defaults(seg_params *p)
     memset(p, 0, sizeof *p);
     p->threshold = 300;
     p->min_volume_ml = 0.5;
-    p->exclude_below_peak = 0;
     p->ramp = 200;
 }
 

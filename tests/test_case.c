@@ -243,6 +243,55 @@ static void test_changed_files(void **st)
     free(dir);
 }
 
+/* Truncations and byte changes all over case.json: never a crash, and every refusal names the file
+ * it is about. */
+static void test_corruption_battery(void **st)
+{
+    char *dir = tu_tmpdir("case"), src[4200], cdir[4200], json[4300];
+    snprintf(src, sizeof src, "%s/ct.nii.gz", dir);
+    snprintf(cdir, sizeof cdir, "%s/case", dir);
+    snprintf(json, sizeof json, "%s/case.json", cdir);
+    write_ct(src, 700);
+    fcase *c = make_case(cdir, src);
+    assert_int_equal(case_save(c), 0);
+    case_free(c);
+    size_t len;
+    char *orig = tu_slurp(json, &len);
+    char *buf = malloc(len);
+    static const char subst[] = "x9\"}-[";
+    int refused = 0, loaded = 0;
+    for (size_t off = 0; off < len; off += 13) {
+        for (int v = 0; v <= (int)strlen(subst); v++) {
+            memcpy(buf, orig, len);
+            size_t n = len;
+            if (v == (int)strlen(subst))
+                n = off;
+            else
+                buf[off] = subst[v];
+            tu_write_file(json, buf, n);
+            fcase *d = case_load(cdir);
+            if (d) {
+                loaded++;
+                case_free(d);
+                continue;
+            }
+            refused++;
+            const char *m = fn_err_msg();
+            if (!strstr(m, "case.json") && !strstr(m, "labels") && !strstr(m, "ct.nii.gz"))
+                fail_msg("offset %zu: error names no file: %s", off, m);
+        }
+    }
+    assert_true(refused > 100);
+    tu_write_file(json, orig, len);
+    fcase *d = case_load(cdir);
+    assert_non_null(d);
+    case_free(d);
+    free(orig);
+    free(buf);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -250,6 +299,7 @@ int main(void)
         cmocka_unit_test(test_folder_moves),
         cmocka_unit_test(test_damaged_fields),
         cmocka_unit_test(test_changed_files),
+        cmocka_unit_test(test_corruption_battery),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
