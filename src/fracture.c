@@ -1,12 +1,17 @@
 #include "fracture.h"
 
+#include "case.h"
 #include "err.h"
 #include "frag.h"
 #include "seg.h"
+#include "volio.h"
 
+#include <errno.h>
 #include <math.h>
 #include <stdlib.h>
+#include <stdio.h>
 #include <string.h>
+#include <sys/stat.h>
 
 void fracture_defaults(fracture_params *p)
 {
@@ -442,4 +447,38 @@ void fracture_result_free(fracture_result *r)
     free(r->truth);
     free(r->moved);
     memset(r, 0, sizeof *r);
+}
+
+fcase *fracture_make_case(const vol *ct, const fracture_params *p, const char *dir)
+{
+    fracture_result r;
+    if (fracture_make(ct, p, &r) < 0)
+        return NULL;
+    char src[4200];
+    snprintf(src, sizeof src, "%s/source.nii.gz", dir);
+    vol_type t = ct->src_type == VOL_F64 ? VOL_F32 : ct->src_type;
+    fcase *c = NULL;
+    if (mkdir(dir, 0755) != 0 && errno != EEXIST)
+        fn_err_set(FN_EIO, "%s: cannot create the case folder: %s", dir, strerror(errno));
+    else if (volio_write(r.ct, src, t) == 0) {
+        seg_params sp;
+        seg_defaults(&sp);
+        sp.threshold = p->threshold;
+        sp.min_volume_ml = 0;
+        c = case_create(dir, src, r.ct, r.labels, &sp);
+        r.ct = r.labels = NULL;
+    }
+    if (c) {
+        /* Fragment ids are piece numbers; a piece pushed off the grid entirely has no fragment. */
+        c->has_truth = 1;
+        for (int i = 0; i < c->nfrag; i++)
+            c->truth[i] = r.truth[c->frag[i].id - 1];
+        c->fixed = case_find(c, 1);
+        if (case_save(c) < 0) {
+            case_free(c);
+            c = NULL;
+        }
+    }
+    fracture_result_free(&r);
+    return c;
 }
