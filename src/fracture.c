@@ -269,9 +269,10 @@ static pose random_motion(uint64_t *rng, const double centroid[3], const double 
 }
 
 /* Resamples piece `id` of cut (on the original grid) moved by m into out_lab/out_ct (nearest
- * neighbour). Counts voxels that would land on another piece; writes only when apply. */
+ * neighbour). Counts voxels that would land on another piece or on a bright object that is not
+ * bone (the head holder: >= threshold in src_ct but in no piece); writes only when apply. */
 static size_t place_piece(const vol *cut, const vol *src_ct, vol *out_lab, vol *out_ct, int id,
-                          pose m, int apply)
+                          pose m, double threshold, int apply)
 {
     int lo[3], hi[3];
     label_box(cut, id, lo, hi);
@@ -314,7 +315,8 @@ static size_t place_piece(const vol *cut, const vol *src_ct, vol *out_lab, vol *
                 if (cut->data[from] != (float)id)
                     continue;
                 size_t to = vol_idx(out_lab, i, j, k);
-                if (out_lab->data[to] != 0 && out_lab->data[to] != (float)id) {
+                int other = out_lab->data[to] != 0 && out_lab->data[to] != (float)id;
+                if (other || (cut->data[to] == 0 && src_ct->data[to] >= threshold)) {
                     conflicts++;
                     continue;
                 }
@@ -374,14 +376,14 @@ static int displace_pieces(fracture_result *r, const vol *ct, uint64_t *rng,
         pose m = random_motion(rng, f.centroid, normals[id - 2], p, dir);
         frag_free(&f);
         int push = 0;
-        while (place_piece(r->cut, ct, r->labels, r->ct, id, m, 0) > 0) {
+        while (place_piece(r->cut, ct, r->labels, r->ct, id, m, p->threshold, 0) > 0) {
             if (++push > 100)
                 return fn_err_set(FN_EINVAL, "fracture: piece %d cannot be placed clear of the "
                                              "others", id);
             for (int a = 0; a < 3; a++)
                 m.t[a] += normals[id - 2][a];
         }
-        place_piece(r->cut, ct, r->labels, r->ct, id, m, 1);
+        place_piece(r->cut, ct, r->labels, r->ct, id, m, p->threshold, 1);
         r->moved[id - 1] = m;
         r->truth[id - 1] = pose_inverse(m);
     }
