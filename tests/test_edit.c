@@ -173,6 +173,40 @@ static void test_erase_keep_drop_fix(void **st)
     case_free(c);
 }
 
+/* Region growing brings a dropped block back, as a new fragment or into an existing one. */
+static void test_grow(void **st)
+{
+    struct fixture *f = *st;
+    char *out;
+    assert_int_equal(edit(f, &out, "drop 3"), 0);
+    free(out);
+    assert_int_equal(edit(f, &out, "grow 131 222 315"), 0);
+    assert_non_null(strstr(out, "grew fragment 3 to 80 voxels"));
+    free(out);
+    assert_int_equal(edit(f, &out, "grow 131 222 315"), 1);
+    assert_non_null(strstr(out, "belongs to fragment 3 already"));
+    free(out);
+    assert_int_equal(edit(f, &out, "grow 101 201 301"), 1); /* air at the grid's corner */
+    assert_non_null(strstr(out, "under the threshold 300"));
+    free(out);
+    assert_int_equal(edit(f, &out, "grow 0 0 0"), 1);
+    assert_non_null(strstr(out, "outside the volume"));
+    free(out);
+    assert_int_equal(edit(f, &out, "drop 3"), 0);
+    free(out);
+    /* A threshold above the block's 500 HU finds nothing to grow from. */
+    assert_int_equal(edit(f, &out, "grow 131 222 315 --threshold 600 --into 1"), 1);
+    free(out);
+    assert_int_equal(edit(f, &out, "grow 131 222 315 --into 1"), 0);
+    free(out);
+    fcase *c = load(f);
+    assert_int_equal(c->nfrag, 2);
+    assert_int_equal((int)c->frag[0].voxels, 1080);
+    case_free(c);
+    assert_int_equal(edit(f, &out, "grow 131 222"), 2);
+    free(out);
+}
+
 /* A save that cannot complete leaves the previous case byte for byte. */
 static void test_failed_save_keeps_case(void **st)
 {
@@ -234,6 +268,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_merge_and_bad_ids, setup, teardown),
         cmocka_unit_test_setup_teardown(test_split, setup, teardown),
         cmocka_unit_test_setup_teardown(test_erase_keep_drop_fix, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_grow, setup, teardown),
         cmocka_unit_test_setup_teardown(test_failed_save_keeps_case, setup, teardown),
         cmocka_unit_test_setup_teardown(test_api, setup, teardown),
     };
