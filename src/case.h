@@ -32,6 +32,9 @@ typedef struct fcase {
     int has_truth;
     pose *truth;             /* when has_truth: per fragment, the pose that restores it (home -> true) */
     seg_params seg;          /* how the labels were made; seg.threshold/ramp shape the prob maps */
+    void *extra;             /* case.json's other top-level members (a jansson json_t object, owned,
+                              * may be NULL): other modules keep theirs here (VOIs, optimisation
+                              * results) and they survive load and save unchanged */
 } fcase;
 
 /* A new case in folder dir (not yet saved) over the source volume file `source`, already read into

@@ -135,6 +135,11 @@ static json_t *case_json(const fcase *c, const char *labels_sha)
     for (int i = 0; i < c->nfrag; i++)
         json_array_append_new(fr, frag_json(&c->frag[i], c->has_truth ? &c->truth[i] : NULL));
     json_object_set_new(root, "fragments", fr);
+    const char *key;
+    json_t *val;
+    json_object_foreach((json_t *)c->extra, key, val)
+        if (!json_object_get(root, key))
+            json_object_set(root, key, val);
     return root;
 }
 
@@ -438,6 +443,19 @@ static int read_fragments(struct reader *r, json_t *root, fcase *c)
     return 0;
 }
 
+/* Top-level members this module does not own, kept for the modules that do. */
+static int keep_extra(json_t *root, fcase *c)
+{
+    static const char *own[] = {"format", "version", "source", "labels", "segmentation", "tau_min",
+                                "tau_max", "fixed", "has_truth", "fragments"};
+    c->extra = json_deep_copy(root);
+    if (!c->extra)
+        return fn_err_set(FN_ENOMEM, "case: out of memory");
+    for (size_t i = 0; i < sizeof own / sizeof own[0]; i++)
+        json_object_del(c->extra, own[i]);
+    return 0;
+}
+
 static int read_case(struct reader *r, json_t *root, fcase *c)
 {
     const char *fmt = get_str(r, root, "", "format");
@@ -504,7 +522,9 @@ static int read_case(struct reader *r, json_t *root, fcase *c)
         if ((c->fixed = case_find(c, (int)id)) < 0)
             return bad(r, "names a fragment the case does not have");
     }
-    return read_fragments(r, root, c);
+    if ((rc = read_fragments(r, root, c)) < 0)
+        return rc;
+    return keep_extra(root, c);
 }
 
 fcase *case_load(const char *dir)

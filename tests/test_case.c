@@ -96,6 +96,17 @@ static void test_round_trip(void **st)
         for (int a = 0; a < 3; a++)
             assert_true(fabs(d->frag[i].centroid[a] - c->frag[i].centroid[a]) < 1e-9);
     }
+    /* Members other modules add to case.json survive a load and a save. */
+    assert_non_null(d->extra);
+    json_object_set_new(d->extra, "voi", json_pack("{s:[iii]}", "min", 1, 2, 3));
+    json_object_set_new(d->extra, "version", json_integer(99)); /* not theirs: ignored */
+    assert_int_equal(case_save(d), 0);
+    fcase *e = case_load(cdir);
+    if (!e)
+        fail_msg("%s", fn_err_msg());
+    json_t *voi = json_object_get(e->extra, "voi");
+    assert_int_equal(json_integer_value(json_array_get(json_object_get(voi, "min"), 2)), 3);
+    case_free(e);
     /* The brighter block is 2 (same size, later in scan order), its probabilities saturate. */
     assert_int_equal(d->frag[1].prob[d->frag[1].dim[0] * d->frag[1].dim[1] + d->frag[1].dim[0] + 1], 255);
     case_free(c);
