@@ -11,11 +11,13 @@
  * Collision (the definition both obb_collide and obb_collide_brute implement): A and B collide when
  * some voxel box of A and some voxel box of B, each shrunk by tolerance_mm on every side, still
  * overlap with a non-empty interior (touching faces do not count) and pa*pb/255^2 >= threshold with
- * pa, pb the effective bytes. The hierarchy only rejects; its leaf test is the same voxel-box SAT
- * (obb_box_overlap) as brute force, so the two agree bit for bit.
+ * pa, pb the effective bytes. Inner boxes only reject (conservatively, with a 1e-6 mm slack);
+ * voxel pairs get the exact 15-axis test, the same code brute force runs, so the two agree bit for
+ * bit (obb_box_overlap exposes that test).
  *
  * Threads: a built tree is read-only; any number of threads may query shared trees at once, each with
- * its own obb_cache (or none). Queries allocate nothing. Errors: see err.h. */
+ * its own obb_cache (or none). Queries allocate nothing; they use about 100 KB of stack.
+ * Errors: see err.h. */
 #ifndef FN_OBB_H
 #define FN_OBB_H
 
@@ -43,8 +45,9 @@ typedef struct obb_node {
     uint32_t info;
 } obb_node;
 
-/* Builds the hierarchy of f (dims up to 65535 per axis). NULL + fn_err on bad params
- * (FN_EINVAL), bad fragment (FN_EFORMAT) or memory (FN_ENOMEM). f may be freed afterwards.
+/* Builds the hierarchy of f (dims up to 65535 per axis, at most 2^24 nodes) in time linear in the
+ * voxel count, using about 1.5 bytes per voxel of temporary memory. NULL + fn_err on bad params
+ * (FN_EINVAL), a bad fragment (FN_EFORMAT) or memory (FN_ENOMEM). f may be freed afterwards.
  * p NULL = {0, 1}. A fragment with no voxel left gives a valid empty tree (0 nodes). */
 obb_tree *obb_tree_build(const frag *f, const obb_params *p);
 void obb_tree_free(obb_tree *t);
