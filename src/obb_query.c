@@ -49,13 +49,13 @@ static double volume(const obb_node *n, const double s[3])
            (n->hi[2] - n->lo[2] + 1.0) * s[2];
 }
 
-/* The children of n: real ones for inner nodes, the octants of a solid block made on the fly. */
-static int split(const ctx *c, const obb_node *n, const obb_node *all, obb_node out[8])
+/* The children of n: inner nodes point at their stored children, the octants of a solid block
+ * are made on the fly in buf. */
+static int split(const obb_node *n, const obb_node *all, obb_node buf[8], const obb_node **out)
 {
     if (!is_leaf(n)) {
-        uint32_t first = n->info & 0xffffffu, cnt = ((n->info >> 28) & 7u) + 1;
-        memcpy(out, all + first, cnt * sizeof *out);
-        return (int)cnt;
+        *out = all + (n->info & 0xffffffu);
+        return (int)((n->info >> 28) & 7u) + 1;
     }
     uint16_t mid[3];
     int halves[3];
@@ -68,7 +68,7 @@ static int split(const ctx *c, const obb_node *n, const obb_node *all, obb_node 
         for (int y = 0; y < halves[1]; y++)
             for (int x = 0; x < halves[0]; x++) {
                 int h[3] = {x, y, z};
-                obb_node *o = &out[k++];
+                obb_node *o = &buf[k++];
                 *o = *n;
                 for (int i = 0; i < 3; i++) {
                     if (halves[i] == 1)
@@ -79,6 +79,7 @@ static int split(const ctx *c, const obb_node *n, const obb_node *all, obb_node 
                         o->hi[i] = (uint16_t)(mid[i] - 1);
                 }
             }
+    *out = buf;
     return k;
 }
 
@@ -167,9 +168,10 @@ static void expand(ctx *c, const npair *p, npair *out, int *n)
 {
     int va = is_voxel(&p->a), vb = is_voxel(&p->b);
     int split_b = va ? 1 : vb ? 0 : volume(&p->b, c->sb) > volume(&p->a, c->sa);
-    obb_node kid[8];
+    obb_node buf[8];
+    const obb_node *kid;
     double ca[3], ha[3], bt[3], hb[3], key[8];
-    int k = split(c, split_b ? &p->b : &p->a, split_b ? c->nb : c->na, kid), first = *n;
+    int k = split(split_b ? &p->b : &p->a, split_b ? c->nb : c->na, buf, &kid), first = *n;
     if (split_b)
         box_a(c, &p->a, ca, ha);
     else
