@@ -19,14 +19,20 @@ struct obb_tree {
     obb_params params;
 };
 
-/* One pyramid level: per cell the min and max effective probability of its voxels, a mask of its
+/* A pyramid cell (16 bytes): the min and max effective probability of its voxels, a mask of its
  * bone children (bit dz*4 + dy*2 + dx) and, from level 2 up, the tight box of its bone voxels
  * (level 1 boxes follow from the mask). */
+typedef struct cell {
+    uint8_t mn, mx, mask, pad;
+    union {
+        uint8_t vox[8];  /* level 1, mixed cells only: the effective voxel values by child bit */
+        uint16_t box[6]; /* levels >= 2, bone cells only: lo, hi */
+    };
+} cell;
+
 typedef struct level {
     int dim[3];
-    uint8_t *mn, *mx, *mask;
-    uint16_t (*box)[6];
-    uint8_t (*vox)[8]; /* level 1, mixed cells only: the 8 effective voxel values by child bit */
+    cell *cell; /* one cache line holds what the top-down pass needs of a cell */
 } level;
 
 /* An emitted node's cell, kept while the breadth-first pass still has to expand it. */
@@ -70,8 +76,7 @@ static size_t cidx(const level *L, const uint16_t c[3])
 
 /* One level-1 cell from its (up to) 8 voxels: rows[dz*2+dy] (NULL when outside the crop), x the
  * first voxel's column, two voxels when pair. */
-static void cell1(const builder *b, const uint8_t *const rows[4], size_t x, int pair, uint8_t *mn,
-                  uint8_t *mx, uint8_t *mask, uint8_t vox[8])
+static void cell1(const builder *b, const uint8_t *const rows[4], size_t x, int pair, cell *out)
 {
     uint8_t lo = 255, hi = 0, m = 0;
     for (int r = 0; r < 4; r++) {
@@ -82,10 +87,10 @@ static void cell1(const builder *b, const uint8_t *const rows[4], size_t x, int 
             lo = e < lo ? e : lo;
             hi = e > hi ? e : hi;
             m |= e ? (uint8_t)(1u << (r * 2 + dx)) : 0;
-            vox[r * 2 + dx] = e;
+            out->vox[r * 2 + dx] = e;
         }
     }
-    *mn = lo, *mx = hi, *mask = m;
+    out->mn = lo, out->mx = hi, out->mask = m;
 }
 
 static uint64_t load8(const uint8_t *p)
@@ -119,15 +124,15 @@ static void level1(builder *b)
                     for (int r = 0; r < 4; r++)
                         w[r] = load8(rows[r] + 2 * g), any |= w[r], all &= w[r];
                     if (any == 0 || (solid_fast && all == ~0ull)) {
-                        memset(L->mn + row + g, any ? 255 : 0, 4);
-                        memset(L->mx + row + g, any ? 255 : 0, 4);
-                        memset(L->mask + row + g, any ? 255 : 0, 4);
+                        for (int q = 0; q < 4; q++) {
+                            cell *o = &L->cell[row + g + q];
+                            o->mn = o->mx = o->mask = any ? 255 : 0;
+                        }
                         g += 3;
                         continue;
                     }
                 }
-                cell1(b, rows, 2 * g, 2 * g + 1 < (size_t)d0[0], L->mn + row + g, L->mx + row + g,
-                      L->mask + row + g, L->vox[row + g]);
+                cell1(b, rows, 2 * g, 2 * g + 1 < (size_t)d0[0], &L->cell[row + g]);
             }
         }
 }
@@ -139,13 +144,13 @@ static void cell_box(const builder *b, int l, const uint16_t c[3], uint16_t lo[3
         memcpy(lo, c, 3 * sizeof *c);
         memcpy(hi, c, 3 * sizeof *c);
     } else if (l == 1) {
-        uint8_t m = b->lv[1].mask[cidx(&b->lv[1], c)], lo_o = b->lo_off[m], hi_o = b->hi_off[m];
+        uint8_t m = b->lv[1].cell[cidx(&b->lv[1], c)].mask, lo_o = b->lo_off[m], hi_o = b->hi_off[m];
         for (int i = 0; i < 3; i++) {
             lo[i] = (uint16_t)(2 * c[i] + ((lo_o >> i) & 1));
             hi[i] = (uint16_t)(2 * c[i] + ((hi_o >> i) & 1));
         }
     } else {
-        const uint16_t *box = b->lv[l].box[cidx(&b->lv[l], c)];
+        const uint16_t *box = b->lv[l].cell[cidx(&b->lv[l], c)].box;
         memcpy(lo, box, 3 * sizeof *lo);
         memcpy(hi, box + 3, 3 * sizeof *hi);
     }
@@ -201,29 +206,30 @@ static void level_up(builder *b, int l)
     uint16_t c[3];
     for (c[2] = 0; c[2] < L->dim[2]; c[2]++)
         for (c[1] = 0; c[1] < L->dim[1]; c[1]++) {
-            const uint8_t *rmn[4] = {NULL, NULL, NULL, NULL}, *rmx[4] = {NULL, NULL, NULL, NULL};
+            const cell *rows[4] = {NULL, NULL, NULL, NULL};
             for (int r = 0; r < 4; r++) {
                 int z = 2 * c[2] + (r >> 1), y = 2 * c[1] + (r & 1);
                 if (z >= C->dim[2] || y >= C->dim[1])
                     continue;
                 size_t base = ((size_t)z * C->dim[1] + y) * C->dim[0];
-                rmn[r] = C->mn + base, rmx[r] = C->mx + base;
+                rows[r] = C->cell + base;
             }
             for (c[0] = 0; c[0] < L->dim[0]; c[0]++, idx++) {
                 uint8_t mn = 255, mx = 0, mask = 0;
                 int x0 = 2 * c[0], pair = x0 + 1 < C->dim[0];
                 for (int r = 0; r < 4; r++) {
-                    if (!rmn[r])
+                    if (!rows[r])
                         continue;
                     for (int dx = 0; dx <= pair; dx++) {
-                        uint8_t a = rmn[r][x0 + dx], z = rmx[r][x0 + dx];
+                        uint8_t a = rows[r][x0 + dx].mn, z = rows[r][x0 + dx].mx;
                         mn = a < mn ? a : mn;
                         mx = z > mx ? z : mx;
                         mask |= z ? (uint8_t)(1u << (r * 2 + dx)) : 0;
                     }
                 }
-                L->mn[idx] = mn, L->mx[idx] = mx, L->mask[idx] = mask;
-                uint16_t *box = L->box[idx];
+                cell *o = &L->cell[idx];
+                o->mn = mn, o->mx = mx, o->mask = mask;
+                uint16_t *box = o->box;
                 if (!mx)
                     continue;
                 if (mn != 255) {
@@ -241,12 +247,12 @@ static void level_up(builder *b, int l)
 
 static uint8_t cell_mn(const builder *b, int l, const uint16_t c[3])
 {
-    return l == 0 ? b->lut[b->prob[cidx(&b->lv[0], c)]] : b->lv[l].mn[cidx(&b->lv[l], c)];
+    return l == 0 ? b->lut[b->prob[cidx(&b->lv[0], c)]] : b->lv[l].cell[cidx(&b->lv[l], c)].mn;
 }
 
 static uint8_t cell_mx(const builder *b, int l, const uint16_t c[3])
 {
-    return l == 0 ? b->lut[b->prob[cidx(&b->lv[0], c)]] : b->lv[l].mx[cidx(&b->lv[l], c)];
+    return l == 0 ? b->lut[b->prob[cidx(&b->lv[0], c)]] : b->lv[l].cell[cidx(&b->lv[l], c)].mx;
 }
 
 /* Follows single-child chains down: a cell with one bone child is replaced by that child. */
@@ -254,8 +260,9 @@ static void collapse(const builder *b, int *l, uint16_t c[3])
 {
     while (*l > 0) {
         size_t idx = cidx(&b->lv[*l], c);
-        uint8_t m = b->lv[*l].mask[idx];
-        if (b->lv[*l].mn[idx] == 255 || (m & (m - 1)))
+        const cell *k = &b->lv[*l].cell[idx];
+        uint8_t m = k->mask;
+        if (k->mn == 255 || (m & (m - 1)))
             return;
         int bit = 0;
         while (!(m >> bit & 1))
@@ -308,7 +315,7 @@ static int emit(builder *b, int l, const uint16_t c[3], int depth)
 static int emit_voxels(builder *b, const uint16_t c[3], uint8_t m, int depth)
 {
     b->depth = depth > b->depth ? depth : b->depth;
-    const uint8_t *vox = b->lv[1].vox[cidx(&b->lv[1], c)];
+    const uint8_t *vox = b->lv[1].cell[cidx(&b->lv[1], c)].vox;
     for (int bit = 0; bit < 8; bit++) {
         if (!(m >> bit & 1))
             continue;
@@ -336,7 +343,7 @@ static int prune(builder *b)
         if (b->nodes[i].info & 0x80000000u)
             continue;
         pending p = b->pend[i];
-        uint8_t m = b->lv[p.level].mask[cidx(&b->lv[p.level], p.c)];
+        uint8_t m = b->lv[p.level].cell[cidx(&b->lv[p.level], p.c)].mask;
         size_t first = b->n;
         int nk = 0;
         if (p.level == 1) {
@@ -369,14 +376,8 @@ static int alloc_levels(builder *b, const int d0[3])
             d[i] = (d[i] + 1) / 2, b->lv[l].dim[i] = d[i];
         size_t n = cells(d);
         level *L = &b->lv[l];
-        L->mn = malloc(n);
-        L->mx = malloc(n);
-        L->mask = malloc(n);
-        if (l >= 2)
-            L->box = malloc(n * sizeof *L->box);
-        else
-            L->vox = malloc(n * sizeof *L->vox);
-        if (!L->mn || !L->mx || !L->mask || (l >= 2 ? !L->box : !L->vox))
+        L->cell = malloc(n * sizeof *L->cell);
+        if (!L->cell)
             return fn_err_set(FN_ENOMEM, "out of memory for the hierarchy pyramid (%zu cells)", n);
     }
     return 0;
@@ -385,11 +386,7 @@ static int alloc_levels(builder *b, const int d0[3])
 static void builder_free(builder *b)
 {
     for (int l = 1; l < MAX_LEVELS; l++) {
-        free(b->lv[l].mn);
-        free(b->lv[l].mx);
-        free(b->lv[l].mask);
-        free(b->lv[l].box);
-        free(b->lv[l].vox);
+        free(b->lv[l].cell);
     }
     free(b->pend);
 }

@@ -46,7 +46,7 @@ typedef struct obb_node {
 } obb_node;
 
 /* Builds the hierarchy of f (dims up to 65535 per axis, at most 2^24 nodes) in time linear in the
- * voxel count, using about 1.5 bytes per voxel of temporary memory. NULL + fn_err on bad params
+ * voxel count, using about 2.3 bytes per voxel of temporary memory. NULL + fn_err on bad params
  * (FN_EINVAL), a bad fragment (FN_EFORMAT) or memory (FN_ENOMEM). f may be freed afterwards.
  * p NULL = {0, 1}. A fragment with no voxel left gives a valid empty tree (0 nodes). */
 obb_tree *obb_tree_build(const frag *f, const obb_params *p);
