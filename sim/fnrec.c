@@ -74,10 +74,10 @@ enum { HAVE_VID = 1, HAVE_PID = 2, HAVE_NAME = 4, HAVE_FORMAT = 8, HAVE_DESC = 1
 static int header_line(const cursor *c, const char *s, size_t n, fnrec_header *h, unsigned *have)
 {
     const char *sp = memchr(s, ' ', n);
-    if (!sp)
+    if (!sp && !is_word(s, n, "descriptor")) /* only the descriptor may be empty */
         return bad(c, "header line needs 'KEY VALUE' (or 'events' to end the header)");
-    size_t kn = (size_t)(sp - s), vn = n - kn - 1;
-    const char *v = sp + 1;
+    size_t kn = sp ? (size_t)(sp - s) : n, vn = sp ? n - kn - 1 : 0;
+    const char *v = sp ? sp + 1 : s + n;
     unsigned bit;
     if (is_word(s, kn, "vid") || is_word(s, kn, "pid")) {
         bit = s[0] == 'v' ? HAVE_VID : HAVE_PID;
@@ -99,8 +99,8 @@ static int header_line(const cursor *c, const char *s, size_t n, fnrec_header *h
     } else if (is_word(s, kn, "descriptor")) {
         bit = HAVE_DESC;
         long got = parse_hex(v, vn, h->desc, sizeof h->desc);
-        if (got <= 0)
-            return bad(c, "descriptor must be 1 to 4096 bytes of hex digits");
+        if (got < 0)
+            return bad(c, "descriptor must be up to 4096 bytes of hex digits");
         h->desc_len = (size_t)got;
     } else {
         return bad(c, "unknown header key (expected vid, pid, name, format, source, descriptor)");
@@ -342,10 +342,10 @@ static int write_header(FILE *f, const fnrec_header *h)
 
 fnrec_writer *fnrec_writer_stream(FILE *f, const fnrec_header *h)
 {
-    if (!clean_text(h->name) || !clean_text(h->source) || !h->desc_len ||
+    if (!clean_text(h->name) || !clean_text(h->source) || h->desc_len > sizeof h->desc ||
         (strcmp(h->format, "split") && strcmp(h->format, "combined"))) {
-        fn_err_set(FN_EINVAL, "recording header: name/source with a newline, no descriptor, or "
-                              "format not split/combined");
+        fn_err_set(FN_EINVAL, "recording header: name/source with a newline, descriptor too "
+                              "long, or format not split/combined");
         return NULL;
     }
     fnrec_writer *w = calloc(1, sizeof *w);
