@@ -207,6 +207,8 @@ int fnrec_parse(const char *text, size_t len, const char *name, fnrec **out)
             }
         } else if (!in_events)
             rc = header_line(&c, s, n, &hdr, &have);
+        else if (!nl)
+            break; /* the writer ends every line: this one was cut by an interrupted write */
         else {
             fnrec_event e;
             rc = event_line(&c, s, n, r->n ? r->ev[r->n - 1].t_us : 0, &e);
