@@ -88,6 +88,9 @@ static int header_line(const cursor *c, const char *s, size_t n, fnrec_header *h
         char *dst = bit == HAVE_NAME ? h->name : h->source;
         if (vn >= sizeof h->name)
             return bad(c, "name/source longer than 127 bytes");
+        for (size_t i = 0; i < vn; i++)
+            if ((unsigned char)v[i] < 0x20 && v[i] != '\t')
+                return bad(c, "control character in name/source");
         memcpy(dst, v, vn);
         dst[vn] = '\0';
     } else if (is_word(s, kn, "format")) {
