@@ -215,7 +215,7 @@ static void serve_and_record(const char *device, const char *text)
 {
     const char *scr = write_script("motion.script", text);
     const char *served = path_in("served.fnrec"), *rec = path_in("rec.fnrec");
-    pid_t srv = start_server("--as", device, "--script", scr, "--start-on-open", "--log", served, NULL);
+    pid_t srv = start_server("--as", device, "--script", scr, "--start-on-read", "--log", served, NULL);
     fnrec *want = rendered(scr, device);
     double secs = (double)want->ev[want->n - 1].t_us / 1e6 + 0.5;
     char *out = NULL;
@@ -352,7 +352,7 @@ static void test_unplug_replug_on_signal(void **st)
 static void test_hidapi_led_feature_timeout(void **st)
 {
     const char *served = path_in("served.fnrec");
-    pid_t srv = start_server("--as", "open-controller", "--start-on-open", "--log", served, NULL);
+    pid_t srv = start_server("--as", "open-controller", "--start-on-read", "--log", served, NULL);
     const dev_transport *t = dev_transport_find("hidraw");
     assert_non_null(t);
     char node[600];
