@@ -438,6 +438,33 @@ static void test_virtual_transport(void **st)
     free(dir);
 }
 
+/* The shipped recordings are labelled virtual and are exactly what their scripts render to. */
+static void test_shipped_recordings(void **st)
+{
+    const char *names[] = {"head-on", "grazing-slide", "buttons"};
+    const char *src = getenv("FRACNAV_SRC");
+    for (size_t i = 0; i < sizeof names / sizeof *names; i++) {
+        char path[1024], spath[1024], id[16];
+        snprintf(path, sizeof path, "%s/sim/recordings/%s.fnrec", src ? src : "..", names[i]);
+        snprintf(spath, sizeof spath, "%s/sim/recordings/%s.script", src ? src : "..", names[i]);
+        fnrec *r = fnrec_load(path);
+        if (!r)
+            fail_msg("%s", fn_err_msg());
+        assert_int_equal(strncmp(r->hdr.source, "virtual:", 8), 0);
+        assert_non_null(strstr(r->hdr.source, "simulated"));
+        snprintf(id, sizeof id, "%04x:%04x", r->hdr.vid, r->hdr.pid);
+        script *s = script_load(spath);
+        assert_non_null(s);
+        fnrec *again = script_render(s, sim_profile_find(id));
+        assert_non_null(again);
+        assert_int_equal(again->n, r->n);
+        assert_memory_equal(again->ev, r->ev, r->n * sizeof *r->ev);
+        fnrec_free(again);
+        fnrec_free(r);
+        free(s);
+    }
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -454,6 +481,7 @@ int main(void)
         cmocka_unit_test(test_replay_deterministic),
         cmocka_unit_test(test_replay_realtime_pacing),
         cmocka_unit_test(test_virtual_transport),
+        cmocka_unit_test(test_shipped_recordings),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
