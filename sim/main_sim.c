@@ -23,6 +23,7 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "bench_sim.h"
 #include "err.h"
 #include "fnrec.h"
 #include "script.h"
@@ -619,6 +620,7 @@ static void usage(FILE *f)
             "                         [--start-on-read] [--fast] [--exit-at-end] [--log FILE.fnrec]\n"
             "       fracnav-sim render [--as DEVICE] --script FILE -o FILE.fnrec\n"
             "       fracnav-sim list\n"
+            "       fracnav-sim bench [--mount DIR] [--seconds S]\n"
             "\n"
             "serve    serves the virtual device as DIR/" NODE_NAME " through FUSE until SIGINT/SIGTERM\n"
             "         (then unmounts). SIGUSR1 unplugs it, the next SIGUSR1 plugs it back.\n"
@@ -630,7 +632,9 @@ static void usage(FILE *f)
             "         --exit-at-end    unmount and exit when the playback ends\n"
             "         --log FILE       write every report served to a .fnrec file\n"
             "render   writes the reports a script produces on DEVICE to a .fnrec file\n"
-            "list     prints the devices the simulator can impersonate\n");
+            "list     prints the devices the simulator can impersonate\n"
+            "bench    measures report throughput (as fast as possible) and timing jitter (at the\n"
+            "         8 ms cadence, S seconds, default 2) through FUSE and hidapi; prints JSON\n");
 }
 
 static int list_devices(void)
@@ -645,7 +649,7 @@ static int list_devices(void)
 }
 
 typedef struct opts {
-    const char *mount, *as, *play, *script, *out, *log;
+    const char *mount, *as, *play, *script, *out, *log, *seconds;
 } opts;
 
 static int parse_opts(int argc, char **argv, opts *o)
@@ -671,6 +675,8 @@ static int parse_opts(int argc, char **argv, opts *o)
             dst = &o->out;
         else if (!strcmp(a, "--log"))
             dst = &o->log;
+        else if (!strcmp(a, "--seconds"))
+            dst = &o->seconds;
         else {
             fprintf(stderr, "fracnav-sim %s: unknown option '%s'\n", argv[1], a);
             return -1;
@@ -739,12 +745,20 @@ int main(int argc, char **argv)
         return list_devices();
     opts o = {0};
     S.sig_fd = S.timer_fd = -1;
-    if (strcmp(cmd, "serve") && strcmp(cmd, "render")) {
-        fprintf(stderr, "fracnav-sim: unknown command '%s' (serve, render, list; --help)\n", cmd);
+    if (strcmp(cmd, "serve") && strcmp(cmd, "render") && strcmp(cmd, "bench")) {
+        fprintf(stderr, "fracnav-sim: unknown command '%s' (serve, render, list, bench; --help)\n", cmd);
         return 2;
     }
     if (parse_opts(argc, argv, &o))
         return 2;
+    if (!strcmp(cmd, "bench")) {
+        double secs = o.seconds ? atof(o.seconds) : 2.0;
+        if (!(secs >= 0.1 && secs <= 600)) {
+            fprintf(stderr, "fracnav-sim bench: --seconds wants 0.1 to 600\n");
+            return 2;
+        }
+        return bench_sim_run(o.mount, secs);
+    }
     if (!strcmp(cmd, "render") ? !o.script || !o.out : !o.mount) {
         fprintf(stderr, "fracnav-sim %s: %s is required\n", cmd,
                 !strcmp(cmd, "render") ? "--script FILE and -o FILE" : "--mount DIR");
