@@ -190,6 +190,14 @@ static int room_for_fast(void)
     return any;
 }
 
+static int queues_empty(void)
+{
+    for (reader *r = S.readers; r; r = r->next)
+        if (!r->dead && r->active && r->count)
+            return 0;
+    return 1;
+}
+
 static void start_playback(void)
 {
     S.started = 1;
@@ -218,7 +226,7 @@ static void pump(void)
     }
     if (S.pos < S.rec->n && !S.fast)
         arm_timer(S.t0_us + S.rec->ev[S.pos].t_us);
-    else if (S.pos >= S.rec->n && S.exit_at_end)
+    else if (S.pos >= S.rec->n && S.exit_at_end && queues_empty())
         fuse_session_exit(S.se);
 }
 
@@ -344,7 +352,7 @@ static void op_read(fuse_req_t req, fuse_ino_t ino, size_t size, off_t off, stru
         r->head = (r->head + 1) % QUEUE_LEN;
         r->count--;
         reply_report(req, size, r->q[slot], r->qlen[slot]);
-        if (S.fast)
+        if (S.fast || S.exit_at_end)
             pump();
     } else if ((fi->flags & O_NONBLOCK) || r->npending == PENDING_MAX) {
         fuse_reply_err(req, EAGAIN);
@@ -594,6 +602,7 @@ static int serve(const char *mount)
     char *argv[] = {"fracnav-sim", "-o", "fsname=fracnav-sim,subtype=hidraw", NULL};
     struct fuse_args args = FUSE_ARGS_INIT(3, argv);
     S.se = fuse_session_new(&args, &ops, sizeof ops, NULL);
+    fuse_opt_free_args(&args);
     if (!S.se || fuse_session_mount(S.se, mount)) {
         fprintf(stderr, "fracnav-sim serve: cannot mount FUSE on %s (need root or FUSE permission; "
                         "is something already mounted there?)\n", mount);
@@ -629,7 +638,7 @@ static void usage(FILE *f)
             "         --script FILE    play a motion script (see sim/script.h)\n"
             "         --start-on-read  start playing when the node is first read or polled\n"
             "         --fast           play as fast as the readers read (implies --start-on-read)\n"
-            "         --exit-at-end    unmount and exit when the playback ends\n"
+            "         --exit-at-end    unmount and exit once the playback is over and read\n"
             "         --log FILE       write every report served to a .fnrec file\n"
             "render   writes the reports a script produces on DEVICE to a .fnrec file\n"
             "list     prints the devices the simulator can impersonate\n"
