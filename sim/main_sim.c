@@ -564,8 +564,9 @@ static int check_fuse_access(const char *mount)
     }
     if (access("/dev/fuse", R_OK | W_OK)) {
         fprintf(stderr, "fracnav-sim serve: cannot use /dev/fuse (%s): serving the virtual device "
-                        "needs FUSE (the fuse3 package, /dev/fuse readable and writable); use the "
-                        "in-process 'virtual' transport instead\n", strerror(errno));
+                        "needs FUSE: run as root, or give this user read/write access to /dev/fuse "
+                        "(fuse3 package); without FUSE use the in-process transport "
+                        "'virtual:DEVICE' instead\n", strerror(errno));
         return -1;
     }
     if (geteuid() != 0 && access("/usr/bin/fusermount3", X_OK) && access("/bin/fusermount3", X_OK)) {
