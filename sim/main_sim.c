@@ -651,7 +651,7 @@ static int list_devices(void)
 {
     for (size_t i = 0; sim_profile_at(i); i++) {
         const sim_profile *p = sim_profile_at(i);
-        printf("%-26s %04x:%04x  %-8s %2d ms  %2d buttons  %s\n", p->id, p->vid, p->pid,
+        printf("%-26s %04x:%04x  %-8s %2d ms  %2d button bits  %s\n", p->id, p->vid, p->pid,
                p->format == SIMDEV_SPLIT ? "split" : "combined", p->period_us / 1000, p->nbuttons,
                p->name);
     }

@@ -265,7 +265,9 @@ static void test_profiles_match_descriptors(void **st)
         assert_non_null(hiddesc_find(&d, HIDDESC_OUTPUT, 4));
         const devtab_row *row = devtab_find(p->vid, p->pid);
         assert_non_null(row);
+        assert_string_equal(row->name, p->name);
         assert_int_equal(row->format == DEVTAB_SPLIT, p->format == SIMDEV_SPLIT);
+        assert_true(p->nbuttons >= row->nbuttons); /* bitmask bits cover the (sparse) buttons */
     }
 }
 
