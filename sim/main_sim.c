@@ -223,7 +223,7 @@ static void pump(void)
         S.pos++;
         if (e->dir == FNREC_IN && S.plugged)
             deliver(e->data, e->len);
-        else if (e->dir == FNREC_CONNECT && S.pos > 1)
+        else if (e->dir == FNREC_CONNECT)
             set_plugged(1);
         else if (e->dir == FNREC_DISCONNECT)
             set_plugged(0);
