@@ -1,0 +1,233 @@
+/* loop: statistics, the scene buffer a renderer reads, and the fixed-rate driver. */
+#include "loop_impl.h"
+
+#include "journal.h"
+
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+#include <time.h>
+
+#define FRESH 4
+#define FNV_OFFSET 0xcbf29ce484222325ull
+#define FNV_PRIME 0x100000001b3ull
+
+int64_t loop_clock_ns(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (int64_t)ts.tv_sec * 1000000000 + ts.tv_nsec;
+}
+
+int64_t loop_now_us(void)
+{
+    return loop_clock_ns() / 1000;
+}
+
+void loop_stats_init(loop *L)
+{
+    L->st.pose_digest = FNV_OFFSET;
+    L->front = 0;
+    L->back = 2;
+    atomic_init(&L->middle, 1);
+    loop_reset_timing(L);
+    loop_publish(L);
+}
+
+void loop_reset_timing(loop *L)
+{
+    memset(L->hist, 0, sizeof L->hist);
+    L->hist_over = 0;
+    L->lat_max = 0;
+    L->st.latency_samples = 0;
+    L->st.latency_p50_us = L->st.latency_p99_us = L->st.latency_max_us = 0;
+    L->q_sum_ns = L->q_max_ns = 0;
+    L->st.queries = 0;
+    L->win_start_us = loop_now_us();
+    L->pct_at_us = 0;
+    L->win_steps = L->win_ticks = 0;
+}
+
+void loop_stats_query(loop *L, int64_t ns)
+{
+    L->st.queries++;
+    L->q_sum_ns += (double)ns;
+    if (ns > L->q_max_ns)
+        L->q_max_ns = (double)ns;
+}
+
+/* FNV-1a 64 over the fragment index (u32 LE) and the 7 doubles' bytes (LE): the same on every
+ * machine with IEEE doubles. */
+void loop_stats_pose(loop *L, int s, const pose *p)
+{
+    uint64_t h = L->st.pose_digest;
+    unsigned char b[4 + 56];
+    for (int i = 0; i < 4; i++)
+        b[i] = (unsigned char)((uint32_t)s >> (8 * i));
+    const double *v[7] = {&p->q[0], &p->q[1], &p->q[2], &p->q[3], &p->t[0], &p->t[1], &p->t[2]};
+    for (int k = 0; k < 7; k++) {
+        uint64_t u;
+        memcpy(&u, v[k], 8);
+        for (int i = 0; i < 8; i++)
+            b[4 + 8 * k + i] = (unsigned char)(u >> (8 * i));
+    }
+    for (size_t i = 0; i < sizeof b; i++)
+        h = (h ^ b[i]) * FNV_PRIME;
+    L->st.pose_digest = h;
+}
+
+void loop_stats_outcome(loop *L, int outcome)
+{
+    L->st.steps++;
+    L->win_steps++;
+    if (outcome == LOOP_ACCEPTED)
+        L->st.accepted++;
+    else if (outcome == LOOP_LIMITED)
+        L->st.limited++;
+    else if (outcome == LOOP_SLID)
+        L->st.slid++;
+    else if (outcome == LOOP_REFUSED)
+        L->st.refused++;
+}
+
+void loop_stats_latency(loop *L, int64_t us)
+{
+    if (us < 0)
+        us = 0;
+    if (us < LOOP_HIST_BINS)
+        L->hist[us]++;
+    else
+        L->hist_over++;
+    if ((double)us > L->lat_max)
+        L->lat_max = (double)us;
+    L->st.latency_samples++;
+}
+
+/* The latency below which a fraction q of the samples lie (bin upper edge). */
+static double percentile(const loop *L, double q)
+{
+    uint64_t want = (uint64_t)ceil(q * (double)L->st.latency_samples), seen = 0;
+    for (int i = 0; i < LOOP_HIST_BINS; i++) {
+        seen += L->hist[i];
+        if (seen >= want && want > 0)
+            return i + 1 > L->lat_max ? L->lat_max : i + 1;
+    }
+    return L->lat_max;
+}
+
+static void refresh_rates(loop *L, int64_t now)
+{
+    double secs = (double)(now - L->win_start_us) * 1e-6;
+    L->st.step_hz = secs > 0 ? (double)L->win_steps / secs : 0;
+    L->st.tick_hz = secs > 0 ? (double)L->win_ticks / secs : 0;
+    L->st.query_us_mean = L->st.queries ? L->q_sum_ns / (double)L->st.queries * 1e-3 : 0;
+    L->st.query_us_max = L->q_max_ns * 1e-3;
+    L->st.latency_p50_us = percentile(L, 0.50);
+    L->st.latency_p99_us = percentile(L, 0.99);
+    L->st.latency_max_us = L->lat_max;
+    L->pct_at_us = now;
+}
+
+void loop_get_stats(loop *L, loop_stats *out)
+{
+    refresh_rates(L, loop_now_us());
+    *out = L->st;
+}
+
+void loop_publish(loop *L)
+{
+    int64_t now = loop_now_us();
+    if (now - L->pct_at_us >= 100000) /* percentiles cost a histogram walk: 10 Hz is plenty */
+        refresh_rates(L, now);
+    loop_scene *s = &L->buf[L->back];
+    s->seq = L->buf[(atomic_load(&L->middle) & 3)].seq + 1;
+    s->nfrag = L->n;
+    s->selected = L->selected;
+    s->collision_on = L->collision_on;
+    s->trans_only = L->trans_only;
+    s->rot_only = L->rot_only;
+    s->device_present = L->device_present;
+    s->save_requested = L->save_requested;
+    s->frame = L->cfg.frame;
+    s->last_outcome = L->last_outcome;
+    s->separation_mm = L->gap_valid ? L->gap : L->in_collision ? -1 : INFINITY;
+    s->stats = L->st;
+    memcpy(s->pose, L->pose, sizeof(pose) * (size_t)L->n);
+    memcpy(s->fixed, L->fixed, (size_t)L->n);
+    L->save_requested = 0;
+    L->back = atomic_exchange(&L->middle, L->back | FRESH) & 3;
+}
+
+int loop_scene_read(loop *L, loop_scene *out)
+{
+    int fresh = 0;
+    if (atomic_load(&L->middle) & FRESH) {
+        L->front = atomic_exchange(&L->middle, L->front) & 3;
+        fresh = 1;
+    }
+    *out = L->buf[L->front];
+    return fresh;
+}
+
+void loop_scene_format(const loop_scene *s, char *buf, size_t cap)
+{
+    static const char *outcome[] = {"idle", "free", "limited", "sliding", "refused"};
+    static const char *frame[] = {"camera", "world", "fragment"};
+    const pose *p = &s->pose[s->selected];
+    char sep[32];
+    if (isinf(s->separation_mm))
+        snprintf(sep, sizeof sep, "far");
+    else
+        snprintf(sep, sizeof sep, "%.2f mm", s->separation_mm);
+    snprintf(buf, cap,
+             "frag %d/%d%s | q %.4f %.4f %.4f %.4f t %.2f %.2f %.2f mm | %s, gap %s%s | %s%s%s"
+             " | %.0f steps/s %.0f ticks/s | latency p50 %.0f p99 %.0f max %.0f us%s",
+             s->selected + 1, s->nfrag, s->fixed[s->selected] ? " (fixed)" : "", p->q[0], p->q[1],
+             p->q[2], p->q[3], p->t[0], p->t[1], p->t[2], outcome[s->last_outcome], sep,
+             s->collision_on ? "" : " | WARNING: COLLISION CHECKING OFF", frame[s->frame],
+             s->trans_only ? ", translation only" : "", s->rot_only ? ", rotation only" : "",
+             s->stats.step_hz, s->stats.tick_hz, s->stats.latency_p50_us, s->stats.latency_p99_us,
+             s->stats.latency_max_us, s->device_present ? "" : " | DEVICE UNPLUGGED (pose kept)");
+}
+
+int loop_drain(loop *L, ring *r)
+{
+    loop_event ev;
+    int n = 0;
+    while (ring_pop(r, &ev)) {
+        int rc = loop_feed(L, &ev);
+        if (rc < 0)
+            return rc;
+        n++;
+    }
+    L->st.dropped = ring_dropped(r);
+    if (n)
+        loop_publish(L);
+    return n;
+}
+
+int loop_run(loop *L, ring *r, int64_t period_us, const atomic_int *stop)
+{
+    struct timespec next;
+    clock_gettime(CLOCK_MONOTONIC, &next);
+    unsigned idle = 0;
+    while (!atomic_load(stop)) {
+        int rc = loop_drain(L, r);
+        if (rc < 0)
+            return rc;
+        L->win_ticks++;
+        if (L->jr)
+            journal_tick(L->jr, loop_now_us());
+        if (rc == 0 && ++idle % 50 == 0)
+            loop_publish(L); /* keep the rates in the scene fresh while nothing moves */
+        next.tv_nsec += (long)(period_us * 1000);
+        while (next.tv_nsec >= 1000000000) {
+            next.tv_nsec -= 1000000000;
+            next.tv_sec++;
+        }
+        while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &next, NULL) == EINTR)
+            ;
+    }
+    return 0;
+}
