@@ -50,6 +50,7 @@ struct loop {
     loop_scene buf[3];
     atomic_int middle;
     int back, front;
+    uint64_t pub_seq;
 };
 
 void loop_accept(loop *L, int s, pose p, int64_t t_us, uint32_t kind, int checked);

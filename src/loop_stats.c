@@ -141,7 +141,7 @@ void loop_publish(loop *L)
     if (now - L->pct_at_us >= 100000) /* percentiles cost a histogram walk: 10 Hz is plenty */
         refresh_rates(L, now);
     loop_scene *s = &L->buf[L->back];
-    s->seq = L->buf[(atomic_load(&L->middle) & 3)].seq + 1;
+    s->seq = ++L->pub_seq;
     s->nfrag = L->n;
     s->selected = L->selected;
     s->collision_on = L->collision_on;
