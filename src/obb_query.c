@@ -1,0 +1,247 @@
+/* obb: the collision query between two hierarchies (separating-axis tests, depth- or breadth-first). */
+#include "obb.h"
+
+#include "err.h"
+#include "obb_impl.h"
+
+#include <string.h>
+
+#define LEAF 0x80000000u
+#define STACK 512  /* > 1 + 7 * (2 * 17 levels): a split pushes at most 8 pairs */
+#define QUEUE 2048 /* breadth-first ring; a pair that finds it full is searched depth-first */
+
+typedef struct npair {
+    obb_node a, b;
+} npair;
+
+typedef struct ctx {
+    obb__rel rel;
+    const obb_node *na, *nb;
+    double sa[3], sb[3], tol;
+    int thr, want_pairs;
+    const obb_query *q;
+    obb_result *r;
+    obb_cache *cache;
+    double best_gap, pen;
+} ctx;
+
+static int is_leaf(const obb_node *n)
+{
+    return (n->info & LEAF) != 0;
+}
+
+static int is_voxel(const obb_node *n)
+{
+    return is_leaf(n) && n->lo[0] == n->hi[0] && n->lo[1] == n->hi[1] && n->lo[2] == n->hi[2];
+}
+
+/* Upper bound of the node's effective probability byte. */
+static int pmax(const obb_node *n)
+{
+    return is_leaf(n) ? (int)(n->info & 0xff) : (int)((n->info >> 24) & 0xf) * 17;
+}
+
+static double volume(const obb_node *n, const double s[3])
+{
+    return (n->hi[0] - n->lo[0] + 1.0) * s[0] * (n->hi[1] - n->lo[1] + 1.0) * s[1] *
+           (n->hi[2] - n->lo[2] + 1.0) * s[2];
+}
+
+/* The children of n: real ones for inner nodes, the octants of a solid block made on the fly. */
+static int split(const ctx *c, const obb_node *n, const obb_node *all, obb_node out[8])
+{
+    if (!is_leaf(n)) {
+        uint32_t first = n->info & 0xffffffu, cnt = ((n->info >> 28) & 7u) + 1;
+        memcpy(out, all + first, cnt * sizeof *out);
+        return (int)cnt;
+    }
+    uint16_t mid[3];
+    int halves[3];
+    for (int i = 0; i < 3; i++) {
+        halves[i] = n->hi[i] > n->lo[i] ? 2 : 1;
+        mid[i] = (uint16_t)(n->lo[i] + (n->hi[i] - n->lo[i] + 1) / 2);
+    }
+    int k = 0;
+    for (int z = 0; z < halves[2]; z++)
+        for (int y = 0; y < halves[1]; y++)
+            for (int x = 0; x < halves[0]; x++) {
+                int h[3] = {x, y, z};
+                obb_node *o = &out[k++];
+                *o = *n;
+                for (int i = 0; i < 3; i++) {
+                    if (halves[i] == 1)
+                        continue;
+                    if (h[i])
+                        o->lo[i] = mid[i];
+                    else
+                        o->hi[i] = (uint16_t)(mid[i] - 1);
+                }
+            }
+    return k;
+}
+
+static void record(ctx *c, const obb_node *a, const obb_node *b, double gap)
+{
+    obb_result *r = c->r;
+    if (c->want_pairs && r->npairs < c->q->max_pairs) {
+        obb_pair *p = &c->q->pairs[r->npairs++];
+        memcpy(p->a, a->lo, sizeof p->a);
+        memcpy(p->b, b->lo, sizeof p->b);
+    }
+    r->pairs_total++;
+    r->collides = 1;
+    c->pen = gap < c->pen ? gap : c->pen;
+    if (c->cache) {
+        c->cache->wa = *a, c->cache->wb = *b;
+        c->cache->has_witness = 1;
+    }
+}
+
+/* Tests one pair. Returns 1 when it must be split (and puts the node to split first in *which:
+ * 0 = a, 1 = b), 0 when it is settled (rejected or a colliding voxel pair recorded). */
+static int visit(ctx *c, const obb_node *a, const obb_node *b, int *which)
+{
+    if (pmax(a) * pmax(b) < c->thr)
+        return 0;
+    double ca[3], ha[3], cb[3], hb[3], gap;
+    obb__box(a->lo, a->hi, c->sa, c->tol, ca, ha);
+    obb__box(b->lo, b->hi, c->sb, c->tol, cb, hb);
+    c->r->tests++;
+    int va = is_voxel(a), vb = is_voxel(b);
+    if (va && vb) {
+        if (obb__sat(&c->rel, 1, ca, ha, cb, hb, 1, &gap))
+            record(c, a, b, gap);
+        else if (gap < c->best_gap)
+            c->best_gap = gap;
+        return 0;
+    }
+    if (!obb__sat(&c->rel, 0, ca, ha, cb, hb, 0, &gap)) {
+        /* A first-axis gap is a valid bound; refine it only when it could lower the minimum. */
+        if (gap < c->best_gap) {
+            obb__sat(&c->rel, 0, ca, ha, cb, hb, 1, &gap);
+            c->best_gap = gap < c->best_gap ? gap : c->best_gap;
+        }
+        return 0;
+    }
+    *which = va ? 1 : vb ? 0 : volume(b, c->sb) > volume(a, c->sa);
+    return 1;
+}
+
+static int done(const ctx *c)
+{
+    return c->r->collides && !c->want_pairs;
+}
+
+static void push_split(ctx *c, const npair *p, int which, npair *out, int *n)
+{
+    obb_node kid[8];
+    int k = split(c, which ? &p->b : &p->a, which ? c->nb : c->na, kid);
+    for (int i = 0; i < k; i++) {
+        out[*n] = *p;
+        if (which)
+            out[*n].b = kid[i];
+        else
+            out[*n].a = kid[i];
+        (*n)++;
+    }
+}
+
+static void depth_first(ctx *c, const npair *start)
+{
+    npair stack[STACK];
+    int n = 0;
+    stack[n++] = *start;
+    while (n > 0 && !done(c)) {
+        npair p = stack[--n];
+        int which;
+        if (visit(c, &p.a, &p.b, &which))
+            push_split(c, &p, which, stack, &n);
+    }
+}
+
+static void breadth_first(ctx *c, const npair *start)
+{
+    npair ring[QUEUE];
+    size_t head = 0, count = 1;
+    ring[0] = *start;
+    while (count > 0 && !done(c)) {
+        npair p = ring[head];
+        head = (head + 1) % QUEUE;
+        count--;
+        int which;
+        if (!visit(c, &p.a, &p.b, &which))
+            continue;
+        npair kids[8];
+        int k = 0;
+        push_split(c, &p, which, kids, &k);
+        for (int i = 0; i < k; i++) {
+            if (count < QUEUE) {
+                ring[(head + count) % QUEUE] = kids[i];
+                count++;
+            } else {
+                depth_first(c, &kids[i]);
+            }
+        }
+    }
+}
+
+void obb_cache_reset(obb_cache *c)
+{
+    if (c)
+        memset(c, 0, sizeof *c);
+}
+
+static int check_args(const obb_tree *a, const pose *aw, const obb_tree *b, const pose *bw,
+                      const obb_query *q, obb_result *r)
+{
+    if (!a || !b || !aw || !bw || !r)
+        return fn_err_set(FN_EINVAL, "obb_collide: NULL tree, pose or result");
+    for (int i = 0; i < 4; i++)
+        if (!isfinite(aw->q[i]) || !isfinite(bw->q[i]) || (i < 3 && (!isfinite(aw->t[i]) ||
+                                                                     !isfinite(bw->t[i]))))
+            return fn_err_set(FN_EINVAL, "obb_collide: pose has a non-finite value");
+    return q ? obb__check_query(q, obb_tree_spacing(a), obb_tree_spacing(b)) : 0;
+}
+
+int obb_collide(const obb_tree *a, const pose *a_world, const obb_tree *b, const pose *b_world,
+                const obb_query *q, obb_cache *cache, obb_result *r)
+{
+    int rc = check_args(a, a_world, b, b_world, q, r);
+    if (rc)
+        return rc;
+    static const obb_query none = {0};
+    ctx c = {.na = obb_tree_node_array(a), .nb = obb_tree_node_array(b), .q = q ? q : &none,
+             .r = r, .cache = cache, .best_gap = INFINITY, .pen = 0};
+    memset(r, 0, sizeof *r);
+    c.thr = obb__threshold(c.q->threshold);
+    c.tol = c.q->tolerance_mm;
+    c.want_pairs = c.q->want_pairs;
+    memcpy(c.sa, obb_tree_spacing(a), sizeof c.sa);
+    memcpy(c.sb, obb_tree_spacing(b), sizeof c.sb);
+    if (!obb_tree_nodes(a) || !obb_tree_nodes(b)) {
+        r->separation_mm = INFINITY;
+        return 0;
+    }
+    obb__rel_make(&c.rel, a_world, b_world);
+    int which;
+    if (cache && cache->has_witness && !c.want_pairs) {
+        obb_node wa = cache->wa, wb = cache->wb;
+        cache->has_witness = 0;
+        visit(&c, &wa, &wb, &which);
+        if (done(&c)) {
+            r->separation_mm = c.pen;
+            return 0;
+        }
+        c.best_gap = INFINITY; /* a witness gap says nothing about the other pairs */
+    }
+    npair root = {c.na[0], c.nb[0]};
+    if (c.q->order == OBB_BREADTH_FIRST)
+        breadth_first(&c, &root);
+    else
+        depth_first(&c, &root);
+    if (r->collides)
+        r->separation_mm = c.pen;
+    else
+        r->separation_mm = c.best_gap > OBB__SLACK ? c.best_gap - OBB__SLACK : 0;
+    return 0;
+}
