@@ -1,10 +1,152 @@
+/* fracnav edit: manual corrections of a case, each saved atomically. */
 #include "cmd.h"
 
-#include <stdio.h>
+#include "case.h"
+#include "err.h"
 
-/* Placeholder until this command is built. */
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+static void usage(FILE *out)
+{
+    fprintf(out,
+            "usage: fracnav edit CASE OPERATION ARGS\n\n"
+            "Correct a case's segmentation; the case is saved atomically after the edit (a failed\n"
+            "save leaves it as it was). Coordinates are world LPS mm (see case.json's centroids).\n\n"
+            "operations:\n"
+            "  merge A B                           fragment B joins fragment A\n"
+            "  split ID --plane PX PY PZ NX NY NZ  voxels of ID on the side the normal N points to\n"
+            "                                      (plane through P) become a new fragment\n"
+            "  erase-box X0 Y0 Z0 X1 Y1 Z1 [--id ID]  erase voxels inside the box (of ID only)\n"
+            "  erase-sphere CX CY CZ R [--id ID]   erase voxels within R mm of C (of ID only)\n"
+            "  keep IDS                            keep only these fragments (IDS: 1,3 or 1 3)\n"
+            "  drop IDS                            remove these fragments\n"
+            "  fix ID                              make ID the fixed fragment (0: none)\n"
+            "  --help                              this text\n");
+}
+
+static int bad_usage(const char *msg)
+{
+    fprintf(stderr, "fracnav edit: %s (see fracnav edit --help)\n", msg);
+    return 2;
+}
+
+static int number(const char *s, double *out)
+{
+    char *end;
+    *out = strtod(s, &end);
+    return end != s && *end == '\0';
+}
+
+static int integer(const char *s, int *out)
+{
+    char *end;
+    long v = strtol(s, &end, 10);
+    *out = (int)v;
+    return end != s && *end == '\0' && v >= 0 && v <= 65535;
+}
+
+static int numbers(char **argv, int n, double *out)
+{
+    for (int i = 0; i < n; i++)
+        if (!number(argv[i], &out[i]))
+            return 0;
+    return 1;
+}
+
+/* IDS as "1,3" and/or separate arguments. Returns the count, or -1. */
+static int id_list(int argc, char **argv, int *ids, int cap)
+{
+    int n = 0;
+    for (int i = 0; i < argc; i++) {
+        char buf[256];
+        snprintf(buf, sizeof buf, "%s", argv[i]);
+        for (char *tok = strtok(buf, ","); tok; tok = strtok(NULL, ",")) {
+            if (n == cap || !integer(tok, &ids[n]) || ids[n] == 0)
+                return -1;
+            n++;
+        }
+    }
+    return n ? n : -1;
+}
+
+/* `--id ID` after the positional numbers, or none (0). Returns 0 or -1. */
+static int optional_id(int argc, char **argv, int *id)
+{
+    *id = 0;
+    if (argc == 0)
+        return 0;
+    return argc == 2 && !strcmp(argv[0], "--id") && integer(argv[1], id) ? 0 : -1;
+}
+
+/* Applies the operation; returns 0, 2 (usage) or 1 (runtime, fn_err set). */
+static int apply(fcase *c, const char *op, int argc, char **argv)
+{
+    double v[6];
+    int a, b, id, ids[256], n;
+    long rc;
+    if (!strcmp(op, "merge")) {
+        if (argc != 2 || !integer(argv[0], &a) || !integer(argv[1], &b))
+            return bad_usage("merge needs two fragment ids");
+        if ((rc = case_merge(c, a, b)) < 0)
+            return 1;
+        printf("merged fragment %d into %d\n", b, a);
+    } else if (!strcmp(op, "split")) {
+        if (argc != 8 || !integer(argv[0], &id) || strcmp(argv[1], "--plane") || !numbers(argv + 2, 6, v))
+            return bad_usage("split needs ID --plane PX PY PZ NX NY NZ");
+        if ((rc = case_split(c, id, v, v + 3)) < 0)
+            return 1;
+        printf("split fragment %d: the part in front of the plane is fragment %ld\n", id, rc);
+    } else if (!strcmp(op, "erase-box")) {
+        if (argc < 6 || !numbers(argv, 6, v) || optional_id(argc - 6, argv + 6, &id) < 0)
+            return bad_usage("erase-box needs X0 Y0 Z0 X1 Y1 Z1 [--id ID]");
+        if ((rc = case_erase_box(c, v, v + 3, id)) < 0)
+            return 1;
+        printf("erased %ld voxels\n", rc);
+    } else if (!strcmp(op, "erase-sphere")) {
+        if (argc < 4 || !numbers(argv, 4, v) || optional_id(argc - 4, argv + 4, &id) < 0)
+            return bad_usage("erase-sphere needs CX CY CZ R [--id ID]");
+        if ((rc = case_erase_sphere(c, v, v[3], id)) < 0)
+            return 1;
+        printf("erased %ld voxels\n", rc);
+    } else if (!strcmp(op, "keep") || !strcmp(op, "drop")) {
+        if ((n = id_list(argc, argv, ids, 256)) < 0)
+            return bad_usage("keep/drop need fragment ids (1,3 or 1 3)");
+        if ((!strcmp(op, "keep") ? case_keep(c, ids, n) : case_drop(c, ids, n)) < 0)
+            return 1;
+        printf("%d fragments left\n", c->nfrag);
+    } else if (!strcmp(op, "fix")) {
+        if (argc != 1 || !integer(argv[0], &id))
+            return bad_usage("fix needs one fragment id (0: none)");
+        if (case_fix(c, id) < 0)
+            return 1;
+        printf(id ? "fragment %d is fixed\n" : "no fixed fragment\n", id);
+    } else {
+        fprintf(stderr, "fracnav edit: unknown operation '%s' (see fracnav edit --help)\n", op);
+        return 2;
+    }
+    return 0;
+}
+
 int cmd_edit(int argc, char **argv)
 {
-    fprintf(stderr, "fracnav %s: not built yet\n", argv[0]);
-    return 1;
+    if (cmd_wants_help(argc, argv)) {
+        usage(stdout);
+        return 0;
+    }
+    if (argc < 3)
+        return bad_usage("needs CASE and an operation");
+    fcase *c = case_load(argv[1]);
+    if (!c) {
+        fprintf(stderr, "fracnav edit: %s\n", fn_err_msg());
+        return 1;
+    }
+    int rc = apply(c, argv[2], argc - 3, argv + 3);
+    if (rc == 0 && case_save(c) < 0)
+        rc = 1;
+    if (rc == 1)
+        fprintf(stderr, "fracnav edit: %s\n", fn_err_msg());
+    case_free(c);
+    return rc;
 }

@@ -1,10 +1,130 @@
+/* fracnav segment: threshold + 26-connected components into a new case. */
 #include "cmd.h"
 
-#include <stdio.h>
+#include "case.h"
+#include "err.h"
+#include "seg.h"
+#include "volio.h"
 
-/* Placeholder until this command is built. */
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+static void usage(FILE *out)
+{
+    fprintf(out,
+            "usage: fracnav segment VOLUME -o CASE [options]\n\n"
+            "Segment a CT into bone fragments and save them as a case folder (CASE/case.json,\n"
+            "CASE/labels.nii.gz). Bone is every voxel >= the threshold; 26-connected components\n"
+            "become fragments, largest first (ids 1..n).\n\n"
+            "  -o, --output CASE          the case folder to write (created if missing)\n"
+            "  --threshold HU|auto        bone threshold (default 300 HU); auto = Otsu, for data\n"
+            "                             not in HU\n"
+            "  --min-volume ML            drop components under ML millilitres (default 0.5)\n"
+            "  --exclude-below-peak HU    drop components whose brightest voxel is under HU: the CT\n"
+            "                             head holder (300-600 HU) goes with e.g. 1000\n"
+            "  --keep N                   keep only the N largest components\n"
+            "  --ramp W                   probability map: 0.5 at the threshold rising to 1 at\n"
+            "                             threshold + W/2 (default 200; 0 = 1 inside the mask)\n"
+            "  --help                     this text\n");
+}
+
+static int bad_usage(const char *fmt, const char *arg)
+{
+    fprintf(stderr, "fracnav segment: ");
+    fprintf(stderr, fmt, arg);
+    fprintf(stderr, " (see fracnav segment --help)\n");
+    return 2;
+}
+
+static int number(const char *s, double *out)
+{
+    char *end;
+    *out = strtod(s, &end);
+    return end != s && *end == '\0';
+}
+
+static int parse(int argc, char **argv, seg_params *p, const char **in, const char **out)
+{
+    for (int i = 1; i < argc; i++) {
+        const char *a = argv[i];
+        const char *val = i + 1 < argc ? argv[i + 1] : NULL;
+        double d;
+        if (a[0] != '-') {
+            if (*in)
+                return bad_usage("unexpected argument '%s'", a);
+            *in = a;
+            continue;
+        }
+        if (!val)
+            return bad_usage("%s needs a value", a);
+        i++;
+        if (!strcmp(a, "-o") || !strcmp(a, "--output"))
+            *out = val;
+        else if (!strcmp(a, "--threshold") && !strcmp(val, "auto"))
+            p->threshold_auto = 1;
+        else if (!strcmp(a, "--threshold") && number(val, &d))
+            p->threshold = d;
+        else if (!strcmp(a, "--min-volume") && number(val, &d) && d >= 0)
+            p->min_volume_ml = d;
+        else if (!strcmp(a, "--exclude-below-peak") && number(val, &d)) {
+            p->exclude_peak = 1;
+            p->exclude_below_peak = d;
+        } else if (!strcmp(a, "--keep") && number(val, &d) && d >= 1 && d <= 1e6 && d == (int)d)
+            p->keep = (int)d;
+        else if (!strcmp(a, "--ramp") && number(val, &d) && d >= 0)
+            p->ramp = d;
+        else
+            return bad_usage("bad option or value near '%s'", a);
+    }
+    if (!*in || !*out)
+        return bad_usage("%s", "needs VOLUME and -o CASE");
+    return 0;
+}
+
+static void report(const fcase *c, const seg_result *r)
+{
+    printf("threshold %g: %d components, %d kept\n", r->threshold, r->raw_components, c->nfrag);
+    for (int i = 0; i < c->nfrag; i++) {
+        const frag *f = &c->frag[i];
+        printf("  fragment %d: %zu voxels, %.2f ml, peak %g, centroid %.1f %.1f %.1f mm (LPS)\n",
+               f->id, f->voxels, f->volume_ml, (double)r->comp[i].peak, f->centroid[0],
+               f->centroid[1], f->centroid[2]);
+    }
+}
+
 int cmd_segment(int argc, char **argv)
 {
-    fprintf(stderr, "fracnav %s: not built yet\n", argv[0]);
-    return 1;
+    if (cmd_wants_help(argc, argv)) {
+        usage(stdout);
+        return 0;
+    }
+    seg_params p;
+    seg_defaults(&p);
+    const char *in = NULL, *out = NULL;
+    int rc = parse(argc, argv, &p, &in, &out);
+    if (rc)
+        return rc;
+    vol *ct = volio_read(in);
+    seg_result r = {0};
+    if (!ct || seg_run(ct, &p, &r) < 0) {
+        fprintf(stderr, "fracnav segment: %s\n", fn_err_msg());
+        vol_free(ct);
+        return 1;
+    }
+    p.threshold = r.threshold;
+    vol *labels = r.labels;
+    r.labels = NULL;
+    fcase *c = case_create(out, in, ct, labels, &p);
+    if (!c || case_save(c) < 0) {
+        fprintf(stderr, "fracnav segment: %s\n", fn_err_msg());
+        case_free(c);
+        seg_result_free(&r);
+        return 1;
+    }
+    report(c, &r);
+    printf("saved %s\n", out);
+    case_free(c);
+    seg_result_free(&r);
+    return 0;
 }

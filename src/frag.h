@@ -31,4 +31,27 @@ typedef struct frag {
     pose pose;             /* home world -> current world */
 } frag;
 
+struct vol;
+
+/* Builds fragment `id` from a labelmap: the crop is the source-index box [lo, hi] (inclusive,
+ * usually the label's bounding box) padded by one voxel on every side (it may reach outside the
+ * grid; those voxels are 0). prob = seg_prob(ct value) where labels == id, 0 elsewhere; ct may be
+ * NULL (then 255 inside). Fills stats (frag_stats), colour and name, pose = identity. 0 or FN_E*;
+ * on failure *f holds nothing to free. */
+int frag_from_labels(frag *f, const struct vol *labels, const struct vol *ct, int id, const int lo[3],
+                     const int hi[3], double threshold, double ramp);
+/* Recomputes voxels, volume_ml, centroid, axes and eigval from prob (every voxel with prob > 0
+ * counts once; centres in home world). */
+void frag_stats(frag *f);
+/* Source voxel index of crop voxel l (undoing any flip). */
+void frag_local_to_source(const frag *f, const int l[3], int s[3]);
+/* Home-world position (LPS mm) of crop voxel l's centre. */
+void frag_voxel_world(const frag *f, const int l[3], double w[3]);
+/* A distinct colour per id (a fixed palette, then golden-ratio hues). */
+void frag_colour(int id, uint8_t rgb[3]);
+/* Eigen-decomposition of a symmetric 3x3 matrix by cyclic Jacobi: vec columns, val descending,
+ * the first two columns' largest component positive, the third their cross product (det +1). */
+void frag_eigen_sym3(const double a[3][3], double vec[3][3], double val[3]);
+void frag_free(frag *f);
+
 #endif

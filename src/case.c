@@ -1,0 +1,295 @@
+#include "case.h"
+
+#include "err.h"
+
+#include <errno.h>
+#include <limits.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define LABEL_MAX 65535
+
+/* ---- sha256 (FIPS 180-4) ---- */
+
+typedef struct sha256_ctx {
+    uint32_t h[8];
+    uint8_t buf[64];
+    size_t fill;
+    uint64_t bytes;
+} sha256_ctx;
+
+static const uint32_t sha_k[64] = {
+    0x428a2f98, 0x71374491, 0xb5c0fbcf, 0xe9b5dba5, 0x3956c25b, 0x59f111f1, 0x923f82a4, 0xab1c5ed5,
+    0xd807aa98, 0x12835b01, 0x243185be, 0x550c7dc3, 0x72be5d74, 0x80deb1fe, 0x9bdc06a7, 0xc19bf174,
+    0xe49b69c1, 0xefbe4786, 0x0fc19dc6, 0x240ca1cc, 0x2de92c6f, 0x4a7484aa, 0x5cb0a9dc, 0x76f988da,
+    0x983e5152, 0xa831c66d, 0xb00327c8, 0xbf597fc7, 0xc6e00bf3, 0xd5a79147, 0x06ca6351, 0x14292967,
+    0x27b70a85, 0x2e1b2138, 0x4d2c6dfc, 0x53380d13, 0x650a7354, 0x766a0abb, 0x81c2c92e, 0x92722c85,
+    0xa2bfe8a1, 0xa81a664b, 0xc24b8b70, 0xc76c51a3, 0xd192e819, 0xd6990624, 0xf40e3585, 0x106aa070,
+    0x19a4c116, 0x1e376c08, 0x2748774c, 0x34b0bcb5, 0x391c0cb3, 0x4ed8aa4a, 0x5b9cca4f, 0x682e6ff3,
+    0x748f82ee, 0x78a5636f, 0x84c87814, 0x8cc70208, 0x90befffa, 0xa4506ceb, 0xbef9a3f7, 0xc67178f2};
+
+static uint32_t ror(uint32_t x, int n)
+{
+    return (x >> n) | (x << (32 - n));
+}
+
+static void sha_block(uint32_t h[8], const uint8_t *p)
+{
+    uint32_t w[64];
+    for (int i = 0; i < 16; i++)
+        w[i] = (uint32_t)p[4 * i] << 24 | (uint32_t)p[4 * i + 1] << 16 | (uint32_t)p[4 * i + 2] << 8 |
+               p[4 * i + 3];
+    for (int i = 16; i < 64; i++) {
+        uint32_t s0 = ror(w[i - 15], 7) ^ ror(w[i - 15], 18) ^ (w[i - 15] >> 3);
+        uint32_t s1 = ror(w[i - 2], 17) ^ ror(w[i - 2], 19) ^ (w[i - 2] >> 10);
+        w[i] = w[i - 16] + s0 + w[i - 7] + s1;
+    }
+    uint32_t a = h[0], b = h[1], c = h[2], d = h[3], e = h[4], f = h[5], g = h[6], k = h[7];
+    for (int i = 0; i < 64; i++) {
+        uint32_t t1 = k + (ror(e, 6) ^ ror(e, 11) ^ ror(e, 25)) + ((e & f) ^ (~e & g)) + sha_k[i] + w[i];
+        uint32_t t2 = (ror(a, 2) ^ ror(a, 13) ^ ror(a, 22)) + ((a & b) ^ (a & c) ^ (b & c));
+        k = g;
+        g = f;
+        f = e;
+        e = d + t1;
+        d = c;
+        c = b;
+        b = a;
+        a = t1 + t2;
+    }
+    h[0] += a, h[1] += b, h[2] += c, h[3] += d, h[4] += e, h[5] += f, h[6] += g, h[7] += k;
+}
+
+static void sha_init(sha256_ctx *s)
+{
+    static const uint32_t h0[8] = {0x6a09e667, 0xbb67ae85, 0x3c6ef372, 0xa54ff53a,
+                                   0x510e527f, 0x9b05688c, 0x1f83d9ab, 0x5be0cd19};
+    memcpy(s->h, h0, sizeof h0);
+    s->fill = 0;
+    s->bytes = 0;
+}
+
+static void sha_update(sha256_ctx *s, const uint8_t *p, size_t n)
+{
+    s->bytes += n;
+    while (n) {
+        size_t take = 64 - s->fill < n ? 64 - s->fill : n;
+        memcpy(s->buf + s->fill, p, take);
+        s->fill += take;
+        p += take;
+        n -= take;
+        if (s->fill == 64) {
+            sha_block(s->h, s->buf);
+            s->fill = 0;
+        }
+    }
+}
+
+static void sha_final(sha256_ctx *s, char hex[65])
+{
+    uint64_t bits = s->bytes * 8;
+    uint8_t pad = 0x80, zero = 0, len[8];
+    sha_update(s, &pad, 1);
+    while (s->fill != 56)
+        sha_update(s, &zero, 1);
+    for (int i = 0; i < 8; i++)
+        len[i] = (uint8_t)(bits >> (56 - 8 * i));
+    sha_update(s, len, 8);
+    for (int i = 0; i < 8; i++)
+        snprintf(hex + 8 * i, 9, "%08x", s->h[i]);
+}
+
+int case_file_sha256(const char *path, char hex[65])
+{
+    FILE *f = fopen(path, "rb");
+    if (!f)
+        return fn_err_set(FN_EIO, "%s: cannot open: %s", path, strerror(errno));
+    sha256_ctx s;
+    sha_init(&s);
+    uint8_t buf[1 << 16];
+    size_t n;
+    while ((n = fread(buf, 1, sizeof buf, f)) > 0)
+        sha_update(&s, buf, n);
+    int bad = ferror(f);
+    fclose(f);
+    if (bad)
+        return fn_err_set(FN_EIO, "%s: read error", path);
+    sha_final(&s, hex);
+    return 0;
+}
+
+/* ---- fragments ---- */
+
+int case_find(const fcase *c, int id)
+{
+    for (int i = 0; i < c->nfrag; i++)
+        if (c->frag[i].id == id)
+            return i;
+    return -1;
+}
+
+static int check_labels(const vol *labels)
+{
+    size_t n = vol_count(labels);
+    for (size_t i = 0; i < n; i++) {
+        float v = labels->data[i];
+        if (!(v >= 0 && v <= LABEL_MAX) || v != floorf(v)) {
+            size_t x = i % (size_t)labels->dim[0], rest = i / (size_t)labels->dim[0];
+            return fn_err_set(FN_EFORMAT, "labels: voxel (%zu,%zu,%zu) holds %g, not a label 0..%d",
+                              x, rest % (size_t)labels->dim[1], rest / (size_t)labels->dim[1],
+                              (double)v, LABEL_MAX);
+        }
+    }
+    return 0;
+}
+
+/* Bounding boxes of every label 1..LABEL_MAX: lo/hi have LABEL_MAX+1 rows; hi[l][0] < 0 = absent. */
+static void label_boxes(const vol *labels, int (*lo)[3], int (*hi)[3])
+{
+    for (int l = 0; l <= LABEL_MAX; l++)
+        for (int a = 0; a < 3; a++) {
+            lo[l][a] = INT_MAX;
+            hi[l][a] = -1;
+        }
+    size_t idx = 0;
+    for (int k = 0; k < labels->dim[2]; k++)
+        for (int j = 0; j < labels->dim[1]; j++)
+            for (int i = 0; i < labels->dim[0]; i++, idx++) {
+                int l = (int)labels->data[idx];
+                if (!l)
+                    continue;
+                int ijk[3] = {i, j, k};
+                for (int a = 0; a < 3; a++) {
+                    if (ijk[a] < lo[l][a])
+                        lo[l][a] = ijk[a];
+                    if (ijk[a] > hi[l][a])
+                        hi[l][a] = ijk[a];
+                }
+            }
+}
+
+static void inherit(frag *f, pose *truth, const fcase *old, int from_id, int keep_looks)
+{
+    int i = case_find(old, from_id);
+    if (i < 0)
+        return;
+    f->pose = old->frag[i].pose;
+    if (keep_looks) {
+        memcpy(f->name, old->frag[i].name, sizeof f->name);
+        memcpy(f->rgb, old->frag[i].rgb, sizeof f->rgb);
+    }
+    if (old->has_truth)
+        *truth = old->truth[i];
+}
+
+int case_rebuild(fcase *c, int new_id, int parent_id)
+{
+    int rc = check_labels(c->labels);
+    if (rc < 0)
+        return rc;
+    int(*lo)[3] = malloc((LABEL_MAX + 1) * sizeof *lo);
+    int(*hi)[3] = malloc((LABEL_MAX + 1) * sizeof *hi);
+    frag *nf = NULL;
+    pose *nt = NULL;
+    if (!lo || !hi) {
+        rc = fn_err_set(FN_ENOMEM, "case: out of memory");
+        goto done;
+    }
+    label_boxes(c->labels, lo, hi);
+    int n = 0;
+    for (int l = 1; l <= LABEL_MAX; l++)
+        n += hi[l][0] >= 0;
+    nf = calloc(n ? (size_t)n : 1, sizeof *nf);
+    nt = calloc(n ? (size_t)n : 1, sizeof *nt);
+    if (!nf || !nt) {
+        rc = fn_err_set(FN_ENOMEM, "case: out of memory for %d fragments", n);
+        goto done;
+    }
+    int fixed_id = c->fixed >= 0 && c->fixed < c->nfrag ? c->frag[c->fixed].id : -1, built = 0;
+    for (int l = 1; l <= LABEL_MAX && rc == 0; l++) {
+        if (hi[l][0] < 0)
+            continue;
+        rc = frag_from_labels(&nf[built], c->labels, c->ct, l, lo[l], hi[l], c->seg.threshold,
+                              c->seg.ramp);
+        if (rc < 0)
+            break;
+        nt[built] = POSE_IDENTITY;
+        if (l == new_id)
+            inherit(&nf[built], &nt[built], c, parent_id, 0);
+        else
+            inherit(&nf[built], &nt[built], c, l, 1);
+        built++;
+    }
+    if (rc < 0) {
+        for (int i = 0; i < built; i++)
+            frag_free(&nf[i]);
+        goto done;
+    }
+    for (int i = 0; i < c->nfrag; i++)
+        frag_free(&c->frag[i]);
+    free(c->frag);
+    free(c->truth);
+    c->frag = nf;
+    c->truth = nt;
+    c->nfrag = n;
+    nf = NULL;
+    nt = NULL;
+    c->fixed = case_find(c, fixed_id);
+done:
+    free(lo);
+    free(hi);
+    free(nf);
+    free(nt);
+    return rc;
+}
+
+fcase *case_create(const char *dir, const char *source, vol *ct, vol *labels, const seg_params *sp)
+{
+    fcase *c = calloc(1, sizeof *c);
+    if (!c) {
+        vol_free(ct);
+        vol_free(labels);
+        fn_err_set(FN_ENOMEM, "case: out of memory");
+        return NULL;
+    }
+    c->ct = ct;
+    c->labels = labels;
+    c->fixed = -1;
+    c->tau_min = 0.5;
+    c->tau_max = 0.95;
+    c->seg = *sp;
+    if (strlen(dir) >= sizeof c->dir || strlen(source) >= sizeof c->source) {
+        fn_err_set(FN_EINVAL, "case: folder or source path too long");
+        case_free(c);
+        return NULL;
+    }
+    strcpy(c->dir, dir);
+    strcpy(c->source, source);
+    for (int a = 0; a < 3; a++)
+        if (ct->dim[a] != labels->dim[a]) {
+            fn_err_set(FN_EINVAL, "case: labels are %dx%dx%d but %s is %dx%dx%d", labels->dim[0],
+                       labels->dim[1], labels->dim[2], source, ct->dim[0], ct->dim[1], ct->dim[2]);
+            case_free(c);
+            return NULL;
+        }
+    if (case_file_sha256(source, c->sha256) < 0 || case_rebuild(c, 0, 0) < 0) {
+        case_free(c);
+        return NULL;
+    }
+    return c;
+}
+
+void case_free(fcase *c)
+{
+    if (!c)
+        return;
+    for (int i = 0; i < c->nfrag; i++)
+        frag_free(&c->frag[i]);
+    free(c->frag);
+    free(c->truth);
+    vol_free(c->ct);
+    vol_free(c->labels);
+    free(c);
+}

@@ -1,0 +1,81 @@
+/* case: a planning case on disk, a folder holding case.json and labels.nii.gz.
+ *
+ * case.json (written through jansson) holds the format version, the source volume (path, sha256,
+ * geometry), the segmentation parameters, every fragment (id, name, colour, voxels, volume,
+ * bounding box, centroid, principal axes, pose), the fixed fragment, the hierarchy thresholds
+ * tau_min/tau_max, the sha256 of labels.nii.gz, and any ground truth. labels.nii.gz is the
+ * labelmap on the source grid. A source path inside the case folder is stored relative to it.
+ *
+ * Saves are atomic per file (temporary file, fsync, rename, fsync of the folder): a failed save
+ * leaves the previous case untouched. labels.nii.gz is renamed before case.json; a crash between
+ * the two renames is caught at load by the labels checksum. */
+#ifndef FN_CASE_H
+#define FN_CASE_H
+
+#include "frag.h"
+#include "pose.h"
+#include "seg.h"
+#include "vol.h"
+
+#define CASE_VERSION 1
+
+typedef struct fcase {
+    char dir[4096];          /* the case folder */
+    char source[4096];       /* source volume path (absolute, or as given) */
+    char sha256[65];         /* of the source volume file */
+    vol *ct;                 /* the source volume, owned */
+    vol *labels;             /* labelmap on the source grid (float label values), owned */
+    int nfrag;
+    frag *frag;              /* frag[i].id is its label; prob maps, centroid, axes ready after load */
+    int fixed;               /* index of the fixed fragment, -1 none */
+    double tau_min, tau_max; /* hierarchy thresholds (collision probability) */
+    int has_truth;
+    pose *truth;             /* when has_truth: per fragment, the pose that restores it (home -> true) */
+    seg_params seg;          /* how the labels were made; seg.threshold/ramp shape the prob maps */
+} fcase;
+
+/* A new case in folder dir (not yet saved) over the source volume file `source`, already read into
+ * ct; takes ownership of ct and labels. Builds every fragment present in labels (ids = label values,
+ * ascending), poses identity, no fixed fragment, no truth. NULL with fn_err on failure (ct and labels
+ * are freed then too). */
+fcase *case_create(const char *dir, const char *source, vol *ct, vol *labels, const seg_params *sp);
+
+/* Reads dir/case.json, dir/labels.nii.gz and the source volume. Checks the version, the source's
+ * sha256 and geometry, and the labels checksum; each mismatch is an FN_EMISMATCH error that says
+ * what differs. A damaged case.json gets FN_EFORMAT naming the file and the field. */
+fcase *case_load(const char *dir);
+
+/* Writes labels.nii.gz and case.json atomically (creates dir if missing). 0 or FN_E*. */
+int case_save(fcase *c);
+void case_free(fcase *c);
+
+/* Rebuilds the fragments from c->labels after an edit: fragments keep their pose, name, colour and
+ * truth by id; fragment new_id (when > 0) inherits pose and truth from parent_id (a split), other
+ * new ids get identity; ids that vanished are removed (the fixed index follows its fragment or
+ * becomes -1). Labels must be integers 0..65535. 0 or FN_E*. */
+int case_rebuild(fcase *c, int new_id, int parent_id);
+
+/* Index of the fragment with label id, or -1. */
+int case_find(const fcase *c, int id);
+
+/* sha256 of a file's bytes as 64 hex digits. 0 or FN_EIO. */
+int case_file_sha256(const char *path, char hex[65]);
+
+/* Edits. Each changes c->labels and rebuilds the fragments (case_rebuild); the caller saves.
+ * A bad id is FN_EINVAL naming it and listing the ids the case has. Volumes: world LPS mm. */
+/* Fragment b joins fragment a (b's voxels take label a). */
+int case_merge(fcase *c, int a, int b);
+/* The voxels of id on the side of the plane (point p, normal n) that n points to become a new
+ * fragment (the next free id, returned); it inherits id's pose and truth. */
+int case_split(fcase *c, int id, const double p[3], const double n[3]);
+/* Voxel centres inside the box (any two opposite corners) or sphere become background; only those
+ * of fragment id when id > 0. Returns the number of voxels erased. */
+long case_erase_box(fcase *c, const double a[3], const double b[3], int id);
+long case_erase_sphere(fcase *c, const double centre[3], double radius, int id);
+/* Keeps only, or drops, the listed fragments. */
+int case_keep(fcase *c, const int *ids, int n);
+int case_drop(fcase *c, const int *ids, int n);
+/* Makes id the fixed fragment (0: none). */
+int case_fix(fcase *c, int id);
+
+#endif

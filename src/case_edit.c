@@ -1,0 +1,200 @@
+/* Manual corrections of a case's labelmap. */
+#include "case.h"
+
+#include "err.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+
+/* FN_EINVAL naming the missing id and listing the ones the case has. */
+static int no_such(const fcase *c, int id)
+{
+    char list[512] = "";
+    size_t used = 0;
+    for (int i = 0; i < c->nfrag && used + 16 < sizeof list; i++)
+        used += (size_t)snprintf(list + used, sizeof list - used, "%s%d", i ? ", " : "", c->frag[i].id);
+    return fn_err_set(FN_EINVAL, "no fragment %d (the case has %s)", id, c->nfrag ? list : "none");
+}
+
+static int need(const fcase *c, int id)
+{
+    return case_find(c, id) < 0 ? no_such(c, id) : 0;
+}
+
+static void relabel(fcase *c, int from, int to)
+{
+    size_t n = vol_count(c->labels);
+    for (size_t i = 0; i < n; i++)
+        if (c->labels->data[i] == (float)from)
+            c->labels->data[i] = (float)to;
+}
+
+int case_merge(fcase *c, int a, int b)
+{
+    int rc = need(c, a);
+    if (rc == 0)
+        rc = need(c, b);
+    if (rc < 0)
+        return rc;
+    if (a == b)
+        return fn_err_set(FN_EINVAL, "cannot merge fragment %d with itself", a);
+    relabel(c, b, a);
+    return case_rebuild(c, 0, 0);
+}
+
+typedef int (*voxel_test)(const double w[3], const void *ctx);
+
+/* Relabels to `to` every voxel of label id (any label when 0) whose world centre passes test. */
+static long relabel_where(fcase *c, int id, voxel_test test, const void *ctx, int to)
+{
+    long n = 0;
+    size_t idx = 0;
+    vol *l = c->labels;
+    for (int k = 0; k < l->dim[2]; k++)
+        for (int j = 0; j < l->dim[1]; j++)
+            for (int i = 0; i < l->dim[0]; i++, idx++) {
+                float v = l->data[idx];
+                if (v == 0 || (id > 0 && v != (float)id))
+                    continue;
+                double ijk[3] = {i, j, k}, w[3];
+                vol_index_to_world(l, ijk, w);
+                if (test(w, ctx)) {
+                    l->data[idx] = (float)to;
+                    n++;
+                }
+            }
+    return n;
+}
+
+struct plane {
+    double p[3], n[3];
+};
+
+static int in_front(const double w[3], const void *ctx)
+{
+    const struct plane *pl = ctx;
+    return (w[0] - pl->p[0]) * pl->n[0] + (w[1] - pl->p[1]) * pl->n[1] + (w[2] - pl->p[2]) * pl->n[2] > 0;
+}
+
+int case_split(fcase *c, int id, const double p[3], const double n[3])
+{
+    int rc = need(c, id);
+    if (rc < 0)
+        return rc;
+    if (!(n[0] * n[0] + n[1] * n[1] + n[2] * n[2] > 0))
+        return fn_err_set(FN_EINVAL, "split: the plane's normal is zero");
+    int next = 0;
+    for (int i = 0; i < c->nfrag; i++)
+        if (c->frag[i].id > next)
+            next = c->frag[i].id;
+    if (++next > 65535)
+        return fn_err_set(FN_EINVAL, "split: no free label left");
+    struct plane pl = {{p[0], p[1], p[2]}, {n[0], n[1], n[2]}};
+    long moved = relabel_where(c, id, in_front, &pl, next);
+    const frag *f = &c->frag[case_find(c, id)];
+    if (moved == 0 || (size_t)moved == f->voxels) {
+        relabel(c, next, id);
+        return fn_err_set(FN_EINVAL, "split: the plane leaves all of fragment %d on one side", id);
+    }
+    rc = case_rebuild(c, next, id);
+    return rc < 0 ? rc : next;
+}
+
+struct box {
+    double lo[3], hi[3];
+};
+
+static int in_box(const double w[3], const void *ctx)
+{
+    const struct box *b = ctx;
+    for (int a = 0; a < 3; a++)
+        if (w[a] < b->lo[a] || w[a] > b->hi[a])
+            return 0;
+    return 1;
+}
+
+struct sphere {
+    double c[3], r2;
+};
+
+static int in_sphere(const double w[3], const void *ctx)
+{
+    const struct sphere *s = ctx;
+    double d[3] = {w[0] - s->c[0], w[1] - s->c[1], w[2] - s->c[2]};
+    return d[0] * d[0] + d[1] * d[1] + d[2] * d[2] <= s->r2;
+}
+
+static long erase(fcase *c, int id, voxel_test test, const void *ctx)
+{
+    if (id > 0 && need(c, id) < 0)
+        return FN_EINVAL;
+    long n = relabel_where(c, id, test, ctx, 0);
+    int rc = case_rebuild(c, 0, 0);
+    return rc < 0 ? rc : n;
+}
+
+long case_erase_box(fcase *c, const double a[3], const double b[3], int id)
+{
+    struct box bx;
+    for (int i = 0; i < 3; i++) {
+        bx.lo[i] = fmin(a[i], b[i]);
+        bx.hi[i] = fmax(a[i], b[i]);
+    }
+    return erase(c, id, in_box, &bx);
+}
+
+long case_erase_sphere(fcase *c, const double centre[3], double radius, int id)
+{
+    if (!(radius > 0) || !isfinite(radius))
+        return fn_err_set(FN_EINVAL, "erase-sphere: the radius must be a positive number");
+    struct sphere s = {{centre[0], centre[1], centre[2]}, radius * radius};
+    return erase(c, id, in_sphere, &s);
+}
+
+static int listed(const int *ids, int n, int id)
+{
+    for (int i = 0; i < n; i++)
+        if (ids[i] == id)
+            return 1;
+    return 0;
+}
+
+static int keep_or_drop(fcase *c, const int *ids, int n, int keep)
+{
+    for (int i = 0; i < n; i++) {
+        int rc = need(c, ids[i]);
+        if (rc < 0)
+            return rc;
+    }
+    size_t count = vol_count(c->labels);
+    for (size_t i = 0; i < count; i++) {
+        int v = (int)c->labels->data[i];
+        if (v && listed(ids, n, v) != keep)
+            c->labels->data[i] = 0;
+    }
+    return case_rebuild(c, 0, 0);
+}
+
+int case_keep(fcase *c, const int *ids, int n)
+{
+    return keep_or_drop(c, ids, n, 1);
+}
+
+int case_drop(fcase *c, const int *ids, int n)
+{
+    return keep_or_drop(c, ids, n, 0);
+}
+
+int case_fix(fcase *c, int id)
+{
+    if (id == 0) {
+        c->fixed = -1;
+        return 0;
+    }
+    int rc = need(c, id);
+    if (rc < 0)
+        return rc;
+    c->fixed = case_find(c, id);
+    return 0;
+}

@@ -1,0 +1,533 @@
+/* case_save / case_load: case.json through jansson, labels.nii.gz through volio. */
+#include "case.h"
+
+#include "err.h"
+#include "volio.h"
+
+#include <errno.h>
+#include <fcntl.h>
+#include <jansson.h>
+#include <limits.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#define CASE_FORMAT "fracnav-case"
+#define LABELS_FILE "labels.nii.gz"
+#define LABELS_TMP ".labels.tmp.nii.gz"
+#define JSON_FILE "case.json"
+#define JSON_TMP ".case.json.tmp"
+
+/* ---- writing ---- */
+
+static json_t *num_array(const double *v, int n)
+{
+    json_t *a = json_array();
+    for (int i = 0; i < n; i++)
+        json_array_append_new(a, json_real(v[i]));
+    return a;
+}
+
+static json_t *int_array(const int *v, int n)
+{
+    json_t *a = json_array();
+    for (int i = 0; i < n; i++)
+        json_array_append_new(a, json_integer(v[i]));
+    return a;
+}
+
+static json_t *pose_json(const pose *p)
+{
+    json_t *o = json_object();
+    json_object_set_new(o, "q", num_array(p->q, 4));
+    json_object_set_new(o, "t", num_array(p->t, 3));
+    return o;
+}
+
+static json_t *frag_json(const frag *f, const pose *truth)
+{
+    json_t *o = json_object();
+    json_object_set_new(o, "id", json_integer(f->id));
+    json_object_set_new(o, "name", json_string(f->name));
+    int rgb[3] = {f->rgb[0], f->rgb[1], f->rgb[2]};
+    json_object_set_new(o, "colour", int_array(rgb, 3));
+    json_object_set_new(o, "voxels", json_integer((json_int_t)f->voxels));
+    json_object_set_new(o, "volume_ml", json_real(f->volume_ml));
+    /* The label's own box in source voxel indices (the crop adds one voxel of padding). */
+    int lo[3], hi[3];
+    for (int a = 0; a < 3; a++) {
+        lo[a] = f->origin[a] + 1;
+        hi[a] = f->origin[a] + f->dim[a] - 2;
+    }
+    json_t *bb = json_object();
+    json_object_set_new(bb, "min_ijk", int_array(lo, 3));
+    json_object_set_new(bb, "max_ijk", int_array(hi, 3));
+    json_object_set_new(o, "bbox", bb);
+    json_object_set_new(o, "centroid", num_array(f->centroid, 3));
+    json_t *axes = json_array();
+    for (int c = 0; c < 3; c++) {
+        double col[3] = {f->axes[0][c], f->axes[1][c], f->axes[2][c]};
+        json_array_append_new(axes, num_array(col, 3));
+    }
+    json_object_set_new(o, "axes", axes);
+    json_object_set_new(o, "eigenvalues", num_array(f->eigval, 3));
+    json_object_set_new(o, "pose", pose_json(&f->pose));
+    if (truth)
+        json_object_set_new(o, "truth", pose_json(truth));
+    return o;
+}
+
+/* The source path as stored: relative when it lies inside the case folder. */
+static void stored_source(const fcase *c, char *out, size_t cap)
+{
+    char rdir[PATH_MAX], rsrc[PATH_MAX];
+    if (realpath(c->dir, rdir) && realpath(c->source, rsrc)) {
+        size_t n = strlen(rdir);
+        if (!strncmp(rsrc, rdir, n) && rsrc[n] == '/') {
+            snprintf(out, cap, "%s", rsrc + n + 1);
+            return;
+        }
+        snprintf(out, cap, "%s", rsrc);
+        return;
+    }
+    snprintf(out, cap, "%s", c->source);
+}
+
+static json_t *case_json(const fcase *c, const char *labels_sha)
+{
+    json_t *root = json_object();
+    json_object_set_new(root, "format", json_string(CASE_FORMAT));
+    json_object_set_new(root, "version", json_integer(CASE_VERSION));
+    char src[PATH_MAX];
+    stored_source(c, src, sizeof src);
+    json_t *s = json_object();
+    json_object_set_new(s, "path", json_string(src));
+    json_object_set_new(s, "sha256", json_string(c->sha256));
+    json_object_set_new(s, "dim", int_array(c->ct->dim, 3));
+    json_object_set_new(s, "spacing", num_array(c->ct->spacing, 3));
+    json_t *aff = json_array();
+    for (int r = 0; r < 3; r++)
+        json_array_append_new(aff, num_array(c->ct->affine[r], 4));
+    json_object_set_new(s, "affine", aff);
+    json_object_set_new(root, "source", s);
+    json_t *l = json_object();
+    json_object_set_new(l, "path", json_string(LABELS_FILE));
+    json_object_set_new(l, "sha256", json_string(labels_sha));
+    json_object_set_new(root, "labels", l);
+    json_t *sg = json_object();
+    json_object_set_new(sg, "threshold", json_real(c->seg.threshold));
+    json_object_set_new(sg, "threshold_auto", json_boolean(c->seg.threshold_auto));
+    json_object_set_new(sg, "min_volume_ml", json_real(c->seg.min_volume_ml));
+    json_object_set_new(sg, "exclude_below_peak",
+                        c->seg.exclude_peak ? json_real(c->seg.exclude_below_peak) : json_null());
+    json_object_set_new(sg, "keep", json_integer(c->seg.keep));
+    json_object_set_new(sg, "ramp", json_real(c->seg.ramp));
+    json_object_set_new(root, "segmentation", sg);
+    json_object_set_new(root, "tau_min", json_real(c->tau_min));
+    json_object_set_new(root, "tau_max", json_real(c->tau_max));
+    json_object_set_new(root, "fixed", c->fixed >= 0 ? json_integer(c->frag[c->fixed].id) : json_null());
+    json_object_set_new(root, "has_truth", json_boolean(c->has_truth));
+    json_t *fr = json_array();
+    for (int i = 0; i < c->nfrag; i++)
+        json_array_append_new(fr, frag_json(&c->frag[i], c->has_truth ? &c->truth[i] : NULL));
+    json_object_set_new(root, "fragments", fr);
+    return root;
+}
+
+static int fsync_path(const char *path, int dir)
+{
+    int fd = open(path, dir ? O_RDONLY | O_DIRECTORY : O_RDONLY);
+    if (fd < 0)
+        return fn_err_set(FN_EIO, "%s: cannot open to sync: %s", path, strerror(errno));
+    int rc = fsync(fd);
+    close(fd);
+    return rc ? fn_err_set(FN_EIO, "%s: fsync failed: %s", path, strerror(errno)) : 0;
+}
+
+static int write_file(const char *path, const char *text)
+{
+    int fd = open(path, O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    if (fd < 0)
+        return fn_err_set(FN_EIO, "%s: cannot create: %s", path, strerror(errno));
+    size_t n = strlen(text), done = 0;
+    while (done < n) {
+        ssize_t w = write(fd, text + done, n - done);
+        if (w < 0 && errno == EINTR)
+            continue;
+        if (w <= 0) {
+            int e = errno;
+            close(fd);
+            return fn_err_set(FN_EIO, "%s: write failed: %s", path, strerror(e));
+        }
+        done += (size_t)w;
+    }
+    if (fsync(fd) != 0) {
+        int e = errno;
+        close(fd);
+        return fn_err_set(FN_EIO, "%s: fsync failed: %s", path, strerror(e));
+    }
+    return close(fd) ? fn_err_set(FN_EIO, "%s: close failed: %s", path, strerror(errno)) : 0;
+}
+
+static void join(char *out, size_t cap, const char *dir, const char *name)
+{
+    snprintf(out, cap, "%s/%s", dir, name);
+}
+
+int case_save(fcase *c)
+{
+    if (mkdir(c->dir, 0755) != 0 && errno != EEXIST)
+        return fn_err_set(FN_EIO, "%s: cannot create the case folder: %s", c->dir, strerror(errno));
+    char ltmp[4200], jtmp[4200], lfin[4200], jfin[4200], lsha[65];
+    join(ltmp, sizeof ltmp, c->dir, LABELS_TMP);
+    join(jtmp, sizeof jtmp, c->dir, JSON_TMP);
+    join(lfin, sizeof lfin, c->dir, LABELS_FILE);
+    join(jfin, sizeof jfin, c->dir, JSON_FILE);
+    int rc = volio_write(c->labels, ltmp, VOL_U16);
+    if (rc == 0)
+        rc = fsync_path(ltmp, 0);
+    if (rc == 0)
+        rc = case_file_sha256(ltmp, lsha);
+    if (rc == 0) {
+        json_t *root = case_json(c, lsha);
+        char *text = json_dumps(root, JSON_INDENT(2) | JSON_REAL_PRECISION(15));
+        json_decref(root);
+        if (!text)
+            rc = fn_err_set(FN_ENOMEM, "%s: cannot serialise the case", jfin);
+        else {
+            size_t n = strlen(text);
+            char *nl = realloc(text, n + 2);
+            if (nl) {
+                text = nl;
+                strcpy(text + n, "\n");
+            }
+            rc = write_file(jtmp, text);
+            free(text);
+        }
+    }
+    if (rc == 0 && rename(ltmp, lfin) != 0)
+        rc = fn_err_set(FN_EIO, "%s: rename failed: %s", lfin, strerror(errno));
+    if (rc == 0 && rename(jtmp, jfin) != 0)
+        rc = fn_err_set(FN_EIO, "%s: rename failed: %s", jfin, strerror(errno));
+    if (rc == 0)
+        rc = fsync_path(c->dir, 1);
+    if (rc < 0) {
+        unlink(ltmp);
+        unlink(jtmp);
+        return fn_err_wrap(rc, "saving case %s", c->dir);
+    }
+    return 0;
+}
+
+/* ---- reading ---- */
+
+struct reader {
+    const char *file;
+    char field[160];
+};
+
+static int bad(const struct reader *r, const char *what)
+{
+    return fn_err_set(FN_EFORMAT, "%s: field %s: %s", r->file, r->field, what);
+}
+
+static json_t *get(struct reader *r, json_t *obj, const char *prefix, const char *key)
+{
+    snprintf(r->field, sizeof r->field, "%s%s", prefix, key);
+    json_t *v = json_is_object(obj) ? json_object_get(obj, key) : NULL;
+    if (!v)
+        bad(r, "missing");
+    return v;
+}
+
+static int get_num(struct reader *r, json_t *obj, const char *prefix, const char *key, double *out)
+{
+    json_t *v = get(r, obj, prefix, key);
+    if (!v)
+        return FN_EFORMAT;
+    if (!json_is_number(v) || !isfinite(json_number_value(v)))
+        return bad(r, "expected a finite number");
+    *out = json_number_value(v);
+    return 0;
+}
+
+static int get_int(struct reader *r, json_t *obj, const char *prefix, const char *key, long lo,
+                   long hi, long *out)
+{
+    json_t *v = get(r, obj, prefix, key);
+    if (!v)
+        return FN_EFORMAT;
+    if (!json_is_integer(v) || json_integer_value(v) < lo || json_integer_value(v) > hi) {
+        char msg[80];
+        snprintf(msg, sizeof msg, "expected an integer in %ld..%ld", lo, hi);
+        return bad(r, msg);
+    }
+    *out = (long)json_integer_value(v);
+    return 0;
+}
+
+static int get_nums(struct reader *r, json_t *obj, const char *prefix, const char *key, double *out,
+                    int n)
+{
+    json_t *v = get(r, obj, prefix, key);
+    if (!v)
+        return FN_EFORMAT;
+    char msg[64];
+    snprintf(msg, sizeof msg, "expected an array of %d finite numbers", n);
+    if (!json_is_array(v) || (int)json_array_size(v) != n)
+        return bad(r, msg);
+    for (int i = 0; i < n; i++) {
+        json_t *e = json_array_get(v, (size_t)i);
+        if (!json_is_number(e) || !isfinite(json_number_value(e)))
+            return bad(r, msg);
+        out[i] = json_number_value(e);
+    }
+    return 0;
+}
+
+static const char *get_str(struct reader *r, json_t *obj, const char *prefix, const char *key)
+{
+    json_t *v = get(r, obj, prefix, key);
+    if (!v)
+        return NULL;
+    if (!json_is_string(v)) {
+        bad(r, "expected a string");
+        return NULL;
+    }
+    return json_string_value(v);
+}
+
+static int get_pose(struct reader *r, json_t *obj, const char *prefix, const char *key, pose *p)
+{
+    char pre[128];
+    snprintf(pre, sizeof pre, "%s%s.", prefix, key);
+    json_t *o = get(r, obj, prefix, key);
+    if (!o)
+        return FN_EFORMAT;
+    if (get_nums(r, o, pre, "q", p->q, 4) < 0 || get_nums(r, o, pre, "t", p->t, 3) < 0)
+        return FN_EFORMAT;
+    double n2 = p->q[0] * p->q[0] + p->q[1] * p->q[1] + p->q[2] * p->q[2] + p->q[3] * p->q[3];
+    if (fabs(n2 - 1) > 1e-6)
+        return bad(r, "the quaternion is not of unit length");
+    return 0;
+}
+
+static int read_seg(struct reader *r, json_t *root, seg_params *sp)
+{
+    json_t *sg = get(r, root, "", "segmentation");
+    if (!sg)
+        return FN_EFORMAT;
+    const char *p = "segmentation.";
+    long keep;
+    if (get_num(r, sg, p, "threshold", &sp->threshold) < 0 ||
+        get_num(r, sg, p, "min_volume_ml", &sp->min_volume_ml) < 0 ||
+        get_int(r, sg, p, "keep", 0, 1000000, &keep) < 0 || get_num(r, sg, p, "ramp", &sp->ramp) < 0)
+        return FN_EFORMAT;
+    sp->keep = (int)keep;
+    json_t *a = get(r, sg, p, "threshold_auto");
+    if (!a || !json_is_boolean(a))
+        return a ? bad(r, "expected true or false") : FN_EFORMAT;
+    sp->threshold_auto = json_is_true(a);
+    json_t *e = get(r, sg, p, "exclude_below_peak");
+    if (!e)
+        return FN_EFORMAT;
+    sp->exclude_peak = !json_is_null(e);
+    if (sp->exclude_peak && get_num(r, sg, p, "exclude_below_peak", &sp->exclude_below_peak) < 0)
+        return FN_EFORMAT;
+    if (sp->ramp < 0)
+        return bad(r, "must be >= 0");
+    return 0;
+}
+
+/* Source geometry recorded in case.json against the volume read now. */
+static int check_geometry(struct reader *r, json_t *src, const vol *ct, const char *what)
+{
+    double dim[3], aff[3][4];
+    if (get_nums(r, src, "source.", "dim", dim, 3) < 0)
+        return FN_EFORMAT;
+    json_t *a = get(r, src, "source.", "affine");
+    if (!a)
+        return FN_EFORMAT;
+    if (!json_is_array(a) || json_array_size(a) != 3)
+        return bad(r, "expected 3 rows of 4 numbers");
+    for (int row = 0; row < 3; row++) {
+        char key[16];
+        snprintf(key, sizeof key, "%d", row);
+        json_t *wrap = json_pack("{s:O}", key, json_array_get(a, (size_t)row));
+        int rc = get_nums(r, wrap, "source.affine.", key, aff[row], 4);
+        json_decref(wrap);
+        if (rc < 0)
+            return rc;
+    }
+    for (int i = 0; i < 3; i++)
+        if (dim[i] != ct->dim[i])
+            return fn_err_set(FN_EMISMATCH, "%s is %dx%dx%d voxels but %s records %gx%gx%g", what,
+                              ct->dim[0], ct->dim[1], ct->dim[2], r->file, dim[0], dim[1], dim[2]);
+    for (int row = 0; row < 3; row++)
+        for (int col = 0; col < 4; col++)
+            if (fabs(aff[row][col] - ct->affine[row][col]) > 1e-3)
+                return fn_err_set(FN_EMISMATCH, "%s: index-to-world affine [%d][%d] is %g but %s "
+                                                "records %g", what, row, col,
+                                  ct->affine[row][col], r->file, aff[row][col]);
+    return 0;
+}
+
+static int same_grid(const vol *a, const vol *b, const char *what)
+{
+    for (int i = 0; i < 3; i++)
+        if (a->dim[i] != b->dim[i])
+            return fn_err_set(FN_EMISMATCH, "%s is %dx%dx%d but the source is %dx%dx%d", what,
+                              a->dim[0], a->dim[1], a->dim[2], b->dim[0], b->dim[1], b->dim[2]);
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 4; c++)
+            if (fabs(a->affine[r][c] - b->affine[r][c]) > 1e-3)
+                return fn_err_set(FN_EMISMATCH, "%s: its grid is placed differently from the "
+                                                "source's (affine [%d][%d])", what, r, c);
+    return 0;
+}
+
+/* Names, colours, poses and truth from the fragments array; ids must match the labels. */
+static int read_fragments(struct reader *r, json_t *root, fcase *c)
+{
+    json_t *fr = get(r, root, "", "fragments");
+    if (!fr)
+        return FN_EFORMAT;
+    if (!json_is_array(fr))
+        return bad(r, "expected an array");
+    if ((int)json_array_size(fr) != c->nfrag)
+        return fn_err_set(FN_EMISMATCH, "%s lists %zu fragments but labels.nii.gz holds %d",
+                          r->file, json_array_size(fr), c->nfrag);
+    for (int i = 0; i < c->nfrag; i++) {
+        json_t *o = json_array_get(fr, (size_t)i);
+        char pre[48];
+        snprintf(pre, sizeof pre, "fragments[%d].", i);
+        long id, rgb[3];
+        if (get_int(r, o, pre, "id", 1, 65535, &id) < 0)
+            return FN_EFORMAT;
+        int k = case_find(c, (int)id);
+        if (k < 0)
+            return fn_err_set(FN_EMISMATCH, "%s: field %sid: fragment %ld is not in labels.nii.gz",
+                              r->file, pre, id);
+        frag *f = &c->frag[k];
+        const char *name = get_str(r, o, pre, "name");
+        if (!name || get_pose(r, o, pre, "pose", &f->pose) < 0)
+            return FN_EFORMAT;
+        snprintf(f->name, sizeof f->name, "%s", name);
+        json_t *col = get(r, o, pre, "colour");
+        if (!col || !json_is_array(col) || json_array_size(col) != 3)
+            return col ? bad(r, "expected [r, g, b]") : FN_EFORMAT;
+        for (int a = 0; a < 3; a++) {
+            json_t *e = json_array_get(col, (size_t)a);
+            rgb[a] = json_is_integer(e) ? (long)json_integer_value(e) : -1;
+            if (rgb[a] < 0 || rgb[a] > 255)
+                return bad(r, "expected [r, g, b] of integers 0..255");
+            f->rgb[a] = (uint8_t)rgb[a];
+        }
+        if (c->has_truth && get_pose(r, o, pre, "truth", &c->truth[k]) < 0)
+            return FN_EFORMAT;
+    }
+    return 0;
+}
+
+static int read_case(struct reader *r, json_t *root, fcase *c)
+{
+    const char *fmt = get_str(r, root, "", "format");
+    if (!fmt)
+        return FN_EFORMAT;
+    if (strcmp(fmt, CASE_FORMAT))
+        return bad(r, "not a fracnav case");
+    long version;
+    if (get_int(r, root, "", "version", 0, 1000000, &version) < 0)
+        return FN_EFORMAT;
+    if (version != CASE_VERSION)
+        return fn_err_set(FN_EMISMATCH, "%s: version %ld, this fracnav reads version %d", r->file,
+                          version, CASE_VERSION);
+    json_t *src = get(r, root, "", "source");
+    const char *path = src ? get_str(r, src, "source.", "path") : NULL;
+    const char *sha = path ? get_str(r, src, "source.", "sha256") : NULL;
+    json_t *lab = sha ? get(r, root, "", "labels") : NULL;
+    const char *lsha = lab ? get_str(r, lab, "labels.", "sha256") : NULL;
+    if (!lsha)
+        return FN_EFORMAT;
+    int len = path[0] == '/' ? snprintf(c->source, sizeof c->source, "%s", path)
+                             : snprintf(c->source, sizeof c->source, "%.2047s/%.2047s", c->dir, path);
+    if (len < 0 || (size_t)len >= sizeof c->source)
+        return bad(r, "path too long");
+    int rc = read_seg(r, root, &c->seg);
+    if (rc < 0 || (rc = get_num(r, root, "", "tau_min", &c->tau_min)) < 0 ||
+        (rc = get_num(r, root, "", "tau_max", &c->tau_max)) < 0)
+        return rc;
+    json_t *truth = get(r, root, "", "has_truth");
+    if (!truth || !json_is_boolean(truth))
+        return truth ? bad(r, "expected true or false") : FN_EFORMAT;
+    c->has_truth = json_is_true(truth);
+    /* The source must be the very file the case was made from. */
+    if ((rc = case_file_sha256(c->source, c->sha256)) < 0)
+        return fn_err_wrap(rc, "%s: source.path", r->file);
+    if (strcmp(c->sha256, sha))
+        return fn_err_set(FN_EMISMATCH, "source %s has sha256 %.12s..., but %s expects %.12s...: "
+                                        "the volume changed since the case was made",
+                          c->source, c->sha256, r->file, sha);
+    char lpath[4200], lnow[65];
+    join(lpath, sizeof lpath, c->dir, LABELS_FILE);
+    if ((rc = case_file_sha256(lpath, lnow)) < 0)
+        return rc;
+    if (strcmp(lnow, lsha))
+        return fn_err_set(FN_EMISMATCH, "%s has sha256 %.12s..., but %s expects %.12s...: it was "
+                                        "changed or a save was interrupted", lpath, lnow, r->file, lsha);
+    if (!(c->ct = volio_read(c->source)))
+        return FN_EIO;
+    if ((rc = check_geometry(r, src, c->ct, c->source)) < 0)
+        return rc;
+    if (!(c->labels = volio_read(lpath)))
+        return FN_EIO;
+    if ((rc = same_grid(c->labels, c->ct, lpath)) < 0)
+        return rc;
+    if ((rc = case_rebuild(c, 0, 0)) < 0)
+        return fn_err_wrap(rc, "%s", lpath);
+    json_t *fixed = get(r, root, "", "fixed");
+    if (!fixed)
+        return FN_EFORMAT;
+    if (!json_is_null(fixed)) {
+        long id;
+        if (get_int(r, root, "", "fixed", 1, 65535, &id) < 0)
+            return FN_EFORMAT;
+        if ((c->fixed = case_find(c, (int)id)) < 0)
+            return bad(r, "names a fragment the case does not have");
+    }
+    return read_fragments(r, root, c);
+}
+
+fcase *case_load(const char *dir)
+{
+    fcase *c = calloc(1, sizeof *c);
+    if (!c) {
+        fn_err_set(FN_ENOMEM, "case: out of memory");
+        return NULL;
+    }
+    c->fixed = -1;
+    snprintf(c->dir, sizeof c->dir, "%s", dir);
+    char jpath[4200];
+    join(jpath, sizeof jpath, dir, JSON_FILE);
+    json_error_t je;
+    json_t *root = json_load_file(jpath, JSON_REJECT_DUPLICATES, &je);
+    if (!root) {
+        if (access(jpath, R_OK) != 0)
+            fn_err_set(FN_EIO, "%s: cannot open: %s (not a case folder?)", jpath, strerror(errno));
+        else
+            fn_err_set(FN_EFORMAT, "%s: line %d, column %d: %s", jpath, je.line, je.column, je.text);
+        case_free(c);
+        return NULL;
+    }
+    struct reader r = {.file = jpath};
+    int rc = json_is_object(root) ? read_case(&r, root, c) : bad(&r, "the top level is not an object");
+    json_decref(root);
+    if (rc < 0) {
+        case_free(c);
+        return NULL;
+    }
+    return c;
+}

@@ -1,0 +1,59 @@
+/* fracture: synthetic fractures with known ground truth, made from a real CT.
+ *
+ * The bone (the largest component at `threshold`) is cut pieces-1 times; each cut splits the
+ * currently largest piece with a rough surface: a plane (normal near the piece's main axis, through
+ * a point near its centroid) displaced along its normal by fractal value noise (fBm, 4 octaves).
+ * The new piece of a cut is its smaller side. bone_loss_mm of bone around each cut is replaced by
+ * `fill` (soft tissue). Piece 1 (what is left of the first piece) stays fixed; every other piece
+ * is moved by a random rigid transform (rotation of rotate_deg about its centroid, translation of
+ * displace_mm pointing away from the bone it was cut from, pushed further out in 1 mm steps while
+ * it would land on another piece) and resampled (nearest neighbour) into the output CT, which
+ * shows the DISPLACED configuration; where a piece left, `fill` is written. The displaced labels
+ * are built from the pieces, not re-segmented, so touching pieces stay apart.
+ * truth[i] maps piece i+1's displaced position back to where it belongs (identity for piece 1).
+ *
+ * Randomness comes only from splitmix64 seeded with `seed`, and the arithmetic uses + - * / and
+ * sqrt (own polynomial sin/cos), so one seed gives the same case on every IEEE-754 machine. */
+#ifndef FN_FRACTURE_H
+#define FN_FRACTURE_H
+
+#include "pose.h"
+#include "vol.h"
+
+#include <stdint.h>
+
+typedef struct fracture_params {
+    uint64_t seed;
+    int pieces;           /* 2..16 */
+    double displace_mm;   /* translation of each moved piece before any push-out */
+    double rotate_deg;    /* rotation of each moved piece about its centroid */
+    double bone_loss_mm;  /* thickness of the bone layer lost at each cut; 0 none */
+    double roughness_mm;  /* amplitude of the surface's displacement along its normal */
+    double wavelength_mm; /* of the coarsest noise octave */
+    double threshold;     /* bone threshold (HU) */
+    double fill;          /* value written where bone was removed or left (soft tissue, HU) */
+} fracture_params;
+
+typedef struct fracture_result {
+    vol *ct;      /* the fractured CT (displaced configuration), on the input grid; owned */
+    vol *labels;  /* pieces 1..n in the displaced configuration, on the same grid; owned */
+    vol *cut;     /* pieces 1..n before displacement (after bone loss), on the same grid; owned */
+    int pieces;
+    pose *truth;  /* pieces entries: displaced (home) world -> original world; owned */
+    pose *moved;  /* pieces entries: the applied displacement (original -> displaced); owned */
+} fracture_result;
+
+/* Defaults: 2 pieces, 3 mm, 3 degrees, no bone loss, roughness 3 mm, wavelength 24 mm, 300 HU,
+ * fill 40 HU, seed 1. */
+void fracture_defaults(fracture_params *p);
+/* 0 and *out filled (free with fracture_result_free), or a negative FN_E* code. */
+int fracture_make(const vol *ct, const fracture_params *p, fracture_result *out);
+void fracture_result_free(fracture_result *r);
+
+/* The deterministic pieces, exposed for tests: splitmix64 step, uniform [0,1), and fBm value
+ * noise in [-1, 1] at point x (in noise-lattice units). */
+uint64_t fracture_rng_next(uint64_t *state);
+double fracture_rng_uniform(uint64_t *state);
+double fracture_fbm(uint64_t seed, const double x[3]);
+
+#endif

@@ -1,0 +1,280 @@
+#include "seg.h"
+
+#include "err.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+void seg_defaults(seg_params *p)
+{
+    memset(p, 0, sizeof *p);
+    p->threshold = 300;
+    p->min_volume_ml = 0.5;
+    p->exclude_below_peak = 0;
+    p->ramp = 200;
+}
+
+double seg_otsu(const vol *v)
+{
+    enum { BINS = 256 };
+    float lo, hi;
+    vol_range(v, &lo, &hi);
+    if (!(hi > lo))
+        return lo;
+    double hist[BINS] = {0};
+    size_t n = vol_count(v);
+    double scale = (BINS - 1) / ((double)hi - lo);
+    for (size_t i = 0; i < n; i++)
+        if (isfinite(v->data[i]))
+            hist[(int)((v->data[i] - lo) * scale)] += 1;
+    double sum_all = 0;
+    for (int b = 0; b < BINS; b++)
+        sum_all += b * hist[b];
+    /* Maximise the between-class variance w0 w1 (m0 - m1)^2 over the split after bin b. */
+    double w0 = 0, sum0 = 0, best = -1;
+    int split = 0;
+    for (int b = 0; b < BINS - 1; b++) {
+        w0 += hist[b];
+        sum0 += b * hist[b];
+        double w1 = (double)n - w0;
+        if (w0 == 0 || w1 == 0)
+            continue;
+        double d = sum0 / w0 - (sum_all - sum0) / w1;
+        double between = w0 * w1 * d * d;
+        if (between > best) {
+            best = between;
+            split = b;
+        }
+    }
+    /* Voxels in bins above `split` are foreground: the threshold is the start of bin split+1. */
+    return lo + (split + 1) / scale;
+}
+
+static int32_t uf_find(int32_t *parent, int32_t x)
+{
+    while (parent[x] != x) {
+        parent[x] = parent[parent[x]];
+        x = parent[x];
+    }
+    return x;
+}
+
+static void uf_union(int32_t *parent, int32_t a, int32_t b)
+{
+    a = uf_find(parent, a);
+    b = uf_find(parent, b);
+    /* The smaller root wins, so every set's root is its first provisional label. */
+    if (a < b)
+        parent[b] = a;
+    else if (b < a)
+        parent[a] = b;
+}
+
+int seg_components(const uint8_t *mask, const int dim[3], int32_t *lab)
+{
+    const int nx = dim[0], ny = dim[1], nz = dim[2];
+    const size_t n = (size_t)nx * ny * nz;
+    size_t cap = 1024;
+    int32_t *parent = malloc(cap * sizeof *parent);
+    if (!parent)
+        return fn_err_set(FN_ENOMEM, "segmentation: out of memory for labels");
+    int32_t next = 1;
+    parent[0] = 0;
+    /* First pass: a provisional label per voxel, joined with the 13 already-visited neighbours. */
+    for (int k = 0; k < nz; k++)
+        for (int j = 0; j < ny; j++)
+            for (int i = 0; i < nx; i++) {
+                size_t idx = ((size_t)k * ny + j) * nx + i;
+                lab[idx] = 0;
+                if (!mask[idx])
+                    continue;
+                int32_t mine = 0;
+                for (int dk = -1; dk <= 0; dk++)
+                    for (int dj = -1; dj <= 1; dj++)
+                        for (int di = -1; di <= 1; di++) {
+                            if (dk == 0 && (dj > 0 || (dj == 0 && di >= 0)))
+                                continue;
+                            int a = i + di, b = j + dj, c = k + dk;
+                            if (a < 0 || a >= nx || b < 0 || b >= ny || c < 0)
+                                continue;
+                            int32_t l = lab[((size_t)c * ny + b) * nx + a];
+                            if (!l)
+                                continue;
+                            if (!mine)
+                                mine = l;
+                            else if (l != mine)
+                                uf_union(parent, mine, l);
+                        }
+                if (!mine) {
+                    if ((size_t)next == cap) {
+                        if (cap > (size_t)INT32_MAX / 2) {
+                            free(parent);
+                            return fn_err_set(FN_ENOMEM, "segmentation: too many components");
+                        }
+                        int32_t *p = realloc(parent, 2 * cap * sizeof *p);
+                        if (!p) {
+                            free(parent);
+                            return fn_err_set(FN_ENOMEM, "segmentation: out of memory for labels");
+                        }
+                        parent = p;
+                        cap *= 2;
+                    }
+                    parent[next] = next;
+                    mine = next++;
+                }
+                lab[idx] = mine;
+            }
+    /* Roots get consecutive final labels (stored negated) in order of first appearance. A parent
+     * is never larger than its child, so it is already resolved when the child is reached. */
+    int32_t nfinal = 0;
+    for (int32_t l = 1; l < next; l++)
+        parent[l] = parent[l] == l ? -(++nfinal) : parent[parent[l]];
+    for (size_t i = 0; i < n; i++)
+        if (lab[i])
+            lab[i] = -parent[lab[i]];
+    free(parent);
+    return nfinal;
+}
+
+uint8_t seg_prob(float value, double threshold, double ramp)
+{
+    if (ramp <= 0)
+        return 255;
+    double p = 0.5 + (value - threshold) / ramp;
+    double b = p * 255 + 0.5;
+    if (b < 1)
+        return 1;
+    if (b > 255)
+        return 255;
+    return (uint8_t)b;
+}
+
+static int by_size_desc(const void *a, const void *b)
+{
+    const seg_component *x = a, *y = b;
+    if (x->voxels != y->voxels)
+        return x->voxels < y->voxels ? 1 : -1;
+    return x->label - y->label;
+}
+
+/* Per-component size, peak and bounding box over raw labels 1..n. */
+static seg_component *component_stats(const vol *v, const int32_t *lab, int n)
+{
+    seg_component *c = calloc((size_t)n + 1, sizeof *c);
+    if (!c)
+        return NULL;
+    for (int l = 1; l <= n; l++) {
+        c[l].label = l;
+        c[l].peak = -INFINITY;
+        for (int a = 0; a < 3; a++) {
+            c[l].lo[a] = v->dim[a];
+            c[l].hi[a] = -1;
+        }
+    }
+    size_t idx = 0;
+    for (int k = 0; k < v->dim[2]; k++)
+        for (int j = 0; j < v->dim[1]; j++)
+            for (int i = 0; i < v->dim[0]; i++, idx++) {
+                if (!lab[idx])
+                    continue;
+                seg_component *s = &c[lab[idx]];
+                s->voxels++;
+                if (v->data[idx] > s->peak)
+                    s->peak = v->data[idx];
+                int ijk[3] = {i, j, k};
+                for (int a = 0; a < 3; a++) {
+                    if (ijk[a] < s->lo[a])
+                        s->lo[a] = ijk[a];
+                    if (ijk[a] > s->hi[a])
+                        s->hi[a] = ijk[a];
+                }
+            }
+    return c;
+}
+
+static int validate(const seg_params *p)
+{
+    if (!isfinite(p->threshold) || !isfinite(p->min_volume_ml) || p->min_volume_ml < 0)
+        return fn_err_set(FN_EINVAL, "segmentation: threshold and min volume must be finite, "
+                                     "min volume >= 0");
+    if (p->keep < 0)
+        return fn_err_set(FN_EINVAL, "segmentation: keep must be >= 0 (got %d)", p->keep);
+    if (!isfinite(p->ramp) || p->ramp < 0)
+        return fn_err_set(FN_EINVAL, "segmentation: ramp must be >= 0");
+    return 0;
+}
+
+int seg_run(const vol *v, const seg_params *p, seg_result *out)
+{
+    memset(out, 0, sizeof *out);
+    int rc = validate(p);
+    if (rc < 0)
+        return rc;
+    size_t n = vol_count(v);
+    double thr = p->threshold_auto ? seg_otsu(v) : p->threshold;
+    uint8_t *mask = malloc(n);
+    int32_t *lab = malloc(n * sizeof *lab);
+    out->labels = vol_new(v->dim[0], v->dim[1], v->dim[2]);
+    if (!mask || !lab || !out->labels) {
+        free(mask);
+        free(lab);
+        vol_free(out->labels);
+        out->labels = NULL;
+        return fn_err_set(FN_ENOMEM, "segmentation: out of memory for %zu voxels", n);
+    }
+    for (size_t i = 0; i < n; i++)
+        mask[i] = v->data[i] >= thr;
+    int ncomp = seg_components(mask, v->dim, lab);
+    free(mask);
+    seg_component *c = ncomp >= 0 ? component_stats(v, lab, ncomp) : NULL;
+    if (!c) {
+        free(lab);
+        vol_free(out->labels);
+        out->labels = NULL;
+        return ncomp < 0 ? ncomp : fn_err_set(FN_ENOMEM, "segmentation: out of memory");
+    }
+    double voxel_ml = v->spacing[0] * v->spacing[1] * v->spacing[2] / 1000.0;
+    qsort(c + 1, (size_t)ncomp, sizeof *c, by_size_desc);
+    /* newlabel[raw] = final label or 0 when filtered out */
+    int32_t *newlabel = calloc((size_t)ncomp + 1, sizeof *newlabel);
+    if (!newlabel) {
+        free(c);
+        free(lab);
+        vol_free(out->labels);
+        out->labels = NULL;
+        return fn_err_set(FN_ENOMEM, "segmentation: out of memory");
+    }
+    int kept = 0;
+    for (int r = 1; r <= ncomp; r++) {
+        seg_component s = c[r];
+        s.volume_ml = (double)s.voxels * voxel_ml;
+        if (s.volume_ml < p->min_volume_ml || (p->exclude_peak && s.peak < p->exclude_below_peak) ||
+            (p->keep > 0 && kept >= p->keep))
+            continue;
+        newlabel[s.label] = ++kept;
+        s.label = kept;
+        c[kept - 1] = s;
+    }
+    for (size_t i = 0; i < n; i++)
+        out->labels->data[i] = (float)newlabel[lab[i]];
+    memcpy(out->labels->affine, v->affine, sizeof v->affine);
+    memcpy(out->labels->spacing, v->spacing, sizeof v->spacing);
+    out->labels->src_type = VOL_U16;
+    free(newlabel);
+    free(lab);
+    out->ncomp = kept;
+    out->comp = c;
+    out->threshold = thr;
+    out->raw_components = ncomp;
+    return 0;
+}
+
+void seg_result_free(seg_result *r)
+{
+    if (!r)
+        return;
+    vol_free(r->labels);
+    free(r->comp);
+    memset(r, 0, sizeof *r);
+}

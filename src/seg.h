@@ -1,0 +1,62 @@
+/* seg: threshold segmentation of a CT into bone fragments.
+ *
+ * A voxel is bone when its value >= threshold (HU for CT; raw units for scaled data, or Otsu's
+ * threshold when asked for "auto"). Bone voxels are grouped into 26-connected components with a
+ * two-pass union-find labelling (linear in the voxel count). Components are then filtered: below
+ * min_volume_ml, or whose peak value stays under exclude_below_peak (the CT head holder lies at
+ * 300-600 HU while bone peaks far higher), are dropped; keep > 0 keeps only the largest ones.
+ * Surviving components are labelled 1..n, largest first, in a float labelmap on the source grid. */
+#ifndef FN_SEG_H
+#define FN_SEG_H
+
+#include "vol.h"
+
+#include <stddef.h>
+
+typedef struct seg_params {
+    double threshold;          /* bone when value >= threshold (ignored when threshold_auto) */
+    int threshold_auto;        /* 1: Otsu's threshold over the volume's histogram */
+    double min_volume_ml;      /* components smaller than this are dropped */
+    int exclude_peak;          /* 1: apply exclude_below_peak */
+    double exclude_below_peak; /* components whose maximum value is below this are dropped */
+    int keep;                  /* > 0: keep only the `keep` largest components */
+    double ramp;               /* width of the opacity ramp for probability maps; 0 = 1 inside */
+} seg_params;
+
+/* One surviving component. */
+typedef struct seg_component {
+    int label;          /* 1.. in the labelmap */
+    size_t voxels;
+    double volume_ml;
+    float peak;         /* maximum value inside */
+    int lo[3], hi[3];   /* inclusive bounding box, voxel indices */
+} seg_component;
+
+typedef struct seg_result {
+    vol *labels;        /* on the source grid, values 0 (background) or 1..ncomp; owned */
+    int ncomp;
+    seg_component *comp; /* ncomp entries, largest first; owned */
+    double threshold;   /* the threshold used (Otsu's when auto) */
+    int raw_components; /* components before filtering */
+} seg_result;
+
+/* Defaults: 300 HU, min 0.5 ml, no exclusion, keep all, ramp 200. */
+void seg_defaults(seg_params *p);
+
+/* Otsu's threshold over a 256-bin histogram of the volume's range. */
+double seg_otsu(const vol *v);
+
+/* 26-connected components of the voxels where mask != 0, written to lab (0 background, 1..n in
+ * scan order of their first voxel). Returns n, or a negative FN_E* code. lab has count entries. */
+int seg_components(const uint8_t *mask, const int dim[3], int32_t *lab);
+
+/* Segments v. Returns 0 and fills *out (free with seg_result_free), or a negative FN_E* code. */
+int seg_run(const vol *v, const seg_params *p, seg_result *out);
+void seg_result_free(seg_result *r);
+
+/* The probability byte (probability * 255) of a bone voxel of value `value` under the opacity
+ * ramp: p = clamp(0.5 + (value - threshold) / ramp, 1/255, 1), so 0.5 at the threshold and 1 at
+ * threshold + ramp/2; ramp <= 0 gives 255 everywhere inside. Never 0 for a fragment voxel. */
+uint8_t seg_prob(float value, double threshold, double ramp);
+
+#endif

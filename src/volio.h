@@ -1,0 +1,62 @@
+/* volio: read and write volumes. Readers fill vol (src/vol.h) in LPS mm.
+ *
+ * Formats, chosen by the path's extension (case-insensitive):
+ *   .nii .nii.gz  NIfTI-1 via nifticlib: sform preferred, else qform, else pixdim; RAS is
+ *                 converted to LPS by negating the affine's first two rows; scl_slope/scl_inter
+ *                 applied. Types u8 i8 u16 i16 u32 i32 f32 f64.
+ *   .nrrd .nhdr   NRRD via teem: space directions/origin honoured; space RAS, LPS or
+ *                 scanner-xyz (taken as LPS, as ITK does); no space -> spacings only.
+ *   .inv3         InVesalius 3 project (gzip'd tar: main.plist + raw little-endian matrix).
+ *   a directory   a DICOM series, converted by running dcm2niix into a temporary folder.
+ *
+ * Geometry: oblique direction cosines are kept; a sheared grid (direction columns not orthogonal
+ * within 1e-4) is refused, naming the file and the field (sform, qform, space directions).
+ *
+ * InVesalius orientation: main.plist's matrix has shape (nk, nj, ni) and spacing (si, sj, sk).
+ * The project keeps no origin or direction cosines. InVesalius always stores the matrix in the
+ * axial layout: it flips every DICOM slice's rows on import (VTK keeps images bottom-up) and
+ * restacks coronal and sagittal series into axial order, so the plist `orientation` key (1 axial,
+ * 2 coronal, 3 sagittal; 0 axial in the oldest files) only records how the series was acquired.
+ * The reader therefore uses one mapping for every orientation value, with voxel 0 at the origin:
+ *   i -> L (+x), j -> A (-y), k -> S (+z)      affine = diag(si, -sj, sk)
+ * Checked on the example CT: the face and frontal sinuses are at high j, the head holder (behind a
+ * supine head) at low j, the vertex at high k. Left/right cannot be seen in a skull; it follows
+ * the DICOM column direction (patient left), which InVesalius does not flip. An orientation key of
+ * another value is refused.
+ *
+ * Bad input: headers are checked against the file size and the memory budget (vol_check_dims)
+ * before any voxel buffer is allocated; every error names the file and the field or offset.
+ * Thread safety: none of these keep state, but nifticlib and teem print to stderr (silenced where
+ * they allow it); call them from one thread at a time. */
+#ifndef FN_VOLIO_H
+#define FN_VOLIO_H
+
+#include "vol.h"
+
+/* Reads PATH by extension (see above). Returns a new volume (free with vol_free) or NULL with
+ * fn_err set: "PATH: <field>: <cause>". */
+vol *volio_read(const char *path);
+
+/* Writes V to PATH (.nii .nii.gz .nrrd .nhdr; .nhdr also writes a .raw data file beside it),
+ * converting voxels to TYPE: integer types round to nearest and clamp to the type's range.
+ * NIfTI gets sform and qform (code 1, scanner) in RAS; NRRD gets space LPS with directions.
+ * Returns 0 or a negative FN_E* code with fn_err set. */
+int volio_write(const vol *v, const char *path, vol_type type);
+
+/* Shared internals of the volio_*.c files; not for other modules. */
+vol *volio__read_inv3(const char *path);
+vol *volio__read_nifti(const char *path);
+vol *volio__read_nrrd(const char *path);
+vol *volio__read_dicom(const char *dir);
+int volio__write_nifti(const vol *v, const char *path, vol_type type);
+int volio__write_nrrd(const vol *v, const char *path, vol_type type);
+/* 0 if the columns of m (index axes) are finite, non-zero and orthogonal within 1e-4, else
+ * FN_EFORMAT naming path and field. */
+int volio__check_axes(const double m[3][3], const char *path, const char *field);
+size_t volio__type_size(vol_type t);
+/* n values of type t (native byte order) -> float, as slope * x + inter (slope 1, inter 0 = as is). */
+void volio__to_float(const void *src, vol_type t, size_t n, double slope, double inter, float *dst);
+/* n floats -> type t (native byte order), rounding to nearest and clamping for integer types. */
+void volio__from_float(const float *src, size_t n, vol_type t, void *dst);
+
+#endif
