@@ -199,4 +199,16 @@ loop_reader *loop_reader_start(const struct dev_transport *tr, struct dev_handle
 /* Stops and joins the thread, closes the device. Returns the reads that failed (not unplugs). */
 int loop_reader_stop(loop_reader *rd);
 
+/* The collider over OBB octrees (loop_obb.c): one tree per fragment, built at loop_obb_new with
+ * params (NULL = {0, 1}); queries with q (NULL = threshold 0, tolerance 0). The frags must
+ * outlive it. NULL with fn_err when a tree cannot be built (the message names the fragment). */
+struct obb_params;
+struct obb_query;
+typedef struct loop_obb loop_obb;
+loop_obb *loop_obb_new(const frag *frags, int n, const struct obb_params *params,
+                       const struct obb_query *q);
+void loop_obb_free(loop_obb *o);
+/* A collider table bound to o (valid while o lives). */
+loop_collider loop_obb_collider(loop_obb *o);
+
 #endif
