@@ -4,15 +4,27 @@
  * those bytes into normalized events; calibration turns events into motion. Every transport
  * (hidraw, libusb, spnav, keyboard, virtual, replay) fills a dev_transport. Transports that have no
  * raw reports of their own (spnav, keyboard) synthesize reports of a device-table row, so one parser
- * path serves them all. */
+ * path serves them all.
+ *
+ * Threads: a dev_device belongs to one thread (the loop's input thread). The transport registry is
+ * filled at start-up (before threads start) and read-only afterwards.
+ *
+ * Axis convention of every event: HID's right-handed frame, +x right, +y towards the user, +z down;
+ * rx ry rz are rotations about those axes (right-hand rule). Values are normalized by the
+ * device's logical maximum and clamped to [-1, 1]. */
 #ifndef FN_DEV_H
 #define FN_DEV_H
 
 #include <stddef.h>
 #include <stdint.h>
 
+#include "devtab.h"
+
 #define DEV_REPORT_MAX 64
 #define DEV_DESC_MAX 4096
+#define DEV_TRANSPORTS_MAX 16
+#define DEV_DT_MAX_US 50000     /* dt after a pause is clamped to this (no jump after a stall) */
+#define DEV_REPLUG_MS 500       /* how often a lost device is looked for again */
 
 typedef struct dev_handle dev_handle; /* a transport's open device, opaque */
 
@@ -27,7 +39,9 @@ typedef struct dev_info {
 
 typedef struct dev_transport {
     const char *name; /* "hidraw", "libusb", "spnav", "keyboard", "virtual", "replay" */
-    /* Opens the device at path (transport-specific; NULL = the first one found). */
+    /* Opens the device at path (transport-specific; NULL = the first one found). Returns 0 or a
+     * negative FN_E* with fn_err_set() naming the path; FN_ENODEV when absent, FN_EIO when present
+     * but not openable (permissions). */
     int (*open)(const char *path, dev_handle **out);
     /* Reads one report into buf. Returns its length, 0 on timeout, FN_ENODEV when the device went
      * away, another negative FN_E* on error. *t_us is the arrival time (monotonic microseconds;
@@ -39,6 +53,82 @@ typedef struct dev_transport {
     int (*get_feature)(dev_handle *h, uint8_t *buf, size_t cap);
     int (*info)(dev_handle *h, dev_info *out);
     void (*close)(dev_handle *h);
+    /* Optional (NULL = cannot list): fills up to cap supported devices, returns how many were
+     * found (may exceed cap) or negative. */
+    int (*enumerate)(dev_info *out, size_t cap);
+    /* Optional: feature report set (buf[0] = report ID). Returns bytes written or negative. */
+    int (*set_feature)(dev_handle *h, const uint8_t *buf, size_t len);
 } dev_transport;
+
+/* Registry. The built-in transports (hidraw or libusb, spnav, keyboard) are always present;
+ * others (the sim's virtual and replay) register themselves by name. The pointer must stay valid
+ * for the process' life. Returns 0, FN_EINVAL for a duplicate name, FN_ENOMEM when full. */
+int dev_transport_register(const dev_transport *t);
+const dev_transport *dev_transport_find(const char *name);
+/* The i-th transport (built-in first), NULL past the end. */
+const dev_transport *dev_transport_at(size_t i);
+
+/* What changed in an event (flags). */
+enum {
+    DEV_EV_MOTION = 1u << 0,  /* axis values changed (or a zero report arrived) */
+    DEV_EV_BUTTON = 1u << 1,  /* buttons or key codes changed */
+    DEV_EV_BATTERY = 1u << 2, /* battery level reported */
+    DEV_EV_UNPLUG = 1u << 3,  /* the device went away: hold the last pose */
+    DEV_EV_REPLUG = 1u << 4   /* the device is back */
+};
+
+/* A normalized event: the device's whole input state after the reports it folds in. */
+typedef struct dev_event {
+    int64_t t_us;      /* arrival time of the newest report folded in (monotonic microseconds) */
+    int64_t dt_us;     /* time since the previous motion, clamped to [0, DEV_DT_MAX_US] */
+    unsigned flags;    /* DEV_EV_* */
+    float axis[6];     /* tx ty tz rx ry rz in [-1, 1], HID frame (see above) */
+    uint32_t buttons;  /* bit i = button i (packed by the row's button mask) */
+    uint32_t pressed;  /* buttons that went down in this event */
+    uint32_t released; /* buttons that went up in this event */
+    uint16_t keys[6];  /* key codes held (report 0x1C), 0 = none */
+    int battery;       /* 0..100, -1 unknown */
+} dev_event;
+
+/* An opened controller: transport handle, device-table row, parser state and hotplug state. */
+typedef struct dev_device dev_device;
+
+/* Opens a controller by spec:
+ *   "auto"           first supported HID device, else spacenavd, else the keyboard on a terminal
+ *   "/path", "./p"   a hidraw node by path (no udev needed: works on a FUSE-served node)
+ *   "NAME" "NAME:ARG" transport NAME (hidraw, libusb, spnav, keyboard, virtual, replay, ...) with
+ *                    its argument (a path, a file, ...)
+ *   "serial:S"       the enumerated device whose serial number is S
+ * Returns NULL with fn_err_msg() naming the spec and the cause; for a device present but not
+ * openable the message names the udev rule to install. */
+dev_device *dev_open(const char *spec);
+void dev_close(dev_device *d);
+
+/* Drains every pending report (waiting up to timeout_ms for the first; <0 blocks), folds them into
+ * one event and returns 1 when anything changed, 0 when nothing did, negative on a hard error.
+ * Unplug is not an error: it yields DEV_EV_UNPLUG once, then the device is looked for every
+ * DEV_REPLUG_MS (same path, or same vid:pid:serial) and DEV_EV_REPLUG when it returns. Allocates
+ * nothing after dev_open. */
+int dev_poll(dev_device *d, dev_event *ev, int timeout_ms);
+
+/* LED on/off (output report 4). A device without an LED returns 0 and does nothing. */
+int dev_set_led(dev_device *d, int on);
+/* Battery 0..100 from the latest report 0x17, -1 unknown. */
+int dev_battery(const dev_device *d);
+/* 1 while the device is present. */
+int dev_connected(const dev_device *d);
+const devtab_row *dev_row(const dev_device *d);
+const dev_info *dev_device_info(const dev_device *d);
+const char *dev_transport_name(const dev_device *d);
+/* Reports skipped because of an unknown ID or a wrong length. */
+uint64_t dev_skipped(const dev_device *d);
+
+/* Opens a device on an already opened transport handle (ownership of h passes to the device; it
+ * is closed on failure too). `reopen` is the path used to look for it after an unplug. For
+ * transports and tests that build a device themselves. */
+dev_device *dev_open_handle(const dev_transport *t, dev_handle *h, const char *reopen);
+
+/* Monotonic clock in microseconds (the timebase of t_us). */
+int64_t dev_now_us(void);
 
 #endif

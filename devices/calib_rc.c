@@ -1,0 +1,402 @@
+/* calib: the spnavrc reader and writer. */
+#include "calib.h"
+
+#include <ctype.h>
+#include <errno.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+
+#include "err.h"
+
+#define RC_MAX_BYTES (1 << 20)
+#define RAW_FULL_SCALE 350.0f /* spacenavd's dead zones are in device units of a +-350 axis */
+
+static const char *const action_names[CALIB_ACT_COUNT] = {
+    [CALIB_ACT_SENS_UP] = "sensitivity-up",
+    [CALIB_ACT_SENS_DOWN] = "sensitivity-down",
+    [CALIB_ACT_SENS_RESET] = "sensitivity-reset",
+    [CALIB_ACT_DISABLE_ROTATION] = "disable-rotation",
+    [CALIB_ACT_DISABLE_TRANSLATION] = "disable-translation",
+    [CALIB_ACT_DOMINANT] = "dominant-axis",
+    [CALIB_ACT_ZERO] = "calibrate-zero",
+};
+
+const char *calib_action_name(calib_action a)
+{
+    return a > CALIB_ACT_NONE && a < CALIB_ACT_COUNT ? action_names[a] : NULL;
+}
+
+int calib_action_parse(const char *name)
+{
+    if (!strcmp(name, "none"))
+        return CALIB_ACT_NONE;
+    for (int a = 1; a < CALIB_ACT_COUNT; a++)
+        if (!strcmp(name, action_names[a]))
+            return a;
+    return -1;
+}
+
+typedef struct diag {
+    char *buf;
+    size_t cap, used;
+    const char *fname;
+    int bad;
+} diag;
+
+static void FN_PRINTF(3, 4) bad_line(diag *d, int line, const char *fmt, ...)
+{
+    d->bad++;
+    if (!d->buf || d->cap == 0 || d->used + 1 >= d->cap)
+        return;
+    int n = snprintf(d->buf + d->used, d->cap - d->used, "%s:%d: ", d->fname, line);
+    if (n > 0 && d->used + (size_t)n < d->cap) {
+        d->used += (size_t)n;
+        va_list ap;
+        va_start(ap, fmt);
+        n = vsnprintf(d->buf + d->used, d->cap - d->used, fmt, ap);
+        va_end(ap);
+        if (n > 0)
+            d->used += (size_t)n;
+        if (d->used + 1 < d->cap)
+            d->buf[d->used++] = '\n', d->buf[d->used] = '\0';
+    }
+    if (d->used >= d->cap)
+        d->used = d->cap - 1;
+}
+
+static int parse_float(const char *s, float lo, float hi, float *out)
+{
+    char *end;
+    errno = 0;
+    double v = strtod(s, &end);
+    if (end == s || *end || errno || !(v >= lo && v <= hi))
+        return -1;
+    *out = (float)v;
+    return 0;
+}
+
+static int parse_bool(const char *s)
+{
+    static const char *const yes[] = {"true", "yes", "on", "1"}, *const no[] = {"false", "no", "off", "0"};
+    for (int i = 0; i < 4; i++) {
+        if (!strcasecmp(s, yes[i]))
+            return 1;
+        if (!strcasecmp(s, no[i]))
+            return 0;
+    }
+    return -1;
+}
+
+static int parse_index(const char *s, int max)
+{
+    if (!isdigit((unsigned char)s[0]) || (s[1] && (!isdigit((unsigned char)s[1]) || s[2])))
+        return -1;
+    int v = atoi(s);
+    return v < max ? v : -1;
+}
+
+/* "xyz" subset -> bits 0..2. */
+static int parse_axes(const char *s)
+{
+    int bits = 0;
+    for (; *s; s++) {
+        const char *p = strchr("xyz", tolower((unsigned char)*s));
+        if (!p)
+            return -1;
+        bits |= 1 << (p - "xyz");
+    }
+    return bits;
+}
+
+static int axis_suffix(const char *rest)
+{
+    if (!*rest)
+        return 3; /* all three */
+    if (rest[0] == '-' && rest[1] && strchr("xyz", rest[1]) && !rest[2])
+        return (int)(strchr("xyz", rest[1]) - "xyz");
+    return -1;
+}
+
+/* spacenavd-only keys: accepted so users' files stay valid, no effect here. */
+static int ignored_key(const char *k)
+{
+    static const char *const keys[] = {"grab", "device-id", "repeat-interval", "serial", "kbmap"};
+    for (size_t i = 0; i < sizeof keys / sizeof keys[0]; i++)
+        if (!strncmp(k, keys[i], strlen(keys[i])))
+            return 1;
+    return 0;
+}
+
+static int sens_key(calib *c, const char *k, const char *v)
+{
+    float f;
+    if (parse_float(v, 0.0f, 1000.0f, &f))
+        return -2;
+    if (!strcmp(k, "sensitivity")) {
+        c->sens = c->sens_base = f;
+        return 0;
+    }
+    int rot = !strncmp(k, "sensitivity-rotation", 20);
+    if (!rot && strncmp(k, "sensitivity-translation", 23))
+        return -1;
+    int ax = axis_suffix(k + (rot ? 20 : 23));
+    if (ax < 0)
+        return -1;
+    if (ax == 3)
+        *(rot ? &c->sens_r : &c->sens_t) = f;
+    else
+        c->sens_axis[ax + (rot ? 3 : 0)] = f;
+    return 0;
+}
+
+/* One key = value. Returns 0, -1 unknown key, -2 bad value. */
+static int apply_key(calib *c, const char *k, const char *v)
+{
+    float f;
+    int b, i;
+    if (!strncmp(k, "sensitivity", 11))
+        return sens_key(c, k, v);
+    if (!strcmp(k, "dead-zone") || !strncmp(k, "dead-zone", 9)) {
+        i = k[9] ? parse_index(k + 9, 6) : 6;
+        if (i < 0)
+            return -1;
+        if (parse_float(v, 0.0f, 0.9f * RAW_FULL_SCALE, &f))
+            return -2;
+        for (int a = i == 6 ? 0 : i; a < (i == 6 ? 6 : i + 1); a++)
+            c->dead[a] = f / RAW_FULL_SCALE;
+        return 0;
+    }
+    if (!strcmp(k, "invert-rot") || !strcmp(k, "invert-trans")) {
+        if ((b = parse_axes(v)) < 0)
+            return -2;
+        int shift = k[7] == 'r' ? 3 : 0;
+        c->invert = (uint8_t)((c->invert & ~(7 << shift)) | b << shift);
+        return 0;
+    }
+    if (!strncmp(k, "axismap", 7)) {
+        if ((i = parse_index(k + 7, 6)) < 0)
+            return -1;
+        int m = parse_index(v, 6);
+        if (m < 0)
+            return -2;
+        c->map[m] = (int8_t)i;
+        return 0;
+    }
+    if (!strncmp(k, "bnmap", 5) || !strncmp(k, "bnact", 5)) {
+        if ((i = parse_index(k + 5, CALIB_BUTTONS)) < 0)
+            return -1;
+        int m = k[2] == 'm' ? parse_index(v, CALIB_BUTTONS) : calib_action_parse(v);
+        if (m < 0)
+            return -2;
+        if (k[2] == 'm')
+            c->bnmap[i] = (int8_t)m;
+        else
+            c->bnact[i] = (calib_action)m;
+        return 0;
+    }
+    if (!strcmp(k, "led")) {
+        b = !strcasecmp(v, "auto") ? 2 : parse_bool(v);
+        if (b < 0)
+            return -2;
+        c->led = b;
+        return 0;
+    }
+    if (!strcmp(k, "response")) {
+        if (strcmp(v, "linear") && strcmp(v, "cubic"))
+            return -2;
+        c->response = v[0] == 'c' ? CALIB_CUBIC : CALIB_LINEAR;
+        return 0;
+    }
+    if (!strcmp(k, "cubic-mix"))
+        return parse_float(v, 0.0f, 1.0f, &c->cubic_mix) ? -2 : 0;
+    if (!strncmp(k, "zero-offset", 11)) {
+        if ((i = parse_index(k + 11, 6)) < 0)
+            return -1;
+        return parse_float(v, -1.0f, 1.0f, &c->zero[i]) ? -2 : 0;
+    }
+    if (!strcmp(k, "swap-yz") || !strcmp(k, "dominant-axis") || !strcmp(k, "disable-rotation") ||
+        !strcmp(k, "disable-translation")) {
+        if ((b = parse_bool(v)) < 0)
+            return -2;
+        if (k[0] == 's')
+            c->swap_yz = b;
+        else if (k[1] == 'o')
+            c->dominant = b;
+        else if (b)
+            c->lock = k[8] == 'r' ? CALIB_LOCK_TRANSLATION : CALIB_LOCK_ROTATION;
+        else if (c->lock == (k[8] == 'r' ? CALIB_LOCK_TRANSLATION : CALIB_LOCK_ROTATION))
+            c->lock = CALIB_LOCK_NONE;
+        return 0;
+    }
+    return ignored_key(k) ? 0 : -1;
+}
+
+static char *trim(char *s)
+{
+    while (isspace((unsigned char)*s))
+        s++;
+    char *e = s + strlen(s);
+    while (e > s && isspace((unsigned char)e[-1]))
+        *--e = '\0';
+    return s;
+}
+
+static void parse_line(calib *c, char *line, int n, diag *d)
+{
+    char *hash = strchr(line, '#');
+    if (hash)
+        *hash = '\0';
+    char *s = trim(line);
+    if (!*s)
+        return;
+    char *eq = strchr(s, '=');
+    if (!eq) {
+        bad_line(d, n, "expected 'key = value', got '%.60s'", s);
+        return;
+    }
+    *eq = '\0';
+    char *k = trim(s), *v = trim(eq + 1);
+    int rc = *v ? apply_key(c, k, v) : -2;
+    if (rc == -1)
+        bad_line(d, n, "unknown key '%.60s' (skipped)", k);
+    else if (rc == -2)
+        bad_line(d, n, "bad value '%.60s' for '%.60s' (skipped)", v, k);
+}
+
+int calib_parse_spnavrc(calib *c, const char *text, size_t len, const char *fname, char *diagbuf,
+                        size_t cap)
+{
+    diag d = {diagbuf, cap, 0, fname ? fname : "spnavrc", 0};
+    if (diagbuf && cap)
+        diagbuf[0] = '\0';
+    char line[512];
+    size_t pos = 0;
+    for (int n = 1; pos < len; n++) {
+        size_t e = pos;
+        while (e < len && text[e] != '\n')
+            e++;
+        size_t l = e - pos;
+        if (l >= sizeof line || memchr(text + pos, '\0', l))
+            bad_line(&d, n, "line too long or holds a NUL byte (skipped)");
+        else {
+            memcpy(line, text + pos, l);
+            line[l] = '\0';
+            parse_line(c, line, n, &d);
+        }
+        pos = e + 1;
+    }
+    return d.bad;
+}
+
+static int read_file(const char *path, char **out, size_t *len)
+{
+    FILE *f = fopen(path, "rb");
+    if (!f)
+        return errno == ENOENT ? FN_ENODEV : fn_err_set(FN_EIO, "%s: %s", path, strerror(errno));
+    struct stat st;
+    if (fstat(fileno(f), &st) || st.st_size > RC_MAX_BYTES) {
+        fclose(f);
+        return fn_err_set(FN_EIO, "%s: not a regular file under %d bytes", path, RC_MAX_BYTES);
+    }
+    char *buf = malloc((size_t)st.st_size + 1);
+    if (!buf) {
+        fclose(f);
+        return fn_err_set(FN_ENOMEM, "%s: out of memory", path);
+    }
+    *len = fread(buf, 1, (size_t)st.st_size, f);
+    int err = ferror(f);
+    fclose(f);
+    if (err) {
+        free(buf);
+        return fn_err_set(FN_EIO, "%s: read error", path);
+    }
+    *out = buf;
+    return 0;
+}
+
+int calib_load(calib *c, const char *path, char *used, size_t used_cap, char *diagbuf, size_t cap)
+{
+    char home_rc[512] = "";
+    const char *home = getenv("HOME");
+    if (home && *home)
+        snprintf(home_rc, sizeof home_rc, "%s/.config/fracnav/spnavrc", home);
+    const char *cands[] = {path, path ? NULL : home_rc, path ? NULL : "/etc/spnavrc"};
+    if (used && used_cap)
+        used[0] = '\0';
+    if (diagbuf && cap)
+        diagbuf[0] = '\0';
+    for (size_t i = 0; i < 3; i++) {
+        if (!cands[i] || !cands[i][0])
+            continue;
+        char *text = NULL;
+        size_t len = 0;
+        int rc = read_file(cands[i], &text, &len);
+        if (rc == FN_ENODEV && !path)
+            continue;
+        if (rc == FN_ENODEV)
+            return fn_err_set(FN_EIO, "%s: no such file", path);
+        if (rc)
+            return rc;
+        if (used && used_cap)
+            snprintf(used, used_cap, "%s", cands[i]);
+        int bad = calib_parse_spnavrc(c, text, len, cands[i], diagbuf, cap);
+        free(text);
+        return bad;
+    }
+    return 0;
+}
+
+static void FN_PRINTF(3, 4) put(char *out, size_t cap, const char *fmt, ...)
+{
+    size_t used = strlen(out);
+    if (used + 1 >= cap)
+        return;
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(out + used, cap - used, fmt, ap);
+    va_end(ap);
+}
+
+size_t calib_format_spnavrc(const calib *c, char *out, size_t cap)
+{
+    static const char *const lock[] = {"false", "true"};
+    if (!cap)
+        return 0;
+    out[0] = '\0';
+    put(out, cap, "# fracnav calibration (spacenavd spnavrc syntax)\nsensitivity = %g\n", c->sens_base);
+    put(out, cap, "sensitivity-translation = %g\nsensitivity-rotation = %g\n", c->sens_t, c->sens_r);
+    for (int i = 0; i < 6; i++)
+        put(out, cap, "sensitivity-%s-%c = %g\n", i < 3 ? "translation" : "rotation", "xyz"[i % 3],
+            c->sens_axis[i]);
+    for (int i = 0; i < 6; i++)
+        put(out, cap, "dead-zone%d = %g\n", i, c->dead[i] * RAW_FULL_SCALE);
+    for (int r = 0; r < 2; r++) {
+        if (!(c->invert >> 3 * r & 7))
+            continue;
+        put(out, cap, "invert-%s = ", r ? "rot" : "trans");
+        for (int i = 0; i < 3; i++)
+            if (c->invert >> (3 * r + i) & 1)
+                put(out, cap, "%c", "xyz"[i]);
+        put(out, cap, "\n");
+    }
+    put(out, cap, "swap-yz = %s\n", lock[!!c->swap_yz]);
+    for (int i = 0; i < 6; i++)
+        if (c->map[i] >= 0)
+            put(out, cap, "axismap%d = %d\n", c->map[i], i);
+    for (int i = 0; i < CALIB_BUTTONS; i++) {
+        if (c->bnmap[i] >= 0)
+            put(out, cap, "bnmap%d = %d\n", i, c->bnmap[i]);
+        if (c->bnact[i] != CALIB_ACT_NONE)
+            put(out, cap, "bnact%d = %s\n", i, calib_action_name(c->bnact[i]));
+    }
+    put(out, cap, "led = %s\nresponse = %s\ncubic-mix = %g\n", c->led == 2 ? "auto" : lock[!!c->led],
+        c->response == CALIB_CUBIC ? "cubic" : "linear", c->cubic_mix);
+    put(out, cap, "dominant-axis = %s\ndisable-rotation = %s\ndisable-translation = %s\n",
+        lock[!!c->dominant], lock[c->lock == CALIB_LOCK_TRANSLATION], lock[c->lock == CALIB_LOCK_ROTATION]);
+    for (int i = 0; i < 6; i++)
+        put(out, cap, "zero-offset%d = %g\n", i, c->zero[i]);
+    return strlen(out);
+}

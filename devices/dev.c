@@ -1,0 +1,310 @@
+#include "dev.h"
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "devparse.h"
+#include "err.h"
+#include "hiddesc.h"
+
+/* The built-in transports (dev_hid.c, dev_spnav.c, dev_keyboard.c). */
+extern const dev_transport dev__hid_transport, dev__spnav_transport, dev__keyboard_transport;
+
+#define DRAIN_MAX 256 /* reports folded per poll: bounds the work when a source never runs dry */
+
+static const dev_transport *registry[DEV_TRANSPORTS_MAX] = {
+    &dev__hid_transport, &dev__spnav_transport, &dev__keyboard_transport};
+static size_t n_registered = 3;
+
+struct dev_device {
+    const dev_transport *t;
+    dev_handle *h; /* NULL while unplugged */
+    dev_info info;
+    const devtab_row *row;
+    devparse_state ps;
+    char reopen[256];
+    int64_t next_try_us;
+};
+
+int64_t dev_now_us(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (int64_t)ts.tv_sec * 1000000 + ts.tv_nsec / 1000;
+}
+
+int dev_transport_register(const dev_transport *t)
+{
+    if (!t || !t->name || !t->open || !t->read || !t->close)
+        return fn_err_set(FN_EINVAL, "dev_transport_register: transport without a name, open, read or close");
+    if (dev_transport_find(t->name))
+        return fn_err_set(FN_EINVAL, "dev_transport_register: transport '%s' already registered", t->name);
+    if (n_registered == DEV_TRANSPORTS_MAX)
+        return fn_err_set(FN_ENOMEM, "dev_transport_register: no room for '%s' (%d transports)", t->name,
+                          DEV_TRANSPORTS_MAX);
+    registry[n_registered++] = t;
+    return 0;
+}
+
+const dev_transport *dev_transport_find(const char *name)
+{
+    for (size_t i = 0; i < n_registered; i++)
+        if (!strcmp(registry[i]->name, name))
+            return registry[i];
+    return NULL;
+}
+
+const dev_transport *dev_transport_at(size_t i)
+{
+    return i < n_registered ? registry[i] : NULL;
+}
+
+/* The device-table row for what the transport says it is; the descriptor's logical maximum wins. */
+static int identify(dev_device *d)
+{
+    memset(&d->info, 0, sizeof d->info);
+    if (d->t->info && d->t->info(d->h, &d->info) < 0)
+        memset(&d->info, 0, sizeof d->info);
+    d->row = devtab_find(d->info.vid, d->info.pid);
+    if (!d->row)
+        d->row = devtab_synthetic(d->t->name);
+    hiddesc desc;
+    int axis_max = 0;
+    if (d->info.desc_len && hiddesc_parse(d->info.desc, d->info.desc_len, &desc) == 0)
+        axis_max = hiddesc_axis_max(&desc);
+    if (!d->row && axis_max > 0)
+        d->row = devtab_synthetic("generic"); /* a new product id that reports like a 6-DOF device */
+    if (!d->row)
+        return fn_err_set(FN_ENODEV, "%s: %04x:%04x is not a supported 6-DOF controller (no device-table row)",
+                          d->info.path[0] ? d->info.path : d->t->name, d->info.vid, d->info.pid);
+    devparse_init(&d->ps, d->row, axis_max);
+    return 0;
+}
+
+dev_device *dev_open_handle(const dev_transport *t, dev_handle *h, const char *reopen)
+{
+    dev_device *d = calloc(1, sizeof *d);
+    if (!d) {
+        t->close(h);
+        fn_err_set(FN_ENOMEM, "dev_open: out of memory");
+        return NULL;
+    }
+    d->t = t;
+    d->h = h;
+    snprintf(d->reopen, sizeof d->reopen, "%s", reopen ? reopen : "");
+    if (identify(d)) {
+        dev_close(d);
+        return NULL;
+    }
+    if (!d->reopen[0])
+        snprintf(d->reopen, sizeof d->reopen, "%s", d->info.path);
+    return d;
+}
+
+static dev_device *open_on(const dev_transport *t, const char *arg, const char *spec)
+{
+    dev_handle *h = NULL;
+    int rc = t->open(arg, &h);
+    if (rc) {
+        fn_err_wrap(rc, "device '%s'", spec);
+        return NULL;
+    }
+    return dev_open_handle(t, h, arg);
+}
+
+static dev_device *open_serial(const char *serial, const char *spec)
+{
+    dev_info found[16];
+    for (size_t i = 0; dev_transport_at(i); i++) {
+        const dev_transport *t = dev_transport_at(i);
+        int n = t->enumerate ? t->enumerate(found, 16) : 0;
+        for (int k = 0; k < n && k < 16; k++)
+            if (!strcmp(found[k].serial, serial))
+                return open_on(t, found[k].path, spec);
+    }
+    fn_err_set(FN_ENODEV, "device '%s': no connected controller has serial number '%s'", spec, serial);
+    return NULL;
+}
+
+static dev_device *open_auto(void)
+{
+    dev_device *d = open_on(&dev__hid_transport, NULL, "auto");
+    if (d)
+        return d;
+    d = open_on(&dev__spnav_transport, NULL, "auto");
+    if (d)
+        return d;
+    if (isatty(STDIN_FILENO))
+        return open_on(&dev__keyboard_transport, NULL, "auto");
+    fn_err_set(FN_ENODEV, "device 'auto': no 6-DOF controller found (no supported HID device, no "
+                          "spacenavd, no terminal for the keyboard fallback)");
+    return NULL;
+}
+
+dev_device *dev_open(const char *spec)
+{
+    if (!spec || !*spec || !strcmp(spec, "auto"))
+        return open_auto();
+    if (spec[0] == '/' || spec[0] == '.')
+        return open_on(&dev__hid_transport, spec, spec);
+    if (!strncmp(spec, "serial:", 7))
+        return open_serial(spec + 7, spec);
+    char name[32];
+    const char *colon = strchr(spec, ':');
+    size_t n = colon ? (size_t)(colon - spec) : strlen(spec);
+    if (n >= sizeof name) {
+        fn_err_set(FN_EINVAL, "device '%s': unknown transport", spec);
+        return NULL;
+    }
+    memcpy(name, spec, n);
+    name[n] = '\0';
+    const dev_transport *t = dev_transport_find(name);
+    if (!t) {
+        fn_err_set(FN_EINVAL, "device '%s': unknown transport '%s' (a path, auto, serial:S, or a transport name)",
+                   spec, name);
+        return NULL;
+    }
+    return open_on(t, colon && colon[1] ? colon + 1 : NULL, spec);
+}
+
+void dev_close(dev_device *d)
+{
+    if (!d)
+        return;
+    if (d->h)
+        d->t->close(d->h);
+    free(d);
+}
+
+/* The device went away: report it once, with motion and buttons released. */
+static void lost(dev_device *d, dev_event *ev)
+{
+    d->t->close(d->h);
+    d->h = NULL;
+    d->next_try_us = dev_now_us() + DEV_REPLUG_MS * 1000;
+    memset(d->ps.raw, 0, sizeof d->ps.raw);
+    uint32_t was = d->ps.buttons;
+    d->ps.buttons = 0;
+    memset(d->ps.keys, 0, sizeof d->ps.keys);
+    memset(ev, 0, sizeof *ev);
+    ev->t_us = dev_now_us();
+    ev->flags = DEV_EV_UNPLUG | DEV_EV_MOTION | (was ? DEV_EV_BUTTON : 0);
+    ev->released = was;
+    ev->battery = -1;
+}
+
+/* Same path first; else the same vid:pid:serial wherever it reappeared. */
+static int try_reopen(dev_device *d)
+{
+    dev_handle *h = NULL;
+    if (d->t->open(d->reopen[0] ? d->reopen : NULL, &h) == 0) {
+        d->h = h;
+        return 1;
+    }
+    dev_info found[16];
+    int n = d->t->enumerate && d->info.serial[0] ? d->t->enumerate(found, 16) : 0;
+    for (int k = 0; k < n && k < 16; k++)
+        if (found[k].vid == d->info.vid && found[k].pid == d->info.pid &&
+            !strcmp(found[k].serial, d->info.serial) && d->t->open(found[k].path, &h) == 0) {
+            d->h = h;
+            snprintf(d->reopen, sizeof d->reopen, "%.255s", found[k].path);
+            return 1;
+        }
+    return 0;
+}
+
+static int poll_unplugged(dev_device *d, dev_event *ev, int timeout_ms)
+{
+    int64_t now = dev_now_us();
+    if (now < d->next_try_us) {
+        int64_t wait_us = d->next_try_us - now;
+        if (timeout_ms >= 0 && wait_us > (int64_t)timeout_ms * 1000)
+            wait_us = (int64_t)timeout_ms * 1000;
+        if (wait_us > 0)
+            usleep((useconds_t)wait_us);
+        if (dev_now_us() < d->next_try_us)
+            return 0;
+    }
+    d->next_try_us = dev_now_us() + DEV_REPLUG_MS * 1000;
+    if (!try_reopen(d))
+        return 0;
+    int battery = d->ps.battery;
+    devparse_init(&d->ps, d->row, d->ps.axis_max);
+    d->ps.battery = battery;
+    memset(ev, 0, sizeof *ev);
+    ev->t_us = dev_now_us();
+    ev->flags = DEV_EV_REPLUG;
+    ev->battery = battery;
+    return 1;
+}
+
+int dev_poll(dev_device *d, dev_event *ev, int timeout_ms)
+{
+    if (!d->h)
+        return poll_unplugged(d, ev, timeout_ms);
+    uint8_t buf[DEV_REPORT_MAX];
+    int got = 0;
+    for (int i = 0; i < DRAIN_MAX; i++) {
+        int64_t t_us = 0;
+        int n = d->t->read(d->h, buf, sizeof buf, i == 0 ? timeout_ms : 0, &t_us);
+        if (n == FN_ENODEV) {
+            lost(d, ev);
+            return 1;
+        }
+        if (n < 0)
+            return n;
+        if (n == 0)
+            break;
+        dev_event e;
+        if (!devparse_report(&d->ps, buf, (size_t)n, t_us, &e))
+            continue;
+        if (got)
+            devparse_merge(ev, &e);
+        else
+            *ev = e;
+        got = 1;
+    }
+    return got;
+}
+
+int dev_set_led(dev_device *d, int on)
+{
+    if (!(d->row->flags & DEVTAB_F_LED) || !d->h || !d->t->write)
+        return 0;
+    uint8_t rep[2] = {4, on ? 1 : 0};
+    int rc = d->t->write(d->h, rep, sizeof rep);
+    return rc < 0 ? rc : 0;
+}
+
+int dev_battery(const dev_device *d)
+{
+    return d->ps.battery;
+}
+
+int dev_connected(const dev_device *d)
+{
+    return d->h != NULL;
+}
+
+const devtab_row *dev_row(const dev_device *d)
+{
+    return d->row;
+}
+
+const dev_info *dev_device_info(const dev_device *d)
+{
+    return &d->info;
+}
+
+const char *dev_transport_name(const dev_device *d)
+{
+    return d->t->name;
+}
+
+uint64_t dev_skipped(const dev_device *d)
+{
+    return d->ps.n_unknown_id + d->ps.n_bad_len;
+}

@@ -1,0 +1,211 @@
+/* dev: the hidapi transport. Built against hidapi.h; the build links libhidapi-hidraw (default,
+ * transport "hidraw") or libhidapi-libusb (FRACNAV_HIDAPI_LIBUSB, transport "libusb"): one ABI. */
+#include <errno.h>
+#include <fcntl.h>
+#include <hidapi/hidapi.h>
+#include <linux/hidraw.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/ioctl.h>
+#include <unistd.h>
+#include <wchar.h>
+
+#include "dev.h"
+#include "err.h"
+
+#ifdef FRACNAV_HIDAPI_LIBUSB
+#define HID_NAME "libusb"
+#else
+#define HID_NAME "hidraw"
+#endif
+
+#define UDEV_HINT "install the udev rule: sudo cp udev/70-fracnav.rules /etc/udev/rules.d/ && " \
+                  "sudo udevadm control --reload && sudo udevadm trigger (see udev/README.md)"
+
+struct dev_handle {
+    hid_device *dev;
+    char path[256];
+};
+
+static int init_once(void)
+{
+    static int done;
+    if (!done && hid_init() != 0)
+        return fn_err_set(FN_EIO, "hidapi (%s): hid_init failed", HID_NAME);
+    done = 1;
+    return 0;
+}
+
+static void narrow(char *out, size_t cap, const wchar_t *w)
+{
+    size_t i = 0;
+    for (; w && w[i] && i + 1 < cap; i++)
+        out[i] = w[i] >= 32 && w[i] < 127 ? (char)w[i] : '?';
+    out[i] = '\0';
+}
+
+/* The 6-DOF collection of a supported device (receivers expose several). */
+static int wanted(const struct hid_device_info *e)
+{
+    if (!devtab_find(e->vendor_id, e->product_id))
+        return 0;
+    return e->usage_page == 0 || (e->usage_page == 1 && e->usage == 8);
+}
+
+static int hid_enum(dev_info *out, size_t cap)
+{
+    if (init_once())
+        return FN_EIO;
+    struct hid_device_info *list = hid_enumerate(0, 0);
+    int n = 0;
+    for (struct hid_device_info *e = list; e; e = e->next) {
+        if (!wanted(e))
+            continue;
+        if ((size_t)n < cap) {
+            dev_info *d = &out[n];
+            memset(d, 0, sizeof *d);
+            snprintf(d->path, sizeof d->path, "%s", e->path);
+            d->vid = e->vendor_id;
+            d->pid = e->product_id;
+            narrow(d->name, sizeof d->name, e->product_string);
+            narrow(d->serial, sizeof d->serial, e->serial_number);
+        }
+        n++;
+    }
+    hid_free_enumeration(list);
+    return n;
+}
+
+/* Why a node cannot be opened: absent (ENODEV) or not ours to open (permissions -> udev rule). */
+static int open_error(const char *path)
+{
+    if (path[0] != '/')
+        return fn_err_set(FN_ENODEV, "%s: hidapi (%s) cannot open it: %ls", path, HID_NAME, hid_error(NULL));
+    int fd = open(path, O_RDWR | O_CLOEXEC);
+    int e = errno;
+    if (fd >= 0) {
+        close(fd);
+        return fn_err_set(FN_EIO, "%s: hidapi (%s) cannot open it: %ls", path, HID_NAME, hid_error(NULL));
+    }
+    if (e == ENOENT || e == ENODEV || e == ENXIO)
+        return fn_err_set(FN_ENODEV, "%s: %s", path, strerror(e));
+    if (e == EACCES || e == EPERM)
+        return fn_err_set(FN_EIO, "%s: %s: %s", path, strerror(e), UDEV_HINT);
+    return fn_err_set(FN_EIO, "%s: %s", path, strerror(e));
+}
+
+static int hid_open_dev(const char *path, dev_handle **out)
+{
+    if (init_once())
+        return FN_EIO;
+    dev_info first;
+    if (!path) {
+        int n = hid_enum(&first, 1);
+        if (n <= 0)
+            return fn_err_set(FN_ENODEV, "no supported 6-DOF HID device found (%s)", HID_NAME);
+        path = first.path;
+    }
+    hid_device *dev = hid_open_path(path);
+    if (!dev)
+        return open_error(path);
+    dev_handle *h = calloc(1, sizeof *h);
+    if (!h) {
+        hid_close(dev);
+        return fn_err_set(FN_ENOMEM, "%s: out of memory", path);
+    }
+    h->dev = dev;
+    snprintf(h->path, sizeof h->path, "%s", path);
+    *out = h;
+    return 0;
+}
+
+static int hid_read_dev(dev_handle *h, uint8_t *buf, size_t cap, int timeout_ms, int64_t *t_us)
+{
+    int n = hid_read_timeout(h->dev, buf, cap, timeout_ms);
+    *t_us = dev_now_us();
+    if (n < 0)
+        return fn_err_set(FN_ENODEV, "%s: read failed: %ls", h->path, hid_error(h->dev));
+    return n;
+}
+
+static int hid_write_dev(dev_handle *h, const uint8_t *buf, size_t len)
+{
+    int n = hid_write(h->dev, buf, len);
+    return n < 0 ? fn_err_set(FN_EIO, "%s: write of report %u failed: %ls", h->path, buf[0], hid_error(h->dev))
+                 : n;
+}
+
+static int hid_get_feature_dev(dev_handle *h, uint8_t *buf, size_t cap)
+{
+    int n = hid_get_feature_report(h->dev, buf, cap);
+    return n < 0 ? fn_err_set(FN_EIO, "%s: feature report %u: %ls", h->path, buf[0], hid_error(h->dev)) : n;
+}
+
+static int hid_set_feature_dev(dev_handle *h, const uint8_t *buf, size_t len)
+{
+    int n = hid_send_feature_report(h->dev, buf, len);
+    return n < 0 ? fn_err_set(FN_EIO, "%s: feature report %u: %ls", h->path, buf[0], hid_error(h->dev)) : n;
+}
+
+/* A hidraw node answers these ioctls itself (a FUSE-served node too), with no udev involved. */
+static int hidraw_info(const char *path, dev_info *out)
+{
+    int fd = open(path, O_RDONLY | O_CLOEXEC | O_NONBLOCK);
+    if (fd < 0)
+        return -1;
+    struct hidraw_devinfo ri;
+    int size = 0, ok = ioctl(fd, HIDIOCGRAWINFO, &ri) == 0;
+    if (ok) {
+        out->vid = (uint16_t)ri.vendor;
+        out->pid = (uint16_t)ri.product;
+    }
+    char name[sizeof out->name] = "";
+    if (ioctl(fd, HIDIOCGRAWNAME(sizeof name - 1), name) >= 0 && !out->name[0])
+        snprintf(out->name, sizeof out->name, "%s", name);
+    struct hidraw_report_descriptor *rd = malloc(sizeof *rd);
+    if (rd && ioctl(fd, HIDIOCGRDESCSIZE, &size) == 0 && size > 0 && size <= HID_MAX_DESCRIPTOR_SIZE &&
+        (size_t)size <= sizeof out->desc) {
+        rd->size = (uint32_t)size;
+        if (ioctl(fd, HIDIOCGRDESC, rd) == 0) {
+            memcpy(out->desc, rd->value, (size_t)size);
+            out->desc_len = (size_t)size;
+        }
+    }
+    free(rd);
+    close(fd);
+    return ok ? 0 : -1;
+}
+
+static int hid_info_dev(dev_handle *h, dev_info *out)
+{
+    memset(out, 0, sizeof *out);
+    snprintf(out->path, sizeof out->path, "%s", h->path);
+    struct hid_device_info *i = hid_get_device_info(h->dev);
+    if (i) {
+        out->vid = i->vendor_id;
+        out->pid = i->product_id;
+        narrow(out->name, sizeof out->name, i->product_string);
+        narrow(out->serial, sizeof out->serial, i->serial_number);
+    }
+    int raw = h->path[0] == '/' ? hidraw_info(h->path, out) : -1;
+    return i || raw == 0 ? 0 : fn_err_set(FN_EIO, "%s: no device information", h->path);
+}
+
+static void hid_close_dev(dev_handle *h)
+{
+    hid_close(h->dev);
+    free(h);
+}
+
+const dev_transport dev__hid_transport = {
+    .name = HID_NAME,
+    .open = hid_open_dev,
+    .read = hid_read_dev,
+    .write = hid_write_dev,
+    .get_feature = hid_get_feature_dev,
+    .set_feature = hid_set_feature_dev,
+    .info = hid_info_dev,
+    .close = hid_close_dev,
+    .enumerate = hid_enum,
+};

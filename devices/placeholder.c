@@ -1,2 +1,0 @@
-/* Until devices/ has sources of its own. */
-typedef int fracnav_devices_placeholder;
