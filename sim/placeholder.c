@@ -1,2 +1,0 @@
-/* Until sim/ has sources of its own. */
-typedef int fracnav_sim_placeholder;

@@ -1,0 +1,281 @@
+#include "sim_replay.h"
+
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "err.h"
+#include "script.h"
+#include "simdev.h"
+
+enum { KIND_REPLAY, KIND_VIRTUAL };
+
+struct dev_handle {
+    int kind;
+    fnrec *owned;       /* the recording when the handle loaded or rendered it */
+    const fnrec *rec;
+    size_t pos;         /* next event */
+    int realtime;
+    double speed;
+    int started;        /* realtime clock anchored */
+    int64_t anchor_us;  /* monotonic time of the recording's t = 0 */
+    int plugged;
+    simdev dev;         /* virtual: LED and feature reports */
+    char path[256];
+};
+
+static int64_t mono_us(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (int64_t)ts.tv_sec * 1000000 + ts.tv_nsec / 1000;
+}
+
+static void sleep_until(int64_t t_us)
+{
+    struct timespec ts = {(time_t)(t_us / 1000000), (long)(t_us % 1000000) * 1000};
+    while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL))
+        ;
+}
+
+static dev_handle *handle_new(int kind, const char *path)
+{
+    dev_handle *h = calloc(1, sizeof *h);
+    if (!h) {
+        fn_err_set(FN_ENOMEM, "out of memory for a %s device", kind == KIND_REPLAY ? "replay" : "virtual");
+        return NULL;
+    }
+    h->kind = kind;
+    h->plugged = 1;
+    h->speed = 1;
+    snprintf(h->path, sizeof h->path, "%s", path);
+    return h;
+}
+
+int sim_replay_open_rec(const fnrec *rec, const sim_replay_opts *o, dev_handle **out)
+{
+    *out = NULL;
+    dev_handle *h = handle_new(KIND_REPLAY, "<recording>");
+    if (!h)
+        return FN_ENOMEM;
+    h->rec = rec;
+    if (o) {
+        h->realtime = o->realtime;
+        h->speed = o->speed > 0 ? o->speed : 1;
+    }
+    *out = h;
+    return 0;
+}
+
+int sim_replay_open_file(const char *path, const sim_replay_opts *o, dev_handle **out)
+{
+    *out = NULL;
+    fnrec *r = fnrec_load(path);
+    if (!r)
+        return FN_EFORMAT;
+    int rc = sim_replay_open_rec(r, o, out);
+    if (rc) {
+        fnrec_free(r);
+        return rc;
+    }
+    (*out)->owned = r;
+    snprintf((*out)->path, sizeof (*out)->path, "%s", path);
+    return 0;
+}
+
+static int open_fast(const char *path, dev_handle **out)
+{
+    return sim_replay_open_file(path, &(sim_replay_opts){0, 1}, out);
+}
+
+static int open_realtime(const char *path, dev_handle **out)
+{
+    return sim_replay_open_file(path, &(sim_replay_opts){1, 1}, out);
+}
+
+int sim_replay_finished(const dev_handle *h)
+{
+    return h->pos >= h->rec->n;
+}
+
+const fnrec_header *sim_replay_header(const dev_handle *h)
+{
+    return &h->rec->hdr;
+}
+
+/* Recording time of event i in the handle's monotonic clock. */
+static int64_t due_us(const dev_handle *h, size_t i)
+{
+    return h->anchor_us + (int64_t)((double)h->rec->ev[i].t_us / h->speed);
+}
+
+/* Waits (realtime) until event pos is due or the timeout passes. Returns 1 when due. */
+static int wait_due(dev_handle *h, int timeout_ms, int64_t start)
+{
+    if (!h->realtime)
+        return 1;
+    int64_t due = due_us(h, h->pos), now = mono_us();
+    if (due <= now)
+        return 1;
+    if (timeout_ms == 0 || (!h->plugged && h->kind == KIND_VIRTUAL))
+        return 0;
+    int64_t limit = timeout_ms < 0 ? due : start + (int64_t)timeout_ms * 1000;
+    sleep_until(due < limit ? due : limit);
+    return due <= limit;
+}
+
+static int end_of_input(dev_handle *h, int timeout_ms, int64_t start)
+{
+    if (h->kind == KIND_REPLAY)
+        return fn_err_set(FN_ENODEV, "%s: device disconnected (end of recording)", h->path);
+    /* The virtual device stays plugged in and silent once its script is done. */
+    if (timeout_ms < 0)
+        timeout_ms = 100;
+    sleep_until(start + (int64_t)timeout_ms * 1000);
+    return 0;
+}
+
+static int read_report(dev_handle *h, uint8_t *buf, size_t cap, int timeout_ms, int64_t *t_us)
+{
+    int64_t start = mono_us();
+    if (h->realtime && !h->started) {
+        h->started = 1;
+        h->anchor_us = start - (h->rec->n ? (int64_t)((double)h->rec->ev[0].t_us / h->speed) : 0);
+    }
+    for (;;) {
+        if (h->pos >= h->rec->n)
+            return h->plugged ? end_of_input(h, timeout_ms, start)
+                              : fn_err_set(FN_ENODEV, "%s: device disconnected", h->path);
+        if (!wait_due(h, timeout_ms, start))
+            return h->plugged ? 0 : fn_err_set(FN_ENODEV, "%s: device disconnected", h->path);
+        const fnrec_event *e = &h->rec->ev[h->pos++];
+        if (e->dir == FNREC_CONNECT) {
+            h->plugged = 1;
+        } else if (e->dir == FNREC_DISCONNECT) {
+            h->plugged = 0;
+            return fn_err_set(FN_ENODEV, "%s: device disconnected", h->path);
+        } else if (e->dir == FNREC_IN && h->plugged) {
+            size_t n = e->len < cap ? e->len : cap;
+            memcpy(buf, e->data, n);
+            if (t_us)
+                *t_us = h->kind == KIND_REPLAY ? e->t_us : mono_us();
+            return (int)n;
+        }
+    }
+}
+
+static int write_report(dev_handle *h, const uint8_t *buf, size_t len)
+{
+    if (!h->plugged)
+        return fn_err_set(FN_ENODEV, "%s: device disconnected", h->path);
+    if (h->kind == KIND_VIRTUAL)
+        return simdev_output(&h->dev, buf, len);
+    return len ? (int)len : fn_err_set(FN_EINVAL, "%s: empty output report", h->path);
+}
+
+static int get_feature(dev_handle *h, uint8_t *buf, size_t cap)
+{
+    if (!h->plugged)
+        return fn_err_set(FN_ENODEV, "%s: device disconnected", h->path);
+    if (h->kind == KIND_VIRTUAL)
+        return simdev_get_feature(&h->dev, buf, cap);
+    const fnrec_event *hit = NULL;
+    for (size_t i = 0; i < h->rec->n; i++) {
+        const fnrec_event *e = &h->rec->ev[i];
+        if (e->dir == FNREC_FEATURE && e->data[0] == buf[0] && (!hit || i < h->pos))
+            hit = e;
+    }
+    if (!hit)
+        return fn_err_set(FN_EINVAL, "%s: no feature report %u in the recording", h->path, buf[0]);
+    size_t n = hit->len < cap ? hit->len : cap;
+    memcpy(buf, hit->data, n);
+    return (int)n;
+}
+
+static int info(dev_handle *h, dev_info *out)
+{
+    const fnrec_header *hd = &h->rec->hdr;
+    memset(out, 0, sizeof *out);
+    snprintf(out->path, sizeof out->path, "%s", h->path);
+    out->vid = hd->vid;
+    out->pid = hd->pid;
+    snprintf(out->name, sizeof out->name, "%s", hd->name);
+    memcpy(out->desc, hd->desc, hd->desc_len);
+    out->desc_len = hd->desc_len;
+    return 0;
+}
+
+static void close_handle(dev_handle *h)
+{
+    if (h)
+        fnrec_free(h->owned);
+    free(h);
+}
+
+/* "DEVICE[:script=FILE|:play=FILE]" -> the recording the virtual device plays. */
+static fnrec *virtual_source(const char *path, const sim_profile **prof)
+{
+    char dev[64];
+    const char *colon = strchr(path, ':');
+    size_t n = colon ? (size_t)(colon - path) : strlen(path);
+    /* "046d:c626" is a device id, not DEVICE:option. */
+    if (colon && n == 4 && strlen(path) >= 9 && (path[9] == '\0' || path[9] == ':')) {
+        n = 9;
+        colon = path[9] ? path + 9 : NULL;
+    }
+    if (n >= sizeof dev) {
+        fn_err_set(FN_EINVAL, "virtual device '%s': device name too long", path);
+        return NULL;
+    }
+    memcpy(dev, path, n);
+    dev[n] = '\0';
+    if (!(*prof = sim_profile_find(dev[0] ? dev : "spacenavigator")))
+        return NULL;
+    if (colon && !strncmp(colon, ":play=", 6))
+        return fnrec_load(colon + 6);
+    script *s = NULL;
+    if (colon && strncmp(colon, ":script=", 8)) {
+        fn_err_set(FN_EINVAL, "virtual device '%s': expected DEVICE, DEVICE:script=FILE or "
+                              "DEVICE:play=FILE", path);
+        return NULL;
+    }
+    if (colon ? !(s = script_load(colon + 8)) : script_parse("", 0, "", &s) != 0)
+        return NULL;
+    fnrec *r = script_render(s, *prof);
+    free(s);
+    return r;
+}
+
+static int open_virtual(const char *path, dev_handle **out)
+{
+    *out = NULL;
+    const sim_profile *p = NULL;
+    fnrec *r = virtual_source(path ? path : "", &p);
+    if (!r)
+        return fn_err_wrap(FN_EINVAL, "virtual transport");
+    dev_handle *h = handle_new(KIND_VIRTUAL, path ? path : "virtual");
+    if (!h) {
+        fnrec_free(r);
+        return FN_ENOMEM;
+    }
+    h->owned = r;
+    h->rec = r;
+    h->realtime = 1;
+    h->started = 1;
+    h->anchor_us = mono_us();
+    simdev_init(&h->dev, p);
+    *out = h;
+    return 0;
+}
+
+const dev_transport sim_replay_transport = {
+    .name = "replay", .open = open_fast, .read = read_report, .write = write_report,
+    .get_feature = get_feature, .info = info, .close = close_handle};
+
+const dev_transport sim_replay_realtime_transport = {
+    .name = "replay", .open = open_realtime, .read = read_report, .write = write_report,
+    .get_feature = get_feature, .info = info, .close = close_handle};
+
+const dev_transport sim_virtual_transport = {
+    .name = "virtual", .open = open_virtual, .read = read_report, .write = write_report,
+    .get_feature = get_feature, .info = info, .close = close_handle};

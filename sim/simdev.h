@@ -1,0 +1,78 @@
+/* simdev: the virtual 6-DOF controller's report generator.
+ *
+ * One generator serves every way the virtual device is reached (FUSE hidraw node, the in-process
+ * "virtual" transport, scripts rendered to .fnrec): given the cap's deflection and the buttons, it
+ * says which report the device sends in each period of its cadence, byte for byte.
+ *
+ * Behaviour (as the hardware, see ../shared/DEVICES.md):
+ * - split format (SpaceNavigator, 8 ms): one report per period, cycling ID1 (x y z), ID2 (rx ry rz);
+ *   a button change inserts ID3 (bitmask) in the next period.
+ * - combined format (SpaceMouse Wireless/Enterprise, 16 ms): ID1 with all six axes each period; a
+ *   button change inserts ID3 (and, on the Enterprise, report 0x1C with key codes) in the next period.
+ * - while the cap is deflected, motion reports go out every period (even when the values repeat);
+ *   after release every motion report ID is sent with zeros three times, then silence.
+ * - output report 4 sets the LED; feature reports are stored and read back per report ID.
+ * No allocation; a simdev is a plain value. */
+#ifndef FN_SIMDEV_H
+#define FN_SIMDEV_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+typedef enum simdev_format { SIMDEV_SPLIT, SIMDEV_COMBINED } simdev_format;
+
+/* A device the simulator can impersonate. */
+typedef struct sim_profile {
+    const char *id;     /* short name for --as: "spacenavigator", "spacemouse-wireless", ... */
+    uint16_t vid, pid;
+    const char *name;   /* the product name the kernel reports (HIDIOCGRAWNAME) */
+    simdev_format format;
+    int period_us;      /* report cadence */
+    int nbuttons;       /* valid bits in the ID3 bitmask */
+    int keycodes;       /* also sends report 0x1C (up to 6 uint16 key codes) on button changes */
+    int battery;        /* has battery report 0x17 (wireless) */
+} sim_profile;
+
+#define SIMDEV_ZERO_REPEATS 3
+#define SIMDEV_FEATURE_IDS 32
+#define SIMDEV_FEATURE_LEN 16
+#define SIMDEV_BUS_USB 0x03
+
+/* The profiles, in a fixed order; NULL past the end. */
+const sim_profile *sim_profile_at(size_t i);
+/* By id ("spacenavigator") or "vid:pid" in hex ("046d:c626"); NULL (and fn_err set) if unknown. */
+const sim_profile *sim_profile_find(const char *id);
+/* Writes the profile's HID report descriptor into out (cap >= 256). Returns its length. */
+size_t sim_profile_descriptor(const sim_profile *p, uint8_t *out, size_t cap);
+/* The length of input report id for this profile, 0 if the device has no such report. */
+int sim_profile_report_len(const sim_profile *p, uint8_t id);
+
+typedef struct simdev {
+    const sim_profile *p;
+    int16_t axes[6];      /* current deflection in counts, HID frame (+x right, +y toward user, +z down) */
+    uint32_t buttons;     /* bit i = button i */
+    uint32_t sent_buttons;
+    int zeros_left;       /* zero motion reports still owed after release */
+    int phase;            /* split: 0 = ID1 next, 1 = ID2 next */
+    int keycode_pending;  /* Enterprise: 0x1C follows ID3 */
+    int led;              /* 0 off, 1 on */
+    uint8_t feature[SIMDEV_FEATURE_IDS][SIMDEV_FEATURE_LEN];
+    uint8_t feature_len[SIMDEV_FEATURE_IDS];
+} simdev;
+
+void simdev_init(simdev *d, const sim_profile *p);
+/* Sets the deflection (clamped to +-350) and buttons from now on. */
+void simdev_set(simdev *d, const int16_t axes[6], uint32_t buttons);
+/* The report the device sends in the current period, written to buf (cap >= 16). Returns its length,
+ * or 0 when the device is silent this period. Call once per period. */
+int simdev_next(simdev *d, uint8_t *buf, size_t cap);
+/* True when the device has nothing more to send until its state changes. */
+int simdev_idle(const simdev *d);
+/* An output report from the host (buf[0] = report ID). Returns len, or FN_EINVAL for an unknown one. */
+int simdev_output(simdev *d, const uint8_t *buf, size_t len);
+/* Feature get: buf[0] holds the ID on entry; fills the report. Returns its length or FN_EINVAL. */
+int simdev_get_feature(simdev *d, uint8_t *buf, size_t cap);
+/* Feature set: stores the report (buf[0] = ID). Returns len or FN_EINVAL. */
+int simdev_set_feature(simdev *d, const uint8_t *buf, size_t len);
+
+#endif
