@@ -14,8 +14,8 @@
 void loop_config_default(loop_config *c)
 {
     memset(c, 0, sizeof *c);
-    c->trans_mm_s = 40;
-    c->rot_deg_s = 45;
+    c->trans_mm_s = 50; /* sim/script.h: SCRIPT_MM_PER_S_FULL */
+    c->rot_deg_s = 45;  /* SCRIPT_DEG_PER_S_FULL */
     c->frame = LOOP_FRAME_CAMERA;
     c->dt_max_us = 20000;
     c->bisect_iters = 6;
@@ -98,6 +98,7 @@ void loop_free(loop *L)
 {
     if (!L)
         return;
+    sem_destroy(&L->wake);
     free(L->caches);
     free(L);
 }

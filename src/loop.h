@@ -151,8 +151,9 @@ void loop_free(loop *L);
 int loop_feed(loop *L, const loop_event *ev);
 /* Feeds every event waiting in r, then publishes the scene. Returns events handled or negative. */
 int loop_drain(loop *L, ring *r);
-/* The fixed-rate loop: every period_us drains r and publishes, until *stop becomes nonzero.
- * Run it on its own thread. Returns 0 or the first collider error. */
+/* The loop: drains r and publishes at every loop_notify and at least every period_us, until
+ * *stop becomes nonzero (then drains once more). Run it on its own thread. Returns 0 or the first
+ * collider error. */
 int loop_run(loop *L, ring *r, int64_t period_us, const atomic_int *stop);
 
 /* Direct controls (the same as the actions, for the application's own thread when not running). */
@@ -182,22 +183,27 @@ void loop_scene_format(const loop_scene *s, char *buf, size_t cap);
 /* Monotonic clock, microseconds. */
 int64_t loop_now_us(void);
 
-/* Input thread: reads tr (draining every pending report), decodes reports into events and pushes
- * them into r. When the device goes away it pushes LOOP_EV_UNPLUG, then tries to reopen `path`
- * every 200 ms and pushes LOOP_EV_REPLUG when it is back. */
-struct dev_transport;
-struct dev_handle;
-typedef struct loop_decoder {
-    /* One raw report -> event. Returns 1 when ev holds an event, 0 to skip the report. Pure. */
-    int (*decode)(void *ctx, const uint8_t *rep, size_t len, int64_t t_us, loop_event *ev);
+/* Input seam: where events come from (a device through calibration, a recording, a script). */
+typedef struct loop_source {
+    /* Waits up to timeout_ms for the next event. Returns 1 (ev filled, arrival_us may be left 0),
+     * 0 nothing yet, LOOP_SOURCE_END when no more will ever come, or another negative FN_E*.
+     * A device that goes away yields LOOP_EV_UNPLUG, and LOOP_EV_REPLUG when it is back. */
+    int (*next)(void *ctx, loop_event *ev, int timeout_ms);
     void *ctx;
-} loop_decoder;
+} loop_source;
+#define LOOP_SOURCE_END (-100)
+
+/* Input thread: takes every event the source has (draining it) into r, stamps arrival_us and
+ * wakes the loop (loop_notify). lockstep: wait until the loop has taken the previous event before
+ * pushing the next (benchmarks: no queueing delay in the latency). */
 typedef struct loop_reader loop_reader;
-/* Starts the thread on an open device h (owned from now on, closed by loop_reader_stop). */
-loop_reader *loop_reader_start(const struct dev_transport *tr, struct dev_handle *h, const char *path,
-                               loop_decoder dec, ring *r);
-/* Stops and joins the thread, closes the device. Returns the reads that failed (not unplugs). */
+loop_reader *loop_reader_start(loop_source src, ring *r, loop *L, int lockstep);
+/* 1 once the source has ended (all its events are in the ring). */
+int loop_reader_done(loop_reader *rd);
+/* Stops and joins the thread. Returns the source's errors (not unplugs) seen. */
 int loop_reader_stop(loop_reader *rd);
+/* Wakes a loop_run waiting for its next tick (any thread). */
+void loop_notify(loop *L);
 
 /* The collider over OBB octrees (loop_obb.c): one tree per fragment, built at loop_obb_new with
  * params (NULL = {0, 1}); queries with q (NULL = threshold 0, tolerance 0). The frags must

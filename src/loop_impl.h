@@ -4,6 +4,8 @@
 
 #include "loop.h"
 
+#include <semaphore.h>
+
 #define LOOP_UNDO_MAX 256
 #define LOOP_HIST_BINS 10000 /* 1 us bins; later latencies land in the overflow count */
 
@@ -51,6 +53,7 @@ struct loop {
     atomic_int middle;
     int back, front;
     uint64_t pub_seq;
+    sem_t wake; /* loop_notify -> loop_run */
 };
 
 void loop_accept(loop *L, int s, pose p, int64_t t_us, uint32_t kind, int checked);

@@ -7,6 +7,7 @@
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
+#include <semaphore.h>
 #include <time.h>
 
 #define FRESH 4
@@ -31,6 +32,7 @@ void loop_stats_init(loop *L)
     L->front = 0;
     L->back = 2;
     atomic_init(&L->middle, 1);
+    sem_init(&L->wake, 0, 0);
     loop_reset_timing(L);
     loop_publish(L);
 }
@@ -207,10 +209,13 @@ int loop_drain(loop *L, ring *r)
     return n;
 }
 
+void loop_notify(loop *L)
+{
+    sem_post(&L->wake);
+}
+
 int loop_run(loop *L, ring *r, int64_t period_us, const atomic_int *stop)
 {
-    struct timespec next;
-    clock_gettime(CLOCK_MONOTONIC, &next);
     unsigned idle = 0;
     while (!atomic_load(stop)) {
         int rc = loop_drain(L, r);
@@ -221,13 +226,18 @@ int loop_run(loop *L, ring *r, int64_t period_us, const atomic_int *stop)
             journal_tick(L->jr, loop_now_us());
         if (rc == 0 && ++idle % 50 == 0)
             loop_publish(L); /* keep the rates in the scene fresh while nothing moves */
-        next.tv_nsec += (long)(period_us * 1000);
-        while (next.tv_nsec >= 1000000000) {
-            next.tv_nsec -= 1000000000;
-            next.tv_sec++;
+        struct timespec until;
+        clock_gettime(CLOCK_REALTIME, &until); /* sem_timedwait's clock */
+        until.tv_nsec += (long)(period_us * 1000);
+        while (until.tv_nsec >= 1000000000) {
+            until.tv_nsec -= 1000000000;
+            until.tv_sec++;
         }
-        while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &next, NULL) == EINTR)
+        while (sem_timedwait(&L->wake, &until) != 0 && errno == EINTR)
             ;
+        while (sem_trywait(&L->wake) == 0)
+            ; /* one wake-up serves every event pushed so far */
     }
-    return 0;
+    int rc = loop_drain(L, r);
+    return rc < 0 ? rc : 0;
 }
