@@ -19,7 +19,8 @@ void loop_config_default(loop_config *c)
     c->frame = LOOP_FRAME_CAMERA;
     c->dt_max_us = 20000;
     c->bisect_iters = 6;
-    c->slide_iters = 4;
+    c->slide_iters = 3;
+    c->max_tries = 14;
 #ifdef NDEBUG
     c->check_invariant = 0;
 #else
@@ -119,9 +120,10 @@ static int collide_all(loop *L, int s, const pose *p, int fresh, double *sep)
             cache = L->scratch;
         }
         loop_contact c = {0, INFINITY};
-        int64_t t0 = loop_clock_ns();
+        int64_t t0 = fresh ? 0 : loop_clock_ns();
         int rc = L->col.query(L->col.ctx, s, p, j, &L->pose[j], cache, &c);
-        loop_stats_query(L, loop_clock_ns() - t0);
+        if (!fresh) /* the invariant check's queries are not part of the loop's cost */
+            loop_stats_query(L, loop_clock_ns() - t0);
         if (rc < 0)
             return rc;
         if (c.separation_mm < *sep)
@@ -173,28 +175,36 @@ static int try_move(loop *L, int s, const pose *start, double gap, const double 
         *sep = gap - b;
         return 1;
     }
+    if (L->tries >= L->cfg.max_tries)
+        return 0; /* out of budget: treat as blocked, the step ends with what it has */
+    L->tries++;
     int rc = collide_all(L, s, cand, 0, sep);
     return rc < 0 ? rc : !rc;
 }
 
 /* Advances *cur by as much of (d, r) as stays free: the whole of it, or the largest fraction found
- * by `iters` bisections. Moves the pivot c along. Returns the fraction taken (0..1) or negative. */
+ * by bisection down to 2^-iters. The smallest fraction is tried right after the whole, so a move
+ * straight into a contact costs two queries. Moves the pivot c along. Returns the fraction taken. */
 static double advance(loop *L, int s, pose *cur, double *gap, double c[3], const double d[3],
                       const double r[3], int iters, int *err)
 {
     pose cand, best = *cur;
-    double sep, best_sep = *gap, lo = 0, hi = 1;
+    double sep, best_sep = *gap, lo = 0, hi = 1, least = ldexp(1, -iters);
     int rc = try_move(L, s, cur, *gap, c, d, r, 1, &cand, &sep);
     if (rc == 1) {
         best = cand, best_sep = sep, lo = 1;
-    } else {
-        for (int k = 0; k < iters && rc >= 0; k++) {
-            double mid = 0.5 * (lo + hi);
-            rc = try_move(L, s, cur, *gap, c, d, r, mid, &cand, &sep);
-            if (rc == 1)
-                best = cand, best_sep = sep, lo = mid;
-            else
-                hi = mid;
+    } else if (rc == 0 && iters > 0) {
+        rc = try_move(L, s, cur, *gap, c, d, r, least, &cand, &sep);
+        if (rc == 1) {
+            best = cand, best_sep = sep, lo = least;
+            for (int k = 1; k < iters && rc >= 0; k++) {
+                double mid = 0.5 * (lo + hi);
+                rc = try_move(L, s, cur, *gap, c, d, r, mid, &cand, &sep);
+                if (rc == 1)
+                    best = cand, best_sep = sep, lo = mid;
+                else
+                    hi = mid;
+            }
         }
     }
     if (rc < 0) {
@@ -214,7 +224,7 @@ static int nonzero_axes(const double v[3])
 }
 
 /* The rest of a blocked step, in parts: translation alone and rotation alone (when the step had
- * both), then each world axis of what is left of them. Returns 1 when any part moved. */
+ * both), then each world axis of what is left of the translation. Returns 1 when any part moved. */
 static int slide(loop *L, int s, pose *cur, double *gap, double c[3], const double d[3],
                  const double r[3], int *err)
 {
@@ -235,8 +245,8 @@ static int slide(loop *L, int s, pose *cur, double *gap, double c[3], const doub
             if (f == 1)
                 continue;
         }
-        if (nonzero_axes(v) < 2)
-            continue;
+        if (k == 1 || nonzero_axes(v) < 2)
+            continue; /* per-axis parts for translation only: rotation parts rarely free a contact */
         for (int a = 0; a < 3 && !*err; a++) {
             double axis[3] = {0, 0, 0};
             axis[a] = v[a];
@@ -295,18 +305,29 @@ static int move(loop *L, int s, double c[3], const double d[3], const double r[3
 void loop_accept(loop *L, int s, pose p, int64_t t_us, uint32_t kind, int checked)
 {
     L->pose[s] = p;
+    L->verify_frag = s;
     if (!checked)
         L->gap_valid = 0;
     loop_stats_pose(L, s, &p);
     if (L->jr)
         journal_append(L->jr, kind, s, t_us, &p, loop_now_us());
-    if (!checked) {
+    if (!checked)
         L->st.unchecked++;
-    } else if (L->cfg.check_invariant) {
-        double sep;
-        if (collide_all(L, s, &p, 1, &sep) == 1)
-            L->st.collisions_in_accepted++;
-    }
+    else if (L->cfg.check_invariant)
+        L->verify = 1;
+}
+
+/* The invariant, checked from scratch (fresh caches, no separation shortcut) after the step's
+ * latency has been taken, so checking does not distort the measurement. */
+static void verify(loop *L)
+{
+    if (!L->verify)
+        return;
+    L->verify = 0;
+    int s = L->verify_frag;
+    double sep;
+    if (collide_all(L, s, &L->pose[s], 1, &sep) == 1)
+        L->st.collisions_in_accepted++;
 }
 
 /* Device motion -> world displacement and rotation vector over dt. */
@@ -372,6 +393,7 @@ static int step(loop *L, const loop_event *ev)
     gesture_begin(L, s);
     double c[3];
     pivot_world(L, s, c);
+    L->tries = 0;
     int out = move(L, s, c, d, r, ev->t_us);
     if (out > 0)
         loop_stats_outcome(L, out);
@@ -409,6 +431,7 @@ int loop_feed(loop *L, const loop_event *ev)
     }
     if (ev->kind == LOOP_EV_MOTION && ev->arrival_us > 0)
         loop_stats_latency(L, loop_now_us() - ev->arrival_us);
+    verify(L);
     if (out != LOOP_IDLE && out > 0)
         L->last_outcome = (loop_outcome)out;
     return out;
@@ -459,6 +482,7 @@ static int undo_redo(loop *L, int redo)
     loop_undo u = from[*nfrom - 1];
     loop_undo back = {u.frag, L->pose[u.frag]};
     int rc = restore(L, &u, redo ? JOURNAL_REDO : JOURNAL_UNDO);
+    verify(L);
     if (rc <= 0)
         return rc < 0 ? rc : LOOP_REFUSED;
     (*nfrom)--;

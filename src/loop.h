@@ -101,6 +101,7 @@ typedef struct loop_config {
     int64_t dt_max_us;      /* longest report interval integrated (pause clamp) */
     int bisect_iters;       /* bisection depth of a limited step (fraction resolution 2^-n) */
     int slide_iters;        /* bisection depth of each slide component */
+    int max_tries;          /* candidate poses queried per step at most (bounds the step's time) */
     int check_invariant;    /* re-query accepted poses from scratch; on by default in debug builds */
     uint8_t button_action[32]; /* device button i pressed -> loop_action (0 = none) */
 } loop_config;
@@ -109,7 +110,7 @@ typedef struct loop_stats {
     uint64_t events, steps, accepted, limited, slid, refused;
     uint64_t collisions_in_accepted; /* accepted poses found colliding by the invariant check */
     uint64_t unchecked;              /* poses accepted while collision checking was off */
-    uint64_t queries;                /* pair queries */
+    uint64_t queries;                /* pair queries (the invariant check's not counted) */
     double query_us_mean, query_us_max;
     double step_hz;                  /* steps per second of wall time, since the last reset */
     double tick_hz;                  /* loop_run ticks per second */
@@ -149,7 +150,11 @@ void loop_free(loop *L);
 /* One event: an action, an unplug/replug, or a motion step. Returns the step's loop_outcome
  * (LOOP_IDLE for non-motion events or no motion), or a negative FN_E* from the collider. */
 int loop_feed(loop *L, const loop_event *ev);
-/* Feeds every event waiting in r, then publishes the scene. Returns events handled or negative. */
+/* A second ring of loop_events (actions from the application's thread, e.g. terminal keys),
+ * drained before the input ring. NULL: none. Set it before the loop runs. */
+void loop_set_controls(loop *L, ring *ctl);
+/* Feeds every event waiting in the control ring and in r, then publishes the scene. Returns
+ * events handled or negative. */
 int loop_drain(loop *L, ring *r);
 /* The loop: drains r and publishes at every loop_notify and at least every period_us, until
  * *stop becomes nonzero (then drains once more). Run it on its own thread. Returns 0 or the first
@@ -200,6 +205,8 @@ typedef struct loop_reader loop_reader;
 loop_reader *loop_reader_start(loop_source src, ring *r, loop *L, int lockstep);
 /* 1 once the source has ended (all its events are in the ring). */
 int loop_reader_done(loop_reader *rd);
+/* The same as a flag loop_run can stop on. */
+const atomic_int *loop_reader_done_flag(loop_reader *rd);
 /* Stops and joins the thread. Returns the source's errors (not unplugs) seen. */
 int loop_reader_stop(loop_reader *rd);
 /* Wakes a loop_run waiting for its next tick (any thread). */

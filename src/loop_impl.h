@@ -26,6 +26,7 @@ struct loop {
     loop_config cfg;
     double cam[3][3];
     struct journal *jr;
+    ring *ctl; /* actions from the application's thread */
 
     int selected, collision_on, trans_only, rot_only, device_present, save_requested;
     int have_pivot;
@@ -35,6 +36,8 @@ struct loop {
     uint32_t buttons;
     int in_gesture;
     int gap_valid, in_collision;
+    int tries; /* candidates queried in this step */
+    int verify, verify_frag; /* an accepted pose awaits the invariant check */
     double gap; /* selected fragment's separation lower bound at its current pose */
     loop_outcome last_outcome;
 

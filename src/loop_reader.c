@@ -82,6 +82,11 @@ int loop_reader_done(loop_reader *rd)
     return atomic_load(&rd->done);
 }
 
+const atomic_int *loop_reader_done_flag(loop_reader *rd)
+{
+    return &rd->done;
+}
+
 int loop_reader_stop(loop_reader *rd)
 {
     if (!rd)

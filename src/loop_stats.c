@@ -193,11 +193,16 @@ void loop_scene_format(const loop_scene *s, char *buf, size_t cap)
              s->stats.latency_max_us, s->device_present ? "" : " | DEVICE UNPLUGGED (pose kept)");
 }
 
+void loop_set_controls(loop *L, ring *ctl)
+{
+    L->ctl = ctl;
+}
+
 int loop_drain(loop *L, ring *r)
 {
     loop_event ev;
     int n = 0;
-    while (ring_pop(r, &ev)) {
+    while ((L->ctl && ring_pop(L->ctl, &ev)) || ring_pop(r, &ev)) {
         int rc = loop_feed(L, &ev);
         if (rc < 0)
             return rc;
