@@ -21,7 +21,7 @@ void obb__rel_make(obb__rel *rel, const pose *a_world, const pose *b_world)
             double r = rel->R[i][j], l2 = 1 - r * r;
             rel->AR0[i][j] = fabs(r);
             rel->AR[i][j] = fabs(r) + OBB__EPS;
-            rel->axis_len[i][j] = l2 > 1e-12 ? sqrt(l2) : 0;
+            rel->inv_len[i][j] = l2 > 1e-12 ? 1 / sqrt(l2) : 0;
         }
 }
 
@@ -51,13 +51,13 @@ int obb__sat(const obb__rel *rel, int exact, const double ca[3], const double ha
     for (int i = 0; i < 3; i++) {
         int i1 = NEXT[i], i2 = PREV[i];
         for (int j = 0; j < 3; j++) {
-            double len = rel->axis_len[i][j];
-            if (len == 0)
+            double inv = rel->inv_len[i][j];
+            if (inv == 0)
                 continue;
             int j1 = NEXT[j], j2 = PREV[j];
             AXIS((fabs(T[i2] * R[i1][j] - T[i1] * R[i2][j]) -
                   (ha[i1] * AR[i2][j] + ha[i2] * AR[i1][j] + hb[j1] * AR[i][j2] +
-                   hb[j2] * AR[i][j1])) / len);
+                   hb[j2] * AR[i][j1])) * inv);
         }
     }
 #undef AXIS

@@ -14,7 +14,7 @@
  * AR0 = |R| for the exact voxel test (so faces that touch exactly do not overlap). */
 typedef struct obb__rel {
     double R[3][3], AR[3][3], AR0[3][3], t[3];
-    double axis_len[3][3]; /* |A_i x B_j|; 0 where degenerate (parallel edges) */
+    double inv_len[3][3]; /* 1 / |A_i x B_j|; 0 where degenerate (parallel edges: skipped) */
 } obb__rel;
 
 void obb__rel_make(obb__rel *rel, const pose *a_world, const pose *b_world);

@@ -108,21 +108,22 @@ static int visit(ctx *c, const obb_node *a, const obb_node *b, int *which)
     obb__box(b->lo, b->hi, c->sb, c->tol, cb, hb);
     c->r->tests++;
     int va = is_voxel(a), vb = is_voxel(b);
-    if (va && vb) {
-        if (obb__sat(&c->rel, 1, ca, ha, cb, hb, 1, &gap))
-            record(c, a, b, gap);
-        else if (gap < c->best_gap)
-            c->best_gap = gap;
+    /* Voxel pairs get the exact test, inner pairs the conservative one; a first-axis gap is a
+     * valid bound, refined over all 15 axes only when it could lower the minimum. */
+    int exact = va && vb;
+    if (obb__sat(&c->rel, exact, ca, ha, cb, hb, 0, &gap)) {
+        if (!exact)
+            goto split;
+        obb__sat(&c->rel, 1, ca, ha, cb, hb, 1, &gap);
+        record(c, a, b, gap);
         return 0;
     }
-    if (!obb__sat(&c->rel, 0, ca, ha, cb, hb, 0, &gap)) {
-        /* A first-axis gap is a valid bound; refine it only when it could lower the minimum. */
-        if (gap < c->best_gap) {
-            obb__sat(&c->rel, 0, ca, ha, cb, hb, 1, &gap);
-            c->best_gap = gap < c->best_gap ? gap : c->best_gap;
-        }
-        return 0;
+    if (gap < c->best_gap) {
+        obb__sat(&c->rel, exact, ca, ha, cb, hb, 1, &gap);
+        c->best_gap = gap < c->best_gap ? gap : c->best_gap;
     }
+    return 0;
+split:
     *which = va ? 1 : vb ? 0 : volume(b, c->sb) > volume(a, c->sa);
     return 1;
 }

@@ -26,7 +26,7 @@ static double srand1(void)
     return 2 * urand() - 1;
 }
 
-static frag *frag_new(int nx, int ny, int nz, double sx, double sy, double sz)
+static frag *tfrag_new(int nx, int ny, int nz, double sx, double sy, double sz)
 {
     frag *f = calloc(1, sizeof *f);
     f->dim[0] = nx, f->dim[1] = ny, f->dim[2] = nz;
@@ -37,7 +37,7 @@ static frag *frag_new(int nx, int ny, int nz, double sx, double sy, double sz)
     return f;
 }
 
-static void frag_free(frag *f)
+static void tfrag_free(frag *f)
 {
     free(f->prob);
     free(f);
@@ -185,7 +185,7 @@ static int is_leaf(const obb_node *n)
 
 static void test_prune_solid_and_uncertain(void **st)
 {
-    frag *f = frag_new(4, 4, 4, 1, 1, 1);
+    frag *f = tfrag_new(4, 4, 4, 1, 1, 1);
     fill(f, 0, 0, 0, 1, 1, 1, 255);
     fill(f, 2, 2, 2, 3, 3, 3, 255);
     obb_tree *t = build(f, 0, 1);
@@ -228,12 +228,12 @@ static void test_prune_solid_and_uncertain(void **st)
     assert_int_equal(((n[0].info >> 28) & 7) + 1, 7);
     assert_int_equal(n[0].hi[0], 1);
     obb_tree_free(t);
-    frag_free(f);
+    tfrag_free(f);
 }
 
 static void test_prune_single_child_chain(void **st)
 {
-    frag *f = frag_new(8, 8, 8, 1, 1, 1);
+    frag *f = tfrag_new(8, 8, 8, 1, 1, 1);
     *at(f, 4, 6, 5) = 100;
     *at(f, 5, 6, 5) = 60;
     obb_tree *t = build(f, 0, 1);
@@ -261,7 +261,7 @@ static void test_prune_single_child_chain(void **st)
     assert_int_equal(obb_collide(t, &POSE_IDENTITY, t, &POSE_IDENTITY, NULL, NULL, &r), 0);
     assert_false(r.collides);
     obb_tree_free(t);
-    frag_free(f);
+    tfrag_free(f);
 }
 
 /* A random blob: a few balls of random probability, one solid block. */
@@ -273,7 +273,7 @@ static frag *random_frag(int maxdim, int aniso)
         d[i] = 1 + (int)(urand() * maxdim);
         s[i] = aniso ? 0.5 + 1.5 * urand() : 1.0;
     }
-    frag *f = frag_new(d[0], d[1], d[2], s[0], s[1], s[2]);
+    frag *f = tfrag_new(d[0], d[1], d[2], s[0], s[1], s[2]);
     int balls = 1 + (int)(urand() * 3);
     for (int b = 0; b < balls; b++) {
         double c[3] = {urand() * d[0], urand() * d[1], urand() * d[2]}, r = 1 + urand() * maxdim / 3;
@@ -390,8 +390,8 @@ static void run_random(int frags, int poses_each, int maxdim, int aniso, double 
         }
         obb_tree_free(ta);
         obb_tree_free(tb);
-        frag_free(fa);
-        frag_free(fb);
+        tfrag_free(fa);
+        tfrag_free(fb);
     }
 }
 
@@ -409,7 +409,7 @@ static void test_tree_matches_brute_force(void **st)
 
 static void test_pairs_listed(void **st)
 {
-    frag *a = frag_new(3, 3, 3, 1, 1, 1), *b = frag_new(3, 3, 3, 1, 1, 1);
+    frag *a = tfrag_new(3, 3, 3, 1, 1, 1), *b = tfrag_new(3, 3, 3, 1, 1, 1);
     fill(a, 0, 0, 0, 2, 2, 2, 255);
     fill(b, 0, 0, 0, 2, 2, 2, 255);
     obb_tree *ta = build(a, 0, 1), *tb = build(b, 0, 1);
@@ -449,8 +449,8 @@ static void test_pairs_listed(void **st)
     assert_true(r.separation_mm >= 0 && r.separation_mm < 1e-5);
     obb_tree_free(ta);
     obb_tree_free(tb);
-    frag_free(a);
-    frag_free(b);
+    tfrag_free(a);
+    tfrag_free(b);
 }
 
 static void test_separation_is_a_lower_bound(void **st)
@@ -482,15 +482,15 @@ static void test_separation_is_a_lower_bound(void **st)
         }
         obb_tree_free(ta);
         obb_tree_free(tb);
-        frag_free(fa);
-        frag_free(fb);
+        tfrag_free(fa);
+        tfrag_free(fb);
     }
     assert_true(checked > 100);
 }
 
 static void test_bad_input(void **st)
 {
-    frag *f = frag_new(2, 2, 2, 1, 1, 1);
+    frag *f = tfrag_new(2, 2, 2, 1, 1, 1);
     obb_params bad = {0.8, 0.2};
     assert_null(obb_tree_build(f, &bad));
     assert_non_null(strstr(fn_err_msg(), "tau_min"));
@@ -515,7 +515,7 @@ static void test_bad_input(void **st)
     nan.t[1] = NAN;
     assert_int_equal(obb_collide(t, &nan, t, &POSE_IDENTITY, NULL, NULL, &r), FN_EINVAL);
     obb_tree_free(t);
-    frag_free(f);
+    tfrag_free(f);
 }
 
 int main(void)
