@@ -53,6 +53,7 @@ int loopkit_open(loopkit *k, const char *dir, const loop_config *cfg, unsigned f
                           "run `fracnav %s` with --recover to continue from them, or --discard-journal "
                           "to start from case.json",
                           dir, pending, cmd);
+    snprintf(k->dir_name, sizeof k->dir_name, "%s", dir);
     k->c = case_load(dir);
     if (!k->c)
         return FN_EIO;

@@ -26,6 +26,7 @@ typedef struct loopkit {
     loop *L;
     journal *jr;
     size_t resumed; /* journal records applied at open */
+    char dir_name[4096];
 } loopkit;
 
 /* Loads the case and builds everything. A journal holding unsaved poses without LOOPKIT_RESUME or

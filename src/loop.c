@@ -531,7 +531,7 @@ int loop_action_do(loop *L, loop_action a)
     case LOOP_ACT_REDO:
         return undo_redo(L, a == LOOP_ACT_REDO);
     case LOOP_ACT_SAVE:
-        L->save_requested = 1;
+        L->save_requests++;
         return LOOP_IDLE;
     case LOOP_ACT_FRAME:
         L->cfg.frame = (loop_frame)((L->cfg.frame + 1) % 3);

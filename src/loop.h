@@ -60,7 +60,7 @@ typedef enum {
     LOOP_ACT_ROT_ONLY,   /* toggle: rotation only */
     LOOP_ACT_UNDO,
     LOOP_ACT_REDO,
-    LOOP_ACT_SAVE,       /* raises save_requested in the scene; the application saves */
+    LOOP_ACT_SAVE,       /* counts in the scene's save_requests; the application saves */
     LOOP_ACT_FRAME,      /* cycle camera -> world -> fragment frame */
     LOOP_ACT_COUNT
 } loop_action;
@@ -125,7 +125,8 @@ typedef struct loop_scene {
     uint64_t seq; /* increases with every publish */
     int nfrag, selected;
     int collision_on; /* 0: checking is off -- show a warning */
-    int trans_only, rot_only, device_present, save_requested;
+    int trans_only, rot_only, device_present;
+    unsigned save_requests; /* LOOP_ACT_SAVE presses so far: the application saves when it grows */
     loop_frame frame;
     loop_outcome last_outcome;
     double separation_mm; /* selected fragment's smallest separation estimate after the last step */

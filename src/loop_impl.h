@@ -28,7 +28,8 @@ struct loop {
     struct journal *jr;
     ring *ctl; /* actions from the application's thread */
 
-    int selected, collision_on, trans_only, rot_only, device_present, save_requested;
+    int selected, collision_on, trans_only, rot_only, device_present;
+    unsigned save_requests;
     int have_pivot;
     double pivot_home[3];
     int have_last_t;

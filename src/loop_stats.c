@@ -150,14 +150,13 @@ void loop_publish(loop *L)
     s->trans_only = L->trans_only;
     s->rot_only = L->rot_only;
     s->device_present = L->device_present;
-    s->save_requested = L->save_requested;
+    s->save_requests = L->save_requests;
     s->frame = L->cfg.frame;
     s->last_outcome = L->last_outcome;
     s->separation_mm = L->gap_valid ? L->gap : L->in_collision ? -1 : INFINITY;
     s->stats = L->st;
     memcpy(s->pose, L->pose, sizeof(pose) * (size_t)L->n);
     memcpy(s->fixed, L->fixed, (size_t)L->n);
-    L->save_requested = 0;
     L->back = atomic_exchange(&L->middle, L->back | FRESH) & 3;
 }
 
