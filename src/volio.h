@@ -1,13 +1,18 @@
-/* volio: read and write volumes. Readers fill vol (src/vol.h) in LPS mm.
+/* volio: read and write volumes. Readers fill vol (src/vol.h) in LPS mm; src_type is the file's
+ * voxel type, data is float after any rescale.
  *
  * Formats, chosen by the path's extension (case-insensitive):
- *   .nii .nii.gz  NIfTI-1 via nifticlib: sform preferred, else qform, else pixdim; RAS is
- *                 converted to LPS by negating the affine's first two rows; scl_slope/scl_inter
- *                 applied. Types u8 i8 u16 i16 u32 i32 f32 f64.
- *   .nrrd .nhdr   NRRD via teem: space directions/origin honoured; space RAS, LPS or
- *                 scanner-xyz (taken as LPS, as ITK does); no space -> spacings only.
+ *   .nii .nii.gz  NIfTI-1 (single file) via nifticlib: sform preferred, else qform, else pixdim;
+ *                 RAS is converted to LPS by negating the affine's first two rows; scl_slope and
+ *                 scl_inter applied (slope 0 = none). 3D only (dim[4..7] must be 1). Types u8 i8
+ *                 u16 i16 u32 i32 f32 f64. NIfTI-2 and .hdr/.img pairs are refused clearly.
+ *   .nrrd .nhdr   NRRD via teem: space directions/origin honoured; space RAS, LAS, LPS or
+ *                 scanner-xyz (LPS by definition); a bare "space dimension: 3" is taken as LPS,
+ *                 as ITK does; no space at all -> spacings (and axis mins as origin), axis-aligned.
  *   .inv3         InVesalius 3 project (gzip'd tar: main.plist + raw little-endian matrix).
- *   a directory   a DICOM series, converted by running dcm2niix into a temporary folder.
+ *   a directory   one DICOM series, converted by running dcm2niix into a private folder under
+ *                 $TMPDIR that is removed afterwards; for gantry tilt, dcm2niix's resampled
+ *                 (_Tilt_) output is read, not the sheared one.
  *
  * Geometry: oblique direction cosines are kept; a sheared grid (direction columns not orthogonal
  * within 1e-4) is refused, naming the file and the field (sform, qform, space directions).
@@ -24,10 +29,11 @@
  * the DICOM column direction (patient left), which InVesalius does not flip. An orientation key of
  * another value is refused.
  *
- * Bad input: headers are checked against the file size and the memory budget (vol_check_dims)
- * before any voxel buffer is allocated; every error names the file and the field or offset.
- * Thread safety: none of these keep state, but nifticlib and teem print to stderr (silenced where
- * they allow it); call them from one thread at a time. */
+ * Bad input: headers are checked against the file size (for .gz: the most a .gz of that size
+ * can hold) and the memory budget (vol_check_dims) before any voxel buffer is allocated; short
+ * data is an error, never zero-filled; every error names the file and the field or offset.
+ * Thread safety: nifticlib and teem keep global state (debug level, error chains): call volio
+ * from one thread at a time. */
 #ifndef FN_VOLIO_H
 #define FN_VOLIO_H
 
@@ -38,9 +44,11 @@
 vol *volio_read(const char *path);
 
 /* Writes V to PATH (.nii .nii.gz .nrrd .nhdr; .nhdr also writes a .raw data file beside it),
- * converting voxels to TYPE: integer types round to nearest and clamp to the type's range.
- * NIfTI gets sform and qform (code 1, scanner) in RAS; NRRD gets space LPS with directions.
- * Returns 0 or a negative FN_E* code with fn_err set. */
+ * converting voxels to TYPE: integer types round to nearest (ties to even) and clamp to the
+ * type's range, NaN becomes 0. NIfTI gets sform and qform (code 1, scanner) in RAS; NRRD gets
+ * space LPS with directions, raw encoding. A sheared affine is refused. Overwrites PATH in place
+ * (callers that need atomic saves write a temporary name and rename). Returns 0 or a negative
+ * FN_E* code with fn_err set. */
 int volio_write(const vol *v, const char *path, vol_type type);
 
 /* Shared internals of the volio_*.c files; not for other modules. */

@@ -402,7 +402,7 @@ static const char *base_name(const char *p)
 static vol *read_matrix(stream *s, const inv3_info *info, int64_t size)
 {
     int64_t dim[3] = {info->shape[2], info->shape[1], info->shape[0]};
-    char what[300];
+    char what[4200];
     snprintf(what, sizeof what, "%s: main.plist: matrix.shape", s->path);
     if (vol_check_dims(dim, sizeof(float), what) < 0)
         return NULL;
@@ -455,7 +455,9 @@ static int next_entry(stream *s, entry *e)
     for (;;) {
         int64_t at = gztell(s->gz);
         int got = gzread(s->gz, h, sizeof h);
-        if (got == 0)
+        int zerr = Z_OK;
+        gzerror(s->gz, &zerr);
+        if (got == 0 && zerr == Z_OK)
             return 0; /* a tar without its end blocks: accept, as GNU tar does */
         if (got != (int)sizeof h)
             return gz_fail(s, at, "a tar header", sizeof h, got);

@@ -125,7 +125,7 @@ static int precheck(const char *path)
         return fn_err_set(FN_EFORMAT, "%s: dim %lldx%lldx%lld needs %llu bytes, more than a %llu-byte "
                           ".gz can hold", path, (long long)dim[0], (long long)dim[1], (long long)dim[2],
                           (unsigned long long)bytes, (unsigned long long)have);
-    char what[300];
+    char what[4200];
     snprintf(what, sizeof what, "%s: dim", path);
     return vol_check_dims(dim, sizeof(float) + (size_t)(bytes / ((uint64_t)dim[0] * dim[1] * dim[2])), what);
 }
@@ -156,6 +156,46 @@ static int geometry(const nifti_image *nim, const char *path, vol *v)
     return 0;
 }
 
+/* Reads the voxels through zlib (nifticlib zero-fills short data silently), swapping to host
+ * order and applying scl_slope/scl_inter. */
+static int load_data(const nifti_image *nim, const char *path, vol_type t, vol *v)
+{
+    size_t es = volio__type_size(t), n = vol_count(v);
+    int swap = nim->byteorder != nifti_short_order() && es > 1;
+    double slope = nim->scl_slope, inter = nim->scl_inter;
+    if (slope == 0 || !isfinite(slope) || !isfinite(inter)) {
+        slope = 1;
+        inter = 0;
+    }
+    gzFile gz = gzopen(path, "rb");
+    if (!gz)
+        return fn_err_set(FN_EIO, "%s: cannot open: %s", path, strerror(errno ? errno : ENOMEM));
+    gzbuffer(gz, 1 << 17);
+    _Alignas(8) unsigned char buf[1 << 16];
+    int rc = gzseek(gz, nim->iname_offset, SEEK_SET) == nim->iname_offset
+                 ? 0
+                 : fn_err_set(FN_EFORMAT, "%s: data truncated before vox_offset %d", path, nim->iname_offset);
+    for (size_t done = 0; rc == 0 && done < n;) {
+        size_t m = n - done < sizeof buf / es ? n - done : sizeof buf / es;
+        if (gzread(gz, buf, (unsigned)(m * es)) != (int)(m * es)) {
+            int zerr = Z_OK;
+            const char *zmsg = gzerror(gz, &zerr);
+            rc = zerr != Z_OK && zerr != Z_BUF_ERROR
+                     ? fn_err_set(FN_EFORMAT, "%s: data: corrupt gzip data near voxel %zu: %s", path, done, zmsg)
+                     : fn_err_set(FN_EFORMAT, "%s: data truncated: %dx%dx%d %s from vox_offset %d, "
+                                  "the data ends before voxel %zu", path, v->dim[0], v->dim[1], v->dim[2],
+                                  vol_type_name(t), nim->iname_offset, done + m);
+            break;
+        }
+        if (swap)
+            nifti_swap_Nbytes(m, (int)es, buf);
+        volio__to_float(buf, t, m, slope, inter, v->data + done);
+        done += m;
+    }
+    gzclose(gz);
+    return rc;
+}
+
 vol *volio__read_nifti(const char *path)
 {
     nifti_set_debug_level(0);
@@ -169,26 +209,14 @@ vol *volio__read_nifti(const char *path)
     vol_type t = VOL_F32;
     type_of_dt(nim->datatype, &t);
     vol *v = vol_new(nim->nx, nim->ny, nim->nz);
-    if (!v || geometry(nim, path, v) < 0)
-        goto fail;
-    if (nifti_image_load(nim) < 0 || !nim->data) {
-        fn_err_set(FN_EFORMAT, "%s: data truncated or unreadable (%dx%dx%d %s from vox_offset %d)",
-                   path, nim->nx, nim->ny, nim->nz, vol_type_name(t), nim->iname_offset);
-        goto fail;
+    if (!v || geometry(nim, path, v) < 0 || load_data(nim, path, t, v) < 0) {
+        vol_free(v);
+        v = NULL;
+    } else {
+        v->src_type = t;
     }
-    double slope = nim->scl_slope, inter = nim->scl_inter;
-    if (slope == 0 || !isfinite(slope) || !isfinite(inter)) {
-        slope = 1;
-        inter = 0;
-    }
-    volio__to_float(nim->data, t, vol_count(v), slope, inter, v->data);
-    v->src_type = t;
     nifti_image_free(nim);
     return v;
-fail:
-    vol_free(v);
-    nifti_image_free(nim);
-    return NULL;
 }
 
 /* sform and qform from the volume's LPS affine, in RAS. */
@@ -251,7 +279,7 @@ int volio__write_nifti(const vol *v, const char *path, vol_type type)
     nifti_image_write(nim);
     nifti_image_free(nim);
     struct stat st;
-    if (stat(path, &st) != 0 || st.st_size < HDR_SIZE)
+    if (stat(path, &st) != 0 || st.st_size < (nifti_is_gzfile(path) ? 18 : HDR_SIZE))
         return fn_err_set(FN_EIO, "%s: write failed (disk full?)", path);
     return 0;
 }

@@ -1,15 +1,221 @@
-/* volio_nrrd: placeholder until this format is built. */
+/* volio_nrrd: NRRD (.nrrd, .nhdr + detached data) through teem. The header is loaded first
+ * without data so dims are checked against the data file and the memory budget before teem
+ * allocates. */
 #include "volio.h"
 
 #include "err.h"
 
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <teem/nrrd.h>
+
+#define DEFLATE_MAX_RATIO 1032
+
+static const struct {
+    int nt;
+    vol_type type;
+} types[] = {{nrrdTypeUChar, VOL_U8},  {nrrdTypeChar, VOL_I8}, {nrrdTypeUShort, VOL_U16},
+             {nrrdTypeShort, VOL_I16}, {nrrdTypeUInt, VOL_U32}, {nrrdTypeInt, VOL_I32},
+             {nrrdTypeFloat, VOL_F32}, {nrrdTypeDouble, VOL_F64}};
+
+static int type_of_nt(int nt, vol_type *t)
+{
+    for (size_t i = 0; i < sizeof types / sizeof types[0]; i++)
+        if (types[i].nt == nt) {
+            *t = types[i].type;
+            return 0;
+        }
+    return -1;
+}
+
+/* teem's error chain, deepest cause last: keep that line without its "[nrrd] func: " prefix. */
+static int teem_error(int code, const char *path, const char *what)
+{
+    char *e = biffGetDone(NRRD);
+    const char *cause = "unknown error";
+    if (e) {
+        char *end = e + strlen(e);
+        while (end > e && (end[-1] == '\n' || end[-1] == ' '))
+            *--end = '\0';
+        char *line = strrchr(e, '\n');
+        line = line ? line + 1 : e;
+        while (*line == ' ')
+            line++;
+        char *colon = line[0] == '[' ? strstr(line, ": ") : NULL;
+        cause = colon ? colon + 2 : line;
+    }
+    fn_err_set(code, "%s: %s: %s", path, what, cause);
+    free(e);
+    return code;
+}
+
+/* Bytes of data the header promises, against what the (first) data file holds. */
+static int check_size(NrrdIoState *nio, const char *path, int64_t dim[3], vol_type t)
+{
+    for (int a = 0; a < 3; a++)
+        if (dim[a] <= 0 || dim[a] > (1 << 20))
+            return 0; /* vol_check_dims names these */
+    uint64_t bytes = (uint64_t)dim[0] * (uint64_t)dim[1] * (uint64_t)dim[2] * volio__type_size(t);
+    struct stat st;
+    if (!nio->dataFile || nio->byteSkip < 0 || fstat(fileno(nio->dataFile), &st) != 0)
+        return 0; /* several data files or data at the end: teem checks these as it reads */
+    long at = ftell(nio->dataFile);
+    uint64_t avail = at >= 0 && (uint64_t)st.st_size > (uint64_t)at ? (uint64_t)st.st_size - (uint64_t)at : 0;
+    uint64_t need = nio->encoding == nrrdEncodingRaw    ? bytes
+                    : nio->encoding == nrrdEncodingGzip ? bytes / DEFLATE_MAX_RATIO
+                                                        : 0;
+    if (avail < need)
+        return fn_err_set(FN_EFORMAT, "%s: sizes %lld %lld %lld of %s need %llu data bytes (%s), the data "
+                          "file has %llu", path, (long long)dim[0], (long long)dim[1], (long long)dim[2],
+                          vol_type_name(t), (unsigned long long)bytes, nio->encoding->name,
+                          (unsigned long long)avail);
+    return 0;
+}
+
+/* Loads only the header and checks dims, type and data size. */
+static int precheck(const char *path)
+{
+    Nrrd *n = nrrdNew();
+    NrrdIoState *nio = nrrdIoStateNew();
+    int rc = 0;
+    vol_type t;
+    nio->skipData = 1;
+    nio->keepNrrdDataFileOpen = 1;
+    if (nrrdLoad(n, path, nio)) {
+        rc = teem_error(FN_EFORMAT, path, "header");
+    } else if (n->dim != 3) {
+        rc = fn_err_set(FN_EFORMAT, "%s: dimension: %u, only 3D volumes are supported", path, n->dim);
+    } else if (type_of_nt(n->type, &t) < 0) {
+        rc = fn_err_set(FN_EFORMAT, "%s: type: %s is not supported (u8 i8 u16 i16 u32 i32 f32 f64)",
+                        path, airEnumStr(nrrdType, n->type));
+    } else {
+        int64_t dim[3];
+        for (int a = 0; a < 3; a++)
+            dim[a] = n->axis[a].size > (size_t)INT64_MAX ? -1 : (int64_t)n->axis[a].size;
+        char what[4200];
+        snprintf(what, sizeof what, "%s: sizes", path);
+        rc = check_size(nio, path, dim, t);
+        if (rc == 0)
+            rc = vol_check_dims(dim, sizeof(float) + volio__type_size(t), what);
+    }
+    if (nio->dataFile)
+        fclose(nio->dataFile);
+    nio->dataFile = NULL;
+    nrrdIoStateNix(nio);
+    nrrdNuke(n);
+    return rc;
+}
+
+/* Index-to-LPS from space directions and origin, or from spacings when there is no space. */
+static int geometry(const Nrrd *n, const char *path, vol *v)
+{
+    double a[3][3], org[3], flip[3] = {1, 1, 1};
+    if (n->spaceDim == 0) {
+        static const double eye[3][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
+        double sp[3];
+        for (int c = 0; c < 3; c++) {
+            double s = n->axis[c].spacing, m = n->axis[c].min;
+            sp[c] = isfinite(s) && s > 0 ? s : 1.0;
+            org[c] = isfinite(m) ? m : 0.0;
+        }
+        vol_set_geometry(v, eye, sp, org);
+        return 0;
+    }
+    switch (n->space) {
+    case nrrdSpaceRightAnteriorSuperior: flip[0] = flip[1] = -1; break;
+    case nrrdSpaceLeftAnteriorSuperior: flip[1] = -1; break;
+    case nrrdSpaceLeftPosteriorSuperior:
+    case nrrdSpaceScannerXYZ:
+    case nrrdSpaceUnknown: break; /* a bare "space dimension: 3" is read as LPS, like ITK */
+    default:
+        return fn_err_set(FN_EFORMAT, "%s: space: %s is not supported (RAS, LAS, LPS, scanner-xyz)",
+                          path, airEnumStr(nrrdSpace, n->space));
+    }
+    if (n->spaceDim != 3)
+        return fn_err_set(FN_EFORMAT, "%s: space dimension: %u, must be 3", path, n->spaceDim);
+    for (int c = 0; c < 3; c++)
+        for (int r = 0; r < 3; r++) {
+            a[r][c] = flip[r] * n->axis[c].spaceDirection[r];
+            if (!isfinite(a[r][c]))
+                return fn_err_set(FN_EFORMAT, "%s: space directions: axis %d is missing or not finite", path, c);
+        }
+    for (int r = 0; r < 3; r++)
+        org[r] = isfinite(n->spaceOrigin[r]) ? flip[r] * n->spaceOrigin[r] : 0.0;
+    int rc = volio__check_axes(a, path, "space directions");
+    if (rc < 0)
+        return rc;
+    double dir[3][3], sp[3];
+    for (int c = 0; c < 3; c++) {
+        sp[c] = sqrt(a[0][c] * a[0][c] + a[1][c] * a[1][c] + a[2][c] * a[2][c]);
+        for (int r = 0; r < 3; r++)
+            dir[r][c] = a[r][c] / sp[c];
+    }
+    vol_set_geometry(v, dir, sp, org);
+    return 0;
+}
+
 vol *volio__read_nrrd(const char *path)
 {
-    fn_err_set(FN_EINVAL, "%s: NRRD reading is not built yet", path);
-    return NULL;
+    if (precheck(path) < 0)
+        return NULL;
+    Nrrd *n = nrrdNew();
+    vol *v = NULL;
+    vol_type t = VOL_F32;
+    if (nrrdLoad(n, path, NULL)) {
+        teem_error(FN_EFORMAT, path, "data");
+        goto out;
+    }
+    type_of_nt(n->type, &t);
+    v = vol_new((int)n->axis[0].size, (int)n->axis[1].size, (int)n->axis[2].size);
+    if (!v)
+        goto out;
+    if (geometry(n, path, v) < 0) {
+        vol_free(v);
+        v = NULL;
+        goto out;
+    }
+    volio__to_float(n->data, t, vol_count(v), 1.0, 0.0, v->data);
+    v->src_type = t;
+out:
+    nrrdNuke(n);
+    return v;
 }
 
 int volio__write_nrrd(const vol *v, const char *path, vol_type type)
 {
-    return fn_err_set(FN_EINVAL, "%s: NRRD writing is not built yet", path);
+    int nt = nrrdTypeUnknown;
+    for (size_t i = 0; i < sizeof types / sizeof types[0]; i++)
+        if (types[i].type == type)
+            nt = types[i].nt;
+    size_t count = vol_count(v);
+    void *buf = malloc(count * volio__type_size(type));
+    if (!buf)
+        return fn_err_set(FN_ENOMEM, "%s: out of memory", path);
+    volio__from_float(v->data, count, type, buf);
+    Nrrd *n = nrrdNew();
+    NrrdIoState *nio = nrrdIoStateNew();
+    int rc = 0;
+    double dirs[3][NRRD_SPACE_DIM_MAX], origin[3];
+    for (int c = 0; c < 3; c++)
+        for (int r = 0; r < 3; r++)
+            dirs[c][r] = v->affine[r][c];
+    for (int r = 0; r < 3; r++)
+        origin[r] = v->affine[r][3];
+    nio->encoding = nrrdEncodingRaw;
+    if (nrrdWrap_va(n, buf, nt, 3, (size_t)v->dim[0], (size_t)v->dim[1], (size_t)v->dim[2]) ||
+        nrrdSpaceSet(n, nrrdSpaceLeftPosteriorSuperior) || nrrdSpaceOriginSet(n, origin)) {
+        rc = teem_error(FN_EINVAL, path, "header");
+    } else {
+        nrrdAxisInfoSet_va(n, nrrdAxisInfoSpaceDirection, dirs[0], dirs[1], dirs[2]);
+        nrrdAxisInfoSet_va(n, nrrdAxisInfoKind, nrrdKindDomain, nrrdKindDomain, nrrdKindDomain);
+        if (nrrdSave(path, n, nio))
+            rc = teem_error(FN_EIO, path, "write");
+    }
+    nrrdIoStateNix(nio);
+    nrrdNix(n);
+    free(buf);
+    return rc;
 }

@@ -1,0 +1,486 @@
+/* volio: the malformed-file battery. Every bad file must give NULL and an error that names the
+ * file and the field, without crashing or allocating what the header claims. */
+#include <stdarg.h>
+#include <stddef.h>
+#include <setjmp.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include "err.h"
+#include "testutil.h"
+#include "vol.h"
+#include "volio.h"
+
+#include <nifti1.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <zlib.h>
+
+static char *dir;
+
+static int setup(void **st)
+{
+    dir = tu_tmpdir("volio-bad");
+    return 0;
+}
+
+static int teardown(void **st)
+{
+    tu_rmtree(dir);
+    free(dir);
+    return 0;
+}
+
+static const char *in_dir(const char *name)
+{
+    static char p[4300];
+    snprintf(p, sizeof p, "%s/%s", dir, name);
+    return p;
+}
+
+/* Reading path must fail with a message holding the path and every one of the words. */
+static void expect_error(const char *path, const char *w1, const char *w2)
+{
+    fn_err_clear();
+    vol *v = volio_read(path);
+    if (v) {
+        vol_free(v);
+        fail_msg("%s was read, expected an error about '%s'", path, w1);
+    }
+    const char *m = fn_err_msg();
+    if (!strstr(m, path) || !strstr(m, w1) || (w2 && !strstr(m, w2)))
+        fail_msg("error for %s lacks '%s'/'%s': %s", path, w1, w2 ? w2 : "", m);
+}
+
+static void write_gz(const char *path, const void *data, size_t n)
+{
+    gzFile gz = gzopen(path, "wb");
+    assert_non_null(gz);
+    assert_int_equal(gzwrite(gz, data, (unsigned)n), (int)n);
+    assert_int_equal(gzclose(gz), Z_OK);
+}
+
+/* ---- NIfTI ---- */
+
+static nifti_1_header good_header(int nx, int ny, int nz, int dt, int bitpix)
+{
+    nifti_1_header h;
+    memset(&h, 0, sizeof h);
+    h.sizeof_hdr = 348;
+    h.dim[0] = 3, h.dim[1] = (short)nx, h.dim[2] = (short)ny, h.dim[3] = (short)nz;
+    h.dim[4] = h.dim[5] = h.dim[6] = h.dim[7] = 1;
+    h.datatype = (short)dt;
+    h.bitpix = (short)bitpix;
+    h.pixdim[0] = 1, h.pixdim[1] = h.pixdim[2] = h.pixdim[3] = 1;
+    h.vox_offset = 352;
+    h.sform_code = 1;
+    h.srow_x[0] = h.srow_y[1] = h.srow_z[2] = 1;
+    memcpy(h.magic, "n+1", 4);
+    return h;
+}
+
+/* Header, 4 extension bytes, then data_bytes of a pattern. */
+static void write_nii(const char *path, const nifti_1_header *h, size_t data_bytes, int gz)
+{
+    size_t n = 352 + data_bytes;
+    unsigned char *b = calloc(1, n);
+    memcpy(b, h, sizeof *h);
+    for (size_t i = 352; i < n; i++)
+        b[i] = (unsigned char)(i * 37);
+    if (gz)
+        write_gz(path, b, n);
+    else
+        tu_write_file(path, b, n);
+    free(b);
+}
+
+static void test_nifti_battery(void **st)
+{
+    nifti_1_header h = good_header(4, 4, 4, DT_INT16, 16);
+    const char *p = in_dir("good.nii");
+    write_nii(p, &h, 128, 0);
+    vol *v = volio_read(p);
+    assert_non_null(v); /* the baseline is fine */
+    vol_free(v);
+
+    p = in_dir("short_header.nii");
+    tu_write_file(p, &h, 100);
+    expect_error(p, "header truncated", NULL);
+
+    h = good_header(4, 4, 4, DT_INT16, 16);
+    memcpy(h.magic, "xyz", 4);
+    write_nii(p = in_dir("magic.nii"), &h, 128, 0);
+    expect_error(p, "magic", NULL);
+
+    h = good_header(4, 4, 4, DT_INT16, 16);
+    h.sizeof_hdr = 1234;
+    write_nii(p = in_dir("sizeof.nii"), &h, 128, 0);
+    expect_error(p, "sizeof_hdr", NULL);
+
+    h = good_header(4, -4, 4, DT_INT16, 16);
+    write_nii(p = in_dir("negative.nii"), &h, 128, 0);
+    expect_error(p, "dim[2] = -4", NULL);
+
+    h = good_header(30000, 30000, 30000, DT_UINT8, 8);
+    write_nii(p = in_dir("lying.nii"), &h, 64, 0);
+    expect_error(p, "data truncated", NULL);
+    write_nii(p = in_dir("lying.nii.gz"), &h, 64, 1);
+    expect_error(p, "more than a", "can hold");
+
+    h = good_header(4, 4, 4, DT_INT16, 16);
+    write_nii(p = in_dir("truncated.nii"), &h, 100, 0);
+    expect_error(p, "data truncated", NULL);
+    write_nii(p = in_dir("truncated.nii.gz"), &h, 100, 1);
+    expect_error(p, "data truncated", NULL);
+
+    h = good_header(4, 4, 4, 32 /* complex64 */, 64);
+    write_nii(p = in_dir("complex.nii"), &h, 512, 0);
+    expect_error(p, "datatype 32", NULL);
+
+    h = good_header(4, 4, 4, DT_INT16, 16);
+    h.dim[0] = 4, h.dim[4] = 3;
+    write_nii(p = in_dir("4d.nii"), &h, 384, 0);
+    expect_error(p, "dim[4] = 3", "3D");
+
+    h = good_header(4, 4, 4, DT_INT16, 16);
+    h.srow_x[1] = 0.5f; /* the j axis leans into x: shear */
+    write_nii(p = in_dir("shear.nii"), &h, 128, 0);
+    expect_error(p, "sform", "sheared");
+}
+
+static void test_nifti_budget(void **st)
+{
+    nifti_1_header h = good_header(20, 20, 20, DT_FLOAT32, 32);
+    const char *p = in_dir("honest.nii");
+    write_nii(p, &h, 32000, 0);
+    setenv("FRACNAV_MAX_BYTES", "10000", 1);
+    fn_err_clear();
+    vol *v = volio_read(p);
+    unsetenv("FRACNAV_MAX_BYTES");
+    assert_null(v);
+    assert_non_null(strstr(fn_err_msg(), "memory budget"));
+    assert_non_null(strstr(fn_err_msg(), p));
+}
+
+static void test_nifti_corrupt_gzip(void **st)
+{
+    vol *v = vol_new(32, 32, 32);
+    for (size_t i = 0; i < vol_count(v); i++)
+        v->data[i] = (float)((i * 2654435761u) % 4096);
+    const char *p = in_dir("corrupt.nii.gz");
+    assert_int_equal(volio_write(v, p, VOL_I16), 0);
+    vol_free(v);
+    size_t n;
+    unsigned char *b = (unsigned char *)tu_slurp(p, &n);
+    assert_true(n > 1000);
+    memset(b + n / 2, 0xA5, 64);
+    tu_write_file(p, b, n);
+    expect_error(p, ": ", NULL);
+    b[3] = 0xE0; /* reserved gzip header flags */
+    tu_write_file(p, b, n);
+    expect_error(p, "gzip", NULL);
+    free(b);
+}
+
+/* ---- InVesalius ---- */
+
+typedef struct {
+    unsigned char *b;
+    size_t n;
+} buf;
+
+static void put(buf *t, const void *d, size_t n)
+{
+    t->b = realloc(t->b, t->n + n);
+    memcpy(t->b + t->n, d, n);
+    t->n += n;
+}
+
+static void tar_add(buf *t, const char *name, const void *data, size_t size)
+{
+    unsigned char h[512] = {0};
+    snprintf((char *)h, 100, "%s", name);
+    snprintf((char *)h + 100, 8, "%07o", 0644);
+    snprintf((char *)h + 124, 12, "%011o", (unsigned)size);
+    snprintf((char *)h + 136, 12, "%011o", 0u);
+    h[156] = '0';
+    memcpy(h + 257, "ustar", 6);
+    memcpy(h + 263, "00", 2);
+    memset(h + 148, ' ', 8);
+    unsigned sum = 0;
+    for (int i = 0; i < 512; i++)
+        sum += h[i];
+    snprintf((char *)h + 148, 8, "%06o", sum);
+    put(t, h, 512);
+    put(t, data, size);
+    static const unsigned char zero[512];
+    put(t, zero, (512 - size % 512) % 512);
+}
+
+static char *plist_text(const char *shape, const char *dtype, const char *orientation)
+{
+    char *s = malloc(4096);
+    snprintf(s, 4096,
+             "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n"
+             "<!DOCTYPE plist PUBLIC \"-//Apple Computer//DTD PLIST 1.0//EN\" \"x\">\n"
+             "<plist version=\"1.0\">\n<dict>\n\t<key>matrix</key>\n\t<dict>\n"
+             "\t\t<key>dtype</key>\n\t\t<string>%s</string>\n"
+             "\t\t<key>filename</key>\n\t\t<string>matrix.dat</string>\n"
+             "\t\t<key>shape</key>\n\t\t<array>%s</array>\n\t</dict>\n"
+             "\t<key>orientation</key>\n\t<integer>%s</integer>\n"
+             "\t<key>spacing</key>\n\t<array><real>0.5</real><real>0.5</real><real>2.0</real></array>\n"
+             "\t<key>empty</key>\n\t<dict/>\n\t<key>flag</key>\n\t<true/>\n"
+             "</dict>\n</plist>\n",
+             dtype, shape, orientation);
+    return s;
+}
+
+#define SHAPE_234 "<integer>2</integer><integer>3</integer><integer>4</integer>"
+
+/* An .inv3 of a 4x3x2 (i j k) int16 volume whose voxel n holds n - 10. */
+static void write_inv3(const char *path, const char *plist, int matrix_first, size_t matrix_bytes, int zip)
+{
+    int16_t m[24];
+    for (int i = 0; i < 24; i++)
+        m[i] = (int16_t)(i - 10);
+    buf t = {0};
+    if (matrix_first)
+        tar_add(&t, "tmpdir/matrix.dat", m, matrix_bytes);
+    if (plist)
+        tar_add(&t, "tmpdir/main.plist", plist, strlen(plist));
+    if (!matrix_first)
+        tar_add(&t, "tmpdir/matrix.dat", m, matrix_bytes);
+    static const unsigned char end[1024];
+    put(&t, end, sizeof end);
+    if (zip)
+        write_gz(path, t.b, t.n);
+    else
+        tu_write_file(path, t.b, t.n);
+    free(t.b);
+}
+
+static void test_inv3_small_project(void **st)
+{
+    char *pl = plist_text(SHAPE_234, "int16", "1");
+    for (int first = 0; first < 2; first++) {
+        const char *p = in_dir(first ? "matrix_first.inv3" : "plist_first.inv3");
+        write_inv3(p, pl, first, 48, 1);
+        vol *v = volio_read(p);
+        if (!v)
+            fail_msg("%s", fn_err_msg());
+        assert_int_equal(v->dim[0], 4);
+        assert_int_equal(v->dim[1], 3);
+        assert_int_equal(v->dim[2], 2);
+        assert_int_equal(v->src_type, VOL_I16);
+        for (int i = 0; i < 24; i++)
+            assert_true(v->data[i] == (float)(i - 10));
+        assert_true(v->affine[0][0] == 0.5 && v->affine[1][1] == -0.5 && v->affine[2][2] == 2.0);
+        vol_free(v);
+    }
+    free(pl);
+}
+
+static void test_inv3_battery(void **st)
+{
+    const char *p = in_dir("bad.inv3");
+    char *pl;
+
+    write_inv3(p, NULL, 0, 48, 1);
+    expect_error(p, "no main.plist", NULL);
+
+    write_inv3(p, pl = plist_text("<integer>2</integer><integer>3</integer>", "int16", "1"), 0, 48, 1);
+    expect_error(p, "matrix.shape", NULL);
+    free(pl);
+
+    write_inv3(p, pl = plist_text("<integer>2</integer><integer>-3</integer><integer>4</integer>", "int16", "1"), 0, 48, 1);
+    expect_error(p, "matrix.shape", "dimension");
+    free(pl);
+
+    write_inv3(p, pl = plist_text("<integer>100000</integer><integer>100000</integer><integer>100000</integer>",
+                                  "int16", "1"), 0, 48, 1);
+    expect_error(p, "matrix.shape", "memory budget");
+    free(pl);
+
+    write_inv3(p, pl = plist_text("<integer>2</integer><integer>3</integer><integer>5</integer>", "int16", "1"), 0, 48, 1);
+    expect_error(p, "matrix.dat is 48 bytes", "needs 60");
+    free(pl);
+
+    write_inv3(p, pl = plist_text(SHAPE_234, "complex128", "1"), 0, 48, 1);
+    expect_error(p, "matrix.dtype", NULL);
+    free(pl);
+
+    write_inv3(p, pl = plist_text(SHAPE_234, "int16", "7"), 0, 48, 1);
+    expect_error(p, "orientation", NULL);
+    free(pl);
+
+    write_inv3(p, "<plist><dict><key>matrix</key><dict></plist>", 0, 48, 1);
+    expect_error(p, "main.plist: offset", NULL);
+
+    write_gz(p, "not a tar archive at all, just text", 35);
+    expect_error(p, "truncated", NULL);
+    char junk[2048];
+    memset(junk, 'x', sizeof junk);
+    write_gz(p, junk, sizeof junk);
+    expect_error(p, "bad checksum", NULL);
+}
+
+static void test_inv3_damaged_archive(void **st)
+{
+    const char *p = in_dir("damaged.inv3");
+    char *pl = plist_text(SHAPE_234, "int16", "1");
+    write_inv3(p, pl, 0, 48, 1);
+    free(pl);
+    size_t n;
+    unsigned char *b = (unsigned char *)tu_slurp(p, &n);
+    tu_write_file(p, b, n / 2);
+    expect_error(p, "truncated", NULL);
+    tu_write_file(p, b, 20); /* inside the first deflate block */
+    expect_error(p, "truncated", NULL);
+    b[3] = 0xE0;
+    tu_write_file(p, b, n);
+    expect_error(p, "corrupt gzip", NULL);
+    free(b);
+}
+
+/* ---- NRRD ---- */
+
+static void write_nrrd(const char *path, const char *header, size_t data_bytes)
+{
+    size_t hl = strlen(header);
+    unsigned char *b = calloc(1, hl + data_bytes + 1);
+    memcpy(b, header, hl);
+    tu_write_file(path, b, hl + data_bytes);
+    free(b);
+}
+
+#define NRRD_HEAD "NRRD0004\ntype: short\ndimension: 3\nendian: little\nencoding: raw\n"
+
+static void test_nrrd_battery(void **st)
+{
+    const char *p = in_dir("good.nrrd");
+    write_nrrd(p, NRRD_HEAD "sizes: 4 4 4\nspace: left-posterior-superior\n"
+                  "space directions: (1,0,0) (0,1,0) (0,0,1)\nspace origin: (0,0,0)\n\n", 128);
+    vol *v = volio_read(p);
+    assert_non_null(v);
+    vol_free(v);
+
+    write_nrrd(p = in_dir("magic.nrrd"), "NRRX0004\ntype: short\ndimension: 3\nsizes: 4 4 4\n\n", 128);
+    expect_error(p, "header", NULL);
+
+    write_nrrd(p = in_dir("truncated.nrrd"), NRRD_HEAD "sizes: 4 4 4\n\n", 100);
+    expect_error(p, "the data file has 100", NULL);
+
+    write_nrrd(p = in_dir("lying.nrrd"), NRRD_HEAD "sizes: 100000 100000 100000\n\n", 100);
+    expect_error(p, "need", "data file has 100");
+
+    write_nrrd(p = in_dir("negative.nrrd"), NRRD_HEAD "sizes: 4 -4 4\n\n", 128);
+    expect_error(p, "header", NULL);
+
+    write_nrrd(p = in_dir("4d.nrrd"), "NRRD0004\ntype: short\ndimension: 4\nendian: little\n"
+                                      "encoding: raw\nsizes: 2 2 2 2\n\n", 32);
+    expect_error(p, "dimension: 4", NULL);
+
+    write_nrrd(p = in_dir("shear.nrrd"), NRRD_HEAD "sizes: 4 4 4\nspace: left-posterior-superior\n"
+                                         "space directions: (1,0,0) (0.5,1,0) (0,0,1)\n\n", 128);
+    expect_error(p, "space directions", "sheared");
+
+    write_nrrd(p = in_dir("llong.nrrd"), "NRRD0004\ntype: long long\ndimension: 3\nendian: little\n"
+                                         "encoding: raw\nsizes: 2 2 2\n\n", 64);
+    expect_error(p, "type", "not supported");
+
+    write_nrrd(p = in_dir("missing.nhdr"), NRRD_HEAD "sizes: 4 4 4\ndata file: missing.raw\n", 0);
+    expect_error(p, "missing.raw", NULL);
+
+    write_nrrd(p = in_dir("budget.nrrd"), NRRD_HEAD "sizes: 20 20 20\n\n", 16000);
+    setenv("FRACNAV_MAX_BYTES", "10000", 1);
+    expect_error(p, "memory budget", NULL);
+    unsetenv("FRACNAV_MAX_BYTES");
+}
+
+/* Random byte damage to small valid files of each format: every read either succeeds or fails
+ * with a message naming the file; under ASan this also proves nothing is overrun. */
+static void mutate_and_read(const char *path, const unsigned char *orig, size_t n, size_t span, int gz)
+{
+    unsigned char *b = malloc(n);
+    uint32_t seed = 12345;
+    for (int round = 0; round < 300; round++) {
+        memcpy(b, orig, n);
+        for (int k = 0; k < 1 + round % 4; k++) {
+            seed = seed * 1664525u + 1013904223u;
+            size_t at = (seed >> 8) % span;
+            seed = seed * 1664525u + 1013904223u;
+            b[at] = round % 3 ? (unsigned char)(seed >> 24) : (unsigned char)(b[at] ^ (1u << (seed % 8)));
+        }
+        size_t len = round % 7 == 6 ? (seed >> 4) % n : n; /* sometimes truncated too */
+        if (gz)
+            write_gz(path, b, len);
+        else
+            tu_write_file(path, b, len);
+        fn_err_clear();
+        vol *v = volio_read(path);
+        if (v)
+            vol_free(v);
+        else if (!strstr(fn_err_msg(), path))
+            fail_msg("round %d: error without the file name: %s", round, fn_err_msg());
+    }
+    free(b);
+}
+
+static void test_mutations(void **st)
+{
+    setenv("FRACNAV_MAX_BYTES", "1000000", 1);
+    nifti_1_header h = good_header(4, 4, 4, DT_INT16, 16);
+    unsigned char nii[352 + 128] = {0};
+    memcpy(nii, &h, sizeof h);
+    mutate_and_read(in_dir("m.nii"), nii, sizeof nii, 352, 0);
+
+    char *pl = plist_text(SHAPE_234, "int16", "1");
+    const char *p = in_dir("m.inv3");
+    write_inv3(p, pl, 0, 48, 0); /* a plain tar: zlib reads it as is, so the damage hits the parsers */
+    free(pl);
+    size_t n;
+    unsigned char *tar = (unsigned char *)tu_slurp(p, &n);
+    mutate_and_read(p, tar, n, 512 + 1024, 0);
+    mutate_and_read(p, tar, n, n, 1);
+    free(tar);
+
+    const char *head = NRRD_HEAD "sizes: 4 4 4\nspace: left-posterior-superior\n"
+                       "space directions: (1,0,0) (0,1,0) (0,0,1)\nspace origin: (0,0,0)\n\n";
+    unsigned char nrrd[512] = {0};
+    size_t hl = strlen(head);
+    memcpy(nrrd, head, hl);
+    mutate_and_read(in_dir("m.nrrd"), nrrd, hl + 128, hl, 0);
+    unsetenv("FRACNAV_MAX_BYTES");
+}
+
+static void test_cli_reports_bad_file(void **st)
+{
+    const char *p = in_dir("cli.nii");
+    nifti_1_header h = good_header(4, 4, 4, DT_INT16, 16);
+    memcpy(h.magic, "xyz", 4);
+    write_nii(p, &h, 128, 0);
+    char *out = NULL;
+    assert_int_equal(tu_run_cli(&out, "info '%s'", p), 1);
+    char want[4400];
+    snprintf(want, sizeof want, "fracnav info: %s: magic", p);
+    if (!strstr(out, want))
+        fail_msg("got: %s", out);
+    free(out);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_nifti_battery),
+        cmocka_unit_test(test_nifti_budget),
+        cmocka_unit_test(test_nifti_corrupt_gzip),
+        cmocka_unit_test(test_inv3_small_project),
+        cmocka_unit_test(test_inv3_battery),
+        cmocka_unit_test(test_inv3_damaged_archive),
+        cmocka_unit_test(test_nrrd_battery),
+        cmocka_unit_test(test_mutations),
+        cmocka_unit_test(test_cli_reports_bad_file),
+    };
+    return cmocka_run_group_tests(tests, setup, teardown);
+}
