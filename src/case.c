@@ -3,6 +3,7 @@
 #include "err.h"
 
 #include <errno.h>
+#include <jansson.h>
 #include <limits.h>
 #include <math.h>
 #include <stdio.h>
@@ -291,5 +292,6 @@ void case_free(fcase *c)
     free(c->truth);
     vol_free(c->ct);
     vol_free(c->labels);
+    json_decref(c->extra);
     free(c);
 }

@@ -32,6 +32,9 @@ typedef struct fcase {
     int has_truth;
     pose *truth;             /* when has_truth: per fragment, the pose that restores it (home -> true) */
     seg_params seg;          /* how the labels were made; seg.threshold/ramp shape the prob maps */
+    void *extra;             /* case.json's other top-level members (a jansson json_t object, owned,
+                              * may be NULL): other modules keep theirs here (VOIs, optimisation
+                              * results) and they survive load and save unchanged */
 } fcase;
 
 /* A new case in folder dir (not yet saved) over the source volume file `source`, already read into
@@ -72,6 +75,10 @@ int case_split(fcase *c, int id, const double p[3], const double n[3]);
  * of fragment id when id > 0. Returns the number of voxels erased. */
 long case_erase_box(fcase *c, const double a[3], const double b[3], int id);
 long case_erase_sphere(fcase *c, const double centre[3], double radius, int id);
+/* Region growing: the unlabelled voxels >= threshold 26-connected to the voxel nearest `seed`
+ * join fragment `into` (0: a new fragment, the next free id). Returns the fragment's id; FN_EINVAL
+ * when the seed is outside the grid, labelled already, or below the threshold. */
+int case_grow(fcase *c, const double seed[3], double threshold, int into);
 /* Keeps only, or drops, the listed fragments. */
 int case_keep(fcase *c, const int *ids, int n);
 int case_drop(fcase *c, const int *ids, int n);

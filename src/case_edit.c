@@ -4,7 +4,9 @@
 #include "err.h"
 
 #include <math.h>
+#include <stdint.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
 /* FN_EINVAL naming the missing id and listing the ones the case has. */
@@ -20,6 +22,15 @@ static int no_such(const fcase *c, int id)
 static int need(const fcase *c, int id)
 {
     return case_find(c, id) < 0 ? no_such(c, id) : 0;
+}
+
+static int next_free_id(const fcase *c)
+{
+    int next = 0;
+    for (int i = 0; i < c->nfrag; i++)
+        if (c->frag[i].id > next)
+            next = c->frag[i].id;
+    return next + 1;
 }
 
 static void relabel(fcase *c, int from, int to)
@@ -84,11 +95,8 @@ int case_split(fcase *c, int id, const double p[3], const double n[3])
         return rc;
     if (!(n[0] * n[0] + n[1] * n[1] + n[2] * n[2] > 0))
         return fn_err_set(FN_EINVAL, "split: the plane's normal is zero");
-    int next = 0;
-    for (int i = 0; i < c->nfrag; i++)
-        if (c->frag[i].id > next)
-            next = c->frag[i].id;
-    if (++next > 65535)
+    int next = next_free_id(c);
+    if (next > 65535)
         return fn_err_set(FN_EINVAL, "split: no free label left");
     struct plane pl = {{p[0], p[1], p[2]}, {n[0], n[1], n[2]}};
     long moved = relabel_where(c, id, in_front, &pl, next);
@@ -150,6 +158,70 @@ long case_erase_sphere(fcase *c, const double centre[3], double radius, int id)
         return fn_err_set(FN_EINVAL, "erase-sphere: the radius must be a positive number");
     struct sphere s = {{centre[0], centre[1], centre[2]}, radius * radius};
     return erase(c, id, in_sphere, &s);
+}
+
+/* Flood fill from voxel `start` over unlabelled voxels >= threshold (26-connected), labelling them
+ * `to`. The queue holds each voxel once, so it needs at most one slot per voxel. */
+static long flood(fcase *c, size_t start, double threshold, int to)
+{
+    vol *l = c->labels;
+    const int nx = l->dim[0], ny = l->dim[1], nz = l->dim[2];
+    if (vol_count(l) > UINT32_MAX)
+        return fn_err_set(FN_ENOMEM, "grow: the volume has too many voxels");
+    uint32_t *queue = malloc(vol_count(l) * sizeof *queue);
+    if (!queue)
+        return fn_err_set(FN_ENOMEM, "grow: out of memory");
+    size_t head = 0, tail = 0;
+    l->data[start] = (float)to;
+    queue[tail++] = (uint32_t)start;
+    while (head < tail) {
+        size_t v = queue[head++];
+        int i = (int)(v % (size_t)nx), j = (int)(v / (size_t)nx % (size_t)ny), k = (int)(v / ((size_t)nx * ny));
+        for (int dk = -1; dk <= 1; dk++)
+            for (int dj = -1; dj <= 1; dj++)
+                for (int di = -1; di <= 1; di++) {
+                    int a = i + di, b = j + dj, e = k + dk;
+                    if (a < 0 || b < 0 || e < 0 || a >= nx || b >= ny || e >= nz)
+                        continue;
+                    size_t w = vol_idx(l, a, b, e);
+                    if (l->data[w] == 0 && c->ct->data[w] >= threshold) {
+                        l->data[w] = (float)to;
+                        queue[tail++] = (uint32_t)w;
+                    }
+                }
+    }
+    free(queue);
+    return (long)tail;
+}
+
+int case_grow(fcase *c, const double seed[3], double threshold, int into)
+{
+    if (into > 0 && need(c, into) < 0)
+        return FN_EINVAL;
+    double ijk[3];
+    vol_world_to_index(c->labels, seed, ijk);
+    int s[3];
+    for (int a = 0; a < 3; a++) {
+        if (!(ijk[a] > -0.5 && ijk[a] < c->labels->dim[a] - 0.5))
+            return fn_err_set(FN_EINVAL, "grow: the seed (%g, %g, %g) mm is outside the volume",
+                              seed[0], seed[1], seed[2]);
+        s[a] = (int)floor(ijk[a] + 0.5);
+    }
+    size_t start = vol_idx(c->labels, s[0], s[1], s[2]);
+    if (c->labels->data[start] != 0)
+        return fn_err_set(FN_EINVAL, "grow: the seed voxel (%d,%d,%d) belongs to fragment %g already",
+                          s[0], s[1], s[2], (double)c->labels->data[start]);
+    if (!(c->ct->data[start] >= threshold))
+        return fn_err_set(FN_EINVAL, "grow: the seed voxel (%d,%d,%d) is %g, under the threshold %g",
+                          s[0], s[1], s[2], (double)c->ct->data[start], threshold);
+    int id = into > 0 ? into : next_free_id(c);
+    if (id > 65535)
+        return fn_err_set(FN_EINVAL, "grow: no free label left");
+    long n = flood(c, start, threshold, id);
+    if (n < 0)
+        return (int)n;
+    int rc = case_rebuild(c, 0, 0);
+    return rc < 0 ? rc : id;
 }
 
 static int listed(const int *ids, int n, int id)

@@ -119,7 +119,8 @@ static json_t *case_json(const fcase *c, const char *labels_sha)
     json_object_set_new(root, "labels", l);
     json_t *sg = json_object();
     json_object_set_new(sg, "threshold", json_real(c->seg.threshold));
-    json_object_set_new(sg, "threshold_auto", json_boolean(c->seg.threshold_auto));
+    static const char *modes[] = {"value", "auto", "auto-bone"};
+    json_object_set_new(sg, "threshold_mode", json_string(modes[c->seg.threshold_auto % 3]));
     json_object_set_new(sg, "min_volume_ml", json_real(c->seg.min_volume_ml));
     json_object_set_new(sg, "exclude_below_peak",
                         c->seg.exclude_peak ? json_real(c->seg.exclude_below_peak) : json_null());
@@ -134,6 +135,11 @@ static json_t *case_json(const fcase *c, const char *labels_sha)
     for (int i = 0; i < c->nfrag; i++)
         json_array_append_new(fr, frag_json(&c->frag[i], c->has_truth ? &c->truth[i] : NULL));
     json_object_set_new(root, "fragments", fr);
+    const char *key;
+    json_t *val;
+    json_object_foreach((json_t *)c->extra, key, val)
+        if (!json_object_get(root, key))
+            json_object_set(root, key, val);
     return root;
 }
 
@@ -193,7 +199,7 @@ int case_save(fcase *c)
         rc = case_file_sha256(ltmp, lsha);
     if (rc == 0) {
         json_t *root = case_json(c, lsha);
-        char *text = json_dumps(root, JSON_INDENT(2) | JSON_REAL_PRECISION(15));
+        char *text = json_dumps(root, JSON_INDENT(2) | JSON_REAL_PRECISION(17));
         json_decref(root);
         if (!text)
             rc = fn_err_set(FN_ENOMEM, "%s: cannot serialise the case", jfin);
@@ -310,8 +316,10 @@ static int get_pose(struct reader *r, json_t *obj, const char *prefix, const cha
     if (get_nums(r, o, pre, "q", p->q, 4) < 0 || get_nums(r, o, pre, "t", p->t, 3) < 0)
         return FN_EFORMAT;
     double n2 = p->q[0] * p->q[0] + p->q[1] * p->q[1] + p->q[2] * p->q[2] + p->q[3] * p->q[3];
-    if (fabs(n2 - 1) > 1e-6)
+    if (fabs(n2 - 1) > 1e-6) {
+        snprintf(r->field, sizeof r->field, "%sq", pre);
         return bad(r, "the quaternion is not of unit length");
+    }
     return 0;
 }
 
@@ -327,10 +335,13 @@ static int read_seg(struct reader *r, json_t *root, seg_params *sp)
         get_int(r, sg, p, "keep", 0, 1000000, &keep) < 0 || get_num(r, sg, p, "ramp", &sp->ramp) < 0)
         return FN_EFORMAT;
     sp->keep = (int)keep;
-    json_t *a = get(r, sg, p, "threshold_auto");
-    if (!a || !json_is_boolean(a))
-        return a ? bad(r, "expected true or false") : FN_EFORMAT;
-    sp->threshold_auto = json_is_true(a);
+    const char *mode = get_str(r, sg, p, "threshold_mode");
+    if (!mode)
+        return FN_EFORMAT;
+    if (!strcmp(mode, "value") || !strcmp(mode, "auto") || !strcmp(mode, "auto-bone"))
+        sp->threshold_auto = mode[0] == 'v' ? 0 : strlen(mode) > 4 ? 2 : 1;
+    else
+        return bad(r, "expected \"value\", \"auto\" or \"auto-bone\"");
     json_t *e = get(r, sg, p, "exclude_below_peak");
     if (!e)
         return FN_EFORMAT;
@@ -432,6 +443,19 @@ static int read_fragments(struct reader *r, json_t *root, fcase *c)
     return 0;
 }
 
+/* Top-level members this module does not own, kept for the modules that do. */
+static int keep_extra(json_t *root, fcase *c)
+{
+    static const char *own[] = {"format", "version", "source", "labels", "segmentation", "tau_min",
+                                "tau_max", "fixed", "has_truth", "fragments"};
+    c->extra = json_deep_copy(root);
+    if (!c->extra)
+        return fn_err_set(FN_ENOMEM, "case: out of memory");
+    for (size_t i = 0; i < sizeof own / sizeof own[0]; i++)
+        json_object_del(c->extra, own[i]);
+    return 0;
+}
+
 static int read_case(struct reader *r, json_t *root, fcase *c)
 {
     const char *fmt = get_str(r, root, "", "format");
@@ -498,7 +522,9 @@ static int read_case(struct reader *r, json_t *root, fcase *c)
         if ((c->fixed = case_find(c, (int)id)) < 0)
             return bad(r, "names a fragment the case does not have");
     }
-    return read_fragments(r, root, c);
+    if ((rc = read_fragments(r, root, c)) < 0)
+        return rc;
+    return keep_extra(root, c);
 }
 
 fcase *case_load(const char *dir)

@@ -20,6 +20,9 @@ static void usage(FILE *out)
             "                                      (plane through P) become a new fragment\n"
             "  erase-box X0 Y0 Z0 X1 Y1 Z1 [--id ID]  erase voxels inside the box (of ID only)\n"
             "  erase-sphere CX CY CZ R [--id ID]   erase voxels within R mm of C (of ID only)\n"
+            "  grow X Y Z [--threshold HU] [--into ID]  unlabelled voxels >= HU (default: the\n"
+            "                                      case's threshold) connected to the seed become\n"
+            "                                      a new fragment (or join ID)\n"
             "  keep IDS                            keep only these fragments (IDS: 1,3 or 1 3)\n"
             "  drop IDS                            remove these fragments\n"
             "  fix ID                              make ID the fixed fragment (0: none)\n"
@@ -110,6 +113,24 @@ static int apply(fcase *c, const char *op, int argc, char **argv)
         if ((rc = case_erase_sphere(c, v, v[3], id)) < 0)
             return 1;
         printf("erased %ld voxels\n", rc);
+    } else if (!strcmp(op, "grow")) {
+        double thr = c->seg.threshold;
+        int into = 0, ok = argc >= 3 && numbers(argv, 3, v);
+        for (int i = 3; ok && i < argc; i += 2) {
+            if (i + 1 >= argc)
+                ok = 0;
+            else if (!strcmp(argv[i], "--threshold"))
+                ok = number(argv[i + 1], &thr);
+            else if (!strcmp(argv[i], "--into"))
+                ok = integer(argv[i + 1], &into);
+            else
+                ok = 0;
+        }
+        if (!ok)
+            return bad_usage("grow needs X Y Z [--threshold HU] [--into ID]");
+        if ((id = case_grow(c, v, thr, into)) < 0)
+            return 1;
+        printf("grew fragment %d to %zu voxels\n", id, c->frag[case_find(c, id)].voxels);
     } else if (!strcmp(op, "keep") || !strcmp(op, "drop")) {
         if ((n = id_list(argc, argv, ids, 256)) < 0)
             return bad_usage("keep/drop need fragment ids (1,3 or 1 3)");

@@ -6,12 +6,10 @@
 #include "fracture.h"
 #include "volio.h"
 
-#include <errno.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/stat.h>
 
 static void usage(FILE *out)
 {
@@ -30,7 +28,7 @@ static void usage(FILE *out)
             "  --displace MM          translation of each moved piece (default 3)\n"
             "  --rotate DEG           rotation of each moved piece about its centroid (default 3)\n"
             "  --bone-loss MM         thickness of bone lost along each cut (default 0)\n"
-            "  --roughness MM         amplitude of the fracture surface's relief (default 3)\n"
+            "  --roughness MM         RMS relief of the fracture surface (default 2)\n"
             "  --threshold HU         bone threshold (default 300)\n"
             "  --help                 this text\n");
 }
@@ -91,35 +89,20 @@ static int parse(int argc, char **argv, fracture_params *p, const char **in, con
     }
     if (!*in || !*out || !have_seed)
         return bad_usage("%s", "needs VOLUME, -o CASE and --seed N");
+    if (fracture_check(p) < 0)
+        return bad_usage("%s", fn_err_msg());
     return 0;
 }
 
-/* Writes the fractured CT and builds the case over it (takes r's ct and labels). */
-static fcase *build_case(const char *dir, const vol *orig, fracture_result *r, const fracture_params *p)
+/* How far the truth moves the fragment's centroid, and by what angle. */
+static void print_truth(const frag *f, const pose *truth)
 {
-    char src[4200];
-    snprintf(src, sizeof src, "%s/source.nii.gz", dir);
-    if (mkdir(dir, 0755) != 0 && errno != EEXIST) {
-        fn_err_set(FN_EIO, "%s: cannot create the case folder: %s", dir, strerror(errno));
-        return NULL;
-    }
-    vol_type t = orig->src_type == VOL_F64 ? VOL_F32 : orig->src_type;
-    if (volio_write(r->ct, src, t) < 0)
-        return NULL;
-    seg_params sp;
-    seg_defaults(&sp);
-    sp.threshold = p->threshold;
-    sp.min_volume_ml = 0;
-    fcase *c = case_create(dir, src, r->ct, r->labels, &sp);
-    r->ct = r->labels = NULL;
-    if (!c)
-        return NULL;
-    /* Fragment ids are the piece numbers; a piece that left the grid entirely has no fragment. */
-    c->has_truth = 1;
-    for (int i = 0; i < c->nfrag; i++)
-        c->truth[i] = r->truth[c->frag[i].id - 1];
-    c->fixed = case_find(c, 1);
-    return c;
+    double back[3], d2 = 0;
+    pose_apply(truth, f->centroid, back);
+    for (int a = 0; a < 3; a++)
+        d2 += (back[a] - f->centroid[a]) * (back[a] - f->centroid[a]);
+    printf("fragment %d: %zu voxels; its truth moves the centroid %.2f mm and turns it %.2f deg\n",
+           f->id, f->voxels, sqrt(d2), pose_angle_between(*truth, POSE_IDENTITY) * 180 / M_PI);
 }
 
 int cmd_fracture(int argc, char **argv)
@@ -135,27 +118,16 @@ int cmd_fracture(int argc, char **argv)
     if (rc)
         return rc;
     vol *ct = volio_read(in);
-    fracture_result r = {0};
-    fcase *c = NULL;
-    if (ct && fracture_make(ct, &p, &r) == 0)
-        c = build_case(out, ct, &r, &p);
-    if (!c || case_save(c) < 0) {
+    fcase *c = ct ? fracture_make_case(ct, &p, out) : NULL;
+    if (!c) {
         fprintf(stderr, "fracnav fracture: %s\n", fn_err_msg());
-        rc = 1;
-    } else {
-        for (int i = 0; i < c->nfrag; i++) {
-            const frag *f = &c->frag[i];
-            double back[3], d2 = 0;
-            pose_apply(&c->truth[i], f->centroid, back);
-            for (int a = 0; a < 3; a++)
-                d2 += (back[a] - f->centroid[a]) * (back[a] - f->centroid[a]);
-            printf("fragment %d: %zu voxels; truth moves its centroid %.2f mm and turns it %.2f deg\n",
-                   f->id, f->voxels, sqrt(d2), pose_angle_between(c->truth[i], POSE_IDENTITY) * 57.29577951308232);
-        }
-        printf("saved %s\n", out);
+        vol_free(ct);
+        return 1;
     }
+    for (int i = 0; i < c->nfrag; i++)
+        print_truth(&c->frag[i], &c->truth[i]);
+    printf("saved %s\n", out);
     case_free(c);
-    fracture_result_free(&r);
     vol_free(ct);
     return rc;
 }

@@ -9,6 +9,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 static void usage(FILE *out)
 {
@@ -18,8 +19,10 @@ static void usage(FILE *out)
             "CASE/labels.nii.gz). Bone is every voxel >= the threshold; 26-connected components\n"
             "become fragments, largest first (ids 1..n).\n\n"
             "  -o, --output CASE          the case folder to write (created if missing)\n"
-            "  --threshold HU|auto        bone threshold (default 300 HU); auto = Otsu, for data\n"
-            "                             not in HU\n"
+            "  --threshold HU|auto|auto-bone  bone threshold (default 300 HU); for data not in\n"
+            "                             HU: auto = Otsu (splits the two main classes: in a\n"
+            "                             head CT, air from tissue), auto-bone = Otsu again over\n"
+            "                             the brighter class (tissue from bone)\n"
             "  --min-volume ML            drop components under ML millilitres (default 0.5)\n"
             "  --exclude-below-peak HU    drop components whose brightest voxel is under HU: the CT\n"
             "                             head holder (300-600 HU) goes with e.g. 1000\n"
@@ -63,6 +66,8 @@ static int parse(int argc, char **argv, seg_params *p, const char **in, const ch
             *out = val;
         else if (!strcmp(a, "--threshold") && !strcmp(val, "auto"))
             p->threshold_auto = 1;
+        else if (!strcmp(a, "--threshold") && !strcmp(val, "auto-bone"))
+            p->threshold_auto = 2;
         else if (!strcmp(a, "--threshold") && number(val, &d))
             p->threshold = d;
         else if (!strcmp(a, "--min-volume") && number(val, &d) && d >= 0)
@@ -80,6 +85,13 @@ static int parse(int argc, char **argv, seg_params *p, const char **in, const ch
     if (!*in || !*out)
         return bad_usage("%s", "needs VOLUME and -o CASE");
     return 0;
+}
+
+static double now(void)
+{
+    struct timespec t;
+    clock_gettime(CLOCK_MONOTONIC, &t);
+    return (double)t.tv_sec + t.tv_nsec * 1e-9;
 }
 
 static void report(const fcase *c, const seg_result *r)
@@ -105,7 +117,9 @@ int cmd_segment(int argc, char **argv)
     int rc = parse(argc, argv, &p, &in, &out);
     if (rc)
         return rc;
+    double t0 = now();
     vol *ct = volio_read(in);
+    double t1 = now();
     seg_result r = {0};
     if (!ct || seg_run(ct, &p, &r) < 0) {
         fprintf(stderr, "fracnav segment: %s\n", fn_err_msg());
@@ -115,7 +129,9 @@ int cmd_segment(int argc, char **argv)
     p.threshold = r.threshold;
     vol *labels = r.labels;
     r.labels = NULL;
+    double t2 = now();
     fcase *c = case_create(out, in, ct, labels, &p);
+    double t3 = now();
     if (!c || case_save(c) < 0) {
         fprintf(stderr, "fracnav segment: %s\n", fn_err_msg());
         case_free(c);
@@ -123,7 +139,8 @@ int cmd_segment(int argc, char **argv)
         return 1;
     }
     report(c, &r);
-    printf("saved %s\n", out);
+    printf("saved %s (read %.3f s, segmentation %.3f s, fragments %.3f s, save %.3f s)\n", out,
+           t1 - t0, t2 - t1, t3 - t2, now() - t3);
     case_free(c);
     seg_result_free(&r);
     return 0;

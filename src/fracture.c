@@ -1,12 +1,17 @@
 #include "fracture.h"
 
+#include "case.h"
 #include "err.h"
 #include "frag.h"
 #include "seg.h"
+#include "volio.h"
 
+#include <errno.h>
 #include <math.h>
 #include <stdlib.h>
+#include <stdio.h>
 #include <string.h>
+#include <sys/stat.h>
 
 void fracture_defaults(fracture_params *p)
 {
@@ -15,8 +20,8 @@ void fracture_defaults(fracture_params *p)
     p->pieces = 2;
     p->displace_mm = 3;
     p->rotate_deg = 3;
-    p->roughness_mm = 3;
-    p->wavelength_mm = 24;
+    p->roughness_mm = 2;
+    p->wavelength_mm = 16;
     p->threshold = 300;
     p->fill = 40;
 }
@@ -70,7 +75,8 @@ double fracture_fbm(uint64_t seed, const double x[3])
         for (int a = 0; a < 3; a++)
             p[a] = p[a] * 2 + 17.25;
     }
-    return sum / norm;
+    /* Octave-normalised value noise has a standard deviation of about 0.23: scale it to ~1. */
+    return sum / norm * 4.3;
 }
 
 /* sin and cos of x in [-pi, pi] by Taylor series: the same bits on every machine, unlike libm. */
@@ -263,9 +269,10 @@ static pose random_motion(uint64_t *rng, const double centroid[3], const double 
 }
 
 /* Resamples piece `id` of cut (on the original grid) moved by m into out_lab/out_ct (nearest
- * neighbour). Counts voxels that would land on another piece; writes only when apply. */
+ * neighbour). Counts voxels that would land on another piece or on a bright object that is not
+ * bone (the head holder: >= threshold in src_ct but in no piece); writes only when apply. */
 static size_t place_piece(const vol *cut, const vol *src_ct, vol *out_lab, vol *out_ct, int id,
-                          pose m, int apply)
+                          pose m, double threshold, int apply)
 {
     int lo[3], hi[3];
     label_box(cut, id, lo, hi);
@@ -308,7 +315,8 @@ static size_t place_piece(const vol *cut, const vol *src_ct, vol *out_lab, vol *
                 if (cut->data[from] != (float)id)
                     continue;
                 size_t to = vol_idx(out_lab, i, j, k);
-                if (out_lab->data[to] != 0 && out_lab->data[to] != (float)id) {
+                int other = out_lab->data[to] != 0 && out_lab->data[to] != (float)id;
+                if (other || (cut->data[to] == 0 && src_ct->data[to] >= threshold)) {
                     conflicts++;
                     continue;
                 }
@@ -332,7 +340,7 @@ static vol *vol_clone(const vol *v)
     return c;
 }
 
-static int validate(const fracture_params *p)
+int fracture_check(const fracture_params *p)
 {
     if (p->pieces < 2 || p->pieces > 16)
         return fn_err_set(FN_EINVAL, "fracture: pieces must be 2..16 (got %d)", p->pieces);
@@ -368,14 +376,14 @@ static int displace_pieces(fracture_result *r, const vol *ct, uint64_t *rng,
         pose m = random_motion(rng, f.centroid, normals[id - 2], p, dir);
         frag_free(&f);
         int push = 0;
-        while (place_piece(r->cut, ct, r->labels, r->ct, id, m, 0) > 0) {
+        while (place_piece(r->cut, ct, r->labels, r->ct, id, m, p->threshold, 0) > 0) {
             if (++push > 100)
                 return fn_err_set(FN_EINVAL, "fracture: piece %d cannot be placed clear of the "
                                              "others", id);
             for (int a = 0; a < 3; a++)
                 m.t[a] += normals[id - 2][a];
         }
-        place_piece(r->cut, ct, r->labels, r->ct, id, m, 1);
+        place_piece(r->cut, ct, r->labels, r->ct, id, m, p->threshold, 1);
         r->moved[id - 1] = m;
         r->truth[id - 1] = pose_inverse(m);
     }
@@ -385,7 +393,7 @@ static int displace_pieces(fracture_result *r, const vol *ct, uint64_t *rng,
 int fracture_make(const vol *ct, const fracture_params *p, fracture_result *out)
 {
     memset(out, 0, sizeof *out);
-    int rc = validate(p);
+    int rc = fracture_check(p);
     if (rc < 0)
         return rc;
     seg_params sp;
@@ -441,4 +449,38 @@ void fracture_result_free(fracture_result *r)
     free(r->truth);
     free(r->moved);
     memset(r, 0, sizeof *r);
+}
+
+fcase *fracture_make_case(const vol *ct, const fracture_params *p, const char *dir)
+{
+    fracture_result r;
+    if (fracture_make(ct, p, &r) < 0)
+        return NULL;
+    char src[4200];
+    snprintf(src, sizeof src, "%s/source.nii.gz", dir);
+    vol_type t = ct->src_type == VOL_F64 ? VOL_F32 : ct->src_type;
+    fcase *c = NULL;
+    if (mkdir(dir, 0755) != 0 && errno != EEXIST)
+        fn_err_set(FN_EIO, "%s: cannot create the case folder: %s", dir, strerror(errno));
+    else if (volio_write(r.ct, src, t) == 0) {
+        seg_params sp;
+        seg_defaults(&sp);
+        sp.threshold = p->threshold;
+        sp.min_volume_ml = 0;
+        c = case_create(dir, src, r.ct, r.labels, &sp);
+        r.ct = r.labels = NULL;
+    }
+    if (c) {
+        /* Fragment ids are piece numbers; a piece pushed off the grid entirely has no fragment. */
+        c->has_truth = 1;
+        for (int i = 0; i < c->nfrag; i++)
+            c->truth[i] = r.truth[c->frag[i].id - 1];
+        c->fixed = case_find(c, 1);
+        if (case_save(c) < 0) {
+            case_free(c);
+            c = NULL;
+        }
+    }
+    fracture_result_free(&r);
+    return c;
 }

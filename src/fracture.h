@@ -28,7 +28,7 @@ typedef struct fracture_params {
     double displace_mm;   /* translation of each moved piece before any push-out */
     double rotate_deg;    /* rotation of each moved piece about its centroid */
     double bone_loss_mm;  /* thickness of the bone layer lost at each cut; 0 none */
-    double roughness_mm;  /* amplitude of the surface's displacement along its normal */
+    double roughness_mm;  /* RMS of the surface's displacement along its normal */
     double wavelength_mm; /* of the coarsest noise octave */
     double threshold;     /* bone threshold (HU) */
     double fill;          /* value written where bone was removed or left (soft tissue, HU) */
@@ -43,15 +43,23 @@ typedef struct fracture_result {
     pose *moved;  /* pieces entries: the applied displacement (original -> displaced); owned */
 } fracture_result;
 
-/* Defaults: 2 pieces, 3 mm, 3 degrees, no bone loss, roughness 3 mm, wavelength 24 mm, 300 HU,
+/* Defaults: 2 pieces, 3 mm, 3 degrees, no bone loss, roughness 2 mm, wavelength 16 mm, 300 HU,
  * fill 40 HU, seed 1. */
 void fracture_defaults(fracture_params *p);
+/* 0 if the parameters are in range, else FN_EINVAL saying which. */
+int fracture_check(const fracture_params *p);
 /* 0 and *out filled (free with fracture_result_free), or a negative FN_E* code. */
 int fracture_make(const vol *ct, const fracture_params *p, fracture_result *out);
 void fracture_result_free(fracture_result *r);
 
+struct fcase;
+/* The whole thing as a saved case: fractures ct, writes dir/source.nii.gz (ct's voxel type), makes
+ * the case over it (fragment i = piece i, poses identity, fixed = piece 1, truth set) and saves it.
+ * Returns the case (free with case_free) or NULL with fn_err. ct is not consumed. */
+struct fcase *fracture_make_case(const vol *ct, const fracture_params *p, const char *dir);
+
 /* The deterministic pieces, exposed for tests: splitmix64 step, uniform [0,1), and fBm value
- * noise in [-1, 1] at point x (in noise-lattice units). */
+ * noise at point x (in noise-lattice units), scaled to a standard deviation of about 1. */
 uint64_t fracture_rng_next(uint64_t *state);
 double fracture_rng_uniform(uint64_t *state);
 double fracture_fbm(uint64_t seed, const double x[3]);

@@ -11,23 +11,30 @@ void seg_defaults(seg_params *p)
     memset(p, 0, sizeof *p);
     p->threshold = 300;
     p->min_volume_ml = 0.5;
-    p->exclude_below_peak = 0;
     p->ramp = 200;
 }
 
-double seg_otsu(const vol *v)
+double seg_otsu_above(const vol *v, double floor_value)
 {
     enum { BINS = 256 };
-    float lo, hi;
-    vol_range(v, &lo, &hi);
+    size_t n = vol_count(v);
+    float lo = INFINITY, hi = -INFINITY;
+    for (size_t i = 0; i < n; i++) {
+        float x = v->data[i];
+        if (x >= floor_value && x < lo)
+            lo = x;
+        if (x >= floor_value && x > hi)
+            hi = x;
+    }
     if (!(hi > lo))
         return lo;
-    double hist[BINS] = {0};
-    size_t n = vol_count(v);
+    double hist[BINS] = {0}, total = 0;
     double scale = (BINS - 1) / ((double)hi - lo);
     for (size_t i = 0; i < n; i++)
-        if (isfinite(v->data[i]))
+        if (v->data[i] >= floor_value && isfinite(v->data[i])) {
             hist[(int)((v->data[i] - lo) * scale)] += 1;
+            total += 1;
+        }
     double sum_all = 0;
     for (int b = 0; b < BINS; b++)
         sum_all += b * hist[b];
@@ -37,7 +44,7 @@ double seg_otsu(const vol *v)
     for (int b = 0; b < BINS - 1; b++) {
         w0 += hist[b];
         sum0 += b * hist[b];
-        double w1 = (double)n - w0;
+        double w1 = total - w0;
         if (w0 == 0 || w1 == 0)
             continue;
         double d = sum0 / w0 - (sum_all - sum0) / w1;
@@ -49,6 +56,11 @@ double seg_otsu(const vol *v)
     }
     /* Voxels in bins above `split` are foreground: the threshold is the start of bin split+1. */
     return lo + (split + 1) / scale;
+}
+
+double seg_otsu(const vol *v)
+{
+    return seg_otsu_above(v, -INFINITY);
 }
 
 static int32_t uf_find(int32_t *parent, int32_t x)
@@ -212,7 +224,9 @@ int seg_run(const vol *v, const seg_params *p, seg_result *out)
     if (rc < 0)
         return rc;
     size_t n = vol_count(v);
-    double thr = p->threshold_auto ? seg_otsu(v) : p->threshold;
+    double thr = p->threshold;
+    if (p->threshold_auto)
+        thr = p->threshold_auto == 2 ? seg_otsu_above(v, seg_otsu(v)) : seg_otsu(v);
     uint8_t *mask = malloc(n);
     int32_t *lab = malloc(n * sizeof *lab);
     out->labels = vol_new(v->dim[0], v->dim[1], v->dim[2]);

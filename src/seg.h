@@ -14,8 +14,9 @@
 #include <stddef.h>
 
 typedef struct seg_params {
-    double threshold;          /* bone when value >= threshold (ignored when threshold_auto) */
-    int threshold_auto;        /* 1: Otsu's threshold over the volume's histogram */
+    double threshold;          /* bone when value >= threshold (in a case: the one used) */
+    int threshold_auto;        /* 1: Otsu's threshold over the volume's histogram; 2: Otsu again
+                                * over the brighter class (bone within tissue, for head CT) */
     double min_volume_ml;      /* components smaller than this are dropped */
     int exclude_peak;          /* 1: apply exclude_below_peak */
     double exclude_below_peak; /* components whose maximum value is below this are dropped */
@@ -45,6 +46,8 @@ void seg_defaults(seg_params *p);
 
 /* Otsu's threshold over a 256-bin histogram of the volume's range. */
 double seg_otsu(const vol *v);
+/* The same over the voxels >= floor_value only. */
+double seg_otsu_above(const vol *v, double floor_value);
 
 /* 26-connected components of the voxels where mask != 0, written to lab (0 background, 1..n in
  * scan order of their first voxel). Returns n, or a negative FN_E* code. lab has count entries. */

@@ -1,0 +1,316 @@
+/* The case folder: save/load round trip, relative source paths, and the errors for a case that
+ * no longer matches its files or is damaged. */
+#include <stdarg.h>
+#include <stddef.h>
+#include <setjmp.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include "case.h"
+#include "err.h"
+#include "testutil.h"
+#include "volio.h"
+
+#include <jansson.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+
+/* Two bone blocks on an oblique 1.5 mm grid, written to path as int16 NIfTI. */
+static void write_ct(const char *path, float bone)
+{
+    vol *v = vol_new(24, 16, 12);
+    double c = 0.8, s = 0.6;
+    const double dir[3][3] = {{c, -s, 0}, {s, c, 0}, {0, 0, 1}};
+    double sp[3] = {1.5, 1.5, 1.5}, org[3] = {-10, 5, 20};
+    vol_set_geometry(v, dir, sp, org);
+    for (size_t i = 0; i < vol_count(v); i++)
+        v->data[i] = -1000;
+    for (int k = 2; k < 10; k++)
+        for (int j = 2; j < 14; j++) {
+            for (int i = 2; i < 10; i++)
+                v->data[vol_idx(v, i, j, k)] = bone;
+            for (int i = 13; i < 21; i++)
+                v->data[vol_idx(v, i, j, k)] = bone + 200;
+        }
+    if (volio_write(v, path, VOL_I16) < 0)
+        fail_msg("%s", fn_err_msg());
+    vol_free(v);
+}
+
+static fcase *make_case(const char *dir, const char *src)
+{
+    vol *ct = volio_read(src);
+    assert_non_null(ct);
+    seg_params p;
+    seg_defaults(&p);
+    seg_result r;
+    assert_int_equal(seg_run(ct, &p, &r), 0);
+    assert_int_equal(r.ncomp, 2);
+    vol *labels = r.labels;
+    r.labels = NULL;
+    seg_result_free(&r);
+    fcase *c = case_create(dir, src, ct, labels, &p);
+    assert_non_null(c);
+    return c;
+}
+
+static void test_round_trip(void **st)
+{
+    char *dir = tu_tmpdir("case"), src[4200], cdir[4200];
+    snprintf(src, sizeof src, "%s/ct.nii.gz", dir);
+    snprintf(cdir, sizeof cdir, "%s/case", dir);
+    write_ct(src, 700);
+    fcase *c = make_case(cdir, src);
+    assert_int_equal(c->nfrag, 2);
+    double ax[3] = {0, 0, 1};
+    c->frag[1].pose = pose_from_axis_angle(ax, 0.3);
+    c->frag[1].pose.t[0] = 4.25;
+    snprintf(c->frag[0].name, sizeof c->frag[0].name, "occiput");
+    c->fixed = 0;
+    c->has_truth = 1;
+    c->truth[1] = pose_inverse(c->frag[1].pose);
+    c->tau_min = 0.25;
+    assert_int_equal(case_save(c), 0);
+
+    fcase *d = case_load(cdir);
+    if (!d)
+        fail_msg("%s", fn_err_msg());
+    assert_int_equal(d->nfrag, 2);
+    assert_string_equal(d->sha256, c->sha256);
+    assert_string_equal(d->frag[0].name, "occiput");
+    assert_int_equal(d->fixed, 0);
+    assert_int_equal(d->has_truth, 1);
+    assert_true(d->tau_min == 0.25);
+    for (int i = 0; i < 2; i++) {
+        assert_int_equal(d->frag[i].id, c->frag[i].id);
+        assert_int_equal((int)d->frag[i].voxels, (int)c->frag[i].voxels);
+        assert_memory_equal(d->frag[i].rgb, c->frag[i].rgb, 3);
+        assert_memory_equal(d->frag[i].prob, c->frag[i].prob, (size_t)c->frag[i].dim[0] *
+                                                                   c->frag[i].dim[1] * c->frag[i].dim[2]);
+        assert_true(pose_angle_between(d->frag[i].pose, c->frag[i].pose) < 1e-9);
+        assert_true(pose_distance(d->frag[i].pose, c->frag[i].pose) < 1e-9);
+        assert_true(pose_distance(d->truth[i], c->truth[i]) < 1e-9);
+        for (int a = 0; a < 3; a++)
+            assert_true(fabs(d->frag[i].centroid[a] - c->frag[i].centroid[a]) < 1e-9);
+    }
+    /* Members other modules add to case.json survive a load and a save. */
+    assert_non_null(d->extra);
+    json_object_set_new(d->extra, "voi", json_pack("{s:[iii]}", "min", 1, 2, 3));
+    json_object_set_new(d->extra, "version", json_integer(99)); /* not theirs: ignored */
+    assert_int_equal(case_save(d), 0);
+    fcase *e = case_load(cdir);
+    if (!e)
+        fail_msg("%s", fn_err_msg());
+    json_t *voi = json_object_get(e->extra, "voi");
+    assert_int_equal(json_integer_value(json_array_get(json_object_get(voi, "min"), 2)), 3);
+    case_free(e);
+    /* The brighter block is 2 (same size, later in scan order), its probabilities saturate. */
+    assert_int_equal(d->frag[1].prob[d->frag[1].dim[0] * d->frag[1].dim[1] + d->frag[1].dim[0] + 1], 255);
+    case_free(c);
+    case_free(d);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* A source inside the case folder is stored relative, so the folder can move. */
+static void test_folder_moves(void **st)
+{
+    char *dir = tu_tmpdir("case"), src[4200], cdir[4200], moved[4200];
+    snprintf(cdir, sizeof cdir, "%s/a", dir);
+    snprintf(src, sizeof src, "%s/a/ct.nii", dir);
+    snprintf(moved, sizeof moved, "%s/b", dir);
+    assert_int_equal(mkdir(cdir, 0755), 0);
+    write_ct(src, 700);
+    fcase *c = make_case(cdir, src);
+    assert_int_equal(case_save(c), 0);
+    case_free(c);
+    char *text = tu_slurp(strcat(strcpy(moved, cdir), "/case.json"), NULL);
+    assert_non_null(strstr(text, "\"path\": \"ct.nii\""));
+    free(text);
+    snprintf(moved, sizeof moved, "%s/b", dir);
+    assert_int_equal(rename(cdir, moved), 0);
+    fcase *d = case_load(moved);
+    if (!d)
+        fail_msg("%s", fn_err_msg());
+    assert_int_equal(d->nfrag, 2);
+    case_free(d);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* Saves a case, applies `damage` to its case.json (as a jansson tree), and checks the load error. */
+static void expect_load_error(void (*damage)(json_t *), int code, const char *want1, const char *want2)
+{
+    char *dir = tu_tmpdir("case"), src[4200], cdir[4200], json[4300];
+    snprintf(src, sizeof src, "%s/ct.nii.gz", dir);
+    snprintf(cdir, sizeof cdir, "%s/case", dir);
+    snprintf(json, sizeof json, "%s/case.json", cdir);
+    write_ct(src, 700);
+    fcase *c = make_case(cdir, src);
+    assert_int_equal(case_save(c), 0);
+    case_free(c);
+    json_t *root = json_load_file(json, 0, NULL);
+    assert_non_null(root);
+    damage(root);
+    assert_int_equal(json_dump_file(root, json, JSON_INDENT(2)), 0);
+    json_decref(root);
+    assert_null(case_load(cdir));
+    const char *msg = fn_err_msg();
+    if (!strstr(msg, want1) || (want2 && !strstr(msg, want2)))
+        fail_msg("error '%s' should mention '%s' and '%s'", msg, want1, want2 ? want2 : "");
+    (void)code;
+    tu_rmtree(dir);
+    free(dir);
+}
+
+static void newer_version(json_t *r)
+{
+    json_object_set_new(r, "version", json_integer(CASE_VERSION + 1));
+}
+
+static void bad_quaternion(json_t *r)
+{
+    json_t *f = json_array_get(json_object_get(r, "fragments"), 1);
+    json_object_set_new(json_object_get(f, "pose"), "q", json_string("identity"));
+}
+
+static void unit_quaternion_broken(json_t *r)
+{
+    json_t *f = json_array_get(json_object_get(r, "fragments"), 0);
+    json_object_set_new(json_object_get(f, "pose"), "q", json_pack("[ffff]", 2.0, 0.0, 0.0, 0.0));
+}
+
+static void missing_tau(json_t *r)
+{
+    json_object_del(r, "tau_max");
+}
+
+static void unknown_fragment(json_t *r)
+{
+    json_t *f = json_array_get(json_object_get(r, "fragments"), 0);
+    json_object_set_new(f, "id", json_integer(9));
+}
+
+static void wrong_geometry(json_t *r)
+{
+    json_t *aff = json_object_get(json_object_get(r, "source"), "affine");
+    json_array_set_new(json_array_get(aff, 0), 3, json_real(-11));
+}
+
+static void test_damaged_fields(void **st)
+{
+    expect_load_error(newer_version, FN_EMISMATCH, "version 2", "reads version 1");
+    expect_load_error(bad_quaternion, FN_EFORMAT, "case.json", "fragments[1].pose.q");
+    expect_load_error(unit_quaternion_broken, FN_EFORMAT, "fragments[0].pose.q", "unit");
+    expect_load_error(missing_tau, FN_EFORMAT, "tau_max", "missing");
+    expect_load_error(unknown_fragment, FN_EMISMATCH, "fragments[0].id", "not in labels");
+    expect_load_error(wrong_geometry, FN_EMISMATCH, "affine [0][3]", "case.json");
+}
+
+static void test_changed_files(void **st)
+{
+    char *dir = tu_tmpdir("case"), src[4200], cdir[4200], path[4300];
+    snprintf(src, sizeof src, "%s/ct.nii.gz", dir);
+    snprintf(cdir, sizeof cdir, "%s/case", dir);
+    write_ct(src, 700);
+    fcase *c = make_case(cdir, src);
+    assert_int_equal(case_save(c), 0);
+
+    /* The source volume was replaced: the sha256 check says so and names it. */
+    write_ct(src, 900);
+    assert_null(case_load(cdir));
+    assert_non_null(strstr(fn_err_msg(), "sha256"));
+    assert_non_null(strstr(fn_err_msg(), "ct.nii.gz"));
+    assert_non_null(strstr(fn_err_msg(), "changed"));
+    write_ct(src, 700);
+    fcase *ok = case_load(cdir);
+    assert_non_null(ok);
+    case_free(ok);
+
+    /* labels.nii.gz replaced behind the case's back (or an interrupted save). */
+    snprintf(path, sizeof path, "%s/labels.nii.gz", cdir);
+    c->labels->data[0] = 1;
+    assert_int_equal(volio_write(c->labels, path, VOL_U16), 0);
+    assert_null(case_load(cdir));
+    assert_non_null(strstr(fn_err_msg(), "labels.nii.gz"));
+
+    /* A truncated case.json: the parser's line and column, and the file. */
+    snprintf(path, sizeof path, "%s/case.json", cdir);
+    size_t len;
+    char *text = tu_slurp(path, &len);
+    tu_write_file(path, text, len / 2);
+    free(text);
+    assert_null(case_load(cdir));
+    assert_non_null(strstr(fn_err_msg(), "case.json: line"));
+
+    /* Not a case at all. */
+    assert_null(case_load(dir));
+    assert_non_null(strstr(fn_err_msg(), "not a case folder"));
+    case_free(c);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* Truncations and byte changes all over case.json: never a crash, and every refusal names the file
+ * it is about. */
+static void test_corruption_battery(void **st)
+{
+    char *dir = tu_tmpdir("case"), src[4200], cdir[4200], json[4300];
+    snprintf(src, sizeof src, "%s/ct.nii.gz", dir);
+    snprintf(cdir, sizeof cdir, "%s/case", dir);
+    snprintf(json, sizeof json, "%s/case.json", cdir);
+    write_ct(src, 700);
+    fcase *c = make_case(cdir, src);
+    assert_int_equal(case_save(c), 0);
+    case_free(c);
+    size_t len;
+    char *orig = tu_slurp(json, &len);
+    char *buf = malloc(len);
+    static const char subst[] = "x9\"}-[";
+    int refused = 0, loaded = 0;
+    for (size_t off = 0; off < len; off += 23) {
+        for (int v = 0; v <= (int)strlen(subst); v++) {
+            memcpy(buf, orig, len);
+            size_t n = len;
+            if (v == (int)strlen(subst))
+                n = off;
+            else
+                buf[off] = subst[v];
+            tu_write_file(json, buf, n);
+            fcase *d = case_load(cdir);
+            if (d) {
+                loaded++;
+                case_free(d);
+                continue;
+            }
+            refused++;
+            const char *m = fn_err_msg();
+            if (!strstr(m, "case.json") && !strstr(m, "labels") && !strstr(m, "ct.nii.gz"))
+                fail_msg("offset %zu: error names no file: %s", off, m);
+        }
+    }
+    assert_true(refused > 60);
+    tu_write_file(json, orig, len);
+    fcase *d = case_load(cdir);
+    assert_non_null(d);
+    case_free(d);
+    free(orig);
+    free(buf);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_round_trip),
+        cmocka_unit_test(test_folder_moves),
+        cmocka_unit_test(test_damaged_fields),
+        cmocka_unit_test(test_changed_files),
+        cmocka_unit_test(test_corruption_battery),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}

@@ -1,0 +1,252 @@
+/* Synthetic fractures: ground truth restores the moved pieces, the surface is rough, bone loss
+ * opens a gap, and one seed gives one case, byte for byte. */
+#include <stdarg.h>
+#include <stddef.h>
+#include <setjmp.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include "case.h"
+#include "err.h"
+#include "frag.h"
+#include "fracture.h"
+#include "testutil.h"
+#include "volio.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* A textured ellipsoidal "bone" (semi-axes 24, 15, 13 mm) on an oblique, left-handed 1 mm grid. */
+static vol *bone(void)
+{
+    vol *v = vol_new(64, 44, 40);
+    double c = 0.96, s = 0.28;
+    const double dir[3][3] = {{c, 0, s}, {0, -1, 0}, {-s, 0, c}};
+    double sp[3] = {1, 1, 1}, org[3] = {-30, 20, 5};
+    vol_set_geometry(v, dir, sp, org);
+    for (int k = 0; k < 40; k++)
+        for (int j = 0; j < 44; j++)
+            for (int i = 0; i < 64; i++) {
+                double x = (i - 31.5) / 24, y = (j - 21.5) / 15, z = (k - 19.5) / 13;
+                int in = x * x + y * y + z * z <= 1;
+                v->data[vol_idx(v, i, j, k)] = in ? (float)(700 + (i * 7 + j * 13 + k * 3) % 400) : -50;
+            }
+    v->src_type = VOL_I16;
+    return v;
+}
+
+static size_t count_label(const vol *l, int id)
+{
+    size_t n = 0;
+    for (size_t i = 0; i < vol_count(l); i++)
+        n += l->data[i] == (float)id;
+    return n;
+}
+
+/* Every displaced voxel of a moved piece, sent through its truth, lands on that piece in the cut
+ * (nearest voxel, so exactly) and carries the original CT value there. */
+static void check_truth(const vol *ct, const fracture_result *r)
+{
+    size_t idx = 0, checked = 0;
+    for (int k = 0; k < ct->dim[2]; k++)
+        for (int j = 0; j < ct->dim[1]; j++)
+            for (int i = 0; i < ct->dim[0]; i++, idx++) {
+                int id = (int)r->labels->data[idx];
+                if (id < 1)
+                    continue;
+                double y[3], x[3], s[3], ijk[3] = {i, j, k};
+                vol_index_to_world(r->labels, ijk, y);
+                pose_apply(&r->truth[id - 1], y, x);
+                vol_world_to_index(ct, x, s);
+                int si[3];
+                for (int a = 0; a < 3; a++) {
+                    si[a] = (int)floor(s[a] + 0.5);
+                    assert_true(fabs(s[a] - si[a]) <= 0.5 + 1e-9);
+                    assert_true(si[a] >= 0 && si[a] < ct->dim[a]);
+                }
+                size_t from = vol_idx(ct, si[0], si[1], si[2]);
+                assert_true(r->cut->data[from] == (float)id);
+                assert_true(r->ct->data[idx] == ct->data[from]);
+                checked++;
+            }
+    assert_true(checked > 1000);
+}
+
+static void test_truth_restores_pieces(void **st)
+{
+    vol *ct = bone();
+    fracture_params p;
+    fracture_defaults(&p);
+    p.seed = 42;
+    p.pieces = 3;
+    p.displace_mm = 4;
+    p.rotate_deg = 5;
+    fracture_result r;
+    if (fracture_make(ct, &p, &r) < 0)
+        fail_msg("%s", fn_err_msg());
+    assert_int_equal(r.pieces, 3);
+    check_truth(ct, &r);
+    for (int id = 1; id <= 3; id++) {
+        size_t before = count_label(r.cut, id), after = count_label(r.labels, id);
+        assert_true(before > 1000);
+        /* Nearest-neighbour resampling keeps the piece's size within a few percent. */
+        assert_true(fabs((double)after - (double)before) < 0.05 * (double)before);
+    }
+    assert_true(pose_angle_between(r.truth[0], POSE_IDENTITY) == 0);
+    for (int id = 2; id <= 3; id++)
+        assert_true(fabs(pose_angle_between(r.truth[id - 1], POSE_IDENTITY) - 5 * M_PI / 180) < 1e-9);
+    /* Where a moved piece was and nothing landed, the fill value (soft tissue) is written. */
+    size_t filled = 0;
+    for (size_t i = 0; i < vol_count(ct); i++)
+        filled += r.cut->data[i] > 1 && r.labels->data[i] == 0 && r.ct->data[i] == 40;
+    assert_true(filled > 0);
+    fracture_result_free(&r);
+    vol_free(ct);
+}
+
+/* RMS distance of the interface voxels of piece 2 (touching piece 1) from their best plane. */
+static double interface_rms(const vol *cut)
+{
+    double s1[3] = {0}, s2[3][3] = {{0}};
+    size_t n = 0;
+    for (int k = 1; k < cut->dim[2] - 1; k++)
+        for (int j = 1; j < cut->dim[1] - 1; j++)
+            for (int i = 1; i < cut->dim[0] - 1; i++) {
+                if (cut->data[vol_idx(cut, i, j, k)] != 2)
+                    continue;
+                int touch = cut->data[vol_idx(cut, i - 1, j, k)] == 1 ||
+                            cut->data[vol_idx(cut, i + 1, j, k)] == 1 ||
+                            cut->data[vol_idx(cut, i, j - 1, k)] == 1 ||
+                            cut->data[vol_idx(cut, i, j + 1, k)] == 1 ||
+                            cut->data[vol_idx(cut, i, j, k - 1)] == 1 ||
+                            cut->data[vol_idx(cut, i, j, k + 1)] == 1;
+                if (!touch)
+                    continue;
+                double ijk[3] = {i, j, k}, w[3];
+                vol_index_to_world(cut, ijk, w);
+                n++;
+                for (int a = 0; a < 3; a++) {
+                    s1[a] += w[a];
+                    for (int b = 0; b < 3; b++)
+                        s2[a][b] += w[a] * w[b];
+                }
+            }
+    assert_true(n > 100);
+    double cov[3][3], vec[3][3], val[3];
+    for (int a = 0; a < 3; a++)
+        for (int b = 0; b < 3; b++)
+            cov[a][b] = s2[a][b] / n - s1[a] / n * s1[b] / n;
+    frag_eigen_sym3(cov, vec, val);
+    return sqrt(val[2]);
+}
+
+static void test_surface_is_rough(void **st)
+{
+    vol *ct = bone();
+    fracture_params p;
+    fracture_defaults(&p);
+    p.seed = 5;
+    fracture_result r;
+    assert_int_equal(fracture_make(ct, &p, &r), 0);
+    double rough = interface_rms(r.cut);
+    fracture_result_free(&r);
+    p.roughness_mm = 0;
+    assert_int_equal(fracture_make(ct, &p, &r), 0);
+    double flat = interface_rms(r.cut);
+    fracture_result_free(&r);
+    /* A planar cut's voxelised interface deviates well under a voxel; the rough one by far more. */
+    if (!(flat < 0.6 && rough > 1.0 && rough > 2 * flat))
+        fail_msg("interface RMS: rough %.3f mm, flat %.3f mm", rough, flat);
+    vol_free(ct);
+}
+
+static void test_bone_loss_opens_a_gap(void **st)
+{
+    vol *ct = bone();
+    fracture_params p;
+    fracture_defaults(&p);
+    p.seed = 9;
+    p.bone_loss_mm = 2;
+    fracture_result r;
+    assert_int_equal(fracture_make(ct, &p, &r), 0);
+    size_t bone_voxels = 0, cut_voxels = 0;
+    for (size_t i = 0; i < vol_count(ct); i++) {
+        bone_voxels += ct->data[i] >= 300;
+        cut_voxels += r.cut->data[i] > 0;
+    }
+    assert_true(cut_voxels < bone_voxels - 200);
+    /* No voxel of one piece touches the other through a face. */
+    for (int k = 0; k < ct->dim[2]; k++)
+        for (int j = 0; j < ct->dim[1]; j++)
+            for (int i = 0; i + 1 < ct->dim[0]; i++) {
+                float a = r.cut->data[vol_idx(ct, i, j, k)], b = r.cut->data[vol_idx(ct, i + 1, j, k)];
+                assert_false(a > 0 && b > 0 && a != b);
+            }
+    check_truth(ct, &r);
+    fracture_result_free(&r);
+    vol_free(ct);
+}
+
+static void test_same_seed_same_case(void **st)
+{
+    /* splitmix64's published first output for state 0. */
+    uint64_t s = 0;
+    assert_true(fracture_rng_next(&s) == 0xe220a8397b1dcdafull);
+    char *dir = tu_tmpdir("fracture"), src[4200];
+    snprintf(src, sizeof src, "%s/bone.nii.gz", dir);
+    vol *ct = bone();
+    if (volio_write(ct, src, VOL_I16) < 0)
+        fail_msg("%s", fn_err_msg());
+    vol_free(ct);
+    char *out;
+    const char *runs[3][2] = {{"a", "11"}, {"b", "11"}, {"c", "12"}};
+    for (int i = 0; i < 3; i++) {
+        int rc = tu_run_cli(&out, "fracture '%s' -o '%s/%s' --seed %s --bone-loss 1", src, dir,
+                            runs[i][0], runs[i][1]);
+        if (rc != 0)
+            fail_msg("fracture failed (%d): %s", rc, out);
+        free(out);
+    }
+    char pa[4300], pb[4300], pc[4300];
+    size_t na, nb, nc;
+    snprintf(pa, sizeof pa, "%s/a/case.json", dir);
+    snprintf(pb, sizeof pb, "%s/b/case.json", dir);
+    snprintf(pc, sizeof pc, "%s/c/case.json", dir);
+    char *ja = tu_slurp(pa, &na), *jb = tu_slurp(pb, &nb), *jc = tu_slurp(pc, &nc);
+    assert_true(na == nb && !memcmp(ja, jb, na));
+    assert_false(na == nc && !memcmp(ja, jc, na));
+    /* The case loads, the fixed fragment is 1, and truth is stored per fragment. */
+    snprintf(pa, sizeof pa, "%s/a", dir);
+    fcase *c = case_load(pa);
+    if (!c)
+        fail_msg("%s", fn_err_msg());
+    assert_int_equal(c->nfrag, 2);
+    assert_int_equal(c->frag[c->fixed].id, 1);
+    assert_int_equal(c->has_truth, 1);
+    assert_true(pose_angle_between(c->truth[1], POSE_IDENTITY) > 0.04);
+    assert_non_null(strstr(ja, "\"path\": \"source.nii.gz\""));
+    case_free(c);
+    free(ja);
+    free(jb);
+    free(jc);
+    assert_int_equal(tu_run_cli(&out, "fracture '%s' -o '%s/d' --seed 1 --pieces 1", src, dir), 2);
+    assert_non_null(strstr(out, "fracnav fracture: fracture: pieces must be 2..16"));
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "fracture '%s' -o '%s/d'", src, dir), 2);
+    free(out);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_truth_restores_pieces),
+        cmocka_unit_test(test_surface_is_rough),
+        cmocka_unit_test(test_bone_loss_opens_a_gap),
+        cmocka_unit_test(test_same_seed_same_case),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}

@@ -1,0 +1,354 @@
+/* Segmentation: union-find components, Otsu, filters, probability maps, fragment geometry, and the
+ * example CT's fragments. */
+#include <stdarg.h>
+#include <stddef.h>
+#include <setjmp.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include "err.h"
+#include "frag.h"
+#include "seg.h"
+#include "testutil.h"
+#include "vol.h"
+#include "volio.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+static void set(uint8_t *m, const int d[3], int i, int j, int k)
+{
+    m[((size_t)k * d[1] + j) * d[0] + i] = 1;
+}
+
+static int32_t at(const int32_t *l, const int d[3], int i, int j, int k)
+{
+    return l[((size_t)k * d[1] + j) * d[0] + i];
+}
+
+static void test_components_corners_are_connected(void **st)
+{
+    int d[3] = {6, 6, 6};
+    uint8_t m[216] = {0};
+    int32_t lab[216];
+    /* A diagonal chain touching only at corners is one 26-connected component. */
+    for (int t = 0; t < 4; t++)
+        set(m, d, t, t, t);
+    /* One voxel apart from the chain in every direction: separate. */
+    set(m, d, 5, 0, 0);
+    set(m, d, 0, 5, 5);
+    assert_int_equal(seg_components(m, d, lab), 3);
+    assert_int_equal(at(lab, d, 0, 0, 0), 1);
+    assert_int_equal(at(lab, d, 3, 3, 3), 1);
+    assert_int_not_equal(at(lab, d, 5, 0, 0), at(lab, d, 0, 5, 5));
+    assert_int_equal(at(lab, d, 1, 0, 0), 0);
+    /* Edge contact (two coordinates differ) also connects. */
+    uint8_t e[216] = {0};
+    set(e, d, 2, 2, 2);
+    set(e, d, 3, 3, 2);
+    set(e, d, 2, 3, 3);
+    assert_int_equal(seg_components(e, d, lab), 1);
+}
+
+static void test_components_join_late(void **st)
+{
+    /* A U shape whose arms get different provisional labels and meet only at the far row, and a
+     * comb inside it (one voxel away) whose teeth join only through their last row. */
+    int d[3] = {9, 9, 3};
+    uint8_t m[243] = {0};
+    int32_t lab[243];
+    for (int j = 0; j < 9; j++) {
+        set(m, d, 0, j, 1);
+        set(m, d, 8, j, 1);
+    }
+    for (int i = 0; i < 9; i++)
+        set(m, d, i, 8, 1);
+    for (int i = 2; i < 7; i += 2)
+        for (int j = 0; j < 7; j++)
+            set(m, d, i, j, 1);
+    for (int i = 2; i < 7; i++)
+        set(m, d, i, 6, 1);
+    set(m, d, 4, 4, 0); /* below a tooth: joins the comb through a face */
+    assert_int_equal(seg_components(m, d, lab), 2);
+    assert_int_equal(at(lab, d, 0, 0, 1), at(lab, d, 8, 0, 1));
+    assert_int_equal(at(lab, d, 2, 0, 1), at(lab, d, 6, 0, 1));
+    assert_int_not_equal(at(lab, d, 0, 0, 1), at(lab, d, 2, 0, 1));
+    assert_int_equal(at(lab, d, 4, 4, 0), at(lab, d, 4, 4, 1));
+}
+
+static vol *bimodal(void)
+{
+    vol *v = vol_new(20, 20, 20);
+    for (size_t i = 0; i < vol_count(v); i++)
+        v->data[i] = (float)(i % 7); /* background 0..6 */
+    for (int k = 5; k < 15; k++)
+        for (int j = 5; j < 15; j++)
+            for (int i = 5; i < 15; i++)
+                v->data[vol_idx(v, i, j, k)] = 100 + (float)((i + j + k) % 9);
+    return v;
+}
+
+static void test_otsu_splits_two_classes(void **st)
+{
+    vol *v = bimodal();
+    double t = seg_otsu(v);
+    assert_true(t > 6 && t <= 100);
+    seg_params p;
+    seg_defaults(&p);
+    p.threshold_auto = 1;
+    p.min_volume_ml = 0;
+    seg_result r;
+    assert_int_equal(seg_run(v, &p, &r), 0);
+    assert_int_equal(r.ncomp, 1);
+    assert_int_equal((int)r.comp[0].voxels, 1000);
+    assert_int_equal(r.comp[0].lo[0], 5);
+    assert_int_equal(r.comp[0].hi[2], 14);
+    seg_result_free(&r);
+    vol_free(v);
+}
+
+/* Three blobs: big and bright, medium and dim (a "head holder"), tiny. */
+static vol *three_blobs(void)
+{
+    vol *v = vol_new(40, 20, 20);
+    static const double dir[3][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
+    double sp[3] = {2, 2, 2}, org[3] = {0, 0, 0};
+    vol_set_geometry(v, dir, sp, org);
+    for (size_t i = 0; i < vol_count(v); i++)
+        v->data[i] = -1000;
+    for (int k = 2; k < 12; k++)
+        for (int j = 2; j < 12; j++)
+            for (int i = 2; i < 14; i++)
+                v->data[vol_idx(v, i, j, k)] = i == 7 ? 1500 : 800;
+    for (int k = 2; k < 8; k++)
+        for (int j = 2; j < 8; j++)
+            for (int i = 20; i < 26; i++)
+                v->data[vol_idx(v, i, j, k)] = 450;
+    v->data[vol_idx(v, 35, 15, 15)] = 900;
+    return v;
+}
+
+static void test_filters(void **st)
+{
+    vol *v = three_blobs();
+    seg_params p;
+    seg_defaults(&p);
+    p.min_volume_ml = 0;
+    seg_result r;
+    assert_int_equal(seg_run(v, &p, &r), 0);
+    assert_int_equal(r.ncomp, 3);
+    assert_int_equal((int)r.comp[0].voxels, 1200);
+    assert_int_equal((int)r.comp[1].voxels, 216);
+    assert_true(fabs(r.comp[1].volume_ml - 216 * 8 / 1000.0) < 1e-9);
+    assert_true(r.comp[0].peak == 1500);
+    /* Labels are 1..n, largest first. */
+    assert_true(r.labels->data[vol_idx(v, 3, 3, 3)] == 1);
+    assert_true(r.labels->data[vol_idx(v, 21, 3, 3)] == 2);
+    seg_result_free(&r);
+
+    p.min_volume_ml = 0.1; /* the lone voxel is 0.008 ml */
+    assert_int_equal(seg_run(v, &p, &r), 0);
+    assert_int_equal(r.ncomp, 2);
+    assert_int_equal(r.raw_components, 3);
+    seg_result_free(&r);
+
+    p.exclude_peak = 1;
+    p.exclude_below_peak = 1000; /* the dim blob peaks at 450 */
+    assert_int_equal(seg_run(v, &p, &r), 0);
+    assert_int_equal(r.ncomp, 1);
+    assert_true(r.labels->data[vol_idx(v, 21, 3, 3)] == 0);
+    seg_result_free(&r);
+
+    p.exclude_peak = 0;
+    p.min_volume_ml = 0;
+    p.keep = 1;
+    assert_int_equal(seg_run(v, &p, &r), 0);
+    assert_int_equal(r.ncomp, 1);
+    seg_result_free(&r);
+
+    p.keep = -1;
+    assert_int_equal(seg_run(v, &p, &r), FN_EINVAL);
+    assert_non_null(strstr(fn_err_msg(), "keep"));
+    vol_free(v);
+}
+
+/* Air, a big block of tissue and a smaller bone inside it: auto splits air from tissue, auto-bone
+ * finds the bone. */
+static void test_otsu_twice_finds_bone(void **st)
+{
+    vol *v = vol_new(30, 30, 30);
+    for (int k = 0; k < 30; k++)
+        for (int j = 0; j < 30; j++)
+            for (int i = 0; i < 30; i++) {
+                float x = (float)((i + 2 * j + 3 * k) % 5);
+                int tissue = i >= 3 && i < 27 && j >= 3 && j < 27 && k >= 3 && k < 27;
+                int bone = i >= 10 && i < 16 && j >= 10 && j < 16 && k >= 10 && k < 16;
+                v->data[vol_idx(v, i, j, k)] = bone ? 200 + x : tissue ? 80 + x : x;
+            }
+    seg_params p;
+    seg_defaults(&p);
+    p.min_volume_ml = 0;
+    p.threshold_auto = 1;
+    seg_result r;
+    assert_int_equal(seg_run(v, &p, &r), 0);
+    assert_int_equal((int)r.comp[0].voxels, 24 * 24 * 24);
+    seg_result_free(&r);
+    p.threshold_auto = 2;
+    assert_int_equal(seg_run(v, &p, &r), 0);
+    assert_true(r.threshold > 84 && r.threshold <= 200);
+    assert_int_equal(r.ncomp, 1);
+    assert_int_equal((int)r.comp[0].voxels, 216);
+    seg_result_free(&r);
+    vol_free(v);
+}
+
+static void test_cli_usage(void **st)
+{
+    char *out;
+    assert_int_equal(tu_run_cli(&out, "segment --help"), 0);
+    assert_non_null(strstr(out, "--exclude-below-peak"));
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "segment /nonexistent.nii.gz"), 2);
+    assert_non_null(strstr(out, "fracnav segment: needs VOLUME and -o CASE"));
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "segment x.nii -o y --threshold lots"), 2);
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "segment /nonexistent.nii.gz -o /tmp/never-made"), 1);
+    assert_non_null(strstr(out, "fracnav segment: /nonexistent.nii.gz"));
+    free(out);
+}
+
+static void test_prob_ramp(void **st)
+{
+    assert_int_equal(seg_prob(300, 300, 200), 128);
+    assert_int_equal(seg_prob(400, 300, 200), 255);
+    assert_int_equal(seg_prob(2000, 300, 200), 255);
+    assert_int_equal(seg_prob(350, 300, 200), 191);
+    assert_int_equal(seg_prob(-1000, 300, 200), 1); /* never 0 inside a fragment */
+    assert_int_equal(seg_prob(-1000, 300, 0), 255);
+}
+
+static void test_eigen(void **st)
+{
+    double a[3][3] = {{4, 1, 0.5}, {1, 3, 0.2}, {0.5, 0.2, 1}}, v[3][3], l[3];
+    frag_eigen_sym3(a, v, l);
+    assert_true(l[0] >= l[1] && l[1] >= l[2]);
+    for (int c = 0; c < 3; c++)
+        for (int r = 0; r < 3; r++) {
+            double av = a[r][0] * v[0][c] + a[r][1] * v[1][c] + a[r][2] * v[2][c];
+            assert_true(fabs(av - l[c] * v[r][c]) < 1e-9);
+        }
+    double det = v[0][0] * (v[1][1] * v[2][2] - v[1][2] * v[2][1]) -
+                 v[0][1] * (v[1][0] * v[2][2] - v[1][2] * v[2][0]) +
+                 v[0][2] * (v[1][0] * v[2][1] - v[1][1] * v[2][0]);
+    assert_true(fabs(det - 1) < 1e-9);
+}
+
+/* A fragment from a left-handed, oblique grid: home is a proper rotation, crop voxels land on their
+ * source voxels, and the principal axis follows the bar's long side. */
+static void test_fragment_geometry(void **st)
+{
+    vol *lab = vol_new(30, 20, 10);
+    double c = sqrt(0.5);
+    const double dir[3][3] = {{c, -c, 0}, {c, c, 0}, {0, 0, -1}}; /* det -1 */
+    double sp[3] = {0.5, 0.8, 2}, org[3] = {10, -20, 30};
+    vol_set_geometry(lab, dir, sp, org);
+    for (int k = 3; k < 6; k++)
+        for (int j = 5; j < 9; j++)
+            for (int i = 2; i < 28; i++)
+                lab->data[vol_idx(lab, i, j, k)] = 4;
+    vol *ct = vol_new(30, 20, 10);
+    for (size_t i = 0; i < vol_count(ct); i++)
+        ct->data[i] = 350;
+    int lo[3] = {2, 5, 3}, hi[3] = {27, 8, 5};
+    frag f;
+    assert_int_equal(frag_from_labels(&f, lab, ct, 4, lo, hi, 300, 200), 0);
+    assert_int_equal(f.dim[0], 28);
+    assert_int_equal(f.origin[0], 1);
+    assert_int_equal((int)f.voxels, 26 * 4 * 3);
+    assert_int_equal(f.flip[0], 1);
+    assert_true(fabs(f.volume_ml - 312 * 0.8 / 1000) < 1e-9);
+    double r[3][3];
+    pose_to_matrix(&f.home, r);
+    double det = r[0][0] * (r[1][1] * r[2][2] - r[1][2] * r[2][1]) -
+                 r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0]) +
+                 r[0][2] * (r[1][0] * r[2][1] - r[1][1] * r[2][0]);
+    assert_true(fabs(det - 1) < 1e-9);
+    size_t li = 0, inside = 0;
+    for (int k = 0; k < f.dim[2]; k++)
+        for (int j = 0; j < f.dim[1]; j++)
+            for (int i = 0; i < f.dim[0]; i++, li++) {
+                int l[3] = {i, j, k}, s[3];
+                double w[3], ws[3], sd[3];
+                frag_local_to_source(&f, l, s);
+                frag_voxel_world(&f, l, w);
+                for (int a = 0; a < 3; a++)
+                    sd[a] = s[a];
+                vol_index_to_world(lab, sd, ws);
+                for (int a = 0; a < 3; a++)
+                    assert_true(fabs(w[a] - ws[a]) < 1e-9);
+                int in = s[0] >= 0 && s[0] < 30 && s[1] >= 0 && s[1] < 20 && s[2] >= 0 && s[2] < 10 &&
+                         lab->data[vol_idx(lab, s[0], s[1], s[2])] == 4;
+                assert_int_equal(f.prob[li] != 0, in);
+                if (in) {
+                    assert_int_equal(f.prob[li], 191);
+                    inside++;
+                }
+            }
+    assert_int_equal((int)inside, 312);
+    /* Centroid = world of the box centre; main axis = the grid's i direction (up to sign). */
+    double mid[3] = {14.5, 6.5, 4}, wm[3];
+    vol_index_to_world(lab, mid, wm);
+    for (int a = 0; a < 3; a++)
+        assert_true(fabs(f.centroid[a] - wm[a]) < 1e-9);
+    assert_true(fabs(fabs(f.axes[0][0]) - c) < 1e-9 && fabs(fabs(f.axes[1][0]) - c) < 1e-9);
+    double var_i = (26.0 * 26.0 - 1) / 12 * 0.25;
+    assert_true(fabs(f.eigval[0] - var_i) < 1e-9);
+    frag_free(&f);
+    vol_free(lab);
+    vol_free(ct);
+}
+
+static void test_example_ct_fragments(void **st)
+{
+    vol *ct = volio_read(tu_example_ct());
+    assert_non_null(ct);
+    seg_params p;
+    seg_defaults(&p);
+    seg_result r;
+    assert_int_equal(seg_run(ct, &p, &r), 0);
+    /* The skull and the two halves of the head holder. */
+    assert_int_equal(r.ncomp, 3);
+    assert_true(labs((long)r.comp[0].voxels - 403000) < 4000);
+    for (int i = 1; i < 3; i++) {
+        assert_true(labs((long)r.comp[i].voxels - 18500) < 500);
+        assert_true(r.comp[i].peak < 1000 && r.comp[0].peak > 2000);
+    }
+    seg_result_free(&r);
+    /* The holder goes with --exclude-below-peak. */
+    p.exclude_peak = 1;
+    p.exclude_below_peak = 1000;
+    assert_int_equal(seg_run(ct, &p, &r), 0);
+    assert_int_equal(r.ncomp, 1);
+    assert_true(labs((long)r.comp[0].voxels - 403000) < 4000);
+    seg_result_free(&r);
+    vol_free(ct);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_components_corners_are_connected),
+        cmocka_unit_test(test_components_join_late),
+        cmocka_unit_test(test_otsu_splits_two_classes),
+        cmocka_unit_test(test_filters),
+        cmocka_unit_test(test_otsu_twice_finds_bone),
+        cmocka_unit_test(test_cli_usage),
+        cmocka_unit_test(test_prob_ramp),
+        cmocka_unit_test(test_eigen),
+        cmocka_unit_test(test_fragment_geometry),
+        cmocka_unit_test(test_example_ct_fragments),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
