@@ -19,13 +19,20 @@ struct obb_tree {
     obb_params params;
 };
 
-/* One pyramid level: per cell the min and max effective probability and the tight box of its bone
- * voxels. Level 1 keeps an 8-bit occupancy mask instead of a box (its box follows from the mask). */
+/* One pyramid level: per cell the min and max effective probability of its voxels, a mask of its
+ * bone children (bit dz*4 + dy*2 + dx) and, from level 2 up, the tight box of its bone voxels
+ * (level 1 boxes follow from the mask). */
 typedef struct level {
     int dim[3];
     uint8_t *mn, *mx, *mask;
     uint16_t (*box)[6];
 } level;
+
+/* An emitted node's cell, kept while the breadth-first pass still has to expand it. */
+typedef struct pending {
+    uint16_t c[3];
+    uint8_t level, depth;
+} pending;
 
 typedef struct builder {
     const uint8_t *prob;
@@ -33,9 +40,7 @@ typedef struct builder {
     level lv[MAX_LEVELS];
     int top;
     obb_node *nodes;
-    uint32_t *cell;  /* per emitted node: its cell index in its level */
-    uint8_t *lvl;    /* per emitted node: its level */
-    uint8_t *dep;    /* per emitted node: its depth */
+    pending *pend;
     size_t n, cap;
 } builder;
 
@@ -55,10 +60,16 @@ static size_t cells(const int d[3])
     return (size_t)d[0] * (size_t)d[1] * (size_t)d[2];
 }
 
+static size_t cidx(const level *L, const uint16_t c[3])
+{
+    return ((size_t)c[2] * (size_t)L->dim[1] + c[1]) * (size_t)L->dim[0] + c[0];
+}
+
 /* Level 1 from the voxels, row by row so the inner loop streams memory. */
-static void level1(builder *b, const int d0[3])
+static void level1(builder *b)
 {
     level *L = &b->lv[1];
+    const int *d0 = b->lv[0].dim;
     size_t nx = (size_t)L->dim[0];
     memset(L->mn, 255, cells(L->dim));
     memset(L->mx, 0, cells(L->dim));
@@ -72,157 +83,147 @@ static void level1(builder *b, const int d0[3])
                     const uint8_t *src =
                         b->prob + ((size_t)(2 * ck + dz) * d0[1] + (2 * cj + dy)) * (size_t)d0[0];
                     uint8_t bit = (uint8_t)(1u << (dz * 4 + dy * 2));
-                    for (size_t ci = 0; ci < nx; ci++) {
-                        uint8_t e = b->lut[src[2 * ci]];
-                        uint8_t lo = mn[ci] < e ? mn[ci] : e, hi = mx[ci] > e ? mx[ci] : e;
-                        uint8_t m = e ? bit : 0;
-                        if (2 * ci + 1 < (size_t)d0[0]) {
-                            uint8_t f = b->lut[src[2 * ci + 1]];
-                            lo = lo < f ? lo : f;
-                            hi = hi > f ? hi : f;
-                            m |= f ? (uint8_t)(bit << 1) : 0;
-                        }
-                        mn[ci] = lo, mx[ci] = hi, mk[ci] |= m;
+                    size_t pairs = (size_t)d0[0] / 2;
+                    for (size_t ci = 0; ci < pairs; ci++) {
+                        uint8_t e = b->lut[src[2 * ci]], f = b->lut[src[2 * ci + 1]];
+                        uint8_t lo = e < f ? e : f, hi = e > f ? e : f;
+                        mn[ci] = mn[ci] < lo ? mn[ci] : lo;
+                        mx[ci] = mx[ci] > hi ? mx[ci] : hi;
+                        mk[ci] |= (uint8_t)((e ? bit : 0) | (f ? bit << 1 : 0));
+                    }
+                    if (d0[0] % 2) {
+                        uint8_t e = b->lut[src[2 * pairs]];
+                        mn[pairs] = mn[pairs] < e ? mn[pairs] : e;
+                        mx[pairs] = mx[pairs] > e ? mx[pairs] : e;
+                        mk[pairs] |= e ? bit : 0;
                     }
                 }
         }
 }
 
-/* Tight box of cell idx (coordinates c) at level l, in voxel indices. */
-static void cell_box(const builder *b, int l, size_t idx, const int c[3], uint16_t lo[3],
-                     uint16_t hi[3])
+/* Tight box of the cell at coordinates c of level l, in voxel indices. */
+static void cell_box(const builder *b, int l, const uint16_t c[3], uint16_t lo[3], uint16_t hi[3])
 {
     if (l == 0) {
-        for (int i = 0; i < 3; i++)
-            lo[i] = hi[i] = (uint16_t)c[i];
+        memcpy(lo, c, 3 * sizeof *c);
+        memcpy(hi, c, 3 * sizeof *c);
     } else if (l == 1) {
         static const uint8_t low[3] = {0x55, 0x33, 0x0f}; /* bits of the lower half on each axis */
-        uint8_t m = b->lv[1].mask[idx];
+        uint8_t m = b->lv[1].mask[cidx(&b->lv[1], c)];
         for (int i = 0; i < 3; i++) {
             lo[i] = (uint16_t)(2 * c[i] + ((m & low[i]) ? 0 : 1));
             hi[i] = (uint16_t)(2 * c[i] + ((m & (uint8_t)~low[i]) ? 1 : 0));
         }
     } else {
-        memcpy(lo, b->lv[l].box[idx], 3 * sizeof(uint16_t));
-        memcpy(hi, b->lv[l].box[idx] + 3, 3 * sizeof(uint16_t));
+        const uint16_t *box = b->lv[l].box[cidx(&b->lv[l], c)];
+        memcpy(lo, box, 3 * sizeof *lo);
+        memcpy(hi, box + 3, 3 * sizeof *hi);
     }
 }
 
-static uint8_t cell_mn(const builder *b, int l, size_t idx)
+/* Coordinates of child `bit` of cell c. */
+static void child(const uint16_t c[3], int bit, uint16_t out[3])
 {
-    return l == 0 ? b->lut[b->prob[idx]] : b->lv[l].mn[idx];
+    for (int i = 0; i < 3; i++)
+        out[i] = (uint16_t)(2 * c[i] + ((bit >> i) & 1));
 }
 
-static uint8_t cell_mx(const builder *b, int l, size_t idx)
-{
-    return l == 0 ? b->lut[b->prob[idx]] : b->lv[l].mx[idx];
-}
-
-static void coords(const level *L, size_t idx, int c[3])
-{
-    c[0] = (int)(idx % (size_t)L->dim[0]);
-    c[1] = (int)(idx / (size_t)L->dim[0] % (size_t)L->dim[1]);
-    c[2] = (int)(idx / ((size_t)L->dim[0] * (size_t)L->dim[1]));
-}
-
-/* Lists the bone children (cell indices at level l-1) of cell idx at level l; returns the count. */
-static int children(const builder *b, int l, size_t idx, size_t out[8])
-{
-    const level *C = &b->lv[l - 1];
-    int c[3], n = 0;
-    coords(&b->lv[l], idx, c);
-    for (int dz = 0; dz < 2; dz++)
-        for (int dy = 0; dy < 2; dy++)
-            for (int dx = 0; dx < 2; dx++) {
-                int x = 2 * c[0] + dx, y = 2 * c[1] + dy, z = 2 * c[2] + dz;
-                if (x >= C->dim[0] || y >= C->dim[1] || z >= C->dim[2])
-                    continue;
-                size_t k = ((size_t)z * C->dim[1] + y) * C->dim[0] + x;
-                if (cell_mx(b, l - 1, k))
-                    out[n++] = k;
-            }
-    return n;
-}
-
-/* Levels >= 2 from the level below: min, max and the union of the children's boxes. */
+/* Levels >= 2 from the level below: min, max, bone-child mask and the union of the children's
+ * boxes. */
 static void level_up(builder *b, int l)
 {
     level *L = &b->lv[l];
-    for (size_t idx = 0; idx < cells(L->dim); idx++) {
-        int c[3];
-        coords(L, idx, c);
-        const level *C = &b->lv[l - 1];
-        uint8_t mn = 255, mx = 0;
-        uint16_t box[6] = {UINT16_MAX, UINT16_MAX, UINT16_MAX, 0, 0, 0};
-        for (int dz = 0; dz < 2; dz++)
-            for (int dy = 0; dy < 2; dy++)
-                for (int dx = 0; dx < 2; dx++) {
-                    int cc[3] = {2 * c[0] + dx, 2 * c[1] + dy, 2 * c[2] + dz};
+    const level *C = &b->lv[l - 1];
+    size_t idx = 0;
+    uint16_t c[3];
+    for (c[2] = 0; c[2] < L->dim[2]; c[2]++)
+        for (c[1] = 0; c[1] < L->dim[1]; c[1]++)
+            for (c[0] = 0; c[0] < L->dim[0]; c[0]++, idx++) {
+                uint8_t mn = 255, mx = 0, mask = 0;
+                uint16_t box[6] = {UINT16_MAX, UINT16_MAX, UINT16_MAX, 0, 0, 0};
+                for (int bit = 0; bit < 8; bit++) {
+                    uint16_t cc[3], lo[3], hi[3];
+                    child(c, bit, cc);
                     if (cc[0] >= C->dim[0] || cc[1] >= C->dim[1] || cc[2] >= C->dim[2])
                         continue;
-                    size_t k = ((size_t)cc[2] * C->dim[1] + cc[1]) * C->dim[0] + cc[0];
+                    size_t k = cidx(C, cc);
                     mn = C->mn[k] < mn ? C->mn[k] : mn;
                     if (!C->mx[k])
                         continue;
                     mx = C->mx[k] > mx ? C->mx[k] : mx;
-                    uint16_t lo[3], hi[3];
-                    cell_box(b, l - 1, k, cc, lo, hi);
+                    mask |= (uint8_t)(1u << bit);
+                    cell_box(b, l - 1, cc, lo, hi);
                     for (int i = 0; i < 3; i++) {
                         box[i] = lo[i] < box[i] ? lo[i] : box[i];
                         box[3 + i] = hi[i] > box[3 + i] ? hi[i] : box[3 + i];
                     }
                 }
-        L->mn[idx] = mn, L->mx[idx] = mx;
-        memcpy(L->box[idx], box, sizeof box);
-    }
+                L->mn[idx] = mn, L->mx[idx] = mx, L->mask[idx] = mask;
+                memcpy(L->box[idx], box, sizeof box);
+            }
+}
+
+static uint8_t cell_mn(const builder *b, int l, const uint16_t c[3])
+{
+    return l == 0 ? b->lut[b->prob[cidx(&b->lv[0], c)]] : b->lv[l].mn[cidx(&b->lv[l], c)];
+}
+
+static uint8_t cell_mx(const builder *b, int l, const uint16_t c[3])
+{
+    return l == 0 ? b->lut[b->prob[cidx(&b->lv[0], c)]] : b->lv[l].mx[cidx(&b->lv[l], c)];
 }
 
 /* Follows single-child chains down: a cell with one bone child is replaced by that child. */
-static void collapse(const builder *b, int *l, size_t *idx)
+static void collapse(const builder *b, int *l, uint16_t c[3])
 {
-    size_t kid[8];
-    while (*l > 0 && cell_mn(b, *l, *idx) != 255 && children(b, *l, *idx, kid) == 1) {
-        *idx = kid[0];
+    while (*l > 0) {
+        size_t idx = cidx(&b->lv[*l], c);
+        uint8_t m = b->lv[*l].mask[idx];
+        if (b->lv[*l].mn[idx] == 255 || (m & (m - 1)))
+            return;
+        int bit = 0;
+        while (!(m >> bit & 1))
+            bit++;
+        child(c, bit, c);
         (*l)--;
     }
 }
 
-static int emit(builder *b, int l, size_t idx, uint8_t depth)
+static int grow(builder *b)
 {
-    if (b->n == b->cap) {
-        size_t cap = b->cap ? 2 * b->cap : 1024;
-        if (cap > MAX_NODES)
-            cap = MAX_NODES;
-        if (b->n == cap)
-            return fn_err_set(FN_ENOMEM, "the hierarchy needs more than %u nodes", MAX_NODES);
-        obb_node *nn = realloc(b->nodes, cap * sizeof *nn);
-        if (nn)
-            b->nodes = nn;
-        uint32_t *nc = realloc(b->cell, cap * sizeof *nc);
-        if (nc)
-            b->cell = nc;
-        uint8_t *nl = realloc(b->lvl, cap), *nd = nl ? realloc(b->dep, cap) : NULL;
-        if (nl)
-            b->lvl = nl;
-        if (nd)
-            b->dep = nd;
-        if (!nn || !nc || !nl || !nd)
-            return fn_err_set(FN_ENOMEM, "out of memory for %zu hierarchy nodes", cap);
-        b->cap = cap;
-    }
+    size_t cap = b->cap ? 2 * b->cap : 1024;
+    if (cap > MAX_NODES)
+        cap = MAX_NODES;
+    if (b->n == cap)
+        return fn_err_set(FN_ENOMEM, "the hierarchy needs more than %u nodes", MAX_NODES);
+    obb_node *nn = realloc(b->nodes, cap * sizeof *nn);
+    if (nn)
+        b->nodes = nn;
+    pending *np = realloc(b->pend, cap * sizeof *np);
+    if (np)
+        b->pend = np;
+    if (!nn || !np)
+        return fn_err_set(FN_ENOMEM, "out of memory for %zu hierarchy nodes", cap);
+    b->cap = cap;
+    return 0;
+}
+
+static int emit(builder *b, int l, const uint16_t c[3], int depth)
+{
+    int rc = b->n == b->cap ? grow(b) : 0;
+    if (rc)
+        return rc;
     obb_node *o = &b->nodes[b->n];
-    int c[3];
-    coords(&b->lv[l], idx, c);
-    cell_box(b, l, idx, c, o->lo, o->hi);
-    uint8_t mn = cell_mn(b, l, idx), mx = cell_mx(b, l, idx);
-    if (l == 0 || mn == 255)
+    cell_box(b, l, c, o->lo, o->hi);
+    uint8_t mx = cell_mx(b, l, c);
+    if (l == 0 || cell_mn(b, l, c) == 255)
         o->info = 0x80000000u | mx;
     else
         o->info = (uint32_t)((mx * 15 + 254) / 255) << 24;
-    b->cell[b->n] = (uint32_t)idx;
-    b->lvl[b->n] = (uint8_t)l;
-    b->dep[b->n] = depth;
-    b->n++;
+    pending *p = &b->pend[b->n++];
+    memcpy(p->c, c, sizeof p->c);
+    p->level = (uint8_t)l;
+    p->depth = (uint8_t)depth;
     return 0;
 }
 
@@ -230,26 +231,29 @@ static int emit(builder *b, int l, size_t idx, uint8_t depth)
 static int prune(builder *b, int *depth)
 {
     int l = b->top;
-    size_t idx = 0;
+    uint16_t c[3] = {0, 0, 0};
     *depth = 0;
-    if (!cell_mx(b, l, idx))
+    if (!cell_mx(b, l, c))
         return 0;
-    collapse(b, &l, &idx);
-    int rc = emit(b, l, idx, 1);
+    collapse(b, &l, c);
+    int rc = emit(b, l, c, 1);
     for (size_t i = 0; rc == 0 && i < b->n; i++) {
-        *depth = b->dep[i] > *depth ? b->dep[i] : *depth;
+        pending p = b->pend[i];
+        *depth = p.depth > *depth ? p.depth : *depth;
         if (b->nodes[i].info & 0x80000000u)
             continue;
-        size_t kid[8];
-        int nk = children(b, b->lvl[i], b->cell[i], kid);
+        uint8_t m = b->lv[p.level].mask[cidx(&b->lv[p.level], p.c)];
         size_t first = b->n;
-        if (first >= MAX_NODES)
-            return fn_err_set(FN_ENOMEM, "the hierarchy needs more than %u nodes", MAX_NODES);
-        for (int k = 0; k < nk && rc == 0; k++) {
-            int cl = b->lvl[i] - 1;
-            size_t ci = kid[k];
-            collapse(b, &cl, &ci);
-            rc = emit(b, cl, ci, (uint8_t)(b->dep[i] + 1));
+        int nk = 0;
+        for (int bit = 0; bit < 8 && rc == 0; bit++) {
+            if (!(m >> bit & 1))
+                continue;
+            int cl = p.level - 1;
+            uint16_t cc[3];
+            child(p.c, bit, cc);
+            collapse(b, &cl, cc);
+            rc = emit(b, cl, cc, p.depth + 1);
+            nk++;
         }
         b->nodes[i].info |= (uint32_t)first | (uint32_t)(nk - 1) << 28;
     }
@@ -259,20 +263,20 @@ static int prune(builder *b, int *depth)
 static int alloc_levels(builder *b, const int d0[3])
 {
     int d[3] = {d0[0], d0[1], d0[2]};
-    b->lv[0].dim[0] = d[0], b->lv[0].dim[1] = d[1], b->lv[0].dim[2] = d[2];
+    memcpy(b->lv[0].dim, d0, sizeof b->lv[0].dim);
     b->top = 0;
     while (d[0] > 1 || d[1] > 1 || d[2] > 1) {
         int l = ++b->top;
         for (int i = 0; i < 3; i++)
             d[i] = (d[i] + 1) / 2, b->lv[l].dim[i] = d[i];
         size_t n = cells(d);
-        b->lv[l].mn = malloc(n);
-        b->lv[l].mx = malloc(n);
-        if (l == 1)
-            b->lv[l].mask = malloc(n);
-        else
-            b->lv[l].box = malloc(n * sizeof *b->lv[l].box);
-        if (!b->lv[l].mn || !b->lv[l].mx || (l == 1 ? !b->lv[l].mask : !b->lv[l].box))
+        level *L = &b->lv[l];
+        L->mn = malloc(n);
+        L->mx = malloc(n);
+        L->mask = malloc(n);
+        if (l >= 2)
+            L->box = malloc(n * sizeof *L->box);
+        if (!L->mn || !L->mx || !L->mask || (l >= 2 && !L->box))
             return fn_err_set(FN_ENOMEM, "out of memory for the hierarchy pyramid (%zu cells)", n);
     }
     return 0;
@@ -286,9 +290,7 @@ static void builder_free(builder *b)
         free(b->lv[l].mask);
         free(b->lv[l].box);
     }
-    free(b->cell);
-    free(b->lvl);
-    free(b->dep);
+    free(b->pend);
 }
 
 static int check_input(const frag *f, const obb_params *p)
@@ -321,7 +323,7 @@ obb_tree *obb_tree_build(const frag *f, const obb_params *params)
     int rc = t ? alloc_levels(&b, f->dim) : fn_err_set(FN_ENOMEM, "out of memory for a tree");
     if (rc == 0) {
         if (b.top >= 1)
-            level1(&b, f->dim);
+            level1(&b);
         for (int l = 2; l <= b.top; l++)
             level_up(&b, l);
         rc = prune(&b, &t->depth);

@@ -72,6 +72,9 @@ typedef struct obb_query {
     obb_pair *pairs;     /* caller-owned buffer for want_pairs */
     size_t max_pairs;
     int order;           /* OBB_DEPTH_FIRST (default) or OBB_BREADTH_FIRST */
+    int inner_axes;      /* axes tried on inner boxes: 0 or 6 = face axes only (default, fastest:
+                          * edge axes rarely reject there), 15 = Gottschalk's full test. Voxel
+                          * pairs always get all 15; the answer is the same either way. */
 } obb_query;
 
 typedef struct obb_result {

@@ -9,8 +9,6 @@
 #define BRICK 8
 #define MARGIN 1e-6 /* mm added to every pruning box: pruning must never drop a real pair */
 
-static const int NEXT[3] = {1, 2, 0}, PREV[3] = {2, 0, 1};
-
 void obb__rel_make(obb__rel *rel, const pose *a_world, const pose *b_world)
 {
     pose ab = pose_compose(pose_inverse(*a_world), *b_world);
@@ -25,47 +23,6 @@ void obb__rel_make(obb__rel *rel, const pose *a_world, const pose *b_world)
         }
 }
 
-int obb__sat(const obb__rel *rel, int exact, const double ca[3], const double ha[3],
-             const double cb[3], const double hb[3], int full, double *gap)
-{
-    const double(*R)[3] = rel->R, (*AR)[3] = exact ? rel->AR0 : rel->AR;
-    double slack = exact ? 0 : OBB__SLACK;
-    double T[3], best = -INFINITY, s;
-    for (int i = 0; i < 3; i++)
-        T[i] = R[i][0] * cb[0] + R[i][1] * cb[1] + R[i][2] * cb[2] + rel->t[i] - ca[i];
-#define AXIS(expr)                                                                                 \
-    do {                                                                                           \
-        s = (expr);                                                                                \
-        if (s >= slack && !full) {                                                                 \
-            if (gap)                                                                               \
-                *gap = s;                                                                          \
-            return 0;                                                                              \
-        }                                                                                          \
-        best = s > best ? s : best;                                                                \
-    } while (0)
-    for (int i = 0; i < 3; i++)
-        AXIS(fabs(T[i]) - (ha[i] + hb[0] * AR[i][0] + hb[1] * AR[i][1] + hb[2] * AR[i][2]));
-    for (int j = 0; j < 3; j++)
-        AXIS(fabs(T[0] * R[0][j] + T[1] * R[1][j] + T[2] * R[2][j]) -
-             (ha[0] * AR[0][j] + ha[1] * AR[1][j] + ha[2] * AR[2][j] + hb[j]));
-    for (int i = 0; i < 3; i++) {
-        int i1 = NEXT[i], i2 = PREV[i];
-        for (int j = 0; j < 3; j++) {
-            double inv = rel->inv_len[i][j];
-            if (inv == 0)
-                continue;
-            int j1 = NEXT[j], j2 = PREV[j];
-            AXIS((fabs(T[i2] * R[i1][j] - T[i1] * R[i2][j]) -
-                  (ha[i1] * AR[i2][j] + ha[i2] * AR[i1][j] + hb[j1] * AR[i][j2] +
-                   hb[j2] * AR[i][j1])) * inv);
-        }
-    }
-#undef AXIS
-    if (gap)
-        *gap = best;
-    return best < slack;
-}
-
 int obb_box_overlap(const double R[3][3], const double t[3], const double ca[3], const double ha[3],
                     const double cb[3], const double hb[3], double *gap)
 {
@@ -74,7 +31,11 @@ int obb_box_overlap(const double R[3][3], const double t[3], const double ca[3],
     pose p = pose_from_matrix(m, t), id = POSE_IDENTITY;
     obb__rel rel;
     obb__rel_make(&rel, &id, &p);
-    return obb__sat(&rel, 1, ca, ha, cb, hb, 1, gap);
+    double bt[3], T[3];
+    obb__carry(&rel, cb, bt);
+    for (int i = 0; i < 3; i++)
+        T[i] = bt[i] - ca[i];
+    return obb__sat(&rel, 1, 1, T, ha, hb, 1, gap);
 }
 
 int obb__check_query(const obb_query *q, const double sa[3], const double sb[3])
@@ -90,6 +51,8 @@ int obb__check_query(const obb_query *q, const double sa[3], const double sb[3])
     if (q->want_pairs && !q->pairs && q->max_pairs)
         return fn_err_set(FN_EINVAL, "obb query: want_pairs with max_pairs %zu but no pairs buffer",
                           q->max_pairs);
+    if (q->inner_axes != 0 && q->inner_axes != 6 && q->inner_axes != 15)
+        return fn_err_set(FN_EINVAL, "obb query: inner_axes %d is not 0, 6 or 15", q->inner_axes);
     if (q->order != OBB_DEPTH_FIRST && q->order != OBB_BREADTH_FIRST)
         return fn_err_set(FN_EINVAL, "obb query: order %d is neither depth- nor breadth-first",
                           q->order);
@@ -121,11 +84,11 @@ typedef struct brute {
 /* B's box [lo, hi] misses A's whole crop when its A-frame bounding box does. */
 static int outside_a(const brute *c, const uint16_t lo[3], const uint16_t hi[3])
 {
-    double cb[3], hb[3];
+    double cb[3], hb[3], bt[3];
     obb__box(lo, hi, c->b->spacing, c->tol, cb, hb);
+    obb__carry(&c->rel, cb, bt);
     for (int i = 0; i < 3; i++) {
-        const double *R = c->rel.R[i], *AR = c->rel.AR[i];
-        double x = R[0] * cb[0] + R[1] * cb[1] + R[2] * cb[2] + c->rel.t[i];
+        const double *AR = c->rel.AR[i], x = bt[i];
         double e = AR[0] * hb[0] + AR[1] * hb[1] + AR[2] * hb[2] + MARGIN;
         double s = c->a->spacing[i], alo = -c->ha[i], ahi = (c->a->dim[i] - 1) * s + c->ha[i];
         if (x + e <= alo || x - e >= ahi)
@@ -137,15 +100,15 @@ static int outside_a(const brute *c, const uint16_t lo[3], const uint16_t hi[3])
 /* Every A voxel whose box can meet B voxel vb; returns 1 when the query is settled. */
 static int test_voxel(brute *c, const uint16_t vb[3], int eb)
 {
-    double cb[3], hb[3], x[3], e[3];
+    double cb[3], hb[3], bt[3], e[3];
     int lo[3], hi[3];
     obb__box(vb, vb, c->b->spacing, c->tol, cb, hb);
+    obb__carry(&c->rel, cb, bt);
     for (int i = 0; i < 3; i++) {
-        const double *R = c->rel.R[i], *AR = c->rel.AR[i], s = c->a->spacing[i];
-        x[i] = R[0] * cb[0] + R[1] * cb[1] + R[2] * cb[2] + c->rel.t[i];
+        const double *AR = c->rel.AR[i], s = c->a->spacing[i];
         e[i] = AR[0] * hb[0] + AR[1] * hb[1] + AR[2] * hb[2] + c->ha[i] + MARGIN;
-        lo[i] = (int)fmax(floor((x[i] - e[i]) / s), 0);
-        hi[i] = (int)fmin(ceil((x[i] + e[i]) / s), c->a->dim[i] - 1);
+        lo[i] = (int)fmax(floor((bt[i] - e[i]) / s), 0);
+        hi[i] = (int)fmin(ceil((bt[i] + e[i]) / s), c->a->dim[i] - 1);
     }
     const int *d = c->a->dim;
     for (int k = lo[2]; k <= hi[2]; k++)
@@ -155,10 +118,12 @@ static int test_voxel(brute *c, const uint16_t vb[3], int eb)
                 if (!ea || ea * eb < c->thr)
                     continue;
                 uint16_t va[3] = {(uint16_t)i, (uint16_t)j, (uint16_t)k};
-                double ca[3], ha[3], gap;
+                double ca[3], ha[3], T[3], gap;
                 obb__box(va, va, c->a->spacing, c->tol, ca, ha);
+                for (int a = 0; a < 3; a++)
+                    T[a] = bt[a] - ca[a];
                 c->r->tests++;
-                if (!obb__sat(&c->rel, 1, ca, ha, cb, hb, 1, &gap))
+                if (!obb__sat(&c->rel, 1, 1, T, ha, hb, 1, &gap))
                     continue;
                 obb_result *r = c->r;
                 if (c->want_pairs && r->npairs < c->q->max_pairs) {

@@ -29,13 +29,58 @@ static inline void obb__box(const uint16_t lo[3], const uint16_t hi[3], const do
     }
 }
 
-/* The 15-axis separating-axis test. B's centre cb is in B's frame. exact: |R| and slack 0, returns 1
- * when the open boxes overlap; else |R| + eps and OBB__SLACK, returns 0 only when an axis separates
- * them by OBB__SLACK or more (never rejects what the exact test accepts). *gap (when non-NULL and full): the largest
- * per-axis gap / |axis|, a lower bound on the distance when apart, minus the smallest overlap depth
- * when overlapping; without full it stops at the first separating axis and gives that axis' gap. */
-int obb__sat(const obb__rel *rel, int exact, const double ca[3], const double ha[3],
-             const double cb[3], const double hb[3], int full, double *gap);
+/* B's box centre cb (B's frame) carried into A's frame: bt = R cb + t. The offset to A's centre is
+ * then T = bt - ca; every path computes it in this order so voxel tests agree bit for bit. */
+static inline void obb__carry(const obb__rel *rel, const double cb[3], double bt[3])
+{
+    for (int i = 0; i < 3; i++)
+        bt[i] = rel->R[i][0] * cb[0] + rel->R[i][1] * cb[1] + rel->R[i][2] * cb[2] + rel->t[i];
+}
+
+/* The 15-axis separating-axis test on the centre offset T = bt - ca (A's frame) and the
+ * half-extents. exact: all 15 axes, |R| and slack 0, returns 1 when the open boxes overlap; else
+ * |R| + eps and OBB__SLACK, the 9 edge axes only with edges, and returns 0 only when an axis
+ * separates them by OBB__SLACK or more (so it never rejects what the exact test accepts). *gap (when non-NULL and full): the largest per-axis gap / |axis|,
+ * a lower bound on the distance when apart, minus the smallest overlap depth when overlapping;
+ * without full it stops at the first separating axis and gives that axis' gap. */
+static inline int obb__sat(const obb__rel *rel, int exact, int edges, const double T[3],
+                           const double ha[3], const double hb[3], int full, double *gap)
+{
+    const double(*R)[3] = rel->R, (*AR)[3] = exact ? rel->AR0 : rel->AR;
+    double slack = exact ? 0 : OBB__SLACK;
+    double best = -INFINITY, s;
+#define AXIS(expr)                                                                                 \
+    do {                                                                                           \
+        s = (expr);                                                                                \
+        if (s >= slack && !full) {                                                                 \
+            if (gap)                                                                               \
+                *gap = s;                                                                          \
+            return 0;                                                                              \
+        }                                                                                          \
+        best = s > best ? s : best;                                                                \
+    } while (0)
+    for (int i = 0; i < 3; i++)
+        AXIS(fabs(T[i]) - (ha[i] + hb[0] * AR[i][0] + hb[1] * AR[i][1] + hb[2] * AR[i][2]));
+    for (int j = 0; j < 3; j++)
+        AXIS(fabs(T[0] * R[0][j] + T[1] * R[1][j] + T[2] * R[2][j]) -
+             (ha[0] * AR[0][j] + ha[1] * AR[1][j] + ha[2] * AR[2][j] + hb[j]));
+    for (int i = 0; i < 3 && (edges || exact); i++) {
+        int i1 = (i + 1) % 3, i2 = (i + 2) % 3;
+        for (int j = 0; j < 3; j++) {
+            double inv = rel->inv_len[i][j];
+            if (inv == 0)
+                continue;
+            int j1 = (j + 1) % 3, j2 = (j + 2) % 3;
+            AXIS((fabs(T[i2] * R[i1][j] - T[i1] * R[i2][j]) -
+                  (ha[i1] * AR[i2][j] + ha[i2] * AR[i1][j] + hb[j1] * AR[i][j2] +
+                   hb[j2] * AR[i][j1])) * inv);
+        }
+    }
+#undef AXIS
+    if (gap)
+        *gap = best;
+    return best < slack;
+}
 
 /* Smallest integer probability product (pa*pb, bytes) that reaches the threshold. */
 static inline int obb__threshold(double threshold)

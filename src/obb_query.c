@@ -18,7 +18,7 @@ typedef struct ctx {
     obb__rel rel;
     const obb_node *na, *nb;
     double sa[3], sb[3], tol;
-    int thr, want_pairs;
+    int thr, want_pairs, edges;
     const obb_query *q;
     obb_result *r;
     obb_cache *cache;
@@ -97,35 +97,51 @@ static void record(ctx *c, const obb_node *a, const obb_node *b, double gap)
     }
 }
 
-/* Tests one pair. Returns 1 when it must be split (and puts the node to split first in *which:
- * 0 = a, 1 = b), 0 when it is settled (rejected or a colliding voxel pair recorded). */
-static int visit(ctx *c, const obb_node *a, const obb_node *b, int *which)
+static void box_a(const ctx *c, const obb_node *a, double ca[3], double ha[3])
+{
+    obb__box(a->lo, a->hi, c->sa, c->tol, ca, ha);
+}
+
+/* B's box with its centre carried into A's frame. */
+static void box_b(const ctx *c, const obb_node *b, double bt[3], double hb[3])
+{
+    double cb[3];
+    obb__box(b->lo, b->hi, c->sb, c->tol, cb, hb);
+    obb__carry(&c->rel, cb, bt);
+}
+
+/* Tests one pair. Returns 1 when it must be split, 0 when it is settled: rejected (its gap
+ * lowers the separation bound) or a colliding voxel pair (recorded). Voxel pairs get the exact
+ * test, inner pairs the conservative one; a first-axis gap is a valid bound, refined over all 15
+ * axes only when it could lower the minimum. */
+static int test(ctx *c, const obb_node *a, const double ca[3], const double ha[3],
+                const obb_node *b, const double bt[3], const double hb[3])
 {
     if (pmax(a) * pmax(b) < c->thr)
         return 0;
-    double ca[3], ha[3], cb[3], hb[3], gap;
-    obb__box(a->lo, a->hi, c->sa, c->tol, ca, ha);
-    obb__box(b->lo, b->hi, c->sb, c->tol, cb, hb);
+    double T[3] = {bt[0] - ca[0], bt[1] - ca[1], bt[2] - ca[2]}, gap;
+    int exact = is_voxel(a) && is_voxel(b);
     c->r->tests++;
-    int va = is_voxel(a), vb = is_voxel(b);
-    /* Voxel pairs get the exact test, inner pairs the conservative one; a first-axis gap is a
-     * valid bound, refined over all 15 axes only when it could lower the minimum. */
-    int exact = va && vb;
-    if (obb__sat(&c->rel, exact, ca, ha, cb, hb, 0, &gap)) {
+    if (obb__sat(&c->rel, exact, c->edges, T, ha, hb, 0, &gap)) {
         if (!exact)
-            goto split;
-        obb__sat(&c->rel, 1, ca, ha, cb, hb, 1, &gap);
+            return 1;
+        obb__sat(&c->rel, 1, 1, T, ha, hb, 1, &gap);
         record(c, a, b, gap);
         return 0;
     }
     if (gap < c->best_gap) {
-        obb__sat(&c->rel, exact, ca, ha, cb, hb, 1, &gap);
+        obb__sat(&c->rel, exact, c->edges, T, ha, hb, 1, &gap);
         c->best_gap = gap < c->best_gap ? gap : c->best_gap;
     }
     return 0;
-split:
-    *which = va ? 1 : vb ? 0 : volume(b, c->sb) > volume(a, c->sa);
-    return 1;
+}
+
+static int test_pair(ctx *c, const npair *p)
+{
+    double ca[3], ha[3], bt[3], hb[3];
+    box_a(c, &p->a, ca, ha);
+    box_b(c, &p->b, bt, hb);
+    return test(c, &p->a, ca, ha, &p->b, bt, hb);
 }
 
 static int done(const ctx *c)
@@ -133,20 +149,34 @@ static int done(const ctx *c)
     return c->r->collides && !c->want_pairs;
 }
 
-static void push_split(ctx *c, const npair *p, int which, npair *out, int *n)
+/* Splits the larger node of p (never a voxel) and appends each child pair that needs splitting in
+ * turn to out (room for 8). The kept node's box is computed once. */
+static void expand(ctx *c, const npair *p, npair *out, int *n)
 {
+    int va = is_voxel(&p->a), vb = is_voxel(&p->b);
+    int split_b = va ? 1 : vb ? 0 : volume(&p->b, c->sb) > volume(&p->a, c->sa);
     obb_node kid[8];
-    int k = split(c, which ? &p->b : &p->a, which ? c->nb : c->na, kid);
-    for (int i = 0; i < k; i++) {
-        out[*n] = *p;
-        if (which)
-            out[*n].b = kid[i];
-        else
-            out[*n].a = kid[i];
-        (*n)++;
+    double ca[3], ha[3], bt[3], hb[3];
+    if (split_b) {
+        box_a(c, &p->a, ca, ha);
+        int k = split(c, &p->b, c->nb, kid);
+        for (int i = 0; i < k && !done(c); i++) {
+            box_b(c, &kid[i], bt, hb);
+            if (test(c, &p->a, ca, ha, &kid[i], bt, hb))
+                out[(*n)++] = (npair){p->a, kid[i]};
+        }
+    } else {
+        box_b(c, &p->b, bt, hb);
+        int k = split(c, &p->a, c->na, kid);
+        for (int i = 0; i < k && !done(c); i++) {
+            box_a(c, &kid[i], ca, ha);
+            if (test(c, &kid[i], ca, ha, &p->b, bt, hb))
+                out[(*n)++] = (npair){kid[i], p->b};
+        }
     }
 }
 
+/* Pairs on the stack have passed their test and wait to be split. */
 static void depth_first(ctx *c, const npair *start)
 {
     npair stack[STACK];
@@ -154,9 +184,7 @@ static void depth_first(ctx *c, const npair *start)
     stack[n++] = *start;
     while (n > 0 && !done(c)) {
         npair p = stack[--n];
-        int which;
-        if (visit(c, &p.a, &p.b, &which))
-            push_split(c, &p, which, stack, &n);
+        expand(c, &p, stack, &n);
     }
 }
 
@@ -166,22 +194,16 @@ static void breadth_first(ctx *c, const npair *start)
     size_t head = 0, count = 1;
     ring[0] = *start;
     while (count > 0 && !done(c)) {
-        npair p = ring[head];
+        npair p = ring[head], kids[8];
         head = (head + 1) % QUEUE;
         count--;
-        int which;
-        if (!visit(c, &p.a, &p.b, &which))
-            continue;
-        npair kids[8];
         int k = 0;
-        push_split(c, &p, which, kids, &k);
+        expand(c, &p, kids, &k);
         for (int i = 0; i < k; i++) {
-            if (count < QUEUE) {
-                ring[(head + count) % QUEUE] = kids[i];
-                count++;
-            } else {
+            if (count < QUEUE)
+                ring[(head + count++) % QUEUE] = kids[i];
+            else
                 depth_first(c, &kids[i]);
-            }
         }
     }
 }
@@ -217,6 +239,7 @@ int obb_collide(const obb_tree *a, const pose *a_world, const obb_tree *b, const
     c.thr = obb__threshold(c.q->threshold);
     c.tol = c.q->tolerance_mm;
     c.want_pairs = c.q->want_pairs;
+    c.edges = c.q->inner_axes == 15;
     memcpy(c.sa, obb_tree_spacing(a), sizeof c.sa);
     memcpy(c.sb, obb_tree_spacing(b), sizeof c.sb);
     if (!obb_tree_nodes(a) || !obb_tree_nodes(b)) {
@@ -224,11 +247,10 @@ int obb_collide(const obb_tree *a, const pose *a_world, const obb_tree *b, const
         return 0;
     }
     obb__rel_make(&c.rel, a_world, b_world);
-    int which;
     if (cache && cache->has_witness && !c.want_pairs) {
-        obb_node wa = cache->wa, wb = cache->wb;
+        npair w = {cache->wa, cache->wb};
         cache->has_witness = 0;
-        visit(&c, &wa, &wb, &which);
+        test_pair(&c, &w);
         if (done(&c)) {
             r->separation_mm = c.pen;
             return 0;
@@ -236,10 +258,12 @@ int obb_collide(const obb_tree *a, const pose *a_world, const obb_tree *b, const
         c.best_gap = INFINITY; /* a witness gap says nothing about the other pairs */
     }
     npair root = {c.na[0], c.nb[0]};
-    if (c.q->order == OBB_BREADTH_FIRST)
-        breadth_first(&c, &root);
-    else
-        depth_first(&c, &root);
+    if (test_pair(&c, &root)) {
+        if (c.q->order == OBB_BREADTH_FIRST)
+            breadth_first(&c, &root);
+        else
+            depth_first(&c, &root);
+    }
     if (r->collides)
         r->separation_mm = c.pen;
     else

@@ -385,7 +385,8 @@ static void run_random(int frags, int poses_each, int maxdim, int aniso, double 
             obb_query q = {.threshold = urand() < 0.5 ? 0 : urand() * 0.6,
                            .tolerance_mm = urand() < 0.5 ? 0 : 0.2 * smin * urand(),
                            .want_pairs = k % 4 == 0,
-                           .order = k % 3 == 0 ? OBB_BREADTH_FIRST : OBB_DEPTH_FIRST};
+                           .order = k % 3 == 0 ? OBB_BREADTH_FIRST : OBB_DEPTH_FIRST,
+                           .inner_axes = k % 5 == 0 ? 15 : 0};
             compare_pose(fa, ta, fb, tb, &prm, &pa, &pb, &q, k % 2 ? &cache : NULL, tl);
         }
         obb_tree_free(ta);
