@@ -250,8 +250,13 @@ int dev_poll(dev_device *d, dev_event *ev, int timeout_ms)
     for (int i = 0; i < DRAIN_MAX; i++) {
         int64_t t_us = 0;
         int n = d->t->read(d->h, buf, sizeof buf, i == 0 ? timeout_ms : 0, &t_us);
-        if (n == FN_ENODEV) {
-            lost(d, ev);
+        if (n == FN_ENODEV) { /* keep the edges of what came before the unplug */
+            dev_event u;
+            lost(d, &u);
+            if (got)
+                devparse_merge(ev, &u);
+            else
+                *ev = u;
             return 1;
         }
         if (n < 0)

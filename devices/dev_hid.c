@@ -77,22 +77,24 @@ static int hid_enum(dev_info *out, size_t cap)
     return n;
 }
 
-/* Why a node cannot be opened: absent (ENODEV) or not ours to open (permissions -> udev rule). */
-static int open_error(const char *path)
+/* Checks a node before hidapi sees it: hidapi 0.13.1 crashes in hid_open_path on a file that is
+ * not a hidraw node. Absent -> FN_ENODEV; not ours to open -> FN_EIO naming the udev rule. */
+static int check_node(const char *path)
 {
-    if (path[0] != '/')
-        return fn_err_set(FN_ENODEV, "%s: hidapi (%s) cannot open it: %ls", path, HID_NAME, hid_error(NULL));
-    int fd = open(path, O_RDWR | O_CLOEXEC);
-    int e = errno;
-    if (fd >= 0) {
-        close(fd);
-        return fn_err_set(FN_EIO, "%s: hidapi (%s) cannot open it: %ls", path, HID_NAME, hid_error(NULL));
+    int fd = open(path, O_RDWR | O_CLOEXEC | O_NONBLOCK);
+    if (fd < 0) {
+        int e = errno;
+        if (e == ENOENT || e == ENODEV || e == ENXIO)
+            return fn_err_set(FN_ENODEV, "%s: %s", path, strerror(e));
+        if (e == EACCES || e == EPERM)
+            return fn_err_set(FN_EIO, "%s: %s: %s", path, strerror(e), UDEV_HINT);
+        return fn_err_set(FN_EIO, "%s: %s", path, strerror(e));
     }
-    if (e == ENOENT || e == ENODEV || e == ENXIO)
-        return fn_err_set(FN_ENODEV, "%s: %s", path, strerror(e));
-    if (e == EACCES || e == EPERM)
-        return fn_err_set(FN_EIO, "%s: %s: %s", path, strerror(e), UDEV_HINT);
-    return fn_err_set(FN_EIO, "%s: %s", path, strerror(e));
+    int size = 0, rc = ioctl(fd, HIDIOCGRDESCSIZE, &size);
+    close(fd);
+    if (rc != 0)
+        return fn_err_set(FN_EIO, "%s: not a hidraw device (HIDIOCGRDESCSIZE fails)", path);
+    return 0;
 }
 
 static int hid_open_dev(const char *path, dev_handle **out)
@@ -106,9 +108,12 @@ static int hid_open_dev(const char *path, dev_handle **out)
             return fn_err_set(FN_ENODEV, "no supported 6-DOF HID device found (%s)", HID_NAME);
         path = first.path;
     }
+    int rc = path[0] == '/' ? check_node(path) : 0;
+    if (rc)
+        return rc;
     hid_device *dev = hid_open_path(path);
     if (!dev)
-        return open_error(path);
+        return fn_err_set(FN_EIO, "%s: hidapi (%s) cannot open it: %ls", path, HID_NAME, hid_error(NULL));
     dev_handle *h = calloc(1, sizeof *h);
     if (!h) {
         hid_close(dev);

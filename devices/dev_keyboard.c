@@ -20,13 +20,15 @@
 #define KEY_HOLD_MS 150
 #define KEY_LEVEL 250 /* of the row's 350: a brisk but controllable speed */
 
+enum { PENDING_MOTION = 1, PENDING_BUTTONS = 2 };
+
 struct dev_handle {
     int fd, own_fd, raw_mode;
     struct termios saved;
     int v[6];
     uint32_t buttons;
     int64_t release_us; /* when held axes and buttons drop back to zero */
-    int pending_zero;
+    unsigned pending;   /* PENDING_*: reports still to send */
 };
 
 static int kb_open(const char *path, dev_handle **out)
@@ -76,47 +78,63 @@ static int key_axis(char c, int *sign)
 static void apply_key(dev_handle *h, char c, int64_t now)
 {
     int sign, a = key_axis(c, &sign);
-    if (a >= 0)
+    if (a >= 0) {
         h->v[a] = sign * KEY_LEVEL;
-    else if (c >= '1' && c <= '8')
+        h->pending |= PENDING_MOTION;
+    } else if (c >= '1' && c <= '8') {
         h->buttons |= 1u << (c - '1');
-    else if (c == ' ' || c == 'x')
+        h->pending |= PENDING_BUTTONS;
+    } else if (c == ' ' || c == 'x') {
         memset(h->v, 0, sizeof h->v);
+        h->pending |= PENDING_MOTION;
+    }
     h->release_us = now + KEY_HOLD_MS * 1000;
+}
+
+/* Sends what changed, one report per call: motion first, then buttons. */
+static int next_report(dev_handle *h, uint8_t *buf)
+{
+    if (h->pending & PENDING_MOTION) {
+        h->pending &= ~PENDING_MOTION;
+        return (int)devparse_make_combined(buf, h->v);
+    }
+    if (h->pending & PENDING_BUTTONS) {
+        h->pending &= ~PENDING_BUTTONS;
+        return (int)devparse_make_buttons(buf, h->buttons);
+    }
+    return 0;
+}
+
+static int held(const dev_handle *h)
+{
+    return h->buttons || h->v[0] || h->v[1] || h->v[2] || h->v[3] || h->v[4] || h->v[5];
 }
 
 static int kb_read(dev_handle *h, uint8_t *buf, size_t cap, int timeout_ms, int64_t *t_us)
 {
     if (cap < 13)
         return fn_err_set(FN_EINVAL, "keyboard: report buffer under 13 bytes");
-    int64_t now = dev_now_us();
-    int held = h->buttons || h->v[0] || h->v[1] || h->v[2] || h->v[3] || h->v[4] || h->v[5];
-    if (held && h->release_us > now) {
-        int left_ms = (int)((h->release_us - now + 999) / 1000);
+    *t_us = dev_now_us();
+    if (h->pending)
+        return next_report(h, buf);
+    if (held(h)) { /* wake up when the hold expires */
+        int left_ms = h->release_us > *t_us ? (int)((h->release_us - *t_us + 999) / 1000) : 0;
         timeout_ms = timeout_ms < 0 || timeout_ms > left_ms ? left_ms : timeout_ms;
     }
     struct pollfd p = {h->fd, POLLIN, 0};
-    int r = poll(&p, 1, held && h->release_us <= now ? 0 : timeout_ms);
-    *t_us = now = dev_now_us();
     char keys[32];
-    ssize_t n = r > 0 ? read(h->fd, keys, sizeof keys) : 0;
-    if (n > 0) {
-        uint32_t before = h->buttons;
-        for (ssize_t i = 0; i < n; i++)
-            apply_key(h, keys[i], now);
-        if (h->buttons != before)
-            return (int)devparse_make_buttons(buf, h->buttons);
-        return (int)devparse_make_combined(buf, h->v);
-    }
-    if (held && now >= h->release_us) {
-        uint32_t b = h->buttons;
+    ssize_t n = poll(&p, 1, timeout_ms) > 0 ? read(h->fd, keys, sizeof keys) : 0;
+    if (n == 0 && p.revents && timeout_ms != 0) /* end of a key file: wait like a quiet terminal */
+        usleep((useconds_t)(timeout_ms < 0 ? 10 : timeout_ms) * 1000);
+    *t_us = dev_now_us();
+    for (ssize_t i = 0; i < n; i++)
+        apply_key(h, keys[i], *t_us);
+    if (n <= 0 && held(h) && *t_us >= h->release_us) {
+        h->pending = (h->buttons ? PENDING_BUTTONS : 0) | PENDING_MOTION;
         h->buttons = 0;
-        if (b)
-            return (int)devparse_make_buttons(buf, 0);
         memset(h->v, 0, sizeof h->v);
-        return (int)devparse_make_combined(buf, h->v);
     }
-    return 0;
+    return next_report(h, buf);
 }
 
 static int kb_info(dev_handle *h, dev_info *out)

@@ -91,9 +91,12 @@ static int spnav_read_dev(dev_handle *h, uint8_t *buf, size_t cap, int timeout_m
     }
 }
 
+/* The LED needs protocol v1 (a request to the daemon); under v0 it is silently absent. */
 static int spnav_write_dev(dev_handle *h, const uint8_t *buf, size_t len)
 {
-    if (len == 2 && buf[0] == 4 && h->proto >= 1)
+    if (len == 2 && buf[0] == 4 && h->proto < 1)
+        return 0;
+    if (len == 2 && buf[0] == 4)
         return spnav_cfg_set_led(buf[1] ? 1 : 0) == -1 ? fn_err_set(FN_EIO, "spnav: LED request refused") : 2;
     return fn_err_set(FN_EINVAL, "spnav: output report %u not supported (protocol v%d)", len ? buf[0] : 0,
                       h->proto);

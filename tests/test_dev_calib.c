@@ -1,0 +1,244 @@
+/* Calibration maths and the spnavrc reader. */
+#include <stdarg.h>
+#include <stddef.h>
+#include <setjmp.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+
+#include "calib.h"
+#include "testutil.h"
+
+static float one_axis(const calib *c, int axis, float v)
+{
+    float in[6] = {0}, out[6];
+    in[axis] = v;
+    calib_apply(c, in, out);
+    return out[axis];
+}
+
+/* No jump at the threshold: the output leaves 0 continuously and still reaches 1. */
+static void test_dead_zone_continuous(void **s)
+{
+    calib c;
+    calib_default(&c);
+    c.dead[0] = 0.1f;
+    assert_true(one_axis(&c, 0, 0.1f) == 0.0f);
+    assert_true(one_axis(&c, 0, 0.05f) == 0.0f);
+    float just = one_axis(&c, 0, 0.1001f);
+    assert_true(just > 0.0f && just < 1e-3f);
+    assert_true(fabsf(one_axis(&c, 0, 1.0f) - 1.0f) < 1e-6f);
+    assert_true(fabsf(one_axis(&c, 0, -1.0f) + 1.0f) < 1e-6f);
+    float prev = 0;
+    for (int i = 0; i <= 1000; i++) { /* monotone, and small steps in give small steps out */
+        float v = one_axis(&c, 0, (float)i / 1000.0f);
+        assert_true(v >= prev && v - prev < 0.0012f);
+        prev = v;
+    }
+}
+
+static void test_dominant_axis(void **s)
+{
+    calib c;
+    calib_default(&c);
+    c.dominant = 1;
+    float in[6] = {0.3f, -0.5f, 0.1f, 0.45f, 0, 0}, out[6];
+    calib_apply(&c, in, out);
+    for (int i = 0; i < 6; i++)
+        assert_true(i == 1 ? out[i] < -0.4f : out[i] == 0.0f);
+    c.lock = CALIB_LOCK_ROTATION; /* rotation only: the largest rotation wins */
+    calib_apply(&c, in, out);
+    for (int i = 0; i < 6; i++)
+        assert_true(i == 3 ? out[i] > 0.4f : out[i] == 0.0f);
+}
+
+static void test_locks_settings_and_buttons(void **s)
+{
+    calib c;
+    calib_default(&c);
+    float in[6] = {0.5f, 0.5f, 0.5f, 0.5f, 0.5f, 0.5f}, out[6];
+    c.lock = CALIB_LOCK_TRANSLATION;
+    calib_apply(&c, in, out);
+    assert_true(out[0] > 0 && out[3] == 0.0f && out[5] == 0.0f);
+    c.lock = CALIB_LOCK_NONE;
+    c.bnact[1] = CALIB_ACT_DISABLE_TRANSLATION;
+    dev_event ev = {0};
+    ev.buttons = ev.pressed = 1u << 1 | 1u << 0;
+    uint32_t pressed;
+    uint32_t state = calib_buttons(&c, &ev, &pressed, NULL);
+    assert_int_equal(state, 1u); /* the action button is consumed, button 0 passes */
+    assert_int_equal(pressed, 1u);
+    assert_int_equal(c.lock, CALIB_LOCK_ROTATION);
+    calib_apply(&c, in, out);
+    assert_true(out[0] == 0.0f && out[4] > 0);
+    calib_buttons(&c, &ev, NULL, NULL); /* pressing again toggles back */
+    assert_int_equal(c.lock, CALIB_LOCK_NONE);
+    /* Enterprise key 29 toggles dominant once per press, not per report while held. */
+    dev_event k = {0};
+    k.keys[0] = 29;
+    calib_buttons(&c, &k, NULL, NULL);
+    calib_buttons(&c, &k, NULL, NULL);
+    assert_int_equal(c.dominant, 1);
+}
+
+static void test_mapping_invert_swap_sensitivity(void **s)
+{
+    calib c;
+    calib_default(&c);
+    for (int i = 0; i < 6; i++)
+        c.dead[i] = 0;
+    c.map[0] = 2, c.map[2] = 0;  /* x <- z, z <- x */
+    c.invert = 1u << 1 | 1u << 3; /* -y, -rx */
+    c.swap_yz = 1;
+    c.sens = 2, c.sens_r = 0.5f, c.sens_axis[5] = 3;
+    float in[6] = {0.1f, 0.2f, 0.3f, 0.4f, 0.5f, 0.6f}, out[6];
+    calib_apply(&c, in, out);
+    /* after map: 0.3 0.2 0.1 | 0.4 0.5 0.6; swap: 0.3 0.1 0.2 | 0.4 0.6 0.5; invert y, rx */
+    const float want[6] = {0.6f, -0.2f, 0.4f, -0.4f, 0.6f, 1.5f};
+    for (int i = 0; i < 6; i++)
+        assert_true(fabsf(out[i] - want[i]) < 1e-6f);
+}
+
+static void test_cubic_and_zero_offset(void **s)
+{
+    calib c;
+    calib_default(&c);
+    c.dead[0] = 0;
+    c.response = CALIB_CUBIC;
+    c.cubic_mix = 1;
+    assert_true(fabsf(one_axis(&c, 0, 0.5f) - 0.125f) < 1e-6f);
+    assert_true(fabsf(one_axis(&c, 0, 1.0f) - 1.0f) < 1e-6f);
+    calib_default(&c);
+    const float drift[3][6] = {{0.02f, 0, 0, 0, 0, -0.03f}, {0.04f, 0, 0, 0, 0, -0.03f}, {0.03f, 0, 0, 0, 0, -0.03f}};
+    calib_zero_from(&c, drift, 3);
+    float out[6];
+    calib_apply(&c, drift[2], out);
+    for (int i = 0; i < 6; i++)
+        assert_true(out[i] == 0.0f); /* the drifting rest position reads as zero */
+    float v[6] = {0.03f, 0, 0, 0, 0, 0};
+    c.zero[0] = 0;
+    calib_do(&c, CALIB_ACT_ZERO, v);
+    assert_true(c.zero[0] == 0.03f);
+    calib_do(&c, CALIB_ACT_SENS_UP, NULL);
+    assert_true(c.sens > 1.0f);
+    calib_do(&c, CALIB_ACT_SENS_RESET, NULL);
+    assert_true(c.sens == 1.0f);
+}
+
+static const char rc_text[] =
+    "# a user's spacenavd file\n"
+    "sensitivity = 2.5\n"
+    "sensitivity-rotation-y = 0.5\n"
+    "dead-zone = 10\n"
+    "dead-zone3 = 35\n"
+    "invert-rot = yz\n"
+    "swap-yz = true\n"
+    "bnact0 = dominant-axis\n"
+    "bnmap1 = 5   # trailing comment\n"
+    "led = off\n"
+    "grab = false\n"
+    "this line has no equals\n"
+    "sensitivity = fast\n"
+    "dead-zone9 = 3\n"
+    "colour = blue\n"
+    "axismap0 = 2\n"
+    "disable-rotation = yes\n"
+    "response = cubic\n";
+
+static void test_spnavrc_reader(void **s)
+{
+    calib c;
+    calib_default(&c);
+    char diag[1024];
+    int bad = calib_parse_spnavrc(&c, rc_text, strlen(rc_text), "spnavrc", diag, sizeof diag);
+    assert_int_equal(bad, 4);
+    assert_non_null(strstr(diag, "spnavrc:12: expected 'key = value'"));
+    assert_non_null(strstr(diag, "spnavrc:13: bad value 'fast' for 'sensitivity'"));
+    assert_non_null(strstr(diag, "spnavrc:14: unknown key 'dead-zone9'"));
+    assert_non_null(strstr(diag, "spnavrc:15: unknown key 'colour'"));
+    assert_true(c.sens == 2.5f); /* the bad line kept the good value */
+    assert_true(c.sens_axis[4] == 0.5f);
+    assert_true(fabsf(c.dead[0] - 10 / 350.0f) < 1e-6f && fabsf(c.dead[3] - 0.1f) < 1e-6f);
+    assert_int_equal(c.invert, 1u << 4 | 1u << 5);
+    assert_int_equal(c.swap_yz, 1);
+    assert_int_equal(c.bnact[0], CALIB_ACT_DOMINANT);
+    assert_int_equal(c.bnmap[1], 5);
+    assert_int_equal(c.led, 0);
+    assert_int_equal(c.map[2], 0);
+    assert_int_equal(c.lock, CALIB_LOCK_TRANSLATION);
+    assert_int_equal(c.response, CALIB_CUBIC);
+    /* What we write reads back to the same calibration, with no bad line. */
+    char text[8192];
+    size_t n = calib_format_spnavrc(&c, text, sizeof text);
+    calib d;
+    calib_default(&d);
+    assert_int_equal(calib_parse_spnavrc(&d, text, n, "written", diag, sizeof diag), 0);
+    assert_true(d.sens == c.sens && d.invert == c.invert && d.lock == c.lock && d.map[2] == 0);
+    assert_true(fabsf(d.dead[3] - c.dead[3]) < 1e-6f && d.bnact[0] == c.bnact[0]);
+}
+
+static void test_spnavrc_hostile(void **s)
+{
+    calib c;
+    calib_default(&c);
+    char big[3000];
+    memset(big, 'a', sizeof big);
+    big[sizeof big - 1] = '\n';
+    char diag[64]; /* too small: truncated, still NUL-terminated */
+    assert_int_equal(calib_parse_spnavrc(&c, big, sizeof big, "x", diag, sizeof diag), 1);
+    assert_true(strlen(diag) < sizeof diag);
+    const char nul[] = "sensitivity = 3\0\nled = on\n";
+    assert_int_equal(calib_parse_spnavrc(&c, nul, sizeof nul - 1, "x", NULL, 0), 1);
+    assert_true(c.led == 1 && c.sens == 1.0f);
+    assert_int_equal(calib_parse_spnavrc(&c, "dead-zone = -1\nsensitivity = nan\nbnmap99 = 1\n", 44, "x", NULL, 0), 3);
+}
+
+static void test_load_falls_back(void **s)
+{
+    char *dir = tu_tmpdir("calib");
+    char *old = getenv("HOME") ? strdup(getenv("HOME")) : NULL;
+    setenv("HOME", dir, 1);
+    calib c;
+    calib_default(&c);
+    char used[512], diag[512], path[4096];
+    int rc = calib_load(&c, NULL, used, sizeof used, diag, sizeof diag);
+    assert_true(rc >= 0); /* no user file: /etc/spnavrc or defaults */
+    snprintf(path, sizeof path, "%s/.config", dir);
+    mkdir(path, 0700);
+    snprintf(path, sizeof path, "%s/.config/fracnav", dir);
+    mkdir(path, 0700);
+    snprintf(path, sizeof path, "%s/.config/fracnav/spnavrc", dir);
+    tu_write_file(path, "sensitivity = 4\nbogus\n", 22);
+    calib_default(&c);
+    assert_int_equal(calib_load(&c, NULL, used, sizeof used, diag, sizeof diag), 1);
+    assert_string_equal(used, path);
+    assert_true(c.sens == 4.0f);
+    assert_non_null(strstr(diag, ":2:"));
+    assert_true(calib_load(&c, "/nonexistent/spnavrc", used, sizeof used, NULL, 0) < 0);
+    if (old) {
+        setenv("HOME", old, 1);
+        free(old);
+    }
+    tu_rmtree(dir);
+    free(dir);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_dead_zone_continuous),
+        cmocka_unit_test(test_dominant_axis),
+        cmocka_unit_test(test_locks_settings_and_buttons),
+        cmocka_unit_test(test_mapping_invert_swap_sensitivity),
+        cmocka_unit_test(test_cubic_and_zero_offset),
+        cmocka_unit_test(test_spnavrc_reader),
+        cmocka_unit_test(test_spnavrc_hostile),
+        cmocka_unit_test(test_load_falls_back),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}

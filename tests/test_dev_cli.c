@@ -1,0 +1,89 @@
+/* fracnav devices and fracnav device-test, as a user runs them. */
+#include <stdarg.h>
+#include <stddef.h>
+#include <setjmp.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <jansson.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "testutil.h"
+
+static void test_devices_none_connected(void **s)
+{
+    char *out;
+    /* No controller on a CI machine: says so and succeeds. */
+    assert_int_equal(tu_run_cli(&out, "devices"), 0);
+    if (!strstr(out, "/dev/hidraw")) /* a machine with a real controller lists it instead */
+        assert_non_null(strstr(out, "no 6-DOF controller connected"));
+    assert_non_null(strstr(out, "transports:"));
+    assert_non_null(strstr(out, "spnav"));
+    assert_non_null(strstr(out, "keyboard"));
+    free(out);
+}
+
+static void test_devices_json(void **s)
+{
+    char *out;
+    assert_int_equal(tu_run_cli(&out, "devices --json --device /nonexistent/hidraw7 2>/dev/null"), 0);
+    json_error_t err;
+    json_t *root = json_loads(out, 0, &err);
+    if (!root)
+        fail_msg("not JSON (%s): %s", err.text, out);
+    json_t *devs = json_object_get(root, "devices"), *trs = json_object_get(root, "transports");
+    assert_true(json_is_array(devs) && json_is_array(trs));
+    assert_true(json_array_size(trs) >= 3);
+    json_t *last = json_array_get(devs, json_array_size(devs) - 1);
+    assert_string_equal(json_string_value(json_object_get(last, "path")), "/nonexistent/hidraw7");
+    assert_non_null(strstr(json_string_value(json_object_get(last, "error")), "No such file"));
+    json_decref(root);
+    free(out);
+}
+
+static void test_usage_errors(void **s)
+{
+    char *out;
+    assert_int_equal(tu_run_cli(&out, "devices --bogus"), 2);
+    assert_non_null(strstr(out, "fracnav devices: unknown or incomplete option '--bogus'"));
+    free(out);
+    assert_int_equal(tu_run_cli(NULL, "devices --help"), 0);
+    assert_int_equal(tu_run_cli(NULL, "device-test --help"), 0);
+    assert_int_equal(tu_run_cli(&out, "device-test --seconds -1"), 2);
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "device-test --device /nonexistent/hidraw3 --seconds 1"), 1);
+    assert_non_null(strstr(out, "fracnav device-test: device '/nonexistent/hidraw3'"));
+    free(out);
+}
+
+/* The keyboard fallback fed from a file: the live view shows the keys' motion and button. */
+static void test_device_test_keyboard(void **s)
+{
+    char *dir = tu_tmpdir("devcli"), path[4200], rc[4200], *out;
+    snprintf(path, sizeof path, "%s/keys", dir);
+    tu_write_file(path, "d4", 2);
+    snprintf(rc, sizeof rc, "%s/spnavrc", dir);
+    tu_write_file(rc, "sensitivity = 2\ndead-zone = 0\nnonsense\n", 39);
+    assert_int_equal(tu_run_cli(&out, "device-test --device keyboard:%s --seconds 0.4 --config %s", path, rc), 0);
+    assert_non_null(strstr(out, "via keyboard"));
+    assert_non_null(strstr(out, "x +0.71>+1.43")); /* 250/350 normalized, then sensitivity 2 */
+    assert_non_null(strstr(out, "buttons 00000008"));
+    assert_non_null(strstr(out, "1 bad line(s) skipped"));
+    assert_non_null(strstr(out, "spnavrc:3:"));
+    free(out);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_devices_none_connected),
+        cmocka_unit_test(test_devices_json),
+        cmocka_unit_test(test_usage_errors),
+        cmocka_unit_test(test_device_test_keyboard),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}

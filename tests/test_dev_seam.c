@@ -1,0 +1,246 @@
+/* The transport seam: registry, spec strings, queue draining, unplug and replug, LED, through a
+ * fake transport defined here (the way the sim's virtual and replay transports plug in). */
+#include <stdarg.h>
+#include <stddef.h>
+#include <setjmp.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "dev.h"
+#include "devparse.h"
+#include "err.h"
+#include "testutil.h"
+
+/* The fake device: a queue of reports, a "plugged" switch, the last output report. */
+static struct {
+    uint8_t q[128][16];
+    size_t qlen[128], head, tail;
+    int plugged, opens;
+    uint8_t out[8];
+    size_t out_len;
+    char serial[16];
+} fake;
+
+struct dev_handle {
+    int id;
+};
+
+static void push(const uint8_t *r, size_t n)
+{
+    memcpy(fake.q[fake.tail % 128], r, n);
+    fake.qlen[fake.tail++ % 128] = n;
+}
+
+static int f_open(const char *path, dev_handle **out)
+{
+    if (!fake.plugged)
+        return fn_err_set(FN_ENODEV, "fake: %s not plugged", path ? path : "(first)");
+    *out = calloc(1, sizeof **out);
+    fake.opens++;
+    return 0;
+}
+
+static int f_read(dev_handle *h, uint8_t *buf, size_t cap, int timeout_ms, int64_t *t_us)
+{
+    if (!fake.plugged)
+        return FN_ENODEV;
+    if (fake.head == fake.tail)
+        return 0;
+    size_t n = fake.qlen[fake.head % 128];
+    memcpy(buf, fake.q[fake.head++ % 128], n);
+    *t_us = (int64_t)fake.head * 8000;
+    return (int)n;
+}
+
+static int f_write(dev_handle *h, const uint8_t *buf, size_t len)
+{
+    memcpy(fake.out, buf, len);
+    fake.out_len = len;
+    return (int)len;
+}
+
+static int f_info(dev_handle *h, dev_info *out)
+{
+    memset(out, 0, sizeof *out);
+    strcpy(out->path, "fake0");
+    out->vid = 0x046d, out->pid = 0xc626; /* a SpaceNavigator: split format, LED */
+    strcpy(out->serial, fake.serial);
+    return 0;
+}
+
+static int f_enum(dev_info *out, size_t cap)
+{
+    if (!fake.plugged || cap == 0)
+        return 0;
+    dev_handle h;
+    f_info(&h, out);
+    return 1;
+}
+
+static void f_close(dev_handle *h)
+{
+    free(h);
+}
+
+static const dev_transport fake_transport = {
+    .name = "fake", .open = f_open, .read = f_read, .write = f_write, .info = f_info, .close = f_close,
+    .enumerate = f_enum};
+
+static void reset_fake(void)
+{
+    memset(&fake, 0, sizeof fake);
+    fake.plugged = 1;
+    strcpy(fake.serial, "SN1");
+}
+
+static void test_registry(void **s)
+{
+    assert_non_null(dev_transport_find("hidraw") ? dev_transport_find("hidraw") : dev_transport_find("libusb"));
+    assert_non_null(dev_transport_find("spnav"));
+    assert_non_null(dev_transport_find("keyboard"));
+    if (!dev_transport_find("fake"))
+        assert_int_equal(dev_transport_register(&fake_transport), 0);
+    assert_ptr_equal(dev_transport_find("fake"), &fake_transport);
+    assert_int_equal(dev_transport_register(&fake_transport), FN_EINVAL); /* duplicate name */
+    dev_transport nameless = {0};
+    assert_int_equal(dev_transport_register(&nameless), FN_EINVAL);
+    size_t n = 0;
+    while (dev_transport_at(n))
+        n++;
+    assert_true(n >= 4);
+    assert_null(dev_open("nosuch:thing"));
+    assert_non_null(strstr(fn_err_msg(), "unknown transport 'nosuch'"));
+}
+
+/* A burst of queued motion is drained in one poll; only the newest state counts. */
+static void test_drain_newest_state(void **s)
+{
+    reset_fake();
+    dev_device *d = dev_open("fake:any");
+    assert_non_null(d);
+    assert_string_equal(dev_row(d)->name, "3Dconnexion SpaceNavigator");
+    uint8_t r[16];
+    for (int i = 1; i <= 60; i++) {
+        int t[3] = {i, 0, 0}, rot[3] = {0, 0, -i};
+        push(r, devparse_make_split(r, 1, t));
+        push(r, devparse_make_split(r, 2, rot));
+    }
+    const uint8_t junk[] = {0x42, 1, 2};
+    push(junk, sizeof junk);
+    dev_event ev;
+    assert_int_equal(dev_poll(d, &ev, 0), 1);
+    assert_true(fabsf(ev.axis[0] - 60 / 350.0f) < 1e-6f);
+    assert_true(fabsf(ev.axis[5] + 60 / 350.0f) < 1e-6f);
+    assert_int_equal(fake.head, fake.tail); /* nothing stale left behind */
+    assert_int_equal(dev_skipped(d), 1);
+    assert_int_equal(dev_poll(d, &ev, 0), 0);
+    dev_close(d);
+}
+
+static void test_unplug_replug(void **s)
+{
+    reset_fake();
+    dev_device *d = dev_open("fake:any");
+    assert_non_null(d);
+    uint8_t r[16];
+    int t[3] = {100, 0, 0};
+    push(r, devparse_make_split(r, 1, t));
+    push(r, devparse_make_buttons(r, 1));
+    dev_event ev;
+    assert_int_equal(dev_poll(d, &ev, 0), 1);
+    assert_int_equal(ev.buttons, 1);
+    fake.plugged = 0; /* cable pulled */
+    assert_int_equal(dev_poll(d, &ev, 0), 1);
+    assert_true(ev.flags & DEV_EV_UNPLUG);
+    assert_int_equal(ev.released, 1); /* held buttons are released */
+    for (int i = 0; i < 6; i++)
+        assert_true(ev.axis[i] == 0.0f); /* and motion stops: the loop keeps the last pose */
+    assert_false(dev_connected(d));
+    assert_int_equal(dev_poll(d, &ev, 0), 0); /* quiet while gone */
+    fake.plugged = 1;
+    int replugged = 0;
+    for (int i = 0; i < 20 && !replugged; i++) /* looked for every DEV_REPLUG_MS */
+        replugged = dev_poll(d, &ev, 100) == 1 && (ev.flags & DEV_EV_REPLUG);
+    assert_true(replugged);
+    assert_true(dev_connected(d));
+    push(r, devparse_make_split(r, 1, t));
+    assert_int_equal(dev_poll(d, &ev, 0), 1);
+    assert_true(ev.axis[0] > 0.28f);
+    dev_close(d);
+}
+
+static void test_led_and_serial(void **s)
+{
+    reset_fake();
+    strcpy(fake.serial, "ABC123");
+    dev_device *d = dev_open("serial:ABC123");
+    assert_non_null(d);
+    assert_string_equal(dev_transport_name(d), "fake");
+    assert_string_equal(dev_device_info(d)->serial, "ABC123");
+    assert_int_equal(dev_set_led(d, 1), 0);
+    assert_int_equal(fake.out_len, 2);
+    assert_int_equal(fake.out[0], 4);
+    assert_int_equal(fake.out[1], 1);
+    dev_set_led(d, 0);
+    assert_int_equal(fake.out[1], 0);
+    assert_int_equal(dev_battery(d), -1);
+    dev_close(d);
+    assert_null(dev_open("serial:NOPE"));
+    assert_non_null(strstr(fn_err_msg(), "NOPE"));
+}
+
+/* The hidraw transport opens by path: a missing node and a node that is not a hidraw device give
+ * errors that name the path. */
+static void test_hidraw_path_errors(void **s)
+{
+    assert_null(dev_open("/nonexistent/hidraw9"));
+    assert_non_null(strstr(fn_err_msg(), "/nonexistent/hidraw9"));
+    char *dir = tu_tmpdir("seam");
+    char path[4200];
+    snprintf(path, sizeof path, "%s/hidraw0", dir);
+    tu_write_file(path, "x", 1);
+    assert_null(dev_open(path));
+    assert_non_null(strstr(fn_err_msg(), path));
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* The keyboard fallback, fed from a file: keys become motion, then it returns to rest. */
+static void test_keyboard_keys(void **s)
+{
+    char *dir = tu_tmpdir("kbd");
+    char path[4200], spec[4300];
+    snprintf(path, sizeof path, "%s/keys", dir);
+    tu_write_file(path, "dl3", 3);
+    snprintf(spec, sizeof spec, "keyboard:%s", path);
+    dev_device *d = dev_open(spec);
+    assert_non_null(d);
+    dev_event ev;
+    assert_int_equal(dev_poll(d, &ev, 0), 1);
+    assert_true(ev.axis[0] > 0.5f && ev.axis[5] > 0.5f);
+    assert_int_equal(ev.buttons, 1u << 2);
+    int rest = 0;
+    for (int i = 0; i < 50 && !rest; i++)
+        if (dev_poll(d, &ev, 50) == 1)
+            rest = ev.axis[0] == 0.0f && ev.buttons == 0;
+    assert_true(rest);
+    dev_close(d);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_registry),       cmocka_unit_test(test_drain_newest_state),
+        cmocka_unit_test(test_unplug_replug),  cmocka_unit_test(test_led_and_serial),
+        cmocka_unit_test(test_hidraw_path_errors), cmocka_unit_test(test_keyboard_keys),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
