@@ -12,6 +12,7 @@
 
 #include <math.h>
 #include <pthread.h>
+#include <stdatomic.h>
 #include <string.h>
 
 /* Fragment 0: a box of dim*spacing mm with its first voxel centre at `at`. Fragment 1: the wall,
@@ -498,6 +499,76 @@ static void test_drain_publishes_scene(void **st)
     loop_free(L);
 }
 
+/* A source of n motion events 8 ms apart, then the end. */
+typedef struct counted {
+    int n, sent;
+} counted;
+
+static int counted_next(void *ctx, loop_event *ev, int timeout_ms)
+{
+    counted *c = ctx;
+    if (c->sent == c->n)
+        return LOOP_SOURCE_END;
+    *ev = motion(8000 * (int64_t)c->sent++, 0, 0, 0.5, 0, 0, 0);
+    return 1;
+}
+
+typedef struct viewer {
+    loop *L;
+    atomic_int stop;
+    int reads, fresh;
+} viewer;
+
+/* A renderer: reads scenes as fast as it can while the loop runs; each must be consistent. */
+static void *view(void *arg)
+{
+    viewer *v = arg;
+    loop_scene sc;
+    uint64_t last = 0;
+    while (!atomic_load(&v->stop)) {
+        if (loop_scene_read(v->L, &sc)) {
+            v->fresh++;
+            if (sc.seq < last || sc.nfrag != 3)
+                v->fresh = -1000000;
+            last = sc.seq;
+        }
+        v->reads++;
+    }
+    return NULL;
+}
+
+/* The live arrangement: input thread -> ring -> loop_run, a renderer reading meanwhile. */
+static void test_threads_reader_loop_renderer(void **st)
+{
+    world w;
+    loop_config c;
+    world_config(&c);
+    loop *L = make_loop(&w, &c);
+    ring *r = ring_new(sizeof(loop_event), 16);
+    counted src = {2000, 0};
+    viewer v = {L, 0, 0, 0};
+    atomic_init(&v.stop, 0);
+    pthread_t th;
+    pthread_create(&th, NULL, view, &v);
+    loop_reader *rd = loop_reader_start((loop_source){counted_next, &src}, r, L, 1);
+    assert_non_null(rd);
+    assert_int_equal(loop_run(L, r, 1000, loop_reader_done_flag(rd)), 0);
+    assert_int_equal(loop_reader_stop(rd), 0);
+    atomic_store(&v.stop, 1);
+    pthread_join(th, NULL);
+    loop_stats s;
+    loop_get_stats(L, &s);
+    assert_int_equal(s.events, 2000);
+    assert_int_equal(s.steps, 1999);
+    assert_int_equal(s.dropped, 0);
+    assert_int_equal(s.latency_samples, 2000);
+    pose p = loop_pose(L, 0);
+    assert_true(fabs(p.t[2] - 1999 * 0.4) < 1e-6); /* 0.5 * 100 mm/s * 8 ms a step */
+    assert_true(v.fresh > 0);
+    ring_free(r);
+    loop_free(L);
+}
+
 static void test_bad_arguments(void **st)
 {
     world w;
@@ -525,6 +596,7 @@ int main(void)
         cmocka_unit_test(test_ring_spsc_order_and_full),
         cmocka_unit_test(test_ring_two_threads),
         cmocka_unit_test(test_drain_publishes_scene),
+        cmocka_unit_test(test_threads_reader_loop_renderer),
         cmocka_unit_test(test_bad_arguments),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
