@@ -109,6 +109,15 @@ static double moved_t(json_t *j, int axis)
     return json_number_value(json_array_get(json_object_get(p, "t"), (size_t)axis));
 }
 
+static size_t journal_count_on_disk(void)
+{
+    journal_rec *r;
+    size_t n = 0;
+    assert_int_equal(journal_read(case_dir, &r, &n, NULL), 0);
+    free(r);
+    return n;
+}
+
 static void test_replay_help_and_usage(void **st)
 {
     char *out = NULL;
@@ -233,6 +242,44 @@ static void test_crash_recovery(void **st)
     unlink(cmd);
 }
 
+/* navigate with a recording played as a live device (real time): the terminal view shows the
+ * state, the case is saved on exit with the moved pose, and the journal is empty again. (A played
+ * recording that ends counts as an unplug and is opened again 500 ms later: stop before that.) */
+static void test_navigate_saves_on_exit(void **st)
+{
+    const char *rec = recording("nav", "translate +z 1 mm over 0.3 s\n");
+    char *out = NULL;
+    int rc = tu_run_cli(&out, "navigate '%s' --device 'replay:%s' --duration 0.7 --json", case_dir, rec);
+    if (rc != 0)
+        fprintf(stderr, "%s\n", out);
+    assert_int_equal(rc, 0);
+    assert_non_null(strstr(out, "frag 2/2"));
+    assert_non_null(strstr(out, "steps/s"));
+    json_t *j = json_loads(strchr(out, '{'), JSON_DISABLE_EOF_CHECK, NULL);
+    assert_non_null(j);
+    assert_true(num(j, "steps") > 10);
+    double tz = moved_t(j, 2);
+    if (!(tz < -0.8 && tz > -1.1))
+        fail_msg("navigate moved fragment 2 to z %g: %s", tz, out);
+    json_decref(j);
+    free(out);
+    assert_int_equal(journal_count_on_disk(), 0);
+    char path[4300];
+    snprintf(path, sizeof path, "%s/case.json", case_dir);
+    char *text = tu_slurp(path, NULL);
+    json_t *c = json_loads(text, 0, NULL);
+    free(text);
+    json_t *f2 = json_array_get(json_object_get(c, "fragments"), 1);
+    double saved = json_number_value(json_array_get(json_object_get(json_object_get(f2, "pose"), "t"), 2));
+    assert_true(fabs(saved - tz) < 1e-9);
+    json_decref(c);
+    /* Back to where it was, for the other tests. */
+    rc = tu_run_cli(&out, "replay '%s' '%s' --save --no-journal", case_dir,
+                    recording("navback", "translate -z 1 mm over 0.3 s\n"));
+    free(out);
+    assert_int_equal(rc, 0);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -241,6 +288,7 @@ int main(void)
         cmocka_unit_test(test_replay_grazing_slides),
         cmocka_unit_test(test_replay_unplug_keeps_pose),
         cmocka_unit_test(test_crash_recovery),
+        cmocka_unit_test(test_navigate_saves_on_exit),
     };
     return cmocka_run_group_tests(tests, setup, teardown);
 }
