@@ -1,8 +1,8 @@
 /* fracnav bench loop: the navigation loop's rate and report-to-pose latency near contact.
  *
  * Workload: a two-piece synthetic fracture (fracture_make, seed 1) of the example CT (about
- * 146x176x104 and 143x90x98 voxel fragments, in contact along a rough fracture surface), piece 1
- * fixed. Input: a motion script (pushing piece 2 into piece 1 and along it, turning it) rendered
+ * 148x178x106 and 145x92x100 voxel fragments, in contact along a rough fracture surface), piece 1
+ * fixed, probability maps and hierarchy thresholds as `fracnav fracture` gives a case. Input: a motion script (pushing piece 2 into piece 1 and along it, turning it) rendered
  * by the virtual device's generator into SpaceNavigator reports, replayed as fast as the loop takes
  * them: the input thread hands over one report, stamps it, and waits until the loop has taken it
  * (no queueing in the latency). The loop runs as in `navigate`: its own thread, woken per event. */
@@ -12,6 +12,7 @@
 #include "err.h"
 #include "fracture.h"
 #include "script.h"
+#include "seg.h"
 #include "sim_replay.h"
 #include "volio.h"
 
@@ -65,6 +66,8 @@ static int fragments_from_ct(const char *path, frag f[2])
         return FN_EIO;
     fracture_params fp;
     fracture_defaults(&fp);
+    seg_params sp; /* probability maps as `fracnav fracture` makes them */
+    seg_defaults(&sp);
     fracture_result fr;
     int rc = fracture_make(ct, &fp, &fr);
     vol_free(ct);
@@ -74,7 +77,7 @@ static int fragments_from_ct(const char *path, frag f[2])
         int lo[3], hi[3];
         rc = label_box(fr.labels, id, lo, hi);
         if (rc == 0)
-            rc = frag_from_labels(&f[id - 1], fr.labels, fr.ct, id, lo, hi, fp.threshold, 0);
+            rc = frag_from_labels(&f[id - 1], fr.labels, fr.ct, id, lo, hi, fp.threshold, sp.ramp);
     }
     fracture_result_free(&fr);
     return rc;
@@ -99,6 +102,8 @@ static fnrec *render(int repeat)
 }
 
 /* Runs the recording through reader thread -> ring -> loop_run. */
+static int realtime; /* the loop thread got SCHED_FIFO */
+
 static int drive(loop *L, const fnrec *rec, double *wall_s)
 {
     sim_replay_opts ro = {0, 1};
@@ -115,6 +120,7 @@ static int drive(loop *L, const fnrec *rec, double *wall_s)
     loop_reader *rd = NULL;
     if (rc == 0) {
         loop_reset_timing(L);
+        realtime = loop_realtime_priority() == 0;
         double t0 = bench_now_us();
         rd = loop_reader_start(loopkit_transport_source(&ts), r, L, 1);
         rc = rd ? loop_run(L, r, 1000, loop_reader_done_flag(rd)) : FN_EIO;
@@ -143,7 +149,7 @@ static void print(const loop_stats *s, double wall_s, const frag *f, int nfrag, 
     for (int i = 0; i < nfrag; i++)
         printf("%s{\"dim\": [%d, %d, %d], \"voxels\": %zu}", i ? ", " : "", f[i].dim[0], f[i].dim[1],
                f[i].dim[2], f[i].voxels);
-    printf("],\n  \"wall_s\": %.3f,\n  \"loop_hz\": %.1f,\n  \"tick_hz\": %.1f,\n", wall_s, s->step_hz,
+    printf("],\n  \"loop_thread_sched_fifo\": %s,\n  \"wall_s\": %.3f,\n  \"loop_hz\": %.1f,\n  \"tick_hz\": %.1f,\n", realtime ? "true" : "false", wall_s, s->step_hz,
            s->tick_hz);
     printf("  \"latency_p50_us\": %.0f,\n  \"latency_p99_us\": %.0f,\n  \"latency_max_us\": %.0f,\n",
            s->latency_p50_us, s->latency_p99_us, s->latency_max_us);
@@ -209,7 +215,8 @@ int bench_loop(int argc, char **argv)
         frag f[2];
         memset(f, 0, sizeof f);
         rc = fragments_from_ct(ct, f);
-        loop_obb *o = rc == 0 ? loop_obb_new(f, 2, NULL, NULL) : NULL;
+        obb_params op = {0.5, 0.95}; /* a new case's tau_min, tau_max (case_create) */
+        loop_obb *o = rc == 0 ? loop_obb_new(f, 2, &op, NULL) : NULL;
         uint8_t fixed[2] = {1, 0};
         loop_collider col = o ? loop_obb_collider(o) : (loop_collider){0};
         loop *L = o ? loop_new(f, 2, fixed, &col, &cfg, NULL) : NULL;

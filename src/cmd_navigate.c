@@ -144,6 +144,7 @@ typedef struct runner {
 static void *loop_thread(void *arg)
 {
     runner *r = arg;
+    loop_realtime_priority(); /* best effort: without it the loop still runs, just less steadily */
     r->rc = loop_run(r->L, r->in, 1000, &r->stop);
     return NULL;
 }

@@ -19,8 +19,8 @@ void loop_config_default(loop_config *c)
     c->frame = LOOP_FRAME_CAMERA;
     c->dt_max_us = 20000;
     c->bisect_iters = 6;
-    c->slide_iters = 3;
-    c->max_tries = 14;
+    c->slide_iters = 2;
+    c->max_tries = 10;
 #ifdef NDEBUG
     c->check_invariant = 0;
 #else

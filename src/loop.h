@@ -186,6 +186,12 @@ int loop_scene_read(loop *L, loop_scene *out);
 /* One line for a terminal: selected fragment, pose, collision state, rates, latency. */
 void loop_scene_format(const loop_scene *s, char *buf, size_t cap);
 
+/* Asks the OS to run the calling thread (the one that will call loop_run) under SCHED_FIFO at a
+ * modest priority, so other processes do not preempt a step. Needs CAP_SYS_NICE (root, or an
+ * rtprio limit); returns 0, or FN_EINVAL when not allowed (the loop then runs as before). Safe:
+ * loop_run sleeps between events and a step's work is bounded (max_tries). */
+int loop_realtime_priority(void);
+
 /* Monotonic clock, microseconds. */
 int64_t loop_now_us(void);
 

@@ -4,8 +4,8 @@
 #include "err.h"
 
 #include <pthread.h>
-#include <sched.h>
 #include <stdlib.h>
+#include <time.h>
 
 struct loop_reader {
     loop_source src;
@@ -19,8 +19,9 @@ struct loop_reader {
 
 static void push(loop_reader *rd, loop_event *ev)
 {
+    struct timespec nap = {0, 20000}; /* sleep, not spin: the loop needs the core more */
     while (rd->lockstep && ring_count(rd->r) > 0 && !atomic_load(&rd->stop))
-        sched_yield();
+        nanosleep(&nap, NULL);
     if (ev->arrival_us == 0)
         ev->arrival_us = loop_now_us();
     ring_push(rd->r, ev);

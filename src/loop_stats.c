@@ -1,9 +1,12 @@
 /* loop: statistics, the scene buffer a renderer reads, and the fixed-rate driver. */
 #include "loop_impl.h"
 
+#include "err.h"
 #include "journal.h"
 
 #include <errno.h>
+#include <pthread.h>
+#include <sched.h>
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
@@ -211,6 +214,13 @@ int loop_drain(loop *L, ring *r)
     if (n)
         loop_publish(L);
     return n;
+}
+
+int loop_realtime_priority(void)
+{
+    struct sched_param sp = {.sched_priority = 10};
+    int rc = pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp);
+    return rc == 0 ? 0 : fn_err_set(FN_EINVAL, "real-time priority not granted: %s", strerror(rc));
 }
 
 void loop_notify(loop *L)
