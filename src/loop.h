@@ -113,7 +113,7 @@ typedef struct loop_stats {
     uint64_t queries;                /* pair queries (the invariant check's not counted) */
     double query_us_mean, query_us_max;
     double step_hz;                  /* steps per second of wall time, since the last reset */
-    double tick_hz;                  /* loop_run ticks per second */
+    double tick_hz;                  /* loop_run timer ticks per second (period_us apart) */
     double latency_p50_us, latency_p99_us, latency_max_us; /* report arrival -> pose accepted */
     uint64_t latency_samples;
     uint64_t dropped;                /* events lost to a full ring */

@@ -228,29 +228,47 @@ void loop_notify(loop *L)
     sem_post(&L->wake);
 }
 
-int loop_run(loop *L, ring *r, int64_t period_us, const atomic_int *stop)
+/* Waits for loop_notify or until the monotonic time deadline_us (sem_timedwait counts in
+ * CLOCK_REALTIME, so the remaining time is carried over). */
+static void wait_until(loop *L, int64_t deadline_us)
 {
-    unsigned idle = 0;
-    while (!atomic_load(stop)) {
-        int rc = loop_drain(L, r);
-        if (rc < 0)
-            return rc;
-        L->win_ticks++;
-        if (L->jr)
-            journal_tick(L->jr, loop_now_us());
-        if (rc == 0 && ++idle % 50 == 0)
-            loop_publish(L); /* keep the rates in the scene fresh while nothing moves */
+    int64_t left = deadline_us - loop_now_us();
+    if (left > 0) {
         struct timespec until;
-        clock_gettime(CLOCK_REALTIME, &until); /* sem_timedwait's clock */
-        until.tv_nsec += (long)(period_us * 1000);
-        while (until.tv_nsec >= 1000000000) {
+        clock_gettime(CLOCK_REALTIME, &until);
+        until.tv_sec += (time_t)(left / 1000000);
+        until.tv_nsec += (long)(left % 1000000) * 1000;
+        if (until.tv_nsec >= 1000000000) {
             until.tv_nsec -= 1000000000;
             until.tv_sec++;
         }
         while (sem_timedwait(&L->wake, &until) != 0 && errno == EINTR)
             ;
-        while (sem_trywait(&L->wake) == 0)
-            ; /* one wake-up serves every event pushed so far */
+    }
+    while (sem_trywait(&L->wake) == 0)
+        ; /* one wake-up serves every event pushed so far */
+}
+
+int loop_run(loop *L, ring *r, int64_t period_us, const atomic_int *stop)
+{
+    unsigned idle = 0;
+    int64_t next = loop_now_us();
+    while (!atomic_load(stop)) {
+        int rc = loop_drain(L, r);
+        if (rc < 0)
+            return rc;
+        int64_t now = loop_now_us();
+        if (now >= next) { /* a timer tick (not an early wake-up for an event) */
+            L->win_ticks++;
+            next += period_us;
+            if (next < now)
+                next = now + period_us; /* fell behind: do not try to catch up in a burst */
+            if (L->jr)
+                journal_tick(L->jr, now);
+            if (rc == 0 && ++idle % 50 == 0)
+                loop_publish(L); /* keep the rates in the scene fresh while nothing moves */
+        }
+        wait_until(L, next);
     }
     int rc = loop_drain(L, r);
     return rc < 0 ? rc : 0;
