@@ -118,7 +118,7 @@ static json_t *pose_json(const pose *p)
                      p->t[1], p->t[2]);
 }
 
-void loopkit_print_json(const loopkit *k, FILE *out, const char *extra_key, const char *extra_val)
+void loopkit_print_json(const loopkit *k, FILE *out, long unplugs)
 {
     loop_stats s;
     loop_get_stats(k->L, &s);
@@ -144,8 +144,8 @@ void loopkit_print_json(const loopkit *k, FILE *out, const char *extra_key, cons
                           "queries", (json_int_t)s.queries, "query_us_mean", s.query_us_mean,
                           "query_us_max", s.query_us_max, "final_poses", poses, "pose_digest",
                           digest, "journal_records", (json_int_t)(k->jr ? journal_count(k->jr) : 0));
-    if (extra_key)
-        json_object_set_new(j, extra_key, json_string(extra_val));
+    if (unplugs >= 0)
+        json_object_set_new(j, "unplugs", json_integer(unplugs));
     json_dumpf(j, out, JSON_INDENT(2) | JSON_REAL_PRECISION(17));
     fputc('\n', out);
     json_decref(j);

@@ -39,8 +39,9 @@ size_t loopkit_journal_pending(const char *dir);
 int loopkit_save(loopkit *k);
 void loopkit_close(loopkit *k);
 
-/* Final poses and statistics as JSON on out (replay's and navigate's summary). */
-void loopkit_print_json(const loopkit *k, FILE *out, const char *extra_key, const char *extra_val);
+/* Final poses and statistics as JSON on out (replay's and navigate's summary); unplugs < 0 leaves
+ * that member out. */
+void loopkit_print_json(const loopkit *k, FILE *out, long unplugs);
 
 /* Raw reports -> loop events (parser, then calibration). */
 typedef struct loopkit_decoder {

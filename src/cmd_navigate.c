@@ -271,7 +271,7 @@ int cmd_navigate(int argc, char **argv)
     if (rc < 0)
         fprintf(stderr, "fracnav navigate: %s\n", fn_err_msg());
     else if (o.json)
-        loopkit_print_json(&k, stdout, NULL, NULL);
+        loopkit_print_json(&k, stdout, -1);
     else
         fprintf(stderr, "saved %s\n", o.dir);
     loopkit_close(&k);

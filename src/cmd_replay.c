@@ -180,9 +180,7 @@ int cmd_replay(int argc, char **argv)
     if (rc < 0) {
         fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
     } else if (o.json) {
-        char unplugs[16];
-        snprintf(unplugs, sizeof unplugs, "%u", ts.unplugs);
-        loopkit_print_json(&k, stdout, "unplugs", unplugs);
+        loopkit_print_json(&k, stdout, (long)ts.unplugs);
     } else {
         loop_stats s;
         loop_get_stats(k.L, &s);

@@ -432,7 +432,7 @@ int loop_feed(loop *L, const loop_event *ev)
     if (ev->kind == LOOP_EV_MOTION && ev->arrival_us > 0)
         loop_stats_latency(L, loop_now_us() - ev->arrival_us);
     verify(L);
-    if (out != LOOP_IDLE && out > 0)
+    if (out > 0)
         L->last_outcome = (loop_outcome)out;
     return out;
 }
