@@ -144,6 +144,7 @@ void loopkit_print_json(const loopkit *k, FILE *out, long unplugs)
                           "queries", (json_int_t)s.queries, "query_us_mean", s.query_us_mean,
                           "query_us_max", s.query_us_max, "final_poses", poses, "pose_digest",
                           digest, "journal_records", (json_int_t)(k->jr ? journal_count(k->jr) : 0));
+    json_object_set_new(j, "journal_errors", json_integer((json_int_t)s.journal_errors));
     if (unplugs >= 0)
         json_object_set_new(j, "unplugs", json_integer(unplugs));
     json_dumpf(j, out, JSON_INDENT(2) | JSON_REAL_PRECISION(17));

@@ -309,8 +309,8 @@ void loop_accept(loop *L, int s, pose p, int64_t t_us, uint32_t kind, int checke
     if (!checked)
         L->gap_valid = 0;
     loop_stats_pose(L, s, &p);
-    if (L->jr)
-        journal_append(L->jr, kind, s, t_us, &p, loop_now_us());
+    if (L->jr && journal_append(L->jr, kind, s, t_us, &p, loop_now_us()) < 0)
+        L->st.journal_errors++;
     if (!checked)
         L->st.unchecked++;
     else if (L->cfg.check_invariant)

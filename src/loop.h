@@ -117,6 +117,7 @@ typedef struct loop_stats {
     double latency_p50_us, latency_p99_us, latency_max_us; /* report arrival -> pose accepted */
     uint64_t latency_samples;
     uint64_t dropped;                /* events lost to a full ring */
+    uint64_t journal_errors;         /* journal writes that failed (disk full, I/O error) */
     uint64_t pose_digest;            /* FNV-1a 64 over every accepted (frag, q, t) in order */
 } loop_stats;
 

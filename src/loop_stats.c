@@ -186,13 +186,14 @@ void loop_scene_format(const loop_scene *s, char *buf, size_t cap)
         snprintf(sep, sizeof sep, "%.2f mm", s->separation_mm);
     snprintf(buf, cap,
              "frag %d/%d%s | q %.4f %.4f %.4f %.4f t %.2f %.2f %.2f mm | %s, gap %s%s | %s%s%s"
-             " | %.0f steps/s %.0f ticks/s | latency p50 %.0f p99 %.0f max %.0f us%s",
+             " | %.0f steps/s %.0f ticks/s | latency p50 %.0f p99 %.0f max %.0f us%s%s",
              s->selected + 1, s->nfrag, s->fixed[s->selected] ? " (fixed)" : "", p->q[0], p->q[1],
              p->q[2], p->q[3], p->t[0], p->t[1], p->t[2], outcome[s->last_outcome], sep,
              s->collision_on ? "" : " | WARNING: COLLISION CHECKING OFF", frame[s->frame],
              s->trans_only ? ", translation only" : "", s->rot_only ? ", rotation only" : "",
              s->stats.step_hz, s->stats.tick_hz, s->stats.latency_p50_us, s->stats.latency_p99_us,
-             s->stats.latency_max_us, s->device_present ? "" : " | DEVICE UNPLUGGED (pose kept)");
+             s->stats.latency_max_us, s->device_present ? "" : " | DEVICE UNPLUGGED (pose kept)",
+             s->stats.journal_errors ? " | WARNING: JOURNAL WRITE FAILED" : "");
 }
 
 void loop_set_controls(loop *L, ring *ctl)
@@ -263,8 +264,8 @@ int loop_run(loop *L, ring *r, int64_t period_us, const atomic_int *stop)
             next += period_us;
             if (next < now)
                 next = now + period_us; /* fell behind: do not try to catch up in a burst */
-            if (L->jr)
-                journal_tick(L->jr, now);
+            if (L->jr && journal_tick(L->jr, now) < 0)
+                L->st.journal_errors++;
             if (rc == 0 && ++idle % 50 == 0)
                 loop_publish(L); /* keep the rates in the scene fresh while nothing moves */
         }
