@@ -18,28 +18,16 @@ size_t loopkit_journal_pending(const char *dir)
     return n;
 }
 
-/* Applies the journal's unsaved poses to the case's fragments. */
+/* Continues from the journal: poses and undo history. */
 static int resume(loopkit *k, const char *dir)
 {
     journal_rec *r;
     size_t n;
     int rc = journal_read(dir, &r, &n, NULL);
-    if (rc < 0)
-        return rc;
-    pose *p = malloc(sizeof *p * (size_t)k->c->nfrag);
-    if (!p) {
-        free(r);
-        return fn_err_set(FN_ENOMEM, "%s/journal: out of memory", dir);
-    }
-    for (int i = 0; i < k->c->nfrag; i++)
-        p[i] = k->c->frag[i].pose;
-    rc = journal_final_poses(r, n, k->c->nfrag, p);
     if (rc == 0)
-        for (int i = 0; i < k->c->nfrag; i++)
-            k->c->frag[i].pose = p[i];
-    k->resumed = rc == 0 ? n : 0;
-    free(p);
+        rc = loop_recover(k->L, r, n);
     free(r);
+    k->resumed = rc == 0 ? n : 0;
     return rc < 0 ? fn_err_wrap(rc, "%s/journal", dir) : 0;
 }
 
@@ -58,9 +46,7 @@ int loopkit_open(loopkit *k, const char *dir, const loop_config *cfg, unsigned f
     if (!k->c)
         return FN_EIO;
     int rc = 0;
-    if (pending && (flags & LOOPKIT_RESUME))
-        rc = resume(k, dir);
-    if (rc == 0 && k->c->nfrag > LOOP_MAX_FRAGS)
+    if (k->c->nfrag > LOOP_MAX_FRAGS)
         rc = fn_err_set(FN_EINVAL, "%s: %d fragments, the loop steers at most %d", dir, k->c->nfrag,
                         LOOP_MAX_FRAGS);
     if (rc == 0 && k->c->nfrag < 2)
@@ -87,6 +73,8 @@ int loopkit_open(loopkit *k, const char *dir, const loop_config *cfg, unsigned f
         if (!k->L)
             rc = FN_ENOMEM;
     }
+    if (rc == 0 && pending && (flags & LOOPKIT_RESUME))
+        rc = resume(k, dir);
     if (rc < 0)
         loopkit_close(k);
     return rc;

@@ -92,7 +92,7 @@ static int decode(const unsigned char *b, journal_rec *r)
         r->p.q[i] = getf(b + 24 + 8 * i);
     for (int i = 0; i < 3; i++)
         r->p.t[i] = getf(b + 56 + 8 * i);
-    return r->kind >= JOURNAL_MOVE && r->kind <= JOURNAL_REDO;
+    return r->kind >= JOURNAL_MOVE && r->kind <= JOURNAL_START;
 }
 
 static void header(unsigned char h[JOURNAL_HEADER_SIZE])

@@ -3,7 +3,9 @@
  * File format (binary, little-endian, documented here and nowhere else):
  *   header, 16 bytes: "FNJOURNAL1\n" (11 bytes), 1 byte 0, u32 record size (88);
  *   records, 88 bytes each:
- *     u32 kind (JOURNAL_MOVE 1, JOURNAL_UNDO 2, JOURNAL_REDO 3), i32 fragment index (0-based,
+ *     u32 kind (JOURNAL_MOVE 1: a move; JOURNAL_START 4: the first move of a gesture, so undo
+ *     returns to the fragment's pose before it; JOURNAL_UNDO 2, JOURNAL_REDO 3: the pose an undo
+ *     or redo restored), i32 fragment index (0-based,
  *     the case's order), u64 sequence number (1, 2, ...), i64 report time (us),
  *     f64 q[4] (w x y z), f64 t[3] (mm): the fragment's pose (home world -> current world),
  *     u32 reserved 0, u32 CRC-32 (zlib) of the 84 bytes before it.
@@ -25,7 +27,7 @@
 #define JOURNAL_RECORD_SIZE 88
 #define JOURNAL_HEADER_SIZE 16
 
-enum { JOURNAL_MOVE = 1, JOURNAL_UNDO = 2, JOURNAL_REDO = 3 };
+enum { JOURNAL_MOVE = 1, JOURNAL_UNDO = 2, JOURNAL_REDO = 3, JOURNAL_START = 4 };
 
 typedef struct journal_rec {
     uint32_t kind;

@@ -304,6 +304,12 @@ static int move(loop *L, int s, double c[3], const double d[3], const double r[3
 
 void loop_accept(loop *L, int s, pose p, int64_t t_us, uint32_t kind, int checked)
 {
+    if (kind == JOURNAL_MOVE && !L->gesture_saved) {
+        /* The first pose a gesture changes: undo comes back here. */
+        loop_undo_push(L, s);
+        L->gesture_saved = 1;
+        kind = JOURNAL_START;
+    }
     L->pose[s] = p;
     L->verify_frag = s;
     if (!checked)
@@ -355,18 +361,17 @@ static void twist(const loop *L, int s, const float m[6], double dt, double d[3]
     }
 }
 
+/* The device is at rest (or the selection changed): the next move starts a new undo step. */
+static void gesture_end(loop *L)
+{
+    L->gesture_saved = 0;
+}
+
 static void pivot_world(const loop *L, int s, double c[3])
 {
     pose_apply(&L->pose[s], L->have_pivot ? L->pivot_home : L->frags[s].centroid, c);
 }
 
-static void gesture_begin(loop *L, int s)
-{
-    if (L->in_gesture)
-        return;
-    L->in_gesture = 1;
-    loop_undo_push(L, s);
-}
 
 static int step(loop *L, const loop_event *ev)
 {
@@ -385,12 +390,11 @@ static int step(loop *L, const loop_event *ev)
         for (int i = 0; i < 6; i++)
             still &= ev->motion[i] == 0;
         if (still)
-            L->in_gesture = 0;
+            gesture_end(L);
         return LOOP_IDLE;
     }
     if (L->fixed[s])
         return LOOP_IDLE;
-    gesture_begin(L, s);
     double c[3];
     pivot_world(L, s, c);
     L->tries = 0;
@@ -423,7 +427,7 @@ int loop_feed(loop *L, const loop_event *ev)
         /* The pose stays; the next report after a replug starts a fresh time base. */
         L->device_present = ev->kind == LOOP_EV_REPLUG;
         L->have_last_t = 0;
-        L->in_gesture = 0;
+        gesture_end(L);
         L->buttons = 0;
         break;
     default:
@@ -454,7 +458,7 @@ static void select_next(loop *L, int dir)
         L->selected = s;
         L->have_pivot = 0;
         L->gap_valid = 0;
-        L->in_gesture = 0;
+        gesture_end(L);
     }
 }
 
@@ -469,8 +473,20 @@ static int restore(loop *L, const loop_undo *u, uint32_t kind)
     }
     loop_accept(L, u->frag, u->p, L->last_t, kind, L->collision_on);
     L->gap_valid = 0;
-    L->in_gesture = 0;
+    gesture_end(L);
     return 1;
+}
+
+/* Drops the top of one undo/redo stack and pushes `back` (the pose being left) on the other. */
+static void shift(int *nfrom, loop_undo *to, int *nto, loop_undo back)
+{
+    if (*nfrom > 0)
+        (*nfrom)--;
+    if (*nto == LOOP_UNDO_MAX) {
+        memmove(to, to + 1, (LOOP_UNDO_MAX - 1) * sizeof *to);
+        (*nto)--;
+    }
+    to[(*nto)++] = back;
 }
 
 static int undo_redo(loop *L, int redo)
@@ -485,12 +501,7 @@ static int undo_redo(loop *L, int redo)
     verify(L);
     if (rc <= 0)
         return rc < 0 ? rc : LOOP_REFUSED;
-    (*nfrom)--;
-    if (*nto == LOOP_UNDO_MAX) {
-        memmove(to, to + 1, (LOOP_UNDO_MAX - 1) * sizeof *to);
-        (*nto)--;
-    }
-    to[(*nto)++] = back;
+    shift(nfrom, to, nto, back);
     return LOOP_ACCEPTED;
 }
 
@@ -513,7 +524,7 @@ int loop_action_do(loop *L, loop_action a)
         return LOOP_IDLE;
     case LOOP_ACT_FIX:
         L->fixed[L->selected] = !L->fixed[L->selected];
-        L->in_gesture = 0;
+        gesture_end(L);
         return LOOP_IDLE;
     case LOOP_ACT_COLLISION:
         L->collision_on = !L->collision_on;
@@ -539,6 +550,27 @@ int loop_action_do(loop *L, loop_action a)
     default:
         return LOOP_IDLE;
     }
+}
+
+int loop_recover(loop *L, const journal_rec *recs, size_t n)
+{
+    for (size_t i = 0; i < n; i++) {
+        const journal_rec *r = &recs[i];
+        if (r->frag < 0 || r->frag >= L->n)
+            return fn_err_set(FN_EFORMAT, "journal record %zu (seq %llu): fragment %d, the case has %d",
+                              i + 1, (unsigned long long)r->seq, r->frag, L->n);
+        loop_undo before = {r->frag, L->pose[r->frag]};
+        if (r->kind == JOURNAL_START)
+            loop_undo_push(L, r->frag);
+        else if (r->kind == JOURNAL_UNDO)
+            shift(&L->nundo, L->redo, &L->nredo, before);
+        else if (r->kind == JOURNAL_REDO)
+            shift(&L->nredo, L->undo, &L->nundo, before);
+        L->pose[r->frag] = r->p;
+    }
+    L->gap_valid = 0;
+    gesture_end(L);
+    return 0;
 }
 
 void loop_set_pivot(loop *L, const double world[3])

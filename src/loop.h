@@ -169,6 +169,11 @@ int loop_action_do(loop *L, loop_action a);
 void loop_set_pivot(loop *L, const double world[3]);
 /* Device axes -> world rotation for the camera frame (rows: world, columns: device axes). */
 void loop_set_camera(loop *L, const double r[3][3]);
+/* Recovery: applies journal records (journal.h) in order -- poses, and the undo/redo history they
+ * imply -- without writing them again. FN_EFORMAT (naming the record) for a fragment index out
+ * of range. */
+struct journal_rec;
+int loop_recover(loop *L, const struct journal_rec *recs, size_t n);
 /* Moves a fragment without collision checking (recovery, loading): no journal, no stats. */
 void loop_set_pose(loop *L, int i, pose p);
 

@@ -35,7 +35,7 @@ struct loop {
     int have_last_t;
     int64_t last_t;
     uint32_t buttons;
-    int in_gesture;
+    int gesture_saved; /* this gesture's undo checkpoint is taken */
     int gap_valid, in_collision;
     int tries; /* candidates queried in this step */
     int verify, verify_frag; /* an accepted pose awaits the invariant check */

@@ -207,10 +207,12 @@ static void test_loop_journals_every_accepted_pose(void **st)
     e.kind = LOOP_EV_MOTION;
     e.motion[0] = 0.5f;
     e.motion[4] = 0.25f;
-    for (int k = 0; k < 20; k++) {
+    for (int k = 0; k < 30; k++) {
         e.t_us = 8000 * k;
+        e.motion[0] = k == 5 ? 0.0f : 0.5f; /* a release: two gestures on fragment 0 */
+        e.motion[4] = k == 5 ? 0.0f : 0.25f;
         loop_feed(L, &e);
-        if (k == 9)
+        if (k == 14)
             loop_action_do(L, LOOP_ACT_NEXT);
     }
     loop_action_do(L, LOOP_ACT_UNDO);
@@ -222,12 +224,34 @@ static void test_loop_journals_every_accepted_pose(void **st)
     journal_read(dir, &r, &n, NULL);
     assert_int_equal(n, s.accepted + 1);
     assert_int_equal(r[n - 1].kind, JOURNAL_UNDO);
+    assert_int_equal(r[0].kind, JOURNAL_START);
     pose fin[2] = {POSE_IDENTITY, POSE_IDENTITY};
     journal_final_poses(r, n, 2, fin);
     for (int i = 0; i < 2; i++) {
         pose lp = loop_pose(L, i);
         assert_memory_equal(&fin[i], &lp, sizeof(pose));
     }
+    /* A fresh loop recovers the poses and the undo history from the journal alone. */
+    loop *R = loop_new(f, 2, NULL, &col, NULL, NULL);
+    assert_int_equal(loop_recover(R, r, n), 0);
+    for (int i = 0; i < 2; i++) {
+        pose a = loop_pose(L, i), b = loop_pose(R, i);
+        assert_memory_equal(&a, &b, sizeof(pose));
+    }
+    /* Three gestures (two on fragment 0, one on 1), one already undone: two undos are left. */
+    int undos = 0;
+    while (loop_action_do(R, LOOP_ACT_UNDO) == LOOP_ACCEPTED)
+        undos++;
+    assert_int_equal(undos, 2);
+    for (int i = 0; i < 2; i++) {
+        pose b = loop_pose(R, i);
+        assert_memory_equal(&POSE_IDENTITY, &b, sizeof(pose));
+    }
+    assert_int_equal(loop_action_do(R, LOOP_ACT_REDO), LOOP_ACCEPTED);
+    journal_rec bad = r[0];
+    bad.frag = 5;
+    assert_int_equal(loop_recover(R, &bad, 1), FN_EFORMAT);
+    loop_free(R);
     free(r);
     loop_free(L);
     tu_rmtree(dir);
