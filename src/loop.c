@@ -18,6 +18,7 @@ void loop_config_default(loop_config *c)
     c->rot_deg_s = 45;  /* SCRIPT_DEG_PER_S_FULL */
     c->frame = LOOP_FRAME_CAMERA;
     c->dt_max_us = 20000;
+    c->dt_first_us = 8000; /* the SpaceNavigator's report period */
     c->bisect_iters = 6;
     c->slide_iters = 2;
     c->max_tries = 10;
@@ -375,11 +376,10 @@ static void pivot_world(const loop *L, int s, double c[3])
 
 static int step(loop *L, const loop_event *ev)
 {
-    double dt = 0;
-    if (L->have_last_t) {
-        int64_t gap = ev->t_us - L->last_t;
-        dt = (double)(gap < 0 ? 0 : gap > L->cfg.dt_max_us ? L->cfg.dt_max_us : gap) * 1e-6;
-    }
+    /* A report's motion acts over the time since the previous report; the first one (at start,
+     * after a replug) over one nominal report period. */
+    int64_t gap = L->have_last_t ? ev->t_us - L->last_t : L->cfg.dt_first_us;
+    double dt = (double)(gap < 0 ? 0 : gap > L->cfg.dt_max_us ? L->cfg.dt_max_us : gap) * 1e-6;
     L->last_t = ev->t_us;
     L->have_last_t = 1;
     int s = L->selected;

@@ -5,7 +5,8 @@
  * Each motion event is one step:
  *   twist   = motion * (trans_mm_s, rot_deg_s), mapped from device axes to the world through the
  *             frame (camera by default, world or fragment on request), translation/rotation locks;
- *   dt      = report time since the previous report, clamped to dt_max_us (a pause never jumps);
+ *   dt      = report time since the previous report (dt_first_us for the first one), clamped to
+ *             dt_max_us (a pause never jumps);
  *   candidate = rotate the selected fragment by twist.w*dt about its pivot (the centroid, or a
  *             user pivot), then translate by twist.v*dt;
  *   query   = the collider against every other fragment (per-pair caches);
@@ -99,6 +100,7 @@ typedef struct loop_config {
     double rot_deg_s;       /* rotation speed at full deflection */
     loop_frame frame;
     int64_t dt_max_us;      /* longest report interval integrated (pause clamp) */
+    int64_t dt_first_us;    /* what the first report after start or a replug integrates */
     int bisect_iters;       /* bisection depth of a limited step (fraction resolution 2^-n) */
     int slide_iters;        /* bisection depth of each slide component */
     int max_tries;          /* candidate poses queried per step at most (bounds the step's time) */

@@ -115,9 +115,9 @@ static void test_rotation_about_centroid_is_exact(void **st)
     loop_config c;
     world_config(&c);
     loop *L = make_loop(&w, &c);
-    loop_event e = motion(1000, 0, 0, 0, 0, 0, 1);
-    assert_int_equal(loop_feed(L, &e), LOOP_IDLE); /* the first report only sets the clock */
-    e.t_us += 10000;                               /* 10 ms at 90 deg/s: 0.9 deg about +z */
+    loop_event e = motion(1000, 0, 0, 0, 0, 0, 0);
+    assert_int_equal(loop_feed(L, &e), LOOP_IDLE); /* at rest: only sets the clock */
+    e = motion(11000, 0, 0, 0, 0, 0, 1);           /* 10 ms at 90 deg/s: 0.9 deg about +z */
     assert_int_equal(loop_feed(L, &e), LOOP_ACCEPTED);
     pose p = loop_pose(L, 0);
     double cen[3];
@@ -165,16 +165,16 @@ static void test_frames_and_dt_clamp(void **st)
     /* Camera: device +y (towards the user) moves the fragment anteriorly (world -y), device +z
      * (down) moves it inferiorly (world -z). 8 ms at 100 mm/s = 0.8 mm. */
     loop_event e = motion(0, 0, 0.5, 0.25, 0, 0, 0);
-    loop_feed(L, &e);
+    assert_int_equal(loop_feed(L, &e), LOOP_ACCEPTED); /* the first report: 8 ms (dt_first_us) */
     e.t_us = 8000;
     assert_int_equal(loop_feed(L, &e), LOOP_ACCEPTED);
     pose p = loop_pose(L, 0);
-    assert_true(fabs(p.t[0]) < 1e-12 && fabs(p.t[1] + 0.4) < 1e-6 && fabs(p.t[2] + 0.2) < 1e-6);
+    assert_true(fabs(p.t[0]) < 1e-12 && fabs(p.t[1] + 0.8) < 1e-6 && fabs(p.t[2] + 0.4) < 1e-6);
     /* A 5 s pause integrates only dt_max (20 ms): 2 mm, not 500. */
     e = motion(5008000, 0, 0.5, 0, 0, 0, 0);
     loop_feed(L, &e);
     p = loop_pose(L, 0);
-    assert_true(fabs(p.t[1] + 0.4 + 1.0) < 1e-6);
+    assert_true(fabs(p.t[1] + 0.8 + 1.0) < 1e-6);
     loop_free(L);
 
     /* Fragment frame: the fragment turned 90 deg about z; its local x is world +y. */
@@ -183,9 +183,9 @@ static void test_frames_and_dt_clamp(void **st)
     L = make_loop(&w, &c);
     double z[3] = {0, 0, 1};
     loop_set_pose(L, 0, pose_from_axis_angle(z, M_PI / 2));
-    e = motion(0, 1, 0, 0, 0, 0, 0);
+    e = motion(0, 0, 0, 0, 0, 0, 0);
     loop_feed(L, &e);
-    e.t_us = 10000;
+    e = motion(10000, 1, 0, 0, 0, 0, 0);
     loop_feed(L, &e);
     p = loop_pose(L, 0);
     assert_true(fabs(p.t[0]) < 1e-9 && fabs(p.t[1] - 1.0) < 1e-9);
@@ -280,7 +280,7 @@ static void test_undo_redo_gestures(void **st)
     pose g1 = loop_pose(L, 0);
     push(L, motion(0, 0, 0, 1, 0, 0, 0), 5, &t); /* gesture 2: in z */
     pose g2 = loop_pose(L, 0);
-    assert_true(fabs(g1.t[1] - 3.2) < 1e-9 && fabs(g2.t[2] - 4.0) < 1e-9);
+    assert_true(fabs(g1.t[1] - 4.0) < 1e-9 && fabs(g2.t[2] - 4.0) < 1e-9);
     assert_int_equal(loop_action_do(L, LOOP_ACT_UNDO), LOOP_ACCEPTED);
     assert_true(pose_distance(loop_pose(L, 0), g1) == 0);
     assert_int_equal(loop_action_do(L, LOOP_ACT_UNDO), LOOP_ACCEPTED);
@@ -393,14 +393,14 @@ static void test_unplug_keeps_pose_and_time_restarts(void **st)
     loop_scene_read(L, &sc);
     assert_int_equal(sc.device_present, 0);
     assert_true(pose_distance(sc.pose[0], before) == 0);
-    /* Back after 3 s: the first report restarts the clock instead of integrating 3 s. */
+    /* Back after 3 s: the first report counts as one report period (8 ms), not 3 s. */
     u.kind = LOOP_EV_REPLUG;
     loop_feed(L, &u);
     t += 3000000;
     push(L, motion(0, 0, 1, 0, 0, 0, 0), 1, &t);
-    assert_true(pose_distance(loop_pose(L, 0), before) == 0);
-    push(L, motion(0, 0, 1, 0, 0, 0, 0), 1, &t);
     assert_true(fabs(pose_distance(loop_pose(L, 0), before) - 0.8) < 1e-9);
+    push(L, motion(0, 0, 1, 0, 0, 0, 0), 1, &t);
+    assert_true(fabs(pose_distance(loop_pose(L, 0), before) - 1.6) < 1e-9);
     loop_free(L);
 }
 
@@ -493,8 +493,8 @@ static void test_drain_publishes_scene(void **st)
     assert_int_equal(loop_drain(L, r), 10);
     assert_int_equal(loop_scene_read(L, &sc), 1);
     assert_true(sc.seq > seq0);
-    assert_true(fabs(sc.pose[0].t[1] - 7.2) < 1e-9); /* world frame: 9 steps of 0.8 mm */
-    assert_int_equal(sc.stats.steps, 9);
+    assert_true(fabs(sc.pose[0].t[1] - 8.0) < 1e-9); /* world frame: 10 steps of 0.8 mm */
+    assert_int_equal(sc.stats.steps, 10);
     assert_int_equal(sc.stats.latency_samples, 10);
     assert_int_equal(loop_scene_read(L, &sc), 0); /* nothing newer */
     ring_free(r);
@@ -561,11 +561,11 @@ static void test_threads_reader_loop_renderer(void **st)
     loop_stats s;
     loop_get_stats(L, &s);
     assert_int_equal(s.events, 2000);
-    assert_int_equal(s.steps, 1999);
+    assert_int_equal(s.steps, 2000);
     assert_int_equal(s.dropped, 0);
     assert_int_equal(s.latency_samples, 2000);
     pose p = loop_pose(L, 0);
-    assert_true(fabs(p.t[2] - 1999 * 0.4) < 1e-6); /* 0.5 * 100 mm/s * 8 ms a step */
+    assert_true(fabs(p.t[2] - 2000 * 0.4) < 1e-6); /* 0.5 * 100 mm/s * 8 ms a step */
     assert_true(v.fresh > 0);
     ring_free(r);
     loop_free(L);
