@@ -138,3 +138,8 @@ uint32_t calib_buttons(calib *c, const dev_event *ev, uint32_t *pressed, uint32_
         *released = remap(c, ev->released);
     return remap(c, ev->buttons);
 }
+
+int calib_led(const calib *c, int holding)
+{
+    return c->led == 2 ? holding != 0 : c->led != 0;
+}

@@ -83,9 +83,19 @@ int calib_parse_spnavrc(calib *c, const char *text, size_t len, const char *fnam
  * Returns the number of bad lines, or FN_EIO for an unreadable named file. */
 int calib_load(calib *c, const char *path, char *used, size_t used_cap, char *diag, size_t cap);
 
+/* Saves c in spnavrc syntax to path, or to ~/.config/fracnav/spnavrc (made if missing) when path
+ * is NULL; atomically (temporary file, fsync, rename), so a crash never leaves a broken file. The
+ * file is rewritten whole: comments of an earlier file are not kept. *used receives the path.
+ * Returns 0 or FN_EIO naming the file. */
+int calib_save(const calib *c, const char *path, char *used, size_t used_cap);
+
 /* Writes c in spnavrc syntax (every key set, so the file round-trips). Returns bytes written
  * (excluding the NUL; truncated to cap). */
 size_t calib_format_spnavrc(const calib *c, char *out, size_t cap);
+
+/* Whether the LED should be lit: the `led` setting (on, off, or auto = while a fragment is held).
+ * The loop calls dev_set_led(d, calib_led(c, holding)) when either changes. */
+int calib_led(const calib *c, int holding);
 
 /* Action names in spnavrc ("sensitivity-up", ...), NULL for none; and back (-1 unknown). */
 const char *calib_action_name(calib_action a);

@@ -7,7 +7,9 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <fcntl.h>
 #include <sys/stat.h>
+#include <unistd.h>
 
 #include "err.h"
 
@@ -152,57 +154,68 @@ static int sens_key(calib *c, const char *k, const char *v)
     return 0;
 }
 
-/* One key = value. Returns 0, -1 unknown key, -2 bad value. */
-static int apply_key(calib *c, const char *k, const char *v)
+static int dead_key(calib *c, const char *k, const char *v)
 {
+    int i = k[9] ? parse_index(k + 9, 6) : 6;
     float f;
-    int b, i;
-    if (!strncmp(k, "sensitivity", 11))
-        return sens_key(c, k, v);
-    if (!strcmp(k, "dead-zone") || !strncmp(k, "dead-zone", 9)) {
-        i = k[9] ? parse_index(k + 9, 6) : 6;
-        if (i < 0)
-            return -1;
-        if (parse_float(v, 0.0f, 0.9f * RAW_FULL_SCALE, &f))
-            return -2;
-        for (int a = i == 6 ? 0 : i; a < (i == 6 ? 6 : i + 1); a++)
-            c->dead[a] = f / RAW_FULL_SCALE;
-        return 0;
-    }
-    if (!strcmp(k, "invert-rot") || !strcmp(k, "invert-trans")) {
-        if ((b = parse_axes(v)) < 0)
-            return -2;
-        int shift = k[7] == 'r' ? 3 : 0;
-        c->invert = (uint8_t)((c->invert & ~(7 << shift)) | b << shift);
-        return 0;
-    }
-    if (!strncmp(k, "axismap", 7)) {
-        if ((i = parse_index(k + 7, 6)) < 0)
-            return -1;
-        int m = parse_index(v, 6);
-        if (m < 0)
-            return -2;
+    if (i < 0)
+        return -1;
+    if (parse_float(v, 0.0f, 0.9f * RAW_FULL_SCALE, &f))
+        return -2;
+    for (int a = i == 6 ? 0 : i; a < (i == 6 ? 6 : i + 1); a++)
+        c->dead[a] = f / RAW_FULL_SCALE;
+    return 0;
+}
+
+static int invert_key(calib *c, const char *k, const char *v)
+{
+    int b = parse_axes(v), shift = k[7] == 'r' ? 3 : 0;
+    if (b < 0)
+        return -2;
+    c->invert = (uint8_t)((c->invert & ~(7 << shift)) | b << shift);
+    return 0;
+}
+
+/* axismapN = M (device axis N drives output M), bnmapN = M, bnactN = action. */
+static int map_key(calib *c, const char *k, const char *v)
+{
+    int ax = k[0] == 'a', i = parse_index(k + (ax ? 7 : 5), ax ? 6 : CALIB_BUTTONS);
+    if (i < 0)
+        return -1;
+    int m = ax ? parse_index(v, 6) : k[2] == 'm' ? parse_index(v, CALIB_BUTTONS) : calib_action_parse(v);
+    if (m < 0)
+        return -2;
+    if (ax)
         c->map[m] = (int8_t)i;
-        return 0;
-    }
-    if (!strncmp(k, "bnmap", 5) || !strncmp(k, "bnact", 5)) {
-        if ((i = parse_index(k + 5, CALIB_BUTTONS)) < 0)
-            return -1;
-        int m = k[2] == 'm' ? parse_index(v, CALIB_BUTTONS) : calib_action_parse(v);
-        if (m < 0)
-            return -2;
-        if (k[2] == 'm')
-            c->bnmap[i] = (int8_t)m;
-        else
-            c->bnact[i] = (calib_action)m;
-        return 0;
-    }
+    else if (k[2] == 'm')
+        c->bnmap[i] = (int8_t)m;
+    else
+        c->bnact[i] = (calib_action)m;
+    return 0;
+}
+
+static int bool_key(calib *c, const char *k, const char *v)
+{
+    int b = parse_bool(v);
+    if (b < 0)
+        return -2;
+    calib_lock l = k[8] == 'r' ? CALIB_LOCK_TRANSLATION : CALIB_LOCK_ROTATION;
+    if (k[0] == 's')
+        c->swap_yz = b;
+    else if (k[1] == 'o')
+        c->dominant = b;
+    else if (b)
+        c->lock = l;
+    else if (c->lock == l)
+        c->lock = CALIB_LOCK_NONE;
+    return 0;
+}
+
+static int misc_key(calib *c, const char *k, const char *v)
+{
     if (!strcmp(k, "led")) {
-        b = !strcasecmp(v, "auto") ? 2 : parse_bool(v);
-        if (b < 0)
-            return -2;
-        c->led = b;
-        return 0;
+        int b = !strcasecmp(v, "auto") ? 2 : parse_bool(v);
+        return b < 0 ? -2 : (c->led = b, 0);
     }
     if (!strcmp(k, "response")) {
         if (strcmp(v, "linear") && strcmp(v, "cubic"))
@@ -212,26 +225,27 @@ static int apply_key(calib *c, const char *k, const char *v)
     }
     if (!strcmp(k, "cubic-mix"))
         return parse_float(v, 0.0f, 1.0f, &c->cubic_mix) ? -2 : 0;
-    if (!strncmp(k, "zero-offset", 11)) {
-        if ((i = parse_index(k + 11, 6)) < 0)
-            return -1;
+    int i = strncmp(k, "zero-offset", 11) ? -1 : parse_index(k + 11, 6);
+    if (i >= 0)
         return parse_float(v, -1.0f, 1.0f, &c->zero[i]) ? -2 : 0;
-    }
-    if (!strcmp(k, "swap-yz") || !strcmp(k, "dominant-axis") || !strcmp(k, "disable-rotation") ||
-        !strcmp(k, "disable-translation")) {
-        if ((b = parse_bool(v)) < 0)
-            return -2;
-        if (k[0] == 's')
-            c->swap_yz = b;
-        else if (k[1] == 'o')
-            c->dominant = b;
-        else if (b)
-            c->lock = k[8] == 'r' ? CALIB_LOCK_TRANSLATION : CALIB_LOCK_ROTATION;
-        else if (c->lock == (k[8] == 'r' ? CALIB_LOCK_TRANSLATION : CALIB_LOCK_ROTATION))
-            c->lock = CALIB_LOCK_NONE;
-        return 0;
-    }
     return ignored_key(k) ? 0 : -1;
+}
+
+/* One key = value. Returns 0, -1 unknown key, -2 bad value. */
+static int apply_key(calib *c, const char *k, const char *v)
+{
+    if (!strncmp(k, "sensitivity", 11))
+        return sens_key(c, k, v);
+    if (!strncmp(k, "dead-zone", 9))
+        return dead_key(c, k, v);
+    if (!strcmp(k, "invert-rot") || !strcmp(k, "invert-trans"))
+        return invert_key(c, k, v);
+    if (!strncmp(k, "axismap", 7) || !strncmp(k, "bnmap", 5) || !strncmp(k, "bnact", 5))
+        return map_key(c, k, v);
+    if (!strcmp(k, "swap-yz") || !strcmp(k, "dominant-axis") || !strcmp(k, "disable-rotation") ||
+        !strcmp(k, "disable-translation"))
+        return bool_key(c, k, v);
+    return misc_key(c, k, v);
 }
 
 static char *trim(char *s)
@@ -387,7 +401,7 @@ size_t calib_format_spnavrc(const calib *c, char *out, size_t cap)
         if (c->map[i] >= 0)
             put(out, cap, "axismap%d = %d\n", c->map[i], i);
     for (int i = 0; i < CALIB_BUTTONS; i++) {
-        if (c->bnmap[i] >= 0)
+        if (c->bnmap[i] >= 0 && c->bnmap[i] != i)
             put(out, cap, "bnmap%d = %d\n", i, c->bnmap[i]);
         if (c->bnact[i] != CALIB_ACT_NONE)
             put(out, cap, "bnact%d = %s\n", i, calib_action_name(c->bnact[i]));
@@ -399,4 +413,44 @@ size_t calib_format_spnavrc(const calib *c, char *out, size_t cap)
     for (int i = 0; i < 6; i++)
         put(out, cap, "zero-offset%d = %g\n", i, c->zero[i]);
     return strlen(out);
+}
+
+static int default_path(char *out, size_t cap)
+{
+    const char *home = getenv("HOME");
+    if (!home || !*home)
+        return fn_err_set(FN_EIO, "calibration: $HOME is not set: give a file to save to");
+    char dir[512];
+    snprintf(dir, sizeof dir, "%s/.config", home);
+    mkdir(dir, 0755);
+    snprintf(dir, sizeof dir, "%s/.config/fracnav", home);
+    if (mkdir(dir, 0755) && errno != EEXIST)
+        return fn_err_set(FN_EIO, "%s: %s", dir, strerror(errno));
+    snprintf(out, cap, "%s/spnavrc", dir);
+    return 0;
+}
+
+int calib_save(const calib *c, const char *path, char *used, size_t used_cap)
+{
+    char def[600], tmp[700], text[8192];
+    if (!path) {
+        if (default_path(def, sizeof def))
+            return FN_EIO;
+        path = def;
+    }
+    size_t n = calib_format_spnavrc(c, text, sizeof text);
+    snprintf(tmp, sizeof tmp, "%s.tmp", path);
+    int fd = open(tmp, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+    if (fd < 0)
+        return fn_err_set(FN_EIO, "%s: %s", tmp, strerror(errno));
+    int ok = write(fd, text, n) == (ssize_t)n && fsync(fd) == 0;
+    ok = close(fd) == 0 && ok;
+    if (!ok || rename(tmp, path) != 0) {
+        int e = errno;
+        unlink(tmp);
+        return fn_err_set(FN_EIO, "%s: cannot save the calibration: %s", path, strerror(e));
+    }
+    if (used && used_cap)
+        snprintf(used, used_cap, "%s", path);
+    return 0;
 }

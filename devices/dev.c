@@ -27,6 +27,8 @@ struct dev_device {
     devparse_state ps;
     char reopen[256];
     int64_t next_try_us;
+    dev_raw_hook hook;
+    void *hook_ctx;
 };
 
 int64_t dev_now_us(void)
@@ -196,7 +198,8 @@ static void lost(dev_device *d, dev_event *ev)
     ev->battery = -1;
 }
 
-/* Same path first; else the same vid:pid:serial wherever it reappeared. */
+/* Same path first; else the same vid:pid:serial wherever it reappeared (a replugged device may get
+ * another hidraw number; devices without a serial number match on vid:pid). */
 static int try_reopen(dev_device *d)
 {
     dev_handle *h = NULL;
@@ -205,7 +208,7 @@ static int try_reopen(dev_device *d)
         return 1;
     }
     dev_info found[16];
-    int n = d->t->enumerate && d->info.serial[0] ? d->t->enumerate(found, 16) : 0;
+    int n = d->t->enumerate && d->info.vid ? d->t->enumerate(found, 16) : 0;
     for (int k = 0; k < n && k < 16; k++)
         if (found[k].vid == d->info.vid && found[k].pid == d->info.pid &&
             !strcmp(found[k].serial, d->info.serial) && d->t->open(found[k].path, &h) == 0) {
@@ -263,6 +266,8 @@ int dev_poll(dev_device *d, dev_event *ev, int timeout_ms)
             return n;
         if (n == 0)
             break;
+        if (d->hook)
+            d->hook(d->hook_ctx, buf, (size_t)n, t_us);
         dev_event e;
         if (!devparse_report(&d->ps, buf, (size_t)n, t_us, &e))
             continue;
@@ -273,6 +278,12 @@ int dev_poll(dev_device *d, dev_event *ev, int timeout_ms)
         got = 1;
     }
     return got;
+}
+
+void dev_set_raw_hook(dev_device *d, dev_raw_hook hook, void *ctx)
+{
+    d->hook = hook;
+    d->hook_ctx = ctx;
 }
 
 int dev_set_led(dev_device *d, int on)

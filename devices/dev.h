@@ -111,6 +111,11 @@ void dev_close(dev_device *d);
  * nothing after dev_open. */
 int dev_poll(dev_device *d, dev_event *ev, int timeout_ms);
 
+/* Called by dev_poll with every raw report it reads, before parsing (recorders: `fracnav record`).
+ * Runs on the polling thread; NULL removes it. */
+typedef void (*dev_raw_hook)(void *ctx, const uint8_t *report, size_t len, int64_t t_us);
+void dev_set_raw_hook(dev_device *d, dev_raw_hook hook, void *ctx);
+
 /* LED on/off (output report 4). A device without an LED returns 0 and does nothing. */
 int dev_set_led(dev_device *d, int on);
 /* Battery 0..100 from the latest report 0x17, -1 unknown. */

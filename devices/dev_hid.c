@@ -45,12 +45,14 @@ static void narrow(char *out, size_t cap, const wchar_t *w)
     out[i] = '\0';
 }
 
-/* The 6-DOF collection of a supported device (receivers expose several). */
+/* A supported device's 6-DOF collection (receivers expose several), or any device whose
+ * descriptor declares a multi-axis controller (a product id the table does not know yet). */
 static int wanted(const struct hid_device_info *e)
 {
+    int multi_axis = e->usage_page == 1 && e->usage == 8;
     if (!devtab_find(e->vendor_id, e->product_id))
-        return 0;
-    return e->usage_page == 0 || (e->usage_page == 1 && e->usage == 8);
+        return multi_axis;
+    return e->usage_page == 0 || multi_axis;
 }
 
 static int hid_enum(dev_info *out, size_t cap)

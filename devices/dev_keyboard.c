@@ -1,13 +1,16 @@
-/* dev: the keyboard fallback for machines with no controller. Terminal keys (raw mode) become
- * combined-format reports of the "keyboard" device-table row:
- *   a/d  -x/+x    w/s  -y/+y (away/towards you)   r/f  -z/+z (up/down)
- *   i/k  -rx/+rx  j/l  -rz/+rz                    u/o  -ry/+ry
+/* dev: the keyboard+mouse fallback for machines with no controller. Terminal keys (raw mode) and
+ * terminal mouse events (xterm SGR reporting) become combined-format reports of the "keyboard"
+ * device-table row:
+ *   a/d or arrows left/right  -x/+x    w/s or arrows up/down  -y/+y (away/towards you)
+ *   r/f  -z/+z (up/down)   i/k -rx/+rx   j/l -rz/+rz   u/o -ry/+ry
  *   1-8  buttons 0-7 (tap)      space or x: stop all motion
+ *   mouse: left drag rotates (rz, rx), middle drag rolls (ry), right drag moves (x, y), wheel z
  * A terminal has no key-up: a key holds its axis for KEY_HOLD_MS, and auto-repeat keeps it held.
- * "keyboard:FILE" reads the keys from FILE instead of the terminal (scripts, tests). */
+ * "keyboard:FILE" reads the same bytes from FILE instead of the terminal (scripts, tests). */
 #include <errno.h>
 #include <fcntl.h>
 #include <poll.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <termios.h>
@@ -20,7 +23,12 @@
 #define KEY_HOLD_MS 150
 #define KEY_LEVEL 250 /* of the row's 350: a brisk but controllable speed */
 
+#define MOUSE_GAIN 70  /* per terminal cell dragged */
+#define ESC_MAX 24
+
 enum { PENDING_MOTION = 1, PENDING_BUTTONS = 2 };
+
+static const char MOUSE_ON[] = "\033[?1002h\033[?1006h", MOUSE_OFF[] = "\033[?1006l\033[?1002l";
 
 struct dev_handle {
     int fd, own_fd, raw_mode;
@@ -29,6 +37,9 @@ struct dev_handle {
     uint32_t buttons;
     int64_t release_us; /* when held axes and buttons drop back to zero */
     unsigned pending;   /* PENDING_*: reports still to send */
+    char esc[ESC_MAX];  /* an escape sequence being read */
+    size_t esc_len;
+    int mx, my, mdown;  /* last mouse cell, and whether a drag is under way */
 };
 
 static int kb_open(const char *path, dev_handle **out)
@@ -53,6 +64,8 @@ static int kb_open(const char *path, dev_handle **out)
         t.c_cc[VMIN] = 0;
         t.c_cc[VTIME] = 0;
         h->raw_mode = tcsetattr(h->fd, TCSANOW, &t) == 0;
+        if (h->raw_mode && isatty(STDOUT_FILENO))
+            (void)!write(STDOUT_FILENO, MOUSE_ON, sizeof MOUSE_ON - 1);
     }
     *out = h;
     return 0;
@@ -75,8 +88,78 @@ static int key_axis(char c, int *sign)
     return -1;
 }
 
+static int clamp_level(int v)
+{
+    return v > 350 ? 350 : v < -350 ? -350 : v;
+}
+
+/* One SGR mouse report "\033[<b;x;yM" (press/drag) or "...m" (release). */
+static void apply_mouse(dev_handle *h, int b, int x, int y, int press)
+{
+    if (!press) {
+        h->mdown = 0;
+        return;
+    }
+    if (b == 64 || b == 65) { /* wheel: up lifts (-z), down pushes (+z) */
+        h->v[2] = b == 64 ? -KEY_LEVEL : KEY_LEVEL;
+        h->pending |= PENDING_MOTION;
+        return;
+    }
+    int drag = (b & 32) && h->mdown, dx = drag ? x - h->mx : 0, dy = drag ? y - h->my : 0;
+    h->mx = x, h->my = y, h->mdown = 1;
+    if (!drag)
+        return;
+    switch (b & 3) {
+    case 0: h->v[5] = clamp_level(dx * MOUSE_GAIN), h->v[3] = clamp_level(-dy * MOUSE_GAIN); break;
+    case 1: h->v[4] = clamp_level(dx * MOUSE_GAIN); break;
+    default: h->v[0] = clamp_level(dx * MOUSE_GAIN), h->v[1] = clamp_level(dy * MOUSE_GAIN); break;
+    }
+    h->pending |= PENDING_MOTION;
+}
+
+/* A finished escape sequence: arrows, or a mouse report. Anything else is ignored. */
+static void apply_escape(dev_handle *h)
+{
+    const char *e = h->esc;
+    char fin = e[h->esc_len - 1];
+    int b, x, y;
+    if (h->esc_len == 3 && strchr("ABCD", fin)) {
+        int axis = fin == 'A' || fin == 'B' ? 1 : 0, sign = fin == 'B' || fin == 'C' ? 1 : -1;
+        h->v[axis] = sign * KEY_LEVEL;
+        h->pending |= PENDING_MOTION;
+    } else if (e[2] == '<' && sscanf(e + 3, "%d;%d;%d", &b, &x, &y) == 3)
+        apply_mouse(h, b, x, y, fin == 'M');
+}
+
+/* Collects "\033[" ... final byte; returns 1 while the byte belongs to a sequence. */
+static int escape_byte(dev_handle *h, char c)
+{
+    if (c == '\033') {
+        h->esc[0] = c;
+        h->esc_len = 1;
+        return 1;
+    }
+    if (!h->esc_len)
+        return 0;
+    if (h->esc_len == 1 && c != '[') {
+        h->esc_len = 0;
+        return 0;
+    }
+    h->esc[h->esc_len++] = c;
+    if (h->esc_len >= 3 && ((c >= 'A' && c <= 'Z') || (c >= 'a' && c <= 'z') || c == '~')) {
+        h->esc[h->esc_len] = '\0';
+        apply_escape(h);
+        h->esc_len = 0;
+    } else if (h->esc_len >= ESC_MAX - 1)
+        h->esc_len = 0; /* too long to be ours: drop it */
+    return 1;
+}
+
 static void apply_key(dev_handle *h, char c, int64_t now)
 {
+    h->release_us = now + KEY_HOLD_MS * 1000;
+    if (escape_byte(h, c))
+        return;
     int sign, a = key_axis(c, &sign);
     if (a >= 0) {
         h->v[a] = sign * KEY_LEVEL;
@@ -88,7 +171,6 @@ static void apply_key(dev_handle *h, char c, int64_t now)
         memset(h->v, 0, sizeof h->v);
         h->pending |= PENDING_MOTION;
     }
-    h->release_us = now + KEY_HOLD_MS * 1000;
 }
 
 /* Sends what changed, one report per call: motion first, then buttons. */
@@ -141,14 +223,17 @@ static int kb_info(dev_handle *h, dev_info *out)
 {
     memset(out, 0, sizeof *out);
     strcpy(out->path, "keyboard");
-    strcpy(out->name, "keyboard fallback (a/d w/s r/f, i/k j/l u/o, 1-8)");
+    strcpy(out->name, "keyboard+mouse fallback (a/d w/s r/f, i/k j/l u/o, 1-8, mouse drag)");
     return 0;
 }
 
 static void kb_close(dev_handle *h)
 {
-    if (h->raw_mode)
+    if (h->raw_mode) {
+        if (isatty(STDOUT_FILENO))
+            (void)!write(STDOUT_FILENO, MOUSE_OFF, sizeof MOUSE_OFF - 1);
         tcsetattr(h->fd, TCSANOW, &h->saved);
+    }
     if (h->own_fd)
         close(h->fd);
     free(h);

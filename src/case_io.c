@@ -415,7 +415,7 @@ static int read_fragments(struct reader *r, json_t *root, fcase *c)
         json_t *o = json_array_get(fr, (size_t)i);
         char pre[48];
         snprintf(pre, sizeof pre, "fragments[%d].", i);
-        long id, rgb[3];
+        long id = 0, rgb[3];
         if (get_int(r, o, pre, "id", 1, 65535, &id) < 0)
             return FN_EFORMAT;
         int k = case_find(c, (int)id);

@@ -7,7 +7,7 @@
     X(demo, "run the built-in demo on the example CT")                                      \
     X(info, "print a volume's dimensions, type, spacing, geometry and range")                \
     X(segment, "segment a CT into bone fragments and save a case")                           \
-    X(edit, "correct a case: merge, split, erase, keep or drop fragments")                   \
+    X(edit, "correct a case: merge, split, erase, grow, keep or drop fragments")                   \
     X(fracture, "make a synthetic fracture with ground truth from a CT")                     \
     X(devices, "list connected 6-DOF controllers")                                           \
     X(device_test, "live view of a controller's axes and buttons")                           \

@@ -23,11 +23,20 @@ static void on_signal(int sig)
 
 static void usage(FILE *out)
 {
-    fprintf(out, "usage: fracnav device-test [--device SPEC] [--seconds S] [--config SPNAVRC]\n\n"
+    fprintf(out, "usage: fracnav device-test [--device SPEC] [--seconds S] [--config SPNAVRC]\n"
+                 "                           [--calibrate-zero]\n\n"
                  "Shows a controller's six axes (normalized, then calibrated), buttons, battery and\n"
                  "report rate, live, until Ctrl-C or S seconds. SPEC: auto (default), a hidraw path\n"
                  "such as /dev/hidraw0, serial:SN, spnav, keyboard, replay:FILE, ...\n"
-                 "Calibration comes from ~/.config/fracnav/spnavrc, else /etc/spnavrc, or --config.\n");
+                 "Calibration comes from ~/.config/fracnav/spnavrc, else /etc/spnavrc, or --config.\n\n"
+                 "  --calibrate-zero  with the cap released, measure the rest position for S seconds\n"
+                 "                    (default 1) and save it as the zero offset (against drift) to\n"
+                 "                    --config, or ~/.config/fracnav/spnavrc\n");
+}
+
+static void count_report(void *ctx, const uint8_t *report, size_t len, int64_t t_us)
+{
+    ++*(long *)ctx;
 }
 
 static void show(FILE *out, const dev_event *ev, const float cal[6], int battery, double rate, int tty)
@@ -37,6 +46,8 @@ static void show(FILE *out, const dev_event *ev, const float cal[6], int battery
     for (int i = 0; i < 6; i++)
         fprintf(out, "%s %+5.2f>%+5.2f ", names[i], ev->axis[i], cal[i]);
     fprintf(out, "| buttons %08x", ev->buttons);
+    if (ev->pressed || ev->released)
+        fprintf(out, " (+%x -%x)", ev->pressed, ev->released);
     for (int i = 0; i < 6 && ev->keys[i]; i++)
         fprintf(out, "%s%u", i ? "," : " keys ", ev->keys[i]);
     if (battery >= 0)
@@ -45,17 +56,25 @@ static void show(FILE *out, const dev_event *ev, const float cal[6], int battery
     fflush(out);
 }
 
-static int parse_args(int argc, char **argv, const char **spec, double *seconds, const char **config)
+typedef struct opts {
+    const char *spec, *config;
+    double seconds;
+    int zero;
+} opts;
+
+static int parse_args(int argc, char **argv, opts *o)
 {
     for (int i = 1; i < argc; i++) {
         char *end = NULL;
-        if (!strcmp(argv[i], "--device") && i + 1 < argc)
-            *spec = argv[++i];
+        if (!strcmp(argv[i], "--calibrate-zero"))
+            o->zero = 1;
+        else if (!strcmp(argv[i], "--device") && i + 1 < argc)
+            o->spec = argv[++i];
         else if (!strcmp(argv[i], "--config") && i + 1 < argc)
-            *config = argv[++i];
+            o->config = argv[++i];
         else if (!strcmp(argv[i], "--seconds") && i + 1 < argc) {
-            *seconds = strtod(argv[++i], &end);
-            if (*end || !(*seconds > 0) || *seconds > 1e6) {
+            o->seconds = strtod(argv[++i], &end);
+            if (*end || !(o->seconds > 0) || o->seconds > 1e6) {
                 fprintf(stderr, "fracnav device-test: --seconds wants a positive number, got '%s'\n", argv[i]);
                 return 2;
             }
@@ -68,10 +87,13 @@ static int parse_args(int argc, char **argv, const char **spec, double *seconds,
     return 0;
 }
 
-static int load_calib(calib *c, const char *config)
+/* new_ok: a named file that does not exist yet is fine (it is about to be written). */
+static int load_calib(calib *c, const char *config, int new_ok)
 {
     char used[512], diag[2048];
     calib_default(c);
+    if (config && new_ok && access(config, F_OK) != 0)
+        return 0;
     int bad = calib_load(c, config, used, sizeof used, diag, sizeof diag);
     if (bad < 0) {
         fprintf(stderr, "fracnav device-test: %s\n", fn_err_msg());
@@ -84,40 +106,53 @@ static int load_calib(calib *c, const char *config)
     return 0;
 }
 
-int cmd_device_test(int argc, char **argv)
+/* Time-weighted mean of the input state over the window: the rest position a drifting cap reports. */
+static int calibrate_zero(dev_device *d, calib *c, double seconds, const char *config)
 {
-    if (cmd_wants_help(argc, argv)) {
-        usage(stdout);
-        return 0;
+    double sum[6] = {0}, total = 0;
+    float state[6] = {0};
+    int64_t prev = dev_now_us(), end = prev + (int64_t)((seconds > 0 ? seconds : 1.0) * 1e6);
+    printf("keep the cap released: measuring the rest position for %.1f s\n", seconds > 0 ? seconds : 1.0);
+    while (!stop && prev < end) {
+        dev_event ev;
+        int r = dev_poll(d, &ev, 10);
+        if (r < 0) {
+            fprintf(stderr, "fracnav device-test: %s\n", fn_err_msg());
+            return 1;
+        }
+        int64_t now = dev_now_us();
+        for (int i = 0; i < 6; i++)
+            sum[i] += state[i] * (double)(now - prev);
+        total += (double)(now - prev);
+        prev = now;
+        if (r == 1 && (ev.flags & DEV_EV_MOTION))
+            memcpy(state, ev.axis, sizeof state);
     }
-    const char *spec = "auto", *config = NULL;
-    double seconds = 0;
-    int rc = parse_args(argc, argv, &spec, &seconds, &config);
-    calib c;
-    if (rc || (rc = load_calib(&c, config)))
-        return rc;
-    dev_device *d = dev_open(spec);
-    if (!d) {
+    for (int i = 0; i < 6; i++)
+        c->zero[i] = total > 0 ? (float)(sum[i] / total) : 0.0f;
+    char used[600];
+    if (calib_save(c, config, used, sizeof used)) {
         fprintf(stderr, "fracnav device-test: %s\n", fn_err_msg());
         return 1;
     }
-    const dev_info *info = dev_device_info(d);
-    printf("%s (%04x:%04x) via %s, %s format, %d buttons; %s\n", dev_row(d)->name, info->vid, info->pid,
-           dev_transport_name(d), devtab_format_name(dev_row(d)->format), dev_row(d)->nbuttons,
-           seconds > 0 ? "running" : "Ctrl-C to stop");
-    signal(SIGINT, on_signal);
-    signal(SIGTERM, on_signal);
+    printf("zero offsets %+.4f %+.4f %+.4f %+.4f %+.4f %+.4f saved to %s\n", c->zero[0], c->zero[1],
+           c->zero[2], c->zero[3], c->zero[4], c->zero[5], used);
+    return 0;
+}
+
+static int live_view(dev_device *d, calib *c, double seconds)
+{
     int tty = isatty(STDOUT_FILENO);
     int64_t start = dev_now_us(), end = seconds > 0 ? start + (int64_t)(seconds * 1e6) : INT64_MAX;
     int64_t last_line = 0, window = start;
-    long reports = 0;
+    long reports = 0; /* raw reports, counted as they are read */
     double rate = 0;
+    dev_set_raw_hook(d, count_report, &reports);
     while (!stop && dev_now_us() < end) {
         dev_event ev;
         int r = dev_poll(d, &ev, 50);
         if (r < 0) {
             fprintf(stderr, "%sfracnav device-test: %s\n", tty ? "\n" : "", fn_err_msg());
-            dev_close(d);
             return 1;
         }
         int64_t now = dev_now_us();
@@ -127,13 +162,12 @@ int cmd_device_test(int argc, char **argv)
         }
         if (r == 0)
             continue;
-        reports++;
         if (ev.flags & (DEV_EV_UNPLUG | DEV_EV_REPLUG))
             printf("%s%s\n", tty ? "\n" : "", ev.flags & DEV_EV_UNPLUG ? "unplugged: waiting for it to return"
                                                                          : "plugged in again");
         float cal[6];
-        calib_buttons(&c, &ev, NULL, NULL);
-        calib_apply(&c, ev.axis, cal);
+        calib_buttons(c, &ev, NULL, NULL);
+        calib_apply(c, ev.axis, cal);
         if (tty || now - last_line >= 1000000 / LINES_PER_S || (ev.flags & DEV_EV_BUTTON)) {
             show(stdout, &ev, cal, dev_battery(d), rate, tty);
             last_line = now;
@@ -141,6 +175,32 @@ int cmd_device_test(int argc, char **argv)
     }
     printf("%s%llu report(s) skipped (unknown ID or length)\n", tty ? "\n" : "",
            (unsigned long long)dev_skipped(d));
-    dev_close(d);
     return 0;
+}
+
+int cmd_device_test(int argc, char **argv)
+{
+    if (cmd_wants_help(argc, argv)) {
+        usage(stdout);
+        return 0;
+    }
+    opts o = {"auto", NULL, 0, 0};
+    int rc = parse_args(argc, argv, &o);
+    calib c;
+    if (rc || (rc = load_calib(&c, o.config, o.zero)))
+        return rc;
+    dev_device *d = dev_open(o.spec);
+    if (!d) {
+        fprintf(stderr, "fracnav device-test: %s\n", fn_err_msg());
+        return 1;
+    }
+    const dev_info *info = dev_device_info(d);
+    printf("%s (%04x:%04x) via %s, %s format, %d buttons; %s\n", dev_row(d)->name, info->vid, info->pid,
+           dev_transport_name(d), devtab_format_name(dev_row(d)->format), dev_row(d)->nbuttons,
+           o.seconds > 0 || o.zero ? "running" : "Ctrl-C to stop");
+    signal(SIGINT, on_signal);
+    signal(SIGTERM, on_signal);
+    rc = o.zero ? calibrate_zero(d, &c, o.seconds, o.config) : live_view(d, &c, o.seconds);
+    dev_close(d);
+    return rc;
 }

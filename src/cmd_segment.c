@@ -139,6 +139,9 @@ int cmd_segment(int argc, char **argv)
         return 1;
     }
     report(c, &r);
+    if (c->nfrag == 0)
+        fprintf(stderr, "fracnav segment: warning: no component left at threshold %g (lower it, or "
+                        "--min-volume)\n", r.threshold);
     printf("saved %s (read %.3f s, segmentation %.3f s, fragments %.3f s, save %.3f s)\n", out,
            t1 - t0, t2 - t1, t3 - t2, now() - t3);
     case_free(c);

@@ -195,7 +195,7 @@ static int piece_stats(const vol *lab, int id, frag *f)
     return frag_from_labels(f, lab, NULL, id, lo, hi, 0, 0);
 }
 
-/* Splits the largest piece (label 1 after the first cut keeps the fixed role) into two. */
+/* Splits the largest piece so far with a random rough cut; its smaller side becomes piece `to`. */
 static int make_cut(vol *lab, vol *ct, int to, uint64_t *rng, const fracture_params *p,
                     double normal_out[3])
 {

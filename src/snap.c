@@ -52,7 +52,7 @@ static void plane_axes(int axis, int *u, int *v)
 }
 
 int snap_labels_png(const vol *labels, const vol *ct, const uint8_t (*rgb)[3], int nlabels, int view_axis,
-                    const char *path)
+                    int from_end, const char *path)
 {
     if (view_axis < 0 || view_axis > 2)
         return fn_err_set(FN_EINVAL, "%s: view axis %d is not 0, 1 or 2", path, view_axis);
@@ -63,7 +63,10 @@ int snap_labels_png(const vol *labels, const vol *ct, const uint8_t (*rgb)[3], i
     const int *d = labels->dim;
     /* Square pixels in mm: the finer in-plane spacing sets the pixel size. */
     double px = fmin(labels->spacing[u], labels->spacing[v]);
-    int w = (int)lround(d[u] * labels->spacing[u] / px), h = (int)lround(d[v] * labels->spacing[v] / px);
+    double wmm = d[u] * labels->spacing[u], hmm = d[v] * labels->spacing[v];
+    while (fmax(wmm, hmm) / px < 512 && px > 1e-3)
+        px /= 2;
+    int w = (int)lround(wmm / px), h = (int)lround(hmm / px);
     uint8_t *img = calloc((size_t)w * (size_t)h, 3);
     if (!img)
         return fn_err_set(FN_ENOMEM, "%s: out of memory for a %dx%d picture", path, w, h);
@@ -76,7 +79,7 @@ int snap_labels_png(const vol *labels, const vol *ct, const uint8_t (*rgb)[3], i
             float mip = lo;
             int hit = 0, depth = 0;
             for (int s = 0; s < d[view_axis]; s++) {
-                idx[view_axis] = s;
+                idx[view_axis] = from_end ? d[view_axis] - 1 - s : s;
                 size_t at = vol_idx(labels, idx[0], idx[1], idx[2]);
                 int lab = (int)labels->data[at];
                 if (!hit && lab > 0 && lab < nlabels) {

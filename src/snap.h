@@ -11,10 +11,12 @@
 #include <stdint.h>
 
 /* rgb[label] for labels 0..nlabels-1 (0 = background, unused). view_axis 0, 1 or 2 is the voxel
- * axis looked along. ct may be NULL; when given it must have the labels' dimensions.
+ * axis looked along; from_end = 1 looks from the axis's high end towards index 0. The picture is
+ * scaled up by a whole factor until its longer side reaches 512 pixels. ct may be NULL; when given
+ * it must have the labels' dimensions.
  * Returns 0 or a negative FN_E* code with fn_err set (file name included). */
 int snap_labels_png(const vol *labels, const vol *ct, const uint8_t (*rgb)[3], int nlabels, int view_axis,
-                    const char *path);
+                    int from_end, const char *path);
 
 /* Writes an 8-bit RGB image (w*h*3 bytes, rows top to bottom) to path, atomically. */
 int snap_write_png(const char *path, const uint8_t *rgb, int w, int h);

@@ -128,6 +128,10 @@ static void test_cubic_and_zero_offset(void **s)
     assert_true(c.sens > 1.0f);
     calib_do(&c, CALIB_ACT_SENS_RESET, NULL);
     assert_true(c.sens == 1.0f);
+    assert_int_equal(calib_led(&c, 1), 1); /* auto: lit while a fragment is held */
+    assert_int_equal(calib_led(&c, 0), 0);
+    c.led = 0;
+    assert_int_equal(calib_led(&c, 1), 0);
 }
 
 static const char rc_text[] =

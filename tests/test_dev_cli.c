@@ -77,6 +77,28 @@ static void test_device_test_keyboard(void **s)
     free(dir);
 }
 
+/* A cap that rests off centre: --calibrate-zero measures it and saves it as the zero offset. */
+static void test_calibrate_zero_saves_config(void **s)
+{
+    char *dir = tu_tmpdir("devzero"), keys[4200], rc[4200], *out;
+    snprintf(keys, sizeof keys, "%s/keys", dir);
+    tu_write_file(keys, "d", 1); /* +x held for 150 ms of the 1 s window */
+    snprintf(rc, sizeof rc, "%s/spnavrc", dir);
+    assert_int_equal(tu_run_cli(&out, "device-test --device keyboard:%s --calibrate-zero --config %s", keys, rc), 0);
+    assert_non_null(strstr(out, "saved to"));
+    free(out);
+    char *text = tu_slurp(rc, NULL);
+    assert_non_null(text);
+    const char *z = strstr(text, "zero-offset0 = ");
+    assert_non_null(z);
+    double v = atof(z + 15);
+    assert_true(v > 0.05 && v < 0.3); /* about 0.71 x 0.15 s / 1 s */
+    assert_non_null(strstr(text, "zero-offset1 = 0\n"));
+    free(text);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -84,6 +106,7 @@ int main(void)
         cmocka_unit_test(test_devices_json),
         cmocka_unit_test(test_usage_errors),
         cmocka_unit_test(test_device_test_keyboard),
+        cmocka_unit_test(test_calibrate_zero_saves_config),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

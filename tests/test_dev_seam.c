@@ -25,6 +25,7 @@ static struct {
     uint8_t out[8];
     size_t out_len;
     char serial[16];
+    char path[16]; /* where the device is now ("" = anywhere) */
 } fake;
 
 struct dev_handle {
@@ -39,7 +40,7 @@ static void push(const uint8_t *r, size_t n)
 
 static int f_open(const char *path, dev_handle **out)
 {
-    if (!fake.plugged)
+    if (!fake.plugged || (path && fake.path[0] && strcmp(path, "any") && strcmp(path, fake.path)))
         return fn_err_set(FN_ENODEV, "fake: %s not plugged", path ? path : "(first)");
     *out = calloc(1, sizeof **out);
     fake.opens++;
@@ -68,7 +69,7 @@ static int f_write(dev_handle *h, const uint8_t *buf, size_t len)
 static int f_info(dev_handle *h, dev_info *out)
 {
     memset(out, 0, sizeof *out);
-    strcpy(out->path, "fake0");
+    strcpy(out->path, fake.path[0] ? fake.path : "fake0");
     out->vid = 0x046d, out->pid = 0xc626; /* a SpaceNavigator: split format, LED */
     strcpy(out->serial, fake.serial);
     return 0;
@@ -118,6 +119,15 @@ static void test_registry(void **s)
     assert_non_null(strstr(fn_err_msg(), "unknown transport 'nosuch'"));
 }
 
+static size_t hook_reports, hook_bytes;
+
+static void count_raw(void *ctx, const uint8_t *report, size_t len, int64_t t_us)
+{
+    hook_reports++;
+    hook_bytes += len;
+    assert_ptr_equal(ctx, &hook_reports);
+}
+
 /* A burst of queued motion is drained in one poll; only the newest state counts. */
 static void test_drain_newest_state(void **s)
 {
@@ -133,8 +143,11 @@ static void test_drain_newest_state(void **s)
     }
     const uint8_t junk[] = {0x42, 1, 2};
     push(junk, sizeof junk);
+    dev_set_raw_hook(d, count_raw, &hook_reports);
     dev_event ev;
     assert_int_equal(dev_poll(d, &ev, 0), 1);
+    assert_int_equal(hook_reports, 121); /* every raw report, the skipped one too */
+    assert_int_equal(hook_bytes, 120 * 7 + 3);
     assert_true(fabsf(ev.axis[0] - 60 / 350.0f) < 1e-6f);
     assert_true(fabsf(ev.axis[5] + 60 / 350.0f) < 1e-6f);
     assert_int_equal(fake.head, fake.tail); /* nothing stale left behind */
@@ -235,12 +248,57 @@ static void test_keyboard_keys(void **s)
     free(dir);
 }
 
+/* Terminal mouse (SGR reports) and arrow keys through the same fallback. */
+static void test_keyboard_mouse(void **s)
+{
+    char *dir = tu_tmpdir("mouse");
+    char path[4200], spec[4300];
+    snprintf(path, sizeof path, "%s/events", dir);
+    /* left press at (10,10), drag to (12,9): rz +2 cells, rx +1 cell; then right-arrow; wheel */
+    const char ev1[] = "\033[<0;10;10M\033[<32;12;9M\033[C\033[<65;12;9M\033[<0;12;9m";
+    tu_write_file(path, ev1, sizeof ev1 - 1);
+    snprintf(spec, sizeof spec, "keyboard:%s", path);
+    dev_device *d = dev_open(spec);
+    assert_non_null(d);
+    dev_event ev;
+    assert_int_equal(dev_poll(d, &ev, 0), 1);
+    const float want[6] = {250, 0, 250, 70, 0, 140};
+    for (int i = 0; i < 6; i++)
+        if (fabsf(ev.axis[i] - want[i] / 350.0f) > 1e-6f)
+            fail_msg("axis %d: %g, want %g", i, ev.axis[i] * 350.0f, want[i]);
+    dev_close(d);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* Replugged under another name (a new hidraw number): found again by vid:pid:serial. */
+static void test_replug_elsewhere(void **s)
+{
+    reset_fake();
+    strcpy(fake.path, "fake0");
+    dev_device *d = dev_open("fake:fake0");
+    assert_non_null(d);
+    dev_event ev;
+    fake.plugged = 0;
+    assert_int_equal(dev_poll(d, &ev, 0), 1);
+    assert_true(ev.flags & DEV_EV_UNPLUG);
+    strcpy(fake.path, "fake7");
+    fake.plugged = 1;
+    int back = 0;
+    for (int i = 0; i < 20 && !back; i++)
+        back = dev_poll(d, &ev, 100) == 1 && (ev.flags & DEV_EV_REPLUG);
+    assert_true(back);
+    assert_true(dev_connected(d));
+    dev_close(d);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_registry),       cmocka_unit_test(test_drain_newest_state),
         cmocka_unit_test(test_unplug_replug),  cmocka_unit_test(test_led_and_serial),
         cmocka_unit_test(test_hidraw_path_errors), cmocka_unit_test(test_keyboard_keys),
+        cmocka_unit_test(test_keyboard_mouse),     cmocka_unit_test(test_replug_elsewhere),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -43,17 +43,29 @@ static void test_labels_are_drawn_in_their_colour(void **st)
     char *dir = tu_tmpdir("snap");
     char path[4200];
     snprintf(path, sizeof path, "%s/view.png", dir);
-    assert_int_equal(snap_labels_png(lab, NULL, rgb, 3, 2, path), 0);
+    assert_int_equal(snap_labels_png(lab, NULL, rgb, 3, 2, 0, path), 0);
     int w, h;
     uint8_t px[3];
-    read_pixel(path, 1, 1, &w, &h, px);
-    assert_int_equal(w, 20); /* 20 voxels x 0.5 mm at 0.5 mm pixels... */
-    assert_int_equal(h, 20); /* ...and 10 voxels x 1 mm at 0.5 mm pixels */
+    read_pixel(path, 40, 40, &w, &h, px);
+    /* 10 mm x 10 mm at 0.5 mm pixels is 20x20, halved until 512 pixels: 640x640 */
+    assert_int_equal(w, 640);
+    assert_int_equal(h, 640);
     assert_int_equal(px[0], 200); /* label 1 seen at depth 0: full colour */
     assert_int_equal(px[1], 100);
-    read_pixel(path, 19, 19, &w, &h, px);
+    read_pixel(path, 639, 639, &w, &h, px);
     assert_int_equal(px[0], 0); /* background */
-    assert_int_equal(snap_labels_png(lab, NULL, rgb, 3, 5, path), FN_EINVAL);
+    /* Looking from either end of k shows the nearer of two labels on one ray. */
+    lab->data[vol_idx(lab, 15, 5, 0)] = 1;
+    read_pixel(path, 490, 300, &w, &h, px);
+    assert_int_equal(px[2], 163); /* before: label 2 alone on that ray, at depth 3 of 6: 250 x 0.65 */
+    assert_int_equal(snap_labels_png(lab, NULL, rgb, 3, 2, 0, path), 0);
+    read_pixel(path, 490, 300, &w, &h, px);
+    assert_int_equal(px[0], 200); /* from k = 0: label 1 at depth 0 */
+    assert_int_equal(snap_labels_png(lab, NULL, rgb, 3, 2, 1, path), 0);
+    read_pixel(path, 490, 300, &w, &h, px);
+    assert_int_equal(px[0], 0); /* from the high end: label 2 at k = 3, in front */
+    assert_true(px[2] > 100 && px[2] < 250);
+    assert_int_equal(snap_labels_png(lab, NULL, rgb, 3, 5, 0, path), FN_EINVAL);
     vol_free(lab);
     tu_rmtree(dir);
     free(dir);
