@@ -15,6 +15,8 @@ int bench_loop(int argc, char **argv);
 
 /* Monotonic clock in microseconds. */
 double bench_now_us(void);
+/* CPU time of the calling thread in microseconds: immune to being descheduled on a busy machine. */
+double bench_cpu_us(void);
 /* Peak resident set size of this process in KiB (0 when unknown). */
 long bench_peak_rss_kib(void);
 

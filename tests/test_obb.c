@@ -297,13 +297,20 @@ static frag *random_frag(int maxdim, int aniso)
     return f;
 }
 
-/* Every inner box holds its children's boxes and is the tightest such box. */
-static void check_boxes(const obb_tree *t)
+/* Every inner box holds its children's boxes and is the tightest such box; every solid block is
+ * all certain bone (effective 255); every voxel leaf carries its voxel's effective probability. */
+static void check_boxes(frag *f, const obb_tree *t, const obb_params *prm)
 {
     const obb_node *n = obb_tree_node_array(t);
     for (size_t i = 0; i < obb_tree_nodes(t); i++) {
-        if (is_leaf(&n[i]))
+        if (is_leaf(&n[i])) {
+            uint8_t p = (uint8_t)(n[i].info & 0xff);
+            for (int k = n[i].lo[2]; k <= n[i].hi[2]; k++)
+                for (int j = n[i].lo[1]; j <= n[i].hi[1]; j++)
+                    for (int x = n[i].lo[0]; x <= n[i].hi[0]; x++)
+                        assert_int_equal(obb_effective_prob(*at(f, x, j, k), prm), p);
             continue;
+        }
         uint32_t first = n[i].info & 0xffffff, cnt = ((n[i].info >> 28) & 7) + 1;
         assert_true(cnt >= 2 && first > i && first + cnt <= obb_tree_nodes(t));
         for (int a = 0; a < 3; a++) {
@@ -370,7 +377,7 @@ static void run_random(int frags, int poses_each, int maxdim, int aniso, double 
     for (int n = 0; n < frags; n++) {
         frag *fa = random_frag(maxdim, aniso), *fb = random_frag(maxdim, aniso);
         obb_tree *ta = build(fa, tmin, tmax), *tb = build(fb, tmin, tmax);
-        check_boxes(ta);
+        check_boxes(fa, ta, &prm);
         obb_cache cache;
         obb_cache_reset(&cache);
         double reach = radius(fa) + radius(fb);
