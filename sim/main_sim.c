@@ -42,7 +42,8 @@ typedef struct reader {
     size_t pending_size[PENDING_MAX];
     int npending;
     struct fuse_pollhandle *ph;
-    int dead; /* opened before an unplug */
+    int dead;   /* opened before an unplug */
+    int active; /* has read or polled: a reader, not a probe that only asks for ioctls */
 } reader;
 
 typedef struct server {
@@ -50,7 +51,7 @@ typedef struct server {
     const sim_profile *p;
     fnrec *rec;           /* what the device plays */
     size_t pos;
-    int started, start_on_open, fast, exit_at_end;
+    int started, start_on_read, fast, exit_at_end;
     int64_t t0_us;        /* monotonic time of the recording's t = 0 */
     int plugged;
     simdev dev;           /* LED and feature reports */
@@ -180,7 +181,7 @@ static int room_for_fast(void)
 {
     int any = 0;
     for (reader *r = S.readers; r; r = r->next)
-        if (!r->dead) {
+        if (!r->dead && r->active) {
             if (r->count >= QUEUE_LEN)
                 return 0;
             any = 1;
@@ -287,7 +288,15 @@ static void op_open(fuse_req_t req, fuse_ino_t ino, struct fuse_file_info *fi)
     fi->direct_io = 1;
     fi->nonseekable = 1;
     fuse_reply_open(req, fi);
-    if (S.start_on_open && !S.started)
+}
+
+/* The first read or poll of a reader starts --start-on-read playback and lets --fast go on. */
+static void reader_active(reader *r)
+{
+    if (r->active)
+        return;
+    r->active = 1;
+    if (S.start_on_read && !S.started)
         start_playback();
     else if (S.fast)
         pump();
@@ -326,6 +335,7 @@ static void on_interrupt(fuse_req_t req, void *data)
 static void op_read(fuse_req_t req, fuse_ino_t ino, size_t size, off_t off, struct fuse_file_info *fi)
 {
     reader *r = (reader *)(uintptr_t)fi->fh;
+    reader_active(r);
     if (r->dead) {
         fuse_reply_err(req, EIO);
     } else if (r->count) {
@@ -363,6 +373,7 @@ static void op_poll(fuse_req_t req, fuse_ino_t ino, struct fuse_file_info *fi,
                     struct fuse_pollhandle *ph)
 {
     reader *r = (reader *)(uintptr_t)fi->fh;
+    reader_active(r);
     if (ph) {
         if (r->ph)
             fuse_pollhandle_destroy(r->ph);
@@ -524,6 +535,10 @@ static int block_signals(void)
     sigaddset(&set, SIGHUP);
     sigaddset(&set, SIGUSR1);
     sigprocmask(SIG_BLOCK, &set, NULL);
+    /* A shell starts background jobs with SIGINT ignored; ignored signals never reach a signalfd. */
+    signal(SIGINT, SIG_DFL);
+    signal(SIGTERM, SIG_DFL);
+    signal(SIGHUP, SIG_DFL);
     signal(SIGPIPE, SIG_IGN);
     S.sig_fd = signalfd(-1, &set, SFD_CLOEXEC | SFD_NONBLOCK);
     S.timer_fd = timerfd_create(CLOCK_MONOTONIC, TFD_CLOEXEC | TFD_NONBLOCK);
@@ -588,7 +603,7 @@ static int serve(const char *mount)
     fprintf(stderr, "fracnav-sim: serving %s (%04x:%04x) at %s/" NODE_NAME "\n", S.id.name, S.id.vid,
             S.id.pid, mount);
     S.log_t0 = mono_us();
-    if (!S.start_on_open)
+    if (!S.start_on_read)
         start_playback();
     int rc = serve_loop();
     teardown(mount);
@@ -601,7 +616,7 @@ static void usage(FILE *f)
 {
     fprintf(f,
             "usage: fracnav-sim serve --mount DIR [--as DEVICE] [--play FILE.fnrec | --script FILE]\n"
-            "                         [--start-on-open] [--fast] [--exit-at-end] [--log FILE.fnrec]\n"
+            "                         [--start-on-read] [--fast] [--exit-at-end] [--log FILE.fnrec]\n"
             "       fracnav-sim render [--as DEVICE] --script FILE -o FILE.fnrec\n"
             "       fracnav-sim list\n"
             "\n"
@@ -610,8 +625,8 @@ static void usage(FILE *f)
             "         --as DEVICE      device to impersonate (default spacenavigator; see list)\n"
             "         --play FILE      play a recording (its identity replaces --as)\n"
             "         --script FILE    play a motion script (see sim/script.h)\n"
-            "         --start-on-open  start playing when the node is first opened\n"
-            "         --fast           play as fast as the readers read (implies --start-on-open)\n"
+            "         --start-on-read  start playing when the node is first read or polled\n"
+            "         --fast           play as fast as the readers read (implies --start-on-read)\n"
             "         --exit-at-end    unmount and exit when the playback ends\n"
             "         --log FILE       write every report served to a .fnrec file\n"
             "render   writes the reports a script produces on DEVICE to a .fnrec file\n"
@@ -638,10 +653,10 @@ static int parse_opts(int argc, char **argv, opts *o)
     for (int i = 2; i < argc; i++) {
         const char **dst = NULL;
         const char *a = argv[i];
-        if (!strcmp(a, "--start-on-open"))
-            S.start_on_open = 1;
+        if (!strcmp(a, "--start-on-read"))
+            S.start_on_read = 1;
         else if (!strcmp(a, "--fast"))
-            S.fast = S.start_on_open = 1;
+            S.fast = S.start_on_read = 1;
         else if (!strcmp(a, "--exit-at-end"))
             S.exit_at_end = 1;
         else if (!strcmp(a, "--mount"))
