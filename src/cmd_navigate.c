@@ -25,7 +25,8 @@ static void usage(FILE *out)
             "the case is saved on exit and on demand, and an interrupted session can be recovered.\n\n"
             "  --device SPEC       auto (default: first controller, else spacenavd, else keyboard),\n"
             "                      a hidraw path, spnav, keyboard, serial:S, or a transport NAME:ARG\n"
-            "                      (replay:FILE.fnrec, virtual:spacenavigator:script=FILE)\n"
+            "                      (replay-realtime:FILE.fnrec plays a recording as a device;\n"
+            "                      virtual:spacenavigator:script=FILE)\n"
             "  --recover           start from the poses the journal holds beyond case.json\n"
             "  --discard-journal   start from case.json, emptying the journal\n"
             "  --config FILE       calibration in spnavrc syntax (default ~/.config/fracnav/spnavrc)\n"
@@ -170,8 +171,7 @@ int cmd_navigate(int argc, char **argv)
     int rc = parse(argc, argv, &o);
     if (rc)
         return rc;
-    dev_transport_register(&sim_replay_realtime_transport); /* a recording plays like a device */
-    dev_transport_register(&sim_virtual_transport);
+    sim_register_transports();
     loopkit_dsource ds = {0};
     calib_default(&ds.cal);
     char used[4096], diag[2048] = "";

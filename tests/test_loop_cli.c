@@ -249,7 +249,7 @@ static void test_navigate_saves_on_exit(void **st)
 {
     const char *rec = recording("nav", "translate +z 1 mm over 0.3 s\n");
     char *out = NULL;
-    int rc = tu_run_cli(&out, "navigate '%s' --device 'replay:%s' --duration 0.7 --json", case_dir, rec);
+    int rc = tu_run_cli(&out, "navigate '%s' --device 'replay-realtime:%s' --duration 0.7 --json", case_dir, rec);
     if (rc != 0)
         fprintf(stderr, "%s\n", out);
     assert_int_equal(rc, 0);
