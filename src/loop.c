@@ -10,6 +10,7 @@
 #include <string.h>
 
 #define SAFETY_MM 0.01 /* the separation shortcut keeps this much distance in hand */
+#define CLIMB 0.5      /* backing away per unit of tangential motion when riding over a bump */
 
 void loop_config_default(loop_config *c)
 {
@@ -224,39 +225,58 @@ static int nonzero_axes(const double v[3])
     return (v[0] != 0) + (v[1] != 0) + (v[2] != 0);
 }
 
+/* Each world axis of the translation t, as far as it goes. Then, on a rough contact where
+ * asperities block even the tangential part: the largest part left, other than the main push
+ * (the largest axis of t), once more while backing away from the push by CLIMB of its length --
+ * the fragment rides over the bumps instead of freezing. Returns 1 when anything moved. */
+static int slide_axes(loop *L, int s, pose *cur, double *gap, double c[3], const double t[3],
+                      int *err)
+{
+    static const double zero[3] = {0, 0, 0};
+    double left[3] = {0, 0, 0};
+    int moved_any = 0, push = 0, along = -1;
+    for (int a = 0; a < 3 && !*err; a++) {
+        double axis[3] = {0, 0, 0};
+        axis[a] = t[a];
+        if (fabs(t[a]) > fabs(t[push]))
+            push = a;
+        if (t[a] == 0)
+            continue;
+        double f = advance(L, s, cur, gap, c, axis, zero, L->cfg.slide_iters, err);
+        moved_any |= f > 0;
+        left[a] = t[a] * (1 - f);
+    }
+    for (int a = 0; a < 3; a++)
+        if (a != push && left[a] != 0 && (along < 0 || fabs(left[a]) > fabs(left[along])))
+            along = a;
+    if (*err || along < 0)
+        return moved_any;
+    double climb[3] = {0, 0, 0};
+    climb[along] = left[along];
+    climb[push] = (t[push] > 0 ? -1 : 1) * CLIMB * fabs(left[along]);
+    return advance(L, s, cur, gap, c, climb, zero, L->cfg.slide_iters, err) > 0 || moved_any;
+}
+
 /* The rest of a blocked step, in parts: translation alone and rotation alone (when the step had
- * both), then each world axis of what is left of the translation. Returns 1 when any part moved. */
+ * both), then the translation axis by axis (slide_axes). Returns 1 when any part moved. */
 static int slide(loop *L, int s, pose *cur, double *gap, double c[3], const double d[3],
                  const double r[3], int *err)
 {
     static const double zero[3] = {0, 0, 0};
-    int moved_any = 0, both = norm3(d) > 0 && norm3(r) > 0;
-    double part[2][3];
-    memcpy(part[0], d, sizeof part[0]);
-    memcpy(part[1], r, sizeof part[1]);
-    for (int k = 0; k < 2 && !*err; k++) {
-        double *v = part[k];
-        if (norm3(v) == 0)
-            continue;
-        if (both) {
-            double f = advance(L, s, cur, gap, c, k ? zero : v, k ? v : zero, L->cfg.slide_iters, err);
-            moved_any |= f > 0;
-            for (int i = 0; i < 3; i++)
-                v[i] *= 1 - f;
-            if (f == 1)
-                continue;
-        }
-        if (k == 1 || nonzero_axes(v) < 2)
-            continue; /* per-axis parts for translation only: rotation parts rarely free a contact */
-        for (int a = 0; a < 3 && !*err; a++) {
-            double axis[3] = {0, 0, 0};
-            axis[a] = v[a];
-            if (axis[a] == 0)
-                continue;
-            double f = advance(L, s, cur, gap, c, k ? zero : axis, k ? axis : zero, L->cfg.slide_iters, err);
-            moved_any |= f > 0;
-        }
+    double t[3], w[3];
+    memcpy(t, d, sizeof t);
+    memcpy(w, r, sizeof w);
+    int moved_any = 0;
+    if (norm3(t) > 0 && norm3(w) > 0) {
+        double f = advance(L, s, cur, gap, c, t, zero, L->cfg.slide_iters, err);
+        for (int i = 0; i < 3; i++)
+            t[i] *= 1 - f;
+        moved_any |= f > 0;
+        if (!*err)
+            moved_any |= advance(L, s, cur, gap, c, zero, w, L->cfg.slide_iters, err) > 0;
     }
+    if (!*err && nonzero_axes(t) >= 2)
+        moved_any |= slide_axes(L, s, cur, gap, c, t, err);
     return moved_any;
 }
 

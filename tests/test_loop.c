@@ -21,6 +21,7 @@
 typedef struct world {
     frag f[3];
     double wall_x;
+    double bumps; /* > 0: the wall's face is a sawtooth in y with teeth this high (mm) */
     int queries;
 } world;
 
@@ -37,6 +38,28 @@ static void make_box(frag *f, int id, const double at[3], int nx, int ny, int nz
     f->centroid[0] = at[0] + (nx - 1) / 2.0;
     f->centroid[1] = at[1] + (ny - 1) / 2.0;
     f->centroid[2] = at[2] + (nz - 1) / 2.0;
+}
+
+/* Height of the sawtooth at y: rises over 4 mm, drops back. */
+static double tooth(double bumps, double y)
+{
+    double u = y / 4 - floor(y / 4);
+    return bumps * u;
+}
+
+/* Largest world x over the voxel-box corners of f at pose p, less the wall's relief there. */
+static double max_x_rough(const frag *f, const pose *p, double bumps)
+{
+    double m = -INFINITY;
+    for (int c = 0; c < 8; c++) {
+        double x[3], h[3], w[3];
+        for (int a = 0; a < 3; a++)
+            x[a] = ((c >> a & 1) ? f->dim[a] - 0.5 : -0.5) * f->spacing[a];
+        pose_apply(&f->home, x, h);
+        pose_apply(p, h, w);
+        m = fmax(m, w[0] + tooth(bumps, w[1]));
+    }
+    return m;
 }
 
 /* Largest world x over the voxel-box corners of f at pose p. */
@@ -68,7 +91,7 @@ static int wall_query(void *ctx, int a, const pose *pa, int b, const pose *pb, v
     }
     int mover = a == 1 ? b : a;
     const pose *pm = a == 1 ? pb : pa;
-    double sep = w->wall_x - max_x(&w->f[mover], pm);
+    double sep = w->wall_x - (w->bumps > 0 ? max_x_rough(&w->f[mover], pm, w->bumps) : max_x(&w->f[mover], pm));
     out->separation_mm = sep;
     out->collides = sep < 0;
     return 0;
@@ -81,6 +104,7 @@ static loop *make_loop(world *w, loop_config *cfg)
     make_box(&w->f[1], 2, at1, 10, 100, 100);
     make_box(&w->f[2], 3, at2, 3, 3, 3);
     w->wall_x = 10;
+    w->bumps = 0;
     w->queries = 0;
     uint8_t fixed[3] = {0, 1, 0};
     loop_collider col = {wall_query, sizeof(int), w};
@@ -246,6 +270,27 @@ static void test_grazing_slides_along_wall(void **st)
     assert_true(s.slid > 50);
     /* It kept moving along the wall: 100 steps of 0.24 mm in y, nearly all of it. */
     assert_true(p.t[1] > 0.9 * 100 * 0.24);
+    loop_free(L);
+}
+
+/* A rough wall (a sawtooth whose teeth face the motion): sliding along it means riding over the
+ * teeth, backing off a little at each; the fragment must not stop at the first tooth. */
+static void test_grazing_rides_over_rough_wall(void **st)
+{
+    world w;
+    loop_config c;
+    world_config(&c);
+    loop *L = make_loop(&w, &c);
+    w.bumps = 0.6;
+    int64_t t = 0;
+    push(L, motion(0, 1, 0.3, 0, 0, 0, 0), 150, &t);
+    loop_stats s;
+    loop_get_stats(L, &s);
+    pose p = loop_pose(L, 0);
+    assert_true(w.wall_x - max_x_rough(&w.f[0], &p, w.bumps) >= 0);
+    assert_int_equal(s.collisions_in_accepted, 0);
+    if (!(p.t[1] > 3 * 4.0))
+        fail_msg("stopped at y %g x %g (slid %d refused %d limited %d)", p.t[1], p.t[0], (int)s.slid, (int)s.refused, (int)s.limited); /* past three teeth */
     loop_free(L);
 }
 
@@ -589,6 +634,7 @@ int main(void)
         cmocka_unit_test(test_frames_and_dt_clamp),
         cmocka_unit_test(test_head_on_stops_at_contact_and_refuses),
         cmocka_unit_test(test_grazing_slides_along_wall),
+        cmocka_unit_test(test_grazing_rides_over_rough_wall),
         cmocka_unit_test(test_rotation_into_wall_slides_or_stops),
         cmocka_unit_test(test_undo_redo_gestures),
         cmocka_unit_test(test_undo_refused_when_it_would_collide),
