@@ -186,13 +186,17 @@ void loop_scene_format(const loop_scene *s, char *buf, size_t cap)
         snprintf(sep, sizeof sep, "%.2f mm", s->separation_mm);
     snprintf(buf, cap,
              "frag %d/%d%s | q %.4f %.4f %.4f %.4f t %.2f %.2f %.2f mm | %s, gap %s%s | %s%s%s"
-             " | %.0f steps/s %.0f ticks/s | latency p50 %.0f p99 %.0f max %.0f us%s%s",
+             " | %.0f steps/s %.0f ticks/s | latency p50 %.0f p99 %.0f max %.0f us | query %.0f us"
+             " | %llu free %llu limited %llu slid %llu refused%s%s",
              s->selected + 1, s->nfrag, s->fixed[s->selected] ? " (fixed)" : "", p->q[0], p->q[1],
              p->q[2], p->q[3], p->t[0], p->t[1], p->t[2], outcome[s->last_outcome], sep,
              s->collision_on ? "" : " | WARNING: COLLISION CHECKING OFF", frame[s->frame],
              s->trans_only ? ", translation only" : "", s->rot_only ? ", rotation only" : "",
              s->stats.step_hz, s->stats.tick_hz, s->stats.latency_p50_us, s->stats.latency_p99_us,
-             s->stats.latency_max_us, s->device_present ? "" : " | DEVICE UNPLUGGED (pose kept)",
+             s->stats.latency_max_us, s->stats.query_us_mean, (unsigned long long)s->stats.accepted,
+             (unsigned long long)s->stats.limited, (unsigned long long)s->stats.slid,
+             (unsigned long long)s->stats.refused,
+             s->device_present ? "" : " | DEVICE UNPLUGGED (pose kept)",
              s->stats.journal_errors ? " | WARNING: JOURNAL WRITE FAILED" : "");
 }
 
