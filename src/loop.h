@@ -1,7 +1,8 @@
 /* loop: the real-time navigation loop. Device motion in, collision-checked fragment poses out.
  *
- * Events (calibrated device motion, buttons, unplug/replug) arrive through a ring (ring.h) filled
- * by an input thread (loop_reader_*), or are fed one by one (loop_feed) for deterministic replay.
+ * Events (device motion already calibrated by the input side -- devices' calib_apply --, buttons,
+ * unplug/replug) arrive through a ring (ring.h) filled by an input thread (loop_reader_*), or are
+ * fed one by one (loop_feed) for deterministic replay.
  * Each motion event is one step:
  *   twist   = motion * (trans_mm_s, rot_deg_s), mapped from device axes to the world through the
  *             frame (camera by default, world or fragment on request), translation/rotation locks;
@@ -11,11 +12,18 @@
  *             user pivot), then translate by twist.v*dt;
  *   query   = the collider against every other fragment (per-pair caches);
  *   outcome = ACCEPTED (free), LIMITED (largest free fraction of the step, by bisection), SLID
- *             (limited, then the rest of the step split into translation/rotation and per-axis
- *             parts, each advanced as far as it stays free: the fragment slides along the contact
- *             instead of freezing), or REFUSED (nothing of the step is free).
+ *             (limited, then the rest of the step split into translation alone, rotation alone
+ *             and each world axis of the translation, each advanced as far as it stays free, and
+ *             on a rough contact the tangential part once more with a small back-off from the
+ *             push: the fragment slides along the contact instead of freezing), or REFUSED
+ *             (nothing of the step is free). A step queries at most max_tries candidate poses;
+ *             the separation estimate of the last query skips queries for moves that provably
+ *             stay clear.
  * No accepted pose collides; with check_invariant every accepted pose is re-queried from scratch
  * (no cache, no shortcuts) and a collision is counted in collisions_in_accepted (always 0).
+ * With collision checking off, poses are accepted unchecked (counted in `unchecked`); turned back
+ * on while fragments interpenetrate, the moving fragment may be pulled out unchecked until it is
+ * free, then checking resumes.
  * Stepping depends only on event contents and report timestamps, never on the wall clock, so the
  * same events give the same poses bit for bit (pose_digest).
  *
