@@ -222,8 +222,8 @@ typedef struct loop_source {
 #define LOOP_SOURCE_END (-100)
 
 /* Input thread: takes every event the source has (draining it) into r, stamps arrival_us and
- * wakes the loop (loop_notify). lockstep: wait until the loop has taken the previous event before
- * pushing the next (benchmarks: no queueing delay in the latency). */
+ * wakes the loop (loop_notify). lockstep: wait until the loop has finished the previous event
+ * before pushing the next (benchmarks: no queueing delay in the latency; needs L). */
 typedef struct loop_reader loop_reader;
 loop_reader *loop_reader_start(loop_source src, ring *r, loop *L, int lockstep);
 /* 1 once the source has ended (all its events are in the ring). */
@@ -232,6 +232,8 @@ int loop_reader_done(loop_reader *rd);
 const atomic_int *loop_reader_done_flag(loop_reader *rd);
 /* Stops and joins the thread. Returns the source's errors (not unplugs) seen. */
 int loop_reader_stop(loop_reader *rd);
+/* Events the loop has finished (any thread). */
+uint64_t loop_events_done(const loop *L);
 /* Wakes a loop_run waiting for its next tick (any thread). */
 void loop_notify(loop *L);
 

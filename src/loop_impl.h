@@ -57,7 +57,8 @@ struct loop {
     atomic_int middle;
     int back, front;
     uint64_t pub_seq;
-    sem_t wake; /* loop_notify -> loop_run */
+    sem_t wake;          /* loop_notify -> loop_run */
+    atomic_ullong done; /* events finished, for other threads */
 };
 
 void loop_accept(loop *L, int s, pose p, int64_t t_us, uint32_t kind, int checked);

@@ -12,6 +12,7 @@ struct loop_reader {
     ring *r;
     loop *L;
     int lockstep;
+    uint64_t pushed, base; /* lockstep: events pushed; the loop's count at start */
     atomic_int stop, done;
     int errors;
     pthread_t thread;
@@ -20,8 +21,9 @@ struct loop_reader {
 static void push(loop_reader *rd, loop_event *ev)
 {
     struct timespec nap = {0, 20000}; /* sleep, not spin: the loop needs the core more */
-    while (rd->lockstep && ring_count(rd->r) > 0 && !atomic_load(&rd->stop))
+    while (rd->lockstep && loop_events_done(rd->L) - rd->base < rd->pushed && !atomic_load(&rd->stop))
         nanosleep(&nap, NULL);
+    rd->pushed++;
     if (ev->arrival_us == 0)
         ev->arrival_us = loop_now_us();
     ring_push(rd->r, ev);
@@ -67,7 +69,8 @@ loop_reader *loop_reader_start(loop_source src, ring *r, loop *L, int lockstep)
     rd->src = src;
     rd->r = r;
     rd->L = L;
-    rd->lockstep = lockstep;
+    rd->lockstep = lockstep && L;
+    rd->base = L ? loop_events_done(L) : 0;
     atomic_init(&rd->stop, 0);
     atomic_init(&rd->done, 0);
     if (pthread_create(&rd->thread, NULL, reader_main, rd) != 0) {

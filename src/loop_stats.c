@@ -36,6 +36,7 @@ void loop_stats_init(loop *L)
     L->back = 2;
     atomic_init(&L->middle, 1);
     sem_init(&L->wake, 0, 0);
+    atomic_init(&L->done, 0);
     loop_reset_timing(L);
     loop_publish(L);
 }
@@ -211,6 +212,7 @@ int loop_drain(loop *L, ring *r)
     int n = 0;
     while ((L->ctl && ring_pop(L->ctl, &ev)) || ring_pop(r, &ev)) {
         int rc = loop_feed(L, &ev);
+        atomic_store_explicit(&L->done, L->st.events, memory_order_release);
         if (rc < 0)
             return rc;
         n++;
@@ -226,6 +228,11 @@ int loop_realtime_priority(void)
     struct sched_param sp = {.sched_priority = 10};
     int rc = pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp);
     return rc == 0 ? 0 : fn_err_set(FN_EINVAL, "real-time priority not granted: %s", strerror(rc));
+}
+
+uint64_t loop_events_done(const loop *L)
+{
+    return atomic_load_explicit(&((loop *)L)->done, memory_order_acquire);
 }
 
 void loop_notify(loop *L)
