@@ -9,16 +9,21 @@
 #define BRICK 8
 #define MARGIN 1e-6 /* mm added to every pruning box: pruning must never drop a real pair */
 
-void obb__rel_make(obb__rel *rel, const pose *a_world, const pose *b_world)
+void obb__rel_make(obb__rel *rel, const pose *a_world, const double sa[3], const pose *b_world,
+                   const double sb[3], double tol)
 {
     pose ab = pose_compose(pose_inverse(*a_world), *b_world);
     pose_to_matrix(&ab, rel->R);
     memcpy(rel->t, ab.t, sizeof rel->t);
     for (int i = 0; i < 3; i++)
+        rel->hsa[i] = 0.5 * sa[i], rel->hsb[i] = 0.5 * sb[i];
+    rel->tol = tol;
+    for (int i = 0; i < 3; i++)
         for (int j = 0; j < 3; j++) {
             double r = rel->R[i][j], l2 = 1 - r * r;
             rel->AR0[i][j] = fabs(r);
             rel->AR[i][j] = fabs(r) + OBB__EPS;
+            rel->Rs[i][j] = r * (0.5 * sb[j]);
             rel->inv_len[i][j] = l2 > 1e-12 ? 1 / sqrt(l2) : 0;
         }
 }
@@ -30,7 +35,8 @@ int obb_box_overlap(const double R[3][3], const double t[3], const double ca[3],
     memcpy(m, R, sizeof m);
     pose p = pose_from_matrix(m, t), id = POSE_IDENTITY;
     obb__rel rel;
-    obb__rel_make(&rel, &id, &p);
+    static const double unit[3] = {1, 1, 1};
+    obb__rel_make(&rel, &id, unit, &p, unit, 0);
     double bt[3], T[3];
     obb__carry(&rel, cb, bt);
     for (int i = 0; i < 3; i++)
@@ -84,9 +90,8 @@ typedef struct brute {
 /* B's box [lo, hi] misses A's whole crop when its A-frame bounding box does. */
 static int outside_a(const brute *c, const uint16_t lo[3], const uint16_t hi[3])
 {
-    double cb[3], hb[3], bt[3];
-    obb__box(lo, hi, c->b->spacing, c->tol, cb, hb);
-    obb__carry(&c->rel, cb, bt);
+    double hb[3], bt[3];
+    obb__box_b(&c->rel, lo, hi, bt, hb);
     for (int i = 0; i < 3; i++) {
         const double *AR = c->rel.AR[i], x = bt[i];
         double e = AR[0] * hb[0] + AR[1] * hb[1] + AR[2] * hb[2] + MARGIN;
@@ -100,10 +105,9 @@ static int outside_a(const brute *c, const uint16_t lo[3], const uint16_t hi[3])
 /* Every A voxel whose box can meet B voxel vb; returns 1 when the query is settled. */
 static int test_voxel(brute *c, const uint16_t vb[3], int eb)
 {
-    double cb[3], hb[3], bt[3], e[3];
+    double hb[3], bt[3], e[3];
     int lo[3], hi[3];
-    obb__box(vb, vb, c->b->spacing, c->tol, cb, hb);
-    obb__carry(&c->rel, cb, bt);
+    obb__box_b(&c->rel, vb, vb, bt, hb);
     for (int i = 0; i < 3; i++) {
         const double *AR = c->rel.AR[i], s = c->a->spacing[i];
         e[i] = AR[0] * hb[0] + AR[1] * hb[1] + AR[2] * hb[2] + c->ha[i] + MARGIN;
@@ -119,7 +123,7 @@ static int test_voxel(brute *c, const uint16_t vb[3], int eb)
                     continue;
                 uint16_t va[3] = {(uint16_t)i, (uint16_t)j, (uint16_t)k};
                 double ca[3], ha[3], T[3], gap;
-                obb__box(va, va, c->a->spacing, c->tol, ca, ha);
+                obb__box_a(&c->rel, va, va, ca, ha);
                 for (int a = 0; a < 3; a++)
                     T[a] = bt[a] - ca[a];
                 c->r->tests++;
@@ -187,7 +191,7 @@ int obb_collide_brute(const frag *a, const pose *a_world, const frag *b, const p
     c.want_pairs = c.q->want_pairs;
     for (int i = 0; i < 3; i++)
         c.ha[i] = 0.5 * a->spacing[i] - c.tol, c.hb[i] = 0.5 * b->spacing[i] - c.tol;
-    obb__rel_make(&c.rel, a_world, b_world);
+    obb__rel_make(&c.rel, a_world, a->spacing, b_world, b->spacing, c.tol);
     scan_b(&c);
     if (!r->collides)
         r->separation_mm = NAN;

@@ -14,23 +14,40 @@
  * AR0 = |R| for the exact voxel test (so faces that touch exactly do not overlap). */
 typedef struct obb__rel {
     double R[3][3], AR[3][3], AR0[3][3], t[3];
+    double Rs[3][3];       /* R scaled by B's half spacing: carries B's index sums into A's frame */
+    double hsa[3], hsb[3]; /* half spacings, mm */
+    double tol;            /* mm each box shrinks by */
     double inv_len[3][3]; /* 1 / |A_i x B_j|; 0 where degenerate (parallel edges: skipped) */
 } obb__rel;
 
-void obb__rel_make(obb__rel *rel, const pose *a_world, const pose *b_world);
+void obb__rel_make(obb__rel *rel, const pose *a_world, const double sa[3], const pose *b_world,
+                   const double sb[3], double tol);
 
-/* Centre and half-extents (mm, shrunk by tol) of the voxel index box [lo, hi] with spacing s. */
-static inline void obb__box(const uint16_t lo[3], const uint16_t hi[3], const double s[3],
-                            double tol, double c[3], double h[3])
+/* A's voxel index box [lo, hi]: centre and half-extents (mm, shrunk by tol) in A's frame. */
+static inline void obb__box_a(const obb__rel *rel, const uint16_t lo[3], const uint16_t hi[3],
+                              double ca[3], double ha[3])
 {
     for (int i = 0; i < 3; i++) {
-        c[i] = (double)(lo[i] + hi[i]) * 0.5 * s[i];
-        h[i] = ((double)(hi[i] - lo[i]) * 0.5 + 0.5) * s[i] - tol;
+        ca[i] = (double)(lo[i] + hi[i]) * rel->hsa[i];
+        ha[i] = (double)(hi[i] - lo[i]) * rel->hsa[i] + (rel->hsa[i] - rel->tol);
     }
 }
 
-/* B's box centre cb (B's frame) carried into A's frame: bt = R cb + t. The offset to A's centre is
- * then T = bt - ca; every path computes it in this order so voxel tests agree bit for bit. */
+/* B's voxel index box [lo, hi]: centre carried into A's frame (bt) and half-extents in B's frame.
+ * Tree and brute force both place boxes through these two functions, so they agree bit for bit. */
+static inline void obb__box_b(const obb__rel *rel, const uint16_t lo[3], const uint16_t hi[3],
+                              double bt[3], double hb[3])
+{
+    double sum[3];
+    for (int i = 0; i < 3; i++) {
+        sum[i] = (double)(lo[i] + hi[i]);
+        hb[i] = (double)(hi[i] - lo[i]) * rel->hsb[i] + (rel->hsb[i] - rel->tol);
+    }
+    for (int i = 0; i < 3; i++)
+        bt[i] = rel->Rs[i][0] * sum[0] + rel->Rs[i][1] * sum[1] + rel->Rs[i][2] * sum[2] + rel->t[i];
+}
+
+/* A point cb of B's frame carried into A's frame: bt = R cb + t. */
 static inline void obb__carry(const obb__rel *rel, const double cb[3], double bt[3])
 {
     for (int i = 0; i < 3; i++)
@@ -43,7 +60,13 @@ static inline void obb__carry(const obb__rel *rel, const double cb[3], double bt
  * separates them by OBB__SLACK or more (so it never rejects what the exact test accepts). *gap (when non-NULL and full): the largest per-axis gap / |axis|,
  * a lower bound on the distance when apart, minus the smallest overlap depth when overlapping;
  * without full it stops at the first separating axis and gives that axis' gap. */
-static inline int obb__sat(const obb__rel *rel, int exact, int edges, const double T[3],
+#if defined(__GNUC__)
+#define OBB__INLINE static inline __attribute__((always_inline))
+#else
+#define OBB__INLINE static inline
+#endif
+
+OBB__INLINE int obb__sat(const obb__rel *rel, int exact, int edges, const double T[3],
                            const double ha[3], const double hb[3], int full, double *gap)
 {
     const double(*R)[3] = rel->R, (*AR)[3] = exact ? rel->AR0 : rel->AR;

@@ -99,15 +99,13 @@ static void record(ctx *c, const obb_node *a, const obb_node *b, double gap)
 
 static void box_a(const ctx *c, const obb_node *a, double ca[3], double ha[3])
 {
-    obb__box(a->lo, a->hi, c->sa, c->tol, ca, ha);
+    obb__box_a(&c->rel, a->lo, a->hi, ca, ha);
 }
 
 /* B's box with its centre carried into A's frame. */
 static void box_b(const ctx *c, const obb_node *b, double bt[3], double hb[3])
 {
-    double cb[3];
-    obb__box(b->lo, b->hi, c->sb, c->tol, cb, hb);
-    obb__carry(&c->rel, cb, bt);
+    obb__box_b(&c->rel, b->lo, b->hi, bt, hb);
 }
 
 /* Tests one pair. Returns 1 when it must be split, 0 when it is settled: rejected (its gap
@@ -115,14 +113,18 @@ static void box_b(const ctx *c, const obb_node *b, double bt[3], double hb[3])
  * test, inner pairs the conservative one; a first-axis gap is a valid bound, refined over all 15
  * axes only when it could lower the minimum. */
 static int test(ctx *c, const obb_node *a, const double ca[3], const double ha[3],
-                const obb_node *b, const double bt[3], const double hb[3])
+                const obb_node *b, const double bt[3], const double hb[3], int exact,
+                double *dist2)
 {
-    if (pmax(a) * pmax(b) < c->thr)
+    if (c->thr && pmax(a) * pmax(b) < c->thr)
         return 0;
     double T[3] = {bt[0] - ca[0], bt[1] - ca[1], bt[2] - ca[2]}, gap;
-    int exact = is_voxel(a) && is_voxel(b);
     c->r->tests++;
-    if (obb__sat(&c->rel, exact, c->edges, T, ha, hb, 0, &gap)) {
+    int hit = exact      ? obb__sat(&c->rel, 1, 1, T, ha, hb, 0, &gap)
+              : c->edges ? obb__sat(&c->rel, 0, 1, T, ha, hb, 0, &gap)
+                         : obb__sat(&c->rel, 0, 0, T, ha, hb, 0, &gap);
+    if (hit) {
+        *dist2 = T[0] * T[0] + T[1] * T[1] + T[2] * T[2];
         if (!exact)
             return 1;
         obb__sat(&c->rel, 1, 1, T, ha, hb, 1, &gap);
@@ -141,7 +143,8 @@ static int test_pair(ctx *c, const npair *p)
     double ca[3], ha[3], bt[3], hb[3];
     box_a(c, &p->a, ca, ha);
     box_b(c, &p->b, bt, hb);
-    return test(c, &p->a, ca, ha, &p->b, bt, hb);
+    double dist2;
+    return test(c, &p->a, ca, ha, &p->b, bt, hb, is_voxel(&p->a) && is_voxel(&p->b), &dist2);
 }
 
 static int done(const ctx *c)
@@ -149,30 +152,37 @@ static int done(const ctx *c)
     return c->r->collides && !c->want_pairs;
 }
 
-/* Splits the larger node of p (never a voxel) and appends each child pair that needs splitting in
- * turn to out (room for 8). The kept node's box is computed once. */
+/* Splits the larger node of p (never a voxel) and appends each child pair that needs splitting to
+ * out (room for 8), the pair with the nearest centres last so depth-first search tends to meet a
+ * collision early. The kept node's box is computed once. */
 static void expand(ctx *c, const npair *p, npair *out, int *n)
 {
     int va = is_voxel(&p->a), vb = is_voxel(&p->b);
     int split_b = va ? 1 : vb ? 0 : volume(&p->b, c->sb) > volume(&p->a, c->sa);
     obb_node kid[8];
-    double ca[3], ha[3], bt[3], hb[3];
-    if (split_b) {
+    double ca[3], ha[3], bt[3], hb[3], key[8];
+    int k = split(c, split_b ? &p->b : &p->a, split_b ? c->nb : c->na, kid), first = *n;
+    if (split_b)
         box_a(c, &p->a, ca, ha);
-        int k = split(c, &p->b, c->nb, kid);
-        for (int i = 0; i < k && !done(c); i++) {
-            box_b(c, &kid[i], bt, hb);
-            if (test(c, &p->a, ca, ha, &kid[i], bt, hb))
-                out[(*n)++] = (npair){p->a, kid[i]};
-        }
-    } else {
+    else
         box_b(c, &p->b, bt, hb);
-        int k = split(c, &p->a, c->na, kid);
-        for (int i = 0; i < k && !done(c); i++) {
-            box_a(c, &kid[i], ca, ha);
-            if (test(c, &kid[i], ca, ha, &p->b, bt, hb))
-                out[(*n)++] = (npair){kid[i], p->b};
+    for (int i = 0; i < k && !done(c); i++) {
+        const obb_node *a = split_b ? &p->a : &kid[i], *b = split_b ? &kid[i] : &p->b;
+        if (split_b)
+            box_b(c, b, bt, hb);
+        else
+            box_a(c, a, ca, ha);
+        double d;
+        if (!test(c, a, ca, ha, b, bt, hb, (split_b ? va : vb) && is_voxel(&kid[i]), &d))
+            continue;
+        int j = *n - first;
+        for (; j > 0 && key[j - 1] < d; j--) {
+            key[j] = key[j - 1];
+            out[first + j] = out[first + j - 1];
         }
+        key[j] = d;
+        out[first + j] = (npair){*a, *b};
+        (*n)++;
     }
 }
 
@@ -246,7 +256,7 @@ int obb_collide(const obb_tree *a, const pose *a_world, const obb_tree *b, const
         r->separation_mm = INFINITY;
         return 0;
     }
-    obb__rel_make(&c.rel, a_world, b_world);
+    obb__rel_make(&c.rel, a_world, c.sa, b_world, c.sb, c.tol);
     if (cache && cache->has_witness && !c.want_pairs) {
         npair w = {cache->wa, cache->wb};
         cache->has_witness = 0;
