@@ -23,6 +23,7 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "bench_sim.h"
 #include "err.h"
 #include "fnrec.h"
 #include "script.h"
@@ -189,6 +190,14 @@ static int room_for_fast(void)
     return any;
 }
 
+static int queues_empty(void)
+{
+    for (reader *r = S.readers; r; r = r->next)
+        if (!r->dead && r->active && r->count)
+            return 0;
+    return 1;
+}
+
 static void start_playback(void)
 {
     S.started = 1;
@@ -217,7 +226,7 @@ static void pump(void)
     }
     if (S.pos < S.rec->n && !S.fast)
         arm_timer(S.t0_us + S.rec->ev[S.pos].t_us);
-    else if (S.pos >= S.rec->n && S.exit_at_end)
+    else if (S.pos >= S.rec->n && S.exit_at_end && queues_empty())
         fuse_session_exit(S.se);
 }
 
@@ -343,7 +352,7 @@ static void op_read(fuse_req_t req, fuse_ino_t ino, size_t size, off_t off, stru
         r->head = (r->head + 1) % QUEUE_LEN;
         r->count--;
         reply_report(req, size, r->q[slot], r->qlen[slot]);
-        if (S.fast)
+        if (S.fast || S.exit_at_end)
             pump();
     } else if ((fi->flags & O_NONBLOCK) || r->npending == PENDING_MAX) {
         fuse_reply_err(req, EAGAIN);
@@ -555,8 +564,9 @@ static int check_fuse_access(const char *mount)
     }
     if (access("/dev/fuse", R_OK | W_OK)) {
         fprintf(stderr, "fracnav-sim serve: cannot use /dev/fuse (%s): serving the virtual device "
-                        "needs FUSE (the fuse3 package, /dev/fuse readable and writable); use the "
-                        "in-process 'virtual' transport instead\n", strerror(errno));
+                        "needs FUSE: run as root, or give this user read/write access to /dev/fuse "
+                        "(fuse3 package); without FUSE use the in-process transport "
+                        "'virtual:DEVICE' instead\n", strerror(errno));
         return -1;
     }
     if (geteuid() != 0 && access("/usr/bin/fusermount3", X_OK) && access("/bin/fusermount3", X_OK)) {
@@ -593,6 +603,7 @@ static int serve(const char *mount)
     char *argv[] = {"fracnav-sim", "-o", "fsname=fracnav-sim,subtype=hidraw", NULL};
     struct fuse_args args = FUSE_ARGS_INIT(3, argv);
     S.se = fuse_session_new(&args, &ops, sizeof ops, NULL);
+    fuse_opt_free_args(&args);
     if (!S.se || fuse_session_mount(S.se, mount)) {
         fprintf(stderr, "fracnav-sim serve: cannot mount FUSE on %s (need root or FUSE permission; "
                         "is something already mounted there?)\n", mount);
@@ -619,6 +630,7 @@ static void usage(FILE *f)
             "                         [--start-on-read] [--fast] [--exit-at-end] [--log FILE.fnrec]\n"
             "       fracnav-sim render [--as DEVICE] --script FILE -o FILE.fnrec\n"
             "       fracnav-sim list\n"
+            "       fracnav-sim bench [--mount DIR] [--seconds S]\n"
             "\n"
             "serve    serves the virtual device as DIR/" NODE_NAME " through FUSE until SIGINT/SIGTERM\n"
             "         (then unmounts). SIGUSR1 unplugs it, the next SIGUSR1 plugs it back.\n"
@@ -627,17 +639,19 @@ static void usage(FILE *f)
             "         --script FILE    play a motion script (see sim/script.h)\n"
             "         --start-on-read  start playing when the node is first read or polled\n"
             "         --fast           play as fast as the readers read (implies --start-on-read)\n"
-            "         --exit-at-end    unmount and exit when the playback ends\n"
+            "         --exit-at-end    unmount and exit once the playback is over and read\n"
             "         --log FILE       write every report served to a .fnrec file\n"
             "render   writes the reports a script produces on DEVICE to a .fnrec file\n"
-            "list     prints the devices the simulator can impersonate\n");
+            "list     prints the devices the simulator can impersonate\n"
+            "bench    measures report throughput (as fast as possible) and timing jitter (at the\n"
+            "         8 ms cadence, S seconds, default 2) through FUSE and hidapi; prints JSON\n");
 }
 
 static int list_devices(void)
 {
     for (size_t i = 0; sim_profile_at(i); i++) {
         const sim_profile *p = sim_profile_at(i);
-        printf("%-26s %04x:%04x  %-8s %2d ms  %2d buttons  %s\n", p->id, p->vid, p->pid,
+        printf("%-26s %04x:%04x  %-8s %2d ms  %2d button bits  %s\n", p->id, p->vid, p->pid,
                p->format == SIMDEV_SPLIT ? "split" : "combined", p->period_us / 1000, p->nbuttons,
                p->name);
     }
@@ -645,7 +659,7 @@ static int list_devices(void)
 }
 
 typedef struct opts {
-    const char *mount, *as, *play, *script, *out, *log;
+    const char *mount, *as, *play, *script, *out, *log, *seconds;
 } opts;
 
 static int parse_opts(int argc, char **argv, opts *o)
@@ -671,6 +685,8 @@ static int parse_opts(int argc, char **argv, opts *o)
             dst = &o->out;
         else if (!strcmp(a, "--log"))
             dst = &o->log;
+        else if (!strcmp(a, "--seconds"))
+            dst = &o->seconds;
         else {
             fprintf(stderr, "fracnav-sim %s: unknown option '%s'\n", argv[1], a);
             return -1;
@@ -739,12 +755,20 @@ int main(int argc, char **argv)
         return list_devices();
     opts o = {0};
     S.sig_fd = S.timer_fd = -1;
-    if (strcmp(cmd, "serve") && strcmp(cmd, "render")) {
-        fprintf(stderr, "fracnav-sim: unknown command '%s' (serve, render, list; --help)\n", cmd);
+    if (strcmp(cmd, "serve") && strcmp(cmd, "render") && strcmp(cmd, "bench")) {
+        fprintf(stderr, "fracnav-sim: unknown command '%s' (serve, render, list, bench; --help)\n", cmd);
         return 2;
     }
     if (parse_opts(argc, argv, &o))
         return 2;
+    if (!strcmp(cmd, "bench")) {
+        double secs = o.seconds ? atof(o.seconds) : 2.0;
+        if (!(secs >= 0.1 && secs <= 600)) {
+            fprintf(stderr, "fracnav-sim bench: --seconds wants 0.1 to 600\n");
+            return 2;
+        }
+        return bench_sim_run(o.mount, secs);
+    }
     if (!strcmp(cmd, "render") ? !o.script || !o.out : !o.mount) {
         fprintf(stderr, "fracnav-sim %s: %s is required\n", cmd,
                 !strcmp(cmd, "render") ? "--script FILE and -o FILE" : "--mount DIR");

@@ -265,7 +265,9 @@ static void test_profiles_match_descriptors(void **st)
         assert_non_null(hiddesc_find(&d, HIDDESC_OUTPUT, 4));
         const devtab_row *row = devtab_find(p->vid, p->pid);
         assert_non_null(row);
+        assert_string_equal(row->name, p->name);
         assert_int_equal(row->format == DEVTAB_SPLIT, p->format == SIMDEV_SPLIT);
+        assert_true(p->nbuttons >= row->nbuttons); /* bitmask bits cover the (sparse) buttons */
     }
 }
 
@@ -465,6 +467,59 @@ static void test_shipped_recordings(void **st)
     }
 }
 
+static size_t inputs_equal(const fnrec *a, const fnrec *b)
+{
+    size_t i = 0, j = 0, same = 0;
+    for (;; i++, j++) {
+        while (i < a->n && a->ev[i].dir != FNREC_IN)
+            i++;
+        while (j < b->n && b->ev[j].dir != FNREC_IN)
+            j++;
+        if (i == a->n || j == b->n)
+            return i == a->n && j == b->n ? same : (size_t)-1;
+        if (a->ev[i].len != b->ev[j].len || memcmp(a->ev[i].data, b->ev[j].data, a->ev[i].len))
+            return (size_t)-1;
+        same++;
+    }
+}
+
+/* fracnav record works on the in-process transports too: the virtual device (for machines without
+ * FUSE) and a replay, which gives back the recording's reports and timestamps. */
+static void test_record_cli_virtual_and_replay(void **st)
+{
+    char *dir = tu_tmpdir("reccli");
+    char scr[512], rec[512], rec2[512], *out = NULL;
+    snprintf(scr, sizeof scr, "%s/s.script", dir);
+    snprintf(rec, sizeof rec, "%s/v.fnrec", dir);
+    snprintf(rec2, sizeof rec2, "%s/r.fnrec", dir);
+    const char *text = "translate -y 3 mm over 0.15 s\npress 1\nrelease\n";
+    tu_write_file(scr, text, strlen(text));
+    int rc = tu_run_cli(&out, "record -o '%s' --device 'virtual:spacenavigator:script=%s' --seconds 0.5",
+                        rec, scr);
+    if (rc)
+        fail_msg("%s", out);
+    free(out);
+    fnrec *want = render(text, "spacenavigator"), *got = fnrec_load(rec);
+    assert_non_null(got);
+    assert_true(inputs_equal(want, got) > 20 && inputs_equal(want, got) != (size_t)-1);
+    assert_int_equal(got->hdr.pid, 0xc626);
+    assert_non_null(strstr(got->hdr.source, "virtual:"));
+    rc = tu_run_cli(&out, "record -o '%s' --device 'replay:%s'", rec2, rec);
+    if (rc)
+        fail_msg("%s", out);
+    free(out);
+    fnrec *again = fnrec_load(rec2);
+    assert_non_null(again);
+    assert_true(inputs_equal(got, again) != (size_t)-1);
+    for (size_t i = 1; i < again->n; i++) /* recorded times come back as they were */
+        assert_int_equal(again->ev[i].t_us, got->ev[i].t_us);
+    fnrec_free(again);
+    fnrec_free(got);
+    fnrec_free(want);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -482,6 +537,7 @@ int main(void)
         cmocka_unit_test(test_replay_realtime_pacing),
         cmocka_unit_test(test_virtual_transport),
         cmocka_unit_test(test_shipped_recordings),
+        cmocka_unit_test(test_record_cli_virtual_and_replay),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -397,20 +397,23 @@ static void test_hidapi_led_feature_timeout(void **st)
 }
 
 /* A recording played through FUSE (--play) is recorded back unchanged; --fast plays it as fast as
- * the reader takes it. */
+ * the reader takes it, --exit-at-end stops the server once all of it was read. */
 static void test_play_recording(void **st)
 {
     const char *scr = write_script("s.script", "translate -x 5 mm over 0.2 s\npress 1\nrelease\n");
     fnrec *want = rendered(scr, "spacemouse-wireless");
     const char *file = path_in("play.fnrec"), *rec = path_in("rec.fnrec");
     assert_int_equal(fnrec_save(want, file), 0);
-    pid_t srv = start_server("--play", file, "--fast", NULL);
+    pid_t srv = start_server("--play", file, "--fast", "--exit-at-end", NULL);
     char *out = NULL;
     int rc = tu_run_cli(&out, "record -o '%s' --device '%s/hidraw0' --seconds 0.6", rec, mnt);
     if (rc)
         fail_msg("%s", out);
     free(out);
-    stop_server(srv);
+    int status = reap(srv, 5000); /* it left by itself once everything was read */
+    forget_server(srv);
+    unmount_quietly();
+    assert_true(WIFEXITED(status) && WEXITSTATUS(status) == 0);
     fnrec *got = fnrec_load(rec);
     assert_non_null(got);
     assert_same_reports(want, got, "--play --fast");

@@ -27,7 +27,7 @@ static void check_round_trip(const fnrec *r)
      * with a newline) would be a reader bug. */
     if (!ok || fnrec_parse(text, len, "round-trip", &back) != 0)
         abort();
-    if (back->n != r->n || memcmp(back->ev, r->ev, r->n * sizeof *r->ev) ||
+    if (back->n != r->n || (r->n && memcmp(back->ev, r->ev, r->n * sizeof *r->ev)) ||
         back->hdr.desc_len != r->hdr.desc_len || back->hdr.vid != r->hdr.vid ||
         strcmp(back->hdr.name, r->hdr.name) || strcmp(back->hdr.format, r->hdr.format))
         abort();
