@@ -161,6 +161,95 @@ static void save_scene(loopkit *k, const loop_scene *sc)
         fprintf(stderr, "\nsaved %s\n", k->dir_name);
 }
 
+/* Terminal keys -> actions on the control ring (q quits). */
+static void read_keys(loop *L, ring *ctl)
+{
+    char ch;
+    while (read(STDIN_FILENO, &ch, 1) == 1) {
+        if (ch == 'q')
+            quit = 1;
+        loop_event ev = {0};
+        ev.kind = LOOP_EV_ACTION;
+        ev.action = key_action(ch);
+        if (ev.action != LOOP_ACT_NONE && ring_push(ctl, &ev))
+            loop_notify(L);
+    }
+}
+
+/* The main thread while the loop runs: keys, saves on request, the status line. */
+static void ui(loopkit *k, ring *ctl, int keys, double duration)
+{
+    struct termios saved;
+    int raw = keys && isatty(STDIN_FILENO) && tcgetattr(STDIN_FILENO, &saved) == 0;
+    if (raw) {
+        struct termios t = saved;
+        t.c_lflag &= (tcflag_t) ~(ICANON | ECHO);
+        t.c_cc[VMIN] = 0;
+        t.c_cc[VTIME] = 0;
+        tcsetattr(STDIN_FILENO, TCSANOW, &t);
+    }
+    int tty = isatty(STDOUT_FILENO);
+    int64_t t0 = loop_now_us(), last_print = 0;
+    unsigned saves_seen = 0;
+    loop_scene sc;
+    while (!quit && (duration <= 0 || (double)(loop_now_us() - t0) < duration * 1e6)) {
+        if (raw)
+            read_keys(k->L, ctl);
+        loop_scene_read(k->L, &sc);
+        if (sc.save_requests != saves_seen) {
+            saves_seen = sc.save_requests;
+            save_scene(k, &sc);
+        }
+        int64_t now = loop_now_us();
+        if (now - last_print >= (tty ? 100000 : 1000000)) {
+            char line[512];
+            loop_scene_format(&sc, line, sizeof line);
+            printf(tty ? "\r\033[K%s" : "%s\n", line);
+            fflush(stdout);
+            last_print = now;
+        }
+        struct timespec nap = {0, 20000000};
+        nanosleep(&nap, NULL);
+    }
+    if (raw)
+        tcsetattr(STDIN_FILENO, TCSANOW, &saved);
+    if (tty)
+        printf("\n");
+}
+
+/* Input thread and loop thread around ui(); then the loop is stopped and the case saved. */
+static int run(loopkit *k, loopkit_dsource *ds, int keys, double duration)
+{
+    ring *in = ring_new(sizeof(loop_event), 1024), *ctl = ring_new(sizeof(loop_event), 64);
+    runner run = {k->L, in, 0, 0};
+    atomic_init(&run.stop, 0);
+    loop_set_controls(k->L, ctl);
+    loop_reader *rd = in && ctl ? loop_reader_start(loopkit_device_source(ds), in, k->L, 0) : NULL;
+    pthread_t th;
+    int rc = 0;
+    if (!rd || pthread_create(&th, NULL, loop_thread, &run) != 0) {
+        rc = rd ? fn_err_set(FN_EIO, "cannot start the loop thread") : FN_EIO;
+        loop_reader_stop(rd);
+    } else {
+        struct sigaction sa = {0};
+        sa.sa_handler = on_signal;
+        sigaction(SIGINT, &sa, NULL);
+        sigaction(SIGTERM, &sa, NULL);
+        ui(k, ctl, keys, duration);
+        loop_reader_stop(rd);
+        atomic_store(&run.stop, 1);
+        loop_notify(k->L);
+        pthread_join(th, NULL);
+        rc = run.rc;
+        if (rc == 0)
+            rc = loopkit_save(k);
+    }
+    loop_set_controls(k->L, NULL);
+    ring_free(in);
+    ring_free(ctl);
+    return rc;
+}
+
 int cmd_navigate(int argc, char **argv)
 {
     if (cmd_wants_help(argc, argv)) {
@@ -185,98 +274,25 @@ int cmd_navigate(int argc, char **argv)
         fprintf(stderr, "fracnav navigate: %s\n", fn_err_msg());
         return 1;
     }
-    int keys_free = strcmp(dev_transport_name(ds.d), "keyboard") != 0;
-    offer_recovery(&o, keys_free);
+    int keys = strcmp(dev_transport_name(ds.d), "keyboard") != 0;
+    offer_recovery(&o, keys);
     loop_config cfg;
     loop_config_default(&cfg);
     cfg.frame = o.frame;
     loopkit k;
-    if (loopkit_open(&k, o.dir, &cfg, o.flags, "navigate") < 0) {
-        fprintf(stderr, "fracnav navigate: %s\n", fn_err_msg());
-        dev_close(ds.d);
-        return 1;
-    }
-    if (k.resumed)
-        fprintf(stderr, "recovered %zu journal records\n", k.resumed);
-    ring *in = ring_new(sizeof(loop_event), 1024), *ctl = ring_new(sizeof(loop_event), 64);
-    runner run = {k.L, in, 0, 0};
-    atomic_init(&run.stop, 0);
-    loop_set_controls(k.L, ctl);
-    loop_reader *rd = in && ctl ? loop_reader_start(loopkit_device_source(&ds), in, k.L, 0) : NULL;
-    pthread_t th;
-    if (!rd || pthread_create(&th, NULL, loop_thread, &run) != 0) {
-        fprintf(stderr, "fracnav navigate: %s\n", rd ? "cannot start the loop thread" : fn_err_msg());
-        loop_reader_stop(rd);
-        ring_free(in);
-        ring_free(ctl);
+    rc = loopkit_open(&k, o.dir, &cfg, o.flags, "navigate");
+    if (rc == 0) {
+        if (k.resumed)
+            fprintf(stderr, "recovered %zu journal records\n", k.resumed);
+        rc = run(&k, &ds, keys, o.duration);
+        if (rc == 0 && o.json)
+            loopkit_print_json(&k, stdout, -1);
+        else if (rc == 0)
+            fprintf(stderr, "saved %s\n", o.dir);
         loopkit_close(&k);
-        dev_close(ds.d);
-        return 1;
     }
-    struct sigaction sa = {0};
-    sa.sa_handler = on_signal;
-    sigaction(SIGINT, &sa, NULL);
-    sigaction(SIGTERM, &sa, NULL);
-    struct termios saved;
-    int raw = keys_free && isatty(STDIN_FILENO) && tcgetattr(STDIN_FILENO, &saved) == 0;
-    if (raw) {
-        struct termios t = saved;
-        t.c_lflag &= (tcflag_t) ~(ICANON | ECHO);
-        t.c_cc[VMIN] = 0;
-        t.c_cc[VTIME] = 0;
-        tcsetattr(STDIN_FILENO, TCSANOW, &t);
-    }
-    int tty = isatty(STDOUT_FILENO);
-    int64_t t0 = loop_now_us(), last_print = 0;
-    unsigned saves_seen = 0;
-    loop_scene sc;
-    while (!quit && (o.duration <= 0 || (double)(loop_now_us() - t0) < o.duration * 1e6)) {
-        char ch;
-        while (raw && read(STDIN_FILENO, &ch, 1) == 1) {
-            if (ch == 'q')
-                quit = 1;
-            loop_event ev = {0};
-            ev.kind = LOOP_EV_ACTION;
-            ev.action = key_action(ch);
-            if (ev.action != LOOP_ACT_NONE && ring_push(ctl, &ev))
-                loop_notify(k.L);
-        }
-        loop_scene_read(k.L, &sc);
-        if (sc.save_requests != saves_seen) {
-            saves_seen = sc.save_requests;
-            save_scene(&k, &sc);
-        }
-        int64_t now = loop_now_us();
-        if (now - last_print >= (tty ? 100000 : 1000000)) {
-            char line[512];
-            loop_scene_format(&sc, line, sizeof line);
-            printf(tty ? "\r\033[K%s" : "%s\n", line);
-            fflush(stdout);
-            last_print = now;
-        }
-        struct timespec nap = {0, 20000000};
-        nanosleep(&nap, NULL);
-    }
-    if (raw)
-        tcsetattr(STDIN_FILENO, TCSANOW, &saved);
-    if (tty)
-        printf("\n");
-    loop_reader_stop(rd);
-    atomic_store(&run.stop, 1);
-    loop_notify(k.L);
-    pthread_join(th, NULL);
-    rc = run.rc;
-    if (rc == 0)
-        rc = loopkit_save(&k);
     if (rc < 0)
         fprintf(stderr, "fracnav navigate: %s\n", fn_err_msg());
-    else if (o.json)
-        loopkit_print_json(&k, stdout, -1);
-    else
-        fprintf(stderr, "saved %s\n", o.dir);
-    loopkit_close(&k);
-    ring_free(in);
-    ring_free(ctl);
     dev_close(ds.d);
     return rc < 0 ? 1 : 0;
 }
