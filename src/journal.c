@@ -1,12 +1,14 @@
 #include "journal.h"
 
 #include "err.h"
+#include "vol.h"
 
 #include <errno.h>
 #include <fcntl.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <unistd.h>
 #include <zlib.h>
 
@@ -121,6 +123,35 @@ static void journal_path(const char *dir, char *out, size_t cap)
     snprintf(out, cap, "%s/journal", dir);
 }
 
+int journal_parse(const uint8_t *buf, size_t len, const char *name, journal_rec **recs, size_t *n,
+                  long *torn_at)
+{
+    *recs = NULL;
+    *n = 0;
+    if (torn_at)
+        *torn_at = -1;
+    if (len == 0)
+        return 0;
+    unsigned char want[JOURNAL_HEADER_SIZE];
+    header(want);
+    if (len < JOURNAL_HEADER_SIZE || memcmp(buf, want, JOURNAL_HEADER_SIZE) != 0)
+        return fn_err_set(FN_EFORMAT, "%s: offset 0: not a fracnav journal (bad header)", name);
+    size_t whole = (len - JOURNAL_HEADER_SIZE) / JOURNAL_RECORD_SIZE;
+    if (whole > 0) {
+        *recs = malloc(whole * sizeof **recs);
+        if (!*recs)
+            return fn_err_set(FN_ENOMEM, "%s: out of memory for %zu records", name, whole);
+    }
+    size_t off = JOURNAL_HEADER_SIZE;
+    while (off + JOURNAL_RECORD_SIZE <= len && decode(buf + off, &(*recs)[*n])) {
+        (*n)++;
+        off += JOURNAL_RECORD_SIZE;
+    }
+    if (off < len && torn_at)
+        *torn_at = (long)off;
+    return 0;
+}
+
 int journal_read(const char *case_dir, journal_rec **recs, size_t *n, long *torn_at)
 {
     char path[4096];
@@ -132,47 +163,21 @@ int journal_read(const char *case_dir, journal_rec **recs, size_t *n, long *torn
     FILE *f = fopen(path, "rb");
     if (!f)
         return errno == ENOENT ? 0 : fn_err_set(FN_EIO, "%s: cannot open: %s", path, strerror(errno));
-    unsigned char h[JOURNAL_HEADER_SIZE], want[JOURNAL_HEADER_SIZE];
-    header(want);
-    size_t got = fread(h, 1, sizeof h, f);
-    if (got == 0) {
-        fclose(f);
-        return 0;
-    }
-    if (got != sizeof h || memcmp(h, want, sizeof h) != 0) {
-        fclose(f);
-        return fn_err_set(FN_EFORMAT, "%s: offset 0: not a fracnav journal (bad header)", path);
-    }
-    size_t cap = 0;
-    unsigned char b[JOURNAL_RECORD_SIZE];
-    long off = JOURNAL_HEADER_SIZE;
-    for (;;) {
-        got = fread(b, 1, sizeof b, f);
-        if (got == 0)
-            break;
-        journal_rec r;
-        if (got != sizeof b || !decode(b, &r)) {
-            if (torn_at)
-                *torn_at = off;
-            break;
-        }
-        if (*n == cap) {
-            cap = cap ? cap * 2 : 1024;
-            journal_rec *nr = realloc(*recs, cap * sizeof *nr);
-            if (!nr) {
-                fclose(f);
-                free(*recs);
-                *recs = NULL;
-                *n = 0;
-                return fn_err_set(FN_ENOMEM, "%s: out of memory at offset %ld", path, off);
-            }
-            *recs = nr;
-        }
-        (*recs)[(*n)++] = r;
-        off += JOURNAL_RECORD_SIZE;
-    }
+    struct stat sb;
+    int rc = fstat(fileno(f), &sb) == 0 ? 0 : fn_err_set(FN_EIO, "%s: %s", path, strerror(errno));
+    size_t len = rc == 0 ? (size_t)sb.st_size : 0;
+    if (rc == 0 && len > vol_budget())
+        rc = fn_err_set(FN_ENOMEM, "%s: %zu bytes, over the memory budget", path, len);
+    uint8_t *buf = rc == 0 ? malloc(len ? len : 1) : NULL;
+    if (rc == 0 && !buf)
+        rc = fn_err_set(FN_ENOMEM, "%s: out of memory for %zu bytes", path, len);
+    if (rc == 0 && fread(buf, 1, len, f) != len)
+        rc = fn_err_set(FN_EIO, "%s: read failed", path);
     fclose(f);
-    return 0;
+    if (rc == 0)
+        rc = journal_parse(buf, len, path, recs, n, torn_at);
+    free(buf);
+    return rc;
 }
 
 int journal_final_poses(const journal_rec *recs, size_t n, int nfrag, pose *poses)

@@ -59,7 +59,12 @@ uint64_t journal_count(const journal *j);
 /* Flush interval (microseconds). */
 void journal_set_flush_us(journal *j, int64_t flush_us);
 
-/* Reads DIR/journal: *recs (malloc'd, caller frees) and *n. A missing file is 0 records.
+/* Parses a journal's bytes (pure; name is for messages): *recs (malloc'd, caller frees; NULL when
+ * none) and *n. A torn or corrupt tail is not an error: *n counts the valid records before it and
+ * *torn_at (if not NULL) gets its byte offset (-1 when clean). FN_EFORMAT for a bad header. */
+int journal_parse(const uint8_t *buf, size_t len, const char *name, journal_rec **recs, size_t *n,
+                  long *torn_at);
+/* Reads and parses DIR/journal (size checked against vol_budget). A missing file is 0 records.
  * A torn or corrupt tail is not an error: *n counts the valid records before it and *torn_at
  * (if not NULL) gets its byte offset (-1 when clean). FN_EFORMAT for a bad header. */
 int journal_read(const char *case_dir, journal_rec **recs, size_t *n, long *torn_at);
