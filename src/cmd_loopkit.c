@@ -3,10 +3,12 @@
 #include "err.h"
 #include "obb.h"
 
+#include <errno.h>
 #include <inttypes.h>
 #include <jansson.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 size_t loopkit_journal_pending(const char *dir)
 {
@@ -57,12 +59,16 @@ int loopkit_open(loopkit *k, const char *dir, const loop_config *cfg, unsigned f
         if (!k->obb)
             rc = FN_EFORMAT;
     }
+    if (rc == 0 && (flags & LOOPKIT_DISCARD)) {
+        char path[4200]; /* removed, not parsed: a damaged journal must not block a fresh start */
+        snprintf(path, sizeof path, "%s/journal", dir);
+        if (unlink(path) != 0 && errno != ENOENT)
+            rc = fn_err_set(FN_EIO, "%s: cannot remove: %s", path, strerror(errno));
+    }
     if (rc == 0 && (flags & LOOPKIT_JOURNAL)) {
         k->jr = journal_open(dir);
         if (!k->jr)
             rc = FN_EIO;
-        else if ((flags & LOOPKIT_DISCARD) && !(flags & LOOPKIT_RESUME))
-            rc = journal_truncate(k->jr);
     }
     if (rc == 0) {
         uint8_t fixed[LOOP_MAX_FRAGS] = {0};

@@ -238,7 +238,16 @@ static void test_crash_recovery(void **st)
     for (int a = 0; a < 3; a++)
         assert_true(moved_t(j, a) == last.t[a]);
     json_decref(j);
+    /* A damaged journal is named, and --discard-journal starts over from case.json. */
     snprintf(cmd, sizeof cmd, "%s/journal", case_dir);
+    tu_write_file(cmd, "garbage, not a journal", 22);
+    assert_int_equal(tu_run_cli(&out, "replay '%s' '%s'", case_dir, idle), 1);
+    assert_non_null(strstr(out, "journal"));
+    free(out);
+    j = replay(idle, "--discard-journal", 0);
+    assert_true(num(j, "resumed_from_journal") == 0);
+    assert_true(moved_t(j, 2) == 0);
+    json_decref(j);
     unlink(cmd);
 }
 
