@@ -11,11 +11,13 @@
  * Collision (the definition both obb_collide and obb_collide_brute implement): A and B collide when
  * some voxel box of A and some voxel box of B, each shrunk by tolerance_mm on every side, still
  * overlap with a non-empty interior (touching faces do not count) and pa*pb/255^2 >= threshold with
- * pa, pb the effective bytes. The hierarchy only rejects; its leaf test is the same voxel-box SAT
- * (obb_box_overlap) as brute force, so the two agree bit for bit.
+ * pa, pb the effective bytes. Inner boxes only reject (conservatively, with a 1e-6 mm slack);
+ * voxel pairs get the exact 15-axis test, the same code brute force runs, so the two agree bit for
+ * bit (obb_box_overlap exposes that test).
  *
  * Threads: a built tree is read-only; any number of threads may query shared trees at once, each with
- * its own obb_cache (or none). Queries allocate nothing. Errors: see err.h. */
+ * its own obb_cache (or none). Queries allocate nothing; they use about 100 KB of stack.
+ * Errors: see err.h. */
 #ifndef FN_OBB_H
 #define FN_OBB_H
 
@@ -43,8 +45,9 @@ typedef struct obb_node {
     uint32_t info;
 } obb_node;
 
-/* Builds the hierarchy of f (dims up to 65535 per axis). NULL + fn_err on bad params
- * (FN_EINVAL), bad fragment (FN_EFORMAT) or memory (FN_ENOMEM). f may be freed afterwards.
+/* Builds the hierarchy of f (dims up to 65535 per axis, at most 2^24 nodes) in time linear in the
+ * voxel count, using about 1.5 bytes per voxel of temporary memory. NULL + fn_err on bad params
+ * (FN_EINVAL), a bad fragment (FN_EFORMAT) or memory (FN_ENOMEM). f may be freed afterwards.
  * p NULL = {0, 1}. A fragment with no voxel left gives a valid empty tree (0 nodes). */
 obb_tree *obb_tree_build(const frag *f, const obb_params *p);
 void obb_tree_free(obb_tree *t);
@@ -89,15 +92,34 @@ typedef struct obb_result {
     size_t tests;        /* box tests done (for benchmarks) */
 } obb_result;
 
-/* Temporal coherence for one ordered pair of trees: the last witness (colliding voxel pair) and the
- * last separating axis. Caller-owned, plain data: zero it (or obb_cache_reset) before first use
- * and whenever a tree of the pair is rebuilt. Never share one cache between threads. */
+/* Temporal coherence for one ordered pair of trees. Caller-owned plain data (about 160 KB): zero it
+ * (or obb_cache_reset) before first use; it notices a different tree or query setting by itself,
+ * but not a tree rebuilt at the same address: reset it then. Never share one between threads.
+ * - witness: the last colliding voxel pair, tried first (a colliding pose stays colliding while
+ *   the user pushes into contact: answered in one test).
+ * - front: every node pair the last full search rejected, with its gap, for the relative pose it
+ *   was made at. A later query moves B by at most delta relative to A (from the two poses and B's
+ *   root box); a pair whose gap exceeds delta is still apart and is skipped, the rest are searched
+ *   again, so the answer stays exact. When too many pairs need a look, the search runs from the
+ *   root and makes a new front (also when the front would exceed OBB_FRONT_MAX pairs: no front). */
+#define OBB_FRONT_MAX 4096
+
+typedef struct obb_front_pair {
+    obb_node a, b;
+    double gap; /* mm, a lower bound on the distance between the two boxes at the reference pose */
+} obb_front_pair;
+
 typedef struct obb_cache {
-    int valid;
-    obb_node wa, wb;     /* last colliding leaf pair */
     int has_witness;
-    double axis[3];      /* last root separating axis, in A's frame */
-    int has_axis;
+    obb_node wa, wb;           /* last colliding voxel pair */
+    int front_valid;
+    size_t front_n;
+    const obb_tree *ta, *tb;   /* what the front was made for */
+    double threshold, tolerance_mm;
+    int inner_axes;
+    double ref_R[3][3], ref_t[3]; /* B's frame in A's frame when the front was made */
+    size_t reuses, rebuilds;   /* queries answered from the front / that made a new one */
+    obb_front_pair front[OBB_FRONT_MAX];
 } obb_cache;
 
 void obb_cache_reset(obb_cache *c);

@@ -4,6 +4,7 @@
 #include "err.h"
 #include "obb_impl.h"
 
+#include <math.h>
 #include <string.h>
 
 #define LEAF 0x80000000u
@@ -22,6 +23,7 @@ typedef struct ctx {
     const obb_query *q;
     obb_result *r;
     obb_cache *cache;
+    int rec, overflow; /* recording the front into cache; it did not fit */
     double best_gap, pen;
 } ctx;
 
@@ -131,6 +133,12 @@ static int test(ctx *c, const obb_node *a, const double ca[3], const double ha[3
         record(c, a, b, gap);
         return 0;
     }
+    if (c->rec) {
+        if (c->cache->front_n < OBB_FRONT_MAX)
+            c->cache->front[c->cache->front_n++] = (obb_front_pair){*a, *b, gap};
+        else
+            c->overflow = 1;
+    }
     if (gap < c->best_gap) {
         obb__sat(&c->rel, exact, c->edges, T, ha, hb, 1, &gap);
         c->best_gap = gap < c->best_gap ? gap : c->best_gap;
@@ -236,6 +244,82 @@ static int check_args(const obb_tree *a, const pose *aw, const obb_tree *b, cons
     return q ? obb__check_query(q, obb_tree_spacing(a), obb_tree_spacing(b)) : 0;
 }
 
+/* How far any point of B's root box moved, relative to A, since the front's reference pose. */
+static double motion_bound(const ctx *c, const obb_cache *k)
+{
+    const obb_node *root = &c->nb[0];
+    double cb[3], d[3], rb = 0, fro = 0;
+    for (int i = 0; i < 3; i++) {
+        double h = ((root->hi[i] - root->lo[i]) * 0.5 + 0.5) * c->sb[i];
+        cb[i] = (root->lo[i] + root->hi[i]) * 0.5 * c->sb[i];
+        rb += h * h;
+    }
+    for (int i = 0; i < 3; i++) {
+        d[i] = c->rel.t[i] - k->ref_t[i];
+        for (int j = 0; j < 3; j++) {
+            double e = c->rel.R[i][j] - k->ref_R[i][j];
+            d[i] += e * cb[j];
+            fro += e * e;
+        }
+    }
+    /* |(R - R0) y| <= 2 sin(angle / 2) |y| = ||R - R0||_F / sqrt(2) |y| */
+    double move = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) + sqrt(fro / 2) * sqrt(rb);
+    return move * (1 + 1e-9) + 1e-9;
+}
+
+static int front_fits(const ctx *c, const obb_cache *k, const obb_tree *a, const obb_tree *b)
+{
+    return k->front_valid && k->ta == a && k->tb == b && k->threshold == c->q->threshold &&
+           k->tolerance_mm == c->q->tolerance_mm && k->inner_axes == c->q->inner_axes;
+}
+
+/* Answers from the front when few of its pairs can have closed their gap; 0 when not worth it. */
+static int from_front(ctx *c, obb_cache *k)
+{
+    double delta = motion_bound(c, k), rest = INFINITY;
+    size_t near = 0;
+    for (size_t i = 0; i < k->front_n; i++)
+        near += k->front[i].gap - OBB__SLACK <= delta;
+    if (near > k->front_n / 4 + 16)
+        return 0;
+    for (size_t i = 0; i < k->front_n && !done(c); i++) {
+        const obb_front_pair *f = &k->front[i];
+        npair p = {f->a, f->b};
+        if (f->gap - OBB__SLACK > delta)
+            rest = fmin(rest, f->gap - OBB__SLACK - delta);
+        else if (test_pair(c, &p))
+            depth_first(c, &p);
+    }
+    k->reuses++;
+    c->best_gap = fmin(c->best_gap, rest + OBB__SLACK);
+    return 1;
+}
+
+static void search(ctx *c, obb_cache *k, const obb_tree *a, const obb_tree *b)
+{
+    if (k && !c->want_pairs) {
+        k->front_valid = 0;
+        k->front_n = 0;
+        k->ta = a, k->tb = b;
+        k->threshold = c->q->threshold, k->tolerance_mm = c->q->tolerance_mm;
+        k->inner_axes = c->q->inner_axes;
+        k->rebuilds++;
+        memcpy(k->ref_R, c->rel.R, sizeof k->ref_R);
+        memcpy(k->ref_t, c->rel.t, sizeof k->ref_t);
+        c->rec = 1;
+    }
+    npair root = {c->na[0], c->nb[0]};
+    if (test_pair(c, &root)) {
+        if (c->q->order == OBB_BREADTH_FIRST)
+            breadth_first(c, &root);
+        else
+            depth_first(c, &root);
+    }
+    if (c->rec)
+        k->front_valid = !c->r->collides && !c->overflow;
+    c->rec = 0;
+}
+
 int obb_collide(const obb_tree *a, const pose *a_world, const obb_tree *b, const pose *b_world,
                 const obb_query *q, obb_cache *cache, obb_result *r)
 {
@@ -267,13 +351,9 @@ int obb_collide(const obb_tree *a, const pose *a_world, const obb_tree *b, const
         }
         c.best_gap = INFINITY; /* a witness gap says nothing about the other pairs */
     }
-    npair root = {c.na[0], c.nb[0]};
-    if (test_pair(&c, &root)) {
-        if (c.q->order == OBB_BREADTH_FIRST)
-            breadth_first(&c, &root);
-        else
-            depth_first(&c, &root);
-    }
+    int answered = cache && !c.want_pairs && front_fits(&c, cache, a, b) && from_front(&c, cache);
+    if (!answered)
+        search(&c, cache, a, b);
     if (r->collides)
         r->separation_mm = c.pen;
     else

@@ -415,6 +415,45 @@ static void test_tree_matches_brute_force(void **st)
     assert_true(tl.misses > tl.poses / 5);
 }
 
+/* Small steps, as the navigation loop makes them: the cache's front and witness answer most
+ * queries, and every answer still matches brute force. */
+static void test_cache_follows_small_steps(void **st)
+{
+    static obb_cache cache;
+    size_t reuses = 0;
+    int poses = 0, hits = 0;
+    for (int n = 0; n < 12; n++) {
+        frag *fa = random_frag(14, 1), *fb = random_frag(14, 1);
+        obb_params prm = {0, 1};
+        obb_tree *ta = build(fa, 0, 1), *tb = build(fb, 0, 1);
+        obb_cache_reset(&cache);
+        double reach = radius(fa) + radius(fb), o[3] = {0, 0, 0}, dir[3];
+        for (int i = 0; i < 3; i++)
+            dir[i] = srand1() * reach / 2;
+        pose pa = place(fa, random_rotation(), o), pb = place(fb, random_rotation(), dir);
+        for (int k = 0; k < 150; k++) {
+            double step = k % 25 == 0 ? 2.0 : 0.03;
+            double ax[3] = {srand1(), srand1(), srand1()};
+            pose turn = pose_from_axis_angle(ax, step * 0.02 * srand1());
+            pb = pose_compose(turn, pb);
+            for (int i = 0; i < 3; i++)
+                pb.t[i] += step * srand1() - 0.02 * dir[i] / (reach + 1e-9);
+            obb_query q = {.tolerance_mm = k % 40 < 20 ? 0 : 0.1, .threshold = k % 50 < 25 ? 0 : 0.3};
+            tally tl = {0};
+            compare_pose(fa, ta, fb, tb, &prm, &pa, &pb, &q, &cache, &tl);
+            poses++;
+            hits += tl.hits;
+        }
+        reuses += cache.reuses;
+        obb_tree_free(ta);
+        obb_tree_free(tb);
+        tfrag_free(fa);
+        tfrag_free(fb);
+    }
+    assert_true(reuses > (size_t)poses / 4);
+    assert_true(hits > poses / 10 && hits < poses * 9 / 10);
+}
+
 static void test_pairs_listed(void **st)
 {
     frag *a = tfrag_new(3, 3, 3, 1, 1, 1), *b = tfrag_new(3, 3, 3, 1, 1, 1);
@@ -534,6 +573,7 @@ int main(void)
         cmocka_unit_test(test_prune_solid_and_uncertain),
         cmocka_unit_test(test_prune_single_child_chain),
         cmocka_unit_test(test_tree_matches_brute_force),
+        cmocka_unit_test(test_cache_follows_small_steps),
         cmocka_unit_test(test_pairs_listed),
         cmocka_unit_test(test_separation_is_a_lower_bound),
         cmocka_unit_test(test_bad_input),
