@@ -59,6 +59,10 @@ typedef struct server {
     fnrec_header id;      /* identity served: descriptor, name, vid/pid */
     reader *readers;
     int timer_fd, sig_fd;
+    int ctl_fd, ctl_keep;  /* --control FIFO: read end, and a write end that keeps it from EOF */
+    char ctl_line[1024];
+    size_t ctl_len;
+    uint32_t ctl_buttons;  /* buttons held down by control commands */
     fnrec_writer *log;    /* --log: every event served */
     int64_t log_t0;
     uint64_t served, dropped;
@@ -219,7 +223,7 @@ static void pump(void)
         S.pos++;
         if (e->dir == FNREC_IN && S.plugged)
             deliver(e->data, e->len);
-        else if (e->dir == FNREC_CONNECT && S.pos > 1)
+        else if (e->dir == FNREC_CONNECT)
             set_plugged(1);
         else if (e->dir == FNREC_DISCONNECT)
             set_plugged(0);
@@ -499,14 +503,87 @@ static int handle_signal(void)
     return 1; /* SIGINT, SIGTERM, SIGHUP: stop */
 }
 
+/* ---- the control FIFO: script lines played at once ---- */
+
+/* A control line plays its script now, or after what is still playing; the buttons held carry
+ * over from one line to the next. */
+static void control_command(const char *line)
+{
+    script *sc = NULL;
+    if (script_parse(line, strlen(line), "control", &sc)) {
+        fprintf(stderr, "fracnav-sim: %s\n", fn_err_msg());
+        return;
+    }
+    fnrec *r = NULL;
+    if (sc->n == 1 && (sc->step[0].op == SCRIPT_UNPLUG || sc->step[0].op == SCRIPT_REPLUG))
+        set_plugged(sc->step[0].op == SCRIPT_REPLUG);
+    else if (sc->n && !(r = script_render_more(sc, S.p, &S.ctl_buttons)))
+        fprintf(stderr, "fracnav-sim: %s\n", fn_err_msg());
+    free(sc);
+    if (r && S.started && S.pos < S.rec->n) { /* still playing: queue it after the rest */
+        int64_t at = S.rec->ev[S.rec->n - 1].t_us;
+        for (size_t i = 0; i < r->n; i++) {
+            r->ev[i].t_us += at;
+            if (fnrec_append(S.rec, &r->ev[i]))
+                fprintf(stderr, "fracnav-sim: %s\n", fn_err_msg());
+        }
+        fnrec_free(r);
+    } else if (r) {
+        fnrec_free(S.rec);
+        S.rec = r;
+        S.pos = 0;
+        S.started = 1;
+        S.t0_us = mono_us();
+        pump();
+    }
+}
+
+static void control_input(void)
+{
+    ssize_t n = read(S.ctl_fd, S.ctl_line + S.ctl_len, sizeof S.ctl_line - 1 - S.ctl_len);
+    if (n <= 0)
+        return;
+    S.ctl_len += (size_t)n;
+    char *nl;
+    while ((nl = memchr(S.ctl_line, '\n', S.ctl_len))) {
+        *nl = '\0';
+        fn_err_clear();
+        control_command(S.ctl_line);
+        S.ctl_len -= (size_t)(nl + 1 - S.ctl_line);
+        memmove(S.ctl_line, nl + 1, S.ctl_len);
+    }
+    if (S.ctl_len == sizeof S.ctl_line - 1) {
+        fprintf(stderr, "fracnav-sim: control line too long, dropped\n");
+        S.ctl_len = 0;
+    }
+}
+
+static int open_control(const char *path)
+{
+    struct stat st;
+    if (stat(path, &st) ? mkfifo(path, 0600) : !S_ISFIFO(st.st_mode) ? (errno = EEXIST, -1) : 0) {
+        fprintf(stderr, "fracnav-sim serve: cannot make the control FIFO %s: %s\n", path,
+                strerror(errno));
+        return -1;
+    }
+    S.ctl_fd = open(path, O_RDONLY | O_NONBLOCK | O_CLOEXEC);
+    S.ctl_keep = open(path, O_WRONLY | O_NONBLOCK | O_CLOEXEC);
+    if (S.ctl_fd < 0 || S.ctl_keep < 0) {
+        fprintf(stderr, "fracnav-sim serve: cannot open the control FIFO %s: %s\n", path,
+                strerror(errno));
+        return -1;
+    }
+    return 0;
+}
+
 static int serve_loop(void)
 {
     struct fuse_buf fbuf = {0};
-    struct pollfd pf[3] = {{fuse_session_fd(S.se), POLLIN, 0}, {S.timer_fd, POLLIN, 0},
-                           {S.sig_fd, POLLIN, 0}};
+    struct pollfd pf[4] = {{fuse_session_fd(S.se), POLLIN, 0}, {S.timer_fd, POLLIN, 0},
+                           {S.sig_fd, POLLIN, 0}, {S.ctl_fd, POLLIN, 0}};
     int rc = 0;
     while (!fuse_session_exited(S.se)) {
-        if (poll(pf, 3, -1) < 0) {
+        if (poll(pf, 4, -1) < 0) {
             if (errno == EINTR)
                 continue;
             rc = -errno;
@@ -514,6 +591,8 @@ static int serve_loop(void)
         }
         if (pf[2].revents && handle_signal())
             break;
+        if (pf[3].revents)
+            control_input();
         if (pf[1].revents) {
             uint64_t ticks;
             if (read(S.timer_fd, &ticks, sizeof ticks) < 0 && errno != EAGAIN)
@@ -591,9 +670,9 @@ static void teardown(const char *mount)
                     " dropped by full reader queues)\n", mount, S.served, S.dropped);
 }
 
-static int serve(const char *mount)
+static int serve(const char *mount, const char *control)
 {
-    if (check_fuse_access(mount))
+    if (check_fuse_access(mount) || (control && open_control(control)))
         return 1;
     if (block_signals()) {
         fprintf(stderr, "fracnav-sim serve: cannot create the signal or timer descriptor: %s\n",
@@ -628,6 +707,7 @@ static void usage(FILE *f)
     fprintf(f,
             "usage: fracnav-sim serve --mount DIR [--as DEVICE] [--play FILE.fnrec | --script FILE]\n"
             "                         [--start-on-read] [--fast] [--exit-at-end] [--log FILE.fnrec]\n"
+            "                         [--control FIFO]\n"
             "       fracnav-sim render [--as DEVICE] --script FILE -o FILE.fnrec\n"
             "       fracnav-sim list\n"
             "       fracnav-sim bench [--mount DIR] [--seconds S]\n"
@@ -641,6 +721,8 @@ static void usage(FILE *f)
             "         --fast           play as fast as the readers read (implies --start-on-read)\n"
             "         --exit-at-end    unmount and exit once the playback is over and read\n"
             "         --log FILE       write every report served to a .fnrec file\n"
+            "         --control FIFO   script lines written to this FIFO (made if absent) play in\n"
+            "                          turn, as soon as possible: echo 'press 1' > FIFO\n"
             "render   writes the reports a script produces on DEVICE to a .fnrec file\n"
             "list     prints the devices the simulator can impersonate\n"
             "bench    measures report throughput (as fast as possible) and timing jitter (at the\n"
@@ -659,7 +741,7 @@ static int list_devices(void)
 }
 
 typedef struct opts {
-    const char *mount, *as, *play, *script, *out, *log, *seconds;
+    const char *mount, *as, *play, *script, *out, *log, *seconds, *control;
 } opts;
 
 static int parse_opts(int argc, char **argv, opts *o)
@@ -687,6 +769,8 @@ static int parse_opts(int argc, char **argv, opts *o)
             dst = &o->log;
         else if (!strcmp(a, "--seconds"))
             dst = &o->seconds;
+        else if (!strcmp(a, "--control"))
+            dst = &o->control;
         else {
             fprintf(stderr, "fracnav-sim %s: unknown option '%s'\n", argv[1], a);
             return -1;
@@ -754,7 +838,7 @@ int main(int argc, char **argv)
     if (!strcmp(cmd, "list"))
         return list_devices();
     opts o = {0};
-    S.sig_fd = S.timer_fd = -1;
+    S.sig_fd = S.timer_fd = S.ctl_fd = S.ctl_keep = -1;
     if (strcmp(cmd, "serve") && strcmp(cmd, "render") && strcmp(cmd, "bench")) {
         fprintf(stderr, "fracnav-sim: unknown command '%s' (serve, render, list, bench; --help)\n", cmd);
         return 2;
@@ -780,7 +864,7 @@ int main(int argc, char **argv)
     else if (!strcmp(cmd, "render"))
         rc = fnrec_save(S.rec, o.out) ? (fprintf(stderr, "fracnav-sim render: %s\n", fn_err_msg()), 1) : 0;
     else
-        rc = serve(o.mount);
+        rc = serve(o.mount, o.control);
     if (S.log && fnrec_writer_close(S.log))
         fprintf(stderr, "fracnav-sim: %s\n", fn_err_msg());
     fnrec_free(S.rec);
@@ -788,5 +872,9 @@ int main(int argc, char **argv)
         close(S.sig_fd);
     if (S.timer_fd >= 0)
         close(S.timer_fd);
+    if (S.ctl_fd >= 0)
+        close(S.ctl_fd);
+    if (S.ctl_keep >= 0)
+        close(S.ctl_keep);
     return rc;
 }

@@ -422,6 +422,41 @@ static void test_play_recording(void **st)
     fnrec_free(want);
 }
 
+/* Script lines written to the control FIFO play in turn on the live device; buttons carry over. */
+static void test_control_fifo(void **st)
+{
+    const char *fifo = path_in("control"), *rec = path_in("rec.fnrec"), *log = path_in("record.log");
+    pid_t srv = start_server("--as", "spacenavigator", "--control", fifo, NULL);
+    pid_t recp = record_in_background(rec, 1.2, log);
+    msleep(300);
+    FILE *f = fopen(fifo, "w");
+    assert_non_null(f);
+    fputs("press 2\ntranslate -z 4 mm over 0.2 s\nnonsense\nrelease\n", f);
+    fclose(f);
+    int status = reap(recp, 10000);
+    stop_server(srv);
+    assert_true(WIFEXITED(status) && WEXITSTATUS(status) == 0);
+    fnrec *r = fnrec_load(rec);
+    assert_non_null(r);
+    /* press 2, motion along -z (ID1 with z = -140 counts, ID2), the zeros, then the release. */
+    int stage = 0;
+    size_t motion = 0;
+    for (size_t i = 0; i < r->n; i++) {
+        const fnrec_event *e = &r->ev[i];
+        if (e->dir != FNREC_IN)
+            continue;
+        if (stage == 0 && e->data[0] == 3 && e->data[1] == 2)
+            stage = 1;
+        else if (stage == 1 && e->data[0] == 1 && (int16_t)(e->data[5] | e->data[6] << 8) == -140)
+            motion++;
+        else if (stage == 1 && motion && e->data[0] == 3 && e->data[1] == 0)
+            stage = 2;
+    }
+    assert_int_equal(stage, 2);
+    assert_true(motion >= 10);
+    fnrec_free(r);
+}
+
 static void test_cli_usage_and_errors(void **st)
 {
     char *out = NULL;
@@ -455,6 +490,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_unplug_replug_on_signal, setup, teardown),
         cmocka_unit_test_setup_teardown(test_hidapi_led_feature_timeout, setup, teardown),
         cmocka_unit_test_setup_teardown(test_play_recording, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_control_fifo, setup, teardown),
         cmocka_unit_test_setup_teardown(test_cli_usage_and_errors, setup, teardown),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
