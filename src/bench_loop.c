@@ -37,7 +37,7 @@ static void usage(FILE *out)
                  "  --ct FILE     CT to fracture (default: the example CT, $FRACNAV_DATA/Cranium.inv3\n"
                  "                or /var/cache/fracnav/Cranium.inv3)\n"
                  "  --case DIR    steer an existing case instead (its journal is left alone)\n"
-                 "  --repeat N    play the 9 s motion script N times (default 3)\n");
+                 "  --repeat N    play the 9 s motion script N times (default 10)\n");
 }
 
 static int label_box(const vol *lab, int id, int lo[3], int hi[3])
@@ -165,7 +165,7 @@ static void print(const loop_stats *s, double wall_s, const frag *f, int nfrag, 
 
 int bench_loop(int argc, char **argv)
 {
-    int json = 0, repeat = 3;
+    int json = 0, repeat = 10;
     const char *ct = NULL, *case_dir = NULL;
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "--help") || !strcmp(argv[i], "-h")) {
