@@ -13,7 +13,6 @@
 #include <math.h>
 #include <pthread.h>
 #include <stdatomic.h>
-#include <stdio.h>
 #include <string.h>
 
 /* Fragment 0: a box of dim*spacing mm with its first voxel centre at `at`. Fragment 1: the wall,
@@ -329,7 +328,6 @@ static void test_undo_redo_gestures(void **st)
     assert_int_equal(loop_action_do(L, LOOP_ACT_UNDO), LOOP_ACCEPTED);
     assert_true(pose_distance(loop_pose(L, 0), g1) == 0);
     assert_int_equal(loop_action_do(L, LOOP_ACT_UNDO), LOOP_ACCEPTED);
-    { pose q = loop_pose(L, 0); fprintf(stderr, "DBG %g %g %g %g | %g %g %g\n", q.q[0], q.q[1], q.q[2], q.q[3], q.t[0], q.t[1], q.t[2]); }
     assert_true(pose_distance(loop_pose(L, 0), POSE_IDENTITY) == 0);
     assert_int_equal(loop_action_do(L, LOOP_ACT_UNDO), LOOP_IDLE); /* nothing left */
     assert_int_equal(loop_action_do(L, LOOP_ACT_REDO), LOOP_ACCEPTED);
