@@ -22,7 +22,7 @@ void loop_config_default(loop_config *c)
     c->dt_first_us = 8000; /* the SpaceNavigator's report period */
     c->bisect_iters = 6;
     c->slide_iters = 2;
-    c->max_tries = 10;
+    c->max_tries = 12;
 #ifdef NDEBUG
     c->check_invariant = 0;
 #else
@@ -257,26 +257,27 @@ static int slide_axes(loop *L, int s, pose *cur, double *gap, double c[3], const
     return advance(L, s, cur, gap, c, climb, zero, L->cfg.slide_iters, err) > 0 || moved_any;
 }
 
-/* The rest of a blocked step, in parts: translation alone and rotation alone (when the step had
- * both), then the translation axis by axis (slide_axes). Returns 1 when any part moved. */
+/* The rest of a blocked step, in parts: the translation alone (when the step also turns), then
+ * its world axes (slide_axes), then the rotation alone. Translation first: sliding along a
+ * contact is mostly translation, and the step's query budget may not reach the last parts.
+ * Returns 1 when any part moved. */
 static int slide(loop *L, int s, pose *cur, double *gap, double c[3], const double d[3],
                  const double r[3], int *err)
 {
     static const double zero[3] = {0, 0, 0};
-    double t[3], w[3];
+    double t[3];
     memcpy(t, d, sizeof t);
-    memcpy(w, r, sizeof w);
-    int moved_any = 0;
-    if (norm3(t) > 0 && norm3(w) > 0) {
+    int moved_any = 0, turns = norm3(r) > 0;
+    if (turns && norm3(t) > 0) {
         double f = advance(L, s, cur, gap, c, t, zero, L->cfg.slide_iters, err);
         for (int i = 0; i < 3; i++)
             t[i] *= 1 - f;
         moved_any |= f > 0;
-        if (!*err)
-            moved_any |= advance(L, s, cur, gap, c, zero, w, L->cfg.slide_iters, err) > 0;
     }
     if (!*err && nonzero_axes(t) >= 2)
         moved_any |= slide_axes(L, s, cur, gap, c, t, err);
+    if (!*err && turns && (norm3(d) > 0))
+        moved_any |= advance(L, s, cur, gap, c, zero, r, L->cfg.slide_iters, err) > 0;
     return moved_any;
 }
 
