@@ -115,7 +115,7 @@ static int throughput(const char *mount, const char *tmp, double *per_s, int *co
         return FN_EIO;
     snprintf(node, sizeof node, "%s/hidraw0", mount);
     pid_t srv = start_server(mount, path, 1);
-    int64_t span;
+    int64_t span = 0;
     *count = read_reports(node, THROUGHPUT_REPORTS, NULL, &span);
     stop_server(srv);
     if (*count < 0)
@@ -145,7 +145,7 @@ static int cadence(const char *mount, const char *tmp, double seconds, jitter *j
         return FN_EIO;
     snprintf(node, sizeof node, "%s/hidraw0", mount);
     int want = (int)(seconds * 1e6 / p->period_us) - 2;
-    int64_t *t = calloc((size_t)want, sizeof *t), *dev = calloc((size_t)want, sizeof *dev), span;
+    int64_t *t = calloc((size_t)want, sizeof *t), *dev = calloc((size_t)want, sizeof *dev), span = 0;
     if (!t || !dev) {
         free(t);
         free(dev);

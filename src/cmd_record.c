@@ -205,7 +205,6 @@ int cmd_record(int argc, char **argv)
     int rc = parse_args(argc, argv, &out, &device, &seconds);
     if (rc)
         return rc;
-    sim_register_transports();
     recorder r = {0};
     if (resolve(device, &r) || r.t->open(r.arg, &r.h)) {
         fprintf(stderr, "fracnav record: %s\n", fn_err_msg());
