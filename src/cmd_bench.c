@@ -1,10 +1,64 @@
+/* fracnav bench: dispatches to the benchmarks (bench_*.c). */
+#include "bench.h"
 #include "cmd.h"
 
 #include <stdio.h>
+#include <string.h>
+#include <sys/resource.h>
+#include <time.h>
 
-/* Placeholder until this command is built. */
+static const struct {
+    const char *name;
+    int (*run)(int, char **);
+    const char *help;
+} benches[] = {
+    {"collision", bench_collision, "OBB octree query vs brute force and FCL on fractured bones"},
+    {"build", bench_build, "hierarchy build time and memory against volume size"},
+    {"loop", bench_loop, "navigation loop rate and latency"},
+};
+
+double bench_now_us(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec * 1e6 + (double)ts.tv_nsec * 1e-3;
+}
+
+double bench_cpu_us(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+    return (double)ts.tv_sec * 1e6 + (double)ts.tv_nsec * 1e-3;
+}
+
+long bench_peak_rss_kib(void)
+{
+    struct rusage ru;
+    return getrusage(RUSAGE_SELF, &ru) == 0 ? ru.ru_maxrss : 0;
+}
+
+static void usage(FILE *out)
+{
+    fprintf(out, "usage: fracnav bench NAME [ARGS]   (fracnav bench NAME --help for each)\n\n"
+                 "Benchmarks; --json prints one JSON object on stdout.\n\nbenchmarks:\n");
+    for (size_t i = 0; i < sizeof benches / sizeof benches[0]; i++)
+        fprintf(out, "  %-10s %s\n", benches[i].name, benches[i].help);
+}
+
 int cmd_bench(int argc, char **argv)
 {
-    fprintf(stderr, "fracnav %s: not built yet\n", argv[0]);
-    return 1;
+    if (argc < 2) {
+        usage(stderr);
+        return 2;
+    }
+    if (!strcmp(argv[1], "-h") || !strcmp(argv[1], "--help")) {
+        usage(stdout);
+        return 0;
+    }
+    for (size_t i = 0; i < sizeof benches / sizeof benches[0]; i++)
+        if (!strcmp(argv[1], benches[i].name))
+            return benches[i].run(argc - 1, argv + 1);
+    fprintf(stderr, "fracnav bench: unknown benchmark '%s'\n", argv[1]);
+    usage(stderr);
+    return 2;
 }

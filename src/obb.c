@@ -1,0 +1,484 @@
+/* obb: the two-stage hierarchy build (bottom-up min/max/box pyramid, top-down breadth-first prune). */
+#include "obb.h"
+
+#include "err.h"
+#include "obb_impl.h"
+
+#include <limits.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define MAX_LEVELS 18
+#define MAX_NODES (1u << 24)
+
+struct obb_tree {
+    obb_node *nodes;
+    size_t n;
+    double spacing[3];
+    int depth;
+    obb_params params;
+};
+
+/* One pyramid level: per cell the min and max effective probability of its voxels, a mask of its
+ * bone children (bit dz*4 + dy*2 + dx) and, from level 2 up, the tight box of its bone voxels
+ * (level 1 boxes follow from the mask). */
+typedef struct level {
+    int dim[3];
+    uint8_t *mn, *mx, *mask;
+    uint16_t (*box)[6];
+    uint8_t (*vox)[8]; /* level 1, mixed cells only: the 8 effective voxel values by child bit */
+} level;
+
+/* An emitted node's cell, kept while the breadth-first pass still has to expand it. */
+typedef struct pending {
+    uint16_t c[3];
+    uint8_t level, depth;
+} pending;
+
+typedef struct builder {
+    const uint8_t *prob;
+    uint8_t lut[256];
+    uint8_t lo_off[256], hi_off[256]; /* level-1 box offsets from the mask: bit i = axis i */
+    level lv[MAX_LEVELS];
+    int top;
+    obb_node *nodes;
+    pending *pend;   /* per emitted node; left unset for voxel leaves */
+    size_t n, cap;
+    int depth;       /* deepest node so far (root = 1) */
+} builder;
+
+uint8_t obb_effective_prob(uint8_t p, const obb_params *params)
+{
+    double lo = params ? params->tau_min : 0, hi = params ? params->tau_max : 1;
+    double v = p / 255.0;
+    if (p == 0 || v < lo)
+        return 0;
+    if (p == 255 || v > hi)
+        return 255;
+    return p;
+}
+
+static size_t cells(const int d[3])
+{
+    return (size_t)d[0] * (size_t)d[1] * (size_t)d[2];
+}
+
+static size_t cidx(const level *L, const uint16_t c[3])
+{
+    return ((size_t)c[2] * (size_t)L->dim[1] + c[1]) * (size_t)L->dim[0] + c[0];
+}
+
+/* One level-1 cell from its (up to) 8 voxels: rows[dz*2+dy] (NULL when outside the crop), x the
+ * first voxel's column, two voxels when pair. */
+static void cell1(const builder *b, const uint8_t *const rows[4], size_t x, int pair, uint8_t *mn,
+                  uint8_t *mx, uint8_t *mask, uint8_t vox[8])
+{
+    uint8_t lo = 255, hi = 0, m = 0;
+    for (int r = 0; r < 4; r++) {
+        if (!rows[r])
+            continue;
+        for (int dx = 0; dx <= pair; dx++) {
+            uint8_t e = b->lut[rows[r][x + dx]];
+            lo = e < lo ? e : lo;
+            hi = e > hi ? e : hi;
+            m |= e ? (uint8_t)(1u << (r * 2 + dx)) : 0;
+            vox[r * 2 + dx] = e;
+        }
+    }
+    *mn = lo, *mx = hi, *mask = m;
+}
+
+static uint64_t load8(const uint8_t *p)
+{
+    uint64_t v;
+    memcpy(&v, p, sizeof v);
+    return v;
+}
+
+/* Level 1 from the voxels. Runs of 4 cells whose 32 voxels are all air (or all certain bone, when
+ * that maps to 255) are settled by word compares: most of a crop is one or the other. */
+static void level1(builder *b)
+{
+    level *L = &b->lv[1];
+    const int *d0 = b->lv[0].dim;
+    size_t nx = (size_t)L->dim[0], full = (size_t)d0[0] / 8;
+    int solid_fast = b->lut[255] == 255;
+    for (int ck = 0; ck < L->dim[2]; ck++)
+        for (int cj = 0; cj < L->dim[1]; cj++) {
+            size_t row = ((size_t)ck * L->dim[1] + cj) * nx;
+            const uint8_t *rows[4];
+            int present = 1;
+            for (int r = 0; r < 4; r++) {
+                int z = 2 * ck + (r >> 1), y = 2 * cj + (r & 1);
+                rows[r] = z < d0[2] && y < d0[1] ? b->prob + ((size_t)z * d0[1] + y) * d0[0] : NULL;
+                present &= rows[r] != NULL;
+            }
+            for (size_t g = 0; g < nx; g++) {
+                if (present && (g & 3) == 0 && g / 4 < full) {
+                    uint64_t w[4], any = 0, all = ~0ull;
+                    for (int r = 0; r < 4; r++)
+                        w[r] = load8(rows[r] + 2 * g), any |= w[r], all &= w[r];
+                    if (any == 0 || (solid_fast && all == ~0ull)) {
+                        memset(L->mn + row + g, any ? 255 : 0, 4);
+                        memset(L->mx + row + g, any ? 255 : 0, 4);
+                        memset(L->mask + row + g, any ? 255 : 0, 4);
+                        g += 3;
+                        continue;
+                    }
+                }
+                cell1(b, rows, 2 * g, 2 * g + 1 < (size_t)d0[0], L->mn + row + g, L->mx + row + g,
+                      L->mask + row + g, L->vox[row + g]);
+            }
+        }
+}
+
+/* Tight box of the cell at coordinates c of level l, in voxel indices. */
+static void cell_box(const builder *b, int l, const uint16_t c[3], uint16_t lo[3], uint16_t hi[3])
+{
+    if (l == 0) {
+        memcpy(lo, c, 3 * sizeof *c);
+        memcpy(hi, c, 3 * sizeof *c);
+    } else if (l == 1) {
+        uint8_t m = b->lv[1].mask[cidx(&b->lv[1], c)], lo_o = b->lo_off[m], hi_o = b->hi_off[m];
+        for (int i = 0; i < 3; i++) {
+            lo[i] = (uint16_t)(2 * c[i] + ((lo_o >> i) & 1));
+            hi[i] = (uint16_t)(2 * c[i] + ((hi_o >> i) & 1));
+        }
+    } else {
+        const uint16_t *box = b->lv[l].box[cidx(&b->lv[l], c)];
+        memcpy(lo, box, 3 * sizeof *lo);
+        memcpy(hi, box + 3, 3 * sizeof *hi);
+    }
+}
+
+/* Coordinates of child `bit` of cell c. */
+static void child(const uint16_t c[3], int bit, uint16_t out[3])
+{
+    out[0] = (uint16_t)(2 * c[0] + (bit & 1));
+    out[1] = (uint16_t)(2 * c[1] + ((bit >> 1) & 1));
+    out[2] = (uint16_t)(2 * c[2] + ((bit >> 2) & 1));
+}
+
+/* The box offsets of a level-1 cell from its occupancy mask. */
+static void mask_tables(builder *b)
+{
+    static const uint8_t low[3] = {0x55, 0x33, 0x0f}; /* bits of the lower half on each axis */
+    for (int m = 0; m < 256; m++) {
+        b->lo_off[m] = b->hi_off[m] = 0;
+        for (int i = 0; i < 3; i++) {
+            b->lo_off[m] |= (uint8_t)(((m & low[i]) ? 0 : 1) << i);
+            b->hi_off[m] |= (uint8_t)(((m & (uint8_t)~low[i]) ? 1 : 0) << i);
+        }
+    }
+}
+
+/* The union of the boxes of the bone children (mask m) of cell c at level l. */
+static void union_box(const builder *b, int l, const uint16_t c[3], uint8_t m, uint16_t box[6])
+{
+    box[0] = box[1] = box[2] = UINT16_MAX;
+    box[3] = box[4] = box[5] = 0;
+    for (int bit = 0; bit < 8; bit++) {
+        if (!(m >> bit & 1))
+            continue;
+        uint16_t cc[3], lo[3], hi[3];
+        child(c, bit, cc);
+        cell_box(b, l - 1, cc, lo, hi);
+        for (int i = 0; i < 3; i++) {
+            box[i] = lo[i] < box[i] ? lo[i] : box[i];
+            box[3 + i] = hi[i] > box[3 + i] ? hi[i] : box[3 + i];
+        }
+    }
+}
+
+/* Levels >= 2 from the level below: min, max and bone-child mask, row by row; the tight box is the
+ * clipped cell when solid, else the union of the children's boxes (unused when empty). */
+static void level_up(builder *b, int l)
+{
+    level *L = &b->lv[l];
+    const level *C = &b->lv[l - 1];
+    const int *d0 = b->lv[0].dim;
+    size_t idx = 0;
+    uint16_t c[3];
+    for (c[2] = 0; c[2] < L->dim[2]; c[2]++)
+        for (c[1] = 0; c[1] < L->dim[1]; c[1]++) {
+            const uint8_t *rmn[4] = {NULL, NULL, NULL, NULL}, *rmx[4] = {NULL, NULL, NULL, NULL};
+            for (int r = 0; r < 4; r++) {
+                int z = 2 * c[2] + (r >> 1), y = 2 * c[1] + (r & 1);
+                if (z >= C->dim[2] || y >= C->dim[1])
+                    continue;
+                size_t base = ((size_t)z * C->dim[1] + y) * C->dim[0];
+                rmn[r] = C->mn + base, rmx[r] = C->mx + base;
+            }
+            for (c[0] = 0; c[0] < L->dim[0]; c[0]++, idx++) {
+                uint8_t mn = 255, mx = 0, mask = 0;
+                int x0 = 2 * c[0], pair = x0 + 1 < C->dim[0];
+                for (int r = 0; r < 4; r++) {
+                    if (!rmn[r])
+                        continue;
+                    for (int dx = 0; dx <= pair; dx++) {
+                        uint8_t a = rmn[r][x0 + dx], z = rmx[r][x0 + dx];
+                        mn = a < mn ? a : mn;
+                        mx = z > mx ? z : mx;
+                        mask |= z ? (uint8_t)(1u << (r * 2 + dx)) : 0;
+                    }
+                }
+                L->mn[idx] = mn, L->mx[idx] = mx, L->mask[idx] = mask;
+                uint16_t *box = L->box[idx];
+                if (!mx)
+                    continue;
+                if (mn != 255) {
+                    union_box(b, l, c, mask, box);
+                    continue;
+                }
+                for (int i = 0; i < 3; i++) {
+                    int lo = c[i] << l, hi = ((c[i] + 1) << l) - 1;
+                    box[i] = (uint16_t)lo;
+                    box[3 + i] = (uint16_t)(hi < d0[i] ? hi : d0[i] - 1);
+                }
+            }
+        }
+}
+
+static uint8_t cell_mn(const builder *b, int l, const uint16_t c[3])
+{
+    return l == 0 ? b->lut[b->prob[cidx(&b->lv[0], c)]] : b->lv[l].mn[cidx(&b->lv[l], c)];
+}
+
+static uint8_t cell_mx(const builder *b, int l, const uint16_t c[3])
+{
+    return l == 0 ? b->lut[b->prob[cidx(&b->lv[0], c)]] : b->lv[l].mx[cidx(&b->lv[l], c)];
+}
+
+/* Follows single-child chains down: a cell with one bone child is replaced by that child. */
+static void collapse(const builder *b, int *l, uint16_t c[3])
+{
+    while (*l > 0) {
+        size_t idx = cidx(&b->lv[*l], c);
+        uint8_t m = b->lv[*l].mask[idx];
+        if (b->lv[*l].mn[idx] == 255 || (m & (m - 1)))
+            return;
+        int bit = 0;
+        while (!(m >> bit & 1))
+            bit++;
+        child(c, bit, c);
+        (*l)--;
+    }
+}
+
+static int grow(builder *b)
+{
+    size_t cap = b->cap ? 2 * b->cap : 1024;
+    if (cap > MAX_NODES)
+        cap = MAX_NODES;
+    if (b->n == cap)
+        return fn_err_set(FN_ENOMEM, "the hierarchy needs more than %u nodes", MAX_NODES);
+    obb_node *nn = realloc(b->nodes, cap * sizeof *nn);
+    if (nn)
+        b->nodes = nn;
+    pending *np = realloc(b->pend, cap * sizeof *np);
+    if (np)
+        b->pend = np;
+    if (!nn || !np)
+        return fn_err_set(FN_ENOMEM, "out of memory for %zu hierarchy nodes", cap);
+    b->cap = cap;
+    return 0;
+}
+
+static int emit(builder *b, int l, const uint16_t c[3], int depth)
+{
+    int rc = b->n == b->cap ? grow(b) : 0;
+    if (rc)
+        return rc;
+    obb_node *o = &b->nodes[b->n];
+    cell_box(b, l, c, o->lo, o->hi);
+    uint8_t mx = cell_mx(b, l, c);
+    if (l == 0 || cell_mn(b, l, c) == 255)
+        o->info = 0x80000000u | mx;
+    else
+        o->info = (uint32_t)((mx * 15 + 254) / 255) << 24;
+    pending *p = &b->pend[b->n++];
+    memcpy(p->c, c, sizeof p->c);
+    p->level = (uint8_t)l;
+    p->depth = (uint8_t)depth;
+    b->depth = depth > b->depth ? depth : b->depth;
+    return 0;
+}
+
+/* The voxel children (mask m) of level-1 cell c, as leaves: nothing below them to collapse. */
+static int emit_voxels(builder *b, const uint16_t c[3], uint8_t m, int depth)
+{
+    b->depth = depth > b->depth ? depth : b->depth;
+    const uint8_t *vox = b->lv[1].vox[cidx(&b->lv[1], c)];
+    for (int bit = 0; bit < 8; bit++) {
+        if (!(m >> bit & 1))
+            continue;
+        int rc = b->n == b->cap ? grow(b) : 0;
+        if (rc)
+            return rc;
+        obb_node *o = &b->nodes[b->n++];
+        child(c, bit, o->lo);
+        memcpy(o->hi, o->lo, sizeof o->hi);
+        o->info = 0x80000000u | vox[bit];
+    }
+    return 0;
+}
+
+/* Stage two: breadth-first from the root; children of each inner node are emitted contiguously. */
+static int prune(builder *b)
+{
+    int l = b->top;
+    uint16_t c[3] = {0, 0, 0};
+    if (!cell_mx(b, l, c))
+        return 0;
+    collapse(b, &l, c);
+    int rc = emit(b, l, c, 1);
+    for (size_t i = 0; rc == 0 && i < b->n; i++) {
+        if (b->nodes[i].info & 0x80000000u)
+            continue;
+        pending p = b->pend[i];
+        uint8_t m = b->lv[p.level].mask[cidx(&b->lv[p.level], p.c)];
+        size_t first = b->n;
+        int nk = 0;
+        if (p.level == 1) {
+            rc = emit_voxels(b, p.c, m, p.depth + 1);
+            nk = (int)(b->n - first);
+        }
+        for (int bit = 0; bit < 8 && rc == 0 && p.level > 1; bit++) {
+            if (!(m >> bit & 1))
+                continue;
+            int cl = p.level - 1;
+            uint16_t cc[3];
+            child(p.c, bit, cc);
+            collapse(b, &cl, cc);
+            rc = emit(b, cl, cc, p.depth + 1);
+            nk++;
+        }
+        b->nodes[i].info |= (uint32_t)first | (uint32_t)(nk - 1) << 28;
+    }
+    return rc;
+}
+
+static int alloc_levels(builder *b, const int d0[3])
+{
+    int d[3] = {d0[0], d0[1], d0[2]};
+    memcpy(b->lv[0].dim, d0, sizeof b->lv[0].dim);
+    b->top = 0;
+    while (d[0] > 1 || d[1] > 1 || d[2] > 1) {
+        int l = ++b->top;
+        for (int i = 0; i < 3; i++)
+            d[i] = (d[i] + 1) / 2, b->lv[l].dim[i] = d[i];
+        size_t n = cells(d);
+        level *L = &b->lv[l];
+        L->mn = malloc(n);
+        L->mx = malloc(n);
+        L->mask = malloc(n);
+        if (l >= 2)
+            L->box = malloc(n * sizeof *L->box);
+        else
+            L->vox = malloc(n * sizeof *L->vox);
+        if (!L->mn || !L->mx || !L->mask || (l >= 2 ? !L->box : !L->vox))
+            return fn_err_set(FN_ENOMEM, "out of memory for the hierarchy pyramid (%zu cells)", n);
+    }
+    return 0;
+}
+
+static void builder_free(builder *b)
+{
+    for (int l = 1; l < MAX_LEVELS; l++) {
+        free(b->lv[l].mn);
+        free(b->lv[l].mx);
+        free(b->lv[l].mask);
+        free(b->lv[l].box);
+        free(b->lv[l].vox);
+    }
+    free(b->pend);
+}
+
+static int check_input(const frag *f, const obb_params *p)
+{
+    if (!f || !f->prob)
+        return fn_err_set(FN_EINVAL, "obb_tree_build: no fragment or no probability map");
+    for (int i = 0; i < 3; i++) {
+        if (f->dim[i] < 1 || f->dim[i] > UINT16_MAX)
+            return fn_err_set(FN_EFORMAT, "fragment '%s': dim[%d] = %d is outside 1..65535",
+                              f->name, i, f->dim[i]);
+        if (!(f->spacing[i] > 0) || !isfinite(f->spacing[i]))
+            return fn_err_set(FN_EFORMAT, "fragment '%s': spacing[%d] = %g is not a positive size",
+                              f->name, i, f->spacing[i]);
+    }
+    if (!(p->tau_min >= 0 && p->tau_min <= p->tau_max && p->tau_max <= 1))
+        return fn_err_set(FN_EINVAL, "obb params: need 0 <= tau_min (%g) <= tau_max (%g) <= 1",
+                          p->tau_min, p->tau_max);
+    return 0;
+}
+
+obb_tree *obb_tree_build(const frag *f, const obb_params *params)
+{
+    obb_params p = params ? *params : (obb_params){0, 1};
+    if (check_input(f, &p))
+        return NULL;
+    builder b = {.prob = f->prob};
+    for (int v = 0; v < 256; v++)
+        b.lut[v] = obb_effective_prob((uint8_t)v, &p);
+    mask_tables(&b);
+    obb_tree *t = calloc(1, sizeof *t);
+    int rc = t ? alloc_levels(&b, f->dim) : fn_err_set(FN_ENOMEM, "out of memory for a tree");
+    if (rc == 0) {
+        if (b.top >= 1)
+            level1(&b);
+        for (int l = 2; l <= b.top; l++)
+            level_up(&b, l);
+        rc = prune(&b);
+        t->depth = b.depth;
+    }
+    builder_free(&b);
+    if (rc) {
+        fn_err_wrap(rc, "fragment '%s'", f->name);
+        free(b.nodes);
+        free(t);
+        return NULL;
+    }
+    obb_node *shrunk = b.n ? realloc(b.nodes, b.n * sizeof *shrunk) : NULL;
+    t->nodes = shrunk ? shrunk : b.nodes;
+    if (!b.n) {
+        free(b.nodes);
+        t->nodes = NULL;
+    }
+    t->n = b.n;
+    t->params = p;
+    memcpy(t->spacing, f->spacing, sizeof t->spacing);
+    return t;
+}
+
+void obb_tree_free(obb_tree *t)
+{
+    if (!t)
+        return;
+    free(t->nodes);
+    free(t);
+}
+
+size_t obb_tree_nodes(const obb_tree *t)
+{
+    return t ? t->n : 0;
+}
+
+const obb_node *obb_tree_node_array(const obb_tree *t)
+{
+    return t ? t->nodes : NULL;
+}
+
+const double *obb_tree_spacing(const obb_tree *t)
+{
+    return t->spacing;
+}
+
+int obb_tree_depth(const obb_tree *t)
+{
+    return t ? t->depth : 0;
+}
+
+size_t obb_tree_bytes(const obb_tree *t)
+{
+    return t ? sizeof *t + t->n * sizeof(obb_node) : 0;
+}

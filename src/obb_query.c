@@ -1,0 +1,362 @@
+/* obb: the collision query between two hierarchies (separating-axis tests, depth- or breadth-first). */
+#include "obb.h"
+
+#include "err.h"
+#include "obb_impl.h"
+
+#include <math.h>
+#include <string.h>
+
+#define LEAF 0x80000000u
+#define STACK 512  /* > 1 + 7 * (2 * 17 levels): a split pushes at most 8 pairs */
+#define QUEUE 2048 /* breadth-first ring; a pair that finds it full is searched depth-first */
+
+typedef struct npair {
+    obb_node a, b;
+} npair;
+
+typedef struct ctx {
+    obb__rel rel;
+    const obb_node *na, *nb;
+    double sa[3], sb[3], tol;
+    int thr, want_pairs, edges;
+    const obb_query *q;
+    obb_result *r;
+    obb_cache *cache;
+    int rec, overflow; /* recording the front into cache; it did not fit */
+    double best_gap, pen;
+} ctx;
+
+static int is_leaf(const obb_node *n)
+{
+    return (n->info & LEAF) != 0;
+}
+
+static int is_voxel(const obb_node *n)
+{
+    return is_leaf(n) && n->lo[0] == n->hi[0] && n->lo[1] == n->hi[1] && n->lo[2] == n->hi[2];
+}
+
+/* Upper bound of the node's effective probability byte. */
+static int pmax(const obb_node *n)
+{
+    return is_leaf(n) ? (int)(n->info & 0xff) : (int)((n->info >> 24) & 0xf) * 17;
+}
+
+static double volume(const obb_node *n, const double s[3])
+{
+    return (n->hi[0] - n->lo[0] + 1.0) * s[0] * (n->hi[1] - n->lo[1] + 1.0) * s[1] *
+           (n->hi[2] - n->lo[2] + 1.0) * s[2];
+}
+
+/* The children of n: real ones for inner nodes, the octants of a solid block made on the fly. */
+static int split(const ctx *c, const obb_node *n, const obb_node *all, obb_node out[8])
+{
+    if (!is_leaf(n)) {
+        uint32_t first = n->info & 0xffffffu, cnt = ((n->info >> 28) & 7u) + 1;
+        memcpy(out, all + first, cnt * sizeof *out);
+        return (int)cnt;
+    }
+    uint16_t mid[3];
+    int halves[3];
+    for (int i = 0; i < 3; i++) {
+        halves[i] = n->hi[i] > n->lo[i] ? 2 : 1;
+        mid[i] = (uint16_t)(n->lo[i] + (n->hi[i] - n->lo[i] + 1) / 2);
+    }
+    int k = 0;
+    for (int z = 0; z < halves[2]; z++)
+        for (int y = 0; y < halves[1]; y++)
+            for (int x = 0; x < halves[0]; x++) {
+                int h[3] = {x, y, z};
+                obb_node *o = &out[k++];
+                *o = *n;
+                for (int i = 0; i < 3; i++) {
+                    if (halves[i] == 1)
+                        continue;
+                    if (h[i])
+                        o->lo[i] = mid[i];
+                    else
+                        o->hi[i] = (uint16_t)(mid[i] - 1);
+                }
+            }
+    return k;
+}
+
+static void record(ctx *c, const obb_node *a, const obb_node *b, double gap)
+{
+    obb_result *r = c->r;
+    if (c->want_pairs && r->npairs < c->q->max_pairs) {
+        obb_pair *p = &c->q->pairs[r->npairs++];
+        memcpy(p->a, a->lo, sizeof p->a);
+        memcpy(p->b, b->lo, sizeof p->b);
+    }
+    r->pairs_total++;
+    r->collides = 1;
+    c->pen = gap < c->pen ? gap : c->pen;
+    if (c->cache) {
+        c->cache->wa = *a, c->cache->wb = *b;
+        c->cache->has_witness = 1;
+    }
+}
+
+static void box_a(const ctx *c, const obb_node *a, double ca[3], double ha[3])
+{
+    obb__box_a(&c->rel, a->lo, a->hi, ca, ha);
+}
+
+/* B's box with its centre carried into A's frame. */
+static void box_b(const ctx *c, const obb_node *b, double bt[3], double hb[3])
+{
+    obb__box_b(&c->rel, b->lo, b->hi, bt, hb);
+}
+
+/* Tests one pair. Returns 1 when it must be split, 0 when it is settled: rejected (its gap
+ * lowers the separation bound) or a colliding voxel pair (recorded). Voxel pairs get the exact
+ * test, inner pairs the conservative one; a first-axis gap is a valid bound, refined over all 15
+ * axes only when it could lower the minimum. */
+static int test(ctx *c, const obb_node *a, const double ca[3], const double ha[3],
+                const obb_node *b, const double bt[3], const double hb[3], int exact,
+                double *dist2)
+{
+    if (c->thr && pmax(a) * pmax(b) < c->thr)
+        return 0;
+    double T[3] = {bt[0] - ca[0], bt[1] - ca[1], bt[2] - ca[2]}, gap;
+    c->r->tests++;
+    int hit = exact      ? obb__sat(&c->rel, 1, 1, T, ha, hb, 0, &gap)
+              : c->edges ? obb__sat(&c->rel, 0, 1, T, ha, hb, 0, &gap)
+                         : obb__sat(&c->rel, 0, 0, T, ha, hb, 0, &gap);
+    if (hit) {
+        *dist2 = T[0] * T[0] + T[1] * T[1] + T[2] * T[2];
+        if (!exact)
+            return 1;
+        obb__sat(&c->rel, 1, 1, T, ha, hb, 1, &gap);
+        record(c, a, b, gap);
+        return 0;
+    }
+    if (c->rec) {
+        if (c->cache->front_n < OBB_FRONT_MAX)
+            c->cache->front[c->cache->front_n++] = (obb_front_pair){*a, *b, gap};
+        else
+            c->overflow = 1;
+    }
+    if (gap < c->best_gap) {
+        obb__sat(&c->rel, exact, c->edges, T, ha, hb, 1, &gap);
+        c->best_gap = gap < c->best_gap ? gap : c->best_gap;
+    }
+    return 0;
+}
+
+static int test_pair(ctx *c, const npair *p)
+{
+    double ca[3], ha[3], bt[3], hb[3];
+    box_a(c, &p->a, ca, ha);
+    box_b(c, &p->b, bt, hb);
+    double dist2;
+    return test(c, &p->a, ca, ha, &p->b, bt, hb, is_voxel(&p->a) && is_voxel(&p->b), &dist2);
+}
+
+static int done(const ctx *c)
+{
+    return c->r->collides && !c->want_pairs;
+}
+
+/* Splits the larger node of p (never a voxel) and appends each child pair that needs splitting to
+ * out (room for 8), the pair with the nearest centres last so depth-first search tends to meet a
+ * collision early. The kept node's box is computed once. */
+static void expand(ctx *c, const npair *p, npair *out, int *n)
+{
+    int va = is_voxel(&p->a), vb = is_voxel(&p->b);
+    int split_b = va ? 1 : vb ? 0 : volume(&p->b, c->sb) > volume(&p->a, c->sa);
+    obb_node kid[8];
+    double ca[3], ha[3], bt[3], hb[3], key[8];
+    int k = split(c, split_b ? &p->b : &p->a, split_b ? c->nb : c->na, kid), first = *n;
+    if (split_b)
+        box_a(c, &p->a, ca, ha);
+    else
+        box_b(c, &p->b, bt, hb);
+    for (int i = 0; i < k && !done(c); i++) {
+        const obb_node *a = split_b ? &p->a : &kid[i], *b = split_b ? &kid[i] : &p->b;
+        if (split_b)
+            box_b(c, b, bt, hb);
+        else
+            box_a(c, a, ca, ha);
+        double d;
+        if (!test(c, a, ca, ha, b, bt, hb, (split_b ? va : vb) && is_voxel(&kid[i]), &d))
+            continue;
+        int j = *n - first;
+        for (; j > 0 && key[j - 1] < d; j--) {
+            key[j] = key[j - 1];
+            out[first + j] = out[first + j - 1];
+        }
+        key[j] = d;
+        out[first + j] = (npair){*a, *b};
+        (*n)++;
+    }
+}
+
+/* Pairs on the stack have passed their test and wait to be split. */
+static void depth_first(ctx *c, const npair *start)
+{
+    npair stack[STACK];
+    int n = 0;
+    stack[n++] = *start;
+    while (n > 0 && !done(c)) {
+        npair p = stack[--n];
+        expand(c, &p, stack, &n);
+    }
+}
+
+static void breadth_first(ctx *c, const npair *start)
+{
+    npair ring[QUEUE];
+    size_t head = 0, count = 1;
+    ring[0] = *start;
+    while (count > 0 && !done(c)) {
+        npair p = ring[head], kids[8];
+        head = (head + 1) % QUEUE;
+        count--;
+        int k = 0;
+        expand(c, &p, kids, &k);
+        for (int i = 0; i < k; i++) {
+            if (count < QUEUE)
+                ring[(head + count++) % QUEUE] = kids[i];
+            else
+                depth_first(c, &kids[i]);
+        }
+    }
+}
+
+void obb_cache_reset(obb_cache *c)
+{
+    if (c)
+        memset(c, 0, sizeof *c);
+}
+
+static int check_args(const obb_tree *a, const pose *aw, const obb_tree *b, const pose *bw,
+                      const obb_query *q, obb_result *r)
+{
+    if (!a || !b || !aw || !bw || !r)
+        return fn_err_set(FN_EINVAL, "obb_collide: NULL tree, pose or result");
+    for (int i = 0; i < 4; i++)
+        if (!isfinite(aw->q[i]) || !isfinite(bw->q[i]) || (i < 3 && (!isfinite(aw->t[i]) ||
+                                                                     !isfinite(bw->t[i]))))
+            return fn_err_set(FN_EINVAL, "obb_collide: pose has a non-finite value");
+    return q ? obb__check_query(q, obb_tree_spacing(a), obb_tree_spacing(b)) : 0;
+}
+
+/* How far any point of B's root box moved, relative to A, since the front's reference pose. */
+static double motion_bound(const ctx *c, const obb_cache *k)
+{
+    const obb_node *root = &c->nb[0];
+    double cb[3], d[3], rb = 0, fro = 0;
+    for (int i = 0; i < 3; i++) {
+        double h = ((root->hi[i] - root->lo[i]) * 0.5 + 0.5) * c->sb[i];
+        cb[i] = (root->lo[i] + root->hi[i]) * 0.5 * c->sb[i];
+        rb += h * h;
+    }
+    for (int i = 0; i < 3; i++) {
+        d[i] = c->rel.t[i] - k->ref_t[i];
+        for (int j = 0; j < 3; j++) {
+            double e = c->rel.R[i][j] - k->ref_R[i][j];
+            d[i] += e * cb[j];
+            fro += e * e;
+        }
+    }
+    /* |(R - R0) y| <= 2 sin(angle / 2) |y| = ||R - R0||_F / sqrt(2) |y| */
+    double move = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) + sqrt(fro / 2) * sqrt(rb);
+    return move * (1 + 1e-9) + 1e-9;
+}
+
+static int front_fits(const ctx *c, const obb_cache *k, const obb_tree *a, const obb_tree *b)
+{
+    return k->front_valid && k->ta == a && k->tb == b && k->threshold == c->q->threshold &&
+           k->tolerance_mm == c->q->tolerance_mm && k->inner_axes == c->q->inner_axes;
+}
+
+/* Answers from the front when few of its pairs can have closed their gap; 0 when not worth it. */
+static int from_front(ctx *c, obb_cache *k)
+{
+    double delta = motion_bound(c, k), rest = INFINITY;
+    size_t near = 0;
+    for (size_t i = 0; i < k->front_n; i++)
+        near += k->front[i].gap - OBB__SLACK <= delta;
+    if (near > k->front_n / 4 + 16)
+        return 0;
+    for (size_t i = 0; i < k->front_n && !done(c); i++) {
+        const obb_front_pair *f = &k->front[i];
+        npair p = {f->a, f->b};
+        if (f->gap - OBB__SLACK > delta)
+            rest = fmin(rest, f->gap - OBB__SLACK - delta);
+        else if (test_pair(c, &p))
+            depth_first(c, &p);
+    }
+    k->reuses++;
+    c->best_gap = fmin(c->best_gap, rest + OBB__SLACK);
+    return 1;
+}
+
+static void search(ctx *c, obb_cache *k, const obb_tree *a, const obb_tree *b)
+{
+    if (k && !c->want_pairs) {
+        k->front_valid = 0;
+        k->front_n = 0;
+        k->ta = a, k->tb = b;
+        k->threshold = c->q->threshold, k->tolerance_mm = c->q->tolerance_mm;
+        k->inner_axes = c->q->inner_axes;
+        k->rebuilds++;
+        memcpy(k->ref_R, c->rel.R, sizeof k->ref_R);
+        memcpy(k->ref_t, c->rel.t, sizeof k->ref_t);
+        c->rec = 1;
+    }
+    npair root = {c->na[0], c->nb[0]};
+    if (test_pair(c, &root)) {
+        if (c->q->order == OBB_BREADTH_FIRST)
+            breadth_first(c, &root);
+        else
+            depth_first(c, &root);
+    }
+    if (c->rec)
+        k->front_valid = !c->r->collides && !c->overflow;
+    c->rec = 0;
+}
+
+int obb_collide(const obb_tree *a, const pose *a_world, const obb_tree *b, const pose *b_world,
+                const obb_query *q, obb_cache *cache, obb_result *r)
+{
+    int rc = check_args(a, a_world, b, b_world, q, r);
+    if (rc)
+        return rc;
+    static const obb_query none = {0};
+    ctx c = {.na = obb_tree_node_array(a), .nb = obb_tree_node_array(b), .q = q ? q : &none,
+             .r = r, .cache = cache, .best_gap = INFINITY, .pen = 0};
+    memset(r, 0, sizeof *r);
+    c.thr = obb__threshold(c.q->threshold);
+    c.tol = c.q->tolerance_mm;
+    c.want_pairs = c.q->want_pairs;
+    c.edges = c.q->inner_axes == 15;
+    memcpy(c.sa, obb_tree_spacing(a), sizeof c.sa);
+    memcpy(c.sb, obb_tree_spacing(b), sizeof c.sb);
+    if (!obb_tree_nodes(a) || !obb_tree_nodes(b)) {
+        r->separation_mm = INFINITY;
+        return 0;
+    }
+    obb__rel_make(&c.rel, a_world, c.sa, b_world, c.sb, c.tol);
+    if (cache && cache->has_witness && !c.want_pairs) {
+        npair w = {cache->wa, cache->wb};
+        cache->has_witness = 0;
+        test_pair(&c, &w);
+        if (done(&c)) {
+            r->separation_mm = c.pen;
+            return 0;
+        }
+        c.best_gap = INFINITY; /* a witness gap says nothing about the other pairs */
+    }
+    int answered = cache && !c.want_pairs && front_fits(&c, cache, a, b) && from_front(&c, cache);
+    if (!answered)
+        search(&c, cache, a, b);
+    if (r->collides)
+        r->separation_mm = c.pen;
+    else
+        r->separation_mm = c.best_gap > OBB__SLACK ? c.best_gap - OBB__SLACK : 0;
+    return 0;
+}
