@@ -74,10 +74,10 @@ enum { HAVE_VID = 1, HAVE_PID = 2, HAVE_NAME = 4, HAVE_FORMAT = 8, HAVE_DESC = 1
 static int header_line(const cursor *c, const char *s, size_t n, fnrec_header *h, unsigned *have)
 {
     const char *sp = memchr(s, ' ', n);
-    if (!sp)
+    if (!sp && !is_word(s, n, "descriptor")) /* only the descriptor may be empty */
         return bad(c, "header line needs 'KEY VALUE' (or 'events' to end the header)");
-    size_t kn = (size_t)(sp - s), vn = n - kn - 1;
-    const char *v = sp + 1;
+    size_t kn = sp ? (size_t)(sp - s) : n, vn = sp ? n - kn - 1 : 0;
+    const char *v = sp ? sp + 1 : s + n;
     unsigned bit;
     if (is_word(s, kn, "vid") || is_word(s, kn, "pid")) {
         bit = s[0] == 'v' ? HAVE_VID : HAVE_PID;
@@ -88,6 +88,9 @@ static int header_line(const cursor *c, const char *s, size_t n, fnrec_header *h
         char *dst = bit == HAVE_NAME ? h->name : h->source;
         if (vn >= sizeof h->name)
             return bad(c, "name/source longer than 127 bytes");
+        for (size_t i = 0; i < vn; i++)
+            if ((unsigned char)v[i] < 0x20 && v[i] != '\t')
+                return bad(c, "control character in name/source");
         memcpy(dst, v, vn);
         dst[vn] = '\0';
     } else if (is_word(s, kn, "format")) {
@@ -99,8 +102,8 @@ static int header_line(const cursor *c, const char *s, size_t n, fnrec_header *h
     } else if (is_word(s, kn, "descriptor")) {
         bit = HAVE_DESC;
         long got = parse_hex(v, vn, h->desc, sizeof h->desc);
-        if (got <= 0)
-            return bad(c, "descriptor must be 1 to 4096 bytes of hex digits");
+        if (got < 0)
+            return bad(c, "descriptor must be up to 4096 bytes of hex digits");
         h->desc_len = (size_t)got;
     } else {
         return bad(c, "unknown header key (expected vid, pid, name, format, source, descriptor)");
@@ -207,6 +210,8 @@ int fnrec_parse(const char *text, size_t len, const char *name, fnrec **out)
             }
         } else if (!in_events)
             rc = header_line(&c, s, n, &hdr, &have);
+        else if (!nl)
+            break; /* the writer ends every line: this one was cut by an interrupted write */
         else {
             fnrec_event e;
             rc = event_line(&c, s, n, r->n ? r->ev[r->n - 1].t_us : 0, &e);
@@ -342,10 +347,10 @@ static int write_header(FILE *f, const fnrec_header *h)
 
 fnrec_writer *fnrec_writer_stream(FILE *f, const fnrec_header *h)
 {
-    if (!clean_text(h->name) || !clean_text(h->source) || !h->desc_len ||
+    if (!clean_text(h->name) || !clean_text(h->source) || h->desc_len > sizeof h->desc ||
         (strcmp(h->format, "split") && strcmp(h->format, "combined"))) {
-        fn_err_set(FN_EINVAL, "recording header: name/source with a newline, no descriptor, or "
-                              "format not split/combined");
+        fn_err_set(FN_EINVAL, "recording header: name/source with a newline, descriptor too "
+                              "long, or format not split/combined");
         return NULL;
     }
     fnrec_writer *w = calloc(1, sizeof *w);

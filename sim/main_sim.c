@@ -23,6 +23,7 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "bench_sim.h"
 #include "err.h"
 #include "fnrec.h"
 #include "script.h"
@@ -42,7 +43,8 @@ typedef struct reader {
     size_t pending_size[PENDING_MAX];
     int npending;
     struct fuse_pollhandle *ph;
-    int dead; /* opened before an unplug */
+    int dead;   /* opened before an unplug */
+    int active; /* has read or polled: a reader, not a probe that only asks for ioctls */
 } reader;
 
 typedef struct server {
@@ -50,13 +52,17 @@ typedef struct server {
     const sim_profile *p;
     fnrec *rec;           /* what the device plays */
     size_t pos;
-    int started, start_on_open, fast, exit_at_end;
+    int started, start_on_read, fast, exit_at_end;
     int64_t t0_us;        /* monotonic time of the recording's t = 0 */
     int plugged;
     simdev dev;           /* LED and feature reports */
     fnrec_header id;      /* identity served: descriptor, name, vid/pid */
     reader *readers;
     int timer_fd, sig_fd;
+    int ctl_fd, ctl_keep;  /* --control FIFO: read end, and a write end that keeps it from EOF */
+    char ctl_line[1024];
+    size_t ctl_len;
+    uint32_t ctl_buttons;  /* buttons held down by control commands */
     fnrec_writer *log;    /* --log: every event served */
     int64_t log_t0;
     uint64_t served, dropped;
@@ -180,12 +186,20 @@ static int room_for_fast(void)
 {
     int any = 0;
     for (reader *r = S.readers; r; r = r->next)
-        if (!r->dead) {
+        if (!r->dead && r->active) {
             if (r->count >= QUEUE_LEN)
                 return 0;
             any = 1;
         }
     return any;
+}
+
+static int queues_empty(void)
+{
+    for (reader *r = S.readers; r; r = r->next)
+        if (!r->dead && r->active && r->count)
+            return 0;
+    return 1;
 }
 
 static void start_playback(void)
@@ -209,14 +223,14 @@ static void pump(void)
         S.pos++;
         if (e->dir == FNREC_IN && S.plugged)
             deliver(e->data, e->len);
-        else if (e->dir == FNREC_CONNECT && S.pos > 1)
+        else if (e->dir == FNREC_CONNECT)
             set_plugged(1);
         else if (e->dir == FNREC_DISCONNECT)
             set_plugged(0);
     }
     if (S.pos < S.rec->n && !S.fast)
         arm_timer(S.t0_us + S.rec->ev[S.pos].t_us);
-    else if (S.pos >= S.rec->n && S.exit_at_end)
+    else if (S.pos >= S.rec->n && S.exit_at_end && queues_empty())
         fuse_session_exit(S.se);
 }
 
@@ -287,7 +301,15 @@ static void op_open(fuse_req_t req, fuse_ino_t ino, struct fuse_file_info *fi)
     fi->direct_io = 1;
     fi->nonseekable = 1;
     fuse_reply_open(req, fi);
-    if (S.start_on_open && !S.started)
+}
+
+/* The first read or poll of a reader starts --start-on-read playback and lets --fast go on. */
+static void reader_active(reader *r)
+{
+    if (r->active)
+        return;
+    r->active = 1;
+    if (S.start_on_read && !S.started)
         start_playback();
     else if (S.fast)
         pump();
@@ -326,6 +348,7 @@ static void on_interrupt(fuse_req_t req, void *data)
 static void op_read(fuse_req_t req, fuse_ino_t ino, size_t size, off_t off, struct fuse_file_info *fi)
 {
     reader *r = (reader *)(uintptr_t)fi->fh;
+    reader_active(r);
     if (r->dead) {
         fuse_reply_err(req, EIO);
     } else if (r->count) {
@@ -333,7 +356,7 @@ static void op_read(fuse_req_t req, fuse_ino_t ino, size_t size, off_t off, stru
         r->head = (r->head + 1) % QUEUE_LEN;
         r->count--;
         reply_report(req, size, r->q[slot], r->qlen[slot]);
-        if (S.fast)
+        if (S.fast || S.exit_at_end)
             pump();
     } else if ((fi->flags & O_NONBLOCK) || r->npending == PENDING_MAX) {
         fuse_reply_err(req, EAGAIN);
@@ -363,6 +386,7 @@ static void op_poll(fuse_req_t req, fuse_ino_t ino, struct fuse_file_info *fi,
                     struct fuse_pollhandle *ph)
 {
     reader *r = (reader *)(uintptr_t)fi->fh;
+    reader_active(r);
     if (ph) {
         if (r->ph)
             fuse_pollhandle_destroy(r->ph);
@@ -479,14 +503,87 @@ static int handle_signal(void)
     return 1; /* SIGINT, SIGTERM, SIGHUP: stop */
 }
 
+/* ---- the control FIFO: script lines played at once ---- */
+
+/* A control line plays its script now, or after what is still playing; the buttons held carry
+ * over from one line to the next. */
+static void control_command(const char *line)
+{
+    script *sc = NULL;
+    if (script_parse(line, strlen(line), "control", &sc)) {
+        fprintf(stderr, "fracnav-sim: %s\n", fn_err_msg());
+        return;
+    }
+    fnrec *r = NULL;
+    if (sc->n == 1 && (sc->step[0].op == SCRIPT_UNPLUG || sc->step[0].op == SCRIPT_REPLUG))
+        set_plugged(sc->step[0].op == SCRIPT_REPLUG);
+    else if (sc->n && !(r = script_render_more(sc, S.p, &S.ctl_buttons)))
+        fprintf(stderr, "fracnav-sim: %s\n", fn_err_msg());
+    free(sc);
+    if (r && S.started && S.pos < S.rec->n) { /* still playing: queue it after the rest */
+        int64_t at = S.rec->ev[S.rec->n - 1].t_us;
+        for (size_t i = 0; i < r->n; i++) {
+            r->ev[i].t_us += at;
+            if (fnrec_append(S.rec, &r->ev[i]))
+                fprintf(stderr, "fracnav-sim: %s\n", fn_err_msg());
+        }
+        fnrec_free(r);
+    } else if (r) {
+        fnrec_free(S.rec);
+        S.rec = r;
+        S.pos = 0;
+        S.started = 1;
+        S.t0_us = mono_us();
+        pump();
+    }
+}
+
+static void control_input(void)
+{
+    ssize_t n = read(S.ctl_fd, S.ctl_line + S.ctl_len, sizeof S.ctl_line - 1 - S.ctl_len);
+    if (n <= 0)
+        return;
+    S.ctl_len += (size_t)n;
+    char *nl;
+    while ((nl = memchr(S.ctl_line, '\n', S.ctl_len))) {
+        *nl = '\0';
+        fn_err_clear();
+        control_command(S.ctl_line);
+        S.ctl_len -= (size_t)(nl + 1 - S.ctl_line);
+        memmove(S.ctl_line, nl + 1, S.ctl_len);
+    }
+    if (S.ctl_len == sizeof S.ctl_line - 1) {
+        fprintf(stderr, "fracnav-sim: control line too long, dropped\n");
+        S.ctl_len = 0;
+    }
+}
+
+static int open_control(const char *path)
+{
+    struct stat st;
+    if (stat(path, &st) ? mkfifo(path, 0600) : !S_ISFIFO(st.st_mode) ? (errno = EEXIST, -1) : 0) {
+        fprintf(stderr, "fracnav-sim serve: cannot make the control FIFO %s: %s\n", path,
+                strerror(errno));
+        return -1;
+    }
+    S.ctl_fd = open(path, O_RDONLY | O_NONBLOCK | O_CLOEXEC);
+    S.ctl_keep = open(path, O_WRONLY | O_NONBLOCK | O_CLOEXEC);
+    if (S.ctl_fd < 0 || S.ctl_keep < 0) {
+        fprintf(stderr, "fracnav-sim serve: cannot open the control FIFO %s: %s\n", path,
+                strerror(errno));
+        return -1;
+    }
+    return 0;
+}
+
 static int serve_loop(void)
 {
     struct fuse_buf fbuf = {0};
-    struct pollfd pf[3] = {{fuse_session_fd(S.se), POLLIN, 0}, {S.timer_fd, POLLIN, 0},
-                           {S.sig_fd, POLLIN, 0}};
+    struct pollfd pf[4] = {{fuse_session_fd(S.se), POLLIN, 0}, {S.timer_fd, POLLIN, 0},
+                           {S.sig_fd, POLLIN, 0}, {S.ctl_fd, POLLIN, 0}};
     int rc = 0;
     while (!fuse_session_exited(S.se)) {
-        if (poll(pf, 3, -1) < 0) {
+        if (poll(pf, 4, -1) < 0) {
             if (errno == EINTR)
                 continue;
             rc = -errno;
@@ -494,6 +591,8 @@ static int serve_loop(void)
         }
         if (pf[2].revents && handle_signal())
             break;
+        if (pf[3].revents)
+            control_input();
         if (pf[1].revents) {
             uint64_t ticks;
             if (read(S.timer_fd, &ticks, sizeof ticks) < 0 && errno != EAGAIN)
@@ -524,6 +623,10 @@ static int block_signals(void)
     sigaddset(&set, SIGHUP);
     sigaddset(&set, SIGUSR1);
     sigprocmask(SIG_BLOCK, &set, NULL);
+    /* A shell starts background jobs with SIGINT ignored; ignored signals never reach a signalfd. */
+    signal(SIGINT, SIG_DFL);
+    signal(SIGTERM, SIG_DFL);
+    signal(SIGHUP, SIG_DFL);
     signal(SIGPIPE, SIG_IGN);
     S.sig_fd = signalfd(-1, &set, SFD_CLOEXEC | SFD_NONBLOCK);
     S.timer_fd = timerfd_create(CLOCK_MONOTONIC, TFD_CLOEXEC | TFD_NONBLOCK);
@@ -540,8 +643,9 @@ static int check_fuse_access(const char *mount)
     }
     if (access("/dev/fuse", R_OK | W_OK)) {
         fprintf(stderr, "fracnav-sim serve: cannot use /dev/fuse (%s): serving the virtual device "
-                        "needs FUSE (the fuse3 package, /dev/fuse readable and writable); use the "
-                        "in-process 'virtual' transport instead\n", strerror(errno));
+                        "needs FUSE: run as root, or give this user read/write access to /dev/fuse "
+                        "(fuse3 package); without FUSE use the in-process transport "
+                        "'virtual:DEVICE' instead\n", strerror(errno));
         return -1;
     }
     if (geteuid() != 0 && access("/usr/bin/fusermount3", X_OK) && access("/bin/fusermount3", X_OK)) {
@@ -566,9 +670,9 @@ static void teardown(const char *mount)
                     " dropped by full reader queues)\n", mount, S.served, S.dropped);
 }
 
-static int serve(const char *mount)
+static int serve(const char *mount, const char *control)
 {
-    if (check_fuse_access(mount))
+    if (check_fuse_access(mount) || (control && open_control(control)))
         return 1;
     if (block_signals()) {
         fprintf(stderr, "fracnav-sim serve: cannot create the signal or timer descriptor: %s\n",
@@ -578,6 +682,7 @@ static int serve(const char *mount)
     char *argv[] = {"fracnav-sim", "-o", "fsname=fracnav-sim,subtype=hidraw", NULL};
     struct fuse_args args = FUSE_ARGS_INIT(3, argv);
     S.se = fuse_session_new(&args, &ops, sizeof ops, NULL);
+    fuse_opt_free_args(&args);
     if (!S.se || fuse_session_mount(S.se, mount)) {
         fprintf(stderr, "fracnav-sim serve: cannot mount FUSE on %s (need root or FUSE permission; "
                         "is something already mounted there?)\n", mount);
@@ -588,7 +693,7 @@ static int serve(const char *mount)
     fprintf(stderr, "fracnav-sim: serving %s (%04x:%04x) at %s/" NODE_NAME "\n", S.id.name, S.id.vid,
             S.id.pid, mount);
     S.log_t0 = mono_us();
-    if (!S.start_on_open)
+    if (!S.start_on_read)
         start_playback();
     int rc = serve_loop();
     teardown(mount);
@@ -601,28 +706,34 @@ static void usage(FILE *f)
 {
     fprintf(f,
             "usage: fracnav-sim serve --mount DIR [--as DEVICE] [--play FILE.fnrec | --script FILE]\n"
-            "                         [--start-on-open] [--fast] [--exit-at-end] [--log FILE.fnrec]\n"
+            "                         [--start-on-read] [--fast] [--exit-at-end] [--log FILE.fnrec]\n"
+            "                         [--control FIFO]\n"
             "       fracnav-sim render [--as DEVICE] --script FILE -o FILE.fnrec\n"
             "       fracnav-sim list\n"
+            "       fracnav-sim bench [--mount DIR] [--seconds S]\n"
             "\n"
             "serve    serves the virtual device as DIR/" NODE_NAME " through FUSE until SIGINT/SIGTERM\n"
             "         (then unmounts). SIGUSR1 unplugs it, the next SIGUSR1 plugs it back.\n"
             "         --as DEVICE      device to impersonate (default spacenavigator; see list)\n"
             "         --play FILE      play a recording (its identity replaces --as)\n"
             "         --script FILE    play a motion script (see sim/script.h)\n"
-            "         --start-on-open  start playing when the node is first opened\n"
-            "         --fast           play as fast as the readers read (implies --start-on-open)\n"
-            "         --exit-at-end    unmount and exit when the playback ends\n"
+            "         --start-on-read  start playing when the node is first read or polled\n"
+            "         --fast           play as fast as the readers read (implies --start-on-read)\n"
+            "         --exit-at-end    unmount and exit once the playback is over and read\n"
             "         --log FILE       write every report served to a .fnrec file\n"
+            "         --control FIFO   script lines written to this FIFO (made if absent) play in\n"
+            "                          turn, as soon as possible: echo 'press 1' > FIFO\n"
             "render   writes the reports a script produces on DEVICE to a .fnrec file\n"
-            "list     prints the devices the simulator can impersonate\n");
+            "list     prints the devices the simulator can impersonate\n"
+            "bench    measures report throughput (as fast as possible) and timing jitter (at the\n"
+            "         8 ms cadence, S seconds, default 2) through FUSE and hidapi; prints JSON\n");
 }
 
 static int list_devices(void)
 {
     for (size_t i = 0; sim_profile_at(i); i++) {
         const sim_profile *p = sim_profile_at(i);
-        printf("%-26s %04x:%04x  %-8s %2d ms  %2d buttons  %s\n", p->id, p->vid, p->pid,
+        printf("%-26s %04x:%04x  %-8s %2d ms  %2d button bits  %s\n", p->id, p->vid, p->pid,
                p->format == SIMDEV_SPLIT ? "split" : "combined", p->period_us / 1000, p->nbuttons,
                p->name);
     }
@@ -630,7 +741,7 @@ static int list_devices(void)
 }
 
 typedef struct opts {
-    const char *mount, *as, *play, *script, *out, *log;
+    const char *mount, *as, *play, *script, *out, *log, *seconds, *control;
 } opts;
 
 static int parse_opts(int argc, char **argv, opts *o)
@@ -638,10 +749,10 @@ static int parse_opts(int argc, char **argv, opts *o)
     for (int i = 2; i < argc; i++) {
         const char **dst = NULL;
         const char *a = argv[i];
-        if (!strcmp(a, "--start-on-open"))
-            S.start_on_open = 1;
+        if (!strcmp(a, "--start-on-read"))
+            S.start_on_read = 1;
         else if (!strcmp(a, "--fast"))
-            S.fast = S.start_on_open = 1;
+            S.fast = S.start_on_read = 1;
         else if (!strcmp(a, "--exit-at-end"))
             S.exit_at_end = 1;
         else if (!strcmp(a, "--mount"))
@@ -656,6 +767,10 @@ static int parse_opts(int argc, char **argv, opts *o)
             dst = &o->out;
         else if (!strcmp(a, "--log"))
             dst = &o->log;
+        else if (!strcmp(a, "--seconds"))
+            dst = &o->seconds;
+        else if (!strcmp(a, "--control"))
+            dst = &o->control;
         else {
             fprintf(stderr, "fracnav-sim %s: unknown option '%s'\n", argv[1], a);
             return -1;
@@ -723,13 +838,21 @@ int main(int argc, char **argv)
     if (!strcmp(cmd, "list"))
         return list_devices();
     opts o = {0};
-    S.sig_fd = S.timer_fd = -1;
-    if (strcmp(cmd, "serve") && strcmp(cmd, "render")) {
-        fprintf(stderr, "fracnav-sim: unknown command '%s' (serve, render, list; --help)\n", cmd);
+    S.sig_fd = S.timer_fd = S.ctl_fd = S.ctl_keep = -1;
+    if (strcmp(cmd, "serve") && strcmp(cmd, "render") && strcmp(cmd, "bench")) {
+        fprintf(stderr, "fracnav-sim: unknown command '%s' (serve, render, list, bench; --help)\n", cmd);
         return 2;
     }
     if (parse_opts(argc, argv, &o))
         return 2;
+    if (!strcmp(cmd, "bench")) {
+        double secs = o.seconds ? atof(o.seconds) : 2.0;
+        if (!(secs >= 0.1 && secs <= 600)) {
+            fprintf(stderr, "fracnav-sim bench: --seconds wants 0.1 to 600\n");
+            return 2;
+        }
+        return bench_sim_run(o.mount, secs);
+    }
     if (!strcmp(cmd, "render") ? !o.script || !o.out : !o.mount) {
         fprintf(stderr, "fracnav-sim %s: %s is required\n", cmd,
                 !strcmp(cmd, "render") ? "--script FILE and -o FILE" : "--mount DIR");
@@ -741,7 +864,7 @@ int main(int argc, char **argv)
     else if (!strcmp(cmd, "render"))
         rc = fnrec_save(S.rec, o.out) ? (fprintf(stderr, "fracnav-sim render: %s\n", fn_err_msg()), 1) : 0;
     else
-        rc = serve(o.mount);
+        rc = serve(o.mount, o.control);
     if (S.log && fnrec_writer_close(S.log))
         fprintf(stderr, "fracnav-sim: %s\n", fn_err_msg());
     fnrec_free(S.rec);
@@ -749,5 +872,9 @@ int main(int argc, char **argv)
         close(S.sig_fd);
     if (S.timer_fd >= 0)
         close(S.timer_fd);
+    if (S.ctl_fd >= 0)
+        close(S.ctl_fd);
+    if (S.ctl_keep >= 0)
+        close(S.ctl_keep);
     return rc;
 }

@@ -361,7 +361,7 @@ static int render_step(render *r, const script_step *st, int64_t *now)
     return rc;
 }
 
-fnrec *script_render(const script *s, const sim_profile *p)
+static fnrec *render_script(const script *s, const sim_profile *p, uint32_t *held)
 {
     fnrec_header h;
     script_header(p, &h);
@@ -370,7 +370,13 @@ fnrec *script_render(const script *s, const sim_profile *p)
         return NULL;
     simdev_init(&r.dev, p);
     int64_t now = 0;
-    int rc = emit(&r, 0, FNREC_CONNECT, NULL, 0);
+    int rc = 0;
+    if (held) { /* a continuation: connected for a while, these buttons down */
+        r.dev.battery_pending = 0;
+        r.dev.buttons = r.dev.sent_buttons = *held;
+    } else {
+        rc = emit(&r, 0, FNREC_CONNECT, NULL, 0);
+    }
     for (size_t i = 0; i < s->n && !rc; i++) {
         rc = render_step(&r, &s->step[i], &now);
         if (rc)
@@ -383,5 +389,17 @@ fnrec *script_render(const script *s, const sim_profile *p)
         fnrec_free(r.rec);
         return NULL;
     }
+    if (held)
+        *held = r.dev.buttons;
     return r.rec;
+}
+
+fnrec *script_render(const script *s, const sim_profile *p)
+{
+    return render_script(s, p, NULL);
+}
+
+fnrec *script_render_more(const script *s, const sim_profile *p, uint32_t *held)
+{
+    return render_script(s, p, held);
 }

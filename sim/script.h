@@ -18,6 +18,7 @@
 #define FN_SCRIPT_H
 
 #include <stddef.h>
+#include <stdint.h>
 
 #include "fnrec.h"
 #include "simdev.h"
@@ -59,6 +60,10 @@ script *script_load(const char *path);
 /* Renders the script into the reports profile p sends at its cadence, from a connect event at 0 to
  * the last report. Deterministic. NULL on failure (e.g. a speed above full deflection). */
 fnrec *script_render(const script *s, const sim_profile *p);
+/* Renders s as the continuation of a session: the device is already connected and idle with the
+ * buttons *held down, so there is no connect event and no power-on report; times start at 0 = now.
+ * *held becomes the buttons held at the end. For live control (fracnav-sim --control). */
+fnrec *script_render_more(const script *s, const sim_profile *p, uint32_t *held);
 /* Fills hdr with profile p's identity, source "virtual:<id>". */
 void script_header(const sim_profile *p, fnrec_header *hdr);
 

@@ -192,6 +192,15 @@ static int get_feature(dev_handle *h, uint8_t *buf, size_t cap)
     return (int)n;
 }
 
+static int set_feature(dev_handle *h, const uint8_t *buf, size_t len)
+{
+    if (!h->plugged)
+        return fn_err_set(FN_ENODEV, "%s: device disconnected", h->path);
+    if (h->kind == KIND_VIRTUAL)
+        return simdev_set_feature(&h->dev, buf, len);
+    return len ? (int)len : fn_err_set(FN_EINVAL, "%s: empty feature report", h->path);
+}
+
 static int info(dev_handle *h, dev_info *out)
 {
     const fnrec_header *hd = &h->rec->hdr;
@@ -270,12 +279,22 @@ static int open_virtual(const char *path, dev_handle **out)
 
 const dev_transport sim_replay_transport = {
     .name = "replay", .open = open_fast, .read = read_report, .write = write_report,
-    .get_feature = get_feature, .info = info, .close = close_handle};
+    .get_feature = get_feature, .set_feature = set_feature, .info = info, .close = close_handle};
 
 const dev_transport sim_replay_realtime_transport = {
-    .name = "replay", .open = open_realtime, .read = read_report, .write = write_report,
-    .get_feature = get_feature, .info = info, .close = close_handle};
+    .name = "replay-realtime", .open = open_realtime, .read = read_report, .write = write_report,
+    .get_feature = get_feature, .set_feature = set_feature, .info = info, .close = close_handle};
 
 const dev_transport sim_virtual_transport = {
     .name = "virtual", .open = open_virtual, .read = read_report, .write = write_report,
-    .get_feature = get_feature, .info = info, .close = close_handle};
+    .get_feature = get_feature, .set_feature = set_feature, .info = info, .close = close_handle};
+
+int sim_register_transports(void)
+{
+    const dev_transport *all[] = {&sim_replay_transport, &sim_replay_realtime_transport,
+                                  &sim_virtual_transport};
+    for (size_t i = 0; i < sizeof all / sizeof *all; i++)
+        if (!dev_transport_find(all[i]->name) && dev_transport_register(all[i]))
+            return FN_ENOMEM;
+    return 0;
+}

@@ -20,9 +20,14 @@
 #include "dev.h"
 #include "fnrec.h"
 
-extern const dev_transport sim_replay_transport;
-extern const dev_transport sim_replay_realtime_transport;
-extern const dev_transport sim_virtual_transport;
+extern const dev_transport sim_replay_transport;          /* name "replay" */
+extern const dev_transport sim_replay_realtime_transport; /* name "replay-realtime" */
+extern const dev_transport sim_virtual_transport;         /* name "virtual" */
+
+/* Registers the three with the devices registry (dev_transport_register) so that dev_open() takes
+ * "virtual:DEVICE...", "replay:FILE" and "replay-realtime:FILE". Idempotent; call before starting
+ * threads. Returns 0 or FN_ENOMEM when the registry is full. */
+int sim_register_transports(void);
 
 typedef struct sim_replay_opts {
     int realtime; /* pace by timestamps */

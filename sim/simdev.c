@@ -8,24 +8,27 @@
 #define SPLIT_MS 8000
 #define COMBINED_MS 16000
 
-/* Identities as in ../shared/DEVICES.md (and the device table of devices/). */
+#define P(id, vid, pid, name, fmt, period, nb, keys, bat, open) \
+    {id, vid, pid, name, fmt, period, nb, keys, bat, open}
+#define S3DX(id, pid, name, nb) P(id, 0x046d, pid, name, SIMDEV_SPLIT, SPLIT_MS, nb, 0, 0, 0)
+
+/* Identities as in ../shared/DEVICES.md and the device table (devices/devtab.c). */
 static const sim_profile profiles[] = {
-    {"spacenavigator", 0x046d, 0xc626, "3Dconnexion SpaceNavigator", SIMDEV_SPLIT, SPLIT_MS, 2, 0, 0},
-    {"spacenavigator-notebook", 0x046d, 0xc628, "3Dconnexion SpaceNavigator for Notebooks",
-     SIMDEV_SPLIT, SPLIT_MS, 2, 0, 0},
-    {"spaceexplorer", 0x046d, 0xc627, "3Dconnexion SpaceExplorer", SIMDEV_SPLIT, SPLIT_MS, 15, 0, 0},
-    {"spacepilot-pro", 0x046d, 0xc629, "3Dconnexion SpacePilot Pro", SIMDEV_SPLIT, SPLIT_MS, 31, 0, 0},
-    {"spacemouse-pro", 0x046d, 0xc62b, "3Dconnexion SpaceMouse Pro", SIMDEV_SPLIT, SPLIT_MS, 27, 0, 0},
-    {"spacemouse-compact", 0x256f, 0xc635, "3Dconnexion SpaceMouse Compact", SIMDEV_SPLIT, SPLIT_MS,
-     2, 0, 0},
-    {"spacemouse-wireless", 0x256f, 0xc62e, "3Dconnexion SpaceMouse Wireless (cable)",
-     SIMDEV_COMBINED, COMBINED_MS, 2, 0, 1},
-    {"spacemouse-pro-wireless", 0x256f, 0xc631, "3Dconnexion SpaceMouse Pro Wireless (cable)",
-     SIMDEV_COMBINED, COMBINED_MS, 15, 0, 1},
-    {"spacemouse-enterprise", 0x256f, 0xc633, "3Dconnexion SpaceMouse Enterprise", SIMDEV_COMBINED,
-     COMBINED_MS, 31, 1, 0},
-    {"open-controller", 0x1209, 0x0001, "fracnav open 6-DOF controller", SIMDEV_COMBINED, SPLIT_MS, 8,
-     0, 1},
+    S3DX("spacenavigator", 0xc626, "3Dconnexion SpaceNavigator", 2),
+    S3DX("spacenavigator-notebook", 0xc628, "3Dconnexion SpaceNavigator for Notebooks", 2),
+    S3DX("spaceexplorer", 0xc627, "3Dconnexion SpaceExplorer", 15),
+    S3DX("spacepilot-pro", 0xc629, "3Dconnexion SpacePilot Pro", 31),
+    S3DX("spacemouse-pro", 0xc62b, "3Dconnexion SpaceMouse Pro", 27), /* sparse bits up to 26 */
+    P("spacemouse-compact", 0x256f, 0xc635, "3Dconnexion SpaceMouse Compact", SIMDEV_SPLIT, SPLIT_MS,
+      2, 0, 0, 0),
+    P("spacemouse-wireless", 0x256f, 0xc62e, "3Dconnexion SpaceMouse Wireless (cable)",
+      SIMDEV_COMBINED, COMBINED_MS, 2, 0, 1, 0),
+    P("spacemouse-pro-wireless", 0x256f, 0xc631, "3Dconnexion SpaceMouse Pro Wireless (cable)",
+      SIMDEV_COMBINED, COMBINED_MS, 15, 0, 1, 0),
+    P("spacemouse-enterprise", 0x256f, 0xc633, "3Dconnexion SpaceMouse Enterprise", SIMDEV_COMBINED,
+      COMBINED_MS, 31, 1, 0, 0),
+    P("open-controller", 0x1209, 0x0001, "fracnav open 6-DOF controller", SIMDEV_COMBINED, SPLIT_MS,
+      8, 0, 1, 1),
 };
 
 #define NPROFILES (sizeof profiles / sizeof profiles[0])
@@ -64,7 +67,7 @@ const sim_profile *sim_profile_find(const char *id)
 
 static int button_bytes(const sim_profile *p)
 {
-    return p->nbuttons <= 16 ? 2 : p->nbuttons <= 24 ? 3 : 4;
+    return p->open ? 1 : p->nbuttons <= 16 ? 2 : p->nbuttons <= 24 ? 3 : 4;
 }
 
 int sim_profile_report_len(const sim_profile *p, uint8_t id)
@@ -113,9 +116,27 @@ static void features(emitter *e, const uint8_t *ids, size_t n)
         PUT(e, 0x85, ids[i], 0x09, ids[i], 0x75, 0x08, 0x95, FEATURE_PAYLOAD, 0xB1, 0x02);
 }
 
+/* firmware-spec/open-controller.desc.hex, byte for byte (a test compares them). */
+static const uint8_t open_desc[] = {
+    0x05, 0x01, 0x09, 0x08, 0xA1, 0x01, 0xA1, 0x00, 0x85, 0x01, 0x16, 0xA2, 0xFE, 0x26, 0x5E, 0x01,
+    0x36, 0x88, 0xFA, 0x46, 0x78, 0x05, 0x55, 0x0C, 0x09, 0x30, 0x09, 0x31, 0x09, 0x32, 0x09, 0x33,
+    0x09, 0x34, 0x09, 0x35, 0x75, 0x10, 0x95, 0x06, 0x81, 0x02, 0xC0, 0x85, 0x03, 0x05, 0x09, 0x19,
+    0x01, 0x29, 0x08, 0x15, 0x00, 0x25, 0x01, 0x35, 0x00, 0x45, 0x01, 0x55, 0x00, 0x75, 0x01, 0x95,
+    0x08, 0x81, 0x02, 0x85, 0x17, 0x05, 0x06, 0x09, 0x20, 0x15, 0x00, 0x25, 0x64, 0x45, 0x64, 0x75,
+    0x08, 0x95, 0x01, 0x81, 0x02, 0x85, 0x04, 0x05, 0x08, 0x09, 0x4B, 0x15, 0x00, 0x25, 0x01, 0x45,
+    0x01, 0x75, 0x01, 0x95, 0x01, 0x91, 0x02, 0x75, 0x07, 0x91, 0x03, 0x06, 0x00, 0xFF, 0x85, 0x20,
+    0x09, 0x20, 0x15, 0x00, 0x26, 0xFF, 0x00, 0x46, 0xFF, 0x00, 0x75, 0x08, 0x95, 0x06, 0xB1, 0x03,
+    0x85, 0x21, 0x09, 0x21, 0x16, 0xA2, 0xFE, 0x26, 0x5E, 0x01, 0x36, 0xA2, 0xFE, 0x46, 0x5E, 0x01,
+    0x75, 0x10, 0x95, 0x06, 0xB1, 0x02, 0x85, 0x22, 0x09, 0x22, 0x15, 0x00, 0x26, 0xFF, 0x00, 0x35,
+    0x00, 0x46, 0xFF, 0x00, 0x75, 0x08, 0x95, 0x03, 0xB1, 0x02, 0xC0};
+
 size_t sim_profile_descriptor(const sim_profile *p, uint8_t *out, size_t cap)
 {
     emitter e = {out, 0, cap};
+    if (p->open) {
+        put(&e, open_desc, sizeof open_desc);
+        return e.n;
+    }
     PUT(&e, 0x05, 0x01, 0x09, 0x08, 0xA1, 0x01); /* Generic Desktop, Multi-axis Controller */
     if (p->format == SIMDEV_SPLIT) {
         axes(&e, 1, 0x30, 3);
@@ -142,8 +163,21 @@ size_t sim_profile_descriptor(const sim_profile *p, uint8_t *out, size_t cap)
     return e.n;
 }
 
+/* The open controller's feature reports at power-on (firmware-spec/open-controller.md, 5). */
+static const uint8_t open_info[] = {0x20, 1, 1, 0, 8, 0x5E, 0x01};
+static const uint8_t open_offsets[13] = {0x21};
+static const uint8_t open_settings[] = {0x22, 8, SIMDEV_ZERO_REPEATS, 0};
+
+static void set_default(simdev *d, const uint8_t *b, size_t n)
+{
+    memcpy(d->feature[b[0]], b, n);
+    d->feature_len[b[0]] = (uint8_t)n;
+}
+
 static int feature_known(const sim_profile *p, uint8_t id)
 {
+    if (p->open)
+        return 0;
     if (memchr(feature_ids, id, sizeof feature_ids))
         return 1;
     return p->battery && memchr(wireless_feature_ids, id, sizeof wireless_feature_ids) != NULL;
@@ -158,6 +192,12 @@ void simdev_init(simdev *d, const sim_profile *p)
             d->feature[i][0] = (uint8_t)i;
             d->feature_len[i] = 1 + FEATURE_PAYLOAD;
         }
+    if (p->open) {
+        set_default(d, open_info, sizeof open_info);
+        set_default(d, open_offsets, sizeof open_offsets);
+        set_default(d, open_settings, sizeof open_settings);
+    }
+    d->battery_pending = p->battery;
 }
 
 static int moving(const simdev *d)
@@ -180,7 +220,8 @@ void simdev_set(simdev *d, const int16_t a[6], uint32_t buttons)
 
 int simdev_idle(const simdev *d)
 {
-    return !moving(d) && !d->zeros_left && d->buttons == d->sent_buttons && !d->keycode_pending;
+    return !moving(d) && !d->zeros_left && d->buttons == d->sent_buttons && !d->keycode_pending &&
+           !d->battery_pending;
 }
 
 static void le16(uint8_t *b, int16_t v)
@@ -210,6 +251,12 @@ int simdev_next(simdev *d, uint8_t *buf, size_t cap)
 {
     if (cap < 16)
         return 0;
+    if (d->battery_pending) {
+        d->battery_pending = 0;
+        buf[0] = 0x17;
+        buf[1] = 100;
+        return 2;
+    }
     if (d->buttons != d->sent_buttons) {
         int n = sim_profile_report_len(d->p, 3);
         buf[0] = 3;
@@ -260,10 +307,25 @@ int simdev_get_feature(simdev *d, uint8_t *buf, size_t cap)
     return (int)n;
 }
 
+/* The open controller refuses (stalls) read-only reports and values out of range. */
+static int open_feature_ok(const uint8_t *b, size_t len)
+{
+    if (b[0] == 0x21 && len == 13) {
+        for (int i = 0; i < 6; i++) {
+            int16_t v = (int16_t)(b[1 + 2 * i] | b[2 + 2 * i] << 8);
+            if (v < -350 || v > 350)
+                return 0;
+        }
+        return 1;
+    }
+    return b[0] == 0x22 && len == 4 && b[1] >= 1 && b[3] <= 1;
+}
+
 int simdev_set_feature(simdev *d, const uint8_t *buf, size_t len)
 {
     uint8_t id = len ? buf[0] : 0;
-    if (!len || id >= SIMDEV_FEATURE_IDS || !d->feature_len[id] || len > SIMDEV_FEATURE_LEN)
+    if (!len || id >= SIMDEV_FEATURE_IDS || !d->feature_len[id] || len > SIMDEV_FEATURE_LEN ||
+        (d->p->open && !open_feature_ok(buf, len)))
         return fn_err_set(FN_EINVAL, "virtual device: cannot set feature report %u (%zu bytes)", id,
                           len);
     memcpy(d->feature[id], buf, len);

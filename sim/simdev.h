@@ -11,7 +11,9 @@
  *   button change inserts ID3 (and, on the Enterprise, report 0x1C with key codes) in the next period.
  * - while the cap is deflected, motion reports go out every period (even when the values repeat);
  *   after release every motion report ID is sent with zeros three times, then silence.
- * - output report 4 sets the LED; feature reports are stored and read back per report ID.
+ * - devices with a battery send report 0x17 (100 %) once after connecting.
+ * - output report 4 sets the LED; feature reports are stored and read back per report ID (the open
+ *   controller's 0x20 is read-only and 0x21/0x22 refuse values out of range, as its spec says).
  * No allocation; a simdev is a plain value. */
 #ifndef FN_SIMDEV_H
 #define FN_SIMDEV_H
@@ -30,11 +32,13 @@ typedef struct sim_profile {
     int period_us;      /* report cadence */
     int nbuttons;       /* valid bits in the ID3 bitmask */
     int keycodes;       /* also sends report 0x1C (up to 6 uint16 key codes) on button changes */
-    int battery;        /* has battery report 0x17 (wireless) */
+    int battery;        /* sends battery report 0x17 once after connecting (wireless, open) */
+    int open;           /* the open controller (firmware-spec/open-controller.md): its exact
+                           descriptor, 1-byte button report, feature reports 0x20-0x22 */
 } sim_profile;
 
 #define SIMDEV_ZERO_REPEATS 3
-#define SIMDEV_FEATURE_IDS 32
+#define SIMDEV_FEATURE_IDS 48
 #define SIMDEV_FEATURE_LEN 16
 #define SIMDEV_BUS_USB 0x03
 
@@ -55,6 +59,7 @@ typedef struct simdev {
     int zeros_left;       /* zero motion reports still owed after release */
     int phase;            /* split: 0 = ID1 next, 1 = ID2 next */
     int keycode_pending;  /* Enterprise: 0x1C follows ID3 */
+    int battery_pending;  /* report 0x17 goes out first after connecting */
     int led;              /* 0 off, 1 on */
     uint8_t feature[SIMDEV_FEATURE_IDS][SIMDEV_FEATURE_LEN];
     uint8_t feature_len[SIMDEV_FEATURE_IDS];

@@ -1,10 +1,240 @@
+/* fracnav bench loop: the navigation loop's rate and report-to-pose latency near contact.
+ *
+ * Workload: a two-piece synthetic fracture (fracture_make, seed 1) of the example CT (about
+ * 148x178x106 and 145x92x100 voxel fragments, in contact along a rough fracture surface), piece 1
+ * fixed, probability maps and hierarchy thresholds as `fracnav fracture` gives a case. Input: a motion script (pushing piece 2 into piece 1 and along it, turning it) rendered
+ * by the virtual device's generator into SpaceNavigator reports, replayed as fast as the loop takes
+ * them: the input thread hands over one report, stamps it, and waits until the loop has taken it
+ * (no queueing in the latency). The loop runs as in `navigate`: its own thread, woken per event. */
 #include "bench.h"
 
-#include <stdio.h>
+#include "cmd_loopkit.h"
+#include "err.h"
+#include "fracture.h"
+#include "script.h"
+#include "seg.h"
+#include "sim_replay.h"
+#include "volio.h"
 
-/* Placeholder until the loop benchmark is built (branch loop). */
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+static const char SCRIPT[] = "move y 10 mm x 3 mm over 2 s\n"
+                             "move x -6 mm y 4 mm rz 3 deg over 2 s\n"
+                             "move z 4 mm y 3 mm rx 2 deg over 2 s\n"
+                             "move x 4 mm y 2 mm z -3 mm ry 2 deg over 2 s\n"
+                             "move y 6 mm rz -3 deg over 1 s\n";
+
+static void usage(FILE *out)
+{
+    fprintf(out, "usage: fracnav bench loop [--json] [--ct FILE | --case DIR] [--repeat N]\n\n"
+                 "Drive the navigation loop near contact as fast as the (virtual) device's reports\n"
+                 "can be fed, and report loop_hz (steps per second), latency_p50/p99/max_us (report\n"
+                 "read -> accepted pose), outcomes and collision query time.\n\n"
+                 "  --json        JSON on stdout\n"
+                 "  --ct FILE     CT to fracture (default: the example CT, $FRACNAV_DATA/Cranium.inv3\n"
+                 "                or /var/cache/fracnav/Cranium.inv3)\n"
+                 "  --case DIR    steer an existing case instead (its journal is left alone)\n"
+                 "  --repeat N    play the 9 s motion script N times (default 10)\n");
+}
+
+static int label_box(const vol *lab, int id, int lo[3], int hi[3])
+{
+    lo[0] = lo[1] = lo[2] = INT32_MAX;
+    hi[0] = hi[1] = hi[2] = -1;
+    for (int k = 0; k < lab->dim[2]; k++)
+        for (int j = 0; j < lab->dim[1]; j++)
+            for (int i = 0; i < lab->dim[0]; i++) {
+                if (lab->data[vol_idx(lab, i, j, k)] != (float)id)
+                    continue;
+                int c[3] = {i, j, k};
+                for (int a = 0; a < 3; a++) {
+                    lo[a] = c[a] < lo[a] ? c[a] : lo[a];
+                    hi[a] = c[a] > hi[a] ? c[a] : hi[a];
+                }
+            }
+    return hi[0] >= 0 ? 0 : fn_err_set(FN_EFORMAT, "fracture: piece %d is empty", id);
+}
+
+/* Two fragments from a fracture of the CT at path. */
+static int fragments_from_ct(const char *path, frag f[2])
+{
+    vol *ct = volio_read(path);
+    if (!ct)
+        return FN_EIO;
+    fracture_params fp;
+    fracture_defaults(&fp);
+    seg_params sp; /* probability maps as `fracnav fracture` makes them */
+    seg_defaults(&sp);
+    fracture_result fr;
+    int rc = fracture_make(ct, &fp, &fr);
+    vol_free(ct);
+    if (rc < 0)
+        return fn_err_wrap(rc, "%s", path);
+    for (int id = 1; id <= 2 && rc == 0; id++) {
+        int lo[3], hi[3];
+        rc = label_box(fr.labels, id, lo, hi);
+        if (rc == 0)
+            rc = frag_from_labels(&f[id - 1], fr.labels, fr.ct, id, lo, hi, fp.threshold, sp.ramp);
+    }
+    fracture_result_free(&fr);
+    return rc;
+}
+
+static fnrec *render(int repeat)
+{
+    size_t one = strlen(SCRIPT);
+    char *text = malloc(one * (size_t)repeat + 1);
+    if (!text)
+        return NULL;
+    for (int i = 0; i < repeat; i++)
+        memcpy(text + one * (size_t)i, SCRIPT, one);
+    text[one * (size_t)repeat] = '\0';
+    script *s = NULL;
+    fnrec *rec = NULL;
+    if (script_parse(text, strlen(text), "bench-loop script", &s) == 0)
+        rec = script_render(s, sim_profile_find("spacenavigator"));
+    free(s);
+    free(text);
+    return rec;
+}
+
+/* Runs the recording through reader thread -> ring -> loop_run. */
+static int realtime; /* the loop thread got SCHED_FIFO */
+
+static int drive(loop *L, const fnrec *rec, double *wall_s)
+{
+    sim_replay_opts ro = {0, 1};
+    dev_handle *h;
+    if (sim_replay_open_rec(rec, &ro, &h) < 0)
+        return FN_EIO;
+    loopkit_tsource ts = {0};
+    ts.tr = &sim_replay_transport;
+    ts.h = h;
+    ts.finished = sim_replay_finished;
+    loopkit_decoder_init(&ts.dec, rec->hdr.vid, rec->hdr.pid, NULL);
+    ring *r = ring_new(sizeof(loop_event), 64);
+    int rc = r ? 0 : FN_ENOMEM;
+    loop_reader *rd = NULL;
+    if (rc == 0) {
+        loop_reset_timing(L);
+        realtime = loop_realtime_priority() == 0;
+        double t0 = bench_now_us();
+        rd = loop_reader_start(loopkit_transport_source(&ts), r, L, 1);
+        rc = rd ? loop_run(L, r, 1000, loop_reader_done_flag(rd)) : FN_EIO;
+        *wall_s = (bench_now_us() - t0) * 1e-6;
+    }
+    loop_reader_stop(rd);
+    ring_free(r);
+    sim_replay_transport.close(h);
+    return rc;
+}
+
+static void print(const loop_stats *s, double wall_s, const frag *f, int nfrag, int json)
+{
+    if (!json) {
+        printf("loop: %.0f steps/s, latency p50 %.0f us, p99 %.0f us, max %.0f us; %llu steps "
+               "(%llu free, %llu limited, %llu slid, %llu refused); query mean %.1f us\n",
+               s->step_hz, s->latency_p50_us, s->latency_p99_us, s->latency_max_us,
+               (unsigned long long)s->steps, (unsigned long long)s->accepted,
+               (unsigned long long)s->limited, (unsigned long long)s->slid,
+               (unsigned long long)s->refused, s->query_us_mean);
+        return;
+    }
+    printf("{\n  \"benchmark\": \"loop\",\n  \"workload\": \"two-piece fracture of the example CT, "
+           "piece 1 fixed, script pushing piece 2 into and along it\",\n");
+    printf("  \"fragments\": [");
+    for (int i = 0; i < nfrag; i++)
+        printf("%s{\"dim\": [%d, %d, %d], \"voxels\": %zu}", i ? ", " : "", f[i].dim[0], f[i].dim[1],
+               f[i].dim[2], f[i].voxels);
+    printf("],\n  \"loop_thread_sched_fifo\": %s,\n  \"wall_s\": %.3f,\n  \"loop_hz\": %.1f,\n  \"tick_hz\": %.1f,\n", realtime ? "true" : "false", wall_s, s->step_hz,
+           s->tick_hz);
+    printf("  \"latency_p50_us\": %.0f,\n  \"latency_p99_us\": %.0f,\n  \"latency_max_us\": %.0f,\n",
+           s->latency_p50_us, s->latency_p99_us, s->latency_max_us);
+    printf("  \"steps\": %llu,\n  \"accepted\": %llu,\n  \"limited\": %llu,\n  \"slid\": %llu,\n"
+           "  \"refused\": %llu,\n  \"queries\": %llu,\n"
+           "  \"query_us_mean\": %.2f,\n  \"query_us_max\": %.1f,\n  \"dropped\": %llu,\n"
+           "  \"targets\": {\"loop_hz_min\": 1000, \"latency_p99_us_max\": 1000}\n}\n",
+           (unsigned long long)s->steps, (unsigned long long)s->accepted,
+           (unsigned long long)s->limited, (unsigned long long)s->slid,
+           (unsigned long long)s->refused, (unsigned long long)s->queries, s->query_us_mean, s->query_us_max,
+           (unsigned long long)s->dropped);
+}
+
 int bench_loop(int argc, char **argv)
 {
-    fprintf(stderr, "fracnav bench loop: not built yet\n");
-    return 1;
+    int json = 0, repeat = 10;
+    const char *ct = NULL, *case_dir = NULL;
+    for (int i = 1; i < argc; i++) {
+        if (!strcmp(argv[i], "--help") || !strcmp(argv[i], "-h")) {
+            usage(stdout);
+            return 0;
+        } else if (!strcmp(argv[i], "--json"))
+            json = 1;
+        else if (!strcmp(argv[i], "--ct") && i + 1 < argc)
+            ct = argv[++i];
+        else if (!strcmp(argv[i], "--case") && i + 1 < argc)
+            case_dir = argv[++i];
+        else if (!strcmp(argv[i], "--repeat") && i + 1 < argc && atoi(argv[i + 1]) > 0)
+            repeat = atoi(argv[++i]);
+        else {
+            fprintf(stderr, "fracnav bench loop: unexpected argument '%s' (see --help)\n", argv[i]);
+            return 2;
+        }
+    }
+    char ct_path[4096];
+    if (!ct && !case_dir) {
+        const char *d = getenv("FRACNAV_DATA");
+        snprintf(ct_path, sizeof ct_path, "%s/Cranium.inv3", d && *d ? d : "/var/cache/fracnav");
+        ct = ct_path;
+    }
+    loop_config cfg;
+    loop_config_default(&cfg);
+    cfg.check_invariant = 0; /* a benchmark of the loop as it runs in release builds */
+    fnrec *rec = render(repeat);
+    if (!rec) {
+        fprintf(stderr, "fracnav bench loop: %s\n", fn_err_msg());
+        return 1;
+    }
+    int rc;
+    double wall = 0;
+    loop_stats s;
+    if (case_dir) {
+        loopkit k;
+        rc = loopkit_open(&k, case_dir, &cfg, LOOPKIT_RESUME, "bench loop");
+        if (rc == 0) {
+            rc = drive(k.L, rec, &wall);
+            loop_get_stats(k.L, &s);
+            if (rc == 0)
+                print(&s, wall, k.c->frag, k.c->nfrag, json);
+            loopkit_close(&k);
+        }
+    } else {
+        frag f[2];
+        memset(f, 0, sizeof f);
+        rc = fragments_from_ct(ct, f);
+        obb_params op = {0.5, 0.95}; /* a new case's tau_min, tau_max (case_create) */
+        loop_obb *o = rc == 0 ? loop_obb_new(f, 2, &op, NULL) : NULL;
+        uint8_t fixed[2] = {1, 0};
+        loop_collider col = o ? loop_obb_collider(o) : (loop_collider){0};
+        loop *L = o ? loop_new(f, 2, fixed, &col, &cfg, NULL) : NULL;
+        if (rc == 0 && !L)
+            rc = FN_ENOMEM;
+        if (rc == 0) {
+            rc = drive(L, rec, &wall);
+            loop_get_stats(L, &s);
+            if (rc == 0)
+                print(&s, wall, f, 2, json);
+        }
+        loop_free(L);
+        loop_obb_free(o);
+        frag_free(&f[0]);
+        frag_free(&f[1]);
+    }
+    fnrec_free(rec);
+    if (rc < 0)
+        fprintf(stderr, "fracnav bench loop: %s\n", fn_err_msg());
+    return rc < 0 ? 1 : 0;
 }

@@ -2,6 +2,9 @@
 #include "case.h"
 #include "cmd.h"
 #include "err.h"
+#include "fnrec.h"
+#include "fracture.h"
+#include "script.h"
 #include "seg.h"
 #include "snap.h"
 #include "vol.h"
@@ -25,7 +28,13 @@ static void usage(FILE *out)
             "     case in DIR/case; fragments that never reach 1000 HU (the CT head holder) are shown\n"
             "     but marked as not bone;\n"
             "  2. renders the fragments, each in its colour, seen from the front, the right and below:\n"
-            "     DIR/segmentation-{front,right,below}.png.\n");
+            "     DIR/segmentation-{front,right,below}.png;\n"
+            "  3. breaks the skull in two along a rough fractal surface and displaces one piece by a\n"
+            "     known rigid transform: a synthetic fracture with ground truth, DIR/fracture\n"
+            "     (picture: DIR/fracture-right.png);\n"
+            "  4. renders a scripted 3D-mouse session with the virtual SpaceNavigator (push the loose\n"
+            "     piece head-on into the other, then back off; DIR/head-on.fnrec) and replays it\n"
+            "     through the collision-checked navigation loop, as `fracnav replay` does.\n");
 }
 
 static double now_s(void)
@@ -121,6 +130,66 @@ static int pictures(const fcase *c, const char *dir)
     return rc;
 }
 
+/* Step 3: a synthetic fracture of the segmented CT, with its ground truth. */
+static int fracture(const fcase *seg, const char *dir)
+{
+    fracture_params fp;
+    fracture_defaults(&fp);
+    char casedir[4200], png[4200];
+    snprintf(casedir, sizeof casedir, "%s/fracture", dir);
+    double t0 = now_s();
+    fcase *c = fracture_make_case(seg->ct, &fp, casedir);
+    if (!c)
+        return -1;
+    printf("3. synthetic fracture (seed %llu) in %.1f s, saved in %s:\n", (unsigned long long)fp.seed,
+           now_s() - t0, casedir);
+    for (int i = 0; i < c->nfrag; i++) {
+        const frag *f = &c->frag[i];
+        pose t = c->truth[i];
+        printf("   fragment %d: %zu voxels%s; ground truth puts it back by %.2f mm and %.2f deg\n", f->id,
+               f->voxels, i == c->fixed ? " (fixed)" : "", pose_distance(t, POSE_IDENTITY),
+               pose_angle_between(t, POSE_IDENTITY) * 57.29577951308232);
+    }
+    uint8_t rgb[3][3] = {{0, 0, 0}};
+    for (int i = 0; i < c->nfrag && c->frag[i].id < 3; i++)
+        memcpy(rgb[c->frag[i].id], c->frag[i].rgb, 3);
+    snprintf(png, sizeof png, "%s/fracture-right.png", dir);
+    int rc = snap_labels_png(c->labels, c->ct, (const uint8_t(*)[3])rgb, 3, 0, 0, png);
+    if (rc == 0)
+        printf("   picture: %s\n", png);
+    case_free(c);
+    return rc;
+}
+
+/* Step 4: a scripted session on the virtual SpaceNavigator, replayed through the loop. */
+static const char head_on[] = "wait 100 ms\n"
+                              "translate -x 30 mm over 1.5 s\n"
+                              "wait 200 ms\n"
+                              "translate +x 5 mm over 0.5 s\n";
+
+static int session(const char *dir)
+{
+    char rec[4200], casedir[4200];
+    snprintf(rec, sizeof rec, "%s/head-on.fnrec", dir);
+    snprintf(casedir, sizeof casedir, "%s/fracture", dir);
+    script *s = NULL;
+    int rc = script_parse(head_on, sizeof head_on - 1, "demo script", &s);
+    if (rc < 0)
+        return rc;
+    fnrec *r = script_render(s, sim_profile_find("spacenavigator"));
+    free(s);
+    if (!r)
+        return -1;
+    rc = fnrec_save(r, rec);
+    fnrec_free(r);
+    if (rc < 0)
+        return rc;
+    printf("4. a scripted session on the virtual SpaceNavigator (%s), replayed on the fracture:\n   ", rec);
+    fflush(stdout);
+    char *args[] = {"replay", casedir, rec, "--discard-journal", NULL};
+    return cmd_replay(4, args) == 0 ? 0 : fn_err_set(FN_EINVAL, "the replay failed");
+}
+
 int cmd_demo(int argc, char **argv)
 {
     const char *ct_path = NULL, *dir = "fracnav-demo";
@@ -158,8 +227,17 @@ int cmd_demo(int argc, char **argv)
     if (!c)
         return fail("segmentation");
     int rc = pictures(c, dir);
+    if (rc < 0) {
+        case_free(c);
+        return fail("pictures");
+    }
+    rc = fracture(c, dir);
     case_free(c);
     if (rc < 0)
-        return fail("pictures");
+        return fail("fracture");
+    if (session(dir) < 0)
+        return fail("session");
+    printf("\nNext: steer it yourself with `fracnav navigate %s/fracture` (a 3D mouse, or --device "
+           "keyboard).\n", dir);
     return 0;
 }

@@ -1,10 +1,298 @@
+/* fracnav navigate: steer a case's fragments with a 6-DOF controller, live, in a terminal. */
 #include "cmd.h"
 
-#include <stdio.h>
+#include "cmd_loopkit.h"
+#include "err.h"
+#include "sim_replay.h"
 
-/* Placeholder until this command is built. */
+#include <pthread.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <termios.h>
+#include <time.h>
+#include <unistd.h>
+
+static void usage(FILE *out)
+{
+    fprintf(out,
+            "usage: fracnav navigate CASE [--device auto|PATH|spnav|keyboard|SPEC] [options]\n\n"
+            "Steer the case's fragments with a 6-DOF controller. Every move is collision-checked\n"
+            "against every other fragment: a blocked move is limited to its free part or slides\n"
+            "along the contact. A terminal line shows the selected fragment, its pose, the contact\n"
+            "state, the loop rate and the latency. Every accepted pose goes to CASE/journal at once;\n"
+            "the case is saved on exit and on demand, and an interrupted session can be recovered.\n\n"
+            "  --device SPEC       auto (default: first controller, else spacenavd, else keyboard),\n"
+            "                      a hidraw path, spnav, keyboard, serial:S, or a transport NAME:ARG\n"
+            "                      (replay-realtime:FILE.fnrec plays a recording as a device;\n"
+            "                      virtual:spacenavigator:script=FILE)\n"
+            "  --recover           start from the poses the journal holds beyond case.json\n"
+            "  --discard-journal   start from case.json, emptying the journal\n"
+            "  --config FILE       calibration in spnavrc syntax (default ~/.config/fracnav/spnavrc)\n"
+            "  --frame F           camera (default), world or fragment\n"
+            "  --duration S        stop after S seconds (scripts, tests)\n"
+            "  --json              print a JSON summary on exit (as fracnav replay)\n\n"
+            "keys (when the controller is not the keyboard): n/p next/previous fragment, f fix or\n"
+            "unfix, c collision checking on/off, t translation only, r rotation only, u undo, y redo,\n"
+            "m frame, s save, q quit. Controller buttons: 1 next, 2 previous, 3 fix, 4 collision,\n"
+            "5 translation only, 6 rotation only, 7 undo, 8 redo, 9 save, 10 frame.\n"
+            "The camera frame looks from the patient's front (along +y, LPS), superior up.\n");
+}
+
+static volatile sig_atomic_t quit;
+
+static void on_signal(int sig)
+{
+    (void)sig;
+    quit = 1;
+}
+
+typedef struct opts {
+    const char *dir, *device, *config;
+    unsigned flags;
+    loop_frame frame;
+    double duration;
+    int json;
+} opts;
+
+static int parse(int argc, char **argv, opts *o)
+{
+    memset(o, 0, sizeof *o);
+    o->device = "auto";
+    o->flags = LOOPKIT_JOURNAL;
+    for (int i = 1; i < argc; i++) {
+        const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
+        if (!strcmp(a, "--device") && v)
+            o->device = argv[++i];
+        else if (!strcmp(a, "--config") && v)
+            o->config = argv[++i];
+        else if (!strcmp(a, "--recover"))
+            o->flags |= LOOPKIT_RESUME;
+        else if (!strcmp(a, "--discard-journal"))
+            o->flags |= LOOPKIT_DISCARD;
+        else if (!strcmp(a, "--json"))
+            o->json = 1;
+        else if (!strcmp(a, "--duration") && v && atof(v) > 0)
+            o->duration = atof(argv[++i]);
+        else if (!strcmp(a, "--frame") && v) {
+            i++;
+            if (!strcmp(v, "camera"))
+                o->frame = LOOP_FRAME_CAMERA;
+            else if (!strcmp(v, "world"))
+                o->frame = LOOP_FRAME_WORLD;
+            else if (!strcmp(v, "fragment"))
+                o->frame = LOOP_FRAME_FRAGMENT;
+            else {
+                fprintf(stderr, "fracnav navigate: --frame %s: use camera, world or fragment\n", v);
+                return 2;
+            }
+        } else if (a[0] == '-' || o->dir) {
+            fprintf(stderr, "fracnav navigate: unexpected argument '%s' (see fracnav navigate --help)\n", a);
+            return 2;
+        } else
+            o->dir = a;
+    }
+    if (!o->dir) {
+        fprintf(stderr, "fracnav navigate: need CASE (see fracnav navigate --help)\n");
+        return 2;
+    }
+    if ((o->flags & LOOPKIT_RESUME) && (o->flags & LOOPKIT_DISCARD)) {
+        fprintf(stderr, "fracnav navigate: --recover and --discard-journal exclude each other\n");
+        return 2;
+    }
+    return 0;
+}
+
+/* An unsaved journal on a terminal: ask. Elsewhere loopkit_open explains the two flags. */
+static void offer_recovery(opts *o, int keys_free)
+{
+    size_t n = loopkit_journal_pending(o->dir);
+    if (!n || (o->flags & (LOOPKIT_RESUME | LOOPKIT_DISCARD)) || !keys_free || !isatty(STDIN_FILENO))
+        return;
+    fprintf(stderr, "%s/journal holds %zu poses not saved in the case (an interrupted session).\n"
+                    "Recover them? [Y/n] ", o->dir, n);
+    char line[16] = "";
+    if (!fgets(line, sizeof line, stdin))
+        return;
+    o->flags |= (line[0] == 'n' || line[0] == 'N') ? LOOPKIT_DISCARD : LOOPKIT_RESUME;
+}
+
+static loop_action key_action(int ch)
+{
+    switch (ch) {
+    case 'n': return LOOP_ACT_NEXT;
+    case 'p': return LOOP_ACT_PREV;
+    case 'f': return LOOP_ACT_FIX;
+    case 'c': return LOOP_ACT_COLLISION;
+    case 't': return LOOP_ACT_TRANS_ONLY;
+    case 'r': return LOOP_ACT_ROT_ONLY;
+    case 'u': return LOOP_ACT_UNDO;
+    case 'y': return LOOP_ACT_REDO;
+    case 'm': return LOOP_ACT_FRAME;
+    case 's': return LOOP_ACT_SAVE;
+    default: return LOOP_ACT_NONE;
+    }
+}
+
+typedef struct runner {
+    loop *L;
+    ring *in;
+    atomic_int stop;
+    int rc;
+} runner;
+
+static void *loop_thread(void *arg)
+{
+    runner *r = arg;
+    loop_realtime_priority(); /* best effort: without it the loop still runs, just less steadily */
+    r->rc = loop_run(r->L, r->in, 1000, &r->stop);
+    return NULL;
+}
+
+/* Saves the poses of the latest scene (the loop keeps running; the journal stays as it is). */
+static void save_scene(loopkit *k, const loop_scene *sc)
+{
+    for (int i = 0; i < k->c->nfrag; i++)
+        k->c->frag[i].pose = sc->pose[i];
+    if (case_save(k->c) < 0)
+        fprintf(stderr, "\nfracnav navigate: save failed: %s\n", fn_err_msg());
+    else
+        fprintf(stderr, "\nsaved %s\n", k->dir_name);
+}
+
+/* Terminal keys -> actions on the control ring (q quits). */
+static void read_keys(loop *L, ring *ctl)
+{
+    char ch;
+    while (read(STDIN_FILENO, &ch, 1) == 1) {
+        if (ch == 'q')
+            quit = 1;
+        loop_event ev = {0};
+        ev.kind = LOOP_EV_ACTION;
+        ev.action = key_action(ch);
+        if (ev.action != LOOP_ACT_NONE && ring_push(ctl, &ev))
+            loop_notify(L);
+    }
+}
+
+/* The main thread while the loop runs: keys, saves on request, the status line. */
+static void ui(loopkit *k, ring *ctl, int keys, double duration)
+{
+    struct termios saved;
+    int raw = keys && isatty(STDIN_FILENO) && tcgetattr(STDIN_FILENO, &saved) == 0;
+    if (raw) {
+        struct termios t = saved;
+        t.c_lflag &= (tcflag_t) ~(ICANON | ECHO);
+        t.c_cc[VMIN] = 0;
+        t.c_cc[VTIME] = 0;
+        tcsetattr(STDIN_FILENO, TCSANOW, &t);
+    }
+    int tty = isatty(STDOUT_FILENO);
+    int64_t t0 = loop_now_us(), last_print = 0;
+    unsigned saves_seen = 0;
+    loop_scene sc;
+    while (!quit && (duration <= 0 || (double)(loop_now_us() - t0) < duration * 1e6)) {
+        if (raw)
+            read_keys(k->L, ctl);
+        loop_scene_read(k->L, &sc);
+        if (sc.save_requests != saves_seen) {
+            saves_seen = sc.save_requests;
+            save_scene(k, &sc);
+        }
+        int64_t now = loop_now_us();
+        if (now - last_print >= (tty ? 100000 : 1000000)) {
+            char line[512];
+            loop_scene_format(&sc, line, sizeof line);
+            printf(tty ? "\r\033[K%s" : "%s\n", line);
+            fflush(stdout);
+            last_print = now;
+        }
+        struct timespec nap = {0, 20000000};
+        nanosleep(&nap, NULL);
+    }
+    if (raw)
+        tcsetattr(STDIN_FILENO, TCSANOW, &saved);
+    if (tty)
+        printf("\n");
+}
+
+/* Input thread and loop thread around ui(); then the loop is stopped and the case saved. */
+static int run(loopkit *k, loopkit_dsource *ds, int keys, double duration)
+{
+    ring *in = ring_new(sizeof(loop_event), 1024), *ctl = ring_new(sizeof(loop_event), 64);
+    runner run = {k->L, in, 0, 0};
+    atomic_init(&run.stop, 0);
+    loop_set_controls(k->L, ctl);
+    loop_reader *rd = in && ctl ? loop_reader_start(loopkit_device_source(ds), in, k->L, 0) : NULL;
+    pthread_t th;
+    int rc = 0;
+    if (!rd || pthread_create(&th, NULL, loop_thread, &run) != 0) {
+        rc = rd ? fn_err_set(FN_EIO, "cannot start the loop thread") : FN_EIO;
+        loop_reader_stop(rd);
+    } else {
+        struct sigaction sa = {0};
+        sa.sa_handler = on_signal;
+        sigaction(SIGINT, &sa, NULL);
+        sigaction(SIGTERM, &sa, NULL);
+        ui(k, ctl, keys, duration);
+        loop_reader_stop(rd);
+        atomic_store(&run.stop, 1);
+        loop_notify(k->L);
+        pthread_join(th, NULL);
+        rc = run.rc;
+        if (rc == 0)
+            rc = loopkit_save(k);
+    }
+    loop_set_controls(k->L, NULL);
+    ring_free(in);
+    ring_free(ctl);
+    return rc;
+}
+
 int cmd_navigate(int argc, char **argv)
 {
-    fprintf(stderr, "fracnav %s: not built yet\n", argv[0]);
-    return 1;
+    if (cmd_wants_help(argc, argv)) {
+        usage(stdout);
+        return 0;
+    }
+    opts o;
+    int rc = parse(argc, argv, &o);
+    if (rc)
+        return rc;
+    sim_register_transports();
+    loopkit_dsource ds = {0};
+    calib_default(&ds.cal);
+    char used[4096], diag[2048] = "";
+    if (calib_load(&ds.cal, o.config, used, sizeof used, diag, sizeof diag) < 0) {
+        fprintf(stderr, "fracnav navigate: %s\n", fn_err_msg());
+        return 1;
+    }
+    fputs(diag, stderr);
+    ds.d = dev_open(o.device);
+    if (!ds.d) {
+        fprintf(stderr, "fracnav navigate: %s\n", fn_err_msg());
+        return 1;
+    }
+    int keys = strcmp(dev_transport_name(ds.d), "keyboard") != 0;
+    offer_recovery(&o, keys);
+    loop_config cfg;
+    loop_config_default(&cfg);
+    cfg.frame = o.frame;
+    loopkit k;
+    rc = loopkit_open(&k, o.dir, &cfg, o.flags, "navigate");
+    if (rc == 0) {
+        if (k.resumed)
+            fprintf(stderr, "recovered %zu journal records\n", k.resumed);
+        rc = run(&k, &ds, keys, o.duration);
+        if (rc == 0 && o.json)
+            loopkit_print_json(&k, stdout, -1);
+        else if (rc == 0)
+            fprintf(stderr, "saved %s\n", o.dir);
+        loopkit_close(&k);
+    }
+    if (rc < 0)
+        fprintf(stderr, "fracnav navigate: %s\n", fn_err_msg());
+    dev_close(ds.d);
+    return rc < 0 ? 1 : 0;
 }

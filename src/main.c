@@ -1,5 +1,6 @@
 /* fracnav: the command-line front end; each subcommand lives in cmd_<name>.c. */
 #include "cmd.h"
+#include "sim_replay.h"
 
 #include <stdio.h>
 #include <string.h>
@@ -39,6 +40,8 @@ int cmd_wants_help(int argc, char **argv)
 
 int main(int argc, char **argv)
 {
+    /* The virtual device and recordings are devices like any other: --device virtual:..., replay:... */
+    sim_register_transports();
     if (argc < 2 || !strcmp(argv[1], "-h") || !strcmp(argv[1], "--help") || !strcmp(argv[1], "help")) {
         usage(stdout);
         return argc < 2 ? 2 : 0;

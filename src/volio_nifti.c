@@ -208,7 +208,10 @@ vol *volio__read_nifti(const char *path)
     }
     vol_type t = VOL_F32;
     type_of_dt(nim->datatype, &t);
-    vol *v = vol_new(nim->nx, nim->ny, nim->nz);
+    /* Axes beyond dim[0] are 1 (some writers leave them 0, which nifticlib keeps). */
+    vol *v = vol_new(nim->nx, nim->ndim >= 2 ? nim->ny : 1, nim->ndim >= 3 ? nim->nz : 1);
+    if (!v)
+        fn_err_wrap(FN_EFORMAT, "%s: dim", path);
     if (!v || geometry(nim, path, v) < 0 || load_data(nim, path, t, v) < 0) {
         vol_free(v);
         v = NULL;

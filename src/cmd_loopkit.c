@@ -1,0 +1,247 @@
+#include "cmd_loopkit.h"
+
+#include "err.h"
+#include "obb.h"
+
+#include <errno.h>
+#include <inttypes.h>
+#include <jansson.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+size_t loopkit_journal_pending(const char *dir)
+{
+    journal_rec *r;
+    size_t n = 0;
+    if (journal_read(dir, &r, &n, NULL) < 0)
+        return 0;
+    free(r);
+    return n;
+}
+
+/* Continues from the journal: poses and undo history. */
+static int resume(loopkit *k, const char *dir)
+{
+    journal_rec *r;
+    size_t n;
+    int rc = journal_read(dir, &r, &n, NULL);
+    if (rc == 0)
+        rc = loop_recover(k->L, r, n);
+    free(r);
+    k->resumed = rc == 0 ? n : 0;
+    return rc < 0 ? fn_err_wrap(rc, "%s/journal", dir) : 0;
+}
+
+int loopkit_open(loopkit *k, const char *dir, const loop_config *cfg, unsigned flags, const char *cmd)
+{
+    memset(k, 0, sizeof *k);
+    size_t pending = loopkit_journal_pending(dir);
+    if (pending && !(flags & (LOOPKIT_RESUME | LOOPKIT_DISCARD)))
+        return fn_err_set(FN_EMISMATCH,
+                          "%s/journal holds %zu poses not saved in case.json (an interrupted session): "
+                          "run `fracnav %s` with --recover to continue from them, or --discard-journal "
+                          "to start from case.json",
+                          dir, pending, cmd);
+    snprintf(k->dir_name, sizeof k->dir_name, "%s", dir);
+    k->c = case_load(dir);
+    if (!k->c)
+        return FN_EIO;
+    int rc = 0;
+    if (k->c->nfrag > LOOP_MAX_FRAGS)
+        rc = fn_err_set(FN_EINVAL, "%s: %d fragments, the loop steers at most %d", dir, k->c->nfrag,
+                        LOOP_MAX_FRAGS);
+    if (rc == 0 && k->c->nfrag < 2)
+        rc = fn_err_set(FN_EINVAL, "%s: %d fragment(s); steering needs at least two", dir, k->c->nfrag);
+    if (rc == 0) {
+        obb_params op = {k->c->tau_min, k->c->tau_max};
+        k->obb = loop_obb_new(k->c->frag, k->c->nfrag, &op, NULL);
+        if (!k->obb)
+            rc = FN_EFORMAT;
+    }
+    if (rc == 0 && (flags & LOOPKIT_DISCARD)) {
+        char path[4200]; /* removed, not parsed: a damaged journal must not block a fresh start */
+        snprintf(path, sizeof path, "%s/journal", dir);
+        if (unlink(path) != 0 && errno != ENOENT)
+            rc = fn_err_set(FN_EIO, "%s: cannot remove: %s", path, strerror(errno));
+    }
+    if (rc == 0 && (flags & LOOPKIT_JOURNAL)) {
+        k->jr = journal_open(dir);
+        if (!k->jr)
+            rc = FN_EIO;
+    }
+    if (rc == 0) {
+        uint8_t fixed[LOOP_MAX_FRAGS] = {0};
+        if (k->c->fixed >= 0 && k->c->fixed < k->c->nfrag)
+            fixed[k->c->fixed] = 1;
+        loop_collider col = loop_obb_collider(k->obb);
+        k->L = loop_new(k->c->frag, k->c->nfrag, fixed, &col, cfg, k->jr);
+        if (!k->L)
+            rc = FN_ENOMEM;
+    }
+    if (rc == 0 && pending && (flags & LOOPKIT_RESUME))
+        rc = resume(k, dir);
+    if (rc < 0)
+        loopkit_close(k);
+    return rc;
+}
+
+int loopkit_save(loopkit *k)
+{
+    for (int i = 0; i < k->c->nfrag; i++)
+        k->c->frag[i].pose = loop_pose(k->L, i);
+    int rc = case_save(k->c);
+    if (rc == 0 && k->jr)
+        rc = journal_truncate(k->jr);
+    return rc;
+}
+
+void loopkit_close(loopkit *k)
+{
+    loop_free(k->L);
+    if (k->jr)
+        journal_close(k->jr);
+    loop_obb_free(k->obb);
+    case_free(k->c);
+    memset(k, 0, sizeof *k);
+}
+
+static json_t *pose_json(const pose *p)
+{
+    return json_pack("{s:[f,f,f,f],s:[f,f,f]}", "q", p->q[0], p->q[1], p->q[2], p->q[3], "t", p->t[0],
+                     p->t[1], p->t[2]);
+}
+
+void loopkit_print_json(const loopkit *k, FILE *out, long unplugs)
+{
+    loop_stats s;
+    loop_get_stats(k->L, &s);
+    char digest[17];
+    snprintf(digest, sizeof digest, "%016" PRIx64, s.pose_digest);
+    json_t *poses = json_array();
+    for (int i = 0; i < k->c->nfrag; i++) {
+        pose p = loop_pose(k->L, i);
+        json_t *o = pose_json(&p);
+        json_object_set_new(o, "id", json_integer(k->c->frag[i].id));
+        json_object_set_new(o, "name", json_string(k->c->frag[i].name));
+        json_object_set_new(o, "fixed", json_boolean(loop_fixed(k->L, i)));
+        json_array_append_new(poses, o);
+    }
+    json_t *j = json_pack("{s:I,s:I,s:I,s:I,s:I,s:I,s:I,s:I,s:I,s:f,s:f,s:f,s:I,s:f,s:f,s:o,s:s,s:I}",
+                          "events", (json_int_t)s.events, "steps", (json_int_t)s.steps, "accepted",
+                          (json_int_t)s.accepted, "limited", (json_int_t)s.limited, "slid",
+                          (json_int_t)s.slid, "refused", (json_int_t)s.refused,
+                          "collisions_in_accepted", (json_int_t)s.collisions_in_accepted,
+                          "unchecked", (json_int_t)s.unchecked, "resumed_from_journal",
+                          (json_int_t)k->resumed, "latency_p50_us", s.latency_p50_us,
+                          "latency_p99_us", s.latency_p99_us, "latency_max_us", s.latency_max_us,
+                          "queries", (json_int_t)s.queries, "query_us_mean", s.query_us_mean,
+                          "query_us_max", s.query_us_max, "final_poses", poses, "pose_digest",
+                          digest, "journal_records", (json_int_t)(k->jr ? journal_count(k->jr) : 0));
+    json_object_set_new(j, "journal_errors", json_integer((json_int_t)s.journal_errors));
+    if (unplugs >= 0)
+        json_object_set_new(j, "unplugs", json_integer(unplugs));
+    json_dumpf(j, out, JSON_INDENT(2) | JSON_REAL_PRECISION(17));
+    fputc('\n', out);
+    json_decref(j);
+}
+
+void loopkit_decoder_init(loopkit_decoder *d, uint16_t vid, uint16_t pid, const calib *cal)
+{
+    devparse_init(&d->ps, devtab_find(vid, pid), 0);
+    if (cal)
+        d->cal = *cal;
+    else
+        calib_default(&d->cal);
+}
+
+/* A parsed device event -> a loop event, through calibration. */
+static int from_dev_event(calib *cal, dev_event *de, loop_event *ev)
+{
+    if (!(de->flags & (DEV_EV_MOTION | DEV_EV_BUTTON)))
+        return 0;
+    uint32_t pressed, released;
+    uint32_t buttons = calib_buttons(cal, de, &pressed, &released);
+    float m[6];
+    calib_apply(cal, de->axis, m);
+    memset(ev, 0, sizeof *ev);
+    ev->kind = LOOP_EV_MOTION;
+    ev->t_us = de->t_us;
+    ev->buttons = buttons;
+    memcpy(ev->motion, m, sizeof m);
+    return 1;
+}
+
+int loopkit_decode(loopkit_decoder *d, const uint8_t *rep, size_t len, int64_t t_us, loop_event *ev)
+{
+    dev_event de;
+    if (!devparse_report(&d->ps, rep, len, t_us, &de))
+        return 0;
+    return from_dev_event(&d->cal, &de, ev);
+}
+
+static int tsource_next(void *ctx, loop_event *ev, int timeout_ms)
+{
+    loopkit_tsource *s = ctx;
+    uint8_t buf[DEV_REPORT_MAX];
+    if (s->has_pending) {
+        s->has_pending = 0;
+        *ev = s->pending;
+        return 1;
+    }
+    for (;;) {
+        int64_t t_us = 0;
+        int n = s->tr->read(s->h, buf, sizeof buf, timeout_ms, &t_us);
+        if (n == FN_ENODEV) {
+            if (s->finished && s->finished(s->h))
+                return LOOP_SOURCE_END;
+            memset(ev, 0, sizeof *ev);
+            ev->kind = LOOP_EV_UNPLUG;
+            ev->t_us = t_us;
+            s->unplugged = 1;
+            s->unplugs++;
+            return 1;
+        }
+        if (n <= 0)
+            return n;
+        if (s->unplugged) {
+            /* The first report after an unplug: say the device is back, then give the report. */
+            s->unplugged = 0;
+            s->has_pending = loopkit_decode(&s->dec, buf, (size_t)n, t_us, &s->pending);
+            memset(ev, 0, sizeof *ev);
+            ev->kind = LOOP_EV_REPLUG;
+            ev->t_us = t_us;
+            return 1;
+        }
+        if (loopkit_decode(&s->dec, buf, (size_t)n, t_us, ev) == 1)
+            return 1;
+    }
+}
+
+loop_source loopkit_transport_source(loopkit_tsource *s)
+{
+    loop_source src = {tsource_next, s};
+    return src;
+}
+
+static int dsource_next(void *ctx, loop_event *ev, int timeout_ms)
+{
+    loopkit_dsource *s = ctx;
+    dev_event de;
+    int rc = dev_poll(s->d, &de, timeout_ms);
+    if (rc <= 0)
+        return rc;
+    if (de.flags & (DEV_EV_UNPLUG | DEV_EV_REPLUG)) {
+        memset(ev, 0, sizeof *ev);
+        ev->kind = de.flags & DEV_EV_UNPLUG ? LOOP_EV_UNPLUG : LOOP_EV_REPLUG;
+        ev->t_us = de.t_us;
+        return 1;
+    }
+    return from_dev_event(&s->cal, &de, ev);
+}
+
+loop_source loopkit_device_source(loopkit_dsource *s)
+{
+    loop_source src = {dsource_next, s};
+    return src;
+}

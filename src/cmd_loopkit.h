@@ -1,0 +1,75 @@
+/* loopkit: what `fracnav replay`, `fracnav navigate` and `fracnav bench loop` share: a case opened
+ * for steering (fragments, OBB collider, loop, journal, recovery) and the event sources that feed
+ * the loop from a device (dev_poll + calibration) or from a transport's raw reports (recordings,
+ * the virtual device: parser + calibration, one event per report, deterministic). */
+#ifndef FN_CMD_LOOPKIT_H
+#define FN_CMD_LOOPKIT_H
+
+#include "calib.h"
+#include "case.h"
+#include "dev.h"
+#include "devparse.h"
+#include "journal.h"
+#include "loop.h"
+
+#include <stdio.h>
+
+enum {
+    LOOPKIT_JOURNAL = 1, /* append accepted poses to CASE/journal */
+    LOOPKIT_RESUME = 2,  /* start from case.json + the journal's unsaved poses */
+    LOOPKIT_DISCARD = 4  /* start from case.json, emptying the journal */
+};
+
+typedef struct loopkit {
+    fcase *c;
+    loop_obb *obb;
+    loop *L;
+    journal *jr;
+    size_t resumed; /* journal records applied at open */
+    char dir_name[4096];
+} loopkit;
+
+/* Loads the case and builds everything. A journal holding unsaved poses without LOOPKIT_RESUME or
+ * LOOPKIT_DISCARD is an error (FN_EMISMATCH) whose message says how many and what to do; `cmd`
+ * names the command for that advice. 0 or FN_E* (k is then empty). */
+int loopkit_open(loopkit *k, const char *dir, const loop_config *cfg, unsigned flags, const char *cmd);
+/* Unsaved records in DIR/journal (0 when none or unreadable). */
+size_t loopkit_journal_pending(const char *dir);
+/* Copies the loop's poses into the case, saves it atomically, then empties the journal. */
+int loopkit_save(loopkit *k);
+void loopkit_close(loopkit *k);
+
+/* Final poses and statistics as JSON on out (replay's and navigate's summary); unplugs < 0 leaves
+ * that member out. */
+void loopkit_print_json(const loopkit *k, FILE *out, long unplugs);
+
+/* Raw reports -> loop events (parser, then calibration). */
+typedef struct loopkit_decoder {
+    devparse_state ps;
+    calib cal;
+} loopkit_decoder;
+void loopkit_decoder_init(loopkit_decoder *d, uint16_t vid, uint16_t pid, const calib *cal);
+/* 1 when the report changed motion or buttons (ev filled), 0 to skip it. */
+int loopkit_decode(loopkit_decoder *d, const uint8_t *rep, size_t len, int64_t t_us, loop_event *ev);
+
+/* A loop_source over an open transport handle: every report is one event; a read that says the
+ * device went away is an unplug (or the end, when `finished` says so, e.g. sim_replay_finished). */
+typedef struct loopkit_tsource {
+    const dev_transport *tr;
+    dev_handle *h;
+    loopkit_decoder dec;
+    int (*finished)(const dev_handle *h);
+    int unplugged, has_pending;
+    loop_event pending;
+    unsigned unplugs;
+} loopkit_tsource;
+loop_source loopkit_transport_source(loopkit_tsource *s);
+
+/* A loop_source over an opened device (live): dev_poll folds what is queued into one event. */
+typedef struct loopkit_dsource {
+    dev_device *d;
+    calib cal;
+} loopkit_dsource;
+loop_source loopkit_device_source(loopkit_dsource *s);
+
+#endif

@@ -1,0 +1,632 @@
+/* loop: stepping, collision outcomes, controls, undo/redo. Statistics and the scene buffer are in
+ * loop_stats.c, the input thread in loop_reader.c. */
+#include "loop_impl.h"
+
+#include "err.h"
+#include "journal.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define SAFETY_MM 0.01 /* the separation shortcut keeps this much distance in hand */
+#define CLIMB 0.5      /* backing away per unit of tangential motion when riding over a bump */
+
+void loop_config_default(loop_config *c)
+{
+    memset(c, 0, sizeof *c);
+    c->trans_mm_s = 50; /* sim/script.h: SCRIPT_MM_PER_S_FULL */
+    c->rot_deg_s = 45;  /* SCRIPT_DEG_PER_S_FULL */
+    c->frame = LOOP_FRAME_CAMERA;
+    c->dt_max_us = 20000;
+    c->dt_first_us = 8000; /* the SpaceNavigator's report period */
+    c->bisect_iters = 6;
+    c->slide_iters = 2;
+    c->max_tries = 12;
+#ifdef NDEBUG
+    c->check_invariant = 0;
+#else
+    c->check_invariant = 1;
+#endif
+    static const uint8_t map[] = {LOOP_ACT_NEXT,       LOOP_ACT_PREV,     LOOP_ACT_FIX,
+                                  LOOP_ACT_COLLISION,  LOOP_ACT_TRANS_ONLY, LOOP_ACT_ROT_ONLY,
+                                  LOOP_ACT_UNDO,       LOOP_ACT_REDO,     LOOP_ACT_SAVE,
+                                  LOOP_ACT_FRAME};
+    memcpy(c->button_action, map, sizeof map);
+}
+
+static const double CAMERA_DEFAULT[3][3] = {{1, 0, 0}, {0, -1, 0}, {0, 0, -1}};
+
+/* Largest distance from the centroid to a corner of the fragment's crop (home world mm). */
+static double frag_radius(const frag *f)
+{
+    double r = 0;
+    for (int c = 0; c < 8; c++) {
+        double x[3], y[3];
+        for (int a = 0; a < 3; a++)
+            x[a] = ((c >> a & 1) ? f->dim[a] - 0.5 : -0.5) * f->spacing[a];
+        pose_apply(&f->home, x, y);
+        double d = sqrt((y[0] - f->centroid[0]) * (y[0] - f->centroid[0]) +
+                        (y[1] - f->centroid[1]) * (y[1] - f->centroid[1]) +
+                        (y[2] - f->centroid[2]) * (y[2] - f->centroid[2]));
+        if (d > r)
+            r = d;
+    }
+    return r;
+}
+
+loop *loop_new(const frag *frags, int n, const uint8_t *fixed, const loop_collider *col,
+               const loop_config *cfg, struct journal *jr)
+{
+    if (!frags || n < 1 || n > LOOP_MAX_FRAGS || !col || !col->query) {
+        fn_err_set(FN_EINVAL, "loop: need 1..%d fragments and a collider (got %d)", LOOP_MAX_FRAGS, n);
+        return NULL;
+    }
+    loop *L = calloc(1, sizeof *L);
+    size_t cb = col->cache_bytes ? col->cache_bytes : 1;
+    unsigned char *caches = calloc((size_t)n * (size_t)n + 1, cb);
+    if (!L || !caches) {
+        free(L);
+        free(caches);
+        fn_err_set(FN_ENOMEM, "loop: out of memory for %d fragments", n);
+        return NULL;
+    }
+    L->frags = frags;
+    L->n = n;
+    L->col = *col;
+    L->cache_stride = cb;
+    L->caches = caches;
+    L->scratch = caches + (size_t)n * (size_t)n * cb;
+    if (cfg)
+        L->cfg = *cfg;
+    else
+        loop_config_default(&L->cfg);
+    memcpy(L->cam, CAMERA_DEFAULT, sizeof L->cam);
+    L->jr = jr;
+    L->collision_on = 1;
+    L->device_present = 1;
+    for (int i = 0; i < n; i++) {
+        L->pose[i] = frags[i].pose;
+        L->fixed[i] = fixed ? fixed[i] != 0 : 0;
+        L->radius[i] = frag_radius(&frags[i]);
+    }
+    L->selected = 0;
+    if (L->fixed[0])
+        loop_action_do(L, LOOP_ACT_NEXT);
+    loop_stats_init(L);
+    return L;
+}
+
+void loop_free(loop *L)
+{
+    if (!L)
+        return;
+    sem_destroy(&L->wake);
+    free(L->caches);
+    free(L);
+}
+
+/* ---- collision ---- */
+
+/* Fragment s at p against every other. Returns 1 colliding, 0 free, or a negative FN_E*;
+ * *sep gets the smallest separation seen. fresh: a zeroed scratch cache instead of the pair's. */
+static int collide_all(loop *L, int s, const pose *p, int fresh, double *sep)
+{
+    *sep = INFINITY;
+    for (int j = 0; j < L->n; j++) {
+        if (j == s)
+            continue;
+        void *cache = L->caches + ((size_t)s * (size_t)L->n + (size_t)j) * L->cache_stride;
+        if (fresh) {
+            memset(L->scratch, 0, L->cache_stride);
+            cache = L->scratch;
+        }
+        loop_contact c = {0, INFINITY};
+        int64_t t0 = fresh ? 0 : loop_clock_ns();
+        int rc = L->col.query(L->col.ctx, s, p, j, &L->pose[j], cache, &c);
+        if (!fresh) /* the invariant check's queries are not part of the loop's cost */
+            loop_stats_query(L, loop_clock_ns() - t0);
+        if (rc < 0)
+            return rc;
+        if (c.separation_mm < *sep)
+            *sep = c.separation_mm;
+        if (c.collides)
+            return 1;
+    }
+    return 0;
+}
+
+/* ---- motion ---- */
+
+static double norm3(const double v[3])
+{
+    return sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+}
+
+/* start moved by the fraction f of (rotation r about pivot c, then translation d). */
+static pose moved(const pose *start, const double c[3], const double d[3], const double r[3], double f)
+{
+    double rv[3] = {r[0] * f, r[1] * f, r[2] * f}, zero[3] = {0, 0, 0};
+    pose rot = pose_from_rotvec(rv, zero), delta;
+    double rc[3];
+    pose_rotate(&rot, c, rc);
+    delta = rot;
+    for (int i = 0; i < 3; i++)
+        delta.t[i] = c[i] - rc[i] + d[i] * f;
+    return pose_compose(delta, *start);
+}
+
+/* A bound on how far any point of fragment s moves under the fraction f of (d, r) about c. */
+static double motion_bound(const loop *L, int s, const double c[3], const double d[3],
+                           const double r[3], double f)
+{
+    double cen[3];
+    pose_apply(&L->pose[s], L->frags[s].centroid, cen);
+    double arm[3] = {cen[0] - c[0], cen[1] - c[1], cen[2] - c[2]};
+    return f * (norm3(d) + norm3(r) * (norm3(arm) + L->radius[s]));
+}
+
+/* Is the fraction f of the motion free? Uses the last separation as a shortcut when it proves the
+ * move free; otherwise queries. Returns 1 free (with *cand and *sep), 0 colliding, or negative. */
+static int try_move(loop *L, int s, const pose *start, double gap, const double c[3],
+                    const double d[3], const double r[3], double f, pose *cand, double *sep)
+{
+    *cand = moved(start, c, d, r, f);
+    double b = motion_bound(L, s, c, d, r, f);
+    if (gap - b > SAFETY_MM) {
+        *sep = gap - b;
+        return 1;
+    }
+    if (L->tries >= L->cfg.max_tries)
+        return 0; /* out of budget: treat as blocked, the step ends with what it has */
+    L->tries++;
+    int rc = collide_all(L, s, cand, 0, sep);
+    return rc < 0 ? rc : !rc;
+}
+
+/* Advances *cur by as much of (d, r) as stays free: the whole of it, or the largest fraction found
+ * by bisection down to 2^-iters. The smallest fraction is tried right after the whole, so a move
+ * straight into a contact costs two queries. Moves the pivot c along. Returns the fraction taken. */
+static double advance(loop *L, int s, pose *cur, double *gap, double c[3], const double d[3],
+                      const double r[3], int iters, int *err)
+{
+    pose cand, best = *cur;
+    double sep, best_sep = *gap, lo = 0, hi = 1, least = ldexp(1, -iters);
+    int rc = try_move(L, s, cur, *gap, c, d, r, 1, &cand, &sep);
+    if (rc == 1) {
+        best = cand, best_sep = sep, lo = 1;
+    } else if (rc == 0 && iters > 0) {
+        rc = try_move(L, s, cur, *gap, c, d, r, least, &cand, &sep);
+        if (rc == 1) {
+            best = cand, best_sep = sep, lo = least;
+            for (int k = 1; k < iters && rc >= 0; k++) {
+                double mid = 0.5 * (lo + hi);
+                rc = try_move(L, s, cur, *gap, c, d, r, mid, &cand, &sep);
+                if (rc == 1)
+                    best = cand, best_sep = sep, lo = mid;
+                else
+                    hi = mid;
+            }
+        }
+    }
+    if (rc < 0) {
+        *err = rc;
+        return 0;
+    }
+    *cur = best;
+    *gap = best_sep;
+    for (int i = 0; i < 3; i++)
+        c[i] += d[i] * lo;
+    return lo;
+}
+
+static int nonzero_axes(const double v[3])
+{
+    return (v[0] != 0) + (v[1] != 0) + (v[2] != 0);
+}
+
+/* Each world axis of the translation t, as far as it goes. Then, on a rough contact where
+ * asperities block even the tangential part: the largest part left, other than the main push
+ * (the largest axis of t), once more while backing away from the push by CLIMB of its length --
+ * the fragment rides over the bumps instead of freezing. Returns 1 when anything moved. */
+static int slide_axes(loop *L, int s, pose *cur, double *gap, double c[3], const double t[3],
+                      int *err)
+{
+    static const double zero[3] = {0, 0, 0};
+    double left[3] = {0, 0, 0};
+    int moved_any = 0, push = 0, along = -1;
+    for (int a = 0; a < 3 && !*err; a++) {
+        double axis[3] = {0, 0, 0};
+        axis[a] = t[a];
+        if (fabs(t[a]) > fabs(t[push]))
+            push = a;
+        if (t[a] == 0)
+            continue;
+        double f = advance(L, s, cur, gap, c, axis, zero, L->cfg.slide_iters, err);
+        moved_any |= f > 0;
+        left[a] = t[a] * (1 - f);
+    }
+    for (int a = 0; a < 3; a++)
+        if (a != push && left[a] != 0 && (along < 0 || fabs(left[a]) > fabs(left[along])))
+            along = a;
+    if (*err || along < 0)
+        return moved_any;
+    double climb[3] = {0, 0, 0};
+    climb[along] = left[along];
+    climb[push] = (t[push] > 0 ? -1 : 1) * CLIMB * fabs(left[along]);
+    return advance(L, s, cur, gap, c, climb, zero, L->cfg.slide_iters, err) > 0 || moved_any;
+}
+
+/* The rest of a blocked step, in parts: the translation alone (when the step also turns), then
+ * its world axes (slide_axes), then the rotation alone. Translation first: sliding along a
+ * contact is mostly translation, and the step's query budget may not reach the last parts.
+ * Returns 1 when any part moved. */
+static int slide(loop *L, int s, pose *cur, double *gap, double c[3], const double d[3],
+                 const double r[3], int *err)
+{
+    static const double zero[3] = {0, 0, 0};
+    double t[3];
+    memcpy(t, d, sizeof t);
+    int moved_any = 0, turns = norm3(r) > 0;
+    if (turns && norm3(t) > 0) {
+        double f = advance(L, s, cur, gap, c, t, zero, L->cfg.slide_iters, err);
+        for (int i = 0; i < 3; i++)
+            t[i] *= 1 - f;
+        moved_any |= f > 0;
+    }
+    if (!*err && nonzero_axes(t) >= 2)
+        moved_any |= slide_axes(L, s, cur, gap, c, t, err);
+    if (!*err && turns && (norm3(d) > 0))
+        moved_any |= advance(L, s, cur, gap, c, zero, r, L->cfg.slide_iters, err) > 0;
+    return moved_any;
+}
+
+/* Moves the selected fragment by (d, r) about pivot c under collision checking. */
+static int move(loop *L, int s, double c[3], const double d[3], const double r[3], int64_t t_us)
+{
+    pose start = L->pose[s], cur = start;
+    if (!L->collision_on) {
+        loop_accept(L, s, moved(&start, c, d, r, 1), t_us, JOURNAL_MOVE, 0);
+        return LOOP_ACCEPTED;
+    }
+    if (!L->gap_valid) {
+        int rc = collide_all(L, s, &start, 0, &L->gap);
+        if (rc < 0)
+            return rc;
+        L->in_collision = rc;
+        L->gap_valid = !rc;
+    }
+    if (L->in_collision) {
+        /* Already interpenetrating (checking was off): let the user pull it free, unchecked. */
+        loop_accept(L, s, moved(&start, c, d, r, 1), t_us, JOURNAL_MOVE, 0);
+        return LOOP_ACCEPTED;
+    }
+    double gap = L->gap;
+    int err = 0;
+    double f = advance(L, s, &cur, &gap, c, d, r, L->cfg.bisect_iters, &err);
+    if (err)
+        return err;
+    if (f == 1) {
+        loop_accept(L, s, cur, t_us, JOURNAL_MOVE, 1);
+        L->gap = gap;
+        return LOOP_ACCEPTED;
+    }
+    double rd[3], rr[3];
+    for (int i = 0; i < 3; i++)
+        rd[i] = d[i] * (1 - f), rr[i] = r[i] * (1 - f);
+    int slid = slide(L, s, &cur, &gap, c, rd, rr, &err);
+    if (err)
+        return err;
+    if (!slid && f == 0)
+        return LOOP_REFUSED;
+    loop_accept(L, s, cur, t_us, JOURNAL_MOVE, 1);
+    L->gap = gap;
+    return slid ? LOOP_SLID : LOOP_LIMITED;
+}
+
+void loop_accept(loop *L, int s, pose p, int64_t t_us, uint32_t kind, int checked)
+{
+    if (kind == JOURNAL_MOVE && !L->gesture_saved) {
+        /* The first pose a gesture changes: undo comes back here. */
+        loop_undo_push(L, s);
+        L->gesture_saved = 1;
+        kind = JOURNAL_START;
+    }
+    L->pose[s] = p;
+    L->verify_frag = s;
+    if (!checked)
+        L->gap_valid = 0;
+    loop_stats_pose(L, s, &p);
+    if (L->jr && journal_append(L->jr, kind, s, t_us, &p, loop_now_us()) < 0)
+        L->st.journal_errors++;
+    if (!checked)
+        L->st.unchecked++;
+    else if (L->cfg.check_invariant)
+        L->verify = 1;
+}
+
+/* The invariant, checked from scratch (fresh caches, no separation shortcut) after the step's
+ * latency has been taken, so checking does not distort the measurement. */
+static void verify(loop *L)
+{
+    if (!L->verify)
+        return;
+    L->verify = 0;
+    int s = L->verify_frag;
+    double sep;
+    if (collide_all(L, s, &L->pose[s], 1, &sep) == 1)
+        L->st.collisions_in_accepted++;
+}
+
+/* Device motion -> world displacement and rotation vector over dt. */
+static void twist(const loop *L, int s, const float m[6], double dt, double d[3], double r[3])
+{
+    double v[3], w[3], R[3][3];
+    for (int i = 0; i < 3; i++) {
+        v[i] = L->rot_only ? 0 : m[i] * L->cfg.trans_mm_s * dt;
+        w[i] = L->trans_only ? 0 : m[3 + i] * L->cfg.rot_deg_s * (M_PI / 180) * dt;
+    }
+    if (L->cfg.frame == LOOP_FRAME_WORLD) {
+        memcpy(d, v, sizeof v);
+        memcpy(r, w, sizeof w);
+        return;
+    }
+    if (L->cfg.frame == LOOP_FRAME_FRAGMENT) {
+        pose local = pose_compose(L->pose[s], L->frags[s].home);
+        pose_to_matrix(&local, R);
+    } else {
+        memcpy(R, L->cam, sizeof R);
+    }
+    for (int i = 0; i < 3; i++) {
+        d[i] = R[i][0] * v[0] + R[i][1] * v[1] + R[i][2] * v[2];
+        r[i] = R[i][0] * w[0] + R[i][1] * w[1] + R[i][2] * w[2];
+    }
+}
+
+/* The device is at rest (or the selection changed): the next move starts a new undo step. */
+static void gesture_end(loop *L)
+{
+    L->gesture_saved = 0;
+}
+
+static void pivot_world(const loop *L, int s, double c[3])
+{
+    pose_apply(&L->pose[s], L->have_pivot ? L->pivot_home : L->frags[s].centroid, c);
+}
+
+
+static int step(loop *L, const loop_event *ev)
+{
+    /* A report's motion acts over the time since the previous report; the first one (at start,
+     * after a replug) over one nominal report period. */
+    int64_t gap = L->have_last_t ? ev->t_us - L->last_t : L->cfg.dt_first_us;
+    double dt = (double)(gap < 0 ? 0 : gap > L->cfg.dt_max_us ? L->cfg.dt_max_us : gap) * 1e-6;
+    L->last_t = ev->t_us;
+    L->have_last_t = 1;
+    int s = L->selected;
+    double d[3], r[3];
+    twist(L, s, ev->motion, dt, d, r);
+    if (norm3(d) == 0 && norm3(r) == 0) {
+        int still = 1;
+        for (int i = 0; i < 6; i++)
+            still &= ev->motion[i] == 0;
+        if (still)
+            gesture_end(L);
+        return LOOP_IDLE;
+    }
+    if (L->fixed[s])
+        return LOOP_IDLE;
+    double c[3];
+    pivot_world(L, s, c);
+    L->tries = 0;
+    int out = move(L, s, c, d, r, ev->t_us);
+    if (out > 0)
+        loop_stats_outcome(L, out);
+    return out;
+}
+
+int loop_feed(loop *L, const loop_event *ev)
+{
+    L->st.events++;
+    int out = LOOP_IDLE;
+    switch (ev->kind) {
+    case LOOP_EV_MOTION: {
+        L->device_present = 1;
+        uint32_t pressed = ev->buttons & ~L->buttons;
+        L->buttons = ev->buttons;
+        for (int b = 0; b < 32; b++)
+            if (pressed >> b & 1 && L->cfg.button_action[b])
+                loop_action_do(L, (loop_action)L->cfg.button_action[b]);
+        out = step(L, ev);
+        break;
+    }
+    case LOOP_EV_ACTION:
+        out = loop_action_do(L, (loop_action)ev->action);
+        break;
+    case LOOP_EV_UNPLUG:
+    case LOOP_EV_REPLUG:
+        /* The pose stays; the next report after a replug starts a fresh time base. */
+        L->device_present = ev->kind == LOOP_EV_REPLUG;
+        L->have_last_t = 0;
+        gesture_end(L);
+        L->buttons = 0;
+        break;
+    default:
+        break;
+    }
+    if (ev->kind == LOOP_EV_MOTION && ev->arrival_us > 0)
+        loop_stats_latency(L, loop_now_us() - ev->arrival_us);
+    verify(L);
+    if (out > 0)
+        L->last_outcome = (loop_outcome)out;
+    return out;
+}
+
+/* ---- controls ---- */
+
+static void select_next(loop *L, int dir)
+{
+    int any_free = 0;
+    for (int i = 0; i < L->n; i++)
+        any_free |= !L->fixed[i];
+    int s = L->selected;
+    for (int k = 0; k < L->n; k++) {
+        s = (s + dir + L->n) % L->n;
+        if (!L->fixed[s] || !any_free)
+            break;
+    }
+    if (s != L->selected) {
+        L->selected = s;
+        L->have_pivot = 0;
+        L->gap_valid = 0;
+        gesture_end(L);
+    }
+}
+
+/* Restores one saved pose, unless it collides now. Returns 1 when restored. */
+static int restore(loop *L, const loop_undo *u, uint32_t kind)
+{
+    if (L->collision_on) {
+        double sep;
+        int rc = collide_all(L, u->frag, &u->p, 0, &sep);
+        if (rc != 0)
+            return rc < 0 ? rc : 0;
+    }
+    loop_accept(L, u->frag, u->p, L->last_t, kind, L->collision_on);
+    L->gap_valid = 0;
+    gesture_end(L);
+    return 1;
+}
+
+/* Drops the top of one undo/redo stack and pushes `back` (the pose being left) on the other. */
+static void shift(int *nfrom, loop_undo *to, int *nto, loop_undo back)
+{
+    if (*nfrom > 0)
+        (*nfrom)--;
+    if (*nto == LOOP_UNDO_MAX) {
+        memmove(to, to + 1, (LOOP_UNDO_MAX - 1) * sizeof *to);
+        (*nto)--;
+    }
+    to[(*nto)++] = back;
+}
+
+static int undo_redo(loop *L, int redo)
+{
+    loop_undo *from = redo ? L->redo : L->undo, *to = redo ? L->undo : L->redo;
+    int *nfrom = redo ? &L->nredo : &L->nundo, *nto = redo ? &L->nundo : &L->nredo;
+    if (*nfrom == 0)
+        return LOOP_IDLE;
+    loop_undo u = from[*nfrom - 1];
+    loop_undo back = {u.frag, L->pose[u.frag]};
+    int rc = restore(L, &u, redo ? JOURNAL_REDO : JOURNAL_UNDO);
+    verify(L);
+    if (rc <= 0)
+        return rc < 0 ? rc : LOOP_REFUSED;
+    shift(nfrom, to, nto, back);
+    return LOOP_ACCEPTED;
+}
+
+void loop_undo_push(loop *L, int s)
+{
+    if (L->nundo == LOOP_UNDO_MAX) {
+        memmove(L->undo, L->undo + 1, (LOOP_UNDO_MAX - 1) * sizeof *L->undo);
+        L->nundo--;
+    }
+    L->undo[L->nundo++] = (loop_undo){s, L->pose[s]};
+    L->nredo = 0;
+}
+
+int loop_action_do(loop *L, loop_action a)
+{
+    switch (a) {
+    case LOOP_ACT_NEXT:
+    case LOOP_ACT_PREV:
+        select_next(L, a == LOOP_ACT_NEXT ? 1 : -1);
+        return LOOP_IDLE;
+    case LOOP_ACT_FIX:
+        L->fixed[L->selected] = !L->fixed[L->selected];
+        gesture_end(L);
+        return LOOP_IDLE;
+    case LOOP_ACT_COLLISION:
+        L->collision_on = !L->collision_on;
+        L->gap_valid = 0;
+        return LOOP_IDLE;
+    case LOOP_ACT_TRANS_ONLY:
+        L->trans_only = !L->trans_only;
+        L->rot_only = 0;
+        return LOOP_IDLE;
+    case LOOP_ACT_ROT_ONLY:
+        L->rot_only = !L->rot_only;
+        L->trans_only = 0;
+        return LOOP_IDLE;
+    case LOOP_ACT_UNDO:
+    case LOOP_ACT_REDO:
+        return undo_redo(L, a == LOOP_ACT_REDO);
+    case LOOP_ACT_SAVE:
+        L->save_requests++;
+        return LOOP_IDLE;
+    case LOOP_ACT_FRAME:
+        L->cfg.frame = (loop_frame)((L->cfg.frame + 1) % 3);
+        return LOOP_IDLE;
+    default:
+        return LOOP_IDLE;
+    }
+}
+
+int loop_recover(loop *L, const journal_rec *recs, size_t n)
+{
+    for (size_t i = 0; i < n; i++) {
+        const journal_rec *r = &recs[i];
+        if (r->frag < 0 || r->frag >= L->n)
+            return fn_err_set(FN_EFORMAT, "journal record %zu (seq %llu): fragment %d, the case has %d",
+                              i + 1, (unsigned long long)r->seq, r->frag, L->n);
+        loop_undo before = {r->frag, L->pose[r->frag]};
+        if (r->kind == JOURNAL_START)
+            loop_undo_push(L, r->frag);
+        else if (r->kind == JOURNAL_UNDO)
+            shift(&L->nundo, L->redo, &L->nredo, before);
+        else if (r->kind == JOURNAL_REDO)
+            shift(&L->nredo, L->undo, &L->nundo, before);
+        L->pose[r->frag] = r->p;
+    }
+    L->gap_valid = 0;
+    gesture_end(L);
+    return 0;
+}
+
+void loop_set_pivot(loop *L, const double world[3])
+{
+    L->have_pivot = world != NULL;
+    if (world) {
+        pose inv = pose_inverse(L->pose[L->selected]);
+        pose_apply(&inv, world, L->pivot_home);
+    }
+}
+
+void loop_set_camera(loop *L, const double r[3][3])
+{
+    memcpy(L->cam, r, sizeof L->cam);
+}
+
+void loop_set_pose(loop *L, int i, pose p)
+{
+    if (i >= 0 && i < L->n) {
+        L->pose[i] = p;
+        L->gap_valid = 0;
+    }
+}
+
+pose loop_pose(const loop *L, int i)
+{
+    return L->pose[i];
+}
+
+int loop_selected(const loop *L)
+{
+    return L->selected;
+}
+
+int loop_fixed(const loop *L, int i)
+{
+    return L->fixed[i];
+}

@@ -1,0 +1,252 @@
+/* loop: the real-time navigation loop. Device motion in, collision-checked fragment poses out.
+ *
+ * Events (device motion already calibrated by the input side -- devices' calib_apply --, buttons,
+ * unplug/replug) arrive through a ring (ring.h) filled by an input thread (loop_reader_*), or are
+ * fed one by one (loop_feed) for deterministic replay.
+ * Each motion event is one step:
+ *   twist   = motion * (trans_mm_s, rot_deg_s), mapped from device axes to the world through the
+ *             frame (camera by default, world or fragment on request), translation/rotation locks;
+ *   dt      = report time since the previous report (dt_first_us for the first one), clamped to
+ *             dt_max_us (a pause never jumps);
+ *   candidate = rotate the selected fragment by twist.w*dt about its pivot (the centroid, or a
+ *             user pivot), then translate by twist.v*dt;
+ *   query   = the collider against every other fragment (per-pair caches);
+ *   outcome = ACCEPTED (free), LIMITED (largest free fraction of the step, by bisection), SLID
+ *             (limited, then the rest of the step split into translation alone, rotation alone
+ *             and each world axis of the translation, each advanced as far as it stays free, and
+ *             on a rough contact the tangential part once more with a small back-off from the
+ *             push: the fragment slides along the contact instead of freezing), or REFUSED
+ *             (nothing of the step is free). A step queries at most max_tries candidate poses;
+ *             the separation estimate of the last query skips queries for moves that provably
+ *             stay clear.
+ * No accepted pose collides; with check_invariant every accepted pose is re-queried from scratch
+ * (no cache, no shortcuts) and a collision is counted in collisions_in_accepted (always 0).
+ * With collision checking off, poses are accepted unchecked (counted in `unchecked`); turned back
+ * on while fragments interpenetrate, the moving fragment may be pulled out unchecked until it is
+ * free, then checking resumes.
+ * Stepping depends only on event contents and report timestamps, never on the wall clock, so the
+ * same events give the same poses bit for bit (pose_digest).
+ *
+ * Frames. Device axes are the HID ones: +x right, +y towards the user, +z down. The default camera
+ * stands in front of the patient looking posteriorly (along world +y, LPS), patient superior (+z)
+ * up on screen and patient left (+x) to the right: device x -> world +x, device y (towards the
+ * user = towards the viewer) -> world -y, device z (down) -> world -z. loop_set_camera changes it.
+ * World frame: device axes are world LPS axes. Fragment frame: device axes are the fragment's
+ * current local axes.
+ *
+ * Controls are actions (from keys or mapped device buttons): next/prev fragment, fix/unfix the
+ * selected fragment, collision checking on/off (the scene carries the warning flag), translation-
+ * only and rotation-only toggles, undo/redo of whole gestures (a gesture ends when the device
+ * returns to rest or the selection changes), save request.
+ *
+ * Threads and memory: loop_new allocates everything; loop_feed, loop_drain and loop_run allocate
+ * nothing. One thread steps a loop; renderers read it through loop_scene_read from any thread
+ * without ever blocking the stepping thread (a lock-free triple buffer). */
+#ifndef FN_LOOP_H
+#define FN_LOOP_H
+
+#include "frag.h"
+#include "pose.h"
+#include "ring.h"
+
+#include <stdatomic.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#define LOOP_MAX_FRAGS 64
+
+typedef enum { LOOP_FRAME_CAMERA, LOOP_FRAME_WORLD, LOOP_FRAME_FRAGMENT } loop_frame;
+
+enum { LOOP_EV_MOTION = 1, LOOP_EV_ACTION, LOOP_EV_UNPLUG, LOOP_EV_REPLUG };
+
+typedef enum {
+    LOOP_ACT_NONE,
+    LOOP_ACT_NEXT,       /* select the next movable fragment */
+    LOOP_ACT_PREV,
+    LOOP_ACT_FIX,        /* fix/unfix the selected fragment */
+    LOOP_ACT_COLLISION,  /* collision checking on/off */
+    LOOP_ACT_TRANS_ONLY, /* toggle: translation only */
+    LOOP_ACT_ROT_ONLY,   /* toggle: rotation only */
+    LOOP_ACT_UNDO,
+    LOOP_ACT_REDO,
+    LOOP_ACT_SAVE,       /* counts in the scene's save_requests; the application saves */
+    LOOP_ACT_FRAME,      /* cycle camera -> world -> fragment frame */
+    LOOP_ACT_COUNT
+} loop_action;
+
+typedef enum { LOOP_IDLE, LOOP_ACCEPTED, LOOP_LIMITED, LOOP_SLID, LOOP_REFUSED } loop_outcome;
+
+/* One ring item. */
+typedef struct loop_event {
+    int64_t t_us;       /* report timestamp: device clock (monotonic live, recorded on replay) */
+    int64_t arrival_us; /* monotonic time fracnav read the report; the latency's start; 0 = none */
+    int32_t kind;       /* LOOP_EV_* */
+    int32_t action;     /* LOOP_EV_ACTION: a loop_action */
+    uint32_t buttons;   /* LOOP_EV_MOTION: button state; new presses map through button_action */
+    float motion[6];    /* LOOP_EV_MOTION: calibrated, -1..1: tx ty tz rx ry rz, device axes */
+} loop_event;
+
+/* Result of one pair query. */
+typedef struct loop_contact {
+    int collides;
+    double separation_mm; /* > 0: a lower bound on the gap; <= 0 touching or penetrating */
+} loop_contact;
+
+/* The collision seam: a table the application fills (loop_obb.c wraps the OBB octree). */
+typedef struct loop_collider {
+    /* Fragment a at pose pa (home world -> current world) against b at pb. cache is this ordered
+     * pair's own cache_bytes of memory, zeroed at loop_new. Returns 0 or a negative FN_E*.
+     * Must not allocate; called only from the stepping thread. */
+    int (*query)(void *ctx, int a, const pose *pa, int b, const pose *pb, void *cache,
+                 loop_contact *out);
+    size_t cache_bytes;
+    void *ctx;
+} loop_collider;
+
+typedef struct loop_config {
+    double trans_mm_s;      /* translation speed at full deflection */
+    double rot_deg_s;       /* rotation speed at full deflection */
+    loop_frame frame;
+    int64_t dt_max_us;      /* longest report interval integrated (pause clamp) */
+    int64_t dt_first_us;    /* what the first report after start or a replug integrates */
+    int bisect_iters;       /* bisection depth of a limited step (fraction resolution 2^-n) */
+    int slide_iters;        /* bisection depth of each slide component */
+    int max_tries;          /* candidate poses queried per step at most (bounds the step's time) */
+    int check_invariant;    /* re-query accepted poses from scratch; on by default in debug builds */
+    uint8_t button_action[32]; /* device button i pressed -> loop_action (0 = none) */
+} loop_config;
+
+typedef struct loop_stats {
+    uint64_t events, steps, accepted, limited, slid, refused;
+    uint64_t collisions_in_accepted; /* accepted poses found colliding by the invariant check */
+    uint64_t unchecked;              /* poses accepted while collision checking was off */
+    uint64_t queries;                /* pair queries (the invariant check's not counted) */
+    double query_us_mean, query_us_max;
+    double step_hz;                  /* steps per second of wall time, since the last reset */
+    double tick_hz;                  /* loop_run timer ticks per second (period_us apart) */
+    double latency_p50_us, latency_p99_us, latency_max_us; /* report arrival -> pose accepted */
+    uint64_t latency_samples;
+    uint64_t dropped;                /* events lost to a full ring */
+    uint64_t journal_errors;         /* journal writes that failed (disk full, I/O error) */
+    uint64_t pose_digest;            /* FNV-1a 64 over every accepted (frag, q, t) in order */
+} loop_stats;
+
+/* What a renderer sees: one consistent state after a step. */
+typedef struct loop_scene {
+    uint64_t seq; /* increases with every publish */
+    int nfrag, selected;
+    int collision_on; /* 0: checking is off -- show a warning */
+    int trans_only, rot_only, device_present;
+    unsigned save_requests; /* LOOP_ACT_SAVE presses so far: the application saves when it grows */
+    loop_frame frame;
+    loop_outcome last_outcome;
+    double separation_mm; /* selected fragment's smallest separation estimate after the last step */
+    loop_stats stats;
+    pose pose[LOOP_MAX_FRAGS];
+    uint8_t fixed[LOOP_MAX_FRAGS];
+} loop_scene;
+
+typedef struct loop loop;
+
+void loop_config_default(loop_config *c);
+
+/* A loop over n fragments (1..LOOP_MAX_FRAGS), starting at their current poses. frags must stay
+ * valid for the loop's life (centroid, home, dim, spacing are read). fixed: n flags or NULL.
+ * journal: NULL or an open journal (journal.h) that receives every accepted pose; not owned.
+ * NULL with fn_err on bad arguments or OOM. */
+struct journal;
+loop *loop_new(const frag *frags, int n, const uint8_t *fixed, const loop_collider *col,
+               const loop_config *cfg, struct journal *journal);
+void loop_free(loop *L);
+
+/* One event: an action, an unplug/replug, or a motion step. Returns the step's loop_outcome
+ * (LOOP_IDLE for non-motion events or no motion), or a negative FN_E* from the collider. */
+int loop_feed(loop *L, const loop_event *ev);
+/* A second ring of loop_events (actions from the application's thread, e.g. terminal keys),
+ * drained before the input ring. NULL: none. Set it before the loop runs. */
+void loop_set_controls(loop *L, ring *ctl);
+/* Feeds every event waiting in the control ring and in r, then publishes the scene. Returns
+ * events handled or negative. */
+int loop_drain(loop *L, ring *r);
+/* The loop: drains r and publishes at every loop_notify and at least every period_us, until
+ * *stop becomes nonzero (then drains once more). Run it on its own thread. Returns 0 or the first
+ * collider error. */
+int loop_run(loop *L, ring *r, int64_t period_us, const atomic_int *stop);
+
+/* Direct controls (the same as the actions, for the application's own thread when not running). */
+int loop_action_do(loop *L, loop_action a);
+/* A user pivot (world mm, current pose) for the selected fragment; NULL returns to the centroid. */
+void loop_set_pivot(loop *L, const double world[3]);
+/* Device axes -> world rotation for the camera frame (rows: world, columns: device axes). */
+void loop_set_camera(loop *L, const double r[3][3]);
+/* Recovery: applies journal records (journal.h) in order -- poses, and the undo/redo history they
+ * imply -- without writing them again. FN_EFORMAT (naming the record) for a fragment index out
+ * of range. */
+struct journal_rec;
+int loop_recover(loop *L, const struct journal_rec *recs, size_t n);
+/* Moves a fragment without collision checking (recovery, loading): no journal, no stats. */
+void loop_set_pose(loop *L, int i, pose p);
+
+pose loop_pose(const loop *L, int i);
+int loop_selected(const loop *L);
+int loop_fixed(const loop *L, int i);
+void loop_get_stats(loop *L, loop_stats *out);
+/* Restarts the rate and latency windows (counters and digest stay). */
+void loop_reset_timing(loop *L);
+
+/* Publishes the current state to the scene buffer (loop_drain/loop_run do it themselves). */
+void loop_publish(loop *L);
+/* Copies the newest published scene. Never blocks the loop; any thread, one reader at a time.
+ * Returns 1 when it is newer than the previous read, else 0 (out still holds the newest). */
+int loop_scene_read(loop *L, loop_scene *out);
+/* One line for a terminal: selected fragment, pose, collision state, rates, latency. */
+void loop_scene_format(const loop_scene *s, char *buf, size_t cap);
+
+/* Asks the OS to run the calling thread (the one that will call loop_run) under SCHED_FIFO at a
+ * modest priority, so other processes do not preempt a step. Needs CAP_SYS_NICE (root, or an
+ * rtprio limit); returns 0, or FN_EINVAL when not allowed (the loop then runs as before). Safe:
+ * loop_run sleeps between events and a step's work is bounded (max_tries). */
+int loop_realtime_priority(void);
+
+/* Monotonic clock, microseconds. */
+int64_t loop_now_us(void);
+
+/* Input seam: where events come from (a device through calibration, a recording, a script). */
+typedef struct loop_source {
+    /* Waits up to timeout_ms for the next event. Returns 1 (ev filled, arrival_us may be left 0),
+     * 0 nothing yet, LOOP_SOURCE_END when no more will ever come, or another negative FN_E*.
+     * A device that goes away yields LOOP_EV_UNPLUG, and LOOP_EV_REPLUG when it is back. */
+    int (*next)(void *ctx, loop_event *ev, int timeout_ms);
+    void *ctx;
+} loop_source;
+#define LOOP_SOURCE_END (-100)
+
+/* Input thread: takes every event the source has (draining it) into r, stamps arrival_us and
+ * wakes the loop (loop_notify). lockstep: wait until the loop has finished the previous event
+ * before pushing the next (benchmarks: no queueing delay in the latency; needs L). */
+typedef struct loop_reader loop_reader;
+loop_reader *loop_reader_start(loop_source src, ring *r, loop *L, int lockstep);
+/* 1 once the source has ended (all its events are in the ring). */
+int loop_reader_done(loop_reader *rd);
+/* The same as a flag loop_run can stop on. */
+const atomic_int *loop_reader_done_flag(loop_reader *rd);
+/* Stops and joins the thread. Returns the source's errors (not unplugs) seen. */
+int loop_reader_stop(loop_reader *rd);
+/* Events the loop has finished (any thread). */
+uint64_t loop_events_done(const loop *L);
+/* Wakes a loop_run waiting for its next tick (any thread). */
+void loop_notify(loop *L);
+
+/* The collider over OBB octrees (loop_obb.c): one tree per fragment, built at loop_obb_new with
+ * params (NULL = {0, 1}); queries with q (NULL = threshold 0, tolerance 0). The frags must
+ * outlive it. NULL with fn_err when a tree cannot be built (the message names the fragment). */
+struct obb_params;
+struct obb_query;
+typedef struct loop_obb loop_obb;
+loop_obb *loop_obb_new(const frag *frags, int n, const struct obb_params *params,
+                       const struct obb_query *q);
+void loop_obb_free(loop_obb *o);
+/* A collider table bound to o (valid while o lives). */
+loop_collider loop_obb_collider(loop_obb *o);
+
+#endif

@@ -1,0 +1,74 @@
+/* loop internals shared by loop.c, loop_stats.c and loop_reader.c; not for other modules. */
+#ifndef FN_LOOP_IMPL_H
+#define FN_LOOP_IMPL_H
+
+#include "loop.h"
+
+#include <semaphore.h>
+
+#define LOOP_UNDO_MAX 256
+#define LOOP_HIST_BINS 10000 /* 1 us bins; later latencies land in the overflow count */
+
+typedef struct loop_undo {
+    int frag;
+    pose p;
+} loop_undo;
+
+struct loop {
+    const frag *frags;
+    int n;
+    pose pose[LOOP_MAX_FRAGS];
+    uint8_t fixed[LOOP_MAX_FRAGS];
+    double radius[LOOP_MAX_FRAGS]; /* centroid to farthest crop corner, mm */
+    loop_collider col;
+    size_t cache_stride;
+    unsigned char *caches, *scratch; /* n*n pair caches, one scratch for fresh queries */
+    loop_config cfg;
+    double cam[3][3];
+    struct journal *jr;
+    ring *ctl; /* actions from the application's thread */
+
+    int selected, collision_on, trans_only, rot_only, device_present;
+    unsigned save_requests;
+    int have_pivot;
+    double pivot_home[3];
+    int have_last_t;
+    int64_t last_t;
+    uint32_t buttons;
+    int gesture_saved; /* this gesture's undo checkpoint is taken */
+    int gap_valid, in_collision;
+    int tries; /* candidates queried in this step */
+    int verify, verify_frag; /* an accepted pose awaits the invariant check */
+    double gap; /* selected fragment's separation lower bound at its current pose */
+    loop_outcome last_outcome;
+
+    loop_undo undo[LOOP_UNDO_MAX], redo[LOOP_UNDO_MAX];
+    int nundo, nredo;
+
+    loop_stats st;
+    uint32_t hist[LOOP_HIST_BINS];
+    uint64_t hist_over;
+    double lat_max, q_sum_ns, q_max_ns;
+    int64_t win_start_us, pct_at_us;
+    uint64_t win_steps, win_ticks;
+
+    /* triple buffer: the writer fills buf[back], then swaps it with `middle` (bit 4: fresh). */
+    loop_scene buf[3];
+    atomic_int middle;
+    int back, front;
+    uint64_t pub_seq;
+    sem_t wake;          /* loop_notify -> loop_run */
+    atomic_ullong done; /* events finished, for other threads */
+};
+
+void loop_accept(loop *L, int s, pose p, int64_t t_us, uint32_t kind, int checked);
+void loop_undo_push(loop *L, int s);
+
+int64_t loop_clock_ns(void);
+void loop_stats_init(loop *L);
+void loop_stats_query(loop *L, int64_t ns);
+void loop_stats_pose(loop *L, int s, const pose *p);
+void loop_stats_outcome(loop *L, int outcome);
+void loop_stats_latency(loop *L, int64_t us);
+
+#endif

@@ -1,0 +1,287 @@
+/* loop: statistics, the scene buffer a renderer reads, and the fixed-rate driver. */
+#include "loop_impl.h"
+
+#include "err.h"
+#include "journal.h"
+
+#include <errno.h>
+#include <pthread.h>
+#include <sched.h>
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+#include <semaphore.h>
+#include <time.h>
+
+#define FRESH 4
+#define FNV_OFFSET 0xcbf29ce484222325ull
+#define FNV_PRIME 0x100000001b3ull
+
+int64_t loop_clock_ns(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (int64_t)ts.tv_sec * 1000000000 + ts.tv_nsec;
+}
+
+int64_t loop_now_us(void)
+{
+    return loop_clock_ns() / 1000;
+}
+
+void loop_stats_init(loop *L)
+{
+    L->st.pose_digest = FNV_OFFSET;
+    L->front = 0;
+    L->back = 2;
+    atomic_init(&L->middle, 1);
+    sem_init(&L->wake, 0, 0);
+    atomic_init(&L->done, 0);
+    loop_reset_timing(L);
+    loop_publish(L);
+}
+
+void loop_reset_timing(loop *L)
+{
+    memset(L->hist, 0, sizeof L->hist);
+    L->hist_over = 0;
+    L->lat_max = 0;
+    L->st.latency_samples = 0;
+    L->st.latency_p50_us = L->st.latency_p99_us = L->st.latency_max_us = 0;
+    L->q_sum_ns = L->q_max_ns = 0;
+    L->st.queries = 0;
+    L->win_start_us = loop_now_us();
+    L->pct_at_us = 0;
+    L->win_steps = L->win_ticks = 0;
+}
+
+void loop_stats_query(loop *L, int64_t ns)
+{
+    L->st.queries++;
+    L->q_sum_ns += (double)ns;
+    if (ns > L->q_max_ns)
+        L->q_max_ns = (double)ns;
+}
+
+/* FNV-1a 64 over the fragment index (u32 LE) and the 7 doubles' bytes (LE): the same on every
+ * machine with IEEE doubles. */
+void loop_stats_pose(loop *L, int s, const pose *p)
+{
+    uint64_t h = L->st.pose_digest;
+    unsigned char b[4 + 56];
+    for (int i = 0; i < 4; i++)
+        b[i] = (unsigned char)((uint32_t)s >> (8 * i));
+    const double *v[7] = {&p->q[0], &p->q[1], &p->q[2], &p->q[3], &p->t[0], &p->t[1], &p->t[2]};
+    for (int k = 0; k < 7; k++) {
+        uint64_t u;
+        memcpy(&u, v[k], 8);
+        for (int i = 0; i < 8; i++)
+            b[4 + 8 * k + i] = (unsigned char)(u >> (8 * i));
+    }
+    for (size_t i = 0; i < sizeof b; i++)
+        h = (h ^ b[i]) * FNV_PRIME;
+    L->st.pose_digest = h;
+}
+
+void loop_stats_outcome(loop *L, int outcome)
+{
+    L->st.steps++;
+    L->win_steps++;
+    if (outcome == LOOP_ACCEPTED)
+        L->st.accepted++;
+    else if (outcome == LOOP_LIMITED)
+        L->st.limited++;
+    else if (outcome == LOOP_SLID)
+        L->st.slid++;
+    else if (outcome == LOOP_REFUSED)
+        L->st.refused++;
+}
+
+void loop_stats_latency(loop *L, int64_t us)
+{
+    if (us < 0)
+        us = 0;
+    if (us < LOOP_HIST_BINS)
+        L->hist[us]++;
+    else
+        L->hist_over++;
+    if ((double)us > L->lat_max)
+        L->lat_max = (double)us;
+    L->st.latency_samples++;
+}
+
+/* The latency below which a fraction q of the samples lie (bin upper edge). */
+static double percentile(const loop *L, double q)
+{
+    uint64_t want = (uint64_t)ceil(q * (double)L->st.latency_samples), seen = 0;
+    for (int i = 0; i < LOOP_HIST_BINS; i++) {
+        seen += L->hist[i];
+        if (seen >= want && want > 0)
+            return i + 1 > L->lat_max ? L->lat_max : i + 1;
+    }
+    return L->lat_max;
+}
+
+static void refresh_rates(loop *L, int64_t now)
+{
+    double secs = (double)(now - L->win_start_us) * 1e-6;
+    L->st.step_hz = secs > 0 ? (double)L->win_steps / secs : 0;
+    L->st.tick_hz = secs > 0 ? (double)L->win_ticks / secs : 0;
+    L->st.query_us_mean = L->st.queries ? L->q_sum_ns / (double)L->st.queries * 1e-3 : 0;
+    L->st.query_us_max = L->q_max_ns * 1e-3;
+    L->st.latency_p50_us = percentile(L, 0.50);
+    L->st.latency_p99_us = percentile(L, 0.99);
+    L->st.latency_max_us = L->lat_max;
+    L->pct_at_us = now;
+}
+
+void loop_get_stats(loop *L, loop_stats *out)
+{
+    refresh_rates(L, loop_now_us());
+    *out = L->st;
+}
+
+void loop_publish(loop *L)
+{
+    int64_t now = loop_now_us();
+    if (now - L->pct_at_us >= 100000) /* percentiles cost a histogram walk: 10 Hz is plenty */
+        refresh_rates(L, now);
+    loop_scene *s = &L->buf[L->back];
+    s->seq = ++L->pub_seq;
+    s->nfrag = L->n;
+    s->selected = L->selected;
+    s->collision_on = L->collision_on;
+    s->trans_only = L->trans_only;
+    s->rot_only = L->rot_only;
+    s->device_present = L->device_present;
+    s->save_requests = L->save_requests;
+    s->frame = L->cfg.frame;
+    s->last_outcome = L->last_outcome;
+    s->separation_mm = L->gap_valid ? L->gap : L->in_collision ? -1 : INFINITY;
+    s->stats = L->st;
+    memcpy(s->pose, L->pose, sizeof(pose) * (size_t)L->n);
+    memcpy(s->fixed, L->fixed, (size_t)L->n);
+    L->back = atomic_exchange(&L->middle, L->back | FRESH) & 3;
+}
+
+int loop_scene_read(loop *L, loop_scene *out)
+{
+    int fresh = 0;
+    if (atomic_load(&L->middle) & FRESH) {
+        L->front = atomic_exchange(&L->middle, L->front) & 3;
+        fresh = 1;
+    }
+    *out = L->buf[L->front];
+    return fresh;
+}
+
+void loop_scene_format(const loop_scene *s, char *buf, size_t cap)
+{
+    static const char *outcome[] = {"idle", "free", "limited", "sliding", "refused"};
+    static const char *frame[] = {"camera", "world", "fragment"};
+    const pose *p = &s->pose[s->selected];
+    char sep[32];
+    if (isinf(s->separation_mm))
+        snprintf(sep, sizeof sep, "far");
+    else
+        snprintf(sep, sizeof sep, "%.2f mm", s->separation_mm);
+    snprintf(buf, cap,
+             "frag %d/%d%s | q %.4f %.4f %.4f %.4f t %.2f %.2f %.2f mm | %s, gap %s%s | %s%s%s"
+             " | %.0f steps/s %.0f ticks/s | latency p50 %.0f p99 %.0f max %.0f us | query %.0f us"
+             " | %llu free %llu limited %llu slid %llu refused%s%s",
+             s->selected + 1, s->nfrag, s->fixed[s->selected] ? " (fixed)" : "", p->q[0], p->q[1],
+             p->q[2], p->q[3], p->t[0], p->t[1], p->t[2], outcome[s->last_outcome], sep,
+             s->collision_on ? "" : " | WARNING: COLLISION CHECKING OFF", frame[s->frame],
+             s->trans_only ? ", translation only" : "", s->rot_only ? ", rotation only" : "",
+             s->stats.step_hz, s->stats.tick_hz, s->stats.latency_p50_us, s->stats.latency_p99_us,
+             s->stats.latency_max_us, s->stats.query_us_mean, (unsigned long long)s->stats.accepted,
+             (unsigned long long)s->stats.limited, (unsigned long long)s->stats.slid,
+             (unsigned long long)s->stats.refused,
+             s->device_present ? "" : " | DEVICE UNPLUGGED (pose kept)",
+             s->stats.journal_errors ? " | WARNING: JOURNAL WRITE FAILED" : "");
+}
+
+void loop_set_controls(loop *L, ring *ctl)
+{
+    L->ctl = ctl;
+}
+
+int loop_drain(loop *L, ring *r)
+{
+    loop_event ev;
+    int n = 0;
+    while ((L->ctl && ring_pop(L->ctl, &ev)) || ring_pop(r, &ev)) {
+        int rc = loop_feed(L, &ev);
+        atomic_store_explicit(&L->done, L->st.events, memory_order_release);
+        if (rc < 0)
+            return rc;
+        n++;
+    }
+    L->st.dropped = ring_dropped(r);
+    if (n)
+        loop_publish(L);
+    return n;
+}
+
+int loop_realtime_priority(void)
+{
+    struct sched_param sp = {.sched_priority = 10};
+    int rc = pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp);
+    return rc == 0 ? 0 : fn_err_set(FN_EINVAL, "real-time priority not granted: %s", strerror(rc));
+}
+
+uint64_t loop_events_done(const loop *L)
+{
+    return atomic_load_explicit(&((loop *)L)->done, memory_order_acquire);
+}
+
+void loop_notify(loop *L)
+{
+    sem_post(&L->wake);
+}
+
+/* Waits for loop_notify or until the monotonic time deadline_us (sem_timedwait counts in
+ * CLOCK_REALTIME, so the remaining time is carried over). */
+static void wait_until(loop *L, int64_t deadline_us)
+{
+    int64_t left = deadline_us - loop_now_us();
+    if (left > 0) {
+        struct timespec until;
+        clock_gettime(CLOCK_REALTIME, &until);
+        until.tv_sec += (time_t)(left / 1000000);
+        until.tv_nsec += (long)(left % 1000000) * 1000;
+        if (until.tv_nsec >= 1000000000) {
+            until.tv_nsec -= 1000000000;
+            until.tv_sec++;
+        }
+        while (sem_timedwait(&L->wake, &until) != 0 && errno == EINTR)
+            ;
+    }
+    while (sem_trywait(&L->wake) == 0)
+        ; /* one wake-up serves every event pushed so far */
+}
+
+int loop_run(loop *L, ring *r, int64_t period_us, const atomic_int *stop)
+{
+    unsigned idle = 0;
+    int64_t next = loop_now_us();
+    while (!atomic_load(stop)) {
+        int rc = loop_drain(L, r);
+        if (rc < 0)
+            return rc;
+        int64_t now = loop_now_us();
+        if (now >= next) { /* a timer tick (not an early wake-up for an event) */
+            L->win_ticks++;
+            next += period_us;
+            if (next < now)
+                next = now + period_us; /* fell behind: do not try to catch up in a burst */
+            if (L->jr && journal_tick(L->jr, now) < 0)
+                L->st.journal_errors++;
+            if (rc == 0 && ++idle % 50 == 0)
+                loop_publish(L); /* keep the rates in the scene fresh while nothing moves */
+        }
+        wait_until(L, next);
+    }
+    int rc = loop_drain(L, r);
+    return rc < 0 ? rc : 0;
+}

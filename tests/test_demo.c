@@ -1,0 +1,67 @@
+/* The README's first command ends in `fracnav demo`: it must work end to end on the example CT. */
+#include <stdarg.h>
+#include <stddef.h>
+#include <setjmp.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include "testutil.h"
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+static void test_demo_runs_the_workflow(void **st)
+{
+    const char *ct = tu_example_ct();
+    char *dir = tu_tmpdir("demo");
+    char *out = NULL;
+    int rc = tu_run_cli(&out, "demo '%s' -o '%s/d'", ct, dir);
+    if (rc != 0)
+        fail_msg("fracnav demo exited %d:\n%s", rc, out);
+    /* the skull and the two halves of the head holder */
+    assert_non_null(strstr(out, "3 kept"));
+    assert_non_null(strstr(out, "403557"));
+    assert_non_null(strstr(out, "head holder"));
+    /* the fracture and the replay, with no collision among the accepted poses */
+    assert_non_null(strstr(out, "ground truth puts it back"));
+    assert_non_null(strstr(out, "collisions in accepted poses: 0"));
+    const char *files[] = {"case/case.json", "case/labels.nii.gz", "segmentation-front.png",
+                           "segmentation-right.png", "segmentation-below.png", "fracture/case.json",
+                           "fracture-right.png", "head-on.fnrec"};
+    for (size_t i = 0; i < sizeof files / sizeof files[0]; i++) {
+        char p[4200];
+        snprintf(p, sizeof p, "%s/d/%s", dir, files[i]);
+        if (access(p, R_OK) != 0)
+            fail_msg("demo did not write %s", p);
+    }
+    /* A second run over the same folder works too (the README's command is idempotent). */
+    free(out);
+    rc = tu_run_cli(&out, "demo '%s' -o '%s/d'", ct, dir);
+    if (rc != 0)
+        fail_msg("second fracnav demo exited %d:\n%s", rc, out);
+    free(out);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+static void test_demo_names_a_missing_ct(void **st)
+{
+    char *out = NULL;
+    assert_int_equal(tu_run_cli(&out, "demo /nonexistent/ct.nii -o /tmp"), 1);
+    assert_non_null(strstr(out, "/nonexistent/ct.nii"));
+    assert_non_null(strstr(out, ".ci/setup"));
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "demo --bogus"), 2);
+    free(out);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_demo_runs_the_workflow),
+        cmocka_unit_test(test_demo_names_a_missing_ct),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}

@@ -1,0 +1,303 @@
+/* fracnav replay and navigate end to end on a small two-block case: determinism, contact, crash
+ * recovery through the journal, device unplug mid-replay. */
+#include <stdarg.h>
+#include <stddef.h>
+#include <setjmp.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include "journal.h"
+#include "loop.h"
+#include "script.h"
+#include "testutil.h"
+#include "vol.h"
+#include "volio.h"
+
+#include <jansson.h>
+#include <math.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+static char *dir; /* the group's temp folder */
+static char case_dir[4200];
+
+/* Two bone blocks 2 mm apart along x: A (12x20x20 mm, x 4..15) and B (10x12x12 mm, x 18..27).
+ * Segmented, A (the larger, id 1) fixed: B is the one that moves. */
+static int setup(void **st)
+{
+    dir = tu_tmpdir("loopcli");
+    vol *v = vol_new(40, 32, 32);
+    for (size_t i = 0; i < vol_count(v); i++)
+        v->data[i] = -1000;
+    for (int k = 6; k < 26; k++)
+        for (int j = 6; j < 26; j++)
+            for (int i = 4; i < 16; i++)
+                v->data[vol_idx(v, i, j, k)] = 1000;
+    for (int k = 10; k < 22; k++)
+        for (int j = 10; j < 22; j++)
+            for (int i = 18; i < 28; i++)
+                v->data[vol_idx(v, i, j, k)] = 1000;
+    char path[4200];
+    snprintf(path, sizeof path, "%s/blocks.nii.gz", dir);
+    assert_int_equal(volio_write(v, path, VOL_I16), 0);
+    vol_free(v);
+    snprintf(case_dir, sizeof case_dir, "%s/case", dir);
+    char *out = NULL;
+    int rc = tu_run_cli(&out, "segment '%s' -o '%s' --min-volume 0 --ramp 0", path, case_dir);
+    if (rc != 0)
+        fprintf(stderr, "%s\n", out);
+    free(out);
+    assert_int_equal(rc, 0);
+    assert_int_equal(tu_run_cli(NULL, "edit '%s' fix 1", case_dir), 0);
+    return 0;
+}
+
+static int teardown(void **st)
+{
+    tu_rmtree(dir);
+    free(dir);
+    return 0;
+}
+
+/* Renders a motion script for a SpaceNavigator into dir/NAME.fnrec; returns the path (static). */
+static const char *recording(const char *name, const char *text)
+{
+    static char path[4200];
+    script *s = NULL;
+    assert_int_equal(script_parse(text, strlen(text), name, &s), 0);
+    fnrec *r = script_render(s, sim_profile_find("spacenavigator"));
+    assert_non_null(r);
+    snprintf(path, sizeof path, "%s/%s.fnrec", dir, name);
+    assert_int_equal(fnrec_save(r, path), 0);
+    fnrec_free(r);
+    free(s);
+    return path;
+}
+
+/* Runs `fracnav replay CASE REC ARGS --json` and parses the JSON it prints. */
+static json_t *replay(const char *rec, const char *args, int want_rc)
+{
+    char *out = NULL;
+    int rc = tu_run_cli(&out, "replay '%s' '%s' --json %s", case_dir, rec, args);
+    if (rc != want_rc)
+        fprintf(stderr, "%s\n", out);
+    assert_int_equal(rc, want_rc);
+    json_error_t err;
+    const char *brace = strchr(out, '{'); /* stderr's progress line comes first */
+    json_t *j = want_rc == 0 && brace ? json_loads(brace, 0, &err) : NULL;
+    if (want_rc == 0 && !j)
+        fail_msg("replay printed no JSON: %s", out);
+    free(out);
+    return j;
+}
+
+static double num(json_t *j, const char *key)
+{
+    json_t *v = json_object_get(j, key);
+    assert_non_null(v);
+    return json_number_value(v);
+}
+
+/* Fragment B's translation (final_poses[1].t[axis]). */
+static double moved_t(json_t *j, int axis)
+{
+    json_t *p = json_array_get(json_object_get(j, "final_poses"), 1);
+    return json_number_value(json_array_get(json_object_get(p, "t"), (size_t)axis));
+}
+
+static size_t journal_count_on_disk(void)
+{
+    journal_rec *r;
+    size_t n = 0;
+    assert_int_equal(journal_read(case_dir, &r, &n, NULL), 0);
+    free(r);
+    return n;
+}
+
+static void test_replay_help_and_usage(void **st)
+{
+    char *out = NULL;
+    assert_int_equal(tu_run_cli(&out, "replay --help"), 0);
+    assert_non_null(strstr(out, "pose_digest"));
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "replay '%s'", case_dir), 2);
+    assert_non_null(strstr(out, "fracnav replay:"));
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "replay '%s' /nonexistent.fnrec", case_dir), 1);
+    assert_non_null(strstr(out, "/nonexistent.fnrec"));
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "navigate --help"), 0);
+    assert_non_null(strstr(out, "--recover"));
+    free(out);
+}
+
+/* Head-on into A: B stops at contact (never inside), the rest of the push is refused; the same
+ * recording gives the same digest twice, and the same again through the real-time path. */
+static void test_replay_head_on_deterministic(void **st)
+{
+    const char *rec = recording("headon", "translate -x 4 mm over 0.4 s\n");
+    json_t *a = replay(rec, "--no-journal", 0), *b = replay(rec, "--no-journal", 0);
+    assert_int_equal(num(a, "collisions_in_accepted"), 0);
+    assert_true(num(a, "refused") > 5);
+    assert_true(num(a, "steps") == num(a, "accepted") + num(a, "limited") + num(a, "slid") + num(a, "refused"));
+    /* 2 mm gap: B travels just under 2 mm, never the 4 mm asked for. */
+    double tx = moved_t(a, 0);
+    assert_true(tx < -1.9 && tx >= -2.0);
+    assert_string_equal(json_string_value(json_object_get(a, "pose_digest")),
+                        json_string_value(json_object_get(b, "pose_digest")));
+    json_t *c = replay(rec, "--no-journal --realtime", 0);
+    assert_string_equal(json_string_value(json_object_get(a, "pose_digest")),
+                        json_string_value(json_object_get(c, "pose_digest")));
+    json_decref(a);
+    json_decref(b);
+    json_decref(c);
+}
+
+/* At a grazing angle B slides along A's face (world -y) instead of freezing at the contact. */
+static void test_replay_grazing_slides(void **st)
+{
+    const char *rec = recording("graze", "move x -6 mm y 3 mm over 0.6 s\n");
+    json_t *j = replay(rec, "--no-journal", 0);
+    assert_int_equal(num(j, "collisions_in_accepted"), 0);
+    assert_true(num(j, "slid") > 10);
+    assert_true(moved_t(j, 0) < -1.9 && moved_t(j, 0) >= -2.0);
+    assert_true(moved_t(j, 1) < -2.5); /* device +y is towards the viewer: world -y */
+    json_decref(j);
+}
+
+/* Unplugged mid-recording: the loop goes on, the pose stays where it was while the device is
+ * away (same as a recording that ends at the unplug), and moves again after the replug. */
+static void test_replay_unplug_keeps_pose(void **st)
+{
+    json_t *before = replay(recording("part", "translate +y 2 mm over 0.3 s\nunplug\n"), "--no-journal", 0);
+    json_t *gone = replay(recording("unplug", "translate +y 2 mm over 0.3 s\nunplug\nwait 0.5 s\n"
+                                              "replug\nwait 0.2 s\n"),
+                          "--no-journal", 0);
+    json_t *back = replay(recording("replug", "translate +y 2 mm over 0.3 s\nunplug\nwait 0.5 s\n"
+                                              "replug\ntranslate +z 1 mm over 0.2 s\n"),
+                          "--no-journal", 0);
+    assert_int_equal(num(gone, "unplugs"), 1);
+    assert_string_equal(json_string_value(json_object_get(before, "pose_digest")),
+                        json_string_value(json_object_get(gone, "pose_digest")));
+    assert_true(fabs(moved_t(back, 1) - moved_t(gone, 1)) < 1e-9);
+    assert_true(moved_t(back, 2) < -0.8); /* device +z (down) is world -z */
+    json_decref(before);
+    json_decref(gone);
+    json_decref(back);
+}
+
+/* Killed mid-replay (SIGKILL): the journal holds the poses up to ~100 ms before the kill; the
+ * next start refuses to silently drop them, and --recover starts from them. */
+static void test_crash_recovery(void **st)
+{
+    const char *rec = recording("long", "translate +z 3 mm over 1.5 s\ntranslate -z 3 mm over 1.5 s\n");
+    char cmd[9000];
+    const char *bin = getenv("FRACNAV_BIN");
+    int fds[2];
+    assert_int_equal(pipe(fds), 0);
+    pid_t pid = fork();
+    if (pid == 0) {
+        dup2(fds[1], 2);
+        close(fds[0]);
+        execl(bin, bin, "replay", case_dir, rec, "--realtime", "--discard-journal", (char *)NULL);
+        _exit(127);
+    }
+    close(fds[1]);
+    FILE *err = fdopen(fds[0], "r");
+    char line[1024];
+    assert_non_null(fgets(line, sizeof line, err));
+    assert_non_null(strstr(line, "stepping"));
+    usleep(600000);
+    kill(pid, SIGKILL);
+    int status;
+    waitpid(pid, &status, 0);
+    fclose(err);
+    assert_true(WIFSIGNALED(status));
+
+    journal_rec *r;
+    size_t n;
+    assert_int_equal(journal_read(case_dir, &r, &n, NULL), 0);
+    assert_true(n > 20);
+    /* Recorded time reached by the journal: at least 600 ms of stepping, minus the 100 ms the
+     * journal may lose, minus slack for a busy machine. */
+    assert_true(r[n - 1].t_us - r[0].t_us >= 300000);
+    pose last = r[n - 1].p;
+    free(r);
+
+    const char *idle = recording("idle", "wait 0.1 s\n");
+    char *out = NULL;
+    assert_int_equal(tu_run_cli(&out, "replay '%s' '%s'", case_dir, idle), 1);
+    assert_non_null(strstr(out, "--recover"));
+    free(out);
+    json_t *j = replay(idle, "--recover", 0);
+    assert_true(num(j, "resumed_from_journal") == (double)n);
+    for (int a = 0; a < 3; a++)
+        assert_true(moved_t(j, a) == last.t[a]);
+    json_decref(j);
+    /* A damaged journal is named, and --discard-journal starts over from case.json. */
+    snprintf(cmd, sizeof cmd, "%s/journal", case_dir);
+    tu_write_file(cmd, "garbage, not a journal", 22);
+    assert_int_equal(tu_run_cli(&out, "replay '%s' '%s'", case_dir, idle), 1);
+    assert_non_null(strstr(out, "journal"));
+    free(out);
+    j = replay(idle, "--discard-journal", 0);
+    assert_true(num(j, "resumed_from_journal") == 0);
+    assert_true(moved_t(j, 2) == 0);
+    json_decref(j);
+    unlink(cmd);
+}
+
+/* navigate with a recording played as a live device (real time): the terminal view shows the
+ * state, the case is saved on exit with the moved pose, and the journal is empty again. (A played
+ * recording that ends counts as an unplug and is opened again 500 ms later: stop before that.) */
+static void test_navigate_saves_on_exit(void **st)
+{
+    const char *rec = recording("nav", "translate +z 1 mm over 0.3 s\n");
+    char *out = NULL;
+    int rc = tu_run_cli(&out, "navigate '%s' --device 'replay-realtime:%s' --duration 0.7 --json", case_dir, rec);
+    if (rc != 0)
+        fprintf(stderr, "%s\n", out);
+    assert_int_equal(rc, 0);
+    assert_non_null(strstr(out, "frag 2/2"));
+    assert_non_null(strstr(out, "steps/s"));
+    json_t *j = json_loads(strchr(out, '{'), JSON_DISABLE_EOF_CHECK, NULL);
+    assert_non_null(j);
+    assert_true(num(j, "steps") > 10);
+    double tz = moved_t(j, 2);
+    if (!(tz < -0.8 && tz > -1.1))
+        fail_msg("navigate moved fragment 2 to z %g: %s", tz, out);
+    json_decref(j);
+    free(out);
+    assert_int_equal(journal_count_on_disk(), 0);
+    char path[4300];
+    snprintf(path, sizeof path, "%s/case.json", case_dir);
+    char *text = tu_slurp(path, NULL);
+    json_t *c = json_loads(text, 0, NULL);
+    free(text);
+    json_t *f2 = json_array_get(json_object_get(c, "fragments"), 1);
+    double saved = json_number_value(json_array_get(json_object_get(json_object_get(f2, "pose"), "t"), 2));
+    assert_true(fabs(saved - tz) < 1e-9);
+    json_decref(c);
+    /* Back to where it was, for the other tests. */
+    rc = tu_run_cli(&out, "replay '%s' '%s' --save --no-journal", case_dir,
+                    recording("navback", "translate -z 1 mm over 0.3 s\n"));
+    free(out);
+    assert_int_equal(rc, 0);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_replay_help_and_usage),
+        cmocka_unit_test(test_replay_head_on_deterministic),
+        cmocka_unit_test(test_replay_grazing_slides),
+        cmocka_unit_test(test_replay_unplug_keeps_pose),
+        cmocka_unit_test(test_crash_recovery),
+        cmocka_unit_test(test_navigate_saves_on_exit),
+    };
+    return cmocka_run_group_tests(tests, setup, teardown);
+}

@@ -1,0 +1,497 @@
+/* The virtual device end to end: fracnav-sim serves a hidraw node through FUSE, and fracnav record
+ * (real libhidapi-hidraw underneath) reads it. Needs /dev/fuse and root (CI has both). Every server
+ * is stopped and every mount undone, also when a test fails. */
+#include <stdarg.h>
+#include <stddef.h>
+#include <setjmp.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <errno.h>
+#include <fcntl.h>
+#include <libgen.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "dev.h"
+#include "err.h"
+#include "fnrec.h"
+#include "script.h"
+#include "simdev.h"
+#include "testutil.h"
+
+#define MAX_SERVERS 4
+
+static char *workdir;
+static char mnt[512];
+static pid_t servers[MAX_SERVERS];
+
+static void msleep(int ms)
+{
+    nanosleep(&(struct timespec){ms / 1000, (long)(ms % 1000) * 1000000}, NULL);
+}
+
+static int64_t now_us(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (int64_t)ts.tv_sec * 1000000 + ts.tv_nsec / 1000;
+}
+
+static const char *sim_bin(void)
+{
+    static char path[1024];
+    const char *bin = getenv("FRACNAV_BIN");
+    char copy[1024];
+    snprintf(copy, sizeof copy, "%s", bin ? bin : "./fracnav");
+    snprintf(path, sizeof path, "%s/sim/fracnav-sim", dirname(copy));
+    return path;
+}
+
+static void unmount_quietly(void)
+{
+    char cmd[700];
+    snprintf(cmd, sizeof cmd, "fusermount3 -u -z '%s' >/dev/null 2>&1", mnt);
+    if (system(cmd) == -1)
+        perror("fusermount3");
+}
+
+/* Waits up to ms for a child; kills it when it does not stop. Returns its wait status. */
+static int reap(pid_t pid, int ms)
+{
+    int st = -1;
+    for (int waited = 0; waited < ms; waited += 10) {
+        if (waitpid(pid, &st, WNOHANG) == pid)
+            return st;
+        msleep(10);
+    }
+    kill(pid, SIGKILL);
+    waitpid(pid, &st, 0);
+    return -1;
+}
+
+static void forget_server(pid_t pid)
+{
+    for (int i = 0; i < MAX_SERVERS; i++)
+        if (servers[i] == pid)
+            servers[i] = 0;
+}
+
+static void stop_server(pid_t pid)
+{
+    kill(pid, SIGTERM);
+    int st = reap(pid, 5000);
+    forget_server(pid);
+    unmount_quietly();
+    assert_true(WIFEXITED(st) && WEXITSTATUS(st) == 0);
+}
+
+static pid_t spawn(char *const argv[], const char *log)
+{
+    pid_t pid = fork();
+    if (pid == 0) {
+        int fd = open(log, O_WRONLY | O_CREAT | O_APPEND, 0644);
+        if (fd >= 0) {
+            dup2(fd, 1);
+            dup2(fd, 2);
+        }
+        execv(argv[0], argv);
+        _exit(127);
+    }
+    return pid;
+}
+
+/* Starts fracnav-sim serve --mount mnt ARGS... and waits for the node. */
+static pid_t start_server(const char *first, ...)
+{
+    char *argv[24] = {(char *)sim_bin(), "serve", "--mount", mnt};
+    int n = 4;
+    va_list ap;
+    va_start(ap, first);
+    for (const char *a = first; a && n < 23; a = va_arg(ap, const char *))
+        argv[n++] = (char *)a;
+    va_end(ap);
+    argv[n] = NULL;
+    char log[600], node[600];
+    snprintf(log, sizeof log, "%s/server.log", workdir);
+    snprintf(node, sizeof node, "%s/hidraw0", mnt);
+    pid_t pid = spawn(argv, log);
+    for (int i = 0; i < MAX_SERVERS; i++)
+        if (!servers[i]) {
+            servers[i] = pid;
+            break;
+        }
+    struct stat st;
+    for (int waited = 0; waited < 5000 && stat(node, &st); waited += 10)
+        msleep(10);
+    if (stat(node, &st))
+        fail_msg("fracnav-sim did not serve %s (see %s)", node, log);
+    return pid;
+}
+
+static int setup(void **st)
+{
+    if (access("/dev/fuse", R_OK | W_OK)) {
+        fprintf(stderr, "no usable /dev/fuse: the FUSE tests need it (CI has it)\n");
+        return -1;
+    }
+    workdir = tu_tmpdir("simfuse");
+    snprintf(mnt, sizeof mnt, "%s/mnt", workdir);
+    return mkdir(mnt, 0755);
+}
+
+static int teardown(void **st)
+{
+    for (int i = 0; i < MAX_SERVERS; i++)
+        if (servers[i] > 0) {
+            kill(servers[i], SIGKILL);
+            waitpid(servers[i], NULL, 0);
+            servers[i] = 0;
+        }
+    unmount_quietly();
+    tu_rmtree(workdir);
+    free(workdir);
+    return 0;
+}
+
+static char *path_in(const char *name)
+{
+    static char p[4][700];
+    static int k;
+    k = (k + 1) % 4;
+    snprintf(p[k], sizeof p[k], "%s/%s", workdir, name);
+    return p[k];
+}
+
+static const char *write_script(const char *name, const char *text)
+{
+    const char *p = path_in(name);
+    tu_write_file(p, text, strlen(text));
+    return p;
+}
+
+/* The input reports of a recording, in order, as one comparable list. */
+static size_t inputs(const fnrec *r, fnrec_event *out, size_t cap)
+{
+    size_t n = 0;
+    for (size_t i = 0; i < r->n && n < cap; i++)
+        if (r->ev[i].dir == FNREC_IN) {
+            out[n] = r->ev[i];
+            out[n++].t_us = 0;
+        }
+    return n;
+}
+
+static void assert_same_reports(const fnrec *want, const fnrec *got, const char *what)
+{
+    static fnrec_event a[4096], b[4096];
+    size_t na = inputs(want, a, 4096), nb = inputs(got, b, 4096);
+    if (na != nb)
+        fail_msg("%s: %zu reports expected, %zu recorded", what, na, nb);
+    for (size_t i = 0; i < na; i++)
+        if (a[i].len != b[i].len || memcmp(a[i].data, b[i].data, a[i].len))
+            fail_msg("%s: report %zu differs", what, i);
+}
+
+static fnrec *rendered(const char *script_path, const char *device)
+{
+    script *s = script_load(script_path);
+    assert_non_null(s);
+    fnrec *r = script_render(s, sim_profile_find(device));
+    free(s);
+    assert_non_null(r);
+    return r;
+}
+
+/* Serves a script as DEVICE, records it with fracnav record, and checks that the recording holds
+ * exactly the reports the script renders to, with the device's identity and cadence. */
+static void serve_and_record(const char *device, const char *text)
+{
+    const char *scr = write_script("motion.script", text);
+    const char *served = path_in("served.fnrec"), *rec = path_in("rec.fnrec");
+    pid_t srv = start_server("--as", device, "--script", scr, "--start-on-read", "--log", served, NULL);
+    fnrec *want = rendered(scr, device);
+    double secs = (double)want->ev[want->n - 1].t_us / 1e6 + 0.5;
+    char *out = NULL;
+    int rc = tu_run_cli(&out, "record -o '%s' --device '%s/hidraw0' --seconds %.2f", rec, mnt, secs);
+    if (rc != 0)
+        fail_msg("fracnav record failed (%d): %s", rc, out);
+    free(out);
+    stop_server(srv);
+    fnrec *got = fnrec_load(rec), *log = fnrec_load(served);
+    if (!got || !log)
+        fail_msg("%s", fn_err_msg());
+    assert_same_reports(want, got, device);
+    assert_same_reports(log, got, device);
+    const sim_profile *p = sim_profile_find(device);
+    assert_int_equal(got->hdr.vid, p->vid);
+    assert_int_equal(got->hdr.pid, p->pid);
+    assert_string_equal(got->hdr.name, p->name);
+    assert_int_equal(got->hdr.desc_len, want->hdr.desc_len);
+    assert_memory_equal(got->hdr.desc, want->hdr.desc, want->hdr.desc_len);
+    assert_string_equal(got->hdr.format, want->hdr.format);
+    /* Cadence: the recorded reports are never closer together on the whole than the device's
+     * period (the server paces them by an absolute timer); loose bounds, not a speed test. */
+    int64_t first = -1, last = 0;
+    size_t n = 0;
+    for (size_t i = 0; i < got->n; i++)
+        if (got->ev[i].dir == FNREC_IN) {
+            first = first < 0 ? got->ev[i].t_us : first;
+            last = got->ev[i].t_us;
+            n++;
+        }
+    int64_t want_span = want->ev[want->n - 1].t_us - want->ev[1].t_us;
+    assert_true(n > 3);
+    assert_true(last - first >= want_span * 9 / 10);
+    assert_true(last - first <= want_span * 3 + 200000);
+    fnrec_free(got);
+    fnrec_free(log);
+    fnrec_free(want);
+}
+
+static void test_end_to_end_spacenavigator(void **st)
+{
+    serve_and_record("spacenavigator", "translate +x 10 mm over 0.3 s\npress 1\nwait 30 ms\nrelease\n"
+                                       "rotate z -15 deg over 0.4 s\n");
+}
+
+static void test_every_device_format(void **st)
+{
+    const char *devices[] = {"spacemouse-wireless", "spacemouse-enterprise", "open-controller",
+                             "spacemouse-pro"};
+    for (size_t i = 0; i < sizeof devices / sizeof *devices; i++)
+        serve_and_record(devices[i], "press 2\nmove y -4 mm rx 3 deg over 0.2 s\nrelease\nwait 50 ms\n");
+}
+
+static pid_t record_in_background(const char *rec, double seconds, const char *log)
+{
+    char secs[32], dev[600];
+    snprintf(secs, sizeof secs, "%.2f", seconds);
+    snprintf(dev, sizeof dev, "%s/hidraw0", mnt);
+    const char *bin = getenv("FRACNAV_BIN");
+    char *argv[] = {(char *)(bin ? bin : "fracnav"), "record", "-o", (char *)rec, "--device", dev,
+                    "--seconds", secs, NULL};
+    return spawn(argv, log);
+}
+
+static size_t count_dir(const fnrec *r, fnrec_dir d, size_t from)
+{
+    size_t n = 0;
+    for (size_t i = from; i < r->n; i++)
+        n += r->ev[i].dir == d;
+    return n;
+}
+
+/* Killing the server mid-stream: the recorder says "device disconnected", does not crash, and
+ * picks the device up again when a new server serves it. */
+static void test_server_killed_then_back(void **st)
+{
+    const char *scr = write_script("long.script", "translate +y 40 mm over 4 s\n");
+    const char *rec = path_in("rec.fnrec"), *log = path_in("record.log");
+    pid_t srv = start_server("--script", scr, NULL);
+    pid_t recp = record_in_background(rec, 2.5, log);
+    msleep(500);
+    kill(srv, SIGKILL);
+    reap(srv, 3000);
+    forget_server(srv);
+    unmount_quietly();
+    msleep(300);
+    start_server("--script", scr, NULL);
+    int status = reap(recp, 10000);
+    assert_true(WIFEXITED(status));
+    assert_int_equal(WEXITSTATUS(status), 0);
+    char *out = tu_slurp(log, NULL);
+    assert_non_null(out);
+    if (!strstr(out, "device disconnected") || !strstr(out, "device reconnected"))
+        fail_msg("recorder output: %s", out);
+    free(out);
+    fnrec *r = fnrec_load(rec);
+    assert_non_null(r);
+    size_t cut = 0;
+    while (cut < r->n && r->ev[cut].dir != FNREC_DISCONNECT)
+        cut++;
+    assert_true(cut < r->n);
+    assert_true(count_dir(r, FNREC_IN, 0) - count_dir(r, FNREC_IN, cut) > 10); /* before the kill */
+    assert_int_equal(count_dir(r, FNREC_CONNECT, cut), 1);
+    assert_true(count_dir(r, FNREC_IN, cut) > 10);                        /* after the return */
+    fnrec_free(r);
+}
+
+/* SIGUSR1 unplugs the device (readers get the disconnect), the next SIGUSR1 plugs it back. */
+static void test_unplug_replug_on_signal(void **st)
+{
+    const char *scr = write_script("long.script", "translate +z 30 mm over 3 s\n");
+    const char *rec = path_in("rec.fnrec"), *log = path_in("record.log");
+    pid_t srv = start_server("--script", scr, NULL);
+    pid_t recp = record_in_background(rec, 1.6, log);
+    msleep(400);
+    kill(srv, SIGUSR1);
+    msleep(400);
+    kill(srv, SIGUSR1);
+    int status = reap(recp, 10000);
+    stop_server(srv);
+    assert_true(WIFEXITED(status) && WEXITSTATUS(status) == 0);
+    fnrec *r = fnrec_load(rec);
+    assert_non_null(r);
+    assert_int_equal(count_dir(r, FNREC_DISCONNECT, 0), 1);
+    assert_int_equal(count_dir(r, FNREC_CONNECT, 0), 2);
+    size_t cut = 0;
+    while (r->ev[cut].dir != FNREC_DISCONNECT)
+        cut++;
+    assert_true(count_dir(r, FNREC_IN, cut) > 10);
+    fnrec_free(r);
+}
+
+/* Through the real hidapi: identity, read timeouts, LED output and feature reports. */
+static void test_hidapi_led_feature_timeout(void **st)
+{
+    const char *served = path_in("served.fnrec");
+    pid_t srv = start_server("--as", "open-controller", "--start-on-read", "--log", served, NULL);
+    const dev_transport *t = dev_transport_find("hidraw");
+    assert_non_null(t);
+    char node[600];
+    snprintf(node, sizeof node, "%s/hidraw0", mnt);
+    dev_handle *h;
+    if (t->open(node, &h))
+        fail_msg("%s", fn_err_msg());
+    dev_info info;
+    assert_int_equal(t->info(h, &info), 0);
+    assert_int_equal(info.vid, 0x1209);
+    assert_int_equal(info.pid, 0x0001);
+    assert_string_equal(info.name, "fracnav open 6-DOF controller");
+    uint8_t want[DEV_DESC_MAX];
+    size_t wn = sim_profile_descriptor(sim_profile_find("open-controller"), want, sizeof want);
+    assert_int_equal(info.desc_len, wn);
+    assert_memory_equal(info.desc, want, wn);
+    uint8_t buf[64];
+    int64_t tr;
+    assert_int_equal(t->read(h, buf, sizeof buf, 500, &tr), 2); /* battery after connecting */
+    assert_int_equal(buf[0], 0x17);
+    int64_t t0 = now_us();
+    assert_int_equal(t->read(h, buf, sizeof buf, 60, &tr), 0); /* idle: silence, then timeout */
+    assert_true(now_us() - t0 >= 50000);
+    assert_int_equal(t->write(h, (const uint8_t[]){4, 1}, 2), 2);
+    uint8_t f[16] = {0x20};
+    assert_int_equal(t->get_feature(h, f, sizeof f), 7);
+    assert_memory_equal(f, ((const uint8_t[]){0x20, 1, 1, 0, 8, 0x5E, 0x01}), 7);
+    uint8_t off[13] = {0x21, 5, 0, 0xfb, 0xff};
+    assert_int_equal(t->set_feature(h, off, sizeof off), 13);
+    memset(f, 0, sizeof f);
+    f[0] = 0x21;
+    assert_int_equal(t->get_feature(h, f, sizeof f), 13);
+    assert_memory_equal(f, off, 13);
+    uint8_t bad[13] = {0x21, 0xff, 0x7f}; /* 32767: out of range, refused */
+    assert_true(t->set_feature(h, bad, sizeof bad) < 0);
+    t->close(h);
+    stop_server(srv);
+    char *log = tu_slurp(served, NULL);
+    assert_non_null(strstr(log, " out 0401\n"));
+    assert_non_null(strstr(log, " feature 2105"));
+    free(log);
+}
+
+/* A recording played through FUSE (--play) is recorded back unchanged; --fast plays it as fast as
+ * the reader takes it, --exit-at-end stops the server once all of it was read. */
+static void test_play_recording(void **st)
+{
+    const char *scr = write_script("s.script", "translate -x 5 mm over 0.2 s\npress 1\nrelease\n");
+    fnrec *want = rendered(scr, "spacemouse-wireless");
+    const char *file = path_in("play.fnrec"), *rec = path_in("rec.fnrec");
+    assert_int_equal(fnrec_save(want, file), 0);
+    pid_t srv = start_server("--play", file, "--fast", "--exit-at-end", NULL);
+    char *out = NULL;
+    int rc = tu_run_cli(&out, "record -o '%s' --device '%s/hidraw0' --seconds 0.6", rec, mnt);
+    if (rc)
+        fail_msg("%s", out);
+    free(out);
+    int status = reap(srv, 5000); /* it left by itself once everything was read */
+    forget_server(srv);
+    unmount_quietly();
+    assert_true(WIFEXITED(status) && WEXITSTATUS(status) == 0);
+    fnrec *got = fnrec_load(rec);
+    assert_non_null(got);
+    assert_same_reports(want, got, "--play --fast");
+    assert_int_equal(got->hdr.pid, 0xc62e);
+    fnrec_free(got);
+    fnrec_free(want);
+}
+
+/* Script lines written to the control FIFO play in turn on the live device; buttons carry over. */
+static void test_control_fifo(void **st)
+{
+    const char *fifo = path_in("control"), *rec = path_in("rec.fnrec"), *log = path_in("record.log");
+    pid_t srv = start_server("--as", "spacenavigator", "--control", fifo, NULL);
+    pid_t recp = record_in_background(rec, 1.2, log);
+    msleep(300);
+    FILE *f = fopen(fifo, "w");
+    assert_non_null(f);
+    fputs("press 2\ntranslate -z 4 mm over 0.2 s\nnonsense\nrelease\n", f);
+    fclose(f);
+    int status = reap(recp, 10000);
+    stop_server(srv);
+    assert_true(WIFEXITED(status) && WEXITSTATUS(status) == 0);
+    fnrec *r = fnrec_load(rec);
+    assert_non_null(r);
+    /* press 2, motion along -z (ID1 with z = -140 counts, ID2), the zeros, then the release. */
+    int stage = 0;
+    size_t motion = 0;
+    for (size_t i = 0; i < r->n; i++) {
+        const fnrec_event *e = &r->ev[i];
+        if (e->dir != FNREC_IN)
+            continue;
+        if (stage == 0 && e->data[0] == 3 && e->data[1] == 2)
+            stage = 1;
+        else if (stage == 1 && e->data[0] == 1 && (int16_t)(e->data[5] | e->data[6] << 8) == -140)
+            motion++;
+        else if (stage == 1 && motion && e->data[0] == 3 && e->data[1] == 0)
+            stage = 2;
+    }
+    assert_int_equal(stage, 2);
+    assert_true(motion >= 10);
+    fnrec_free(r);
+}
+
+static void test_cli_usage_and_errors(void **st)
+{
+    char *out = NULL;
+    assert_int_equal(tu_run_cli(&out, "record --help"), 0);
+    assert_non_null(strstr(out, "usage: fracnav record"));
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "record"), 2);
+    assert_non_null(strstr(out, "fracnav record: -o"));
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "record -o '%s' --device /nonexistent/hidraw9 --seconds 1",
+                                path_in("x.fnrec")), 1);
+    assert_non_null(strstr(out, "fracnav record: "));
+    assert_non_null(strstr(out, "/nonexistent/hidraw9"));
+    free(out);
+    char cmd[1200];
+    snprintf(cmd, sizeof cmd, "'%s' serve 2>&1", sim_bin());
+    FILE *p = popen(cmd, "r");
+    char line[256] = "";
+    if (!fgets(line, sizeof line, p))
+        line[0] = '\0';
+    assert_int_equal(WEXITSTATUS(pclose(p)), 2);
+    assert_non_null(strstr(line, "--mount DIR is required"));
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test_setup_teardown(test_end_to_end_spacenavigator, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_every_device_format, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_server_killed_then_back, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_unplug_replug_on_signal, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_hidapi_led_feature_timeout, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_play_recording, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_control_fifo, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_cli_usage_and_errors, setup, teardown),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
