@@ -50,6 +50,7 @@ typedef struct builder {
     obb_node *nodes;
     pending *pend;   /* per emitted node; left unset for voxel leaves */
     size_t n, cap;
+    size_t bone;     /* bone voxels: the tree has fewer than 2 * bone nodes */
     int depth;       /* deepest node so far (root = 1) */
 } builder;
 
@@ -76,7 +77,7 @@ static size_t cidx(const level *L, const uint16_t c[3])
 
 /* One level-1 cell from its (up to) 8 voxels: rows[dz*2+dy] (NULL when outside the crop), x the
  * first voxel's column, two voxels when pair. */
-static void cell1(const builder *b, const uint8_t *const rows[4], size_t x, int pair, cell *out)
+static uint8_t cell1(const builder *b, const uint8_t *const rows[4], size_t x, int pair, cell *out)
 {
     uint8_t lo = 255, hi = 0, m = 0;
     for (int r = 0; r < 4; r++) {
@@ -91,6 +92,7 @@ static void cell1(const builder *b, const uint8_t *const rows[4], size_t x, int 
         }
     }
     out->mn = lo, out->mx = hi, out->mask = m;
+    return m;
 }
 
 static uint64_t load8(const uint8_t *p)
@@ -128,11 +130,13 @@ static void level1(builder *b)
                             cell *o = &L->cell[row + g + q];
                             o->mn = o->mx = o->mask = any ? 255 : 0;
                         }
+                        b->bone += any ? 32 : 0;
                         g += 3;
                         continue;
                     }
                 }
-                cell1(b, rows, 2 * g, 2 * g + 1 < (size_t)d0[0], &L->cell[row + g]);
+                uint8_t m = cell1(b, rows, 2 * g, 2 * g + 1 < (size_t)d0[0], &L->cell[row + g]);
+                b->bone += (size_t)__builtin_popcount(m);
             }
         }
 }
@@ -272,9 +276,9 @@ static void collapse(const builder *b, int *l, uint16_t c[3])
     }
 }
 
-static int grow(builder *b)
+/* Room for cap nodes (capped at MAX_NODES); untouched pages of a generous guess cost nothing. */
+static int reserve(builder *b, size_t cap)
 {
-    size_t cap = b->cap ? 2 * b->cap : 1024;
     if (cap > MAX_NODES)
         cap = MAX_NODES;
     if (b->n == cap)
@@ -289,6 +293,11 @@ static int grow(builder *b)
         return fn_err_set(FN_ENOMEM, "out of memory for %zu hierarchy nodes", cap);
     b->cap = cap;
     return 0;
+}
+
+static int grow(builder *b)
+{
+    return reserve(b, b->cap ? 2 * b->cap : 1024);
 }
 
 static int emit(builder *b, int l, const uint16_t c[3], int depth)
@@ -425,7 +434,9 @@ obb_tree *obb_tree_build(const frag *f, const obb_params *params)
             level1(&b);
         for (int l = 2; l <= b.top; l++)
             level_up(&b, l);
-        rc = prune(&b);
+        rc = b.bone ? reserve(&b, 2 * b.bone) : 0;
+        if (rc == 0)
+            rc = prune(&b);
         t->depth = b.depth;
     }
     builder_free(&b);
