@@ -10,6 +10,7 @@
 
 #define MAX_LEVELS 18
 #define MAX_NODES (1u << 24)
+#define EXPANDED 255 /* pending level of a level-1 node whose voxels are already out */
 
 struct obb_tree {
     obb_node *nodes;
@@ -249,28 +250,25 @@ static void level_up(builder *b, int l)
         }
 }
 
-static uint8_t cell_mn(const builder *b, int l, const uint16_t c[3])
-{
-    return l == 0 ? b->lut[b->prob[cidx(&b->lv[0], c)]] : b->lv[l].cell[cidx(&b->lv[l], c)].mn;
-}
-
 static uint8_t cell_mx(const builder *b, int l, const uint16_t c[3])
 {
     return l == 0 ? b->lut[b->prob[cidx(&b->lv[0], c)]] : b->lv[l].cell[cidx(&b->lv[l], c)].mx;
 }
 
-/* Follows single-child chains down: a cell with one bone child is replaced by that child. */
-static void collapse(const builder *b, int *l, uint16_t c[3])
+/* Follows single-child chains down: a cell with one bone child is replaced by that child. Landing
+ * on a voxel, *p0 gets its effective value (from the level-1 cell: no read of the map). */
+static void collapse(const builder *b, int *l, uint16_t c[3], uint8_t *p0)
 {
     while (*l > 0) {
-        size_t idx = cidx(&b->lv[*l], c);
-        const cell *k = &b->lv[*l].cell[idx];
+        const cell *k = &b->lv[*l].cell[cidx(&b->lv[*l], c)];
         uint8_t m = k->mask;
         if (k->mn == 255 || (m & (m - 1)))
             return;
         int bit = 0;
         while (!(m >> bit & 1))
             bit++;
+        if (*l == 1)
+            *p0 = k->vox[bit];
         child(c, bit, c);
         (*l)--;
     }
@@ -300,18 +298,20 @@ static int grow(builder *b)
     return reserve(b, b->cap ? 2 * b->cap : 1024);
 }
 
-static int emit(builder *b, int l, const uint16_t c[3], int depth)
+/* Appends the node of cell c at level l (p0: a voxel's effective value). */
+static int emit(builder *b, int l, const uint16_t c[3], uint8_t p0, int depth)
 {
     int rc = b->n == b->cap ? grow(b) : 0;
     if (rc)
         return rc;
     obb_node *o = &b->nodes[b->n];
     cell_box(b, l, c, o->lo, o->hi);
-    uint8_t mx = cell_mx(b, l, c);
-    if (l == 0 || cell_mn(b, l, c) == 255)
-        o->info = 0x80000000u | mx;
-    else
-        o->info = (uint32_t)((mx * 15 + 254) / 255) << 24;
+    if (l == 0) {
+        o->info = 0x80000000u | p0;
+    } else {
+        const cell *k = &b->lv[l].cell[cidx(&b->lv[l], c)];
+        o->info = k->mn == 255 ? 0x80000000u | 255u : (uint32_t)((k->mx * 15 + 254) / 255) << 24;
+    }
     pending *p = &b->pend[b->n++];
     memcpy(p->c, c, sizeof p->c);
     p->level = (uint8_t)l;
@@ -320,23 +320,53 @@ static int emit(builder *b, int l, const uint16_t c[3], int depth)
     return 0;
 }
 
-/* The voxel children (mask m) of level-1 cell c, as leaves: nothing below them to collapse. */
-static int emit_voxels(builder *b, const uint16_t c[3], uint8_t m, int depth)
+/* Gives inner level-1 node i its voxel children, as leaves (nothing below them to collapse). */
+static int emit_voxels(builder *b, size_t i)
 {
-    b->depth = depth > b->depth ? depth : b->depth;
-    const uint8_t *vox = b->lv[1].cell[cidx(&b->lv[1], c)].vox;
+    pending *p = &b->pend[i];
+    const cell *k = &b->lv[1].cell[cidx(&b->lv[1], p->c)];
+    size_t first = b->n;
+    b->depth = p->depth + 1 > b->depth ? p->depth + 1 : b->depth;
     for (int bit = 0; bit < 8; bit++) {
-        if (!(m >> bit & 1))
+        if (!(k->mask >> bit & 1))
             continue;
         int rc = b->n == b->cap ? grow(b) : 0;
         if (rc)
             return rc;
         obb_node *o = &b->nodes[b->n++];
-        child(c, bit, o->lo);
+        child(p->c, bit, o->lo);
         memcpy(o->hi, o->lo, sizeof o->hi);
-        o->info = 0x80000000u | vox[bit];
+        o->info = 0x80000000u | k->vox[bit];
     }
+    b->nodes[i].info |= (uint32_t)first | (uint32_t)(b->n - first - 1) << 28;
+    p->level = EXPANDED;
     return 0;
+}
+
+/* Emits the bone children of inner node i (level >= 2) contiguously, and right away the voxels
+ * of those that are inner level-1 nodes, while their cells are still in cache. */
+static int emit_children(builder *b, size_t i)
+{
+    pending p = b->pend[i];
+    uint8_t m = b->lv[p.level].cell[cidx(&b->lv[p.level], p.c)].mask;
+    size_t first = b->n;
+    int rc = 0;
+    for (int bit = 0; bit < 8 && rc == 0; bit++) {
+        if (!(m >> bit & 1))
+            continue;
+        int cl = p.level - 1;
+        uint16_t cc[3];
+        uint8_t p0 = 0;
+        child(p.c, bit, cc);
+        collapse(b, &cl, cc, &p0);
+        rc = emit(b, cl, cc, p0, p.depth + 1);
+    }
+    size_t last = b->n;
+    b->nodes[i].info |= (uint32_t)first | (uint32_t)(last - first - 1) << 28;
+    for (size_t j = first; j < last && rc == 0; j++)
+        if (!(b->nodes[j].info & 0x80000000u) && b->pend[j].level == 1)
+            rc = emit_voxels(b, j);
+    return rc;
 }
 
 /* Stage two: breadth-first from the root; children of each inner node are emitted contiguously. */
@@ -344,32 +374,15 @@ static int prune(builder *b)
 {
     int l = b->top;
     uint16_t c[3] = {0, 0, 0};
+    uint8_t p0 = b->lut[b->prob[0]];
     if (!cell_mx(b, l, c))
         return 0;
-    collapse(b, &l, c);
-    int rc = emit(b, l, c, 1);
+    collapse(b, &l, c, &p0);
+    int rc = emit(b, l, c, p0, 1);
     for (size_t i = 0; rc == 0 && i < b->n; i++) {
-        if (b->nodes[i].info & 0x80000000u)
+        if ((b->nodes[i].info & 0x80000000u) || b->pend[i].level == EXPANDED)
             continue;
-        pending p = b->pend[i];
-        uint8_t m = b->lv[p.level].cell[cidx(&b->lv[p.level], p.c)].mask;
-        size_t first = b->n;
-        int nk = 0;
-        if (p.level == 1) {
-            rc = emit_voxels(b, p.c, m, p.depth + 1);
-            nk = (int)(b->n - first);
-        }
-        for (int bit = 0; bit < 8 && rc == 0 && p.level > 1; bit++) {
-            if (!(m >> bit & 1))
-                continue;
-            int cl = p.level - 1;
-            uint16_t cc[3];
-            child(p.c, bit, cc);
-            collapse(b, &cl, cc);
-            rc = emit(b, cl, cc, p.depth + 1);
-            nk++;
-        }
-        b->nodes[i].info |= (uint32_t)first | (uint32_t)(nk - 1) << 28;
+        rc = b->pend[i].level == 1 ? emit_voxels(b, i) : emit_children(b, i);
     }
     return rc;
 }
