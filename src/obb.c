@@ -182,21 +182,24 @@ static void mask_tables(builder *b)
     }
 }
 
-/* The union of the boxes of the bone children (mask m) of cell c at level l. */
-static void union_box(const builder *b, int l, const uint16_t c[3], uint8_t m, uint16_t box[6])
+/* Widens box by the tight box of child cell k (coordinates cc) of level l - 1. */
+static void add_child_box(const builder *b, int l, const cell *k, const uint16_t cc[3],
+                          uint16_t box[6])
 {
-    box[0] = box[1] = box[2] = UINT16_MAX;
-    box[3] = box[4] = box[5] = 0;
-    for (int bit = 0; bit < 8; bit++) {
-        if (!(m >> bit & 1))
-            continue;
-        uint16_t cc[3], lo[3], hi[3];
-        child(c, bit, cc);
-        cell_box(b, l - 1, cc, lo, hi);
+    uint16_t lo[3], hi[3];
+    if (l - 1 == 1) {
+        uint8_t lo_o = b->lo_off[k->mask], hi_o = b->hi_off[k->mask];
         for (int i = 0; i < 3; i++) {
-            box[i] = lo[i] < box[i] ? lo[i] : box[i];
-            box[3 + i] = hi[i] > box[3 + i] ? hi[i] : box[3 + i];
+            lo[i] = (uint16_t)(2 * cc[i] + ((lo_o >> i) & 1));
+            hi[i] = (uint16_t)(2 * cc[i] + ((hi_o >> i) & 1));
         }
+    } else {
+        memcpy(lo, k->box, sizeof lo);
+        memcpy(hi, k->box + 3, sizeof hi);
+    }
+    for (int i = 0; i < 3; i++) {
+        box[i] = lo[i] < box[i] ? lo[i] : box[i];
+        box[3 + i] = hi[i] > box[3 + i] ? hi[i] : box[3 + i];
     }
 }
 
@@ -238,7 +241,16 @@ static void level_up(builder *b, int l)
                 if (!mx)
                     continue;
                 if (mn != 255) {
-                    union_box(b, l, c, mask, box);
+                    box[0] = box[1] = box[2] = UINT16_MAX;
+                    box[3] = box[4] = box[5] = 0;
+                    for (int r = 0; r < 4; r++)
+                        for (int dx = 0; dx <= pair && rows[r]; dx++) {
+                            const cell *k = &rows[r][x0 + dx];
+                            uint16_t cc[3] = {(uint16_t)(x0 + dx), (uint16_t)(2 * c[1] + (r & 1)),
+                                              (uint16_t)(2 * c[2] + (r >> 1))};
+                            if (k->mx)
+                                add_child_box(b, l, k, cc, box);
+                        }
                     continue;
                 }
                 for (int i = 0; i < 3; i++) {
