@@ -5,7 +5,15 @@
  * saved case. Poses: half near contact (contact found by bisection along a random direction from
  * the fitted pose, then moved by at most 2 voxels and 3 degrees), half clearly apart or deeply
  * colliding. Every contender gets the same poses; timings are the best of --reps runs per pose
- * (the machines are shared), then mean, p99 and max over poses. */
+ * (the machines are shared), then mean, p99 and max over poses.
+ *
+ * JSON, per workload: build_ms and nodes for both fragments together (best of 3 builds each);
+ * query_* the tree without a cache; query_near_* its near-contact half; query_coherent_* a pose
+ * 0.05 voxel and 0.05 degree from a near-contact one, the pair cache warm from that one (the loop's
+ * case); false_negatives/false_positives against brute force over all of those; box_tests_* the
+ * box tests per query; fcl_octree_* (octomap OcTree at the finest spacing, both fragments' build
+ * time) and fcl_mesh_* (OBBRSS BVH of the exposed voxel faces); *_disagree: FCL answers that differ
+ * from brute force (its geometry only approximates the voxel boxes); speedup_* = FCL / tree. */
 #include "bench.h"
 
 #include "case.h"
