@@ -56,8 +56,10 @@ int bench_build(int argc, char **argv)
             json = 1;
         else if (i + 1 < argc && !strcmp(argv[i], "--reps"))
             reps = (int)strtol(argv[++i], &end, 10);
-        else
+        else {
+            fprintf(stderr, "fracnav bench build: unknown or incomplete option '%s'\n", argv[i]);
             return usage(stderr, 2);
+        }
         if ((end && *end) || reps < 1 || reps > 100) {
             fprintf(stderr, "fracnav bench build: --reps needs 1..100\n");
             return 2;
