@@ -3,6 +3,7 @@
 
 #include "err.h"
 #include "obb_impl.h"
+#include "vol.h"
 
 #include <limits.h>
 #include <stdlib.h>
@@ -440,7 +441,10 @@ static int check_input(const frag *f, const obb_params *p)
     if (!(p->tau_min >= 0 && p->tau_min <= p->tau_max && p->tau_max <= 1))
         return fn_err_set(FN_EINVAL, "obb params: need 0 <= tau_min (%g) <= tau_max (%g) <= 1",
                           p->tau_min, p->tau_max);
-    return 0;
+    /* the pyramid and the nodes take under 5 bytes per voxel: check the budget first */
+    int64_t d[3] = {f->dim[0], f->dim[1], f->dim[2]};
+    int rc = vol_check_dims(d, 5, "hierarchy of the fragment");
+    return rc ? fn_err_wrap(rc, "fragment '%s'", f->name) : 0;
 }
 
 obb_tree *obb_tree_build(const frag *f, const obb_params *params)

@@ -549,6 +549,10 @@ static void test_bad_input(void **st)
     assert_null(obb_tree_build(f, NULL));
     assert_non_null(strstr(fn_err_msg(), "dim[2]"));
     f->dim[2] = 2;
+    setenv("FRACNAV_MAX_BYTES", "16", 1); /* 8 voxels need 40 bytes */
+    assert_null(obb_tree_build(f, NULL));
+    assert_int_equal(strstr(fn_err_msg(), "test2x2x2") != NULL, 1);
+    unsetenv("FRACNAV_MAX_BYTES");
     fill(f, 0, 0, 0, 1, 1, 1, 255);
     obb_tree *t = obb_tree_build(f, NULL);
     assert_non_null(t);
