@@ -6,6 +6,7 @@
  * by the virtual device's generator into SpaceNavigator reports, replayed as fast as the loop takes
  * them: the input thread hands over one report, stamps it, and waits until the loop has taken it
  * (no queueing in the latency). The loop runs as in `navigate`: its own thread, woken per event. */
+#include "cmd.h"
 #include "bench.h"
 
 #include "cmd_loopkit.h"
@@ -184,12 +185,8 @@ int bench_loop(int argc, char **argv)
             return 2;
         }
     }
-    char ct_path[4096];
-    if (!ct && !case_dir) {
-        const char *d = getenv("FRACNAV_DATA");
-        snprintf(ct_path, sizeof ct_path, "%s/Cranium.inv3", d && *d ? d : "/var/cache/fracnav");
-        ct = ct_path;
-    }
+    if (!ct && !case_dir)
+        ct = cmd_example_ct();
     loop_config cfg;
     loop_config_default(&cfg);
     cfg.check_invariant = 0; /* a benchmark of the loop as it runs in release builds */

@@ -22,5 +22,8 @@ CMD_LIST(CMD_DECLARE)
 
 /* True when argv holds -h or --help. */
 int cmd_wants_help(int argc, char **argv);
+/* Path of the example CT that .ci/setup caches: $FRACNAV_DATA/Cranium.inv3, else
+ * /var/cache/fracnav/Cranium.inv3 (a static buffer). */
+const char *cmd_example_ct(void);
 
 #endif

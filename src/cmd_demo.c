@@ -44,14 +44,6 @@ static double now_s(void)
     return (double)ts.tv_sec + ts.tv_nsec * 1e-9;
 }
 
-static const char *default_ct(void)
-{
-    static char path[4096];
-    const char *d = getenv("FRACNAV_DATA");
-    snprintf(path, sizeof path, "%s/Cranium.inv3", d && *d ? d : "/var/cache/fracnav");
-    return path;
-}
-
 static int fail(const char *what)
 {
     fprintf(stderr, "fracnav demo: %s%s%s\n", what ? what : "", what ? ": " : "", fn_err_msg());
@@ -208,7 +200,7 @@ int cmd_demo(int argc, char **argv)
         }
     }
     if (!ct_path)
-        ct_path = default_ct();
+        ct_path = cmd_example_ct();
     if (mkdir(dir, 0777) != 0 && errno != EEXIST) {
         fprintf(stderr, "fracnav demo: cannot create %s: %s\n", dir, strerror(errno));
         return 1;

@@ -3,7 +3,6 @@
 
 #include "cmd_loopkit.h"
 #include "err.h"
-#include "sim_replay.h"
 
 #include <pthread.h>
 #include <signal.h>
@@ -260,7 +259,6 @@ int cmd_navigate(int argc, char **argv)
     int rc = parse(argc, argv, &o);
     if (rc)
         return rc;
-    sim_register_transports();
     loopkit_dsource ds = {0};
     calib_default(&ds.cal);
     char used[4096], diag[2048] = "";

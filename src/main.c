@@ -3,6 +3,7 @@
 #include "sim_replay.h"
 
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
 struct command {
@@ -36,6 +37,14 @@ int cmd_wants_help(int argc, char **argv)
         if (!strcmp(argv[i], "-h") || !strcmp(argv[i], "--help"))
             return 1;
     return 0;
+}
+
+const char *cmd_example_ct(void)
+{
+    static char path[4096];
+    const char *d = getenv("FRACNAV_DATA");
+    snprintf(path, sizeof path, "%s/Cranium.inv3", d && *d ? d : "/var/cache/fracnav");
+    return path;
 }
 
 int main(int argc, char **argv)
