@@ -6,6 +6,7 @@
 #include <errno.h>
 #include <inttypes.h>
 #include <jansson.h>
+#include <stdatomic.h>
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
@@ -224,6 +225,26 @@ loop_source loopkit_transport_source(loopkit_tsource *s)
     return src;
 }
 
+/* A fragment is held while the cap is deflected and the selected fragment can move. */
+static int holding(const loopkit_dsource *s, const loop_event *ev)
+{
+    int deflected = 0;
+    for (int a = 0; a < 6; a++)
+        deflected |= ev->motion[a] != 0;
+    if (!deflected || !s->L)
+        return deflected;
+    loop_scene sc;
+    loop_scene_read(s->L, &sc);
+    return !sc.fixed[sc.selected];
+}
+
+static void update_led(loopkit_dsource *s, int held)
+{
+    int on = calib_led(&s->cal, held);
+    if (on != s->led && dev_set_led(s->d, on) >= 0)
+        s->led = on;
+}
+
 static int dsource_next(void *ctx, loop_event *ev, int timeout_ms)
 {
     loopkit_dsource *s = ctx;
@@ -231,13 +252,17 @@ static int dsource_next(void *ctx, loop_event *ev, int timeout_ms)
     int rc = dev_poll(s->d, &de, timeout_ms);
     if (rc <= 0)
         return rc;
+    atomic_store(&s->battery, dev_battery(s->d));
     if (de.flags & (DEV_EV_UNPLUG | DEV_EV_REPLUG)) {
         memset(ev, 0, sizeof *ev);
         ev->kind = de.flags & DEV_EV_UNPLUG ? LOOP_EV_UNPLUG : LOOP_EV_REPLUG;
         ev->t_us = de.t_us;
         return 1;
     }
-    return from_dev_event(&s->cal, &de, ev);
+    rc = from_dev_event(&s->cal, &de, ev);
+    if (rc == 1 && ev->kind == LOOP_EV_MOTION)
+        update_led(s, holding(s, ev));
+    return rc;
 }
 
 loop_source loopkit_device_source(loopkit_dsource *s)

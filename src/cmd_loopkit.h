@@ -65,10 +65,16 @@ typedef struct loopkit_tsource {
 } loopkit_tsource;
 loop_source loopkit_transport_source(loopkit_tsource *s);
 
-/* A loop_source over an opened device (live): dev_poll folds what is queued into one event. */
+/* A loop_source over an opened device (live): dev_poll folds what is queued into one event. On
+ * its (input) thread it also drives the LED -- lit while a fragment is held: the cap deflected
+ * with a movable fragment selected (the `led` setting can force it on or off) -- and publishes the
+ * battery level for the status line. */
 typedef struct loopkit_dsource {
     dev_device *d;
     calib cal;
+    loop *L;            /* for the selected fragment's state; NULL: holding = cap deflected */
+    int led;            /* the LED state last sent, -1 none yet */
+    _Atomic int battery; /* 0..100, -1 unknown; read by the status line */
 } loopkit_dsource;
 loop_source loopkit_device_source(loopkit_dsource *s);
 

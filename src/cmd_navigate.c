@@ -176,7 +176,7 @@ static void read_keys(loop *L, ring *ctl)
 }
 
 /* The main thread while the loop runs: keys, saves on request, the status line. */
-static void ui(loopkit *k, ring *ctl, int keys, double duration)
+static void ui(loopkit *k, loopkit_dsource *ds, ring *ctl, int keys, double duration)
 {
     struct termios saved;
     int raw = keys && isatty(STDIN_FILENO) && tcgetattr(STDIN_FILENO, &saved) == 0;
@@ -203,6 +203,10 @@ static void ui(loopkit *k, ring *ctl, int keys, double duration)
         if (now - last_print >= (tty ? 100000 : 1000000)) {
             char line[512];
             loop_scene_format(&sc, line, sizeof line);
+            size_t len = strlen(line);
+            int battery = atomic_load(&ds->battery);
+            if (battery >= 0 && len < sizeof line)
+                snprintf(line + len, sizeof line - len, " | battery %d%%", battery);
             printf(tty ? "\r\033[K%s" : "%s\n", line);
             fflush(stdout);
             last_print = now;
@@ -234,7 +238,7 @@ static int run(loopkit *k, loopkit_dsource *ds, int keys, double duration)
         sa.sa_handler = on_signal;
         sigaction(SIGINT, &sa, NULL);
         sigaction(SIGTERM, &sa, NULL);
-        ui(k, ctl, keys, duration);
+        ui(k, ds, ctl, keys, duration);
         loop_reader_stop(rd);
         atomic_store(&run.stop, 1);
         loop_notify(k->L);
@@ -282,7 +286,11 @@ int cmd_navigate(int argc, char **argv)
     if (rc == 0) {
         if (k.resumed)
             fprintf(stderr, "recovered %zu journal records\n", k.resumed);
+        ds.L = k.L;
+        ds.led = -1;
+        atomic_init(&ds.battery, -1);
         rc = run(&k, &ds, keys, o.duration);
+        dev_set_led(ds.d, 0);
         if (rc == 0 && o.json)
             loopkit_print_json(&k, stdout, -1);
         else if (rc == 0)

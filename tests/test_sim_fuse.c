@@ -25,6 +25,8 @@
 #include "script.h"
 #include "simdev.h"
 #include "testutil.h"
+#include "vol.h"
+#include "volio.h"
 
 #define MAX_SERVERS 4
 
@@ -481,6 +483,51 @@ static void test_cli_usage_and_errors(void **st)
     assert_non_null(strstr(line, "--mount DIR is required"));
 }
 
+/* Navigation through the real driver path: the LED goes on while the fragment is held (the cap
+ * deflected, a movable fragment selected) and off again after, as output reports on the node. */
+static void test_navigate_lights_led_while_held(void **st)
+{
+    vol *v = vol_new(32, 24, 24);
+    for (size_t i = 0; i < vol_count(v); i++)
+        v->data[i] = -1000;
+    for (int k = 4; k < 20; k++)
+        for (int j = 4; j < 20; j++)
+            for (int i = 3; i < 28; i++)
+                if (i < 12 || i > 15)
+                    v->data[vol_idx(v, i, j, k)] = 1000; /* two blocks 4 mm apart */
+    const char *ct = path_in("blocks.nii.gz");
+    assert_int_equal(volio_write(v, ct, VOL_I16), 0);
+    vol_free(v);
+    char casedir[700];
+    snprintf(casedir, sizeof casedir, "%s", path_in("ledcase"));
+    assert_int_equal(tu_run_cli(NULL, "segment '%s' -o '%s' --min-volume 0 --ramp 0", ct, casedir), 0);
+    assert_int_equal(tu_run_cli(NULL, "edit '%s' fix 1", casedir), 0);
+    const char *script = write_script("led.script", "wait 200 ms\ntranslate +z 1 mm over 0.3 s\nwait 400 ms\n");
+    const char *log = path_in("led.fnrec");
+    pid_t pid = start_server("--script", script, "--start-on-read", "--log", log, NULL);
+    char *out = NULL;
+    int rc = tu_run_cli(&out, "navigate '%s' --device '%s/hidraw0' --duration 1.2", casedir, mnt);
+    if (rc != 0)
+        fail_msg("navigate exited %d: %s", rc, out);
+    free(out);
+    stop_server(pid);
+    fnrec *r = fnrec_load(log);
+    assert_non_null(r);
+    int on_at = -1, off_at = -1;
+    for (size_t i = 0; i < r->n; i++) {
+        const fnrec_event *e = &r->ev[i];
+        if (e->dir != FNREC_OUT || e->len < 2 || e->data[0] != 4)
+            continue;
+        if (e->data[1] == 1 && on_at < 0)
+            on_at = (int)i;
+        if (e->data[1] == 0 && on_at >= 0)
+            off_at = (int)i;
+    }
+    fnrec_free(r);
+    if (on_at < 0 || off_at < on_at)
+        fail_msg("LED reports in %s: on at event %d, off at %d", log, on_at, off_at);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -492,6 +539,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_play_recording, setup, teardown),
         cmocka_unit_test_setup_teardown(test_control_fifo, setup, teardown),
         cmocka_unit_test_setup_teardown(test_cli_usage_and_errors, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_navigate_lights_led_while_held, setup, teardown),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
