@@ -178,7 +178,7 @@ static int session(const char *dir)
         return rc;
     printf("4. a scripted session on the virtual SpaceNavigator (%s), replayed on the fracture:\n   ", rec);
     fflush(stdout);
-    char *args[] = {"replay", casedir, rec, "--discard-journal", NULL};
+    char *args[] = {"replay", casedir, rec, "--no-journal", NULL};
     return cmd_replay(4, args) == 0 ? 0 : fn_err_set(FN_EINVAL, "the replay failed");
 }
 

@@ -9,6 +9,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/ioctl.h>
 #include <termios.h>
 #include <time.h>
 #include <unistd.h>
@@ -36,6 +37,9 @@ static void usage(FILE *out)
             "unfix, c collision checking on/off, t translation only, r rotation only, u undo, y redo,\n"
             "m frame, s save, q quit. Controller buttons: 1 next, 2 previous, 3 fix, 4 collision,\n"
             "5 translation only, 6 rotation only, 7 undo, 8 redo, 9 save, 10 frame.\n"
+            "With --device keyboard the keys steer instead: arrows or a/d w/s move in x and y, r/f\n"
+            "up/down, i/k j/l u/o rotate, space stops, digits 1-8 are the controller buttons above.\n"
+            "Ctrl-C quits and saves, whatever the device.\n"
             "The camera frame looks from the patient's front (along +y, LPS), superior up.\n");
 }
 
@@ -175,6 +179,14 @@ static void read_keys(loop *L, ring *ctl)
     }
 }
 
+/* Cuts the status line to the terminal's width, so it rewrites itself in place instead of wrapping. */
+static void fit_to_terminal(char *line)
+{
+    struct winsize ws;
+    if (ioctl(STDOUT_FILENO, TIOCGWINSZ, &ws) == 0 && ws.ws_col > 1 && strlen(line) >= ws.ws_col)
+        line[ws.ws_col - 1] = '\0';
+}
+
 /* The main thread while the loop runs: keys, saves on request, the status line. */
 static void ui(loopkit *k, loopkit_dsource *ds, ring *ctl, int keys, double duration)
 {
@@ -207,6 +219,8 @@ static void ui(loopkit *k, loopkit_dsource *ds, ring *ctl, int keys, double dura
             int battery = atomic_load(&ds->battery);
             if (battery >= 0 && len < sizeof line)
                 snprintf(line + len, sizeof line - len, " | battery %d%%", battery);
+            if (tty)
+                fit_to_terminal(line);
             printf(tty ? "\r\033[K%s" : "%s\n", line);
             fflush(stdout);
             last_print = now;
