@@ -188,14 +188,16 @@ static void kept_make(const ctx *c, int split_b, const double cen[3], const doub
 }
 
 /* The conservative six-face-axis test of child n against the kept node (same bound and slack as
- * obb__sat's inner test, only the order of the sums differs, far below OBB__SLACK). Returns 1
- * when the pair must be split (*dist2: squared centre distance), 0 when rejected (booked). */
+ * obb__sat's inner test, only the order of the sums differs, far below OBB__SLACK). Returns 0
+ * when rejected (booked), else 1: the pair must be split (*dist2: squared centre distance), or,
+ * exact (a voxel pair), it needs the exact test. A voxel pair it rejects is apart by about
+ * OBB__SLACK on some axis, so the exact test would reject it as well. */
 static int test_inner(ctx *c, const kept *k, const obb_node *n, const obb_node *a,
-                      const obb_node *b, double *dist2)
+                      const obb_node *b, int exact, double *dist2)
 {
     if (c->thr && pmax(a) * pmax(b) < c->thr)
         return 0;
-    c->r->tests++;
+    c->r->tests += !exact;
     double cc[3], hc[3], u[3], s = -INFINITY;
     for (int i = 0; i < 3; i++) {
         cc[i] = (double)(n->lo[i] + n->hi[i]) * k->hs[i];
@@ -208,7 +210,8 @@ static int test_inner(ctx *c, const kept *k, const obb_node *n, const obb_node *
         s = fabs(k->M[i][0] * cc[0] + k->M[i][1] * cc[1] + k->M[i][2] * cc[2] + k->d[i]) -
             (k->h[i] + hc[0] * k->AM[i][0] + hc[1] * k->AM[i][1] + hc[2] * k->AM[i][2]);
     if (s >= OBB__SLACK) {
-        rejected(c, a, b, 0, s);
+        c->r->tests += exact;
+        rejected(c, a, b, exact, s);
         return 0;
     }
     *dist2 = u[0] * u[0] + u[1] * u[1] + u[2] * u[2];
@@ -250,10 +253,9 @@ static void expand(ctx *c, const npair *p, npair *out, int *n)
         const obb_node *a = split_b ? &p->a : &kid[i], *b = split_b ? &kid[i] : &p->b;
         int exact = (split_b ? va : vb) && is_voxel(&kid[i]);
         double d;
-        if (!exact && !c->edges) {
-            if (!test_inner(c, &kp, &kid[i], a, b, &d))
-                continue;
-        } else {
+        if (!c->edges && !test_inner(c, &kp, &kid[i], a, b, exact, &d))
+            continue;
+        if (exact || c->edges) {
             if (split_b)
                 box_b(c, b, bt, hb);
             else
