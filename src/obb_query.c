@@ -232,6 +232,17 @@ static int done(const ctx *c)
     return c->r->collides && !c->want_pairs;
 }
 
+/* Asks for the children of inner node n: a pushed pair is split later, its nodes' children are
+ * mostly out of cache by then. */
+static void prefetch_kids(const obb_node *n, const obb_node *all)
+{
+    if (is_leaf(n))
+        return;
+    const obb_node *k = all + (n->info & 0xffffffu);
+    __builtin_prefetch(k);
+    __builtin_prefetch(k + 7);
+}
+
 /* Splits the larger node of p (never a voxel) and appends each child pair that needs splitting to
  * out (room for 8), the pair with the nearest centres last so depth-first search tends to meet a
  * collision early. The kept node's box is computed once. */
@@ -270,6 +281,7 @@ static void expand(ctx *c, const npair *p, npair *out, int *n)
         }
         key[j] = d;
         out[first + j] = (npair){*a, *b};
+        prefetch_kids(split_b ? b : a, split_b ? c->nb : c->na);
         (*n)++;
     }
 }
