@@ -8,10 +8,11 @@
 #include <limits.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
 
 #define MAX_LEVELS 18
 #define MAX_NODES (1u << 24)
-#define EXPANDED 255 /* pending level of a level-1 node whose voxels are already out */
+#define EXPANDED 255 /* level mark of a level-1 node whose voxels are already out */
 
 struct obb_tree {
     obb_node *nodes;
@@ -37,12 +38,6 @@ typedef struct level {
     cell *cell; /* one cache line holds what the top-down pass needs of a cell */
 } level;
 
-/* An emitted node's cell, kept while the breadth-first pass still has to expand it. */
-typedef struct pending {
-    uint16_t c[3];
-    uint8_t level, depth;
-} pending;
-
 typedef struct builder {
     const uint8_t *prob;
     uint8_t lut[256];
@@ -50,7 +45,8 @@ typedef struct builder {
     level lv[MAX_LEVELS];
     int top;
     obb_node *nodes;
-    pending *pend;   /* per emitted node; left unset for voxel leaves */
+    uint8_t *lvl;    /* per emitted node: its pyramid level (its cell is lo >> level), EXPANDED
+                      * once its voxels are out; unset for voxel leaves */
     size_t n, cap;
     size_t bone;     /* bone voxels: the tree has fewer than 2 * bone nodes */
     int depth;       /* deepest node so far (root = 1) */
@@ -65,6 +61,20 @@ uint8_t obb_effective_prob(uint8_t p, const obb_params *params)
     if (p == 255 || v > hi)
         return 255;
     return p;
+}
+
+/* Asks for transparent huge pages on a large array: the build touches each of its pages once,
+ * and a fault per 4 KiB page would cost more than the work on it. */
+static void huge(void *p, size_t bytes)
+{
+#ifdef MADV_HUGEPAGE
+    uintptr_t page = 4096, lo = ((uintptr_t)p + page - 1) & ~(page - 1);
+    uintptr_t hi = ((uintptr_t)p + bytes) & ~(page - 1);
+    if (p && bytes >= (4u << 20) && hi > lo)
+        madvise((void *)lo, hi - lo, MADV_HUGEPAGE);
+#else
+    (void)p, (void)bytes;
+#endif
 }
 
 static size_t cells(const int d[3])
@@ -296,10 +306,10 @@ static int reserve(builder *b, size_t cap)
         return fn_err_set(FN_ENOMEM, "the hierarchy needs more than %u nodes", MAX_NODES);
     obb_node *nn = realloc(b->nodes, cap * sizeof *nn);
     if (nn)
-        b->nodes = nn;
-    pending *np = realloc(b->pend, cap * sizeof *np);
+        b->nodes = nn, huge(nn, cap * sizeof *nn);
+    uint8_t *np = realloc(b->lvl, cap);
     if (np)
-        b->pend = np;
+        b->lvl = np;
     if (!nn || !np)
         return fn_err_set(FN_ENOMEM, "out of memory for %zu hierarchy nodes", cap);
     b->cap = cap;
@@ -325,21 +335,26 @@ static int emit(builder *b, int l, const uint16_t c[3], uint8_t p0, int depth)
         const cell *k = &b->lv[l].cell[cidx(&b->lv[l], c)];
         o->info = k->mn == 255 ? 0x80000000u | 255u : (uint32_t)((k->mx * 15 + 254) / 255) << 24;
     }
-    pending *p = &b->pend[b->n++];
-    memcpy(p->c, c, sizeof p->c);
-    p->level = (uint8_t)l;
-    p->depth = (uint8_t)depth;
+    b->lvl[b->n++] = (uint8_t)l;
     b->depth = depth > b->depth ? depth : b->depth;
     return 0;
 }
 
-/* Gives inner level-1 node i its voxel children, as leaves (nothing below them to collapse). */
-static int emit_voxels(builder *b, size_t i)
+/* The pyramid cell of emitted node i at level l: its box lies inside the cell. */
+static void node_cell(const builder *b, size_t i, int l, uint16_t c[3])
 {
-    pending *p = &b->pend[i];
-    const cell *k = &b->lv[1].cell[cidx(&b->lv[1], p->c)];
+    for (int k = 0; k < 3; k++)
+        c[k] = (uint16_t)(b->nodes[i].lo[k] >> l);
+}
+
+/* Gives inner level-1 node i (at depth) its voxel children, as leaves (nothing below them). */
+static int emit_voxels(builder *b, size_t i, int depth)
+{
+    uint16_t pc[3];
+    node_cell(b, i, 1, pc);
+    const cell *k = &b->lv[1].cell[cidx(&b->lv[1], pc)];
     size_t first = b->n;
-    b->depth = p->depth + 1 > b->depth ? p->depth + 1 : b->depth;
+    b->depth = depth + 1 > b->depth ? depth + 1 : b->depth;
     for (int bit = 0; bit < 8; bit++) {
         if (!(k->mask >> bit & 1))
             continue;
@@ -347,42 +362,45 @@ static int emit_voxels(builder *b, size_t i)
         if (rc)
             return rc;
         obb_node *o = &b->nodes[b->n++];
-        child(p->c, bit, o->lo);
+        child(pc, bit, o->lo);
         memcpy(o->hi, o->lo, sizeof o->hi);
         o->info = 0x80000000u | k->vox[bit];
     }
     b->nodes[i].info |= (uint32_t)first | (uint32_t)(b->n - first - 1) << 28;
-    p->level = EXPANDED;
+    b->lvl[i] = EXPANDED;
     return 0;
 }
 
 /* Emits the bone children of inner node i (level >= 2) contiguously, and right away the voxels
  * of those that are inner level-1 nodes, while their cells are still in cache. */
-static int emit_children(builder *b, size_t i)
+static int emit_children(builder *b, size_t i, int depth)
 {
-    pending p = b->pend[i];
-    uint8_t m = b->lv[p.level].cell[cidx(&b->lv[p.level], p.c)].mask;
+    int l = b->lvl[i];
+    uint16_t pc[3];
+    node_cell(b, i, l, pc);
+    uint8_t m = b->lv[l].cell[cidx(&b->lv[l], pc)].mask;
     size_t first = b->n;
     int rc = 0;
     for (int bit = 0; bit < 8 && rc == 0; bit++) {
         if (!(m >> bit & 1))
             continue;
-        int cl = p.level - 1;
+        int cl = l - 1;
         uint16_t cc[3];
         uint8_t p0 = 0;
-        child(p.c, bit, cc);
+        child(pc, bit, cc);
         collapse(b, &cl, cc, &p0);
-        rc = emit(b, cl, cc, p0, p.depth + 1);
+        rc = emit(b, cl, cc, p0, depth + 1);
     }
     size_t last = b->n;
     b->nodes[i].info |= (uint32_t)first | (uint32_t)(last - first - 1) << 28;
     for (size_t j = first; j < last && rc == 0; j++)
-        if (!(b->nodes[j].info & 0x80000000u) && b->pend[j].level == 1)
-            rc = emit_voxels(b, j);
+        if (!(b->nodes[j].info & 0x80000000u) && b->lvl[j] == 1)
+            rc = emit_voxels(b, j, depth + 1);
     return rc;
 }
 
-/* Stage two: breadth-first from the root; children of each inner node are emitted contiguously. */
+/* Stage two: breadth-first from the root; children of each inner node are emitted contiguously.
+ * Nodes [end of depth d - 1, end of depth d) are those of depth d (and voxel leaves below them). */
 static int prune(builder *b)
 {
     int l = b->top;
@@ -391,11 +409,14 @@ static int prune(builder *b)
     if (!cell_mx(b, l, c))
         return 0;
     collapse(b, &l, c, &p0);
-    int rc = emit(b, l, c, p0, 1);
+    int rc = emit(b, l, c, p0, 1), depth = 1;
+    size_t end = b->n;
     for (size_t i = 0; rc == 0 && i < b->n; i++) {
-        if ((b->nodes[i].info & 0x80000000u) || b->pend[i].level == EXPANDED)
+        if (i == end)
+            depth++, end = b->n;
+        if ((b->nodes[i].info & 0x80000000u) || b->lvl[i] == EXPANDED)
             continue;
-        rc = b->pend[i].level == 1 ? emit_voxels(b, i) : emit_children(b, i);
+        rc = b->lvl[i] == 1 ? emit_voxels(b, i, depth) : emit_children(b, i, depth);
     }
     return rc;
 }
@@ -412,6 +433,7 @@ static int alloc_levels(builder *b, const int d0[3])
         size_t n = cells(d);
         level *L = &b->lv[l];
         L->cell = malloc(n * sizeof *L->cell);
+        huge(L->cell, n * sizeof *L->cell);
         if (!L->cell)
             return fn_err_set(FN_ENOMEM, "out of memory for the hierarchy pyramid (%zu cells)", n);
     }
@@ -423,7 +445,7 @@ static void builder_free(builder *b)
     for (int l = 1; l < MAX_LEVELS; l++) {
         free(b->lv[l].cell);
     }
-    free(b->pend);
+    free(b->lvl);
 }
 
 static int check_input(const frag *f, const obb_params *p)

@@ -17,6 +17,7 @@ typedef struct npair {
 
 typedef struct ctx {
     obb__rel rel;
+    double Rt[3][3], ARt[3][3]; /* R and |R| + eps transposed: B's axes in A's frame */
     const obb_node *na, *nb;
     double sa[3], sb[3], tol;
     int thr, want_pairs, edges;
@@ -111,6 +112,26 @@ static void box_b(const ctx *c, const obb_node *b, double bt[3], double hb[3])
     obb__box_b(&c->rel, b->lo, b->hi, bt, hb);
 }
 
+/* Books a rejected pair: into the front when recording, and into the separation bound (refined
+ * over all axes only when its first-axis gap could lower the minimum). */
+static void rejected(ctx *c, const obb_node *a, const obb_node *b, int exact, double gap)
+{
+    if (c->rec) {
+        if (c->cache->front_n < OBB_FRONT_MAX)
+            c->cache->front[c->cache->front_n++] = (obb_front_pair){*a, *b, gap};
+        else
+            c->overflow = 1;
+    }
+    if (gap < c->best_gap) {
+        double ca[3], ha[3], bt[3], hb[3];
+        box_a(c, a, ca, ha);
+        box_b(c, b, bt, hb);
+        double T[3] = {bt[0] - ca[0], bt[1] - ca[1], bt[2] - ca[2]};
+        obb__sat(&c->rel, exact, c->edges, T, ha, hb, 1, &gap);
+        c->best_gap = gap < c->best_gap ? gap : c->best_gap;
+    }
+}
+
 /* Tests one pair. Returns 1 when it must be split, 0 when it is settled: rejected (its gap
  * lowers the separation bound) or a colliding voxel pair (recorded). Voxel pairs get the exact
  * test, inner pairs the conservative one; a first-axis gap is a valid bound, refined over all 15
@@ -134,17 +155,67 @@ static int test(ctx *c, const obb_node *a, const double ca[3], const double ha[3
         record(c, a, b, gap);
         return 0;
     }
-    if (c->rec) {
-        if (c->cache->front_n < OBB_FRONT_MAX)
-            c->cache->front[c->cache->front_n++] = (obb_front_pair){*a, *b, gap};
-        else
-            c->overflow = 1;
-    }
-    if (gap < c->best_gap) {
-        obb__sat(&c->rel, exact, c->edges, T, ha, hb, 1, &gap);
-        c->best_gap = gap < c->best_gap ? gap : c->best_gap;
-    }
+    rejected(c, a, b, exact, gap);
     return 0;
+}
+
+/* An inner pair of an expansion, as the kept node sees it: a child point x (child frame, mm) lies
+ * at M x + d from the kept centre (kept axes); the kept centre is co in the child frame and
+ * reaches r along the child axes. Precomputed once per expansion, so that each child's own three
+ * face axes cost a subtraction each and are tried first. */
+typedef struct kept {
+    const double (*M)[3], (*AM)[3]; /* child frame -> kept frame: R or R^T, and |M| + eps */
+    double h[3], d[3], co[3], r[3];
+    double hs[3]; /* the children's half spacing */
+} kept;
+
+static void kept_make(const ctx *c, int split_b, const double cen[3], const double h[3], kept *k)
+{
+    k->M = split_b ? c->rel.R : c->Rt;
+    k->AM = split_b ? c->rel.AR : c->ARt;
+    for (int i = 0; i < 3; i++) {
+        k->h[i] = h[i];
+        k->hs[i] = split_b ? c->rel.hsb[i] : c->rel.hsa[i];
+        /* A kept: d = t - ca; B kept: d = -R^T bt (bt = B's centre in A's frame) */
+        k->d[i] = split_b ? c->rel.t[i] - cen[i]
+                          : -(c->rel.R[0][i] * cen[0] + c->rel.R[1][i] * cen[1] +
+                              c->rel.R[2][i] * cen[2]);
+    }
+    for (int j = 0; j < 3; j++) {
+        k->co[j] = -(k->M[0][j] * k->d[0] + k->M[1][j] * k->d[1] + k->M[2][j] * k->d[2]);
+        k->r[j] = k->h[0] * k->AM[0][j] + k->h[1] * k->AM[1][j] + k->h[2] * k->AM[2][j];
+    }
+}
+
+/* The conservative six-face-axis test of child n against the kept node (same bound and slack as
+ * obb__sat's inner test, only the order of the sums differs, far below OBB__SLACK). Returns 0
+ * when rejected (booked), else 1: the pair must be split (*dist2: squared centre distance), or,
+ * exact (a voxel pair), it needs the exact test. A voxel pair it rejects is apart by about
+ * OBB__SLACK on some axis, so the exact test would reject it as well. */
+static int test_inner(ctx *c, const kept *k, const obb_node *n, const obb_node *a,
+                      const obb_node *b, int exact, double *dist2)
+{
+    if (c->thr && pmax(a) * pmax(b) < c->thr)
+        return 0;
+    c->r->tests += !exact;
+    double cc[3], hc[3], u[3], s = -INFINITY;
+    for (int i = 0; i < 3; i++) {
+        cc[i] = (double)(n->lo[i] + n->hi[i]) * k->hs[i];
+        hc[i] = (double)(n->hi[i] - n->lo[i]) * k->hs[i] + (k->hs[i] - c->tol);
+        u[i] = cc[i] - k->co[i];
+    }
+    for (int i = 0; i < 3 && s < OBB__SLACK; i++)
+        s = fabs(u[i]) - (hc[i] + k->r[i]);
+    for (int i = 0; i < 3 && s < OBB__SLACK; i++)
+        s = fabs(k->M[i][0] * cc[0] + k->M[i][1] * cc[1] + k->M[i][2] * cc[2] + k->d[i]) -
+            (k->h[i] + hc[0] * k->AM[i][0] + hc[1] * k->AM[i][1] + hc[2] * k->AM[i][2]);
+    if (s >= OBB__SLACK) {
+        c->r->tests += exact;
+        rejected(c, a, b, exact, s);
+        return 0;
+    }
+    *dist2 = u[0] * u[0] + u[1] * u[1] + u[2] * u[2];
+    return 1;
 }
 
 static int test_pair(ctx *c, const npair *p)
@@ -161,6 +232,17 @@ static int done(const ctx *c)
     return c->r->collides && !c->want_pairs;
 }
 
+/* Asks for the children of inner node n: a pushed pair is split later, its nodes' children are
+ * mostly out of cache by then. */
+static void prefetch_kids(const obb_node *n, const obb_node *all)
+{
+    if (is_leaf(n))
+        return;
+    const obb_node *k = all + (n->info & 0xffffffu);
+    __builtin_prefetch(k);
+    __builtin_prefetch(k + 7);
+}
+
 /* Splits the larger node of p (never a voxel) and appends each child pair that needs splitting to
  * out (room for 8), the pair with the nearest centres last so depth-first search tends to meet a
  * collision early. The kept node's box is computed once. */
@@ -172,19 +254,26 @@ static void expand(ctx *c, const npair *p, npair *out, int *n)
     const obb_node *kid;
     double ca[3], ha[3], bt[3], hb[3], key[8];
     int k = split(split_b ? &p->b : &p->a, split_b ? c->nb : c->na, buf, &kid), first = *n;
+    kept kp;
     if (split_b)
         box_a(c, &p->a, ca, ha);
     else
         box_b(c, &p->b, bt, hb);
+    kept_make(c, split_b, split_b ? ca : bt, split_b ? ha : hb, &kp);
     for (int i = 0; i < k && !done(c); i++) {
         const obb_node *a = split_b ? &p->a : &kid[i], *b = split_b ? &kid[i] : &p->b;
-        if (split_b)
-            box_b(c, b, bt, hb);
-        else
-            box_a(c, a, ca, ha);
+        int exact = (split_b ? va : vb) && is_voxel(&kid[i]);
         double d;
-        if (!test(c, a, ca, ha, b, bt, hb, (split_b ? va : vb) && is_voxel(&kid[i]), &d))
+        if (!c->edges && !test_inner(c, &kp, &kid[i], a, b, exact, &d))
             continue;
+        if (exact || c->edges) {
+            if (split_b)
+                box_b(c, b, bt, hb);
+            else
+                box_a(c, a, ca, ha);
+            if (!test(c, a, ca, ha, b, bt, hb, exact, &d))
+                continue;
+        }
         int j = *n - first;
         for (; j > 0 && key[j - 1] < d; j--) {
             key[j] = key[j - 1];
@@ -192,6 +281,7 @@ static void expand(ctx *c, const npair *p, npair *out, int *n)
         }
         key[j] = d;
         out[first + j] = (npair){*a, *b};
+        prefetch_kids(split_b ? b : a, split_b ? c->nb : c->na);
         (*n)++;
     }
 }
@@ -343,6 +433,9 @@ int obb_collide(const obb_tree *a, const pose *a_world, const obb_tree *b, const
         return 0;
     }
     obb__rel_make(&c.rel, a_world, c.sa, b_world, c.sb, c.tol);
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++)
+            c.Rt[i][j] = c.rel.R[j][i], c.ARt[i][j] = c.rel.AR[j][i];
     if (cache && cache->has_witness && !c.want_pairs) {
         npair w = {cache->wa, cache->wb};
         cache->has_witness = 0;
