@@ -68,22 +68,6 @@ static void unit_vector(double v[3])
 
 /* ---- workloads ---- */
 
-static int label_box(const vol *lab, int id, int lo[3], int hi[3])
-{
-    lo[0] = lo[1] = lo[2] = INT32_MAX;
-    hi[0] = hi[1] = hi[2] = -1;
-    for (int k = 0; k < lab->dim[2]; k++)
-        for (int j = 0; j < lab->dim[1]; j++)
-            for (int i = 0; i < lab->dim[0]; i++) {
-                if (lab->data[vol_idx(lab, i, j, k)] != (float)id)
-                    continue;
-                int c[3] = {i, j, k};
-                for (int a = 0; a < 3; a++)
-                    lo[a] = c[a] < lo[a] ? c[a] : lo[a], hi[a] = c[a] > hi[a] ? c[a] : hi[a];
-            }
-    return hi[0] >= 0 ? 0 : fn_err_set(FN_EFORMAT, "label %d is empty", id);
-}
-
 /* Cuts ct's bone in two (fracture_make); A = piece 1 (fixed), B = piece 2 fitted back. */
 static int work_from_ct(work *w, const vol *ct, double bone, double ramp)
 {
@@ -97,7 +81,7 @@ static int work_from_ct(work *w, const vol *ct, double bone, double ramp)
     frag *f[2] = {&w->a, &w->b};
     for (int id = 1; id <= 2 && rc == 0; id++) {
         int lo[3], hi[3];
-        rc = label_box(fr.labels, id, lo, hi);
+        rc = frag_label_box(fr.labels, id, lo, hi);
         if (rc == 0)
             rc = frag_from_labels(f[id - 1], fr.labels, fr.ct, id, lo, hi, bone, ramp);
     }

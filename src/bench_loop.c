@@ -41,24 +41,6 @@ static void usage(FILE *out)
                  "  --repeat N    play the 9 s motion script N times (default 10)\n");
 }
 
-static int label_box(const vol *lab, int id, int lo[3], int hi[3])
-{
-    lo[0] = lo[1] = lo[2] = INT32_MAX;
-    hi[0] = hi[1] = hi[2] = -1;
-    for (int k = 0; k < lab->dim[2]; k++)
-        for (int j = 0; j < lab->dim[1]; j++)
-            for (int i = 0; i < lab->dim[0]; i++) {
-                if (lab->data[vol_idx(lab, i, j, k)] != (float)id)
-                    continue;
-                int c[3] = {i, j, k};
-                for (int a = 0; a < 3; a++) {
-                    lo[a] = c[a] < lo[a] ? c[a] : lo[a];
-                    hi[a] = c[a] > hi[a] ? c[a] : hi[a];
-                }
-            }
-    return hi[0] >= 0 ? 0 : fn_err_set(FN_EFORMAT, "fracture: piece %d is empty", id);
-}
-
 /* Two fragments from a fracture of the CT at path. */
 static int fragments_from_ct(const char *path, frag f[2])
 {
@@ -76,7 +58,7 @@ static int fragments_from_ct(const char *path, frag f[2])
         return fn_err_wrap(rc, "%s", path);
     for (int id = 1; id <= 2 && rc == 0; id++) {
         int lo[3], hi[3];
-        rc = label_box(fr.labels, id, lo, hi);
+        rc = frag_label_box(fr.labels, id, lo, hi);
         if (rc == 0)
             rc = frag_from_labels(&f[id - 1], fr.labels, fr.ct, id, lo, hi, fp.threshold, sp.ramp);
     }

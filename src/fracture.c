@@ -118,29 +118,6 @@ static void normalize3(double v[3])
 }
 
 /* Bounding box of label id in lab; 0 if present. */
-static int label_box(const vol *lab, int id, int lo[3], int hi[3])
-{
-    for (int a = 0; a < 3; a++) {
-        lo[a] = lab->dim[a];
-        hi[a] = -1;
-    }
-    size_t idx = 0;
-    for (int k = 0; k < lab->dim[2]; k++)
-        for (int j = 0; j < lab->dim[1]; j++)
-            for (int i = 0; i < lab->dim[0]; i++, idx++) {
-                if (lab->data[idx] != (float)id)
-                    continue;
-                int ijk[3] = {i, j, k};
-                for (int a = 0; a < 3; a++) {
-                    if (ijk[a] < lo[a])
-                        lo[a] = ijk[a];
-                    if (ijk[a] > hi[a])
-                        hi[a] = ijk[a];
-                }
-            }
-    return hi[0] >= 0 ? 0 : -1;
-}
-
 struct cut {
     double point[3], normal[3];
     uint64_t noise_seed;
@@ -190,7 +167,7 @@ static size_t cut_apply(vol *lab, vol *ct, int from, int to, const struct cut *c
 static int piece_stats(const vol *lab, int id, frag *f)
 {
     int lo[3], hi[3];
-    if (label_box(lab, id, lo, hi) < 0)
+    if (frag_label_box(lab, id, lo, hi) < 0)
         return fn_err_set(FN_EINVAL, "fracture: piece %d is empty", id);
     return frag_from_labels(f, lab, NULL, id, lo, hi, 0, 0);
 }
@@ -216,7 +193,7 @@ static int make_cut(vol *lab, vol *ct, int to, uint64_t *rng, const fracture_par
     if (rc < 0)
         return rc;
     int lo[3], hi[3];
-    label_box(lab, from, lo, hi);
+    frag_label_box(lab, from, lo, hi);
     for (int attempt = 0; attempt < 32; attempt++) {
         struct cut c = {.rough = p->roughness_mm, .wavelength = p->wavelength_mm};
         double u1 = fracture_rng_uniform(rng) * 2 - 1, u2 = fracture_rng_uniform(rng) * 2 - 1;
@@ -275,7 +252,7 @@ static size_t place_piece(const vol *cut, const vol *src_ct, vol *out_lab, vol *
                           pose m, double threshold, int apply)
 {
     int lo[3], hi[3];
-    label_box(cut, id, lo, hi);
+    frag_label_box(cut, id, lo, hi);
     double blo[3] = {INFINITY, INFINITY, INFINITY}, bhi[3] = {-INFINITY, -INFINITY, -INFINITY};
     for (int corner = 0; corner < 8; corner++) {
         double ijk[3] = {corner & 1 ? hi[0] : lo[0], corner & 2 ? hi[1] : lo[1],

@@ -76,6 +76,29 @@ static void set_home(frag *f, const vol *g)
     f->home = pose_from_matrix(d, t);
 }
 
+int frag_label_box(const vol *lab, int id, int lo[3], int hi[3])
+{
+    for (int a = 0; a < 3; a++) {
+        lo[a] = lab->dim[a];
+        hi[a] = -1;
+    }
+    size_t idx = 0;
+    for (int k = 0; k < lab->dim[2]; k++)
+        for (int j = 0; j < lab->dim[1]; j++)
+            for (int i = 0; i < lab->dim[0]; i++, idx++) {
+                if (lab->data[idx] != (float)id)
+                    continue;
+                int ijk[3] = {i, j, k};
+                for (int a = 0; a < 3; a++) {
+                    if (ijk[a] < lo[a])
+                        lo[a] = ijk[a];
+                    if (ijk[a] > hi[a])
+                        hi[a] = ijk[a];
+                }
+            }
+    return hi[0] >= 0 ? 0 : fn_err_set(FN_EFORMAT, "label %d has no voxel", id);
+}
+
 int frag_from_labels(frag *f, const vol *labels, const vol *ct, int id, const int lo[3],
                      const int hi[3], double threshold, double ramp)
 {

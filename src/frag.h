@@ -33,6 +33,10 @@ typedef struct frag {
 
 struct vol;
 
+/* The source-index bounding box [lo, hi] (inclusive) of label id. 0, or FN_EFORMAT when the label
+ * has no voxel. */
+int frag_label_box(const struct vol *labels, int id, int lo[3], int hi[3]);
+
 /* Builds fragment `id` from a labelmap: the crop is the source-index box [lo, hi] (inclusive,
  * usually the label's bounding box) padded by one voxel on every side (it may reach outside the
  * grid; those voxels are 0). prob = seg_prob(ct value) where labels == id, 0 elsewhere; ct may be
