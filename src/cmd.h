@@ -22,6 +22,10 @@ CMD_LIST(CMD_DECLARE)
 
 /* True when argv holds -h or --help. */
 int cmd_wants_help(int argc, char **argv);
+/* Parses the whole of s as a finite number (NULL or trailing text: 0). 1 on success. */
+int cmd_number(const char *s, double *out);
+/* Prints "fracnav CMD: MESSAGE (see fracnav CMD --help)" on stderr; returns 2, the usage exit. */
+int cmd_usage_error(const char *cmd, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
 /* Path of the example CT that .ci/setup caches: $FRACNAV_DATA/Cranium.inv3, else
  * /var/cache/fracnav/Cranium.inv3 (a static buffer). */
 const char *cmd_example_ct(void);

@@ -29,19 +29,6 @@ static void usage(FILE *out)
             "  --help                              this text\n");
 }
 
-static int bad_usage(const char *msg)
-{
-    fprintf(stderr, "fracnav edit: %s (see fracnav edit --help)\n", msg);
-    return 2;
-}
-
-static int number(const char *s, double *out)
-{
-    char *end;
-    *out = strtod(s, &end);
-    return end != s && *end == '\0';
-}
-
 static int integer(const char *s, int *out)
 {
     char *end;
@@ -53,7 +40,7 @@ static int integer(const char *s, int *out)
 static int numbers(char **argv, int n, double *out)
 {
     for (int i = 0; i < n; i++)
-        if (!number(argv[i], &out[i]))
+        if (!cmd_number(argv[i], &out[i]))
             return 0;
     return 1;
 }
@@ -91,25 +78,25 @@ static int apply(fcase *c, const char *op, int argc, char **argv)
     long rc;
     if (!strcmp(op, "merge")) {
         if (argc != 2 || !integer(argv[0], &a) || !integer(argv[1], &b))
-            return bad_usage("merge needs two fragment ids");
+            return cmd_usage_error("edit", "merge needs two fragment ids");
         if ((rc = case_merge(c, a, b)) < 0)
             return 1;
         printf("merged fragment %d into %d\n", b, a);
     } else if (!strcmp(op, "split")) {
         if (argc != 8 || !integer(argv[0], &id) || strcmp(argv[1], "--plane") || !numbers(argv + 2, 6, v))
-            return bad_usage("split needs ID --plane PX PY PZ NX NY NZ");
+            return cmd_usage_error("edit", "split needs ID --plane PX PY PZ NX NY NZ");
         if ((rc = case_split(c, id, v, v + 3)) < 0)
             return 1;
         printf("split fragment %d: the part in front of the plane is fragment %ld\n", id, rc);
     } else if (!strcmp(op, "erase-box")) {
         if (argc < 6 || !numbers(argv, 6, v) || optional_id(argc - 6, argv + 6, &id) < 0)
-            return bad_usage("erase-box needs X0 Y0 Z0 X1 Y1 Z1 [--id ID]");
+            return cmd_usage_error("edit", "erase-box needs X0 Y0 Z0 X1 Y1 Z1 [--id ID]");
         if ((rc = case_erase_box(c, v, v + 3, id)) < 0)
             return 1;
         printf("erased %ld voxels\n", rc);
     } else if (!strcmp(op, "erase-sphere")) {
         if (argc < 4 || !numbers(argv, 4, v) || optional_id(argc - 4, argv + 4, &id) < 0)
-            return bad_usage("erase-sphere needs CX CY CZ R [--id ID]");
+            return cmd_usage_error("edit", "erase-sphere needs CX CY CZ R [--id ID]");
         if ((rc = case_erase_sphere(c, v, v[3], id)) < 0)
             return 1;
         printf("erased %ld voxels\n", rc);
@@ -120,26 +107,26 @@ static int apply(fcase *c, const char *op, int argc, char **argv)
             if (i + 1 >= argc)
                 ok = 0;
             else if (!strcmp(argv[i], "--threshold"))
-                ok = number(argv[i + 1], &thr);
+                ok = cmd_number(argv[i + 1], &thr);
             else if (!strcmp(argv[i], "--into"))
                 ok = integer(argv[i + 1], &into);
             else
                 ok = 0;
         }
         if (!ok)
-            return bad_usage("grow needs X Y Z [--threshold HU] [--into ID]");
+            return cmd_usage_error("edit", "grow needs X Y Z [--threshold HU] [--into ID]");
         if ((id = case_grow(c, v, thr, into)) < 0)
             return 1;
         printf("grew fragment %d to %zu voxels\n", id, c->frag[case_find(c, id)].voxels);
     } else if (!strcmp(op, "keep") || !strcmp(op, "drop")) {
         if ((n = id_list(argc, argv, ids, 256)) < 0)
-            return bad_usage("keep/drop need fragment ids (1,3 or 1 3)");
+            return cmd_usage_error("edit", "keep/drop need fragment ids (1,3 or 1 3)");
         if ((!strcmp(op, "keep") ? case_keep(c, ids, n) : case_drop(c, ids, n)) < 0)
             return 1;
         printf("%d fragments left\n", c->nfrag);
     } else if (!strcmp(op, "fix")) {
         if (argc != 1 || !integer(argv[0], &id))
-            return bad_usage("fix needs one fragment id (0: none)");
+            return cmd_usage_error("edit", "fix needs one fragment id (0: none)");
         if (case_fix(c, id) < 0)
             return 1;
         printf(id ? "fragment %d is fixed\n" : "no fixed fragment\n", id);
@@ -157,7 +144,7 @@ int cmd_edit(int argc, char **argv)
         return 0;
     }
     if (argc < 3)
-        return bad_usage("needs CASE and an operation");
+        return cmd_usage_error("edit", "needs CASE and an operation");
     fcase *c = case_load(argv[1]);
     if (!c) {
         fprintf(stderr, "fracnav edit: %s\n", fn_err_msg());

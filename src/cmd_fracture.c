@@ -33,21 +33,6 @@ static void usage(FILE *out)
             "  --help                 this text\n");
 }
 
-static int bad_usage(const char *fmt, const char *arg)
-{
-    fprintf(stderr, "fracnav fracture: ");
-    fprintf(stderr, fmt, arg);
-    fprintf(stderr, " (see fracnav fracture --help)\n");
-    return 2;
-}
-
-static int number(const char *s, double *out)
-{
-    char *end;
-    *out = strtod(s, &end);
-    return end != s && *end == '\0';
-}
-
 static int parse(int argc, char **argv, fracture_params *p, const char **in, const char **out)
 {
     int have_seed = 0;
@@ -56,19 +41,19 @@ static int parse(int argc, char **argv, fracture_params *p, const char **in, con
         double d;
         if (a[0] != '-') {
             if (*in)
-                return bad_usage("unexpected argument '%s'", a);
+                return cmd_usage_error("fracture", "unexpected argument '%s'", a);
             *in = a;
             continue;
         }
         if (!val)
-            return bad_usage("%s needs a value", a);
+            return cmd_usage_error("fracture", "%s needs a value", a);
         i++;
         if (!strcmp(a, "-o") || !strcmp(a, "--output")) {
             *out = val;
             continue;
         }
-        if (!number(val, &d))
-            return bad_usage("%s needs a number", a);
+        if (!cmd_number(val, &d))
+            return cmd_usage_error("fracture", "%s needs a number", a);
         if (!strcmp(a, "--seed") && d >= 0 && d < 9007199254740992.0 && d == (double)(uint64_t)d) {
             p->seed = (uint64_t)d;
             have_seed = 1;
@@ -85,12 +70,12 @@ static int parse(int argc, char **argv, fracture_params *p, const char **in, con
         else if (!strcmp(a, "--threshold"))
             p->threshold = d;
         else
-            return bad_usage("bad option or value near '%s'", a);
+            return cmd_usage_error("fracture", "bad option or value near '%s'", a);
     }
     if (!*in || !*out || !have_seed)
-        return bad_usage("%s", "needs VOLUME, -o CASE and --seed N");
+        return cmd_usage_error("fracture", "%s", "needs VOLUME, -o CASE and --seed N");
     if (fracture_check(p) < 0)
-        return bad_usage("%s", fn_err_msg());
+        return cmd_usage_error("fracture", "%s", fn_err_msg());
     return 0;
 }
 

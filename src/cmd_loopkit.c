@@ -1,5 +1,7 @@
 #include "cmd_loopkit.h"
 
+#include "cmd.h"
+
 #include "err.h"
 #include "obb.h"
 
@@ -217,6 +219,18 @@ static int tsource_next(void *ctx, loop_event *ev, int timeout_ms)
         if (loopkit_decode(&s->dec, buf, (size_t)n, t_us, ev) == 1)
             return 1;
     }
+}
+
+int loopkit_parse_frame(const char *cmd, const char *name, loop_frame *out)
+{
+    static const char *names[] = {[LOOP_FRAME_CAMERA] = "camera", [LOOP_FRAME_WORLD] = "world",
+                                  [LOOP_FRAME_FRAGMENT] = "fragment"};
+    for (int f = 0; f < (int)(sizeof names / sizeof names[0]); f++)
+        if (names[f] && !strcmp(name, names[f])) {
+            *out = (loop_frame)f;
+            return 0;
+        }
+    return cmd_usage_error(cmd, "--frame %s: use camera, world or fragment", name);
 }
 
 loop_source loopkit_transport_source(loopkit_tsource *s)

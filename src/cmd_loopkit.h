@@ -43,6 +43,9 @@ void loopkit_close(loopkit *k);
  * that member out. */
 void loopkit_print_json(const loopkit *k, FILE *out, long unplugs);
 
+/* --frame NAME: camera, world or fragment. 0, or a usage error for `cmd` (returns 2). */
+int loopkit_parse_frame(const char *cmd, const char *name, loop_frame *out);
+
 /* Raw reports -> loop events (parser, then calibration). */
 typedef struct loopkit_decoder {
     devparse_state ps;

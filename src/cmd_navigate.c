@@ -79,17 +79,8 @@ static int parse(int argc, char **argv, opts *o)
         else if (!strcmp(a, "--duration") && v && atof(v) > 0)
             o->duration = atof(argv[++i]);
         else if (!strcmp(a, "--frame") && v) {
-            i++;
-            if (!strcmp(v, "camera"))
-                o->frame = LOOP_FRAME_CAMERA;
-            else if (!strcmp(v, "world"))
-                o->frame = LOOP_FRAME_WORLD;
-            else if (!strcmp(v, "fragment"))
-                o->frame = LOOP_FRAME_FRAGMENT;
-            else {
-                fprintf(stderr, "fracnav navigate: --frame %s: use camera, world or fragment\n", v);
+            if (loopkit_parse_frame("navigate", argv[++i], &o->frame))
                 return 2;
-            }
         } else if (a[0] == '-' || o->dir) {
             fprintf(stderr, "fracnav navigate: unexpected argument '%s' (see fracnav navigate --help)\n", a);
             return 2;

@@ -55,17 +55,8 @@ static int parse(int argc, char **argv, opts *o)
         else if (!strcmp(a, "--save"))
             o->save = 1;
         else if (!strcmp(a, "--frame") && i + 1 < argc) {
-            const char *f = argv[++i];
-            if (!strcmp(f, "camera"))
-                o->frame = LOOP_FRAME_CAMERA;
-            else if (!strcmp(f, "world"))
-                o->frame = LOOP_FRAME_WORLD;
-            else if (!strcmp(f, "fragment"))
-                o->frame = LOOP_FRAME_FRAGMENT;
-            else {
-                fprintf(stderr, "fracnav replay: --frame %s: use camera, world or fragment\n", f);
+            if (loopkit_parse_frame("replay", argv[++i], &o->frame))
                 return 2;
-            }
         } else if (!strcmp(a, "--config") && i + 1 < argc)
             o->config = argv[++i];
         else if (a[0] == '-' || (o->dir && o->rec)) {

@@ -32,21 +32,6 @@ static void usage(FILE *out)
             "  --help                     this text\n");
 }
 
-static int bad_usage(const char *fmt, const char *arg)
-{
-    fprintf(stderr, "fracnav segment: ");
-    fprintf(stderr, fmt, arg);
-    fprintf(stderr, " (see fracnav segment --help)\n");
-    return 2;
-}
-
-static int number(const char *s, double *out)
-{
-    char *end;
-    *out = strtod(s, &end);
-    return end != s && *end == '\0';
-}
-
 static int parse(int argc, char **argv, seg_params *p, const char **in, const char **out)
 {
     for (int i = 1; i < argc; i++) {
@@ -55,12 +40,12 @@ static int parse(int argc, char **argv, seg_params *p, const char **in, const ch
         double d;
         if (a[0] != '-') {
             if (*in)
-                return bad_usage("unexpected argument '%s'", a);
+                return cmd_usage_error("segment", "unexpected argument '%s'", a);
             *in = a;
             continue;
         }
         if (!val)
-            return bad_usage("%s needs a value", a);
+            return cmd_usage_error("segment", "%s needs a value", a);
         i++;
         if (!strcmp(a, "-o") || !strcmp(a, "--output"))
             *out = val;
@@ -68,22 +53,22 @@ static int parse(int argc, char **argv, seg_params *p, const char **in, const ch
             p->threshold_auto = 1;
         else if (!strcmp(a, "--threshold") && !strcmp(val, "auto-bone"))
             p->threshold_auto = 2;
-        else if (!strcmp(a, "--threshold") && number(val, &d))
+        else if (!strcmp(a, "--threshold") && cmd_number(val, &d))
             p->threshold = d;
-        else if (!strcmp(a, "--min-volume") && number(val, &d) && d >= 0)
+        else if (!strcmp(a, "--min-volume") && cmd_number(val, &d) && d >= 0)
             p->min_volume_ml = d;
-        else if (!strcmp(a, "--exclude-below-peak") && number(val, &d)) {
+        else if (!strcmp(a, "--exclude-below-peak") && cmd_number(val, &d)) {
             p->exclude_peak = 1;
             p->exclude_below_peak = d;
-        } else if (!strcmp(a, "--keep") && number(val, &d) && d >= 1 && d <= 1e6 && d == (int)d)
+        } else if (!strcmp(a, "--keep") && cmd_number(val, &d) && d >= 1 && d <= 1e6 && d == (int)d)
             p->keep = (int)d;
-        else if (!strcmp(a, "--ramp") && number(val, &d) && d >= 0)
+        else if (!strcmp(a, "--ramp") && cmd_number(val, &d) && d >= 0)
             p->ramp = d;
         else
-            return bad_usage("bad option or value near '%s'", a);
+            return cmd_usage_error("segment", "bad option or value near '%s'", a);
     }
     if (!*in || !*out)
-        return bad_usage("%s", "needs VOLUME and -o CASE");
+        return cmd_usage_error("segment", "%s", "needs VOLUME and -o CASE");
     return 0;
 }
 

@@ -2,6 +2,8 @@
 #include "cmd.h"
 #include "sim_replay.h"
 
+#include <math.h>
+#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -37,6 +39,26 @@ int cmd_wants_help(int argc, char **argv)
         if (!strcmp(argv[i], "-h") || !strcmp(argv[i], "--help"))
             return 1;
     return 0;
+}
+
+int cmd_number(const char *s, double *out)
+{
+    if (!s)
+        return 0;
+    char *end;
+    *out = strtod(s, &end);
+    return end != s && *end == '\0' && isfinite(*out);
+}
+
+int cmd_usage_error(const char *cmd, const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    fprintf(stderr, "fracnav %s: ", cmd);
+    vfprintf(stderr, fmt, ap);
+    fprintf(stderr, " (see fracnav %s --help)\n", cmd);
+    va_end(ap);
+    return 2;
 }
 
 const char *cmd_example_ct(void)
