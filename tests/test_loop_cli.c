@@ -252,13 +252,14 @@ static void test_crash_recovery(void **st)
 }
 
 /* navigate with a recording played as a live device (real time): the terminal view shows the
- * state, the case is saved on exit with the moved pose, and the journal is empty again. (A played
- * recording that ends counts as an unplug and is opened again 500 ms later: stop before that.) */
+ * state, the case is saved on exit with the moved pose, and the journal is empty again. A played
+ * recording that ends counts as an unplug and is opened again 500 ms later, so this one stays
+ * plugged in and silent long after the move, whatever the machine's load delays. */
 static void test_navigate_saves_on_exit(void **st)
 {
-    const char *rec = recording("nav", "translate +z 1 mm over 0.3 s\n");
+    const char *rec = recording("nav", "translate +z 1 mm over 0.3 s\nwait 30 s\nunplug\n");
     char *out = NULL;
-    int rc = tu_run_cli(&out, "navigate '%s' --device 'replay-realtime:%s' --duration 0.7 --json", case_dir, rec);
+    int rc = tu_run_cli(&out, "navigate '%s' --device 'replay-realtime:%s' --duration 2 --json", case_dir, rec);
     if (rc != 0)
         fprintf(stderr, "%s\n", out);
     assert_int_equal(rc, 0);
