@@ -5,10 +5,12 @@
 #include <stdint.h>
 #include <cmocka.h>
 
+#include "allocount.h"
 #include "err.h"
 #include "obb.h"
 
 #include <math.h>
+#include <pthread.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -569,6 +571,110 @@ static void test_bad_input(void **st)
     tfrag_free(f);
 }
 
+/* Several threads query the same read-only trees at once, each with its own cache, in different
+ * orders: every answer equals the one-thread answer, and no thread allocates while querying. */
+#define MT_THREADS 4
+#define MT_POSES 300
+
+typedef struct mt_job {
+    const obb_tree *ta, *tb;
+    const pose *pa, *pb;
+    const obb_query *q;
+    obb_cache *cache;
+    int offset;
+    pthread_barrier_t *go, *done;
+    obb_result r[MT_POSES];
+    int rc;
+} mt_job;
+
+/* The same pairs in any order (a cache may find them in another order). */
+static int same_pairs(const obb_pair *x, const obb_pair *y, size_t n)
+{
+    for (size_t i = 0; i < n; i++) {
+        size_t k = 0;
+        while (k < n && memcmp(&x[i], &y[k], sizeof *x))
+            k++;
+        if (k == n)
+            return 0;
+    }
+    return 1;
+}
+
+static void *mt_run(void *arg)
+{
+    mt_job *j = arg;
+    pthread_barrier_wait(j->go);
+    for (int k = 0; k < MT_POSES; k++) {
+        int i = (k + j->offset) % MT_POSES;
+        j->rc |= obb_collide(j->ta, &j->pa[i], j->tb, &j->pb[i], &j->q[i], j->cache, &j->r[i]);
+    }
+    pthread_barrier_wait(j->done);
+    return NULL;
+}
+
+static void test_concurrent_queries_allocate_nothing(void **st)
+{
+    frag *fa = random_frag(20, 1), *fb = random_frag(20, 1);
+    obb_tree *ta = build(fa, 0, 1), *tb = build(fb, 0, 1);
+    static pose pa[MT_POSES], pb[MT_POSES];
+    static obb_query q[MT_POSES];
+    static obb_pair pairs[MT_THREADS + 1][MT_POSES][8];
+    static obb_result want[MT_POSES];
+    double reach = radius(fa) + radius(fb), o[3] = {0, 0, 0};
+    int hits = 0;
+    for (int i = 0; i < MT_POSES; i++) {
+        double off[3] = {srand1(), srand1(), srand1()};
+        double len = sqrt(off[0] * off[0] + off[1] * off[1] + off[2] * off[2]) + 1e-9;
+        double d = reach * (0.2 + 0.7 * urand()) / len, cb[3] = {off[0] * d, off[1] * d, off[2] * d};
+        pa[i] = place(fa, random_rotation(), o);
+        pb[i] = place(fb, random_rotation(), cb);
+        q[i] = (obb_query){.want_pairs = i % 3 == 0, .pairs = pairs[MT_THREADS][i], .max_pairs = 8,
+                           .order = i % 2 ? OBB_BREADTH_FIRST : OBB_DEPTH_FIRST};
+        assert_int_equal(obb_collide(ta, &pa[i], tb, &pb[i], &q[i], NULL, &want[i]), 0);
+        hits += want[i].collides;
+    }
+    if (hits < MT_POSES / 10 || hits > MT_POSES * 9 / 10)
+        fail_msg("%d of %d poses collide: too few of one answer to compare", hits, MT_POSES);
+    pthread_barrier_t go, done;
+    pthread_barrier_init(&go, NULL, MT_THREADS + 1);
+    pthread_barrier_init(&done, NULL, MT_THREADS + 1);
+    mt_job *job = calloc(MT_THREADS, sizeof *job);
+    static obb_query tq[MT_THREADS][MT_POSES];
+    pthread_t th[MT_THREADS];
+    for (int t = 0; t < MT_THREADS; t++) {
+        for (int i = 0; i < MT_POSES; i++)
+            tq[t][i] = q[i], tq[t][i].pairs = pairs[t][i];
+        job[t] = (mt_job){.ta = ta, .tb = tb, .pa = pa, .pb = pb, .q = tq[t],
+                          .cache = calloc(1, sizeof(obb_cache)), .offset = t * 37, .go = &go, .done = &done};
+        assert_int_equal(pthread_create(&th[t], NULL, mt_run, &job[t]), 0);
+    }
+    allocount_start();
+    pthread_barrier_wait(&go);
+    pthread_barrier_wait(&done);
+    long allocs = allocount_stop();
+    for (int t = 0; t < MT_THREADS; t++) {
+        pthread_join(th[t], NULL);
+        assert_int_equal(job[t].rc, 0);
+        for (int i = 0; i < MT_POSES; i++) {
+            const obb_result *g = &job[t].r[i], *w = &want[i];
+            if (g->collides != w->collides || g->pairs_total != w->pairs_total ||
+                g->npairs != w->npairs || !same_pairs(pairs[t][i], pairs[MT_THREADS][i], g->npairs))
+                fail_msg("thread %d pose %d: collides %d pairs %zu, one thread said %d pairs %zu", t, i,
+                         g->collides, g->pairs_total, w->collides, w->pairs_total);
+        }
+        free(job[t].cache);
+    }
+    if (allocount_available() && allocs)
+        fail_msg("%ld heap allocations while %d threads queried", allocs, MT_THREADS);
+    free(job);
+    pthread_barrier_destroy(&go);
+    pthread_barrier_destroy(&done);
+    obb_tree_free(ta);
+    obb_tree_free(tb);
+    tfrag_free(fa);
+    tfrag_free(fb);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -581,6 +687,7 @@ int main(void)
         cmocka_unit_test(test_pairs_listed),
         cmocka_unit_test(test_separation_is_a_lower_bound),
         cmocka_unit_test(test_bad_input),
+        cmocka_unit_test(test_concurrent_queries_allocate_nothing),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
