@@ -1,0 +1,129 @@
+/* The real-time step allocates nothing: motion into and along contact on real OBB octrees, with the
+ * journal on, the scene published and read, actions and undo/redo, all fed through the ring. */
+#include <stdarg.h>
+#include <stddef.h>
+#include <setjmp.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include "allocount.h"
+#include "journal.h"
+#include "loop.h"
+#include "ring.h"
+#include "testutil.h"
+
+#include <stdlib.h>
+#include <string.h>
+
+/* Fragment 0: a movable 8^3 cube at the origin; fragment 1: a fixed 24x24x4 slab just above it. */
+static void make(frag f[2])
+{
+    memset(f, 0, 2 * sizeof *f);
+    int dims[2][3] = {{8, 8, 8}, {24, 24, 4}};
+    double at[2][3] = {{0, 0, 0}, {-8, -8, 10}};
+    for (int i = 0; i < 2; i++) {
+        f[i].id = i + 1;
+        memcpy(f[i].dim, dims[i], sizeof f[i].dim);
+        f[i].spacing[0] = f[i].spacing[1] = f[i].spacing[2] = 1;
+        f[i].home = f[i].pose = POSE_IDENTITY;
+        memcpy(f[i].home.t, at[i], sizeof at[i]);
+        size_t n = (size_t)dims[i][0] * dims[i][1] * dims[i][2];
+        f[i].prob = malloc(n);
+        memset(f[i].prob, 255, n);
+        for (int a = 0; a < 3; a++)
+            f[i].centroid[a] = at[i][a] + (dims[i][a] - 1) / 2.0;
+    }
+}
+
+static loop_event motion(int k, float tx, float tz, float ry)
+{
+    loop_event e;
+    memset(&e, 0, sizeof e);
+    e.kind = LOOP_EV_MOTION;
+    e.t_us = 8000 * (int64_t)k;
+    e.arrival_us = loop_now_us();
+    e.motion[0] = tx, e.motion[2] = tz, e.motion[4] = ry;
+    return e;
+}
+
+static loop_event action(int k, loop_action a)
+{
+    loop_event e;
+    memset(&e, 0, sizeof e);
+    e.kind = LOOP_EV_ACTION;
+    e.action = a;
+    e.t_us = 8000 * (int64_t)k;
+    return e;
+}
+
+static void test_steps_allocate_nothing(void **st)
+{
+    if (!allocount_available())
+        skip(); /* AddressSanitizer owns malloc */
+    frag f[2];
+    make(f);
+    char *dir = tu_tmpdir("loopalloc");
+    journal *jr = journal_open(dir);
+    assert_non_null(jr);
+    loop_obb *o = loop_obb_new(f, 2, NULL, NULL);
+    assert_non_null(o);
+    loop_collider col = loop_obb_collider(o);
+    loop_config c;
+    loop_config_default(&c);
+    c.frame = LOOP_FRAME_WORLD;
+    c.check_invariant = 1;
+    uint8_t fixed[2] = {0, 1};
+    loop *L = loop_new(f, 2, fixed, &col, &c, jr);
+    assert_non_null(L);
+    ring *r = ring_new(sizeof(loop_event), 1024);
+    assert_non_null(r);
+    loop_scene sc;
+
+    allocount_start();
+    int k = 0;
+    for (int i = 0; i < 150; i++, k++) { /* up into the slab: free, then limited and refused */
+        loop_event e = motion(k, 0, 1, 0);
+        ring_push(r, &e);
+        loop_drain(L, r);
+        loop_publish(L);
+        loop_scene_read(L, &sc);
+    }
+    for (int i = 0; i < 150; i++, k++) { /* along it while pressing up, tilting: sliding */
+        loop_event e = motion(k, 1, 0.5f, 0.2f);
+        loop_feed(L, &e);
+    }
+    loop_action acts[] = {LOOP_ACT_UNDO, LOOP_ACT_UNDO, LOOP_ACT_REDO, LOOP_ACT_TRANS_ONLY,
+                          LOOP_ACT_TRANS_ONLY, LOOP_ACT_FRAME, LOOP_ACT_SAVE};
+    for (size_t i = 0; i < sizeof acts / sizeof *acts; i++, k++) {
+        loop_event e = action(k, acts[i]);
+        loop_feed(L, &e);
+    }
+    for (int i = 0; i < 100; i++, k++) {
+        loop_event e = motion(k, -1, 0.5f, -0.3f);
+        loop_feed(L, &e);
+    }
+    long allocs = allocount_stop();
+
+    loop_stats s;
+    loop_get_stats(L, &s);
+    assert_true(s.accepted > 0 && s.refused + s.limited > 0 && s.slid > 0);
+    assert_int_equal(s.collisions_in_accepted, 0);
+    if (allocs)
+        fail_msg("%ld heap allocations in %d loop steps", allocs, k);
+    ring_free(r);
+    loop_free(L);
+    loop_obb_free(o);
+    assert_int_equal(journal_close(jr), 0);
+    free(f[0].prob);
+    free(f[1].prob);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_steps_allocate_nothing),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
