@@ -197,14 +197,17 @@ static void put(buf *t, const void *d, size_t n)
     t->n += n;
 }
 
-static void tar_add(buf *t, const char *name, const void *data, size_t size)
+/* One tar entry of the given type ('0' file, '5' folder, '2' symlink). */
+static void tar_add_typed(buf *t, const char *name, const void *data, size_t size, char type)
 {
     unsigned char h[512] = {0};
     snprintf((char *)h, 100, "%s", name);
     snprintf((char *)h + 100, 8, "%07o", 0644);
     snprintf((char *)h + 124, 12, "%011o", (unsigned)size);
     snprintf((char *)h + 136, 12, "%011o", 0u);
-    h[156] = '0';
+    h[156] = (unsigned char)type;
+    if (type == '2')
+        snprintf((char *)h + 157, 100, "main.plist");
     memcpy(h + 257, "ustar", 6);
     memcpy(h + 263, "00", 2);
     memset(h + 148, ' ', 8);
@@ -216,6 +219,11 @@ static void tar_add(buf *t, const char *name, const void *data, size_t size)
     put(t, data, size);
     static const unsigned char zero[512];
     put(t, zero, (512 - size % 512) % 512);
+}
+
+static void tar_add(buf *t, const char *name, const void *data, size_t size)
+{
+    tar_add_typed(t, name, data, size, '0');
 }
 
 static char *plist_text(const char *shape, const char *dtype, const char *orientation)
@@ -279,6 +287,96 @@ static void test_inv3_small_project(void **st)
         vol_free(v);
     }
     free(pl);
+}
+
+/* `tar czf x.inv3 somefolder` puts the folder's own entry first; links may sit among the files. */
+static void test_inv3_folder_and_link_entries(void **st)
+{
+    int16_t m[24];
+    for (int i = 0; i < 24; i++)
+        m[i] = (int16_t)(i - 10);
+    char *pl = plist_text(SHAPE_234, "int16", "1");
+    buf t = {0};
+    tar_add_typed(&t, "tmpdir/", NULL, 0, '5');
+    tar_add_typed(&t, "tmpdir/link.plist", NULL, 0, '2');
+    tar_add(&t, "tmpdir/main.plist", pl, strlen(pl));
+    tar_add_typed(&t, "tmpdir/sub/", NULL, 0, '5');
+    tar_add(&t, "tmpdir/matrix.dat", m, sizeof m);
+    static const unsigned char end[1024];
+    put(&t, end, sizeof end);
+    const char *p = in_dir("folder_first.inv3");
+    write_gz(p, t.b, t.n);
+    free(t.b);
+    free(pl);
+    vol *v = volio_read(p);
+    if (!v)
+        fail_msg("%s", fn_err_msg());
+    assert_int_equal(v->dim[0] * v->dim[1] * v->dim[2], 24);
+    for (int i = 0; i < 24; i++)
+        assert_true(v->data[i] == (float)(i - 10));
+    vol_free(v);
+}
+
+/* An .inv3 whose matrix is followed by 1 MiB of another file, as in real projects (surfaces,
+ * masks): far more than zlib inflates ahead, so the gzip check at the end is not reached by chance. */
+static void write_inv3_with_tail(const char *path, const char *mode)
+{
+    int16_t m[24];
+    for (int i = 0; i < 24; i++)
+        m[i] = (int16_t)(i - 10);
+    char *pl = plist_text(SHAPE_234, "int16", "1");
+    size_t tail_n = 1 << 20;
+    char *tail = malloc(tail_n);
+    memset(tail, 'x', tail_n);
+    buf t = {0};
+    tar_add(&t, "tmpdir/main.plist", pl, strlen(pl));
+    tar_add(&t, "tmpdir/matrix.dat", m, sizeof m);
+    tar_add(&t, "tmpdir/surface_0.vtp", tail, tail_n);
+    static const unsigned char end[1024];
+    put(&t, end, sizeof end);
+    gzFile gz = gzopen(path, mode);
+    assert_non_null(gz);
+    assert_int_equal(gzwrite(gz, t.b, (unsigned)t.n), (int)t.n);
+    assert_int_equal(gzclose(gz), Z_OK);
+    free(t.b);
+    free(tail);
+    free(pl);
+}
+
+/* Finds needle in hay; the index of its first byte, or fails the test. */
+static size_t find_bytes(const unsigned char *hay, size_t n, const void *needle, size_t len)
+{
+    for (size_t i = 0; i + len <= n; i++)
+        if (!memcmp(hay + i, needle, len))
+            return i;
+    fail_msg("pattern not found");
+    return 0;
+}
+
+/* A damaged byte that still inflates (in a stored block, or in the CRC itself) is caught by the
+ * gzip check at the stream's end, not read as plausible voxels. */
+static void test_inv3_crc_checked(void **st)
+{
+    const char *p = in_dir("crc.inv3");
+    write_inv3_with_tail(p, "wb0"); /* level 0: the voxels lie in the file as they are */
+    vol *v = volio_read(p);
+    if (!v)
+        fail_msg("%s", fn_err_msg()); /* the baseline is fine */
+    vol_free(v);
+    size_t n;
+    unsigned char *b = (unsigned char *)tu_slurp(p, &n);
+    const int16_t voxels[3] = {0, 1, 2};
+    b[find_bytes(b, n, voxels, sizeof voxels) + 2] ^= 0x40;
+    tu_write_file(p, b, n);
+    expect_error(p, "corrupt gzip data", "incorrect data check");
+    free(b);
+
+    write_inv3_with_tail(p, "wb"); /* compressed: flip a bit of the stored CRC32 */
+    b = (unsigned char *)tu_slurp(p, &n);
+    b[n - 8] ^= 0x01;
+    tu_write_file(p, b, n);
+    expect_error(p, "corrupt gzip data", NULL);
+    free(b);
 }
 
 static void test_inv3_battery(void **st)
@@ -477,6 +575,8 @@ int main(void)
         cmocka_unit_test(test_nifti_corrupt_gzip),
         cmocka_unit_test(test_inv3_small_project),
         cmocka_unit_test(test_inv3_battery),
+        cmocka_unit_test(test_inv3_folder_and_link_entries),
+        cmocka_unit_test(test_inv3_crc_checked),
         cmocka_unit_test(test_inv3_damaged_archive),
         cmocka_unit_test(test_nrrd_battery),
         cmocka_unit_test(test_mutations),
