@@ -25,7 +25,10 @@ static void usage(FILE *out)
             "  -o, --output CASE      the case folder to write (created if missing)\n"
             "  --seed N               the random seed (required)\n"
             "  --pieces K             number of pieces, 2..16 (default 2)\n"
-            "  --displace MM          translation of each moved piece (default 3)\n"
+            "  --displace MM          how far each moved piece's centroid moves (default 3); a piece\n"
+            "                         that would land on another piece or on bright non-bone is\n"
+            "                         pushed on along its cut's normal in 1 mm steps, so it can end\n"
+            "                         farther: each fragment's distance is printed\n"
             "  --rotate DEG           rotation of each moved piece about its centroid (default 3)\n"
             "  --bone-loss MM         thickness of bone lost along each cut (default 0)\n"
             "  --roughness MM         RMS relief of the fracture surface (default 2)\n"
@@ -82,12 +85,9 @@ static int parse(int argc, char **argv, fracture_params *p, const char **in, con
 /* How far the truth moves the fragment's centroid, and by what angle. */
 static void print_truth(const frag *f, const pose *truth)
 {
-    double back[3], d2 = 0;
-    pose_apply(truth, f->centroid, back);
-    for (int a = 0; a < 3; a++)
-        d2 += (back[a] - f->centroid[a]) * (back[a] - f->centroid[a]);
-    printf("fragment %d: %zu voxels; its truth moves the centroid %.2f mm and turns it %.2f deg\n",
-           f->id, f->voxels, sqrt(d2), pose_angle_between(*truth, POSE_IDENTITY) * 180 / M_PI);
+    printf("fragment %d: %zu voxels; ground truth moves its centroid back %.2f mm and turns it %.2f deg\n",
+           f->id, f->voxels, fracture_truth_shift(truth, f->centroid),
+           pose_angle_between(*truth, POSE_IDENTITY) * 180 / M_PI);
 }
 
 int cmd_fracture(int argc, char **argv)

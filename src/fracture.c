@@ -428,6 +428,15 @@ void fracture_result_free(fracture_result *r)
     memset(r, 0, sizeof *r);
 }
 
+double fracture_truth_shift(const pose *truth, const double centroid[3])
+{
+    double back[3], d2 = 0;
+    pose_apply(truth, centroid, back);
+    for (int a = 0; a < 3; a++)
+        d2 += (back[a] - centroid[a]) * (back[a] - centroid[a]);
+    return sqrt(d2);
+}
+
 fcase *fracture_make_case(const vol *ct, const fracture_params *p, const char *dir)
 {
     fracture_result r;

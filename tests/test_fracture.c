@@ -240,6 +240,43 @@ static void test_same_seed_same_case(void **st)
     free(dir);
 }
 
+/* `fracnav fracture` prints, per fragment, how far its truth moves its centroid: the figure the
+ * demo prints too, and at least --displace (push-out only adds to it, as --help says). */
+static void test_cli_prints_centroid_shift(void **st)
+{
+    char *dir = tu_tmpdir("fracture"), src[4200], cdir[4300], *out;
+    snprintf(src, sizeof src, "%s/bone.nii.gz", dir);
+    snprintf(cdir, sizeof cdir, "%s/c", dir);
+    vol *ct = bone();
+    if (volio_write(ct, src, VOL_I16) < 0)
+        fail_msg("%s", fn_err_msg());
+    vol_free(ct);
+    int rc = tu_run_cli(&out, "fracture '%s' -o '%s' --seed 3 --displace 4", src, cdir);
+    if (rc != 0)
+        fail_msg("fracture failed (%d): %s", rc, out);
+    const char *line = strstr(out, "fragment 2:");
+    double mm = -1, deg = -1;
+    assert_non_null(line);
+    const char *at = strstr(line, "ground truth moves its centroid back ");
+    assert_non_null(at);
+    assert_int_equal(sscanf(at, "ground truth moves its centroid back %lf mm and turns it %lf deg", &mm, &deg), 2);
+    fcase *c = case_load(cdir);
+    if (!c)
+        fail_msg("%s", fn_err_msg());
+    int k = case_find(c, 2);
+    assert_true(k >= 0);
+    assert_true(fabs(mm - fracture_truth_shift(&c->truth[k], c->frag[k].centroid)) < 0.006);
+    assert_true(mm > 4 - 0.5);
+    assert_true(fabs(deg - 3) < 0.006);
+    case_free(c);
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "fracture --help"), 0);
+    assert_non_null(strstr(out, "pushed on along its cut's normal"));
+    free(out);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 /* FNV-1a over the voxel values of v (integers: labels, or an int16 CT), in index order. */
 static uint64_t voxel_digest(const vol *v)
 {
@@ -313,6 +350,7 @@ int main(void)
         cmocka_unit_test(test_bone_loss_opens_a_gap),
         cmocka_unit_test(test_same_seed_same_case),
         cmocka_unit_test(test_golden_case),
+        cmocka_unit_test(test_cli_prints_centroid_shift),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
