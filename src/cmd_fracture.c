@@ -36,9 +36,32 @@ static void usage(FILE *out)
             "  --help                 this text\n");
 }
 
+/* The fracture_params field of a plain-number option and what it accepts, or NULL. Ranges are
+ * fracture_check's. */
+static double *number_option(fracture_params *p, const char *opt, const char **accepted)
+{
+    const struct {
+        const char *name;
+        double *field;
+        const char *accepted;
+    } rows[] = {{"--displace", &p->displace_mm, "a number of mm"},
+                {"--rotate", &p->rotate_deg, "a number of degrees"},
+                {"--bone-loss", &p->bone_loss_mm, "a number of mm"},
+                {"--roughness", &p->roughness_mm, "a number of mm"},
+                {"--threshold", &p->threshold, "a number (HU)"}};
+    for (size_t i = 0; i < sizeof rows / sizeof rows[0]; i++)
+        if (!strcmp(opt, rows[i].name)) {
+            *accepted = rows[i].accepted;
+            return rows[i].field;
+        }
+    return NULL;
+}
+
 static int parse(int argc, char **argv, fracture_params *p, const char **in, const char **out)
 {
     int have_seed = 0;
+    double *target;
+    const char *accepted;
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i], *val = i + 1 < argc ? argv[i + 1] : NULL;
         double d;
@@ -48,32 +71,26 @@ static int parse(int argc, char **argv, fracture_params *p, const char **in, con
             *in = a;
             continue;
         }
-        if (!val)
-            return cmd_usage_error("fracture", "%s needs a value", a);
-        i++;
+        i++; /* every option takes a value; a missing one is reported by its branch */
         if (!strcmp(a, "-o") || !strcmp(a, "--output")) {
+            if (!val)
+                return cmd_bad_value("fracture", a, val, "a folder");
             *out = val;
-            continue;
-        }
-        if (!cmd_number(val, &d))
-            return cmd_usage_error("fracture", "%s needs a number", a);
-        if (!strcmp(a, "--seed") && d >= 0 && d < 9007199254740992.0 && d == (double)(uint64_t)d) {
+        } else if (!strcmp(a, "--seed")) {
+            if (!cmd_number(val, &d) || !(d >= 0 && d < 9007199254740992.0 && d == (double)(uint64_t)d))
+                return cmd_bad_value("fracture", a, val, "a whole number 0..2^53");
             p->seed = (uint64_t)d;
             have_seed = 1;
-        } else if (!strcmp(a, "--pieces") && d == (int)d)
+        } else if (!strcmp(a, "--pieces")) {
+            if (!cmd_number(val, &d) || !(d >= 2 && d <= 16 && d == (int)d))
+                return cmd_bad_value("fracture", a, val, "a whole number 2..16");
             p->pieces = (int)d;
-        else if (!strcmp(a, "--displace"))
-            p->displace_mm = d;
-        else if (!strcmp(a, "--rotate"))
-            p->rotate_deg = d;
-        else if (!strcmp(a, "--bone-loss"))
-            p->bone_loss_mm = d;
-        else if (!strcmp(a, "--roughness"))
-            p->roughness_mm = d;
-        else if (!strcmp(a, "--threshold"))
-            p->threshold = d;
+        } else if (!(target = number_option(p, a, &accepted)))
+            return cmd_usage_error("fracture", "unknown option '%s'", a);
+        else if (!cmd_number(val, &d))
+            return cmd_bad_value("fracture", a, val, accepted);
         else
-            return cmd_usage_error("fracture", "bad option or value near '%s'", a);
+            *target = d;
     }
     if (!*in || !*out || !have_seed)
         return cmd_usage_error("fracture", "%s", "needs VOLUME, -o CASE and --seed N");

@@ -319,17 +319,22 @@ static vol *vol_clone(const vol *v)
 
 int fracture_check(const fracture_params *p)
 {
-    if (p->pieces < 2 || p->pieces > 16)
-        return fn_err_set(FN_EINVAL, "fracture: pieces must be 2..16 (got %d)", p->pieces);
-    if (!(p->displace_mm >= 0 && p->displace_mm <= 200) ||
-        !(p->rotate_deg >= 0 && p->rotate_deg <= 180))
-        return fn_err_set(FN_EINVAL, "fracture: displace must be 0..200 mm, rotate 0..180 deg");
-    if (!(p->bone_loss_mm >= 0 && p->bone_loss_mm <= 20) || !(p->roughness_mm >= 0) ||
-        !(p->roughness_mm <= 50) || !(p->wavelength_mm > 0.5 && p->wavelength_mm <= 1000))
-        return fn_err_set(FN_EINVAL, "fracture: bone loss must be 0..20 mm, roughness 0..50 mm, "
-                                     "wavelength 0.5..1000 mm");
+    const struct {
+        const char *name;
+        double value, lo, hi;
+        const char *unit;
+    } rows[] = {{"pieces", p->pieces, 2, 16, ""},
+                {"displace", p->displace_mm, 0, 200, " mm"},
+                {"rotate", p->rotate_deg, 0, 180, " deg"},
+                {"bone loss", p->bone_loss_mm, 0, 20, " mm"},
+                {"roughness", p->roughness_mm, 0, 50, " mm"},
+                {"wavelength", p->wavelength_mm, 0.5, 1000, " mm"}};
+    for (size_t i = 0; i < sizeof rows / sizeof rows[0]; i++)
+        if (!(rows[i].value >= rows[i].lo && rows[i].value <= rows[i].hi))
+            return fn_err_set(FN_EINVAL, "%s must be %g..%g%s (got %g)", rows[i].name, rows[i].lo,
+                              rows[i].hi, rows[i].unit, rows[i].value);
     if (!isfinite(p->threshold) || !isfinite(p->fill))
-        return fn_err_set(FN_EINVAL, "fracture: threshold and fill must be finite");
+        return fn_err_set(FN_EINVAL, "fracture threshold and fill must be finite");
     return 0;
 }
 

@@ -232,7 +232,7 @@ static void test_same_seed_same_case(void **st)
     free(jb);
     free(jc);
     assert_int_equal(tu_run_cli(&out, "fracture '%s' -o '%s/d' --seed 1 --pieces 1", src, dir), 2);
-    assert_non_null(strstr(out, "fracnav fracture: fracture: pieces must be 2..16"));
+    assert_non_null(strstr(out, "fracnav fracture: --pieces: '1' is not a whole number 2..16"));
     free(out);
     assert_int_equal(tu_run_cli(&out, "fracture '%s' -o '%s/d'", src, dir), 2);
     free(out);

@@ -144,6 +144,14 @@ static void test_nifti_battery(void **st)
     expect_error(p, "dim[4] = 3", "3D");
 
     h = good_header(4, 4, 4, DT_INT16, 16);
+    h.vox_offset = 1e12f;
+    write_nii(p = in_dir("far_offset.nii"), &h, 128, 0);
+    expect_error(p, "vox_offset is 1e+12, too large", "beyond the end of the file");
+    h.vox_offset = 100;
+    write_nii(p = in_dir("near_offset.nii"), &h, 128, 0);
+    expect_error(p, "vox_offset is 100, must be at least 348", NULL);
+
+    h = good_header(4, 4, 4, DT_INT16, 16);
     h.srow_x[1] = 0.5f; /* the j axis leans into x: shear */
     write_nii(p = in_dir("shear.nii"), &h, 128, 0);
     expect_error(p, "sform", "sheared");
@@ -161,6 +169,26 @@ static void test_nifti_budget(void **st)
     assert_null(v);
     assert_non_null(strstr(fn_err_msg(), "memory budget"));
     assert_non_null(strstr(fn_err_msg(), p));
+    /* A small budget reads as what it is, not "0.0 GiB". */
+    if (!strstr(fn_err_msg(), "need 64000 bytes, over the memory budget of 10000 bytes"))
+        fail_msg("budget message: %s", fn_err_msg());
+
+    /* A budget that is not a number is an error that names the variable, not the default. */
+    char *out = NULL;
+    setenv("FRACNAV_MAX_BYTES", "8G", 1);
+    v = volio_read(p);
+    int rc = tu_run_cli(&out, "info '%s'", p);
+    setenv("FRACNAV_MAX_BYTES", "3000000", 1);
+    vol *big = vol_new(1000, 1000, 1);
+    unsetenv("FRACNAV_MAX_BYTES");
+    assert_null(v);
+    assert_int_equal(rc, 1);
+    if (!strstr(out, "FRACNAV_MAX_BYTES is '8G'"))
+        fail_msg("bad budget message: %s", out);
+    free(out);
+    assert_null(big);
+    if (!strstr(fn_err_msg(), "need 3.8 MiB, over the memory budget of 2.9 MiB"))
+        fail_msg("MiB budget message: %s", fn_err_msg());
 }
 
 static void test_nifti_corrupt_gzip(void **st)
