@@ -247,7 +247,8 @@ static pose random_motion(uint64_t *rng, const double centroid[3], const double 
 
 /* Resamples piece `id` of cut (on the original grid) moved by m into out_lab/out_ct (nearest
  * neighbour). Counts voxels that would land on another piece or on a bright object that is not
- * bone (the head holder: >= threshold in src_ct but in no piece); writes only when apply. */
+ * bone (the head holder: >= threshold in src_ct but in no piece); writes only when apply, and
+ * without apply stops at the first such voxel (returns 1). */
 static size_t place_piece(const vol *cut, const vol *src_ct, vol *out_lab, vol *out_ct, int id,
                           pose m, double threshold, int apply)
 {
@@ -294,6 +295,8 @@ static size_t place_piece(const vol *cut, const vol *src_ct, vol *out_lab, vol *
                 size_t to = vol_idx(out_lab, i, j, k);
                 int other = out_lab->data[to] != 0 && out_lab->data[to] != (float)id;
                 if (other || (cut->data[to] == 0 && src_ct->data[to] >= threshold)) {
+                    if (!apply)
+                        return 1; /* the push-out loop only asks whether there is any */
                     conflicts++;
                     continue;
                 }
