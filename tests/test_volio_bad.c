@@ -325,10 +325,10 @@ static void test_inv3_folder_and_link_entries(void **st)
         m[i] = (int16_t)(i - 10);
     char *pl = plist_text(SHAPE_234, "int16", "1");
     buf t = {0};
-    tar_add_typed(&t, "tmpdir/", NULL, 0, '5');
-    tar_add_typed(&t, "tmpdir/link.plist", NULL, 0, '2');
+    tar_add_typed(&t, "tmpdir/", "", 0, '5');
+    tar_add_typed(&t, "tmpdir/link.plist", "", 0, '2');
     tar_add(&t, "tmpdir/main.plist", pl, strlen(pl));
-    tar_add_typed(&t, "tmpdir/sub/", NULL, 0, '5');
+    tar_add_typed(&t, "tmpdir/sub/", "", 0, '5');
     tar_add(&t, "tmpdir/matrix.dat", m, sizeof m);
     static const unsigned char end[1024];
     put(&t, end, sizeof end);
