@@ -190,8 +190,12 @@ static int keep_previous_labels(const char *lfin, const char *lprev, const char 
 {
     if (unlink(lprev) != 0 && errno != ENOENT)
         return fn_err_set(FN_EIO, "%s: cannot remove: %s", lprev, strerror(errno));
-    if (link(lfin, lprev) != 0)
-        return errno == ENOENT ? 0 : fn_err_set(FN_EIO, "%s: cannot link to %s: %s", lprev, lfin, strerror(errno));
+    if (link(lfin, lprev) != 0) {
+        /* No previous labels (a first save), or a file system without hard links: save as before. */
+        if (errno == ENOENT || errno == EPERM || errno == ENOTSUP || errno == EOPNOTSUPP)
+            return 0;
+        return fn_err_set(FN_EIO, "%s: cannot link to %s: %s", lprev, lfin, strerror(errno));
+    }
     return fsync_path(dir, 1);
 }
 
