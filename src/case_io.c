@@ -18,6 +18,7 @@
 #define CASE_FORMAT "fracnav-case"
 #define LABELS_FILE "labels.nii.gz"
 #define LABELS_TMP ".labels.tmp.nii.gz"
+#define LABELS_PREV "labels.prev.nii.gz" /* the labels the on-disk case.json names, during a save */
 #define JSON_FILE "case.json"
 #define JSON_TMP ".case.json.tmp"
 
@@ -183,11 +184,28 @@ static void join(char *out, size_t cap, const char *dir, const char *name)
     snprintf(out, cap, "%s/%s", dir, name);
 }
 
+/* Keeps the labels that the current case.json names as LABELS_PREV (a hard link, no copy), so a
+ * crash between the two renames of a save leaves a consistent pair that case_load can fall back to. */
+static int keep_previous_labels(const char *lfin, const char *lprev, const char *dir)
+{
+    if (unlink(lprev) != 0 && errno != ENOENT)
+        return fn_err_set(FN_EIO, "%s: cannot remove: %s", lprev, strerror(errno));
+    if (link(lfin, lprev) != 0) {
+        /* No previous labels (a first save), or a file system without hard links: save as before. */
+        if (errno == ENOENT || errno == EPERM || errno == ENOTSUP || errno == EOPNOTSUPP)
+            return 0;
+        return fn_err_set(FN_EIO, "%s: cannot link to %s: %s", lprev, lfin, strerror(errno));
+    }
+    return fsync_path(dir, 1);
+}
+
+/* Renames labels then case.json; the previous labels stay linked until both are in place. */
 int case_save(fcase *c)
 {
     if (mkdir(c->dir, 0755) != 0 && errno != EEXIST)
         return fn_err_set(FN_EIO, "%s: cannot create the case folder: %s", c->dir, strerror(errno));
-    char ltmp[4200], jtmp[4200], lfin[4200], jfin[4200], lsha[65];
+    char ltmp[4200], jtmp[4200], lfin[4200], jfin[4200], lprev[4200], lsha[65];
+    join(lprev, sizeof lprev, c->dir, LABELS_PREV);
     join(ltmp, sizeof ltmp, c->dir, LABELS_TMP);
     join(jtmp, sizeof jtmp, c->dir, JSON_TMP);
     join(lfin, sizeof lfin, c->dir, LABELS_FILE);
@@ -214,6 +232,8 @@ int case_save(fcase *c)
             free(text);
         }
     }
+    if (rc == 0)
+        rc = keep_previous_labels(lfin, lprev, c->dir);
     if (rc == 0 && rename(ltmp, lfin) != 0)
         rc = fn_err_set(FN_EIO, "%s: rename failed: %s", lfin, strerror(errno));
     if (rc == 0 && rename(jtmp, jfin) != 0)
@@ -225,6 +245,7 @@ int case_save(fcase *c)
         unlink(jtmp);
         return fn_err_wrap(rc, "saving case %s", c->dir);
     }
+    unlink(lprev); /* a leftover is harmless: the next save replaces it */
     return 0;
 }
 
@@ -456,6 +477,27 @@ static int keep_extra(json_t *root, fcase *c)
     return 0;
 }
 
+/* The labels file whose sha256 is lsha: labels.nii.gz, or after a save interrupted between its two
+ * renames, the previous labels it kept, which are put back in place (said on stderr). */
+static int find_labels(const char *dir, const char *json, const char *lsha, char *lpath, size_t cap)
+{
+    char lprev[4200], lnow[65], pnow[65];
+    join(lpath, cap, dir, LABELS_FILE);
+    join(lprev, sizeof lprev, dir, LABELS_PREV);
+    int rc = case_file_sha256(lpath, lnow);
+    if (rc < 0 || !strcmp(lnow, lsha))
+        return rc;
+    if (case_file_sha256(lprev, pnow) < 0 || strcmp(pnow, lsha))
+        return fn_err_set(FN_EMISMATCH, "%s has sha256 %.12s..., but %s expects %.12s...: it was "
+                                        "changed or a save was interrupted", lpath, lnow, json, lsha);
+    int moved = rename(lprev, lpath) == 0;
+    fprintf(stderr, "fracnav: %s: a save was interrupted; %s the previous labels, %s, which match %s\n",
+            dir, moved ? "restored" : "using", LABELS_PREV, json);
+    if (!moved)
+        snprintf(lpath, cap, "%s", lprev);
+    return 0;
+}
+
 static int read_case(struct reader *r, json_t *root, fcase *c)
 {
     const char *fmt = get_str(r, root, "", "format");
@@ -495,13 +537,9 @@ static int read_case(struct reader *r, json_t *root, fcase *c)
         return fn_err_set(FN_EMISMATCH, "source %s has sha256 %.12s..., but %s expects %.12s...: "
                                         "the volume changed since the case was made",
                           c->source, c->sha256, r->file, sha);
-    char lpath[4200], lnow[65];
-    join(lpath, sizeof lpath, c->dir, LABELS_FILE);
-    if ((rc = case_file_sha256(lpath, lnow)) < 0)
+    char lpath[4200];
+    if ((rc = find_labels(c->dir, r->file, lsha, lpath, sizeof lpath)) < 0)
         return rc;
-    if (strcmp(lnow, lsha))
-        return fn_err_set(FN_EMISMATCH, "%s has sha256 %.12s..., but %s expects %.12s...: it was "
-                                        "changed or a save was interrupted", lpath, lnow, r->file, lsha);
     if (!(c->ct = volio_read(c->source)))
         return FN_EIO;
     if ((rc = check_geometry(r, src, c->ct, c->source)) < 0)

@@ -26,6 +26,10 @@ int cmd_wants_help(int argc, char **argv);
 int cmd_number(const char *s, double *out);
 /* Prints "fracnav CMD: MESSAGE (see fracnav CMD --help)" on stderr; returns 2, the usage exit. */
 int cmd_usage_error(const char *cmd, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+/* The usage error for option opt's value val (NULL: it had none): "OPT: 'VAL' is not ACCEPTED"
+ * or "OPT needs a value (ACCEPTED)", e.g. accepted = "a number (HU), 'auto' or 'auto-bone'".
+ * Returns 2. */
+int cmd_bad_value(const char *cmd, const char *opt, const char *val, const char *accepted);
 /* Path of the example CT that .ci/setup caches: $FRACNAV_DATA/Cranium.inv3, else
  * /var/cache/fracnav/Cranium.inv3 (a static buffer). */
 const char *cmd_example_ct(void);

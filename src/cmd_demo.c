@@ -138,9 +138,9 @@ static int fracture(const fcase *seg, const char *dir)
     for (int i = 0; i < c->nfrag; i++) {
         const frag *f = &c->frag[i];
         pose t = c->truth[i];
-        printf("   fragment %d: %zu voxels%s; ground truth puts it back by %.2f mm and %.2f deg\n", f->id,
-               f->voxels, i == c->fixed ? " (fixed)" : "", pose_distance(t, POSE_IDENTITY),
-               pose_angle_between(t, POSE_IDENTITY) * 57.29577951308232);
+        printf("   fragment %d: %zu voxels%s; ground truth moves its centroid back %.2f mm and turns it "
+               "%.2f deg\n", f->id, f->voxels, i == c->fixed ? " (fixed)" : "",
+               fracture_truth_shift(&t, f->centroid), pose_angle_between(t, POSE_IDENTITY) * 57.29577951308232);
     }
     uint8_t rgb[3][3] = {{0, 0, 0}};
     for (int i = 0; i < c->nfrag && c->frag[i].id < 3; i++)

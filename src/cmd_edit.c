@@ -61,13 +61,19 @@ static int id_list(int argc, char **argv, int *ids, int cap)
     return n ? n : -1;
 }
 
-/* `--id ID` after the positional numbers, or none (0). Returns 0 or -1. */
-static int optional_id(int argc, char **argv, int *id)
+/* `--id ID` after the positional numbers of op, or none (0). Returns 0, or 2 after a usage error. */
+static int optional_id(const char *op, int argc, char **argv, int *id)
 {
     *id = 0;
     if (argc == 0)
         return 0;
-    return argc == 2 && !strcmp(argv[0], "--id") && integer(argv[1], id) ? 0 : -1;
+    if (strcmp(argv[0], "--id"))
+        return cmd_usage_error("edit", "%s: unknown option or extra argument '%s'", op, argv[0]);
+    if (argc > 2)
+        return cmd_usage_error("edit", "%s: extra argument '%s'", op, argv[2]);
+    if (argc != 2 || !integer(argv[1], id))
+        return cmd_bad_value("edit", "--id", argc > 1 ? argv[1] : NULL, "a fragment id (0..65535)");
+    return 0;
 }
 
 /* Applies the operation; returns 0, 2 (usage) or 1 (runtime, fn_err set). */
@@ -89,32 +95,39 @@ static int apply(fcase *c, const char *op, int argc, char **argv)
             return 1;
         printf("split fragment %d: the part in front of the plane is fragment %ld\n", id, rc);
     } else if (!strcmp(op, "erase-box")) {
-        if (argc < 6 || !numbers(argv, 6, v) || optional_id(argc - 6, argv + 6, &id) < 0)
+        if (argc < 6 || !numbers(argv, 6, v))
             return cmd_usage_error("edit", "erase-box needs X0 Y0 Z0 X1 Y1 Z1 [--id ID]");
+        if (optional_id(op, argc - 6, argv + 6, &id))
+            return 2;
         if ((rc = case_erase_box(c, v, v + 3, id)) < 0)
             return 1;
         printf("erased %ld voxels\n", rc);
     } else if (!strcmp(op, "erase-sphere")) {
-        if (argc < 4 || !numbers(argv, 4, v) || optional_id(argc - 4, argv + 4, &id) < 0)
+        if (argc < 4 || !numbers(argv, 4, v))
             return cmd_usage_error("edit", "erase-sphere needs CX CY CZ R [--id ID]");
+        if (optional_id(op, argc - 4, argv + 4, &id))
+            return 2;
+        if (!(v[3] > 0))
+            return cmd_bad_value("edit", "erase-sphere R", argv[3], "a radius > 0 mm");
         if ((rc = case_erase_sphere(c, v, v[3], id)) < 0)
             return 1;
         printf("erased %ld voxels\n", rc);
     } else if (!strcmp(op, "grow")) {
         double thr = c->seg.threshold;
-        int into = 0, ok = argc >= 3 && numbers(argv, 3, v);
-        for (int i = 3; ok && i < argc; i += 2) {
-            if (i + 1 >= argc)
-                ok = 0;
-            else if (!strcmp(argv[i], "--threshold"))
-                ok = cmd_number(argv[i + 1], &thr);
-            else if (!strcmp(argv[i], "--into"))
-                ok = integer(argv[i + 1], &into);
-            else
-                ok = 0;
-        }
-        if (!ok)
+        int into = 0;
+        if (argc < 3 || !numbers(argv, 3, v))
             return cmd_usage_error("edit", "grow needs X Y Z [--threshold HU] [--into ID]");
+        for (int i = 3; i < argc; i += 2) {
+            const char *val = i + 1 < argc ? argv[i + 1] : NULL;
+            if (!strcmp(argv[i], "--threshold")) {
+                if (!cmd_number(val, &thr))
+                    return cmd_bad_value("edit", argv[i], val, "a number (HU)");
+            } else if (!strcmp(argv[i], "--into")) {
+                if (!val || !integer(val, &into))
+                    return cmd_bad_value("edit", argv[i], val, "a fragment id (0..65535)");
+            } else
+                return cmd_usage_error("edit", "grow: unknown option '%s'", argv[i]);
+        }
         if ((id = case_grow(c, v, thr, into)) < 0)
             return 1;
         printf("grew fragment %d to %zu voxels\n", id, c->frag[case_find(c, id)].voxels);
@@ -123,7 +136,7 @@ static int apply(fcase *c, const char *op, int argc, char **argv)
             return cmd_usage_error("edit", "keep/drop need fragment ids (1,3 or 1 3)");
         if ((!strcmp(op, "keep") ? case_keep(c, ids, n) : case_drop(c, ids, n)) < 0)
             return 1;
-        printf("%d fragments left\n", c->nfrag);
+        printf("%d fragment%s left\n", c->nfrag, c->nfrag == 1 ? "" : "s");
     } else if (!strcmp(op, "fix")) {
         if (argc != 1 || !integer(argv[0], &id))
             return cmd_usage_error("edit", "fix needs one fragment id (0: none)");

@@ -25,7 +25,10 @@ static void usage(FILE *out)
             "  -o, --output CASE      the case folder to write (created if missing)\n"
             "  --seed N               the random seed (required)\n"
             "  --pieces K             number of pieces, 2..16 (default 2)\n"
-            "  --displace MM          translation of each moved piece (default 3)\n"
+            "  --displace MM          how far each moved piece's centroid moves (default 3); a piece\n"
+            "                         that would land on another piece or on bright non-bone is\n"
+            "                         pushed on along its cut's normal in 1 mm steps, so it can end\n"
+            "                         farther: each fragment's distance is printed\n"
             "  --rotate DEG           rotation of each moved piece about its centroid (default 3)\n"
             "  --bone-loss MM         thickness of bone lost along each cut (default 0)\n"
             "  --roughness MM         RMS relief of the fracture surface (default 2)\n"
@@ -33,9 +36,32 @@ static void usage(FILE *out)
             "  --help                 this text\n");
 }
 
+/* The fracture_params field of a plain-number option and what it accepts, or NULL. Ranges are
+ * fracture_check's. */
+static double *number_option(fracture_params *p, const char *opt, const char **accepted)
+{
+    const struct {
+        const char *name;
+        double *field;
+        const char *accepted;
+    } rows[] = {{"--displace", &p->displace_mm, "a number of mm"},
+                {"--rotate", &p->rotate_deg, "a number of degrees"},
+                {"--bone-loss", &p->bone_loss_mm, "a number of mm"},
+                {"--roughness", &p->roughness_mm, "a number of mm"},
+                {"--threshold", &p->threshold, "a number (HU)"}};
+    for (size_t i = 0; i < sizeof rows / sizeof rows[0]; i++)
+        if (!strcmp(opt, rows[i].name)) {
+            *accepted = rows[i].accepted;
+            return rows[i].field;
+        }
+    return NULL;
+}
+
 static int parse(int argc, char **argv, fracture_params *p, const char **in, const char **out)
 {
     int have_seed = 0;
+    double *target;
+    const char *accepted;
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i], *val = i + 1 < argc ? argv[i + 1] : NULL;
         double d;
@@ -45,32 +71,26 @@ static int parse(int argc, char **argv, fracture_params *p, const char **in, con
             *in = a;
             continue;
         }
-        if (!val)
-            return cmd_usage_error("fracture", "%s needs a value", a);
-        i++;
+        i++; /* every option takes a value; a missing one is reported by its branch */
         if (!strcmp(a, "-o") || !strcmp(a, "--output")) {
+            if (!val)
+                return cmd_bad_value("fracture", a, val, "a folder");
             *out = val;
-            continue;
-        }
-        if (!cmd_number(val, &d))
-            return cmd_usage_error("fracture", "%s needs a number", a);
-        if (!strcmp(a, "--seed") && d >= 0 && d < 9007199254740992.0 && d == (double)(uint64_t)d) {
+        } else if (!strcmp(a, "--seed")) {
+            if (!cmd_number(val, &d) || !(d >= 0 && d < 9007199254740992.0 && d == (double)(uint64_t)d))
+                return cmd_bad_value("fracture", a, val, "a whole number 0..2^53");
             p->seed = (uint64_t)d;
             have_seed = 1;
-        } else if (!strcmp(a, "--pieces") && d == (int)d)
+        } else if (!strcmp(a, "--pieces")) {
+            if (!cmd_number(val, &d) || !(d >= 2 && d <= 16 && d == (int)d))
+                return cmd_bad_value("fracture", a, val, "a whole number 2..16");
             p->pieces = (int)d;
-        else if (!strcmp(a, "--displace"))
-            p->displace_mm = d;
-        else if (!strcmp(a, "--rotate"))
-            p->rotate_deg = d;
-        else if (!strcmp(a, "--bone-loss"))
-            p->bone_loss_mm = d;
-        else if (!strcmp(a, "--roughness"))
-            p->roughness_mm = d;
-        else if (!strcmp(a, "--threshold"))
-            p->threshold = d;
+        } else if (!(target = number_option(p, a, &accepted)))
+            return cmd_usage_error("fracture", "unknown option '%s'", a);
+        else if (!cmd_number(val, &d))
+            return cmd_bad_value("fracture", a, val, accepted);
         else
-            return cmd_usage_error("fracture", "bad option or value near '%s'", a);
+            *target = d;
     }
     if (!*in || !*out || !have_seed)
         return cmd_usage_error("fracture", "%s", "needs VOLUME, -o CASE and --seed N");
@@ -82,12 +102,9 @@ static int parse(int argc, char **argv, fracture_params *p, const char **in, con
 /* How far the truth moves the fragment's centroid, and by what angle. */
 static void print_truth(const frag *f, const pose *truth)
 {
-    double back[3], d2 = 0;
-    pose_apply(truth, f->centroid, back);
-    for (int a = 0; a < 3; a++)
-        d2 += (back[a] - f->centroid[a]) * (back[a] - f->centroid[a]);
-    printf("fragment %d: %zu voxels; its truth moves the centroid %.2f mm and turns it %.2f deg\n",
-           f->id, f->voxels, sqrt(d2), pose_angle_between(*truth, POSE_IDENTITY) * 180 / M_PI);
+    printf("fragment %d: %zu voxels; ground truth moves its centroid back %.2f mm and turns it %.2f deg\n",
+           f->id, f->voxels, fracture_truth_shift(truth, f->centroid),
+           pose_angle_between(*truth, POSE_IDENTITY) * 180 / M_PI);
 }
 
 int cmd_fracture(int argc, char **argv)

@@ -44,28 +44,39 @@ static int parse(int argc, char **argv, seg_params *p, const char **in, const ch
             *in = a;
             continue;
         }
-        if (!val)
-            return cmd_usage_error("segment", "%s needs a value", a);
-        i++;
-        if (!strcmp(a, "-o") || !strcmp(a, "--output"))
+        i++; /* every option takes a value; a missing one is reported by its branch */
+        if (!strcmp(a, "-o") || !strcmp(a, "--output")) {
+            if (!val)
+                return cmd_bad_value("segment", a, val, "a folder");
             *out = val;
-        else if (!strcmp(a, "--threshold") && !strcmp(val, "auto"))
-            p->threshold_auto = 1;
-        else if (!strcmp(a, "--threshold") && !strcmp(val, "auto-bone"))
-            p->threshold_auto = 2;
-        else if (!strcmp(a, "--threshold") && cmd_number(val, &d))
-            p->threshold = d;
-        else if (!strcmp(a, "--min-volume") && cmd_number(val, &d) && d >= 0)
+        } else if (!strcmp(a, "--threshold")) {
+            if (val && !strcmp(val, "auto"))
+                p->threshold_auto = 1;
+            else if (val && !strcmp(val, "auto-bone"))
+                p->threshold_auto = 2;
+            else if (cmd_number(val, &d))
+                p->threshold = d;
+            else
+                return cmd_bad_value("segment", a, val, "a number (HU), 'auto' or 'auto-bone'");
+        } else if (!strcmp(a, "--min-volume")) {
+            if (!cmd_number(val, &d) || d < 0)
+                return cmd_bad_value("segment", a, val, "a number of ml >= 0");
             p->min_volume_ml = d;
-        else if (!strcmp(a, "--exclude-below-peak") && cmd_number(val, &d)) {
+        } else if (!strcmp(a, "--exclude-below-peak")) {
+            if (!cmd_number(val, &d))
+                return cmd_bad_value("segment", a, val, "a number (HU)");
             p->exclude_peak = 1;
             p->exclude_below_peak = d;
-        } else if (!strcmp(a, "--keep") && cmd_number(val, &d) && d >= 1 && d <= 1e6 && d == (int)d)
+        } else if (!strcmp(a, "--keep")) {
+            if (!cmd_number(val, &d) || !(d >= 1 && d <= 1e6 && d == (int)d))
+                return cmd_bad_value("segment", a, val, "a whole number 1..1000000");
             p->keep = (int)d;
-        else if (!strcmp(a, "--ramp") && cmd_number(val, &d) && d >= 0)
+        } else if (!strcmp(a, "--ramp")) {
+            if (!cmd_number(val, &d) || d < 0)
+                return cmd_bad_value("segment", a, val, "a number >= 0 (HU)");
             p->ramp = d;
-        else
-            return cmd_usage_error("segment", "bad option or value near '%s'", a);
+        } else
+            return cmd_usage_error("segment", "unknown option '%s'", a);
     }
     if (!*in || !*out)
         return cmd_usage_error("segment", "%s", "needs VOLUME and -o CASE");

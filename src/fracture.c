@@ -247,7 +247,8 @@ static pose random_motion(uint64_t *rng, const double centroid[3], const double 
 
 /* Resamples piece `id` of cut (on the original grid) moved by m into out_lab/out_ct (nearest
  * neighbour). Counts voxels that would land on another piece or on a bright object that is not
- * bone (the head holder: >= threshold in src_ct but in no piece); writes only when apply. */
+ * bone (the head holder: >= threshold in src_ct but in no piece); writes only when apply, and
+ * without apply stops at the first such voxel (returns 1). */
 static size_t place_piece(const vol *cut, const vol *src_ct, vol *out_lab, vol *out_ct, int id,
                           pose m, double threshold, int apply)
 {
@@ -294,6 +295,8 @@ static size_t place_piece(const vol *cut, const vol *src_ct, vol *out_lab, vol *
                 size_t to = vol_idx(out_lab, i, j, k);
                 int other = out_lab->data[to] != 0 && out_lab->data[to] != (float)id;
                 if (other || (cut->data[to] == 0 && src_ct->data[to] >= threshold)) {
+                    if (!apply)
+                        return 1; /* the push-out loop only asks whether there is any */
                     conflicts++;
                     continue;
                 }
@@ -319,17 +322,22 @@ static vol *vol_clone(const vol *v)
 
 int fracture_check(const fracture_params *p)
 {
-    if (p->pieces < 2 || p->pieces > 16)
-        return fn_err_set(FN_EINVAL, "fracture: pieces must be 2..16 (got %d)", p->pieces);
-    if (!(p->displace_mm >= 0 && p->displace_mm <= 200) ||
-        !(p->rotate_deg >= 0 && p->rotate_deg <= 180))
-        return fn_err_set(FN_EINVAL, "fracture: displace must be 0..200 mm, rotate 0..180 deg");
-    if (!(p->bone_loss_mm >= 0 && p->bone_loss_mm <= 20) || !(p->roughness_mm >= 0) ||
-        !(p->roughness_mm <= 50) || !(p->wavelength_mm > 0.5 && p->wavelength_mm <= 1000))
-        return fn_err_set(FN_EINVAL, "fracture: bone loss must be 0..20 mm, roughness 0..50 mm, "
-                                     "wavelength 0.5..1000 mm");
+    const struct {
+        const char *name;
+        double value, lo, hi;
+        const char *unit;
+    } rows[] = {{"pieces", p->pieces, 2, 16, ""},
+                {"displace", p->displace_mm, 0, 200, " mm"},
+                {"rotate", p->rotate_deg, 0, 180, " deg"},
+                {"bone loss", p->bone_loss_mm, 0, 20, " mm"},
+                {"roughness", p->roughness_mm, 0, 50, " mm"},
+                {"wavelength", p->wavelength_mm, 0.5, 1000, " mm"}};
+    for (size_t i = 0; i < sizeof rows / sizeof rows[0]; i++)
+        if (!(rows[i].value >= rows[i].lo && rows[i].value <= rows[i].hi))
+            return fn_err_set(FN_EINVAL, "%s must be %g..%g%s (got %g)", rows[i].name, rows[i].lo,
+                              rows[i].hi, rows[i].unit, rows[i].value);
     if (!isfinite(p->threshold) || !isfinite(p->fill))
-        return fn_err_set(FN_EINVAL, "fracture: threshold and fill must be finite");
+        return fn_err_set(FN_EINVAL, "fracture threshold and fill must be finite");
     return 0;
 }
 
@@ -426,6 +434,15 @@ void fracture_result_free(fracture_result *r)
     free(r->truth);
     free(r->moved);
     memset(r, 0, sizeof *r);
+}
+
+double fracture_truth_shift(const pose *truth, const double centroid[3])
+{
+    double back[3], d2 = 0;
+    pose_apply(truth, centroid, back);
+    for (int a = 0; a < 3; a++)
+        d2 += (back[a] - centroid[a]) * (back[a] - centroid[a]);
+    return sqrt(d2);
 }
 
 fcase *fracture_make_case(const vol *ct, const fracture_params *p, const char *dir)

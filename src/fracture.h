@@ -51,6 +51,9 @@ int fracture_check(const fracture_params *p);
 /* 0 and *out filled (free with fracture_result_free), or a negative FN_E* code. */
 int fracture_make(const vol *ct, const fracture_params *p, fracture_result *out);
 void fracture_result_free(fracture_result *r);
+/* How far truth moves a point (a fragment's centroid, in mm): the one measure of a piece's
+ * displacement that fracnav prints (a pose's translation alone depends on where the origin is). */
+double fracture_truth_shift(const pose *truth, const double centroid[3]);
 
 struct fcase;
 /* The whole thing as a saved case: fractures ct, writes dir/source.nii.gz (ct's voxel type), makes

@@ -61,6 +61,13 @@ int cmd_usage_error(const char *cmd, const char *fmt, ...)
     return 2;
 }
 
+int cmd_bad_value(const char *cmd, const char *opt, const char *val, const char *accepted)
+{
+    if (!val)
+        return cmd_usage_error(cmd, "%s needs a value (%s)", opt, accepted);
+    return cmd_usage_error(cmd, "%s: '%s' is not %s", opt, val, accepted);
+}
+
 const char *cmd_example_ct(void)
 {
     static char path[4096];

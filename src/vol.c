@@ -2,20 +2,47 @@
 
 #include "err.h"
 
+#include <errno.h>
 #include <math.h>
+#include <stdint.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
-size_t vol_budget(void)
+#define BUDGET_DEFAULT ((size_t)8 << 30)
+
+/* FRACNAV_MAX_BYTES as a positive whole number of bytes: 1 and *out set, 0 when unset, -1 when
+ * it is something else. */
+static int budget_env(size_t *out)
 {
     const char *s = getenv("FRACNAV_MAX_BYTES");
-    if (s && *s) {
-        char *end;
-        unsigned long long b = strtoull(s, &end, 10);
-        if (*end == '\0' && b > 0)
-            return (size_t)b;
-    }
-    return (size_t)8 << 30;
+    if (!s || !*s)
+        return 0;
+    char *end;
+    errno = 0;
+    unsigned long long b = strtoull(s, &end, 10);
+    if (*s == '-' || *end != '\0' || errno || b == 0 || b > SIZE_MAX)
+        return -1;
+    *out = (size_t)b;
+    return 1;
+}
+
+size_t vol_budget(void)
+{
+    size_t b;
+    return budget_env(&b) == 1 ? b : BUDGET_DEFAULT;
+}
+
+/* "1.5 GiB", "12.0 MiB" or "4000 bytes": small budgets read as what they are, not "0.0 GiB". */
+static const char *human_bytes(double n, char *buf, size_t cap)
+{
+    if (n >= (double)(1 << 30))
+        snprintf(buf, cap, "%.1f GiB", n / (1 << 30));
+    else if (n >= (double)(1 << 20))
+        snprintf(buf, cap, "%.1f MiB", n / (1 << 20));
+    else
+        snprintf(buf, cap, "%.0f bytes", n);
+    return buf;
 }
 
 int vol_check_dims(const int64_t dim[3], size_t elem_bytes, const char *what)
@@ -24,7 +51,11 @@ int vol_check_dims(const int64_t dim[3], size_t elem_bytes, const char *what)
         if (dim[a] <= 0 || dim[a] > (1 << 20))
             return fn_err_set(FN_EFORMAT, "%s: dimension %d is %lld (must be 1..%d)", what, a,
                               (long long)dim[a], 1 << 20);
-    size_t budget = vol_budget();
+    size_t budget;
+    if (budget_env(&budget) < 0)
+        return fn_err_set(FN_EINVAL, "FRACNAV_MAX_BYTES is '%s': expected a whole number of bytes "
+                                     "over 0 (e.g. 8589934592 for 8 GiB)", getenv("FRACNAV_MAX_BYTES"));
+    budget = vol_budget();
     size_t n = (size_t)dim[0];
     for (int a = 1; a < 3; a++) {
         if (n > SIZE_MAX / (size_t)dim[a])
@@ -32,12 +63,13 @@ int vol_check_dims(const int64_t dim[3], size_t elem_bytes, const char *what)
                               (long long)dim[0], (long long)dim[1], (long long)dim[2]);
         n *= (size_t)dim[a];
     }
+    char need[32], have[32];
     if (elem_bytes && n > budget / elem_bytes)
-        return fn_err_set(FN_ENOMEM,
-                          "%s: %lldx%lldx%lld voxels need %.1f GiB, over the memory budget of "
-                          "%.1f GiB (FRACNAV_MAX_BYTES)",
+        return fn_err_set(FN_ENOMEM, "%s: %lldx%lldx%lld voxels need %s, over the memory budget of %s "
+                                     "(FRACNAV_MAX_BYTES)",
                           what, (long long)dim[0], (long long)dim[1], (long long)dim[2],
-                          (double)n * (double)elem_bytes / (1 << 30), (double)budget / (1 << 30));
+                          human_bytes((double)n * (double)elem_bytes, need, sizeof need),
+                          human_bytes((double)budget, have, sizeof have));
     return 0;
 }
 

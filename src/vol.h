@@ -22,10 +22,12 @@ typedef struct vol {
     float *data;           /* dim[0]*dim[1]*dim[2] values, owned */
 } vol;
 
-/* Bytes a volume may take; 0 = the default (FRACNAV_MAX_BYTES from the environment, else 8 GiB). */
+/* Bytes a volume may take: FRACNAV_MAX_BYTES from the environment (whole bytes), else 8 GiB (also
+ * when the variable is malformed: vol_check_dims reports that). */
 size_t vol_budget(void);
 /* Checks dims are positive, the voxel count does not overflow, and count*elem_bytes fits the
- * budget. `what` names the file/field for the message. Returns 0 or FN_EFORMAT/FN_ENOMEM. */
+ * budget. `what` names the file/field for the message. Returns 0 or FN_EFORMAT/FN_ENOMEM, or
+ * FN_EINVAL when FRACNAV_MAX_BYTES is set but not a whole number of bytes over 0. */
 int vol_check_dims(const int64_t dim[3], size_t elem_bytes, const char *what);
 
 /* A zero-filled volume with identity spacing and affine; NULL (with fn_err) on bad dims or OOM. */

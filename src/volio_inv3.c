@@ -447,7 +447,8 @@ typedef struct {
 } entry;
 
 /* The header at the current position: name (GNU/pax long names followed), size, data offset.
- * Returns 1 for a regular file, 0 for the end of the archive, -1 on error. */
+ * Returns 1 for a regular file, 2 for any other entry (folder, link, device: the caller skips it),
+ * 0 for the end of the archive, -1 on error. */
 static int next_entry(stream *s, entry *e)
 {
     unsigned char h[512];
@@ -499,7 +500,27 @@ static int next_entry(stream *s, entry *e)
             snprintf(e->name, sizeof e->name, "%.100s", (const char *)h);
         e->off = at + 512;
         e->size = size;
-        return type == '0' || type == '\0' || type == '7';
+        return type == '0' || type == '\0' || type == '7' ? 1 : 2;
+    }
+}
+
+/* Inflates the rest of the stream: zlib checks the gzip CRC32 and length only at its end, and a
+ * damaged byte can inflate to plausible voxels that nothing else would catch. */
+static int check_to_end(stream *s)
+{
+    unsigned char buf[1 << 16];
+    for (;;) {
+        z_off_t at = gztell(s->gz);
+        int got = gzread(s->gz, buf, sizeof buf);
+        int zerr = Z_OK;
+        gzerror(s->gz, &zerr);
+        if (zerr == Z_BUF_ERROR)
+            return fn_err_set(FN_EFORMAT, "%s: truncated: the gzip stream ends early, after offset "
+                                          "%lld of the tar", s->path, (long long)gztell(s->gz));
+        if (got < 0 || zerr != Z_OK)
+            return gz_fail(s, at, "the archive's end (gzip check)", sizeof buf, -1);
+        if (got == 0)
+            return 0;
     }
 }
 
@@ -543,11 +564,11 @@ static vol *scan(stream *s)
                 if (!strcmp(base_name(seen[i].name), info.filename)) {
                     if (skip_to(s, seen[i].off) == 0)
                         v = read_matrix(s, &info, seen[i].size);
-                    goto out;
+                    goto check;
                 }
         } else if (r == 1 && have_info && !strcmp(bn, info.filename)) {
             v = read_matrix(s, &info, e.size);
-            goto out;
+            goto check;
         } else if (r == 1 && !have_info) {
             if (nseen == capseen) {
                 size_t cap = capseen ? capseen * 2 : 16;
@@ -569,6 +590,12 @@ static vol *scan(stream *s)
     else
         fn_err_set(FN_EFORMAT, "%s: main.plist: matrix.filename '%s' is not in the archive",
                    s->path, info.filename);
+    goto out;
+check:
+    if (v && check_to_end(s) < 0) {
+        vol_free(v);
+        v = NULL;
+    }
 out:
     free(plist_text);
     free(seen);

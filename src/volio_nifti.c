@@ -86,8 +86,11 @@ static int check_header(const unsigned char *h, size_t n, const char *path, int6
         return fn_err_set(FN_EFORMAT, "%s: datatype %d (%s) is not supported (u8 i8 u16 i16 u32 i32 f32 f64)",
                           path, dt, nifti_datatype_string(dt));
     union { int32_t i; float f; } off = {get32(h + 108, swap)};
-    if (!(off.f >= HDR_SIZE) || off.f > 1e9)
+    if (!(off.f >= HDR_SIZE))
         return fn_err_set(FN_EFORMAT, "%s: vox_offset is %g, must be at least 348", path, off.f);
+    if (off.f > 1e9)
+        return fn_err_set(FN_EFORMAT, "%s: vox_offset is %g, too large: the data would start beyond "
+                                      "the end of the file (over 1e9 bytes in)", path, off.f);
     *vox_offset = (uint64_t)off.f;
     *bytes = (uint64_t)dim[0] * (uint64_t)dim[1] * (uint64_t)dim[2] * volio__type_size(t);
     return 0;

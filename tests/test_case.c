@@ -254,6 +254,54 @@ static void test_changed_files(void **st)
     free(dir);
 }
 
+/* A crash between a save's two renames leaves the new labels beside the old case.json and the
+ * labels that save kept: the case loads with the old, consistent pair, and labels.nii.gz is put
+ * back. */
+static void test_interrupted_save_recovers(void **st)
+{
+    char *dir = tu_tmpdir("case"), src[4200], cdir[4200], lab[4300], prev[4300];
+    snprintf(src, sizeof src, "%s/ct.nii.gz", dir);
+    snprintf(cdir, sizeof cdir, "%s/case", dir);
+    snprintf(lab, sizeof lab, "%s/labels.nii.gz", cdir);
+    snprintf(prev, sizeof prev, "%s/labels.prev.nii.gz", cdir);
+    write_ct(src, 700);
+    fcase *c = make_case(cdir, src);
+    assert_int_equal(case_save(c), 0);
+    assert_int_equal(case_save(c), 0);
+    struct stat sb;
+    assert_int_not_equal(stat(prev, &sb), 0); /* a finished save keeps nothing behind */
+
+    size_t n;
+    char *old = tu_slurp(lab, &n);
+    tu_write_file(prev, old, n);
+    size_t i0 = vol_idx(c->labels, 3, 3, 3);
+    assert_true(c->labels->data[i0] != 0);
+    c->labels->data[i0] = 0; /* the edit whose save was cut short */
+    assert_int_equal(volio_write(c->labels, lab, VOL_U16), 0);
+
+    fcase *d = case_load(cdir);
+    if (!d)
+        fail_msg("%s", fn_err_msg());
+    assert_true(d->labels->data[i0] != 0);
+    assert_int_equal(d->nfrag, 2);
+    case_free(d);
+    size_t m;
+    char *now = tu_slurp(lab, &m);
+    assert_true(m == n && !memcmp(now, old, n));
+    assert_int_not_equal(stat(prev, &sb), 0);
+    free(now);
+
+    /* Kept labels that match neither: refused as before, naming the file. */
+    assert_int_equal(volio_write(c->labels, lab, VOL_U16), 0);
+    assert_int_equal(volio_write(c->labels, prev, VOL_U16), 0);
+    assert_null(case_load(cdir));
+    assert_non_null(strstr(fn_err_msg(), "save was interrupted"));
+    free(old);
+    case_free(c);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 /* Truncations and byte changes all over case.json: never a crash, and every refusal names the file
  * it is about. */
 static void test_corruption_battery(void **st)
@@ -311,6 +359,7 @@ int main(void)
         cmocka_unit_test(test_damaged_fields),
         cmocka_unit_test(test_changed_files),
         cmocka_unit_test(test_corruption_battery),
+        cmocka_unit_test(test_interrupted_save_recovers),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -25,7 +25,7 @@ static void test_demo_runs_the_workflow(void **st)
     assert_non_null(strstr(out, "403557"));
     assert_non_null(strstr(out, "head holder"));
     /* the fracture and the replay, with no collision among the accepted poses */
-    assert_non_null(strstr(out, "ground truth puts it back"));
+    assert_non_null(strstr(out, "ground truth moves its centroid back"));
     assert_non_null(strstr(out, "collisions in accepted poses: 0"));
     const char *files[] = {"case/case.json", "case/labels.nii.gz", "segmentation-front.png",
                            "segmentation-right.png", "segmentation-below.png", "fracture/case.json",

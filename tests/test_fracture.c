@@ -232,12 +232,114 @@ static void test_same_seed_same_case(void **st)
     free(jb);
     free(jc);
     assert_int_equal(tu_run_cli(&out, "fracture '%s' -o '%s/d' --seed 1 --pieces 1", src, dir), 2);
-    assert_non_null(strstr(out, "fracnav fracture: fracture: pieces must be 2..16"));
+    assert_non_null(strstr(out, "fracnav fracture: --pieces: '1' is not a whole number 2..16"));
     free(out);
     assert_int_equal(tu_run_cli(&out, "fracture '%s' -o '%s/d'", src, dir), 2);
     free(out);
     tu_rmtree(dir);
     free(dir);
+}
+
+/* `fracnav fracture` prints, per fragment, how far its truth moves its centroid: the figure the
+ * demo prints too, and at least --displace (push-out only adds to it, as --help says). */
+static void test_cli_prints_centroid_shift(void **st)
+{
+    char *dir = tu_tmpdir("fracture"), src[4200], cdir[4300], *out;
+    snprintf(src, sizeof src, "%s/bone.nii.gz", dir);
+    snprintf(cdir, sizeof cdir, "%s/c", dir);
+    vol *ct = bone();
+    if (volio_write(ct, src, VOL_I16) < 0)
+        fail_msg("%s", fn_err_msg());
+    vol_free(ct);
+    int rc = tu_run_cli(&out, "fracture '%s' -o '%s' --seed 3 --displace 4", src, cdir);
+    if (rc != 0)
+        fail_msg("fracture failed (%d): %s", rc, out);
+    const char *line = strstr(out, "fragment 2:");
+    double mm = -1, deg = -1;
+    assert_non_null(line);
+    const char *at = strstr(line, "ground truth moves its centroid back ");
+    assert_non_null(at);
+    assert_int_equal(sscanf(at, "ground truth moves its centroid back %lf mm and turns it %lf deg", &mm, &deg), 2);
+    fcase *c = case_load(cdir);
+    if (!c)
+        fail_msg("%s", fn_err_msg());
+    int k = case_find(c, 2);
+    assert_true(k >= 0);
+    assert_true(fabs(mm - fracture_truth_shift(&c->truth[k], c->frag[k].centroid)) < 0.006);
+    assert_true(mm > 4 - 0.5);
+    assert_true(fabs(deg - 3) < 0.006);
+    case_free(c);
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "fracture --help"), 0);
+    assert_non_null(strstr(out, "pushed on along its cut's normal"));
+    free(out);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* FNV-1a over the voxel values of v (integers: labels, or an int16 CT), in index order. */
+static uint64_t voxel_digest(const vol *v)
+{
+    uint64_t h = 0xcbf29ce484222325ull;
+    for (size_t i = 0; i < vol_count(v); i++) {
+        uint32_t x = (uint32_t)(int32_t)v->data[i];
+        for (int b = 0; b < 4; b++) {
+            h ^= (x >> (8 * b)) & 0xff;
+            h *= 0x100000001b3ull;
+        }
+    }
+    return h;
+}
+
+/* The same seed gives the same case on every machine: values recorded once, on x86-64 with gcc,
+ * and compared here. Voxels by digest (not gzip bytes, which depend on zlib's version). */
+static void test_golden_case(void **st)
+{
+    static const size_t want_cut[3] = {8611, 7380, 2657}, want_lab[3] = {8611, 7380, 2333};
+    static const double want_q[3][4] = {
+        {1, 0, 0, 0},
+        {0.99939082701909565, 0.016153247879554519, 0.026401623561393164, 0.016124569028412295},
+        {0.99939082701909565, -0.01086970055676161, 0.026014573851418414, 0.020568578638868313}};
+    static const double want_t[3][3] = {
+        {0, 0, 0},
+        {-3.2855510495549081, -0.61435410221265352, 2.0735821183643712},
+        {-25.996573251004428, 5.8092746857844499, -2.0911442343934823}};
+    /* cut (before displacement), labels (displaced), fractured CT */
+    static const uint64_t want_digest[3] = {0x34a525d29d603367ull, 0xc676c36ed5198d67ull, 0xbaea8732ce056622ull};
+    vol *ct = bone();
+    fracture_params p;
+    fracture_defaults(&p);
+    p.seed = 2026;
+    p.pieces = 3;
+    p.bone_loss_mm = 1;
+    p.rotate_deg = 4;
+    fracture_result r;
+    if (fracture_make(ct, &p, &r) < 0)
+        fail_msg("%s", fn_err_msg());
+    uint64_t digest[3] = {voxel_digest(r.cut), voxel_digest(r.labels), voxel_digest(r.ct)};
+    int same = 1;
+    for (int id = 1; id <= 3; id++) {
+        same &= count_label(r.cut, id) == want_cut[id - 1] && count_label(r.labels, id) == want_lab[id - 1];
+        for (int a = 0; a < 4; a++)
+            same &= fabs(r.truth[id - 1].q[a] - want_q[id - 1][a]) <= 1e-9;
+        for (int a = 0; a < 3; a++)
+            same &= fabs(r.truth[id - 1].t[a] - want_t[id - 1][a]) <= 1e-9;
+    }
+    for (int d = 0; d < 3; d++)
+        same &= digest[d] == want_digest[d];
+    if (!same) {
+        printf("cut %zu %zu %zu, labels %zu %zu %zu, digests 0x%016llxull, 0x%016llxull, 0x%016llxull\n",
+               count_label(r.cut, 1), count_label(r.cut, 2), count_label(r.cut, 3), count_label(r.labels, 1),
+               count_label(r.labels, 2), count_label(r.labels, 3), (unsigned long long)digest[0],
+               (unsigned long long)digest[1], (unsigned long long)digest[2]);
+        for (int id = 1; id <= 3; id++)
+            printf("truth %d: {%.17g, %.17g, %.17g, %.17g}, {%.17g, %.17g, %.17g}\n", id, r.truth[id - 1].q[0],
+                   r.truth[id - 1].q[1], r.truth[id - 1].q[2], r.truth[id - 1].q[3], r.truth[id - 1].t[0],
+                   r.truth[id - 1].t[1], r.truth[id - 1].t[2]);
+        fail_msg("seed 2026 no longer gives the recorded case (actual values above)");
+    }
+    fracture_result_free(&r);
+    vol_free(ct);
 }
 
 int main(void)
@@ -247,6 +349,8 @@ int main(void)
         cmocka_unit_test(test_surface_is_rough),
         cmocka_unit_test(test_bone_loss_opens_a_gap),
         cmocka_unit_test(test_same_seed_same_case),
+        cmocka_unit_test(test_golden_case),
+        cmocka_unit_test(test_cli_prints_centroid_shift),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

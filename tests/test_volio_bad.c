@@ -144,6 +144,14 @@ static void test_nifti_battery(void **st)
     expect_error(p, "dim[4] = 3", "3D");
 
     h = good_header(4, 4, 4, DT_INT16, 16);
+    h.vox_offset = 1e12f;
+    write_nii(p = in_dir("far_offset.nii"), &h, 128, 0);
+    expect_error(p, "vox_offset is 1e+12, too large", "beyond the end of the file");
+    h.vox_offset = 100;
+    write_nii(p = in_dir("near_offset.nii"), &h, 128, 0);
+    expect_error(p, "vox_offset is 100, must be at least 348", NULL);
+
+    h = good_header(4, 4, 4, DT_INT16, 16);
     h.srow_x[1] = 0.5f; /* the j axis leans into x: shear */
     write_nii(p = in_dir("shear.nii"), &h, 128, 0);
     expect_error(p, "sform", "sheared");
@@ -161,6 +169,26 @@ static void test_nifti_budget(void **st)
     assert_null(v);
     assert_non_null(strstr(fn_err_msg(), "memory budget"));
     assert_non_null(strstr(fn_err_msg(), p));
+    /* A small budget reads as what it is, not "0.0 GiB". */
+    if (!strstr(fn_err_msg(), "need 64000 bytes, over the memory budget of 10000 bytes"))
+        fail_msg("budget message: %s", fn_err_msg());
+
+    /* A budget that is not a number is an error that names the variable, not the default. */
+    char *out = NULL;
+    setenv("FRACNAV_MAX_BYTES", "8G", 1);
+    v = volio_read(p);
+    int rc = tu_run_cli(&out, "info '%s'", p);
+    setenv("FRACNAV_MAX_BYTES", "3000000", 1);
+    vol *big = vol_new(1000, 1000, 1);
+    unsetenv("FRACNAV_MAX_BYTES");
+    assert_null(v);
+    assert_int_equal(rc, 1);
+    if (!strstr(out, "FRACNAV_MAX_BYTES is '8G'"))
+        fail_msg("bad budget message: %s", out);
+    free(out);
+    assert_null(big);
+    if (!strstr(fn_err_msg(), "need 3.8 MiB, over the memory budget of 2.9 MiB"))
+        fail_msg("MiB budget message: %s", fn_err_msg());
 }
 
 static void test_nifti_corrupt_gzip(void **st)
@@ -197,14 +225,17 @@ static void put(buf *t, const void *d, size_t n)
     t->n += n;
 }
 
-static void tar_add(buf *t, const char *name, const void *data, size_t size)
+/* One tar entry of the given type ('0' file, '5' folder, '2' symlink). */
+static void tar_add_typed(buf *t, const char *name, const void *data, size_t size, char type)
 {
     unsigned char h[512] = {0};
     snprintf((char *)h, 100, "%s", name);
     snprintf((char *)h + 100, 8, "%07o", 0644);
     snprintf((char *)h + 124, 12, "%011o", (unsigned)size);
     snprintf((char *)h + 136, 12, "%011o", 0u);
-    h[156] = '0';
+    h[156] = (unsigned char)type;
+    if (type == '2')
+        snprintf((char *)h + 157, 100, "main.plist");
     memcpy(h + 257, "ustar", 6);
     memcpy(h + 263, "00", 2);
     memset(h + 148, ' ', 8);
@@ -216,6 +247,11 @@ static void tar_add(buf *t, const char *name, const void *data, size_t size)
     put(t, data, size);
     static const unsigned char zero[512];
     put(t, zero, (512 - size % 512) % 512);
+}
+
+static void tar_add(buf *t, const char *name, const void *data, size_t size)
+{
+    tar_add_typed(t, name, data, size, '0');
 }
 
 static char *plist_text(const char *shape, const char *dtype, const char *orientation)
@@ -279,6 +315,96 @@ static void test_inv3_small_project(void **st)
         vol_free(v);
     }
     free(pl);
+}
+
+/* `tar czf x.inv3 somefolder` puts the folder's own entry first; links may sit among the files. */
+static void test_inv3_folder_and_link_entries(void **st)
+{
+    int16_t m[24];
+    for (int i = 0; i < 24; i++)
+        m[i] = (int16_t)(i - 10);
+    char *pl = plist_text(SHAPE_234, "int16", "1");
+    buf t = {0};
+    tar_add_typed(&t, "tmpdir/", "", 0, '5');
+    tar_add_typed(&t, "tmpdir/link.plist", "", 0, '2');
+    tar_add(&t, "tmpdir/main.plist", pl, strlen(pl));
+    tar_add_typed(&t, "tmpdir/sub/", "", 0, '5');
+    tar_add(&t, "tmpdir/matrix.dat", m, sizeof m);
+    static const unsigned char end[1024];
+    put(&t, end, sizeof end);
+    const char *p = in_dir("folder_first.inv3");
+    write_gz(p, t.b, t.n);
+    free(t.b);
+    free(pl);
+    vol *v = volio_read(p);
+    if (!v)
+        fail_msg("%s", fn_err_msg());
+    assert_int_equal(v->dim[0] * v->dim[1] * v->dim[2], 24);
+    for (int i = 0; i < 24; i++)
+        assert_true(v->data[i] == (float)(i - 10));
+    vol_free(v);
+}
+
+/* An .inv3 whose matrix is followed by 1 MiB of another file, as in real projects (surfaces,
+ * masks): far more than zlib inflates ahead, so the gzip check at the end is not reached by chance. */
+static void write_inv3_with_tail(const char *path, const char *mode)
+{
+    int16_t m[24];
+    for (int i = 0; i < 24; i++)
+        m[i] = (int16_t)(i - 10);
+    char *pl = plist_text(SHAPE_234, "int16", "1");
+    size_t tail_n = 1 << 20;
+    char *tail = malloc(tail_n);
+    memset(tail, 'x', tail_n);
+    buf t = {0};
+    tar_add(&t, "tmpdir/main.plist", pl, strlen(pl));
+    tar_add(&t, "tmpdir/matrix.dat", m, sizeof m);
+    tar_add(&t, "tmpdir/surface_0.vtp", tail, tail_n);
+    static const unsigned char end[1024];
+    put(&t, end, sizeof end);
+    gzFile gz = gzopen(path, mode);
+    assert_non_null(gz);
+    assert_int_equal(gzwrite(gz, t.b, (unsigned)t.n), (int)t.n);
+    assert_int_equal(gzclose(gz), Z_OK);
+    free(t.b);
+    free(tail);
+    free(pl);
+}
+
+/* Finds needle in hay; the index of its first byte, or fails the test. */
+static size_t find_bytes(const unsigned char *hay, size_t n, const void *needle, size_t len)
+{
+    for (size_t i = 0; i + len <= n; i++)
+        if (!memcmp(hay + i, needle, len))
+            return i;
+    fail_msg("pattern not found");
+    return 0;
+}
+
+/* A damaged byte that still inflates (in a stored block, or in the CRC itself) is caught by the
+ * gzip check at the stream's end, not read as plausible voxels. */
+static void test_inv3_crc_checked(void **st)
+{
+    const char *p = in_dir("crc.inv3");
+    write_inv3_with_tail(p, "wb0"); /* level 0: the voxels lie in the file as they are */
+    vol *v = volio_read(p);
+    if (!v)
+        fail_msg("%s", fn_err_msg()); /* the baseline is fine */
+    vol_free(v);
+    size_t n;
+    unsigned char *b = (unsigned char *)tu_slurp(p, &n);
+    const int16_t voxels[3] = {0, 1, 2};
+    b[find_bytes(b, n, voxels, sizeof voxels) + 2] ^= 0x40;
+    tu_write_file(p, b, n);
+    expect_error(p, "corrupt gzip data", "incorrect data check");
+    free(b);
+
+    write_inv3_with_tail(p, "wb"); /* compressed: flip a bit of the stored CRC32 */
+    b = (unsigned char *)tu_slurp(p, &n);
+    b[n - 8] ^= 0x01;
+    tu_write_file(p, b, n);
+    expect_error(p, "corrupt gzip data", NULL);
+    free(b);
 }
 
 static void test_inv3_battery(void **st)
@@ -477,6 +603,8 @@ int main(void)
         cmocka_unit_test(test_nifti_corrupt_gzip),
         cmocka_unit_test(test_inv3_small_project),
         cmocka_unit_test(test_inv3_battery),
+        cmocka_unit_test(test_inv3_folder_and_link_entries),
+        cmocka_unit_test(test_inv3_crc_checked),
         cmocka_unit_test(test_inv3_damaged_archive),
         cmocka_unit_test(test_nrrd_battery),
         cmocka_unit_test(test_mutations),

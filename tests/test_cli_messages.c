@@ -1,0 +1,120 @@
+/* What a user sees for bad options of segment, fracture and edit: the option, the value and what
+ * is accepted, exit 2 for usage errors. */
+#include <stdarg.h>
+#include <stddef.h>
+#include <setjmp.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include "err.h"
+#include "testutil.h"
+#include "volio.h"
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+struct fixture {
+    char *tmp;
+    char ct[4200], cdir[4200];
+};
+
+/* One 8x8x8 block of bone (1200) in a 24^3 CT of -1000, and its segmented case. */
+static int setup(void **st)
+{
+    struct fixture *f = calloc(1, sizeof *f);
+    f->tmp = tu_tmpdir("cli-msg");
+    snprintf(f->ct, sizeof f->ct, "%s/ct.nii.gz", f->tmp);
+    snprintf(f->cdir, sizeof f->cdir, "%s/case", f->tmp);
+    vol *v = vol_new(24, 24, 24);
+    for (int k = 0; k < 24; k++)
+        for (int j = 0; j < 24; j++)
+            for (int i = 0; i < 24; i++)
+                v->data[vol_idx(v, i, j, k)] = i >= 8 && i < 16 && j >= 8 && j < 16 && k >= 8 && k < 16 ? 1200 : -1000;
+    if (volio_write(v, f->ct, VOL_I16) < 0)
+        fail_msg("%s", fn_err_msg());
+    vol_free(v);
+    char *out;
+    if (tu_run_cli(&out, "segment '%s' -o '%s' --min-volume 0", f->ct, f->cdir) != 0)
+        fail_msg("segment failed: %s", out);
+    free(out);
+    *st = f;
+    return 0;
+}
+
+static int teardown(void **st)
+{
+    struct fixture *f = *st;
+    tu_rmtree(f->tmp);
+    free(f->tmp);
+    free(f);
+    return 0;
+}
+
+/* Runs `fracnav CMD ARGS`, expects exit status rc and `want` in the output. */
+static void expect(int rc, const char *want, const char *fmt, ...)
+{
+    char args[8192], *out = NULL;
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(args, sizeof args, fmt, ap);
+    va_end(ap);
+    int got = tu_run_cli(&out, "%s", args);
+    if (got != rc || !strstr(out, want))
+        fail_msg("fracnav %s: exit %d (want %d), output lacks \"%s\":\n%s", args, got, rc, want, out);
+    free(out);
+}
+
+static void test_segment(void **st)
+{
+    struct fixture *f = *st;
+    const char *o = f->tmp;
+    expect(2, "fracnav segment: --threshold: 'abc' is not a number (HU), 'auto' or 'auto-bone'",
+           "segment '%s' -o '%s/s' --threshold abc", f->ct, o);
+    expect(2, "fracnav segment: unknown option '--bogus'", "segment '%s' -o '%s/s' --bogus", f->ct, o);
+    expect(2, "fracnav segment: unknown option '--bogus'", "segment '%s' -o '%s/s' --bogus 3", f->ct, o);
+    expect(2, "--threshold needs a value", "segment '%s' -o '%s/s' --threshold", f->ct, o);
+    expect(2, "--min-volume: '-1' is not a number of ml >= 0", "segment '%s' -o '%s/s' --min-volume -1", f->ct, o);
+    expect(2, "--keep: '1.5' is not a whole number", "segment '%s' -o '%s/s' --keep 1.5", f->ct, o);
+    expect(2, "--ramp: 'wide' is not a number >= 0", "segment '%s' -o '%s/s' --ramp wide", f->ct, o);
+    expect(0, "1 kept", "segment '%s' -o '%s/s' --threshold auto-bone --ramp 0", f->ct, o);
+}
+
+static void test_fracture(void **st)
+{
+    struct fixture *f = *st;
+    const char *o = f->tmp;
+    expect(2, "fracnav fracture: --threshold: 'abc' is not a number (HU)",
+           "fracture '%s' -o '%s/f' --seed 1 --threshold abc", f->ct, o);
+    expect(2, "fracnav fracture: unknown option '--bogus'", "fracture '%s' -o '%s/f' --seed 1 --bogus", f->ct, o);
+    expect(2, "--seed: '-3' is not a whole number", "fracture '%s' -o '%s/f' --seed -3", f->ct, o);
+    expect(2, "--seed needs a value", "fracture '%s' -o '%s/f' --seed", f->ct, o);
+    expect(2, "--rotate: 'x' is not a number of degrees", "fracture '%s' -o '%s/f' --seed 1 --rotate x", f->ct, o);
+    /* No module prefix doubled after the command's. */
+    expect(2, "fracnav fracture: --pieces: '17' is not a whole number 2..16",
+           "fracture '%s' -o '%s/f' --seed 1 --pieces 17", f->ct, o);
+    expect(2, "fracnav fracture: bone loss must be 0..20 mm (got 25) (see",
+           "fracture '%s' -o '%s/f' --seed 1 --bone-loss 25", f->ct, o);
+}
+
+static void test_edit(void **st)
+{
+    struct fixture *f = *st;
+    expect(2, "fracnav edit: erase-sphere R: '-5' is not a radius > 0 mm", "edit '%s' erase-sphere 0 0 0 -5", f->cdir);
+    expect(2, "erase-box: unknown option or extra argument '--bogus'", "edit '%s' erase-box 0 0 0 1 1 1 --bogus", f->cdir);
+    expect(2, "--id: 'x' is not a fragment id", "edit '%s' erase-sphere 0 0 0 5 --id x", f->cdir);
+    expect(2, "--id needs a value", "edit '%s' erase-sphere 0 0 0 5 --id", f->cdir);
+    expect(2, "grow: unknown option '--bogus'", "edit '%s' grow 0 0 0 --bogus", f->cdir);
+    expect(2, "--threshold: 'abc' is not a number (HU)", "edit '%s' grow 0 0 0 --threshold abc", f->cdir);
+    expect(0, "1 fragment left\n", "edit '%s' keep 1", f->cdir);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test_setup_teardown(test_segment, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_fracture, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_edit, setup, teardown),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
