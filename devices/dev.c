@@ -146,30 +146,46 @@ static dev_device *open_auto(void)
     return NULL;
 }
 
+static int is_path(const char *spec)
+{
+    const char *colon = strchr(spec, ':'), *slash = strchr(spec, '/');
+    if (slash && (!colon || slash < colon))
+        return 1;
+    return !colon && !dev_transport_find(spec) && access(spec, F_OK) == 0;
+}
+
+int dev_spec_resolve(const char *spec, const dev_transport **t, const char **arg)
+{
+    *t = &dev__hid_transport;
+    *arg = spec;
+    if (!spec || is_path(spec))
+        return 0;
+    char name[32];
+    const char *colon = strchr(spec, ':');
+    size_t n = colon ? (size_t)(colon - spec) : strlen(spec);
+    if (n >= sizeof name)
+        return fn_err_set(FN_EINVAL, "device '%s': unknown transport (a path, auto, serial:S, or a transport name)",
+                          spec);
+    memcpy(name, spec, n);
+    name[n] = '\0';
+    if (!(*t = dev_transport_find(name)))
+        return fn_err_set(FN_EINVAL, "device '%s': unknown transport '%s' (a path, auto, serial:S, or a transport name)",
+                          spec, name);
+    *arg = colon && colon[1] ? colon + 1 : NULL;
+    return 0;
+}
+
 dev_device *dev_open(const char *spec)
 {
     if (!spec || !*spec || !strcmp(spec, "auto"))
         return open_auto();
-    if (spec[0] == '/' || spec[0] == '.')
-        return open_on(&dev__hid_transport, spec, spec);
     if (!strncmp(spec, "serial:", 7))
         return open_serial(spec + 7, spec);
-    char name[32];
-    const char *colon = strchr(spec, ':');
-    size_t n = colon ? (size_t)(colon - spec) : strlen(spec);
-    if (n >= sizeof name) {
-        fn_err_set(FN_EINVAL, "device '%s': unknown transport", spec);
+    const dev_transport *t;
+    const char *arg;
+    if (dev_spec_resolve(spec, &t, &arg))
         return NULL;
-    }
-    memcpy(name, spec, n);
-    name[n] = '\0';
-    const dev_transport *t = dev_transport_find(name);
-    if (!t) {
-        fn_err_set(FN_EINVAL, "device '%s': unknown transport '%s' (a path, auto, serial:S, or a transport name)",
-                   spec, name);
-        return NULL;
-    }
-    return open_on(t, colon && colon[1] ? colon + 1 : NULL, spec);
+    return open_on(t, arg, spec);
 }
 
 void dev_close(dev_device *d)

@@ -93,9 +93,16 @@ typedef struct dev_event {
 /* An opened controller: transport handle, device-table row, parser state and hotplug state. */
 typedef struct dev_device dev_device;
 
+/* Splits a spec that names one transport: a path ("/dev/hidraw3", "./node", "vdev/hidraw0": anything
+ * with a '/' before its first ':', or an existing file that is not a transport's name) goes to the
+ * hidapi transport; "NAME" or "NAME:ARG" to transport NAME with ARG (NULL when absent or empty).
+ * Returns 0 or FN_EINVAL naming the spec (unknown transport). "auto" and "serial:S" are dev_open's. */
+int dev_spec_resolve(const char *spec, const dev_transport **t, const char **arg);
+
 /* Opens a controller by spec:
  *   "auto"           first supported HID device, else spacenavd, else the keyboard on a terminal
- *   "/path", "./p"   a hidraw node by path (no udev needed: works on a FUSE-served node)
+ *   "/path", "./p", "dir/p", an existing file
+ *                    a hidraw node by path (no udev needed: works on a FUSE-served node)
  *   "NAME" "NAME:ARG" transport NAME (hidraw, libusb, spnav, keyboard, virtual, replay, ...) with
  *                    its argument (a path, a file, ...)
  *   "serial:S"       the enumerated device whose serial number is S

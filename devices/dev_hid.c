@@ -16,8 +16,10 @@
 
 #ifdef FRACNAV_HIDAPI_LIBUSB
 #define HID_NAME "libusb"
+#define IS_HIDRAW 0 /* paths are libusb's "bus-port:config.interface", not files */
 #else
 #define HID_NAME "hidraw"
+#define IS_HIDRAW 1
 #endif
 
 #define UDEV_HINT "install the udev rule: sudo cp udev/70-fracnav.rules /etc/udev/rules.d/ && " \
@@ -79,8 +81,8 @@ static int hid_enum(dev_info *out, size_t cap)
     return n;
 }
 
-/* Checks a node before hidapi sees it: hidapi 0.13.1 crashes in hid_open_path on a file that is
- * not a hidraw node. Absent -> FN_ENODEV; not ours to open -> FN_EIO naming the udev rule. */
+/* Checks a node before hidapi sees it (every path, relative ones too): hidapi 0.13.1 crashes in
+ * hid_open_path on a file that is not a hidraw node. Absent -> FN_ENODEV; not ours to open -> FN_EIO naming the udev rule. */
 static int check_node(const char *path)
 {
     int fd = open(path, O_RDWR | O_CLOEXEC | O_NONBLOCK);
@@ -110,7 +112,7 @@ static int hid_open_dev(const char *path, dev_handle **out)
             return fn_err_set(FN_ENODEV, "no supported 6-DOF HID device found (%s)", HID_NAME);
         path = first.path;
     }
-    int rc = path[0] == '/' ? check_node(path) : 0;
+    int rc = IS_HIDRAW ? check_node(path) : 0;
     if (rc)
         return rc;
     hid_device *dev = hid_open_path(path);
@@ -195,7 +197,7 @@ static int hid_info_dev(dev_handle *h, dev_info *out)
         narrow(out->name, sizeof out->name, i->product_string);
         narrow(out->serial, sizeof out->serial, i->serial_number);
     }
-    int raw = h->path[0] == '/' ? hidraw_info(h->path, out) : -1;
+    int raw = IS_HIDRAW ? hidraw_info(h->path, out) : -1;
     return i || raw == 0 ? 0 : fn_err_set(FN_EIO, "%s: no device information", h->path);
 }
 

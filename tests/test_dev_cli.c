@@ -9,6 +9,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "testutil.h"
 
@@ -58,6 +59,28 @@ static void test_usage_errors(void **s)
     free(out);
 }
 
+/* A plain file given as a device, spelled relatively, is refused with a message: no crash. */
+static void test_regular_file_as_device(void **s)
+{
+    char *dir = tu_tmpdir("devfile"), path[4200], cwd[4200], *out;
+    snprintf(path, sizeof path, "%s/regfile", dir);
+    tu_write_file(path, "x", 1);
+    assert_non_null(getcwd(cwd, sizeof cwd));
+    assert_int_equal(chdir(dir), 0); /* the CLI runs in the file's folder */
+    static const char *const specs[] = {"./regfile", "hidraw:regfile", "regfile"};
+    for (size_t i = 0; i < 3; i++) {
+        assert_int_equal(tu_run_cli(&out, "device-test --device %s --seconds 0.1", specs[i]), 1);
+        assert_non_null(strstr(out, "regfile"));
+        free(out);
+    }
+    assert_int_equal(tu_run_cli(&out, "devices --device ./regfile"), 0);
+    assert_non_null(strstr(out, "cannot open"));
+    free(out);
+    assert_int_equal(chdir(cwd), 0);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 /* The keyboard fallback fed from a file: the live view shows the keys' motion and button. */
 static void test_device_test_keyboard(void **s)
 {
@@ -105,6 +128,7 @@ int main(void)
         cmocka_unit_test(test_devices_none_connected),
         cmocka_unit_test(test_devices_json),
         cmocka_unit_test(test_usage_errors),
+        cmocka_unit_test(test_regular_file_as_device),
         cmocka_unit_test(test_device_test_keyboard),
         cmocka_unit_test(test_calibrate_zero_saves_config),
     };

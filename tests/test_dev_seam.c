@@ -10,6 +10,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include "dev.h"
@@ -220,6 +221,27 @@ static void test_hidraw_path_errors(void **s)
     tu_write_file(path, "x", 1);
     assert_null(dev_open(path));
     assert_non_null(strstr(fn_err_msg(), path));
+    /* Relative spellings reach the same check (hidapi 0.13.1 crashes on a plain file otherwise). */
+    char cwd[4200], sub[4300];
+    assert_non_null(getcwd(cwd, sizeof cwd));
+    snprintf(sub, sizeof sub, "%s/vdev", dir);
+    assert_int_equal(mkdir(sub, 0700), 0);
+    snprintf(sub, sizeof sub, "%s/vdev/hidraw1", dir);
+    tu_write_file(sub, "x", 1);
+    assert_int_equal(chdir(dir), 0);
+    static const char *const specs[][2] = {
+        {"./hidraw0", "./hidraw0"}, {"hidraw:hidraw0", "hidraw0"}, {"hidraw0", "hidraw0"},
+        {"vdev/hidraw1", "vdev/hidraw1"}, {"vdev/nothing", "vdev/nothing"}};
+    for (size_t i = 0; i < sizeof specs / sizeof specs[0]; i++) {
+        char spec[64];
+        snprintf(spec, sizeof spec, "%s", specs[i][0]);
+        if (!strncmp(spec, "hidraw:", 7) && !dev_transport_find("hidraw"))
+            memcpy(spec, "libusb", 6); /* the libusb build's transport of the same seam */
+        assert_null(dev_open(spec));
+        if (!strstr(fn_err_msg(), specs[i][1]) || strstr(fn_err_msg(), "unknown transport"))
+            fail_msg("%s: %s", spec, fn_err_msg());
+    }
+    assert_int_equal(chdir(cwd), 0);
     tu_rmtree(dir);
     free(dir);
 }
