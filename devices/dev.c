@@ -27,6 +27,7 @@ struct dev_device {
     devparse_state ps;
     char reopen[256];
     int64_t next_try_us;
+    int refused; /* the last reopen found another device at the path (reported once) */
     dev_raw_hook hook;
     void *hook_ctx;
 };
@@ -214,14 +215,35 @@ static void lost(dev_device *d, dev_event *ev)
     ev->battery = -1;
 }
 
+/* Whether the handle is the device that was lost. A transport without identities (spnav,
+ * keyboard: vid 0) always matches. */
+static int same_device(dev_device *d, dev_handle *h)
+{
+    dev_info now;
+    if (!d->info.vid || !d->t->info || d->t->info(h, &now) < 0)
+        return !d->info.vid;
+    if (now.vid == d->info.vid && now.pid == d->info.pid && !strcmp(now.serial, d->info.serial))
+        return 1;
+    fn_err_set(FN_ENODEV, "%s: %04x:%04x serial '%s' is not the device that was unplugged (%04x:%04x serial "
+               "'%s'): still waiting for it", now.path[0] ? now.path : d->reopen, now.vid, now.pid, now.serial,
+               d->info.vid, d->info.pid, d->info.serial);
+    return 0;
+}
+
 /* Same path first; else the same vid:pid:serial wherever it reappeared (a replugged device may get
- * another hidraw number; devices without a serial number match on vid:pid). */
+ * another hidraw number; devices without a serial number match on vid:pid). Returns 1 found, 0 not
+ * found, -1 another device at the old path. */
 static int try_reopen(dev_device *d)
 {
     dev_handle *h = NULL;
+    int other = 0;
     if (d->t->open(d->reopen[0] ? d->reopen : NULL, &h) == 0) {
-        d->h = h;
-        return 1;
+        if (same_device(d, h)) {
+            d->h = h;
+            return 1;
+        }
+        d->t->close(h);
+        other = 1;
     }
     dev_info found[16];
     int n = d->t->enumerate && d->info.vid ? d->t->enumerate(found, 16) : 0;
@@ -232,7 +254,7 @@ static int try_reopen(dev_device *d)
             snprintf(d->reopen, sizeof d->reopen, "%.255s", found[k].path);
             return 1;
         }
-    return 0;
+    return other ? -1 : 0;
 }
 
 static int poll_unplugged(dev_device *d, dev_event *ev, int timeout_ms)
@@ -248,8 +270,19 @@ static int poll_unplugged(dev_device *d, dev_event *ev, int timeout_ms)
             return 0;
     }
     d->next_try_us = dev_now_us() + DEV_REPLUG_MS * 1000;
-    if (!try_reopen(d))
-        return 0;
+    int found = try_reopen(d);
+    if (found <= 0) {
+        int report = found < 0 && !d->refused;
+        d->refused = found < 0;
+        if (!report)
+            return 0;
+        memset(ev, 0, sizeof *ev);
+        ev->t_us = dev_now_us();
+        ev->flags = DEV_EV_REFUSED;
+        ev->battery = -1;
+        return 1;
+    }
+    d->refused = 0;
     int battery = d->ps.battery;
     devparse_init(&d->ps, d->row, d->ps.axis_max);
     d->ps.battery = battery;

@@ -74,7 +74,9 @@ enum {
     DEV_EV_BUTTON = 1u << 1,  /* buttons or key codes changed */
     DEV_EV_BATTERY = 1u << 2, /* battery level reported */
     DEV_EV_UNPLUG = 1u << 3,  /* the device went away: hold the last pose */
-    DEV_EV_REPLUG = 1u << 4   /* the device is back */
+    DEV_EV_REPLUG = 1u << 4,  /* the device is back */
+    DEV_EV_REFUSED = 1u << 5  /* another device (vid:pid:serial) sits where the lost one was: not
+                               * adopted, still waiting; fn_err_msg() names both. Once per refusal. */
 };
 
 /* A normalized event: the device's whole input state after the reports it folds in. */
@@ -114,7 +116,8 @@ void dev_close(dev_device *d);
 /* Drains every pending report (waiting up to timeout_ms for the first; <0 blocks), folds them into
  * one event and returns 1 when anything changed, 0 when nothing did, negative on a hard error.
  * Unplug is not an error: it yields DEV_EV_UNPLUG once, then the device is looked for every
- * DEV_REPLUG_MS (same path, or same vid:pid:serial) and DEV_EV_REPLUG when it returns. Allocates
+ * DEV_REPLUG_MS (same path, or same vid:pid:serial) and DEV_EV_REPLUG when it returns; a device
+ * with another vid:pid:serial at the old path is refused (DEV_EV_REFUSED). Allocates
  * nothing after dev_open. */
 int dev_poll(dev_device *d, dev_event *ev, int timeout_ms);
 

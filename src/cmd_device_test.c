@@ -162,6 +162,10 @@ static int live_view(dev_device *d, calib *c, double seconds)
         }
         if (r == 0)
             continue;
+        if (ev.flags & DEV_EV_REFUSED) {
+            printf("%s%s\n", tty ? "\n" : "", fn_err_msg());
+            continue;
+        }
         if (ev.flags & (DEV_EV_UNPLUG | DEV_EV_REPLUG))
             printf("%s%s\n", tty ? "\n" : "", ev.flags & DEV_EV_UNPLUG ? "unplugged: waiting for it to return"
                                                                          : "plugged in again");

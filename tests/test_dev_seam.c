@@ -314,6 +314,39 @@ static void test_replug_elsewhere(void **s)
     dev_close(d);
 }
 
+/* Another controller plugged in at the old path is not adopted: it is reported once, and the
+ * original is still picked up when it returns. */
+static void test_replug_other_device_refused(void **s)
+{
+    reset_fake();
+    strcpy(fake.path, "fake0");
+    dev_device *d = dev_open("fake:fake0");
+    assert_non_null(d);
+    dev_event ev;
+    fake.plugged = 0;
+    assert_int_equal(dev_poll(d, &ev, 0), 1);
+    assert_true(ev.flags & DEV_EV_UNPLUG);
+    strcpy(fake.serial, "SN2");
+    fake.plugged = 1;
+    int refused = 0, replug = 0;
+    for (int i = 0; i < 15; i++)
+        if (dev_poll(d, &ev, 100) == 1) {
+            refused += !!(ev.flags & DEV_EV_REFUSED);
+            replug |= !!(ev.flags & DEV_EV_REPLUG);
+        }
+    assert_int_equal(refused, 1); /* reported once, not on every retry */
+    assert_false(replug);
+    assert_false(dev_connected(d));
+    assert_non_null(strstr(fn_err_msg(), "SN2"));
+    assert_non_null(strstr(fn_err_msg(), "SN1"));
+    strcpy(fake.serial, "SN1");
+    for (int i = 0; i < 20 && !replug; i++)
+        replug = dev_poll(d, &ev, 100) == 1 && (ev.flags & DEV_EV_REPLUG);
+    assert_true(replug);
+    assert_true(dev_connected(d));
+    dev_close(d);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -321,6 +354,7 @@ int main(void)
         cmocka_unit_test(test_unplug_replug),  cmocka_unit_test(test_led_and_serial),
         cmocka_unit_test(test_hidraw_path_errors), cmocka_unit_test(test_keyboard_keys),
         cmocka_unit_test(test_keyboard_mouse),     cmocka_unit_test(test_replug_elsewhere),
+        cmocka_unit_test(test_replug_other_device_refused),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
