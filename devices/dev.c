@@ -169,7 +169,11 @@ int dev_spec_resolve(const char *spec, const dev_transport **t, const char **arg
                           spec);
     memcpy(name, spec, n);
     name[n] = '\0';
-    if (!(*t = dev_transport_find(name)))
+    if (!(*t = dev_transport_find(name)) && (!strcmp(name, "libusb") || !strcmp(name, "hidraw")))
+        return fn_err_set(FN_EINVAL, "device '%s': this fracnav is built with hidapi's %s backend; %s needs a "
+                          "build configured with -DFRACNAV_HIDAPI_LIBUSB=%s", spec, dev__hid_transport.name, name,
+                          strcmp(name, "libusb") ? "OFF" : "ON");
+    if (!*t)
         return fn_err_set(FN_EINVAL, "device '%s': unknown transport '%s' (a path, auto, serial:S, or a transport name)",
                           spec, name);
     *arg = colon && colon[1] ? colon + 1 : NULL;

@@ -115,9 +115,15 @@ static int hid_open_dev(const char *path, dev_handle **out)
     int rc = IS_HIDRAW ? check_node(path) : 0;
     if (rc)
         return rc;
+    if (!IS_HIDRAW && path[0] == '/')
+        return fn_err_set(FN_EINVAL, "%s: the libusb build opens USB paths (BUS-PORT:CONFIG.INTERFACE, as "
+                          "'fracnav devices' lists them); a hidraw node needs the default hidraw build", path);
     hid_device *dev = hid_open_path(path);
-    if (!dev)
+    if (!dev && IS_HIDRAW)
         return fn_err_set(FN_EIO, "%s: hidapi (%s) cannot open it: %ls", path, HID_NAME, hid_error(NULL));
+    if (!dev) /* libusb: absent and not permitted look alike (hid_error says little in 0.13.1) */
+        return fn_err_set(FN_EIO, "%s: hidapi (%s) cannot open it (%ls); if it is plugged in, %s", path,
+                          HID_NAME, hid_error(NULL), UDEV_HINT);
     dev_handle *h = calloc(1, sizeof *h);
     if (!h) {
         hid_close(dev);

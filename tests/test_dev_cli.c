@@ -39,7 +39,8 @@ static void test_devices_json(void **s)
     assert_true(json_array_size(trs) >= 3);
     json_t *last = json_array_get(devs, json_array_size(devs) - 1);
     assert_string_equal(json_string_value(json_object_get(last, "path")), "/nonexistent/hidraw7");
-    assert_non_null(strstr(json_string_value(json_object_get(last, "error")), "No such file"));
+    const char *why = json_string_value(json_object_get(last, "error"));
+    assert_true(strstr(why, "No such file") || strstr(why, "libusb build opens USB paths"));
     json_decref(root);
     free(out);
 }

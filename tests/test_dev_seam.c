@@ -1,11 +1,13 @@
 /* The transport seam: registry, spec strings, queue draining, unplug and replug, LED, through a
  * fake transport defined here (the way the sim's virtual and replay transports plug in). */
+#define _GNU_SOURCE /* dl_iterate_phdr */
 #include <stdarg.h>
 #include <stddef.h>
 #include <setjmp.h>
 #include <stdint.h>
 #include <cmocka.h>
 
+#include <link.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -209,6 +211,24 @@ static void test_led_and_serial(void **s)
     assert_non_null(strstr(fn_err_msg(), "NOPE"));
 }
 
+static int find_hidapi(struct dl_phdr_info *info, size_t size, void *ctx)
+{
+    const char *want = ctx;
+    return strstr(info->dlpi_name, want) != NULL;
+}
+
+/* The build option picks the library really linked: the transport's name and the loaded hidapi
+ * agree, and the other backend's name explains the option. */
+static void test_hidapi_backend_linked(void **s)
+{
+    int libusb = dev_transport_find("libusb") != NULL;
+    assert_int_equal(libusb, dev_transport_find("hidraw") == NULL);
+    assert_int_equal(dl_iterate_phdr(find_hidapi, libusb ? "libhidapi-libusb" : "libhidapi-hidraw"), 1);
+    assert_int_equal(dl_iterate_phdr(find_hidapi, libusb ? "libhidapi-hidraw" : "libhidapi-libusb"), 0);
+    assert_null(dev_open(libusb ? "hidraw" : "libusb"));
+    assert_non_null(strstr(fn_err_msg(), libusb ? "-DFRACNAV_HIDAPI_LIBUSB=OFF" : "-DFRACNAV_HIDAPI_LIBUSB=ON"));
+}
+
 /* The hidraw transport opens by path: a missing node and a node that is not a hidraw device give
  * errors that name the path. */
 static void test_hidraw_path_errors(void **s)
@@ -355,6 +375,7 @@ int main(void)
         cmocka_unit_test(test_hidraw_path_errors), cmocka_unit_test(test_keyboard_keys),
         cmocka_unit_test(test_keyboard_mouse),     cmocka_unit_test(test_replug_elsewhere),
         cmocka_unit_test(test_replug_other_device_refused),
+        cmocka_unit_test(test_hidapi_backend_linked),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
