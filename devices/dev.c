@@ -1,5 +1,6 @@
 #include "dev.h"
 
+#include <poll.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -18,6 +19,7 @@ extern const dev_transport dev__hid_transport, dev__spnav_transport, dev__keyboa
 static const dev_transport *registry[DEV_TRANSPORTS_MAX] = {
     &dev__hid_transport, &dev__spnav_transport, &dev__keyboard_transport};
 static size_t n_registered = 3;
+static const hotplug_ops *hotplug = &hotplug_udev;
 
 struct dev_device {
     const dev_transport *t;
@@ -28,6 +30,8 @@ struct dev_device {
     char reopen[256];
     int64_t next_try_us;
     int refused; /* the last reopen found another device at the path (reported once) */
+    const hotplug_ops *hp;
+    hotplug_monitor *mon; /* NULL: no monitor, polling alone */
     dev_raw_hook hook;
     void *hook_ctx;
 };
@@ -104,7 +108,14 @@ dev_device *dev_open_handle(const dev_transport *t, dev_handle *h, const char *r
     }
     if (!d->reopen[0])
         snprintf(d->reopen, sizeof d->reopen, "%s", d->info.path);
+    if (hotplug && t->hotplug_subsystem && (d->mon = hotplug->open(t->hotplug_subsystem)))
+        d->hp = hotplug;
     return d;
+}
+
+void dev_set_hotplug(const hotplug_ops *ops)
+{
+    hotplug = ops;
 }
 
 static dev_device *open_on(const dev_transport *t, const char *arg, const char *spec)
@@ -199,6 +210,8 @@ void dev_close(dev_device *d)
         return;
     if (d->h)
         d->t->close(d->h);
+    if (d->mon)
+        d->hp->close(d->mon);
     free(d);
 }
 
@@ -208,6 +221,8 @@ static void lost(dev_device *d, dev_event *ev)
     d->t->close(d->h);
     d->h = NULL;
     d->next_try_us = dev_now_us() + DEV_REPLUG_MS * 1000;
+    if (d->mon)
+        d->hp->added(d->mon); /* what was added while the device was there does not bring it back */
     memset(d->ps.raw, 0, sizeof d->ps.raw);
     uint32_t was = d->ps.buttons;
     d->ps.buttons = 0;
@@ -261,18 +276,29 @@ static int try_reopen(dev_device *d)
     return other ? -1 : 0;
 }
 
+/* Waits (up to timeout_ms) until the next scheduled look or a hotplug "add"; 1 when it is time to
+ * look for the device. */
+static int time_to_look(dev_device *d, int timeout_ms)
+{
+    int64_t wait_us = d->next_try_us - dev_now_us();
+    if (wait_us <= 0)
+        return 1;
+    if (timeout_ms >= 0 && wait_us > (int64_t)timeout_ms * 1000)
+        wait_us = (int64_t)timeout_ms * 1000;
+    if (d->mon) {
+        struct pollfd p = {d->hp->fd(d->mon), POLLIN, 0};
+        if (poll(&p, 1, (int)((wait_us + 999) / 1000)) > 0 && d->hp->added(d->mon))
+            return 1;
+    } else if (wait_us > 0) {
+        usleep((useconds_t)wait_us);
+    }
+    return dev_now_us() >= d->next_try_us;
+}
+
 static int poll_unplugged(dev_device *d, dev_event *ev, int timeout_ms)
 {
-    int64_t now = dev_now_us();
-    if (now < d->next_try_us) {
-        int64_t wait_us = d->next_try_us - now;
-        if (timeout_ms >= 0 && wait_us > (int64_t)timeout_ms * 1000)
-            wait_us = (int64_t)timeout_ms * 1000;
-        if (wait_us > 0)
-            usleep((useconds_t)wait_us);
-        if (dev_now_us() < d->next_try_us)
-            return 0;
-    }
+    if (!time_to_look(d, timeout_ms))
+        return 0;
     d->next_try_us = dev_now_us() + DEV_REPLUG_MS * 1000;
     int found = try_reopen(d);
     if (found <= 0) {

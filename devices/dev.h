@@ -19,6 +19,7 @@
 #include <stdint.h>
 
 #include "devtab.h"
+#include "hotplug.h"
 
 #define DEV_REPORT_MAX 64
 #define DEV_DESC_MAX 4096
@@ -58,6 +59,9 @@ typedef struct dev_transport {
     int (*enumerate)(dev_info *out, size_t cap);
     /* Optional: feature report set (buf[0] = report ID). Returns bytes written or negative. */
     int (*set_feature)(dev_handle *h, const uint8_t *buf, size_t len);
+    /* Optional: the udev subsystem whose "add" events may bring a lost device back ("hidraw",
+     * "usb"); NULL = the 500 ms poll alone. */
+    const char *hotplug_subsystem;
 } dev_transport;
 
 /* Registry. The built-in transports (hidraw or libusb, spnav, keyboard) are always present;
@@ -116,7 +120,8 @@ void dev_close(dev_device *d);
 /* Drains every pending report (waiting up to timeout_ms for the first; <0 blocks), folds them into
  * one event and returns 1 when anything changed, 0 when nothing did, negative on a hard error.
  * Unplug is not an error: it yields DEV_EV_UNPLUG once, then the device is looked for every
- * DEV_REPLUG_MS (same path, or same vid:pid:serial) and DEV_EV_REPLUG when it returns; a device
+ * DEV_REPLUG_MS, and at once when the hotplug monitor announces a new device (same path, or same
+ * vid:pid:serial), and DEV_EV_REPLUG when it returns; a device
  * with another vid:pid:serial at the old path is refused (DEV_EV_REFUSED). Allocates
  * nothing after dev_open. */
 int dev_poll(dev_device *d, dev_event *ev, int timeout_ms);
@@ -142,6 +147,10 @@ uint64_t dev_skipped(const dev_device *d);
  * is closed on failure too). `reopen` is the path used to look for it after an unplug. For
  * transports and tests that build a device themselves. */
 dev_device *dev_open_handle(const dev_transport *t, dev_handle *h, const char *reopen);
+
+/* The hotplug monitor used by devices opened from now on (default &hotplug_udev; tests stand in
+ * for udev). NULL = none: lost devices are found by polling alone. */
+void dev_set_hotplug(const hotplug_ops *ops);
 
 /* Monotonic clock in microseconds (the timebase of t_us). */
 int64_t dev_now_us(void);

@@ -17,9 +17,11 @@
 #ifdef FRACNAV_HIDAPI_LIBUSB
 #define HID_NAME "libusb"
 #define IS_HIDRAW 0 /* paths are libusb's "bus-port:config.interface", not files */
+#define SUBSYSTEM "usb"
 #else
 #define HID_NAME "hidraw"
 #define IS_HIDRAW 1
+#define SUBSYSTEM "hidraw"
 #endif
 
 #define UDEV_HINT "install the udev rule: sudo cp udev/70-fracnav.rules /etc/udev/rules.d/ && " \
@@ -223,4 +225,5 @@ const dev_transport dev__hid_transport = {
     .info = hid_info_dev,
     .close = hid_close_dev,
     .enumerate = hid_enum,
+    .hotplug_subsystem = SUBSYSTEM,
 };

@@ -8,6 +8,7 @@
 #include <cmocka.h>
 
 #include <link.h>
+#include <fcntl.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -94,7 +95,7 @@ static void f_close(dev_handle *h)
 
 static const dev_transport fake_transport = {
     .name = "fake", .open = f_open, .read = f_read, .write = f_write, .info = f_info, .close = f_close,
-    .enumerate = f_enum};
+    .enumerate = f_enum, .hotplug_subsystem = "fake"};
 
 static void reset_fake(void)
 {
@@ -367,6 +368,113 @@ static void test_replug_other_device_refused(void **s)
     dev_close(d);
 }
 
+/* A stand-in for udev: one byte in a pipe is one "add" event. */
+static struct {
+    int pipe[2], opens, closes;
+    char subsystem[16];
+} hp;
+
+struct hotplug_monitor {
+    int fd;
+};
+
+static hotplug_monitor *hp_open(const char *subsystem)
+{
+    static hotplug_monitor m;
+    snprintf(hp.subsystem, sizeof hp.subsystem, "%s", subsystem);
+    hp.opens++;
+    m.fd = hp.pipe[0];
+    return &m;
+}
+
+static int hp_fd(hotplug_monitor *m)
+{
+    return m->fd;
+}
+
+static int hp_added(hotplug_monitor *m)
+{
+    char c[16];
+    return read(m->fd, c, sizeof c) > 0;
+}
+
+static void hp_close(hotplug_monitor *m)
+{
+    hp.closes++;
+}
+
+static hotplug_monitor *hp_open_fails(const char *subsystem)
+{
+    hp.opens++;
+    return NULL;
+}
+
+static const hotplug_ops fake_hotplug = {hp_open, hp_fd, hp_added, hp_close};
+static const hotplug_ops failing_hotplug = {hp_open_fails, hp_fd, hp_added, hp_close};
+
+/* An "add" event brings the device back at once, without waiting for the next scheduled look;
+ * an add seen while the device was still there does not count. */
+static void test_hotplug_add_wakes_reopen(void **s)
+{
+    reset_fake();
+    memset(&hp, 0, sizeof hp);
+    assert_int_equal(pipe2(hp.pipe, O_NONBLOCK), 0);
+    dev_set_hotplug(&fake_hotplug);
+    dev_device *d = dev_open("fake");
+    assert_non_null(d);
+    assert_string_equal(hp.subsystem, "fake");
+    assert_int_equal(write(hp.pipe[1], "a", 1), 1); /* another device, while ours is there */
+    dev_event ev;
+    fake.plugged = 0;
+    assert_int_equal(dev_poll(d, &ev, 0), 1);
+    assert_true(ev.flags & DEV_EV_UNPLUG);
+    fake.plugged = 1;
+    assert_int_equal(dev_poll(d, &ev, 0), 0); /* no announcement yet: next look is DEV_REPLUG_MS away */
+    assert_int_equal(write(hp.pipe[1], "a", 1), 1);
+    assert_int_equal(dev_poll(d, &ev, 0), 1);
+    assert_true(ev.flags & DEV_EV_REPLUG);
+    dev_close(d);
+    assert_int_equal(hp.closes, 1);
+    close(hp.pipe[0]);
+    close(hp.pipe[1]);
+    dev_set_hotplug(&hotplug_udev);
+}
+
+/* A monitor that cannot start (no udev, a container without netlink) is no error: polling finds
+ * the device. */
+static void test_hotplug_unavailable_falls_back(void **s)
+{
+    reset_fake();
+    memset(&hp, 0, sizeof hp);
+    dev_set_hotplug(&failing_hotplug);
+    dev_device *d = dev_open("fake");
+    assert_non_null(d);
+    assert_int_equal(hp.opens, 1);
+    dev_event ev;
+    fake.plugged = 0;
+    assert_int_equal(dev_poll(d, &ev, 0), 1);
+    fake.plugged = 1;
+    int back = 0;
+    for (int i = 0; i < 20 && !back; i++)
+        back = dev_poll(d, &ev, 100) == 1 && (ev.flags & DEV_EV_REPLUG);
+    assert_true(back);
+    dev_close(d);
+    assert_int_equal(hp.closes, 0);
+    dev_set_hotplug(&hotplug_udev);
+}
+
+/* The real libudev monitor starts or declines cleanly, and never blocks when nothing happened. */
+static void test_hotplug_udev_monitor(void **s)
+{
+    hotplug_monitor *m = hotplug_udev.open("hidraw");
+    if (!m)
+        return; /* no libudev or no netlink here: dev_poll polls */
+    assert_true(hotplug_udev.fd(m) >= 0);
+    hotplug_udev.added(m);
+    assert_int_equal(hotplug_udev.added(m), 0);
+    hotplug_udev.close(m);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -376,6 +484,9 @@ int main(void)
         cmocka_unit_test(test_keyboard_mouse),     cmocka_unit_test(test_replug_elsewhere),
         cmocka_unit_test(test_replug_other_device_refused),
         cmocka_unit_test(test_hidapi_backend_linked),
+        cmocka_unit_test(test_hotplug_add_wakes_reopen),
+        cmocka_unit_test(test_hotplug_unavailable_falls_back),
+        cmocka_unit_test(test_hotplug_udev_monitor),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
