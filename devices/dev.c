@@ -1,5 +1,6 @@
 #include "dev.h"
 
+#include <math.h>
 #include <poll.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -69,6 +70,30 @@ const dev_transport *dev_transport_at(size_t i)
     return i < n_registered ? registry[i] : NULL;
 }
 
+/* The open controller says its protocol in feature report 0x20; fracnav speaks protocol 1 only.
+ * A transport with no feature reports to give (a recording: FN_EINVAL) is taken as it is. */
+static int check_protocol(dev_device *d)
+{
+    if (!(d->row->flags & DEVTAB_F_OPEN) || !d->t->get_feature)
+        return 0;
+    const char *where = d->info.path[0] ? d->info.path : d->t->name;
+    uint8_t buf[DEV_REPORT_MAX] = {DEVPARSE_FEAT_INFO};
+    int n = d->t->get_feature(d->h, buf, sizeof buf);
+    if (n == FN_EINVAL)
+        return 0;
+    if (n < 0)
+        return fn_err_wrap(n, "%s (%s): cannot read the protocol version (feature report 0x20)", where,
+                           d->row->name);
+    devparse_open_info oi;
+    if (n >= 2 && buf[0] == DEVPARSE_FEAT_INFO && buf[1] != 1)
+        return fn_err_set(FN_EFORMAT, "%s (%s): firmware speaks protocol %u; fracnav speaks protocol 1 "
+                          "(firmware-spec/open-controller.md): update the firmware or fracnav", where,
+                          d->row->name, buf[1]);
+    if (devparse_open_info_parse(buf, (size_t)n, &oi))
+        return fn_err_wrap(FN_EFORMAT, "%s (%s)", where, d->row->name);
+    return 0;
+}
+
 /* The device-table row for what the transport says it is; the descriptor's logical maximum wins. */
 static int identify(dev_device *d)
 {
@@ -88,7 +113,7 @@ static int identify(dev_device *d)
         return fn_err_set(FN_ENODEV, "%s: %04x:%04x is not a supported 6-DOF controller (no device-table row)",
                           d->info.path[0] ? d->info.path : d->t->name, d->info.vid, d->info.pid);
     devparse_init(&d->ps, d->row, axis_max);
-    return 0;
+    return check_protocol(d);
 }
 
 dev_device *dev_open_handle(const dev_transport *t, dev_handle *h, const char *reopen)
@@ -357,6 +382,33 @@ int dev_poll(dev_device *d, dev_event *ev, int timeout_ms)
         got = 1;
     }
     return got;
+}
+
+int dev_zero_offsets(dev_device *d, const float rest[6], int16_t now[6])
+{
+    if (!(d->row->flags & DEVTAB_F_OPEN))
+        return 1;
+    if (!d->h || !d->t->get_feature || !d->t->set_feature)
+        return fn_err_set(FN_EIO, "%s: cannot reach the controller's zero offsets (feature report 0x21)",
+                          d->info.path[0] ? d->info.path : d->t->name);
+    uint8_t buf[DEV_REPORT_MAX] = {DEVPARSE_FEAT_ZERO};
+    int16_t z[6];
+    int n = d->t->get_feature(d->h, buf, sizeof buf);
+    if (n < 0 || devparse_open_zero_parse(buf, (size_t)(n < 0 ? 0 : n), z))
+        return fn_err_wrap(n < 0 ? n : FN_EFORMAT, "%s: reading zero offsets", d->info.path);
+    for (int i = 0; i < 6; i++) { /* the firmware already subtracts z: the rest it reports is on top */
+        long v = lroundf(rest[i] * (float)d->ps.axis_max) + z[i];
+        z[i] = (int16_t)(v < -350 ? -350 : v > 350 ? 350 : v);
+    }
+    size_t len = devparse_open_zero_make(buf, z);
+    int rc = d->t->set_feature(d->h, buf, len);
+    if (rc < 0)
+        return fn_err_wrap(rc, "%s: writing zero offsets", d->info.path);
+    buf[0] = DEVPARSE_FEAT_ZERO;
+    n = d->t->get_feature(d->h, buf, sizeof buf);
+    if (n < 0 || devparse_open_zero_parse(buf, (size_t)(n < 0 ? 0 : n), now))
+        return fn_err_wrap(n < 0 ? n : FN_EFORMAT, "%s: reading zero offsets back", d->info.path);
+    return 0;
 }
 
 void dev_set_raw_hook(dev_device *d, dev_raw_hook hook, void *ctx)

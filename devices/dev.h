@@ -131,6 +131,13 @@ int dev_poll(dev_device *d, dev_event *ev, int timeout_ms);
 typedef void (*dev_raw_hook)(void *ctx, const uint8_t *report, size_t len, int64_t t_us);
 void dev_set_raw_hook(dev_device *d, dev_raw_hook hook, void *ctx);
 
+/* Zero-offset calibration in the controller itself (the open controller's feature report 0x21,
+ * firmware-spec/open-controller.md 5): rest = the mean normalized motion measured with the cap
+ * released; the offsets become the controller's current ones plus rest (clamped to +-350). now
+ * gets the offsets read back. Returns 0, 1 when the device keeps no offsets (not an open
+ * controller), or negative naming the device. */
+int dev_zero_offsets(dev_device *d, const float rest[6], int16_t now[6]);
+
 /* LED on/off (output report 4). A device without an LED returns 0 and does nothing. */
 int dev_set_led(dev_device *d, int on);
 /* Battery 0..100 from the latest report 0x17, -1 unknown. */

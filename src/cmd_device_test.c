@@ -31,7 +31,8 @@ static void usage(FILE *out)
                  "Calibration comes from ~/.config/fracnav/spnavrc, else /etc/spnavrc, or --config.\n\n"
                  "  --calibrate-zero  with the cap released, measure the rest position for S seconds\n"
                  "                    (default 1) and save it as the zero offset (against drift) to\n"
-                 "                    --config, or ~/.config/fracnav/spnavrc\n");
+                 "                    --config, or ~/.config/fracnav/spnavrc; an open controller\n"
+                 "                    stores it itself (feature report 0x21) and the file gets 0\n");
 }
 
 static void count_report(void *ctx, const uint8_t *report, size_t len, int64_t t_us)
@@ -130,6 +131,17 @@ static int calibrate_zero(dev_device *d, calib *c, double seconds, const char *c
     }
     for (int i = 0; i < 6; i++)
         c->zero[i] = total > 0 ? (float)(sum[i] / total) : 0.0f;
+    int16_t fw[6];
+    int rc = dev_zero_offsets(d, c->zero, fw);
+    if (rc < 0) {
+        fprintf(stderr, "fracnav device-test: %s\n", fn_err_msg());
+        return 1;
+    }
+    if (rc == 0) { /* the controller now corrects itself: the host must not subtract it again */
+        printf("controller zero offsets (feature report 0x21) now %d %d %d %d %d %d\n", fw[0], fw[1], fw[2],
+               fw[3], fw[4], fw[5]);
+        memset(c->zero, 0, sizeof c->zero);
+    }
     char used[600];
     if (calib_save(c, config, used, sizeof used)) {
         fprintf(stderr, "fracnav device-test: %s\n", fn_err_msg());

@@ -123,6 +123,32 @@ static void test_calibrate_zero_saves_config(void **s)
     free(dir);
 }
 
+/* An open controller keeps its zero offsets itself: --calibrate-zero writes feature report 0x21
+ * (offset = the measured rest, in counts) and the host file gets 0, not a second correction. */
+static void test_calibrate_zero_open_controller(void **s)
+{
+    char *dir = tu_tmpdir("devzero"), scr[4200], rc[4200], *out;
+    snprintf(scr, sizeof scr, "%s/hold.script", dir);
+    tu_write_file(scr, "translate +x 20 mm over 3 s\n", 28); /* 70 counts on x, held */
+    snprintf(rc, sizeof rc, "%s/spnavrc", dir);
+    assert_int_equal(tu_run_cli(&out, "device-test --device virtual:open-controller:script=%s --calibrate-zero "
+                                      "--config %s", scr, rc), 0);
+    const char *fw = strstr(out, "controller zero offsets (feature report 0x21) now ");
+    if (!fw)
+        fail_msg("%s", out);
+    int z[6];
+    assert_int_equal(sscanf(fw + 50, "%d %d %d %d %d %d", &z[0], &z[1], &z[2], &z[3], &z[4], &z[5]), 6);
+    assert_true(z[0] > 10 && z[0] <= 70);
+    for (int i = 1; i < 6; i++)
+        assert_int_equal(z[i], 0);
+    free(out);
+    char *text = tu_slurp(rc, NULL);
+    assert_non_null(strstr(text, "zero-offset0 = 0\n"));
+    free(text);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -132,6 +158,7 @@ int main(void)
         cmocka_unit_test(test_regular_file_as_device),
         cmocka_unit_test(test_device_test_keyboard),
         cmocka_unit_test(test_calibrate_zero_saves_config),
+        cmocka_unit_test(test_calibrate_zero_open_controller),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

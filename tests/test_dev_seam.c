@@ -30,6 +30,9 @@ static struct {
     size_t out_len;
     char serial[16];
     char path[16]; /* where the device is now ("" = anywhere) */
+    uint16_t vid, pid;
+    uint8_t info20[8]; /* feature report 0x20 the device answers (open controller) */
+    int info20_len;
 } fake;
 
 struct dev_handle {
@@ -74,7 +77,7 @@ static int f_info(dev_handle *h, dev_info *out)
 {
     memset(out, 0, sizeof *out);
     strcpy(out->path, fake.path[0] ? fake.path : "fake0");
-    out->vid = 0x046d, out->pid = 0xc626; /* a SpaceNavigator: split format, LED */
+    out->vid = fake.vid, out->pid = fake.pid;
     strcpy(out->serial, fake.serial);
     return 0;
 }
@@ -88,6 +91,14 @@ static int f_enum(dev_info *out, size_t cap)
     return 1;
 }
 
+static int f_get_feature(dev_handle *h, uint8_t *buf, size_t cap)
+{
+    if (buf[0] != 0x20 || !fake.info20_len)
+        return fn_err_set(FN_EIO, "fake: feature report %u: broken pipe", buf[0]);
+    memcpy(buf, fake.info20, (size_t)fake.info20_len);
+    return fake.info20_len;
+}
+
 static void f_close(dev_handle *h)
 {
     free(h);
@@ -95,6 +106,7 @@ static void f_close(dev_handle *h)
 
 static const dev_transport fake_transport = {
     .name = "fake", .open = f_open, .read = f_read, .write = f_write, .info = f_info, .close = f_close,
+    .get_feature = f_get_feature,
     .enumerate = f_enum, .hotplug_subsystem = "fake"};
 
 static void reset_fake(void)
@@ -102,6 +114,7 @@ static void reset_fake(void)
     memset(&fake, 0, sizeof fake);
     fake.plugged = 1;
     strcpy(fake.serial, "SN1");
+    fake.vid = 0x046d, fake.pid = 0xc626; /* a SpaceNavigator: split format, LED */
 }
 
 static void test_registry(void **s)
@@ -368,6 +381,31 @@ static void test_replug_other_device_refused(void **s)
     dev_close(d);
 }
 
+/* The open controller's protocol (feature 0x20) is checked when it is opened: version 1 opens,
+ * another version or no answer is refused with a message naming the device and what it said. */
+static void test_open_controller_protocol(void **s)
+{
+    reset_fake();
+    fake.vid = DEVTAB_OPEN_VID, fake.pid = DEVTAB_OPEN_PID;
+    const uint8_t v1[7] = {0x20, 1, 1, 0, 8, 0x5E, 0x01};
+    memcpy(fake.info20, v1, 7);
+    fake.info20_len = 7;
+    dev_device *d = dev_open("fake");
+    assert_non_null(d);
+    dev_close(d);
+    fake.info20[1] = 2;
+    assert_null(dev_open("fake"));
+    assert_non_null(strstr(fn_err_msg(), "fake0 (fracnav open 6-DOF controller)"));
+    assert_non_null(strstr(fn_err_msg(), "protocol 2"));
+    fake.info20_len = 0;
+    assert_null(dev_open("fake"));
+    assert_non_null(strstr(fn_err_msg(), "feature report 0x20"));
+    reset_fake(); /* a 3Dconnexion device is never asked */
+    d = dev_open("fake");
+    assert_non_null(d);
+    dev_close(d);
+}
+
 /* A stand-in for udev: one byte in a pipe is one "add" event. */
 static struct {
     int pipe[2], opens, closes;
@@ -484,6 +522,7 @@ int main(void)
         cmocka_unit_test(test_keyboard_mouse),     cmocka_unit_test(test_replug_elsewhere),
         cmocka_unit_test(test_replug_other_device_refused),
         cmocka_unit_test(test_hidapi_backend_linked),
+        cmocka_unit_test(test_open_controller_protocol),
         cmocka_unit_test(test_hotplug_add_wakes_reopen),
         cmocka_unit_test(test_hotplug_unavailable_falls_back),
         cmocka_unit_test(test_hotplug_udev_monitor),
