@@ -250,7 +250,7 @@ static void lost(dev_device *d, dev_event *ev)
         d->hp->added(d->mon); /* what was added while the device was there does not bring it back */
     memset(d->ps.raw, 0, sizeof d->ps.raw);
     uint32_t was = d->ps.buttons;
-    d->ps.buttons = 0;
+    d->ps.buttons = d->ps.id3_buttons = d->ps.key_buttons = 0;
     memset(d->ps.keys, 0, sizeof d->ps.keys);
     memset(ev, 0, sizeof *ev);
     ev->t_us = dev_now_us();

@@ -12,6 +12,7 @@
 #include <sys/stat.h>
 
 #include "calib.h"
+#include "devparse.h"
 #include "testutil.h"
 
 static float one_axis(const calib *c, int axis, float v)
@@ -84,6 +85,28 @@ static void test_locks_settings_and_buttons(void **s)
     calib_buttons(&c, &k, NULL, NULL);
     calib_buttons(&c, &k, NULL, NULL);
     assert_int_equal(c.dominant, 1);
+}
+
+/* An Enterprise-only key (ENTER) is bnmap'ed and bnact'ed like any button; binding the ROTATE
+ * key's button replaces its built-in action. */
+static void test_enterprise_key_bindings(void **s)
+{
+    calib c;
+    calib_default(&c);
+    int enter = devtab_key_button(36), rot = devtab_key_button(27);
+    char text[160];
+    snprintf(text, sizeof text, "bnmap%d = 2\nbnact%d = dominant-axis\n", enter, rot);
+    assert_int_equal(calib_parse_spnavrc(&c, text, strlen(text), "rc", NULL, 0), 0);
+    devparse_state st;
+    devparse_init(&st, devtab_find(0x256f, 0xc633), 0);
+    dev_event ev;
+    const uint8_t down[] = {0x1C, 36, 0, 27, 0};
+    assert_int_equal(devparse_report(&st, down, sizeof down, 0, &ev), 1);
+    uint32_t pressed;
+    assert_int_equal(calib_buttons(&c, &ev, &pressed, NULL), 1u << 2); /* ENTER -> button 2 */
+    assert_int_equal(pressed, 1u << 2);
+    assert_int_equal(c.dominant, 1);                 /* ROTATE's button bound: dominant-axis */
+    assert_int_equal(c.lock, CALIB_LOCK_NONE);       /* ... instead of rotation only */
 }
 
 static void test_mapping_invert_swap_sensitivity(void **s)
@@ -238,6 +261,7 @@ int main(void)
         cmocka_unit_test(test_dead_zone_continuous),
         cmocka_unit_test(test_dominant_axis),
         cmocka_unit_test(test_locks_settings_and_buttons),
+        cmocka_unit_test(test_enterprise_key_bindings),
         cmocka_unit_test(test_mapping_invert_swap_sensitivity),
         cmocka_unit_test(test_cubic_and_zero_offset),
         cmocka_unit_test(test_spnavrc_reader),
