@@ -109,6 +109,37 @@ static void test_enterprise_key_bindings(void **s)
     assert_int_equal(c.lock, CALIB_LOCK_NONE);       /* ... instead of rotation only */
 }
 
+/* axismapN = M sends device axis N to output M; a partial map swaps (every input drives exactly
+ * one output, as a full spacenavd map would), and a full map in any line order reads the same. */
+static void test_axismap_is_a_permutation(void **s)
+{
+    calib c;
+    calib_default(&c);
+    const char *partial = "axismap0 = 2\n";
+    assert_int_equal(calib_parse_spnavrc(&c, partial, strlen(partial), "rc", NULL, 0), 0);
+    for (int i = 0; i < 6; i++)
+        c.dead[i] = 0;
+    float in[6] = {0.1f, 0.2f, 0.3f, 0.4f, 0.5f, 0.6f}, out[6];
+    calib_apply(&c, in, out);
+    const float want[6] = {0.3f, 0.2f, 0.1f, 0.4f, 0.5f, 0.6f};
+    for (int i = 0; i < 6; i++)
+        assert_float_equal(out[i], want[i], 1e-6);
+    const char *full[2] = {"axismap0 = 1\naxismap1 = 2\naxismap2 = 0\naxismap3 = 5\naxismap4 = 3\naxismap5 = 4\n",
+                           "axismap5 = 4\naxismap2 = 0\naxismap4 = 3\naxismap1 = 2\naxismap3 = 5\naxismap0 = 1\n"};
+    for (int f = 0; f < 2; f++) {
+        calib_default(&c);
+        assert_int_equal(calib_parse_spnavrc(&c, full[f], strlen(full[f]), "rc", NULL, 0), 0);
+        const int8_t want_map[6] = {2, 0, 1, 4, 5, 3}; /* output i takes device axis want_map[i] */
+        assert_memory_equal(c.map, want_map, 6);
+    }
+    char text[2048];
+    calib_format_spnavrc(&c, text, sizeof text); /* and it round-trips */
+    calib d;
+    calib_default(&d);
+    assert_int_equal(calib_parse_spnavrc(&d, text, strlen(text), "rc", NULL, 0), 0);
+    assert_memory_equal(d.map, c.map, 6);
+}
+
 static void test_mapping_invert_swap_sensitivity(void **s)
 {
     calib c;
@@ -262,6 +293,7 @@ int main(void)
         cmocka_unit_test(test_dominant_axis),
         cmocka_unit_test(test_locks_settings_and_buttons),
         cmocka_unit_test(test_enterprise_key_bindings),
+        cmocka_unit_test(test_axismap_is_a_permutation),
         cmocka_unit_test(test_mapping_invert_swap_sensitivity),
         cmocka_unit_test(test_cubic_and_zero_offset),
         cmocka_unit_test(test_spnavrc_reader),
