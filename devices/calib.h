@@ -80,7 +80,7 @@ int calib_parse_spnavrc(calib *c, const char *text, size_t len, const char *fnam
                         size_t cap);
 
 /* Loads the user's configuration: path if non-NULL, else ~/.config/fracnav/spnavrc ($HOME), else
- * /etc/spnavrc. A missing file is fine (defaults, returns 0); *used receives the path read (or "").
+ * /etc/spnavrc ($FRACNAV_SYSCONFDIR/spnavrc when that is set). A missing file is fine (defaults, returns 0); *used receives the path read (or "").
  * Returns the number of bad lines, or FN_EIO for an unreadable named file. */
 int calib_load(calib *c, const char *path, char *used, size_t used_cap, char *diag, size_t cap);
 

@@ -350,7 +350,10 @@ int calib_load(calib *c, const char *path, char *used, size_t used_cap, char *di
     const char *home = getenv("HOME");
     if (home && *home)
         snprintf(home_rc, sizeof home_rc, "%s/.config/fracnav/spnavrc", home);
-    const char *cands[] = {path, path ? NULL : home_rc, path ? NULL : "/etc/spnavrc"};
+    char sys_rc[512];
+    const char *etc = getenv("FRACNAV_SYSCONFDIR"); /* tests and relocated installs */
+    snprintf(sys_rc, sizeof sys_rc, "%s/spnavrc", etc && *etc ? etc : "/etc");
+    const char *cands[] = {path, path ? NULL : home_rc, path ? NULL : sys_rc};
     if (used && used_cap)
         used[0] = '\0';
     if (diagbuf && cap)

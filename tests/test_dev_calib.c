@@ -140,6 +140,42 @@ static void test_axismap_is_a_permutation(void **s)
     assert_memory_equal(d.map, c.map, 6);
 }
 
+/* With no file named: the user's ~/.config/fracnav/spnavrc, else the system's spnavrc. */
+static void test_load_falls_back_to_system_file(void **s)
+{
+    char *dir = tu_tmpdir("rcload"), home[4200], etc[4200], f[4300], used[512], diag[256];
+    snprintf(home, sizeof home, "%s/home", dir);
+    snprintf(etc, sizeof etc, "%s/etc", dir);
+    assert_int_equal(mkdir(home, 0700), 0);
+    assert_int_equal(mkdir(etc, 0700), 0);
+    snprintf(f, sizeof f, "%s/spnavrc", etc);
+    tu_write_file(f, "sensitivity = 3\n", 16);
+    char *old_home = getenv("HOME") ? strdup(getenv("HOME")) : NULL;
+    setenv("HOME", home, 1);
+    setenv("FRACNAV_SYSCONFDIR", etc, 1);
+    calib c;
+    calib_default(&c);
+    assert_int_equal(calib_load(&c, NULL, used, sizeof used, diag, sizeof diag), 0);
+    assert_string_equal(used, f);
+    assert_float_equal(c.sens, 3.0f, 1e-6);
+    snprintf(f, sizeof f, "%s/.config", home);
+    assert_int_equal(mkdir(f, 0700), 0);
+    snprintf(f, sizeof f, "%s/.config/fracnav", home);
+    assert_int_equal(mkdir(f, 0700), 0);
+    snprintf(f, sizeof f, "%s/.config/fracnav/spnavrc", home);
+    tu_write_file(f, "sensitivity = 0.5\n", 18);
+    calib_default(&c);
+    assert_int_equal(calib_load(&c, NULL, used, sizeof used, diag, sizeof diag), 0);
+    assert_string_equal(used, f); /* the user's file wins */
+    assert_float_equal(c.sens, 0.5f, 1e-6);
+    unsetenv("FRACNAV_SYSCONFDIR");
+    if (old_home)
+        setenv("HOME", old_home, 1);
+    free(old_home);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 static void test_mapping_invert_swap_sensitivity(void **s)
 {
     calib c;
@@ -294,6 +330,7 @@ int main(void)
         cmocka_unit_test(test_locks_settings_and_buttons),
         cmocka_unit_test(test_enterprise_key_bindings),
         cmocka_unit_test(test_axismap_is_a_permutation),
+        cmocka_unit_test(test_load_falls_back_to_system_file),
         cmocka_unit_test(test_mapping_invert_swap_sensitivity),
         cmocka_unit_test(test_cubic_and_zero_offset),
         cmocka_unit_test(test_spnavrc_reader),

@@ -14,6 +14,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include "dev.h"
@@ -280,6 +281,45 @@ static void test_hidraw_path_errors(void **s)
     free(dir);
 }
 
+/* A node the user may not open names the udev rule to install (as an unprivileged user: root
+ * opens anything). */
+static void test_unopenable_node_names_udev_rule(void **s)
+{
+    if (!dev_transport_find("hidraw"))
+        return; /* libusb build: test_libusb_open_failure_names_udev_rule */
+    char *dir = tu_tmpdir("perm"), path[4200];
+    assert_int_equal(chmod(dir, 0755), 0);
+    snprintf(path, sizeof path, "%s/hidraw5", dir);
+    tu_write_file(path, "x", 1);
+    assert_int_equal(chmod(path, 0), 0);
+    pid_t pid = fork();
+    assert_true(pid >= 0);
+    if (pid == 0) {
+        if (getuid() == 0 && (setgid(65534) || setuid(65534)))
+            _exit(3);
+        int ok = !dev_open(path) && strstr(fn_err_msg(), "udev/70-fracnav.rules") && strstr(fn_err_msg(), path);
+        if (!ok)
+            fprintf(stderr, "message: %s\n", fn_err_msg());
+        _exit(ok ? 0 : 1);
+    }
+    int st = 0;
+    assert_int_equal(waitpid(pid, &st, 0), pid);
+    assert_true(WIFEXITED(st));
+    assert_int_equal(WEXITSTATUS(st), 0);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* The libusb build: a device hidapi cannot open gets the same udev hint. */
+static void test_libusb_open_failure_names_udev_rule(void **s)
+{
+    if (!dev_transport_find("libusb"))
+        return;
+    assert_null(dev_open("libusb:9-9:1.0"));
+    assert_non_null(strstr(fn_err_msg(), "udev/70-fracnav.rules"));
+    assert_non_null(strstr(fn_err_msg(), "9-9:1.0"));
+}
+
 /* The keyboard fallback, fed from a file: keys become motion, then it returns to rest. */
 static void test_keyboard_keys(void **s)
 {
@@ -522,6 +562,8 @@ int main(void)
         cmocka_unit_test(test_keyboard_mouse),     cmocka_unit_test(test_replug_elsewhere),
         cmocka_unit_test(test_replug_other_device_refused),
         cmocka_unit_test(test_hidapi_backend_linked),
+        cmocka_unit_test(test_unopenable_node_names_udev_rule),
+        cmocka_unit_test(test_libusb_open_failure_names_udev_rule),
         cmocka_unit_test(test_open_controller_protocol),
         cmocka_unit_test(test_hotplug_add_wakes_reopen),
         cmocka_unit_test(test_hotplug_unavailable_falls_back),
