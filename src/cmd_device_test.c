@@ -53,7 +53,10 @@ static void show(FILE *out, const dev_event *ev, const float cal[6], int battery
         fprintf(out, "%s%u", i ? "," : " keys ", ev->keys[i]);
     if (battery >= 0)
         fprintf(out, " | battery %d%%", battery);
-    fprintf(out, " | %.0f reports/s%s", rate, tty ? "   " : "\n");
+    if (rate < 0) /* the first second: not measured yet */
+        fprintf(out, " | - reports/s%s", tty ? "   " : "\n");
+    else
+        fprintf(out, " | %.0f reports/s%s", rate, tty ? "   " : "\n");
     fflush(out);
 }
 
@@ -63,24 +66,35 @@ typedef struct opts {
     int zero;
 } opts;
 
+/* The value of option argv[*i]: the next argument, unless there is none or it is another option. */
+static const char *value_of(int argc, char **argv, int *i)
+{
+    if (*i + 1 >= argc || !strncmp(argv[*i + 1], "--", 2)) {
+        cmd_usage_error("device-test", "%s wants a value%s%s", argv[*i], *i + 1 < argc ? ", got option " : "",
+                        *i + 1 < argc ? argv[*i + 1] : "");
+        return NULL;
+    }
+    return argv[++*i];
+}
+
 static int parse_args(int argc, char **argv, opts *o)
 {
     for (int i = 1; i < argc; i++) {
-        char *end = NULL;
-        if (!strcmp(argv[i], "--calibrate-zero"))
+        const char *a = argv[i], *v = NULL;
+        int valued = !strcmp(a, "--device") || !strcmp(a, "--config") || !strcmp(a, "--seconds");
+        if (valued && !(v = value_of(argc, argv, &i)))
+            return 2;
+        if (!strcmp(a, "--calibrate-zero"))
             o->zero = 1;
-        else if (!strcmp(argv[i], "--device") && i + 1 < argc)
-            o->spec = argv[++i];
-        else if (!strcmp(argv[i], "--config") && i + 1 < argc)
-            o->config = argv[++i];
-        else if (!strcmp(argv[i], "--seconds") && i + 1 < argc) {
-            o->seconds = strtod(argv[++i], &end);
-            if (*end || !(o->seconds > 0) || o->seconds > 1e6) {
-                fprintf(stderr, "fracnav device-test: --seconds wants a positive number, got '%s'\n", argv[i]);
-                return 2;
-            }
+        else if (!strcmp(a, "--device"))
+            o->spec = v;
+        else if (!strcmp(a, "--config"))
+            o->config = v;
+        else if (!strcmp(a, "--seconds")) {
+            if (!cmd_number(v, &o->seconds) || !(o->seconds > 0) || o->seconds > 1e6)
+                return cmd_usage_error("device-test", "--seconds wants a positive number, got '%s'", v);
         } else {
-            fprintf(stderr, "fracnav device-test: unknown or incomplete option '%s'\n", argv[i]);
+            fprintf(stderr, "fracnav device-test: unknown or incomplete option '%s'\n", a);
             usage(stderr);
             return 2;
         }
@@ -158,7 +172,7 @@ static int live_view(dev_device *d, calib *c, double seconds)
     int64_t start = dev_now_us(), end = seconds > 0 ? start + (int64_t)(seconds * 1e6) : INT64_MAX;
     int64_t last_line = 0, window = start;
     long reports = 0; /* raw reports, counted as they are read */
-    double rate = 0;
+    double rate = -1; /* reports/s over the last whole second, -1 before the first */
     dev_set_raw_hook(d, count_report, &reports);
     while (!stop && dev_now_us() < end) {
         dev_event ev;
@@ -211,8 +225,11 @@ int cmd_device_test(int argc, char **argv)
         return 1;
     }
     const dev_info *info = dev_device_info(d);
-    printf("%s (%04x:%04x) via %s, %s format, %d buttons; %s\n", dev_row(d)->name, info->vid, info->pid,
-           dev_transport_name(d), devtab_format_name(dev_row(d)->format), dev_row(d)->nbuttons,
+    char id[16] = "";
+    if (info->vid || info->pid)
+        snprintf(id, sizeof id, " (%04x:%04x)", info->vid, info->pid);
+    printf("%s%s via %s, %s format, %d buttons; %s\n", dev_row(d)->name, id, dev_transport_name(d),
+           devtab_format_name(dev_row(d)->format), dev_row(d)->nbuttons,
            o.seconds > 0 || o.zero ? "running" : "Ctrl-C to stop");
     signal(SIGINT, on_signal);
     signal(SIGTERM, on_signal);

@@ -55,6 +55,20 @@ static void test_usage_errors(void **s)
     assert_int_equal(tu_run_cli(NULL, "device-test --help"), 0);
     assert_int_equal(tu_run_cli(&out, "device-test --seconds -1"), 2);
     free(out);
+    assert_int_equal(tu_run_cli(&out, "device-test --device --seconds 0.3"), 2); /* no SPEC: not '--seconds' */
+    assert_non_null(strstr(out, "--device wants a value, got option --seconds"));
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "devices --device"), 2);
+    assert_non_null(strstr(out, "--device wants a SPEC"));
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "devices --device a --device b --device c --device d --device e --device f "
+                                      "--device g --device h --device i"), 2);
+    assert_non_null(strstr(out, "at most 8 --device options"));
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "devices"), 0); /* the transport column fits the longest name */
+    assert_non_null(strstr(out, "  replay-realtime  opened by name"));
+    assert_null(strstr(out, "spnav: spacenavd")); /* the transport is named once */
+    free(out);
     assert_int_equal(tu_run_cli(&out, "device-test --device /nonexistent/hidraw3 --seconds 1"), 1);
     assert_non_null(strstr(out, "fracnav device-test: device '/nonexistent/hidraw3'"));
     free(out);
@@ -76,6 +90,10 @@ static void test_regular_file_as_device(void **s)
     }
     assert_int_equal(tu_run_cli(&out, "devices --device ./regfile"), 0);
     assert_non_null(strstr(out, "cannot open"));
+    assert_non_null(strstr(out, "./regfile  (not opened)\n")); /* no made-up 0000:0000 id */
+    assert_non_null(strstr(out, "transport hidraw") ? strstr(out, "transport hidraw") : strstr(out, "transport libusb"));
+    assert_null(strstr(out, "0000:0000"));
+    assert_null(strstr(out, "transport ?"));
     free(out);
     assert_int_equal(chdir(cwd), 0);
     tu_rmtree(dir);
@@ -93,6 +111,9 @@ static void test_device_test_keyboard(void **s)
     assert_int_equal(tu_run_cli(&out, "device-test --device keyboard:%s --seconds 0.4 --config %s", path, rc), 0);
     assert_non_null(strstr(out, "via keyboard"));
     assert_non_null(strstr(out, "x +0.71>+1.43")); /* 250/350 normalized, then sensitivity 2 */
+    assert_non_null(strstr(out, "| - reports/s")); /* the rate is not measured in the first second */
+    assert_null(strstr(out, "| 0 reports/s"));
+    assert_null(strstr(out, "0000:0000"));
     assert_non_null(strstr(out, "buttons 00000008"));
     assert_non_null(strstr(out, "1 bad line(s) skipped"));
     assert_non_null(strstr(out, "spnavrc:3:"));
