@@ -93,9 +93,14 @@ void calib_zero_from(calib *c, const float (*samples)[6], size_t n)
     }
 }
 
-/* Enterprise key codes that act like spacenavd button actions (firmware-spec/3dconnexion.md). */
-static calib_action key_action(uint16_t code)
+/* Enterprise key codes that act like spacenavd button actions (firmware-spec/3dconnexion.md).
+ * A key that is also a button (devtab_keys: 27) loses its built-in action once the user binds
+ * that button (bnactN or bnmapN). */
+static calib_action key_action(const calib *c, uint16_t code)
 {
+    int b = devtab_key_button(code);
+    if (b >= 0 && (c->bnact[b] != CALIB_ACT_NONE || c->bnmap[b] != b))
+        return CALIB_ACT_NONE;
     switch (code) {
     case 27: return CALIB_ACT_DISABLE_TRANSLATION; /* "rotate": rotation only */
     case 28: return CALIB_ACT_DISABLE_ROTATION;    /* "pan/zoom": translation only */
@@ -130,7 +135,7 @@ uint32_t calib_buttons(calib *c, const dev_event *ev, uint32_t *pressed, uint32_
             calib_do(c, c->bnact[i], ev->axis);
     for (int i = 0; i < 6; i++)
         if (ev->keys[i] && !held(c->keys_held, ev->keys[i]))
-            calib_do(c, key_action(ev->keys[i]), ev->axis);
+            calib_do(c, key_action(c, ev->keys[i]), ev->axis);
     memcpy(c->keys_held, ev->keys, sizeof c->keys_held);
     if (pressed)
         *pressed = remap(c, ev->pressed);

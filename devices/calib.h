@@ -61,8 +61,9 @@ void calib_default(calib *c);
 void calib_apply(const calib *c, const float in[6], float out[6]);
 
 /* Handles the button edges of ev: bound actions are performed on press (and the bit cleared from
- * the returned set), other buttons are remapped through bnmap. Also handles Enterprise key codes
- * 27 (rotate toggle), 28 (pan/zoom toggle), 29 (dominant), 30 (+), 31 (-). Returns the remapped
+ * the returned set), other buttons are remapped through bnmap. Enterprise keys arrive as buttons
+ * (devtab_keys); key codes 27 (rotate toggle; unless its button is bound), 28 (pan/zoom toggle),
+ * 29 (dominant), 30 (+), 31 (-) also act by themselves. Returns the remapped
  * button state. `raw` is the uncalibrated axis input of ev (used by CALIB_ACT_ZERO). */
 uint32_t calib_buttons(calib *c, const dev_event *ev, uint32_t *pressed, uint32_t *released);
 
@@ -79,7 +80,7 @@ int calib_parse_spnavrc(calib *c, const char *text, size_t len, const char *fnam
                         size_t cap);
 
 /* Loads the user's configuration: path if non-NULL, else ~/.config/fracnav/spnavrc ($HOME), else
- * /etc/spnavrc. A missing file is fine (defaults, returns 0); *used receives the path read (or "").
+ * /etc/spnavrc ($FRACNAV_SYSCONFDIR/spnavrc when that is set). A missing file is fine (defaults, returns 0); *used receives the path read (or "").
  * Returns the number of bad lines, or FN_EIO for an unreadable named file. */
 int calib_load(calib *c, const char *path, char *used, size_t used_cap, char *diag, size_t cap);
 

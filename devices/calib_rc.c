@@ -176,7 +176,20 @@ static int invert_key(calib *c, const char *k, const char *v)
     return 0;
 }
 
-/* axismapN = M (device axis N drives output M), bnmapN = M, bnactN = action. */
+/* axismapN = M: device axis N drives output M (spacenavd's meaning). The map stays a permutation:
+ * the device axis that drove M takes N's old output, so a partial map ("axismap0 = 2" alone) is a
+ * swap, never one axis on two outputs with another on none; a full map reads as in spacenavd. */
+static void assign_axis(calib *c, int in, int out)
+{
+    for (int o = 0; o < 6; o++)
+        if (c->map[o] == in) {
+            c->map[o] = c->map[out];
+            break;
+        }
+    c->map[out] = (int8_t)in;
+}
+
+/* axismapN = M, bnmapN = M, bnactN = action. */
 static int map_key(calib *c, const char *k, const char *v)
 {
     int ax = k[0] == 'a', i = parse_index(k + (ax ? 7 : 5), ax ? 6 : CALIB_BUTTONS);
@@ -186,7 +199,7 @@ static int map_key(calib *c, const char *k, const char *v)
     if (m < 0)
         return -2;
     if (ax)
-        c->map[m] = (int8_t)i;
+        assign_axis(c, i, m);
     else if (k[2] == 'm')
         c->bnmap[i] = (int8_t)m;
     else
@@ -337,7 +350,10 @@ int calib_load(calib *c, const char *path, char *used, size_t used_cap, char *di
     const char *home = getenv("HOME");
     if (home && *home)
         snprintf(home_rc, sizeof home_rc, "%s/.config/fracnav/spnavrc", home);
-    const char *cands[] = {path, path ? NULL : home_rc, path ? NULL : "/etc/spnavrc"};
+    char sys_rc[512];
+    const char *etc = getenv("FRACNAV_SYSCONFDIR"); /* tests and relocated installs */
+    snprintf(sys_rc, sizeof sys_rc, "%s/spnavrc", etc && *etc ? etc : "/etc");
+    const char *cands[] = {path, path ? NULL : home_rc, path ? NULL : sys_rc};
     if (used && used_cap)
         used[0] = '\0';
     if (diagbuf && cap)

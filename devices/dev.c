@@ -1,5 +1,7 @@
 #include "dev.h"
 
+#include <math.h>
+#include <poll.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -18,6 +20,7 @@ extern const dev_transport dev__hid_transport, dev__spnav_transport, dev__keyboa
 static const dev_transport *registry[DEV_TRANSPORTS_MAX] = {
     &dev__hid_transport, &dev__spnav_transport, &dev__keyboard_transport};
 static size_t n_registered = 3;
+static const hotplug_ops *hotplug = &hotplug_udev;
 
 struct dev_device {
     const dev_transport *t;
@@ -27,6 +30,9 @@ struct dev_device {
     devparse_state ps;
     char reopen[256];
     int64_t next_try_us;
+    int refused; /* the last reopen found another device at the path (reported once) */
+    const hotplug_ops *hp;
+    hotplug_monitor *mon; /* NULL: no monitor, polling alone */
     dev_raw_hook hook;
     void *hook_ctx;
 };
@@ -64,6 +70,30 @@ const dev_transport *dev_transport_at(size_t i)
     return i < n_registered ? registry[i] : NULL;
 }
 
+/* The open controller says its protocol in feature report 0x20; fracnav speaks protocol 1 only.
+ * A transport with no feature reports to give (a recording: FN_EINVAL) is taken as it is. */
+static int check_protocol(dev_device *d)
+{
+    if (!(d->row->flags & DEVTAB_F_OPEN) || !d->t->get_feature)
+        return 0;
+    const char *where = d->info.path[0] ? d->info.path : d->t->name;
+    uint8_t buf[DEV_REPORT_MAX] = {DEVPARSE_FEAT_INFO};
+    int n = d->t->get_feature(d->h, buf, sizeof buf);
+    if (n == FN_EINVAL)
+        return 0;
+    if (n < 0)
+        return fn_err_wrap(n, "%s (%s): cannot read the protocol version (feature report 0x20)", where,
+                           d->row->name);
+    devparse_open_info oi;
+    if (n >= 2 && buf[0] == DEVPARSE_FEAT_INFO && buf[1] != 1)
+        return fn_err_set(FN_EFORMAT, "%s (%s): firmware speaks protocol %u; fracnav speaks protocol 1 "
+                          "(firmware-spec/open-controller.md): update the firmware or fracnav", where,
+                          d->row->name, buf[1]);
+    if (devparse_open_info_parse(buf, (size_t)n, &oi))
+        return fn_err_wrap(FN_EFORMAT, "%s (%s)", where, d->row->name);
+    return 0;
+}
+
 /* The device-table row for what the transport says it is; the descriptor's logical maximum wins. */
 static int identify(dev_device *d)
 {
@@ -83,7 +113,7 @@ static int identify(dev_device *d)
         return fn_err_set(FN_ENODEV, "%s: %04x:%04x is not a supported 6-DOF controller (no device-table row)",
                           d->info.path[0] ? d->info.path : d->t->name, d->info.vid, d->info.pid);
     devparse_init(&d->ps, d->row, axis_max);
-    return 0;
+    return check_protocol(d);
 }
 
 dev_device *dev_open_handle(const dev_transport *t, dev_handle *h, const char *reopen)
@@ -103,7 +133,14 @@ dev_device *dev_open_handle(const dev_transport *t, dev_handle *h, const char *r
     }
     if (!d->reopen[0])
         snprintf(d->reopen, sizeof d->reopen, "%s", d->info.path);
+    if (hotplug && t->hotplug_subsystem && (d->mon = hotplug->open(t->hotplug_subsystem)))
+        d->hp = hotplug;
     return d;
+}
+
+void dev_set_hotplug(const hotplug_ops *ops)
+{
+    hotplug = ops;
 }
 
 static dev_device *open_on(const dev_transport *t, const char *arg, const char *spec)
@@ -146,30 +183,50 @@ static dev_device *open_auto(void)
     return NULL;
 }
 
+static int is_path(const char *spec)
+{
+    const char *colon = strchr(spec, ':'), *slash = strchr(spec, '/');
+    if (slash && (!colon || slash < colon))
+        return 1;
+    return !colon && !dev_transport_find(spec) && access(spec, F_OK) == 0;
+}
+
+int dev_spec_resolve(const char *spec, const dev_transport **t, const char **arg)
+{
+    *t = &dev__hid_transport;
+    *arg = spec;
+    if (!spec || is_path(spec))
+        return 0;
+    char name[32];
+    const char *colon = strchr(spec, ':');
+    size_t n = colon ? (size_t)(colon - spec) : strlen(spec);
+    if (n >= sizeof name)
+        return fn_err_set(FN_EINVAL, "device '%s': unknown transport (a path, auto, serial:S, or a transport name)",
+                          spec);
+    memcpy(name, spec, n);
+    name[n] = '\0';
+    if (!(*t = dev_transport_find(name)) && (!strcmp(name, "libusb") || !strcmp(name, "hidraw")))
+        return fn_err_set(FN_EINVAL, "device '%s': this fracnav is built with hidapi's %s backend; %s needs a "
+                          "build configured with -DFRACNAV_HIDAPI_LIBUSB=%s", spec, dev__hid_transport.name, name,
+                          strcmp(name, "libusb") ? "OFF" : "ON");
+    if (!*t)
+        return fn_err_set(FN_EINVAL, "device '%s': unknown transport '%s' (a path, auto, serial:S, or a transport name)",
+                          spec, name);
+    *arg = colon && colon[1] ? colon + 1 : NULL;
+    return 0;
+}
+
 dev_device *dev_open(const char *spec)
 {
     if (!spec || !*spec || !strcmp(spec, "auto"))
         return open_auto();
-    if (spec[0] == '/' || spec[0] == '.')
-        return open_on(&dev__hid_transport, spec, spec);
     if (!strncmp(spec, "serial:", 7))
         return open_serial(spec + 7, spec);
-    char name[32];
-    const char *colon = strchr(spec, ':');
-    size_t n = colon ? (size_t)(colon - spec) : strlen(spec);
-    if (n >= sizeof name) {
-        fn_err_set(FN_EINVAL, "device '%s': unknown transport", spec);
+    const dev_transport *t;
+    const char *arg;
+    if (dev_spec_resolve(spec, &t, &arg))
         return NULL;
-    }
-    memcpy(name, spec, n);
-    name[n] = '\0';
-    const dev_transport *t = dev_transport_find(name);
-    if (!t) {
-        fn_err_set(FN_EINVAL, "device '%s': unknown transport '%s' (a path, auto, serial:S, or a transport name)",
-                   spec, name);
-        return NULL;
-    }
-    return open_on(t, colon && colon[1] ? colon + 1 : NULL, spec);
+    return open_on(t, arg, spec);
 }
 
 void dev_close(dev_device *d)
@@ -178,6 +235,8 @@ void dev_close(dev_device *d)
         return;
     if (d->h)
         d->t->close(d->h);
+    if (d->mon)
+        d->hp->close(d->mon);
     free(d);
 }
 
@@ -187,9 +246,11 @@ static void lost(dev_device *d, dev_event *ev)
     d->t->close(d->h);
     d->h = NULL;
     d->next_try_us = dev_now_us() + DEV_REPLUG_MS * 1000;
+    if (d->mon)
+        d->hp->added(d->mon); /* what was added while the device was there does not bring it back */
     memset(d->ps.raw, 0, sizeof d->ps.raw);
     uint32_t was = d->ps.buttons;
-    d->ps.buttons = 0;
+    d->ps.buttons = d->ps.id3_buttons = d->ps.key_buttons = 0;
     memset(d->ps.keys, 0, sizeof d->ps.keys);
     memset(ev, 0, sizeof *ev);
     ev->t_us = dev_now_us();
@@ -198,14 +259,35 @@ static void lost(dev_device *d, dev_event *ev)
     ev->battery = -1;
 }
 
+/* Whether the handle is the device that was lost. A transport without identities (spnav,
+ * keyboard: vid 0) always matches. */
+static int same_device(dev_device *d, dev_handle *h)
+{
+    dev_info now;
+    if (!d->info.vid || !d->t->info || d->t->info(h, &now) < 0)
+        return !d->info.vid;
+    if (now.vid == d->info.vid && now.pid == d->info.pid && !strcmp(now.serial, d->info.serial))
+        return 1;
+    fn_err_set(FN_ENODEV, "%s: %04x:%04x serial '%s' is not the device that was unplugged (%04x:%04x serial "
+               "'%s'): still waiting for it", now.path[0] ? now.path : d->reopen, now.vid, now.pid, now.serial,
+               d->info.vid, d->info.pid, d->info.serial);
+    return 0;
+}
+
 /* Same path first; else the same vid:pid:serial wherever it reappeared (a replugged device may get
- * another hidraw number; devices without a serial number match on vid:pid). */
+ * another hidraw number; devices without a serial number match on vid:pid). Returns 1 found, 0 not
+ * found, -1 another device at the old path. */
 static int try_reopen(dev_device *d)
 {
     dev_handle *h = NULL;
+    int other = 0;
     if (d->t->open(d->reopen[0] ? d->reopen : NULL, &h) == 0) {
-        d->h = h;
-        return 1;
+        if (same_device(d, h)) {
+            d->h = h;
+            return 1;
+        }
+        d->t->close(h);
+        other = 1;
     }
     dev_info found[16];
     int n = d->t->enumerate && d->info.vid ? d->t->enumerate(found, 16) : 0;
@@ -216,24 +298,46 @@ static int try_reopen(dev_device *d)
             snprintf(d->reopen, sizeof d->reopen, "%.255s", found[k].path);
             return 1;
         }
-    return 0;
+    return other ? -1 : 0;
+}
+
+/* Waits (up to timeout_ms) until the next scheduled look or a hotplug "add"; 1 when it is time to
+ * look for the device. */
+static int time_to_look(dev_device *d, int timeout_ms)
+{
+    int64_t wait_us = d->next_try_us - dev_now_us();
+    if (wait_us <= 0)
+        return 1;
+    if (timeout_ms >= 0 && wait_us > (int64_t)timeout_ms * 1000)
+        wait_us = (int64_t)timeout_ms * 1000;
+    if (d->mon) {
+        struct pollfd p = {d->hp->fd(d->mon), POLLIN, 0};
+        if (poll(&p, 1, (int)((wait_us + 999) / 1000)) > 0 && d->hp->added(d->mon))
+            return 1;
+    } else if (wait_us > 0) {
+        usleep((useconds_t)wait_us);
+    }
+    return dev_now_us() >= d->next_try_us;
 }
 
 static int poll_unplugged(dev_device *d, dev_event *ev, int timeout_ms)
 {
-    int64_t now = dev_now_us();
-    if (now < d->next_try_us) {
-        int64_t wait_us = d->next_try_us - now;
-        if (timeout_ms >= 0 && wait_us > (int64_t)timeout_ms * 1000)
-            wait_us = (int64_t)timeout_ms * 1000;
-        if (wait_us > 0)
-            usleep((useconds_t)wait_us);
-        if (dev_now_us() < d->next_try_us)
-            return 0;
-    }
-    d->next_try_us = dev_now_us() + DEV_REPLUG_MS * 1000;
-    if (!try_reopen(d))
+    if (!time_to_look(d, timeout_ms))
         return 0;
+    d->next_try_us = dev_now_us() + DEV_REPLUG_MS * 1000;
+    int found = try_reopen(d);
+    if (found <= 0) {
+        int report = found < 0 && !d->refused;
+        d->refused = found < 0;
+        if (!report)
+            return 0;
+        memset(ev, 0, sizeof *ev);
+        ev->t_us = dev_now_us();
+        ev->flags = DEV_EV_REFUSED;
+        ev->battery = -1;
+        return 1;
+    }
+    d->refused = 0;
     int battery = d->ps.battery;
     devparse_init(&d->ps, d->row, d->ps.axis_max);
     d->ps.battery = battery;
@@ -278,6 +382,33 @@ int dev_poll(dev_device *d, dev_event *ev, int timeout_ms)
         got = 1;
     }
     return got;
+}
+
+int dev_zero_offsets(dev_device *d, const float rest[6], int16_t now[6])
+{
+    if (!(d->row->flags & DEVTAB_F_OPEN))
+        return 1;
+    if (!d->h || !d->t->get_feature || !d->t->set_feature)
+        return fn_err_set(FN_EIO, "%s: cannot reach the controller's zero offsets (feature report 0x21)",
+                          d->info.path[0] ? d->info.path : d->t->name);
+    uint8_t buf[DEV_REPORT_MAX] = {DEVPARSE_FEAT_ZERO};
+    int16_t z[6];
+    int n = d->t->get_feature(d->h, buf, sizeof buf);
+    if (n < 0 || devparse_open_zero_parse(buf, (size_t)(n < 0 ? 0 : n), z))
+        return fn_err_wrap(n < 0 ? n : FN_EFORMAT, "%s: reading zero offsets", d->info.path);
+    for (int i = 0; i < 6; i++) { /* the firmware already subtracts z: the rest it reports is on top */
+        long v = lroundf(rest[i] * (float)d->ps.axis_max) + z[i];
+        z[i] = (int16_t)(v < -350 ? -350 : v > 350 ? 350 : v);
+    }
+    size_t len = devparse_open_zero_make(buf, z);
+    int rc = d->t->set_feature(d->h, buf, len);
+    if (rc < 0)
+        return fn_err_wrap(rc, "%s: writing zero offsets", d->info.path);
+    buf[0] = DEVPARSE_FEAT_ZERO;
+    n = d->t->get_feature(d->h, buf, sizeof buf);
+    if (n < 0 || devparse_open_zero_parse(buf, (size_t)(n < 0 ? 0 : n), now))
+        return fn_err_wrap(n < 0 ? n : FN_EFORMAT, "%s: reading zero offsets back", d->info.path);
+    return 0;
 }
 
 void dev_set_raw_hook(dev_device *d, dev_raw_hook hook, void *ctx)

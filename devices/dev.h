@@ -19,6 +19,7 @@
 #include <stdint.h>
 
 #include "devtab.h"
+#include "hotplug.h"
 
 #define DEV_REPORT_MAX 64
 #define DEV_DESC_MAX 4096
@@ -58,6 +59,9 @@ typedef struct dev_transport {
     int (*enumerate)(dev_info *out, size_t cap);
     /* Optional: feature report set (buf[0] = report ID). Returns bytes written or negative. */
     int (*set_feature)(dev_handle *h, const uint8_t *buf, size_t len);
+    /* Optional: the udev subsystem whose "add" events may bring a lost device back ("hidraw",
+     * "usb"); NULL = the 500 ms poll alone. */
+    const char *hotplug_subsystem;
 } dev_transport;
 
 /* Registry. The built-in transports (hidraw or libusb, spnav, keyboard) are always present;
@@ -74,7 +78,9 @@ enum {
     DEV_EV_BUTTON = 1u << 1,  /* buttons or key codes changed */
     DEV_EV_BATTERY = 1u << 2, /* battery level reported */
     DEV_EV_UNPLUG = 1u << 3,  /* the device went away: hold the last pose */
-    DEV_EV_REPLUG = 1u << 4   /* the device is back */
+    DEV_EV_REPLUG = 1u << 4,  /* the device is back */
+    DEV_EV_REFUSED = 1u << 5  /* another device (vid:pid:serial) sits where the lost one was: not
+                               * adopted, still waiting; fn_err_msg() names both. Once per refusal. */
 };
 
 /* A normalized event: the device's whole input state after the reports it folds in. */
@@ -93,9 +99,16 @@ typedef struct dev_event {
 /* An opened controller: transport handle, device-table row, parser state and hotplug state. */
 typedef struct dev_device dev_device;
 
+/* Splits a spec that names one transport: a path ("/dev/hidraw3", "./node", "vdev/hidraw0": anything
+ * with a '/' before its first ':', or an existing file that is not a transport's name) goes to the
+ * hidapi transport; "NAME" or "NAME:ARG" to transport NAME with ARG (NULL when absent or empty).
+ * Returns 0 or FN_EINVAL naming the spec (unknown transport). "auto" and "serial:S" are dev_open's. */
+int dev_spec_resolve(const char *spec, const dev_transport **t, const char **arg);
+
 /* Opens a controller by spec:
  *   "auto"           first supported HID device, else spacenavd, else the keyboard on a terminal
- *   "/path", "./p"   a hidraw node by path (no udev needed: works on a FUSE-served node)
+ *   "/path", "./p", "dir/p", an existing file
+ *                    a hidraw node by path (no udev needed: works on a FUSE-served node)
  *   "NAME" "NAME:ARG" transport NAME (hidraw, libusb, spnav, keyboard, virtual, replay, ...) with
  *                    its argument (a path, a file, ...)
  *   "serial:S"       the enumerated device whose serial number is S
@@ -107,7 +120,9 @@ void dev_close(dev_device *d);
 /* Drains every pending report (waiting up to timeout_ms for the first; <0 blocks), folds them into
  * one event and returns 1 when anything changed, 0 when nothing did, negative on a hard error.
  * Unplug is not an error: it yields DEV_EV_UNPLUG once, then the device is looked for every
- * DEV_REPLUG_MS (same path, or same vid:pid:serial) and DEV_EV_REPLUG when it returns. Allocates
+ * DEV_REPLUG_MS, and at once when the hotplug monitor announces a new device (same path, or same
+ * vid:pid:serial), and DEV_EV_REPLUG when it returns; a device
+ * with another vid:pid:serial at the old path is refused (DEV_EV_REFUSED). Allocates
  * nothing after dev_open. */
 int dev_poll(dev_device *d, dev_event *ev, int timeout_ms);
 
@@ -115,6 +130,13 @@ int dev_poll(dev_device *d, dev_event *ev, int timeout_ms);
  * Runs on the polling thread; NULL removes it. */
 typedef void (*dev_raw_hook)(void *ctx, const uint8_t *report, size_t len, int64_t t_us);
 void dev_set_raw_hook(dev_device *d, dev_raw_hook hook, void *ctx);
+
+/* Zero-offset calibration in the controller itself (the open controller's feature report 0x21,
+ * firmware-spec/open-controller.md 5): rest = the mean normalized motion measured with the cap
+ * released; the offsets become the controller's current ones plus rest (clamped to +-350). now
+ * gets the offsets read back. Returns 0, 1 when the device keeps no offsets (not an open
+ * controller), or negative naming the device. */
+int dev_zero_offsets(dev_device *d, const float rest[6], int16_t now[6]);
 
 /* LED on/off (output report 4). A device without an LED returns 0 and does nothing. */
 int dev_set_led(dev_device *d, int on);
@@ -132,6 +154,10 @@ uint64_t dev_skipped(const dev_device *d);
  * is closed on failure too). `reopen` is the path used to look for it after an unplug. For
  * transports and tests that build a device themselves. */
 dev_device *dev_open_handle(const dev_transport *t, dev_handle *h, const char *reopen);
+
+/* The hotplug monitor used by devices opened from now on (default &hotplug_udev; tests stand in
+ * for udev). NULL = none: lost devices are found by polling alone. */
+void dev_set_hotplug(const hotplug_ops *ops);
 
 /* Monotonic clock in microseconds (the timebase of t_us). */
 int64_t dev_now_us(void);

@@ -16,8 +16,12 @@
 
 #ifdef FRACNAV_HIDAPI_LIBUSB
 #define HID_NAME "libusb"
+#define IS_HIDRAW 0 /* paths are libusb's "bus-port:config.interface", not files */
+#define SUBSYSTEM "usb"
 #else
 #define HID_NAME "hidraw"
+#define IS_HIDRAW 1
+#define SUBSYSTEM "hidraw"
 #endif
 
 #define UDEV_HINT "install the udev rule: sudo cp udev/70-fracnav.rules /etc/udev/rules.d/ && " \
@@ -79,8 +83,8 @@ static int hid_enum(dev_info *out, size_t cap)
     return n;
 }
 
-/* Checks a node before hidapi sees it: hidapi 0.13.1 crashes in hid_open_path on a file that is
- * not a hidraw node. Absent -> FN_ENODEV; not ours to open -> FN_EIO naming the udev rule. */
+/* Checks a node before hidapi sees it (every path, relative ones too): hidapi 0.13.1 crashes in
+ * hid_open_path on a file that is not a hidraw node. Absent -> FN_ENODEV; not ours to open -> FN_EIO naming the udev rule. */
 static int check_node(const char *path)
 {
     int fd = open(path, O_RDWR | O_CLOEXEC | O_NONBLOCK);
@@ -110,12 +114,18 @@ static int hid_open_dev(const char *path, dev_handle **out)
             return fn_err_set(FN_ENODEV, "no supported 6-DOF HID device found (%s)", HID_NAME);
         path = first.path;
     }
-    int rc = path[0] == '/' ? check_node(path) : 0;
+    int rc = IS_HIDRAW ? check_node(path) : 0;
     if (rc)
         return rc;
+    if (!IS_HIDRAW && path[0] == '/')
+        return fn_err_set(FN_EINVAL, "%s: the libusb build opens USB paths (BUS-PORT:CONFIG.INTERFACE, as "
+                          "'fracnav devices' lists them); a hidraw node needs the default hidraw build", path);
     hid_device *dev = hid_open_path(path);
-    if (!dev)
+    if (!dev && IS_HIDRAW)
         return fn_err_set(FN_EIO, "%s: hidapi (%s) cannot open it: %ls", path, HID_NAME, hid_error(NULL));
+    if (!dev) /* libusb: absent and not permitted look alike (hid_error says little in 0.13.1) */
+        return fn_err_set(FN_EIO, "%s: hidapi (%s) cannot open it (%ls); if it is plugged in, %s", path,
+                          HID_NAME, hid_error(NULL), UDEV_HINT);
     dev_handle *h = calloc(1, sizeof *h);
     if (!h) {
         hid_close(dev);
@@ -195,7 +205,7 @@ static int hid_info_dev(dev_handle *h, dev_info *out)
         narrow(out->name, sizeof out->name, i->product_string);
         narrow(out->serial, sizeof out->serial, i->serial_number);
     }
-    int raw = h->path[0] == '/' ? hidraw_info(h->path, out) : -1;
+    int raw = IS_HIDRAW ? hidraw_info(h->path, out) : -1;
     return i || raw == 0 ? 0 : fn_err_set(FN_EIO, "%s: no device information", h->path);
 }
 
@@ -215,4 +225,5 @@ const dev_transport dev__hid_transport = {
     .info = hid_info_dev,
     .close = hid_close_dev,
     .enumerate = hid_enum,
+    .hotplug_subsystem = SUBSYSTEM,
 };

@@ -21,28 +21,47 @@
 struct dev_handle {
     uint32_t buttons;
     int proto;
+    char socket[256]; /* the bare socket path: what dev_info reports and a replug reopens */
 };
 
 static int open_count; /* libspnav keeps one connection per process */
+
+/* libspnav reads $SPNAV_SOCKET when it connects: set it for that call only, so a failed or
+ * explicit open leaves the caller's environment as it was. */
+static int connect_to(const char *sock)
+{
+    const char *was = getenv("SPNAV_SOCKET");
+    char old[256];
+    int had = was != NULL && strlen(was) < sizeof old;
+    if (had)
+        snprintf(old, sizeof old, "%s", was);
+    if (setenv("SPNAV_SOCKET", sock, 1))
+        return -1;
+    int rc = spnav_open();
+    if (had)
+        setenv("SPNAV_SOCKET", old, 1);
+    else
+        unsetenv("SPNAV_SOCKET");
+    return rc;
+}
 
 static int spnav_open_dev(const char *path, dev_handle **out)
 {
     if (open_count)
         return fn_err_set(FN_EIO, "spnav: already connected (libspnav allows one connection)");
-    if (path && setenv("SPNAV_SOCKET", path, 1))
-        return fn_err_set(FN_EINVAL, "spnav: bad socket path '%s'", path);
-    const char *sock = getenv("SPNAV_SOCKET");
+    const char *env = getenv("SPNAV_SOCKET");
+    const char *sock = path && *path ? path : env && *env ? env : DEFAULT_SOCKET;
     struct stat st;
     /* Look before connecting: libspnav leaks a little on each failed open. */
-    if (stat(sock && *sock ? sock : DEFAULT_SOCKET, &st) || !S_ISSOCK(st.st_mode))
-        return fn_err_set(FN_ENODEV, "spnav: spacenavd is not running (no socket at %s)",
-                          sock && *sock ? sock : DEFAULT_SOCKET);
+    if (stat(sock, &st) || !S_ISSOCK(st.st_mode))
+        return fn_err_set(FN_ENODEV, "spacenavd is not running (no socket at %s)", sock);
     dev_handle *h = calloc(1, sizeof *h);
     if (!h)
         return fn_err_set(FN_ENOMEM, "spnav: out of memory");
-    if (spnav_open() == -1) {
+    snprintf(h->socket, sizeof h->socket, "%s", sock);
+    if (strlen(sock) >= sizeof h->socket || connect_to(sock) == -1) {
         free(h);
-        return fn_err_set(FN_ENODEV, "spnav: cannot connect to spacenavd at %s", sock && *sock ? sock : DEFAULT_SOCKET);
+        return fn_err_set(FN_ENODEV, "cannot connect to spacenavd at %s", sock);
     }
     h->proto = spnav_protocol();
     open_count = 1;
@@ -105,8 +124,7 @@ static int spnav_write_dev(dev_handle *h, const uint8_t *buf, size_t len)
 static int spnav_info_dev(dev_handle *h, dev_info *out)
 {
     memset(out, 0, sizeof *out);
-    const char *sock = getenv("SPNAV_SOCKET");
-    snprintf(out->path, sizeof out->path, "spnav:%s", sock && *sock ? sock : DEFAULT_SOCKET);
+    snprintf(out->path, sizeof out->path, "%s", h->socket);
     snprintf(out->name, sizeof out->name, "spacenavd (protocol v%d)", h->proto);
     return 0;
 }

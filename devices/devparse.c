@@ -71,12 +71,10 @@ static int motion(devparse_state *st, const uint8_t *buf, size_t len, int64_t t_
     return 1;
 }
 
-static int buttons(devparse_state *st, const uint8_t *buf, size_t len, int64_t t_us, dev_event *ev)
+/* Sets the button state from its two sources and writes the event with the edges. */
+static int button_event(devparse_state *st, int64_t t_us, dev_event *ev)
 {
-    uint32_t raw = 0;
-    for (size_t i = 1; i < len && i <= 4; i++)
-        raw |= (uint32_t)buf[i] << 8 * (i - 1);
-    uint32_t now = st->row ? pack_bits(raw, st->row->button_mask) : raw, old = st->buttons;
+    uint32_t now = st->id3_buttons | st->key_buttons, old = st->buttons;
     st->buttons = now;
     fill_event(st, t_us, ev);
     ev->flags = DEV_EV_BUTTON;
@@ -85,14 +83,27 @@ static int buttons(devparse_state *st, const uint8_t *buf, size_t len, int64_t t
     return 1;
 }
 
+static int buttons(devparse_state *st, const uint8_t *buf, size_t len, int64_t t_us, dev_event *ev)
+{
+    uint32_t raw = 0;
+    for (size_t i = 1; i < len && i <= 4; i++)
+        raw |= (uint32_t)buf[i] << 8 * (i - 1);
+    st->id3_buttons = st->row ? pack_bits(raw, st->row->button_mask) : raw;
+    return button_event(st, t_us, ev);
+}
+
 static int keys(devparse_state *st, const uint8_t *buf, size_t len, int64_t t_us, dev_event *ev)
 {
+    int as_buttons = st->row && (st->row->flags & DEVTAB_F_KEYCODES);
     memset(st->keys, 0, sizeof st->keys);
-    for (size_t i = 0; i < (len - 1) / 2; i++)
+    st->key_buttons = 0;
+    for (size_t i = 0; i < (len - 1) / 2; i++) {
         st->keys[i] = (uint16_t)le16(buf + 1 + 2 * i);
-    fill_event(st, t_us, ev);
-    ev->flags = DEV_EV_BUTTON;
-    return 1;
+        int b = as_buttons ? devtab_key_button(st->keys[i]) : -1;
+        if (b >= 0)
+            st->key_buttons |= 1u << b;
+    }
+    return button_event(st, t_us, ev);
 }
 
 int devparse_report(devparse_state *st, const uint8_t *buf, size_t len, int64_t t_us, dev_event *ev)

@@ -6,7 +6,8 @@
  *   ID 1, 13 bytes  x y z rx ry rz; combined format
  *   ID 3, 2..13     button bitmask (LE, first 4 bytes used), packed by the row's button mask
  *   ID 0x17, 2      battery percent 0..100
- *   ID 0x1C, 3..13 odd   up to 6 uint16 key codes held
+ *   ID 0x1C, 3..13 odd   up to 6 uint16 key codes held; on rows with DEVTAB_F_KEYCODES they are
+ *                  also buttons (devtab_keys)
  * The format is chosen by length, never by vendor. Anything else is counted and skipped. Split
  * devices deliver translation and rotation in separate reports: the state keeps the last of each. */
 #ifndef FN_DEVPARSE_H
@@ -22,7 +23,9 @@ typedef struct devparse_state {
     const devtab_row *row; /* NULL = no button packing, axis_max 350 */
     int axis_max;          /* logical maximum used to normalize (from the descriptor or the row) */
     int16_t raw[6];        /* last raw axis values */
-    uint32_t buttons;      /* packed */
+    uint32_t buttons;      /* packed: report 3's bits | key_buttons */
+    uint32_t id3_buttons;  /* report 3's bits, packed */
+    uint32_t key_buttons;  /* buttons of the held 0x1C key codes (devtab_keys) */
     uint16_t keys[6];
     int battery;           /* -1 unknown */
     int64_t last_motion_us; /* -1 before the first motion */

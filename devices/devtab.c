@@ -45,6 +45,35 @@ static const devtab_row rows[] = {
     {0, 0, "generic", DEVTAB_COMBINED, 32, 0xffffffffu, 0, 350, DEVTAB_F_SYNTH | LED},
 };
 
+/* The SpaceMouse Enterprise's 31 keys as it reports them in 0x1C. Codes 1-31 keep 3Dconnexion's
+ * numbering (button = code - 1, as in its report 3); the keys that exist only in 0x1C take the
+ * numbers of the codes the Enterprise has no key for (4, 7, 8 other views, 10 roll back, 12 ISO2,
+ * 28-31 pan/zoom, dominant, +, -; those codes, when some device sends them, stay key codes with the
+ * calibration's built-in actions). */
+static const devtab_key keys[] = {
+    {1, 0, "MENU"},     {2, 1, "FIT"},     {3, 2, "T"},        {5, 4, "R"},        {6, 5, "F"},
+    {9, 8, "ROLL"},     {11, 10, "ISO1"},  {13, 12, "1"},      {14, 13, "2"},      {15, 14, "3"},
+    {16, 15, "4"},      {17, 16, "5"},     {18, 17, "6"},      {19, 18, "7"},      {20, 19, "8"},
+    {21, 20, "9"},      {22, 21, "10"},    {23, 22, "ESC"},    {24, 23, "ALT"},    {25, 24, "SHIFT"},
+    {26, 25, "CTRL"},   {27, 26, "ROTATE"}, {36, 3, "ENTER"},  {37, 6, "DELETE"},  {77, 7, "11"},
+    {78, 9, "12"},      {103, 11, "V1"},   {104, 27, "V2"},    {105, 28, "V3"},    {175, 29, "TAB"},
+    {176, 30, "SPACE"},
+};
+
+const devtab_key *devtab_keys(size_t *n)
+{
+    *n = sizeof keys / sizeof keys[0];
+    return keys;
+}
+
+int devtab_key_button(uint16_t code)
+{
+    for (size_t i = 0; i < sizeof keys / sizeof keys[0]; i++)
+        if (keys[i].code == code)
+            return keys[i].button;
+    return -1;
+}
+
 const devtab_row *devtab_rows(size_t *n)
 {
     *n = sizeof rows / sizeof rows[0];

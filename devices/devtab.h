@@ -43,6 +43,19 @@ typedef struct devtab_row {
     unsigned flags;       /* DEVTAB_F_* */
 } devtab_row;
 
+/* A key code of report 0x1C (rows with DEVTAB_F_KEYCODES) and the button number it is reported
+ * as, so such keys are buttons like any other (bnmapN, bnactN, the loop's buttons). */
+typedef struct devtab_key {
+    uint16_t code;
+    uint8_t button; /* bit in dev_event.buttons */
+    const char *name;
+} devtab_key;
+
+/* The key-code table; *n receives its length. */
+const devtab_key *devtab_keys(size_t *n);
+/* The button of a key code, -1 when the code is not a button (it still reaches dev_event.keys). */
+int devtab_key_button(uint16_t code);
+
 /* The whole table (hardware rows first, then the synthetic rows). *n receives the row count. */
 const devtab_row *devtab_rows(size_t *n);
 /* The row for vid:pid, or NULL when the device is not a supported 6-DOF controller. */

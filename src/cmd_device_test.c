@@ -31,7 +31,8 @@ static void usage(FILE *out)
                  "Calibration comes from ~/.config/fracnav/spnavrc, else /etc/spnavrc, or --config.\n\n"
                  "  --calibrate-zero  with the cap released, measure the rest position for S seconds\n"
                  "                    (default 1) and save it as the zero offset (against drift) to\n"
-                 "                    --config, or ~/.config/fracnav/spnavrc\n");
+                 "                    --config, or ~/.config/fracnav/spnavrc; an open controller\n"
+                 "                    stores it itself (feature report 0x21) and the file gets 0\n");
 }
 
 static void count_report(void *ctx, const uint8_t *report, size_t len, int64_t t_us)
@@ -52,7 +53,10 @@ static void show(FILE *out, const dev_event *ev, const float cal[6], int battery
         fprintf(out, "%s%u", i ? "," : " keys ", ev->keys[i]);
     if (battery >= 0)
         fprintf(out, " | battery %d%%", battery);
-    fprintf(out, " | %.0f reports/s%s", rate, tty ? "   " : "\n");
+    if (rate < 0) /* the first second: not measured yet */
+        fprintf(out, " | - reports/s%s", tty ? "   " : "\n");
+    else
+        fprintf(out, " | %.0f reports/s%s", rate, tty ? "   " : "\n");
     fflush(out);
 }
 
@@ -62,24 +66,35 @@ typedef struct opts {
     int zero;
 } opts;
 
+/* The value of option argv[*i]: the next argument, unless there is none or it is another option. */
+static const char *value_of(int argc, char **argv, int *i)
+{
+    if (*i + 1 >= argc || !strncmp(argv[*i + 1], "--", 2)) {
+        cmd_usage_error("device-test", "%s wants a value%s%s", argv[*i], *i + 1 < argc ? ", got option " : "",
+                        *i + 1 < argc ? argv[*i + 1] : "");
+        return NULL;
+    }
+    return argv[++*i];
+}
+
 static int parse_args(int argc, char **argv, opts *o)
 {
     for (int i = 1; i < argc; i++) {
-        char *end = NULL;
-        if (!strcmp(argv[i], "--calibrate-zero"))
+        const char *a = argv[i], *v = NULL;
+        int valued = !strcmp(a, "--device") || !strcmp(a, "--config") || !strcmp(a, "--seconds");
+        if (valued && !(v = value_of(argc, argv, &i)))
+            return 2;
+        if (!strcmp(a, "--calibrate-zero"))
             o->zero = 1;
-        else if (!strcmp(argv[i], "--device") && i + 1 < argc)
-            o->spec = argv[++i];
-        else if (!strcmp(argv[i], "--config") && i + 1 < argc)
-            o->config = argv[++i];
-        else if (!strcmp(argv[i], "--seconds") && i + 1 < argc) {
-            o->seconds = strtod(argv[++i], &end);
-            if (*end || !(o->seconds > 0) || o->seconds > 1e6) {
-                fprintf(stderr, "fracnav device-test: --seconds wants a positive number, got '%s'\n", argv[i]);
-                return 2;
-            }
+        else if (!strcmp(a, "--device"))
+            o->spec = v;
+        else if (!strcmp(a, "--config"))
+            o->config = v;
+        else if (!strcmp(a, "--seconds")) {
+            if (!cmd_number(v, &o->seconds) || !(o->seconds > 0) || o->seconds > 1e6)
+                return cmd_usage_error("device-test", "--seconds wants a positive number, got '%s'", v);
         } else {
-            fprintf(stderr, "fracnav device-test: unknown or incomplete option '%s'\n", argv[i]);
+            fprintf(stderr, "fracnav device-test: unknown or incomplete option '%s'\n", a);
             usage(stderr);
             return 2;
         }
@@ -130,6 +145,17 @@ static int calibrate_zero(dev_device *d, calib *c, double seconds, const char *c
     }
     for (int i = 0; i < 6; i++)
         c->zero[i] = total > 0 ? (float)(sum[i] / total) : 0.0f;
+    int16_t fw[6];
+    int rc = dev_zero_offsets(d, c->zero, fw);
+    if (rc < 0) {
+        fprintf(stderr, "fracnav device-test: %s\n", fn_err_msg());
+        return 1;
+    }
+    if (rc == 0) { /* the controller now corrects itself: the host must not subtract it again */
+        printf("controller zero offsets (feature report 0x21) now %d %d %d %d %d %d\n", fw[0], fw[1], fw[2],
+               fw[3], fw[4], fw[5]);
+        memset(c->zero, 0, sizeof c->zero);
+    }
     char used[600];
     if (calib_save(c, config, used, sizeof used)) {
         fprintf(stderr, "fracnav device-test: %s\n", fn_err_msg());
@@ -146,7 +172,7 @@ static int live_view(dev_device *d, calib *c, double seconds)
     int64_t start = dev_now_us(), end = seconds > 0 ? start + (int64_t)(seconds * 1e6) : INT64_MAX;
     int64_t last_line = 0, window = start;
     long reports = 0; /* raw reports, counted as they are read */
-    double rate = 0;
+    double rate = -1; /* reports/s over the last whole second, -1 before the first */
     dev_set_raw_hook(d, count_report, &reports);
     while (!stop && dev_now_us() < end) {
         dev_event ev;
@@ -162,6 +188,10 @@ static int live_view(dev_device *d, calib *c, double seconds)
         }
         if (r == 0)
             continue;
+        if (ev.flags & DEV_EV_REFUSED) {
+            printf("%s%s\n", tty ? "\n" : "", fn_err_msg());
+            continue;
+        }
         if (ev.flags & (DEV_EV_UNPLUG | DEV_EV_REPLUG))
             printf("%s%s\n", tty ? "\n" : "", ev.flags & DEV_EV_UNPLUG ? "unplugged: waiting for it to return"
                                                                          : "plugged in again");
@@ -195,8 +225,11 @@ int cmd_device_test(int argc, char **argv)
         return 1;
     }
     const dev_info *info = dev_device_info(d);
-    printf("%s (%04x:%04x) via %s, %s format, %d buttons; %s\n", dev_row(d)->name, info->vid, info->pid,
-           dev_transport_name(d), devtab_format_name(dev_row(d)->format), dev_row(d)->nbuttons,
+    char id[16] = "";
+    if (info->vid || info->pid)
+        snprintf(id, sizeof id, " (%04x:%04x)", info->vid, info->pid);
+    printf("%s%s via %s, %s format, %d buttons; %s\n", dev_row(d)->name, id, dev_transport_name(d),
+           devtab_format_name(dev_row(d)->format), dev_row(d)->nbuttons,
            o.seconds > 0 || o.zero ? "running" : "Ctrl-C to stop");
     signal(SIGINT, on_signal);
     signal(SIGTERM, on_signal);

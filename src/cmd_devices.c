@@ -11,6 +11,7 @@
 #include "err.h"
 
 #define LIST_MAX 32
+#define EXTRA_MAX 8 /* --device options */
 #define BATTERY_WAIT_MS 120 /* wireless devices report 0x17 soon after open */
 
 typedef struct found {
@@ -29,7 +30,7 @@ static void usage(FILE *out)
                  "--device adds one it cannot see (a hidraw path, spnav, keyboard, replay:FILE, ...).\n"
                  "A device that cannot be opened is listed with the udev rule to install.\n\n"
                  "  --json          machine-readable output\n"
-                 "  --device SPEC   also probe this device (repeatable)\n");
+                 "  --device SPEC   also probe this device (repeatable, up to 8 times)\n");
 }
 
 /* Opens the device briefly: for the battery, and to find out whether the user may open it. */
@@ -40,6 +41,10 @@ static void probe(found *f, const char *spec)
     dev_device *d = dev_open(spec);
     if (!d) {
         snprintf(f->error, sizeof f->error, "%s", fn_err_msg());
+        const dev_transport *t;
+        const char *arg;
+        if (!f->transport && dev_spec_resolve(spec, &t, &arg) == 0) /* known even when it failed */
+            f->transport = t->name;
         return;
     }
     if (!f->info.path[0])
@@ -129,22 +134,33 @@ static void print_text(const found *list, size_t n)
         printf("no 6-DOF controller connected\n");
     for (size_t i = 0; i < n; i++) {
         const found *f = &list[i];
-        printf("%s  %04x:%04x  %s\n", f->info.path, f->info.vid, f->info.pid,
-               f->row && f->row->vid ? f->row->name : f->info.name);
+        const char *name = f->row && f->row->vid ? f->row->name : f->info.name;
+        if (f->info.vid || f->info.pid)
+            printf("%s  %04x:%04x  %s\n", f->info.path, f->info.vid, f->info.pid, name);
+        else /* nothing known but the spec: say so rather than print a zero id */
+            printf("%s  %s\n", f->info.path, f->error[0] ? "(not opened)" : name);
         if (f->row)
             printf("    format %s, %d buttons", devtab_format_name(f->row->format), f->row->nbuttons);
         if (f->battery >= 0)
             printf(", battery %d%%", f->battery);
         if (f->info.serial[0])
             printf(", serial %s", f->info.serial);
-        printf("%s    transport %s\n", f->row ? "\n" : "", f->transport ? f->transport : "?");
+        if (f->transport)
+            printf("%s    transport %s\n", f->row ? "\n" : "", f->transport);
+        else if (f->row)
+            printf("\n");
         if (f->error[0])
             printf("    cannot open: %s\n", f->error);
     }
     char buf[320];
+    int width = 0;
+    for (size_t t = 0; dev_transport_at(t); t++)
+        if ((int)strlen(dev_transport_at(t)->name) > width)
+            width = (int)strlen(dev_transport_at(t)->name);
     printf("transports:\n");
     for (size_t t = 0; dev_transport_at(t); t++)
-        printf("  %-9s %s\n", dev_transport_at(t)->name, transport_state(dev_transport_at(t), buf, sizeof buf));
+        printf("  %-*s  %s\n", width, dev_transport_at(t)->name,
+               transport_state(dev_transport_at(t), buf, sizeof buf));
 }
 
 int cmd_devices(int argc, char **argv)
@@ -154,14 +170,20 @@ int cmd_devices(int argc, char **argv)
         return 0;
     }
     int json = 0;
-    const char *extra[8];
+    const char *extra[EXTRA_MAX];
     size_t n_extra = 0;
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "--json"))
             json = 1;
-        else if (!strcmp(argv[i], "--device") && i + 1 < argc && n_extra < 8)
+        else if (!strcmp(argv[i], "--device")) {
+            if (i + 1 >= argc || !strncmp(argv[i + 1], "--", 2))
+                return cmd_usage_error("devices", "--device wants a SPEC%s%s", i + 1 < argc ? ", got option " : "",
+                                       i + 1 < argc ? argv[i + 1] : "");
+            if (n_extra == EXTRA_MAX)
+                return cmd_usage_error("devices", "at most %d --device options (the %dth is '%s')", EXTRA_MAX,
+                                       EXTRA_MAX + 1, argv[i + 1]);
             extra[n_extra++] = argv[++i];
-        else {
+        } else {
             fprintf(stderr, "fracnav devices: unknown or incomplete option '%s'\n", argv[i]);
             usage(stderr);
             return 2;

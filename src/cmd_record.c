@@ -48,21 +48,7 @@ typedef struct recorder {
 
 static int resolve(const char *spec, recorder *r)
 {
-    r->t = dev_transport_at(0); /* hidapi: hidraw (or libusb) */
-    r->arg = spec;
-    if (!spec || spec[0] == '/' || spec[0] == '.')
-        return 0;
-    const char *colon = strchr(spec, ':');
-    char name[32];
-    size_t n = colon ? (size_t)(colon - spec) : strlen(spec);
-    if (n >= sizeof name)
-        return fn_err_set(FN_EINVAL, "device '%s': unknown transport", spec);
-    memcpy(name, spec, n);
-    name[n] = '\0';
-    if (!(r->t = dev_transport_find(name)))
-        return fn_err_set(FN_EINVAL, "device '%s': unknown transport '%s'", spec, name);
-    r->arg = colon && colon[1] ? colon + 1 : NULL;
-    return 0;
+    return dev_spec_resolve(spec, &r->t, &r->arg);
 }
 
 static int is_replay(const recorder *r)

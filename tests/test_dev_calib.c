@@ -12,6 +12,7 @@
 #include <sys/stat.h>
 
 #include "calib.h"
+#include "devparse.h"
 #include "testutil.h"
 
 static float one_axis(const calib *c, int axis, float v)
@@ -84,6 +85,95 @@ static void test_locks_settings_and_buttons(void **s)
     calib_buttons(&c, &k, NULL, NULL);
     calib_buttons(&c, &k, NULL, NULL);
     assert_int_equal(c.dominant, 1);
+}
+
+/* An Enterprise-only key (ENTER) is bnmap'ed and bnact'ed like any button; binding the ROTATE
+ * key's button replaces its built-in action. */
+static void test_enterprise_key_bindings(void **s)
+{
+    calib c;
+    calib_default(&c);
+    int enter = devtab_key_button(36), rot = devtab_key_button(27);
+    char text[160];
+    snprintf(text, sizeof text, "bnmap%d = 2\nbnact%d = dominant-axis\n", enter, rot);
+    assert_int_equal(calib_parse_spnavrc(&c, text, strlen(text), "rc", NULL, 0), 0);
+    devparse_state st;
+    devparse_init(&st, devtab_find(0x256f, 0xc633), 0);
+    dev_event ev;
+    const uint8_t down[] = {0x1C, 36, 0, 27, 0};
+    assert_int_equal(devparse_report(&st, down, sizeof down, 0, &ev), 1);
+    uint32_t pressed;
+    assert_int_equal(calib_buttons(&c, &ev, &pressed, NULL), 1u << 2); /* ENTER -> button 2 */
+    assert_int_equal(pressed, 1u << 2);
+    assert_int_equal(c.dominant, 1);                 /* ROTATE's button bound: dominant-axis */
+    assert_int_equal(c.lock, CALIB_LOCK_NONE);       /* ... instead of rotation only */
+}
+
+/* axismapN = M sends device axis N to output M; a partial map swaps (every input drives exactly
+ * one output, as a full spacenavd map would), and a full map in any line order reads the same. */
+static void test_axismap_is_a_permutation(void **s)
+{
+    calib c;
+    calib_default(&c);
+    const char *partial = "axismap0 = 2\n";
+    assert_int_equal(calib_parse_spnavrc(&c, partial, strlen(partial), "rc", NULL, 0), 0);
+    for (int i = 0; i < 6; i++)
+        c.dead[i] = 0;
+    float in[6] = {0.1f, 0.2f, 0.3f, 0.4f, 0.5f, 0.6f}, out[6];
+    calib_apply(&c, in, out);
+    const float want[6] = {0.3f, 0.2f, 0.1f, 0.4f, 0.5f, 0.6f};
+    for (int i = 0; i < 6; i++)
+        assert_float_equal(out[i], want[i], 1e-6);
+    const char *full[2] = {"axismap0 = 1\naxismap1 = 2\naxismap2 = 0\naxismap3 = 5\naxismap4 = 3\naxismap5 = 4\n",
+                           "axismap5 = 4\naxismap2 = 0\naxismap4 = 3\naxismap1 = 2\naxismap3 = 5\naxismap0 = 1\n"};
+    for (int f = 0; f < 2; f++) {
+        calib_default(&c);
+        assert_int_equal(calib_parse_spnavrc(&c, full[f], strlen(full[f]), "rc", NULL, 0), 0);
+        const int8_t want_map[6] = {2, 0, 1, 4, 5, 3}; /* output i takes device axis want_map[i] */
+        assert_memory_equal(c.map, want_map, 6);
+    }
+    char text[2048];
+    calib_format_spnavrc(&c, text, sizeof text); /* and it round-trips */
+    calib d;
+    calib_default(&d);
+    assert_int_equal(calib_parse_spnavrc(&d, text, strlen(text), "rc", NULL, 0), 0);
+    assert_memory_equal(d.map, c.map, 6);
+}
+
+/* With no file named: the user's ~/.config/fracnav/spnavrc, else the system's spnavrc. */
+static void test_load_falls_back_to_system_file(void **s)
+{
+    char *dir = tu_tmpdir("rcload"), home[4200], etc[4200], f[4300], used[512], diag[256];
+    snprintf(home, sizeof home, "%s/home", dir);
+    snprintf(etc, sizeof etc, "%s/etc", dir);
+    assert_int_equal(mkdir(home, 0700), 0);
+    assert_int_equal(mkdir(etc, 0700), 0);
+    snprintf(f, sizeof f, "%s/spnavrc", etc);
+    tu_write_file(f, "sensitivity = 3\n", 16);
+    char *old_home = getenv("HOME") ? strdup(getenv("HOME")) : NULL;
+    setenv("HOME", home, 1);
+    setenv("FRACNAV_SYSCONFDIR", etc, 1);
+    calib c;
+    calib_default(&c);
+    assert_int_equal(calib_load(&c, NULL, used, sizeof used, diag, sizeof diag), 0);
+    assert_string_equal(used, f);
+    assert_float_equal(c.sens, 3.0f, 1e-6);
+    snprintf(f, sizeof f, "%s/.config", home);
+    assert_int_equal(mkdir(f, 0700), 0);
+    snprintf(f, sizeof f, "%s/.config/fracnav", home);
+    assert_int_equal(mkdir(f, 0700), 0);
+    snprintf(f, sizeof f, "%s/.config/fracnav/spnavrc", home);
+    tu_write_file(f, "sensitivity = 0.5\n", 18);
+    calib_default(&c);
+    assert_int_equal(calib_load(&c, NULL, used, sizeof used, diag, sizeof diag), 0);
+    assert_string_equal(used, f); /* the user's file wins */
+    assert_float_equal(c.sens, 0.5f, 1e-6);
+    unsetenv("FRACNAV_SYSCONFDIR");
+    if (old_home)
+        setenv("HOME", old_home, 1);
+    free(old_home);
+    tu_rmtree(dir);
+    free(dir);
 }
 
 static void test_mapping_invert_swap_sensitivity(void **s)
@@ -238,6 +328,9 @@ int main(void)
         cmocka_unit_test(test_dead_zone_continuous),
         cmocka_unit_test(test_dominant_axis),
         cmocka_unit_test(test_locks_settings_and_buttons),
+        cmocka_unit_test(test_enterprise_key_bindings),
+        cmocka_unit_test(test_axismap_is_a_permutation),
+        cmocka_unit_test(test_load_falls_back_to_system_file),
         cmocka_unit_test(test_mapping_invert_swap_sensitivity),
         cmocka_unit_test(test_cubic_and_zero_offset),
         cmocka_unit_test(test_spnavrc_reader),

@@ -82,7 +82,8 @@ static void test_every_devices_md_id(void **s)
         {0x256f, 0xc652}, {DEVTAB_OPEN_VID, DEVTAB_OPEN_PID}};
     for (size_t i = 0; i < sizeof ids / sizeof ids[0]; i++)
         assert_non_null(devtab_find(ids[i][0], ids[i][1]));
-    static const uint16_t not6dof[] = {0xc650, 0xc651, 0xc654, 0xc655, 0xc656, 0xc657, 0xc658, 0xc664, 0xc668, 0xc665};
+    static const uint16_t not6dof[] = {0xc650, 0xc651, 0xc654, 0xc655, 0xc656, 0xc657, 0xc658, 0xc664, 0xc668, 0xc665,
+                                           0xc62c, 0xc641};
     for (size_t i = 0; i < sizeof not6dof / sizeof not6dof[0]; i++)
         assert_null(devtab_find(0x256f, not6dof[i]));
     assert_int_equal(devtab_find(0x046d, 0xc62b)->nbuttons, 15);
@@ -157,6 +158,39 @@ static void test_battery_and_keys(void **s)
     assert_int_equal(ev.battery, 87);
 }
 
+/* Enterprise keys that exist only in report 0x1C are buttons (table data): ENTER, V3, SPACE press
+ * and release like any button, alongside report 3's bits; other devices keep codes as codes. */
+static void test_enterprise_keys_are_buttons(void **s)
+{
+    devparse_state st;
+    devparse_init(&st, devtab_find(0x256f, 0xc633), 0);
+    dev_event ev;
+    int enter = devtab_key_button(36), v3 = devtab_key_button(105), space = devtab_key_button(176);
+    assert_true(enter >= 0 && v3 >= 0 && space >= 0);
+    assert_true(enter != v3 && v3 != space && enter != space);
+    const uint8_t id3[] = {3, 1, 0, 0, 0}, down[] = {0x1C, 36, 0, 105, 0, 176, 0}, up[] = {0x1C, 105, 0};
+    assert_int_equal(devparse_report(&st, id3, sizeof id3, 0, &ev), 1);
+    assert_int_equal(devparse_report(&st, down, sizeof down, 1, &ev), 1);
+    assert_int_equal(ev.pressed, 1u << enter | 1u << v3 | 1u << space);
+    assert_int_equal(ev.buttons, 1u | 1u << enter | 1u << v3 | 1u << space);
+    assert_int_equal(devparse_report(&st, up, sizeof up, 2, &ev), 1);
+    assert_int_equal(ev.released, 1u << enter | 1u << space);
+    assert_int_equal(ev.buttons, 1u | 1u << v3);
+    /* Every key code of the table has its own button within the row's 31. */
+    size_t n;
+    const devtab_key *k = devtab_keys(&n);
+    uint32_t seen = 0;
+    for (size_t i = 0; i < n; i++) {
+        assert_true(k[i].button < devtab_find(0x256f, 0xc633)->nbuttons);
+        assert_false(seen >> k[i].button & 1);
+        seen |= 1u << k[i].button;
+    }
+    devparse_init(&st, devtab_find(0x256f, 0xc62e), 0); /* SpaceMouse Wireless: codes only */
+    assert_int_equal(devparse_report(&st, down, sizeof down, 1, &ev), 1);
+    assert_int_equal(ev.buttons, 0);
+    assert_int_equal(ev.keys[0], 36);
+}
+
 /* The SpaceMouse Pro reports 15 buttons on sparse bits: bit 12 is its 7th button. */
 static void test_sparse_buttons(void **s)
 {
@@ -223,6 +257,7 @@ int main(void)
         cmocka_unit_test(test_every_row),           cmocka_unit_test(test_every_devices_md_id),
         cmocka_unit_test(test_length_not_vendor),   cmocka_unit_test(test_split_keeps_last_of_each),
         cmocka_unit_test(test_bad_reports_counted), cmocka_unit_test(test_battery_and_keys),
+        cmocka_unit_test(test_enterprise_keys_are_buttons),
         cmocka_unit_test(test_sparse_buttons),      cmocka_unit_test(test_merge_and_dt_clamp),
         cmocka_unit_test(test_descriptor_axis_max), cmocka_unit_test(test_open_features),
     };

@@ -28,6 +28,7 @@ typedef struct fake_daemon {
     int listen_fd, v1;
     int led_seen; /* v1: the LED state the client asked for, -1 none */
     int ok;       /* the fake_daemon saw what a libspnav client must send */
+    int brief;    /* v1, one motion event, then hang up (an unplug) */
 } fake_daemon;
 
 static int read_full(int fd, void *buf, size_t n)
@@ -64,6 +65,13 @@ static void *daemon_main(void *arg)
             return NULL;
     }
     send_event(c, 0, 100, -50, 25, 10, 20, -30, 8); /* motion, spacenavd's frame */
+    if (dm->brief) {
+        usleep(100000);
+        dm->ok = 1;
+        unlink(dm->path);
+        close(c);
+        return NULL;
+    }
     send_event(c, 1, 3, 1, 0, 0, 0, 0, 0);          /* press button 3 */
     send_event(c, 2, 3, 0, 0, 0, 0, 0, 0);          /* release */
     if (dm->v1) {
@@ -82,10 +90,11 @@ static void *daemon_main(void *arg)
     return NULL;
 }
 
-static void start_daemon(fake_daemon *dm, const char *dir, int v1, pthread_t *th)
+static void start_daemon(fake_daemon *dm, const char *dir, int v1, int brief, pthread_t *th)
 {
     memset(dm, 0, sizeof *dm);
     dm->v1 = v1;
+    dm->brief = brief;
     dm->led_seen = -1;
     snprintf(dm->path, sizeof dm->path, "%s/spnav.sock", dir);
     struct sockaddr_un a = {.sun_family = AF_UNIX};
@@ -103,7 +112,7 @@ static void run_session(int v1)
     char *dir = tu_tmpdir("spnav");
     fake_daemon dm;
     pthread_t th;
-    start_daemon(&dm, dir, v1, &th);
+    start_daemon(&dm, dir, v1, 0, &th);
     dev_device *d = dev_open("spnav");
     assert_non_null(d);
     assert_string_equal(dev_row(d)->name, "spnav");
@@ -150,6 +159,51 @@ static void test_protocol_v0(void **s)
     run_session(0);
 }
 
+static void wait_for(dev_device *d, unsigned flag)
+{
+    dev_event ev;
+    int seen = 0;
+    for (int i = 0; i < 30 && !seen; i++)
+        seen = dev_poll(d, &ev, 100) == 1 && (ev.flags & flag);
+    if (!seen)
+        fail_msg("no event with flag %#x", flag);
+}
+
+/* spacenavd restarts (socket gone, then back): "spnav" finds it again at the same socket, and the
+ * environment is left as it was. */
+static void test_replug(void **s)
+{
+    char *dir = tu_tmpdir("spnavre");
+    fake_daemon dm;
+    pthread_t th;
+    start_daemon(&dm, dir, 1, 1, &th);
+    dev_device *d = dev_open("spnav");
+    assert_non_null(d);
+    assert_string_equal(dev_device_info(d)->path, dm.path);
+    wait_for(d, DEV_EV_UNPLUG);
+    pthread_join(th, NULL);
+    close(dm.listen_fd);
+    start_daemon(&dm, dir, 1, 1, &th);
+    wait_for(d, DEV_EV_REPLUG);
+    wait_for(d, DEV_EV_MOTION);
+    assert_string_equal(getenv("SPNAV_SOCKET"), dm.path);
+    dev_close(d);
+    pthread_join(th, NULL);
+    close(dm.listen_fd);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* An explicit socket that is not there: a clear error, and $SPNAV_SOCKET untouched. */
+static void test_bad_socket_leaves_env(void **s)
+{
+    setenv("SPNAV_SOCKET", "/run/elsewhere.sock", 1);
+    assert_null(dev_open("spnav:/nonexistent/spnav.sock"));
+    assert_non_null(strstr(fn_err_msg(), "/nonexistent/spnav.sock"));
+    assert_null(strstr(fn_err_msg(), "spnav: spacenavd")); /* the name once, from the spec */
+    assert_string_equal(getenv("SPNAV_SOCKET"), "/run/elsewhere.sock");
+}
+
 static void test_no_daemon(void **s)
 {
     setenv("SPNAV_SOCKET", "/nonexistent/spnav.sock", 1);
@@ -163,6 +217,8 @@ int main(void)
         cmocka_unit_test(test_protocol_v1),
         cmocka_unit_test(test_protocol_v0),
         cmocka_unit_test(test_no_daemon),
+        cmocka_unit_test(test_replug),
+        cmocka_unit_test(test_bad_socket_leaves_env),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
