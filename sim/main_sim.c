@@ -714,7 +714,8 @@ static void usage(FILE *f)
             "\n"
             "serve    serves the virtual device as DIR/" NODE_NAME " through FUSE until SIGINT/SIGTERM\n"
             "         (then unmounts). SIGUSR1 unplugs it, the next SIGUSR1 plugs it back.\n"
-            "         --as DEVICE      device to impersonate (default spacenavigator; see list)\n"
+            "         --as DEVICE      device to impersonate, by name or VID:PID (default\n"
+            "                          spacenavigator; list shows every row of the table)\n"
             "         --play FILE      play a recording (its identity replaces --as)\n"
             "         --script FILE    play a motion script (see sim/script.h)\n"
             "         --start-on-read  start playing when the node is first read or polled\n"
@@ -733,8 +734,8 @@ static int list_devices(void)
 {
     for (size_t i = 0; sim_profile_at(i); i++) {
         const sim_profile *p = sim_profile_at(i);
-        printf("%-26s %04x:%04x  %-8s %2d ms  %2d button bits  %s\n", p->id, p->vid, p->pid,
-               p->format == SIMDEV_SPLIT ? "split" : "combined", p->period_us / 1000, p->nbuttons,
+        printf("%-34s %04x:%04x  %-8s %2d ms  %2d button bits  %s\n", p->id, p->vid, p->pid,
+               devtab_format_name(p->row->format), p->period_us / 1000, p->nbuttons,
                p->name);
     }
     return 0;

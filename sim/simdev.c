@@ -1,41 +1,102 @@
 #include "simdev.h"
 
+#include <ctype.h>
+#include <pthread.h>
+#include <stdio.h>
 #include <string.h>
 #include <strings.h>
 
 #include "err.h"
 
-#define SPLIT_MS 8000
-#define COMBINED_MS 16000
+/* Sim-only data: the cadence of each report format, and the short names --as has always accepted.
+ * Everything else (identity, format, buttons, battery, key codes) comes from the device table, so
+ * every hardware row of devices/devtab.c can be impersonated, including rows added later. */
+static int cadence_us(devtab_format f)
+{
+    return f == DEVTAB_COMBINED ? 16000 : 8000; /* split and legacy: 8 ms */
+}
 
-#define P(id, vid, pid, name, fmt, period, nb, keys, bat, open) \
-    {id, vid, pid, name, fmt, period, nb, keys, bat, open}
-#define S3DX(id, pid, name, nb) P(id, 0x046d, pid, name, SIMDEV_SPLIT, SPLIT_MS, nb, 0, 0, 0)
+#define OPEN_CADENCE_US 8000 /* firmware-spec/open-controller.md, 6 */
 
-/* Identities as in ../shared/DEVICES.md and the device table (devices/devtab.c). */
-static const sim_profile profiles[] = {
-    S3DX("spacenavigator", 0xc626, "3Dconnexion SpaceNavigator", 2),
-    S3DX("spacenavigator-notebook", 0xc628, "3Dconnexion SpaceNavigator for Notebooks", 2),
-    S3DX("spaceexplorer", 0xc627, "3Dconnexion SpaceExplorer", 15),
-    S3DX("spacepilot-pro", 0xc629, "3Dconnexion SpacePilot Pro", 31),
-    S3DX("spacemouse-pro", 0xc62b, "3Dconnexion SpaceMouse Pro", 27), /* sparse bits up to 26 */
-    P("spacemouse-compact", 0x256f, 0xc635, "3Dconnexion SpaceMouse Compact", SIMDEV_SPLIT, SPLIT_MS,
-      2, 0, 0, 0),
-    P("spacemouse-wireless", 0x256f, 0xc62e, "3Dconnexion SpaceMouse Wireless (cable)",
-      SIMDEV_COMBINED, COMBINED_MS, 2, 0, 1, 0),
-    P("spacemouse-pro-wireless", 0x256f, 0xc631, "3Dconnexion SpaceMouse Pro Wireless (cable)",
-      SIMDEV_COMBINED, COMBINED_MS, 15, 0, 1, 0),
-    P("spacemouse-enterprise", 0x256f, 0xc633, "3Dconnexion SpaceMouse Enterprise", SIMDEV_COMBINED,
-      COMBINED_MS, 31, 1, 0, 0),
-    P("open-controller", 0x1209, 0x0001, "fracnav open 6-DOF controller", SIMDEV_COMBINED, SPLIT_MS,
-      8, 0, 1, 1),
+static const struct alias {
+    uint16_t vid, pid;
+    const char *id;
+} aliases[] = {
+    {0x046d, 0xc626, "spacenavigator"},      {0x046d, 0xc628, "spacenavigator-notebook"},
+    {0x046d, 0xc627, "spaceexplorer"},       {0x046d, 0xc629, "spacepilot-pro"},
+    {0x046d, 0xc62b, "spacemouse-pro"},      {0x256f, 0xc635, "spacemouse-compact"},
+    {0x256f, 0xc62e, "spacemouse-wireless"}, {0x256f, 0xc631, "spacemouse-pro-wireless"},
+    {0x256f, 0xc633, "spacemouse-enterprise"}, {DEVTAB_OPEN_VID, DEVTAB_OPEN_PID, "open-controller"},
 };
 
-#define NPROFILES (sizeof profiles / sizeof profiles[0])
+#define MAX_PROFILES 64
+#define ID_MAX 48
+
+static sim_profile profiles[MAX_PROFILES];
+static char profile_ids[MAX_PROFILES][ID_MAX];
+static size_t nprofiles;
+static pthread_once_t profiles_once = PTHREAD_ONCE_INIT;
+
+/* A row without an alias is named after its product: "3Dconnexion SpaceMouse Plus XT (USB)" ->
+ * "spacemouse-plus-xt-usb". */
+static void slug(const char *name, char *out, size_t cap)
+{
+    static const char vendor[] = "3Dconnexion ";
+    if (!strncmp(name, vendor, sizeof vendor - 1))
+        name += sizeof vendor - 1;
+    size_t n = 0;
+    for (; *name && n + 1 < cap; name++) {
+        if (isalnum((unsigned char)*name))
+            out[n++] = (char)tolower((unsigned char)*name);
+        else if (n && out[n - 1] != '-')
+            out[n++] = '-';
+    }
+    while (n && out[n - 1] == '-')
+        n--;
+    out[n] = '\0';
+}
+
+static int top_bit(uint32_t mask)
+{
+    int n = 0;
+    while (n < 32 && mask >> n)
+        n++;
+    return n;
+}
+
+static void profile_from_row(const devtab_row *row, sim_profile *p, char *id)
+{
+    slug(row->name, id, ID_MAX);
+    for (size_t i = 0; i < sizeof aliases / sizeof *aliases; i++)
+        if (aliases[i].vid == row->vid && aliases[i].pid == row->pid)
+            snprintf(id, ID_MAX, "%s", aliases[i].id);
+    int open = (row->flags & DEVTAB_F_OPEN) != 0;
+    *p = (sim_profile){
+        .id = id, .vid = row->vid, .pid = row->pid, .name = row->name,
+        .format = row->format == DEVTAB_COMBINED ? SIMDEV_COMBINED : SIMDEV_SPLIT,
+        .period_us = open ? OPEN_CADENCE_US : cadence_us(row->format),
+        .nbuttons = top_bit(row->button_mask),
+        .keycodes = (row->flags & DEVTAB_F_KEYCODES) != 0,
+        .battery = (row->flags & DEVTAB_F_BATTERY) != 0,
+        .open = open, .row = row,
+    };
+}
+
+static void build_profiles(void)
+{
+    size_t n;
+    const devtab_row *rows = devtab_rows(&n);
+    for (size_t i = 0; i < n && nprofiles < MAX_PROFILES; i++)
+        if (!(rows[i].flags & DEVTAB_F_SYNTH)) {
+            profile_from_row(&rows[i], &profiles[nprofiles], profile_ids[nprofiles]);
+            nprofiles++;
+        }
+}
 
 const sim_profile *sim_profile_at(size_t i)
 {
-    return i < NPROFILES ? &profiles[i] : NULL;
+    pthread_once(&profiles_once, build_profiles);
+    return i < nprofiles ? &profiles[i] : NULL;
 }
 
 static int hex4(const char *s, uint16_t *v)
@@ -57,11 +118,15 @@ const sim_profile *sim_profile_find(const char *id)
 {
     uint16_t vid, pid;
     int byid = strlen(id) == 9 && id[4] == ':' && !hex4(id, &vid) && !hex4(id + 5, &pid);
-    for (size_t i = 0; i < NPROFILES; i++)
-        if (byid ? profiles[i].vid == vid && profiles[i].pid == pid : !strcasecmp(profiles[i].id, id))
-            return &profiles[i];
-    fn_err_set(FN_EINVAL, "unknown device '%s' (try one of: spacenavigator, spacemouse-wireless, "
-                          "spacemouse-enterprise, open-controller, ... or VID:PID)", id);
+    const sim_profile *p;
+    for (size_t i = 0; (p = sim_profile_at(i)); i++)
+        if (byid ? p->vid == vid && p->pid == pid : !strcasecmp(p->id, id))
+            return p;
+    if (byid)
+        fn_err_set(FN_EINVAL, "no device %s in the device table (fracnav-sim list shows them)", id);
+    else
+        fn_err_set(FN_EINVAL, "unknown device '%s' (fracnav-sim list shows the names; VID:PID in hex "
+                              "such as 046d:c626 also works)", id);
     return NULL;
 }
 
@@ -212,8 +277,7 @@ void simdev_set(simdev *d, const int16_t a[6], uint32_t buttons)
 {
     for (int i = 0; i < 6; i++)
         d->axes[i] = a[i] > 350 ? 350 : a[i] < -350 ? -350 : a[i];
-    uint32_t valid = d->p->nbuttons >= 32 ? 0xffffffffu : (1u << d->p->nbuttons) - 1;
-    d->buttons = buttons & valid;
+    d->buttons = buttons & d->p->row->button_mask;
     if (moving(d))
         d->zeros_left = SIMDEV_ZERO_REPEATS * (d->p->format == SIMDEV_SPLIT ? 2 : 1);
 }

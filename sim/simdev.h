@@ -21,20 +21,25 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "devtab.h"
+
 typedef enum simdev_format { SIMDEV_SPLIT, SIMDEV_COMBINED } simdev_format;
 
-/* A device the simulator can impersonate. */
+/* A device the simulator can impersonate: one per hardware row of the device table (devtab.h),
+ * derived from the row; only the cadence, the short name and the report descriptor are the
+ * simulator's own data. */
 typedef struct sim_profile {
     const char *id;     /* short name for --as: "spacenavigator", "spacemouse-wireless", ... */
     uint16_t vid, pid;
     const char *name;   /* the product name the kernel reports (HIDIOCGRAWNAME) */
     simdev_format format;
     int period_us;      /* report cadence */
-    int nbuttons;       /* valid bits in the ID3 bitmask */
+    int nbuttons;       /* bits in the ID3 bitmask up to the highest real button */
     int keycodes;       /* also sends report 0x1C (up to 6 uint16 key codes) on button changes */
     int battery;        /* sends battery report 0x17 once after connecting (wireless, open) */
     int open;           /* the open controller (firmware-spec/open-controller.md): its exact
                            descriptor, 1-byte button report, feature reports 0x20-0x22 */
+    const devtab_row *row; /* the device-table row it impersonates */
 } sim_profile;
 
 #define SIMDEV_ZERO_REPEATS 3
@@ -42,9 +47,10 @@ typedef struct sim_profile {
 #define SIMDEV_FEATURE_LEN 16
 #define SIMDEV_BUS_USB 0x03
 
-/* The profiles, in a fixed order; NULL past the end. */
+/* The profiles, in device-table order; NULL past the end. Thread-safe. */
 const sim_profile *sim_profile_at(size_t i);
-/* By id ("spacenavigator") or "vid:pid" in hex ("046d:c626"); NULL (and fn_err set) if unknown. */
+/* By name ("spacenavigator", "spacepilot", see fracnav-sim list) or "vid:pid" in hex ("046d:c626");
+ * NULL (and fn_err set) if unknown. */
 const sim_profile *sim_profile_find(const char *id);
 /* Writes the profile's HID report descriptor into out (cap >= 256). Returns its length. */
 size_t sim_profile_descriptor(const sim_profile *p, uint8_t *out, size_t cap);

@@ -246,29 +246,82 @@ static void test_script_errors(void **st)
 }
 
 /* Every profile's descriptor parses and declares the reports the generator sends. */
-static void test_profiles_match_descriptors(void **st)
+static void check_profile(const sim_profile *p)
 {
-    for (size_t i = 0; sim_profile_at(i); i++) {
-        const sim_profile *p = sim_profile_at(i);
-        uint8_t desc[DEV_DESC_MAX];
-        size_t n = sim_profile_descriptor(p, desc, sizeof desc);
-        hiddesc d;
-        if (hiddesc_parse(desc, n, &d))
-            fail_msg("%s: %s", p->id, fn_err_msg());
-        for (int id = 1; id < 0x20; id++) {
-            int len = sim_profile_report_len(p, (uint8_t)id);
-            const hiddesc_report *rep = hiddesc_find(&d, HIDDESC_INPUT, (uint8_t)id);
-            if (len)
-                assert_true(rep && rep->len == (size_t)len);
-        }
-        assert_int_equal(hiddesc_axis_max(&d), 350);
-        assert_non_null(hiddesc_find(&d, HIDDESC_OUTPUT, 4));
-        const devtab_row *row = devtab_find(p->vid, p->pid);
-        assert_non_null(row);
-        assert_string_equal(row->name, p->name);
-        assert_int_equal(row->format == DEVTAB_SPLIT, p->format == SIMDEV_SPLIT);
-        assert_true(p->nbuttons >= row->nbuttons); /* bitmask bits cover the (sparse) buttons */
+    uint8_t desc[DEV_DESC_MAX];
+    size_t n = sim_profile_descriptor(p, desc, sizeof desc);
+    hiddesc d;
+    if (hiddesc_parse(desc, n, &d))
+        fail_msg("%s: %s", p->id, fn_err_msg());
+    for (int id = 1; id < 0x20; id++) {
+        int len = sim_profile_report_len(p, (uint8_t)id);
+        const hiddesc_report *rep = hiddesc_find(&d, HIDDESC_INPUT, (uint8_t)id);
+        if (len && !(rep && rep->len == (size_t)len))
+            fail_msg("%s: input report %d (%d bytes) not declared", p->id, id, len);
     }
+    assert_int_equal(hiddesc_axis_max(&d), 350);
+    assert_non_null(hiddesc_find(&d, HIDDESC_OUTPUT, 4));
+}
+
+/* Every hardware row of the device table can be impersonated, by VID:PID and by name: the profile
+ * carries the row's identity, and a rendered move and button press parse back, through the row,
+ * to the same motion and button on this row's own report format. */
+static void test_every_devtab_row_is_impersonable(void **st)
+{
+    size_t nrows, seen = 0;
+    const devtab_row *rows = devtab_rows(&nrows);
+    for (size_t i = 0; i < nrows; i++) {
+        const devtab_row *row = &rows[i];
+        if (row->flags & DEVTAB_F_SYNTH)
+            continue;
+        char vidpid[16];
+        snprintf(vidpid, sizeof vidpid, "%04x:%04x", row->vid, row->pid);
+        const sim_profile *p = sim_profile_find(vidpid);
+        if (!p)
+            fail_msg("%s (%s) cannot be impersonated: %s", vidpid, row->name, fn_err_msg());
+        seen++;
+        assert_ptr_equal(p->row, row);
+        assert_ptr_equal(sim_profile_find(p->id), p);
+        assert_string_equal(p->name, row->name);
+        assert_int_equal(p->format == SIMDEV_COMBINED, row->format == DEVTAB_COMBINED);
+        assert_int_equal(p->battery, (row->flags & DEVTAB_F_BATTERY) != 0);
+        assert_int_equal(p->keycodes, (row->flags & DEVTAB_F_KEYCODES) != 0);
+        check_profile(p);
+        /* The row's highest real button, pressed during a move along +y. */
+        int top = 0;
+        for (int b = 0; b < 32; b++)
+            top = row->button_mask >> b & 1 ? b : top;
+        char text[128];
+        snprintf(text, sizeof text, "press %d\nmove y 2 mm over 0.1 s\nrelease\n", top + 1);
+        fnrec *r = render(text, vidpid);
+        assert_int_equal(r->hdr.vid, row->vid);
+        assert_int_equal(r->hdr.pid, row->pid);
+        devparse_state ps;
+        devparse_init(&ps, row, 350);
+        dev_event ev;
+        uint32_t buttons_seen = 0;
+        int moved = 0, battery = 0;
+        for (size_t k = 0; k < r->n; k++) {
+            const fnrec_event *e = &r->ev[k];
+            if (e->dir != FNREC_IN)
+                continue;
+            if (!devparse_report(&ps, e->data, e->len, e->t_us, &ev))
+                fail_msg("%s: report %02x (%u bytes) refused by the parser", vidpid, e->data[0], e->len);
+            buttons_seen |= ps.buttons;
+            moved |= ps.raw[1] == 140; /* 20 mm/s of the 50 mm/s at 350 counts */
+            battery |= e->data[0] == 0x17;
+        }
+        assert_int_equal(buttons_seen, 1u << (row->nbuttons - 1)); /* packed: the last button */
+        assert_true(moved);
+        assert_int_equal(battery, p->battery);
+        fnrec_free(r);
+    }
+    size_t nprof = 0;
+    while (sim_profile_at(nprof))
+        nprof++;
+    assert_int_equal(nprof, seen);
+    assert_null(sim_profile_find("ffff:0001"));
+    assert_non_null(strstr(fn_err_msg(), "ffff:0001"));
 }
 
 /* The open controller's descriptor is firmware-spec/open-controller.desc.hex byte for byte. */
@@ -530,7 +583,7 @@ int main(void)
         cmocka_unit_test(test_script_combined_and_buttons),
         cmocka_unit_test(test_script_enterprise_keycodes),
         cmocka_unit_test(test_script_errors),
-        cmocka_unit_test(test_profiles_match_descriptors),
+        cmocka_unit_test(test_every_devtab_row_is_impersonable),
         cmocka_unit_test(test_open_controller_descriptor_is_the_spec),
         cmocka_unit_test(test_led_and_features),
         cmocka_unit_test(test_replay_deterministic),

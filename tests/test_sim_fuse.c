@@ -20,6 +20,7 @@
 #include <unistd.h>
 
 #include "dev.h"
+#include "devtab.h"
 #include "err.h"
 #include "fnrec.h"
 #include "script.h"
@@ -263,12 +264,19 @@ static void test_end_to_end_spacenavigator(void **st)
                                        "rotate z -15 deg over 0.4 s\n");
 }
 
+/* Every hardware row of the device table, served as --as VID:PID, through the same path. */
 static void test_every_device_format(void **st)
 {
-    const char *devices[] = {"spacemouse-wireless", "spacemouse-enterprise", "open-controller",
-                             "spacemouse-pro"};
-    for (size_t i = 0; i < sizeof devices / sizeof *devices; i++)
-        serve_and_record(devices[i], "press 2\nmove y -4 mm rx 3 deg over 0.2 s\nrelease\nwait 50 ms\n");
+    size_t nrows;
+    const devtab_row *rows = devtab_rows(&nrows);
+    for (size_t i = 0; i < nrows; i++) {
+        if (rows[i].flags & DEVTAB_F_SYNTH)
+            continue;
+        char vidpid[16];
+        snprintf(vidpid, sizeof vidpid, "%04x:%04x", rows[i].vid, rows[i].pid);
+        serve_and_record(vidpid, "press 2\nmove y -4 mm rx 3 deg over 0.1 s\nrelease\nwait 20 ms\n");
+    }
+    serve_and_record("spacemouse-enterprise", "press 2\nmove y -4 mm over 0.1 s\nrelease\n");
 }
 
 static pid_t record_in_background(const char *rec, double seconds, const char *log)
