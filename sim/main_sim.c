@@ -6,6 +6,7 @@
  * nothing in a request handler ever blocks. */
 #define FUSE_USE_VERSION 35
 
+#include <ctype.h>
 #include <errno.h>
 #include <fcntl.h>
 #include <fuse_lowlevel.h>
@@ -57,6 +58,7 @@ typedef struct server {
     int plugged;
     simdev dev;           /* LED and feature reports */
     fnrec_header id;      /* identity served: descriptor, name, vid/pid */
+    const char *serial;   /* HIDIOCGRAWUNIQ */
     reader *readers;
     int timer_fd, sig_fd;
     int ctl_fd, ctl_keep;  /* --control FIFO: read end, and a write end that keeps it from EOF */
@@ -467,7 +469,7 @@ static void op_ioctl(fuse_req_t req, fuse_ino_t ino, unsigned int cmd, void *arg
         reply_string(req, "fracnav-sim/input0", sz);
         return;
     case _IOC_NR(HIDIOCGRAWUNIQ(0)):
-        reply_string(req, "", sz);
+        reply_string(req, S.serial, sz);
         return;
     case _IOC_NR(HIDIOCGFEATURE(0)):
     case _IOC_NR(HIDIOCSFEATURE(0)):
@@ -707,7 +709,7 @@ static void usage(FILE *f)
     fprintf(f,
             "usage: fracnav-sim serve --mount DIR [--as DEVICE] [--play FILE.fnrec | --script FILE]\n"
             "                         [--start-on-read] [--fast] [--exit-at-end] [--log FILE.fnrec]\n"
-            "                         [--control FIFO]\n"
+            "                         [--control FIFO] [--serial SN]\n"
             "       fracnav-sim render [--as DEVICE] --script FILE -o FILE.fnrec\n"
             "       fracnav-sim list\n"
             "       fracnav-sim bench [--mount DIR] [--seconds S]\n"
@@ -724,6 +726,8 @@ static void usage(FILE *f)
             "         --log FILE       write every report served to a .fnrec file\n"
             "         --control FIFO   script lines written to this FIFO (made if absent) play in\n"
             "                          turn, as soon as possible: echo 'press 1' > FIFO\n"
+            "         --serial SN      serial number served (HIDIOCGRAWUNIQ; 8-32 characters;\n"
+            "                          default FNSIM + VID + PID)\n"
             "render   writes the reports a script produces on DEVICE to a .fnrec file\n"
             "list     prints the devices the simulator can impersonate\n"
             "bench    measures report throughput (as fast as possible) and timing jitter (at the\n"
@@ -742,8 +746,20 @@ static int list_devices(void)
 }
 
 typedef struct opts {
-    const char *mount, *as, *play, *script, *out, *log, *seconds, *control;
+    const char *mount, *as, *play, *script, *out, *log, *seconds, *control, *serial;
 } opts;
+
+/* firmware-spec/open-controller.md, 1: a serial number is 8-32 characters. */
+static int serial_ok(const char *s)
+{
+    size_t n = strlen(s);
+    if (n < 8 || n >= SIMDEV_SERIAL_MAX)
+        return 0;
+    for (; *s; s++)
+        if (!isalnum((unsigned char)*s) && *s != '-' && *s != '_')
+            return 0;
+    return 1;
+}
 
 static int parse_opts(int argc, char **argv, opts *o)
 {
@@ -772,6 +788,8 @@ static int parse_opts(int argc, char **argv, opts *o)
             dst = &o->seconds;
         else if (!strcmp(a, "--control"))
             dst = &o->control;
+        else if (!strcmp(a, "--serial"))
+            dst = &o->serial;
         else {
             fprintf(stderr, "fracnav-sim %s: unknown option '%s'\n", argv[1], a);
             return -1;
@@ -783,6 +801,11 @@ static int parse_opts(int argc, char **argv, opts *o)
             }
             *dst = argv[++i];
         }
+    }
+    if (o->serial && !serial_ok(o->serial)) {
+        fprintf(stderr, "fracnav-sim %s: --serial '%s': want 8 to 32 letters, digits, '-' or '_'\n",
+                argv[1], o->serial);
+        return -1;
     }
     if (o->play && o->script) {
         fprintf(stderr, "fracnav-sim %s: --play and --script exclude each other\n", argv[1]);
@@ -818,6 +841,7 @@ static int setup(const opts *o)
         script_header(S.p, &S.id);
     }
     simdev_init(&S.dev, S.p);
+    S.serial = o->serial ? o->serial : S.p->serial;
     S.plugged = 1;
     if (o->log && !(S.log = fnrec_writer_open(o->log, &S.id)))
         return -1;

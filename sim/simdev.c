@@ -29,11 +29,23 @@ static const struct alias {
     {0x256f, 0xc633, "spacemouse-enterprise"}, {DEVTAB_OPEN_VID, DEVTAB_OPEN_PID, "open-controller"},
 };
 
+/* USB string descriptors, where a spec gives them: Linux usbhid names the device manufacturer + " "
+ * + product (HIDIOCGRAWNAME). The 3Dconnexion rows' table names already read that way. */
+static const struct usb_strings {
+    uint16_t vid, pid;
+    const char *manufacturer, *product;
+} usb_strings[] = {
+    {DEVTAB_OPEN_VID, DEVTAB_OPEN_PID, "fracnav", "fracnav open 6-DOF controller"},
+};
+
 #define MAX_PROFILES 64
 #define ID_MAX 48
+#define NAME_MAX_ 128
 
 static sim_profile profiles[MAX_PROFILES];
 static char profile_ids[MAX_PROFILES][ID_MAX];
+static char profile_names[MAX_PROFILES][NAME_MAX_];
+static char profile_serials[MAX_PROFILES][SIMDEV_SERIAL_MAX];
 static size_t nprofiles;
 static pthread_once_t profiles_once = PTHREAD_ONCE_INIT;
 
@@ -64,15 +76,21 @@ static int top_bit(uint32_t mask)
     return n;
 }
 
-static void profile_from_row(const devtab_row *row, sim_profile *p, char *id)
+static void profile_from_row(const devtab_row *row, sim_profile *p, size_t k)
 {
+    char *id = profile_ids[k], *name = profile_names[k], *serial = profile_serials[k];
     slug(row->name, id, ID_MAX);
     for (size_t i = 0; i < sizeof aliases / sizeof *aliases; i++)
         if (aliases[i].vid == row->vid && aliases[i].pid == row->pid)
             snprintf(id, ID_MAX, "%s", aliases[i].id);
+    snprintf(name, NAME_MAX_, "%s", row->name);
+    for (size_t i = 0; i < sizeof usb_strings / sizeof *usb_strings; i++)
+        if (usb_strings[i].vid == row->vid && usb_strings[i].pid == row->pid)
+            snprintf(name, NAME_MAX_, "%s %s", usb_strings[i].manufacturer, usb_strings[i].product);
+    snprintf(serial, SIMDEV_SERIAL_MAX, "FNSIM%04X%04X", row->vid, row->pid); /* stable, 13 chars */
     int open = (row->flags & DEVTAB_F_OPEN) != 0;
     *p = (sim_profile){
-        .id = id, .vid = row->vid, .pid = row->pid, .name = row->name,
+        .id = id, .vid = row->vid, .pid = row->pid, .name = name, .serial = serial,
         .format = row->format == DEVTAB_COMBINED ? SIMDEV_COMBINED : SIMDEV_SPLIT,
         .period_us = open ? OPEN_CADENCE_US : cadence_us(row->format),
         .nbuttons = top_bit(row->button_mask),
@@ -88,7 +106,7 @@ static void build_profiles(void)
     const devtab_row *rows = devtab_rows(&n);
     for (size_t i = 0; i < n && nprofiles < MAX_PROFILES; i++)
         if (!(rows[i].flags & DEVTAB_F_SYNTH)) {
-            profile_from_row(&rows[i], &profiles[nprofiles], profile_ids[nprofiles]);
+            profile_from_row(&rows[i], &profiles[nprofiles], nprofiles);
             nprofiles++;
         }
 }

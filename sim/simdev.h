@@ -31,7 +31,9 @@ typedef enum simdev_format { SIMDEV_SPLIT, SIMDEV_COMBINED } simdev_format;
 typedef struct sim_profile {
     const char *id;     /* short name for --as: "spacenavigator", "spacemouse-wireless", ... */
     uint16_t vid, pid;
-    const char *name;   /* the product name the kernel reports (HIDIOCGRAWNAME) */
+    const char *name;   /* the name the kernel reports (HIDIOCGRAWNAME): the table name, or USB
+                           manufacturer + " " + product where a spec gives the strings */
+    const char *serial; /* default serial number (HIDIOCGRAWUNIQ), "FNSIM" + VID + PID */
     simdev_format format;
     int period_us;      /* report cadence */
     int nbuttons;       /* bits in the ID3 bitmask up to the highest real button */
@@ -43,6 +45,7 @@ typedef struct sim_profile {
 } sim_profile;
 
 #define SIMDEV_ZERO_REPEATS 3
+#define SIMDEV_SERIAL_MAX 33 /* 32 characters, as the open controller's spec allows */
 #define SIMDEV_FEATURE_IDS 48
 #define SIMDEV_FEATURE_LEN 16
 #define SIMDEV_BUS_USB 0x03

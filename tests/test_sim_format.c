@@ -282,7 +282,8 @@ static void test_every_devtab_row_is_impersonable(void **st)
         seen++;
         assert_ptr_equal(p->row, row);
         assert_ptr_equal(sim_profile_find(p->id), p);
-        assert_string_equal(p->name, row->name);
+        size_t ln = strlen(p->name), lr = strlen(row->name); /* [manufacturer " "] product */
+        assert_true(ln >= lr && !strcmp(p->name + ln - lr, row->name));
         assert_int_equal(p->format == SIMDEV_COMBINED, row->format == DEVTAB_COMBINED);
         assert_int_equal(p->battery, (row->flags & DEVTAB_F_BATTERY) != 0);
         assert_int_equal(p->keycodes, (row->flags & DEVTAB_F_KEYCODES) != 0);

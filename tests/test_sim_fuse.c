@@ -14,6 +14,8 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <linux/hidraw.h>
+#include <sys/ioctl.h>
 #include <sys/stat.h>
 #include <sys/wait.h>
 #include <time.h>
@@ -358,11 +360,49 @@ static void test_unplug_replug_on_signal(void **st)
     fnrec_free(r);
 }
 
+/* A string ioctl on the node, as hidraw answers it. */
+static const char *raw_string(const char *node, unsigned long req)
+{
+    static char s[64];
+    memset(s, 0, sizeof s);
+    int fd = open(node, O_RDONLY | O_NONBLOCK);
+    assert_true(fd >= 0);
+    if (ioctl(fd, req, s) < 0)
+        fail_msg("ioctl on %s: %s", node, strerror(errno));
+    close(fd);
+    return s;
+}
+
+/* Without --serial the node serves a stable default of the spec's length (8-32 characters), and
+ * HIDIOCGRAWNAME is what usbhid makes of the device's strings. */
+static void test_serial_and_name(void **st)
+{
+    char node[600];
+    snprintf(node, sizeof node, "%s/hidraw0", mnt);
+    pid_t srv = start_server("--as", "1209:0001", NULL);
+    const char *sn = raw_string(node, HIDIOCGRAWUNIQ(64));
+    assert_string_equal(sn, "FNSIM12090001");
+    assert_string_equal(raw_string(node, HIDIOCGRAWNAME(64)), "fracnav fracnav open 6-DOF controller");
+    stop_server(srv);
+    srv = start_server("--as", "spacepilot", NULL);
+    assert_string_equal(raw_string(node, HIDIOCGRAWNAME(64)), "3Dconnexion SpacePilot");
+    stop_server(srv);
+    char cmd[1200];
+    snprintf(cmd, sizeof cmd, "'%s' serve --mount '%s' --serial 'a b' 2>&1", sim_bin(), mnt);
+    FILE *p = popen(cmd, "r");
+    char line[256] = "";
+    if (!fgets(line, sizeof line, p))
+        line[0] = '\0';
+    assert_int_equal(WEXITSTATUS(pclose(p)), 2);
+    assert_non_null(strstr(line, "--serial 'a b'"));
+}
+
 /* Through the real hidapi: identity, read timeouts, LED output and feature reports. */
 static void test_hidapi_led_feature_timeout(void **st)
 {
     const char *served = path_in("served.fnrec");
-    pid_t srv = start_server("--as", "open-controller", "--start-on-read", "--log", served, NULL);
+    pid_t srv = start_server("--as", "open-controller", "--start-on-read", "--log", served, "--serial",
+                             "OC-12345678", NULL);
     const dev_transport *t = dev_transport_find("hidraw");
     assert_non_null(t);
     char node[600];
@@ -374,7 +414,9 @@ static void test_hidapi_led_feature_timeout(void **st)
     assert_int_equal(t->info(h, &info), 0);
     assert_int_equal(info.vid, 0x1209);
     assert_int_equal(info.pid, 0x0001);
-    assert_string_equal(info.name, "fracnav open 6-DOF controller");
+    /* usbhid's name: manufacturer + " " + product of the spec's string descriptors. */
+    assert_string_equal(info.name, "fracnav fracnav open 6-DOF controller");
+    assert_string_equal(raw_string(node, HIDIOCGRAWUNIQ(64)), "OC-12345678");
     uint8_t want[DEV_DESC_MAX];
     size_t wn = sim_profile_descriptor(sim_profile_find("open-controller"), want, sizeof want);
     assert_int_equal(info.desc_len, wn);
@@ -544,6 +586,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_server_killed_then_back, setup, teardown),
         cmocka_unit_test_setup_teardown(test_unplug_replug_on_signal, setup, teardown),
         cmocka_unit_test_setup_teardown(test_hidapi_led_feature_timeout, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_serial_and_name, setup, teardown),
         cmocka_unit_test_setup_teardown(test_play_recording, setup, teardown),
         cmocka_unit_test_setup_teardown(test_control_fifo, setup, teardown),
         cmocka_unit_test_setup_teardown(test_cli_usage_and_errors, setup, teardown),
