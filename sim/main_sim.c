@@ -52,6 +52,7 @@ typedef struct server {
     struct fuse_session *se;
     const sim_profile *p;
     fnrec *rec;           /* what the device plays */
+    script *script;       /* its script, rendered again when playback starts (NULL: --play) */
     size_t pos;
     int started, start_on_read, fast, exit_at_end;
     int64_t t0_us;        /* monotonic time of the recording's t = 0 */
@@ -166,7 +167,7 @@ static void set_plugged(int on)
         kill_readers();
         log_event(FNREC_DISCONNECT, NULL, 0);
     } else {
-        simdev_init(&S.dev, S.p);
+        simdev_replug(&S.dev);
         log_event(FNREC_CONNECT, NULL, 0);
     }
     fprintf(stderr, "fracnav-sim: %s\n", on ? "replugged" : "unplugged");
@@ -204,8 +205,14 @@ static int queues_empty(void)
     return 1;
 }
 
+/* A script plays on the device as the host has set it up by now (open controller: 0x21, 0x22). */
 static void start_playback(void)
 {
+    fnrec *r = S.script ? script_render_live(S.script, &S.dev) : NULL;
+    if (r) {
+        fnrec_free(S.rec);
+        S.rec = r;
+    }
     S.started = 1;
     S.t0_us = mono_us() + 1000;
     pump();
@@ -519,7 +526,7 @@ static void control_command(const char *line)
     fnrec *r = NULL;
     if (sc->n == 1 && (sc->step[0].op == SCRIPT_UNPLUG || sc->step[0].op == SCRIPT_REPLUG))
         set_plugged(sc->step[0].op == SCRIPT_REPLUG);
-    else if (sc->n && !(r = script_render_more(sc, S.p, &S.ctl_buttons)))
+    else if (sc->n && !(r = script_render_more(sc, &S.dev, &S.ctl_buttons)))
         fprintf(stderr, "fracnav-sim: %s\n", fn_err_msg());
     free(sc);
     if (r && S.started && S.pos < S.rec->n) { /* still playing: queue it after the rest */
@@ -819,12 +826,9 @@ static fnrec *load_source(const opts *o)
 {
     if (o->play)
         return fnrec_load(o->play);
-    script *s = NULL;
-    if (o->script ? !(s = script_load(o->script)) : script_parse("", 0, "", &s) != 0)
+    if (o->script ? !(S.script = script_load(o->script)) : script_parse("", 0, "", &S.script) != 0)
         return NULL;
-    fnrec *r = script_render(s, S.p);
-    free(s);
-    return r;
+    return script_render(S.script, S.p);
 }
 
 static int setup(const opts *o)
@@ -893,6 +897,7 @@ int main(int argc, char **argv)
     if (S.log && fnrec_writer_close(S.log))
         fprintf(stderr, "fracnav-sim: %s\n", fn_err_msg());
     fnrec_free(S.rec);
+    free(S.script);
     if (S.sig_fd >= 0)
         close(S.sig_fd);
     if (S.timer_fd >= 0)

@@ -281,6 +281,37 @@ void simdev_init(simdev *d, const sim_profile *p)
         set_default(d, open_settings, sizeof open_settings);
     }
     d->battery_pending = p->battery;
+    d->period_us = p->period_us;
+    d->idle_zeros = SIMDEV_ZERO_REPEATS;
+}
+
+void simdev_replug(simdev *d)
+{
+    int16_t offset[6];
+    uint8_t zero[SIMDEV_FEATURE_LEN];
+    memcpy(offset, d->offset, sizeof offset);
+    memcpy(zero, d->feature[0x21], sizeof zero);
+    simdev_init(d, d->p);
+    if (d->p->open) {
+        memcpy(d->offset, offset, sizeof offset);
+        memcpy(d->feature[0x21], zero, sizeof zero);
+    }
+}
+
+int simdev_period_us(const simdev *d)
+{
+    return d->period_us;
+}
+
+void simdev_copy_settings(simdev *d, const simdev *src)
+{
+    memcpy(d->feature, src->feature, sizeof d->feature);
+    memcpy(d->feature_len, src->feature_len, sizeof d->feature_len);
+    memcpy(d->offset, src->offset, sizeof d->offset);
+    d->period_us = src->period_us;
+    d->idle_zeros = src->idle_zeros;
+    d->led_mode = src->led_mode;
+    d->led = src->led;
 }
 
 static int moving(const simdev *d)
@@ -297,7 +328,9 @@ void simdev_set(simdev *d, const int16_t a[6], uint32_t buttons)
         d->axes[i] = a[i] > 350 ? 350 : a[i] < -350 ? -350 : a[i];
     d->buttons = buttons & d->p->row->button_mask;
     if (moving(d))
-        d->zeros_left = SIMDEV_ZERO_REPEATS * (d->p->format == SIMDEV_SPLIT ? 2 : 1);
+        d->zeros_left = d->idle_zeros * (d->p->format == SIMDEV_SPLIT ? 2 : 1);
+    if (d->led_mode)
+        d->led = moving(d);
 }
 
 int simdev_idle(const simdev *d)
@@ -310,6 +343,19 @@ static void le16(uint8_t *b, int16_t v)
 {
     b[0] = (uint8_t)((uint16_t)v & 0xff);
     b[1] = (uint8_t)((uint16_t)v >> 8);
+}
+
+#define NOISE_FLOOR 2 /* open controller: |value| <= 2 after the offsets is sent as 0 */
+
+/* What the device reports for axis i: the reading less its zero offset, clamped, noise floored.
+ * A released cap reads exactly 0 (the virtual sensor has no drift): its zeros stay zeros. */
+static int16_t reported(const simdev *d, int i)
+{
+    if (!d->offset[i] || !moving(d))
+        return d->axes[i];
+    int v = d->axes[i] - d->offset[i];
+    v = v > 350 ? 350 : v < -350 ? -350 : v;
+    return (int16_t)(v >= -NOISE_FLOOR && v <= NOISE_FLOOR ? 0 : v);
 }
 
 /* Enterprise key codes for bitmask bits 0..: buttons 1-10, 11, 12, then MENU, FIT, ESC ALT SHIFT
@@ -359,12 +405,12 @@ int simdev_next(simdev *d, uint8_t *buf, size_t cap)
     if (d->p->format == SIMDEV_COMBINED) {
         buf[0] = 1;
         for (int i = 0; i < 6; i++)
-            le16(buf + 1 + 2 * i, d->axes[i]);
+            le16(buf + 1 + 2 * i, reported(d, i));
         return 13;
     }
     buf[0] = (uint8_t)(1 + d->phase);
     for (int i = 0; i < 3; i++)
-        le16(buf + 1 + 2 * i, d->axes[3 * d->phase + i]);
+        le16(buf + 1 + 2 * i, reported(d, 3 * d->phase + i));
     d->phase ^= 1;
     return 7;
 }
@@ -372,7 +418,8 @@ int simdev_next(simdev *d, uint8_t *buf, size_t cap)
 int simdev_output(simdev *d, const uint8_t *buf, size_t len)
 {
     if (len == 2 && buf[0] == 4 && buf[1] <= 1) {
-        d->led = buf[1];
+        if (!d->led_mode)
+            d->led = buf[1];
         return (int)len;
     }
     return fn_err_set(FN_EINVAL, "virtual device: unknown output report (id %u, %zu bytes)",
@@ -403,6 +450,21 @@ static int open_feature_ok(const uint8_t *b, size_t len)
     return b[0] == 0x22 && len == 4 && b[1] >= 1 && b[3] <= 1;
 }
 
+/* The open controller acts on its settings at once (the next period uses them). */
+static void apply_open_feature(simdev *d, const uint8_t *b)
+{
+    if (b[0] == 0x21) {
+        for (int i = 0; i < 6; i++)
+            d->offset[i] = (int16_t)(b[1 + 2 * i] | b[2 + 2 * i] << 8);
+    } else {
+        d->period_us = b[1] * 1000;
+        d->idle_zeros = b[2];
+        d->led_mode = b[3];
+        if (d->zeros_left > d->idle_zeros)
+            d->zeros_left = d->idle_zeros;
+    }
+}
+
 int simdev_set_feature(simdev *d, const uint8_t *buf, size_t len)
 {
     uint8_t id = len ? buf[0] : 0;
@@ -412,5 +474,7 @@ int simdev_set_feature(simdev *d, const uint8_t *buf, size_t len)
                           len);
     memcpy(d->feature[id], buf, len);
     d->feature_len[id] = (uint8_t)len;
+    if (d->p->open)
+        apply_open_feature(d, buf);
     return (int)len;
 }

@@ -374,6 +374,39 @@ static void test_led_and_features(void **st)
     assert_int_equal(simdev_next(&d, buf, sizeof buf), 0);
 }
 
+/* The open controller acts on 0x22 (LED mode, cadence, zeros) and 0x21 (offsets, noise floor);
+ * a replug restores the volatile settings and keeps the non-volatile offsets. */
+static void test_open_controller_settings(void **st)
+{
+    simdev d;
+    simdev_init(&d, sim_profile_find("open-controller"));
+    assert_int_equal(simdev_period_us(&d), 8000);
+    assert_int_equal(simdev_set_feature(&d, (const uint8_t[]){0x22, 12, 0, 1}, 4), 4);
+    assert_true(simdev_set_feature(&d, (const uint8_t[]){0x22, 0, 3, 0}, 4) < 0); /* cadence 0 */
+    assert_int_equal(simdev_period_us(&d), 12000);
+    uint8_t off[13] = {0x21, 0xfe, 0xff, 5, 0}; /* x -2, y +5 */
+    assert_int_equal(simdev_set_feature(&d, off, sizeof off), 13);
+    uint8_t buf[64];
+    simdev_next(&d, buf, sizeof buf); /* battery */
+    assert_int_equal(simdev_output(&d, (const uint8_t[]){4, 1}, 2), 2);
+    assert_int_equal(d.led, 0); /* LED mode 1: report 4 is ignored */
+    simdev_set(&d, (const int16_t[6]){100, 6, 0, 0, 0, 0}, 0);
+    assert_int_equal(d.led, 1);
+    assert_int_equal(simdev_next(&d, buf, sizeof buf), 13);
+    assert_int_equal(le16(buf + 1), 102);
+    assert_int_equal(le16(buf + 3), 0); /* 6 - 5 = 1: inside the noise floor */
+    simdev_set(&d, (const int16_t[6]){0}, 0);
+    assert_int_equal(d.led, 0);
+    assert_int_equal(simdev_next(&d, buf, sizeof buf), 0); /* idle_zeros 0: silence at once */
+    simdev_replug(&d);
+    assert_int_equal(simdev_period_us(&d), 8000);
+    assert_int_equal(d.offset[1], 5);
+    memset(buf, 0, sizeof buf);
+    buf[0] = 0x21;
+    assert_int_equal(simdev_get_feature(&d, buf, sizeof buf), 13);
+    assert_memory_equal(buf, off, 13);
+}
+
 /* Replaying a recording into the parser twice gives the same events, bit for bit; a recorded
  * unplug reads as FN_ENODEV once and the replay goes on. */
 static void test_replay_deterministic(void **st)
@@ -587,6 +620,7 @@ int main(void)
         cmocka_unit_test(test_every_devtab_row_is_impersonable),
         cmocka_unit_test(test_open_controller_descriptor_is_the_spec),
         cmocka_unit_test(test_led_and_features),
+        cmocka_unit_test(test_open_controller_settings),
         cmocka_unit_test(test_replay_deterministic),
         cmocka_unit_test(test_replay_realtime_pacing),
         cmocka_unit_test(test_virtual_transport),

@@ -448,6 +448,66 @@ static void test_hidapi_led_feature_timeout(void **st)
     free(log);
 }
 
+/* The open controller's settings, set through hidapi before the script starts, shape what is served:
+ * 0x22 cadence 20 ms and one zero report, 0x21 an offset of +10 on x. A control line played after
+ * 0x22 is set back to 8 ms follows that too. */
+static void test_open_controller_settings_applied(void **st)
+{
+    const char *scr = write_script("x.script", "translate +x 4 mm over 0.3 s\n");
+    const char *fifo = path_in("control");
+    pid_t srv = start_server("--as", "open-controller", "--script", scr, "--start-on-read", "--control",
+                             fifo, NULL);
+    const dev_transport *t = dev_transport_find("hidraw");
+    char node[600];
+    snprintf(node, sizeof node, "%s/hidraw0", mnt);
+    dev_handle *h;
+    if (t->open(node, &h))
+        fail_msg("%s", fn_err_msg());
+    assert_int_equal(t->set_feature(h, (const uint8_t[]){0x22, 20, 1, 0}, 4), 4);
+    uint8_t off[13] = {0x21, 10, 0};
+    assert_int_equal(t->set_feature(h, off, sizeof off), 13);
+    uint8_t buf[64];
+    int64_t tr, first = -1, last = 0;
+    int n, motion = 0, zeros = 0;
+    while ((n = t->read(h, buf, sizeof buf, 300, &tr)) > 0) {
+        if (buf[0] != 1)
+            continue;
+        int16_t x = (int16_t)(buf[1] | buf[2] << 8);
+        if (x == 0) {
+            zeros++;
+            continue;
+        }
+        /* 4 mm / 0.3 s = 13.3 mm/s = 93.3 counts, less the offset */
+        if (x < 83 || x > 84)
+            fail_msg("motion report x = %d, want 83..84 (93.3 counts - offset 10)", x);
+        first = first < 0 ? tr : first;
+        last = tr;
+        motion++;
+    }
+    assert_int_equal(zeros, 1);
+    assert_int_equal(motion, 300 / 20 - 1 - 1); /* periods inside the move, the first one the battery's */
+    int64_t mean = (last - first) / (motion - 1); /* 20 ms, not the default 8 ms */
+    if (mean < 15000 || mean > 40000)
+        fail_msg("mean interval %lld us at cadence 20 ms", (long long)mean);
+    assert_int_equal(t->set_feature(h, (const uint8_t[]){0x22, 8, 2, 0}, 4), 4);
+    FILE *f = fopen(fifo, "w");
+    assert_non_null(f);
+    fputs("translate -y 2 mm over 0.16 s\n", f);
+    fclose(f);
+    motion = zeros = 0;
+    while ((n = t->read(h, buf, sizeof buf, 300, &tr)) > 0)
+        if (buf[0] == 1) {
+            int16_t y = (int16_t)(buf[3] | buf[4] << 8), x = (int16_t)(buf[1] | buf[2] << 8);
+            zeros += y == 0;
+            motion += y != 0;
+            assert_true(y == 0 ? x == 0 : x == -10); /* the offset, while deflected */
+        }
+    assert_int_equal(motion, 160 / 8 - 1);
+    assert_int_equal(zeros, 2);
+    t->close(h);
+    stop_server(srv);
+}
+
 /* A recording played through FUSE (--play) is recorded back unchanged; --fast plays it as fast as
  * the reader takes it, --exit-at-end stops the server once all of it was read. */
 static void test_play_recording(void **st)
@@ -587,6 +647,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_unplug_replug_on_signal, setup, teardown),
         cmocka_unit_test_setup_teardown(test_hidapi_led_feature_timeout, setup, teardown),
         cmocka_unit_test_setup_teardown(test_serial_and_name, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_open_controller_settings_applied, setup, teardown),
         cmocka_unit_test_setup_teardown(test_play_recording, setup, teardown),
         cmocka_unit_test_setup_teardown(test_control_fifo, setup, teardown),
         cmocka_unit_test_setup_teardown(test_cli_usage_and_errors, setup, teardown),
