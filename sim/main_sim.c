@@ -158,7 +158,21 @@ static void kill_readers(void)
     }
 }
 
-static void set_plugged(int on)
+/* A device powering on sends its power-on reports (battery 0x17) after enumeration, that is once
+ * someone has the node open and reading: a live replug owes them to the next active reader. */
+static void power_on_reports(void)
+{
+    int any = 0;
+    for (reader *r = S.readers; r; r = r->next)
+        any |= !r->dead && r->active;
+    uint8_t b[DEV_REPORT_MAX];
+    int n;
+    while (any && S.plugged && S.dev.battery_pending && (n = simdev_next(&S.dev, b, sizeof b)) > 0)
+        deliver(b, (size_t)n);
+}
+
+/* live: by SIGUSR1 or a control line; a replug in the recording already holds its own reports. */
+static void set_plugged(int on, int live)
 {
     if (on == S.plugged)
         return;
@@ -168,6 +182,7 @@ static void set_plugged(int on)
         log_event(FNREC_DISCONNECT, NULL, 0);
     } else {
         simdev_replug(&S.dev);
+        S.dev.battery_pending = live && S.dev.battery_pending;
         log_event(FNREC_CONNECT, NULL, 0);
     }
     fprintf(stderr, "fracnav-sim: %s\n", on ? "replugged" : "unplugged");
@@ -233,9 +248,9 @@ static void pump(void)
         if (e->dir == FNREC_IN && S.plugged)
             deliver(e->data, e->len);
         else if (e->dir == FNREC_CONNECT)
-            set_plugged(1);
+            set_plugged(1, 0);
         else if (e->dir == FNREC_DISCONNECT)
-            set_plugged(0);
+            set_plugged(0, 0);
     }
     if (S.pos < S.rec->n && !S.fast)
         arm_timer(S.t0_us + S.rec->ev[S.pos].t_us);
@@ -318,6 +333,7 @@ static void reader_active(reader *r)
     if (r->active)
         return;
     r->active = 1;
+    power_on_reports();
     if (S.start_on_read && !S.started)
         start_playback();
     else if (S.fast)
@@ -506,7 +522,7 @@ static int handle_signal(void)
     if (read(S.sig_fd, &si, sizeof si) != (ssize_t)sizeof si)
         return 0;
     if (si.ssi_signo == SIGUSR1) {
-        set_plugged(!S.plugged);
+        set_plugged(!S.plugged, 1);
         return 0;
     }
     return 1; /* SIGINT, SIGTERM, SIGHUP: stop */
@@ -525,7 +541,7 @@ static void control_command(const char *line)
     }
     fnrec *r = NULL;
     if (sc->n == 1 && (sc->step[0].op == SCRIPT_UNPLUG || sc->step[0].op == SCRIPT_REPLUG))
-        set_plugged(sc->step[0].op == SCRIPT_REPLUG);
+        set_plugged(sc->step[0].op == SCRIPT_REPLUG, 1);
     else if (sc->n && !(r = script_render_more(sc, &S.dev, &S.ctl_buttons)))
         fprintf(stderr, "fracnav-sim: %s\n", fn_err_msg());
     free(sc);
@@ -845,6 +861,7 @@ static int setup(const opts *o)
         script_header(S.p, &S.id);
     }
     simdev_init(&S.dev, S.p);
+    S.dev.battery_pending = 0; /* the source holds the power-on reports */
     S.serial = o->serial ? o->serial : S.p->serial;
     S.plugged = 1;
     if (o->log && !(S.log = fnrec_writer_open(o->log, &S.id)))

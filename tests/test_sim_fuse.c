@@ -360,6 +360,46 @@ static void test_unplug_replug_on_signal(void **st)
     fnrec_free(r);
 }
 
+/* A wireless device replugged by SIGUSR1 or by a control line sends its battery report 0x17 again
+ * after enumeration (firmware-spec 7), as a scripted replug does. */
+static void test_live_replug_sends_battery(void **st)
+{
+    const char *scr = write_script("long.script", "translate +z 30 mm over 3 s\n");
+    const char *fifo = path_in("control"), *rec = path_in("rec.fnrec"), *log = path_in("record.log");
+    pid_t srv = start_server("--as", "spacemouse-wireless", "--script", scr, "--start-on-read",
+                             "--control", fifo, NULL);
+    pid_t recp = record_in_background(rec, 2.4, log);
+    msleep(400);
+    kill(srv, SIGUSR1);
+    msleep(300);
+    kill(srv, SIGUSR1);
+    msleep(500);
+    FILE *f = fopen(fifo, "w");
+    assert_non_null(f);
+    fputs("unplug\n", f);
+    fflush(f);
+    msleep(300);
+    fputs("replug\n", f);
+    fclose(f);
+    int status = reap(recp, 10000);
+    stop_server(srv);
+    assert_true(WIFEXITED(status) && WEXITSTATUS(status) == 0);
+    fnrec *r = fnrec_load(rec);
+    assert_non_null(r);
+    assert_int_equal(count_dir(r, FNREC_CONNECT, 0), 3);
+    /* After every connect, the first report is the battery's. */
+    for (size_t i = 0; i < r->n; i++) {
+        if (r->ev[i].dir != FNREC_CONNECT)
+            continue;
+        size_t k = i + 1;
+        while (k < r->n && r->ev[k].dir != FNREC_IN)
+            k++;
+        if (k == r->n || r->ev[k].data[0] != 0x17 || r->ev[k].data[1] != 100)
+            fail_msg("connect at event %zu: no battery report first (see %s)", i, rec);
+    }
+    fnrec_free(r);
+}
+
 /* A string ioctl on the node, as hidraw answers it. */
 static const char *raw_string(const char *node, unsigned long req)
 {
@@ -647,6 +687,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_unplug_replug_on_signal, setup, teardown),
         cmocka_unit_test_setup_teardown(test_hidapi_led_feature_timeout, setup, teardown),
         cmocka_unit_test_setup_teardown(test_serial_and_name, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_live_replug_sends_battery, setup, teardown),
         cmocka_unit_test_setup_teardown(test_open_controller_settings_applied, setup, teardown),
         cmocka_unit_test_setup_teardown(test_play_recording, setup, teardown),
         cmocka_unit_test_setup_teardown(test_control_fifo, setup, teardown),
