@@ -14,6 +14,8 @@
 #include <linux/hidraw.h>
 #include <poll.h>
 #include <signal.h>
+#include <stddef.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -662,7 +664,12 @@ static int block_signals(void)
 static int check_fuse_access(const char *mount)
 {
     struct stat st;
-    if (stat(mount, &st) || !S_ISDIR(st.st_mode)) {
+    if (stat(mount, &st)) {
+        fprintf(stderr, "fracnav-sim serve: mount point %s %s\n", mount,
+                errno == ENOENT ? "does not exist (mkdir it first)" : strerror(errno));
+        return -1;
+    }
+    if (!S_ISDIR(st.st_mode)) {
         fprintf(stderr, "fracnav-sim serve: mount point %s is not a directory\n", mount);
         return -1;
     }
@@ -772,6 +779,34 @@ typedef struct opts {
     const char *mount, *as, *play, *script, *out, *log, *seconds, *control, *serial;
 } opts;
 
+enum { SERVE = 1, RENDER = 2, BENCH = 4 };
+
+/* Each option and the commands it applies to: any other is a usage error that names it. */
+static const struct option_def {
+    const char *name;
+    unsigned cmds;
+    size_t field; /* offsetof(opts, ...) for options with a value, else SIZE_MAX */
+    int *flag;
+} option_defs[] = {
+    {"--mount", SERVE | BENCH, offsetof(opts, mount), NULL},
+    {"--as", SERVE | RENDER, offsetof(opts, as), NULL},
+    {"--play", SERVE, offsetof(opts, play), NULL},
+    {"--script", SERVE | RENDER, offsetof(opts, script), NULL},
+    {"-o", RENDER, offsetof(opts, out), NULL},
+    {"--log", SERVE, offsetof(opts, log), NULL},
+    {"--seconds", BENCH, offsetof(opts, seconds), NULL},
+    {"--control", SERVE, offsetof(opts, control), NULL},
+    {"--serial", SERVE, offsetof(opts, serial), NULL},
+    {"--start-on-read", SERVE, SIZE_MAX, &S.start_on_read},
+    {"--fast", SERVE, SIZE_MAX, &S.fast},
+    {"--exit-at-end", SERVE, SIZE_MAX, &S.exit_at_end},
+};
+
+static unsigned command_bit(const char *cmd)
+{
+    return !strcmp(cmd, "serve") ? SERVE : !strcmp(cmd, "render") ? RENDER : BENCH;
+}
+
 /* firmware-spec/open-controller.md, 1: a serial number is 8-32 characters. */
 static int serial_ok(const char *s)
 {
@@ -786,45 +821,32 @@ static int serial_ok(const char *s)
 
 static int parse_opts(int argc, char **argv, opts *o)
 {
+    unsigned cmd = command_bit(argv[1]);
     for (int i = 2; i < argc; i++) {
-        const char **dst = NULL;
         const char *a = argv[i];
-        if (!strcmp(a, "--start-on-read"))
-            S.start_on_read = 1;
-        else if (!strcmp(a, "--fast"))
-            S.fast = S.start_on_read = 1;
-        else if (!strcmp(a, "--exit-at-end"))
-            S.exit_at_end = 1;
-        else if (!strcmp(a, "--mount"))
-            dst = &o->mount;
-        else if (!strcmp(a, "--as"))
-            dst = &o->as;
-        else if (!strcmp(a, "--play"))
-            dst = &o->play;
-        else if (!strcmp(a, "--script"))
-            dst = &o->script;
-        else if (!strcmp(a, "-o"))
-            dst = &o->out;
-        else if (!strcmp(a, "--log"))
-            dst = &o->log;
-        else if (!strcmp(a, "--seconds"))
-            dst = &o->seconds;
-        else if (!strcmp(a, "--control"))
-            dst = &o->control;
-        else if (!strcmp(a, "--serial"))
-            dst = &o->serial;
-        else {
+        const struct option_def *d = NULL;
+        for (size_t k = 0; k < sizeof option_defs / sizeof *option_defs && !d; k++)
+            d = !strcmp(a, option_defs[k].name) ? &option_defs[k] : NULL;
+        if (!d) {
             fprintf(stderr, "fracnav-sim %s: unknown option '%s'\n", argv[1], a);
             return -1;
         }
-        if (dst) {
-            if (i + 1 >= argc) {
-                fprintf(stderr, "fracnav-sim %s: %s needs a value\n", argv[1], a);
-                return -1;
-            }
-            *dst = argv[++i];
+        if (!(d->cmds & cmd)) {
+            fprintf(stderr, "fracnav-sim %s: option '%s' does not apply to %s (--help)\n", argv[1], a,
+                    argv[1]);
+            return -1;
         }
+        if (d->flag) {
+            *d->flag = 1;
+            continue;
+        }
+        if (i + 1 >= argc) {
+            fprintf(stderr, "fracnav-sim %s: %s needs a value\n", argv[1], a);
+            return -1;
+        }
+        *(const char **)((char *)o + d->field) = argv[++i];
     }
+    S.start_on_read |= S.fast;
     if (o->serial && !serial_ok(o->serial)) {
         fprintf(stderr, "fracnav-sim %s: --serial '%s': want 8 to 32 letters, digits, '-' or '_'\n",
                 argv[1], o->serial);
@@ -855,6 +877,9 @@ static int setup(const opts *o)
         char id[16];
         snprintf(id, sizeof id, "%04x:%04x", S.rec->hdr.vid, S.rec->hdr.pid);
         const sim_profile *p = sim_profile_find(id);
+        if (o->as && p != S.p)
+            fprintf(stderr, "fracnav-sim serve: warning: --as %s ignored: %s plays as the device it was "
+                            "recorded from, %s (%s)\n", o->as, o->play, id, S.rec->hdr.name);
         S.p = p ? p : S.p;
         S.id = S.rec->hdr;
     } else {
