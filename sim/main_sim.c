@@ -450,8 +450,7 @@ static void feature_ioctl(fuse_req_t req, int set, const void *in, size_t in_sz,
         fuse_reply_err(req, EPIPE);
         return;
     }
-    if (set)
-        log_event(FNREC_FEATURE, buf, n);
+    log_event(FNREC_FEATURE, buf, (size_t)rc); /* the report as set, or as the device answered */
     fuse_reply_ioctl(req, rc, buf, out_sz < sizeof buf ? out_sz : sizeof buf);
 }
 

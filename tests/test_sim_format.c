@@ -72,7 +72,8 @@ static void test_fnrec_round_trip(void **st)
     free(dir);
 }
 
-/* An interrupted recording (a line cut short) loses only that line. */
+/* An interrupted recording (a line cut short) loses only that line, which is named; a last line
+ * that is whole but lacks its newline (a file written by hand) is kept. */
 static void test_fnrec_truncated_loses_last_line_only(void **st)
 {
     fnrec *r = render("translate +y 5 mm over 0.2 s\n", "spacemouse-wireless");
@@ -82,12 +83,26 @@ static void test_fnrec_truncated_loses_last_line_only(void **st)
     assert_int_equal(fnrec_save(r, path), 0);
     size_t len;
     char *text = tu_slurp(path, &len);
-    /* Cut inside the last event line: what is left of it still looks like a (shorter) report,
-     * but a line without its newline is an interrupted write and is left out. */
-    fnrec *part = NULL;
-    assert_int_equal(fnrec_parse(text, len - 5, "cut.fnrec", &part), 0);
-    assert_int_equal(part->n, r->n - 1);
-    fnrec_free(part);
+    int last_line = 0;
+    for (size_t i = 0; i < len; i++)
+        last_line += text[i] == '\n';
+    /* Cut inside the last event line at a byte boundary: what is left parses as a report, but
+     * shorter than the descriptor's 13 bytes; cut at an odd digit it does not parse. */
+    for (size_t cut = 5; cut <= 6; cut++) {
+        fnrec *part = NULL;
+        assert_int_equal(fnrec_parse(text, len - cut, "cut.fnrec", &part), 0);
+        assert_int_equal(part->n, r->n - 1);
+        assert_int_equal(part->torn_line, last_line);
+        assert_true(part->torn_why[0] != '\0');
+        fnrec_free(part);
+    }
+    /* Only the newline missing: the line is whole and kept. */
+    fnrec *whole = NULL;
+    assert_int_equal(fnrec_parse(text, len - 1, "whole.fnrec", &whole), 0);
+    assert_int_equal(whole->n, r->n);
+    assert_int_equal(whole->torn_line, 0);
+    assert_memory_equal(whole->ev, r->ev, r->n * sizeof *r->ev);
+    fnrec_free(whole);
     free(text);
     fnrec_free(r);
     tu_rmtree(dir);
@@ -122,7 +137,8 @@ static void test_fnrec_malformed(void **st)
     expect_error(HDR "events\n10 sideways 01\n", "bad.fnrec:8:", "direction");
     expect_error(HDR "events\n10 in\n", "bad.fnrec:8:", "missing");
     expect_error(HDR "events\n10 in 0g\n", "bad.fnrec:8:", "hex");
-    expect_error(HDR "events\n10 in 010\n", "bad.fnrec:8:", "hex");
+    expect_error(HDR "events\n10 in 010\n", "bad.fnrec:8:", "odd number of hex digits (3)");
+    expect_error("fnrec 1\ndescriptor 050\n", "bad.fnrec:2:", "odd number of hex digits");
     expect_error(HDR "events\n10 connect 01\n", "bad.fnrec:8:", "no bytes");
     expect_error(HDR "events\n99999999999999999999 in 01\n", "bad.fnrec:8:", "too large");
     char big[300];
@@ -141,6 +157,16 @@ static void test_fnrec_malformed(void **st)
     assert_int_equal(r->hdr.desc_len, 0);
     assert_int_equal(r->ev[1].len, 13);
     fnrec_free(r);
+    /* Written by hand without a final newline: the last line counts. */
+    const char *hand = HDR "events\n0 connect\n8000 in 0102";
+    assert_int_equal(fnrec_parse(hand, strlen(hand), "hand.fnrec", &r), 0);
+    assert_int_equal(r->n, 2);
+    assert_int_equal(r->ev[1].len, 2);
+    fnrec_free(r);
+    const char *junk = HDR "events\n0 connect\n8000 in 01x";
+    assert_int_equal(fnrec_parse(junk, strlen(junk), "junk.fnrec", &r), 0);
+    assert_int_equal(r->n, 1);
+    assert_int_equal(r->torn_line, 9);
     assert_null(fnrec_load("/nonexistent/x.fnrec"));
     assert_non_null(strstr(fn_err_msg(), "/nonexistent/x.fnrec"));
 }

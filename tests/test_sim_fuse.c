@@ -484,7 +484,8 @@ static void test_hidapi_led_feature_timeout(void **st)
     stop_server(srv);
     char *log = tu_slurp(served, NULL);
     assert_non_null(strstr(log, " out 0401\n"));
-    assert_non_null(strstr(log, " feature 2105"));
+    assert_non_null(strstr(log, " feature 2105"));          /* a set */
+    assert_non_null(strstr(log, " feature 20010100085e01\n")); /* a get, as the device answered */
     free(log);
 }
 
