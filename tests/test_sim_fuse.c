@@ -659,6 +659,32 @@ static void test_sim_cli_option_checks(void **st)
     free(out);
 }
 
+/* Without root or FUSE permission, serve says what it needs and exits 1 (as the user nobody). */
+static void test_serve_unprivileged(void **st)
+{
+    struct stat fs;
+    if (geteuid() != 0 || access("/usr/bin/setpriv", X_OK) || stat("/dev/fuse", &fs)) {
+        print_message("skipped: needs root and setpriv to run as nobody\n");
+        skip();
+    }
+    if (fs.st_mode & S_IROTH && fs.st_mode & S_IWOTH) {
+        print_message("skipped: /dev/fuse is open to every user here, so nobody may serve\n");
+        skip();
+    }
+    assert_int_equal(chmod(workdir, 0755), 0);
+    assert_int_equal(chmod(mnt, 0777), 0);
+    char cmd[1500];
+    snprintf(cmd, sizeof cmd, "setpriv --reuid=nobody --regid=nogroup --clear-groups '%s' serve "
+                              "--mount '%s' 2>&1", sim_bin(), mnt);
+    FILE *p = popen(cmd, "r");
+    char text[1024] = "";
+    size_t n = fread(text, 1, sizeof text - 1, p);
+    text[n] = '\0';
+    assert_int_equal(WEXITSTATUS(pclose(p)), 1);
+    if (!strstr(text, "/dev/fuse") || !strstr(text, "run as root"))
+        fail_msg("unprivileged serve said: %s", text);
+}
+
 static void test_cli_usage_and_errors(void **st)
 {
     char *out = NULL;
@@ -743,6 +769,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_control_fifo, setup, teardown),
         cmocka_unit_test_setup_teardown(test_cli_usage_and_errors, setup, teardown),
         cmocka_unit_test_setup_teardown(test_sim_cli_option_checks, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_serve_unprivileged, setup, teardown),
         cmocka_unit_test_setup_teardown(test_navigate_lights_led_while_held, setup, teardown),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
