@@ -167,6 +167,7 @@ static void test_fnrec_malformed(void **st)
     assert_int_equal(fnrec_parse(junk, strlen(junk), "junk.fnrec", &r), 0);
     assert_int_equal(r->n, 1);
     assert_int_equal(r->torn_line, 9);
+    fnrec_free(r);
     assert_null(fnrec_load("/nonexistent/x.fnrec"));
     assert_non_null(strstr(fn_err_msg(), "/nonexistent/x.fnrec"));
 }
