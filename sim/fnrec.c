@@ -8,6 +8,7 @@
 #include <unistd.h>
 
 #include "err.h"
+#include "hiddesc.h"
 
 #define LINE_MAX_CHARS (2 * DEV_DESC_MAX + 64)
 
@@ -101,6 +102,8 @@ static int header_line(const cursor *c, const char *s, size_t n, fnrec_header *h
         h->format[vn] = '\0';
     } else if (is_word(s, kn, "descriptor")) {
         bit = HAVE_DESC;
+        if (vn % 2)
+            return bad(c, "descriptor has an odd number of hex digits: each byte is two");
         long got = parse_hex(v, vn, h->desc, sizeof h->desc);
         if (got < 0)
             return bad(c, "descriptor must be up to 4096 bytes of hex digits");
@@ -148,7 +151,11 @@ static int event_line(const cursor *c, const char *s, size_t n, int64_t prev, fn
     }
     if (!sp)
         return bad(c, "report bytes missing (hex, report ID first)");
-    long got = parse_hex(sp + 1, n - (size_t)(sp + 1 - s), e->data, sizeof e->data);
+    size_t digits = n - (size_t)(sp + 1 - s);
+    if (digits % 2)
+        return fn_err_set(FN_EFORMAT, "%s:%d: odd number of hex digits (%zu): each byte is two",
+                          c->name, c->line, digits);
+    long got = parse_hex(sp + 1, digits, e->data, sizeof e->data);
     if (got <= 0)
         return bad(c, "report must be 1 to 64 bytes of hex digits with no spaces");
     e->len = (uint8_t)got;
@@ -174,6 +181,27 @@ static int first_line(const cursor *c, const char *s, size_t n, fnrec_header *h)
         return bad(c, "unsupported fnrec version (this reader knows version 1)");
     h->version = FNREC_VERSION;
     return 0;
+}
+
+/* A last line without its newline is a torn write when it does not parse, or when it is an input
+ * report shorter than the descriptor declares (the hex was cut at a byte boundary). Returns the
+ * reason, or NULL when the line is whole and is kept. */
+static const char *torn(const fnrec_header *h, int rc, const fnrec_event *e, char *why, size_t cap)
+{
+    if (rc) {
+        snprintf(why, cap, "%s", fn_err_msg());
+        fn_err_clear();
+        return why;
+    }
+    hiddesc d;
+    const hiddesc_report *rep;
+    if (e->dir != FNREC_IN || !h->desc_len || hiddesc_parse(h->desc, h->desc_len, &d) ||
+        !(rep = hiddesc_find(&d, HIDDESC_INPUT, e->data[0])) || rep->len <= e->len) {
+        fn_err_clear();
+        return NULL;
+    }
+    snprintf(why, cap, "input report %u has %u of its %zu bytes", e->data[0], e->len, rep->len);
+    return why;
 }
 
 int fnrec_parse(const char *text, size_t len, const char *name, fnrec **out)
@@ -210,11 +238,14 @@ int fnrec_parse(const char *text, size_t len, const char *name, fnrec **out)
             }
         } else if (!in_events)
             rc = header_line(&c, s, n, &hdr, &have);
-        else if (!nl)
-            break; /* the writer ends every line: this one was cut by an interrupted write */
         else {
             fnrec_event e;
             rc = event_line(&c, s, n, r->n ? r->ev[r->n - 1].t_us : 0, &e);
+            if (!nl && torn(&hdr, rc, &e, r->torn_why, sizeof r->torn_why)) {
+                r->torn_line = c.line; /* an interrupted write: left out, not an error */
+                rc = 0;
+                break;
+            }
             if (rc == 0 && (rc = fnrec_append(r, &e)) != 0)
                 rc = fn_err_set(rc, "%s:%d: %s", c.name, c.line, fn_err_msg());
         }
@@ -264,8 +295,9 @@ fnrec *fnrec_load(const char *path)
         fn_err_set(FN_EIO, "%s: read error", path);
     else if (toolong)
         fn_err_set(FN_EFORMAT, "%s: larger than any recording of %u events", path, FNREC_MAX_EVENTS);
-    else
-        fnrec_parse(buf, n, path, &r);
+    else if (fnrec_parse(buf, n, path, &r) == 0 && r->torn_line)
+        fprintf(stderr, "warning: %s:%d: last line cut short (%s): left out, as an interrupted "
+                        "recording's\n", path, r->torn_line, r->torn_why);
     free(buf);
     return r;
 }

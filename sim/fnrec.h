@@ -20,7 +20,8 @@
 typedef enum fnrec_dir {
     FNREC_IN = 0,     /* input report, device -> host */
     FNREC_OUT,        /* output report, host -> device (e.g. the LED, report 4) */
-    FNREC_FEATURE,    /* feature report as read from the device (get) */
+    FNREC_FEATURE,    /* a feature report's contents at that time: as read (get) or as set and
+                         accepted (set); fracnav-sim --log writes both */
     FNREC_CONNECT,    /* the device appeared; no bytes */
     FNREC_DISCONNECT  /* the device went away; no bytes */
 } fnrec_dir;
@@ -47,12 +48,18 @@ typedef struct fnrec {
     fnrec_header hdr;
     fnrec_event *ev; /* owned */
     size_t n;
+    int torn_line;      /* a last line cut by an interrupted write, left out (0: none) */
+    char torn_why[160]; /* what was wrong with it */
 } fnrec;
 
 /* Parses a recording from bytes. name is used in messages only ("FILE:LINE: ..."). Returns 0 and a
- * new recording in *out (free with fnrec_free), or FN_EFORMAT / FN_ENOMEM with *out = NULL. */
+ * new recording in *out (free with fnrec_free), or FN_EFORMAT / FN_ENOMEM with *out = NULL.
+ * A last event line without its newline is kept when it is whole; when it does not parse, or is an
+ * input report shorter than the descriptor declares, it is a torn write: left out, and named in
+ * torn_line / torn_why (not an error). */
 int fnrec_parse(const char *text, size_t len, const char *name, fnrec **out);
-/* Reads and parses a file. Returns NULL on failure (fn_err_msg names the file and line). */
+/* Reads and parses a file. Returns NULL on failure (fn_err_msg names the file and line). A torn
+ * last line is left out with a warning on stderr that names it. */
 fnrec *fnrec_load(const char *path);
 void fnrec_free(fnrec *r);
 

@@ -6,6 +6,7 @@
  * nothing in a request handler ever blocks. */
 #define FUSE_USE_VERSION 35
 
+#include <ctype.h>
 #include <errno.h>
 #include <fcntl.h>
 #include <fuse_lowlevel.h>
@@ -13,6 +14,8 @@
 #include <linux/hidraw.h>
 #include <poll.h>
 #include <signal.h>
+#include <stddef.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -51,12 +54,14 @@ typedef struct server {
     struct fuse_session *se;
     const sim_profile *p;
     fnrec *rec;           /* what the device plays */
+    script *script;       /* its script, rendered again when playback starts (NULL: --play) */
     size_t pos;
     int started, start_on_read, fast, exit_at_end;
     int64_t t0_us;        /* monotonic time of the recording's t = 0 */
     int plugged;
     simdev dev;           /* LED and feature reports */
     fnrec_header id;      /* identity served: descriptor, name, vid/pid */
+    const char *serial;   /* HIDIOCGRAWUNIQ */
     reader *readers;
     int timer_fd, sig_fd;
     int ctl_fd, ctl_keep;  /* --control FIFO: read end, and a write end that keeps it from EOF */
@@ -155,7 +160,21 @@ static void kill_readers(void)
     }
 }
 
-static void set_plugged(int on)
+/* A device powering on sends its power-on reports (battery 0x17) after enumeration, that is once
+ * someone has the node open and reading: a live replug owes them to the next active reader. */
+static void power_on_reports(void)
+{
+    int any = 0;
+    for (reader *r = S.readers; r; r = r->next)
+        any |= !r->dead && r->active;
+    uint8_t b[DEV_REPORT_MAX];
+    int n;
+    while (any && S.plugged && S.dev.battery_pending && (n = simdev_next(&S.dev, b, sizeof b)) > 0)
+        deliver(b, (size_t)n);
+}
+
+/* live: by SIGUSR1 or a control line; a replug in the recording already holds its own reports. */
+static void set_plugged(int on, int live)
 {
     if (on == S.plugged)
         return;
@@ -164,7 +183,8 @@ static void set_plugged(int on)
         kill_readers();
         log_event(FNREC_DISCONNECT, NULL, 0);
     } else {
-        simdev_init(&S.dev, S.p);
+        simdev_replug(&S.dev);
+        S.dev.battery_pending = live && S.dev.battery_pending;
         log_event(FNREC_CONNECT, NULL, 0);
     }
     fprintf(stderr, "fracnav-sim: %s\n", on ? "replugged" : "unplugged");
@@ -202,8 +222,14 @@ static int queues_empty(void)
     return 1;
 }
 
+/* A script plays on the device as the host has set it up by now (open controller: 0x21, 0x22). */
 static void start_playback(void)
 {
+    fnrec *r = S.script ? script_render_live(S.script, &S.dev) : NULL;
+    if (r) {
+        fnrec_free(S.rec);
+        S.rec = r;
+    }
     S.started = 1;
     S.t0_us = mono_us() + 1000;
     pump();
@@ -224,9 +250,9 @@ static void pump(void)
         if (e->dir == FNREC_IN && S.plugged)
             deliver(e->data, e->len);
         else if (e->dir == FNREC_CONNECT)
-            set_plugged(1);
+            set_plugged(1, 0);
         else if (e->dir == FNREC_DISCONNECT)
-            set_plugged(0);
+            set_plugged(0, 0);
     }
     if (S.pos < S.rec->n && !S.fast)
         arm_timer(S.t0_us + S.rec->ev[S.pos].t_us);
@@ -309,6 +335,7 @@ static void reader_active(reader *r)
     if (r->active)
         return;
     r->active = 1;
+    power_on_reports();
     if (S.start_on_read && !S.started)
         start_playback();
     else if (S.fast)
@@ -423,8 +450,7 @@ static void feature_ioctl(fuse_req_t req, int set, const void *in, size_t in_sz,
         fuse_reply_err(req, EPIPE);
         return;
     }
-    if (set)
-        log_event(FNREC_FEATURE, buf, n);
+    log_event(FNREC_FEATURE, buf, (size_t)rc); /* the report as set, or as the device answered */
     fuse_reply_ioctl(req, rc, buf, out_sz < sizeof buf ? out_sz : sizeof buf);
 }
 
@@ -467,7 +493,7 @@ static void op_ioctl(fuse_req_t req, fuse_ino_t ino, unsigned int cmd, void *arg
         reply_string(req, "fracnav-sim/input0", sz);
         return;
     case _IOC_NR(HIDIOCGRAWUNIQ(0)):
-        reply_string(req, "", sz);
+        reply_string(req, S.serial, sz);
         return;
     case _IOC_NR(HIDIOCGFEATURE(0)):
     case _IOC_NR(HIDIOCSFEATURE(0)):
@@ -497,7 +523,7 @@ static int handle_signal(void)
     if (read(S.sig_fd, &si, sizeof si) != (ssize_t)sizeof si)
         return 0;
     if (si.ssi_signo == SIGUSR1) {
-        set_plugged(!S.plugged);
+        set_plugged(!S.plugged, 1);
         return 0;
     }
     return 1; /* SIGINT, SIGTERM, SIGHUP: stop */
@@ -516,8 +542,8 @@ static void control_command(const char *line)
     }
     fnrec *r = NULL;
     if (sc->n == 1 && (sc->step[0].op == SCRIPT_UNPLUG || sc->step[0].op == SCRIPT_REPLUG))
-        set_plugged(sc->step[0].op == SCRIPT_REPLUG);
-    else if (sc->n && !(r = script_render_more(sc, S.p, &S.ctl_buttons)))
+        set_plugged(sc->step[0].op == SCRIPT_REPLUG, 1);
+    else if (sc->n && !(r = script_render_more(sc, &S.dev, &S.ctl_buttons)))
         fprintf(stderr, "fracnav-sim: %s\n", fn_err_msg());
     free(sc);
     if (r && S.started && S.pos < S.rec->n) { /* still playing: queue it after the rest */
@@ -637,7 +663,12 @@ static int block_signals(void)
 static int check_fuse_access(const char *mount)
 {
     struct stat st;
-    if (stat(mount, &st) || !S_ISDIR(st.st_mode)) {
+    if (stat(mount, &st)) {
+        fprintf(stderr, "fracnav-sim serve: mount point %s %s\n", mount,
+                errno == ENOENT ? "does not exist (mkdir it first)" : strerror(errno));
+        return -1;
+    }
+    if (!S_ISDIR(st.st_mode)) {
         fprintf(stderr, "fracnav-sim serve: mount point %s is not a directory\n", mount);
         return -1;
     }
@@ -707,14 +738,15 @@ static void usage(FILE *f)
     fprintf(f,
             "usage: fracnav-sim serve --mount DIR [--as DEVICE] [--play FILE.fnrec | --script FILE]\n"
             "                         [--start-on-read] [--fast] [--exit-at-end] [--log FILE.fnrec]\n"
-            "                         [--control FIFO]\n"
+            "                         [--control FIFO] [--serial SN]\n"
             "       fracnav-sim render [--as DEVICE] --script FILE -o FILE.fnrec\n"
             "       fracnav-sim list\n"
             "       fracnav-sim bench [--mount DIR] [--seconds S]\n"
             "\n"
             "serve    serves the virtual device as DIR/" NODE_NAME " through FUSE until SIGINT/SIGTERM\n"
             "         (then unmounts). SIGUSR1 unplugs it, the next SIGUSR1 plugs it back.\n"
-            "         --as DEVICE      device to impersonate (default spacenavigator; see list)\n"
+            "         --as DEVICE      device to impersonate, by name or VID:PID (default\n"
+            "                          spacenavigator; list shows every row of the table)\n"
             "         --play FILE      play a recording (its identity replaces --as)\n"
             "         --script FILE    play a motion script (see sim/script.h)\n"
             "         --start-on-read  start playing when the node is first read or polled\n"
@@ -723,6 +755,8 @@ static void usage(FILE *f)
             "         --log FILE       write every report served to a .fnrec file\n"
             "         --control FIFO   script lines written to this FIFO (made if absent) play in\n"
             "                          turn, as soon as possible: echo 'press 1' > FIFO\n"
+            "         --serial SN      serial number served (HIDIOCGRAWUNIQ; 8-32 characters;\n"
+            "                          default FNSIM + VID + PID)\n"
             "render   writes the reports a script produces on DEVICE to a .fnrec file\n"
             "list     prints the devices the simulator can impersonate\n"
             "bench    measures report throughput (as fast as possible) and timing jitter (at the\n"
@@ -733,55 +767,89 @@ static int list_devices(void)
 {
     for (size_t i = 0; sim_profile_at(i); i++) {
         const sim_profile *p = sim_profile_at(i);
-        printf("%-26s %04x:%04x  %-8s %2d ms  %2d button bits  %s\n", p->id, p->vid, p->pid,
-               p->format == SIMDEV_SPLIT ? "split" : "combined", p->period_us / 1000, p->nbuttons,
+        printf("%-34s %04x:%04x  %-8s %2d ms  %2d button bits  %s\n", p->id, p->vid, p->pid,
+               devtab_format_name(p->row->format), p->period_us / 1000, p->nbuttons,
                p->name);
     }
     return 0;
 }
 
 typedef struct opts {
-    const char *mount, *as, *play, *script, *out, *log, *seconds, *control;
+    const char *mount, *as, *play, *script, *out, *log, *seconds, *control, *serial;
 } opts;
+
+enum { SERVE = 1, RENDER = 2, BENCH = 4 };
+
+/* Each option and the commands it applies to: any other is a usage error that names it. */
+static const struct option_def {
+    const char *name;
+    unsigned cmds;
+    size_t field; /* offsetof(opts, ...) for options with a value, else SIZE_MAX */
+    int *flag;
+} option_defs[] = {
+    {"--mount", SERVE | BENCH, offsetof(opts, mount), NULL},
+    {"--as", SERVE | RENDER, offsetof(opts, as), NULL},
+    {"--play", SERVE, offsetof(opts, play), NULL},
+    {"--script", SERVE | RENDER, offsetof(opts, script), NULL},
+    {"-o", RENDER, offsetof(opts, out), NULL},
+    {"--log", SERVE, offsetof(opts, log), NULL},
+    {"--seconds", BENCH, offsetof(opts, seconds), NULL},
+    {"--control", SERVE, offsetof(opts, control), NULL},
+    {"--serial", SERVE, offsetof(opts, serial), NULL},
+    {"--start-on-read", SERVE, SIZE_MAX, &S.start_on_read},
+    {"--fast", SERVE, SIZE_MAX, &S.fast},
+    {"--exit-at-end", SERVE, SIZE_MAX, &S.exit_at_end},
+};
+
+static unsigned command_bit(const char *cmd)
+{
+    return !strcmp(cmd, "serve") ? SERVE : !strcmp(cmd, "render") ? RENDER : BENCH;
+}
+
+/* firmware-spec/open-controller.md, 1: a serial number is 8-32 characters. */
+static int serial_ok(const char *s)
+{
+    size_t n = strlen(s);
+    if (n < 8 || n >= SIMDEV_SERIAL_MAX)
+        return 0;
+    for (; *s; s++)
+        if (!isalnum((unsigned char)*s) && *s != '-' && *s != '_')
+            return 0;
+    return 1;
+}
 
 static int parse_opts(int argc, char **argv, opts *o)
 {
+    unsigned cmd = command_bit(argv[1]);
     for (int i = 2; i < argc; i++) {
-        const char **dst = NULL;
         const char *a = argv[i];
-        if (!strcmp(a, "--start-on-read"))
-            S.start_on_read = 1;
-        else if (!strcmp(a, "--fast"))
-            S.fast = S.start_on_read = 1;
-        else if (!strcmp(a, "--exit-at-end"))
-            S.exit_at_end = 1;
-        else if (!strcmp(a, "--mount"))
-            dst = &o->mount;
-        else if (!strcmp(a, "--as"))
-            dst = &o->as;
-        else if (!strcmp(a, "--play"))
-            dst = &o->play;
-        else if (!strcmp(a, "--script"))
-            dst = &o->script;
-        else if (!strcmp(a, "-o"))
-            dst = &o->out;
-        else if (!strcmp(a, "--log"))
-            dst = &o->log;
-        else if (!strcmp(a, "--seconds"))
-            dst = &o->seconds;
-        else if (!strcmp(a, "--control"))
-            dst = &o->control;
-        else {
+        const struct option_def *d = NULL;
+        for (size_t k = 0; k < sizeof option_defs / sizeof *option_defs && !d; k++)
+            d = !strcmp(a, option_defs[k].name) ? &option_defs[k] : NULL;
+        if (!d) {
             fprintf(stderr, "fracnav-sim %s: unknown option '%s'\n", argv[1], a);
             return -1;
         }
-        if (dst) {
-            if (i + 1 >= argc) {
-                fprintf(stderr, "fracnav-sim %s: %s needs a value\n", argv[1], a);
-                return -1;
-            }
-            *dst = argv[++i];
+        if (!(d->cmds & cmd)) {
+            fprintf(stderr, "fracnav-sim %s: option '%s' does not apply to %s (--help)\n", argv[1], a,
+                    argv[1]);
+            return -1;
         }
+        if (d->flag) {
+            *d->flag = 1;
+            continue;
+        }
+        if (i + 1 >= argc) {
+            fprintf(stderr, "fracnav-sim %s: %s needs a value\n", argv[1], a);
+            return -1;
+        }
+        *(const char **)((char *)o + d->field) = argv[++i];
+    }
+    S.start_on_read |= S.fast;
+    if (o->serial && !serial_ok(o->serial)) {
+        fprintf(stderr, "fracnav-sim %s: --serial '%s': want 8 to 32 letters, digits, '-' or '_'\n",
+                argv[1], o->serial);
+        return -1;
     }
     if (o->play && o->script) {
         fprintf(stderr, "fracnav-sim %s: --play and --script exclude each other\n", argv[1]);
@@ -795,12 +863,9 @@ static fnrec *load_source(const opts *o)
 {
     if (o->play)
         return fnrec_load(o->play);
-    script *s = NULL;
-    if (o->script ? !(s = script_load(o->script)) : script_parse("", 0, "", &s) != 0)
+    if (o->script ? !(S.script = script_load(o->script)) : script_parse("", 0, "", &S.script) != 0)
         return NULL;
-    fnrec *r = script_render(s, S.p);
-    free(s);
-    return r;
+    return script_render(S.script, S.p);
 }
 
 static int setup(const opts *o)
@@ -811,12 +876,17 @@ static int setup(const opts *o)
         char id[16];
         snprintf(id, sizeof id, "%04x:%04x", S.rec->hdr.vid, S.rec->hdr.pid);
         const sim_profile *p = sim_profile_find(id);
+        if (o->as && p != S.p)
+            fprintf(stderr, "fracnav-sim serve: warning: --as %s ignored: %s plays as the device it was "
+                            "recorded from, %s (%s)\n", o->as, o->play, id, S.rec->hdr.name);
         S.p = p ? p : S.p;
         S.id = S.rec->hdr;
     } else {
         script_header(S.p, &S.id);
     }
     simdev_init(&S.dev, S.p);
+    S.dev.battery_pending = 0; /* the source holds the power-on reports */
+    S.serial = o->serial ? o->serial : S.p->serial;
     S.plugged = 1;
     if (o->log && !(S.log = fnrec_writer_open(o->log, &S.id)))
         return -1;
@@ -868,6 +938,7 @@ int main(int argc, char **argv)
     if (S.log && fnrec_writer_close(S.log))
         fprintf(stderr, "fracnav-sim: %s\n", fn_err_msg());
     fnrec_free(S.rec);
+    free(S.script);
     if (S.sig_fd >= 0)
         close(S.sig_fd);
     if (S.timer_fd >= 0)

@@ -302,7 +302,7 @@ static void commit_carry(render *r, const int16_t sent[6], const uint8_t *report
 /* Runs the device's periods up to (not including) t_end. */
 static int run_until(render *r, int64_t t_end)
 {
-    for (; r->next_tick < t_end; r->next_tick += r->dev.p->period_us) {
+    for (; r->next_tick < t_end; r->next_tick += simdev_period_us(&r->dev)) {
         int16_t a[6];
         dither(r, a);
         simdev_set(&r->dev, a, r->dev.buttons);
@@ -352,7 +352,7 @@ static int render_step(render *r, const script_step *st, int64_t *now)
     case SCRIPT_REPLUG:
         if (!r->plugged && !(rc = emit(r, *now, FNREC_CONNECT, NULL, 0))) {
             uint32_t held = r->dev.buttons;
-            simdev_init(&r->dev, r->dev.p);
+            simdev_replug(&r->dev); /* power-on: volatile settings reset */
             r->dev.buttons = held;
             r->plugged = 1;
         }
@@ -361,14 +361,17 @@ static int render_step(render *r, const script_step *st, int64_t *now)
     return rc;
 }
 
-static fnrec *render_script(const script *s, const sim_profile *p, uint32_t *held)
+static fnrec *render_script(const script *s, const sim_profile *p, const simdev *live, uint32_t *held)
 {
     fnrec_header h;
     script_header(p, &h);
-    render r = {.rec = fnrec_new(&h), .next_tick = p->period_us, .plugged = 1};
+    render r = {.rec = fnrec_new(&h), .plugged = 1};
     if (!r.rec)
         return NULL;
     simdev_init(&r.dev, p);
+    if (live)
+        simdev_copy_settings(&r.dev, live);
+    r.next_tick = simdev_period_us(&r.dev);
     int64_t now = 0;
     int rc = 0;
     if (held) { /* a continuation: connected for a while, these buttons down */
@@ -396,10 +399,15 @@ static fnrec *render_script(const script *s, const sim_profile *p, uint32_t *hel
 
 fnrec *script_render(const script *s, const sim_profile *p)
 {
-    return render_script(s, p, NULL);
+    return render_script(s, p, NULL, NULL);
 }
 
-fnrec *script_render_more(const script *s, const sim_profile *p, uint32_t *held)
+fnrec *script_render_live(const script *s, const simdev *live)
 {
-    return render_script(s, p, held);
+    return render_script(s, live->p, live, NULL);
+}
+
+fnrec *script_render_more(const script *s, const simdev *live, uint32_t *held)
+{
+    return render_script(s, live->p, live, held);
 }

@@ -60,10 +60,14 @@ script *script_load(const char *path);
 /* Renders the script into the reports profile p sends at its cadence, from a connect event at 0 to
  * the last report. Deterministic. NULL on failure (e.g. a speed above full deflection). */
 fnrec *script_render(const script *s, const sim_profile *p);
-/* Renders s as the continuation of a session: the device is already connected and idle with the
- * buttons *held down, so there is no connect event and no power-on report; times start at 0 = now.
- * *held becomes the buttons held at the end. For live control (fracnav-sim --control). */
-fnrec *script_render_more(const script *s, const sim_profile *p, uint32_t *held);
+/* As script_render, on a device whose settings (cadence, zeros, offsets: the open controller's
+ * feature reports) are those of live: what a served device plays once the host has set them. */
+fnrec *script_render_live(const script *s, const simdev *live);
+/* Renders s as the continuation of a session on the device live (its profile and settings): it is
+ * already connected and idle with the buttons *held down, so there is no connect event and no
+ * power-on report; times start at 0 = now. *held becomes the buttons held at the end. For live
+ * control (fracnav-sim --control). */
+fnrec *script_render_more(const script *s, const simdev *live, uint32_t *held);
 /* Fills hdr with profile p's identity, source "virtual:<id>". */
 void script_header(const sim_profile *p, fnrec_header *hdr);
 

@@ -1,41 +1,120 @@
 #include "simdev.h"
 
+#include <ctype.h>
+#include <pthread.h>
+#include <stdio.h>
 #include <string.h>
 #include <strings.h>
 
 #include "err.h"
 
-#define SPLIT_MS 8000
-#define COMBINED_MS 16000
+/* Sim-only data: the cadence of each report format, and the short names --as has always accepted.
+ * Everything else (identity, format, buttons, battery, key codes) comes from the device table, so
+ * every hardware row of devices/devtab.c can be impersonated, including rows added later. */
+static int cadence_us(devtab_format f)
+{
+    return f == DEVTAB_COMBINED ? 16000 : 8000; /* split and legacy: 8 ms */
+}
 
-#define P(id, vid, pid, name, fmt, period, nb, keys, bat, open) \
-    {id, vid, pid, name, fmt, period, nb, keys, bat, open}
-#define S3DX(id, pid, name, nb) P(id, 0x046d, pid, name, SIMDEV_SPLIT, SPLIT_MS, nb, 0, 0, 0)
+#define OPEN_CADENCE_US 8000 /* firmware-spec/open-controller.md, 6 */
 
-/* Identities as in ../shared/DEVICES.md and the device table (devices/devtab.c). */
-static const sim_profile profiles[] = {
-    S3DX("spacenavigator", 0xc626, "3Dconnexion SpaceNavigator", 2),
-    S3DX("spacenavigator-notebook", 0xc628, "3Dconnexion SpaceNavigator for Notebooks", 2),
-    S3DX("spaceexplorer", 0xc627, "3Dconnexion SpaceExplorer", 15),
-    S3DX("spacepilot-pro", 0xc629, "3Dconnexion SpacePilot Pro", 31),
-    S3DX("spacemouse-pro", 0xc62b, "3Dconnexion SpaceMouse Pro", 27), /* sparse bits up to 26 */
-    P("spacemouse-compact", 0x256f, 0xc635, "3Dconnexion SpaceMouse Compact", SIMDEV_SPLIT, SPLIT_MS,
-      2, 0, 0, 0),
-    P("spacemouse-wireless", 0x256f, 0xc62e, "3Dconnexion SpaceMouse Wireless (cable)",
-      SIMDEV_COMBINED, COMBINED_MS, 2, 0, 1, 0),
-    P("spacemouse-pro-wireless", 0x256f, 0xc631, "3Dconnexion SpaceMouse Pro Wireless (cable)",
-      SIMDEV_COMBINED, COMBINED_MS, 15, 0, 1, 0),
-    P("spacemouse-enterprise", 0x256f, 0xc633, "3Dconnexion SpaceMouse Enterprise", SIMDEV_COMBINED,
-      COMBINED_MS, 31, 1, 0, 0),
-    P("open-controller", 0x1209, 0x0001, "fracnav open 6-DOF controller", SIMDEV_COMBINED, SPLIT_MS,
-      8, 0, 1, 1),
+static const struct alias {
+    uint16_t vid, pid;
+    const char *id;
+} aliases[] = {
+    {0x046d, 0xc626, "spacenavigator"},      {0x046d, 0xc628, "spacenavigator-notebook"},
+    {0x046d, 0xc627, "spaceexplorer"},       {0x046d, 0xc629, "spacepilot-pro"},
+    {0x046d, 0xc62b, "spacemouse-pro"},      {0x256f, 0xc635, "spacemouse-compact"},
+    {0x256f, 0xc62e, "spacemouse-wireless"}, {0x256f, 0xc631, "spacemouse-pro-wireless"},
+    {0x256f, 0xc633, "spacemouse-enterprise"}, {DEVTAB_OPEN_VID, DEVTAB_OPEN_PID, "open-controller"},
 };
 
-#define NPROFILES (sizeof profiles / sizeof profiles[0])
+/* USB string descriptors, where a spec gives them: Linux usbhid names the device manufacturer + " "
+ * + product (HIDIOCGRAWNAME). The 3Dconnexion rows' table names already read that way. */
+static const struct usb_strings {
+    uint16_t vid, pid;
+    const char *manufacturer, *product;
+} usb_strings[] = {
+    {DEVTAB_OPEN_VID, DEVTAB_OPEN_PID, "fracnav", "fracnav open 6-DOF controller"},
+};
+
+#define MAX_PROFILES 64
+#define ID_MAX 48
+#define NAME_MAX_ 128
+
+static sim_profile profiles[MAX_PROFILES];
+static char profile_ids[MAX_PROFILES][ID_MAX];
+static char profile_names[MAX_PROFILES][NAME_MAX_];
+static char profile_serials[MAX_PROFILES][SIMDEV_SERIAL_MAX];
+static size_t nprofiles;
+static pthread_once_t profiles_once = PTHREAD_ONCE_INIT;
+
+/* A row without an alias is named after its product: "3Dconnexion SpaceMouse Plus XT (USB)" ->
+ * "spacemouse-plus-xt-usb". */
+static void slug(const char *name, char *out, size_t cap)
+{
+    static const char vendor[] = "3Dconnexion ";
+    if (!strncmp(name, vendor, sizeof vendor - 1))
+        name += sizeof vendor - 1;
+    size_t n = 0;
+    for (; *name && n + 1 < cap; name++) {
+        if (isalnum((unsigned char)*name))
+            out[n++] = (char)tolower((unsigned char)*name);
+        else if (n && out[n - 1] != '-')
+            out[n++] = '-';
+    }
+    while (n && out[n - 1] == '-')
+        n--;
+    out[n] = '\0';
+}
+
+static int top_bit(uint32_t mask)
+{
+    int n = 0;
+    while (n < 32 && mask >> n)
+        n++;
+    return n;
+}
+
+static void profile_from_row(const devtab_row *row, sim_profile *p, size_t k)
+{
+    char *id = profile_ids[k], *name = profile_names[k], *serial = profile_serials[k];
+    slug(row->name, id, ID_MAX);
+    for (size_t i = 0; i < sizeof aliases / sizeof *aliases; i++)
+        if (aliases[i].vid == row->vid && aliases[i].pid == row->pid)
+            snprintf(id, ID_MAX, "%s", aliases[i].id);
+    snprintf(name, NAME_MAX_, "%s", row->name);
+    for (size_t i = 0; i < sizeof usb_strings / sizeof *usb_strings; i++)
+        if (usb_strings[i].vid == row->vid && usb_strings[i].pid == row->pid)
+            snprintf(name, NAME_MAX_, "%s %s", usb_strings[i].manufacturer, usb_strings[i].product);
+    snprintf(serial, SIMDEV_SERIAL_MAX, "FNSIM%04X%04X", row->vid, row->pid); /* stable, 13 chars */
+    int open = (row->flags & DEVTAB_F_OPEN) != 0;
+    *p = (sim_profile){
+        .id = id, .vid = row->vid, .pid = row->pid, .name = name, .serial = serial,
+        .format = row->format == DEVTAB_COMBINED ? SIMDEV_COMBINED : SIMDEV_SPLIT,
+        .period_us = open ? OPEN_CADENCE_US : cadence_us(row->format),
+        .nbuttons = top_bit(row->button_mask),
+        .keycodes = (row->flags & DEVTAB_F_KEYCODES) != 0,
+        .battery = (row->flags & DEVTAB_F_BATTERY) != 0,
+        .open = open, .row = row,
+    };
+}
+
+static void build_profiles(void)
+{
+    size_t n;
+    const devtab_row *rows = devtab_rows(&n);
+    for (size_t i = 0; i < n && nprofiles < MAX_PROFILES; i++)
+        if (!(rows[i].flags & DEVTAB_F_SYNTH)) {
+            profile_from_row(&rows[i], &profiles[nprofiles], nprofiles);
+            nprofiles++;
+        }
+}
 
 const sim_profile *sim_profile_at(size_t i)
 {
-    return i < NPROFILES ? &profiles[i] : NULL;
+    pthread_once(&profiles_once, build_profiles);
+    return i < nprofiles ? &profiles[i] : NULL;
 }
 
 static int hex4(const char *s, uint16_t *v)
@@ -57,11 +136,15 @@ const sim_profile *sim_profile_find(const char *id)
 {
     uint16_t vid, pid;
     int byid = strlen(id) == 9 && id[4] == ':' && !hex4(id, &vid) && !hex4(id + 5, &pid);
-    for (size_t i = 0; i < NPROFILES; i++)
-        if (byid ? profiles[i].vid == vid && profiles[i].pid == pid : !strcasecmp(profiles[i].id, id))
-            return &profiles[i];
-    fn_err_set(FN_EINVAL, "unknown device '%s' (try one of: spacenavigator, spacemouse-wireless, "
-                          "spacemouse-enterprise, open-controller, ... or VID:PID)", id);
+    const sim_profile *p;
+    for (size_t i = 0; (p = sim_profile_at(i)); i++)
+        if (byid ? p->vid == vid && p->pid == pid : !strcasecmp(p->id, id))
+            return p;
+    if (byid)
+        fn_err_set(FN_EINVAL, "no device %s in the device table (fracnav-sim list shows them)", id);
+    else
+        fn_err_set(FN_EINVAL, "unknown device '%s' (fracnav-sim list shows the names; VID:PID in hex "
+                              "such as 046d:c626 also works)", id);
     return NULL;
 }
 
@@ -198,6 +281,37 @@ void simdev_init(simdev *d, const sim_profile *p)
         set_default(d, open_settings, sizeof open_settings);
     }
     d->battery_pending = p->battery;
+    d->period_us = p->period_us;
+    d->idle_zeros = SIMDEV_ZERO_REPEATS;
+}
+
+void simdev_replug(simdev *d)
+{
+    int16_t offset[6];
+    uint8_t zero[SIMDEV_FEATURE_LEN];
+    memcpy(offset, d->offset, sizeof offset);
+    memcpy(zero, d->feature[0x21], sizeof zero);
+    simdev_init(d, d->p);
+    if (d->p->open) {
+        memcpy(d->offset, offset, sizeof offset);
+        memcpy(d->feature[0x21], zero, sizeof zero);
+    }
+}
+
+int simdev_period_us(const simdev *d)
+{
+    return d->period_us;
+}
+
+void simdev_copy_settings(simdev *d, const simdev *src)
+{
+    memcpy(d->feature, src->feature, sizeof d->feature);
+    memcpy(d->feature_len, src->feature_len, sizeof d->feature_len);
+    memcpy(d->offset, src->offset, sizeof d->offset);
+    d->period_us = src->period_us;
+    d->idle_zeros = src->idle_zeros;
+    d->led_mode = src->led_mode;
+    d->led = src->led;
 }
 
 static int moving(const simdev *d)
@@ -212,10 +326,11 @@ void simdev_set(simdev *d, const int16_t a[6], uint32_t buttons)
 {
     for (int i = 0; i < 6; i++)
         d->axes[i] = a[i] > 350 ? 350 : a[i] < -350 ? -350 : a[i];
-    uint32_t valid = d->p->nbuttons >= 32 ? 0xffffffffu : (1u << d->p->nbuttons) - 1;
-    d->buttons = buttons & valid;
+    d->buttons = buttons & d->p->row->button_mask;
     if (moving(d))
-        d->zeros_left = SIMDEV_ZERO_REPEATS * (d->p->format == SIMDEV_SPLIT ? 2 : 1);
+        d->zeros_left = d->idle_zeros * (d->p->format == SIMDEV_SPLIT ? 2 : 1);
+    if (d->led_mode)
+        d->led = moving(d);
 }
 
 int simdev_idle(const simdev *d)
@@ -228,6 +343,19 @@ static void le16(uint8_t *b, int16_t v)
 {
     b[0] = (uint8_t)((uint16_t)v & 0xff);
     b[1] = (uint8_t)((uint16_t)v >> 8);
+}
+
+#define NOISE_FLOOR 2 /* open controller: |value| <= 2 after the offsets is sent as 0 */
+
+/* What the device reports for axis i: the reading less its zero offset, clamped, noise floored.
+ * A released cap reads exactly 0 (the virtual sensor has no drift): its zeros stay zeros. */
+static int16_t reported(const simdev *d, int i)
+{
+    if (!d->offset[i] || !moving(d))
+        return d->axes[i];
+    int v = d->axes[i] - d->offset[i];
+    v = v > 350 ? 350 : v < -350 ? -350 : v;
+    return (int16_t)(v >= -NOISE_FLOOR && v <= NOISE_FLOOR ? 0 : v);
 }
 
 /* Enterprise key codes for bitmask bits 0..: buttons 1-10, 11, 12, then MENU, FIT, ESC ALT SHIFT
@@ -277,12 +405,12 @@ int simdev_next(simdev *d, uint8_t *buf, size_t cap)
     if (d->p->format == SIMDEV_COMBINED) {
         buf[0] = 1;
         for (int i = 0; i < 6; i++)
-            le16(buf + 1 + 2 * i, d->axes[i]);
+            le16(buf + 1 + 2 * i, reported(d, i));
         return 13;
     }
     buf[0] = (uint8_t)(1 + d->phase);
     for (int i = 0; i < 3; i++)
-        le16(buf + 1 + 2 * i, d->axes[3 * d->phase + i]);
+        le16(buf + 1 + 2 * i, reported(d, 3 * d->phase + i));
     d->phase ^= 1;
     return 7;
 }
@@ -290,7 +418,8 @@ int simdev_next(simdev *d, uint8_t *buf, size_t cap)
 int simdev_output(simdev *d, const uint8_t *buf, size_t len)
 {
     if (len == 2 && buf[0] == 4 && buf[1] <= 1) {
-        d->led = buf[1];
+        if (!d->led_mode)
+            d->led = buf[1];
         return (int)len;
     }
     return fn_err_set(FN_EINVAL, "virtual device: unknown output report (id %u, %zu bytes)",
@@ -321,6 +450,21 @@ static int open_feature_ok(const uint8_t *b, size_t len)
     return b[0] == 0x22 && len == 4 && b[1] >= 1 && b[3] <= 1;
 }
 
+/* The open controller acts on its settings at once (the next period uses them). */
+static void apply_open_feature(simdev *d, const uint8_t *b)
+{
+    if (b[0] == 0x21) {
+        for (int i = 0; i < 6; i++)
+            d->offset[i] = (int16_t)(b[1 + 2 * i] | b[2 + 2 * i] << 8);
+    } else {
+        d->period_us = b[1] * 1000;
+        d->idle_zeros = b[2];
+        d->led_mode = b[3];
+        if (d->zeros_left > d->idle_zeros)
+            d->zeros_left = d->idle_zeros;
+    }
+}
+
 int simdev_set_feature(simdev *d, const uint8_t *buf, size_t len)
 {
     uint8_t id = len ? buf[0] : 0;
@@ -330,5 +474,7 @@ int simdev_set_feature(simdev *d, const uint8_t *buf, size_t len)
                           len);
     memcpy(d->feature[id], buf, len);
     d->feature_len[id] = (uint8_t)len;
+    if (d->p->open)
+        apply_open_feature(d, buf);
     return (int)len;
 }

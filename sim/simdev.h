@@ -12,6 +12,11 @@
  * - while the cap is deflected, motion reports go out every period (even when the values repeat);
  *   after release every motion report ID is sent with zeros three times, then silence.
  * - devices with a battery send report 0x17 (100 %) once after connecting.
+ * - the open controller applies its settings (firmware-spec/open-controller.md 5, "The virtual
+ *   device"): cadence_ms and idle_zeros of 0x22 set the cadence and the zeros after release, the
+ *   offsets of 0x21 are subtracted from the deflection (then the noise floor of 2 units), and
+ *   led_mode 1 lights the LED while the cap is deflected. The virtual cap has no drift: at rest it
+ *   reads 0 on every axis and is silent whatever the offsets.
  * - output report 4 sets the LED; feature reports are stored and read back per report ID (the open
  *   controller's 0x20 is read-only and 0x21/0x22 refuse values out of range, as its spec says).
  * No allocation; a simdev is a plain value. */
@@ -21,30 +26,39 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "devtab.h"
+
 typedef enum simdev_format { SIMDEV_SPLIT, SIMDEV_COMBINED } simdev_format;
 
-/* A device the simulator can impersonate. */
+/* A device the simulator can impersonate: one per hardware row of the device table (devtab.h),
+ * derived from the row; only the cadence, the short name and the report descriptor are the
+ * simulator's own data. */
 typedef struct sim_profile {
     const char *id;     /* short name for --as: "spacenavigator", "spacemouse-wireless", ... */
     uint16_t vid, pid;
-    const char *name;   /* the product name the kernel reports (HIDIOCGRAWNAME) */
+    const char *name;   /* the name the kernel reports (HIDIOCGRAWNAME): the table name, or USB
+                           manufacturer + " " + product where a spec gives the strings */
+    const char *serial; /* default serial number (HIDIOCGRAWUNIQ), "FNSIM" + VID + PID */
     simdev_format format;
     int period_us;      /* report cadence */
-    int nbuttons;       /* valid bits in the ID3 bitmask */
+    int nbuttons;       /* bits in the ID3 bitmask up to the highest real button */
     int keycodes;       /* also sends report 0x1C (up to 6 uint16 key codes) on button changes */
     int battery;        /* sends battery report 0x17 once after connecting (wireless, open) */
     int open;           /* the open controller (firmware-spec/open-controller.md): its exact
                            descriptor, 1-byte button report, feature reports 0x20-0x22 */
+    const devtab_row *row; /* the device-table row it impersonates */
 } sim_profile;
 
 #define SIMDEV_ZERO_REPEATS 3
+#define SIMDEV_SERIAL_MAX 33 /* 32 characters, as the open controller's spec allows */
 #define SIMDEV_FEATURE_IDS 48
 #define SIMDEV_FEATURE_LEN 16
 #define SIMDEV_BUS_USB 0x03
 
-/* The profiles, in a fixed order; NULL past the end. */
+/* The profiles, in device-table order; NULL past the end. Thread-safe. */
 const sim_profile *sim_profile_at(size_t i);
-/* By id ("spacenavigator") or "vid:pid" in hex ("046d:c626"); NULL (and fn_err set) if unknown. */
+/* By name ("spacenavigator", "spacepilot", see fracnav-sim list) or "vid:pid" in hex ("046d:c626");
+ * NULL (and fn_err set) if unknown. */
 const sim_profile *sim_profile_find(const char *id);
 /* Writes the profile's HID report descriptor into out (cap >= 256). Returns its length. */
 size_t sim_profile_descriptor(const sim_profile *p, uint8_t *out, size_t cap);
@@ -61,16 +75,30 @@ typedef struct simdev {
     int keycode_pending;  /* Enterprise: 0x1C follows ID3 */
     int battery_pending;  /* report 0x17 goes out first after connecting */
     int led;              /* 0 off, 1 on */
+    /* Settings the generator applies (the open controller's feature reports 0x21/0x22 set them;
+     * other devices keep their defaults): */
+    int period_us;        /* report cadence (0x22 cadence_ms) */
+    int idle_zeros;       /* zero motion reports after release (0x22 idle_zeros) */
+    int led_mode;         /* 1: the LED follows the cap, report 4 is ignored (0x22 led_mode) */
+    int16_t offset[6];    /* subtracted from the deflection before reporting (0x21) */
     uint8_t feature[SIMDEV_FEATURE_IDS][SIMDEV_FEATURE_LEN];
     uint8_t feature_len[SIMDEV_FEATURE_IDS];
 } simdev;
 
 void simdev_init(simdev *d, const sim_profile *p);
-/* Sets the deflection (clamped to +-350) and buttons from now on. */
+/* Power cycle (replug): as simdev_init, but the open controller keeps its zero offsets (0x21 lives
+ * in non-volatile memory; 0x22 settings are volatile). */
+void simdev_replug(simdev *d);
+/* Sets the deflection (clamped to +-350; what the sensor reads, before the offsets) and buttons from
+ * now on. */
 void simdev_set(simdev *d, const int16_t axes[6], uint32_t buttons);
 /* The report the device sends in the current period, written to buf (cap >= 16). Returns its length,
  * or 0 when the device is silent this period. Call once per period. */
 int simdev_next(simdev *d, uint8_t *buf, size_t cap);
+/* The current report period in microseconds (the profile's, or as set by feature report 0x22). */
+int simdev_period_us(const simdev *d);
+/* Copies the settings (cadence, zeros, offsets, LED mode, feature reports) of src into d. */
+void simdev_copy_settings(simdev *d, const simdev *src);
 /* True when the device has nothing more to send until its state changes. */
 int simdev_idle(const simdev *d);
 /* An output report from the host (buf[0] = report ID). Returns len, or FN_EINVAL for an unknown one. */

@@ -14,12 +14,15 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <linux/hidraw.h>
+#include <sys/ioctl.h>
 #include <sys/stat.h>
 #include <sys/wait.h>
 #include <time.h>
 #include <unistd.h>
 
 #include "dev.h"
+#include "devtab.h"
 #include "err.h"
 #include "fnrec.h"
 #include "script.h"
@@ -263,12 +266,19 @@ static void test_end_to_end_spacenavigator(void **st)
                                        "rotate z -15 deg over 0.4 s\n");
 }
 
+/* Every hardware row of the device table, served as --as VID:PID, through the same path. */
 static void test_every_device_format(void **st)
 {
-    const char *devices[] = {"spacemouse-wireless", "spacemouse-enterprise", "open-controller",
-                             "spacemouse-pro"};
-    for (size_t i = 0; i < sizeof devices / sizeof *devices; i++)
-        serve_and_record(devices[i], "press 2\nmove y -4 mm rx 3 deg over 0.2 s\nrelease\nwait 50 ms\n");
+    size_t nrows;
+    const devtab_row *rows = devtab_rows(&nrows);
+    for (size_t i = 0; i < nrows; i++) {
+        if (rows[i].flags & DEVTAB_F_SYNTH)
+            continue;
+        char vidpid[16];
+        snprintf(vidpid, sizeof vidpid, "%04x:%04x", rows[i].vid, rows[i].pid);
+        serve_and_record(vidpid, "press 2\nmove y -4 mm rx 3 deg over 0.1 s\nrelease\nwait 20 ms\n");
+    }
+    serve_and_record("spacemouse-enterprise", "press 2\nmove y -4 mm over 0.1 s\nrelease\n");
 }
 
 static pid_t record_in_background(const char *rec, double seconds, const char *log)
@@ -350,11 +360,89 @@ static void test_unplug_replug_on_signal(void **st)
     fnrec_free(r);
 }
 
+/* A wireless device replugged by SIGUSR1 or by a control line sends its battery report 0x17 again
+ * after enumeration (firmware-spec 7), as a scripted replug does. */
+static void test_live_replug_sends_battery(void **st)
+{
+    const char *scr = write_script("long.script", "translate +z 30 mm over 3 s\n");
+    const char *fifo = path_in("control"), *rec = path_in("rec.fnrec"), *log = path_in("record.log");
+    pid_t srv = start_server("--as", "spacemouse-wireless", "--script", scr, "--start-on-read",
+                             "--control", fifo, NULL);
+    pid_t recp = record_in_background(rec, 2.4, log);
+    msleep(400);
+    kill(srv, SIGUSR1);
+    msleep(300);
+    kill(srv, SIGUSR1);
+    msleep(500);
+    FILE *f = fopen(fifo, "w");
+    assert_non_null(f);
+    fputs("unplug\n", f);
+    fflush(f);
+    msleep(300);
+    fputs("replug\n", f);
+    fclose(f);
+    int status = reap(recp, 10000);
+    stop_server(srv);
+    assert_true(WIFEXITED(status) && WEXITSTATUS(status) == 0);
+    fnrec *r = fnrec_load(rec);
+    assert_non_null(r);
+    assert_int_equal(count_dir(r, FNREC_CONNECT, 0), 3);
+    /* After every connect, the first report is the battery's. */
+    for (size_t i = 0; i < r->n; i++) {
+        if (r->ev[i].dir != FNREC_CONNECT)
+            continue;
+        size_t k = i + 1;
+        while (k < r->n && r->ev[k].dir != FNREC_IN)
+            k++;
+        if (k == r->n || r->ev[k].data[0] != 0x17 || r->ev[k].data[1] != 100)
+            fail_msg("connect at event %zu: no battery report first (see %s)", i, rec);
+    }
+    fnrec_free(r);
+}
+
+/* A string ioctl on the node, as hidraw answers it. */
+static const char *raw_string(const char *node, unsigned long req)
+{
+    static char s[64];
+    memset(s, 0, sizeof s);
+    int fd = open(node, O_RDONLY | O_NONBLOCK);
+    assert_true(fd >= 0);
+    if (ioctl(fd, req, s) < 0)
+        fail_msg("ioctl on %s: %s", node, strerror(errno));
+    close(fd);
+    return s;
+}
+
+/* Without --serial the node serves a stable default of the spec's length (8-32 characters), and
+ * HIDIOCGRAWNAME is what usbhid makes of the device's strings. */
+static void test_serial_and_name(void **st)
+{
+    char node[600];
+    snprintf(node, sizeof node, "%s/hidraw0", mnt);
+    pid_t srv = start_server("--as", "1209:0001", NULL);
+    const char *sn = raw_string(node, HIDIOCGRAWUNIQ(64));
+    assert_string_equal(sn, "FNSIM12090001");
+    assert_string_equal(raw_string(node, HIDIOCGRAWNAME(64)), "fracnav fracnav open 6-DOF controller");
+    stop_server(srv);
+    srv = start_server("--as", "spacepilot", NULL);
+    assert_string_equal(raw_string(node, HIDIOCGRAWNAME(64)), "3Dconnexion SpacePilot");
+    stop_server(srv);
+    char cmd[1200];
+    snprintf(cmd, sizeof cmd, "'%s' serve --mount '%s' --serial 'a b' 2>&1", sim_bin(), mnt);
+    FILE *p = popen(cmd, "r");
+    char line[256] = "";
+    if (!fgets(line, sizeof line, p))
+        line[0] = '\0';
+    assert_int_equal(WEXITSTATUS(pclose(p)), 2);
+    assert_non_null(strstr(line, "--serial 'a b'"));
+}
+
 /* Through the real hidapi: identity, read timeouts, LED output and feature reports. */
 static void test_hidapi_led_feature_timeout(void **st)
 {
     const char *served = path_in("served.fnrec");
-    pid_t srv = start_server("--as", "open-controller", "--start-on-read", "--log", served, NULL);
+    pid_t srv = start_server("--as", "open-controller", "--start-on-read", "--log", served, "--serial",
+                             "OC-12345678", NULL);
     const dev_transport *t = dev_transport_find("hidraw");
     assert_non_null(t);
     char node[600];
@@ -366,7 +454,9 @@ static void test_hidapi_led_feature_timeout(void **st)
     assert_int_equal(t->info(h, &info), 0);
     assert_int_equal(info.vid, 0x1209);
     assert_int_equal(info.pid, 0x0001);
-    assert_string_equal(info.name, "fracnav open 6-DOF controller");
+    /* usbhid's name: manufacturer + " " + product of the spec's string descriptors. */
+    assert_string_equal(info.name, "fracnav fracnav open 6-DOF controller");
+    assert_string_equal(raw_string(node, HIDIOCGRAWUNIQ(64)), "OC-12345678");
     uint8_t want[DEV_DESC_MAX];
     size_t wn = sim_profile_descriptor(sim_profile_find("open-controller"), want, sizeof want);
     assert_int_equal(info.desc_len, wn);
@@ -394,8 +484,69 @@ static void test_hidapi_led_feature_timeout(void **st)
     stop_server(srv);
     char *log = tu_slurp(served, NULL);
     assert_non_null(strstr(log, " out 0401\n"));
-    assert_non_null(strstr(log, " feature 2105"));
+    assert_non_null(strstr(log, " feature 2105"));          /* a set */
+    assert_non_null(strstr(log, " feature 20010100085e01\n")); /* a get, as the device answered */
     free(log);
+}
+
+/* The open controller's settings, set through hidapi before the script starts, shape what is served:
+ * 0x22 cadence 20 ms and one zero report, 0x21 an offset of +10 on x. A control line played after
+ * 0x22 is set back to 8 ms follows that too. */
+static void test_open_controller_settings_applied(void **st)
+{
+    const char *scr = write_script("x.script", "translate +x 4 mm over 0.3 s\n");
+    const char *fifo = path_in("control");
+    pid_t srv = start_server("--as", "open-controller", "--script", scr, "--start-on-read", "--control",
+                             fifo, NULL);
+    const dev_transport *t = dev_transport_find("hidraw");
+    char node[600];
+    snprintf(node, sizeof node, "%s/hidraw0", mnt);
+    dev_handle *h;
+    if (t->open(node, &h))
+        fail_msg("%s", fn_err_msg());
+    assert_int_equal(t->set_feature(h, (const uint8_t[]){0x22, 20, 1, 0}, 4), 4);
+    uint8_t off[13] = {0x21, 10, 0};
+    assert_int_equal(t->set_feature(h, off, sizeof off), 13);
+    uint8_t buf[64];
+    int64_t tr, first = -1, last = 0;
+    int n, motion = 0, zeros = 0;
+    while ((n = t->read(h, buf, sizeof buf, 300, &tr)) > 0) {
+        if (buf[0] != 1)
+            continue;
+        int16_t x = (int16_t)(buf[1] | buf[2] << 8);
+        if (x == 0) {
+            zeros++;
+            continue;
+        }
+        /* 4 mm / 0.3 s = 13.3 mm/s = 93.3 counts, less the offset */
+        if (x < 83 || x > 84)
+            fail_msg("motion report x = %d, want 83..84 (93.3 counts - offset 10)", x);
+        first = first < 0 ? tr : first;
+        last = tr;
+        motion++;
+    }
+    assert_int_equal(zeros, 1);
+    assert_int_equal(motion, 300 / 20 - 1 - 1); /* periods inside the move, the first one the battery's */
+    int64_t mean = (last - first) / (motion - 1); /* 20 ms, not the default 8 ms */
+    if (mean < 15000 || mean > 40000)
+        fail_msg("mean interval %lld us at cadence 20 ms", (long long)mean);
+    assert_int_equal(t->set_feature(h, (const uint8_t[]){0x22, 8, 2, 0}, 4), 4);
+    FILE *f = fopen(fifo, "w");
+    assert_non_null(f);
+    fputs("translate -y 2 mm over 0.16 s\n", f);
+    fclose(f);
+    motion = zeros = 0;
+    while ((n = t->read(h, buf, sizeof buf, 300, &tr)) > 0)
+        if (buf[0] == 1) {
+            int16_t y = (int16_t)(buf[3] | buf[4] << 8), x = (int16_t)(buf[1] | buf[2] << 8);
+            zeros += y == 0;
+            motion += y != 0;
+            assert_true(y == 0 ? x == 0 : x == -10); /* the offset, while deflected */
+        }
+    assert_int_equal(motion, 160 / 8 - 1);
+    assert_int_equal(zeros, 2);
+    t->close(h);
+    stop_server(srv);
 }
 
 /* A recording played through FUSE (--play) is recorded back unchanged; --fast plays it as fast as
@@ -457,6 +608,81 @@ static void test_control_fifo(void **st)
     assert_int_equal(stage, 2);
     assert_true(motion >= 10);
     fnrec_free(r);
+}
+
+/* Runs fracnav-sim ARGS (a shell fragment); returns its exit status, its output in *out (free). */
+static int sim_cli(char **out, const char *fmt, ...)
+{
+    char args[1500], cmd[2800];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(args, sizeof args, fmt, ap);
+    va_end(ap);
+    snprintf(cmd, sizeof cmd, "'%s' %s 2>&1", sim_bin(), args);
+    FILE *p = popen(cmd, "r");
+    size_t n = 0, cap = 8192;
+    *out = calloc(1, cap);
+    while (n + 1 < cap && fgets(*out + n, (int)(cap - n), p))
+        n = strlen(*out);
+    return WEXITSTATUS(pclose(p));
+}
+
+/* Options that do not apply to a command are usage errors naming them; --as with --play is a
+ * warning (the recording's identity is served); a missing mount point is named as missing. */
+static void test_sim_cli_option_checks(void **st)
+{
+    char *out;
+    assert_int_equal(sim_cli(&out, "serve --mount '%s' -o x.fnrec", mnt), 2);
+    assert_non_null(strstr(out, "option '-o' does not apply to serve"));
+    free(out);
+    assert_int_equal(sim_cli(&out, "serve --mount '%s' --seconds 3", mnt), 2);
+    assert_non_null(strstr(out, "option '--seconds' does not apply to serve"));
+    free(out);
+    assert_int_equal(sim_cli(&out, "render --script x --log y -o z"), 2);
+    assert_non_null(strstr(out, "option '--log' does not apply to render"));
+    free(out);
+    assert_int_equal(sim_cli(&out, "bench --fast"), 2);
+    assert_non_null(strstr(out, "option '--fast' does not apply to bench"));
+    free(out);
+    fnrec *r = rendered(write_script("s.script", "press 1\n"), "spacemouse-wireless");
+    const char *file = path_in("w.fnrec");
+    assert_int_equal(fnrec_save(r, file), 0);
+    fnrec_free(r);
+    assert_int_equal(sim_cli(&out, "serve --mount '%s/nowhere' --as spacenavigator --play '%s'", mnt,
+                             file), 1);
+    assert_non_null(strstr(out, "warning: --as spacenavigator ignored"));
+    assert_non_null(strstr(out, "256f:c62e"));
+    assert_non_null(strstr(out, "nowhere does not exist"));
+    free(out);
+    assert_int_equal(sim_cli(&out, "serve --mount '%s'", file), 1);
+    assert_non_null(strstr(out, "is not a directory"));
+    free(out);
+}
+
+/* Without root or FUSE permission, serve says what it needs and exits 1 (as the user nobody). */
+static void test_serve_unprivileged(void **st)
+{
+    struct stat fs;
+    if (geteuid() != 0 || access("/usr/bin/setpriv", X_OK) || stat("/dev/fuse", &fs)) {
+        print_message("skipped: needs root and setpriv to run as nobody\n");
+        skip();
+    }
+    if (fs.st_mode & S_IROTH && fs.st_mode & S_IWOTH) {
+        print_message("skipped: /dev/fuse is open to every user here, so nobody may serve\n");
+        skip();
+    }
+    assert_int_equal(chmod(workdir, 0755), 0);
+    assert_int_equal(chmod(mnt, 0777), 0);
+    char cmd[1500];
+    snprintf(cmd, sizeof cmd, "setpriv --reuid=nobody --regid=nogroup --clear-groups '%s' serve "
+                              "--mount '%s' 2>&1", sim_bin(), mnt);
+    FILE *p = popen(cmd, "r");
+    char text[1024] = "";
+    size_t n = fread(text, 1, sizeof text - 1, p);
+    text[n] = '\0';
+    assert_int_equal(WEXITSTATUS(pclose(p)), 1);
+    if (!strstr(text, "/dev/fuse") || !strstr(text, "run as root"))
+        fail_msg("unprivileged serve said: %s", text);
 }
 
 static void test_cli_usage_and_errors(void **st)
@@ -536,9 +762,14 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_server_killed_then_back, setup, teardown),
         cmocka_unit_test_setup_teardown(test_unplug_replug_on_signal, setup, teardown),
         cmocka_unit_test_setup_teardown(test_hidapi_led_feature_timeout, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_serial_and_name, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_live_replug_sends_battery, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_open_controller_settings_applied, setup, teardown),
         cmocka_unit_test_setup_teardown(test_play_recording, setup, teardown),
         cmocka_unit_test_setup_teardown(test_control_fifo, setup, teardown),
         cmocka_unit_test_setup_teardown(test_cli_usage_and_errors, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_sim_cli_option_checks, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_serve_unprivileged, setup, teardown),
         cmocka_unit_test_setup_teardown(test_navigate_lights_led_while_held, setup, teardown),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

@@ -50,6 +50,8 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
             (e->dir < FNREC_CONNECT) != (e->len > 0))
             abort();
     }
+    if (r->torn_line && !r->torn_why[0])
+        abort(); /* a left-out last line says why */
     check_round_trip(r);
     fnrec_free(r);
     return 0;
