@@ -247,7 +247,7 @@ static int holding(const loopkit_dsource *s, const loop_event *ev)
         deflected |= ev->motion[a] != 0;
     if (!deflected || !s->L)
         return deflected;
-    loop_scene sc;
+    loop_scene sc = {0};
     loop_scene_read(s->L, &sc);
     return !sc.fixed[sc.selected];
 }

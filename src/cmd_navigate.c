@@ -193,7 +193,7 @@ static void ui(loopkit *k, loopkit_dsource *ds, ring *ctl, int keys, double dura
     int tty = isatty(STDOUT_FILENO);
     int64_t t0 = loop_now_us(), last_print = 0;
     unsigned saves_seen = 0;
-    loop_scene sc;
+    loop_scene sc = {0};
     while (!quit && (duration <= 0 || (double)(loop_now_us() - t0) < duration * 1e6)) {
         if (raw)
             read_keys(k->L, ctl);

@@ -40,8 +40,8 @@
  * returns to rest or the selection changes), save request.
  *
  * Threads and memory: loop_new allocates everything; loop_feed, loop_drain and loop_run allocate
- * nothing. One thread steps a loop; renderers read it through loop_scene_read from any thread
- * without ever blocking the stepping thread (a lock-free triple buffer). */
+ * nothing. One thread steps a loop; renderers read it through loop_scene_read from any number of
+ * threads at once without ever blocking the stepping thread (pinned scene buffers, lock-free). */
 #ifndef FN_LOOP_H
 #define FN_LOOP_H
 
@@ -196,8 +196,10 @@ void loop_reset_timing(loop *L);
 
 /* Publishes the current state to the scene buffer (loop_drain/loop_run do it themselves). */
 void loop_publish(loop *L);
-/* Copies the newest published scene. Never blocks the loop; any thread, one reader at a time.
- * Returns 1 when it is newer than the previous read, else 0 (out still holds the newest). */
+/* Copies the newest published scene. Never blocks the loop; any thread, several at once (up to
+ * 6 readers inside it at the same instant never delay a publish; more may make one wait for the
+ * next). Returns 1 when its seq differs from the one out held on entry (zero out before the
+ * first read), else 0; out holds the newest either way. */
 int loop_scene_read(loop *L, loop_scene *out);
 /* One line for a terminal: selected fragment, pose, collision state, rates, latency. */
 void loop_scene_format(const loop_scene *s, char *buf, size_t cap);

@@ -7,6 +7,7 @@
 #include <semaphore.h>
 
 #define LOOP_UNDO_MAX 256
+#define LOOP_SCENE_BUFS 8
 #define LOOP_HIST_BINS 10000 /* 1 us bins; later latencies land in the overflow count */
 
 typedef struct loop_undo {
@@ -52,10 +53,12 @@ struct loop {
     int64_t win_start_us, pct_at_us;
     uint64_t win_steps, win_ticks;
 
-    /* triple buffer: the writer fills buf[back], then swaps it with `middle` (bit 4: fresh). */
-    loop_scene buf[3];
-    atomic_int middle;
-    int back, front;
+    /* Scene buffers for any number of readers: `latest` names the newest; a reader pins a buffer
+     * (refs) before copying it, and the writer only fills a buffer that is neither the newest nor
+     * pinned. With LOOP_SCENE_BUFS - 2 readers at once the writer always finds one. */
+    loop_scene buf[LOOP_SCENE_BUFS];
+    atomic_int refs[LOOP_SCENE_BUFS];
+    atomic_int latest;
     uint64_t pub_seq;
     sem_t wake;          /* loop_notify -> loop_run */
     atomic_ullong done; /* events finished, for other threads */

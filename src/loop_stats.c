@@ -13,7 +13,6 @@
 #include <semaphore.h>
 #include <time.h>
 
-#define FRESH 4
 #define FNV_OFFSET 0xcbf29ce484222325ull
 #define FNV_PRIME 0x100000001b3ull
 
@@ -32,9 +31,9 @@ int64_t loop_now_us(void)
 void loop_stats_init(loop *L)
 {
     L->st.pose_digest = FNV_OFFSET;
-    L->front = 0;
-    L->back = 2;
-    atomic_init(&L->middle, 1);
+    for (int b = 0; b < LOOP_SCENE_BUFS; b++)
+        atomic_init(&L->refs[b], 0);
+    atomic_init(&L->latest, 0);
     sem_init(&L->wake, 0, 0);
     atomic_init(&L->done, 0);
     loop_reset_timing(L);
@@ -141,12 +140,27 @@ void loop_get_stats(loop *L, loop_stats *out)
     *out = L->st;
 }
 
+/* A buffer no reader holds and that is not the newest; -1 when readers hold them all. */
+static int free_buffer(loop *L)
+{
+    int newest = atomic_load(&L->latest);
+    for (int k = 1; k < LOOP_SCENE_BUFS; k++) {
+        int b = (newest + k) % LOOP_SCENE_BUFS;
+        if (atomic_load(&L->refs[b]) == 0)
+            return b;
+    }
+    return -1;
+}
+
 void loop_publish(loop *L)
 {
     int64_t now = loop_now_us();
     if (now - L->pct_at_us >= 100000) /* percentiles cost a histogram walk: 10 Hz is plenty */
         refresh_rates(L, now);
-    loop_scene *s = &L->buf[L->back];
+    int b = free_buffer(L);
+    if (b < 0)
+        return; /* never wait for readers: the next publish carries this state too */
+    loop_scene *s = &L->buf[b];
     s->seq = ++L->pub_seq;
     s->nfrag = L->n;
     s->selected = L->selected;
@@ -161,18 +175,25 @@ void loop_publish(loop *L)
     s->stats = L->st;
     memcpy(s->pose, L->pose, sizeof(pose) * (size_t)L->n);
     memcpy(s->fixed, L->fixed, (size_t)L->n);
-    L->back = atomic_exchange(&L->middle, L->back | FRESH) & 3;
+    atomic_store(&L->latest, b);
 }
 
+/* Pins the newest buffer: after the pin it must still be the newest, else the writer may have
+ * picked it for filling (it was not pinned when the writer looked) and the reader tries again. */
 int loop_scene_read(loop *L, loop_scene *out)
 {
-    int fresh = 0;
-    if (atomic_load(&L->middle) & FRESH) {
-        L->front = atomic_exchange(&L->middle, L->front) & 3;
-        fresh = 1;
+    uint64_t had = out->seq;
+    for (;;) {
+        int b = atomic_load(&L->latest);
+        atomic_fetch_add(&L->refs[b], 1);
+        if (atomic_load(&L->latest) == b) {
+            *out = L->buf[b];
+            atomic_fetch_sub(&L->refs[b], 1);
+            break;
+        }
+        atomic_fetch_sub(&L->refs[b], 1);
     }
-    *out = L->buf[L->front];
-    return fresh;
+    return out->seq != had;
 }
 
 void loop_scene_format(const loop_scene *s, char *buf, size_t cap)
