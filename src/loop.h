@@ -201,7 +201,9 @@ void loop_publish(loop *L);
  * next). Returns 1 when its seq differs from the one out held on entry (zero out before the
  * first read), else 0; out holds the newest either way. */
 int loop_scene_read(loop *L, loop_scene *out);
-/* One line for a terminal: selected fragment, pose, collision state, rates, latency. */
+/* One line for a terminal: warnings first (collision checking off, device unplugged, journal
+ * write failed: within the first 80 columns), then the selected fragment, pose, collision state,
+ * rates, latency. */
 void loop_scene_format(const loop_scene *s, char *buf, size_t cap);
 
 /* Asks the OS to run the calling thread (the one that will call loop_run) under SCHED_FIFO at a

@@ -196,6 +196,20 @@ int loop_scene_read(loop *L, loop_scene *out)
     return out->seq != had;
 }
 
+/* "WARNING: A | B | " for the warnings that hold, or "". All of them fit in 80 columns. */
+static void warnings(const loop_scene *s, char *buf, size_t cap)
+{
+    const char *w[] = {s->collision_on ? NULL : "COLLISION CHECKING OFF",
+                       s->device_present ? NULL : "DEVICE UNPLUGGED",
+                       s->stats.journal_errors ? "JOURNAL WRITE FAILED" : NULL};
+    size_t len = 0;
+    buf[0] = '\0';
+    for (size_t i = 0; i < sizeof w / sizeof w[0]; i++)
+        if (w[i] && len < cap)
+            len += (size_t)snprintf(buf + len, cap - len, "%s%s | ", len ? "" : "WARNING: ", w[i]);
+}
+
+/* Warnings first: a terminal narrower than the line cuts its end, never a warning. */
 void loop_scene_format(const loop_scene *s, char *buf, size_t cap)
 {
     static const char *outcome[] = {"idle", "free", "limited", "sliding", "refused"};
@@ -206,20 +220,20 @@ void loop_scene_format(const loop_scene *s, char *buf, size_t cap)
         snprintf(sep, sizeof sep, "far");
     else
         snprintf(sep, sizeof sep, "%.2f mm", s->separation_mm);
+    char warn[96];
+    warnings(s, warn, sizeof warn);
     snprintf(buf, cap,
-             "frag %d/%d%s | q %.4f %.4f %.4f %.4f t %.2f %.2f %.2f mm | %s, gap %s%s | %s%s%s"
+             "%sfrag %d/%d%s | q %.4f %.4f %.4f %.4f t %.2f %.2f %.2f mm | %s, gap %s | %s%s%s"
              " | %.0f steps/s %.0f ticks/s | latency p50 %.0f p99 %.0f max %.0f us | query %.0f us"
-             " | %llu free %llu limited %llu slid %llu refused%s%s",
-             s->selected + 1, s->nfrag, s->fixed[s->selected] ? " (fixed)" : "", p->q[0], p->q[1],
+             " | %llu free %llu limited %llu slid %llu refused",
+             warn, s->selected + 1, s->nfrag, s->fixed[s->selected] ? " (fixed)" : "", p->q[0], p->q[1],
              p->q[2], p->q[3], p->t[0], p->t[1], p->t[2], outcome[s->last_outcome], sep,
-             s->collision_on ? "" : " | WARNING: COLLISION CHECKING OFF", frame[s->frame],
-             s->trans_only ? ", translation only" : "", s->rot_only ? ", rotation only" : "",
-             s->stats.step_hz, s->stats.tick_hz, s->stats.latency_p50_us, s->stats.latency_p99_us,
-             s->stats.latency_max_us, s->stats.query_us_mean, (unsigned long long)s->stats.accepted,
+             frame[s->frame], s->trans_only ? ", translation only" : "",
+             s->rot_only ? ", rotation only" : "", s->stats.step_hz, s->stats.tick_hz,
+             s->stats.latency_p50_us, s->stats.latency_p99_us, s->stats.latency_max_us,
+             s->stats.query_us_mean, (unsigned long long)s->stats.accepted,
              (unsigned long long)s->stats.limited, (unsigned long long)s->stats.slid,
-             (unsigned long long)s->stats.refused,
-             s->device_present ? "" : " | DEVICE UNPLUGGED (pose kept)",
-             s->stats.journal_errors ? " | WARNING: JOURNAL WRITE FAILED" : "");
+             (unsigned long long)s->stats.refused);
 }
 
 void loop_set_controls(loop *L, ring *ctl)
