@@ -14,7 +14,9 @@ static void usage(FILE *out)
             "usage: fracnav replay CASE FILE.fnrec [--realtime] [--json] [options]\n\n"
             "Play a recording of a 6-DOF controller through the navigation loop on CASE: every report\n"
             "is parsed, calibrated and stepped (collision-checked against every other fragment), and\n"
-            "every accepted pose is appended to CASE/journal. Stepping uses only the recorded\n"
+            "every accepted pose is appended to CASE/journal (kept if the run is killed, for\n"
+            "--recover; emptied when it finishes, unless it continued from the journal with\n"
+            "--recover and did not --save). Stepping uses only the recorded\n"
             "timestamps, so the same case and recording give the same poses and pose_digest on every\n"
             "run and machine. Prints a summary (JSON with --json): steps, accepted, limited, slid,\n"
             "refused, collisions_in_accepted (always 0), latency, final_poses, pose_digest.\n\n"
@@ -168,6 +170,8 @@ int cmd_replay(int argc, char **argv)
         rc = journal_sync(k.jr);
     if (rc == 0 && o.save)
         rc = loopkit_save(&k);
+    else if (rc == 0 && k.jr && !k.resumed)
+        rc = journal_truncate(k.jr); /* finished: the poses are in the summary, the case unchanged */
     if (rc < 0) {
         fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
     } else if (o.json) {

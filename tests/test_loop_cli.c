@@ -157,6 +157,20 @@ static void test_replay_head_on_deterministic(void **st)
     json_decref(c);
 }
 
+/* Replayed twice with the journal on (the default): a run that finished leaves no unsaved poses
+ * behind, so the second run starts as the first did and gives the same digest. */
+static void test_replay_twice_with_journal(void **st)
+{
+    const char *rec = recording("twice", "translate -x 4 mm over 0.2 s\n");
+    json_t *a = replay(rec, "", 0), *b = replay(rec, "", 0);
+    assert_true(num(a, "accepted") + num(a, "limited") > 0);
+    assert_string_equal(json_string_value(json_object_get(a, "pose_digest")),
+                        json_string_value(json_object_get(b, "pose_digest")));
+    assert_int_equal(journal_count_on_disk(), 0);
+    json_decref(a);
+    json_decref(b);
+}
+
 /* At a grazing angle B slides along A's face (world -y) instead of freezing at the contact. */
 static void test_replay_grazing_slides(void **st)
 {
@@ -295,6 +309,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_replay_help_and_usage),
         cmocka_unit_test(test_replay_head_on_deterministic),
+        cmocka_unit_test(test_replay_twice_with_journal),
         cmocka_unit_test(test_replay_grazing_slides),
         cmocka_unit_test(test_replay_unplug_keeps_pose),
         cmocka_unit_test(test_crash_recovery),
