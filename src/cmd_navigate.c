@@ -10,6 +10,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/ioctl.h>
+#include <sys/stat.h>
 #include <termios.h>
 #include <time.h>
 #include <unistd.h>
@@ -29,6 +30,7 @@ static void usage(FILE *out)
             "                      virtual:spacenavigator:script=FILE)\n"
             "  --recover           start from the poses the journal holds beyond case.json\n"
             "  --discard-journal   start from case.json, emptying the journal\n"
+            "                      (with neither, navigate asks on stdin before opening the device)\n"
             "  --config FILE       calibration in spnavrc syntax (default ~/.config/fracnav/spnavrc)\n"
             "  --frame F           camera (default), world or fragment\n"
             "  --duration S        stop after S seconds (scripts, tests)\n"
@@ -98,18 +100,32 @@ static int parse(int argc, char **argv, opts *o)
     return 0;
 }
 
-/* An unsaved journal on a terminal: ask. Elsewhere loopkit_open explains the two flags. */
-static void offer_recovery(opts *o, int keys_free)
+/* Whether stdin can answer a question: a terminal, a pipe or a file (not /dev/null). */
+static int can_ask(void)
+{
+    struct stat st;
+    return isatty(STDIN_FILENO) ||
+           (fstat(STDIN_FILENO, &st) == 0 && (S_ISFIFO(st.st_mode) || S_ISREG(st.st_mode)));
+}
+
+/* An unsaved journal: ask on stdin, before any device takes the terminal (the keyboard device
+ * puts it in raw mode). No answer: loopkit_open explains the two flags. The line is read byte by
+ * byte so that no key meant for the keyboard device is swallowed by stdio's buffer. */
+static void offer_recovery(opts *o)
 {
     size_t n = loopkit_journal_pending(o->dir);
-    if (!n || (o->flags & (LOOPKIT_RESUME | LOOPKIT_DISCARD)) || !keys_free || !isatty(STDIN_FILENO))
+    if (!n || (o->flags & (LOOPKIT_RESUME | LOOPKIT_DISCARD)) || !can_ask())
         return;
     fprintf(stderr, "%s/journal holds %zu poses not saved in the case (an interrupted session).\n"
                     "Recover them? [Y/n] ", o->dir, n);
-    char line[16] = "";
-    if (!fgets(line, sizeof line, stdin))
+    char first = 0, ch;
+    ssize_t got;
+    while ((got = read(STDIN_FILENO, &ch, 1)) == 1 && ch != '\n')
+        if (!first)
+            first = ch;
+    if (got != 1 && !first)
         return;
-    o->flags |= (line[0] == 'n' || line[0] == 'N') ? LOOPKIT_DISCARD : LOOPKIT_RESUME;
+    o->flags |= (first == 'n' || first == 'N') ? LOOPKIT_DISCARD : LOOPKIT_RESUME;
 }
 
 static loop_action key_action(int ch)
@@ -276,13 +292,13 @@ int cmd_navigate(int argc, char **argv)
         return 1;
     }
     fputs(diag, stderr);
+    offer_recovery(&o);
     ds.d = dev_open(o.device);
     if (!ds.d) {
         fprintf(stderr, "fracnav navigate: %s\n", fn_err_msg());
         return 1;
     }
     int keys = strcmp(dev_transport_name(ds.d), "keyboard") != 0;
-    offer_recovery(&o, keys);
     loop_config cfg;
     loop_config_default(&cfg);
     cfg.frame = o.frame;

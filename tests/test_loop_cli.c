@@ -304,6 +304,64 @@ static void test_navigate_saves_on_exit(void **st)
     assert_int_equal(rc, 0);
 }
 
+/* Writes one journal record that puts fragment B (index 1) at p: an interrupted session. */
+static void interrupted_at(pose p)
+{
+    journal *jr = journal_open(case_dir);
+    assert_non_null(jr);
+    assert_int_equal(journal_append(jr, JOURNAL_START, 1, 0, &p, 0), 0);
+    assert_int_equal(journal_close(jr), 0);
+}
+
+/* navigate through the keyboard device (keys from an empty file), answering the recovery question
+ * on stdin; returns its JSON summary. */
+static json_t *navigate_answering(const char *answer)
+{
+    char keys[4300], ans[4300];
+    snprintf(keys, sizeof keys, "%s/nokeys", dir);
+    snprintf(ans, sizeof ans, "%s/answer", dir);
+    tu_write_file(keys, "", 0);
+    tu_write_file(ans, answer, strlen(answer));
+    char *out = NULL;
+    int rc = tu_run_cli(&out, "navigate '%s' --device 'keyboard:%s' --duration 0.3 --json < '%s'",
+                        case_dir, keys, ans);
+    if (rc != 0)
+        fprintf(stderr, "%s\n", out);
+    assert_int_equal(rc, 0);
+    assert_non_null(strstr(out, "Recover them?"));
+    json_t *j = json_loads(strchr(out, '{'), JSON_DISABLE_EOF_CHECK, NULL);
+    assert_non_null(j);
+    free(out);
+    return j;
+}
+
+/* With the keyboard as the device (what `auto` picks without a controller) navigate still asks
+ * about an interrupted session: "n" starts from case.json, "y" from the journal's poses. */
+static void test_navigate_keyboard_offers_recovery(void **st)
+{
+    pose moved = POSE_IDENTITY;
+    moved.t[2] = 7.25;
+    interrupted_at(moved);
+    json_t *j = navigate_answering("n\n");
+    assert_true(num(j, "resumed_from_journal") == 0);
+    pose home;
+    json_t *b = json_array_get(json_object_get(j, "final_poses"), 1);
+    for (int a = 0; a < 4; a++)
+        home.q[a] = json_number_value(json_array_get(json_object_get(b, "q"), (size_t)a));
+    for (int a = 0; a < 3; a++)
+        home.t[a] = moved_t(j, a);
+    assert_true(home.t[2] != 7.25);
+    assert_int_equal(journal_count_on_disk(), 0);
+    json_decref(j);
+    interrupted_at(moved);
+    j = navigate_answering("y\n");
+    assert_true(num(j, "resumed_from_journal") == 1);
+    assert_true(moved_t(j, 2) == 7.25);
+    json_decref(j);
+    interrupted_at(home); /* back to where it was, for the other tests */
+    json_decref(navigate_answering("Y\n"));
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -314,6 +372,7 @@ int main(void)
         cmocka_unit_test(test_replay_unplug_keeps_pose),
         cmocka_unit_test(test_crash_recovery),
         cmocka_unit_test(test_navigate_saves_on_exit),
+        cmocka_unit_test(test_navigate_keyboard_offers_recovery),
     };
     return cmocka_run_group_tests(tests, setup, teardown);
 }
