@@ -3,13 +3,17 @@
  * device-table row:
  *   a/d or arrows left/right  -x/+x    w/s or arrows up/down  -y/+y (away/towards you)
  *   r/f  -z/+z (up/down)   i/k -rx/+rx   j/l -rz/+rz   u/o -ry/+ry
- *   1-8  buttons 0-7 (tap)      space or x: stop all motion
+ *   1-8  buttons 0-7 (tap)      9  button 9 (save)   0 or m  button 10 (frame)
+ *   space or x: stop all motion   q  quit (as Ctrl-C: raises SIGINT)
  *   mouse: left drag rotates (rz, rx), middle drag rolls (ry), right drag moves (x, y), wheel z
- * A terminal has no key-up: a key holds its axis for KEY_HOLD_MS, and auto-repeat keeps it held.
+ * The row has 8 buttons, so 9 and 0 are sent as the SpaceMouse Enterprise's key codes for its
+ * buttons 9 and 10 (report 0x1C, firmware-spec/3dconnexion.md), which the application maps to
+ * those buttons. A terminal has no key-up: a key holds its axis for KEY_HOLD_MS, and auto-repeat keeps it held.
  * "keyboard:FILE" reads the same bytes from FILE instead of the terminal (scripts, tests). */
 #include <errno.h>
 #include <fcntl.h>
 #include <poll.h>
+#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -26,7 +30,11 @@
 #define MOUSE_GAIN 70  /* per terminal cell dragged */
 #define ESC_MAX 24
 
-enum { PENDING_MOTION = 1, PENDING_BUTTONS = 2 };
+#define KEYS_REPORT 0x1C /* Enterprise key codes */
+#define KEYCODE_BUTTON9 21
+#define KEYCODE_BUTTON10 22
+
+enum { PENDING_MOTION = 1, PENDING_BUTTONS = 2, PENDING_KEYS = 4 };
 
 static const char MOUSE_ON[] = "\033[?1002h\033[?1006h", MOUSE_OFF[] = "\033[?1006l\033[?1002l";
 
@@ -35,6 +43,7 @@ struct dev_handle {
     struct termios saved;
     int v[6];
     uint32_t buttons;
+    uint16_t keycode;   /* a key code held (0 = none) */
     int64_t release_us; /* when held axes and buttons drop back to zero */
     unsigned pending;   /* PENDING_*: reports still to send */
     char esc[ESC_MAX];  /* an escape sequence being read */
@@ -167,13 +176,18 @@ static void apply_key(dev_handle *h, char c, int64_t now)
     } else if (c >= '1' && c <= '8') {
         h->buttons |= 1u << (c - '1');
         h->pending |= PENDING_BUTTONS;
+    } else if (c == '9' || c == '0' || c == 'm') {
+        h->keycode = c == '9' ? KEYCODE_BUTTON9 : KEYCODE_BUTTON10;
+        h->pending |= PENDING_KEYS;
+    } else if (c == 'q') {
+        raise(SIGINT);
     } else if (c == ' ' || c == 'x') {
         memset(h->v, 0, sizeof h->v);
         h->pending |= PENDING_MOTION;
     }
 }
 
-/* Sends what changed, one report per call: motion first, then buttons. */
+/* Sends what changed, one report per call: motion first, then buttons, then key codes. */
 static int next_report(dev_handle *h, uint8_t *buf)
 {
     if (h->pending & PENDING_MOTION) {
@@ -184,12 +198,19 @@ static int next_report(dev_handle *h, uint8_t *buf)
         h->pending &= ~PENDING_BUTTONS;
         return (int)devparse_make_buttons(buf, h->buttons);
     }
+    if (h->pending & PENDING_KEYS) {
+        h->pending &= ~PENDING_KEYS;
+        buf[0] = KEYS_REPORT;
+        buf[1] = (uint8_t)(h->keycode & 0xff);
+        buf[2] = (uint8_t)(h->keycode >> 8);
+        return 3;
+    }
     return 0;
 }
 
 static int held(const dev_handle *h)
 {
-    return h->buttons || h->v[0] || h->v[1] || h->v[2] || h->v[3] || h->v[4] || h->v[5];
+    return h->buttons || h->keycode || h->v[0] || h->v[1] || h->v[2] || h->v[3] || h->v[4] || h->v[5];
 }
 
 static int kb_read(dev_handle *h, uint8_t *buf, size_t cap, int timeout_ms, int64_t *t_us)
@@ -212,8 +233,9 @@ static int kb_read(dev_handle *h, uint8_t *buf, size_t cap, int timeout_ms, int6
     for (ssize_t i = 0; i < n; i++)
         apply_key(h, keys[i], *t_us);
     if (n <= 0 && held(h) && *t_us >= h->release_us) {
-        h->pending = (h->buttons ? PENDING_BUTTONS : 0) | PENDING_MOTION;
+        h->pending = (h->buttons ? PENDING_BUTTONS : 0) | (h->keycode ? PENDING_KEYS : 0) | PENDING_MOTION;
         h->buttons = 0;
+        h->keycode = 0;
         memset(h->v, 0, sizeof h->v);
     }
     return next_report(h, buf);
@@ -223,7 +245,7 @@ static int kb_info(dev_handle *h, dev_info *out)
 {
     memset(out, 0, sizeof *out);
     strcpy(out->path, "keyboard");
-    strcpy(out->name, "keyboard+mouse fallback (a/d w/s r/f, i/k j/l u/o, 1-8, mouse drag)");
+    strcpy(out->name, "keyboard+mouse fallback (a/d w/s r/f, i/k j/l u/o, 0-9, m, q, mouse drag)");
     return 0;
 }
 

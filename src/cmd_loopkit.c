@@ -158,13 +158,24 @@ void loopkit_decoder_init(loopkit_decoder *d, uint16_t vid, uint16_t pid, const 
         calib_default(&d->cal);
 }
 
+/* Buttons that arrive as key codes (report 0x1C): codes 13-22 are buttons 1-10 (the SpaceMouse
+ * Enterprise's; the keyboard device sends its buttons 9 and 10 this way). */
+static uint32_t keycode_buttons(const uint16_t keys[6])
+{
+    uint32_t bits = 0;
+    for (int i = 0; i < 6; i++)
+        if (keys[i] >= 13 && keys[i] <= 22)
+            bits |= 1u << (keys[i] - 13);
+    return bits;
+}
+
 /* A parsed device event -> a loop event, through calibration. */
 static int from_dev_event(calib *cal, dev_event *de, loop_event *ev)
 {
     if (!(de->flags & (DEV_EV_MOTION | DEV_EV_BUTTON)))
         return 0;
     uint32_t pressed, released;
-    uint32_t buttons = calib_buttons(cal, de, &pressed, &released);
+    uint32_t buttons = calib_buttons(cal, de, &pressed, &released) | keycode_buttons(de->keys);
     float m[6];
     calib_apply(cal, de->axis, m);
     memset(ev, 0, sizeof *ev);

@@ -39,8 +39,12 @@ static void usage(FILE *out)
             "unfix, c collision checking on/off, t translation only, r rotation only, u undo, y redo,\n"
             "m frame, s save, q quit. Controller buttons: 1 next, 2 previous, 3 fix, 4 collision,\n"
             "5 translation only, 6 rotation only, 7 undo, 8 redo, 9 save, 10 frame.\n"
-            "With --device keyboard the keys steer instead: arrows or a/d w/s move in x and y, r/f\n"
-            "up/down, i/k j/l u/o rotate, space stops, digits 1-8 are the controller buttons above.\n"
+            "With --device keyboard (what auto picks without a controller) the keys steer instead:\n"
+            "  arrows or a/d w/s  move in x and y        r/f  up/down\n"
+            "  i/k j/l u/o        rotate                 space or x  stop\n"
+            "  1 next  2 previous  3 fix  4 collision  5 translation only  6 rotation only\n"
+            "  7 undo  8 redo  9 save  0 or m frame  q quit (saves)\n"
+            "  mouse: left drag rotates, middle drag rolls, right drag moves, wheel up/down\n"
             "Ctrl-C quits and saves, whatever the device.\n"
             "The camera frame looks from the patient's front (along +y, LPS), superior up.\n");
 }

@@ -362,6 +362,37 @@ static void test_navigate_keyboard_offers_recovery(void **st)
     json_decref(navigate_answering("Y\n"));
 }
 
+/* navigate --device keyboard fed KEYS from a file; returns what it printed. */
+static char *navigate_keys(const char *keys, const char *duration)
+{
+    char path[4300];
+    snprintf(path, sizeof path, "%s/keys", dir);
+    tu_write_file(path, keys, strlen(keys));
+    char *out = NULL;
+    int rc = tu_run_cli(&out, "navigate '%s' --device 'keyboard:%s' --duration %s --json < /dev/null",
+                        case_dir, path, duration);
+    if (rc != 0)
+        fprintf(stderr, "%s\n", out);
+    assert_int_equal(rc, 0);
+    return out;
+}
+
+/* The keyboard device reaches what the controller's buttons 9 and 10 do, and quits. */
+static void test_navigate_keyboard_save_frame_quit(void **st)
+{
+    char *out = navigate_keys("0", "1.3"); /* status lines come once a second off a terminal */
+    assert_non_null(strstr(out, "| world"));
+    free(out);
+    out = navigate_keys("9", "0.5");
+    assert_non_null(strstr(out, "\nsaved ")); /* on demand: --json prints no exit message */
+    free(out);
+    int64_t t0 = loop_now_us();
+    out = navigate_keys("q", "60");
+    assert_true(loop_now_us() - t0 < 30000000); /* quit, not the 60 s duration */
+    assert_non_null(strchr(out, '{'));
+    free(out);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -373,6 +404,7 @@ int main(void)
         cmocka_unit_test(test_crash_recovery),
         cmocka_unit_test(test_navigate_saves_on_exit),
         cmocka_unit_test(test_navigate_keyboard_offers_recovery),
+        cmocka_unit_test(test_navigate_keyboard_save_frame_quit),
     };
     return cmocka_run_group_tests(tests, setup, teardown);
 }
