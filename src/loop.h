@@ -21,9 +21,12 @@
  *             stay clear.
  * No accepted pose collides; with check_invariant every accepted pose is re-queried from scratch
  * (no cache, no shortcuts) and a collision is counted in collisions_in_accepted (always 0).
- * With collision checking off, poses are accepted unchecked (counted in `unchecked`); turned back
- * on while fragments interpenetrate, the moving fragment may be pulled out unchecked until it is
- * free, then checking resumes.
+ * With collision checking off, poses are accepted unchecked (counted in `unchecked`). Turned back
+ * on, the selected fragment is queried at once; while it interpenetrates another the scene says
+ * so (penetrating, separation_mm < 0) and a move is accepted only when it frees the fragment or
+ * does not deepen the overlap (the collider's overlap volume, else its penetration estimate;
+ * counted in `escaping`, those poses are not invariant-checked), else refused; once free,
+ * normal checking resumes.
  * Stepping depends only on event contents and report timestamps, never on the wall clock, so the
  * same events give the same poses bit for bit (pose_digest).
  *
@@ -101,6 +104,10 @@ typedef struct loop_collider {
                  loop_contact *out);
     size_t cache_bytes;
     void *ctx;
+    /* Optional (NULL: the query's penetration estimate stands in): an estimate of the volume (mm^3)
+     * in which a at pa and b at pb overlap; 0 when apart. Used only while a fragment is inside
+     * another, so it may cost more than a query. Stepping thread only. */
+    int (*overlap)(void *ctx, int a, const pose *pa, int b, const pose *pb, double *mm3);
 } loop_collider;
 
 typedef struct loop_config {
@@ -120,6 +127,8 @@ typedef struct loop_stats {
     uint64_t events, steps, accepted, limited, slid, refused;
     uint64_t collisions_in_accepted; /* accepted poses found colliding by the invariant check */
     uint64_t unchecked;              /* poses accepted while collision checking was off */
+    uint64_t escaping;               /* poses accepted while still interpenetrating after checking
+                                      * came back on, each no deeper than the one before */
     uint64_t queries;                /* pair queries (the invariant check's not counted) */
     double query_us_mean, query_us_max;
     double step_hz;                  /* steps per second of wall time, since the last reset */
@@ -136,6 +145,7 @@ typedef struct loop_scene {
     uint64_t seq; /* increases with every publish */
     int nfrag, selected;
     int collision_on; /* 0: checking is off -- show a warning */
+    int penetrating;  /* checking is on but the selected fragment is inside another: warn */
     int trans_only, rot_only, device_present;
     unsigned save_requests; /* LOOP_ACT_SAVE presses so far: the application saves when it grows */
     loop_frame frame;

@@ -37,10 +37,12 @@ struct loop {
     int64_t last_t;
     uint32_t buttons;
     int gesture_saved; /* this gesture's undo checkpoint is taken */
-    int gap_valid, in_collision;
+    int gap_valid, in_collision; /* in_collision: the selected fragment interpenetrates another */
     int tries; /* candidates queried in this step */
     int verify, verify_frag; /* an accepted pose awaits the invariant check */
     double gap; /* selected fragment's separation lower bound at its current pose */
+    double pen; /* in_collision: the collider's (negative) penetration estimate there */
+    double overlap; /* in_collision: the overlap volume there (loop_collider.overlap) */
     loop_outcome last_outcome;
 
     loop_undo undo[LOOP_UNDO_MAX], redo[LOOP_UNDO_MAX];
@@ -64,6 +66,9 @@ struct loop {
     atomic_ullong done; /* events finished, for other threads */
 };
 
+/* How an accepted pose was checked: not at all (checking off), found free, or found still
+ * interpenetrating but no deeper than before (pulled out after checking came back on). */
+enum { LOOP_UNCHECKED, LOOP_CHECKED, LOOP_ESCAPING };
 void loop_accept(loop *L, int s, pose p, int64_t t_us, uint32_t kind, int checked);
 void loop_undo_push(loop *L, int s);
 

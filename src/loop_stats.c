@@ -171,7 +171,8 @@ void loop_publish(loop *L)
     s->save_requests = L->save_requests;
     s->frame = L->cfg.frame;
     s->last_outcome = L->last_outcome;
-    s->separation_mm = L->gap_valid ? L->gap : L->in_collision ? -1 : INFINITY;
+    s->penetrating = L->collision_on && L->in_collision;
+    s->separation_mm = L->gap_valid ? L->gap : L->in_collision ? L->pen : INFINITY;
     s->stats = L->st;
     memcpy(s->pose, L->pose, sizeof(pose) * (size_t)L->n);
     memcpy(s->fixed, L->fixed, (size_t)L->n);
@@ -200,6 +201,7 @@ int loop_scene_read(loop *L, loop_scene *out)
 static void warnings(const loop_scene *s, char *buf, size_t cap)
 {
     const char *w[] = {s->collision_on ? NULL : "COLLISION CHECKING OFF",
+                       s->penetrating ? "PENETRATING" : NULL,
                        s->device_present ? NULL : "DEVICE UNPLUGGED",
                        s->stats.journal_errors ? "JOURNAL WRITE FAILED" : NULL};
     size_t len = 0;

@@ -106,7 +106,7 @@ static loop *make_loop(world *w, loop_config *cfg)
     w->bumps = 0;
     w->queries = 0;
     uint8_t fixed[3] = {0, 1, 0};
-    loop_collider col = {wall_query, sizeof(int), w};
+    loop_collider col = {wall_query, sizeof(int), w, NULL};
     loop *L = loop_new(w->f, 3, fixed, &col, cfg, NULL);
     assert_non_null(L);
     return L;
@@ -654,7 +654,13 @@ static void test_scene_format_warnings_first(void **st)
         assert_non_null(at);
         assert_true(at - line + strlen(warn[i]) <= 79); /* fit_to_terminal keeps width - 1 */
     }
-    sc.collision_on = sc.device_present = 1;
+    sc.collision_on = sc.penetrating = 1; /* the other warning that goes with the two last */
+    loop_scene_format(&sc, line, sizeof line);
+    const char *at = strstr(line, "PENETRATING");
+    assert_true(at && at - line + strlen("PENETRATING") <= 79);
+    assert_true(strstr(line, "JOURNAL WRITE FAILED") - line + strlen("JOURNAL WRITE FAILED") <= 79);
+    sc.penetrating = 0;
+    sc.device_present = 1;
     sc.stats.journal_errors = 0;
     loop_scene_format(&sc, line, sizeof line);
     assert_null(strstr(line, "WARNING"));
@@ -665,7 +671,7 @@ static void test_bad_arguments(void **st)
 {
     world w;
     memset(&w, 0, sizeof w);
-    loop_collider col = {wall_query, sizeof(int), &w};
+    loop_collider col = {wall_query, sizeof(int), &w, NULL};
     assert_null(loop_new(w.f, 0, NULL, &col, NULL, NULL));
     assert_non_null(strstr(fn_err_msg(), "fragments"));
     assert_null(loop_new(w.f, 2, NULL, NULL, NULL, NULL));
