@@ -115,7 +115,7 @@ static json_t *pose_json(const pose *p)
                      p->t[1], p->t[2]);
 }
 
-void loopkit_print_json(const loopkit *k, FILE *out, long unplugs)
+void loopkit_print_json(const loopkit *k, FILE *out, long unplugs, uint64_t skipped)
 {
     loop_stats s;
     loop_get_stats(k->L, &s);
@@ -142,6 +142,11 @@ void loopkit_print_json(const loopkit *k, FILE *out, long unplugs)
                           "query_us_max", s.query_us_max, "final_poses", poses, "pose_digest",
                           digest, "journal_records", (json_int_t)(k->jr ? journal_count(k->jr) : 0));
     json_object_set_new(j, "journal_errors", json_integer((json_int_t)s.journal_errors));
+    json_object_set_new(j, "escaping", json_integer((json_int_t)s.escaping));
+    json_object_set_new(j, "step_hz", json_real(s.step_hz));
+    json_object_set_new(j, "tick_hz", json_real(s.tick_hz));
+    json_object_set_new(j, "dropped", json_integer((json_int_t)s.dropped));
+    json_object_set_new(j, "skipped_reports", json_integer((json_int_t)skipped));
     if (unplugs >= 0)
         json_object_set_new(j, "unplugs", json_integer(unplugs));
     json_dumpf(j, out, JSON_INDENT(2) | JSON_REAL_PRECISION(17));

@@ -39,9 +39,10 @@ size_t loopkit_journal_pending(const char *dir);
 int loopkit_save(loopkit *k);
 void loopkit_close(loopkit *k);
 
-/* Final poses and statistics as JSON on out (replay's and navigate's summary); unplugs < 0 leaves
- * that member out. */
-void loopkit_print_json(const loopkit *k, FILE *out, long unplugs);
+/* Final poses and statistics as JSON on out (replay's and navigate's summary; the members are
+ * listed in `fracnav replay --help`); unplugs < 0 leaves that member out. skipped: reports of an
+ * unknown ID or a wrong length that the parser skipped. */
+void loopkit_print_json(const loopkit *k, FILE *out, long unplugs, uint64_t skipped);
 
 /* --frame NAME: camera, world or fragment. 0, or a usage error for `cmd` (returns 2). */
 int loopkit_parse_frame(const char *cmd, const char *name, loop_frame *out);

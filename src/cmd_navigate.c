@@ -317,7 +317,7 @@ int cmd_navigate(int argc, char **argv)
         rc = run(&k, &ds, keys, o.duration);
         dev_set_led(ds.d, 0);
         if (rc == 0 && o.json)
-            loopkit_print_json(&k, stdout, -1);
+            loopkit_print_json(&k, stdout, -1, dev_skipped(ds.d));
         else if (rc == 0)
             fprintf(stderr, "saved %s\n", o.dir);
         loopkit_close(&k);

@@ -18,8 +18,23 @@ static void usage(FILE *out)
             "--recover; emptied when it finishes, unless it continued from the journal with\n"
             "--recover and did not --save). Stepping uses only the recorded\n"
             "timestamps, so the same case and recording give the same poses and pose_digest on every\n"
-            "run and machine. Prints a summary (JSON with --json): steps, accepted, limited, slid,\n"
-            "refused, collisions_in_accepted (always 0), latency, final_poses, pose_digest.\n\n"
+            "run and machine. Prints a summary (JSON with --json, the same as navigate --json):\n"
+            "  events, steps        events handled; motion steps (accepted + limited + slid + refused)\n"
+            "  accepted, limited, slid, refused   outcomes of the steps\n"
+            "  collisions_in_accepted   accepted poses found colliding on re-check (always 0)\n"
+            "  unchecked            poses taken while collision checking was off\n"
+            "  escaping             poses taken inside another fragment, none deeper (checking\n"
+            "                       turned back on while penetrating)\n"
+            "  latency_p50_us, latency_p99_us, latency_max_us   report arrival to accepted pose\n"
+            "  queries, query_us_mean, query_us_max   pair collision queries and their time\n"
+            "  step_hz, tick_hz     steps and loop timer ticks per second of wall time\n"
+            "  dropped              events lost to a full input ring (0 unless the loop fell behind)\n"
+            "  skipped_reports      device reports of an unknown ID or a wrong length, skipped\n"
+            "  unplugs              device unplugs seen (replay only)\n"
+            "  journal_records, journal_errors   records left in CASE/journal; failed writes\n"
+            "  resumed_from_journal records applied by --recover\n"
+            "  final_poses          per fragment: id, name, fixed, q (w x y z), t (mm)\n"
+            "  pose_digest          FNV-1a 64 over every accepted pose in order (hex)\n\n"
             "  --realtime          pace the reports at recorded speed through the input thread and\n"
             "                      the live loop (default: as fast as possible, one thread)\n"
             "  --json              print the summary as JSON\n"
@@ -175,7 +190,7 @@ int cmd_replay(int argc, char **argv)
     if (rc < 0) {
         fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
     } else if (o.json) {
-        loopkit_print_json(&k, stdout, (long)ts.unplugs);
+        loopkit_print_json(&k, stdout, (long)ts.unplugs, ts.dec.ps.n_unknown_id + ts.dec.ps.n_bad_len);
     } else {
         loop_stats s;
         loop_get_stats(k.L, &s);

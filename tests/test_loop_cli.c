@@ -157,6 +157,29 @@ static void test_replay_head_on_deterministic(void **st)
     json_decref(c);
 }
 
+/* The loop's rate, ring overflow and skipped device reports are in the summary: a recording with
+ * one report of an unknown ID and one of a wrong length counts both and steps the rest. */
+static void test_replay_json_rates_and_skips(void **st)
+{
+    char *text = tu_slurp(recording("skips", "translate +x 1 mm over 0.1 s\n"), NULL);
+    char *at = strstr(text, "0 connect\n"), path[4300];
+    assert_non_null(at);
+    at += strlen("0 connect\n");
+    snprintf(path, sizeof path, "%s/skips.fnrec", dir);
+    FILE *f = fopen(path, "w");
+    fprintf(f, "%.*s1000 in 09000000000000\n2000 in 0174ff0000\n%s", (int)(at - text), text, at);
+    fclose(f);
+    free(text);
+    json_t *j = replay(path, "--no-journal", 0);
+    assert_true(num(j, "skipped_reports") == 2);
+    assert_true(num(j, "steps") > 0);
+    assert_true(num(j, "dropped") == 0);
+    assert_true(num(j, "step_hz") > 0);
+    assert_non_null(json_object_get(j, "tick_hz"));
+    assert_true(num(j, "escaping") == 0);
+    json_decref(j);
+}
+
 /* Replayed twice with the journal on (the default): a run that finished leaves no unsaved poses
  * behind, so the second run starts as the first did and gives the same digest. */
 static void test_replay_twice_with_journal(void **st)
@@ -399,6 +422,7 @@ int main(void)
         cmocka_unit_test(test_replay_help_and_usage),
         cmocka_unit_test(test_replay_head_on_deterministic),
         cmocka_unit_test(test_replay_twice_with_journal),
+        cmocka_unit_test(test_replay_json_rates_and_skips),
         cmocka_unit_test(test_replay_grazing_slides),
         cmocka_unit_test(test_replay_unplug_keeps_pose),
         cmocka_unit_test(test_crash_recovery),
