@@ -206,6 +206,31 @@ static void test_replay_grazing_slides(void **st)
     json_decref(j);
 }
 
+/* The shipped grazing recording on the case `fracnav demo` steers (the example CT's synthetic
+ * fracture, seed 1): pressed onto the other fragment, the moving one slides along it. */
+static void test_shipped_grazing_slides_on_example(void **st)
+{
+    char ex[4300], rec[4300], *out = NULL;
+    snprintf(ex, sizeof ex, "%s/example", dir);
+    int rc = tu_run_cli(&out, "fracture '%s' -o '%s' --seed 1", tu_example_ct(), ex);
+    if (rc != 0)
+        fprintf(stderr, "%s\n", out);
+    free(out);
+    assert_int_equal(rc, 0);
+    const char *src = getenv("FRACNAV_SRC");
+    snprintf(rec, sizeof rec, "%s/sim/recordings/grazing-slide.fnrec", src ? src : "..");
+    rc = tu_run_cli(&out, "replay '%s' '%s' --json --no-journal", ex, rec);
+    assert_int_equal(rc, 0);
+    json_t *j = json_loads(strchr(out, '{'), 0, NULL);
+    free(out);
+    assert_non_null(j);
+    assert_int_equal(num(j, "collisions_in_accepted"), 0);
+    assert_true(num(j, "slid") > 0);
+    assert_true(num(j, "slid") > num(j, "refused"));
+    json_decref(j);
+    tu_rmtree(ex);
+}
+
 /* Unplugged mid-recording: the loop goes on, the pose stays where it was while the device is
  * away (same as a recording that ends at the unplug), and moves again after the replug. */
 static void test_replay_unplug_keeps_pose(void **st)
@@ -424,6 +449,7 @@ int main(void)
         cmocka_unit_test(test_replay_twice_with_journal),
         cmocka_unit_test(test_replay_json_rates_and_skips),
         cmocka_unit_test(test_replay_grazing_slides),
+        cmocka_unit_test(test_shipped_grazing_slides_on_example),
         cmocka_unit_test(test_replay_unplug_keeps_pose),
         cmocka_unit_test(test_crash_recovery),
         cmocka_unit_test(test_navigate_saves_on_exit),
