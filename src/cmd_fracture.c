@@ -30,12 +30,14 @@ static void usage(FILE *out)
             "  --bone-loss MM         thickness of bone lost along each cut (default 0)\n"
             "  --roughness MM         RMS relief of the fracture surface (default 2)\n"
             "  --threshold HU         bone threshold (default 300)\n"
+            CMD_TAU_HELP
             "  --help                 this text\n");
 }
 
 static int parse(int argc, char **argv, fracture_params *p, const char **in, const char **out)
 {
-    int have_seed = 0;
+    int have_seed = 0, rc;
+    cmd_tau tau = {0};
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i], *val = i + 1 < argc ? argv[i + 1] : NULL;
         double d;
@@ -50,6 +52,11 @@ static int parse(int argc, char **argv, fracture_params *p, const char **in, con
         i++;
         if (!strcmp(a, "-o") || !strcmp(a, "--output")) {
             *out = val;
+            continue;
+        }
+        if (cmd_tau_option("fracture", a, val, &tau, &rc)) {
+            if (rc)
+                return rc;
             continue;
         }
         if (!cmd_number(val, &d))
@@ -74,7 +81,7 @@ static int parse(int argc, char **argv, fracture_params *p, const char **in, con
     }
     if (!*in || !*out || !have_seed)
         return cmd_usage_error("fracture", "%s", "needs VOLUME, -o CASE and --seed N");
-    if (fracture_check(p) < 0)
+    if (fracture_check(p) < 0 || cmd_tau_apply(&tau, &p->tau_min, &p->tau_max) < 0)
         return cmd_usage_error("fracture", "%s", fn_err_msg());
     return 0;
 }

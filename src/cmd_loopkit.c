@@ -36,7 +36,8 @@ static int resume(loopkit *k, const char *dir)
     return rc < 0 ? fn_err_wrap(rc, "%s/journal", dir) : 0;
 }
 
-int loopkit_open(loopkit *k, const char *dir, const loop_config *cfg, unsigned flags, const char *cmd)
+int loopkit_open(loopkit *k, const char *dir, const loop_config *cfg, unsigned flags, const char *cmd,
+                 const cmd_tau *tau)
 {
     memset(k, 0, sizeof *k);
     size_t pending = loopkit_journal_pending(dir);
@@ -56,6 +57,8 @@ int loopkit_open(loopkit *k, const char *dir, const loop_config *cfg, unsigned f
                         LOOP_MAX_FRAGS);
     if (rc == 0 && k->c->nfrag < 2)
         rc = fn_err_set(FN_EINVAL, "%s: %d fragment(s); steering needs at least two", dir, k->c->nfrag);
+    if (rc == 0 && tau)
+        rc = cmd_tau_apply(tau, &k->c->tau_min, &k->c->tau_max);
     if (rc == 0) {
         obb_params op = {k->c->tau_min, k->c->tau_max};
         k->obb = loop_obb_new(k->c->frag, k->c->nfrag, &op, NULL);

@@ -7,6 +7,7 @@
 
 #include "calib.h"
 #include "case.h"
+#include "cmd.h"
 #include "dev.h"
 #include "devparse.h"
 #include "journal.h"
@@ -31,8 +32,10 @@ typedef struct loopkit {
 
 /* Loads the case and builds everything. A journal holding unsaved poses without LOOPKIT_RESUME or
  * LOOPKIT_DISCARD is an error (FN_EMISMATCH) whose message says how many and what to do; `cmd`
- * names the command for that advice. 0 or FN_E* (k is then empty). */
-int loopkit_open(loopkit *k, const char *dir, const loop_config *cfg, unsigned flags, const char *cmd);
+ * names the command for that advice. tau: --tau-min/--tau-max over the case's (NULL: none); they
+ * go into k->c, so a save keeps them. 0 or FN_E* (k is then empty). */
+int loopkit_open(loopkit *k, const char *dir, const loop_config *cfg, unsigned flags, const char *cmd,
+                 const cmd_tau *tau);
 /* Unsaved records in DIR/journal (0 when none or unreadable). */
 size_t loopkit_journal_pending(const char *dir);
 /* Copies the loop's poses into the case, saves it atomically, then empties the journal. */

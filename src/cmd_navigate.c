@@ -33,6 +33,8 @@ static void usage(FILE *out)
             "                      (with neither, navigate asks on stdin before opening the device)\n"
             "  --config FILE       calibration in spnavrc syntax (default ~/.config/fracnav/spnavrc)\n"
             "  --frame F           camera (default), world or fragment\n"
+            "  --tau-min T, --tau-max T   hierarchy thresholds instead of the case's (0 <= T_min\n"
+            "                      <= T_max <= 1), saved into the case with the poses\n"
             "  --duration S        stop after S seconds (scripts, tests)\n"
             "  --json              print a JSON summary on exit (as fracnav replay)\n\n"
             "keys (when the controller is not the keyboard): n/p next/previous fragment, f fix or\n"
@@ -63,6 +65,7 @@ typedef struct opts {
     loop_frame frame;
     double duration;
     int json;
+    cmd_tau tau;
 } opts;
 
 static int parse(int argc, char **argv, opts *o)
@@ -72,7 +75,12 @@ static int parse(int argc, char **argv, opts *o)
     o->flags = LOOPKIT_JOURNAL;
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
-        if (!strcmp(a, "--device") && v)
+        int rc;
+        if (cmd_tau_option("navigate", a, v, &o->tau, &rc)) {
+            if (rc)
+                return rc;
+            i++;
+        } else if (!strcmp(a, "--device") && v)
             o->device = argv[++i];
         else if (!strcmp(a, "--config") && v)
             o->config = argv[++i];
@@ -307,7 +315,7 @@ int cmd_navigate(int argc, char **argv)
     loop_config_default(&cfg);
     cfg.frame = o.frame;
     loopkit k;
-    rc = loopkit_open(&k, o.dir, &cfg, o.flags, "navigate");
+    rc = loopkit_open(&k, o.dir, &cfg, o.flags, "navigate", &o.tau);
     if (rc == 0) {
         if (k.resumed)
             fprintf(stderr, "recovered %zu journal records\n", k.resumed);

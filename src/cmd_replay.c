@@ -44,6 +44,8 @@ static void usage(FILE *out)
             "  --save              save the final poses into the case (and empty the journal)\n"
             "  --frame F           camera (default), world or fragment\n"
             "  --config FILE       calibration in spnavrc syntax (default: none, sensitivity 1)\n"
+            "  --tau-min T, --tau-max T   hierarchy thresholds instead of the case's (0 <= T_min\n"
+            "                      <= T_max <= 1); --save keeps them in the case\n"
             "  --help              this text\n");
 }
 
@@ -52,6 +54,7 @@ typedef struct opts {
     int realtime, json, no_journal, save;
     unsigned flags;
     loop_frame frame;
+    cmd_tau tau;
 } opts;
 
 static int parse(int argc, char **argv, opts *o)
@@ -59,7 +62,12 @@ static int parse(int argc, char **argv, opts *o)
     memset(o, 0, sizeof *o);
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
-        if (!strcmp(a, "--realtime"))
+        int rc;
+        if (cmd_tau_option("replay", a, i + 1 < argc ? argv[i + 1] : NULL, &o->tau, &rc)) {
+            if (rc)
+                return rc;
+            i++;
+        } else if (!strcmp(a, "--realtime"))
             o->realtime = 1;
         else if (!strcmp(a, "--json"))
             o->json = 1;
@@ -166,7 +174,7 @@ int cmd_replay(int argc, char **argv)
     cfg.frame = o.frame;
     cfg.check_invariant = 1;
     loopkit k;
-    if (loopkit_open(&k, o.dir, &cfg, o.flags, "replay") < 0) {
+    if (loopkit_open(&k, o.dir, &cfg, o.flags, "replay", &o.tau) < 0) {
         fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
         sim_replay_transport.close(h);
         return 1;

@@ -441,6 +441,55 @@ static void test_navigate_keyboard_save_frame_quit(void **st)
     free(out);
 }
 
+/* A member of DIR/case.json. */
+static double case_number(const char *case_path, const char *key)
+{
+    char path[4300];
+    snprintf(path, sizeof path, "%s/case.json", case_path);
+    char *text = tu_slurp(path, NULL);
+    assert_non_null(text);
+    json_t *c = json_loads(text, 0, NULL);
+    free(text);
+    double v = json_number_value(json_object_get(c, key));
+    json_decref(c);
+    return v;
+}
+
+/* --tau-min/--tau-max: stored by segment, checked everywhere with the option named, overridden
+ * by replay and kept in the case by --save. */
+static void test_tau_options(void **st)
+{
+    char tc[4300], vol_path[4300], *out = NULL;
+    snprintf(tc, sizeof tc, "%s/taucase", dir);
+    snprintf(vol_path, sizeof vol_path, "%s/blocks.nii.gz", dir);
+    assert_int_equal(tu_run_cli(&out, "segment '%s' -o '%s' --min-volume 0 --tau-min 0.3", vol_path, tc), 0);
+    free(out);
+    assert_true(case_number(tc, "tau_min") == 0.3);
+    assert_true(case_number(tc, "tau_max") == 0.95);
+    const char *bad[] = {"--tau-min 1.5", "--tau-max -0.1", "--tau-min abc", "--tau-min 0.9 --tau-max 0.4"};
+    for (size_t i = 0; i < sizeof bad / sizeof *bad; i++) {
+        assert_int_equal(tu_run_cli(&out, "segment '%s' -o '%s' %s", vol_path, tc, bad[i]), 2);
+        assert_non_null(strstr(out, strchr(bad[i], '-') ? "--tau-m" : "tau"));
+        free(out);
+        assert_int_equal(tu_run_cli(&out, "fracture '%s' -o '%s/f' --seed 1 %s", vol_path, dir, bad[i]), 2);
+        assert_non_null(strstr(out, "--tau-m"));
+        free(out);
+    }
+    assert_int_equal(tu_run_cli(&out, "replay '%s' '%s' --tau-max 2", tc, recording("tau", "wait 0.1 s\n")), 2);
+    assert_non_null(strstr(out, "--tau-max 2"));
+    free(out);
+    /* Below the case's tau_min (0.3): named, nothing changed. */
+    assert_int_equal(tu_run_cli(&out, "replay '%s' '%s' --tau-max 0.2", tc, recording("tau", "wait 0.1 s\n")), 1);
+    assert_non_null(strstr(out, "--tau-max"));
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "replay '%s' '%s' --tau-min 0.1 --save", tc, recording("tau", "wait 0.1 s\n")), 0);
+    free(out);
+    assert_true(case_number(tc, "tau_min") == 0.1);
+    assert_int_equal(tu_run_cli(&out, "bench build --tau-min 0.7 --tau-max 0.6"), 2);
+    assert_non_null(strstr(out, "--tau-min"));
+    free(out);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -455,6 +504,7 @@ int main(void)
         cmocka_unit_test(test_navigate_saves_on_exit),
         cmocka_unit_test(test_navigate_keyboard_offers_recovery),
         cmocka_unit_test(test_navigate_keyboard_save_frame_quit),
+        cmocka_unit_test(test_tau_options),
     };
     return cmocka_run_group_tests(tests, setup, teardown);
 }
