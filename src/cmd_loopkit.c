@@ -240,6 +240,15 @@ static int tsource_next(void *ctx, loop_event *ev, int timeout_ms)
     }
 }
 
+int loopkit_parse_pivot(const char *cmd, int argc, char **argv, int *i, double out[3])
+{
+    for (int a = 0; a < 3; a++)
+        if (*i + 1 + a >= argc || !cmd_number(argv[*i + 1 + a], &out[a]))
+            return cmd_usage_error(cmd, "--pivot needs three numbers X Y Z (world mm)");
+    *i += 3;
+    return 0;
+}
+
 int loopkit_parse_frame(const char *cmd, const char *name, loop_frame *out)
 {
     static const char *names[] = {[LOOP_FRAME_CAMERA] = "camera", [LOOP_FRAME_WORLD] = "world",

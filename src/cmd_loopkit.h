@@ -47,6 +47,10 @@ void loopkit_close(loopkit *k);
  * unknown ID or a wrong length that the parser skipped. */
 void loopkit_print_json(const loopkit *k, FILE *out, long unplugs, uint64_t skipped);
 
+/* --pivot X Y Z (world mm): argv[*i] is --pivot; parses the three numbers after it into out and
+ * moves *i past them. 0, or a usage error for `cmd` (returns 2). */
+int loopkit_parse_pivot(const char *cmd, int argc, char **argv, int *i, double out[3]);
+
 /* --frame NAME: camera, world or fragment. 0, or a usage error for `cmd` (returns 2). */
 int loopkit_parse_frame(const char *cmd, const char *name, loop_frame *out);
 

@@ -33,6 +33,8 @@ static void usage(FILE *out)
             "                      (with neither, navigate asks on stdin before opening the device)\n"
             "  --config FILE       calibration in spnavrc syntax (default ~/.config/fracnav/spnavrc)\n"
             "  --frame F           camera (default), world or fragment\n"
+            "  --pivot X Y Z       turn the first selected fragment about this point (world mm,\n"
+            "                      LPS) instead of its centroid, until the selection changes\n"
             "  --tau-min T, --tau-max T   hierarchy thresholds instead of the case's (0 <= T_min\n"
             "                      <= T_max <= 1), saved into the case with the poses\n"
             "  --duration S        stop after S seconds (scripts, tests)\n"
@@ -66,6 +68,8 @@ typedef struct opts {
     double duration;
     int json;
     cmd_tau tau;
+    int have_pivot;
+    double pivot[3];
 } opts;
 
 static int parse(int argc, char **argv, opts *o)
@@ -92,7 +96,11 @@ static int parse(int argc, char **argv, opts *o)
             o->json = 1;
         else if (!strcmp(a, "--duration") && v && atof(v) > 0)
             o->duration = atof(argv[++i]);
-        else if (!strcmp(a, "--frame") && v) {
+        else if (!strcmp(a, "--pivot")) {
+            if (loopkit_parse_pivot("navigate", argc, argv, &i, o->pivot))
+                return 2;
+            o->have_pivot = 1;
+        } else if (!strcmp(a, "--frame") && v) {
             if (loopkit_parse_frame("navigate", argv[++i], &o->frame))
                 return 2;
         } else if (a[0] == '-' || o->dir) {
@@ -320,6 +328,8 @@ int cmd_navigate(int argc, char **argv)
         if (k.resumed)
             fprintf(stderr, "recovered %zu journal records\n", k.resumed);
         ds.L = k.L;
+        if (o.have_pivot)
+            loop_set_pivot(k.L, o.pivot);
         ds.led = -1;
         atomic_init(&ds.battery, -1);
         rc = run(&k, &ds, keys, o.duration);

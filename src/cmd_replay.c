@@ -43,6 +43,8 @@ static void usage(FILE *out)
             "  --no-journal        do not write CASE/journal\n"
             "  --save              save the final poses into the case (and empty the journal)\n"
             "  --frame F           camera (default), world or fragment\n"
+            "  --pivot X Y Z       turn the first selected fragment about this point (world mm,\n"
+            "                      LPS) instead of its centroid, until the selection changes\n"
             "  --config FILE       calibration in spnavrc syntax (default: none, sensitivity 1)\n"
             "  --tau-min T, --tau-max T   hierarchy thresholds instead of the case's (0 <= T_min\n"
             "                      <= T_max <= 1); --save keeps them in the case\n"
@@ -55,6 +57,8 @@ typedef struct opts {
     unsigned flags;
     loop_frame frame;
     cmd_tau tau;
+    int have_pivot;
+    double pivot[3];
 } opts;
 
 static int parse(int argc, char **argv, opts *o)
@@ -82,6 +86,10 @@ static int parse(int argc, char **argv, opts *o)
         else if (!strcmp(a, "--frame") && i + 1 < argc) {
             if (loopkit_parse_frame("replay", argv[++i], &o->frame))
                 return 2;
+        } else if (!strcmp(a, "--pivot")) {
+            if (loopkit_parse_pivot("replay", argc, argv, &i, o->pivot))
+                return 2;
+            o->have_pivot = 1;
         } else if (!strcmp(a, "--config") && i + 1 < argc)
             o->config = argv[++i];
         else if (a[0] == '-' || (o->dir && o->rec)) {
@@ -186,6 +194,8 @@ int cmd_replay(int argc, char **argv)
     ts.finished = sim_replay_finished;
     loopkit_decoder_init(&ts.dec, hdr->vid, hdr->pid, &cal);
     fprintf(stderr, "fracnav replay: stepping %s on %s\n", o.rec, o.dir);
+    if (o.have_pivot)
+        loop_set_pivot(k.L, o.pivot);
     loop_reset_timing(k.L);
     loop_source src = loopkit_transport_source(&ts);
     rc = o.realtime ? run_realtime(&k, src) : run_fast(&k, src);

@@ -8,6 +8,7 @@
 
 #include "journal.h"
 #include "loop.h"
+#include "pose.h"
 #include "script.h"
 #include "testutil.h"
 #include "vol.h"
@@ -441,6 +442,46 @@ static void test_navigate_keyboard_save_frame_quit(void **st)
     free(out);
 }
 
+/* --pivot: the selected fragment turns about the given point (which stays where it is), not
+ * about its centroid. */
+static void test_replay_pivot(void **st)
+{
+    char path[4300];
+    snprintf(path, sizeof path, "%s/case.json", case_dir);
+    char *text = tu_slurp(path, NULL);
+    json_t *c = json_loads(text, 0, NULL);
+    free(text);
+    json_t *cen = json_object_get(json_array_get(json_object_get(c, "fragments"), 1), "centroid");
+    double p[3];
+    for (int a = 0; a < 3; a++)
+        p[a] = json_number_value(json_array_get(cen, (size_t)a));
+    json_decref(c);
+    p[0] += 10; /* away from A */
+    const char *rec = recording("turn", "move rz 10 deg over 0.3 s\n");
+    char args[256];
+    snprintf(args, sizeof args, "--no-journal --pivot %.17g %.17g %.17g", p[0], p[1], p[2]);
+    json_t *about = replay(rec, args, 0), *centroid = replay(rec, "--no-journal", 0);
+    assert_true(num(about, "refused") == 0);
+    json_t *b = json_array_get(json_object_get(about, "final_poses"), 1);
+    pose q;
+    for (int a = 0; a < 4; a++)
+        q.q[a] = json_number_value(json_array_get(json_object_get(b, "q"), (size_t)a));
+    for (int a = 0; a < 3; a++)
+        q.t[a] = moved_t(about, a);
+    assert_true(pose_angle_between(q, POSE_IDENTITY) > 0.1);
+    double at[3];
+    pose_apply(&q, p, at);
+    for (int a = 0; a < 3; a++)
+        assert_true(fabs(at[a] - p[a]) < 1e-6);
+    assert_true(fabs(moved_t(about, 1) - moved_t(centroid, 1)) > 0.5);
+    json_decref(about);
+    json_decref(centroid);
+    char *out = NULL;
+    assert_int_equal(tu_run_cli(&out, "replay '%s' '%s' --pivot 1 2", case_dir, rec), 2);
+    assert_non_null(strstr(out, "--pivot"));
+    free(out);
+}
+
 /* A member of DIR/case.json. */
 static double case_number(const char *case_path, const char *key)
 {
@@ -505,6 +546,7 @@ int main(void)
         cmocka_unit_test(test_navigate_keyboard_offers_recovery),
         cmocka_unit_test(test_navigate_keyboard_save_frame_quit),
         cmocka_unit_test(test_tau_options),
+        cmocka_unit_test(test_replay_pivot),
     };
     return cmocka_run_group_tests(tests, setup, teardown);
 }
