@@ -180,15 +180,21 @@ static void *loop_thread(void *arg)
     return NULL;
 }
 
-/* Saves the poses of the latest scene (the loop keeps running; the journal stays as it is). */
-static void save_scene(loopkit *k, const loop_scene *sc)
+/* Saves the poses of the latest scene while the loop keeps running, then has the loop empty the
+ * journal of what the case now holds (saved: the loop_set_saved array). */
+static void save_scene(loopkit *k, const loop_scene *sc, pose *saved, ring *ctl)
 {
     for (int i = 0; i < k->c->nfrag; i++)
         k->c->frag[i].pose = sc->pose[i];
-    if (case_save(k->c) < 0)
+    if (case_save(k->c) < 0) {
         fprintf(stderr, "\nfracnav navigate: save failed: %s\n", fn_err_msg());
-    else
-        fprintf(stderr, "\nsaved %s\n", k->dir_name);
+        return;
+    }
+    fprintf(stderr, "\nsaved %s\n", k->dir_name);
+    memcpy(saved, sc->pose, sizeof(pose) * (size_t)k->c->nfrag);
+    loop_event ev = {.kind = LOOP_EV_SAVED};
+    if (ring_push(ctl, &ev))
+        loop_notify(k->L);
 }
 
 /* Terminal keys -> actions on the control ring (q quits). */
@@ -215,7 +221,8 @@ static void fit_to_terminal(char *line)
 }
 
 /* The main thread while the loop runs: keys, saves on request, the status line. */
-static void ui(loopkit *k, loopkit_dsource *ds, ring *ctl, int keys, double duration)
+static void ui(loopkit *k, loopkit_dsource *ds, ring *ctl, pose *saved_poses, int keys,
+               double duration)
 {
     struct termios saved;
     int raw = keys && isatty(STDIN_FILENO) && tcgetattr(STDIN_FILENO, &saved) == 0;
@@ -236,7 +243,7 @@ static void ui(loopkit *k, loopkit_dsource *ds, ring *ctl, int keys, double dura
         loop_scene_read(k->L, &sc);
         if (sc.save_requests != saves_seen) {
             saves_seen = sc.save_requests;
-            save_scene(k, &sc);
+            save_scene(k, &sc, saved_poses, ctl);
         }
         int64_t now = loop_now_us();
         if (now - last_print >= (tty ? 100000 : 1000000)) {
@@ -261,9 +268,12 @@ static void ui(loopkit *k, loopkit_dsource *ds, ring *ctl, int keys, double dura
         printf("\n");
 }
 
-/* Input thread and loop thread around ui(); then the loop is stopped and the case saved. */
+/* Input thread and loop thread around ui(); then the loop is stopped and the case saved.
+ * saved_poses outlives the loop thread, which reads it on LOOP_EV_SAVED. */
 static int run(loopkit *k, loopkit_dsource *ds, int keys, double duration)
 {
+    pose saved_poses[LOOP_MAX_FRAGS];
+    loop_set_saved(k->L, saved_poses);
     ring *in = ring_new(sizeof(loop_event), 1024), *ctl = ring_new(sizeof(loop_event), 64);
     runner run = {k->L, in, 0, 0};
     atomic_init(&run.stop, 0);
@@ -279,7 +289,7 @@ static int run(loopkit *k, loopkit_dsource *ds, int keys, double duration)
         sa.sa_handler = on_signal;
         sigaction(SIGINT, &sa, NULL);
         sigaction(SIGTERM, &sa, NULL);
-        ui(k, ds, ctl, keys, duration);
+        ui(k, ds, ctl, saved_poses, keys, duration);
         loop_reader_stop(rd);
         atomic_store(&run.stop, 1);
         loop_notify(k->L);
@@ -289,6 +299,7 @@ static int run(loopkit *k, loopkit_dsource *ds, int keys, double duration)
             rc = loopkit_save(k);
     }
     loop_set_controls(k->L, NULL);
+    loop_set_saved(k->L, NULL);
     ring_free(in);
     ring_free(ctl);
     return rc;

@@ -480,6 +480,18 @@ static int step(loop *L, const loop_event *ev)
     return out;
 }
 
+/* The application saved the poses in L->saved: the journal holds only what is newer. */
+static void journal_saved(loop *L)
+{
+    if (!L->jr || !L->saved)
+        return;
+    int bad = journal_truncate(L->jr) < 0;
+    for (int i = 0; i < L->n; i++)
+        if (memcmp(&L->pose[i], &L->saved[i], sizeof(pose)) != 0)
+            bad |= journal_append(L->jr, JOURNAL_MOVE, i, L->last_t, &L->pose[i], loop_now_us()) < 0;
+    L->st.journal_errors += (uint64_t)bad;
+}
+
 int loop_feed(loop *L, const loop_event *ev)
 {
     L->st.events++;
@@ -497,6 +509,9 @@ int loop_feed(loop *L, const loop_event *ev)
     }
     case LOOP_EV_ACTION:
         out = loop_action_do(L, (loop_action)ev->action);
+        break;
+    case LOOP_EV_SAVED:
+        journal_saved(L);
         break;
     case LOOP_EV_UNPLUG:
     case LOOP_EV_REPLUG:
@@ -660,6 +675,11 @@ void loop_set_pivot(loop *L, const double world[3])
         pose inv = pose_inverse(L->pose[L->selected]);
         pose_apply(&inv, world, L->pivot_home);
     }
+}
+
+void loop_set_saved(loop *L, const pose *saved)
+{
+    L->saved = saved;
 }
 
 void loop_set_camera(loop *L, const double r[3][3])

@@ -60,7 +60,7 @@
 
 typedef enum { LOOP_FRAME_CAMERA, LOOP_FRAME_WORLD, LOOP_FRAME_FRAGMENT } loop_frame;
 
-enum { LOOP_EV_MOTION = 1, LOOP_EV_ACTION, LOOP_EV_UNPLUG, LOOP_EV_REPLUG };
+enum { LOOP_EV_MOTION = 1, LOOP_EV_ACTION, LOOP_EV_UNPLUG, LOOP_EV_REPLUG, LOOP_EV_SAVED };
 
 typedef enum {
     LOOP_ACT_NONE,
@@ -194,6 +194,10 @@ void loop_set_camera(loop *L, const double r[3][3]);
  * of range. */
 struct journal_rec;
 int loop_recover(loop *L, const struct journal_rec *recs, size_t n);
+/* Where the application keeps the poses it last saved (n poses; it owns them). After a save it
+ * writes them there, then sends LOOP_EV_SAVED through the control ring: the loop empties the
+ * journal and appends the poses that have moved since (so a later crash offers only those). */
+void loop_set_saved(loop *L, const pose *saved);
 /* Moves a fragment without collision checking (recovery, loading): no journal, no stats. */
 void loop_set_pose(loop *L, int i, pose p);
 

@@ -28,6 +28,7 @@ struct loop {
     double cam[3][3];
     struct journal *jr;
     ring *ctl; /* actions from the application's thread */
+    const pose *saved; /* loop_set_saved */
 
     int selected, collision_on, trans_only, rot_only, device_present;
     unsigned save_requests;

@@ -64,19 +64,25 @@ static int teardown(void **st)
     return 0;
 }
 
-/* Renders a motion script for a SpaceNavigator into dir/NAME.fnrec; returns the path (static). */
-static const char *recording(const char *name, const char *text)
+/* Renders a motion script for the device `as` into dir/NAME.fnrec; returns the path (static). */
+static const char *recording_as(const char *as, const char *name, const char *text)
 {
     static char path[4200];
     script *s = NULL;
     assert_int_equal(script_parse(text, strlen(text), name, &s), 0);
-    fnrec *r = script_render(s, sim_profile_find("spacenavigator"));
+    fnrec *r = script_render(s, sim_profile_find(as));
     assert_non_null(r);
     snprintf(path, sizeof path, "%s/%s.fnrec", dir, name);
     assert_int_equal(fnrec_save(r, path), 0);
     fnrec_free(r);
     free(s);
     return path;
+}
+
+/* The same for a SpaceNavigator. */
+static const char *recording(const char *name, const char *text)
+{
+    return recording_as("spacenavigator", name, text);
 }
 
 /* Runs `fracnav replay CASE REC ARGS --json` and parses the JSON it prints. */
@@ -353,6 +359,44 @@ static void test_navigate_saves_on_exit(void **st)
     assert_int_equal(rc, 0);
 }
 
+/* Saved on demand (button 9), then killed: the journal holds nothing the case does not, so the
+ * next start has nothing to recover. */
+static void test_navigate_save_on_demand_empties_journal(void **st)
+{
+    const char *rec = recording_as("spaceexplorer", "save9", "translate +z 1 mm over 0.3 s\nwait 100 ms\n"
+                                   "press 9\nwait 50 ms\nrelease 9\nwait 30 s\n");
+    char spec[4300];
+    snprintf(spec, sizeof spec, "replay-realtime:%s", rec);
+    const char *bin = getenv("FRACNAV_BIN");
+    int fds[2];
+    assert_int_equal(pipe(fds), 0);
+    pid_t pid = fork();
+    if (pid == 0) {
+        dup2(fds[1], 2);
+        close(fds[0]);
+        freopen("/dev/null", "r", stdin);
+        execl(bin, bin, "navigate", case_dir, "--device", spec, "--duration", "20", (char *)NULL);
+        _exit(127);
+    }
+    close(fds[1]);
+    FILE *err = fdopen(fds[0], "r");
+    char line[1024];
+    int saved = 0;
+    while (!saved && fgets(line, sizeof line, err))
+        saved = strncmp(line, "saved ", 6) == 0;
+    usleep(300000); /* the loop thread empties the journal after the save */
+    kill(pid, SIGKILL);
+    int status;
+    waitpid(pid, &status, 0);
+    fclose(err);
+    assert_true(saved);
+    assert_int_equal(journal_count_on_disk(), 0);
+    char *out = NULL;
+    assert_int_equal(tu_run_cli(&out, "replay '%s' '%s' --save --no-journal", case_dir,
+                                recording("saveback", "translate -z 1 mm over 0.3 s\n")), 0);
+    free(out);
+}
+
 /* Writes one journal record that puts fragment B (index 1) at p: an interrupted session. */
 static void interrupted_at(pose p)
 {
@@ -544,6 +588,7 @@ int main(void)
         cmocka_unit_test(test_crash_recovery),
         cmocka_unit_test(test_navigate_saves_on_exit),
         cmocka_unit_test(test_navigate_keyboard_offers_recovery),
+        cmocka_unit_test(test_navigate_save_on_demand_empties_journal),
         cmocka_unit_test(test_navigate_keyboard_save_frame_quit),
         cmocka_unit_test(test_tau_options),
         cmocka_unit_test(test_replay_pivot),
