@@ -272,7 +272,7 @@ static void ui(loopkit *k, loopkit_dsource *ds, ring *ctl, pose *saved_poses, in
  * saved_poses outlives the loop thread, which reads it on LOOP_EV_SAVED. */
 static int run(loopkit *k, loopkit_dsource *ds, int keys, double duration)
 {
-    pose saved_poses[LOOP_MAX_FRAGS];
+    pose saved_poses[LOOP_MAX_FRAGS] = {0}; /* written by each save before the loop reads it */
     loop_set_saved(k->L, saved_poses);
     ring *in = ring_new(sizeof(loop_event), 1024), *ctl = ring_new(sizeof(loop_event), 64);
     runner run = {k->L, in, 0, 0};
