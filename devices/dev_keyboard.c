@@ -3,13 +3,17 @@
  * device-table row:
  *   a/d or arrows left/right  -x/+x    w/s or arrows up/down  -y/+y (away/towards you)
  *   r/f  -z/+z (up/down)   i/k -rx/+rx   j/l -rz/+rz   u/o -ry/+ry
- *   1-8  buttons 0-7 (tap)      space or x: stop all motion
+ *   1-8  buttons 0-7 (tap)      9  button 9 (save)   0 or m  button 10 (frame)
+ *   space or x: stop all motion   q  quit (as Ctrl-C: raises SIGINT)
  *   mouse: left drag rotates (rz, rx), middle drag rolls (ry), right drag moves (x, y), wheel z
- * A terminal has no key-up: a key holds its axis for KEY_HOLD_MS, and auto-repeat keeps it held.
+ * The row has 8 buttons, so 9 and 0 are sent as the SpaceMouse Enterprise's key codes for its
+ * buttons 9 and 10 (report 0x1C, firmware-spec/3dconnexion.md), which the application maps to
+ * those buttons. A terminal has no key-up: a key holds its axis for KEY_HOLD_MS, and auto-repeat keeps it held.
  * "keyboard:FILE" reads the same bytes from FILE instead of the terminal (scripts, tests). */
 #include <errno.h>
 #include <fcntl.h>
 #include <poll.h>
+#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -25,6 +29,7 @@
 
 #define MOUSE_GAIN 70  /* per terminal cell dragged */
 #define ESC_MAX 24
+
 
 enum { PENDING_MOTION = 1, PENDING_BUTTONS = 2 };
 
@@ -164,9 +169,11 @@ static void apply_key(dev_handle *h, char c, int64_t now)
     if (a >= 0) {
         h->v[a] = sign * KEY_LEVEL;
         h->pending |= PENDING_MOTION;
-    } else if (c >= '1' && c <= '8') {
-        h->buttons |= 1u << (c - '1');
+    } else if ((c >= '1' && c <= '9') || c == '0' || c == 'm') {
+        h->buttons |= 1u << (c >= '1' && c <= '9' ? c - '1' : 9); /* 0 and m: button 10 */
         h->pending |= PENDING_BUTTONS;
+    } else if (c == 'q') {
+        raise(SIGINT);
     } else if (c == ' ' || c == 'x') {
         memset(h->v, 0, sizeof h->v);
         h->pending |= PENDING_MOTION;
@@ -223,7 +230,7 @@ static int kb_info(dev_handle *h, dev_info *out)
 {
     memset(out, 0, sizeof *out);
     strcpy(out->path, "keyboard");
-    strcpy(out->name, "keyboard+mouse fallback (a/d w/s r/f, i/k j/l u/o, 1-8, mouse drag)");
+    strcpy(out->name, "keyboard+mouse fallback (a/d w/s r/f, i/k j/l u/o, 0-9, m, q, mouse drag)");
     return 0;
 }
 

@@ -358,20 +358,16 @@ static int16_t reported(const simdev *d, int i)
     return (int16_t)(v >= -NOISE_FLOOR && v <= NOISE_FLOOR ? 0 : v);
 }
 
-/* Enterprise key codes for bitmask bits 0..: buttons 1-10, 11, 12, then MENU, FIT, ESC ALT SHIFT
- * CTRL, rotate, pan/zoom, dominant, +, -, ENTER, DELETE, V1-V3, TAB, SPACE, views. */
-static const uint16_t keycode_of_bit[32] = {13, 14, 15, 16, 17, 18, 19, 20, 21, 22, 77, 78, 1, 2, 23,
-                                            24, 25, 26, 27, 28, 29, 30, 31, 36, 37, 103, 104, 105,
-                                            175, 176, 3, 4};
-
 static int keycode_report(const simdev *d, uint8_t *buf)
 {
     memset(buf, 0, 13);
     buf[0] = 0x1C;
     int k = 0;
-    for (int bit = 0; bit < 32 && k < 6; bit++)
-        if (d->buttons >> bit & 1)
-            le16(buf + 1 + 2 * k++, (int16_t)keycode_of_bit[bit]);
+    size_t nkeys;
+    const devtab_key *keys = devtab_keys(&nkeys); /* the key a button number stands for */
+    for (size_t i = 0; i < nkeys && k < 6; i++)
+        if (d->buttons >> keys[i].button & 1)
+            le16(buf + 1 + 2 * k++, (int16_t)keys[i].code);
     return 13;
 }
 

@@ -39,9 +39,11 @@ static int fill_bone(frag *f, int n)
 
 static int usage(FILE *out, int rc)
 {
-    fprintf(out, "usage: fracnav bench build [--json] [--reps R]\n\n"
+    fprintf(out, "usage: fracnav bench build [--json] [--reps R] [--tau-min T] [--tau-max T]\n\n"
                  "Builds the hierarchy of bone-like fragments of 64^3 to 256^3 voxels and reports\n"
-                 "the best of R builds (default 5) in wall and thread CPU time, nodes and tree bytes.\n");
+                 "the best of R builds (default 5) in wall and thread CPU time, nodes and tree bytes.\n"
+                 "  --tau-min T, --tau-max T   hierarchy thresholds (default 0 and 1),\n"
+                 "                             0 <= T_min <= T_max <= 1\n");
     return rc;
 }
 
@@ -49,10 +51,16 @@ int bench_build(int argc, char **argv)
 {
     if (cmd_wants_help(argc, argv))
         return usage(stdout, 0);
-    int json = 0, reps = 5;
+    int json = 0, reps = 5, rc;
+    cmd_tau tau = {0};
+    obb_params op = {0, 1};
     for (int i = 1; i < argc; i++) {
         char *end = NULL;
-        if (!strcmp(argv[i], "--json"))
+        if (cmd_tau_option("bench build", argv[i], i + 1 < argc ? argv[i + 1] : NULL, &tau, &rc)) {
+            if (rc)
+                return rc;
+            i++;
+        } else if (!strcmp(argv[i], "--json"))
             json = 1;
         else if (i + 1 < argc && !strcmp(argv[i], "--reps"))
             reps = (int)strtol(argv[++i], &end, 10);
@@ -65,6 +73,8 @@ int bench_build(int argc, char **argv)
             return 2;
         }
     }
+    if (cmd_tau_apply(&tau, &op.tau_min, &op.tau_max) < 0)
+        return cmd_usage_error("bench build", "%s", fn_err_msg());
     static const int sizes[] = {64, 96, 128, 160, 192, 224, 256};
     const int ns = (int)(sizeof sizes / sizeof sizes[0]);
     if (json)
@@ -80,7 +90,7 @@ int bench_build(int argc, char **argv)
         int depth = 0;
         for (int r = 0; r < reps; r++) {
             double t0 = bench_now_us(), c0 = bench_cpu_us();
-            obb_tree *t = obb_tree_build(&f, NULL);
+            obb_tree *t = obb_tree_build(&f, &op);
             double dt = (bench_now_us() - t0) / 1000, dc = (bench_cpu_us() - c0) / 1000;
             best_cpu = dc < best_cpu ? dc : best_cpu;
             if (!t) {

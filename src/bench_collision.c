@@ -603,11 +603,16 @@ static int parse(int argc, char **argv, opts *o, const char **which)
 {
     *o = (opts){.poses = 1000, .reps = 3, .fcl = 1, .seed = 1, .tau = {0, 1}};
     *which = "skull";
+    cmd_tau tau = {0};
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
-        int more = i + 1 < argc;
+        int more = i + 1 < argc, rc;
         char *end = NULL;
-        if (!strcmp(a, "--json"))
+        if (cmd_tau_option("bench collision", a, more ? argv[i + 1] : NULL, &tau, &rc)) {
+            if (rc)
+                return rc;
+            i++;
+        } else if (!strcmp(a, "--json"))
             o->json = 1;
         else if (!strcmp(a, "--no-fcl"))
             o->fcl = 0;
@@ -623,10 +628,6 @@ static int parse(int argc, char **argv, opts *o, const char **which)
             o->threshold = strtod(argv[++i], &end);
         else if (more && !strcmp(a, "--tolerance"))
             o->tolerance = strtod(argv[++i], &end);
-        else if (more && !strcmp(a, "--tau-min"))
-            o->tau.tau_min = strtod(argv[++i], &end);
-        else if (more && !strcmp(a, "--tau-max"))
-            o->tau.tau_max = strtod(argv[++i], &end);
         else if (more && !strcmp(a, "--bone"))
             o->bone = strtod(argv[++i], &end);
         else {
@@ -642,6 +643,8 @@ static int parse(int argc, char **argv, opts *o, const char **which)
         fprintf(stderr, "fracnav bench collision: --poses must be 2..1000000, --reps 1..100\n");
         return 2;
     }
+    if (cmd_tau_apply(&tau, &o->tau.tau_min, &o->tau.tau_max) < 0)
+        return cmd_usage_error("bench collision", "%s", fn_err_msg());
     return 0;
 }
 

@@ -38,7 +38,9 @@ static void usage(FILE *out)
                  "  --ct FILE     CT to fracture (default: the example CT, $FRACNAV_DATA/Cranium.inv3\n"
                  "                or /var/cache/fracnav/Cranium.inv3)\n"
                  "  --case DIR    steer an existing case instead (its journal is left alone)\n"
-                 "  --repeat N    play the 9 s motion script N times (default 10)\n");
+                 "  --repeat N    play the 9 s motion script N times (default 10)\n"
+                 "  --tau-min T, --tau-max T   hierarchy thresholds (default: the case's, or a new\n"
+                 "                case's 0.5 and 0.95), 0 <= T_min <= T_max <= 1\n");
 }
 
 /* Two fragments from a fracture of the CT at path. */
@@ -148,10 +150,15 @@ static void print(const loop_stats *s, double wall_s, const frag *f, int nfrag, 
 
 int bench_loop(int argc, char **argv)
 {
-    int json = 0, repeat = 10;
+    int json = 0, repeat = 10, rc;
     const char *ct = NULL, *case_dir = NULL;
+    cmd_tau tau = {0};
     for (int i = 1; i < argc; i++) {
-        if (!strcmp(argv[i], "--help") || !strcmp(argv[i], "-h")) {
+        if (cmd_tau_option("bench loop", argv[i], i + 1 < argc ? argv[i + 1] : NULL, &tau, &rc)) {
+            if (rc)
+                return rc;
+            i++;
+        } else if (!strcmp(argv[i], "--help") || !strcmp(argv[i], "-h")) {
             usage(stdout);
             return 0;
         } else if (!strcmp(argv[i], "--json"))
@@ -169,6 +176,8 @@ int bench_loop(int argc, char **argv)
     }
     if (!ct && !case_dir)
         ct = cmd_example_ct();
+    if (!case_dir && cmd_tau_check("bench loop", &tau))
+        return 2;
     loop_config cfg;
     loop_config_default(&cfg);
     cfg.check_invariant = 0; /* a benchmark of the loop as it runs in release builds */
@@ -177,12 +186,11 @@ int bench_loop(int argc, char **argv)
         fprintf(stderr, "fracnav bench loop: %s\n", fn_err_msg());
         return 1;
     }
-    int rc;
     double wall = 0;
     loop_stats s;
     if (case_dir) {
         loopkit k;
-        rc = loopkit_open(&k, case_dir, &cfg, LOOPKIT_RESUME, "bench loop");
+        rc = loopkit_open(&k, case_dir, &cfg, LOOPKIT_RESUME, "bench loop", &tau);
         if (rc == 0) {
             rc = drive(k.L, rec, &wall);
             loop_get_stats(k.L, &s);
@@ -194,7 +202,8 @@ int bench_loop(int argc, char **argv)
         frag f[2];
         memset(f, 0, sizeof f);
         rc = fragments_from_ct(ct, f);
-        obb_params op = {0.5, 0.95}; /* a new case's tau_min, tau_max (case_create) */
+        obb_params op = {CASE_TAU_MIN, CASE_TAU_MAX};
+        cmd_tau_apply(&tau, &op.tau_min, &op.tau_max); /* checked above */
         loop_obb *o = rc == 0 ? loop_obb_new(f, 2, &op, NULL) : NULL;
         uint8_t fixed[2] = {1, 0};
         loop_collider col = o ? loop_obb_collider(o) : (loop_collider){0};

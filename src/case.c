@@ -258,8 +258,8 @@ fcase *case_create(const char *dir, const char *source, vol *ct, vol *labels, co
     c->ct = ct;
     c->labels = labels;
     c->fixed = -1;
-    c->tau_min = 0.5;
-    c->tau_max = 0.95;
+    c->tau_min = CASE_TAU_MIN;
+    c->tau_max = CASE_TAU_MAX;
     c->seg = *sp;
     if (strlen(dir) >= sizeof c->dir || strlen(source) >= sizeof c->source) {
         fn_err_set(FN_EINVAL, "case: folder or source path too long");

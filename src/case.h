@@ -19,6 +19,9 @@
 
 #define CASE_VERSION 1
 
+#define CASE_TAU_MIN 0.5  /* a new case's tau_min and tau_max */
+#define CASE_TAU_MAX 0.95
+
 typedef struct fcase {
     char dir[4096];          /* the case folder */
     char source[4096];       /* source volume path (absolute, or as given) */

@@ -30,6 +30,26 @@ int cmd_usage_error(const char *cmd, const char *fmt, ...) __attribute__((format
  * or "OPT needs a value (ACCEPTED)", e.g. accepted = "a number (HU), 'auto' or 'auto-bone'".
  * Returns 2. */
 int cmd_bad_value(const char *cmd, const char *opt, const char *val, const char *accepted);
+/* --tau-min T / --tau-max T, the OBB hierarchy's thresholds (obb.h), for every command that
+ * builds one. given: bit 0 --tau-min, bit 1 --tau-max were on the command line. */
+typedef struct cmd_tau {
+    double min, max;
+    unsigned given;
+} cmd_tau;
+#define CMD_TAU_HELP                                                                              \
+    "  --tau-min T, --tau-max T   hierarchy thresholds, 0 <= T_min <= T_max <= 1 (a new case:\n" \
+    "                             0.5 and 0.95): cells whose collision probability stays under\n" \
+    "                             T_min are dropped, cells above T_max are solid\n"
+/* When a is --tau-min or --tau-max: parses val (a number from 0 to 1) into t and returns 1 with
+ * *rc 0, or with *rc 2 after printing a usage error that names the option. Other a: 0. */
+int cmd_tau_option(const char *cmd, const char *a, const char *val, cmd_tau *t, int *rc);
+/* After parsing: the values given over a new case's (CASE_TAU_MIN, CASE_TAU_MAX) must keep
+ * tau_min <= tau_max. 0, or 2 after printing a usage error naming the options. */
+int cmd_tau_check(const char *cmd, const cmd_tau *t);
+/* Puts the values given over *tau_min and *tau_max (defaults, or a case's), then checks
+ * tau_min <= tau_max. 0, or FN_EINVAL with a message naming the options. */
+int cmd_tau_apply(const cmd_tau *t, double *tau_min, double *tau_max);
+
 /* Path of the example CT that .ci/setup caches: $FRACNAV_DATA/Cranium.inv3, else
  * /var/cache/fracnav/Cranium.inv3 (a static buffer). */
 const char *cmd_example_ct(void);

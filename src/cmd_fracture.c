@@ -33,6 +33,7 @@ static void usage(FILE *out)
             "  --bone-loss MM         thickness of bone lost along each cut (default 0)\n"
             "  --roughness MM         RMS relief of the fracture surface (default 2)\n"
             "  --threshold HU         bone threshold (default 300)\n"
+            CMD_TAU_HELP
             "  --help                 this text\n");
 }
 
@@ -59,9 +60,10 @@ static double *number_option(fracture_params *p, const char *opt, const char **a
 
 static int parse(int argc, char **argv, fracture_params *p, const char **in, const char **out)
 {
-    int have_seed = 0;
+    int have_seed = 0, rc;
     double *target;
     const char *accepted;
+    cmd_tau tau = {0};
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i], *val = i + 1 < argc ? argv[i + 1] : NULL;
         double d;
@@ -76,6 +78,9 @@ static int parse(int argc, char **argv, fracture_params *p, const char **in, con
             if (!val)
                 return cmd_bad_value("fracture", a, val, "a folder");
             *out = val;
+        } else if (cmd_tau_option("fracture", a, val, &tau, &rc)) {
+            if (rc)
+                return rc;
         } else if (!strcmp(a, "--seed")) {
             if (!cmd_number(val, &d) || !(d >= 0 && d < 9007199254740992.0 && d == (double)(uint64_t)d))
                 return cmd_bad_value("fracture", a, val, "a whole number 0..2^53");
@@ -94,7 +99,7 @@ static int parse(int argc, char **argv, fracture_params *p, const char **in, con
     }
     if (!*in || !*out || !have_seed)
         return cmd_usage_error("fracture", "%s", "needs VOLUME, -o CASE and --seed N");
-    if (fracture_check(p) < 0)
+    if (fracture_check(p) < 0 || cmd_tau_apply(&tau, &p->tau_min, &p->tau_max) < 0)
         return cmd_usage_error("fracture", "%s", fn_err_msg());
     return 0;
 }

@@ -36,7 +36,8 @@ static int resume(loopkit *k, const char *dir)
     return rc < 0 ? fn_err_wrap(rc, "%s/journal", dir) : 0;
 }
 
-int loopkit_open(loopkit *k, const char *dir, const loop_config *cfg, unsigned flags, const char *cmd)
+int loopkit_open(loopkit *k, const char *dir, const loop_config *cfg, unsigned flags, const char *cmd,
+                 const cmd_tau *tau)
 {
     memset(k, 0, sizeof *k);
     size_t pending = loopkit_journal_pending(dir);
@@ -56,6 +57,8 @@ int loopkit_open(loopkit *k, const char *dir, const loop_config *cfg, unsigned f
                         LOOP_MAX_FRAGS);
     if (rc == 0 && k->c->nfrag < 2)
         rc = fn_err_set(FN_EINVAL, "%s: %d fragment(s); steering needs at least two", dir, k->c->nfrag);
+    if (rc == 0 && tau)
+        rc = cmd_tau_apply(tau, &k->c->tau_min, &k->c->tau_max);
     if (rc == 0) {
         obb_params op = {k->c->tau_min, k->c->tau_max};
         k->obb = loop_obb_new(k->c->frag, k->c->nfrag, &op, NULL);
@@ -115,7 +118,7 @@ static json_t *pose_json(const pose *p)
                      p->t[1], p->t[2]);
 }
 
-void loopkit_print_json(const loopkit *k, FILE *out, long unplugs)
+void loopkit_print_json(const loopkit *k, FILE *out, long unplugs, uint64_t skipped)
 {
     loop_stats s;
     loop_get_stats(k->L, &s);
@@ -142,6 +145,11 @@ void loopkit_print_json(const loopkit *k, FILE *out, long unplugs)
                           "query_us_max", s.query_us_max, "final_poses", poses, "pose_digest",
                           digest, "journal_records", (json_int_t)(k->jr ? journal_count(k->jr) : 0));
     json_object_set_new(j, "journal_errors", json_integer((json_int_t)s.journal_errors));
+    json_object_set_new(j, "escaping", json_integer((json_int_t)s.escaping));
+    json_object_set_new(j, "step_hz", json_real(s.step_hz));
+    json_object_set_new(j, "tick_hz", json_real(s.tick_hz));
+    json_object_set_new(j, "dropped", json_integer((json_int_t)s.dropped));
+    json_object_set_new(j, "skipped_reports", json_integer((json_int_t)skipped));
     if (unplugs >= 0)
         json_object_set_new(j, "unplugs", json_integer(unplugs));
     json_dumpf(j, out, JSON_INDENT(2) | JSON_REAL_PRECISION(17));
@@ -221,6 +229,15 @@ static int tsource_next(void *ctx, loop_event *ev, int timeout_ms)
     }
 }
 
+int loopkit_parse_pivot(const char *cmd, int argc, char **argv, int *i, double out[3])
+{
+    for (int a = 0; a < 3; a++)
+        if (*i + 1 + a >= argc || !cmd_number(argv[*i + 1 + a], &out[a]))
+            return cmd_usage_error(cmd, "--pivot needs three numbers X Y Z (world mm)");
+    *i += 3;
+    return 0;
+}
+
 int loopkit_parse_frame(const char *cmd, const char *name, loop_frame *out)
 {
     static const char *names[] = {[LOOP_FRAME_CAMERA] = "camera", [LOOP_FRAME_WORLD] = "world",
@@ -247,7 +264,7 @@ static int holding(const loopkit_dsource *s, const loop_event *ev)
         deflected |= ev->motion[a] != 0;
     if (!deflected || !s->L)
         return deflected;
-    loop_scene sc;
+    loop_scene sc = {0};
     loop_scene_read(s->L, &sc);
     return !sc.fixed[sc.selected];
 }

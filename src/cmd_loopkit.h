@@ -7,6 +7,7 @@
 
 #include "calib.h"
 #include "case.h"
+#include "cmd.h"
 #include "dev.h"
 #include "devparse.h"
 #include "journal.h"
@@ -31,17 +32,24 @@ typedef struct loopkit {
 
 /* Loads the case and builds everything. A journal holding unsaved poses without LOOPKIT_RESUME or
  * LOOPKIT_DISCARD is an error (FN_EMISMATCH) whose message says how many and what to do; `cmd`
- * names the command for that advice. 0 or FN_E* (k is then empty). */
-int loopkit_open(loopkit *k, const char *dir, const loop_config *cfg, unsigned flags, const char *cmd);
+ * names the command for that advice. tau: --tau-min/--tau-max over the case's (NULL: none); they
+ * go into k->c, so a save keeps them. 0 or FN_E* (k is then empty). */
+int loopkit_open(loopkit *k, const char *dir, const loop_config *cfg, unsigned flags, const char *cmd,
+                 const cmd_tau *tau);
 /* Unsaved records in DIR/journal (0 when none or unreadable). */
 size_t loopkit_journal_pending(const char *dir);
 /* Copies the loop's poses into the case, saves it atomically, then empties the journal. */
 int loopkit_save(loopkit *k);
 void loopkit_close(loopkit *k);
 
-/* Final poses and statistics as JSON on out (replay's and navigate's summary); unplugs < 0 leaves
- * that member out. */
-void loopkit_print_json(const loopkit *k, FILE *out, long unplugs);
+/* Final poses and statistics as JSON on out (replay's and navigate's summary; the members are
+ * listed in `fracnav replay --help`); unplugs < 0 leaves that member out. skipped: reports of an
+ * unknown ID or a wrong length that the parser skipped. */
+void loopkit_print_json(const loopkit *k, FILE *out, long unplugs, uint64_t skipped);
+
+/* --pivot X Y Z (world mm): argv[*i] is --pivot; parses the three numbers after it into out and
+ * moves *i past them. 0, or a usage error for `cmd` (returns 2). */
+int loopkit_parse_pivot(const char *cmd, int argc, char **argv, int *i, double out[3]);
 
 /* --frame NAME: camera, world or fragment. 0, or a usage error for `cmd` (returns 2). */
 int loopkit_parse_frame(const char *cmd, const char *name, loop_frame *out);

@@ -10,6 +10,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/ioctl.h>
+#include <sys/stat.h>
 #include <termios.h>
 #include <time.h>
 #include <unistd.h>
@@ -29,16 +30,25 @@ static void usage(FILE *out)
             "                      virtual:spacenavigator:script=FILE)\n"
             "  --recover           start from the poses the journal holds beyond case.json\n"
             "  --discard-journal   start from case.json, emptying the journal\n"
+            "                      (with neither, navigate asks on stdin before opening the device)\n"
             "  --config FILE       calibration in spnavrc syntax (default ~/.config/fracnav/spnavrc)\n"
             "  --frame F           camera (default), world or fragment\n"
+            "  --pivot X Y Z       turn the first selected fragment about this point (world mm,\n"
+            "                      LPS) instead of its centroid, until the selection changes\n"
+            "  --tau-min T, --tau-max T   hierarchy thresholds instead of the case's (0 <= T_min\n"
+            "                      <= T_max <= 1), saved into the case with the poses\n"
             "  --duration S        stop after S seconds (scripts, tests)\n"
             "  --json              print a JSON summary on exit (as fracnav replay)\n\n"
             "keys (when the controller is not the keyboard): n/p next/previous fragment, f fix or\n"
             "unfix, c collision checking on/off, t translation only, r rotation only, u undo, y redo,\n"
             "m frame, s save, q quit. Controller buttons: 1 next, 2 previous, 3 fix, 4 collision,\n"
             "5 translation only, 6 rotation only, 7 undo, 8 redo, 9 save, 10 frame.\n"
-            "With --device keyboard the keys steer instead: arrows or a/d w/s move in x and y, r/f\n"
-            "up/down, i/k j/l u/o rotate, space stops, digits 1-8 are the controller buttons above.\n"
+            "With --device keyboard (what auto picks without a controller) the keys steer instead:\n"
+            "  arrows or a/d w/s  move in x and y        r/f  up/down\n"
+            "  i/k j/l u/o        rotate                 space or x  stop\n"
+            "  1 next  2 previous  3 fix  4 collision  5 translation only  6 rotation only\n"
+            "  7 undo  8 redo  9 save  0 or m frame  q quit (saves)\n"
+            "  mouse: left drag rotates, middle drag rolls, right drag moves, wheel up/down\n"
             "Ctrl-C quits and saves, whatever the device.\n"
             "The camera frame looks from the patient's front (along +y, LPS), superior up.\n");
 }
@@ -57,6 +67,9 @@ typedef struct opts {
     loop_frame frame;
     double duration;
     int json;
+    cmd_tau tau;
+    int have_pivot;
+    double pivot[3];
 } opts;
 
 static int parse(int argc, char **argv, opts *o)
@@ -66,7 +79,12 @@ static int parse(int argc, char **argv, opts *o)
     o->flags = LOOPKIT_JOURNAL;
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
-        if (!strcmp(a, "--device") && v)
+        int rc;
+        if (cmd_tau_option("navigate", a, v, &o->tau, &rc)) {
+            if (rc)
+                return rc;
+            i++;
+        } else if (!strcmp(a, "--device") && v)
             o->device = argv[++i];
         else if (!strcmp(a, "--config") && v)
             o->config = argv[++i];
@@ -78,7 +96,11 @@ static int parse(int argc, char **argv, opts *o)
             o->json = 1;
         else if (!strcmp(a, "--duration") && v && atof(v) > 0)
             o->duration = atof(argv[++i]);
-        else if (!strcmp(a, "--frame") && v) {
+        else if (!strcmp(a, "--pivot")) {
+            if (loopkit_parse_pivot("navigate", argc, argv, &i, o->pivot))
+                return 2;
+            o->have_pivot = 1;
+        } else if (!strcmp(a, "--frame") && v) {
             if (loopkit_parse_frame("navigate", argv[++i], &o->frame))
                 return 2;
         } else if (a[0] == '-' || o->dir) {
@@ -98,18 +120,32 @@ static int parse(int argc, char **argv, opts *o)
     return 0;
 }
 
-/* An unsaved journal on a terminal: ask. Elsewhere loopkit_open explains the two flags. */
-static void offer_recovery(opts *o, int keys_free)
+/* Whether stdin can answer a question: a terminal, a pipe or a file (not /dev/null). */
+static int can_ask(void)
+{
+    struct stat st;
+    return isatty(STDIN_FILENO) ||
+           (fstat(STDIN_FILENO, &st) == 0 && (S_ISFIFO(st.st_mode) || S_ISREG(st.st_mode)));
+}
+
+/* An unsaved journal: ask on stdin, before any device takes the terminal (the keyboard device
+ * puts it in raw mode). No answer: loopkit_open explains the two flags. The line is read byte by
+ * byte so that no key meant for the keyboard device is swallowed by stdio's buffer. */
+static void offer_recovery(opts *o)
 {
     size_t n = loopkit_journal_pending(o->dir);
-    if (!n || (o->flags & (LOOPKIT_RESUME | LOOPKIT_DISCARD)) || !keys_free || !isatty(STDIN_FILENO))
+    if (!n || (o->flags & (LOOPKIT_RESUME | LOOPKIT_DISCARD)) || !can_ask())
         return;
     fprintf(stderr, "%s/journal holds %zu poses not saved in the case (an interrupted session).\n"
                     "Recover them? [Y/n] ", o->dir, n);
-    char line[16] = "";
-    if (!fgets(line, sizeof line, stdin))
+    char first = 0, ch;
+    ssize_t got;
+    while ((got = read(STDIN_FILENO, &ch, 1)) == 1 && ch != '\n')
+        if (!first)
+            first = ch;
+    if (got != 1 && !first)
         return;
-    o->flags |= (line[0] == 'n' || line[0] == 'N') ? LOOPKIT_DISCARD : LOOPKIT_RESUME;
+    o->flags |= (first == 'n' || first == 'N') ? LOOPKIT_DISCARD : LOOPKIT_RESUME;
 }
 
 static loop_action key_action(int ch)
@@ -144,15 +180,21 @@ static void *loop_thread(void *arg)
     return NULL;
 }
 
-/* Saves the poses of the latest scene (the loop keeps running; the journal stays as it is). */
-static void save_scene(loopkit *k, const loop_scene *sc)
+/* Saves the poses of the latest scene while the loop keeps running, then has the loop empty the
+ * journal of what the case now holds (saved: the loop_set_saved array). */
+static void save_scene(loopkit *k, const loop_scene *sc, pose *saved, ring *ctl)
 {
     for (int i = 0; i < k->c->nfrag; i++)
         k->c->frag[i].pose = sc->pose[i];
-    if (case_save(k->c) < 0)
+    if (case_save(k->c) < 0) {
         fprintf(stderr, "\nfracnav navigate: save failed: %s\n", fn_err_msg());
-    else
-        fprintf(stderr, "\nsaved %s\n", k->dir_name);
+        return;
+    }
+    fprintf(stderr, "\nsaved %s\n", k->dir_name);
+    memcpy(saved, sc->pose, sizeof(pose) * (size_t)k->c->nfrag);
+    loop_event ev = {.kind = LOOP_EV_SAVED};
+    if (ring_push(ctl, &ev))
+        loop_notify(k->L);
 }
 
 /* Terminal keys -> actions on the control ring (q quits). */
@@ -179,7 +221,8 @@ static void fit_to_terminal(char *line)
 }
 
 /* The main thread while the loop runs: keys, saves on request, the status line. */
-static void ui(loopkit *k, loopkit_dsource *ds, ring *ctl, int keys, double duration)
+static void ui(loopkit *k, loopkit_dsource *ds, ring *ctl, pose *saved_poses, int keys,
+               double duration)
 {
     struct termios saved;
     int raw = keys && isatty(STDIN_FILENO) && tcgetattr(STDIN_FILENO, &saved) == 0;
@@ -193,14 +236,14 @@ static void ui(loopkit *k, loopkit_dsource *ds, ring *ctl, int keys, double dura
     int tty = isatty(STDOUT_FILENO);
     int64_t t0 = loop_now_us(), last_print = 0;
     unsigned saves_seen = 0;
-    loop_scene sc;
+    loop_scene sc = {0};
     while (!quit && (duration <= 0 || (double)(loop_now_us() - t0) < duration * 1e6)) {
         if (raw)
             read_keys(k->L, ctl);
         loop_scene_read(k->L, &sc);
         if (sc.save_requests != saves_seen) {
             saves_seen = sc.save_requests;
-            save_scene(k, &sc);
+            save_scene(k, &sc, saved_poses, ctl);
         }
         int64_t now = loop_now_us();
         if (now - last_print >= (tty ? 100000 : 1000000)) {
@@ -225,9 +268,12 @@ static void ui(loopkit *k, loopkit_dsource *ds, ring *ctl, int keys, double dura
         printf("\n");
 }
 
-/* Input thread and loop thread around ui(); then the loop is stopped and the case saved. */
+/* Input thread and loop thread around ui(); then the loop is stopped and the case saved.
+ * saved_poses outlives the loop thread, which reads it on LOOP_EV_SAVED. */
 static int run(loopkit *k, loopkit_dsource *ds, int keys, double duration)
 {
+    pose saved_poses[LOOP_MAX_FRAGS] = {0}; /* written by each save before the loop reads it */
+    loop_set_saved(k->L, saved_poses);
     ring *in = ring_new(sizeof(loop_event), 1024), *ctl = ring_new(sizeof(loop_event), 64);
     runner run = {k->L, in, 0, 0};
     atomic_init(&run.stop, 0);
@@ -243,7 +289,7 @@ static int run(loopkit *k, loopkit_dsource *ds, int keys, double duration)
         sa.sa_handler = on_signal;
         sigaction(SIGINT, &sa, NULL);
         sigaction(SIGTERM, &sa, NULL);
-        ui(k, ds, ctl, keys, duration);
+        ui(k, ds, ctl, saved_poses, keys, duration);
         loop_reader_stop(rd);
         atomic_store(&run.stop, 1);
         loop_notify(k->L);
@@ -253,6 +299,7 @@ static int run(loopkit *k, loopkit_dsource *ds, int keys, double duration)
             rc = loopkit_save(k);
     }
     loop_set_controls(k->L, NULL);
+    loop_set_saved(k->L, NULL);
     ring_free(in);
     ring_free(ctl);
     return rc;
@@ -276,28 +323,30 @@ int cmd_navigate(int argc, char **argv)
         return 1;
     }
     fputs(diag, stderr);
+    offer_recovery(&o);
     ds.d = dev_open(o.device);
     if (!ds.d) {
         fprintf(stderr, "fracnav navigate: %s\n", fn_err_msg());
         return 1;
     }
     int keys = strcmp(dev_transport_name(ds.d), "keyboard") != 0;
-    offer_recovery(&o, keys);
     loop_config cfg;
     loop_config_default(&cfg);
     cfg.frame = o.frame;
     loopkit k;
-    rc = loopkit_open(&k, o.dir, &cfg, o.flags, "navigate");
+    rc = loopkit_open(&k, o.dir, &cfg, o.flags, "navigate", &o.tau);
     if (rc == 0) {
         if (k.resumed)
             fprintf(stderr, "recovered %zu journal records\n", k.resumed);
         ds.L = k.L;
+        if (o.have_pivot)
+            loop_set_pivot(k.L, o.pivot);
         ds.led = -1;
         atomic_init(&ds.battery, -1);
         rc = run(&k, &ds, keys, o.duration);
         dev_set_led(ds.d, 0);
         if (rc == 0 && o.json)
-            loopkit_print_json(&k, stdout, -1);
+            loopkit_print_json(&k, stdout, -1, dev_skipped(ds.d));
         else if (rc == 0)
             fprintf(stderr, "saved %s\n", o.dir);
         loopkit_close(&k);

@@ -14,10 +14,27 @@ static void usage(FILE *out)
             "usage: fracnav replay CASE FILE.fnrec [--realtime] [--json] [options]\n\n"
             "Play a recording of a 6-DOF controller through the navigation loop on CASE: every report\n"
             "is parsed, calibrated and stepped (collision-checked against every other fragment), and\n"
-            "every accepted pose is appended to CASE/journal. Stepping uses only the recorded\n"
+            "every accepted pose is appended to CASE/journal (kept if the run is killed, for\n"
+            "--recover; emptied when it finishes, unless it continued from the journal with\n"
+            "--recover and did not --save). Stepping uses only the recorded\n"
             "timestamps, so the same case and recording give the same poses and pose_digest on every\n"
-            "run and machine. Prints a summary (JSON with --json): steps, accepted, limited, slid,\n"
-            "refused, collisions_in_accepted (always 0), latency, final_poses, pose_digest.\n\n"
+            "run and machine. Prints a summary (JSON with --json, the same as navigate --json):\n"
+            "  events, steps        events handled; motion steps (accepted + limited + slid + refused)\n"
+            "  accepted, limited, slid, refused   outcomes of the steps\n"
+            "  collisions_in_accepted   accepted poses found colliding on re-check (always 0)\n"
+            "  unchecked            poses taken while collision checking was off\n"
+            "  escaping             poses taken inside another fragment, none deeper (checking\n"
+            "                       turned back on while penetrating)\n"
+            "  latency_p50_us, latency_p99_us, latency_max_us   report arrival to accepted pose\n"
+            "  queries, query_us_mean, query_us_max   pair collision queries and their time\n"
+            "  step_hz, tick_hz     steps and loop timer ticks per second of wall time\n"
+            "  dropped              events lost to a full input ring (0 unless the loop fell behind)\n"
+            "  skipped_reports      device reports of an unknown ID or a wrong length, skipped\n"
+            "  unplugs              device unplugs seen (replay only)\n"
+            "  journal_records, journal_errors   records left in CASE/journal; failed writes\n"
+            "  resumed_from_journal records applied by --recover\n"
+            "  final_poses          per fragment: id, name, fixed, q (w x y z), t (mm)\n"
+            "  pose_digest          FNV-1a 64 over every accepted pose in order (hex)\n\n"
             "  --realtime          pace the reports at recorded speed through the input thread and\n"
             "                      the live loop (default: as fast as possible, one thread)\n"
             "  --json              print the summary as JSON\n"
@@ -26,7 +43,11 @@ static void usage(FILE *out)
             "  --no-journal        do not write CASE/journal\n"
             "  --save              save the final poses into the case (and empty the journal)\n"
             "  --frame F           camera (default), world or fragment\n"
+            "  --pivot X Y Z       turn the first selected fragment about this point (world mm,\n"
+            "                      LPS) instead of its centroid, until the selection changes\n"
             "  --config FILE       calibration in spnavrc syntax (default: none, sensitivity 1)\n"
+            "  --tau-min T, --tau-max T   hierarchy thresholds instead of the case's (0 <= T_min\n"
+            "                      <= T_max <= 1); --save keeps them in the case\n"
             "  --help              this text\n");
 }
 
@@ -35,6 +56,9 @@ typedef struct opts {
     int realtime, json, no_journal, save;
     unsigned flags;
     loop_frame frame;
+    cmd_tau tau;
+    int have_pivot;
+    double pivot[3];
 } opts;
 
 static int parse(int argc, char **argv, opts *o)
@@ -42,7 +66,12 @@ static int parse(int argc, char **argv, opts *o)
     memset(o, 0, sizeof *o);
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
-        if (!strcmp(a, "--realtime"))
+        int rc;
+        if (cmd_tau_option("replay", a, i + 1 < argc ? argv[i + 1] : NULL, &o->tau, &rc)) {
+            if (rc)
+                return rc;
+            i++;
+        } else if (!strcmp(a, "--realtime"))
             o->realtime = 1;
         else if (!strcmp(a, "--json"))
             o->json = 1;
@@ -57,6 +86,10 @@ static int parse(int argc, char **argv, opts *o)
         else if (!strcmp(a, "--frame") && i + 1 < argc) {
             if (loopkit_parse_frame("replay", argv[++i], &o->frame))
                 return 2;
+        } else if (!strcmp(a, "--pivot")) {
+            if (loopkit_parse_pivot("replay", argc, argv, &i, o->pivot))
+                return 2;
+            o->have_pivot = 1;
         } else if (!strcmp(a, "--config") && i + 1 < argc)
             o->config = argv[++i];
         else if (a[0] == '-' || (o->dir && o->rec)) {
@@ -149,7 +182,7 @@ int cmd_replay(int argc, char **argv)
     cfg.frame = o.frame;
     cfg.check_invariant = 1;
     loopkit k;
-    if (loopkit_open(&k, o.dir, &cfg, o.flags, "replay") < 0) {
+    if (loopkit_open(&k, o.dir, &cfg, o.flags, "replay", &o.tau) < 0) {
         fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
         sim_replay_transport.close(h);
         return 1;
@@ -161,6 +194,8 @@ int cmd_replay(int argc, char **argv)
     ts.finished = sim_replay_finished;
     loopkit_decoder_init(&ts.dec, hdr->vid, hdr->pid, &cal);
     fprintf(stderr, "fracnav replay: stepping %s on %s\n", o.rec, o.dir);
+    if (o.have_pivot)
+        loop_set_pivot(k.L, o.pivot);
     loop_reset_timing(k.L);
     loop_source src = loopkit_transport_source(&ts);
     rc = o.realtime ? run_realtime(&k, src) : run_fast(&k, src);
@@ -168,10 +203,12 @@ int cmd_replay(int argc, char **argv)
         rc = journal_sync(k.jr);
     if (rc == 0 && o.save)
         rc = loopkit_save(&k);
+    else if (rc == 0 && k.jr && !k.resumed)
+        rc = journal_truncate(k.jr); /* finished: the poses are in the summary, the case unchanged */
     if (rc < 0) {
         fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
     } else if (o.json) {
-        loopkit_print_json(&k, stdout, (long)ts.unplugs);
+        loopkit_print_json(&k, stdout, (long)ts.unplugs, ts.dec.ps.n_unknown_id + ts.dec.ps.n_bad_len);
     } else {
         loop_stats s;
         loop_get_stats(k.L, &s);

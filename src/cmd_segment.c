@@ -29,11 +29,13 @@ static void usage(FILE *out)
             "  --keep N                   keep only the N largest components\n"
             "  --ramp W                   probability map: 0.5 at the threshold rising to 1 at\n"
             "                             threshold + W/2 (default 200; 0 = 1 inside the mask)\n"
+            CMD_TAU_HELP
             "  --help                     this text\n");
 }
 
-static int parse(int argc, char **argv, seg_params *p, const char **in, const char **out)
+static int parse(int argc, char **argv, seg_params *p, cmd_tau *tau, const char **in, const char **out)
 {
+    int rc;
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
         const char *val = i + 1 < argc ? argv[i + 1] : NULL;
@@ -75,12 +77,15 @@ static int parse(int argc, char **argv, seg_params *p, const char **in, const ch
             if (!cmd_number(val, &d) || d < 0)
                 return cmd_bad_value("segment", a, val, "a number >= 0 (HU)");
             p->ramp = d;
+        } else if (cmd_tau_option("segment", a, val, tau, &rc)) {
+            if (rc)
+                return rc;
         } else
             return cmd_usage_error("segment", "unknown option '%s'", a);
     }
     if (!*in || !*out)
         return cmd_usage_error("segment", "%s", "needs VOLUME and -o CASE");
-    return 0;
+    return cmd_tau_check("segment", tau);
 }
 
 static double now(void)
@@ -110,7 +115,8 @@ int cmd_segment(int argc, char **argv)
     seg_params p;
     seg_defaults(&p);
     const char *in = NULL, *out = NULL;
-    int rc = parse(argc, argv, &p, &in, &out);
+    cmd_tau tau = {0};
+    int rc = parse(argc, argv, &p, &tau, &in, &out);
     if (rc)
         return rc;
     double t0 = now();
@@ -127,6 +133,8 @@ int cmd_segment(int argc, char **argv)
     r.labels = NULL;
     double t2 = now();
     fcase *c = case_create(out, in, ct, labels, &p);
+    if (c)
+        cmd_tau_apply(&tau, &c->tau_min, &c->tau_max); /* checked by parse */
     double t3 = now();
     if (!c || case_save(c) < 0) {
         fprintf(stderr, "fracnav segment: %s\n", fn_err_msg());

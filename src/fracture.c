@@ -24,6 +24,8 @@ void fracture_defaults(fracture_params *p)
     p->wavelength_mm = 16;
     p->threshold = 300;
     p->fill = 40;
+    p->tau_min = CASE_TAU_MIN;
+    p->tau_max = CASE_TAU_MAX;
 }
 
 uint64_t fracture_rng_next(uint64_t *state)
@@ -470,6 +472,8 @@ fcase *fracture_make_case(const vol *ct, const fracture_params *p, const char *d
         for (int i = 0; i < c->nfrag; i++)
             c->truth[i] = r.truth[c->frag[i].id - 1];
         c->fixed = case_find(c, 1);
+        c->tau_min = p->tau_min;
+        c->tau_max = p->tau_max;
         if (case_save(c) < 0) {
             case_free(c);
             c = NULL;

@@ -32,6 +32,7 @@ typedef struct fracture_params {
     double wavelength_mm; /* of the coarsest noise octave */
     double threshold;     /* bone threshold (HU) */
     double fill;          /* value written where bone was removed or left (soft tissue, HU) */
+    double tau_min, tau_max; /* the case's hierarchy thresholds */
 } fracture_params;
 
 typedef struct fracture_result {

@@ -11,6 +11,7 @@
 
 #define SAFETY_MM 0.01 /* the separation shortcut keeps this much distance in hand */
 #define CLIMB 0.5      /* backing away per unit of tangential motion when riding over a bump */
+#define OVERLAP_EPS_MM3 1e-6 /* rounding in the overlap sum: a sideways move is not deeper */
 
 void loop_config_default(loop_config *c)
 {
@@ -281,25 +282,77 @@ static int slide(loop *L, int s, pose *cur, double *gap, double c[3], const doub
     return moved_any;
 }
 
+/* Fragment s at p: its overlap with every other (0 without the collider's overlap measure). */
+static int overlap_all(loop *L, int s, const pose *p, double *sum)
+{
+    *sum = 0;
+    for (int j = 0; j < L->n && L->col.overlap; j++) {
+        double mm3 = 0;
+        int rc = j == s ? 0 : L->col.overlap(L->col.ctx, s, p, j, &L->pose[j], &mm3);
+        if (rc < 0)
+            return rc;
+        *sum += mm3;
+    }
+    return 0;
+}
+
+/* Queries fragment s where it stands: the gap, or that it interpenetrates and how deep. */
+static int refresh_contact(loop *L, int s)
+{
+    double sep;
+    int rc = collide_all(L, s, &L->pose[s], 0, &sep);
+    if (rc < 0)
+        return rc;
+    L->in_collision = rc;
+    L->gap_valid = !rc;
+    L->gap = rc ? 0 : sep;
+    L->pen = rc ? fmin(sep, 0) : 0;
+    return rc ? overlap_all(L, s, &L->pose[s], &L->overlap) : 0;
+}
+
+/* Fragment s interpenetrates another (checking was off). The whole move is taken if it frees the
+ * fragment or does not deepen the overlap; otherwise it is refused. */
+static int escape(loop *L, int s, const pose *cand, int64_t t_us)
+{
+    double sep, ov = 0;
+    int rc = collide_all(L, s, cand, 0, &sep);
+    if (rc == 1) {
+        int orc = overlap_all(L, s, cand, &ov);
+        rc = orc < 0 ? orc : rc;
+    }
+    if (rc < 0)
+        return rc;
+    if (rc == 0) {
+        loop_accept(L, s, *cand, t_us, JOURNAL_MOVE, LOOP_CHECKED);
+        L->in_collision = 0;
+        L->gap_valid = 1;
+        L->gap = sep;
+        return LOOP_ACCEPTED;
+    }
+    if (L->col.overlap ? ov > L->overlap + OVERLAP_EPS_MM3 : sep < L->pen)
+        return LOOP_REFUSED;
+    loop_accept(L, s, *cand, t_us, JOURNAL_MOVE, LOOP_ESCAPING);
+    L->pen = fmin(sep, 0);
+    L->overlap = ov;
+    return LOOP_ACCEPTED;
+}
+
 /* Moves the selected fragment by (d, r) about pivot c under collision checking. */
 static int move(loop *L, int s, double c[3], const double d[3], const double r[3], int64_t t_us)
 {
     pose start = L->pose[s], cur = start;
     if (!L->collision_on) {
-        loop_accept(L, s, moved(&start, c, d, r, 1), t_us, JOURNAL_MOVE, 0);
+        loop_accept(L, s, moved(&start, c, d, r, 1), t_us, JOURNAL_MOVE, LOOP_UNCHECKED);
         return LOOP_ACCEPTED;
     }
-    if (!L->gap_valid) {
-        int rc = collide_all(L, s, &start, 0, &L->gap);
+    if (!L->gap_valid && !L->in_collision) {
+        int rc = refresh_contact(L, s);
         if (rc < 0)
             return rc;
-        L->in_collision = rc;
-        L->gap_valid = !rc;
     }
     if (L->in_collision) {
-        /* Already interpenetrating (checking was off): let the user pull it free, unchecked. */
-        loop_accept(L, s, moved(&start, c, d, r, 1), t_us, JOURNAL_MOVE, 0);
-        return LOOP_ACCEPTED;
+        pose cand = moved(&start, c, d, r, 1);
+        return escape(L, s, &cand, t_us);
     }
     double gap = L->gap;
     int err = 0;
@@ -307,7 +360,7 @@ static int move(loop *L, int s, double c[3], const double d[3], const double r[3
     if (err)
         return err;
     if (f == 1) {
-        loop_accept(L, s, cur, t_us, JOURNAL_MOVE, 1);
+        loop_accept(L, s, cur, t_us, JOURNAL_MOVE, LOOP_CHECKED);
         L->gap = gap;
         return LOOP_ACCEPTED;
     }
@@ -319,7 +372,7 @@ static int move(loop *L, int s, double c[3], const double d[3], const double r[3
         return err;
     if (!slid && f == 0)
         return LOOP_REFUSED;
-    loop_accept(L, s, cur, t_us, JOURNAL_MOVE, 1);
+    loop_accept(L, s, cur, t_us, JOURNAL_MOVE, LOOP_CHECKED);
     L->gap = gap;
     return slid ? LOOP_SLID : LOOP_LIMITED;
 }
@@ -334,13 +387,15 @@ void loop_accept(loop *L, int s, pose p, int64_t t_us, uint32_t kind, int checke
     }
     L->pose[s] = p;
     L->verify_frag = s;
-    if (!checked)
+    if (checked != LOOP_CHECKED)
         L->gap_valid = 0;
     loop_stats_pose(L, s, &p);
     if (L->jr && journal_append(L->jr, kind, s, t_us, &p, loop_now_us()) < 0)
         L->st.journal_errors++;
-    if (!checked)
+    if (checked == LOOP_UNCHECKED)
         L->st.unchecked++;
+    else if (checked == LOOP_ESCAPING)
+        L->st.escaping++;
     else if (L->cfg.check_invariant)
         L->verify = 1;
 }
@@ -425,6 +480,18 @@ static int step(loop *L, const loop_event *ev)
     return out;
 }
 
+/* The application saved the poses in L->saved: the journal holds only what is newer. */
+static void journal_saved(loop *L)
+{
+    if (!L->jr || !L->saved)
+        return;
+    int bad = journal_truncate(L->jr) < 0;
+    for (int i = 0; i < L->n; i++)
+        if (memcmp(&L->pose[i], &L->saved[i], sizeof(pose)) != 0)
+            bad |= journal_append(L->jr, JOURNAL_MOVE, i, L->last_t, &L->pose[i], loop_now_us()) < 0;
+    L->st.journal_errors += (uint64_t)bad;
+}
+
 int loop_feed(loop *L, const loop_event *ev)
 {
     L->st.events++;
@@ -442,6 +509,9 @@ int loop_feed(loop *L, const loop_event *ev)
     }
     case LOOP_EV_ACTION:
         out = loop_action_do(L, (loop_action)ev->action);
+        break;
+    case LOOP_EV_SAVED:
+        journal_saved(L);
         break;
     case LOOP_EV_UNPLUG:
     case LOOP_EV_REPLUG:
@@ -478,7 +548,7 @@ static void select_next(loop *L, int dir)
     if (s != L->selected) {
         L->selected = s;
         L->have_pivot = 0;
-        L->gap_valid = 0;
+        L->gap_valid = L->in_collision = 0;
         gesture_end(L);
     }
 }
@@ -492,8 +562,9 @@ static int restore(loop *L, const loop_undo *u, uint32_t kind)
         if (rc != 0)
             return rc < 0 ? rc : 0;
     }
-    loop_accept(L, u->frag, u->p, L->last_t, kind, L->collision_on);
+    loop_accept(L, u->frag, u->p, L->last_t, kind, L->collision_on ? LOOP_CHECKED : LOOP_UNCHECKED);
     L->gap_valid = 0;
+    L->in_collision = 0;
     gesture_end(L);
     return 1;
 }
@@ -547,10 +618,13 @@ int loop_action_do(loop *L, loop_action a)
         L->fixed[L->selected] = !L->fixed[L->selected];
         gesture_end(L);
         return LOOP_IDLE;
-    case LOOP_ACT_COLLISION:
+    case LOOP_ACT_COLLISION: {
+        /* Back on: look at once, so a fragment left inside another shows the warning now. */
         L->collision_on = !L->collision_on;
-        L->gap_valid = 0;
-        return LOOP_IDLE;
+        L->gap_valid = L->in_collision = 0;
+        int rc = L->collision_on ? refresh_contact(L, L->selected) : 0;
+        return rc < 0 ? rc : LOOP_IDLE;
+    }
     case LOOP_ACT_TRANS_ONLY:
         L->trans_only = !L->trans_only;
         L->rot_only = 0;
@@ -589,7 +663,7 @@ int loop_recover(loop *L, const journal_rec *recs, size_t n)
             shift(&L->nredo, L->undo, &L->nundo, before);
         L->pose[r->frag] = r->p;
     }
-    L->gap_valid = 0;
+    L->gap_valid = L->in_collision = 0;
     gesture_end(L);
     return 0;
 }
@@ -603,6 +677,11 @@ void loop_set_pivot(loop *L, const double world[3])
     }
 }
 
+void loop_set_saved(loop *L, const pose *saved)
+{
+    L->saved = saved;
+}
+
 void loop_set_camera(loop *L, const double r[3][3])
 {
     memcpy(L->cam, r, sizeof L->cam);
@@ -612,7 +691,7 @@ void loop_set_pose(loop *L, int i, pose p)
 {
     if (i >= 0 && i < L->n) {
         L->pose[i] = p;
-        L->gap_valid = 0;
+        L->gap_valid = L->in_collision = 0;
     }
 }
 

@@ -21,9 +21,12 @@
  *             stay clear.
  * No accepted pose collides; with check_invariant every accepted pose is re-queried from scratch
  * (no cache, no shortcuts) and a collision is counted in collisions_in_accepted (always 0).
- * With collision checking off, poses are accepted unchecked (counted in `unchecked`); turned back
- * on while fragments interpenetrate, the moving fragment may be pulled out unchecked until it is
- * free, then checking resumes.
+ * With collision checking off, poses are accepted unchecked (counted in `unchecked`). Turned back
+ * on, the selected fragment is queried at once; while it interpenetrates another the scene says
+ * so (penetrating, separation_mm < 0) and a move is accepted only when it frees the fragment or
+ * does not deepen the overlap (the collider's overlap volume, else its penetration estimate;
+ * counted in `escaping`, those poses are not invariant-checked), else refused; once free,
+ * normal checking resumes.
  * Stepping depends only on event contents and report timestamps, never on the wall clock, so the
  * same events give the same poses bit for bit (pose_digest).
  *
@@ -40,8 +43,8 @@
  * returns to rest or the selection changes), save request.
  *
  * Threads and memory: loop_new allocates everything; loop_feed, loop_drain and loop_run allocate
- * nothing. One thread steps a loop; renderers read it through loop_scene_read from any thread
- * without ever blocking the stepping thread (a lock-free triple buffer). */
+ * nothing. One thread steps a loop; renderers read it through loop_scene_read from any number of
+ * threads at once without ever blocking the stepping thread (pinned scene buffers, lock-free). */
 #ifndef FN_LOOP_H
 #define FN_LOOP_H
 
@@ -57,7 +60,7 @@
 
 typedef enum { LOOP_FRAME_CAMERA, LOOP_FRAME_WORLD, LOOP_FRAME_FRAGMENT } loop_frame;
 
-enum { LOOP_EV_MOTION = 1, LOOP_EV_ACTION, LOOP_EV_UNPLUG, LOOP_EV_REPLUG };
+enum { LOOP_EV_MOTION = 1, LOOP_EV_ACTION, LOOP_EV_UNPLUG, LOOP_EV_REPLUG, LOOP_EV_SAVED };
 
 typedef enum {
     LOOP_ACT_NONE,
@@ -101,6 +104,10 @@ typedef struct loop_collider {
                  loop_contact *out);
     size_t cache_bytes;
     void *ctx;
+    /* Optional (NULL: the query's penetration estimate stands in): an estimate of the volume (mm^3)
+     * in which a at pa and b at pb overlap; 0 when apart. Used only while a fragment is inside
+     * another, so it may cost more than a query. Stepping thread only. */
+    int (*overlap)(void *ctx, int a, const pose *pa, int b, const pose *pb, double *mm3);
 } loop_collider;
 
 typedef struct loop_config {
@@ -120,6 +127,8 @@ typedef struct loop_stats {
     uint64_t events, steps, accepted, limited, slid, refused;
     uint64_t collisions_in_accepted; /* accepted poses found colliding by the invariant check */
     uint64_t unchecked;              /* poses accepted while collision checking was off */
+    uint64_t escaping;               /* poses accepted while still interpenetrating after checking
+                                      * came back on, each no deeper than the one before */
     uint64_t queries;                /* pair queries (the invariant check's not counted) */
     double query_us_mean, query_us_max;
     double step_hz;                  /* steps per second of wall time, since the last reset */
@@ -136,6 +145,7 @@ typedef struct loop_scene {
     uint64_t seq; /* increases with every publish */
     int nfrag, selected;
     int collision_on; /* 0: checking is off -- show a warning */
+    int penetrating;  /* checking is on but the selected fragment is inside another: warn */
     int trans_only, rot_only, device_present;
     unsigned save_requests; /* LOOP_ACT_SAVE presses so far: the application saves when it grows */
     loop_frame frame;
@@ -184,6 +194,10 @@ void loop_set_camera(loop *L, const double r[3][3]);
  * of range. */
 struct journal_rec;
 int loop_recover(loop *L, const struct journal_rec *recs, size_t n);
+/* Where the application keeps the poses it last saved (n poses; it owns them). After a save it
+ * writes them there, then sends LOOP_EV_SAVED through the control ring: the loop empties the
+ * journal and appends the poses that have moved since (so a later crash offers only those). */
+void loop_set_saved(loop *L, const pose *saved);
 /* Moves a fragment without collision checking (recovery, loading): no journal, no stats. */
 void loop_set_pose(loop *L, int i, pose p);
 
@@ -196,10 +210,14 @@ void loop_reset_timing(loop *L);
 
 /* Publishes the current state to the scene buffer (loop_drain/loop_run do it themselves). */
 void loop_publish(loop *L);
-/* Copies the newest published scene. Never blocks the loop; any thread, one reader at a time.
- * Returns 1 when it is newer than the previous read, else 0 (out still holds the newest). */
+/* Copies the newest published scene. Never blocks the loop; any thread, several at once (up to
+ * 6 readers inside it at the same instant never delay a publish; more may make one wait for the
+ * next). Returns 1 when its seq differs from the one out held on entry (zero out before the
+ * first read), else 0; out holds the newest either way. */
 int loop_scene_read(loop *L, loop_scene *out);
-/* One line for a terminal: selected fragment, pose, collision state, rates, latency. */
+/* One line for a terminal: warnings first (collision checking off, device unplugged, journal
+ * write failed: within the first 80 columns), then the selected fragment, pose, collision state,
+ * rates, latency. */
 void loop_scene_format(const loop_scene *s, char *buf, size_t cap);
 
 /* Asks the OS to run the calling thread (the one that will call loop_run) under SCHED_FIFO at a

@@ -7,6 +7,7 @@
 #include <semaphore.h>
 
 #define LOOP_UNDO_MAX 256
+#define LOOP_SCENE_BUFS 8
 #define LOOP_HIST_BINS 10000 /* 1 us bins; later latencies land in the overflow count */
 
 typedef struct loop_undo {
@@ -27,6 +28,7 @@ struct loop {
     double cam[3][3];
     struct journal *jr;
     ring *ctl; /* actions from the application's thread */
+    const pose *saved; /* loop_set_saved */
 
     int selected, collision_on, trans_only, rot_only, device_present;
     unsigned save_requests;
@@ -36,10 +38,12 @@ struct loop {
     int64_t last_t;
     uint32_t buttons;
     int gesture_saved; /* this gesture's undo checkpoint is taken */
-    int gap_valid, in_collision;
+    int gap_valid, in_collision; /* in_collision: the selected fragment interpenetrates another */
     int tries; /* candidates queried in this step */
     int verify, verify_frag; /* an accepted pose awaits the invariant check */
     double gap; /* selected fragment's separation lower bound at its current pose */
+    double pen; /* in_collision: the collider's (negative) penetration estimate there */
+    double overlap; /* in_collision: the overlap volume there (loop_collider.overlap) */
     loop_outcome last_outcome;
 
     loop_undo undo[LOOP_UNDO_MAX], redo[LOOP_UNDO_MAX];
@@ -52,15 +56,20 @@ struct loop {
     int64_t win_start_us, pct_at_us;
     uint64_t win_steps, win_ticks;
 
-    /* triple buffer: the writer fills buf[back], then swaps it with `middle` (bit 4: fresh). */
-    loop_scene buf[3];
-    atomic_int middle;
-    int back, front;
+    /* Scene buffers for any number of readers: `latest` names the newest; a reader pins a buffer
+     * (refs) before copying it, and the writer only fills a buffer that is neither the newest nor
+     * pinned. With LOOP_SCENE_BUFS - 2 readers at once the writer always finds one. */
+    loop_scene buf[LOOP_SCENE_BUFS];
+    atomic_int refs[LOOP_SCENE_BUFS];
+    atomic_int latest;
     uint64_t pub_seq;
     sem_t wake;          /* loop_notify -> loop_run */
     atomic_ullong done; /* events finished, for other threads */
 };
 
+/* How an accepted pose was checked: not at all (checking off), found free, or found still
+ * interpenetrating but no deeper than before (pulled out after checking came back on). */
+enum { LOOP_UNCHECKED, LOOP_CHECKED, LOOP_ESCAPING };
 void loop_accept(loop *L, int s, pose p, int64_t t_us, uint32_t kind, int checked);
 void loop_undo_push(loop *L, int s);
 

@@ -13,7 +13,6 @@
 #include <semaphore.h>
 #include <time.h>
 
-#define FRESH 4
 #define FNV_OFFSET 0xcbf29ce484222325ull
 #define FNV_PRIME 0x100000001b3ull
 
@@ -32,9 +31,9 @@ int64_t loop_now_us(void)
 void loop_stats_init(loop *L)
 {
     L->st.pose_digest = FNV_OFFSET;
-    L->front = 0;
-    L->back = 2;
-    atomic_init(&L->middle, 1);
+    for (int b = 0; b < LOOP_SCENE_BUFS; b++)
+        atomic_init(&L->refs[b], 0);
+    atomic_init(&L->latest, 0);
     sem_init(&L->wake, 0, 0);
     atomic_init(&L->done, 0);
     loop_reset_timing(L);
@@ -141,12 +140,27 @@ void loop_get_stats(loop *L, loop_stats *out)
     *out = L->st;
 }
 
+/* A buffer no reader holds and that is not the newest; -1 when readers hold them all. */
+static int free_buffer(loop *L)
+{
+    int newest = atomic_load(&L->latest);
+    for (int k = 1; k < LOOP_SCENE_BUFS; k++) {
+        int b = (newest + k) % LOOP_SCENE_BUFS;
+        if (atomic_load(&L->refs[b]) == 0)
+            return b;
+    }
+    return -1;
+}
+
 void loop_publish(loop *L)
 {
     int64_t now = loop_now_us();
     if (now - L->pct_at_us >= 100000) /* percentiles cost a histogram walk: 10 Hz is plenty */
         refresh_rates(L, now);
-    loop_scene *s = &L->buf[L->back];
+    int b = free_buffer(L);
+    if (b < 0)
+        return; /* never wait for readers: the next publish carries this state too */
+    loop_scene *s = &L->buf[b];
     s->seq = ++L->pub_seq;
     s->nfrag = L->n;
     s->selected = L->selected;
@@ -157,24 +171,47 @@ void loop_publish(loop *L)
     s->save_requests = L->save_requests;
     s->frame = L->cfg.frame;
     s->last_outcome = L->last_outcome;
-    s->separation_mm = L->gap_valid ? L->gap : L->in_collision ? -1 : INFINITY;
+    s->penetrating = L->collision_on && L->in_collision;
+    s->separation_mm = L->gap_valid ? L->gap : L->in_collision ? L->pen : INFINITY;
     s->stats = L->st;
     memcpy(s->pose, L->pose, sizeof(pose) * (size_t)L->n);
     memcpy(s->fixed, L->fixed, (size_t)L->n);
-    L->back = atomic_exchange(&L->middle, L->back | FRESH) & 3;
+    atomic_store(&L->latest, b);
 }
 
+/* Pins the newest buffer: after the pin it must still be the newest, else the writer may have
+ * picked it for filling (it was not pinned when the writer looked) and the reader tries again. */
 int loop_scene_read(loop *L, loop_scene *out)
 {
-    int fresh = 0;
-    if (atomic_load(&L->middle) & FRESH) {
-        L->front = atomic_exchange(&L->middle, L->front) & 3;
-        fresh = 1;
+    uint64_t had = out->seq;
+    for (;;) {
+        int b = atomic_load(&L->latest);
+        atomic_fetch_add(&L->refs[b], 1);
+        if (atomic_load(&L->latest) == b) {
+            *out = L->buf[b];
+            atomic_fetch_sub(&L->refs[b], 1);
+            break;
+        }
+        atomic_fetch_sub(&L->refs[b], 1);
     }
-    *out = L->buf[L->front];
-    return fresh;
+    return out->seq != had;
 }
 
+/* "WARNING: A | B | " for the warnings that hold, or "". All of them fit in 80 columns. */
+static void warnings(const loop_scene *s, char *buf, size_t cap)
+{
+    const char *w[] = {s->collision_on ? NULL : "COLLISION CHECKING OFF",
+                       s->penetrating ? "PENETRATING" : NULL,
+                       s->device_present ? NULL : "DEVICE UNPLUGGED",
+                       s->stats.journal_errors ? "JOURNAL WRITE FAILED" : NULL};
+    size_t len = 0;
+    buf[0] = '\0';
+    for (size_t i = 0; i < sizeof w / sizeof w[0]; i++)
+        if (w[i] && len < cap)
+            len += (size_t)snprintf(buf + len, cap - len, "%s%s | ", len ? "" : "WARNING: ", w[i]);
+}
+
+/* Warnings first: a terminal narrower than the line cuts its end, never a warning. */
 void loop_scene_format(const loop_scene *s, char *buf, size_t cap)
 {
     static const char *outcome[] = {"idle", "free", "limited", "sliding", "refused"};
@@ -185,20 +222,20 @@ void loop_scene_format(const loop_scene *s, char *buf, size_t cap)
         snprintf(sep, sizeof sep, "far");
     else
         snprintf(sep, sizeof sep, "%.2f mm", s->separation_mm);
+    char warn[96];
+    warnings(s, warn, sizeof warn);
     snprintf(buf, cap,
-             "frag %d/%d%s | q %.4f %.4f %.4f %.4f t %.2f %.2f %.2f mm | %s, gap %s%s | %s%s%s"
+             "%sfrag %d/%d%s | q %.4f %.4f %.4f %.4f t %.2f %.2f %.2f mm | %s, gap %s | %s%s%s"
              " | %.0f steps/s %.0f ticks/s | latency p50 %.0f p99 %.0f max %.0f us | query %.0f us"
-             " | %llu free %llu limited %llu slid %llu refused%s%s",
-             s->selected + 1, s->nfrag, s->fixed[s->selected] ? " (fixed)" : "", p->q[0], p->q[1],
+             " | %llu free %llu limited %llu slid %llu refused",
+             warn, s->selected + 1, s->nfrag, s->fixed[s->selected] ? " (fixed)" : "", p->q[0], p->q[1],
              p->q[2], p->q[3], p->t[0], p->t[1], p->t[2], outcome[s->last_outcome], sep,
-             s->collision_on ? "" : " | WARNING: COLLISION CHECKING OFF", frame[s->frame],
-             s->trans_only ? ", translation only" : "", s->rot_only ? ", rotation only" : "",
-             s->stats.step_hz, s->stats.tick_hz, s->stats.latency_p50_us, s->stats.latency_p99_us,
-             s->stats.latency_max_us, s->stats.query_us_mean, (unsigned long long)s->stats.accepted,
+             frame[s->frame], s->trans_only ? ", translation only" : "",
+             s->rot_only ? ", rotation only" : "", s->stats.step_hz, s->stats.tick_hz,
+             s->stats.latency_p50_us, s->stats.latency_p99_us, s->stats.latency_max_us,
+             s->stats.query_us_mean, (unsigned long long)s->stats.accepted,
              (unsigned long long)s->stats.limited, (unsigned long long)s->stats.slid,
-             (unsigned long long)s->stats.refused,
-             s->device_present ? "" : " | DEVICE UNPLUGGED (pose kept)",
-             s->stats.journal_errors ? " | WARNING: JOURNAL WRITE FAILED" : "");
+             (unsigned long long)s->stats.refused);
 }
 
 void loop_set_controls(loop *L, ring *ctl)

@@ -1,5 +1,7 @@
 /* fracnav: the command-line front end; each subcommand lives in cmd_<name>.c. */
 #include "cmd.h"
+#include "case.h"
+#include "err.h"
 #include "sim_replay.h"
 
 #include <math.h>
@@ -66,6 +68,43 @@ int cmd_bad_value(const char *cmd, const char *opt, const char *val, const char 
     if (!val)
         return cmd_usage_error(cmd, "%s needs a value (%s)", opt, accepted);
     return cmd_usage_error(cmd, "%s: '%s' is not %s", opt, val, accepted);
+}
+
+int cmd_tau_option(const char *cmd, const char *a, const char *val, cmd_tau *t, int *rc)
+{
+    unsigned which = !strcmp(a, "--tau-min") ? 1 : !strcmp(a, "--tau-max") ? 2 : 0;
+    double d;
+    *rc = 0;
+    if (!which)
+        return 0;
+    if (!cmd_number(val, &d) || d < 0 || d > 1) {
+        *rc = cmd_bad_value(cmd, a, val, "a number from 0 to 1");
+        return 1;
+    }
+    if (which == 1)
+        t->min = d;
+    else
+        t->max = d;
+    t->given |= which;
+    return 1;
+}
+
+int cmd_tau_apply(const cmd_tau *t, double *tau_min, double *tau_max)
+{
+    double lo = t->given & 1 ? t->min : *tau_min, hi = t->given & 2 ? t->max : *tau_max;
+    if (lo > hi)
+        return fn_err_set(FN_EINVAL, "tau_min %g (%s) is above tau_max %g (%s): need tau_min <= tau_max",
+                          lo, t->given & 1 ? "--tau-min" : "the case's or the default", hi,
+                          t->given & 2 ? "--tau-max" : "the case's or the default");
+    *tau_min = lo;
+    *tau_max = hi;
+    return 0;
+}
+
+int cmd_tau_check(const char *cmd, const cmd_tau *t)
+{
+    double lo = CASE_TAU_MIN, hi = CASE_TAU_MAX;
+    return cmd_tau_apply(t, &lo, &hi) < 0 ? cmd_usage_error(cmd, "%s", fn_err_msg()) : 0;
 }
 
 const char *cmd_example_ct(void)

@@ -200,7 +200,7 @@ static void test_loop_journals_every_accepted_pose(void **st)
         f[i].spacing[0] = f[i].spacing[1] = f[i].spacing[2] = 1;
         f[i].home = f[i].pose = POSE_IDENTITY;
     }
-    loop_collider col = {free_query, 0, NULL};
+    loop_collider col = {free_query, 0, NULL, NULL};
     loop *L = loop_new(f, 2, NULL, &col, NULL, j);
     loop_event e;
     memset(&e, 0, sizeof e);

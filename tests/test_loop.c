@@ -106,7 +106,7 @@ static loop *make_loop(world *w, loop_config *cfg)
     w->bumps = 0;
     w->queries = 0;
     uint8_t fixed[3] = {0, 1, 0};
-    loop_collider col = {wall_query, sizeof(int), w};
+    loop_collider col = {wall_query, sizeof(int), w, NULL};
     loop *L = loop_new(w->f, 3, fixed, &col, cfg, NULL);
     assert_non_null(L);
     return L;
@@ -398,7 +398,7 @@ static void test_controls(void **st)
     p = loop_pose(L, 0);
     assert_true(max_x(&w.f[0], &p) > w.wall_x);
     loop_publish(L);
-    loop_scene sc;
+    loop_scene sc = {0};
     loop_scene_read(L, &sc);
     assert_int_equal(sc.collision_on, 0);
     char line[512];
@@ -432,7 +432,7 @@ static void test_unplug_keeps_pose_and_time_restarts(void **st)
     loop_event u = {.kind = LOOP_EV_UNPLUG, .t_us = t};
     assert_int_equal(loop_feed(L, &u), LOOP_IDLE);
     loop_publish(L);
-    loop_scene sc;
+    loop_scene sc = {0};
     loop_scene_read(L, &sc);
     assert_int_equal(sc.device_present, 0);
     assert_true(pose_distance(sc.pose[0], before) == 0);
@@ -525,7 +525,7 @@ static void test_drain_publishes_scene(void **st)
     world_config(&c);
     loop *L = make_loop(&w, &c);
     ring *r = ring_new(sizeof(loop_event), 64);
-    loop_scene sc;
+    loop_scene sc = {0};
     loop_scene_read(L, &sc);
     uint64_t seq0 = sc.seq;
     for (int k = 0; k < 10; k++) {
@@ -561,29 +561,31 @@ static int counted_next(void *ctx, loop_event *ev, int timeout_ms)
 typedef struct viewer {
     loop *L;
     atomic_int stop;
-    int reads, fresh;
+    int reads, fresh, torn;
 } viewer;
 
-/* A renderer: reads scenes as fast as it can while the loop runs; each must be consistent. */
+/* A renderer: reads scenes as fast as it can while the loop runs; each must be consistent: the
+ * counted source moves 0.4 mm along z per step, all free, so the pose and the step count of one
+ * scene agree (a scene torn between two publishes does not). */
 static void *view(void *arg)
 {
     viewer *v = arg;
-    loop_scene sc;
+    loop_scene sc = {0};
     uint64_t last = 0;
     while (!atomic_load(&v->stop)) {
-        if (loop_scene_read(v->L, &sc)) {
-            v->fresh++;
-            if (sc.seq < last || sc.nfrag != 3)
-                v->fresh = -1000000;
-            last = sc.seq;
-        }
+        v->fresh += loop_scene_read(v->L, &sc);
+        if (sc.seq < last || sc.nfrag != 3 || sc.stats.steps != sc.stats.accepted ||
+            fabs(sc.pose[0].t[2] - 0.4 * (double)sc.stats.steps) > 1e-6)
+            v->torn++;
+        last = sc.seq;
         v->reads++;
     }
     return NULL;
 }
 
-/* The live arrangement: input thread -> ring -> loop_run, a renderer reading meanwhile. */
-static void test_threads_reader_loop_renderer(void **st)
+/* The live arrangement: input thread -> ring -> loop_run, nviews renderers reading meanwhile
+ * (navigate reads from its UI thread and, for the LED, from the input thread). */
+static void run_with_viewers(int nviews)
 {
     world w;
     loop_config c;
@@ -591,16 +593,21 @@ static void test_threads_reader_loop_renderer(void **st)
     loop *L = make_loop(&w, &c);
     ring *r = ring_new(sizeof(loop_event), 16);
     counted src = {2000, 0};
-    viewer v = {L, 0, 0, 0};
-    atomic_init(&v.stop, 0);
-    pthread_t th;
-    pthread_create(&th, NULL, view, &v);
+    viewer v[3];
+    pthread_t th[3];
+    for (int i = 0; i < nviews; i++) {
+        v[i] = (viewer){.L = L};
+        atomic_init(&v[i].stop, 0);
+        pthread_create(&th[i], NULL, view, &v[i]);
+    }
     loop_reader *rd = loop_reader_start((loop_source){counted_next, &src}, r, L, 1);
     assert_non_null(rd);
     assert_int_equal(loop_run(L, r, 1000, loop_reader_done_flag(rd)), 0);
     assert_int_equal(loop_reader_stop(rd), 0);
-    atomic_store(&v.stop, 1);
-    pthread_join(th, NULL);
+    for (int i = 0; i < nviews; i++) {
+        atomic_store(&v[i].stop, 1);
+        pthread_join(th[i], NULL);
+    }
     loop_stats s;
     loop_get_stats(L, &s);
     assert_int_equal(s.events, 2000);
@@ -609,16 +616,62 @@ static void test_threads_reader_loop_renderer(void **st)
     assert_int_equal(s.latency_samples, 2000);
     pose p = loop_pose(L, 0);
     assert_true(fabs(p.t[2] - 2000 * 0.4) < 1e-6); /* 0.5 * 100 mm/s * 8 ms a step */
-    assert_true(v.fresh > 0);
+    for (int i = 0; i < nviews; i++) {
+        assert_true(v[i].fresh > 0);
+        assert_int_equal(v[i].torn, 0);
+    }
+    loop_scene last = {0};
+    loop_scene_read(L, &last);
+    assert_int_equal(last.stats.steps, 2000); /* the last publish reached the readers */
     ring_free(r);
     loop_free(L);
+}
+
+static void test_threads_reader_loop_renderer(void **st)
+{
+    run_with_viewers(1);
+}
+
+/* Several readers at once (navigate has two: UI and LED): none ever sees a torn scene. */
+static void test_scene_concurrent_readers(void **st)
+{
+    run_with_viewers(3);
+}
+
+/* Every warning at once still lies within an 80-column terminal (navigate cuts the line there). */
+static void test_scene_format_warnings_first(void **st)
+{
+    loop_scene sc = {.nfrag = 3, .selected = 2, .collision_on = 0, .device_present = 0};
+    sc.stats.journal_errors = 1;
+    sc.stats.accepted = 123456789;
+    sc.separation_mm = 12.5;
+    sc.pose[2] = POSE_IDENTITY;
+    char line[512];
+    loop_scene_format(&sc, line, sizeof line);
+    const char *warn[] = {"COLLISION CHECKING OFF", "DEVICE UNPLUGGED", "JOURNAL WRITE FAILED"};
+    for (int i = 0; i < 3; i++) {
+        const char *at = strstr(line, warn[i]);
+        assert_non_null(at);
+        assert_true(at - line + strlen(warn[i]) <= 79); /* fit_to_terminal keeps width - 1 */
+    }
+    sc.collision_on = sc.penetrating = 1; /* the other warning that goes with the two last */
+    loop_scene_format(&sc, line, sizeof line);
+    const char *at = strstr(line, "PENETRATING");
+    assert_true(at && at - line + strlen("PENETRATING") <= 79);
+    assert_true(strstr(line, "JOURNAL WRITE FAILED") - line + strlen("JOURNAL WRITE FAILED") <= 79);
+    sc.penetrating = 0;
+    sc.device_present = 1;
+    sc.stats.journal_errors = 0;
+    loop_scene_format(&sc, line, sizeof line);
+    assert_null(strstr(line, "WARNING"));
+    assert_true(strncmp(line, "frag 3/3", 8) == 0);
 }
 
 static void test_bad_arguments(void **st)
 {
     world w;
     memset(&w, 0, sizeof w);
-    loop_collider col = {wall_query, sizeof(int), &w};
+    loop_collider col = {wall_query, sizeof(int), &w, NULL};
     assert_null(loop_new(w.f, 0, NULL, &col, NULL, NULL));
     assert_non_null(strstr(fn_err_msg(), "fragments"));
     assert_null(loop_new(w.f, 2, NULL, NULL, NULL, NULL));
@@ -643,6 +696,8 @@ int main(void)
         cmocka_unit_test(test_ring_two_threads),
         cmocka_unit_test(test_drain_publishes_scene),
         cmocka_unit_test(test_threads_reader_loop_renderer),
+        cmocka_unit_test(test_scene_concurrent_readers),
+        cmocka_unit_test(test_scene_format_warnings_first),
         cmocka_unit_test(test_bad_arguments),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

@@ -8,6 +8,7 @@
 
 #include "journal.h"
 #include "loop.h"
+#include "pose.h"
 #include "script.h"
 #include "testutil.h"
 #include "vol.h"
@@ -63,19 +64,25 @@ static int teardown(void **st)
     return 0;
 }
 
-/* Renders a motion script for a SpaceNavigator into dir/NAME.fnrec; returns the path (static). */
-static const char *recording(const char *name, const char *text)
+/* Renders a motion script for the device `as` into dir/NAME.fnrec; returns the path (static). */
+static const char *recording_as(const char *as, const char *name, const char *text)
 {
     static char path[4200];
     script *s = NULL;
     assert_int_equal(script_parse(text, strlen(text), name, &s), 0);
-    fnrec *r = script_render(s, sim_profile_find("spacenavigator"));
+    fnrec *r = script_render(s, sim_profile_find(as));
     assert_non_null(r);
     snprintf(path, sizeof path, "%s/%s.fnrec", dir, name);
     assert_int_equal(fnrec_save(r, path), 0);
     fnrec_free(r);
     free(s);
     return path;
+}
+
+/* The same for a SpaceNavigator. */
+static const char *recording(const char *name, const char *text)
+{
+    return recording_as("spacenavigator", name, text);
 }
 
 /* Runs `fracnav replay CASE REC ARGS --json` and parses the JSON it prints. */
@@ -157,6 +164,43 @@ static void test_replay_head_on_deterministic(void **st)
     json_decref(c);
 }
 
+/* The loop's rate, ring overflow and skipped device reports are in the summary: a recording with
+ * one report of an unknown ID and one of a wrong length counts both and steps the rest. */
+static void test_replay_json_rates_and_skips(void **st)
+{
+    char *text = tu_slurp(recording("skips", "translate +x 1 mm over 0.1 s\n"), NULL);
+    char *at = strstr(text, "0 connect\n"), path[4300];
+    assert_non_null(at);
+    at += strlen("0 connect\n");
+    snprintf(path, sizeof path, "%s/skips.fnrec", dir);
+    FILE *f = fopen(path, "w");
+    fprintf(f, "%.*s1000 in 09000000000000\n2000 in 0174ff0000\n%s", (int)(at - text), text, at);
+    fclose(f);
+    free(text);
+    json_t *j = replay(path, "--no-journal", 0);
+    assert_true(num(j, "skipped_reports") == 2);
+    assert_true(num(j, "steps") > 0);
+    assert_true(num(j, "dropped") == 0);
+    assert_true(num(j, "step_hz") > 0);
+    assert_non_null(json_object_get(j, "tick_hz"));
+    assert_true(num(j, "escaping") == 0);
+    json_decref(j);
+}
+
+/* Replayed twice with the journal on (the default): a run that finished leaves no unsaved poses
+ * behind, so the second run starts as the first did and gives the same digest. */
+static void test_replay_twice_with_journal(void **st)
+{
+    const char *rec = recording("twice", "translate -x 4 mm over 0.2 s\n");
+    json_t *a = replay(rec, "", 0), *b = replay(rec, "", 0);
+    assert_true(num(a, "accepted") + num(a, "limited") > 0);
+    assert_string_equal(json_string_value(json_object_get(a, "pose_digest")),
+                        json_string_value(json_object_get(b, "pose_digest")));
+    assert_int_equal(journal_count_on_disk(), 0);
+    json_decref(a);
+    json_decref(b);
+}
+
 /* At a grazing angle B slides along A's face (world -y) instead of freezing at the contact. */
 static void test_replay_grazing_slides(void **st)
 {
@@ -167,6 +211,31 @@ static void test_replay_grazing_slides(void **st)
     assert_true(moved_t(j, 0) < -1.9 && moved_t(j, 0) >= -2.0);
     assert_true(moved_t(j, 1) < -2.5); /* device +y is towards the viewer: world -y */
     json_decref(j);
+}
+
+/* The shipped grazing recording on the case `fracnav demo` steers (the example CT's synthetic
+ * fracture, seed 1): pressed onto the other fragment, the moving one slides along it. */
+static void test_shipped_grazing_slides_on_example(void **st)
+{
+    char ex[4300], rec[4300], *out = NULL;
+    snprintf(ex, sizeof ex, "%s/example", dir);
+    int rc = tu_run_cli(&out, "fracture '%s' -o '%s' --seed 1", tu_example_ct(), ex);
+    if (rc != 0)
+        fprintf(stderr, "%s\n", out);
+    free(out);
+    assert_int_equal(rc, 0);
+    const char *src = getenv("FRACNAV_SRC");
+    snprintf(rec, sizeof rec, "%s/sim/recordings/grazing-slide.fnrec", src ? src : "..");
+    rc = tu_run_cli(&out, "replay '%s' '%s' --json --no-journal", ex, rec);
+    assert_int_equal(rc, 0);
+    json_t *j = json_loads(strchr(out, '{'), 0, NULL);
+    free(out);
+    assert_non_null(j);
+    assert_int_equal(num(j, "collisions_in_accepted"), 0);
+    assert_true(num(j, "slid") > 0);
+    assert_true(num(j, "slid") > num(j, "refused"));
+    json_decref(j);
+    tu_rmtree(ex);
 }
 
 /* Unplugged mid-recording: the loop goes on, the pose stays where it was while the device is
@@ -290,15 +359,247 @@ static void test_navigate_saves_on_exit(void **st)
     assert_int_equal(rc, 0);
 }
 
+/* Saved on demand (button 9), then killed: the journal holds nothing the case does not, so the
+ * next start has nothing to recover. */
+static void test_navigate_save_on_demand_empties_journal(void **st)
+{
+    const char *rec = recording_as("spaceexplorer", "save9", "translate +z 1 mm over 0.3 s\nwait 100 ms\n"
+                                   "press 9\nwait 50 ms\nrelease 9\nwait 30 s\n");
+    char spec[4300];
+    snprintf(spec, sizeof spec, "replay-realtime:%s", rec);
+    const char *bin = getenv("FRACNAV_BIN");
+    int fds[2];
+    assert_int_equal(pipe(fds), 0);
+    pid_t pid = fork();
+    if (pid == 0) {
+        dup2(fds[1], 2);
+        close(fds[0]);
+        freopen("/dev/null", "r", stdin);
+        execl(bin, bin, "navigate", case_dir, "--device", spec, "--duration", "20", (char *)NULL);
+        _exit(127);
+    }
+    close(fds[1]);
+    FILE *err = fdopen(fds[0], "r");
+    char line[1024];
+    int saved = 0;
+    while (!saved && fgets(line, sizeof line, err))
+        saved = strncmp(line, "saved ", 6) == 0;
+    usleep(500000); /* the loop thread empties the journal after the save */
+    kill(pid, SIGKILL);
+    int status;
+    waitpid(pid, &status, 0);
+    fclose(err);
+    assert_true(saved);
+    assert_int_equal(journal_count_on_disk(), 0);
+    char *out = NULL;
+    assert_int_equal(tu_run_cli(&out, "replay '%s' '%s' --save --no-journal", case_dir,
+                                recording("saveback", "translate -z 1 mm over 0.3 s\n")), 0);
+    free(out);
+}
+
+/* Writes one journal record that puts fragment B (index 1) at p: an interrupted session. */
+static void interrupted_at(pose p)
+{
+    journal *jr = journal_open(case_dir);
+    assert_non_null(jr);
+    assert_int_equal(journal_append(jr, JOURNAL_START, 1, 0, &p, 0), 0);
+    assert_int_equal(journal_close(jr), 0);
+}
+
+/* navigate through the keyboard device (keys from an empty file), answering the recovery question
+ * on stdin; returns its JSON summary. */
+static json_t *navigate_answering(const char *answer)
+{
+    char keys[4300], ans[4300];
+    snprintf(keys, sizeof keys, "%s/nokeys", dir);
+    snprintf(ans, sizeof ans, "%s/answer", dir);
+    tu_write_file(keys, "", 0);
+    tu_write_file(ans, answer, strlen(answer));
+    char *out = NULL;
+    int rc = tu_run_cli(&out, "navigate '%s' --device 'keyboard:%s' --duration 0.3 --json < '%s'",
+                        case_dir, keys, ans);
+    if (rc != 0)
+        fprintf(stderr, "%s\n", out);
+    assert_int_equal(rc, 0);
+    assert_non_null(strstr(out, "Recover them?"));
+    json_t *j = json_loads(strchr(out, '{'), JSON_DISABLE_EOF_CHECK, NULL);
+    assert_non_null(j);
+    free(out);
+    return j;
+}
+
+/* With the keyboard as the device (what `auto` picks without a controller) navigate still asks
+ * about an interrupted session: "n" starts from case.json, "y" from the journal's poses. */
+static void test_navigate_keyboard_offers_recovery(void **st)
+{
+    pose moved = POSE_IDENTITY;
+    moved.t[2] = 7.25;
+    interrupted_at(moved);
+    json_t *j = navigate_answering("n\n");
+    assert_true(num(j, "resumed_from_journal") == 0);
+    pose home;
+    json_t *b = json_array_get(json_object_get(j, "final_poses"), 1);
+    for (int a = 0; a < 4; a++)
+        home.q[a] = json_number_value(json_array_get(json_object_get(b, "q"), (size_t)a));
+    for (int a = 0; a < 3; a++)
+        home.t[a] = moved_t(j, a);
+    assert_true(home.t[2] != 7.25);
+    assert_int_equal(journal_count_on_disk(), 0);
+    json_decref(j);
+    interrupted_at(moved);
+    j = navigate_answering("y\n");
+    assert_true(num(j, "resumed_from_journal") == 1);
+    assert_true(moved_t(j, 2) == 7.25);
+    json_decref(j);
+    interrupted_at(home); /* back to where it was, for the other tests */
+    json_decref(navigate_answering("Y\n"));
+}
+
+/* navigate --device keyboard fed KEYS from a file; returns what it printed. */
+static char *navigate_keys(const char *keys, const char *duration)
+{
+    char path[4300];
+    snprintf(path, sizeof path, "%s/keys", dir);
+    tu_write_file(path, keys, strlen(keys));
+    char *out = NULL;
+    int rc = tu_run_cli(&out, "navigate '%s' --device 'keyboard:%s' --duration %s --json < /dev/null",
+                        case_dir, path, duration);
+    if (rc != 0)
+        fprintf(stderr, "%s\n", out);
+    assert_int_equal(rc, 0);
+    return out;
+}
+
+/* The keyboard device reaches what the controller's buttons 9 and 10 do, and quits. */
+static void test_navigate_keyboard_save_frame_quit(void **st)
+{
+    char *out = navigate_keys("0", "1.3"); /* status lines come once a second off a terminal */
+    assert_non_null(strstr(out, "| world"));
+    free(out);
+    out = navigate_keys("9", "0.5");
+    assert_non_null(strstr(out, "\nsaved ")); /* on demand: --json prints no exit message */
+    free(out);
+    int64_t t0 = loop_now_us();
+    out = navigate_keys("q", "60");
+    assert_true(loop_now_us() - t0 < 30000000); /* quit, not the 60 s duration */
+    assert_non_null(strchr(out, '{'));
+    free(out);
+}
+
+/* --pivot: the selected fragment turns about the given point (which stays where it is), not
+ * about its centroid. */
+static void test_replay_pivot(void **st)
+{
+    char path[4300];
+    snprintf(path, sizeof path, "%s/case.json", case_dir);
+    char *text = tu_slurp(path, NULL);
+    json_t *c = json_loads(text, 0, NULL);
+    free(text);
+    json_t *f1 = json_array_get(json_object_get(c, "fragments"), 1), *pj = json_object_get(f1, "pose");
+    double home[3], p[3];
+    pose p0; /* where B starts (earlier tests may leave it a little off home) */
+    for (int a = 0; a < 3; a++) {
+        home[a] = json_number_value(json_array_get(json_object_get(f1, "centroid"), (size_t)a));
+        p0.t[a] = json_number_value(json_array_get(json_object_get(pj, "t"), (size_t)a));
+    }
+    for (int a = 0; a < 4; a++)
+        p0.q[a] = json_number_value(json_array_get(json_object_get(pj, "q"), (size_t)a));
+    json_decref(c);
+    pose_apply(&p0, home, p);
+    p[0] += 10; /* away from A */
+    const char *rec = recording("turn", "move rz 10 deg over 0.3 s\n");
+    char args[256];
+    snprintf(args, sizeof args, "--no-journal --pivot %.17g %.17g %.17g", p[0], p[1], p[2]);
+    json_t *about = replay(rec, args, 0), *centroid = replay(rec, "--no-journal", 0);
+    assert_true(num(about, "refused") == 0);
+    json_t *b = json_array_get(json_object_get(about, "final_poses"), 1);
+    pose q;
+    for (int a = 0; a < 4; a++)
+        q.q[a] = json_number_value(json_array_get(json_object_get(b, "q"), (size_t)a));
+    for (int a = 0; a < 3; a++)
+        q.t[a] = moved_t(about, a);
+    assert_true(pose_angle_between(q, p0) > 0.1);
+    double at[3], p_home[3];
+    pose inv = pose_inverse(p0);
+    pose_apply(&inv, p, p_home);
+    pose_apply(&q, p_home, at); /* the pivot's point of B stays where it was */
+    for (int a = 0; a < 3; a++)
+        assert_true(fabs(at[a] - p[a]) < 1e-6);
+    assert_true(fabs(moved_t(about, 1) - moved_t(centroid, 1)) > 0.5);
+    json_decref(about);
+    json_decref(centroid);
+    char *out = NULL;
+    assert_int_equal(tu_run_cli(&out, "replay '%s' '%s' --pivot 1 2", case_dir, rec), 2);
+    assert_non_null(strstr(out, "--pivot"));
+    free(out);
+}
+
+/* A member of DIR/case.json. */
+static double case_number(const char *case_path, const char *key)
+{
+    char path[4300];
+    snprintf(path, sizeof path, "%s/case.json", case_path);
+    char *text = tu_slurp(path, NULL);
+    assert_non_null(text);
+    json_t *c = json_loads(text, 0, NULL);
+    free(text);
+    double v = json_number_value(json_object_get(c, key));
+    json_decref(c);
+    return v;
+}
+
+/* --tau-min/--tau-max: stored by segment, checked everywhere with the option named, overridden
+ * by replay and kept in the case by --save. */
+static void test_tau_options(void **st)
+{
+    char tc[4300], vol_path[4300], *out = NULL;
+    snprintf(tc, sizeof tc, "%s/taucase", dir);
+    snprintf(vol_path, sizeof vol_path, "%s/blocks.nii.gz", dir);
+    assert_int_equal(tu_run_cli(&out, "segment '%s' -o '%s' --min-volume 0 --tau-min 0.3", vol_path, tc), 0);
+    free(out);
+    assert_true(case_number(tc, "tau_min") == 0.3);
+    assert_true(case_number(tc, "tau_max") == 0.95);
+    const char *bad[] = {"--tau-min 1.5", "--tau-max -0.1", "--tau-min abc", "--tau-min 0.9 --tau-max 0.4"};
+    for (size_t i = 0; i < sizeof bad / sizeof *bad; i++) {
+        assert_int_equal(tu_run_cli(&out, "segment '%s' -o '%s' %s", vol_path, tc, bad[i]), 2);
+        assert_non_null(strstr(out, strchr(bad[i], '-') ? "--tau-m" : "tau"));
+        free(out);
+        assert_int_equal(tu_run_cli(&out, "fracture '%s' -o '%s/f' --seed 1 %s", vol_path, dir, bad[i]), 2);
+        assert_non_null(strstr(out, "--tau-m"));
+        free(out);
+    }
+    assert_int_equal(tu_run_cli(&out, "replay '%s' '%s' --tau-max 2", tc, recording("tau", "wait 0.1 s\n")), 2);
+    assert_non_null(strstr(out, "--tau-max: '2' is not a number from 0 to 1"));
+    free(out);
+    /* Below the case's tau_min (0.3): named, nothing changed. */
+    assert_int_equal(tu_run_cli(&out, "replay '%s' '%s' --tau-max 0.2", tc, recording("tau", "wait 0.1 s\n")), 1);
+    assert_non_null(strstr(out, "--tau-max"));
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "replay '%s' '%s' --tau-min 0.1 --save", tc, recording("tau", "wait 0.1 s\n")), 0);
+    free(out);
+    assert_true(case_number(tc, "tau_min") == 0.1);
+    assert_int_equal(tu_run_cli(&out, "bench build --tau-min 0.7 --tau-max 0.6"), 2);
+    assert_non_null(strstr(out, "--tau-min"));
+    free(out);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_replay_help_and_usage),
         cmocka_unit_test(test_replay_head_on_deterministic),
+        cmocka_unit_test(test_replay_twice_with_journal),
+        cmocka_unit_test(test_replay_json_rates_and_skips),
         cmocka_unit_test(test_replay_grazing_slides),
+        cmocka_unit_test(test_shipped_grazing_slides_on_example),
         cmocka_unit_test(test_replay_unplug_keeps_pose),
         cmocka_unit_test(test_crash_recovery),
         cmocka_unit_test(test_navigate_saves_on_exit),
+        cmocka_unit_test(test_navigate_keyboard_offers_recovery),
+        cmocka_unit_test(test_navigate_save_on_demand_empties_journal),
+        cmocka_unit_test(test_navigate_keyboard_save_frame_quit),
+        cmocka_unit_test(test_tau_options),
+        cmocka_unit_test(test_replay_pivot),
     };
     return cmocka_run_group_tests(tests, setup, teardown);
 }

@@ -140,12 +140,96 @@ static void test_turning_into_slab(void **st)
     frag_free(&f[1]);
 }
 
+/* Pushes the cube k reports with motion m; returns the refusals. Brute force measures the depth:
+ * *deepest gets the highest top_z reached. */
+static int push(loop *L, const frag f[2], float mz, float mx, int k, int64_t *t, double *deepest)
+{
+    loop_event e = {.kind = LOOP_EV_MOTION};
+    e.motion[0] = mx;
+    e.motion[2] = mz;
+    int refused = 0;
+    for (int i = 0; i < k; i++) {
+        e.t_us = (*t += 8000);
+        int rc = loop_feed(L, &e);
+        assert_true(rc >= 0);
+        refused += rc == LOOP_REFUSED;
+        pose p = loop_pose(L, 0);
+        *deepest = fmax(*deepest, top_z(&f[0], &p));
+    }
+    return refused;
+}
+
+/* Collision checking turned back on with the cube 1.2 mm inside the slab: the status says so at
+ * once, a push deeper is refused, a slide along it and a pull out are taken (counted as escaping
+ * while inside), and once out the contact is checked as before. */
+static void test_checking_back_on_inside(void **st)
+{
+    frag f[2];
+    make(f);
+    loop_obb *o = loop_obb_new(f, 2, NULL, NULL);
+    loop_collider col = loop_obb_collider(o);
+    loop_config c;
+    loop_config_default(&c);
+    c.frame = LOOP_FRAME_WORLD;
+    c.trans_mm_s = 50;
+    c.check_invariant = 1;
+    uint8_t fixed[2] = {0, 1};
+    loop *L = loop_new(f, 2, fixed, &col, &c, NULL);
+    int64_t t = 0;
+    double top = -INFINITY;
+    loop_action_do(L, LOOP_ACT_COLLISION);
+    push(L, f, 1, 0, 8, &t, &top); /* 3.2 mm up: the top face at 8.7, the slab's at 7.5 */
+    assert_true(fabs(top - 8.7) < 1e-9);
+    assert_int_equal(loop_action_do(L, LOOP_ACT_COLLISION), LOOP_IDLE);
+    loop_publish(L);
+    loop_scene sc = {0};
+    loop_scene_read(L, &sc);
+    assert_int_equal(sc.penetrating, 1);
+    assert_true(sc.separation_mm < 0);
+    char line[512];
+    loop_scene_format(&sc, line, sizeof line);
+    assert_non_null(strstr(line, "PENETRATING"));
+    /* Deeper: every step refused, the depth stays. */
+    assert_int_equal(push(L, f, 1, 0, 10, &t, &top), 10);
+    assert_true(fabs(top - 8.7) < 1e-9);
+    /* Along the slab at the same depth: taken. */
+    assert_int_equal(push(L, f, 0, 1, 5, &t, &top), 0);
+    pose p = loop_pose(L, 0);
+    assert_true(p.t[0] > 1.9);
+    assert_true(fabs(top - 8.7) < 1e-9);
+    /* A push that is mostly sideways but also deeper: refused. */
+    assert_int_equal(push(L, f, 0.2f, 1, 3, &t, &top), 3);
+    /* Out: taken, and free again. */
+    assert_int_equal(push(L, f, -1, 0, 8, &t, &top), 0);
+    p = loop_pose(L, 0);
+    assert_true(top_z(&f[0], &p) < 7.5);
+    loop_publish(L);
+    loop_scene_read(L, &sc);
+    assert_int_equal(sc.penetrating, 0);
+    loop_stats s;
+    loop_get_stats(L, &s);
+    assert_true(s.escaping >= 5);
+    /* Checked as before: up to the contact, never into it. */
+    push(L, f, 1, 0, 20, &t, &top);
+    p = loop_pose(L, 0);
+    assert_false(brute_collides(f, &p));
+    assert_true(7.5 - top_z(&f[0], &p) < 0.05);
+    loop_get_stats(L, &s);
+    assert_int_equal(s.collisions_in_accepted, 0);
+    assert_int_equal(s.unchecked, 8);
+    loop_free(L);
+    loop_obb_free(o);
+    frag_free(&f[0]);
+    frag_free(&f[1]);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_head_on_against_slab),
         cmocka_unit_test(test_grazing_slides_under_slab),
         cmocka_unit_test(test_turning_into_slab),
+        cmocka_unit_test(test_checking_back_on_inside),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

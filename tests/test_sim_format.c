@@ -230,15 +230,19 @@ static void test_script_combined_and_buttons(void **st)
     fnrec_free(r);
 }
 
-/* The Enterprise follows report 3 with report 0x1C key codes. */
+/* The Enterprise follows report 3 with report 0x1C key codes, those of the device table's key
+ * list (devtab_keys): button 1 is MENU (code 1), button 13 the key "1" (code 13), button 4 ENTER
+ * (code 36, a key that exists only in 0x1C). */
 static void test_script_enterprise_keycodes(void **st)
 {
-    fnrec *r = render("press 1 2\nwait 40 ms\n", "spacemouse-enterprise");
+    fnrec *r = render("press 1 13 4\nwait 40 ms\n", "spacemouse-enterprise");
     assert_int_equal(r->n, 3);
     assert_int_equal(r->ev[1].data[0], 3);
     assert_int_equal(r->ev[2].data[0], 0x1C);
-    assert_int_equal(le16(r->ev[2].data + 1), 13); /* button 1 */
-    assert_int_equal(le16(r->ev[2].data + 3), 14); /* button 2 */
+    assert_int_equal(le16(r->ev[2].data + 1), 1);
+    assert_int_equal(le16(r->ev[2].data + 3), 13);
+    assert_int_equal(le16(r->ev[2].data + 5), 36);
+    assert_int_equal(le16(r->ev[2].data + 7), 0);
     fnrec_free(r);
 }
 
