@@ -154,18 +154,27 @@ static dev_device *open_on(const dev_transport *t, const char *arg, const char *
     return dev_open_handle(t, h, arg);
 }
 
-static dev_device *open_serial(const char *serial, const char *spec)
+/* The transport and path of the connected controller with this serial number (path: a buffer of
+ * this thread's, valid until the next call). */
+static int find_serial(const char *serial, const char *spec, const dev_transport **t, const char **path)
 {
+    static _Thread_local char found_path[sizeof ((dev_info *)0)->path];
     dev_info found[16];
+    if (!*serial)
+        return fn_err_set(FN_EINVAL, "device '%s': serial: needs a serial number (fracnav devices lists them)",
+                          spec);
     for (size_t i = 0; dev_transport_at(i); i++) {
-        const dev_transport *t = dev_transport_at(i);
-        int n = t->enumerate ? t->enumerate(found, 16) : 0;
+        int n = dev_transport_at(i)->enumerate ? dev_transport_at(i)->enumerate(found, 16) : 0;
         for (int k = 0; k < n && k < 16; k++)
-            if (!strcmp(found[k].serial, serial))
-                return open_on(t, found[k].path, spec);
+            if (!strcmp(found[k].serial, serial)) {
+                *t = dev_transport_at(i);
+                snprintf(found_path, sizeof found_path, "%s", found[k].path);
+                *path = found_path;
+                return 0;
+            }
     }
-    fn_err_set(FN_ENODEV, "device '%s': no connected controller has serial number '%s'", spec, serial);
-    return NULL;
+    return fn_err_set(FN_ENODEV, "device '%s': no connected controller has serial number '%s' (fracnav "
+                      "devices lists them; nodes outside /dev need FRACNAV_HIDRAW_PATH)", spec, serial);
 }
 
 static dev_device *open_auto(void)
@@ -197,6 +206,8 @@ int dev_spec_resolve(const char *spec, const dev_transport **t, const char **arg
     *arg = spec;
     if (!spec || is_path(spec))
         return 0;
+    if (!strncmp(spec, "serial:", 7))
+        return find_serial(spec + 7, spec, t, arg);
     char name[32];
     const char *colon = strchr(spec, ':');
     size_t n = colon ? (size_t)(colon - spec) : strlen(spec);
@@ -220,8 +231,6 @@ dev_device *dev_open(const char *spec)
 {
     if (!spec || !*spec || !strcmp(spec, "auto"))
         return open_auto();
-    if (!strncmp(spec, "serial:", 7))
-        return open_serial(spec + 7, spec);
     const dev_transport *t;
     const char *arg;
     if (dev_spec_resolve(spec, &t, &arg))

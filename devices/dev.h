@@ -102,7 +102,9 @@ typedef struct dev_device dev_device;
 /* Splits a spec that names one transport: a path ("/dev/hidraw3", "./node", "vdev/hidraw0": anything
  * with a '/' before its first ':', or an existing file that is not a transport's name) goes to the
  * hidapi transport; "NAME" or "NAME:ARG" to transport NAME with ARG (NULL when absent or empty).
- * Returns 0 or FN_EINVAL naming the spec (unknown transport). "auto" and "serial:S" are dev_open's. */
+ * "serial:S" to the transport and path of the connected controller with serial number S (arg then
+ * points to a per-thread buffer, valid until the next call). Returns 0, FN_EINVAL naming the spec
+ * (unknown transport) or FN_ENODEV (no such serial). "auto" is dev_open's. */
 int dev_spec_resolve(const char *spec, const dev_transport **t, const char **arg);
 
 /* Opens a controller by spec:
@@ -112,6 +114,9 @@ int dev_spec_resolve(const char *spec, const dev_transport **t, const char **arg
  *   "NAME" "NAME:ARG" transport NAME (hidraw, libusb, spnav, keyboard, virtual, replay, ...) with
  *                    its argument (a path, a file, ...)
  *   "serial:S"       the enumerated device whose serial number is S
+ * The hidapi transport enumerates udev's hidraw nodes and, in the hidraw build, those found through
+ * FRACNAV_HIDRAW_PATH (colon-separated folders, their hidraw* nodes, or node paths): a FUSE-served
+ * virtual device is then listed, found by "auto" and "serial:S", and picked up again after a replug.
  * Returns NULL with fn_err_msg() naming the spec and the cause; for a device present but not
  * openable the message names the udev rule to install. */
 dev_device *dev_open(const char *spec);

@@ -1,5 +1,6 @@
 /* dev: the hidapi transport. Built against hidapi.h; the build links libhidapi-hidraw (default,
  * transport "hidraw") or libhidapi-libusb (FRACNAV_HIDAPI_LIBUSB, transport "libusb"): one ABI. */
+#include <dirent.h>
 #include <errno.h>
 #include <fcntl.h>
 #include <hidapi/hidapi.h>
@@ -12,6 +13,7 @@
 #include <wchar.h>
 
 #include "dev.h"
+#include "devtab.h"
 #include "err.h"
 
 #ifdef FRACNAV_HIDAPI_LIBUSB
@@ -59,6 +61,57 @@ static int wanted(const struct hid_device_info *e)
     return e->usage_page == 0 || multi_axis;
 }
 
+static int hidraw_info(const char *path, dev_info *out);
+
+/* A node found outside udev's list is listed when the device table knows it or its descriptor
+ * opens with a multi-axis controller collection (Usage Page Generic Desktop, Usage 8). */
+static int add_node(const char *path, dev_info *out, size_t cap, int n)
+{
+    dev_info d;
+    memset(&d, 0, sizeof d);
+    snprintf(d.path, sizeof d.path, "%s", path);
+    if (hidraw_info(path, &d) != 0)
+        return n; /* not a hidraw node */
+    static const uint8_t multi_axis[] = {0x05, 0x01, 0x09, 0x08};
+    if (!devtab_find(d.vid, d.pid) && !(d.desc_len >= 4 && !memcmp(d.desc, multi_axis, 4)))
+        return n;
+    for (int k = 0; k < n && (size_t)k < cap; k++)
+        if (!strcmp(out[k].path, path))
+            return n;
+    if ((size_t)n < cap)
+        out[n] = d;
+    return n + 1;
+}
+
+/* FRACNAV_HIDRAW_PATH: colon-separated folders (their hidraw* nodes, by name) or node paths that
+ * hidraw nodes outside udev's view live in, such as fracnav-sim's FUSE-served virtual device. */
+static int extra_nodes(dev_info *out, size_t cap, int n)
+{
+    const char *env = getenv("FRACNAV_HIDRAW_PATH");
+    char list[4096], path[512];
+    snprintf(list, sizeof list, "%s", env ? env : "");
+    for (char *save = NULL, *e = strtok_r(list, ":", &save); e; e = strtok_r(NULL, ":", &save)) {
+        DIR *dir = opendir(e);
+        if (!dir) {
+            n = add_node(e, out, cap, n);
+            continue;
+        }
+        struct dirent **names;
+        int m = scandir(e, &names, NULL, alphasort);
+        closedir(dir);
+        for (int i = 0; i < m; i++) {
+            if (!strncmp(names[i]->d_name, "hidraw", 6)) {
+                snprintf(path, sizeof path, "%s/%s", e, names[i]->d_name);
+                n = add_node(path, out, cap, n);
+            }
+            free(names[i]);
+        }
+        if (m >= 0)
+            free(names);
+    }
+    return n;
+}
+
 static int hid_enum(dev_info *out, size_t cap)
 {
     if (init_once())
@@ -80,7 +133,7 @@ static int hid_enum(dev_info *out, size_t cap)
         n++;
     }
     hid_free_enumeration(list);
-    return n;
+    return IS_HIDRAW ? extra_nodes(out, cap, n) : n;
 }
 
 /* Checks a node before hidapi sees it (every path, relative ones too): hidapi 0.13.1 crashes in
@@ -180,6 +233,9 @@ static int hidraw_info(const char *path, dev_info *out)
     char name[sizeof out->name] = "";
     if (ioctl(fd, HIDIOCGRAWNAME(sizeof name - 1), name) >= 0 && !out->name[0])
         snprintf(out->name, sizeof out->name, "%s", name);
+    char uniq[sizeof out->serial] = "";
+    if (ioctl(fd, HIDIOCGRAWUNIQ(sizeof uniq - 1), uniq) >= 0 && !out->serial[0])
+        snprintf(out->serial, sizeof out->serial, "%s", uniq);
     struct hidraw_report_descriptor *rd = malloc(sizeof *rd);
     if (rd && ioctl(fd, HIDIOCGRDESCSIZE, &size) == 0 && size > 0 && size <= HID_MAX_DESCRIPTOR_SIZE &&
         (size_t)size <= sizeof out->desc) {

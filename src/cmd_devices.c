@@ -30,7 +30,11 @@ static void usage(FILE *out)
                  "--device adds one it cannot see (a hidraw path, spnav, keyboard, replay:FILE, ...).\n"
                  "A device that cannot be opened is listed with the udev rule to install.\n\n"
                  "  --json          machine-readable output\n"
-                 "  --device SPEC   also probe this device (repeatable, up to 8 times)\n");
+                 "  --device SPEC   also probe this device (repeatable, up to 8 times)\n\n"
+                 "environment:\n"
+                 "  FRACNAV_HIDRAW_PATH   colon-separated folders (their hidraw* nodes) or node paths\n"
+                 "                        enumerated besides the system's, e.g. the mount point of\n"
+                 "                        fracnav-sim serve; auto and serial:SN find them too\n");
 }
 
 /* Opens the device briefly: for the battery, and to find out whether the user may open it. */

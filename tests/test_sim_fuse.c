@@ -575,6 +575,41 @@ static void test_play_recording(void **st)
     fnrec_free(want);
 }
 
+/* FRACNAV_HIDRAW_PATH puts the FUSE-served node (which udev does not know) into enumeration: fracnav
+ * devices lists it with its serial number and --device serial:SN opens it. */
+static void test_serial_selects_fuse_node(void **st)
+{
+    const char *scr = write_script("sn.script", "translate -x 5 mm over 0.2 s\n");
+    const char *rec = path_in("sn.fnrec");
+    pid_t srv = start_server("--as", "spacemouse-wireless", "--serial", "FNTESTSN01", "--script", scr,
+                             "--start-on-read", NULL);
+    char *out = NULL, node[600], env[1300];
+    snprintf(node, sizeof node, "%s/hidraw0", mnt);
+    assert_int_equal(tu_run_cli(&out, "devices"), 0);
+    assert_null(strstr(out, node)); /* not udev's: not listed without the variable */
+    free(out);
+    snprintf(env, sizeof env, "%s/nowhere:%s", workdir, mnt); /* a missing entry is skipped */
+    setenv("FRACNAV_HIDRAW_PATH", env, 1);
+    assert_int_equal(tu_run_cli(&out, "devices --json"), 0);
+    assert_non_null(strstr(out, node));
+    assert_non_null(strstr(out, "\"serial\": \"FNTESTSN01\""));
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "record -o '%s' --device serial:FNTESTSN02 --seconds 0.3", rec), 1);
+    assert_non_null(strstr(out, "no connected controller has serial number 'FNTESTSN02'"));
+    free(out);
+    int rc = tu_run_cli(&out, "record -o '%s' --device serial:FNTESTSN01 --seconds 0.8", rec);
+    unsetenv("FRACNAV_HIDRAW_PATH");
+    if (rc)
+        fail_msg("%s", out);
+    free(out);
+    stop_server(srv);
+    fnrec *got = fnrec_load(rec);
+    assert_non_null(got);
+    assert_int_equal(got->hdr.pid, 0xc62e);
+    assert_true(got->n > 5);
+    fnrec_free(got);
+}
+
 /* Script lines written to the control FIFO play in turn on the live device; buttons carry over. */
 static void test_control_fifo(void **st)
 {
@@ -767,6 +802,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_open_controller_settings_applied, setup, teardown),
         cmocka_unit_test_setup_teardown(test_play_recording, setup, teardown),
         cmocka_unit_test_setup_teardown(test_control_fifo, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_serial_selects_fuse_node, setup, teardown),
         cmocka_unit_test_setup_teardown(test_cli_usage_and_errors, setup, teardown),
         cmocka_unit_test_setup_teardown(test_sim_cli_option_checks, setup, teardown),
         cmocka_unit_test_setup_teardown(test_serve_unprivileged, setup, teardown),
