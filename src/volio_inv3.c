@@ -229,7 +229,8 @@ static int node_text(const plist *p, int nd, char *buf, size_t cap)
         n--;
     if (n >= cap)
         return -1;
-    memcpy(buf, t, n);
+    if (n) /* an empty element (<string/>) has no text at all */
+        memcpy(buf, t, n);
     buf[n] = '\0';
     return 0;
 }
