@@ -20,7 +20,7 @@
 static void usage(FILE *out)
 {
     fprintf(out,
-            "usage: fracnav demo [CT] [-o DIR]\n\n"
+            "usage: fracnav demo [CT] [-o DIR] [--tau-min T] [--tau-max T]\n\n"
             "Runs fracnav's workflow on a CT (default: the example skull CT that .ci/setup caches,\n"
             "$FRACNAV_DATA/Cranium.inv3 or /var/cache/fracnav/Cranium.inv3) and writes its results to\n"
             "DIR (default ./fracnav-demo):\n"
@@ -34,7 +34,9 @@ static void usage(FILE *out)
             "     (picture: DIR/fracture-right.png);\n"
             "  4. renders a scripted 3D-mouse session with the virtual SpaceNavigator (push the loose\n"
             "     piece head-on into the other, then back off; DIR/head-on.fnrec) and replays it\n"
-            "     through the collision-checked navigation loop, as `fracnav replay` does.\n");
+            "     through the collision-checked navigation loop, as `fracnav replay` does.\n\n"
+            "  -o DIR                     where the results go (default ./fracnav-demo)\n" CMD_TAU_HELP
+            "                             (kept in both cases the demo saves)\n");
 }
 
 static double now_s(void)
@@ -51,7 +53,7 @@ static int fail(const char *what)
 }
 
 /* Step 1: segmentation, saved as a case. Takes ownership of ct. */
-static fcase *segment(const char *ct_path, vol *ct, const char *dir)
+static fcase *segment(const char *ct_path, vol *ct, const char *dir, const cmd_tau *tau)
 {
     seg_params sp;
     seg_defaults(&sp);
@@ -84,6 +86,7 @@ static fcase *segment(const char *ct_path, vol *ct, const char *dir)
                f->axes[1][0], f->axes[2][0], sc->peak < 1000 ? "not bone (peak < 1000 HU: head holder)" : "bone");
     }
     seg_result_free(&sr);
+    cmd_tau_apply(tau, &c->tau_min, &c->tau_max); /* checked with the options */
     if (case_save(c) < 0) {
         case_free(c);
         return NULL;
@@ -123,10 +126,11 @@ static int pictures(const fcase *c, const char *dir)
 }
 
 /* Step 3: a synthetic fracture of the segmented CT, with its ground truth. */
-static int fracture(const fcase *seg, const char *dir)
+static int fracture(const fcase *seg, const char *dir, const cmd_tau *tau)
 {
     fracture_params fp;
     fracture_defaults(&fp);
+    cmd_tau_apply(tau, &fp.tau_min, &fp.tau_max);
     char casedir[4200], png[4200];
     snprintf(casedir, sizeof casedir, "%s/fracture", dir);
     double t0 = now_s();
@@ -185,12 +189,18 @@ static int session(const char *dir)
 int cmd_demo(int argc, char **argv)
 {
     const char *ct_path = NULL, *dir = "fracnav-demo";
+    cmd_tau tau = {0};
+    int rc;
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "-h") || !strcmp(argv[i], "--help")) {
             usage(stdout);
             return 0;
         } else if (!strcmp(argv[i], "-o") && i + 1 < argc) {
             dir = argv[++i];
+        } else if (cmd_tau_option("demo", argv[i], i + 1 < argc ? argv[i + 1] : NULL, &tau, &rc)) {
+            if (rc)
+                return rc;
+            i++;
         } else if (argv[i][0] == '-' || ct_path) {
             fprintf(stderr, "fracnav demo: unexpected argument '%s'\n", argv[i]);
             usage(stderr);
@@ -199,6 +209,8 @@ int cmd_demo(int argc, char **argv)
             ct_path = argv[i];
         }
     }
+    if ((rc = cmd_tau_check("demo", &tau)) != 0)
+        return rc;
     if (!ct_path)
         ct_path = cmd_example_ct();
     if (mkdir(dir, 0777) != 0 && errno != EEXIST) {
@@ -215,15 +227,15 @@ int cmd_demo(int argc, char **argv)
     printf("fracnav demo on %s\n0. CT: %dx%dx%d voxels, %.3fx%.3fx%.3f mm, read in %.0f ms\n", ct_path,
            ct->dim[0], ct->dim[1], ct->dim[2], ct->spacing[0], ct->spacing[1], ct->spacing[2],
            (now_s() - t0) * 1e3);
-    fcase *c = segment(ct_path, ct, dir);
+    fcase *c = segment(ct_path, ct, dir, &tau);
     if (!c)
         return fail("segmentation");
-    int rc = pictures(c, dir);
+    rc = pictures(c, dir);
     if (rc < 0) {
         case_free(c);
         return fail("pictures");
     }
-    rc = fracture(c, dir);
+    rc = fracture(c, dir, &tau);
     case_free(c);
     if (rc < 0)
         return fail("fracture");

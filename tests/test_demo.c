@@ -36,11 +36,25 @@ static void test_demo_runs_the_workflow(void **st)
         if (access(p, R_OK) != 0)
             fail_msg("demo did not write %s", p);
     }
-    /* A second run over the same folder works too (the README's command is idempotent). */
+    /* A second run over the same folder works too (the README's command is idempotent); the
+     * hierarchy thresholds given go into both cases. */
     free(out);
-    rc = tu_run_cli(&out, "demo '%s' -o '%s/d'", ct, dir);
+    rc = tu_run_cli(&out, "demo '%s' -o '%s/d' --tau-min 0.25 --tau-max 0.75", ct, dir);
     if (rc != 0)
         fail_msg("second fracnav demo exited %d:\n%s", rc, out);
+    free(out);
+    const char *cases[] = {"case", "fracture"};
+    for (size_t i = 0; i < 2; i++) {
+        char p[4200];
+        snprintf(p, sizeof p, "%s/d/%s/case.json", dir, cases[i]);
+        char *json = tu_slurp(p, NULL);
+        assert_non_null(json);
+        if (!strstr(json, "\"tau_min\": 0.25") || !strstr(json, "\"tau_max\": 0.75"))
+            fail_msg("%s does not keep --tau-min 0.25 --tau-max 0.75:\n%s", p, json);
+        free(json);
+    }
+    assert_int_equal(tu_run_cli(&out, "demo '%s' -o '%s/d' --tau-max 1.5", ct, dir), 2);
+    assert_non_null(strstr(out, "--tau-max: '1.5' is not a number from 0 to 1"));
     free(out);
     tu_rmtree(dir);
     free(dir);
