@@ -41,6 +41,8 @@ typedef struct devtab_row {
     uint8_t axis_invert;  /* bit i: negate axis i (tx ty tz rx ry rz) to reach the HID convention */
     int16_t axis_max;     /* logical maximum when the descriptor is not available (350) */
     unsigned flags;       /* DEVTAB_F_* */
+    uint8_t key1_button;  /* button bit of the key labelled "1" when the numbered keys are not the
+                           * first buttons (the Enterprise: 12, as codes 13-22 are keys 1-10), else 0 */
 } devtab_row;
 
 /* A key code of report 0x1C (rows with DEVTAB_F_KEYCODES) and the button number it is reported

@@ -42,7 +42,8 @@ static void usage(FILE *out)
             "keys (when the controller is not the keyboard): n/p next/previous fragment, f fix or\n"
             "unfix, c collision checking on/off, t translation only, r rotation only, u undo, y redo,\n"
             "m frame, s save, q quit. Controller buttons: 1 next, 2 previous, 3 fix, 4 collision,\n"
-            "5 translation only, 6 rotation only, 7 undo, 8 redo, 9 save, 10 frame.\n"
+            "5 translation only, 6 rotation only, 7 undo, 8 redo, 9 save, 10 frame (on the SpaceMouse\n"
+            "Enterprise: its keys labelled 1-10; spnavrc's bnmapN moves them).\n"
             "With --device keyboard (what auto picks without a controller) the keys steer instead:\n"
             "  arrows or a/d w/s  move in x and y        r/f  up/down\n"
             "  i/k j/l u/o        rotate                 space or x  stop\n"
@@ -332,6 +333,8 @@ int cmd_navigate(int argc, char **argv)
     int keys = strcmp(dev_transport_name(ds.d), "keyboard") != 0;
     loop_config cfg;
     loop_config_default(&cfg);
+    if (dev_row(ds.d))
+        loop_config_actions_at(&cfg, dev_row(ds.d)->key1_button);
     cfg.frame = o.frame;
     loopkit k;
     rc = loopkit_open(&k, o.dir, &cfg, o.flags, "navigate", &o.tau);

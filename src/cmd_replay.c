@@ -2,6 +2,7 @@
 #include "cmd.h"
 
 #include "cmd_loopkit.h"
+#include "devtab.h"
 #include "err.h"
 #include "sim_replay.h"
 
@@ -179,6 +180,10 @@ int cmd_replay(int argc, char **argv)
     }
     loop_config cfg;
     loop_config_default(&cfg);
+    const fnrec_header *hdr = sim_replay_header(h);
+    const devtab_row *row = devtab_find(hdr->vid, hdr->pid);
+    if (row)
+        loop_config_actions_at(&cfg, row->key1_button);
     cfg.frame = o.frame;
     cfg.check_invariant = 1;
     loopkit k;
@@ -187,7 +192,6 @@ int cmd_replay(int argc, char **argv)
         sim_replay_transport.close(h);
         return 1;
     }
-    const fnrec_header *hdr = sim_replay_header(h);
     loopkit_tsource ts = {0};
     ts.tr = &sim_replay_transport;
     ts.h = h;

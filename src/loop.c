@@ -36,6 +36,16 @@ void loop_config_default(loop_config *c)
     memcpy(c->button_action, map, sizeof map);
 }
 
+void loop_config_actions_at(loop_config *c, int first)
+{
+    uint8_t acts[10];
+    if (first <= 0 || first > 32 - (int)sizeof acts)
+        return;
+    memcpy(acts, c->button_action, sizeof acts);
+    memset(c->button_action, 0, sizeof acts);
+    memcpy(c->button_action + first, acts, sizeof acts);
+}
+
 static const double CAMERA_DEFAULT[3][3] = {{1, 0, 0}, {0, -1, 0}, {0, 0, -1}};
 
 /* Largest distance from the centroid to a corner of the fragment's crop (home world mm). */

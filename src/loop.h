@@ -158,7 +158,12 @@ typedef struct loop_scene {
 
 typedef struct loop loop;
 
+/* Defaults. Buttons 1-10 (bits 0-9) act: next, previous, fix, collision, translation only,
+ * rotation only, undo, redo, save, frame. */
 void loop_config_default(loop_config *c);
+/* Moves the ten default button actions to start at bit first (a device whose numbered keys 1-10
+ * are not its first buttons: devtab_row.key1_button); the bits below act no more. */
+void loop_config_actions_at(loop_config *c, int first);
 
 /* A loop over n fragments (1..LOOP_MAX_FRAGS), starting at their current poses. frags must stay
  * valid for the loop's life (centroid, home, dim, spacing are read). fixed: n flags or NULL.

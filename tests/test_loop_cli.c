@@ -583,6 +583,30 @@ static void test_tau_options(void **st)
     free(out);
 }
 
+/* Whether fragment B (final_poses[1]) ended fixed. */
+static int b_fixed(json_t *j)
+{
+    return json_is_true(json_object_get(json_array_get(json_object_get(j, "final_poses"), 1), "fixed"));
+}
+
+/* On the SpaceMouse Enterprise the actions of buttons 1-10 sit on its keys labelled 1-10 (key codes
+ * 13-22, buttons 13-22), not on MENU, FIT and the view keys that come first in its numbering. */
+static void test_enterprise_numbered_keys_act(void **st)
+{
+    json_t *j = replay(recording_as("spacemouse-enterprise", "ent3", "press 15\nwait 50 ms\nrelease\n"),
+                       "--no-journal", 0); /* the key labelled 3: fix */
+    assert_true(b_fixed(j));
+    json_decref(j);
+    j = replay(recording_as("spacemouse-enterprise", "entT", "press 3\nwait 50 ms\nrelease\n"),
+               "--no-journal", 0); /* T, a view key: no action */
+    assert_false(b_fixed(j));
+    json_decref(j);
+    j = replay(recording_as("spacemouse-pro-wireless", "pro3", "press 3\nwait 50 ms\nrelease\n"),
+               "--no-journal", 0); /* other devices: button 3 fixes */
+    assert_true(b_fixed(j));
+    json_decref(j);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -600,6 +624,7 @@ int main(void)
         cmocka_unit_test(test_navigate_keyboard_save_frame_quit),
         cmocka_unit_test(test_tau_options),
         cmocka_unit_test(test_replay_pivot),
+        cmocka_unit_test(test_enterprise_numbered_keys_act),
     };
     return cmocka_run_group_tests(tests, setup, teardown);
 }
