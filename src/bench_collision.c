@@ -23,11 +23,13 @@
 #include "seg.h"
 #include "volio.h"
 
+#include <errno.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
+#include <unistd.h>
 
 typedef struct opts {
     int poses, reps, json, fcl;
@@ -152,13 +154,6 @@ static const char *shared_dir(void)
     return s && *s ? s : "../shared";
 }
 
-static const char *example_ct(void)
-{
-    static char path[4096];
-    const char *d = getenv("FRACNAV_DATA");
-    snprintf(path, sizeof path, "%s/Cranium.inv3", d && *d ? d : "/var/cache/fracnav");
-    return path;
-}
 
 static int work_load(work *w, const char *name, const opts *o)
 {
@@ -167,9 +162,13 @@ static int work_load(work *w, const char *name, const opts *o)
     memset(w, 0, sizeof *w);
     snprintf(w->name, sizeof w->name, "%s", name);
     if (!strcmp(name, "skull"))
-        return work_from_file(w, example_ct(), 300, 200);
+        return work_from_file(w, cmd_example_ct(), 300, 200);
     if (!strcmp(name, "pitch")) {
         snprintf(path, sizeof path, "%s/data/CT_pitch.nii.gz", shared_dir());
+        if (access(path, R_OK) != 0)
+            return fn_err_set(FN_EIO, "workload pitch: %s: %s (it is the team's shared data: run from the "
+                              "repository root, beside ../shared, or set FRACNAV_SHARED to that folder)",
+                              path, strerror(errno));
         return work_from_file(w, path, o->bone > 0 ? o->bone : 130, 40);
     }
     if (!strcmp(name, "longbone"))
