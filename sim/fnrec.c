@@ -175,6 +175,10 @@ static int check_header(const cursor *c, unsigned have)
 
 static int first_line(const cursor *c, const char *s, size_t n, fnrec_header *h)
 {
+    size_t len = c->name ? strlen(c->name) : 0;
+    if ((n < 7 || memcmp(s, "fnrec ", 6) != 0) && len > 7 && !strcmp(c->name + len - 7, ".script"))
+        return bad(c, "a motion script, not a .fnrec recording: render it first with "
+                      "`fracnav-sim render --script FILE -o FILE.fnrec`");
     if (n < 7 || memcmp(s, "fnrec ", 6) != 0)
         return bad(c, "not a .fnrec file (first line must be 'fnrec VERSION')");
     if (!is_word(s + 6, n - 6, "1"))

@@ -125,6 +125,11 @@ static void test_fnrec_malformed(void **st)
 {
     expect_error("", "bad.fnrec", "empty");
     expect_error("hello\n", "bad.fnrec:1:", "not a .fnrec");
+    fnrec *r = NULL; /* a script given where a recording belongs: says how to render it */
+    const char *scr = "translate +x 1 mm over 1 s\n";
+    assert_int_equal(fnrec_parse(scr, strlen(scr), "move.script", &r), FN_EFORMAT);
+    assert_non_null(strstr(fn_err_msg(), "move.script:1: a motion script"));
+    assert_non_null(strstr(fn_err_msg(), "fracnav-sim render"));
     expect_error("fnrec 9\n", "bad.fnrec:1:", "version");
     expect_error("fnrec 1\nvid 46d\n", "bad.fnrec:2:", "4 hex digits");
     expect_error("fnrec 1\nvid 046d\nvid 046d\n", "bad.fnrec:3:", "twice");
