@@ -151,7 +151,6 @@ static void test_fnrec_malformed(void **st)
     snprintf(big, sizeof big, HDR "events\n1 in %0130d\n", 0);
     expect_error(big, "bad.fnrec:8:", "1 to 64 bytes");
     static const char nul[] = "fnrec 1\nvid 046d\0\n";
-    fnrec *r = NULL;
     assert_int_equal(fnrec_parse(nul, sizeof nul - 1, "bad.fnrec", &r), FN_EFORMAT);
     assert_non_null(strstr(fn_err_msg(), "bad.fnrec:2: NUL"));
     /* Comments, blank lines, CRLF and an empty descriptor are fine. */
