@@ -3,7 +3,7 @@
 #include <string.h>
 
 #define ALL(n) ((uint32_t)(((uint64_t)1 << (n)) - 1))
-#define HW(vid, pid, name, fmt, nb, mask, fl) {vid, pid, name, fmt, nb, mask, 0, 350, fl, 0}
+#define HW(vid, pid, name, fmt, nb, mask, fl) {vid, pid, name, fmt, nb, mask, 0, 350, fl}
 
 enum { LED = DEVTAB_F_LED, BAT = DEVTAB_F_BATTERY, RCV = DEVTAB_F_RECEIVER };
 
@@ -28,8 +28,8 @@ static const devtab_row rows[] = {
        LED | BAT),
     HW(0x256f, 0xc632, "3Dconnexion SpaceMouse Pro Wireless (receiver)", DEVTAB_COMBINED, 15, ALL(15),
        LED | BAT | RCV),
-    {0x256f, 0xc633, "3Dconnexion SpaceMouse Enterprise", DEVTAB_COMBINED, 31, ALL(31), 0, 350,
-     LED | DEVTAB_F_KEYCODES, 12},
+    HW(0x256f, 0xc633, "3Dconnexion SpaceMouse Enterprise", DEVTAB_COMBINED, 31, ALL(31),
+       LED | DEVTAB_F_KEYCODES),
     HW(0x256f, 0xc635, "3Dconnexion SpaceMouse Compact", DEVTAB_SPLIT, 2, ALL(2), LED),
     HW(0x256f, 0xc638, "3Dconnexion SpaceMouse Pro Wireless (Bluetooth)", DEVTAB_COMBINED, 15, ALL(15),
        LED | BAT),
@@ -39,10 +39,10 @@ static const devtab_row rows[] = {
     HW(DEVTAB_OPEN_VID, DEVTAB_OPEN_PID, "fracnav open 6-DOF controller", DEVTAB_COMBINED, 8, ALL(8),
        LED | BAT | DEVTAB_F_OPEN),
     /* Synthetic rows: transports that make reports of their own. */
-    {0, 0, "spnav", DEVTAB_COMBINED, 32, 0xffffffffu, 0, 350, DEVTAB_F_SYNTH | LED, 0},
-    {0, 0, "keyboard", DEVTAB_COMBINED, 10, ALL(10), 0, 350, DEVTAB_F_SYNTH, 0},
+    {0, 0, "spnav", DEVTAB_COMBINED, 32, 0xffffffffu, 0, 350, DEVTAB_F_SYNTH | LED},
+    {0, 0, "keyboard", DEVTAB_COMBINED, 10, ALL(10), 0, 350, DEVTAB_F_SYNTH},
     /* An unlisted product whose descriptor declares 6-DOF motion reports (new ids keep working). */
-    {0, 0, "generic", DEVTAB_COMBINED, 32, 0xffffffffu, 0, 350, DEVTAB_F_SYNTH | LED, 0},
+    {0, 0, "generic", DEVTAB_COMBINED, 32, 0xffffffffu, 0, 350, DEVTAB_F_SYNTH | LED},
 };
 
 /* The SpaceMouse Enterprise's 31 keys as it reports them in 0x1C. Codes 1-31 keep 3Dconnexion's
@@ -72,6 +72,12 @@ int devtab_key_button(uint16_t code)
         if (keys[i].code == code)
             return keys[i].button;
     return -1;
+}
+
+int devtab_key1_button(const devtab_row *row)
+{
+    int b = row && (row->flags & DEVTAB_F_KEYCODES) ? devtab_key_button(13) : -1; /* code 13: "1" */
+    return b > 0 ? b : 0;
 }
 
 const devtab_row *devtab_rows(size_t *n)

@@ -41,8 +41,6 @@ typedef struct devtab_row {
     uint8_t axis_invert;  /* bit i: negate axis i (tx ty tz rx ry rz) to reach the HID convention */
     int16_t axis_max;     /* logical maximum when the descriptor is not available (350) */
     unsigned flags;       /* DEVTAB_F_* */
-    uint8_t key1_button;  /* button bit of the key labelled "1" when the numbered keys are not the
-                           * first buttons (the Enterprise: 12, as codes 13-22 are keys 1-10), else 0 */
 } devtab_row;
 
 /* A key code of report 0x1C (rows with DEVTAB_F_KEYCODES) and the button number it is reported
@@ -57,6 +55,9 @@ typedef struct devtab_key {
 const devtab_key *devtab_keys(size_t *n);
 /* The button of a key code, -1 when the code is not a button (it still reaches dev_event.keys). */
 int devtab_key_button(uint16_t code);
+/* The button bit of the key labelled "1": on rows with DEVTAB_F_KEYCODES (the Enterprise) that of
+ * key code 13 (12), where its numbered keys 1-10 start; 0 on every other row (or NULL). */
+int devtab_key1_button(const devtab_row *row);
 
 /* The whole table (hardware rows first, then the synthetic rows). *n receives the row count. */
 const devtab_row *devtab_rows(size_t *n);

@@ -333,8 +333,7 @@ int cmd_navigate(int argc, char **argv)
     int keys = strcmp(dev_transport_name(ds.d), "keyboard") != 0;
     loop_config cfg;
     loop_config_default(&cfg);
-    if (dev_row(ds.d))
-        loop_config_actions_at(&cfg, dev_row(ds.d)->key1_button);
+    loop_config_actions_at(&cfg, devtab_key1_button(dev_row(ds.d)));
     cfg.frame = o.frame;
     loopkit k;
     rc = loopkit_open(&k, o.dir, &cfg, o.flags, "navigate", &o.tau);

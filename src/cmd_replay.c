@@ -181,9 +181,7 @@ int cmd_replay(int argc, char **argv)
     loop_config cfg;
     loop_config_default(&cfg);
     const fnrec_header *hdr = sim_replay_header(h);
-    const devtab_row *row = devtab_find(hdr->vid, hdr->pid);
-    if (row)
-        loop_config_actions_at(&cfg, row->key1_button);
+    loop_config_actions_at(&cfg, devtab_key1_button(devtab_find(hdr->vid, hdr->pid)));
     cfg.frame = o.frame;
     cfg.check_invariant = 1;
     loopkit k;

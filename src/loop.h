@@ -162,7 +162,7 @@ typedef struct loop loop;
  * rotation only, undo, redo, save, frame. */
 void loop_config_default(loop_config *c);
 /* Moves the ten default button actions to start at bit first (a device whose numbered keys 1-10
- * are not its first buttons: devtab_row.key1_button); the bits below act no more. */
+ * are not its first buttons: devtab_key1_button); the bits below act no more. */
 void loop_config_actions_at(loop_config *c, int first);
 
 /* A loop over n fragments (1..LOOP_MAX_FRAGS), starting at their current poses. frags must stay
