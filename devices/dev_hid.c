@@ -91,14 +91,12 @@ static int extra_nodes(dev_info *out, size_t cap, int n)
     char list[4096], path[512];
     snprintf(list, sizeof list, "%s", env ? env : "");
     for (char *save = NULL, *e = strtok_r(list, ":", &save); e; e = strtok_r(NULL, ":", &save)) {
-        DIR *dir = opendir(e);
-        if (!dir) {
+        struct dirent **names;
+        int m = scandir(e, &names, NULL, alphasort);
+        if (m < 0) { /* not a folder: a node path */
             n = add_node(e, out, cap, n);
             continue;
         }
-        struct dirent **names;
-        int m = scandir(e, &names, NULL, alphasort);
-        closedir(dir);
         for (int i = 0; i < m; i++) {
             if (!strncmp(names[i]->d_name, "hidraw", 6)) {
                 snprintf(path, sizeof path, "%s/%s", e, names[i]->d_name);
@@ -106,8 +104,7 @@ static int extra_nodes(dev_info *out, size_t cap, int n)
             }
             free(names[i]);
         }
-        if (m >= 0)
-            free(names);
+        free(names);
     }
     return n;
 }

@@ -3,12 +3,11 @@
  * device-table row:
  *   a/d or arrows left/right  -x/+x    w/s or arrows up/down  -y/+y (away/towards you)
  *   r/f  -z/+z (up/down)   i/k -rx/+rx   j/l -rz/+rz   u/o -ry/+ry
- *   1-8  buttons 0-7 (tap)      9  button 9 (save)   0 or m  button 10 (frame)
+ *   1-9  buttons 1-9 (tap; 9 saves)    0 or m  button 10 (frame)
  *   space or x: stop all motion   q  quit (as Ctrl-C: raises SIGINT)
  *   mouse: left drag rotates (rz, rx), middle drag rolls (ry), right drag moves (x, y), wheel z
- * The row has 8 buttons, so 9 and 0 are sent as the SpaceMouse Enterprise's key codes for its
- * buttons 9 and 10 (report 0x1C, firmware-spec/3dconnexion.md), which the application maps to
- * those buttons. A terminal has no key-up: a key holds its axis for KEY_HOLD_MS, and auto-repeat keeps it held.
+ * The row has 10 buttons, sent in report 3. A terminal has no key-up: a key holds its axis for
+ * KEY_HOLD_MS, and auto-repeat keeps it held.
  * "keyboard:FILE" reads the same bytes from FILE instead of the terminal (scripts, tests). */
 #include <errno.h>
 #include <fcntl.h>
@@ -29,7 +28,6 @@
 
 #define MOUSE_GAIN 70  /* per terminal cell dragged */
 #define ESC_MAX 24
-
 
 enum { PENDING_MOTION = 1, PENDING_BUTTONS = 2 };
 

@@ -154,7 +154,6 @@ static const char *shared_dir(void)
     return s && *s ? s : "../shared";
 }
 
-
 static int work_load(work *w, const char *name, const opts *o)
 {
     char path[4200];
