@@ -51,11 +51,10 @@ int vol_check_dims(const int64_t dim[3], size_t elem_bytes, const char *what)
         if (dim[a] <= 0 || dim[a] > (1 << 20))
             return fn_err_set(FN_EFORMAT, "%s: dimension %d is %lld (must be 1..%d)", what, a,
                               (long long)dim[a], 1 << 20);
-    size_t budget;
+    size_t budget = BUDGET_DEFAULT;
     if (budget_env(&budget) < 0)
         return fn_err_set(FN_EINVAL, "FRACNAV_MAX_BYTES is '%s': expected a whole number of bytes "
                                      "over 0 (e.g. 8589934592 for 8 GiB)", getenv("FRACNAV_MAX_BYTES"));
-    budget = vol_budget();
     size_t n = (size_t)dim[0];
     for (int a = 1; a < 3; a++) {
         if (n > SIZE_MAX / (size_t)dim[a])

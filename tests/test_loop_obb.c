@@ -7,6 +7,7 @@
 
 #include "loop.h"
 #include "obb.h"
+#include "testutil.h"
 
 #include <math.h>
 #include <stdlib.h>
@@ -16,21 +17,10 @@
  * voxel centre is at (-12, -12, 8): its lower face is the plane z = 7.5. */
 static void make(frag f[2])
 {
-    memset(f, 0, 2 * sizeof *f);
     int dims[2][3] = {{6, 6, 6}, {30, 30, 4}};
     double at[2][3] = {{0, 0, 0}, {-12, -12, 8}};
-    for (int i = 0; i < 2; i++) {
-        f[i].id = i + 1;
-        memcpy(f[i].dim, dims[i], sizeof f[i].dim);
-        f[i].spacing[0] = f[i].spacing[1] = f[i].spacing[2] = 1;
-        f[i].home = f[i].pose = POSE_IDENTITY;
-        memcpy(f[i].home.t, at[i], sizeof at[i]);
-        size_t n = (size_t)dims[i][0] * dims[i][1] * dims[i][2];
-        f[i].prob = malloc(n);
-        memset(f[i].prob, 255, n);
-        for (int a = 0; a < 3; a++)
-            f[i].centroid[a] = at[i][a] + (dims[i][a] - 1) / 2.0;
-    }
+    for (int i = 0; i < 2; i++)
+        tu_box_frag(&f[i], i + 1, dims[i], at[i]);
 }
 
 static int brute_collides(const frag f[2], const pose *p0)

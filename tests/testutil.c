@@ -1,4 +1,5 @@
 #include "testutil.h"
+#include "frag.h"
 
 #include <stdarg.h>
 #include <stddef.h>
@@ -108,4 +109,20 @@ void tu_write_file(const char *path, const void *data, size_t len)
     assert_non_null(f);
     assert_int_equal(fwrite(data, 1, len, f), len);
     fclose(f);
+}
+
+void tu_box_frag(frag *f, int id, const int dim[3], const double at[3])
+{
+    memset(f, 0, sizeof *f);
+    f->id = id;
+    memcpy(f->dim, dim, sizeof f->dim);
+    f->spacing[0] = f->spacing[1] = f->spacing[2] = 1;
+    f->home = f->pose = POSE_IDENTITY;
+    memcpy(f->home.t, at, sizeof f->home.t);
+    size_t n = (size_t)dim[0] * dim[1] * dim[2];
+    f->prob = malloc(n);
+    assert_non_null(f->prob);
+    memset(f->prob, 255, n);
+    for (int a = 0; a < 3; a++)
+        f->centroid[a] = at[a] + (dim[a] - 1) / 2.0;
 }

@@ -20,4 +20,9 @@ int tu_run_cli(char **out, const char *fmt, ...);
 char *tu_slurp(const char *path, size_t *len);
 void tu_write_file(const char *path, const void *data, size_t len);
 
+/* A solid box fragment: dim voxels of 1 mm, every one of probability 1 (255), its first voxel
+ * centre at world `at` (home translation), centroid set; f->prob is malloc'd (free it). */
+struct frag;
+void tu_box_frag(struct frag *f, int id, const int dim[3], const double at[3]);
+
 #endif
