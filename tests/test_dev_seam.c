@@ -118,6 +118,23 @@ static void reset_fake(void)
     fake.vid = 0x046d, fake.pid = 0xc626; /* a SpaceNavigator: split format, LED */
 }
 
+/* Pulls the fake device's cable: the next poll reports the unplug. */
+static void pull_cable(dev_device *d, dev_event *ev)
+{
+    fake.plugged = 0;
+    assert_int_equal(dev_poll(d, ev, 0), 1);
+    assert_true(ev->flags & DEV_EV_UNPLUG);
+}
+
+/* Polls for up to 2 s (the device is looked for every DEV_REPLUG_MS); 1 once it is back. */
+static int replugged(dev_device *d, dev_event *ev)
+{
+    for (int i = 0; i < 20; i++)
+        if (dev_poll(d, ev, 100) == 1 && (ev->flags & DEV_EV_REPLUG))
+            return 1;
+    return 0;
+}
+
 static void test_registry(void **s)
 {
     assert_non_null(dev_transport_find("hidraw") ? dev_transport_find("hidraw") : dev_transport_find("libusb"));
@@ -375,15 +392,10 @@ static void test_replug_elsewhere(void **s)
     dev_device *d = dev_open("fake:fake0");
     assert_non_null(d);
     dev_event ev;
-    fake.plugged = 0;
-    assert_int_equal(dev_poll(d, &ev, 0), 1);
-    assert_true(ev.flags & DEV_EV_UNPLUG);
+    pull_cable(d, &ev);
     strcpy(fake.path, "fake7");
     fake.plugged = 1;
-    int back = 0;
-    for (int i = 0; i < 20 && !back; i++)
-        back = dev_poll(d, &ev, 100) == 1 && (ev.flags & DEV_EV_REPLUG);
-    assert_true(back);
+    assert_true(replugged(d, &ev));
     assert_true(dev_connected(d));
     dev_close(d);
 }
@@ -397,9 +409,7 @@ static void test_replug_other_device_refused(void **s)
     dev_device *d = dev_open("fake:fake0");
     assert_non_null(d);
     dev_event ev;
-    fake.plugged = 0;
-    assert_int_equal(dev_poll(d, &ev, 0), 1);
-    assert_true(ev.flags & DEV_EV_UNPLUG);
+    pull_cable(d, &ev);
     strcpy(fake.serial, "SN2");
     fake.plugged = 1;
     int refused = 0, replug = 0;
@@ -503,9 +513,7 @@ static void test_hotplug_add_wakes_reopen(void **s)
     assert_string_equal(hp.subsystem, "fake");
     assert_int_equal(write(hp.pipe[1], "a", 1), 1); /* another device, while ours is there */
     dev_event ev;
-    fake.plugged = 0;
-    assert_int_equal(dev_poll(d, &ev, 0), 1);
-    assert_true(ev.flags & DEV_EV_UNPLUG);
+    pull_cable(d, &ev);
     fake.plugged = 1;
     assert_int_equal(dev_poll(d, &ev, 0), 0); /* no announcement yet: next look is DEV_REPLUG_MS away */
     assert_int_equal(write(hp.pipe[1], "a", 1), 1);
@@ -529,13 +537,9 @@ static void test_hotplug_unavailable_falls_back(void **s)
     assert_non_null(d);
     assert_int_equal(hp.opens, 1);
     dev_event ev;
-    fake.plugged = 0;
-    assert_int_equal(dev_poll(d, &ev, 0), 1);
+    pull_cable(d, &ev);
     fake.plugged = 1;
-    int back = 0;
-    for (int i = 0; i < 20 && !back; i++)
-        back = dev_poll(d, &ev, 100) == 1 && (ev.flags & DEV_EV_REPLUG);
-    assert_true(back);
+    assert_true(replugged(d, &ev));
     dev_close(d);
     assert_int_equal(hp.closes, 0);
     dev_set_hotplug(&hotplug_udev);

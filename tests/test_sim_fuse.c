@@ -292,6 +292,18 @@ static pid_t record_in_background(const char *rec, double seconds, const char *l
     return spawn(argv, log);
 }
 
+/* Waits for the background recorder, stops the server, and loads what the recorder wrote; the
+ * recorder must have exited 0. */
+static fnrec *finish_recording(pid_t recp, pid_t srv, const char *rec)
+{
+    int status = reap(recp, 10000);
+    stop_server(srv);
+    assert_true(WIFEXITED(status) && WEXITSTATUS(status) == 0);
+    fnrec *r = fnrec_load(rec);
+    assert_non_null(r);
+    return r;
+}
+
 static size_t count_dir(const fnrec *r, fnrec_dir d, size_t from)
 {
     size_t n = 0;
@@ -346,11 +358,7 @@ static void test_unplug_replug_on_signal(void **st)
     kill(srv, SIGUSR1);
     msleep(400);
     kill(srv, SIGUSR1);
-    int status = reap(recp, 10000);
-    stop_server(srv);
-    assert_true(WIFEXITED(status) && WEXITSTATUS(status) == 0);
-    fnrec *r = fnrec_load(rec);
-    assert_non_null(r);
+    fnrec *r = finish_recording(recp, srv, rec);
     assert_int_equal(count_dir(r, FNREC_DISCONNECT, 0), 1);
     assert_int_equal(count_dir(r, FNREC_CONNECT, 0), 2);
     size_t cut = 0;
@@ -381,11 +389,7 @@ static void test_live_replug_sends_battery(void **st)
     msleep(300);
     fputs("replug\n", f);
     fclose(f);
-    int status = reap(recp, 10000);
-    stop_server(srv);
-    assert_true(WIFEXITED(status) && WEXITSTATUS(status) == 0);
-    fnrec *r = fnrec_load(rec);
-    assert_non_null(r);
+    fnrec *r = finish_recording(recp, srv, rec);
     assert_int_equal(count_dir(r, FNREC_CONNECT, 0), 3);
     /* After every connect, the first report is the battery's. */
     for (size_t i = 0; i < r->n; i++) {
@@ -621,11 +625,7 @@ static void test_control_fifo(void **st)
     assert_non_null(f);
     fputs("press 2\ntranslate -z 4 mm over 0.2 s\nnonsense\nrelease\n", f);
     fclose(f);
-    int status = reap(recp, 10000);
-    stop_server(srv);
-    assert_true(WIFEXITED(status) && WEXITSTATUS(status) == 0);
-    fnrec *r = fnrec_load(rec);
-    assert_non_null(r);
+    fnrec *r = finish_recording(recp, srv, rec);
     /* press 2, motion along -z (ID1 with z = -140 counts, ID2), the zeros, then the release. */
     int stage = 0;
     size_t motion = 0;
