@@ -259,24 +259,39 @@ static void test_replay_unplug_keeps_pose(void **st)
     json_decref(back);
 }
 
-/* Killed mid-replay (SIGKILL): the journal holds the poses up to ~100 ms before the kill; the
- * next start refuses to silently drop them, and --recover starts from them. */
-static void test_crash_recovery(void **st)
+/* Starts `fracnav ARGS...` (stdin from /dev/null) with its stderr readable through *err. */
+static pid_t start_cli(FILE **err, char *const args[])
 {
-    const char *rec = recording("long", "translate +z 3 mm over 1.5 s\ntranslate -z 3 mm over 1.5 s\n");
-    char cmd[9000];
     const char *bin = getenv("FRACNAV_BIN");
+    char *argv[16] = {(char *)bin};
+    for (int i = 0; args[i] && i < 14; i++)
+        argv[i + 1] = args[i];
     int fds[2];
     assert_int_equal(pipe(fds), 0);
     pid_t pid = fork();
     if (pid == 0) {
         dup2(fds[1], 2);
         close(fds[0]);
-        execl(bin, bin, "replay", case_dir, rec, "--realtime", "--discard-journal", (char *)NULL);
+        if (!freopen("/dev/null", "r", stdin))
+            _exit(126);
+        execv(bin, argv);
         _exit(127);
     }
     close(fds[1]);
-    FILE *err = fdopen(fds[0], "r");
+    *err = fdopen(fds[0], "r");
+    assert_non_null(*err);
+    return pid;
+}
+
+/* Killed mid-replay (SIGKILL): the journal holds the poses up to ~100 ms before the kill; the
+ * next start refuses to silently drop them, and --recover starts from them. */
+static void test_crash_recovery(void **st)
+{
+    const char *rec = recording("long", "translate +z 3 mm over 1.5 s\ntranslate -z 3 mm over 1.5 s\n");
+    char cmd[9000];
+    FILE *err;
+    pid_t pid = start_cli(&err, (char *[]){"replay", case_dir, (char *)rec, "--realtime",
+                                           "--discard-journal", NULL});
     char line[1024];
     assert_non_null(fgets(line, sizeof line, err));
     assert_non_null(strstr(line, "stepping"));
@@ -367,19 +382,9 @@ static void test_navigate_save_on_demand_empties_journal(void **st)
                                    "press 9\nwait 50 ms\nrelease 9\nwait 30 s\n");
     char spec[4300];
     snprintf(spec, sizeof spec, "replay-realtime:%s", rec);
-    const char *bin = getenv("FRACNAV_BIN");
-    int fds[2];
-    assert_int_equal(pipe(fds), 0);
-    pid_t pid = fork();
-    if (pid == 0) {
-        dup2(fds[1], 2);
-        close(fds[0]);
-        freopen("/dev/null", "r", stdin);
-        execl(bin, bin, "navigate", case_dir, "--device", spec, "--duration", "20", (char *)NULL);
-        _exit(127);
-    }
-    close(fds[1]);
-    FILE *err = fdopen(fds[0], "r");
+    FILE *err;
+    pid_t pid = start_cli(&err, (char *[]){"navigate", case_dir, "--device", spec, "--duration",
+                                           "20", NULL});
     char line[1024];
     int saved = 0;
     while (!saved && fgets(line, sizeof line, err))
