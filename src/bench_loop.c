@@ -129,7 +129,7 @@ static json_t *fragments_json(const frag *f, int nfrag)
     return a;
 }
 
-static int print(const loop_stats *s, double wall_s, const frag *f, int nfrag, int json)
+static int print(const loop_stats *s, double wall_s, const frag *f, int nfrag, const char *case_dir, int json)
 {
     if (!json) {
         printf("loop: %.0f steps/s, latency p50 %.0f us, p99 %.0f us, max %.0f us; %llu steps "
@@ -142,8 +142,11 @@ static int print(const loop_stats *s, double wall_s, const frag *f, int nfrag, i
     }
     json_t *j = loopkit_stats_json("bench loop", s);
     if (j) {
-        json_object_set_new(j, "workload", json_string("two-piece fracture of the example CT, piece 1 "
-                                                       "fixed, script pushing piece 2 into and along it"));
+        char what[4200];
+        snprintf(what, sizeof what, "%s%s, script pushing the selected fragment into and along the others",
+                 case_dir ? "the case " : "two-piece fracture of the CT, piece 1 fixed",
+                 case_dir ? case_dir : "");
+        json_object_set_new(j, "workload", jsonw_string(what));
         json_object_set_new(j, "fragments", fragments_json(f, nfrag));
         json_object_set_new(j, "loop_thread_sched_fifo", json_boolean(realtime));
         json_object_set_new(j, "wall_s", jsonw_measure(wall_s));
@@ -206,7 +209,7 @@ int bench_loop(int argc, char **argv)
             rc = drive(k.L, rec, &wall);
             loop_get_stats(k.L, &s);
             if (rc == 0)
-                rc = print(&s, wall, k.c->frag, k.c->nfrag, json);
+                rc = print(&s, wall, k.c->frag, k.c->nfrag, case_dir, json);
             loopkit_close(&k);
         }
     } else {
@@ -225,7 +228,7 @@ int bench_loop(int argc, char **argv)
             rc = drive(L, rec, &wall);
             loop_get_stats(L, &s);
             if (rc == 0)
-                rc = print(&s, wall, f, 2, json);
+                rc = print(&s, wall, f, 2, NULL, json);
         }
         loop_free(L);
         loop_obb_free(o);

@@ -30,7 +30,7 @@ static void usage(FILE *out)
                  "battery) and the transports available. Enumeration sees real USB/Bluetooth devices;\n"
                  "--device adds one it cannot see (a hidraw path, spnav, keyboard, replay:FILE, ...).\n"
                  "A device that cannot be opened is listed with the udev rule to install.\n\n"
-                 "  --json          one JSON object: command, devices (path, id, transport, name,\n"
+                 "  --json          one JSON object: command, devices (path, usb_id, transport, name,\n"
                  "                  format, buttons, battery_pct, serial, error), transports\n"
                  "  --device SPEC   also probe this device (repeatable, up to 8 times)\n\n"
                  "environment:\n"
@@ -106,7 +106,7 @@ static json_t *device_json(const found *f)
 {
     char id[16];
     snprintf(id, sizeof id, "%04x:%04x", f->info.vid, f->info.pid);
-    json_t *o = json_pack("{s:o, s:s, s:s, s:o}", "path", jsonw_string(f->info.path), "id", id, "transport",
+    json_t *o = json_pack("{s:o, s:s, s:s, s:o}", "path", jsonw_string(f->info.path), "usb_id", id, "transport",
                           f->transport ? f->transport : "", "name",
                           jsonw_string(f->row && f->row->vid ? f->row->name : f->info.name));
     json_object_set_new(o, "format", f->row ? json_string(devtab_format_name(f->row->format)) : json_null());

@@ -102,11 +102,17 @@ static void put_real(buf *b, double v)
         return;
     }
     char s[40];
-    for (int p = 1; p <= 17; p++) {
+    int p;
+    for (p = 1; p < 17; p++) {
         snprintf(s, sizeof s, "%.*g", p, v);
         if (strtod(s, NULL) == v)
             break;
     }
+    int e = (int)floor(log10(fabs(v)));
+    if (v != 0 && e >= p && e < 16) /* 300, not %g's 3e+02: the same digits without an exponent */
+        snprintf(s, sizeof s, "%.0f", v);
+    else
+        snprintf(s, sizeof s, "%.*g", p, v);
     put(b, "%s%s", s, strpbrk(s, ".e") ? "" : ".0");
 }
 

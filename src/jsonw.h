@@ -31,7 +31,8 @@ json_t *jsonw_measure(double v);
 json_t *jsonw_exact(double v);
 /* n exact figures as an array. */
 json_t *jsonw_exact_array(const double *v, size_t n);
-/* A string; bytes that are not UTF-8 become '?' (a path may hold any bytes). */
+/* A string. One that is not valid UTF-8 (a path may hold any bytes) keeps its ASCII bytes and
+ * has '?' for each of the others. */
 json_t *jsonw_string(const char *s);
 /* Sets o[key] = v (v's reference is taken, as json_object_set_new). 0 or FN_ENOMEM. */
 int jsonw_set(json_t *o, const char *key, json_t *v);
