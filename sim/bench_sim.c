@@ -1,5 +1,5 @@
 /* fracnav-sim bench: throughput and timing jitter of the virtual device through FUSE and the real
- * hidapi (the devices' hidraw transport), printed as JSON. The server runs as a child process
+ * hidapi (the devices' hidraw transport), printed as one JSON object (jsonw). The server runs as a child process
  * (this same program, `serve`), so the numbers include the whole kernel/FUSE round trip. */
 #include "bench_sim.h"
 
@@ -18,6 +18,7 @@
 #include "dev.h"
 #include "err.h"
 #include "fnrec.h"
+#include "jsonw.h"
 #include "script.h"
 #include "simdev.h"
 
@@ -199,11 +200,20 @@ int bench_sim_run(const char *mount, double seconds)
         fprintf(stderr, "fracnav-sim bench: %s\n", fn_err_msg());
         return 1;
     }
-    printf("{\n  \"bench\": \"virtual-device\",\n  \"path\": \"FUSE hidraw node + libhidapi-hidraw\",\n"
-           "  \"throughput\": {\"reports\": %d, \"reports_per_s\": %.0f},\n"
-           "  \"cadence\": {\"device\": \"spacenavigator\", \"period_us\": %.0f, \"reports\": %d,\n"
-           "              \"deviation_mean_us\": %.1f, \"deviation_p99_us\": %.1f, "
-           "\"deviation_max_us\": %.1f, \"drift_us\": %.1f}\n}\n",
-           count, per_s, j.period_us, j.n, j.mean_us, j.p99_us, j.max_us, j.drift_us);
+    json_t *o = jsonw_object("fracnav-sim bench");
+    if (o) {
+        jsonw_set(o, "path", json_string("FUSE hidraw node + libhidapi-hidraw"));
+        jsonw_set(o, "throughput", json_pack("{s:i,s:o}", "reports", count, "report_hz", jsonw_measure(per_s)));
+        jsonw_set(o, "cadence", json_pack("{s:s,s:o,s:i,s:o,s:o,s:o,s:o}", "device", "spacenavigator",
+                                          "period_us", jsonw_measure(j.period_us), "reports", j.n,
+                                          "deviation_mean_us", jsonw_measure(j.mean_us),
+                                          "deviation_p99_us", jsonw_measure(j.p99_us),
+                                          "deviation_max_us", jsonw_measure(j.max_us),
+                                          "drift_us", jsonw_measure(j.drift_us)));
+    }
+    if (jsonw_print(o, stdout) < 0) {
+        fprintf(stderr, "fracnav-sim bench: %s\n", fn_err_msg());
+        return 1;
+    }
     return 0;
 }

@@ -760,7 +760,9 @@ static void usage(FILE *f)
             "render   writes the reports a script produces on DEVICE to a .fnrec file\n"
             "list     prints the devices the simulator can impersonate\n"
             "bench    measures report throughput (as fast as possible) and timing jitter (at the\n"
-            "         8 ms cadence, S seconds, default 2) through FUSE and hidapi; prints JSON\n");
+            "         8 ms cadence, S seconds, default 2) through FUSE and hidapi; prints one JSON\n"
+            "         object: command, path, throughput (reports, report_hz), cadence (device,\n"
+            "         period_us, reports, deviation_mean_us/p99_us/max_us, drift_us)\n");
 }
 
 static int list_devices(void)

@@ -3,6 +3,7 @@
 
 #include "cmd.h"
 #include "err.h"
+#include "jsonw.h"
 
 #include <math.h>
 #include <stdio.h>
@@ -37,11 +38,33 @@ static int fill_bone(frag *f, int n)
     return 0;
 }
 
+/* One size's figures; ns per voxel of the n^3 grid (the build visits every one). */
+static json_t *size_json(const frag *f, int n, double build_ms, double cpu_ms, size_t nodes, int depth,
+                         size_t bytes)
+{
+    double grid = (double)n * n * n;
+    json_t *o = json_pack("{s:[iii],s:I}", "dim", n, n, n, "voxels", (json_int_t)f->voxels);
+    if (!o)
+        return NULL;
+    json_object_set_new(o, "build_ms", jsonw_measure(build_ms));
+    json_object_set_new(o, "build_cpu_ms", jsonw_measure(cpu_ms));
+    json_object_set_new(o, "build_cpu_per_grid_voxel_ns", jsonw_measure(cpu_ms * 1e6 / grid));
+    json_object_set_new(o, "nodes", json_integer((json_int_t)nodes));
+    json_object_set_new(o, "depth", json_integer(depth));
+    json_object_set_new(o, "tree_bytes", json_integer((json_int_t)bytes));
+    json_object_set_new(o, "node_bytes", json_integer((json_int_t)sizeof(obb_node)));
+    long rss = bench_peak_rss_kib();
+    json_object_set_new(o, "rss_max_kib", rss > 0 ? json_integer(rss) : json_null());
+    return o;
+}
+
 static int usage(FILE *out, int rc)
 {
-    fprintf(out, "usage: fracnav bench build [--json] [--reps R] [--tau-min T] [--tau-max T]\n\n"
+    fprintf(out, "usage: fracnav bench build [--json] [--reps R] [--max N] [--tau-min T] [--tau-max T]\n\n"
                  "Builds the hierarchy of bone-like fragments of 64^3 to 256^3 voxels and reports\n"
                  "the best of R builds (default 5) in wall and thread CPU time, nodes and tree bytes.\n"
+                 "  --max N  the largest size (default 256): sizes up to N^3 only\n"
+                 "  --json   one JSON object on stdout: {\"command\": \"bench build\", \"sizes\": [...]}\n"
                  "  --tau-min T, --tau-max T   hierarchy thresholds (default 0 and 1),\n"
                  "                             0 <= T_min <= T_max <= 1\n");
     return rc;
@@ -51,7 +74,7 @@ int bench_build(int argc, char **argv)
 {
     if (cmd_wants_help(argc, argv))
         return usage(stdout, 0);
-    int json = 0, reps = 5, rc;
+    int json = 0, reps = 5, max = 256, rc;
     cmd_tau tau = {0};
     obb_params op = {0, 1};
     for (int i = 1; i < argc; i++) {
@@ -64,7 +87,13 @@ int bench_build(int argc, char **argv)
             json = 1;
         else if (i + 1 < argc && !strcmp(argv[i], "--reps"))
             reps = (int)strtol(argv[++i], &end, 10);
-        else {
+        else if (!strcmp(argv[i], "--max")) {
+            double d;
+            const char *v = i + 1 < argc ? argv[++i] : NULL;
+            if (!cmd_number(v, &d) || !(d >= 64 && d <= 256 && d == (int)d))
+                return cmd_bad_value("bench build", "--max", v, "a whole number 64..256");
+            max = (int)d;
+        } else {
             fprintf(stderr, "fracnav bench build: unknown or incomplete option '%s'\n", argv[i]);
             return usage(stderr, 2);
         }
@@ -77,12 +106,14 @@ int bench_build(int argc, char **argv)
         return cmd_usage_error("bench build", "%s", fn_err_msg());
     static const int sizes[] = {64, 96, 128, 160, 192, 224, 256};
     const int ns = (int)(sizeof sizes / sizeof sizes[0]);
+    json_t *root = json ? jsonw_object("bench build") : NULL, *rows = json ? json_array() : NULL;
     if (json)
-        printf("{\"sizes\": [\n");
-    for (int s = 0; s < ns; s++) {
+        jsonw_set(root, "sizes", rows);
+    for (int s = 0; s < ns && sizes[s] <= max; s++) {
         frag f;
         if (fill_bone(&f, sizes[s])) {
             fprintf(stderr, "fracnav bench build: %s\n", fn_err_msg());
+            json_decref(root);
             return 1;
         }
         double best = INFINITY, best_cpu = INFINITY;
@@ -96,6 +127,7 @@ int bench_build(int argc, char **argv)
             if (!t) {
                 fprintf(stderr, "fracnav bench build: %s\n", fn_err_msg());
                 frag_free(&f);
+                json_decref(root);
                 return 1;
             }
             best = dt < best ? dt : best;
@@ -104,18 +136,16 @@ int bench_build(int argc, char **argv)
         }
         double vox = (double)sizes[s] * sizes[s] * sizes[s];
         if (json)
-            printf("  {\"n\": %d, \"voxels\": %.0f, \"bone_voxels\": %zu, \"build_ms\": %.3f, "
-                   "\"build_cpu_ms\": %.3f, \"ns_per_voxel\": %.3f, \"nodes\": %zu, \"depth\": %d, \"tree_bytes\": %zu, "
-                   "\"bytes_per_node\": %zu, \"peak_rss_kib\": %ld}%s\n",
-                   sizes[s], vox, f.voxels, best, best_cpu, best_cpu * 1e6 / vox, nodes, depth, bytes,
-                   sizeof(obb_node), bench_peak_rss_kib(), s == ns - 1 ? "" : ",");
+            json_array_append_new(rows, size_json(&f, sizes[s], best, best_cpu, nodes, depth, bytes));
         else
             printf("%3d^3: %9zu bone voxels, build %8.3f ms wall, %8.3f ms cpu (%.2f ns/voxel), "
                    "%8zu nodes, %9zu bytes\n",
                    sizes[s], f.voxels, best, best_cpu, best_cpu * 1e6 / vox, nodes, bytes);
         frag_free(&f);
     }
-    if (json)
-        printf("]}\n");
+    if (json && jsonw_print(root, stdout) < 0) {
+        fprintf(stderr, "fracnav bench build: %s\n", fn_err_msg());
+        return 1;
+    }
     return 0;
 }

@@ -7,12 +7,14 @@
  * colliding. Every contender gets the same poses; timings are the best of --reps runs per pose
  * (the machines are shared), then mean, p99 and max over poses.
  *
- * JSON, per workload: build_ms and nodes for both fragments together (best of 3 builds each);
+ * JSON ({"command": "bench collision", "workloads": [...]}), per workload: fragments (dim, voxels);
+ * build_ms and nodes for both fragments together (best of 3 builds each);
  * query_* the tree without a cache; query_near_* its near-contact half; query_coherent_* a pose
  * 0.05 voxel and 0.05 degree from a near-contact one, the pair cache warm from that one (the loop's
  * case); false_negatives/false_positives against brute force over all of those; box_tests_* the
- * box tests per query; fcl_octree_* (octomap OcTree at the finest spacing, both fragments' build
- * time) and fcl_mesh_* (OBBRSS BVH of the exposed voxel faces); *_disagree: FCL answers that differ
+ * box tests per query; brute_query_*; fcl_octree_* (octomap OcTree at the finest spacing, both
+ * fragments' build time) and fcl_mesh_* (OBBRSS BVH of the exposed voxel faces), null without FCL;
+ * *_disagree: FCL answers that differ
  * from brute force (its geometry only approximates the voxel boxes); speedup_* = FCL / tree. */
 #include "bench.h"
 
@@ -20,6 +22,7 @@
 #include "cmd.h"
 #include "err.h"
 #include "fracture.h"
+#include "jsonw.h"
 #include "seg.h"
 #include "volio.h"
 
@@ -507,46 +510,67 @@ static void results_free(results *r)
 
 /* ---- output ---- */
 
-static void print_json(const work *w, const results *r, int last)
+static void put(json_t *o, const char *key, json_t *v)
+{
+    json_object_set_new(o, key, v);
+}
+
+/* A statistic over n samples: null without samples (no near-contact pose, no FCL). */
+static json_t *over(double v, int n)
+{
+    return jsonw_measure(n > 0 ? v : JSONW_NA);
+}
+
+static json_t *frag_json(const frag *f)
+{
+    return json_pack("{s:[iii],s:I}", "dim", f->dim[0], f->dim[1], f->dim[2], "voxels", (json_int_t)f->voxels);
+}
+
+/* One workload's figures; the FCL ones are null when FCL did not run. */
+static json_t *workload_json(const work *w, const results *r)
 {
     stats t = summarize(r->tree_us, r->poses), nr = summarize(r->near_us, r->nnear);
     stats b = summarize(r->brute_us, r->poses), oc = summarize(r->oct_us, r->poses);
     stats me = summarize(r->mesh_us, r->poses), co = summarize(r->coh_us, r->ncoh);
-    printf("{\"workload\": \"%s\", \"poses\": %d, \"near_contact_poses\": %d, "
-           "\"colliding_poses\": %d,\n",
-           w->name, r->poses, r->near, r->colliding);
-    printf(" \"dims_a\": [%d, %d, %d], \"dims_b\": [%d, %d, %d], \"voxels_a\": %zu, "
-           "\"voxels_b\": %zu,\n",
-           w->a.dim[0], w->a.dim[1], w->a.dim[2], w->b.dim[0], w->b.dim[1], w->b.dim[2],
-           r->voxels_a, r->voxels_b);
-    printf(" \"build_ms\": %.3f, \"nodes\": %zu, \"bytes_per_node\": %zu, \"tree_bytes\": %.0f,\n",
-           r->build_ms, r->nodes, sizeof(obb_node), r->tree_bytes);
-    printf(" \"query_mean_us\": %.3f, \"query_p99_us\": %.3f, \"query_max_us\": %.3f, "
-           "\"query_near_mean_us\": %.3f, \"query_near_max_us\": %.3f, \"box_tests_mean\": %.1f, "
-           "\"box_tests_max\": %.0f,\n",
-           t.mean, t.p99, t.max, nr.mean, nr.max, r->tests_mean, r->tests_max);
-    printf(" \"coherent_poses\": %d, \"query_coherent_mean_us\": %.3f, "
-           "\"query_coherent_max_us\": %.3f,\n",
-           r->ncoh, co.mean, co.max);
-    printf(" \"false_negatives\": %d, \"false_positives\": %d, \"brute_mean_us\": %.1f, "
-           "\"brute_max_us\": %.1f",
-           r->fn, r->fp, b.mean, b.max);
-    if (r->have_fcl) {
-        printf(",\n \"fcl_octree_build_ms\": %.1f, \"fcl_octree_cells\": %zu, "
-               "\"fcl_octree_mean_us\": %.2f, \"fcl_octree_p99_us\": %.2f, "
-               "\"fcl_octree_max_us\": %.2f, \"fcl_octree_disagree\": %d,\n",
-               r->oct_build_ms, r->oct_cells, oc.mean, oc.p99, oc.max, r->oct_disagree);
-        printf(" \"fcl_mesh_build_ms\": %.1f, \"fcl_mesh_triangles\": %zu, \"fcl_mesh_mean_us\": "
-               "%.2f, \"fcl_mesh_max_us\": %.2f, \"fcl_mesh_disagree\": %d,\n",
-               r->mesh_build_ms, r->mesh_tris, me.mean, me.max, r->mesh_disagree);
-        printf(" \"speedup_vs_fcl_octree_mean\": %.1f, \"speedup_vs_fcl_octree_max\": %.1f, "
-               "\"speedup_vs_fcl_mesh_mean\": %.1f",
-               oc.mean / t.mean, oc.max / t.max, me.mean / t.mean);
-    } else {
-        printf(",\n \"fcl_octree_build_ms\": null, \"fcl_octree_mean_us\": null, "
-               "\"fcl_octree_max_us\": null, \"fcl_mesh_mean_us\": null");
-    }
-    printf("}%s\n", last ? "" : ",");
+    int fcl = r->have_fcl ? r->poses : 0;
+    json_t *o = json_pack("{s:s,s:i,s:i,s:i,s:[oo]}", "workload", w->name, "poses", r->poses,
+                          "near_contact_poses", r->near, "colliding_poses", r->colliding, "fragments",
+                          frag_json(&w->a), frag_json(&w->b));
+    if (!o)
+        return NULL;
+    put(o, "build_ms", jsonw_measure(r->build_ms));
+    put(o, "nodes", json_integer((json_int_t)r->nodes));
+    put(o, "node_bytes", json_integer((json_int_t)sizeof(obb_node)));
+    put(o, "tree_bytes", json_integer((json_int_t)r->tree_bytes));
+    put(o, "query_mean_us", over(t.mean, r->poses));
+    put(o, "query_p99_us", over(t.p99, r->poses));
+    put(o, "query_max_us", over(t.max, r->poses));
+    put(o, "query_near_mean_us", over(nr.mean, r->nnear));
+    put(o, "query_near_max_us", over(nr.max, r->nnear));
+    put(o, "box_tests_mean", over(r->tests_mean, r->poses));
+    put(o, "box_tests_max", over(r->tests_max, r->poses));
+    put(o, "coherent_poses", json_integer(r->ncoh));
+    put(o, "query_coherent_mean_us", over(co.mean, r->ncoh));
+    put(o, "query_coherent_max_us", over(co.max, r->ncoh));
+    put(o, "false_negatives", json_integer(r->fn));
+    put(o, "false_positives", json_integer(r->fp));
+    put(o, "brute_query_mean_us", over(b.mean, r->poses));
+    put(o, "brute_query_max_us", over(b.max, r->poses));
+    put(o, "fcl_octree_build_ms", over(r->oct_build_ms, fcl));
+    put(o, "fcl_octree_cells", r->have_fcl ? json_integer((json_int_t)r->oct_cells) : json_null());
+    put(o, "fcl_octree_query_mean_us", over(oc.mean, fcl));
+    put(o, "fcl_octree_query_p99_us", over(oc.p99, fcl));
+    put(o, "fcl_octree_query_max_us", over(oc.max, fcl));
+    put(o, "fcl_octree_disagree", r->have_fcl ? json_integer(r->oct_disagree) : json_null());
+    put(o, "fcl_mesh_build_ms", over(r->mesh_build_ms, fcl));
+    put(o, "fcl_mesh_triangles", r->have_fcl ? json_integer((json_int_t)r->mesh_tris) : json_null());
+    put(o, "fcl_mesh_query_mean_us", over(me.mean, fcl));
+    put(o, "fcl_mesh_query_max_us", over(me.max, fcl));
+    put(o, "fcl_mesh_disagree", r->have_fcl ? json_integer(r->mesh_disagree) : json_null());
+    put(o, "speedup_vs_fcl_octree_mean", over(oc.mean / t.mean, fcl));
+    put(o, "speedup_vs_fcl_octree_max", over(oc.max / t.max, fcl));
+    put(o, "speedup_vs_fcl_mesh_mean", over(me.mean / t.mean, fcl));
+    return o;
 }
 
 static void print_text(const work *w, const results *r)
@@ -585,7 +609,8 @@ static int usage(FILE *out, int rc)
             "      (../shared/data/CT_pitch.nii.gz), longbone (synthetic), all (the three),\n"
             "      a case folder (its first two fragments), or a volume file to fracture.\n"
             "  --poses N        poses per workload (default 1000; half near contact)\n"
-            "  --json           one JSON object; with `all`: {\"workloads\": [one per workload]}\n"
+            "  --json           one JSON object on stdout: {\"command\": \"bench collision\",\n"
+            "                   \"workloads\": [one per workload]}\n"
             "  --reps R         timed runs per pose, the best counts (default 3)\n"
             "  --seed S         pose generator seed (default 1)\n"
             "  --threshold P    probability product needed to collide (default 0)\n"
@@ -657,8 +682,9 @@ int bench_collision(int argc, char **argv)
         return usage(stderr, rc);
     const char *all[] = {"skull", "pitch", "longbone"};
     int nw = strcmp(which, "all") ? 1 : 3, bad = 0;
-    if (o.json && nw > 1)
-        printf("{\"workloads\": [\n");
+    json_t *root = o.json ? jsonw_object("bench collision") : NULL, *rows = o.json ? json_array() : NULL;
+    if (o.json)
+        jsonw_set(root, "workloads", rows);
     for (int k = 0; k < nw; k++) {
         work w;
         results r = {0};
@@ -667,17 +693,20 @@ int bench_collision(int argc, char **argv)
             fprintf(stderr, "fracnav bench collision: %s\n", fn_err_msg());
             work_free(&w);
             results_free(&r);
+            json_decref(root);
             return 1;
         }
         if (o.json)
-            print_json(&w, &r, k == nw - 1);
+            json_array_append_new(rows, workload_json(&w, &r));
         else
             print_text(&w, &r);
         bad += r.fn + r.fp;
         work_free(&w);
         results_free(&r);
     }
-    if (o.json && nw > 1)
-        printf("]}\n");
+    if (o.json && jsonw_print(root, stdout) < 0) {
+        fprintf(stderr, "fracnav bench collision: %s\n", fn_err_msg());
+        return 1;
+    }
     return bad ? 1 : 0;
 }

@@ -12,6 +12,7 @@
 #include "cmd_loopkit.h"
 #include "err.h"
 #include "fracture.h"
+#include "jsonw.h"
 #include "script.h"
 #include "seg.h"
 #include "sim_replay.h"
@@ -34,7 +35,9 @@ static void usage(FILE *out)
                  "Drive the navigation loop near contact as fast as the (virtual) device's reports\n"
                  "can be fed, and report loop_hz (steps per second), latency_p50/p99/max_us (report\n"
                  "read -> accepted pose), outcomes and collision query time.\n\n"
-                 "  --json        JSON on stdout\n"
+                 "  --json        one JSON object on stdout (\"command\": \"bench loop\"; the keys\n"
+                 "                of fracnav replay --json, with workload, fragments, wall_s,\n"
+                 "                loop_thread_sched_fifo and targets)\n"
                  "  --ct FILE     CT to fracture (default: the example CT, $FRACNAV_DATA/Cranium.inv3\n"
                  "                or /var/cache/fracnav/Cranium.inv3)\n"
                  "  --case DIR    steer an existing case instead (its journal is left alone)\n"
@@ -117,7 +120,16 @@ static int drive(loop *L, const fnrec *rec, double *wall_s)
     return rc;
 }
 
-static void print(const loop_stats *s, double wall_s, const frag *f, int nfrag, int json)
+static json_t *fragments_json(const frag *f, int nfrag)
+{
+    json_t *a = json_array();
+    for (int i = 0; i < nfrag; i++)
+        json_array_append_new(a, json_pack("{s:[iii],s:I}", "dim", f[i].dim[0], f[i].dim[1], f[i].dim[2],
+                                           "voxels", (json_int_t)f[i].voxels));
+    return a;
+}
+
+static int print(const loop_stats *s, double wall_s, const frag *f, int nfrag, const char *case_dir, int json)
 {
     if (!json) {
         printf("loop: %.0f steps/s, latency p50 %.0f us, p99 %.0f us, max %.0f us; %llu steps "
@@ -126,26 +138,24 @@ static void print(const loop_stats *s, double wall_s, const frag *f, int nfrag, 
                (unsigned long long)s->steps, (unsigned long long)s->accepted,
                (unsigned long long)s->limited, (unsigned long long)s->slid,
                (unsigned long long)s->refused, s->query_us_mean);
-        return;
+        return 0;
     }
-    printf("{\n  \"benchmark\": \"loop\",\n  \"workload\": \"two-piece fracture of the example CT, "
-           "piece 1 fixed, script pushing piece 2 into and along it\",\n");
-    printf("  \"fragments\": [");
-    for (int i = 0; i < nfrag; i++)
-        printf("%s{\"dim\": [%d, %d, %d], \"voxels\": %zu}", i ? ", " : "", f[i].dim[0], f[i].dim[1],
-               f[i].dim[2], f[i].voxels);
-    printf("],\n  \"loop_thread_sched_fifo\": %s,\n  \"wall_s\": %.3f,\n  \"loop_hz\": %.1f,\n  \"tick_hz\": %.1f,\n", realtime ? "true" : "false", wall_s, s->step_hz,
-           s->tick_hz);
-    printf("  \"latency_p50_us\": %.0f,\n  \"latency_p99_us\": %.0f,\n  \"latency_max_us\": %.0f,\n",
-           s->latency_p50_us, s->latency_p99_us, s->latency_max_us);
-    printf("  \"steps\": %llu,\n  \"accepted\": %llu,\n  \"limited\": %llu,\n  \"slid\": %llu,\n"
-           "  \"refused\": %llu,\n  \"queries\": %llu,\n"
-           "  \"query_us_mean\": %.2f,\n  \"query_us_max\": %.1f,\n  \"dropped\": %llu,\n"
-           "  \"targets\": {\"loop_hz_min\": 1000, \"latency_p99_us_max\": 1000}\n}\n",
-           (unsigned long long)s->steps, (unsigned long long)s->accepted,
-           (unsigned long long)s->limited, (unsigned long long)s->slid,
-           (unsigned long long)s->refused, (unsigned long long)s->queries, s->query_us_mean, s->query_us_max,
-           (unsigned long long)s->dropped);
+    json_t *j = loopkit_stats_json("bench loop", s);
+    if (j) {
+        char what[4200];
+        snprintf(what, sizeof what, "%s%s, script pushing the selected fragment into and along the others",
+                 case_dir ? "the case " : "two-piece fracture of the CT, piece 1 fixed",
+                 case_dir ? case_dir : "");
+        json_object_set_new(j, "workload", jsonw_string(what));
+        json_object_set_new(j, "fragments", fragments_json(f, nfrag));
+        json_object_set_new(j, "loop_thread_sched_fifo", json_boolean(realtime));
+        json_object_set_new(j, "wall_s", jsonw_measure(wall_s));
+        /* loop_hz at least, the latencies at most */
+        json_object_set_new(j, "targets", json_pack("{s:o,s:o,s:o}", "loop_hz", jsonw_measure(1000),
+                                                    "latency_p99_us", jsonw_measure(1000),
+                                                    "latency_max_us", jsonw_measure(1000)));
+    }
+    return jsonw_print(j, stdout);
 }
 
 int bench_loop(int argc, char **argv)
@@ -167,9 +177,13 @@ int bench_loop(int argc, char **argv)
             ct = argv[++i];
         else if (!strcmp(argv[i], "--case") && i + 1 < argc)
             case_dir = argv[++i];
-        else if (!strcmp(argv[i], "--repeat") && i + 1 < argc && atoi(argv[i + 1]) > 0)
-            repeat = atoi(argv[++i]);
-        else {
+        else if (!strcmp(argv[i], "--repeat")) {
+            double d;
+            const char *v = i + 1 < argc ? argv[++i] : NULL;
+            if (!cmd_number(v, &d) || !(d >= 1 && d <= 10000 && d == (int)d))
+                return cmd_bad_value("bench loop", "--repeat", v, "a whole number 1..10000");
+            repeat = (int)d;
+        } else {
             fprintf(stderr, "fracnav bench loop: unexpected argument '%s' (see --help)\n", argv[i]);
             return 2;
         }
@@ -195,7 +209,7 @@ int bench_loop(int argc, char **argv)
             rc = drive(k.L, rec, &wall);
             loop_get_stats(k.L, &s);
             if (rc == 0)
-                print(&s, wall, k.c->frag, k.c->nfrag, json);
+                rc = print(&s, wall, k.c->frag, k.c->nfrag, case_dir, json);
             loopkit_close(&k);
         }
     } else {
@@ -214,7 +228,7 @@ int bench_loop(int argc, char **argv)
             rc = drive(L, rec, &wall);
             loop_get_stats(L, &s);
             if (rc == 0)
-                print(&s, wall, f, 2, json);
+                rc = print(&s, wall, f, 2, NULL, json);
         }
         loop_free(L);
         loop_obb_free(o);

@@ -211,7 +211,8 @@ int cmd_demo(int argc, char **argv)
     }
     if ((rc = cmd_tau_check("demo", &tau)) != 0)
         return rc;
-    if (!ct_path)
+    int example = !ct_path; /* only the example CT comes from .ci/setup */
+    if (example)
         ct_path = cmd_example_ct();
     if (mkdir(dir, 0777) != 0 && errno != EEXIST) {
         fprintf(stderr, "fracnav demo: cannot create %s: %s\n", dir, strerror(errno));
@@ -220,8 +221,8 @@ int cmd_demo(int argc, char **argv)
     double t0 = now_s();
     vol *ct = volio_read(ct_path);
     if (!ct) {
-        fprintf(stderr, "fracnav demo: %s\n(the example CT comes with the README's first command, .ci/setup)\n",
-                fn_err_msg());
+        fprintf(stderr, "fracnav demo: %s\n%s", fn_err_msg(),
+                example ? "(the example CT comes with the README's first command, .ci/setup)\n" : "");
         return 1;
     }
     printf("fracnav demo on %s\n0. CT: %dx%dx%d voxels, %.3fx%.3fx%.3f mm, read in %.0f ms\n", ct_path,

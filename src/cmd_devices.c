@@ -9,6 +9,7 @@
 #include "dev.h"
 #include "devtab.h"
 #include "err.h"
+#include "jsonw.h"
 
 #define LIST_MAX 32
 #define EXTRA_MAX 8 /* --device options */
@@ -29,7 +30,8 @@ static void usage(FILE *out)
                  "battery) and the transports available. Enumeration sees real USB/Bluetooth devices;\n"
                  "--device adds one it cannot see (a hidraw path, spnav, keyboard, replay:FILE, ...).\n"
                  "A device that cannot be opened is listed with the udev rule to install.\n\n"
-                 "  --json          machine-readable output\n"
+                 "  --json          one JSON object: command, devices (path, usb_id, transport, name,\n"
+                 "                  format, buttons, battery_pct, serial, error), transports\n"
                  "  --device SPEC   also probe this device (repeatable, up to 8 times)\n\n"
                  "environment:\n"
                  "  FRACNAV_HIDRAW_PATH   colon-separated folders (their hidraw* nodes) or node paths\n"
@@ -104,20 +106,20 @@ static json_t *device_json(const found *f)
 {
     char id[16];
     snprintf(id, sizeof id, "%04x:%04x", f->info.vid, f->info.pid);
-    json_t *o = json_pack("{s:s, s:s, s:s, s:s}", "path", f->info.path, "id", id, "transport",
+    json_t *o = json_pack("{s:o, s:s, s:s, s:o}", "path", jsonw_string(f->info.path), "usb_id", id, "transport",
                           f->transport ? f->transport : "", "name",
-                          f->row && f->row->vid ? f->row->name : f->info.name);
+                          jsonw_string(f->row && f->row->vid ? f->row->name : f->info.name));
     json_object_set_new(o, "format", f->row ? json_string(devtab_format_name(f->row->format)) : json_null());
     json_object_set_new(o, "buttons", f->row ? json_integer(f->row->nbuttons) : json_null());
-    json_object_set_new(o, "battery", f->battery >= 0 ? json_integer(f->battery) : json_null());
-    json_object_set_new(o, "serial", json_string(f->info.serial));
-    json_object_set_new(o, "error", f->error[0] ? json_string(f->error) : json_null());
+    json_object_set_new(o, "battery_pct", f->battery >= 0 ? json_integer(f->battery) : json_null());
+    json_object_set_new(o, "serial", jsonw_string(f->info.serial));
+    json_object_set_new(o, "error", f->error[0] ? jsonw_string(f->error) : json_null());
     return o;
 }
 
 static int print_json(const found *list, size_t n)
 {
-    json_t *root = json_object(), *devs = json_array(), *trs = json_array();
+    json_t *root = jsonw_object("devices"), *devs = json_array(), *trs = json_array();
     for (size_t i = 0; i < n; i++)
         json_array_append_new(devs, device_json(&list[i]));
     char buf[320];
@@ -126,10 +128,10 @@ static int print_json(const found *list, size_t n)
                                              transport_state(dev_transport_at(t), buf, sizeof buf)));
     json_object_set_new(root, "devices", devs);
     json_object_set_new(root, "transports", trs);
-    int rc = json_dumpf(root, stdout, JSON_INDENT(2)) == 0 ? 0 : 1;
-    fputc('\n', stdout);
-    json_decref(root);
-    return rc;
+    if (jsonw_print(root, stdout) == 0)
+        return 0;
+    fprintf(stderr, "fracnav devices: %s\n", fn_err_msg());
+    return 1;
 }
 
 static void print_text(const found *list, size_t n)

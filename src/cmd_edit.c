@@ -3,7 +3,9 @@
 
 #include "case.h"
 #include "err.h"
+#include "jsonw.h"
 
+#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -11,7 +13,7 @@
 static void usage(FILE *out)
 {
     fprintf(out,
-            "usage: fracnav edit CASE OPERATION ARGS\n\n"
+            "usage: fracnav edit CASE OPERATION ARGS [--json]\n\n"
             "Correct a case's segmentation; the case is saved atomically after the edit (a failed\n"
             "save leaves it as it was). Coordinates are world LPS mm (see case.json's centroids).\n\n"
             "operations:\n"
@@ -25,8 +27,11 @@ static void usage(FILE *out)
             "                                      a new fragment (or join ID)\n"
             "  keep IDS                            keep only these fragments (IDS: 1,3 or 1 3)\n"
             "  drop IDS                            remove these fragments\n"
-            "  fix ID                              make ID the fixed fragment (0: none)\n"
-            "  --help                              this text\n");
+            "  fix ID                              make ID the fixed fragment (0: none)\n\n"
+            "  --json   one JSON object on stdout (the text line goes to stderr): command, case,\n"
+            "           operation, what it made (fragment, new_fragment or erased_voxels), the\n"
+            "           fragments after the edit (id, voxels, volume_ml) and fixed_fragment\n"
+            "  --help   this text\n");
 }
 
 static int integer(const char *s, int *out)
@@ -76,8 +81,22 @@ static int optional_id(const char *op, int argc, char **argv, int *id)
     return 0;
 }
 
-/* Applies the operation; returns 0, 2 (usage) or 1 (runtime, fn_err set). */
-static int apply(fcase *c, const char *op, int argc, char **argv)
+/* What an edit made: its line of text on msg, its figure as res[key] (res NULL: no --json). */
+static void made(FILE *msg, json_t *res, const char *key, long value, const char *fmt, ...)
+    __attribute__((format(printf, 5, 6)));
+static void made(FILE *msg, json_t *res, const char *key, long value, const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    vfprintf(msg, fmt, ap);
+    va_end(ap);
+    if (res && key)
+        json_object_set_new(res, key, json_integer(value));
+}
+
+/* Applies the operation; returns 0, 2 (usage) or 1 (runtime, fn_err set). The line that says what
+ * it did goes to msg; with --json, res gets its figures. */
+static int apply(fcase *c, const char *op, int argc, char **argv, FILE *msg, json_t *res)
 {
     double v[6];
     int a, b, id, ids[256], n;
@@ -87,13 +106,17 @@ static int apply(fcase *c, const char *op, int argc, char **argv)
             return cmd_usage_error("edit", "merge needs two fragment ids");
         if ((rc = case_merge(c, a, b)) < 0)
             return 1;
-        printf("merged fragment %d into %d\n", b, a);
+        made(msg, res, "fragment", a, "merged fragment %d into %d\n", b, a);
     } else if (!strcmp(op, "split")) {
         if (argc != 8 || !integer(argv[0], &id) || strcmp(argv[1], "--plane") || !numbers(argv + 2, 6, v))
             return cmd_usage_error("edit", "split needs ID --plane PX PY PZ NX NY NZ");
+        if (!(v[3] * v[3] + v[4] * v[4] + v[5] * v[5] > 0))
+            return cmd_usage_error("edit", "split --plane: the normal NX NY NZ ('%s %s %s') is zero; give "
+                                   "the direction the new fragment lies in", argv[5], argv[6], argv[7]);
         if ((rc = case_split(c, id, v, v + 3)) < 0)
             return 1;
-        printf("split fragment %d: the part in front of the plane is fragment %ld\n", id, rc);
+        made(msg, res, "new_fragment", rc, "split fragment %d: the part in front of the plane is fragment %ld\n",
+             id, rc);
     } else if (!strcmp(op, "erase-box")) {
         if (argc < 6 || !numbers(argv, 6, v))
             return cmd_usage_error("edit", "erase-box needs X0 Y0 Z0 X1 Y1 Z1 [--id ID]");
@@ -101,7 +124,7 @@ static int apply(fcase *c, const char *op, int argc, char **argv)
             return 2;
         if ((rc = case_erase_box(c, v, v + 3, id)) < 0)
             return 1;
-        printf("erased %ld voxels\n", rc);
+        made(msg, res, "erased_voxels", rc, "erased %ld voxels\n", rc);
     } else if (!strcmp(op, "erase-sphere")) {
         if (argc < 4 || !numbers(argv, 4, v))
             return cmd_usage_error("edit", "erase-sphere needs CX CY CZ R [--id ID]");
@@ -111,7 +134,7 @@ static int apply(fcase *c, const char *op, int argc, char **argv)
             return cmd_bad_value("edit", "erase-sphere R", argv[3], "a radius > 0 mm");
         if ((rc = case_erase_sphere(c, v, v[3], id)) < 0)
             return 1;
-        printf("erased %ld voxels\n", rc);
+        made(msg, res, "erased_voxels", rc, "erased %ld voxels\n", rc);
     } else if (!strcmp(op, "grow")) {
         double thr = c->seg.threshold;
         int into = 0;
@@ -130,24 +153,58 @@ static int apply(fcase *c, const char *op, int argc, char **argv)
         }
         if ((id = case_grow(c, v, thr, into)) < 0)
             return 1;
-        printf("grew fragment %d to %zu voxels\n", id, c->frag[case_find(c, id)].voxels);
+        made(msg, res, "fragment", id, "grew fragment %d to %zu voxels\n", id, c->frag[case_find(c, id)].voxels);
     } else if (!strcmp(op, "keep") || !strcmp(op, "drop")) {
         if ((n = id_list(argc, argv, ids, 256)) < 0)
             return cmd_usage_error("edit", "keep/drop need fragment ids (1,3 or 1 3)");
         if ((!strcmp(op, "keep") ? case_keep(c, ids, n) : case_drop(c, ids, n)) < 0)
             return 1;
-        printf("%d fragment%s left\n", c->nfrag, c->nfrag == 1 ? "" : "s");
+        made(msg, NULL, NULL, 0, "%d fragment%s left\n", c->nfrag, c->nfrag == 1 ? "" : "s");
     } else if (!strcmp(op, "fix")) {
         if (argc != 1 || !integer(argv[0], &id))
             return cmd_usage_error("edit", "fix needs one fragment id (0: none)");
         if (case_fix(c, id) < 0)
             return 1;
-        printf(id ? "fragment %d is fixed\n" : "no fixed fragment\n", id);
+        if (id)
+            made(msg, NULL, NULL, 0, "fragment %d is fixed\n", id);
+        else
+            made(msg, NULL, NULL, 0, "no fixed fragment\n");
     } else {
         fprintf(stderr, "fracnav edit: unknown operation '%s' (see fracnav edit --help)\n", op);
         return 2;
     }
     return 0;
+}
+
+/* The case after the edit: its fragments and the fixed one. */
+static int print_json(const fcase *c, const char *dir, const char *op, json_t *res)
+{
+    json_t *o = jsonw_object("edit"), *frags = json_array();
+    for (int i = 0; i < c->nfrag; i++)
+        json_array_append_new(frags, json_pack("{s:i,s:I,s:o}", "id", c->frag[i].id, "voxels",
+                                               (json_int_t)c->frag[i].voxels, "volume_ml",
+                                               jsonw_measure(c->frag[i].volume_ml)));
+    if (o) {
+        jsonw_set(o, "case", jsonw_string(dir));
+        jsonw_set(o, "operation", json_string(op));
+        json_object_update(o, res);
+        jsonw_set(o, "fragments", frags);
+        jsonw_set(o, "fixed_fragment", c->fixed >= 0 ? json_integer(c->frag[c->fixed].id) : json_null());
+    } else
+        json_decref(frags);
+    return jsonw_print(o, stdout);
+}
+
+/* Takes --json out of argv (anywhere after the command); returns the new argc. */
+static int take_json(int argc, char **argv, int *json)
+{
+    int n = 0;
+    for (int i = 0; i < argc; i++)
+        if (i > 0 && !strcmp(argv[i], "--json"))
+            *json = 1;
+        else
+            argv[n++] = argv[i];
+    return n;
 }
 
 int cmd_edit(int argc, char **argv)
@@ -156,6 +213,8 @@ int cmd_edit(int argc, char **argv)
         usage(stdout);
         return 0;
     }
+    int json = 0;
+    argc = take_json(argc, argv, &json);
     if (argc < 3)
         return cmd_usage_error("edit", "needs CASE and an operation");
     fcase *c = case_load(argv[1]);
@@ -163,11 +222,15 @@ int cmd_edit(int argc, char **argv)
         fprintf(stderr, "fracnav edit: %s\n", fn_err_msg());
         return 1;
     }
-    int rc = apply(c, argv[2], argc - 3, argv + 3);
+    json_t *res = json ? json_object() : NULL;
+    int rc = apply(c, argv[2], argc - 3, argv + 3, json ? stderr : stdout, res);
     if (rc == 0 && case_save(c) < 0)
+        rc = 1;
+    if (rc == 0 && json && print_json(c, argv[1], argv[2], res) < 0)
         rc = 1;
     if (rc == 1)
         fprintf(stderr, "fracnav edit: %s\n", fn_err_msg());
+    json_decref(res);
     case_free(c);
     return rc;
 }

@@ -4,17 +4,19 @@
 #include "case.h"
 #include "err.h"
 #include "fracture.h"
+#include "jsonw.h"
 #include "volio.h"
 
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 static void usage(FILE *out)
 {
     fprintf(out,
-            "usage: fracnav fracture VOLUME -o CASE --seed N [options]\n\n"
+            "usage: fracnav fracture VOLUME -o CASE --seed N [--json] [options]\n\n"
             "Make a synthetic fracture with known ground truth from a CT. The bone (the largest\n"
             "component over the threshold) is cut by rough, fractal surfaces (not planes), a thin\n"
             "layer of bone can be lost at the gap, and every piece but the largest is moved by a\n"
@@ -34,6 +36,10 @@ static void usage(FILE *out)
             "  --roughness MM         RMS relief of the fracture surface (default 2)\n"
             "  --threshold HU         bone threshold (default 300)\n"
             CMD_TAU_HELP
+            "  --json                 one JSON object on stdout instead of the text: command, case,\n"
+            "                         source, seed, pieces, threshold, fragments (id, voxels,\n"
+            "                         volume_ml, displacement_mm and rotation_deg: what the truth\n"
+            "                         undoes), read_ms, fracture_ms\n"
             "  --help                 this text\n");
 }
 
@@ -58,7 +64,7 @@ static double *number_option(fracture_params *p, const char *opt, const char **a
     return NULL;
 }
 
-static int parse(int argc, char **argv, fracture_params *p, const char **in, const char **out)
+static int parse(int argc, char **argv, fracture_params *p, const char **in, const char **out, int *json)
 {
     int have_seed = 0, rc;
     double *target;
@@ -67,6 +73,10 @@ static int parse(int argc, char **argv, fracture_params *p, const char **in, con
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i], *val = i + 1 < argc ? argv[i + 1] : NULL;
         double d;
+        if (!strcmp(a, "--json")) {
+            *json = 1;
+            continue;
+        }
         if (a[0] != '-') {
             if (*in)
                 return cmd_usage_error("fracture", "unexpected argument '%s'", a);
@@ -112,6 +122,40 @@ static void print_truth(const frag *f, const pose *truth)
            pose_angle_between(*truth, POSE_IDENTITY) * 180 / M_PI);
 }
 
+static int print_json(const fcase *c, const fracture_params *p, const char *in, const char *out,
+                      double read_ms, double fracture_ms)
+{
+    json_t *o = jsonw_object("fracture"), *frags = json_array();
+    for (int i = 0; i < c->nfrag; i++) {
+        const frag *f = &c->frag[i];
+        double deg = pose_angle_between(c->truth[i], POSE_IDENTITY) * 180 / M_PI;
+        json_array_append_new(frags, json_pack("{s:i,s:I,s:o,s:o,s:o}", "id", f->id, "voxels",
+                                               (json_int_t)f->voxels, "volume_ml", jsonw_measure(f->volume_ml),
+                                               "displacement_mm",
+                                               jsonw_measure(fracture_truth_shift(&c->truth[i], f->centroid)),
+                                               "rotation_deg", jsonw_measure(deg)));
+    }
+    if (o) {
+        jsonw_set(o, "case", jsonw_string(out));
+        jsonw_set(o, "source", jsonw_string(in));
+        jsonw_set(o, "seed", json_integer((json_int_t)p->seed));
+        jsonw_set(o, "pieces", json_integer(p->pieces));
+        jsonw_set(o, "threshold", jsonw_exact(p->threshold));
+        jsonw_set(o, "fragments", frags);
+        jsonw_set(o, "read_ms", jsonw_measure(read_ms));
+        jsonw_set(o, "fracture_ms", jsonw_measure(fracture_ms));
+    } else
+        json_decref(frags);
+    return jsonw_print(o, stdout);
+}
+
+static double now_ms(void)
+{
+    struct timespec t;
+    clock_gettime(CLOCK_MONOTONIC, &t);
+    return (double)t.tv_sec * 1e3 + t.tv_nsec * 1e-6;
+}
+
 int cmd_fracture(int argc, char **argv)
 {
     if (cmd_wants_help(argc, argv)) {
@@ -121,20 +165,28 @@ int cmd_fracture(int argc, char **argv)
     fracture_params p;
     fracture_defaults(&p);
     const char *in = NULL, *out = NULL;
-    int rc = parse(argc, argv, &p, &in, &out);
+    int json = 0;
+    int rc = parse(argc, argv, &p, &in, &out, &json);
     if (rc)
         return rc;
+    double t0 = now_ms();
     vol *ct = volio_read(in);
+    double t1 = now_ms();
     fcase *c = ct ? fracture_make_case(ct, &p, out) : NULL;
+    double t2 = now_ms();
     if (!c) {
         fprintf(stderr, "fracnav fracture: %s\n", fn_err_msg());
         vol_free(ct);
         return 1;
     }
-    for (int i = 0; i < c->nfrag; i++)
-        print_truth(&c->frag[i], &c->truth[i]);
-    printf("saved %s\n", out);
+    if (json && (rc = print_json(c, &p, in, out, t1 - t0, t2 - t1)) < 0)
+        fprintf(stderr, "fracnav fracture: %s\n", fn_err_msg());
+    else if (!json) {
+        for (int i = 0; i < c->nfrag; i++)
+            print_truth(&c->frag[i], &c->truth[i]);
+        printf("saved %s\n", out);
+    }
     case_free(c);
     vol_free(ct);
-    return rc;
+    return rc < 0 ? 1 : 0;
 }

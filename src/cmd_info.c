@@ -2,9 +2,9 @@
 #include "cmd.h"
 
 #include "err.h"
+#include "jsonw.h"
 #include "volio.h"
 
-#include <jansson.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -15,7 +15,8 @@ static void usage(FILE *out)
                  "Print a volume's dimensions (i j k), voxel type, spacing, index-to-world affine\n"
                  "(LPS mm, 3x4: world = A * [i j k 1]) and intensity range.\n"
                  "FILE: .nii .nii.gz .nrrd .nhdr .inv3, or a folder of DICOM files (via dcm2niix).\n\n"
-                 "  --json   one JSON object instead of text\n"
+                 "  --json   one JSON object instead of text: command, file, dim, type, spacing_mm,\n"
+                 "           space, affine (3x4), range\n"
                  "  --help   this text\n");
 }
 
@@ -34,23 +35,21 @@ static void print_text(const char *path, const vol *v, float lo, float hi)
 
 static int print_json(const char *path, const vol *v, float lo, float hi)
 {
-    json_t *aff = json_array();
+    json_t *o = jsonw_object("info"), *aff = json_array();
     for (int r = 0; r < 3; r++)
-        json_array_append_new(aff, json_pack("[ffff]", v->affine[r][0], v->affine[r][1],
-                                             v->affine[r][2], v->affine[r][3]));
-    json_t *o = json_pack("{s:s, s:[iii], s:s, s:[fff], s:o, s:s, s:[ff]}", "file", path, "dim",
-                          v->dim[0], v->dim[1], v->dim[2], "type", vol_type_name(v->src_type),
-                          "spacing", v->spacing[0], v->spacing[1], v->spacing[2], "affine", aff,
-                          "space", "LPS", "range", (double)lo, (double)hi);
-    if (!o)
-        return -1;
-    char *s = json_dumps(o, JSON_REAL_PRECISION(10));
-    json_decref(o);
-    if (!s)
-        return -1;
-    puts(s);
-    free(s);
-    return 0;
+        json_array_append_new(aff, jsonw_exact_array(v->affine[r], 4));
+    const double range[2] = {lo, hi};
+    if (o) {
+        jsonw_set(o, "file", jsonw_string(path));
+        jsonw_set(o, "dim", json_pack("[iii]", v->dim[0], v->dim[1], v->dim[2]));
+        jsonw_set(o, "type", json_string(vol_type_name(v->src_type)));
+        jsonw_set(o, "spacing_mm", jsonw_exact_array(v->spacing, 3));
+        jsonw_set(o, "space", json_string("LPS"));
+        jsonw_set(o, "affine", aff);
+        jsonw_set(o, "range", jsonw_exact_array(range, 2));
+    } else
+        json_decref(aff);
+    return jsonw_print(o, stdout);
 }
 
 int cmd_info(int argc, char **argv)
@@ -98,7 +97,7 @@ int cmd_info(int argc, char **argv)
         print_text(path, v, lo, hi);
     vol_free(v);
     if (rc < 0) {
-        fprintf(stderr, "fracnav info: %s: could not format JSON\n", path);
+        fprintf(stderr, "fracnav info: %s: %s\n", path, fn_err_msg());
         return 1;
     }
     return 0;

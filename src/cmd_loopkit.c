@@ -3,6 +3,7 @@
 #include "cmd.h"
 
 #include "err.h"
+#include "jsonw.h"
 #include "obb.h"
 
 #include <errno.h>
@@ -112,13 +113,41 @@ void loopkit_close(loopkit *k)
     memset(k, 0, sizeof *k);
 }
 
-static json_t *pose_json(const pose *p)
+static json_t *count(uint64_t n)
 {
-    return json_pack("{s:[f,f,f,f],s:[f,f,f]}", "q", p->q[0], p->q[1], p->q[2], p->q[3], "t", p->t[0],
-                     p->t[1], p->t[2]);
+    return json_integer((json_int_t)n);
 }
 
-void loopkit_print_json(const loopkit *k, FILE *out, long unplugs, uint64_t skipped)
+/* The loop's statistics under the keys every command uses for them (bench loop too). */
+static void put_stats(json_t *j, const loop_stats *s)
+{
+    static const char *const counts[] = {"events", "steps", "accepted", "limited", "slid", "refused",
+                                         "collisions_in_accepted", "unchecked", "escaping", "queries",
+                                         "dropped", "journal_errors"};
+    const uint64_t values[] = {s->events, s->steps, s->accepted, s->limited, s->slid, s->refused,
+                               s->collisions_in_accepted, s->unchecked, s->escaping, s->queries,
+                               s->dropped, s->journal_errors};
+    for (size_t i = 0; i < sizeof counts / sizeof counts[0]; i++)
+        json_object_set_new(j, counts[i], count(values[i]));
+    int timed = s->latency_samples > 0, queried = s->queries > 0;
+    json_object_set_new(j, "loop_hz", jsonw_measure(s->step_hz));
+    json_object_set_new(j, "tick_hz", jsonw_measure(s->tick_hz > 0 ? s->tick_hz : JSONW_NA));
+    json_object_set_new(j, "latency_p50_us", jsonw_measure(timed ? s->latency_p50_us : JSONW_NA));
+    json_object_set_new(j, "latency_p99_us", jsonw_measure(timed ? s->latency_p99_us : JSONW_NA));
+    json_object_set_new(j, "latency_max_us", jsonw_measure(timed ? s->latency_max_us : JSONW_NA));
+    json_object_set_new(j, "query_mean_us", jsonw_measure(queried ? s->query_us_mean : JSONW_NA));
+    json_object_set_new(j, "query_max_us", jsonw_measure(queried ? s->query_us_max : JSONW_NA));
+}
+
+json_t *loopkit_stats_json(const char *command, const loop_stats *s)
+{
+    json_t *j = jsonw_object(command);
+    if (j)
+        put_stats(j, s);
+    return j;
+}
+
+int loopkit_print_json(const loopkit *k, FILE *out, const char *command, long unplugs, uint64_t skipped)
 {
     loop_stats s;
     loop_get_stats(k->L, &s);
@@ -127,34 +156,25 @@ void loopkit_print_json(const loopkit *k, FILE *out, long unplugs, uint64_t skip
     json_t *poses = json_array();
     for (int i = 0; i < k->c->nfrag; i++) {
         pose p = loop_pose(k->L, i);
-        json_t *o = pose_json(&p);
+        json_t *o = json_object();
         json_object_set_new(o, "id", json_integer(k->c->frag[i].id));
-        json_object_set_new(o, "name", json_string(k->c->frag[i].name));
+        json_object_set_new(o, "name", jsonw_string(k->c->frag[i].name));
         json_object_set_new(o, "fixed", json_boolean(loop_fixed(k->L, i)));
+        json_object_set_new(o, "q", jsonw_exact_array(p.q, 4));
+        json_object_set_new(o, "t", jsonw_exact_array(p.t, 3));
         json_array_append_new(poses, o);
     }
-    json_t *j = json_pack("{s:I,s:I,s:I,s:I,s:I,s:I,s:I,s:I,s:I,s:f,s:f,s:f,s:I,s:f,s:f,s:o,s:s,s:I}",
-                          "events", (json_int_t)s.events, "steps", (json_int_t)s.steps, "accepted",
-                          (json_int_t)s.accepted, "limited", (json_int_t)s.limited, "slid",
-                          (json_int_t)s.slid, "refused", (json_int_t)s.refused,
-                          "collisions_in_accepted", (json_int_t)s.collisions_in_accepted,
-                          "unchecked", (json_int_t)s.unchecked, "resumed_from_journal",
-                          (json_int_t)k->resumed, "latency_p50_us", s.latency_p50_us,
-                          "latency_p99_us", s.latency_p99_us, "latency_max_us", s.latency_max_us,
-                          "queries", (json_int_t)s.queries, "query_us_mean", s.query_us_mean,
-                          "query_us_max", s.query_us_max, "final_poses", poses, "pose_digest",
-                          digest, "journal_records", (json_int_t)(k->jr ? journal_count(k->jr) : 0));
-    json_object_set_new(j, "journal_errors", json_integer((json_int_t)s.journal_errors));
-    json_object_set_new(j, "escaping", json_integer((json_int_t)s.escaping));
-    json_object_set_new(j, "step_hz", json_real(s.step_hz));
-    json_object_set_new(j, "tick_hz", json_real(s.tick_hz));
-    json_object_set_new(j, "dropped", json_integer((json_int_t)s.dropped));
-    json_object_set_new(j, "skipped_reports", json_integer((json_int_t)skipped));
-    if (unplugs >= 0)
-        json_object_set_new(j, "unplugs", json_integer(unplugs));
-    json_dumpf(j, out, JSON_INDENT(2) | JSON_REAL_PRECISION(17));
-    fputc('\n', out);
-    json_decref(j);
+    json_t *j = loopkit_stats_json(command, &s);
+    if (j) {
+        json_object_set_new(j, "skipped_reports", count(skipped));
+        json_object_set_new(j, "unplugs", unplugs >= 0 ? json_integer(unplugs) : json_null());
+        json_object_set_new(j, "resumed_from_journal", count(k->resumed));
+        json_object_set_new(j, "journal_records", count(k->jr ? journal_count(k->jr) : 0));
+        json_object_set_new(j, "final_poses", poses);
+        json_object_set_new(j, "pose_digest", json_string(digest));
+    } else
+        json_decref(poses);
+    return jsonw_print(j, out);
 }
 
 void loopkit_decoder_init(loopkit_decoder *d, uint16_t vid, uint16_t pid, const calib *cal)

@@ -13,6 +13,7 @@
 #include "journal.h"
 #include "loop.h"
 
+#include <jansson.h>
 #include <stdio.h>
 
 enum {
@@ -42,10 +43,13 @@ size_t loopkit_journal_pending(const char *dir);
 int loopkit_save(loopkit *k);
 void loopkit_close(loopkit *k);
 
-/* Final poses and statistics as JSON on out (replay's and navigate's summary; the members are
- * listed in `fracnav replay --help`); unplugs < 0 leaves that member out. skipped: reports of an
- * unknown ID or a wrong length that the parser skipped. */
-void loopkit_print_json(const loopkit *k, FILE *out, long unplugs, uint64_t skipped);
+/* Final poses and statistics as the JSON object of `command` (replay's and navigate's summary;
+ * the members are listed in `fracnav replay --help`) on out; unplugs < 0: null (not counted).
+ * skipped: reports of an unknown ID or a wrong length that the parser skipped. 0 or FN_E*. */
+int loopkit_print_json(const loopkit *k, FILE *out, const char *command, long unplugs, uint64_t skipped);
+/* The loop statistics' members of that object (bench loop's too), labelled `command`; NULL when
+ * out of memory. */
+json_t *loopkit_stats_json(const char *command, const loop_stats *s);
 
 /* --pivot X Y Z (world mm): argv[*i] is --pivot; parses the three numbers after it into out and
  * moves *i past them. 0, or a usage error for `cmd` (returns 2). */

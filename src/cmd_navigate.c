@@ -38,7 +38,8 @@ static void usage(FILE *out)
             "  --tau-min T, --tau-max T   hierarchy thresholds instead of the case's (0 <= T_min\n"
             "                      <= T_max <= 1), saved into the case with the poses\n"
             "  --duration S        stop after S seconds (scripts, tests)\n"
-            "  --json              print a JSON summary on exit (as fracnav replay)\n\n"
+            "  --json              print a JSON summary on exit (as fracnav replay), alone on\n"
+            "                      stdout: the status line goes to stderr\n\n"
             "keys (when the controller is not the keyboard): n/p next/previous fragment, f fix or\n"
             "unfix, c collision checking on/off, t translation only, r rotation only, u undo, y redo,\n"
             "m frame, s save, q quit. Controller buttons: 1 next, 2 previous, 3 fix, 4 collision,\n"
@@ -95,8 +96,11 @@ static int parse(int argc, char **argv, opts *o)
             o->flags |= LOOPKIT_DISCARD;
         else if (!strcmp(a, "--json"))
             o->json = 1;
-        else if (!strcmp(a, "--duration") && v && atof(v) > 0)
-            o->duration = atof(argv[++i]);
+        else if (!strcmp(a, "--duration")) {
+            if (!cmd_number(v, &o->duration) || !(o->duration > 0))
+                return cmd_bad_value("navigate", a, v, "a number of seconds > 0");
+            i++;
+        }
         else if (!strcmp(a, "--pivot")) {
             if (loopkit_parse_pivot("navigate", argc, argv, &i, o->pivot))
                 return 2;
@@ -214,16 +218,16 @@ static void read_keys(loop *L, ring *ctl)
 }
 
 /* Cuts the status line to the terminal's width, so it rewrites itself in place instead of wrapping. */
-static void fit_to_terminal(char *line)
+static void fit_to_terminal(char *line, int fd)
 {
     struct winsize ws;
-    if (ioctl(STDOUT_FILENO, TIOCGWINSZ, &ws) == 0 && ws.ws_col > 1 && strlen(line) >= ws.ws_col)
+    if (ioctl(fd, TIOCGWINSZ, &ws) == 0 && ws.ws_col > 1 && strlen(line) >= ws.ws_col)
         line[ws.ws_col - 1] = '\0';
 }
 
-/* The main thread while the loop runs: keys, saves on request, the status line. */
+/* The main thread while the loop runs: keys, saves on request, the status line (on view). */
 static void ui(loopkit *k, loopkit_dsource *ds, ring *ctl, pose *saved_poses, int keys,
-               double duration)
+               double duration, FILE *view)
 {
     struct termios saved;
     int raw = keys && isatty(STDIN_FILENO) && tcgetattr(STDIN_FILENO, &saved) == 0;
@@ -234,7 +238,7 @@ static void ui(loopkit *k, loopkit_dsource *ds, ring *ctl, pose *saved_poses, in
         t.c_cc[VTIME] = 0;
         tcsetattr(STDIN_FILENO, TCSANOW, &t);
     }
-    int tty = isatty(STDOUT_FILENO);
+    int tty = isatty(fileno(view));
     int64_t t0 = loop_now_us(), last_print = 0;
     unsigned saves_seen = 0;
     loop_scene sc = {0};
@@ -255,9 +259,9 @@ static void ui(loopkit *k, loopkit_dsource *ds, ring *ctl, pose *saved_poses, in
             if (battery >= 0 && len < sizeof line)
                 snprintf(line + len, sizeof line - len, " | battery %d%%", battery);
             if (tty)
-                fit_to_terminal(line);
-            printf(tty ? "\r\033[K%s" : "%s\n", line);
-            fflush(stdout);
+                fit_to_terminal(line, fileno(view));
+            fprintf(view, tty ? "\r\033[K%s" : "%s\n", line);
+            fflush(view);
             last_print = now;
         }
         struct timespec nap = {0, 20000000};
@@ -266,12 +270,12 @@ static void ui(loopkit *k, loopkit_dsource *ds, ring *ctl, pose *saved_poses, in
     if (raw)
         tcsetattr(STDIN_FILENO, TCSANOW, &saved);
     if (tty)
-        printf("\n");
+        fprintf(view, "\n");
 }
 
 /* Input thread and loop thread around ui(); then the loop is stopped and the case saved.
  * saved_poses outlives the loop thread, which reads it on LOOP_EV_SAVED. */
-static int run(loopkit *k, loopkit_dsource *ds, int keys, double duration)
+static int run(loopkit *k, loopkit_dsource *ds, int keys, double duration, FILE *view)
 {
     pose saved_poses[LOOP_MAX_FRAGS] = {0}; /* written by each save before the loop reads it */
     loop_set_saved(k->L, saved_poses);
@@ -290,7 +294,7 @@ static int run(loopkit *k, loopkit_dsource *ds, int keys, double duration)
         sa.sa_handler = on_signal;
         sigaction(SIGINT, &sa, NULL);
         sigaction(SIGTERM, &sa, NULL);
-        ui(k, ds, ctl, saved_poses, keys, duration);
+        ui(k, ds, ctl, saved_poses, keys, duration, view);
         loop_reader_stop(rd);
         atomic_store(&run.stop, 1);
         loop_notify(k->L);
@@ -345,10 +349,10 @@ int cmd_navigate(int argc, char **argv)
             loop_set_pivot(k.L, o.pivot);
         ds.led = -1;
         atomic_init(&ds.battery, -1);
-        rc = run(&k, &ds, keys, o.duration);
+        rc = run(&k, &ds, keys, o.duration, o.json ? stderr : stdout); /* --json: stdout holds it alone */
         dev_set_led(ds.d, 0);
         if (rc == 0 && o.json)
-            loopkit_print_json(&k, stdout, -1, dev_skipped(ds.d));
+            rc = loopkit_print_json(&k, stdout, "navigate", -1, dev_skipped(ds.d));
         else if (rc == 0)
             fprintf(stderr, "saved %s\n", o.dir);
         loopkit_close(&k);

@@ -19,21 +19,25 @@ static void usage(FILE *out)
             "--recover; emptied when it finishes, unless it continued from the journal with\n"
             "--recover and did not --save). Stepping uses only the recorded\n"
             "timestamps, so the same case and recording give the same poses and pose_digest on every\n"
-            "run and machine. Prints a summary (JSON with --json, the same as navigate --json):\n"
+            "run and machine. Prints a summary (with --json the object alone on stdout, labelled\n"
+            "\"command\": \"replay\", as navigate --json; see the README's \"Machine output\"):\n"
             "  events, steps        events handled; motion steps (accepted + limited + slid + refused)\n"
             "  accepted, limited, slid, refused   outcomes of the steps\n"
             "  collisions_in_accepted   accepted poses found colliding on re-check (always 0)\n"
             "  unchecked            poses taken while collision checking was off\n"
             "  escaping             poses taken inside another fragment, none deeper (checking\n"
             "                       turned back on while penetrating)\n"
+            "  queries, dropped     pair collision queries; events lost to a full input ring (0\n"
+            "                       unless the loop fell behind)\n"
+            "  journal_errors       failed journal writes\n"
+            "  loop_hz, tick_hz     steps and loop timer ticks per second of wall time (tick_hz:\n"
+            "                       null without --realtime, where no timer runs)\n"
             "  latency_p50_us, latency_p99_us, latency_max_us   report arrival to accepted pose\n"
-            "  queries, query_us_mean, query_us_max   pair collision queries and their time\n"
-            "  step_hz, tick_hz     steps and loop timer ticks per second of wall time\n"
-            "  dropped              events lost to a full input ring (0 unless the loop fell behind)\n"
+            "  query_mean_us, query_max_us   time of a pair collision query\n"
             "  skipped_reports      device reports of an unknown ID or a wrong length, skipped\n"
-            "  unplugs              device unplugs seen (replay only)\n"
-            "  journal_records, journal_errors   records left in CASE/journal; failed writes\n"
+            "  unplugs              device unplugs seen (null in navigate)\n"
             "  resumed_from_journal records applied by --recover\n"
+            "  journal_records      records left in CASE/journal\n"
             "  final_poses          per fragment: id, name, fixed, q (w x y z), t (mm)\n"
             "  pose_digest          FNV-1a 64 over every accepted pose in order (hex)\n\n"
             "  --realtime          pace the reports at recorded speed through the input thread and\n"
@@ -203,14 +207,17 @@ int cmd_replay(int argc, char **argv)
     rc = o.realtime ? run_realtime(&k, src) : run_fast(&k, src);
     if (rc == 0 && k.jr)
         rc = journal_sync(k.jr);
-    if (rc == 0 && o.save)
-        rc = loopkit_save(&k);
+    if (rc == 0 && o.save && (rc = loopkit_save(&k)) == 0)
+        fprintf(stderr, "fracnav replay: saved the final poses of %d fragments in %s/case.json\n",
+                k.c->nfrag, o.dir);
     else if (rc == 0 && k.jr && !k.resumed)
         rc = journal_truncate(k.jr); /* finished: the poses are in the summary, the case unchanged */
     if (rc < 0) {
         fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
     } else if (o.json) {
-        loopkit_print_json(&k, stdout, (long)ts.unplugs, ts.dec.ps.n_unknown_id + ts.dec.ps.n_bad_len);
+        rc = loopkit_print_json(&k, stdout, "replay", (long)ts.unplugs, ts.dec.ps.n_unknown_id + ts.dec.ps.n_bad_len);
+        if (rc < 0)
+            fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
     } else {
         loop_stats s;
         loop_get_stats(k.L, &s);

@@ -3,6 +3,7 @@
 
 #include "case.h"
 #include "err.h"
+#include "jsonw.h"
 #include "seg.h"
 #include "volio.h"
 
@@ -14,7 +15,7 @@
 static void usage(FILE *out)
 {
     fprintf(out,
-            "usage: fracnav segment VOLUME -o CASE [options]\n\n"
+            "usage: fracnav segment VOLUME -o CASE [--json] [options]\n\n"
             "Segment a CT into bone fragments and save them as a case folder (CASE/case.json,\n"
             "CASE/labels.nii.gz). Bone is every voxel >= the threshold; 26-connected components\n"
             "become fragments, largest first (ids 1..n).\n\n"
@@ -30,16 +31,25 @@ static void usage(FILE *out)
             "  --ramp W                   probability map: 0.5 at the threshold rising to 1 at\n"
             "                             threshold + W/2 (default 200; 0 = 1 inside the mask)\n"
             CMD_TAU_HELP
+            "  --json                     one JSON object on stdout instead of the text: command,\n"
+            "                             case, source, threshold, components (before filtering),\n"
+            "                             fragments (id, voxels, volume_ml, peak, centroid_mm),\n"
+            "                             read_ms, segment_ms, fragments_ms, save_ms\n"
             "  --help                     this text\n");
 }
 
-static int parse(int argc, char **argv, seg_params *p, cmd_tau *tau, const char **in, const char **out)
+static int parse(int argc, char **argv, seg_params *p, cmd_tau *tau, const char **in, const char **out,
+                 int *json)
 {
     int rc;
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
         const char *val = i + 1 < argc ? argv[i + 1] : NULL;
         double d;
+        if (!strcmp(a, "--json")) {
+            *json = 1;
+            continue;
+        }
         if (a[0] != '-') {
             if (*in)
                 return cmd_usage_error("segment", "unexpected argument '%s'", a);
@@ -106,6 +116,31 @@ static void report(const fcase *c, const seg_result *r)
     }
 }
 
+static int report_json(const fcase *c, const seg_result *r, const char *in, const char *out,
+                       const double ms[4])
+{
+    json_t *o = jsonw_object("segment"), *frags = json_array();
+    for (int i = 0; i < c->nfrag; i++) {
+        const frag *f = &c->frag[i];
+        json_array_append_new(frags, json_pack("{s:i,s:I,s:o,s:o,s:o}", "id", f->id, "voxels",
+                                               (json_int_t)f->voxels, "volume_ml", jsonw_measure(f->volume_ml),
+                                               "peak", jsonw_exact(r->comp[i].peak), "centroid_mm",
+                                               jsonw_exact_array(f->centroid, 3)));
+    }
+    static const char *const steps[4] = {"read_ms", "segment_ms", "fragments_ms", "save_ms"};
+    if (o) {
+        jsonw_set(o, "case", jsonw_string(out));
+        jsonw_set(o, "source", jsonw_string(in));
+        jsonw_set(o, "threshold", jsonw_exact(r->threshold));
+        jsonw_set(o, "components", json_integer(r->raw_components));
+        jsonw_set(o, "fragments", frags);
+        for (int i = 0; i < 4; i++)
+            jsonw_set(o, steps[i], jsonw_measure(ms[i]));
+    } else
+        json_decref(frags);
+    return jsonw_print(o, stdout);
+}
+
 int cmd_segment(int argc, char **argv)
 {
     if (cmd_wants_help(argc, argv)) {
@@ -116,7 +151,8 @@ int cmd_segment(int argc, char **argv)
     seg_defaults(&p);
     const char *in = NULL, *out = NULL;
     cmd_tau tau = {0};
-    int rc = parse(argc, argv, &p, &tau, &in, &out);
+    int json = 0;
+    int rc = parse(argc, argv, &p, &tau, &in, &out, &json);
     if (rc)
         return rc;
     double t0 = now();
@@ -142,13 +178,18 @@ int cmd_segment(int argc, char **argv)
         seg_result_free(&r);
         return 1;
     }
-    report(c, &r);
+    double ms[4] = {(t1 - t0) * 1e3, (t2 - t1) * 1e3, (t3 - t2) * 1e3, (now() - t3) * 1e3};
     if (c->nfrag == 0)
         fprintf(stderr, "fracnav segment: warning: no component left at threshold %g (lower it, or "
                         "--min-volume)\n", r.threshold);
-    printf("saved %s (read %.3f s, segmentation %.3f s, fragments %.3f s, save %.3f s)\n", out,
-           t1 - t0, t2 - t1, t3 - t2, now() - t3);
+    if (json && (rc = report_json(c, &r, in, out, ms)) < 0)
+        fprintf(stderr, "fracnav segment: %s\n", fn_err_msg());
+    else if (!json) {
+        report(c, &r);
+        printf("saved %s (read %.3f s, segmentation %.3f s, fragments %.3f s, save %.3f s)\n", out,
+               ms[0] * 1e-3, ms[1] * 1e-3, ms[2] * 1e-3, ms[3] * 1e-3);
+    }
     case_free(c);
     seg_result_free(&r);
-    return 0;
+    return rc < 0 ? 1 : 0;
 }

@@ -7,12 +7,14 @@
 #include <cmocka.h>
 
 #include "err.h"
+#include "script.h"
 #include "testutil.h"
 #include "volio.h"
 
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/wait.h>
 
 struct fixture {
     char *tmp;
@@ -109,12 +111,73 @@ static void test_edit(void **st)
     expect(0, "1 fragment left\n", "edit '%s' keep 1", f->cdir);
 }
 
+/* Bad values name the option and the value, not "unexpected argument". */
+static void test_bad_values(void **st)
+{
+    struct fixture *f = *st;
+    expect(2, "fracnav navigate: --duration: '-1' is not a number of seconds > 0",
+           "navigate '%s' --duration -1", f->cdir);
+    expect(2, "--duration needs a value", "navigate '%s' --duration", f->cdir);
+    expect(2, "fracnav bench loop: --repeat: '0' is not a whole number 1..10000", "bench loop --repeat 0");
+    expect(2, "fracnav bench build: --max: '32' is not a whole number 64..256", "bench build --max 32");
+    /* a zero normal is a usage error (2), and the case stays as it was */
+    expect(2, "split --plane: the normal NX NY NZ ('0 0 0') is zero", "edit '%s' split 1 --plane 12 12 12 0 0 0",
+           f->cdir);
+    expect(0, "1 fragment left\n", "edit '%s' keep 1", f->cdir);
+}
+
+/* What a command writes on stderr alone (stdout thrown away), and its exit status in *rc. */
+static char *stderr_of(int *rc, const char *fmt, ...)
+{
+    char args[8192], cmd[8800];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(args, sizeof args, fmt, ap);
+    va_end(ap);
+    const char *bin = getenv("FRACNAV_BIN");
+    snprintf(cmd, sizeof cmd, "'%s' %s 2>&1 >/dev/null", bin && *bin ? bin : "fracnav", args);
+    FILE *p = popen(cmd, "r");
+    assert_non_null(p);
+    char *out = calloc(1, 65536);
+    size_t n = fread(out, 1, 65535, p);
+    out[n] = '\0';
+    int stt = pclose(p);
+    *rc = WIFEXITED(stt) ? WEXITSTATUS(stt) : -1;
+    return out;
+}
+
+/* replay --save says on stderr what it saved (stdout keeps the summary). */
+static void test_replay_save_says_so(void **st)
+{
+    struct fixture *f = *st;
+    char rec[4300];
+    snprintf(rec, sizeof rec, "%s/nudge.fnrec", f->tmp);
+    const char *text = "translate +x 1 mm over 0.1 s\n";
+    script *s = NULL;
+    assert_int_equal(script_parse(text, strlen(text), "nudge", &s), 0);
+    fnrec *r = script_render(s, sim_profile_find("spacenavigator"));
+    assert_non_null(r);
+    assert_int_equal(fnrec_save(r, rec), 0);
+    fnrec_free(r);
+    free(s);
+    expect(0, "is fragment 2", "edit '%s' split 1 --plane 12 12 12 1 0 0", f->cdir); /* steering needs two */
+    int rc;
+    char *err = stderr_of(&rc, "replay '%s' '%s' --save --json", f->cdir, rec);
+    char want[4400];
+    snprintf(want, sizeof want, "fracnav replay: saved the final poses of 2 fragments in %s/case.json", f->cdir);
+    if (rc != 0 || !strstr(err, want))
+        fail_msg("exit %d, stderr lacks \"%s\":\n%s", rc, want, err);
+    free(err);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test_setup_teardown(test_segment, setup, teardown),
         cmocka_unit_test_setup_teardown(test_fracture, setup, teardown),
         cmocka_unit_test_setup_teardown(test_edit, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_bad_values, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_replay_save_says_so, setup, teardown),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

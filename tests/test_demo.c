@@ -65,6 +65,18 @@ static void test_demo_names_a_missing_ct(void **st)
     char *out = NULL;
     assert_int_equal(tu_run_cli(&out, "demo /nonexistent/ct.nii -o /tmp"), 1);
     assert_non_null(strstr(out, "/nonexistent/ct.nii"));
+    assert_null(strstr(out, ".ci/setup")); /* the user's own CT: .ci/setup cannot bring it */
+    free(out);
+    const char *data = getenv("FRACNAV_DATA");
+    char *keep = data ? strdup(data) : NULL;
+    setenv("FRACNAV_DATA", "/nonexistent-data", 1); /* the example CT, not fetched yet */
+    assert_int_equal(tu_run_cli(&out, "demo -o /tmp"), 1);
+    if (keep)
+        setenv("FRACNAV_DATA", keep, 1);
+    else
+        unsetenv("FRACNAV_DATA");
+    free(keep);
+    assert_non_null(strstr(out, "/nonexistent-data/Cranium.inv3"));
     assert_non_null(strstr(out, ".ci/setup"));
     free(out);
     assert_int_equal(tu_run_cli(&out, "demo --bogus"), 2);

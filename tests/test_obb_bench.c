@@ -9,6 +9,7 @@
 #include "vol.h"
 #include "volio.h"
 
+#include <jansson.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -56,9 +57,14 @@ static void test_collision_on_small_bone(void **st)
                         path);
     if (rc != 0)
         fail_msg("bench failed (%d): %s", rc, out);
-    assert_non_null(strstr(out, "\"poses\": 40"));
-    assert_non_null(strstr(out, "\"false_negatives\": 0, \"false_positives\": 0"));
-    assert_non_null(strstr(out, "\"bytes_per_node\": 16"));
+    json_t *j = json_loads(out, 0, NULL), *w = json_array_get(json_object_get(j, "workloads"), 0);
+    if (!w)
+        fail_msg("no workload in: %s", out);
+    assert_int_equal(json_integer_value(json_object_get(w, "poses")), 40);
+    assert_int_equal(json_integer_value(json_object_get(w, "false_negatives")), 0);
+    assert_int_equal(json_integer_value(json_object_get(w, "false_positives")), 0);
+    assert_int_equal(json_integer_value(json_object_get(w, "node_bytes")), 16);
+    json_decref(j);
     free(out);
     tu_rmtree(dir);
     free(dir);
