@@ -31,7 +31,10 @@ static void msleep(int ms)
 
 static pid_t start_server(const char *mount, const char *play, int fast)
 {
-    char *argv[] = {"/proc/self/exe", "serve", "--mount", (char *)mount, "--play", (char *)play,
+    char m[512], pl[512]; /* execv takes char *const argv[]: writable copies, no cast */
+    snprintf(m, sizeof m, "%s", mount);
+    snprintf(pl, sizeof pl, "%s", play);
+    char *argv[] = {"/proc/self/exe", "serve", "--mount", m, "--play", pl,
                     fast ? "--fast" : "--start-on-read", NULL};
     pid_t pid = fork();
     if (pid == 0) {

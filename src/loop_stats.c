@@ -269,7 +269,7 @@ int loop_realtime_priority(void)
 
 uint64_t loop_events_done(const loop *L)
 {
-    return atomic_load_explicit(&((loop *)L)->done, memory_order_acquire);
+    return atomic_load_explicit(&L->done, memory_order_acquire);
 }
 
 void loop_notify(loop *L)

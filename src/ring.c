@@ -77,8 +77,8 @@ int ring_pop(ring *r, void *item)
 
 size_t ring_count(const ring *r)
 {
-    size_t head = atomic_load_explicit(&((ring *)r)->head, memory_order_acquire);
-    size_t tail = atomic_load_explicit(&((ring *)r)->tail, memory_order_acquire);
+    size_t head = atomic_load_explicit(&r->head, memory_order_acquire);
+    size_t tail = atomic_load_explicit(&r->tail, memory_order_acquire);
     return head - tail;
 }
 
@@ -89,5 +89,5 @@ size_t ring_capacity(const ring *r)
 
 size_t ring_dropped(const ring *r)
 {
-    return atomic_load_explicit(&((ring *)r)->dropped, memory_order_relaxed);
+    return atomic_load_explicit(&r->dropped, memory_order_relaxed);
 }

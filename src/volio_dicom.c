@@ -33,7 +33,15 @@ static int run_dcm2niix(const char *dir, const char *out, const char *log)
     posix_spawn_file_actions_init(&fa);
     posix_spawn_file_actions_addopen(&fa, STDOUT_FILENO, log, O_WRONLY | O_CREAT | O_TRUNC, 0600);
     posix_spawn_file_actions_adddup2(&fa, STDOUT_FILENO, STDERR_FILENO);
-    char *argv[] = {"dcm2niix", "-z", "n", "-b", "n", "-o", (char *)out, "-f", "vol", (char *)dir, NULL};
+    /* posix_spawn takes char *const argv[]: give it writable copies rather than casting const away. */
+    char prog[] = "dcm2niix", z[] = "-z", b[] = "-b", no[] = "n", o[] = "-o", f[] = "-f", name[] = "vol";
+    char outb[4096], dirb[4096];
+    if (snprintf(outb, sizeof outb, "%s", out) >= (int)sizeof outb ||
+        snprintf(dirb, sizeof dirb, "%s", dir) >= (int)sizeof dirb) {
+        posix_spawn_file_actions_destroy(&fa);
+        return fn_err_set(FN_EINVAL, "%s: path too long for dcm2niix", dir);
+    }
+    char *argv[] = {prog, z, no, b, no, o, outb, f, name, dirb, NULL};
     pid_t pid;
     int rc = posix_spawnp(&pid, "dcm2niix", &fa, NULL, argv, environ);
     posix_spawn_file_actions_destroy(&fa);

@@ -2,18 +2,18 @@
  *
  * Include in exactly one .c of a test executable. It interposes malloc, calloc, realloc,
  * aligned_alloc and posix_memalign, forwarding to glibc's own allocator, and counts every call
- * made by any thread while counting is on. Under AddressSanitizer (which owns malloc) it defines
- * nothing and allocount_available() is 0: the checks are then skipped, not faked. */
+ * made by any thread while counting is on. Under AddressSanitizer or ThreadSanitizer (each owns
+ * malloc) it defines nothing and allocount_available() is 0: the checks are then skipped, not faked. */
 #ifndef FN_TEST_ALLOCOUNT_H
 #define FN_TEST_ALLOCOUNT_H
 
 #include <stdatomic.h>
 #include <stddef.h>
 
-#if defined(__SANITIZE_ADDRESS__)
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
 #define ALLOCOUNT_ON 0
 #elif defined(__has_feature)
-#if __has_feature(address_sanitizer)
+#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer)
 #define ALLOCOUNT_ON 0
 #endif
 #endif
