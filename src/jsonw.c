@@ -135,19 +135,19 @@ static void put_string(buf *b, const char *s)
     put(b, "\"");
 }
 
-static int is_plain(const json_t *v)
+static int is_plain(json_t *v)
 {
     return !json_is_object(v) && !json_is_array(v);
 }
 
-static void put_value(buf *b, const json_t *v, int depth);
+static void put_value(buf *b, json_t *v, int depth);
 
 static void newline(buf *b, int depth)
 {
     put(b, "\n%*s", 2 * depth, "");
 }
 
-static void put_array(buf *b, const json_t *a, int depth)
+static void put_array(buf *b, json_t *a, int depth)
 {
     size_t n = json_array_size(a), i;
     int inline_ = 1;
@@ -168,13 +168,13 @@ static void put_array(buf *b, const json_t *a, int depth)
     put(b, "]");
 }
 
-static void put_object(buf *b, const json_t *o, int depth)
+static void put_object(buf *b, json_t *o, int depth)
 {
     const char *key;
     json_t *v;
     int first = 1;
     put(b, "{");
-    json_object_foreach((json_t *)o, key, v) {
+    json_object_foreach(o, key, v) {
         put(b, "%s", first ? "" : ",");
         newline(b, depth + 1);
         put_string(b, key);
@@ -187,7 +187,7 @@ static void put_object(buf *b, const json_t *o, int depth)
     put(b, "}");
 }
 
-static void put_value(buf *b, const json_t *v, int depth)
+static void put_value(buf *b, json_t *v, int depth)
 {
     switch (json_typeof(v)) {
     case JSON_OBJECT: put_object(b, v, depth); break;
@@ -201,7 +201,7 @@ static void put_value(buf *b, const json_t *v, int depth)
     }
 }
 
-char *jsonw_dumps(const json_t *root)
+char *jsonw_dumps(json_t *root)
 {
     buf b = {malloc(1024), 0, 1024, 0};
     b.oom = !b.s;

@@ -39,7 +39,7 @@ int jsonw_set(json_t *o, const char *key, json_t *v);
 
 /* The text of root as jsonw_print writes it, with a final newline; malloc'd, NULL when out of
  * memory. */
-char *jsonw_dumps(const json_t *root);
+char *jsonw_dumps(json_t *root);
 /* Writes root to out and flushes it; takes root's reference (NULL: an allocation failed on the
  * way). 0, FN_ENOMEM or FN_EIO (with a message). */
 int jsonw_print(json_t *root, FILE *out);
