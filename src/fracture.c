@@ -263,9 +263,9 @@ static int make_cut(vol *lab, vol *ct, int to, uint64_t *rng, const fracture_par
         }
     }
     if (best < 2 * min_piece)
-        return fn_err_set(FN_EINVAL, "fracture: cannot cut piece %d: the largest piece so far (%zu "
-                          "voxels) is under twice the smallest piece allowed (10%% of the bone, %zu "
-                          "voxels); ask for fewer --pieces", to, best, min_piece);
+        return fn_err_set(FN_EINVAL, "fracture: cannot cut piece %d: the largest piece so far "
+                          "(%zu voxels) is under twice the smallest piece allowed (10%% of the "
+                          "bone, %zu voxels); ask for fewer --pieces", to, best, min_piece);
     frag f;
     int rc = piece_stats(lab, from, &f);
     if (rc < 0)
@@ -302,7 +302,8 @@ static int make_cut(vol *lab, vol *ct, int to, uint64_t *rng, const fracture_par
         if (kept[1] > kept[0]) {
             /* The new piece is always the smaller side. */
             for (size_t b = 0; b < nbox; b++)
-                side[b] = side[b] == SIDE_NEW ? SIDE_STAYS : side[b] == SIDE_STAYS ? SIDE_NEW : side[b];
+                if (side[b] == SIDE_NEW || side[b] == SIDE_STAYS)
+                    side[b] = side[b] == SIDE_NEW ? SIDE_STAYS : SIDE_NEW;
             for (int a = 0; a < 3; a++)
                 c.normal[a] = -c.normal[a];
         }
@@ -449,8 +450,9 @@ int fracture_check(const fracture_params *p)
 }
 
 /* Candidate directions of a piece's move, in order of preference: dir (out, perturbed), the
- * normal of the cut that made the piece (away from the piece it was cut from), their mean, then
- * tilted from out by 30 and 60 degrees toward 8 azimuths, then 8 across out: none leads back in. */
+ * normal of the cut that made the piece (away from the piece it was cut from), the mean of that
+ * normal and out, then out tilted by 30 and 60 degrees toward 8 azimuths, then 8 across out:
+ * none leads back toward the bone's centre. */
 enum { PUSH_DIRS = 27 };
 
 static void push_dirs(const double dir[3], const double out[3], const double normal[3],
@@ -468,7 +470,8 @@ static void push_dirs(const double dir[3], const double out[3], const double nor
     normalize3(e1);
     for (int a = 0; a < 3; a++)
         e2[a] = out[(a + 1) % 3] * e1[(a + 2) % 3] - out[(a + 2) % 3] * e1[(a + 1) % 3];
-    const double h = 0.70710678118654752440, tilt[2] = {0.57735026918962576451, 1.7320508075688772935};
+    const double h = 0.70710678118654752440;
+    const double tilt[2] = {0.57735026918962576451, 1.7320508075688772935}; /* tan 30, tan 60 */
     const double az[8][2] = {{1, 0}, {h, h}, {0, 1}, {-h, h}, {-1, 0}, {-h, -h}, {0, -1}, {h, -h}};
     /* The normal, where it does not lead back toward the centre. */
     double along = normal[0] * out[0] + normal[1] * out[1] + normal[2] * out[2];
@@ -527,7 +530,8 @@ static int push_init(struct push *pp, const vol *cut, int id, pose m)
 {
     int lo[3], hi[3];
     frag_label_box(cut, id, lo, hi);
-    size_t cap = (size_t)(hi[0] - lo[0] + 1) * (size_t)(hi[1] - lo[1] + 1) * (size_t)(hi[2] - lo[2] + 1);
+    size_t cap = (size_t)(hi[0] - lo[0] + 1) * (size_t)(hi[1] - lo[1] + 1) *
+                 (size_t)(hi[2] - lo[2] + 1);
     pp->q = malloc(cap * 3 * sizeof *pp->q);
     if (!pp->q)
         return fn_err_set(FN_ENOMEM, "fracture: out of memory");
@@ -550,7 +554,8 @@ static int push_init(struct push *pp, const vol *cut, int id, pose m)
  * push_dirs that lands the piece clear; *move (the direction) and *steps set and 0, or FN_EINVAL
  * saying why none does. */
 static int push_search(const struct push *pp, const double dir[3], const double out[3],
-                       const double normal[3], double displace, double step, int max_steps, double move[3], int *steps)
+                       const double normal[3], double displace, double step, int max_steps,
+                       double move[3], int *steps)
 {
     double d[PUSH_DIRS][3], o[3] = {0, 0, 0}, oq[3];
     push_dirs(dir, out, normal, d);
@@ -626,7 +631,8 @@ static int displace_pieces(fracture_result *r, const vol *ct, uint64_t *rng,
                           .threshold = r->threshold};
         rc = push_init(&pp, r->cut, id, m);
         if (rc == 0)
-            rc = push_search(&pp, dir, out, normals[id - 2], p->displace_mm, step, max_steps, move, &steps);
+            rc = push_search(&pp, dir, out, normals[id - 2], p->displace_mm, step, max_steps, move,
+                             &steps);
         free(pp.q);
         if (rc < 0)
             return rc;
