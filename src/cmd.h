@@ -50,6 +50,19 @@ int cmd_tau_check(const char *cmd, const cmd_tau *t);
  * tau_min <= tau_max. 0, or FN_EINVAL with a message naming the options. */
 int cmd_tau_apply(const cmd_tau *t, double *tau_min, double *tau_max);
 
+/* --threshold as segment and fracture take it (seg.h's threshold and threshold_auto). */
+#define CMD_THRESHOLD_ACCEPTED "a number (HU), 'auto' or 'auto-bone'"
+#define CMD_THRESHOLD_HELP                                                                        \
+    "  --threshold HU|auto|auto-bone  bone threshold (default 300 HU); for data not in\n"        \
+    "                             HU: auto = Otsu (splits the two main classes: in a\n"         \
+    "                             head CT, air from tissue), auto-bone = Otsu again over\n"      \
+    "                             the brighter class (tissue from bone)\n"
+/* When a is --threshold: parses val into *threshold (a number) or *threshold_auto (1 'auto',
+ * 2 'auto-bone'; 0 for a number) and returns 1 with *rc 0, or with *rc 2 after printing a usage
+ * error that names the option. Other a: 0. */
+int cmd_threshold_option(const char *cmd, const char *a, const char *val, double *threshold,
+                         int *threshold_auto, int *rc);
+
 /* Path of the example CT that .ci/setup caches: $FRACNAV_DATA/Cranium.inv3, else
  * /var/cache/fracnav/Cranium.inv3 (a static buffer). */
 const char *cmd_example_ct(void);

@@ -18,23 +18,28 @@ static void usage(FILE *out)
     fprintf(out,
             "usage: fracnav fracture VOLUME -o CASE --seed N [--json] [options]\n\n"
             "Make a synthetic fracture with known ground truth from a CT. The bone (the largest\n"
-            "component over the threshold) is cut by rough, fractal surfaces (not planes), a thin\n"
-            "layer of bone can be lost at the gap, and every piece but the largest is moved by a\n"
-            "random rigid transform. CASE/source.nii.gz is the fractured CT in the displaced\n"
-            "configuration; the case's fragments are segmented there (poses start at identity)\n"
-            "and case.json's truth holds, per fragment, the pose that puts it back. The same\n"
-            "seed and options give the same case, byte for byte, on every machine.\n\n"
+            "component over the threshold) is cut by rough, fractal surfaces (not planes) into\n"
+            "connected pieces of at least 10%% of the bone each, a thin layer of bone can be lost\n"
+            "at the gap, and every piece but piece 1 is moved by a random rigid transform,\n"
+            "outward from the bone's centre as in a comminuted fracture. CASE/source.nii.gz is\n"
+            "the fractured CT in the displaced configuration; the case's fragments are segmented\n"
+            "there (poses start at identity) and case.json's truth holds, per fragment, the pose\n"
+            "that puts it back. The same seed and options give the same case, byte for byte, on\n"
+            "every machine.\n\n"
             "  -o, --output CASE      the case folder to write (created if missing)\n"
             "  --seed N               the random seed (required)\n"
-            "  --pieces K             number of pieces, 2..16 (default 2)\n"
-            "  --displace MM          how far each moved piece's centroid moves (default 3); a piece\n"
-            "                         that would land on another piece or on bright non-bone is\n"
-            "                         pushed on along its cut's normal in 1 mm steps, so it can end\n"
-            "                         farther: each fragment's distance is printed\n"
+            "  --pieces K             number of pieces, 2..10 (default 2); a bone too small or\n"
+            "                         thin to give K pieces of 10%% is an error that says so\n"
+            "  --displace MM          how far each moved piece's centroid moves, away from the\n"
+            "                         bone's centre (default 3); a piece that would land on\n"
+            "                         another piece or on bright non-bone is moved on in steps of\n"
+            "                         one voxel, in the outward direction that needs the fewest,\n"
+            "                         so it can end farther: each fragment's distance is printed;\n"
+            "                         one that would leave the volume is an error\n"
             "  --rotate DEG           rotation of each moved piece about its centroid (default 3)\n"
             "  --bone-loss MM         thickness of bone lost along each cut (default 0)\n"
             "  --roughness MM         RMS relief of the fracture surface (default 2)\n"
-            "  --threshold HU         bone threshold (default 300)\n"
+            CMD_THRESHOLD_HELP
             CMD_TAU_HELP
             "  --json                 one JSON object on stdout instead of the text: command, case,\n"
             "                         source, seed, pieces, threshold, fragments (id, voxels,\n"
@@ -54,8 +59,7 @@ static double *number_option(fracture_params *p, const char *opt, const char **a
     } rows[] = {{"--displace", &p->displace_mm, "a number of mm"},
                 {"--rotate", &p->rotate_deg, "a number of degrees"},
                 {"--bone-loss", &p->bone_loss_mm, "a number of mm"},
-                {"--roughness", &p->roughness_mm, "a number of mm"},
-                {"--threshold", &p->threshold, "a number (HU)"}};
+                {"--roughness", &p->roughness_mm, "a number of mm"}};
     for (size_t i = 0; i < sizeof rows / sizeof rows[0]; i++)
         if (!strcmp(opt, rows[i].name)) {
             *accepted = rows[i].accepted;
@@ -88,7 +92,8 @@ static int parse(int argc, char **argv, fracture_params *p, const char **in, con
             if (!val)
                 return cmd_bad_value("fracture", a, val, "a folder");
             *out = val;
-        } else if (cmd_tau_option("fracture", a, val, &tau, &rc)) {
+        } else if (cmd_tau_option("fracture", a, val, &tau, &rc) ||
+                   cmd_threshold_option("fracture", a, val, &p->threshold, &p->threshold_auto, &rc)) {
             if (rc)
                 return rc;
         } else if (!strcmp(a, "--seed")) {
@@ -97,8 +102,8 @@ static int parse(int argc, char **argv, fracture_params *p, const char **in, con
             p->seed = (uint64_t)d;
             have_seed = 1;
         } else if (!strcmp(a, "--pieces")) {
-            if (!cmd_number(val, &d) || !(d >= 2 && d <= 16 && d == (int)d))
-                return cmd_bad_value("fracture", a, val, "a whole number 2..16");
+            if (!cmd_number(val, &d) || !(d >= 2 && d <= 10 && d == (int)d))
+                return cmd_bad_value("fracture", a, val, "a whole number 2..10");
             p->pieces = (int)d;
         } else if (!(target = number_option(p, a, &accepted)))
             return cmd_usage_error("fracture", "unknown option '%s'", a);

@@ -20,10 +20,7 @@ static void usage(FILE *out)
             "CASE/labels.nii.gz). Bone is every voxel >= the threshold; 26-connected components\n"
             "become fragments, largest first (ids 1..n).\n\n"
             "  -o, --output CASE          the case folder to write (created if missing)\n"
-            "  --threshold HU|auto|auto-bone  bone threshold (default 300 HU); for data not in\n"
-            "                             HU: auto = Otsu (splits the two main classes: in a\n"
-            "                             head CT, air from tissue), auto-bone = Otsu again over\n"
-            "                             the brighter class (tissue from bone)\n"
+            CMD_THRESHOLD_HELP
             "  --min-volume ML            drop components under ML millilitres (default 0.5)\n"
             "  --exclude-below-peak HU    drop components whose brightest voxel is under HU: the CT\n"
             "                             head holder (300-600 HU) goes with e.g. 1000\n"
@@ -61,15 +58,9 @@ static int parse(int argc, char **argv, seg_params *p, cmd_tau *tau, const char 
             if (!val)
                 return cmd_bad_value("segment", a, val, "a folder");
             *out = val;
-        } else if (!strcmp(a, "--threshold")) {
-            if (val && !strcmp(val, "auto"))
-                p->threshold_auto = 1;
-            else if (val && !strcmp(val, "auto-bone"))
-                p->threshold_auto = 2;
-            else if (cmd_number(val, &d))
-                p->threshold = d;
-            else
-                return cmd_bad_value("segment", a, val, "a number (HU), 'auto' or 'auto-bone'");
+        } else if (cmd_threshold_option("segment", a, val, &p->threshold, &p->threshold_auto, &rc)) {
+            if (rc)
+                return rc;
         } else if (!strcmp(a, "--min-volume")) {
             if (!cmd_number(val, &d) || d < 0)
                 return cmd_bad_value("segment", a, val, "a number of ml >= 0");

@@ -137,33 +137,100 @@ static double cut_side(const struct cut *c, const double x[3])
     return d + c->rough * fracture_fbm(c->noise_seed, q);
 }
 
-/* Voxels of label `from` on the positive side of the cut: counted, or relabelled `to` when
- * apply (then bone within loss/2 of the surface becomes background and `fill` in ct). */
-static size_t cut_apply(vol *lab, vol *ct, int from, int to, const struct cut *c, const int lo[3],
-                        const int hi[3], double loss, double fill, int apply)
+/* What a cut makes of each voxel of a piece's box. */
+enum { SIDE_NONE, SIDE_STAYS, SIDE_NEW, SIDE_LOST };
+
+/* Classifies the voxels of label `from` in box [lo, hi] (side[], box order): the positive side
+ * of the cut is new, bone within loss/2 of the surface is lost. */
+static void cut_classify(const vol *lab, int from, const struct cut *c, const int lo[3],
+                         const int hi[3], double loss, uint8_t *side)
 {
-    size_t n = 0;
+    size_t b = 0;
     for (int k = lo[2]; k <= hi[2]; k++)
         for (int j = lo[1]; j <= hi[1]; j++)
-            for (int i = lo[0]; i <= hi[0]; i++) {
-                size_t idx = vol_idx(lab, i, j, k);
-                if (lab->data[idx] != (float)from)
+            for (int i = lo[0]; i <= hi[0]; i++, b++) {
+                side[b] = SIDE_NONE;
+                if (lab->data[vol_idx(lab, i, j, k)] != (float)from)
                     continue;
                 double ijk[3] = {i, j, k}, x[3];
                 vol_index_to_world(lab, ijk, x);
                 double s = cut_side(c, x);
-                if (s > 0)
-                    n++;
-                if (!apply)
-                    continue;
-                if (s > -loss / 2 && s <= loss / 2 && loss > 0) {
+                side[b] = loss > 0 && s > -loss / 2 && s <= loss / 2 ? SIDE_LOST
+                          : s > 0                                  ? SIDE_NEW
+                                                                   : SIDE_STAYS;
+            }
+}
+
+/* Islands of side `which` (all but its largest 26-connected part) go to side `to`. */
+static int cut_islands(uint8_t *side, const int bdim[3], int which, int to, uint8_t *mask,
+                       int32_t *comp)
+{
+    size_t n = (size_t)bdim[0] * bdim[1] * bdim[2];
+    for (size_t b = 0; b < n; b++)
+        mask[b] = side[b] == which;
+    int nc = seg_components(mask, bdim, comp);
+    if (nc < 0)
+        return nc;
+    size_t *count = calloc((size_t)nc + 1, sizeof *count);
+    if (!count)
+        return fn_err_set(FN_ENOMEM, "fracture: out of memory");
+    for (size_t b = 0; b < n; b++)
+        count[comp[b]]++;
+    int32_t big = 1;
+    for (int32_t c = 2; c <= nc; c++)
+        if (count[c] > count[big])
+            big = c;
+    for (size_t b = 0; b < n; b++)
+        if (comp[b] && comp[b] != big)
+            side[b] = (uint8_t)to;
+    free(count);
+    return 0;
+}
+
+/* Makes each side one piece: a rough surface leaves islands of one side in the other, which
+ * would lock the pieces together. They join the other side; what is still loose is lost. */
+static int cut_connect(uint8_t *side, const int bdim[3])
+{
+    size_t n = (size_t)bdim[0] * bdim[1] * bdim[2];
+    uint8_t *mask = malloc(n);
+    int32_t *comp = malloc(n * sizeof *comp);
+    int rc = mask && comp ? 0 : fn_err_set(FN_ENOMEM, "fracture: out of memory");
+    if (rc == 0)
+        rc = cut_islands(side, bdim, SIDE_NEW, SIDE_STAYS, mask, comp);
+    if (rc == 0)
+        rc = cut_islands(side, bdim, SIDE_STAYS, SIDE_NEW, mask, comp);
+    if (rc == 0)
+        rc = cut_islands(side, bdim, SIDE_NEW, SIDE_LOST, mask, comp);
+    free(mask);
+    free(comp);
+    return rc;
+}
+
+static void cut_count(const uint8_t *side, size_t n, size_t kept[2])
+{
+    kept[0] = kept[1] = 0;
+    for (size_t b = 0; b < n; b++)
+        if (side[b] == SIDE_STAYS || side[b] == SIDE_NEW)
+            kept[side[b] == SIDE_NEW]++;
+}
+
+/* Applies side[] to the box: new voxels become label `to`; lost bone becomes background and
+ * `fill` in ct. */
+static void cut_write(vol *lab, vol *ct, int to, const uint8_t *side, const int lo[3],
+                      const int hi[3], double fill)
+{
+    size_t b = 0;
+    for (int k = lo[2]; k <= hi[2]; k++)
+        for (int j = lo[1]; j <= hi[1]; j++)
+            for (int i = lo[0]; i <= hi[0]; i++, b++) {
+                size_t idx = vol_idx(lab, i, j, k);
+                if (side[b] == SIDE_NEW)
+                    lab->data[idx] = (float)to;
+                else if (side[b] == SIDE_LOST) {
                     lab->data[idx] = 0;
                     ct->data[idx] = (float)fill;
-                } else if (s > 0) {
-                    lab->data[idx] = (float)to;
                 }
             }
-    return n;
 }
 
 static int piece_stats(const vol *lab, int id, frag *f)
@@ -174,29 +241,46 @@ static int piece_stats(const vol *lab, int id, frag *f)
     return frag_from_labels(f, lab, NULL, id, lo, hi, 0, 0);
 }
 
-/* Splits the largest piece so far with a random rough cut; its smaller side becomes piece `to`. */
+/* Splits the largest piece so far with a random rough cut; its smaller side becomes piece `to`.
+ * Both sides keep at least min_piece voxels (10% of the bone), or the cut is refused. */
 static int make_cut(vol *lab, vol *ct, int to, uint64_t *rng, const fracture_params *p,
-                    double normal_out[3])
+                    size_t min_piece, double normal_out[3])
 {
     int from = 1;
     size_t best = 0;
     for (int id = 1; id < to; id++) {
-        frag f;
-        if (piece_stats(lab, id, &f) < 0)
+        int lo[3], hi[3];
+        if (frag_label_box(lab, id, lo, hi) < 0)
             continue;
-        if (f.voxels > best) {
-            best = f.voxels;
+        size_t n = 0;
+        for (int k = lo[2]; k <= hi[2]; k++)
+            for (int j = lo[1]; j <= hi[1]; j++)
+                for (int i = lo[0]; i <= hi[0]; i++)
+                    n += lab->data[vol_idx(lab, i, j, k)] == (float)id;
+        if (n > best) {
+            best = n;
             from = id;
         }
-        frag_free(&f);
     }
+    if (best < 2 * min_piece)
+        return fn_err_set(FN_EINVAL, "fracture: cannot cut piece %d: the largest piece so far "
+                          "(%zu voxels) is under twice the smallest piece allowed (10%% of the "
+                          "bone, %zu voxels); ask for fewer --pieces", to, best, min_piece);
     frag f;
     int rc = piece_stats(lab, from, &f);
     if (rc < 0)
         return rc;
-    int lo[3], hi[3];
+    int lo[3], hi[3], bdim[3];
     frag_label_box(lab, from, lo, hi);
-    for (int attempt = 0; attempt < 32; attempt++) {
+    for (int a = 0; a < 3; a++)
+        bdim[a] = hi[a] - lo[a] + 1;
+    size_t nbox = (size_t)bdim[0] * bdim[1] * bdim[2];
+    uint8_t *side = malloc(nbox);
+    if (!side) {
+        frag_free(&f);
+        return fn_err_set(FN_ENOMEM, "fracture: out of memory");
+    }
+    for (int attempt = 0; attempt < 32 && rc == 0; attempt++) {
         struct cut c = {.rough = p->roughness_mm, .wavelength = p->wavelength_mm};
         double u1 = fracture_rng_uniform(rng) * 2 - 1, u2 = fracture_rng_uniform(rng) * 2 - 1;
         double off = (fracture_rng_uniform(rng) * 2 - 1) * 0.6 * sqrt(f.eigval[0]);
@@ -206,28 +290,43 @@ static int make_cut(vol *lab, vol *ct, int to, uint64_t *rng, const fracture_par
             c.point[a] = f.centroid[a] + off * f.axes[a][0];
         }
         normalize3(c.normal);
-        size_t pos = cut_apply(lab, ct, from, to, &c, lo, hi, 0, 0, 0);
-        if (pos * 2 > f.voxels) {
+        size_t kept[2];
+        cut_classify(lab, from, &c, lo, hi, p->bone_loss_mm, side);
+        cut_count(side, nbox, kept);
+        if (kept[0] < min_piece || kept[1] < min_piece)
+            continue;
+        rc = cut_connect(side, bdim);
+        cut_count(side, nbox, kept);
+        if (rc < 0 || kept[0] < min_piece || kept[1] < min_piece)
+            continue;
+        if (kept[1] > kept[0]) {
             /* The new piece is always the smaller side. */
+            for (size_t b = 0; b < nbox; b++)
+                if (side[b] == SIDE_NEW || side[b] == SIDE_STAYS)
+                    side[b] = side[b] == SIDE_NEW ? SIDE_STAYS : SIDE_NEW;
             for (int a = 0; a < 3; a++)
                 c.normal[a] = -c.normal[a];
-            c.rough = -c.rough;
-            pos = f.voxels - pos;
         }
-        if (pos < f.voxels / 10)
-            continue;
-        cut_apply(lab, ct, from, to, &c, lo, hi, p->bone_loss_mm, p->fill, 1);
+        cut_write(lab, ct, to, side, lo, hi, p->fill);
         memcpy(normal_out, c.normal, sizeof c.normal);
+        free(side);
         frag_free(&f);
         return 0;
     }
+    free(side);
+    if (rc < 0) {
+        frag_free(&f);
+        return rc;
+    }
     frag_free(&f);
-    return fn_err_set(FN_EINVAL, "fracture: no cut of piece %d leaves both sides over 10%% of it "
-                                 "(bone too small or thin?)", from);
+    return fn_err_set(FN_EINVAL, "fracture: no cut of piece %d (%zu voxels) leaves both sides at "
+                      "least 10%% of the bone (%zu voxels) in 32 tries: the bone is too thin or "
+                      "irregular for %d pieces; ask for fewer --pieces", from, best, min_piece,
+                      p->pieces);
 }
 
-/* The random rigid motion of a piece: rotation about its centroid, translation away from the
- * fixed bone (along `out`, perturbed). */
+/* The random part of a piece's motion: a rotation about its centroid (returned) and the
+ * direction it moves in, `out` (away from the bone's centre) perturbed. */
 static pose random_motion(uint64_t *rng, const double centroid[3], const double out[3],
                           const fracture_params *p, double dir[3])
 {
@@ -243,13 +342,21 @@ static pose random_motion(uint64_t *rng, const double centroid[3], const double 
     double rc[3];
     pose_rotate(&m, centroid, rc);
     for (int a = 0; a < 3; a++)
-        m.t[a] = centroid[a] - rc[a] + p->displace_mm * dir[a];
+        m.t[a] = centroid[a] - rc[a];
     return m;
 }
 
+/* Whether a moved piece may not land on voxel idx: another piece is there already, or a bright
+ * object that is not bone (the head holder: >= threshold in src_ct but in no piece). */
+static int occupied(const vol *cut, const vol *src_ct, const vol *out_lab, size_t idx, int id,
+                    double threshold)
+{
+    float l = out_lab->data[idx];
+    return (l != 0 && l != (float)id) || (cut->data[idx] == 0 && src_ct->data[idx] >= threshold);
+}
+
 /* Resamples piece `id` of cut (on the original grid) moved by m into out_lab/out_ct (nearest
- * neighbour). Counts voxels that would land on another piece or on a bright object that is not
- * bone (the head holder: >= threshold in src_ct but in no piece); writes only when apply, and
+ * neighbour). Counts voxels that would land where `occupied` says no; writes only when apply, and
  * without apply stops at the first such voxel (returns 1). */
 static size_t place_piece(const vol *cut, const vol *src_ct, vol *out_lab, vol *out_ct, int id,
                           pose m, double threshold, int apply)
@@ -295,8 +402,7 @@ static size_t place_piece(const vol *cut, const vol *src_ct, vol *out_lab, vol *
                 if (cut->data[from] != (float)id)
                     continue;
                 size_t to = vol_idx(out_lab, i, j, k);
-                int other = out_lab->data[to] != 0 && out_lab->data[to] != (float)id;
-                if (other || (cut->data[to] == 0 && src_ct->data[to] >= threshold)) {
+                if (occupied(cut, src_ct, out_lab, to, id, threshold)) {
                     if (!apply)
                         return 1; /* the push-out loop only asks whether there is any */
                     conflicts++;
@@ -328,7 +434,7 @@ int fracture_check(const fracture_params *p)
         const char *name;
         double value, lo, hi;
         const char *unit;
-    } rows[] = {{"pieces", p->pieces, 2, 16, ""},
+    } rows[] = {{"pieces", p->pieces, 2, 10, " (each at least 10% of the bone)"},
                 {"displace", p->displace_mm, 0, 200, " mm"},
                 {"rotate", p->rotate_deg, 0, 180, " deg"},
                 {"bone loss", p->bone_loss_mm, 0, 20, " mm"},
@@ -343,9 +449,157 @@ int fracture_check(const fracture_params *p)
     return 0;
 }
 
-/* Moves pieces 2..n, pushing each out along its cut normal until it lands on no other piece. */
+/* Candidate directions of a piece's move, in order of preference: dir (out, perturbed), the
+ * normal of the cut that made the piece (away from the piece it was cut from), the mean of that
+ * normal and out, then out tilted by 30 and 60 degrees toward 8 azimuths, then 8 across out:
+ * none leads back toward the bone's centre. */
+enum { PUSH_DIRS = 27 };
+
+static void push_dirs(const double dir[3], const double out[3], const double normal[3],
+                      double d[PUSH_DIRS][3])
+{
+    /* e1, e2: a basis across out, from the world axis least aligned with it. */
+    int least = 0;
+    for (int a = 1; a < 3; a++)
+        if (fabs(out[a]) < fabs(out[least]))
+            least = a;
+    double ax[3] = {0, 0, 0}, e1[3], e2[3];
+    ax[least] = 1;
+    for (int a = 0; a < 3; a++)
+        e1[a] = ax[a] - out[least] * out[a];
+    normalize3(e1);
+    for (int a = 0; a < 3; a++)
+        e2[a] = out[(a + 1) % 3] * e1[(a + 2) % 3] - out[(a + 2) % 3] * e1[(a + 1) % 3];
+    const double h = 0.70710678118654752440;
+    const double tilt[2] = {0.57735026918962576451, 1.7320508075688772935}; /* tan 30, tan 60 */
+    const double az[8][2] = {{1, 0}, {h, h}, {0, 1}, {-h, h}, {-1, 0}, {-h, -h}, {0, -1}, {h, -h}};
+    /* The normal, where it does not lead back toward the centre. */
+    double along = normal[0] * out[0] + normal[1] * out[1] + normal[2] * out[2];
+    for (int a = 0; a < 3; a++) {
+        d[0][a] = dir[a];
+        d[1][a] = along >= 0 ? normal[a] : dir[a];
+        d[2][a] = normal[a] + out[a];
+    }
+    normalize3(d[2]);
+    for (int t = 0; t < 3; t++)
+        for (int k = 0; k < 8; k++) {
+            double *v = d[3 + t * 8 + k];
+            for (int a = 0; a < 3; a++)
+                v[a] = t < 2 ? out[a] + tilt[t] * (az[k][0] * e1[a] + az[k][1] * e2[a])
+                             : az[k][0] * e1[a] + az[k][1] * e2[a];
+            normalize3(v);
+        }
+}
+
+/* A moved piece's voxels, forward-mapped into the output grid (index coordinates), for a fast
+ * search of the push that clears it; place_piece's exact test has the last word. */
+struct push {
+    double *q;        /* n index triples */
+    size_t n, lost_max; /* voxels; how many may land off the grid (10%) */
+    const vol *cut, *src_ct, *out_lab;
+    int id;
+    double threshold;
+};
+
+/* 1 if the piece moved by s*dq (index units) lands clear; 0 on another piece; -1 when more than
+ * lost_max voxels fall off the grid. */
+static int push_clear(const struct push *pp, double s, const double dq[3])
+{
+    size_t lost = 0;
+    const int *dim = pp->out_lab->dim;
+    for (size_t v = 0; v < pp->n; v++) {
+        int si[3], inside = 1;
+        for (int a = 0; a < 3; a++) {
+            si[a] = (int)floor(pp->q[3 * v + a] + s * dq[a] + 0.5);
+            inside &= si[a] >= 0 && si[a] < dim[a];
+        }
+        if (!inside) {
+            if (++lost > pp->lost_max)
+                return -1;
+            continue;
+        }
+        if (occupied(pp->cut, pp->src_ct, pp->out_lab, vol_idx(pp->out_lab, si[0], si[1], si[2]),
+                     pp->id, pp->threshold))
+            return 0;
+    }
+    return 1;
+}
+
+/* The piece's voxels moved by m, as output index coordinates; 0 or FN_ENOMEM. */
+static int push_init(struct push *pp, const vol *cut, int id, pose m)
+{
+    int lo[3], hi[3];
+    frag_label_box(cut, id, lo, hi);
+    size_t cap = (size_t)(hi[0] - lo[0] + 1) * (size_t)(hi[1] - lo[1] + 1) *
+                 (size_t)(hi[2] - lo[2] + 1);
+    pp->q = malloc(cap * 3 * sizeof *pp->q);
+    if (!pp->q)
+        return fn_err_set(FN_ENOMEM, "fracture: out of memory");
+    pp->n = 0;
+    for (int k = lo[2]; k <= hi[2]; k++)
+        for (int j = lo[1]; j <= hi[1]; j++)
+            for (int i = lo[0]; i <= hi[0]; i++) {
+                if (cut->data[vol_idx(cut, i, j, k)] != (float)id)
+                    continue;
+                double ijk[3] = {i, j, k}, w[3], mw[3];
+                vol_index_to_world(cut, ijk, w);
+                pose_apply(&m, w, mw);
+                vol_world_to_index(cut, mw, &pp->q[3 * pp->n++]);
+            }
+    pp->lost_max = pp->n / 10;
+    return 0;
+}
+
+/* The shortest move, displace_mm and then steps of one voxel (up to max_steps), along one of
+ * push_dirs that lands the piece clear; *move (the direction) and *steps set and 0, or FN_EINVAL
+ * saying why none does. */
+static int push_search(const struct push *pp, const double dir[3], const double out[3],
+                       const double normal[3], double displace, double step, int max_steps,
+                       double move[3], int *steps)
+{
+    double d[PUSH_DIRS][3], o[3] = {0, 0, 0}, oq[3];
+    push_dirs(dir, out, normal, d);
+    vol_world_to_index(pp->out_lab, o, oq);
+    int best = -1, off_grid = 0;
+    for (int c = 0; c < PUSH_DIRS; c++) {
+        double x[3], dq[3];
+        for (int a = 0; a < 3; a++)
+            x[a] = step * d[c][a];
+        vol_world_to_index(pp->out_lab, x, dq);
+        for (int a = 0; a < 3; a++)
+            dq[a] -= oq[a];
+        /* A later direction must do strictly better: the first ones point straighter out. */
+        int limit = best < 0 ? max_steps : best - 1;
+        for (int s = 0; s <= limit; s++) {
+            int clear = push_clear(pp, displace / step + s, dq);
+            if (clear < 0) {
+                off_grid = 1;
+                break; /* farther out along this direction only loses more */
+            }
+            if (clear) {
+                best = s;
+                memcpy(move, d[c], sizeof d[c]);
+                break;
+            }
+        }
+        if (best == 0)
+            break;
+    }
+    if (best < 0 && off_grid)
+        return fn_err_set(FN_EINVAL, "fracture: piece %d would leave the volume (over 10%% of it "
+                          "off the grid) before it lands clear of the others: lower --displace",
+                          pp->id);
+    if (best < 0)
+        return fn_err_set(FN_EINVAL, "fracture: piece %d cannot be placed clear of the others "
+                          "within %.1f mm of --displace", pp->id, max_steps * step);
+    *steps = best;
+    return 0;
+}
+
+/* Moves pieces 2..n, each away from the bone's centre, pushed on in voxel steps (the shortest push
+ * out of push_dirs) until it lands on no other piece. */
 static int displace_pieces(fracture_result *r, const vol *ct, uint64_t *rng,
-                           const fracture_params *p, double (*normals)[3])
+                           const fracture_params *p, const double centre[3], double (*normals)[3])
 {
     size_t n = vol_count(ct);
     for (size_t i = 0; i < n; i++) {
@@ -353,24 +607,50 @@ static int displace_pieces(fracture_result *r, const vol *ct, uint64_t *rng,
         if (r->cut->data[i] > 1)
             r->ct->data[i] = (float)p->fill;
     }
+    double step = fmin(ct->spacing[0], fmin(ct->spacing[1], ct->spacing[2]));
     r->truth[0] = r->moved[0] = POSE_IDENTITY;
     for (int id = 2; id <= r->pieces; id++) {
         frag f;
         int rc = piece_stats(r->cut, id, &f);
         if (rc < 0)
             return rc;
-        double dir[3];
-        pose m = random_motion(rng, f.centroid, normals[id - 2], p, dir);
-        frag_free(&f);
-        int push = 0;
-        while (place_piece(r->cut, ct, r->labels, r->ct, id, m, p->threshold, 0) > 0) {
-            if (++push > 100)
-                return fn_err_set(FN_EINVAL, "fracture: piece %d cannot be placed clear of the "
-                                             "others", id);
-            for (int a = 0; a < 3; a++)
-                m.t[a] += normals[id - 2][a];
+        double out[3], dist = 0, dir[3], move[3];
+        for (int a = 0; a < 3; a++) {
+            out[a] = f.centroid[a] - centre[a];
+            dist += out[a] * out[a];
         }
-        place_piece(r->cut, ct, r->labels, r->ct, id, m, p->threshold, 1);
+        /* A piece around the centre has no outward direction: its cut's normal leads out. */
+        if (sqrt(dist) < step)
+            memcpy(out, normals[id - 2], sizeof out);
+        normalize3(out);
+        pose m = random_motion(rng, f.centroid, out, p, dir);
+        /* A push as long as the piece is wide clears it in any direction that leads out. */
+        int max_steps = (int)ceil(4 * sqrt(f.eigval[0]) / step) + 2, steps = 0;
+        frag_free(&f);
+        struct push pp = {.cut = r->cut, .src_ct = ct, .out_lab = r->labels, .id = id,
+                          .threshold = r->threshold};
+        rc = push_init(&pp, r->cut, id, m);
+        if (rc == 0)
+            rc = push_search(&pp, dir, out, normals[id - 2], p->displace_mm, step, max_steps, move,
+                             &steps);
+        free(pp.q);
+        if (rc < 0)
+            return rc;
+        /* Forward-mapped voxels can miss one that nearest-neighbour resampling fills: a few more
+         * steps settle it. */
+        for (int extra = 0;; extra++, steps++) {
+            pose t = m;
+            for (int a = 0; a < 3; a++)
+                t.t[a] += (p->displace_mm + steps * step) * move[a];
+            if (place_piece(r->cut, ct, r->labels, r->ct, id, t, r->threshold, 0) == 0) {
+                m = t;
+                break;
+            }
+            if (extra == 8)
+                return fn_err_set(FN_EINVAL, "fracture: piece %d cannot be placed clear of the "
+                                  "others", id);
+        }
+        place_piece(r->cut, ct, r->labels, r->ct, id, m, r->threshold, 1);
         r->moved[id - 1] = m;
         r->truth[id - 1] = pose_inverse(m);
     }
@@ -386,6 +666,7 @@ int fracture_make(const vol *ct, const fracture_params *p, fracture_result *out)
     seg_params sp;
     seg_defaults(&sp);
     sp.threshold = p->threshold;
+    sp.threshold_auto = p->threshold_auto;
     sp.min_volume_ml = 0;
     sp.keep = 1;
     seg_result seg;
@@ -394,11 +675,22 @@ int fracture_make(const vol *ct, const fracture_params *p, fracture_result *out)
         return rc;
     if (seg.ncomp < 1) {
         seg_result_free(&seg);
-        return fn_err_set(FN_EINVAL, "fracture: no bone at or above %g", p->threshold);
+        return fn_err_set(FN_EINVAL, "fracture: no bone at or above %g", seg.threshold);
     }
+    out->threshold = seg.threshold;
     out->cut = seg.labels;
     seg.labels = NULL;
     seg_result_free(&seg);
+    frag bone;
+    rc = piece_stats(out->cut, 1, &bone);
+    if (rc < 0) {
+        fracture_result_free(out);
+        return rc;
+    }
+    /* Every piece keeps at least 10% of the bone: smaller ones are crumbs, not fragments. */
+    size_t min_piece = (bone.voxels + 9) / 10;
+    double centre[3] = {bone.centroid[0], bone.centroid[1], bone.centroid[2]};
+    frag_free(&bone);
     out->pieces = p->pieces;
     out->ct = vol_clone(ct);
     vol *work_ct = vol_clone(ct);
@@ -412,11 +704,11 @@ int fracture_make(const vol *ct, const fracture_params *p, fracture_result *out)
     }
     uint64_t rng = p->seed;
     for (int id = 2; id <= p->pieces && rc == 0; id++)
-        rc = make_cut(out->cut, work_ct, id, &rng, p, normals[id - 2]);
+        rc = make_cut(out->cut, work_ct, id, &rng, p, min_piece, normals[id - 2]);
     if (rc == 0) {
         /* The output starts from the CT after bone loss. */
         memcpy(out->ct->data, work_ct->data, vol_count(ct) * sizeof(float));
-        rc = displace_pieces(out, work_ct, &rng, p, normals);
+        rc = displace_pieces(out, work_ct, &rng, p, centre, normals);
     }
 done:
     vol_free(work_ct);
@@ -461,7 +753,7 @@ fcase *fracture_make_case(const vol *ct, const fracture_params *p, const char *d
     else if (volio_write(r.ct, src, t) == 0) {
         seg_params sp;
         seg_defaults(&sp);
-        sp.threshold = p->threshold;
+        sp.threshold = r.threshold;
         sp.min_volume_ml = 0;
         c = case_create(dir, src, r.ct, r.labels, &sp);
         r.ct = r.labels = NULL;

@@ -1,15 +1,20 @@
 /* fracture: synthetic fractures with known ground truth, made from a real CT.
  *
- * The bone (the largest component at `threshold`) is cut pieces-1 times; each cut splits the
- * currently largest piece with a rough surface: a plane (normal near the piece's main axis, through
- * a point near its centroid) displaced along its normal by fractal value noise (fBm, 4 octaves).
- * The new piece of a cut is its smaller side. bone_loss_mm of bone around each cut is replaced by
- * `fill` (soft tissue). Piece 1 (what is left of the first piece) stays fixed; every other piece
- * is moved by a random rigid transform (rotation of rotate_deg about its centroid, translation of
- * displace_mm pointing away from the bone it was cut from, pushed further out in 1 mm steps while
- * it would land on another piece) and resampled (nearest neighbour) into the output CT, which
- * shows the DISPLACED configuration; where a piece left, `fill` is written. The displaced labels
- * are built from the pieces, not re-segmented, so touching pieces stay apart.
+ * The bone (the largest component at `threshold`, or at Otsu's when threshold_auto) is cut
+ * pieces-1 times; each cut splits the currently largest piece with a rough surface: a plane
+ * (normal near the piece's main axis, through a point near its centroid) displaced along its
+ * normal by fractal value noise (fBm, 4 octaves). The new piece of a cut is its smaller side.
+ * Each side is made one connected piece (islands the rough surface leaves join the other side)
+ * and keeps at least 10% of the bone's voxels, or the cut is tried again (32 times, then an
+ * error). bone_loss_mm of bone around each cut is replaced by `fill` (soft tissue). Piece 1
+ * (what is left of the first piece) stays fixed; every other piece is moved by a random rigid
+ * transform: rotation of rotate_deg about its centroid, translation of displace_mm outward from
+ * the bone's centre (perturbed), and, while it would land on another piece or on bright non-bone,
+ * on in steps of one voxel (the smallest spacing) along the outward direction that clears it in
+ * the fewest steps. It is resampled (nearest neighbour) into the output CT, which shows the
+ * DISPLACED configuration; where a piece left, `fill` is written. The displaced labels are built
+ * from the pieces, not re-segmented, so touching pieces stay apart. A piece that would leave the
+ * grid (over 10% of it) is an error.
  * truth[i] maps piece i+1's displaced position back to where it belongs (identity for piece 1).
  *
  * Randomness comes only from splitmix64 seeded with `seed`, and the arithmetic uses + - * / and
@@ -24,13 +29,14 @@
 
 typedef struct fracture_params {
     uint64_t seed;
-    int pieces;           /* 2..16 */
+    int pieces;           /* 2..10 */
     double displace_mm;   /* translation of each moved piece before any push-out */
     double rotate_deg;    /* rotation of each moved piece about its centroid */
     double bone_loss_mm;  /* thickness of the bone layer lost at each cut; 0 none */
     double roughness_mm;  /* RMS of the surface's displacement along its normal */
     double wavelength_mm; /* of the coarsest noise octave */
-    double threshold;     /* bone threshold (HU) */
+    double threshold;     /* bone threshold (HU), unless threshold_auto */
+    int threshold_auto;   /* seg_params' meaning: 1 Otsu, 2 Otsu over the brighter class */
     double fill;          /* value written where bone was removed or left (soft tissue, HU) */
     double tau_min, tau_max; /* the case's hierarchy thresholds */
 } fracture_params;
@@ -40,12 +46,13 @@ typedef struct fracture_result {
     vol *labels;  /* pieces 1..n in the displaced configuration, on the same grid; owned */
     vol *cut;     /* pieces 1..n before displacement (after bone loss), on the same grid; owned */
     int pieces;
+    double threshold; /* the bone threshold used (Otsu's when threshold_auto) */
     pose *truth;  /* pieces entries: displaced (home) world -> original world; owned */
     pose *moved;  /* pieces entries: the applied displacement (original -> displaced); owned */
 } fracture_result;
 
-/* Defaults: 2 pieces, 3 mm, 3 degrees, no bone loss, roughness 2 mm, wavelength 16 mm, 300 HU,
- * fill 40 HU, seed 1. */
+/* Defaults: 2 pieces, 3 mm, 3 degrees, no bone loss, roughness 2 mm, wavelength 16 mm, 300 HU
+ * (threshold_auto 0), fill 40 HU, seed 1. */
 void fracture_defaults(fracture_params *p);
 /* 0 if the parameters are in range, else FN_EINVAL saying which. */
 int fracture_check(const fracture_params *p);

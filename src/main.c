@@ -89,6 +89,23 @@ int cmd_tau_option(const char *cmd, const char *a, const char *val, cmd_tau *t, 
     return 1;
 }
 
+int cmd_threshold_option(const char *cmd, const char *a, const char *val, double *threshold,
+                         int *threshold_auto, int *rc)
+{
+    *rc = 0;
+    if (strcmp(a, "--threshold"))
+        return 0;
+    if (val && !strcmp(val, "auto"))
+        *threshold_auto = 1;
+    else if (val && !strcmp(val, "auto-bone"))
+        *threshold_auto = 2;
+    else if (cmd_number(val, threshold))
+        *threshold_auto = 0;
+    else
+        *rc = cmd_bad_value(cmd, a, val, CMD_THRESHOLD_ACCEPTED);
+    return 1;
+}
+
 int cmd_tau_apply(const cmd_tau *t, double *tau_min, double *tau_max)
 {
     double lo = t->given & 1 ? t->min : *tau_min, hi = t->given & 2 ? t->max : *tau_max;

@@ -93,8 +93,8 @@ static void test_fracture(void **st)
     expect(2, "--seed needs a value", "fracture '%s' -o '%s/f' --seed", f->ct, o);
     expect(2, "--rotate: 'x' is not a number of degrees", "fracture '%s' -o '%s/f' --seed 1 --rotate x", f->ct, o);
     /* No module prefix doubled after the command's. */
-    expect(2, "fracnav fracture: --pieces: '17' is not a whole number 2..16",
-           "fracture '%s' -o '%s/f' --seed 1 --pieces 17", f->ct, o);
+    expect(2, "fracnav fracture: --pieces: '11' is not a whole number 2..10",
+           "fracture '%s' -o '%s/f' --seed 1 --pieces 11", f->ct, o);
     expect(2, "fracnav fracture: bone loss must be 0..20 mm (got 25) (see",
            "fracture '%s' -o '%s/f' --seed 1 --bone-loss 25", f->ct, o);
 }
