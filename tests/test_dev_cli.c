@@ -170,6 +170,40 @@ static void test_calibrate_zero_open_controller(void **s)
     free(dir);
 }
 
+/* --calibrate-zero --config F keeps every line of F it does not change (comments, blank lines,
+ * spacenavd's own keys, lines it does not know), as spacenavd's config writer does. */
+static void test_calibrate_zero_keeps_user_lines(void **s)
+{
+    char *dir = tu_tmpdir("devzero"), keys[4200], rc[4200], *out;
+    snprintf(keys, sizeof keys, "%s/keys", dir);
+    tu_write_file(keys, "d", 1);
+    snprintf(rc, sizeof rc, "%s/spnavrc", dir);
+    const char *mine = "# my SpaceMouse, tuned for the OR\n"
+                       "sensitivity = 1.5   # a bit faster\n"
+                       "\n"
+                       "grab = false\n"
+                       "nonsense here\n"
+                       "frobnicate = 7\n"
+                       "zero-offset0 = 0.5 # measured last week\n";
+    tu_write_file(rc, mine, strlen(mine));
+    assert_int_equal(tu_run_cli(&out, "device-test --device keyboard:%s --calibrate-zero --config %s", keys, rc), 0);
+    free(out);
+    char *text = tu_slurp(rc, NULL);
+    assert_non_null(text);
+    assert_non_null(strstr(text, "# my SpaceMouse, tuned for the OR\nsensitivity = 1.5   # a bit faster\n\n"
+                                 "grab = false\nnonsense here\nfrobnicate = 7\nzero-offset0 = "));
+    assert_non_null(strstr(text, " # measured last week\n"));
+    assert_null(strstr(text, "zero-offset0 = 0.5"));
+    const char *z = strstr(text, "zero-offset0 = ");
+    double v = atof(z + 15);
+    assert_true(v > 0.05 && v < 0.3);
+    assert_non_null(strstr(text, "zero-offset1 = 0\n")); /* keys the file lacked are appended */
+    assert_null(strstr(strstr(text, "\nsensitivity = ") + 1, "\nsensitivity = ")); /* set once, not twice */
+    free(text);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -180,6 +214,7 @@ int main(void)
         cmocka_unit_test(test_device_test_keyboard),
         cmocka_unit_test(test_calibrate_zero_saves_config),
         cmocka_unit_test(test_calibrate_zero_open_controller),
+        cmocka_unit_test(test_calibrate_zero_keeps_user_lines),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
