@@ -11,6 +11,7 @@
 #include <fcntl.h>
 #include <fuse_lowlevel.h>
 #include <inttypes.h>
+#include <limits.h>
 #include <linux/hidraw.h>
 #include <poll.h>
 #include <signal.h>
@@ -122,29 +123,33 @@ static void drop_pending(reader *r, int i)
 
 static void pump(void);
 
-/* A report reaches every open reader: a waiting read gets it at once, else it is queued; a full
- * queue drops the new report, as hidraw does. */
+/* A report reaches one reader: a waiting read gets it at once, else it is queued; a full queue
+ * drops the new report, as hidraw does. */
+static void deliver_to(reader *r, const uint8_t *b, size_t n)
+{
+    if (r->npending) {
+        fuse_req_t req = r->pending[0];
+        size_t size = r->pending_size[0];
+        drop_pending(r, 0);
+        reply_report(req, size, b, n);
+    } else if (r->count < QUEUE_LEN) {
+        int slot = (r->head + r->count++) % QUEUE_LEN;
+        memcpy(r->q[slot], b, n);
+        r->qlen[slot] = (uint8_t)n;
+    } else {
+        S.dropped++;
+    }
+    notify_poll(r);
+}
+
+/* A report reaches every open reader. */
 static void deliver(const uint8_t *b, size_t n)
 {
     S.served++;
     log_event(FNREC_IN, b, n);
-    for (reader *r = S.readers; r; r = r->next) {
-        if (r->dead)
-            continue;
-        if (r->npending) {
-            fuse_req_t req = r->pending[0];
-            size_t size = r->pending_size[0];
-            drop_pending(r, 0);
-            reply_report(req, size, b, n);
-        } else if (r->count < QUEUE_LEN) {
-            int slot = (r->head + r->count++) % QUEUE_LEN;
-            memcpy(r->q[slot], b, n);
-            r->qlen[slot] = (uint8_t)n;
-        } else {
-            S.dropped++;
-        }
-        notify_poll(r);
-    }
+    for (reader *r = S.readers; r; r = r->next)
+        if (!r->dead)
+            deliver_to(r, b, n);
 }
 
 static void kill_readers(void)
@@ -329,13 +334,29 @@ static void op_open(fuse_req_t req, fuse_ino_t ino, struct fuse_file_info *fi)
     fuse_reply_open(req, fi);
 }
 
+/* A wireless device's battery level for a reader that came after the power-on report went out
+ * (to no one, or to earlier readers): each program that opens the node learns the level, as each
+ * one that opens the in-process virtual device does (`devices`, then `device-test`). */
+static void battery_for_late_reader(reader *r)
+{
+    simdev now = S.dev;
+    uint8_t b[DEV_REPORT_MAX];
+    now.battery_pending = 1;
+    int n = simdev_next(&now, b, sizeof b);
+    if (n > 0 && b[0] == 0x17)
+        deliver_to(r, b, (size_t)n);
+}
+
 /* The first read or poll of a reader starts --start-on-read playback and lets --fast go on. */
 static void reader_active(reader *r)
 {
     if (r->active)
         return;
     r->active = 1;
+    int owed = S.dev.battery_pending;
     power_on_reports();
+    if (S.p->battery && S.plugged && S.started && !owed) /* else the source or the replug sends it */
+        battery_for_late_reader(r);
     if (S.start_on_read && !S.started)
         start_playback();
     else if (S.fast)
@@ -659,6 +680,42 @@ static int block_signals(void)
     return S.sig_fd < 0 || S.timer_fd < 0 ? -1 : 0;
 }
 
+/* mountinfo writes a space, tab, newline and backslash in a path as \ooo (octal). */
+static void unescape_octal(char *s)
+{
+    char *o = s;
+    for (; *s; s++, o++) {
+        if (s[0] == '\\' && s[1] >= '0' && s[1] <= '3' && s[2] >= '0' && s[2] <= '7' && s[3] >= '0' &&
+            s[3] <= '7') {
+            *o = (char)((s[1] - '0') * 64 + (s[2] - '0') * 8 + (s[3] - '0'));
+            s += 3;
+        } else {
+            *o = *s;
+        }
+    }
+    *o = '\0';
+}
+
+/* The file system type already mounted at dir ("fuse.hidraw" for another fracnav-sim), into type;
+ * 0 when dir is no mount point. */
+static int mounted_at(const char *dir, char *type, size_t cap)
+{
+    char want[PATH_MAX], line[2 * PATH_MAX], point[PATH_MAX], fstype[64];
+    FILE *f = realpath(dir, want) ? fopen("/proc/self/mountinfo", "r") : NULL;
+    int found = 0;
+    while (f && !found && fgets(line, sizeof line, f)) {
+        const char *sep = strstr(line, " - "); /* optional fields end here; the type follows */
+        if (sscanf(line, "%*s %*s %*s %*s %4095s", point) != 1 || !sep || sscanf(sep + 3, "%63s", fstype) != 1)
+            continue;
+        unescape_octal(point);
+        if ((found = !strcmp(point, want)))
+            snprintf(type, cap, "%s", fstype);
+    }
+    if (f)
+        fclose(f);
+    return found;
+}
+
 /* Says plainly why FUSE cannot be used, before libfuse says it less plainly. */
 static int check_fuse_access(const char *mount)
 {
@@ -670,6 +727,13 @@ static int check_fuse_access(const char *mount)
     }
     if (!S_ISDIR(st.st_mode)) {
         fprintf(stderr, "fracnav-sim serve: mount point %s is not a directory\n", mount);
+        return -1;
+    }
+    char type[64];
+    if (mounted_at(mount, type, sizeof type)) { /* mounting over it would hide what is served there */
+        fprintf(stderr, "fracnav-sim serve: %s is already a mount point (%s)%s: stop what serves it, or "
+                        "unmount it (fusermount3 -u %s), or serve at another folder\n", mount, type,
+                !strcmp(type, "fuse.hidraw") ? ", served by another fracnav-sim" : "", mount);
         return -1;
     }
     if (access("/dev/fuse", R_OK | W_OK)) {
