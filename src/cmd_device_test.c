@@ -40,17 +40,47 @@ static void count_report(void *ctx, const uint8_t *report, size_t len, int64_t t
     ++*(long *)ctx;
 }
 
-static void show(FILE *out, const dev_event *ev, const float cal[6], int battery, double rate, int tty)
+/* The names of the buttons set in mask ("ENTER,FIT", "B1,B2"), "-" for none. */
+static void button_names(FILE *out, const devtab_row *row, uint32_t mask)
+{
+    char buf[16];
+    int any = 0;
+    for (int b = 0; b < 32; b++)
+        if (mask >> b & 1)
+            fprintf(out, "%s%s", any++ ? "," : "", devtab_button_name(row, b, buf, sizeof buf));
+    if (!any)
+        fputc('-', out);
+}
+
+static void show(FILE *out, const devtab_row *row, const dev_event *ev, const float cal[6], int battery,
+                 double rate, int tty)
 {
     static const char *const names[6] = {"x", "y", "z", "rx", "ry", "rz"};
     fprintf(out, "%s", tty ? "\r" : "");
     for (int i = 0; i < 6; i++)
         fprintf(out, "%s %+5.2f>%+5.2f ", names[i], ev->axis[i], cal[i]);
-    fprintf(out, "| buttons %08x", ev->buttons);
-    if (ev->pressed || ev->released)
-        fprintf(out, " (+%x -%x)", ev->pressed, ev->released);
-    for (int i = 0; i < 6 && ev->keys[i]; i++)
-        fprintf(out, "%s%u", i ? "," : " keys ", ev->keys[i]);
+    fprintf(out, "| buttons ");
+    button_names(out, row, ev->buttons);
+    if (ev->pressed) {
+        fprintf(out, " (pressed ");
+        button_names(out, row, ev->pressed);
+        fputc(')', out);
+    }
+    if (ev->released) {
+        fprintf(out, " (released ");
+        button_names(out, row, ev->released);
+        fputc(')', out);
+    }
+    for (int i = 0, shown = 0; i < 6 && ev->keys[i]; i++) { /* key codes that are no button */
+        if (devtab_key_button(ev->keys[i]) >= 0)
+            continue;
+        const char *name = devtab_key_name(ev->keys[i]);
+        fprintf(out, "%s", shown++ ? "," : " | keys ");
+        if (name)
+            fputs(name, out);
+        else
+            fprintf(out, "code %u", ev->keys[i]);
+    }
     if (battery >= 0)
         fprintf(out, " | battery %d%%", battery);
     if (rate < 0) /* the first second: not measured yet */
@@ -199,7 +229,7 @@ static int live_view(dev_device *d, calib *c, double seconds)
         calib_buttons(c, &ev, NULL, NULL);
         calib_apply(c, ev.axis, cal);
         if (tty || now - last_line >= 1000000 / LINES_PER_S || (ev.flags & DEV_EV_BUTTON)) {
-            show(stdout, &ev, cal, dev_battery(d), rate, tty);
+            show(stdout, dev_row(d), &ev, cal, dev_battery(d), rate, tty);
             last_line = now;
         }
     }

@@ -114,7 +114,7 @@ static void test_device_test_keyboard(void **s)
     assert_non_null(strstr(out, "| - reports/s")); /* the rate is not measured in the first second */
     assert_null(strstr(out, "| 0 reports/s"));
     assert_null(strstr(out, "0000:0000"));
-    assert_non_null(strstr(out, "buttons 00000008"));
+    assert_non_null(strstr(out, "buttons B4"));
     assert_non_null(strstr(out, "1 bad line(s) skipped"));
     assert_non_null(strstr(out, "spnavrc:3:"));
     free(out);
@@ -204,6 +204,30 @@ static void test_calibrate_zero_keeps_user_lines(void **s)
     free(dir);
 }
 
+/* device-test names buttons: the Enterprise's keys by their labels from the device table, other
+ * devices' buttons as B1, B2, ...; never as a hex mask or a raw key code. */
+static void test_device_test_button_names(void **s)
+{
+    char *dir = tu_tmpdir("devnames"), scr[4200], *out;
+    snprintf(scr, sizeof scr, "%s/keys.script", dir);
+    const char *keys = "press 1 13 4\nwait 60 ms\nrelease 13\nwait 60 ms\nrelease\nwait 60 ms\n";
+    tu_write_file(scr, keys, strlen(keys)); /* codes 1 MENU, 13 "1", 36 ENTER (button 4) */
+    assert_int_equal(tu_run_cli(&out, "device-test --device virtual:spacemouse-enterprise:script=%s --seconds 0.6",
+                                scr), 0);
+    if (!strstr(out, "buttons MENU,ENTER,1 (pressed MENU,ENTER,1)") || !strstr(out, "(released 1)") ||
+        !strstr(out, "(released MENU,ENTER)") || strstr(out, "00000"))
+        fail_msg("Enterprise keys not named: %s", out);
+    free(out);
+    const char *two = "press 2\nwait 60 ms\nrelease\nwait 60 ms\n";
+    tu_write_file(scr, two, strlen(two));
+    assert_int_equal(tu_run_cli(&out, "device-test --device virtual:spacenavigator:script=%s --seconds 0.4", scr), 0);
+    if (!strstr(out, "buttons B2 (pressed B2)") || !strstr(out, "buttons - (released B2)"))
+        fail_msg("SpaceNavigator buttons not named: %s", out);
+    free(out);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -215,6 +239,7 @@ int main(void)
         cmocka_unit_test(test_calibrate_zero_saves_config),
         cmocka_unit_test(test_calibrate_zero_open_controller),
         cmocka_unit_test(test_calibrate_zero_keeps_user_lines),
+        cmocka_unit_test(test_device_test_button_names),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
