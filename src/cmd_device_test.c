@@ -25,14 +25,18 @@ static void usage(FILE *out)
 {
     fprintf(out, "usage: fracnav device-test [--device SPEC] [--seconds S] [--config SPNAVRC]\n"
                  "                           [--calibrate-zero]\n\n"
-                 "Shows a controller's six axes (normalized, then calibrated), buttons, battery and\n"
-                 "report rate, live, until Ctrl-C or S seconds. SPEC: auto (default), a hidraw path\n"
-                 "such as /dev/hidraw0, serial:SN, spnav, keyboard, replay:FILE, ...\n"
-                 "Calibration comes from ~/.config/fracnav/spnavrc, else /etc/spnavrc, or --config.\n\n"
+                 "Shows a controller's six axes (normalized, then calibrated), buttons by name, battery\n"
+                 "and report rate, live, until Ctrl-C or S seconds.\n\n"
+                 "  --device SPEC     auto (default), a hidraw path such as /dev/hidraw0, serial:SN,\n"
+                 "                    spnav, keyboard, replay:FILE, virtual:DEVICE, ...\n"
+                 "  --seconds S       stop after S seconds (with --calibrate-zero: measure S seconds)\n"
+                 "  --config SPNAVRC  the calibration to show (and save to); default\n"
+                 "                    ~/.config/fracnav/spnavrc, else /etc/spnavrc\n"
                  "  --calibrate-zero  with the cap released, measure the rest position for S seconds\n"
                  "                    (default 1) and save it as the zero offset (against drift) to\n"
-                 "                    --config, or ~/.config/fracnav/spnavrc; an open controller\n"
-                 "                    stores it itself (feature report 0x21) and the file gets 0\n");
+                 "                    --config, or ~/.config/fracnav/spnavrc, keeping the file's other\n"
+                 "                    lines and comments; an open controller stores it itself (feature\n"
+                 "                    report 0x21) and the file gets 0\n");
 }
 
 static void count_report(void *ctx, const uint8_t *report, size_t len, int64_t t_us)
@@ -124,9 +128,7 @@ static int parse_args(int argc, char **argv, opts *o)
             if (!cmd_number(v, &o->seconds) || !(o->seconds > 0) || o->seconds > 1e6)
                 return cmd_usage_error("device-test", "--seconds wants a positive number, got '%s'", v);
         } else {
-            fprintf(stderr, "fracnav device-test: unknown or incomplete option '%s'\n", a);
-            usage(stderr);
-            return 2;
+            return cmd_usage_error("device-test", "unknown or incomplete option '%s'", a);
         }
     }
     return 0;

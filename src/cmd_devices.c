@@ -188,9 +188,7 @@ int cmd_devices(int argc, char **argv)
                                        EXTRA_MAX + 1, argv[i + 1]);
             extra[n_extra++] = argv[++i];
         } else {
-            fprintf(stderr, "fracnav devices: unknown or incomplete option '%s'\n", argv[i]);
-            usage(stderr);
-            return 2;
+            return cmd_usage_error("devices", "unknown or incomplete option '%s'", argv[i]);
         }
     }
     found *list = calloc(LIST_MAX, sizeof *list);

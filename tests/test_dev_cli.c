@@ -9,6 +9,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include "testutil.h"
@@ -228,6 +229,79 @@ static void test_device_test_button_names(void **s)
     free(dir);
 }
 
+/* Output and exit status of `fracnav-sim ARGS` (beside fracnav in the build); -1 when not built. */
+static int sim_cli(char **out, const char *args)
+{
+    const char *bin = getenv("FRACNAV_BIN");
+    char dir[4096], cmd[8300];
+    snprintf(dir, sizeof dir, "%s", bin ? bin : "./fracnav");
+    char *slash = strrchr(dir, '/');
+    snprintf(slash ? slash + 1 : dir, sizeof dir - (size_t)(slash ? slash + 1 - dir : 0), "sim/fracnav-sim");
+    if (access(dir, X_OK))
+        return -1;
+    snprintf(cmd, sizeof cmd, "'%s' %s 2>&1", dir, args);
+    FILE *f = popen(cmd, "r");
+    size_t n = 0, cap = 16384;
+    *out = calloc(1, cap);
+    n = fread(*out, 1, cap - 1, f);
+    (*out)[n] = '\0';
+    return WEXITSTATUS(pclose(f));
+}
+
+/* out: read after the call that fills it has run (an argument's order of evaluation is not). */
+static void expect_hint(int rc, char **out, const char *hint)
+{
+    if (rc != 2 || !strstr(*out, hint))
+        fail_msg("exit %d, want 2 and '%s': %s", rc, hint, *out);
+    free(*out);
+}
+
+/* --help and --version say what the commands take; every usage error ends with the same hint. */
+static void test_help_version_and_hints(void **s)
+{
+    char *out;
+    assert_int_equal(tu_run_cli(&out, "--help"), 0);
+    assert_non_null(strstr(out, "fracnav --version"));
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "--version"), 0);
+    assert_true(!strncmp(out, "fracnav ", 8));
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "record --help"), 0);
+    assert_true(strstr(out, "  -o FILE.fnrec ") && strstr(out, "  --device SPEC ") && strstr(out, "  --seconds S ") &&
+                strstr(out, "  --wait-replug "));
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "device-test --help"), 0);
+    assert_true(strstr(out, "  --device SPEC ") && strstr(out, "  --seconds S ") && strstr(out, "  --config SPNAVRC ") &&
+                strstr(out, "  --calibrate-zero "));
+    free(out);
+    expect_hint(tu_run_cli(&out, "record --bogus"), &out, "(see fracnav record --help)");
+    expect_hint(tu_run_cli(&out, "record"), &out, "(see fracnav record --help)");
+    expect_hint(tu_run_cli(&out, "devices --bogus"), &out, "(see fracnav devices --help)");
+    expect_hint(tu_run_cli(&out, "device-test --bogus"), &out, "(see fracnav device-test --help)");
+    expect_hint(tu_run_cli(&out, "bogus"), &out, "(see fracnav --help)");
+    int rc = sim_cli(&out, "--version");
+    if (rc < 0) {
+        print_message("fracnav-sim not built (no FUSE): its half skipped\n");
+        return;
+    }
+    assert_int_equal(rc, 0);
+    assert_true(!strncmp(out, "fracnav-sim ", 12));
+    free(out);
+    assert_int_equal(sim_cli(&out, "serve --help"), 0);
+    assert_true(strstr(out, "usage: fracnav-sim serve") && strstr(out, "--exit-at-end") && !strstr(out, "render"));
+    free(out);
+    assert_int_equal(sim_cli(&out, "list --help"), 0);
+    assert_true(strstr(out, "usage: fracnav-sim list") && !strstr(out, "serve"));
+    free(out);
+    assert_int_equal(sim_cli(&out, "--help"), 0);
+    assert_true(strstr(out, "fracnav-sim --version") && strstr(out, "fracnav-sim render"));
+    free(out);
+    expect_hint(sim_cli(&out, "serve --bogus"), &out, "(see fracnav-sim serve --help)");
+    expect_hint(sim_cli(&out, "render -o x"), &out, "(see fracnav-sim render --help)");
+    expect_hint(sim_cli(&out, "bench --seconds x"), &out, "(see fracnav-sim bench --help)");
+    expect_hint(sim_cli(&out, "bogus"), &out, "(see fracnav-sim --help)");
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -240,6 +314,7 @@ int main(void)
         cmocka_unit_test(test_calibrate_zero_open_controller),
         cmocka_unit_test(test_calibrate_zero_keeps_user_lines),
         cmocka_unit_test(test_device_test_button_names),
+        cmocka_unit_test(test_help_version_and_hints),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
