@@ -9,6 +9,7 @@
 #include <unistd.h>
 
 #include "dev.h"
+#include "devparse.h"
 #include "devtab.h"
 #include "err.h"
 #include "fnrec.h"
@@ -59,7 +60,7 @@ typedef struct recorder {
     int64_t cadence_us;  /* the device's report period: reports are never closer (0 = unknown) */
     int64_t last_report; /* recording time of the last input report */
     int wait_replug, tty, squeezed;
-    int64_t next_progress;
+    int64_t start_us, next_progress;
     const char *out;
     unsigned long reports;
 } recorder;
@@ -136,10 +137,10 @@ static int put_report(recorder *r, int64_t t_us, const uint8_t *b, int n)
  * others have the period of their table row (the simulator's profile). 0 when unknown. */
 static int64_t cadence_of(recorder *r, const fnrec_header *hd)
 {
-    uint8_t buf[DEV_REPORT_MAX] = {0x22};
+    uint8_t buf[DEV_REPORT_MAX] = {DEVPARSE_FEAT_SETTINGS};
     const devtab_row *row = devtab_find(hd->vid, hd->pid);
     if (row && (row->flags & DEVTAB_F_OPEN) && r->t->get_feature && r->t->get_feature(r->h, buf, sizeof buf) >= 2 &&
-        buf[0] == 0x22 && buf[1])
+        buf[0] == DEVPARSE_FEAT_SETTINGS && buf[1])
         return (int64_t)buf[1] * 1000;
     char id[16];
     snprintf(id, sizeof id, "%04x:%04x", hd->vid, hd->pid);
@@ -155,7 +156,7 @@ static void progress(recorder *r, int last)
         return;
     r->next_progress = now + PROGRESS_US;
     fprintf(stderr, "\rrecording %s: %lu reports, %.1f s%s", r->out, r->reports,
-            (double)r->written_us / 1e6, last ? "\n" : "   ");
+            (double)(now - r->start_us) / 1e6, last ? "\n" : "   ");
 }
 
 static int time_left(const recorder *r)
@@ -270,7 +271,8 @@ int cmd_record(int argc, char **argv)
         fprintf(stderr, "fracnav record: %s\n", fn_err_msg());
         return 1;
     }
-    r.base_us = is_replay(&r) ? 0 : dev_now_us();
+    r.start_us = dev_now_us();
+    r.base_us = is_replay(&r) ? 0 : r.start_us;
     r.end_us = seconds > 0 ? dev_now_us() + (int64_t)(seconds * 1e6) : 0;
     r.tty = isatty(STDERR_FILENO);
     fnrec_header hd;
