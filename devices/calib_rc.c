@@ -538,13 +538,16 @@ static void merge_line(text *t, const char *s, size_t n, char (*keys)[64], char 
     add(t, s, n);
 }
 
+/* Keys calib_format_spnavrc writes at most: 36 settings, 32 bnmap and 32 bnact lines. */
+#define FRESH_KEYS 104
+
 int calib_merge_spnavrc(const calib *c, const char *old, size_t old_len, char **out, size_t *out_len)
 {
-    char keys[96][64], vals[96][64], fresh[8192];
-    unsigned char done[96] = {0};
+    char keys[FRESH_KEYS][64], vals[FRESH_KEYS][64], fresh[8192];
+    unsigned char done[FRESH_KEYS] = {0};
     int nk = 0;
     calib_format_spnavrc(c, fresh, sizeof fresh);
-    for (char *save = NULL, *l = strtok_r(fresh, "\n", &save); l && nk < 96; l = strtok_r(NULL, "\n", &save))
+    for (char *save = NULL, *l = strtok_r(fresh, "\n", &save); l && nk < FRESH_KEYS; l = strtok_r(NULL, "\n", &save))
         if (split_line(l, strlen(l), keys[nk], vals[nk], 64))
             nk++;
     text t = {0};
