@@ -85,9 +85,16 @@ int calib_parse_spnavrc(calib *c, const char *text, size_t len, const char *fnam
 int calib_load(calib *c, const char *path, char *used, size_t used_cap, char *diag, size_t cap);
 
 /* Saves c in spnavrc syntax to path, or to ~/.config/fracnav/spnavrc (made if missing) when path
- * is NULL; atomically (temporary file, fsync, rename), so a crash never leaves a broken file. The
- * file is rewritten whole: comments of an earlier file are not kept. *used receives the path.
- * Returns 0 or FN_EIO naming the file. */
+ * is NULL; atomically (temporary file, fsync, rename), so a crash never leaves a broken file. An
+ * existing file is merged (calib_merge_spnavrc): the user's comments, blank lines and lines fracnav
+ * does not know are kept. *used receives the path. Returns 0 or FN_EIO naming the file. */
+
+/* The text of an spnavrc file old (old_len bytes) updated to say c, as spacenavd's writer does:
+ * every line is kept as it is (comments, blank lines, unknown keys, bad lines, spacenavd-only
+ * keys), except a line setting a key whose value c changes (rewritten, its trailing comment kept)
+ * and a line of a known key that c leaves at its default (commented out); keys the file lacks are
+ * appended. *out is malloc'd (NUL-terminated; free it). Pure. Returns 0 or FN_ENOMEM. */
+int calib_merge_spnavrc(const calib *c, const char *old, size_t old_len, char **out, size_t *out_len);
 int calib_save(const calib *c, const char *path, char *used, size_t used_cap);
 
 /* Writes c in spnavrc syntax (every key set, so the file round-trips). Returns bytes written

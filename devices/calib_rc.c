@@ -446,20 +446,162 @@ static int default_path(char *out, size_t cap)
     return 0;
 }
 
+/* A growing text buffer for the merge. */
+typedef struct text {
+    char *s;
+    size_t n, cap;
+    int oom;
+} text;
+
+static void add(text *t, const char *s, size_t n)
+{
+    if (t->oom)
+        return;
+    if (t->n + n + 1 > t->cap) {
+        size_t cap = (t->n + n + 1) * 2;
+        char *ns = realloc(t->s, cap);
+        if (!ns) {
+            t->oom = 1;
+            return;
+        }
+        t->s = ns, t->cap = cap;
+    }
+    memcpy(t->s + t->n, s, n);
+    t->n += n;
+    t->s[t->n] = '\0';
+}
+
+/* The key of a "key = value" line (s, n: the line without its newline), trimmed, into key; its
+ * value (trimmed, before any '#') into val. 0 when the line is not of that form. */
+static int split_line(const char *s, size_t n, char *key, char *val, size_t cap)
+{
+    char line[512];
+    if (n >= sizeof line || memchr(s, '\0', n))
+        return 0;
+    memcpy(line, s, n);
+    line[n] = '\0';
+    char *hash = strchr(line, '#'), *eq;
+    if (hash)
+        *hash = '\0';
+    if (!(eq = strchr(line, '=')))
+        return 0;
+    *eq = '\0';
+    snprintf(key, cap, "%s", trim(line));
+    snprintf(val, cap, "%s", trim(eq + 1));
+    return key[0] != '\0';
+}
+
+/* The new line of `key` in fresh (calib_format_spnavrc's text, one "key = value" a line): its
+ * index, or -1 when fresh has no such key. */
+static int fresh_index(char (*keys)[64], int n, const char *key)
+{
+    for (int i = 0; i < n; i++)
+        if (!strcmp(keys[i], key))
+            return i;
+    return -1;
+}
+
+/* One line of the old file: kept as it is, unless it sets a key whose value changes (rewritten,
+ * its comment kept), or a key fracnav knows that the new settings leave at its default (commented
+ * out, so the file still means what c says). */
+static void merge_line(text *t, const char *s, size_t n, char (*keys)[64], char (*vals)[64], int nk,
+                       unsigned char *done)
+{
+    char key[64], val[512], probe_key[64];
+    if (!split_line(s, n, key, val, sizeof key < sizeof val ? sizeof key : sizeof val)) {
+        add(t, s, n);
+        return;
+    }
+    int i = fresh_index(keys, nk, key);
+    const char *hash = memchr(s, '#', n);
+    if (i >= 0) {
+        done[i] = 1;
+        if (!strcmp(vals[i], val)) {
+            add(t, s, n);
+            return;
+        }
+        char line[200];
+        int m = snprintf(line, sizeof line, "%s = %s%s", key, vals[i], hash ? " " : "");
+        add(t, line, (size_t)m);
+        if (hash)
+            add(t, hash, n - (size_t)(hash - s));
+        return;
+    }
+    calib probe;
+    calib_default(&probe);
+    snprintf(probe_key, sizeof probe_key, "%s", key);
+    if (apply_key(&probe, probe_key, val) != 0 || ignored_key(key)) { /* not ours, or a bad line: the user's */
+        add(t, s, n);
+        return;
+    }
+    add(t, "# ", 2);
+    add(t, s, n);
+}
+
+/* Keys calib_format_spnavrc writes at most: 36 settings, 32 bnmap and 32 bnact lines. */
+#define FRESH_KEYS 104
+
+int calib_merge_spnavrc(const calib *c, const char *old, size_t old_len, char **out, size_t *out_len)
+{
+    char keys[FRESH_KEYS][64], vals[FRESH_KEYS][64], fresh[8192];
+    unsigned char done[FRESH_KEYS] = {0};
+    int nk = 0;
+    calib_format_spnavrc(c, fresh, sizeof fresh);
+    for (char *save = NULL, *l = strtok_r(fresh, "\n", &save); l && nk < FRESH_KEYS; l = strtok_r(NULL, "\n", &save))
+        if (split_line(l, strlen(l), keys[nk], vals[nk], 64))
+            nk++;
+    text t = {0};
+    add(&t, "", 0);
+    for (size_t pos = 0; pos < old_len;) {
+        const char *nl = memchr(old + pos, '\n', old_len - pos);
+        size_t n = nl ? (size_t)(nl - (old + pos)) : old_len - pos;
+        merge_line(&t, old + pos, n, keys, vals, nk, done);
+        add(&t, "\n", 1);
+        pos += n + 1;
+    }
+    static const char head[] = "# fracnav calibration (spacenavd spnavrc syntax)\n";
+    if (old_len == 0)
+        add(&t, head, sizeof head - 1);
+    for (int i = 0; i < nk; i++)
+        if (!done[i]) {
+            char line[200];
+            int m = snprintf(line, sizeof line, "%s = %s\n", keys[i], vals[i]);
+            add(&t, line, (size_t)m);
+        }
+    if (t.oom) {
+        free(t.s);
+        return fn_err_set(FN_ENOMEM, "calibration: out of memory merging the settings");
+    }
+    *out = t.s;
+    *out_len = t.n;
+    return 0;
+}
+
 int calib_save(const calib *c, const char *path, char *used, size_t used_cap)
 {
-    char def[600], tmp[700], text[8192];
+    char def[600], tmp[700];
     if (!path) {
         if (default_path(def, sizeof def))
             return FN_EIO;
         path = def;
     }
-    size_t n = calib_format_spnavrc(c, text, sizeof text);
+    char *old = NULL, *merged = NULL;
+    size_t old_len = 0, n = 0;
+    int rc = read_file(path, &old, &old_len);
+    if (rc && rc != FN_ENODEV)
+        return rc;
+    rc = calib_merge_spnavrc(c, old ? old : "", old_len, &merged, &n);
+    free(old);
+    if (rc)
+        return rc;
     snprintf(tmp, sizeof tmp, "%s.tmp", path);
     int fd = open(tmp, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-    if (fd < 0)
+    if (fd < 0) {
+        free(merged);
         return fn_err_set(FN_EIO, "%s: %s", tmp, strerror(errno));
-    int ok = write(fd, text, n) == (ssize_t)n && fsync(fd) == 0;
+    }
+    int ok = write(fd, merged, n) == (ssize_t)n && fsync(fd) == 0;
+    free(merged);
     ok = close(fd) == 0 && ok;
     if (!ok || rename(tmp, path) != 0) {
         int e = errno;

@@ -64,14 +64,24 @@ static int wanted(const struct hid_device_info *e)
 static int hidraw_info(const char *path, dev_info *out);
 
 /* A node found outside udev's list is listed when the device table knows it or its descriptor
- * opens with a multi-axis controller collection (Usage Page Generic Desktop, Usage 8). */
+ * opens with a multi-axis controller collection (Usage Page Generic Desktop, Usage 8), or when this
+ * user may not open it (identity unknown: opening it names the permission problem). */
 static int add_node(const char *path, dev_info *out, size_t cap, int n)
 {
     dev_info d;
     memset(&d, 0, sizeof d);
     snprintf(d.path, sizeof d.path, "%s", path);
-    if (hidraw_info(path, &d) != 0)
+    int rc = hidraw_info(path, &d), denied = rc != 0 && (errno == EACCES || errno == EPERM);
+    if (rc != 0 && !denied)
         return n; /* not a hidraw node */
+    if (denied) { /* listed all the same, so that opening it says why it cannot be used */
+        for (int k = 0; k < n && (size_t)k < cap; k++)
+            if (!strcmp(out[k].path, path))
+                return n;
+        if ((size_t)n < cap)
+            out[n] = d;
+        return n + 1;
+    }
     static const uint8_t multi_axis[] = {0x05, 0x01, 0x09, 0x08};
     if (!devtab_find(d.vid, d.pid) && !(d.desc_len >= 4 && !memcmp(d.desc, multi_axis, 4)))
         return n;
@@ -93,6 +103,15 @@ static int extra_nodes(dev_info *out, size_t cap, int n)
     for (char *save = NULL, *e = strtok_r(list, ":", &save); e; e = strtok_r(NULL, ":", &save)) {
         struct dirent **names;
         int m = scandir(e, &names, NULL, alphasort);
+        if (m < 0 && (errno == EACCES || errno == EPERM)) { /* a folder or node this user may not read */
+            dev_info *d = (size_t)n < cap ? &out[n] : NULL;
+            if (d) {
+                memset(d, 0, sizeof *d);
+                snprintf(d->path, sizeof d->path, "%s", e);
+            }
+            n++;
+            continue;
+        }
         if (m < 0) { /* not a folder: a node path */
             n = add_node(e, out, cap, n);
             continue;
@@ -137,13 +156,21 @@ static int hid_enum(dev_info *out, size_t cap)
  * hid_open_path on a file that is not a hidraw node. Absent -> FN_ENODEV; not ours to open -> FN_EIO naming the udev rule. */
 static int check_node(const char *path)
 {
-    int fd = open(path, O_RDWR | O_CLOEXEC | O_NONBLOCK);
+    /* access() first: a folder this user may not enter (a FUSE mount of another user's) would
+     * otherwise say only "Is a directory" */
+    int fd = access(path, R_OK | W_OK) && (errno == EACCES || errno == EPERM) ? -1
+                                                                              : open(path, O_RDWR | O_CLOEXEC | O_NONBLOCK);
     if (fd < 0) {
         int e = errno;
         if (e == ENOENT || e == ENODEV || e == ENXIO)
             return fn_err_set(FN_ENODEV, "%s: %s", path, strerror(e));
-        if (e == EACCES || e == EPERM)
+        if ((e == EACCES || e == EPERM) && !strncmp(path, "/dev/", 5))
             return fn_err_set(FN_EIO, "%s: %s: %s", path, strerror(e), UDEV_HINT);
+        if (e == EACCES || e == EPERM) /* no udev rule reaches a node outside /dev (a FUSE mount) */
+            return fn_err_set(FN_EIO, "%s: %s: a permission problem on this path, which no udev rule "
+                              "covers: this user may not open it (a FUSE mount such as fracnav-sim's is "
+                              "open only to the user who mounted it): run fracnav as that user, or serve "
+                              "it as this one", path, strerror(e));
         return fn_err_set(FN_EIO, "%s: %s", path, strerror(e));
     }
     int size = 0, rc = ioctl(fd, HIDIOCGRDESCSIZE, &size);

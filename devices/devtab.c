@@ -1,5 +1,6 @@
 #include "devtab.h"
 
+#include <stdio.h>
 #include <string.h>
 
 #define ALL(n) ((uint32_t)(((uint64_t)1 << (n)) - 1))
@@ -72,6 +73,23 @@ int devtab_key_button(uint16_t code)
         if (keys[i].code == code)
             return keys[i].button;
     return -1;
+}
+
+const char *devtab_key_name(uint16_t code)
+{
+    for (size_t i = 0; i < sizeof keys / sizeof keys[0]; i++)
+        if (keys[i].code == code)
+            return keys[i].name;
+    return NULL;
+}
+
+const char *devtab_button_name(const devtab_row *row, int button, char *buf, size_t cap)
+{
+    for (size_t i = 0; row && (row->flags & DEVTAB_F_KEYCODES) && i < sizeof keys / sizeof keys[0]; i++)
+        if (keys[i].button == button)
+            return keys[i].name;
+    snprintf(buf, cap, "B%d", button + 1);
+    return buf;
 }
 
 int devtab_key1_button(const devtab_row *row)

@@ -55,6 +55,12 @@ typedef struct devtab_key {
 const devtab_key *devtab_keys(size_t *n);
 /* The button of a key code, -1 when the code is not a button (it still reaches dev_event.keys). */
 int devtab_key_button(uint16_t code);
+/* The label of a key code ("ENTER", "ESC", "1".."12", "MENU", "FIT", ...), NULL when the table has
+ * no such code. */
+const char *devtab_key_name(uint16_t code);
+/* The name of button bit `button` of a device: the label of its key on rows with DEVTAB_F_KEYCODES
+ * (the Enterprise: "ENTER", "FIT", ...); else "B1", "B2", ... (button + 1), written into buf. */
+const char *devtab_button_name(const devtab_row *row, int button, char *buf, size_t cap);
 /* The button bit of the key labelled "1": on rows with DEVTAB_F_KEYCODES (the Enterprise) that of
  * key code 13 (12), where its numbered keys 1-10 start; 0 on every other row (or NULL). */
 int devtab_key1_button(const devtab_row *row);

@@ -70,7 +70,7 @@ static int read_reports(const char *node, int want, int64_t *t, int64_t *span_us
     const dev_transport *tr = dev_transport_find("hidraw");
     dev_handle *h;
     if (!tr || tr->open(node, &h))
-        return fn_err_set(FN_ENODEV, "bench: cannot open %s: %s", node, fn_err_msg());
+        return fn_err_wrap(FN_ENODEV, "bench: cannot open %s", node);
     uint8_t buf[64];
     int n = 0;
     int64_t first = 0, last = 0, at;

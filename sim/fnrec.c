@@ -132,6 +132,10 @@ static int event_line(const cursor *c, const char *s, size_t n, int64_t prev, fn
         return bad(c, "timestamp must be followed by one space and a direction");
     if (t < prev)
         return bad(c, "timestamp goes backwards");
+    if (t - prev > FNREC_MAX_GAP_US)
+        return fn_err_set(FN_EFORMAT, "%s:%d: timestamp %" PRId64 " us is %.0f s after the event before it; "
+                          "a recording's events are at most %d s apart", c->name, c->line, t,
+                          (double)(t - prev) / 1e6, (int)(FNREC_MAX_GAP_US / 1000000));
     const char *d = s + ++i;
     const char *sp = memchr(d, ' ', n - i);
     size_t dn = sp ? (size_t)(sp - d) : n - i;
@@ -251,7 +255,7 @@ int fnrec_parse(const char *text, size_t len, const char *name, fnrec **out)
                 break;
             }
             if (rc == 0 && (rc = fnrec_append(r, &e)) != 0)
-                rc = fn_err_set(rc, "%s:%d: %s", c.name, c.line, fn_err_msg());
+                rc = fn_err_wrap(rc, "%s:%d", c.name, c.line);
         }
     }
     if (rc == 0 && c.line == 0)

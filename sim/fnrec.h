@@ -16,6 +16,9 @@
 #define FNREC_VERSION 1
 /* A recording holds at most this many events (about 2.5 h at 125 reports/s). */
 #define FNREC_MAX_EVENTS (1u << 20)
+/* Consecutive events (and the first event and t = 0) are at most this far apart: a timestamp far in
+ * the future would hold a real-time replay for that long. The recorder never writes a longer gap. */
+#define FNREC_MAX_GAP_US (3600LL * 1000000)
 
 typedef enum fnrec_dir {
     FNREC_IN = 0,     /* input report, device -> host */

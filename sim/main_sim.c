@@ -11,9 +11,11 @@
 #include <fcntl.h>
 #include <fuse_lowlevel.h>
 #include <inttypes.h>
+#include <limits.h>
 #include <linux/hidraw.h>
 #include <poll.h>
 #include <signal.h>
+#include <stdarg.h>
 #include <stddef.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -122,29 +124,33 @@ static void drop_pending(reader *r, int i)
 
 static void pump(void);
 
-/* A report reaches every open reader: a waiting read gets it at once, else it is queued; a full
- * queue drops the new report, as hidraw does. */
+/* A report reaches one reader: a waiting read gets it at once, else it is queued; a full queue
+ * drops the new report, as hidraw does. */
+static void deliver_to(reader *r, const uint8_t *b, size_t n)
+{
+    if (r->npending) {
+        fuse_req_t req = r->pending[0];
+        size_t size = r->pending_size[0];
+        drop_pending(r, 0);
+        reply_report(req, size, b, n);
+    } else if (r->count < QUEUE_LEN) {
+        int slot = (r->head + r->count++) % QUEUE_LEN;
+        memcpy(r->q[slot], b, n);
+        r->qlen[slot] = (uint8_t)n;
+    } else {
+        S.dropped++;
+    }
+    notify_poll(r);
+}
+
+/* A report reaches every open reader. */
 static void deliver(const uint8_t *b, size_t n)
 {
     S.served++;
     log_event(FNREC_IN, b, n);
-    for (reader *r = S.readers; r; r = r->next) {
-        if (r->dead)
-            continue;
-        if (r->npending) {
-            fuse_req_t req = r->pending[0];
-            size_t size = r->pending_size[0];
-            drop_pending(r, 0);
-            reply_report(req, size, b, n);
-        } else if (r->count < QUEUE_LEN) {
-            int slot = (r->head + r->count++) % QUEUE_LEN;
-            memcpy(r->q[slot], b, n);
-            r->qlen[slot] = (uint8_t)n;
-        } else {
-            S.dropped++;
-        }
-        notify_poll(r);
-    }
+    for (reader *r = S.readers; r; r = r->next)
+        if (!r->dead)
+            deliver_to(r, b, n);
 }
 
 static void kill_readers(void)
@@ -329,13 +335,29 @@ static void op_open(fuse_req_t req, fuse_ino_t ino, struct fuse_file_info *fi)
     fuse_reply_open(req, fi);
 }
 
+/* A wireless device's battery level for a reader that came after the power-on report went out
+ * (to no one, or to earlier readers): each program that opens the node learns the level, as each
+ * one that opens the in-process virtual device does (`devices`, then `device-test`). */
+static void battery_for_late_reader(reader *r)
+{
+    simdev now = S.dev;
+    uint8_t b[DEV_REPORT_MAX];
+    now.battery_pending = 1;
+    int n = simdev_next(&now, b, sizeof b);
+    if (n > 0 && b[0] == 0x17)
+        deliver_to(r, b, (size_t)n);
+}
+
 /* The first read or poll of a reader starts --start-on-read playback and lets --fast go on. */
 static void reader_active(reader *r)
 {
     if (r->active)
         return;
     r->active = 1;
+    int owed = S.dev.battery_pending;
     power_on_reports();
+    if (S.p->battery && S.plugged && S.started && !owed) /* else the source or the replug sends it */
+        battery_for_late_reader(r);
     if (S.start_on_read && !S.started)
         start_playback();
     else if (S.fast)
@@ -659,6 +681,42 @@ static int block_signals(void)
     return S.sig_fd < 0 || S.timer_fd < 0 ? -1 : 0;
 }
 
+/* mountinfo writes a space, tab, newline and backslash in a path as \ooo (octal). */
+static void unescape_octal(char *s)
+{
+    char *o = s;
+    for (; *s; s++, o++) {
+        if (s[0] == '\\' && s[1] >= '0' && s[1] <= '3' && s[2] >= '0' && s[2] <= '7' && s[3] >= '0' &&
+            s[3] <= '7') {
+            *o = (char)((s[1] - '0') * 64 + (s[2] - '0') * 8 + (s[3] - '0'));
+            s += 3;
+        } else {
+            *o = *s;
+        }
+    }
+    *o = '\0';
+}
+
+/* The file system type already mounted at dir ("fuse.hidraw" for another fracnav-sim), into type;
+ * 0 when dir is no mount point. */
+static int mounted_at(const char *dir, char *type, size_t cap)
+{
+    char want[PATH_MAX], line[2 * PATH_MAX], point[PATH_MAX], fstype[64];
+    FILE *f = realpath(dir, want) ? fopen("/proc/self/mountinfo", "r") : NULL;
+    int found = 0;
+    while (f && !found && fgets(line, sizeof line, f)) {
+        const char *sep = strstr(line, " - "); /* optional fields end here; the type follows */
+        if (sscanf(line, "%*s %*s %*s %*s %4095s", point) != 1 || !sep || sscanf(sep + 3, "%63s", fstype) != 1)
+            continue;
+        unescape_octal(point);
+        if ((found = !strcmp(point, want)))
+            snprintf(type, cap, "%s", fstype);
+    }
+    if (f)
+        fclose(f);
+    return found;
+}
+
 /* Says plainly why FUSE cannot be used, before libfuse says it less plainly. */
 static int check_fuse_access(const char *mount)
 {
@@ -670,6 +728,13 @@ static int check_fuse_access(const char *mount)
     }
     if (!S_ISDIR(st.st_mode)) {
         fprintf(stderr, "fracnav-sim serve: mount point %s is not a directory\n", mount);
+        return -1;
+    }
+    char type[64];
+    if (mounted_at(mount, type, sizeof type)) { /* mounting over it would hide what is served there */
+        fprintf(stderr, "fracnav-sim serve: %s is already a mount point (%s)%s: stop what serves it, or "
+                        "unmount it (fusermount3 -u %s), or serve at another folder\n", mount, type,
+                !strcmp(type, "fuse.hidraw") ? ", served by another fracnav-sim" : "", mount);
         return -1;
     }
     if (access("/dev/fuse", R_OK | W_OK)) {
@@ -733,36 +798,69 @@ static int serve(const char *mount, const char *control)
 
 /* ---- command line ---- */
 
-static void usage(FILE *f)
+/* "fracnav-sim SUB: MESSAGE (see fracnav-sim SUB --help)" on stderr, as fracnav's commands say it;
+ * returns 2, the usage exit. */
+static int FN_PRINTF(2, 3) sim_usage_error(const char *sub, const char *fmt, ...)
 {
-    fprintf(f,
-            "usage: fracnav-sim serve --mount DIR [--as DEVICE] [--play FILE.fnrec | --script FILE]\n"
-            "                         [--start-on-read] [--fast] [--exit-at-end] [--log FILE.fnrec]\n"
-            "                         [--control FIFO] [--serial SN]\n"
-            "       fracnav-sim render [--as DEVICE] --script FILE -o FILE.fnrec\n"
-            "       fracnav-sim list\n"
-            "       fracnav-sim bench [--mount DIR] [--seconds S]\n"
-            "\n"
-            "serve    serves the virtual device as DIR/" NODE_NAME " through FUSE until SIGINT/SIGTERM\n"
-            "         (then unmounts). SIGUSR1 unplugs it, the next SIGUSR1 plugs it back.\n"
-            "         --as DEVICE      device to impersonate, by name or VID:PID (default\n"
-            "                          spacenavigator; list shows every row of the table)\n"
-            "         --play FILE      play a recording (its identity replaces --as)\n"
-            "         --script FILE    play a motion script (see sim/script.h)\n"
-            "         --start-on-read  start playing when the node is first read or polled\n"
-            "         --fast           play as fast as the readers read (implies --start-on-read)\n"
-            "         --exit-at-end    unmount and exit once the playback is over and read\n"
-            "         --log FILE       write every report served to a .fnrec file\n"
-            "         --control FIFO   script lines written to this FIFO (made if absent) play in\n"
-            "                          turn, as soon as possible: echo 'press 1' > FIFO\n"
-            "         --serial SN      serial number served (HIDIOCGRAWUNIQ; 8-32 characters;\n"
-            "                          default FNSIM + VID + PID)\n"
-            "render   writes the reports a script produces on DEVICE to a .fnrec file\n"
-            "list     prints the devices the simulator can impersonate\n"
-            "bench    measures report throughput (as fast as possible) and timing jitter (at the\n"
-            "         8 ms cadence, S seconds, default 2) through FUSE and hidapi; prints one JSON\n"
-            "         object: command, path, throughput (reports, report_hz), cadence (device,\n"
-            "         period_us, reports, deviation_mean_us/p99_us/max_us, drift_us)\n");
+    va_list ap;
+    va_start(ap, fmt);
+    fprintf(stderr, "fracnav-sim %s: ", sub);
+    vfprintf(stderr, fmt, ap);
+    fprintf(stderr, " (see fracnav-sim %s --help)\n", sub);
+    va_end(ap);
+    return 2;
+}
+
+/* Each subcommand's help: its usage line and what it does. */
+static const struct sub_help {
+    const char *name, *synopsis, *text;
+} sub_help[] = {
+    {"serve",
+     "fracnav-sim serve --mount DIR [--as DEVICE] [--play FILE.fnrec | --script FILE]\n"
+     "                         [--start-on-read] [--fast] [--exit-at-end] [--log FILE.fnrec]\n"
+     "                         [--control FIFO] [--serial SN]\n",
+     "Serves the virtual device as DIR/" NODE_NAME " through FUSE until SIGINT/SIGTERM (then\n"
+     "unmounts). SIGUSR1 unplugs it, the next SIGUSR1 plugs it back. A DIR that is already a mount\n"
+     "point (another server's) is refused.\n"
+     "  --mount DIR      the folder to serve the node in (required)\n"
+     "  --as DEVICE      device to impersonate, by name or VID:PID (default spacenavigator;\n"
+     "                   fracnav-sim list shows every row of the table)\n"
+     "  --play FILE      play a recording (its identity replaces --as)\n"
+     "  --script FILE    play a motion script (see sim/FNREC.md)\n"
+     "  --start-on-read  start playing when the node is first read or polled\n"
+     "  --fast           play as fast as the readers read (implies --start-on-read); fracnav\n"
+     "                   record keeps the device's cadence in its timestamps all the same\n"
+     "  --exit-at-end    unmount and exit once the playback is over and read\n"
+     "  --log FILE       write every report served to a .fnrec file\n"
+     "  --control FIFO   script lines written to this FIFO (made if absent) play in turn, as\n"
+     "                   soon as possible: echo 'press 1' > FIFO\n"
+     "  --serial SN      serial number served (HIDIOCGRAWUNIQ; 8-32 characters; default\n"
+     "                   FNSIM + VID + PID)\n"},
+    {"render", "fracnav-sim render [--as DEVICE] --script FILE -o FILE.fnrec\n",
+     "Writes the reports a motion script produces on DEVICE (default spacenavigator) to a .fnrec\n"
+     "file.\n"},
+    {"list", "fracnav-sim list\n", "Prints the devices the simulator can impersonate.\n"},
+    {"bench", "fracnav-sim bench [--mount DIR] [--seconds S]\n",
+     "Measures report throughput (as fast as possible) and timing jitter (at the 8 ms cadence,\n"
+     "S seconds, 0.1 to 600, default 2) through FUSE and hidapi; prints one JSON object:\n"
+      "command, path, throughput (reports, report_hz), cadence (device, period_us, reports,\n"
+      "deviation_mean_us/p99_us/max_us, drift_us).\n"},
+};
+
+#define N_SUBS (sizeof sub_help / sizeof *sub_help)
+
+/* sub: one subcommand's help, NULL for all of them. */
+static void usage(FILE *f, const char *sub)
+{
+    for (size_t i = 0; i < N_SUBS; i++)
+        if (!sub || !strcmp(sub, sub_help[i].name))
+            fprintf(f, "%s%s", i && !sub ? "       " : "usage: ", sub_help[i].synopsis);
+    if (!sub)
+        fprintf(f, "       fracnav-sim --version\n\n"
+                   "The virtual 6-DOF controller of fracnav (fracnav-sim SUBCOMMAND --help for each).\n");
+    for (size_t i = 0; i < N_SUBS; i++)
+        if (!sub || !strcmp(sub, sub_help[i].name))
+            fprintf(f, "\n%s%s%s", sub ? "" : sub_help[i].name, sub ? "" : ":\n", sub_help[i].text);
 }
 
 static int list_devices(void)
@@ -829,33 +927,26 @@ static int parse_opts(int argc, char **argv, opts *o)
         for (size_t k = 0; k < sizeof option_defs / sizeof *option_defs && !d; k++)
             d = !strcmp(a, option_defs[k].name) ? &option_defs[k] : NULL;
         if (!d) {
-            fprintf(stderr, "fracnav-sim %s: unknown option '%s'\n", argv[1], a);
-            return -1;
+            return sim_usage_error(argv[1], "unknown option '%s'", a);
         }
         if (!(d->cmds & cmd)) {
-            fprintf(stderr, "fracnav-sim %s: option '%s' does not apply to %s (--help)\n", argv[1], a,
-                    argv[1]);
-            return -1;
+            return sim_usage_error(argv[1], "option '%s' does not apply to %s", a, argv[1]);
         }
         if (d->flag) {
             *d->flag = 1;
             continue;
         }
         if (i + 1 >= argc) {
-            fprintf(stderr, "fracnav-sim %s: %s needs a value\n", argv[1], a);
-            return -1;
+            return sim_usage_error(argv[1], "%s needs a value", a);
         }
         *(const char **)((char *)o + d->field) = argv[++i];
     }
     S.start_on_read |= S.fast;
     if (o->serial && !serial_ok(o->serial)) {
-        fprintf(stderr, "fracnav-sim %s: --serial '%s': want 8 to 32 letters, digits, '-' or '_'\n",
-                argv[1], o->serial);
-        return -1;
+        return sim_usage_error(argv[1], "--serial '%s': want 8 to 32 letters, digits, '-' or '_'", o->serial);
     }
     if (o->play && o->script) {
-        fprintf(stderr, "fracnav-sim %s: --play and --script exclude each other\n", argv[1]);
-        return -1;
+        return sim_usage_error(argv[1], "--play and --script exclude each other");
     }
     return 0;
 }
@@ -897,38 +988,41 @@ static int setup(const opts *o)
 
 int main(int argc, char **argv)
 {
-    if (argc < 2 || !strcmp(argv[1], "-h") || !strcmp(argv[1], "--help")) {
-        usage(argc < 2 ? stderr : stdout);
+    if (argc < 2 || !strcmp(argv[1], "-h") || !strcmp(argv[1], "--help") || !strcmp(argv[1], "help")) {
+        usage(argc < 2 ? stderr : stdout, NULL);
         return argc < 2 ? 2 : 0;
     }
+    if (!strcmp(argv[1], "--version")) {
+        printf("fracnav-sim %s\n", FRACNAV_VERSION);
+        return 0;
+    }
     const char *cmd = argv[1];
+    if (strcmp(cmd, "serve") && strcmp(cmd, "render") && strcmp(cmd, "bench") && strcmp(cmd, "list")) {
+        fprintf(stderr, "fracnav-sim: unknown command '%s': serve, render, list or bench (see fracnav-sim "
+                        "--help)\n", cmd);
+        return 2;
+    }
     for (int i = 2; i < argc; i++)
         if (!strcmp(argv[i], "-h") || !strcmp(argv[i], "--help")) {
-            usage(stdout);
+            usage(stdout, cmd);
             return 0;
         }
     if (!strcmp(cmd, "list"))
-        return list_devices();
+        return argc > 2 ? sim_usage_error(cmd, "unexpected argument '%s'", argv[2]) : list_devices();
     opts o = {0};
     S.sig_fd = S.timer_fd = S.ctl_fd = S.ctl_keep = -1;
-    if (strcmp(cmd, "serve") && strcmp(cmd, "render") && strcmp(cmd, "bench")) {
-        fprintf(stderr, "fracnav-sim: unknown command '%s' (serve, render, list, bench; --help)\n", cmd);
-        return 2;
-    }
     if (parse_opts(argc, argv, &o))
-        return 2;
+        return 2; /* said by parse_opts */
     if (!strcmp(cmd, "bench")) {
-        double secs = o.seconds ? atof(o.seconds) : 2.0;
-        if (!(secs >= 0.1 && secs <= 600)) {
-            fprintf(stderr, "fracnav-sim bench: --seconds wants 0.1 to 600\n");
-            return 2;
-        }
+        char *end = NULL;
+        double secs = o.seconds ? strtod(o.seconds, &end) : 2.0;
+        if ((end && (*end || end == o.seconds)) || !(secs >= 0.1 && secs <= 600))
+            return sim_usage_error(cmd, "--seconds wants a number from 0.1 to 600, got '%s'", o.seconds);
         return bench_sim_run(o.mount, secs);
     }
     if (!strcmp(cmd, "render") ? !o.script || !o.out : !o.mount) {
-        fprintf(stderr, "fracnav-sim %s: %s is required\n", cmd,
-                !strcmp(cmd, "render") ? "--script FILE and -o FILE" : "--mount DIR");
-        return 2;
+        return sim_usage_error(cmd, "%s is required", !strcmp(cmd, "render") ? "--script FILE and -o FILE"
+                                                                            : "--mount DIR");
     }
     int rc = 1;
     if (setup(&o))

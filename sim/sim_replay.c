@@ -1,5 +1,6 @@
 #include "sim_replay.h"
 
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
@@ -221,6 +222,25 @@ static void close_handle(dev_handle *h)
     free(h);
 }
 
+/* A recording plays as the device it was recorded from (its identity and descriptor), whatever
+ * DEVICE says: a DEVICE that differs is ignored with a warning, as fracnav-sim serve --as is. */
+static fnrec *played(const char *file, const char *named, const sim_profile **prof)
+{
+    fnrec *r = fnrec_load(file);
+    if (!r)
+        return NULL;
+    char id[16];
+    snprintf(id, sizeof id, "%04x:%04x", r->hdr.vid, r->hdr.pid);
+    const sim_profile *p = sim_profile_find(id);
+    fn_err_clear();
+    if (named[0] && p != *prof)
+        fprintf(stderr, "warning: virtual:%s:play=%s: %s ignored: the recording plays as the device it was "
+                        "recorded from, %s (%s)\n", named, file, named, id, r->hdr.name);
+    if (p)
+        *prof = p;
+    return r;
+}
+
 /* "DEVICE[:script=FILE|:play=FILE]" -> the recording the virtual device plays. */
 static fnrec *virtual_source(const char *path, const sim_profile **prof)
 {
@@ -241,7 +261,7 @@ static fnrec *virtual_source(const char *path, const sim_profile **prof)
     if (!(*prof = sim_profile_find(dev[0] ? dev : "spacenavigator")))
         return NULL;
     if (colon && !strncmp(colon, ":play=", 6))
-        return fnrec_load(colon + 6);
+        return played(colon + 6, dev, prof);
     script *s = NULL;
     if (colon && strncmp(colon, ":script=", 8)) {
         fn_err_set(FN_EINVAL, "virtual device '%s': expected DEVICE, DEVICE:script=FILE or "

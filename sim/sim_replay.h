@@ -10,7 +10,8 @@
  *
  * virtual: the simulated device in process, for machines without FUSE. path = "DEVICE" or
  * "DEVICE:script=FILE" or "DEVICE:play=FILE.fnrec" (DEVICE as in simdev.h, e.g. spacenavigator).
- * Reports come at the device's cadence in real time; unplug reads return FN_ENODEV until replug;
+ * A recording (play=) plays as the device it was recorded from: a DEVICE that differs is ignored
+ * with a warning on stderr. Reports come at the device's cadence in real time; unplug reads return FN_ENODEV until replug;
  * LED output and feature reports go to the same generator the FUSE server uses.
  *
  * Handles are not thread-safe; use one from one thread. */

@@ -25,14 +25,18 @@ static void usage(FILE *out)
 {
     fprintf(out, "usage: fracnav device-test [--device SPEC] [--seconds S] [--config SPNAVRC]\n"
                  "                           [--calibrate-zero]\n\n"
-                 "Shows a controller's six axes (normalized, then calibrated), buttons, battery and\n"
-                 "report rate, live, until Ctrl-C or S seconds. SPEC: auto (default), a hidraw path\n"
-                 "such as /dev/hidraw0, serial:SN, spnav, keyboard, replay:FILE, ...\n"
-                 "Calibration comes from ~/.config/fracnav/spnavrc, else /etc/spnavrc, or --config.\n\n"
+                 "Shows a controller's six axes (normalized, then calibrated), buttons by name, battery\n"
+                 "and report rate, live, until Ctrl-C or S seconds.\n\n"
+                 "  --device SPEC     auto (default), a hidraw path such as /dev/hidraw0, serial:SN,\n"
+                 "                    spnav, keyboard, replay:FILE, virtual:DEVICE, ...\n"
+                 "  --seconds S       stop after S seconds (with --calibrate-zero: measure S seconds)\n"
+                 "  --config SPNAVRC  the calibration to show (and save to); default\n"
+                 "                    ~/.config/fracnav/spnavrc, else /etc/spnavrc\n"
                  "  --calibrate-zero  with the cap released, measure the rest position for S seconds\n"
                  "                    (default 1) and save it as the zero offset (against drift) to\n"
-                 "                    --config, or ~/.config/fracnav/spnavrc; an open controller\n"
-                 "                    stores it itself (feature report 0x21) and the file gets 0\n");
+                 "                    --config, or ~/.config/fracnav/spnavrc, keeping the file's other\n"
+                 "                    lines and comments; an open controller stores it itself (feature\n"
+                 "                    report 0x21) and the file gets 0\n");
 }
 
 static void count_report(void *ctx, const uint8_t *report, size_t len, int64_t t_us)
@@ -40,17 +44,47 @@ static void count_report(void *ctx, const uint8_t *report, size_t len, int64_t t
     ++*(long *)ctx;
 }
 
-static void show(FILE *out, const dev_event *ev, const float cal[6], int battery, double rate, int tty)
+/* The names of the buttons set in mask ("ENTER,FIT", "B1,B2"), "-" for none. */
+static void button_names(FILE *out, const devtab_row *row, uint32_t mask)
+{
+    char buf[16];
+    int any = 0;
+    for (int b = 0; b < 32; b++)
+        if (mask >> b & 1)
+            fprintf(out, "%s%s", any++ ? "," : "", devtab_button_name(row, b, buf, sizeof buf));
+    if (!any)
+        fputc('-', out);
+}
+
+static void show(FILE *out, const devtab_row *row, const dev_event *ev, const float cal[6], int battery,
+                 double rate, int tty)
 {
     static const char *const names[6] = {"x", "y", "z", "rx", "ry", "rz"};
     fprintf(out, "%s", tty ? "\r" : "");
     for (int i = 0; i < 6; i++)
         fprintf(out, "%s %+5.2f>%+5.2f ", names[i], ev->axis[i], cal[i]);
-    fprintf(out, "| buttons %08x", ev->buttons);
-    if (ev->pressed || ev->released)
-        fprintf(out, " (+%x -%x)", ev->pressed, ev->released);
-    for (int i = 0; i < 6 && ev->keys[i]; i++)
-        fprintf(out, "%s%u", i ? "," : " keys ", ev->keys[i]);
+    fprintf(out, "| buttons ");
+    button_names(out, row, ev->buttons);
+    if (ev->pressed) {
+        fprintf(out, " (pressed ");
+        button_names(out, row, ev->pressed);
+        fputc(')', out);
+    }
+    if (ev->released) {
+        fprintf(out, " (released ");
+        button_names(out, row, ev->released);
+        fputc(')', out);
+    }
+    for (int i = 0, shown = 0; i < 6 && ev->keys[i]; i++) { /* key codes that are no button */
+        if (devtab_key_button(ev->keys[i]) >= 0)
+            continue;
+        const char *name = devtab_key_name(ev->keys[i]);
+        fprintf(out, "%s", shown++ ? "," : " | keys ");
+        if (name)
+            fputs(name, out);
+        else
+            fprintf(out, "code %u", ev->keys[i]);
+    }
     if (battery >= 0)
         fprintf(out, " | battery %d%%", battery);
     if (rate < 0) /* the first second: not measured yet */
@@ -94,9 +128,7 @@ static int parse_args(int argc, char **argv, opts *o)
             if (!cmd_number(v, &o->seconds) || !(o->seconds > 0) || o->seconds > 1e6)
                 return cmd_usage_error("device-test", "--seconds wants a positive number, got '%s'", v);
         } else {
-            fprintf(stderr, "fracnav device-test: unknown or incomplete option '%s'\n", a);
-            usage(stderr);
-            return 2;
+            return cmd_usage_error("device-test", "unknown or incomplete option '%s'", a);
         }
     }
     return 0;
@@ -199,7 +231,7 @@ static int live_view(dev_device *d, calib *c, double seconds)
         calib_buttons(c, &ev, NULL, NULL);
         calib_apply(c, ev.axis, cal);
         if (tty || now - last_line >= 1000000 / LINES_PER_S || (ev.flags & DEV_EV_BUTTON)) {
-            show(stdout, &ev, cal, dev_battery(d), rate, tty);
+            show(stdout, dev_row(d), &ev, cal, dev_battery(d), rate, tty);
             last_line = now;
         }
     }

@@ -29,7 +29,8 @@ static void usage(FILE *out)
                  "Lists the connected 6-DOF controllers (path, USB id, name, report format, buttons,\n"
                  "battery) and the transports available. Enumeration sees real USB/Bluetooth devices;\n"
                  "--device adds one it cannot see (a hidraw path, spnav, keyboard, replay:FILE, ...).\n"
-                 "A device that cannot be opened is listed with the udev rule to install.\n\n"
+                 "A device that cannot be opened is listed with the reason: for a /dev node, the udev\n"
+                 "rule to install; for a node elsewhere (a FUSE mount), the permission problem.\n\n"
                  "  --json          one JSON object: command, devices (path, usb_id, transport, name,\n"
                  "                  format, buttons, battery_pct, serial, error), transports\n"
                  "  --device SPEC   also probe this device (repeatable, up to 8 times)\n\n"
@@ -190,9 +191,7 @@ int cmd_devices(int argc, char **argv)
                                        EXTRA_MAX + 1, argv[i + 1]);
             extra[n_extra++] = argv[++i];
         } else {
-            fprintf(stderr, "fracnav devices: unknown or incomplete option '%s'\n", argv[i]);
-            usage(stderr);
-            return 2;
+            return cmd_usage_error("devices", "unknown or incomplete option '%s'", argv[i]);
         }
     }
     found *list = calloc(LIST_MAX, sizeof *list);

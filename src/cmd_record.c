@@ -6,15 +6,19 @@
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
+#include <unistd.h>
 
 #include "dev.h"
+#include "devparse.h"
 #include "devtab.h"
 #include "err.h"
 #include "fnrec.h"
 #include "sim_replay.h"
+#include "simdev.h"
 
 #define SLICE_MS 50    /* read timeout: how quickly SIGINT and --seconds are noticed */
 #define RETRY_US 100000 /* how often a lost device is looked for again */
+#define PROGRESS_US 200000 /* how often the progress line is redrawn on a terminal */
 
 static volatile sig_atomic_t stop;
 
@@ -25,14 +29,23 @@ static void on_signal(int sig)
 
 static void usage(FILE *f)
 {
-    fprintf(f, "usage: fracnav record -o FILE.fnrec [--device SPEC] [--seconds S]\n"
+    fprintf(f, "usage: fracnav record -o FILE.fnrec [--device SPEC] [--seconds S] [--wait-replug]\n"
                "\n"
-               "Records every raw report of a 6-DOF controller, with its arrival time, until Ctrl-C\n"
-               "or S seconds. Each line is flushed as it is written. A device that goes away is\n"
-               "recorded as a disconnect and picked up again when it returns.\n"
-               "  SPEC  a hidraw node (/dev/hidraw3, or one served by fracnav-sim), or TRANSPORT:ARG\n"
-               "        (hidraw:PATH, virtual:spacenavigator:script=FILE, replay:FILE.fnrec, ...);\n"
-               "        default: the first supported HID device.\n");
+               "Records every raw report of a 6-DOF controller, with its arrival time, into FILE.fnrec\n"
+               "(sim/FNREC.md). Each line is flushed as it is written. It stops after S seconds, on\n"
+               "Ctrl-C (keeping what was recorded), at the end of a script or recording, and when the\n"
+               "device goes away (recorded as a disconnect). On a terminal it shows its progress.\n"
+               "\n"
+               "  -o FILE.fnrec   the recording to write (required)\n"
+               "  --device SPEC   a hidraw node (/dev/hidraw3, or one served by fracnav-sim), or\n"
+               "                  TRANSPORT:ARG (hidraw:PATH, virtual:spacenavigator:script=FILE,\n"
+               "                  replay:FILE.fnrec, ...); default: the first supported HID device\n"
+               "  --seconds S     stop after S seconds (default: no limit)\n"
+               "  --wait-replug   when the device goes away, wait for it to return and record on\n"
+               "                  (until S seconds or Ctrl-C) instead of stopping\n"
+               "\n"
+               "Timestamps keep the device's report cadence: reports that arrive faster than the\n"
+               "device can send them (a slow reader's backlog, fracnav-sim --fast) are spaced at it.\n");
 }
 
 typedef struct recorder {
@@ -43,6 +56,12 @@ typedef struct recorder {
     int64_t base_us; /* monotonic time of t = 0 (0 for replays, whose times are recorded ones) */
     int64_t end_us;  /* deadline, 0 = none */
     int64_t last_t;
+    int64_t written_us;  /* recording time of the last event written */
+    int64_t cadence_us;  /* the device's report period: reports are never closer (0 = unknown) */
+    int64_t last_report; /* recording time of the last input report */
+    int wait_replug, tty, squeezed;
+    int64_t start_us, next_progress;
+    const char *out;
     unsigned long reports;
 } recorder;
 
@@ -78,14 +97,66 @@ static void header_of(recorder *r, fnrec_header *hd)
     hd->desc_len = info.desc_len;
 }
 
+/* Writes one event at monotonic time t_us. Recording time never goes back, and a pause longer
+ * than the format allows (FNREC_MAX_GAP_US: a long wait for a replug) is shortened to it. */
 static int put(recorder *r, fnrec_dir dir, int64_t t_us, const uint8_t *b, int n)
 {
     fnrec_event e = {.t_us = t_us - r->base_us, .dir = dir, .len = (uint8_t)n};
-    if (e.t_us < 0)
-        e.t_us = 0;
+    if (e.t_us < r->written_us)
+        e.t_us = r->written_us;
+    if (e.t_us - r->written_us > FNREC_MAX_GAP_US) {
+        r->base_us += e.t_us - r->written_us - FNREC_MAX_GAP_US;
+        e.t_us = r->written_us + FNREC_MAX_GAP_US;
+    }
     if (n)
         memcpy(e.data, b, (size_t)n);
+    r->written_us = e.t_us;
     return fnrec_writer_event(r->w, &e);
+}
+
+/* An input report arriving at t_us. A device sends at most one report per period of its cadence
+ * (the USB polling interval), so reports that arrive closer together (a backlog drained at once,
+ * or fracnav-sim --fast, which sends as fast as they are read) are put at the cadence: the
+ * recording replays at the device's own pace. */
+static int put_report(recorder *r, int64_t t_us, const uint8_t *b, int n)
+{
+    int64_t t = t_us - r->base_us;
+    if (r->cadence_us && r->reports > 1 && t < r->last_report + r->cadence_us) {
+        /* jitter of a few ms is normal; half a period early is not */
+        if (t < r->last_report + r->cadence_us / 2 && !r->squeezed++)
+            fprintf(stderr, "%sfracnav record: reports arrive faster than the device's %.0f ms cadence "
+                            "(a backlog, or fracnav-sim --fast): their times follow the cadence\n",
+                    r->tty ? "\n" : "", (double)r->cadence_us / 1000);
+        t = r->last_report + r->cadence_us;
+    }
+    r->last_report = t;
+    return put(r, FNREC_IN, t + r->base_us, b, n);
+}
+
+/* The device's report period: the open controller says it (feature report 0x22, cadence_ms), the
+ * others have the period of their table row (the simulator's profile). 0 when unknown. */
+static int64_t cadence_of(recorder *r, const fnrec_header *hd)
+{
+    uint8_t buf[DEV_REPORT_MAX] = {DEVPARSE_FEAT_SETTINGS};
+    const devtab_row *row = devtab_find(hd->vid, hd->pid);
+    if (row && (row->flags & DEVTAB_F_OPEN) && r->t->get_feature && r->t->get_feature(r->h, buf, sizeof buf) >= 2 &&
+        buf[0] == DEVPARSE_FEAT_SETTINGS && buf[1])
+        return (int64_t)buf[1] * 1000;
+    char id[16];
+    snprintf(id, sizeof id, "%04x:%04x", hd->vid, hd->pid);
+    const sim_profile *p = row ? sim_profile_find(id) : NULL;
+    fn_err_clear();
+    return p ? p->period_us : 0;
+}
+
+static void progress(recorder *r, int last)
+{
+    int64_t now = dev_now_us();
+    if (!r->tty || (!last && now < r->next_progress))
+        return;
+    r->next_progress = now + PROGRESS_US;
+    fprintf(stderr, "\rrecording %s: %lu reports, %.1f s%s", r->out, r->reports,
+            (double)(now - r->start_us) / 1e6, last ? "\n" : "   ");
 }
 
 static int time_left(const recorder *r)
@@ -108,10 +179,29 @@ static int reconnect(recorder *r)
     return 0;
 }
 
+/* The device went away: a replay goes on after a recorded unplug until its end; any other device
+ * stops the recording, unless --wait-replug asks to wait for it. 1 = stop. */
+static int unplugged(recorder *r, int *rc)
+{
+    fprintf(stderr, "%sfracnav record: device disconnected (%s)%s\n", r->tty ? "\n" : "", fn_err_msg(),
+            r->wait_replug || is_replay(r) ? "" : ": recording stopped (--wait-replug waits for it)");
+    if (is_replay(r)) {
+        if (sim_replay_finished(r->h))
+            return 1;
+        *rc = put(r, FNREC_DISCONNECT, r->last_t, NULL, 0);
+        return *rc != 0;
+    }
+    r->t->close(r->h);
+    r->h = NULL;
+    *rc = put(r, FNREC_DISCONNECT, dev_now_us(), NULL, 0);
+    return *rc != 0 || !r->wait_replug;
+}
+
 static int record_loop(recorder *r)
 {
     uint8_t buf[DEV_REPORT_MAX];
     while (time_left(r)) {
+        progress(r, 0);
         if (!r->h) {
             int rc = reconnect(r);
             if (rc || !r->h)
@@ -122,23 +212,15 @@ static int record_loop(recorder *r)
         if (n > 0) {
             r->reports++;
             r->last_t = t;
-            int rc = put(r, FNREC_IN, t, buf, n);
+            int rc = is_replay(r) ? put(r, FNREC_IN, t, buf, n) : put_report(r, t, buf, n);
             if (rc)
                 return rc;
+        } else if (n == 0 && r->t == &sim_virtual_transport && sim_replay_finished(r->h)) {
+            fprintf(stderr, "%sfracnav record: end of the virtual device's script\n", r->tty ? "\n" : "");
+            return 0;
         } else if (n == FN_ENODEV) {
-            fprintf(stderr, "fracnav record: device disconnected (%s)\n", fn_err_msg());
-            if (is_replay(r)) { /* a replay goes on after a recorded unplug, until its end */
-                if (sim_replay_finished(r->h))
-                    return 0;
-                int rc = put(r, FNREC_DISCONNECT, r->last_t, NULL, 0);
-                if (rc)
-                    return rc;
-                continue;
-            }
-            r->t->close(r->h);
-            r->h = NULL;
-            int rc = put(r, FNREC_DISCONNECT, dev_now_us(), NULL, 0);
-            if (rc)
+            int rc = 0;
+            if (unplugged(r, &rc))
                 return rc;
         } else if (n < 0) {
             return n;
@@ -147,36 +229,29 @@ static int record_loop(recorder *r)
     return 0;
 }
 
-static int parse_args(int argc, char **argv, const char **out, const char **device, double *seconds)
+static int parse_args(int argc, char **argv, recorder *r, const char **device, double *seconds)
 {
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
-        if (strcmp(a, "-o") && strcmp(a, "--device") && strcmp(a, "--seconds")) {
-            fprintf(stderr, "fracnav record: unknown option '%s' (see --help)\n", a);
-            return 2;
+        if (!strcmp(a, "--wait-replug")) {
+            r->wait_replug = 1;
+            continue;
         }
-        if (!v) {
-            fprintf(stderr, "fracnav record: %s needs a value\n", a);
-            return 2;
-        }
+        if (strcmp(a, "-o") && strcmp(a, "--device") && strcmp(a, "--seconds"))
+            return cmd_usage_error("record", "unknown option '%s'", a);
+        if (!v)
+            return cmd_usage_error("record", "%s needs a value", a);
         i++;
         if (!strcmp(a, "-o")) {
-            *out = v;
+            r->out = v;
         } else if (!strcmp(a, "--device")) {
             *device = v;
-        } else {
-            char *end;
-            *seconds = strtod(v, &end);
-            if (*end || end == v || !(*seconds > 0 && *seconds < 1e7)) {
-                fprintf(stderr, "fracnav record: --seconds wants a positive number, got '%s'\n", v);
-                return 2;
-            }
+        } else if (!cmd_number(v, seconds) || !(*seconds > 0 && *seconds < 1e7)) {
+            return cmd_usage_error("record", "--seconds wants a positive number, got '%s'", v);
         }
     }
-    if (!*out) {
-        fprintf(stderr, "fracnav record: -o FILE.fnrec is required (see --help)\n");
-        return 2;
-    }
+    if (!r->out)
+        return cmd_usage_error("record", "-o FILE.fnrec is required");
     return 0;
 }
 
@@ -186,21 +261,24 @@ int cmd_record(int argc, char **argv)
         usage(stdout);
         return 0;
     }
-    const char *out = NULL, *device = NULL;
+    const char *device = NULL;
     double seconds = 0;
-    int rc = parse_args(argc, argv, &out, &device, &seconds);
+    recorder r = {0};
+    int rc = parse_args(argc, argv, &r, &device, &seconds);
     if (rc)
         return rc;
-    recorder r = {0};
     if (resolve(device, &r) || r.t->open(r.arg, &r.h)) {
         fprintf(stderr, "fracnav record: %s\n", fn_err_msg());
         return 1;
     }
-    r.base_us = is_replay(&r) ? 0 : dev_now_us();
+    r.start_us = dev_now_us();
+    r.base_us = is_replay(&r) ? 0 : r.start_us;
     r.end_us = seconds > 0 ? dev_now_us() + (int64_t)(seconds * 1e6) : 0;
+    r.tty = isatty(STDERR_FILENO);
     fnrec_header hd;
     header_of(&r, &hd);
-    if (!(r.w = fnrec_writer_open(out, &hd)) || put(&r, FNREC_CONNECT, r.base_us, NULL, 0)) {
+    r.cadence_us = is_replay(&r) ? 0 : cadence_of(&r, &hd);
+    if (!(r.w = fnrec_writer_open(r.out, &hd)) || put(&r, FNREC_CONNECT, r.base_us, NULL, 0)) {
         fprintf(stderr, "fracnav record: %s\n", fn_err_msg());
         r.t->close(r.h);
         fnrec_writer_close(r.w);
@@ -210,6 +288,7 @@ int cmd_record(int argc, char **argv)
     sigaction(SIGINT, &sa, NULL);
     sigaction(SIGTERM, &sa, NULL);
     rc = record_loop(&r);
+    progress(&r, 1);
     if (rc)
         fprintf(stderr, "fracnav record: %s\n", fn_err_msg());
     if (r.h)
@@ -218,6 +297,7 @@ int cmd_record(int argc, char **argv)
         fprintf(stderr, "fracnav record: %s\n", fn_err_msg());
         rc = FN_EIO;
     }
-    fprintf(stderr, "fracnav record: %lu reports written to %s\n", r.reports, out);
+    fprintf(stderr, "fracnav record: %lu reports written to %s%s\n", r.reports, r.out,
+            stop == SIGINT ? " (stopped by Ctrl-C)" : "");
     return rc ? 1 : 0;
 }

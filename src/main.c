@@ -22,7 +22,8 @@ static const struct command commands[] = {CMD_LIST(CMD_ROW)};
 
 static void usage(FILE *out)
 {
-    fprintf(out, "usage: fracnav COMMAND [ARGS]   (fracnav COMMAND --help for each)\n\n"
+    fprintf(out, "usage: fracnav COMMAND [ARGS]   (fracnav COMMAND --help for each)\n"
+                 "       fracnav --version        prints the version\n\n"
                  "Plan bone-fracture reductions: segment a CT into fragments, steer them with a\n"
                  "6-DOF controller under collision checking, and save the plan.\n\ncommands:\n");
     for (size_t i = 0; i < sizeof commands / sizeof commands[0]; i++) {
@@ -152,7 +153,6 @@ int main(int argc, char **argv)
     for (size_t i = 0; i < sizeof commands / sizeof commands[0]; i++)
         if (!strcmp(want, commands[i].name))
             return commands[i].run(argc - 1, argv + 1);
-    fprintf(stderr, "fracnav: unknown command '%s'\n\n", argv[1]);
-    usage(stderr);
+    fprintf(stderr, "fracnav: unknown command '%s' (see fracnav --help)\n", argv[1]);
     return 2;
 }

@@ -9,6 +9,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include "testutil.h"
@@ -114,7 +115,7 @@ static void test_device_test_keyboard(void **s)
     assert_non_null(strstr(out, "| - reports/s")); /* the rate is not measured in the first second */
     assert_null(strstr(out, "| 0 reports/s"));
     assert_null(strstr(out, "0000:0000"));
-    assert_non_null(strstr(out, "buttons 00000008"));
+    assert_non_null(strstr(out, "buttons B4"));
     assert_non_null(strstr(out, "1 bad line(s) skipped"));
     assert_non_null(strstr(out, "spnavrc:3:"));
     free(out);
@@ -170,6 +171,137 @@ static void test_calibrate_zero_open_controller(void **s)
     free(dir);
 }
 
+/* --calibrate-zero --config F keeps every line of F it does not change (comments, blank lines,
+ * spacenavd's own keys, lines it does not know), as spacenavd's config writer does. */
+static void test_calibrate_zero_keeps_user_lines(void **s)
+{
+    char *dir = tu_tmpdir("devzero"), keys[4200], rc[4200], *out;
+    snprintf(keys, sizeof keys, "%s/keys", dir);
+    tu_write_file(keys, "d", 1);
+    snprintf(rc, sizeof rc, "%s/spnavrc", dir);
+    const char *mine = "# my SpaceMouse, tuned for the OR\n"
+                       "sensitivity = 1.5   # a bit faster\n"
+                       "\n"
+                       "grab = false\n"
+                       "nonsense here\n"
+                       "frobnicate = 7\n"
+                       "zero-offset0 = 0.5 # measured last week\n";
+    tu_write_file(rc, mine, strlen(mine));
+    assert_int_equal(tu_run_cli(&out, "device-test --device keyboard:%s --calibrate-zero --config %s", keys, rc), 0);
+    free(out);
+    char *text = tu_slurp(rc, NULL);
+    assert_non_null(text);
+    assert_non_null(strstr(text, "# my SpaceMouse, tuned for the OR\nsensitivity = 1.5   # a bit faster\n\n"
+                                 "grab = false\nnonsense here\nfrobnicate = 7\nzero-offset0 = "));
+    assert_non_null(strstr(text, " # measured last week\n"));
+    assert_null(strstr(text, "zero-offset0 = 0.5"));
+    const char *z = strstr(text, "zero-offset0 = ");
+    double v = atof(z + 15);
+    assert_true(v > 0.05 && v < 0.3);
+    assert_non_null(strstr(text, "zero-offset1 = 0\n")); /* keys the file lacked are appended */
+    assert_null(strstr(strstr(text, "\nsensitivity = ") + 1, "\nsensitivity = ")); /* set once, not twice */
+    free(text);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* device-test names buttons: the Enterprise's keys by their labels from the device table, other
+ * devices' buttons as B1, B2, ...; never as a hex mask or a raw key code. */
+static void test_device_test_button_names(void **s)
+{
+    char *dir = tu_tmpdir("devnames"), scr[4200], *out;
+    snprintf(scr, sizeof scr, "%s/keys.script", dir);
+    const char *keys = "press 1 13 4\nwait 60 ms\nrelease 13\nwait 60 ms\nrelease\nwait 60 ms\n";
+    tu_write_file(scr, keys, strlen(keys)); /* codes 1 MENU, 13 "1", 36 ENTER (button 4) */
+    assert_int_equal(tu_run_cli(&out, "device-test --device virtual:spacemouse-enterprise:script=%s --seconds 0.6",
+                                scr), 0);
+    if (!strstr(out, "buttons MENU,ENTER,1 (pressed MENU,ENTER,1)") || !strstr(out, "(released 1)") ||
+        !strstr(out, "(released MENU,ENTER)") || strstr(out, "00000"))
+        fail_msg("Enterprise keys not named: %s", out);
+    free(out);
+    const char *two = "press 2\nwait 60 ms\nrelease\nwait 60 ms\n";
+    tu_write_file(scr, two, strlen(two));
+    assert_int_equal(tu_run_cli(&out, "device-test --device virtual:spacenavigator:script=%s --seconds 0.4", scr), 0);
+    if (!strstr(out, "buttons B2 (pressed B2)") || !strstr(out, "buttons - (released B2)"))
+        fail_msg("SpaceNavigator buttons not named: %s", out);
+    free(out);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* Output and exit status of `fracnav-sim ARGS` (beside fracnav in the build); -1 when not built. */
+static int sim_cli(char **out, const char *args)
+{
+    const char *bin = getenv("FRACNAV_BIN");
+    char dir[4096], cmd[8300];
+    snprintf(dir, sizeof dir, "%s", bin ? bin : "./fracnav");
+    char *slash = strrchr(dir, '/');
+    snprintf(slash ? slash + 1 : dir, sizeof dir - (size_t)(slash ? slash + 1 - dir : 0), "sim/fracnav-sim");
+    if (access(dir, X_OK))
+        return -1;
+    snprintf(cmd, sizeof cmd, "'%s' %s 2>&1", dir, args);
+    FILE *f = popen(cmd, "r");
+    size_t n = 0, cap = 16384;
+    *out = calloc(1, cap);
+    n = fread(*out, 1, cap - 1, f);
+    (*out)[n] = '\0';
+    return WEXITSTATUS(pclose(f));
+}
+
+/* out: read after the call that fills it has run (an argument's order of evaluation is not). */
+static void expect_hint(int rc, char **out, const char *hint)
+{
+    if (rc != 2 || !strstr(*out, hint))
+        fail_msg("exit %d, want 2 and '%s': %s", rc, hint, *out);
+    free(*out);
+}
+
+/* --help and --version say what the commands take; every usage error ends with the same hint. */
+static void test_help_version_and_hints(void **s)
+{
+    char *out;
+    assert_int_equal(tu_run_cli(&out, "--help"), 0);
+    assert_non_null(strstr(out, "fracnav --version"));
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "--version"), 0);
+    assert_true(!strncmp(out, "fracnav ", 8));
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "record --help"), 0);
+    assert_true(strstr(out, "  -o FILE.fnrec ") && strstr(out, "  --device SPEC ") && strstr(out, "  --seconds S ") &&
+                strstr(out, "  --wait-replug "));
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "device-test --help"), 0);
+    assert_true(strstr(out, "  --device SPEC ") && strstr(out, "  --seconds S ") && strstr(out, "  --config SPNAVRC ") &&
+                strstr(out, "  --calibrate-zero "));
+    free(out);
+    expect_hint(tu_run_cli(&out, "record --bogus"), &out, "(see fracnav record --help)");
+    expect_hint(tu_run_cli(&out, "record"), &out, "(see fracnav record --help)");
+    expect_hint(tu_run_cli(&out, "devices --bogus"), &out, "(see fracnav devices --help)");
+    expect_hint(tu_run_cli(&out, "device-test --bogus"), &out, "(see fracnav device-test --help)");
+    expect_hint(tu_run_cli(&out, "bogus"), &out, "(see fracnav --help)");
+    int rc = sim_cli(&out, "--version");
+    if (rc < 0) {
+        print_message("fracnav-sim not built (no FUSE): its half skipped\n");
+        return;
+    }
+    assert_int_equal(rc, 0);
+    assert_true(!strncmp(out, "fracnav-sim ", 12));
+    free(out);
+    assert_int_equal(sim_cli(&out, "serve --help"), 0);
+    assert_true(strstr(out, "usage: fracnav-sim serve") && strstr(out, "--exit-at-end") && !strstr(out, "render"));
+    free(out);
+    assert_int_equal(sim_cli(&out, "list --help"), 0);
+    assert_true(strstr(out, "usage: fracnav-sim list") && !strstr(out, "serve"));
+    free(out);
+    assert_int_equal(sim_cli(&out, "--help"), 0);
+    assert_true(strstr(out, "fracnav-sim --version") && strstr(out, "fracnav-sim render"));
+    free(out);
+    expect_hint(sim_cli(&out, "serve --bogus"), &out, "(see fracnav-sim serve --help)");
+    expect_hint(sim_cli(&out, "render -o x"), &out, "(see fracnav-sim render --help)");
+    expect_hint(sim_cli(&out, "bench --seconds x"), &out, "(see fracnav-sim bench --help)");
+    expect_hint(sim_cli(&out, "bogus"), &out, "(see fracnav-sim --help)");
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -180,6 +312,9 @@ int main(void)
         cmocka_unit_test(test_device_test_keyboard),
         cmocka_unit_test(test_calibrate_zero_saves_config),
         cmocka_unit_test(test_calibrate_zero_open_controller),
+        cmocka_unit_test(test_calibrate_zero_keeps_user_lines),
+        cmocka_unit_test(test_device_test_button_names),
+        cmocka_unit_test(test_help_version_and_hints),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -176,6 +176,42 @@ static void test_fnrec_malformed(void **st)
     assert_non_null(strstr(fn_err_msg(), "/nonexistent/x.fnrec"));
 }
 
+/* Issue 17: a recording past 2^20 events names its line and the cause once; a timestamp far in
+ * the future (which would hold a real-time replay for days) is refused with its line named. */
+static void test_fnrec_limits(void **st)
+{
+    size_t cap = strlen(HDR "events\n") + ((size_t)FNREC_MAX_EVENTS + 2) * 16;
+    char *text = malloc(cap);
+    assert_non_null(text);
+    size_t n = (size_t)snprintf(text, cap, HDR "events\n");
+    for (size_t i = 0; i <= FNREC_MAX_EVENTS; i++)
+        n += (size_t)snprintf(text + n, cap - n, "%zu in 0100\n", i);
+    fnrec *r = NULL;
+    assert_true(fnrec_parse(text, n, "long.fnrec", &r) < 0);
+    assert_null(r);
+    char want[64];
+    snprintf(want, sizeof want, "long.fnrec:%u: more than %u events", FNREC_MAX_EVENTS + 8, FNREC_MAX_EVENTS);
+    if (!strstr(fn_err_msg(), want) || strstr(fn_err_msg(), "long.fnrec:1048584: long.fnrec"))
+        fail_msg("'%s' should say '%s', once", fn_err_msg(), want);
+    free(text);
+    expect_error(HDR "events\n0 connect\n8000 in 0100\n999999999999 in 0100\n", "bad.fnrec:10:",
+                 "at most 3600 s apart");
+    expect_error(HDR "events\n3600000001 connect\n", "bad.fnrec:8:", "at most 3600 s apart");
+    const char *ok = HDR "events\n0 connect\n3600000000 in 0100\n";
+    assert_int_equal(fnrec_parse(ok, strlen(ok), "ok.fnrec", &r), 0);
+    fnrec_free(r);
+    /* and through the command line: a real-time replay of it stops at once, naming the line */
+    char *dir = tu_tmpdir("fnrecgap"), path[512], *out = NULL;
+    snprintf(path, sizeof path, "%s/future.fnrec", dir);
+    const char *future = HDR "events\n0 connect\n8000 in 0100\n9000000000000000 in 0100\n";
+    tu_write_file(path, future, strlen(future));
+    assert_int_equal(tu_run_cli(&out, "device-test --device replay-realtime:%s --seconds 20", path), 1);
+    assert_non_null(strstr(out, "future.fnrec:10:"));
+    free(out);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 /* Split format: ID1/ID2 alternate every 8 ms; after release each is sent three times with zeros,
  * then nothing; the counts follow SCRIPT_FULL_COUNTS / SCRIPT_MM_PER_S_FULL. */
 static void test_script_split_cadence_and_release(void **st)
@@ -669,6 +705,7 @@ int main(void)
         cmocka_unit_test(test_fnrec_round_trip),
         cmocka_unit_test(test_fnrec_truncated_loses_last_line_only),
         cmocka_unit_test(test_fnrec_malformed),
+        cmocka_unit_test(test_fnrec_limits),
         cmocka_unit_test(test_script_split_cadence_and_release),
         cmocka_unit_test(test_script_combined_and_buttons),
         cmocka_unit_test(test_script_enterprise_keycodes),

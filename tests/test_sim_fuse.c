@@ -288,7 +288,7 @@ static pid_t record_in_background(const char *rec, double seconds, const char *l
     snprintf(dev, sizeof dev, "%s/hidraw0", mnt);
     const char *bin = getenv("FRACNAV_BIN");
     char *argv[] = {(char *)(bin ? bin : "fracnav"), "record", "-o", (char *)rec, "--device", dev,
-                    "--seconds", secs, NULL};
+                    "--seconds", secs, "--wait-replug", NULL};
     return spawn(argv, log);
 }
 

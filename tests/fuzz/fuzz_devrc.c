@@ -1,8 +1,11 @@
 /* Fuzzes the spnavrc reader: any text parses (bad lines counted, never a crash), the resulting
- * calibration keeps its outputs finite, and what it writes reads back without a bad line. */
+ * calibration keeps its outputs finite, and what it writes reads back without a bad line; and the
+ * writer that merges into the user's file: the merged file has no more bad lines than the input
+ * and reads back as the same calibration. */
 #include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
+#include <string.h>
 
 #include "calib.h"
 
@@ -22,5 +25,20 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     calib_default(&back);
     if (calib_parse_spnavrc(&back, text, n, "written", NULL, 0) != 0)
         abort();
+    calib_default(&back);
+    int bad = calib_parse_spnavrc(&back, (const char *)data, size, "fuzz", NULL, 0);
+    char *merged = NULL;
+    size_t m = 0;
+    if (calib_merge_spnavrc(&c, (const char *)data, size, &merged, &m))
+        return 0; /* out of memory */
+    calib_default(&back);
+    if (calib_parse_spnavrc(&back, merged, m, "merged", NULL, 0) > bad)
+        abort();
+    free(merged);
+    float again[6];
+    calib_apply(&back, in, again);
+    for (int i = 0; i < 6; i++)
+        if (again[i] != out[i])
+            abort();
     return 0;
 }

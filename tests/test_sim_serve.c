@@ -1,0 +1,358 @@
+/* fracnav-sim serve against fracnav's commands, as a user meets them: a recording that ends with
+ * the server, a --fast server recorded at the device's cadence, a wireless model's battery in every
+ * program that opens the node, a second server on a served folder refused, and a node this user may
+ * not open named as a permission problem. Needs /dev/fuse and root (CI has both); the tests skip
+ * visibly without them. Waits are on events (a node appearing, a child's exit); bounds only catch
+ * a hang. */
+#include <stdarg.h>
+#include <stddef.h>
+#include <setjmp.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <fcntl.h>
+#include <jansson.h>
+#include <libgen.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "err.h"
+#include "fnrec.h"
+#include "script.h"
+#include "simdev.h"
+#include "testutil.h"
+
+#define HANG_S 60 /* a child still running after this long hangs */
+
+static char *workdir;
+static char mnt[512];
+static pid_t server;
+
+static void pause_ms(int ms)
+{
+    nanosleep(&(struct timespec){0, ms * 1000000L}, NULL);
+}
+
+static const char *bin(void)
+{
+    const char *b = getenv("FRACNAV_BIN");
+    return b ? b : "fracnav";
+}
+
+static const char *sim_bin(void)
+{
+    static char path[1024];
+    char copy[1024];
+    snprintf(copy, sizeof copy, "%s", bin());
+    snprintf(path, sizeof path, "%s/sim/fracnav-sim", dirname(copy));
+    return path;
+}
+
+static char *path_in(const char *name)
+{
+    static char p[16][700];
+    static int k;
+    k = (k + 1) % 16;
+    snprintf(p[k], sizeof p[k], "%s/%s", workdir, name);
+    return p[k];
+}
+
+static pid_t spawn(char *const argv[], const char *log)
+{
+    pid_t pid = fork();
+    if (pid == 0) {
+        int fd = open(log, O_WRONLY | O_CREAT | O_APPEND, 0644);
+        dup2(fd, 1);
+        dup2(fd, 2);
+        execv(argv[0], argv);
+        _exit(127);
+    }
+    return pid;
+}
+
+/* The child's exit status; one still running after HANG_S is killed and fails the test. */
+static int wait_exit(pid_t pid, const char *what)
+{
+    int st;
+    for (int i = 0; i < HANG_S * 100; i++) {
+        if (waitpid(pid, &st, WNOHANG) == pid)
+            return WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
+        pause_ms(10);
+    }
+    kill(pid, SIGKILL);
+    waitpid(pid, &st, 0);
+    fail_msg("%s: still running after %d s (hangs)", what, HANG_S);
+    return -1;
+}
+
+/* Unmounts mnt, as often as something is mounted there (a server that mounted over another). */
+static void unmount_quietly(void)
+{
+    char cmd[700];
+    snprintf(cmd, sizeof cmd, "fusermount3 -u -z '%s' >/dev/null 2>&1", mnt);
+    for (int i = 0; i < 4 && system(cmd) == 0; i++)
+        ;
+}
+
+/* fracnav-sim serve --mount mnt ARGS..., once its node is there. */
+static void start_server(const char *first, ...)
+{
+    char *argv[16] = {(char *)sim_bin(), "serve", "--mount", mnt};
+    int n = 4;
+    va_list ap;
+    va_start(ap, first);
+    for (const char *a = first; a && n < 15; a = va_arg(ap, const char *))
+        argv[n++] = (char *)a;
+    va_end(ap);
+    argv[n] = NULL;
+    char node[600];
+    snprintf(node, sizeof node, "%s/hidraw0", mnt);
+    server = spawn(argv, path_in("server.log"));
+    struct stat st;
+    for (int i = 0; i < HANG_S * 100 && stat(node, &st); i++)
+        pause_ms(10);
+    if (stat(node, &st))
+        fail_msg("fracnav-sim did not serve %s (see %s)", node, path_in("server.log"));
+}
+
+static void stop_server(void)
+{
+    if (server > 0) {
+        kill(server, SIGTERM);
+        wait_exit(server, "fracnav-sim after SIGTERM");
+        server = 0;
+    }
+    unmount_quietly();
+}
+
+static int setup(void **st)
+{
+    if (access("/dev/fuse", R_OK | W_OK) || geteuid() != 0)
+        return 0; /* each test skips, saying why */
+    workdir = tu_tmpdir("simserve");
+    snprintf(mnt, sizeof mnt, "%s/mnt", workdir);
+    return mkdir(mnt, 0755);
+}
+
+static int teardown(void **st)
+{
+    if (!workdir)
+        return 0;
+    if (server > 0) {
+        kill(server, SIGKILL);
+        waitpid(server, NULL, 0);
+        server = 0;
+    }
+    unmount_quietly();
+    tu_rmtree(workdir);
+    free(workdir);
+    workdir = NULL;
+    return 0;
+}
+
+static void need_fuse(void)
+{
+    if (!workdir) {
+        print_message("skipped: needs root and a usable /dev/fuse (CI has both)\n");
+        skip();
+    }
+}
+
+static const char *write_script(const char *name, const char *text)
+{
+    const char *p = path_in(name);
+    tu_write_file(p, text, strlen(text));
+    return p;
+}
+
+/* The input reports of r: how many, and the span of their timestamps. */
+static size_t inputs(const fnrec *r, int64_t *span)
+{
+    size_t n = 0;
+    int64_t first = -1, last = 0;
+    for (size_t i = 0; i < r->n; i++)
+        if (r->ev[i].dir == FNREC_IN) {
+            first = first < 0 ? r->ev[i].t_us : first;
+            last = r->ev[i].t_us;
+            n++;
+        }
+    *span = n ? last - first : 0;
+    return n;
+}
+
+static fnrec *rendered(const char *script_path, const char *device)
+{
+    script *s = script_load(script_path);
+    assert_non_null(s);
+    fnrec *r = script_render(s, sim_profile_find(device));
+    free(s);
+    assert_non_null(r);
+    return r;
+}
+
+/* Records the node in the background, without --seconds unless given; returns its exit status. */
+static int record_node(const char *rec, const char *seconds)
+{
+    char dev[600];
+    snprintf(dev, sizeof dev, "%s/hidraw0", mnt);
+    char *argv[] = {(char *)bin(), "record", "-o", (char *)rec, "--device", dev, seconds ? "--seconds" : NULL,
+                    (char *)seconds, NULL};
+    return wait_exit(spawn(argv, path_in("record.log")), "fracnav record");
+}
+
+/* A server that exits at the end of its script ends the recording: no wait for a replug. */
+static void test_record_ends_when_server_exits(void **st)
+{
+    need_fuse();
+    const char *scr = write_script("s.script", "translate +x 5 mm over 0.3 s\npress 1\nrelease\n");
+    const char *rec = path_in("end.fnrec");
+    start_server("--script", scr, "--start-on-read", "--exit-at-end", NULL);
+    assert_int_equal(record_node(rec, NULL), 0);
+    assert_int_equal(wait_exit(server, "fracnav-sim --exit-at-end"), 0);
+    server = 0;
+    unmount_quietly();
+    char *log = tu_slurp(path_in("record.log"), NULL);
+    assert_non_null(strstr(log, "device disconnected"));
+    assert_non_null(strstr(log, "recording stopped"));
+    free(log);
+    fnrec *want = rendered(scr, "spacenavigator"), *got = fnrec_load(rec);
+    assert_non_null(got);
+    int64_t span;
+    assert_int_equal(inputs(got, &span), inputs(want, &span));
+    assert_int_equal(got->ev[got->n - 1].dir, FNREC_DISCONNECT);
+    fnrec_free(want);
+    fnrec_free(got);
+}
+
+/* fracnav-sim --fast sends as fast as the reports are read; the recording still keeps the
+ * device's 8 ms cadence, so it replays as the motion it was, not compressed to nothing. */
+static void test_record_from_fast_keeps_cadence(void **st)
+{
+    need_fuse();
+    const char *scr = write_script("f.script", "translate +x 10 mm over 0.5 s\nrotate z 10 deg over 0.3 s\n");
+    const char *rec = path_in("fast.fnrec");
+    start_server("--script", scr, "--fast", "--exit-at-end", NULL);
+    assert_int_equal(record_node(rec, "20"), 0); /* ends with the server, well before 20 s */
+    assert_int_equal(wait_exit(server, "fracnav-sim --fast --exit-at-end"), 0);
+    server = 0;
+    unmount_quietly();
+    fnrec *want = rendered(scr, "spacenavigator"), *got = fnrec_load(rec);
+    assert_non_null(got);
+    int64_t want_span, got_span;
+    size_t n = inputs(got, &got_span);
+    assert_int_equal(n, inputs(want, &want_span));
+    if (got_span < want_span * 9 / 10)
+        fail_msg("%zu reports span %lld us; the device's cadence gives %lld us", n, (long long)got_span,
+                 (long long)want_span);
+    fnrec_free(want);
+    fnrec_free(got);
+}
+
+static int json_battery(const char *node)
+{
+    char *out = NULL;
+    assert_int_equal(tu_run_cli(&out, "devices --json --device '%s' 2>/dev/null", node), 0);
+    json_error_t err;
+    json_t *root = json_loads(out, 0, &err);
+    if (!root)
+        fail_msg("not JSON (%s): %s", err.text, out);
+    free(out);
+    json_t *devs = json_object_get(root, "devices");
+    json_t *b = json_object_get(json_array_get(devs, json_array_size(devs) - 1), "battery_pct");
+    int v = json_is_integer(b) ? (int)json_integer_value(b) : -1;
+    json_decref(root);
+    return v;
+}
+
+/* A wireless model served by fracnav-sim: every program that opens the node learns the battery
+ * level, as with the in-process virtual device, not only the first one after a replug. */
+static void test_wireless_battery_for_every_open(void **st)
+{
+    need_fuse();
+    char node[600], *out = NULL;
+    snprintf(node, sizeof node, "%s/hidraw0", mnt);
+    start_server("--as", "spacemouse-wireless", NULL);
+    assert_int_equal(json_battery(node), 100);
+    assert_int_equal(json_battery(node), 100);
+    assert_int_equal(tu_run_cli(&out, "device-test --device '%s' --seconds 0.3", node), 0);
+    if (!strstr(out, "battery 100%"))
+        fail_msg("device-test shows no battery: %s", out);
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "devices --device 'virtual:spacemouse-wireless'"), 0);
+    assert_non_null(strstr(out, "battery 100%")); /* as the in-process device */
+    free(out);
+    stop_server();
+}
+
+/* A second server on a folder already served is refused, and the first one serves on. */
+static void test_second_serve_on_same_folder_refused(void **st)
+{
+    need_fuse();
+    start_server("--as", "spacepilot", NULL);
+    char *argv[] = {(char *)sim_bin(), "serve", "--mount", mnt, "--as", "spacenavigator", NULL};
+    assert_int_equal(wait_exit(spawn(argv, path_in("second.log")), "a second fracnav-sim on the folder"), 1);
+    char *log = tu_slurp(path_in("second.log"), NULL);
+    if (!strstr(log, "already a mount point") || !strstr(log, "another fracnav-sim"))
+        fail_msg("second serve said: %s", log);
+    free(log);
+    char *out = NULL;
+    assert_int_equal(tu_run_cli(&out, "devices --device '%s/hidraw0'", mnt), 0);
+    assert_non_null(strstr(out, "SpacePilot")); /* still the first server's device */
+    free(out);
+    stop_server();
+}
+
+/* A node this user may not open (a FUSE mount of root's, as the user nobody): the message says it
+ * is a permission problem on that path, not "no controller" and not the udev rule. */
+static void test_node_without_permission(void **st)
+{
+    need_fuse();
+    if (access("/usr/bin/setpriv", X_OK)) {
+        print_message("skipped: needs setpriv to run as nobody\n");
+        skip();
+    }
+    assert_int_equal(chmod(workdir, 0755), 0);
+    start_server(NULL);
+    char cmd[2000], text[4096];
+    snprintf(cmd, sizeof cmd, "setpriv --reuid=nobody --regid=nogroup --clear-groups env HOME=/nonexistent "
+                              "'%s' device-test --device '%s/hidraw0' --seconds 0.3 2>&1", bin(), mnt);
+    FILE *p = popen(cmd, "r");
+    size_t n = fread(text, 1, sizeof text - 1, p);
+    text[n] = '\0';
+    int rc = WEXITSTATUS(pclose(p));
+    if (rc == 126 || rc == 127) {
+        print_message("skipped: the user nobody cannot run this build's fracnav here: %s\n", text);
+        stop_server();
+        skip();
+    }
+    assert_int_equal(rc, 1);
+    if (!strstr(text, "permission problem on this path") || strstr(text, "udev/70-fracnav.rules"))
+        fail_msg("device-test as nobody said: %s", text);
+    snprintf(cmd, sizeof cmd, "setpriv --reuid=nobody --regid=nogroup --clear-groups env HOME=/nonexistent "
+                              "FRACNAV_HIDRAW_PATH='%s' '%s' devices 2>&1", mnt, bin());
+    p = popen(cmd, "r");
+    n = fread(text, 1, sizeof text - 1, p);
+    text[n] = '\0';
+    assert_int_equal(WEXITSTATUS(pclose(p)), 0);
+    if (strstr(text, "no 6-DOF controller connected") || !strstr(text, "permission problem on this path"))
+        fail_msg("devices as nobody said: %s", text);
+    stop_server();
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test_setup_teardown(test_record_ends_when_server_exits, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_record_from_fast_keeps_cadence, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_wireless_battery_for_every_open, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_second_serve_on_same_folder_refused, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_node_without_permission, setup, teardown),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
