@@ -23,7 +23,7 @@ static void usage(FILE *out)
             "usage: fracnav navigate CASE [--device auto|PATH|spnav|keyboard|SPEC] [options]\n\n"
             "Steer the case's fragments with a 6-DOF controller. Every move is collision-checked\n"
             "against every other fragment: a blocked move is limited to its free part or slides\n"
-            "along the contact. A terminal line shows the selected fragment, its pose, the contact\n"
+            "along the contact. A terminal view shows the selected fragment, its pose, the contact\n"
             "state, the loop rate and the latency. Every accepted pose goes to CASE/journal at once;\n"
             "the case is saved on exit and on demand, and an interrupted session can be recovered.\n\n"
             "  --device SPEC       auto (default: first controller, else spacenavd, else keyboard),\n"

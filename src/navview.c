@@ -253,9 +253,9 @@ const char *navview_help(int keyboard)
                "  7 undo  8 redo  9 save  0 or m frame  q quit (saves)  ? or h these keys\n"
                "  mouse: left drag rotates, middle drag rolls, right drag moves, wheel up/down\n"
                "Ctrl-C quits and saves.\n";
-    return "keys: n/p next/previous fragment   f fix or unfix   c collision checking on/off\n"
-           "  t translation only   r rotation only   u undo   y redo   m frame\n"
-           "  s save   q quit (saves)   ? or h these keys\n"
+    return "keys beside a controller: n/p next/previous fragment   f fix or unfix\n"
+           "  c collision checking on/off   t translation only   r rotation only\n"
+           "  u undo   y redo   m frame   s save   q quit (saves)   ? or h these keys\n"
            "controller buttons: 1 next  2 previous  3 fix  4 collision  5 translation only\n"
            "  6 rotation only  7 undo  8 redo  9 save  10 frame (SpaceMouse Enterprise: its\n"
            "  keys labelled 1-10; spnavrc's bnmapN moves them)\n"
