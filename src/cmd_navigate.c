@@ -504,6 +504,8 @@ int cmd_navigate(int argc, char **argv)
         loopkit_dsource_destroy(&ds);
         return 1;
     }
+    if (v.tty)
+        fprintf(stderr, "loading %s and building its collision hierarchy...\n", o.dir);
     loopkit k;
     rc = loopkit_open(&k, o.dir, &cfg, o.flags, "navigate", &o.tau);
     if (rc == 0) {

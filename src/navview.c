@@ -57,7 +57,7 @@ static void warnings(const loop_scene *s, const navview_extra *x, fields *f)
     if (len)
         add(f, 1, "%s", line);
     if (x && x->refused)
-        add(f, 1, "not taken: %s", x->refused);
+        add(f, 1, "WARNING: another controller, not taken: %s", x->refused);
 }
 
 static void contact(const loop_scene *s, fields *f)
@@ -203,10 +203,14 @@ void navview_ack(const loop_scene *s, char *buf, size_t cap)
     int sel = s->selected + 1, r = s->last_action_result;
     switch (s->last_action) {
     case LOOP_ACT_NEXT:
-    case LOOP_ACT_PREV:
+    case LOOP_ACT_PREV: {
+        int movable = 0;
+        for (int i = 0; i < s->nfrag; i++)
+            movable += !s->fixed[i];
         snprintf(buf, cap, "%s: frag %d/%d%s", s->last_action == LOOP_ACT_NEXT ? "next" : "previous", sel,
-                 s->nfrag, s->fixed[s->selected] ? " (fixed: every fragment is)" : "");
+                 s->nfrag, !movable ? " (every fragment is fixed)" : movable == 1 ? " (the only one not fixed)" : "");
         break;
+    }
     case LOOP_ACT_FIX:
         snprintf(buf, cap, s->fixed[s->selected] ? "frag %d fixed" : "frag %d free to move", sel);
         break;
