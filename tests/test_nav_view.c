@@ -468,6 +468,30 @@ static void test_loop_plays_again(void **st)
     free(msg);
 }
 
+/* The issue: `navigate --json` with its output piped printed the status line on standard output
+ * before the JSON. Standard output holds the JSON alone; the view is on standard error. */
+static void test_json_alone_on_stdout(void **st)
+{
+    const char *c = case_copy("json");
+    char keys[4400], out[4400], errp[4400];
+    snprintf(keys, sizeof keys, "%s/nokeys", dir);
+    tu_write_file(keys, "", 0);
+    snprintf(out, sizeof out, "%s/alone.json", dir);
+    snprintf(errp, sizeof errp, "%s/alone.err", dir);
+    char cmd[20000]; /* not tu_run_cli, which sends standard error to standard output */
+    snprintf(cmd, sizeof cmd, "'%s' navigate '%s' --device 'keyboard:%s' --duration 0.3 --json < /dev/null "
+             "> '%s' 2> '%s'", getenv("FRACNAV_BIN"), c, keys, out, errp);
+    assert_int_equal(system(cmd), 0);
+    json_t *j = json_file(out);
+    assert_non_null(j);
+    assert_non_null(json_object_get(j, "final_poses"));
+    json_decref(j);
+    char *err = tu_slurp(errp, NULL);
+    assert_non_null(err);
+    assert_non_null(strstr(err, "frag 2/2")); /* the view went to standard error */
+    free(err);
+}
+
 /* The keyboard device: ? shows the keys, and a fix is acknowledged. */
 static void keyboard_shows(const char *keys, const char *needle)
 {
@@ -681,6 +705,7 @@ int main(void)
         cmocka_unit_test(test_actions_are_acknowledged),
         cmocka_unit_test(test_recording_ends_navigate),
         cmocka_unit_test(test_loop_plays_again),
+        cmocka_unit_test(test_json_alone_on_stdout),
         cmocka_unit_test(test_keyboard_help_and_acknowledgement),
         cmocka_unit_test(test_terminal_of_80_columns),
         cmocka_unit_test(test_other_controller_is_reported),
