@@ -319,7 +319,7 @@ static int draw_help(const view *v, int width)
 static void draw(view *v, const loop_scene *sc)
 {
     char refused[512], text[4096], sig[2048];
-    navview_extra x = {-1, NULL, NULL};
+    navview_extra x = {-1, NULL, NULL, v->k->c->frag};
     if (v->ds) {
         x.battery = atomic_load(&v->ds->battery);
         if (loopkit_dsource_refused(v->ds, refused, sizeof refused))

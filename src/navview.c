@@ -86,11 +86,20 @@ static double shown(double v)
     return fabs(v) < 0.005 ? 0 : v;
 }
 
-static void pose_fields(const loop_scene *s, fields *f)
+static void pose_fields(const loop_scene *s, const navview_extra *x, fields *f)
 {
     const pose *p = &s->pose[s->selected];
-    double axis[3], deg = navview_rotation(p, axis);
-    add(f, 1, "x %+.2f y %+.2f z %+.2f mm", shown(p->t[0]), shown(p->t[1]), shown(p->t[2]));
+    double axis[3], deg = navview_rotation(p, axis), d[3];
+    if (x && x->frags) {
+        const double *c = x->frags[s->selected].centroid;
+        pose_apply(p, c, d);
+        for (int i = 0; i < 3; i++)
+            d[i] -= c[i];
+    } else {
+        memcpy(d, p->t, sizeof d);
+    }
+    add(f, 1, "%sx %+.2f y %+.2f z %+.2f mm", x && x->frags ? "moved " : "", shown(d[0]), shown(d[1]),
+        shown(d[2]));
     if (deg < 0.005)
         add(f, 0, "not turned");
     else
@@ -105,7 +114,7 @@ static void fill(const loop_scene *s, const navview_extra *x, fields *f)
     warnings(s, x, f);
     add(f, 1, "frag %d/%d%s", s->selected + 1, s->nfrag, s->fixed[s->selected] ? " (fixed)" : "");
     contact(s, f);
-    pose_fields(s, f);
+    pose_fields(s, x, f);
     add(f, 1, "%s frame%s%s", frame[s->frame], s->trans_only ? ", translation only" : "",
         s->rot_only ? ", rotation only" : "");
     if (x && x->battery >= 0)

@@ -1,13 +1,15 @@
 /* navview: what `fracnav navigate` shows of a navigation session, as text laid out for a terminal.
  *
  * The scene (loop_scene_read) becomes fields in order of importance -- warnings, the selected
- * fragment and its contact, its pose (translation, and rotation as degrees about an axis), the
+ * fragment and its contact, its pose (how far its centroid moved, and its rotation as degrees
+ * about an axis through it; world LPS), the
  * frame, locks and rates, then the acknowledgement of the latest action -- packed into lines no
  * wider than the terminal, so that nothing is cut: a narrow terminal gets more lines. Off a
  * terminal the same fields make one line for a log. Pure functions: no I/O, no allocation. */
 #ifndef FN_NAVVIEW_H
 #define FN_NAVVIEW_H
 
+#include "frag.h"
 #include "loop.h"
 
 #include <stddef.h>
@@ -17,6 +19,8 @@ typedef struct navview_extra {
     int battery;         /* 0..100; -1 unknown (not shown) */
     const char *refused; /* NULL, or why the controller now at the device's path was not taken */
     const char *ack;     /* NULL, or the acknowledgement of the latest action (navview_ack) */
+    const frag *frags;   /* the scene's fragments: the view shows how far the selected one's
+                          * centroid has moved; NULL: the pose's translation */
 } navview_extra;
 
 /* The view of s for a terminal `width` columns wide: lines of at most width - 1 columns (the last
