@@ -584,7 +584,8 @@ static void pieces_fit(const char *acc, int width)
 static void test_terminal_of_80_columns(void **st)
 {
     const char *c = case_copy("tty");
-    const char *rec = recording("turn", "translate +x 4 mm over 0.2 s\nmove rz 10 deg over 0.3 s\nwait 60 s\n");
+    /* The recording goes on (silent) until its unplug, a minute later: q ends the session. */
+    const char *rec = recording("turn", "translate +x 4 mm over 0.2 s\nmove rz 10 deg over 0.3 s\nwait 60 s\nunplug\n");
     char spec[4400];
     snprintf(spec, sizeof spec, "replay-realtime:%s", rec);
     const char *bin = getenv("FRACNAV_BIN");
