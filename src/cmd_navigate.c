@@ -422,6 +422,8 @@ static int run(view *v, loop_source src, int keys, double duration)
         loop_publish(k->L);
         loop_scene_read(k->L, &sc);
         new_actions(v, &sc);
+        if (sc.save_requests != v->saves_seen) /* asked for by the last events: said as asked */
+            save_scene(v, &sc, saved_poses, ctl);
         if (ended)
             acknowledge(v, "end of the recording");
         v->last_print_us = 0;
