@@ -3,10 +3,10 @@
  * device-table row:
  *   a/d or arrows left/right  -x/+x    w/s or arrows up/down  -y/+y (away/towards you)
  *   r/f  -z/+z (up/down)   i/k -rx/+rx   j/l -rz/+rz   u/o -ry/+ry
- *   1-9  buttons 1-9 (tap; 9 saves)    0 or m  button 10 (frame)
+ *   1-9  buttons 1-9 (tap; 9 saves)    0 or m  button 10 (frame)    ? or h  button 11 (help)
  *   space or x: stop all motion   q  quit (as Ctrl-C: raises SIGINT)
  *   mouse: left drag rotates (rz, rx), middle drag rolls (ry), right drag moves (x, y), wheel z
- * The row has 10 buttons, sent in report 3. A terminal has no key-up: a key holds its axis for
+ * The row has 11 buttons, sent in report 3. A terminal has no key-up: a key holds its axis for
  * KEY_HOLD_MS, and auto-repeat keeps it held.
  * "keyboard:FILE" reads the same bytes from FILE instead of the terminal (scripts, tests). */
 #include <errno.h>
@@ -169,6 +169,9 @@ static void apply_key(dev_handle *h, char c, int64_t now)
         h->pending |= PENDING_MOTION;
     } else if ((c >= '1' && c <= '9') || c == '0' || c == 'm') {
         h->buttons |= 1u << (c >= '1' && c <= '9' ? c - '1' : 9); /* 0 and m: button 10 */
+        h->pending |= PENDING_BUTTONS;
+    } else if (c == '?' || c == 'h') {
+        h->buttons |= 1u << 10; /* navigate shows its keys */
         h->pending |= PENDING_BUTTONS;
     } else if (c == 'q') {
         raise(SIGINT);

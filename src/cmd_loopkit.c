@@ -88,6 +88,8 @@ int loopkit_open(loopkit *k, const char *dir, const loop_config *cfg, unsigned f
     }
     if (rc == 0 && pending && (flags & LOOPKIT_RESUME))
         rc = resume(k, dir);
+    if (rc == 0)
+        rc = loop_measure(k->L);
     if (rc < 0)
         loopkit_close(k);
     return rc;
@@ -211,6 +213,25 @@ int loopkit_decode(loopkit_decoder *d, const uint8_t *rep, size_t len, int64_t t
     return from_dev_event(&d->cal, &de, ev);
 }
 
+/* The end of a recording with `again`: the same file from its start, as a replug. */
+static int play_again(loopkit_tsource *s, loop_event *ev)
+{
+    s->tr->close(s->h);
+    s->h = NULL;
+    int rc = s->tr->open(s->again, &s->h);
+    if (rc < 0)
+        return rc;
+    devparse_state *ps = &s->dec.ps;
+    uint64_t ok = ps->n_ok, unknown = ps->n_unknown_id, bad = ps->n_bad_len;
+    devparse_init(ps, ps->row, ps->axis_max);
+    ps->n_ok = ok, ps->n_unknown_id = unknown, ps->n_bad_len = bad;
+    s->unplugged = 0;
+    atomic_fetch_add(&s->plays, 1);
+    memset(ev, 0, sizeof *ev);
+    ev->kind = LOOP_EV_REPLUG;
+    return 1;
+}
+
 static int tsource_next(void *ctx, loop_event *ev, int timeout_ms)
 {
     loopkit_tsource *s = ctx;
@@ -225,7 +246,7 @@ static int tsource_next(void *ctx, loop_event *ev, int timeout_ms)
         int n = s->tr->read(s->h, buf, sizeof buf, timeout_ms, &t_us);
         if (n == FN_ENODEV) {
             if (s->finished && s->finished(s->h))
-                return LOOP_SOURCE_END;
+                return s->again ? play_again(s, ev) : LOOP_SOURCE_END;
             memset(ev, 0, sizeof *ev);
             ev->kind = LOOP_EV_UNPLUG;
             ev->t_us = t_us;
@@ -296,6 +317,37 @@ static void update_led(loopkit_dsource *s, int held)
         s->led = on;
 }
 
+void loopkit_dsource_init(loopkit_dsource *s, dev_device *d, const calib *cal)
+{
+    memset(s, 0, sizeof *s);
+    s->d = d;
+    s->cal = *cal;
+    s->led = -1;
+    atomic_init(&s->battery, -1);
+    pthread_mutex_init(&s->mu, NULL);
+}
+
+void loopkit_dsource_destroy(loopkit_dsource *s)
+{
+    pthread_mutex_destroy(&s->mu);
+}
+
+int loopkit_dsource_refused(loopkit_dsource *s, char *out, size_t cap)
+{
+    pthread_mutex_lock(&s->mu);
+    snprintf(out, cap, "%s", s->refused);
+    pthread_mutex_unlock(&s->mu);
+    return out[0] != '\0';
+}
+
+/* Keeps (or, msg NULL, clears) the refusal for the view: fn_err_msg() is this thread's own. */
+static void set_refused(loopkit_dsource *s, const char *msg)
+{
+    pthread_mutex_lock(&s->mu);
+    snprintf(s->refused, sizeof s->refused, "%s", msg ? msg : "");
+    pthread_mutex_unlock(&s->mu);
+}
+
 static int dsource_next(void *ctx, loop_event *ev, int timeout_ms)
 {
     loopkit_dsource *s = ctx;
@@ -304,6 +356,10 @@ static int dsource_next(void *ctx, loop_event *ev, int timeout_ms)
     if (rc <= 0)
         return rc;
     atomic_store(&s->battery, dev_battery(s->d));
+    if (de.flags & DEV_EV_REFUSED)
+        set_refused(s, fn_err_msg());
+    if (de.flags & DEV_EV_REPLUG)
+        set_refused(s, NULL);
     if (de.flags & (DEV_EV_UNPLUG | DEV_EV_REPLUG)) {
         memset(ev, 0, sizeof *ev);
         ev->kind = de.flags & DEV_EV_UNPLUG ? LOOP_EV_UNPLUG : LOOP_EV_REPLUG;

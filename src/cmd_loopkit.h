@@ -14,6 +14,7 @@
 #include "loop.h"
 
 #include <jansson.h>
+#include <pthread.h>
 #include <stdio.h>
 
 enum {
@@ -68,29 +69,41 @@ void loopkit_decoder_init(loopkit_decoder *d, uint16_t vid, uint16_t pid, const 
 int loopkit_decode(loopkit_decoder *d, const uint8_t *rep, size_t len, int64_t t_us, loop_event *ev);
 
 /* A loop_source over an open transport handle: every report is one event; a read that says the
- * device went away is an unplug (or the end, when `finished` says so, e.g. sim_replay_finished). */
+ * device went away is an unplug (or the end, when `finished` says so, e.g. sim_replay_finished).
+ * With `again` set, the end opens tr at `again` once more and plays it from the start (navigate
+ * --loop): the loop gets LOOP_EV_REPLUG, so the recording's clock starting over is no jump. */
 typedef struct loopkit_tsource {
     const dev_transport *tr;
     dev_handle *h;
     loopkit_decoder dec;
     int (*finished)(const dev_handle *h);
+    const char *again;
     int unplugged, has_pending;
     loop_event pending;
     unsigned unplugs;
+    _Atomic unsigned plays; /* plays begun after the first (again); read by the view */
 } loopkit_tsource;
 loop_source loopkit_transport_source(loopkit_tsource *s);
 
 /* A loop_source over an opened device (live): dev_poll folds what is queued into one event. On
  * its (input) thread it also drives the LED -- lit while a fragment is held: the cap deflected
- * with a movable fragment selected (the `led` setting can force it on or off) -- and publishes the
- * battery level for the status line. */
+ * with a movable fragment selected (the `led` setting can force it on or off) -- and publishes
+ * for the view the battery level and, while another controller sits at the device's path, why
+ * it was not taken (dev_poll's DEV_EV_REFUSED). */
 typedef struct loopkit_dsource {
     dev_device *d;
     calib cal;
     loop *L;            /* for the selected fragment's state; NULL: holding = cap deflected */
     int led;            /* the LED state last sent, -1 none yet */
     _Atomic int battery; /* 0..100, -1 unknown; read by the status line */
+    pthread_mutex_t mu; /* guards refused */
+    char refused[512];  /* "" or the refusal's message, until the device comes back */
 } loopkit_dsource;
+/* Sets up s for device d (not owned) with calibration cal. */
+void loopkit_dsource_init(loopkit_dsource *s, dev_device *d, const calib *cal);
+void loopkit_dsource_destroy(loopkit_dsource *s);
 loop_source loopkit_device_source(loopkit_dsource *s);
+/* Copies the refusal's message (any thread); 0 when there is none. */
+int loopkit_dsource_refused(loopkit_dsource *s, char *out, size_t cap);
 
 #endif

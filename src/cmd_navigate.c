@@ -3,6 +3,8 @@
 
 #include "cmd_loopkit.h"
 #include "err.h"
+#include "navview.h"
+#include "sim_replay.h"
 
 #include <pthread.h>
 #include <signal.h>
@@ -21,13 +23,15 @@ static void usage(FILE *out)
             "usage: fracnav navigate CASE [--device auto|PATH|spnav|keyboard|SPEC] [options]\n\n"
             "Steer the case's fragments with a 6-DOF controller. Every move is collision-checked\n"
             "against every other fragment: a blocked move is limited to its free part or slides\n"
-            "along the contact. A terminal line shows the selected fragment, its pose, the contact\n"
+            "along the contact. A terminal view shows the selected fragment, its pose, the contact\n"
             "state, the loop rate and the latency. Every accepted pose goes to CASE/journal at once;\n"
             "the case is saved on exit and on demand, and an interrupted session can be recovered.\n\n"
             "  --device SPEC       auto (default: first controller, else spacenavd, else keyboard),\n"
             "                      a hidraw path, spnav, keyboard, serial:S, or a transport NAME:ARG\n"
-            "                      (replay-realtime:FILE.fnrec plays a recording as a device;\n"
-            "                      virtual:spacenavigator:script=FILE)\n"
+            "                      (replay-realtime:FILE.fnrec plays a recording as a device,\n"
+            "                      and navigate ends at its end; virtual:spacenavigator:script=FILE)\n"
+            "  --loop              a recording (replay:, replay-realtime:) plays again from its start\n"
+            "                      at its end, until q, Ctrl-C or --duration\n"
             "  --recover           start from the poses the journal holds beyond case.json\n"
             "  --discard-journal   start from case.json, emptying the journal\n"
             "                      (with neither, navigate asks on stdin before opening the device)\n"
@@ -38,21 +42,18 @@ static void usage(FILE *out)
             "  --tau-min T, --tau-max T   hierarchy thresholds instead of the case's (0 <= T_min\n"
             "                      <= T_max <= 1), saved into the case with the poses\n"
             "  --duration S        stop after S seconds (scripts, tests)\n"
-            "  --json              print a JSON summary on exit (as fracnav replay), alone on\n"
-            "                      stdout: the status line goes to stderr\n\n"
-            "keys (when the controller is not the keyboard): n/p next/previous fragment, f fix or\n"
-            "unfix, c collision checking on/off, t translation only, r rotation only, u undo, y redo,\n"
-            "m frame, s save, q quit. Controller buttons: 1 next, 2 previous, 3 fix, 4 collision,\n"
-            "5 translation only, 6 rotation only, 7 undo, 8 redo, 9 save, 10 frame (on the SpaceMouse\n"
-            "Enterprise: its keys labelled 1-10; spnavrc's bnmapN moves them).\n"
+            "  --json              print a JSON summary on exit (as fracnav replay): standard\n"
+            "                      output holds the JSON alone; the view goes to standard error\n\n"
+            "The view (on standard error) is laid out for the terminal's width: warnings first,\n"
+            "then the selected fragment, its contact (the gap is a lower bound measured at the\n"
+            "pose shown), its position and its rotation (degrees about an axis, world LPS), the\n"
+            "frame and rates, and what the last key or button did. Off a terminal it is one line\n"
+            "a second, and one at each warning or action.\n\n"
+            "%s"
             "With --device keyboard (what auto picks without a controller) the keys steer instead:\n"
-            "  arrows or a/d w/s  move in x and y        r/f  up/down\n"
-            "  i/k j/l u/o        rotate                 space or x  stop\n"
-            "  1 next  2 previous  3 fix  4 collision  5 translation only  6 rotation only\n"
-            "  7 undo  8 redo  9 save  0 or m frame  q quit (saves)\n"
-            "  mouse: left drag rotates, middle drag rolls, right drag moves, wheel up/down\n"
-            "Ctrl-C quits and saves, whatever the device.\n"
-            "The camera frame looks from the patient's front (along +y, LPS), superior up.\n");
+            "%s"
+            "The camera frame looks from the patient's front (along +y, LPS), superior up.\n",
+            navview_help(0), strchr(navview_help(1), '\n') + 1);
 }
 
 static volatile sig_atomic_t quit;
@@ -68,11 +69,21 @@ typedef struct opts {
     unsigned flags;
     loop_frame frame;
     double duration;
-    int json;
+    int json, again;
     cmd_tau tau;
     int have_pivot;
     double pivot[3];
 } opts;
+
+/* The transport of a played recording (replay:FILE, replay-realtime:FILE), else NULL. */
+static const dev_transport *recording_spec(const char *spec)
+{
+    if (!strncmp(spec, "replay:", 7))
+        return &sim_replay_transport;
+    if (!strncmp(spec, "replay-realtime:", 16))
+        return &sim_replay_realtime_transport;
+    return NULL;
+}
 
 static int parse(int argc, char **argv, opts *o)
 {
@@ -96,6 +107,8 @@ static int parse(int argc, char **argv, opts *o)
             o->flags |= LOOPKIT_DISCARD;
         else if (!strcmp(a, "--json"))
             o->json = 1;
+        else if (!strcmp(a, "--loop"))
+            o->again = 1;
         else if (!strcmp(a, "--duration")) {
             if (!cmd_number(v, &o->duration) || !(o->duration > 0))
                 return cmd_bad_value("navigate", a, v, "a number of seconds > 0");
@@ -122,6 +135,9 @@ static int parse(int argc, char **argv, opts *o)
         fprintf(stderr, "fracnav navigate: --recover and --discard-journal exclude each other\n");
         return 2;
     }
+    if (o->again && !recording_spec(o->device))
+        return cmd_usage_error("navigate", "--loop plays a recording again: it needs --device "
+                                           "replay:FILE or replay-realtime:FILE, not '%s'", o->device);
     return 0;
 }
 
@@ -166,6 +182,8 @@ static loop_action key_action(int ch)
     case 'y': return LOOP_ACT_REDO;
     case 'm': return LOOP_ACT_FRAME;
     case 's': return LOOP_ACT_SAVE;
+    case '?':
+    case 'h': return LOOP_ACT_HELP;
     default: return LOOP_ACT_NONE;
     }
 }
@@ -185,25 +203,57 @@ static void *loop_thread(void *arg)
     return NULL;
 }
 
-/* Saves the poses of the latest scene while the loop keeps running, then has the loop empty the
- * journal of what the case now holds (saved: the loop_set_saved array). */
-static void save_scene(loopkit *k, const loop_scene *sc, pose *saved, ring *ctl)
+#define ACK_SHOWN_US 5000000 /* an acknowledgement stays this long in the view */
+
+/* The view on standard error: redrawn in place on a terminal, else a log line a second and one
+ * at each change of the warnings or the acknowledgement. */
+typedef struct view {
+    loopkit *k;
+    loopkit_dsource *ds; /* a live device (battery, refusals); NULL for a played recording */
+    loopkit_tsource *ts; /* a played recording; NULL for a live device */
+    unsigned plays_seen;
+    int keyboard;        /* the keyboard device steers: its keys are the help */
+    int tty, help, lines;
+    unsigned actions_seen, saves_seen;
+    char ack[1024];
+    int64_t ack_until_us, last_print_us;
+    char logged[2048]; /* the warnings and acknowledgement of the last log line */
+    int logged_help;   /* the help was on at the last log line */
+} view;
+
+static void acknowledge(view *v, const char *text)
 {
+    snprintf(v->ack, sizeof v->ack, "%s", text);
+    v->ack_until_us = loop_now_us() + ACK_SHOWN_US;
+}
+
+/* Saves the poses of the latest scene while the loop keeps running, then has the loop empty the
+ * journal of what the case now holds (saved: the loop_set_saved array). Off a terminal the
+ * outcome is also a line of its own. */
+static void save_scene(view *v, const loop_scene *sc, pose *saved, ring *ctl)
+{
+    loopkit *k = v->k;
     for (int i = 0; i < k->c->nfrag; i++)
         k->c->frag[i].pose = sc->pose[i];
-    if (case_save(k->c) < 0) {
-        fprintf(stderr, "\nfracnav navigate: save failed: %s\n", fn_err_msg());
+    char msg[1024];
+    int rc = case_save(k->c);
+    if (rc < 0)
+        snprintf(msg, sizeof msg, "save failed: %.1000s", fn_err_msg());
+    else
+        snprintf(msg, sizeof msg, "saved %.1000s", k->dir_name);
+    acknowledge(v, msg);
+    if (!v->tty)
+        fprintf(stderr, "%s%s\n", rc < 0 ? "fracnav navigate: " : "", msg);
+    if (rc < 0)
         return;
-    }
-    fprintf(stderr, "\nsaved %s\n", k->dir_name);
     memcpy(saved, sc->pose, sizeof(pose) * (size_t)k->c->nfrag);
     loop_event ev = {.kind = LOOP_EV_SAVED};
     if (ring_push(ctl, &ev))
         loop_notify(k->L);
 }
 
-/* Terminal keys -> actions on the control ring (q quits). */
-static void read_keys(loop *L, ring *ctl)
+/* Terminal keys: ? and h show or hide the keys, q quits, the others go to the control ring. */
+static void read_keys(view *v, loop *L, ring *ctl)
 {
     char ch;
     while (read(STDIN_FILENO, &ch, 1) == 1) {
@@ -212,22 +262,103 @@ static void read_keys(loop *L, ring *ctl)
         loop_event ev = {0};
         ev.kind = LOOP_EV_ACTION;
         ev.action = key_action(ch);
-        if (ev.action != LOOP_ACT_NONE && ring_push(ctl, &ev))
+        if (ev.action == LOOP_ACT_HELP)
+            v->help = !v->help;
+        else if (ev.action != LOOP_ACT_NONE && ring_push(ctl, &ev))
             loop_notify(L);
     }
 }
 
-/* Cuts the status line to the terminal's width, so it rewrites itself in place instead of wrapping. */
-static void fit_to_terminal(char *line, int fd)
+/* A new action done by a key or a button: its acknowledgement (the keyboard device's help key
+ * comes this way too). */
+static void new_actions(view *v, const loop_scene *sc)
 {
-    struct winsize ws;
-    if (ioctl(fd, TIOCGWINSZ, &ws) == 0 && ws.ws_col > 1 && strlen(line) >= ws.ws_col)
-        line[ws.ws_col - 1] = '\0';
+    if (sc->actions == v->actions_seen)
+        return;
+    v->actions_seen = sc->actions;
+    if (sc->last_action == LOOP_ACT_HELP) {
+        v->help = !v->help;
+        return;
+    }
+    char text[256];
+    navview_ack(sc, text, sizeof text);
+    if (text[0])
+        acknowledge(v, text);
 }
 
-/* The main thread while the loop runs: keys, saves on request, the status line (on view). */
-static void ui(loopkit *k, loopkit_dsource *ds, ring *ctl, pose *saved_poses, int keys,
-               double duration, FILE *view)
+/* --loop: each new play of the recording is acknowledged. */
+static void new_plays(view *v)
+{
+    unsigned plays = v->ts ? atomic_load(&v->ts->plays) : 0;
+    if (plays == v->plays_seen)
+        return;
+    v->plays_seen = plays;
+    char text[64];
+    snprintf(text, sizeof text, "the recording plays again (play %u)", plays + 1);
+    acknowledge(v, text);
+}
+
+static int terminal_width(void)
+{
+    struct winsize ws;
+    return ioctl(STDERR_FILENO, TIOCGWINSZ, &ws) == 0 && ws.ws_col > 0 ? ws.ws_col : 80;
+}
+
+/* The help below the view, each line cut to the width. Returns the lines drawn. */
+static int draw_help(const view *v, int width)
+{
+    const char *t = navview_help(v->keyboard);
+    int n = 0;
+    while (*t) {
+        const char *end = strchr(t, '\n');
+        int len = (int)(end - t);
+        fprintf(stderr, "\n%.*s", len < width - 1 ? len : width - 1, t);
+        n++;
+        t = end + 1;
+    }
+    return n;
+}
+
+static void draw(view *v, const loop_scene *sc)
+{
+    char refused[512], text[4096], sig[2048];
+    navview_extra x = {-1, NULL, NULL, v->k->c->frag};
+    if (v->ds) {
+        x.battery = atomic_load(&v->ds->battery);
+        if (loopkit_dsource_refused(v->ds, refused, sizeof refused))
+            x.refused = refused;
+    }
+    int64_t now = loop_now_us();
+    if (v->ack[0] && now < v->ack_until_us)
+        x.ack = v->ack;
+    if (v->tty) {
+        int width = terminal_width();
+        int n = navview_format(sc, &x, width, text, sizeof text);
+        if (v->lines > 1)
+            fprintf(stderr, "\033[%dA", v->lines - 1);
+        fprintf(stderr, "\r\033[J%s", text);
+        v->lines = n + (v->help ? draw_help(v, width) : 0);
+        v->last_print_us = now;
+    } else {
+        snprintf(sig, sizeof sig, "%d%d%d%d %.900s %.900s", sc->collision_on, sc->penetrating,
+                 sc->device_present, sc->stats.journal_errors > 0, x.refused ? x.refused : "",
+                 x.ack ? x.ack : "");
+        if (now - v->last_print_us < 1000000 && !strcmp(sig, v->logged) && v->help == v->logged_help)
+            return;
+        snprintf(v->logged, sizeof v->logged, "%s", sig);
+        navview_format(sc, &x, 0, text, sizeof text);
+        fprintf(stderr, "%s\n", text);
+        if (v->help && !v->logged_help)
+            fputs(navview_help(v->keyboard), stderr);
+        v->logged_help = v->help;
+        v->last_print_us = now;
+    }
+    fflush(stderr);
+}
+
+/* The main thread while the loop runs: keys, saves on request, the view. Returns when the user
+ * quits, at --duration, or when a played recording has ended (ended: its reader is done). */
+static void ui(view *v, ring *ctl, pose *saved_poses, int keys, double duration, loop_reader *rd)
 {
     struct termios saved;
     int raw = keys && isatty(STDIN_FILENO) && tcgetattr(STDIN_FILENO, &saved) == 0;
@@ -238,68 +369,70 @@ static void ui(loopkit *k, loopkit_dsource *ds, ring *ctl, pose *saved_poses, in
         t.c_cc[VTIME] = 0;
         tcsetattr(STDIN_FILENO, TCSANOW, &t);
     }
-    int tty = isatty(fileno(view));
-    int64_t t0 = loop_now_us(), last_print = 0;
-    unsigned saves_seen = 0;
+    int64_t t0 = loop_now_us();
     loop_scene sc = {0};
-    while (!quit && (duration <= 0 || (double)(loop_now_us() - t0) < duration * 1e6)) {
+    while (!quit && !loop_reader_done(rd) &&
+           (duration <= 0 || (double)(loop_now_us() - t0) < duration * 1e6)) {
         if (raw)
-            read_keys(k->L, ctl);
-        loop_scene_read(k->L, &sc);
-        if (sc.save_requests != saves_seen) {
-            saves_seen = sc.save_requests;
-            save_scene(k, &sc, saved_poses, ctl);
+            read_keys(v, v->k->L, ctl);
+        loop_scene_read(v->k->L, &sc);
+        new_actions(v, &sc);
+        new_plays(v);
+        if (sc.save_requests != v->saves_seen) {
+            v->saves_seen = sc.save_requests;
+            save_scene(v, &sc, saved_poses, ctl);
         }
-        int64_t now = loop_now_us();
-        if (now - last_print >= (tty ? 100000 : 1000000)) {
-            char line[512];
-            loop_scene_format(&sc, line, sizeof line);
-            size_t len = strlen(line);
-            int battery = atomic_load(&ds->battery);
-            if (battery >= 0 && len < sizeof line)
-                snprintf(line + len, sizeof line - len, " | battery %d%%", battery);
-            if (tty)
-                fit_to_terminal(line, fileno(view));
-            fprintf(view, tty ? "\r\033[K%s" : "%s\n", line);
-            fflush(view);
-            last_print = now;
-        }
+        if (!v->tty || loop_now_us() - v->last_print_us >= 100000)
+            draw(v, &sc);
         struct timespec nap = {0, 20000000};
         nanosleep(&nap, NULL);
     }
     if (raw)
         tcsetattr(STDIN_FILENO, TCSANOW, &saved);
-    if (tty)
-        fprintf(view, "\n");
 }
 
-/* Input thread and loop thread around ui(); then the loop is stopped and the case saved.
- * saved_poses outlives the loop thread, which reads it on LOOP_EV_SAVED. */
-static int run(loopkit *k, loopkit_dsource *ds, int keys, double duration, FILE *view)
+/* Input thread and loop thread around ui(); then the loop is stopped, the view drawn once more
+ * with the last events, and the case saved. saved_poses outlives the loop thread, which reads it
+ * on LOOP_EV_SAVED. */
+static int run(view *v, loop_source src, int keys, double duration)
 {
+    loopkit *k = v->k;
     pose saved_poses[LOOP_MAX_FRAGS] = {0}; /* written by each save before the loop reads it */
     loop_set_saved(k->L, saved_poses);
     ring *in = ring_new(sizeof(loop_event), 1024), *ctl = ring_new(sizeof(loop_event), 64);
     runner run = {k->L, in, 0, 0};
     atomic_init(&run.stop, 0);
     loop_set_controls(k->L, ctl);
-    loop_reader *rd = in && ctl ? loop_reader_start(loopkit_device_source(ds), in, k->L, 0) : NULL;
+    struct sigaction sa = {0}; /* before the input thread: the keyboard device's q raises SIGINT */
+    sa.sa_handler = on_signal;
+    sigaction(SIGINT, &sa, NULL);
+    sigaction(SIGTERM, &sa, NULL);
+    loop_reader *rd = in && ctl ? loop_reader_start(src, in, k->L, 0) : NULL;
     pthread_t th;
     int rc = 0;
     if (!rd || pthread_create(&th, NULL, loop_thread, &run) != 0) {
         rc = rd ? fn_err_set(FN_EIO, "cannot start the loop thread") : FN_EIO;
         loop_reader_stop(rd);
     } else {
-        struct sigaction sa = {0};
-        sa.sa_handler = on_signal;
-        sigaction(SIGINT, &sa, NULL);
-        sigaction(SIGTERM, &sa, NULL);
-        ui(k, ds, ctl, saved_poses, keys, duration, view);
+        ui(v, ctl, saved_poses, keys, duration, rd);
+        int ended = loop_reader_done(rd);
         loop_reader_stop(rd);
         atomic_store(&run.stop, 1);
         loop_notify(k->L);
         pthread_join(th, NULL);
         rc = run.rc;
+        loop_scene sc = {0};
+        loop_publish(k->L);
+        loop_scene_read(k->L, &sc);
+        new_actions(v, &sc);
+        if (sc.save_requests != v->saves_seen) /* asked for by the last events: said as asked */
+            save_scene(v, &sc, saved_poses, ctl);
+        if (ended)
+            acknowledge(v, "end of the recording");
+        v->last_print_us = 0;
+        draw(v, &sc);
+        if (v->tty)
+            fputc('\n', stderr);
         if (rc == 0)
             rc = loopkit_save(k);
     }
@@ -308,6 +441,38 @@ static int run(loopkit *k, loopkit_dsource *ds, int keys, double duration, FILE 
     ring_free(in);
     ring_free(ctl);
     return rc;
+}
+
+/* A played recording as the source (navigate ends at its end, or plays it again with --loop):
+ * opens it into ts with the decoder for its device. 0 or negative. */
+static int open_recording(const opts *o, const dev_transport *t, const calib *cal, loopkit_tsource *ts,
+                          loop_config *cfg)
+{
+    memset(ts, 0, sizeof *ts);
+    const char *file = strchr(o->device, ':') + 1;
+    int rc = t->open(file, &ts->h);
+    if (rc < 0)
+        return rc;
+    const fnrec_header *hdr = sim_replay_header(ts->h);
+    ts->tr = t;
+    ts->finished = sim_replay_finished;
+    ts->again = o->again ? file : NULL;
+    loopkit_decoder_init(&ts->dec, hdr->vid, hdr->pid, cal);
+    loop_config_actions_at(cfg, devtab_key1_button(devtab_find(hdr->vid, hdr->pid)));
+    return 0;
+}
+
+/* The live device as the source: the keyboard device's help key (button 11) shows the keys. */
+static int open_device(const opts *o, loopkit_dsource *ds, loop_config *cfg, int *keyboard)
+{
+    ds->d = dev_open(o->device);
+    if (!ds->d)
+        return FN_ENODEV;
+    *keyboard = !strcmp(dev_transport_name(ds->d), "keyboard");
+    loop_config_actions_at(cfg, devtab_key1_button(dev_row(ds->d)));
+    if (*keyboard)
+        cfg->button_action[10] = LOOP_ACT_HELP;
+    return 0;
 }
 
 int cmd_navigate(int argc, char **argv)
@@ -320,25 +485,32 @@ int cmd_navigate(int argc, char **argv)
     int rc = parse(argc, argv, &o);
     if (rc)
         return rc;
-    loopkit_dsource ds = {0};
-    calib_default(&ds.cal);
+    calib cal;
+    calib_default(&cal);
     char used[4096], diag[2048] = "";
-    if (calib_load(&ds.cal, o.config, used, sizeof used, diag, sizeof diag) < 0) {
+    if (calib_load(&cal, o.config, used, sizeof used, diag, sizeof diag) < 0) {
         fprintf(stderr, "fracnav navigate: %s\n", fn_err_msg());
         return 1;
     }
     fputs(diag, stderr);
     offer_recovery(&o);
-    ds.d = dev_open(o.device);
-    if (!ds.d) {
-        fprintf(stderr, "fracnav navigate: %s\n", fn_err_msg());
-        return 1;
-    }
-    int keys = strcmp(dev_transport_name(ds.d), "keyboard") != 0;
     loop_config cfg;
     loop_config_default(&cfg);
-    loop_config_actions_at(&cfg, devtab_key1_button(dev_row(ds.d)));
     cfg.frame = o.frame;
+    const dev_transport *played = recording_spec(o.device);
+    loopkit_tsource ts;
+    loopkit_dsource ds;
+    loopkit_dsource_init(&ds, NULL, &cal);
+    view v = {0};
+    v.tty = isatty(STDERR_FILENO);
+    rc = played ? open_recording(&o, played, &cal, &ts, &cfg) : open_device(&o, &ds, &cfg, &v.keyboard);
+    if (rc < 0) {
+        fprintf(stderr, "fracnav navigate: %s\n", fn_err_msg());
+        loopkit_dsource_destroy(&ds);
+        return 1;
+    }
+    if (v.tty)
+        fprintf(stderr, "loading %s and building its collision hierarchy...\n", o.dir);
     loopkit k;
     rc = loopkit_open(&k, o.dir, &cfg, o.flags, "navigate", &o.tau);
     if (rc == 0) {
@@ -347,18 +519,25 @@ int cmd_navigate(int argc, char **argv)
         ds.L = k.L;
         if (o.have_pivot)
             loop_set_pivot(k.L, o.pivot);
-        ds.led = -1;
-        atomic_init(&ds.battery, -1);
-        rc = run(&k, &ds, keys, o.duration, o.json ? stderr : stdout); /* --json: stdout holds it alone */
-        dev_set_led(ds.d, 0);
+        v.k = &k;
+        v.ds = played ? NULL : &ds;
+        v.ts = played ? &ts : NULL;
+        loop_source src = played ? loopkit_transport_source(&ts) : loopkit_device_source(&ds);
+        rc = run(&v, src, played || !v.keyboard, o.duration);
+        if (!played)
+            dev_set_led(ds.d, 0);
         if (rc == 0 && o.json)
-            rc = loopkit_print_json(&k, stdout, "navigate", -1, dev_skipped(ds.d));
+            rc = loopkit_print_json(&k, stdout, "navigate", played ? (long)ts.unplugs : -1,
+                                    played ? ts.dec.ps.n_unknown_id + ts.dec.ps.n_bad_len : dev_skipped(ds.d));
         else if (rc == 0)
             fprintf(stderr, "saved %s\n", o.dir);
         loopkit_close(&k);
     }
     if (rc < 0)
         fprintf(stderr, "fracnav navigate: %s\n", fn_err_msg());
+    if (played && ts.h)
+        played->close(ts.h);
     dev_close(ds.d);
+    loopkit_dsource_destroy(&ds);
     return rc < 0 ? 1 : 0;
 }

@@ -105,6 +105,7 @@ loop *loop_new(const frag *frags, int n, const uint8_t *fixed, const loop_collid
     if (L->fixed[0])
         loop_action_do(L, LOOP_ACT_NEXT);
     loop_stats_init(L);
+    L->at_rest = 1;
     return L;
 }
 
@@ -306,15 +307,18 @@ static int overlap_all(loop *L, int s, const pose *p, double *sum)
     return 0;
 }
 
-/* Queries fragment s where it stands: the gap, or that it interpenetrates and how deep. */
-static int refresh_contact(loop *L, int s)
+/* Queries fragment s where it stands: the gap, or that it interpenetrates and how deep. fresh:
+ * from scratch (no cache, not in the statistics), whose bound on the gap is the collider's best
+ * for this pose; the pair caches' may be carried over from earlier poses. */
+static int refresh_contact(loop *L, int s, int fresh)
 {
     double sep;
-    int rc = collide_all(L, s, &L->pose[s], 0, &sep);
+    int rc = collide_all(L, s, &L->pose[s], fresh, &sep);
     if (rc < 0)
         return rc;
     L->in_collision = rc;
     L->gap_valid = !rc;
+    L->gap_fresh = !rc && fresh;
     L->gap = rc ? 0 : sep;
     L->pen = rc ? fmin(sep, 0) : 0;
     return rc ? overlap_all(L, s, &L->pose[s], &L->overlap) : 0;
@@ -356,7 +360,7 @@ static int move(loop *L, int s, double c[3], const double d[3], const double r[3
         return LOOP_ACCEPTED;
     }
     if (!L->gap_valid && !L->in_collision) {
-        int rc = refresh_contact(L, s);
+        int rc = refresh_contact(L, s, 0);
         if (rc < 0)
             return rc;
     }
@@ -396,6 +400,7 @@ void loop_accept(loop *L, int s, pose p, int64_t t_us, uint32_t kind, int checke
         kind = JOURNAL_START;
     }
     L->pose[s] = p;
+    L->gap_fresh = 0;
     L->verify_frag = s;
     if (checked != LOOP_CHECKED)
         L->gap_valid = 0;
@@ -477,8 +482,10 @@ static int step(loop *L, const loop_event *ev)
             still &= ev->motion[i] == 0;
         if (still)
             gesture_end(L);
+        L->at_rest = still;
         return LOOP_IDLE;
     }
+    L->at_rest = 0;
     if (L->fixed[s])
         return LOOP_IDLE;
     double c[3];
@@ -502,6 +509,28 @@ static void journal_saved(loop *L)
     L->st.journal_errors += (uint64_t)bad;
 }
 
+/* After an event: the scene shows the contact state of the pose it shows. The selected fragment
+ * is queried where it stands, from scratch, when its gap is unknown (new selection, undo) or once
+ * the device is at rest after a move: while it moves, the gap is carried over by the separation
+ * shortcut and the pair caches, a lower bound that can shrink with every move, even away from
+ * the contact. */
+static int settle(loop *L)
+{
+    if (!L->collision_on || L->in_collision || (L->gap_valid && (L->gap_fresh || !L->at_rest)))
+        return 0;
+    return refresh_contact(L, L->selected, 1);
+}
+
+/* A control from an event (a key or a button): done and remembered for the scene. */
+static int act(loop *L, loop_action a)
+{
+    int rc = loop_action_do(L, a);
+    L->actions++;
+    L->last_action = (int)a;
+    L->last_action_result = rc;
+    return rc;
+}
+
 int loop_feed(loop *L, const loop_event *ev)
 {
     L->st.events++;
@@ -513,12 +542,12 @@ int loop_feed(loop *L, const loop_event *ev)
         L->buttons = ev->buttons;
         for (int b = 0; b < 32; b++)
             if (pressed >> b & 1 && L->cfg.button_action[b])
-                loop_action_do(L, (loop_action)L->cfg.button_action[b]);
+                act(L, (loop_action)L->cfg.button_action[b]);
         out = step(L, ev);
         break;
     }
     case LOOP_EV_ACTION:
-        out = loop_action_do(L, (loop_action)ev->action);
+        out = act(L, (loop_action)ev->action);
         break;
     case LOOP_EV_SAVED:
         journal_saved(L);
@@ -530,6 +559,7 @@ int loop_feed(loop *L, const loop_event *ev)
         L->have_last_t = 0;
         gesture_end(L);
         L->buttons = 0;
+        L->at_rest = 1;
         break;
     default:
         break;
@@ -539,7 +569,8 @@ int loop_feed(loop *L, const loop_event *ev)
     verify(L);
     if (out > 0)
         L->last_outcome = (loop_outcome)out;
-    return out;
+    int rc = out < 0 ? 0 : settle(L);
+    return rc < 0 ? rc : out;
 }
 
 /* ---- controls ---- */
@@ -632,7 +663,7 @@ int loop_action_do(loop *L, loop_action a)
         /* Back on: look at once, so a fragment left inside another shows the warning now. */
         L->collision_on = !L->collision_on;
         L->gap_valid = L->in_collision = 0;
-        int rc = L->collision_on ? refresh_contact(L, L->selected) : 0;
+        int rc = L->collision_on ? refresh_contact(L, L->selected, 0) : 0;
         return rc < 0 ? rc : LOOP_IDLE;
     }
     case LOOP_ACT_TRANS_ONLY:
@@ -652,6 +683,7 @@ int loop_action_do(loop *L, loop_action a)
     case LOOP_ACT_FRAME:
         L->cfg.frame = (loop_frame)((L->cfg.frame + 1) % 3);
         return LOOP_IDLE;
+    case LOOP_ACT_HELP: /* the application's view shows the keys: only remembered (act) */
     default:
         return LOOP_IDLE;
     }
@@ -676,6 +708,13 @@ int loop_recover(loop *L, const journal_rec *recs, size_t n)
     L->gap_valid = L->in_collision = 0;
     gesture_end(L);
     return 0;
+}
+
+int loop_measure(loop *L)
+{
+    int rc = settle(L);
+    loop_publish(L);
+    return rc;
 }
 
 void loop_set_pivot(loop *L, const double world[3])

@@ -74,6 +74,7 @@ typedef enum {
     LOOP_ACT_REDO,
     LOOP_ACT_SAVE,       /* counts in the scene's save_requests; the application saves */
     LOOP_ACT_FRAME,      /* cycle camera -> world -> fragment frame */
+    LOOP_ACT_HELP,       /* show or hide the keys: the application's view (the scene's last_action) */
     LOOP_ACT_COUNT
 } loop_action;
 
@@ -150,7 +151,15 @@ typedef struct loop_scene {
     unsigned save_requests; /* LOOP_ACT_SAVE presses so far: the application saves when it grows */
     loop_frame frame;
     loop_outcome last_outcome;
-    double separation_mm; /* selected fragment's smallest separation estimate after the last step */
+    /* The selected fragment's contact at the pose in this scene: > 0 a lower bound on its gap to
+     * every other fragment, 0 touching, < 0 penetrating (minus the depth estimate); NAN when
+     * checking is off. Queried from scratch where it stands after a selection change or an undo
+     * and once the device comes to rest; while it moves, the bound the step found (the
+     * separation shortcut's or the pair caches': still a bound for this pose, if a loose one). */
+    double separation_mm;
+    unsigned actions;        /* controls done by events (keys, buttons) so far */
+    loop_action last_action; /* the latest of them, and what loop_action_do returned for it */
+    int last_action_result;  /* (undo/redo: LOOP_ACCEPTED, LOOP_REFUSED, LOOP_IDLE = none left) */
     loop_stats stats;
     pose pose[LOOP_MAX_FRAGS];
     uint8_t fixed[LOOP_MAX_FRAGS];
@@ -203,6 +212,10 @@ int loop_recover(loop *L, const struct journal_rec *recs, size_t n);
  * writes them there, then sends LOOP_EV_SAVED through the control ring: the loop empties the
  * journal and appends the poses that have moved since (so a later crash offers only those). */
 void loop_set_saved(loop *L, const pose *saved);
+/* Queries the selected fragment where it stands (when its contact is not known) and publishes,
+ * so that the scene shows the contact before the first event; loop_feed does the same after each
+ * event. Before the loop runs, or on its thread. 0 or the collider's error. */
+int loop_measure(loop *L);
 /* Moves a fragment without collision checking (recovery, loading): no journal, no stats. */
 void loop_set_pose(loop *L, int i, pose p);
 
@@ -220,11 +233,6 @@ void loop_publish(loop *L);
  * next). Returns 1 when its seq differs from the one out held on entry (zero out before the
  * first read), else 0; out holds the newest either way. */
 int loop_scene_read(loop *L, loop_scene *out);
-/* One line for a terminal: warnings first (collision checking off, device unplugged, journal
- * write failed: within the first 80 columns), then the selected fragment, pose, collision state,
- * rates, latency. */
-void loop_scene_format(const loop_scene *s, char *buf, size_t cap);
-
 /* Asks the OS to run the calling thread (the one that will call loop_run) under SCHED_FIFO at a
  * modest priority, so other processes do not preempt a step. Needs CAP_SYS_NICE (root, or an
  * rtprio limit); returns 0, or FN_EINVAL when not allowed (the loop then runs as before). Safe:

@@ -39,6 +39,10 @@ struct loop {
     uint32_t buttons;
     int gesture_saved; /* this gesture's undo checkpoint is taken */
     int gap_valid, in_collision; /* in_collision: the selected fragment interpenetrates another */
+    int gap_fresh; /* gap comes from a query from scratch at the current pose (settle) */
+    int at_rest;      /* the last motion event was all zero (or the device went away) */
+    unsigned actions; /* controls done, for the scene's acknowledgement */
+    int last_action, last_action_result;
     int tries; /* candidates queried in this step */
     int verify, verify_frag; /* an accepted pose awaits the invariant check */
     double gap; /* selected fragment's separation lower bound at its current pose */

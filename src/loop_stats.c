@@ -172,7 +172,10 @@ void loop_publish(loop *L)
     s->frame = L->cfg.frame;
     s->last_outcome = L->last_outcome;
     s->penetrating = L->collision_on && L->in_collision;
-    s->separation_mm = L->gap_valid ? L->gap : L->in_collision ? L->pen : INFINITY;
+    s->separation_mm = !L->collision_on ? NAN : L->in_collision ? L->pen : L->gap_valid ? L->gap : NAN;
+    s->actions = L->actions;
+    s->last_action = (loop_action)L->last_action;
+    s->last_action_result = L->last_action_result;
     s->stats = L->st;
     memcpy(s->pose, L->pose, sizeof(pose) * (size_t)L->n);
     memcpy(s->fixed, L->fixed, (size_t)L->n);
@@ -195,47 +198,6 @@ int loop_scene_read(loop *L, loop_scene *out)
         atomic_fetch_sub(&L->refs[b], 1);
     }
     return out->seq != had;
-}
-
-/* "WARNING: A | B | " for the warnings that hold, or "". All of them fit in 80 columns. */
-static void warnings(const loop_scene *s, char *buf, size_t cap)
-{
-    const char *w[] = {s->collision_on ? NULL : "COLLISION CHECKING OFF",
-                       s->penetrating ? "PENETRATING" : NULL,
-                       s->device_present ? NULL : "DEVICE UNPLUGGED",
-                       s->stats.journal_errors ? "JOURNAL WRITE FAILED" : NULL};
-    size_t len = 0;
-    buf[0] = '\0';
-    for (size_t i = 0; i < sizeof w / sizeof w[0]; i++)
-        if (w[i] && len < cap)
-            len += (size_t)snprintf(buf + len, cap - len, "%s%s | ", len ? "" : "WARNING: ", w[i]);
-}
-
-/* Warnings first: a terminal narrower than the line cuts its end, never a warning. */
-void loop_scene_format(const loop_scene *s, char *buf, size_t cap)
-{
-    static const char *outcome[] = {"idle", "free", "limited", "sliding", "refused"};
-    static const char *frame[] = {"camera", "world", "fragment"};
-    const pose *p = &s->pose[s->selected];
-    char sep[32];
-    if (isinf(s->separation_mm))
-        snprintf(sep, sizeof sep, "far");
-    else
-        snprintf(sep, sizeof sep, "%.2f mm", s->separation_mm);
-    char warn[96];
-    warnings(s, warn, sizeof warn);
-    snprintf(buf, cap,
-             "%sfrag %d/%d%s | q %.4f %.4f %.4f %.4f t %.2f %.2f %.2f mm | %s, gap %s | %s%s%s"
-             " | %.0f steps/s %.0f ticks/s | latency p50 %.0f p99 %.0f max %.0f us | query %.0f us"
-             " | %llu free %llu limited %llu slid %llu refused",
-             warn, s->selected + 1, s->nfrag, s->fixed[s->selected] ? " (fixed)" : "", p->q[0], p->q[1],
-             p->q[2], p->q[3], p->t[0], p->t[1], p->t[2], outcome[s->last_outcome], sep,
-             frame[s->frame], s->trans_only ? ", translation only" : "",
-             s->rot_only ? ", rotation only" : "", s->stats.step_hz, s->stats.tick_hz,
-             s->stats.latency_p50_us, s->stats.latency_p99_us, s->stats.latency_max_us,
-             s->stats.query_us_mean, (unsigned long long)s->stats.accepted,
-             (unsigned long long)s->stats.limited, (unsigned long long)s->stats.slid,
-             (unsigned long long)s->stats.refused);
 }
 
 void loop_set_controls(loop *L, ring *ctl)

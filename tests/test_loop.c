@@ -8,6 +8,7 @@
 
 #include "err.h"
 #include "loop.h"
+#include "navview.h"
 #include "ring.h"
 
 #include <math.h>
@@ -402,7 +403,7 @@ static void test_controls(void **st)
     loop_scene_read(L, &sc);
     assert_int_equal(sc.collision_on, 0);
     char line[512];
-    loop_scene_format(&sc, line, sizeof line);
+    navview_format(&sc, NULL, 0, line, sizeof line);
     assert_non_null(strstr(line, "COLLISION CHECKING OFF"));
     loop_stats s;
     loop_get_stats(L, &s);
@@ -638,35 +639,6 @@ static void test_scene_concurrent_readers(void **st)
     run_with_viewers(3);
 }
 
-/* Every warning at once still lies within an 80-column terminal (navigate cuts the line there). */
-static void test_scene_format_warnings_first(void **st)
-{
-    loop_scene sc = {.nfrag = 3, .selected = 2, .collision_on = 0, .device_present = 0};
-    sc.stats.journal_errors = 1;
-    sc.stats.accepted = 123456789;
-    sc.separation_mm = 12.5;
-    sc.pose[2] = POSE_IDENTITY;
-    char line[512];
-    loop_scene_format(&sc, line, sizeof line);
-    const char *warn[] = {"COLLISION CHECKING OFF", "DEVICE UNPLUGGED", "JOURNAL WRITE FAILED"};
-    for (int i = 0; i < 3; i++) {
-        const char *at = strstr(line, warn[i]);
-        assert_non_null(at);
-        assert_true(at - line + strlen(warn[i]) <= 79); /* fit_to_terminal keeps width - 1 */
-    }
-    sc.collision_on = sc.penetrating = 1; /* the other warning that goes with the two last */
-    loop_scene_format(&sc, line, sizeof line);
-    const char *at = strstr(line, "PENETRATING");
-    assert_true(at && at - line + strlen("PENETRATING") <= 79);
-    assert_true(strstr(line, "JOURNAL WRITE FAILED") - line + strlen("JOURNAL WRITE FAILED") <= 79);
-    sc.penetrating = 0;
-    sc.device_present = 1;
-    sc.stats.journal_errors = 0;
-    loop_scene_format(&sc, line, sizeof line);
-    assert_null(strstr(line, "WARNING"));
-    assert_true(strncmp(line, "frag 3/3", 8) == 0);
-}
-
 static void test_bad_arguments(void **st)
 {
     world w;
@@ -697,7 +669,6 @@ int main(void)
         cmocka_unit_test(test_drain_publishes_scene),
         cmocka_unit_test(test_threads_reader_loop_renderer),
         cmocka_unit_test(test_scene_concurrent_readers),
-        cmocka_unit_test(test_scene_format_warnings_first),
         cmocka_unit_test(test_bad_arguments),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

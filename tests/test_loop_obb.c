@@ -6,6 +6,7 @@
 #include <cmocka.h>
 
 #include "loop.h"
+#include "navview.h"
 #include "obb.h"
 #include "testutil.h"
 
@@ -177,7 +178,7 @@ static void test_checking_back_on_inside(void **st)
     assert_int_equal(sc.penetrating, 1);
     assert_true(sc.separation_mm < 0);
     char line[512];
-    loop_scene_format(&sc, line, sizeof line);
+    navview_format(&sc, NULL, 0, line, sizeof line);
     assert_non_null(strstr(line, "PENETRATING"));
     /* Deeper: every step refused, the depth stays. */
     assert_int_equal(push(L, f, 1, 0, 10, &t, &top), 10);
