@@ -298,8 +298,17 @@ static void wait_until(loop *L, int64_t deadline_us)
         ; /* one wake-up serves every event pushed so far */
 }
 
+/* Writes the stack pages a step may reach, below the caller's frame, so that the first step
+ * into a contact (the deepest collision queries) takes no first-touch page fault. */
+static __attribute__((noinline)) void prefault_stack(void)
+{
+    unsigned char pages[LOOP_STACK_PREFAULT];
+    loop__prefault(pages, sizeof pages);
+}
+
 int loop_run(loop *L, ring *r, int64_t period_us, const atomic_int *stop)
 {
+    prefault_stack();
     unsigned idle = 0;
     int64_t next = loop_now_us();
     while (!atomic_load(stop)) {
