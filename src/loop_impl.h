@@ -65,6 +65,8 @@ struct loop {
     atomic_int latest;
     uint64_t pub_seq;
     sem_t wake;          /* loop_notify -> loop_run */
+    atomic_int rt_cpu;   /* the CPU loop_run runs on under SCHED_FIFO (-1: not), for the reader */
+    int rt_prio;         /* its priority, written before rt_cpu */
     atomic_ullong done; /* events finished, for other threads */
 };
 

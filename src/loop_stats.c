@@ -1,16 +1,19 @@
 /* loop: statistics, the scene buffer a renderer reads, and the fixed-rate driver. */
+#define _GNU_SOURCE /* CPU affinity: sched_getcpu, pthread_setaffinity_np */
 #include "loop_impl.h"
 
 #include "err.h"
 #include "journal.h"
 
 #include <errno.h>
+#include <link.h>
 #include <pthread.h>
 #include <sched.h>
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
 #include <semaphore.h>
+#include <sys/mman.h>
 #include <time.h>
 
 #define FNV_OFFSET 0xcbf29ce484222325ull
@@ -36,6 +39,7 @@ void loop_stats_init(loop *L)
     atomic_init(&L->latest, 0);
     sem_init(&L->wake, 0, 0);
     atomic_init(&L->done, 0);
+    atomic_init(&L->rt_cpu, -1);
     loop_reset_timing(L);
     loop_publish(L);
 }
@@ -264,7 +268,27 @@ int loop_realtime_priority(void)
 {
     struct sched_param sp = {.sched_priority = 10};
     int rc = pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp);
-    return rc == 0 ? 0 : fn_err_set(FN_EINVAL, "real-time priority not granted: %s", strerror(rc));
+    if (rc != 0)
+        return fn_err_set(FN_EINVAL, "real-time priority not granted: %s", strerror(rc));
+    int cpu = sched_getcpu();
+    cpu_set_t one;
+    CPU_ZERO(&one);
+    if (cpu >= 0)
+        CPU_SET(cpu, &one);
+    if (cpu < 0 || (rc = pthread_setaffinity_np(pthread_self(), sizeof one, &one)) != 0)
+        return fn_err_set(FN_EINVAL, "real-time priority granted, but the thread cannot be kept on "
+                                     "CPU %d: %s", cpu, strerror(cpu < 0 ? errno : rc));
+    return 0;
+}
+
+/* Tells the reader where the loop runs: on one CPU under SCHED_FIFO, or not real-time (-1). */
+static void announce_cpu(loop *L, int on)
+{
+    int policy = SCHED_OTHER;
+    struct sched_param sp = {0};
+    on = on && pthread_getschedparam(pthread_self(), &policy, &sp) == 0 && policy == SCHED_FIFO;
+    L->rt_prio = sp.sched_priority;
+    atomic_store(&L->rt_cpu, on ? sched_getcpu() : -1);
 }
 
 uint64_t loop_events_done(const loop *L)
@@ -306,9 +330,35 @@ static __attribute__((noinline)) void prefault_stack(void)
     loop__prefault(pages, sizeof pages);
 }
 
+/* Maps every page of one loaded object (the program, libm, libc, zlib, ...) into the page
+ * tables, so that the first step that runs some code or reads some table (the first rotation's
+ * sincos, the journal's CRC) takes no page fault. Where the kernel lacks MADV_POPULATE_READ
+ * (before 5.14), readable pages are read instead. */
+static int prefault_object(struct dl_phdr_info *info, size_t size, void *unused)
+{
+    (void)size;
+    (void)unused;
+    uintptr_t page = 4096;
+    for (int i = 0; i < info->dlpi_phnum; i++) {
+        const ElfW(Phdr) *ph = &info->dlpi_phdr[i];
+        if (ph->p_type != PT_LOAD || ph->p_memsz == 0)
+            continue;
+        uintptr_t lo = (info->dlpi_addr + ph->p_vaddr) & ~(page - 1);
+        uintptr_t hi = info->dlpi_addr + ph->p_vaddr + ph->p_memsz;
+        if (madvise((void *)lo, hi - lo, MADV_POPULATE_READ) == 0 || errno != EINVAL ||
+            !(ph->p_flags & PF_R))
+            continue;
+        for (uintptr_t a = lo; a < hi; a += page)
+            (void)*(volatile const unsigned char *)a;
+    }
+    return 0;
+}
+
 int loop_run(loop *L, ring *r, int64_t period_us, const atomic_int *stop)
 {
     prefault_stack();
+    dl_iterate_phdr(prefault_object, NULL);
+    announce_cpu(L, 1);
     unsigned idle = 0;
     int64_t next = loop_now_us();
     while (!atomic_load(stop)) {
@@ -328,6 +378,7 @@ int loop_run(loop *L, ring *r, int64_t period_us, const atomic_int *stop)
         }
         wait_until(L, next);
     }
+    announce_cpu(L, 0);
     int rc = loop_drain(L, r);
     return rc < 0 ? rc : 0;
 }

@@ -210,8 +210,8 @@ static void test_steps_touch_no_new_page(void **st)
 int main(void)
 {
     const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_steps_touch_no_new_page), /* first: nothing has run the step yet */
         cmocka_unit_test(test_steps_allocate_nothing),
-        cmocka_unit_test(test_steps_touch_no_new_page),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
