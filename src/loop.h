@@ -187,7 +187,10 @@ int loop_drain(loop *L, ring *r);
  * *stop becomes nonzero (then drains once more). Run it on its own thread. Returns 0 or the first
  * collider error. Before the first step it maps every page a step may touch -- its thread's
  * stack, the code and tables of the program and its libraries -- so that no step waits on a
- * first-touch page fault; under loop_realtime_priority it tells the loop's reader its CPU. */
+ * first-touch page fault; under loop_realtime_priority it tells the loop's reader its CPU.
+ * While any loop runs, the process is kept out of khugepaged's reach (PR_SET_THP_DISABLE: a
+ * merge into a huge page takes the pages away from a step for milliseconds; huge pages made
+ * before stay); the last loop to stop restores what was there before. */
 int loop_run(loop *L, ring *r, int64_t period_us, const atomic_int *stop);
 
 /* Direct controls (the same as the actions, for the application's own thread when not running). */

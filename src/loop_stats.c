@@ -14,6 +14,7 @@
 #include <string.h>
 #include <semaphore.h>
 #include <sys/mman.h>
+#include <sys/prctl.h>
 #include <time.h>
 
 #define FNV_OFFSET 0xcbf29ce484222325ull
@@ -354,11 +355,26 @@ static int prefault_object(struct dl_phdr_info *info, size_t size, void *unused)
     return 0;
 }
 
-int loop_run(loop *L, ring *r, int64_t period_us, const atomic_int *stop)
+/* khugepaged, when it merges a process's pages into a huge page, takes the range away while it
+ * copies it: a step that reads there waits for it (a page fault of milliseconds). While any loop
+ * runs, the process's memory is kept out of its reach (huge pages made before stay huge); the
+ * last loop to stop gives it back, unless it was kept out before. */
+static atomic_int thp_holds;
+static int thp_was_off;
+
+static void hold_huge_pages(int on)
 {
-    prefault_stack();
-    dl_iterate_phdr(prefault_object, NULL);
-    announce_cpu(L, 1);
+    if (on && atomic_fetch_add(&thp_holds, 1) == 0) {
+        thp_was_off = prctl(PR_GET_THP_DISABLE, 0, 0, 0, 0) == 1;
+        if (!thp_was_off)
+            prctl(PR_SET_THP_DISABLE, 1, 0, 0, 0);
+    } else if (!on && atomic_fetch_sub(&thp_holds, 1) == 1 && !thp_was_off) {
+        prctl(PR_SET_THP_DISABLE, 0, 0, 0, 0);
+    }
+}
+
+static int run_until(loop *L, ring *r, int64_t period_us, const atomic_int *stop)
+{
     unsigned idle = 0;
     int64_t next = loop_now_us();
     while (!atomic_load(stop)) {
@@ -378,7 +394,18 @@ int loop_run(loop *L, ring *r, int64_t period_us, const atomic_int *stop)
         }
         wait_until(L, next);
     }
-    announce_cpu(L, 0);
     int rc = loop_drain(L, r);
     return rc < 0 ? rc : 0;
+}
+
+int loop_run(loop *L, ring *r, int64_t period_us, const atomic_int *stop)
+{
+    hold_huge_pages(1);
+    prefault_stack();
+    dl_iterate_phdr(prefault_object, NULL);
+    announce_cpu(L, 1);
+    int rc = run_until(L, r, period_us, stop);
+    announce_cpu(L, 0);
+    hold_huge_pages(0);
+    return rc;
 }

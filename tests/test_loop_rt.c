@@ -2,7 +2,9 @@
  * CPU (there the loop waits until that CPU's task leaves the kernel: milliseconds on a busy
  * machine): loop_realtime_priority keeps the loop's thread on one CPU, and the reader, though
  * started by an ordinary thread (as navigate starts it), moves to that CPU at a real-time
- * priority just below the loop's. Skipped where real-time priority is not granted. */
+ * priority just below the loop's. Skipped where real-time priority is not granted.
+ * And while a loop runs, khugepaged keeps out of the process (merging pages into a huge page, it
+ * takes them away from a step for milliseconds); afterwards the process has it back. */
 #define _GNU_SOURCE /* sched_getcpu, CPU_COUNT */
 #include <stdarg.h>
 #include <stddef.h>
@@ -18,6 +20,7 @@
 #include <semaphore.h>
 #include <stdatomic.h>
 #include <string.h>
+#include <sys/prctl.h>
 
 #define EVENTS 40
 
@@ -36,6 +39,7 @@ static where here(void)
 }
 
 static where loop_at, reader_at;
+static atomic_int thp_off_in_step; /* PR_GET_THP_DISABLE seen by the last step */
 static int loop_cpus; /* CPUs the loop's thread may run on */
 
 /* A collider that never collides and records the thread that steps. */
@@ -43,6 +47,7 @@ static int query(void *ctx, int a, const pose *pa, int b, const pose *pb, void *
                  loop_contact *out)
 {
     loop_at = here();
+    atomic_store(&thp_off_in_step, prctl(PR_GET_THP_DISABLE, 0, 0, 0, 0));
     out->collides = 0;
     out->separation_mm = 0; /* no shortcut: every step queries */
     return 0;
@@ -86,10 +91,10 @@ static void *loop_thread(void *arg)
     return NULL;
 }
 
-static void test_reader_follows_realtime_loop(void **st)
+/* Two 2-voxel cubes 100 mm apart, the second fixed, under the recording collider. */
+static loop *two_cubes(frag f[2])
 {
-    frag f[2];
-    memset(f, 0, sizeof f);
+    memset(f, 0, 2 * sizeof *f);
     for (int i = 0; i < 2; i++) {
         f[i].dim[0] = f[i].dim[1] = f[i].dim[2] = 2;
         f[i].spacing[0] = f[i].spacing[1] = f[i].spacing[2] = 1;
@@ -100,6 +105,13 @@ static void test_reader_follows_realtime_loop(void **st)
     uint8_t fixed[2] = {0, 1};
     loop *L = loop_new(f, 2, fixed, &col, NULL, NULL);
     assert_non_null(L);
+    return L;
+}
+
+static void test_reader_follows_realtime_loop(void **st)
+{
+    frag f[2];
+    loop *L = two_cubes(f);
     runner ru = {.L = L, .r = ring_new(sizeof(loop_event), 64)};
     assert_non_null(ru.r);
     sem_init(&ru.started, 0, 0);
@@ -134,9 +146,49 @@ static void test_reader_follows_realtime_loop(void **st)
     assert_int_equal(reader_at.prio, loop_at.prio - 1);
 }
 
+typedef struct plain {
+    loop *L;
+    ring *r;
+    atomic_int stop;
+    int rc;
+} plain;
+
+static void *plain_loop(void *arg)
+{
+    plain *p = arg;
+    p->rc = loop_run(p->L, p->r, 1000, &p->stop);
+    return NULL;
+}
+
+static void test_khugepaged_kept_out_while_running(void **st)
+{
+    assert_int_equal(prctl(PR_GET_THP_DISABLE, 0, 0, 0, 0), 0);
+    frag f[2];
+    plain p = {two_cubes(f), ring_new(sizeof(loop_event), 64), 0, 0};
+    assert_non_null(p.r);
+    atomic_init(&p.stop, 0);
+    atomic_store(&thp_off_in_step, -1);
+    pthread_t th;
+    assert_int_equal(pthread_create(&th, NULL, plain_loop, &p), 0);
+    loop_event ev = {.kind = LOOP_EV_MOTION, .t_us = 8000, .motion = {0.5f}};
+    assert_int_equal(ring_push(p.r, &ev), 1);
+    loop_notify(p.L);
+    while (loop_events_done(p.L) < 1)
+        sched_yield();
+    atomic_store(&p.stop, 1);
+    loop_notify(p.L);
+    pthread_join(th, NULL);
+    assert_int_equal(p.rc, 0);
+    assert_int_equal(atomic_load(&thp_off_in_step), 1);
+    assert_int_equal(prctl(PR_GET_THP_DISABLE, 0, 0, 0, 0), 0);
+    ring_free(p.r);
+    loop_free(p.L);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_khugepaged_kept_out_while_running),
         cmocka_unit_test(test_reader_follows_realtime_loop),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
