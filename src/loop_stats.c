@@ -16,6 +16,7 @@
 #include <sys/mman.h>
 #include <sys/prctl.h>
 #include <time.h>
+#include <unistd.h>
 
 #define FNV_OFFSET 0xcbf29ce484222325ull
 #define FNV_PRIME 0x100000001b3ull
@@ -339,7 +340,7 @@ static int prefault_object(struct dl_phdr_info *info, size_t size, void *unused)
 {
     (void)size;
     (void)unused;
-    uintptr_t page = 4096;
+    uintptr_t page = (uintptr_t)sysconf(_SC_PAGESIZE);
     for (int i = 0; i < info->dlpi_phnum; i++) {
         const ElfW(Phdr) *ph = &info->dlpi_phdr[i];
         if (ph->p_type != PT_LOAD || ph->p_memsz == 0)
@@ -359,18 +360,20 @@ static int prefault_object(struct dl_phdr_info *info, size_t size, void *unused)
  * copies it: a step that reads there waits for it (a page fault of milliseconds). While any loop
  * runs, the process's memory is kept out of its reach (huge pages made before stay huge); the
  * last loop to stop gives it back, unless it was kept out before. */
-static atomic_int thp_holds;
-static int thp_was_off;
+static pthread_mutex_t thp_lock = PTHREAD_MUTEX_INITIALIZER;
+static int thp_holds, thp_was_off;
 
 static void hold_huge_pages(int on)
 {
-    if (on && atomic_fetch_add(&thp_holds, 1) == 0) {
+    pthread_mutex_lock(&thp_lock);
+    if (on && thp_holds++ == 0) {
         thp_was_off = prctl(PR_GET_THP_DISABLE, 0, 0, 0, 0) == 1;
         if (!thp_was_off)
             prctl(PR_SET_THP_DISABLE, 1, 0, 0, 0);
-    } else if (!on && atomic_fetch_sub(&thp_holds, 1) == 1 && !thp_was_off) {
+    } else if (!on && --thp_holds == 0 && !thp_was_off) {
         prctl(PR_SET_THP_DISABLE, 0, 0, 0, 0);
     }
+    pthread_mutex_unlock(&thp_lock);
 }
 
 static int run_until(loop *L, ring *r, int64_t period_us, const atomic_int *stop)
