@@ -46,6 +46,18 @@ void loop_config_actions_at(loop_config *c, int first)
     memcpy(c->button_action + first, acts, sizeof acts);
 }
 
+/* Writes a zero into every page of [p, p+n) (calloc'd or scratch memory), so that the step never
+ * takes a first-touch page fault there: the kernel maps fresh memory only when it is first
+ * written. Volatile: the compiler must not drop stores of the zeros calloc already promises. */
+void loop__prefault(void *p, size_t n)
+{
+    volatile unsigned char *b = p;
+    for (size_t i = 0; i < n; i += 4096)
+        b[i] = 0;
+    if (n)
+        b[n - 1] = 0;
+}
+
 static const double CAMERA_DEFAULT[3][3] = {{1, 0, 0}, {0, -1, 0}, {0, 0, -1}};
 
 /* Largest distance from the centroid to a corner of the fragment's crop (home world mm). */
@@ -82,6 +94,8 @@ loop *loop_new(const frag *frags, int n, const uint8_t *fixed, const loop_collid
         fn_err_set(FN_ENOMEM, "loop: out of memory for %d fragments", n);
         return NULL;
     }
+    loop__prefault(L, sizeof *L);
+    loop__prefault(caches, ((size_t)n * (size_t)n + 1) * cb);
     L->frags = frags;
     L->n = n;
     L->col = *col;

@@ -194,7 +194,12 @@ void loop_set_controls(loop *L, ring *ctl);
 int loop_drain(loop *L, ring *r);
 /* The loop: drains r and publishes at every loop_notify and at least every period_us, until
  * *stop becomes nonzero (then drains once more). Run it on its own thread. Returns 0 or the first
- * collider error. */
+ * collider error. Before the first step it maps every page a step may touch -- its thread's
+ * stack, the code and tables of the program and its libraries -- so that no step waits on a
+ * first-touch page fault; under loop_realtime_priority it tells the loop's reader its CPU.
+ * While any loop runs, the process is kept out of khugepaged's reach (PR_SET_THP_DISABLE: a
+ * merge into a huge page takes the pages away from a step for milliseconds; huge pages made
+ * before stay); the last loop to stop restores what was there before. */
 int loop_run(loop *L, ring *r, int64_t period_us, const atomic_int *stop);
 
 /* Direct controls (the same as the actions, for the application's own thread when not running). */
@@ -234,8 +239,9 @@ void loop_publish(loop *L);
  * first read), else 0; out holds the newest either way. */
 int loop_scene_read(loop *L, loop_scene *out);
 /* Asks the OS to run the calling thread (the one that will call loop_run) under SCHED_FIFO at a
- * modest priority, so other processes do not preempt a step. Needs CAP_SYS_NICE (root, or an
- * rtprio limit); returns 0, or FN_EINVAL when not allowed (the loop then runs as before). Safe:
+ * modest priority, so other processes do not preempt a step, and keeps it on the CPU it is on,
+ * where the loop's reader joins it (loop_reader_start). Needs CAP_SYS_NICE (root, or an rtprio
+ * limit); returns 0, or FN_EINVAL when not allowed (the loop then runs as before). Safe:
  * loop_run sleeps between events and a step's work is bounded (max_tries). */
 int loop_realtime_priority(void);
 
@@ -254,7 +260,11 @@ typedef struct loop_source {
 
 /* Input thread: takes every event the source has (draining it) into r, stamps arrival_us and
  * wakes the loop (loop_notify). lockstep: wait until the loop has finished the previous event
- * before pushing the next (benchmarks: no queueing delay in the latency; needs L). */
+ * before pushing the next (benchmarks: no queueing delay in the latency; needs L). While L runs
+ * under loop_realtime_priority, the thread moves to the loop's CPU at the next lower SCHED_FIFO
+ * priority: a report then wakes the loop on a CPU this thread holds, not on another one, where
+ * the loop could wait milliseconds for a task inside the kernel; and this thread never delays a
+ * step. */
 typedef struct loop_reader loop_reader;
 loop_reader *loop_reader_start(loop_source src, ring *r, loop *L, int lockstep);
 /* 1 once the source has ended (all its events are in the ring). */

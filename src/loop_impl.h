@@ -8,6 +8,7 @@
 
 #define LOOP_UNDO_MAX 256
 #define LOOP_SCENE_BUFS 8
+#define LOOP_STACK_PREFAULT (128 * 1024) /* stack a step may use: the queries' pair stacks */
 #define LOOP_HIST_BINS 10000 /* 1 us bins; later latencies land in the overflow count */
 
 typedef struct loop_undo {
@@ -68,6 +69,8 @@ struct loop {
     atomic_int latest;
     uint64_t pub_seq;
     sem_t wake;          /* loop_notify -> loop_run */
+    atomic_int rt_cpu;   /* the CPU loop_run runs on under SCHED_FIFO (-1: not), for the reader */
+    int rt_prio;         /* its priority, written before rt_cpu */
     atomic_ullong done; /* events finished, for other threads */
 };
 
@@ -77,6 +80,7 @@ enum { LOOP_UNCHECKED, LOOP_CHECKED, LOOP_ESCAPING };
 void loop_accept(loop *L, int s, pose p, int64_t t_us, uint32_t kind, int checked);
 void loop_undo_push(loop *L, int s);
 
+void loop__prefault(void *p, size_t n);
 int64_t loop_clock_ns(void);
 void loop_stats_init(loop *L);
 void loop_stats_query(loop *L, int64_t ns);

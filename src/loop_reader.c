@@ -1,4 +1,5 @@
 /* loop: the input thread that drains a source into the loop's ring. */
+#define _GNU_SOURCE /* CPU affinity: pthread_setaffinity_np */
 #include "loop_impl.h"
 
 #include "err.h"
@@ -12,17 +13,41 @@ struct loop_reader {
     ring *r;
     loop *L;
     int lockstep;
+    int cpu; /* the real-time loop's CPU this thread follows (-1: none) */
     uint64_t pushed, base; /* lockstep: events pushed; the loop's count at start */
     atomic_int stop, done;
     int errors;
     pthread_t thread;
 };
 
+/* Runs this thread where a real-time loop runs: on its CPU, one priority step below it. A report
+ * then wakes the loop on the CPU this thread holds, and the loop takes it over at once. Woken on
+ * another CPU, the loop would wait there until that CPU's task left the kernel: milliseconds on
+ * a busy machine whose kernel does not preempt kernel code. Below the loop's priority, this
+ * thread can never hold the loop up, and it still goes before every ordinary task. */
+static void follow_loop(loop_reader *rd)
+{
+    int cpu = atomic_load(&rd->L->rt_cpu);
+    if (cpu == rd->cpu)
+        return;
+    rd->cpu = cpu;
+    if (cpu < 0)
+        return;
+    cpu_set_t one;
+    CPU_ZERO(&one);
+    CPU_SET(cpu, &one);
+    struct sched_param sp = {.sched_priority = rd->L->rt_prio > 1 ? rd->L->rt_prio - 1 : 1};
+    if (pthread_setaffinity_np(pthread_self(), sizeof one, &one) == 0)
+        pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp);
+}
+
 static void push(loop_reader *rd, loop_event *ev)
 {
     struct timespec nap = {0, 20000}; /* sleep, not spin: the loop needs the core more */
     while (rd->lockstep && loop_events_done(rd->L) - rd->base < rd->pushed && !atomic_load(&rd->stop))
         nanosleep(&nap, NULL);
+    if (rd->L)
+        follow_loop(rd);
     rd->pushed++;
     if (ev->arrival_us == 0)
         ev->arrival_us = loop_now_us();
@@ -70,6 +95,7 @@ loop_reader *loop_reader_start(loop_source src, ring *r, loop *L, int lockstep)
     rd->r = r;
     rd->L = L;
     rd->lockstep = lockstep && L;
+    rd->cpu = -1;
     rd->base = L ? loop_events_done(L) : 0;
     atomic_init(&rd->stop, 0);
     atomic_init(&rd->done, 0);

@@ -40,6 +40,10 @@ ring *ring_new(size_t item_size, size_t capacity)
     r->mask = cap - 1;
     r->item_size = item_size;
     r->slots = slots;
+    /* Write every page now: a first-touch page fault in ring_push would stall the producer
+     * between a report's arrival and the loop's wake-up. */
+    for (size_t i = 0; i < cap * item_size; i += 4096)
+        ((volatile unsigned char *)slots)[i] = 0;
     return r;
 }
 
