@@ -22,7 +22,11 @@ static void usage(FILE *out)
             "configuration; the case's fragments are segmented there (poses start at identity)\n"
             "and case.json's truth holds, per fragment, the pose that puts it back. The same\n"
             "seed and options give the same case, byte for byte, on every machine.\n\n"
-            "  -o, --output CASE      the case folder to write (created if missing)\n"
+            "  -o, --output CASE      the case folder to write (created; the case is built beside\n"
+            "                         it and renamed into place, so a kill leaves no half-made\n"
+            "                         folder)\n"
+            "  --force                replace CASE if it holds a case already (with its journal);\n"
+            "                         a kill leaves the old case or the new one\n"
             "  --seed N               the random seed (required)\n"
             "  --pieces K             number of pieces, 2..16 (default 2)\n"
             "  --displace MM          how far each moved piece's centroid moves (default 3); a piece\n"
@@ -58,7 +62,8 @@ static double *number_option(fracture_params *p, const char *opt, const char **a
     return NULL;
 }
 
-static int parse(int argc, char **argv, fracture_params *p, const char **in, const char **out)
+static int parse(int argc, char **argv, fracture_params *p, const char **in, const char **out,
+                 int *force)
 {
     int have_seed = 0, rc;
     double *target;
@@ -67,6 +72,10 @@ static int parse(int argc, char **argv, fracture_params *p, const char **in, con
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i], *val = i + 1 < argc ? argv[i + 1] : NULL;
         double d;
+        if (!strcmp(a, "--force")) {
+            *force = 1;
+            continue;
+        }
         if (a[0] != '-') {
             if (*in)
                 return cmd_usage_error("fracture", "unexpected argument '%s'", a);
@@ -121,13 +130,18 @@ int cmd_fracture(int argc, char **argv)
     fracture_params p;
     fracture_defaults(&p);
     const char *in = NULL, *out = NULL;
-    int rc = parse(argc, argv, &p, &in, &out);
+    int force = 0;
+    int rc = parse(argc, argv, &p, &in, &out, &force);
     if (rc)
         return rc;
-    vol *ct = volio_read(in);
-    fcase *c = ct ? fracture_make_case(ct, &p, out) : NULL;
-    if (!c) {
+    char tmp[4200] = "";
+    vol *ct = case_stage_begin(out, force, NULL, tmp, sizeof tmp) == 0 ? volio_read(in) : NULL;
+    /* The whole case, source.nii.gz included, is written in tmp and renamed into place at once. */
+    fcase *c = ct ? fracture_make_case(ct, &p, tmp) : NULL;
+    if (!c || case_stage_commit(tmp, out) < 0) {
         fprintf(stderr, "fracnav fracture: %s\n", fn_err_msg());
+        case_stage_abort(tmp);
+        case_free(c);
         vol_free(ct);
         return 1;
     }

@@ -18,7 +18,11 @@ static void usage(FILE *out)
             "Segment a CT into bone fragments and save them as a case folder (CASE/case.json,\n"
             "CASE/labels.nii.gz). Bone is every voxel >= the threshold; 26-connected components\n"
             "become fragments, largest first (ids 1..n).\n\n"
-            "  -o, --output CASE          the case folder to write (created if missing)\n"
+            "  -o, --output CASE          the case folder to write (created; a new case is built\n"
+            "                             beside it and renamed into place, so a kill leaves no\n"
+            "                             half-made folder)\n"
+            "  --force                    replace CASE if it holds a case already (with its\n"
+            "                             journal); a kill leaves the old case or the new one\n"
             "  --threshold HU|auto|auto-bone  bone threshold (default 300 HU); for data not in\n"
             "                             HU: auto = Otsu (splits the two main classes: in a\n"
             "                             head CT, air from tissue), auto-bone = Otsu again over\n"
@@ -33,13 +37,18 @@ static void usage(FILE *out)
             "  --help                     this text\n");
 }
 
-static int parse(int argc, char **argv, seg_params *p, cmd_tau *tau, const char **in, const char **out)
+static int parse(int argc, char **argv, seg_params *p, cmd_tau *tau, const char **in, const char **out,
+                 int *force)
 {
     int rc;
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
         const char *val = i + 1 < argc ? argv[i + 1] : NULL;
         double d;
+        if (!strcmp(a, "--force")) {
+            *force = 1;
+            continue;
+        }
         if (a[0] != '-') {
             if (*in)
                 return cmd_usage_error("segment", "unexpected argument '%s'", a);
@@ -116,9 +125,15 @@ int cmd_segment(int argc, char **argv)
     seg_defaults(&p);
     const char *in = NULL, *out = NULL;
     cmd_tau tau = {0};
-    int rc = parse(argc, argv, &p, &tau, &in, &out);
+    int force = 0;
+    int rc = parse(argc, argv, &p, &tau, &in, &out, &force);
     if (rc)
         return rc;
+    char tmp[4200];
+    if (case_stage_begin(out, force, in, tmp, sizeof tmp) < 0) {
+        fprintf(stderr, "fracnav segment: %s\n", fn_err_msg());
+        return 1;
+    }
     double t0 = now();
     vol *ct = volio_read(in);
     double t1 = now();
@@ -126,18 +141,20 @@ int cmd_segment(int argc, char **argv)
     if (!ct || seg_run(ct, &p, &r) < 0) {
         fprintf(stderr, "fracnav segment: %s\n", fn_err_msg());
         vol_free(ct);
+        case_stage_abort(tmp);
         return 1;
     }
     p.threshold = r.threshold;
     vol *labels = r.labels;
     r.labels = NULL;
     double t2 = now();
-    fcase *c = case_create(out, in, ct, labels, &p);
+    fcase *c = case_create(tmp, in, ct, labels, &p);
     if (c)
         cmd_tau_apply(&tau, &c->tau_min, &c->tau_max); /* checked by parse */
     double t3 = now();
-    if (!c || case_save(c) < 0) {
+    if (!c || case_save(c) < 0 || case_stage_commit(tmp, out) < 0) {
         fprintf(stderr, "fracnav segment: %s\n", fn_err_msg());
+        case_stage_abort(tmp);
         case_free(c);
         seg_result_free(&r);
         return 1;
