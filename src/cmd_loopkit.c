@@ -2,6 +2,7 @@
 
 #include "cmd.h"
 
+#include "case_journal.h"
 #include "err.h"
 #include "obb.h"
 
@@ -15,44 +16,46 @@
 
 size_t loopkit_journal_pending(const char *dir)
 {
-    journal_rec *r;
-    size_t n = 0;
-    if (journal_read(dir, &r, &n, NULL) < 0)
-        return 0;
-    free(r);
-    return n;
+    return case_journal_pending(dir);
 }
 
-/* Continues from the journal: poses and undo history. */
-static int resume(loopkit *k, const char *dir)
+/* The journal reconciled with the case (case_journal_check); *recs, *n: what --recover applies. */
+static int check_journal(loopkit *k, unsigned flags, const char *cmd, journal_rec **recs, size_t *n)
 {
-    journal_rec *r;
-    size_t n;
-    int rc = journal_read(dir, &r, &n, NULL);
-    if (rc == 0)
-        rc = loop_recover(k->L, r, n);
-    free(r);
-    k->resumed = rc == 0 ? n : 0;
-    return rc < 0 ? fn_err_wrap(rc, "%s/journal", dir) : 0;
+    const char *dir = k->dir_name;
+    if (flags & LOOPKIT_DISCARD) {
+        char path[4200]; /* removed, not parsed: a damaged journal must not block a fresh start */
+        snprintf(path, sizeof path, "%s/journal", dir);
+        if (unlink(path) != 0 && errno != ENOENT)
+            return fn_err_set(FN_EIO, "%s: cannot remove: %s", path, strerror(errno));
+        return 0;
+    }
+    int rc = case_journal_check(k->c, recs, n);
+    if (rc == 1 && (flags & LOOPKIT_RESUME))
+        return fn_err_set(FN_EMISMATCH, "%s/journal does not extend this case.json, so --recover "
+                                        "has nothing to apply (it was kept aside, see above); run "
+                                        "again without --recover to start from case.json", dir);
+    if (rc >= 0 && *n && !(flags & LOOPKIT_RESUME))
+        return fn_err_set(FN_EMISMATCH,
+                          "%s/journal holds %zu poses not saved in case.json (an interrupted session): "
+                          "run `fracnav %s` with --recover to continue from them, or --discard-journal "
+                          "to start from case.json",
+                          dir, *n, cmd);
+    return rc < 0 ? rc : 0;
 }
 
 int loopkit_open(loopkit *k, const char *dir, const loop_config *cfg, unsigned flags, const char *cmd,
                  const cmd_tau *tau)
 {
     memset(k, 0, sizeof *k);
-    size_t pending = loopkit_journal_pending(dir);
-    if (pending && !(flags & (LOOPKIT_RESUME | LOOPKIT_DISCARD)))
-        return fn_err_set(FN_EMISMATCH,
-                          "%s/journal holds %zu poses not saved in case.json (an interrupted session): "
-                          "run `fracnav %s` with --recover to continue from them, or --discard-journal "
-                          "to start from case.json",
-                          dir, pending, cmd);
     snprintf(k->dir_name, sizeof k->dir_name, "%s", dir);
     k->c = case_load(dir);
     if (!k->c)
         return FN_EIO;
-    int rc = 0;
-    if (k->c->nfrag > LOOP_MAX_FRAGS)
+    journal_rec *recs = NULL;
+    size_t pending = 0;
+    int rc = check_journal(k, flags, cmd, &recs, &pending);
+    if (rc == 0 && k->c->nfrag > LOOP_MAX_FRAGS)
         rc = fn_err_set(FN_EINVAL, "%s: %d fragments, the loop steers at most %d", dir, k->c->nfrag,
                         LOOP_MAX_FRAGS);
     if (rc == 0 && k->c->nfrag < 2)
@@ -65,14 +68,10 @@ int loopkit_open(loopkit *k, const char *dir, const loop_config *cfg, unsigned f
         if (!k->obb)
             rc = FN_EFORMAT;
     }
-    if (rc == 0 && (flags & LOOPKIT_DISCARD)) {
-        char path[4200]; /* removed, not parsed: a damaged journal must not block a fresh start */
-        snprintf(path, sizeof path, "%s/journal", dir);
-        if (unlink(path) != 0 && errno != ENOENT)
-            rc = fn_err_set(FN_EIO, "%s: cannot remove: %s", path, strerror(errno));
-    }
     if (rc == 0 && (flags & LOOPKIT_JOURNAL)) {
-        k->jr = journal_open(dir);
+        journal_bind b;
+        case_journal_bind(k->c, &b);
+        k->jr = journal_open(dir, &b);
         if (!k->jr)
             rc = FN_EIO;
     }
@@ -85,11 +84,25 @@ int loopkit_open(loopkit *k, const char *dir, const loop_config *cfg, unsigned f
         if (!k->L)
             rc = FN_ENOMEM;
     }
-    if (rc == 0 && pending && (flags & LOOPKIT_RESUME))
-        rc = resume(k, dir);
+    if (rc == 0 && pending) {
+        rc = loop_recover(k->L, recs, pending);
+        k->resumed = rc == 0 ? pending : 0;
+        if (rc < 0)
+            fn_err_wrap(rc, "%s/journal", dir);
+    }
+    free(recs);
     if (rc < 0)
         loopkit_close(k);
     return rc;
+}
+
+void loopkit_rebind(loopkit *k)
+{
+    if (!k->jr)
+        return;
+    journal_bind b;
+    case_journal_bind(k->c, &b);
+    journal_rebind(k->jr, &b);
 }
 
 int loopkit_save(loopkit *k)
@@ -97,8 +110,10 @@ int loopkit_save(loopkit *k)
     for (int i = 0; i < k->c->nfrag; i++)
         k->c->frag[i].pose = loop_pose(k->L, i);
     int rc = case_save(k->c);
-    if (rc == 0 && k->jr)
+    if (rc == 0 && k->jr) {
+        loopkit_rebind(k);
         rc = journal_truncate(k->jr);
+    }
     return rc;
 }
 

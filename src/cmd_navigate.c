@@ -192,6 +192,7 @@ static void save_scene(loopkit *k, const loop_scene *sc, pose *saved, ring *ctl)
         return;
     }
     fprintf(stderr, "\nsaved %s\n", k->dir_name);
+    loopkit_rebind(k);
     memcpy(saved, sc->pose, sizeof(pose) * (size_t)k->c->nfrag);
     loop_event ev = {.kind = LOOP_EV_SAVED};
     if (ring_push(ctl, &ev))
