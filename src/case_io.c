@@ -536,9 +536,11 @@ static int read_case(struct reader *r, json_t *root, fcase *c)
     const char *lsha = lab ? get_str(r, lab, "labels.", "sha256") : NULL;
     if (!lsha)
         return FN_EFORMAT;
-    int len = path[0] == '/' ? snprintf(c->source, sizeof c->source, "%s", path)
-                             : snprintf(c->source, sizeof c->source, "%.2047s/%.2047s", c->dir, path);
-    if (len < 0 || (size_t)len >= sizeof c->source) {
+    size_t len = path[0] == '/' ? strlen(path) : strlen(c->dir) + 1 + strlen(path);
+    if (len < sizeof c->source)
+        snprintf(c->source, sizeof c->source, path[0] == '/' ? "%s%s" : "%s/%s",
+                 path[0] == '/' ? "" : c->dir, path);
+    else {
         snprintf(r->field, sizeof r->field, "source.path");
         return bad(r, "path too long");
     }
