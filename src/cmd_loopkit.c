@@ -105,15 +105,83 @@ void loopkit_rebind(loopkit *k)
     journal_rebind(k->jr, &b);
 }
 
-int loopkit_save(loopkit *k)
+/* The pairs that overlap at the case's poses, into k->penetrating and case.json's "penetrating". */
+static int check_penetration(loopkit *k)
+{
+    fcase *c = k->c;
+    if (!k->check) {
+        obb_params op = {c->tau_min, c->tau_max};
+        if (!(k->check = loop_obb_new(c->frag, c->nfrag, &op, NULL)))
+            return FN_EFORMAT;
+    }
+    loop_collider col = loop_obb_collider(k->check);
+    json_t *list = json_array();
+    int rc = 0;
+    for (int a = 0; rc == 0 && a < c->nfrag; a++)
+        for (int b = a + 1; rc == 0 && b < c->nfrag; b++) {
+            loop_contact ct;
+            double mm3 = 0;
+            rc = col.query(col.ctx, a, &c->frag[a].pose, b, &c->frag[b].pose, NULL, &ct);
+            if (rc < 0 || !ct.collides)
+                continue;
+            rc = col.overlap(col.ctx, a, &c->frag[a].pose, b, &c->frag[b].pose, &mm3);
+            json_array_append_new(list, json_pack("{s:[i,i],s:f}", "fragments", c->frag[a].id,
+                                                  c->frag[b].id, "overlap_ml", mm3 / 1000));
+            fprintf(stderr, "\nWARNING: saving a penetrating plan: fragments %d and %d overlap by "
+                            "%.3f ml (moved while collision checking was off)\n",
+                    c->frag[a].id, c->frag[b].id, mm3 / 1000);
+        }
+    json_decref(k->penetrating);
+    k->penetrating = list;
+    if (!c->extra)
+        c->extra = json_object();
+    if (json_array_size(list))
+        json_object_set(c->extra, "penetrating", list);
+    else
+        json_object_del(c->extra, "penetrating");
+    return rc;
+}
+
+/* case.json keeps one fixed fragment: the case's own while it stays fixed, else the first. */
+static void take_fixed(loopkit *k, const uint8_t *fixed)
+{
+    fcase *c = k->c;
+    if (c->fixed < 0 || !fixed[c->fixed]) {
+        c->fixed = -1;
+        for (int i = 0; i < c->nfrag && c->fixed < 0; i++)
+            if (fixed[i])
+                c->fixed = i;
+    }
+    for (int i = 0; i < c->nfrag; i++)
+        if (fixed[i] && i != c->fixed)
+            fprintf(stderr, "\nfracnav: fragment %d is fixed here too, but case.json records one "
+                            "fixed fragment (%d)\n", c->frag[i].id, c->frag[c->fixed].id);
+}
+
+int loopkit_save_case(loopkit *k, const pose *poses, const uint8_t *fixed)
 {
     for (int i = 0; i < k->c->nfrag; i++)
-        k->c->frag[i].pose = loop_pose(k->L, i);
-    int rc = case_save(k->c);
-    if (rc == 0 && k->jr) {
+        k->c->frag[i].pose = poses[i];
+    take_fixed(k, fixed);
+    int rc = check_penetration(k);
+    if (rc == 0)
+        rc = case_save(k->c);
+    if (rc == 0)
         loopkit_rebind(k);
-        rc = journal_truncate(k->jr);
+    return rc;
+}
+
+int loopkit_save(loopkit *k)
+{
+    pose poses[LOOP_MAX_FRAGS];
+    uint8_t fixed[LOOP_MAX_FRAGS];
+    for (int i = 0; i < k->c->nfrag; i++) {
+        poses[i] = loop_pose(k->L, i);
+        fixed[i] = (uint8_t)loop_fixed(k->L, i);
     }
+    int rc = loopkit_save_case(k, poses, fixed);
+    if (rc == 0 && k->jr)
+        rc = journal_truncate(k->jr);
     return rc;
 }
 
@@ -123,6 +191,8 @@ void loopkit_close(loopkit *k)
     if (k->jr)
         journal_close(k->jr);
     loop_obb_free(k->obb);
+    loop_obb_free(k->check);
+    json_decref(k->penetrating);
     case_free(k->c);
     memset(k, 0, sizeof *k);
 }
@@ -165,6 +235,7 @@ void loopkit_print_json(const loopkit *k, FILE *out, long unplugs, uint64_t skip
     json_object_set_new(j, "tick_hz", json_real(s.tick_hz));
     json_object_set_new(j, "dropped", json_integer((json_int_t)s.dropped));
     json_object_set_new(j, "skipped_reports", json_integer((json_int_t)skipped));
+    json_object_set(j, "penetrating", k->penetrating ? k->penetrating : json_null());
     if (unplugs >= 0)
         json_object_set_new(j, "unplugs", json_integer(unplugs));
     json_dumpf(j, out, JSON_INDENT(2) | JSON_REAL_PRECISION(17));

@@ -13,6 +13,7 @@
 #include "journal.h"
 #include "loop.h"
 
+#include <jansson.h>
 #include <stdio.h>
 
 enum {
@@ -24,6 +25,8 @@ enum {
 typedef struct loopkit {
     fcase *c;
     loop_obb *obb;
+    loop_obb *check; /* the saver's own collider (the loop thread owns obb's scratch), made at need */
+    json_t *penetrating; /* at the last save: [{"fragments": [A, B], "overlap_ml": V}, ...] */
     loop *L;
     journal *jr;
     size_t resumed; /* journal records applied at open */
@@ -41,8 +44,16 @@ int loopkit_open(loopkit *k, const char *dir, const loop_config *cfg, unsigned f
 /* Unsaved records in DIR/journal that extend DIR/case.json (0 when none, unreadable, damaged or
  * bound to another case state). */
 size_t loopkit_journal_pending(const char *dir);
-/* Copies the loop's poses into the case, saves it atomically, then empties the journal. */
+/* Copies the loop's poses and fixed fragments into the case, saves it atomically, then empties
+ * the journal. */
 int loopkit_save(loopkit *k);
+/* Saves the case with these poses and fixed flags (k->c->nfrag of each; a scene's, while the loop
+ * runs) and binds the journal to the new case.json. Fragments that interpenetrate (collision
+ * checking was off) are not refused but said: a warning on stderr naming them and their overlap,
+ * k->penetrating for --json, and case.json's "penetrating" member (absent when none) for later
+ * commands. case.json has one fixed fragment: the case's own when it is still fixed, else the
+ * first fixed one; others fixed are named in a warning. 0 or FN_E*. */
+int loopkit_save_case(loopkit *k, const pose *poses, const uint8_t *fixed);
 /* After the case was saved (k->c->json_sha256 is the new case.json): the journal's next truncation
  * binds it to that case.json. */
 void loopkit_rebind(loopkit *k);

@@ -185,14 +185,11 @@ static void *loop_thread(void *arg)
  * journal of what the case now holds (saved: the loop_set_saved array). */
 static void save_scene(loopkit *k, const loop_scene *sc, pose *saved, ring *ctl)
 {
-    for (int i = 0; i < k->c->nfrag; i++)
-        k->c->frag[i].pose = sc->pose[i];
-    if (case_save(k->c) < 0) {
+    if (loopkit_save_case(k, sc->pose, sc->fixed) < 0) {
         fprintf(stderr, "\nfracnav navigate: save failed: %s\n", fn_err_msg());
         return;
     }
     fprintf(stderr, "\nsaved %s\n", k->dir_name);
-    loopkit_rebind(k);
     memcpy(saved, sc->pose, sizeof(pose) * (size_t)k->c->nfrag);
     loop_event ev = {.kind = LOOP_EV_SAVED};
     if (ring_push(ctl, &ev))

@@ -1,6 +1,7 @@
 /* A case and its journal through the CLI: a journal is applied only to the case state it extends;
  * an edit does not let journaled poses land on another fragment; damage is located and kept
- * aside; recovered poses are checked; poses already saved are not offered again. */
+ * aside; recovered poses are checked; poses already saved are not offered again. And what a
+ * session saves: the fragment fixed in it, and a penetrating plan said as such. */
 #include <stdarg.h>
 #include <stddef.h>
 #include <setjmp.h>
@@ -16,6 +17,7 @@
 #include "vol.h"
 #include "volio.h"
 
+#include <jansson.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -27,7 +29,19 @@ struct fixture {
     char cdir[4200], idle[4200];
 };
 
-/* Three bone blocks (ids 1, 2, 3 by size), none fixed, and a recording that does nothing. */
+/* A SpaceExplorer recording (it has buttons 1-10) of a motion script at path. */
+static void record(const char *path, const char *text)
+{
+    script *s = NULL;
+    assert_int_equal(script_parse(text, strlen(text), "test", &s), 0);
+    fnrec *r = script_render(s, sim_profile_find("spaceexplorer"));
+    assert_int_equal(fnrec_save(r, path), 0);
+    fnrec_free(r);
+    free(s);
+}
+
+/* Three bone blocks (ids 1, 2, 3 by size; 1 and 2 are 4 mm apart along x), none fixed, and a
+ * recording that does nothing. */
 static int setup(void **st)
 {
     struct fixture *f = calloc(1, sizeof *f);
@@ -54,13 +68,8 @@ static int setup(void **st)
     if (rc != 0)
         fail_msg("segment: %s", out);
     free(out);
-    script *s = NULL;
-    assert_int_equal(script_parse("wait 0.1 s\n", 11, "idle", &s), 0);
-    fnrec *r = script_render(s, sim_profile_find("spacenavigator"));
     snprintf(f->idle, sizeof f->idle, "%s/idle.fnrec", f->tmp);
-    assert_int_equal(fnrec_save(r, f->idle), 0);
-    fnrec_free(r);
-    free(s);
+    record(f->idle, "wait 0.1 s\n");
     *st = f;
     return 0;
 }
@@ -253,6 +262,58 @@ static void test_damage_in_the_middle_recovers_what_precedes(void **st)
     case_free(c);
 }
 
+/* Checking off (button 4), fragment 1 pushed 6 mm into fragment 2, checking on, saved: the save
+ * says so on the terminal and in the JSON, and case.json records the pair. */
+static void test_penetrating_plan_is_said_and_recorded(void **st)
+{
+    struct fixture *f = *st;
+    char rec[4300];
+    snprintf(rec, sizeof rec, "%s/push.fnrec", f->tmp);
+    record(rec, "press 4\nwait 50 ms\nrelease 4\nwait 50 ms\ntranslate +x 6 mm over 0.5 s\n"
+                "wait 50 ms\npress 4\nwait 50 ms\nrelease 4\nwait 50 ms\n");
+    char *out = NULL;
+    int rc = tu_run_cli(&out, "replay '%s' '%s' --frame world --save --json", f->cdir, rec);
+    if (rc != 0)
+        fail_msg("replay: %s", out);
+    if (!strstr(out, "WARNING: saving a penetrating plan: fragments 1 and 2"))
+        fail_msg("no warning: %s", out);
+    json_t *j = json_loads(strchr(out, '{'), JSON_DISABLE_EOF_CHECK, NULL);
+    assert_non_null(j);
+    json_t *pen = json_array_get(json_object_get(j, "penetrating"), 0);
+    assert_non_null(pen);
+    double ml = json_number_value(json_object_get(pen, "overlap_ml"));
+    assert_true(ml > 0.1 && ml < 2);
+    json_decref(j);
+    free(out);
+    char path[4300];
+    snprintf(path, sizeof path, "%s/case.json", f->cdir);
+    j = json_load_file(path, 0, NULL);
+    pen = json_array_get(json_object_get(j, "penetrating"), 0);
+    assert_non_null(pen);
+    assert_int_equal(json_integer_value(json_array_get(json_object_get(pen, "fragments"), 1)), 2);
+    json_decref(j);
+    fcase *c = load(f); /* the case still loads, and a save that clears it drops the record */
+    case_free(c);
+}
+
+/* A fragment fixed during the session (button 3) is fixed in the saved case. */
+static void test_fixed_in_session_is_saved(void **st)
+{
+    struct fixture *f = *st;
+    char rec[4300];
+    snprintf(rec, sizeof rec, "%s/fix.fnrec", f->tmp);
+    record(rec, "press 3\nwait 50 ms\nrelease 3\nwait 50 ms\n");
+    char *out = NULL;
+    int rc = tu_run_cli(&out, "replay '%s' '%s' --save", f->cdir, rec);
+    if (rc != 0)
+        fail_msg("replay: %s", out);
+    fcase *c = load(f);
+    if (c->fixed != case_find(c, 1))
+        fail_msg("fixed %d: %s", c->fixed, out);
+    free(out);
+    case_free(c);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -263,6 +324,8 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_damaged_first_record_is_kept_aside, setup, teardown),
         cmocka_unit_test_setup_teardown(test_damage_in_the_middle_recovers_what_precedes, setup,
                                         teardown),
+        cmocka_unit_test_setup_teardown(test_penetrating_plan_is_said_and_recorded, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_fixed_in_session_is_saved, setup, teardown),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
