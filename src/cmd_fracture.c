@@ -2,6 +2,7 @@
 #include "cmd.h"
 
 #include "case.h"
+#include "case_journal.h"
 #include "err.h"
 #include "fracture.h"
 #include "volio.h"
@@ -121,6 +122,15 @@ static void print_truth(const frag *f, const pose *truth)
            pose_angle_between(*truth, POSE_IDENTITY) * 180 / M_PI);
 }
 
+/* --force replaces a case with its journal: poses it holds beyond case.json go too. */
+static void warn_journal(const char *dir, int force)
+{
+    size_t n = force ? case_journal_pending(dir) : 0;
+    if (n)
+        fprintf(stderr, "fracnav fracture: warning: %s/journal holds %zu poses not saved in "
+                        "case.json; they go with the case this replaces\n", dir, n);
+}
+
 int cmd_fracture(int argc, char **argv)
 {
     if (cmd_wants_help(argc, argv)) {
@@ -135,6 +145,7 @@ int cmd_fracture(int argc, char **argv)
     if (rc)
         return rc;
     char tmp[4200] = "";
+    warn_journal(out, force);
     vol *ct = case_stage_begin(out, force, NULL, tmp, sizeof tmp) == 0 ? volio_read(in) : NULL;
     /* The whole case, source.nii.gz included, is written in tmp and renamed into place at once. */
     fcase *c = ct ? fracture_make_case(ct, &p, tmp) : NULL;

@@ -2,6 +2,7 @@
 #include "cmd.h"
 
 #include "case.h"
+#include "case_journal.h"
 #include "err.h"
 #include "seg.h"
 #include "volio.h"
@@ -115,6 +116,15 @@ static void report(const fcase *c, const seg_result *r)
     }
 }
 
+/* --force replaces a case with its journal: poses it holds beyond case.json go too. */
+static void warn_journal(const char *dir, int force)
+{
+    size_t n = force ? case_journal_pending(dir) : 0;
+    if (n)
+        fprintf(stderr, "fracnav segment: warning: %s/journal holds %zu poses not saved in "
+                        "case.json; they go with the case this replaces\n", dir, n);
+}
+
 int cmd_segment(int argc, char **argv)
 {
     if (cmd_wants_help(argc, argv)) {
@@ -130,6 +140,7 @@ int cmd_segment(int argc, char **argv)
     if (rc)
         return rc;
     char tmp[4200];
+    warn_journal(out, force);
     if (case_stage_begin(out, force, in, tmp, sizeof tmp) < 0) {
         fprintf(stderr, "fracnav segment: %s\n", fn_err_msg());
         return 1;

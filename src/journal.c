@@ -466,11 +466,14 @@ int journal_set_aside(const char *case_dir, const char *tag, const journal_bind 
 {
     char path[4096];
     journal_path(case_dir, path, sizeof path);
-    for (int k = 1;; k++) {
+    int k = 1;
+    for (; k <= 9999; k++) {
         snprintf(aside, cap, "%s.%s.%d", path, tag, k);
         if (access(aside, F_OK) != 0)
             break;
     }
+    if (k > 9999)
+        return fn_err_set(FN_EIO, "%s: %s.1 to .9999 all exist: remove old ones", path, tag);
     if (rename(path, aside) != 0)
         return fn_err_set(FN_EIO, "%s: cannot move to %s: %s", path, aside, strerror(errno));
     return n ? write_journal(path, b, recs, n) : 0;
