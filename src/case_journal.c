@@ -132,6 +132,9 @@ int case_journal_apply(fcase *c, const journal_rec *recs, size_t n)
     int rc = journal_final_poses(recs, n, c->nfrag, p);
     for (int i = 0; rc == 0 && i < c->nfrag; i++)
         c->frag[i].pose = p[i];
+    for (size_t i = 0; rc == 0 && i < n; i++) /* case.json has one fixed fragment: the last fixed */
+        if (recs[i].kind == JOURNAL_FIX && (recs[i].flag || c->fixed == recs[i].frag))
+            c->fixed = recs[i].flag ? recs[i].frag : -1;
     free(p);
     return rc < 0 ? fn_err_wrap(rc, "%s/journal", c->dir) : 0;
 }

@@ -81,7 +81,7 @@ static void encode(unsigned char *b, const journal_rec *r)
         putf(b + 24 + 8 * i, r->p.q[i]);
     for (int i = 0; i < 3; i++)
         putf(b + 56 + 8 * i, r->p.t[i]);
-    put32(b + 80, 0);
+    put32(b + 80, r->flag);
     put32(b + 84, (uint32_t)crc32(0, b, 84));
 }
 
@@ -100,14 +100,17 @@ static const char *decode(const unsigned char *b, const journal_rec *prev, int n
         r->p.q[i] = getf(b + 24 + 8 * i);
     for (int i = 0; i < 3; i++)
         r->p.t[i] = getf(b + 56 + 8 * i);
+    r->flag = get32(b + 80);
     double n2 = 0;
     int finite = 1;
     for (int i = 0; i < 4; i++) {
         n2 += r->p.q[i] * r->p.q[i];
         finite &= isfinite(r->p.q[i]) && (i == 3 || isfinite(r->p.t[i]));
     }
-    if (r->kind < JOURNAL_MOVE || r->kind > JOURNAL_START)
+    if (r->kind < JOURNAL_MOVE || r->kind > JOURNAL_FIX)
         snprintf(why, cap, "unknown kind %u", r->kind);
+    else if (r->flag > (r->kind == JOURNAL_FIX))
+        snprintf(why, cap, "flag %u where %s expected", r->flag, r->kind == JOURNAL_FIX ? "0 or 1" : "0");
     else if (r->frag < 0 || r->frag >= nfrag)
         snprintf(why, cap, "fragment index %d, the journal's case has %d", r->frag, nfrag);
     else if (prev && r->seq != prev->seq + 1)
@@ -394,12 +397,25 @@ int journal_flush(journal *j)
     return rc;
 }
 
+static int append(journal *j, const journal_rec *r, int64_t now_us);
+
 int journal_append(journal *j, uint32_t kind, int frag, int64_t t_us, const pose *p, int64_t now_us)
 {
-    journal_rec r = {kind, frag, ++j->seq, t_us, *p};
+    journal_rec r = {kind, frag, ++j->seq, t_us, *p, 0};
+    return append(j, &r, now_us);
+}
+
+int journal_append_fix(journal *j, int frag, int64_t t_us, const pose *p, int fixed, int64_t now_us)
+{
+    journal_rec r = {JOURNAL_FIX, frag, ++j->seq, t_us, *p, fixed != 0};
+    return append(j, &r, now_us);
+}
+
+static int append(journal *j, const journal_rec *r, int64_t now_us)
+{
     if (j->used == 0)
         j->oldest_us = now_us;
-    encode(j->buf + j->used, &r);
+    encode(j->buf + j->used, r);
     j->used += JOURNAL_RECORD_SIZE;
     j->count++;
     if (j->used == sizeof j->buf)

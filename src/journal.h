@@ -9,11 +9,12 @@
  *   records, 88 bytes each:
  *     u32 kind (JOURNAL_MOVE 1: a move; JOURNAL_START 4: the first move of a gesture, so undo
  *     returns to the fragment's pose before it; JOURNAL_UNDO 2, JOURNAL_REDO 3: the pose an undo
- *     or redo restored), i32 fragment index (0-based, the case's order, below the header's
- *     count), u64 sequence number (one more than the record before), i64 report time (us),
- *     f64 q[4] (w x y z, unit length within 1e-6 as case.json's poses), f64 t[3] (mm, finite):
- *     the fragment's pose (home world -> current world), u32 reserved 0, u32 CRC-32 (zlib) of the
- *     84 bytes before it.
+ *     or redo restored; JOURNAL_FIX 5: the fragment was fixed or freed, its pose unchanged),
+ *     i32 fragment index (0-based, the case's order, below the header's count), u64 sequence
+ *     number (one more than the record before), i64 report time (us), f64 q[4] (w x y z, unit
+ *     length within 1e-6 as case.json's poses), f64 t[3] (mm, finite): the fragment's pose (home
+ *     world -> current world), u32 flag (JOURNAL_FIX: 1 fixed, 0 freed; 0 for the other kinds),
+ *     u32 CRC-32 (zlib) of the 84 bytes before it.
  * Readers stop at the first record that breaks any of these rules and say which record, at which
  * offset, and why (journal_scan.damage); what precedes it is good. A reader never reads more
  * records than the memory budget holds (vol_budget), whatever the file's size.
@@ -38,7 +39,7 @@
 #define JOURNAL_HEADER_SIZE 256
 #define JOURNAL_MAX_FRAGS 64
 
-enum { JOURNAL_MOVE = 1, JOURNAL_UNDO = 2, JOURNAL_REDO = 3, JOURNAL_START = 4 };
+enum { JOURNAL_MOVE = 1, JOURNAL_UNDO = 2, JOURNAL_REDO = 3, JOURNAL_START = 4, JOURNAL_FIX = 5 };
 
 typedef struct journal_rec {
     uint32_t kind;
@@ -46,6 +47,7 @@ typedef struct journal_rec {
     uint64_t seq;
     int64_t t_us;
     pose p;
+    uint32_t flag; /* JOURNAL_FIX: 1 fixed, 0 freed */
 } journal_rec;
 
 /* The case state a journal extends. */
@@ -75,6 +77,8 @@ journal *journal_open(const char *case_dir, const journal_bind *b);
 int journal_close(journal *j);
 /* Buffers one record (seq is assigned). now_us is a monotonic clock that drives the flush. */
 int journal_append(journal *j, uint32_t kind, int frag, int64_t t_us, const pose *p, int64_t now_us);
+/* Buffers a JOURNAL_FIX record: fragment frag (at pose p) was fixed (1) or freed (0). */
+int journal_append_fix(journal *j, int frag, int64_t t_us, const pose *p, int fixed, int64_t now_us);
 /* Flushes when the oldest buffered record is flush_us old; call it while idle too. */
 int journal_tick(journal *j, int64_t now_us);
 /* write(2)s the buffer now. */
@@ -107,7 +111,8 @@ int journal_bind_equal(const journal_bind *a, const journal_bind *b);
  * journal went to is left in aside. 0 or FN_EIO. */
 int journal_set_aside(const char *case_dir, const char *tag, const journal_bind *b,
                       const journal_rec *recs, size_t n, char *aside, size_t cap);
-/* Applies the records in order to poses[0..nfrag-1] (each record sets its fragment's pose).
+/* Applies the records in order to poses[0..nfrag-1] (each record sets its fragment's pose; a
+ * JOURNAL_FIX record's pose is the one the fragment has).
  * Returns 0, or FN_EFORMAT when a record names a fragment outside 0..nfrag-1 (the message names
  * the record). */
 int journal_final_poses(const journal_rec *recs, size_t n, int nfrag, pose *poses);

@@ -627,6 +627,9 @@ int loop_action_do(loop *L, loop_action a)
     case LOOP_ACT_FIX:
         L->fixed[L->selected] = !L->fixed[L->selected];
         gesture_end(L);
+        if (L->jr && journal_append_fix(L->jr, L->selected, L->last_t, &L->pose[L->selected],
+                                        L->fixed[L->selected], loop_now_us()) < 0)
+            L->st.journal_errors++;
         return LOOP_IDLE;
     case LOOP_ACT_COLLISION: {
         /* Back on: look at once, so a fragment left inside another shows the warning now. */
@@ -665,7 +668,9 @@ int loop_recover(loop *L, const journal_rec *recs, size_t n)
             return fn_err_set(FN_EFORMAT, "journal record %zu (seq %llu): fragment %d, the case has %d",
                               i + 1, (unsigned long long)r->seq, r->frag, L->n);
         loop_undo before = {r->frag, L->pose[r->frag]};
-        if (r->kind == JOURNAL_START)
+        if (r->kind == JOURNAL_FIX)
+            L->fixed[r->frag] = (uint8_t)r->flag;
+        else if (r->kind == JOURNAL_START)
             loop_undo_push(L, r->frag);
         else if (r->kind == JOURNAL_UNDO)
             shift(&L->nundo, L->redo, &L->nredo, before);

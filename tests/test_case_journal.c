@@ -117,7 +117,7 @@ static void interrupted(const struct fixture *f, int frag, double x)
     journal_bind b;
     case_journal_bind(c, &b);
     case_free(c);
-    journal_rec r = {JOURNAL_START, frag, 0, 0, moved(x)};
+    journal_rec r = {JOURNAL_START, frag, 0, 0, moved(x), 0};
     write_journal(f, &b, &r, 1);
 }
 
@@ -171,7 +171,7 @@ static void test_journal_of_another_case_state_is_refused(void **st)
     case_journal_bind(c, &b);
     case_free(c);
     memset(b.case_sha256, 'a', 64);
-    journal_rec r = {JOURNAL_START, 1, 0, 0, moved(3)};
+    journal_rec r = {JOURNAL_START, 1, 0, 0, moved(3), 0};
     write_journal(f, &b, &r, 1);
     char *out = NULL;
     assert_int_equal(tu_run_cli(&out, "replay '%s' '%s' --recover --save", f->cdir, f->idle), 1);
@@ -241,10 +241,10 @@ static void test_damage_in_the_middle_recovers_what_precedes(void **st)
     journal_bind b;
     case_journal_bind(c, &b);
     case_free(c);
-    journal_rec r[4] = {{JOURNAL_START, 1, 0, 0, moved(1)},
-                        {JOURNAL_MOVE, 1, 0, 0, moved(2)},
-                        {JOURNAL_MOVE, 1, 0, 0, moved(3)},
-                        {JOURNAL_MOVE, 1, 0, 0, moved(4)}};
+    journal_rec r[4] = {{JOURNAL_START, 1, 0, 0, moved(1), 0},
+                        {JOURNAL_MOVE, 1, 0, 0, moved(2), 0},
+                        {JOURNAL_MOVE, 1, 0, 0, moved(3), 0},
+                        {JOURNAL_MOVE, 1, 0, 0, moved(4), 0}};
     r[2].p.q[0] = 1.5; /* a good CRC, a pose that cannot be */
     write_journal(f, &b, r, 4);
     char *out = NULL;
@@ -296,7 +296,8 @@ static void test_penetrating_plan_is_said_and_recorded(void **st)
     case_free(c);
 }
 
-/* A fragment fixed during the session (button 3) is fixed in the saved case. */
+/* A fragment fixed during the session (button 3) is fixed in the saved case, and a session killed
+ * after fixing it gives the fixed fragment back on --recover. */
 static void test_fixed_in_session_is_saved(void **st)
 {
     struct fixture *f = *st;
@@ -311,6 +312,19 @@ static void test_fixed_in_session_is_saved(void **st)
     if (c->fixed != case_find(c, 1))
         fail_msg("fixed %d: %s", c->fixed, out);
     free(out);
+    journal_bind b;
+    case_journal_bind(c, &b);
+    case_free(c);
+    /* Fragment 1 freed, fragment 3 fixed, then killed. */
+    journal_rec fix[2] = {{JOURNAL_FIX, 0, 0, 0, POSE_IDENTITY, 0},
+                          {JOURNAL_FIX, 2, 0, 0, POSE_IDENTITY, 1}};
+    write_journal(f, &b, fix, 2);
+    rc = tu_run_cli(&out, "replay '%s' '%s' --recover --save", f->cdir, f->idle);
+    if (rc != 0)
+        fail_msg("replay --recover: %s", out);
+    free(out);
+    c = load(f);
+    assert_int_equal(c->fixed, case_find(c, 3));
     case_free(c);
 }
 

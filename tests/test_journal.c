@@ -382,6 +382,22 @@ static void test_loop_journals_every_accepted_pose(void **st)
         assert_memory_equal(&POSE_IDENTITY, &b, sizeof(pose));
     }
     assert_int_equal(loop_action_do(R, LOOP_ACT_REDO), LOOP_ACCEPTED);
+    /* Fixing a fragment is journaled, and recovered. */
+    j = open_bound(dir);
+    loop *F = loop_new(f, 2, NULL, &col, NULL, j);
+    assert_int_equal(loop_action_do(F, LOOP_ACT_FIX), LOOP_IDLE);
+    assert_true(loop_fixed(F, 0));
+    loop_free(F);
+    journal_close(j);
+    journal_scan fs;
+    scan(dir, &fs);
+    assert_true(fs.n == n + 1 && fs.recs[n].kind == JOURNAL_FIX && fs.recs[n].frag == 0 &&
+                fs.recs[n].flag == 1);
+    loop *G = loop_new(f, 2, NULL, &col, NULL, NULL);
+    assert_int_equal(loop_recover(G, fs.recs, fs.n), 0);
+    assert_true(loop_fixed(G, 0) && !loop_fixed(G, 1));
+    loop_free(G);
+    journal_scan_free(&fs);
     journal_rec bad = r[0];
     bad.frag = 5;
     assert_int_equal(loop_recover(R, &bad, 1), FN_EFORMAT);
