@@ -387,15 +387,21 @@ static void test_loop_journals_every_accepted_pose(void **st)
     loop *F = loop_new(f, 2, NULL, &col, NULL, j);
     assert_int_equal(loop_action_do(F, LOOP_ACT_FIX), LOOP_IDLE);
     assert_true(loop_fixed(F, 0));
+    assert_int_equal(loop_action_do(F, LOOP_ACT_UNDO), LOOP_ACCEPTED); /* undoable, */
+    assert_false(loop_fixed(F, 0));
+    assert_int_equal(loop_action_do(F, LOOP_ACT_REDO), LOOP_ACCEPTED); /* and redone */
+    assert_true(loop_fixed(F, 0));
     loop_free(F);
     journal_close(j);
     journal_scan fs;
     scan(dir, &fs);
-    assert_true(fs.n == n + 1 && fs.recs[n].kind == JOURNAL_FIX && fs.recs[n].frag == 0 &&
-                fs.recs[n].flag == 1);
+    assert_true(fs.n == n + 3 && fs.recs[n].kind == JOURNAL_FIX && fs.recs[n].frag == 0 &&
+                fs.recs[n].flag == 1 && fs.recs[n + 1].flag == 0 && fs.recs[n + 2].flag == 1);
     loop *G = loop_new(f, 2, NULL, &col, NULL, NULL);
     assert_int_equal(loop_recover(G, fs.recs, fs.n), 0);
     assert_true(loop_fixed(G, 0) && !loop_fixed(G, 1));
+    assert_int_equal(loop_action_do(G, LOOP_ACT_UNDO), LOOP_ACCEPTED); /* recovered history too */
+    assert_false(loop_fixed(G, 0));
     loop_free(G);
     journal_scan_free(&fs);
     journal_rec bad = r[0];
