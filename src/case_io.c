@@ -516,6 +516,22 @@ static int find_labels(const char *dir, const char *json, const char *lsha, char
     return 0;
 }
 
+/* A plan saved with fragments inside each other (loopkit records "penetrating"): every command
+ * that loads it says so. */
+static void warn_penetrating(const struct reader *r, json_t *root)
+{
+    json_t *pen = json_object_get(root, "penetrating"), *e;
+    size_t i;
+    json_array_foreach(pen, i, e) {
+        json_t *ids = json_object_get(e, "fragments");
+        fprintf(stderr, "fracnav: warning: %s: the saved poses put fragments %lld and %lld inside "
+                        "each other (%.3f ml)\n", r->file,
+                (long long)json_integer_value(json_array_get(ids, 0)),
+                (long long)json_integer_value(json_array_get(ids, 1)),
+                json_number_value(json_object_get(e, "overlap_ml")));
+    }
+}
+
 static int read_case(struct reader *r, json_t *root, fcase *c)
 {
     const char *fmt = get_str(r, root, "", "format");
@@ -584,6 +600,7 @@ static int read_case(struct reader *r, json_t *root, fcase *c)
     }
     if ((rc = read_fragments(r, root, c)) < 0)
         return rc;
+    warn_penetrating(r, root);
     return keep_extra(root, c);
 }
 

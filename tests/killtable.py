@@ -13,9 +13,10 @@ random delay in [0, 1.1 D], and then classifies the case folder:
   absent  no case folder (a first save killed before its rename: nothing half-made)
   broken  anything else, or a case that no longer loads
 The step at the kill is read from what the command had written at that moment (its staging
-folder, its temporary files). For replay the journal is read too: how many poses it kept and how
-much motion (ms of recording) the kill lost, and whether `replay --recover --save` then restores
-a loadable case.
+folder, its temporary files). For replay the journal is read too: how many poses it kept, how
+much motion the kill lost at most (the wall time from the "stepping" line to the kill, less the
+recording time the journal reached: an upper bound, since a loaded machine also delays the
+replay's start and pacing), and whether `replay --recover --save` then restores a loadable case.
 """
 import argparse
 import hashlib
@@ -112,13 +113,14 @@ def main():
     ap.add_argument("--runs", type=int, default=20)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--json")
+    ap.add_argument("--only", help="one command: segment, fracture, edit or replay")
     a = ap.parse_args()
     binary = os.path.abspath(a.bin)
     rnd = random.Random(a.seed)
     work = tempfile.mkdtemp(prefix="fracnav-killtable-")
     table = []
     try:
-        table = run_all(binary, os.path.abspath(a.ct), work, a.runs, rnd)
+        table = run_all(binary, os.path.abspath(a.ct), work, a.runs, rnd, a.only)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     print_table(table)
@@ -154,11 +156,14 @@ def one_command(name, binary, work, runs, rnd, old, make_cmd, reference, idle, w
     rows = []
     ref_dir = os.path.join(work, name + "-ref")
     shutil.copytree(old, ref_dir)
-    t0 = time.monotonic()
-    r = subprocess.run(make_cmd(ref_dir), capture_output=True)
+    proc = subprocess.Popen(make_cmd(ref_dir), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    if watch:
+        proc.stderr.readline()
+    t0 = time.monotonic()  # the kills' delays count from the same moment: the watch line or start
+    err = proc.stderr.read()
     duration = time.monotonic() - t0
-    if r.returncode != 0:
-        sys.exit("killtable: %s reference run failed: %s" % (name, r.stderr.decode(errors="replace")))
+    if proc.wait() != 0:
+        sys.exit("killtable: %s reference run failed: %s" % (name, err.decode(errors="replace")))
     new = reference(ref_dir)
     old_digest = digest(old)
     for i in range(runs):
@@ -174,6 +179,8 @@ def one_command(name, binary, work, runs, rnd, old, make_cmd, reference, idle, w
             outcome = "old"
         elif d == new:
             outcome = "new"
+            if killed and step == "before writing":
+                step = "after the new case was in place"
         else:
             outcome = "broken"
         if outcome in ("old", "new") and not loads(binary, target, idle):
@@ -187,7 +194,7 @@ def one_command(name, binary, work, runs, rnd, old, make_cmd, reference, idle, w
         for n in os.listdir(work):  # a killed run's staging folder: counted above, removed here
             if n.startswith("." + os.path.basename(target) + ".new-"):
                 shutil.rmtree(os.path.join(work, n), ignore_errors=True)
-    return rows, duration
+    return rows
 
 
 def replay_journal(binary, target, at, idle):
@@ -197,35 +204,35 @@ def replay_journal(binary, target, at, idle):
     if j and j[0]:
         reached_ms = (j[1] - j[2]) / 1000.0
         moving_ms = min(at * 1000.0, RECORDING_MS)  # the recording's motion ends at 1.5 s
-        out["lost_ms"] = round(max(0.0, moving_ms - reached_ms), 1)
+        out["lost_ms"] = round(max(0.0, moving_ms - reached_ms), 1)  # an upper bound: see above
         r = subprocess.run([binary, "replay", target, idle, "--recover", "--save"], capture_output=True)
         out["recover_rc"] = r.returncode
     return out
 
 
-def run_all(binary, ct, work, runs, rnd):
+def run_all(binary, ct, work, runs, rnd, only):
     rec, idle = make_recording(binary, work)
     base = os.path.join(work, "base")
     sh(binary, "segment", ct, "-o", base, "--min-volume", "5")
     table = []
     seg = lambda d: [binary, "segment", ct, "-o", d, "--min-volume", "5", "--threshold", "400",
                      "--force"]
-    rows, dur = one_command("segment", binary, work, runs, rnd, base, seg, digest, idle)
-    table += rows
+    if only in (None, "segment"):
+        table += one_command("segment", binary, work, runs, rnd, base, seg, digest, idle)
     frac = lambda d: [binary, "fracture", ct, "-o", d, "--seed", "3", "--force"]
     fbase = os.path.join(work, "fbase")
     sh(binary, "fracture", ct, "-o", fbase, "--seed", "2")
-    rows, dur = one_command("fracture", binary, work, runs, rnd, fbase, frac, digest, idle)
-    table += rows
+    if only in (None, "fracture"):
+        table += one_command("fracture", binary, work, runs, rnd, fbase, frac, digest, idle)
     with open(os.path.join(fbase, "case.json")) as f:
         centre = json.load(f)["fragments"][0]["centroid"]
     edit = lambda d: [binary, "edit", d, "erase-sphere"] + ["%g" % x for x in centre] + ["15"]
-    rows, dur = one_command("edit", binary, work, runs, rnd, fbase, edit, digest, idle)
-    table += rows
+    if only in (None, "edit"):
+        table += one_command("edit", binary, work, runs, rnd, fbase, edit, digest, idle)
     rep = lambda d: [binary, "replay", d, rec, "--realtime", "--save"]
-    rows, dur = one_command("replay", binary, work, runs, rnd, fbase, rep, digest, idle,
-                            watch="stepping")
-    table += rows
+    if only in (None, "replay"):
+        table += one_command("replay", binary, work, runs, rnd, fbase, rep, digest, idle,
+                             watch="stepping")
     return table
 
 
