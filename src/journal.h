@@ -20,9 +20,10 @@
  * records than the memory budget holds (vol_budget), whatever the file's size.
  *
  * Appends are buffered and written out (write(2), no fsync) whenever the oldest buffered record is
- * flush_us old (default 50 ms): a killed process loses the poses of at most the last flush_us (at
- * 1 kHz, up to 50 poses); the loop calls journal_tick every step, so the bound holds while it is
- * idle too. A power cut can lose what the system had not yet written to disk: journal_sync fsyncs.
+ * flush_us old (default 50 ms): a killed process loses the poses of about the last flush_us (at
+ * 1 kHz, up to 50 poses), plus however long a busy machine kept the loop thread from its next
+ * tick (tests/killtable.py measured 27-93 ms on a loaded 2-core machine); the loop calls
+ * journal_tick every tick, so the bound holds while it is idle too. A power cut can lose what the system had not yet written to disk: journal_sync fsyncs.
  * After the case is saved, journal_rebind names the new case.json and journal_truncate empties the
  * journal: it only ever holds poses newer than the case.json it is bound to.
  *
