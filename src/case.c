@@ -3,12 +3,15 @@
 #include "err.h"
 
 #include <errno.h>
+#include <fcntl.h>
 #include <jansson.h>
 #include <limits.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
 #define LABEL_MAX 65535
 
@@ -102,21 +105,51 @@ static void sha_final(sha256_ctx *s, char hex[65])
         snprintf(hex + 8 * i, 9, "%08x", s->h[i]);
 }
 
+void case_sha256(const void *data, size_t len, char hex[65])
+{
+    sha256_ctx s;
+    sha_init(&s);
+    sha_update(&s, data, len);
+    sha_final(&s, hex);
+}
+
+int case_open_regular(const char *path, const char *what)
+{
+    /* O_NONBLOCK: opening a FIFO must not wait for a writer before it can be refused. */
+    int fd = open(path, O_RDONLY | O_NONBLOCK | O_CLOEXEC);
+    if (fd < 0)
+        return fn_err_set(FN_EIO, "%s: cannot open%s%s: %s", path, what ? " " : "", what ? what : "",
+                          strerror(errno));
+    struct stat sb;
+    if (fstat(fd, &sb) != 0 || !S_ISREG(sb.st_mode)) {
+        close(fd);
+        return fn_err_set(FN_EIO, "%s: not a regular file (a folder, FIFO or device)%s%s", path,
+                          what ? ": " : "", what ? what : "");
+    }
+    fcntl(fd, F_SETFL, fcntl(fd, F_GETFL) & ~O_NONBLOCK);
+    return fd;
+}
+
 int case_file_sha256(const char *path, char hex[65])
 {
-    FILE *f = fopen(path, "rb");
-    if (!f)
-        return fn_err_set(FN_EIO, "%s: cannot open: %s", path, strerror(errno));
+    int fd = case_open_regular(path, NULL);
+    if (fd < 0)
+        return fd;
     sha256_ctx s;
     sha_init(&s);
     uint8_t buf[1 << 16];
-    size_t n;
-    while ((n = fread(buf, 1, sizeof buf, f)) > 0)
-        sha_update(&s, buf, n);
-    int bad = ferror(f);
-    fclose(f);
-    if (bad)
-        return fn_err_set(FN_EIO, "%s: read error", path);
+    ssize_t n;
+    while ((n = read(fd, buf, sizeof buf)) != 0) {
+        if (n < 0 && errno == EINTR)
+            continue;
+        if (n < 0) {
+            int e = errno;
+            close(fd);
+            return fn_err_set(FN_EIO, "%s: read error: %s", path, strerror(e));
+        }
+        sha_update(&s, buf, (size_t)n);
+    }
+    close(fd);
     sha_final(&s, hex);
     return 0;
 }

@@ -26,6 +26,8 @@ typedef struct fcase {
     char dir[4096];          /* the case folder */
     char source[4096];       /* source volume path (absolute, or as given) */
     char sha256[65];         /* of the source volume file */
+    char json_sha256[65];    /* of case.json as last loaded or saved ("" before): what a journal
+                              * is bound to */
     vol *ct;                 /* the source volume, owned */
     vol *labels;             /* labelmap on the source grid (float label values), owned */
     int nfrag;
@@ -46,6 +48,18 @@ typedef struct fcase {
  * are freed then too). */
 fcase *case_create(const char *dir, const char *source, vol *ct, vol *labels, const seg_params *sp);
 
+/* A whole case folder written aside and put in place in one step (segment, fracture), so that a
+ * kill at any moment leaves the old case or the new one at dir, never a mix or a half-made folder.
+ * case_stage_begin checks dir (missing, empty, or a case folder when force; keep, when not NULL,
+ * must not lie inside a folder it would replace), removes what killed runs left, and creates the
+ * hidden sibling folder tmp (PARENT/.NAME.new-PID) to build the case in. case_stage_commit syncs
+ * every file of tmp and renames it to dir; an existing case is exchanged with it atomically
+ * (renameat2 RENAME_EXCHANGE) and then removed. case_stage_abort removes tmp after a failure.
+ * 0 or FN_E* with a message naming the folder. */
+int case_stage_begin(const char *dir, int force, const char *keep, char *tmp, size_t cap);
+int case_stage_commit(const char *tmp, const char *dir);
+void case_stage_abort(const char *tmp);
+
 /* Reads dir/case.json, dir/labels.nii.gz and the source volume. Checks the version, the source's
  * sha256 and geometry, and the labels checksum; each mismatch is an FN_EMISMATCH error that says
  * what differs. A damaged case.json gets FN_EFORMAT naming the file and the field. */
@@ -64,8 +78,13 @@ int case_rebuild(fcase *c, int new_id, int parent_id);
 /* Index of the fragment with label id, or -1. */
 int case_find(const fcase *c, int id);
 
-/* sha256 of a file's bytes as 64 hex digits. 0 or FN_EIO. */
+/* sha256 of a file's bytes as 64 hex digits. 0 or FN_EIO (also for a file that is not regular:
+ * a FIFO or a device would never end or never start). */
 int case_file_sha256(const char *path, char hex[65]);
+void case_sha256(const void *data, size_t len, char hex[65]);
+/* Opens a regular file for reading (never blocks on a FIFO); what, if not NULL, is added to the
+ * message. The descriptor, or FN_EIO naming the path. */
+int case_open_regular(const char *path, const char *what);
 
 /* Edits. Each changes c->labels and rebuilds the fragments (case_rebuild); the caller saves.
  * A bad id is FN_EINVAL naming it and listing the ids the case has. Volumes: world LPS mm. */

@@ -21,6 +21,7 @@
 #define LABELS_PREV "labels.prev.nii.gz" /* the labels the on-disk case.json names, during a save */
 #define JSON_FILE "case.json"
 #define JSON_TMP ".case.json.tmp"
+#define JSON_MAX_BYTES (64 << 20) /* 64 MiB: ~100,000 fragments */
 
 /* ---- writing ---- */
 
@@ -204,7 +205,7 @@ int case_save(fcase *c)
 {
     if (mkdir(c->dir, 0755) != 0 && errno != EEXIST)
         return fn_err_set(FN_EIO, "%s: cannot create the case folder: %s", c->dir, strerror(errno));
-    char ltmp[4200], jtmp[4200], lfin[4200], jfin[4200], lprev[4200], lsha[65];
+    char ltmp[4200], jtmp[4200], lfin[4200], jfin[4200], lprev[4200], lsha[65], jsha[65];
     join(lprev, sizeof lprev, c->dir, LABELS_PREV);
     join(ltmp, sizeof ltmp, c->dir, LABELS_TMP);
     join(jtmp, sizeof jtmp, c->dir, JSON_TMP);
@@ -229,6 +230,8 @@ int case_save(fcase *c)
                 strcpy(text + n, "\n");
             }
             rc = write_file(jtmp, text);
+            if (rc == 0)
+                case_sha256(text, strlen(text), jsha);
             free(text);
         }
     }
@@ -246,6 +249,7 @@ int case_save(fcase *c)
         return fn_err_wrap(rc, "saving case %s", c->dir);
     }
     unlink(lprev); /* a leftover is harmless: the next save replaces it */
+    memcpy(c->json_sha256, jsha, sizeof jsha);
     return 0;
 }
 
@@ -355,6 +359,8 @@ static int read_seg(struct reader *r, json_t *root, seg_params *sp)
         get_num(r, sg, p, "min_volume_ml", &sp->min_volume_ml) < 0 ||
         get_int(r, sg, p, "keep", 0, 1000000, &keep) < 0 || get_num(r, sg, p, "ramp", &sp->ramp) < 0)
         return FN_EFORMAT;
+    if (sp->ramp < 0)
+        return bad(r, "must be >= 0");
     sp->keep = (int)keep;
     const char *mode = get_str(r, sg, p, "threshold_mode");
     if (!mode)
@@ -369,8 +375,6 @@ static int read_seg(struct reader *r, json_t *root, seg_params *sp)
     sp->exclude_peak = !json_is_null(e);
     if (sp->exclude_peak && get_num(r, sg, p, "exclude_below_peak", &sp->exclude_below_peak) < 0)
         return FN_EFORMAT;
-    if (sp->ramp < 0)
-        return bad(r, "must be >= 0");
     return 0;
 }
 
@@ -421,17 +425,9 @@ static int same_grid(const vol *a, const vol *b, const char *what)
     return 0;
 }
 
-/* Names, colours, poses and truth from the fragments array; ids must match the labels. */
-static int read_fragments(struct reader *r, json_t *root, fcase *c)
+/* Names, colours, poses and truth from the fragments array; ids must match the labels, each once. */
+static int read_fragment_list(struct reader *r, json_t *fr, fcase *c, uint8_t *seen)
 {
-    json_t *fr = get(r, root, "", "fragments");
-    if (!fr)
-        return FN_EFORMAT;
-    if (!json_is_array(fr))
-        return bad(r, "expected an array");
-    if ((int)json_array_size(fr) != c->nfrag)
-        return fn_err_set(FN_EMISMATCH, "%s lists %zu fragments but labels.nii.gz holds %d",
-                          r->file, json_array_size(fr), c->nfrag);
     for (int i = 0; i < c->nfrag; i++) {
         json_t *o = json_array_get(fr, (size_t)i);
         char pre[48];
@@ -443,6 +439,10 @@ static int read_fragments(struct reader *r, json_t *root, fcase *c)
         if (k < 0)
             return fn_err_set(FN_EMISMATCH, "%s: field %sid: fragment %ld is not in labels.nii.gz",
                               r->file, pre, id);
+        if (seen[k])
+            return fn_err_set(FN_EFORMAT, "%s: field %sid: fragment %ld is listed twice", r->file,
+                              pre, id);
+        seen[k] = 1;
         frag *f = &c->frag[k];
         const char *name = get_str(r, o, pre, "name");
         if (!name || get_pose(r, o, pre, "pose", &f->pose) < 0)
@@ -462,6 +462,24 @@ static int read_fragments(struct reader *r, json_t *root, fcase *c)
             return FN_EFORMAT;
     }
     return 0;
+}
+
+static int read_fragments(struct reader *r, json_t *root, fcase *c)
+{
+    json_t *fr = get(r, root, "", "fragments");
+    if (!fr)
+        return FN_EFORMAT;
+    if (!json_is_array(fr))
+        return bad(r, "expected an array");
+    if ((int)json_array_size(fr) != c->nfrag)
+        return fn_err_set(FN_EMISMATCH, "%s lists %zu fragments but labels.nii.gz holds %d",
+                          r->file, json_array_size(fr), c->nfrag);
+    uint8_t *seen = calloc((size_t)c->nfrag + 1, 1);
+    if (!seen)
+        return fn_err_set(FN_ENOMEM, "case: out of memory");
+    int rc = read_fragment_list(r, fr, c, seen);
+    free(seen);
+    return rc;
 }
 
 /* Top-level members this module does not own, kept for the modules that do. */
@@ -498,6 +516,22 @@ static int find_labels(const char *dir, const char *json, const char *lsha, char
     return 0;
 }
 
+/* A plan saved with fragments inside each other (loopkit records "penetrating"): every command
+ * that loads it says so. */
+static void warn_penetrating(const struct reader *r, json_t *root)
+{
+    json_t *pen = json_object_get(root, "penetrating"), *e;
+    size_t i;
+    json_array_foreach(pen, i, e) {
+        json_t *ids = json_object_get(e, "fragments");
+        fprintf(stderr, "fracnav: warning: %s: the saved poses put fragments %lld and %lld inside "
+                        "each other (%.3f ml)\n", r->file,
+                (long long)json_integer_value(json_array_get(ids, 0)),
+                (long long)json_integer_value(json_array_get(ids, 1)),
+                json_number_value(json_object_get(e, "overlap_ml")));
+    }
+}
+
 static int read_case(struct reader *r, json_t *root, fcase *c)
 {
     const char *fmt = get_str(r, root, "", "format");
@@ -518,10 +552,14 @@ static int read_case(struct reader *r, json_t *root, fcase *c)
     const char *lsha = lab ? get_str(r, lab, "labels.", "sha256") : NULL;
     if (!lsha)
         return FN_EFORMAT;
-    int len = path[0] == '/' ? snprintf(c->source, sizeof c->source, "%s", path)
-                             : snprintf(c->source, sizeof c->source, "%.2047s/%.2047s", c->dir, path);
-    if (len < 0 || (size_t)len >= sizeof c->source)
+    size_t len = path[0] == '/' ? strlen(path) : strlen(c->dir) + 1 + strlen(path);
+    if (len < sizeof c->source)
+        snprintf(c->source, sizeof c->source, path[0] == '/' ? "%s%s" : "%s/%s",
+                 path[0] == '/' ? "" : c->dir, path);
+    else {
+        snprintf(r->field, sizeof r->field, "source.path");
         return bad(r, "path too long");
+    }
     int rc = read_seg(r, root, &c->seg);
     if (rc < 0 || (rc = get_num(r, root, "", "tau_min", &c->tau_min)) < 0 ||
         (rc = get_num(r, root, "", "tau_max", &c->tau_max)) < 0)
@@ -562,7 +600,41 @@ static int read_case(struct reader *r, json_t *root, fcase *c)
     }
     if ((rc = read_fragments(r, root, c)) < 0)
         return rc;
+    warn_penetrating(r, root);
     return keep_extra(root, c);
+}
+
+/* case.json's bytes (a regular file, at most JSON_MAX_BYTES), malloc'd and NUL-terminated. */
+static char *read_json_file(const char *path, size_t *len)
+{
+    int fd = case_open_regular(path, "(not a case folder?)");
+    if (fd < 0)
+        return NULL;
+    struct stat sb;
+    char *buf = NULL;
+    if (fstat(fd, &sb) != 0 || sb.st_size > JSON_MAX_BYTES)
+        fn_err_set(FN_EFORMAT, "%s: %lld bytes, more than a case.json can hold (%d)", path,
+                   (long long)sb.st_size, JSON_MAX_BYTES);
+    else if (!(buf = malloc((size_t)sb.st_size + 1)))
+        fn_err_set(FN_ENOMEM, "%s: out of memory", path);
+    size_t done = 0;
+    while (buf && done < (size_t)sb.st_size) {
+        ssize_t n = read(fd, buf + done, (size_t)sb.st_size - done);
+        if (n < 0 && errno == EINTR)
+            continue;
+        if (n <= 0) {
+            fn_err_set(FN_EIO, "%s: read error: %s", path, n ? strerror(errno) : "file shrank");
+            free(buf);
+            buf = NULL;
+            break;
+        }
+        done += (size_t)n;
+    }
+    close(fd);
+    if (buf)
+        buf[done] = '\0';
+    *len = done;
+    return buf;
 }
 
 fcase *case_load(const char *dir)
@@ -576,13 +648,18 @@ fcase *case_load(const char *dir)
     snprintf(c->dir, sizeof c->dir, "%s", dir);
     char jpath[4200];
     join(jpath, sizeof jpath, dir, JSON_FILE);
+    size_t len;
+    char *text = read_json_file(jpath, &len);
+    if (!text) {
+        case_free(c);
+        return NULL;
+    }
+    case_sha256(text, len, c->json_sha256);
     json_error_t je;
-    json_t *root = json_load_file(jpath, JSON_REJECT_DUPLICATES, &je);
+    json_t *root = json_loadb(text, len, JSON_REJECT_DUPLICATES, &je);
+    free(text);
     if (!root) {
-        if (access(jpath, R_OK) != 0)
-            fn_err_set(FN_EIO, "%s: cannot open: %s (not a case folder?)", jpath, strerror(errno));
-        else
-            fn_err_set(FN_EFORMAT, "%s: line %d, column %d: %s", jpath, je.line, je.column, je.text);
+        fn_err_set(FN_EFORMAT, "%s: line %d, column %d: %s", jpath, je.line, je.column, je.text);
         case_free(c);
         return NULL;
     }

@@ -2,6 +2,7 @@
 #include "cmd.h"
 
 #include "case.h"
+#include "case_journal.h"
 #include "err.h"
 #include "jsonw.h"
 
@@ -15,7 +16,10 @@ static void usage(FILE *out)
     fprintf(out,
             "usage: fracnav edit CASE OPERATION ARGS [--json]\n\n"
             "Correct a case's segmentation; the case is saved atomically after the edit (a failed\n"
-            "save leaves it as it was). Coordinates are world LPS mm (see case.json's centroids).\n\n"
+            "save leaves it as it was). Coordinates are world LPS mm (see case.json's centroids).\n"
+            "Poses that CASE/journal holds beyond case.json (an interrupted navigate or replay) are\n"
+            "applied first and saved with the edit, so none lands on another fragment after it; a\n"
+            "journal that does not extend case.json is kept aside, never applied.\n\n"
             "operations:\n"
             "  merge A B                           fragment B joins fragment A\n"
             "  split ID --plane PX PY PZ NX NY NZ  voxels of ID on the side the normal N points to\n"
@@ -222,9 +226,17 @@ int cmd_edit(int argc, char **argv)
         fprintf(stderr, "fracnav edit: %s\n", fn_err_msg());
         return 1;
     }
+    journal_rec *recs;
+    size_t n;
+    FILE *msg = json ? stderr : stdout;
+    int rc = case_journal_check(c, &recs, &n) < 0 || case_journal_apply(c, recs, n) < 0 ? 1 : 0;
+    free(recs);
+    if (rc == 0 && n)
+        fprintf(msg, "applied the %zu poses that %s/journal held beyond case.json\n", n, c->dir);
     json_t *res = json ? json_object() : NULL;
-    int rc = apply(c, argv[2], argc - 3, argv + 3, json ? stderr : stdout, res);
-    if (rc == 0 && case_save(c) < 0)
+    if (rc == 0)
+        rc = apply(c, argv[2], argc - 3, argv + 3, msg, res);
+    if (rc == 0 && (case_save(c) < 0 || case_journal_remove(c) < 0))
         rc = 1;
     if (rc == 0 && json && print_json(c, argv[1], argv[2], res) < 0)
         rc = 1;

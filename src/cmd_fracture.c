@@ -2,6 +2,7 @@
 #include "cmd.h"
 
 #include "case.h"
+#include "case_journal.h"
 #include "err.h"
 #include "fracture.h"
 #include "jsonw.h"
@@ -26,7 +27,11 @@ static void usage(FILE *out)
             "there (poses start at identity) and case.json's truth holds, per fragment, the pose\n"
             "that puts it back. The same seed and options give the same case, byte for byte, on\n"
             "every machine.\n\n"
-            "  -o, --output CASE      the case folder to write (created if missing)\n"
+            "  -o, --output CASE      the case folder to write (created; the case is built beside\n"
+            "                         it and renamed into place, so a kill leaves no half-made\n"
+            "                         folder)\n"
+            "  --force                replace CASE if it holds a case already (with its journal);\n"
+            "                         a kill leaves the old case or the new one\n"
             "  --seed N               the random seed (required)\n"
             "  --pieces K             number of pieces, 2..10 (default 2); a bone too small or\n"
             "                         thin to give K pieces of 10%% is an error that says so\n"
@@ -68,7 +73,8 @@ static double *number_option(fracture_params *p, const char *opt, const char **a
     return NULL;
 }
 
-static int parse(int argc, char **argv, fracture_params *p, const char **in, const char **out, int *json)
+static int parse(int argc, char **argv, fracture_params *p, const char **in, const char **out, int *json,
+                 int *force)
 {
     int have_seed = 0, rc;
     double *target;
@@ -79,6 +85,10 @@ static int parse(int argc, char **argv, fracture_params *p, const char **in, con
         double d;
         if (!strcmp(a, "--json")) {
             *json = 1;
+            continue;
+        }
+        if (!strcmp(a, "--force")) {
+            *force = 1;
             continue;
         }
         if (a[0] != '-') {
@@ -161,6 +171,15 @@ static double now_ms(void)
     return (double)t.tv_sec * 1e3 + t.tv_nsec * 1e-6;
 }
 
+/* --force replaces a case with its journal: poses it holds beyond case.json go too. */
+static void warn_journal(const char *dir, int force)
+{
+    size_t n = force ? case_journal_pending(dir) : 0;
+    if (n)
+        fprintf(stderr, "fracnav fracture: warning: %s/journal holds %zu poses not saved in "
+                        "case.json; they go with the case this replaces\n", dir, n);
+}
+
 int cmd_fracture(int argc, char **argv)
 {
     if (cmd_wants_help(argc, argv)) {
@@ -170,17 +189,22 @@ int cmd_fracture(int argc, char **argv)
     fracture_params p;
     fracture_defaults(&p);
     const char *in = NULL, *out = NULL;
-    int json = 0;
-    int rc = parse(argc, argv, &p, &in, &out, &json);
+    int json = 0, force = 0;
+    int rc = parse(argc, argv, &p, &in, &out, &json, &force);
     if (rc)
         return rc;
+    char tmp[4200] = "";
+    warn_journal(out, force);
     double t0 = now_ms();
-    vol *ct = volio_read(in);
+    vol *ct = case_stage_begin(out, force, NULL, tmp, sizeof tmp) == 0 ? volio_read(in) : NULL;
     double t1 = now_ms();
-    fcase *c = ct ? fracture_make_case(ct, &p, out) : NULL;
+    /* The whole case, source.nii.gz included, is written in tmp and renamed into place at once. */
+    fcase *c = ct ? fracture_make_case(ct, &p, tmp) : NULL;
     double t2 = now_ms();
-    if (!c) {
+    if (!c || case_stage_commit(tmp, out) < 0) {
         fprintf(stderr, "fracnav fracture: %s\n", fn_err_msg());
+        case_stage_abort(tmp);
+        case_free(c);
         vol_free(ct);
         return 1;
     }

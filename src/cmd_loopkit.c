@@ -2,6 +2,7 @@
 
 #include "cmd.h"
 
+#include "case_journal.h"
 #include "err.h"
 #include "jsonw.h"
 #include "obb.h"
@@ -16,44 +17,46 @@
 
 size_t loopkit_journal_pending(const char *dir)
 {
-    journal_rec *r;
-    size_t n = 0;
-    if (journal_read(dir, &r, &n, NULL) < 0)
-        return 0;
-    free(r);
-    return n;
+    return case_journal_pending(dir);
 }
 
-/* Continues from the journal: poses and undo history. */
-static int resume(loopkit *k, const char *dir)
+/* The journal reconciled with the case (case_journal_check); *recs, *n: what --recover applies. */
+static int check_journal(loopkit *k, unsigned flags, const char *cmd, journal_rec **recs, size_t *n)
 {
-    journal_rec *r;
-    size_t n;
-    int rc = journal_read(dir, &r, &n, NULL);
-    if (rc == 0)
-        rc = loop_recover(k->L, r, n);
-    free(r);
-    k->resumed = rc == 0 ? n : 0;
-    return rc < 0 ? fn_err_wrap(rc, "%s/journal", dir) : 0;
+    const char *dir = k->dir_name;
+    if (flags & LOOPKIT_DISCARD) {
+        char path[4200]; /* removed, not parsed: a damaged journal must not block a fresh start */
+        snprintf(path, sizeof path, "%s/journal", dir);
+        if (unlink(path) != 0 && errno != ENOENT)
+            return fn_err_set(FN_EIO, "%s: cannot remove: %s", path, strerror(errno));
+        return 0;
+    }
+    int rc = case_journal_check(k->c, recs, n);
+    if (rc == 1 && (flags & LOOPKIT_RESUME))
+        return fn_err_set(FN_EMISMATCH, "%s/journal does not extend this case.json, so --recover "
+                                        "has nothing to apply (it was kept aside, see above); run "
+                                        "again without --recover to start from case.json", dir);
+    if (rc >= 0 && *n && !(flags & LOOPKIT_RESUME))
+        return fn_err_set(FN_EMISMATCH,
+                          "%s/journal holds %zu poses not saved in case.json (an interrupted session): "
+                          "run `fracnav %s` with --recover to continue from them, or --discard-journal "
+                          "to start from case.json",
+                          dir, *n, cmd);
+    return rc < 0 ? rc : 0;
 }
 
 int loopkit_open(loopkit *k, const char *dir, const loop_config *cfg, unsigned flags, const char *cmd,
                  const cmd_tau *tau)
 {
     memset(k, 0, sizeof *k);
-    size_t pending = loopkit_journal_pending(dir);
-    if (pending && !(flags & (LOOPKIT_RESUME | LOOPKIT_DISCARD)))
-        return fn_err_set(FN_EMISMATCH,
-                          "%s/journal holds %zu poses not saved in case.json (an interrupted session): "
-                          "run `fracnav %s` with --recover to continue from them, or --discard-journal "
-                          "to start from case.json",
-                          dir, pending, cmd);
     snprintf(k->dir_name, sizeof k->dir_name, "%s", dir);
     k->c = case_load(dir);
     if (!k->c)
         return FN_EIO;
-    int rc = 0;
-    if (k->c->nfrag > LOOP_MAX_FRAGS)
+    journal_rec *recs = NULL;
+    size_t pending = 0;
+    int rc = check_journal(k, flags, cmd, &recs, &pending);
+    if (rc == 0 && k->c->nfrag > LOOP_MAX_FRAGS)
         rc = fn_err_set(FN_EINVAL, "%s: %d fragments, the loop steers at most %d", dir, k->c->nfrag,
                         LOOP_MAX_FRAGS);
     if (rc == 0 && k->c->nfrag < 2)
@@ -66,14 +69,10 @@ int loopkit_open(loopkit *k, const char *dir, const loop_config *cfg, unsigned f
         if (!k->obb)
             rc = FN_EFORMAT;
     }
-    if (rc == 0 && (flags & LOOPKIT_DISCARD)) {
-        char path[4200]; /* removed, not parsed: a damaged journal must not block a fresh start */
-        snprintf(path, sizeof path, "%s/journal", dir);
-        if (unlink(path) != 0 && errno != ENOENT)
-            rc = fn_err_set(FN_EIO, "%s: cannot remove: %s", path, strerror(errno));
-    }
     if (rc == 0 && (flags & LOOPKIT_JOURNAL)) {
-        k->jr = journal_open(dir);
+        journal_bind b;
+        case_journal_bind(k->c, &b);
+        k->jr = journal_open(dir, &b);
         if (!k->jr)
             rc = FN_EIO;
     }
@@ -86,8 +85,13 @@ int loopkit_open(loopkit *k, const char *dir, const loop_config *cfg, unsigned f
         if (!k->L)
             rc = FN_ENOMEM;
     }
-    if (rc == 0 && pending && (flags & LOOPKIT_RESUME))
-        rc = resume(k, dir);
+    if (rc == 0 && pending) {
+        rc = loop_recover(k->L, recs, pending);
+        k->resumed = rc == 0 ? pending : 0;
+        if (rc < 0)
+            fn_err_wrap(rc, "%s/journal", dir);
+    }
+    free(recs);
     if (rc == 0)
         rc = loop_measure(k->L);
     if (rc < 0)
@@ -95,11 +99,90 @@ int loopkit_open(loopkit *k, const char *dir, const loop_config *cfg, unsigned f
     return rc;
 }
 
-int loopkit_save(loopkit *k)
+void loopkit_rebind(loopkit *k)
+{
+    if (!k->jr)
+        return;
+    journal_bind b;
+    case_journal_bind(k->c, &b);
+    journal_rebind(k->jr, &b);
+}
+
+/* The pairs that overlap at the case's poses, into k->penetrating and case.json's "penetrating". */
+static int check_penetration(loopkit *k)
+{
+    fcase *c = k->c;
+    if (!k->check) {
+        obb_params op = {c->tau_min, c->tau_max};
+        if (!(k->check = loop_obb_new(c->frag, c->nfrag, &op, NULL)))
+            return FN_EFORMAT;
+    }
+    loop_collider col = loop_obb_collider(k->check);
+    json_t *list = json_array();
+    int rc = 0;
+    for (int a = 0; rc == 0 && a < c->nfrag; a++)
+        for (int b = a + 1; rc == 0 && b < c->nfrag; b++) {
+            loop_contact ct;
+            double mm3 = 0;
+            rc = col.query(col.ctx, a, &c->frag[a].pose, b, &c->frag[b].pose, NULL, &ct);
+            if (rc < 0 || !ct.collides)
+                continue;
+            rc = col.overlap(col.ctx, a, &c->frag[a].pose, b, &c->frag[b].pose, &mm3);
+            json_array_append_new(list, json_pack("{s:[i,i],s:f}", "fragments", c->frag[a].id,
+                                                  c->frag[b].id, "overlap_ml", mm3 / 1000));
+            fprintf(stderr, "\nWARNING: saving a penetrating plan: fragments %d and %d overlap by "
+                            "%.3f ml (moved while collision checking was off)\n",
+                    c->frag[a].id, c->frag[b].id, mm3 / 1000);
+        }
+    json_decref(k->penetrating);
+    k->penetrating = list;
+    if (!c->extra)
+        c->extra = json_object();
+    if (json_array_size(list))
+        json_object_set(c->extra, "penetrating", list);
+    else
+        json_object_del(c->extra, "penetrating");
+    return rc;
+}
+
+/* case.json keeps one fixed fragment: the case's own while it stays fixed, else the first. */
+static void take_fixed(loopkit *k, const uint8_t *fixed)
+{
+    fcase *c = k->c;
+    if (c->fixed < 0 || !fixed[c->fixed]) {
+        c->fixed = -1;
+        for (int i = 0; i < c->nfrag && c->fixed < 0; i++)
+            if (fixed[i])
+                c->fixed = i;
+    }
+    for (int i = 0; i < c->nfrag; i++)
+        if (fixed[i] && i != c->fixed)
+            fprintf(stderr, "\nfracnav: fragment %d is fixed here too, but case.json records one "
+                            "fixed fragment (%d)\n", c->frag[i].id, c->frag[c->fixed].id);
+}
+
+int loopkit_save_case(loopkit *k, const pose *poses, const uint8_t *fixed)
 {
     for (int i = 0; i < k->c->nfrag; i++)
-        k->c->frag[i].pose = loop_pose(k->L, i);
-    int rc = case_save(k->c);
+        k->c->frag[i].pose = poses[i];
+    take_fixed(k, fixed);
+    int rc = check_penetration(k);
+    if (rc == 0)
+        rc = case_save(k->c);
+    if (rc == 0)
+        loopkit_rebind(k);
+    return rc;
+}
+
+int loopkit_save(loopkit *k)
+{
+    pose poses[LOOP_MAX_FRAGS];
+    uint8_t fixed[LOOP_MAX_FRAGS];
+    for (int i = 0; i < k->c->nfrag; i++) {
+        poses[i] = loop_pose(k->L, i);
+        fixed[i] = (uint8_t)loop_fixed(k->L, i);
+    }
+    int rc = loopkit_save_case(k, poses, fixed);
     if (rc == 0 && k->jr)
         rc = journal_truncate(k->jr);
     return rc;
@@ -111,6 +194,8 @@ void loopkit_close(loopkit *k)
     if (k->jr)
         journal_close(k->jr);
     loop_obb_free(k->obb);
+    loop_obb_free(k->check);
+    json_decref(k->penetrating);
     case_free(k->c);
     memset(k, 0, sizeof *k);
 }
@@ -174,6 +259,7 @@ int loopkit_print_json(const loopkit *k, FILE *out, const char *command, long un
         json_object_set_new(j, "journal_records", count(k->jr ? journal_count(k->jr) : 0));
         json_object_set_new(j, "final_poses", poses);
         json_object_set_new(j, "pose_digest", json_string(digest));
+        json_object_set(j, "penetrating", k->penetrating ? k->penetrating : json_null());
     } else
         json_decref(poses);
     return jsonw_print(j, out);

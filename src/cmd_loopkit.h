@@ -26,22 +26,38 @@ enum {
 typedef struct loopkit {
     fcase *c;
     loop_obb *obb;
+    loop_obb *check; /* the saver's own collider (the loop thread owns obb's scratch), made at need */
+    json_t *penetrating; /* at the last save: [{"fragments": [A, B], "overlap_ml": V}, ...] */
     loop *L;
     journal *jr;
     size_t resumed; /* journal records applied at open */
     char dir_name[4096];
 } loopkit;
 
-/* Loads the case and builds everything. A journal holding unsaved poses without LOOPKIT_RESUME or
- * LOOPKIT_DISCARD is an error (FN_EMISMATCH) whose message says how many and what to do; `cmd`
- * names the command for that advice. tau: --tau-min/--tau-max over the case's (NULL: none); they
+/* Loads the case, reconciles its journal (case_journal_check: damage and journals of another case
+ * state are kept aside, never applied) and builds everything. A journal holding unsaved poses
+ * without LOOPKIT_RESUME or LOOPKIT_DISCARD is an error (FN_EMISMATCH) whose message says how many
+ * and what to do; `cmd` names the command for that advice; LOOPKIT_RESUME with a journal that was
+ * refused is an error too. tau: --tau-min/--tau-max over the case's (NULL: none); they
  * go into k->c, so a save keeps them. 0 or FN_E* (k is then empty). */
 int loopkit_open(loopkit *k, const char *dir, const loop_config *cfg, unsigned flags, const char *cmd,
                  const cmd_tau *tau);
-/* Unsaved records in DIR/journal (0 when none or unreadable). */
+/* Unsaved records in DIR/journal that extend DIR/case.json (0 when none, unreadable, damaged or
+ * bound to another case state). */
 size_t loopkit_journal_pending(const char *dir);
-/* Copies the loop's poses into the case, saves it atomically, then empties the journal. */
+/* Copies the loop's poses and fixed fragments into the case, saves it atomically, then empties
+ * the journal. */
 int loopkit_save(loopkit *k);
+/* Saves the case with these poses and fixed flags (k->c->nfrag of each; a scene's, while the loop
+ * runs) and binds the journal to the new case.json. Fragments that interpenetrate (collision
+ * checking was off) are not refused but said: a warning on stderr naming them and their overlap,
+ * k->penetrating for --json, and case.json's "penetrating" member (absent when none) for later
+ * commands. case.json has one fixed fragment: the case's own when it is still fixed, else the
+ * first fixed one; others fixed are named in a warning. 0 or FN_E*. */
+int loopkit_save_case(loopkit *k, const pose *poses, const uint8_t *fixed);
+/* After the case was saved (k->c->json_sha256 is the new case.json): the journal's next truncation
+ * binds it to that case.json. */
+void loopkit_rebind(loopkit *k);
 void loopkit_close(loopkit *k);
 
 /* Final poses and statistics as the JSON object of `command` (replay's and navigate's summary;

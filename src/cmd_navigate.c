@@ -24,8 +24,9 @@ static void usage(FILE *out)
             "Steer the case's fragments with a 6-DOF controller. Every move is collision-checked\n"
             "against every other fragment: a blocked move is limited to its free part or slides\n"
             "along the contact. A terminal view shows the selected fragment, its pose, the contact\n"
-            "state, the loop rate and the latency. Every accepted pose goes to CASE/journal at once;\n"
-            "the case is saved on exit and on demand, and an interrupted session can be recovered.\n\n"
+            "state, the loop rate and the latency. Every accepted pose goes to CASE/journal within\n"
+            "50 ms; the case is saved on exit and on demand (with the fixed fragment, and a warning\n"
+            "when fragments overlap), and an interrupted session can be recovered.\n\n"
             "  --device SPEC       auto (default: first controller, else spacenavd, else keyboard),\n"
             "                      a hidraw path, spnav, keyboard, serial:S, or a transport NAME:ARG\n"
             "                      (replay-realtime:FILE.fnrec plays a recording as a device,\n"
@@ -233,10 +234,8 @@ static void acknowledge(view *v, const char *text)
 static void save_scene(view *v, const loop_scene *sc, pose *saved, ring *ctl)
 {
     loopkit *k = v->k;
-    for (int i = 0; i < k->c->nfrag; i++)
-        k->c->frag[i].pose = sc->pose[i];
     char msg[1024];
-    int rc = case_save(k->c);
+    int rc = loopkit_save_case(k, sc->pose, sc->fixed);
     if (rc < 0)
         snprintf(msg, sizeof msg, "save failed: %.1000s", fn_err_msg());
     else

@@ -2,6 +2,7 @@
 #include "cmd.h"
 
 #include "case.h"
+#include "case_journal.h"
 #include "err.h"
 #include "jsonw.h"
 #include "seg.h"
@@ -19,7 +20,11 @@ static void usage(FILE *out)
             "Segment a CT into bone fragments and save them as a case folder (CASE/case.json,\n"
             "CASE/labels.nii.gz). Bone is every voxel >= the threshold; 26-connected components\n"
             "become fragments, largest first (ids 1..n).\n\n"
-            "  -o, --output CASE          the case folder to write (created if missing)\n"
+            "  -o, --output CASE          the case folder to write (created; a new case is built\n"
+            "                             beside it and renamed into place, so a kill leaves no\n"
+            "                             half-made folder)\n"
+            "  --force                    replace CASE if it holds a case already (with its\n"
+            "                             journal); a kill leaves the old case or the new one\n"
             CMD_THRESHOLD_HELP
             "  --min-volume ML            drop components under ML millilitres (default 0.5)\n"
             "  --exclude-below-peak HU    drop components whose brightest voxel is under HU: the CT\n"
@@ -36,7 +41,7 @@ static void usage(FILE *out)
 }
 
 static int parse(int argc, char **argv, seg_params *p, cmd_tau *tau, const char **in, const char **out,
-                 int *json)
+                 int *json, int *force)
 {
     int rc;
     for (int i = 1; i < argc; i++) {
@@ -45,6 +50,10 @@ static int parse(int argc, char **argv, seg_params *p, cmd_tau *tau, const char 
         double d;
         if (!strcmp(a, "--json")) {
             *json = 1;
+            continue;
+        }
+        if (!strcmp(a, "--force")) {
+            *force = 1;
             continue;
         }
         if (a[0] != '-') {
@@ -132,6 +141,15 @@ static int report_json(const fcase *c, const seg_result *r, const char *in, cons
     return jsonw_print(o, stdout);
 }
 
+/* --force replaces a case with its journal: poses it holds beyond case.json go too. */
+static void warn_journal(const char *dir, int force)
+{
+    size_t n = force ? case_journal_pending(dir) : 0;
+    if (n)
+        fprintf(stderr, "fracnav segment: warning: %s/journal holds %zu poses not saved in "
+                        "case.json; they go with the case this replaces\n", dir, n);
+}
+
 int cmd_segment(int argc, char **argv)
 {
     if (cmd_wants_help(argc, argv)) {
@@ -142,10 +160,16 @@ int cmd_segment(int argc, char **argv)
     seg_defaults(&p);
     const char *in = NULL, *out = NULL;
     cmd_tau tau = {0};
-    int json = 0;
-    int rc = parse(argc, argv, &p, &tau, &in, &out, &json);
+    int json = 0, force = 0;
+    int rc = parse(argc, argv, &p, &tau, &in, &out, &json, &force);
     if (rc)
         return rc;
+    char tmp[4200];
+    warn_journal(out, force);
+    if (case_stage_begin(out, force, in, tmp, sizeof tmp) < 0) {
+        fprintf(stderr, "fracnav segment: %s\n", fn_err_msg());
+        return 1;
+    }
     double t0 = now();
     vol *ct = volio_read(in);
     double t1 = now();
@@ -153,18 +177,20 @@ int cmd_segment(int argc, char **argv)
     if (!ct || seg_run(ct, &p, &r) < 0) {
         fprintf(stderr, "fracnav segment: %s\n", fn_err_msg());
         vol_free(ct);
+        case_stage_abort(tmp);
         return 1;
     }
     p.threshold = r.threshold;
     vol *labels = r.labels;
     r.labels = NULL;
     double t2 = now();
-    fcase *c = case_create(out, in, ct, labels, &p);
+    fcase *c = case_create(tmp, in, ct, labels, &p);
     if (c)
         cmd_tau_apply(&tau, &c->tau_min, &c->tau_max); /* checked by parse */
     double t3 = now();
-    if (!c || case_save(c) < 0) {
+    if (!c || case_save(c) < 0 || case_stage_commit(tmp, out) < 0) {
         fprintf(stderr, "fracnav segment: %s\n", fn_err_msg());
+        case_stage_abort(tmp);
         case_free(c);
         seg_result_free(&r);
         return 1;

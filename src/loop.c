@@ -636,6 +636,21 @@ static void shift(int *nfrom, loop_undo *to, int *nto, loop_undo back)
     to[(*nto)++] = back;
 }
 
+/* Fixes or frees fragment s, journaled (JOURNAL_FIX) like a pose. */
+static void set_fixed(loop *L, int s, int fixed)
+{
+    L->fixed[s] = (uint8_t)(fixed != 0);
+    if (L->jr && journal_append_fix(L->jr, s, L->last_t, &L->pose[s], fixed, loop_now_us()) < 0)
+        L->st.journal_errors++;
+}
+
+/* An undo step that gives fragment s its fixed flag back. */
+static void push_fix(loop *L, int s)
+{
+    loop_undo_push(L, s);
+    L->undo[L->nundo - 1].fix = 1 + L->fixed[s];
+}
+
 static int undo_redo(loop *L, int redo)
 {
     loop_undo *from = redo ? L->redo : L->undo, *to = redo ? L->undo : L->redo;
@@ -643,7 +658,13 @@ static int undo_redo(loop *L, int redo)
     if (*nfrom == 0)
         return LOOP_IDLE;
     loop_undo u = from[*nfrom - 1];
-    loop_undo back = {u.frag, L->pose[u.frag]};
+    if (u.fix) {
+        loop_undo back = {u.frag, L->pose[u.frag], 1 + L->fixed[u.frag]};
+        set_fixed(L, u.frag, u.fix - 1);
+        shift(nfrom, to, nto, back);
+        return LOOP_ACCEPTED;
+    }
+    loop_undo back = {u.frag, L->pose[u.frag], 0};
     int rc = restore(L, &u, redo ? JOURNAL_REDO : JOURNAL_UNDO);
     verify(L);
     if (rc <= 0)
@@ -658,7 +679,7 @@ void loop_undo_push(loop *L, int s)
         memmove(L->undo, L->undo + 1, (LOOP_UNDO_MAX - 1) * sizeof *L->undo);
         L->nundo--;
     }
-    L->undo[L->nundo++] = (loop_undo){s, L->pose[s]};
+    L->undo[L->nundo++] = (loop_undo){s, L->pose[s], 0};
     L->nredo = 0;
 }
 
@@ -670,8 +691,9 @@ int loop_action_do(loop *L, loop_action a)
         select_next(L, a == LOOP_ACT_NEXT ? 1 : -1);
         return LOOP_IDLE;
     case LOOP_ACT_FIX:
-        L->fixed[L->selected] = !L->fixed[L->selected];
         gesture_end(L);
+        push_fix(L, L->selected);
+        set_fixed(L, L->selected, !L->fixed[L->selected]);
         return LOOP_IDLE;
     case LOOP_ACT_COLLISION: {
         /* Back on: look at once, so a fragment left inside another shows the warning now. */
@@ -710,8 +732,11 @@ int loop_recover(loop *L, const journal_rec *recs, size_t n)
         if (r->frag < 0 || r->frag >= L->n)
             return fn_err_set(FN_EFORMAT, "journal record %zu (seq %llu): fragment %d, the case has %d",
                               i + 1, (unsigned long long)r->seq, r->frag, L->n);
-        loop_undo before = {r->frag, L->pose[r->frag]};
-        if (r->kind == JOURNAL_START)
+        loop_undo before = {r->frag, L->pose[r->frag], 0};
+        if (r->kind == JOURNAL_FIX) {
+            push_fix(L, r->frag);
+            L->fixed[r->frag] = (uint8_t)r->flag;
+        } else if (r->kind == JOURNAL_START)
             loop_undo_push(L, r->frag);
         else if (r->kind == JOURNAL_UNDO)
             shift(&L->nundo, L->redo, &L->nredo, before);

@@ -66,7 +66,7 @@ typedef enum {
     LOOP_ACT_NONE,
     LOOP_ACT_NEXT,       /* select the next movable fragment */
     LOOP_ACT_PREV,
-    LOOP_ACT_FIX,        /* fix/unfix the selected fragment */
+    LOOP_ACT_FIX,        /* fix/unfix the selected fragment (journaled; an undo step) */
     LOOP_ACT_COLLISION,  /* collision checking on/off */
     LOOP_ACT_TRANS_ONLY, /* toggle: translation only */
     LOOP_ACT_ROT_ONLY,   /* toggle: rotation only */

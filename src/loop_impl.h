@@ -14,6 +14,7 @@
 typedef struct loop_undo {
     int frag;
     pose p;
+    int fix; /* 0: a pose step (p); 1 + flag: a fix step, back to fixed[frag] = flag */
 } loop_undo;
 
 struct loop {

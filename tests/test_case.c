@@ -17,6 +17,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
+#include <unistd.h>
 
 /* Two bone blocks on an oblique 1.5 mm grid, written to path as int16 NIfTI. */
 static void write_ct(const char *path, float bone)
@@ -200,8 +201,49 @@ static void wrong_geometry(json_t *r)
     json_array_set_new(json_array_get(aff, 0), 3, json_real(-11));
 }
 
+static void duplicate_id(json_t *r)
+{
+    json_t *f = json_array_get(json_object_get(r, "fragments"), 1);
+    json_object_set_new(f, "id", json_integer(1));
+}
+
+static void negative_ramp(json_t *r)
+{
+    json_object_set_new(json_object_get(r, "segmentation"), "ramp", json_real(-1));
+}
+
+static void long_source_path(json_t *r)
+{
+    char *p = malloc(5000);
+    memset(p, 'a', 4999);
+    p[0] = '/';
+    p[4999] = '\0';
+    json_object_set_new(json_object_get(r, "source"), "path", json_string(p));
+    free(p);
+}
+
+static void long_relative_source_path(json_t *r)
+{
+    char *p = malloc(4081); /* fits alone, not after the case folder */
+    for (int i = 0; i < 4080; i++)
+        p[i] = i % 2 ? '/' : 'a';
+    p[4080] = '\0';
+    json_object_set_new(json_object_get(r, "source"), "path", json_string(p));
+    free(p);
+}
+
+static void source_dev_zero(json_t *r)
+{
+    json_object_set_new(json_object_get(r, "source"), "path", json_string("/dev/zero"));
+}
+
 static void test_damaged_fields(void **st)
 {
+    expect_load_error(duplicate_id, FN_EFORMAT, "fragments[1].id", "listed twice");
+    expect_load_error(negative_ramp, FN_EFORMAT, "segmentation.ramp", ">= 0");
+    expect_load_error(long_source_path, FN_EFORMAT, "source.path", "too long");
+    expect_load_error(long_relative_source_path, FN_EFORMAT, "source.path", "too long");
+    expect_load_error(source_dev_zero, FN_EIO, "/dev/zero", "not a regular file");
     expect_load_error(newer_version, FN_EMISMATCH, "version 2", "reads version 1");
     expect_load_error(bad_quaternion, FN_EFORMAT, "case.json", "fragments[1].pose.q");
     expect_load_error(unit_quaternion_broken, FN_EFORMAT, "fragments[0].pose.q", "unit");
@@ -249,6 +291,18 @@ static void test_changed_files(void **st)
     /* Not a case at all. */
     assert_null(case_load(dir));
     assert_non_null(strstr(fn_err_msg(), "not a case folder"));
+    /* case.json a folder, the source a FIFO: refused at once, never read (or waited on). */
+    char fifo[4300];
+    snprintf(fifo, sizeof fifo, "%s/fifo", dir);
+    assert_int_equal(mkfifo(fifo, 0600), 0);
+    assert_int_equal(case_file_sha256(fifo, path), FN_EIO);
+    assert_non_null(strstr(fn_err_msg(), "not a regular file"));
+    snprintf(path, sizeof path, "%s/case.json", cdir);
+    unlink(path);
+    assert_int_equal(mkdir(path, 0755), 0);
+    assert_null(case_load(cdir));
+    assert_non_null(strstr(fn_err_msg(), "not a regular file"));
+    assert_null(strstr(fn_err_msg(), "expected"));
     case_free(c);
     tu_rmtree(dir);
     free(dir);

@@ -59,7 +59,8 @@ static void test_steps_allocate_nothing(void **st)
     frag f[2];
     make(f);
     char *dir = tu_tmpdir("loopalloc");
-    journal *jr = journal_open(dir);
+    journal_bind bind = {"", 2, {1, 2}};
+    journal *jr = journal_open(dir, &bind);
     assert_non_null(jr);
     loop_obb *o = loop_obb_new(f, 2, NULL, NULL);
     assert_non_null(o);
@@ -154,7 +155,8 @@ static void test_steps_touch_no_new_page(void **st)
     frag f[2];
     make(f);
     char *dir = tu_tmpdir("loopfault");
-    journal *jr = journal_open(dir);
+    journal_bind bind = {"", 2, {1, 2}};
+    journal *jr = journal_open(dir, &bind);
     assert_non_null(jr);
     loop_obb *o = loop_obb_new(f, 2, NULL, NULL);
     assert_non_null(o);

@@ -1,0 +1,207 @@
+/* Killed while writing a case: `segment` and `fracture` are killed with SIGKILL at the moment they
+ * write a file of the case (watched for, not timed), and what is left at the case's path must be
+ * the old case or the new one, never a mix or a half-made folder. An existing case is replaced only
+ * with --force. */
+#include <stdarg.h>
+#include <stddef.h>
+#include <setjmp.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include "case.h"
+#include "err.h"
+#include "testutil.h"
+#include "volio.h"
+
+#include <dirent.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
+#include <time.h>
+#include <unistd.h>
+
+/* A bone block big enough that writing its files takes a while, on a 1 mm grid. */
+static void write_ct(const char *path)
+{
+    vol *v = vol_new(160, 140, 90);
+    static const double dir[3][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
+    double sp[3] = {1, 1, 1}, org[3] = {0, 0, 0};
+    vol_set_geometry(v, dir, sp, org);
+    for (int k = 0; k < 90; k++)
+        for (int j = 0; j < 140; j++)
+            for (int i = 0; i < 160; i++) {
+                int bone = i >= 30 && i < 130 && j >= 30 && j < 110 && k >= 20 && k < 70;
+                /* texture, so the gzip of the volume is not trivially small */
+                v->data[vol_idx(v, i, j, k)] = bone ? 1000 + (float)((i * 7 + j * 13 + k * 5) % 97)
+                                                    : -1000 + (float)((i * 3 + j * 11 + k) % 31);
+            }
+    if (volio_write(v, path, VOL_I16) < 0)
+        fail_msg("%s", fn_err_msg());
+    vol_free(v);
+}
+
+static pid_t spawn(const char *args)
+{
+    const char *bin = getenv("FRACNAV_BIN");
+    char cmd[9400];
+    snprintf(cmd, sizeof cmd, "exec '%s' %s >/dev/null 2>&1", bin && *bin ? bin : "fracnav", args);
+    pid_t pid = fork();
+    assert_true(pid >= 0);
+    if (pid == 0) {
+        execl("/bin/sh", "sh", "-c", cmd, (char *)NULL);
+        _exit(127);
+    }
+    return pid;
+}
+
+/* The file `name` is being written: in the case folder (other than `old`, when given) or in a
+ * staged sibling folder of it. */
+static int written(const char *parent, const char *base, const char *name, const struct stat *old)
+{
+    char p[8400];
+    struct stat sb;
+    snprintf(p, sizeof p, "%s/%s/%s", parent, base, name);
+    if (stat(p, &sb) == 0 &&
+        (!old || sb.st_ino != old->st_ino || sb.st_size != old->st_size ||
+         sb.st_mtim.tv_sec != old->st_mtim.tv_sec || sb.st_mtim.tv_nsec != old->st_mtim.tv_nsec))
+        return 1;
+    DIR *d = opendir(parent);
+    if (!d)
+        return 0;
+    struct dirent *e;
+    int hit = 0;
+    size_t n = strlen(base);
+    while (!hit && (e = readdir(d)))
+        if (e->d_name[0] == '.' && !strncmp(e->d_name + 1, base, n) && e->d_name[n + 1] == '.') {
+            snprintf(p, sizeof p, "%s/%s/%s", parent, e->d_name, name);
+            hit = stat(p, &sb) == 0 && sb.st_size > 0;
+        }
+    closedir(d);
+    return hit;
+}
+
+/* Waits until the child writes `name` (then kills it: returns 1) or ends by itself (returns 0). */
+static int kill_when_written(pid_t pid, const char *parent, const char *base, const char *name,
+                             const struct stat *old)
+{
+    int status;
+    for (;;) {
+        if (written(parent, base, name, old)) {
+            kill(pid, SIGKILL);
+            waitpid(pid, &status, 0);
+            return 1;
+        }
+        if (waitpid(pid, &status, WNOHANG) == pid)
+            return 0;
+        struct timespec nap = {0, 100000};
+        nanosleep(&nap, NULL);
+    }
+}
+
+static void test_segment_refuses_existing_and_leaves_no_half_folder(void **st)
+{
+    char *dir = tu_tmpdir("casecrash"), src[4200], cdir[4200];
+    snprintf(src, sizeof src, "%s/ct.nii.gz", dir);
+    snprintf(cdir, sizeof cdir, "%s/case", dir);
+    write_ct(src);
+
+    /* Killed while writing its labels into a new folder: no folder, or a whole case. */
+    char args[9000];
+    snprintf(args, sizeof args, "segment '%s' -o '%s'", src, cdir);
+    int killed = kill_when_written(spawn(args), dir, "case", ".labels.tmp.nii.gz", NULL);
+    struct stat sb;
+    if (stat(cdir, &sb) == 0) {
+        fcase *c = case_load(cdir);
+        if (!c)
+            fail_msg("killed=%d: a half-made case folder is left: %s", killed, fn_err_msg());
+        case_free(c);
+    }
+    char *out = NULL;
+    assert_int_equal(tu_run_cli(&out, "%s", args), 0); /* what was left is no obstacle */
+    free(out);
+    fcase *c = case_load(cdir);
+    assert_non_null(c);
+    char before[65];
+    memcpy(before, c->json_sha256, sizeof before);
+    case_free(c);
+
+    /* An existing case is not overwritten without --force. */
+    assert_int_equal(tu_run_cli(&out, "segment '%s' -o '%s' --threshold 1050", src, cdir), 1);
+    assert_non_null(strstr(out, "--force"));
+    free(out);
+    c = case_load(cdir);
+    assert_string_equal(c->json_sha256, before);
+    case_free(c);
+    assert_int_equal(tu_run_cli(&out, "segment '%s' -o '%s' --threshold 1050 --force", src, cdir), 0);
+    free(out);
+    c = case_load(cdir);
+    assert_non_null(c);
+    assert_string_not_equal(c->json_sha256, before);
+    case_free(c);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* fracture -o EXISTING --force, killed as it writes source.nii.gz: the old case still loads, and
+ * the next run cleans up what the killed one left. */
+static void test_fracture_killed_keeps_old_case(void **st)
+{
+    char *dir = tu_tmpdir("casecrash"), src[4200], cdir[4200], srcfile[4300];
+    snprintf(src, sizeof src, "%s/ct.nii.gz", dir);
+    snprintf(cdir, sizeof cdir, "%s/case", dir);
+    snprintf(srcfile, sizeof srcfile, "%s/source.nii.gz", cdir);
+    write_ct(src);
+    char *out = NULL;
+    assert_int_equal(tu_run_cli(&out, "fracture '%s' -o '%s' --seed 1", src, cdir), 0);
+    free(out);
+    fcase *c = case_load(cdir);
+    if (!c)
+        fail_msg("%s", fn_err_msg());
+    char before[65];
+    memcpy(before, c->json_sha256, sizeof before);
+    case_free(c);
+
+    assert_int_equal(tu_run_cli(&out, "fracture '%s' -o '%s' --seed 2", src, cdir), 1);
+    assert_non_null(strstr(out, "--force"));
+    free(out);
+
+    struct stat sb;
+    assert_int_equal(stat(srcfile, &sb), 0);
+    char args[9000];
+    snprintf(args, sizeof args, "fracture '%s' -o '%s' --seed 2 --force", src, cdir);
+    int killed = kill_when_written(spawn(args), dir, "case", "source.nii.gz", &sb);
+    c = case_load(cdir);
+    if (!c)
+        fail_msg("killed=%d: the case no longer loads: %s", killed, fn_err_msg());
+    if (killed)
+        assert_string_equal(c->json_sha256, before);
+    case_free(c);
+
+    assert_int_equal(tu_run_cli(&out, "%s", args), 0);
+    free(out);
+    c = case_load(cdir);
+    assert_non_null(c);
+    assert_string_not_equal(c->json_sha256, before);
+    case_free(c);
+    /* Nothing staged is left beside the case. */
+    DIR *d = opendir(dir);
+    struct dirent *e;
+    while ((e = readdir(d)))
+        if (!strncmp(e->d_name, ".case.", 6))
+            fail_msg("left behind: %s", e->d_name);
+    closedir(d);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_segment_refuses_existing_and_leaves_no_half_folder),
+        cmocka_unit_test(test_fracture_killed_keeps_old_case),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
