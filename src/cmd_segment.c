@@ -143,6 +143,9 @@ int cmd_segment(int argc, char **argv)
         return 1;
     }
     report(c, &r);
+    if (r.nonfinite)
+        fprintf(stderr, "fracnav segment: warning: %s: %zu voxels are NaN or infinite; left out of the "
+                        "threshold and never bone\n", in, r.nonfinite);
     if (c->nfrag == 0)
         fprintf(stderr, "fracnav segment: warning: no component left at threshold %g (lower it, or "
                         "--min-volume)\n", r.threshold);
