@@ -18,6 +18,7 @@
 
 #define HDR_SIZE 348
 #define DEFLATE_MAX_RATIO 1032 /* zlib's best case: no .gz can hold more than this per byte */
+#define EXT_MAX_GZ (64 << 20)  /* header extensions are skipped, but in a .gz only by inflating */
 
 static const struct {
     int dt;
@@ -176,6 +177,10 @@ static int precheck(const char *path, unsigned char h[HDR_SIZE])
     if (rc < 0 || (rc = check_header(h, (size_t)got, path, dim, &bytes, &off)) < 0 ||
         (rc = check_geometry_fields(h, path)) < 0)
         return rc;
+    if (!direct && off > HDR_SIZE + EXT_MAX_GZ)
+        return fn_err_set(FN_EFORMAT, "%s: vox_offset is %llu: header extensions over %d MiB in a .nii.gz "
+                          "are not supported (all of it would be inflated to reach the data)", path,
+                          (unsigned long long)off, EXT_MAX_GZ >> 20);
     uint64_t have = (uint64_t)st.st_size;
     if (direct && have < off + bytes)
         return fn_err_set(FN_EFORMAT, "%s: data truncated: dim %lldx%lldx%lld needs %llu bytes from "
