@@ -35,8 +35,8 @@
  * Headers are checked against what the file can hold and the memory budget (vol_check_dims)
  * before any voxel buffer is allocated: raw data its size, NRRD hex 2 characters a byte, ascii
  * 2 a value, NRRD gzip what it really inflates to (counted up to what is needed, nothing kept),
- * .nii.gz at most 1032 times its size; NIfTI header extensions are never read; an .inv3 holds at
- * most 4096 tar entries. Short data is an error, never zero-filled. Geometry is never made up: a
+ * .nii.gz at most 1032 times its size; NIfTI header extensions are never read (over 64 MiB in a
+ * .nii.gz: refused); an .inv3 holds at most 4096 tar entries. Short data is an error, never zero-filled. Geometry is never made up: a
  * NaN/infinite pixdim, quaternion, qoffset or srow (NIfTI), or spacing, axis min or space origin
  * (NRRD), a spacing <= 0, or a NRRD with neither space directions nor spacings is refused naming
  * the field; the one fallback is the NIfTI standard's qfac 0 -> 1, with a warning on stderr. Every
