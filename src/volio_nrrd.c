@@ -203,9 +203,44 @@ static int geometry(const Nrrd *n, const int *seen, const char *path, vol *v)
     return 0;
 }
 
+/* A detached header's one data file (data file: NAME, relative to the header's folder) must be
+ * a regular file before teem opens it: opening a FIFO would block. The LIST and numbered forms
+ * are left to teem (and to check_size, which checks the first file it opened). */
+static int data_file_regular(const char *path)
+{
+    FILE *f = fopen(path, "rb");
+    if (!f)
+        return 0; /* teem reports it */
+    char line[4096], name[8200];
+    int rc = 0;
+    while (fgets(line, sizeof line, f) && line[0] != '\n' && strcmp(line, "\r\n") != 0) {
+        const char *v = !strncmp(line, "data file:", 10) ? line + 10 : !strncmp(line, "datafile:", 9) ? line + 9 : NULL;
+        if (!v)
+            continue;
+        v += strspn(v, " \t");
+        int n = (int)strcspn(v, "\r\n");
+        if (n == 0 || memchr(v, ' ', (size_t)n) || (n == 4 && !strncmp(v, "LIST", 4)))
+            break;
+        const char *slash = strrchr(path, '/');
+        if (v[0] == '/' || !slash)
+            snprintf(name, sizeof name, "%.*s", n, v);
+        else
+            snprintf(name, sizeof name, "%.*s/%.*s", (int)(slash - path), path, n, v);
+        struct stat st;
+        if (stat(name, &st) == 0 && !S_ISREG(st.st_mode))
+            rc = fn_err_set(FN_EFORMAT, "%s: data file: %s is not a regular file (a device or FIFO?)",
+                            path, name);
+        break;
+    }
+    fclose(f);
+    return rc;
+}
+
 /* Loads only the header and checks dims, type, data size and geometry. */
 static int precheck(const char *path)
 {
+    if (data_file_regular(path) < 0)
+        return FN_EFORMAT;
     Nrrd *n = nrrdNew();
     NrrdIoState *nio = nrrdIoStateNew();
     int rc = 0;

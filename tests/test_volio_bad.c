@@ -770,6 +770,10 @@ static void test_only_regular_files(void **st)
     p = in_dir("zero.nhdr");
     write_nrrd(p, NRRD_HEAD "sizes: 4 4 4\nspacings: 1 1 1\ndata file: /dev/zero\n", 0);
     expect_error(p, "data file", "not a regular file");
+    assert_int_equal(mkfifo(in_dir("fifo.raw"), 0600), 0);
+    p = in_dir("fifo.nhdr");
+    write_nrrd(p, NRRD_HEAD "sizes: 4 4 4\nspacings: 1 1 1\ndata file: fifo.raw\n", 0);
+    expect_error(p, "data file", "fifo.raw is not a regular file");
     /* a link to a regular file is fine */
     nifti_1_header h = good_header(4, 4, 4, DT_INT16, 16);
     char real[4300];
