@@ -129,8 +129,13 @@ static int check_size(NrrdIoState *nio, const char *path, int64_t dim[3], vol_ty
     const char *unit = "data file has";
     if (enc == nrrdEncodingGzip) {
         need = bytes + (uint64_t)nio->byteSkip; /* skipped inside the inflated stream */
-        avail = avail < need / DEFLATE_MAX_RATIO ? avail : gzip_holds(nio->dataFile, need);
-        unit = "gzip data inflate to";
+        if (avail < need / DEFLATE_MAX_RATIO) {
+            avail *= DEFLATE_MAX_RATIO; /* too small to hold it: no need to inflate */
+            unit = "gzip data can inflate to at most";
+        } else {
+            avail = gzip_holds(nio->dataFile, need);
+            unit = "gzip data inflate to";
+        }
     }
     if (avail < need)
         return fn_err_set(FN_EFORMAT, "%s: sizes %lld %lld %lld of %s need %llu data bytes (%s), the "

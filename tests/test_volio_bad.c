@@ -750,6 +750,8 @@ static void test_nrrd_encodings_hold_what_they_claim(void **st)
         fputc((i * 7919) & 0xff, f);
     fclose(f);
     expect_error(p, "need 4000000 data bytes (gzip)", "inflate to 1000");
+    write_nrrd(p, FLOAT_HEAD("1000 1000 1000", "gzip"), 100);
+    expect_error(p, "need 4000000000 data bytes (gzip)", "can inflate to at most 103200");
 
     write_nrrd(p, "NRRD0004\ntype: float\ndimension: 3\nsizes: 2 2 2\nspacings: 1 1 1\nendian: little\n"
                   "encoding: gzip\nbyte skip: -1\n\n", 64);
