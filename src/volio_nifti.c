@@ -6,9 +6,9 @@
 #include "err.h"
 
 #include <errno.h>
-#include <stddef.h>
 #include <math.h>
 #include <nifti1_io.h>
+#include <stddef.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
