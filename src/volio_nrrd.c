@@ -9,6 +9,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
 #include <sys/stat.h>
 #include <teem/nrrd.h>
 #include <zlib.h>
@@ -209,31 +210,40 @@ static int geometry(const Nrrd *n, const int *seen, const char *path, vol *v)
 /* A detached header's one data file (data file: NAME, relative to the header's folder) must be
  * a regular file before teem opens it: opening a FIFO would block. The LIST and numbered forms
  * are left to teem (and to check_size, which checks the first file it opened). */
-static int data_file_regular(const char *path)
+static int data_file_regular(const char *path, const char *v)
+{
+    v += strspn(v, " \t");
+    int n = (int)strcspn(v, "\r\n");
+    if (n == 0 || memchr(v, ' ', (size_t)n) || (n == 4 && !strncmp(v, "LIST", 4)))
+        return 0;
+    char name[8200];
+    const char *slash = strrchr(path, '/');
+    if (v[0] == '/' || !slash)
+        snprintf(name, sizeof name, "%.*s", n, v);
+    else
+        snprintf(name, sizeof name, "%.*s/%.*s", (int)(slash - path), path, n, v);
+    struct stat st;
+    if (stat(name, &st) == 0 && !S_ISREG(st.st_mode))
+        return fn_err_set(FN_EFORMAT, "%s: data file: %s is not a regular file (a device or FIFO?)",
+                          path, name);
+    return 0;
+}
+
+/* Header lines that must be refused before teem reads them: a data file that is not a regular
+ * file, and a block size (only for type block, not supported: teem 1.12 finds the mismatch only
+ * after reading, then leaks and closes the file it was asked to keep open). */
+static int prescan(const char *path)
 {
     FILE *f = fopen(path, "rb");
     if (!f)
         return 0; /* teem reports it */
-    char line[4096], name[8200];
+    char line[4096];
     int rc = 0;
-    while (fgets(line, sizeof line, f) && line[0] != '\n' && strcmp(line, "\r\n") != 0) {
-        const char *v = !strncmp(line, "data file:", 10) ? line + 10 : !strncmp(line, "datafile:", 9) ? line + 9 : NULL;
-        if (!v)
-            continue;
-        v += strspn(v, " \t");
-        int n = (int)strcspn(v, "\r\n");
-        if (n == 0 || memchr(v, ' ', (size_t)n) || (n == 4 && !strncmp(v, "LIST", 4)))
-            break;
-        const char *slash = strrchr(path, '/');
-        if (v[0] == '/' || !slash)
-            snprintf(name, sizeof name, "%.*s", n, v);
-        else
-            snprintf(name, sizeof name, "%.*s/%.*s", (int)(slash - path), path, n, v);
-        struct stat st;
-        if (stat(name, &st) == 0 && !S_ISREG(st.st_mode))
-            rc = fn_err_set(FN_EFORMAT, "%s: data file: %s is not a regular file (a device or FIFO?)",
-                            path, name);
-        break;
+    while (rc == 0 && fgets(line, sizeof line, f) && line[0] != '\n' && strcmp(line, "\r\n") != 0) {
+        if (!strncasecmp(line, "data file:", 10) || !strncasecmp(line, "datafile:", 9))
+            rc = data_file_regular(path, strchr(line, ':') + 1);
+        else if (!strncasecmp(line, "block size:", 11) || !strncasecmp(line, "blocksize:", 10))
+            rc = fn_err_set(FN_EFORMAT, "%s: block size: only for type block, which is not supported", path);
     }
     fclose(f);
     return rc;
@@ -242,7 +252,7 @@ static int data_file_regular(const char *path)
 /* Loads only the header and checks dims, type, data size and geometry. */
 static int precheck(const char *path)
 {
-    if (data_file_regular(path) < 0)
+    if (prescan(path) < 0)
         return FN_EFORMAT;
     Nrrd *n = nrrdNew();
     NrrdIoState *nio = nrrdIoStateNew();
@@ -251,8 +261,7 @@ static int precheck(const char *path)
     nio->skipData = 1;
     nio->keepNrrdDataFileOpen = 1;
     if (nrrdLoad(n, path, nio)) {
-        /* teem has closed the files it opened (nio->dataFile may still point at one) */
-        nio->dataFile = NULL;
+        nio->dataFile = NULL; /* teem may have closed it already (see prescan) */
         rc = teem_error(FN_EFORMAT, path, "header");
     } else if (n->dim != 3) {
         rc = fn_err_set(FN_EFORMAT, "%s: dimension: %u, only 3D volumes are supported", path, n->dim);
