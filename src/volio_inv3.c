@@ -16,6 +16,7 @@
 #define NODE_MAX 4096
 #define DEPTH_MAX 32
 #define NAME_MAX_LEN 4096
+#define FILENAME_LEN 256 /* matrix.filename, a plain file name */
 #define ENTRIES_MAX 4096 /* a project holds a few dozen files; more is not one */
 
 /* ---- plist: a tree of nodes over the XML bytes ---- */
@@ -262,7 +263,7 @@ static int node_triple(const plist *p, int nd, double out[3])
 /* ---- what the reader needs from main.plist ---- */
 
 typedef struct {
-    char filename[256];
+    char filename[FILENAME_LEN];
     int64_t shape[3]; /* nk, nj, ni */
     double spacing[3];
     vol_type type;
@@ -536,7 +537,7 @@ static int skip_to(stream *s, int64_t off)
 
 /* A regular file met before main.plist: only what finding the matrix later needs. */
 typedef struct {
-    char base[sizeof ((inv3_info *)0)->filename]; /* a longer name cannot be the matrix */
+    char base[FILENAME_LEN]; /* a longer name cannot be the matrix */
     int64_t off, size;
 } seen_entry;
 
