@@ -19,7 +19,8 @@ static void usage(FILE *out)
             "usage: fracnav segment VOLUME -o CASE [--json] [options]\n\n"
             "Segment a CT into bone fragments and save them as a case folder (CASE/case.json,\n"
             "CASE/labels.nii.gz). Bone is every voxel >= the threshold; 26-connected components\n"
-            "become fragments, largest first (ids 1..n).\n\n"
+            "become fragments, largest first (ids 1..n). NaN and infinite voxels are never bone\n"
+            "and are left out of auto thresholds; a volume with no finite voxel is refused.\n\n"
             "  -o, --output CASE          the case folder to write (created; a new case is built\n"
             "                             beside it and renamed into place, so a kill leaves no\n"
             "                             half-made folder)\n"
@@ -196,6 +197,9 @@ int cmd_segment(int argc, char **argv)
         return 1;
     }
     double ms[4] = {(t1 - t0) * 1e3, (t2 - t1) * 1e3, (t3 - t2) * 1e3, (now() - t3) * 1e3};
+    if (r.nonfinite)
+        fprintf(stderr, "fracnav segment: warning: %s: %zu voxels are NaN or infinite; left out of the "
+                        "threshold and never bone\n", in, r.nonfinite);
     if (c->nfrag == 0)
         fprintf(stderr, "fracnav segment: warning: no component left at threshold %g (lower it, or "
                         "--min-volume)\n", r.threshold);

@@ -352,7 +352,8 @@ static int occupied(const vol *cut, const vol *src_ct, const vol *out_lab, size_
                     double threshold)
 {
     float l = out_lab->data[idx];
-    return (l != 0 && l != (float)id) || (cut->data[idx] == 0 && src_ct->data[idx] >= threshold);
+    float v = src_ct->data[idx];
+    return (l != 0 && l != (float)id) || (cut->data[idx] == 0 && isfinite(v) && v >= threshold);
 }
 
 /* Resamples piece `id` of cut (on the original grid) moved by m into out_lab/out_ct (nearest

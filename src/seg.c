@@ -18,23 +18,27 @@ double seg_otsu_above(const vol *v, double floor_value)
 {
     enum { BINS = 256 };
     size_t n = vol_count(v);
-    float lo = INFINITY, hi = -INFINITY;
+    double lo = INFINITY, hi = -INFINITY;
     for (size_t i = 0; i < n; i++) {
-        float x = v->data[i];
-        if (x >= floor_value && x < lo)
+        double x = v->data[i];
+        if (isfinite(x) && x >= floor_value && x < lo)
             lo = x;
-        if (x >= floor_value && x > hi)
+        if (isfinite(x) && x >= floor_value && x > hi)
             hi = x;
     }
     if (!(hi > lo))
-        return lo;
+        return hi == lo ? lo : NAN; /* one value, or no finite voxel at all */
+    /* In double: hi - lo of two floats near +-3e38 overflows float, not double. */
     double hist[BINS] = {0}, total = 0;
-    double scale = (BINS - 1) / ((double)hi - lo);
-    for (size_t i = 0; i < n; i++)
-        if (v->data[i] >= floor_value && isfinite(v->data[i])) {
-            hist[(int)((v->data[i] - lo) * scale)] += 1;
+    double scale = (BINS - 1) / (hi - lo);
+    for (size_t i = 0; i < n; i++) {
+        double x = v->data[i];
+        if (isfinite(x) && x >= floor_value) {
+            double b = (x - lo) * scale;
+            hist[b < BINS - 1 ? (int)b : BINS - 1] += 1;
             total += 1;
         }
+    }
     double sum_all = 0;
     for (int b = 0; b < BINS; b++)
         sum_all += b * hist[b];
@@ -223,10 +227,18 @@ int seg_run(const vol *v, const seg_params *p, seg_result *out)
     int rc = validate(p);
     if (rc < 0)
         return rc;
-    size_t n = vol_count(v);
+    size_t n = vol_count(v), nonfinite = 0;
+    for (size_t i = 0; i < n; i++)
+        nonfinite += !isfinite(v->data[i]);
+    if (nonfinite == n)
+        return fn_err_set(FN_EFORMAT, "segmentation: all %zu voxels are NaN or infinite: nothing to "
+                                      "segment", n);
     double thr = p->threshold;
     if (p->threshold_auto)
         thr = p->threshold_auto == 2 ? seg_otsu_above(v, seg_otsu(v)) : seg_otsu(v);
+    if (!isfinite(thr))
+        return fn_err_set(FN_EFORMAT, "segmentation: no threshold found (%zu of %zu voxels are NaN "
+                                      "or infinite)", nonfinite, n);
     uint8_t *mask = malloc(n);
     int32_t *lab = malloc(n * sizeof *lab);
     out->labels = vol_new(v->dim[0], v->dim[1], v->dim[2]);
@@ -238,7 +250,7 @@ int seg_run(const vol *v, const seg_params *p, seg_result *out)
         return fn_err_set(FN_ENOMEM, "segmentation: out of memory for %zu voxels", n);
     }
     for (size_t i = 0; i < n; i++)
-        mask[i] = v->data[i] >= thr;
+        mask[i] = isfinite(v->data[i]) && v->data[i] >= thr; /* non-finite voxels are never bone */
     int ncomp = seg_components(mask, v->dim, lab);
     free(mask);
     seg_component *c = ncomp >= 0 ? component_stats(v, lab, ncomp) : NULL;
@@ -281,6 +293,7 @@ int seg_run(const vol *v, const seg_params *p, seg_result *out)
     out->comp = c;
     out->threshold = thr;
     out->raw_components = ncomp;
+    out->nonfinite = nonfinite;
     return 0;
 }
 

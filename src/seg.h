@@ -1,7 +1,7 @@
 /* seg: threshold segmentation of a CT into bone fragments.
  *
- * A voxel is bone when its value >= threshold (HU for CT; raw units for scaled data, or Otsu's
- * threshold when asked for "auto"). Bone voxels are grouped into 26-connected components with a
+ * A voxel is bone when its value is finite and >= threshold (HU for CT; raw units for scaled
+ * data, or Otsu's threshold when asked for "auto"). Bone voxels are grouped into 26-connected components with a
  * two-pass union-find labelling (linear in the voxel count). Components are then filtered: below
  * min_volume_ml, or whose peak value stays under exclude_below_peak (the CT head holder lies at
  * 300-600 HU while bone peaks far higher), are dropped; keep > 0 keeps only the largest ones.
@@ -39,21 +39,25 @@ typedef struct seg_result {
     seg_component *comp; /* ncomp entries, largest first; owned */
     double threshold;   /* the threshold used (Otsu's when auto) */
     int raw_components; /* components before filtering */
+    size_t nonfinite;   /* NaN or infinite voxels: left out of the histogram and never bone */
 } seg_result;
 
 /* Defaults: 300 HU, min 0.5 ml, no exclusion, keep all, ramp 200. */
 void seg_defaults(seg_params *p);
 
-/* Otsu's threshold over a 256-bin histogram of the volume's range. */
+/* Otsu's threshold over a 256-bin histogram of the range of the volume's finite voxels (NaN and
+ * infinite ones are left out); NaN when no voxel is finite. */
 double seg_otsu(const vol *v);
-/* The same over the voxels >= floor_value only. */
+/* The same over the finite voxels >= floor_value only. */
 double seg_otsu_above(const vol *v, double floor_value);
 
 /* 26-connected components of the voxels where mask != 0, written to lab (0 background, 1..n in
  * scan order of their first voxel). Returns n, or a negative FN_E* code. lab has count entries. */
 int seg_components(const uint8_t *mask, const int dim[3], int32_t *lab);
 
-/* Segments v. Returns 0 and fills *out (free with seg_result_free), or a negative FN_E* code. */
+/* Segments v. Returns 0 and fills *out (free with seg_result_free), or a negative FN_E* code.
+ * Non-finite voxels are counted (out->nonfinite) and never bone; a volume with no finite voxel,
+ * or one where Otsu finds no threshold, is refused (FN_EFORMAT). */
 int seg_run(const vol *v, const seg_params *p, seg_result *out);
 void seg_result_free(seg_result *r);
 

@@ -32,6 +32,12 @@ vol *volio_read(const char *path)
     }
     if (S_ISDIR(st.st_mode))
         return volio__read_dicom(path);
+    if (!S_ISREG(st.st_mode)) {
+        /* a FIFO would block the open, /dev/zero would never end */
+        fn_err_set(FN_EINVAL, "%s: not a regular file (a device, FIFO or socket): give a volume file",
+                   path);
+        return NULL;
+    }
     if (is_nifti(path))
         return volio__read_nifti(path);
     if (is_nrrd(path))

@@ -2,13 +2,15 @@
  * voxel type, data is float after any rescale.
  *
  * Formats, chosen by the path's extension (case-insensitive):
- *   .nii .nii.gz  NIfTI-1 (single file) via nifticlib: sform preferred, else qform, else pixdim;
+ *   .nii .nii.gz  NIfTI-1 (single file), the header parsed here then converted by nifticlib:
+ *                 sform preferred, else qform, else pixdim;
  *                 RAS is converted to LPS by negating the affine's first two rows; scl_slope and
  *                 scl_inter applied (slope 0 = none). 3D only (dim[4..7] must be 1). Types u8 i8
  *                 u16 i16 u32 i32 f32 f64. NIfTI-2 and .hdr/.img pairs are refused clearly.
  *   .nrrd .nhdr   NRRD via teem: space directions/origin honoured; space RAS, LAS, LPS or
  *                 scanner-xyz (LPS by definition); a bare "space dimension: 3" is taken as LPS,
  *                 as ITK does; no space at all -> spacings (and axis mins as origin), axis-aligned.
+ *                 Encodings raw, gzip, ascii, hex (bzip2's size cannot be bounded: refused).
  *   .inv3         InVesalius 3 project (gzip'd tar: main.plist + raw little-endian matrix).
  *   a directory   one DICOM series, converted by running dcm2niix into a private folder under
  *                 $TMPDIR that is removed afterwards; for gantry tilt, dcm2niix's resampled
@@ -29,9 +31,16 @@
  * the DICOM column direction (patient left), which InVesalius does not flip. An orientation key of
  * another value is refused.
  *
- * Bad input: headers are checked against the file size (for .gz: the most a .gz of that size
- * can hold) and the memory budget (vol_check_dims) before any voxel buffer is allocated; short
- * data is an error, never zero-filled; every error names the file and the field or offset.
+ * Bad input: only regular files are read (FIFOs and devices are refused before they are opened).
+ * Headers are checked against what the file can hold and the memory budget (vol_check_dims)
+ * before any voxel buffer is allocated: raw data its size, NRRD hex 2 characters a byte, ascii
+ * 2 a value, NRRD gzip what it really inflates to (counted up to what is needed, nothing kept),
+ * .nii.gz at most 1032 times its size; NIfTI header extensions are never read (over 64 MiB in a
+ * .nii.gz: refused); an .inv3 holds at most 4096 tar entries. Short data is an error, never zero-filled. Geometry is never made up: a
+ * NaN/infinite pixdim, quaternion, qoffset or srow (NIfTI), or spacing, axis min or space origin
+ * (NRRD), a spacing <= 0, or a NRRD with neither space directions nor spacings is refused naming
+ * the field; the one fallback is the NIfTI standard's qfac 0 -> 1, with a warning on stderr. Every
+ * error names the file and the field or offset.
  * Thread safety: nifticlib and teem keep global state (debug level, error chains): call volio
  * from one thread at a time. */
 #ifndef FN_VOLIO_H

@@ -16,6 +16,8 @@
 #define NODE_MAX 4096
 #define DEPTH_MAX 32
 #define NAME_MAX_LEN 4096
+#define FILENAME_LEN 256 /* matrix.filename, a plain file name */
+#define ENTRIES_MAX 4096 /* a project holds a few dozen files; more is not one */
 
 /* ---- plist: a tree of nodes over the XML bytes ---- */
 
@@ -261,7 +263,7 @@ static int node_triple(const plist *p, int nd, double out[3])
 /* ---- what the reader needs from main.plist ---- */
 
 typedef struct {
-    char filename[256];
+    char filename[FILENAME_LEN];
     int64_t shape[3]; /* nk, nj, ni */
     double spacing[3];
     vol_type type;
@@ -533,18 +535,29 @@ static int skip_to(stream *s, int64_t off)
     return 0;
 }
 
+/* A regular file met before main.plist: only what finding the matrix later needs. */
+typedef struct {
+    char base[FILENAME_LEN]; /* a longer name cannot be the matrix */
+    int64_t off, size;
+} seen_entry;
+
 static vol *scan(stream *s)
 {
     entry e;
     char *plist_text = NULL;
     inv3_info info;
     int have_info = 0, r;
-    entry *seen = NULL; /* regular files before main.plist: the matrix may come first */
-    size_t nseen = 0, capseen = 0;
+    seen_entry *seen = NULL; /* regular files before main.plist: the matrix may come first */
+    size_t nseen = 0, capseen = 0, nentries = 0;
     vol *v = NULL;
     while ((r = next_entry(s, &e)) != 0) {
         if (r < 0)
             goto out;
+        if (++nentries > ENTRIES_MAX) {
+            fn_err_set(FN_EFORMAT, "%s: tar entry at offset %lld: more than %d entries (not an "
+                                   "InVesalius project?)", s->path, (long long)e.off - 512, ENTRIES_MAX);
+            goto out;
+        }
         int64_t end = e.off + (e.size + 511) / 512 * 512;
         const char *bn = base_name(e.name);
         if (r == 1 && !have_info && !strcmp(bn, "main.plist")) {
@@ -562,7 +575,7 @@ static vol *scan(stream *s)
                 goto out;
             have_info = 1;
             for (size_t i = 0; i < nseen; i++)
-                if (!strcmp(base_name(seen[i].name), info.filename)) {
+                if (!strcmp(seen[i].base, info.filename)) {
                     if (skip_to(s, seen[i].off) == 0)
                         v = read_matrix(s, &info, seen[i].size);
                     goto check;
@@ -570,18 +583,20 @@ static vol *scan(stream *s)
         } else if (r == 1 && have_info && !strcmp(bn, info.filename)) {
             v = read_matrix(s, &info, e.size);
             goto check;
-        } else if (r == 1 && !have_info) {
+        } else if (r == 1 && !have_info && strlen(bn) < sizeof seen->base) {
             if (nseen == capseen) {
                 size_t cap = capseen ? capseen * 2 : 16;
-                entry *ns = cap <= 65536 ? realloc(seen, cap * sizeof *ns) : NULL;
+                seen_entry *ns = realloc(seen, cap * sizeof *ns);
                 if (!ns) {
-                    fn_err_set(FN_EFORMAT, "%s: too many files before main.plist", s->path);
+                    fn_err_set(FN_ENOMEM, "%s: out of memory", s->path);
                     goto out;
                 }
                 seen = ns;
                 capseen = cap;
             }
-            seen[nseen++] = e;
+            memcpy(seen[nseen].base, bn, strlen(bn) + 1);
+            seen[nseen].off = e.off;
+            seen[nseen++].size = e.size;
         }
         if (skip_to(s, end) < 0)
             goto out;

@@ -8,6 +8,7 @@
 #include <errno.h>
 #include <math.h>
 #include <nifti1_io.h>
+#include <stddef.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -17,6 +18,7 @@
 
 #define HDR_SIZE 348
 #define DEFLATE_MAX_RATIO 1032 /* zlib's best case: no .gz can hold more than this per byte */
+#define EXT_MAX_GZ (64 << 20)  /* header extensions are skipped, but in a .gz only by inflating */
 
 static const struct {
     int dt;
@@ -96,11 +98,67 @@ static int check_header(const unsigned char *h, size_t n, const char *path, int6
     return 0;
 }
 
-/* Reads the first bytes (through zlib, so .nii and .nii.gz alike) and checks them against the
- * file's size and the memory budget. */
-static int precheck(const char *path)
+static float getf(const unsigned char *h, size_t off, int swap)
 {
-    unsigned char h[HDR_SIZE];
+    union { int32_t i; float f; } u = {get32(h + off, swap)};
+    return u.f;
+}
+
+#define FIELD(f) offsetof(nifti_1_header, f)
+
+/* 0 if every float of n starting at off is finite, else the index of the first bad one + 1. */
+static int first_bad(const unsigned char *h, size_t off, int n, int swap, float *bad)
+{
+    for (int i = 0; i < n; i++) {
+        *bad = getf(h, off + 4 * (size_t)i, swap);
+        if (!isfinite(*bad))
+            return i + 1;
+    }
+    return 0;
+}
+
+/* The fields the geometry will come from (sform if sform_code > 0, else qform if qform_code > 0,
+ * else pixdim) must be usable: nifticlib would silently turn a NaN quaternion into identity and a
+ * NaN, infinite, zero or negative pixdim into 1 mm. The only fallback kept is the standard's own:
+ * qfac (pixdim[0]) 0 is taken as 1, with a warning. */
+static int check_geometry_fields(const unsigned char *h, const char *path)
+{
+    int swap = get32(h, 0) != HDR_SIZE, i;
+    float bad;
+    if (get16(h + FIELD(sform_code), swap) > 0) {
+        static const char *row[] = {"srow_x", "srow_y", "srow_z"};
+        for (int r = 0; r < 3; r++)
+            if ((i = first_bad(h, FIELD(srow_x) + 16 * (size_t)r, 4, swap, &bad)))
+                return fn_err_set(FN_EFORMAT, "%s: sform: %s[%d] is %g, must be finite", path, row[r],
+                                  i - 1, bad);
+        return 0;
+    }
+    int qform = get16(h + FIELD(qform_code), swap) > 0;
+    if (qform) {
+        static const char *q[] = {"quatern_b", "quatern_c", "quatern_d", "qoffset_x", "qoffset_y",
+                                  "qoffset_z"};
+        if ((i = first_bad(h, FIELD(quatern_b), 6, swap, &bad)))
+            return fn_err_set(FN_EFORMAT, "%s: qform: %s is %g, must be finite", path, q[i - 1], bad);
+        float qfac = getf(h, FIELD(pixdim), swap);
+        if (!isfinite(qfac))
+            return fn_err_set(FN_EFORMAT, "%s: qform: pixdim[0] (qfac) is %g, must be 1 or -1", path, qfac);
+        if (qfac == 0)
+            fprintf(stderr, "fracnav: warning: %s: pixdim[0] (qfac) is 0, taken as 1 as the NIfTI-1 "
+                            "standard says\n", path);
+    }
+    for (int a = 1; a <= 3; a++) {
+        float d = getf(h, FIELD(pixdim) + 4 * (size_t)a, swap);
+        if (!(isfinite(d) && d > 0))
+            return fn_err_set(FN_EFORMAT, "%s: %s: pixdim[%d] is %g, must be a positive number of mm",
+                              path, qform ? "qform" : "pixdim (no sform or qform)", a, d);
+    }
+    return 0;
+}
+
+/* Reads the header (through zlib, so .nii and .nii.gz alike) into h and checks it against the
+ * file's size and the memory budget. */
+static int precheck(const char *path, unsigned char h[HDR_SIZE])
+{
     struct stat st;
     gzFile gz = gzopen(path, "rb");
     if (!gz || stat(path, &st) != 0) {
@@ -108,7 +166,7 @@ static int precheck(const char *path)
             gzclose(gz);
         return fn_err_set(FN_EIO, "%s: cannot open: %s", path, strerror(errno ? errno : EIO));
     }
-    int got = gzread(gz, h, sizeof h);
+    int got = gzread(gz, h, HDR_SIZE);
     int zerr = Z_OK;
     const char *zmsg = gzerror(gz, &zerr);
     int direct = gzdirect(gz);
@@ -116,8 +174,13 @@ static int precheck(const char *path)
     gzclose(gz);
     int64_t dim[3];
     uint64_t bytes = 0, off = 0;
-    if (rc < 0 || (rc = check_header(h, (size_t)got, path, dim, &bytes, &off)) < 0)
+    if (rc < 0 || (rc = check_header(h, (size_t)got, path, dim, &bytes, &off)) < 0 ||
+        (rc = check_geometry_fields(h, path)) < 0)
         return rc;
+    if (!direct && off > HDR_SIZE + EXT_MAX_GZ)
+        return fn_err_set(FN_EFORMAT, "%s: vox_offset is %llu: header extensions over %d MiB in a .nii.gz "
+                          "are not supported (all of it would be inflated to reach the data)", path,
+                          (unsigned long long)off, EXT_MAX_GZ >> 20);
     uint64_t have = (uint64_t)st.st_size;
     if (direct && have < off + bytes)
         return fn_err_set(FN_EFORMAT, "%s: data truncated: dim %lldx%lldx%lld needs %llu bytes from "
@@ -202,9 +265,12 @@ static int load_data(const nifti_image *nim, const char *path, vol_type t, vol *
 vol *volio__read_nifti(const char *path)
 {
     nifti_set_debug_level(0);
-    if (precheck(path) < 0)
+    nifti_1_header hdr;
+    if (precheck(path, (unsigned char *)&hdr) < 0)
         return NULL;
-    nifti_image *nim = nifti_image_read(path, 0);
+    /* From the checked header, not nifti_image_read: that one also reads the header extensions
+     * whole, whatever size they claim (1 GB in a 1 MB .nii.gz); they are not used here. */
+    nifti_image *nim = nifti_convert_nhdr2nim(hdr, path);
     if (!nim) {
         fn_err_set(FN_EFORMAT, "%s: header: nifticlib refused it (inconsistent fields)", path);
         return NULL;

@@ -6,6 +6,7 @@
 #include <stdint.h>
 #include <cmocka.h>
 
+#include "case.h"
 #include "err.h"
 #include "frag.h"
 #include "seg.h"
@@ -13,9 +14,12 @@
 #include "vol.h"
 #include "volio.h"
 
+#include <float.h>
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 static void set(uint8_t *m, const int d[3], int i, int j, int k)
 {
@@ -203,6 +207,102 @@ static void test_otsu_twice_finds_bone(void **st)
     vol_free(v);
 }
 
+/* NaN and infinite voxels are counted and left out: Otsu gives the same split as without them
+ * (it used to index its histogram with (int)NaN and crash), and they are never bone. Values near
+ * +-3e38 are finite and must not overflow the histogram either. */
+static void test_otsu_ignores_nonfinite(void **st)
+{
+    vol *v = bimodal();
+    double clean = seg_otsu(v);
+    const float poison[] = {NAN, INFINITY, -INFINITY};
+    for (int i = 0; i < 3; i++)
+        v->data[i] = poison[i];
+    v->data[vol_idx(v, 10, 10, 10)] = NAN; /* inside the bright cube */
+    assert_true(fabs(seg_otsu(v) - clean) < 1e-9);
+    seg_params p;
+    seg_defaults(&p);
+    p.min_volume_ml = 0;
+    for (int mode = 1; mode <= 2; mode++) {
+        p.threshold_auto = mode;
+        seg_result r;
+        assert_int_equal(seg_run(v, &p, &r), 0);
+        assert_int_equal((int)r.nonfinite, 4);
+        assert_true(isfinite(r.threshold));
+        assert_true(r.ncomp >= 1 && isfinite(r.comp[0].peak));
+        if (mode == 1) /* the bright cube less its NaN voxel */
+            assert_int_equal((int)r.comp[0].voxels, 999);
+        seg_result_free(&r);
+    }
+    v->data[0] = 3e38f;
+    v->data[1] = -3e38f;
+    v->data[2] = FLT_MAX;
+    for (int mode = 1; mode <= 2; mode++) {
+        p.threshold_auto = mode;
+        seg_result r;
+        assert_int_equal(seg_run(v, &p, &r), 0);
+        assert_true(isfinite(r.threshold));
+        seg_result_free(&r);
+    }
+    vol_free(v);
+}
+
+/* A volume with no finite voxel has nothing to segment: refused with a message, whatever the
+ * threshold mode (it used to give a case whose threshold was NaN, which then failed to load). */
+static void test_all_nonfinite_refused(void **st)
+{
+    vol *v = vol_new(8, 8, 8);
+    for (size_t i = 0; i < vol_count(v); i++)
+        v->data[i] = i % 2 ? NAN : INFINITY;
+    seg_params p;
+    seg_defaults(&p);
+    for (int mode = 0; mode <= 2; mode++) {
+        p.threshold_auto = mode;
+        seg_result r;
+        assert_int_equal(seg_run(v, &p, &r), FN_EFORMAT);
+        assert_null(r.labels);
+        if (!strstr(fn_err_msg(), "all 512 voxels are NaN or infinite"))
+            fail_msg("mode %d: %s", mode, fn_err_msg());
+    }
+    vol_free(v);
+}
+
+/* The CLI: an all-NaN float volume is refused with exit 1 and no case folder; one with a few NaN
+ * voxels is segmented, says how many it left out, and the case loads. */
+static void test_cli_nonfinite(void **st)
+{
+    char *dir = tu_tmpdir("seg-nan"), in[4300], out_dir[4300], *out = NULL;
+    snprintf(in, sizeof in, "%s/nan.nii", dir);
+    snprintf(out_dir, sizeof out_dir, "%s/case", dir);
+    vol *v = vol_new(8, 8, 8);
+    for (size_t i = 0; i < vol_count(v); i++)
+        v->data[i] = NAN;
+    assert_int_equal(volio_write(v, in, VOL_F32), 0);
+    assert_int_equal(tu_run_cli(&out, "segment '%s' -o '%s' --threshold auto", in, out_dir), 1);
+    if (!strstr(out, "NaN or infinite"))
+        fail_msg("got: %s", out);
+    free(out);
+    assert_int_equal(access(out_dir, F_OK), -1);
+    vol_free(v);
+    v = bimodal();
+    v->data[0] = NAN;
+    v->data[1] = -INFINITY;
+    v->data[vol_idx(v, 10, 10, 10)] = INFINITY;
+    assert_int_equal(volio_write(v, in, VOL_F32), 0);
+    assert_int_equal(tu_run_cli(&out, "segment '%s' -o '%s' --threshold auto-bone --min-volume 0", in,
+                                out_dir), 0);
+    if (!strstr(out, "3 voxels are NaN or infinite"))
+        fail_msg("got: %s", out);
+    free(out);
+    fcase *c = case_load(out_dir);
+    if (!c)
+        fail_msg("the case does not load: %s", fn_err_msg());
+    assert_true(isfinite(c->seg.threshold));
+    case_free(c);
+    vol_free(v);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 static void test_cli_usage(void **st)
 {
     char *out;
@@ -344,6 +444,9 @@ int main(void)
         cmocka_unit_test(test_otsu_splits_two_classes),
         cmocka_unit_test(test_filters),
         cmocka_unit_test(test_otsu_twice_finds_bone),
+        cmocka_unit_test(test_otsu_ignores_nonfinite),
+        cmocka_unit_test(test_all_nonfinite_refused),
+        cmocka_unit_test(test_cli_nonfinite),
         cmocka_unit_test(test_cli_usage),
         cmocka_unit_test(test_prob_ramp),
         cmocka_unit_test(test_eigen),

@@ -11,10 +11,15 @@
 #include "vol.h"
 #include "volio.h"
 
+#include <math.h>
 #include <nifti1.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/resource.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
+#include <unistd.h>
 #include <zlib.h>
 
 static char *dir;
@@ -215,12 +220,15 @@ static void test_nifti_corrupt_gzip(void **st)
 
 typedef struct {
     unsigned char *b;
-    size_t n;
+    size_t n, cap;
 } buf;
 
 static void put(buf *t, const void *d, size_t n)
 {
-    t->b = realloc(t->b, t->n + n);
+    if (t->n + n > t->cap) { /* doubling: thousands of entries stay fast under ASan */
+        t->cap = 2 * (t->n + n);
+        t->b = realloc(t->b, t->cap);
+    }
     memcpy(t->b + t->n, d, n);
     t->n += n;
 }
@@ -580,6 +588,273 @@ static void test_mutations(void **st)
     unsetenv("FRACNAV_MAX_BYTES");
 }
 
+/* ---- hostile input: geometry, encodings and files that get around the memory budget ---- */
+
+/* How much reading path raises the peak RSS (KiB), in a child process so that the test's own
+ * history does not hide it; *ok is 1 when the read succeeded. */
+static long child_peak_kib(const char *path, int *ok)
+{
+    int fd[2];
+    assert_int_equal(pipe(fd), 0);
+    pid_t pid = fork();
+    assert_true(pid >= 0);
+    if (pid == 0) {
+        struct rusage before, after;
+        getrusage(RUSAGE_SELF, &before);
+        vol *v = volio_read(path);
+        getrusage(RUSAGE_SELF, &after);
+        long kib = after.ru_maxrss - before.ru_maxrss;
+        ssize_t w = write(fd[1], &kib, sizeof kib);
+        _exit(v && w == (ssize_t)sizeof kib ? 0 : 1);
+    }
+    close(fd[1]);
+    long kib = -1;
+    assert_int_equal(read(fd[0], &kib, sizeof kib), (int)sizeof kib);
+    close(fd[0]);
+    int status = 0;
+    assert_int_equal(waitpid(pid, &status, 0), pid);
+    *ok = WIFEXITED(status) && WEXITSTATUS(status) == 0;
+    return kib;
+}
+
+static void test_nrrd_error_after_open_no_double_free(void **st)
+{
+    /* teem closes the file on this error; the reader used to fclose it a second time */
+    const char *p = in_dir("blocksize.nrrd");
+    const char *h = "NRRD0004\ntype: uint8\nblock size: 4\ndimension: 3\nsizes: 2 4 3\nendian: little\n"
+                    "encoding: raw\n\n";
+    tu_write_file(p, h, strlen(h));
+    expect_error(p, "block size: only for type block", NULL);
+}
+
+static void test_nrrd_geometry_not_made_up(void **st)
+{
+    static const struct {
+        const char *fields, *w1, *w2;
+    } bad[] = {
+        {"spacings: nan 1 1\n", "spacings: axis 0 is nan", NULL},
+        {"spacings: 1 -1 1\n", "spacings: axis 1 is -1", NULL},
+        {"spacings: 1 1 0\n", "axis 2 spacing (0) invalid", NULL}, /* teem's own check */
+        {"", "spacings: missing", "no space directions"},
+        {"spacings: 1 1 1\naxis mins: 0 nan 0\n", "axis mins: axis 1 is nan", NULL},
+        {"space: left-posterior-superior\nspace directions: (1,0,0) (0,1,0) (0,0,1)\n"
+         "space origin: (nan,nan,nan)\n", "space origin: component 0 is nan", NULL},
+    };
+    char head[512];
+    const char *p = in_dir("geo.nrrd");
+    for (size_t i = 0; i < sizeof bad / sizeof bad[0]; i++) {
+        snprintf(head, sizeof head, NRRD_HEAD "sizes: 4 4 4\n%s\n", bad[i].fields);
+        write_nrrd(p, head, 128);
+        expect_error(p, bad[i].w1, bad[i].w2);
+    }
+    /* What is there is used; an absent origin is 0, as ITK and Slicer read it. */
+    write_nrrd(p, NRRD_HEAD "sizes: 4 4 4\nspacings: 0.5 1 2\naxis mins: 1 2 3\n\n", 128);
+    vol *v = volio_read(p);
+    assert_non_null(v);
+    assert_true(v->spacing[0] == 0.5 && v->spacing[2] == 2 && v->affine[1][3] == 2);
+    vol_free(v);
+    write_nrrd(p, NRRD_HEAD "sizes: 4 4 4\nspace: left-posterior-superior\n"
+                  "space directions: (1,0,0) (0,1,0) (0,0,3)\n\n", 128);
+    v = volio_read(p);
+    assert_non_null(v);
+    assert_true(v->spacing[2] == 3 && v->affine[0][3] == 0);
+    vol_free(v);
+}
+
+static void test_nifti_geometry_not_made_up(void **st)
+{
+    const char *p = in_dir("geo.nii");
+    nifti_1_header h;
+    /* no sform, no qform: pixdim gives the spacing and must be a positive number */
+    const float bad_pixdim[] = {NAN, INFINITY, 0, -1};
+    for (int i = 0; i < 4; i++) {
+        h = good_header(4, 4, 4, DT_INT16, 16);
+        h.sform_code = 0;
+        h.pixdim[1 + i % 3] = bad_pixdim[i];
+        write_nii(p, &h, 128, 0);
+        char want[64];
+        snprintf(want, sizeof want, "pixdim[%d] is %g", 1 + i % 3, bad_pixdim[i]);
+        expect_error(p, want, "no sform or qform");
+    }
+    /* qform: the quaternion, offsets, pixdim and qfac */
+    h = good_header(4, 4, 4, DT_INT16, 16);
+    h.sform_code = 0;
+    h.qform_code = 1;
+    h.quatern_b = NAN;
+    write_nii(p, &h, 128, 0);
+    expect_error(p, "qform: quatern_b is nan", NULL);
+    h.quatern_b = 0;
+    h.qoffset_y = -INFINITY;
+    write_nii(p, &h, 128, 0);
+    expect_error(p, "qform: qoffset_y is -inf", NULL);
+    h.qoffset_y = 0;
+    h.pixdim[2] = 0;
+    write_nii(p, &h, 128, 0);
+    expect_error(p, "qform: pixdim[2] is 0", NULL);
+    h.pixdim[2] = 1;
+    h.pixdim[0] = NAN;
+    write_nii(p, &h, 128, 0);
+    expect_error(p, "pixdim[0] (qfac) is nan", NULL);
+    h.pixdim[0] = 0; /* the standard: qfac 0 is taken as 1 */
+    h.pixdim[3] = 2.5f;
+    write_nii(p, &h, 128, 0);
+    vol *v = volio_read(p);
+    assert_non_null(v);
+    assert_true(v->spacing[2] == 2.5 && v->affine[2][2] == 2.5);
+    vol_free(v);
+    /* sform */
+    h = good_header(4, 4, 4, DT_INT16, 16);
+    h.srow_y[3] = NAN;
+    write_nii(p, &h, 128, 0);
+    expect_error(p, "sform: srow_y[3] is nan", NULL);
+}
+
+#define FLOAT_HEAD(sizes, enc) "NRRD0004\ntype: float\ndimension: 3\nsizes: " sizes "\nspacings: 1 1 1\n" \
+                               "endian: little\nencoding: " enc "\n\n"
+
+/* Text encodings need 2 characters a voxel at least (hex: 2 a byte); a gzip stream must really
+ * inflate to the data (trailing junk is not data). Each is refused before a voxel is allocated. */
+static void test_nrrd_encodings_hold_what_they_claim(void **st)
+{
+    const char *p = in_dir("enc.nrrd");
+    write_nrrd(p, FLOAT_HEAD("100 100 100", "ascii") "0 1 2 3\n", 0);
+    expect_error(p, "need 1999999 data bytes (ASCII)", "has 8");
+    write_nrrd(p, FLOAT_HEAD("1000 1000 1000", "ascii") "0 1 2 3\n", 0);
+    expect_error(p, "need 1999999999 data bytes (ASCII)", NULL);
+    write_nrrd(p, FLOAT_HEAD("1000 1000 1000", "hex") "00000000\n", 0);
+    expect_error(p, "need 8000000000 data bytes (hex)", NULL);
+    write_nrrd(p, FLOAT_HEAD("2 2 1", "ascii") "0 1.5 2 -3\n", 0);
+    vol *v = volio_read(p);
+    assert_non_null(v);
+    assert_true(v->data[1] == 1.5f && v->data[3] == -3);
+    vol_free(v);
+
+    /* gzip: two members are read as one stream; junk after the data is not data */
+    float data[1000];
+    for (int i = 0; i < 1000; i++)
+        data[i] = (float)i;
+    const char *head = FLOAT_HEAD("10 10 10", "gzip");
+    write_nrrd(p, head, 0);
+    for (int half = 0; half < 2; half++) {
+        gzFile gz = gzopen(p, "ab");
+        assert_int_equal(gzwrite(gz, data + 500 * half, 2000), 2000);
+        assert_int_equal(gzclose(gz), Z_OK);
+    }
+    v = volio_read(p);
+    if (!v)
+        fail_msg("two gzip members: %s", fn_err_msg());
+    assert_true(v->data[999] == 999);
+    vol_free(v);
+    write_nrrd(p, FLOAT_HEAD("100 100 100", "gzip"), 0);
+    gzFile gz = gzopen(p, "ab");
+    assert_int_equal(gzwrite(gz, data, 1000), 1000);
+    assert_int_equal(gzclose(gz), Z_OK);
+    FILE *f = fopen(p, "ab");
+    for (int i = 0; i < 8192; i++)
+        fputc((i * 7919) & 0xff, f);
+    fclose(f);
+    expect_error(p, "need 4000000 data bytes (gzip)", "inflate to 1000");
+    write_nrrd(p, FLOAT_HEAD("1000 1000 1000", "gzip"), 100);
+    expect_error(p, "need 4000000000 data bytes (gzip)", "can inflate to at most 103200");
+
+    write_nrrd(p, "NRRD0004\ntype: float\ndimension: 3\nsizes: 2 2 2\nspacings: 1 1 1\nendian: little\n"
+                  "encoding: gzip\nbyte skip: -1\n\n", 64);
+    expect_error(p, "byte skip", "raw");
+    write_nrrd(p, FLOAT_HEAD("2 2 2", "bzip2"), 64);
+    expect_error(p, "encoding", "not supported");
+}
+
+/* Only regular files are read: a FIFO would block the open, /dev/zero never ends. */
+static void test_only_regular_files(void **st)
+{
+    const char *p = in_dir("zero.nii");
+    assert_int_equal(symlink("/dev/zero", p), 0);
+    expect_error(p, "not a regular file", NULL);
+    p = in_dir("fifo.nrrd");
+    assert_int_equal(mkfifo(p, 0600), 0);
+    expect_error(p, "not a regular file", NULL);
+    p = in_dir("zero.nhdr");
+    write_nrrd(p, NRRD_HEAD "sizes: 4 4 4\nspacings: 1 1 1\ndata file: /dev/zero\n", 0);
+    expect_error(p, "data file", "not a regular file");
+    assert_int_equal(mkfifo(in_dir("fifo.raw"), 0600), 0);
+    p = in_dir("fifo.nhdr");
+    write_nrrd(p, NRRD_HEAD "sizes: 4 4 4\nspacings: 1 1 1\ndata file: fifo.raw\n", 0);
+    expect_error(p, "data file", "fifo.raw is not a regular file");
+    /* a link to a regular file is fine */
+    nifti_1_header h = good_header(4, 4, 4, DT_INT16, 16);
+    char real[4300];
+    snprintf(real, sizeof real, "%s", in_dir("real.nii"));
+    write_nii(real, &h, 128, 0);
+    assert_int_equal(symlink(real, p = in_dir("link.nii")), 0);
+    vol *v = volio_read(p);
+    assert_non_null(v);
+    vol_free(v);
+}
+
+/* A 48 MiB header extension (a few dozen KB of .nii.gz) is skipped, never read into memory; one
+ * over 64 MiB in a .nii.gz is refused from the header alone (skipping it would inflate it all). */
+static void test_nifti_extension_not_read(void **st)
+{
+    const size_t ext = (size_t)48 << 20;
+    nifti_1_header h = good_header(4, 4, 4, DT_INT16, 16);
+    h.vox_offset = (float)(352 + ext);
+    const char *p = in_dir("ext.nii.gz");
+    gzFile gz = gzopen(p, "wb1");
+    assert_non_null(gz);
+    unsigned char chunk[1 << 16] = {0};
+    int32_t esize = (int32_t)ext, ecode = 4; /* one extension filling the space before the data */
+    assert_int_equal(gzwrite(gz, &h, sizeof h), (int)sizeof h);
+    chunk[0] = 1;
+    assert_int_equal(gzwrite(gz, chunk, 4), 4);
+    chunk[0] = 0;
+    assert_int_equal(gzwrite(gz, &esize, 4), 4);
+    assert_int_equal(gzwrite(gz, &ecode, 4), 4);
+    for (size_t done = 8; done < ext; done += sizeof chunk)
+        assert_true(gzwrite(gz, chunk, (unsigned)(ext - done < sizeof chunk ? ext - done : sizeof chunk)) > 0);
+    assert_int_equal(gzwrite(gz, chunk, 128), 128);
+    assert_int_equal(gzclose(gz), Z_OK);
+    int ok = 0;
+    long kib = child_peak_kib(p, &ok);
+    assert_true(ok);
+    if (kib > 32 * 1024)
+        fail_msg("reading %s peaked at %ld KiB", p, kib);
+    h.vox_offset = (float)(100 << 20);
+    write_nii(p, &h, 128, 1);
+    expect_error(p, "vox_offset is 104857600: header extensions over 64 MiB", NULL);
+}
+
+/* The number of tar entries is bounded: each one read before main.plist used to cost 4 KiB
+ * (70,000 of them, 434 KB of .inv3, took 266 MB). A project with many files still reads. */
+static void test_inv3_entries_bounded(void **st)
+{
+    char *pl = plist_text(SHAPE_234, "int16", "1");
+    int16_t m[24] = {0};
+    for (int many = 0; many < 2; many++) {
+        buf t = {0};
+        char name[64];
+        for (int i = 0; i < (many ? 5000 : 300); i++) {
+            snprintf(name, sizeof name, "tmpdir/surface_%d.vtp", i);
+            tar_add(&t, name, "x", 1);
+        }
+        tar_add(&t, "tmpdir/matrix.dat", m, sizeof m);
+        tar_add(&t, "tmpdir/main.plist", pl, strlen(pl));
+        static const unsigned char end[1024];
+        put(&t, end, sizeof end);
+        const char *p = in_dir("many.inv3");
+        write_gz(p, t.b, t.n);
+        free(t.b);
+        if (many) {
+            expect_error(p, "more than 4096 entries", NULL);
+        } else {
+            vol *v = volio_read(p);
+            if (!v)
+                fail_msg("300 files: %s", fn_err_msg());
+            vol_free(v);
+        }
+    }
+    free(pl);
+}
+
 static void test_cli_reports_bad_file(void **st)
 {
     const char *p = in_dir("cli.nii");
@@ -608,6 +883,13 @@ int main(void)
         cmocka_unit_test(test_inv3_damaged_archive),
         cmocka_unit_test(test_nrrd_battery),
         cmocka_unit_test(test_mutations),
+        cmocka_unit_test(test_nrrd_error_after_open_no_double_free),
+        cmocka_unit_test(test_nrrd_geometry_not_made_up),
+        cmocka_unit_test(test_nifti_geometry_not_made_up),
+        cmocka_unit_test(test_nrrd_encodings_hold_what_they_claim),
+        cmocka_unit_test(test_only_regular_files),
+        cmocka_unit_test(test_nifti_extension_not_read),
+        cmocka_unit_test(test_inv3_entries_bounded),
         cmocka_unit_test(test_cli_reports_bad_file),
     };
     return cmocka_run_group_tests(tests, setup, teardown);

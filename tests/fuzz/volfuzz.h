@@ -2,7 +2,8 @@
  * a path, so each input is written to a file in a private folder under $TMPDIR (made on the first
  * call, removed at exit), read back, checked and removed. The memory budget is lowered to 64 MiB
  * so a header that lies about its size cannot make the fuzzer allocate much; the replay runner
- * calls no LLVMFuzzerInitialize, so this is done on the first input. */
+ * calls no LLVMFuzzerInitialize, so this is done on the first input. Every volume read is also
+ * given to Otsu's histogram (src/seg.c), which reads whatever voxel values a file holds. */
 #ifndef FN_VOLFUZZ_H
 #define FN_VOLFUZZ_H
 
@@ -14,6 +15,7 @@
 #include <unistd.h>
 
 #include "err.h"
+#include "seg.h"
 #include "vol.h"
 #include "volio.h"
 
@@ -60,6 +62,10 @@ static void volfuzz_check(const vol *v, const char *path)
     }
     for (size_t i = 0, n = vol_count(v); i < n; i++)
         volfuzz_sink = v->data[i]; /* touch every voxel, so ASan sees a short buffer */
+    /* Otsu reads every voxel a file can hold (NaN, +-Inf, +-3e38): its histogram must hold too. */
+    double t = seg_otsu(v);
+    if (isfinite(t))
+        volfuzz_sink = (float)seg_otsu_above(v, t);
 }
 
 /* Writes the input as "in" + ext, reads it with volio_read and checks the result. */
