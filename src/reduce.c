@@ -20,6 +20,7 @@
 #define CELL_MM 2.0     /* the contact zone's coarse grid */
 #define PUSH_STEP_MM 0.05
 #define PUSH_MAX_MM 5.0
+#define COLLIDE_COST 1.0 /* more than any metric difference: the fit stays collision-free */
 
 static const char *method_names[REDUCE_METHODS] = {"powell", "praxis", "sbplx", "bobyqa"};
 
@@ -47,6 +48,10 @@ void reduce_defaults(reduce_opts *o)
     o->tolerance_mm = 0.5;
     o->xtol_mm = 0.01;
     o->max_eval = 4000;
+    o->voi_max_mm = 64;
+    o->band_mm = 3;
+    o->trust_mm = 12;
+    o->trust_deg = 18;
 }
 
 void reduce_result_free(reduce_result *r)
@@ -138,11 +143,11 @@ static void dilate(const coarse *g, const uint8_t *in, uint8_t *out, int k)
 }
 
 int reduce_auto_voi(const frag *const *asm_, int nasm, const frag *moving, double delta_mm, double margin_mm,
-                    reduce_voi *voi, double *contact_ml)
+                    double max_mm, reduce_voi *voi, double *contact_ml)
 {
     cloud A = {0}, M = {0};
     coarse g = {0};
-    uint8_t *occa = NULL, *occm = NULL, *dil = NULL;
+    uint8_t *occa = NULL, *occm = NULL, *dil = NULL, *mnear = NULL;
     int rc = 0;
     for (int f = 0; f < nasm && rc == 0; f++)
         rc = cloud_add(&A, asm_[f]);
@@ -165,8 +170,8 @@ int reduce_auto_voi(const frag *const *asm_, int nasm, const frag *moving, doubl
             g.dim[a] = (int)((hi[a] - lo[a]) / CELL_MM) + 3;
             n *= (size_t)g.dim[a];
         }
-        occa = calloc(n, 1), occm = calloc(n, 1), dil = malloc(n), g.tmp = malloc(n);
-        if (n > ((size_t)1 << 28) || !occa || !occm || !dil || !g.tmp)
+        occa = calloc(n, 1), occm = calloc(n, 1), dil = malloc(n), g.tmp = malloc(n), mnear = malloc(M.n);
+        if (n > ((size_t)1 << 28) || !occa || !occm || !dil || !g.tmp || !mnear)
             rc = fn_err_set(FN_ENOMEM, "reduce: out of memory for the contact grid (%zu cells)", n);
     }
     if (rc == 0) {
@@ -178,15 +183,19 @@ int reduce_auto_voi(const frag *const *asm_, int nasm, const frag *moving, doubl
         for (double delta = delta_mm; delta <= 64 && rc == FN_EINVAL; delta *= 2) {
             int k = (int)ceil(delta / CELL_MM);
             double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+            double sum[3] = {0, 0, 0};
             size_t near_m = 0;
             for (int side = 0; side < 2; side++) {
                 const cloud *c = side ? &A : &M;
                 dilate(&g, side ? occm : occa, dil, k);
                 for (size_t i = 0; i < c->n; i++) {
+                    if (side == 0)
+                        mnear[i] = dil[cell_of(&g, c->p + 3 * i)];
                     if (!dil[cell_of(&g, c->p + 3 * i)])
                         continue;
                     near_m += side == 0;
                     for (int a = 0; a < 3; a++) {
+                        sum[a] += side == 0 ? c->p[3 * i + a] : 0;
                         lo[a] = fmin(lo[a], c->p[3 * i + a]);
                         hi[a] = fmax(hi[a], c->p[3 * i + a]);
                     }
@@ -194,9 +203,29 @@ int reduce_auto_voi(const frag *const *asm_, int nasm, const frag *moving, doubl
             }
             if (!near_m)
                 continue;
+            /* the centre of a capped VOI: the contact voxel nearest the contact's centroid (the
+             * centroid of a curved contact line can lie in empty space) */
+            double cen[3] = {sum[0] / (double)near_m, sum[1] / (double)near_m, sum[2] / (double)near_m}, dbest = INFINITY;
+            const float *pick = NULL;
+            for (size_t i = 0; i < M.n; i++) {
+                const float *q = M.p + 3 * i;
+                double d2 = (q[0] - cen[0]) * (q[0] - cen[0]) + (q[1] - cen[1]) * (q[1] - cen[1]) + (q[2] - cen[2]) * (q[2] - cen[2]);
+                if (d2 < dbest && mnear[i]) {
+                    dbest = d2;
+                    pick = q;
+                }
+            }
+            for (int a = 0; a < 3; a++)
+                sum[a] = pick ? pick[a] * (double)near_m : sum[a];
             for (int a = 0; a < 3; a++) {
                 voi->lo[a] = lo[a] - margin_mm;
                 voi->hi[a] = hi[a] + margin_mm;
+                if (max_mm > 0 && voi->hi[a] - voi->lo[a] > max_mm) { /* centred on the contact */
+                    double c = sum[a] / (double)near_m;
+                    c = fmin(fmax(c, voi->lo[a] + 0.5 * max_mm), voi->hi[a] - 0.5 * max_mm);
+                    voi->lo[a] = c - 0.5 * max_mm;
+                    voi->hi[a] = c + 0.5 * max_mm;
+                }
             }
             if (contact_ml)
                 *contact_ml = (double)near_m * moving->spacing[0] * moving->spacing[1] * moving->spacing[2] / 1000;
@@ -211,6 +240,7 @@ int reduce_auto_voi(const frag *const *asm_, int nasm, const frag *moving, doubl
     free(occm);
     free(dil);
     free(g.tmp);
+    free(mnear);
     return rc;
 }
 
@@ -222,6 +252,7 @@ typedef struct pair_ctx {
     frag *moving;
     obb_tree **trees; /* nasm + 1: the last is the moving fragment's */
     obb_query q;
+    obb_cache *cache; /* nasm, for the queries of the optimizer (temporal coherence) */
 } pair_ctx;
 
 /* 1 collides, 0 free, <0 error; *sep: the smallest separation estimate over the assembly. */
@@ -233,7 +264,7 @@ static int collides(const pair_ctx *pc, const pose *mp, double *sep)
     for (int f = 0; f < pc->nasm; f++) {
         pose aw = pose_compose(pc->asm_[f]->pose, pc->asm_[f]->home);
         obb_result r;
-        int rc = obb_collide(pc->trees[f], &aw, pc->trees[pc->nasm], &mw, &pc->q, NULL, &r);
+        int rc = obb_collide(pc->trees[f], &aw, pc->trees[pc->nasm], &mw, &pc->q, pc->cache ? &pc->cache[f] : NULL, &r);
         if (rc < 0)
             return rc;
         hit |= r.collides;
@@ -312,7 +343,8 @@ static void world_box(const frag *f, const pose *p, double lo[3], double hi[3])
 }
 
 /* A candidate's score: the metric over the overlap of the two world boxes grown by 5 mm. */
-static double candidate_score(const pair_ctx *pc, reduce_bricks *b, const pose *p, reduce_count mode)
+static double candidate_score(const pair_ctx *pc, reduce_bricks *b, const pose *p, reduce_count mode,
+                              double band)
 {
     double alo[3], ahi[3], mlo[3], mhi[3];
     world_box(pc->asm_[0], &pc->asm_[0]->pose, alo, ahi);
@@ -324,7 +356,7 @@ static double candidate_score(const pair_ctx *pc, reduce_bricks *b, const pose *
         if (v.lo[a] >= v.hi[a])
             return INFINITY;
     }
-    reduce_metric *m = reduce__metric_with(pc->asm_, pc->nasm, pc->moving, b, &v, mode);
+    reduce_metric *m = reduce__metric_with(pc->asm_, pc->nasm, pc->moving, b, &v, mode, band);
     if (!m)
         return INFINITY;
     double f = reduce_metric_eval(m, p, NULL);
@@ -376,7 +408,7 @@ static int prealign(const pair_ctx *pc, reduce_bricks *b, const reduce_opts *o, 
     const frag *fx = pc->asm_[0];
     frag *m = pc->moving;
     pose placed = m->pose, best = placed;
-    double bestf = candidate_score(pc, b, &placed, o->count);
+    double bestf = candidate_score(pc, b, &placed, o->count, o->band_mm);
     double af[3], am[3], cf[3], cm[3];
     axis_world(fx, 0, af);
     axis_world(m, 0, am);
@@ -402,7 +434,7 @@ static int prealign(const pair_ctx *pc, reduce_bricks *b, const reduce_opts *o, 
                     return rc;
                 if (!rc)
                     continue;
-                double f = candidate_score(pc, b, &cand, o->count);
+                double f = candidate_score(pc, b, &cand, o->count, o->band_mm);
                 if (f < bestf) {
                     bestf = f;
                     best = cand;
@@ -430,6 +462,9 @@ typedef struct fit {
     const reduce_opts *o;
     int id;
     double t0;
+    const pair_ctx *pc; /* non-NULL: a colliding pose costs COLLIDE_COST more */
+    pose placed;        /* where the hand left it: the trust region's centre */
+    double moving_centroid[3]; /* home world */
 } fit;
 
 static pose pose_of(const fit *F, const double *x)
@@ -454,11 +489,27 @@ static void hist_add(fit *F, double f)
     F->hist[F->nhist++] = f;
 }
 
+/* A wall around the placed pose: the fit refines a placement, it does not search the skull for
+ * another one (a thin bone offers many poses that fill a VOI better than the fit does). */
+static double trust_cost(const fit *F, const pose *p)
+{
+    double a[3], b[3], d2 = 0;
+    pose_apply(p, F->moving_centroid, a);
+    pose_apply(&F->placed, F->moving_centroid, b);
+    for (int i = 0; i < 3; i++)
+        d2 += (a[i] - b[i]) * (a[i] - b[i]);
+    double et = sqrt(d2) - F->o->trust_mm, er = pose_angle_between(*p, F->placed) * 180 / PI - F->o->trust_deg;
+    return (et > 0 ? 1 + et : 0) + (er > 0 ? 1 + er : 0);
+}
+
 static double objective(const double *x, void *ctx)
 {
     fit *F = ctx;
     pose p = pose_of(F, x);
     double f = reduce_metric_eval(F->metric, &p, NULL);
+    if (F->pc && collides(F->pc, &p, NULL) > 0)
+        f += COLLIDE_COST;
+    f += trust_cost(F, &p);
     F->evals++;
     if (f < F->best) {
         F->best = f;
@@ -587,42 +638,57 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
         for (int a = 0; a < 3; a++)
             smin = fmin(smin, asm_[f]->spacing[a]);
     pair_ctx pc = {asm_, nasm, moving, calloc((size_t)nasm + 1, sizeof(obb_tree *)),
-                   {.threshold = 0, .tolerance_mm = fmin(o->tolerance_mm, 0.45 * smin)}};
+                   {.threshold = 0, .tolerance_mm = fmin(o->tolerance_mm, 0.45 * smin)}, NULL};
     reduce_bricks *b = reduce__bricks_new(moving);
     reduce_metric *m = NULL;
     fit F = {0};
-    int rc = pc.trees && b ? 0 : fn_err_set(FN_ENOMEM, "reduce: out of memory");
+    pc.cache = calloc((size_t)nasm, sizeof *pc.cache);
+    int rc = pc.trees && b && pc.cache ? 0 : fn_err_set(FN_ENOMEM, "reduce: out of memory");
     for (int f = 0; f <= nasm && rc == 0; f++)
         if (!(pc.trees[f] = obb_tree_build(f < nasm ? asm_[f] : moving, &op)))
             rc = FN_ENOMEM;
     if (rc == 0 && o->prealign)
         rc = prealign(&pc, b, o, &r->prealigned);
     r->start = moving->pose;
-    if (rc == 0) {
+    /* Two stages unless the VOI is given: the first over the contact zone where the hand left the
+     * fragment, the second over the tighter zone where the first one ended. */
+    F = (fit){.start = r->start, .best = INFINITY, .o = o, .id = moving->id, .t0 = t0, .placed = r->start};
+    memcpy(F.moving_centroid, moving->centroid, sizeof F.moving_centroid);
+    for (int stage = 0; stage < (o->has_voi ? 1 : 2) && rc == 0; stage++) {
         if (o->has_voi)
             r->voi = o->voi;
         else
-            rc = reduce_auto_voi(asm_, nasm, moving, 3, 6, &r->voi, NULL);
-    }
-    if (rc == 0 && !(m = reduce__metric_with(asm_, nasm, moving, b, &r->voi, o->count)))
-        rc = FN_EINVAL;
-    if (rc == 0) {
-        F = (fit){.metric = m, .start = r->start, .best = INFINITY, .o = o, .id = moving->id, .t0 = t0};
+            rc = reduce_auto_voi(asm_, nasm, moving, stage ? 2 : 3, 6, o->voi_max_mm, &r->voi, NULL);
+        reduce_metric_free(m);
+        m = NULL;
+        if (rc == 0 && !(m = reduce__metric_with(asm_, nasm, moving, b, &r->voi, o->count, o->band_mm)))
+            rc = FN_EINVAL;
+        if (rc)
+            break;
+        F.metric = m;
+        F.pc = stage == (o->has_voi ? 0 : 1) ? &pc : NULL;
+        F.start = moving->pose;
+        F.best = INFINITY;
+        F.improvements = 0;
         centroid_world(moving, F.c);
-        F.r = fmin(fmax(reduce_metric_radius(m, &r->start, F.c), 5), 500);
-        r->metric_start = reduce_metric_eval(m, &r->start, NULL);
-        hist_add(&F, r->metric_start);
-        rc = run_optimizer(&F, &r->iterations);
+        F.r = fmin(fmax(reduce_metric_radius(m, &F.start, F.c), 5), 500);
+        double f0 = reduce_metric_eval(m, &F.start, NULL);
+        hist_add(&F, f0);
+        int it = 0;
+        rc = run_optimizer(&F, &it);
+        r->iterations += it;
+        if (rc == 0 && F.best < f0) {
+            moving->pose = pose_of(&F, F.bestx);
+            pose_normalize(&moving->pose);
+        }
     }
     if (rc == 0) {
-        r->end = F.best < r->metric_start ? pose_of(&F, F.bestx) : r->start;
-        if (getenv("FRACNAV_REDUCE_DEBUG"))
-            fprintf(stderr, "best %g start %g x %g %g %g %g %g %g r %g\n", F.best, r->metric_start, F.bestx[0], F.bestx[1], F.bestx[2], F.bestx[3], F.bestx[4], F.bestx[5], F.r);
-        pose_normalize(&r->end);
+        r->end = r->fitted = moving->pose;
         rc = resolve_collision(&pc, m, r);
     }
     if (rc == 0) {
         moving->pose = r->end;
+        r->metric_start = reduce_metric_eval(m, &r->start, NULL); /* both over the final VOI */
         r->metric_end = reduce_metric_eval(m, &r->end, NULL);
         r->evaluations = F.evals;
         r->history = F.hist;
@@ -636,6 +702,7 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
     reduce_metric_free(m);
     reduce__bricks_free(b);
     free_trees(pc.trees, nasm + 1);
+    free(pc.cache);
     return rc;
 }
 
@@ -663,7 +730,7 @@ int reduce_case(fcase *c, int fixed, const int *moving, int nmoving, const reduc
         for (int i = 0; i < left; i++) {
             reduce_voi v;
             double ml = 0;
-            if (reduce_auto_voi(asm_, nasm, &c->frag[todo[i]], 3, 6, &v, &ml) < 0)
+            if (reduce_auto_voi(asm_, nasm, &c->frag[todo[i]], 3, 6, 0, &v, &ml) < 0)
                 ml = 0;
             if (ml > most) {
                 most = ml;
@@ -688,12 +755,19 @@ int reduce_truth_errors(const fcase *c, int fi, int mi, double *rot_deg, double 
 {
     if (!c || !c->has_truth || fi < 0 || mi < 0 || fi >= c->nfrag || mi >= c->nfrag)
         return fn_err_set(FN_EINVAL, "reduce: the case has no ground truth");
-    const frag *f = &c->frag[fi], *m = &c->frag[mi];
+    const frag *f = &c->frag[fi];
     pose want = pose_compose(f->pose, pose_compose(pose_inverse(c->truth[fi]), c->truth[mi]));
-    *rot_deg = pose_angle_between(m->pose, want) * 180 / PI;
+    reduce_errors(f, &c->frag[mi], &want, rot_deg, trans_mm, tre_mm);
+    return 0;
+}
+
+void reduce_errors(const frag *f, const frag *m, const pose *want, double *rot_deg, double *trans_mm,
+                   double *tre_mm)
+{
+    *rot_deg = pose_angle_between(m->pose, *want) * 180 / PI;
     double a[3], b[3];
     pose_apply(&m->pose, m->centroid, a);
-    pose_apply(&want, m->centroid, b);
+    pose_apply(want, m->centroid, b);
     *trans_mm = sqrt((a[0] - b[0]) * (a[0] - b[0]) + (a[1] - b[1]) * (a[1] - b[1]) + (a[2] - b[2]) * (a[2] - b[2]));
     /* fracture-surface voxels: in the true pose, within 1.5 voxels of the fixed fragment's bone */
     pose to_f = pose_inverse(pose_compose(f->pose, f->home));
@@ -708,7 +782,7 @@ int reduce_truth_errors(const fcase *c, int fi, int mi, double *rot_deg, double 
                 double h[3], x[3], y[3], fl[3];
                 frag_voxel_world(m, l, h);
                 pose_apply(&m->pose, h, x);
-                pose_apply(&want, h, y);
+                pose_apply(want, h, y);
                 double d2 = (x[0] - y[0]) * (x[0] - y[0]) + (x[1] - y[1]) * (x[1] - y[1]) + (x[2] - y[2]) * (x[2] - y[2]);
                 s_all += d2;
                 n_all++;
@@ -730,7 +804,6 @@ int reduce_truth_errors(const fcase *c, int fi, int mi, double *rot_deg, double 
                 }
             }
     *tre_mm = n_surf ? sqrt(s_surf / (double)n_surf) : n_all ? sqrt(s_all / (double)n_all) : 0;
-    return 0;
 }
 
 /* ---- the case record ----------------------------------------------------------------------- */

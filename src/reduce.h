@@ -11,6 +11,11 @@
  *  - nearest: at the cell nearest its centre;
  *  - trilinear (partial volume): with the trilinear weights of the eight cells around it, so
  *    n_2 and n_I change continuously with the pose and line searches do not stall on plateaus.
+ * The band (band_mm > 0): only the VOI cells within band_mm of the assembly's bone (per axis, a
+ * box of whole cells) count, for n_VOI and n_2 alike. A box VOI around a thin bone (a skull) is
+ * mostly empty, and the paper's count then prefers any pose that crams more of the moving
+ * fragment into that space over the fit; the band keeps the count to where the fragments meet.
+ * band_mm = 0 is the paper's box.
  * A moving voxel counts in units of the grid's voxel volume (the ratio of the two voxel volumes;
  * 1 for fragments of one CT). Empty space is skipped by 8^3 bricks of the moving fragment, each
  * with its runs of bone voxels along i, culled against the VOI by a bounding sphere.
@@ -64,7 +69,7 @@ typedef struct reduce_metric reduce_metric;
  * outlive it only during the call: it copies what it needs. NULL with fn_err (FN_EINVAL: empty VOI
  * or no fragment, FN_ENOMEM). */
 reduce_metric *reduce_metric_new(const frag *const *asm_, int nasm, const frag *moving,
-                                 const reduce_voi *voi, reduce_count mode);
+                                 const reduce_voi *voi, reduce_count mode, double band_mm);
 void reduce_metric_free(reduce_metric *m);
 /* The metric with the moving fragment at pose p (home world -> world). Allocates nothing. */
 double reduce_metric_eval(const reduce_metric *m, const pose *p, reduce_counts *counts);
@@ -74,15 +79,16 @@ double reduce_metric_radius(const reduce_metric *m, const pose *p, const double 
 /* The same counts by brute force: every voxel of the moving fragment carried through each pose in
  * turn (pose_apply), every VOI cell of the grid visited. Slow: for tests. */
 double reduce_metric_brute(const frag *const *asm_, int nasm, const frag *moving, const pose *p,
-                           const reduce_voi *voi, reduce_count mode, reduce_counts *counts);
+                           const reduce_voi *voi, reduce_count mode, double band_mm, reduce_counts *counts);
 
 /* The contact zone of moving (at its pose) with the assembly: the world box around the voxels of
  * either side that lie within delta_mm of the other, grown by margin_mm. delta doubles (from
  * delta_mm up to 64 mm) until some voxel is that close. *contact_ml: the moving fragment's volume
- * within the final delta (the order of reduction follows it). 0, or FN_EINVAL when nothing comes
+ * within the final delta (the order of reduction follows it). max_mm > 0: a side longer than
+ * that is cut to max_mm around the centroid of the moving fragment's contact voxels. 0, or FN_EINVAL when nothing comes
  * within 64 mm, or FN_ENOMEM. */
 int reduce_auto_voi(const frag *const *asm_, int nasm, const frag *moving, double delta_mm,
-                    double margin_mm, reduce_voi *voi, double *contact_ml);
+                    double margin_mm, double max_mm, reduce_voi *voi, double *contact_ml);
 
 typedef void (*reduce_progress_fn)(void *ctx, int id, int iter, int evals, double f, double seconds);
 
@@ -96,7 +102,11 @@ typedef struct reduce_opts {
     double tolerance_mm; /* collision tolerance of the final check (obb.h); at most 0.45 times the
                           * smallest voxel spacing is used */
     double xtol_mm;      /* convergence: a step that moves the surface less than this */
-    int max_eval;        /* evaluations per fragment */
+    int max_eval;        /* evaluations per fragment and stage */
+    double voi_max_mm;   /* automatic VOI: the longest side (reduce_auto_voi's max_mm) */
+    double band_mm;      /* the metric's band (0: the whole box) */
+    double trust_mm, trust_deg; /* the fit stays this close to the start (after pre-alignment):
+                          * centroid distance and rotation angle */
     reduce_progress_fn progress; /* after each iteration; may be NULL */
     void *progress_ctx;
 } reduce_opts;
@@ -109,6 +119,7 @@ typedef struct reduce_result {
     int id;               /* the moving fragment's label */
     pose placed;          /* its pose before (as the user left it) */
     pose start;           /* after pre-alignment (= placed without it) */
+    pose fitted;          /* what the optimizer found, before any push out of collision */
     pose end;             /* the result */
     reduce_voi voi;
     int prealigned;       /* 1: pre-alignment chose a pose other than placed */
@@ -133,9 +144,12 @@ void reduce_result_free(reduce_result *r);
 int reduce_prealign(const frag *const *asm_, const struct obb_tree *const *trees, int nasm, frag *moving,
                     const struct obb_tree *mtree, const reduce_opts *o, int *changed);
 
-/* Fits moving (from its current pose) to the assembly: pre-alignment when o->prealign, the VOI,
- * the optimizer, then the collision check (pushed out along the contact normal, up to 5 mm, when
- * the result collides beyond the tolerance). Sets moving->pose = r->end. 0 or FN_E*. */
+/* Fits moving (from its current pose) to the assembly: pre-alignment when o->prealign, then, with an
+ * automatic VOI, two stages: the optimizer over the contact zone where the fragment starts, then
+ * again over the tighter zone where that ended, with colliding poses refused (costed); a given VOI
+ * gets one stage, with that refusal. A result that still collides beyond the tolerance is pushed
+ * out along the contact normal (up to 5 mm), else the start is kept. Sets moving->pose = r->end.
+ * 0 or FN_E*. */
 int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_opts *o, reduce_result *r);
 
 /* Reduces the case's fragments: fixed (index) stays, the moving ones (indices; NULL = all others)
@@ -150,6 +164,10 @@ int reduce_case(struct fcase *c, int fixed, const int *moving, int nmoving, cons
  * its voxels when none). 0 or FN_EINVAL (no truth). */
 int reduce_truth_errors(const struct fcase *c, int fi, int mi, double *rot_deg, double *trans_mm,
                         double *tre_mm);
+
+/* The errors of m's pose against want (its true pose, for f where it is now): as above. */
+void reduce_errors(const frag *f, const frag *m, const pose *want, double *rot_deg, double *trans_mm,
+                   double *tre_mm);
 
 /* Stores the results in c->extra as "reduction": {method, counting, fixed, fragments: [{id, voi,
  * placed, start, end, iterations, evaluations, seconds, metric_start, metric_end, push_mm,

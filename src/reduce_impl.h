@@ -31,6 +31,12 @@ typedef struct reduce_bricks {
     pose home;
 } reduce_bricks;
 
+/* A VOI cell: v 1 where it counts (inside the box, and within the band of the assembly's bone),
+ * a 1 where the assembly has bone. */
+typedef struct reduce_cell {
+    float v, a;
+} reduce_cell;
+
 struct reduce_metric {
     reduce_count mode;
     reduce_bricks *b;
@@ -38,7 +44,7 @@ struct reduce_metric {
     int c0[3];          /* the VOI's first cell in the grid fragment's crop indices */
     int d[3];           /* VOI cells per axis */
     int D[3];           /* d + 2: the raster has a ring of empty cells around the VOI */
-    float *a;           /* the assembly's bone (0/1) on the padded VOI cells */
+    reduce_cell *cell;  /* the padded VOI cells */
     double sg[3];       /* the grid's spacing */
     double n1, nvoi, w; /* w: a moving voxel's volume in grid voxels */
     pose grid_inv;      /* world -> grid crop mm */
@@ -50,6 +56,6 @@ reduce_bricks *reduce__bricks_new(const frag *m);
 void reduce__bricks_free(reduce_bricks *b);
 /* A metric over shared bricks (not freed with it). */
 reduce_metric *reduce__metric_with(const frag *const *asm_, int nasm, const frag *moving, reduce_bricks *b,
-                                   const reduce_voi *voi, reduce_count mode);
+                                   const reduce_voi *voi, reduce_count mode, double band_mm);
 
 #endif

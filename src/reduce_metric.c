@@ -153,15 +153,53 @@ reduce_bricks *reduce__bricks_new(const frag *m)
 void reduce_metric_free(reduce_metric *m)
 {
     if (m) {
-        free(m->a);
+        free(m->cell);
         if (m->own_bricks)
             reduce__bricks_free(m->b);
         free(m);
     }
 }
 
+/* The band: per axis, the number of cells within band_mm (0: the whole box counts). */
+static void band_cells(const double sg[3], double band_mm, int k[3])
+{
+    for (int a = 0; a < 3; a++)
+        k[a] = band_mm > 0 ? (int)floor(band_mm / sg[a] + 1e-9) : -1;
+}
+
+/* v[cell] = 1 where some bone cell of bone[] lies within k cells on every axis (a box); v and bone
+ * span d[0]*d[1]*d[2] cells. Separable: one sliding window count per axis. */
+static int dilate_box(const uint8_t *bone, uint8_t *v, const int d[3], const int k[3])
+{
+    size_t n = (size_t)d[0] * d[1] * d[2];
+    uint8_t *tmp = malloc(n);
+    if (!tmp)
+        return FN_ENOMEM;
+    memcpy(v, bone, n);
+    size_t stride[3] = {1, (size_t)d[0], (size_t)d[0] * d[1]};
+    for (int a = 0; a < 3; a++) {
+        memcpy(tmp, v, n);
+        for (size_t base = 0; base < n; base++) {
+            if ((base / stride[a]) % (size_t)d[a])
+                continue;
+            int count = 0;
+            for (int i = 0; i < k[a] && i < d[a]; i++)
+                count += tmp[base + (size_t)i * stride[a]];
+            for (int i = 0; i < d[a]; i++) {
+                if (i + k[a] < d[a])
+                    count += tmp[base + (size_t)(i + k[a]) * stride[a]];
+                if (i - k[a] - 1 >= 0)
+                    count -= tmp[base + (size_t)(i - k[a] - 1) * stride[a]];
+                v[base + (size_t)i * stride[a]] = count > 0;
+            }
+        }
+    }
+    free(tmp);
+    return 0;
+}
+
 reduce_metric *reduce__metric_with(const frag *const *asm_, int nasm, const frag *moving, reduce_bricks *b,
-                                   const reduce_voi *voi, reduce_count mode)
+                                   const reduce_voi *voi, reduce_count mode, double band_mm)
 {
     if (!asm_ || nasm < 1 || !moving || !voi) {
         fn_err_set(FN_EINVAL, "reduce metric: no fragment or VOI");
@@ -185,22 +223,47 @@ reduce_metric *reduce__metric_with(const frag *const *asm_, int nasm, const frag
         m->D[a] = m->d[a] + 2;
         m->sg[a] = g->spacing[a];
     }
-    m->a = calloc((size_t)m->D[0] * m->D[1] * m->D[2], sizeof *m->a);
-    if (!m->a) {
+    size_t nv = (size_t)m->d[0] * m->d[1] * m->d[2];
+    m->cell = calloc((size_t)m->D[0] * m->D[1] * m->D[2], sizeof *m->cell);
+    uint8_t *bone = calloc(nv, 1), *in = malloc(nv);
+    if (!m->cell || !bone || !in) {
         fn_err_set(FN_ENOMEM, "reduce metric: out of memory for a %dx%dx%d VOI", m->d[0], m->d[1], m->d[2]);
-        free(m);
+        free(bone);
+        free(in);
+        reduce_metric_free(m);
         return NULL;
     }
     double sum[3] = {0, 0, 0};
+    size_t idx = 0;
     for (int k = 0; k < m->d[2]; k++)
         for (int j = 0; j < m->d[1]; j++)
-            for (int i = 0; i < m->d[0]; i++)
-                if (cell_bone(asm_, nasm, m->c0, i, j, k)) {
-                    m->a[((size_t)(k + 1) * m->D[1] + j + 1) * m->D[0] + i + 1] = 1;
+            for (int i = 0; i < m->d[0]; i++, idx++)
+                if ((bone[idx] = (uint8_t)cell_bone(asm_, nasm, m->c0, i, j, k))) {
                     m->n1 += 1;
                     sum[0] += i, sum[1] += j, sum[2] += k;
                 }
-    m->nvoi = (double)m->d[0] * m->d[1] * m->d[2];
+    int kb[3];
+    band_cells(m->sg, band_mm, kb);
+    if (kb[0] < 0)
+        memset(in, 1, nv);
+    else if (dilate_box(bone, in, m->d, kb) < 0) {
+        fn_err_set(FN_ENOMEM, "reduce metric: out of memory for the band");
+        free(bone);
+        free(in);
+        reduce_metric_free(m);
+        return NULL;
+    }
+    idx = 0;
+    for (int k = 0; k < m->d[2]; k++)
+        for (int j = 0; j < m->d[1]; j++)
+            for (int i = 0; i < m->d[0]; i++, idx++) {
+                reduce_cell *c = &m->cell[((size_t)(k + 1) * m->D[1] + j + 1) * m->D[0] + i + 1];
+                c->v = in[idx];
+                c->a = bone[idx];
+                m->nvoi += in[idx];
+            }
+    free(bone);
+    free(in);
     m->grid_inv = pose_inverse(pose_compose(g->pose, g->home));
     m->grid_world = pose_compose(g->pose, g->home);
     double l[3];
@@ -212,7 +275,7 @@ reduce_metric *reduce__metric_with(const frag *const *asm_, int nasm, const frag
 }
 
 reduce_metric *reduce_metric_new(const frag *const *asm_, int nasm, const frag *moving, const reduce_voi *voi,
-                                 reduce_count mode)
+                                 reduce_count mode, double band_mm)
 {
     if (!moving) {
         fn_err_set(FN_EINVAL, "reduce metric: no moving fragment");
@@ -221,7 +284,7 @@ reduce_metric *reduce_metric_new(const frag *const *asm_, int nasm, const frag *
     reduce_bricks *b = reduce__bricks_new(moving);
     if (!b)
         return NULL;
-    reduce_metric *m = reduce__metric_with(asm_, nasm, moving, b, voi, mode);
+    reduce_metric *m = reduce__metric_with(asm_, nasm, moving, b, voi, mode, band_mm);
     if (!m)
         reduce__bricks_free(b);
     else
@@ -240,12 +303,6 @@ static void carry(const reduce_metric *m, const pose *p, double M[3][3], double 
             M[a][c] = R[a][c] * m->b->spacing[c] / m->sg[a];
         T[a] = rel.t[a] / m->sg[a] - m->c0[a];
     }
-}
-
-static inline double ramp(double x, int d)
-{
-    double v = fmin(x + 1, d - x);
-    return v < 1 ? v : 1;
 }
 
 /* The bricks whose bounding sphere can reach the VOI (lo_pad below cell 0, hi_pad above d-1). */
@@ -279,14 +336,18 @@ static void eval_trilinear(const reduce_metric *m, double M[3][3], const double 
                 if (!(x > -1 && y > -1 && z > -1 && x < d0 && y < d1 && z < d2))
                     continue;
                 int i = (int)(x + 1) - 1, j = (int)(y + 1) - 1, k = (int)(z + 1) - 1;
-                double fx = x - i, fy = y - j, fz = z - k;
-                s2 += ramp(x, d0) * ramp(y, d1) * ramp(z, d2);
-                const float *a = m->a + (size_t)(k + 1) * sz + (size_t)(j + 1) * sy + (size_t)(i + 1);
-                double c00 = a[0] + fx * (a[1] - a[0]), c10 = a[sy] + fx * (a[sy + 1] - a[sy]);
-                double c01 = a[sz] + fx * (a[sz + 1] - a[sz]);
-                double c11 = a[sz + sy] + fx * (a[sz + sy + 1] - a[sz + sy]);
-                double c0 = c00 + fy * (c10 - c00), c1 = c01 + fy * (c11 - c01);
-                si += c0 + fz * (c1 - c0);
+                float fx = (float)(x - i), fy = (float)(y - j), fz = (float)(z - k);
+                const reduce_cell *c = m->cell + (size_t)(k + 1) * sz + (size_t)(j + 1) * sy + (size_t)(i + 1);
+                /* v and a interpolated together, as pairs */
+                float v00 = c[0].v + fx * (c[1].v - c[0].v), a00 = c[0].a + fx * (c[1].a - c[0].a);
+                float v10 = c[sy].v + fx * (c[sy + 1].v - c[sy].v), a10 = c[sy].a + fx * (c[sy + 1].a - c[sy].a);
+                float v01 = c[sz].v + fx * (c[sz + 1].v - c[sz].v), a01 = c[sz].a + fx * (c[sz + 1].a - c[sz].a);
+                float v11 = c[sz + sy].v + fx * (c[sz + sy + 1].v - c[sz + sy].v);
+                float a11 = c[sz + sy].a + fx * (c[sz + sy + 1].a - c[sz + sy].a);
+                float v0 = v00 + fy * (v10 - v00), v1 = v01 + fy * (v11 - v01);
+                float a0 = a00 + fy * (a10 - a00), a1 = a01 + fy * (a11 - a01);
+                s2 += v0 + fz * (v1 - v0);
+                si += a0 + fz * (a1 - a0);
             }
         }
     }
@@ -312,8 +373,9 @@ static void eval_nearest(const reduce_metric *m, double M[3][3], const double T[
                 if (!(x >= -0.5 && y >= -0.5 && z >= -0.5 && x < e0 && y < e1 && z < e2))
                     continue;
                 int i = (int)(x + 0.5), j = (int)(y + 0.5), k = (int)(z + 0.5);
-                s2 += 1;
-                si += m->a[(size_t)(k + 1) * sz + (size_t)(j + 1) * sy + (size_t)(i + 1)];
+                const reduce_cell *c = m->cell + (size_t)(k + 1) * sz + (size_t)(j + 1) * sy + (size_t)(i + 1);
+                s2 += c->v;
+                si += c->a;
             }
         }
     }
@@ -364,8 +426,23 @@ double reduce_metric_radius(const reduce_metric *m, const pose *p, const double 
     return n ? sqrt(s / (double)n) : 0;
 }
 
+/* Brute force's band: a bone cell within k cells on every axis, looked for cell by cell. */
+static int in_band(const frag *const *asm_, int nasm, const int c0[3], const int d[3], const int k[3], int i, int j,
+                   int l)
+{
+    if (k[0] < 0)
+        return 1;
+    for (int z = l - k[2]; z <= l + k[2]; z++)
+        for (int y = j - k[1]; y <= j + k[1]; y++)
+            for (int x = i - k[0]; x <= i + k[0]; x++)
+                if (x >= 0 && y >= 0 && z >= 0 && x < d[0] && y < d[1] && z < d[2] &&
+                    cell_bone(asm_, nasm, c0, x, y, z))
+                    return 1;
+    return 0;
+}
+
 double reduce_metric_brute(const frag *const *asm_, int nasm, const frag *moving, const pose *p,
-                           const reduce_voi *voi, reduce_count mode, reduce_counts *counts)
+                           const reduce_voi *voi, reduce_count mode, double band_mm, reduce_counts *counts)
 {
     const frag *g = asm_[0];
     int c0[3], c1[3], d[3];
@@ -373,11 +450,15 @@ double reduce_metric_brute(const frag *const *asm_, int nasm, const frag *moving
         return NAN;
     for (int a = 0; a < 3; a++)
         d[a] = c1[a] - c0[a] + 1;
-    double n1 = 0, n2 = 0, ni = 0;
+    double n1 = 0, n2 = 0, ni = 0, nvoi = 0;
+    int kb[3];
+    band_cells(g->spacing, band_mm, kb);
     for (int k = 0; k < d[2]; k++)
         for (int j = 0; j < d[1]; j++)
-            for (int i = 0; i < d[0]; i++)
+            for (int i = 0; i < d[0]; i++) {
                 n1 += cell_bone(asm_, nasm, c0, i, j, k);
+                nvoi += in_band(asm_, nasm, c0, d, kb, i, j, k);
+            }
     pose ginv_pose = pose_inverse(g->pose), ginv_home = pose_inverse(g->home);
     for (int k = 0; k < moving->dim[2]; k++)
         for (int j = 0; j < moving->dim[1]; j++)
@@ -398,7 +479,7 @@ double reduce_metric_brute(const frag *const *asm_, int nasm, const frag *moving
                         c[a] = (int)floor(x[a] + 0.5);
                         in &= c[a] >= 0 && c[a] < d[a];
                     }
-                    if (in) {
+                    if (in && in_band(asm_, nasm, c0, d, kb, c[0], c[1], c[2])) {
                         n2 += 1;
                         ni += cell_bone(asm_, nasm, c0, c[0], c[1], c[2]);
                     }
@@ -416,7 +497,7 @@ double reduce_metric_brute(const frag *const *asm_, int nasm, const frag *moving
                         wgt *= corner >> a & 1 ? x[a] - b[a] : 1 - (x[a] - b[a]);
                         in &= c[a] >= 0 && c[a] < d[a];
                     }
-                    if (!in)
+                    if (!in || !in_band(asm_, nasm, c0, d, kb, c[0], c[1], c[2]))
                         continue;
                     n2 += wgt;
                     ni += wgt * cell_bone(asm_, nasm, c0, c[0], c[1], c[2]);
@@ -424,7 +505,7 @@ double reduce_metric_brute(const frag *const *asm_, int nasm, const frag *moving
             }
     double w = moving->spacing[0] * moving->spacing[1] * moving->spacing[2] /
                (g->spacing[0] * g->spacing[1] * g->spacing[2]);
-    reduce_counts c = {n1, n2 * w, ni * w, (double)d[0] * d[1] * d[2]};
+    reduce_counts c = {n1, n2 * w, ni * w, nvoi};
     if (counts)
         *counts = c;
     return reduce_counts_metric(&c);
