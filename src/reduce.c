@@ -545,19 +545,33 @@ static int run_optimizer(fit *F, int *iterations)
     const reduce_opts *o = F->o;
     double x[6] = {0, 0, 0, 0, 0, 0};
     if (o->method == REDUCE_POWELL) {
-        powell_opts po;
-        powell_defaults(&po);
-        po.step = 1;
-        po.xtol = o->xtol_mm;
-        po.line_tol = o->xtol_mm;
-        po.ftol = 1e-9;
-        po.max_eval = o->max_eval;
-        po.on_iter = powell_iter;
-        po.iter_ctx = F;
-        powell_stats st;
-        int rc = powell_minimize(objective, F, x, 6, &po, &st);
-        *iterations = st.iterations;
-        return rc;
+        /* Restarts with fresh directions and other steps: the voxel metric has small ripples
+         * that can hold a line search; a restart that gains nothing ends it. */
+        static const double steps[] = {1, 3, 0.3};
+        *iterations = 0;
+        double fprev = INFINITY;
+        for (int k = 0; k < 3; k++) {
+            powell_opts po;
+            powell_defaults(&po);
+            po.step = steps[k];
+            po.xtol = o->xtol_mm;
+            po.line_tol = o->xtol_mm;
+            po.ftol = 1e-9;
+            po.max_eval = o->max_eval - F->evals;
+            po.on_iter = powell_iter;
+            po.iter_ctx = F;
+            if (po.max_eval < 10)
+                break;
+            powell_stats st;
+            int rc = powell_minimize(objective, F, x, 6, &po, &st);
+            *iterations += st.iterations;
+            if (rc)
+                return rc;
+            if (!(st.f < fprev - 1e-7))
+                break;
+            fprev = st.f;
+        }
+        return 0;
     }
     static const nlopt_algorithm alg[REDUCE_METHODS] = {NLOPT_LN_PRAXIS, NLOPT_LN_PRAXIS, NLOPT_LN_SBPLX,
                                                         NLOPT_LN_BOBYQA};
@@ -708,6 +722,29 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
 
 /* ---- several fragments --------------------------------------------------------------------- */
 
+/* The second sweep's result joins the first's: the same placement, the later end, counts summed,
+ * histories joined. */
+static void merge_sweep(reduce_result *r, reduce_result *r2)
+{
+    double *h = realloc(r->history, (size_t)(r->nhistory + r2->nhistory + 1) * sizeof *h);
+    if (h) {
+        memcpy(h + r->nhistory, r2->history, (size_t)r2->nhistory * sizeof *h);
+        r->history = h;
+        r->nhistory += r2->nhistory;
+    }
+    r->fitted = r2->fitted;
+    r->end = r2->end;
+    r->voi = r2->voi;
+    r->iterations += r2->iterations;
+    r->evaluations += r2->evaluations;
+    r->seconds += r2->seconds;
+    r->metric_start = r2->metric_start;
+    r->metric_end = r2->metric_end;
+    r->push_mm += r2->push_mm;
+    r->collides = r2->collides;
+    reduce_result_free(r2);
+}
+
 int reduce_case(fcase *c, int fixed, const int *moving, int nmoving, const reduce_opts *o, reduce_result *r)
 {
     if (!c || fixed < 0 || fixed >= c->nfrag || nmoving < 1 || !r)
@@ -744,6 +781,27 @@ int reduce_case(fcase *c, int fixed, const int *moving, int nmoving, const reduc
             fn_err_wrap(rc, "fragment %d", c->frag[mi].id);
         asm_[nasm++] = &c->frag[mi];
     }
+    /* A second sweep: each fragment again, now against all the others, so that a fragment fitted
+     * early sees those that came after it (a chain of pieces does not pile up its errors). */
+    reduce_opts again = *o;
+    again.prealign = 0;
+    const frag **others = nmoving > 1 && rc == 0 ? calloc((size_t)nasm, sizeof *others) : NULL;
+    if (nmoving > 1 && rc == 0 && !others)
+        rc = fn_err_set(FN_ENOMEM, "reduce: out of memory");
+    for (int d = 0; others && d < nmoving && rc == 0; d++) {
+        int mi = case_find(c, r[d].id), n2 = 0;
+        for (int k = 0; k < nasm; k++)
+            if (asm_[k] != &c->frag[mi])
+                others[n2++] = asm_[k];
+        reduce_result r2;
+        rc = reduce_pair(others, n2, &c->frag[mi], &again, &r2);
+        if (rc < 0) {
+            fn_err_wrap(rc, "fragment %d", c->frag[mi].id);
+            break;
+        }
+        merge_sweep(&r[d], &r2);
+    }
+    free(others);
     free(asm_);
     free(todo);
     return rc;
