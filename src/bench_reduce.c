@@ -370,7 +370,9 @@ int bench_reduce(int argc, char **argv)
         jsonw_set(root, "starts", json_integer(o.starts));
         jsonw_set(root, "max_mm", jsonw_exact(o.max_mm));
         jsonw_set(root, "max_deg", jsonw_exact(o.max_deg));
-        jsonw_set(root, "default_method", jsonw_string(reduce_method_name(REDUCE_POWELL)));
+        reduce_opts def;
+        reduce_defaults(&def);
+        jsonw_set(root, "default_method", jsonw_string(reduce_method_name(def.method)));
         jsonw_set(root, "methods", rows);
         if (o.json)
             rc = jsonw_print(root, stdout);

@@ -20,6 +20,8 @@
 #define CELL_MM 2.0     /* the contact zone's coarse grid */
 #define PUSH_STEP_MM 0.05
 #define PUSH_MAX_MM 5.0
+#define APPROACH_MM 10.0 /* the farthest a fragment slides into contact before the fit */
+#define START_DEG 8.0   /* the first stage's extra starts: turned this much about each axis */
 #define COLLIDE_COST 1.0 /* more than any metric difference: the fit stays collision-free */
 
 static const char *method_names[REDUCE_METHODS] = {"powell", "praxis", "sbplx", "bobyqa"};
@@ -49,8 +51,9 @@ void reduce_defaults(reduce_opts *o)
     o->xtol_mm = 0.01;
     o->max_eval = 4000;
     o->voi_max_mm = 64;
-    o->band_mm = 3;
+    o->band_mm = 1;
     o->trust_mm = 12;
+    o->starts = 3;
     o->trust_deg = 18;
 }
 
@@ -518,6 +521,15 @@ static double objective(const double *x, void *ctx)
     return f;
 }
 
+/* The objective at a pose (the start of a fit). */
+static double objective_at(fit *F, const pose *p)
+{
+    double f = reduce_metric_eval(F->metric, p, NULL) + trust_cost(F, p);
+    if (F->pc && collides(F->pc, p, NULL) > 0)
+        f += COLLIDE_COST;
+    return f;
+}
+
 static int powell_iter(int iter, double f, void *ctx)
 {
     fit *F = ctx;
@@ -580,7 +592,7 @@ static int run_optimizer(fit *F, int *iterations)
         return fn_err_set(FN_ENOMEM, "reduce: NLopt could not make its optimizer");
     nlopt_set_min_objective(opt, nlopt_objective, F);
     nlopt_set_xtol_abs1(opt, o->xtol_mm);
-    nlopt_set_maxeval(opt, o->max_eval);
+    nlopt_set_maxeval(opt, o->max_eval - F->evals > 10 ? o->max_eval - F->evals : 10);
     nlopt_set_initial_step1(opt, 2);
     if (o->method != REDUCE_PRAXIS) { /* PRAXIS takes no bounds */
         nlopt_set_lower_bounds1(opt, -40);
@@ -679,22 +691,52 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
             rc = FN_EINVAL;
         if (rc)
             break;
+        if (stage == 0) { /* a fragment left apart first slides straight into contact */
+            double cm[3], dir[3], len = 0;
+            centroid_world(moving, cm);
+            for (int a = 0; a < 3; a++) {
+                dir[a] = m->fixed_centre[a] - cm[a];
+                len += dir[a] * dir[a];
+            }
+            len = sqrt(len);
+            for (int a = 0; a < 3 && len > 0; a++)
+                dir[a] /= len;
+            if (len > 0 && (rc = slide_to_contact(&pc, &moving->pose, dir, APPROACH_MM)) < 0)
+                break;
+            rc = 0;
+        }
         F.metric = m;
         F.pc = stage == (o->has_voi ? 0 : 1) ? &pc : NULL;
-        F.start = moving->pose;
-        F.best = INFINITY;
-        F.improvements = 0;
-        centroid_world(moving, F.c);
-        F.r = fmin(fmax(reduce_metric_radius(m, &F.start, F.c), 5), 500);
-        double f0 = reduce_metric_eval(m, &F.start, NULL);
-        hist_add(&F, f0);
-        int it = 0;
-        rc = run_optimizer(&F, &it);
-        r->iterations += it;
-        if (rc == 0 && F.best < f0) {
-            moving->pose = pose_of(&F, F.bestx);
-            pose_normalize(&moving->pose);
+        pose base = moving->pose, best = base;
+        double bestf = INFINITY;
+        /* The first stage also starts from the base turned by START_DEG about each principal
+         * axis: the metric's basin is narrow, and the best of these fits wins. */
+        int nstarts = stage == 0 && o->starts > 1 ? o->starts : 1;
+        for (int k = 0; k < nstarts && rc == 0; k++) {
+            F.start = base;
+            if (k > 0) {
+                double axis[3], cm[3];
+                axis_world(moving, (k - 1) / 2 % 3, axis);
+                pose turn = pose_from_axis_angle(axis, (k % 2 ? 1 : -1) * START_DEG * PI / 180);
+                centroid_world(moving, cm);
+                F.start = turned(&base, &turn, cm, cm);
+            }
+            F.best = INFINITY;
+            F.improvements = 0;
+            centroid_world(moving, F.c);
+            F.r = fmin(fmax(reduce_metric_radius(m, &F.start, F.c), 5), 500);
+            double f0 = objective_at(&F, &F.start);
+            hist_add(&F, f0);
+            int it = 0;
+            rc = run_optimizer(&F, &it);
+            r->iterations += it;
+            if (rc == 0 && fmin(F.best, f0) < bestf) {
+                bestf = fmin(F.best, f0);
+                best = F.best < f0 ? pose_of(&F, F.bestx) : F.start;
+            }
         }
+        moving->pose = best;
+        pose_normalize(&moving->pose);
     }
     if (rc == 0) {
         r->end = r->fitted = moving->pose;

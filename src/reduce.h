@@ -102,9 +102,11 @@ typedef struct reduce_opts {
     double tolerance_mm; /* collision tolerance of the final check (obb.h); at most 0.45 times the
                           * smallest voxel spacing is used */
     double xtol_mm;      /* convergence: a step that moves the surface less than this */
-    int max_eval;        /* evaluations per fragment and stage */
+    int max_eval;        /* evaluations per fragment (both stages together) */
     double voi_max_mm;   /* automatic VOI: the longest side (reduce_auto_voi's max_mm) */
     double band_mm;      /* the metric's band (0: the whole box) */
+    int starts;          /* the first stage's starts: the start, then turned +-8 degrees about
+                          * the principal axes in turn; the best fit wins */
     double trust_mm, trust_deg; /* the fit stays this close to the start (after pre-alignment):
                           * centroid distance and rotation angle */
     reduce_progress_fn progress; /* after each iteration; may be NULL */

@@ -45,12 +45,16 @@ struct reduce_metric {
     int d[3];           /* VOI cells per axis */
     int D[3];           /* d + 2: the raster has a ring of empty cells around the VOI */
     reduce_cell *cell;  /* the padded VOI cells */
+    int nb[3];          /* blocks of REDUCE_BLOCK^3 padded cells per axis */
+    uint32_t *bsum;     /* (nb+1)^3 summed-volume table of blocks holding a counted cell */
     double sg[3];       /* the grid's spacing */
     double n1, nvoi, w; /* w: a moving voxel's volume in grid voxels */
     pose grid_inv;      /* world -> grid crop mm */
     pose grid_world;    /* grid crop mm -> world */
     double fixed_centre[3]; /* world centroid of the assembly's bone in the VOI */
 };
+
+#define REDUCE_BLOCK 4
 
 reduce_bricks *reduce__bricks_new(const frag *m);
 void reduce__bricks_free(reduce_bricks *b);

@@ -154,6 +154,7 @@ void reduce_metric_free(reduce_metric *m)
 {
     if (m) {
         free(m->cell);
+        free(m->bsum);
         if (m->own_bricks)
             reduce__bricks_free(m->b);
         free(m);
@@ -196,6 +197,50 @@ static int dilate_box(const uint8_t *bone, uint8_t *v, const int d[3], const int
     }
     free(tmp);
     return 0;
+}
+
+/* Which blocks of the padded raster hold a counted cell, as a summed-volume table, so that a
+ * brick whose reach holds none (the moving bone far from the fixed bone) is skipped in O(1). */
+static int block_table(reduce_metric *m)
+{
+    const int B = REDUCE_BLOCK;
+    for (int a = 0; a < 3; a++)
+        m->nb[a] = (m->D[a] + B - 1) / B;
+    size_t s0 = (size_t)m->nb[0] + 1, s1 = (size_t)m->nb[1] + 1;
+    m->bsum = calloc(s0 * s1 * ((size_t)m->nb[2] + 1), sizeof *m->bsum);
+    if (!m->bsum)
+        return FN_ENOMEM;
+    for (int k = 0; k < m->D[2]; k++)
+        for (int j = 0; j < m->D[1]; j++)
+            for (int i = 0; i < m->D[0]; i++)
+                if (m->cell[((size_t)k * m->D[1] + j) * m->D[0] + i].v > 0)
+                    m->bsum[((size_t)(k / B + 1) * s1 + (size_t)(j / B + 1)) * s0 + (size_t)(i / B + 1)] = 1;
+    for (int k = 1; k <= m->nb[2]; k++) /* prefix sums along each axis in turn */
+        for (int j = 1; j <= m->nb[1]; j++)
+            for (int i = 1; i <= m->nb[0]; i++) {
+                uint32_t *c = &m->bsum[((size_t)k * s1 + (size_t)j) * s0 + (size_t)i];
+                *c += c[-1];
+            }
+    for (int k = 1; k <= m->nb[2]; k++)
+        for (int j = 1; j <= m->nb[1]; j++)
+            for (int i = 1; i <= m->nb[0]; i++)
+                m->bsum[((size_t)k * s1 + (size_t)j) * s0 + (size_t)i] += m->bsum[((size_t)k * s1 + (size_t)(j - 1)) * s0 + (size_t)i];
+    for (int k = 1; k <= m->nb[2]; k++)
+        for (int j = 1; j <= m->nb[1]; j++)
+            for (int i = 1; i <= m->nb[0]; i++)
+                m->bsum[((size_t)k * s1 + (size_t)j) * s0 + (size_t)i] += m->bsum[((size_t)(k - 1) * s1 + (size_t)j) * s0 + (size_t)i];
+    return 0;
+}
+
+/* Counted blocks among blocks [lo, hi] (inclusive). */
+static uint32_t blocks_counted(const reduce_metric *m, const int lo[3], const int hi[3])
+{
+    size_t s0 = (size_t)m->nb[0] + 1, s1 = (size_t)m->nb[1] + 1;
+#define S(i, j, k) m->bsum[((size_t)(k) * s1 + (size_t)(j)) * s0 + (size_t)(i)]
+    int a0 = lo[0], a1 = hi[0] + 1, b0 = lo[1], b1 = hi[1] + 1, c0 = lo[2], c1 = hi[2] + 1;
+    return S(a1, b1, c1) - S(a0, b1, c1) - S(a1, b0, c1) - S(a1, b1, c0) + S(a0, b0, c1) + S(a0, b1, c0) +
+           S(a1, b0, c0) - S(a0, b0, c0);
+#undef S
 }
 
 reduce_metric *reduce__metric_with(const frag *const *asm_, int nasm, const frag *moving, reduce_bricks *b,
@@ -264,6 +309,11 @@ reduce_metric *reduce__metric_with(const frag *const *asm_, int nasm, const frag
             }
     free(bone);
     free(in);
+    if (block_table(m) < 0) {
+        fn_err_set(FN_ENOMEM, "reduce metric: out of memory for the block table");
+        reduce_metric_free(m);
+        return NULL;
+    }
     m->grid_inv = pose_inverse(pose_compose(g->pose, g->home));
     m->grid_world = pose_compose(g->pose, g->home);
     double l[3];
@@ -310,12 +360,19 @@ static int brick_visible(const reduce_metric *m, const reduce_brick *br, double 
                          double pad)
 {
     double smin = fmin(m->sg[0], fmin(m->sg[1], m->sg[2])), r = br->r_mm / smin + pad;
+    int lo[3], hi[3];
     for (int a = 0; a < 3; a++) {
         double x = M[a][0] * br->c[0] + M[a][1] * br->c[1] + M[a][2] * br->c[2] + T[a];
         if (x < -r || x > m->d[a] - 1 + r)
             return 0;
+        /* padded cells x - r - 1 .. x + r + 2 hold every cell a voxel of the brick can weigh */
+        int p0 = (int)floor(x - r) , p1 = (int)ceil(x + r) + 2;
+        p0 = p0 < 0 ? 0 : p0;
+        p1 = p1 > m->D[a] - 1 ? m->D[a] - 1 : p1;
+        lo[a] = p0 / REDUCE_BLOCK;
+        hi[a] = p1 / REDUCE_BLOCK;
     }
-    return 1;
+    return blocks_counted(m, lo, hi) > 0;
 }
 
 static void eval_trilinear(const reduce_metric *m, double M[3][3], const double T[3], double *n2, double *ni)

@@ -301,7 +301,7 @@ static void test_reduce_two_pieces(void **st)
     assert_true(pose_angle_between(back->frag[1].pose, want) < 1e-9 && pose_distance(back->frag[1].pose, want) < 1e-9);
     json_t *red = json_object_get((json_t *)back->extra, "reduction");
     assert_non_null(red);
-    assert_string_equal(json_string_value(json_object_get(red, "method")), "powell");
+    assert_string_equal(json_string_value(json_object_get(red, "method")), reduce_method_name(o.method));
     json_t *fr = json_array_get(json_object_get(red, "fragments"), 0);
     assert_int_equal(json_integer_value(json_object_get(fr, "id")), 2);
     assert_int_equal((int)json_array_size(json_object_get(fr, "history")), r[0].nhistory);
@@ -355,6 +355,46 @@ static void test_reduce_nlopt_methods(void **st)
     free(dir);
 }
 
+/* The command: usage errors exit 2 naming the option, a missing case exits 1 naming it, and a
+ * run prints one JSON object with the errors against the truth, and saves into -o. */
+static void test_cli(void **st)
+{
+    char *dir = tu_tmpdir("reduce_cli"), *out = NULL, path[4200], newcase[4200];
+    fcase *c = fractured(dir, 2, 3);
+    case_free(c);
+    assert_int_equal(tu_run_cli(&out, "reduce %s --method newton", dir), 2);
+    assert_non_null(strstr(out, "--method"));
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "reduce %s --voi 1 2 3", dir), 2);
+    assert_non_null(strstr(out, "--voi"));
+    free(out);
+    snprintf(path, sizeof path, "%s/none", dir);
+    assert_int_equal(tu_run_cli(&out, "reduce %s", path), 1);
+    assert_non_null(strstr(out, path));
+    free(out);
+    snprintf(newcase, sizeof newcase, "%s/reduced", dir);
+    assert_int_equal(tu_run_cli(&out, "reduce %s --no-prealign --json -o %s 2>/dev/null", dir, newcase), 0);
+    json_error_t e;
+    json_t *j = json_loads(out, 0, &e);
+    if (!j)
+        fail_msg("not JSON (%s): %s", e.text, out);
+    assert_string_equal(json_string_value(json_object_get(j, "command")), "reduce");
+    json_t *f = json_array_get(json_object_get(j, "fragments"), 0);
+    assert_true(json_real_value(json_object_get(f, "rot_err_deg")) <= 1);
+    assert_true(json_real_value(json_object_get(f, "trans_err_mm")) <= 1);
+    assert_true(json_is_real(json_object_get(f, "tre_mm")) && json_is_integer(json_object_get(f, "evaluations")));
+    json_decref(j);
+    free(out);
+    fcase *back = case_load(newcase);
+    if (!back)
+        fail_msg("%s", fn_err_msg());
+    assert_non_null(json_object_get((json_t *)back->extra, "reduction"));
+    check_errors(back, 0, 1, 1);
+    case_free(back);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 static void test_method_names(void **st)
 {
     for (int m = 0; m < REDUCE_METHODS; m++)
@@ -377,6 +417,7 @@ int main(void)
         cmocka_unit_test(test_reduce_two_pieces),
         cmocka_unit_test(test_reduce_three_pieces),
         cmocka_unit_test(test_reduce_nlopt_methods),
+        cmocka_unit_test(test_cli),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
