@@ -21,6 +21,7 @@
 #define PUSH_STEP_MM 0.05
 #define PUSH_MAX_MM 5.0
 #define APPROACH_MM 10.0 /* the farthest a fragment slides into contact before the fit */
+#define PLACED_MM 10.0  /* nearer than this to the assembly, a fragment counts as placed */
 #define START_DEG 8.0   /* the first stage's extra starts: turned this much about each axis */
 #define COLLIDE_COST 1.0 /* more than any metric difference: the fit stays collision-free */
 
@@ -466,6 +467,7 @@ typedef struct fit {
     int id;
     double t0;
     const pair_ctx *pc; /* non-NULL: a colliding pose costs COLLIDE_COST more */
+    double xtol;        /* this stage's convergence step */
     pose placed;        /* where the hand left it: the trust region's centre */
     double moving_centroid[3]; /* home world */
 } fit;
@@ -566,8 +568,8 @@ static int run_optimizer(fit *F, int *iterations)
             powell_opts po;
             powell_defaults(&po);
             po.step = steps[k];
-            po.xtol = o->xtol_mm;
-            po.line_tol = o->xtol_mm;
+            po.xtol = F->xtol;
+            po.line_tol = F->xtol;
             po.ftol = 1e-9;
             po.max_eval = o->max_eval - F->evals;
             po.on_iter = powell_iter;
@@ -591,7 +593,7 @@ static int run_optimizer(fit *F, int *iterations)
     if (!opt)
         return fn_err_set(FN_ENOMEM, "reduce: NLopt could not make its optimizer");
     nlopt_set_min_objective(opt, nlopt_objective, F);
-    nlopt_set_xtol_abs1(opt, o->xtol_mm);
+    nlopt_set_xtol_abs1(opt, F->xtol);
     nlopt_set_maxeval(opt, o->max_eval - F->evals > 10 ? o->max_eval - F->evals : 10);
     nlopt_set_initial_step1(opt, 2);
     if (o->method != REDUCE_PRAXIS) { /* PRAXIS takes no bounds */
@@ -673,8 +675,11 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
     for (int f = 0; f <= nasm && rc == 0; f++)
         if (!(pc.trees[f] = obb_tree_build(f < nasm ? asm_[f] : moving, &op)))
             rc = FN_ENOMEM;
-    if (rc == 0 && o->prealign)
-        rc = prealign(&pc, b, o, &r->prealigned);
+    double sep = INFINITY;
+    if (rc == 0 && o->prealign && (rc = collides(&pc, &moving->pose, &sep)) >= 0) {
+        /* a fragment already placed near the others (by hand) keeps its placement */
+        rc = sep > PLACED_MM ? prealign(&pc, b, o, &r->prealigned) : 0;
+    }
     r->start = moving->pose;
     /* Two stages unless the VOI is given: the first over the contact zone where the hand left the
      * fragment, the second over the tighter zone where the first one ended. */
@@ -707,6 +712,7 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
         }
         F.metric = m;
         F.pc = stage == (o->has_voi ? 0 : 1) ? &pc : NULL;
+        F.xtol = F.pc ? o->xtol_mm : 5 * o->xtol_mm; /* the first of two stages stops coarser */
         pose base = moving->pose, best = base;
         double bestf = INFINITY;
         /* The first stage also starts from the base turned by START_DEG about each principal

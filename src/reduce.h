@@ -95,13 +95,15 @@ typedef void (*reduce_progress_fn)(void *ctx, int id, int iter, int evals, doubl
 typedef struct reduce_opts {
     reduce_method method;
     reduce_count count;
-    int prealign;        /* 1: principal-axis pre-alignment first (reduce_prealign) */
+    int prealign;        /* 1: principal-axis pre-alignment first, for a fragment more than 10 mm
+                          * from the assembly (nearer, it counts as placed by hand) */
     int has_voi;         /* 1: voi below for every fragment; 0: automatic (reduce_auto_voi) */
     reduce_voi voi;
     double tau_min, tau_max; /* the hierarchy's thresholds (the case's) */
     double tolerance_mm; /* collision tolerance of the final check (obb.h); at most 0.45 times the
                           * smallest voxel spacing is used */
-    double xtol_mm;      /* convergence: a step that moves the surface less than this */
+    double xtol_mm;      /* convergence: a step that moves the surface less than this (5 times
+                          * that in the first of two stages) */
     int max_eval;        /* evaluations per fragment (both stages together) */
     double voi_max_mm;   /* automatic VOI: the longest side (reduce_auto_voi's max_mm) */
     double band_mm;      /* the metric's band (0: the whole box) */
@@ -138,13 +140,10 @@ typedef struct reduce_result {
 
 void reduce_result_free(reduce_result *r);
 
-/* Pre-alignment (paper Fig. 5): the moving fragment's long axis onto the assembly's first
- * fragment's (both signs), its centroid on that axis, then slid along it (from either end) to
- * contact by the collision query and turned about it in 30 degree steps; the candidate of best
- * metric over its own contact-zone VOI wins, the placed pose included (so a good placement stays).
- * Sets moving->pose. trees: hierarchies of asm_ and of moving (last). 0 or FN_E*. */
-int reduce_prealign(const frag *const *asm_, const struct obb_tree *const *trees, int nasm, frag *moving,
-                    const struct obb_tree *mtree, const reduce_opts *o, int *changed);
+/* Pre-alignment (paper Fig. 5), inside reduce_pair: the moving fragment's long axis onto the
+ * assembly's first fragment's (both signs), its centroid on that axis, slid along it (from either
+ * end) to contact by the collision query and turned about it in 30 degree steps; the candidate of
+ * best metric over the overlap of the two boxes wins, the placed pose included. */
 
 /* Fits moving (from its current pose) to the assembly: pre-alignment when o->prealign, then, with an
  * automatic VOI, two stages: the optimizer over the contact zone where the fragment starts, then

@@ -395,6 +395,43 @@ static void test_cli(void **st)
     free(dir);
 }
 
+/* Pre-alignment (paper Fig. 5): a rod left far away and across brings its long axis onto the fixed
+ * rod's and slides along it into contact, end to end. */
+static void test_prealign_rods(void **st)
+{
+    frag a, b;
+    int da[3] = {40, 8, 8}, db[3] = {30, 8, 8};
+    double at_a[3] = {0, 0, 0}, at_b[3] = {40, 0, 0};
+    tu_box_frag(&a, 1, da, at_a);
+    tu_box_frag(&b, 2, db, at_b);
+    frag_stats(&a);
+    frag_stats(&b);
+    double z[3] = {0, 0, 1}, c[3];
+    pose turn = pose_from_axis_angle(z, M_PI / 2);
+    pose_rotate(&turn, b.centroid, c);
+    for (int k = 0; k < 3; k++) /* turned about its centroid, then moved 40 mm up in y */
+        turn.t[k] = b.centroid[k] - c[k] + (k == 1 ? 40 : 0);
+    b.pose = turn;
+    reduce_opts o;
+    reduce_defaults(&o);
+    reduce_result r;
+    const frag *asm_[1] = {&a};
+    assert_int_equal(reduce_pair(asm_, 1, &b, &o, &r), 0);
+    assert_int_equal(r.prealigned, 1);
+    double ax[3];
+    double bx[3] = {b.axes[0][0], b.axes[1][0], b.axes[2][0]};
+    pose_rotate(&b.pose, bx, ax);
+    assert_true(fabs(ax[0]) > 0.99);
+    pose_apply(&b.pose, b.centroid, c);
+    /* end to end on either side: centroids 35 mm apart along x, within a voxel or two */
+    assert_true(fabs(fabs(c[0] - a.centroid[0]) - 35) < 2.5);
+    assert_true(fabs(c[1] - a.centroid[1]) < 2.5 && fabs(c[2] - a.centroid[2]) < 2.5);
+    assert_int_equal(r.collides, 0);
+    reduce_result_free(&r);
+    frag_free(&a);
+    frag_free(&b);
+}
+
 static void test_method_names(void **st)
 {
     for (int m = 0; m < REDUCE_METHODS; m++)
@@ -418,6 +455,7 @@ int main(void)
         cmocka_unit_test(test_reduce_three_pieces),
         cmocka_unit_test(test_reduce_nlopt_methods),
         cmocka_unit_test(test_cli),
+        cmocka_unit_test(test_prealign_rods),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
