@@ -21,6 +21,7 @@
 typedef struct opts {
     int seeds, starts, json, verbose;
     double max_mm, max_deg, band_mm, voi_max_mm;
+    int fit_starts;
     int nconf;
     reduce_method method[MAX_CONFIGS];
     reduce_count count[MAX_CONFIGS];
@@ -172,6 +173,8 @@ static int run_case(const vol *ct, uint64_t seed, const opts *o, config_stats *c
                 ro.band_mm = o->band_mm;
             if (o->voi_max_mm >= 0)
                 ro.voi_max_mm = o->voi_max_mm;
+            if (o->fit_starts)
+                ro.starts = o->fit_starts;
             m.pose = start;
             reduce_result r;
             double c0 = bench_cpu_us();
@@ -267,7 +270,8 @@ static int usage(FILE *out, int rc)
             "  --method M       add a configuration: powell, praxis, sbplx, bobyqa, optionally\n"
             "                   /nearest (default: the four methods, trilinear, and powell/nearest)\n"
             "  --band MM        the metric's band (default: reduce's, 3 mm; 0 = the paper's box)\n"
-            "  --voi-max MM     the automatic VOI's longest side (default: reduce's, 64 mm)\n"
+            "  --voi-max MM     the automatic VOI's longest side (default: reduce's, 0 = no limit)\n"
+            "  --fit-starts N   starts of each fit's first stage (default: reduce's, 3)\n"
             "  --ct FILE        the CT to fracture (default: the example CT)\n"
             "  --verbose        one line per run on stderr\n"
             "  --json           one JSON object on stdout: command, ct, seeds, starts, max_mm,\n"
@@ -299,6 +303,11 @@ static int parse(int argc, char **argv, opts *o)
             if (!cmd_number(val, &d) || !(d >= 0 && d <= 100))
                 return cmd_bad_value("bench reduce", a, val, "a number of mm 0..100");
             o->band_mm = d;
+            i++;
+        } else if (!strcmp(a, "--fit-starts")) {
+            if (!cmd_number(val, &d) || !(d >= 1 && d <= 7 && d == (int)d))
+                return cmd_bad_value("bench reduce", a, val, "a whole number 1..7");
+            o->fit_starts = (int)d;
             i++;
         } else if (!strcmp(a, "--voi-max")) {
             if (!cmd_number(val, &d) || !(d >= 0 && d <= 1000))

@@ -43,7 +43,7 @@ int reduce_method_parse(const char *s)
 void reduce_defaults(reduce_opts *o)
 {
     memset(o, 0, sizeof *o);
-    o->method = REDUCE_POWELL;
+    o->method = REDUCE_PRAXIS;
     o->count = REDUCE_TRILINEAR;
     o->prealign = 1;
     o->tau_min = CASE_TAU_MIN;
@@ -51,7 +51,7 @@ void reduce_defaults(reduce_opts *o)
     o->tolerance_mm = 0.5;
     o->xtol_mm = 0.01;
     o->max_eval = 4000;
-    o->voi_max_mm = 64;
+    o->voi_max_mm = 0;
     o->band_mm = 1;
     o->trust_mm = 12;
     o->starts = 3;
@@ -601,6 +601,7 @@ static int run_optimizer(fit *F, int *iterations)
         nlopt_set_upper_bounds1(opt, 40);
     }
     double f;
+    nlopt_srand(1); /* PRAXIS draws random numbers: the same case gives the same fit */
     nlopt_result res = nlopt_optimize(opt, x, &f);
     nlopt_destroy(opt);
     *iterations = F->improvements;
@@ -609,35 +610,49 @@ static int run_optimizer(fit *F, int *iterations)
     return 0;
 }
 
-/* Pushes a colliding result out along the contact normal (from the assembly's bone in the VOI to
- * the moving centroid); falls back on the start pose. */
-static int resolve_collision(const pair_ctx *pc, const reduce_metric *m, reduce_result *r)
+/* Pushes a colliding pose out by the smallest step (PUSH_STEP_MM up to PUSH_MAX_MM) along the
+ * contact normal (from the assembly's bone in the VOI to the moving centroid) or a world axis.
+ * 1 when *p is (now) free, 0 when no push frees it (*p unchanged), <0 on error. */
+static int push_out(const pair_ctx *pc, const reduce_metric *m, pose *p, double *pushed)
 {
-    int c = collides(pc, &r->end, NULL);
+    int c = collides(pc, p, NULL);
     if (c <= 0)
-        return c;
-    double cm[3], n[3], len = 0;
-    pose_apply(&r->end, pc->moving->centroid, cm);
+        return c < 0 ? c : 1;
+    double cm[3], dir[7][3] = {{0}}, len = 0;
+    pose_apply(p, pc->moving->centroid, cm);
     for (int a = 0; a < 3; a++) {
-        n[a] = cm[a] - m->fixed_centre[a];
-        len += n[a] * n[a];
+        dir[0][a] = cm[a] - m->fixed_centre[a];
+        len += dir[0][a] * dir[0][a];
     }
     len = sqrt(len);
-    for (double s = PUSH_STEP_MM; len > 0 && s <= PUSH_MAX_MM + 1e-9; s += PUSH_STEP_MM) {
-        pose t = r->end;
-        for (int a = 0; a < 3; a++)
-            t.t[a] += s * n[a] / len;
-        c = collides(pc, &t, NULL);
-        if (c < 0)
-            return c;
-        if (!c) {
-            r->end = t;
-            r->push_mm = s;
-            return 0;
-        }
+    for (int a = 0; a < 3; a++) {
+        dir[0][a] = len > 0 ? dir[0][a] / len : 0;
+        dir[1 + 2 * a][a] = 1;
+        dir[2 + 2 * a][a] = -1;
     }
-    c = collides(pc, &r->start, NULL);
-    if (c < 0)
+    for (double s = PUSH_STEP_MM; s <= PUSH_MAX_MM + 1e-9; s += PUSH_STEP_MM)
+        for (int d = len > 0 ? 0 : 1; d < 7; d++) {
+            pose t = *p;
+            for (int a = 0; a < 3; a++)
+                t.t[a] += s * dir[d][a];
+            if ((c = collides(pc, &t, NULL)) < 0)
+                return c;
+            if (!c) {
+                *p = t;
+                *pushed += s;
+                return 1;
+            }
+        }
+    return 0;
+}
+
+/* A result that collides is pushed out; failing that, the start (where the hand left it) stays. */
+static int resolve_collision(const pair_ctx *pc, const reduce_metric *m, reduce_result *r)
+{
+    int c = push_out(pc, m, &r->end, &r->push_mm);
+    if (c != 0)
+        return c < 0 ? c : 0;
+    if ((c = collides(pc, &r->start, NULL)) < 0)
         return c;
     r->end = r->start;
     r->collides = c;

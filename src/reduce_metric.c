@@ -375,6 +375,25 @@ static int brick_visible(const reduce_metric *m, const reduce_brick *br, double 
     return blocks_counted(m, lo, hi) > 0;
 }
 
+/* Whether a run from (x, y, z) with len voxels can weigh a counted cell (the block table again,
+ * at the run's reach): most runs of a visible brick lie away from the fixed bone. */
+static int run_visible(const reduce_metric *m, double M[3][3], double x, double y, double z, int len)
+{
+    double p[3] = {x, y, z}, q[3] = {x + (len - 1) * M[0][0], y + (len - 1) * M[1][0], z + (len - 1) * M[2][0]};
+    int lo[3], hi[3];
+    for (int a = 0; a < 3; a++) {
+        double l = fmin(p[a], q[a]), h = fmax(p[a], q[a]);
+        if (h <= -1 || l >= m->d[a])
+            return 0;
+        int p0 = (int)floor(l), p1 = (int)floor(h) + 2; /* padded cells floor(l)+1 .. floor(h)+2 */
+        p0 = p0 < 0 ? 0 : p0;
+        p1 = p1 > m->D[a] - 1 ? m->D[a] - 1 : p1;
+        lo[a] = p0 / REDUCE_BLOCK;
+        hi[a] = p1 / REDUCE_BLOCK;
+    }
+    return blocks_counted(m, lo, hi) > 0;
+}
+
 static void eval_trilinear(const reduce_metric *m, double M[3][3], const double T[3], double *n2, double *ni)
 {
     const int d0 = m->d[0], d1 = m->d[1], d2 = m->d[2];
@@ -389,6 +408,8 @@ static void eval_trilinear(const reduce_metric *m, double M[3][3], const double 
             double x = M[0][0] * run->i0 + M[0][1] * run->j + M[0][2] * run->k + T[0];
             double y = M[1][0] * run->i0 + M[1][1] * run->j + M[1][2] * run->k + T[1];
             double z = M[2][0] * run->i0 + M[2][1] * run->j + M[2][2] * run->k + T[2];
+            if (!run_visible(m, M, x, y, z, run->len))
+                continue;
             for (int n = 0; n < run->len; n++, x += M[0][0], y += M[1][0], z += M[2][0]) {
                 if (!(x > -1 && y > -1 && z > -1 && x < d0 && y < d1 && z < d2))
                     continue;
