@@ -263,13 +263,13 @@ static int usage(FILE *out, int rc)
             "median and p90 errors, median_seconds and p90_seconds (CPU time of the fit, immune to\n"
             "a busy machine; median_wall_seconds beside it), metric_eval_us (one evaluation over a\n"
             "64^3 VOI at the fracture, one core).\n\n"
-            "  --seeds N        fractures (default 3)\n"
-            "  --starts N       starts per fracture (default 4)\n"
+            "  --seeds N        fractures (default 4)\n"
+            "  --starts N       starts per fracture (default 5)\n"
             "  --max-mm MM      largest start translation (default 10)\n"
             "  --max-deg DEG    largest start rotation (default 15)\n"
             "  --method M       add a configuration: powell, praxis, sbplx, bobyqa, optionally\n"
             "                   /nearest (default: the four methods, trilinear, and powell/nearest)\n"
-            "  --band MM        the metric's band (default: reduce's, 3 mm; 0 = the paper's box)\n"
+            "  --band MM        the metric's band (default: reduce's, 1 mm; 0 = the paper's box)\n"
             "  --voi-max MM     the automatic VOI's longest side (default: reduce's, 0 = no limit)\n"
             "  --fit-starts N   starts of each fit's first stage (default: reduce's, 3)\n"
             "  --ct FILE        the CT to fracture (default: the example CT)\n"
@@ -281,7 +281,7 @@ static int usage(FILE *out, int rc)
 
 static int parse(int argc, char **argv, opts *o)
 {
-    *o = (opts){.seeds = 3, .starts = 4, .max_mm = 10, .max_deg = 15, .band_mm = -1, .voi_max_mm = -1};
+    *o = (opts){.seeds = 4, .starts = 5, .max_mm = 10, .max_deg = 15, .band_mm = -1, .voi_max_mm = -1};
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i], *val = i + 1 < argc ? argv[i + 1] : NULL;
         double d;
