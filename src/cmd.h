@@ -14,6 +14,7 @@
     X(record, "record raw reports from a controller to a .fnrec file")                       \
     X(replay, "replay a .fnrec recording through the navigation loop")                      \
     X(navigate, "steer fragments with a 6-DOF controller, collision-checked")               \
+    X(reduce, "fit fragments back together: pre-alignment and Powell's method on the VOI")  \
     X(bench, "benchmarks with JSON output: collision, build, loop")
 
 #define CMD_DECLARE(name, help) int cmd_##name(int argc, char **argv);

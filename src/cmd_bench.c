@@ -15,6 +15,7 @@ static const struct {
     {"collision", bench_collision, "OBB octree query vs brute force and FCL on fractured bones"},
     {"build", bench_build, "hierarchy build time and memory against volume size"},
     {"loop", bench_loop, "navigation loop rate and latency"},
+    {"reduce", bench_reduce, "automatic reduction per method: success rate, errors, time"},
 };
 
 double bench_now_us(void)

@@ -1,0 +1,403 @@
+/* fracnav bench reduce: automatic reduction on synthetic fractures of the example CT, from starts
+ * perturbed as a hand would leave them, per method: success rate, errors, time, metric cost. */
+#include "bench.h"
+
+#include "case.h"
+#include "cmd.h"
+#include "err.h"
+#include "fracture.h"
+#include "jsonw.h"
+#include "obb.h"
+#include "reduce.h"
+#include "volio.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define MAX_CONFIGS 8
+
+typedef struct opts {
+    int seeds, starts, json, verbose;
+    double max_mm, max_deg, band_mm, voi_max_mm;
+    int fit_starts;
+    int nconf;
+    reduce_method method[MAX_CONFIGS];
+    reduce_count count[MAX_CONFIGS];
+    const char *ct;
+} opts;
+
+typedef struct sample {
+    double rot, trans, tre, cpu_s, wall_s, metric_end, metric_truth;
+    int evals;
+} sample;
+
+static unsigned long long rng;
+
+static double urand(void)
+{
+    rng = rng * 6364136223846793005ull + 1442695040888963407ull;
+    return (double)(rng >> 11) / 9007199254740992.0;
+}
+
+static void unit_vector(double v[3])
+{
+    double n;
+    do {
+        for (int a = 0; a < 3; a++)
+            v[a] = 2 * urand() - 1;
+        n = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
+    } while (n > 1 || n < 1e-6);
+    n = sqrt(n);
+    for (int a = 0; a < 3; a++)
+        v[a] /= n;
+}
+
+/* A start: the true pose turned about the centroid by up to max_deg and moved by up to max_mm,
+ * redrawn while it collides (a hand's placement never does, the loop refuses it). */
+static pose perturbed(const frag *f, const obb_tree *tf, const frag *m, const obb_tree *tm, const pose *truth,
+                      const opts *o)
+{
+    pose fw = pose_compose(f->pose, f->home), best = *truth;
+    for (int tries = 0; tries < 100; tries++) {
+        double axis[3], dir[3], c[3], rc[3];
+        unit_vector(axis);
+        unit_vector(dir);
+        double deg = o->max_deg * urand(), mm = o->max_mm * urand();
+        pose rot = pose_from_axis_angle(axis, deg * M_PI / 180), p = pose_compose(rot, *truth);
+        pose_apply(truth, m->centroid, c);
+        pose_rotate(&rot, c, rc);
+        for (int a = 0; a < 3; a++)
+            p.t[a] += c[a] - rc[a] + mm * dir[a];
+        pose mw = pose_compose(p, m->home);
+        obb_query q = {.threshold = 0, .tolerance_mm = 0};
+        obb_result r;
+        best = p;
+        if (obb_collide(tf, &fw, tm, &mw, &q, NULL, &r) == 0 && !r.collides)
+            break;
+    }
+    return best;
+}
+
+static int cmp_double(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return x < y ? -1 : x > y;
+}
+
+static double quantile(double *v, int n, double q)
+{
+    if (n < 1)
+        return NAN;
+    qsort(v, (size_t)n, sizeof *v, cmp_double);
+    double pos = q * (n - 1);
+    int i = (int)pos;
+    return i + 1 < n ? v[i] + (pos - i) * (v[i + 1] - v[i]) : v[i];
+}
+
+/* Mean time of one evaluation of a cubic VOI of n cells a side around the fracture, at the truth. */
+static double eval_us(const frag *f, const frag *m, const pose *truth, const reduce_voi *zone, int n,
+                      reduce_count mode)
+{
+    reduce_voi v;
+    for (int a = 0; a < 3; a++) {
+        double c = 0.5 * (zone->lo[a] + zone->hi[a]), h = 0.5 * n * f->spacing[a];
+        v.lo[a] = c - h;
+        v.hi[a] = c + h - 1e-6;
+    }
+    const frag *asm_[1] = {f};
+    frag mm = *m;
+    reduce_metric *me = reduce_metric_new(asm_, 1, &mm, &v, mode, 3);
+    if (!me)
+        return NAN;
+    int reps = 200;
+    double sink = 0, t0 = bench_cpu_us();
+    for (int i = 0; i < reps; i++) {
+        pose p = *truth;
+        p.t[0] += 0.001 * i;
+        sink += reduce_metric_eval(me, &p, NULL);
+    }
+    double us = (bench_cpu_us() - t0) / reps;
+    reduce_metric_free(me);
+    return isfinite(sink) ? us : NAN;
+}
+
+typedef struct config_stats {
+    sample *s;
+    int n;
+    double eval_us;
+} config_stats;
+
+static int run_case(const vol *ct, uint64_t seed, const opts *o, config_stats *cs)
+{
+    fracture_params fp;
+    fracture_defaults(&fp);
+    fp.seed = seed;
+    fracture_result fr;
+    int rc = fracture_make(ct, &fp, &fr);
+    if (rc)
+        return rc;
+    frag f = {0}, m = {0};
+    frag *fs[2] = {&f, &m};
+    for (int id = 1; id <= 2 && rc == 0; id++) {
+        int lo[3], hi[3];
+        rc = frag_label_box(fr.labels, id, lo, hi);
+        if (rc == 0)
+            rc = frag_from_labels(fs[id - 1], fr.labels, fr.ct, id, lo, hi, fp.threshold, 200);
+    }
+    pose truth = fr.truth[1];
+    fracture_result_free(&fr);
+    obb_params op = {CASE_TAU_MIN, CASE_TAU_MAX};
+    obb_tree *tf = rc == 0 ? obb_tree_build(&f, &op) : NULL, *tm = tf ? obb_tree_build(&m, &op) : NULL;
+    if (rc == 0 && (!tf || !tm))
+        rc = FN_ENOMEM;
+    const frag *asm_[1] = {&f};
+    reduce_voi zone;
+    if (rc == 0) {
+        m.pose = truth;
+        rc = reduce_auto_voi(asm_, 1, &m, 2, 0, 0, &zone, NULL);
+    }
+    for (int k = 0; k < o->nconf && rc == 0; k++)
+        if (!(cs[k].eval_us > 0))
+            cs[k].eval_us = eval_us(&f, &m, &truth, &zone, 64, o->count[k]);
+    for (int s = 0; s < o->starts && rc == 0; s++) {
+        pose start = perturbed(&f, tf, &m, tm, &truth, o);
+        for (int k = 0; k < o->nconf && rc == 0; k++) {
+            reduce_opts ro;
+            reduce_defaults(&ro);
+            ro.method = o->method[k];
+            ro.count = o->count[k];
+            ro.prealign = 0;
+            if (o->band_mm >= 0)
+                ro.band_mm = o->band_mm;
+            if (o->voi_max_mm >= 0)
+                ro.voi_max_mm = o->voi_max_mm;
+            if (o->fit_starts)
+                ro.starts = o->fit_starts;
+            m.pose = start;
+            reduce_result r;
+            double c0 = bench_cpu_us();
+            rc = reduce_pair(asm_, 1, &m, &ro, &r);
+            double c1 = bench_cpu_us();
+            if (rc)
+                break;
+            sample *x = &cs[k].s[cs[k].n++];
+            reduce_errors(&f, &m, &truth, &x->rot, &x->trans, &x->tre);
+            x->cpu_s = (c1 - c0) * 1e-6;
+            x->wall_s = r.seconds;
+            x->evals = r.evaluations;
+            x->metric_end = r.metric_end;
+            if (o->verbose) {
+                double fr_, ft_, fre_;
+                pose keep = m.pose;
+                m.pose = r.fitted;
+                reduce_errors(&f, &m, &truth, &fr_, &ft_, &fre_);
+                m.pose = keep;
+                fprintf(stderr, "  fitted %.3f deg %.3f mm; voi %.0fx%.0fx%.0f mm\n", fr_, ft_, r.voi.hi[0] - r.voi.lo[0],
+                        r.voi.hi[1] - r.voi.lo[1], r.voi.hi[2] - r.voi.lo[2]);
+                reduce_metric *me = reduce_metric_new(asm_, 1, &m, &r.voi, ro.count, ro.band_mm);
+                double ft = me ? reduce_metric_eval(me, &truth, NULL) : NAN;
+                fprintf(stderr, "  fitted metric %.6f\n", me ? reduce_metric_eval(me, &r.fitted, NULL) : NAN);
+                reduce_metric_free(me);
+                fprintf(stderr, "seed %llu start %d %s/%s: %.3f deg %.3f mm tre %.3f, metric %.6f (truth %.6f),"
+                        " %d evals, %.3f s cpu, push %.2f\n", (unsigned long long)seed, s,
+                        reduce_method_name(ro.method), ro.count == REDUCE_NEAREST ? "nearest" : "trilinear",
+                        x->rot, x->trans, x->tre, r.metric_end, ft, r.evaluations, x->cpu_s, r.push_mm);
+            }
+            reduce_result_free(&r);
+        }
+    }
+    obb_tree_free(tf);
+    obb_tree_free(tm);
+    frag_free(&f);
+    frag_free(&m);
+    return rc;
+}
+
+static json_t *config_json(const opts *o, int k, config_stats *cs)
+{
+    int n = cs->n, ok = 0;
+    double *v = malloc((size_t)(n ? n : 1) * sizeof *v);
+    json_t *j = json_object();
+    if (!v || !j) {
+        free(v);
+        json_decref(j);
+        return NULL;
+    }
+    for (int i = 0; i < n; i++)
+        ok += cs->s[i].rot <= 1 && cs->s[i].trans <= 1;
+    jsonw_set(j, "method", jsonw_string(reduce_method_name(o->method[k])));
+    jsonw_set(j, "counting", jsonw_string(o->count[k] == REDUCE_NEAREST ? "nearest" : "trilinear"));
+    jsonw_set(j, "runs", json_integer(n));
+    jsonw_set(j, "success_rate", jsonw_measure(n ? (double)ok / n : NAN));
+#define STAT(key, field, q)                                                                        \
+    do {                                                                                           \
+        for (int i = 0; i < n; i++)                                                                \
+            v[i] = cs->s[i].field;                                                                 \
+        jsonw_set(j, key, jsonw_measure(quantile(v, n, q)));                                       \
+    } while (0)
+    STAT("median_rot_err_deg", rot, 0.5);
+    STAT("median_trans_err_mm", trans, 0.5);
+    STAT("median_tre_mm", tre, 0.5);
+    STAT("p90_rot_err_deg", rot, 0.9);
+    STAT("p90_trans_err_mm", trans, 0.9);
+    STAT("median_seconds", cpu_s, 0.5);
+    STAT("p90_seconds", cpu_s, 0.9);
+    STAT("median_wall_seconds", wall_s, 0.5);
+    STAT("median_evaluations", evals, 0.5);
+#undef STAT
+    jsonw_set(j, "metric_eval_us", jsonw_measure(cs->eval_us));
+    free(v);
+    return j;
+}
+
+static int usage(FILE *out, int rc)
+{
+    fprintf(out,
+            "usage: fracnav bench reduce [--json] [--seeds N] [--starts N] [--method M[/nearest]...]\n\n"
+            "Automatic reduction on synthetic two-piece fractures of the example CT (one per seed,\n"
+            "made by fracture_make with its defaults), each from N starts: the true pose turned by up\n"
+            "to --max-deg about the centroid and moved by up to --max-mm (collision-free, as a hand\n"
+            "leaves it); no pre-alignment. Per method: success_rate (within 1 mm and 1 degree),\n"
+            "median and p90 errors, median_seconds and p90_seconds (CPU time of the fit, immune to\n"
+            "a busy machine; median_wall_seconds beside it), metric_eval_us (one evaluation over a\n"
+            "64^3 VOI at the fracture, one core).\n\n"
+            "  --seeds N        fractures (default 4)\n"
+            "  --starts N       starts per fracture (default 5)\n"
+            "  --max-mm MM      largest start translation (default 10)\n"
+            "  --max-deg DEG    largest start rotation (default 15)\n"
+            "  --method M       add a configuration: powell, praxis, sbplx, bobyqa, optionally\n"
+            "                   /nearest (default: the four methods, trilinear, and powell/nearest)\n"
+            "  --band MM        the metric's band (default: reduce's, 1 mm; 0 = the paper's box)\n"
+            "  --voi-max MM     the automatic VOI's longest side (default: reduce's, 0 = no limit)\n"
+            "  --fit-starts N   starts of each fit's first stage (default: reduce's, 3)\n"
+            "  --ct FILE        the CT to fracture (default: the example CT)\n"
+            "  --verbose        one line per run on stderr\n"
+            "  --json           one JSON object on stdout: command, ct, seeds, starts, max_mm,\n"
+            "                   max_deg, default_method, methods (one per configuration)\n");
+    return rc;
+}
+
+static int parse(int argc, char **argv, opts *o)
+{
+    *o = (opts){.seeds = 4, .starts = 5, .max_mm = 10, .max_deg = 15, .band_mm = -1, .voi_max_mm = -1};
+    for (int i = 1; i < argc; i++) {
+        const char *a = argv[i], *val = i + 1 < argc ? argv[i + 1] : NULL;
+        double d;
+        if (!strcmp(a, "--json"))
+            o->json = 1;
+        else if (!strcmp(a, "--verbose"))
+            o->verbose = 1;
+        else if (!strcmp(a, "--seeds") || !strcmp(a, "--starts")) {
+            if (!cmd_number(val, &d) || !(d >= 1 && d <= 1000 && d == (int)d))
+                return cmd_bad_value("bench reduce", a, val, "a whole number 1..1000");
+            *(a[3] == 'e' ? &o->seeds : &o->starts) = (int)d;
+            i++;
+        } else if (!strcmp(a, "--max-mm") || !strcmp(a, "--max-deg")) {
+            if (!cmd_number(val, &d) || !(d >= 0 && d <= 90))
+                return cmd_bad_value("bench reduce", a, val, "a number 0..90");
+            *(a[6] == 'm' ? &o->max_mm : &o->max_deg) = d;
+            i++;
+        } else if (!strcmp(a, "--band")) {
+            if (!cmd_number(val, &d) || !(d >= 0 && d <= 100))
+                return cmd_bad_value("bench reduce", a, val, "a number of mm 0..100");
+            o->band_mm = d;
+            i++;
+        } else if (!strcmp(a, "--fit-starts")) {
+            if (!cmd_number(val, &d) || !(d >= 1 && d <= 7 && d == (int)d))
+                return cmd_bad_value("bench reduce", a, val, "a whole number 1..7");
+            o->fit_starts = (int)d;
+            i++;
+        } else if (!strcmp(a, "--voi-max")) {
+            if (!cmd_number(val, &d) || !(d >= 0 && d <= 1000))
+                return cmd_bad_value("bench reduce", a, val, "a number of mm 0..1000");
+            o->voi_max_mm = d;
+            i++;
+        } else if (!strcmp(a, "--ct")) {
+            if (!val)
+                return cmd_bad_value("bench reduce", a, val, "a volume file");
+            o->ct = argv[++i];
+        } else if (!strcmp(a, "--method")) {
+            char name[32];
+            snprintf(name, sizeof name, "%s", val ? val : "");
+            char *slash = strchr(name, '/');
+            int nearest = slash && !strcmp(slash, "/nearest");
+            if (slash)
+                *slash = 0;
+            int m = reduce_method_parse(name);
+            if (m < 0 || (slash && !nearest) || o->nconf == MAX_CONFIGS)
+                return cmd_bad_value("bench reduce", a, val, "powell, praxis, sbplx or bobyqa, optionally /nearest (8 at most)");
+            o->method[o->nconf] = (reduce_method)m;
+            o->count[o->nconf++] = nearest ? REDUCE_NEAREST : REDUCE_TRILINEAR;
+            i++;
+        } else
+            return cmd_usage_error("bench reduce", "unknown option '%s'", a);
+    }
+    if (!o->nconf) {
+        for (int m = 0; m < REDUCE_METHODS; m++) {
+            o->method[o->nconf] = (reduce_method)m;
+            o->count[o->nconf++] = REDUCE_TRILINEAR;
+        }
+        o->method[o->nconf] = REDUCE_POWELL;
+        o->count[o->nconf++] = REDUCE_NEAREST;
+    }
+    return 0;
+}
+
+int bench_reduce(int argc, char **argv)
+{
+    if (cmd_wants_help(argc, argv))
+        return usage(stdout, 0);
+    opts o;
+    int rc = parse(argc, argv, &o);
+    if (rc)
+        return rc;
+    const char *path = o.ct ? o.ct : cmd_example_ct();
+    vol *ct = volio_read(path);
+    if (!ct) {
+        fprintf(stderr, "fracnav bench reduce: %s\n", fn_err_msg());
+        return 1;
+    }
+    config_stats cs[MAX_CONFIGS] = {0};
+    for (int k = 0; k < o.nconf; k++)
+        if (!(cs[k].s = calloc((size_t)o.seeds * o.starts, sizeof *cs[k].s)))
+            rc = fn_err_set(FN_ENOMEM, "out of memory");
+    rng = 0x9e3779b97f4a7c15ull;
+    for (int s = 0; s < o.seeds && rc == 0; s++) {
+        rc = run_case(ct, (uint64_t)s + 1, &o, cs);
+        if (rc)
+            fn_err_wrap(rc, "seed %d", s + 1);
+    }
+    vol_free(ct);
+    if (rc == 0) {
+        json_t *root = jsonw_object("bench reduce"), *rows = json_array();
+        for (int k = 0; k < o.nconf; k++)
+            json_array_append_new(rows, config_json(&o, k, &cs[k]));
+        jsonw_set(root, "ct", jsonw_string(path));
+        jsonw_set(root, "seeds", json_integer(o.seeds));
+        jsonw_set(root, "starts", json_integer(o.starts));
+        jsonw_set(root, "max_mm", jsonw_exact(o.max_mm));
+        jsonw_set(root, "max_deg", jsonw_exact(o.max_deg));
+        reduce_opts def;
+        reduce_defaults(&def);
+        jsonw_set(root, "default_method", jsonw_string(reduce_method_name(def.method)));
+        jsonw_set(root, "methods", rows);
+        if (o.json)
+            rc = jsonw_print(root, stdout);
+        else {
+            char *text = jsonw_dumps(root);
+            if (text)
+                fputs(text, stdout);
+            free(text);
+            json_decref(root);
+        }
+    }
+    for (int k = 0; k < o.nconf; k++)
+        free(cs[k].s);
+    if (rc < 0) {
+        fprintf(stderr, "fracnav bench reduce: %s\n", fn_err_msg());
+        return 1;
+    }
+    return 0;
+}

@@ -1,0 +1,313 @@
+/* fracnav reduce: automatic reduction of a case's fragments (pre-alignment + optimizer). */
+#include "cmd.h"
+
+#include "case.h"
+#include "err.h"
+#include "jsonw.h"
+#include "reduce.h"
+
+#include <limits.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#include <unistd.h>
+
+static void usage(FILE *out)
+{
+    fprintf(out,
+            "usage: fracnav reduce CASE [--fixed ID] [--moving ID...] [--method M] [--voi X0 Y0 Z0 X1 Y1 Z1]\n"
+            "                      [--no-prealign] [--json] [-o NEWCASE] [options]\n\n"
+            "Fit the fragments back together: the fixed fragment stays; a moving one left more\n"
+            "than 10 mm from the others is pre-aligned first (principal axes, slid to contact);\n"
+            "each is then optimized on the VOI metric (2 n_I - n_1 - n_2) / n_VOI, one at a time\n"
+            "against the growing assembly, the one of largest contact first. The result never\n"
+            "leaves fragments colliding beyond the tolerance. Poses, VOIs and the convergence\n"
+            "history are saved in the case (atomic save). README \"Automatic reduction\" has the\n"
+            "details and the measured accuracy.\n\n"
+            "  --fixed ID             the fragment that stays (default: the case's fixed one, else\n"
+            "                         the largest)\n"
+            "  --moving ID...         the fragments to fit (default: all others)\n"
+            "  --method M             powell (ours), praxis, sbplx or bobyqa (NLopt); default: praxis,\n"
+            "                         the most successful in `fracnav bench reduce`\n"
+            "  --voi X0 Y0 Z0 X1 Y1 Z1  the VOI box, world LPS mm (default: automatic, around the\n"
+            "                         contact zone of each fragment)\n"
+            "  --no-prealign          no pre-alignment (without it, a fragment more than 10 mm from\n"
+            "                         the others is pre-aligned first; a nearer one counts as\n"
+            "                         placed by hand and starts where it is)\n"
+            "  --nearest              count voxels at the nearest cell instead of trilinear weights\n"
+            "  --tolerance MM         collision tolerance of the result (default 0.5)\n"
+            CMD_TAU_HELP
+            "  -o, --output NEWCASE   save into a new case folder (the source stays where it is)\n"
+            "  --json                 one JSON object on stdout: command, case, method, fixed,\n"
+            "                         fragments (id, iterations, evaluations, seconds, metric_start,\n"
+            "                         metric_end, push_mm, prealigned, voi_mm, and with ground truth\n"
+            "                         rot_err_deg, trans_err_mm, tre_mm), seconds\n"
+            "  --help                 this text\n");
+}
+
+typedef struct args {
+    const char *dir, *out;
+    int fixed_id;
+    int moving[256], nmoving;
+    int json;
+    cmd_tau tau;
+    reduce_opts o;
+} args;
+
+static int parse(int argc, char **argv, args *A)
+{
+    int rc;
+    for (int i = 1; i < argc; i++) {
+        const char *a = argv[i], *val = i + 1 < argc ? argv[i + 1] : NULL;
+        double d;
+        if (!strcmp(a, "--json"))
+            A->json = 1;
+        else if (!strcmp(a, "--no-prealign"))
+            A->o.prealign = 0;
+        else if (!strcmp(a, "--nearest"))
+            A->o.count = REDUCE_NEAREST;
+        else if (a[0] != '-') {
+            if (A->dir)
+                return cmd_usage_error("reduce", "unexpected argument '%s'", a);
+            A->dir = a;
+        } else if (!strcmp(a, "-o") || !strcmp(a, "--output")) {
+            if (!val)
+                return cmd_bad_value("reduce", a, val, "a folder");
+            A->out = argv[++i];
+        } else if (cmd_tau_option("reduce", a, val, &A->tau, &rc)) {
+            if (rc)
+                return rc;
+            i++;
+        } else if (!strcmp(a, "--fixed")) {
+            if (!cmd_number(val, &d) || !(d >= 1 && d <= 65535 && d == (int)d))
+                return cmd_bad_value("reduce", a, val, "a fragment id");
+            A->fixed_id = (int)d;
+            i++;
+        } else if (!strcmp(a, "--moving")) {
+            if (!cmd_number(val, &d))
+                return cmd_bad_value("reduce", a, val, "one or more fragment ids");
+            while (i + 1 < argc && cmd_number(argv[i + 1], &d)) {
+                if (!(d >= 1 && d <= 65535 && d == (int)d) || A->nmoving == 256)
+                    return cmd_bad_value("reduce", a, argv[i + 1], "a fragment id (up to 256 of them)");
+                A->moving[A->nmoving++] = (int)d;
+                i++;
+            }
+        } else if (!strcmp(a, "--method")) {
+            int m = reduce_method_parse(val);
+            if (m < 0)
+                return cmd_bad_value("reduce", a, val, "powell, praxis, sbplx or bobyqa");
+            A->o.method = (reduce_method)m;
+            i++;
+        } else if (!strcmp(a, "--tolerance")) {
+            if (!cmd_number(val, &d) || !(d >= 0 && d <= 10))
+                return cmd_bad_value("reduce", a, val, "a number of mm from 0 to 10");
+            A->o.tolerance_mm = d;
+            i++;
+        } else if (!strcmp(a, "--voi")) {
+            double v[6];
+            for (int k = 0; k < 6; k++)
+                if (i + 1 + k >= argc || !cmd_number(argv[i + 1 + k], &v[k]))
+                    return cmd_bad_value("reduce", a, i + 1 + k < argc ? argv[i + 1 + k] : NULL,
+                                         "six numbers X0 Y0 Z0 X1 Y1 Z1 (world LPS mm)");
+            for (int k = 0; k < 3; k++) {
+                A->o.voi.lo[k] = fmin(v[k], v[k + 3]);
+                A->o.voi.hi[k] = fmax(v[k], v[k + 3]);
+                if (A->o.voi.lo[k] == A->o.voi.hi[k])
+                    return cmd_usage_error("reduce", "--voi: the box is flat on axis %d", k);
+            }
+            A->o.has_voi = 1;
+            i += 6;
+        } else
+            return cmd_usage_error("reduce", "unknown option '%s'", a);
+    }
+    if (!A->dir)
+        return cmd_usage_error("reduce", "%s", "needs CASE");
+    return cmd_tau_check("reduce", &A->tau);
+}
+
+/* Fragment indices: the fixed one and the moving ones. 0, or 2 after a usage error. */
+static int pick(const fcase *c, const args *A, int *fixed, int *mv, int *nmv)
+{
+    if (A->fixed_id) {
+        if ((*fixed = case_find(c, A->fixed_id)) < 0)
+            return cmd_usage_error("reduce", "--fixed: the case has no fragment %d", A->fixed_id);
+    } else if (c->fixed >= 0) {
+        *fixed = c->fixed;
+    } else {
+        *fixed = 0;
+        for (int i = 1; i < c->nfrag; i++)
+            if (c->frag[i].voxels > c->frag[*fixed].voxels)
+                *fixed = i;
+    }
+    *nmv = 0;
+    if (A->nmoving) {
+        for (int k = 0; k < A->nmoving; k++) {
+            int i = case_find(c, A->moving[k]);
+            if (i < 0)
+                return cmd_usage_error("reduce", "--moving: the case has no fragment %d", A->moving[k]);
+            if (i == *fixed)
+                return cmd_usage_error("reduce", "--moving: fragment %d is the fixed one", A->moving[k]);
+            for (int j = 0; j < *nmv; j++)
+                if (mv[j] == i)
+                    return cmd_usage_error("reduce", "--moving: fragment %d is given twice", A->moving[k]);
+            mv[(*nmv)++] = i;
+        }
+    } else {
+        for (int i = 0; i < c->nfrag; i++)
+            if (i != *fixed)
+                mv[(*nmv)++] = i;
+    }
+    if (!*nmv)
+        return cmd_usage_error("reduce", "%s", "the case has no fragment to move");
+    return 0;
+}
+
+static void progress(void *ctx, int id, int iter, int evals, double f, double seconds)
+{
+    fprintf(stderr, "\rfragment %d: iteration %d, %d evaluations, metric %.6f, %.2f s   ", id, iter, evals, f,
+            seconds);
+    fflush(stderr);
+}
+
+static json_t *voi_json(const reduce_voi *v)
+{
+    double b[6] = {v->lo[0], v->lo[1], v->lo[2], v->hi[0], v->hi[1], v->hi[2]};
+    return jsonw_exact_array(b, 6);
+}
+
+static json_t *result_json(const fcase *c, int fixed, const reduce_result *r)
+{
+    json_t *o = json_object();
+    if (!o)
+        return NULL;
+    double rot = JSONW_NA, trans = JSONW_NA, tre = JSONW_NA;
+    if (c->has_truth)
+        reduce_truth_errors(c, fixed, case_find(c, r->id), &rot, &trans, &tre);
+    jsonw_set(o, "id", json_integer(r->id));
+    jsonw_set(o, "prealigned", json_boolean(r->prealigned));
+    jsonw_set(o, "voi_mm", voi_json(&r->voi));
+    jsonw_set(o, "iterations", json_integer(r->iterations));
+    jsonw_set(o, "evaluations", json_integer(r->evaluations));
+    jsonw_set(o, "seconds", jsonw_measure(r->seconds));
+    jsonw_set(o, "metric_start", jsonw_exact(r->metric_start));
+    jsonw_set(o, "metric_end", jsonw_exact(r->metric_end));
+    jsonw_set(o, "push_mm", jsonw_measure(r->push_mm));
+    jsonw_set(o, "collides", json_boolean(r->collides));
+    jsonw_set(o, "rot_err_deg", jsonw_measure(rot));
+    jsonw_set(o, "trans_err_mm", jsonw_measure(trans));
+    jsonw_set(o, "tre_mm", jsonw_measure(tre));
+    return o;
+}
+
+static int report(const fcase *c, const args *A, int fixed, const reduce_result *r, int n, double seconds)
+{
+    if (!A->json) {
+        for (int i = 0; i < n; i++) {
+            printf("fragment %d: metric %.6f -> %.6f, %d iterations, %d evaluations, %.3f s%s", r[i].id,
+                   r[i].metric_start, r[i].metric_end, r[i].iterations, r[i].evaluations, r[i].seconds,
+                   r[i].prealigned ? ", pre-aligned" : "");
+            double rot, trans, tre;
+            if (c->has_truth && reduce_truth_errors(c, fixed, case_find(c, r[i].id), &rot, &trans, &tre) == 0)
+                printf("; error %.3f deg, %.3f mm, TRE %.3f mm", rot, trans, tre);
+            if (r[i].collides)
+                printf("; no collision-free fit: left where it started");
+            printf("\n");
+        }
+        printf("saved %s\n", c->dir);
+        return 0;
+    }
+    json_t *o = jsonw_object("reduce"), *frs = json_array();
+    for (int i = 0; o && frs && i < n; i++)
+        json_array_append_new(frs, result_json(c, fixed, &r[i]));
+    if (o && frs) {
+        jsonw_set(o, "case", jsonw_string(c->dir));
+        jsonw_set(o, "method", jsonw_string(reduce_method_name(A->o.method)));
+        jsonw_set(o, "counting", jsonw_string(A->o.count == REDUCE_NEAREST ? "nearest" : "trilinear"));
+        jsonw_set(o, "fixed", json_integer(c->frag[fixed].id));
+        jsonw_set(o, "fragments", frs);
+        jsonw_set(o, "seconds", jsonw_measure(seconds));
+    } else
+        json_decref(frs);
+    return jsonw_print(o, stdout);
+}
+
+/* -o: the new folder, with the source kept where it is (an absolute path). */
+static int retarget(fcase *c, const char *out)
+{
+    char abs[PATH_MAX];
+    if (!realpath(c->source, abs))
+        return fn_err_set(FN_EIO, "%s: cannot resolve the source path", c->source);
+    if (snprintf(c->source, sizeof c->source, "%s", abs) >= (int)sizeof c->source ||
+        snprintf(c->dir, sizeof c->dir, "%s", out) >= (int)sizeof c->dir)
+        return fn_err_set(FN_EINVAL, "-o: path too long");
+    return 0;
+}
+
+int cmd_reduce(int argc, char **argv)
+{
+    if (cmd_wants_help(argc, argv)) {
+        usage(stdout);
+        return 0;
+    }
+    args A = {0};
+    reduce_defaults(&A.o);
+    int rc = parse(argc, argv, &A);
+    if (rc)
+        return rc;
+    fcase *c = case_load(A.dir);
+    if (!c) {
+        fprintf(stderr, "fracnav reduce: %s\n", fn_err_msg());
+        return 1;
+    }
+    int fixed, mv[256 + 1], nmv;
+    int *mvp = A.nmoving ? mv : malloc((size_t)c->nfrag * sizeof *mvp);
+    reduce_result *res = NULL;
+    if (!mvp) {
+        fprintf(stderr, "fracnav reduce: out of memory\n");
+        case_free(c);
+        return 1;
+    }
+    if ((rc = pick(c, &A, &fixed, mvp, &nmv)) != 0)
+        goto done;
+    if (cmd_tau_apply(&A.tau, &c->tau_min, &c->tau_max) < 0) {
+        rc = cmd_usage_error("reduce", "%s", fn_err_msg());
+        goto done;
+    }
+    A.o.tau_min = c->tau_min;
+    A.o.tau_max = c->tau_max;
+    if (isatty(STDERR_FILENO))
+        A.o.progress = progress;
+    res = calloc((size_t)nmv, sizeof *res);
+    struct timespec t0, t1;
+    clock_gettime(CLOCK_MONOTONIC, &t0);
+    int err = res ? reduce_case(c, fixed, mvp, nmv, &A.o, res) : fn_err_set(FN_ENOMEM, "out of memory");
+    clock_gettime(CLOCK_MONOTONIC, &t1);
+    if (A.o.progress)
+        fprintf(stderr, "\n");
+    if (err == 0)
+        err = reduce_store(c, fixed, &A.o, res, nmv);
+    if (err == 0 && A.out)
+        err = retarget(c, A.out);
+    if (err == 0)
+        err = case_save(c);
+    if (err < 0) {
+        fprintf(stderr, "fracnav reduce: %s\n", fn_err_msg());
+        rc = 1;
+        goto done;
+    }
+    double secs = (double)(t1.tv_sec - t0.tv_sec) + 1e-9 * (double)(t1.tv_nsec - t0.tv_nsec);
+    if (report(c, &A, fixed, res, nmv, secs) < 0) {
+        fprintf(stderr, "fracnav reduce: %s\n", fn_err_msg());
+        rc = 1;
+    }
+done:
+    for (int i = 0; res && i < nmv; i++)
+        reduce_result_free(&res[i]);
+    free(res);
+    if (mvp != mv)
+        free(mvp);
+    case_free(c);
+    return rc;
+}

@@ -1,0 +1,179 @@
+/* reduce: automatic fracture reduction. The VOI metric of the paper, principal-axis pre-alignment,
+ * and the optimizer driver (our Powell, or NLopt's PRAXIS, SBPLX, BOBYQA) that fits one moving
+ * fragment to a fixed assembly, then every fragment of a case in contact-area order.
+ *
+ * The metric (paper section 6): over a VOI, (2 n_I - n_1 - n_2) / n_VOI, with n_1 the assembly's
+ * voxels in the VOI, n_2 the moving fragment's, n_I those of both. Lower is better: the VOI filled,
+ * overlap penalised. Counting grid: the VOI cells are the cells of the first assembly fragment's
+ * own voxel grid (at its current pose) whose index box bounds the VOI's world box (reduce_voi_cells),
+ * so the fixed fragment enters exactly, never resampled; other assembly fragments are sampled there
+ * (nearest). Each moving voxel (prob > 0) is carried into that grid by the poses and counted there:
+ *  - nearest: at the cell nearest its centre;
+ *  - trilinear (partial volume): with the trilinear weights of the eight cells around it, so
+ *    n_2 and n_I change continuously with the pose and line searches do not stall on plateaus.
+ * The band (band_mm > 0): only the VOI cells within band_mm of the assembly's bone (per axis, a
+ * box of whole cells) count, for n_VOI and n_2 alike. A box VOI around a thin bone (a skull) is
+ * mostly empty, and the paper's count then prefers any pose that crams more of the moving
+ * fragment into that space over the fit; the band keeps the count to where the fragments meet.
+ * band_mm = 0 is the paper's box.
+ * A moving voxel counts in units of the grid's voxel volume (the ratio of the two voxel volumes;
+ * 1 for fragments of one CT). Empty space is skipped by 8^3 bricks of the moving fragment, each
+ * with its runs of bone voxels along i, culled against the VOI by a bounding sphere.
+ *
+ * Parameters of the fit (6): translation in world mm, and the rotation vector about the moving
+ * fragment's centroid (at the start pose) times a radius r (the RMS distance of its voxels in the
+ * VOI from that centroid), so a unit step of either kind moves the fracture surface about 1 mm.
+ *
+ * Threads: a reduce_metric is read-only once made; evaluations from several threads are safe.
+ * Errors: see err.h. */
+#ifndef FN_REDUCE_H
+#define FN_REDUCE_H
+
+#include "frag.h"
+#include "pose.h"
+
+#include <stddef.h>
+
+struct obb_tree;
+struct fcase;
+
+typedef enum { REDUCE_POWELL, REDUCE_PRAXIS, REDUCE_SBPLX, REDUCE_BOBYQA, REDUCE_METHODS } reduce_method;
+typedef enum { REDUCE_TRILINEAR, REDUCE_NEAREST } reduce_count;
+
+/* "powell", "praxis", "sbplx", "bobyqa"; and back (-1 unknown). */
+const char *reduce_method_name(reduce_method m);
+int reduce_method_parse(const char *s);
+
+/* A box in world LPS mm, lo < hi on every axis. */
+typedef struct reduce_voi {
+    double lo[3], hi[3];
+} reduce_voi;
+
+/* The VOI cells: the index box [c0, c1] (inclusive) of grid's voxel grid (at grid's current pose)
+ * that bounds the world box: c0 = ceil, c1 = floor of the corners' indices. 0, or FN_EINVAL when
+ * the box holds no cell centre. */
+int reduce_voi_cells(const frag *grid, const reduce_voi *voi, int c0[3], int c1[3]);
+
+typedef struct reduce_counts {
+    double n1, n2, ni, nvoi;
+} reduce_counts;
+
+static inline double reduce_counts_metric(const reduce_counts *c)
+{
+    return c->nvoi > 0 ? (2 * c->ni - c->n1 - c->n2) / c->nvoi : 0;
+}
+
+typedef struct reduce_metric reduce_metric;
+/* The metric of moving against the assembly asm_[0..nasm-1] (asm_[0] gives the grid) over voi, at
+ * their current poses (the moving fragment's pose is given per evaluation). The fragments must
+ * outlive it only during the call: it copies what it needs. NULL with fn_err (FN_EINVAL: empty VOI
+ * or no fragment, FN_ENOMEM). */
+reduce_metric *reduce_metric_new(const frag *const *asm_, int nasm, const frag *moving,
+                                 const reduce_voi *voi, reduce_count mode, double band_mm);
+void reduce_metric_free(reduce_metric *m);
+/* The metric with the moving fragment at pose p (home world -> world). Allocates nothing. */
+double reduce_metric_eval(const reduce_metric *m, const pose *p, reduce_counts *counts);
+/* Moving voxels (prob > 0) carried into the VOI at pose p (nearest), and their RMS distance from
+ * point c (world mm); for the parameter scale. */
+double reduce_metric_radius(const reduce_metric *m, const pose *p, const double c[3]);
+/* The same counts by brute force: every voxel of the moving fragment carried through each pose in
+ * turn (pose_apply), every VOI cell of the grid visited. Slow: for tests. */
+double reduce_metric_brute(const frag *const *asm_, int nasm, const frag *moving, const pose *p,
+                           const reduce_voi *voi, reduce_count mode, double band_mm, reduce_counts *counts);
+
+/* The contact zone of moving (at its pose) with the assembly: the world box around the voxels of
+ * either side that lie within delta_mm of the other, grown by margin_mm. delta doubles (from
+ * delta_mm up to 64 mm) until some voxel is that close. *contact_ml: the moving fragment's volume
+ * within the final delta (the order of reduction follows it). max_mm > 0: a side longer than
+ * that is cut to max_mm around the centroid of the moving fragment's contact voxels. 0, or FN_EINVAL when nothing comes
+ * within 64 mm, or FN_ENOMEM. */
+int reduce_auto_voi(const frag *const *asm_, int nasm, const frag *moving, double delta_mm,
+                    double margin_mm, double max_mm, reduce_voi *voi, double *contact_ml);
+
+typedef void (*reduce_progress_fn)(void *ctx, int id, int iter, int evals, double f, double seconds);
+
+typedef struct reduce_opts {
+    reduce_method method;
+    reduce_count count;
+    int prealign;        /* 1: principal-axis pre-alignment first, for a fragment more than 10 mm
+                          * from the assembly (nearer, it counts as placed by hand) */
+    int has_voi;         /* 1: voi below for every fragment; 0: automatic (reduce_auto_voi) */
+    reduce_voi voi;
+    double tau_min, tau_max; /* the hierarchy's thresholds (the case's) */
+    double tolerance_mm; /* collision tolerance of the final check (obb.h); at most 0.45 times the
+                          * smallest voxel spacing is used */
+    double xtol_mm;      /* convergence: a step that moves the surface less than this (5 times
+                          * that in the first of two stages) */
+    int max_eval;        /* evaluations per fragment (both stages together) */
+    double voi_max_mm;   /* automatic VOI: the longest side (reduce_auto_voi's max_mm) */
+    double band_mm;      /* the metric's band (0: the whole box) */
+    int starts;          /* the first stage's starts: the start, then turned +-8 degrees about
+                          * the principal axes in turn; the best fit wins */
+    double trust_mm, trust_deg; /* the fit stays this close to the start (after pre-alignment):
+                          * centroid distance and rotation angle */
+    reduce_progress_fn progress; /* after each iteration; may be NULL */
+    void *progress_ctx;
+} reduce_opts;
+
+/* PRAXIS (the most successful in `fracnav bench reduce`), trilinear, a 1 mm band, pre-alignment on,
+ * automatic VOI of any size, 3 first-stage starts, trust 12 mm / 18 degrees, tau 0.5/0.95,
+ * tolerance 0.5 mm, xtol 0.01 mm, 4000 evaluations. */
+void reduce_defaults(reduce_opts *o);
+
+typedef struct reduce_result {
+    int id;               /* the moving fragment's label */
+    pose placed;          /* its pose before (as the user left it) */
+    pose start;           /* after pre-alignment (= placed without it) */
+    pose fitted;          /* what the optimizer found, before any push out of collision */
+    pose end;             /* the result */
+    reduce_voi voi;
+    int prealigned;       /* 1: pre-alignment chose a pose other than placed */
+    int iterations;       /* Powell: iterations; NLopt: improvements of the best value */
+    int evaluations;
+    double seconds;
+    double metric_start;  /* at start, over voi */
+    double metric_end;
+    double push_mm;       /* how far the collision check pushed the result out (0: not at all) */
+    int collides;         /* 1 only when no collision-free pose could be found (then end = start) */
+    double *history;      /* metric per iteration, nhistory values; malloc'd */
+    int nhistory;
+} reduce_result;
+
+void reduce_result_free(reduce_result *r);
+
+/* Pre-alignment (paper Fig. 5), inside reduce_pair: the moving fragment's long axis onto the
+ * assembly's first fragment's (both signs), its centroid on that axis, slid along it (from either
+ * end) to contact by the collision query and turned about it in 30 degree steps; the candidate of
+ * best metric over the overlap of the two boxes wins, the placed pose included. */
+
+/* Fits moving (from its current pose) to the assembly: pre-alignment when o->prealign, then, with an
+ * automatic VOI, two stages: the optimizer over the contact zone where the fragment starts, then
+ * again over the tighter zone where that ended, with colliding poses refused (costed); a given VOI
+ * gets one stage, with that refusal. A result that still collides beyond the tolerance is pushed
+ * out along the contact normal (up to 5 mm), else the start is kept. Sets moving->pose = r->end.
+ * 0 or FN_E*. */
+int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_opts *o, reduce_result *r);
+
+/* Reduces the case's fragments: fixed (index) stays, the moving ones (indices; NULL = all others)
+ * are fitted one by one against the growing assembly, the one of largest contact first. r has
+ * room for nmoving results (filled in the order done). Sets their poses. 0 or FN_E*. */
+int reduce_case(struct fcase *c, int fixed, const int *moving, int nmoving, const reduce_opts *o,
+                reduce_result *r);
+
+/* With ground truth: the errors of fragment mi's pose relative to fixed fi against the truth:
+ * rotation (degrees), the moving centroid's displacement (mm), and the RMS displacement (TRE, mm)
+ * over its fracture-surface voxels (within 1.5 voxels of the fixed fragment in the true pose; all
+ * its voxels when none). 0 or FN_EINVAL (no truth). */
+int reduce_truth_errors(const struct fcase *c, int fi, int mi, double *rot_deg, double *trans_mm,
+                        double *tre_mm);
+
+/* The errors of m's pose against want (its true pose, for f where it is now): as above. */
+void reduce_errors(const frag *f, const frag *m, const pose *want, double *rot_deg, double *trans_mm,
+                   double *tre_mm);
+
+/* Stores the results in c->extra as "reduction": {method, counting, fixed, fragments: [{id, voi,
+ * placed, start, end, iterations, evaluations, seconds, metric_start, metric_end, push_mm,
+ * history}]}, replacing an earlier one. 0 or FN_ENOMEM. */
+int reduce_store(struct fcase *c, int fixed, const reduce_opts *o, const reduce_result *r, int n);
+
+#endif

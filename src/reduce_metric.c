@@ -1,0 +1,590 @@
+/* reduce_metric: the VOI metric (see reduce.h), fast and by brute force, and the automatic VOI. */
+#include "reduce.h"
+#include "reduce_impl.h"
+
+#include "err.h"
+
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define BRICK 8
+
+int reduce_voi_cells(const frag *grid, const reduce_voi *voi, int c0[3], int c1[3])
+{
+    pose inv = pose_inverse(pose_compose(grid->pose, grid->home));
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (int corner = 0; corner < 8; corner++) {
+        double w[3], l[3];
+        for (int a = 0; a < 3; a++)
+            w[a] = corner >> a & 1 ? voi->hi[a] : voi->lo[a];
+        pose_apply(&inv, w, l);
+        for (int a = 0; a < 3; a++) {
+            lo[a] = fmin(lo[a], l[a] / grid->spacing[a]);
+            hi[a] = fmax(hi[a], l[a] / grid->spacing[a]);
+        }
+    }
+    for (int a = 0; a < 3; a++) {
+        if (!(voi->lo[a] < voi->hi[a]) || !isfinite(lo[a]) || !isfinite(hi[a]) || hi[a] - lo[a] > 4096)
+            return fn_err_set(FN_EINVAL, "VOI: bad box on axis %d (%g .. %g mm)", a, voi->lo[a], voi->hi[a]);
+        c0[a] = (int)ceil(lo[a] - 1e-9);
+        c1[a] = (int)floor(hi[a] + 1e-9);
+        if (c1[a] < c0[a])
+            return fn_err_set(FN_EINVAL, "VOI: the box holds no voxel centre on axis %d", a);
+    }
+    return 0;
+}
+
+/* The assembly's bone at world point w: 1 when some fragment has a bone voxel nearest to it. */
+static int bone_at(const frag *const *asm_, int nasm, const double w[3])
+{
+    for (int f = 0; f < nasm; f++) {
+        const frag *g = asm_[f];
+        pose inv = pose_inverse(pose_compose(g->pose, g->home));
+        double l[3];
+        pose_apply(&inv, w, l);
+        int idx[3], in = 1;
+        for (int a = 0; a < 3 && in; a++) {
+            idx[a] = (int)floor(l[a] / g->spacing[a] + 0.5);
+            in = idx[a] >= 0 && idx[a] < g->dim[a];
+        }
+        if (in && g->prob[((size_t)idx[2] * g->dim[1] + idx[1]) * g->dim[0] + idx[0]])
+            return 1;
+    }
+    return 0;
+}
+
+/* Bone of the VOI cell (i, j, k) (0-based in the VOI): the grid fragment's own voxel when it has
+ * one there, else the others sampled. */
+static int cell_bone(const frag *const *asm_, int nasm, const int c0[3], int i, int j, int k)
+{
+    const frag *g = asm_[0];
+    int l[3] = {c0[0] + i, c0[1] + j, c0[2] + k};
+    if (l[0] >= 0 && l[1] >= 0 && l[2] >= 0 && l[0] < g->dim[0] && l[1] < g->dim[1] && l[2] < g->dim[2] &&
+        g->prob[((size_t)l[2] * g->dim[1] + l[1]) * g->dim[0] + l[0]])
+        return 1;
+    if (nasm < 2)
+        return 0;
+    double h[3], w[3], x[3] = {l[0] * g->spacing[0], l[1] * g->spacing[1], l[2] * g->spacing[2]};
+    pose_apply(&g->home, x, h);
+    pose_apply(&g->pose, h, w);
+    return bone_at(asm_ + 1, nasm - 1, w);
+}
+
+void reduce__bricks_free(reduce_bricks *b)
+{
+    if (b) {
+        free(b->brick);
+        free(b->run);
+        free(b);
+    }
+}
+
+static int push_run(reduce_bricks *b, size_t *cap, int i0, int len, int j, int k)
+{
+    if (b->nrun == *cap) {
+        size_t nc = *cap ? 2 * *cap : 1024;
+        reduce_run *r = realloc(b->run, nc * sizeof *r);
+        if (!r)
+            return FN_ENOMEM;
+        b->run = r;
+        *cap = nc;
+    }
+    b->run[b->nrun++] = (reduce_run){(uint16_t)i0, (uint16_t)len, (uint16_t)j, (uint16_t)k};
+    return 0;
+}
+
+reduce_bricks *reduce__bricks_new(const frag *m)
+{
+    reduce_bricks *b = calloc(1, sizeof *b);
+    int nb[3];
+    for (int a = 0; a < 3; a++)
+        nb[a] = (m->dim[a] + BRICK - 1) / BRICK;
+    size_t total = (size_t)nb[0] * nb[1] * nb[2], cap = 0;
+    if (!b || m->dim[0] > 65535 || m->dim[1] > 65535 || m->dim[2] > 65535 ||
+        !(b->brick = calloc(total ? total : 1, sizeof *b->brick))) {
+        reduce__bricks_free(b);
+        fn_err_set(FN_ENOMEM, "reduce: out of memory for the bricks of fragment %d", m->id);
+        return NULL;
+    }
+    for (int a = 0; a < 3; a++)
+        b->spacing[a] = m->spacing[a];
+    b->home = m->home;
+    double half = 0.5 * BRICK * sqrt(m->spacing[0] * m->spacing[0] + m->spacing[1] * m->spacing[1] +
+                                     m->spacing[2] * m->spacing[2]);
+    for (int bk = 0; bk < nb[2]; bk++)
+        for (int bj = 0; bj < nb[1]; bj++)
+            for (int bi = 0; bi < nb[0]; bi++) {
+                reduce_brick *br = &b->brick[b->nbrick];
+                br->first = b->nrun;
+                int i1 = bi * BRICK + BRICK < m->dim[0] ? bi * BRICK + BRICK : m->dim[0];
+                for (int k = bk * BRICK; k < bk * BRICK + BRICK && k < m->dim[2]; k++)
+                    for (int j = bj * BRICK; j < bj * BRICK + BRICK && j < m->dim[1]; j++) {
+                        const uint8_t *row = m->prob + ((size_t)k * m->dim[1] + j) * m->dim[0];
+                        for (int i = bi * BRICK; i < i1;) {
+                            if (!row[i]) {
+                                i++;
+                                continue;
+                            }
+                            int s = i;
+                            while (i < i1 && row[i])
+                                i++;
+                            if (push_run(b, &cap, s, i - s, j, k) < 0) {
+                                reduce__bricks_free(b);
+                                fn_err_set(FN_ENOMEM, "reduce: out of memory for the runs of fragment %d", m->id);
+                                return NULL;
+                            }
+                            b->voxels += (size_t)(i - s);
+                        }
+                    }
+                br->n = (int)(b->nrun - br->first);
+                if (br->n == 0)
+                    continue;
+                br->c[0] = (float)(bi * BRICK + 0.5 * (BRICK - 1));
+                br->c[1] = (float)(bj * BRICK + 0.5 * (BRICK - 1));
+                br->c[2] = (float)(bk * BRICK + 0.5 * (BRICK - 1));
+                br->r_mm = (float)half;
+                b->nbrick++;
+            }
+    return b;
+}
+
+void reduce_metric_free(reduce_metric *m)
+{
+    if (m) {
+        free(m->cell);
+        free(m->bsum);
+        if (m->own_bricks)
+            reduce__bricks_free(m->b);
+        free(m);
+    }
+}
+
+/* The band: per axis, the number of cells within band_mm (0: the whole box counts). */
+static void band_cells(const double sg[3], double band_mm, int k[3])
+{
+    for (int a = 0; a < 3; a++)
+        k[a] = band_mm > 0 ? (int)floor(band_mm / sg[a] + 1e-9) : -1;
+}
+
+/* v[cell] = 1 where some bone cell of bone[] lies within k cells on every axis (a box); v and bone
+ * span d[0]*d[1]*d[2] cells. Separable: one sliding window count per axis. */
+static int dilate_box(const uint8_t *bone, uint8_t *v, const int d[3], const int k[3])
+{
+    size_t n = (size_t)d[0] * d[1] * d[2];
+    uint8_t *tmp = malloc(n);
+    if (!tmp)
+        return FN_ENOMEM;
+    memcpy(v, bone, n);
+    size_t stride[3] = {1, (size_t)d[0], (size_t)d[0] * d[1]};
+    for (int a = 0; a < 3; a++) {
+        memcpy(tmp, v, n);
+        for (size_t base = 0; base < n; base++) {
+            if ((base / stride[a]) % (size_t)d[a])
+                continue;
+            int count = 0;
+            for (int i = 0; i < k[a] && i < d[a]; i++)
+                count += tmp[base + (size_t)i * stride[a]];
+            for (int i = 0; i < d[a]; i++) {
+                if (i + k[a] < d[a])
+                    count += tmp[base + (size_t)(i + k[a]) * stride[a]];
+                if (i - k[a] - 1 >= 0)
+                    count -= tmp[base + (size_t)(i - k[a] - 1) * stride[a]];
+                v[base + (size_t)i * stride[a]] = count > 0;
+            }
+        }
+    }
+    free(tmp);
+    return 0;
+}
+
+/* Which blocks of the padded raster hold a counted cell, as a summed-volume table, so that a
+ * brick whose reach holds none (the moving bone far from the fixed bone) is skipped in O(1). */
+static int block_table(reduce_metric *m)
+{
+    const int B = REDUCE_BLOCK;
+    for (int a = 0; a < 3; a++)
+        m->nb[a] = (m->D[a] + B - 1) / B;
+    size_t s0 = (size_t)m->nb[0] + 1, s1 = (size_t)m->nb[1] + 1;
+    m->bsum = calloc(s0 * s1 * ((size_t)m->nb[2] + 1), sizeof *m->bsum);
+    if (!m->bsum)
+        return FN_ENOMEM;
+    for (int k = 0; k < m->D[2]; k++)
+        for (int j = 0; j < m->D[1]; j++)
+            for (int i = 0; i < m->D[0]; i++)
+                if (m->cell[((size_t)k * m->D[1] + j) * m->D[0] + i].v > 0)
+                    m->bsum[((size_t)(k / B + 1) * s1 + (size_t)(j / B + 1)) * s0 + (size_t)(i / B + 1)] = 1;
+    for (int k = 1; k <= m->nb[2]; k++) /* prefix sums along each axis in turn */
+        for (int j = 1; j <= m->nb[1]; j++)
+            for (int i = 1; i <= m->nb[0]; i++) {
+                uint32_t *c = &m->bsum[((size_t)k * s1 + (size_t)j) * s0 + (size_t)i];
+                *c += c[-1];
+            }
+    for (int k = 1; k <= m->nb[2]; k++)
+        for (int j = 1; j <= m->nb[1]; j++)
+            for (int i = 1; i <= m->nb[0]; i++)
+                m->bsum[((size_t)k * s1 + (size_t)j) * s0 + (size_t)i] += m->bsum[((size_t)k * s1 + (size_t)(j - 1)) * s0 + (size_t)i];
+    for (int k = 1; k <= m->nb[2]; k++)
+        for (int j = 1; j <= m->nb[1]; j++)
+            for (int i = 1; i <= m->nb[0]; i++)
+                m->bsum[((size_t)k * s1 + (size_t)j) * s0 + (size_t)i] += m->bsum[((size_t)(k - 1) * s1 + (size_t)j) * s0 + (size_t)i];
+    return 0;
+}
+
+/* Counted blocks among blocks [lo, hi] (inclusive). */
+static uint32_t blocks_counted(const reduce_metric *m, const int lo[3], const int hi[3])
+{
+    size_t s0 = (size_t)m->nb[0] + 1, s1 = (size_t)m->nb[1] + 1;
+#define S(i, j, k) m->bsum[((size_t)(k) * s1 + (size_t)(j)) * s0 + (size_t)(i)]
+    int a0 = lo[0], a1 = hi[0] + 1, b0 = lo[1], b1 = hi[1] + 1, c0 = lo[2], c1 = hi[2] + 1;
+    return S(a1, b1, c1) - S(a0, b1, c1) - S(a1, b0, c1) - S(a1, b1, c0) + S(a0, b0, c1) + S(a0, b1, c0) +
+           S(a1, b0, c0) - S(a0, b0, c0);
+#undef S
+}
+
+reduce_metric *reduce__metric_with(const frag *const *asm_, int nasm, const frag *moving, reduce_bricks *b,
+                                   const reduce_voi *voi, reduce_count mode, double band_mm)
+{
+    if (!asm_ || nasm < 1 || !moving || !voi) {
+        fn_err_set(FN_EINVAL, "reduce metric: no fragment or VOI");
+        return NULL;
+    }
+    reduce_metric *m = calloc(1, sizeof *m);
+    if (!m) {
+        fn_err_set(FN_ENOMEM, "reduce metric: out of memory");
+        return NULL;
+    }
+    m->mode = mode;
+    m->b = b;
+    const frag *g = asm_[0];
+    int c1[3];
+    if (reduce_voi_cells(g, voi, m->c0, c1) < 0) {
+        free(m);
+        return NULL;
+    }
+    for (int a = 0; a < 3; a++) {
+        m->d[a] = c1[a] - m->c0[a] + 1;
+        m->D[a] = m->d[a] + 2;
+        m->sg[a] = g->spacing[a];
+    }
+    size_t nv = (size_t)m->d[0] * m->d[1] * m->d[2];
+    m->cell = calloc((size_t)m->D[0] * m->D[1] * m->D[2], sizeof *m->cell);
+    uint8_t *bone = calloc(nv, 1), *in = malloc(nv);
+    if (!m->cell || !bone || !in) {
+        fn_err_set(FN_ENOMEM, "reduce metric: out of memory for a %dx%dx%d VOI", m->d[0], m->d[1], m->d[2]);
+        free(bone);
+        free(in);
+        reduce_metric_free(m);
+        return NULL;
+    }
+    double sum[3] = {0, 0, 0};
+    size_t idx = 0;
+    for (int k = 0; k < m->d[2]; k++)
+        for (int j = 0; j < m->d[1]; j++)
+            for (int i = 0; i < m->d[0]; i++, idx++)
+                if ((bone[idx] = (uint8_t)cell_bone(asm_, nasm, m->c0, i, j, k))) {
+                    m->n1 += 1;
+                    sum[0] += i, sum[1] += j, sum[2] += k;
+                }
+    int kb[3];
+    band_cells(m->sg, band_mm, kb);
+    if (kb[0] < 0)
+        memset(in, 1, nv);
+    else if (dilate_box(bone, in, m->d, kb) < 0) {
+        fn_err_set(FN_ENOMEM, "reduce metric: out of memory for the band");
+        free(bone);
+        free(in);
+        reduce_metric_free(m);
+        return NULL;
+    }
+    idx = 0;
+    for (int k = 0; k < m->d[2]; k++)
+        for (int j = 0; j < m->d[1]; j++)
+            for (int i = 0; i < m->d[0]; i++, idx++) {
+                reduce_cell *c = &m->cell[((size_t)(k + 1) * m->D[1] + j + 1) * m->D[0] + i + 1];
+                c->v = in[idx];
+                c->a = bone[idx];
+                m->nvoi += in[idx];
+            }
+    free(bone);
+    free(in);
+    if (block_table(m) < 0) {
+        fn_err_set(FN_ENOMEM, "reduce metric: out of memory for the block table");
+        reduce_metric_free(m);
+        return NULL;
+    }
+    m->grid_inv = pose_inverse(pose_compose(g->pose, g->home));
+    m->grid_world = pose_compose(g->pose, g->home);
+    double l[3];
+    for (int a = 0; a < 3; a++)
+        l[a] = m->n1 > 0 ? (m->c0[a] + sum[a] / m->n1) * m->sg[a] : (m->c0[a] + 0.5 * (m->d[a] - 1)) * m->sg[a];
+    pose_apply(&m->grid_world, l, m->fixed_centre);
+    m->w = moving->spacing[0] * moving->spacing[1] * moving->spacing[2] / (m->sg[0] * m->sg[1] * m->sg[2]);
+    return m;
+}
+
+reduce_metric *reduce_metric_new(const frag *const *asm_, int nasm, const frag *moving, const reduce_voi *voi,
+                                 reduce_count mode, double band_mm)
+{
+    if (!moving) {
+        fn_err_set(FN_EINVAL, "reduce metric: no moving fragment");
+        return NULL;
+    }
+    reduce_bricks *b = reduce__bricks_new(moving);
+    if (!b)
+        return NULL;
+    reduce_metric *m = reduce__metric_with(asm_, nasm, moving, b, voi, mode, band_mm);
+    if (!m)
+        reduce__bricks_free(b);
+    else
+        m->own_bricks = 1;
+    return m;
+}
+
+/* Moving crop index -> VOI cell coordinates (0 = the first VOI cell): x = M u + T. */
+static void carry(const reduce_metric *m, const pose *p, double M[3][3], double T[3])
+{
+    pose rel = pose_compose(m->grid_inv, pose_compose(*p, m->b->home));
+    double R[3][3];
+    pose_to_matrix(&rel, R);
+    for (int a = 0; a < 3; a++) {
+        for (int c = 0; c < 3; c++)
+            M[a][c] = R[a][c] * m->b->spacing[c] / m->sg[a];
+        T[a] = rel.t[a] / m->sg[a] - m->c0[a];
+    }
+}
+
+/* The bricks whose bounding sphere can reach the VOI (lo_pad below cell 0, hi_pad above d-1). */
+static int brick_visible(const reduce_metric *m, const reduce_brick *br, double M[3][3], const double T[3],
+                         double pad)
+{
+    double smin = fmin(m->sg[0], fmin(m->sg[1], m->sg[2])), r = br->r_mm / smin + pad;
+    int lo[3], hi[3];
+    for (int a = 0; a < 3; a++) {
+        double x = M[a][0] * br->c[0] + M[a][1] * br->c[1] + M[a][2] * br->c[2] + T[a];
+        if (x < -r || x > m->d[a] - 1 + r)
+            return 0;
+        /* padded cells x - r - 1 .. x + r + 2 hold every cell a voxel of the brick can weigh */
+        int p0 = (int)floor(x - r) , p1 = (int)ceil(x + r) + 2;
+        p0 = p0 < 0 ? 0 : p0;
+        p1 = p1 > m->D[a] - 1 ? m->D[a] - 1 : p1;
+        lo[a] = p0 / REDUCE_BLOCK;
+        hi[a] = p1 / REDUCE_BLOCK;
+    }
+    return blocks_counted(m, lo, hi) > 0;
+}
+
+/* Whether a run from (x, y, z) with len voxels can weigh a counted cell (the block table again,
+ * at the run's reach): most runs of a visible brick lie away from the fixed bone. */
+static int run_visible(const reduce_metric *m, double M[3][3], double x, double y, double z, int len)
+{
+    double p[3] = {x, y, z}, q[3] = {x + (len - 1) * M[0][0], y + (len - 1) * M[1][0], z + (len - 1) * M[2][0]};
+    int lo[3], hi[3];
+    for (int a = 0; a < 3; a++) {
+        double l = fmin(p[a], q[a]), h = fmax(p[a], q[a]);
+        if (h <= -1 || l >= m->d[a])
+            return 0;
+        int p0 = (int)floor(l), p1 = (int)floor(h) + 2; /* padded cells floor(l)+1 .. floor(h)+2 */
+        p0 = p0 < 0 ? 0 : p0;
+        p1 = p1 > m->D[a] - 1 ? m->D[a] - 1 : p1;
+        lo[a] = p0 / REDUCE_BLOCK;
+        hi[a] = p1 / REDUCE_BLOCK;
+    }
+    return blocks_counted(m, lo, hi) > 0;
+}
+
+static void eval_trilinear(const reduce_metric *m, double M[3][3], const double T[3], double *n2, double *ni)
+{
+    const int d0 = m->d[0], d1 = m->d[1], d2 = m->d[2];
+    const size_t sy = (size_t)m->D[0], sz = (size_t)m->D[0] * m->D[1];
+    double s2 = 0, si = 0;
+    for (int bi = 0; bi < m->b->nbrick; bi++) {
+        const reduce_brick *br = &m->b->brick[bi];
+        if (!brick_visible(m, br, M, T, 1))
+            continue;
+        for (int r = br->first; r < br->first + br->n; r++) {
+            const reduce_run *run = &m->b->run[r];
+            double x = M[0][0] * run->i0 + M[0][1] * run->j + M[0][2] * run->k + T[0];
+            double y = M[1][0] * run->i0 + M[1][1] * run->j + M[1][2] * run->k + T[1];
+            double z = M[2][0] * run->i0 + M[2][1] * run->j + M[2][2] * run->k + T[2];
+            if (!run_visible(m, M, x, y, z, run->len))
+                continue;
+            for (int n = 0; n < run->len; n++, x += M[0][0], y += M[1][0], z += M[2][0]) {
+                if (!(x > -1 && y > -1 && z > -1 && x < d0 && y < d1 && z < d2))
+                    continue;
+                int i = (int)(x + 1) - 1, j = (int)(y + 1) - 1, k = (int)(z + 1) - 1;
+                float fx = (float)(x - i), fy = (float)(y - j), fz = (float)(z - k);
+                const reduce_cell *c = m->cell + (size_t)(k + 1) * sz + (size_t)(j + 1) * sy + (size_t)(i + 1);
+                /* v and a interpolated together, as pairs */
+                float v00 = c[0].v + fx * (c[1].v - c[0].v), a00 = c[0].a + fx * (c[1].a - c[0].a);
+                float v10 = c[sy].v + fx * (c[sy + 1].v - c[sy].v), a10 = c[sy].a + fx * (c[sy + 1].a - c[sy].a);
+                float v01 = c[sz].v + fx * (c[sz + 1].v - c[sz].v), a01 = c[sz].a + fx * (c[sz + 1].a - c[sz].a);
+                float v11 = c[sz + sy].v + fx * (c[sz + sy + 1].v - c[sz + sy].v);
+                float a11 = c[sz + sy].a + fx * (c[sz + sy + 1].a - c[sz + sy].a);
+                float v0 = v00 + fy * (v10 - v00), v1 = v01 + fy * (v11 - v01);
+                float a0 = a00 + fy * (a10 - a00), a1 = a01 + fy * (a11 - a01);
+                s2 += v0 + fz * (v1 - v0);
+                si += a0 + fz * (a1 - a0);
+            }
+        }
+    }
+    *n2 = s2;
+    *ni = si;
+}
+
+static void eval_nearest(const reduce_metric *m, double M[3][3], const double T[3], double *n2, double *ni)
+{
+    const double e0 = m->d[0] - 0.5, e1 = m->d[1] - 0.5, e2 = m->d[2] - 0.5;
+    const size_t sy = (size_t)m->D[0], sz = (size_t)m->D[0] * m->D[1];
+    double s2 = 0, si = 0;
+    for (int bi = 0; bi < m->b->nbrick; bi++) {
+        const reduce_brick *br = &m->b->brick[bi];
+        if (!brick_visible(m, br, M, T, 1))
+            continue;
+        for (int r = br->first; r < br->first + br->n; r++) {
+            const reduce_run *run = &m->b->run[r];
+            double x = M[0][0] * run->i0 + M[0][1] * run->j + M[0][2] * run->k + T[0];
+            double y = M[1][0] * run->i0 + M[1][1] * run->j + M[1][2] * run->k + T[1];
+            double z = M[2][0] * run->i0 + M[2][1] * run->j + M[2][2] * run->k + T[2];
+            for (int n = 0; n < run->len; n++, x += M[0][0], y += M[1][0], z += M[2][0]) {
+                if (!(x >= -0.5 && y >= -0.5 && z >= -0.5 && x < e0 && y < e1 && z < e2))
+                    continue;
+                int i = (int)(x + 0.5), j = (int)(y + 0.5), k = (int)(z + 0.5);
+                const reduce_cell *c = m->cell + (size_t)(k + 1) * sz + (size_t)(j + 1) * sy + (size_t)(i + 1);
+                s2 += c->v;
+                si += c->a;
+            }
+        }
+    }
+    *n2 = s2;
+    *ni = si;
+}
+
+double reduce_metric_eval(const reduce_metric *m, const pose *p, reduce_counts *counts)
+{
+    double M[3][3], T[3], n2, ni;
+    carry(m, p, M, T);
+    if (m->mode == REDUCE_NEAREST)
+        eval_nearest(m, M, T, &n2, &ni);
+    else
+        eval_trilinear(m, M, T, &n2, &ni);
+    reduce_counts c = {m->n1, n2 * m->w, ni * m->w, m->nvoi};
+    if (counts)
+        *counts = c;
+    return reduce_counts_metric(&c);
+}
+
+double reduce_metric_radius(const reduce_metric *m, const pose *p, const double c[3])
+{
+    double M[3][3], T[3], s = 0;
+    size_t n = 0;
+    carry(m, p, M, T);
+    for (int bi = 0; bi < m->b->nbrick; bi++) {
+        const reduce_brick *br = &m->b->brick[bi];
+        if (!brick_visible(m, br, M, T, 1))
+            continue;
+        for (int r = br->first; r < br->first + br->n; r++) {
+            const reduce_run *run = &m->b->run[r];
+            for (int k = 0; k < run->len; k++) {
+                double u[3] = {run->i0 + k, run->j, run->k}, x[3], l[3], w[3];
+                for (int a = 0; a < 3; a++)
+                    x[a] = M[a][0] * u[0] + M[a][1] * u[1] + M[a][2] * u[2] + T[a];
+                if (x[0] < -0.5 || x[1] < -0.5 || x[2] < -0.5 || x[0] >= m->d[0] - 0.5 ||
+                    x[1] >= m->d[1] - 0.5 || x[2] >= m->d[2] - 0.5)
+                    continue;
+                for (int a = 0; a < 3; a++)
+                    l[a] = (x[a] + m->c0[a]) * m->sg[a];
+                pose_apply(&m->grid_world, l, w);
+                s += (w[0] - c[0]) * (w[0] - c[0]) + (w[1] - c[1]) * (w[1] - c[1]) + (w[2] - c[2]) * (w[2] - c[2]);
+                n++;
+            }
+        }
+    }
+    return n ? sqrt(s / (double)n) : 0;
+}
+
+/* Brute force's band: a bone cell within k cells on every axis, looked for cell by cell. */
+static int in_band(const frag *const *asm_, int nasm, const int c0[3], const int d[3], const int k[3], int i, int j,
+                   int l)
+{
+    if (k[0] < 0)
+        return 1;
+    for (int z = l - k[2]; z <= l + k[2]; z++)
+        for (int y = j - k[1]; y <= j + k[1]; y++)
+            for (int x = i - k[0]; x <= i + k[0]; x++)
+                if (x >= 0 && y >= 0 && z >= 0 && x < d[0] && y < d[1] && z < d[2] &&
+                    cell_bone(asm_, nasm, c0, x, y, z))
+                    return 1;
+    return 0;
+}
+
+double reduce_metric_brute(const frag *const *asm_, int nasm, const frag *moving, const pose *p,
+                           const reduce_voi *voi, reduce_count mode, double band_mm, reduce_counts *counts)
+{
+    const frag *g = asm_[0];
+    int c0[3], c1[3], d[3];
+    if (reduce_voi_cells(g, voi, c0, c1) < 0)
+        return NAN;
+    for (int a = 0; a < 3; a++)
+        d[a] = c1[a] - c0[a] + 1;
+    double n1 = 0, n2 = 0, ni = 0, nvoi = 0;
+    int kb[3];
+    band_cells(g->spacing, band_mm, kb);
+    for (int k = 0; k < d[2]; k++)
+        for (int j = 0; j < d[1]; j++)
+            for (int i = 0; i < d[0]; i++) {
+                n1 += cell_bone(asm_, nasm, c0, i, j, k);
+                nvoi += in_band(asm_, nasm, c0, d, kb, i, j, k);
+            }
+    pose ginv_pose = pose_inverse(g->pose), ginv_home = pose_inverse(g->home);
+    for (int k = 0; k < moving->dim[2]; k++)
+        for (int j = 0; j < moving->dim[1]; j++)
+            for (int i = 0; i < moving->dim[0]; i++) {
+                if (!moving->prob[((size_t)k * moving->dim[1] + j) * moving->dim[0] + i])
+                    continue;
+                double l[3] = {i * moving->spacing[0], j * moving->spacing[1], k * moving->spacing[2]};
+                double h[3], w[3], gh[3], gl[3], x[3];
+                pose_apply(&moving->home, l, h);
+                pose_apply(p, h, w);
+                pose_apply(&ginv_pose, w, gh);
+                pose_apply(&ginv_home, gh, gl);
+                for (int a = 0; a < 3; a++)
+                    x[a] = gl[a] / g->spacing[a] - c0[a];
+                if (mode == REDUCE_NEAREST) {
+                    int c[3], in = 1;
+                    for (int a = 0; a < 3; a++) {
+                        c[a] = (int)floor(x[a] + 0.5);
+                        in &= c[a] >= 0 && c[a] < d[a];
+                    }
+                    if (in && in_band(asm_, nasm, c0, d, kb, c[0], c[1], c[2])) {
+                        n2 += 1;
+                        ni += cell_bone(asm_, nasm, c0, c[0], c[1], c[2]);
+                    }
+                    continue;
+                }
+                /* Trilinear: the eight cells around x, each weighted, inside the VOI only. */
+                int b[3];
+                for (int a = 0; a < 3; a++)
+                    b[a] = (int)floor(x[a]);
+                for (int corner = 0; corner < 8; corner++) {
+                    double wgt = 1;
+                    int c[3], in = 1;
+                    for (int a = 0; a < 3; a++) {
+                        c[a] = b[a] + (corner >> a & 1);
+                        wgt *= corner >> a & 1 ? x[a] - b[a] : 1 - (x[a] - b[a]);
+                        in &= c[a] >= 0 && c[a] < d[a];
+                    }
+                    if (!in || !in_band(asm_, nasm, c0, d, kb, c[0], c[1], c[2]))
+                        continue;
+                    n2 += wgt;
+                    ni += wgt * cell_bone(asm_, nasm, c0, c[0], c[1], c[2]);
+                }
+            }
+    double w = moving->spacing[0] * moving->spacing[1] * moving->spacing[2] /
+               (g->spacing[0] * g->spacing[1] * g->spacing[2]);
+    reduce_counts c = {n1, n2 * w, ni * w, nvoi};
+    if (counts)
+        *counts = c;
+    return reduce_counts_metric(&c);
+}

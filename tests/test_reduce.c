@@ -1,0 +1,461 @@
+/* Automatic reduction: principal axes of analytic shapes, the VOI metric against brute-force
+ * counting, Powell's method on analytic functions, and small synthetic fractures (two and three
+ * pieces) reduced within 1 mm and 1 degree, the result saved and reloaded. */
+#include <stdarg.h>
+#include <stddef.h>
+#include <setjmp.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include "case.h"
+#include "err.h"
+#include "frag.h"
+#include "fracture.h"
+#include "powell.h"
+#include "reduce.h"
+#include "testutil.h"
+
+#include <jansson.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* ---- principal axes ---- */
+
+/* A solid 40x10x6 box turned about z by 30 degrees: its long axis is the turned x axis, its
+ * eigenvalues those of a uniform box, (L^2 - 1) / 12 per side in voxel units. */
+static void test_pca_box(void **st)
+{
+    frag f;
+    int dim[3] = {40, 10, 6};
+    double at[3] = {5, -3, 2};
+    tu_box_frag(&f, 1, dim, at);
+    double axis[3] = {0, 0, 1};
+    pose turn = pose_from_axis_angle(axis, M_PI / 6);
+    f.home = pose_compose(turn, f.home);
+    frag_stats(&f);
+    assert_int_equal(f.voxels, 40 * 10 * 6);
+    double want[3] = {cos(M_PI / 6), sin(M_PI / 6), 0};
+    double dot = fabs(f.axes[0][0] * want[0] + f.axes[1][0] * want[1] + f.axes[2][0] * want[2]);
+    assert_true(dot > 1 - 1e-9);
+    assert_true(fabs(f.eigval[0] - (40.0 * 40 - 1) / 12) < 1e-6);
+    assert_true(fabs(f.eigval[1] - (10.0 * 10 - 1) / 12) < 1e-6);
+    assert_true(fabs(f.eigval[2] - (6.0 * 6 - 1) / 12) < 1e-6);
+    frag_free(&f);
+}
+
+/* A rod of voxels along the cube's diagonal: the long axis is (1,1,1)/sqrt(3). */
+static void test_pca_diagonal_rod(void **st)
+{
+    frag f;
+    int dim[3] = {30, 30, 30};
+    double at[3] = {0, 0, 0};
+    tu_box_frag(&f, 1, dim, at);
+    memset(f.prob, 0, 30 * 30 * 30);
+    for (int i = 0; i < 30; i++)
+        f.prob[((size_t)i * 30 + i) * 30 + i] = 255;
+    frag_stats(&f);
+    double s = 1 / sqrt(3);
+    assert_true(fabs(fabs(f.axes[0][0]) - s) < 1e-9 && fabs(fabs(f.axes[1][0]) - s) < 1e-9 &&
+                fabs(fabs(f.axes[2][0]) - s) < 1e-9);
+    assert_true(f.eigval[1] < 1e-9);
+    frag_free(&f);
+}
+
+/* ---- the metric ---- */
+
+/* A ball of radius r (voxel units) with a hole, so counts depend on the pose in every direction. */
+static void ball_frag(frag *f, int id, int n, double r, const double at[3])
+{
+    int dim[3] = {n, n, n};
+    tu_box_frag(f, id, dim, at);
+    double c = (n - 1) / 2.0;
+    for (int k = 0; k < n; k++)
+        for (int j = 0; j < n; j++)
+            for (int i = 0; i < n; i++) {
+                double x = i - c, y = j - c, z = k - c, d = sqrt(x * x + y * y + z * z);
+                int hole = (x - 2) * (x - 2) + y * y + (z + 1) * (z + 1) < 9;
+                f->prob[((size_t)k * n + j) * n + i] = d <= r && !hole ? 255 : 0;
+            }
+    f->spacing[2] = 1.25; /* anisotropic, as CT is */
+    frag_stats(f);
+}
+
+static double urand(uint64_t *s)
+{
+    *s = *s * 6364136223846793005ull + 1442695040888963407ull;
+    return (double)(*s >> 11) / 9007199254740992.0;
+}
+
+static void check_metric(reduce_count mode, double band)
+{
+    frag a, b;
+    double at_a[3] = {0, 0, 0}, at_b[3] = {14, 2, -1};
+    ball_frag(&a, 1, 20, 9, at_a);
+    ball_frag(&b, 2, 18, 8, at_b);
+    reduce_voi voi = {{3.3, -2.2, 0.4}, {27.1, 21.7, 24.9}};
+    const frag *asm_[1] = {&a};
+    reduce_metric *m = reduce_metric_new(asm_, 1, &b, &voi, mode, band);
+    assert_non_null(m);
+    uint64_t s = 7;
+    for (int t = 0; t < 40; t++) {
+        double rv[3], tr[3];
+        for (int k = 0; k < 3; k++) {
+            rv[k] = (urand(&s) - 0.5) * 0.6;
+            tr[k] = (urand(&s) - 0.5) * 8;
+        }
+        pose p = pose_from_rotvec(rv, tr); /* turned about b's centroid, then moved by tr */
+        double rc[3];
+        pose_rotate(&p, b.centroid, rc);
+        for (int k = 0; k < 3; k++)
+            p.t[k] += b.centroid[k] - rc[k];
+        reduce_counts fast, slow;
+        double f = reduce_metric_eval(m, &p, &fast);
+        double g = reduce_metric_brute(asm_, 1, &b, &p, &voi, mode, band, &slow);
+        assert_true(fast.n1 == slow.n1 && fast.nvoi == slow.nvoi);
+        assert_true(slow.n2 > 0);
+        if (mode == REDUCE_TRILINEAR) {
+            assert_true(fabs(fast.n2 - slow.n2) < 1e-6 * (1 + slow.n2));
+            assert_true(fabs(fast.ni - slow.ni) < 1e-6 * (1 + slow.ni));
+            assert_true(fabs(f - g) < 1e-9);
+        } else { /* the same cells, but for a centre exactly between two (rounding differs) */
+            assert_true(fabs(fast.n2 - slow.n2) <= 2 && fabs(fast.ni - slow.ni) <= 2);
+        }
+    }
+    reduce_metric_free(m);
+    frag_free(&a);
+    frag_free(&b);
+}
+
+static void test_metric_trilinear_vs_brute(void **st)
+{
+    check_metric(REDUCE_TRILINEAR, 0);
+    check_metric(REDUCE_TRILINEAR, 2);
+}
+
+static void test_metric_nearest_vs_brute(void **st)
+{
+    check_metric(REDUCE_NEAREST, 0);
+    check_metric(REDUCE_NEAREST, 2);
+}
+
+/* The trilinear count changes continuously: a tiny step changes it a tiny bit. */
+static void test_metric_trilinear_is_continuous(void **st)
+{
+    frag a, b;
+    double at_a[3] = {0, 0, 0}, at_b[3] = {14, 2, -1};
+    ball_frag(&a, 1, 20, 9, at_a);
+    ball_frag(&b, 2, 18, 8, at_b);
+    reduce_voi voi = {{3.3, -2.2, 0.4}, {27.1, 21.7, 24.9}};
+    const frag *asm_[1] = {&a};
+    reduce_metric *m = reduce_metric_new(asm_, 1, &b, &voi, REDUCE_TRILINEAR, 0);
+    pose p = POSE_IDENTITY;
+    double prev = reduce_metric_eval(m, &p, NULL);
+    for (int i = 1; i <= 200; i++) {
+        p.t[0] = -0.01 * i;
+        double f = reduce_metric_eval(m, &p, NULL);
+        assert_true(fabs(f - prev) < 0.01);
+        prev = f;
+    }
+    reduce_metric_free(m);
+    frag_free(&a);
+    frag_free(&b);
+}
+
+/* ---- Powell ---- */
+
+static double rosenbrock(const double *x, void *ctx)
+{
+    (*(int *)ctx)++;
+    return 100 * (x[1] - x[0] * x[0]) * (x[1] - x[0] * x[0]) + (1 - x[0]) * (1 - x[0]);
+}
+
+static void test_powell_rosenbrock(void **st)
+{
+    int calls = 0;
+    double x[2] = {-1.2, 1};
+    powell_opts o;
+    powell_defaults(&o);
+    o.xtol = 1e-7;
+    o.line_tol = 1e-8;
+    o.ftol = 1e-14;
+    powell_stats s;
+    assert_int_equal(powell_minimize(rosenbrock, &calls, x, 2, &o, &s), 0);
+    assert_true(fabs(x[0] - 1) < 1e-3 && fabs(x[1] - 1) < 2e-3);
+    assert_true(s.f < 1e-6);
+    assert_int_equal(s.evaluations, calls);
+}
+
+/* A coupled 6-D quadratic (x - c)^T A (x - c) with A = B^T B + I. */
+static double quadratic(const double *x, void *ctx)
+{
+    static const double B[6][6] = {{2, 1, 0, 0, 0.5, 0}, {0, 3, 1, 0, 0, 0},   {1, 0, 1, 2, 0, 0},
+                                   {0, 0, 0, 1, 1, 0},   {0.5, 0, 0, 0, 2, 1}, {0, 1, 0, 0, 0, 4}};
+    static const double c[6] = {1, -2, 3, 0.5, -1, 2};
+    double f = 0;
+    for (int i = 0; i < 6; i++) {
+        double r = 0;
+        for (int j = 0; j < 6; j++)
+            r += B[i][j] * (x[j] - c[j]);
+        f += r * r + (x[i] - c[i]) * (x[i] - c[i]);
+    }
+    (void)ctx;
+    return f;
+}
+
+static void test_powell_quadratic(void **st)
+{
+    double x[6] = {0, 0, 0, 0, 0, 0};
+    static const double c[6] = {1, -2, 3, 0.5, -1, 2};
+    powell_opts o;
+    powell_defaults(&o);
+    o.xtol = 1e-8;
+    o.line_tol = 1e-8;
+    o.ftol = 1e-15;
+    powell_stats s;
+    assert_int_equal(powell_minimize(quadratic, NULL, x, 6, &o, &s), 0);
+    for (int i = 0; i < 6; i++)
+        assert_true(fabs(x[i] - c[i]) < 1e-4);
+    assert_true(s.converged);
+}
+
+static void test_powell_bad_arguments(void **st)
+{
+    double x[2] = {0, 0};
+    powell_opts o;
+    powell_defaults(&o);
+    o.step = 0;
+    assert_int_equal(powell_minimize(rosenbrock, NULL, x, 2, &o, NULL), FN_EINVAL);
+    assert_non_null(strstr(fn_err_msg(), "powell"));
+}
+
+/* ---- synthetic fractures ---- */
+
+/* A textured ellipsoidal "bone" (semi-axes 36, 21, 18 mm) on a 1 mm grid, solid. */
+static vol *bone(void)
+{
+    vol *v = vol_new(80, 48, 42);
+    const double dir[3][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
+    double sp[3] = {1, 1, 1}, org[3] = {-30, 20, 5};
+    vol_set_geometry(v, dir, sp, org);
+    for (int k = 0; k < 42; k++)
+        for (int j = 0; j < 48; j++)
+            for (int i = 0; i < 80; i++) {
+                double x = (i - 39.5) / 36, y = (j - 23.5) / 21, z = (k - 20.5) / 18;
+                int in = x * x + y * y + z * z <= 1;
+                v->data[vol_idx(v, i, j, k)] = in ? (float)(700 + (i * 7 + j * 13 + k * 3) % 400) : -50;
+            }
+    v->src_type = VOL_I16;
+    return v;
+}
+
+static fcase *fractured(const char *dir, int pieces, uint64_t seed)
+{
+    vol *ct = bone();
+    fracture_params p;
+    fracture_defaults(&p);
+    p.seed = seed;
+    p.pieces = pieces;
+    p.displace_mm = 4;
+    p.rotate_deg = 5;
+    fcase *c = fracture_make_case(ct, &p, dir);
+    vol_free(ct);
+    if (!c)
+        fail_msg("%s", fn_err_msg());
+    return c;
+}
+
+static void check_errors(const fcase *c, int fixed, double mm, double deg)
+{
+    for (int i = 0; i < c->nfrag; i++) {
+        if (i == fixed)
+            continue;
+        double rot, trans, tre;
+        assert_int_equal(reduce_truth_errors(c, fixed, i, &rot, &trans, &tre), 0);
+        if (!(rot <= deg && trans <= mm))
+            fail_msg("fragment %d: %.3f deg, %.3f mm (TRE %.3f mm)", c->frag[i].id, rot, trans, tre);
+    }
+}
+
+static void test_reduce_two_pieces(void **st)
+{
+    char *dir = tu_tmpdir("reduce2");
+    fcase *c = fractured(dir, 2, 3);
+    reduce_opts o;
+    reduce_defaults(&o);
+    o.prealign = 0;
+    reduce_result r[1];
+    int mv[1] = {1};
+    assert_int_equal(reduce_case(c, 0, mv, 1, &o, r), 0);
+    check_errors(c, 0, 1, 1);
+    assert_true(r[0].metric_end < r[0].metric_start);
+    assert_true(r[0].nhistory >= 2);
+    assert_int_equal(r[0].collides, 0);
+    /* the result is stored and comes back from disk */
+    assert_int_equal(reduce_store(c, 0, &o, r, 1), 0);
+    assert_int_equal(case_save(c), 0);
+    pose want = c->frag[1].pose;
+    fcase *back = case_load(dir);
+    assert_non_null(back);
+    assert_true(pose_angle_between(back->frag[1].pose, want) < 1e-9 && pose_distance(back->frag[1].pose, want) < 1e-9);
+    json_t *red = json_object_get((json_t *)back->extra, "reduction");
+    assert_non_null(red);
+    assert_string_equal(json_string_value(json_object_get(red, "method")), reduce_method_name(o.method));
+    json_t *fr = json_array_get(json_object_get(red, "fragments"), 0);
+    assert_int_equal(json_integer_value(json_object_get(fr, "id")), 2);
+    assert_int_equal((int)json_array_size(json_object_get(fr, "history")), r[0].nhistory);
+    assert_int_equal((int)json_array_size(json_object_get(fr, "voi_mm")), 6);
+    check_errors(back, 0, 1, 1);
+    case_free(back);
+    reduce_result_free(&r[0]);
+    case_free(c);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+static void test_reduce_three_pieces(void **st)
+{
+    char *dir = tu_tmpdir("reduce3");
+    fcase *c = fractured(dir, 3, 5);
+    reduce_opts o;
+    reduce_defaults(&o);
+    o.prealign = 0;
+    reduce_result r[2];
+    assert_int_equal(reduce_case(c, 0, NULL, 2, &o, r), 0);
+    check_errors(c, 0, 1, 1);
+    for (int i = 0; i < 2; i++)
+        reduce_result_free(&r[i]);
+    case_free(c);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* Every NLopt method runs and improves the metric. */
+static void test_reduce_nlopt_methods(void **st)
+{
+    char *dir = tu_tmpdir("reduce_nlopt");
+    fcase *c = fractured(dir, 2, 3);
+    pose placed = c->frag[1].pose;
+    for (int m = REDUCE_PRAXIS; m < REDUCE_METHODS; m++) {
+        reduce_opts o;
+        reduce_defaults(&o);
+        o.prealign = 0;
+        o.method = (reduce_method)m;
+        reduce_result r;
+        c->frag[1].pose = placed;
+        const frag *asm_[1] = {&c->frag[0]};
+        assert_int_equal(reduce_pair(asm_, 1, &c->frag[1], &o, &r), 0);
+        assert_true(r.metric_end < r.metric_start);
+        assert_true(r.evaluations > 10);
+        reduce_result_free(&r);
+    }
+    case_free(c);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* The command: usage errors exit 2 naming the option, a missing case exits 1 naming it, and a
+ * run prints one JSON object with the errors against the truth, and saves into -o. */
+static void test_cli(void **st)
+{
+    char *dir = tu_tmpdir("reduce_cli"), *out = NULL, path[4200], newcase[4200];
+    fcase *c = fractured(dir, 2, 3);
+    case_free(c);
+    assert_int_equal(tu_run_cli(&out, "reduce %s --method newton", dir), 2);
+    assert_non_null(strstr(out, "--method"));
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "reduce %s --voi 1 2 3", dir), 2);
+    assert_non_null(strstr(out, "--voi"));
+    free(out);
+    snprintf(path, sizeof path, "%s/none", dir);
+    assert_int_equal(tu_run_cli(&out, "reduce %s", path), 1);
+    assert_non_null(strstr(out, path));
+    free(out);
+    snprintf(newcase, sizeof newcase, "%s/reduced", dir);
+    assert_int_equal(tu_run_cli(&out, "reduce %s --no-prealign --json -o %s 2>/dev/null", dir, newcase), 0);
+    json_error_t e;
+    json_t *j = json_loads(out, 0, &e);
+    if (!j)
+        fail_msg("not JSON (%s): %s", e.text, out);
+    assert_string_equal(json_string_value(json_object_get(j, "command")), "reduce");
+    json_t *f = json_array_get(json_object_get(j, "fragments"), 0);
+    assert_true(json_real_value(json_object_get(f, "rot_err_deg")) <= 1);
+    assert_true(json_real_value(json_object_get(f, "trans_err_mm")) <= 1);
+    assert_true(json_is_real(json_object_get(f, "tre_mm")) && json_is_integer(json_object_get(f, "evaluations")));
+    json_decref(j);
+    free(out);
+    fcase *back = case_load(newcase);
+    if (!back)
+        fail_msg("%s", fn_err_msg());
+    assert_non_null(json_object_get((json_t *)back->extra, "reduction"));
+    check_errors(back, 0, 1, 1);
+    case_free(back);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* Pre-alignment (paper Fig. 5): a rod left far away and across brings its long axis onto the fixed
+ * rod's and slides along it into contact, end to end. */
+static void test_prealign_rods(void **st)
+{
+    frag a, b;
+    int da[3] = {40, 8, 8}, db[3] = {30, 8, 8};
+    double at_a[3] = {0, 0, 0}, at_b[3] = {40, 0, 0};
+    tu_box_frag(&a, 1, da, at_a);
+    tu_box_frag(&b, 2, db, at_b);
+    frag_stats(&a);
+    frag_stats(&b);
+    double z[3] = {0, 0, 1}, c[3];
+    pose turn = pose_from_axis_angle(z, M_PI / 2);
+    pose_rotate(&turn, b.centroid, c);
+    for (int k = 0; k < 3; k++) /* turned about its centroid, then moved 40 mm up in y */
+        turn.t[k] = b.centroid[k] - c[k] + (k == 1 ? 40 : 0);
+    b.pose = turn;
+    reduce_opts o;
+    reduce_defaults(&o);
+    reduce_result r;
+    const frag *asm_[1] = {&a};
+    assert_int_equal(reduce_pair(asm_, 1, &b, &o, &r), 0);
+    assert_int_equal(r.prealigned, 1);
+    double ax[3];
+    double bx[3] = {b.axes[0][0], b.axes[1][0], b.axes[2][0]};
+    pose_rotate(&b.pose, bx, ax);
+    assert_true(fabs(ax[0]) > 0.99);
+    pose_apply(&b.pose, b.centroid, c);
+    /* end to end on either side: centroids 35 mm apart along x, within a voxel or two */
+    assert_true(fabs(fabs(c[0] - a.centroid[0]) - 35) < 2.5);
+    assert_true(fabs(c[1] - a.centroid[1]) < 2.5 && fabs(c[2] - a.centroid[2]) < 2.5);
+    assert_int_equal(r.collides, 0);
+    reduce_result_free(&r);
+    frag_free(&a);
+    frag_free(&b);
+}
+
+static void test_method_names(void **st)
+{
+    for (int m = 0; m < REDUCE_METHODS; m++)
+        assert_int_equal(reduce_method_parse(reduce_method_name((reduce_method)m)), m);
+    assert_int_equal(reduce_method_parse("newton"), -1);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_pca_box),
+        cmocka_unit_test(test_pca_diagonal_rod),
+        cmocka_unit_test(test_metric_trilinear_vs_brute),
+        cmocka_unit_test(test_metric_nearest_vs_brute),
+        cmocka_unit_test(test_metric_trilinear_is_continuous),
+        cmocka_unit_test(test_powell_rosenbrock),
+        cmocka_unit_test(test_powell_quadratic),
+        cmocka_unit_test(test_powell_bad_arguments),
+        cmocka_unit_test(test_method_names),
+        cmocka_unit_test(test_reduce_two_pieces),
+        cmocka_unit_test(test_reduce_three_pieces),
+        cmocka_unit_test(test_reduce_nlopt_methods),
+        cmocka_unit_test(test_cli),
+        cmocka_unit_test(test_prealign_rods),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
