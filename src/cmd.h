@@ -14,7 +14,8 @@
     X(record, "record raw reports from a controller to a .fnrec file")                       \
     X(replay, "replay a .fnrec recording through the navigation loop")                      \
     X(navigate, "steer fragments with a 6-DOF controller, collision-checked")               \
-    X(bench, "benchmarks with JSON output: collision, build, loop")
+    X(render, "draw a case's fragments at their poses into a PNG (OpenGL 4.5)")              \
+    X(bench, "benchmarks with JSON output: collision, build, loop, render")
 
 #define CMD_DECLARE(name, help) int cmd_##name(int argc, char **argv);
 CMD_LIST(CMD_DECLARE)
