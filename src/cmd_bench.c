@@ -15,6 +15,7 @@ static const struct {
     {"collision", bench_collision, "OBB octree query vs brute force and FCL on fractured bones"},
     {"build", bench_build, "hierarchy build time and memory against volume size"},
     {"loop", bench_loop, "navigation loop rate and latency"},
+    {"render", bench_render, "renderer frame time per mode (OpenGL 4.5, OSMesa offscreen)"},
 };
 
 double bench_now_us(void)
