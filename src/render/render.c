@@ -92,10 +92,26 @@ static unsigned program(render *r, const char *vs_src, const char *fs_src, const
     return p;
 }
 
+/* The raycaster for nf fragments (render__ray_fs after its header). 0 or FN_E*. */
+static int ray_program(render *r, int nf)
+{
+    char head[64];
+    snprintf(head, sizeof head, "#version 450 core\n#define NF %d\n", nf < 1 ? 1 : nf);
+    size_t n = strlen(head) + strlen(render__ray_fs) + 1;
+    char *src = malloc(n);
+    if (!src)
+        return fn_err_set(FN_ENOMEM, "render: out of memory");
+    snprintf(src, n, "%s%s", head, render__ray_fs);
+    if (r->prog_ray)
+        r->gl.DeleteProgram(r->prog_ray);
+    r->prog_ray = program(r, render__quad_vs, src, "raycast");
+    free(src);
+    return r->prog_ray ? 0 : FN_ENODEV;
+}
+
 static int gl_setup(render *r)
 {
-    r->prog_ray = program(r, render__quad_vs, render__ray_fs, "raycast");
-    r->prog_slice = r->prog_ray ? program(r, render__quad_vs, render__slice_fs, "slice") : 0;
+    r->prog_slice = program(r, render__quad_vs, render__slice_fs, "slice");
     r->prog_mesh = r->prog_slice ? program(r, render__mesh_vs, render__mesh_fs, "surface") : 0;
     r->prog_line = r->prog_mesh ? program(r, render__line_vs, render__line_fs, "overlay") : 0;
     if (!r->prog_line)
@@ -256,8 +272,11 @@ static void tex3d_params(render *r, int filter)
 
 static int upload_mesh(render *r, render_frag *rf, const float *vals)
 {
+    /* Cells of about 2M voxels at most: a skull's mesh stays a few hundred thousand triangles. */
+    double voxels = (double)rf->dim[0] * rf->dim[1] * rf->dim[2];
+    int stride = (int)ceil(cbrt(voxels / (1 << 21)));
     float *tri = NULL;
-    long n = render__mesh_build(vals, rf->dim, rf->spacing, (float)r->iso_hu, 1, &tri);
+    long n = render__mesh_build(vals, rf->dim, rf->spacing, (float)r->iso_hu, stride < 1 ? 1 : stride, &tri);
     if (n < 0)
         return (int)n;
     rf->mesh_triangles = n;
@@ -452,6 +471,8 @@ int render_set_scene(render *r, const vol *ct, const frag *frags, int nfrag, dou
     }
     if (!rc)
         rc = upload_occupancy(r, frags);
+    if (!rc)
+        rc = ray_program(r, nfrag);
     if (!rc) {
         upload_tf(r);
         if (ct)

@@ -209,9 +209,10 @@ static void set_frag_uniforms(render *r, unsigned prog, const pose *poses, const
         r->gl.ActiveTexture(GL_TEXTURE0 + (unsigned)i);
         r->gl.BindTexture(GL_TEXTURE_3D, f->tex);
     }
-    r->gl.Uniform1i(loc(r, prog, "nfrag"), r->nfrag);
+    if (prog != r->prog_ray) /* the raycaster has its count compiled in */
+        r->gl.Uniform1i(loc(r, prog, "nfrag"), r->nfrag);
     r->gl.Uniform4f(loc(r, prog, "viewport"), (float)vp[0], (float)vp[1], (float)vp[2], (float)vp[3]);
-    r->gl.Uniform1iv(loc(r, prog, "vol"), RENDER_MAX_FRAGS, units);
+    r->gl.Uniform1iv(loc(r, prog, "vol"), prog == r->prog_ray ? (r->nfrag ? r->nfrag : 1) : RENDER_MAX_FRAGS, units);
     r->gl.Uniform3fv(loc(r, prog, "bg"), 1, BG);
     if (r->nfrag == 0)
         return;
@@ -231,6 +232,8 @@ static void draw_raycast(render *r, const pose *poses, const render_options *o, 
 {
     unsigned p = r->prog_ray;
     float m[16];
+    if (r->nfrag == 0)
+        return;
     r->gl.UseProgram(p);
     set_frag_uniforms(r, p, poses, vp);
     r->gl.ActiveTexture(GL_TEXTURE0 + UNIT_OCC);

@@ -12,11 +12,13 @@ const char *const render__quad_vs =
     "}\n";
 
 /* The raycaster. Every fragment's ray is o[i] + d[i] * t in its texture coordinates, with t the
- * same world distance for all, so one march visits every fragment at once. */
+ * same world distance for all, so one march visits every fragment at once. It is compiled per
+ * scene after "#version 450 core" and "#define NF <fragments>": with a constant count the loops
+ * unroll and the per-ray arrays stay in registers (llvmpipe lowers a dynamically indexed local
+ * array to a select over all its elements, so 16 slots for 3 fragments cost 2 to 4 times as much). */
 const char *const render__ray_fs =
-    "#version 450 core\n"
-    "#define MAXF 16\n"
-    "uniform int nfrag;\n"
+    "#define MAXF NF\n"
+    "#define nfrag NF\n"
     "uniform int mode;\n" /* 0 iso, 1 dvr, 2 mip */
     "uniform mat4 inv_vp;\n"
     "uniform vec4 viewport;\n"
