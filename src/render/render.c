@@ -272,9 +272,9 @@ static void tex3d_params(render *r, int filter)
 
 static int upload_mesh(render *r, render_frag *rf, const float *vals)
 {
-    /* Cells of about 2M voxels at most: a skull's mesh stays a few hundred thousand triangles. */
+    /* Cells of about 0.5M voxels at most: a skull's mesh stays a few hundred thousand triangles. */
     double voxels = (double)rf->dim[0] * rf->dim[1] * rf->dim[2];
-    int stride = (int)ceil(cbrt(voxels / (1 << 21)));
+    int stride = (int)ceil(cbrt(voxels / (1 << 19)));
     float *tri = NULL;
     long n = render__mesh_build(vals, rf->dim, rf->spacing, (float)r->iso_hu, stride < 1 ? 1 : stride, &tri);
     if (n < 0)
@@ -294,7 +294,7 @@ static int upload_mesh(render *r, render_frag *rf, const float *vals)
     return 0;
 }
 
-/* Occupancy of f's 8^3 blocks (any voxel in the mask), dilated by one block so that trilinear
+/* Occupancy of f's 4^3 blocks (any voxel in the mask), dilated by one block so that trilinear
  * samples near a block's face and coarse steps of under a block's width never miss data. */
 static uint8_t *occupancy(const frag *f, const int od[3])
 {

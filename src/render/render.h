@@ -10,7 +10,7 @@
  *    masked by its label, placed by its own model matrix (home then pose) and drawn in its colour:
  *    iso (first hit, bisection refinement, gradient shading at the hit only), dvr (a 1D transfer
  *    function over HU, front-to-back, early ray termination) and mip. Empty space is skipped with a
- *    per-fragment occupancy grid of 8^3-voxel blocks. Rays step through all fragments together in
+ *    per-fragment occupancy grid of 4^3-voxel blocks. Rays step through all fragments together in
  *    world space, so interpenetrating fragments show where each is in front;
  *  - surface: per-fragment triangle meshes (marching tetrahedra over the masked CT at the iso level,
  *    built once at render_set_scene, moved by the pose), rasterized with depth;

@@ -73,7 +73,7 @@ typedef struct render_frag {
 
 #define RENDER_OUTSIDE_HU (-1024.0f) /* outside the CT */
 #define RENDER_OUTSIDE_MARGIN 100.0   /* outside the label: at most iso - this */
-#define RENDER_BLOCK 8
+#define RENDER_BLOCK 4
 
 struct render {
     const render_platform *plat;
