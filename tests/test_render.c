@@ -1,7 +1,8 @@
 /* The renderer through OSMesa (llvmpipe): every mode and layout against reference pictures
  * (tests/golden/render_*.png, 128x128, compared under a tolerance), every mode draws content,
  * interpenetrating fragments both show, a known pose moves the picture by the expected pixels, and
- * a GL older than 4.5 is refused with its version named.
+ * a GL older than 4.5 is refused with its version named, and (where Xvfb is installed) the GLFW
+ * window draws what OSMesa draws.
  * FRACNAV_UPDATE_GOLDEN=1 rewrites the references (look at each before committing it). */
 #include <stdarg.h>
 #include <stddef.h>
@@ -21,6 +22,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <signal.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -288,6 +290,90 @@ static void test_old_gl_is_refused_with_its_version(void **st)
         fail_msg("expected an error naming 4.5 and 3.3, got: %s", buf);
 }
 
+/* Starts Xvfb on a free display; its number comes back through -displayfd once it is ready.
+ * Returns its pid (0 when Xvfb is not installed). */
+static pid_t start_xvfb(int *display)
+{
+    if (access("/usr/bin/Xvfb", X_OK) != 0)
+        return 0;
+    int fds[2];
+    assert_int_equal(pipe(fds), 0);
+    pid_t pid = fork();
+    assert_true(pid >= 0);
+    if (pid == 0) {
+        char fd[16];
+        snprintf(fd, sizeof fd, "%d", fds[1]);
+        close(fds[0]);
+        execl("/usr/bin/Xvfb", "Xvfb", "-displayfd", fd, "-screen", "0", "640x480x24", "-nolisten", "tcp",
+              (char *)NULL);
+        _exit(127);
+    }
+    close(fds[1]);
+    char buf[32] = "";
+    size_t n = 0;
+    ssize_t k;
+    while (n < sizeof buf - 1 && (k = read(fds[0], buf + n, sizeof buf - 1 - n)) > 0) {
+        n += (size_t)k;
+        if (memchr(buf, '\n', n))
+            break;
+    }
+    close(fds[0]);
+    if (sscanf(buf, "%d", display) != 1)
+        fail_msg("Xvfb gave no display number");
+    return pid;
+}
+
+/* The same frame through a GLFW window (on Xvfb, in a child so the window's GL stays apart from
+ * OSMesa's) matches the offscreen one. */
+static void test_window_matches_offscreen(void **st)
+{
+    scene *s = *st;
+    int display;
+    pid_t xvfb = start_xvfb(&display);
+    if (!xvfb)
+        skip();
+    render_options o;
+    options(s, &o, RENDER_ISO);
+    o.layout = RENDER_LAYOUT_FOUR_UP;
+    int fds[2];
+    assert_int_equal(pipe(fds), 0);
+    pid_t pid = fork();
+    assert_true(pid >= 0);
+    if (pid == 0) {
+        char d[32];
+        snprintf(d, sizeof d, ":%d", display);
+        setenv("DISPLAY", d, 1);
+        close(fds[0]);
+        render *w = render_open("glfw", W, H);
+        int ok = w && !render_set_scene(w, s->ct, s->f, 2, 300, NULL) && !render_frame(w, NULL, &o) &&
+                 !render_read_rgb(w, s->rgb);
+        if (!ok)
+            fprintf(stderr, "window: %s\n", fn_err_msg());
+        ssize_t ignored = ok ? write(fds[1], s->rgb, sizeof s->rgb) : 0;
+        (void)ignored;
+        render_close(w);
+        _exit(ok ? 0 : 1);
+    }
+    close(fds[1]);
+    static uint8_t win[W * H * 3];
+    size_t n = 0;
+    ssize_t k;
+    while (n < sizeof win && (k = read(fds[0], win + n, sizeof win - n)) > 0)
+        n += (size_t)k;
+    close(fds[0]);
+    int status;
+    waitpid(pid, &status, 0);
+    kill(xvfb, SIGTERM);
+    waitpid(xvfb, NULL, 0);
+    assert_int_equal(n, sizeof win);
+    draw(s, NULL, &o);
+    long differ = 0;
+    for (int i = 0; i < W * H * 3; i++)
+        differ += abs(win[i] - s->rgb[i]) > 32;
+    if (differ > W * H / 100)
+        fail_msg("the window's frame differs from OSMesa's in %ld channel values", differ);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -297,6 +383,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_four_up_with_overlays_matches, setup, teardown),
         cmocka_unit_test_setup_teardown(test_interpenetrating_fragments_both_show, setup, teardown),
         cmocka_unit_test_setup_teardown(test_pose_moves_picture_by_expected_pixels, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_window_matches_offscreen, setup, teardown),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
