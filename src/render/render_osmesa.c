@@ -6,15 +6,31 @@
 
 #include <GL/osmesa.h>
 #include <dlfcn.h>
+#include <pthread.h>
+#include <stdio.h>
 #include <stdlib.h>
 
 typedef struct osm {
-    void *lib;
     OSMesaContext ctx;
     unsigned char *buf;
     void *(*get_proc)(const char *);
     void (*destroy)(OSMesaContext);
 } osm;
+
+/* Loaded once and never unloaded: Mesa keeps process-wide state (LLVM, its screen) that an unload
+ * would strand. */
+static pthread_once_t lib_once = PTHREAD_ONCE_INIT;
+static void *lib;
+static char lib_error[256];
+
+static void lib_load(void)
+{
+    lib = dlopen("libOSMesa.so.8", RTLD_NOW | RTLD_LOCAL);
+    if (!lib)
+        lib = dlopen("libOSMesa.so", RTLD_NOW | RTLD_LOCAL);
+    if (!lib)
+        snprintf(lib_error, sizeof lib_error, "%s", dlerror());
+}
 
 typedef OSMesaContext (*create_fn)(const int *, OSMesaContext);
 typedef GLboolean (*make_current_fn)(OSMesaContext, void *, GLenum, GLsizei, GLsizei);
@@ -26,8 +42,6 @@ static void osm_close(render *r)
         return;
     if (o->ctx)
         o->destroy(o->ctx);
-    if (o->lib)
-        dlclose(o->lib);
     free(o->buf);
     free(o);
     r->plat_state = NULL;
@@ -39,16 +53,14 @@ static int osm_open(render *r, int w, int h)
     if (!o)
         return fn_err_set(FN_ENOMEM, "osmesa: out of memory");
     r->plat_state = o;
-    o->lib = dlopen("libOSMesa.so.8", RTLD_NOW | RTLD_LOCAL);
-    if (!o->lib)
-        o->lib = dlopen("libOSMesa.so", RTLD_NOW | RTLD_LOCAL);
-    if (!o->lib)
+    pthread_once(&lib_once, lib_load);
+    if (!lib)
         return fn_err_set(FN_ENODEV, "osmesa: cannot load libOSMesa.so.8 (install libosmesa6): %s",
-                          dlerror());
-    create_fn create = (create_fn)dlsym(o->lib, "OSMesaCreateContextAttribs");
-    make_current_fn make_current = (make_current_fn)dlsym(o->lib, "OSMesaMakeCurrent");
-    o->get_proc = (void *(*)(const char *))dlsym(o->lib, "OSMesaGetProcAddress");
-    o->destroy = (void (*)(OSMesaContext))dlsym(o->lib, "OSMesaDestroyContext");
+                          lib_error);
+    create_fn create = (create_fn)dlsym(lib, "OSMesaCreateContextAttribs");
+    make_current_fn make_current = (make_current_fn)dlsym(lib, "OSMesaMakeCurrent");
+    o->get_proc = (void *(*)(const char *))dlsym(lib, "OSMesaGetProcAddress");
+    o->destroy = (void (*)(OSMesaContext))dlsym(lib, "OSMesaDestroyContext");
     if (!create || !make_current || !o->get_proc || !o->destroy)
         return fn_err_set(FN_ENODEV, "osmesa: libOSMesa lacks OSMesaCreateContextAttribs (Mesa 11.2 "
                                      "or later needed)");
