@@ -30,7 +30,8 @@ static void usage(FILE *out)
             "                    left), coronal (bottom right); slices show the CT in grey and each\n"
             "                    fragment's outline in its colour\n"
             "  --overlay LIST    comma-separated: hierarchy[:DEPTH] (the OBB octree's boxes at\n"
-            "                    DEPTH, root = 1, default 3), axes (principal axes: red, green,\n"
+            "                    DEPTH, root = 1, default 3), contacts (both voxels of every\n"
+            "                    colliding voxel pair, yellow), axes (principal axes: red, green,\n"
             "                    blue from the largest)\n"
             "  --point X,Y,Z     where the slices cut, LPS mm (default: the first fragment's\n"
             "                    centroid at its pose)\n"
@@ -63,7 +64,7 @@ static int parse_overlays(const char *s, render_options *o)
 {
     char buf[256];
     if (!s || strlen(s) >= sizeof buf)
-        return cmd_bad_value("render", "--overlay", s, "a list of hierarchy[:DEPTH], axes");
+        return cmd_bad_value("render", "--overlay", s, "a list of hierarchy[:DEPTH], contacts, axes");
     strcpy(buf, s);
     char *save = NULL;
     for (char *tok = strtok_r(buf, ",", &save); tok; tok = strtok_r(NULL, ",", &save)) {
@@ -76,11 +77,14 @@ static int parse_overlays(const char *s, render_options *o)
                  depth <= 32 && depth == (int)depth) {
             o->overlays |= RENDER_OVERLAY_HIERARCHY;
             o->hierarchy_depth = (int)depth;
-        } else if (!strcmp(tok, "contacts") || !strcmp(tok, "voi"))
-            return cmd_usage_error("render", "--overlay: '%s' is not drawn yet (hierarchy[:DEPTH] and "
-                                             "axes are)", tok);
+        } else if (!strcmp(tok, "contacts"))
+            o->overlays |= RENDER_OVERLAY_CONTACTS;
+        else if (!strcmp(tok, "voi"))
+            return cmd_usage_error("render", "--overlay: 'voi' is not drawn yet (hierarchy[:DEPTH], "
+                                             "contacts and axes are)");
         else
-            return cmd_bad_value("render", "--overlay", tok, "hierarchy[:DEPTH] (DEPTH 1..32) or axes");
+            return cmd_bad_value("render", "--overlay", tok,
+                                 "hierarchy[:DEPTH] (DEPTH 1..32), contacts or axes");
     }
     return 0;
 }
@@ -158,7 +162,7 @@ static int draw(fcase *c, render_args *a)
     int rc = rgb ? 0 : fn_err_set(FN_ENOMEM, "out of memory for a %dx%d picture", a->w, a->h);
     if (!rc)
         rc = render_set_scene(r, c->ct, c->frag, c->nfrag, c->seg.threshold,
-                              (o.overlays & RENDER_OVERLAY_HIERARCHY) ? &hp : NULL);
+                              (o.overlays & (RENDER_OVERLAY_HIERARCHY | RENDER_OVERLAY_CONTACTS)) ? &hp : NULL);
     if (!rc)
         rc = render_frame(r, NULL, &o);
     if (!rc)

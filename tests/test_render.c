@@ -210,6 +210,34 @@ static void test_interpenetrating_fragments_both_show(void **st)
     }
 }
 
+/* The contacts overlay outlines the colliding voxels in yellow where the box is inside the ball,
+ * and draws nothing when the two are apart. */
+static long yellow_pixels(const uint8_t *rgb)
+{
+    long n = 0;
+    for (int i = 0; i < W * H; i++)
+        n += rgb[i * 3] > 180 && rgb[i * 3 + 1] > 160 && rgb[i * 3 + 2] < 90;
+    return n;
+}
+
+static void test_contacts_overlay_marks_colliding_voxels(void **st)
+{
+    scene *s = *st;
+    render_options o;
+    options(s, &o, RENDER_ISO);
+    o.overlays = RENDER_OVERLAY_CONTACTS;
+    draw(s, NULL, &o);
+    assert_int_equal(yellow_pixels(s->rgb), 0);
+    pose poses[2] = {POSE_IDENTITY, POSE_IDENTITY};
+    poses[1].t[0] = -16;
+    poses[1].t[1] = -8;
+    draw(s, poses, &o);
+    long n = yellow_pixels(s->rgb);
+    if (n < 50)
+        fail_msg("the contacts overlay drew %ld yellow pixels", n);
+    check_golden(s->rgb, "contacts");
+}
+
 static void centroid(const uint8_t *rgb, double *cx, double *cy)
 {
     double sx = 0, sy = 0, n = 0;
@@ -382,6 +410,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_every_mode_draws_and_matches, setup, teardown),
         cmocka_unit_test_setup_teardown(test_four_up_with_overlays_matches, setup, teardown),
         cmocka_unit_test_setup_teardown(test_interpenetrating_fragments_both_show, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_contacts_overlay_marks_colliding_voxels, setup, teardown),
         cmocka_unit_test_setup_teardown(test_pose_moves_picture_by_expected_pixels, setup, teardown),
         cmocka_unit_test_setup_teardown(test_window_matches_offscreen, setup, teardown),
     };

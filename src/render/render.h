@@ -17,7 +17,8 @@
  *  - slice views (axial, coronal, sagittal through a point): the CT in grey, every fragment's
  *    outline (and a light fill) at its current pose in its colour; with the 3D view they make the
  *    four-up layout (axial top left, 3D top right, sagittal bottom left, coronal bottom right);
- *  - overlays on the 3D view: the hierarchy's boxes at a depth, the principal axes.
+ *  - overlays on the 3D view: the hierarchy's boxes at a depth, the principal axes, the colliding
+ *    voxel pairs.
  *
  * Coordinates: world = patient LPS mm. The 3D camera is orthographic; a translation of d mm across
  * the view moves a fragment by d * height / (2 * half_height) pixels.
@@ -52,7 +53,11 @@ typedef struct render_camera {
     double half_height, depth;
 } render_camera;
 
-enum { RENDER_OVERLAY_HIERARCHY = 1, RENDER_OVERLAY_AXES = 2 };
+/* Overlays on the 3D view. HIERARCHY and CONTACTS need the hierarchies (render_set_scene's hp):
+ * CONTACTS outlines, in yellow, both voxels of every colliding voxel pair (obb_collide, up to
+ * RENDER_MAX_CONTACTS per fragment pair) at the frame's poses. */
+enum { RENDER_OVERLAY_HIERARCHY = 1, RENDER_OVERLAY_AXES = 2, RENDER_OVERLAY_CONTACTS = 4 };
+#define RENDER_MAX_CONTACTS 4096
 
 typedef struct render_options {
     render_mode mode;
@@ -83,7 +88,8 @@ int render_set_scene(render *r, const vol *ct, const frag *frags, int nfrag, dou
 /* Triangles of the surface meshes of the scene. */
 long render_surface_triangles(const render *r);
 
-/* Draws one frame with fragment i at poses[i] (NULL: each fragment's own pose). 0 or FN_E*. */
+/* Draws one frame with fragment i at poses[i] (NULL: each fragment's own pose). 0 or FN_E*
+ * (FN_EINVAL: the hierarchy or contacts overlay without hierarchies). */
 int render_frame(render *r, const pose *poses, const render_options *o);
 /* Reads the last frame as 8-bit RGB, rows top to bottom (w*h*3 bytes). Waits for the frame. */
 int render_read_rgb(render *r, uint8_t *rgb);

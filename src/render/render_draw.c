@@ -405,6 +405,62 @@ static int draw_axes(render *r, const pose *poses)
     return rc ? fn_err_set(FN_ENOMEM, "render: out of memory for the axes overlay") : 0;
 }
 
+/* One voxel's box outline at world placement m. */
+static int voxel_box(line_buf *b, const pose *m, const uint16_t v[3], const double sp[3], const float c[3])
+{
+    int rc = 0;
+    for (int e = 0; e < 12 && !rc; e++) {
+        int axis = e / 4, u = (axis + 1) % 3, w = (axis + 2) % 3;
+        double p[2][3], q[3];
+        for (int end = 0; end < 2; end++) {
+            double l[3];
+            l[axis] = (v[axis] + (end ? 0.5 : -0.5)) * sp[axis];
+            l[u] = (v[u] + ((e & 1) ? 0.5 : -0.5)) * sp[u];
+            l[w] = (v[w] + ((e & 2) ? 0.5 : -0.5)) * sp[w];
+            pose_apply(m, l, q);
+            memcpy(p[end], q, sizeof q);
+        }
+        rc = line_push(b, p[0], c);
+        if (!rc)
+            rc = line_push(b, p[1], c);
+    }
+    return rc;
+}
+
+/* Both voxels of every colliding voxel pair, for every pair of fragments. */
+static int draw_contacts(render *r, const pose *poses)
+{
+    static const float yellow[3] = {1, 0.9f, 0.1f};
+    obb_pair *pairs = malloc(RENDER_MAX_CONTACTS * sizeof *pairs);
+    line_buf b = {0};
+    int rc = pairs ? 0 : FN_ENOMEM;
+    for (int i = 0; i < r->nfrag && !rc; i++)
+        for (int j = i + 1; j < r->nfrag && !rc; j++) {
+            pose wi = frag_world(r, i, poses), wj = frag_world(r, j, poses);
+            obb_query q = {.want_pairs = 1, .pairs = pairs, .max_pairs = RENDER_MAX_CONTACTS};
+            obb_result res;
+            rc = obb_collide(r->frag[i].tree, &wi, r->frag[j].tree, &wj, &q, NULL, &res);
+            for (size_t k = 0; k < res.npairs && !rc; k++) {
+                rc = voxel_box(&b, &wi, pairs[k].a, r->frag[i].spacing, yellow);
+                if (!rc)
+                    rc = voxel_box(&b, &wj, pairs[k].b, r->frag[j].spacing, yellow);
+            }
+        }
+    if (!rc && b.n) {
+        static const float id[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+        r->gl.UniformMatrix4fv(loc(r, r->prog_line, "model"), 1, GL_FALSE, id);
+        r->gl.BindVertexArray(r->line_vao);
+        r->gl.BindBuffer(GL_ARRAY_BUFFER, r->line_vbo);
+        r->gl.BufferData(GL_ARRAY_BUFFER, (GLsizeiptr)(b.n * 6 * sizeof(float)), b.v, GL_STREAM_DRAW);
+        r->gl.DrawArrays(GL_LINES, 0, (int)b.n);
+    }
+    free(b.v);
+    free(pairs);
+    if (rc == FN_ENOMEM)
+        return fn_err_set(FN_ENOMEM, "render: out of memory for the contacts overlay");
+    return rc;
+}
+
 static int draw_overlays(render *r, const pose *poses, const render_options *o, const mat4 vp)
 {
     unsigned p = r->prog_line;
@@ -414,17 +470,20 @@ static int draw_overlays(render *r, const pose *poses, const render_options *o, 
     r->gl.UniformMatrix4fv(loc(r, p, "vp"), 1, GL_FALSE, m);
     r->gl.Uniform1i(loc(r, p, "use_tint"), 0);
     int rc = 0;
+    if ((o->overlays & (RENDER_OVERLAY_HIERARCHY | RENDER_OVERLAY_CONTACTS)) && r->nfrag && !r->frag[0].tree)
+        return fn_err_set(FN_EINVAL, "render: the hierarchy and contacts overlays need the scene's "
+                                     "hierarchies (render_set_scene without hp)");
     if (o->overlays & RENDER_OVERLAY_HIERARCHY)
         for (int i = 0; i < r->nfrag && !rc; i++) {
             render_frag *f = &r->frag[i];
-            if (!f->tree)
-                continue;
             rc = ensure_boxes(r, f, o->hierarchy_depth);
             frag_mats(r, i, poses, m, w2t, nmat);
             r->gl.UniformMatrix4fv(loc(r, p, "model"), 1, GL_FALSE, m);
             r->gl.BindVertexArray(f->box_vao);
             r->gl.DrawArrays(GL_LINES, 0, f->box_vertices);
         }
+    if (!rc && (o->overlays & RENDER_OVERLAY_CONTACTS))
+        rc = draw_contacts(r, poses);
     if (!rc && (o->overlays & RENDER_OVERLAY_AXES))
         rc = draw_axes(r, poses);
     return rc;
