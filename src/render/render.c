@@ -272,11 +272,13 @@ static void tex3d_params(render *r, int filter)
 
 static int upload_mesh(render *r, render_frag *rf, const float *vals)
 {
-    /* Cells of about 0.5M voxels at most: a skull's mesh stays a few hundred thousand triangles. */
+    /* Cells of about 0.5M voxels at most: a skull's mesh stays a few hundred thousand triangles.
+     * (Coarser grids drew faster but lost the face's detail.) */
     double voxels = (double)rf->dim[0] * rf->dim[1] * rf->dim[2];
-    int stride = (int)ceil(cbrt(voxels / (1 << 19)));
+    int s = (int)ceil(cbrt(voxels / (1 << 19)));
+    const int stride[3] = {s < 1 ? 1 : s, s < 1 ? 1 : s, s < 1 ? 1 : s};
     float *tri = NULL;
-    long n = render__mesh_build(vals, rf->dim, rf->spacing, (float)r->iso_hu, stride < 1 ? 1 : stride, &tri);
+    long n = render__mesh_build(vals, rf->dim, rf->spacing, (float)r->iso_hu, stride, &tri);
     if (n < 0)
         return (int)n;
     rf->mesh_triangles = n;

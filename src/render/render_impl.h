@@ -96,9 +96,9 @@ extern const char *const render__ray_fs, *const render__quad_vs, *const render__
     *const render__mesh_vs, *const render__mesh_fs, *const render__line_vs, *const render__line_fs;
 
 /* Marching tetrahedra over a masked scalar grid (render_mesh.c): vals is dim[0]*dim[1]*dim[2]
- * (i fastest), spacing in mm; every `stride` voxels along each axis. Triangles as 6 floats per
+ * (i fastest), spacing in mm; every stride[a] voxels along axis a. Triangles as 6 floats per
  * vertex (position local mm, normal), malloc'd into *out; returns the triangle count or FN_ENOMEM. */
 long render__mesh_build(const float *vals, const int dim[3], const double spacing[3], float level,
-                        int stride, float **out);
+                        const int stride[3], float **out);
 
 #endif

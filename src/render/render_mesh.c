@@ -81,31 +81,32 @@ static float at(const float *vals, const int dim[3], int i, int j, int k)
 }
 
 static void make_corner(corner *c, const float *vals, const int dim[3], const double sp[3], int i,
-                        int j, int k, int s)
+                        int j, int k, const int s[3])
 {
     int ijk[3] = {i, j, k};
     c->val = at(vals, dim, i, j, k);
     for (int a = 0; a < 3; a++) {
         int lo[3] = {i, j, k}, hi[3] = {i, j, k};
-        lo[a] -= s;
-        hi[a] += s;
+        lo[a] -= s[a];
+        hi[a] += s[a];
         c->p[a] = (float)(ijk[a] * sp[a]);
         c->g[a] = (at(vals, dim, hi[0], hi[1], hi[2]) - at(vals, dim, lo[0], lo[1], lo[2])) /
-                  (float)(2.0 * s * sp[a]);
+                  (float)(2.0 * s[a] * sp[a]);
     }
 }
 
 long render__mesh_build(const float *vals, const int dim[3], const double spacing[3], float level,
-                        int stride, float **out)
+                        const int stride[3], float **out)
 {
     mesh_buf m = {0};
-    int s = stride < 1 ? 1 : stride;
-    for (int k = 0; k + s < dim[2]; k += s)
-        for (int j = 0; j + s < dim[1]; j += s)
-            for (int i = 0; i + s < dim[0]; i += s) {
+    const int s[3] = {stride[0] < 1 ? 1 : stride[0], stride[1] < 1 ? 1 : stride[1],
+                      stride[2] < 1 ? 1 : stride[2]};
+    for (int k = 0; k + s[2] < dim[2]; k += s[2])
+        for (int j = 0; j + s[1] < dim[1]; j += s[1])
+            for (int i = 0; i + s[0] < dim[0]; i += s[0]) {
                 float lo = 1e30f, hi = -1e30f;
                 for (int b = 0; b < 8; b++) {
-                    float v = at(vals, dim, i + (b & 1) * s, j + (b >> 1 & 1) * s, k + (b >> 2 & 1) * s);
+                    float v = at(vals, dim, i + (b & 1) * s[0], j + (b >> 1 & 1) * s[1], k + (b >> 2 & 1) * s[2]);
                     lo = v < lo ? v : lo;
                     hi = v > hi ? v : hi;
                 }
@@ -113,8 +114,8 @@ long render__mesh_build(const float *vals, const int dim[3], const double spacin
                     continue;
                 corner c[8];
                 for (int b = 0; b < 8; b++)
-                    make_corner(&c[b], vals, dim, spacing, i + (b & 1) * s, j + (b >> 1 & 1) * s,
-                                k + (b >> 2 & 1) * s, s);
+                    make_corner(&c[b], vals, dim, spacing, i + (b & 1) * s[0], j + (b >> 1 & 1) * s[1],
+                                k + (b >> 2 & 1) * s[2], s);
                 for (int t = 0; t < 6; t++) {
                     const corner *tc[4] = {&c[tets[t][0]], &c[tets[t][1]], &c[tets[t][2]], &c[tets[t][3]]};
                     if (march_tet(&m, tc, level)) {
