@@ -13,6 +13,7 @@ int bench_collision(int argc, char **argv);
 int bench_build(int argc, char **argv);
 int bench_loop(int argc, char **argv);
 int bench_reduce(int argc, char **argv);
+int bench_render(int argc, char **argv);
 
 /* Monotonic clock in microseconds. */
 double bench_now_us(void);

@@ -15,7 +15,8 @@
     X(replay, "replay a .fnrec recording through the navigation loop")                      \
     X(navigate, "steer fragments with a 6-DOF controller, collision-checked")               \
     X(reduce, "fit fragments back together: pre-alignment and Powell's method on the VOI")  \
-    X(bench, "benchmarks with JSON output: collision, build, loop")
+    X(render, "draw a case's fragments at their poses into a PNG (OpenGL 4.5)")              \
+    X(bench, "benchmarks with JSON output: collision, build, loop, reduce, render")
 
 #define CMD_DECLARE(name, help) int cmd_##name(int argc, char **argv);
 CMD_LIST(CMD_DECLARE)

@@ -1,0 +1,208 @@
+/* fracnav render: a case's fragments at their poses, drawn by the renderer into a PNG. */
+#include "cmd.h"
+
+#include "case.h"
+#include "err.h"
+#include "render.h"
+#include "snap.h"
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+static void usage(FILE *out)
+{
+    fprintf(out,
+            "usage: fracnav render CASE -o FILE.png [--mode iso|dvr|mip|surface] [--size WxH]\n"
+            "                      [--view VIEW] [--layout 3d|four-up] [--overlay LIST]\n"
+            "                      [--point X,Y,Z] [--platform osmesa|glfw]\n\n"
+            "Draw a case's fragments at their current poses with OpenGL 4.5 core: offscreen through\n"
+            "OSMesa (llvmpipe) unless --platform glfw asks for a window. Each fragment is its CT\n"
+            "crop masked by its label, in its colour.\n\n"
+            "  -o FILE.png       where the picture goes (written atomically)\n"
+            "  --mode M          iso: the bone surface (first hit at the case's threshold, shaded);\n"
+            "                    dvr: volume rendering through a transfer function over HU;\n"
+            "                    mip: maximum intensity; surface: triangle meshes (default iso)\n"
+            "  --size WxH        pixels (default 512x512)\n"
+            "  --view VIEW       anterior, posterior, left, right, superior, inferior (default\n"
+            "                    anterior); the camera fits the fragments at home\n"
+            "  --layout L        3d, or four-up: axial (top left), 3D (top right), sagittal (bottom\n"
+            "                    left), coronal (bottom right); slices show the CT in grey and each\n"
+            "                    fragment's outline in its colour\n"
+            "  --overlay LIST    comma-separated: hierarchy[:DEPTH] (the OBB octree's boxes at\n"
+            "                    DEPTH, root = 1, default 3), contacts (both voxels of every\n"
+            "                    colliding voxel pair, yellow), axes (principal axes: red, green,\n"
+            "                    blue from the largest)\n"
+            "  --point X,Y,Z     where the slices cut, LPS mm (default: the first fragment's\n"
+            "                    centroid at its pose)\n"
+            "  --platform P      osmesa (default) or glfw (needs a display)\n"
+            "  --help            this text\n\n"
+            "A GL older than 4.5 is an error that names the version found.\n");
+}
+
+static int parse_size(const char *s, int *w, int *h)
+{
+    char tail;
+    return s && sscanf(s, "%dx%d%c", w, h, &tail) == 2 && *w >= 16 && *h >= 16 && *w <= 8192 && *h <= 8192;
+}
+
+static int parse_point(const char *s, double p[3])
+{
+    char buf[256];
+    if (!s || strlen(s) >= sizeof buf)
+        return 0;
+    strcpy(buf, s);
+    char *save = NULL, *tok = strtok_r(buf, ",", &save);
+    for (int a = 0; a < 3; a++, tok = strtok_r(NULL, ",", &save))
+        if (!tok || !cmd_number(tok, &p[a]))
+            return 0;
+    return tok == NULL;
+}
+
+/* "hierarchy:3,axes" into o's overlay bits. 0, or 2 after a usage error. */
+static int parse_overlays(const char *s, render_options *o)
+{
+    char buf[256];
+    if (!s || strlen(s) >= sizeof buf)
+        return cmd_bad_value("render", "--overlay", s, "a list of hierarchy[:DEPTH], contacts, axes");
+    strcpy(buf, s);
+    char *save = NULL;
+    for (char *tok = strtok_r(buf, ",", &save); tok; tok = strtok_r(NULL, ",", &save)) {
+        double depth;
+        if (!strcmp(tok, "axes"))
+            o->overlays |= RENDER_OVERLAY_AXES;
+        else if (!strcmp(tok, "hierarchy"))
+            o->overlays |= RENDER_OVERLAY_HIERARCHY;
+        else if (!strncmp(tok, "hierarchy:", 10) && cmd_number(tok + 10, &depth) && depth >= 1 &&
+                 depth <= 32 && depth == (int)depth) {
+            o->overlays |= RENDER_OVERLAY_HIERARCHY;
+            o->hierarchy_depth = (int)depth;
+        } else if (!strcmp(tok, "contacts"))
+            o->overlays |= RENDER_OVERLAY_CONTACTS;
+        else if (!strcmp(tok, "voi"))
+            return cmd_usage_error("render", "--overlay: 'voi' is not drawn yet (hierarchy[:DEPTH], "
+                                             "contacts and axes are)");
+        else
+            return cmd_bad_value("render", "--overlay", tok,
+                                 "hierarchy[:DEPTH] (DEPTH 1..32), contacts or axes");
+    }
+    return 0;
+}
+
+typedef struct render_args {
+    const char *dir, *out, *platform;
+    int w, h, have_point;
+    double point[3];
+    render_view view;
+    render_options o;
+} render_args;
+
+static int parse_args(int argc, char **argv, render_args *a)
+{
+    for (int i = 1; i < argc; i++) {
+        const char *opt = argv[i], *val = i + 1 < argc ? argv[i + 1] : NULL;
+        int takes = 1;
+        if (!strcmp(opt, "-o") && val)
+            a->out = val;
+        else if (!strcmp(opt, "--mode")) {
+            if (render_mode_parse(val, &a->o.mode))
+                return cmd_bad_value("render", opt, val, "iso, dvr, mip or surface");
+        } else if (!strcmp(opt, "--size")) {
+            if (!parse_size(val, &a->w, &a->h))
+                return cmd_bad_value("render", opt, val, "WxH, 16 to 8192 pixels each");
+        } else if (!strcmp(opt, "--view")) {
+            if (render_view_parse(val, &a->view))
+                return cmd_bad_value("render", opt, val,
+                                     "anterior, posterior, left, right, superior or inferior");
+        } else if (!strcmp(opt, "--layout")) {
+            if (render_layout_parse(val, &a->o.layout))
+                return cmd_bad_value("render", opt, val, "3d or four-up");
+        } else if (!strcmp(opt, "--overlay")) {
+            int rc = parse_overlays(val, &a->o);
+            if (rc)
+                return rc;
+        } else if (!strcmp(opt, "--point")) {
+            if (!parse_point(val, a->point))
+                return cmd_bad_value("render", opt, val, "X,Y,Z in mm");
+            a->have_point = 1;
+        } else if (!strcmp(opt, "--platform")) {
+            if (!val || (strcmp(val, "osmesa") && strcmp(val, "glfw")))
+                return cmd_bad_value("render", opt, val, "osmesa or glfw");
+            a->platform = val;
+        } else if (!strcmp(opt, "-o")) {
+            return cmd_bad_value("render", opt, NULL, "a PNG file");
+        } else if (opt[0] == '-') {
+            return cmd_usage_error("render", "unknown option '%s'", opt);
+        } else {
+            takes = 0;
+            if (a->dir)
+                return cmd_usage_error("render", "one CASE only ('%s' and '%s' given)", a->dir, opt);
+            a->dir = opt;
+        }
+        i += takes;
+    }
+    if (!a->dir)
+        return cmd_usage_error("render", "CASE is missing");
+    if (!a->out)
+        return cmd_usage_error("render", "-o FILE.png is missing");
+    return 0;
+}
+
+static int draw(fcase *c, render_args *a)
+{
+    render_options o = a->o, d;
+    render_options_default(&d, c->frag, c->nfrag);
+    render_camera_standard(&o.camera, a->view, c->frag, c->nfrag);
+    memcpy(o.slice_point, a->have_point ? a->point : d.slice_point, sizeof o.slice_point);
+    render *r = render_open(a->platform ? a->platform : "osmesa", a->w, a->h);
+    if (!r)
+        return FN_ENODEV;
+    obb_params hp = {c->tau_min, c->tau_max};
+    uint8_t *rgb = malloc((size_t)a->w * (size_t)a->h * 3);
+    int rc = rgb ? 0 : fn_err_set(FN_ENOMEM, "out of memory for a %dx%d picture", a->w, a->h);
+    if (!rc)
+        rc = render_set_scene(r, c->ct, c->frag, c->nfrag, c->seg.threshold,
+                              (o.overlays & (RENDER_OVERLAY_HIERARCHY | RENDER_OVERLAY_CONTACTS)) ? &hp : NULL);
+    if (!rc)
+        rc = render_frame(r, NULL, &o);
+    if (!rc)
+        rc = render_read_rgb(r, rgb);
+    if (!rc)
+        rc = snap_write_png(a->out, rgb, a->w, a->h);
+    if (!rc)
+        fprintf(stderr, "fracnav render: %s (%s, %d fragments, %s)\n", a->out, render_mode_name(o.mode),
+                c->nfrag, render_gl_renderer(r));
+    free(rgb);
+    render_close(r);
+    return rc;
+}
+
+int cmd_render(int argc, char **argv)
+{
+    if (cmd_wants_help(argc, argv)) {
+        usage(stdout);
+        return 0;
+    }
+    render_args a = {.w = 512, .h = 512, .view = RENDER_ANTERIOR};
+    a.o.mode = RENDER_ISO;
+    a.o.hierarchy_depth = 3;
+    int rc = parse_args(argc, argv, &a);
+    if (rc)
+        return rc;
+    fcase *c = case_load(a.dir);
+    if (!c) {
+        fprintf(stderr, "fracnav render: %s\n", fn_err_msg());
+        return 1;
+    }
+    if (c->nfrag > RENDER_MAX_FRAGS) {
+        fprintf(stderr, "fracnav render: %s has %d fragments; at most %d can be drawn\n", a.dir,
+                c->nfrag, RENDER_MAX_FRAGS);
+        case_free(c);
+        return 1;
+    }
+    rc = draw(c, &a);
+    if (rc)
+        fprintf(stderr, "fracnav render: %s\n", fn_err_msg());
+    case_free(c);
+    return rc ? 1 : 0;
+}

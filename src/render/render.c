@@ -1,0 +1,496 @@
+/* render: the handle, GL setup, scene upload and frame drawing (see render.h). */
+#include "render_impl.h"
+
+#include "err.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* ---- GL setup ---- */
+
+static int gl_load(render *r)
+{
+    char name[64];
+#define RENDER_GL_LOAD(type, fn)                                                                   \
+    snprintf(name, sizeof name, "gl%s", #fn);                                                      \
+    r->gl.fn = (type)r->plat->proc(r, name);                                                       \
+    if (!r->gl.fn)                                                                                 \
+        return fn_err_set(FN_ENODEV, "render (%s): the GL lacks %s", r->plat->name, name);
+    RENDER_GL_FUNCS(RENDER_GL_LOAD)
+#undef RENDER_GL_LOAD
+    return 0;
+}
+
+int render_parse_gl_version(const char *s, int *major, int *minor)
+{
+    for (const char *p = s; p && *p; p++)
+        if (*p >= '0' && *p <= '9' && sscanf(p, "%d.%d", major, minor) == 2)
+            return 0;
+    return fn_err_set(FN_EFORMAT, "GL_VERSION '%s' holds no version number", s ? s : "(null)");
+}
+
+static int check_version(render *r)
+{
+    const char *v = (const char *)r->gl.GetString(GL_VERSION);
+    const char *rn = (const char *)r->gl.GetString(GL_RENDERER);
+    snprintf(r->version, sizeof r->version, "%s", v ? v : "unknown");
+    snprintf(r->renderer, sizeof r->renderer, "%s", rn ? rn : "unknown");
+    int major = 0, minor = 0;
+    if (render_parse_gl_version(r->version, &major, &minor))
+        return FN_ENODEV;
+    if (major < 4 || (major == 4 && minor < 5))
+        return fn_err_set(FN_ENODEV,
+                          "render (%s): OpenGL 4.5 core is needed, this GL is %s (%s); install Mesa 20 "
+                          "or later (libosmesa6, libgl1-mesa-dri) or a newer GPU driver",
+                          r->plat->name, r->version, r->renderer);
+    return 0;
+}
+
+static unsigned compile(render *r, unsigned kind, const char *src, const char *what)
+{
+    unsigned s = r->gl.CreateShader(kind);
+    r->gl.ShaderSource(s, 1, &src, NULL);
+    r->gl.CompileShader(s);
+    int ok = 0;
+    r->gl.GetShaderiv(s, GL_COMPILE_STATUS, &ok);
+    if (!ok) {
+        char log[2048] = "";
+        r->gl.GetShaderInfoLog(s, sizeof log, NULL, log);
+        fn_err_set(FN_ENODEV, "render: the %s shader does not compile: %s", what, log);
+        r->gl.DeleteShader(s);
+        return 0;
+    }
+    return s;
+}
+
+static unsigned program(render *r, const char *vs_src, const char *fs_src, const char *what)
+{
+    unsigned vs = compile(r, GL_VERTEX_SHADER, vs_src, what);
+    unsigned fs = vs ? compile(r, GL_FRAGMENT_SHADER, fs_src, what) : 0;
+    if (!fs) {
+        if (vs)
+            r->gl.DeleteShader(vs);
+        return 0;
+    }
+    unsigned p = r->gl.CreateProgram();
+    r->gl.AttachShader(p, vs);
+    r->gl.AttachShader(p, fs);
+    r->gl.LinkProgram(p);
+    r->gl.DeleteShader(vs);
+    r->gl.DeleteShader(fs);
+    int ok = 0;
+    r->gl.GetProgramiv(p, GL_LINK_STATUS, &ok);
+    if (!ok) {
+        char log[2048] = "";
+        r->gl.GetProgramInfoLog(p, sizeof log, NULL, log);
+        fn_err_set(FN_ENODEV, "render: the %s program does not link: %s", what, log);
+        r->gl.DeleteProgram(p);
+        return 0;
+    }
+    return p;
+}
+
+/* The raycaster for nf fragments (render__ray_fs after its header). 0 or FN_E*. */
+static int ray_program(render *r, int nf)
+{
+    char head[64];
+    snprintf(head, sizeof head, "#version 450 core\n#define NF %d\n", nf < 1 ? 1 : nf);
+    size_t n = strlen(head) + strlen(render__ray_fs) + 1;
+    char *src = malloc(n);
+    if (!src)
+        return fn_err_set(FN_ENOMEM, "render: out of memory");
+    snprintf(src, n, "%s%s", head, render__ray_fs);
+    if (r->prog_ray)
+        r->gl.DeleteProgram(r->prog_ray);
+    r->prog_ray = program(r, render__quad_vs, src, "raycast");
+    free(src);
+    return r->prog_ray ? 0 : FN_ENODEV;
+}
+
+static int gl_setup(render *r)
+{
+    r->prog_slice = program(r, render__quad_vs, render__slice_fs, "slice");
+    r->prog_mesh = r->prog_slice ? program(r, render__mesh_vs, render__mesh_fs, "surface") : 0;
+    r->prog_line = r->prog_mesh ? program(r, render__line_vs, render__line_fs, "overlay") : 0;
+    if (!r->prog_line)
+        return FN_ENODEV;
+    r->gl.GenVertexArrays(1, &r->vao_empty);
+    r->gl.GenVertexArrays(1, &r->line_vao);
+    r->gl.GenBuffers(1, &r->line_vbo);
+    r->gl.BindVertexArray(r->line_vao);
+    r->gl.BindBuffer(GL_ARRAY_BUFFER, r->line_vbo);
+    r->gl.VertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, 6 * sizeof(float), (void *)0);
+    r->gl.VertexAttribPointer(1, 3, GL_FLOAT, GL_FALSE, 6 * sizeof(float), (void *)(3 * sizeof(float)));
+    r->gl.EnableVertexAttribArray(0);
+    r->gl.EnableVertexAttribArray(1);
+    r->gl.BindVertexArray(0);
+    return 0;
+}
+
+static const render_platform *pick_platform(const char *name)
+{
+    if (!name) {
+        const char *d = getenv("DISPLAY");
+        name = d && *d && render__glfw.available ? "glfw" : "osmesa";
+    }
+    if (!strcmp(name, "osmesa"))
+        return &render__osmesa;
+    if (!strcmp(name, "glfw"))
+        return &render__glfw;
+    return NULL;
+}
+
+render *render_open(const char *platform, int w, int h)
+{
+    if (w < 1 || h < 1 || w > 16384 || h > 16384) {
+        fn_err_set(FN_EINVAL, "render: size %dx%d is not 1..16384 on each side", w, h);
+        return NULL;
+    }
+    const render_platform *p = pick_platform(platform);
+    if (!p) {
+        fn_err_set(FN_EINVAL, "render: unknown platform '%s' (osmesa or glfw)", platform);
+        return NULL;
+    }
+    render *r = calloc(1, sizeof *r);
+    if (!r) {
+        fn_err_set(FN_ENOMEM, "render: out of memory");
+        return NULL;
+    }
+    r->plat = p;
+    r->w = w;
+    r->h = h;
+    if (p->open(r, w, h) || gl_load(r) || check_version(r) || gl_setup(r)) {
+        render_close(r);
+        return NULL;
+    }
+    return r;
+}
+
+const char *render_gl_renderer(const render *r)
+{
+    return r->renderer;
+}
+
+const char *render_gl_version(const render *r)
+{
+    return r->version;
+}
+
+/* ---- scene ---- */
+
+static void frag_release(render *r, render_frag *f)
+{
+    if (f->tex)
+        r->gl.DeleteTextures(1, &f->tex);
+    if (f->mesh_vbo)
+        r->gl.DeleteBuffers(1, &f->mesh_vbo);
+    if (f->mesh_vao)
+        r->gl.DeleteVertexArrays(1, &f->mesh_vao);
+    if (f->box_vbo)
+        r->gl.DeleteBuffers(1, &f->box_vbo);
+    if (f->box_vao)
+        r->gl.DeleteVertexArrays(1, &f->box_vao);
+    obb_tree_free(f->tree);
+    memset(f, 0, sizeof *f);
+}
+
+static void scene_release(render *r)
+{
+    for (int i = 0; i < r->nfrag; i++)
+        frag_release(r, &r->frag[i]);
+    r->nfrag = 0;
+    unsigned *tex[] = {&r->occ_tex, &r->tf_tex, &r->ct_tex};
+    for (size_t i = 0; i < sizeof tex / sizeof tex[0]; i++)
+        if (*tex[i]) {
+            r->gl.DeleteTextures(1, tex[i]);
+            *tex[i] = 0;
+        }
+    r->have_ct = 0;
+}
+
+void render_close(render *r)
+{
+    if (!r)
+        return;
+    if (r->gl.DeleteTextures) {
+        scene_release(r);
+        unsigned progs[] = {r->prog_ray, r->prog_slice, r->prog_mesh, r->prog_line};
+        for (int i = 0; i < 4; i++)
+            if (progs[i])
+                r->gl.DeleteProgram(progs[i]);
+        if (r->line_vbo)
+            r->gl.DeleteBuffers(1, &r->line_vbo);
+        unsigned vaos[] = {r->vao_empty, r->line_vao};
+        for (int i = 0; i < 2; i++)
+            if (vaos[i])
+                r->gl.DeleteVertexArrays(1, &vaos[i]);
+    }
+    if (r->plat_state)
+        r->plat->close(r);
+    free(r);
+}
+
+/* The masked CT crop of f: HU inside the label (at least iso_hu), under iso_hu elsewhere. */
+static float *masked_crop(const frag *f, const vol *ct, double iso_hu)
+{
+    size_t n = (size_t)f->dim[0] * (size_t)f->dim[1] * (size_t)f->dim[2];
+    float *v = malloc(n * sizeof *v);
+    if (!v)
+        return NULL;
+    /* Outside the label the CT keeps its own values up to just under the level, so the surface
+     * and its gradient follow the CT where the label ends at tissue or air, and another
+     * fragment's bone (or the head holder) stays invisible. */
+    const float lo = (float)iso_hu, below = (float)(iso_hu - RENDER_OUTSIDE_MARGIN);
+    size_t idx = 0;
+    for (int k = 0; k < f->dim[2]; k++)
+        for (int j = 0; j < f->dim[1]; j++)
+            for (int i = 0; i < f->dim[0]; i++, idx++) {
+                int l[3] = {i, j, k}, s[3];
+                frag_local_to_source(f, l, s);
+                int in_ct = ct && s[0] >= 0 && s[1] >= 0 && s[2] >= 0 && s[0] < ct->dim[0] &&
+                            s[1] < ct->dim[1] && s[2] < ct->dim[2];
+                float x = in_ct ? ct->data[vol_idx(ct, s[0], s[1], s[2])] : RENDER_OUTSIDE_HU;
+                if (f->prob[idx])
+                    x = in_ct && x >= lo ? x : lo + 500.0f;
+                else
+                    x = x < below ? x : below;
+                v[idx] = x;
+            }
+    return v;
+}
+
+static void tex3d_params(render *r, int filter)
+{
+    r->gl.TexParameteri(GL_TEXTURE_3D, GL_TEXTURE_MIN_FILTER, filter);
+    r->gl.TexParameteri(GL_TEXTURE_3D, GL_TEXTURE_MAG_FILTER, filter);
+    r->gl.TexParameteri(GL_TEXTURE_3D, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
+    r->gl.TexParameteri(GL_TEXTURE_3D, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
+    r->gl.TexParameteri(GL_TEXTURE_3D, GL_TEXTURE_WRAP_R, GL_CLAMP_TO_EDGE);
+}
+
+static int upload_mesh(render *r, render_frag *rf, const float *vals)
+{
+    /* Cells of about 0.5M voxels at most: a skull's mesh stays a few hundred thousand triangles.
+     * (Coarser grids drew faster but lost the face's detail.) */
+    double voxels = (double)rf->dim[0] * rf->dim[1] * rf->dim[2];
+    int s = (int)ceil(cbrt(voxels / (1 << 19)));
+    const int stride[3] = {s < 1 ? 1 : s, s < 1 ? 1 : s, s < 1 ? 1 : s};
+    float *tri = NULL;
+    long n = render__mesh_build(vals, rf->dim, rf->spacing, (float)r->iso_hu, stride, &tri);
+    if (n < 0)
+        return (int)n;
+    rf->mesh_triangles = n;
+    r->gl.GenVertexArrays(1, &rf->mesh_vao);
+    r->gl.GenBuffers(1, &rf->mesh_vbo);
+    r->gl.BindVertexArray(rf->mesh_vao);
+    r->gl.BindBuffer(GL_ARRAY_BUFFER, rf->mesh_vbo);
+    r->gl.BufferData(GL_ARRAY_BUFFER, (GLsizeiptr)n * 18 * (GLsizeiptr)sizeof(float), tri, GL_STATIC_DRAW);
+    r->gl.VertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, 6 * sizeof(float), (void *)0);
+    r->gl.VertexAttribPointer(1, 3, GL_FLOAT, GL_FALSE, 6 * sizeof(float), (void *)(3 * sizeof(float)));
+    r->gl.EnableVertexAttribArray(0);
+    r->gl.EnableVertexAttribArray(1);
+    r->gl.BindVertexArray(0);
+    free(tri);
+    return 0;
+}
+
+/* Occupancy of f's 4^3 blocks (any voxel in the mask), dilated by one block so that trilinear
+ * samples near a block's face and coarse steps of under a block's width never miss data. */
+static uint8_t *occupancy(const frag *f, const int od[3])
+{
+    size_t n = (size_t)od[0] * (size_t)od[1] * (size_t)od[2];
+    uint8_t *raw = calloc(n, 1), *dil = calloc(n, 1);
+    if (!raw || !dil) {
+        free(raw);
+        free(dil);
+        return NULL;
+    }
+    size_t idx = 0;
+    for (int k = 0; k < f->dim[2]; k++)
+        for (int j = 0; j < f->dim[1]; j++)
+            for (int i = 0; i < f->dim[0]; i++, idx++)
+                if (f->prob[idx])
+                    raw[((size_t)(k / RENDER_BLOCK) * (size_t)od[1] + (size_t)(j / RENDER_BLOCK)) * (size_t)od[0] +
+                        (size_t)(i / RENDER_BLOCK)] = 1;
+    for (int k = 0; k < od[2]; k++)
+        for (int j = 0; j < od[1]; j++)
+            for (int i = 0; i < od[0]; i++) {
+                int any = 0;
+                for (int c = -1; c <= 1; c++)
+                    for (int b = -1; b <= 1; b++)
+                        for (int a = -1; a <= 1; a++) {
+                            int x = i + a, y = j + b, z = k + c;
+                            if (x >= 0 && y >= 0 && z >= 0 && x < od[0] && y < od[1] && z < od[2])
+                                any |= raw[((size_t)z * (size_t)od[1] + (size_t)y) * (size_t)od[0] + (size_t)x];
+                        }
+                dil[((size_t)k * (size_t)od[1] + (size_t)j) * (size_t)od[0] + (size_t)i] = (uint8_t)any;
+            }
+    free(raw);
+    return dil;
+}
+
+static int upload_fragment(render *r, render_frag *rf, const frag *f, const vol *ct)
+{
+    memcpy(rf->dim, f->dim, sizeof rf->dim);
+    memcpy(rf->spacing, f->spacing, sizeof rf->spacing);
+    rf->home = f->home;
+    rf->pose = f->pose;
+    for (int a = 0; a < 3; a++) {
+        rf->local_to_tc[a] = 1.0 / (f->spacing[a] * f->dim[a]);
+        rf->rgb[a] = f->rgb[a] / 255.0f;
+        rf->occ_dim[a] = (f->dim[a] + RENDER_BLOCK - 1) / RENDER_BLOCK;
+        rf->centroid[a] = f->centroid[a];
+        rf->eigval[a] = f->eigval[a];
+        for (int b = 0; b < 3; b++)
+            rf->axes[a][b] = f->axes[a][b];
+    }
+    float *vals = masked_crop(f, ct, r->iso_hu);
+    if (!vals)
+        return fn_err_set(FN_ENOMEM, "render: out of memory for fragment %d's %dx%dx%d crop", f->id,
+                          f->dim[0], f->dim[1], f->dim[2]);
+    r->gl.GenTextures(1, &rf->tex);
+    r->gl.BindTexture(GL_TEXTURE_3D, rf->tex);
+    tex3d_params(r, GL_LINEAR);
+    r->gl.PixelStorei(GL_UNPACK_ALIGNMENT, 1);
+    r->gl.TexImage3D(GL_TEXTURE_3D, 0, GL_R16F, f->dim[0], f->dim[1], f->dim[2], 0, GL_RED, GL_FLOAT, vals);
+    int rc = upload_mesh(r, rf, vals);
+    free(vals);
+    return rc;
+}
+
+/* All fragments' occupancy grids stacked along z in one R8UI texture (one texture unit). */
+static int upload_occupancy(render *r, const frag *frags)
+{
+    int od[3] = {1, 1, 0};
+    for (int i = 0; i < r->nfrag; i++) {
+        render_frag *rf = &r->frag[i];
+        od[0] = rf->occ_dim[0] > od[0] ? rf->occ_dim[0] : od[0];
+        od[1] = rf->occ_dim[1] > od[1] ? rf->occ_dim[1] : od[1];
+        rf->occ_z = od[2];
+        od[2] += rf->occ_dim[2];
+    }
+    od[2] = od[2] ? od[2] : 1;
+    size_t plane = (size_t)od[0] * (size_t)od[1];
+    uint8_t *all = calloc(plane * (size_t)od[2], 1);
+    if (!all)
+        return fn_err_set(FN_ENOMEM, "render: out of memory for occupancy grids");
+    for (int i = 0; i < r->nfrag; i++) {
+        render_frag *rf = &r->frag[i];
+        uint8_t *g = occupancy(&frags[i], rf->occ_dim);
+        if (!g) {
+            free(all);
+            return fn_err_set(FN_ENOMEM, "render: out of memory for occupancy grids");
+        }
+        for (int k = 0; k < rf->occ_dim[2]; k++)
+            for (int j = 0; j < rf->occ_dim[1]; j++)
+                memcpy(all + (size_t)(rf->occ_z + k) * plane + (size_t)j * (size_t)od[0],
+                       g + ((size_t)k * (size_t)rf->occ_dim[1] + (size_t)j) * (size_t)rf->occ_dim[0],
+                       (size_t)rf->occ_dim[0]);
+        free(g);
+    }
+    r->gl.GenTextures(1, &r->occ_tex);
+    r->gl.BindTexture(GL_TEXTURE_3D, r->occ_tex);
+    tex3d_params(r, GL_NEAREST);
+    r->gl.TexImage3D(GL_TEXTURE_3D, 0, GL_R8UI, od[0], od[1], od[2], 0, GL_RED_INTEGER, GL_UNSIGNED_BYTE, all);
+    free(all);
+    return 0;
+}
+
+/* The DVR transfer function over [iso - 500, iso + 1500] HU: transparent below the bone level,
+ * then rising opacity and brightness. */
+static void upload_tf(render *r)
+{
+    float tf[256][4];
+    for (int i = 0; i < 256; i++) {
+        double hu = r->iso_hu - 500 + 2000.0 * i / 255.0;
+        double a = (hu - (r->iso_hu - 100)) / 800.0;
+        a = a < 0 ? 0 : a > 1 ? 1 : a;
+        float grey = (float)(0.55 + 0.45 * a);
+        tf[i][0] = tf[i][1] = tf[i][2] = grey;
+        tf[i][3] = (float)(0.35 * a);
+    }
+    r->gl.GenTextures(1, &r->tf_tex);
+    r->gl.BindTexture(GL_TEXTURE_1D, r->tf_tex);
+    r->gl.TexParameteri(GL_TEXTURE_1D, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
+    r->gl.TexParameteri(GL_TEXTURE_1D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+    r->gl.TexParameteri(GL_TEXTURE_1D, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
+    r->gl.TexImage1D(GL_TEXTURE_1D, 0, GL_RGBA16F, 256, 0, GL_RGBA, GL_FLOAT, tf);
+}
+
+static int upload_ct(render *r, const vol *ct)
+{
+    r->gl.GenTextures(1, &r->ct_tex);
+    r->gl.BindTexture(GL_TEXTURE_3D, r->ct_tex);
+    tex3d_params(r, GL_LINEAR);
+    r->gl.TexImage3D(GL_TEXTURE_3D, 0, GL_R16F, ct->dim[0], ct->dim[1], ct->dim[2], 0, GL_RED, GL_FLOAT,
+                     ct->data);
+    /* world -> index is the inverse of the orthogonal affine: A^T / spacing^2 for the 3x3. */
+    memset(r->ct_w2t, 0, sizeof r->ct_w2t);
+    for (int a = 0; a < 3; a++) {
+        double s2 = ct->spacing[a] * ct->spacing[a];
+        double off = 0;
+        for (int b = 0; b < 3; b++) {
+            double m = ct->affine[b][a] / s2 / ct->dim[a];
+            r->ct_w2t[a][b] = m;
+            off -= m * ct->affine[b][3];
+        }
+        r->ct_w2t[a][3] = off + 0.5 / ct->dim[a];
+    }
+    r->ct_w2t[3][3] = 1;
+    r->have_ct = 1;
+    return 0;
+}
+
+static int gl_check(render *r, const char *what)
+{
+    unsigned e = r->gl.GetError();
+    if (e == GL_OUT_OF_MEMORY)
+        return fn_err_set(FN_ENOMEM, "render: GL out of memory %s", what);
+    if (e != GL_NO_ERROR)
+        return fn_err_set(FN_ENODEV, "render: GL error 0x%04x %s", e, what);
+    return 0;
+}
+
+int render_set_scene(render *r, const vol *ct, const frag *frags, int nfrag, double iso_hu,
+                     const obb_params *hp)
+{
+    if (nfrag < 0 || nfrag > RENDER_MAX_FRAGS)
+        return fn_err_set(FN_EINVAL, "render: %d fragments, at most %d can be drawn", nfrag,
+                          RENDER_MAX_FRAGS);
+    scene_release(r);
+    r->iso_hu = iso_hu;
+    r->min_spacing = 1e30;
+    int rc = 0;
+    for (int i = 0; i < nfrag && !rc; i++) {
+        r->nfrag = i + 1;
+        rc = upload_fragment(r, &r->frag[i], &frags[i], ct);
+        for (int a = 0; a < 3; a++)
+            r->min_spacing = frags[i].spacing[a] < r->min_spacing ? frags[i].spacing[a] : r->min_spacing;
+        if (!rc && hp && !(r->frag[i].tree = obb_tree_build(&frags[i], hp)))
+            rc = FN_ENOMEM;
+    }
+    if (!rc)
+        rc = upload_occupancy(r, frags);
+    if (!rc)
+        rc = ray_program(r, nfrag);
+    if (!rc) {
+        upload_tf(r);
+        if (ct)
+            rc = upload_ct(r, ct);
+    }
+    if (!rc)
+        rc = gl_check(r, "uploading the scene");
+    if (rc)
+        scene_release(r);
+    return rc;
+}
+
+long render_surface_triangles(const render *r)
+{
+    long n = 0;
+    for (int i = 0; i < r->nfrag; i++)
+        n += r->frag[i].mesh_triangles;
+    return n;
+}

@@ -1,0 +1,116 @@
+/* render: pictures of a case's fragments at their current poses, through OpenGL 4.5 core.
+ *
+ * One renderer behind this header. It draws into a GL context that a platform gives it: OSMesa
+ * (llvmpipe, offscreen; libOSMesa is loaded with dlopen only then, since it exports its own GL
+ * symbols) or a GLFW window when a display exists. Every GL function is reached through a pointer
+ * that the platform resolves, so one binary serves both.
+ *
+ * What it draws (render_frame):
+ *  - a single-pass raycaster over up to RENDER_MAX_FRAGS fragments, each a 3D texture of its CT crop
+ *    masked by its label, placed by its own model matrix (home then pose) and drawn in its colour:
+ *    iso (first hit, bisection refinement, gradient shading at the hit only), dvr (a 1D transfer
+ *    function over HU, front-to-back, early ray termination) and mip. Empty space is skipped with a
+ *    per-fragment occupancy grid of 4^3-voxel blocks. Rays step through all fragments together in
+ *    world space, so interpenetrating fragments show where each is in front;
+ *  - surface: per-fragment triangle meshes (marching tetrahedra over the masked CT at the iso level,
+ *    built once at render_set_scene, moved by the pose), rasterized with depth;
+ *  - slice views (axial, coronal, sagittal through a point): the CT in grey, every fragment's
+ *    outline (and a light fill) at its current pose in its colour; with the 3D view they make the
+ *    four-up layout (axial top left, 3D top right, sagittal bottom left, coronal bottom right);
+ *  - overlays on the 3D view: the hierarchy's boxes at a depth, the principal axes, the colliding
+ *    voxel pairs.
+ *
+ * Coordinates: world = patient LPS mm. The 3D camera is orthographic; a translation of d mm across
+ * the view moves a fragment by d * height / (2 * half_height) pixels.
+ *
+ * Threads: a render handle belongs to the thread that opened it (its GL context is current there).
+ * Errors: see err.h; every failure leaves a message naming the cause. */
+#ifndef FN_RENDER_H
+#define FN_RENDER_H
+
+#include "frag.h"
+#include "obb.h"
+#include "pose.h"
+#include "vol.h"
+
+#include <stdint.h>
+
+#define RENDER_MAX_FRAGS 16
+
+typedef struct render render;
+
+typedef enum { RENDER_ISO, RENDER_DVR, RENDER_MIP, RENDER_SURFACE } render_mode;
+typedef enum { RENDER_LAYOUT_3D, RENDER_LAYOUT_FOUR_UP } render_layout;
+typedef enum {
+    RENDER_ANTERIOR, RENDER_POSTERIOR, RENDER_LEFT, RENDER_RIGHT, RENDER_SUPERIOR, RENDER_INFERIOR
+} render_view;
+
+/* An orthographic camera: it looks along forward (unit) with up (unit, orthogonal to forward)
+ * through centre; half_height mm of the world fill half the picture's height; depth mm on either
+ * side of centre are inside the clip range. Screen right = forward x up. */
+typedef struct render_camera {
+    double centre[3], forward[3], up[3];
+    double half_height, depth;
+} render_camera;
+
+/* Overlays on the 3D view. HIERARCHY and CONTACTS need the hierarchies (render_set_scene's hp):
+ * CONTACTS outlines, in yellow, both voxels of every colliding voxel pair (obb_collide, up to
+ * RENDER_MAX_CONTACTS per fragment pair) at the frame's poses. */
+enum { RENDER_OVERLAY_HIERARCHY = 1, RENDER_OVERLAY_AXES = 2, RENDER_OVERLAY_CONTACTS = 4 };
+#define RENDER_MAX_CONTACTS 4096
+
+typedef struct render_options {
+    render_mode mode;
+    render_layout layout;
+    render_camera camera;
+    double slice_point[3];  /* world mm: where the slice views cut (four-up) */
+    unsigned overlays;      /* RENDER_OVERLAY_* */
+    int hierarchy_depth;    /* the depth of the boxes drawn (root = 1) */
+} render_options;
+
+/* Opens a GL 4.5 core context of w x h pixels. platform: "osmesa" (offscreen), "glfw" (a window;
+ * needs a display and a build with GLFW) or NULL (glfw when $DISPLAY is set and GLFW was built in,
+ * else osmesa). A GL older than 4.5 is FN_ENODEV with a message naming the version found and what
+ * to install. NULL with fn_err on failure. */
+render *render_open(const char *platform, int w, int h);
+void render_close(render *r);
+/* GL_RENDERER and GL_VERSION of the context (valid while r is open). */
+const char *render_gl_renderer(const render *r);
+const char *render_gl_version(const render *r);
+
+/* Uploads the scene: the fragments' masked CT crops, occupancy grids, meshes (iso_hu is the
+ * surface level: values >= iso_hu are bone) and, when hp is given, their hierarchies for the box
+ * overlay. ct gives the grey of the slice views and the values of the crops; ct may be NULL (the
+ * crops then hold iso_hu + 500 inside, and slices show no grey). At most RENDER_MAX_FRAGS
+ * fragments (FN_EINVAL names the count). Replaces any previous scene. 0 or FN_E*. */
+int render_set_scene(render *r, const vol *ct, const frag *frags, int nfrag, double iso_hu,
+                     const obb_params *hp);
+/* Triangles of the surface meshes of the scene. */
+long render_surface_triangles(const render *r);
+
+/* Draws one frame with fragment i at poses[i] (NULL: each fragment's own pose). 0 or FN_E*
+ * (FN_EINVAL: the hierarchy or contacts overlay without hierarchies). */
+int render_frame(render *r, const pose *poses, const render_options *o);
+/* Reads the last frame as 8-bit RGB, rows top to bottom (w*h*3 bytes). Waits for the frame. */
+int render_read_rgb(render *r, uint8_t *rgb);
+/* Shows the last frame in the window (no-op offscreen). */
+int render_present(render *r);
+
+/* The standard camera for view v fitted to the fragments at their home positions (so poses move
+ * pictures, not the camera). */
+void render_camera_standard(render_camera *c, render_view v, const frag *frags, int nfrag);
+/* Defaults: iso, 3D layout, anterior camera over the fragments, slice point at the first
+ * fragment's home centroid, no overlay, hierarchy depth 3. */
+void render_options_default(render_options *o, const frag *frags, int nfrag);
+
+/* Names to and from the enums: 0 on success, FN_EINVAL for an unknown name. */
+int render_mode_parse(const char *s, render_mode *m);
+int render_view_parse(const char *s, render_view *v);
+int render_layout_parse(const char *s, render_layout *l);
+const char *render_mode_name(render_mode m);
+
+/* Parses a GL_VERSION string ("4.5 (Core Profile) Mesa 22.3.6", "OpenGL ES 3.2 ...") into
+ * major.minor. 0, or FN_EFORMAT when it holds no version. */
+int render_parse_gl_version(const char *s, int *major, int *minor);
+
+#endif

@@ -1,0 +1,602 @@
+/* render: cameras and one frame's drawing (raycast or surface, slices, overlays). */
+#include "render_impl.h"
+
+#include "err.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+static const float BG[3] = {0.08f, 0.09f, 0.11f};
+enum { UNIT_OCC = RENDER_MAX_FRAGS, UNIT_TF, UNIT_CT };
+
+/* ---- 4x4 row-major doubles, sent to GL transposed (column-major) ---- */
+
+typedef double mat4[4][4];
+
+static void mat4_from_pose(mat4 m, const pose *p)
+{
+    double r[3][3];
+    pose_to_matrix(p, r);
+    memset(m, 0, sizeof(mat4));
+    for (int i = 0; i < 3; i++) {
+        for (int j = 0; j < 3; j++)
+            m[i][j] = r[i][j];
+        m[i][3] = p->t[i];
+    }
+    m[3][3] = 1;
+}
+
+static void mat4_to_gl(const mat4 m, float out[16])
+{
+    for (int c = 0; c < 4; c++)
+        for (int r = 0; r < 4; r++)
+            out[c * 4 + r] = (float)m[r][c];
+}
+
+static void cross3(const double a[3], const double b[3], double c[3])
+{
+    c[0] = a[1] * b[2] - a[2] * b[1];
+    c[1] = a[2] * b[0] - a[0] * b[2];
+    c[2] = a[0] * b[1] - a[1] * b[0];
+}
+
+static double dot3(const double a[3], const double b[3])
+{
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+}
+
+/* ---- cameras ---- */
+
+static const struct {
+    const char *name;
+    double forward[3], up[3];
+} views[] = {
+    [RENDER_ANTERIOR] = {"anterior", {0, 1, 0}, {0, 0, 1}},
+    [RENDER_POSTERIOR] = {"posterior", {0, -1, 0}, {0, 0, 1}},
+    [RENDER_LEFT] = {"left", {-1, 0, 0}, {0, 0, 1}},
+    [RENDER_RIGHT] = {"right", {1, 0, 0}, {0, 0, 1}},
+    [RENDER_SUPERIOR] = {"superior", {0, 0, -1}, {0, -1, 0}},
+    [RENDER_INFERIOR] = {"inferior", {0, 0, 1}, {0, -1, 0}},
+};
+
+int render_view_parse(const char *s, render_view *v)
+{
+    for (size_t i = 0; i < sizeof views / sizeof views[0]; i++)
+        if (s && !strcmp(s, views[i].name)) {
+            *v = (render_view)i;
+            return 0;
+        }
+    return fn_err_set(FN_EINVAL, "'%s' is not a view (anterior, posterior, left, right, superior, "
+                                 "inferior)", s ? s : "");
+}
+
+static const char *const mode_names[] = {"iso", "dvr", "mip", "surface"};
+
+int render_mode_parse(const char *s, render_mode *m)
+{
+    for (int i = 0; i < 4; i++)
+        if (s && !strcmp(s, mode_names[i])) {
+            *m = (render_mode)i;
+            return 0;
+        }
+    return fn_err_set(FN_EINVAL, "'%s' is not a mode (iso, dvr, mip, surface)", s ? s : "");
+}
+
+const char *render_mode_name(render_mode m)
+{
+    return (unsigned)m < 4 ? mode_names[m] : "?";
+}
+
+int render_layout_parse(const char *s, render_layout *l)
+{
+    if (s && !strcmp(s, "3d"))
+        *l = RENDER_LAYOUT_3D;
+    else if (s && !strcmp(s, "four-up"))
+        *l = RENDER_LAYOUT_FOUR_UP;
+    else
+        return fn_err_set(FN_EINVAL, "'%s' is not a layout (3d, four-up)", s ? s : "");
+    return 0;
+}
+
+void render_camera_standard(render_camera *c, render_view v, const frag *frags, int nfrag)
+{
+    double lo[3] = {1e30, 1e30, 1e30}, hi[3] = {-1e30, -1e30, -1e30};
+    for (int i = 0; i < nfrag; i++)
+        for (int b = 0; b < 8; b++) {
+            double x[3], w[3];
+            for (int a = 0; a < 3; a++)
+                x[a] = ((b >> a & 1) ? frags[i].dim[a] - 0.5 : -0.5) * frags[i].spacing[a];
+            pose_apply(&frags[i].home, x, w);
+            for (int a = 0; a < 3; a++) {
+                lo[a] = w[a] < lo[a] ? w[a] : lo[a];
+                hi[a] = w[a] > hi[a] ? w[a] : hi[a];
+            }
+        }
+    double r2 = 0;
+    for (int a = 0; a < 3; a++) {
+        c->centre[a] = nfrag ? 0.5 * (lo[a] + hi[a]) : 0;
+        r2 += nfrag ? 0.25 * (hi[a] - lo[a]) * (hi[a] - lo[a]) : 1;
+        c->forward[a] = views[v].forward[a];
+        c->up[a] = views[v].up[a];
+    }
+    c->half_height = 1.02 * sqrt(r2);
+    c->depth = 2.0 * sqrt(r2) + 50.0; /* room for fragments moved away from home */
+}
+
+void render_options_default(render_options *o, const frag *frags, int nfrag)
+{
+    memset(o, 0, sizeof *o);
+    o->mode = RENDER_ISO;
+    o->layout = RENDER_LAYOUT_3D;
+    render_camera_standard(&o->camera, RENDER_ANTERIOR, frags, nfrag);
+    memcpy(o->slice_point, o->camera.centre, sizeof o->slice_point);
+    if (nfrag > 0)
+        pose_apply(&frags[0].pose, frags[0].centroid, o->slice_point);
+    o->hierarchy_depth = 3;
+}
+
+/* clip = vp * world; world = inv * ndc (orthographic, so both are affine). */
+static void camera_mats(const render_camera *c, double aspect, mat4 vp, mat4 inv)
+{
+    double right[3], hh = c->half_height, hw = hh * aspect, dp = c->depth;
+    cross3(c->forward, c->up, right);
+    const double *rows[3] = {right, c->up, c->forward};
+    double scale[3] = {hw, hh, dp};
+    memset(vp, 0, sizeof(mat4));
+    memset(inv, 0, sizeof(mat4));
+    for (int i = 0; i < 3; i++) {
+        for (int j = 0; j < 3; j++) {
+            vp[i][j] = rows[i][j] / scale[i];
+            inv[j][i] = rows[i][j] * scale[i];
+        }
+        vp[i][3] = -dot3(rows[i], c->centre) / scale[i];
+        inv[i][3] = c->centre[i];
+    }
+    vp[3][3] = inv[3][3] = 1;
+}
+
+/* ---- per-fragment matrices ---- */
+
+static pose frag_world(const render *r, int i, const pose *poses)
+{
+    return pose_compose(poses ? poses[i] : r->frag[i].pose, r->frag[i].home);
+}
+
+static void frag_mats(const render *r, int i, const pose *poses, float model[16], float w2t[16],
+                      float nmat[9])
+{
+    pose m = frag_world(r, i, poses);
+    pose inv = pose_inverse(m);
+    mat4 a, b;
+    mat4_from_pose(a, &m);
+    mat4_to_gl(a, model);
+    mat4_from_pose(b, &inv);
+    const render_frag *f = &r->frag[i];
+    for (int k = 0; k < 3; k++) {
+        for (int j = 0; j < 4; j++)
+            b[k][j] *= f->local_to_tc[k];
+        b[k][3] += 0.5 / f->dim[k];
+    }
+    mat4_to_gl(b, w2t);
+    for (int c = 0; c < 3; c++)
+        for (int rr = 0; rr < 3; rr++)
+            nmat[c * 3 + rr] = (float)(a[rr][c] / f->spacing[c]);
+}
+
+static int loc(const render *r, unsigned prog, const char *name)
+{
+    return r->gl.GetUniformLocation(prog, name);
+}
+
+/* Binds the fragments' volumes to units 0.. and sets the uniforms both volume programs share. */
+static void set_frag_uniforms(render *r, unsigned prog, const pose *poses, const int vp[4])
+{
+    float w2t[RENDER_MAX_FRAGS][16], nmat[RENDER_MAX_FRAGS][9], col[RENDER_MAX_FRAGS][3], model[16];
+    float occ_scale[RENDER_MAX_FRAGS][3];
+    int units[RENDER_MAX_FRAGS], occ_info[RENDER_MAX_FRAGS][4];
+    for (int i = 0; i < RENDER_MAX_FRAGS; i++)
+        units[i] = i;
+    for (int i = 0; i < r->nfrag; i++) {
+        const render_frag *f = &r->frag[i];
+        frag_mats(r, i, poses, model, w2t[i], nmat[i]);
+        for (int a = 0; a < 3; a++) {
+            col[i][a] = f->rgb[a];
+            occ_scale[i][a] = (float)f->dim[a] / RENDER_BLOCK;
+            occ_info[i][a] = f->occ_dim[a];
+        }
+        occ_info[i][3] = f->occ_z;
+        r->gl.ActiveTexture(GL_TEXTURE0 + (unsigned)i);
+        r->gl.BindTexture(GL_TEXTURE_3D, f->tex);
+    }
+    if (prog != r->prog_ray) /* the raycaster has its count compiled in */
+        r->gl.Uniform1i(loc(r, prog, "nfrag"), r->nfrag);
+    r->gl.Uniform4f(loc(r, prog, "viewport"), (float)vp[0], (float)vp[1], (float)vp[2], (float)vp[3]);
+    r->gl.Uniform1iv(loc(r, prog, "vol"), prog == r->prog_ray ? (r->nfrag ? r->nfrag : 1) : RENDER_MAX_FRAGS, units);
+    r->gl.Uniform3fv(loc(r, prog, "bg"), 1, BG);
+    if (r->nfrag == 0)
+        return;
+    r->gl.UniformMatrix4fv(loc(r, prog, "w2t"), r->nfrag, GL_FALSE, &w2t[0][0]);
+    r->gl.Uniform3fv(loc(r, prog, "colour"), r->nfrag, &col[0][0]);
+    if (prog != r->prog_ray)
+        return;
+    r->gl.UniformMatrix3fv(loc(r, prog, "nmat"), r->nfrag, GL_FALSE, &nmat[0][0]);
+    r->gl.Uniform3fv(loc(r, prog, "occ_scale"), r->nfrag, &occ_scale[0][0]);
+    r->gl.Uniform4iv(loc(r, prog, "occ_info"), r->nfrag, &occ_info[0][0]);
+}
+
+/* ---- the 3D view ---- */
+
+static void draw_raycast(render *r, const pose *poses, const render_options *o, const int vp[4],
+                         const mat4 inv)
+{
+    unsigned p = r->prog_ray;
+    float m[16];
+    if (r->nfrag == 0)
+        return;
+    r->gl.UseProgram(p);
+    set_frag_uniforms(r, p, poses, vp);
+    r->gl.ActiveTexture(GL_TEXTURE0 + UNIT_OCC);
+    r->gl.BindTexture(GL_TEXTURE_3D, r->occ_tex);
+    r->gl.ActiveTexture(GL_TEXTURE0 + UNIT_TF);
+    r->gl.BindTexture(GL_TEXTURE_1D, r->tf_tex);
+    r->gl.Uniform1i(loc(r, p, "occ"), UNIT_OCC);
+    r->gl.Uniform1i(loc(r, p, "tf"), UNIT_TF);
+    r->gl.Uniform1i(loc(r, p, "mode"), (int)o->mode);
+    mat4_to_gl(inv, m);
+    r->gl.UniformMatrix4fv(loc(r, p, "inv_vp"), 1, GL_FALSE, m);
+    r->gl.Uniform2f(loc(r, p, "tf_range"), (float)(r->iso_hu - 500), (float)(r->iso_hu + 1500));
+    r->gl.Uniform1f(loc(r, p, "iso"), (float)r->iso_hu);
+    r->gl.Uniform1f(loc(r, p, "step_fine"), (float)r->min_spacing);
+    r->gl.Uniform1f(loc(r, p, "step_coarse"), (float)(0.9 * RENDER_BLOCK * r->min_spacing));
+    r->gl.BindVertexArray(r->vao_empty);
+    r->gl.DrawArrays(GL_TRIANGLES, 0, 3);
+}
+
+static void draw_surface(render *r, const pose *poses, const render_options *o, const mat4 vp)
+{
+    unsigned p = r->prog_mesh;
+    float m[16], w2t[16], nmat[9], fw[3];
+    r->gl.UseProgram(p);
+    mat4_to_gl(vp, m);
+    r->gl.UniformMatrix4fv(loc(r, p, "vp"), 1, GL_FALSE, m);
+    for (int a = 0; a < 3; a++)
+        fw[a] = (float)o->camera.forward[a];
+    r->gl.Uniform3fv(loc(r, p, "forward"), 1, fw);
+    r->gl.Enable(GL_DEPTH_TEST);
+    r->gl.Clear(GL_DEPTH_BUFFER_BIT);
+    for (int i = 0; i < r->nfrag; i++) {
+        frag_mats(r, i, poses, m, w2t, nmat);
+        r->gl.UniformMatrix4fv(loc(r, p, "model"), 1, GL_FALSE, m);
+        r->gl.Uniform3fv(loc(r, p, "colour"), 1, r->frag[i].rgb);
+        r->gl.BindVertexArray(r->frag[i].mesh_vao);
+        r->gl.DrawArrays(GL_TRIANGLES, 0, (int)(r->frag[i].mesh_triangles * 3));
+    }
+    r->gl.Disable(GL_DEPTH_TEST);
+}
+
+/* ---- overlays ---- */
+
+typedef struct line_buf {
+    float *v;
+    size_t n, cap; /* vertices */
+} line_buf;
+
+static int line_push(line_buf *b, const double p[3], const float c[3])
+{
+    if (b->n == b->cap) {
+        size_t cap = b->cap ? b->cap * 2 : 1024;
+        float *v = realloc(b->v, cap * 6 * sizeof *v);
+        if (!v)
+            return FN_ENOMEM;
+        b->v = v;
+        b->cap = cap;
+    }
+    float *o = b->v + b->n++ * 6;
+    for (int a = 0; a < 3; a++) {
+        o[a] = (float)p[a];
+        o[3 + a] = c[a];
+    }
+    return 0;
+}
+
+static int box_edges(line_buf *b, const double lo[3], const double hi[3], const float c[3])
+{
+    int rc = 0;
+    for (int e = 0; e < 12 && !rc; e++) {
+        int axis = e / 4, u = (axis + 1) % 3, v = (axis + 2) % 3;
+        double p[3], q[3];
+        p[axis] = lo[axis];
+        q[axis] = hi[axis];
+        p[u] = q[u] = (e & 1) ? hi[u] : lo[u];
+        p[v] = q[v] = (e & 2) ? hi[v] : lo[v];
+        rc = line_push(b, p, c);
+        if (!rc)
+            rc = line_push(b, q, c);
+    }
+    return rc;
+}
+
+/* Nodes at `want` depth, and leaves above it, so the boxes cover the fragment. */
+static int collect_boxes(line_buf *b, const obb_node *nodes, const double sp[3], uint32_t idx,
+                         int depth, int want, const float c[3])
+{
+    const obb_node *n = &nodes[idx];
+    int leaf = (n->info >> 31) & 1;
+    if (depth == want || leaf) {
+        double lo[3], hi[3];
+        for (int a = 0; a < 3; a++) {
+            lo[a] = (n->lo[a] - 0.5) * sp[a];
+            hi[a] = (n->hi[a] + 0.5) * sp[a];
+        }
+        return box_edges(b, lo, hi, c);
+    }
+    uint32_t first = n->info & 0xFFFFFFu, count = ((n->info >> 28) & 7u) + 1;
+    int rc = 0;
+    for (uint32_t k = 0; k < count && !rc; k++)
+        rc = collect_boxes(b, nodes, sp, first + k, depth + 1, want, c);
+    return rc;
+}
+
+static int ensure_boxes(render *r, render_frag *f, int depth)
+{
+    if (f->box_vao && f->box_depth == depth)
+        return 0;
+    line_buf b = {0};
+    float c[3];
+    for (int a = 0; a < 3; a++)
+        c[a] = 0.5f + 0.5f * f->rgb[a];
+    int rc = obb_tree_nodes(f->tree) ? collect_boxes(&b, obb_tree_node_array(f->tree), f->spacing, 0, 1,
+                                                    depth, c)
+                                      : 0;
+    if (rc) {
+        free(b.v);
+        return fn_err_set(FN_ENOMEM, "render: out of memory for the hierarchy's boxes");
+    }
+    if (!f->box_vao) {
+        r->gl.GenVertexArrays(1, &f->box_vao);
+        r->gl.GenBuffers(1, &f->box_vbo);
+        r->gl.BindVertexArray(f->box_vao);
+        r->gl.BindBuffer(GL_ARRAY_BUFFER, f->box_vbo);
+        r->gl.VertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, 6 * sizeof(float), (void *)0);
+        r->gl.VertexAttribPointer(1, 3, GL_FLOAT, GL_FALSE, 6 * sizeof(float), (void *)(3 * sizeof(float)));
+        r->gl.EnableVertexAttribArray(0);
+        r->gl.EnableVertexAttribArray(1);
+    }
+    r->gl.BindBuffer(GL_ARRAY_BUFFER, f->box_vbo);
+    r->gl.BufferData(GL_ARRAY_BUFFER, (GLsizeiptr)(b.n * 6 * sizeof(float)), b.v, GL_STATIC_DRAW);
+    f->box_vertices = (int)b.n;
+    f->box_depth = depth;
+    free(b.v);
+    return 0;
+}
+
+/* Each fragment's principal axes at its current pose: red, green, blue for the largest first. */
+static int draw_axes(render *r, const pose *poses)
+{
+    static const float colours[3][3] = {{1, 0.2f, 0.2f}, {0.2f, 1, 0.2f}, {0.3f, 0.5f, 1}};
+    line_buf b = {0};
+    int rc = 0;
+    for (int i = 0; i < r->nfrag && !rc; i++) {
+        const render_frag *f = &r->frag[i];
+        const pose *p = poses ? &poses[i] : &f->pose;
+        for (int k = 0; k < 3 && !rc; k++) {
+            double len = 2.0 * sqrt(f->eigval[k] > 0 ? f->eigval[k] : 0), a[3], c[3], wa[3], wc[3];
+            for (int d = 0; d < 3; d++) {
+                a[d] = f->centroid[d] - len * f->axes[d][k];
+                c[d] = f->centroid[d] + len * f->axes[d][k];
+            }
+            pose_apply(p, a, wa);
+            pose_apply(p, c, wc);
+            rc = line_push(&b, wa, colours[k]);
+            if (!rc)
+                rc = line_push(&b, wc, colours[k]);
+        }
+    }
+    if (!rc) {
+        static const float id[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+        r->gl.UniformMatrix4fv(loc(r, r->prog_line, "model"), 1, GL_FALSE, id);
+        r->gl.BindVertexArray(r->line_vao);
+        r->gl.BindBuffer(GL_ARRAY_BUFFER, r->line_vbo);
+        r->gl.BufferData(GL_ARRAY_BUFFER, (GLsizeiptr)(b.n * 6 * sizeof(float)), b.v, GL_STREAM_DRAW);
+        r->gl.DrawArrays(GL_LINES, 0, (int)b.n);
+    }
+    free(b.v);
+    return rc ? fn_err_set(FN_ENOMEM, "render: out of memory for the axes overlay") : 0;
+}
+
+/* One voxel's box outline at world placement m. */
+static int voxel_box(line_buf *b, const pose *m, const uint16_t v[3], const double sp[3], const float c[3])
+{
+    int rc = 0;
+    for (int e = 0; e < 12 && !rc; e++) {
+        int axis = e / 4, u = (axis + 1) % 3, w = (axis + 2) % 3;
+        double p[2][3], q[3];
+        for (int end = 0; end < 2; end++) {
+            double l[3];
+            l[axis] = (v[axis] + (end ? 0.5 : -0.5)) * sp[axis];
+            l[u] = (v[u] + ((e & 1) ? 0.5 : -0.5)) * sp[u];
+            l[w] = (v[w] + ((e & 2) ? 0.5 : -0.5)) * sp[w];
+            pose_apply(m, l, q);
+            memcpy(p[end], q, sizeof q);
+        }
+        rc = line_push(b, p[0], c);
+        if (!rc)
+            rc = line_push(b, p[1], c);
+    }
+    return rc;
+}
+
+/* Both voxels of every colliding voxel pair, for every pair of fragments. */
+static int draw_contacts(render *r, const pose *poses)
+{
+    static const float yellow[3] = {1, 0.9f, 0.1f};
+    obb_pair *pairs = malloc(RENDER_MAX_CONTACTS * sizeof *pairs);
+    line_buf b = {0};
+    int rc = pairs ? 0 : FN_ENOMEM;
+    for (int i = 0; i < r->nfrag && !rc; i++)
+        for (int j = i + 1; j < r->nfrag && !rc; j++) {
+            pose wi = frag_world(r, i, poses), wj = frag_world(r, j, poses);
+            obb_query q = {.want_pairs = 1, .pairs = pairs, .max_pairs = RENDER_MAX_CONTACTS};
+            obb_result res;
+            rc = obb_collide(r->frag[i].tree, &wi, r->frag[j].tree, &wj, &q, NULL, &res);
+            for (size_t k = 0; k < res.npairs && !rc; k++) {
+                rc = voxel_box(&b, &wi, pairs[k].a, r->frag[i].spacing, yellow);
+                if (!rc)
+                    rc = voxel_box(&b, &wj, pairs[k].b, r->frag[j].spacing, yellow);
+            }
+        }
+    if (!rc && b.n) {
+        static const float id[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+        r->gl.UniformMatrix4fv(loc(r, r->prog_line, "model"), 1, GL_FALSE, id);
+        r->gl.BindVertexArray(r->line_vao);
+        r->gl.BindBuffer(GL_ARRAY_BUFFER, r->line_vbo);
+        r->gl.BufferData(GL_ARRAY_BUFFER, (GLsizeiptr)(b.n * 6 * sizeof(float)), b.v, GL_STREAM_DRAW);
+        r->gl.DrawArrays(GL_LINES, 0, (int)b.n);
+    }
+    free(b.v);
+    free(pairs);
+    if (rc == FN_ENOMEM)
+        return fn_err_set(FN_ENOMEM, "render: out of memory for the contacts overlay");
+    return rc;
+}
+
+static int draw_overlays(render *r, const pose *poses, const render_options *o, const mat4 vp)
+{
+    unsigned p = r->prog_line;
+    float m[16], w2t[16], nmat[9];
+    r->gl.UseProgram(p);
+    mat4_to_gl(vp, m);
+    r->gl.UniformMatrix4fv(loc(r, p, "vp"), 1, GL_FALSE, m);
+    r->gl.Uniform1i(loc(r, p, "use_tint"), 0);
+    int rc = 0;
+    if ((o->overlays & (RENDER_OVERLAY_HIERARCHY | RENDER_OVERLAY_CONTACTS)) && r->nfrag && !r->frag[0].tree)
+        return fn_err_set(FN_EINVAL, "render: the hierarchy and contacts overlays need the scene's "
+                                     "hierarchies (render_set_scene without hp)");
+    if (o->overlays & RENDER_OVERLAY_HIERARCHY)
+        for (int i = 0; i < r->nfrag && !rc; i++) {
+            render_frag *f = &r->frag[i];
+            rc = ensure_boxes(r, f, o->hierarchy_depth);
+            frag_mats(r, i, poses, m, w2t, nmat);
+            r->gl.UniformMatrix4fv(loc(r, p, "model"), 1, GL_FALSE, m);
+            r->gl.BindVertexArray(f->box_vao);
+            r->gl.DrawArrays(GL_LINES, 0, f->box_vertices);
+        }
+    if (!rc && (o->overlays & RENDER_OVERLAY_CONTACTS))
+        rc = draw_contacts(r, poses);
+    if (!rc && (o->overlays & RENDER_OVERLAY_AXES))
+        rc = draw_axes(r, poses);
+    return rc;
+}
+
+static int draw_3d(render *r, const pose *poses, const render_options *o, const int vp[4])
+{
+    mat4 m, inv;
+    camera_mats(&o->camera, (double)vp[2] / vp[3], m, inv);
+    if (o->mode == RENDER_SURFACE)
+        draw_surface(r, poses, o, m);
+    else
+        draw_raycast(r, poses, o, vp, inv);
+    return draw_overlays(r, poses, o, m);
+}
+
+/* ---- slices ---- */
+
+static const struct {
+    double u[3], v[3], n[3];
+} planes[3] = {
+    {{1, 0, 0}, {0, -1, 0}, {0, 0, 1}}, /* axial: anterior up, patient left on the right */
+    {{1, 0, 0}, {0, 0, 1}, {0, 1, 0}},  /* coronal */
+    {{0, 1, 0}, {0, 0, 1}, {1, 0, 0}},  /* sagittal: as seen from the patient's left */
+};
+
+static void draw_slice(render *r, const pose *poses, const render_options *o, int which, const int vp[4])
+{
+    unsigned p = r->prog_slice;
+    r->gl.UseProgram(p);
+    set_frag_uniforms(r, p, poses, vp);
+    double hh = o->camera.half_height, hw = hh * vp[2] / vp[3];
+    float centre[3], u[3], v[3], m[16];
+    double off = dot3(planes[which].n, o->slice_point) - dot3(planes[which].n, o->camera.centre);
+    for (int a = 0; a < 3; a++) {
+        centre[a] = (float)(o->camera.centre[a] + off * planes[which].n[a]);
+        u[a] = (float)(planes[which].u[a] * hw);
+        v[a] = (float)(planes[which].v[a] * hh);
+    }
+    r->gl.Uniform3fv(loc(r, p, "centre"), 1, centre);
+    r->gl.Uniform3fv(loc(r, p, "axis_u"), 1, u);
+    r->gl.Uniform3fv(loc(r, p, "axis_v"), 1, v);
+    r->gl.Uniform1i(loc(r, p, "have_ct"), r->have_ct);
+    r->gl.Uniform2f(loc(r, p, "window"), -500.0f, 1300.0f);
+    r->gl.Uniform1f(loc(r, p, "iso"), (float)r->iso_hu);
+    r->gl.ActiveTexture(GL_TEXTURE0 + UNIT_CT);
+    r->gl.BindTexture(GL_TEXTURE_3D, r->ct_tex);
+    r->gl.Uniform1i(loc(r, p, "ct"), UNIT_CT);
+    mat4_to_gl(r->ct_w2t, m);
+    r->gl.UniformMatrix4fv(loc(r, p, "ct_w2t"), 1, GL_FALSE, m);
+    r->gl.BindVertexArray(r->vao_empty);
+    r->gl.DrawArrays(GL_TRIANGLES, 0, 3);
+}
+
+/* ---- frames ---- */
+
+static void set_viewport(render *r, const int vp[4])
+{
+    r->gl.Viewport(vp[0], vp[1], vp[2], vp[3]);
+    r->gl.Scissor(vp[0], vp[1], vp[2], vp[3]);
+}
+
+int render_frame(render *r, const pose *poses, const render_options *o)
+{
+    if ((unsigned)o->mode > RENDER_SURFACE)
+        return fn_err_set(FN_EINVAL, "render: mode %d is not one of iso, dvr, mip, surface", (int)o->mode);
+    r->gl.Enable(GL_SCISSOR_TEST);
+    int full[4] = {0, 0, r->w, r->h};
+    set_viewport(r, full);
+    r->gl.ClearColor(BG[0], BG[1], BG[2], 1);
+    r->gl.Clear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT);
+    int rc = 0;
+    if (o->layout == RENDER_LAYOUT_3D) {
+        rc = draw_3d(r, poses, o, full);
+    } else {
+        /* GL's origin is the bottom left; one pixel of background between the quarters. */
+        int w2 = r->w / 2, h2 = r->h / 2;
+        int q3d[4] = {w2 + 1, h2 + 1, r->w - w2 - 1, r->h - h2 - 1};
+        int qax[4] = {0, h2 + 1, w2 - 1, r->h - h2 - 1};
+        int qsag[4] = {0, 0, w2 - 1, h2 - 1}, qcor[4] = {w2 + 1, 0, r->w - w2 - 1, h2 - 1};
+        const int *slices[3] = {qax, qcor, qsag};
+        for (int s = 0; s < 3; s++) {
+            set_viewport(r, slices[s]);
+            draw_slice(r, poses, o, s, slices[s]);
+        }
+        set_viewport(r, q3d);
+        rc = draw_3d(r, poses, o, q3d);
+    }
+    r->gl.Disable(GL_SCISSOR_TEST);
+    r->gl.BindVertexArray(0);
+    r->gl.UseProgram(0);
+    unsigned e = r->gl.GetError();
+    if (!rc && e != GL_NO_ERROR)
+        rc = fn_err_set(e == GL_OUT_OF_MEMORY ? FN_ENOMEM : FN_ENODEV, "render: GL error 0x%04x drawing a frame", e);
+    return rc;
+}
+
+int render_read_rgb(render *r, uint8_t *rgb)
+{
+    size_t row = (size_t)r->w * 3;
+    uint8_t *tmp = malloc(row * (size_t)r->h);
+    if (!tmp)
+        return fn_err_set(FN_ENOMEM, "render: out of memory reading a %dx%d frame", r->w, r->h);
+    r->gl.PixelStorei(GL_PACK_ALIGNMENT, 1);
+    r->gl.ReadPixels(0, 0, r->w, r->h, GL_RGB, GL_UNSIGNED_BYTE, tmp);
+    for (int y = 0; y < r->h; y++)
+        memcpy(rgb + (size_t)y * row, tmp + (size_t)(r->h - 1 - y) * row, row);
+    free(tmp);
+    unsigned e = r->gl.GetError();
+    return e == GL_NO_ERROR ? 0 : fn_err_set(FN_ENODEV, "render: GL error 0x%04x reading the frame", e);
+}
+
+int render_present(render *r)
+{
+    return r->plat->present(r);
+}

@@ -1,0 +1,104 @@
+/* render internals: the GL function table, the platform seam and the handle. */
+#ifndef FN_RENDER_IMPL_H
+#define FN_RENDER_IMPL_H
+
+#include "render.h"
+
+#include <GL/glcorearb.h>
+
+/* Every GL function the renderer calls; the platform resolves each by name ("gl" + NAME). */
+#define RENDER_GL_FUNCS(X)                                                                        \
+    X(PFNGLGETSTRINGPROC, GetString) X(PFNGLGETINTEGERVPROC, GetIntegerv)                          \
+    X(PFNGLGETERRORPROC, GetError) X(PFNGLVIEWPORTPROC, Viewport) X(PFNGLENABLEPROC, Enable)       \
+    X(PFNGLDISABLEPROC, Disable) X(PFNGLCLEARPROC, Clear) X(PFNGLCLEARCOLORPROC, ClearColor)       \
+    X(PFNGLSCISSORPROC, Scissor) X(PFNGLREADPIXELSPROC, ReadPixels)                                \
+    X(PFNGLPIXELSTOREIPROC, PixelStorei) X(PFNGLFINISHPROC, Finish)                                \
+    X(PFNGLGENTEXTURESPROC, GenTextures) X(PFNGLDELETETEXTURESPROC, DeleteTextures)                \
+    X(PFNGLBINDTEXTUREPROC, BindTexture) X(PFNGLACTIVETEXTUREPROC, ActiveTexture)                  \
+    X(PFNGLTEXIMAGE3DPROC, TexImage3D) X(PFNGLTEXIMAGE1DPROC, TexImage1D)                          \
+    X(PFNGLTEXPARAMETERIPROC, TexParameteri) X(PFNGLCREATESHADERPROC, CreateShader)                \
+    X(PFNGLSHADERSOURCEPROC, ShaderSource) X(PFNGLCOMPILESHADERPROC, CompileShader)                \
+    X(PFNGLGETSHADERIVPROC, GetShaderiv) X(PFNGLGETSHADERINFOLOGPROC, GetShaderInfoLog)            \
+    X(PFNGLDELETESHADERPROC, DeleteShader) X(PFNGLCREATEPROGRAMPROC, CreateProgram)                \
+    X(PFNGLATTACHSHADERPROC, AttachShader) X(PFNGLLINKPROGRAMPROC, LinkProgram)                    \
+    X(PFNGLGETPROGRAMIVPROC, GetProgramiv) X(PFNGLGETPROGRAMINFOLOGPROC, GetProgramInfoLog)        \
+    X(PFNGLUSEPROGRAMPROC, UseProgram) X(PFNGLDELETEPROGRAMPROC, DeleteProgram)                    \
+    X(PFNGLGETUNIFORMLOCATIONPROC, GetUniformLocation) X(PFNGLUNIFORM1IPROC, Uniform1i)            \
+    X(PFNGLUNIFORM1FPROC, Uniform1f) X(PFNGLUNIFORM1IVPROC, Uniform1iv)                            \
+    X(PFNGLUNIFORM2FPROC, Uniform2f) X(PFNGLUNIFORM3FVPROC, Uniform3fv)                            \
+    X(PFNGLUNIFORM4FPROC, Uniform4f) X(PFNGLUNIFORM4IVPROC, Uniform4iv)                            \
+    X(PFNGLUNIFORMMATRIX4FVPROC, UniformMatrix4fv) X(PFNGLUNIFORMMATRIX3FVPROC, UniformMatrix3fv)  \
+    X(PFNGLGENVERTEXARRAYSPROC, GenVertexArrays) X(PFNGLBINDVERTEXARRAYPROC, BindVertexArray)      \
+    X(PFNGLDELETEVERTEXARRAYSPROC, DeleteVertexArrays) X(PFNGLGENBUFFERSPROC, GenBuffers)          \
+    X(PFNGLBINDBUFFERPROC, BindBuffer) X(PFNGLBUFFERDATAPROC, BufferData)                          \
+    X(PFNGLDELETEBUFFERSPROC, DeleteBuffers) X(PFNGLVERTEXATTRIBPOINTERPROC, VertexAttribPointer)  \
+    X(PFNGLENABLEVERTEXATTRIBARRAYPROC, EnableVertexAttribArray) X(PFNGLDRAWARRAYSPROC, DrawArrays)
+
+typedef struct render_gl {
+#define RENDER_GL_MEMBER(type, name) type name;
+    RENDER_GL_FUNCS(RENDER_GL_MEMBER)
+#undef RENDER_GL_MEMBER
+} render_gl;
+
+/* A platform gives the renderer a current GL 4.5 core context. open leaves fn_err on failure
+ * (0 or FN_E*); proc resolves "glXxx" (NULL when missing); present shows the frame (window) or
+ * does nothing (offscreen); close frees what open made. */
+typedef struct render_platform {
+    const char *name;
+    int available; /* built in */
+    int (*open)(render *r, int w, int h);
+    void *(*proc)(render *r, const char *name);
+    int (*present)(render *r);
+    void (*close)(render *r);
+} render_platform;
+
+extern const render_platform render__osmesa;
+extern const render_platform render__glfw; /* not available when built without GLFW */
+
+/* GPU resources of one fragment. */
+typedef struct render_frag {
+    unsigned tex;          /* R16F 3D texture: the masked CT crop (masked_crop) */
+    int dim[3], occ_dim[3], occ_z;
+    double local_to_tc[3]; /* texture coordinate = local mm * this + 0.5 / dim */
+    pose home, pose; /* as segmented; the pose given at render_set_scene */
+    double spacing[3];
+    float rgb[3];
+    unsigned mesh_vao, mesh_vbo;
+    long mesh_triangles;
+    obb_tree *tree;            /* for the box overlay; NULL without one */
+    unsigned box_vao, box_vbo; /* the boxes' edges at box_depth, local mm */
+    int box_depth, box_vertices;
+    double centroid[3], axes[3][3], eigval[3];
+} render_frag;
+
+#define RENDER_OUTSIDE_HU (-1024.0f) /* outside the CT */
+#define RENDER_OUTSIDE_MARGIN 100.0   /* outside the label: at most iso - this */
+#define RENDER_BLOCK 4
+
+struct render {
+    const render_platform *plat;
+    void *plat_state;
+    int w, h;
+    render_gl gl;
+    char renderer[256], version[256];
+    unsigned prog_ray, prog_slice, prog_mesh, prog_line;
+    unsigned vao_empty, line_vao, line_vbo;
+    unsigned occ_tex, tf_tex, ct_tex;
+    int have_ct;
+    double ct_w2t[4][4]; /* world -> CT texture coordinates */
+    int nfrag;
+    render_frag frag[RENDER_MAX_FRAGS];
+    double iso_hu, min_spacing;
+};
+
+/* GLSL sources (render_shader.c). */
+extern const char *const render__ray_fs, *const render__quad_vs, *const render__slice_fs,
+    *const render__mesh_vs, *const render__mesh_fs, *const render__line_vs, *const render__line_fs;
+
+/* Marching tetrahedra over a masked scalar grid (render_mesh.c): vals is dim[0]*dim[1]*dim[2]
+ * (i fastest), spacing in mm; every stride[a] voxels along axis a. Triangles as 6 floats per
+ * vertex (position local mm, normal), malloc'd into *out; returns the triangle count or FN_ENOMEM. */
+long render__mesh_build(const float *vals, const int dim[3], const double spacing[3], float level,
+                        const int stride[3], float **out);
+
+#endif

@@ -1,0 +1,418 @@
+/* The renderer through OSMesa (llvmpipe): every mode and layout against reference pictures
+ * (tests/golden/render_*.png, 128x128, compared under a tolerance), every mode draws content,
+ * interpenetrating fragments both show, a known pose moves the picture by the expected pixels, and
+ * a GL older than 4.5 is refused with its version named, and (where Xvfb is installed) the GLFW
+ * window draws what OSMesa draws.
+ * FRACNAV_UPDATE_GOLDEN=1 rewrites the references (look at each before committing it). */
+#include <stdarg.h>
+#include <stddef.h>
+#include <setjmp.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include "err.h"
+#include "frag.h"
+#include "render.h"
+#include "snap.h"
+#include "testutil.h"
+#include "vol.h"
+
+#include <math.h>
+#include <png.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#define W 128
+#define H 128
+#define N 40
+
+typedef struct scene {
+    vol *ct, *labels;
+    frag f[2];
+    render *r;
+    uint8_t rgb[W * H * 3];
+} scene;
+
+/* A ball of bone (HU rising smoothly to 1000 inside radius 10) and a box of bone, apart. */
+static float ct_value(int i, int j, int k)
+{
+    double d = sqrt((i - 14.0) * (i - 14.0) + (j - 20.0) * (j - 20.0) + (k - 20.0) * (k - 20.0));
+    double s = (10.0 - d) / 3.0 + 0.5;
+    double ball = -1000.0 + 2000.0 * (s < 0 ? 0 : s > 1 ? 1 : s);
+    int in_box = i >= 26 && i < 34 && j >= 16 && j < 24 && k >= 16 && k < 24;
+    return (float)(in_box ? 900.0 : ball);
+}
+
+static int setup(void **st)
+{
+    scene *s = calloc(1, sizeof *s);
+    s->ct = vol_new(N, N, N);
+    s->labels = vol_new(N, N, N);
+    for (int k = 0; k < N; k++)
+        for (int j = 0; j < N; j++)
+            for (int i = 0; i < N; i++) {
+                float v = ct_value(i, j, k);
+                size_t x = vol_idx(s->ct, i, j, k);
+                s->ct->data[x] = v;
+                s->labels->data[x] = v < 300 ? 0 : i < 24 ? 1 : 2;
+            }
+    for (int id = 1; id <= 2; id++) {
+        int lo[3], hi[3];
+        assert_int_equal(frag_label_box(s->labels, id, lo, hi), 0);
+        assert_int_equal(frag_from_labels(&s->f[id - 1], s->labels, s->ct, id, lo, hi, 300, 200), 0);
+    }
+    s->r = render_open("osmesa", W, H);
+    if (!s->r)
+        fail_msg("render_open: %s", fn_err_msg());
+    obb_params hp = {0.5, 0.95};
+    assert_int_equal(render_set_scene(s->r, s->ct, s->f, 2, 300, &hp), 0);
+    *st = s;
+    return 0;
+}
+
+static int teardown(void **st)
+{
+    scene *s = *st;
+    render_close(s->r);
+    frag_free(&s->f[0]);
+    frag_free(&s->f[1]);
+    vol_free(s->ct);
+    vol_free(s->labels);
+    free(s);
+    return 0;
+}
+
+static void draw(scene *s, const pose *poses, const render_options *o)
+{
+    if (render_frame(s->r, poses, o))
+        fail_msg("render_frame: %s", fn_err_msg());
+    assert_int_equal(render_read_rgb(s->r, s->rgb), 0);
+}
+
+static int is_background(const uint8_t *p)
+{
+    return p[0] < 40 && p[1] < 40 && p[2] < 40;
+}
+
+static long content_pixels(const uint8_t *rgb)
+{
+    long n = 0;
+    for (int i = 0; i < W * H; i++)
+        n += !is_background(rgb + i * 3);
+    return n;
+}
+
+/* Compares with tests/golden/render_NAME.png: a pixel differs when a channel is off by more than
+ * 32; at most 1% of the pixels may differ. */
+static void check_golden(const uint8_t *rgb, const char *name)
+{
+    char path[4200];
+    snprintf(path, sizeof path, "%s/tests/golden/render_%s.png", getenv("FRACNAV_SRC"), name);
+    const char *update = getenv("FRACNAV_UPDATE_GOLDEN");
+    if (update && !strcmp(update, "1")) {
+        assert_int_equal(snap_write_png(path, rgb, W, H), 0);
+        return;
+    }
+    png_image im = {.version = PNG_IMAGE_VERSION};
+    if (!png_image_begin_read_from_file(&im, path))
+        fail_msg("%s: cannot read the reference (FRACNAV_UPDATE_GOLDEN=1 makes it)", path);
+    im.format = PNG_FORMAT_RGB;
+    assert_int_equal(im.width, W);
+    assert_int_equal(im.height, H);
+    uint8_t *ref = malloc(PNG_IMAGE_SIZE(im));
+    assert_true(png_image_finish_read(&im, NULL, ref, 0, NULL));
+    long differ = 0;
+    for (int i = 0; i < W * H; i++) {
+        int d = 0;
+        for (int c = 0; c < 3; c++)
+            d |= abs(rgb[i * 3 + c] - ref[i * 3 + c]) > 32;
+        differ += d;
+    }
+    free(ref);
+    if (differ > W * H / 100)
+        fail_msg("%s: %ld of %d pixels differ from the reference", name, differ, W * H);
+}
+
+static void options(scene *s, render_options *o, render_mode m)
+{
+    render_options_default(o, s->f, 2);
+    o->mode = m;
+}
+
+static void test_every_mode_draws_and_matches(void **st)
+{
+    scene *s = *st;
+    for (int m = RENDER_ISO; m <= RENDER_SURFACE; m++) {
+        render_options o;
+        options(s, &o, (render_mode)m);
+        draw(s, NULL, &o);
+        long n = content_pixels(s->rgb);
+        if (n < 400)
+            fail_msg("mode %s drew %ld pixels of content", render_mode_name((render_mode)m), n);
+        check_golden(s->rgb, render_mode_name((render_mode)m));
+    }
+}
+
+static void test_four_up_with_overlays_matches(void **st)
+{
+    scene *s = *st;
+    render_options o;
+    options(s, &o, RENDER_ISO);
+    o.layout = RENDER_LAYOUT_FOUR_UP;
+    o.overlays = RENDER_OVERLAY_HIERARCHY | RENDER_OVERLAY_AXES;
+    o.hierarchy_depth = 2;
+    draw(s, NULL, &o);
+    check_golden(s->rgb, "four_up");
+    options(s, &o, RENDER_SURFACE);
+    render_camera_standard(&o.camera, RENDER_SUPERIOR, s->f, 2);
+    o.overlays = RENDER_OVERLAY_AXES;
+    draw(s, NULL, &o);
+    check_golden(s->rgb, "surface_superior_axes");
+}
+
+/* Ball colour (230,216,190): g/r near 0.94; box colour (220,90,80): near 0.41. */
+static void count_colours(const uint8_t *rgb, long *ball, long *box)
+{
+    *ball = *box = 0;
+    for (int i = 0; i < W * H; i++) {
+        const uint8_t *p = rgb + i * 3;
+        if (p[0] < 50)
+            continue;
+        double g = (double)p[1] / p[0];
+        *ball += g > 0.8;
+        *box += g < 0.6;
+    }
+}
+
+/* The box is moved into the ball, its front face 2 mm in front of the ball's: from the front the
+ * box shows inside the ball's outline and the ball around it, in every raycast mode and surface. */
+static void test_interpenetrating_fragments_both_show(void **st)
+{
+    scene *s = *st;
+    pose poses[2] = {POSE_IDENTITY, POSE_IDENTITY};
+    poses[1].t[0] = -16;
+    poses[1].t[1] = -8;
+    const render_mode modes[] = {RENDER_ISO, RENDER_DVR, RENDER_SURFACE};
+    for (int m = 0; m < 3; m++) {
+        render_options o;
+        options(s, &o, modes[m]);
+        draw(s, poses, &o);
+        long ball, box;
+        count_colours(s->rgb, &ball, &box);
+        if (ball < 100 || box < 100)
+            fail_msg("%s: ball %ld pixels, box %ld: both should show", render_mode_name(modes[m]), ball, box);
+        if (modes[m] == RENDER_ISO)
+            check_golden(s->rgb, "interpenetrating");
+    }
+}
+
+/* The contacts overlay outlines the colliding voxels in yellow where the box is inside the ball,
+ * and draws nothing when the two are apart. */
+static long yellow_pixels(const uint8_t *rgb)
+{
+    long n = 0;
+    for (int i = 0; i < W * H; i++)
+        n += rgb[i * 3] > 180 && rgb[i * 3 + 1] > 160 && rgb[i * 3 + 2] < 90;
+    return n;
+}
+
+static void test_contacts_overlay_marks_colliding_voxels(void **st)
+{
+    scene *s = *st;
+    render_options o;
+    options(s, &o, RENDER_ISO);
+    o.overlays = RENDER_OVERLAY_CONTACTS;
+    draw(s, NULL, &o);
+    assert_int_equal(yellow_pixels(s->rgb), 0);
+    pose poses[2] = {POSE_IDENTITY, POSE_IDENTITY};
+    poses[1].t[0] = -16;
+    poses[1].t[1] = -8;
+    draw(s, poses, &o);
+    long n = yellow_pixels(s->rgb);
+    if (n < 50)
+        fail_msg("the contacts overlay drew %ld yellow pixels", n);
+    check_golden(s->rgb, "contacts");
+}
+
+static void centroid(const uint8_t *rgb, double *cx, double *cy)
+{
+    double sx = 0, sy = 0, n = 0;
+    for (int y = 0; y < H; y++)
+        for (int x = 0; x < W; x++)
+            if (!is_background(rgb + (y * W + x) * 3)) {
+                sx += x;
+                sy += y;
+                n++;
+            }
+    assert_true(n > 0);
+    *cx = sx / n;
+    *cy = sy / n;
+}
+
+/* Anterior view: +x (patient left) is screen right, +z (superior) is up; a pose's translation of
+ * d mm moves the ball by d * H / (2 * half_height) pixels, in every mode. */
+static void test_pose_moves_picture_by_expected_pixels(void **st)
+{
+    scene *s = *st;
+    for (int m = RENDER_ISO; m <= RENDER_SURFACE; m++) {
+        render_options o;
+        options(s, &o, (render_mode)m);
+        pose poses[2] = {POSE_IDENTITY, POSE_IDENTITY};
+        poses[1].t[0] = 200; /* the box out of the picture */
+        double x0, y0, x1, y1;
+        draw(s, poses, &o);
+        centroid(s->rgb, &x0, &y0);
+        poses[0].t[0] = 6;
+        poses[0].t[2] = -4;
+        draw(s, poses, &o);
+        centroid(s->rgb, &x1, &y1);
+        double px_per_mm = H / (2.0 * o.camera.half_height);
+        if (fabs((x1 - x0) - 6 * px_per_mm) > 0.75 || fabs((y1 - y0) - 4 * px_per_mm) > 0.75)
+            fail_msg("%s: moved (%.2f, %.2f) px, expected (%.2f, %.2f)", render_mode_name((render_mode)m),
+                     x1 - x0, y1 - y0, 6 * px_per_mm, 4 * px_per_mm);
+    }
+}
+
+static void test_gl_version_parse(void **st)
+{
+    int major = 0, minor = 0;
+    assert_int_equal(render_parse_gl_version("4.5 (Core Profile) Mesa 22.3.6", &major, &minor), 0);
+    assert_int_equal(major, 4);
+    assert_int_equal(minor, 5);
+    assert_int_equal(render_parse_gl_version("OpenGL ES 3.2 Mesa 22.3.6", &major, &minor), 0);
+    assert_int_equal(major, 3);
+    assert_int_equal(minor, 2);
+    assert_int_equal(render_parse_gl_version("no version", &major, &minor), FN_EFORMAT);
+}
+
+/* Mesa told to offer GL 3.3 only: opening fails, naming 3.3 and the 4.5 it needs. In a child, so
+ * the override cannot leak into the other tests. */
+static void test_old_gl_is_refused_with_its_version(void **st)
+{
+    int fds[2];
+    assert_int_equal(pipe(fds), 0);
+    pid_t pid = fork();
+    assert_true(pid >= 0);
+    if (pid == 0) {
+        setenv("MESA_GL_VERSION_OVERRIDE", "3.3", 1);
+        render *r = render_open("osmesa", 16, 16);
+        const char *msg = r ? "opened" : fn_err_msg();
+        ssize_t ignored = write(fds[1], msg, strlen(msg));
+        (void)ignored;
+        _exit(0);
+    }
+    close(fds[1]);
+    char buf[1024] = "";
+    size_t n = 0;
+    ssize_t k;
+    while (n < sizeof buf - 1 && (k = read(fds[0], buf + n, sizeof buf - 1 - n)) > 0)
+        n += (size_t)k;
+    close(fds[0]);
+    int status;
+    waitpid(pid, &status, 0);
+    if (!strstr(buf, "4.5") || !strstr(buf, "3.3"))
+        fail_msg("expected an error naming 4.5 and 3.3, got: %s", buf);
+}
+
+/* Starts Xvfb on a free display; its number comes back through -displayfd once it is ready.
+ * Returns its pid (0 when Xvfb is not installed). */
+static pid_t start_xvfb(int *display)
+{
+    if (access("/usr/bin/Xvfb", X_OK) != 0)
+        return 0;
+    int fds[2];
+    assert_int_equal(pipe(fds), 0);
+    pid_t pid = fork();
+    assert_true(pid >= 0);
+    if (pid == 0) {
+        char fd[16];
+        snprintf(fd, sizeof fd, "%d", fds[1]);
+        close(fds[0]);
+        execl("/usr/bin/Xvfb", "Xvfb", "-displayfd", fd, "-screen", "0", "640x480x24", "-nolisten", "tcp",
+              (char *)NULL);
+        _exit(127);
+    }
+    close(fds[1]);
+    char buf[32] = "";
+    size_t n = 0;
+    ssize_t k;
+    while (n < sizeof buf - 1 && (k = read(fds[0], buf + n, sizeof buf - 1 - n)) > 0) {
+        n += (size_t)k;
+        if (memchr(buf, '\n', n))
+            break;
+    }
+    close(fds[0]);
+    if (sscanf(buf, "%d", display) != 1)
+        fail_msg("Xvfb gave no display number");
+    return pid;
+}
+
+/* The same frame through a GLFW window (on Xvfb, in a child so the window's GL stays apart from
+ * OSMesa's) matches the offscreen one. */
+static void test_window_matches_offscreen(void **st)
+{
+    scene *s = *st;
+    int display;
+    pid_t xvfb = start_xvfb(&display);
+    if (!xvfb)
+        skip();
+    render_options o;
+    options(s, &o, RENDER_ISO);
+    o.layout = RENDER_LAYOUT_FOUR_UP;
+    int fds[2];
+    assert_int_equal(pipe(fds), 0);
+    pid_t pid = fork();
+    assert_true(pid >= 0);
+    if (pid == 0) {
+        char d[32];
+        snprintf(d, sizeof d, ":%d", display);
+        setenv("DISPLAY", d, 1);
+        close(fds[0]);
+        render *w = render_open("glfw", W, H);
+        int ok = w && !render_set_scene(w, s->ct, s->f, 2, 300, NULL) && !render_frame(w, NULL, &o) &&
+                 !render_read_rgb(w, s->rgb);
+        if (!ok)
+            fprintf(stderr, "window: %s\n", fn_err_msg());
+        ssize_t ignored = ok ? write(fds[1], s->rgb, sizeof s->rgb) : 0;
+        (void)ignored;
+        render_close(w);
+        _exit(ok ? 0 : 1);
+    }
+    close(fds[1]);
+    static uint8_t win[W * H * 3];
+    size_t n = 0;
+    ssize_t k;
+    while (n < sizeof win && (k = read(fds[0], win + n, sizeof win - n)) > 0)
+        n += (size_t)k;
+    close(fds[0]);
+    int status;
+    waitpid(pid, &status, 0);
+    kill(xvfb, SIGTERM);
+    waitpid(xvfb, NULL, 0);
+    assert_int_equal(n, sizeof win);
+    draw(s, NULL, &o);
+    long differ = 0;
+    for (int i = 0; i < W * H * 3; i++)
+        differ += abs(win[i] - s->rgb[i]) > 32;
+    if (differ > W * H / 100)
+        fail_msg("the window's frame differs from OSMesa's in %ld channel values", differ);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_gl_version_parse),
+        cmocka_unit_test(test_old_gl_is_refused_with_its_version),
+        cmocka_unit_test_setup_teardown(test_every_mode_draws_and_matches, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_four_up_with_overlays_matches, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_interpenetrating_fragments_both_show, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_contacts_overlay_marks_colliding_voxels, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_pose_moves_picture_by_expected_pixels, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_window_matches_offscreen, setup, teardown),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
