@@ -70,6 +70,15 @@ const dev_transport *dev_transport_at(size_t i)
     return i < n_registered ? registry[i] : NULL;
 }
 
+const char *dev_transport_describe(const dev_transport *t, char *buf, size_t cap)
+{
+    if (t->describe)
+        t->describe(buf, cap);
+    else
+        snprintf(buf, cap, "%s", t->enumerate ? "enumerates devices" : "opened by name (--device)");
+    return buf;
+}
+
 /* The open controller says its protocol in feature report 0x20; fracnav speaks protocol 1 only.
  * A transport with no feature reports to give (a recording: FN_EINVAL) is taken as it is. */
 static int check_protocol(dev_device *d)
@@ -458,6 +467,11 @@ const dev_info *dev_device_info(const dev_device *d)
 const char *dev_transport_name(const dev_device *d)
 {
     return d->t->name;
+}
+
+const dev_transport *dev_transport_of(const dev_device *d)
+{
+    return d->t;
 }
 
 uint64_t dev_skipped(const dev_device *d)

@@ -38,8 +38,19 @@ typedef struct dev_info {
     size_t desc_len;
 } dev_info;
 
+/* What a transport is (dev_transport.caps): callers test these flags, never a transport's name. */
+enum {
+    DEV_CAP_TERMINAL = 1u << 0,  /* reads the terminal: its user leaves stdin (and raw mode) to it */
+    DEV_CAP_RECORDING = 1u << 1  /* plays a recording: reads carry the recorded times, and the
+                                  * recording's end is the device's end (dev_transport.finished) */
+};
+
 typedef struct dev_transport {
     const char *name; /* "hidraw", "libusb", "spnav", "keyboard", "virtual", "replay" */
+    unsigned caps;    /* DEV_CAP_* */
+    /* The 1-based button the device sends to ask for help on its keys (the keyboard's ? and h);
+     * 0 = none. */
+    uint8_t help_button;
     /* Opens the device at path (transport-specific; NULL = the first one found). Returns 0 or a
      * negative FN_E* with fn_err_set() naming the path; FN_ENODEV when absent, FN_EIO when present
      * but not openable (permissions). */
@@ -62,6 +73,11 @@ typedef struct dev_transport {
     /* Optional: the udev subsystem whose "add" events may bring a lost device back ("hidraw",
      * "usb"); NULL = the 500 ms poll alone. */
     const char *hotplug_subsystem;
+    /* Says in one line what the transport offers here and now (`fracnav devices`), into buf.
+     * Optional: dev_transport_describe() says it from the caps when NULL. */
+    void (*describe)(char *buf, size_t cap);
+    /* Optional: 1 once the handle has played all it had (a recording, a script), else 0. */
+    int (*finished)(const dev_handle *h);
 } dev_transport;
 
 /* Registry. The built-in transports (hidraw or libusb, spnav, keyboard) are always present;
@@ -71,6 +87,8 @@ int dev_transport_register(const dev_transport *t);
 const dev_transport *dev_transport_find(const char *name);
 /* The i-th transport (built-in first), NULL past the end. */
 const dev_transport *dev_transport_at(size_t i);
+/* The transport's one-line state (its describe, else one said from its caps) in buf; returns buf. */
+const char *dev_transport_describe(const dev_transport *t, char *buf, size_t cap);
 
 /* What changed in an event (flags). */
 enum {
@@ -152,6 +170,8 @@ int dev_connected(const dev_device *d);
 const devtab_row *dev_row(const dev_device *d);
 const dev_info *dev_device_info(const dev_device *d);
 const char *dev_transport_name(const dev_device *d);
+/* The transport the device is open on (its caps, help button, ...). */
+const dev_transport *dev_transport_of(const dev_device *d);
 /* Reports skipped because of an unknown ID or a wrong length. */
 uint64_t dev_skipped(const dev_device *d);
 
