@@ -11,7 +11,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#include "dev.h"
+#include "dev_event.h"
 
 #define CALIB_BUTTONS 32
 
