@@ -489,13 +489,10 @@ int cmd_navigate(int argc, char **argv)
     if (rc)
         return rc;
     calib cal;
-    calib_default(&cal);
-    char used[4096], diag[2048] = "";
-    if (calib_load(&cal, o.config, used, sizeof used, diag, sizeof diag) < 0) {
+    if (calib_setup(&cal, o.config, 0, stderr, "fracnav navigate", NULL, 0) < 0) {
         fprintf(stderr, "fracnav navigate: %s\n", fn_err_msg());
         return 1;
     }
-    fputs(diag, stderr);
     offer_recovery(&o);
     loop_config cfg;
     loop_config_default(&cfg);
