@@ -110,8 +110,8 @@ static int identify(dev_device *d)
     if (d->t->info && d->t->info(d->h, &d->info) < 0)
         memset(&d->info, 0, sizeof d->info);
     d->row = devtab_find(d->info.vid, d->info.pid);
-    if (!d->row)
-        d->row = devtab_synthetic(d->t->name);
+    if (!d->row && d->t->synthetic_row)
+        d->row = devtab_synthetic(d->t->synthetic_row);
     hiddesc desc;
     int axis_max = 0;
     if (d->info.desc_len && hiddesc_parse(d->info.desc, d->info.desc_len, &desc) == 0)

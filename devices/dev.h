@@ -49,6 +49,9 @@ typedef struct dev_transport {
     /* The 1-based button the device sends to ask for help on its keys (the keyboard's ? and h);
      * 0 = none. */
     uint8_t help_button;
+    /* The synthetic device-table row (devtab_synthetic) its reports follow, for a transport that
+     * makes reports of its own (spnav, keyboard); NULL = the row of the device's vid:pid. */
+    const char *synthetic_row;
     /* Opens the device at path (transport-specific; NULL = the first one found). Returns 0 or a
      * negative FN_E* with fn_err_set() naming the path; FN_ENODEV when absent, FN_EIO when present
      * but not openable (permissions). */

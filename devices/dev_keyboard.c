@@ -256,6 +256,7 @@ const dev_transport dev__keyboard_transport = {
     .name = "keyboard",
     .caps = DEV_CAP_TERMINAL,
     .help_button = 11,
+    .synthetic_row = "keyboard",
     .open = kb_open,
     .read = kb_read,
     .info = kb_info,

@@ -140,6 +140,7 @@ static void spnav_close_dev(dev_handle *h)
 
 const dev_transport dev__spnav_transport = {
     .name = "spnav",
+    .synthetic_row = "spnav",
     .describe = spnav_describe,
     .open = spnav_open_dev,
     .read = spnav_read_dev,
@@ -166,6 +167,7 @@ static void spnav_close_dev(dev_handle *h)
 
 const dev_transport dev__spnav_transport = {
     .name = "spnav",
+    .synthetic_row = "spnav",
     .describe = spnav_describe,
     .open = spnav_open_dev,
     .read = spnav_read_dev,

@@ -43,6 +43,22 @@ static void test_caps_by_transport(void **st)
     assert_non_null(dev_transport_find("virtual")->finished);
 }
 
+/* A transport that makes its own reports says which synthetic row they follow; the row is data,
+ * not the transport's name. */
+static void test_synthetic_rows(void **st)
+{
+    (void)st;
+    const char *names[] = {"spnav", "keyboard"};
+    for (size_t i = 0; i < 2; i++) {
+        const dev_transport *t = dev_transport_find(names[i]);
+        assert_non_null(t->synthetic_row);
+        const devtab_row *row = devtab_synthetic(t->synthetic_row);
+        assert_non_null(row);
+        assert_true(row->flags & DEVTAB_F_SYNTH);
+    }
+    assert_null(dev_transport_find("replay")->synthetic_row);
+}
+
 /* Every backend describes itself; one without describe gets a line from what it offers. */
 static void test_describe(void **st)
 {
@@ -117,6 +133,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_caps_by_transport),
+        cmocka_unit_test(test_synthetic_rows),
         cmocka_unit_test(test_describe),
         cmocka_unit_test(test_replay_needs_file),
         cmocka_unit_test(test_two_function_sets),
