@@ -57,6 +57,7 @@ typedef struct hidfuse_server {
     uint32_t ctl_buttons;  /* buttons held down by control commands */
     int64_t log_t0;
     uint64_t served, dropped;
+    struct hidraw_report_descriptor rdesc; /* HIDIOCGRDESC's answer (4 KiB: not on the stack) */
 } hidfuse_server;
 
 static int64_t mono_us(void)
@@ -463,10 +464,10 @@ static void op_ioctl(fuse_req_t req, fuse_ino_t ino, unsigned int cmd, void *arg
         return;
     }
     case _IOC_NR(HIDIOCGRDESC): {
-        static struct hidraw_report_descriptor d;
-        d.size = (uint32_t)srv->src.id.desc_len;
-        memcpy(d.value, srv->src.id.desc, srv->src.id.desc_len);
-        fuse_reply_ioctl(req, 0, &d, sizeof d < out_bufsz ? sizeof d : out_bufsz);
+        struct hidraw_report_descriptor *d = &srv->rdesc;
+        d->size = (uint32_t)srv->src.id.desc_len;
+        memcpy(d->value, srv->src.id.desc, srv->src.id.desc_len);
+        fuse_reply_ioctl(req, 0, d, sizeof *d < out_bufsz ? sizeof *d : out_bufsz);
         return;
     }
     case _IOC_NR(HIDIOCGRAWINFO): {
