@@ -327,7 +327,7 @@ static void reader_active(hidfuse_server *srv, reader *r)
     r->active = 1;
     int owed = srv->dev.battery_pending;
     power_on_reports(srv);
-    /* else the source or the replug sends it */
+    /* A reader after the power-on reports gets the level; before them, they carry it. */
     if (srv->src.p->battery && srv->plugged && srv->started && !owed)
         battery_for_late_reader(srv, r);
     if (srv->src.start_on_read && !srv->started)
