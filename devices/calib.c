@@ -3,6 +3,8 @@
 #include <math.h>
 #include <string.h>
 
+#include "devtab.h"
+
 #define SENS_STEP 1.25f
 
 void calib_default(calib *c)

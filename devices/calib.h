@@ -10,8 +10,9 @@
 
 #include <stddef.h>
 #include <stdint.h>
+#include <stdio.h>
 
-#include "dev.h"
+#include "dev_event.h"
 
 #define CALIB_BUTTONS 32
 
@@ -63,8 +64,9 @@ void calib_apply(const calib *c, const float in[6], float out[6]);
 /* Handles the button edges of ev: bound actions are performed on press (and the bit cleared from
  * the returned set), other buttons are remapped through bnmap. Enterprise keys arrive as buttons
  * (devtab_keys); key codes 27 (rotate toggle; unless its button is bound), 28 (pan/zoom toggle),
- * 29 (dominant), 30 (+), 31 (-) also act by themselves. Returns the remapped
- * button state. `raw` is the uncalibrated axis input of ev (used by CALIB_ACT_ZERO). */
+ * 29 (dominant), 30 (+), 31 (-) also act by themselves. Returns the remapped button state;
+ * *pressed and *released (each may be NULL) receive its remapped edges. CALIB_ACT_ZERO, bound to a
+ * button, takes ev's axes (the uncalibrated input) as the zero offset. */
 uint32_t calib_buttons(calib *c, const dev_event *ev, uint32_t *pressed, uint32_t *released);
 
 /* Performs one action (also callable from a GUI or key binding). raw: current input, for ZERO. */
@@ -80,14 +82,26 @@ int calib_parse_spnavrc(calib *c, const char *text, size_t len, const char *fnam
                         size_t cap);
 
 /* Loads the user's configuration: path if non-NULL, else ~/.config/fracnav/spnavrc ($HOME), else
- * /etc/spnavrc ($FRACNAV_SYSCONFDIR/spnavrc when that is set). A missing file is fine (defaults, returns 0); *used receives the path read (or "").
- * Returns the number of bad lines, or FN_EIO for an unreadable named file. */
+ * /etc/spnavrc ($FRACNAV_SYSCONFDIR/spnavrc when that is set). A missing file is fine (defaults,
+ * returns 0); *used receives the path read (or ""). Returns the number of bad lines, or FN_EIO for
+ * an unreadable named file. */
 int calib_load(calib *c, const char *path, char *used, size_t used_cap, char *diag, size_t cap);
 
-/* Saves c in spnavrc syntax to path, or to ~/.config/fracnav/spnavrc (made if missing) when path
- * is NULL; atomically (temporary file, fsync, rename), so a crash never leaves a broken file. An
- * existing file is merged (calib_merge_spnavrc): the user's comments, blank lines and lines fracnav
- * does not know are kept. *used receives the path. Returns 0 or FN_EIO naming the file. */
+/* calib_setup flags. */
+enum {
+    CALIB_NAMED_ONLY = 1u << 0, /* no path: the defaults, not the user's files (a replay gives the
+                                 * same poses on every machine) */
+    CALIB_NEW_OK = 1u << 1      /* a named file that does not exist yet is fine: it is about to be
+                                 * written (device-test --calibrate-zero) */
+};
+
+/* The calibration a command runs with, loaded the one way every command loads it: the defaults,
+ * then calib_load's file (path, else the user's unless CALIB_NAMED_ONLY). Bad lines are skipped
+ * and said on err as "WHO: N bad line(s) skipped:" followed by one "FILE:LINE: message" line each.
+ * *used receives the path read ("" for none; may be NULL). Returns 0, or negative with fn_err_msg()
+ * naming the file that cannot be read. */
+int calib_setup(calib *c, const char *path, unsigned flags, FILE *err, const char *who, char *used,
+                size_t used_cap);
 
 /* The text of an spnavrc file old (old_len bytes) updated to say c, as spacenavd's writer does:
  * every line is kept as it is (comments, blank lines, unknown keys, bad lines, spacenavd-only
@@ -95,6 +109,11 @@ int calib_load(calib *c, const char *path, char *used, size_t used_cap, char *di
  * and a line of a known key that c leaves at its default (commented out); keys the file lacks are
  * appended. *out is malloc'd (NUL-terminated; free it). Pure. Returns 0 or FN_ENOMEM. */
 int calib_merge_spnavrc(const calib *c, const char *old, size_t old_len, char **out, size_t *out_len);
+
+/* Saves c in spnavrc syntax to path, or to ~/.config/fracnav/spnavrc (made if missing) when path
+ * is NULL; atomically (temporary file, fsync, rename), so a crash never leaves a broken file. An
+ * existing file is merged (calib_merge_spnavrc): the user's comments, blank lines and lines fracnav
+ * does not know are kept. *used receives the path. Returns 0 or FN_EIO naming the file. */
 int calib_save(const calib *c, const char *path, char *used, size_t used_cap);
 
 /* Writes c in spnavrc syntax (every key set, so the file round-trips). Returns bytes written

@@ -379,6 +379,27 @@ int calib_load(calib *c, const char *path, char *used, size_t used_cap, char *di
     return 0;
 }
 
+int calib_setup(calib *c, const char *path, unsigned flags, FILE *err, const char *who, char *used,
+                size_t used_cap)
+{
+    char bad_lines[2048] = "", where[4096] = "";
+    calib_default(c);
+    if (used && used_cap)
+        used[0] = '\0';
+    if (!path && (flags & CALIB_NAMED_ONLY))
+        return 0;
+    if (path && (flags & CALIB_NEW_OK) && access(path, F_OK) != 0)
+        return 0;
+    int bad = calib_load(c, path, where, sizeof where, bad_lines, sizeof bad_lines);
+    if (bad < 0)
+        return bad;
+    if (bad)
+        fprintf(err, "%s: %d bad line(s) skipped:\n%s", who, bad, bad_lines);
+    if (used && used_cap)
+        snprintf(used, used_cap, "%s", where);
+    return 0;
+}
+
 static void FN_PRINTF(3, 4) put(char *out, size_t cap, const char *fmt, ...)
 {
     size_t used = strlen(out);

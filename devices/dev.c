@@ -70,6 +70,15 @@ const dev_transport *dev_transport_at(size_t i)
     return i < n_registered ? registry[i] : NULL;
 }
 
+const char *dev_transport_describe(const dev_transport *t, char *buf, size_t cap)
+{
+    if (t->describe)
+        t->describe(buf, cap);
+    else
+        snprintf(buf, cap, "%s", t->enumerate ? "enumerates devices" : "opened by name (--device)");
+    return buf;
+}
+
 /* The open controller says its protocol in feature report 0x20; fracnav speaks protocol 1 only.
  * A transport with no feature reports to give (a recording: FN_EINVAL) is taken as it is. */
 static int check_protocol(dev_device *d)
@@ -101,8 +110,8 @@ static int identify(dev_device *d)
     if (d->t->info && d->t->info(d->h, &d->info) < 0)
         memset(&d->info, 0, sizeof d->info);
     d->row = devtab_find(d->info.vid, d->info.pid);
-    if (!d->row)
-        d->row = devtab_synthetic(d->t->name);
+    if (!d->row && d->t->synthetic_row)
+        d->row = devtab_synthetic(d->t->synthetic_row);
     hiddesc desc;
     int axis_max = 0;
     if (d->info.desc_len && hiddesc_parse(d->info.desc, d->info.desc_len, &desc) == 0)
@@ -458,6 +467,11 @@ const dev_info *dev_device_info(const dev_device *d)
 const char *dev_transport_name(const dev_device *d)
 {
     return d->t->name;
+}
+
+const dev_transport *dev_transport_of(const dev_device *d)
+{
+    return d->t;
 }
 
 uint64_t dev_skipped(const dev_device *d)

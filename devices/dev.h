@@ -9,22 +9,20 @@
  * Threads: a dev_device belongs to one thread (the loop's input thread). The transport registry is
  * filled at start-up (before threads start) and read-only afterwards.
  *
- * Axis convention of every event: HID's right-handed frame, +x right, +y towards the user, +z down;
- * rx ry rz are rotations about those axes (right-hand rule). Values are normalized by the
- * device's logical maximum and clamped to [-1, 1]. */
+ * Events (dev_event.h) follow HID's axis convention. */
 #ifndef FN_DEV_H
 #define FN_DEV_H
 
 #include <stddef.h>
 #include <stdint.h>
 
+#include "dev_event.h"
 #include "devtab.h"
 #include "hotplug.h"
 
 #define DEV_REPORT_MAX 64
 #define DEV_DESC_MAX 4096
 #define DEV_TRANSPORTS_MAX 16
-#define DEV_DT_MAX_US 50000     /* dt after a pause is clamped to this (no jump after a stall) */
 #define DEV_REPLUG_MS 500       /* how often a lost device is looked for again */
 
 typedef struct dev_handle dev_handle; /* a transport's open device, opaque */
@@ -38,8 +36,22 @@ typedef struct dev_info {
     size_t desc_len;
 } dev_info;
 
+/* What a transport is (dev_transport.caps): callers test these flags, never a transport's name. */
+enum {
+    DEV_CAP_TERMINAL = 1u << 0,  /* reads the terminal: its user leaves stdin (and raw mode) to it */
+    DEV_CAP_RECORDING = 1u << 1  /* plays a recording: reads carry the recorded times, and the
+                                  * recording's end is the device's end (dev_transport.finished) */
+};
+
 typedef struct dev_transport {
     const char *name; /* "hidraw", "libusb", "spnav", "keyboard", "virtual", "replay" */
+    unsigned caps;    /* DEV_CAP_* */
+    /* The 1-based button the device sends to ask for help on its keys (the keyboard's ? and h);
+     * 0 = none. */
+    uint8_t help_button;
+    /* The synthetic device-table row (devtab_synthetic) its reports follow, for a transport that
+     * makes reports of its own (spnav, keyboard); NULL = the row of the device's vid:pid. */
+    const char *synthetic_row;
     /* Opens the device at path (transport-specific; NULL = the first one found). Returns 0 or a
      * negative FN_E* with fn_err_set() naming the path; FN_ENODEV when absent, FN_EIO when present
      * but not openable (permissions). */
@@ -62,6 +74,11 @@ typedef struct dev_transport {
     /* Optional: the udev subsystem whose "add" events may bring a lost device back ("hidraw",
      * "usb"); NULL = the 500 ms poll alone. */
     const char *hotplug_subsystem;
+    /* Says in one line what the transport offers here and now (`fracnav devices`), into buf.
+     * Optional: dev_transport_describe() says it from the caps when NULL. */
+    void (*describe)(char *buf, size_t cap);
+    /* Optional: 1 once the handle has played all it had (a recording, a script), else 0. */
+    int (*finished)(const dev_handle *h);
 } dev_transport;
 
 /* Registry. The built-in transports (hidraw or libusb, spnav, keyboard) are always present;
@@ -71,30 +88,8 @@ int dev_transport_register(const dev_transport *t);
 const dev_transport *dev_transport_find(const char *name);
 /* The i-th transport (built-in first), NULL past the end. */
 const dev_transport *dev_transport_at(size_t i);
-
-/* What changed in an event (flags). */
-enum {
-    DEV_EV_MOTION = 1u << 0,  /* axis values changed (or a zero report arrived) */
-    DEV_EV_BUTTON = 1u << 1,  /* buttons or key codes changed */
-    DEV_EV_BATTERY = 1u << 2, /* battery level reported */
-    DEV_EV_UNPLUG = 1u << 3,  /* the device went away: hold the last pose */
-    DEV_EV_REPLUG = 1u << 4,  /* the device is back */
-    DEV_EV_REFUSED = 1u << 5  /* another device (vid:pid:serial) sits where the lost one was: not
-                               * adopted, still waiting; fn_err_msg() names both. Once per refusal. */
-};
-
-/* A normalized event: the device's whole input state after the reports it folds in. */
-typedef struct dev_event {
-    int64_t t_us;      /* arrival time of the newest report folded in (monotonic microseconds) */
-    int64_t dt_us;     /* time since the previous motion, clamped to [0, DEV_DT_MAX_US] */
-    unsigned flags;    /* DEV_EV_* */
-    float axis[6];     /* tx ty tz rx ry rz in [-1, 1], HID frame (see above) */
-    uint32_t buttons;  /* bit i = button i (packed by the row's button mask) */
-    uint32_t pressed;  /* buttons that went down in this event */
-    uint32_t released; /* buttons that went up in this event */
-    uint16_t keys[6];  /* key codes held (report 0x1C), 0 = none */
-    int battery;       /* 0..100, -1 unknown */
-} dev_event;
+/* The transport's one-line state (its describe, else one said from its caps) in buf; returns buf. */
+const char *dev_transport_describe(const dev_transport *t, char *buf, size_t cap);
 
 /* An opened controller: transport handle, device-table row, parser state and hotplug state. */
 typedef struct dev_device dev_device;
@@ -152,6 +147,8 @@ int dev_connected(const dev_device *d);
 const devtab_row *dev_row(const dev_device *d);
 const dev_info *dev_device_info(const dev_device *d);
 const char *dev_transport_name(const dev_device *d);
+/* The transport the device is open on (its caps, help button, ...). */
+const dev_transport *dev_transport_of(const dev_device *d);
 /* Reports skipped because of an unknown ID or a wrong length. */
 uint64_t dev_skipped(const dev_device *d);
 

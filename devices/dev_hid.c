@@ -295,8 +295,14 @@ static void hid_close_dev(dev_handle *h)
     free(h);
 }
 
+static void hid_describe(char *buf, size_t cap)
+{
+    snprintf(buf, cap, "enumerates devices");
+}
+
 const dev_transport dev__hid_transport = {
     .name = HID_NAME,
+    .describe = hid_describe,
     .open = hid_open_dev,
     .read = hid_read_dev,
     .write = hid_write_dev,

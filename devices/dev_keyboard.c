@@ -247,5 +247,19 @@ static void kb_close(dev_handle *h)
     free(h);
 }
 
+static void kb_describe(char *buf, size_t cap)
+{
+    snprintf(buf, cap, "fallback on a terminal (--device keyboard)");
+}
+
 const dev_transport dev__keyboard_transport = {
-    .name = "keyboard", .open = kb_open, .read = kb_read, .info = kb_info, .close = kb_close};
+    .name = "keyboard",
+    .caps = DEV_CAP_TERMINAL,
+    .help_button = 11,
+    .synthetic_row = "keyboard",
+    .open = kb_open,
+    .read = kb_read,
+    .info = kb_info,
+    .close = kb_close,
+    .describe = kb_describe,
+};

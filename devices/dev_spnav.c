@@ -13,6 +13,8 @@
 #include "devparse.h"
 #include "err.h"
 
+static void spnav_describe(char *buf, size_t cap);
+
 #ifdef FRACNAV_HAVE_SPNAV
 #include <spnav.h>
 
@@ -138,6 +140,8 @@ static void spnav_close_dev(dev_handle *h)
 
 const dev_transport dev__spnav_transport = {
     .name = "spnav",
+    .synthetic_row = "spnav",
+    .describe = spnav_describe,
     .open = spnav_open_dev,
     .read = spnav_read_dev,
     .write = spnav_write_dev,
@@ -162,6 +166,22 @@ static void spnav_close_dev(dev_handle *h)
 }
 
 const dev_transport dev__spnav_transport = {
-    .name = "spnav", .open = spnav_open_dev, .read = spnav_read_dev, .close = spnav_close_dev};
+    .name = "spnav",
+    .synthetic_row = "spnav",
+    .describe = spnav_describe,
+    .open = spnav_open_dev,
+    .read = spnav_read_dev,
+    .close = spnav_close_dev,
+};
 
 #endif
+
+/* Whether spacenavd answers now: the state `fracnav devices` shows. */
+static void spnav_describe(char *buf, size_t cap)
+{
+    dev_handle *h = NULL;
+    int rc = spnav_open_dev(NULL, &h);
+    if (rc == 0)
+        spnav_close_dev(h);
+    snprintf(buf, cap, "%s", rc == 0 ? "spacenavd running" : fn_err_msg());
+}

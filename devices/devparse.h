@@ -16,7 +16,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#include "dev.h"
+#include "dev_event.h"
 #include "devtab.h"
 
 typedef struct devparse_state {

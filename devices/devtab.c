@@ -4,46 +4,51 @@
 #include <string.h>
 
 #define ALL(n) ((uint32_t)(((uint64_t)1 << (n)) - 1))
-#define HW(vid, pid, name, fmt, nb, mask, fl) {vid, pid, name, fmt, nb, mask, 0, 350, fl}
+/* A hardware row; HWA gives it a short name of its own (fracnav-sim --as has always taken these). */
+#define HW(vid, pid, name, fmt, nb, mask, fl) {vid, pid, name, fmt, nb, mask, 0, 350, fl, NULL, NULL}
+#define HWA(vid, pid, name, fmt, nb, mask, fl, alias) {vid, pid, name, fmt, nb, mask, 0, 350, fl, alias, NULL}
 
 enum { LED = DEVTAB_F_LED, BAT = DEVTAB_F_BATTERY, RCV = DEVTAB_F_RECEIVER };
 
 /* Facts from ../shared/DEVICES.md; one row per product id. */
 static const devtab_row rows[] = {
-    HW(0x046d, 0xc626, "3Dconnexion SpaceNavigator", DEVTAB_SPLIT, 2, ALL(2), LED),
-    HW(0x046d, 0xc628, "3Dconnexion SpaceNavigator for Notebooks", DEVTAB_SPLIT, 2, ALL(2), LED),
-    HW(0x046d, 0xc627, "3Dconnexion SpaceExplorer", DEVTAB_SPLIT, 15, ALL(15), LED),
+    HWA(0x046d, 0xc626, "3Dconnexion SpaceNavigator", DEVTAB_SPLIT, 2, ALL(2), LED, "spacenavigator"),
+    HWA(0x046d, 0xc628, "3Dconnexion SpaceNavigator for Notebooks", DEVTAB_SPLIT, 2, ALL(2), LED,
+        "spacenavigator-notebook"),
+    HWA(0x046d, 0xc627, "3Dconnexion SpaceExplorer", DEVTAB_SPLIT, 15, ALL(15), LED, "spaceexplorer"),
     HW(0x046d, 0xc625, "3Dconnexion SpacePilot", DEVTAB_SPLIT, 21, ALL(21), LED),
-    HW(0x046d, 0xc629, "3Dconnexion SpacePilot Pro", DEVTAB_SPLIT, 31, ALL(31), LED),
-    HW(0x046d, 0xc62b, "3Dconnexion SpaceMouse Pro", DEVTAB_SPLIT, 15, 0x07C0F137u, LED),
+    HWA(0x046d, 0xc629, "3Dconnexion SpacePilot Pro", DEVTAB_SPLIT, 31, ALL(31), LED, "spacepilot-pro"),
+    HWA(0x046d, 0xc62b, "3Dconnexion SpaceMouse Pro", DEVTAB_SPLIT, 15, 0x07C0F137u, LED, "spacemouse-pro"),
     HW(0x046d, 0xc603, "3Dconnexion SpaceMouse Plus XT (USB)", DEVTAB_LEGACY, 10, ALL(10), 0),
     HW(0x046d, 0xc605, "3Dconnexion CadMan (USB)", DEVTAB_LEGACY, 4, ALL(4), 0),
     HW(0x046d, 0xc606, "3Dconnexion SpaceMouse Classic (USB)", DEVTAB_LEGACY, 8, ALL(8), 0),
     HW(0x046d, 0xc621, "3Dconnexion Spaceball 5000 (USB)", DEVTAB_LEGACY, 12, ALL(12), 0),
     HW(0x046d, 0xc623, "3Dconnexion SpaceTraveller", DEVTAB_LEGACY, 8, ALL(8), 0),
     HW(0x046d, 0xc640, "3Dconnexion NuLOOQ", DEVTAB_LEGACY, 4, ALL(4), 0),
-    HW(0x256f, 0xc62e, "3Dconnexion SpaceMouse Wireless (cable)", DEVTAB_COMBINED, 2, ALL(2), LED | BAT),
+    HWA(0x256f, 0xc62e, "3Dconnexion SpaceMouse Wireless (cable)", DEVTAB_COMBINED, 2, ALL(2), LED | BAT,
+        "spacemouse-wireless"),
     HW(0x256f, 0xc62f, "3Dconnexion SpaceMouse Wireless (receiver)", DEVTAB_COMBINED, 2, ALL(2),
        LED | BAT | RCV),
-    HW(0x256f, 0xc631, "3Dconnexion SpaceMouse Pro Wireless (cable)", DEVTAB_COMBINED, 15, ALL(15),
-       LED | BAT),
+    HWA(0x256f, 0xc631, "3Dconnexion SpaceMouse Pro Wireless (cable)", DEVTAB_COMBINED, 15, ALL(15),
+        LED | BAT, "spacemouse-pro-wireless"),
     HW(0x256f, 0xc632, "3Dconnexion SpaceMouse Pro Wireless (receiver)", DEVTAB_COMBINED, 15, ALL(15),
        LED | BAT | RCV),
-    HW(0x256f, 0xc633, "3Dconnexion SpaceMouse Enterprise", DEVTAB_COMBINED, 31, ALL(31),
-       LED | DEVTAB_F_KEYCODES),
-    HW(0x256f, 0xc635, "3Dconnexion SpaceMouse Compact", DEVTAB_SPLIT, 2, ALL(2), LED),
+    HWA(0x256f, 0xc633, "3Dconnexion SpaceMouse Enterprise", DEVTAB_COMBINED, 31, ALL(31),
+        LED | DEVTAB_F_KEYCODES, "spacemouse-enterprise"),
+    HWA(0x256f, 0xc635, "3Dconnexion SpaceMouse Compact", DEVTAB_SPLIT, 2, ALL(2), LED, "spacemouse-compact"),
     HW(0x256f, 0xc638, "3Dconnexion SpaceMouse Pro Wireless (Bluetooth)", DEVTAB_COMBINED, 15, ALL(15),
        LED | BAT),
     HW(0x256f, 0xc63a, "3Dconnexion SpaceMouse Wireless (Bluetooth)", DEVTAB_COMBINED, 2, ALL(2),
        LED | BAT),
     HW(0x256f, 0xc652, "3Dconnexion Universal Receiver", DEVTAB_COMBINED, 15, ALL(15), LED | BAT | RCV),
-    HW(DEVTAB_OPEN_VID, DEVTAB_OPEN_PID, "fracnav open 6-DOF controller", DEVTAB_COMBINED, 8, ALL(8),
-       LED | BAT | DEVTAB_F_OPEN),
+    /* Its USB strings: manufacturer "fracnav", product its name (firmware-spec/open-controller.md). */
+    {DEVTAB_OPEN_VID, DEVTAB_OPEN_PID, "fracnav open 6-DOF controller", DEVTAB_COMBINED, 8, ALL(8), 0, 350,
+     LED | BAT | DEVTAB_F_OPEN, "open-controller", "fracnav"},
     /* Synthetic rows: transports that make reports of their own. */
-    {0, 0, "spnav", DEVTAB_COMBINED, 32, 0xffffffffu, 0, 350, DEVTAB_F_SYNTH | LED},
-    {0, 0, "keyboard", DEVTAB_COMBINED, 11, ALL(11), 0, 350, DEVTAB_F_SYNTH},
+    {0, 0, "spnav", DEVTAB_COMBINED, 32, 0xffffffffu, 0, 350, DEVTAB_F_SYNTH | LED, NULL, NULL},
+    {0, 0, "keyboard", DEVTAB_COMBINED, 11, ALL(11), 0, 350, DEVTAB_F_SYNTH, NULL, NULL},
     /* An unlisted product whose descriptor declares 6-DOF motion reports (new ids keep working). */
-    {0, 0, "generic", DEVTAB_COMBINED, 32, 0xffffffffu, 0, 350, DEVTAB_F_SYNTH | LED},
+    {0, 0, "generic", DEVTAB_COMBINED, 32, 0xffffffffu, 0, 350, DEVTAB_F_SYNTH | LED, NULL, NULL},
 };
 
 /* The SpaceMouse Enterprise's 31 keys as it reports them in 0x1C. Codes 1-31 keep 3Dconnexion's

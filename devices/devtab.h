@@ -41,6 +41,10 @@ typedef struct devtab_row {
     uint8_t axis_invert;  /* bit i: negate axis i (tx ty tz rx ry rz) to reach the HID convention */
     int16_t axis_max;     /* logical maximum when the descriptor is not available (350) */
     unsigned flags;       /* DEVTAB_F_* */
+    const char *alias;    /* short name ("spacenavigator": fracnav-sim --as, virtual:NAME), NULL =
+                           * the name's slug ("spacemouse-plus-xt-usb") */
+    const char *usb_vendor; /* USB manufacturer string where the name does not begin with it (the
+                             * kernel names a device manufacturer + " " + product), else NULL */
 } devtab_row;
 
 /* A key code of report 0x1C (rows with DEVTAB_F_KEYCODES) and the button number it is reported

@@ -8,6 +8,7 @@
 #include <unistd.h>
 
 #include "err.h"
+#include "simfile.h"
 #include "hiddesc.h"
 
 #define LINE_MAX_CHARS (2 * DEV_DESC_MAX + 64)
@@ -272,38 +273,15 @@ int fnrec_parse(const char *text, size_t len, const char *name, fnrec **out)
 
 fnrec *fnrec_load(const char *path)
 {
-    FILE *f = fopen(path, "rb");
-    if (!f) {
-        fn_err_set(FN_EIO, "%s: cannot open: %s", path, strerror(errno));
-        return NULL;
-    }
     /* At most every event at its longest line, plus a header. */
     const size_t cap = (size_t)FNREC_MAX_EVENTS * 160 + 3 * LINE_MAX_CHARS;
-    size_t n = 0, sz = 1 << 16;
-    char *buf = malloc(sz);
-    while (buf) {
-        n += fread(buf + n, 1, sz - n, f);
-        if (n < sz || sz >= cap)
-            break;
-        char *nb = realloc(buf, sz * 2);
-        if (!nb) {
-            free(buf);
-            buf = NULL;
-        } else {
-            buf = nb;
-            sz *= 2;
-        }
-    }
-    int err = ferror(f), toolong = buf && n == sz && fgetc(f) != EOF;
-    fclose(f);
+    char too_big[64], *buf;
+    size_t n;
+    snprintf(too_big, sizeof too_big, "any recording of %u events", FNREC_MAX_EVENTS);
+    if (simfile_read(path, cap, too_big, &buf, &n))
+        return NULL;
     fnrec *r = NULL;
-    if (!buf)
-        fn_err_set(FN_ENOMEM, "%s: out of memory reading the recording", path);
-    else if (err)
-        fn_err_set(FN_EIO, "%s: read error", path);
-    else if (toolong)
-        fn_err_set(FN_EFORMAT, "%s: larger than any recording of %u events", path, FNREC_MAX_EVENTS);
-    else if (fnrec_parse(buf, n, path, &r) == 0 && r->torn_line)
+    if (fnrec_parse(buf, n, path, &r) == 0 && r->torn_line)
         fprintf(stderr, "warning: %s:%d: last line cut short (%s): left out, as an interrupted "
                         "recording's\n", path, r->torn_line, r->torn_why);
     free(buf);

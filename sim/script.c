@@ -6,6 +6,7 @@
 #include <string.h>
 
 #include "err.h"
+#include "simfile.h"
 
 #define MAX_TOKENS 32
 
@@ -230,23 +231,12 @@ int script_parse(const char *text, size_t len, const char *name, script **out)
 
 script *script_load(const char *path)
 {
-    FILE *f = fopen(path, "rb");
-    if (!f) {
-        fn_err_set(FN_EIO, "%s: cannot open: %s", path, strerror(errno));
+    char *buf;
+    size_t n;
+    if (simfile_read(path, 1 << 20, "1 MiB", &buf, &n))
         return NULL;
-    }
-    enum { CAP = 1 << 20 };
-    char *buf = malloc(CAP);
-    size_t n = buf ? fread(buf, 1, CAP, f) : 0;
-    int toolong = n == CAP, err = ferror(f);
-    fclose(f);
     script *s = NULL;
-    if (!buf)
-        fn_err_set(FN_ENOMEM, "%s: out of memory", path);
-    else if (err || toolong)
-        fn_err_set(err ? FN_EIO : FN_EFORMAT, "%s: %s", path, err ? "read error" : "larger than 1 MiB");
-    else
-        script_parse(buf, n, path, &s);
+    script_parse(buf, n, path, &s);
     free(buf);
     return s;
 }

@@ -9,10 +9,8 @@
 #include "script.h"
 #include "simdev.h"
 
-enum { KIND_REPLAY, KIND_VIRTUAL };
-
+/* One handle type, two function sets: the replay's and the virtual device's. */
 struct dev_handle {
-    int kind;
     fnrec *owned;       /* the recording when the handle loaded or rendered it */
     const fnrec *rec;
     size_t pos;         /* next event */
@@ -39,14 +37,13 @@ static void sleep_until(int64_t t_us)
         ;
 }
 
-static dev_handle *handle_new(int kind, const char *path)
+static dev_handle *handle_new(const char *kind, const char *path)
 {
     dev_handle *h = calloc(1, sizeof *h);
     if (!h) {
-        fn_err_set(FN_ENOMEM, "out of memory for a %s device", kind == KIND_REPLAY ? "replay" : "virtual");
+        fn_err_set(FN_ENOMEM, "out of memory for a %s device", kind);
         return NULL;
     }
-    h->kind = kind;
     h->plugged = 1;
     h->speed = 1;
     snprintf(h->path, sizeof h->path, "%s", path);
@@ -56,7 +53,7 @@ static dev_handle *handle_new(int kind, const char *path)
 int sim_replay_open_rec(const fnrec *rec, const sim_replay_opts *o, dev_handle **out)
 {
     *out = NULL;
-    dev_handle *h = handle_new(KIND_REPLAY, "<recording>");
+    dev_handle *h = handle_new("replay", "<recording>");
     if (!h)
         return FN_ENOMEM;
     h->rec = rec;
@@ -84,13 +81,20 @@ int sim_replay_open_file(const char *path, const sim_replay_opts *o, dev_handle 
     return 0;
 }
 
+/* A replay needs its file: "replay" alone names none. */
 static int open_fast(const char *path, dev_handle **out)
 {
+    *out = NULL;
+    if (!path)
+        return fn_err_set(FN_EINVAL, "replay: needs a recording (replay:FILE.fnrec)");
     return sim_replay_open_file(path, &(sim_replay_opts){0, 1}, out);
 }
 
 static int open_realtime(const char *path, dev_handle **out)
 {
+    *out = NULL;
+    if (!path)
+        return fn_err_set(FN_EINVAL, "replay-realtime: needs a recording (replay-realtime:FILE.fnrec)");
     return sim_replay_open_file(path, &(sim_replay_opts){1, 1}, out);
 }
 
@@ -118,68 +122,108 @@ static int wait_due(dev_handle *h, int timeout_ms, int64_t start)
     int64_t due = due_us(h, h->pos), now = mono_us();
     if (due <= now)
         return 1;
-    if (timeout_ms == 0 || (!h->plugged && h->kind == KIND_VIRTUAL))
+    if (timeout_ms == 0)
         return 0;
     int64_t limit = timeout_ms < 0 ? due : start + (int64_t)timeout_ms * 1000;
     sleep_until(due < limit ? due : limit);
     return due <= limit;
 }
 
-static int end_of_input(dev_handle *h, int timeout_ms, int64_t start)
+/* Plays the next event: a report's length (copied into buf), 0 for an event that is no report,
+ * FN_ENODEV for a disconnect. */
+static int play_next(dev_handle *h, uint8_t *buf, size_t cap)
 {
-    if (h->kind == KIND_REPLAY)
-        return fn_err_set(FN_ENODEV, "%s: device disconnected (end of recording)", h->path);
-    /* The virtual device stays plugged in and silent once its script is done. */
-    if (timeout_ms < 0)
-        timeout_ms = 100;
-    sleep_until(start + (int64_t)timeout_ms * 1000);
+    const fnrec_event *e = &h->rec->ev[h->pos++];
+    if (e->dir == FNREC_CONNECT) {
+        h->plugged = 1;
+    } else if (e->dir == FNREC_DISCONNECT) {
+        h->plugged = 0;
+        return fn_err_set(FN_ENODEV, "%s: device disconnected", h->path);
+    } else if (e->dir == FNREC_IN && h->plugged) {
+        size_t n = e->len < cap ? e->len : cap;
+        memcpy(buf, e->data, n);
+        return (int)n;
+    }
     return 0;
 }
 
-static int read_report(dev_handle *h, uint8_t *buf, size_t cap, int timeout_ms, int64_t *t_us)
+static int disconnected(const dev_handle *h)
+{
+    return fn_err_set(FN_ENODEV, "%s: device disconnected", h->path);
+}
+
+/* The monotonic time of this read; a realtime handle anchors the recording's t = 0 at its first. */
+static int64_t read_start(dev_handle *h)
 {
     int64_t start = mono_us();
     if (h->realtime && !h->started) {
         h->started = 1;
         h->anchor_us = start - (h->rec->n ? (int64_t)((double)h->rec->ev[0].t_us / h->speed) : 0);
     }
+    return start;
+}
+
+/* A replay: the recorded times; while unplugged it waits for the recorded replug; the end of the
+ * recording is the device's end. */
+static int replay_read(dev_handle *h, uint8_t *buf, size_t cap, int timeout_ms, int64_t *t_us)
+{
+    int64_t start = read_start(h);
     for (;;) {
         if (h->pos >= h->rec->n)
-            return h->plugged ? end_of_input(h, timeout_ms, start)
-                              : fn_err_set(FN_ENODEV, "%s: device disconnected", h->path);
+            return h->plugged ? fn_err_set(FN_ENODEV, "%s: device disconnected (end of recording)", h->path)
+                              : disconnected(h);
         if (!wait_due(h, timeout_ms, start))
-            return h->plugged ? 0 : fn_err_set(FN_ENODEV, "%s: device disconnected", h->path);
-        const fnrec_event *e = &h->rec->ev[h->pos++];
-        if (e->dir == FNREC_CONNECT) {
-            h->plugged = 1;
-        } else if (e->dir == FNREC_DISCONNECT) {
-            h->plugged = 0;
-            return fn_err_set(FN_ENODEV, "%s: device disconnected", h->path);
-        } else if (e->dir == FNREC_IN && h->plugged) {
-            size_t n = e->len < cap ? e->len : cap;
-            memcpy(buf, e->data, n);
-            if (t_us)
-                *t_us = h->kind == KIND_REPLAY ? e->t_us : mono_us();
-            return (int)n;
-        }
+            return h->plugged ? 0 : disconnected(h);
+        int64_t t = h->rec->ev[h->pos].t_us;
+        int n = play_next(h, buf, cap);
+        if (n > 0 && t_us)
+            *t_us = t;
+        if (n)
+            return n;
     }
 }
 
-static int write_report(dev_handle *h, const uint8_t *buf, size_t len)
+/* The virtual device: reports arrive now; unplugged, it is gone until its replug is due; once its
+ * script is done it stays plugged in and silent. */
+static int virtual_read(dev_handle *h, uint8_t *buf, size_t cap, int timeout_ms, int64_t *t_us)
+{
+    int64_t start = read_start(h);
+    for (;;) {
+        if (h->pos >= h->rec->n) {
+            if (!h->plugged)
+                return disconnected(h);
+            sleep_until(start + (int64_t)(timeout_ms < 0 ? 100 : timeout_ms) * 1000);
+            return 0;
+        }
+        if (!h->plugged && due_us(h, h->pos) > mono_us())
+            return disconnected(h);
+        if (!wait_due(h, timeout_ms, start))
+            return 0;
+        int n = play_next(h, buf, cap);
+        if (n > 0 && t_us)
+            *t_us = mono_us();
+        if (n)
+            return n;
+    }
+}
+
+static int replay_write(dev_handle *h, const uint8_t *buf, size_t len)
 {
     if (!h->plugged)
-        return fn_err_set(FN_ENODEV, "%s: device disconnected", h->path);
-    if (h->kind == KIND_VIRTUAL)
-        return simdev_output(&h->dev, buf, len);
+        return disconnected(h);
     return len ? (int)len : fn_err_set(FN_EINVAL, "%s: empty output report", h->path);
 }
 
-static int get_feature(dev_handle *h, uint8_t *buf, size_t cap)
+static int virtual_write(dev_handle *h, const uint8_t *buf, size_t len)
+{
+    return h->plugged ? simdev_output(&h->dev, buf, len) : disconnected(h);
+}
+
+/* The last feature report with that ID recorded before the current position (else the first). */
+static int replay_get_feature(dev_handle *h, uint8_t *buf, size_t cap)
 {
     if (!h->plugged)
-        return fn_err_set(FN_ENODEV, "%s: device disconnected", h->path);
-    if (h->kind == KIND_VIRTUAL)
-        return simdev_get_feature(&h->dev, buf, cap);
+        return disconnected(h);
     const fnrec_event *hit = NULL;
     for (size_t i = 0; i < h->rec->n; i++) {
         const fnrec_event *e = &h->rec->ev[i];
@@ -193,13 +237,21 @@ static int get_feature(dev_handle *h, uint8_t *buf, size_t cap)
     return (int)n;
 }
 
-static int set_feature(dev_handle *h, const uint8_t *buf, size_t len)
+static int virtual_get_feature(dev_handle *h, uint8_t *buf, size_t cap)
+{
+    return h->plugged ? simdev_get_feature(&h->dev, buf, cap) : disconnected(h);
+}
+
+static int replay_set_feature(dev_handle *h, const uint8_t *buf, size_t len)
 {
     if (!h->plugged)
-        return fn_err_set(FN_ENODEV, "%s: device disconnected", h->path);
-    if (h->kind == KIND_VIRTUAL)
-        return simdev_set_feature(&h->dev, buf, len);
+        return disconnected(h);
     return len ? (int)len : fn_err_set(FN_EINVAL, "%s: empty feature report", h->path);
+}
+
+static int virtual_set_feature(dev_handle *h, const uint8_t *buf, size_t len)
+{
+    return h->plugged ? simdev_set_feature(&h->dev, buf, len) : disconnected(h);
 }
 
 static int info(dev_handle *h, dev_info *out)
@@ -282,7 +334,7 @@ static int open_virtual(const char *path, dev_handle **out)
     fnrec *r = virtual_source(path ? path : "", &p);
     if (!r)
         return fn_err_wrap(FN_EINVAL, "virtual transport");
-    dev_handle *h = handle_new(KIND_VIRTUAL, path ? path : "virtual");
+    dev_handle *h = handle_new("virtual", path ? path : "virtual");
     if (!h) {
         fnrec_free(r);
         return FN_ENOMEM;
@@ -297,17 +349,25 @@ static int open_virtual(const char *path, dev_handle **out)
     return 0;
 }
 
+static void by_name(char *buf, size_t cap)
+{
+    snprintf(buf, cap, "opened by name (--device)");
+}
+
 const dev_transport sim_replay_transport = {
-    .name = "replay", .open = open_fast, .read = read_report, .write = write_report,
-    .get_feature = get_feature, .set_feature = set_feature, .info = info, .close = close_handle};
+    .name = "replay", .caps = DEV_CAP_RECORDING, .open = open_fast, .read = replay_read,
+    .write = replay_write, .get_feature = replay_get_feature, .set_feature = replay_set_feature,
+    .info = info, .close = close_handle, .describe = by_name, .finished = sim_replay_finished};
 
 const dev_transport sim_replay_realtime_transport = {
-    .name = "replay-realtime", .open = open_realtime, .read = read_report, .write = write_report,
-    .get_feature = get_feature, .set_feature = set_feature, .info = info, .close = close_handle};
+    .name = "replay-realtime", .caps = DEV_CAP_RECORDING, .open = open_realtime, .read = replay_read,
+    .write = replay_write, .get_feature = replay_get_feature, .set_feature = replay_set_feature,
+    .info = info, .close = close_handle, .describe = by_name, .finished = sim_replay_finished};
 
 const dev_transport sim_virtual_transport = {
-    .name = "virtual", .open = open_virtual, .read = read_report, .write = write_report,
-    .get_feature = get_feature, .set_feature = set_feature, .info = info, .close = close_handle};
+    .name = "virtual", .open = open_virtual, .read = virtual_read, .write = virtual_write,
+    .get_feature = virtual_get_feature, .set_feature = virtual_set_feature, .info = info,
+    .close = close_handle, .describe = by_name, .finished = sim_replay_finished};
 
 int sim_register_transports(void)
 {

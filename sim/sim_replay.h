@@ -14,6 +14,8 @@
  * with a warning on stderr. Reports come at the device's cadence in real time; unplug reads return FN_ENODEV until replug;
  * LED output and feature reports go to the same generator the FUSE server uses.
  *
+ * The replay and the virtual device are two function sets over one handle type; what they are
+ * (DEV_CAP_RECORDING for the replays, `finished` for all three) is in their transport entries.
  * Handles are not thread-safe; use one from one thread. */
 #ifndef FN_SIM_REPLAY_H
 #define FN_SIM_REPLAY_H

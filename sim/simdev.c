@@ -8,35 +8,15 @@
 
 #include "err.h"
 
-/* Sim-only data: the cadence of each report format, and the short names --as has always accepted.
- * Everything else (identity, format, buttons, battery, key codes) comes from the device table, so
- * every hardware row of devices/devtab.c can be impersonated, including rows added later. */
+/* Sim-only data: the cadence of each report format. Everything else (identity, short name, USB
+ * strings, format, buttons, battery, key codes) comes from the device table, so every hardware row
+ * of devices/devtab.c can be impersonated, including rows added later. */
 static int cadence_us(devtab_format f)
 {
     return f == DEVTAB_COMBINED ? 16000 : 8000; /* split and legacy: 8 ms */
 }
 
 #define OPEN_CADENCE_US 8000 /* firmware-spec/open-controller.md, 6 */
-
-static const struct alias {
-    uint16_t vid, pid;
-    const char *id;
-} aliases[] = {
-    {0x046d, 0xc626, "spacenavigator"},      {0x046d, 0xc628, "spacenavigator-notebook"},
-    {0x046d, 0xc627, "spaceexplorer"},       {0x046d, 0xc629, "spacepilot-pro"},
-    {0x046d, 0xc62b, "spacemouse-pro"},      {0x256f, 0xc635, "spacemouse-compact"},
-    {0x256f, 0xc62e, "spacemouse-wireless"}, {0x256f, 0xc631, "spacemouse-pro-wireless"},
-    {0x256f, 0xc633, "spacemouse-enterprise"}, {DEVTAB_OPEN_VID, DEVTAB_OPEN_PID, "open-controller"},
-};
-
-/* USB string descriptors, where a spec gives them: Linux usbhid names the device manufacturer + " "
- * + product (HIDIOCGRAWNAME). The 3Dconnexion rows' table names already read that way. */
-static const struct usb_strings {
-    uint16_t vid, pid;
-    const char *manufacturer, *product;
-} usb_strings[] = {
-    {DEVTAB_OPEN_VID, DEVTAB_OPEN_PID, "fracnav", "fracnav open 6-DOF controller"},
-};
 
 #define MAX_PROFILES 64
 #define ID_MAX 48
@@ -49,7 +29,7 @@ static char profile_serials[MAX_PROFILES][SIMDEV_SERIAL_MAX];
 static size_t nprofiles;
 static pthread_once_t profiles_once = PTHREAD_ONCE_INIT;
 
-/* A row without an alias is named after its product: "3Dconnexion SpaceMouse Plus XT (USB)" ->
+/* A row without a short name is named after its product: "3Dconnexion SpaceMouse Plus XT (USB)" ->
  * "spacemouse-plus-xt-usb". */
 static void slug(const char *name, char *out, size_t cap)
 {
@@ -79,14 +59,13 @@ static int top_bit(uint32_t mask)
 static void profile_from_row(const devtab_row *row, sim_profile *p, size_t k)
 {
     char *id = profile_ids[k], *name = profile_names[k], *serial = profile_serials[k];
-    slug(row->name, id, ID_MAX);
-    for (size_t i = 0; i < sizeof aliases / sizeof *aliases; i++)
-        if (aliases[i].vid == row->vid && aliases[i].pid == row->pid)
-            snprintf(id, ID_MAX, "%s", aliases[i].id);
-    snprintf(name, NAME_MAX_, "%s", row->name);
-    for (size_t i = 0; i < sizeof usb_strings / sizeof *usb_strings; i++)
-        if (usb_strings[i].vid == row->vid && usb_strings[i].pid == row->pid)
-            snprintf(name, NAME_MAX_, "%s %s", usb_strings[i].manufacturer, usb_strings[i].product);
+    if (row->alias)
+        snprintf(id, ID_MAX, "%s", row->alias);
+    else
+        slug(row->name, id, ID_MAX);
+    /* Linux usbhid names a device manufacturer + " " + product (HIDIOCGRAWNAME). */
+    snprintf(name, NAME_MAX_, "%s%s%s", row->usb_vendor ? row->usb_vendor : "", row->usb_vendor ? " " : "",
+             row->name);
     snprintf(serial, SIMDEV_SERIAL_MAX, "FNSIM%04X%04X", row->vid, row->pid); /* stable, 13 chars */
     int open = (row->flags & DEVTAB_F_OPEN) != 0;
     *p = (sim_profile){

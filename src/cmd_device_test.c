@@ -137,17 +137,12 @@ static int parse_args(int argc, char **argv, opts *o)
 /* new_ok: a named file that does not exist yet is fine (it is about to be written). */
 static int load_calib(calib *c, const char *config, int new_ok)
 {
-    char used[512], diag[2048];
-    calib_default(c);
-    if (config && new_ok && access(config, F_OK) != 0)
-        return 0;
-    int bad = calib_load(c, config, used, sizeof used, diag, sizeof diag);
-    if (bad < 0) {
+    char used[4096];
+    unsigned flags = new_ok ? CALIB_NEW_OK : 0;
+    if (calib_setup(c, config, flags, stderr, "fracnav device-test", used, sizeof used) < 0) {
         fprintf(stderr, "fracnav device-test: %s\n", fn_err_msg());
         return 1;
     }
-    if (bad)
-        fprintf(stderr, "fracnav device-test: %d bad line(s) skipped:\n%s", bad, diag);
     if (used[0])
         printf("calibration: %s\n", used);
     return 0;

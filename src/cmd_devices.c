@@ -88,21 +88,6 @@ static size_t enumerate_all(found *list, size_t cap)
     return n;
 }
 
-static const char *transport_state(const dev_transport *t, char *buf, size_t cap)
-{
-    if (!strcmp(t->name, "spnav")) {
-        dev_handle *h = NULL;
-        int rc = t->open(NULL, &h);
-        if (rc == 0)
-            t->close(h);
-        snprintf(buf, cap, "%s", rc == 0 ? "spacenavd running" : fn_err_msg());
-    } else if (!strcmp(t->name, "keyboard"))
-        snprintf(buf, cap, "fallback on a terminal (--device keyboard)");
-    else
-        snprintf(buf, cap, "%s", t->enumerate ? "enumerates devices" : "opened by name (--device)");
-    return buf;
-}
-
 static json_t *device_json(const found *f)
 {
     char id[16];
@@ -126,7 +111,7 @@ static int print_json(const found *list, size_t n)
     char buf[320];
     for (size_t t = 0; dev_transport_at(t); t++)
         json_array_append_new(trs, json_pack("{s:s, s:s}", "name", dev_transport_at(t)->name, "state",
-                                             transport_state(dev_transport_at(t), buf, sizeof buf)));
+                                             dev_transport_describe(dev_transport_at(t), buf, sizeof buf)));
     json_object_set_new(root, "devices", devs);
     json_object_set_new(root, "transports", trs);
     if (jsonw_print(root, stdout) == 0)
@@ -167,7 +152,7 @@ static void print_text(const found *list, size_t n)
     printf("transports:\n");
     for (size_t t = 0; dev_transport_at(t); t++)
         printf("  %-*s  %s\n", width, dev_transport_at(t)->name,
-               transport_state(dev_transport_at(t), buf, sizeof buf));
+               dev_transport_describe(dev_transport_at(t), buf, sizeof buf));
 }
 
 int cmd_devices(int argc, char **argv)

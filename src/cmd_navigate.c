@@ -76,14 +76,16 @@ typedef struct opts {
     double pivot[3];
 } opts;
 
-/* The transport of a played recording (replay:FILE, replay-realtime:FILE), else NULL. */
-static const dev_transport *recording_spec(const char *spec)
+/* The transport of a played recording (replay:FILE, replay-realtime:FILE) with its file in *file,
+ * else NULL: a device spec that names no recording, or none that resolves (dev_open says why). */
+static const dev_transport *recording_spec(const char *spec, const char **file)
 {
-    if (!strncmp(spec, "replay:", 7))
-        return &sim_replay_transport;
-    if (!strncmp(spec, "replay-realtime:", 16))
-        return &sim_replay_realtime_transport;
-    return NULL;
+    const dev_transport *t;
+    if (!strcmp(spec, "auto") || dev_spec_resolve(spec, &t, file) || !(t->caps & DEV_CAP_RECORDING)) {
+        fn_err_clear();
+        return NULL;
+    }
+    return t;
 }
 
 static int parse(int argc, char **argv, opts *o)
@@ -136,7 +138,8 @@ static int parse(int argc, char **argv, opts *o)
         fprintf(stderr, "fracnav navigate: --recover and --discard-journal exclude each other\n");
         return 2;
     }
-    if (o->again && !recording_spec(o->device))
+    const char *file;
+    if (o->again && !recording_spec(o->device, &file))
         return cmd_usage_error("navigate", "--loop plays a recording again: it needs --device "
                                            "replay:FILE or replay-realtime:FILE, not '%s'", o->device);
     return 0;
@@ -444,33 +447,34 @@ static int run(view *v, loop_source src, int keys, double duration)
 
 /* A played recording as the source (navigate ends at its end, or plays it again with --loop):
  * opens it into ts with the decoder for its device. 0 or negative. */
-static int open_recording(const opts *o, const dev_transport *t, const calib *cal, loopkit_tsource *ts,
-                          loop_config *cfg)
+static int open_recording(const opts *o, const dev_transport *t, const char *file, const calib *cal,
+                          loopkit_tsource *ts, loop_config *cfg)
 {
     memset(ts, 0, sizeof *ts);
-    const char *file = strchr(o->device, ':') + 1;
     int rc = t->open(file, &ts->h);
     if (rc < 0)
         return rc;
     const fnrec_header *hdr = sim_replay_header(ts->h);
     ts->tr = t;
-    ts->finished = sim_replay_finished;
+    ts->finished = t->finished;
     ts->again = o->again ? file : NULL;
     loopkit_decoder_init(&ts->dec, hdr->vid, hdr->pid, cal);
     loop_config_actions_at(cfg, devtab_key1_button(devtab_find(hdr->vid, hdr->pid)));
     return 0;
 }
 
-/* The live device as the source: the keyboard device's help key (button 11) shows the keys. */
+/* The live device as the source: a device that reads the terminal steers with keys (its help key,
+ * the keyboard's button 11, shows them). */
 static int open_device(const opts *o, loopkit_dsource *ds, loop_config *cfg, int *keyboard)
 {
     ds->d = dev_open(o->device);
     if (!ds->d)
         return FN_ENODEV;
-    *keyboard = !strcmp(dev_transport_name(ds->d), "keyboard");
+    const dev_transport *t = dev_transport_of(ds->d);
+    *keyboard = (t->caps & DEV_CAP_TERMINAL) != 0;
     loop_config_actions_at(cfg, devtab_key1_button(dev_row(ds->d)));
-    if (*keyboard)
-        cfg->button_action[10] = LOOP_ACT_HELP;
+    if (t->help_button)
+        cfg->button_action[t->help_button - 1] = LOOP_ACT_HELP;
     return 0;
 }
 
@@ -485,24 +489,22 @@ int cmd_navigate(int argc, char **argv)
     if (rc)
         return rc;
     calib cal;
-    calib_default(&cal);
-    char used[4096], diag[2048] = "";
-    if (calib_load(&cal, o.config, used, sizeof used, diag, sizeof diag) < 0) {
+    if (calib_setup(&cal, o.config, 0, stderr, "fracnav navigate", NULL, 0) < 0) {
         fprintf(stderr, "fracnav navigate: %s\n", fn_err_msg());
         return 1;
     }
-    fputs(diag, stderr);
     offer_recovery(&o);
     loop_config cfg;
     loop_config_default(&cfg);
     cfg.frame = o.frame;
-    const dev_transport *played = recording_spec(o.device);
+    const char *file = NULL;
+    const dev_transport *played = recording_spec(o.device, &file);
     loopkit_tsource ts;
     loopkit_dsource ds;
     loopkit_dsource_init(&ds, NULL, &cal);
     view v = {0};
     v.tty = isatty(STDERR_FILENO);
-    rc = played ? open_recording(&o, played, &cal, &ts, &cfg) : open_device(&o, &ds, &cfg, &v.keyboard);
+    rc = played ? open_recording(&o, played, file, &cal, &ts, &cfg) : open_device(&o, &ds, &cfg, &v.keyboard);
     if (rc < 0) {
         fprintf(stderr, "fracnav navigate: %s\n", fn_err_msg());
         loopkit_dsource_destroy(&ds);

@@ -72,7 +72,7 @@ static int resolve(const char *spec, recorder *r)
 
 static int is_replay(const recorder *r)
 {
-    return !strncmp(r->t->name, "replay", 6);
+    return (r->t->caps & DEV_CAP_RECORDING) != 0;
 }
 
 static void header_of(recorder *r, fnrec_header *hd)
@@ -186,7 +186,7 @@ static int unplugged(recorder *r, int *rc)
     fprintf(stderr, "%sfracnav record: device disconnected (%s)%s\n", r->tty ? "\n" : "", fn_err_msg(),
             r->wait_replug || is_replay(r) ? "" : ": recording stopped (--wait-replug waits for it)");
     if (is_replay(r)) {
-        if (sim_replay_finished(r->h))
+        if (r->t->finished && r->t->finished(r->h))
             return 1;
         *rc = put(r, FNREC_DISCONNECT, r->last_t, NULL, 0);
         return *rc != 0;
@@ -215,7 +215,7 @@ static int record_loop(recorder *r)
             int rc = is_replay(r) ? put(r, FNREC_IN, t, buf, n) : put_report(r, t, buf, n);
             if (rc)
                 return rc;
-        } else if (n == 0 && r->t == &sim_virtual_transport && sim_replay_finished(r->h)) {
+        } else if (n == 0 && r->t->finished && r->t->finished(r->h)) {
             fprintf(stderr, "%sfracnav record: end of the virtual device's script\n", r->tty ? "\n" : "");
             return 0;
         } else if (n == FN_ENODEV) {

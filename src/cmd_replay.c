@@ -171,16 +171,9 @@ int cmd_replay(int argc, char **argv)
     if (rc)
         return rc;
     calib cal;
-    calib_default(&cal);
-    if (o.config) {
-        char used[4096], diag[2048] = "";
-        int bad = calib_load(&cal, o.config, used, sizeof used, diag, sizeof diag);
-        if (bad < 0) {
-            fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
-            return 1;
-        }
-        if (bad > 0)
-            fprintf(stderr, "%s", diag);
+    if (calib_setup(&cal, o.config, CALIB_NAMED_ONLY, stderr, "fracnav replay", NULL, 0) < 0) {
+        fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
+        return 1;
     }
     sim_replay_opts ro = {o.realtime, 1};
     dev_handle *h;
