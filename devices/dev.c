@@ -10,6 +10,7 @@
 
 #include "devparse.h"
 #include "err.h"
+#include "fnclock.h"
 #include "hiddesc.h"
 
 /* The built-in transports (dev_hid.c, dev_spnav.c, dev_keyboard.c). */
@@ -39,9 +40,7 @@ struct dev_device {
 
 int64_t dev_now_us(void)
 {
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (int64_t)ts.tv_sec * 1000000 + ts.tv_nsec / 1000;
+    return fnclock_now_us();
 }
 
 int dev_transport_register(const dev_transport *t)

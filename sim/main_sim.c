@@ -30,6 +30,7 @@
 
 #include "bench_sim.h"
 #include "err.h"
+#include "fnclock.h"
 #include "fnrec.h"
 #include "script.h"
 #include "simdev.h"
@@ -77,18 +78,11 @@ typedef struct server {
 
 static server S;
 
-static int64_t mono_us(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (int64_t)ts.tv_sec * 1000000 + ts.tv_nsec / 1000;
-}
-
 static void log_event(fnrec_dir dir, const uint8_t *b, size_t n)
 {
     if (!S.log)
         return;
-    fnrec_event e = {.t_us = mono_us() - S.log_t0, .dir = dir, .len = (uint8_t)n};
+    fnrec_event e = {.t_us = fnclock_now_us() - S.log_t0, .dir = dir, .len = (uint8_t)n};
     if (n)
         memcpy(e.data, b, n);
     if (fnrec_writer_event(S.log, &e)) {
@@ -201,10 +195,8 @@ static void set_plugged(int on, int live)
 static void arm_timer(int64_t at_us)
 {
     struct itimerspec it = {{0, 0}, {0, 0}};
-    if (at_us > 0) {
-        it.it_value.tv_sec = at_us / 1000000;
-        it.it_value.tv_nsec = (long)(at_us % 1000000) * 1000;
-    }
+    if (at_us > 0)
+        it.it_value = fnclock_timespec(at_us);
     timerfd_settime(S.timer_fd, TFD_TIMER_ABSTIME, &it, NULL);
 }
 
@@ -237,7 +229,7 @@ static void start_playback(void)
         S.rec = r;
     }
     S.started = 1;
-    S.t0_us = mono_us() + 1000;
+    S.t0_us = fnclock_now_us() + 1000;
     pump();
 }
 
@@ -247,7 +239,7 @@ static void pump(void)
 {
     if (!S.started)
         return;
-    int64_t now = mono_us();
+    int64_t now = fnclock_now_us();
     while (S.pos < S.rec->n) {
         const fnrec_event *e = &S.rec->ev[S.pos];
         if (S.fast ? !room_for_fast() : S.t0_us + e->t_us > now)
@@ -581,7 +573,7 @@ static void control_command(const char *line)
         S.rec = r;
         S.pos = 0;
         S.started = 1;
-        S.t0_us = mono_us();
+        S.t0_us = fnclock_now_us();
         pump();
     }
 }
@@ -788,7 +780,7 @@ static int serve(const char *mount, const char *control)
     }
     fprintf(stderr, "fracnav-sim: serving %s (%04x:%04x) at %s/" NODE_NAME "\n", S.id.name, S.id.vid,
             S.id.pid, mount);
-    S.log_t0 = mono_us();
+    S.log_t0 = fnclock_now_us();
     if (!S.start_on_read)
         start_playback();
     int rc = serve_loop();

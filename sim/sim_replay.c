@@ -6,6 +6,7 @@
 #include <time.h>
 
 #include "err.h"
+#include "fnclock.h"
 #include "script.h"
 #include "simdev.h"
 
@@ -24,20 +25,6 @@ struct dev_handle {
     simdev dev;         /* virtual: LED and feature reports */
     char path[256];
 };
-
-static int64_t mono_us(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (int64_t)ts.tv_sec * 1000000 + ts.tv_nsec / 1000;
-}
-
-static void sleep_until(int64_t t_us)
-{
-    struct timespec ts = {(time_t)(t_us / 1000000), (long)(t_us % 1000000) * 1000};
-    while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL))
-        ;
-}
 
 static dev_handle *handle_new(int kind, const char *path)
 {
@@ -115,13 +102,13 @@ static int wait_due(dev_handle *h, int timeout_ms, int64_t start)
 {
     if (!h->realtime)
         return 1;
-    int64_t due = due_us(h, h->pos), now = mono_us();
+    int64_t due = due_us(h, h->pos), now = fnclock_now_us();
     if (due <= now)
         return 1;
     if (timeout_ms == 0 || (!h->plugged && h->kind == KIND_VIRTUAL))
         return 0;
     int64_t limit = timeout_ms < 0 ? due : start + (int64_t)timeout_ms * 1000;
-    sleep_until(due < limit ? due : limit);
+    fnclock_sleep_until(due < limit ? due : limit);
     return due <= limit;
 }
 
@@ -132,13 +119,13 @@ static int end_of_input(dev_handle *h, int timeout_ms, int64_t start)
     /* The virtual device stays plugged in and silent once its script is done. */
     if (timeout_ms < 0)
         timeout_ms = 100;
-    sleep_until(start + (int64_t)timeout_ms * 1000);
+    fnclock_sleep_until(start + (int64_t)timeout_ms * 1000);
     return 0;
 }
 
 static int read_report(dev_handle *h, uint8_t *buf, size_t cap, int timeout_ms, int64_t *t_us)
 {
-    int64_t start = mono_us();
+    int64_t start = fnclock_now_us();
     if (h->realtime && !h->started) {
         h->started = 1;
         h->anchor_us = start - (h->rec->n ? (int64_t)((double)h->rec->ev[0].t_us / h->speed) : 0);
@@ -159,7 +146,7 @@ static int read_report(dev_handle *h, uint8_t *buf, size_t cap, int timeout_ms, 
             size_t n = e->len < cap ? e->len : cap;
             memcpy(buf, e->data, n);
             if (t_us)
-                *t_us = h->kind == KIND_REPLAY ? e->t_us : mono_us();
+                *t_us = h->kind == KIND_REPLAY ? e->t_us : fnclock_now_us();
             return (int)n;
         }
     }
@@ -291,7 +278,7 @@ static int open_virtual(const char *path, dev_handle **out)
     h->rec = r;
     h->realtime = 1;
     h->started = 1;
-    h->anchor_us = mono_us();
+    h->anchor_us = fnclock_now_us();
     simdev_init(&h->dev, p);
     *out = h;
     return 0;

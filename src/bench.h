@@ -13,9 +13,10 @@ int bench_collision(int argc, char **argv);
 int bench_build(int argc, char **argv);
 int bench_loop(int argc, char **argv);
 
-/* Monotonic clock in microseconds. */
+/* fnclock's monotonic clock in microseconds, with the nanoseconds as the fraction. */
 double bench_now_us(void);
-/* CPU time of the calling thread in microseconds: immune to being descheduled on a busy machine. */
+/* fnclock's CPU time of the calling thread in microseconds: immune to being descheduled on a busy
+ * machine. */
 double bench_cpu_us(void);
 /* Peak resident set size of this process in KiB (0 when unknown). */
 long bench_peak_rss_kib(void);

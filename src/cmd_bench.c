@@ -1,11 +1,11 @@
 /* fracnav bench: dispatches to the benchmarks (bench_*.c). */
 #include "bench.h"
 #include "cmd.h"
+#include "fnclock.h"
 
 #include <stdio.h>
 #include <string.h>
 #include <sys/resource.h>
-#include <time.h>
 
 static const struct {
     const char *name;
@@ -19,16 +19,12 @@ static const struct {
 
 double bench_now_us(void)
 {
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec * 1e6 + (double)ts.tv_nsec * 1e-3;
+    return (double)fnclock_now_ns() * 1e-3;
 }
 
 double bench_cpu_us(void)
 {
-    struct timespec ts;
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return (double)ts.tv_sec * 1e6 + (double)ts.tv_nsec * 1e-3;
+    return (double)fnclock_thread_cpu_ns() * 1e-3;
 }
 
 long bench_peak_rss_kib(void)

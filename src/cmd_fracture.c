@@ -4,6 +4,7 @@
 #include "case.h"
 #include "case_journal.h"
 #include "err.h"
+#include "fnclock.h"
 #include "fracture.h"
 #include "jsonw.h"
 #include "volio.h"
@@ -12,7 +13,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <time.h>
 
 static void usage(FILE *out)
 {
@@ -164,13 +164,6 @@ static int print_json(const fcase *c, const fracture_params *p, const char *in, 
     return jsonw_print(o, stdout);
 }
 
-static double now_ms(void)
-{
-    struct timespec t;
-    clock_gettime(CLOCK_MONOTONIC, &t);
-    return (double)t.tv_sec * 1e3 + t.tv_nsec * 1e-6;
-}
-
 /* --force replaces a case with its journal: poses it holds beyond case.json go too. */
 static void warn_journal(const char *dir, int force)
 {
@@ -195,12 +188,12 @@ int cmd_fracture(int argc, char **argv)
         return rc;
     char tmp[4200] = "";
     warn_journal(out, force);
-    double t0 = now_ms();
+    int64_t t0 = fnclock_now_us();
     vol *ct = case_stage_begin(out, force, NULL, tmp, sizeof tmp) == 0 ? volio_read(in) : NULL;
-    double t1 = now_ms();
+    int64_t t1 = fnclock_now_us();
     /* The whole case, source.nii.gz included, is written in tmp and renamed into place at once. */
     fcase *c = ct ? fracture_make_case(ct, &p, tmp) : NULL;
-    double t2 = now_ms();
+    int64_t t2 = fnclock_now_us();
     if (!c || case_stage_commit(tmp, out) < 0) {
         fprintf(stderr, "fracnav fracture: %s\n", fn_err_msg());
         case_stage_abort(tmp);
@@ -208,7 +201,7 @@ int cmd_fracture(int argc, char **argv)
         vol_free(ct);
         return 1;
     }
-    if (json && (rc = print_json(c, &p, in, out, t1 - t0, t2 - t1)) < 0)
+    if (json && (rc = print_json(c, &p, in, out, (double)(t1 - t0) * 1e-3, (double)(t2 - t1) * 1e-3)) < 0)
         fprintf(stderr, "fracnav fracture: %s\n", fn_err_msg());
     else if (!json) {
         for (int i = 0; i < c->nfrag; i++)

@@ -4,6 +4,7 @@
 #include "case.h"
 #include "case_journal.h"
 #include "err.h"
+#include "fnclock.h"
 #include "jsonw.h"
 #include "seg.h"
 #include "volio.h"
@@ -11,7 +12,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <time.h>
 
 static void usage(FILE *out)
 {
@@ -99,13 +99,6 @@ static int parse(int argc, char **argv, seg_params *p, cmd_tau *tau, const char 
     return cmd_tau_check("segment", tau);
 }
 
-static double now(void)
-{
-    struct timespec t;
-    clock_gettime(CLOCK_MONOTONIC, &t);
-    return (double)t.tv_sec + t.tv_nsec * 1e-9;
-}
-
 static void report(const fcase *c, const seg_result *r)
 {
     printf("threshold %g: %d components, %d kept\n", r->threshold, r->raw_components, c->nfrag);
@@ -171,9 +164,9 @@ int cmd_segment(int argc, char **argv)
         fprintf(stderr, "fracnav segment: %s\n", fn_err_msg());
         return 1;
     }
-    double t0 = now();
+    int64_t t0 = fnclock_now_us();
     vol *ct = volio_read(in);
-    double t1 = now();
+    int64_t t1 = fnclock_now_us();
     seg_result r = {0};
     if (!ct || seg_run(ct, &p, &r) < 0) {
         fprintf(stderr, "fracnav segment: %s\n", fn_err_msg());
@@ -184,11 +177,11 @@ int cmd_segment(int argc, char **argv)
     p.threshold = r.threshold;
     vol *labels = r.labels;
     r.labels = NULL;
-    double t2 = now();
+    int64_t t2 = fnclock_now_us();
     fcase *c = case_create(tmp, in, ct, labels, &p);
     if (c)
         cmd_tau_apply(&tau, &c->tau_min, &c->tau_max); /* checked by parse */
-    double t3 = now();
+    int64_t t3 = fnclock_now_us();
     if (!c || case_save(c) < 0 || case_stage_commit(tmp, out) < 0) {
         fprintf(stderr, "fracnav segment: %s\n", fn_err_msg());
         case_stage_abort(tmp);
@@ -196,7 +189,8 @@ int cmd_segment(int argc, char **argv)
         seg_result_free(&r);
         return 1;
     }
-    double ms[4] = {(t1 - t0) * 1e3, (t2 - t1) * 1e3, (t3 - t2) * 1e3, (now() - t3) * 1e3};
+    double ms[4] = {(double)(t1 - t0) * 1e-3, (double)(t2 - t1) * 1e-3, (double)(t3 - t2) * 1e-3,
+                     (double)(fnclock_now_us() - t3) * 1e-3};
     if (r.nonfinite)
         fprintf(stderr, "fracnav segment: warning: %s: %zu voxels are NaN or infinite; left out of the "
                         "threshold and never bone\n", in, r.nonfinite);

@@ -3,6 +3,7 @@
 #include "loop_impl.h"
 
 #include "err.h"
+#include "fnclock.h"
 #include "journal.h"
 
 #include <math.h>
@@ -148,10 +149,10 @@ static int collide_all(loop *L, int s, const pose *p, int fresh, double *sep)
             cache = L->scratch;
         }
         loop_contact c = {0, INFINITY};
-        int64_t t0 = fresh ? 0 : loop_clock_ns();
+        int64_t t0 = fresh ? 0 : fnclock_now_ns();
         int rc = L->col.query(L->col.ctx, s, p, j, &L->pose[j], cache, &c);
         if (!fresh) /* the invariant check's queries are not part of the loop's cost */
-            loop_stats_query(L, loop_clock_ns() - t0);
+            loop_stats_query(L, fnclock_now_ns() - t0);
         if (rc < 0)
             return rc;
         if (c.separation_mm < *sep)
@@ -419,7 +420,7 @@ void loop_accept(loop *L, int s, pose p, int64_t t_us, uint32_t kind, int checke
     if (checked != LOOP_CHECKED)
         L->gap_valid = 0;
     loop_stats_pose(L, s, &p);
-    if (L->jr && journal_append(L->jr, kind, s, t_us, &p, loop_now_us()) < 0)
+    if (L->jr && journal_append(L->jr, kind, s, t_us, &p, loop__now_us(L)) < 0)
         L->st.journal_errors++;
     if (checked == LOOP_UNCHECKED)
         L->st.unchecked++;
@@ -519,7 +520,7 @@ static void journal_saved(loop *L)
     int bad = journal_truncate(L->jr) < 0;
     for (int i = 0; i < L->n; i++)
         if (memcmp(&L->pose[i], &L->saved[i], sizeof(pose)) != 0)
-            bad |= journal_append(L->jr, JOURNAL_MOVE, i, L->last_t, &L->pose[i], loop_now_us()) < 0;
+            bad |= journal_append(L->jr, JOURNAL_MOVE, i, L->last_t, &L->pose[i], loop__now_us(L)) < 0;
     L->st.journal_errors += (uint64_t)bad;
 }
 
@@ -579,7 +580,7 @@ int loop_feed(loop *L, const loop_event *ev)
         break;
     }
     if (ev->kind == LOOP_EV_MOTION && ev->arrival_us > 0)
-        loop_stats_latency(L, loop_now_us() - ev->arrival_us);
+        loop_stats_latency(L, loop__now_us(L) - ev->arrival_us);
     verify(L);
     if (out > 0)
         L->last_outcome = (loop_outcome)out;
@@ -640,7 +641,7 @@ static void shift(int *nfrom, loop_undo *to, int *nto, loop_undo back)
 static void set_fixed(loop *L, int s, int fixed)
 {
     L->fixed[s] = (uint8_t)(fixed != 0);
-    if (L->jr && journal_append_fix(L->jr, s, L->last_t, &L->pose[s], fixed, loop_now_us()) < 0)
+    if (L->jr && journal_append_fix(L->jr, s, L->last_t, &L->pose[s], fixed, loop__now_us(L)) < 0)
         L->st.journal_errors++;
 }
 

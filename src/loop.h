@@ -245,8 +245,18 @@ int loop_scene_read(loop *L, loop_scene *out);
  * loop_run sleeps between events and a step's work is bounded (max_tries). */
 int loop_realtime_priority(void);
 
-/* Monotonic clock, microseconds. */
-int64_t loop_now_us(void);
+/* The loop's clock: what loop_run ticks by and the rates, latencies and journal stamps count in.
+ * The default is the monotonic clock (fnclock_now_us, which also stamps the reader's arrival_us);
+ * wait_until returns at deadline_us or earlier at loop_notify. A test injects a clock whose wait
+ * moves its time to the deadline and returns, so loop_run's timing runs without sleeping. Both
+ * are called on the stepping thread only. */
+typedef struct loop_clock {
+    int64_t (*now_us)(void *ctx);
+    void (*wait_until)(void *ctx, int64_t deadline_us);
+    void *ctx;
+} loop_clock;
+/* Sets the clock (NULL: the monotonic one) and restarts the timing windows. Before the loop runs. */
+void loop_set_clock(loop *L, const loop_clock *c);
 
 /* Input seam: where events come from (a device through calibration, a recording, a script). */
 typedef struct loop_source {

@@ -73,6 +73,7 @@ struct loop {
     atomic_int rt_cpu;   /* the CPU loop_run runs on under SCHED_FIFO (-1: not), for the reader */
     int rt_prio;         /* its priority, written before rt_cpu */
     atomic_ullong done; /* events finished, for other threads */
+    loop_clock clock;   /* loop_set_clock */
 };
 
 /* How an accepted pose was checked: not at all (checking off), found free, or found still
@@ -82,7 +83,8 @@ void loop_accept(loop *L, int s, pose p, int64_t t_us, uint32_t kind, int checke
 void loop_undo_push(loop *L, int s);
 
 void loop__prefault(void *p, size_t n);
-int64_t loop_clock_ns(void);
+/* Now on the loop's clock (loop_set_clock). */
+int64_t loop__now_us(const loop *L);
 void loop_stats_init(loop *L);
 void loop_stats_query(loop *L, int64_t ns);
 void loop_stats_pose(loop *L, int s, const pose *p);

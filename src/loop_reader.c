@@ -1,5 +1,6 @@
 /* loop: the input thread that drains a source into the loop's ring. */
 #define _GNU_SOURCE /* CPU affinity: pthread_setaffinity_np */
+#include "fnclock.h"
 #include "loop_impl.h"
 
 #include "err.h"
@@ -50,7 +51,7 @@ static void push(loop_reader *rd, loop_event *ev)
         follow_loop(rd);
     rd->pushed++;
     if (ev->arrival_us == 0)
-        ev->arrival_us = loop_now_us();
+        ev->arrival_us = fnclock_now_us();
     ring_push(rd->r, ev);
     if (rd->L)
         loop_notify(rd->L);

@@ -3,6 +3,7 @@
 #include "loop_impl.h"
 
 #include "err.h"
+#include "fnclock.h"
 #include "journal.h"
 
 #include <errno.h>
@@ -21,16 +22,35 @@
 #define FNV_OFFSET 0xcbf29ce484222325ull
 #define FNV_PRIME 0x100000001b3ull
 
-int64_t loop_clock_ns(void)
+/* The monotonic clock; its wait ends at the deadline or at loop_notify, whichever is first
+ * (sem_timedwait counts in CLOCK_REALTIME: fnclock carries the time left over). */
+static int64_t mono_now_us(void *ctx)
 {
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (int64_t)ts.tv_sec * 1000000000 + ts.tv_nsec;
+    (void)ctx;
+    return fnclock_now_us();
 }
 
-int64_t loop_now_us(void)
+static void mono_wait_until(void *ctx, int64_t deadline_us)
 {
-    return loop_clock_ns() / 1000;
+    loop *L = ctx;
+    if (deadline_us > fnclock_now_us()) {
+        struct timespec until = fnclock_realtime_deadline(deadline_us);
+        while (sem_timedwait(&L->wake, &until) != 0 && errno == EINTR)
+            ;
+    }
+    while (sem_trywait(&L->wake) == 0)
+        ; /* one wake-up serves every event pushed so far */
+}
+
+void loop_set_clock(loop *L, const loop_clock *c)
+{
+    L->clock = c ? *c : (loop_clock){mono_now_us, mono_wait_until, L};
+    loop_reset_timing(L);
+}
+
+int64_t loop__now_us(const loop *L)
+{
+    return L->clock.now_us(L->clock.ctx);
 }
 
 void loop_stats_init(loop *L)
@@ -42,7 +62,7 @@ void loop_stats_init(loop *L)
     sem_init(&L->wake, 0, 0);
     atomic_init(&L->done, 0);
     atomic_init(&L->rt_cpu, -1);
-    loop_reset_timing(L);
+    loop_set_clock(L, NULL);
     loop_publish(L);
 }
 
@@ -55,7 +75,7 @@ void loop_reset_timing(loop *L)
     L->st.latency_p50_us = L->st.latency_p99_us = L->st.latency_max_us = 0;
     L->q_sum_ns = L->q_max_ns = 0;
     L->st.queries = 0;
-    L->win_start_us = loop_now_us();
+    L->win_start_us = loop__now_us(L);
     L->pct_at_us = 0;
     L->win_steps = L->win_ticks = 0;
 }
@@ -142,7 +162,7 @@ static void refresh_rates(loop *L, int64_t now)
 
 void loop_get_stats(loop *L, loop_stats *out)
 {
-    refresh_rates(L, loop_now_us());
+    refresh_rates(L, loop__now_us(L));
     *out = L->st;
 }
 
@@ -160,7 +180,7 @@ static int free_buffer(loop *L)
 
 void loop_publish(loop *L)
 {
-    int64_t now = loop_now_us();
+    int64_t now = loop__now_us(L);
     if (now - L->pct_at_us >= 100000) /* percentiles cost a histogram walk: 10 Hz is plenty */
         refresh_rates(L, now);
     int b = free_buffer(L);
@@ -265,27 +285,6 @@ void loop_notify(loop *L)
     sem_post(&L->wake);
 }
 
-/* Waits for loop_notify or until the monotonic time deadline_us (sem_timedwait counts in
- * CLOCK_REALTIME, so the remaining time is carried over). */
-static void wait_until(loop *L, int64_t deadline_us)
-{
-    int64_t left = deadline_us - loop_now_us();
-    if (left > 0) {
-        struct timespec until;
-        clock_gettime(CLOCK_REALTIME, &until);
-        until.tv_sec += (time_t)(left / 1000000);
-        until.tv_nsec += (long)(left % 1000000) * 1000;
-        if (until.tv_nsec >= 1000000000) {
-            until.tv_nsec -= 1000000000;
-            until.tv_sec++;
-        }
-        while (sem_timedwait(&L->wake, &until) != 0 && errno == EINTR)
-            ;
-    }
-    while (sem_trywait(&L->wake) == 0)
-        ; /* one wake-up serves every event pushed so far */
-}
-
 /* Writes the stack pages a step may reach, below the caller's frame, so that the first step
  * into a contact (the deepest collision queries) takes no first-touch page fault. */
 static __attribute__((noinline)) void prefault_stack(void)
@@ -341,12 +340,12 @@ static void hold_huge_pages(int on)
 static int run_until(loop *L, ring *r, int64_t period_us, const atomic_int *stop)
 {
     unsigned idle = 0;
-    int64_t next = loop_now_us();
+    int64_t next = loop__now_us(L);
     while (!atomic_load(stop)) {
         int rc = loop_drain(L, r);
         if (rc < 0)
             return rc;
-        int64_t now = loop_now_us();
+        int64_t now = loop__now_us(L);
         if (now >= next) { /* a timer tick (not an early wake-up for an event) */
             L->win_ticks++;
             next += period_us;
@@ -357,7 +356,7 @@ static int run_until(loop *L, ring *r, int64_t period_us, const atomic_int *stop
             if (rc == 0 && ++idle % 50 == 0)
                 loop_publish(L); /* keep the rates in the scene fresh while nothing moves */
         }
-        wait_until(L, next);
+        L->clock.wait_until(L->clock.ctx, next);
     }
     int rc = loop_drain(L, r);
     return rc < 0 ? rc : 0;
