@@ -1,5 +1,5 @@
 /* loop: stepping, collision outcomes, controls, undo/redo. Statistics and the scene buffer are in
- * loop_stats.c, the input thread in loop_reader.c. */
+ * loop_stats.c, the driver (loop_run, loop_drain) in loop_run.c, the input thread in loop_reader.c. */
 #include "loop_impl.h"
 
 #include "err.h"
@@ -13,6 +13,12 @@
 #define SAFETY_MM 0.01 /* the separation shortcut keeps this much distance in hand */
 #define CLIMB 0.5      /* backing away per unit of tangential motion when riding over a bump */
 #define OVERLAP_EPS_MM3 1e-6 /* rounding in the overlap sum: a sideways move is not deeper */
+
+/* How an accepted pose was checked: not at all (checking off), found free, or found still
+ * interpenetrating but no deeper than before (pulled out after checking came back on). */
+enum { LOOP_UNCHECKED, LOOP_CHECKED, LOOP_ESCAPING };
+static void accept_pose(loop *L, int s, pose p, int64_t t_us, uint32_t kind, int checked);
+static void undo_push(loop *L, int s);
 
 void loop_config_default(loop_config *c)
 {
@@ -119,7 +125,10 @@ loop *loop_new(const frag *frags, int n, const uint8_t *fixed, const loop_collid
     L->selected = 0;
     if (L->fixed[0])
         loop_action_do(L, LOOP_ACT_NEXT);
-    loop_stats_init(L);
+    sem_init(&L->wake, 0, 0);
+    atomic_init(&L->done, 0);
+    atomic_init(&L->rt_cpu, -1);
+    loop__stats_init(L);
     L->at_rest = 1;
     return L;
 }
@@ -152,7 +161,7 @@ static int collide_all(loop *L, int s, const pose *p, int fresh, double *sep)
         int64_t t0 = fresh ? 0 : fnclock_now_ns();
         int rc = L->col.query(L->col.ctx, s, p, j, &L->pose[j], cache, &c);
         if (!fresh) /* the invariant check's queries are not part of the loop's cost */
-            loop_stats_query(L, fnclock_now_ns() - t0);
+            loop__stats_query(L, fnclock_now_ns() - t0);
         if (rc < 0)
             return rc;
         if (c.separation_mm < *sep)
@@ -352,7 +361,7 @@ static int escape(loop *L, int s, const pose *cand, int64_t t_us)
     if (rc < 0)
         return rc;
     if (rc == 0) {
-        loop_accept(L, s, *cand, t_us, JOURNAL_MOVE, LOOP_CHECKED);
+        accept_pose(L, s, *cand, t_us, JOURNAL_MOVE, LOOP_CHECKED);
         L->in_collision = 0;
         L->gap_valid = 1;
         L->gap = sep;
@@ -360,7 +369,7 @@ static int escape(loop *L, int s, const pose *cand, int64_t t_us)
     }
     if (L->col.overlap ? ov > L->overlap + OVERLAP_EPS_MM3 : sep < L->pen)
         return LOOP_REFUSED;
-    loop_accept(L, s, *cand, t_us, JOURNAL_MOVE, LOOP_ESCAPING);
+    accept_pose(L, s, *cand, t_us, JOURNAL_MOVE, LOOP_ESCAPING);
     L->pen = fmin(sep, 0);
     L->overlap = ov;
     return LOOP_ACCEPTED;
@@ -371,7 +380,7 @@ static int move(loop *L, int s, double c[3], const double d[3], const double r[3
 {
     pose start = L->pose[s], cur = start;
     if (!L->collision_on) {
-        loop_accept(L, s, moved(&start, c, d, r, 1), t_us, JOURNAL_MOVE, LOOP_UNCHECKED);
+        accept_pose(L, s, moved(&start, c, d, r, 1), t_us, JOURNAL_MOVE, LOOP_UNCHECKED);
         return LOOP_ACCEPTED;
     }
     if (!L->gap_valid && !L->in_collision) {
@@ -389,7 +398,7 @@ static int move(loop *L, int s, double c[3], const double d[3], const double r[3
     if (err)
         return err;
     if (f == 1) {
-        loop_accept(L, s, cur, t_us, JOURNAL_MOVE, LOOP_CHECKED);
+        accept_pose(L, s, cur, t_us, JOURNAL_MOVE, LOOP_CHECKED);
         L->gap = gap;
         return LOOP_ACCEPTED;
     }
@@ -401,16 +410,16 @@ static int move(loop *L, int s, double c[3], const double d[3], const double r[3
         return err;
     if (!slid && f == 0)
         return LOOP_REFUSED;
-    loop_accept(L, s, cur, t_us, JOURNAL_MOVE, LOOP_CHECKED);
+    accept_pose(L, s, cur, t_us, JOURNAL_MOVE, LOOP_CHECKED);
     L->gap = gap;
     return slid ? LOOP_SLID : LOOP_LIMITED;
 }
 
-void loop_accept(loop *L, int s, pose p, int64_t t_us, uint32_t kind, int checked)
+static void accept_pose(loop *L, int s, pose p, int64_t t_us, uint32_t kind, int checked)
 {
     if (kind == JOURNAL_MOVE && !L->gesture_saved) {
         /* The first pose a gesture changes: undo comes back here. */
-        loop_undo_push(L, s);
+        undo_push(L, s);
         L->gesture_saved = 1;
         kind = JOURNAL_START;
     }
@@ -419,7 +428,7 @@ void loop_accept(loop *L, int s, pose p, int64_t t_us, uint32_t kind, int checke
     L->verify_frag = s;
     if (checked != LOOP_CHECKED)
         L->gap_valid = 0;
-    loop_stats_pose(L, s, &p);
+    loop__stats_pose(L, s, &p);
     if (L->jr && journal_append(L->jr, kind, s, t_us, &p, loop__now_us(L)) < 0)
         L->st.journal_errors++;
     if (checked == LOOP_UNCHECKED)
@@ -508,7 +517,7 @@ static int step(loop *L, const loop_event *ev)
     L->tries = 0;
     int out = move(L, s, c, d, r, ev->t_us);
     if (out > 0)
-        loop_stats_outcome(L, out);
+        loop__stats_outcome(L, out);
     return out;
 }
 
@@ -580,7 +589,7 @@ int loop_feed(loop *L, const loop_event *ev)
         break;
     }
     if (ev->kind == LOOP_EV_MOTION && ev->arrival_us > 0)
-        loop_stats_latency(L, loop__now_us(L) - ev->arrival_us);
+        loop__stats_latency(L, loop__now_us(L) - ev->arrival_us);
     verify(L);
     if (out > 0)
         L->last_outcome = (loop_outcome)out;
@@ -618,7 +627,7 @@ static int restore(loop *L, const loop_undo *u, uint32_t kind)
         if (rc != 0)
             return rc < 0 ? rc : 0;
     }
-    loop_accept(L, u->frag, u->p, L->last_t, kind, L->collision_on ? LOOP_CHECKED : LOOP_UNCHECKED);
+    accept_pose(L, u->frag, u->p, L->last_t, kind, L->collision_on ? LOOP_CHECKED : LOOP_UNCHECKED);
     L->gap_valid = 0;
     L->in_collision = 0;
     gesture_end(L);
@@ -648,7 +657,7 @@ static void set_fixed(loop *L, int s, int fixed)
 /* An undo step that gives fragment s its fixed flag back. */
 static void push_fix(loop *L, int s)
 {
-    loop_undo_push(L, s);
+    undo_push(L, s);
     L->undo[L->nundo - 1].fix = 1 + L->fixed[s];
 }
 
@@ -674,7 +683,7 @@ static int undo_redo(loop *L, int redo)
     return LOOP_ACCEPTED;
 }
 
-void loop_undo_push(loop *L, int s)
+static void undo_push(loop *L, int s)
 {
     if (L->nundo == LOOP_UNDO_MAX) {
         memmove(L->undo, L->undo + 1, (LOOP_UNDO_MAX - 1) * sizeof *L->undo);
@@ -738,7 +747,7 @@ int loop_recover(loop *L, const journal_rec *recs, size_t n)
             push_fix(L, r->frag);
             L->fixed[r->frag] = (uint8_t)r->flag;
         } else if (r->kind == JOURNAL_START)
-            loop_undo_push(L, r->frag);
+            undo_push(L, r->frag);
         else if (r->kind == JOURNAL_UNDO)
             shift(&L->nundo, L->redo, &L->nredo, before);
         else if (r->kind == JOURNAL_REDO)
