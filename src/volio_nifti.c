@@ -1,7 +1,7 @@
 /* volio_nifti: NIfTI-1 (.nii, .nii.gz) through nifticlib. The header is checked here byte by byte
  * first, so that bad files get an error naming the field and nifticlib never allocates for a
  * header that lies. */
-#include "volio.h"
+#include "volio_impl.h"
 
 #include "err.h"
 

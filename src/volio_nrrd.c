@@ -1,7 +1,7 @@
 /* volio_nrrd: NRRD (.nrrd, .nhdr + detached data) through teem. The header is loaded first
  * without data so dims are checked against the data file and the memory budget before teem
  * allocates. */
-#include "volio.h"
+#include "volio_impl.h"
 
 #include "err.h"
 
