@@ -1,4 +1,5 @@
-/* bench: `fracnav bench` subcommands (JSON on stdout with --json) and their shared helpers.
+/* bench: the internal header of `fracnav bench`: the benchmarks (bench_*.c, JSON on stdout with
+ * --json) that cmd_bench.c dispatches to, and the measurements they share (bench_measure.c).
  * Benchmarks report numbers; nothing here asserts a timing. */
 #ifndef FN_BENCH_H
 #define FN_BENCH_H

@@ -1,11 +1,9 @@
 /* fracnav bench: dispatches to the benchmarks (bench_*.c). */
 #include "bench.h"
 #include "cmd.h"
-#include "fnclock.h"
 
 #include <stdio.h>
 #include <string.h>
-#include <sys/resource.h>
 
 static const struct {
     const char *name;
@@ -16,22 +14,6 @@ static const struct {
     {"build", bench_build, "hierarchy build time and memory against volume size"},
     {"loop", bench_loop, "navigation loop rate and latency"},
 };
-
-double bench_now_us(void)
-{
-    return (double)fnclock_now_ns() * 1e-3;
-}
-
-double bench_cpu_us(void)
-{
-    return (double)fnclock_thread_cpu_ns() * 1e-3;
-}
-
-long bench_peak_rss_kib(void)
-{
-    struct rusage ru;
-    return getrusage(RUSAGE_SELF, &ru) == 0 ? ru.ru_maxrss : 0;
-}
 
 static void usage(FILE *out)
 {

@@ -2,14 +2,17 @@
 # No circles between files: file A uses a function or variable that file B defines while B, directly
 # or through others, uses one that A defines. Reads the symbols of the project's object files (the
 # libraries and the programs, not the tests) in a build folder with nm; prints each circle's files,
-# or how many files it checked. Exit 0: none; 1: circles; 2: no object files.
+# or how many files it checked. Exit 0: none; 1: circles; 2: no object files. Objects of deleted
+# sources stay in a build folder: check a fresh one.
 # Usage: tests/file_circles.sh BUILD_DIR
 set -eu
 build=${1:?usage: file_circles.sh BUILD_DIR}
-objs=$(find "$build/CMakeFiles" -path '*/CMakeFiles/fracnav*.dir/*' -name '*.o' | sort)
-[ -n "$objs" ] || { echo "file_circles: no object files under $build/CMakeFiles (build first)" >&2; exit 2; }
+objs=$(find "$build" -path "$build/tests" -prune -o -path '*/CMakeFiles/fracnav*.dir/*' -name '*.o' -print |
+       sort)
+[ -n "$objs" ] || { echo "file_circles: no object files under $build (build first)" >&2; exit 2; }
 for o in $objs; do
-    f=${o#*.dir/}
+    f=${o#*.dir/}                          # src/loop.c.o, or dev.c.o in devices/
+    case $f in */*) ;; *) sub=${o#"$build"/}; f=${sub%%/CMakeFiles/*}/$f ;; esac
     f=${f%.o}
     nm -g --defined-only "$o" | awk -v f="$f" 'NF >= 3 { print "D", f, $3 }'
     nm -u "$o" | awk -v f="$f" '{ print "U", f, $NF }'
