@@ -65,7 +65,8 @@ void loop__prefault(void *p, size_t n)
         b[n - 1] = 0;
 }
 
-static const double CAMERA_DEFAULT[3][3] = {{1, 0, 0}, {0, -1, 0}, {0, 0, -1}};
+/* Device axes -> world for the camera frame (loop.h: the camera in front of the patient). */
+static const double CAMERA[3][3] = {{1, 0, 0}, {0, -1, 0}, {0, 0, -1}};
 
 /* Largest distance from the centroid to a corner of the fragment's crop (home world mm). */
 static double frag_radius(const frag *f)
@@ -113,7 +114,6 @@ loop *loop_new(const frag *frags, int n, const uint8_t *fixed, const loop_collid
         L->cfg = *cfg;
     else
         loop_config_default(&L->cfg);
-    memcpy(L->cam, CAMERA_DEFAULT, sizeof L->cam);
     L->jr = jr;
     L->collision_on = 1;
     L->device_present = 1;
@@ -469,7 +469,7 @@ static void twist(const loop *L, int s, const float m[6], double dt, double d[3]
         pose local = pose_compose(L->pose[s], L->frags[s].home);
         pose_to_matrix(&local, R);
     } else {
-        memcpy(R, L->cam, sizeof R);
+        memcpy(R, CAMERA, sizeof R);
     }
     for (int i = 0; i < 3; i++) {
         d[i] = R[i][0] * v[0] + R[i][1] * v[1] + R[i][2] * v[2];
@@ -778,11 +778,6 @@ void loop_set_pivot(loop *L, const double world[3])
 void loop_set_saved(loop *L, const pose *saved)
 {
     L->saved = saved;
-}
-
-void loop_set_camera(loop *L, const double r[3][3])
-{
-    memcpy(L->cam, r, sizeof L->cam);
 }
 
 void loop_set_pose(loop *L, int i, pose p)

@@ -33,7 +33,7 @@
  * Frames. Device axes are the HID ones: +x right, +y towards the user, +z down. The default camera
  * stands in front of the patient looking posteriorly (along world +y, LPS), patient superior (+z)
  * up on screen and patient left (+x) to the right: device x -> world +x, device y (towards the
- * user = towards the viewer) -> world -y, device z (down) -> world -z. loop_set_camera changes it.
+ * user = towards the viewer) -> world -y, device z (down) -> world -z.
  * World frame: device axes are world LPS axes. Fragment frame: device axes are the fragment's
  * current local axes.
  *
@@ -206,8 +206,6 @@ int loop_run(loop *L, ring *r, int64_t period_us, const atomic_int *stop);
 int loop_action_do(loop *L, loop_action a);
 /* A user pivot (world mm, current pose) for the selected fragment; NULL returns to the centroid. */
 void loop_set_pivot(loop *L, const double world[3]);
-/* Device axes -> world rotation for the camera frame (rows: world, columns: device axes). */
-void loop_set_camera(loop *L, const double r[3][3]);
 /* Recovery: applies journal records (journal.h) in order -- poses, and the undo/redo history they
  * imply -- without writing them again. FN_EFORMAT (naming the record) for a fragment index out
  * of range. */

@@ -28,7 +28,6 @@ struct loop {
     size_t cache_stride;
     unsigned char *caches, *scratch; /* n*n pair caches, one scratch for fresh queries */
     loop_config cfg;
-    double cam[3][3];
     struct journal *jr;
     ring *ctl; /* actions from the application's thread */
     const pose *saved; /* loop_set_saved */
