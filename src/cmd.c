@@ -3,6 +3,7 @@
 #include "cmd.h"
 
 #include "case.h"
+#include "case_journal.h"
 #include "err.h"
 
 #include <math.h>
@@ -98,6 +99,44 @@ int cmd_tau_check(const char *cmd, const cmd_tau *t)
 {
     double lo = CASE_TAU_MIN, hi = CASE_TAU_MAX;
     return cmd_tau_apply(t, &lo, &hi) < 0 ? cmd_usage_error(cmd, "%s", fn_err_msg()) : 0;
+}
+
+int cmd_case_arg(const char *cmd, int argc, char **argv, int *i, cmd_case_args *c, int *rc)
+{
+    const char *a = argv[*i], *val = *i + 1 < argc ? argv[*i + 1] : NULL;
+    *rc = 0;
+    if (!strcmp(a, "--json")) {
+        c->json = 1;
+        return 1;
+    }
+    if (!strcmp(a, "--force")) {
+        c->force = 1;
+        return 1;
+    }
+    if (a[0] != '-') {
+        if (c->in)
+            *rc = cmd_usage_error(cmd, "unexpected argument '%s'", a);
+        c->in = a;
+        return 1;
+    }
+    if (!strcmp(a, "-o") || !strcmp(a, "--output")) {
+        if (!val)
+            *rc = cmd_bad_value(cmd, a, val, "a folder");
+        c->out = val;
+    } else if (!cmd_tau_option(cmd, a, val, &c->tau, rc) &&
+               !cmd_threshold_option(cmd, a, val, c->threshold, c->threshold_auto, rc)) {
+        return 0;
+    }
+    ++*i;
+    return 1;
+}
+
+void cmd_warn_replaced_journal(const char *cmd, const char *dir, int force)
+{
+    size_t n = force ? case_journal_pending(dir) : 0;
+    if (n)
+        fprintf(stderr, "fracnav %s: warning: %s/journal holds %zu poses not saved in "
+                        "case.json; they go with the case this replaces\n", cmd, dir, n);
 }
 
 const char *cmd_example_ct(void)

@@ -29,6 +29,22 @@ int volio__check_axes(const double m[3][3], const char *path, const char *field)
     return 0;
 }
 
+int volio__set_affine(vol *v, const double a[3][3], const double origin[3], const char *path,
+                      const char *field)
+{
+    int rc = volio__check_axes(a, path, field);
+    if (rc < 0)
+        return rc;
+    double dir[3][3], sp[3];
+    for (int c = 0; c < 3; c++) {
+        sp[c] = sqrt(a[0][c] * a[0][c] + a[1][c] * a[1][c] + a[2][c] * a[2][c]);
+        for (int r = 0; r < 3; r++)
+            dir[r][c] = a[r][c] / sp[c];
+    }
+    vol_set_geometry(v, dir, sp, origin);
+    return 0;
+}
+
 size_t volio__type_size(vol_type t)
 {
     static const size_t size[] = {1, 1, 2, 2, 4, 4, 4, 8};

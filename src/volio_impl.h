@@ -27,6 +27,10 @@ int volio__write_nrrd(const vol *v, const char *path, vol_type type);
 /* 0 if the columns of m (index axes) are finite, non-zero and orthogonal within 1e-4, else
  * FN_EFORMAT naming path and field. */
 int volio__check_axes(const double m[3][3], const char *path, const char *field);
+/* Sets v's geometry from the index-to-LPS matrix a (columns: index axes, mm) and the origin:
+ * checked as volio__check_axes does, then split into direction cosines and spacings. */
+int volio__set_affine(vol *v, const double a[3][3], const double origin[3], const char *path,
+                      const char *field);
 size_t volio__type_size(vol_type t);
 /* n values of type t (native byte order) -> float, as slope * x + inter (slope 1, inter 0 = as is). */
 void volio__to_float(const void *src, vol_type t, size_t n, double slope, double inter, float *dst);
