@@ -15,7 +15,6 @@
 #include <sys/ioctl.h>
 #include <sys/stat.h>
 #include <termios.h>
-#include <time.h>
 #include <unistd.h>
 
 static void usage(FILE *out)
@@ -384,8 +383,7 @@ static void ui(view *v, ring *ctl, pose *saved_poses, int keys, double duration,
         }
         if (!v->tty || fnclock_now_us() - v->last_print_us >= 100000)
             draw(v, &sc);
-        struct timespec nap = {0, 20000000};
-        nanosleep(&nap, NULL);
+        fnclock_sleep_us(20000);
     }
     if (raw)
         tcsetattr(STDIN_FILENO, TCSANOW, &saved);

@@ -5,7 +5,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <time.h>
 #include <unistd.h>
 
 #include "dev.h"
@@ -175,7 +174,7 @@ static int reconnect(recorder *r)
             return put(r, FNREC_CONNECT, fnclock_now_us(), NULL, 0);
         }
         while (time_left(r) && fnclock_now_us() < next)
-            nanosleep(&(struct timespec){0, 10000000}, NULL);
+            fnclock_sleep_us(10000);
     }
     return 0;
 }

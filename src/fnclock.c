@@ -55,6 +55,11 @@ struct timespec fnclock_realtime_deadline(int64_t deadline_us)
     return left > 0 ? fnclock_add_us(now, left) : now;
 }
 
+void fnclock_sleep_us(int64_t us)
+{
+    fnclock_sleep_until(fnclock_now_us() + us);
+}
+
 void fnclock_sleep_until(int64_t deadline_us)
 {
     struct timespec ts = fnclock_timespec(deadline_us);

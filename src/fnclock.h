@@ -26,5 +26,7 @@ struct timespec fnclock_realtime_deadline(int64_t deadline_us);
 /* Sleeps until the monotonic time deadline_us (returns at once when it has passed), through
  * signals. */
 void fnclock_sleep_until(int64_t deadline_us);
+/* Sleeps for us microseconds (fnclock_sleep_until from now). */
+void fnclock_sleep_us(int64_t us);
 
 #endif

@@ -7,7 +7,6 @@
 
 #include <pthread.h>
 #include <stdlib.h>
-#include <time.h>
 
 struct loop_reader {
     loop_source src;
@@ -44,9 +43,8 @@ static void follow_loop(loop_reader *rd)
 
 static void push(loop_reader *rd, loop_event *ev)
 {
-    struct timespec nap = {0, 20000}; /* sleep, not spin: the loop needs the core more */
     while (rd->lockstep && loop_events_done(rd->L) - rd->base < rd->pushed && !atomic_load(&rd->stop))
-        nanosleep(&nap, NULL);
+        fnclock_sleep_us(20); /* sleep, not spin: the loop needs the core more */
     if (rd->L)
         follow_loop(rd);
     rd->pushed++;

@@ -91,6 +91,9 @@ static void sleep_until_does_not_return_early(void **state)
     fnclock_sleep_until(deadline);
     assert_true(fnclock_now_us() >= deadline);
     fnclock_sleep_until(0); /* long passed: returns at once */
+    int64_t before = fnclock_now_us();
+    fnclock_sleep_us(1000);
+    assert_true(fnclock_now_us() - before >= 1000);
 }
 
 int main(void)
