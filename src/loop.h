@@ -244,10 +244,12 @@ int loop_scene_read(loop *L, loop_scene *out);
 int loop_realtime_priority(void);
 
 /* The loop's clock: what loop_run ticks by and the rates, latencies and journal stamps count in.
- * The default is the monotonic clock (fnclock_now_us, which also stamps the reader's arrival_us);
- * wait_until returns at deadline_us or earlier at loop_notify. A test injects a clock whose wait
- * moves its time to the deadline and returns, so loop_run's timing runs without sleeping. Both
- * are called on the stepping thread only. */
+ * The default is the monotonic clock (fnclock_now_us, which also stamps the reader's arrival_us),
+ * and loop_run waits on it until its next tick or an earlier loop_notify. An injected wait_until
+ * replaces that wait: it returns at deadline_us (on now_us's clock) or earlier, and loop_run then
+ * drains the rings; NULL keeps the monotonic wait, so now_us must then be that clock too. A test
+ * injects a clock whose wait moves its time to the deadline and returns, so loop_run's timing
+ * runs without sleeping. Both are called on the stepping thread only. */
 typedef struct loop_clock {
     int64_t (*now_us)(void *ctx);
     void (*wait_until)(void *ctx, int64_t deadline_us);
