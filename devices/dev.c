@@ -10,6 +10,7 @@
 
 #include "devparse.h"
 #include "err.h"
+#include "fnclock.h"
 #include "hiddesc.h"
 
 /* The built-in transports (dev_hid.c, dev_spnav.c, dev_keyboard.c). */
@@ -36,13 +37,6 @@ struct dev_device {
     dev_raw_hook hook;
     void *hook_ctx;
 };
-
-int64_t dev_now_us(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (int64_t)ts.tv_sec * 1000000 + ts.tv_nsec / 1000;
-}
 
 int dev_transport_register(const dev_transport *t)
 {
@@ -263,7 +257,7 @@ static void lost(dev_device *d, dev_event *ev)
 {
     d->t->close(d->h);
     d->h = NULL;
-    d->next_try_us = dev_now_us() + DEV_REPLUG_MS * 1000;
+    d->next_try_us = fnclock_now_us() + DEV_REPLUG_MS * 1000;
     if (d->mon)
         d->hp->added(d->mon); /* what was added while the device was there does not bring it back */
     memset(d->ps.raw, 0, sizeof d->ps.raw);
@@ -271,7 +265,7 @@ static void lost(dev_device *d, dev_event *ev)
     d->ps.buttons = d->ps.id3_buttons = d->ps.key_buttons = 0;
     memset(d->ps.keys, 0, sizeof d->ps.keys);
     memset(ev, 0, sizeof *ev);
-    ev->t_us = dev_now_us();
+    ev->t_us = fnclock_now_us();
     ev->flags = DEV_EV_UNPLUG | DEV_EV_MOTION | (was ? DEV_EV_BUTTON : 0);
     ev->released = was;
     ev->battery = -1;
@@ -323,7 +317,7 @@ static int try_reopen(dev_device *d)
  * look for the device. */
 static int time_to_look(dev_device *d, int timeout_ms)
 {
-    int64_t wait_us = d->next_try_us - dev_now_us();
+    int64_t wait_us = d->next_try_us - fnclock_now_us();
     if (wait_us <= 0)
         return 1;
     if (timeout_ms >= 0 && wait_us > (int64_t)timeout_ms * 1000)
@@ -335,14 +329,14 @@ static int time_to_look(dev_device *d, int timeout_ms)
     } else if (wait_us > 0) {
         usleep((useconds_t)wait_us);
     }
-    return dev_now_us() >= d->next_try_us;
+    return fnclock_now_us() >= d->next_try_us;
 }
 
 static int poll_unplugged(dev_device *d, dev_event *ev, int timeout_ms)
 {
     if (!time_to_look(d, timeout_ms))
         return 0;
-    d->next_try_us = dev_now_us() + DEV_REPLUG_MS * 1000;
+    d->next_try_us = fnclock_now_us() + DEV_REPLUG_MS * 1000;
     int found = try_reopen(d);
     if (found <= 0) {
         int report = found < 0 && !d->refused;
@@ -350,7 +344,7 @@ static int poll_unplugged(dev_device *d, dev_event *ev, int timeout_ms)
         if (!report)
             return 0;
         memset(ev, 0, sizeof *ev);
-        ev->t_us = dev_now_us();
+        ev->t_us = fnclock_now_us();
         ev->flags = DEV_EV_REFUSED;
         ev->battery = -1;
         return 1;
@@ -360,7 +354,7 @@ static int poll_unplugged(dev_device *d, dev_event *ev, int timeout_ms)
     devparse_init(&d->ps, d->row, d->ps.axis_max);
     d->ps.battery = battery;
     memset(ev, 0, sizeof *ev);
-    ev->t_us = dev_now_us();
+    ev->t_us = fnclock_now_us();
     ev->flags = DEV_EV_REPLUG;
     ev->battery = battery;
     return 1;

@@ -161,7 +161,4 @@ dev_device *dev_open_handle(const dev_transport *t, dev_handle *h, const char *r
  * for udev). NULL = none: lost devices are found by polling alone. */
 void dev_set_hotplug(const hotplug_ops *ops);
 
-/* Monotonic clock in microseconds (the timebase of t_us). */
-int64_t dev_now_us(void);
-
 #endif

@@ -15,6 +15,7 @@
 #include "dev.h"
 #include "devtab.h"
 #include "err.h"
+#include "fnclock.h"
 
 #ifdef FRACNAV_HIDAPI_LIBUSB
 #define HID_NAME "libusb"
@@ -217,7 +218,7 @@ static int hid_open_dev(const char *path, dev_handle **out)
 static int hid_read_dev(dev_handle *h, uint8_t *buf, size_t cap, int timeout_ms, int64_t *t_us)
 {
     int n = hid_read_timeout(h->dev, buf, cap, timeout_ms);
-    *t_us = dev_now_us();
+    *t_us = fnclock_now_us();
     if (n < 0)
         return fn_err_set(FN_ENODEV, "%s: read failed: %ls", h->path, hid_error(h->dev));
     return n;

@@ -22,6 +22,7 @@
 #include "dev.h"
 #include "devparse.h"
 #include "err.h"
+#include "fnclock.h"
 
 #define KEY_HOLD_MS 150
 #define KEY_LEVEL 250 /* of the row's 350: a brisk but controllable speed */
@@ -204,7 +205,7 @@ static int kb_read(dev_handle *h, uint8_t *buf, size_t cap, int timeout_ms, int6
 {
     if (cap < 13)
         return fn_err_set(FN_EINVAL, "keyboard: report buffer under 13 bytes");
-    *t_us = dev_now_us();
+    *t_us = fnclock_now_us();
     if (h->pending)
         return next_report(h, buf);
     if (held(h)) { /* wake up when the hold expires */
@@ -216,7 +217,7 @@ static int kb_read(dev_handle *h, uint8_t *buf, size_t cap, int timeout_ms, int6
     ssize_t n = poll(&p, 1, timeout_ms) > 0 ? read(h->fd, keys, sizeof keys) : 0;
     if (n == 0 && p.revents && timeout_ms != 0) /* end of a key file: wait like a quiet terminal */
         usleep((useconds_t)(timeout_ms < 0 ? 10 : timeout_ms) * 1000);
-    *t_us = dev_now_us();
+    *t_us = fnclock_now_us();
     for (ssize_t i = 0; i < n; i++)
         apply_key(h, keys[i], *t_us);
     if (n <= 0 && held(h) && *t_us >= h->release_us) {

@@ -12,6 +12,7 @@
 #include "dev.h"
 #include "devparse.h"
 #include "err.h"
+#include "fnclock.h"
 
 static void spnav_describe(char *buf, size_t cap);
 
@@ -92,7 +93,7 @@ static int spnav_read_dev(dev_handle *h, uint8_t *buf, size_t cap, int timeout_m
     for (;;) {
         struct pollfd p = {spnav_fd(), POLLIN, 0};
         int r = poll(&p, 1, timeout_ms);
-        *t_us = dev_now_us();
+        *t_us = fnclock_now_us();
         if (r < 0 && errno == EINTR)
             continue;
         if (r <= 0)

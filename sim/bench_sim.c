@@ -12,11 +12,11 @@
 #include <string.h>
 #include <sys/stat.h>
 #include <sys/wait.h>
-#include <time.h>
 #include <unistd.h>
 
 #include "dev.h"
 #include "err.h"
+#include "fnclock.h"
 #include "fnrec.h"
 #include "jsonw.h"
 #include "script.h"
@@ -26,7 +26,7 @@
 
 static void msleep(int ms)
 {
-    nanosleep(&(struct timespec){ms / 1000, (long)(ms % 1000) * 1000000}, NULL);
+    fnclock_sleep_us((int64_t)ms * 1000);
 }
 
 static pid_t start_server(const char *mount, const char *play, int fast)

@@ -29,6 +29,7 @@
 #include <unistd.h>
 
 #include "err.h"
+#include "fnclock.h"
 #include "reportq.h"
 
 #define NODE_INO 2
@@ -60,18 +61,11 @@ typedef struct hidfuse_server {
     struct hidraw_report_descriptor rdesc; /* HIDIOCGRDESC's answer (4 KiB: not on the stack) */
 } hidfuse_server;
 
-static int64_t mono_us(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (int64_t)ts.tv_sec * 1000000 + ts.tv_nsec / 1000;
-}
-
 static void log_event(hidfuse_server *srv, fnrec_dir dir, const uint8_t *b, size_t n)
 {
     if (!srv->src.log)
         return;
-    fnrec_event e = {.t_us = mono_us() - srv->log_t0, .dir = dir, .len = (uint8_t)n};
+    fnrec_event e = {.t_us = fnclock_now_us() - srv->log_t0, .dir = dir, .len = (uint8_t)n};
     if (n)
         memcpy(e.data, b, n);
     if (fnrec_writer_event(srv->src.log, &e)) {
@@ -169,10 +163,8 @@ static void set_plugged(hidfuse_server *srv, int on, int live)
 static void arm_timer(hidfuse_server *srv, int64_t at_us)
 {
     struct itimerspec it = {{0, 0}, {0, 0}};
-    if (at_us > 0) {
-        it.it_value.tv_sec = at_us / 1000000;
-        it.it_value.tv_nsec = (long)(at_us % 1000000) * 1000;
-    }
+    if (at_us > 0)
+        it.it_value = fnclock_timespec(at_us);
     timerfd_settime(srv->timer_fd, TFD_TIMER_ABSTIME, &it, NULL);
 }
 
@@ -205,7 +197,7 @@ static void start_playback(hidfuse_server *srv)
         srv->src.rec = r;
     }
     srv->started = 1;
-    srv->t0_us = mono_us() + 1000;
+    srv->t0_us = fnclock_now_us() + 1000;
     pump(srv);
 }
 
@@ -215,7 +207,7 @@ static void pump(hidfuse_server *srv)
 {
     if (!srv->started)
         return;
-    int64_t now = mono_us();
+    int64_t now = fnclock_now_us();
     while (srv->pos < srv->src.rec->n) {
         const fnrec_event *e = &srv->src.rec->ev[srv->pos];
         if (srv->src.fast ? !room_for_fast(srv) : srv->t0_us + e->t_us > now)
@@ -548,7 +540,7 @@ static void control_command(hidfuse_server *srv, const char *line)
         srv->src.rec = r;
         srv->pos = 0;
         srv->started = 1;
-        srv->t0_us = mono_us();
+        srv->t0_us = fnclock_now_us();
         pump(srv);
     }
 }
@@ -755,7 +747,7 @@ static int serve(hidfuse_server *srv, const char *mount, const char *control)
     }
     fprintf(stderr, "fracnav-sim: serving %s (%04x:%04x) at %s/" HIDFUSE_NODE "\n", srv->src.id.name,
             srv->src.id.vid, srv->src.id.pid, mount);
-    srv->log_t0 = mono_us();
+    srv->log_t0 = fnclock_now_us();
     if (!srv->src.start_on_read)
         start_playback(srv);
     int rc = serve_loop(srv);

@@ -10,6 +10,7 @@
 
 #include "bench_sim.h"
 #include "err.h"
+#include "fnclock.h"
 #include "fnrec.h"
 #include "hidfuse.h"
 #include "script.h"

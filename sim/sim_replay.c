@@ -6,6 +6,7 @@
 #include <time.h>
 
 #include "err.h"
+#include "fnclock.h"
 #include "script.h"
 #include "simdev.h"
 
@@ -22,20 +23,6 @@ struct dev_handle {
     simdev dev;         /* virtual: LED and feature reports */
     char path[256];
 };
-
-static int64_t mono_us(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (int64_t)ts.tv_sec * 1000000 + ts.tv_nsec / 1000;
-}
-
-static void sleep_until(int64_t t_us)
-{
-    struct timespec ts = {(time_t)(t_us / 1000000), (long)(t_us % 1000000) * 1000};
-    while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL))
-        ;
-}
 
 static dev_handle *handle_new(const char *kind, const char *path)
 {
@@ -119,13 +106,13 @@ static int wait_due(dev_handle *h, int timeout_ms, int64_t start)
 {
     if (!h->realtime)
         return 1;
-    int64_t due = due_us(h, h->pos), now = mono_us();
+    int64_t due = due_us(h, h->pos), now = fnclock_now_us();
     if (due <= now)
         return 1;
     if (timeout_ms == 0)
         return 0;
     int64_t limit = timeout_ms < 0 ? due : start + (int64_t)timeout_ms * 1000;
-    sleep_until(due < limit ? due : limit);
+    fnclock_sleep_until(due < limit ? due : limit);
     return due <= limit;
 }
 
@@ -155,7 +142,7 @@ static int disconnected(const dev_handle *h)
 /* The monotonic time of this read; a realtime handle anchors the recording's t = 0 at its first. */
 static int64_t read_start(dev_handle *h)
 {
-    int64_t start = mono_us();
+    int64_t start = fnclock_now_us();
     if (h->realtime && !h->started) {
         h->started = 1;
         h->anchor_us = start - (h->rec->n ? (int64_t)((double)h->rec->ev[0].t_us / h->speed) : 0);
@@ -192,16 +179,16 @@ static int virtual_read(dev_handle *h, uint8_t *buf, size_t cap, int timeout_ms,
         if (h->pos >= h->rec->n) {
             if (!h->plugged)
                 return disconnected(h);
-            sleep_until(start + (int64_t)(timeout_ms < 0 ? 100 : timeout_ms) * 1000);
+            fnclock_sleep_until(start + (int64_t)(timeout_ms < 0 ? 100 : timeout_ms) * 1000);
             return 0;
         }
-        if (!h->plugged && due_us(h, h->pos) > mono_us())
+        if (!h->plugged && due_us(h, h->pos) > fnclock_now_us())
             return disconnected(h);
         if (!wait_due(h, timeout_ms, start))
             return 0;
         int n = play_next(h, buf, cap);
         if (n > 0 && t_us)
-            *t_us = mono_us();
+            *t_us = fnclock_now_us();
         if (n)
             return n;
     }
@@ -343,7 +330,7 @@ static int open_virtual(const char *path, dev_handle **out)
     h->rec = r;
     h->realtime = 1;
     h->started = 1;
-    h->anchor_us = mono_us();
+    h->anchor_us = fnclock_now_us();
     simdev_init(&h->dev, p);
     *out = h;
     return 0;

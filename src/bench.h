@@ -1,4 +1,5 @@
-/* bench: `fracnav bench` subcommands (JSON on stdout with --json) and their shared helpers.
+/* bench: the internal header of `fracnav bench`: the benchmarks (bench_*.c, JSON on stdout with
+ * --json) that cmd_bench.c dispatches to, and the measurements they share (bench_measure.c).
  * Benchmarks report numbers; nothing here asserts a timing. */
 #ifndef FN_BENCH_H
 #define FN_BENCH_H
@@ -15,9 +16,10 @@ int bench_loop(int argc, char **argv);
 int bench_reduce(int argc, char **argv);
 int bench_render(int argc, char **argv);
 
-/* Monotonic clock in microseconds. */
+/* fnclock's monotonic clock in microseconds, with the nanoseconds as the fraction. */
 double bench_now_us(void);
-/* CPU time of the calling thread in microseconds: immune to being descheduled on a busy machine. */
+/* fnclock's CPU time of the calling thread in microseconds: immune to being descheduled on a busy
+ * machine. */
 double bench_cpu_us(void);
 /* Peak resident set size of this process in KiB (0 when unknown). */
 long bench_peak_rss_kib(void);

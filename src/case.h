@@ -7,8 +7,13 @@
  * labelmap on the source grid. A source path inside the case folder is stored relative to it.
  *
  * Saves are atomic per file (temporary file, fsync, rename, fsync of the folder): a failed save
- * leaves the previous case untouched. labels.nii.gz is renamed before case.json; a crash between
- * the two renames is caught at load by the labels checksum. */
+ * leaves the previous case untouched. Before the renames, the labels the on-disk case.json names
+ * are kept as labels.prev.nii.gz (a hard link); then labels.nii.gz is renamed before case.json,
+ * and labels.prev.nii.gz is removed once both are in place. After a crash between the two renames,
+ * case_load finds that labels.nii.gz does not match case.json's checksum but labels.prev.nii.gz
+ * does, puts the previous labels back and says so on stderr: the case loads as it was last saved.
+ * Without hard links (or at a first save) no previous labels are kept and such a crash is an
+ * FN_EMISMATCH at load. */
 #ifndef FN_CASE_H
 #define FN_CASE_H
 

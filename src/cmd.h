@@ -65,6 +65,24 @@ int cmd_tau_apply(const cmd_tau *t, double *tau_min, double *tau_max);
 int cmd_threshold_option(const char *cmd, const char *a, const char *val, double *threshold,
                          int *threshold_auto, int *rc);
 
+/* The arguments of a command that makes a new case from a volume (segment, fracture): VOLUME,
+ * -o/--output CASE, --force, --json, --threshold and --tau-min/--tau-max. The caller points
+ * threshold and threshold_auto at its own parameters. */
+typedef struct cmd_case_args {
+    const char *in, *out;
+    int json, force;
+    double *threshold;
+    int *threshold_auto;
+    cmd_tau tau;
+} cmd_case_args;
+/* When argv[*i] is one of those: takes it (and the value after it, advancing *i), and returns 1
+ * with *rc 0, or with *rc 2 after printing a usage error that names it. Else 0: the command's
+ * own option. */
+int cmd_case_arg(const char *cmd, int argc, char **argv, int *i, cmd_case_args *c, int *rc);
+/* --force replaces a case with its journal: warns on stderr when the journal in dir holds poses
+ * that case.json does not, which go with the case. */
+void cmd_warn_replaced_journal(const char *cmd, const char *dir, int force);
+
 /* Path of the example CT that .ci/setup caches: $FRACNAV_DATA/Cranium.inv3, else
  * /var/cache/fracnav/Cranium.inv3 (a static buffer). */
 const char *cmd_example_ct(void);

@@ -4,8 +4,6 @@
 
 #include <stdio.h>
 #include <string.h>
-#include <sys/resource.h>
-#include <time.h>
 
 static const struct {
     const char *name;
@@ -18,26 +16,6 @@ static const struct {
     {"reduce", bench_reduce, "automatic reduction per method: success rate, errors, time"},
     {"render", bench_render, "renderer frame time per mode (OpenGL 4.5, OSMesa offscreen)"},
 };
-
-double bench_now_us(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec * 1e6 + (double)ts.tv_nsec * 1e-3;
-}
-
-double bench_cpu_us(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return (double)ts.tv_sec * 1e6 + (double)ts.tv_nsec * 1e-3;
-}
-
-long bench_peak_rss_kib(void)
-{
-    struct rusage ru;
-    return getrusage(RUSAGE_SELF, &ru) == 0 ? ru.ru_maxrss : 0;
-}
 
 static void usage(FILE *out)
 {

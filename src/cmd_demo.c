@@ -3,6 +3,7 @@
 #include "cmd.h"
 #include "err.h"
 #include "fnrec.h"
+#include "fnclock.h"
 #include "fracture.h"
 #include "script.h"
 #include "seg.h"
@@ -14,8 +15,8 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <stdint.h>
 #include <sys/stat.h>
-#include <time.h>
 
 static void usage(FILE *out)
 {
@@ -39,13 +40,6 @@ static void usage(FILE *out)
             "                             (kept in both cases the demo saves)\n");
 }
 
-static double now_s(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + ts.tv_nsec * 1e-9;
-}
-
 static int fail(const char *what)
 {
     fprintf(stderr, "fracnav demo: %s%s%s\n", what ? what : "", what ? ": " : "", fn_err_msg());
@@ -58,13 +52,13 @@ static fcase *segment(const char *ct_path, vol *ct, const char *dir, const cmd_t
     seg_params sp;
     seg_defaults(&sp);
     sp.threshold = 300;
-    double t0 = now_s();
+    int64_t t0 = fnclock_now_us();
     seg_result sr;
     if (seg_run(ct, &sp, &sr) < 0) {
         vol_free(ct);
         return NULL;
     }
-    double t_seg = now_s() - t0;
+    double t_seg = (double)(fnclock_now_us() - t0) * 1e-6;
     printf("1. segmentation at %.0f HU: %d components, %d kept (>= %.2f ml) in %.0f ms\n", sr.threshold,
            sr.raw_components, sr.ncomp, sp.min_volume_ml, t_seg * 1e3);
     vol *labels = sr.labels;
@@ -133,12 +127,12 @@ static int fracture(const fcase *seg, const char *dir, const cmd_tau *tau)
     cmd_tau_apply(tau, &fp.tau_min, &fp.tau_max);
     char casedir[4200], png[4200];
     snprintf(casedir, sizeof casedir, "%s/fracture", dir);
-    double t0 = now_s();
+    int64_t t0 = fnclock_now_us();
     fcase *c = fracture_make_case(seg->ct, &fp, casedir);
     if (!c)
         return -1;
     printf("3. synthetic fracture (seed %llu) in %.1f s, saved in %s:\n", (unsigned long long)fp.seed,
-           now_s() - t0, casedir);
+           (double)(fnclock_now_us() - t0) * 1e-6, casedir);
     for (int i = 0; i < c->nfrag; i++) {
         const frag *f = &c->frag[i];
         pose t = c->truth[i];
@@ -218,7 +212,7 @@ int cmd_demo(int argc, char **argv)
         fprintf(stderr, "fracnav demo: cannot create %s: %s\n", dir, strerror(errno));
         return 1;
     }
-    double t0 = now_s();
+    int64_t t0 = fnclock_now_us();
     vol *ct = volio_read(ct_path);
     if (!ct) {
         fprintf(stderr, "fracnav demo: %s\n%s", fn_err_msg(),
@@ -227,7 +221,7 @@ int cmd_demo(int argc, char **argv)
     }
     printf("fracnav demo on %s\n0. CT: %dx%dx%d voxels, %.3fx%.3fx%.3f mm, read in %.0f ms\n", ct_path,
            ct->dim[0], ct->dim[1], ct->dim[2], ct->spacing[0], ct->spacing[1], ct->spacing[2],
-           (now_s() - t0) * 1e3);
+           (double)(fnclock_now_us() - t0) * 1e-3);
     fcase *c = segment(ct_path, ct, dir, &tau);
     if (!c)
         return fail("segmentation");

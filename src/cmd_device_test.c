@@ -11,6 +11,7 @@
 #include "calib.h"
 #include "dev.h"
 #include "err.h"
+#include "fnclock.h"
 
 #define LINES_PER_S 10 /* when not on a terminal: at most this many lines a second */
 
@@ -153,7 +154,7 @@ static int calibrate_zero(dev_device *d, calib *c, double seconds, const char *c
 {
     double sum[6] = {0}, total = 0;
     float state[6] = {0};
-    int64_t prev = dev_now_us(), end = prev + (int64_t)((seconds > 0 ? seconds : 1.0) * 1e6);
+    int64_t prev = fnclock_now_us(), end = prev + (int64_t)((seconds > 0 ? seconds : 1.0) * 1e6);
     printf("keep the cap released: measuring the rest position for %.1f s\n", seconds > 0 ? seconds : 1.0);
     while (!stop && prev < end) {
         dev_event ev;
@@ -162,7 +163,7 @@ static int calibrate_zero(dev_device *d, calib *c, double seconds, const char *c
             fprintf(stderr, "fracnav device-test: %s\n", fn_err_msg());
             return 1;
         }
-        int64_t now = dev_now_us();
+        int64_t now = fnclock_now_us();
         for (int i = 0; i < 6; i++)
             sum[i] += state[i] * (double)(now - prev);
         total += (double)(now - prev);
@@ -196,19 +197,19 @@ static int calibrate_zero(dev_device *d, calib *c, double seconds, const char *c
 static int live_view(dev_device *d, calib *c, double seconds)
 {
     int tty = isatty(STDOUT_FILENO);
-    int64_t start = dev_now_us(), end = seconds > 0 ? start + (int64_t)(seconds * 1e6) : INT64_MAX;
+    int64_t start = fnclock_now_us(), end = seconds > 0 ? start + (int64_t)(seconds * 1e6) : INT64_MAX;
     int64_t last_line = 0, window = start;
     long reports = 0; /* raw reports, counted as they are read */
     double rate = -1; /* reports/s over the last whole second, -1 before the first */
     dev_set_raw_hook(d, count_report, &reports);
-    while (!stop && dev_now_us() < end) {
+    while (!stop && fnclock_now_us() < end) {
         dev_event ev;
         int r = dev_poll(d, &ev, 50);
         if (r < 0) {
             fprintf(stderr, "%sfracnav device-test: %s\n", tty ? "\n" : "", fn_err_msg());
             return 1;
         }
-        int64_t now = dev_now_us();
+        int64_t now = fnclock_now_us();
         if (now - window >= 1000000) {
             rate = (double)reports * 1e6 / (double)(now - window);
             reports = 0, window = now;

@@ -9,6 +9,7 @@
 #include "dev.h"
 #include "devtab.h"
 #include "err.h"
+#include "fnclock.h"
 #include "jsonw.h"
 
 #define LIST_MAX 32
@@ -59,8 +60,8 @@ static void probe(found *f, const char *spec)
     f->row = dev_row(d);
     f->transport = dev_transport_name(d);
     dev_event ev;
-    int64_t end = dev_now_us() + BATTERY_WAIT_MS * 1000;
-    while ((f->row->flags & DEVTAB_F_BATTERY) && dev_battery(d) < 0 && dev_now_us() < end)
+    int64_t end = fnclock_now_us() + BATTERY_WAIT_MS * 1000;
+    while ((f->row->flags & DEVTAB_F_BATTERY) && dev_battery(d) < 0 && fnclock_now_us() < end)
         if (dev_poll(d, &ev, 20) < 0)
             break;
     f->battery = dev_battery(d);

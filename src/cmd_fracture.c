@@ -2,8 +2,8 @@
 #include "cmd.h"
 
 #include "case.h"
-#include "case_journal.h"
 #include "err.h"
+#include "fnclock.h"
 #include "fracture.h"
 #include "jsonw.h"
 #include "volio.h"
@@ -12,7 +12,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <time.h>
 
 static void usage(FILE *out)
 {
@@ -73,40 +72,21 @@ static double *number_option(fracture_params *p, const char *opt, const char **a
     return NULL;
 }
 
-static int parse(int argc, char **argv, fracture_params *p, const char **in, const char **out, int *json,
-                 int *force)
+static int parse(int argc, char **argv, fracture_params *p, cmd_case_args *c)
 {
     int have_seed = 0, rc;
     double *target;
     const char *accepted;
-    cmd_tau tau = {0};
     for (int i = 1; i < argc; i++) {
-        const char *a = argv[i], *val = i + 1 < argc ? argv[i + 1] : NULL;
-        double d;
-        if (!strcmp(a, "--json")) {
-            *json = 1;
-            continue;
-        }
-        if (!strcmp(a, "--force")) {
-            *force = 1;
-            continue;
-        }
-        if (a[0] != '-') {
-            if (*in)
-                return cmd_usage_error("fracture", "unexpected argument '%s'", a);
-            *in = a;
-            continue;
-        }
-        i++; /* every option takes a value; a missing one is reported by its branch */
-        if (!strcmp(a, "-o") || !strcmp(a, "--output")) {
-            if (!val)
-                return cmd_bad_value("fracture", a, val, "a folder");
-            *out = val;
-        } else if (cmd_tau_option("fracture", a, val, &tau, &rc) ||
-                   cmd_threshold_option("fracture", a, val, &p->threshold, &p->threshold_auto, &rc)) {
+        if (cmd_case_arg("fracture", argc, argv, &i, c, &rc)) {
             if (rc)
                 return rc;
-        } else if (!strcmp(a, "--seed")) {
+            continue;
+        }
+        const char *a = argv[i], *val = i + 1 < argc ? argv[i + 1] : NULL;
+        double d;
+        i++; /* every option takes a value; a missing one is reported by its branch */
+        if (!strcmp(a, "--seed")) {
             if (!cmd_number(val, &d) || !(d >= 0 && d < 9007199254740992.0 && d == (double)(uint64_t)d))
                 return cmd_bad_value("fracture", a, val, "a whole number 0..2^53");
             p->seed = (uint64_t)d;
@@ -122,9 +102,9 @@ static int parse(int argc, char **argv, fracture_params *p, const char **in, con
         else
             *target = d;
     }
-    if (!*in || !*out || !have_seed)
+    if (!c->in || !c->out || !have_seed)
         return cmd_usage_error("fracture", "%s", "needs VOLUME, -o CASE and --seed N");
-    if (fracture_check(p) < 0 || cmd_tau_apply(&tau, &p->tau_min, &p->tau_max) < 0)
+    if (fracture_check(p) < 0 || cmd_tau_apply(&c->tau, &p->tau_min, &p->tau_max) < 0)
         return cmd_usage_error("fracture", "%s", fn_err_msg());
     return 0;
 }
@@ -164,22 +144,6 @@ static int print_json(const fcase *c, const fracture_params *p, const char *in, 
     return jsonw_print(o, stdout);
 }
 
-static double now_ms(void)
-{
-    struct timespec t;
-    clock_gettime(CLOCK_MONOTONIC, &t);
-    return (double)t.tv_sec * 1e3 + t.tv_nsec * 1e-6;
-}
-
-/* --force replaces a case with its journal: poses it holds beyond case.json go too. */
-static void warn_journal(const char *dir, int force)
-{
-    size_t n = force ? case_journal_pending(dir) : 0;
-    if (n)
-        fprintf(stderr, "fracnav fracture: warning: %s/journal holds %zu poses not saved in "
-                        "case.json; they go with the case this replaces\n", dir, n);
-}
-
 int cmd_fracture(int argc, char **argv)
 {
     if (cmd_wants_help(argc, argv)) {
@@ -188,19 +152,19 @@ int cmd_fracture(int argc, char **argv)
     }
     fracture_params p;
     fracture_defaults(&p);
-    const char *in = NULL, *out = NULL;
-    int json = 0, force = 0;
-    int rc = parse(argc, argv, &p, &in, &out, &json, &force);
+    cmd_case_args args = {.threshold = &p.threshold, .threshold_auto = &p.threshold_auto};
+    int rc = parse(argc, argv, &p, &args);
     if (rc)
         return rc;
+    const char *in = args.in, *out = args.out;
     char tmp[4200] = "";
-    warn_journal(out, force);
-    double t0 = now_ms();
-    vol *ct = case_stage_begin(out, force, NULL, tmp, sizeof tmp) == 0 ? volio_read(in) : NULL;
-    double t1 = now_ms();
+    cmd_warn_replaced_journal("fracture", out, args.force);
+    int64_t t0 = fnclock_now_us();
+    vol *ct = case_stage_begin(out, args.force, NULL, tmp, sizeof tmp) == 0 ? volio_read(in) : NULL;
+    int64_t t1 = fnclock_now_us();
     /* The whole case, source.nii.gz included, is written in tmp and renamed into place at once. */
     fcase *c = ct ? fracture_make_case(ct, &p, tmp) : NULL;
-    double t2 = now_ms();
+    int64_t t2 = fnclock_now_us();
     if (!c || case_stage_commit(tmp, out) < 0) {
         fprintf(stderr, "fracnav fracture: %s\n", fn_err_msg());
         case_stage_abort(tmp);
@@ -208,9 +172,9 @@ int cmd_fracture(int argc, char **argv)
         vol_free(ct);
         return 1;
     }
-    if (json && (rc = print_json(c, &p, in, out, t1 - t0, t2 - t1)) < 0)
+    if (args.json && (rc = print_json(c, &p, in, out, (double)(t1 - t0) * 1e-3, (double)(t2 - t1) * 1e-3)) < 0)
         fprintf(stderr, "fracnav fracture: %s\n", fn_err_msg());
-    else if (!json) {
+    else if (!args.json) {
         for (int i = 0; i < c->nfrag; i++)
             print_truth(&c->frag[i], &c->truth[i]);
         printf("saved %s\n", out);

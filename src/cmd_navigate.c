@@ -3,6 +3,7 @@
 
 #include "cmd_loopkit.h"
 #include "err.h"
+#include "fnclock.h"
 #include "navview.h"
 #include "sim_replay.h"
 
@@ -14,7 +15,6 @@
 #include <sys/ioctl.h>
 #include <sys/stat.h>
 #include <termios.h>
-#include <time.h>
 #include <unistd.h>
 
 static void usage(FILE *out)
@@ -228,7 +228,7 @@ typedef struct view {
 static void acknowledge(view *v, const char *text)
 {
     snprintf(v->ack, sizeof v->ack, "%s", text);
-    v->ack_until_us = loop_now_us() + ACK_SHOWN_US;
+    v->ack_until_us = fnclock_now_us() + ACK_SHOWN_US;
 }
 
 /* Saves the poses of the latest scene while the loop keeps running, then has the loop empty the
@@ -330,7 +330,7 @@ static void draw(view *v, const loop_scene *sc)
         if (loopkit_dsource_refused(v->ds, refused, sizeof refused))
             x.refused = refused;
     }
-    int64_t now = loop_now_us();
+    int64_t now = fnclock_now_us();
     if (v->ack[0] && now < v->ack_until_us)
         x.ack = v->ack;
     if (v->tty) {
@@ -371,10 +371,10 @@ static void ui(view *v, ring *ctl, pose *saved_poses, int keys, double duration,
         t.c_cc[VTIME] = 0;
         tcsetattr(STDIN_FILENO, TCSANOW, &t);
     }
-    int64_t t0 = loop_now_us();
+    int64_t t0 = fnclock_now_us();
     loop_scene sc = {0};
     while (!quit && !loop_reader_done(rd) &&
-           (duration <= 0 || (double)(loop_now_us() - t0) < duration * 1e6)) {
+           (duration <= 0 || (double)(fnclock_now_us() - t0) < duration * 1e6)) {
         if (raw)
             read_keys(v, v->k->L, ctl);
         loop_scene_read(v->k->L, &sc);
@@ -384,10 +384,9 @@ static void ui(view *v, ring *ctl, pose *saved_poses, int keys, double duration,
             v->saves_seen = sc.save_requests;
             save_scene(v, &sc, saved_poses, ctl);
         }
-        if (!v->tty || loop_now_us() - v->last_print_us >= 100000)
+        if (!v->tty || fnclock_now_us() - v->last_print_us >= 100000)
             draw(v, &sc);
-        struct timespec nap = {0, 20000000};
-        nanosleep(&nap, NULL);
+        fnclock_sleep_us(20000);
     }
     if (raw)
         tcsetattr(STDIN_FILENO, TCSANOW, &saved);

@@ -5,13 +5,13 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <time.h>
 #include <unistd.h>
 
 #include "dev.h"
 #include "devparse.h"
 #include "devtab.h"
 #include "err.h"
+#include "fnclock.h"
 #include "fnrec.h"
 #include "sim_replay.h"
 #include "simdev.h"
@@ -151,7 +151,7 @@ static int64_t cadence_of(recorder *r, const fnrec_header *hd)
 
 static void progress(recorder *r, int last)
 {
-    int64_t now = dev_now_us();
+    int64_t now = fnclock_now_us();
     if (!r->tty || (!last && now < r->next_progress))
         return;
     r->next_progress = now + PROGRESS_US;
@@ -161,20 +161,20 @@ static void progress(recorder *r, int last)
 
 static int time_left(const recorder *r)
 {
-    return !stop && (!r->end_us || dev_now_us() < r->end_us);
+    return !stop && (!r->end_us || fnclock_now_us() < r->end_us);
 }
 
 /* After an unplug: looks for the device again until it returns or time is up. */
 static int reconnect(recorder *r)
 {
     while (time_left(r)) {
-        int64_t next = dev_now_us() + RETRY_US;
+        int64_t next = fnclock_now_us() + RETRY_US;
         if (r->t->open(r->arg, &r->h) == 0) {
             fprintf(stderr, "fracnav record: device reconnected\n");
-            return put(r, FNREC_CONNECT, dev_now_us(), NULL, 0);
+            return put(r, FNREC_CONNECT, fnclock_now_us(), NULL, 0);
         }
-        while (time_left(r) && dev_now_us() < next)
-            nanosleep(&(struct timespec){0, 10000000}, NULL);
+        while (time_left(r) && fnclock_now_us() < next)
+            fnclock_sleep_us(10000);
     }
     return 0;
 }
@@ -193,7 +193,7 @@ static int unplugged(recorder *r, int *rc)
     }
     r->t->close(r->h);
     r->h = NULL;
-    *rc = put(r, FNREC_DISCONNECT, dev_now_us(), NULL, 0);
+    *rc = put(r, FNREC_DISCONNECT, fnclock_now_us(), NULL, 0);
     return *rc != 0 || !r->wait_replug;
 }
 
@@ -271,9 +271,9 @@ int cmd_record(int argc, char **argv)
         fprintf(stderr, "fracnav record: %s\n", fn_err_msg());
         return 1;
     }
-    r.start_us = dev_now_us();
+    r.start_us = fnclock_now_us();
     r.base_us = is_replay(&r) ? 0 : r.start_us;
-    r.end_us = seconds > 0 ? dev_now_us() + (int64_t)(seconds * 1e6) : 0;
+    r.end_us = seconds > 0 ? fnclock_now_us() + (int64_t)(seconds * 1e6) : 0;
     r.tty = isatty(STDERR_FILENO);
     fnrec_header hd;
     header_of(&r, &hd);

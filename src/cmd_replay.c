@@ -4,6 +4,7 @@
 #include "cmd_loopkit.h"
 #include "devtab.h"
 #include "err.h"
+#include "fnclock.h"
 #include "sim_replay.h"
 
 #include <stdio.h>
@@ -136,7 +137,7 @@ static int run_fast(loopkit *k, loop_source src)
             return rc;
         if (rc == 0)
             continue;
-        ev.arrival_us = loop_now_us();
+        ev.arrival_us = fnclock_now_us();
         rc = loop_feed(k->L, &ev);
         if (rc < 0)
             return rc;

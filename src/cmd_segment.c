@@ -2,8 +2,8 @@
 #include "cmd.h"
 
 #include "case.h"
-#include "case_journal.h"
 #include "err.h"
+#include "fnclock.h"
 #include "jsonw.h"
 #include "seg.h"
 #include "volio.h"
@@ -11,7 +11,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <time.h>
 
 static void usage(FILE *out)
 {
@@ -41,37 +40,19 @@ static void usage(FILE *out)
             "  --help                     this text\n");
 }
 
-static int parse(int argc, char **argv, seg_params *p, cmd_tau *tau, const char **in, const char **out,
-                 int *json, int *force)
+static int parse(int argc, char **argv, seg_params *p, cmd_case_args *c)
 {
     int rc;
     for (int i = 1; i < argc; i++) {
-        const char *a = argv[i];
-        const char *val = i + 1 < argc ? argv[i + 1] : NULL;
-        double d;
-        if (!strcmp(a, "--json")) {
-            *json = 1;
-            continue;
-        }
-        if (!strcmp(a, "--force")) {
-            *force = 1;
-            continue;
-        }
-        if (a[0] != '-') {
-            if (*in)
-                return cmd_usage_error("segment", "unexpected argument '%s'", a);
-            *in = a;
-            continue;
-        }
-        i++; /* every option takes a value; a missing one is reported by its branch */
-        if (!strcmp(a, "-o") || !strcmp(a, "--output")) {
-            if (!val)
-                return cmd_bad_value("segment", a, val, "a folder");
-            *out = val;
-        } else if (cmd_threshold_option("segment", a, val, &p->threshold, &p->threshold_auto, &rc)) {
+        if (cmd_case_arg("segment", argc, argv, &i, c, &rc)) {
             if (rc)
                 return rc;
-        } else if (!strcmp(a, "--min-volume")) {
+            continue;
+        }
+        const char *a = argv[i], *val = i + 1 < argc ? argv[i + 1] : NULL;
+        double d;
+        i++; /* every option takes a value; a missing one is reported by its branch */
+        if (!strcmp(a, "--min-volume")) {
             if (!cmd_number(val, &d) || d < 0)
                 return cmd_bad_value("segment", a, val, "a number of ml >= 0");
             p->min_volume_ml = d;
@@ -88,22 +69,12 @@ static int parse(int argc, char **argv, seg_params *p, cmd_tau *tau, const char 
             if (!cmd_number(val, &d) || d < 0)
                 return cmd_bad_value("segment", a, val, "a number >= 0 (HU)");
             p->ramp = d;
-        } else if (cmd_tau_option("segment", a, val, tau, &rc)) {
-            if (rc)
-                return rc;
         } else
             return cmd_usage_error("segment", "unknown option '%s'", a);
     }
-    if (!*in || !*out)
+    if (!c->in || !c->out)
         return cmd_usage_error("segment", "%s", "needs VOLUME and -o CASE");
-    return cmd_tau_check("segment", tau);
-}
-
-static double now(void)
-{
-    struct timespec t;
-    clock_gettime(CLOCK_MONOTONIC, &t);
-    return (double)t.tv_sec + t.tv_nsec * 1e-9;
+    return cmd_tau_check("segment", &c->tau);
 }
 
 static void report(const fcase *c, const seg_result *r)
@@ -142,15 +113,6 @@ static int report_json(const fcase *c, const seg_result *r, const char *in, cons
     return jsonw_print(o, stdout);
 }
 
-/* --force replaces a case with its journal: poses it holds beyond case.json go too. */
-static void warn_journal(const char *dir, int force)
-{
-    size_t n = force ? case_journal_pending(dir) : 0;
-    if (n)
-        fprintf(stderr, "fracnav segment: warning: %s/journal holds %zu poses not saved in "
-                        "case.json; they go with the case this replaces\n", dir, n);
-}
-
 int cmd_segment(int argc, char **argv)
 {
     if (cmd_wants_help(argc, argv)) {
@@ -159,21 +121,20 @@ int cmd_segment(int argc, char **argv)
     }
     seg_params p;
     seg_defaults(&p);
-    const char *in = NULL, *out = NULL;
-    cmd_tau tau = {0};
-    int json = 0, force = 0;
-    int rc = parse(argc, argv, &p, &tau, &in, &out, &json, &force);
+    cmd_case_args args = {.threshold = &p.threshold, .threshold_auto = &p.threshold_auto};
+    int rc = parse(argc, argv, &p, &args);
     if (rc)
         return rc;
+    const char *in = args.in, *out = args.out;
     char tmp[4200];
-    warn_journal(out, force);
-    if (case_stage_begin(out, force, in, tmp, sizeof tmp) < 0) {
+    cmd_warn_replaced_journal("segment", out, args.force);
+    if (case_stage_begin(out, args.force, in, tmp, sizeof tmp) < 0) {
         fprintf(stderr, "fracnav segment: %s\n", fn_err_msg());
         return 1;
     }
-    double t0 = now();
+    int64_t t0 = fnclock_now_us();
     vol *ct = volio_read(in);
-    double t1 = now();
+    int64_t t1 = fnclock_now_us();
     seg_result r = {0};
     if (!ct || seg_run(ct, &p, &r) < 0) {
         fprintf(stderr, "fracnav segment: %s\n", fn_err_msg());
@@ -184,11 +145,11 @@ int cmd_segment(int argc, char **argv)
     p.threshold = r.threshold;
     vol *labels = r.labels;
     r.labels = NULL;
-    double t2 = now();
+    int64_t t2 = fnclock_now_us();
     fcase *c = case_create(tmp, in, ct, labels, &p);
     if (c)
-        cmd_tau_apply(&tau, &c->tau_min, &c->tau_max); /* checked by parse */
-    double t3 = now();
+        cmd_tau_apply(&args.tau, &c->tau_min, &c->tau_max); /* checked by parse */
+    int64_t t3 = fnclock_now_us();
     if (!c || case_save(c) < 0 || case_stage_commit(tmp, out) < 0) {
         fprintf(stderr, "fracnav segment: %s\n", fn_err_msg());
         case_stage_abort(tmp);
@@ -196,16 +157,17 @@ int cmd_segment(int argc, char **argv)
         seg_result_free(&r);
         return 1;
     }
-    double ms[4] = {(t1 - t0) * 1e3, (t2 - t1) * 1e3, (t3 - t2) * 1e3, (now() - t3) * 1e3};
+    double ms[4] = {(double)(t1 - t0) * 1e-3, (double)(t2 - t1) * 1e-3, (double)(t3 - t2) * 1e-3,
+                     (double)(fnclock_now_us() - t3) * 1e-3};
     if (r.nonfinite)
         fprintf(stderr, "fracnav segment: warning: %s: %zu voxels are NaN or infinite; left out of the "
                         "threshold and never bone\n", in, r.nonfinite);
     if (c->nfrag == 0)
         fprintf(stderr, "fracnav segment: warning: no component left at threshold %g (lower it, or "
                         "--min-volume)\n", r.threshold);
-    if (json && (rc = report_json(c, &r, in, out, ms)) < 0)
+    if (args.json && (rc = report_json(c, &r, in, out, ms)) < 0)
         fprintf(stderr, "fracnav segment: %s\n", fn_err_msg());
-    else if (!json) {
+    else if (!args.json) {
         report(c, &r);
         printf("saved %s (read %.3f s, segmentation %.3f s, fragments %.3f s, save %.3f s)\n", out,
                ms[0] * 1e-3, ms[1] * 1e-3, ms[2] * 1e-3, ms[3] * 1e-3);

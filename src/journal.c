@@ -23,7 +23,7 @@ struct journal {
     char path[4096];
     journal_bind bind;
     uint64_t seq, count;
-    int64_t flush_us, oldest_us;
+    int64_t oldest_us;
     size_t used;
     unsigned char buf[BUF_RECORDS * JOURNAL_RECORD_SIZE];
 };
@@ -384,7 +384,6 @@ journal *journal_open(const char *case_dir, const journal_bind *b)
     }
     j->seq = last;
     j->count = n;
-    j->flush_us = 50000;
     return j;
 }
 
@@ -425,7 +424,7 @@ static int append(journal *j, const journal_rec *r, int64_t now_us)
 
 int journal_tick(journal *j, int64_t now_us)
 {
-    return j->used && now_us - j->oldest_us >= j->flush_us ? journal_flush(j) : 0;
+    return j->used && now_us - j->oldest_us >= JOURNAL_FLUSH_US ? journal_flush(j) : 0;
 }
 
 int journal_sync(journal *j)
@@ -498,11 +497,6 @@ int journal_set_aside(const char *case_dir, const char *tag, const journal_bind 
 uint64_t journal_count(const journal *j)
 {
     return j->count;
-}
-
-void journal_set_flush_us(journal *j, int64_t flush_us)
-{
-    j->flush_us = flush_us;
 }
 
 int journal_close(journal *j)

@@ -20,7 +20,7 @@
  * records than the memory budget holds (vol_budget), whatever the file's size.
  *
  * Appends are buffered and written out (write(2), no fsync) whenever the oldest buffered record is
- * flush_us old (default 50 ms): a killed process loses the poses of about the last flush_us (at
+ * JOURNAL_FLUSH_US old (50 ms): a killed process loses the poses of about the last 50 ms (at
  * 1 kHz, up to 50 poses), plus however long a busy machine kept the loop thread from its next
  * tick (tests/killtable.py measured 27-93 ms on a loaded 2-core machine); the loop calls
  * journal_tick every tick, so the bound holds while it is idle too. A power cut can lose what the system had not yet written to disk: journal_sync fsyncs.
@@ -39,6 +39,7 @@
 #define JOURNAL_RECORD_SIZE 88
 #define JOURNAL_HEADER_SIZE 256
 #define JOURNAL_MAX_FRAGS 64
+#define JOURNAL_FLUSH_US 50000 /* buffered records are written out at this age */
 
 enum { JOURNAL_MOVE = 1, JOURNAL_UNDO = 2, JOURNAL_REDO = 3, JOURNAL_START = 4, JOURNAL_FIX = 5 };
 
@@ -80,7 +81,7 @@ int journal_close(journal *j);
 int journal_append(journal *j, uint32_t kind, int frag, int64_t t_us, const pose *p, int64_t now_us);
 /* Buffers a JOURNAL_FIX record: fragment frag (at pose p) was fixed (1) or freed (0). */
 int journal_append_fix(journal *j, int frag, int64_t t_us, const pose *p, int fixed, int64_t now_us);
-/* Flushes when the oldest buffered record is flush_us old; call it while idle too. */
+/* Flushes when the oldest buffered record is JOURNAL_FLUSH_US old; call it while idle too. */
 int journal_tick(journal *j, int64_t now_us);
 /* write(2)s the buffer now. */
 int journal_flush(journal *j);
@@ -93,8 +94,6 @@ void journal_rebind(journal *j, const journal_bind *b);
 int journal_truncate(journal *j);
 /* Records appended through this handle plus those found at open. */
 uint64_t journal_count(const journal *j);
-/* Flush interval (microseconds). */
-void journal_set_flush_us(journal *j, int64_t flush_us);
 
 /* Parses a journal's bytes (pure; name is for messages) into *s. Damage after a good header is
  * not an error: s->n counts the good records before it, s->damaged_at and s->damage say where and

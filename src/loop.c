@@ -1,8 +1,9 @@
 /* loop: stepping, collision outcomes, controls, undo/redo. Statistics and the scene buffer are in
- * loop_stats.c, the input thread in loop_reader.c. */
+ * loop_stats.c, the driver (loop_run, loop_drain) in loop_run.c, the input thread in loop_reader.c. */
 #include "loop_impl.h"
 
 #include "err.h"
+#include "fnclock.h"
 #include "journal.h"
 
 #include <math.h>
@@ -12,6 +13,12 @@
 #define SAFETY_MM 0.01 /* the separation shortcut keeps this much distance in hand */
 #define CLIMB 0.5      /* backing away per unit of tangential motion when riding over a bump */
 #define OVERLAP_EPS_MM3 1e-6 /* rounding in the overlap sum: a sideways move is not deeper */
+
+/* How an accepted pose was checked: not at all (checking off), found free, or found still
+ * interpenetrating but no deeper than before (pulled out after checking came back on). */
+enum { LOOP_UNCHECKED, LOOP_CHECKED, LOOP_ESCAPING };
+static void accept_pose(loop *L, int s, pose p, int64_t t_us, uint32_t kind, int checked);
+static void undo_push(loop *L, int s);
 
 void loop_config_default(loop_config *c)
 {
@@ -58,7 +65,8 @@ void loop__prefault(void *p, size_t n)
         b[n - 1] = 0;
 }
 
-static const double CAMERA_DEFAULT[3][3] = {{1, 0, 0}, {0, -1, 0}, {0, 0, -1}};
+/* Device axes -> world for the camera frame (loop.h: the camera in front of the patient). */
+static const double CAMERA[3][3] = {{1, 0, 0}, {0, -1, 0}, {0, 0, -1}};
 
 /* Largest distance from the centroid to a corner of the fragment's crop (home world mm). */
 static double frag_radius(const frag *f)
@@ -106,7 +114,6 @@ loop *loop_new(const frag *frags, int n, const uint8_t *fixed, const loop_collid
         L->cfg = *cfg;
     else
         loop_config_default(&L->cfg);
-    memcpy(L->cam, CAMERA_DEFAULT, sizeof L->cam);
     L->jr = jr;
     L->collision_on = 1;
     L->device_present = 1;
@@ -118,7 +125,10 @@ loop *loop_new(const frag *frags, int n, const uint8_t *fixed, const loop_collid
     L->selected = 0;
     if (L->fixed[0])
         loop_action_do(L, LOOP_ACT_NEXT);
-    loop_stats_init(L);
+    sem_init(&L->wake, 0, 0);
+    atomic_init(&L->done, 0);
+    atomic_init(&L->rt_cpu, -1);
+    loop__stats_init(L);
     L->at_rest = 1;
     return L;
 }
@@ -148,10 +158,10 @@ static int collide_all(loop *L, int s, const pose *p, int fresh, double *sep)
             cache = L->scratch;
         }
         loop_contact c = {0, INFINITY};
-        int64_t t0 = fresh ? 0 : loop_clock_ns();
+        int64_t t0 = fresh ? 0 : fnclock_now_ns();
         int rc = L->col.query(L->col.ctx, s, p, j, &L->pose[j], cache, &c);
         if (!fresh) /* the invariant check's queries are not part of the loop's cost */
-            loop_stats_query(L, loop_clock_ns() - t0);
+            loop__stats_query(L, fnclock_now_ns() - t0);
         if (rc < 0)
             return rc;
         if (c.separation_mm < *sep)
@@ -351,7 +361,7 @@ static int escape(loop *L, int s, const pose *cand, int64_t t_us)
     if (rc < 0)
         return rc;
     if (rc == 0) {
-        loop_accept(L, s, *cand, t_us, JOURNAL_MOVE, LOOP_CHECKED);
+        accept_pose(L, s, *cand, t_us, JOURNAL_MOVE, LOOP_CHECKED);
         L->in_collision = 0;
         L->gap_valid = 1;
         L->gap = sep;
@@ -359,7 +369,7 @@ static int escape(loop *L, int s, const pose *cand, int64_t t_us)
     }
     if (L->col.overlap ? ov > L->overlap + OVERLAP_EPS_MM3 : sep < L->pen)
         return LOOP_REFUSED;
-    loop_accept(L, s, *cand, t_us, JOURNAL_MOVE, LOOP_ESCAPING);
+    accept_pose(L, s, *cand, t_us, JOURNAL_MOVE, LOOP_ESCAPING);
     L->pen = fmin(sep, 0);
     L->overlap = ov;
     return LOOP_ACCEPTED;
@@ -370,7 +380,7 @@ static int move(loop *L, int s, double c[3], const double d[3], const double r[3
 {
     pose start = L->pose[s], cur = start;
     if (!L->collision_on) {
-        loop_accept(L, s, moved(&start, c, d, r, 1), t_us, JOURNAL_MOVE, LOOP_UNCHECKED);
+        accept_pose(L, s, moved(&start, c, d, r, 1), t_us, JOURNAL_MOVE, LOOP_UNCHECKED);
         return LOOP_ACCEPTED;
     }
     if (!L->gap_valid && !L->in_collision) {
@@ -388,7 +398,7 @@ static int move(loop *L, int s, double c[3], const double d[3], const double r[3
     if (err)
         return err;
     if (f == 1) {
-        loop_accept(L, s, cur, t_us, JOURNAL_MOVE, LOOP_CHECKED);
+        accept_pose(L, s, cur, t_us, JOURNAL_MOVE, LOOP_CHECKED);
         L->gap = gap;
         return LOOP_ACCEPTED;
     }
@@ -400,16 +410,16 @@ static int move(loop *L, int s, double c[3], const double d[3], const double r[3
         return err;
     if (!slid && f == 0)
         return LOOP_REFUSED;
-    loop_accept(L, s, cur, t_us, JOURNAL_MOVE, LOOP_CHECKED);
+    accept_pose(L, s, cur, t_us, JOURNAL_MOVE, LOOP_CHECKED);
     L->gap = gap;
     return slid ? LOOP_SLID : LOOP_LIMITED;
 }
 
-void loop_accept(loop *L, int s, pose p, int64_t t_us, uint32_t kind, int checked)
+static void accept_pose(loop *L, int s, pose p, int64_t t_us, uint32_t kind, int checked)
 {
     if (kind == JOURNAL_MOVE && !L->gesture_saved) {
         /* The first pose a gesture changes: undo comes back here. */
-        loop_undo_push(L, s);
+        undo_push(L, s);
         L->gesture_saved = 1;
         kind = JOURNAL_START;
     }
@@ -418,8 +428,8 @@ void loop_accept(loop *L, int s, pose p, int64_t t_us, uint32_t kind, int checke
     L->verify_frag = s;
     if (checked != LOOP_CHECKED)
         L->gap_valid = 0;
-    loop_stats_pose(L, s, &p);
-    if (L->jr && journal_append(L->jr, kind, s, t_us, &p, loop_now_us()) < 0)
+    loop__stats_pose(L, s, &p);
+    if (L->jr && journal_append(L->jr, kind, s, t_us, &p, loop__now_us(L)) < 0)
         L->st.journal_errors++;
     if (checked == LOOP_UNCHECKED)
         L->st.unchecked++;
@@ -459,7 +469,7 @@ static void twist(const loop *L, int s, const float m[6], double dt, double d[3]
         pose local = pose_compose(L->pose[s], L->frags[s].home);
         pose_to_matrix(&local, R);
     } else {
-        memcpy(R, L->cam, sizeof R);
+        memcpy(R, CAMERA, sizeof R);
     }
     for (int i = 0; i < 3; i++) {
         d[i] = R[i][0] * v[0] + R[i][1] * v[1] + R[i][2] * v[2];
@@ -507,7 +517,7 @@ static int step(loop *L, const loop_event *ev)
     L->tries = 0;
     int out = move(L, s, c, d, r, ev->t_us);
     if (out > 0)
-        loop_stats_outcome(L, out);
+        loop__stats_outcome(L, out);
     return out;
 }
 
@@ -519,7 +529,7 @@ static void journal_saved(loop *L)
     int bad = journal_truncate(L->jr) < 0;
     for (int i = 0; i < L->n; i++)
         if (memcmp(&L->pose[i], &L->saved[i], sizeof(pose)) != 0)
-            bad |= journal_append(L->jr, JOURNAL_MOVE, i, L->last_t, &L->pose[i], loop_now_us()) < 0;
+            bad |= journal_append(L->jr, JOURNAL_MOVE, i, L->last_t, &L->pose[i], loop__now_us(L)) < 0;
     L->st.journal_errors += (uint64_t)bad;
 }
 
@@ -579,7 +589,7 @@ int loop_feed(loop *L, const loop_event *ev)
         break;
     }
     if (ev->kind == LOOP_EV_MOTION && ev->arrival_us > 0)
-        loop_stats_latency(L, loop_now_us() - ev->arrival_us);
+        loop__stats_latency(L, loop__now_us(L) - ev->arrival_us);
     verify(L);
     if (out > 0)
         L->last_outcome = (loop_outcome)out;
@@ -617,7 +627,7 @@ static int restore(loop *L, const loop_undo *u, uint32_t kind)
         if (rc != 0)
             return rc < 0 ? rc : 0;
     }
-    loop_accept(L, u->frag, u->p, L->last_t, kind, L->collision_on ? LOOP_CHECKED : LOOP_UNCHECKED);
+    accept_pose(L, u->frag, u->p, L->last_t, kind, L->collision_on ? LOOP_CHECKED : LOOP_UNCHECKED);
     L->gap_valid = 0;
     L->in_collision = 0;
     gesture_end(L);
@@ -640,14 +650,14 @@ static void shift(int *nfrom, loop_undo *to, int *nto, loop_undo back)
 static void set_fixed(loop *L, int s, int fixed)
 {
     L->fixed[s] = (uint8_t)(fixed != 0);
-    if (L->jr && journal_append_fix(L->jr, s, L->last_t, &L->pose[s], fixed, loop_now_us()) < 0)
+    if (L->jr && journal_append_fix(L->jr, s, L->last_t, &L->pose[s], fixed, loop__now_us(L)) < 0)
         L->st.journal_errors++;
 }
 
 /* An undo step that gives fragment s its fixed flag back. */
 static void push_fix(loop *L, int s)
 {
-    loop_undo_push(L, s);
+    undo_push(L, s);
     L->undo[L->nundo - 1].fix = 1 + L->fixed[s];
 }
 
@@ -673,7 +683,7 @@ static int undo_redo(loop *L, int redo)
     return LOOP_ACCEPTED;
 }
 
-void loop_undo_push(loop *L, int s)
+static void undo_push(loop *L, int s)
 {
     if (L->nundo == LOOP_UNDO_MAX) {
         memmove(L->undo, L->undo + 1, (LOOP_UNDO_MAX - 1) * sizeof *L->undo);
@@ -737,7 +747,7 @@ int loop_recover(loop *L, const journal_rec *recs, size_t n)
             push_fix(L, r->frag);
             L->fixed[r->frag] = (uint8_t)r->flag;
         } else if (r->kind == JOURNAL_START)
-            loop_undo_push(L, r->frag);
+            undo_push(L, r->frag);
         else if (r->kind == JOURNAL_UNDO)
             shift(&L->nundo, L->redo, &L->nredo, before);
         else if (r->kind == JOURNAL_REDO)
@@ -768,11 +778,6 @@ void loop_set_pivot(loop *L, const double world[3])
 void loop_set_saved(loop *L, const pose *saved)
 {
     L->saved = saved;
-}
-
-void loop_set_camera(loop *L, const double r[3][3])
-{
-    memcpy(L->cam, r, sizeof L->cam);
 }
 
 void loop_set_pose(loop *L, int i, pose p)

@@ -33,7 +33,7 @@
  * Frames. Device axes are the HID ones: +x right, +y towards the user, +z down. The default camera
  * stands in front of the patient looking posteriorly (along world +y, LPS), patient superior (+z)
  * up on screen and patient left (+x) to the right: device x -> world +x, device y (towards the
- * user = towards the viewer) -> world -y, device z (down) -> world -z. loop_set_camera changes it.
+ * user = towards the viewer) -> world -y, device z (down) -> world -z.
  * World frame: device axes are world LPS axes. Fragment frame: device axes are the fragment's
  * current local axes.
  *
@@ -206,8 +206,6 @@ int loop_run(loop *L, ring *r, int64_t period_us, const atomic_int *stop);
 int loop_action_do(loop *L, loop_action a);
 /* A user pivot (world mm, current pose) for the selected fragment; NULL returns to the centroid. */
 void loop_set_pivot(loop *L, const double world[3]);
-/* Device axes -> world rotation for the camera frame (rows: world, columns: device axes). */
-void loop_set_camera(loop *L, const double r[3][3]);
 /* Recovery: applies journal records (journal.h) in order -- poses, and the undo/redo history they
  * imply -- without writing them again. FN_EFORMAT (naming the record) for a fragment index out
  * of range. */
@@ -245,8 +243,20 @@ int loop_scene_read(loop *L, loop_scene *out);
  * loop_run sleeps between events and a step's work is bounded (max_tries). */
 int loop_realtime_priority(void);
 
-/* Monotonic clock, microseconds. */
-int64_t loop_now_us(void);
+/* The loop's clock: what loop_run ticks by and the rates, latencies and journal stamps count in.
+ * The default is the monotonic clock (fnclock_now_us, which also stamps the reader's arrival_us),
+ * and loop_run waits on it until its next tick or an earlier loop_notify. An injected wait_until
+ * replaces that wait: it returns at deadline_us (on now_us's clock) or earlier, and loop_run then
+ * drains the rings; NULL keeps the monotonic wait, so now_us must then be that clock too. A test
+ * injects a clock whose wait moves its time to the deadline and returns, so loop_run's timing
+ * runs without sleeping. Both are called on the stepping thread only. */
+typedef struct loop_clock {
+    int64_t (*now_us)(void *ctx);
+    void (*wait_until)(void *ctx, int64_t deadline_us);
+    void *ctx;
+} loop_clock;
+/* Sets the clock (NULL: the monotonic one) and restarts the timing windows. Before the loop runs. */
+void loop_set_clock(loop *L, const loop_clock *c);
 
 /* Input seam: where events come from (a device through calibration, a recording, a script). */
 typedef struct loop_source {

@@ -1,4 +1,5 @@
-/* loop internals shared by loop.c, loop_stats.c and loop_reader.c; not for other modules. */
+/* loop internals shared by loop.c (stepping), loop_stats.c (statistics, scenes), loop_run.c (the
+ * driver) and loop_reader.c (the input thread); not for other modules. Functions: loop__ names. */
 #ifndef FN_LOOP_IMPL_H
 #define FN_LOOP_IMPL_H
 
@@ -27,7 +28,6 @@ struct loop {
     size_t cache_stride;
     unsigned char *caches, *scratch; /* n*n pair caches, one scratch for fresh queries */
     loop_config cfg;
-    double cam[3][3];
     struct journal *jr;
     ring *ctl; /* actions from the application's thread */
     const pose *saved; /* loop_set_saved */
@@ -73,20 +73,17 @@ struct loop {
     atomic_int rt_cpu;   /* the CPU loop_run runs on under SCHED_FIFO (-1: not), for the reader */
     int rt_prio;         /* its priority, written before rt_cpu */
     atomic_ullong done; /* events finished, for other threads */
+    loop_clock clock;   /* loop_set_clock; wait_until NULL: loop_run waits for loop_notify */
 };
 
-/* How an accepted pose was checked: not at all (checking off), found free, or found still
- * interpenetrating but no deeper than before (pulled out after checking came back on). */
-enum { LOOP_UNCHECKED, LOOP_CHECKED, LOOP_ESCAPING };
-void loop_accept(loop *L, int s, pose p, int64_t t_us, uint32_t kind, int checked);
-void loop_undo_push(loop *L, int s);
-
+/* Writes every page of p..p+n (first-touch faults taken now, not in a step). */
 void loop__prefault(void *p, size_t n);
-int64_t loop_clock_ns(void);
-void loop_stats_init(loop *L);
-void loop_stats_query(loop *L, int64_t ns);
-void loop_stats_pose(loop *L, int s, const pose *p);
-void loop_stats_outcome(loop *L, int outcome);
-void loop_stats_latency(loop *L, int64_t us);
+/* Now on the loop's clock (loop_set_clock). */
+int64_t loop__now_us(const loop *L);
+void loop__stats_init(loop *L);
+void loop__stats_query(loop *L, int64_t ns);
+void loop__stats_pose(loop *L, int s, const pose *p);
+void loop__stats_outcome(loop *L, int outcome);
+void loop__stats_latency(loop *L, int64_t us);
 
 #endif

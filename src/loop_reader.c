@@ -1,12 +1,12 @@
 /* loop: the input thread that drains a source into the loop's ring. */
 #define _GNU_SOURCE /* CPU affinity: pthread_setaffinity_np */
+#include "fnclock.h"
 #include "loop_impl.h"
 
 #include "err.h"
 
 #include <pthread.h>
 #include <stdlib.h>
-#include <time.h>
 
 struct loop_reader {
     loop_source src;
@@ -43,14 +43,13 @@ static void follow_loop(loop_reader *rd)
 
 static void push(loop_reader *rd, loop_event *ev)
 {
-    struct timespec nap = {0, 20000}; /* sleep, not spin: the loop needs the core more */
     while (rd->lockstep && loop_events_done(rd->L) - rd->base < rd->pushed && !atomic_load(&rd->stop))
-        nanosleep(&nap, NULL);
+        fnclock_sleep_us(20); /* sleep, not spin: the loop needs the core more */
     if (rd->L)
         follow_loop(rd);
     rd->pushed++;
     if (ev->arrival_us == 0)
-        ev->arrival_us = loop_now_us();
+        ev->arrival_us = fnclock_now_us();
     ring_push(rd->r, ev);
     if (rd->L)
         loop_notify(rd->L);

@@ -1,13 +1,9 @@
-/* fracnav: the command-line front end; each subcommand lives in cmd_<name>.c. */
+/* fracnav: the command-line front end, a dispatcher: each subcommand lives in cmd_<name>.c, the
+ * helpers they share in cmd.c. */
 #include "cmd.h"
-#include "case.h"
-#include "err.h"
 #include "sim_replay.h"
 
-#include <math.h>
-#include <stdarg.h>
 #include <stdio.h>
-#include <stdlib.h>
 #include <string.h>
 
 struct command {
@@ -34,103 +30,6 @@ static void usage(FILE *out)
                 *c = '-';
         fprintf(out, "  %-12s %s\n", name, commands[i].help);
     }
-}
-
-int cmd_wants_help(int argc, char **argv)
-{
-    for (int i = 1; i < argc; i++)
-        if (!strcmp(argv[i], "-h") || !strcmp(argv[i], "--help"))
-            return 1;
-    return 0;
-}
-
-int cmd_number(const char *s, double *out)
-{
-    if (!s)
-        return 0;
-    char *end;
-    *out = strtod(s, &end);
-    return end != s && *end == '\0' && isfinite(*out);
-}
-
-int cmd_usage_error(const char *cmd, const char *fmt, ...)
-{
-    va_list ap;
-    va_start(ap, fmt);
-    fprintf(stderr, "fracnav %s: ", cmd);
-    vfprintf(stderr, fmt, ap);
-    fprintf(stderr, " (see fracnav %s --help)\n", cmd);
-    va_end(ap);
-    return 2;
-}
-
-int cmd_bad_value(const char *cmd, const char *opt, const char *val, const char *accepted)
-{
-    if (!val)
-        return cmd_usage_error(cmd, "%s needs a value (%s)", opt, accepted);
-    return cmd_usage_error(cmd, "%s: '%s' is not %s", opt, val, accepted);
-}
-
-int cmd_tau_option(const char *cmd, const char *a, const char *val, cmd_tau *t, int *rc)
-{
-    unsigned which = !strcmp(a, "--tau-min") ? 1 : !strcmp(a, "--tau-max") ? 2 : 0;
-    double d;
-    *rc = 0;
-    if (!which)
-        return 0;
-    if (!cmd_number(val, &d) || d < 0 || d > 1) {
-        *rc = cmd_bad_value(cmd, a, val, "a number from 0 to 1");
-        return 1;
-    }
-    if (which == 1)
-        t->min = d;
-    else
-        t->max = d;
-    t->given |= which;
-    return 1;
-}
-
-int cmd_threshold_option(const char *cmd, const char *a, const char *val, double *threshold,
-                         int *threshold_auto, int *rc)
-{
-    *rc = 0;
-    if (strcmp(a, "--threshold"))
-        return 0;
-    if (val && !strcmp(val, "auto"))
-        *threshold_auto = 1;
-    else if (val && !strcmp(val, "auto-bone"))
-        *threshold_auto = 2;
-    else if (cmd_number(val, threshold))
-        *threshold_auto = 0;
-    else
-        *rc = cmd_bad_value(cmd, a, val, CMD_THRESHOLD_ACCEPTED);
-    return 1;
-}
-
-int cmd_tau_apply(const cmd_tau *t, double *tau_min, double *tau_max)
-{
-    double lo = t->given & 1 ? t->min : *tau_min, hi = t->given & 2 ? t->max : *tau_max;
-    if (lo > hi)
-        return fn_err_set(FN_EINVAL, "tau_min %g (%s) is above tau_max %g (%s): need tau_min <= tau_max",
-                          lo, t->given & 1 ? "--tau-min" : "the case's or the default", hi,
-                          t->given & 2 ? "--tau-max" : "the case's or the default");
-    *tau_min = lo;
-    *tau_max = hi;
-    return 0;
-}
-
-int cmd_tau_check(const char *cmd, const cmd_tau *t)
-{
-    double lo = CASE_TAU_MIN, hi = CASE_TAU_MAX;
-    return cmd_tau_apply(t, &lo, &hi) < 0 ? cmd_usage_error(cmd, "%s", fn_err_msg()) : 0;
-}
-
-const char *cmd_example_ct(void)
-{
-    static char path[4096];
-    const char *d = getenv("FRACNAV_DATA");
-    snprintf(path, sizeof path, "%s/Cranium.inv3", d && *d ? d : "/var/cache/fracnav");
-    return path;
 }
 
 int main(int argc, char **argv)

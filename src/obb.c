@@ -2,10 +2,10 @@
 #include "obb.h"
 
 #include "err.h"
-#include "obb_impl.h"
 #include "vol.h"
 
 #include <limits.h>
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/mman.h>

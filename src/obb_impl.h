@@ -1,5 +1,7 @@
-/* obb internals shared by the hierarchy (obb.c) and brute force (obb_brute.c): the one voxel-box
- * test both use, so that they agree bit for bit. Not a public interface. */
+/* obb internals shared by the collision query over the hierarchy (obb_query.c) and brute force
+ * (obb_brute.c, which also defines obb__rel_make and obb__check_query): the one voxel-box test both
+ * use, so that they agree bit for bit. The hierarchy's build (obb.c) needs none of it. Not a public
+ * interface. */
 #ifndef FN_OBB_IMPL_H
 #define FN_OBB_IMPL_H
 

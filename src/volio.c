@@ -1,14 +1,22 @@
-/* volio: dispatch by file name, and the conversions and checks every format shares. */
-#include "volio.h"
+/* volio: dispatch by file name through the format table. */
+#include "volio_impl.h"
 
 #include "err.h"
 
 #include <errno.h>
-#include <math.h>
-#include <stdint.h>
+#include <stdio.h>
 #include <string.h>
 #include <strings.h>
 #include <sys/stat.h>
+
+static const volio_format formats[] = {
+    {".nii", volio__read_nifti, volio__write_nifti},
+    {".nii.gz", volio__read_nifti, volio__write_nifti},
+    {".nrrd", volio__read_nrrd, volio__write_nrrd},
+    {".nhdr", volio__read_nrrd, volio__write_nrrd},
+    {".inv3", volio__read_inv3, NULL},
+};
+#define NFORMATS (sizeof formats / sizeof formats[0])
 
 static int ends_with(const char *s, const char *suffix)
 {
@@ -16,8 +24,31 @@ static int ends_with(const char *s, const char *suffix)
     return n >= m && strcasecmp(s + n - m, suffix) == 0;
 }
 
-static int is_nifti(const char *p) { return ends_with(p, ".nii") || ends_with(p, ".nii.gz"); }
-static int is_nrrd(const char *p) { return ends_with(p, ".nrrd") || ends_with(p, ".nhdr"); }
+static const volio_format *format_of(const char *path)
+{
+    for (size_t i = 0; i < NFORMATS; i++)
+        if (ends_with(path, formats[i].ext))
+            return &formats[i];
+    return NULL;
+}
+
+/* "A, B, C or LAST" over the extensions that read (or write), for the error messages. */
+static const char *extensions(int writable, const char *last, char *buf, size_t size)
+{
+    const char *ext[NFORMATS + 1];
+    size_t k = 0;
+    for (size_t i = 0; i < NFORMATS; i++)
+        if (!writable || formats[i].write)
+            ext[k++] = formats[i].ext;
+    if (last)
+        ext[k++] = last;
+    size_t at = 0;
+    buf[0] = 0;
+    for (size_t i = 0; i < k && at < size; i++)
+        at += (size_t)snprintf(buf + at, size - at, "%s%s", i == 0 ? "" : i + 1 < k ? ", " : " or ",
+                               ext[i]);
+    return buf;
+}
 
 vol *volio_read(const char *path)
 {
@@ -38,14 +69,12 @@ vol *volio_read(const char *path)
                    path);
         return NULL;
     }
-    if (is_nifti(path))
-        return volio__read_nifti(path);
-    if (is_nrrd(path))
-        return volio__read_nrrd(path);
-    if (ends_with(path, ".inv3"))
-        return volio__read_inv3(path);
-    fn_err_set(FN_EINVAL, "%s: unknown volume format (expected .nii, .nii.gz, .nrrd, .nhdr, .inv3 "
-                          "or a DICOM folder)", path);
+    const volio_format *f = format_of(path);
+    if (f)
+        return f->read(path);
+    char list[128];
+    fn_err_set(FN_EINVAL, "%s: unknown volume format (expected %s)", path,
+               extensions(0, "a DICOM folder", list, sizeof list));
     return NULL;
 }
 
@@ -62,99 +91,10 @@ int volio_write(const vol *v, const char *path, vol_type type)
     int rc = volio__check_axes(m, path, "affine");
     if (rc < 0)
         return rc;
-    if (is_nifti(path))
-        return volio__write_nifti(v, path, type);
-    if (is_nrrd(path))
-        return volio__write_nrrd(v, path, type);
-    return fn_err_set(FN_EINVAL, "%s: cannot write this format (use .nii, .nii.gz, .nrrd or .nhdr)",
-                      path);
-}
-
-int volio__check_axes(const double m[3][3], const char *path, const char *field)
-{
-    double len[3];
-    for (int c = 0; c < 3; c++) {
-        len[c] = sqrt(m[0][c] * m[0][c] + m[1][c] * m[1][c] + m[2][c] * m[2][c]);
-        if (!isfinite(len[c]) || len[c] <= 0)
-            return fn_err_set(FN_EFORMAT, "%s: %s: axis %d has no length (%g mm)", path, field, c,
-                              len[c]);
-    }
-    for (int a = 0; a < 3; a++)
-        for (int b = a + 1; b < 3; b++) {
-            double cosab = (m[0][a] * m[0][b] + m[1][a] * m[1][b] + m[2][a] * m[2][b]) /
-                           (len[a] * len[b]);
-            if (fabs(cosab) > 1e-4)
-                return fn_err_set(FN_EFORMAT,
-                                  "%s: %s: sheared grid, axes %d and %d are %.4f degrees from "
-                                  "orthogonal (gantry tilt?); resample it first",
-                                  path, field, a, b, fabs(90.0 - acos(cosab) * 180.0 / M_PI));
-        }
-    return 0;
-}
-
-size_t volio__type_size(vol_type t)
-{
-    static const size_t size[] = {1, 1, 2, 2, 4, 4, 4, 8};
-    return (unsigned)t <= VOL_F64 ? size[t] : 0;
-}
-
-#define TO_FLOAT(T)                                                                        \
-    do {                                                                                   \
-        const T *s = src;                                                                  \
-        if (scaled)                                                                        \
-            for (size_t i = 0; i < n; i++)                                                 \
-                dst[i] = (float)(slope * (double)s[i] + inter);                            \
-        else                                                                               \
-            for (size_t i = 0; i < n; i++)                                                 \
-                dst[i] = (float)s[i];                                                      \
-    } while (0)
-
-void volio__to_float(const void *src, vol_type t, size_t n, double slope, double inter, float *dst)
-{
-    int scaled = slope != 1.0 || inter != 0.0;
-    switch (t) {
-    case VOL_U8: TO_FLOAT(uint8_t); break;
-    case VOL_I8: TO_FLOAT(int8_t); break;
-    case VOL_U16: TO_FLOAT(uint16_t); break;
-    case VOL_I16: TO_FLOAT(int16_t); break;
-    case VOL_U32: TO_FLOAT(uint32_t); break;
-    case VOL_I32: TO_FLOAT(int32_t); break;
-    case VOL_F32: TO_FLOAT(float); break;
-    case VOL_F64: TO_FLOAT(double); break;
-    }
-}
-
-/* Round to nearest and clamp into [lo, hi]; NaN becomes 0. */
-static double clamp_round(float x, double lo, double hi)
-{
-    if (isnan(x))
-        return 0;
-    double r = nearbyint((double)x);
-    return r < lo ? lo : r > hi ? hi : r;
-}
-
-#define FROM_FLOAT_INT(T, LO, HI)                                                          \
-    do {                                                                                   \
-        T *d = dst;                                                                        \
-        for (size_t i = 0; i < n; i++)                                                     \
-            d[i] = (T)clamp_round(src[i], (double)(LO), (double)(HI));                     \
-    } while (0)
-
-void volio__from_float(const float *src, size_t n, vol_type t, void *dst)
-{
-    switch (t) {
-    case VOL_U8: FROM_FLOAT_INT(uint8_t, 0, UINT8_MAX); break;
-    case VOL_I8: FROM_FLOAT_INT(int8_t, INT8_MIN, INT8_MAX); break;
-    case VOL_U16: FROM_FLOAT_INT(uint16_t, 0, UINT16_MAX); break;
-    case VOL_I16: FROM_FLOAT_INT(int16_t, INT16_MIN, INT16_MAX); break;
-    case VOL_U32: FROM_FLOAT_INT(uint32_t, 0, UINT32_MAX); break;
-    case VOL_I32: FROM_FLOAT_INT(int32_t, INT32_MIN, INT32_MAX); break;
-    case VOL_F32: memcpy(dst, src, n * sizeof(float)); break;
-    case VOL_F64: {
-        double *d = dst;
-        for (size_t i = 0; i < n; i++)
-            d[i] = src[i];
-        break;
-    }
-    }
+    const volio_format *f = format_of(path);
+    if (f && f->write)
+        return f->write(v, path, type);
+    char list[128];
+    return fn_err_set(FN_EINVAL, "%s: cannot write this format (use %s)", path,
+                      extensions(1, NULL, list, sizeof list));
 }

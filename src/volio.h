@@ -60,20 +60,4 @@ vol *volio_read(const char *path);
  * FN_E* code with fn_err set. */
 int volio_write(const vol *v, const char *path, vol_type type);
 
-/* Shared internals of the volio_*.c files; not for other modules. */
-vol *volio__read_inv3(const char *path);
-vol *volio__read_nifti(const char *path);
-vol *volio__read_nrrd(const char *path);
-vol *volio__read_dicom(const char *dir);
-int volio__write_nifti(const vol *v, const char *path, vol_type type);
-int volio__write_nrrd(const vol *v, const char *path, vol_type type);
-/* 0 if the columns of m (index axes) are finite, non-zero and orthogonal within 1e-4, else
- * FN_EFORMAT naming path and field. */
-int volio__check_axes(const double m[3][3], const char *path, const char *field);
-size_t volio__type_size(vol_type t);
-/* n values of type t (native byte order) -> float, as slope * x + inter (slope 1, inter 0 = as is). */
-void volio__to_float(const void *src, vol_type t, size_t n, double slope, double inter, float *dst);
-/* n floats -> type t (native byte order), rounding to nearest and clamping for integer types. */
-void volio__from_float(const float *src, size_t n, vol_type t, void *dst);
-
 #endif

@@ -1,7 +1,7 @@
 /* volio_dicom: a folder of DICOM files, converted by dcm2niix into a private temporary folder,
  * read as NIfTI, then removed. dcm2niix sorts the series, applies rescale slope/intercept and,
  * for gantry tilt, writes a resampled copy (_Tilt_) that is preferred over the sheared one. */
-#include "volio.h"
+#include "volio_impl.h"
 
 #include "err.h"
 

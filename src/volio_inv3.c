@@ -1,6 +1,6 @@
 /* volio_inv3: InVesalius 3 projects (.inv3): a gzip'd tar holding main.plist (XML) and the raw
  * little-endian voxel matrix it names. The tar headers and the plist are parsed here. */
-#include "volio.h"
+#include "volio_impl.h"
 
 #include "err.h"
 

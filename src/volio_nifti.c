@@ -1,7 +1,7 @@
 /* volio_nifti: NIfTI-1 (.nii, .nii.gz) through nifticlib. The header is checked here byte by byte
  * first, so that bad files get an error naming the field and nifticlib never allocates for a
  * header that lies. */
-#include "volio.h"
+#include "volio_impl.h"
 
 #include "err.h"
 
@@ -201,7 +201,7 @@ static int geometry(const nifti_image *nim, const char *path, vol *v)
 {
     const char *field = nim->sform_code > 0 ? "sform" : nim->qform_code > 0 ? "qform" : "pixdim";
     const mat44 *m = nim->sform_code > 0 ? &nim->sto_xyz : &nim->qto_xyz;
-    double a[3][3], dir[3][3], sp[3], org[3];
+    double a[3][3], org[3];
     for (int r = 0; r < 3; r++) {
         double s = r < 2 ? -1.0 : 1.0; /* RAS -> LPS */
         for (int c = 0; c < 3; c++)
@@ -210,16 +210,7 @@ static int geometry(const nifti_image *nim, const char *path, vol *v)
         if (!isfinite(org[r]))
             return fn_err_set(FN_EFORMAT, "%s: %s: offset is not finite", path, field);
     }
-    int rc = volio__check_axes(a, path, field);
-    if (rc < 0)
-        return rc;
-    for (int c = 0; c < 3; c++) {
-        sp[c] = sqrt(a[0][c] * a[0][c] + a[1][c] * a[1][c] + a[2][c] * a[2][c]);
-        for (int r = 0; r < 3; r++)
-            dir[r][c] = a[r][c] / sp[c];
-    }
-    vol_set_geometry(v, dir, sp, org);
-    return 0;
+    return volio__set_affine(v, a, org, path, field);
 }
 
 /* Reads the voxels through zlib (nifticlib zero-fills short data silently), swapping to host

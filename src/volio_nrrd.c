@@ -1,7 +1,7 @@
 /* volio_nrrd: NRRD (.nrrd, .nhdr + detached data) through teem. The header is loaded first
  * without data so dims are checked against the data file and the memory budget before teem
  * allocates. */
-#include "volio.h"
+#include "volio_impl.h"
 
 #include "err.h"
 
@@ -194,17 +194,7 @@ static int geometry(const Nrrd *n, const int *seen, const char *path, vol *v)
                               r, n->spaceOrigin[r]);
         org[r] = flip[r] * n->spaceOrigin[r];
     }
-    int rc = volio__check_axes(a, path, "space directions");
-    if (rc < 0)
-        return rc;
-    double dir[3][3], sp[3];
-    for (int c = 0; c < 3; c++) {
-        sp[c] = sqrt(a[0][c] * a[0][c] + a[1][c] * a[1][c] + a[2][c] * a[2][c]);
-        for (int r = 0; r < 3; r++)
-            dir[r][c] = a[r][c] / sp[c];
-    }
-    vol_set_geometry(v, dir, sp, org);
-    return 0;
+    return volio__set_affine(v, a, org, path, "space directions");
 }
 
 /* A detached header's one data file (data file: NAME, relative to the header's folder) must be

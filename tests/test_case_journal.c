@@ -331,6 +331,25 @@ static void test_fixed_in_session_is_saved(void **st)
     case_free(c);
 }
 
+/* --force over a case whose journal holds unsaved poses says that they go, in segment and fracture
+ * alike (one shared warning), naming the command. */
+static void test_force_warns_of_unsaved_journal(void **st)
+{
+    struct fixture *f = *st;
+    const char *cmds[] = {"segment", "fracture"}, *extra[] = {"--min-volume 0", "--seed 1"};
+    for (int k = 0; k < 2; k++) {
+        interrupted(f, 0, 5.0);
+        char want[4600], *out = NULL;
+        snprintf(want, sizeof want, "fracnav %s: warning: %s/journal holds 1 poses not saved in "
+                 "case.json; they go with the case this replaces", cmds[k], f->cdir);
+        tu_run_cli(&out, "%s '%s/blocks.nii.gz' -o '%s' --force %s", cmds[k], f->tmp, f->cdir,
+                   extra[k]);
+        if (!strstr(out, want))
+            fail_msg("%s --force: wanted \"%s\" in:\n%s", cmds[k], want, out);
+        free(out);
+    }
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -343,6 +362,7 @@ int main(void)
                                         teardown),
         cmocka_unit_test_setup_teardown(test_penetrating_plan_is_said_and_recorded, setup, teardown),
         cmocka_unit_test_setup_teardown(test_fixed_in_session_is_saved, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_force_warns_of_unsaved_journal, setup, teardown),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

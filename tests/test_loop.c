@@ -7,6 +7,7 @@
 #include <cmocka.h>
 
 #include "err.h"
+#include "fnclock.h"
 #include "loop.h"
 #include "navview.h"
 #include "ring.h"
@@ -531,7 +532,7 @@ static void test_drain_publishes_scene(void **st)
     uint64_t seq0 = sc.seq;
     for (int k = 0; k < 10; k++) {
         loop_event e = motion(k * 8000, 0, 1, 0, 0, 0, 0);
-        e.arrival_us = loop_now_us();
+        e.arrival_us = fnclock_now_us();
         ring_push(r, &e);
     }
     assert_int_equal(loop_drain(L, r), 10);

@@ -10,6 +10,7 @@
 #include <cmocka.h>
 
 #include "allocount.h"
+#include "fnclock.h"
 #include "journal.h"
 #include "loop.h"
 #include "ring.h"
@@ -37,7 +38,7 @@ static loop_event motion(int k, float tx, float tz, float ry)
     memset(&e, 0, sizeof e);
     e.kind = LOOP_EV_MOTION;
     e.t_us = 8000 * (int64_t)k;
-    e.arrival_us = loop_now_us();
+    e.arrival_us = fnclock_now_us();
     e.motion[0] = tx, e.motion[2] = tz, e.motion[4] = ry;
     return e;
 }

@@ -223,9 +223,22 @@ static void test_unknown_extension(void **st)
     vol *v = oblique_volume();
     assert_int_equal(volio_write(v, "/tmp/x.png", VOL_U8), FN_EINVAL);
     assert_non_null(strstr(fn_err_msg(), "/tmp/x.png"));
+    assert_non_null(strstr(fn_err_msg(), "(use .nii, .nii.gz, .nrrd or .nhdr)"));
+    /* .inv3 is read only */
+    assert_int_equal(volio_write(v, "/tmp/x.inv3", VOL_U8), FN_EINVAL);
+    assert_non_null(strstr(fn_err_msg(), "cannot write this format"));
     vol_free(v);
     assert_null(volio_read("/nonexistent/dir/file.nii"));
     assert_non_null(strstr(fn_err_msg(), "/nonexistent/dir/file.nii"));
+    char *dir = tu_tmpdir("volio_ext");
+    char path[4200];
+    snprintf(path, sizeof path, "%s/x.PNG", dir);
+    tu_write_file(path, "x", 1);
+    assert_null(volio_read(path));
+    assert_non_null(strstr(fn_err_msg(), "unknown volume format (expected .nii, .nii.gz, .nrrd, "
+                                         ".nhdr, .inv3 or a DICOM folder)"));
+    tu_rmtree(dir);
+    free(dir);
 }
 
 static void test_example_ct_header(void **st)

@@ -1,0 +1,22 @@
+/* bench: what every benchmark measures -- wall time, the thread's CPU time, peak memory. */
+#include "bench.h"
+
+#include "fnclock.h"
+
+#include <sys/resource.h>
+
+double bench_now_us(void)
+{
+    return (double)fnclock_now_ns() * 1e-3;
+}
+
+double bench_cpu_us(void)
+{
+    return (double)fnclock_thread_cpu_ns() * 1e-3;
+}
+
+long bench_peak_rss_kib(void)
+{
+    struct rusage ru;
+    return getrusage(RUSAGE_SELF, &ru) == 0 ? ru.ru_maxrss : 0;
+}

@@ -1,0 +1,40 @@
+/* volio internals shared by volio.c (dispatch) and the format files volio_*.c; not for other
+ * modules. Each format is one table row (volio.c): its extensions, reader and writer. */
+#ifndef FN_VOLIO_IMPL_H
+#define FN_VOLIO_IMPL_H
+
+#include "volio.h"
+
+#include <stddef.h>
+
+/* One format: the file name's ending (lower case; matched case-insensitively), its reader and
+ * its writer (NULL: read only). Readers and writers behave as volio_read and volio_write. */
+typedef struct volio_format {
+    const char *ext;
+    vol *(*read)(const char *path);
+    int (*write)(const vol *v, const char *path, vol_type type);
+} volio_format;
+
+vol *volio__read_inv3(const char *path);
+vol *volio__read_nifti(const char *path);
+vol *volio__read_nrrd(const char *path);
+/* A DICOM series folder (not a table row: a folder has no extension). */
+vol *volio__read_dicom(const char *dir);
+int volio__write_nifti(const vol *v, const char *path, vol_type type);
+int volio__write_nrrd(const vol *v, const char *path, vol_type type);
+
+/* volio_convert.c */
+/* 0 if the columns of m (index axes) are finite, non-zero and orthogonal within 1e-4, else
+ * FN_EFORMAT naming path and field. */
+int volio__check_axes(const double m[3][3], const char *path, const char *field);
+/* Sets v's geometry from the index-to-LPS matrix a (columns: index axes, mm) and the origin:
+ * checked as volio__check_axes does, then split into direction cosines and spacings. */
+int volio__set_affine(vol *v, const double a[3][3], const double origin[3], const char *path,
+                      const char *field);
+size_t volio__type_size(vol_type t);
+/* n values of type t (native byte order) -> float, as slope * x + inter (slope 1, inter 0 = as is). */
+void volio__to_float(const void *src, vol_type t, size_t n, double slope, double inter, float *dst);
+/* n floats -> type t (native byte order), rounding to nearest and clamping for integer types. */
+void volio__from_float(const float *src, size_t n, vol_type t, void *dst);
+
+#endif
