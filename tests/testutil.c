@@ -43,13 +43,16 @@ const char *tu_example_ct(void)
     return path;
 }
 
-const char *tu_shared_data(const char *name)
+const char *tu_test_data(const char *name)
 {
     static char path[4096];
-    const char *s = getenv("FRACNAV_SHARED");
-    snprintf(path, sizeof path, "%s/data/%s", s && *s ? s : "../shared", name);
+    const char *src = getenv("FRACNAV_SRC");
+    if (src && *src)
+        snprintf(path, sizeof path, "%s/tests/data/%s", src, name);
+    else
+        snprintf(path, sizeof path, "%s/%s", FRACNAV_TEST_DATA, name);
     if (access(path, R_OK) != 0)
-        fail_msg("shared data %s is missing", path);
+        fail_msg("test data %s is missing (it ships in the repository's tests/data/)", path);
     return path;
 }
 

@@ -11,8 +11,9 @@ void tu_rmtree(const char *dir);
 /* Path of the example CT (Cranium.inv3): $FRACNAV_DATA/Cranium.inv3, else
  * /var/cache/fracnav/Cranium.inv3. Fails the test with a hint to run .ci/setup when missing. */
 const char *tu_example_ct(void);
-/* ../shared/data/NAME; fails the test when missing. */
-const char *tu_shared_data(const char *name);
+/* tests/data/NAME, shipped in the repository: under $FRACNAV_SRC when set, else under the source
+ * tree the test was built from. Fails the test when missing. */
+const char *tu_test_data(const char *name);
 /* Runs `fracnav ARGS` (the built CLI) through /bin/sh, capturing stdout+stderr into out (malloc'd,
  * NUL-terminated; may be NULL). Returns the exit status (or -1). */
 int tu_run_cli(char **out, const char *fmt, ...);
