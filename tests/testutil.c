@@ -38,9 +38,17 @@ const char *tu_example_ct(void)
     static char path[4096];
     const char *d = getenv("FRACNAV_DATA");
     snprintf(path, sizeof path, "%s/Cranium.inv3", d && *d ? d : "/var/cache/fracnav");
-    if (access(path, R_OK) != 0)
-        fail_msg("example CT %s is missing: run .ci/setup (README, first command)", path);
-    return path;
+    if (access(path, R_OK) == 0)
+        return path;
+#define NO_CT "example CT %s is missing: run .ci/setup (the README's first command), which extracts " \
+              "Cranium.inv3 from Debian's invesalius-examples package into $FRACNAV_DATA (default " \
+              "/var/cache/fracnav)"
+    if (getenv("CI") && *getenv("CI")) /* CI runs .ci/setup first: there, a missing CT is a failure */
+        fail_msg(NO_CT, path);
+    print_message(NO_CT "; skipped\n", path);
+#undef NO_CT
+    skip();
+    return NULL;
 }
 
 const char *tu_test_data(const char *name)

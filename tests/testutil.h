@@ -9,7 +9,9 @@
 char *tu_tmpdir(const char *tag);
 void tu_rmtree(const char *dir);
 /* Path of the example CT (Cranium.inv3): $FRACNAV_DATA/Cranium.inv3, else
- * /var/cache/fracnav/Cranium.inv3. Fails the test with a hint to run .ci/setup when missing. */
+ * /var/cache/fracnav/Cranium.inv3. When missing, the test is skipped (cmocka skip()) with a message
+ * saying how to get it (.ci/setup); under CI (the CI variable set) it fails instead. Call it before
+ * allocating anything. */
 const char *tu_example_ct(void);
 /* tests/data/NAME, shipped in the repository: under $FRACNAV_SRC when set, else under the source
  * tree the test was built from. Fails the test when missing. */
