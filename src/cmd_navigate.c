@@ -279,6 +279,11 @@ static int run(loopkit *k, loopkit_dsource *ds, int keys, double duration)
     runner run = {k->L, in, 0, 0};
     atomic_init(&run.stop, 0);
     loop_set_controls(k->L, ctl);
+    /* Before the reader starts: the keyboard device's q raises SIGINT from the reader thread. */
+    struct sigaction sa = {0};
+    sa.sa_handler = on_signal;
+    sigaction(SIGINT, &sa, NULL);
+    sigaction(SIGTERM, &sa, NULL);
     loop_reader *rd = in && ctl ? loop_reader_start(loopkit_device_source(ds), in, k->L, 0) : NULL;
     pthread_t th;
     int rc = 0;
@@ -286,10 +291,6 @@ static int run(loopkit *k, loopkit_dsource *ds, int keys, double duration)
         rc = rd ? fn_err_set(FN_EIO, "cannot start the loop thread") : FN_EIO;
         loop_reader_stop(rd);
     } else {
-        struct sigaction sa = {0};
-        sa.sa_handler = on_signal;
-        sigaction(SIGINT, &sa, NULL);
-        sigaction(SIGTERM, &sa, NULL);
         ui(k, ds, ctl, saved_poses, keys, duration);
         loop_reader_stop(rd);
         atomic_store(&run.stop, 1);

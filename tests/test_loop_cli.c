@@ -15,6 +15,7 @@
 #include "volio.h"
 
 #include <jansson.h>
+#include <fcntl.h>
 #include <math.h>
 #include <signal.h>
 #include <stdio.h>
@@ -123,6 +124,54 @@ static size_t journal_count_on_disk(void)
     assert_int_equal(journal_read(case_dir, &r, &n, NULL), 0);
     free(r);
     return n;
+}
+
+/* Whether the journal on disk reaches *(int64_t *)arg microseconds of recorded time. */
+static int journal_spans(void *arg)
+{
+    journal_rec *r;
+    size_t n = 0;
+    if (journal_read(case_dir, &r, &n, NULL))
+        return 0;
+    int spans = n > 0 && r[n - 1].t_us - r[0].t_us >= *(int64_t *)arg;
+    free(r);
+    return spans;
+}
+
+static int journal_empty(void *arg)
+{
+    journal_rec *r;
+    size_t n = 1;
+    if (journal_read(case_dir, &r, &n, NULL)) /* read while being written: not yet */
+        return 0;
+    free(r);
+    return n == 0;
+}
+
+/* Whether the journal's last record puts fragment B where *(pose *)arg says. */
+static int journal_ends_at(void *arg)
+{
+    const pose *want = arg;
+    journal_rec *r;
+    size_t n = 0;
+    if (journal_read(case_dir, &r, &n, NULL))
+        return 0;
+    int at = n > 0 && r[n - 1].frag == 1 && !memcmp(r[n - 1].p.t, want->t, sizeof want->t) &&
+             !memcmp(r[n - 1].p.q, want->q, sizeof want->q);
+    free(r);
+    return at;
+}
+
+/* Fragment B's final pose in a replay's JSON. */
+static pose final_b(json_t *j)
+{
+    pose p;
+    json_t *b = json_array_get(json_object_get(j, "final_poses"), 1);
+    for (int a = 0; a < 4; a++)
+        p.q[a] = json_number_value(json_array_get(json_object_get(b, "q"), (size_t)a));
+    for (int a = 0; a < 3; a++)
+        p.t[a] = json_number_value(json_array_get(json_object_get(b, "t"), (size_t)a));
+    return p;
 }
 
 static void test_replay_help_and_usage(void **st)
@@ -259,8 +308,9 @@ static void test_replay_unplug_keeps_pose(void **st)
     json_decref(back);
 }
 
-/* Starts `fracnav ARGS...` (stdin from /dev/null) with its stderr readable through *err. */
-static pid_t start_cli(FILE **err, char *const args[])
+/* Starts `fracnav ARGS...` (stdin from /dev/null) with its stderr readable through *err, its
+ * stdout into the file out (NULL: inherited). Without err, stderr goes into out too. */
+static pid_t start_cli(FILE **err, const char *out, char *const args[])
 {
     const char *bin = getenv("FRACNAV_BIN");
     char *argv[16] = {(char *)bin};
@@ -270,45 +320,52 @@ static pid_t start_cli(FILE **err, char *const args[])
     assert_int_equal(pipe(fds), 0);
     pid_t pid = fork();
     if (pid == 0) {
-        dup2(fds[1], 2);
-        close(fds[0]);
-        if (!freopen("/dev/null", "r", stdin))
+        int o = out ? open(out, O_WRONLY | O_CREAT | O_TRUNC | O_APPEND, 0644) : 1;
+        if (o < 0 || !freopen("/dev/null", "r", stdin))
             _exit(126);
+        dup2(o, 1);
+        dup2(err ? fds[1] : o, 2);
+        close(fds[0]);
         execv(bin, argv);
         _exit(127);
     }
     close(fds[1]);
-    *err = fdopen(fds[0], "r");
-    assert_non_null(*err);
+    if (err)
+        *err = fdopen(fds[0], "r");
+    else
+        close(fds[0]);
+    assert_true(!err || *err);
     return pid;
 }
 
-/* Killed mid-replay (SIGKILL): the journal holds the poses up to ~100 ms before the kill; the
- * next start refuses to silently drop them, and --recover starts from them. */
+/* Killed mid-replay (SIGKILL) once the journal on disk holds 300 ms of its motion: the next
+ * start refuses to silently drop those poses, and --recover starts from the last of them. The
+ * recording stays plugged in long after its motion, so the kill is mid-replay however slow the
+ * machine is. */
 static void test_crash_recovery(void **st)
 {
-    const char *rec = recording("long", "translate +z 3 mm over 1.5 s\ntranslate -z 3 mm over 1.5 s\n");
+    const char *rec = recording("long", "translate +z 3 mm over 1.5 s\ntranslate -z 3 mm over 1.5 s\n"
+                                        "wait 120 s\nunplug\n");
     char cmd[9000];
     FILE *err;
-    pid_t pid = start_cli(&err, (char *[]){"replay", case_dir, (char *)rec, "--realtime",
-                                           "--discard-journal", NULL});
+    pid_t pid = start_cli(&err, NULL, (char *[]){"replay", case_dir, (char *)rec, "--realtime",
+                                                 "--discard-journal", NULL});
     char line[1024];
     assert_non_null(fgets(line, sizeof line, err));
     assert_non_null(strstr(line, "stepping"));
-    usleep(600000);
+    int64_t span = 300000;
+    int midway = tu_wait_for(journal_spans, &span, 100);
     kill(pid, SIGKILL);
     int status;
     waitpid(pid, &status, 0);
     fclose(err);
+    assert_true(midway);
     assert_true(WIFSIGNALED(status));
 
     journal_rec *r;
     size_t n;
     assert_int_equal(journal_read(case_dir, &r, &n, NULL), 0);
     assert_true(n > 20);
-    /* Recorded time reached by the journal: at least 600 ms of stepping, minus the 100 ms the
-     * journal may lose, minus slack for a busy machine. */
-    assert_true(r[n - 1].t_us - r[0].t_us >= 300000);
     pose last = r[n - 1].p;
     free(r);
 
@@ -336,25 +393,37 @@ static void test_crash_recovery(void **st)
 }
 
 /* navigate with a recording played as a live device (real time): the terminal view shows the
- * state, the case is saved on exit with the moved pose, and the journal is empty again. A played
- * recording that ends counts as an unplug and is opened again 500 ms later, so this one stays
- * plugged in and silent long after the move, whatever the machine's load delays. */
+ * state, and once the journal holds the end of the move (the pose a replay of the same recording
+ * reaches: steps follow the recorded times), Ctrl-C (SIGTERM here) saves the case with that pose
+ * and empties the journal. The recording stays plugged in and silent long after the move. */
 static void test_navigate_saves_on_exit(void **st)
 {
-    const char *rec = recording("nav", "translate +z 1 mm over 0.3 s\nwait 30 s\nunplug\n");
-    char *out = NULL;
-    int rc = tu_run_cli(&out, "navigate '%s' --device 'replay-realtime:%s' --duration 2 --json", case_dir, rec);
-    if (rc != 0)
-        fprintf(stderr, "%s\n", out);
-    assert_int_equal(rc, 0);
-    assert_non_null(strstr(out, "frag 2/2"));
+    const char *rec = recording("nav", "translate +z 1 mm over 0.3 s\nwait 120 s\nunplug\n");
+    json_t *ref = replay(rec, "--no-journal", 0);
+    pose want = final_b(ref);
+    json_decref(ref);
+    char spec[4300], outp[4300];
+    snprintf(spec, sizeof spec, "replay-realtime:%s", rec);
+    snprintf(outp, sizeof outp, "%s/nav.out", dir);
+    FILE *err;
+    pid_t pid = start_cli(&err, outp, (char *[]){"navigate", case_dir, "--device", spec, "--json", NULL});
+    int moved = tu_wait_for(journal_ends_at, &want, 100);
+    int shown = moved && tu_wait_for_text(outp, "frag 2/2", 100); /* a status line, once a second */
+    kill(pid, SIGTERM);
+    int status;
+    waitpid(pid, &status, 0);
+    fclose(err);
+    char *out = tu_slurp(outp, NULL);
+    if (!moved || !shown)
+        fail_msg("navigate did not %s: %s", moved ? "show its status" : "reach the end of the move", out);
+    assert_true(WIFEXITED(status) && WEXITSTATUS(status) == 0);
     assert_non_null(strstr(out, "steps/s"));
     json_t *j = json_loads(strchr(out, '{'), JSON_DISABLE_EOF_CHECK, NULL);
     assert_non_null(j);
     assert_true(num(j, "steps") > 10);
     double tz = moved_t(j, 2);
-    if (!(tz < -0.8 && tz > -1.1))
-        fail_msg("navigate moved fragment 2 to z %g: %s", tz, out);
+    if (!(tz < -0.8 && tz > -1.1) || tz != want.t[2])
+        fail_msg("navigate moved fragment 2 to z %g, the replay to %g: %s", tz, want.t[2], out);
     json_decref(j);
     free(out);
     assert_int_equal(journal_count_on_disk(), 0);
@@ -368,8 +437,8 @@ static void test_navigate_saves_on_exit(void **st)
     assert_true(fabs(saved - tz) < 1e-9);
     json_decref(c);
     /* Back to where it was, for the other tests. */
-    rc = tu_run_cli(&out, "replay '%s' '%s' --save --no-journal", case_dir,
-                    recording("navback", "translate -z 1 mm over 0.3 s\n"));
+    int rc = tu_run_cli(&out, "replay '%s' '%s' --save --no-journal", case_dir,
+                        recording("navback", "translate -z 1 mm over 0.3 s\n"));
     free(out);
     assert_int_equal(rc, 0);
 }
@@ -379,22 +448,23 @@ static void test_navigate_saves_on_exit(void **st)
 static void test_navigate_save_on_demand_empties_journal(void **st)
 {
     const char *rec = recording_as("spaceexplorer", "save9", "translate +z 1 mm over 0.3 s\nwait 100 ms\n"
-                                   "press 9\nwait 50 ms\nrelease 9\nwait 30 s\n");
+                                   "press 9\nwait 50 ms\nrelease 9\nwait 120 s\nunplug\n");
     char spec[4300];
     snprintf(spec, sizeof spec, "replay-realtime:%s", rec);
     FILE *err;
-    pid_t pid = start_cli(&err, (char *[]){"navigate", case_dir, "--device", spec, "--duration",
-                                           "20", NULL});
+    pid_t pid = start_cli(&err, "/dev/null", (char *[]){"navigate", case_dir, "--device", spec, NULL});
     char line[1024];
     int saved = 0;
     while (!saved && fgets(line, sizeof line, err))
         saved = strncmp(line, "saved ", 6) == 0;
-    usleep(500000); /* the loop thread empties the journal after the save */
+    /* The loop thread empties the journal after the save, without another save or an exit. */
+    int emptied = saved && tu_wait_for(journal_empty, NULL, 100);
     kill(pid, SIGKILL);
     int status;
     waitpid(pid, &status, 0);
     fclose(err);
     assert_true(saved);
+    assert_true(emptied);
     assert_int_equal(journal_count_on_disk(), 0);
     char *out = NULL;
     assert_int_equal(tu_run_cli(&out, "replay '%s' '%s' --save --no-journal", case_dir,
@@ -460,33 +530,36 @@ static void test_navigate_keyboard_offers_recovery(void **st)
     json_decref(navigate_answering("Y\n"));
 }
 
-/* navigate --device keyboard fed KEYS from a file; returns what it printed. */
-static char *navigate_keys(const char *keys, const char *duration)
+/* navigate --device keyboard fed KEYS from a file, all it prints into dir/keys.out; stopped by
+ * SIGTERM (Ctrl-C: it saves and exits 0) once that output holds `until` (NULL: it must stop by
+ * itself). Returns what it printed. */
+static char *navigate_keys(const char *keys, const char *until)
 {
-    char path[4300];
+    char path[4300], spec[4400], outp[4300];
     snprintf(path, sizeof path, "%s/keys", dir);
+    snprintf(outp, sizeof outp, "%s/keys.out", dir);
+    snprintf(spec, sizeof spec, "keyboard:%s", path);
     tu_write_file(path, keys, strlen(keys));
-    char *out = NULL;
-    int rc = tu_run_cli(&out, "navigate '%s' --device 'keyboard:%s' --duration %s --json < /dev/null",
-                        case_dir, path, duration);
-    if (rc != 0)
-        fprintf(stderr, "%s\n", out);
-    assert_int_equal(rc, 0);
+    pid_t pid = start_cli(NULL, outp, (char *[]){"navigate", case_dir, "--device", spec, "--json", NULL});
+    int shown = !until || tu_wait_for_text(outp, until, 100);
+    if (until)
+        kill(pid, SIGTERM);
+    int status;
+    waitpid(pid, &status, 0);
+    char *out = tu_slurp(outp, NULL);
+    if (!shown)
+        fail_msg("navigate with keys '%s' never printed '%s': %s", keys, until, out);
+    if (!WIFEXITED(status) || WEXITSTATUS(status) != 0)
+        fail_msg("navigate with keys '%s' ended with status %#x: %s", keys, status, out);
     return out;
 }
 
 /* The keyboard device reaches what the controller's buttons 9 and 10 do, and quits. */
 static void test_navigate_keyboard_save_frame_quit(void **st)
 {
-    char *out = navigate_keys("0", "1.3"); /* status lines come once a second off a terminal */
-    assert_non_null(strstr(out, "| world"));
-    free(out);
-    out = navigate_keys("9", "0.5");
-    assert_non_null(strstr(out, "\nsaved ")); /* on demand: --json prints no exit message */
-    free(out);
-    int64_t t0 = loop_now_us();
-    out = navigate_keys("q", "60");
-    assert_true(loop_now_us() - t0 < 30000000); /* quit, not the 60 s duration */
+    free(navigate_keys("0", "| world")); /* in a status line (once a second off a terminal) */
+    free(navigate_keys("9", "\nsaved ")); /* on demand: --json prints no exit message */
+    char *out = navigate_keys("q", NULL); /* no --duration: only the quit ends it */
     assert_non_null(strchr(out, '{'));
     free(out);
 }

@@ -11,6 +11,7 @@
 #include <string.h>
 #include <sys/stat.h>
 #include <sys/wait.h>
+#include <time.h>
 #include <unistd.h>
 
 char *tu_tmpdir(const char *tag)
@@ -91,6 +92,39 @@ int tu_run_cli(char **out, const char *fmt, ...)
     else
         free(buf);
     return WIFEXITED(st) ? WEXITSTATUS(st) : -1;
+}
+
+int tu_wait_for(int (*cond)(void *arg), void *arg, double max_s)
+{
+    struct timespec now, end, poll = {0, 5000000};
+    clock_gettime(CLOCK_MONOTONIC, &end);
+    end.tv_sec += (time_t)max_s;
+    for (;;) {
+        if (cond(arg))
+            return 1;
+        clock_gettime(CLOCK_MONOTONIC, &now);
+        if (now.tv_sec > end.tv_sec || (now.tv_sec == end.tv_sec && now.tv_nsec >= end.tv_nsec))
+            return 0;
+        nanosleep(&poll, NULL); /* the polling period of the wait, not a wait */
+    }
+}
+
+typedef struct file_text {
+    const char *path, *text;
+} file_text;
+
+static int file_has_text(void *arg)
+{
+    const file_text *ft = arg;
+    char *s = tu_slurp(ft->path, NULL);
+    int has = s && strstr(s, ft->text);
+    free(s);
+    return has;
+}
+
+int tu_wait_for_text(const char *path, const char *text, double max_s)
+{
+    return tu_wait_for(file_has_text, &(file_text){path, text}, max_s);
 }
 
 char *tu_slurp(const char *path, size_t *len)

@@ -19,6 +19,12 @@ const char *tu_test_data(const char *name);
 /* Runs `fracnav ARGS` (the built CLI) through /bin/sh, capturing stdout+stderr into out (malloc'd,
  * NUL-terminated; may be NULL). Returns the exit status (or -1). */
 int tu_run_cli(char **out, const char *fmt, ...);
+/* Waits for an event: checks cond(arg) every few milliseconds until it holds, for at most max_s
+ * seconds (a bound for when the event never comes, never a duration a test relies on). Returns 1
+ * when cond held, 0 when max_s passed. */
+int tu_wait_for(int (*cond)(void *arg), void *arg, double max_s);
+/* Waits (as tu_wait_for) until the file at path holds text; returns 1 when it does. */
+int tu_wait_for_text(const char *path, const char *text, double max_s);
 /* Whole file into a malloc'd NUL-terminated buffer; NULL if unreadable. */
 char *tu_slurp(const char *path, size_t *len);
 void tu_write_file(const char *path, const void *data, size_t len);
