@@ -125,6 +125,8 @@ static int record_loop(recorder *r)
             int rc = put(r, FNREC_IN, t, buf, n);
             if (rc)
                 return rc;
+        } else if (n == FN_ENODEV && stop) {
+            break; /* the read was interrupted by Ctrl-C: no unplug */
         } else if (n == FN_ENODEV) {
             fprintf(stderr, "fracnav record: device disconnected (%s)\n", fn_err_msg());
             if (is_replay(r)) { /* a replay goes on after a recorded unplug, until its end */
@@ -191,6 +193,10 @@ int cmd_record(int argc, char **argv)
     int rc = parse_args(argc, argv, &out, &device, &seconds);
     if (rc)
         return rc;
+    /* From the start: a Ctrl-C as soon as the device is open still ends in a whole recording. */
+    struct sigaction sa = {.sa_handler = on_signal};
+    sigaction(SIGINT, &sa, NULL);
+    sigaction(SIGTERM, &sa, NULL);
     recorder r = {0};
     if (resolve(device, &r) || r.t->open(r.arg, &r.h)) {
         fprintf(stderr, "fracnav record: %s\n", fn_err_msg());
@@ -206,9 +212,6 @@ int cmd_record(int argc, char **argv)
         fnrec_writer_close(r.w);
         return 1;
     }
-    struct sigaction sa = {.sa_handler = on_signal};
-    sigaction(SIGINT, &sa, NULL);
-    sigaction(SIGTERM, &sa, NULL);
     rc = record_loop(&r);
     if (rc)
         fprintf(stderr, "fracnav record: %s\n", fn_err_msg());
