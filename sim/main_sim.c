@@ -129,8 +129,8 @@ static void deliver(const uint8_t *b, size_t n)
     S.served++;
     log_event(FNREC_IN, b, n);
     for (reader *r = S.readers; r; r = r->next) {
-        if (r->dead)
-            continue;
+        if (r->dead || (!r->active && S.dev.battery_pending))
+            continue; /* a reader opened after a live replug gets the power-on reports first */
         if (r->npending) {
             fuse_req_t req = r->pending[0];
             size_t size = r->pending_size[0];

@@ -31,11 +31,11 @@
 #include "vol.h"
 #include "volio.h"
 
-#define MAX_SERVERS 4
+#define MAX_CHILDREN 6
 
 static char *workdir;
 static char mnt[512];
-static pid_t servers[MAX_SERVERS];
+static pid_t children[MAX_CHILDREN]; /* servers, recorders, navigate: killed in teardown */
 
 static int64_t now_us(void)
 {
@@ -62,6 +62,13 @@ static void unmount_quietly(void)
         perror("fusermount3");
 }
 
+static void forget_child(pid_t pid)
+{
+    for (int i = 0; i < MAX_CHILDREN; i++)
+        if (children[i] == pid)
+            children[i] = 0;
+}
+
 typedef struct child {
     pid_t pid;
     int status;
@@ -78,6 +85,7 @@ static int exited(void *arg)
 static int reap(pid_t pid, double max_s)
 {
     child c = {pid, -1};
+    forget_child(pid);
     if (tu_wait_for(exited, &c, max_s))
         return c.status;
     kill(pid, SIGKILL);
@@ -85,18 +93,10 @@ static int reap(pid_t pid, double max_s)
     return -1;
 }
 
-static void forget_server(pid_t pid)
-{
-    for (int i = 0; i < MAX_SERVERS; i++)
-        if (servers[i] == pid)
-            servers[i] = 0;
-}
-
 static void stop_server(pid_t pid)
 {
     kill(pid, SIGTERM);
     int st = reap(pid, 60);
-    forget_server(pid);
     unmount_quietly();
     assert_true(WIFEXITED(st) && WEXITSTATUS(st) == 0);
 }
@@ -113,6 +113,11 @@ static pid_t spawn(char *const argv[], const char *log)
         execv(argv[0], argv);
         _exit(127);
     }
+    for (int i = 0; i < MAX_CHILDREN; i++)
+        if (!children[i]) {
+            children[i] = pid;
+            break;
+        }
     return pid;
 }
 
@@ -137,11 +142,6 @@ static pid_t start_server(const char *first, ...)
     snprintf(log, sizeof log, "%s/server.log", workdir);
     snprintf(node, sizeof node, "%s/hidraw0", mnt);
     pid_t pid = spawn(argv, log);
-    for (int i = 0; i < MAX_SERVERS; i++)
-        if (!servers[i]) {
-            servers[i] = pid;
-            break;
-        }
     if (!tu_wait_for(node_served, node, 60))
         fail_msg("fracnav-sim did not serve %s (see %s)", node, log);
     return pid;
@@ -160,11 +160,11 @@ static int setup(void **st)
 
 static int teardown(void **st)
 {
-    for (int i = 0; i < MAX_SERVERS; i++)
-        if (servers[i] > 0) {
-            kill(servers[i], SIGKILL);
-            waitpid(servers[i], NULL, 0);
-            servers[i] = 0;
+    for (int i = 0; i < MAX_CHILDREN; i++)
+        if (children[i] > 0) {
+            kill(children[i], SIGKILL);
+            waitpid(children[i], NULL, 0);
+            children[i] = 0;
         }
     unmount_quietly();
     tu_rmtree(workdir);
@@ -380,7 +380,6 @@ static void test_server_killed_then_back(void **st)
     await_recording(rec, (rec_state){.connects = 1, .ins = 11});
     kill(srv, SIGKILL);
     reap(srv, 60);
-    forget_server(srv);
     unmount_quietly();
     await_recording(rec, (rec_state){.disconnects = 1});
     srv = start_server("--script", scr, "--start-on-read", NULL);
@@ -631,7 +630,6 @@ static void test_play_recording(void **st)
     pid_t srv = start_server("--play", file, "--fast", "--exit-at-end", NULL);
     pid_t recp = record_in_background(rec, node_path(), path_in("record.log"));
     int status = reap(srv, 120); /* it leaves by itself once everything was read */
-    forget_server(srv);
     unmount_quietly();
     assert_true(WIFEXITED(status) && WEXITSTATUS(status) == 0);
     await_recording(rec, (rec_state){.disconnects = 1}); /* the recorder saw it go */
