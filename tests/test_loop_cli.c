@@ -345,7 +345,7 @@ static pid_t start_cli(FILE **err, const char *out, char *const args[])
 static void test_crash_recovery(void **st)
 {
     const char *rec = recording("long", "translate +z 3 mm over 1.5 s\ntranslate -z 3 mm over 1.5 s\n"
-                                        "wait 120 s\nunplug\n");
+                                        "wait 600 s\nunplug\n");
     char cmd[9000];
     FILE *err;
     pid_t pid = start_cli(&err, NULL, (char *[]){"replay", case_dir, (char *)rec, "--realtime",
@@ -354,7 +354,7 @@ static void test_crash_recovery(void **st)
     assert_non_null(fgets(line, sizeof line, err));
     assert_non_null(strstr(line, "stepping"));
     int64_t span = 300000;
-    int midway = tu_wait_for(journal_spans, &span, 100);
+    int midway = tu_wait_for(journal_spans, &span, TU_WAIT_MAX_S);
     kill(pid, SIGKILL);
     int status;
     waitpid(pid, &status, 0);
@@ -398,7 +398,7 @@ static void test_crash_recovery(void **st)
  * and empties the journal. The recording stays plugged in and silent long after the move. */
 static void test_navigate_saves_on_exit(void **st)
 {
-    const char *rec = recording("nav", "translate +z 1 mm over 0.3 s\nwait 120 s\nunplug\n");
+    const char *rec = recording("nav", "translate +z 1 mm over 0.3 s\nwait 600 s\nunplug\n");
     json_t *ref = replay(rec, "--no-journal", 0);
     pose want = final_b(ref);
     json_decref(ref);
@@ -407,8 +407,8 @@ static void test_navigate_saves_on_exit(void **st)
     snprintf(outp, sizeof outp, "%s/nav.out", dir);
     FILE *err;
     pid_t pid = start_cli(&err, outp, (char *[]){"navigate", case_dir, "--device", spec, "--json", NULL});
-    int moved = tu_wait_for(journal_ends_at, &want, 100);
-    int shown = moved && tu_wait_for_text(outp, "frag 2/2", 100); /* a status line, once a second */
+    int moved = tu_wait_for(journal_ends_at, &want, TU_WAIT_MAX_S);
+    int shown = moved && tu_wait_for_text(outp, "frag 2/2", TU_WAIT_MAX_S); /* a status line, once a second */
     kill(pid, SIGTERM);
     int status;
     waitpid(pid, &status, 0);
@@ -448,7 +448,7 @@ static void test_navigate_saves_on_exit(void **st)
 static void test_navigate_save_on_demand_empties_journal(void **st)
 {
     const char *rec = recording_as("spaceexplorer", "save9", "translate +z 1 mm over 0.3 s\nwait 100 ms\n"
-                                   "press 9\nwait 50 ms\nrelease 9\nwait 120 s\nunplug\n");
+                                   "press 9\nwait 50 ms\nrelease 9\nwait 600 s\nunplug\n");
     char spec[4300];
     snprintf(spec, sizeof spec, "replay-realtime:%s", rec);
     FILE *err;
@@ -458,7 +458,7 @@ static void test_navigate_save_on_demand_empties_journal(void **st)
     while (!saved && fgets(line, sizeof line, err))
         saved = strncmp(line, "saved ", 6) == 0;
     /* The loop thread empties the journal after the save, without another save or an exit. */
-    int emptied = saved && tu_wait_for(journal_empty, NULL, 100);
+    int emptied = saved && tu_wait_for(journal_empty, NULL, TU_WAIT_MAX_S);
     kill(pid, SIGKILL);
     int status;
     waitpid(pid, &status, 0);
@@ -541,7 +541,7 @@ static char *navigate_keys(const char *keys, const char *until)
     snprintf(spec, sizeof spec, "keyboard:%s", path);
     tu_write_file(path, keys, strlen(keys));
     pid_t pid = start_cli(NULL, outp, (char *[]){"navigate", case_dir, "--device", spec, "--json", NULL});
-    int shown = !until || tu_wait_for_text(outp, until, 100);
+    int shown = !until || tu_wait_for_text(outp, until, TU_WAIT_MAX_S);
     if (until)
         kill(pid, SIGTERM);
     int status;

@@ -653,7 +653,7 @@ static void test_record_cli_virtual_and_replay(void **st)
     recorded_ins all = {rec, 0};
     for (size_t i = 0; i < want->n; i++)
         all.n += want->ev[i].dir == FNREC_IN;
-    int complete = tu_wait_for(holds_ins, &all, 120), status;
+    int complete = tu_wait_for(holds_ins, &all, TU_WAIT_MAX_S), status;
     kill(pid, SIGINT);
     waitpid(pid, &status, 0);
     assert_true(complete);

@@ -96,7 +96,7 @@ static int reap(pid_t pid, double max_s)
 static void stop_server(pid_t pid)
 {
     kill(pid, SIGTERM);
-    int st = reap(pid, 60);
+    int st = reap(pid, TU_WAIT_MAX_S);
     unmount_quietly();
     assert_true(WIFEXITED(st) && WEXITSTATUS(st) == 0);
 }
@@ -142,7 +142,7 @@ static pid_t start_server(const char *first, ...)
     snprintf(log, sizeof log, "%s/server.log", workdir);
     snprintf(node, sizeof node, "%s/hidraw0", mnt);
     pid_t pid = spawn(argv, log);
-    if (!tu_wait_for(node_served, node, 60))
+    if (!tu_wait_for(node_served, node, TU_WAIT_MAX_S))
         fail_msg("fracnav-sim did not serve %s (see %s)", node, log);
     return pid;
 }
@@ -267,7 +267,7 @@ static int rec_reached(void *arg)
 static void await_recording(const char *path, rec_state want)
 {
     rec_wait w = {path, want};
-    if (!tu_wait_for(rec_reached, &w, 120)) {
+    if (!tu_wait_for(rec_reached, &w, TU_WAIT_MAX_S)) {
         rec_state st = rec_read(path);
         fail_msg("%s: %d connects, %d disconnects, %d reports (%d since the last connect), want at "
                  "least %d, %d, %d (%d)", path, st.connects, st.disconnects, st.ins, st.ins_since_connect,
@@ -297,7 +297,7 @@ static const char *node_path(void)
 static fnrec *finish_recording(pid_t recp, pid_t srv, const char *rec)
 {
     kill(recp, SIGINT);
-    int status = reap(recp, 60);
+    int status = reap(recp, TU_WAIT_MAX_S);
     if (srv)
         stop_server(srv);
     if (!WIFEXITED(status) || WEXITSTATUS(status) != 0)
@@ -373,13 +373,13 @@ static size_t count_dir(const fnrec *r, fnrec_dir d, size_t from)
  * show the one before; the script outlasts any machine's load. */
 static void test_server_killed_then_back(void **st)
 {
-    const char *scr = write_script("long.script", "translate +y 40 mm over 120 s\n");
+    const char *scr = write_script("long.script", "translate +y 400 mm over 900 s\n");
     const char *rec = path_in("rec.fnrec"), *log = path_in("record.log");
     pid_t srv = start_server("--script", scr, "--start-on-read", NULL);
     pid_t recp = record_in_background(rec, node_path(), log);
     await_recording(rec, (rec_state){.connects = 1, .ins = 11});
     kill(srv, SIGKILL);
-    reap(srv, 60);
+    reap(srv, TU_WAIT_MAX_S);
     unmount_quietly();
     await_recording(rec, (rec_state){.disconnects = 1});
     srv = start_server("--script", scr, "--start-on-read", NULL);
@@ -403,7 +403,7 @@ static void test_server_killed_then_back(void **st)
 /* SIGUSR1 unplugs the device (readers get the disconnect), the next SIGUSR1 plugs it back. */
 static void test_unplug_replug_on_signal(void **st)
 {
-    const char *scr = write_script("long.script", "translate +z 30 mm over 120 s\n");
+    const char *scr = write_script("long.script", "translate +z 300 mm over 900 s\n");
     const char *rec = path_in("rec.fnrec"), *log = path_in("record.log");
     pid_t srv = start_server("--script", scr, "--start-on-read", NULL);
     pid_t recp = record_in_background(rec, node_path(), log);
@@ -426,7 +426,7 @@ static void test_unplug_replug_on_signal(void **st)
  * after enumeration (firmware-spec 7), as a scripted replug does. */
 static void test_live_replug_sends_battery(void **st)
 {
-    const char *scr = write_script("long.script", "translate +z 30 mm over 120 s\n");
+    const char *scr = write_script("long.script", "translate +z 300 mm over 900 s\n");
     const char *fifo = path_in("control"), *rec = path_in("rec.fnrec"), *log = path_in("record.log");
     pid_t srv = start_server("--as", "spacemouse-wireless", "--script", scr, "--start-on-read",
                              "--control", fifo, NULL);
@@ -629,7 +629,7 @@ static void test_play_recording(void **st)
     assert_int_equal(fnrec_save(want, file), 0);
     pid_t srv = start_server("--play", file, "--fast", "--exit-at-end", NULL);
     pid_t recp = record_in_background(rec, node_path(), path_in("record.log"));
-    int status = reap(srv, 120); /* it leaves by itself once everything was read */
+    int status = reap(srv, TU_WAIT_MAX_S); /* it leaves by itself once everything was read */
     unmount_quietly();
     assert_true(WIFEXITED(status) && WEXITSTATUS(status) == 0);
     await_recording(rec, (rec_state){.disconnects = 1}); /* the recorder saw it go */
@@ -685,7 +685,7 @@ static void test_control_fifo(void **st)
     assert_non_null(f);
     fputs("press 2\ntranslate -z 4 mm over 0.2 s\nnonsense\nrelease\n", f);
     fclose(f);
-    if (!tu_wait_for_text(rec, " in 030000\n", 120)) /* the release */
+    if (!tu_wait_for_text(rec, " in 030000\n", TU_WAIT_MAX_S)) /* the release */
         fail_msg("no release recorded in %s", rec);
     fnrec *r = finish_recording(recp, srv, rec);
     /* press 2, motion along -z (ID1 with z = -140 counts, ID2), the zeros, then the release. */
@@ -840,9 +840,9 @@ static void test_navigate_lights_led_while_held(void **st)
     const char *bin = getenv("FRACNAV_BIN");
     char *argv[] = {(char *)(bin ? bin : "fracnav"), "navigate", casedir, "--device", (char *)node_path(), NULL};
     pid_t nav = spawn(argv, nav_log);
-    int seen = tu_wait_for(led_on_then_off, (void *)log, 120);
+    int seen = tu_wait_for(led_on_then_off, (void *)log, TU_WAIT_MAX_S);
     kill(nav, SIGTERM); /* Ctrl-C: saves and exits 0 */
-    int status = reap(nav, 120);
+    int status = reap(nav, TU_WAIT_MAX_S);
     char *out = tu_slurp(nav_log, NULL);
     if (!seen || !WIFEXITED(status) || WEXITSTATUS(status) != 0)
         fail_msg("navigate (status %#x, LED off %s): %s", status, seen ? "seen" : "never seen", out);

@@ -23,6 +23,9 @@ int tu_run_cli(char **out, const char *fmt, ...);
  * seconds (a bound for when the event never comes, never a duration a test relies on). Returns 1
  * when cond held, 0 when max_s passed. */
 int tu_wait_for(int (*cond)(void *arg), void *arg, double max_s);
+/* The usual max_s: long enough for a machine loaded far beyond its cores (the suite passes at
+ * nice 19 beside busy loops), so that only an event that never comes reaches it. */
+#define TU_WAIT_MAX_S 900
 /* Waits (as tu_wait_for) until the file at path holds text; returns 1 when it does. */
 int tu_wait_for_text(const char *path, const char *text, double max_s);
 /* Whole file into a malloc'd NUL-terminated buffer; NULL if unreadable. */
