@@ -148,32 +148,6 @@ static int journal_empty(void *arg)
     return n == 0;
 }
 
-/* Whether the journal's last record puts fragment B where *(pose *)arg says. */
-static int journal_ends_at(void *arg)
-{
-    const pose *want = arg;
-    journal_rec *r;
-    size_t n = 0;
-    if (journal_read(case_dir, &r, &n, NULL))
-        return 0;
-    int at = n > 0 && r[n - 1].frag == 1 && !memcmp(r[n - 1].p.t, want->t, sizeof want->t) &&
-             !memcmp(r[n - 1].p.q, want->q, sizeof want->q);
-    free(r);
-    return at;
-}
-
-/* Fragment B's final pose in a replay's JSON. */
-static pose final_b(json_t *j)
-{
-    pose p;
-    json_t *b = json_array_get(json_object_get(j, "final_poses"), 1);
-    for (int a = 0; a < 4; a++)
-        p.q[a] = json_number_value(json_array_get(json_object_get(b, "q"), (size_t)a));
-    for (int a = 0; a < 3; a++)
-        p.t[a] = json_number_value(json_array_get(json_object_get(b, "t"), (size_t)a));
-    return p;
-}
-
 static void test_replay_help_and_usage(void **st)
 {
     char *out = NULL;
@@ -393,42 +367,40 @@ static void test_crash_recovery(void **st)
 }
 
 /* navigate with a recording played as a live device (real time): the terminal view shows the
- * state, and once the journal holds the end of the move (the pose a replay of the same recording
- * reaches: steps follow the recorded times), Ctrl-C (SIGTERM here) saves the case with that pose
- * and empties the journal. The recording stays plugged in and silent long after the move. */
+ * state, and once it shows the frame key pressed after the move (the loop takes events in order),
+ * Ctrl-C (SIGTERM here) saves the case with the moved pose and empties the journal. The recording
+ * stays plugged in and silent long after. (How far the move goes depends on when the reports
+ * arrive: on a starved machine the loop carries the last motion on between late reports.) */
 static void test_navigate_saves_on_exit(void **st)
 {
-    const char *rec = recording("nav", "translate +z 1 mm over 0.3 s\nwait 600 s\nunplug\n");
-    json_t *ref = replay(rec, "--no-journal", 0);
-    pose want = final_b(ref);
-    json_decref(ref);
-    char spec[4300], outp[4300];
+    const char *rec = recording_as("spaceexplorer", "nav", "translate +z 1 mm over 0.3 s\nwait 100 ms\n"
+                                   "press 10\nwait 50 ms\nrelease 10\nwait 600 s\nunplug\n");
+    char spec[4300], outp[4300], path[4300];
     snprintf(spec, sizeof spec, "replay-realtime:%s", rec);
     snprintf(outp, sizeof outp, "%s/nav.out", dir);
-    FILE *err;
-    pid_t pid = start_cli(&err, outp, (char *[]){"navigate", case_dir, "--device", spec, "--json", NULL});
-    int moved = tu_wait_for(journal_ends_at, &want, TU_WAIT_MAX_S);
-    int shown = moved && tu_wait_for_text(outp, "frag 2/2", TU_WAIT_MAX_S); /* a status line, once a second */
+    snprintf(path, sizeof path, "%s/case.json", case_dir);
+    size_t len;
+    char *before = tu_slurp(path, &len);
+    pid_t pid = start_cli(NULL, outp, (char *[]){"navigate", case_dir, "--device", spec, "--json", NULL});
+    int shown = tu_wait_for_text(outp, "| world", TU_WAIT_MAX_S); /* a status line, once a second */
     kill(pid, SIGTERM);
     int status;
     waitpid(pid, &status, 0);
-    fclose(err);
     char *out = tu_slurp(outp, NULL);
-    if (!moved || !shown)
-        fail_msg("navigate did not %s: %s", moved ? "show its status" : "reach the end of the move", out);
+    if (!shown)
+        fail_msg("navigate never showed the frame key's effect: %s", out);
     assert_true(WIFEXITED(status) && WEXITSTATUS(status) == 0);
+    assert_non_null(strstr(out, "frag 2/2"));
     assert_non_null(strstr(out, "steps/s"));
     json_t *j = json_loads(strchr(out, '{'), JSON_DISABLE_EOF_CHECK, NULL);
     assert_non_null(j);
     assert_true(num(j, "steps") > 10);
     double tz = moved_t(j, 2);
-    if (!(tz < -0.8 && tz > -1.1) || tz != want.t[2])
-        fail_msg("navigate moved fragment 2 to z %g, the replay to %g: %s", tz, want.t[2], out);
+    if (!(tz < -0.8))
+        fail_msg("navigate moved fragment 2 to z %g, want at least 0.8 mm down: %s", tz, out);
     json_decref(j);
     free(out);
     assert_int_equal(journal_count_on_disk(), 0);
-    char path[4300];
-    snprintf(path, sizeof path, "%s/case.json", case_dir);
     char *text = tu_slurp(path, NULL);
     json_t *c = json_loads(text, 0, NULL);
     free(text);
@@ -436,11 +408,8 @@ static void test_navigate_saves_on_exit(void **st)
     double saved = json_number_value(json_array_get(json_object_get(json_object_get(f2, "pose"), "t"), 2));
     assert_true(fabs(saved - tz) < 1e-9);
     json_decref(c);
-    /* Back to where it was, for the other tests. */
-    int rc = tu_run_cli(&out, "replay '%s' '%s' --save --no-journal", case_dir,
-                        recording("navback", "translate -z 1 mm over 0.3 s\n"));
-    free(out);
-    assert_int_equal(rc, 0);
+    tu_write_file(path, before, len); /* back to where it was, for the other tests */
+    free(before);
 }
 
 /* Saved on demand (button 9), then killed: the journal holds nothing the case does not, so the
@@ -449,8 +418,11 @@ static void test_navigate_save_on_demand_empties_journal(void **st)
 {
     const char *rec = recording_as("spaceexplorer", "save9", "translate +z 1 mm over 0.3 s\nwait 100 ms\n"
                                    "press 9\nwait 50 ms\nrelease 9\nwait 600 s\nunplug\n");
-    char spec[4300];
+    char spec[4300], path[4300];
     snprintf(spec, sizeof spec, "replay-realtime:%s", rec);
+    snprintf(path, sizeof path, "%s/case.json", case_dir);
+    size_t len;
+    char *before = tu_slurp(path, &len);
     FILE *err;
     pid_t pid = start_cli(&err, "/dev/null", (char *[]){"navigate", case_dir, "--device", spec, NULL});
     char line[1024];
@@ -466,10 +438,8 @@ static void test_navigate_save_on_demand_empties_journal(void **st)
     assert_true(saved);
     assert_true(emptied);
     assert_int_equal(journal_count_on_disk(), 0);
-    char *out = NULL;
-    assert_int_equal(tu_run_cli(&out, "replay '%s' '%s' --save --no-journal", case_dir,
-                                recording("saveback", "translate -z 1 mm over 0.3 s\n")), 0);
-    free(out);
+    tu_write_file(path, before, len); /* back to where it was, for the other tests */
+    free(before);
 }
 
 /* Writes one journal record that puts fragment B (index 1) at p: an interrupted session. */
