@@ -10,7 +10,7 @@
 
 enum { LED = DEVTAB_F_LED, BAT = DEVTAB_F_BATTERY, RCV = DEVTAB_F_RECEIVER };
 
-/* Facts from ../shared/DEVICES.md; one row per product id. */
+/* Facts as written in firmware-spec/3dconnexion.md; one row per product id. */
 static const devtab_row rows[] = {
     HWA(0x046d, 0xc626, "3Dconnexion SpaceNavigator", DEVTAB_SPLIT, 2, ALL(2), LED, "spacenavigator"),
     HWA(0x046d, 0xc628, "3Dconnexion SpaceNavigator for Notebooks", DEVTAB_SPLIT, 2, ALL(2), LED,

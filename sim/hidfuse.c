@@ -116,7 +116,8 @@ static void deliver(hidfuse_server *srv, const uint8_t *b, size_t n)
     srv->served++;
     log_event(srv, FNREC_IN, b, n);
     for (reader *r = srv->readers; r; r = r->next)
-        deliver_to(srv, r, b, n);
+        if (r->active || !srv->dev.battery_pending) /* after a live replug, the power-on reports first */
+            deliver_to(srv, r, b, n);
 }
 
 static void kill_readers(hidfuse_server *srv)

@@ -4,7 +4,7 @@
  * "virtual" transport, scripts rendered to .fnrec): given the cap's deflection and the buttons, it
  * says which report the device sends in each period of its cadence, byte for byte.
  *
- * Behaviour (as the hardware, see ../shared/DEVICES.md):
+ * Behaviour (as the hardware, see firmware-spec/3dconnexion.md):
  * - split format (SpaceNavigator, 8 ms): one report per period, cycling ID1 (x y z), ID2 (rx ry rz);
  *   a button change inserts ID3 (bitmask) in the next period.
  * - combined format (SpaceMouse Wireless/Enterprise, 16 ms): ID1 with all six axes each period; a

@@ -1,7 +1,7 @@
 /* fracnav bench collision: the OBB octree query against brute force and FCL on fractured bones.
  *
  * Workloads: synthetic two-piece fractures (fracture_make) of the example skull CT, of
- * ../shared/data/CT_pitch.nii.gz and of a synthetic long bone, or the first two fragments of a
+ * tests/data/CT_pitch.nii.gz (shipped in the repository) and of a synthetic long bone, or the first two fragments of a
  * saved case. Poses: half near contact (contact found by bisection along a random direction from
  * the fitted pose, then moved by at most 2 voxels and 3 degrees), half clearly apart or deeply
  * colliding. Every contender gets the same poses; timings are the best of --reps runs per pose
@@ -151,10 +151,12 @@ static int work_from_case(work *w, const char *dir)
     return rc;
 }
 
-static const char *shared_dir(void)
+/* CT_pitch ships in the repository's tests/data/: under $FRACNAV_SRC when set, else in the source
+ * tree this binary was built from. */
+static void pitch_path(char *path, size_t cap)
 {
-    const char *s = getenv("FRACNAV_SHARED");
-    return s && *s ? s : "../shared";
+    const char *src = getenv("FRACNAV_SRC");
+    snprintf(path, cap, "%s/tests/data/CT_pitch.nii.gz", src && *src ? src : FRACNAV_SOURCE_DIR);
 }
 
 static int work_load(work *w, const char *name, const opts *o)
@@ -166,11 +168,10 @@ static int work_load(work *w, const char *name, const opts *o)
     if (!strcmp(name, "skull"))
         return work_from_file(w, cmd_example_ct(), 300, 200);
     if (!strcmp(name, "pitch")) {
-        snprintf(path, sizeof path, "%s/data/CT_pitch.nii.gz", shared_dir());
+        pitch_path(path, sizeof path);
         if (access(path, R_OK) != 0)
-            return fn_err_set(FN_EIO, "workload pitch: %s: %s (it is the team's shared data: run from the "
-                              "repository root, beside ../shared, or set FRACNAV_SHARED to that folder)",
-                              path, strerror(errno));
+            return fn_err_set(FN_EIO, "workload pitch: %s: %s (it ships in the repository's tests/data/: "
+                              "set FRACNAV_SRC to the repository's root)", path, strerror(errno));
         return work_from_file(w, path, o->bone > 0 ? o->bone : 130, 40);
     }
     if (!strcmp(name, "longbone"))
@@ -606,7 +607,8 @@ static int usage(FILE *out, int rc)
             "Times the OBB octree collision query against brute force (the ground truth) and FCL\n"
             "(octomap octree and OBBRSS mesh of the exposed voxel faces) on the same poses.\n\n"
             "CASE: skull (default: a synthetic fracture of the example CT), pitch\n"
-            "      (../shared/data/CT_pitch.nii.gz), longbone (synthetic), all (the three),\n"
+            "      (tests/data/CT_pitch.nii.gz under $FRACNAV_SRC, else under the source tree\n"
+            "      fracnav was built from), longbone (synthetic), all (the three),\n"
             "      a case folder (its first two fragments), or a volume file to fracture.\n"
             "  --poses N        poses per workload (default 1000; half near contact)\n"
             "  --json           one JSON object on stdout: {\"command\": \"bench collision\",\n"

@@ -215,6 +215,8 @@ static int record_loop(recorder *r)
             int rc = is_replay(r) ? put(r, FNREC_IN, t, buf, n) : put_report(r, t, buf, n);
             if (rc)
                 return rc;
+        } else if (n == FN_ENODEV && stop) {
+            break; /* the read was interrupted by Ctrl-C: no unplug */
         } else if (n == 0 && r->t->finished && r->t->finished(r->h)) {
             fprintf(stderr, "%sfracnav record: end of the virtual device's script\n", r->tty ? "\n" : "");
             return 0;
@@ -267,6 +269,10 @@ int cmd_record(int argc, char **argv)
     int rc = parse_args(argc, argv, &r, &device, &seconds);
     if (rc)
         return rc;
+    /* From the start: a Ctrl-C as soon as the device is open still ends in a whole recording. */
+    struct sigaction sa = {.sa_handler = on_signal};
+    sigaction(SIGINT, &sa, NULL);
+    sigaction(SIGTERM, &sa, NULL);
     if (resolve(device, &r) || r.t->open(r.arg, &r.h)) {
         fprintf(stderr, "fracnav record: %s\n", fn_err_msg());
         return 1;
@@ -284,9 +290,6 @@ int cmd_record(int argc, char **argv)
         fnrec_writer_close(r.w);
         return 1;
     }
-    struct sigaction sa = {.sa_handler = on_signal};
-    sigaction(SIGINT, &sa, NULL);
-    sigaction(SIGTERM, &sa, NULL);
     rc = record_loop(&r);
     progress(&r, 1);
     if (rc)

@@ -26,9 +26,10 @@
 typedef struct fake_daemon {
     char path[100];
     int listen_fd, v1;
-    int led_seen; /* v1: the LED state the client asked for, -1 none */
-    int ok;       /* the fake_daemon saw what a libspnav client must send */
-    int brief;    /* v1, one motion event, then hang up (an unplug) */
+    int led_seen;    /* v1: the LED state the client asked for, -1 none */
+    const char *why; /* NULL: the daemon saw what a libspnav client must send; else what went wrong */
+    int brief;       /* v1, one motion event, then hang up (an unplug) */
+    int hangup[2];   /* the test writes a byte when the daemon may hang up (the unplug it waits for) */
 } fake_daemon;
 
 static int read_full(int fd, void *buf, size_t n)
@@ -43,51 +44,73 @@ static int read_full(int fd, void *buf, size_t n)
     return 0;
 }
 
-static void send_event(int fd, int32_t a, int32_t b, int32_t c, int32_t d, int32_t e, int32_t f, int32_t g,
-                       int32_t h)
+static int send_event(int fd, int32_t a, int32_t b, int32_t c, int32_t d, int32_t e, int32_t f, int32_t g,
+                      int32_t h)
 {
     int32_t ev[8] = {a, b, c, d, e, f, g, h};
-    assert_int_equal(write(fd, ev, sizeof ev), (ssize_t)sizeof ev);
+    return write(fd, ev, sizeof ev) == (ssize_t)sizeof ev ? 0 : -1;
+}
+
+/* The daemon's side of a session; returns NULL when the client behaved, else what it did not do.
+ * No cmocka assert here: they belong to the test's thread, which reads dm->why after the join. */
+static const char *serve_client(fake_daemon *dm, int c)
+{
+    int32_t hello = 0;
+    if (read_full(c, &hello, 4) || hello != PROTO_V1_REQUEST)
+        return "no protocol v1 request from the client";
+    if (dm->v1) {
+        if (write(c, &hello, 4) != 4) /* the echo selects v1 */
+            return "could not answer the protocol request";
+    } else {
+        float sens = 0; /* an old spacenavd stays silent; libspnav then restores sensitivity 1.0 */
+        if (read_full(c, &sens, 4) || sens != 1.0f)
+            return "no sensitivity 1.0 from a v0 client";
+    }
+    if (send_event(c, 0, 100, -50, 25, 10, 20, -30, 8)) /* motion, spacenavd's frame */
+        return "could not send the motion event";
+    if (dm->brief)
+        return NULL;
+    if (send_event(c, 1, 3, 1, 0, 0, 0, 0, 0) || send_event(c, 2, 3, 0, 0, 0, 0, 0, 0)) /* button 3 */
+        return "could not send the button events";
+    if (!dm->v1)
+        return NULL;
+    int32_t rq[8];
+    if (read_full(c, rq, sizeof rq) || rq[0] != REQ_SET_LED)
+        return "no LED request from a v1 client";
+    dm->led_seen = rq[1];
+    rq[6] = 0; /* status ok */
+    return write(c, rq, sizeof rq) == (ssize_t)sizeof rq ? NULL : "could not answer the LED request";
 }
 
 static void *daemon_main(void *arg)
 {
     fake_daemon *dm = arg;
     int c = accept(dm->listen_fd, NULL, NULL);
-    int32_t hello = 0;
-    if (c < 0 || read_full(c, &hello, 4) || hello != PROTO_V1_REQUEST)
-        return NULL;
-    if (dm->v1) {
-        assert_int_equal(write(c, &hello, 4), 4); /* the echo selects v1 */
-    } else {
-        float sens = 0; /* an old spacenavd stays silent; libspnav then restores sensitivity 1.0 */
-        if (read_full(c, &sens, 4) || sens != 1.0f)
-            return NULL;
-    }
-    send_event(c, 0, 100, -50, 25, 10, 20, -30, 8); /* motion, spacenavd's frame */
-    if (dm->brief) {
-        usleep(100000);
-        dm->ok = 1;
-        unlink(dm->path);
-        close(c);
-        return NULL;
-    }
-    send_event(c, 1, 3, 1, 0, 0, 0, 0, 0);          /* press button 3 */
-    send_event(c, 2, 3, 0, 0, 0, 0, 0, 0);          /* release */
-    if (dm->v1) {
-        int32_t rq[8];
-        if (read_full(c, rq, sizeof rq) || rq[0] != REQ_SET_LED)
-            return NULL;
-        dm->led_seen = rq[1];
-        rq[6] = 0; /* status ok */
-        assert_int_equal(write(c, rq, sizeof rq), (ssize_t)sizeof rq);
-    } else {
-        usleep(300000); /* let the client read before the daemon quits */
-    }
-    dm->ok = 1;
+    dm->why = c < 0 ? "accept failed" : serve_client(dm, c);
+    char go;
+    if (read(dm->hangup[0], &go, 1) != 1 && !dm->why) /* what the client reads, it reads before this */
+        dm->why = "the test did not say when to hang up";
     unlink(dm->path);
-    close(c);
+    if (c >= 0)
+        close(c);
     return NULL;
+}
+
+/* Lets the daemon hang up: the client sees an unplug. */
+static void hang_up(fake_daemon *dm)
+{
+    assert_int_equal(write(dm->hangup[1], "x", 1), 1);
+}
+
+/* Joins the daemon thread and checks, on the test's thread, what it saw. */
+static void stop_daemon(fake_daemon *dm, pthread_t th)
+{
+    pthread_join(th, NULL);
+    close(dm->listen_fd);
+    close(dm->hangup[0]);
+    close(dm->hangup[1]);
+    if (dm->why)
+        fail_msg("fake spacenavd: %s", dm->why);
 }
 
 static void start_daemon(fake_daemon *dm, const char *dir, int v1, int brief, pthread_t *th)
@@ -96,6 +119,7 @@ static void start_daemon(fake_daemon *dm, const char *dir, int v1, int brief, pt
     dm->v1 = v1;
     dm->brief = brief;
     dm->led_seen = -1;
+    assert_int_equal(pipe(dm->hangup), 0);
     snprintf(dm->path, sizeof dm->path, "%s/spnav.sock", dir);
     struct sockaddr_un a = {.sun_family = AF_UNIX};
     snprintf(a.sun_path, sizeof a.sun_path, "%s", dm->path);
@@ -121,7 +145,7 @@ static void run_session(int v1)
     float axis[6] = {0};
     uint32_t pressed = 0, released = 0;
     int motion = 0;
-    for (int i = 0; i < 20 && !(pressed && released); i++)
+    for (int i = 0; i < 300 && !(pressed && released); i++) /* up to a minute, for a loaded machine */
         if (dev_poll(d, &ev, 200) == 1) {
             if (ev.flags & DEV_EV_MOTION)
                 memcpy(axis, ev.axis, sizeof axis), motion = 1;
@@ -136,14 +160,13 @@ static void run_session(int v1)
     assert_int_equal(pressed, 1u << 3);
     assert_int_equal(released, 1u << 3);
     assert_int_equal(dev_set_led(d, 1), 0);
+    hang_up(&dm);
     int gone = 0;
-    for (int i = 0; i < 20 && !gone; i++)
+    for (int i = 0; i < 300 && !gone; i++)
         gone = dev_poll(d, &ev, 200) == 1 && (ev.flags & DEV_EV_UNPLUG);
     assert_true(gone);
     dev_close(d);
-    pthread_join(th, NULL);
-    close(dm.listen_fd);
-    assert_true(dm.ok);
+    stop_daemon(&dm, th);
     assert_int_equal(dm.led_seen, v1 ? 1 : -1);
     tu_rmtree(dir);
     free(dir);
@@ -163,7 +186,7 @@ static void wait_for(dev_device *d, unsigned flag)
 {
     dev_event ev;
     int seen = 0;
-    for (int i = 0; i < 30 && !seen; i++)
+    for (int i = 0; i < 600 && !seen; i++) /* up to a minute, for a loaded machine */
         seen = dev_poll(d, &ev, 100) == 1 && (ev.flags & flag);
     if (!seen)
         fail_msg("no event with flag %#x", flag);
@@ -180,16 +203,17 @@ static void test_replug(void **s)
     dev_device *d = dev_open("spnav");
     assert_non_null(d);
     assert_string_equal(dev_device_info(d)->path, dm.path);
+    wait_for(d, DEV_EV_MOTION);
+    hang_up(&dm);
     wait_for(d, DEV_EV_UNPLUG);
-    pthread_join(th, NULL);
-    close(dm.listen_fd);
+    stop_daemon(&dm, th);
     start_daemon(&dm, dir, 1, 1, &th);
     wait_for(d, DEV_EV_REPLUG);
     wait_for(d, DEV_EV_MOTION);
     assert_string_equal(getenv("SPNAV_SOCKET"), dm.path);
     dev_close(d);
-    pthread_join(th, NULL);
-    close(dm.listen_fd);
+    hang_up(&dm);
+    stop_daemon(&dm, th);
     tu_rmtree(dir);
     free(dir);
 }

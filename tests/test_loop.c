@@ -574,7 +574,7 @@ static void *view(void *arg)
     viewer *v = arg;
     loop_scene sc = {0};
     uint64_t last = 0;
-    while (!atomic_load(&v->stop)) {
+    while (!atomic_load(&v->stop) || !v->fresh) { /* a starved viewer still reads the last one */
         v->fresh += loop_scene_read(v->L, &sc);
         if (sc.seq < last || sc.nfrag != 3 || sc.stats.steps != sc.stats.accepted ||
             fabs(sc.pose[0].t[2] - 0.4 * (double)sc.stats.steps) > 1e-6)

@@ -17,6 +17,7 @@
 #include "volio.h"
 
 #include <jansson.h>
+#include <fcntl.h>
 #include <math.h>
 #include <signal.h>
 #include <stdio.h>
@@ -124,6 +125,27 @@ static size_t journal_count_on_disk(void)
     assert_int_equal(journal_read(case_dir, &s), 0);
     journal_scan_free(&s);
     return s.n;
+}
+
+/* Whether the journal on disk reaches *(int64_t *)arg microseconds of recorded time. */
+static int journal_spans(void *arg)
+{
+    journal_scan s;
+    if (journal_read(case_dir, &s))
+        return 0;
+    int spans = s.n > 0 && s.recs[s.n - 1].t_us - s.recs[0].t_us >= *(int64_t *)arg;
+    journal_scan_free(&s);
+    return spans;
+}
+
+static int journal_empty(void *arg)
+{
+    journal_scan s;
+    if (journal_read(case_dir, &s)) /* read while being written: not yet */
+        return 0;
+    int empty = s.n == 0 && s.damaged_at < 0;
+    journal_scan_free(&s);
+    return empty;
 }
 
 static void test_replay_help_and_usage(void **st)
@@ -260,8 +282,9 @@ static void test_replay_unplug_keeps_pose(void **st)
     json_decref(back);
 }
 
-/* Starts `fracnav ARGS...` (stdin from /dev/null) with its stderr readable through *err. */
-static pid_t start_cli(FILE **err, char *const args[])
+/* Starts `fracnav ARGS...` (stdin from /dev/null) with its stderr readable through *err, its
+ * stdout into the file out (NULL: inherited). Without err, stderr goes into out too. */
+static pid_t start_cli(FILE **err, const char *out, char *const args[])
 {
     const char *bin = getenv("FRACNAV_BIN");
     char *argv[16] = {(char *)bin};
@@ -271,36 +294,46 @@ static pid_t start_cli(FILE **err, char *const args[])
     assert_int_equal(pipe(fds), 0);
     pid_t pid = fork();
     if (pid == 0) {
-        dup2(fds[1], 2);
-        close(fds[0]);
-        if (!freopen("/dev/null", "r", stdin))
+        int o = out ? open(out, O_WRONLY | O_CREAT | O_TRUNC | O_APPEND, 0644) : 1;
+        if (o < 0 || !freopen("/dev/null", "r", stdin))
             _exit(126);
+        dup2(o, 1);
+        dup2(err ? fds[1] : o, 2);
+        close(fds[0]);
         execv(bin, argv);
         _exit(127);
     }
     close(fds[1]);
-    *err = fdopen(fds[0], "r");
-    assert_non_null(*err);
+    if (err)
+        *err = fdopen(fds[0], "r");
+    else
+        close(fds[0]);
+    assert_true(!err || *err);
     return pid;
 }
 
-/* Killed mid-replay (SIGKILL): the journal holds the poses up to ~100 ms before the kill; the
- * next start refuses to silently drop them, and --recover starts from them. */
+/* Killed mid-replay (SIGKILL) once the journal on disk holds 300 ms of its motion: the next
+ * start refuses to silently drop those poses, and --recover starts from the last of them. The
+ * recording stays plugged in long after its motion, so the kill is mid-replay however slow the
+ * machine is. */
 static void test_crash_recovery(void **st)
 {
-    const char *rec = recording("long", "translate +z 3 mm over 1.5 s\ntranslate -z 3 mm over 1.5 s\n");
+    const char *rec = recording("long", "translate +z 3 mm over 1.5 s\ntranslate -z 3 mm over 1.5 s\n"
+                                        "wait 600 s\nunplug\n");
     char cmd[9000];
     FILE *err;
-    pid_t pid = start_cli(&err, (char *[]){"replay", case_dir, (char *)rec, "--realtime",
-                                           "--discard-journal", NULL});
+    pid_t pid = start_cli(&err, NULL, (char *[]){"replay", case_dir, (char *)rec, "--realtime",
+                                                 "--discard-journal", NULL});
     char line[1024];
     assert_non_null(fgets(line, sizeof line, err));
     assert_non_null(strstr(line, "stepping"));
-    usleep(600000);
+    int64_t span = 300000;
+    int midway = tu_wait_for(journal_spans, &span, TU_WAIT_MAX_S);
     kill(pid, SIGKILL);
     int status;
     waitpid(pid, &status, 0);
     fclose(err);
+    assert_true(midway);
     assert_true(WIFSIGNALED(status));
 
     journal_scan s;
@@ -308,9 +341,6 @@ static void test_crash_recovery(void **st)
     journal_rec *r = s.recs;
     size_t n = s.n;
     assert_true(n > 20);
-    /* Recorded time reached by the journal: at least 600 ms of stepping, minus the 100 ms the
-     * journal may lose, minus slack for a busy machine. */
-    assert_true(r[n - 1].t_us - r[0].t_us >= 300000);
     pose last = r[n - 1].p;
     free(r);
 
@@ -342,30 +372,40 @@ static void test_crash_recovery(void **st)
 }
 
 /* navigate with a recording played as a live device (real time): the terminal view shows the
- * state, the case is saved on exit with the moved pose, and the journal is empty again. A played
- * recording that ends counts as an unplug and is opened again 500 ms later, so this one stays
- * plugged in and silent long after the move, whatever the machine's load delays. */
+ * state, and once it shows the frame key pressed after the move (the loop takes events in order),
+ * Ctrl-C (SIGTERM here) saves the case with the moved pose and empties the journal. The recording
+ * stays plugged in and silent long after. (How far the move goes depends on when the reports
+ * arrive: on a starved machine the loop carries the last motion on between late reports.) */
 static void test_navigate_saves_on_exit(void **st)
 {
-    const char *rec = recording("nav", "translate +z 1 mm over 0.3 s\nwait 30 s\nunplug\n");
-    char *out = NULL;
-    int rc = tu_run_cli(&out, "navigate '%s' --device 'replay-realtime:%s' --duration 2 --json", case_dir, rec);
-    if (rc != 0)
-        fprintf(stderr, "%s\n", out);
-    assert_int_equal(rc, 0);
+    const char *rec = recording_as("spaceexplorer", "nav", "translate +z 1 mm over 0.3 s\nwait 100 ms\n"
+                                   "press 10\nwait 50 ms\nrelease 10\nwait 600 s\nunplug\n");
+    char spec[4300], outp[4300], path[4300];
+    snprintf(spec, sizeof spec, "replay-realtime:%s", rec);
+    snprintf(outp, sizeof outp, "%s/nav.out", dir);
+    snprintf(path, sizeof path, "%s/case.json", case_dir);
+    size_t len;
+    char *before = tu_slurp(path, &len);
+    pid_t pid = start_cli(NULL, outp, (char *[]){"navigate", case_dir, "--device", spec, "--json", NULL});
+    int shown = tu_wait_for_text(outp, "| world", TU_WAIT_MAX_S); /* a status line, once a second */
+    kill(pid, SIGTERM);
+    int status;
+    waitpid(pid, &status, 0);
+    char *out = tu_slurp(outp, NULL);
+    if (!shown)
+        fail_msg("navigate never showed the frame key's effect: %s", out);
+    assert_true(WIFEXITED(status) && WEXITSTATUS(status) == 0);
     assert_non_null(strstr(out, "frag 2/2"));
     assert_non_null(strstr(out, "steps/s"));
     json_t *j = json_loads(strchr(out, '{'), JSON_DISABLE_EOF_CHECK, NULL);
     assert_non_null(j);
     assert_true(num(j, "steps") > 10);
     double tz = moved_t(j, 2);
-    if (!(tz < -0.8 && tz > -1.1))
-        fail_msg("navigate moved fragment 2 to z %g: %s", tz, out);
+    if (!(tz < -0.4)) /* about 0.87 mm at once; a loaded machine's late reports go more or less far */
+        fail_msg("navigate moved fragment 2 to z %g, want it well down: %s", tz, out);
     json_decref(j);
     free(out);
     assert_int_equal(journal_count_on_disk(), 0);
-    char path[4300];
-    snprintf(path, sizeof path, "%s/case.json", case_dir);
     char *text = tu_slurp(path, NULL);
     json_t *c = json_loads(text, 0, NULL);
     free(text);
@@ -373,11 +413,8 @@ static void test_navigate_saves_on_exit(void **st)
     double saved = json_number_value(json_array_get(json_object_get(json_object_get(f2, "pose"), "t"), 2));
     assert_true(fabs(saved - tz) < 1e-9);
     json_decref(c);
-    /* Back to where it was, for the other tests. */
-    rc = tu_run_cli(&out, "replay '%s' '%s' --save --no-journal", case_dir,
-                    recording("navback", "translate -z 1 mm over 0.3 s\n"));
-    free(out);
-    assert_int_equal(rc, 0);
+    tu_write_file(path, before, len); /* back to where it was, for the other tests */
+    free(before);
 }
 
 /* Saved on demand (button 9), then killed: the journal holds nothing the case does not, so the
@@ -385,27 +422,29 @@ static void test_navigate_saves_on_exit(void **st)
 static void test_navigate_save_on_demand_empties_journal(void **st)
 {
     const char *rec = recording_as("spaceexplorer", "save9", "translate +z 1 mm over 0.3 s\nwait 100 ms\n"
-                                   "press 9\nwait 50 ms\nrelease 9\nwait 30 s\n");
-    char spec[4300];
+                                   "press 9\nwait 50 ms\nrelease 9\nwait 600 s\nunplug\n");
+    char spec[4300], path[4300];
     snprintf(spec, sizeof spec, "replay-realtime:%s", rec);
+    snprintf(path, sizeof path, "%s/case.json", case_dir);
+    size_t len;
+    char *before = tu_slurp(path, &len);
     FILE *err;
-    pid_t pid = start_cli(&err, (char *[]){"navigate", case_dir, "--device", spec, "--duration",
-                                           "20", NULL});
+    pid_t pid = start_cli(&err, "/dev/null", (char *[]){"navigate", case_dir, "--device", spec, NULL});
     char line[1024];
     int saved = 0;
     while (!saved && fgets(line, sizeof line, err))
         saved = strncmp(line, "saved ", 6) == 0;
-    usleep(500000); /* the loop thread empties the journal after the save */
+    /* The loop thread empties the journal after the save, without another save or an exit. */
+    int emptied = saved && tu_wait_for(journal_empty, NULL, TU_WAIT_MAX_S);
     kill(pid, SIGKILL);
     int status;
     waitpid(pid, &status, 0);
     fclose(err);
     assert_true(saved);
+    assert_true(emptied);
     assert_int_equal(journal_count_on_disk(), 0);
-    char *out = NULL;
-    assert_int_equal(tu_run_cli(&out, "replay '%s' '%s' --save --no-journal", case_dir,
-                                recording("saveback", "translate -z 1 mm over 0.3 s\n")), 0);
-    free(out);
+    tu_write_file(path, before, len); /* back to where it was, for the other tests */
+    free(before);
 }
 
 /* Writes one journal record that puts fragment B (index 1) at p: an interrupted session. */
@@ -471,33 +510,36 @@ static void test_navigate_keyboard_offers_recovery(void **st)
     json_decref(navigate_answering("Y\n"));
 }
 
-/* navigate --device keyboard fed KEYS from a file; returns what it printed. */
-static char *navigate_keys(const char *keys, const char *duration)
+/* navigate --device keyboard fed KEYS from a file, all it prints into dir/keys.out; stopped by
+ * SIGTERM (Ctrl-C: it saves and exits 0) once that output holds `until` (NULL: it must stop by
+ * itself). Returns what it printed. */
+static char *navigate_keys(const char *keys, const char *until)
 {
-    char path[4300];
+    char path[4300], spec[4400], outp[4300];
     snprintf(path, sizeof path, "%s/keys", dir);
+    snprintf(outp, sizeof outp, "%s/keys.out", dir);
+    snprintf(spec, sizeof spec, "keyboard:%s", path);
     tu_write_file(path, keys, strlen(keys));
-    char *out = NULL;
-    int rc = tu_run_cli(&out, "navigate '%s' --device 'keyboard:%s' --duration %s --json < /dev/null",
-                        case_dir, path, duration);
-    if (rc != 0)
-        fprintf(stderr, "%s\n", out);
-    assert_int_equal(rc, 0);
+    pid_t pid = start_cli(NULL, outp, (char *[]){"navigate", case_dir, "--device", spec, "--json", NULL});
+    int shown = !until || tu_wait_for_text(outp, until, TU_WAIT_MAX_S);
+    if (until)
+        kill(pid, SIGTERM);
+    int status;
+    waitpid(pid, &status, 0);
+    char *out = tu_slurp(outp, NULL);
+    if (!shown)
+        fail_msg("navigate with keys '%s' never printed '%s': %s", keys, until, out);
+    if (!WIFEXITED(status) || WEXITSTATUS(status) != 0)
+        fail_msg("navigate with keys '%s' ended with status %#x: %s", keys, status, out);
     return out;
 }
 
 /* The keyboard device reaches what the controller's buttons 9 and 10 do, and quits. */
 static void test_navigate_keyboard_save_frame_quit(void **st)
 {
-    char *out = navigate_keys("0", "1.3"); /* status lines come once a second off a terminal */
-    assert_non_null(strstr(out, "| world"));
-    free(out);
-    out = navigate_keys("9", "0.5");
-    assert_non_null(strstr(out, "\nsaved ")); /* on demand: --json prints no exit message */
-    free(out);
-    int64_t t0 = fnclock_now_us();
-    out = navigate_keys("q", "60");
-    assert_true(fnclock_now_us() - t0 < 30000000); /* quit, not the 60 s duration */
+    free(navigate_keys("0", "| world")); /* in a status line (once a second off a terminal) */
+    free(navigate_keys("9", "\nsaved ")); /* on demand: --json prints no exit message */
+    char *out = navigate_keys("q", NULL); /* no --duration: only the quit ends it */
     assert_non_null(strchr(out, '{'));
     free(out);
 }

@@ -14,6 +14,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 static void test_usage(void **st)
 {
@@ -70,11 +71,34 @@ static void test_collision_on_small_bone(void **st)
     free(dir);
 }
 
+/* The pitch workload reads the CT_pitch the repository ships (tests/data/), from any folder and
+ * without $FRACNAV_SRC: nothing beside the clone is needed. */
+static void test_pitch_workload_from_the_repository(void **st)
+{
+    char *dir = tu_tmpdir("pitch"), *out = NULL, cwd[4096];
+    char *src = getenv("FRACNAV_SRC") ? strdup(getenv("FRACNAV_SRC")) : NULL;
+    unsetenv("FRACNAV_SRC");
+    assert_non_null(getcwd(cwd, sizeof cwd));
+    assert_int_equal(chdir(dir), 0);
+    int rc = tu_run_cli(&out, "bench collision pitch --poses 4 --reps 1 --no-fcl --json");
+    assert_int_equal(chdir(cwd), 0);
+    if (src)
+        setenv("FRACNAV_SRC", src, 1);
+    free(src);
+    if (rc != 0)
+        fail_msg("bench collision pitch failed (%d): %s", rc, out);
+    assert_non_null(strstr(out, "\"pitch\""));
+    free(out);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_usage),
         cmocka_unit_test(test_collision_on_small_bone),
+        cmocka_unit_test(test_pitch_workload_from_the_repository),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -264,7 +264,7 @@ static void test_example_ct_header(void **st)
 /* CT_pitch's sform (RAS) as stored in its header, read here with zlib only. */
 static void pitch_sform(double srow[3][4], int dim[3])
 {
-    gzFile gz = gzopen(tu_shared_data("CT_pitch.nii.gz"), "rb");
+    gzFile gz = gzopen(tu_test_data("CT_pitch.nii.gz"), "rb");
     assert_non_null(gz);
     unsigned char h[348];
     assert_int_equal(gzread(gz, h, sizeof h), (int)sizeof h);
@@ -284,7 +284,7 @@ static void pitch_sform(double srow[3][4], int dim[3])
 
 static void test_ct_pitch_geometry(void **st)
 {
-    vol *v = volio_read(tu_shared_data("CT_pitch.nii.gz"));
+    vol *v = volio_read(tu_test_data("CT_pitch.nii.gz"));
     if (!v)
         fail_msg("%s", fn_err_msg());
     double srow[3][4];
@@ -343,12 +343,12 @@ static void test_cli_info(void **st)
     free(out);
     assert_int_equal(tu_run_cli(&out, "info --bogus x.nii"), 2);
     free(out);
-    assert_int_equal(tu_run_cli(&out, "info '%s' --json", tu_shared_data("CT_pitch.nii.gz")), 0);
+    assert_int_equal(tu_run_cli(&out, "info '%s' --json", tu_test_data("CT_pitch.nii.gz")), 0);
     assert_non_null(strstr(out, "\"dim\": [175, 248, 58]"));
     assert_non_null(strstr(out, "\"type\": \"uint8\""));
     assert_non_null(strstr(out, "\"space\": \"LPS\""));
     free(out);
-    assert_int_equal(tu_run_cli(&out, "info '%s'", tu_shared_data("CT_pitch.nii.gz")), 0);
+    assert_int_equal(tu_run_cli(&out, "info '%s'", tu_test_data("CT_pitch.nii.gz")), 0);
     assert_non_null(strstr(out, "dimensions:  175 x 248 x 58"));
     assert_non_null(strstr(out, "index to world (LPS mm)"));
     free(out);

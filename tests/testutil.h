@@ -9,13 +9,25 @@
 char *tu_tmpdir(const char *tag);
 void tu_rmtree(const char *dir);
 /* Path of the example CT (Cranium.inv3): $FRACNAV_DATA/Cranium.inv3, else
- * /var/cache/fracnav/Cranium.inv3. Fails the test with a hint to run .ci/setup when missing. */
+ * /var/cache/fracnav/Cranium.inv3. When missing, the test is skipped (cmocka skip()) with a message
+ * saying how to get it (.ci/setup); under CI (the CI variable set) it fails instead. Call it before
+ * allocating anything. */
 const char *tu_example_ct(void);
-/* ../shared/data/NAME; fails the test when missing. */
-const char *tu_shared_data(const char *name);
+/* tests/data/NAME, shipped in the repository: under $FRACNAV_SRC when set, else under the source
+ * tree the test was built from. Fails the test when missing. */
+const char *tu_test_data(const char *name);
 /* Runs `fracnav ARGS` (the built CLI) through /bin/sh, capturing stdout+stderr into out (malloc'd,
  * NUL-terminated; may be NULL). Returns the exit status (or -1). */
 int tu_run_cli(char **out, const char *fmt, ...);
+/* Waits for an event: checks cond(arg) every few milliseconds until it holds, for at most max_s
+ * seconds (a bound for when the event never comes, never a duration a test relies on). Returns 1
+ * when cond held, 0 when max_s passed. */
+int tu_wait_for(int (*cond)(void *arg), void *arg, double max_s);
+/* The usual max_s: long enough for a machine loaded far beyond its cores (the suite passes at
+ * nice 19 beside busy loops), so that only an event that never comes reaches it. */
+#define TU_WAIT_MAX_S 900
+/* Waits (as tu_wait_for) until the file at path holds text; returns 1 when it does. */
+int tu_wait_for_text(const char *path, const char *text, double max_s);
 /* Whole file into a malloc'd NUL-terminated buffer; NULL if unreadable. */
 char *tu_slurp(const char *path, size_t *len);
 void tu_write_file(const char *path, const void *data, size_t len);
