@@ -39,33 +39,11 @@
 static char *dir;
 static char case_dir[4200];
 
-/* Two bone blocks 2 mm apart along x (as in test_loop_cli): A (id 1) fixed, B moves. */
+/* The two-blocks case of tu_two_blocks_case: B is the one that moves. */
 static int setup(void **st)
 {
     dir = tu_tmpdir("navview");
-    vol *v = vol_new(40, 32, 32);
-    for (size_t i = 0; i < vol_count(v); i++)
-        v->data[i] = -1000;
-    for (int k = 6; k < 26; k++)
-        for (int j = 6; j < 26; j++)
-            for (int i = 4; i < 16; i++)
-                v->data[vol_idx(v, i, j, k)] = 1000;
-    for (int k = 10; k < 22; k++)
-        for (int j = 10; j < 22; j++)
-            for (int i = 18; i < 28; i++)
-                v->data[vol_idx(v, i, j, k)] = 1000;
-    char path[4200];
-    snprintf(path, sizeof path, "%s/blocks.nii.gz", dir);
-    assert_int_equal(volio_write(v, path, VOL_I16), 0);
-    vol_free(v);
-    snprintf(case_dir, sizeof case_dir, "%s/case", dir);
-    char *out = NULL;
-    int rc = tu_run_cli(&out, "segment '%s' -o '%s' --min-volume 0 --ramp 0", path, case_dir);
-    if (rc != 0)
-        fprintf(stderr, "%s\n", out);
-    free(out);
-    assert_int_equal(rc, 0);
-    assert_int_equal(tu_run_cli(NULL, "edit '%s' fix 1", case_dir), 0);
+    tu_two_blocks_case(dir, case_dir, sizeof case_dir);
     return 0;
 }
 

@@ -25,7 +25,7 @@
 #include "simdev.h"
 #include "testutil.h"
 
-#define HANG_S 60 /* a child still running after this long hangs */
+#define HANG_S TU_WAIT_MAX_S /* a wait still unmet after this long never ends */
 
 static char *dir;
 
@@ -86,20 +86,6 @@ static pid_t start_record(int err_fd, const char *first, ...)
     return pid;
 }
 
-/* The child's exit status; a child that has not ended after HANG_S is killed and fails the test. */
-static int wait_exit(pid_t pid, const char *what)
-{
-    int st;
-    for (int i = 0; i < HANG_S * 100; i++) {
-        if (waitpid(pid, &st, WNOHANG) == pid)
-            return WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
-        pause_ms(10);
-    }
-    kill(pid, SIGKILL);
-    waitpid(pid, &st, 0);
-    fail_msg("%s: still running after %d s (hangs)", what, HANG_S);
-    return -1;
-}
 
 static size_t count_in(const fnrec *r)
 {
@@ -129,7 +115,7 @@ static void test_record_stops_at_script_end(void **st)
     int fd = open(log, O_WRONLY | O_CREAT | O_TRUNC, 0644);
     pid_t pid = start_record(fd, "-o", rec, "--device", dev, NULL);
     close(fd);
-    assert_int_equal(wait_exit(pid, "record of a virtual script"), 0);
+    assert_int_equal(tu_wait_exit(pid, "record of a virtual script"), 0);
     char *text = tu_slurp(log, NULL);
     assert_non_null(strstr(text, "end of the virtual device's script"));
     free(text);
@@ -162,7 +148,7 @@ static void test_record_ctrl_c_keeps_what_it_has(void **st)
     }
     assert_true(lines >= 20);
     kill(pid, SIGINT);
-    assert_int_equal(wait_exit(pid, "record after Ctrl-C"), 0);
+    assert_int_equal(tu_wait_exit(pid, "record after Ctrl-C"), 0);
     char *text = tu_slurp(log, NULL);
     assert_non_null(strstr(text, "(stopped by Ctrl-C)"));
     free(text);
@@ -192,7 +178,7 @@ static void test_record_progress_on_terminal(void **st)
         n += (size_t)got; /* EIO once the child, the last holder of the terminal, is gone */
     text[n] = '\0';
     close(master);
-    assert_int_equal(wait_exit(pid, "record on a terminal"), 0);
+    assert_int_equal(tu_wait_exit(pid, "record on a terminal"), 0);
     if (!strstr(text, "\rrecording ") || !strstr(text, " reports, ") || !strstr(text, " s"))
         fail_msg("no progress line on the terminal: '%s'", text);
     char *out = NULL;

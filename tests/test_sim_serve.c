@@ -28,7 +28,7 @@
 #include "simdev.h"
 #include "testutil.h"
 
-#define HANG_S 60 /* a child still running after this long hangs */
+#define HANG_S TU_WAIT_MAX_S /* a wait still unmet after this long never ends */
 
 static char *workdir;
 static char mnt[512];
@@ -76,20 +76,6 @@ static pid_t spawn(char *const argv[], const char *log)
     return pid;
 }
 
-/* The child's exit status; one still running after HANG_S is killed and fails the test. */
-static int wait_exit(pid_t pid, const char *what)
-{
-    int st;
-    for (int i = 0; i < HANG_S * 100; i++) {
-        if (waitpid(pid, &st, WNOHANG) == pid)
-            return WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
-        pause_ms(10);
-    }
-    kill(pid, SIGKILL);
-    waitpid(pid, &st, 0);
-    fail_msg("%s: still running after %d s (hangs)", what, HANG_S);
-    return -1;
-}
 
 /* Unmounts mnt, as often as something is mounted there (a server that mounted over another). */
 static void unmount_quietly(void)
@@ -125,7 +111,7 @@ static void stop_server(void)
 {
     if (server > 0) {
         kill(server, SIGTERM);
-        wait_exit(server, "fracnav-sim after SIGTERM");
+        tu_wait_exit(server, "fracnav-sim after SIGTERM");
         server = 0;
     }
     unmount_quietly();
@@ -203,7 +189,7 @@ static int record_node(const char *rec, const char *seconds)
     snprintf(dev, sizeof dev, "%s/hidraw0", mnt);
     char *argv[] = {(char *)bin(), "record", "-o", (char *)rec, "--device", dev, seconds ? "--seconds" : NULL,
                     (char *)seconds, NULL};
-    return wait_exit(spawn(argv, path_in("record.log")), "fracnav record");
+    return tu_wait_exit(spawn(argv, path_in("record.log")), "fracnav record");
 }
 
 /* A server that exits at the end of its script ends the recording: no wait for a replug. */
@@ -214,7 +200,7 @@ static void test_record_ends_when_server_exits(void **st)
     const char *rec = path_in("end.fnrec");
     start_server("--script", scr, "--start-on-read", "--exit-at-end", NULL);
     assert_int_equal(record_node(rec, NULL), 0);
-    assert_int_equal(wait_exit(server, "fracnav-sim --exit-at-end"), 0);
+    assert_int_equal(tu_wait_exit(server, "fracnav-sim --exit-at-end"), 0);
     server = 0;
     unmount_quietly();
     char *log = tu_slurp(path_in("record.log"), NULL);
@@ -239,7 +225,7 @@ static void test_record_from_fast_keeps_cadence(void **st)
     const char *rec = path_in("fast.fnrec");
     start_server("--script", scr, "--fast", "--exit-at-end", NULL);
     assert_int_equal(record_node(rec, "20"), 0); /* ends with the server, well before 20 s */
-    assert_int_equal(wait_exit(server, "fracnav-sim --fast --exit-at-end"), 0);
+    assert_int_equal(tu_wait_exit(server, "fracnav-sim --fast --exit-at-end"), 0);
     server = 0;
     unmount_quietly();
     fnrec *want = rendered(scr, "spacenavigator"), *got = fnrec_load(rec);
@@ -296,7 +282,7 @@ static void test_second_serve_on_same_folder_refused(void **st)
     need_fuse();
     start_server("--as", "spacepilot", NULL);
     char *argv[] = {(char *)sim_bin(), "serve", "--mount", mnt, "--as", "spacenavigator", NULL};
-    assert_int_equal(wait_exit(spawn(argv, path_in("second.log")), "a second fracnav-sim on the folder"), 1);
+    assert_int_equal(tu_wait_exit(spawn(argv, path_in("second.log")), "a second fracnav-sim on the folder"), 1);
     char *log = tu_slurp(path_in("second.log"), NULL);
     if (!strstr(log, "already a mount point") || !strstr(log, "another fracnav-sim"))
         fail_msg("second serve said: %s", log);

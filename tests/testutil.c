@@ -1,11 +1,14 @@
 #include "testutil.h"
 #include "frag.h"
+#include "vol.h"
+#include "volio.h"
 
 #include <stdarg.h>
 #include <stddef.h>
 #include <setjmp.h>
 #include <stdint.h>
 #include <cmocka.h>
+#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -122,6 +125,28 @@ static int file_has_text(void *arg)
     return has;
 }
 
+typedef struct child {
+    pid_t pid;
+    int status;
+} child;
+
+static int child_ended(void *arg)
+{
+    child *c = arg;
+    return waitpid(c->pid, &c->status, WNOHANG) == c->pid;
+}
+
+int tu_wait_exit(int pid, const char *what)
+{
+    child c = {pid, 0};
+    if (!tu_wait_for(child_ended, &c, TU_WAIT_MAX_S)) {
+        kill(pid, SIGKILL);
+        waitpid(pid, &c.status, 0);
+        fail_msg("%s: still running after %d s (hangs)", what, TU_WAIT_MAX_S);
+    }
+    return WIFEXITED(c.status) ? WEXITSTATUS(c.status) : 128 + WTERMSIG(c.status);
+}
+
 int tu_wait_for_text(const char *path, const char *text, double max_s)
 {
     return tu_wait_for(file_has_text, &(file_text){path, text}, max_s);
@@ -170,4 +195,31 @@ void tu_box_frag(frag *f, int id, const int dim[3], const double at[3])
     memset(f->prob, 255, n);
     for (int a = 0; a < 3; a++)
         f->centroid[a] = at[a] + (dim[a] - 1) / 2.0;
+}
+
+void tu_two_blocks_case(const char *dir, char *case_dir, size_t cap)
+{
+    vol *v = vol_new(40, 32, 32);
+    for (size_t i = 0; i < vol_count(v); i++)
+        v->data[i] = -1000;
+    for (int k = 6; k < 26; k++)
+        for (int j = 6; j < 26; j++)
+            for (int i = 4; i < 16; i++)
+                v->data[vol_idx(v, i, j, k)] = 1000;
+    for (int k = 10; k < 22; k++)
+        for (int j = 10; j < 22; j++)
+            for (int i = 18; i < 28; i++)
+                v->data[vol_idx(v, i, j, k)] = 1000;
+    char path[4200];
+    snprintf(path, sizeof path, "%s/blocks.nii.gz", dir);
+    assert_int_equal(volio_write(v, path, VOL_I16), 0);
+    vol_free(v);
+    snprintf(case_dir, cap, "%s/case", dir);
+    char *out = NULL;
+    int rc = tu_run_cli(&out, "segment '%s' -o '%s' --min-volume 0 --ramp 0", path, case_dir);
+    if (rc != 0)
+        fprintf(stderr, "%s\n", out);
+    free(out);
+    assert_int_equal(rc, 0);
+    assert_int_equal(tu_run_cli(NULL, "edit '%s' fix 1", case_dir), 0);
 }

@@ -28,6 +28,9 @@ int tu_wait_for(int (*cond)(void *arg), void *arg, double max_s);
 #define TU_WAIT_MAX_S 900
 /* Waits (as tu_wait_for) until the file at path holds text; returns 1 when it does. */
 int tu_wait_for_text(const char *path, const char *text, double max_s);
+/* Waits for child pid to end and returns its exit status (128 + signal when killed); one still
+ * running after TU_WAIT_MAX_S is killed and fails the test, named by what. */
+int tu_wait_exit(int pid, const char *what);
 /* Whole file into a malloc'd NUL-terminated buffer; NULL if unreadable. */
 char *tu_slurp(const char *path, size_t *len);
 void tu_write_file(const char *path, const void *data, size_t len);
@@ -36,5 +39,10 @@ void tu_write_file(const char *path, const void *data, size_t len);
  * centre at world `at` (home translation), centroid set; f->prob is malloc'd (free it). */
 struct frag;
 void tu_box_frag(struct frag *f, int id, const int dim[3], const double at[3]);
+
+/* Two bone blocks 2 mm apart along x, A (12x20x20 mm, x 4..15) and B (10x12x12 mm, x 18..27), as
+ * an int16 NIfTI in dir, segmented by the CLI into dir/case (its path into case_dir), A (the
+ * larger, id 1) fixed. */
+void tu_two_blocks_case(const char *dir, char *case_dir, size_t cap);
 
 #endif
