@@ -468,6 +468,11 @@ const dev_transport *dev_transport_of(const dev_device *d)
     return d->t;
 }
 
+int dev_finished(const dev_device *d)
+{
+    return d->h && d->t->finished && d->t->finished(d->h);
+}
+
 uint64_t dev_skipped(const dev_device *d)
 {
     return d->ps.n_unknown_id + d->ps.n_bad_len;

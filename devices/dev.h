@@ -149,6 +149,9 @@ const dev_info *dev_device_info(const dev_device *d);
 const char *dev_transport_name(const dev_device *d);
 /* The transport the device is open on (its caps, help button, ...). */
 const dev_transport *dev_transport_of(const dev_device *d);
+/* 1 when the device's input has a scripted or recorded end and has played it all (a virtual
+ * device's script, a replay); 0 for a live device. */
+int dev_finished(const dev_device *d);
 /* Reports skipped because of an unknown ID or a wrong length. */
 uint64_t dev_skipped(const dev_device *d);
 

@@ -3,6 +3,7 @@
 
 #include <math.h>
 #include <signal.h>
+#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -15,7 +16,9 @@
 
 #define LINES_PER_S 10 /* when not on a terminal: at most this many lines a second */
 
-static volatile sig_atomic_t stop;
+/* Set by the signal handler, which may run on another thread (the keyboard device raises SIGINT for
+ * q on the input thread): a lock-free atomic, so the main thread reads it without a data race. */
+static atomic_int stop;
 
 static void on_signal(int sig)
 {
@@ -214,6 +217,8 @@ static int live_view(dev_device *d, calib *c, double seconds)
             rate = (double)reports * 1e6 / (double)(now - window);
             reports = 0, window = now;
         }
+        if (r == 0 && dev_finished(d)) /* a virtual device's script has played out */
+            break;
         if (r == 0)
             continue;
         if (ev.flags & DEV_EV_REFUSED) {

@@ -9,6 +9,7 @@
 
 #include <pthread.h>
 #include <signal.h>
+#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -57,7 +58,9 @@ static void usage(FILE *out)
             navview_help(0), strchr(navview_help(1), '\n') + 1);
 }
 
-static volatile sig_atomic_t quit;
+/* Set by the signal handler, which may run on another thread (the keyboard device raises SIGINT for
+ * q on the input thread): a lock-free atomic, so the main thread reads it without a data race. */
+static atomic_int quit;
 
 static void on_signal(int sig)
 {

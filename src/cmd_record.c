@@ -2,6 +2,7 @@
 #include "cmd.h"
 
 #include <signal.h>
+#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -20,7 +21,9 @@
 #define RETRY_US 100000 /* how often a lost device is looked for again */
 #define PROGRESS_US 200000 /* how often the progress line is redrawn on a terminal */
 
-static volatile sig_atomic_t stop;
+/* Set by the signal handler, which may run on another thread (the keyboard device raises SIGINT for
+ * q on the input thread): a lock-free atomic, so the main thread reads it without a data race. */
+static atomic_int stop;
 
 static void on_signal(int sig)
 {

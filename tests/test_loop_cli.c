@@ -515,7 +515,7 @@ static char *navigate_keys(const char *keys, const char *until)
 static void test_navigate_keyboard_save_frame_quit(void **st)
 {
     free(navigate_keys("0", "| world")); /* in a status line (once a second off a terminal) */
-    free(navigate_keys("9", "\nsaved ")); /* on demand: --json prints no exit message */
+    free(navigate_keys("9", "saved ")); /* on demand: --json prints no exit message */
     char *out = navigate_keys("q", NULL); /* no --duration: only the quit ends it */
     assert_non_null(strchr(out, '{'));
     free(out);
