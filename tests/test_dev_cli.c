@@ -215,14 +215,23 @@ static void test_device_test_button_names(void **s)
     tu_write_file(scr, keys, strlen(keys)); /* codes 1 MENU, 13 "1", 36 ENTER (button 4) */
     assert_int_equal(tu_run_cli(&out, "device-test --device virtual:spacemouse-enterprise:script=%s --seconds 600",
                                 scr), 0);
-    if (!strstr(out, "buttons MENU,ENTER,1 (pressed MENU,ENTER,1)") || !strstr(out, "(released 1)") ||
-        !strstr(out, "(released MENU,ENTER)") || strstr(out, "00000"))
+    /* A loaded machine may fold the presses and releases read in one poll into one line: what
+     * counts is that every key is named as pressed, then as released, and no mask is shown. */
+    const char *pressed = strstr(out, "(pressed MENU,ENTER,1)");
+    const char *released = strstr(out, "(released MENU,ENTER,1)");
+    if (!released) {
+        const char *one = strstr(out, "(released 1)"), *rest = strstr(out, "(released MENU,ENTER)");
+        released = one && rest ? (one > rest ? one : rest) : NULL;
+    }
+    if (!pressed || !released || released < pressed || strstr(out, "00000"))
         fail_msg("Enterprise keys not named: %s", out);
     free(out);
     const char *two = "press 2\nwait 60 ms\nrelease\nwait 60 ms\n";
     tu_write_file(scr, two, strlen(two));
     assert_int_equal(tu_run_cli(&out, "device-test --device virtual:spacenavigator:script=%s --seconds 600", scr), 0);
-    if (!strstr(out, "buttons B2 (pressed B2)") || !strstr(out, "buttons - (released B2)"))
+    pressed = strstr(out, "(pressed B2)");
+    released = strstr(out, "(released B2)");
+    if (!pressed || !released || released < pressed)
         fail_msg("SpaceNavigator buttons not named: %s", out);
     free(out);
     tu_rmtree(dir);
