@@ -11,7 +11,7 @@ objs=$(find "$build" -path "$build/tests" -prune -o -path '*/CMakeFiles/fracnav*
        sort)
 [ -n "$objs" ] || { echo "file_circles: no object files under $build (build first)" >&2; exit 2; }
 for o in $objs; do
-    f=${o#*.dir/}                          # src/loop.c.o, or dev.c.o in devices/
+    f=${o#*.dir/}                          # the object path below its folder
     case $f in */*) ;; *) sub=${o#"$build"/}; f=${sub%%/CMakeFiles/*}/$f ;; esac
     f=${f%.o}
     nm -g --defined-only "$o" | awk -v f="$f" 'NF >= 3 { print "D", f, $3 }'

@@ -1,4 +1,4 @@
-/* volio: read and write volumes. Readers fill vol (src/vol.h) in LPS mm; src_type is the file's
+/* volio: read and write volumes. Readers fill vol (vol.h) in LPS mm; src_type is the file's
  * voxel type, data is float after any rescale.
  *
  * Formats, chosen by the path's extension (case-insensitive):
