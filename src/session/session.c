@@ -44,6 +44,7 @@ static int check_journal(session *s, unsigned flags, const char *cmd, journal_re
 static int build_common(session *s)
 {
     atomic_init(&s->stop, 0);
+    atomic_init(&s->running, 0);
     atomic_init(&s->seen_proposals, 0);
     s->kinds = ~0u & ~(unsigned)SESSION_EV_SCENE;
     pthread_mutex_init(&s->push_mu, NULL);

@@ -10,10 +10,11 @@
  *
  * Threads. session_start runs the source's reader thread and the loop thread (loop_run, under
  * real-time priority when granted). Then:
- *  - session_send_action, session_propose_pose, session_scene_read, session_loop and
- *    session_ended may be called from any thread, several at once;
- *  - session_wait_event and session_stop from one client thread (the one that owns the handle),
- *    never two at once: save requests (LOOP_ACT_SAVE, a button or a key) are carried out there;
+ *  - session_send_action, session_propose_pose, session_scene_read and session_loop may be
+ *    called from any thread, several at once;
+ *  - session_wait_event, session_ended and session_stop from one client thread (the one that
+ *    owns the handle), never two at once: save requests (LOOP_ACT_SAVE, a button or a key) are
+ *    carried out there;
  *  - the wake-up callback (session_set_wakeup) runs on the loop thread.
  * Everything else (open, play, save, close, the JSON helpers) belongs to the owner's thread while
  * no loop thread runs.
@@ -34,9 +35,10 @@
 #include "journal.h"
 #include "loop.h"
 
-#include <jansson.h>
 #include <pthread.h>
 #include <stdio.h>
+
+struct json_t; /* jansson's */
 
 typedef struct session session;
 
@@ -99,7 +101,7 @@ int session_play(session *s, loop_source src, int mode);
 
 /* Starts the reader thread on src and the loop thread; returns at once. 0 or FN_E*. */
 int session_start(session *s, loop_source src);
-/* 1 once a started source has ended (all its events are in the loop's ring). Any thread. */
+/* 1 once a started source has ended (all its events are in the loop's ring). Owner's thread. */
 int session_ended(session *s);
 /* Stops the reader and the loop thread (the loop steps what was already read), publishes the
  * last scene and carries out save requests not yet carried out (their SESSION_EV_SAVED events
@@ -120,7 +122,8 @@ loop_action session_key_action(int ch);
  * journaled and one undo step, or refused when it collides while checking is on (or the fragment
  * is fixed). *id (may be NULL) gets the proposal's number, which its SESSION_EV_POSE event
  * carries. 0, FN_EINVAL (frag out of range), FN_EAGAIN (not running, or LOOP_PROPOSALS_KEPT - 8
- * proposals await their events: wait on events first). */
+ * proposals await their events: wait on events first). One sent while session_stop runs may be
+ * dropped without an event. */
 int session_propose_pose(session *s, int fragment, const pose *p, uint64_t *id);
 
 /* ---- scenes and events ---- */
@@ -176,7 +179,7 @@ int session_save(session *s);
 int session_save_case(session *s, const pose *poses, const uint8_t *fixed);
 /* At the last save: [{"fragments": [A, B], "overlap_ml": V}, ...]; NULL before any save. Owned
  * by the session. */
-json_t *session_penetrating(const session *s);
+struct json_t *session_penetrating(const session *s);
 /* Writes out the journal's buffered records and fsyncs it (no journal: 0). Loop not running. */
 int session_journal_sync(session *s);
 /* Empties the journal (no journal: 0). Loop not running. */
@@ -190,7 +193,7 @@ int session_journal_truncate(session *s);
 int session_print_json(session *s, FILE *out, const char *command, long unplugs, uint64_t skipped);
 /* The loop statistics' members of that object (bench loop's too), labelled `command`; NULL when
  * out of memory. */
-json_t *session_stats_json(const char *command, const loop_stats *st);
+struct json_t *session_stats_json(const char *command, const loop_stats *st);
 
 /* ---- event sources ---- */
 

@@ -5,6 +5,7 @@
 
 #include "session.h"
 
+#include <jansson.h>
 #include <semaphore.h>
 #include <stdatomic.h>
 
@@ -29,7 +30,8 @@ struct session {
     loop_reader *rd;
     pthread_t th;
     int built; /* the mutex and semaphore exist */
-    int running, loop_rc, ended;
+    atomic_int running; /* read by senders on any thread */
+    int loop_rc, ended;
     atomic_int stop;
     sem_t wake; /* posted at every publish */
     void (*wakeup)(void *ctx);

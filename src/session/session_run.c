@@ -59,7 +59,7 @@ int session_play(session *s, loop_source src, int mode)
 
 int session_start(session *s, loop_source src)
 {
-    if (s->running)
+    if (atomic_load(&s->running))
         return fn_err_set(FN_EINVAL, "the session is already running");
     atomic_store(&s->stop, 0);
     s->ended = 0;
@@ -73,7 +73,7 @@ int session_start(session *s, loop_source src)
         s->rd = NULL;
         return fn_err_set(FN_EIO, "cannot start the loop thread");
     }
-    s->running = 1;
+    atomic_store(&s->running, 1);
     return 0;
 }
 
@@ -85,7 +85,7 @@ int session_ended(session *s)
 /* Pushes one event onto the control ring (any thread) and wakes the loop. */
 static int push_control(session *s, const loop_event *ev)
 {
-    if (!s->running)
+    if (!atomic_load(&s->running))
         return fn_err_set(FN_EAGAIN, "the session is not running");
     int ok = ring_push(s->ctl, ev);
     if (ok)
@@ -179,7 +179,7 @@ static void save_request(session *s, session_event *ev)
         snprintf(ev->text, sizeof ev->text, "save failed: %.1000s", fn_err_msg());
     else
         snprintf(ev->text, sizeof ev->text, "saved %.1000s", s->dir);
-    if (rc < 0 || !s->running)
+    if (rc < 0 || !atomic_load(&s->running))
         return;
     memcpy(s->saved, sc->pose, sizeof(pose) * (size_t)s->nfrag);
     loop_event saved = {.kind = LOOP_EV_SAVED};
@@ -255,7 +255,7 @@ session_event_kind session_wait_event(session *s, int timeout_ms, session_event 
                 return ev->kind;
         if (deadline >= 0 && fnclock_now_us() >= deadline)
             break;
-        if (!s->running && deadline < 0)
+        if (!atomic_load(&s->running) && deadline < 0)
             break; /* nothing will ever come */
         wait_publish(s, deadline);
     }
@@ -275,7 +275,7 @@ static void last_events(session *s)
 
 int session_stop(session *s)
 {
-    if (!s->running)
+    if (!atomic_load(&s->running))
         return 0;
     s->ended = loop_reader_done(s->rd);
     loop_reader_stop(s->rd);
@@ -283,7 +283,7 @@ int session_stop(session *s)
     atomic_store(&s->stop, 1);
     loop_notify(s->L);
     pthread_join(s->th, NULL);
-    s->running = 0;
+    atomic_store(&s->running, 0);
     loop_set_publish_hook(s->L, NULL, NULL);
     loop_publish(s->L);
     last_events(s);
