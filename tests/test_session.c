@@ -9,6 +9,7 @@
 #include <cmocka.h>
 
 #include "err.h"
+#include "frag.h"
 #include "journal.h"
 #include "script.h"
 #include "session.h"
@@ -459,6 +460,35 @@ static void test_open_errors(void **st)
     session_close(s);
 }
 
+/* A session over bare fragments (benchmarks): it steers and stops at contact as a case's does,
+ * but has nothing to save or summarize, and says so. */
+static void test_fragments_without_case(void **st)
+{
+    (void)st;
+    frag f[2];
+    tu_box_frag(&f[0], 1, (const int[3]){10, 10, 10}, (const double[3]){0, 0, 0});
+    tu_box_frag(&f[1], 2, (const int[3]){6, 6, 6}, (const double[3]){12, 2, 2}); /* 2 mm beside */
+    uint8_t fixed[2] = {1, 0};
+    loop_config cfg;
+    loop_config_default(&cfg);
+    cfg.check_invariant = 1;
+    session *s = session_open_fragments(f, 2, fixed, (const double[2]){0.5, 0.95}, &cfg);
+    assert_non_null(s);
+    assert_null(session_case(s));
+    loop_stats a;
+    pose p;
+    play(s, "translate -x 4 mm over 0.4 s\n", SESSION_PLAY_FAST, &a, &p);
+    assert_true(p.t[0] < -1.9 && p.t[0] >= -2.0);
+    assert_int_equal(a.collisions_in_accepted, 0);
+    assert_int_equal(session_save(s), FN_EINVAL);
+    assert_non_null(strstr(fn_err_msg(), "no case"));
+    assert_int_equal(session_print_json(s, stdout, "test", -1, 0), FN_EINVAL);
+    session_close(s);
+    assert_null(session_open_fragments(f, 0, NULL, (const double[2]){0, 1}, &cfg));
+    free(f[0].prob);
+    free(f[1].prob);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -472,6 +502,7 @@ int main(void)
         cmocka_unit_test_setup(test_save_at_stop, fresh_case),
         cmocka_unit_test_setup(test_end_scene_and_wakeup, fresh_case),
         cmocka_unit_test_setup(test_open_errors, fresh_case),
+        cmocka_unit_test(test_fragments_without_case),
     };
     return cmocka_run_group_tests(tests, setup, teardown);
 }

@@ -36,6 +36,7 @@ int session_play(session *s, loop_source src, int mode)
         loop_event ev;
         for (;;) {
             int rc = src.next(src.ctx, &ev, 0);
+            s->ended = rc == LOOP_SOURCE_END;
             if (rc == LOOP_SOURCE_END)
                 return 0;
             if (rc < 0)
