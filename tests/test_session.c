@@ -424,6 +424,12 @@ static void on_wakeup(void *ctx)
     atomic_fetch_add(&wakeups, 1);
 }
 
+static int woken(void *arg)
+{
+    (void)arg;
+    return atomic_load(&wakeups) > 0;
+}
+
 static void test_end_scene_and_wakeup(void **st)
 {
     (void)st;
@@ -435,12 +441,14 @@ static void test_end_scene_and_wakeup(void **st)
     assert_int_equal(session_start(s, (loop_source){quiet_next, &Q}), 0);
     assert_int_equal(session_send_action(s, LOOP_ACT_FRAME), 0);
     session_event *e = next_event(s, SESSION_EV_SCENE);
-    assert_true(e->scene.seq > 0);
+    while (e->scene.actions == 0) /* the scene of open first, then the loop's */
+        e = next_event(s, SESSION_EV_SCENE);
+    assert_int_equal(e->scene.frame, LOOP_FRAME_WORLD);
+    assert_true(tu_wait_for(woken, NULL, TU_WAIT_MAX_S)); /* called just after that publish */
     atomic_store(&Q.end, 1);
     sem_post(&Q.tick);
     next_event(s, SESSION_EV_END);
     assert_true(session_ended(s));
-    assert_true(atomic_load(&wakeups) > 0);
     stop_quiet(s);
     session_close(s);
 }
