@@ -77,9 +77,10 @@ void session_close(session *s);
  * bound to another case state): what session_open would need SESSION_RESUME or SESSION_DISCARD for. */
 size_t session_journal_pending(const char *dir);
 
-/* The loop (for loop_scene_read, loop_set_pivot, statistics), the case (NULL for
- * session_open_fragments), its fragments and their number, the journal records applied at open,
- * the case folder ("" without a case). Valid until session_close. */
+/* The loop (for loop_scene_read from any thread, e.g. the window's; loop_set_pivot and the
+ * statistics only while it does not run), the case (NULL for session_open_fragments), its
+ * fragments and their number, the journal records applied at open, the case folder ("" without a
+ * case). Valid until session_close. */
 loop *session_loop(session *s);
 fcase *session_case(session *s);
 const frag *session_frags(const session *s);
