@@ -21,7 +21,7 @@
 typedef struct opts {
     int seeds, starts, json, verbose;
     double max_mm, max_deg, band_mm, voi_max_mm;
-    int fit_starts;
+    int fit_starts, coarse;
     int nconf;
     reduce_method method[MAX_CONFIGS];
     reduce_count count[MAX_CONFIGS];
@@ -175,6 +175,8 @@ static int run_case(const vol *ct, uint64_t seed, const opts *o, config_stats *c
                 ro.voi_max_mm = o->voi_max_mm;
             if (o->fit_starts)
                 ro.starts = o->fit_starts;
+            if (o->coarse)
+                ro.coarse = 1;
             m.pose = start;
             reduce_result r;
             double c0 = bench_cpu_us();
@@ -194,6 +196,12 @@ static int run_case(const vol *ct, uint64_t seed, const opts *o, config_stats *c
                 m.pose = r.fitted;
                 reduce_errors(&f, &m, &truth, &fr_, &ft_, &fre_);
                 m.pose = keep;
+                double sr, st, stre;
+                m.pose = r.start;
+                reduce_errors(&f, &m, &truth, &sr, &st, &stre);
+                m.pose = keep;
+                fprintf(stderr, "  start error %.2f deg %.2f mm; fit moved %.2f deg\n", sr, st,
+                        pose_angle_between(r.fitted, r.start) * 180 / M_PI);
                 fprintf(stderr, "  fitted %.3f deg %.3f mm; voi %.0fx%.0fx%.0f mm\n", fr_, ft_, r.voi.hi[0] - r.voi.lo[0],
                         r.voi.hi[1] - r.voi.lo[1], r.voi.hi[2] - r.voi.lo[2]);
                 reduce_metric *me = reduce_metric_new(asm_, 1, &m, &r.voi, ro.count, ro.band_mm);
@@ -272,6 +280,7 @@ static int usage(FILE *out, int rc)
             "  --band MM        the metric's band (default: reduce's, 1 mm; 0 = the paper's box)\n"
             "  --voi-max MM     the automatic VOI's longest side (default: reduce's, 0 = no limit)\n"
             "  --fit-starts N   starts of each fit's first stage (default: reduce's, 3)\n"
+            "  --coarse         the first stage on coarse copies (reduce_opts.coarse; default off)\n"
             "  --ct FILE        the CT to fracture (default: the example CT)\n"
             "  --verbose        one line per run on stderr\n"
             "  --json           one JSON object on stdout: command, ct, seeds, starts, max_mm,\n"
@@ -289,6 +298,8 @@ static int parse(int argc, char **argv, opts *o)
             o->json = 1;
         else if (!strcmp(a, "--verbose"))
             o->verbose = 1;
+        else if (!strcmp(a, "--coarse"))
+            o->coarse = 1;
         else if (!strcmp(a, "--seeds") || !strcmp(a, "--starts")) {
             if (!cmd_number(val, &d) || !(d >= 1 && d <= 1000 && d == (int)d))
                 return cmd_bad_value("bench reduce", a, val, "a whole number 1..1000");
