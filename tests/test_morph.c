@@ -27,9 +27,9 @@ static size_t at(int i, int j, int k)
     return ((size_t)k * NY + j) * NX + i;
 }
 
-/* Two blocks that touch over part of a face, as pieces of a fracture do: A = [3,23)^3, B =
- * [23,43) x [15,35) x [15,35) (the contact is 8 x 8 of their 20 x 20 faces). truth: 1 in A, 2 in
- * B. */
+/* Two blocks that touch over part of a face, as pieces of a fracture do: A =
+ * [3,23)^3, B = [23,43) x [15,35) x [15,35) (the contact is 8 x 8 of their 20 x
+ * 20 faces). truth: 1 in A, 2 in B. */
 static void touching_blocks(uint8_t *mask, int *truth)
 {
     for (int k = 0; k < NZ; k++)
@@ -145,7 +145,8 @@ static void test_fill(void **st)
     assert_int_equal(morph_fill(mask, (int[3]){NX, NY, NZ}, MORPH_FILL_SLICES), lumen);
 }
 
-/* The distance map: a slab 9 voxels thick has its deepest voxel 5 voxels from the outside. */
+/* The distance map: a slab 9 voxels thick has its deepest voxel 5 voxels from
+ * the outside. */
 static void test_distance(void **st)
 {
     (void)st;
@@ -162,7 +163,8 @@ static void test_distance(void **st)
     assert_true(d[at(9, 14, 14)] == 0);
 }
 
-/* Through the case: the two blocks segmented as one fragment separate into two; a hollow one fills. */
+/* Through the case: the two blocks segmented as one fragment separate into two;
+ * a hollow one fills. */
 static void test_case_separate_and_fill(void **st)
 {
     (void)st;
@@ -216,9 +218,12 @@ static void test_case_separate_and_fill(void **st)
 int main(void)
 {
     const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_separate_by_erosion), cmocka_unit_test(test_separate_by_seeds),
-        cmocka_unit_test(test_separate_one_block),  cmocka_unit_test(test_fill),
-        cmocka_unit_test(test_distance),            cmocka_unit_test(test_case_separate_and_fill),
+        cmocka_unit_test(test_separate_by_erosion),
+        cmocka_unit_test(test_separate_by_seeds),
+        cmocka_unit_test(test_separate_one_block),
+        cmocka_unit_test(test_fill),
+        cmocka_unit_test(test_distance),
+        cmocka_unit_test(test_case_separate_and_fill),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -22,6 +22,8 @@ typedef struct opts {
     int seeds, starts, json, verbose;
     double max_mm, max_deg, band_mm, voi_max_mm;
     int fit_starts, coarse;
+    int pieces, threshold_auto;
+    double threshold, bone_loss_mm;
     int nconf;
     reduce_method method[MAX_CONFIGS];
     reduce_count count[MAX_CONFIGS];
@@ -134,17 +136,26 @@ static int run_case(const vol *ct, uint64_t seed, const opts *o, config_stats *c
     fracture_params fp;
     fracture_defaults(&fp);
     fp.seed = seed;
+    fp.pieces = o->pieces;
+    fp.bone_loss_mm = o->bone_loss_mm;
+    fp.threshold = o->threshold;
+    fp.threshold_auto = o->threshold_auto;
     fracture_result fr;
     int rc = fracture_make(ct, &fp, &fr);
     if (rc)
         return rc;
-    frag f = {0}, m = {0};
-    frag *fs[2] = {&f, &m};
-    for (int id = 1; id <= 2 && rc == 0; id++) {
+    /* piece 2 moves; piece 1 and any others stay at their true poses: the assembly */
+    frag f = {0}, m = {0}, rest[8] = {{0}};
+    frag *fs[10] = {&f, &m};
+    for (int id = 3; id <= o->pieces; id++)
+        fs[id - 1] = &rest[id - 3];
+    for (int id = 1; id <= o->pieces && rc == 0; id++) {
         int lo[3], hi[3];
         rc = frag_label_box(fr.labels, id, lo, hi);
         if (rc == 0)
-            rc = frag_from_labels(fs[id - 1], fr.labels, fr.ct, id, lo, hi, fp.threshold, 200);
+            rc = frag_from_labels(fs[id - 1], fr.labels, fr.ct, id, lo, hi, fr.threshold, 200);
+        if (rc == 0)
+            fs[id - 1]->pose = fr.truth[id - 1];
     }
     pose truth = fr.truth[1];
     fracture_result_free(&fr);
@@ -152,7 +163,10 @@ static int run_case(const vol *ct, uint64_t seed, const opts *o, config_stats *c
     obb_tree *tf = rc == 0 ? obb_tree_build(&f, &op) : NULL, *tm = tf ? obb_tree_build(&m, &op) : NULL;
     if (rc == 0 && (!tf || !tm))
         rc = FN_ENOMEM;
-    const frag *asm_[1] = {&f};
+    const frag *asm_[9] = {&f};
+    int nasm = 1;
+    for (int id = 3; id <= o->pieces; id++)
+        asm_[nasm++] = fs[id - 1];
     reduce_voi zone;
     if (rc == 0) {
         m.pose = truth;
@@ -180,7 +194,7 @@ static int run_case(const vol *ct, uint64_t seed, const opts *o, config_stats *c
             m.pose = start;
             reduce_result r;
             double c0 = bench_cpu_us();
-            rc = reduce_pair(asm_, 1, &m, &ro, &r);
+            rc = reduce_pair(asm_, nasm, &m, &ro, &r);
             double c1 = bench_cpu_us();
             if (rc)
                 break;
@@ -220,6 +234,8 @@ static int run_case(const vol *ct, uint64_t seed, const opts *o, config_stats *c
     obb_tree_free(tm);
     frag_free(&f);
     frag_free(&m);
+    for (int i = 0; i < 8; i++)
+        frag_free(&rest[i]);
     return rc;
 }
 
@@ -281,16 +297,23 @@ static int usage(FILE *out, int rc)
             "  --voi-max MM     the automatic VOI's longest side (default: reduce's, 0 = no limit)\n"
             "  --fit-starts N   starts of each fit's first stage (default: reduce's, 3)\n"
             "  --coarse         the first stage on coarse copies (reduce_opts.coarse; default off)\n"
+            "  --pieces K       pieces per fracture (default 2): piece 2 is fitted against piece 1\n"
+            "                   and the others, all at their true poses\n"
+            "  --bone-loss MM   bone lost along each cut (default 0)\n"
+            "  --threshold HU|auto|auto-bone  the fracture's bone threshold (default 300; for a\n"
+            "                   CT not in HU, as tests/data/CT_pitch.nii.gz: auto-bone)\n"
             "  --ct FILE        the CT to fracture (default: the example CT)\n"
             "  --verbose        one line per run on stderr\n"
             "  --json           one JSON object on stdout: command, ct, seeds, starts, max_mm,\n"
-            "                   max_deg, default_method, methods (one per configuration)\n");
+            "                   max_deg, pieces, bone_loss_mm, default_method, methods (one per\n"
+            "                   configuration)\n");
     return rc;
 }
 
 static int parse(int argc, char **argv, opts *o)
 {
-    *o = (opts){.seeds = 4, .starts = 5, .max_mm = 10, .max_deg = 15, .band_mm = -1, .voi_max_mm = -1};
+    *o = (opts){.seeds = 4, .starts = 5, .max_mm = 10, .max_deg = 15, .band_mm = -1, .voi_max_mm = -1, .pieces = 2,
+                .threshold = 300};
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i], *val = i + 1 < argc ? argv[i + 1] : NULL;
         double d;
@@ -309,6 +332,24 @@ static int parse(int argc, char **argv, opts *o)
             if (!cmd_number(val, &d) || !(d >= 0 && d <= 90))
                 return cmd_bad_value("bench reduce", a, val, "a number 0..90");
             *(a[6] == 'm' ? &o->max_mm : &o->max_deg) = d;
+            i++;
+        } else if (!strcmp(a, "--pieces")) {
+            if (!cmd_number(val, &d) || !(d >= 2 && d <= 10 && d == (int)d))
+                return cmd_bad_value("bench reduce", a, val, "a whole number 2..10");
+            o->pieces = (int)d;
+            i++;
+        } else if (!strcmp(a, "--bone-loss")) {
+            if (!cmd_number(val, &d) || !(d >= 0 && d <= 10))
+                return cmd_bad_value("bench reduce", a, val, "a number of mm 0..10");
+            o->bone_loss_mm = d;
+            i++;
+        } else if (!strcmp(a, "--threshold")) {
+            if (val && !strcmp(val, "auto"))
+                o->threshold_auto = 1;
+            else if (val && !strcmp(val, "auto-bone"))
+                o->threshold_auto = 2;
+            else if (!cmd_number(val, &o->threshold))
+                return cmd_bad_value("bench reduce", a, val, "HU, auto or auto-bone");
             i++;
         } else if (!strcmp(a, "--band")) {
             if (!cmd_number(val, &d) || !(d >= 0 && d <= 100))
@@ -390,6 +431,8 @@ int bench_reduce(int argc, char **argv)
         jsonw_set(root, "starts", json_integer(o.starts));
         jsonw_set(root, "max_mm", jsonw_exact(o.max_mm));
         jsonw_set(root, "max_deg", jsonw_exact(o.max_deg));
+        jsonw_set(root, "pieces", json_integer(o.pieces));
+        jsonw_set(root, "bone_loss_mm", jsonw_exact(o.bone_loss_mm));
         reduce_opts def;
         reduce_defaults(&def);
         jsonw_set(root, "default_method", jsonw_string(reduce_method_name(def.method)));

@@ -1,4 +1,5 @@
-/* morph: filling enclosed interiors and separating touching pieces (see morph.h). */
+/* morph: filling enclosed interiors and separating touching pieces (see
+ * morph.h). */
 #include "morph.h"
 
 #include "err.h"
@@ -10,8 +11,8 @@
 
 #define NONE UINT32_MAX
 
-/* Breadth-first (6-connected) over the voxels where mask == 0, from the voxels queued and marked
- * in seen. */
+/* Breadth-first (6-connected) over the voxels where mask == 0, from the voxels
+ * queued and marked in seen. */
 static void reach(const uint8_t *mask, uint8_t *seen, uint32_t *queue, size_t tail, const int *ext,
                   const size_t *stride)
 {
@@ -85,7 +86,8 @@ long morph_fill(uint8_t *mask, const int dim[3], int mode)
                             queue[tail++] = (uint32_t)v;
                         }
                     }
-                /* 4-connected within the slice: coordinates from the strides directly */
+                /* 4-connected within the slice: coordinates from the strides directly
+                 */
                 size_t head = 0;
                 while (head < tail) {
                     size_t v = queue[head++], rel = v - base;
@@ -154,8 +156,9 @@ void morph_distance(const uint8_t *mask, const int dim[3], const double sp[3], f
     }
 }
 
-/* The cores: components of dist > e, those of fewer than min_voxels voxels dropped, numbered
- * 1..returned count in lab (0 elsewhere). core: scratch of one byte per voxel. */
+/* The cores: components of dist > e, those of fewer than min_voxels voxels or
+ * under 5% of the largest dropped, numbered 1..returned count in lab (0
+ * elsewhere). core: scratch of one byte per voxel. */
 static int cores(const float *dist, size_t n, const int dim[3], double e, size_t min_voxels, uint8_t *core,
                  int32_t *lab)
 {
@@ -173,9 +176,14 @@ static int cores(const float *dist, size_t n, const int dim[3], double e, size_t
     }
     for (size_t v = 0; v < n; v++)
         count[lab[v]]++;
+    size_t largest = 0;
+    for (int c = 1; c <= nc; c++)
+        largest = count[c] > largest ? count[c] : largest;
+    /* a core under 5% of the largest is a crumb of a thin part, not a piece */
+    size_t least = min_voxels > largest / 20 ? min_voxels : largest / 20;
     int kept = 0;
     for (int c = 1; c <= nc; c++)
-        map[c] = count[c] >= min_voxels ? ++kept : 0;
+        map[c] = count[c] >= least ? ++kept : 0;
     for (size_t v = 0; v < n; v++)
         lab[v] = map[lab[v]];
     free(count);
@@ -183,8 +191,8 @@ static int cores(const float *dist, size_t n, const int dim[3], double e, size_t
     return kept;
 }
 
-int morph_separate(const uint8_t *mask, const int dim[3], const double sp[3], double erode_mm,
-                   const int (*seeds)[3], int nseeds, size_t min_voxels, int32_t *lab, double *erode_used)
+int morph_separate(const uint8_t *mask, const int dim[3], const double sp[3], double erode_mm, const int (*seeds)[3],
+                   int nseeds, size_t min_voxels, int32_t *lab, double *erode_used)
 {
     size_t n = (size_t)dim[0] * dim[1] * dim[2];
     if (n >= NONE)
@@ -208,7 +216,9 @@ int morph_separate(const uint8_t *mask, const int dim[3], const double sp[3], do
             int in = q[0] >= 0 && q[1] >= 0 && q[2] >= 0 && q[0] < dim[0] && q[1] < dim[1] && q[2] < dim[2];
             size_t v = in ? ((size_t)q[2] * dim[1] + q[1]) * dim[0] + q[0] : 0;
             if (!in || !mask[v])
-                rc = fn_err_set(FN_EINVAL, "separate: seed %d (voxel %d, %d, %d of the fragment's box) is not in the fragment",
+                rc = fn_err_set(FN_EINVAL,
+                                "separate: seed %d (voxel %d, %d, %d of the fragment's "
+                                "box) is not in the fragment",
                                 s + 1, q[0], q[1], q[2]);
             else
                 lab[v] = ++nm;
@@ -266,20 +276,22 @@ int morph_separate(const uint8_t *mask, const int dim[3], const double sp[3], do
         }
         size_t v = head[cur];
         head[cur] = next[v];
-        size_t c[3] = {v % (size_t)dim[0], v / stride[1] % (size_t)dim[1], v / stride[2]};
-        for (int a = 0; a < 3; a++)
-            for (int s = -1; s <= 1; s += 2) {
-                if ((s < 0 && c[a] == 0) || (s > 0 && c[a] + 1 >= (size_t)dim[a]))
-                    continue;
-                size_t w = s < 0 ? v - stride[a] : v + stride[a];
-                if (!mask[w] || lab[w])
-                    continue;
-                lab[w] = lab[v];
-                int l = (int)(dist[w] / q);
-                l = l < cur ? l : cur;
-                next[w] = head[l];
-                head[l] = (uint32_t)w;
-            }
+        int c[3] = {(int)(v % (size_t)dim[0]), (int)(v / stride[1] % (size_t)dim[1]), (int)(v / stride[2])};
+        for (int dk = -1; dk <= 1; dk++)
+            for (int dj = -1; dj <= 1; dj++)
+                for (int di = -1; di <= 1; di++) {
+                    int x = c[0] + di, y = c[1] + dj, z = c[2] + dk;
+                    if (x < 0 || y < 0 || z < 0 || x >= dim[0] || y >= dim[1] || z >= dim[2])
+                        continue;
+                    size_t w = (size_t)z * stride[2] + (size_t)y * stride[1] + (size_t)x;
+                    if (!mask[w] || lab[w])
+                        continue;
+                    lab[w] = lab[v];
+                    int l = (int)(dist[w] / q);
+                    l = l < cur ? l : cur;
+                    next[w] = head[l];
+                    head[l] = (uint32_t)w;
+                }
     }
     /* parts of the mask no marker reached: pieces of their own */
     for (size_t v = 0; v < n; v++)
