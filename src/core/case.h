@@ -44,7 +44,12 @@ typedef struct fcase {
     seg_params seg;          /* how the labels were made; seg.threshold/ramp shape the prob maps */
     void *extra;             /* case.json's other top-level members (a jansson json_t object, owned,
                               * may be NULL): other modules keep theirs here (VOIs, optimisation
-                              * results) and they survive load and save unchanged */
+                              * results) and they survive load and save unchanged. "reduction"
+                              * (reduce.h, reduce_store): method, counting, fixed, prealign,
+                              * tolerance_mm, fragments[] {id, voi_mm [6], prealigned, placed,
+                              * start, end ({q [4], t [3]}), iterations, evaluations, seconds,
+                              * metric_start, metric_end, push_mm, collides, history [metric per
+                              * iteration: the convergence plot]} */
 } fcase;
 
 /* A new case in folder dir (not yet saved) over the source volume file `source`, already read into
