@@ -8,7 +8,9 @@
 #include "fracture.h"
 #include "jsonw.h"
 #include "obb.h"
+#include "morph.h"
 #include "reduce.h"
+#include "seg.h"
 #include "volio.h"
 
 #include <math.h>
@@ -22,7 +24,7 @@ typedef struct opts {
     int seeds, starts, json, verbose;
     double max_mm, max_deg, band_mm, voi_max_mm;
     int fit_starts, coarse;
-    int pieces, threshold_auto;
+    int pieces, threshold_auto, touching;
     double threshold, bone_loss_mm;
     int nconf;
     reduce_method method[MAX_CONFIGS];
@@ -129,7 +131,73 @@ typedef struct config_stats {
     sample *s;
     int n;
     double eval_us;
+    double separate_dice, separate_s; /* the touching workload's separation (in cs[0]) */
 } config_stats;
+
+/* Touching pieces as a user meets them: the fractured CT thresholded (the component that holds
+ * the pieces), separated (edit separate's morph_separate), and each true piece replaced in
+ * fr->labels by the separated piece that matches it best; the worst of those Dice goes to cs. */
+static int separate_pieces(fracture_result *fr, int pieces, config_stats *cs)
+{
+    size_t n = vol_count(fr->ct);
+    uint8_t *mask = malloc(n);
+    int32_t *comp = malloc(n * sizeof *comp), *lab = malloc(n * sizeof *lab);
+    int rc = mask && comp && lab ? 0 : fn_err_set(FN_ENOMEM, "bench reduce: out of memory");
+    int nc = 0, pick = 0, np = 0;
+    if (rc == 0) {
+        for (size_t i = 0; i < n; i++)
+            mask[i] = fr->ct->data[i] >= fr->threshold;
+        rc = nc = seg_components(mask, fr->ct->dim, comp);
+    }
+    if (rc > 0) { /* the component under piece 1's first voxel holds the pieces */
+        for (size_t i = 0; i < n && !pick; i++)
+            if (fr->labels->data[i] == 1 && comp[i])
+                pick = comp[i];
+        for (size_t i = 0; i < n; i++)
+            mask[i] = comp[i] == pick && pick;
+        double t0 = bench_cpu_us();
+        rc = np = morph_separate(mask, fr->ct->dim, fr->ct->spacing, 0, NULL, 0, 27, lab, NULL);
+        cs->separate_s += (bench_cpu_us() - t0) * 1e-6;
+    }
+    double worst = 1;
+    int *match = rc > 0 ? calloc((size_t)pieces + 1, sizeof *match) : NULL;
+    for (int id = 1; match && id <= pieces; id++) {
+        double best = 0;
+        for (int q = 1; q <= np; q++) {
+            size_t both = 0, nt = 0, nq = 0;
+            for (size_t i = 0; i < n; i++) {
+                nt += fr->labels->data[i] == (float)id;
+                nq += lab[i] == q;
+                both += fr->labels->data[i] == (float)id && lab[i] == q;
+            }
+            double d = nt + nq ? 2.0 * (double)both / (double)(nt + nq) : 0;
+            if (d > best) {
+                best = d;
+                match[id] = q;
+            }
+        }
+        worst = fmin(worst, best);
+    }
+    if (match) {
+        for (size_t i = 0; i < n; i++) {
+            float v = 0;
+            for (int id = 1; id <= pieces; id++)
+                if (lab[i] && lab[i] == match[id])
+                    v = (float)id;
+            fr->labels->data[i] = v;
+        }
+        cs->separate_dice = fmin(cs->separate_dice, worst);
+        for (int id = 1; id <= pieces && rc >= 0; id++)
+            if (!match[id])
+                rc = fn_err_set(FN_EINVAL, "bench reduce: piece %d found no separated piece", id);
+    } else if (rc >= 0)
+        rc = fn_err_set(FN_ENOMEM, "bench reduce: out of memory");
+    free(match);
+    free(mask);
+    free(comp);
+    free(lab);
+    return rc < 0 ? rc : 0;
+}
 
 static int run_case(const vol *ct, uint64_t seed, const opts *o, config_stats *cs)
 {
@@ -140,10 +208,15 @@ static int run_case(const vol *ct, uint64_t seed, const opts *o, config_stats *c
     fp.bone_loss_mm = o->bone_loss_mm;
     fp.threshold = o->threshold;
     fp.threshold_auto = o->threshold_auto;
+    fp.touching = o->touching;
     fracture_result fr;
     int rc = fracture_make(ct, &fp, &fr);
     if (rc)
         return rc;
+    if (o->touching && (rc = separate_pieces(&fr, o->pieces, cs)) < 0) {
+        fracture_result_free(&fr);
+        return rc;
+    }
     /* piece 2 moves; piece 1 and any others stay at their true poses: the assembly */
     frag f = {0}, m = {0}, rest[8] = {{0}};
     frag *fs[10] = {&f, &m};
@@ -299,13 +372,17 @@ static int usage(FILE *out, int rc)
             "  --coarse         the first stage on coarse copies (reduce_opts.coarse; default off)\n"
             "  --pieces K       pieces per fracture (default 2): piece 2 is fitted against piece 1\n"
             "                   and the others, all at their true poses\n"
+            "  --touching       the pieces left in contact (fracture --touching): the fractured CT\n"
+            "                   is thresholded and separated (edit separate) first, and the fits\n"
+            "                   use the separated pieces; separated_dice_min, separate_mean_s\n"
             "  --bone-loss MM   bone lost along each cut (default 0)\n"
             "  --threshold HU|auto|auto-bone  the fracture's bone threshold (default 300; for a\n"
             "                   CT not in HU, as tests/data/CT_pitch.nii.gz: auto-bone)\n"
             "  --ct FILE        the CT to fracture (default: the example CT)\n"
             "  --verbose        one line per run on stderr\n"
             "  --json           one JSON object on stdout: command, ct, seeds, starts, max_mm,\n"
-            "                   max_deg, pieces, bone_loss_mm, default_method, methods (one per\n"
+            "                   max_deg, pieces, bone_loss_mm, touching, separated_dice_min,\n"
+            "                   separate_mean_s (null unless --touching), default_method, methods (one per\n"
             "                   configuration)\n");
     return rc;
 }
@@ -333,6 +410,8 @@ static int parse(int argc, char **argv, opts *o)
                 return cmd_bad_value("bench reduce", a, val, "a number 0..90");
             *(a[6] == 'm' ? &o->max_mm : &o->max_deg) = d;
             i++;
+        } else if (!strcmp(a, "--touching")) {
+            o->touching = 1;
         } else if (!strcmp(a, "--pieces")) {
             if (!cmd_number(val, &d) || !(d >= 2 && d <= 10 && d == (int)d))
                 return cmd_bad_value("bench reduce", a, val, "a whole number 2..10");
@@ -412,6 +491,7 @@ int bench_reduce(int argc, char **argv)
         return 1;
     }
     config_stats cs[MAX_CONFIGS] = {0};
+    cs[0].separate_dice = 1;
     for (int k = 0; k < o.nconf; k++)
         if (!(cs[k].s = calloc((size_t)o.seeds * o.starts, sizeof *cs[k].s)))
             rc = fn_err_set(FN_ENOMEM, "out of memory");
@@ -432,6 +512,9 @@ int bench_reduce(int argc, char **argv)
         jsonw_set(root, "max_mm", jsonw_exact(o.max_mm));
         jsonw_set(root, "max_deg", jsonw_exact(o.max_deg));
         jsonw_set(root, "pieces", json_integer(o.pieces));
+        jsonw_set(root, "touching", json_boolean(o.touching));
+        jsonw_set(root, "separated_dice_min", o.touching ? jsonw_measure(cs[0].separate_dice) : json_null());
+        jsonw_set(root, "separate_mean_s", o.touching ? jsonw_measure(cs[0].separate_s / o.seeds) : json_null());
         jsonw_set(root, "bone_loss_mm", jsonw_exact(o.bone_loss_mm));
         reduce_opts def;
         reduce_defaults(&def);
