@@ -84,6 +84,37 @@ static pose perturbed(const frag *f, const obb_tree *tf, const frag *m, const ob
     return best;
 }
 
+/* A long bone, made here: a bowed shaft 154 mm long of elliptic section (semi-axes 10-14 mm by
+ * 8-11 mm, flaring at the ends), a 3 mm textured cortex (1000-1400 HU) around a medullary canal
+ * (40 HU), in soft tissue (-50 HU), on a 0.7 mm grid. Asymmetric enough that no turn about its
+ * axis maps it onto itself. */
+static vol *long_bone(void)
+{
+    const int nx = 220, ny = 60, nz = 56;
+    vol *v = vol_new(nx, ny, nz);
+    if (!v)
+        return NULL;
+    const double dir[3][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}}, sp[3] = {0.7, 0.7, 0.7}, org[3] = {-77, -21, -19.6};
+    vol_set_geometry(v, dir, sp, org);
+    for (int i = 0; i < nx; i++) {
+        double u = (i - 0.5 * nx) / (0.5 * nx), flare = u * u * u * u;
+        double a = 10 + 4 * flare, b = 8 + 3 * flare;                 /* mm */
+        double cy = 2.5 * sin(M_PI * (i / (double)nx)), cz = 1.5 * u; /* the bow, mm */
+        for (int k = 0; k < nz; k++)
+            for (int j = 0; j < ny; j++) {
+                double y = (j - 0.5 * ny) * sp[1] - cy, z = (k - 0.5 * nz) * sp[2] - cz;
+                double r = sqrt((y / a) * (y / a) + (z / b) * (z / b));
+                double inner = 1 - 3 / (0.5 * (a + b)); /* 3 mm of cortex */
+                float val = -50;
+                if (r <= 1)
+                    val = r >= inner ? (float)(1000 + (i * 7 + j * 13 + k * 3) % 400) : 40;
+                v->data[vol_idx(v, i, j, k)] = val;
+            }
+    }
+    v->src_type = VOL_I16;
+    return v;
+}
+
 static int cmp_double(const void *a, const void *b)
 {
     double x = *(const double *)a, y = *(const double *)b;
@@ -378,7 +409,8 @@ static int usage(FILE *out, int rc)
             "  --bone-loss MM   bone lost along each cut (default 0)\n"
             "  --threshold HU|auto|auto-bone  the fracture's bone threshold (default 300; for a\n"
             "                   CT not in HU, as tests/data/CT_pitch.nii.gz: auto-bone)\n"
-            "  --ct FILE        the CT to fracture (default: the example CT)\n"
+            "  --ct FILE        the CT to fracture (default: the example CT); long-bone: a bowed\n"
+            "                   shaft with a cortex and a medullary canal, made in memory\n"
             "  --verbose        one line per run on stderr\n"
             "  --json           one JSON object on stdout: command, ct, seeds, starts, max_mm,\n"
             "                   max_deg, pieces, bone_loss_mm, touching, separated_dice_min,\n"
@@ -485,7 +517,7 @@ int bench_reduce(int argc, char **argv)
     if (rc)
         return rc;
     const char *path = o.ct ? o.ct : cmd_example_ct();
-    vol *ct = volio_read(path);
+    vol *ct = o.ct && !strcmp(o.ct, "long-bone") ? long_bone() : volio_read(path);
     if (!ct) {
         fprintf(stderr, "fracnav bench reduce: %s\n", fn_err_msg());
         return 1;
