@@ -23,7 +23,7 @@
 typedef struct opts {
     int seeds, starts, json, verbose;
     double max_mm, max_deg, band_mm, voi_max_mm;
-    int fit_starts, coarse;
+    int fit_starts, coarse, axis_scale;
     int pieces, threshold_auto, touching;
     double threshold, bone_loss_mm;
     int nconf;
@@ -295,6 +295,8 @@ static int run_case(const vol *ct, uint64_t seed, const opts *o, config_stats *c
                 ro.starts = o->fit_starts;
             if (o->coarse)
                 ro.coarse = 1;
+            if (o->axis_scale)
+                ro.axis_scale = o->axis_scale > 0;
             m.pose = start;
             reduce_result r;
             double c0 = bench_cpu_us();
@@ -401,6 +403,8 @@ static int usage(FILE *out, int rc)
             "  --voi-max MM     the automatic VOI's longest side (default: reduce's, 0 = no limit)\n"
             "  --fit-starts N   starts of each fit's first stage (default: reduce's, 3)\n"
             "  --coarse         the first stage on coarse copies (reduce_opts.coarse; default off)\n"
+            "  --axis-scale, --no-axis-scale  the rotation scaled per principal axis, or by one\n"
+            "                   radius (reduce_opts.axis_scale; default: reduce's)\n"
             "  --pieces K       pieces per fracture (default 2): piece 2 is fitted against piece 1\n"
             "                   and the others, all at their true poses\n"
             "  --touching       the pieces left in contact (fracture --touching): the fractured CT\n"
@@ -432,6 +436,8 @@ static int parse(int argc, char **argv, opts *o)
             o->verbose = 1;
         else if (!strcmp(a, "--coarse"))
             o->coarse = 1;
+        else if (!strcmp(a, "--axis-scale") || !strcmp(a, "--no-axis-scale"))
+            o->axis_scale = a[2] == 'a' ? 1 : -1;
         else if (!strcmp(a, "--seeds") || !strcmp(a, "--starts")) {
             if (!cmd_number(val, &d) || !(d >= 1 && d <= 1000 && d == (int)d))
                 return cmd_bad_value("bench reduce", a, val, "a whole number 1..1000");

@@ -58,6 +58,7 @@ void reduce_defaults(reduce_opts *o)
     o->starts = 3;
     o->trust_deg = 18;
     o->coarse = 0;
+    o->axis_scale = 1;
 }
 
 void reduce_result_free(reduce_result *r)
@@ -458,7 +459,8 @@ typedef struct fit {
     const reduce_metric *metric;
     pose start;
     double c[3];     /* rotation centre, world */
-    double r;        /* rotation scale, mm per radian */
+    double raxis[3][3]; /* the rotation parameters' axes (columns, world) */
+    double ra[3];       /* and their scales, mm per radian */
     int evals;
     double best;
     double bestx[6];
@@ -489,11 +491,34 @@ static int cancel_seen(fit *F)
 
 static pose pose_of(const fit *F, const double *x)
 {
-    double rv[3] = {x[3] / F->r, x[4] / F->r, x[5] / F->r}, zero[3] = {0, 0, 0}, to[3];
+    double rv[3] = {0, 0, 0}, zero[3] = {0, 0, 0}, to[3];
+    for (int a = 0; a < 3; a++)
+        for (int i = 0; i < 3; i++)
+            rv[i] += x[3 + a] / F->ra[a] * F->raxis[i][a];
     pose rot = pose_from_rotvec(rv, zero);
     for (int a = 0; a < 3; a++)
         to[a] = F->c[a] + x[a];
     return turned(&F->start, &rot, F->c, to);
+}
+
+/* The rotation's axes and scales: the principal axes of the moving voxels in the VOI at the start,
+ * each scaled by their RMS distance from it (o->axis_scale), or the world axes all scaled by the RMS
+ * distance from the centroid; 5 to 500 mm. */
+static void set_scale(fit *F, const reduce_metric *m)
+{
+    double S[3][3], val[3];
+    reduce_metric_spread(m, &F->start, F->c, S);
+    double tr = S[0][0] + S[1][1] + S[2][2];
+    if (F->o->axis_scale) {
+        frag_eigen_sym3(S, F->raxis, val);
+        for (int a = 0; a < 3; a++)
+            F->ra[a] = fmin(fmax(sqrt(fmax(tr - val[a], 0)), 5), 500);
+    } else
+        for (int a = 0; a < 3; a++) {
+            for (int i = 0; i < 3; i++)
+                F->raxis[i][a] = i == a;
+            F->ra[a] = fmin(fmax(sqrt(tr), 5), 500);
+        }
 }
 
 static void hist_add(fit *F, double f)
@@ -867,7 +892,7 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
             F.best = INFINITY;
             F.improvements = 0;
             centroid_world(moving, F.c);
-            F.r = fmin(fmax(reduce_metric_radius(m, &F.start, F.c), 5), 500);
+            set_scale(&F, m);
             double f0 = objective_at(&F, &F.start);
             hist_add(&F, f0);
             int it = 0;
