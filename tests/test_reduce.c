@@ -8,6 +8,8 @@
 #include <cmocka.h>
 
 #include "case.h"
+#include "case_journal.h"
+#include "journal.h"
 #include "err.h"
 #include "frag.h"
 #include "fracture.h"
@@ -408,6 +410,46 @@ static void test_fit_one(void **st)
     free(dir);
 }
 
+/* reduce starts from the poses a navigation session left in CASE/journal (where the hand left
+ * the fragment), saves the result, and empties the journal. */
+static void test_cli_from_journal(void **st)
+{
+    char *dir = tu_tmpdir("reduce_journal"), *out = NULL;
+    fcase *c = fractured(dir, 2, 3);
+    /* the hand left fragment 2 half way back: 2 mm and 2 degrees from its true pose */
+    pose want = c->truth[1];
+    double axis[3] = {0, 0.6, 0.8}, cw[3], rc2[3];
+    pose turn = pose_from_axis_angle(axis, 2 * M_PI / 180), hand = pose_compose(turn, want);
+    pose_apply(&want, c->frag[1].centroid, cw);
+    pose_rotate(&turn, cw, rc2);
+    for (int a = 0; a < 3; a++)
+        hand.t[a] += cw[a] - rc2[a] + (a == 0 ? 2 : 0);
+    journal_bind b;
+    case_journal_bind(c, &b);
+    journal *j = journal_open(dir, &b);
+    if (!j)
+        fail_msg("%s", fn_err_msg());
+    assert_int_equal(journal_append(j, JOURNAL_MOVE, 1, 1000, &hand, 1000), 0);
+    assert_int_equal(journal_close(j), 0);
+    case_free(c);
+    int rc = tu_run_cli(&out, "reduce %s --no-prealign", dir);
+    if (rc != 0 || !strstr(out, "journal"))
+        fail_msg("rc %d: %s", rc, out);
+    free(out);
+    fcase *back = case_load(dir);
+    if (!back)
+        fail_msg("%s", fn_err_msg());
+    json_t *fr = json_array_get(json_object_get(json_object_get((json_t *)back->extra, "reduction"), "fragments"), 0);
+    json_t *t = json_object_get(json_object_get(fr, "placed"), "t");
+    for (int a = 0; a < 3; a++) /* the fit started where the journal left it */
+        assert_true(fabs(json_real_value(json_array_get(t, a)) - hand.t[a]) < 1e-6);
+    check_errors(back, 0, 1, 1);
+    assert_int_equal(case_journal_pending(dir), 0);
+    case_free(back);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 /* The command: usage errors exit 2 naming the option, a missing case exits 1 naming it, and a
  * run prints one JSON object with the errors against the truth, and saves into -o. */
 static void test_cli(void **st)
@@ -509,6 +551,7 @@ int main(void)
         cmocka_unit_test(test_reduce_nlopt_methods),
         cmocka_unit_test(test_fit_one),
         cmocka_unit_test(test_cli),
+        cmocka_unit_test(test_cli_from_journal),
         cmocka_unit_test(test_prealign_rods),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
