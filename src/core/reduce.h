@@ -133,8 +133,9 @@ typedef struct reduce_opts {
 } reduce_opts;
 
 /* PRAXIS (the most successful in `fracnav bench reduce`), trilinear, a 1 mm band, pre-alignment on,
- * automatic VOI of any size, 3 first-stage starts, trust 12 mm / 18 degrees, tau 0.5/0.95,
- * tolerance 0.5 mm, xtol 0.01 mm, 4000 evaluations. */
+ * automatic VOI of any size, 3 first-stage starts, rotation scaled per principal axis, no coarse
+ * stage, trust 12 mm / 18 degrees, tau 0.5/0.95, tolerance 0.5 mm, xtol 0.01 mm, 4000 evaluations
+ * (all stages and attempts together). */
 void reduce_defaults(reduce_opts *o);
 
 typedef struct reduce_result {
@@ -166,11 +167,13 @@ void reduce_result_free(reduce_result *r);
 /* Fits moving (from its current pose) to the assembly: pre-alignment when o->prealign, then, with an
  * automatic VOI, two stages: the optimizer over the contact zone where the fragment starts, then
  * again over the tighter zone where that ended, with colliding poses refused (costed); a given VOI
- * gets one stage, with that refusal. A result that still collides beyond the tolerance is pushed
- * out along the contact normal (up to 5 mm), else the start is kept. Sets moving->pose = r->end.
- * 0 or FN_E*. */
+ * gets one stage, with that refusal. A fit that ends on the trust wall (within 1 mm or 1 degree)
+ * or colliding is tried again from the start turned 8 degrees about the other two principal axes,
+ * then 12 degrees about all three; the result of best metric (collisions costed) over the union of
+ * the attempts' VOIs wins. A result that still collides beyond the tolerance is pushed out along
+ * the contact normal (up to 5 mm), else the start is kept. Sets moving->pose = r->end.
+ * 0, 1 when o->cancel was set (then moving->pose = r->end = the placed pose), or FN_E*. */
 int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_opts *o, reduce_result *r);
-/* (reduce_pair returns 1, with moving->pose = r->end = the placed pose, when o->cancel was set.) */
 
 /* For a worker thread of a navigation session: fits one moving fragment from *start (where the
  * hand left it; no pre-alignment, whatever o->prealign says) against others[0..nothers-1] at their
