@@ -108,7 +108,7 @@ typedef struct reduce_opts {
                           * smallest voxel spacing is used */
     double xtol_mm;      /* convergence: a step that moves the surface less than this (5 times
                           * that in the first of two stages) */
-    int max_eval;        /* evaluations per fragment (both stages together) */
+    int max_eval;        /* evaluations per fragment (every stage and attempt together) */
     double voi_max_mm;   /* automatic VOI: the longest side (reduce_auto_voi's max_mm) */
     double band_mm;      /* the metric's band (0: the whole box) */
     int starts;          /* the first stage's starts: the start, then turned +-8 degrees about
