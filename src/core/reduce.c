@@ -807,109 +807,111 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
     F = (fit){.start = r->start, .best = INFINITY, .o = o, .id = moving->id, .t0 = t0, .placed = r->start};
     memcpy(F.moving_centroid, moving->centroid, sizeof F.moving_centroid);
     /* A fit that ends on the trust wall, or in collision, has wandered off (a wrong basin; the
-     * true pose collides with nothing): a second attempt from
-     * the start turned about the other principal axes, and, if that ends there too, a third with
-     * wider turns about every axis; the best over the union of their VOIs wins. */
+     * true pose collides with nothing): a second attempt from the start turned about the other
+     * principal axes, and, if that ends there too, a third with wider turns about every axis; the
+     * best over the union of their VOIs wins. */
     pose ends[3];
     reduce_voi vois[3];
     int attempts = 0;
     for (int attempt = 0; attempt < 3 && rc == 0 && !F.cancelled; attempt++) {
-    if (attempt) {
-        int c = at_wall(&F, &moving->pose) ? 1 : collides(&pc, &moving->pose, NULL);
-        if (c <= 0) {
-            rc = c;
-            break;
-        }
-        moving->pose = r->start;
-    }
-    for (int stage = 0; stage < (o->has_voi ? 1 : 2) && rc == 0 && !F.cancelled; stage++) {
-        if (o->has_voi)
-            r->voi = o->voi;
-        else
-            rc = reduce_auto_voi(asm_, nasm, moving, stage ? 2 : 3, 6, o->voi_max_mm, &r->voi, NULL);
-        reduce_metric_free(m);
-        m = NULL;
-        int use_coarse = stage == 0 && !o->has_voi && o->coarse;
-        if (rc == 0 && use_coarse && !cb) { /* the coarse level, made once */
-            cf = calloc((size_t)nasm + 1, sizeof *cf);
-            cfp = calloc((size_t)nasm, sizeof *cfp);
-            rc = cf && cfp ? 0 : fn_err_set(FN_ENOMEM, "reduce: out of memory");
-            for (int f = 0; f <= nasm && rc == 0; f++) {
-                rc = reduce__coarse_frag(f < nasm ? asm_[f] : moving, &cf[f]);
-                ncf += rc == 0;
-                if (f < nasm)
-                    cfp[f] = &cf[f];
-            }
-            if (rc == 0 && !(cb = reduce__bricks_new(&cf[nasm])))
-                rc = FN_ENOMEM;
-        }
-        if (rc == 0 && use_coarse) {
-            double band = o->band_mm > 0 ? fmax(o->band_mm, fmax(cf[0].spacing[0], fmax(cf[0].spacing[1], cf[0].spacing[2]))) : 0;
-            if (!(m = reduce__metric_with(cfp, nasm, &cf[nasm], cb, &r->voi, o->count, band)))
-                rc = FN_EINVAL;
-        } else if (rc == 0 && !(m = reduce__metric_with(asm_, nasm, moving, b, &r->voi, o->count, o->band_mm)))
-            rc = FN_EINVAL;
-        if (rc)
-            break;
-        if (stage == 0) { /* a fragment left apart first slides straight into contact */
-            double cm[3], dir[3], len = 0;
-            centroid_world(moving, cm);
-            for (int a = 0; a < 3; a++) {
-                dir[a] = m->fixed_centre[a] - cm[a];
-                len += dir[a] * dir[a];
-            }
-            len = sqrt(len);
-            for (int a = 0; a < 3 && len > 0; a++)
-                dir[a] /= len;
-            if (len > 0 && (rc = slide_to_contact(&pc, &moving->pose, dir, APPROACH_MM)) < 0)
+        if (attempt) {
+            int c = at_wall(&F, &moving->pose) ? 1 : collides(&pc, &moving->pose, NULL);
+            if (c <= 0) {
+                rc = c;
                 break;
-            rc = 0;
+            }
+            moving->pose = r->start;
         }
-        F.metric = m;
-        F.pc = stage == (o->has_voi ? 0 : 1) ? &pc : NULL;
-        F.xtol = F.pc ? o->xtol_mm : 5 * o->xtol_mm; /* the first of two stages stops coarser */
-        pose base = moving->pose, best = base;
-        double bestf = INFINITY;
-        /* The first stage also starts from the base turned by START_DEG about each principal
-         * axis: the metric's basin is narrow, and the best of these fits wins. */
-        int nstarts = stage == 0 && o->starts > 1 ? o->starts : 1, k0 = 0;
-        if (attempt == 1 && stage == 0) { /* the turns about the other two axes */
-            k0 = nstarts > 1 ? nstarts : 1;
-            nstarts = k0 + 4;
-        } else if (attempt == 2 && stage == 0) { /* wider turns, about every axis */
-            k0 = 1;
-            nstarts = 7;
-        }
-        for (int k = k0; k < nstarts && rc == 0 && !F.cancelled; k++) {
-            F.start = base;
-            if (k > 0) {
-                double axis[3], cm[3];
-                axis_world(moving, (k - 1) / 2 % 3, axis);
-                pose turn = pose_from_axis_angle(axis, (k % 2 ? 1 : -1) * (attempt == 2 ? 1.5 : 1) * START_DEG * PI / 180);
+        for (int stage = 0; stage < (o->has_voi ? 1 : 2) && rc == 0 && !F.cancelled; stage++) {
+            if (o->has_voi)
+                r->voi = o->voi;
+            else
+                rc = reduce_auto_voi(asm_, nasm, moving, stage ? 2 : 3, 6, o->voi_max_mm, &r->voi, NULL);
+            reduce_metric_free(m);
+            m = NULL;
+            int use_coarse = stage == 0 && !o->has_voi && o->coarse;
+            if (rc == 0 && use_coarse && !cb) { /* the coarse level, made once */
+                cf = calloc((size_t)nasm + 1, sizeof *cf);
+                cfp = calloc((size_t)nasm, sizeof *cfp);
+                rc = cf && cfp ? 0 : fn_err_set(FN_ENOMEM, "reduce: out of memory");
+                for (int f = 0; f <= nasm && rc == 0; f++) {
+                    rc = reduce__coarse_frag(f < nasm ? asm_[f] : moving, &cf[f]);
+                    ncf += rc == 0;
+                    if (f < nasm)
+                        cfp[f] = &cf[f];
+                }
+                if (rc == 0 && !(cb = reduce__bricks_new(&cf[nasm])))
+                    rc = FN_ENOMEM;
+            }
+            if (rc == 0 && use_coarse) {
+                double cs = fmax(cf[0].spacing[0], fmax(cf[0].spacing[1], cf[0].spacing[2]));
+                double band = o->band_mm > 0 ? fmax(o->band_mm, cs) : 0;
+                if (!(m = reduce__metric_with(cfp, nasm, &cf[nasm], cb, &r->voi, o->count, band)))
+                    rc = FN_EINVAL;
+            } else if (rc == 0 && !(m = reduce__metric_with(asm_, nasm, moving, b, &r->voi, o->count, o->band_mm)))
+                rc = FN_EINVAL;
+            if (rc)
+                break;
+            if (stage == 0) { /* a fragment left apart first slides straight into contact */
+                double cm[3], dir[3], len = 0;
                 centroid_world(moving, cm);
-                F.start = turned(&base, &turn, cm, cm);
+                for (int a = 0; a < 3; a++) {
+                    dir[a] = m->fixed_centre[a] - cm[a];
+                    len += dir[a] * dir[a];
+                }
+                len = sqrt(len);
+                for (int a = 0; a < 3 && len > 0; a++)
+                    dir[a] /= len;
+                if (len > 0 && (rc = slide_to_contact(&pc, &moving->pose, dir, APPROACH_MM)) < 0)
+                    break;
+                rc = 0;
             }
-            F.best = INFINITY;
-            F.improvements = 0;
-            centroid_world(moving, F.c);
-            set_scale(&F, m);
-            double f0 = objective_at(&F, &F.start);
-            hist_add(&F, f0);
-            int it = 0;
-            rc = run_optimizer(&F, &it);
-            r->iterations += it;
-            if (rc == 0 && fmin(F.best, f0) < bestf) {
-                bestf = fmin(F.best, f0);
-                best = F.best < f0 ? pose_of(&F, F.bestx) : F.start;
+            F.metric = m;
+            F.pc = stage == (o->has_voi ? 0 : 1) ? &pc : NULL;
+            F.xtol = F.pc ? o->xtol_mm : 5 * o->xtol_mm; /* the first of two stages stops coarser */
+            pose base = moving->pose, best = base;
+            double bestf = INFINITY;
+            /* The first stage also starts from the base turned by START_DEG about each principal
+             * axis: the metric's basin is narrow, and the best of these fits wins. */
+            int nstarts = stage == 0 && o->starts > 1 ? o->starts : 1, k0 = 0;
+            if (attempt == 1 && stage == 0) { /* the turns about the other two axes */
+                k0 = nstarts > 1 ? nstarts : 1;
+                nstarts = k0 + 4;
+            } else if (attempt == 2 && stage == 0) { /* wider turns, about every axis */
+                k0 = 1;
+                nstarts = 7;
             }
+            for (int k = k0; k < nstarts && rc == 0 && !F.cancelled; k++) {
+                F.start = base;
+                if (k > 0) {
+                    double axis[3], cm[3];
+                    axis_world(moving, (k - 1) / 2 % 3, axis);
+                    double deg = (k % 2 ? 1 : -1) * (attempt == 2 ? 1.5 : 1) * START_DEG;
+                    pose turn = pose_from_axis_angle(axis, deg * PI / 180);
+                    centroid_world(moving, cm);
+                    F.start = turned(&base, &turn, cm, cm);
+                }
+                F.best = INFINITY;
+                F.improvements = 0;
+                centroid_world(moving, F.c);
+                set_scale(&F, m);
+                double f0 = objective_at(&F, &F.start);
+                hist_add(&F, f0);
+                int it = 0;
+                rc = run_optimizer(&F, &it);
+                r->iterations += it;
+                if (rc == 0 && fmin(F.best, f0) < bestf) {
+                    bestf = fmin(F.best, f0);
+                    best = F.best < f0 ? pose_of(&F, F.bestx) : F.start;
+                }
+            }
+            moving->pose = best;
+            pose_normalize(&moving->pose);
         }
-        moving->pose = best;
-        pose_normalize(&moving->pose);
-    }
-    if (rc == 0) {
-        ends[attempts] = moving->pose;
-        vois[attempts++] = r->voi;
-    }
+        if (rc == 0) {
+            ends[attempts] = moving->pose;
+            vois[attempts++] = r->voi;
+        }
     }
     if (rc == 0 && attempts > 1) { /* compared over the union of the VOIs, collisions costed */
         reduce_voi u = vois[0];
