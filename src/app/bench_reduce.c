@@ -322,7 +322,8 @@ static int run_case(const vol *ct, uint64_t seed, const opts *o, config_stats *c
                 m.pose = keep;
                 fprintf(stderr, "  start error %.2f deg %.2f mm; fit moved %.2f deg\n", sr, st,
                         pose_angle_between(r.fitted, r.start) * 180 / M_PI);
-                fprintf(stderr, "  fitted %.3f deg %.3f mm; voi %.0fx%.0fx%.0f mm\n", fr_, ft_, r.voi.hi[0] - r.voi.lo[0],
+                fprintf(stderr, "  fitted %.3f deg %.3f mm; voi %.0fx%.0fx%.0f mm\n", fr_, ft_,
+                        r.voi.hi[0] - r.voi.lo[0],
                         r.voi.hi[1] - r.voi.lo[1], r.voi.hi[2] - r.voi.lo[2]);
                 reduce_metric *me = reduce_metric_new(asm_, 1, &m, &r.voi, ro.count, ro.band_mm);
                 double ft = me ? reduce_metric_eval(me, &truth, NULL) : NAN;
@@ -496,7 +497,8 @@ static int parse(int argc, char **argv, opts *o)
                 *slash = 0;
             int m = reduce_method_parse(name);
             if (m < 0 || (slash && !nearest) || o->nconf == MAX_CONFIGS)
-                return cmd_bad_value("bench reduce", a, val, "powell, praxis, sbplx or bobyqa, optionally /nearest (8 at most)");
+                return cmd_bad_value("bench reduce", a, val,
+                                     "powell, praxis, sbplx or bobyqa, optionally /nearest (8 at most)");
             o->method[o->nconf] = (reduce_method)m;
             o->count[o->nconf++] = nearest ? REDUCE_NEAREST : REDUCE_TRILINEAR;
             i++;

@@ -25,15 +25,15 @@ long morph_fill(uint8_t *mask, const int dim[3], int mode);
 void morph_distance(const uint8_t *mask, const int dim[3], const double sp[3], float *dist);
 
 /* Separates the mask into pieces. Markers: one per seed (seeds: nseeds voxel indices (i, j, k),
- * each inside the mask) when nseeds > 0; else the 26-connected cores left by eroding to distance
- * > erode_mm (erode_mm > 0), or, with erode_mm <= 0, by the smallest erosion (in steps of
- * min(sp) / 2) that leaves two cores or more, each of at least min_voxels voxels and 5% of the
- * largest core (smaller cores are dropped: crumbs of thin parts). The markers then grow back over the mask, the deepest voxels first (a priority
- * flood on the distance map, 26-connected): a marker-based watershed. lab: one int32 per voxel, 0
- * outside the mask, 1..n the piece; a part of the mask no marker reaches (another component)
- * gets a piece of its own. *erode_used: the erosion (mm) that split it (0 with seeds).
- * Returns the number of pieces n (1 when no erosion splits it), FN_EINVAL (a seed outside the
- * mask, naming it), or FN_ENOMEM. */
+ * each inside the mask) when nseeds > 0; else the 26-connected cores left by eroding to distance >
+ * erode_mm (erode_mm > 0), or, with erode_mm <= 0, by the smallest erosion (in steps of min(sp) /
+ * 2) that leaves two cores or more, each of at least min_voxels voxels and 5% of the largest core
+ * (smaller cores are dropped: crumbs of thin parts). The markers then grow back over the mask, the
+ * deepest voxels first (a priority flood on the distance map, 26-connected): a marker-based
+ * watershed. lab: one int32 per voxel, 0 outside the mask, 1..n the piece; a part of the mask no
+ * marker reaches (another component) gets a piece of its own. *erode_used: the erosion (mm) that
+ * split it (0 with seeds). Returns the number of pieces n (1 when no erosion splits it), FN_EINVAL
+ * (a seed outside the mask, naming it), or FN_ENOMEM. */
 int morph_separate(const uint8_t *mask, const int dim[3], const double sp[3], double erode_mm,
                    const int (*seeds)[3], int nseeds, size_t min_voxels, int32_t *lab, double *erode_used);
 
