@@ -21,8 +21,9 @@
  * with its runs of bone voxels along i, culled against the VOI by a bounding sphere.
  *
  * Parameters of the fit (6): translation in world mm, and the rotation vector about the moving
- * fragment's centroid (at the start pose) times a radius r (the RMS distance of its voxels in the
- * VOI from that centroid), so a unit step of either kind moves the fracture surface about 1 mm.
+ * fragment's centroid (at the start pose) in the principal axes of its voxels in the VOI, each
+ * component times the RMS distance of those voxels from that axis, so a unit step of either kind
+ * moves the fracture surface about 1 mm (reduce_opts.axis_scale).
  *
  * Threads: a reduce_metric is read-only once made; evaluations from several threads are safe.
  * Errors: see err.h. */
@@ -32,6 +33,7 @@
 #include "frag.h"
 #include "pose.h"
 
+#include <stdatomic.h>
 #include <stddef.h>
 
 struct obb_tree;
@@ -76,6 +78,8 @@ double reduce_metric_eval(const reduce_metric *m, const pose *p, reduce_counts *
 /* Moving voxels (prob > 0) carried into the VOI at pose p (nearest), and their RMS distance from
  * point c (world mm); for the parameter scale. */
 double reduce_metric_radius(const reduce_metric *m, const pose *p, const double c[3]);
+/* Their second moments about c: S[a][b] = mean of (x_a - c_a)(x_b - c_b) (mm^2; zeros when none). */
+void reduce_metric_spread(const reduce_metric *m, const pose *p, const double c[3], double S[3][3]);
 /* The same counts by brute force: every voxel of the moving fragment carried through each pose in
  * turn (pose_apply), every VOI cell of the grid visited. Slow: for tests. */
 double reduce_metric_brute(const frag *const *asm_, int nasm, const frag *moving, const pose *p,
@@ -104,20 +108,34 @@ typedef struct reduce_opts {
                           * smallest voxel spacing is used */
     double xtol_mm;      /* convergence: a step that moves the surface less than this (5 times
                           * that in the first of two stages) */
-    int max_eval;        /* evaluations per fragment (both stages together) */
+    int max_eval;        /* evaluations per fragment (every stage and attempt together) */
     double voi_max_mm;   /* automatic VOI: the longest side (reduce_auto_voi's max_mm) */
     double band_mm;      /* the metric's band (0: the whole box) */
     int starts;          /* the first stage's starts: the start, then turned +-8 degrees about
                           * the principal axes in turn; the best fit wins */
+    int axis_scale;      /* 1 (default): the rotation is scaled per principal axis of the moving
+                          * voxels in the VOI (about each axis by their RMS distance from it), so a
+                          * unit step about a long bone's shaft moves its surface as far as one
+                          * about a cross axis (bench reduce, long bone: success 0.30 -> 0.55, skull
+                          * unchanged); 0: one radius for all three (the RMS distance from the
+                          * centroid) */
+    int coarse;          /* 1: the first stage (automatic VOI) fits coarse copies of the fragments
+                          * (2 voxels a cell per axis where the spacing is finest). Off by default:
+                          * in `bench reduce` its flatter metric led fits astray (success 0.25
+                          * against 0.90 for PRAXIS) */
     double trust_mm, trust_deg; /* the fit stays this close to the start (after pre-alignment):
                           * centroid distance and rotation angle */
-    reduce_progress_fn progress; /* after each iteration; may be NULL */
+    reduce_progress_fn progress; /* after each iteration; may be NULL. Called on the thread that
+                          * runs the fit */
     void *progress_ctx;
+    const atomic_int *cancel; /* may be NULL; once another thread sets it non-zero, the fit stops
+                          * within one metric evaluation and returns 1 with the placed pose */
 } reduce_opts;
 
 /* PRAXIS (the most successful in `fracnav bench reduce`), trilinear, a 1 mm band, pre-alignment on,
- * automatic VOI of any size, 3 first-stage starts, trust 12 mm / 18 degrees, tau 0.5/0.95,
- * tolerance 0.5 mm, xtol 0.01 mm, 4000 evaluations. */
+ * automatic VOI of any size, 3 first-stage starts, rotation scaled per principal axis, no coarse
+ * stage, trust 12 mm / 18 degrees, tau 0.5/0.95, tolerance 0.5 mm, xtol 0.01 mm, 4000 evaluations
+ * (all stages and attempts together). */
 void reduce_defaults(reduce_opts *o);
 
 typedef struct reduce_result {
@@ -149,10 +167,28 @@ void reduce_result_free(reduce_result *r);
 /* Fits moving (from its current pose) to the assembly: pre-alignment when o->prealign, then, with an
  * automatic VOI, two stages: the optimizer over the contact zone where the fragment starts, then
  * again over the tighter zone where that ended, with colliding poses refused (costed); a given VOI
- * gets one stage, with that refusal. A result that still collides beyond the tolerance is pushed
- * out along the contact normal (up to 5 mm), else the start is kept. Sets moving->pose = r->end.
- * 0 or FN_E*. */
+ * gets one stage, with that refusal. A fit that ends on the trust wall (within 1 mm or 1 degree)
+ * or colliding is tried again from the start turned 8 degrees about the other two principal axes,
+ * then 12 degrees about all three; the result of best metric (collisions costed) over the union of
+ * the attempts' VOIs wins. A result that still collides beyond the tolerance is pushed out along
+ * the contact normal (up to 5 mm), else the start is kept. Sets moving->pose = r->end.
+ * 0, 1 when o->cancel was set (then moving->pose = r->end = the placed pose), or FN_E*. */
 int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_opts *o, reduce_result *r);
+
+/* For a worker thread of a navigation session: fits one moving fragment from *start (where the
+ * hand left it; no pre-alignment, whatever o->prealign says) against others[0..nothers-1] at their
+ * poses, with o->progress called (on this thread) after each iteration and o->cancel polled at
+ * every evaluation. *out: the fitted pose, never colliding with the others beyond the tolerance
+ * (else *start, see reduce_pair); r: its record (free with reduce_result_free).
+ * Ownership and threads: the fragments are only read. moving->pose is not used or changed (the
+ * fit works on a copy). The caller keeps the fragments' voxels (prob) alive and unchanged, and
+ * others' poses unchanged, for the whole call: a session passes copies of its frag structs taken
+ * under its lock (struct copies sharing prob suffice, prob is never written while a case is
+ * open). Several fits may run at once on different threads (the messages of err.h are
+ * per thread). Allocates; never call it from the real-time loop's step.
+ * Returns 0, 1 when cancelled (*out = *start), or FN_E*. */
+int reduce_fit_one(const frag *const *others, int nothers, const frag *moving, const pose *start,
+                   const reduce_opts *o, pose *out, reduce_result *r);
 
 /* Reduces the case's fragments: fixed (index) stays, the moving ones (indices; NULL = all others)
  * are fitted one by one against the growing assembly, the one of largest contact first. r has

@@ -477,7 +477,14 @@ double reduce_metric_eval(const reduce_metric *m, const pose *p, reduce_counts *
 
 double reduce_metric_radius(const reduce_metric *m, const pose *p, const double c[3])
 {
-    double M[3][3], T[3], s = 0;
+    double S[3][3];
+    reduce_metric_spread(m, p, c, S);
+    return sqrt(S[0][0] + S[1][1] + S[2][2]);
+}
+
+void reduce_metric_spread(const reduce_metric *m, const pose *p, const double c[3], double S[3][3])
+{
+    double M[3][3], T[3], s[3][3] = {{0}};
     size_t n = 0;
     carry(m, p, M, T);
     for (int bi = 0; bi < m->b->nbrick; bi++) {
@@ -496,12 +503,16 @@ double reduce_metric_radius(const reduce_metric *m, const pose *p, const double 
                 for (int a = 0; a < 3; a++)
                     l[a] = (x[a] + m->c0[a]) * m->sg[a];
                 pose_apply(&m->grid_world, l, w);
-                s += (w[0] - c[0]) * (w[0] - c[0]) + (w[1] - c[1]) * (w[1] - c[1]) + (w[2] - c[2]) * (w[2] - c[2]);
+                for (int a = 0; a < 3; a++)
+                    for (int b = 0; b < 3; b++)
+                        s[a][b] += (w[a] - c[a]) * (w[b] - c[b]);
                 n++;
             }
         }
     }
-    return n ? sqrt(s / (double)n) : 0;
+    for (int a = 0; a < 3; a++)
+        for (int b = 0; b < 3; b++)
+            S[a][b] = n ? s[a][b] / (double)n : 0;
 }
 
 /* Brute force's band: a bone cell within k cells on every axis, looked for cell by cell. */
