@@ -10,6 +10,8 @@
 #include "err.h"
 #include "frag.h"
 #include "fracture.h"
+#include "morph.h"
+#include "seg.h"
 #include "testutil.h"
 #include "volio.h"
 
@@ -102,6 +104,52 @@ static void test_truth_restores_pieces(void **st)
     for (size_t i = 0; i < vol_count(ct); i++)
         filled += r.cut->data[i] > 1 && r.labels->data[i] == 0 && r.ct->data[i] == 40;
     assert_true(filled > 0);
+    fracture_result_free(&r);
+    vol_free(ct);
+}
+
+/* --touching: the moved pieces stay in contact (the threshold joins them into one component), the
+ * truth still restores them, and separate (morph) splits them back, each piece matched with Dice
+ * >= 0.85. */
+static void test_touching_pieces_separate(void **st)
+{
+    vol *ct = bone();
+    fracture_params p;
+    fracture_defaults(&p);
+    p.seed = 7;
+    p.pieces = 2;
+    p.rotate_deg = 4;
+    p.touching = 1;
+    fracture_result r;
+    if (fracture_make(ct, &p, &r) < 0)
+        fail_msg("%s", fn_err_msg());
+    check_truth(ct, &r);
+    size_t n = vol_count(r.ct);
+    uint8_t *mask = malloc(n);
+    int32_t *lab = malloc(n * sizeof *lab);
+    assert_non_null(mask);
+    assert_non_null(lab);
+    for (size_t i = 0; i < n; i++)
+        mask[i] = r.ct->data[i] >= r.threshold;
+    assert_int_equal(seg_components(mask, r.ct->dim, lab), 1);
+    int pieces = morph_separate(mask, r.ct->dim, r.ct->spacing, 0, NULL, 0, 8, lab, NULL);
+    assert_int_equal(pieces, 2);
+    for (int id = 1; id <= 2; id++) {
+        double best = 0;
+        for (int q = 1; q <= pieces; q++) {
+            size_t both = 0, nt = 0, np = 0;
+            for (size_t i = 0; i < n; i++) {
+                nt += r.labels->data[i] == (float)id;
+                np += lab[i] == q;
+                both += r.labels->data[i] == (float)id && lab[i] == q;
+            }
+            best = fmax(best, 2.0 * (double)both / (double)(nt + np));
+        }
+        if (!(best >= 0.85))
+            fail_msg("piece %d: best Dice %.3f", id, best);
+    }
+    free(mask);
+    free(lab);
     fracture_result_free(&r);
     vol_free(ct);
 }
@@ -555,6 +603,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_truth_restores_pieces),
+        cmocka_unit_test(test_touching_pieces_separate),
         cmocka_unit_test(test_surface_is_rough),
         cmocka_unit_test(test_bone_loss_opens_a_gap),
         cmocka_unit_test(test_same_seed_same_case),

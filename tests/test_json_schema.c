@@ -377,6 +377,16 @@ static void test_volume_commands(void **st)
     assert_int_equal(json_integer_value(json_object_get(j, "new_fragment")), 2);
     assert_int_equal(json_array_size(json_object_get(j, "fragments")), 2);
     check(j, "edit");
+    j = fracnav("edit", "edit '%s' fill 1 --slices --json", tube_case);
+    assert_true(json_is_integer(json_object_get(j, "filled_voxels")));
+    check(j, "edit");
+    j = fracnav("edit", "edit '%s' merge 1 2 --json", case_dir);
+    check(j, "edit");
+    j = fracnav("edit", "edit '%s' separate 1 --json", case_dir);
+    assert_int_equal(json_array_size(json_object_get(j, "new_fragments")), 1);
+    assert_true(json_is_real(json_object_get(j, "erode_mm")));
+    assert_int_equal(json_array_size(json_object_get(j, "fragments")), 2);
+    check(j, "edit");
     j = fracnav("fracture", "fracture '%s' -o '%s' --seed 1 --json", tube, frac_dir);
     assert_int_equal(json_array_size(json_object_get(j, "fragments")), 2);
     assert_true(json_is_real(json_object_get(json_array_get(json_object_get(j, "fragments"), 1), "displacement_mm")));

@@ -19,6 +19,7 @@
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
+#include <stdatomic.h>
 #include <string.h>
 
 /* ---- principal axes ---- */
@@ -355,6 +356,58 @@ static void test_reduce_nlopt_methods(void **st)
     free(dir);
 }
 
+typedef struct fit_watch {
+    int calls, last_iter;
+    atomic_int *cancel_at_first;
+} fit_watch;
+
+static void on_progress(void *ctx, int id, int iter, int evals, double f, double seconds)
+{
+    fit_watch *w = ctx;
+    (void)id, (void)evals, (void)f, (void)seconds;
+    w->calls++;
+    w->last_iter = iter;
+    if (w->cancel_at_first)
+        atomic_store(w->cancel_at_first, 1);
+}
+
+/* The worker-thread API: from the hand's pose, against the others, with progress; the fragments
+ * given are left as they were; a cancel returns 1 with the start pose. */
+static void test_fit_one(void **st)
+{
+    char *dir = tu_tmpdir("reduce_fit_one");
+    fcase *c = fractured(dir, 2, 3);
+    pose placed = c->frag[1].pose;
+    const frag *others[1] = {&c->frag[0]};
+    reduce_opts o;
+    reduce_defaults(&o);
+    o.prealign = 1; /* ignored: a session's fit starts where the hand left the fragment */
+    fit_watch w = {0};
+    atomic_int cancel = 0;
+    o.progress = on_progress;
+    o.progress_ctx = &w;
+    o.cancel = &cancel;
+    pose out;
+    reduce_result r;
+    assert_int_equal(reduce_fit_one(others, 1, &c->frag[1], &placed, &o, &out, &r), 0);
+    assert_true(w.calls >= 1 && w.last_iter >= 1);
+    assert_int_equal(r.prealigned, 0);
+    assert_int_equal(r.collides, 0);
+    assert_true(pose_distance(c->frag[1].pose, placed) < 1e-12); /* the caller's fragment untouched */
+    c->frag[1].pose = out;
+    check_errors(c, 0, 1, 1);
+    reduce_result_free(&r);
+    /* cancelled at the first progress report */
+    w = (fit_watch){.cancel_at_first = &cancel};
+    assert_int_equal(reduce_fit_one(others, 1, &c->frag[1], &placed, &o, &out, &r), 1);
+    assert_int_equal(w.calls, 1);
+    assert_true(pose_distance(out, placed) < 1e-12 && pose_angle_between(out, placed) < 1e-12);
+    reduce_result_free(&r);
+    case_free(c);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 /* The command: usage errors exit 2 naming the option, a missing case exits 1 naming it, and a
  * run prints one JSON object with the errors against the truth, and saves into -o. */
 static void test_cli(void **st)
@@ -454,6 +507,7 @@ int main(void)
         cmocka_unit_test(test_reduce_two_pieces),
         cmocka_unit_test(test_reduce_three_pieces),
         cmocka_unit_test(test_reduce_nlopt_methods),
+        cmocka_unit_test(test_fit_one),
         cmocka_unit_test(test_cli),
         cmocka_unit_test(test_prealign_rods),
     };

@@ -303,6 +303,52 @@ static void test_cli_nonfinite(void **st)
     free(dir);
 }
 
+/* segment --labels: a labelmap on the CT's grid (NIfTI and NRRD) comes back as the case's
+ * labels, label k = fragment k, even where the pieces touch; another grid is refused, named. */
+static void test_cli_labels_import(void **st)
+{
+    char *dir = tu_tmpdir("seg-labels"), ct[4300], lab[4300], out_dir[4300], *out = NULL;
+    vol *v = vol_new(24, 16, 12), *l = vol_new(24, 16, 12);
+    for (int k = 0; k < 12; k++)
+        for (int j = 0; j < 16; j++)
+            for (int i = 0; i < 24; i++) {
+                int in = i >= 2 && i < 22 && j >= 3 && j < 13 && k >= 2 && k < 10;
+                v->data[vol_idx(v, i, j, k)] = in ? 900 : -1000;
+                l->data[vol_idx(l, i, j, k)] = in ? (i < 9 ? 1 : i < 15 ? 3 : 2) : 0; /* three touching */
+            }
+    snprintf(ct, sizeof ct, "%s/ct.nii.gz", dir);
+    assert_int_equal(volio_write(v, ct, VOL_I16), 0);
+    const char *ext[2] = {"nii.gz", "nrrd"};
+    for (int e = 0; e < 2; e++) {
+        snprintf(lab, sizeof lab, "%s/labels.%s", dir, ext[e]);
+        snprintf(out_dir, sizeof out_dir, "%s/case%d", dir, e);
+        assert_int_equal(volio_write(l, lab, VOL_U8), 0);
+        int rc = tu_run_cli(&out, "segment '%s' --labels '%s' -o '%s' --min-volume 0", ct, lab, out_dir);
+        if (rc != 0)
+            fail_msg("segment --labels: %s", out);
+        free(out);
+        fcase *c = case_load(out_dir);
+        if (!c)
+            fail_msg("%s", fn_err_msg());
+        assert_int_equal(c->nfrag, 3);
+        for (size_t i = 0; i < vol_count(l); i++)
+            assert_true(c->labels->data[i] == l->data[i]);
+        case_free(c);
+    }
+    vol *other = vol_new(24, 16, 11);
+    assert_int_equal(volio_write(other, lab, VOL_U8), 0);
+    snprintf(out_dir, sizeof out_dir, "%s/case-bad", dir);
+    assert_int_equal(tu_run_cli(&out, "segment '%s' --labels '%s' -o '%s'", ct, lab, out_dir), 1);
+    if (!strstr(out, "grid") || !strstr(out, lab))
+        fail_msg("got: %s", out);
+    free(out);
+    vol_free(other);
+    vol_free(v);
+    vol_free(l);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 static void test_cli_usage(void **st)
 {
     char *out;
@@ -447,6 +493,7 @@ int main(void)
         cmocka_unit_test(test_otsu_ignores_nonfinite),
         cmocka_unit_test(test_all_nonfinite_refused),
         cmocka_unit_test(test_cli_nonfinite),
+        cmocka_unit_test(test_cli_labels_import),
         cmocka_unit_test(test_cli_usage),
         cmocka_unit_test(test_prob_ramp),
         cmocka_unit_test(test_eigen),

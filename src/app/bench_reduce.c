@@ -8,7 +8,9 @@
 #include "fracture.h"
 #include "jsonw.h"
 #include "obb.h"
+#include "morph.h"
 #include "reduce.h"
+#include "seg.h"
 #include "volio.h"
 
 #include <math.h>
@@ -21,7 +23,9 @@
 typedef struct opts {
     int seeds, starts, json, verbose;
     double max_mm, max_deg, band_mm, voi_max_mm;
-    int fit_starts;
+    int fit_starts, coarse;
+    int pieces, threshold_auto, touching;
+    double threshold, bone_loss_mm;
     int nconf;
     reduce_method method[MAX_CONFIGS];
     reduce_count count[MAX_CONFIGS];
@@ -127,24 +131,104 @@ typedef struct config_stats {
     sample *s;
     int n;
     double eval_us;
+    double separate_dice, separate_s; /* the touching workload's separation (in cs[0]) */
 } config_stats;
+
+/* Touching pieces as a user meets them: the fractured CT thresholded (the component that holds
+ * the pieces), separated (edit separate's morph_separate), and each true piece replaced in
+ * fr->labels by the separated piece that matches it best; the worst of those Dice goes to cs. */
+static int separate_pieces(fracture_result *fr, int pieces, config_stats *cs)
+{
+    size_t n = vol_count(fr->ct);
+    uint8_t *mask = malloc(n);
+    int32_t *comp = malloc(n * sizeof *comp), *lab = malloc(n * sizeof *lab);
+    int rc = mask && comp && lab ? 0 : fn_err_set(FN_ENOMEM, "bench reduce: out of memory");
+    int nc = 0, pick = 0, np = 0;
+    if (rc == 0) {
+        for (size_t i = 0; i < n; i++)
+            mask[i] = fr->ct->data[i] >= fr->threshold;
+        rc = nc = seg_components(mask, fr->ct->dim, comp);
+    }
+    if (rc > 0) { /* the component under piece 1's first voxel holds the pieces */
+        for (size_t i = 0; i < n && !pick; i++)
+            if (fr->labels->data[i] == 1 && comp[i])
+                pick = comp[i];
+        for (size_t i = 0; i < n; i++)
+            mask[i] = comp[i] == pick && pick;
+        double t0 = bench_cpu_us();
+        rc = np = morph_separate(mask, fr->ct->dim, fr->ct->spacing, 0, NULL, 0, 27, lab, NULL);
+        cs->separate_s += (bench_cpu_us() - t0) * 1e-6;
+    }
+    double worst = 1;
+    int *match = rc > 0 ? calloc((size_t)pieces + 1, sizeof *match) : NULL;
+    for (int id = 1; match && id <= pieces; id++) {
+        double best = 0;
+        for (int q = 1; q <= np; q++) {
+            size_t both = 0, nt = 0, nq = 0;
+            for (size_t i = 0; i < n; i++) {
+                nt += fr->labels->data[i] == (float)id;
+                nq += lab[i] == q;
+                both += fr->labels->data[i] == (float)id && lab[i] == q;
+            }
+            double d = nt + nq ? 2.0 * (double)both / (double)(nt + nq) : 0;
+            if (d > best) {
+                best = d;
+                match[id] = q;
+            }
+        }
+        worst = fmin(worst, best);
+    }
+    if (match) {
+        for (size_t i = 0; i < n; i++) {
+            float v = 0;
+            for (int id = 1; id <= pieces; id++)
+                if (lab[i] && lab[i] == match[id])
+                    v = (float)id;
+            fr->labels->data[i] = v;
+        }
+        cs->separate_dice = fmin(cs->separate_dice, worst);
+        for (int id = 1; id <= pieces && rc >= 0; id++)
+            if (!match[id])
+                rc = fn_err_set(FN_EINVAL, "bench reduce: piece %d found no separated piece", id);
+    } else if (rc >= 0)
+        rc = fn_err_set(FN_ENOMEM, "bench reduce: out of memory");
+    free(match);
+    free(mask);
+    free(comp);
+    free(lab);
+    return rc < 0 ? rc : 0;
+}
 
 static int run_case(const vol *ct, uint64_t seed, const opts *o, config_stats *cs)
 {
     fracture_params fp;
     fracture_defaults(&fp);
     fp.seed = seed;
+    fp.pieces = o->pieces;
+    fp.bone_loss_mm = o->bone_loss_mm;
+    fp.threshold = o->threshold;
+    fp.threshold_auto = o->threshold_auto;
+    fp.touching = o->touching;
     fracture_result fr;
     int rc = fracture_make(ct, &fp, &fr);
     if (rc)
         return rc;
-    frag f = {0}, m = {0};
-    frag *fs[2] = {&f, &m};
-    for (int id = 1; id <= 2 && rc == 0; id++) {
+    if (o->touching && (rc = separate_pieces(&fr, o->pieces, cs)) < 0) {
+        fracture_result_free(&fr);
+        return rc;
+    }
+    /* piece 2 moves; piece 1 and any others stay at their true poses: the assembly */
+    frag f = {0}, m = {0}, rest[8] = {{0}};
+    frag *fs[10] = {&f, &m};
+    for (int id = 3; id <= o->pieces; id++)
+        fs[id - 1] = &rest[id - 3];
+    for (int id = 1; id <= o->pieces && rc == 0; id++) {
         int lo[3], hi[3];
         rc = frag_label_box(fr.labels, id, lo, hi);
         if (rc == 0)
-            rc = frag_from_labels(fs[id - 1], fr.labels, fr.ct, id, lo, hi, fp.threshold, 200);
+            rc = frag_from_labels(fs[id - 1], fr.labels, fr.ct, id, lo, hi, fr.threshold, 200);
+        if (rc == 0)
+            fs[id - 1]->pose = fr.truth[id - 1];
     }
     pose truth = fr.truth[1];
     fracture_result_free(&fr);
@@ -152,7 +236,10 @@ static int run_case(const vol *ct, uint64_t seed, const opts *o, config_stats *c
     obb_tree *tf = rc == 0 ? obb_tree_build(&f, &op) : NULL, *tm = tf ? obb_tree_build(&m, &op) : NULL;
     if (rc == 0 && (!tf || !tm))
         rc = FN_ENOMEM;
-    const frag *asm_[1] = {&f};
+    const frag *asm_[9] = {&f};
+    int nasm = 1;
+    for (int id = 3; id <= o->pieces; id++)
+        asm_[nasm++] = fs[id - 1];
     reduce_voi zone;
     if (rc == 0) {
         m.pose = truth;
@@ -175,10 +262,12 @@ static int run_case(const vol *ct, uint64_t seed, const opts *o, config_stats *c
                 ro.voi_max_mm = o->voi_max_mm;
             if (o->fit_starts)
                 ro.starts = o->fit_starts;
+            if (o->coarse)
+                ro.coarse = 1;
             m.pose = start;
             reduce_result r;
             double c0 = bench_cpu_us();
-            rc = reduce_pair(asm_, 1, &m, &ro, &r);
+            rc = reduce_pair(asm_, nasm, &m, &ro, &r);
             double c1 = bench_cpu_us();
             if (rc)
                 break;
@@ -194,6 +283,12 @@ static int run_case(const vol *ct, uint64_t seed, const opts *o, config_stats *c
                 m.pose = r.fitted;
                 reduce_errors(&f, &m, &truth, &fr_, &ft_, &fre_);
                 m.pose = keep;
+                double sr, st, stre;
+                m.pose = r.start;
+                reduce_errors(&f, &m, &truth, &sr, &st, &stre);
+                m.pose = keep;
+                fprintf(stderr, "  start error %.2f deg %.2f mm; fit moved %.2f deg\n", sr, st,
+                        pose_angle_between(r.fitted, r.start) * 180 / M_PI);
                 fprintf(stderr, "  fitted %.3f deg %.3f mm; voi %.0fx%.0fx%.0f mm\n", fr_, ft_, r.voi.hi[0] - r.voi.lo[0],
                         r.voi.hi[1] - r.voi.lo[1], r.voi.hi[2] - r.voi.lo[2]);
                 reduce_metric *me = reduce_metric_new(asm_, 1, &m, &r.voi, ro.count, ro.band_mm);
@@ -212,6 +307,8 @@ static int run_case(const vol *ct, uint64_t seed, const opts *o, config_stats *c
     obb_tree_free(tm);
     frag_free(&f);
     frag_free(&m);
+    for (int i = 0; i < 8; i++)
+        frag_free(&rest[i]);
     return rc;
 }
 
@@ -272,16 +369,28 @@ static int usage(FILE *out, int rc)
             "  --band MM        the metric's band (default: reduce's, 1 mm; 0 = the paper's box)\n"
             "  --voi-max MM     the automatic VOI's longest side (default: reduce's, 0 = no limit)\n"
             "  --fit-starts N   starts of each fit's first stage (default: reduce's, 3)\n"
+            "  --coarse         the first stage on coarse copies (reduce_opts.coarse; default off)\n"
+            "  --pieces K       pieces per fracture (default 2): piece 2 is fitted against piece 1\n"
+            "                   and the others, all at their true poses\n"
+            "  --touching       the pieces left in contact (fracture --touching): the fractured CT\n"
+            "                   is thresholded and separated (edit separate) first, and the fits\n"
+            "                   use the separated pieces; separated_dice_min, separate_mean_s\n"
+            "  --bone-loss MM   bone lost along each cut (default 0)\n"
+            "  --threshold HU|auto|auto-bone  the fracture's bone threshold (default 300; for a\n"
+            "                   CT not in HU, as tests/data/CT_pitch.nii.gz: auto-bone)\n"
             "  --ct FILE        the CT to fracture (default: the example CT)\n"
             "  --verbose        one line per run on stderr\n"
             "  --json           one JSON object on stdout: command, ct, seeds, starts, max_mm,\n"
-            "                   max_deg, default_method, methods (one per configuration)\n");
+            "                   max_deg, pieces, bone_loss_mm, touching, separated_dice_min,\n"
+            "                   separate_mean_s (null unless --touching), default_method, methods (one per\n"
+            "                   configuration)\n");
     return rc;
 }
 
 static int parse(int argc, char **argv, opts *o)
 {
-    *o = (opts){.seeds = 4, .starts = 5, .max_mm = 10, .max_deg = 15, .band_mm = -1, .voi_max_mm = -1};
+    *o = (opts){.seeds = 4, .starts = 5, .max_mm = 10, .max_deg = 15, .band_mm = -1, .voi_max_mm = -1, .pieces = 2,
+                .threshold = 300};
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i], *val = i + 1 < argc ? argv[i + 1] : NULL;
         double d;
@@ -289,6 +398,8 @@ static int parse(int argc, char **argv, opts *o)
             o->json = 1;
         else if (!strcmp(a, "--verbose"))
             o->verbose = 1;
+        else if (!strcmp(a, "--coarse"))
+            o->coarse = 1;
         else if (!strcmp(a, "--seeds") || !strcmp(a, "--starts")) {
             if (!cmd_number(val, &d) || !(d >= 1 && d <= 1000 && d == (int)d))
                 return cmd_bad_value("bench reduce", a, val, "a whole number 1..1000");
@@ -298,6 +409,26 @@ static int parse(int argc, char **argv, opts *o)
             if (!cmd_number(val, &d) || !(d >= 0 && d <= 90))
                 return cmd_bad_value("bench reduce", a, val, "a number 0..90");
             *(a[6] == 'm' ? &o->max_mm : &o->max_deg) = d;
+            i++;
+        } else if (!strcmp(a, "--touching")) {
+            o->touching = 1;
+        } else if (!strcmp(a, "--pieces")) {
+            if (!cmd_number(val, &d) || !(d >= 2 && d <= 10 && d == (int)d))
+                return cmd_bad_value("bench reduce", a, val, "a whole number 2..10");
+            o->pieces = (int)d;
+            i++;
+        } else if (!strcmp(a, "--bone-loss")) {
+            if (!cmd_number(val, &d) || !(d >= 0 && d <= 10))
+                return cmd_bad_value("bench reduce", a, val, "a number of mm 0..10");
+            o->bone_loss_mm = d;
+            i++;
+        } else if (!strcmp(a, "--threshold")) {
+            if (val && !strcmp(val, "auto"))
+                o->threshold_auto = 1;
+            else if (val && !strcmp(val, "auto-bone"))
+                o->threshold_auto = 2;
+            else if (!cmd_number(val, &o->threshold))
+                return cmd_bad_value("bench reduce", a, val, "HU, auto or auto-bone");
             i++;
         } else if (!strcmp(a, "--band")) {
             if (!cmd_number(val, &d) || !(d >= 0 && d <= 100))
@@ -360,6 +491,7 @@ int bench_reduce(int argc, char **argv)
         return 1;
     }
     config_stats cs[MAX_CONFIGS] = {0};
+    cs[0].separate_dice = 1;
     for (int k = 0; k < o.nconf; k++)
         if (!(cs[k].s = calloc((size_t)o.seeds * o.starts, sizeof *cs[k].s)))
             rc = fn_err_set(FN_ENOMEM, "out of memory");
@@ -379,6 +511,11 @@ int bench_reduce(int argc, char **argv)
         jsonw_set(root, "starts", json_integer(o.starts));
         jsonw_set(root, "max_mm", jsonw_exact(o.max_mm));
         jsonw_set(root, "max_deg", jsonw_exact(o.max_deg));
+        jsonw_set(root, "pieces", json_integer(o.pieces));
+        jsonw_set(root, "touching", json_boolean(o.touching));
+        jsonw_set(root, "separated_dice_min", o.touching ? jsonw_measure(cs[0].separate_dice) : json_null());
+        jsonw_set(root, "separate_mean_s", o.touching ? jsonw_measure(cs[0].separate_s / o.seeds) : json_null());
+        jsonw_set(root, "bone_loss_mm", jsonw_exact(o.bone_loss_mm));
         reduce_opts def;
         reduce_defaults(&def);
         jsonw_set(root, "default_method", jsonw_string(reduce_method_name(def.method)));

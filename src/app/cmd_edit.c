@@ -5,6 +5,7 @@
 #include "case_journal.h"
 #include "err.h"
 #include "jsonw.h"
+#include "morph.h"
 
 #include <stdarg.h>
 #include <stdio.h>
@@ -31,9 +32,21 @@ static void usage(FILE *out)
             "                                      a new fragment (or join ID)\n"
             "  keep IDS                            keep only these fragments (IDS: 1,3 or 1 3)\n"
             "  drop IDS                            remove these fragments\n"
-            "  fix ID                              make ID the fixed fragment (0: none)\n\n"
+            "  fix ID                              make ID the fixed fragment (0: none)\n"
+            "  fill ID [--slices]                  the interior enclosed by ID (cancellous bone\n"
+            "                                      under the threshold) joins it: enclosed in 3D,\n"
+            "                                      and with --slices also in every slice along\n"
+            "                                      each axis (a canal open at its ends; not for a\n"
+            "                                      skull, whose slices enclose the brain)\n"
+            "  separate ID [--erode MM] [--seeds X Y Z X Y Z ...]\n"
+            "                                      split pieces that touch: erode until ID splits\n"
+            "                                      (or by MM, or from one seed per piece), then\n"
+            "                                      grow the cores back inside ID (a watershed on\n"
+            "                                      the distance map); the largest piece keeps ID,\n"
+            "                                      the others become new fragments\n\n"
             "  --json   one JSON object on stdout (the text line goes to stderr): command, case,\n"
-            "           operation, what it made (fragment, new_fragment or erased_voxels), the\n"
+            "           operation, what it made (fragment, new_fragment, erased_voxels,\n"
+            "           filled_voxels, or new_fragments and erode_mm), the\n"
             "           fragments after the edit (id, voxels, volume_ml) and fixed_fragment\n"
             "  --help   this text\n");
 }
@@ -164,6 +177,70 @@ static int apply(fcase *c, const char *op, int argc, char **argv, FILE *msg, jso
         if ((!strcmp(op, "keep") ? case_keep(c, ids, n) : case_drop(c, ids, n)) < 0)
             return 1;
         made(msg, NULL, NULL, 0, "%d fragment%s left\n", c->nfrag, c->nfrag == 1 ? "" : "s");
+    } else if (!strcmp(op, "fill")) {
+        int mode = MORPH_FILL_3D;
+        if (argc < 1 || !integer(argv[0], &id))
+            return cmd_usage_error("edit", "fill needs ID [--slices]");
+        for (int i = 1; i < argc; i++)
+            if (!strcmp(argv[i], "--slices"))
+                mode |= MORPH_FILL_SLICES;
+            else
+                return cmd_usage_error("edit", "fill: unknown option '%s'", argv[i]);
+        if ((rc = case_fill(c, id, mode)) < 0)
+            return 1;
+        made(msg, res, "filled_voxels", rc, "filled %ld voxels of fragment %d's interior\n", rc, id);
+    } else if (!strcmp(op, "separate")) {
+        double erode = 0, (*seeds)[3] = NULL;
+        int nseeds = 0, news[256];
+        if (argc < 1 || !integer(argv[0], &id))
+            return cmd_usage_error("edit", "separate needs ID [--erode MM] [--seeds X Y Z ...]");
+        for (int i = 1; i < argc; i++) {
+            const char *val = i + 1 < argc ? argv[i + 1] : NULL;
+            if (!strcmp(argv[i], "--erode")) {
+                if (!cmd_number(val, &erode) || !(erode > 0 && erode < 1000))
+                    return cmd_bad_value("edit", argv[i], val, "a distance in mm > 0");
+                i++;
+            } else if (!strcmp(argv[i], "--seeds")) {
+                int k = i + 1;
+                while (k < argc && strncmp(argv[k], "--", 2))
+                    k++;
+                int nv = k - i - 1;
+                if (nv < 6 || nv % 3 || nv / 3 > 255 || nseeds)
+                    return cmd_usage_error("edit", "separate --seeds: give X Y Z (world mm) for each piece, two "
+                                           "pieces or more (got %d numbers)", nv);
+                seeds = malloc((size_t)(nv / 3) * sizeof *seeds);
+                if (!seeds)
+                    return fn_err_set(FN_ENOMEM, "out of memory"), 1;
+                if (!numbers(argv + i + 1, nv, &seeds[0][0])) {
+                    free(seeds);
+                    return cmd_usage_error("edit", "separate --seeds: not a number among '%s' ...", argv[i + 1]);
+                }
+                nseeds = nv / 3;
+                i = k - 1;
+            } else {
+                free(seeds);
+                return cmd_usage_error("edit", "separate: unknown option '%s'", argv[i]);
+            }
+        }
+        double used = 0;
+        rc = case_separate(c, id, erode, (const double(*)[3])seeds, nseeds, news, &used);
+        free(seeds);
+        if (rc < 0)
+            return 1;
+        if (res) {
+            json_t *arr = json_array();
+            for (long i = 0; i < rc; i++)
+                json_array_append_new(arr, json_integer(news[i]));
+            jsonw_set(res, "new_fragments", arr);
+            jsonw_set(res, "erode_mm", nseeds ? json_null() : jsonw_measure(used));
+        }
+        fprintf(msg, "separated fragment %d into %ld pieces (new fragments", id, rc + 1);
+        for (long i = 0; i < rc; i++)
+            fprintf(msg, " %d", news[i]);
+        if (nseeds)
+            fprintf(msg, "; from %d seeds)\n", nseeds);
+        else
+            fprintf(msg, "; eroded %.2f mm)\n", used);
     } else if (!strcmp(op, "fix")) {
         if (argc != 1 || !integer(argv[0], &id))
             return cmd_usage_error("edit", "fix needs one fragment id (0: none)");

@@ -41,6 +41,11 @@ static void usage(FILE *out)
             "                         so it can end farther: each fragment's distance is printed;\n"
             "                         one that would leave the volume is an error\n"
             "  --rotate DEG           rotation of each moved piece about its centroid (default 3)\n"
+            "  --touching             each moved piece stays in contact with the bone: turned by\n"
+            "                         --rotate, then pushed out only until it lands clear (a\n"
+            "                         voxel apart; --displace is not used), as fragments lie in\n"
+            "                         a real fracture CT: segmenting source.nii.gz joins them\n"
+            "                         (see edit separate); the truth is kept as ever\n"
             "  --bone-loss MM         thickness of bone lost along each cut (default 0)\n"
             "  --roughness MM         RMS relief of the fracture surface (default 2)\n"
             CMD_THRESHOLD_HELP
@@ -85,7 +90,11 @@ static int parse(int argc, char **argv, fracture_params *p, cmd_case_args *c)
         }
         const char *a = argv[i], *val = i + 1 < argc ? argv[i + 1] : NULL;
         double d;
-        i++; /* every option takes a value; a missing one is reported by its branch */
+        if (!strcmp(a, "--touching")) {
+            p->touching = 1;
+            continue;
+        }
+        i++; /* every other option takes a value; a missing one is reported by its branch */
         if (!strcmp(a, "--seed")) {
             if (!cmd_number(val, &d) || !(d >= 0 && d < 9007199254740992.0 && d == (double)(uint64_t)d))
                 return cmd_bad_value("fracture", a, val, "a whole number 0..2^53");

@@ -2,6 +2,7 @@
 #include "cmd.h"
 
 #include "case.h"
+#include "case_journal.h"
 #include "err.h"
 #include "jsonw.h"
 #include "reduce.h"
@@ -24,7 +25,9 @@ static void usage(FILE *out)
             "each is then optimized on the VOI metric (2 n_I - n_1 - n_2) / n_VOI, one at a time\n"
             "against the growing assembly, the one of largest contact first. The result never\n"
             "leaves fragments colliding beyond the tolerance. Poses, VOIs and the convergence\n"
-            "history are saved in the case (atomic save). README \"Automatic reduction\" has the\n"
+            "history are saved in the case (atomic save). Poses that a navigation session left in\n"
+            "CASE/journal are applied first (the fit starts where the hand left the fragments)\n"
+            "and the journal is emptied once the case is saved. README \"Automatic reduction\" has the\n"
             "details and the measured accuracy.\n\n"
             "  --fixed ID             the fragment that stays (default: the case's fixed one, else\n"
             "                         the largest)\n"
@@ -269,6 +272,19 @@ int cmd_reduce(int argc, char **argv)
         case_free(c);
         return 1;
     }
+    /* the poses a navigation session journaled beyond case.json are where the hand left them */
+    journal_rec *recs = NULL;
+    size_t nrec = 0;
+    if (case_journal_check(c, &recs, &nrec) < 0 || case_journal_apply(c, recs, nrec) < 0) {
+        free(recs);
+        fprintf(stderr, "fracnav reduce: %s\n", fn_err_msg());
+        rc = 1;
+        goto done;
+    }
+    free(recs);
+    if (nrec)
+        fprintf(stderr, "fracnav reduce: starting from the %zu poses that %s/journal held beyond case.json\n", nrec,
+                c->dir);
     if ((rc = pick(c, &A, &fixed, mvp, &nmv)) != 0)
         goto done;
     if (cmd_tau_apply(&A.tau, &c->tau_min, &c->tau_max) < 0) {
@@ -292,6 +308,8 @@ int cmd_reduce(int argc, char **argv)
         err = retarget(c, A.out);
     if (err == 0)
         err = case_save(c);
+    if (err == 0 && !A.out) /* case.json holds the journal's poses now */
+        err = case_journal_remove(c);
     if (err < 0) {
         fprintf(stderr, "fracnav reduce: %s\n", fn_err_msg());
         rc = 1;

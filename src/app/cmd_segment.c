@@ -5,6 +5,7 @@
 #include "err.h"
 #include "fnclock.h"
 #include "jsonw.h"
+#include "morph.h"
 #include "seg.h"
 #include "volio.h"
 
@@ -30,17 +31,31 @@ static void usage(FILE *out)
             "  --exclude-below-peak HU    drop components whose brightest voxel is under HU: the CT\n"
             "                             head holder (300-600 HU) goes with e.g. 1000\n"
             "  --keep N                   keep only the N largest components\n"
+            "  --labels LABELMAP          take the fragments from a labelmap instead of the\n"
+            "                             threshold: a NIfTI or NRRD on the CT's grid, or a 3D\n"
+            "                             Slicer .seg.nrrd (one layer); label k = fragment k. The\n"
+            "                             threshold then only shapes the probability maps\n"
+            "  --fill                     fill each fragment's enclosed interior (cancellous bone\n"
+            "                             under the threshold inside the cortex), in 3D\n"
+            "  --fill-slices              the same, also slice-wise along each axis (long bones,\n"
+            "                             pieces; not a whole skull: its slices enclose the brain)\n"
             "  --ramp W                   probability map: 0.5 at the threshold rising to 1 at\n"
             "                             threshold + W/2 (default 200; 0 = 1 inside the mask)\n"
             CMD_TAU_HELP
             "  --json                     one JSON object on stdout instead of the text: command,\n"
             "                             case, source, threshold, components (before filtering),\n"
             "                             fragments (id, voxels, volume_ml, peak, centroid_mm),\n"
+            "                             filled_voxels (null without --fill),\n"
             "                             read_ms, segment_ms, fragments_ms, save_ms\n"
             "  --help                     this text\n");
 }
 
-static int parse(int argc, char **argv, seg_params *p, cmd_case_args *c)
+typedef struct extra {
+    const char *labels; /* --labels */
+    int fill;           /* morph_fill's mode, 0: none */
+} extra;
+
+static int parse(int argc, char **argv, seg_params *p, cmd_case_args *c, extra *x)
 {
     int rc;
     for (int i = 1; i < argc; i++) {
@@ -51,6 +66,14 @@ static int parse(int argc, char **argv, seg_params *p, cmd_case_args *c)
         }
         const char *a = argv[i], *val = i + 1 < argc ? argv[i + 1] : NULL;
         double d;
+        if (!strcmp(a, "--fill")) {
+            x->fill |= MORPH_FILL_3D;
+            continue;
+        }
+        if (!strcmp(a, "--fill-slices")) {
+            x->fill |= MORPH_FILL_3D | MORPH_FILL_SLICES;
+            continue;
+        }
         i++; /* every option takes a value; a missing one is reported by its branch */
         if (!strcmp(a, "--min-volume")) {
             if (!cmd_number(val, &d) || d < 0)
@@ -65,6 +88,10 @@ static int parse(int argc, char **argv, seg_params *p, cmd_case_args *c)
             if (!cmd_number(val, &d) || !(d >= 1 && d <= 1e6 && d == (int)d))
                 return cmd_bad_value("segment", a, val, "a whole number 1..1000000");
             p->keep = (int)d;
+        } else if (!strcmp(a, "--labels")) {
+            if (!val)
+                return cmd_bad_value("segment", a, val, "a labelmap file (NIfTI, NRRD, .seg.nrrd)");
+            x->labels = val;
         } else if (!strcmp(a, "--ramp")) {
             if (!cmd_number(val, &d) || d < 0)
                 return cmd_bad_value("segment", a, val, "a number >= 0 (HU)");
@@ -89,7 +116,7 @@ static void report(const fcase *c, const seg_result *r)
 }
 
 static int report_json(const fcase *c, const seg_result *r, const char *in, const char *out,
-                       const double ms[4])
+                       const double ms[4], long filled)
 {
     json_t *o = jsonw_object("segment"), *frags = json_array();
     for (int i = 0; i < c->nfrag; i++) {
@@ -106,6 +133,7 @@ static int report_json(const fcase *c, const seg_result *r, const char *in, cons
         jsonw_set(o, "threshold", jsonw_exact(r->threshold));
         jsonw_set(o, "components", json_integer(r->raw_components));
         jsonw_set(o, "fragments", frags);
+        jsonw_set(o, "filled_voxels", filled >= 0 ? json_integer(filled) : json_null());
         for (int i = 0; i < 4; i++)
             jsonw_set(o, steps[i], jsonw_measure(ms[i]));
     } else
@@ -122,7 +150,8 @@ int cmd_segment(int argc, char **argv)
     seg_params p;
     seg_defaults(&p);
     cmd_case_args args = {.threshold = &p.threshold, .threshold_auto = &p.threshold_auto};
-    int rc = parse(argc, argv, &p, &args);
+    extra x = {0};
+    int rc = parse(argc, argv, &p, &args, &x);
     if (rc)
         return rc;
     const char *in = args.in, *out = args.out;
@@ -136,9 +165,19 @@ int cmd_segment(int argc, char **argv)
     vol *ct = volio_read(in);
     int64_t t1 = fnclock_now_us();
     seg_result r = {0};
-    if (!ct || seg_run(ct, &p, &r) < 0) {
+    vol *imported = ct && x.labels ? volio_read(x.labels) : NULL;
+    int err = !ct || (x.labels && !imported);
+    if (!err && x.labels && seg_from_labels(ct, imported, &p, &r) < 0) {
+        fn_err_wrap(FN_EINVAL, "%s", x.labels);
+        err = 1;
+    }
+    if (!err && !x.labels)
+        err = seg_run(ct, &p, &r) < 0;
+    if (err) {
         fprintf(stderr, "fracnav segment: %s\n", fn_err_msg());
         vol_free(ct);
+        if (!r.labels)
+            vol_free(imported);
         case_stage_abort(tmp);
         return 1;
     }
@@ -149,6 +188,15 @@ int cmd_segment(int argc, char **argv)
     fcase *c = case_create(tmp, in, ct, labels, &p);
     if (c)
         cmd_tau_apply(&args.tau, &c->tau_min, &c->tau_max); /* checked by parse */
+    long filled = 0;
+    for (int i = 0; c && x.fill && i < c->nfrag; i++) {
+        long f = case_fill(c, c->frag[i].id, x.fill);
+        if (f < 0) {
+            case_free(c);
+            c = NULL;
+        } else
+            filled += f;
+    }
     int64_t t3 = fnclock_now_us();
     if (!c || case_save(c) < 0 || case_stage_commit(tmp, out) < 0) {
         fprintf(stderr, "fracnav segment: %s\n", fn_err_msg());
@@ -165,10 +213,12 @@ int cmd_segment(int argc, char **argv)
     if (c->nfrag == 0)
         fprintf(stderr, "fracnav segment: warning: no component left at threshold %g (lower it, or "
                         "--min-volume)\n", r.threshold);
-    if (args.json && (rc = report_json(c, &r, in, out, ms)) < 0)
+    if (args.json && (rc = report_json(c, &r, in, out, ms, x.fill ? filled : -1)) < 0)
         fprintf(stderr, "fracnav segment: %s\n", fn_err_msg());
     else if (!args.json) {
         report(c, &r);
+        if (x.fill)
+            printf("filled %ld voxels of the fragments' enclosed interiors\n", filled);
         printf("saved %s (read %.3f s, segmentation %.3f s, fragments %.3f s, save %.3f s)\n", out,
                ms[0] * 1e-3, ms[1] * 1e-3, ms[2] * 1e-3, ms[3] * 1e-3);
     }

@@ -44,7 +44,12 @@ typedef struct fcase {
     seg_params seg;          /* how the labels were made; seg.threshold/ramp shape the prob maps */
     void *extra;             /* case.json's other top-level members (a jansson json_t object, owned,
                               * may be NULL): other modules keep theirs here (VOIs, optimisation
-                              * results) and they survive load and save unchanged */
+                              * results) and they survive load and save unchanged. "reduction"
+                              * (reduce.h, reduce_store): method, counting, fixed, prealign,
+                              * tolerance_mm, fragments[] {id, voi_mm [6], prealigned, placed,
+                              * start, end ({q [4], t [3]}), iterations, evaluations, seconds,
+                              * metric_start, metric_end, push_mm, collides, history [metric per
+                              * iteration: the convergence plot]} */
 } fcase;
 
 /* A new case in folder dir (not yet saved) over the source volume file `source`, already read into
@@ -111,5 +116,18 @@ int case_keep(fcase *c, const int *ids, int n);
 int case_drop(fcase *c, const int *ids, int n);
 /* Makes id the fixed fragment (0: none). */
 int case_fix(fcase *c, int id);
+/* Fragment id's enclosed interior (morph_fill's mode: MORPH_FILL_3D and/or MORPH_FILL_SLICES; the
+ * cancellous bone below the threshold inside the cortex) joins it; voxels of other fragments stay
+ * theirs. Returns the voxels added. */
+long case_fill(fcase *c, int id, int mode);
+/* Separates fragment id into the pieces that touch in it (morph_separate: one seed per piece,
+ * world mm, when nseeds > 0; else erosion by erode_mm, or the smallest that splits it when
+ * erode_mm <= 0; then a marker-based watershed on the distance map inside the fragment). The
+ * largest piece keeps id; every other one becomes a new fragment (the next free id, written to
+ * new_ids, room for as many pieces as can be) inheriting id's pose and truth. *erode_used (may be
+ * NULL): the erosion that split it. Returns the number of new fragments (>= 1), FN_EINVAL when it
+ * does not split or a seed lies outside the fragment, or FN_E*. */
+int case_separate(fcase *c, int id, double erode_mm, const double (*seeds)[3], int nseeds, int *new_ids,
+                  double *erode_used);
 
 #endif

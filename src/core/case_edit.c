@@ -2,6 +2,7 @@
 #include "case.h"
 
 #include "err.h"
+#include "morph.h"
 
 #include <math.h>
 #include <stdint.h>
@@ -269,4 +270,143 @@ int case_fix(fcase *c, int id)
         return rc;
     c->fixed = case_find(c, id);
     return 0;
+}
+
+/* ---- fill and separate ------------------------------------------------------------------ */
+
+/* Fragment id's voxels as a mask over its label box grown by one voxel on every side (voxels
+ * beyond the grid are outside). lo: the box's first source index. */
+static uint8_t *id_mask(const fcase *c, int id, int lo[3], int dim[3])
+{
+    int hi[3];
+    if (frag_label_box(c->labels, id, lo, hi) < 0)
+        return NULL;
+    size_t n = 1;
+    for (int a = 0; a < 3; a++) {
+        lo[a]--;
+        dim[a] = hi[a] - lo[a] + 2;
+        n *= (size_t)dim[a];
+    }
+    uint8_t *m = calloc(n, 1);
+    if (!m) {
+        fn_err_set(FN_ENOMEM, "out of memory for fragment %d's box (%zu voxels)", id, n);
+        return NULL;
+    }
+    const vol *l = c->labels;
+    for (int k = 0; k < dim[2]; k++)
+        for (int j = 0; j < dim[1]; j++)
+            for (int i = 0; i < dim[0]; i++) {
+                int s[3] = {lo[0] + i, lo[1] + j, lo[2] + k};
+                if (s[0] >= 0 && s[1] >= 0 && s[2] >= 0 && s[0] < l->dim[0] && s[1] < l->dim[1] && s[2] < l->dim[2])
+                    m[((size_t)k * dim[1] + j) * dim[0] + i] = l->data[vol_idx(l, s[0], s[1], s[2])] == (float)id;
+            }
+    return m;
+}
+
+long case_fill(fcase *c, int id, int mode)
+{
+    int rc = need(c, id);
+    if (rc < 0)
+        return rc;
+    int lo[3], dim[3];
+    uint8_t *m = id_mask(c, id, lo, dim);
+    if (!m)
+        return FN_ENOMEM;
+    uint8_t *before = malloc((size_t)dim[0] * dim[1] * dim[2]);
+    if (!before) {
+        free(m);
+        return fn_err_set(FN_ENOMEM, "fill: out of memory");
+    }
+    memcpy(before, m, (size_t)dim[0] * dim[1] * dim[2]);
+    long filled = morph_fill(m, dim, mode), took = 0;
+    for (int k = 0; k < dim[2] && filled > 0; k++)
+        for (int j = 0; j < dim[1]; j++)
+            for (int i = 0; i < dim[0]; i++) {
+                size_t v = ((size_t)k * dim[1] + j) * dim[0] + i;
+                if (!m[v] || before[v])
+                    continue;
+                size_t s = vol_idx(c->labels, lo[0] + i, lo[1] + j, lo[2] + k);
+                if (c->labels->data[s] == 0) { /* another fragment's voxels inside stay its own */
+                    c->labels->data[s] = (float)id;
+                    took++;
+                }
+            }
+    free(m);
+    free(before);
+    if (filled < 0)
+        return filled;
+    if (took && (rc = case_rebuild(c, 0, 0)) < 0)
+        return rc;
+    return took;
+}
+
+int case_separate(fcase *c, int id, double erode_mm, const double (*seeds)[3], int nseeds, int *new_ids,
+                  double *erode_used)
+{
+    int rc = need(c, id);
+    if (rc < 0)
+        return rc;
+    int lo[3], dim[3];
+    uint8_t *m = id_mask(c, id, lo, dim);
+    if (!m)
+        return FN_ENOMEM;
+    size_t n = (size_t)dim[0] * dim[1] * dim[2];
+    int32_t *lab = malloc(n * sizeof *lab);
+    int (*sv)[3] = nseeds > 0 ? malloc((size_t)nseeds * sizeof *sv) : NULL;
+    if (!lab || (nseeds > 0 && !sv))
+        rc = fn_err_set(FN_ENOMEM, "separate: out of memory");
+    for (int s = 0; s < nseeds && rc == 0; s++) {
+        double ijk[3];
+        vol_world_to_index(c->labels, seeds[s], ijk);
+        for (int a = 0; a < 3; a++)
+            sv[s][a] = (int)floor(ijk[a] + 0.5) - lo[a];
+    }
+    double vox = c->labels->spacing[0] * c->labels->spacing[1] * c->labels->spacing[2];
+    size_t min_voxels = (size_t)fmax(8, 20 / vox); /* cores under 0.02 ml are noise */
+    int pieces = rc == 0 ? morph_separate(m, dim, c->labels->spacing, erode_mm, (const int(*)[3])sv, nseeds,
+                                          min_voxels, lab, erode_used)
+                         : rc;
+    if (pieces < 0)
+        rc = pieces;
+    else if (pieces < 2)
+        rc = fn_err_set(FN_EINVAL, "separate: fragment %d does not split (no erosion leaves two cores of "
+                        "0.02 ml; give --erode MM or one --seeds point per piece)", id);
+    if (rc == 0) {
+        /* the largest piece keeps id; each other becomes the next free id, inheriting id's pose */
+        size_t *count = calloc((size_t)pieces + 1, sizeof *count);
+        if (!count)
+            rc = fn_err_set(FN_ENOMEM, "separate: out of memory");
+        for (size_t v = 0; count && v < n; v++)
+            count[lab[v]]++;
+        int keep = 1;
+        for (int p = 2; count && p <= pieces; p++)
+            if (count[p] > count[keep])
+                keep = p;
+        int made = 0;
+        for (int p = 1; count && p <= pieces && rc == 0; p++) {
+            if (p == keep)
+                continue;
+            int next = next_free_id(c);
+            if (next > 65535) {
+                rc = fn_err_set(FN_EINVAL, "separate: no free label left");
+                break;
+            }
+            for (int k = 0; k < dim[2]; k++)
+                for (int j = 0; j < dim[1]; j++)
+                    for (int i = 0; i < dim[0]; i++)
+                        if (lab[((size_t)k * dim[1] + j) * dim[0] + i] == p)
+                            c->labels->data[vol_idx(c->labels, lo[0] + i, lo[1] + j, lo[2] + k)] = (float)next;
+            rc = case_rebuild(c, next, id);
+            if (rc == 0 && new_ids)
+                new_ids[made] = next;
+            made++;
+        }
+        free(count);
+        if (rc == 0)
+            rc = made;
+    }
+    free(m);
+    free(lab);
+    free(sv);
+    return rc;
 }

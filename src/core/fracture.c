@@ -609,6 +609,7 @@ static int displace_pieces(fracture_result *r, const vol *ct, uint64_t *rng,
             r->ct->data[i] = (float)p->fill;
     }
     double step = fmin(ct->spacing[0], fmin(ct->spacing[1], ct->spacing[2]));
+    double displace = p->touching ? 0 : p->displace_mm; /* touching: the first clear place */
     r->truth[0] = r->moved[0] = POSE_IDENTITY;
     for (int id = 2; id <= r->pieces; id++) {
         frag f;
@@ -632,7 +633,7 @@ static int displace_pieces(fracture_result *r, const vol *ct, uint64_t *rng,
                           .threshold = r->threshold};
         rc = push_init(&pp, r->cut, id, m);
         if (rc == 0)
-            rc = push_search(&pp, dir, out, normals[id - 2], p->displace_mm, step, max_steps, move,
+            rc = push_search(&pp, dir, out, normals[id - 2], displace, step, max_steps, move,
                              &steps);
         free(pp.q);
         if (rc < 0)
@@ -642,7 +643,7 @@ static int displace_pieces(fracture_result *r, const vol *ct, uint64_t *rng,
         for (int extra = 0;; extra++, steps++) {
             pose t = m;
             for (int a = 0; a < 3; a++)
-                t.t[a] += (p->displace_mm + steps * step) * move[a];
+                t.t[a] += (displace + steps * step) * move[a];
             if (place_piece(r->cut, ct, r->labels, r->ct, id, t, r->threshold, 0) == 0) {
                 m = t;
                 break;

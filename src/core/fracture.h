@@ -39,6 +39,10 @@ typedef struct fracture_params {
     int threshold_auto;   /* seg_params' meaning: 1 Otsu, 2 Otsu over the brighter class */
     double fill;          /* value written where bone was removed or left (soft tissue, HU) */
     double tau_min, tau_max; /* the case's hierarchy thresholds */
+    int touching;         /* 1: each moved piece is turned and then pushed out only as far as it
+                           * must to land clear, so it stays in contact (a voxel apart, one
+                           * component at the threshold) with the piece it was cut from;
+                           * displace_mm is then not used */
 } fracture_params;
 
 typedef struct fracture_result {

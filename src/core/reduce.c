@@ -10,6 +10,7 @@
 
 #include <jansson.h>
 #include <math.h>
+#include <stdatomic.h>
 #include <nlopt.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -56,6 +57,7 @@ void reduce_defaults(reduce_opts *o)
     o->trust_mm = 12;
     o->starts = 3;
     o->trust_deg = 18;
+    o->coarse = 0;
 }
 
 void reduce_result_free(reduce_result *r)
@@ -470,7 +472,20 @@ typedef struct fit {
     double xtol;        /* this stage's convergence step */
     pose placed;        /* where the hand left it: the trust region's centre */
     double moving_centroid[3]; /* home world */
+    nlopt_opt opt;      /* the NLopt run in progress, for a cancel */
+    int cancelled;
 } fit;
+
+/* 1 once the caller's cancel flag is set (remembered, and an NLopt run told to stop). */
+static int cancel_seen(fit *F)
+{
+    if (!F->cancelled && F->o->cancel && atomic_load(F->o->cancel)) {
+        F->cancelled = 1;
+        if (F->opt)
+            nlopt_force_stop(F->opt);
+    }
+    return F->cancelled;
+}
 
 static pose pose_of(const fit *F, const double *x)
 {
@@ -507,9 +522,22 @@ static double trust_cost(const fit *F, const pose *p)
     return (et > 0 ? 1 + et : 0) + (er > 0 ? 1 + er : 0);
 }
 
+/* 1 when p lies within 1 mm or 1 degree of the trust wall. */
+static int at_wall(const fit *F, const pose *p)
+{
+    double a[3], b[3], d2 = 0;
+    pose_apply(p, F->moving_centroid, a);
+    pose_apply(&F->placed, F->moving_centroid, b);
+    for (int i = 0; i < 3; i++)
+        d2 += (a[i] - b[i]) * (a[i] - b[i]);
+    return sqrt(d2) > F->o->trust_mm - 1 || pose_angle_between(*p, F->placed) * 180 / PI > F->o->trust_deg - 1;
+}
+
 static double objective(const double *x, void *ctx)
 {
     fit *F = ctx;
+    if (cancel_seen(F))
+        return F->best < INFINITY ? F->best + 1 : COLLIDE_COST;
     pose p = pose_of(F, x);
     double f = reduce_metric_eval(F->metric, &p, NULL);
     if (F->pc && collides(F->pc, &p, NULL) > 0)
@@ -536,6 +564,8 @@ static int powell_iter(int iter, double f, void *ctx)
 {
     fit *F = ctx;
     hist_add(F, f);
+    if (cancel_seen(F))
+        return 1;
     if (F->o->progress)
         F->o->progress(F->o->progress_ctx, F->id, iter, F->evals, f, now_s() - F->t0);
     return 0;
@@ -581,7 +611,7 @@ static int run_optimizer(fit *F, int *iterations)
             *iterations += st.iterations;
             if (rc)
                 return rc;
-            if (!(st.f < fprev - 1e-7))
+            if (!(st.f < fprev - 1e-7) || F->cancelled)
                 break;
             fprev = st.f;
         }
@@ -602,8 +632,12 @@ static int run_optimizer(fit *F, int *iterations)
     }
     double f;
     nlopt_srand(1); /* PRAXIS draws random numbers: the same case gives the same fit */
+    F->opt = opt;
     nlopt_result res = nlopt_optimize(opt, x, &f);
+    F->opt = NULL;
     nlopt_destroy(opt);
+    if (res == NLOPT_FORCED_STOP && F->cancelled)
+        res = NLOPT_SUCCESS;
     *iterations = F->improvements;
     if (res < 0 && res != NLOPT_ROUNDOFF_LIMITED)
         return fn_err_set(FN_EINVAL, "reduce: NLopt %s failed (code %d)", method_names[o->method], (int)res);
@@ -659,6 +693,49 @@ static int resolve_collision(const pair_ctx *pc, const reduce_metric *m, reduce_
     return 0;
 }
 
+/* ---- the coarse level ---------------------------------------------------------------------- */
+
+/* A coarse copy of f for the first stage: 2x2x2 (or 2 in-plane where a slice is already thick) voxels
+ * per cell, bone where at least half of them are; same id, pose, centroid and axes (home world). 0
+ * or FN_ENOMEM (*c then holds nothing to free). */
+int reduce__coarse_frag(const frag *f, frag *c)
+{
+    *c = *f;
+    int s[3];
+    double smin = fmin(f->spacing[0], fmin(f->spacing[1], f->spacing[2]));
+    for (int a = 0; a < 3; a++) {
+        s[a] = f->spacing[a] < 1.5 * smin + 1e-9 ? 2 : 1;
+        c->dim[a] = (f->dim[a] + s[a] - 1) / s[a];
+        c->spacing[a] = f->spacing[a] * s[a];
+    }
+    int need = s[0] * s[1] * s[2] / 2;
+    pose shift = POSE_IDENTITY;
+    for (int a = 0; a < 3; a++)
+        shift.t[a] = 0.5 * (s[a] - 1) * f->spacing[a];
+    c->home = pose_compose(f->home, shift);
+    c->prob = calloc((size_t)c->dim[0] * c->dim[1] * c->dim[2], 1);
+    if (!c->prob)
+        return fn_err_set(FN_ENOMEM, "reduce: out of memory for fragment %d's coarse copy", f->id);
+    c->voxels = 0;
+    for (int k = 0; k < c->dim[2]; k++)
+        for (int j = 0; j < c->dim[1]; j++)
+            for (int i = 0; i < c->dim[0]; i++) {
+                int n = 0;
+                for (int dk = 0; dk < s[2]; dk++)
+                    for (int dj = 0; dj < s[1]; dj++)
+                        for (int di = 0; di < s[0]; di++) {
+                            int x = i * s[0] + di, y = j * s[1] + dj, z = k * s[2] + dk;
+                            if (x < f->dim[0] && y < f->dim[1] && z < f->dim[2])
+                                n += f->prob[((size_t)z * f->dim[1] + y) * f->dim[0] + x] != 0;
+                        }
+                if (n >= need) {
+                    c->prob[((size_t)k * c->dim[1] + j) * c->dim[0] + i] = 255;
+                    c->voxels++;
+                }
+            }
+    return 0;
+}
+
 static void free_trees(obb_tree **t, int n)
 {
     for (int i = 0; t && i < n; i++)
@@ -685,6 +762,10 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
     reduce_bricks *b = reduce__bricks_new(moving);
     reduce_metric *m = NULL;
     fit F = {0};
+    frag *cf = NULL; /* the coarse level: nasm assembly fragments, then the moving one */
+    const frag **cfp = NULL;
+    int ncf = 0;
+    reduce_bricks *cb = NULL;
     pc.cache = calloc((size_t)nasm, sizeof *pc.cache);
     int rc = pc.trees && b && pc.cache ? 0 : fn_err_set(FN_ENOMEM, "reduce: out of memory");
     for (int f = 0; f <= nasm && rc == 0; f++)
@@ -700,14 +781,48 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
      * fragment, the second over the tighter zone where the first one ended. */
     F = (fit){.start = r->start, .best = INFINITY, .o = o, .id = moving->id, .t0 = t0, .placed = r->start};
     memcpy(F.moving_centroid, moving->centroid, sizeof F.moving_centroid);
-    for (int stage = 0; stage < (o->has_voi ? 1 : 2) && rc == 0; stage++) {
+    /* A fit that ends on the trust wall, or in collision, has wandered off (a wrong basin; the
+     * true pose collides with nothing): a second attempt from
+     * the start turned about the other principal axes, and, if that ends there too, a third with
+     * wider turns about every axis; the best over the union of their VOIs wins. */
+    pose ends[3];
+    reduce_voi vois[3];
+    int attempts = 0;
+    for (int attempt = 0; attempt < 3 && rc == 0 && !F.cancelled; attempt++) {
+    if (attempt) {
+        int c = at_wall(&F, &moving->pose) ? 1 : collides(&pc, &moving->pose, NULL);
+        if (c <= 0) {
+            rc = c;
+            break;
+        }
+        moving->pose = r->start;
+    }
+    for (int stage = 0; stage < (o->has_voi ? 1 : 2) && rc == 0 && !F.cancelled; stage++) {
         if (o->has_voi)
             r->voi = o->voi;
         else
             rc = reduce_auto_voi(asm_, nasm, moving, stage ? 2 : 3, 6, o->voi_max_mm, &r->voi, NULL);
         reduce_metric_free(m);
         m = NULL;
-        if (rc == 0 && !(m = reduce__metric_with(asm_, nasm, moving, b, &r->voi, o->count, o->band_mm)))
+        int use_coarse = stage == 0 && !o->has_voi && o->coarse;
+        if (rc == 0 && use_coarse && !cb) { /* the coarse level, made once */
+            cf = calloc((size_t)nasm + 1, sizeof *cf);
+            cfp = calloc((size_t)nasm, sizeof *cfp);
+            rc = cf && cfp ? 0 : fn_err_set(FN_ENOMEM, "reduce: out of memory");
+            for (int f = 0; f <= nasm && rc == 0; f++) {
+                rc = reduce__coarse_frag(f < nasm ? asm_[f] : moving, &cf[f]);
+                ncf += rc == 0;
+                if (f < nasm)
+                    cfp[f] = &cf[f];
+            }
+            if (rc == 0 && !(cb = reduce__bricks_new(&cf[nasm])))
+                rc = FN_ENOMEM;
+        }
+        if (rc == 0 && use_coarse) {
+            double band = o->band_mm > 0 ? fmax(o->band_mm, fmax(cf[0].spacing[0], fmax(cf[0].spacing[1], cf[0].spacing[2]))) : 0;
+            if (!(m = reduce__metric_with(cfp, nasm, &cf[nasm], cb, &r->voi, o->count, band)))
+                rc = FN_EINVAL;
+        } else if (rc == 0 && !(m = reduce__metric_with(asm_, nasm, moving, b, &r->voi, o->count, o->band_mm)))
             rc = FN_EINVAL;
         if (rc)
             break;
@@ -732,13 +847,20 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
         double bestf = INFINITY;
         /* The first stage also starts from the base turned by START_DEG about each principal
          * axis: the metric's basin is narrow, and the best of these fits wins. */
-        int nstarts = stage == 0 && o->starts > 1 ? o->starts : 1;
-        for (int k = 0; k < nstarts && rc == 0; k++) {
+        int nstarts = stage == 0 && o->starts > 1 ? o->starts : 1, k0 = 0;
+        if (attempt == 1 && stage == 0) { /* the turns about the other two axes */
+            k0 = nstarts > 1 ? nstarts : 1;
+            nstarts = k0 + 4;
+        } else if (attempt == 2 && stage == 0) { /* wider turns, about every axis */
+            k0 = 1;
+            nstarts = 7;
+        }
+        for (int k = k0; k < nstarts && rc == 0 && !F.cancelled; k++) {
             F.start = base;
             if (k > 0) {
                 double axis[3], cm[3];
                 axis_world(moving, (k - 1) / 2 % 3, axis);
-                pose turn = pose_from_axis_angle(axis, (k % 2 ? 1 : -1) * START_DEG * PI / 180);
+                pose turn = pose_from_axis_angle(axis, (k % 2 ? 1 : -1) * (attempt == 2 ? 1.5 : 1) * START_DEG * PI / 180);
                 centroid_world(moving, cm);
                 F.start = turned(&base, &turn, cm, cm);
             }
@@ -760,6 +882,43 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
         pose_normalize(&moving->pose);
     }
     if (rc == 0) {
+        ends[attempts] = moving->pose;
+        vois[attempts++] = r->voi;
+    }
+    }
+    if (rc == 0 && attempts > 1) { /* compared over the union of the VOIs, collisions costed */
+        reduce_voi u = vois[0];
+        for (int i = 1; i < attempts; i++)
+            for (int a = 0; a < 3; a++) {
+                u.lo[a] = fmin(u.lo[a], vois[i].lo[a]);
+                u.hi[a] = fmax(u.hi[a], vois[i].hi[a]);
+            }
+        reduce_metric *mu = reduce__metric_with(asm_, nasm, moving, b, &u, o->count, o->band_mm);
+        if (!mu)
+            rc = FN_EINVAL;
+        double fbest = INFINITY;
+        int w = attempts - 1;
+        for (int i = 0; i < attempts && rc == 0; i++) {
+            int c = collides(&pc, &ends[i], NULL);
+            double fu = reduce_metric_eval(mu, &ends[i], NULL) + (c > 0 ? COLLIDE_COST : 0);
+            rc = c < 0 ? c : 0;
+            if (fu < fbest) {
+                fbest = fu;
+                w = i;
+            }
+        }
+        reduce_metric_free(mu);
+        moving->pose = ends[w];
+        r->voi = vois[w];
+        if (rc == 0 && w != attempts - 1) { /* the final metric is the winner's */
+            reduce_metric_free(m);
+            if (!(m = reduce__metric_with(asm_, nasm, moving, b, &r->voi, o->count, o->band_mm)))
+                rc = FN_EINVAL;
+        }
+    }
+    if (rc == 0 && F.cancelled)
+        rc = 1; /* the placed pose stays */
+    if (rc == 0) {
         r->end = r->fitted = moving->pose;
         rc = resolve_collision(&pc, m, r);
     }
@@ -772,12 +931,17 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
         r->nhistory = F.nhist;
         F.hist = NULL;
     } else {
-        moving->pose = r->placed;
+        moving->pose = r->end = r->fitted = r->placed;
     }
     r->seconds = now_s() - t0;
     free(F.hist);
     reduce_metric_free(m);
     reduce__bricks_free(b);
+    reduce__bricks_free(cb);
+    for (int f = 0; f < ncf; f++)
+        frag_free(&cf[f]);
+    free(cf);
+    free(cfp);
     free_trees(pc.trees, nasm + 1);
     free(pc.cache);
     return rc;
@@ -971,4 +1135,18 @@ int reduce_store(fcase *c, int fixed, const reduce_opts *o, const reduce_result 
     if (!c->extra)
         c->extra = extra;
     return ok ? 0 : fn_err_set(FN_ENOMEM, "reduce: out of memory for the case record");
+}
+
+int reduce_fit_one(const frag *const *others, int nothers, const frag *moving, const pose *start,
+                   const reduce_opts *o, pose *out, reduce_result *r)
+{
+    if (!others || nothers < 1 || !moving || !start || !o || !out || !r)
+        return fn_err_set(FN_EINVAL, "reduce: no fragments");
+    frag m = *moving; /* a private copy: only its pose changes, its voxels are read */
+    m.pose = *start;
+    reduce_opts fo = *o;
+    fo.prealign = 0;
+    int rc = reduce_pair(others, nothers, &m, &fo, r);
+    *out = rc == 0 ? r->end : *start;
+    return rc;
 }

@@ -32,6 +32,7 @@
 #include "frag.h"
 #include "pose.h"
 
+#include <stdatomic.h>
 #include <stddef.h>
 
 struct obb_tree;
@@ -109,10 +110,17 @@ typedef struct reduce_opts {
     double band_mm;      /* the metric's band (0: the whole box) */
     int starts;          /* the first stage's starts: the start, then turned +-8 degrees about
                           * the principal axes in turn; the best fit wins */
+    int coarse;          /* 1: the first stage (automatic VOI) fits coarse copies of the fragments
+                          * (2 voxels a cell per axis where the spacing is finest). Off by default:
+                          * in `bench reduce` its flatter metric led fits astray (success 0.25
+                          * against 0.90 for PRAXIS) */
     double trust_mm, trust_deg; /* the fit stays this close to the start (after pre-alignment):
                           * centroid distance and rotation angle */
-    reduce_progress_fn progress; /* after each iteration; may be NULL */
+    reduce_progress_fn progress; /* after each iteration; may be NULL. Called on the thread that
+                          * runs the fit */
     void *progress_ctx;
+    const atomic_int *cancel; /* may be NULL; once another thread sets it non-zero, the fit stops
+                          * within one metric evaluation and returns 1 with the placed pose */
 } reduce_opts;
 
 /* PRAXIS (the most successful in `fracnav bench reduce`), trilinear, a 1 mm band, pre-alignment on,
@@ -153,6 +161,22 @@ void reduce_result_free(reduce_result *r);
  * out along the contact normal (up to 5 mm), else the start is kept. Sets moving->pose = r->end.
  * 0 or FN_E*. */
 int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_opts *o, reduce_result *r);
+/* (reduce_pair returns 1, with moving->pose = r->end = the placed pose, when o->cancel was set.) */
+
+/* For a worker thread of a navigation session: fits one moving fragment from *start (where the
+ * hand left it; no pre-alignment, whatever o->prealign says) against others[0..nothers-1] at their
+ * poses, with o->progress called (on this thread) after each iteration and o->cancel polled at
+ * every evaluation. *out: the fitted pose, never colliding with the others beyond the tolerance
+ * (else *start, see reduce_pair); r: its record (free with reduce_result_free).
+ * Ownership and threads: the fragments are only read. moving->pose is not used or changed (the
+ * fit works on a copy). The caller keeps the fragments' voxels (prob) alive and unchanged, and
+ * others' poses unchanged, for the whole call: a session passes copies of its frag structs taken
+ * under its lock (struct copies sharing prob suffice, prob is never written while a case is
+ * open). Several fits may run at once on different threads (the messages of err.h are
+ * per thread). Allocates; never call it from the real-time loop's step.
+ * Returns 0, 1 when cancelled (*out = *start), or FN_E*. */
+int reduce_fit_one(const frag *const *others, int nothers, const frag *moving, const pose *start,
+                   const reduce_opts *o, pose *out, reduce_result *r);
 
 /* Reduces the case's fragments: fixed (index) stays, the moving ones (indices; NULL = all others)
  * are fitted one by one against the growing assembly, the one of largest contact first. r has

@@ -61,5 +61,9 @@ void reduce__bricks_free(reduce_bricks *b);
 /* A metric over shared bricks (not freed with it). */
 reduce_metric *reduce__metric_with(const frag *const *asm_, int nasm, const frag *moving, reduce_bricks *b,
                                    const reduce_voi *voi, reduce_count mode, double band_mm);
+/* A coarse copy of f (the first stage's level): 2 voxels a cell along each axis whose spacing is
+ * within 1.5 times the finest, bone where at least half of a cell's voxels are; same id, pose,
+ * centroid and axes, home moved to the cell centres. 0 or FN_ENOMEM (*c then holds nothing to free). */
+int reduce__coarse_frag(const frag *f, frag *c);
 
 #endif

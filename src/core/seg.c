@@ -305,3 +305,68 @@ void seg_result_free(seg_result *r)
     free(r->comp);
     memset(r, 0, sizeof *r);
 }
+
+int seg_from_labels(const vol *v, vol *labels, const seg_params *p, seg_result *out)
+{
+    memset(out, 0, sizeof *out);
+    for (int a = 0; a < 3; a++)
+        if (labels->dim[a] != v->dim[a])
+            return fn_err_set(FN_EINVAL, "labels: the labelmap is %dx%dx%d voxels, the CT %dx%dx%d (it must "
+                              "lie on the CT's grid)", labels->dim[0], labels->dim[1], labels->dim[2], v->dim[0],
+                              v->dim[1], v->dim[2]);
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 4; c++)
+            if (fabs(labels->affine[r][c] - v->affine[r][c]) > 1e-3 * (c == 3 ? 10 : 1))
+                return fn_err_set(FN_EINVAL, "labels: the labelmap's grid (affine row %d, column %d: %g) is not the "
+                                  "CT's (%g)", r, c, labels->affine[r][c], v->affine[r][c]);
+    size_t n = vol_count(v);
+    int maxl = 0;
+    for (size_t i = 0; i < n; i++) {
+        float x = labels->data[i];
+        if (!(x >= 0 && x <= 65535 && x == floorf(x)))
+            return fn_err_set(FN_EFORMAT, "labels: voxel %zu holds %g; labels are whole numbers 0..65535", i,
+                              (double)x);
+        if ((int)x > maxl)
+            maxl = (int)x;
+    }
+    double thr = p->threshold;
+    if (p->threshold_auto)
+        thr = p->threshold_auto == 2 ? seg_otsu_above(v, seg_otsu(v)) : seg_otsu(v);
+    seg_component *all = calloc((size_t)maxl + 1, sizeof *all);
+    if (!all)
+        return fn_err_set(FN_ENOMEM, "labels: out of memory");
+    for (int l = 0; l <= maxl; l++) {
+        all[l].label = l;
+        all[l].peak = -INFINITY;
+        for (int a = 0; a < 3; a++) {
+            all[l].lo[a] = INT32_MAX;
+            all[l].hi[a] = -1;
+        }
+    }
+    double vox_ml = v->spacing[0] * v->spacing[1] * v->spacing[2] / 1000;
+    size_t i = 0;
+    for (int z = 0; z < v->dim[2]; z++)
+        for (int y = 0; y < v->dim[1]; y++)
+            for (int x = 0; x < v->dim[0]; x++, i++) {
+                seg_component *c = &all[(int)labels->data[i]];
+                int q[3] = {x, y, z};
+                c->voxels++;
+                if (v->data[i] > c->peak)
+                    c->peak = v->data[i];
+                for (int a = 0; a < 3; a++) {
+                    c->lo[a] = q[a] < c->lo[a] ? q[a] : c->lo[a];
+                    c->hi[a] = q[a] > c->hi[a] ? q[a] : c->hi[a];
+                }
+            }
+    int k = 0;
+    for (int l = 1; l <= maxl; l++)
+        if (all[l].voxels) {
+            all[l].volume_ml = (double)all[l].voxels * vox_ml;
+            all[k++] = all[l];
+        }
+    out->comp = all;
+    out->ncomp = out->raw_components = k;
+    out->threshold = thr;
+    out->labels = labels;
+    return 0;
+}

@@ -61,6 +61,14 @@ int seg_components(const uint8_t *mask, const int dim[3], int32_t *lab);
 int seg_run(const vol *v, const seg_params *p, seg_result *out);
 void seg_result_free(seg_result *r);
 
+/* Fragments that another tool made: labels (a labelmap on v's grid: same dims, affine within
+ * 1 micrometre per index and 10 micrometres of origin; whole numbers 0..65535, label k =
+ * fragment k) becomes out->labels (on success out owns it, seg_result_free frees it; on failure
+ * the caller still does); out->comp lists the labels present, ascending, with their
+ * voxels, volume, peak and box; the threshold (p's, or Otsu's when auto) shapes the probability
+ * maps only. 0, FN_EINVAL (another grid) or FN_EFORMAT (a value that is no label), naming it. */
+int seg_from_labels(const vol *v, vol *labels, const seg_params *p, seg_result *out);
+
 /* The probability byte (probability * 255) of a bone voxel of value `value` under the opacity
  * ramp: p = clamp(0.5 + (value - threshold) / ramp, 1/255, 1), so 0.5 at the threshold and 1 at
  * threshold + ramp/2; ramp <= 0 gives 255 everywhere inside. Never 0 for a fragment voxel. */
