@@ -193,7 +193,7 @@ static void test_view_fits_the_width(void **st)
     loop_scene sc = busy_scene();
     navview_extra x = {80, "/dev/hidraw3: 046d:c627 serial 'B' is not the device that was unplugged "
                            "(046d:c626 serial 'A'): still waiting for it",
-                       "undo: one move of a fragment taken back", NULL};
+                       "undo: one move of a fragment taken back", NULL, NULL};
     const int widths[] = {80, 60, 40};
     for (int w = 0; w < 3; w++) {
         char text[4096];
@@ -379,7 +379,7 @@ static void test_actions_are_acknowledged(void **st)
     navview_ack(&sc, ack, sizeof ack);
     assert_string_equal(ack, "frame: fragment");
     assert_int_equal(sc.actions, 5);
-    navview_extra x = {-1, NULL, ack, w.f};
+    navview_extra x = {-1, NULL, ack, w.f, NULL};
     char text[4096];
     navview_format(&sc, &x, 80, text, sizeof text);
     assert_non_null(strstr(text, "> frame: fragment"));

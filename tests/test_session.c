@@ -497,6 +497,58 @@ static void test_fragments_without_case(void **st)
     free(f[1].prob);
 }
 
+/* The fit action (key g, loop button 12): the worker fits B from where the hand left it while the
+ * loop runs on; the fitted pose lands as one proposal, accepted and clear of A, and undo puts B
+ * back exactly where the hand left it, redo on the fit again. A fixed fragment is refused, with
+ * the reason. */
+static void test_fit_lands_as_one_undoable_step(void **st)
+{
+    (void)st;
+    assert_int_equal(session_key_action('g'), LOOP_ACT_FIT);
+    session *s = start_quiet(0);
+    pose hand = moved_by(moved_by(pose_of(s, 1), 1, 1.0), 2, -1.0);
+    assert_int_equal(propose(s, 1, &hand), LOOP_ACCEPTED);
+    act(s, LOOP_ACT_FIT);
+    session_event *e = next_event(s, SESSION_EV_FIT);
+    assert_int_equal(e->result, 0);
+    assert_int_equal(e->fit.frag, 1);
+    assert_non_null(strstr(e->text, "fitting frag 2"));
+    int fitted = 0, landed = 0;
+    pose fit = hand;
+    while (!fitted || !landed) {
+        e = next_event(s, SESSION_EV_FIT | SESSION_EV_POSE);
+        if (e->kind == SESSION_EV_FIT) {
+            assert_int_equal(e->result, 0);
+            assert_non_null(strstr(e->text, "fit: frag 2 moved"));
+            assert_true(e->fit.evaluations > 0);
+            assert_true(e->fit.metric <= e->fit.metric_start);
+            fitted = 1;
+        } else {
+            assert_int_equal(e->frag, 1);
+            assert_int_equal(e->result, LOOP_ACCEPTED);
+            fit = e->scene.pose[1];
+            assert_int_equal(e->scene.penetrating, 0);
+            landed = 1;
+        }
+    }
+    session_fit fs;
+    session_fit_status(s, &fs);
+    assert_int_equal(fs.running, 0);
+    assert_int_equal(fs.finished, 1);
+    e = act(s, LOOP_ACT_UNDO);
+    assert_int_equal(e->result, LOOP_ACCEPTED);
+    assert_memory_equal(&e->scene.pose[1], &hand, sizeof hand);
+    e = act(s, LOOP_ACT_REDO);
+    assert_memory_equal(&e->scene.pose[1], &fit, sizeof fit);
+    act(s, LOOP_ACT_FIX);
+    act(s, LOOP_ACT_FIT);
+    e = next_event(s, SESSION_EV_FIT);
+    assert_int_equal(e->result, FN_EINVAL);
+    assert_non_null(strstr(e->text, "fixed"));
+    stop_quiet(s);
+    session_close(s);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -505,6 +557,7 @@ int main(void)
         cmocka_unit_test_setup(test_unplug_keeps_pose, fresh_case),
         cmocka_unit_test_setup(test_actions_fix_undo_redo, fresh_case),
         cmocka_unit_test_setup(test_propose_pose_one_undoable_step, fresh_case),
+        cmocka_unit_test_setup(test_fit_lands_as_one_undoable_step, fresh_case),
         cmocka_unit_test_setup(test_propose_from_threads, fresh_case),
         cmocka_unit_test_setup(test_journal_recovery_and_save, fresh_case),
         cmocka_unit_test_setup(test_save_at_stop, fresh_case),

@@ -198,8 +198,8 @@ static void acknowledge(view *v, const char *text)
     v->ack_until_us = fnclock_now_us() + ACK_SHOWN_US;
 }
 
-/* A save request carried out by the session: said in the view, and off a terminal also as a
- * line of its own. */
+/* A save request carried out by the session, or a fit started, refused or finished: said in the
+ * view, and off a terminal also as a line of its own. */
 static void saved(view *v, const session_event *ev)
 {
     acknowledge(v, ev->text);
@@ -271,8 +271,15 @@ static int draw_help(const view *v, int width)
 
 static void draw(view *v, const loop_scene *sc)
 {
-    char refused[512], text[4096], sig[2048];
-    navview_extra x = {-1, NULL, NULL, session_frags(v->k)};
+    char refused[512], text[4096], sig[2048], fit[160];
+    navview_extra x = {-1, NULL, NULL, session_frags(v->k), NULL};
+    session_fit fs;
+    session_fit_status(v->k, &fs);
+    if (fs.running) {
+        snprintf(fit, sizeof fit, "fitting frag %d: iteration %d, metric %.4f, %.1f s", fs.frag + 1,
+                 fs.iterations, fs.metric, fs.seconds);
+        x.fit = fit;
+    }
     if (v->ds) {
         x.battery = atomic_load(&v->ds->battery);
         if (session_dsource_refused(v->ds, refused, sizeof refused))
@@ -311,7 +318,7 @@ static int handle(view *v, const session_event *ev)
 {
     if (ev->kind == SESSION_EV_ACTION)
         new_actions(v, &ev->scene);
-    else if (ev->kind == SESSION_EV_SAVED)
+    else if (ev->kind == SESSION_EV_SAVED || ev->kind == SESSION_EV_FIT)
         saved(v, ev);
     return ev->kind == SESSION_EV_END;
 }

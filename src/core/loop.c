@@ -39,13 +39,13 @@ void loop_config_default(loop_config *c)
     static const uint8_t map[] = {LOOP_ACT_NEXT,       LOOP_ACT_PREV,     LOOP_ACT_FIX,
                                   LOOP_ACT_COLLISION,  LOOP_ACT_TRANS_ONLY, LOOP_ACT_ROT_ONLY,
                                   LOOP_ACT_UNDO,       LOOP_ACT_REDO,     LOOP_ACT_SAVE,
-                                  LOOP_ACT_FRAME};
+                                  LOOP_ACT_FRAME,      LOOP_ACT_NONE,     LOOP_ACT_FIT};
     memcpy(c->button_action, map, sizeof map);
 }
 
 void loop_config_actions_at(loop_config *c, int first)
 {
-    uint8_t acts[10];
+    uint8_t acts[12];
     if (first <= 0 || first > 32 - (int)sizeof acts)
         return;
     memcpy(acts, c->button_action, sizeof acts);
@@ -750,6 +750,9 @@ int loop_action_do(loop *L, loop_action a)
         return undo_redo(L, a == LOOP_ACT_REDO);
     case LOOP_ACT_SAVE:
         L->save_requests++;
+        return LOOP_IDLE;
+    case LOOP_ACT_FIT:
+        L->fit_requests++;
         return LOOP_IDLE;
     case LOOP_ACT_FRAME:
         L->cfg.frame = (loop_frame)((L->cfg.frame + 1) % 3);

@@ -84,6 +84,8 @@ typedef enum {
     LOOP_ACT_SAVE,       /* counts in the scene's save_requests; the application saves */
     LOOP_ACT_FRAME,      /* cycle camera -> world -> fragment frame */
     LOOP_ACT_HELP,       /* show or hide the keys: the application's view (the scene's last_action) */
+    LOOP_ACT_FIT,        /* fit the selected fragment to the others: counts in the scene's
+                          * fit_requests; the application's reduction worker fits (session.h) */
     LOOP_ACT_COUNT
 } loop_action;
 
@@ -160,6 +162,7 @@ typedef struct loop_scene {
     int penetrating;  /* checking is on but the selected fragment is inside another: warn */
     int trans_only, rot_only, device_present;
     unsigned save_requests; /* LOOP_ACT_SAVE presses so far: the application saves when it grows */
+    unsigned fit_requests;  /* LOOP_ACT_FIT presses so far: the application fits when it grows */
     loop_frame frame;
     loop_outcome last_outcome;
     /* The selected fragment's contact at the pose in this scene: > 0 a lower bound on its gap to
@@ -184,9 +187,10 @@ typedef struct loop_scene {
 typedef struct loop loop;
 
 /* Defaults. Buttons 1-10 (bits 0-9) act: next, previous, fix, collision, translation only,
- * rotation only, undo, redo, save, frame. */
+ * rotation only, undo, redo, save, frame; button 12 (bit 11) fits (button 11 is the keyboard
+ * device's help). */
 void loop_config_default(loop_config *c);
-/* Moves the ten default button actions to start at bit first (a device whose numbered keys 1-10
+/* Moves the twelve default button actions to start at bit first (a device whose numbered keys 1-10
  * are not its first buttons: devtab_key1_button); the bits below act no more. */
 void loop_config_actions_at(loop_config *c, int first);
 

@@ -34,6 +34,7 @@ struct loop {
 
     int selected, collision_on, trans_only, rot_only, device_present;
     unsigned save_requests;
+    unsigned fit_requests;
     int have_pivot;
     double pivot_home[3];
     int have_last_t;

@@ -167,6 +167,7 @@ void loop_publish(loop *L)
     s->rot_only = L->rot_only;
     s->device_present = L->device_present;
     s->save_requests = L->save_requests;
+    s->fit_requests = L->fit_requests;
     s->frame = L->cfg.frame;
     s->last_outcome = L->last_outcome;
     s->penetrating = L->collision_on && L->in_collision;

@@ -122,6 +122,8 @@ static void fill(const loop_scene *s, const navview_extra *x, fields *f)
     add(f, 0, "%.0f steps/s", s->stats.step_hz);
     add(f, 0, "latency p99 %.0f us", s->stats.latency_p99_us);
     add(f, 0, "query %.0f us", s->stats.query_us_mean);
+    if (x && x->fit)
+        add(f, 1, "%s", x->fit);
     if (x && x->ack)
         add(f, 1, "> %s", x->ack);
     add(f, !(x && x->ack), "? or h: keys");
@@ -250,6 +252,9 @@ void navview_ack(const loop_scene *s, char *buf, size_t cap)
     case LOOP_ACT_FRAME:
         snprintf(buf, cap, "frame: %s", frame[s->frame]);
         break;
+    case LOOP_ACT_FIT:
+        snprintf(buf, cap, "fit: frag %d to the others", s->selected + 1);
+        break;
     default:
         buf[0] = '\0';
         break;
@@ -263,14 +268,15 @@ const char *navview_help(int keyboard)
                "  arrows or a/d w/s  move in x and y        r/f  up/down\n"
                "  i/k j/l u/o        rotate                 space or x  stop\n"
                "  1 next  2 previous  3 fix  4 collision  5 translation only  6 rotation only\n"
-               "  7 undo  8 redo  9 save  0 or m frame  q quit (saves)  ? or h these keys\n"
+               "  7 undo  8 redo  9 save  0 or m frame  g fit  q quit (saves)  ? or h these keys\n"
                "  mouse: left drag rotates, middle drag rolls, right drag moves, wheel up/down\n"
                "Ctrl-C quits and saves.\n";
     return "keys beside a controller: n/p next/previous fragment   f fix or unfix\n"
            "  c collision checking on/off   t translation only   r rotation only\n"
-           "  u undo   y redo   m frame   s save   q quit (saves)   ? or h these keys\n"
+           "  u undo   y redo   m frame   s save   g fit to the others   q quit (saves)\n"
+           "  ? or h these keys\n"
            "controller buttons: 1 next  2 previous  3 fix  4 collision  5 translation only\n"
-           "  6 rotation only  7 undo  8 redo  9 save  10 frame (SpaceMouse Enterprise: its\n"
-           "  keys labelled 1-10; spnavrc's bnmapN moves them)\n"
+           "  6 rotation only  7 undo  8 redo  9 save  10 frame  12 fit (SpaceMouse Enterprise:\n"
+           "  its keys labelled 1-10; spnavrc's bnmapN moves them, bnmapN = 11 puts fit on N)\n"
            "Ctrl-C quits and saves.\n";
 }

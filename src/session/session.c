@@ -48,6 +48,8 @@ static int build_common(session *s)
     atomic_init(&s->seen_proposals, 0);
     s->kinds = ~0u & ~(unsigned)SESSION_EV_SCENE;
     pthread_mutex_init(&s->push_mu, NULL);
+    pthread_mutex_init(&s->fit_mu, NULL);
+    s->fit.frag = -1;
     sem_init(&s->wake, 0, 0);
     s->built = 1;
     s->in = ring_new(sizeof(loop_event), 1024);
@@ -174,6 +176,7 @@ void session__free(session *s)
     ring_free(s->ctl);
     if (s->built) {
         pthread_mutex_destroy(&s->push_mu);
+        pthread_mutex_destroy(&s->fit_mu);
         sem_destroy(&s->wake);
     }
     free(s);

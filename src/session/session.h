@@ -15,7 +15,8 @@
  *  - session_wait_event, session_ended and session_stop from one client thread (the one that
  *    owns the handle), never two at once: save requests (LOOP_ACT_SAVE, a button or a key) are
  *    carried out there;
- *  - the wake-up callback (session_set_wakeup) runs on the loop thread.
+ *  - the wake-up callback (session_set_wakeup) runs on the loop thread (or the fit worker's);
+ *  - a fit (LOOP_ACT_FIT) runs on a worker thread of the session's own.
  * Everything else (open, play, save, close, the JSON helpers) belongs to the owner's thread while
  * no loop thread runs.
  *
@@ -114,7 +115,7 @@ int session_stop(session *s);
  * 0, FN_EINVAL for an action out of range, FN_EAGAIN when the control queue is full (the loop
  * is far behind) or the loop is not running. */
 int session_send_action(session *s, loop_action a);
-/* The action of a terminal key (n p f c t r u y m s, ? and h for help), LOOP_ACT_NONE for other
+/* The action of a terminal key (n p f c t r u y m s g, ? and h for help), LOOP_ACT_NONE for other
  * keys: what the terminal and the window send for the same key. q (quit) is the client's. */
 loop_action session_key_action(int ch);
 
@@ -140,8 +141,23 @@ typedef enum {
     SESSION_EV_SAVED = 4,  /* a save request was carried out: result 0 or FN_E*, text "saved DIR"
                             * or the error's message */
     SESSION_EV_POSE = 8,   /* a proposal landed: id, frag, result LOOP_ACCEPTED or LOOP_REFUSED */
-    SESSION_EV_END = 16    /* the source ended (a recording played out); once */
+    SESSION_EV_END = 16,   /* the source ended (a recording played out); once */
+    SESSION_EV_FIT = 32    /* a fit (LOOP_ACT_FIT) started, was refused, or finished: fit, result
+                            * (started: 0; refused or failed: FN_E*; cancelled: 1), text */
 } session_event_kind;
+
+/* The reduction worker's state (session_fit_status; SESSION_EV_FIT events carry it). */
+typedef struct session_fit {
+    int running;           /* 1 while the worker fits */
+    int frag;              /* the fragment being (or last) fitted; -1 before the first fit */
+    int iterations, evaluations;
+    double metric_start, metric; /* the VOI metric (reduce.h; lower is better) at the start and now */
+    double seconds;        /* since the fit started */
+    int result;            /* once finished: 0 fitted (its pose proposed: a SESSION_EV_POSE
+                            * follows), 1 cancelled, FN_E* failed (text says why) */
+    double moved_mm, turned_deg; /* finished: how far the fit moves the centroid, and turns */
+    unsigned finished;     /* fits finished so far */
+} session_fit;
 
 typedef struct session_event {
     session_event_kind kind;
@@ -150,7 +166,8 @@ typedef struct session_event {
     unsigned count;     /* ACTION: actions done since the previous ACTION event */
     uint64_t id;        /* POSE: session_propose_pose's id */
     int frag;           /* POSE: the fragment */
-    char text[1100];    /* SAVED */
+    char text[1100];    /* SAVED, FIT */
+    session_fit fit;    /* FIT */
     loop_scene scene;   /* every event: the scene it was seen in (SAVED: the one saved) */
 } session_event;
 
@@ -162,9 +179,24 @@ void session_subscribe(session *s, unsigned kinds);
  * loop runs on). Owner's thread. */
 session_event_kind session_wait_event(session *s, int timeout_ms, session_event *ev);
 /* fn(ctx) is called on the loop thread whenever a scene is published (an event may be waiting):
- * for a client with its own event loop (glfwPostEmptyEvent). It must return at once. NULL: none.
+ * (and on the fit worker's thread when a fit ends): for a client with its own event loop
+ * (glfwPostEmptyEvent). It must return at once. NULL: none.
  * Before session_start. */
 void session_set_wakeup(session *s, void (*fn)(void *ctx), void *ctx);
+
+/* ---- the reduction worker ---- */
+
+/* LOOP_ACT_FIT (the key g, loop button 12, bindable with spnavrc's bnmapN like the other
+ * actions) fits the selected fragment to all the others where they are now, from where the hand
+ * left it (reduce_fit_one: no pre-alignment), on a thread of its own, while the loop runs on.
+ * The fitted pose then lands through the loop as one proposal (session_propose_pose): accepted
+ * and journaled as one undo step, so undo takes it back to the hand-placed pose; refused when it
+ * collides (it never should: the fit keeps clear of the others). One fit at a time; a fixed or
+ * lone fragment is refused with a SESSION_EV_FIT that says why. session_stop cancels a running
+ * fit. The request is seen, and the worker started, by session_wait_event (owner's thread). */
+
+/* The worker's state now (any thread). */
+void session_fit_status(session *s, session_fit *out);
 
 /* ---- saving ---- */
 

@@ -47,9 +47,32 @@ struct session {
     int proposal_frag[LOOP_PROPOSALS_KEPT]; /* under push_mu */
     session_event queue[SESSION_QUEUE];
     int qhead, qn;
+
+    /* the reduction worker (session_fit.c) */
+    pthread_t fit_th;
+    int fit_joinable;      /* owner's thread */
+    atomic_int fit_cancel;
+    pthread_mutex_t fit_mu; /* guards fit */
+    session_fit fit;
+    unsigned seen_fits;    /* the scene's fit_requests handled */
+    unsigned fits_told;    /* fits finished whose event was derived */
+    int fit_sel;           /* the worker's fragment, and its copies of the fragments at the */
+    pose fit_start;        /* scene's poses (struct copies sharing the voxels) */
+    frag fit_frags[LOOP_MAX_FRAGS];
+    char fit_why[256];     /* a failed fit's message (under fit_mu) */
+    pose fit_out;          /* the finished fit's pose (under fit_mu) */
 };
 
 /* Frees everything session_open built (no thread may run). */
 void session__free(session *s);
+
+/* LOOP_ACT_FIT seen in the scene: starts the worker on the selected fragment, or says why not;
+ * fills ev (SESSION_EV_FIT). Owner's thread. */
+void session__fit_start(session *s, session_event *ev);
+/* A fit that finished since the last call: fills ev (SESSION_EV_FIT) and *fitted (its pose, to
+ * propose when ev->result is 0) and returns 1; else 0. */
+int session__fit_finished(session *s, session_event *ev, pose *fitted);
+/* Cancels a running fit and joins the worker. Owner's thread. */
+void session__fit_join(session *s);
 
 #endif

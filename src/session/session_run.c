@@ -122,6 +122,7 @@ loop_action session_key_action(int ch)
     case 's': return LOOP_ACT_SAVE;
     case '?':
     case 'h': return LOOP_ACT_HELP;
+    case 'g': return LOOP_ACT_FIT;
     default: return LOOP_ACT_NONE;
     }
 }
@@ -194,6 +195,7 @@ static void save_request(session *s, session_event *ev)
 static int derive(session *s, session_event *ev)
 {
     const loop_scene *sc = &s->scene;
+    pose fitted;
     memset(ev, 0, offsetof(session_event, scene));
     uint64_t seen = atomic_load(&s->seen_proposals);
     if (sc->proposals > seen) {
@@ -210,6 +212,15 @@ static int derive(session *s, session_event *ev)
         ev->action = sc->last_action;
         ev->result = sc->last_action_result;
         s->seen_actions = sc->actions;
+    } else if (sc->fit_requests != s->seen_fits) {
+        s->seen_fits = sc->fit_requests;
+        session__fit_start(s, ev);
+    } else if (session__fit_finished(s, ev, &fitted)) {
+        if (ev->result == 0 && session_propose_pose(s, ev->fit.frag, &fitted, NULL) < 0) {
+            ev->result = FN_EAGAIN;
+            snprintf(ev->text, sizeof ev->text, "fit of frag %d not applied: %.1000s",
+                     ev->fit.frag + 1, fn_err_msg());
+        }
     } else if (sc->save_requests != s->seen_saves) {
         s->seen_saves = sc->save_requests;
         save_request(s, ev);
@@ -278,6 +289,7 @@ int session_stop(session *s)
 {
     if (!atomic_load(&s->running))
         return 0;
+    session__fit_join(s); /* a fit's proposal would land in no loop */
     s->ended = loop_reader_done(s->rd);
     loop_reader_stop(s->rd);
     s->rd = NULL;
