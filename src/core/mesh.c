@@ -1,8 +1,8 @@
-/* Surface meshes by marching tetrahedra: each cube of the (strided) grid is split into the six
+/* mesh: surface meshes by marching tetrahedra: each cube of the (strided) grid is split into the six
  * tetrahedra around its main diagonal (Kuhn's split, which neighbouring cubes share face for face,
  * so the surface has no cracks). The cases are computed, not tabled. Normals come from the grid's
  * central differences, interpolated like the positions. */
-#include "render_impl.h"
+#include "mesh.h"
 
 #include "err.h"
 
@@ -95,8 +95,8 @@ static void make_corner(corner *c, const float *vals, const int dim[3], const do
     }
 }
 
-long render__mesh_build(const float *vals, const int dim[3], const double spacing[3], float level,
-                        const int stride[3], float **out)
+long mesh_build(const float *vals, const int dim[3], const double spacing[3], float level,
+                const int stride[3], float **out)
 {
     mesh_buf m = {0};
     const int s[3] = {stride[0] < 1 ? 1 : stride[0], stride[1] < 1 ? 1 : stride[1],
@@ -120,7 +120,7 @@ long render__mesh_build(const float *vals, const int dim[3], const double spacin
                     const corner *tc[4] = {&c[tets[t][0]], &c[tets[t][1]], &c[tets[t][2]], &c[tets[t][3]]};
                     if (march_tet(&m, tc, level)) {
                         free(m.v);
-                        return fn_err_set(FN_ENOMEM, "render: out of memory building a surface mesh");
+                        return fn_err_set(FN_ENOMEM, "mesh: out of memory building a surface mesh");
                     }
                 }
             }
