@@ -233,7 +233,6 @@ int cmd_export(int argc, char **argv)
         json_t *o = jsonw_object("export");
         if (o) {
             jsonw_set(o, "case", jsonw_string(a.dir));
-            jsonw_set(o, "fragments", json_integer(c->nfrag));
             jsonw_set(o, "files", w.files);
             jsonw_set(o, "files_written", json_integer(w.n));
             jsonw_set(o, "written_total_bytes", json_integer(w.bytes));

@@ -176,21 +176,20 @@ typedef struct builder {
     const float *vals;
     int dim[3], pdim[3]; /* grid, padded grid */
     double sp[3];
-    float level;
+    float level, pad;
     edge_map map;
     float *v;
     int *tri;
     size_t nv, vcap, nt, tcap;
 } builder;
 
-/* The value at padded index (i, j, k): outside the grid a hair below the level's side "out". */
+/* The value at padded index (i, j, k): outside the grid, pad (below the level). */
 static float pval(const builder *b, int i, int j, int k)
 {
     i--, j--, k--;
     if (i < 0 || j < 0 || k < 0 || i >= b->dim[0] || j >= b->dim[1] || k >= b->dim[2])
-        return -1e30f;
-    float v = b->vals[((size_t)k * (size_t)b->dim[1] + (size_t)j) * (size_t)b->dim[0] + (size_t)i];
-    return v == b->level ? nextafterf(b->level, -1e30f) : v; /* never exactly on the level */
+        return b->pad;
+    return b->vals[((size_t)k * (size_t)b->dim[1] + (size_t)j) * (size_t)b->dim[0] + (size_t)i];
 }
 
 /* The vertex on the edge from padded point p (index) to p + offset bits d (x 1, y 2, z 4). */
@@ -214,7 +213,7 @@ static int edge_vertex(builder *b, const int p[3], int d, float vp, float vq)
         b->v = v;
         b->vcap = cap;
     }
-    float s = (b->level - vp) / (vq - vp);
+    float s = vq != vp ? (b->level - vp) / (vq - vp) : 0.5f;
     for (int a = 0; a < 3; a++) {
         double x0 = (p[a] - 1) * b->sp[a], x1 = (p[a] - 1 + (d >> a & 1)) * b->sp[a];
         b->v[b->nv * 3 + (size_t)a] = (float)(x0 + s * (x1 - x0));
@@ -225,8 +224,12 @@ static int edge_vertex(builder *b, const int p[3], int d, float vp, float vq)
     return (int)b->nv++;
 }
 
-/* Adds triangle (a, b, c), turned so that its normal points along out (inside -> outside). */
-static int add_tri(builder *b, int x, int y, int z, const double out[3])
+/* Adds triangle (x, y, z), turned by the orientation of its stand-in (mx, my, mz): the same
+ * triangle with every vertex at its edge's midpoint (in corner bits), never degenerate, so the
+ * winding follows the tetrahedron's combinatorics even where interpolated vertices coincide.
+ * out: from an inside corner to an outside one. */
+static int add_tri(builder *b, int x, int y, int z, const double mx[3], const double my[3], const double mz[3],
+                   const double out[3])
 {
     if (b->nt == b->tcap) {
         size_t cap = b->tcap ? b->tcap * 2 : 8192;
@@ -236,12 +239,11 @@ static int add_tri(builder *b, int x, int y, int z, const double out[3])
         b->tri = t;
         b->tcap = cap;
     }
-    const float *p = b->v + (size_t)x * 3, *q = b->v + (size_t)y * 3, *r = b->v + (size_t)z * 3;
-    double e1[3] = {q[0] - p[0], q[1] - p[1], q[2] - p[2]}, e2[3] = {r[0] - p[0], r[1] - p[1], r[2] - p[2]};
+    double e1[3] = {my[0] - mx[0], my[1] - mx[1], my[2] - mx[2]}, e2[3] = {mz[0] - mx[0], mz[1] - mx[1], mz[2] - mx[2]};
     double n[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]};
     int *t = b->tri + b->nt * 3;
     t[0] = x;
-    if (n[0] * out[0] + n[1] * out[1] + n[2] * out[2] >= 0)
+    if (n[0] * out[0] + n[1] * out[1] + n[2] * out[2] > 0)
         t[1] = y, t[2] = z;
     else
         t[1] = z, t[2] = y;
@@ -276,27 +278,27 @@ static int extract_tet(builder *b, const int base[3], const int cn[4], const flo
                 return id;
             vid[x][y] = id;
         }
-    /* Outward: from an inside corner to an outside one. */
-    int ci = cn[ins[0]], co = cn[outs[0]];
-    double out[3];
+    /* Midpoints of the cut edges in corner bits (the spacing's positive scale keeps orientation). */
+    double mid[4][4][3], out[3];
+    for (int x = 0; x < ni; x++)
+        for (int y = 0; y < no; y++)
+            for (int a = 0; a < 3; a++)
+                mid[x][y][a] = 0.5 * ((cn[ins[x]] >> a & 1) + (cn[outs[y]] >> a & 1));
     for (int a = 0; a < 3; a++)
-        out[a] = ((co >> a & 1) - (ci >> a & 1)) * b->sp[a];
-    if (ni == 1 || no == 1) {
-        int t[3], k = 0;
-        for (int x = 0; x < ni; x++)
-            for (int y = 0; y < no; y++)
-                t[k++] = vid[x][y];
-        return add_tri(b, t[0], t[1], t[2], out);
-    }
+        out[a] = (cn[outs[0]] >> a & 1) - (cn[ins[0]] >> a & 1);
+    if (ni == 1)
+        return add_tri(b, vid[0][0], vid[0][1], vid[0][2], mid[0][0], mid[0][1], mid[0][2], out);
+    if (no == 1)
+        return add_tri(b, vid[0][0], vid[1][0], vid[2][0], mid[0][0], mid[1][0], mid[2][0], out);
     /* Quad: in0-out0, in0-out1, in1-out1, in1-out0. */
-    int rc = add_tri(b, vid[0][0], vid[0][1], vid[1][1], out);
-    return rc ? rc : add_tri(b, vid[0][0], vid[1][1], vid[1][0], out);
+    int rc = add_tri(b, vid[0][0], vid[0][1], vid[1][1], mid[0][0], mid[0][1], mid[1][1], out);
+    return rc ? rc : add_tri(b, vid[0][0], vid[1][1], vid[1][0], mid[0][0], mid[1][1], mid[1][0], out);
 }
 
 int mesh_extract(const float *vals, const int dim[3], const double spacing[3], float level, mesh *m)
 {
     memset(m, 0, sizeof *m);
-    builder b = {.vals = vals, .level = level};
+    builder b = {.vals = vals, .level = level, .pad = level - fmaxf(1.0f, fabsf(level))};
     for (int a = 0; a < 3; a++) {
         b.dim[a] = dim[a];
         b.pdim[a] = dim[a] + 2;

@@ -4,11 +4,13 @@
  * tetrahedra around its main diagonal; vertices are not shared and the grid's border is not closed.
  *
  * mesh_extract makes an indexed, closed surface for printing and export: the grid is padded by one
- * voxel below the level on every side (so bone touching the crop's border is closed), every vertex
- * lies on one grid edge and is shared by the triangles that cut that edge, and every triangle turns
- * counter-clockwise seen from outside. The level set of the tetrahedra's piecewise-linear field is
- * a closed 2-manifold as long as no grid value equals the level exactly (mesh_extract nudges such
- * values a hair below), so every edge has exactly two triangles, one in each direction.
+ * voxel below the level on every side (level - max(1, |level|), so bone touching the crop's border
+ * is closed), every vertex lies on one grid edge and is shared by the triangles that cut that edge,
+ * and every triangle turns counter-clockwise seen from outside (decided from the tetrahedron's
+ * corners, not the interpolated positions, so it holds where those coincide). Inside is
+ * value >= level. The surface, as indices, is a closed 2-manifold: every edge has exactly two
+ * triangles, one in each direction. Positions of distinct vertices coincide only where a grid
+ * value equals the level (a 0/1 mask at 0.5 never does).
  * mesh_smooth (Taubin's lambda|mu) and mesh_decimate (edge collapses under the link condition)
  * keep that: the mesh stays closed and manifold.
  *
