@@ -124,7 +124,8 @@ def stl(path):
         vol += (a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0]) +
                 a[2] * (b[0] * c[1] - b[1] * c[0])) / 6.0
     closed = all(k == 1 and directed.get((e[1], e[0])) == 1 for e, k in directed.items())
-    return {"triangles": n, "closed": closed, "volume_mm3": vol, "lo": lo, "hi": hi}
+    header = raw[:80].split(b"\0")[0].decode("latin-1")
+    return {"triangles": n, "closed": closed, "volume_mm3": vol, "lo": lo, "hi": hi, "header": header}
 
 
 def main():

@@ -304,6 +304,7 @@ static void test_stl_closed_in_mm(void **st)
         double mm3 = f->volume_ml * 1000;
         snprintf(path, sizeof path, "%s/models/fragment-%d.stl", out, f->id);
         json_t *lps = stl_check(path, mm3);
+        assert_non_null(strstr(json_string_value(json_object_get(lps, "header")), "SPACE=LPS"));
         /* Where the fragment is planned: its planned centroid inside the model's bounds. */
         double cen[3];
         pose_apply(&f->pose, f->centroid, cen);
@@ -313,6 +314,7 @@ static void test_stl_closed_in_mm(void **st)
         }
         snprintf(path, sizeof path, "%s/fragment-%d.stl", ras_dir, f->id);
         json_t *ras = stl_check(path, mm3);
+        assert_non_null(strstr(json_string_value(json_object_get(ras, "header")), "SPACE=RAS"));
         for (int a = 0; a < 3; a++) {
             double l = json_number_value(json_array_get(json_object_get(lps, a < 2 ? "hi" : "lo"), (size_t)a));
             double r = json_number_value(json_array_get(json_object_get(ras, "lo"), (size_t)a));

@@ -371,7 +371,8 @@ int export_stl(const fcase *c, int i, const export_stl_opts *o, const char *path
             m.v[v * 3 + a] = (float)w[a];
     }
     char header[96];
-    snprintf(header, sizeof header, "fracnav fragment %d %s, mm, %s", f->id, f->name, o->ras ? "RAS" : "LPS");
+    /* 3D Slicer reads the coordinate system from "SPACE=" in the header. */
+    snprintf(header, sizeof header, "fracnav fragment %d, mm, SPACE=%s", f->id, o->ras ? "RAS" : "LPS");
     stl_ctx x = {&m, header};
     rc = export_atomic(path, write_stl, &x);
     if (triangles)
