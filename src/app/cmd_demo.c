@@ -46,7 +46,8 @@ static void usage(FILE *out)
             "     recording " RECORDING " and steers the loose piece with it through\n"
             "     `fracnav navigate` and the real hidraw driver: lifted, turned and pushed towards\n"
             "     its place, the push refused where the fracture surfaces meet (without FUSE, the\n"
-            "     recording plays in-process: replay-realtime:);\n"
+            "     recording plays in-process: replay-realtime:); navigate's view shows it live on\n"
+            "     standard error;\n"
             "  4. runs the automatic reduction (`fracnav reduce`) and measures it against the truth;\n"
             "  5. exports everything (`fracnav export --all DIR/export`): ITK transforms, a 3D Slicer\n"
             "     segmentation, a NIfTI labelmap, STL models and the report DIR/export/report/index.html;\n"
@@ -138,8 +139,9 @@ static int wait_status(pid_t pid)
     return WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
 }
 
-/* Runs a fracnav command with --json; its object (NULL: it failed, and its stderr was shown). */
-static json_t *fracnav_json(char *exe, const char *dir, const char *name, char *const args[])
+/* Runs a fracnav command with --json; its object (NULL: it failed, and its stderr was shown).
+ * live: its standard error (navigate's view) goes to ours as it comes, not to DIR/NAME.log. */
+static json_t *fracnav_json(char *exe, const char *dir, const char *name, char *const args[], int live)
 {
     char *argv[24] = {exe};
     int n = 1;
@@ -150,21 +152,20 @@ static json_t *fracnav_json(char *exe, const char *dir, const char *name, char *
     char out[PATH_MAX], err[PATH_MAX];
     snprintf(out, sizeof out, "%s/%s.json", dir, name);
     snprintf(err, sizeof err, "%s/%s.log", dir, name);
-    pid_t pid = spawn(argv, out, err);
+    pid_t pid = spawn(argv, out, live ? NULL : err);
     int st = pid > 0 ? wait_status(pid) : -1;
     json_error_t e;
     json_t *j = st == 0 ? json_load_file(out, 0, &e) : NULL;
     if (!j) {
-        fn_err_set(FN_EINVAL, "`fracnav %s` failed (exit %d; its messages are in %s)", args[0], st, err);
-        char *text = NULL;
-        FILE *fp = fopen(err, "r");
+        fn_err_set(FN_EINVAL, "`fracnav %s` failed (exit %d%s%s)", args[0], st, live ? "" : "; its messages are in ",
+                   live ? "" : err);
+        FILE *fp = live ? NULL : fopen(err, "r");
         if (fp) {
             char line[512];
             while (fgets(line, sizeof line, fp))
                 fprintf(stderr, "   | %s", line);
             fclose(fp);
         }
-        free(text);
     }
     return j;
 }
@@ -312,7 +313,7 @@ static json_t *navigate(char *exe, const char *bindir, const char *dir, char *re
         mkdir(mnt, 0777);
         char log[PATH_MAX];
         snprintf(log, sizeof log, "%s/fracnav-sim.log", dir);
-        char *argv[] = {sim, "serve", "--mount", mnt, "--play", rec, "--start-on-read", "--exit-at-end", NULL};
+        char *argv[] = {sim, "serve", "--mount", mnt, "--play", rec, "--start-on-read", NULL};
         if (is_file(sim) && (server = spawn(argv, NULL, log)) > 0 && wait_file(node, server)) {
             snprintf(dev, sizeof dev, "%s", node);
             how = "served by fracnav-sim through FUSE, read by the hidraw driver";
@@ -332,7 +333,7 @@ static json_t *navigate(char *exe, const char *bindir, const char *dir, char *re
     printf("3. navigation: the recording %s (%.1f s), %s:\n", rec, seconds, how);
     fflush(stdout);
     char *args[] = {"navigate", casedir, "--device", dev, "--discard-journal", "--duration", dur, NULL};
-    json_t *j = fracnav_json(exe, dir, "navigate", args);
+    json_t *j = fracnav_json(exe, dir, "navigate", args, 1);
     if (server > 0) {
         kill(server, SIGTERM);
         wait_status(server);
@@ -422,7 +423,7 @@ int cmd_demo(int argc, char **argv)
     snprintf(exdir, sizeof exdir, "%s/export", dir);
     printf("4. automatic reduction (fracnav reduce):\n");
     char *rargs[] = {"reduce", casedir, NULL};
-    json_t *red = fracnav_json(exe, dir, "reduce", rargs);
+    json_t *red = fracnav_json(exe, dir, "reduce", rargs, 0);
     if (!red) {
         json_decref(nav);
         return fail("reduction");
@@ -435,7 +436,7 @@ int cmd_demo(int argc, char **argv)
 
     printf("5. export (fracnav export --all %s):\n", exdir);
     char *eargs[] = {"export", casedir, "--all", exdir, "--smooth", "10", "--decimate", "200000", NULL};
-    json_t *ex = fracnav_json(exe, dir, "export", eargs);
+    json_t *ex = fracnav_json(exe, dir, "export", eargs, 0);
     if (!ex) {
         json_decref(nav);
         json_decref(red);
@@ -453,7 +454,7 @@ int cmd_demo(int argc, char **argv)
            "   cases:             %s/case (segmented), %s (fractured, navigated, reduced)\n"
            "figures measured (on this machine, noisy when it is shared):\n"
            "   collision query:   mean %.2f us, max %.1f us\n"
-           "   loop rate:         %.0f Hz (latency p99 %.0f us)\n"
+           "   loop rate:         %.0f Hz (paced by the device's reports; latency p99 %.0f us)\n"
            "   reduction:         %.2f s; error %.2f deg, %.2f mm, TRE %.2f mm\n"
            "   whole demo:        %.1f s\n",
            dir, exdir, exdir, exdir, exdir, exdir, dir, casedir, num(nav, "query_mean_us"), num(nav, "query_max_us"),
