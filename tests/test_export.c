@@ -378,6 +378,34 @@ static void test_report_in_chromium(void **st)
     assert_string_equal(line, "images: 4 of 5 loaded");
 }
 
+/* Without a GL 4.5 context (here: the window platform and no display) the report still comes,
+ * saying why it has no renders. */
+static void test_report_without_renderer(void **st)
+{
+    (void)st;
+    char *o = NULL, rdir[4300], html[4400];
+    snprintf(rdir, sizeof rdir, "%s/report-no-gl", dir);
+    const char *keep = getenv("DISPLAY");
+    char *saved = keep ? strdup(keep) : NULL;
+    unsetenv("DISPLAY");
+    unsetenv("WAYLAND_DISPLAY");
+    int rc = tu_run_cli(&o, "export '%s' --report '%s' --platform glfw", frac, rdir);
+    if (saved)
+        setenv("DISPLAY", saved, 1);
+    free(saved);
+    if (rc != 0)
+        fail_msg("export --report without a display exited %d:\n%s", rc, o);
+    assert_non_null(strstr(o, "the report has no renders"));
+    free(o);
+    snprintf(html, sizeof html, "%s/index.html", rdir);
+    char *page = tu_slurp(html, NULL);
+    assert_non_null(page);
+    assert_non_null(strstr(page, "No renders: "));
+    assert_null(strstr(page, "before-anterior.png"));
+    assert_non_null(strstr(page, "convergence.png"));
+    free(page);
+}
+
 /* Bad input: exit 2 naming the option; a failed write (a missing folder) exits 1 naming the file
  * and leaves the earlier export as it was. */
 static void test_bad_input(void **st)
@@ -412,6 +440,7 @@ int main(void)
         cmocka_unit_test(test_nifti_and_seg_nrrd),
         cmocka_unit_test(test_stl_closed_in_mm),
         cmocka_unit_test(test_report_in_chromium),
+        cmocka_unit_test(test_report_without_renderer),
         cmocka_unit_test(test_bad_input),
     };
     return cmocka_run_group_tests(tests, setup, teardown);

@@ -6,7 +6,8 @@
  * "Before" is each fragment's pose before the case's last automatic reduction (the "reduction"
  * record of case.json: "placed"); without a record, its home position (as segmented). "After" is
  * its current pose. The convergence plot needs the record's "history" values: without them the
- * page says there is no plot. Every file (index.html, before-*.png, after-*.png, convergence.png)
+ * page says there is no plot. Where the renderer cannot open (no GL 4.5: FN_ENODEV) the page says
+ * so instead of showing renders, and a warning goes to stderr. Every file (index.html, before-*.png, after-*.png, convergence.png)
  * is written atomically into dir (created when missing).
  *
  * Threads: the caller's thread only (GL context, PLplot's global state). Errors: 0 or FN_E* with
