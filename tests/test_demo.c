@@ -49,6 +49,7 @@ static void test_demo_runs_the_workflow(void **st)
             fail_msg("the demo's summary lacks '%s':\n%s", figures[i], out);
     const char *files[] = {"case/case.json", "case/labels.nii.gz", "segmentation-anterior.png",
                            "fracture/case.json", "fracture-anterior.png", "navigate.json",
+                           "frames/navigation-00.png", "frames/navigation-07.png",
                            "export/report/index.html", "export/report/convergence.png",
                            "export/report/before-anterior.png", "export/report/after-anterior.png",
                            "export/models/fragment-2.stl", "export/transforms/fragment-2.tfm",

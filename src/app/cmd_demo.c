@@ -6,6 +6,7 @@
 #include "fnclock.h"
 #include "fnrec.h"
 #include "fracture.h"
+#include "journal.h"
 #include "render.h"
 #include "seg.h"
 #include "snap.h"
@@ -47,7 +48,8 @@ static void usage(FILE *out)
             "     `fracnav navigate` and the real hidraw driver: lifted, turned and pushed towards\n"
             "     its place, the push refused where the fracture surfaces meet (without FUSE, the\n"
             "     recording plays in-process: replay-realtime:); navigate's view shows it live on\n"
-            "     standard error;\n"
+            "     standard error, and the renderer draws 8 frames of it from the poses navigate\n"
+            "     journalled: DIR/frames/navigation-00.png .. -07.png;\n"
             "  4. runs the automatic reduction (`fracnav reduce`) and measures it against the truth;\n"
             "  5. exports everything (`fracnav export --all DIR/export`): ITK transforms, a 3D Slicer\n"
             "     segmentation, a NIfTI labelmap, STL models and the report DIR/export/report/index.html;\n"
@@ -139,9 +141,13 @@ static int wait_status(pid_t pid)
     return WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
 }
 
+typedef void (*watch_fn)(void *ctx);
+
 /* Runs a fracnav command with --json; its object (NULL: it failed, and its stderr was shown).
- * live: its standard error (navigate's view) goes to ours as it comes, not to DIR/NAME.log. */
-static json_t *fracnav_json(char *exe, const char *dir, const char *name, char *const args[], int live)
+ * live: its standard error (navigate's view) goes to ours as it comes, not to DIR/NAME.log.
+ * watch, when given, is called every 20 ms while the command runs. */
+static json_t *fracnav_json(char *exe, const char *dir, const char *name, char *const args[], int live,
+                            watch_fn watch, void *ctx)
 {
     char *argv[24] = {exe};
     int n = 1;
@@ -153,6 +159,15 @@ static json_t *fracnav_json(char *exe, const char *dir, const char *name, char *
     snprintf(out, sizeof out, "%s/%s.json", dir, name);
     snprintf(err, sizeof err, "%s/%s.log", dir, name);
     pid_t pid = spawn(argv, out, live ? NULL : err);
+    for (;;) { /* until it ends (left to be reaped below) */
+        siginfo_t si;
+        memset(&si, 0, sizeof si);
+        if (!watch || pid <= 0 || waitid(P_PID, (id_t)pid, &si, WEXITED | WNOHANG | WNOWAIT) != 0 ||
+            si.si_pid == pid)
+            break;
+        watch(ctx);
+        usleep(20000);
+    }
     int st = pid > 0 ? wait_status(pid) : -1;
     json_error_t e;
     json_t *j = st == 0 ? json_load_file(out, 0, &e) : NULL;
@@ -289,6 +304,91 @@ static int wait_file(const char *path, pid_t server)
     return 0;
 }
 
+/* Navigate's journal as it grows (it is emptied when navigate saves at its end): the accepted
+ * poses of the session, for the frames. */
+typedef struct journal_watch {
+    char path[PATH_MAX + 16];
+    journal_scan best;
+} journal_watch;
+
+static void watch_journal(void *ctx)
+{
+    journal_watch *w = ctx;
+    size_t len = 0, cap = 0;
+    uint8_t *buf = NULL;
+    FILE *fp = fopen(w->path, "rb");
+    if (!fp)
+        return;
+    for (;;) {
+        if (len == cap) {
+            uint8_t *b = realloc(buf, cap = cap ? cap * 2 : 1 << 16);
+            if (!b)
+                break;
+            buf = b;
+        }
+        size_t got = fread(buf + len, 1, cap - len, fp);
+        if (!got)
+            break;
+        len += got;
+    }
+    fclose(fp);
+    journal_scan s;
+    if (buf && journal_parse(buf, len, w->path, &s) == 0) {
+        if (s.n > w->best.n) {
+            journal_scan_free(&w->best);
+            w->best = s;
+        } else {
+            journal_scan_free(&s);
+        }
+    }
+    free(buf);
+}
+
+/* Frames of the navigation, drawn headless from the poses navigate journalled: nframes pictures
+ * evenly over the session's report time. c: the case as it was before navigation. */
+static int frames(const fcase *c, const journal_scan *j, const char *dir, int nframes)
+{
+    if (j->n == 0 || c->nfrag > RENDER_MAX_FRAGS)
+        return 0;
+    char fdir[PATH_MAX], path[PATH_MAX + 32];
+    snprintf(fdir, sizeof fdir, "%s/frames", dir);
+    if (mkdir(fdir, 0777) != 0 && errno != EEXIST)
+        return fn_err_set(FN_EIO, "%s: %s", fdir, strerror(errno));
+    const int w = 384, h = 384;
+    pose *p = malloc((size_t)c->nfrag * sizeof *p);
+    uint8_t *rgb = malloc((size_t)w * h * 3);
+    render *r = p && rgb ? render_open("osmesa", w, h) : NULL;
+    int rc = !p || !rgb ? fn_err_set(FN_ENOMEM, "out of memory for the frames") : r ? 0 : FN_ENODEV;
+    if (!rc)
+        rc = render_set_scene(r, c->ct, c->frag, c->nfrag, c->seg.threshold, NULL);
+    render_options o;
+    render_options_default(&o, c->frag, c->nfrag);
+    render_camera_standard(&o.camera, RENDER_RIGHT, c->frag, c->nfrag);
+    for (int i = 0; i < c->nfrag && !rc; i++)
+        p[i] = c->frag[i].pose;
+    int64_t t0 = j->recs[0].t_us, t1 = j->recs[j->n - 1].t_us;
+    size_t next = 0;
+    for (int f = 0; f < nframes && !rc; f++) {
+        int64_t t = t0 + (nframes > 1 ? (t1 - t0) * f / (nframes - 1) : 0);
+        for (; next < j->n && j->recs[next].t_us <= t; next++)
+            if (j->recs[next].frag >= 0 && j->recs[next].frag < c->nfrag)
+                p[j->recs[next].frag] = j->recs[next].p;
+        snprintf(path, sizeof path, "%s/navigation-%02d.png", fdir, f);
+        rc = render_frame(r, p, &o);
+        if (!rc)
+            rc = render_read_rgb(r, rgb);
+        if (!rc)
+            rc = snap_write_png(path, rgb, w, h);
+    }
+    if (!rc)
+        printf("   frames (headless, from the poses navigate journalled): %s/navigation-00.png .. -%02d.png\n", fdir,
+               nframes - 1);
+    render_close(r);
+    free(p);
+    free(rgb);
+    return rc;
+}
+
 /* Step 3: the shipped recording through the virtual device and navigate. The navigate summary. */
 static json_t *navigate(char *exe, const char *bindir, const char *dir, char *rec, int no_fuse)
 {
@@ -332,12 +432,22 @@ static json_t *navigate(char *exe, const char *bindir, const char *dir, char *re
     }
     printf("3. navigation: the recording %s (%.1f s), %s:\n", rec, seconds, how);
     fflush(stdout);
+    fcase *before = case_load(casedir); /* the poses the frames start from */
+    journal_watch w;
+    memset(&w, 0, sizeof w);
+    snprintf(w.path, sizeof w.path, "%s/journal", casedir);
     char *args[] = {"navigate", casedir, "--device", dev, "--discard-journal", "--duration", dur, NULL};
-    json_t *j = fracnav_json(exe, dir, "navigate", args, 1);
+    json_t *j = before ? fracnav_json(exe, dir, "navigate", args, 1, watch_journal, &w) : NULL;
     if (server > 0) {
         kill(server, SIGTERM);
         wait_status(server);
     }
+    if (j && frames(before, &w.best, dir, 8) < 0) {
+        json_decref(j);
+        j = NULL;
+    }
+    journal_scan_free(&w.best);
+    case_free(before);
     return j;
 }
 
@@ -423,7 +533,7 @@ int cmd_demo(int argc, char **argv)
     snprintf(exdir, sizeof exdir, "%s/export", dir);
     printf("4. automatic reduction (fracnav reduce):\n");
     char *rargs[] = {"reduce", casedir, NULL};
-    json_t *red = fracnav_json(exe, dir, "reduce", rargs, 0);
+    json_t *red = fracnav_json(exe, dir, "reduce", rargs, 0, NULL, NULL);
     if (!red) {
         json_decref(nav);
         return fail("reduction");
@@ -436,7 +546,7 @@ int cmd_demo(int argc, char **argv)
 
     printf("5. export (fracnav export --all %s):\n", exdir);
     char *eargs[] = {"export", casedir, "--all", exdir, "--smooth", "10", "--decimate", "200000", NULL};
-    json_t *ex = fracnav_json(exe, dir, "export", eargs, 0);
+    json_t *ex = fracnav_json(exe, dir, "export", eargs, 0, NULL, NULL);
     if (!ex) {
         json_decref(nav);
         json_decref(red);
