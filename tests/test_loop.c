@@ -342,6 +342,54 @@ static void test_undo_redo_gestures(void **st)
     loop_free(L);
 }
 
+static loop_event proposal(int i, pose p)
+{
+    loop_event e;
+    memset(&e, 0, sizeof e);
+    e.kind = LOOP_EV_POSE;
+    e.frag = i;
+    e.pose = p;
+    return e;
+}
+
+/* A proposed pose is one step of its own: taken whole when free, refused inside the wall or for
+ * a fixed fragment, undone alone (the gesture before it stays), and counted in the scene. */
+static void test_proposed_pose_one_undo_step(void **st)
+{
+    world w;
+    loop_config c;
+    world_config(&c);
+    loop *L = make_loop(&w, &c);
+    int64_t t = 0;
+    push(L, motion(0, 0, 1, 0, 0, 0, 0), 3, &t); /* a gesture, still going on */
+    pose g = loop_pose(L, 0), free_p = g, inside = g;
+    free_p.t[2] += 3;
+    inside.t[0] += 8; /* x up to 12.5: through the wall at 10 */
+    loop_event e = proposal(0, free_p);
+    assert_int_equal(loop_feed(L, &e), LOOP_ACCEPTED);
+    assert_true(pose_distance(loop_pose(L, 0), free_p) == 0);
+    e = proposal(0, inside);
+    assert_int_equal(loop_feed(L, &e), LOOP_REFUSED);
+    e = proposal(1, POSE_IDENTITY); /* the wall is fixed */
+    assert_int_equal(loop_feed(L, &e), LOOP_REFUSED);
+    e = proposal(7, free_p);
+    assert_int_equal(loop_feed(L, &e), LOOP_REFUSED);
+    assert_int_equal(loop_action_do(L, LOOP_ACT_UNDO), LOOP_ACCEPTED);
+    assert_true(pose_distance(loop_pose(L, 0), g) == 0); /* back to the gesture's end */
+    assert_int_equal(loop_action_do(L, LOOP_ACT_UNDO), LOOP_ACCEPTED);
+    assert_true(pose_distance(loop_pose(L, 0), POSE_IDENTITY) == 0);
+    loop_publish(L);
+    loop_scene sc = {0};
+    loop_scene_read(L, &sc);
+    assert_true(sc.proposals == 4);
+    assert_int_equal(sc.proposal_result[1], LOOP_ACCEPTED);
+    assert_int_equal(sc.proposal_result[2], LOOP_REFUSED);
+    loop_action_do(L, LOOP_ACT_COLLISION); /* off: any pose is taken */
+    e = proposal(0, inside);
+    assert_int_equal(loop_feed(L, &e), LOOP_ACCEPTED);
+    loop_free(L);
+}
+
 static void test_undo_refused_when_it_would_collide(void **st)
 {
     world w;
@@ -474,50 +522,6 @@ static void test_digest_deterministic(void **st)
     uint64_t a = run_script(0), b = run_script(0), c = run_script(0.001);
     assert_true(a == b);
     assert_true(a != c);
-}
-
-static void test_ring_spsc_order_and_full(void **st)
-{
-    ring *r = ring_new(sizeof(uint64_t), 5);
-    assert_non_null(r);
-    assert_int_equal(ring_capacity(r), 8);
-    uint64_t v = 0, out;
-    for (v = 0; v < 8; v++)
-        assert_int_equal(ring_push(r, &v), 1);
-    assert_int_equal(ring_push(r, &v), 0);
-    assert_int_equal(ring_dropped(r), 1);
-    for (uint64_t k = 0; k < 8; k++) {
-        assert_int_equal(ring_pop(r, &out), 1);
-        assert_true(out == k);
-    }
-    assert_int_equal(ring_pop(r, &out), 0);
-    ring_free(r);
-    assert_null(ring_new(0, 4));
-}
-
-static void *producer(void *arg)
-{
-    ring *r = arg;
-    for (uint64_t v = 0; v < 200000;)
-        if (ring_push(r, &v))
-            v++;
-    return NULL;
-}
-
-static void test_ring_two_threads(void **st)
-{
-    ring *r = ring_new(sizeof(uint64_t), 64);
-    pthread_t th;
-    pthread_create(&th, NULL, producer, r);
-    uint64_t want = 0, got;
-    while (want < 200000)
-        if (ring_pop(r, &got)) {
-            assert_true(got == want);
-            want++;
-        }
-    pthread_join(th, NULL);
-    assert_int_equal(ring_count(r), 0);
-    ring_free(r);
 }
 
 static void test_drain_publishes_scene(void **st)
@@ -661,12 +665,11 @@ int main(void)
         cmocka_unit_test(test_grazing_rides_over_rough_wall),
         cmocka_unit_test(test_rotation_into_wall_slides_or_stops),
         cmocka_unit_test(test_undo_redo_gestures),
+        cmocka_unit_test(test_proposed_pose_one_undo_step),
         cmocka_unit_test(test_undo_refused_when_it_would_collide),
         cmocka_unit_test(test_controls),
         cmocka_unit_test(test_unplug_keeps_pose_and_time_restarts),
         cmocka_unit_test(test_digest_deterministic),
-        cmocka_unit_test(test_ring_spsc_order_and_full),
-        cmocka_unit_test(test_ring_two_threads),
         cmocka_unit_test(test_drain_publishes_scene),
         cmocka_unit_test(test_threads_reader_loop_renderer),
         cmocka_unit_test(test_scene_concurrent_readers),

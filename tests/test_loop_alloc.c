@@ -100,6 +100,12 @@ static void test_steps_allocate_nothing(void **st)
         loop_event e = motion(k, -1, 0.5f, -0.3f);
         loop_feed(L, &e);
     }
+    for (int i = 0; i < 20; i++, k++) { /* proposed poses (the reduction worker's): taken or refused */
+        loop_event e = {.kind = LOOP_EV_POSE, .t_us = k, .frag = 0, .pose = loop_pose(L, 0)};
+        e.pose.t[1] += (i % 2 ? 5.0 : -0.1);
+        ring_push(r, &e);
+        loop_drain(L, r);
+    }
     long allocs = allocount_stop();
 
     loop_stats s;

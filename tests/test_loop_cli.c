@@ -1,5 +1,6 @@
-/* fracnav replay and navigate end to end on a small two-block case: determinism, contact, crash
- * recovery through the journal, device unplug mid-replay. */
+/* fracnav replay and navigate end to end on a small two-block case: the options, the JSON summary,
+ * crash recovery through the journal after a kill, saves on exit, the keyboard device. What the
+ * session does in-process (contact, sliding, unplug, saves on request) is in test_session.c. */
 #include <stdarg.h>
 #include <stddef.h>
 #include <setjmp.h>
@@ -115,16 +116,6 @@ static int journal_spans(void *arg)
     return spans;
 }
 
-static int journal_empty(void *arg)
-{
-    journal_scan s;
-    if (journal_read(case_dir, &s)) /* read while being written: not yet */
-        return 0;
-    int empty = s.n == 0 && s.damaged_at < 0;
-    journal_scan_free(&s);
-    return empty;
-}
-
 static void test_replay_help_and_usage(void **st)
 {
     char *out = NULL;
@@ -140,28 +131,6 @@ static void test_replay_help_and_usage(void **st)
     assert_int_equal(tu_run_cli(&out, "navigate --help"), 0);
     assert_non_null(strstr(out, "--recover"));
     free(out);
-}
-
-/* Head-on into A: B stops at contact (never inside), the rest of the push is refused; the same
- * recording gives the same digest twice, and the same again through the real-time path. */
-static void test_replay_head_on_deterministic(void **st)
-{
-    const char *rec = recording("headon", "translate -x 4 mm over 0.4 s\n");
-    json_t *a = replay(rec, "--no-journal", 0), *b = replay(rec, "--no-journal", 0);
-    assert_int_equal(num(a, "collisions_in_accepted"), 0);
-    assert_true(num(a, "refused") > 5);
-    assert_true(num(a, "steps") == num(a, "accepted") + num(a, "limited") + num(a, "slid") + num(a, "refused"));
-    /* 2 mm gap: B travels just under 2 mm, never the 4 mm asked for. */
-    double tx = moved_t(a, 0);
-    assert_true(tx < -1.9 && tx >= -2.0);
-    assert_string_equal(json_string_value(json_object_get(a, "pose_digest")),
-                        json_string_value(json_object_get(b, "pose_digest")));
-    json_t *c = replay(rec, "--no-journal --realtime", 0);
-    assert_string_equal(json_string_value(json_object_get(a, "pose_digest")),
-                        json_string_value(json_object_get(c, "pose_digest")));
-    json_decref(a);
-    json_decref(b);
-    json_decref(c);
 }
 
 /* The loop's rate, ring overflow and skipped device reports are in the summary: a recording with
@@ -201,18 +170,6 @@ static void test_replay_twice_with_journal(void **st)
     json_decref(b);
 }
 
-/* At a grazing angle B slides along A's face (world -y) instead of freezing at the contact. */
-static void test_replay_grazing_slides(void **st)
-{
-    const char *rec = recording("graze", "move x -6 mm y 3 mm over 0.6 s\n");
-    json_t *j = replay(rec, "--no-journal", 0);
-    assert_int_equal(num(j, "collisions_in_accepted"), 0);
-    assert_true(num(j, "slid") > 10);
-    assert_true(moved_t(j, 0) < -1.9 && moved_t(j, 0) >= -2.0);
-    assert_true(moved_t(j, 1) < -2.5); /* device +y is towards the viewer: world -y */
-    json_decref(j);
-}
-
 /* The shipped grazing recording on the case `fracnav demo` steers (the example CT's synthetic
  * fracture, seed 1): pressed onto the other fragment, the moving one slides along it. */
 static void test_shipped_grazing_slides_on_example(void **st)
@@ -236,27 +193,6 @@ static void test_shipped_grazing_slides_on_example(void **st)
     assert_true(num(j, "slid") > num(j, "refused"));
     json_decref(j);
     tu_rmtree(ex);
-}
-
-/* Unplugged mid-recording: the loop goes on, the pose stays where it was while the device is
- * away (same as a recording that ends at the unplug), and moves again after the replug. */
-static void test_replay_unplug_keeps_pose(void **st)
-{
-    json_t *before = replay(recording("part", "translate +y 2 mm over 0.3 s\nunplug\n"), "--no-journal", 0);
-    json_t *gone = replay(recording("unplug", "translate +y 2 mm over 0.3 s\nunplug\nwait 0.5 s\n"
-                                              "replug\nwait 0.2 s\n"),
-                          "--no-journal", 0);
-    json_t *back = replay(recording("replug", "translate +y 2 mm over 0.3 s\nunplug\nwait 0.5 s\n"
-                                              "replug\ntranslate +z 1 mm over 0.2 s\n"),
-                          "--no-journal", 0);
-    assert_int_equal(num(gone, "unplugs"), 1);
-    assert_string_equal(json_string_value(json_object_get(before, "pose_digest")),
-                        json_string_value(json_object_get(gone, "pose_digest")));
-    assert_true(fabs(moved_t(back, 1) - moved_t(gone, 1)) < 1e-9);
-    assert_true(moved_t(back, 2) < -0.8); /* device +z (down) is world -z */
-    json_decref(before);
-    json_decref(gone);
-    json_decref(back);
 }
 
 /* Starts `fracnav ARGS...` (stdin from /dev/null) with its stderr readable through *err, its
@@ -390,36 +326,6 @@ static void test_navigate_saves_on_exit(void **st)
     double saved = json_number_value(json_array_get(json_object_get(json_object_get(f2, "pose"), "t"), 2));
     assert_true(fabs(saved - tz) < 1e-9);
     json_decref(c);
-    tu_write_file(path, before, len); /* back to where it was, for the other tests */
-    free(before);
-}
-
-/* Saved on demand (button 9), then killed: the journal holds nothing the case does not, so the
- * next start has nothing to recover. */
-static void test_navigate_save_on_demand_empties_journal(void **st)
-{
-    const char *rec = recording_as("spaceexplorer", "save9", "translate +z 1 mm over 0.3 s\nwait 100 ms\n"
-                                   "press 9\nwait 50 ms\nrelease 9\nwait 600 s\nunplug\n");
-    char spec[4300], path[4300];
-    snprintf(spec, sizeof spec, "replay-realtime:%s", rec);
-    snprintf(path, sizeof path, "%s/case.json", case_dir);
-    size_t len;
-    char *before = tu_slurp(path, &len);
-    FILE *err;
-    pid_t pid = start_cli(&err, "/dev/null", (char *[]){"navigate", case_dir, "--device", spec, NULL});
-    char line[1024];
-    int saved = 0;
-    while (!saved && fgets(line, sizeof line, err))
-        saved = strncmp(line, "saved ", 6) == 0;
-    /* The loop thread empties the journal after the save, without another save or an exit. */
-    int emptied = saved && tu_wait_for(journal_empty, NULL, TU_WAIT_MAX_S);
-    kill(pid, SIGKILL);
-    int status;
-    waitpid(pid, &status, 0);
-    fclose(err);
-    assert_true(saved);
-    assert_true(emptied);
-    assert_int_equal(journal_count_on_disk(), 0);
     tu_write_file(path, before, len); /* back to where it was, for the other tests */
     free(before);
 }
@@ -646,16 +552,12 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_replay_help_and_usage),
-        cmocka_unit_test(test_replay_head_on_deterministic),
         cmocka_unit_test(test_replay_twice_with_journal),
         cmocka_unit_test(test_replay_json_rates_and_skips),
-        cmocka_unit_test(test_replay_grazing_slides),
         cmocka_unit_test(test_shipped_grazing_slides_on_example),
-        cmocka_unit_test(test_replay_unplug_keeps_pose),
         cmocka_unit_test(test_crash_recovery),
         cmocka_unit_test(test_navigate_saves_on_exit),
         cmocka_unit_test(test_navigate_keyboard_offers_recovery),
-        cmocka_unit_test(test_navigate_save_on_demand_empties_journal),
         cmocka_unit_test(test_navigate_keyboard_save_frame_quit),
         cmocka_unit_test(test_tau_options),
         cmocka_unit_test(test_replay_pivot),

@@ -5,8 +5,6 @@
 #include <cmocka.h>
 
 #include "pose.h"
-#include "vol.h"
-#include "err.h"
 
 #include <math.h>
 
@@ -38,27 +36,11 @@ static void test_rotation_about_z(void **st)
     assert_true(pose_angle_between(back, p) < 1e-9);
 }
 
-static void test_vol_budget_refuses_huge(void **st)
-{
-    int64_t d[3] = {100000, 100000, 100000};
-    assert_int_equal(vol_check_dims(d, 4, "huge.nii"), FN_ENOMEM);
-    int64_t neg[3] = {10, -1, 10};
-    assert_int_equal(vol_check_dims(neg, 4, "neg.nii"), FN_EFORMAT);
-    vol *v = vol_new(4, 5, 6);
-    assert_non_null(v);
-    double ijk[3] = {1, 2, 3}, w[3], back[3];
-    vol_index_to_world(v, ijk, w);
-    vol_world_to_index(v, w, back);
-    assert_true(fabs(back[2] - 3) < 1e-12);
-    vol_free(v);
-}
-
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_compose_inverse),
         cmocka_unit_test(test_rotation_about_z),
-        cmocka_unit_test(test_vol_budget_refuses_huge),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

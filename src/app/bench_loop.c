@@ -9,12 +9,12 @@
 #include "cmd.h"
 #include "bench.h"
 
-#include "cmd_loopkit.h"
 #include "err.h"
 #include "fracture.h"
 #include "jsonw.h"
 #include "script.h"
 #include "seg.h"
+#include "session.h"
 #include "sim_replay.h"
 #include "volio.h"
 
@@ -89,33 +89,24 @@ static fnrec *render(int repeat)
     return rec;
 }
 
-/* Runs the recording through reader thread -> ring -> loop_run. */
+/* Runs the recording through reader thread -> ring -> loop_run, in lockstep. */
 static int realtime; /* the loop thread got SCHED_FIFO */
 
-static int drive(loop *L, const fnrec *rec, double *wall_s)
+static int drive(session *k, const fnrec *rec, double *wall_s)
 {
     sim_replay_opts ro = {0, 1};
     dev_handle *h;
     if (sim_replay_open_rec(rec, &ro, &h) < 0)
         return FN_EIO;
-    loopkit_tsource ts = {0};
+    session_tsource ts = {0};
     ts.tr = &sim_replay_transport;
     ts.h = h;
     ts.finished = sim_replay_finished;
-    loopkit_decoder_init(&ts.dec, rec->hdr.vid, rec->hdr.pid, NULL);
-    ring *r = ring_new(sizeof(loop_event), 64);
-    int rc = r ? 0 : FN_ENOMEM;
-    loop_reader *rd = NULL;
-    if (rc == 0) {
-        loop_reset_timing(L);
-        realtime = loop_realtime_priority() == 0;
-        double t0 = bench_now_us();
-        rd = loop_reader_start(loopkit_transport_source(&ts), r, L, 1);
-        rc = rd ? loop_run(L, r, 1000, loop_reader_done_flag(rd)) : FN_EIO;
-        *wall_s = (bench_now_us() - t0) * 1e-6;
-    }
-    loop_reader_stop(rd);
-    ring_free(r);
+    session_decoder_init(&ts.dec, rec->hdr.vid, rec->hdr.pid, NULL);
+    realtime = loop_realtime_priority() == 0;
+    double t0 = bench_now_us();
+    int rc = session_play(k, session_transport_source(&ts), SESSION_PLAY_LOCKSTEP);
+    *wall_s = (bench_now_us() - t0) * 1e-6;
     sim_replay_transport.close(h);
     return rc;
 }
@@ -140,7 +131,7 @@ static int print(const loop_stats *s, double wall_s, const frag *f, int nfrag, c
                (unsigned long long)s->refused, s->query_us_mean);
         return 0;
     }
-    json_t *j = loopkit_stats_json("bench loop", s);
+    json_t *j = session_stats_json("bench loop", s);
     if (j) {
         char what[4200];
         snprintf(what, sizeof what, "%s%s, script pushing the selected fragment into and along the others",
@@ -203,35 +194,32 @@ int bench_loop(int argc, char **argv)
     double wall = 0;
     loop_stats s;
     if (case_dir) {
-        loopkit k;
-        rc = loopkit_open(&k, case_dir, &cfg, LOOPKIT_RESUME, "bench loop", &tau);
-        if (rc == 0) {
-            rc = drive(k.L, rec, &wall);
-            loop_get_stats(k.L, &s);
+        session_params sp = {cfg, SESSION_RESUME, "bench loop", cmd_tau_prepare, &tau};
+        session *k = session_open(case_dir, &sp);
+        rc = k ? drive(k, rec, &wall) : FN_EIO;
+        if (k) {
+            loop_get_stats(session_loop(k), &s);
             if (rc == 0)
-                rc = print(&s, wall, k.c->frag, k.c->nfrag, case_dir, json);
-            loopkit_close(&k);
+                rc = print(&s, wall, session_frags(k), session_nfrag(k), case_dir, json);
         }
+        session_close(k);
     } else {
         frag f[2];
         memset(f, 0, sizeof f);
         rc = fragments_from_ct(ct, f);
-        obb_params op = {CASE_TAU_MIN, CASE_TAU_MAX};
-        cmd_tau_apply(&tau, &op.tau_min, &op.tau_max); /* checked above */
-        loop_obb *o = rc == 0 ? loop_obb_new(f, 2, &op, NULL) : NULL;
+        double op[2] = {CASE_TAU_MIN, CASE_TAU_MAX};
+        cmd_tau_apply(&tau, &op[0], &op[1]); /* checked above */
         uint8_t fixed[2] = {1, 0};
-        loop_collider col = o ? loop_obb_collider(o) : (loop_collider){0};
-        loop *L = o ? loop_new(f, 2, fixed, &col, &cfg, NULL) : NULL;
-        if (rc == 0 && !L)
-            rc = FN_ENOMEM;
+        session *k = rc == 0 ? session_open_fragments(f, 2, fixed, op, &cfg) : NULL;
+        if (rc == 0 && !k)
+            rc = FN_EFORMAT;
         if (rc == 0) {
-            rc = drive(L, rec, &wall);
-            loop_get_stats(L, &s);
+            rc = drive(k, rec, &wall);
+            loop_get_stats(session_loop(k), &s);
             if (rc == 0)
                 rc = print(&s, wall, f, 2, NULL, json);
         }
-        loop_free(L);
-        loop_obb_free(o);
+        session_close(k);
         frag_free(&f[0]);
         frag_free(&f[1]);
     }

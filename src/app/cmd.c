@@ -95,6 +95,32 @@ int cmd_tau_apply(const cmd_tau *t, double *tau_min, double *tau_max)
     return 0;
 }
 
+int cmd_tau_prepare(void *ctx, fcase *c)
+{
+    return cmd_tau_apply(ctx, &c->tau_min, &c->tau_max);
+}
+
+int cmd_parse_pivot(const char *cmd, int argc, char **argv, int *i, double out[3])
+{
+    for (int a = 0; a < 3; a++)
+        if (*i + 1 + a >= argc || !cmd_number(argv[*i + 1 + a], &out[a]))
+            return cmd_usage_error(cmd, "--pivot needs three numbers X Y Z (world mm)");
+    *i += 3;
+    return 0;
+}
+
+int cmd_parse_frame(const char *cmd, const char *name, loop_frame *out)
+{
+    static const char *names[] = {[LOOP_FRAME_CAMERA] = "camera", [LOOP_FRAME_WORLD] = "world",
+                                  [LOOP_FRAME_FRAGMENT] = "fragment"};
+    for (int f = 0; f < (int)(sizeof names / sizeof names[0]); f++)
+        if (names[f] && !strcmp(name, names[f])) {
+            *out = (loop_frame)f;
+            return 0;
+        }
+    return cmd_usage_error(cmd, "--frame %s: use camera, world or fragment", name);
+}
+
 int cmd_tau_check(const char *cmd, const cmd_tau *t)
 {
     double lo = CASE_TAU_MIN, hi = CASE_TAU_MAX;

@@ -3,6 +3,9 @@
 #ifndef FN_CMD_H
 #define FN_CMD_H
 
+#include "case.h"
+#include "loop.h"
+
 #define CMD_LIST(X)                                                                          \
     X(demo, "run the built-in demo on the example CT")                                      \
     X(info, "print a volume's dimensions, type, spacing, geometry and range")                \
@@ -83,6 +86,16 @@ int cmd_case_arg(const char *cmd, int argc, char **argv, int *i, cmd_case_args *
 /* --force replaces a case with its journal: warns on stderr when the journal in dir holds poses
  * that case.json does not, which go with the case. */
 void cmd_warn_replaced_journal(const char *cmd, const char *dir, int force);
+
+/* --tau-min/--tau-max over a case's own values, as a session's prepare hook (session_params):
+ * ctx is the cmd_tau. 0 or FN_EINVAL (cmd_tau_apply). */
+int cmd_tau_prepare(void *ctx, fcase *c);
+
+/* --pivot X Y Z (world mm): argv[*i] is --pivot; parses the three numbers after it into out and
+ * moves *i past them. 0, or a usage error for `cmd` (returns 2). */
+int cmd_parse_pivot(const char *cmd, int argc, char **argv, int *i, double out[3]);
+/* --frame NAME: camera, world or fragment. 0, or a usage error for `cmd` (returns 2). */
+int cmd_parse_frame(const char *cmd, const char *name, loop_frame *out);
 
 /* Path of the example CT that .ci/setup caches: $FRACNAV_DATA/Cranium.inv3, else
  * /var/cache/fracnav/Cranium.inv3 (a static buffer). */

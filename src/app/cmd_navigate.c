@@ -1,13 +1,12 @@
 /* fracnav navigate: steer a case's fragments with a 6-DOF controller, live, in a terminal. */
 #include "cmd.h"
 
-#include "cmd_loopkit.h"
 #include "err.h"
 #include "fnclock.h"
 #include "navview.h"
+#include "session.h"
 #include "sim_replay.h"
 
-#include <pthread.h>
 #include <signal.h>
 #include <stdatomic.h>
 #include <stdio.h>
@@ -95,7 +94,7 @@ static int parse(int argc, char **argv, opts *o)
 {
     memset(o, 0, sizeof *o);
     o->device = "auto";
-    o->flags = LOOPKIT_JOURNAL;
+    o->flags = SESSION_JOURNAL;
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
         int rc;
@@ -108,9 +107,9 @@ static int parse(int argc, char **argv, opts *o)
         else if (!strcmp(a, "--config") && v)
             o->config = argv[++i];
         else if (!strcmp(a, "--recover"))
-            o->flags |= LOOPKIT_RESUME;
+            o->flags |= SESSION_RESUME;
         else if (!strcmp(a, "--discard-journal"))
-            o->flags |= LOOPKIT_DISCARD;
+            o->flags |= SESSION_DISCARD;
         else if (!strcmp(a, "--json"))
             o->json = 1;
         else if (!strcmp(a, "--loop"))
@@ -121,11 +120,11 @@ static int parse(int argc, char **argv, opts *o)
             i++;
         }
         else if (!strcmp(a, "--pivot")) {
-            if (loopkit_parse_pivot("navigate", argc, argv, &i, o->pivot))
+            if (cmd_parse_pivot("navigate", argc, argv, &i, o->pivot))
                 return 2;
             o->have_pivot = 1;
         } else if (!strcmp(a, "--frame") && v) {
-            if (loopkit_parse_frame("navigate", argv[++i], &o->frame))
+            if (cmd_parse_frame("navigate", argv[++i], &o->frame))
                 return 2;
         } else if (a[0] == '-' || o->dir) {
             fprintf(stderr, "fracnav navigate: unexpected argument '%s' (see fracnav navigate --help)\n", a);
@@ -137,7 +136,7 @@ static int parse(int argc, char **argv, opts *o)
         fprintf(stderr, "fracnav navigate: need CASE (see fracnav navigate --help)\n");
         return 2;
     }
-    if ((o->flags & LOOPKIT_RESUME) && (o->flags & LOOPKIT_DISCARD)) {
+    if ((o->flags & SESSION_RESUME) && (o->flags & SESSION_DISCARD)) {
         fprintf(stderr, "fracnav navigate: --recover and --discard-journal exclude each other\n");
         return 2;
     }
@@ -157,12 +156,12 @@ static int can_ask(void)
 }
 
 /* An unsaved journal: ask on stdin, before any device takes the terminal (the keyboard device
- * puts it in raw mode). No answer: loopkit_open explains the two flags. The line is read byte by
+ * puts it in raw mode). No answer: session_open explains the two flags. The line is read byte by
  * byte so that no key meant for the keyboard device is swallowed by stdio's buffer. */
 static void offer_recovery(opts *o)
 {
-    size_t n = loopkit_journal_pending(o->dir);
-    if (!n || (o->flags & (LOOPKIT_RESUME | LOOPKIT_DISCARD)) || !can_ask())
+    size_t n = session_journal_pending(o->dir);
+    if (!n || (o->flags & (SESSION_RESUME | SESSION_DISCARD)) || !can_ask())
         return;
     fprintf(stderr, "%s/journal holds %zu poses not saved in the case (an interrupted session).\n"
                     "Recover them? [Y/n] ", o->dir, n);
@@ -173,41 +172,7 @@ static void offer_recovery(opts *o)
             first = ch;
     if (got != 1 && !first)
         return;
-    o->flags |= (first == 'n' || first == 'N') ? LOOPKIT_DISCARD : LOOPKIT_RESUME;
-}
-
-static loop_action key_action(int ch)
-{
-    switch (ch) {
-    case 'n': return LOOP_ACT_NEXT;
-    case 'p': return LOOP_ACT_PREV;
-    case 'f': return LOOP_ACT_FIX;
-    case 'c': return LOOP_ACT_COLLISION;
-    case 't': return LOOP_ACT_TRANS_ONLY;
-    case 'r': return LOOP_ACT_ROT_ONLY;
-    case 'u': return LOOP_ACT_UNDO;
-    case 'y': return LOOP_ACT_REDO;
-    case 'm': return LOOP_ACT_FRAME;
-    case 's': return LOOP_ACT_SAVE;
-    case '?':
-    case 'h': return LOOP_ACT_HELP;
-    default: return LOOP_ACT_NONE;
-    }
-}
-
-typedef struct runner {
-    loop *L;
-    ring *in;
-    atomic_int stop;
-    int rc;
-} runner;
-
-static void *loop_thread(void *arg)
-{
-    runner *r = arg;
-    loop_realtime_priority(); /* best effort: without it the loop still runs, just less steadily */
-    r->rc = loop_run(r->L, r->in, 1000, &r->stop);
-    return NULL;
+    o->flags |= (first == 'n' || first == 'N') ? SESSION_DISCARD : SESSION_RESUME;
 }
 
 #define ACK_SHOWN_US 5000000 /* an acknowledgement stays this long in the view */
@@ -215,14 +180,13 @@ static void *loop_thread(void *arg)
 /* The view on standard error: redrawn in place on a terminal, else a log line a second and one
  * at each change of the warnings or the acknowledgement. */
 typedef struct view {
-    loopkit *k;
-    loopkit_dsource *ds; /* a live device (battery, refusals); NULL for a played recording */
-    loopkit_tsource *ts; /* a played recording; NULL for a live device */
+    session *k;
+    session_dsource *ds; /* a live device (battery, refusals); NULL for a played recording */
+    session_tsource *ts; /* a played recording; NULL for a live device */
     unsigned plays_seen;
     int keyboard;        /* the keyboard device steers: its keys are the help */
     int tty, help, lines;
-    unsigned actions_seen, saves_seen;
-    char ack[1024];
+    char ack[sizeof(((session_event *)0)->text)];
     int64_t ack_until_us, last_print_us;
     char logged[2048]; /* the warnings and acknowledgement of the last log line */
     int logged_help;   /* the help was on at the last log line */
@@ -234,43 +198,27 @@ static void acknowledge(view *v, const char *text)
     v->ack_until_us = fnclock_now_us() + ACK_SHOWN_US;
 }
 
-/* Saves the poses of the latest scene while the loop keeps running, then has the loop empty the
- * journal of what the case now holds (saved: the loop_set_saved array). Off a terminal the
- * outcome is also a line of its own. */
-static void save_scene(view *v, const loop_scene *sc, pose *saved, ring *ctl)
+/* A save request carried out by the session: said in the view, and off a terminal also as a
+ * line of its own. */
+static void saved(view *v, const session_event *ev)
 {
-    loopkit *k = v->k;
-    char msg[1024];
-    int rc = loopkit_save_case(k, sc->pose, sc->fixed);
-    if (rc < 0)
-        snprintf(msg, sizeof msg, "save failed: %.1000s", fn_err_msg());
-    else
-        snprintf(msg, sizeof msg, "saved %.1000s", k->dir_name);
-    acknowledge(v, msg);
+    acknowledge(v, ev->text);
     if (!v->tty)
-        fprintf(stderr, "%s%s\n", rc < 0 ? "fracnav navigate: " : "", msg);
-    if (rc < 0)
-        return;
-    memcpy(saved, sc->pose, sizeof(pose) * (size_t)k->c->nfrag);
-    loop_event ev = {.kind = LOOP_EV_SAVED};
-    if (ring_push(ctl, &ev))
-        loop_notify(k->L);
+        fprintf(stderr, "%s%s\n", ev->result < 0 ? "fracnav navigate: " : "", ev->text);
 }
 
-/* Terminal keys: ? and h show or hide the keys, q quits, the others go to the control ring. */
-static void read_keys(view *v, loop *L, ring *ctl)
+/* Terminal keys: ? and h show or hide the keys, q quits, the others go to the session. */
+static void read_keys(view *v)
 {
     char ch;
     while (read(STDIN_FILENO, &ch, 1) == 1) {
         if (ch == 'q')
             quit = 1;
-        loop_event ev = {0};
-        ev.kind = LOOP_EV_ACTION;
-        ev.action = key_action(ch);
-        if (ev.action == LOOP_ACT_HELP)
+        loop_action a = session_key_action(ch);
+        if (a == LOOP_ACT_HELP)
             v->help = !v->help;
-        else if (ev.action != LOOP_ACT_NONE && ring_push(ctl, &ev))
-            loop_notify(L);
+        else if (a != LOOP_ACT_NONE)
+            session_send_action(v->k, a); /* a full queue drops the key, as before */
     }
 }
 
@@ -278,9 +226,6 @@ static void read_keys(view *v, loop *L, ring *ctl)
  * comes this way too). */
 static void new_actions(view *v, const loop_scene *sc)
 {
-    if (sc->actions == v->actions_seen)
-        return;
-    v->actions_seen = sc->actions;
     if (sc->last_action == LOOP_ACT_HELP) {
         v->help = !v->help;
         return;
@@ -327,10 +272,10 @@ static int draw_help(const view *v, int width)
 static void draw(view *v, const loop_scene *sc)
 {
     char refused[512], text[4096], sig[2048];
-    navview_extra x = {-1, NULL, NULL, v->k->c->frag};
+    navview_extra x = {-1, NULL, NULL, session_frags(v->k)};
     if (v->ds) {
         x.battery = atomic_load(&v->ds->battery);
-        if (loopkit_dsource_refused(v->ds, refused, sizeof refused))
+        if (session_dsource_refused(v->ds, refused, sizeof refused))
             x.refused = refused;
     }
     int64_t now = fnclock_now_us();
@@ -361,96 +306,79 @@ static void draw(view *v, const loop_scene *sc)
     fflush(stderr);
 }
 
-/* The main thread while the loop runs: keys, saves on request, the view. Returns when the user
- * quits, at --duration, or when a played recording has ended (ended: its reader is done). */
-static void ui(view *v, ring *ctl, pose *saved_poses, int keys, double duration, loop_reader *rd)
+/* One event from the session: actions are acknowledged, saves said; 1 at the source's end. */
+static int handle(view *v, const session_event *ev)
 {
-    struct termios saved;
-    int raw = keys && isatty(STDIN_FILENO) && tcgetattr(STDIN_FILENO, &saved) == 0;
+    if (ev->kind == SESSION_EV_ACTION)
+        new_actions(v, &ev->scene);
+    else if (ev->kind == SESSION_EV_SAVED)
+        saved(v, ev);
+    return ev->kind == SESSION_EV_END;
+}
+
+/* The main thread while the loop runs: keys, the session's events (saves on request), the view.
+ * Returns when the user quits, at --duration, or when a played recording has ended. */
+static void ui(view *v, int keys, double duration)
+{
+    struct termios saved_tio;
+    int raw = keys && isatty(STDIN_FILENO) && tcgetattr(STDIN_FILENO, &saved_tio) == 0;
     if (raw) {
-        struct termios t = saved;
+        struct termios t = saved_tio;
         t.c_lflag &= (tcflag_t) ~(ICANON | ECHO);
         t.c_cc[VMIN] = 0;
         t.c_cc[VTIME] = 0;
         tcsetattr(STDIN_FILENO, TCSANOW, &t);
     }
     int64_t t0 = fnclock_now_us();
+    int ended = 0;
     loop_scene sc = {0};
-    while (!quit && !loop_reader_done(rd) &&
-           (duration <= 0 || (double)(fnclock_now_us() - t0) < duration * 1e6)) {
+    session_event ev;
+    while (!quit && !ended && (duration <= 0 || (double)(fnclock_now_us() - t0) < duration * 1e6)) {
         if (raw)
-            read_keys(v, v->k->L, ctl);
-        loop_scene_read(v->k->L, &sc);
-        new_actions(v, &sc);
+            read_keys(v);
+        if (session_wait_event(v->k, 20, &ev) != SESSION_EV_NONE) /* keys: at least every 20 ms */
+            ended = handle(v, &ev);
         new_plays(v);
-        if (sc.save_requests != v->saves_seen) {
-            v->saves_seen = sc.save_requests;
-            save_scene(v, &sc, saved_poses, ctl);
-        }
+        session_scene_read(v->k, &sc);
         if (!v->tty || fnclock_now_us() - v->last_print_us >= 100000)
             draw(v, &sc);
-        fnclock_sleep_us(20000);
     }
     if (raw)
-        tcsetattr(STDIN_FILENO, TCSANOW, &saved);
+        tcsetattr(STDIN_FILENO, TCSANOW, &saved_tio);
 }
 
-/* Input thread and loop thread around ui(); then the loop is stopped, the view drawn once more
- * with the last events, and the case saved. saved_poses outlives the loop thread, which reads it
- * on LOOP_EV_SAVED. */
+/* The session runs src around ui(); then it is stopped, the last events handled, the view drawn
+ * once more, and the case saved. */
 static int run(view *v, loop_source src, int keys, double duration)
 {
-    loopkit *k = v->k;
-    pose saved_poses[LOOP_MAX_FRAGS] = {0}; /* written by each save before the loop reads it */
-    loop_set_saved(k->L, saved_poses);
-    ring *in = ring_new(sizeof(loop_event), 1024), *ctl = ring_new(sizeof(loop_event), 64);
-    runner run = {k->L, in, 0, 0};
-    atomic_init(&run.stop, 0);
-    loop_set_controls(k->L, ctl);
+    session *k = v->k;
     struct sigaction sa = {0}; /* before the input thread: the keyboard device's q raises SIGINT */
     sa.sa_handler = on_signal;
     sigaction(SIGINT, &sa, NULL);
     sigaction(SIGTERM, &sa, NULL);
-    loop_reader *rd = in && ctl ? loop_reader_start(src, in, k->L, 0) : NULL;
-    pthread_t th;
-    int rc = 0;
-    if (!rd || pthread_create(&th, NULL, loop_thread, &run) != 0) {
-        rc = rd ? fn_err_set(FN_EIO, "cannot start the loop thread") : FN_EIO;
-        loop_reader_stop(rd);
-    } else {
-        ui(v, ctl, saved_poses, keys, duration, rd);
-        int ended = loop_reader_done(rd);
-        loop_reader_stop(rd);
-        atomic_store(&run.stop, 1);
-        loop_notify(k->L);
-        pthread_join(th, NULL);
-        rc = run.rc;
-        loop_scene sc = {0};
-        loop_publish(k->L);
-        loop_scene_read(k->L, &sc);
-        new_actions(v, &sc);
-        if (sc.save_requests != v->saves_seen) /* asked for by the last events: said as asked */
-            save_scene(v, &sc, saved_poses, ctl);
-        if (ended)
-            acknowledge(v, "end of the recording");
-        v->last_print_us = 0;
-        draw(v, &sc);
-        if (v->tty)
-            fputc('\n', stderr);
-        if (rc == 0)
-            rc = loopkit_save(k);
-    }
-    loop_set_controls(k->L, NULL);
-    loop_set_saved(k->L, NULL);
-    ring_free(in);
-    ring_free(ctl);
-    return rc;
+    int rc = session_start(k, src);
+    if (rc < 0)
+        return rc;
+    ui(v, keys, duration);
+    rc = session_stop(k);
+    session_event ev;
+    while (session_wait_event(k, 0, &ev) != SESSION_EV_NONE)
+        handle(v, &ev);
+    if (session_ended(k))
+        acknowledge(v, "end of the recording");
+    loop_scene sc = {0};
+    session_scene_read(k, &sc);
+    v->last_print_us = 0;
+    draw(v, &sc);
+    if (v->tty)
+        fputc('\n', stderr);
+    return rc == 0 ? session_save(k) : rc;
 }
 
 /* A played recording as the source (navigate ends at its end, or plays it again with --loop):
  * opens it into ts with the decoder for its device. 0 or negative. */
 static int open_recording(const opts *o, const dev_transport *t, const char *file, const calib *cal,
-                          loopkit_tsource *ts, loop_config *cfg)
+                          session_tsource *ts, loop_config *cfg)
 {
     memset(ts, 0, sizeof *ts);
     int rc = t->open(file, &ts->h);
@@ -460,14 +388,14 @@ static int open_recording(const opts *o, const dev_transport *t, const char *fil
     ts->tr = t;
     ts->finished = t->finished;
     ts->again = o->again ? file : NULL;
-    loopkit_decoder_init(&ts->dec, hdr->vid, hdr->pid, cal);
+    session_decoder_init(&ts->dec, hdr->vid, hdr->pid, cal);
     loop_config_actions_at(cfg, devtab_key1_button(devtab_find(hdr->vid, hdr->pid)));
     return 0;
 }
 
 /* The live device as the source: a device that reads the terminal steers with keys (its help key,
  * the keyboard's button 11, shows them). */
-static int open_device(const opts *o, loopkit_dsource *ds, loop_config *cfg, int *keyboard)
+static int open_device(const opts *o, session_dsource *ds, loop_config *cfg, int *keyboard)
 {
     ds->d = dev_open(o->device);
     if (!ds->d)
@@ -501,46 +429,47 @@ int cmd_navigate(int argc, char **argv)
     cfg.frame = o.frame;
     const char *file = NULL;
     const dev_transport *played = recording_spec(o.device, &file);
-    loopkit_tsource ts;
-    loopkit_dsource ds;
-    loopkit_dsource_init(&ds, NULL, &cal);
+    session_tsource ts;
+    session_dsource ds;
+    session_dsource_init(&ds, NULL, &cal);
     view v = {0};
     v.tty = isatty(STDERR_FILENO);
     rc = played ? open_recording(&o, played, file, &cal, &ts, &cfg) : open_device(&o, &ds, &cfg, &v.keyboard);
     if (rc < 0) {
         fprintf(stderr, "fracnav navigate: %s\n", fn_err_msg());
-        loopkit_dsource_destroy(&ds);
+        session_dsource_destroy(&ds);
         return 1;
     }
     if (v.tty)
         fprintf(stderr, "loading %s and building its collision hierarchy...\n", o.dir);
-    loopkit k;
-    rc = loopkit_open(&k, o.dir, &cfg, o.flags, "navigate", &o.tau);
-    if (rc == 0) {
-        if (k.resumed)
-            fprintf(stderr, "recovered %zu journal records\n", k.resumed);
-        ds.L = k.L;
+    session_params sp = {cfg, o.flags, "navigate", cmd_tau_prepare, &o.tau};
+    session *k = session_open(o.dir, &sp);
+    rc = k ? 0 : FN_EIO;
+    if (k) {
+        if (session_resumed(k))
+            fprintf(stderr, "recovered %zu journal records\n", session_resumed(k));
+        ds.L = session_loop(k);
         if (o.have_pivot)
-            loop_set_pivot(k.L, o.pivot);
-        v.k = &k;
+            loop_set_pivot(session_loop(k), o.pivot);
+        v.k = k;
         v.ds = played ? NULL : &ds;
         v.ts = played ? &ts : NULL;
-        loop_source src = played ? loopkit_transport_source(&ts) : loopkit_device_source(&ds);
+        loop_source src = played ? session_transport_source(&ts) : session_device_source(&ds);
         rc = run(&v, src, played || !v.keyboard, o.duration);
         if (!played)
             dev_set_led(ds.d, 0);
         if (rc == 0 && o.json)
-            rc = loopkit_print_json(&k, stdout, "navigate", played ? (long)ts.unplugs : -1,
+            rc = session_print_json(k, stdout, "navigate", played ? (long)ts.unplugs : -1,
                                     played ? ts.dec.ps.n_unknown_id + ts.dec.ps.n_bad_len : dev_skipped(ds.d));
         else if (rc == 0)
             fprintf(stderr, "saved %s\n", o.dir);
-        loopkit_close(&k);
+        session_close(k);
     }
     if (rc < 0)
         fprintf(stderr, "fracnav navigate: %s\n", fn_err_msg());
     if (played && ts.h)
         played->close(ts.h);
     dev_close(ds.d);
-    loopkit_dsource_destroy(&ds);
+    session_dsource_destroy(&ds);
     return rc < 0 ? 1 : 0;
 }

@@ -1,10 +1,9 @@
 /* fracnav replay: a .fnrec recording through the navigation loop, deterministic, JSON summary. */
 #include "cmd.h"
 
-#include "cmd_loopkit.h"
 #include "devtab.h"
 #include "err.h"
-#include "fnclock.h"
+#include "session.h"
 #include "sim_replay.h"
 
 #include <stdio.h>
@@ -88,18 +87,18 @@ static int parse(int argc, char **argv, opts *o)
         else if (!strcmp(a, "--json"))
             o->json = 1;
         else if (!strcmp(a, "--recover") || !strcmp(a, "--resume"))
-            o->flags |= LOOPKIT_RESUME;
+            o->flags |= SESSION_RESUME;
         else if (!strcmp(a, "--discard-journal"))
-            o->flags |= LOOPKIT_DISCARD;
+            o->flags |= SESSION_DISCARD;
         else if (!strcmp(a, "--no-journal"))
             o->no_journal = 1;
         else if (!strcmp(a, "--save"))
             o->save = 1;
         else if (!strcmp(a, "--frame") && i + 1 < argc) {
-            if (loopkit_parse_frame("replay", argv[++i], &o->frame))
+            if (cmd_parse_frame("replay", argv[++i], &o->frame))
                 return 2;
         } else if (!strcmp(a, "--pivot")) {
-            if (loopkit_parse_pivot("replay", argc, argv, &i, o->pivot))
+            if (cmd_parse_pivot("replay", argc, argv, &i, o->pivot))
                 return 2;
             o->have_pivot = 1;
         } else if (!strcmp(a, "--config") && i + 1 < argc)
@@ -116,49 +115,13 @@ static int parse(int argc, char **argv, opts *o)
         fprintf(stderr, "fracnav replay: need CASE and FILE.fnrec (see fracnav replay --help)\n");
         return 2;
     }
-    if ((o->flags & LOOPKIT_RESUME) && (o->flags & LOOPKIT_DISCARD)) {
+    if ((o->flags & SESSION_RESUME) && (o->flags & SESSION_DISCARD)) {
         fprintf(stderr, "fracnav replay: --recover and --discard-journal exclude each other\n");
         return 2;
     }
     if (!o->no_journal)
-        o->flags |= LOOPKIT_JOURNAL;
+        o->flags |= SESSION_JOURNAL;
     return 0;
-}
-
-/* One thread: read, step, repeat. Latency = the step's own time. */
-static int run_fast(loopkit *k, loop_source src)
-{
-    loop_event ev;
-    for (;;) {
-        int rc = src.next(src.ctx, &ev, 0);
-        if (rc == LOOP_SOURCE_END)
-            return 0;
-        if (rc < 0)
-            return rc;
-        if (rc == 0)
-            continue;
-        ev.arrival_us = fnclock_now_us();
-        rc = loop_feed(k->L, &ev);
-        if (rc < 0)
-            return rc;
-    }
-}
-
-/* The live arrangement: input thread -> ring -> loop_run (event-driven, >= 1 kHz tick). */
-static int run_realtime(loopkit *k, loop_source src)
-{
-    ring *r = ring_new(sizeof(loop_event), 1024);
-    if (!r)
-        return FN_ENOMEM;
-    loop_reader *rd = loop_reader_start(src, r, k->L, 0);
-    if (!rd) {
-        ring_free(r);
-        return FN_EIO;
-    }
-    int rc = loop_run(k->L, r, 1000, loop_reader_done_flag(rd));
-    loop_reader_stop(rd);
-    ring_free(r);
-    return rc;
 }
 
 int cmd_replay(int argc, char **argv)
@@ -188,39 +151,38 @@ int cmd_replay(int argc, char **argv)
     loop_config_actions_at(&cfg, devtab_key1_button(devtab_find(hdr->vid, hdr->pid)));
     cfg.frame = o.frame;
     cfg.check_invariant = 1;
-    loopkit k;
-    if (loopkit_open(&k, o.dir, &cfg, o.flags, "replay", &o.tau) < 0) {
+    session_params sp = {cfg, o.flags, "replay", cmd_tau_prepare, &o.tau};
+    session *k = session_open(o.dir, &sp);
+    if (!k) {
         fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
         sim_replay_transport.close(h);
         return 1;
     }
-    loopkit_tsource ts = {0};
+    session_tsource ts = {0};
     ts.tr = &sim_replay_transport;
     ts.h = h;
     ts.finished = sim_replay_finished;
-    loopkit_decoder_init(&ts.dec, hdr->vid, hdr->pid, &cal);
+    session_decoder_init(&ts.dec, hdr->vid, hdr->pid, &cal);
     fprintf(stderr, "fracnav replay: stepping %s on %s\n", o.rec, o.dir);
     if (o.have_pivot)
-        loop_set_pivot(k.L, o.pivot);
-    loop_reset_timing(k.L);
-    loop_source src = loopkit_transport_source(&ts);
-    rc = o.realtime ? run_realtime(&k, src) : run_fast(&k, src);
-    if (rc == 0 && k.jr)
-        rc = journal_sync(k.jr);
-    if (rc == 0 && o.save && (rc = loopkit_save(&k)) == 0)
+        loop_set_pivot(session_loop(k), o.pivot);
+    rc = session_play(k, session_transport_source(&ts), o.realtime ? SESSION_PLAY_REALTIME : SESSION_PLAY_FAST);
+    if (rc == 0)
+        rc = session_journal_sync(k);
+    if (rc == 0 && o.save && (rc = session_save(k)) == 0)
         fprintf(stderr, "fracnav replay: saved the final poses of %d fragments in %s/case.json\n",
-                k.c->nfrag, o.dir);
-    else if (rc == 0 && k.jr && !k.resumed)
-        rc = journal_truncate(k.jr); /* finished: the poses are in the summary, the case unchanged */
+                session_nfrag(k), o.dir);
+    else if (rc == 0 && !session_resumed(k))
+        rc = session_journal_truncate(k); /* finished: the poses are in the summary, the case unchanged */
     if (rc < 0) {
         fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
     } else if (o.json) {
-        rc = loopkit_print_json(&k, stdout, "replay", (long)ts.unplugs, ts.dec.ps.n_unknown_id + ts.dec.ps.n_bad_len);
+        rc = session_print_json(k, stdout, "replay", (long)ts.unplugs, ts.dec.ps.n_unknown_id + ts.dec.ps.n_bad_len);
         if (rc < 0)
             fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
     } else {
         loop_stats s;
-        loop_get_stats(k.L, &s);
+        loop_get_stats(session_loop(k), &s);
         printf("%llu steps: %llu accepted, %llu limited, %llu slid, %llu refused; collisions in "
                "accepted poses: %llu; latency p99 %.0f us; pose digest %016llx\n",
                (unsigned long long)s.steps, (unsigned long long)s.accepted,
@@ -228,7 +190,7 @@ int cmd_replay(int argc, char **argv)
                (unsigned long long)s.refused, (unsigned long long)s.collisions_in_accepted,
                s.latency_p99_us, (unsigned long long)s.pose_digest);
     }
-    loopkit_close(&k);
+    session_close(k);
     sim_replay_transport.close(h);
     return rc < 0 ? 1 : 0;
 }

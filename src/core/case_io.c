@@ -516,7 +516,7 @@ static int find_labels(const char *dir, const char *json, const char *lsha, char
     return 0;
 }
 
-/* A plan saved with fragments inside each other (loopkit records "penetrating"): every command
+/* A plan saved with fragments inside each other (the session records "penetrating"): every command
  * that loads it says so. */
 static void warn_penetrating(const struct reader *r, json_t *root)
 {

@@ -14,7 +14,8 @@ enum {
     FN_ENOMEM = -3,   /* allocation failed or the memory budget would be exceeded */
     FN_EINVAL = -4,   /* a bad option or argument */
     FN_ENODEV = -5,   /* a device is missing or went away */
-    FN_EMISMATCH = -6 /* a case does not match its source (version, checksum) */
+    FN_EMISMATCH = -6, /* a case does not match its source (version, checksum) */
+    FN_EAGAIN = -7     /* busy now (a queue is full, nothing runs yet): try again later */
 };
 
 #if defined(__GNUC__)

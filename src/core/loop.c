@@ -545,6 +545,28 @@ static int settle(loop *L)
     return refresh_contact(L, L->selected, 1);
 }
 
+/* A proposed pose for fragment i: one undo step of its own, taken whole or refused. */
+static int propose(loop *L, int i, const pose *p)
+{
+    int out = LOOP_REFUSED;
+    if (i >= 0 && i < L->n && !L->fixed[i]) {
+        double sep = 0;
+        int rc = L->collision_on ? collide_all(L, i, p, 0, &sep) : 0;
+        if (rc < 0)
+            return rc;
+        if (rc == 0) {
+            gesture_end(L);
+            accept_pose(L, i, *p, L->last_t, JOURNAL_MOVE, L->collision_on ? LOOP_CHECKED : LOOP_UNCHECKED);
+            gesture_end(L);
+            L->gap_valid = L->in_collision = 0; /* the selected one's contact may have changed */
+            out = LOOP_ACCEPTED;
+        }
+    }
+    L->proposals++;
+    L->proposal_result[L->proposals % LOOP_PROPOSALS_KEPT] = (uint8_t)out;
+    return out;
+}
+
 /* A control from an event (a key or a button): done and remembered for the scene. */
 static int act(loop *L, loop_action a)
 {
@@ -575,6 +597,9 @@ int loop_feed(loop *L, const loop_event *ev)
         break;
     case LOOP_EV_SAVED:
         journal_saved(L);
+        break;
+    case LOOP_EV_POSE:
+        out = propose(L, ev->frag, &ev->pose);
         break;
     case LOOP_EV_UNPLUG:
     case LOOP_EV_REPLUG:

@@ -42,6 +42,12 @@
  * only and rotation-only toggles, undo/redo of whole gestures (a gesture ends when the device
  * returns to rest or the selection changes), save request.
  *
+ * A pose proposal (LOOP_EV_POSE, e.g. from the reduction worker through the control ring) moves
+ * one movable fragment to a given pose as one step of its own: with checking on it is queried
+ * there and refused when it collides (or the fragment is fixed, or out of range); accepted, it is
+ * journaled (JOURNAL_START) and one undo step, apart from the gestures before and after it. Its
+ * result is in the scene (proposals, proposal_result); it is not a motion step (not in steps).
+ *
  * Threads and memory: loop_new allocates everything; loop_feed, loop_drain and loop_run allocate
  * nothing. One thread steps a loop; renderers read it through loop_scene_read from any number of
  * threads at once without ever blocking the stepping thread (pinned scene buffers, lock-free). */
@@ -60,7 +66,10 @@
 
 typedef enum { LOOP_FRAME_CAMERA, LOOP_FRAME_WORLD, LOOP_FRAME_FRAGMENT } loop_frame;
 
-enum { LOOP_EV_MOTION = 1, LOOP_EV_ACTION, LOOP_EV_UNPLUG, LOOP_EV_REPLUG, LOOP_EV_SAVED };
+enum { LOOP_EV_MOTION = 1, LOOP_EV_ACTION, LOOP_EV_UNPLUG, LOOP_EV_REPLUG, LOOP_EV_SAVED, LOOP_EV_POSE };
+
+/* Results of the latest LOOP_EV_POSE proposals the scene keeps (by proposal number). */
+#define LOOP_PROPOSALS_KEPT 64
 
 typedef enum {
     LOOP_ACT_NONE,
@@ -88,6 +97,8 @@ typedef struct loop_event {
     int32_t action;     /* LOOP_EV_ACTION: a loop_action */
     uint32_t buttons;   /* LOOP_EV_MOTION: button state; new presses map through button_action */
     float motion[6];    /* LOOP_EV_MOTION: calibrated, -1..1: tx ty tz rx ry rz, device axes */
+    int32_t frag;       /* LOOP_EV_POSE: the fragment (0-based) proposed to move to pose */
+    pose pose;          /* LOOP_EV_POSE: home world -> current world */
 } loop_event;
 
 /* Result of one pair query. */
@@ -160,6 +171,11 @@ typedef struct loop_scene {
     unsigned actions;        /* controls done by events (keys, buttons) so far */
     loop_action last_action; /* the latest of them, and what loop_action_do returned for it */
     int last_action_result;  /* (undo/redo: LOOP_ACCEPTED, LOOP_REFUSED, LOOP_IDLE = none left) */
+    /* LOOP_EV_POSE proposals handled so far; the result of proposal k (1-based) is
+     * proposal_result[k % LOOP_PROPOSALS_KEPT] (LOOP_ACCEPTED or LOOP_REFUSED) while k is among
+     * the last LOOP_PROPOSALS_KEPT. */
+    uint64_t proposals;
+    uint8_t proposal_result[LOOP_PROPOSALS_KEPT];
     loop_stats stats;
     pose pose[LOOP_MAX_FRAGS];
     uint8_t fixed[LOOP_MAX_FRAGS];
@@ -231,6 +247,10 @@ void loop_reset_timing(loop *L);
 
 /* Publishes the current state to the scene buffer (loop_drain/loop_run do it themselves). */
 void loop_publish(loop *L);
+/* Calls fn(ctx) after every publish, on the publishing thread (the stepping one while the loop
+ * runs): it must return at once and allocate nothing (e.g. sem_post, a wake-up). NULL: none. Set
+ * it before the loop runs. */
+void loop_set_publish_hook(loop *L, void (*fn)(void *ctx), void *ctx);
 /* Copies the newest published scene. Never blocks the loop; any thread, several at once (up to
  * 6 readers inside it at the same instant never delay a publish; more may make one wait for the
  * next). Returns 1 when its seq differs from the one out held on entry (zero out before the

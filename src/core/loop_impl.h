@@ -74,6 +74,10 @@ struct loop {
     int rt_prio;         /* its priority, written before rt_cpu */
     atomic_ullong done; /* events finished, for other threads */
     loop_clock clock;   /* loop_set_clock; wait_until NULL: loop_run waits for loop_notify */
+    uint64_t proposals; /* LOOP_EV_POSE handled, and their latest results */
+    uint8_t proposal_result[LOOP_PROPOSALS_KEPT];
+    void (*on_publish)(void *ctx); /* loop_set_publish_hook */
+    void *on_publish_ctx;
 };
 
 /* Writes every page of p..p+n (first-touch faults taken now, not in a step). */

@@ -177,7 +177,17 @@ void loop_publish(loop *L)
     s->stats = L->st;
     memcpy(s->pose, L->pose, sizeof(pose) * (size_t)L->n);
     memcpy(s->fixed, L->fixed, (size_t)L->n);
+    s->proposals = L->proposals;
+    memcpy(s->proposal_result, L->proposal_result, sizeof s->proposal_result);
     atomic_store(&L->latest, b);
+    if (L->on_publish)
+        L->on_publish(L->on_publish_ctx);
+}
+
+void loop_set_publish_hook(loop *L, void (*fn)(void *ctx), void *ctx)
+{
+    L->on_publish = fn;
+    L->on_publish_ctx = ctx;
 }
 
 /* Pins the newest buffer: after the pin it must still be the newest, else the writer may have

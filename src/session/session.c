@@ -1,0 +1,316 @@
+/* session: opening a case for steering (journal reconciled, collider, loop), accessors, saves. */
+#include "session_impl.h"
+
+#include "case_journal.h"
+#include "err.h"
+#include "obb.h"
+
+#include <errno.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+size_t session_journal_pending(const char *dir)
+{
+    return case_journal_pending(dir);
+}
+
+/* The journal reconciled with the case (case_journal_check); *recs, *n: what --recover applies. */
+static int check_journal(session *s, unsigned flags, const char *cmd, journal_rec **recs, size_t *n)
+{
+    const char *dir = s->dir;
+    if (flags & SESSION_DISCARD) {
+        char path[4200]; /* removed, not parsed: a damaged journal must not block a fresh start */
+        snprintf(path, sizeof path, "%s/journal", dir);
+        if (unlink(path) != 0 && errno != ENOENT)
+            return fn_err_set(FN_EIO, "%s: cannot remove: %s", path, strerror(errno));
+        return 0;
+    }
+    int rc = case_journal_check(s->c, recs, n);
+    if (rc == 1 && (flags & SESSION_RESUME))
+        return fn_err_set(FN_EMISMATCH, "%s/journal does not extend this case.json, so --recover "
+                                        "has nothing to apply (it was kept aside, see above); run "
+                                        "again without --recover to start from case.json", dir);
+    if (rc >= 0 && *n && !(flags & SESSION_RESUME))
+        return fn_err_set(FN_EMISMATCH,
+                          "%s/journal holds %zu poses not saved in case.json (an interrupted session): "
+                          "run `fracnav %s` with --recover to continue from them, or --discard-journal "
+                          "to start from case.json",
+                          dir, *n, cmd ? cmd : "navigate");
+    return rc < 0 ? rc : 0;
+}
+
+/* The parts every session has: rings, the wake-up, the collider over s->frags. */
+static int build_common(session *s)
+{
+    atomic_init(&s->stop, 0);
+    atomic_init(&s->running, 0);
+    atomic_init(&s->seen_proposals, 0);
+    s->kinds = ~0u & ~(unsigned)SESSION_EV_SCENE;
+    pthread_mutex_init(&s->push_mu, NULL);
+    sem_init(&s->wake, 0, 0);
+    s->built = 1;
+    s->in = ring_new(sizeof(loop_event), 1024);
+    s->ctl = ring_new(sizeof(loop_event), 64);
+    if (!s->in || !s->ctl)
+        return FN_ENOMEM;
+    obb_params op = {s->tau[0], s->tau[1]};
+    s->obb = loop_obb_new(s->frags, s->nfrag, &op, NULL);
+    return s->obb ? 0 : FN_EFORMAT;
+}
+
+/* The loop over the fragments, wired to the session's rings and saved poses. */
+static int build_loop(session *s, const uint8_t *fixed, const loop_config *cfg)
+{
+    loop_collider col = loop_obb_collider(s->obb);
+    s->L = loop_new(s->frags, s->nfrag, fixed, &col, cfg, s->jr);
+    if (!s->L)
+        return FN_ENOMEM;
+    loop_set_controls(s->L, s->ctl);
+    loop_set_saved(s->L, s->saved);
+    return 0;
+}
+
+static session *alloc_session(void)
+{
+    session *s = calloc(1, sizeof *s);
+    if (!s)
+        fn_err_set(FN_ENOMEM, "out of memory for a session");
+    return s;
+}
+
+/* Everything after the case is loaded; s->c set. */
+static int open_case(session *s, const session_params *p)
+{
+    journal_rec *recs = NULL;
+    size_t pending = 0;
+    fcase *c = s->c;
+    int rc = check_journal(s, p->flags, p->command, &recs, &pending);
+    if (rc == 0 && c->nfrag > LOOP_MAX_FRAGS)
+        rc = fn_err_set(FN_EINVAL, "%s: %d fragments, the loop steers at most %d", s->dir, c->nfrag,
+                        LOOP_MAX_FRAGS);
+    if (rc == 0 && c->nfrag < 2)
+        rc = fn_err_set(FN_EINVAL, "%s: %d fragment(s); steering needs at least two", s->dir, c->nfrag);
+    if (rc == 0 && p->prepare)
+        rc = p->prepare(p->prepare_ctx, c);
+    s->frags = c->frag;
+    s->nfrag = c->nfrag;
+    s->tau[0] = c->tau_min;
+    s->tau[1] = c->tau_max;
+    if (rc == 0)
+        rc = build_common(s);
+    if (rc == 0 && (p->flags & SESSION_JOURNAL)) {
+        journal_bind b;
+        case_journal_bind(c, &b);
+        if (!(s->jr = journal_open(s->dir, &b)))
+            rc = FN_EIO;
+    }
+    if (rc == 0) {
+        uint8_t fixed[LOOP_MAX_FRAGS] = {0};
+        if (c->fixed >= 0 && c->fixed < c->nfrag)
+            fixed[c->fixed] = 1;
+        rc = build_loop(s, fixed, &p->cfg);
+    }
+    if (rc == 0 && pending) {
+        rc = loop_recover(s->L, recs, pending);
+        s->resumed = rc == 0 ? pending : 0;
+        if (rc < 0)
+            fn_err_wrap(rc, "%s/journal", s->dir);
+    }
+    free(recs);
+    return rc == 0 ? loop_measure(s->L) : rc;
+}
+
+session *session_open(const char *dir, const session_params *p)
+{
+    session *s = alloc_session();
+    if (!s)
+        return NULL;
+    snprintf(s->dir, sizeof s->dir, "%s", dir);
+    s->c = case_load(dir);
+    if (!s->c || open_case(s, p) < 0) {
+        session__free(s);
+        return NULL;
+    }
+    return s;
+}
+
+session *session_open_fragments(const frag *frags, int n, const uint8_t *fixed, const double tau[2],
+                                const loop_config *cfg)
+{
+    if (n < 1 || n > LOOP_MAX_FRAGS) {
+        fn_err_set(FN_EINVAL, "%d fragments: a session steers 1..%d", n, LOOP_MAX_FRAGS);
+        return NULL;
+    }
+    session *s = alloc_session();
+    if (!s)
+        return NULL;
+    s->frags = frags;
+    s->nfrag = n;
+    s->tau[0] = tau[0];
+    s->tau[1] = tau[1];
+    int rc = build_common(s);
+    if (rc == 0)
+        rc = build_loop(s, fixed, cfg);
+    if (rc == 0)
+        rc = loop_measure(s->L);
+    if (rc < 0) {
+        session__free(s);
+        return NULL;
+    }
+    return s;
+}
+
+void session__free(session *s)
+{
+    loop_free(s->L);
+    if (s->jr)
+        journal_close(s->jr);
+    loop_obb_free(s->obb);
+    loop_obb_free(s->check);
+    json_decref(s->penetrating);
+    case_free(s->c);
+    ring_free(s->in);
+    ring_free(s->ctl);
+    if (s->built) {
+        pthread_mutex_destroy(&s->push_mu);
+        sem_destroy(&s->wake);
+    }
+    free(s);
+}
+
+loop *session_loop(session *s)
+{
+    return s->L;
+}
+
+fcase *session_case(session *s)
+{
+    return s->c;
+}
+
+const frag *session_frags(const session *s)
+{
+    return s->frags;
+}
+
+int session_nfrag(const session *s)
+{
+    return s->nfrag;
+}
+
+size_t session_resumed(const session *s)
+{
+    return s->resumed;
+}
+
+const char *session_dir(const session *s)
+{
+    return s->dir;
+}
+
+json_t *session_penetrating(const session *s)
+{
+    return s->penetrating;
+}
+
+static void rebind(session *s)
+{
+    if (!s->jr)
+        return;
+    journal_bind b;
+    case_journal_bind(s->c, &b);
+    journal_rebind(s->jr, &b);
+}
+
+/* The pairs that overlap at the case's poses, into s->penetrating and case.json's "penetrating". */
+static int check_penetration(session *s)
+{
+    fcase *c = s->c;
+    if (!s->check) {
+        obb_params op = {c->tau_min, c->tau_max};
+        if (!(s->check = loop_obb_new(c->frag, c->nfrag, &op, NULL)))
+            return FN_EFORMAT;
+    }
+    loop_collider col = loop_obb_collider(s->check);
+    json_t *list = json_array();
+    int rc = 0;
+    for (int a = 0; rc == 0 && a < c->nfrag; a++)
+        for (int b = a + 1; rc == 0 && b < c->nfrag; b++) {
+            loop_contact ct;
+            double mm3 = 0;
+            rc = col.query(col.ctx, a, &c->frag[a].pose, b, &c->frag[b].pose, NULL, &ct);
+            if (rc < 0 || !ct.collides)
+                continue;
+            rc = col.overlap(col.ctx, a, &c->frag[a].pose, b, &c->frag[b].pose, &mm3);
+            json_array_append_new(list, json_pack("{s:[i,i],s:f}", "fragments", c->frag[a].id,
+                                                  c->frag[b].id, "overlap_ml", mm3 / 1000));
+            fprintf(stderr, "\nWARNING: saving a penetrating plan: fragments %d and %d overlap by "
+                            "%.3f ml (moved while collision checking was off)\n",
+                    c->frag[a].id, c->frag[b].id, mm3 / 1000);
+        }
+    json_decref(s->penetrating);
+    s->penetrating = list;
+    if (!c->extra)
+        c->extra = json_object();
+    if (json_array_size(list))
+        json_object_set(c->extra, "penetrating", list);
+    else
+        json_object_del(c->extra, "penetrating");
+    return rc;
+}
+
+/* case.json keeps one fixed fragment: the case's own while it stays fixed, else the first. */
+static void take_fixed(session *s, const uint8_t *fixed)
+{
+    fcase *c = s->c;
+    if (c->fixed < 0 || !fixed[c->fixed]) {
+        c->fixed = -1;
+        for (int i = 0; i < c->nfrag && c->fixed < 0; i++)
+            if (fixed[i])
+                c->fixed = i;
+    }
+    for (int i = 0; i < c->nfrag; i++)
+        if (fixed[i] && i != c->fixed)
+            fprintf(stderr, "\nfracnav: fragment %d is fixed here too, but case.json records one "
+                            "fixed fragment (%d)\n", c->frag[i].id, c->frag[c->fixed].id);
+}
+
+int session_save_case(session *s, const pose *poses, const uint8_t *fixed)
+{
+    if (!s->c)
+        return fn_err_set(FN_EINVAL, "this session has no case to save (fragments only)");
+    for (int i = 0; i < s->c->nfrag; i++)
+        s->c->frag[i].pose = poses[i];
+    take_fixed(s, fixed);
+    int rc = check_penetration(s);
+    if (rc == 0)
+        rc = case_save(s->c);
+    if (rc == 0)
+        rebind(s);
+    return rc;
+}
+
+int session_save(session *s)
+{
+    pose poses[LOOP_MAX_FRAGS];
+    uint8_t fixed[LOOP_MAX_FRAGS];
+    for (int i = 0; i < s->nfrag; i++) {
+        poses[i] = loop_pose(s->L, i);
+        fixed[i] = (uint8_t)loop_fixed(s->L, i);
+    }
+    int rc = session_save_case(s, poses, fixed);
+    if (rc == 0 && s->jr)
+        rc = journal_truncate(s->jr);
+    return rc;
+}
+
+int session_journal_sync(session *s)
+{
+    return s->jr ? journal_sync(s->jr) : 0;
+}
+
+int session_journal_truncate(session *s)
+{
+    return s->jr ? journal_truncate(s->jr) : 0;
+}

@@ -1,0 +1,249 @@
+/* session: the navigation session, a library in mpv's manner. One handle holds a case opened for
+ * steering -- fragments, OBB collider, loop, journal, recovery -- and runs it from an event source
+ * (a device, a recording, the virtual device); clients send actions, propose poses, read scenes
+ * and wait on events. `fracnav navigate`, `replay` and `bench loop`, the window and the reduction
+ * worker are its clients; the terminal view (navview) is one of its views.
+ *
+ * Life: session_open (or session_open_fragments) -> session_start (threads) or session_play (the
+ * caller's thread) with a loop_source -> session_wait_event / session_send_action /
+ * session_propose_pose / session_scene_read -> session_stop -> session_save -> session_close.
+ *
+ * Threads. session_start runs the source's reader thread and the loop thread (loop_run, under
+ * real-time priority when granted). Then:
+ *  - session_send_action, session_propose_pose, session_scene_read and session_loop may be
+ *    called from any thread, several at once;
+ *  - session_wait_event, session_ended and session_stop from one client thread (the one that
+ *    owns the handle), never two at once: save requests (LOOP_ACT_SAVE, a button or a key) are
+ *    carried out there;
+ *  - the wake-up callback (session_set_wakeup) runs on the loop thread.
+ * Everything else (open, play, save, close, the JSON helpers) belongs to the owner's thread while
+ * no loop thread runs.
+ *
+ * Errors: functions return 0 or a negative FN_E* (err.h) with fn_err_msg() naming the cause (the
+ * file, the journal record, the option); constructors return NULL with fn_err set.
+ *
+ * Ownership: the session owns its case, collider, loop, journal and rings; a loop_source's
+ * context stays the caller's and must outlive session_stop. Pointers it returns (session_case,
+ * session_loop) live until session_close. */
+#ifndef FN_SESSION_H
+#define FN_SESSION_H
+
+#include "calib.h"
+#include "case.h"
+#include "dev.h"
+#include "devparse.h"
+#include "journal.h"
+#include "loop.h"
+
+#include <pthread.h>
+#include <stdio.h>
+
+struct json_t; /* jansson's */
+
+typedef struct session session;
+
+enum {
+    SESSION_JOURNAL = 1, /* append accepted poses to CASE/journal */
+    SESSION_RESUME = 2,  /* start from case.json + the journal's unsaved poses */
+    SESSION_DISCARD = 4  /* start from case.json, emptying the journal */
+};
+
+/* What session_open needs beyond the case folder. */
+typedef struct session_params {
+    loop_config cfg;
+    unsigned flags;      /* SESSION_* */
+    const char *command; /* names the command in advice ("run `fracnav navigate` with --recover") */
+    /* NULL, or called with the loaded case before its collider is built (e.g. the CLI's
+     * --tau-min/--tau-max over the case's, which a save then keeps). 0 or FN_E*. */
+    int (*prepare)(void *ctx, fcase *c);
+    void *prepare_ctx;
+} session_params;
+
+/* Loads the case, reconciles its journal (case_journal_check: damage and journals of another case
+ * state are kept aside, never applied) and builds everything. A journal holding unsaved poses
+ * without SESSION_RESUME or SESSION_DISCARD is an error (FN_EMISMATCH) whose message says how many
+ * and what to do; SESSION_RESUME with a journal that was refused is an error too. The case needs
+ * 2..LOOP_MAX_FRAGS fragments. NULL with fn_err. */
+session *session_open(const char *dir, const session_params *p);
+/* A session over fragments without a case (benchmarks): no journal, nothing to save (session_save
+ * says so). frags (n of them) must outlive the session; fixed: n flags or NULL; tau: {min, max}
+ * of the hierarchy. NULL with fn_err. */
+session *session_open_fragments(const frag *frags, int n, const uint8_t *fixed, const double tau[2],
+                                const loop_config *cfg);
+/* Stops what runs (session_stop) and frees everything. NULL is fine. */
+void session_close(session *s);
+
+/* Unsaved records in DIR/journal that extend DIR/case.json (0 when none, unreadable, damaged or
+ * bound to another case state): what session_open would need SESSION_RESUME or SESSION_DISCARD for. */
+size_t session_journal_pending(const char *dir);
+
+/* The loop (for loop_scene_read from any thread, e.g. the window's; loop_set_pivot and the
+ * statistics only while it does not run), the case (NULL for session_open_fragments), its
+ * fragments and their number, the journal records applied at open, the case folder ("" without a
+ * case). Valid until session_close. */
+loop *session_loop(session *s);
+fcase *session_case(session *s);
+const frag *session_frags(const session *s);
+int session_nfrag(const session *s);
+size_t session_resumed(const session *s);
+const char *session_dir(const session *s);
+
+/* ---- running ---- */
+
+enum {
+    SESSION_PLAY_FAST = 0,     /* the caller's thread reads and steps, as fast as the source gives */
+    SESSION_PLAY_REALTIME = 1, /* reader thread -> ring -> loop_run on the caller's thread */
+    SESSION_PLAY_LOCKSTEP = 2  /* as REALTIME, the reader waiting for each event to be stepped
+                                * (benchmarks: no queueing in the latency) */
+};
+/* Runs src through the loop on the calling thread until it ends (LOOP_SOURCE_END), then returns:
+ * replay and benchmarks. 0 or the first source or collider error. */
+int session_play(session *s, loop_source src, int mode);
+
+/* Starts the reader thread on src and the loop thread; returns at once. 0 or FN_E*. */
+int session_start(session *s, loop_source src);
+/* 1 once a started source has ended (all its events are in the loop's ring). Owner's thread. */
+int session_ended(session *s);
+/* Stops the reader and the loop thread (the loop steps what was already read), publishes the
+ * last scene and carries out save requests not yet carried out (their SESSION_EV_SAVED events
+ * wait for session_wait_event). Returns 0 or the loop thread's first collider error. Not running:
+ * 0. Owner's thread. */
+int session_stop(session *s);
+
+/* Sends an action, as a key or a button does (LOOP_ACT_*), to the running loop. Any thread.
+ * 0, FN_EINVAL for an action out of range, FN_EAGAIN when the control queue is full (the loop
+ * is far behind) or the loop is not running. */
+int session_send_action(session *s, loop_action a);
+/* The action of a terminal key (n p f c t r u y m s, ? and h for help), LOOP_ACT_NONE for other
+ * keys: what the terminal and the window send for the same key. q (quit) is the client's. */
+loop_action session_key_action(int ch);
+
+/* Proposes that fragment frag move to pose p (home world -> current world), from any thread (the
+ * reduction worker). It lands through the loop thread as one step of its own: accepted whole,
+ * journaled and one undo step, or refused when it collides while checking is on (or the fragment
+ * is fixed). *id (may be NULL) gets the proposal's number, which its SESSION_EV_POSE event
+ * carries. 0, FN_EINVAL (frag out of range), FN_EAGAIN (not running, or LOOP_PROPOSALS_KEPT - 8
+ * proposals await their events: wait on events first). One sent while session_stop runs may be
+ * dropped without an event. */
+int session_propose_pose(session *s, int fragment, const pose *p, uint64_t *id);
+
+/* ---- scenes and events ---- */
+
+/* The newest scene (loop_scene_read). Any thread. 1 when its seq differs from out's on entry. */
+int session_scene_read(session *s, loop_scene *out);
+
+typedef enum {
+    SESSION_EV_NONE = 0,   /* the wait timed out */
+    SESSION_EV_SCENE = 1,  /* a new scene was published (only when subscribed: session_subscribe) */
+    SESSION_EV_ACTION = 2, /* an action was done: action, result (several between two waits: the
+                            * latest, count = how many) */
+    SESSION_EV_SAVED = 4,  /* a save request was carried out: result 0 or FN_E*, text "saved DIR"
+                            * or the error's message */
+    SESSION_EV_POSE = 8,   /* a proposal landed: id, frag, result LOOP_ACCEPTED or LOOP_REFUSED */
+    SESSION_EV_END = 16    /* the source ended (a recording played out); once */
+} session_event_kind;
+
+typedef struct session_event {
+    session_event_kind kind;
+    loop_action action; /* ACTION */
+    int result;         /* ACTION: loop_action_do's; SAVED: 0 or FN_E*; POSE: loop_outcome */
+    unsigned count;     /* ACTION: actions done since the previous ACTION event */
+    uint64_t id;        /* POSE: session_propose_pose's id */
+    int frag;           /* POSE: the fragment */
+    char text[1100];    /* SAVED */
+    loop_scene scene;   /* every event: the scene it was seen in (SAVED: the one saved) */
+} session_event;
+
+/* The event kinds session_wait_event returns (an OR of SESSION_EV_*; others are dropped, save
+ * requests are carried out all the same). The default: all but SESSION_EV_SCENE. */
+void session_subscribe(session *s, unsigned kinds);
+/* Waits up to timeout_ms (0: does not wait, < 0: no limit) for the next event, into ev; returns
+ * its kind, SESSION_EV_NONE on timeout. Carries out save requests (session_save_scene while the
+ * loop runs on). Owner's thread. */
+session_event_kind session_wait_event(session *s, int timeout_ms, session_event *ev);
+/* fn(ctx) is called on the loop thread whenever a scene is published (an event may be waiting):
+ * for a client with its own event loop (glfwPostEmptyEvent). It must return at once. NULL: none.
+ * Before session_start. */
+void session_set_wakeup(session *s, void (*fn)(void *ctx), void *ctx);
+
+/* ---- saving ---- */
+
+/* Copies the loop's poses and fixed fragments into the case, saves it atomically, then empties
+ * the journal. The loop must not be running (after session_stop or session_play). 0 or FN_E*. */
+int session_save(session *s);
+/* Saves the case with these poses and fixed flags (nfrag of each; a scene's, while the loop runs)
+ * and binds the journal to the new case.json. Fragments that interpenetrate (collision checking
+ * was off) are not refused but said: a warning on stderr naming them and their overlap,
+ * session_penetrating for --json, and case.json's "penetrating" member (absent when none) for
+ * later commands. case.json has one fixed fragment: the case's own when it is still fixed, else
+ * the first fixed one; others fixed are named in a warning. Owner's thread. 0 or FN_E*. */
+int session_save_case(session *s, const pose *poses, const uint8_t *fixed);
+/* At the last save: [{"fragments": [A, B], "overlap_ml": V}, ...]; NULL before any save. Owned
+ * by the session. */
+struct json_t *session_penetrating(const session *s);
+/* Writes out the journal's buffered records and fsyncs it (no journal: 0). Loop not running. */
+int session_journal_sync(session *s);
+/* Empties the journal (no journal: 0). Loop not running. */
+int session_journal_truncate(session *s);
+
+/* ---- machine output ---- */
+
+/* Final poses and statistics as the JSON object of `command` (replay's and navigate's summary;
+ * the members are listed in `fracnav replay --help`) on out; unplugs < 0: null (not counted).
+ * skipped: reports of an unknown ID or a wrong length that the parser skipped. 0 or FN_E*. */
+int session_print_json(session *s, FILE *out, const char *command, long unplugs, uint64_t skipped);
+/* The loop statistics' members of that object (bench loop's too), labelled `command`; NULL when
+ * out of memory. */
+struct json_t *session_stats_json(const char *command, const loop_stats *st);
+
+/* ---- event sources ---- */
+
+/* Raw reports -> loop events (parser, then calibration). */
+typedef struct session_decoder {
+    devparse_state ps;
+    calib cal;
+} session_decoder;
+/* cal NULL: the default calibration. */
+void session_decoder_init(session_decoder *d, uint16_t vid, uint16_t pid, const calib *cal);
+/* 1 when the report changed motion or buttons (ev filled), 0 to skip it. */
+int session_decode(session_decoder *d, const uint8_t *rep, size_t len, int64_t t_us, loop_event *ev);
+
+/* A loop_source over an open transport handle: every report is one event; a read that says the
+ * device went away is an unplug (or the end, when `finished` says so, e.g. sim_replay_finished).
+ * With `again` set, the end opens tr at `again` once more and plays it from the start (navigate
+ * --loop): the loop gets LOOP_EV_REPLUG, so the recording's clock starting over is no jump. */
+typedef struct session_tsource {
+    const dev_transport *tr;
+    dev_handle *h;
+    session_decoder dec;
+    int (*finished)(const dev_handle *h);
+    const char *again;
+    int unplugged, has_pending;
+    loop_event pending;
+    unsigned unplugs;
+    _Atomic unsigned plays; /* plays begun after the first (again); read by the view */
+} session_tsource;
+loop_source session_transport_source(session_tsource *ts);
+
+/* A loop_source over an opened device (live): dev_poll folds what is queued into one event. On
+ * its (input) thread it also drives the LED -- lit while a fragment is held: the cap deflected
+ * with a movable fragment selected (the `led` setting can force it on or off) -- and publishes
+ * for the view the battery level and, while another controller sits at the device's path, why
+ * it was not taken (dev_poll's DEV_EV_REFUSED). */
+typedef struct session_dsource {
+    dev_device *d;
+    calib cal;
+    loop *L;             /* for the selected fragment's state; NULL: holding = cap deflected */
+    int led;             /* the LED state last sent, -1 none yet */
+    _Atomic int battery; /* 0..100, -1 unknown; read by the status line */
+    pthread_mutex_t mu;  /* guards refused */
+    char refused[512];   /* "" or the refusal's message, until the device comes back */
+} session_dsource;
+/* Sets up ds for device d (not owned) with calibration cal. */
+void session_dsource_init(session_dsource *ds, dev_device *d, const calib *cal);
+void session_dsource_destroy(session_dsource *ds);
+loop_source session_device_source(session_dsource *ds);
+/* Copies the refusal's message (any thread); 0 when there is none. */
+int session_dsource_refused(session_dsource *ds, char *out, size_t cap);
+
+#endif

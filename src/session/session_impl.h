@@ -1,0 +1,55 @@
+/* session internals shared by session.c (open, close, saves), session_run.c (threads, actions,
+ * events) and session_json.c (machine output); not for other modules. Functions: session__. */
+#ifndef FN_SESSION_IMPL_H
+#define FN_SESSION_IMPL_H
+
+#include "session.h"
+
+#include <jansson.h>
+#include <semaphore.h>
+#include <stdatomic.h>
+
+#define SESSION_QUEUE 8 /* events waiting for session_wait_event (saves done by session_stop) */
+
+struct session {
+    fcase *c; /* NULL: session_open_fragments */
+    const frag *frags;
+    int nfrag;
+    double tau[2];
+    loop_obb *obb;
+    loop_obb *check;     /* the saver's own collider (the loop thread owns obb's scratch), at need */
+    json_t *penetrating; /* at the last save */
+    loop *L;
+    journal *jr;
+    size_t resumed; /* journal records applied at open */
+    char dir[4096];
+
+    ring *in, *ctl;         /* the reader's events; actions, saves and proposals from clients */
+    pthread_mutex_t push_mu; /* ctl has one producer at a time */
+    pose saved[LOOP_MAX_FRAGS]; /* the poses of the last save while running (loop_set_saved) */
+    loop_reader *rd;
+    pthread_t th;
+    int built; /* the mutex and semaphore exist */
+    atomic_int running; /* read by senders on any thread */
+    int loop_rc, ended;
+    atomic_int stop;
+    sem_t wake; /* posted at every publish */
+    void (*wakeup)(void *ctx);
+    void *wakeup_ctx;
+
+    unsigned kinds;
+    loop_scene scene; /* the newest scene the waiter read */
+    uint64_t seen_seq;
+    unsigned seen_actions, seen_saves;
+    int end_told;
+    uint64_t proposed;             /* under push_mu */
+    atomic_ullong seen_proposals;  /* proposals whose event was derived */
+    int proposal_frag[LOOP_PROPOSALS_KEPT]; /* under push_mu */
+    session_event queue[SESSION_QUEUE];
+    int qhead, qn;
+};
+
+/* Frees everything session_open built (no thread may run). */
+void session__free(session *s);
+
+#endif

@@ -1,0 +1,300 @@
+/* session: running -- the loop thread and the reader, actions and proposals in, events out. */
+#include "session_impl.h"
+
+#include "err.h"
+#include "fnclock.h"
+
+#include <errno.h>
+#include <stddef.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+/* Proposals may run this far ahead of their events (the scene keeps LOOP_PROPOSALS_KEPT). */
+#define PROPOSALS_AHEAD (LOOP_PROPOSALS_KEPT - 8)
+
+static void on_publish(void *ctx)
+{
+    session *s = ctx;
+    sem_post(&s->wake);
+    if (s->wakeup)
+        s->wakeup(s->wakeup_ctx);
+}
+
+static void *loop_thread(void *arg)
+{
+    session *s = arg;
+    loop_realtime_priority(); /* best effort: without it the loop still runs, just less steadily */
+    s->loop_rc = loop_run(s->L, s->in, 1000, &s->stop);
+    return NULL;
+}
+
+int session_play(session *s, loop_source src, int mode)
+{
+    loop_reset_timing(s->L);
+    if (mode == SESSION_PLAY_FAST) {
+        loop_event ev;
+        for (;;) {
+            int rc = src.next(src.ctx, &ev, 0);
+            s->ended = rc == LOOP_SOURCE_END;
+            if (rc == LOOP_SOURCE_END)
+                return 0;
+            if (rc < 0)
+                return rc;
+            if (rc == 0)
+                continue;
+            ev.arrival_us = fnclock_now_us();
+            rc = loop_feed(s->L, &ev);
+            if (rc < 0)
+                return rc;
+        }
+    }
+    loop_reader *rd = loop_reader_start(src, s->in, s->L, mode == SESSION_PLAY_LOCKSTEP);
+    if (!rd)
+        return FN_EIO;
+    int rc = loop_run(s->L, s->in, 1000, loop_reader_done_flag(rd));
+    loop_reader_stop(rd);
+    s->ended = 1;
+    return rc;
+}
+
+int session_start(session *s, loop_source src)
+{
+    if (atomic_load(&s->running))
+        return fn_err_set(FN_EINVAL, "the session is already running");
+    atomic_store(&s->stop, 0);
+    s->ended = 0;
+    s->end_told = 0;
+    loop_set_publish_hook(s->L, on_publish, s);
+    s->rd = loop_reader_start(src, s->in, s->L, 0);
+    if (!s->rd)
+        return FN_EIO;
+    if (pthread_create(&s->th, NULL, loop_thread, s) != 0) {
+        loop_reader_stop(s->rd);
+        s->rd = NULL;
+        return fn_err_set(FN_EIO, "cannot start the loop thread");
+    }
+    atomic_store(&s->running, 1);
+    return 0;
+}
+
+int session_ended(session *s)
+{
+    return s->rd ? loop_reader_done(s->rd) : s->ended;
+}
+
+/* Pushes one event onto the control ring (any thread) and wakes the loop. */
+static int push_control(session *s, const loop_event *ev)
+{
+    if (!atomic_load(&s->running))
+        return fn_err_set(FN_EAGAIN, "the session is not running");
+    int ok = ring_push(s->ctl, ev);
+    if (ok)
+        loop_notify(s->L);
+    return ok ? 0 : fn_err_set(FN_EAGAIN, "the loop's control queue is full");
+}
+
+int session_send_action(session *s, loop_action a)
+{
+    if (a <= LOOP_ACT_NONE || a >= LOOP_ACT_COUNT)
+        return fn_err_set(FN_EINVAL, "action %d: not an action (1..%d)", (int)a, LOOP_ACT_COUNT - 1);
+    loop_event ev = {0};
+    ev.kind = LOOP_EV_ACTION;
+    ev.action = (int32_t)a;
+    pthread_mutex_lock(&s->push_mu);
+    int rc = push_control(s, &ev);
+    pthread_mutex_unlock(&s->push_mu);
+    return rc;
+}
+
+loop_action session_key_action(int ch)
+{
+    switch (ch) {
+    case 'n': return LOOP_ACT_NEXT;
+    case 'p': return LOOP_ACT_PREV;
+    case 'f': return LOOP_ACT_FIX;
+    case 'c': return LOOP_ACT_COLLISION;
+    case 't': return LOOP_ACT_TRANS_ONLY;
+    case 'r': return LOOP_ACT_ROT_ONLY;
+    case 'u': return LOOP_ACT_UNDO;
+    case 'y': return LOOP_ACT_REDO;
+    case 'm': return LOOP_ACT_FRAME;
+    case 's': return LOOP_ACT_SAVE;
+    case '?':
+    case 'h': return LOOP_ACT_HELP;
+    default: return LOOP_ACT_NONE;
+    }
+}
+
+int session_propose_pose(session *s, int fragment, const pose *p, uint64_t *id)
+{
+    if (fragment < 0 || fragment >= s->nfrag)
+        return fn_err_set(FN_EINVAL, "fragment %d: the session has %d (0..%d)", fragment, s->nfrag,
+                          s->nfrag - 1);
+    loop_event ev = {0};
+    ev.kind = LOOP_EV_POSE;
+    ev.frag = fragment;
+    ev.pose = *p;
+    pthread_mutex_lock(&s->push_mu);
+    int rc = 0;
+    if (s->proposed - atomic_load(&s->seen_proposals) >= PROPOSALS_AHEAD)
+        rc = fn_err_set(FN_EAGAIN, "%d proposals await their events: wait on the session's events",
+                        PROPOSALS_AHEAD);
+    if (rc == 0)
+        rc = push_control(s, &ev);
+    if (rc == 0) {
+        s->proposed++;
+        s->proposal_frag[s->proposed % LOOP_PROPOSALS_KEPT] = fragment;
+        if (id)
+            *id = s->proposed;
+    }
+    pthread_mutex_unlock(&s->push_mu);
+    return rc;
+}
+
+int session_scene_read(session *s, loop_scene *out)
+{
+    return loop_scene_read(s->L, out);
+}
+
+void session_subscribe(session *s, unsigned kinds)
+{
+    s->kinds = kinds;
+}
+
+void session_set_wakeup(session *s, void (*fn)(void *ctx), void *ctx)
+{
+    s->wakeup = fn;
+    s->wakeup_ctx = ctx;
+}
+
+/* A save request: the scene's poses into the case while the loop runs on; the loop then empties
+ * the journal of what the case now holds. */
+static void save_request(session *s, session_event *ev)
+{
+    const loop_scene *sc = &s->scene;
+    int rc = session_save_case(s, sc->pose, sc->fixed);
+    ev->kind = SESSION_EV_SAVED;
+    ev->result = rc;
+    if (rc < 0)
+        snprintf(ev->text, sizeof ev->text, "save failed: %.1000s", fn_err_msg());
+    else
+        snprintf(ev->text, sizeof ev->text, "saved %.1000s", s->dir);
+    if (rc < 0 || !atomic_load(&s->running))
+        return;
+    memcpy(s->saved, sc->pose, sizeof(pose) * (size_t)s->nfrag);
+    loop_event saved = {.kind = LOOP_EV_SAVED};
+    pthread_mutex_lock(&s->push_mu);
+    push_control(s, &saved); /* full: the journal keeps more than it needs, nothing is lost */
+    pthread_mutex_unlock(&s->push_mu);
+}
+
+/* The next event the newest scene holds, in order: proposals, actions, saves, the end, the scene.
+ * 1 when ev was filled. */
+static int derive(session *s, session_event *ev)
+{
+    const loop_scene *sc = &s->scene;
+    memset(ev, 0, offsetof(session_event, scene));
+    uint64_t seen = atomic_load(&s->seen_proposals);
+    if (sc->proposals > seen) {
+        ev->kind = SESSION_EV_POSE;
+        ev->id = seen + 1;
+        ev->result = sc->proposal_result[ev->id % LOOP_PROPOSALS_KEPT];
+        pthread_mutex_lock(&s->push_mu);
+        ev->frag = s->proposal_frag[ev->id % LOOP_PROPOSALS_KEPT];
+        pthread_mutex_unlock(&s->push_mu);
+        atomic_store(&s->seen_proposals, ev->id);
+    } else if (sc->actions != s->seen_actions) {
+        ev->kind = SESSION_EV_ACTION;
+        ev->count = sc->actions - s->seen_actions;
+        ev->action = sc->last_action;
+        ev->result = sc->last_action_result;
+        s->seen_actions = sc->actions;
+    } else if (sc->save_requests != s->seen_saves) {
+        s->seen_saves = sc->save_requests;
+        save_request(s, ev);
+    } else if (!s->end_told && session_ended(s)) {
+        s->end_told = 1;
+        ev->kind = SESSION_EV_END;
+    } else if (sc->seq != s->seen_seq) {
+        s->seen_seq = sc->seq;
+        ev->kind = SESSION_EV_SCENE;
+    } else
+        return 0;
+    ev->scene = *sc;
+    return 1;
+}
+
+/* Waits for a publish until deadline_us (monotonic; < 0: no limit). */
+static void wait_publish(session *s, int64_t deadline_us)
+{
+    if (deadline_us < 0) {
+        while (sem_wait(&s->wake) != 0 && errno == EINTR)
+            ;
+    } else if (deadline_us > fnclock_now_us()) {
+        struct timespec until = fnclock_realtime_deadline(deadline_us);
+        while (sem_timedwait(&s->wake, &until) != 0 && errno == EINTR)
+            ;
+    }
+    while (sem_trywait(&s->wake) == 0)
+        ; /* one wake-up serves every publish so far */
+}
+
+session_event_kind session_wait_event(session *s, int timeout_ms, session_event *ev)
+{
+    int64_t deadline = timeout_ms < 0 ? -1 : fnclock_now_us() + (int64_t)timeout_ms * 1000;
+    for (;;) {
+        if (s->qn > 0) {
+            *ev = s->queue[s->qhead];
+            s->qhead = (s->qhead + 1) % SESSION_QUEUE;
+            s->qn--;
+            return ev->kind;
+        }
+        loop_scene_read(s->L, &s->scene);
+        while (derive(s, ev))
+            if (s->kinds & (unsigned)ev->kind)
+                return ev->kind;
+        if (deadline >= 0 && fnclock_now_us() >= deadline)
+            break;
+        if (!atomic_load(&s->running) && deadline < 0)
+            break; /* nothing will ever come */
+        wait_publish(s, deadline);
+    }
+    memset(ev, 0, sizeof *ev);
+    return SESSION_EV_NONE;
+}
+
+/* What the last events did (their save requests carried out now), queued for session_wait_event. */
+static void last_events(session *s)
+{
+    loop_scene_read(s->L, &s->scene);
+    session_event ev;
+    while (s->qn < SESSION_QUEUE && derive(s, &ev))
+        if (ev.kind != SESSION_EV_SCENE && (s->kinds & (unsigned)ev.kind))
+            s->queue[(s->qhead + s->qn++) % SESSION_QUEUE] = ev;
+}
+
+int session_stop(session *s)
+{
+    if (!atomic_load(&s->running))
+        return 0;
+    s->ended = loop_reader_done(s->rd);
+    loop_reader_stop(s->rd);
+    s->rd = NULL;
+    atomic_store(&s->stop, 1);
+    loop_notify(s->L);
+    pthread_join(s->th, NULL);
+    atomic_store(&s->running, 0);
+    loop_set_publish_hook(s->L, NULL, NULL);
+    loop_publish(s->L);
+    last_events(s);
+    return s->loop_rc;
+}
+
+void session_close(session *s)
+{
+    if (!s)
+        return;
+    session_stop(s);
+    session__free(s);
+}

@@ -1,0 +1,516 @@
+/* The navigation session in-process, on the two-blocks case (A fixed, B 2 mm beside it): poses
+ * from recordings (contact, sliding, unplug, determinism), actions and their events, fix, undo
+ * and redo, proposed poses landing as one undoable step or refused, saves on request and after,
+ * reloading, journal recovery. Every wait is on the session's events. */
+#include <stdarg.h>
+#include <stddef.h>
+#include <setjmp.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include "err.h"
+#include "frag.h"
+#include "journal.h"
+#include "script.h"
+#include "session.h"
+#include "sim_replay.h"
+#include "testutil.h"
+
+#include <math.h>
+#include <pthread.h>
+#include <sched.h>
+#include <semaphore.h>
+#include <stdatomic.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+static char *dir; /* the group's temp folder */
+static char case_dir[4200];
+static char *case_json; /* case.json as segmented, put back after each test */
+static size_t case_json_len;
+
+static int setup(void **st)
+{
+    (void)st;
+    dir = tu_tmpdir("session");
+    tu_two_blocks_case(dir, case_dir, sizeof case_dir);
+    char path[4300];
+    snprintf(path, sizeof path, "%s/case.json", case_dir);
+    case_json = tu_slurp(path, &case_json_len);
+    return case_json ? 0 : -1;
+}
+
+static int teardown(void **st)
+{
+    (void)st;
+    tu_rmtree(dir);
+    free(dir);
+    free(case_json);
+    return 0;
+}
+
+/* Each test starts from the case as segmented, with no journal. */
+static int fresh_case(void **st)
+{
+    (void)st;
+    char path[4300];
+    snprintf(path, sizeof path, "%s/case.json", case_dir);
+    tu_write_file(path, case_json, case_json_len);
+    snprintf(path, sizeof path, "%s/journal", case_dir);
+    remove(path);
+    return 0;
+}
+
+static session *open_case(unsigned flags)
+{
+    session_params p = {.flags = flags, .command = "navigate"};
+    loop_config_default(&p.cfg);
+    p.cfg.check_invariant = 1;
+    session *s = session_open(case_dir, &p);
+    if (!s)
+        fail_msg("session_open: %s", fn_err_msg());
+    return s;
+}
+
+/* ---- recordings ---- */
+
+/* A motion script rendered for a SpaceNavigator, played as fast as the loop takes it (or through
+ * the reader thread and loop_run with `mode`); returns the loop's statistics and B's pose. */
+static void play(session *s, const char *text, int mode, loop_stats *out, pose *b)
+{
+    script *sc = NULL;
+    assert_int_equal(script_parse(text, strlen(text), "test", &sc), 0);
+    fnrec *rec = script_render(sc, sim_profile_find("spacenavigator"));
+    free(sc);
+    assert_non_null(rec);
+    sim_replay_opts ro = {mode == SESSION_PLAY_REALTIME, 1};
+    session_tsource ts = {0};
+    assert_int_equal(sim_replay_open_rec(rec, &ro, &ts.h), 0);
+    ts.tr = &sim_replay_transport;
+    ts.finished = sim_replay_finished;
+    session_decoder_init(&ts.dec, rec->hdr.vid, rec->hdr.pid, NULL);
+    assert_int_equal(session_play(s, session_transport_source(&ts), mode), 0);
+    sim_replay_transport.close(ts.h);
+    fnrec_free(rec);
+    loop_get_stats(session_loop(s), out);
+    *b = loop_pose(session_loop(s), 1);
+}
+
+/* Head-on into A: B stops at contact (never inside) and the rest of the push is refused; the same
+ * recording gives the same poses bit for bit, through the reader thread and loop_run too. */
+static void test_head_on_stops_at_contact_deterministic(void **st)
+{
+    (void)st;
+    const char *text = "translate -x 4 mm over 0.4 s\n";
+    loop_stats a, b, c;
+    pose pa, pb, pc;
+    session *s = open_case(0);
+    play(s, text, SESSION_PLAY_FAST, &a, &pa);
+    session_close(s);
+    s = open_case(0);
+    play(s, text, SESSION_PLAY_FAST, &b, &pb);
+    session_close(s);
+    s = open_case(0);
+    play(s, text, SESSION_PLAY_REALTIME, &c, &pc);
+    session_close(s);
+    assert_int_equal(a.collisions_in_accepted, 0);
+    assert_true(a.refused > 5);
+    assert_true(a.steps == a.accepted + a.limited + a.slid + a.refused);
+    assert_true(pa.t[0] < -1.9 && pa.t[0] >= -2.0); /* 2 mm gap: never the 4 mm asked for */
+    assert_true(a.pose_digest == b.pose_digest);
+    assert_true(a.pose_digest == c.pose_digest);
+    assert_memory_equal(&pa, &pc, sizeof pa);
+}
+
+/* At a grazing angle B slides along A's face (world -y) instead of freezing at the contact. */
+static void test_grazing_slides(void **st)
+{
+    (void)st;
+    loop_stats a;
+    pose p;
+    session *s = open_case(0);
+    play(s, "move x -6 mm y 3 mm over 0.6 s\n", SESSION_PLAY_FAST, &a, &p);
+    session_close(s);
+    assert_int_equal(a.collisions_in_accepted, 0);
+    assert_true(a.slid > 10);
+    assert_true(p.t[0] < -1.9 && p.t[0] >= -2.0);
+    assert_true(p.t[1] < -2.5); /* device +y is towards the viewer: world -y */
+}
+
+/* Unplugged mid-recording: the pose stays where it was while the device is away, and moves again
+ * after the replug. */
+static void test_unplug_keeps_pose(void **st)
+{
+    (void)st;
+    loop_stats a, b, c;
+    pose before, gone, back;
+    session *s = open_case(0);
+    play(s, "translate +y 2 mm over 0.3 s\nunplug\n", SESSION_PLAY_FAST, &a, &before);
+    session_close(s);
+    s = open_case(0);
+    play(s, "translate +y 2 mm over 0.3 s\nunplug\nwait 0.5 s\nreplug\nwait 0.2 s\n", SESSION_PLAY_FAST, &b, &gone);
+    session_close(s);
+    s = open_case(0);
+    play(s, "translate +y 2 mm over 0.3 s\nunplug\nwait 0.5 s\nreplug\ntranslate +z 1 mm over 0.2 s\n",
+         SESSION_PLAY_FAST, &c, &back);
+    session_close(s);
+    assert_true(a.pose_digest == b.pose_digest);
+    assert_memory_equal(&before, &gone, sizeof before);
+    assert_true(fabs(back.t[1] - gone.t[1]) < 1e-9);
+    assert_true(back.t[2] < -0.8); /* device +z (down) is world -z */
+}
+
+/* ---- a running session ---- */
+
+/* An in-process source that stays silent (the device at rest, unplugged) until told to end: the
+ * test steers through actions and proposals alone. */
+typedef struct quiet {
+    sem_t tick;
+    atomic_int end;
+} quiet;
+
+static int quiet_next(void *ctx, loop_event *ev, int timeout_ms)
+{
+    (void)ev;
+    quiet *q = ctx;
+    if (atomic_load(&q->end))
+        return LOOP_SOURCE_END;
+    struct timespec t;
+    clock_gettime(CLOCK_REALTIME, &t);
+    t.tv_nsec += (long)timeout_ms * 1000000L;
+    t.tv_sec += t.tv_nsec / 1000000000L;
+    t.tv_nsec %= 1000000000L;
+    sem_timedwait(&q->tick, &t); /* woken at once by quiet_end */
+    return atomic_load(&q->end) ? LOOP_SOURCE_END : 0;
+}
+
+static quiet Q;
+
+static session *start_quiet(unsigned flags)
+{
+    sem_init(&Q.tick, 0, 0);
+    atomic_init(&Q.end, 0);
+    session *s = open_case(flags);
+    assert_int_equal(session_start(s, (loop_source){quiet_next, &Q}), 0);
+    return s;
+}
+
+static void stop_quiet(session *s)
+{
+    assert_int_equal(session_stop(s), 0);
+    sem_destroy(&Q.tick);
+}
+
+/* The next event of one of the kinds, skipping others; fails after TU_WAIT_MAX_S. */
+static session_event *next_event(session *s, unsigned kinds)
+{
+    static session_event ev;
+    for (;;) {
+        session_event_kind k = session_wait_event(s, TU_WAIT_MAX_S * 1000, &ev);
+        if (k == SESSION_EV_NONE)
+            fail_msg("no session event of kinds %#x", kinds);
+        if (k & kinds)
+            return &ev;
+    }
+}
+
+/* Sends an action and waits for its event; returns it. */
+static session_event *act(session *s, loop_action a)
+{
+    assert_int_equal(session_send_action(s, a), 0);
+    session_event *ev = next_event(s, SESSION_EV_ACTION);
+    assert_int_equal(ev->action, a);
+    return ev;
+}
+
+/* Proposes B at p and waits for the proposal's event; returns its result. */
+static int propose(session *s, int fragment, const pose *p)
+{
+    uint64_t id = 0;
+    assert_int_equal(session_propose_pose(s, fragment, p, &id), 0);
+    session_event *ev = next_event(s, SESSION_EV_POSE);
+    assert_true(ev->id == id);
+    assert_int_equal(ev->frag, fragment);
+    return ev->result;
+}
+
+static pose pose_of(session *s, int i)
+{
+    loop_scene sc = {0};
+    session_scene_read(s, &sc);
+    return sc.pose[i];
+}
+
+static pose moved_by(pose p, int axis, double mm)
+{
+    p.t[axis] += mm;
+    return p;
+}
+
+/* Keys and actions: next/previous, fix, undo and redo of the fix, each acknowledged by an event
+ * that carries the scene it was done in. */
+static void test_actions_fix_undo_redo(void **st)
+{
+    (void)st;
+    session *s = start_quiet(0);
+    session_event ev;
+    assert_int_equal(session_wait_event(s, 0, &ev), SESSION_EV_NONE); /* nothing done yet */
+    assert_int_equal(session_key_action('f'), LOOP_ACT_FIX);
+    assert_int_equal(session_key_action('q'), LOOP_ACT_NONE);
+    assert_int_equal(session_send_action(s, LOOP_ACT_NONE), FN_EINVAL);
+    session_event *e = act(s, LOOP_ACT_NEXT);
+    assert_int_equal(e->scene.selected, 1); /* A is fixed: B stays the only one to select */
+    e = act(s, LOOP_ACT_PREV);
+    assert_int_equal(e->scene.selected, 1);
+    e = act(s, LOOP_ACT_FIX);
+    assert_int_equal(e->scene.fixed[1], 1);
+    e = act(s, LOOP_ACT_UNDO);
+    assert_int_equal(e->result, LOOP_ACCEPTED);
+    assert_int_equal(e->scene.fixed[1], 0);
+    e = act(s, LOOP_ACT_REDO);
+    assert_int_equal(e->scene.fixed[1], 1);
+    e = act(s, LOOP_ACT_REDO);
+    assert_int_equal(e->result, LOOP_IDLE); /* nothing left to redo */
+    stop_quiet(s);
+    session_close(s);
+}
+
+/* A proposed pose lands as one step: accepted when free, refused inside A (and for the fixed A),
+ * undone and redone whole; with checking off, accepted anywhere. */
+static void test_propose_pose_one_undoable_step(void **st)
+{
+    (void)st;
+    session *s = start_quiet(0);
+    pose home = pose_of(s, 1), up = moved_by(home, 2, 1.5), inside = moved_by(home, 0, -5);
+    assert_int_equal(propose(s, 1, &up), LOOP_ACCEPTED);
+    pose now = pose_of(s, 1);
+    assert_memory_equal(&now, &up, sizeof up);
+    assert_int_equal(propose(s, 1, &inside), LOOP_REFUSED);
+    now = pose_of(s, 1);
+    assert_memory_equal(&now, &up, sizeof up);
+    pose a = moved_by(pose_of(s, 0), 2, 1);
+    assert_int_equal(propose(s, 0, &a), LOOP_REFUSED); /* A is fixed */
+    assert_int_equal(session_propose_pose(s, 2, &a, NULL), FN_EINVAL);
+    session_event *e = act(s, LOOP_ACT_UNDO);
+    assert_int_equal(e->result, LOOP_ACCEPTED);
+    assert_memory_equal(&e->scene.pose[1], &home, sizeof home);
+    e = act(s, LOOP_ACT_UNDO);
+    assert_int_equal(e->result, LOOP_IDLE); /* the proposal was the only step */
+    e = act(s, LOOP_ACT_REDO);
+    assert_memory_equal(&e->scene.pose[1], &up, sizeof up);
+    act(s, LOOP_ACT_COLLISION);
+    assert_int_equal(propose(s, 1, &inside), LOOP_ACCEPTED);
+    e = act(s, LOOP_ACT_COLLISION); /* back on, inside A: the scene warns */
+    assert_int_equal(e->scene.penetrating, 1);
+    stop_quiet(s);
+    loop_stats stats;
+    loop_get_stats(session_loop(s), &stats);
+    assert_int_equal(stats.steps, 0); /* proposals are not motion steps */
+    session_close(s);
+}
+
+/* Proposals from several threads at once all land, each with its own event. */
+typedef struct proposer {
+    session *s;
+    pose p;
+    int landed;
+} proposer;
+
+static void *propose_thread(void *arg)
+{
+    proposer *pr = arg;
+    for (int i = 0; i < 10; i++) {
+        while (session_propose_pose(pr->s, 1, &pr->p, NULL) == FN_EAGAIN)
+            sched_yield(); /* the waiter has not caught up yet */
+        pr->landed++;
+    }
+    return NULL;
+}
+
+static void test_propose_from_threads(void **st)
+{
+    (void)st;
+    session *s = start_quiet(0);
+    proposer pr[2] = {{s, moved_by(pose_of(s, 1), 2, 1), 0}, {s, moved_by(pose_of(s, 1), 2, 2), 0}};
+    pthread_t th[2];
+    for (int i = 0; i < 2; i++)
+        assert_int_equal(pthread_create(&th[i], NULL, propose_thread, &pr[i]), 0);
+    uint64_t last = 0;
+    for (int n = 0; n < 20; n++) {
+        session_event *e = next_event(s, SESSION_EV_POSE);
+        assert_true(e->id == last + 1);
+        last = e->id;
+        assert_int_equal(e->result, LOOP_ACCEPTED);
+    }
+    for (int i = 0; i < 2; i++)
+        pthread_join(th[i], NULL);
+    assert_int_equal(pr[0].landed + pr[1].landed, 20);
+    stop_quiet(s);
+    session_close(s);
+}
+
+/* A journaled session: a proposal is in the journal at once; unsaved, it is offered again
+ * (SESSION_RESUME) and recovered as one undo step; a save on request empties the journal, and
+ * the case reopens at the saved pose. */
+static void test_journal_recovery_and_save(void **st)
+{
+    (void)st;
+    session *s = start_quiet(SESSION_JOURNAL);
+    pose home = pose_of(s, 1), up = moved_by(home, 2, 2);
+    assert_int_equal(propose(s, 1, &up), LOOP_ACCEPTED);
+    stop_quiet(s);
+    session_close(s); /* not saved: an interrupted session */
+    assert_int_equal(session_journal_pending(case_dir), 1);
+    session_params p = {.flags = SESSION_JOURNAL, .command = "navigate"};
+    loop_config_default(&p.cfg);
+    assert_null(session_open(case_dir, &p));
+    assert_non_null(strstr(fn_err_msg(), "--recover"));
+
+    s = start_quiet(SESSION_JOURNAL | SESSION_RESUME);
+    assert_int_equal(session_resumed(s), 1);
+    pose now = pose_of(s, 1);
+    assert_memory_equal(&now, &up, sizeof up);
+    session_event *e = act(s, LOOP_ACT_UNDO);
+    assert_memory_equal(&e->scene.pose[1], &home, sizeof home);
+    act(s, LOOP_ACT_REDO);
+    act(s, LOOP_ACT_SAVE);
+    e = next_event(s, SESSION_EV_SAVED);
+    assert_int_equal(e->result, 0);
+    assert_non_null(strstr(e->text, case_dir));
+    assert_memory_equal(&e->scene.pose[1], &up, sizeof up);
+    stop_quiet(s);
+    assert_int_equal(session_journal_pending(case_dir), 0); /* the loop emptied it after the save */
+    session_close(s);
+
+    s = open_case(SESSION_JOURNAL);
+    now = loop_pose(session_loop(s), 1);
+    assert_true(fabs(now.t[2] - up.t[2]) < 1e-9);
+    assert_int_equal(session_resumed(s), 0);
+    session_close(s);
+}
+
+/* A save request made by the last events before the session stops is still carried out, and
+ * session_save after it saves the final poses. */
+static void test_save_at_stop(void **st)
+{
+    (void)st;
+    session *s = start_quiet(SESSION_JOURNAL);
+    pose up = moved_by(pose_of(s, 1), 1, 1);
+    assert_int_equal(session_send_action(s, LOOP_ACT_SAVE), 0);
+    assert_int_equal(session_propose_pose(s, 1, &up, NULL), 0);
+    stop_quiet(s);
+    session_event ev;
+    int saved = 0;
+    while (session_wait_event(s, 0, &ev) != SESSION_EV_NONE)
+        saved |= ev.kind == SESSION_EV_SAVED && ev.result == 0;
+    assert_true(saved);
+    assert_int_equal(session_save(s), 0);
+    session_close(s);
+    s = open_case(0);
+    pose now = loop_pose(session_loop(s), 1);
+    assert_true(fabs(now.t[1] - up.t[1]) < 1e-9);
+    session_close(s);
+}
+
+/* A source that ends says so once (SESSION_EV_END); the wake-up callback runs at publishes;
+ * scenes are events only when subscribed. */
+static atomic_int wakeups;
+
+static void on_wakeup(void *ctx)
+{
+    (void)ctx;
+    atomic_fetch_add(&wakeups, 1);
+}
+
+static int woken(void *arg)
+{
+    (void)arg;
+    return atomic_load(&wakeups) > 0;
+}
+
+static void test_end_scene_and_wakeup(void **st)
+{
+    (void)st;
+    sem_init(&Q.tick, 0, 0);
+    atomic_init(&Q.end, 0);
+    session *s = open_case(0);
+    session_set_wakeup(s, on_wakeup, NULL);
+    session_subscribe(s, SESSION_EV_SCENE | SESSION_EV_END);
+    assert_int_equal(session_start(s, (loop_source){quiet_next, &Q}), 0);
+    assert_int_equal(session_send_action(s, LOOP_ACT_FRAME), 0);
+    session_event *e = next_event(s, SESSION_EV_SCENE);
+    while (e->scene.actions == 0) /* the scene of open first, then the loop's */
+        e = next_event(s, SESSION_EV_SCENE);
+    assert_int_equal(e->scene.frame, LOOP_FRAME_WORLD);
+    assert_true(tu_wait_for(woken, NULL, TU_WAIT_MAX_S)); /* called just after that publish */
+    atomic_store(&Q.end, 1);
+    sem_post(&Q.tick);
+    next_event(s, SESSION_EV_END);
+    assert_true(session_ended(s));
+    stop_quiet(s);
+    session_close(s);
+}
+
+/* Errors name their cause: a missing case, a second start, an action while nothing runs. */
+static void test_open_errors(void **st)
+{
+    (void)st;
+    session_params p = {.command = "replay"};
+    loop_config_default(&p.cfg);
+    assert_null(session_open("/nonexistent/case", &p));
+    assert_non_null(strstr(fn_err_msg(), "/nonexistent/case"));
+    session *s = start_quiet(0);
+    assert_int_equal(session_start(s, (loop_source){quiet_next, &Q}), FN_EINVAL);
+    stop_quiet(s);
+    assert_int_equal(session_send_action(s, LOOP_ACT_NEXT), FN_EAGAIN); /* not running */
+    session_close(s);
+}
+
+/* A session over bare fragments (benchmarks): it steers and stops at contact as a case's does,
+ * but has nothing to save or summarize, and says so. */
+static void test_fragments_without_case(void **st)
+{
+    (void)st;
+    frag f[2];
+    tu_box_frag(&f[0], 1, (const int[3]){10, 10, 10}, (const double[3]){0, 0, 0});
+    tu_box_frag(&f[1], 2, (const int[3]){6, 6, 6}, (const double[3]){12, 2, 2}); /* 2 mm beside */
+    uint8_t fixed[2] = {1, 0};
+    loop_config cfg;
+    loop_config_default(&cfg);
+    cfg.check_invariant = 1;
+    session *s = session_open_fragments(f, 2, fixed, (const double[2]){0.5, 0.95}, &cfg);
+    assert_non_null(s);
+    assert_null(session_case(s));
+    loop_stats a;
+    pose p;
+    play(s, "translate -x 4 mm over 0.4 s\n", SESSION_PLAY_FAST, &a, &p);
+    assert_true(p.t[0] < -1.9 && p.t[0] >= -2.0);
+    assert_int_equal(a.collisions_in_accepted, 0);
+    assert_int_equal(session_save(s), FN_EINVAL);
+    assert_non_null(strstr(fn_err_msg(), "no case"));
+    assert_int_equal(session_print_json(s, stdout, "test", -1, 0), FN_EINVAL);
+    session_close(s);
+    assert_null(session_open_fragments(f, 0, NULL, (const double[2]){0, 1}, &cfg));
+    free(f[0].prob);
+    free(f[1].prob);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test_setup(test_head_on_stops_at_contact_deterministic, fresh_case),
+        cmocka_unit_test_setup(test_grazing_slides, fresh_case),
+        cmocka_unit_test_setup(test_unplug_keeps_pose, fresh_case),
+        cmocka_unit_test_setup(test_actions_fix_undo_redo, fresh_case),
+        cmocka_unit_test_setup(test_propose_pose_one_undoable_step, fresh_case),
+        cmocka_unit_test_setup(test_propose_from_threads, fresh_case),
+        cmocka_unit_test_setup(test_journal_recovery_and_save, fresh_case),
+        cmocka_unit_test_setup(test_save_at_stop, fresh_case),
+        cmocka_unit_test_setup(test_end_scene_and_wakeup, fresh_case),
+        cmocka_unit_test_setup(test_open_errors, fresh_case),
+        cmocka_unit_test(test_fragments_without_case),
+    };
+    return cmocka_run_group_tests(tests, setup, teardown);
+}
