@@ -338,9 +338,9 @@ static int chromium_images(const char *html, char *line, size_t cap)
     snprintf(udd, sizeof udd, "%s/chromium-profile", dir);
     tu_rmtree(udd);
     snprintf(cmd, sizeof cmd,
-             "chromium --headless --no-sandbox --disable-gpu --no-first-run --disable-background-networking "
+             "timeout %d chromium --headless --no-sandbox --disable-gpu --no-first-run --disable-background-networking "
              "--disable-component-update --disable-sync --user-data-dir='%s' --dump-dom 'file://%s' 2>/dev/null",
-             udd, html);
+             TU_WAIT_MAX_S, udd, html); /* the bound only stops a browser that never ends */
     FILE *p = popen(cmd, "r");
     assert_non_null(p);
     char *buf = calloc(1, 1 << 20);
