@@ -1,4 +1,6 @@
-/* The README's first command ends in `fracnav demo`: it must work end to end on the example CT. */
+/* The README's first command ends in `fracnav demo`: it must work end to end on the example CT:
+ * segment, fracture, navigate the shipped recording through the virtual device (FUSE, and without
+ * it), reduce, export with the report, and say where the results are and what it measured. */
 #include <stdarg.h>
 #include <stddef.h>
 #include <setjmp.h>
@@ -24,24 +26,55 @@ static void test_demo_runs_the_workflow(void **st)
     assert_non_null(strstr(out, "3 kept"));
     assert_non_null(strstr(out, "403557"));
     assert_non_null(strstr(out, "head holder"));
-    /* the fracture and the replay, with no collision among the accepted poses */
-    assert_non_null(strstr(out, "ground truth moves its centroid back"));
+    /* the fracture, and the navigation: the push refused, no collision among the accepted poses */
+    assert_non_null(strstr(out, "its true place is"));
+    assert_non_null(strstr(out, "demo-approach.fnrec"));
     assert_non_null(strstr(out, "collisions in accepted poses: 0"));
-    const char *files[] = {"case/case.json", "case/labels.nii.gz", "segmentation-front.png",
-                           "segmentation-right.png", "segmentation-below.png", "fracture/case.json",
-                           "fracture-right.png", "head-on.fnrec"};
+    const char *r = strstr(out, " slid, ");
+    long refused = 0;
+    assert_non_null(r);
+    assert_int_equal(sscanf(r, " slid, %ld refused", &refused), 1);
+    assert_true(refused > 0);
+    /* the reduction lands near the truth, and the summary names the results and the figures */
+    const char *e = strstr(out, "error against the truth: ");
+    double deg = 99, mm = 99;
+    assert_non_null(e);
+    assert_int_equal(sscanf(e, "error against the truth: %lf deg, %lf mm", &deg, &mm), 2);
+    if (deg > 1.0 || mm > 1.0)
+        fail_msg("the demo's reduction is %.2f deg, %.2f mm from the truth:\n%s", deg, mm, out);
+    const char *figures[] = {"collision query:   mean", "loop rate:", "reduction:", "whole demo:",
+                             "/export/report/index.html"};
+    for (size_t i = 0; i < sizeof figures / sizeof figures[0]; i++)
+        if (!strstr(out, figures[i]))
+            fail_msg("the demo's summary lacks '%s':\n%s", figures[i], out);
+    const char *files[] = {"case/case.json", "case/labels.nii.gz", "segmentation-anterior.png",
+                           "fracture/case.json", "fracture-anterior.png", "navigate.json",
+                           "frames/navigation-00.png", "frames/navigation-07.png",
+                           "export/report/index.html", "export/report/convergence.png",
+                           "export/report/before-anterior.png", "export/report/after-anterior.png",
+                           "export/models/fragment-2.stl", "export/transforms/fragment-2.tfm",
+                           "export/planned.seg.nrrd", "export/planned.nii.gz"};
     for (size_t i = 0; i < sizeof files / sizeof files[0]; i++) {
         char p[4200];
         snprintf(p, sizeof p, "%s/d/%s", dir, files[i]);
         if (access(p, R_OK) != 0)
             fail_msg("demo did not write %s", p);
     }
-    /* A second run over the same folder works too (the README's command is idempotent); the
-     * hierarchy thresholds given go into both cases. */
+    /* the fracture case keeps the reduction */
+    char p[4200];
+    snprintf(p, sizeof p, "%s/d/fracture/case.json", dir);
+    char *json = tu_slurp(p, NULL);
+    assert_non_null(json);
+    assert_non_null(strstr(json, "\"reduction\""));
+    free(json);
+    /* A second run over the same folder works too (the README's command is idempotent), here with
+     * the recording played in-process; the hierarchy thresholds given go into both cases. */
     free(out);
-    rc = tu_run_cli(&out, "demo '%s' -o '%s/d' --tau-min 0.25 --tau-max 0.75", ct, dir);
+    rc = tu_run_cli(&out, "demo '%s' -o '%s/d' --no-fuse --tau-min 0.25 --tau-max 0.75", ct, dir);
     if (rc != 0)
         fail_msg("second fracnav demo exited %d:\n%s", rc, out);
+    assert_non_null(strstr(out, "replay-realtime"));
+    assert_non_null(strstr(out, "collisions in accepted poses: 0"));
     free(out);
     const char *cases[] = {"case", "fracture"};
     for (size_t i = 0; i < 2; i++) {

@@ -391,6 +391,10 @@ static void test_volume_commands(void **st)
     assert_int_equal(json_array_size(json_object_get(j, "fragments")), 2);
     assert_true(json_is_real(json_object_get(json_array_get(json_object_get(j, "fragments"), 1), "displacement_mm")));
     check(j, "fracture");
+    j = fracnav("export", "export '%s' --tfm '%s/tfm' --stl '%s/stl' --json", frac_dir, dir, dir);
+    assert_int_equal(json_array_size(json_object_get(j, "files")), 4);
+    assert_true(json_is_integer(json_object_get(j, "written_total_bytes")));
+    check(j, "export");
 }
 
 /* replay, navigate and bench loop: one set of keys for the loop's figures. */

@@ -607,7 +607,7 @@ static void test_virtual_transport(void **st)
 /* The shipped recordings are labelled virtual and are exactly what their scripts render to. */
 static void test_shipped_recordings(void **st)
 {
-    const char *names[] = {"head-on", "grazing-slide", "buttons"};
+    const char *names[] = {"head-on", "grazing-slide", "buttons", "demo-approach"};
     const char *src = getenv("FRACNAV_SRC");
     for (size_t i = 0; i < sizeof names / sizeof *names; i++) {
         char path[1024], spath[1024], id[16];

@@ -19,6 +19,7 @@
     X(navigate, "steer fragments with a 6-DOF controller, collision-checked")               \
     X(reduce, "fit fragments back together: pre-alignment and Powell's method on the VOI")  \
     X(render, "draw a case's fragments at their poses into a PNG (OpenGL 4.5)")              \
+    X(export, "write the plan for 3D Slicer, ITK and printers (tfm, seg.nrrd, NIfTI, STL), and a report") \
     X(bench, "benchmarks with JSON output: collision, build, loop, reduce, render")
 
 #define CMD_DECLARE(name, help) int cmd_##name(int argc, char **argv);

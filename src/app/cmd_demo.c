@@ -1,42 +1,64 @@
-/* fracnav demo: the whole workflow on the example CT, with pictures. */
+/* fracnav demo: the whole workflow on the example CT: segment, fracture, navigate a shipped
+ * recording through the virtual device and the real driver path, reduce, export, report. */
 #include "case.h"
 #include "cmd.h"
 #include "err.h"
-#include "fnrec.h"
 #include "fnclock.h"
+#include "fnrec.h"
 #include "fracture.h"
-#include "script.h"
+#include "journal.h"
+#include "render.h"
 #include "seg.h"
 #include "snap.h"
 #include "vol.h"
 #include "volio.h"
 
 #include <errno.h>
+#include <fcntl.h>
+#include <jansson.h>
+#include <libgen.h>
+#include <limits.h>
+#include <math.h>
+#include <signal.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <stdint.h>
 #include <sys/stat.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#define RECORDING "demo-approach.fnrec"
 
 static void usage(FILE *out)
 {
     fprintf(out,
-            "usage: fracnav demo [CT] [-o DIR] [--tau-min T] [--tau-max T]\n\n"
-            "Runs fracnav's workflow on a CT (default: the example skull CT that .ci/setup caches,\n"
-            "$FRACNAV_DATA/Cranium.inv3 or /var/cache/fracnav/Cranium.inv3) and writes its results to\n"
-            "DIR (default ./fracnav-demo):\n"
-            "  1. segments the bone at 300 HU into fragments (26-connected components) and saves the\n"
-            "     case in DIR/case; fragments that never reach 1000 HU (the CT head holder) are shown\n"
-            "     but marked as not bone;\n"
-            "  2. renders the fragments, each in its colour, seen from the front, the right and below:\n"
-            "     DIR/segmentation-{front,right,below}.png;\n"
-            "  3. breaks the skull in two along a rough fractal surface and displaces one piece by a\n"
+            "usage: fracnav demo [CT] [-o DIR] [--recording FILE.fnrec] [--no-fuse]\n"
+            "                    [--tau-min T] [--tau-max T]\n\n"
+            "Runs fracnav's whole workflow on a CT (default: the example skull CT that .ci/setup\n"
+            "caches, $FRACNAV_DATA/Cranium.inv3 or /var/cache/fracnav/Cranium.inv3) and writes its\n"
+            "results to DIR (default ./fracnav-demo):\n"
+            "  1. segments the bone at 300 HU into fragments and saves the case in DIR/case\n"
+            "     (picture: DIR/segmentation-anterior.png, drawn by the renderer);\n"
+            "  2. breaks the skull in two along a rough fractal surface and displaces one piece by a\n"
             "     known rigid transform: a synthetic fracture with ground truth, DIR/fracture\n"
-            "     (picture: DIR/fracture-right.png);\n"
-            "  4. renders a scripted 3D-mouse session with the virtual SpaceNavigator (push the loose\n"
-            "     piece head-on into the other, then back off; DIR/head-on.fnrec) and replays it\n"
-            "     through the collision-checked navigation loop, as `fracnav replay` does.\n\n"
-            "  -o DIR                     where the results go (default ./fracnav-demo)\n" CMD_TAU_HELP
+            "     (picture: DIR/fracture-anterior.png);\n"
+            "  3. serves the virtual SpaceNavigator (fracnav-sim, through FUSE) playing the shipped\n"
+            "     recording " RECORDING " and steers the loose piece with it through\n"
+            "     `fracnav navigate` and the real hidraw driver: lifted, turned and pushed towards\n"
+            "     its place, the push refused where the fracture surfaces meet (without FUSE, the\n"
+            "     recording plays in-process: replay-realtime:); navigate's view shows it live on\n"
+            "     standard error, and the renderer draws 8 frames of it from the poses navigate\n"
+            "     journalled: DIR/frames/navigation-00.png .. -07.png;\n"
+            "  4. runs the automatic reduction (`fracnav reduce`) and measures it against the truth;\n"
+            "  5. exports everything (`fracnav export --all DIR/export`): ITK transforms, a 3D Slicer\n"
+            "     segmentation, a NIfTI labelmap, STL models and the report DIR/export/report/index.html;\n"
+            "  6. prints where the results are and the figures measured: collision query time, loop\n"
+            "     rate, reduction error and time.\n\n"
+            "  -o DIR                     where the results go (default ./fracnav-demo)\n"
+            "  --recording FILE           the navigation recording (default: the shipped\n"
+            "                             sim/recordings/" RECORDING ")\n"
+            "  --no-fuse                  play the recording in-process, not through fracnav-sim\n" CMD_TAU_HELP
             "                             (kept in both cases the demo saves)\n");
 }
 
@@ -44,6 +66,155 @@ static int fail(const char *what)
 {
     fprintf(stderr, "fracnav demo: %s%s%s\n", what ? what : "", what ? ": " : "", fn_err_msg());
     return 1;
+}
+
+/* This program's path, and the folder it is in. */
+static int self_path(char *exe, size_t cap, char *dir, size_t dcap)
+{
+    ssize_t n = readlink("/proc/self/exe", exe, cap - 1);
+    if (n <= 0)
+        return -1;
+    exe[n] = 0;
+    char copy[PATH_MAX];
+    snprintf(copy, sizeof copy, "%s", exe);
+    snprintf(dir, dcap, "%s", dirname(copy));
+    return 0;
+}
+
+static int is_file(const char *p)
+{
+    struct stat st;
+    return stat(p, &st) == 0 && S_ISREG(st.st_mode);
+}
+
+/* The shipped recording: $FRACNAV_SRC/sim/recordings, the source tree this was built from, then
+ * the installed share/fracnav/recordings beside bin/. */
+static char *find_recording(const char *bindir)
+{
+    static char path[PATH_MAX + 64];
+    const char *src = getenv("FRACNAV_SRC");
+    if (src && *src) {
+        snprintf(path, sizeof path, "%s/sim/recordings/" RECORDING, src);
+        if (is_file(path))
+            return path;
+    }
+    snprintf(path, sizeof path, "%s/sim/recordings/" RECORDING, FRACNAV_SOURCE_DIR);
+    if (is_file(path))
+        return path;
+    snprintf(path, sizeof path, "%s/../share/fracnav/recordings/" RECORDING, bindir);
+    return is_file(path) ? path : NULL;
+}
+
+/* Runs argv with stdin from /dev/null, stdout into out_path and stderr into err_path (NULL:
+ * inherited); returns the pid, or -1. */
+static pid_t spawn(char *const argv[], const char *out_path, const char *err_path)
+{
+    fflush(stdout);
+    fflush(stderr);
+    pid_t pid = fork();
+    if (pid != 0)
+        return pid;
+    int in = open("/dev/null", O_RDONLY);
+    if (in >= 0)
+        dup2(in, 0);
+    if (out_path) {
+        int fd = open(out_path, O_WRONLY | O_CREAT | O_TRUNC, 0644);
+        if (fd >= 0)
+            dup2(fd, 1);
+    }
+    if (err_path) {
+        int fd = open(err_path, O_WRONLY | O_CREAT | O_TRUNC, 0644);
+        if (fd >= 0)
+            dup2(fd, 2);
+    }
+    execvp(argv[0], argv);
+    fprintf(stderr, "fracnav demo: cannot run %s: %s\n", argv[0], strerror(errno));
+    _exit(127);
+}
+
+static int wait_status(pid_t pid)
+{
+    int st;
+    while (waitpid(pid, &st, 0) < 0)
+        if (errno != EINTR)
+            return -1;
+    return WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
+}
+
+typedef void (*watch_fn)(void *ctx);
+
+/* Runs a fracnav command with --json; its object (NULL: it failed, and its stderr was shown).
+ * live: its standard error (navigate's view) goes to ours as it comes, not to DIR/NAME.log.
+ * watch, when given, is called every 20 ms while the command runs. */
+static json_t *fracnav_json(char *exe, const char *dir, const char *name, char *const args[], int live,
+                            watch_fn watch, void *ctx)
+{
+    char *argv[24] = {exe};
+    int n = 1;
+    for (; args[n - 1] && n < 22; n++)
+        argv[n] = args[n - 1];
+    argv[n++] = "--json";
+    argv[n] = NULL;
+    char out[PATH_MAX], err[PATH_MAX];
+    snprintf(out, sizeof out, "%s/%s.json", dir, name);
+    snprintf(err, sizeof err, "%s/%s.log", dir, name);
+    pid_t pid = spawn(argv, out, live ? NULL : err);
+    for (;;) { /* until it ends (left to be reaped below) */
+        siginfo_t si;
+        memset(&si, 0, sizeof si);
+        if (!watch || pid <= 0 || waitid(P_PID, (id_t)pid, &si, WEXITED | WNOHANG | WNOWAIT) != 0 ||
+            si.si_pid == pid)
+            break;
+        watch(ctx);
+        usleep(20000);
+    }
+    int st = pid > 0 ? wait_status(pid) : -1;
+    json_error_t e;
+    json_t *j = st == 0 ? json_load_file(out, 0, &e) : NULL;
+    if (!j) {
+        fn_err_set(FN_EINVAL, "`fracnav %s` failed (exit %d%s%s)", args[0], st, live ? "" : "; its messages are in ",
+                   live ? "" : err);
+        FILE *fp = live ? NULL : fopen(err, "r");
+        if (fp) {
+            char line[512];
+            while (fgets(line, sizeof line, fp))
+                fprintf(stderr, "   | %s", line);
+            fclose(fp);
+        }
+    }
+    return j;
+}
+
+static double num(json_t *o, const char *key)
+{
+    json_t *v = json_object_get(o, key);
+    return json_is_number(v) ? json_number_value(v) : NAN;
+}
+
+/* A picture of a case at its poses by the renderer (iso surfaces, anterior view). */
+static int picture(const fcase *c, render_view view, const char *path)
+{
+    const int w = 512, h = 512;
+    if (c->nfrag > RENDER_MAX_FRAGS)
+        return fn_err_set(FN_EINVAL, "%d fragments: the renderer draws at most %d", c->nfrag, RENDER_MAX_FRAGS);
+    render *r = render_open("osmesa", w, h);
+    if (!r)
+        return FN_ENODEV;
+    uint8_t *rgb = malloc((size_t)w * h * 3);
+    int rc = rgb ? render_set_scene(r, c->ct, c->frag, c->nfrag, c->seg.threshold, NULL)
+                 : fn_err_set(FN_ENOMEM, "out of memory for a picture");
+    render_options o;
+    render_options_default(&o, c->frag, c->nfrag);
+    render_camera_standard(&o.camera, view, c->frag, c->nfrag);
+    if (!rc)
+        rc = render_frame(r, NULL, &o);
+    if (!rc)
+        rc = render_read_rgb(r, rgb);
+    if (!rc)
+        rc = snap_write_png(path, rgb, w, h);
+    free(rgb);
+    render_close(r);
+    return rc;
 }
 
 /* Step 1: segmentation, saved as a case. Takes ownership of ct. */
@@ -63,21 +234,17 @@ static fcase *segment(const char *ct_path, vol *ct, const char *dir, const cmd_t
            sr.raw_components, sr.ncomp, sp.min_volume_ml, t_seg * 1e3);
     vol *labels = sr.labels;
     sr.labels = NULL;
-    char casedir[4200];
+    char casedir[PATH_MAX], png[PATH_MAX];
     snprintf(casedir, sizeof casedir, "%s/case", dir);
     fcase *c = case_create(casedir, ct_path, ct, labels, &sp);
     if (!c) {
         seg_result_free(&sr);
         return NULL;
     }
-    printf("   %-3s %8s %7s %7s  %-22s %-20s %s\n", "id", "voxels", "ml", "peak HU", "centroid (LPS mm)",
-           "long axis", "kind");
     for (int i = 0; i < sr.ncomp && i < c->nfrag; i++) {
         const seg_component *sc = &sr.comp[i];
-        const frag *f = &c->frag[case_find(c, sc->label)];
-        printf("   %-3d %8zu %7.1f %7.0f  %6.1f %6.1f %6.1f    %5.2f %5.2f %5.2f    %s\n", sc->label, sc->voxels,
-               sc->volume_ml, sc->peak, f->centroid[0], f->centroid[1], f->centroid[2], f->axes[0][0],
-               f->axes[1][0], f->axes[2][0], sc->peak < 1000 ? "not bone (peak < 1000 HU: head holder)" : "bone");
+        printf("   fragment %d: %zu voxels, %.1f ml, peak %.0f HU: %s\n", sc->label, sc->voxels, sc->volume_ml,
+               sc->peak, sc->peak < 1000 ? "not bone (the CT head holder)" : "bone");
     }
     seg_result_free(&sr);
     cmd_tau_apply(tau, &c->tau_min, &c->tau_max); /* checked with the options */
@@ -85,112 +252,221 @@ static fcase *segment(const char *ct_path, vol *ct, const char *dir, const cmd_t
         case_free(c);
         return NULL;
     }
-    printf("   saved the case in %s (case.json, labels.nii.gz)\n", casedir);
+    snprintf(png, sizeof png, "%s/segmentation-anterior.png", dir);
+    if (picture(c, RENDER_ANTERIOR, png) < 0) {
+        case_free(c);
+        return NULL;
+    }
+    printf("   saved the case in %s; picture %s\n", casedir, png);
     return c;
 }
 
-/* Step 2: pictures of the labelled fragments. */
-static int pictures(const fcase *c, const char *dir)
-{
-    int maxid = 0;
-    for (int i = 0; i < c->nfrag; i++)
-        if (c->frag[i].id > maxid)
-            maxid = c->frag[i].id;
-    uint8_t(*rgb)[3] = calloc((size_t)maxid + 1, sizeof *rgb);
-    if (!rgb)
-        return fn_err_set(FN_ENOMEM, "out of memory");
-    for (int i = 0; i < c->nfrag; i++)
-        memcpy(rgb[c->frag[i].id], c->frag[i].rgb, 3);
-    /* On the example CT's grid (i to the left, j to the front, k up) these views keep the
-     * patient's handedness: from the right (low i), the front (high j) and the feet (low k). */
-    static const char *names[3] = {"right", "front", "below"};
-    static const int from_end[3] = {0, 1, 0};
-    int rc = 0;
-    printf("2. pictures:");
-    for (int axis = 0; axis < 3 && rc == 0; axis++) {
-        char path[4200];
-        snprintf(path, sizeof path, "%s/segmentation-%s.png", dir, names[axis]);
-        rc = snap_labels_png(c->labels, c->ct, (const uint8_t(*)[3])rgb, maxid + 1, axis, from_end[axis], path);
-        if (rc == 0)
-            printf(" %s", path);
-    }
-    printf("\n");
-    free(rgb);
-    return rc;
-}
-
-/* Step 3: a synthetic fracture of the segmented CT, with its ground truth. */
+/* Step 2: a synthetic fracture of the segmented CT, with its ground truth. */
 static int fracture(const fcase *seg, const char *dir, const cmd_tau *tau)
 {
     fracture_params fp;
     fracture_defaults(&fp);
     cmd_tau_apply(tau, &fp.tau_min, &fp.tau_max);
-    char casedir[4200], png[4200];
+    char casedir[PATH_MAX], png[PATH_MAX];
     snprintf(casedir, sizeof casedir, "%s/fracture", dir);
     int64_t t0 = fnclock_now_us();
     fcase *c = fracture_make_case(seg->ct, &fp, casedir);
     if (!c)
         return -1;
-    printf("3. synthetic fracture (seed %llu) in %.1f s, saved in %s:\n", (unsigned long long)fp.seed,
+    printf("2. synthetic fracture (seed %llu) in %.1f s, saved in %s:\n", (unsigned long long)fp.seed,
            (double)(fnclock_now_us() - t0) * 1e-6, casedir);
     for (int i = 0; i < c->nfrag; i++) {
         const frag *f = &c->frag[i];
         pose t = c->truth[i];
-        printf("   fragment %d: %zu voxels%s; ground truth moves its centroid back %.2f mm and turns it "
-               "%.2f deg\n", f->id, f->voxels, i == c->fixed ? " (fixed)" : "",
-               fracture_truth_shift(&t, f->centroid), pose_angle_between(t, POSE_IDENTITY) * 57.29577951308232);
+        printf("   fragment %d: %zu voxels%s; its true place is %.2f mm and %.2f deg away\n", f->id, f->voxels,
+               i == c->fixed ? " (fixed)" : "", fracture_truth_shift(&t, f->centroid),
+               pose_angle_between(t, POSE_IDENTITY) * 57.29577951308232);
     }
-    uint8_t rgb[3][3] = {{0, 0, 0}};
-    for (int i = 0; i < c->nfrag && c->frag[i].id < 3; i++)
-        memcpy(rgb[c->frag[i].id], c->frag[i].rgb, 3);
-    snprintf(png, sizeof png, "%s/fracture-right.png", dir);
-    int rc = snap_labels_png(c->labels, c->ct, (const uint8_t(*)[3])rgb, 3, 0, 0, png);
+    snprintf(png, sizeof png, "%s/fracture-anterior.png", dir);
+    int rc = picture(c, RENDER_ANTERIOR, png);
     if (rc == 0)
         printf("   picture: %s\n", png);
     case_free(c);
     return rc;
 }
 
-/* Step 4: a scripted session on the virtual SpaceNavigator, replayed through the loop. */
-static const char head_on[] = "wait 100 ms\n"
-                              "translate -x 30 mm over 1.5 s\n"
-                              "wait 200 ms\n"
-                              "translate +x 5 mm over 0.5 s\n";
-
-static int session(const char *dir)
+/* Waits (bounded) for a file to appear; 1 when it did. */
+static int wait_file(const char *path, pid_t server)
 {
-    char rec[4200], casedir[4200];
-    snprintf(rec, sizeof rec, "%s/head-on.fnrec", dir);
+    for (int i = 0; i < 2000; i++) { /* 20 s at most: FUSE mounts in milliseconds */
+        struct stat st;
+        if (stat(path, &st) == 0)
+            return 1;
+        if (waitpid(server, NULL, WNOHANG) == server)
+            return 0;
+        usleep(10000);
+    }
+    return 0;
+}
+
+/* Navigate's journal as it grows (it is emptied when navigate saves at its end): the accepted
+ * poses of the session, for the frames. */
+typedef struct journal_watch {
+    char path[PATH_MAX + 16];
+    journal_scan best;
+} journal_watch;
+
+static void watch_journal(void *ctx)
+{
+    journal_watch *w = ctx;
+    size_t len = 0, cap = 0;
+    uint8_t *buf = NULL;
+    FILE *fp = fopen(w->path, "rb");
+    if (!fp)
+        return;
+    for (;;) {
+        if (len == cap) {
+            uint8_t *b = realloc(buf, cap = cap ? cap * 2 : 1 << 16);
+            if (!b)
+                break;
+            buf = b;
+        }
+        size_t got = fread(buf + len, 1, cap - len, fp);
+        if (!got)
+            break;
+        len += got;
+    }
+    fclose(fp);
+    journal_scan s;
+    if (buf && journal_parse(buf, len, w->path, &s) == 0) {
+        if (s.n > w->best.n) {
+            journal_scan_free(&w->best);
+            w->best = s;
+        } else {
+            journal_scan_free(&s);
+        }
+    }
+    free(buf);
+}
+
+/* Frames of the navigation, drawn headless from the poses navigate journalled: nframes pictures
+ * evenly over the session's report time. c: the case as it was before navigation. */
+static int frames(const fcase *c, const journal_scan *j, const char *dir, int nframes)
+{
+    if (j->n == 0 || c->nfrag > RENDER_MAX_FRAGS)
+        return 0;
+    char fdir[PATH_MAX], path[PATH_MAX + 32];
+    snprintf(fdir, sizeof fdir, "%s/frames", dir);
+    if (mkdir(fdir, 0777) != 0 && errno != EEXIST)
+        return fn_err_set(FN_EIO, "%s: %s", fdir, strerror(errno));
+    const int w = 384, h = 384;
+    pose *p = malloc((size_t)c->nfrag * sizeof *p);
+    uint8_t *rgb = malloc((size_t)w * h * 3);
+    render *r = p && rgb ? render_open("osmesa", w, h) : NULL;
+    int rc = !p || !rgb ? fn_err_set(FN_ENOMEM, "out of memory for the frames") : r ? 0 : FN_ENODEV;
+    if (!rc)
+        rc = render_set_scene(r, c->ct, c->frag, c->nfrag, c->seg.threshold, NULL);
+    render_options o;
+    render_options_default(&o, c->frag, c->nfrag);
+    render_camera_standard(&o.camera, RENDER_RIGHT, c->frag, c->nfrag);
+    for (int i = 0; i < c->nfrag && !rc; i++)
+        p[i] = c->frag[i].pose;
+    int64_t t0 = j->recs[0].t_us, t1 = j->recs[j->n - 1].t_us;
+    size_t next = 0;
+    for (int f = 0; f < nframes && !rc; f++) {
+        int64_t t = t0 + (nframes > 1 ? (t1 - t0) * f / (nframes - 1) : 0);
+        for (; next < j->n && j->recs[next].t_us <= t; next++)
+            if (j->recs[next].frag >= 0 && j->recs[next].frag < c->nfrag)
+                p[j->recs[next].frag] = j->recs[next].p;
+        snprintf(path, sizeof path, "%s/navigation-%02d.png", fdir, f);
+        rc = render_frame(r, p, &o);
+        if (!rc)
+            rc = render_read_rgb(r, rgb);
+        if (!rc)
+            rc = snap_write_png(path, rgb, w, h);
+    }
+    if (!rc)
+        printf("   frames (headless, from the poses navigate journalled): %s/navigation-00.png .. -%02d.png\n", fdir,
+               nframes - 1);
+    render_close(r);
+    free(p);
+    free(rgb);
+    return rc;
+}
+
+/* Step 3: the shipped recording through the virtual device and navigate. The navigate summary. */
+static json_t *navigate(char *exe, const char *bindir, const char *dir, char *rec, int no_fuse)
+{
+    char casedir[PATH_MAX], mnt[PATH_MAX], node[PATH_MAX + 16], sim[PATH_MAX + 32], dur[32], dev[PATH_MAX + 128];
     snprintf(casedir, sizeof casedir, "%s/fracture", dir);
-    script *s = NULL;
-    int rc = script_parse(head_on, sizeof head_on - 1, "demo script", &s);
-    if (rc < 0)
-        return rc;
-    fnrec *r = script_render(s, sim_profile_find("spacenavigator"));
-    free(s);
-    if (!r)
-        return -1;
-    rc = fnrec_save(r, rec);
+    fnrec *r = fnrec_load(rec);
+    if (!r) {
+        fn_err_wrap(FN_EIO, "the demo's recording");
+        return NULL;
+    }
+    double seconds = r->n ? (double)r->ev[r->n - 1].t_us * 1e-6 : 0;
     fnrec_free(r);
-    if (rc < 0)
-        return rc;
-    printf("4. a scripted session on the virtual SpaceNavigator (%s), replayed on the fracture:\n   ", rec);
+    snprintf(dur, sizeof dur, "%.1f", seconds + 1.0);
+    pid_t server = -1;
+    const char *how = NULL;
+    if (!no_fuse) {
+        snprintf(sim, sizeof sim, "%s/sim/fracnav-sim", bindir);
+        if (!is_file(sim))
+            snprintf(sim, sizeof sim, "%s/fracnav-sim", bindir);
+        snprintf(mnt, sizeof mnt, "%s/device", dir);
+        snprintf(node, sizeof node, "%s/hidraw0", mnt);
+        mkdir(mnt, 0777);
+        char log[PATH_MAX];
+        snprintf(log, sizeof log, "%s/fracnav-sim.log", dir);
+        char *argv[] = {sim, "serve", "--mount", mnt, "--play", rec, "--start-on-read", NULL};
+        if (is_file(sim) && (server = spawn(argv, NULL, log)) > 0 && wait_file(node, server)) {
+            snprintf(dev, sizeof dev, "%s", node);
+            how = "served by fracnav-sim through FUSE, read by the hidraw driver";
+        } else {
+            if (server > 0) {
+                kill(server, SIGTERM);
+                wait_status(server);
+                server = -1;
+            }
+            printf("   (no FUSE here: see %s; the recording plays in-process instead)\n", log);
+        }
+    }
+    if (!how) {
+        snprintf(dev, sizeof dev, "replay-realtime:%s", rec);
+        how = "played in-process at its own pace (replay-realtime)";
+    }
+    printf("3. navigation: the recording %s (%.1f s), %s:\n", rec, seconds, how);
     fflush(stdout);
-    char *args[] = {"replay", casedir, rec, "--no-journal", NULL};
-    return cmd_replay(4, args) == 0 ? 0 : fn_err_set(FN_EINVAL, "the replay failed");
+    fcase *before = case_load(casedir); /* the poses the frames start from */
+    journal_watch w;
+    memset(&w, 0, sizeof w);
+    snprintf(w.path, sizeof w.path, "%s/journal", casedir);
+    char *args[] = {"navigate", casedir, "--device", dev, "--discard-journal", "--duration", dur, NULL};
+    json_t *j = before ? fracnav_json(exe, dir, "navigate", args, 1, watch_journal, &w) : NULL;
+    if (server > 0) {
+        kill(server, SIGTERM);
+        wait_status(server);
+    }
+    if (j && frames(before, &w.best, dir, 8) < 0) {
+        json_decref(j);
+        j = NULL;
+    }
+    journal_scan_free(&w.best);
+    case_free(before);
+    return j;
 }
 
 int cmd_demo(int argc, char **argv)
 {
     const char *ct_path = NULL, *dir = "fracnav-demo";
+    char *rec = NULL;
     cmd_tau tau = {0};
-    int rc;
+    int rc, no_fuse = 0;
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "-h") || !strcmp(argv[i], "--help")) {
             usage(stdout);
             return 0;
         } else if (!strcmp(argv[i], "-o") && i + 1 < argc) {
             dir = argv[++i];
+        } else if (!strcmp(argv[i], "--recording") && i + 1 < argc) {
+            rec = argv[++i];
+        } else if (!strcmp(argv[i], "--no-fuse")) {
+            no_fuse = 1;
         } else if (cmd_tau_option("demo", argv[i], i + 1 < argc ? argv[i + 1] : NULL, &tau, &rc)) {
             if (rc)
                 return rc;
@@ -205,6 +481,17 @@ int cmd_demo(int argc, char **argv)
     }
     if ((rc = cmd_tau_check("demo", &tau)) != 0)
         return rc;
+    char exe[PATH_MAX], bindir[PATH_MAX / 2];
+    if (self_path(exe, sizeof exe, bindir, sizeof bindir) != 0) {
+        fprintf(stderr, "fracnav demo: cannot find this program (/proc/self/exe): %s\n", strerror(errno));
+        return 1;
+    }
+    if (!rec && !(rec = find_recording(bindir))) {
+        fprintf(stderr, "fracnav demo: the shipped recording " RECORDING " is missing (looked in "
+                        "$FRACNAV_SRC/sim/recordings, %s/sim/recordings and %s/../share/fracnav/recordings); "
+                        "give one with --recording\n", FRACNAV_SOURCE_DIR, bindir);
+        return 1;
+    }
     int example = !ct_path; /* only the example CT comes from .ci/setup */
     if (example)
         ct_path = cmd_example_ct();
@@ -225,18 +512,68 @@ int cmd_demo(int argc, char **argv)
     fcase *c = segment(ct_path, ct, dir, &tau);
     if (!c)
         return fail("segmentation");
-    rc = pictures(c, dir);
-    if (rc < 0) {
-        case_free(c);
-        return fail("pictures");
-    }
     rc = fracture(c, dir, &tau);
     case_free(c);
     if (rc < 0)
         return fail("fracture");
-    if (session(dir) < 0)
-        return fail("session");
-    printf("\nNext: steer it yourself with `fracnav navigate %s/fracture` (a 3D mouse, or --device "
-           "keyboard).\n", dir);
+
+    json_t *nav = navigate(exe, bindir, dir, rec, no_fuse);
+    if (!nav)
+        return fail("navigation");
+    printf("   %lld steps: %lld accepted, %lld limited, %lld slid, %lld refused; collisions in accepted poses: "
+           "%lld; loop %.0f Hz, collision query mean %.2f us (max %.1f us), latency p99 %.0f us\n",
+           json_integer_value(json_object_get(nav, "steps")), json_integer_value(json_object_get(nav, "accepted")),
+           json_integer_value(json_object_get(nav, "limited")), json_integer_value(json_object_get(nav, "slid")),
+           json_integer_value(json_object_get(nav, "refused")),
+           json_integer_value(json_object_get(nav, "collisions_in_accepted")), num(nav, "loop_hz"),
+           num(nav, "query_mean_us"), num(nav, "query_max_us"), num(nav, "latency_p99_us"));
+
+    char casedir[PATH_MAX], exdir[PATH_MAX];
+    snprintf(casedir, sizeof casedir, "%s/fracture", dir);
+    snprintf(exdir, sizeof exdir, "%s/export", dir);
+    printf("4. automatic reduction (fracnav reduce):\n");
+    char *rargs[] = {"reduce", casedir, NULL};
+    json_t *red = fracnav_json(exe, dir, "reduce", rargs, 0, NULL, NULL);
+    if (!red) {
+        json_decref(nav);
+        return fail("reduction");
+    }
+    json_t *fr = json_array_get(json_object_get(red, "fragments"), 0);
+    printf("   fragment %lld: %lld evaluations in %.2f s; error against the truth: %.2f deg, %.2f mm "
+           "(TRE %.2f mm)\n",
+           json_integer_value(json_object_get(fr, "id")), json_integer_value(json_object_get(fr, "evaluations")),
+           num(red, "seconds"), num(fr, "rot_err_deg"), num(fr, "trans_err_mm"), num(fr, "tre_mm"));
+
+    printf("5. export (fracnav export --all %s):\n", exdir);
+    char *eargs[] = {"export", casedir, "--all", exdir, "--smooth", "10", "--decimate", "200000", NULL};
+    json_t *ex = fracnav_json(exe, dir, "export", eargs, 0, NULL, NULL);
+    if (!ex) {
+        json_decref(nav);
+        json_decref(red);
+        return fail("export");
+    }
+    printf("   %lld files, %.1f MB\n", json_integer_value(json_object_get(ex, "files_written")),
+           (double)json_integer_value(json_object_get(ex, "written_total_bytes")) / 1e6);
+
+    double total = (double)(fnclock_now_us() - t0) * 1e-6;
+    printf("\n6. results in %s:\n"
+           "   the report:        %s/report/index.html\n"
+           "   3D Slicer:         %s/planned.seg.nrrd, %s/transforms/fragment-ID.tfm\n"
+           "   labelmap:          %s/planned.nii.gz\n"
+           "   models (printing): %s/models/fragment-ID.stl\n"
+           "   cases:             %s/case (segmented), %s (fractured, navigated, reduced)\n"
+           "figures measured (on this machine, noisy when it is shared):\n"
+           "   collision query:   mean %.2f us, max %.1f us\n"
+           "   loop rate:         %.0f Hz (paced by the device's reports; latency p99 %.0f us)\n"
+           "   reduction:         %.2f s; error %.2f deg, %.2f mm, TRE %.2f mm\n"
+           "   whole demo:        %.1f s\n",
+           dir, exdir, exdir, exdir, exdir, exdir, dir, casedir, num(nav, "query_mean_us"), num(nav, "query_max_us"),
+           num(nav, "loop_hz"), num(nav, "latency_p99_us"), num(red, "seconds"), num(fr, "rot_err_deg"),
+           num(fr, "trans_err_mm"), num(fr, "tre_mm"), total);
+    printf("\nNext: open the report in a browser, or steer it yourself with `fracnav navigate %s` (a 3D "
+           "mouse, or --device keyboard).\n", casedir);
+    json_decref(nav);
+    json_decref(red);
+    json_decref(ex);
     return 0;
 }

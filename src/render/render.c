@@ -278,7 +278,7 @@ static int upload_mesh(render *r, render_frag *rf, const float *vals)
     int s = (int)ceil(cbrt(voxels / (1 << 19)));
     const int stride[3] = {s < 1 ? 1 : s, s < 1 ? 1 : s, s < 1 ? 1 : s};
     float *tri = NULL;
-    long n = render__mesh_build(vals, rf->dim, rf->spacing, (float)r->iso_hu, stride, &tri);
+    long n = mesh_build(vals, rf->dim, rf->spacing, (float)r->iso_hu, stride, &tri);
     if (n < 0)
         return (int)n;
     rf->mesh_triangles = n;

@@ -2,6 +2,7 @@
 #ifndef FN_RENDER_IMPL_H
 #define FN_RENDER_IMPL_H
 
+#include "mesh.h"
 #include "render.h"
 
 #include <GL/glcorearb.h>
@@ -94,11 +95,5 @@ struct render {
 /* GLSL sources (render_shader.c). */
 extern const char *const render__ray_fs, *const render__quad_vs, *const render__slice_fs,
     *const render__mesh_vs, *const render__mesh_fs, *const render__line_vs, *const render__line_fs;
-
-/* Marching tetrahedra over a masked scalar grid (render_mesh.c): vals is dim[0]*dim[1]*dim[2]
- * (i fastest), spacing in mm; every stride[a] voxels along axis a. Triangles as 6 floats per
- * vertex (position local mm, normal), malloc'd into *out; returns the triangle count or FN_ENOMEM. */
-long render__mesh_build(const float *vals, const int dim[3], const double spacing[3], float level,
-                        const int stride[3], float **out);
 
 #endif

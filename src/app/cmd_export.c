@@ -1,0 +1,248 @@
+/* fracnav export: a case's plan for other tools (ITK/3D Slicer transforms, segmentations, NIfTI,
+ * STL models for printing) and an HTML report. */
+#include "cmd.h"
+
+#include "case.h"
+#include "err.h"
+#include "export.h"
+#include "jsonw.h"
+#include "report.h"
+
+#include <errno.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+
+static void usage(FILE *out)
+{
+    fprintf(out,
+            "usage: fracnav export CASE [--tfm DIR] [--seg-nrrd FILE] [--nifti FILE] [--stl DIR]\n"
+            "                      [--ras] [--smooth N] [--decimate TRIANGLES] [--report DIR]\n"
+            "                      [--all DIR] [--platform osmesa|glfw] [--json]\n\n"
+            "Writes the case's plan (every fragment at its current, planned pose) for other tools.\n"
+            "Every file is written atomically (a temporary file, synced, then renamed). Coordinates\n"
+            "are LPS mm unless said otherwise.\n\n"
+            "  --tfm DIR          one ITK transform per fragment, DIR/fragment-ID.tfm\n"
+            "                     (AffineTransform_double_3_3), in ITK's resampling direction: it maps\n"
+            "                     a planned point back to where the fragment was segmented. In 3D Slicer,\n"
+            "                     load it and put the fragment's model or segment under it: it moves to\n"
+            "                     its planned place\n"
+            "  --seg-nrrd FILE    a 3D Slicer segmentation (.seg.nrrd) of the planned configuration:\n"
+            "                     the fragments' names, colours and label values\n"
+            "  --nifti FILE       the planned labelmap (.nii or .nii.gz, uint16 labels) on the source\n"
+            "                     grid\n"
+            "  --stl DIR          one binary STL per fragment at its planned pose, DIR/fragment-ID.stl:\n"
+            "                     a closed surface, mm\n"
+            "  --ras              STL coordinates in RAS (x and y negated) instead of LPS\n"
+            "  --smooth N         N Taubin smoothing iterations of the STL surfaces (default 0)\n"
+            "  --decimate T       at most T triangles per STL surface (edge collapses; default: all)\n"
+            "  --report DIR       DIR/index.html: renders before and after the reduction, the\n"
+            "                     optimizer's convergence plot, and per fragment the move, contact\n"
+            "                     area, gap and overlap volumes, and errors against any ground truth\n"
+            "  --all DIR          all of them: DIR/transforms, DIR/planned.seg.nrrd,\n"
+            "                     DIR/planned.nii.gz, DIR/models, DIR/report\n"
+            "  --platform P       the report's renderer: osmesa (default) or glfw\n"
+            "  --json             one JSON object: the files written and their sizes\n"
+            "  --help             this text\n");
+}
+
+typedef struct export_args {
+    const char *dir, *tfm, *seg, *nifti, *stl, *report, *all, *platform;
+    export_stl_opts stl_o;
+    int json;
+} export_args;
+
+typedef struct written {
+    json_t *files;
+    long n;
+    long long bytes;
+    int json;
+} written;
+
+static void wrote(void *ctx, const char *path)
+{
+    written *w = ctx;
+    struct stat st;
+    long long size = stat(path, &st) == 0 ? (long long)st.st_size : 0;
+    w->n++;
+    w->bytes += size;
+    if (w->files) {
+        json_t *o = json_object();
+        jsonw_set(o, "path", jsonw_string(path));
+        jsonw_set(o, "size_bytes", json_integer(size));
+        json_array_append_new(w->files, o);
+    }
+    if (!w->json)
+        printf("  %s (%lld bytes)\n", path, size);
+}
+
+static int parse_count(const char *s, long lo, long hi, long *out)
+{
+    double d;
+    if (!cmd_number(s, &d) || d != (long)d || d < (double)lo || d > (double)hi)
+        return 0;
+    *out = (long)d;
+    return 1;
+}
+
+static int parse_args(int argc, char **argv, export_args *a)
+{
+    for (int i = 1; i < argc; i++) {
+        const char *opt = argv[i], *val = i + 1 < argc ? argv[i + 1] : NULL;
+        const char **slot = !strcmp(opt, "--tfm")        ? &a->tfm
+                            : !strcmp(opt, "--seg-nrrd") ? &a->seg
+                            : !strcmp(opt, "--nifti")    ? &a->nifti
+                            : !strcmp(opt, "--stl")      ? &a->stl
+                            : !strcmp(opt, "--report")   ? &a->report
+                            : !strcmp(opt, "--all")      ? &a->all
+                                                         : NULL;
+        long n;
+        if (slot) {
+            if (!val || !*val)
+                return cmd_bad_value("export", opt, NULL, opt[2] == 's' && opt[3] == 'e' ? "a file" : "a folder");
+            *slot = val;
+            i++;
+        } else if (!strcmp(opt, "--ras")) {
+            a->stl_o.ras = 1;
+        } else if (!strcmp(opt, "--json")) {
+            a->json = 1;
+        } else if (!strcmp(opt, "--smooth")) {
+            if (!parse_count(val, 0, 1000, &n))
+                return cmd_bad_value("export", opt, val, "a whole number of iterations, 0 to 1000");
+            a->stl_o.smooth = (int)n;
+            i++;
+        } else if (!strcmp(opt, "--decimate")) {
+            if (!parse_count(val, 4, 1000000000, &n))
+                return cmd_bad_value("export", opt, val, "a whole number of triangles, at least 4");
+            a->stl_o.decimate = n;
+            i++;
+        } else if (!strcmp(opt, "--platform")) {
+            if (!val || (strcmp(val, "osmesa") && strcmp(val, "glfw")))
+                return cmd_bad_value("export", opt, val, "osmesa or glfw");
+            a->platform = val;
+            i++;
+        } else if (opt[0] == '-') {
+            return cmd_usage_error("export", "unknown option '%s'", opt);
+        } else {
+            if (a->dir)
+                return cmd_usage_error("export", "one CASE only ('%s' and '%s' given)", a->dir, opt);
+            a->dir = opt;
+        }
+    }
+    if (!a->dir)
+        return cmd_usage_error("export", "CASE is missing");
+    if (!a->tfm && !a->seg && !a->nifti && !a->stl && !a->report && !a->all)
+        return cmd_usage_error("export", "nothing to export: give --tfm, --seg-nrrd, --nifti, --stl, --report "
+                                         "or --all");
+    return 0;
+}
+
+static int make_dir(const char *dir)
+{
+    if (mkdir(dir, 0777) != 0 && errno != EEXIST)
+        return fn_err_set(FN_EIO, "%s: cannot create the folder: %s", dir, strerror(errno));
+    struct stat st;
+    if (stat(dir, &st) != 0 || !S_ISDIR(st.st_mode))
+        return fn_err_set(FN_EIO, "%s: not a folder", dir);
+    return 0;
+}
+
+static int run(const fcase *c, const export_args *a, written *w)
+{
+    char buf[5][4200];
+    const char *tfm = a->tfm, *seg = a->seg, *nifti = a->nifti, *stl = a->stl, *report = a->report;
+    int rc = 0;
+    if (a->all) {
+        if ((rc = make_dir(a->all)) != 0)
+            return rc;
+        snprintf(buf[0], sizeof buf[0], "%s/transforms", a->all);
+        snprintf(buf[1], sizeof buf[1], "%s/planned.seg.nrrd", a->all);
+        snprintf(buf[2], sizeof buf[2], "%s/planned.nii.gz", a->all);
+        snprintf(buf[3], sizeof buf[3], "%s/models", a->all);
+        snprintf(buf[4], sizeof buf[4], "%s/report", a->all);
+        tfm = tfm ? tfm : buf[0];
+        seg = seg ? seg : buf[1];
+        nifti = nifti ? nifti : buf[2];
+        stl = stl ? stl : buf[3];
+        report = report ? report : buf[4];
+    }
+    char path[4300];
+    if (tfm) {
+        rc = make_dir(tfm);
+        for (int i = 0; i < c->nfrag && !rc; i++) {
+            snprintf(path, sizeof path, "%s/fragment-%d.tfm", tfm, c->frag[i].id);
+            if ((rc = export_tfm(c, i, path)) == 0)
+                wrote(w, path);
+        }
+    }
+    if (!rc && stl) {
+        rc = make_dir(stl);
+        for (int i = 0; i < c->nfrag && !rc; i++) {
+            snprintf(path, sizeof path, "%s/fragment-%d.stl", stl, c->frag[i].id);
+            long nt = 0;
+            if ((rc = export_stl(c, i, &a->stl_o, path, &nt)) == 0)
+                wrote(w, path);
+        }
+    }
+    if (rc || (!seg && !nifti && !report))
+        return rc;
+    double *overlap = calloc((size_t)(c->nfrag ? c->nfrag : 1), sizeof *overlap);
+    vol *planned = overlap ? export_planned_labels(c, overlap) : NULL;
+    if (!planned) {
+        free(overlap);
+        return overlap ? -1 : fn_err_set(FN_ENOMEM, "out of memory");
+    }
+    if (seg && (rc = export_seg_nrrd(c, planned, seg)) == 0)
+        wrote(w, seg);
+    if (!rc && nifti && (rc = export_nifti(planned, nifti)) == 0)
+        wrote(w, nifti);
+    if (!rc && report)
+        rc = report_write(c, planned, overlap, report, a->platform, wrote, w);
+    vol_free(planned);
+    free(overlap);
+    return rc;
+}
+
+int cmd_export(int argc, char **argv)
+{
+    if (cmd_wants_help(argc, argv)) {
+        usage(stdout);
+        return 0;
+    }
+    export_args a = {0};
+    int rc = parse_args(argc, argv, &a);
+    if (rc)
+        return rc;
+    fcase *c = case_load(a.dir);
+    if (!c) {
+        fprintf(stderr, "fracnav export: %s\n", fn_err_msg());
+        return 1;
+    }
+    written w = {a.json ? json_array() : NULL, 0, 0, a.json};
+    if (!a.json)
+        printf("fracnav export: %s (%d fragments)\n", a.dir, c->nfrag);
+    rc = run(c, &a, &w);
+    if (rc) {
+        fprintf(stderr, "fracnav export: %s\n", fn_err_msg());
+        json_decref(w.files);
+        case_free(c);
+        return 1;
+    }
+    if (a.json) {
+        json_t *o = jsonw_object("export");
+        if (o) {
+            jsonw_set(o, "case", jsonw_string(a.dir));
+            jsonw_set(o, "files", w.files);
+            jsonw_set(o, "files_written", json_integer(w.n));
+            jsonw_set(o, "written_total_bytes", json_integer(w.bytes));
+        } else {
+            json_decref(w.files);
+        }
+        rc = jsonw_print(o, stdout) ? 1 : 0;
+    } else {
+        printf("%ld files, %lld bytes\n", w.n, w.bytes);
+    }
+    case_free(c);
+    return rc;
+}

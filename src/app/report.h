@@ -1,0 +1,27 @@
+/* report: an HTML page of a case's plan, for any browser: renders before and after the
+ * reduction (the renderer, offscreen), the optimizer's convergence plot (PLplot's pngcairo device),
+ * and per fragment the move, the contact area, the remaining gap and overlap volumes, and the
+ * errors against the ground truth when the case has one.
+ *
+ * "Before" is each fragment's pose before the case's last automatic reduction (the "reduction"
+ * record of case.json: "placed"); without a record, its home position (as segmented). "After" is
+ * its current pose. The convergence plot needs the record's "history" values: without them the
+ * page says there is no plot. Where the renderer cannot open (no GL 4.5: FN_ENODEV) the page says
+ * so instead of showing renders, and a warning goes to stderr. Every file (index.html, before-*.png, after-*.png, convergence.png)
+ * is written atomically into dir (created when missing).
+ *
+ * Threads: the caller's thread only (GL context, PLplot's global state). Errors: 0 or FN_E* with
+ * the file named. */
+#ifndef FN_REPORT_H
+#define FN_REPORT_H
+
+#include "case.h"
+
+typedef void (*report_wrote_fn)(void *ctx, const char *path);
+
+/* planned: export_planned_labels(c, overlap_ml). platform: render_open's (NULL: osmesa). wrote,
+ * when given, is called with each file's path once it is in place. */
+int report_write(const fcase *c, const vol *planned, const double *overlap_ml, const char *dir,
+                 const char *platform, report_wrote_fn wrote, void *ctx);
+
+#endif

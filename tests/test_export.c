@@ -1,0 +1,447 @@
+/* fracnav export (issue 16): every export read back by an independent reader, not our writers'
+ * code: tests/export_read.py (its own ITK transform, NRRD and STL parsers, nibabel for NIfTI),
+ * admesh for the STL models, and headless Chromium for the report's page. On a small synthetic
+ * fracture (a tube broken in two by `fracnav fracture`, reduced by `fracnav reduce`). Outside CI a
+ * missing reader skips its test and says so; under CI (.ci/setup installs them) it fails. */
+#include <stdarg.h>
+#include <stddef.h>
+#include <setjmp.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include "case.h"
+#include "testutil.h"
+#include "vol.h"
+#include "volio.h"
+
+#include <jansson.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+static char *dir;
+static char frac[4200], out[4200], reader[4200];
+static const char *python = "/usr/bin/python3"; /* Debian's, with python3-numpy and python3-nibabel */
+
+static int under_ci(void)
+{
+    return getenv("CI") && *getenv("CI");
+}
+
+/* A reader that is missing: a failure under CI, a visible skip elsewhere. */
+static int missing(const char *what, const char *package)
+{
+    if (under_ci())
+        fail_msg("%s is missing (Debian package %s; .ci/setup installs it)", what, package);
+    fprintf(stderr, "[  SKIP    ] %s is missing (Debian package %s; run .ci/setup): skipped\n", what, package);
+    skip();
+    return 1;
+}
+
+static int have_python(const char *modules)
+{
+    char cmd[512];
+    snprintf(cmd, sizeof cmd, "%s -c 'import %s' 2>/dev/null", python, modules);
+    return access(python, X_OK) == 0 && system(cmd) == 0;
+}
+
+/* Runs a shell command, its stdout parsed as one JSON object (NULL: failed). */
+static json_t *run_json(const char *fmt, ...)
+{
+    char cmd[16384];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(cmd, sizeof cmd, fmt, ap);
+    va_end(ap);
+    FILE *p = popen(cmd, "r");
+    assert_non_null(p);
+    size_t cap = 1 << 16, n = 0, got;
+    char *buf = malloc(cap);
+    while ((got = fread(buf + n, 1, cap - n - 1, p)) > 0) {
+        n += got;
+        if (cap - n < 2)
+            buf = realloc(buf, cap *= 2);
+    }
+    buf[n] = 0;
+    int st = pclose(p);
+    json_error_t e;
+    json_t *j = st == 0 ? json_loads(buf, 0, &e) : NULL;
+    if (!j)
+        fprintf(stderr, "%s\n-> exit %d, output:\n%s\n", cmd, st, buf);
+    free(buf);
+    return j;
+}
+
+static json_t *read_back(const char *kind, const char *path, const char *more)
+{
+    return run_json("'%s' '%s' %s '%s' %s", python, reader, kind, path, more ? more : "");
+}
+
+static int tube_wall(int i, int j, int k)
+{
+    double r = hypot(i - 19.5, j - 19.5);
+    return k > 2 && k < 45 && r > 8 && r < 15;
+}
+
+static int setup(void **st)
+{
+    (void)st;
+    dir = tu_tmpdir("export");
+    char tube[4200];
+    snprintf(tube, sizeof tube, "%s/tube.nii.gz", dir);
+    snprintf(frac, sizeof frac, "%s/frac", dir);
+    snprintf(out, sizeof out, "%s/out", dir);
+    const char *src = getenv("FRACNAV_SRC");
+    snprintf(reader, sizeof reader, "%s/tests/export_read.py", src && *src ? src : FRACNAV_TEST_DATA "/../..");
+    vol *v = vol_new(40, 40, 48);
+    assert_non_null(v);
+    for (int k = 0; k < 48; k++)
+        for (int j = 0; j < 40; j++)
+            for (int i = 0; i < 40; i++)
+                v->data[vol_idx(v, i, j, k)] = tube_wall(i, j, k) ? 1200.f : -1000.f;
+    assert_int_equal(volio_write(v, tube, VOL_I16), 0);
+    vol_free(v);
+    char *o = NULL;
+    int rc = tu_run_cli(&o, "fracture '%s' -o '%s' --seed 1", tube, frac);
+    if (rc == 0) {
+        free(o);
+        rc = tu_run_cli(&o, "reduce '%s'", frac);
+    }
+    if (rc != 0)
+        fprintf(stderr, "%s\n", o);
+    free(o);
+    assert_int_equal(rc, 0);
+    return 0;
+}
+
+static int teardown(void **st)
+{
+    (void)st;
+    tu_rmtree(dir);
+    free(dir);
+    return 0;
+}
+
+static long file_size(const char *path)
+{
+    struct stat s;
+    return stat(path, &s) == 0 ? (long)s.st_size : -1;
+}
+
+/* --all --json: the files named, with their sizes, and no temporary file left. */
+static void test_all_json(void **st)
+{
+    (void)st;
+    const char *bin = getenv("FRACNAV_BIN");
+    json_t *j = run_json("'%s' export '%s' --all '%s' --json 2>/dev/null", bin, frac, out);
+    assert_non_null(j);
+    assert_string_equal(json_string_value(json_object_get(j, "command")), "export");
+    json_t *files = json_object_get(j, "files"), *f;
+    size_t i;
+    long total = 0;
+    assert_int_equal(json_array_size(files), 2 + 2 + 1 + 1 + 6); /* tfm, stl, seg, nii, report */
+    json_array_foreach(files, i, f) {
+        const char *path = json_string_value(json_object_get(f, "path"));
+        long size = (long)json_integer_value(json_object_get(f, "size_bytes"));
+        assert_true(size > 0);
+        assert_int_equal(file_size(path), size);
+        total += size;
+    }
+    assert_int_equal(json_integer_value(json_object_get(j, "written_total_bytes")), total);
+    assert_int_equal(json_integer_value(json_object_get(j, "files_written")), (json_int_t)json_array_size(files));
+    json_decref(j);
+    char *ls = NULL;
+    assert_int_equal(tu_run_cli(&ls, "--version && find '%s' -name '.fracnav-tmp*'", out), 0);
+    assert_null(strstr(ls, ".fracnav-tmp"));
+    free(ls);
+}
+
+/* The ITK transform, parsed and applied by the reader, maps each fragment's planned points back
+ * to home, as the inverse of the case's pose does (ITK's resampling direction). */
+static void test_tfm_maps_as_the_pose(void **st)
+{
+    (void)st;
+    if (access(python, X_OK) != 0 && missing("python3", "python3"))
+        return;
+    fcase *c = case_load(frac);
+    assert_non_null(c);
+    int moved = 0;
+    for (int i = 0; i < c->nfrag; i++) {
+        const frag *f = &c->frag[i];
+        moved += pose_distance(f->pose, POSE_IDENTITY) > 0.1;
+        double home[4][3], planned[4][3];
+        char args[2048] = "", path[4300];
+        for (int p = 0; p < 4; p++) {
+            for (int a = 0; a < 3; a++)
+                home[p][a] = f->centroid[a] + (p == a + 1 ? 15.0 : 0.0);
+            pose_apply(&f->pose, home[p], planned[p]);
+            size_t n = strlen(args);
+            snprintf(args + n, sizeof args - n, " %.17g,%.17g,%.17g", planned[p][0], planned[p][1], planned[p][2]);
+        }
+        snprintf(path, sizeof path, "%s/transforms/fragment-%d.tfm", out, f->id);
+        json_t *j = read_back("tfm", path, args);
+        assert_non_null(j);
+        assert_int_equal(json_integer_value(json_object_get(j, "parameters")), 12);
+        assert_int_equal(json_integer_value(json_object_get(j, "fixed_parameters")), 3);
+        for (int p = 0; p < 4; p++)
+            for (int a = 0; a < 3; a++) {
+                double got = json_number_value(json_array_get(json_array_get(json_object_get(j, "points"), (size_t)p), (size_t)a));
+                assert_true(fabs(got - home[p][a]) < 1e-6);
+            }
+        json_decref(j);
+    }
+    assert_true(moved >= 1); /* the reduction moved a fragment: the check is not the identity's */
+    case_free(c);
+}
+
+/* NIfTI (nibabel) and .seg.nrrd (the reader's NRRD parser): the planned labelmap on the source
+ * grid, the same voxels in both, Slicer's segment fields, each fragment about its volume. */
+static void test_nifti_and_seg_nrrd(void **st)
+{
+    (void)st;
+    if (!have_python("numpy, nibabel") && missing("python3 with numpy and nibabel", "python3-numpy python3-nibabel"))
+        return;
+    fcase *c = case_load(frac);
+    assert_non_null(c);
+    char nii[4300], seg[4300];
+    snprintf(nii, sizeof nii, "%s/planned.nii.gz", out);
+    snprintf(seg, sizeof seg, "%s/planned.seg.nrrd", out);
+    json_t *n = read_back("nifti", nii, NULL);
+    assert_non_null(n);
+    for (int a = 0; a < 3; a++)
+        assert_int_equal(json_integer_value(json_array_get(json_object_get(n, "shape"), (size_t)a)), c->labels->dim[a]);
+    /* RAS in the file: LPS with x and y negated. */
+    json_t *aff = json_object_get(n, "affine");
+    for (int r = 0; r < 3; r++)
+        for (int k = 0; k < 4; k++) {
+            double want = (r < 2 ? -1 : 1) * c->labels->affine[r][k];
+            assert_true(fabs(json_number_value(json_array_get(json_array_get(aff, (size_t)r), (size_t)k)) - want) < 1e-4);
+        }
+    json_t *s = read_back("segnrrd", seg, nii);
+    assert_non_null(s);
+    assert_true(json_is_true(json_object_get(s, "equals_nifti")));
+    assert_string_equal(json_string_value(json_object_get(s, "space")), "left-posterior-superior");
+    assert_string_equal(json_string_value(json_object_get(s, "master")), "Binary labelmap");
+    json_t *segs = json_object_get(s, "segments");
+    assert_int_equal(json_array_size(segs), c->nfrag);
+    for (int i = 0; i < c->nfrag; i++) {
+        const frag *f = &c->frag[i];
+        json_t *e = json_array_get(segs, (size_t)i);
+        char idbuf[16];
+        snprintf(idbuf, sizeof idbuf, "%d", f->id);
+        assert_string_equal(json_string_value(json_object_get(e, "LabelValue")), idbuf);
+        assert_string_equal(json_string_value(json_object_get(e, "Name")), f->name);
+        assert_string_equal(json_string_value(json_object_get(e, "Layer")), "0");
+        assert_true(json_is_true(json_object_get(e, "extent_holds_voxels")));
+        double r, g, b;
+        assert_int_equal(sscanf(json_string_value(json_object_get(e, "Color")), "%lf %lf %lf", &r, &g, &b), 3);
+        assert_true(fabs(r - f->rgb[0] / 255.0) < 1e-3 && fabs(g - f->rgb[1] / 255.0) < 1e-3 && fabs(b - f->rgb[2] / 255.0) < 1e-3);
+        long vox = (long)json_integer_value(json_object_get(json_object_get(n, "counts"), idbuf));
+        assert_true(labs(vox - (long)f->voxels) <= (long)f->voxels / 20); /* resampled: within 5% */
+        assert_int_equal(json_integer_value(json_object_get(e, "voxels")), vox);
+    }
+    json_decref(n);
+    json_decref(s);
+    case_free(c);
+}
+
+static json_t *stl_check(const char *path, double want_mm3)
+{
+    json_t *j = read_back("stl", path, NULL);
+    assert_non_null(j);
+    assert_true(json_is_true(json_object_get(j, "closed")));
+    double v = json_number_value(json_object_get(j, "volume_mm3"));
+    assert_true(fabs(v - want_mm3) < 0.15 * want_mm3);
+    if (access("/usr/bin/admesh", X_OK) == 0) {
+        char *o = NULL;
+        char cmd[4400];
+        snprintf(cmd, sizeof cmd, "/usr/bin/admesh '%s' 2>&1", path);
+        FILE *p = popen(cmd, "r");
+        assert_non_null(p);
+        o = calloc(1, 1 << 16);
+        size_t n = fread(o, 1, (1 << 16) - 1, p);
+        o[n] = 0;
+        pclose(p);
+        int parts = -1, backwards = -1, fixed = -1, added = -1;
+        char *q;
+        if ((q = strstr(o, "Number of parts")))
+            sscanf(strchr(q, ':') + 1, "%d", &parts);
+        if ((q = strstr(o, "Backwards edges")))
+            sscanf(strchr(q, ':') + 1, "%d", &backwards);
+        if ((q = strstr(o, "Edges fixed")))
+            sscanf(strchr(q, ':') + 1, "%d", &fixed);
+        if ((q = strstr(o, "Facets added")))
+            sscanf(strchr(q, ':') + 1, "%d", &added);
+        if (parts != 1 || backwards != 0 || fixed != 0 || added != 0)
+            fail_msg("admesh on %s: parts %d, backwards edges %d, edges fixed %d, facets added %d\n%s", path, parts,
+                     backwards, fixed, added, o);
+        free(o);
+    } else if (under_ci()) {
+        fail_msg("admesh is missing (.ci/setup installs it)");
+    }
+    return j;
+}
+
+/* STL: closed and consistently wound (the reader's edge count and admesh), the fragment's volume,
+ * at its planned pose; --ras negates x and y; --smooth and --decimate keep the surface closed. */
+static void test_stl_closed_in_mm(void **st)
+{
+    (void)st;
+    if (!have_python("struct") && missing("python3", "python3"))
+        return;
+    fcase *c = case_load(frac);
+    assert_non_null(c);
+    char path[8800], ras_dir[4300], small_dir[4300];
+    snprintf(ras_dir, sizeof ras_dir, "%s/ras", dir);
+    snprintf(small_dir, sizeof small_dir, "%s/small", dir);
+    assert_int_equal(tu_run_cli(NULL, "export '%s' --stl '%s' --ras", frac, ras_dir), 0);
+    assert_int_equal(tu_run_cli(NULL, "export '%s' --stl '%s' --smooth 10 --decimate 3000", frac, small_dir), 0);
+    for (int i = 0; i < c->nfrag; i++) {
+        const frag *f = &c->frag[i];
+        double mm3 = f->volume_ml * 1000;
+        snprintf(path, sizeof path, "%s/models/fragment-%d.stl", out, f->id);
+        json_t *lps = stl_check(path, mm3);
+        assert_non_null(strstr(json_string_value(json_object_get(lps, "header")), "SPACE=LPS"));
+        /* Where the fragment is planned: its planned centroid inside the model's bounds. */
+        double cen[3];
+        pose_apply(&f->pose, f->centroid, cen);
+        for (int a = 0; a < 3; a++) {
+            assert_true(json_number_value(json_array_get(json_object_get(lps, "lo"), (size_t)a)) < cen[a]);
+            assert_true(json_number_value(json_array_get(json_object_get(lps, "hi"), (size_t)a)) > cen[a]);
+        }
+        snprintf(path, sizeof path, "%s/fragment-%d.stl", ras_dir, f->id);
+        json_t *ras = stl_check(path, mm3);
+        assert_non_null(strstr(json_string_value(json_object_get(ras, "header")), "SPACE=RAS"));
+        for (int a = 0; a < 3; a++) {
+            double l = json_number_value(json_array_get(json_object_get(lps, a < 2 ? "hi" : "lo"), (size_t)a));
+            double r = json_number_value(json_array_get(json_object_get(ras, "lo"), (size_t)a));
+            assert_true(fabs((a < 2 ? -l : l) - r) < 1e-3);
+        }
+        snprintf(path, sizeof path, "%s/fragment-%d.stl", small_dir, f->id);
+        json_t *sm = stl_check(path, mm3);
+        assert_true(json_integer_value(json_object_get(sm, "triangles")) <= 3000);
+        json_decref(lps);
+        json_decref(ras);
+        json_decref(sm);
+    }
+    case_free(c);
+}
+
+/* The report opens in headless Chromium and all its pictures load (the page's script counts
+ * the img elements with naturalWidth > 0); with a picture gone, the count says so. */
+static int chromium_images(const char *html, char *line, size_t cap)
+{
+    char udd[4300], cmd[9000];
+    snprintf(udd, sizeof udd, "%s/chromium-profile", dir);
+    tu_rmtree(udd);
+    snprintf(cmd, sizeof cmd,
+             "timeout %d chromium --headless --no-sandbox --disable-gpu --no-first-run --disable-background-networking "
+             "--disable-component-update --disable-sync --user-data-dir='%s' --dump-dom 'file://%s' 2>/dev/null",
+             TU_WAIT_MAX_S, udd, html); /* the bound only stops a browser that never ends */
+    FILE *p = popen(cmd, "r");
+    assert_non_null(p);
+    char *buf = calloc(1, 1 << 20);
+    size_t n = fread(buf, 1, (1 << 20) - 1, p);
+    buf[n] = 0;
+    pclose(p);
+    const char *m = strstr(buf, "<p id=\"images\">");
+    line[0] = 0;
+    if (m) {
+        m += strlen("<p id=\"images\">");
+        size_t k = strcspn(m, "<");
+        snprintf(line, cap, "%.*s", (int)(k < cap - 1 ? k : cap - 1), m);
+    }
+    free(buf);
+    return line[0] != 0;
+}
+
+static void test_report_in_chromium(void **st)
+{
+    (void)st;
+    if (system("command -v chromium >/dev/null 2>&1") != 0 && missing("chromium", "chromium"))
+        return;
+    char html[4300], line[256], gone[4300];
+    snprintf(html, sizeof html, "%s/report/index.html", out);
+    char *page = tu_slurp(html, NULL);
+    assert_non_null(page);
+    assert_non_null(strstr(page, "convergence.png")); /* the case has a reduction with a history */
+    assert_non_null(strstr(page, "TRE (mm)"));        /* and ground truth */
+    free(page);
+    assert_true(chromium_images(html, line, sizeof line));
+    assert_string_equal(line, "images: 5 of 5 loaded");
+    snprintf(gone, sizeof gone, "%s/report/convergence.png", out);
+    assert_int_equal(unlink(gone), 0);
+    assert_true(chromium_images(html, line, sizeof line));
+    assert_string_equal(line, "images: 4 of 5 loaded");
+}
+
+/* Without a GL 4.5 context (here: the window platform and no display) the report still comes,
+ * saying why it has no renders. */
+static void test_report_without_renderer(void **st)
+{
+    (void)st;
+    char *o = NULL, rdir[4300], html[4400];
+    snprintf(rdir, sizeof rdir, "%s/report-no-gl", dir);
+    const char *keep = getenv("DISPLAY");
+    char *saved = keep ? strdup(keep) : NULL;
+    unsetenv("DISPLAY");
+    unsetenv("WAYLAND_DISPLAY");
+    int rc = tu_run_cli(&o, "export '%s' --report '%s' --platform glfw", frac, rdir);
+    if (saved)
+        setenv("DISPLAY", saved, 1);
+    free(saved);
+    if (rc != 0)
+        fail_msg("export --report without a display exited %d:\n%s", rc, o);
+    assert_non_null(strstr(o, "the report has no renders"));
+    free(o);
+    snprintf(html, sizeof html, "%s/index.html", rdir);
+    char *page = tu_slurp(html, NULL);
+    assert_non_null(page);
+    assert_non_null(strstr(page, "No renders: "));
+    assert_null(strstr(page, "before-anterior.png"));
+    assert_non_null(strstr(page, "convergence.png"));
+    free(page);
+}
+
+/* Bad input: exit 2 naming the option; a failed write (a missing folder) exits 1 naming the file
+ * and leaves the earlier export as it was. */
+static void test_bad_input(void **st)
+{
+    (void)st;
+    char *o = NULL, seg[4300];
+    assert_int_equal(tu_run_cli(&o, "export '%s' --smooth lots --stl '%s'", frac, out), 2);
+    assert_non_null(strstr(o, "--smooth"));
+    free(o);
+    assert_int_equal(tu_run_cli(&o, "export '%s'", frac), 2);
+    assert_non_null(strstr(o, "nothing to export"));
+    free(o);
+    snprintf(seg, sizeof seg, "%s/keep.seg.nrrd", dir);
+    assert_int_equal(tu_run_cli(NULL, "export '%s' --seg-nrrd '%s'", frac, seg), 0);
+    size_t n0, n1;
+    char *before = tu_slurp(seg, &n0);
+    assert_int_equal(tu_run_cli(&o, "export '%s' --seg-nrrd '%s' --nifti '%s/no/such/folder/x.nii.gz'", frac, seg, dir), 1);
+    assert_non_null(strstr(o, "no/such/folder"));
+    free(o);
+    char *after = tu_slurp(seg, &n1);
+    assert_int_equal(n0, n1);
+    assert_memory_equal(before, after, n0);
+    free(before);
+    free(after);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_all_json),
+        cmocka_unit_test(test_tfm_maps_as_the_pose),
+        cmocka_unit_test(test_nifti_and_seg_nrrd),
+        cmocka_unit_test(test_stl_closed_in_mm),
+        cmocka_unit_test(test_report_in_chromium),
+        cmocka_unit_test(test_report_without_renderer),
+        cmocka_unit_test(test_bad_input),
+    };
+    return cmocka_run_group_tests(tests, setup, teardown);
+}
