@@ -30,7 +30,7 @@ static char *dir;
 static char blocks[4200], tube[4200], case_dir[4200], tube_case[4200], frac_dir[4200], rec[4200];
 
 /* Every object seen, per command, for the checks across commands. */
-#define MAX_OUT 16
+#define MAX_OUT 32
 static json_t *outputs[MAX_OUT];
 static const char *labels[MAX_OUT];
 static int n_out;
