@@ -5,6 +5,7 @@
 #include "err.h"
 #include "fnclock.h"
 #include "navview.h"
+#include "navwin.h"
 #include "sim_replay.h"
 
 #include <pthread.h>
@@ -44,6 +45,13 @@ static void usage(FILE *out)
             "  --tau-min T, --tau-max T   hierarchy thresholds instead of the case's (0 <= T_min\n"
             "                      <= T_max <= 1), saved into the case with the poses\n"
             "  --duration S        stop after S seconds (scripts, tests)\n"
+            "  --view V            window (default when $DISPLAY is set and OpenGL 4.5 is there:\n"
+            "                      the fragments drawn at their poses with a HUD; left drag orbits,\n"
+            "                      right or middle drag pans, the wheel zooms, keys 1-6 give the\n"
+            "                      anterior, posterior, left, right, superior and inferior views,\n"
+            "                      and the camera frame follows the view) or terminal; without a\n"
+            "                      display or GL 4.5 the terminal view stays, with a line saying why\n"
+            "  --screenshot FILE   the window as last drawn, as a PNG, at exit\n"
             "  --json              print a JSON summary on exit (as fracnav replay): standard\n"
             "                      output holds the JSON alone; the view goes to standard error\n\n"
             "The view (on standard error) is laid out for the terminal's width: warnings first,\n"
@@ -77,7 +85,11 @@ typedef struct opts {
     cmd_tau tau;
     int have_pivot;
     double pivot[3];
+    int view; /* NAV_VIEW_* */
+    const char *screenshot;
 } opts;
+
+enum { NAV_VIEW_AUTO, NAV_VIEW_WINDOW, NAV_VIEW_TERMINAL };
 
 /* The transport of a played recording (replay:FILE, replay-realtime:FILE) with its file in *file,
  * else NULL: a device spec that names no recording, or none that resolves (dev_open says why). */
@@ -115,6 +127,16 @@ static int parse(int argc, char **argv, opts *o)
             o->json = 1;
         else if (!strcmp(a, "--loop"))
             o->again = 1;
+        else if (!strcmp(a, "--view")) {
+            if (!v || (strcmp(v, "window") && strcmp(v, "terminal")))
+                return cmd_bad_value("navigate", a, v, "window or terminal");
+            o->view = !strcmp(v, "window") ? NAV_VIEW_WINDOW : NAV_VIEW_TERMINAL;
+            i++;
+        } else if (!strcmp(a, "--screenshot")) {
+            if (!v)
+                return cmd_bad_value("navigate", a, v, "a PNG file to write");
+            o->screenshot = argv[++i];
+        }
         else if (!strcmp(a, "--duration")) {
             if (!cmd_number(v, &o->duration) || !(o->duration > 0))
                 return cmd_bad_value("navigate", a, v, "a number of seconds > 0");
@@ -141,6 +163,8 @@ static int parse(int argc, char **argv, opts *o)
         fprintf(stderr, "fracnav navigate: --recover and --discard-journal exclude each other\n");
         return 2;
     }
+    if (o->screenshot && o->view == NAV_VIEW_TERMINAL)
+        return cmd_usage_error("navigate", "--screenshot saves the window: it needs --view window");
     const char *file;
     if (o->again && !recording_spec(o->device, &file))
         return cmd_usage_error("navigate", "--loop plays a recording again: it needs --device "
@@ -226,6 +250,7 @@ typedef struct view {
     int64_t ack_until_us, last_print_us;
     char logged[2048]; /* the warnings and acknowledgement of the last log line */
     int logged_help;   /* the help was on at the last log line */
+    navwin *win;       /* --view window: the window; NULL for the terminal view alone */
 } view;
 
 static void acknowledge(view *v, const char *text)
@@ -257,21 +282,27 @@ static void save_scene(view *v, const loop_scene *sc, pose *saved, ring *ctl)
         loop_notify(k->L);
 }
 
-/* Terminal keys: ? and h show or hide the keys, q quits, the others go to the control ring. */
+/* One key, from the terminal or the window (27: Escape there): ? and h show or hide the keys, q
+ * (and Escape) quits, the others go to the control ring. */
+static void handle_key(view *v, loop *L, ring *ctl, int ch)
+{
+    if (ch == 'q' || ch == 27)
+        quit = 1;
+    loop_event ev = {0};
+    ev.kind = LOOP_EV_ACTION;
+    ev.action = key_action(ch);
+    if (ev.action == LOOP_ACT_HELP)
+        v->help = !v->help;
+    else if (ev.action != LOOP_ACT_NONE && ring_push(ctl, &ev))
+        loop_notify(L);
+}
+
+/* Terminal keys. */
 static void read_keys(view *v, loop *L, ring *ctl)
 {
     char ch;
-    while (read(STDIN_FILENO, &ch, 1) == 1) {
-        if (ch == 'q')
-            quit = 1;
-        loop_event ev = {0};
-        ev.kind = LOOP_EV_ACTION;
-        ev.action = key_action(ch);
-        if (ev.action == LOOP_ACT_HELP)
-            v->help = !v->help;
-        else if (ev.action != LOOP_ACT_NONE && ring_push(ctl, &ev))
-            loop_notify(L);
-    }
+    while (read(STDIN_FILENO, &ch, 1) == 1)
+        handle_key(v, L, ctl, ch);
 }
 
 /* A new action done by a key or a button: its acknowledgement (the keyboard device's help key
@@ -324,18 +355,47 @@ static int draw_help(const view *v, int width)
     return n;
 }
 
-static void draw(view *v, const loop_scene *sc)
+/* What the view shows besides the scene (refused: room for the refusal). */
+static navview_extra view_extra(view *v, char *refused, size_t cap)
 {
-    char refused[512], text[4096], sig[2048];
     navview_extra x = {-1, NULL, NULL, v->k->c->frag};
     if (v->ds) {
         x.battery = atomic_load(&v->ds->battery);
-        if (loopkit_dsource_refused(v->ds, refused, sizeof refused))
+        if (loopkit_dsource_refused(v->ds, refused, cap))
             x.refused = refused;
     }
-    int64_t now = fnclock_now_us();
-    if (v->ack[0] && now < v->ack_until_us)
+    if (v->ack[0] && fnclock_now_us() < v->ack_until_us)
         x.ack = v->ack;
+    return x;
+}
+
+/* --view window: one frame of the window (when something changed) with the view's lines as its
+ * HUD; keys typed there act as terminal keys. A window that fails or is closed ends the session
+ * like q. */
+static void window_frame(view *v, const loop_scene *sc, ring *ctl)
+{
+    char refused[512], text[4096];
+    navview_extra x = view_extra(v, refused, sizeof refused);
+    navview_format(sc, &x, 100, text, sizeof text);
+    if (v->help)
+        snprintf(text + strlen(text), sizeof text - strlen(text), "\n%s", navview_help(v->keyboard));
+    int keys[NAVWIN_KEYS], closed = 0;
+    int n = navwin_frame(v->win, sc, text, keys, NAVWIN_KEYS, &closed);
+    if (n < 0) {
+        fprintf(stderr, "fracnav navigate: the window: %s\n", fn_err_msg());
+        quit = 1;
+    }
+    for (int i = 0; i < n; i++)
+        handle_key(v, v->k->L, ctl, keys[i]);
+    if (closed)
+        quit = 1;
+}
+
+static void draw(view *v, const loop_scene *sc)
+{
+    char refused[512], text[4096], sig[2048];
+    navview_extra x = view_extra(v, refused, sizeof refused);
+    int64_t now = fnclock_now_us();
     if (v->tty) {
         int width = terminal_width();
         int n = navview_format(sc, &x, width, text, sizeof text);
@@ -389,16 +449,41 @@ static void ui(view *v, ring *ctl, pose *saved_poses, int keys, double duration,
         }
         if (!v->tty || fnclock_now_us() - v->last_print_us >= 100000)
             draw(v, &sc);
-        fnclock_sleep_us(20000);
+        if (v->win) { /* at display rate: a frame when something changed, else a short wait */
+            int64_t f0 = fnclock_now_us();
+            window_frame(v, &sc, ctl);
+            int64_t left = 16000 - (fnclock_now_us() - f0);
+            if (left > 0)
+                fnclock_sleep_us(left);
+        } else
+            fnclock_sleep_us(20000);
     }
     if (raw)
         tcsetattr(STDIN_FILENO, TCSANOW, &saved);
 }
 
+/* --view: the window when asked or by default with a display; without a display, GLFW or GL
+ * 4.5 the terminal view stays, and a line says why. */
+static void open_window(const opts *o, view *v)
+{
+    const char *display = getenv("DISPLAY");
+    if (o->view == NAV_VIEW_TERMINAL || (o->view == NAV_VIEW_AUTO && (!display || !*display)))
+        return;
+    if (!display || !*display) {
+        fprintf(stderr, "fracnav navigate: no window ($DISPLAY is not set): the terminal view stays\n");
+        return;
+    }
+    v->win = navwin_open(v->k->c, v->k->L, 768, 768);
+    if (!v->win)
+        fprintf(stderr, "fracnav navigate: no window (%s): the terminal view stays\n", fn_err_msg());
+    else if (v->tty)
+        fprintf(stderr, "window: %s\n", navwin_gl_renderer(v->win));
+}
+
 /* Input thread and loop thread around ui(); then the loop is stopped, the view drawn once more
- * with the last events, and the case saved. saved_poses outlives the loop thread, which reads it
- * on LOOP_EV_SAVED. */
-static int run(view *v, loop_source src, int keys, double duration)
+ * with the last events (and the window's screenshot saved), and the case saved. saved_poses
+ * outlives the loop thread, which reads it on LOOP_EV_SAVED. */
+static int run(view *v, loop_source src, int keys, const opts *o)
 {
     loopkit *k = v->k;
     pose saved_poses[LOOP_MAX_FRAGS] = {0}; /* written by each save before the loop reads it */
@@ -418,7 +503,12 @@ static int run(view *v, loop_source src, int keys, double duration)
         rc = rd ? fn_err_set(FN_EIO, "cannot start the loop thread") : FN_EIO;
         loop_reader_stop(rd);
     } else {
-        ui(v, ctl, saved_poses, keys, duration, rd);
+        /* The window once the loop runs: the loop prefaults the pages of the libraries loaded
+         * when it starts, and GL's (tens of MB) are none of its business. */
+        open_window(o, v);
+        if (o->screenshot && !v->win)
+            fprintf(stderr, "fracnav navigate: --screenshot %s: no window to save\n", o->screenshot);
+        ui(v, ctl, saved_poses, keys, o->duration, rd);
         int ended = loop_reader_done(rd);
         loop_reader_stop(rd);
         atomic_store(&run.stop, 1);
@@ -437,6 +527,12 @@ static int run(view *v, loop_source src, int keys, double duration)
         draw(v, &sc);
         if (v->tty)
             fputc('\n', stderr);
+        if (v->win && o->screenshot && navwin_screenshot(v->win, o->screenshot) < 0) {
+            fprintf(stderr, "fracnav navigate: --screenshot %s: %s\n", o->screenshot, fn_err_msg());
+            rc = rc ? rc : FN_EIO;
+        }
+        navwin_close(v->win);
+        v->win = NULL;
         if (rc == 0)
             rc = loopkit_save(k);
     }
@@ -526,7 +622,7 @@ int cmd_navigate(int argc, char **argv)
         v.ds = played ? NULL : &ds;
         v.ts = played ? &ts : NULL;
         loop_source src = played ? loopkit_transport_source(&ts) : loopkit_device_source(&ds);
-        rc = run(&v, src, played || !v.keyboard, o.duration);
+        rc = run(&v, src, played || !v.keyboard, &o);
         if (!played)
             dev_set_led(ds.d, 0);
         if (rc == 0 && o.json)

@@ -118,7 +118,8 @@ static int gl_setup(render *r)
     r->prog_mesh = r->prog_slice ? program(r, render__mesh_vs, render__mesh_fs, "surface") : 0;
     r->prog_line = r->prog_mesh ? program(r, render__line_vs, render__line_fs, "overlay") : 0;
     r->prog_depth = r->prog_line ? program(r, render__proxy_vs, render__depth_fs, "depth") : 0;
-    if (!r->prog_depth)
+    r->prog_hud = r->prog_depth ? program(r, render__quad_vs, render__hud_fs, "hud") : 0;
+    if (!r->prog_hud)
         return FN_ENODEV;
     r->gl.GenVertexArrays(1, &r->vao_empty);
     r->gl.GenVertexArrays(1, &r->line_vao);
@@ -232,14 +233,16 @@ void render_close(render *r)
         return;
     if (r->gl.DeleteTextures) {
         scene_release(r);
-        unsigned progs[] = {r->prog_slice, r->prog_mesh, r->prog_line, r->prog_depth};
-        for (int i = 0; i < 4; i++)
+        unsigned progs[] = {r->prog_slice, r->prog_mesh, r->prog_line, r->prog_depth, r->prog_hud};
+        for (int i = 0; i < 5; i++)
             if (progs[i])
                 r->gl.DeleteProgram(progs[i]);
         if (r->line_vbo)
             r->gl.DeleteBuffers(1, &r->line_vbo);
         if (r->span_fbo)
             r->gl.DeleteFramebuffers(1, &r->span_fbo);
+        if (r->hud_tex)
+            r->gl.DeleteTextures(1, &r->hud_tex);
         unsigned vaos[] = {r->vao_empty, r->line_vao};
         for (int i = 0; i < 2; i++)
             if (vaos[i])

@@ -96,6 +96,24 @@ int render_read_rgb(render *r, uint8_t *rgb);
 /* Shows the last frame in the window (no-op offscreen). */
 int render_present(render *r);
 
+/* Text over the last frame, top left, on a dark translucent box: lines separated by '\n', in a
+ * built-in 5x7 font (letters drawn as capitals; bytes outside ASCII as '?') scaled by `scale`
+ * (1..4) pixels per font pixel; a line holding "WARNING" or "OFF" is drawn in amber. Call after
+ * render_frame, before render_read_rgb or render_present. 0 or FN_E*. */
+int render_hud(render *r, const char *text, int scale);
+
+/* Input that reached the window since the last call (nothing offscreen). */
+#define RENDER_INPUT_KEYS 64
+typedef struct render_input {
+    int keys[RENDER_INPUT_KEYS]; /* characters typed (ASCII), 27 for Escape, in order */
+    int nkeys;
+    double drag[3][2]; /* the pointer's movement in pixels (x right, y down) while the left, right
+                        * or middle button was held */
+    double scroll;     /* wheel steps, positive away from the user */
+    int close;         /* the window was asked to close */
+} render_input;
+int render_poll(render *r, render_input *in);
+
 /* The standard camera for view v fitted to the fragments at their home positions (so poses move
  * pictures, not the camera). */
 void render_camera_standard(render_camera *c, render_view v, const frag *frags, int nfrag);

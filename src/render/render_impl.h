@@ -38,7 +38,7 @@
     X(PFNGLDELETEFRAMEBUFFERSPROC, DeleteFramebuffers) X(PFNGLBINDFRAMEBUFFERPROC, BindFramebuffer) \
     X(PFNGLFRAMEBUFFERTEXTURELAYERPROC, FramebufferTextureLayer) X(PFNGLDRAWBUFFERPROC, DrawBuffer) \
     X(PFNGLBLENDEQUATIONPROC, BlendEquation) X(PFNGLDRAWELEMENTSPROC, DrawElements) \
-    X(PFNGLCULLFACEPROC, CullFace)        \
+    X(PFNGLCULLFACEPROC, CullFace) X(PFNGLBLENDFUNCPROC, BlendFunc)        \
     X(PFNGLCHECKFRAMEBUFFERSTATUSPROC, CheckFramebufferStatus)
 
 typedef struct render_gl {
@@ -56,6 +56,7 @@ typedef struct render_platform {
     int (*open)(render *r, int w, int h);
     void *(*proc)(render *r, const char *name);
     int (*present)(render *r);
+    int (*poll)(render *r, render_input *in); /* NULL: no input (offscreen) */
     void (*close)(render *r);
 } render_platform;
 
@@ -92,7 +93,8 @@ struct render {
     render_gl gl;
     char renderer[256], version[256];
     unsigned prog_ray[3]; /* per raycast mode, compiled for the scene on first use (0: not yet) */
-    unsigned prog_slice, prog_mesh, prog_line, prog_depth;
+    unsigned prog_slice, prog_mesh, prog_line, prog_depth, prog_hud;
+    unsigned hud_tex;
     unsigned vao_empty, line_vao, line_vbo;
     /* Per fragment, the nearest and farthest depth of its occupied bricks: 2D array textures of
      * w x h RGBA16F, fragment i in layer i / 4, channel i % 4 (made per scene). */
@@ -108,7 +110,7 @@ struct render {
 
 /* GLSL sources (render_shader.c). */
 extern const char *const render__ray_fs, *const render__quad_vs, *const render__proxy_vs,
-    *const render__depth_fs, *const render__slice_fs,
+    *const render__depth_fs, *const render__hud_fs, *const render__slice_fs,
     *const render__mesh_vs, *const render__mesh_fs, *const render__line_vs, *const render__line_fs;
 
 /* Compiles r->prog_ray[m] for the scene when it is not yet (render.c). 0 or FN_E*. */

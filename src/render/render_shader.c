@@ -239,3 +239,17 @@ const char *const render__line_fs =
     "in vec3 c;\n"
     "out vec4 frag_colour;\n"
     "void main() { frag_colour = vec4(use_tint != 0 ? tint : c, 1.0); }\n";
+
+/* The HUD: its R8 texture (rows top to bottom from `origin`, the box's top-left pixel in window
+ * coordinates) over the frame, inside the scissor box: 1 text, 0.5 warning text, 0 the box. */
+const char *const render__hud_fs =
+    "#version 450 core\n"
+    "uniform sampler2D hud;\n"
+    "uniform vec2 origin;\n"
+    "out vec4 frag_colour;\n"
+    "void main() {\n"
+    "    ivec2 p = ivec2(int(gl_FragCoord.x - origin.x), int(origin.y - gl_FragCoord.y));\n"
+    "    float v = texelFetch(hud, p, 0).r;\n"
+    "    frag_colour = v > 0.75 ? vec4(0.92, 0.95, 1.0, 1.0)\n"
+    "                : v > 0.25 ? vec4(1.0, 0.72, 0.1, 1.0) : vec4(0.0, 0.0, 0.0, 0.55);\n"
+    "}\n";
