@@ -318,6 +318,15 @@ static void test_old_gl_is_refused_with_its_version(void **st)
         fail_msg("expected an error naming 4.5 and 3.3, got: %s", buf);
 }
 
+/* Without Xvfb: a visible skip, or a failure under CI (where .ci/setup installs it). */
+static void no_xvfb(void)
+{
+    if (getenv("CI") && *getenv("CI"))
+        fail_msg("Xvfb is not installed (/usr/bin/Xvfb; package xvfb, in .ci/setup)");
+    print_message("skipped: Xvfb is not installed (package xvfb)\n");
+    skip();
+}
+
 /* Starts Xvfb on a free display; its number comes back through -displayfd once it is ready.
  * Returns its pid (0 when Xvfb is not installed). */
 static pid_t start_xvfb(int *display)
@@ -332,7 +341,7 @@ static pid_t start_xvfb(int *display)
         char fd[16];
         snprintf(fd, sizeof fd, "%d", fds[1]);
         close(fds[0]);
-        execl("/usr/bin/Xvfb", "Xvfb", "-displayfd", fd, "-screen", "0", "640x480x24", "-nolisten", "tcp",
+        execl("/usr/bin/Xvfb", "Xvfb", "-displayfd", fd, "-screen", "0", "1024x1024x24", "-nolisten", "tcp",
               (char *)NULL);
         _exit(127);
     }
@@ -365,7 +374,7 @@ static void test_window_matches_offscreen(void **st)
     int display;
     pid_t xvfb = start_xvfb(&display);
     if (!xvfb)
-        skip();
+        no_xvfb();
     render_options o;
     options(s, &o, RENDER_ISO);
     o.layout = RENDER_LAYOUT_FOUR_UP;
@@ -408,6 +417,102 @@ static void test_window_matches_offscreen(void **st)
         fail_msg("the window's frame differs from OSMesa's in %ld channel values", differ);
 }
 
+/* A PNG file as RGB (malloc'd), its size in *w, *h. */
+static uint8_t *read_png(const char *path, int *w, int *h)
+{
+    png_image im = {.version = PNG_IMAGE_VERSION};
+    if (!png_image_begin_read_from_file(&im, path))
+        fail_msg("%s: cannot read it", path);
+    im.format = PNG_FORMAT_RGB;
+    uint8_t *rgb = malloc(PNG_IMAGE_SIZE(im));
+    assert_true(png_image_finish_read(&im, NULL, rgb, 0, NULL));
+    *w = (int)im.width;
+    *h = (int)im.height;
+    return rgb;
+}
+
+/* The mean column of the content pixels below row y0 (-1 when none). */
+static double content_column(const uint8_t *rgb, int w, int h, int y0)
+{
+    double sum = 0;
+    long n = 0;
+    for (int y = y0; y < h; y++)
+        for (int x = 0; x < w; x++)
+            if (!is_background(rgb + ((size_t)y * (size_t)w + (size_t)x) * 3)) {
+                sum += x;
+                n++;
+            }
+    return n ? sum / (double)n : -1;
+}
+
+/* navigate --view window on Xvfb with a virtual controller that pushes right: the window opens,
+ * the fragment moves right on screen (the camera frame follows the view), and the window's
+ * screenshot matches `fracnav render` of the saved case (OSMesa) below the HUD. */
+static void test_navigate_window_matches_render(void **st)
+{
+    (void)st;
+    int display;
+    pid_t xvfb = start_xvfb(&display);
+    if (!xvfb)
+        no_xvfb();
+    char *dir = tu_tmpdir("navwin"), case_dir[4200], path[4400], d[32];
+    tu_two_blocks_case(dir, case_dir, sizeof case_dir);
+    snprintf(path, sizeof path, "%s/right.script", dir);
+    const char *script = "wait 100 ms\ntranslate +x 6 mm over 0.6 s\n";
+    tu_write_file(path, script, strlen(script));
+    char *out = NULL;
+    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/before.png' --mode surface --size 768x768",
+                                case_dir, dir), 0);
+    free(out);
+    snprintf(d, sizeof d, ":%d", display);
+    setenv("DISPLAY", d, 1); /* for the navigate child alone: this process draws through OSMesa */
+    int rc = tu_run_cli(&out, "navigate '%s' --device virtual:spacenavigator:script='%s' --view window "
+                              "--duration 3 --discard-journal --screenshot '%s/shot.png' </dev/null",
+                        case_dir, path, dir);
+    unsetenv("DISPLAY");
+    kill(xvfb, SIGTERM);
+    waitpid(xvfb, NULL, 0);
+    if (rc != 0 || strstr(out, "no window"))
+        fail_msg("navigate --view window: exit %d: %s", rc, out);
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/after.png' --mode surface --size 768x768",
+                                case_dir, dir), 0);
+    free(out);
+    int w, h, w1, h1, w2, h2;
+    snprintf(path, sizeof path, "%s/shot.png", dir);
+    uint8_t *shot = read_png(path, &w, &h);
+    snprintf(path, sizeof path, "%s/before.png", dir);
+    uint8_t *before = read_png(path, &w1, &h1);
+    snprintf(path, sizeof path, "%s/after.png", dir);
+    uint8_t *after = read_png(path, &w2, &h2);
+    assert_int_equal(w, 768);
+    assert_int_equal(h, 768);
+    assert_int_equal(w2, w);
+    assert_int_equal(h2, h);
+    /* The HUD covers the top left; compare below it. */
+    const int y0 = 200;
+    long differ = 0, content = 0;
+    for (int i = y0 * w; i < w * h; i++) {
+        int dd = 0;
+        for (int c = 0; c < 3; c++)
+            dd |= abs(shot[i * 3 + c] - after[i * 3 + c]) > 32;
+        differ += dd;
+        content += !is_background(shot + i * 3);
+    }
+    if (content < 1000)
+        fail_msg("the window's screenshot shows no fragments (%ld content pixels)", content);
+    if (differ > (long)(w * (h - y0)) / 100)
+        fail_msg("the window's screenshot differs from the OSMesa render in %ld pixels", differ);
+    double c0 = content_column(before, w1, h1, y0), c1 = content_column(after, w, h, y0);
+    if (!(c1 > c0 + 3))
+        fail_msg("pushing right moved the picture from column %.1f to %.1f", c0, c1);
+    free(shot);
+    free(before);
+    free(after);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -419,6 +524,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_contacts_overlay_marks_colliding_voxels, setup, teardown),
         cmocka_unit_test_setup_teardown(test_pose_moves_picture_by_expected_pixels, setup, teardown),
         cmocka_unit_test_setup_teardown(test_window_matches_offscreen, setup, teardown),
+        cmocka_unit_test(test_navigate_window_matches_render),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
