@@ -513,6 +513,53 @@ static void test_navigate_window_matches_render(void **st)
     free(dir);
 }
 
+/* replay --frames: one picture per --frame-ms of the recording's time, the fragment moving
+ * between the first and the last; --realtime and a --frame-ms without --frames are refused. */
+static void test_replay_frames(void **st)
+{
+    (void)st;
+    char *dir = tu_tmpdir("frames"), case_dir[4200], path[4400], *out = NULL;
+    tu_two_blocks_case(dir, case_dir, sizeof case_dir);
+    char rec[4200];
+    snprintf(rec, sizeof rec, "%s/sim/recordings/head-on.fnrec", getenv("FRACNAV_SRC"));
+    int rc = tu_run_cli(&out, "replay '%s' '%s' --frames '%s/frames' --frame-ms 250 --no-journal", case_dir,
+                        rec, dir);
+    if (rc != 0)
+        fail_msg("replay --frames: exit %d: %s", rc, out);
+    long n = -1;
+    const char *said = strstr(out, "replay: ");
+    while (said && sscanf(said, "replay: %ld pictures", &n) != 1)
+        said = strstr(said + 1, "replay: ");
+    free(out);
+    /* head-on.fnrec lasts about 2.3 s: 10 pictures at 250 ms, and the final one. */
+    if (n < 8 || n > 12)
+        fail_msg("replay --frames wrote %ld pictures; about 11 expected", n);
+    int w, h, w2, h2;
+    snprintf(path, sizeof path, "%s/frames/frame_00000.png", dir);
+    uint8_t *first = read_png(path, &w, &h);
+    snprintf(path, sizeof path, "%s/frames/frame_%05ld.png", dir, n - 1);
+    uint8_t *last = read_png(path, &w2, &h2);
+    assert_int_equal(w, 512);
+    assert_int_equal(h, 512);
+    assert_int_equal(w2, w);
+    assert_int_equal(h2, h);
+    long moved = 0, content = 0;
+    for (int i = 0; i < w * h; i++) {
+        moved += !is_background(first + i * 3) != !is_background(last + i * 3);
+        content += !is_background(first + i * 3);
+    }
+    if (content < 500 || moved < 50)
+        fail_msg("the pictures show %ld content pixels and %ld that changed", content, moved);
+    snprintf(path, sizeof path, "%s/frames/frame_%05ld.png", dir, n);
+    assert_int_not_equal(access(path, F_OK), 0);
+    free(first);
+    free(last);
+    assert_int_equal(tu_run_cli(NULL, "replay '%s' '%s' --frames '%s/f2' --realtime", case_dir, rec, dir), 2);
+    assert_int_equal(tu_run_cli(NULL, "replay '%s' '%s' --frame-ms 10", case_dir, rec), 2);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -525,6 +572,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_pose_moves_picture_by_expected_pixels, setup, teardown),
         cmocka_unit_test_setup_teardown(test_window_matches_offscreen, setup, teardown),
         cmocka_unit_test(test_navigate_window_matches_render),
+        cmocka_unit_test(test_replay_frames),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
