@@ -238,6 +238,32 @@ static void test_contacts_overlay_marks_colliding_voxels(void **st)
     check_golden(s->rgb, "contacts");
 }
 
+/* The VOI overlay outlines its box in cyan, where the box is. */
+static void test_voi_overlay_outlines_the_box(void **st)
+{
+    scene *s = *st;
+    render_options o;
+    options(s, &o, RENDER_SURFACE);
+    o.overlays = RENDER_OVERLAY_VOI;
+    o.nvoi = 1;
+    /* Around the ball (voxels 4..24 x, 10..30 y and z; 1 mm voxels at the origin). */
+    const double box[6] = {4, 10, 10, 24, 30, 30};
+    memcpy(o.voi[0], box, sizeof box);
+    draw(s, NULL, &o);
+    long cyan = 0;
+    double sx = 0;
+    for (int i = 0; i < W * H; i++)
+        if (s->rgb[i * 3] < 120 && s->rgb[i * 3 + 1] > 200 && s->rgb[i * 3 + 2] > 200) {
+            cyan++;
+            sx += i % W;
+        }
+    if (cyan < 100)
+        fail_msg("the VOI overlay drew %ld cyan pixels", cyan);
+    if (sx / (double)cyan > W / 2.0)
+        fail_msg("the VOI box is drawn on the right (column %.1f); the ball is on the left", sx / (double)cyan);
+    check_golden(s->rgb, "voi");
+}
+
 static void centroid(const uint8_t *rgb, double *cx, double *cy)
 {
     double sx = 0, sy = 0, n = 0;
@@ -569,6 +595,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_four_up_with_overlays_matches, setup, teardown),
         cmocka_unit_test_setup_teardown(test_interpenetrating_fragments_both_show, setup, teardown),
         cmocka_unit_test_setup_teardown(test_contacts_overlay_marks_colliding_voxels, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_voi_overlay_outlines_the_box, setup, teardown),
         cmocka_unit_test_setup_teardown(test_pose_moves_picture_by_expected_pixels, setup, teardown),
         cmocka_unit_test_setup_teardown(test_window_matches_offscreen, setup, teardown),
         cmocka_unit_test(test_navigate_window_matches_render),

@@ -18,7 +18,8 @@
  *    outline (and a light fill) at its current pose in its colour; with the 3D view they make the
  *    four-up layout (axial top left, 3D top right, sagittal bottom left, coronal bottom right);
  *  - overlays on the 3D view: the hierarchy's boxes at a depth, the principal axes, the colliding
- *    voxel pairs.
+ *    voxel pairs with the contact region tinted, the reduction's VOI boxes;
+ *  - a HUD: lines of text over the frame (render_hud).
  *
  * Coordinates: world = patient LPS mm. The 3D camera is orthographic; a translation of d mm across
  * the view moves a fragment by d * height / (2 * half_height) pixels.
@@ -54,9 +55,13 @@ typedef struct render_camera {
 } render_camera;
 
 /* Overlays on the 3D view. HIERARCHY and CONTACTS need the hierarchies (render_set_scene's hp):
- * CONTACTS outlines, in yellow, both voxels of every colliding voxel pair (obb_collide, up to
- * RENDER_MAX_CONTACTS per fragment pair) at the frame's poses. */
-enum { RENDER_OVERLAY_HIERARCHY = 1, RENDER_OVERLAY_AXES = 2, RENDER_OVERLAY_CONTACTS = 4 };
+ * CONTACTS tints the contact region (a translucent yellow over both voxels of every colliding
+ * voxel pair, obb_collide, up to RENDER_MAX_CONTACTS per fragment pair, at the frame's poses) and
+ * outlines those voxels. VOI outlines the options' VOI boxes (world mm) in cyan. */
+enum {
+    RENDER_OVERLAY_HIERARCHY = 1, RENDER_OVERLAY_AXES = 2, RENDER_OVERLAY_CONTACTS = 4,
+    RENDER_OVERLAY_VOI = 8
+};
 #define RENDER_MAX_CONTACTS 4096
 
 typedef struct render_options {
@@ -66,6 +71,8 @@ typedef struct render_options {
     double slice_point[3];  /* world mm: where the slice views cut (four-up) */
     unsigned overlays;      /* RENDER_OVERLAY_* */
     int hierarchy_depth;    /* the depth of the boxes drawn (root = 1) */
+    int nvoi;               /* RENDER_OVERLAY_VOI: boxes lo x y z, hi x y z (world mm) */
+    double voi[RENDER_MAX_FRAGS][6];
 } render_options;
 
 /* Opens a GL 4.5 core context of w x h pixels. platform: "osmesa" (offscreen), "glfw" (a window;

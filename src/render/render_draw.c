@@ -472,12 +472,32 @@ static int voxel_box(line_buf *b, const pose *m, const uint16_t v[3], const doub
     return rc;
 }
 
-/* Both voxels of every colliding voxel pair, for every pair of fragments. */
+/* One voxel's box as 12 triangles at world placement m (the contact tint). */
+static int voxel_solid(line_buf *b, const pose *m, const uint16_t v[3], const double sp[3], const float c[3])
+{
+    static const int quad[6] = {0, 1, 3, 0, 3, 2};
+    int rc = 0;
+    for (int f = 0; f < 6 && !rc; f++) {
+        int axis = f / 2, u = (axis + 1) % 3, w = (axis + 2) % 3;
+        for (int k = 0; k < 6 && !rc; k++) {
+            double l[3], q[3];
+            l[axis] = (v[axis] + ((f & 1) ? 0.5 : -0.5)) * sp[axis];
+            l[u] = (v[u] + ((quad[k] & 1) ? 0.5 : -0.5)) * sp[u];
+            l[w] = (v[w] + ((quad[k] & 2) ? 0.5 : -0.5)) * sp[w];
+            pose_apply(m, l, q);
+            rc = line_push(b, q, c);
+        }
+    }
+    return rc;
+}
+
+/* Both voxels of every colliding voxel pair, for every pair of fragments: a translucent tint,
+ * then outlines. */
 static int draw_contacts(render *r, const pose *poses)
 {
     static const float yellow[3] = {1, 0.9f, 0.1f};
     obb_pair *pairs = malloc(RENDER_MAX_CONTACTS * sizeof *pairs);
-    line_buf b = {0};
+    line_buf b = {0}, tint = {0};
     int rc = pairs ? 0 : FN_ENOMEM;
     for (int i = 0; i < r->nfrag && !rc; i++)
         for (int j = i + 1; j < r->nfrag && !rc; j++) {
@@ -489,8 +509,26 @@ static int draw_contacts(render *r, const pose *poses)
                 rc = voxel_box(&b, &wi, pairs[k].a, r->frag[i].spacing, yellow);
                 if (!rc)
                     rc = voxel_box(&b, &wj, pairs[k].b, r->frag[j].spacing, yellow);
+                if (!rc)
+                    rc = voxel_solid(&tint, &wi, pairs[k].a, r->frag[i].spacing, yellow);
+                if (!rc)
+                    rc = voxel_solid(&tint, &wj, pairs[k].b, r->frag[j].spacing, yellow);
             }
         }
+    if (!rc && tint.n) {
+        static const float id[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+        r->gl.UniformMatrix4fv(loc(r, r->prog_line, "model"), 1, GL_FALSE, id);
+        r->gl.Uniform1f(loc(r, r->prog_line, "alpha"), 0.45f);
+        r->gl.Enable(GL_BLEND);
+        r->gl.BlendFunc(GL_SRC_ALPHA, GL_ONE_MINUS_SRC_ALPHA);
+        r->gl.BindVertexArray(r->line_vao);
+        r->gl.BindBuffer(GL_ARRAY_BUFFER, r->line_vbo);
+        r->gl.BufferData(GL_ARRAY_BUFFER, (GLsizeiptr)(tint.n * 6 * sizeof(float)), tint.v, GL_STREAM_DRAW);
+        r->gl.DrawArrays(GL_TRIANGLES, 0, (int)tint.n);
+        r->gl.Disable(GL_BLEND);
+        r->gl.Uniform1f(loc(r, r->prog_line, "alpha"), 1.0f);
+    }
+    free(tint.v);
     if (!rc && b.n) {
         static const float id[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
         r->gl.UniformMatrix4fv(loc(r, r->prog_line, "model"), 1, GL_FALSE, id);
@@ -506,6 +544,26 @@ static int draw_contacts(render *r, const pose *poses)
     return rc;
 }
 
+/* The VOI boxes (world mm) in cyan. */
+static int draw_voi(render *r, const render_options *o)
+{
+    static const float cyan[3] = {0.2f, 0.95f, 1.0f};
+    line_buf b = {0};
+    int rc = 0;
+    for (int i = 0; i < o->nvoi && i < RENDER_MAX_FRAGS && !rc; i++)
+        rc = box_edges(&b, o->voi[i], o->voi[i] + 3, cyan);
+    if (!rc && b.n) {
+        static const float id[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+        r->gl.UniformMatrix4fv(loc(r, r->prog_line, "model"), 1, GL_FALSE, id);
+        r->gl.BindVertexArray(r->line_vao);
+        r->gl.BindBuffer(GL_ARRAY_BUFFER, r->line_vbo);
+        r->gl.BufferData(GL_ARRAY_BUFFER, (GLsizeiptr)(b.n * 6 * sizeof(float)), b.v, GL_STREAM_DRAW);
+        r->gl.DrawArrays(GL_LINES, 0, (int)b.n);
+    }
+    free(b.v);
+    return rc ? fn_err_set(FN_ENOMEM, "render: out of memory for the VOI overlay") : 0;
+}
+
 static int draw_overlays(render *r, const pose *poses, const render_options *o, const mat4 vp)
 {
     unsigned p = r->prog_line;
@@ -514,6 +572,7 @@ static int draw_overlays(render *r, const pose *poses, const render_options *o, 
     mat4_to_gl(vp, m);
     r->gl.UniformMatrix4fv(loc(r, p, "vp"), 1, GL_FALSE, m);
     r->gl.Uniform1i(loc(r, p, "use_tint"), 0);
+    r->gl.Uniform1f(loc(r, p, "alpha"), 1.0f);
     int rc = 0;
     if ((o->overlays & (RENDER_OVERLAY_HIERARCHY | RENDER_OVERLAY_CONTACTS)) && r->nfrag && !r->frag[0].tree)
         return fn_err_set(FN_EINVAL, "render: the hierarchy and contacts overlays need the scene's "
@@ -531,6 +590,8 @@ static int draw_overlays(render *r, const pose *poses, const render_options *o, 
         rc = draw_contacts(r, poses);
     if (!rc && (o->overlays & RENDER_OVERLAY_AXES))
         rc = draw_axes(r, poses);
+    if (!rc && (o->overlays & RENDER_OVERLAY_VOI))
+        rc = draw_voi(r, o);
     return rc;
 }
 

@@ -236,9 +236,10 @@ const char *const render__line_fs =
     "#version 450 core\n"
     "uniform vec3 tint;\n"
     "uniform int use_tint;\n"
+    "uniform float alpha;\n"
     "in vec3 c;\n"
     "out vec4 frag_colour;\n"
-    "void main() { frag_colour = vec4(use_tint != 0 ? tint : c, 1.0); }\n";
+    "void main() { frag_colour = vec4(use_tint != 0 ? tint : c, alpha); }\n";
 
 /* The HUD: its R8 texture (rows top to bottom from `origin`, the box's top-left pixel in window
  * coordinates) over the frame, inside the scissor box: 1 text, 0.5 warning text, 0 the box. */
