@@ -377,6 +377,10 @@ static void window_frame(view *v, const loop_scene *sc, ring *ctl)
     char refused[512], text[4096];
     navview_extra x = view_extra(v, refused, sizeof refused);
     navview_format(sc, &x, 100, text, sizeof text);
+    const devtab_row *row = v->ds && v->ds->d ? dev_row(v->ds->d) : NULL;
+    size_t len = strlen(text);
+    snprintf(text + len, sizeof text - len, "\ndevice: %s%s", row && row->name ? row->name : v->ds ? "?" : "a recording",
+             x.battery >= 0 ? "" : ", battery unknown");
     if (v->help)
         snprintf(text + strlen(text), sizeof text - strlen(text), "\n%s", navview_help(v->keyboard));
     int keys[NAVWIN_KEYS], closed = 0;
