@@ -264,6 +264,30 @@ static void test_voi_overlay_outlines_the_box(void **st)
     check_golden(s->rgb, "voi");
 }
 
+/* The HUD: text over the frame, top left, a warning line in amber. */
+static void test_hud_draws_text(void **st)
+{
+    scene *s = *st;
+    render_options o;
+    options(s, &o, RENDER_SURFACE);
+    assert_int_equal(render_frame(s->r, NULL, &o), 0);
+    assert_int_equal(render_hud(s->r, "frag 2/2 touching\nWARNING: collision checking OFF", 1), 0);
+    assert_int_equal(render_read_rgb(s->r, s->rgb), 0);
+    long white = 0, amber = 0, below = 0;
+    for (int y = 0; y < H; y++)
+        for (int x = 0; x < W; x++) {
+            const uint8_t *p = s->rgb + (y * W + x) * 3;
+            int w = p[0] > 200 && p[1] > 200 && p[2] > 200, a = p[0] > 200 && p[1] > 140 && p[1] < 220 && p[2] < 80;
+            white += w && y < 12;
+            amber += a && y >= 12 && y < 24;
+            below += (w || a) && y >= 40 && x < 8;
+        }
+    if (white < 20 || amber < 20 || below)
+        fail_msg("the HUD drew %ld white pixels in its first line, %ld amber in its second, %ld elsewhere",
+                 white, amber, below);
+    check_golden(s->rgb, "hud");
+}
+
 static void centroid(const uint8_t *rgb, double *cx, double *cy)
 {
     double sx = 0, sy = 0, n = 0;
@@ -596,6 +620,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_interpenetrating_fragments_both_show, setup, teardown),
         cmocka_unit_test_setup_teardown(test_contacts_overlay_marks_colliding_voxels, setup, teardown),
         cmocka_unit_test_setup_teardown(test_voi_overlay_outlines_the_box, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_hud_draws_text, setup, teardown),
         cmocka_unit_test_setup_teardown(test_pose_moves_picture_by_expected_pixels, setup, teardown),
         cmocka_unit_test_setup_teardown(test_window_matches_offscreen, setup, teardown),
         cmocka_unit_test(test_navigate_window_matches_render),
