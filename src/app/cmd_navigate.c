@@ -471,7 +471,7 @@ static void ui(view *v, ring *ctl, pose *saved_poses, int keys, double duration,
 static void open_window(const opts *o, view *v)
 {
     const char *display = getenv("DISPLAY");
-    if (o->view == NAV_VIEW_TERMINAL || (o->view == NAV_VIEW_AUTO && (!display || !*display)))
+    if (o->view == NAV_VIEW_TERMINAL)
         return;
     if (!display || !*display) {
         fprintf(stderr, "fracnav navigate: no window ($DISPLAY is not set): the terminal view stays\n");
