@@ -437,6 +437,29 @@ static void test_bench_and_devices(void **st)
     check(j, "devices");
 }
 
+/* bench render (the example CT, small and short): frame figures per case and the loop's alone
+ * and while rendering. */
+static void test_bench_render(void **st)
+{
+    (void)st;
+    const char *ct = tu_example_ct();
+    json_t *j = fracnav("bench render", "bench render --json --frames 1 --size 64x64 --loop-s 0.3 --ct '%s'", ct);
+    check(j, "bench render");
+    json_t *res = json_object_get(j, "results");
+    assert_int_equal(json_array_size(res), 8);
+    for (size_t i = 0; i < json_array_size(res); i++) {
+        json_t *r = json_array_get(res, i);
+        assert_true(json_is_real(json_object_get(r, "frame_mean_ms")));
+        assert_true(json_is_real(json_object_get(r, "frame_hz")));
+    }
+    static const char *const keys[] = {"loop_alone_hz", "loop_rendering_hz", "latency_alone_p99_us",
+                                       "latency_rendering_p99_us", "report_to_frame_p99_ms"};
+    for (size_t i = 0; i < sizeof keys / sizeof keys[0]; i++)
+        if (!json_is_real(json_object_get(j, keys[i])))
+            fail_msg("bench render: %s is not a number", keys[i]);
+    assert_true(json_is_integer(json_object_get(j, "surface_triangles")));
+}
+
 /* fracnav-sim bench, where FUSE can be served (the simulator is built beside fracnav). */
 static void test_sim_bench(void **st)
 {
@@ -461,6 +484,7 @@ int main(void)
         cmocka_unit_test(test_volume_commands),
         cmocka_unit_test(test_loop_commands),
         cmocka_unit_test(test_bench_and_devices),
+        cmocka_unit_test(test_bench_render),
         cmocka_unit_test(test_sim_bench),
     };
     return cmocka_run_group_tests(tests, setup, teardown);

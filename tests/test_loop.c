@@ -215,6 +215,21 @@ static void test_frames_and_dt_clamp(void **st)
     p = loop_pose(L, 0);
     assert_true(fabs(p.t[0]) < 1e-9 && fabs(p.t[1] - 1.0) < 1e-9);
     loop_free(L);
+
+    /* The camera frame follows the view (loop_set_camera): seen from the patient's left (looking
+     * along -x, superior up), screen right is posterior (+y) and towards the viewer is +x. */
+    world_config(&c);
+    c.frame = LOOP_FRAME_CAMERA;
+    L = make_loop(&w, &c);
+    const double right[3] = {0, 1, 0}, up[3] = {0, 0, 1}, fwd[3] = {-1, 0, 0};
+    loop_set_camera(L, right, up, fwd);
+    e = motion(0, 0, 0, 0, 0, 0, 0);
+    loop_feed(L, &e);
+    e = motion(10000, 1, 0.5, 0, 0, 0, 0);
+    loop_feed(L, &e);
+    p = loop_pose(L, 0);
+    assert_true(fabs(p.t[1] - 1.0) < 1e-9 && fabs(p.t[0] - 0.5) < 1e-9 && fabs(p.t[2]) < 1e-9);
+    loop_free(L);
 }
 
 /* Pushes fragment 0 with constant motion for n reports 8 ms apart. */

@@ -4,12 +4,17 @@
 #include "cmd.h"
 
 #include "err.h"
+#include "fnclock.h"
 #include "fracture.h"
+#include "loop.h"
 #include "jsonw.h"
 #include "render.h"
 #include "seg.h"
 #include "volio.h"
 
+#include <math.h>
+#include <pthread.h>
+#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -18,19 +23,26 @@
 static void usage(FILE *out)
 {
     fprintf(out, "usage: fracnav bench render [--json] [--frames N] [--size WxH] [--ct FILE]\n"
-                 "                            [--platform osmesa|glfw]\n\n"
+                 "                            [--platform osmesa|glfw] [--loop-s S]\n\n"
                  "Frame time of every mode (iso, dvr, mip, surface) for 1 and 3 fragments of a\n"
                  "three-piece synthetic fracture (seed 1) of the example CT, each frame with the\n"
                  "fragments turned a little further, read back to memory.\n\n"
                  "  --json         one JSON object: command, gl_renderer, gl_version, results\n"
-                 "                 (mode, fragments, width, height, frame_mean_ms, frame_p99_ms,\n"
+                 "                 (mode, fragment_count, width, height, frame_mean_ms, frame_p99_ms,\n"
                  "                 frame_hz, frame_cpu_mean_ms: CPU time of the whole process,\n"
-                 "                 llvmpipe's threads included), surface_triangles (3 fragments), and the loop's figures\n"
-                 "                 while rendering (null: the window is not wired into the loop yet)\n"
+                 "                 llvmpipe's threads included), surface_triangles (3 fragments), and the\n"
+                 "                 navigation loop over the 3 fragments fed 1000 reports a second on\n"
+                 "                 its own thread: loop_alone_hz and latency_alone_p99_us for S seconds\n"
+                 "                 alone, loop_rendering_hz and latency_rendering_p99_us for S seconds\n"
+                 "                 while this thread draws its scenes in surface mode as fast as it\n"
+                 "                 can, and report_to_frame_p99_ms: from a report's arrival to the\n"
+                 "                 end of the first frame that shows its pose (read back), beside\n"
+                 "                 frame_looping_mean_ms, the frame period then\n"
                  "  --frames N     timed frames per case after one warm-up frame (default 10)\n"
                  "  --size WxH     pixels (default 512x512)\n"
                  "  --ct FILE      the CT to fracture (default %s)\n"
-                 "  --platform P   osmesa (default) or glfw\n",
+                 "  --platform P   osmesa (default) or glfw\n"
+                 "  --loop-s S     seconds of each loop phase (default 3)\n",
             cmd_example_ct());
 }
 
@@ -74,6 +86,219 @@ static int make_frags(const vol *ct, frag f[3], int *n)
     return rc;
 }
 
+/* ---- the loop alone and while rendering ---- */
+
+#define SYNTH_PERIOD_US 1000
+#define SYNTH_MAX 200000
+
+/* A controller of 1000 reports a second: x swings back and forth once a second. arrival[i] is
+ * when report i was made (the loop's reader stamps it right after). */
+typedef struct synth {
+    atomic_int active; /* reports flow only while set (a phase runs, past the loop's start) */
+    int was_active;    /* the rest belongs to the reader's thread */
+    int64_t next_us, t0_us;
+    int64_t *arrival;
+    atomic_long n;
+} synth;
+
+static int synth_next(void *ctx, loop_event *ev, int timeout_ms)
+{
+    synth *s = ctx;
+    if (!atomic_load(&s->active)) {
+        s->was_active = 0;
+        fnclock_sleep_us(1000);
+        return 0;
+    }
+    int64_t now = fnclock_now_us();
+    if (!s->was_active) {
+        s->was_active = 1;
+        s->next_us = now;
+    }
+    if (now < s->next_us) {
+        int64_t wait = s->next_us - now;
+        if (wait > (int64_t)timeout_ms * 1000) {
+            fnclock_sleep_us((int64_t)timeout_ms * 1000);
+            return 0;
+        }
+        fnclock_sleep_us(wait);
+        now = fnclock_now_us();
+    }
+    s->next_us = (s->next_us + SYNTH_PERIOD_US > now ? s->next_us : now) + SYNTH_PERIOD_US;
+    memset(ev, 0, sizeof *ev);
+    ev->kind = LOOP_EV_MOTION;
+    ev->t_us = now;
+    ev->motion[0] = (float)(0.5 * sin(2 * M_PI * (double)(now - s->t0_us) * 1e-6));
+    long i = atomic_load(&s->n);
+    if (i < SYNTH_MAX)
+        s->arrival[i] = now;
+    atomic_store(&s->n, i + 1);
+    return 1;
+}
+
+typedef struct loop_thread_arg {
+    loop *L;
+    ring *in;
+    atomic_int stop;
+    int rc;
+} loop_thread_arg;
+
+static void *loop_thread(void *arg)
+{
+    loop_thread_arg *a = arg;
+    loop_realtime_priority(); /* as navigate: best effort */
+    a->rc = loop_run(a->L, a->in, 1000, &a->stop);
+    return NULL;
+}
+
+static double p99_of(double *v, size_t n)
+{
+    if (!n)
+        return JSONW_NA;
+    qsort(v, n, sizeof *v, cmp_double);
+    return v[(size_t)(0.99 * (double)(n - 1) + 0.5)];
+}
+
+/* Starts loop_run on its own thread, waits for its first publish (past the prefaulting of
+ * loop_run's start, which is not what is measured), then lets reports flow. */
+static int phase_start(loop *L, synth *sy, loop_thread_arg *a, pthread_t *th)
+{
+    loop_scene sc = {0};
+    loop_scene_read(L, &sc);
+    uint64_t seq = sc.seq;
+    atomic_store(&a->stop, 0);
+    if (pthread_create(th, NULL, loop_thread, a) != 0)
+        return fn_err_set(FN_EIO, "bench render: cannot start the loop thread");
+    for (int k = 0; k < 100000 && sc.seq == seq; k++) {
+        fnclock_sleep_us(1000);
+        loop_scene_read(L, &sc);
+    }
+    atomic_store(&sy->active, 1);
+    return 0;
+}
+
+/* Stops the reports, lets the loop finish them, stops it; its figures over the phase into st. */
+static int phase_end(loop *L, synth *sy, loop_thread_arg *a, pthread_t th, int64_t t0, loop_stats *st,
+                     uint64_t steps0, double *hz)
+{
+    atomic_store(&sy->active, 0);
+    int64_t t1 = fnclock_now_us();
+    fnclock_sleep_us(20000);
+    atomic_store(&a->stop, 1);
+    loop_notify(L);
+    pthread_join(th, NULL);
+    loop_get_stats(L, st);
+    *hz = t1 > t0 ? (double)(st->steps - steps0) * 1e6 / (double)(t1 - t0) : JSONW_NA;
+    return a->rc;
+}
+
+/* The loop over f (3 fragments) on its own thread: `secs` alone, then `secs` while r draws its
+ * scenes (surface mode). Each phase is its own loop_run, its timing restarted before it starts
+ * (loop_reset_timing and loop_get_stats only while the loop is stopped). Sets the figures in o. */
+static int measure_loop(render *r, const frag *f, int nfrag, double secs, uint8_t *rgb, json_t *o)
+{
+    loop_obb *ob = loop_obb_new(f, nfrag, NULL, NULL);
+    if (!ob)
+        return FN_ENOMEM;
+    loop_collider col = loop_obb_collider(ob);
+    loop_config cfg;
+    loop_config_default(&cfg);
+    loop *L = loop_new(f, nfrag, NULL, &col, &cfg, NULL);
+    ring *in = ring_new(sizeof(loop_event), 4096);
+    synth sy = {0};
+    atomic_init(&sy.active, 0);
+    atomic_init(&sy.n, 0);
+    sy.arrival = malloc(SYNTH_MAX * sizeof *sy.arrival);
+    size_t fcap = 100000, nf = 0;
+    int64_t *f_done = malloc(fcap * sizeof *f_done);
+    long *f_events = malloc(fcap * sizeof *f_events);
+    double *lat = malloc(SYNTH_MAX * sizeof *lat);
+    int rc = L && in && sy.arrival && f_done && f_events && lat ? 0 : FN_ENOMEM;
+    loop_thread_arg a = {L, in, 0, 0};
+    atomic_init(&a.stop, 0);
+    pthread_t th;
+    loop_reader *rd = NULL;
+    if (!rc) {
+        sy.t0_us = fnclock_now_us();
+        loop_source src = {synth_next, &sy};
+        rd = loop_reader_start(src, in, L, 0);
+        if (!rd)
+            rc = fn_err_set(FN_EIO, "bench render: cannot start the loop's reader");
+    }
+    loop_stats alone = {0}, rendering = {0};
+    double alone_hz = JSONW_NA, rendering_hz = JSONW_NA;
+    long first_report = 0, last_report = 0;
+    if (!rc) {
+        loop_get_stats(L, &alone);
+        uint64_t steps0 = alone.steps;
+        loop_reset_timing(L);
+        rc = phase_start(L, &sy, &a, &th);
+        if (!rc) {
+            int64_t t0 = fnclock_now_us();
+            fnclock_sleep_us((int64_t)(secs * 1e6));
+            rc = phase_end(L, &sy, &a, th, t0, &alone, steps0, &alone_hz);
+        }
+    }
+    if (!rc) {
+        render_options ro;
+        render_options_default(&ro, f, nfrag);
+        ro.mode = RENDER_SURFACE;
+        uint64_t steps0 = alone.steps;
+        loop_reset_timing(L);
+        rc = phase_start(L, &sy, &a, &th);
+        if (!rc) {
+            first_report = atomic_load(&sy.n);
+            int64_t t0 = fnclock_now_us(), end = t0 + (int64_t)(secs * 1e6);
+            loop_scene sc = {0};
+            int drc = 0;
+            while (!drc && fnclock_now_us() < end && nf < fcap) {
+                loop_scene_read(L, &sc);
+                drc = render_frame(r, sc.pose, &ro);
+                if (!drc)
+                    drc = render_read_rgb(r, rgb);
+                f_done[nf] = fnclock_now_us();
+                f_events[nf++] = (long)sc.stats.events;
+            }
+            last_report = atomic_load(&sy.n);
+            rc = phase_end(L, &sy, &a, th, t0, &rendering, steps0, &rendering_hz);
+            rc = drc ? drc : rc;
+        }
+    }
+    loop_reader_stop(rd);
+    if (!rc) {
+        /* Report i is in a scene once the scene's event count exceeds i. */
+        size_t nl = 0, k = 0;
+        for (long i = first_report; i < last_report && i < SYNTH_MAX; i++) {
+            while (k < nf && f_events[k] <= i)
+                k++;
+            if (k == nf)
+                break;
+            lat[nl++] = (double)(f_done[k] - sy.arrival[i]) / 1000.0;
+        }
+        double r2f = p99_of(lat, nl);
+        jsonw_set(o, "loop_alone_hz", jsonw_measure(alone_hz));
+        jsonw_set(o, "latency_alone_p99_us", jsonw_measure(alone.latency_p99_us));
+        jsonw_set(o, "loop_rendering_hz", jsonw_measure(rendering_hz));
+        jsonw_set(o, "latency_rendering_p99_us", jsonw_measure(rendering.latency_p99_us));
+        jsonw_set(o, "report_to_frame_p99_ms", jsonw_measure(r2f));
+        jsonw_set(o, "frames_while_looping", json_integer((json_int_t)nf));
+        jsonw_set(o, "frame_looping_mean_ms",
+                  jsonw_measure(nf > 1 ? (double)(f_done[nf - 1] - f_done[0]) / 1000.0 / (double)(nf - 1) : JSONW_NA));
+        fprintf(stderr, "bench render: loop alone %.0f Hz p99 %.0f us; while rendering %.0f Hz p99 %.0f us, "
+                        "%zu frames, report to frame p99 %.1f ms\n",
+                alone_hz, alone.latency_p99_us, rendering_hz, rendering.latency_p99_us, nf, nl ? r2f : -1.0);
+    }
+    if (rc == FN_ENOMEM)
+        fn_err_set(FN_ENOMEM, "bench render: out of memory for the loop");
+    free(lat);
+    free(f_events);
+    free(f_done);
+    free(sy.arrival);
+    ring_free(in);
+    loop_free(L);
+    loop_obb_free(ob);
+    return rc;
+}
+
 /* Times `frames` frames of mode with the first nfrag fragments; fills one result object. */
 static int time_case(render *r, const frag *f, int nfrag, render_mode mode, int frames, int w, int h,
                      uint8_t *rgb, json_t *results)
@@ -109,7 +334,7 @@ static int time_case(render *r, const frag *f, int nfrag, render_mode mode, int 
         double mean = sum / frames, p99 = ms[(size_t)(0.99 * (frames - 1) + 0.5)];
         json_t *o2 = json_object();
         jsonw_set(o2, "mode", json_string(render_mode_name(mode)));
-        jsonw_set(o2, "fragments", json_integer(nfrag));
+        jsonw_set(o2, "fragment_count", json_integer(nfrag));
         jsonw_set(o2, "width", json_integer(w));
         jsonw_set(o2, "height", json_integer(h));
         jsonw_set(o2, "frame_mean_ms", jsonw_measure(mean));
@@ -124,7 +349,7 @@ static int time_case(render *r, const frag *f, int nfrag, render_mode mode, int 
     return rc;
 }
 
-static int run(const char *ct_path, const char *platform, int w, int h, int frames, int json)
+static int run(const char *ct_path, const char *platform, int w, int h, int frames, int json, double loop_s)
 {
     vol *ct = volio_read(ct_path);
     if (!ct)
@@ -154,14 +379,11 @@ static int run(const char *ct_path, const char *platform, int w, int h, int fram
         jsonw_set(o, "results", results);
         results = NULL;
         jsonw_set(o, "surface_triangles", json_integer(triangles));
-        const char *loop_keys[] = {"loop_hz_alone", "loop_hz_rendering", "latency_p99_us_alone",
-                                   "latency_p99_us_rendering", "report_to_frame_p99_ms"};
-        for (size_t i = 0; i < sizeof loop_keys / sizeof loop_keys[0]; i++)
-            jsonw_set(o, loop_keys[i], jsonw_measure(JSONW_NA));
+        rc = measure_loop(r, f, n, loop_s, rgb, o);
         double load[1];
         if (getloadavg(load, 1) == 1)
             fprintf(stderr, "bench render: load average %.1f over the last minute\n", load[0]);
-        if (json)
+        if (json && !rc)
             rc = jsonw_print(o, stdout);
         else
             json_decref(o);
@@ -184,7 +406,7 @@ int bench_render(int argc, char **argv)
         return 0;
     }
     int json = 0, w = 512, h = 512;
-    double frames = 10;
+    double frames = 10, loop_s = 3;
     const char *ct = cmd_example_ct(), *platform = "osmesa";
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i], *val = i + 1 < argc ? argv[i + 1] : NULL;
@@ -204,6 +426,9 @@ int bench_render(int argc, char **argv)
             if (!val)
                 return cmd_bad_value("bench render", a, val, "a volume file");
             ct = val;
+        } else if (!strcmp(a, "--loop-s")) {
+            if (!cmd_number(val, &loop_s) || !(loop_s >= 0.1) || loop_s > 3600)
+                return cmd_bad_value("bench render", a, val, "seconds from 0.1 to 3600");
         } else if (!strcmp(a, "--platform")) {
             if (!val || (strcmp(val, "osmesa") && strcmp(val, "glfw")))
                 return cmd_bad_value("bench render", a, val, "osmesa or glfw");
@@ -212,7 +437,7 @@ int bench_render(int argc, char **argv)
             return cmd_usage_error("bench render", "unknown option '%s'", a);
         i++;
     }
-    int rc = run(ct, platform, w, h, (int)frames, json);
+    int rc = run(ct, platform, w, h, (int)frames, json, loop_s);
     if (rc) {
         fprintf(stderr, "fracnav bench render: %s\n", fn_err_msg());
         return 1;

@@ -4,6 +4,7 @@
 #include "err.h"
 #include "fnclock.h"
 #include "navview.h"
+#include "navwin.h"
 #include "session.h"
 #include "sim_replay.h"
 
@@ -43,6 +44,13 @@ static void usage(FILE *out)
             "  --tau-min T, --tau-max T   hierarchy thresholds instead of the case's (0 <= T_min\n"
             "                      <= T_max <= 1), saved into the case with the poses\n"
             "  --duration S        stop after S seconds (scripts, tests)\n"
+            "  --view V            window (default when $DISPLAY is set and OpenGL 4.5 is there:\n"
+            "                      the fragments drawn at their poses with a HUD; left drag orbits,\n"
+            "                      right or middle drag pans, the wheel zooms, keys 1-6 give the\n"
+            "                      anterior, posterior, left, right, superior and inferior views,\n"
+            "                      and the camera frame follows the view) or terminal; without a\n"
+            "                      display or GL 4.5 the terminal view stays, with a line saying why\n"
+            "  --screenshot FILE   the window as last drawn, as a PNG, at exit\n"
             "  --json              print a JSON summary on exit (as fracnav replay): standard\n"
             "                      output holds the JSON alone; the view goes to standard error\n\n"
             "The view (on standard error) is laid out for the terminal's width: warnings first,\n"
@@ -76,7 +84,11 @@ typedef struct opts {
     cmd_tau tau;
     int have_pivot;
     double pivot[3];
+    int view; /* NAV_VIEW_* */
+    const char *screenshot;
 } opts;
+
+enum { NAV_VIEW_AUTO, NAV_VIEW_WINDOW, NAV_VIEW_TERMINAL };
 
 /* The transport of a played recording (replay:FILE, replay-realtime:FILE) with its file in *file,
  * else NULL: a device spec that names no recording, or none that resolves (dev_open says why). */
@@ -114,6 +126,16 @@ static int parse(int argc, char **argv, opts *o)
             o->json = 1;
         else if (!strcmp(a, "--loop"))
             o->again = 1;
+        else if (!strcmp(a, "--view")) {
+            if (!v || (strcmp(v, "window") && strcmp(v, "terminal")))
+                return cmd_bad_value("navigate", a, v, "window or terminal");
+            o->view = !strcmp(v, "window") ? NAV_VIEW_WINDOW : NAV_VIEW_TERMINAL;
+            i++;
+        } else if (!strcmp(a, "--screenshot")) {
+            if (!v)
+                return cmd_bad_value("navigate", a, v, "a PNG file to write");
+            o->screenshot = argv[++i];
+        }
         else if (!strcmp(a, "--duration")) {
             if (!cmd_number(v, &o->duration) || !(o->duration > 0))
                 return cmd_bad_value("navigate", a, v, "a number of seconds > 0");
@@ -140,6 +162,8 @@ static int parse(int argc, char **argv, opts *o)
         fprintf(stderr, "fracnav navigate: --recover and --discard-journal exclude each other\n");
         return 2;
     }
+    if (o->screenshot && o->view == NAV_VIEW_TERMINAL)
+        return cmd_usage_error("navigate", "--screenshot saves the window: it needs --view window");
     const char *file;
     if (o->again && !recording_spec(o->device, &file))
         return cmd_usage_error("navigate", "--loop plays a recording again: it needs --device "
@@ -190,6 +214,8 @@ typedef struct view {
     int64_t ack_until_us, last_print_us;
     char logged[2048]; /* the warnings and acknowledgement of the last log line */
     int logged_help;   /* the help was on at the last log line */
+    navwin *win;       /* --view window: the window; NULL for the terminal view alone */
+    char fit[160];     /* the running fit's progress, shown in the view */
 } view;
 
 static void acknowledge(view *v, const char *text)
@@ -207,19 +233,25 @@ static void saved(view *v, const session_event *ev)
         fprintf(stderr, "%s%s\n", ev->result < 0 ? "fracnav navigate: " : "", ev->text);
 }
 
-/* Terminal keys: ? and h show or hide the keys, q quits, the others go to the session. */
+/* One key, from the terminal or the window (27: Escape there): ? and h show or hide the keys, q
+ * (and Escape) quits, the others go to the session. */
+static void handle_key(view *v, int ch)
+{
+    if (ch == 'q' || ch == 27)
+        quit = 1;
+    loop_action a = session_key_action(ch);
+    if (a == LOOP_ACT_HELP)
+        v->help = !v->help;
+    else if (a != LOOP_ACT_NONE)
+        session_send_action(v->k, a); /* a full queue drops the key, as before */
+}
+
+/* Terminal keys. */
 static void read_keys(view *v)
 {
     char ch;
-    while (read(STDIN_FILENO, &ch, 1) == 1) {
-        if (ch == 'q')
-            quit = 1;
-        loop_action a = session_key_action(ch);
-        if (a == LOOP_ACT_HELP)
-            v->help = !v->help;
-        else if (a != LOOP_ACT_NONE)
-            session_send_action(v->k, a); /* a full queue drops the key, as before */
-    }
+    while (read(STDIN_FILENO, &ch, 1) == 1)
+        handle_key(v, ch);
 }
 
 /* A new action done by a key or a button: its acknowledgement (the keyboard device's help key
@@ -269,25 +301,58 @@ static int draw_help(const view *v, int width)
     return n;
 }
 
-static void draw(view *v, const loop_scene *sc)
+/* What the view shows besides the scene (refused: room for the refusal). */
+static navview_extra view_extra(view *v, char *refused, size_t cap)
 {
-    char refused[512], text[4096], sig[2048], fit[160];
     navview_extra x = {-1, NULL, NULL, session_frags(v->k), NULL};
     session_fit fs;
     session_fit_status(v->k, &fs);
     if (fs.running) {
-        snprintf(fit, sizeof fit, "fitting frag %d: iteration %d, metric %.4f, %.1f s", fs.frag + 1,
-                 fs.iterations, fs.metric, fs.seconds);
-        x.fit = fit;
+        snprintf(v->fit, sizeof v->fit, "fitting frag %d: iteration %d, metric %.4f, %.1f s",
+                 fs.frag + 1, fs.iterations, fs.metric, fs.seconds);
+        x.fit = v->fit;
     }
     if (v->ds) {
         x.battery = atomic_load(&v->ds->battery);
-        if (session_dsource_refused(v->ds, refused, sizeof refused))
+        if (session_dsource_refused(v->ds, refused, cap))
             x.refused = refused;
     }
-    int64_t now = fnclock_now_us();
-    if (v->ack[0] && now < v->ack_until_us)
+    if (v->ack[0] && fnclock_now_us() < v->ack_until_us)
         x.ack = v->ack;
+    return x;
+}
+
+/* --view window: one frame of the window (when something changed) with the view's lines as its
+ * HUD; keys typed there act as terminal keys. A window that fails or is closed ends the session
+ * like q. */
+static void window_frame(view *v, const loop_scene *sc)
+{
+    char refused[512], text[4096];
+    navview_extra x = view_extra(v, refused, sizeof refused);
+    navview_format(sc, &x, 100, text, sizeof text);
+    const devtab_row *row = v->ds && v->ds->d ? dev_row(v->ds->d) : NULL;
+    size_t len = strlen(text);
+    snprintf(text + len, sizeof text - len, "\ndevice: %s%s", row && row->name ? row->name : v->ds ? "?" : "a recording",
+             x.battery >= 0 ? "" : ", battery unknown");
+    if (v->help)
+        snprintf(text + strlen(text), sizeof text - strlen(text), "\n%s", navview_help(v->keyboard));
+    int keys[NAVWIN_KEYS], closed = 0;
+    int n = navwin_frame(v->win, sc, text, keys, NAVWIN_KEYS, &closed);
+    if (n < 0) {
+        fprintf(stderr, "fracnav navigate: the window: %s\n", fn_err_msg());
+        quit = 1;
+    }
+    for (int i = 0; i < n; i++)
+        handle_key(v, keys[i]);
+    if (closed)
+        quit = 1;
+}
+
+static void draw(view *v, const loop_scene *sc)
+{
+    char refused[512], text[4096], sig[2048];
+    navview_extra x = view_extra(v, refused, sizeof refused);
+    int64_t now = fnclock_now_us();
     if (v->tty) {
         int width = terminal_width();
         int n = navview_format(sc, &x, width, text, sizeof text);
@@ -343,20 +408,43 @@ static void ui(view *v, int keys, double duration)
     while (!quit && !ended && (duration <= 0 || (double)(fnclock_now_us() - t0) < duration * 1e6)) {
         if (raw)
             read_keys(v);
-        if (session_wait_event(v->k, 20, &ev) != SESSION_EV_NONE) /* keys: at least every 20 ms */
+        /* keys at least every 20 ms; the window at display rate (a frame when something changed) */
+        if (session_wait_event(v->k, v->win ? 16 : 20, &ev) != SESSION_EV_NONE)
             ended = handle(v, &ev);
         new_plays(v);
         session_scene_read(v->k, &sc);
         if (!v->tty || fnclock_now_us() - v->last_print_us >= 100000)
             draw(v, &sc);
+        if (v->win)
+            window_frame(v, &sc);
     }
     if (raw)
         tcsetattr(STDIN_FILENO, TCSANOW, &saved_tio);
 }
 
-/* The session runs src around ui(); then it is stopped, the last events handled, the view drawn
- * once more, and the case saved. */
-static int run(view *v, loop_source src, int keys, double duration)
+/* --view: the window when asked or by default with a display; without a display, GLFW or GL
+ * 4.5 the terminal view stays, and a line says why. */
+static void open_window(const opts *o, view *v)
+{
+    const char *display = getenv("DISPLAY");
+    if (o->view == NAV_VIEW_TERMINAL)
+        return;
+    if (!display || !*display) {
+        fprintf(stderr, "fracnav navigate: no window ($DISPLAY is not set): the terminal view stays\n");
+        return;
+    }
+    v->win = navwin_open(session_case(v->k), session_loop(v->k), 768, 768);
+    if (!v->win)
+        fprintf(stderr, "fracnav navigate: no window (%s): the terminal view stays\n", fn_err_msg());
+    else if (v->tty)
+        fprintf(stderr, "window: %s\n", navwin_gl_renderer(v->win));
+}
+
+/* The session runs src around ui() (and the window, once the loop runs: the loop prefaults the
+ * pages of the libraries loaded when it starts, and GL's, tens of MB, are none of its business);
+ * then it is stopped, the last events handled, the view drawn once more, the window's screenshot
+ * saved, and the case saved. */
+static int run(view *v, loop_source src, int keys, const opts *o)
 {
     session *k = v->k;
     struct sigaction sa = {0}; /* before the input thread: the keyboard device's q raises SIGINT */
@@ -366,7 +454,10 @@ static int run(view *v, loop_source src, int keys, double duration)
     int rc = session_start(k, src);
     if (rc < 0)
         return rc;
-    ui(v, keys, duration);
+    open_window(o, v);
+    if (o->screenshot && !v->win)
+        fprintf(stderr, "fracnav navigate: --screenshot %s: no window to save\n", o->screenshot);
+    ui(v, keys, o->duration);
     rc = session_stop(k);
     session_event ev;
     while (session_wait_event(k, 0, &ev) != SESSION_EV_NONE)
@@ -379,6 +470,12 @@ static int run(view *v, loop_source src, int keys, double duration)
     draw(v, &sc);
     if (v->tty)
         fputc('\n', stderr);
+    if (v->win && o->screenshot && navwin_screenshot(v->win, o->screenshot) < 0) {
+        fprintf(stderr, "fracnav navigate: --screenshot %s: %s\n", o->screenshot, fn_err_msg());
+        rc = rc ? rc : FN_EIO;
+    }
+    navwin_close(v->win);
+    v->win = NULL;
     return rc == 0 ? session_save(k) : rc;
 }
 
@@ -462,7 +559,7 @@ int cmd_navigate(int argc, char **argv)
         v.ds = played ? NULL : &ds;
         v.ts = played ? &ts : NULL;
         loop_source src = played ? session_transport_source(&ts) : session_device_source(&ds);
-        rc = run(&v, src, played || !v.keyboard, o.duration);
+        rc = run(&v, src, played || !v.keyboard, &o);
         if (!played)
             dev_set_led(ds.d, 0);
         if (rc == 0 && o.json)

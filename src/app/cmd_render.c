@@ -6,6 +6,8 @@
 #include "render.h"
 #include "snap.h"
 
+#include <jansson.h>
+
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -31,8 +33,10 @@ static void usage(FILE *out)
             "                    fragment's outline in its colour\n"
             "  --overlay LIST    comma-separated: hierarchy[:DEPTH] (the OBB octree's boxes at\n"
             "                    DEPTH, root = 1, default 3), contacts (both voxels of every\n"
-            "                    colliding voxel pair, yellow), axes (principal axes: red, green,\n"
-            "                    blue from the largest)\n"
+            "                    colliding voxel pair outlined and the contact region tinted,\n"
+            "                    yellow), axes (principal axes: red, green, blue from the\n"
+            "                    largest), voi (the VOI boxes of the case's reduction, cyan; an\n"
+            "                    error when fracnav reduce has not run)\n"
             "  --point X,Y,Z     where the slices cut, LPS mm (default: the first fragment's\n"
             "                    centroid at its pose)\n"
             "  --platform P      osmesa (default) or glfw (needs a display)\n"
@@ -64,7 +68,7 @@ static int parse_overlays(const char *s, render_options *o)
 {
     char buf[256];
     if (!s || strlen(s) >= sizeof buf)
-        return cmd_bad_value("render", "--overlay", s, "a list of hierarchy[:DEPTH], contacts, axes");
+        return cmd_bad_value("render", "--overlay", s, "a list of hierarchy[:DEPTH], contacts, axes, voi");
     strcpy(buf, s);
     char *save = NULL;
     for (char *tok = strtok_r(buf, ",", &save); tok; tok = strtok_r(NULL, ",", &save)) {
@@ -80,11 +84,10 @@ static int parse_overlays(const char *s, render_options *o)
         } else if (!strcmp(tok, "contacts"))
             o->overlays |= RENDER_OVERLAY_CONTACTS;
         else if (!strcmp(tok, "voi"))
-            return cmd_usage_error("render", "--overlay: 'voi' is not drawn yet (hierarchy[:DEPTH], "
-                                             "contacts and axes are)");
+            o->overlays |= RENDER_OVERLAY_VOI;
         else
             return cmd_bad_value("render", "--overlay", tok,
-                                 "hierarchy[:DEPTH] (DEPTH 1..32), contacts or axes");
+                                 "hierarchy[:DEPTH] (DEPTH 1..32), contacts, axes or voi");
     }
     return 0;
 }
@@ -148,12 +151,33 @@ static int parse_args(int argc, char **argv, render_args *a)
     return 0;
 }
 
+/* The VOI boxes of the case's reduction (case.json's reduction.fragments[].voi_mm) into o. */
+static int case_voi(const fcase *c, render_options *o)
+{
+    json_t *frs = json_object_get(json_object_get(c->extra, "reduction"), "fragments");
+    o->nvoi = 0;
+    for (size_t i = 0; i < json_array_size(frs) && o->nvoi < RENDER_MAX_FRAGS; i++) {
+        json_t *v = json_object_get(json_array_get(frs, i), "voi_mm");
+        if (json_array_size(v) != 6)
+            continue;
+        for (int k = 0; k < 6; k++)
+            o->voi[o->nvoi][k] = json_number_value(json_array_get(v, (size_t)k));
+        o->nvoi++;
+    }
+    if (!o->nvoi)
+        return fn_err_set(FN_EINVAL, "--overlay voi: the case holds no reduction VOI (fracnav reduce "
+                                     "defines one)");
+    return 0;
+}
+
 static int draw(fcase *c, render_args *a)
 {
     render_options o = a->o, d;
     render_options_default(&d, c->frag, c->nfrag);
     render_camera_standard(&o.camera, a->view, c->frag, c->nfrag);
     memcpy(o.slice_point, a->have_point ? a->point : d.slice_point, sizeof o.slice_point);
+    if ((o.overlays & RENDER_OVERLAY_VOI) && case_voi(c, &o))
+        return FN_EINVAL;
     render *r = render_open(a->platform ? a->platform : "osmesa", a->w, a->h);
     if (!r)
         return FN_ENODEV;

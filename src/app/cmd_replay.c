@@ -3,6 +3,8 @@
 
 #include "devtab.h"
 #include "err.h"
+#include "fnclock.h"
+#include "framedump.h"
 #include "session.h"
 #include "sim_replay.h"
 
@@ -59,6 +61,11 @@ static void usage(FILE *out)
             "  --config FILE       calibration in spnavrc syntax (default: none, sensitivity 1)\n"
             "  --tau-min T, --tau-max T   hierarchy thresholds instead of the case's (0 <= T_min\n"
             "                      <= T_max <= 1); --save keeps them in the case\n"
+            "  --frames DIR        draw the fragments (iso, anterior, 512x512, headless) at the\n"
+            "                      loop's poses once per --frame-ms of the recording's time into\n"
+            "                      DIR/frame_NNNNN.png (the last one: the final poses); not with\n"
+            "                      --realtime\n"
+            "  --frame-ms N        the recording's milliseconds per picture (default 40)\n"
             "  --help              this text\n");
 }
 
@@ -70,6 +77,8 @@ typedef struct opts {
     cmd_tau tau;
     int have_pivot;
     double pivot[3];
+    const char *frames; /* --frames DIR */
+    double frame_ms;
 } opts;
 
 static int parse(int argc, char **argv, opts *o)
@@ -103,6 +112,16 @@ static int parse(int argc, char **argv, opts *o)
             o->have_pivot = 1;
         } else if (!strcmp(a, "--config") && i + 1 < argc)
             o->config = argv[++i];
+        else if (!strcmp(a, "--frames")) {
+            if (i + 1 >= argc)
+                return cmd_bad_value("replay", a, NULL, "a folder for the pictures");
+            o->frames = argv[++i];
+        } else if (!strcmp(a, "--frame-ms")) {
+            const char *v = i + 1 < argc ? argv[i + 1] : NULL;
+            if (!cmd_number(v, &o->frame_ms) || !(o->frame_ms >= 1) || o->frame_ms > 3600000)
+                return cmd_bad_value("replay", a, v, "milliseconds from 1 to 3600000");
+            i++;
+        }
         else if (a[0] == '-' || (o->dir && o->rec)) {
             fprintf(stderr, "fracnav replay: unexpected argument '%s' (see fracnav replay --help)\n", a);
             return 2;
@@ -119,9 +138,38 @@ static int parse(int argc, char **argv, opts *o)
         fprintf(stderr, "fracnav replay: --recover and --discard-journal exclude each other\n");
         return 2;
     }
+    if (o->frames && o->realtime)
+        return cmd_usage_error("replay", "--frames draws the recording's time, not the wall clock's: "
+                                         "leave out --realtime");
+    if (o->frame_ms && !o->frames)
+        return cmd_usage_error("replay", "--frame-ms sets the pace of --frames DIR, which is missing");
+    if (!o->frame_ms)
+        o->frame_ms = 40;
     if (!o->no_journal)
         o->flags |= SESSION_JOURNAL;
     return 0;
+}
+
+/* --frames: one thread reads and steps the session's loop, a picture before each event that
+ * passes a frame's time. Latency = the step's own time. */
+static int run_frames(loop *L, loop_source src, framedump *fd)
+{
+    loop_event ev;
+    for (;;) {
+        int rc = src.next(src.ctx, &ev, 0);
+        if (rc == LOOP_SOURCE_END)
+            return framedump_finish(fd, L);
+        if (rc < 0)
+            return rc;
+        if (rc == 0)
+            continue;
+        if ((rc = framedump_before(fd, L, ev.t_us)) < 0)
+            return rc;
+        ev.arrival_us = fnclock_now_us();
+        rc = loop_feed(L, &ev);
+        if (rc < 0)
+            return rc;
+    }
 }
 
 int cmd_replay(int argc, char **argv)
@@ -166,7 +214,23 @@ int cmd_replay(int argc, char **argv)
     fprintf(stderr, "fracnav replay: stepping %s on %s\n", o.rec, o.dir);
     if (o.have_pivot)
         loop_set_pivot(session_loop(k), o.pivot);
-    rc = session_play(k, session_transport_source(&ts), o.realtime ? SESSION_PLAY_REALTIME : SESSION_PLAY_FAST);
+    framedump *fd = NULL;
+    if (o.frames && !(fd = framedump_open(o.frames, session_case(k), o.frame_ms, 512, 512))) {
+        fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
+        session_close(k);
+        sim_replay_transport.close(h);
+        return 1;
+    }
+    loop_source src = session_transport_source(&ts);
+    if (fd) {
+        loop_reset_timing(session_loop(k));
+        rc = run_frames(session_loop(k), src, fd);
+    } else {
+        rc = session_play(k, src, o.realtime ? SESSION_PLAY_REALTIME : SESSION_PLAY_FAST);
+    }
+    if (fd && rc == 0)
+        fprintf(stderr, "fracnav replay: %ld pictures in %s\n", framedump_count(fd), o.frames);
+    framedump_close(fd);
     if (rc == 0)
         rc = session_journal_sync(k);
     if (rc == 0 && o.save && (rc = session_save(k)) == 0)

@@ -68,6 +68,33 @@ void loop__prefault(void *p, size_t n)
 /* Device axes -> world for the camera frame (loop.h: the camera in front of the patient). */
 static const double CAMERA[3][3] = {{1, 0, 0}, {0, -1, 0}, {0, 0, -1}};
 
+void loop_set_camera(loop *L, const double right[3], const double up[3], const double forward[3])
+{
+    /* Device x -> right, device y (towards the user) -> -forward, device z (down) -> -up. */
+    unsigned s = atomic_load_explicit(&L->cam_seq, memory_order_relaxed);
+    atomic_store_explicit(&L->cam_seq, s + 1, memory_order_relaxed);
+    atomic_thread_fence(memory_order_release);
+    for (int i = 0; i < 3; i++) {
+        atomic_store_explicit(&L->cam[i * 3 + 0], right[i], memory_order_relaxed);
+        atomic_store_explicit(&L->cam[i * 3 + 1], -forward[i], memory_order_relaxed);
+        atomic_store_explicit(&L->cam[i * 3 + 2], -up[i], memory_order_relaxed);
+    }
+    atomic_store_explicit(&L->cam_seq, s + 2, memory_order_release);
+}
+
+/* The camera frame's matrix as loop_set_camera last left it (a consistent copy). */
+void loop__camera(const loop *L, double R[3][3])
+{
+    for (;;) {
+        unsigned s0 = atomic_load_explicit(&L->cam_seq, memory_order_acquire);
+        for (int i = 0; i < 9; i++)
+            R[i / 3][i % 3] = atomic_load_explicit(&L->cam[i], memory_order_relaxed);
+        atomic_thread_fence(memory_order_acquire);
+        if (!(s0 & 1) && atomic_load_explicit(&L->cam_seq, memory_order_relaxed) == s0)
+            return;
+    }
+}
+
 /* Largest distance from the centroid to a corner of the fragment's crop (home world mm). */
 static double frag_radius(const frag *f)
 {
@@ -106,6 +133,9 @@ loop *loop_new(const frag *frags, int n, const uint8_t *fixed, const loop_collid
     loop__prefault(caches, ((size_t)n * (size_t)n + 1) * cb);
     L->frags = frags;
     L->n = n;
+    for (int i = 0; i < 9; i++)
+        atomic_init(&L->cam[i], CAMERA[i / 3][i % 3]);
+    atomic_init(&L->cam_seq, 0u);
     L->col = *col;
     L->cache_stride = cb;
     L->caches = caches;
@@ -469,7 +499,7 @@ static void twist(const loop *L, int s, const float m[6], double dt, double d[3]
         pose local = pose_compose(L->pose[s], L->frags[s].home);
         pose_to_matrix(&local, R);
     } else {
-        memcpy(R, CAMERA, sizeof R);
+        loop__camera(L, R);
     }
     for (int i = 0; i < 3; i++) {
         d[i] = R[i][0] * v[0] + R[i][1] * v[1] + R[i][2] * v[2];

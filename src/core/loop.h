@@ -224,6 +224,12 @@ int loop_run(loop *L, ring *r, int64_t period_us, const atomic_int *stop);
 
 /* Direct controls (the same as the actions, for the application's own thread when not running). */
 int loop_action_do(loop *L, loop_action a);
+/* The camera frame follows a view: the camera looks along forward (unit, world LPS) with up
+ * (unit, orthogonal) up on screen and right = forward x up to the right; device x then moves to
+ * the right on screen, device y towards the viewer and device z down. The default is the camera
+ * in front of the patient (right +x, up +z, forward +y). Any thread, at any time, without
+ * blocking the stepping thread (which takes it at its next step). */
+void loop_set_camera(loop *L, const double right[3], const double up[3], const double forward[3]);
 /* A user pivot (world mm, current pose) for the selected fragment; NULL returns to the centroid. */
 void loop_set_pivot(loop *L, const double world[3]);
 /* Recovery: applies journal records (journal.h) in order -- poses, and the undo/redo history they

@@ -5,6 +5,8 @@
 
 #include "loop.h"
 
+#include <stdatomic.h>
+
 #include <semaphore.h>
 
 #define LOOP_UNDO_MAX 256
@@ -33,6 +35,10 @@ struct loop {
     const pose *saved; /* loop_set_saved */
 
     int selected, collision_on, trans_only, rot_only, device_present;
+    /* The camera frame's device -> world matrix, row major (loop_set_camera, any thread): a
+     * seqlock over atomics, so the stepping thread reads it without a lock or a data race. */
+    atomic_uint cam_seq;
+    _Atomic double cam[9];
     unsigned save_requests;
     unsigned fit_requests;
     int have_pivot;
@@ -83,6 +89,8 @@ struct loop {
 
 /* Writes every page of p..p+n (first-touch faults taken now, not in a step). */
 void loop__prefault(void *p, size_t n);
+/* The camera frame's device -> world matrix (loop_set_camera). */
+void loop__camera(const loop *L, double R[3][3]);
 /* Now on the loop's clock (loop_set_clock). */
 int64_t loop__now_us(const loop *L);
 void loop__stats_init(loop *L);

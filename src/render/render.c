@@ -4,6 +4,7 @@
 #include "err.h"
 
 #include <math.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -92,21 +93,23 @@ static unsigned program(render *r, const char *vs_src, const char *fs_src, const
     return p;
 }
 
-/* The raycaster for nf fragments (render__ray_fs after its header). 0 or FN_E*. */
-static int ray_program(render *r, int nf)
+/* The raycaster for the scene's fragments in mode m (render__ray_fs after its header), compiled
+ * once per scene and mode. 0 or FN_E*. */
+int render__ray_program(render *r, render_mode m)
 {
-    char head[64];
-    snprintf(head, sizeof head, "#version 450 core\n#define NF %d\n", nf < 1 ? 1 : nf);
+    if (r->prog_ray[m])
+        return 0;
+    char head[96];
+    snprintf(head, sizeof head, "#version 450 core\n#define NF %d\n#define mode %d\n",
+             r->nfrag < 1 ? 1 : r->nfrag, (int)m);
     size_t n = strlen(head) + strlen(render__ray_fs) + 1;
     char *src = malloc(n);
     if (!src)
         return fn_err_set(FN_ENOMEM, "render: out of memory");
     snprintf(src, n, "%s%s", head, render__ray_fs);
-    if (r->prog_ray)
-        r->gl.DeleteProgram(r->prog_ray);
-    r->prog_ray = program(r, render__quad_vs, src, "raycast");
+    r->prog_ray[m] = program(r, render__quad_vs, src, "raycast");
     free(src);
-    return r->prog_ray ? 0 : FN_ENODEV;
+    return r->prog_ray[m] ? 0 : FN_ENODEV;
 }
 
 static int gl_setup(render *r)
@@ -114,7 +117,9 @@ static int gl_setup(render *r)
     r->prog_slice = program(r, render__quad_vs, render__slice_fs, "slice");
     r->prog_mesh = r->prog_slice ? program(r, render__mesh_vs, render__mesh_fs, "surface") : 0;
     r->prog_line = r->prog_mesh ? program(r, render__line_vs, render__line_fs, "overlay") : 0;
-    if (!r->prog_line)
+    r->prog_depth = r->prog_line ? program(r, render__proxy_vs, render__depth_fs, "depth") : 0;
+    r->prog_hud = r->prog_depth ? program(r, render__quad_vs, render__hud_fs, "hud") : 0;
+    if (!r->prog_hud)
         return FN_ENODEV;
     r->gl.GenVertexArrays(1, &r->vao_empty);
     r->gl.GenVertexArrays(1, &r->line_vao);
@@ -126,6 +131,7 @@ static int gl_setup(render *r)
     r->gl.EnableVertexAttribArray(0);
     r->gl.EnableVertexAttribArray(1);
     r->gl.BindVertexArray(0);
+    r->gl.GenFramebuffers(1, &r->span_fbo);
     return 0;
 }
 
@@ -186,10 +192,16 @@ static void frag_release(render *r, render_frag *f)
         r->gl.DeleteTextures(1, &f->tex);
     if (f->mesh_vbo)
         r->gl.DeleteBuffers(1, &f->mesh_vbo);
+    if (f->mesh_ibo)
+        r->gl.DeleteBuffers(1, &f->mesh_ibo);
     if (f->mesh_vao)
         r->gl.DeleteVertexArrays(1, &f->mesh_vao);
     if (f->box_vbo)
         r->gl.DeleteBuffers(1, &f->box_vbo);
+    if (f->proxy_vbo)
+        r->gl.DeleteBuffers(1, &f->proxy_vbo);
+    if (f->proxy_vao)
+        r->gl.DeleteVertexArrays(1, &f->proxy_vao);
     if (f->box_vao)
         r->gl.DeleteVertexArrays(1, &f->box_vao);
     obb_tree_free(f->tree);
@@ -201,13 +213,18 @@ static void scene_release(render *r)
     for (int i = 0; i < r->nfrag; i++)
         frag_release(r, &r->frag[i]);
     r->nfrag = 0;
-    unsigned *tex[] = {&r->occ_tex, &r->tf_tex, &r->ct_tex};
+    unsigned *tex[] = {&r->occ_tex, &r->tf_tex, &r->ct_tex, &r->span_tex[0], &r->span_tex[1]};
     for (size_t i = 0; i < sizeof tex / sizeof tex[0]; i++)
         if (*tex[i]) {
             r->gl.DeleteTextures(1, tex[i]);
             *tex[i] = 0;
         }
     r->have_ct = 0;
+    for (int m = 0; m < 3; m++)
+        if (r->prog_ray[m]) {
+            r->gl.DeleteProgram(r->prog_ray[m]);
+            r->prog_ray[m] = 0;
+        }
 }
 
 void render_close(render *r)
@@ -216,12 +233,16 @@ void render_close(render *r)
         return;
     if (r->gl.DeleteTextures) {
         scene_release(r);
-        unsigned progs[] = {r->prog_ray, r->prog_slice, r->prog_mesh, r->prog_line};
-        for (int i = 0; i < 4; i++)
+        unsigned progs[] = {r->prog_slice, r->prog_mesh, r->prog_line, r->prog_depth, r->prog_hud};
+        for (int i = 0; i < 5; i++)
             if (progs[i])
                 r->gl.DeleteProgram(progs[i]);
         if (r->line_vbo)
             r->gl.DeleteBuffers(1, &r->line_vbo);
+        if (r->span_fbo)
+            r->gl.DeleteFramebuffers(1, &r->span_fbo);
+        if (r->hud_tex)
+            r->gl.DeleteTextures(1, &r->hud_tex);
         unsigned vaos[] = {r->vao_empty, r->line_vao};
         for (int i = 0; i < 2; i++)
             if (vaos[i])
@@ -270,6 +291,83 @@ static void tex3d_params(render *r, int filter)
     r->gl.TexParameteri(GL_TEXTURE_3D, GL_TEXTURE_WRAP_R, GL_CLAMP_TO_EDGE);
 }
 
+/* Welds a triangle soup (n triangles of 3 vertices of 6 floats) into unique vertices (in place at
+ * the front of tri) and indices: a vertex shared by up to six triangles is then transformed once,
+ * triangles that collapse to a line or point are dropped, and every triangle is wound
+ * counter-clockwise seen along its normals. Vertices are equal when their
+ * positions agree to 1 um. Returns the unique vertex count (*ntri updated), or FN_ENOMEM. */
+static long weld_triangles(float *tri, long *ntri, uint32_t **idx_out)
+{
+    size_t nv = (size_t)*ntri * 3, cap = 1024;
+    while (cap < 2 * nv)
+        cap *= 2;
+    uint32_t *slot = malloc(cap * sizeof *slot), *idx = malloc((nv ? nv : 1) * sizeof *idx);
+    if (!slot || !idx) {
+        free(slot);
+        free(idx);
+        return FN_ENOMEM;
+    }
+    memset(slot, 0xFF, cap * sizeof *slot);
+    uint32_t nu = 0;
+    for (size_t v = 0; v < nv; v++) {
+        const float *p = tri + v * 6;
+        int32_t q[3];
+        uint64_t h = 1469598103934665603u;
+        for (int a = 0; a < 3; a++) {
+            q[a] = (int32_t)lrintf(p[a] * 1000.0f);
+            h = (h ^ (uint32_t)q[a]) * 1099511628211u;
+        }
+        size_t k = (size_t)(h ^ (h >> 29)) & (cap - 1);
+        for (;; k = (k + 1) & (cap - 1)) {
+            uint32_t u = slot[k];
+            if (u == UINT32_MAX) {
+                slot[k] = nu;
+                if (nu != v)
+                    memcpy(tri + (size_t)nu * 6, p, 6 * sizeof *p);
+                idx[v] = nu++;
+                break;
+            }
+            const float *o = tri + (size_t)u * 6;
+            if ((int32_t)lrintf(o[0] * 1000.0f) == q[0] && (int32_t)lrintf(o[1] * 1000.0f) == q[1] &&
+                (int32_t)lrintf(o[2] * 1000.0f) == q[2]) {
+                idx[v] = u;
+                break;
+            }
+        }
+    }
+    free(slot);
+    size_t kept = 0;
+    for (size_t t = 0; t < nv / 3; t++) {
+        uint32_t a = idx[t * 3], b = idx[t * 3 + 1], c = idx[t * 3 + 2];
+        if (a == b || b == c || a == c)
+            continue;
+        /* Counter-clockwise seen from outside (the normals point out), so back faces can be
+         * culled. */
+        const float *pa = tri + (size_t)a * 6, *pb = tri + (size_t)b * 6, *pc = tri + (size_t)c * 6;
+        float e1[3], e2[3], dot = 0;
+        for (int k = 0; k < 3; k++) {
+            e1[k] = pb[k] - pa[k];
+            e2[k] = pc[k] - pa[k];
+        }
+        for (int k = 0; k < 3; k++) {
+            int k1 = (k + 1) % 3, k2 = (k + 2) % 3;
+            dot += (e1[k1] * e2[k2] - e1[k2] * e2[k1]) * (pa[3 + k] + pb[3 + k] + pc[3 + k]);
+        }
+        if (dot < 0) {
+            uint32_t t2 = b;
+            b = c;
+            c = t2;
+        }
+        idx[kept * 3] = a;
+        idx[kept * 3 + 1] = b;
+        idx[kept * 3 + 2] = c;
+        kept++;
+    }
+    *ntri = (long)kept;
+    *idx_out = idx;
+    return (long)nu;
+}
+
 static int upload_mesh(render *r, render_frag *rf, const float *vals)
 {
     /* Cells of about 0.5M voxels at most: a skull's mesh stays a few hundred thousand triangles.
@@ -278,21 +376,32 @@ static int upload_mesh(render *r, render_frag *rf, const float *vals)
     int s = (int)ceil(cbrt(voxels / (1 << 19)));
     const int stride[3] = {s < 1 ? 1 : s, s < 1 ? 1 : s, s < 1 ? 1 : s};
     float *tri = NULL;
+    uint32_t *idx = NULL;
     long n = mesh_build(vals, rf->dim, rf->spacing, (float)r->iso_hu, stride, &tri);
     if (n < 0)
         return (int)n;
+    long nu = weld_triangles(tri, &n, &idx);
+    if (nu < 0) {
+        free(tri);
+        return fn_err_set(FN_ENOMEM, "render: out of memory welding a surface mesh");
+    }
     rf->mesh_triangles = n;
     r->gl.GenVertexArrays(1, &rf->mesh_vao);
     r->gl.GenBuffers(1, &rf->mesh_vbo);
+    r->gl.GenBuffers(1, &rf->mesh_ibo);
     r->gl.BindVertexArray(rf->mesh_vao);
     r->gl.BindBuffer(GL_ARRAY_BUFFER, rf->mesh_vbo);
-    r->gl.BufferData(GL_ARRAY_BUFFER, (GLsizeiptr)n * 18 * (GLsizeiptr)sizeof(float), tri, GL_STATIC_DRAW);
+    r->gl.BufferData(GL_ARRAY_BUFFER, (GLsizeiptr)nu * 6 * (GLsizeiptr)sizeof(float), tri, GL_STATIC_DRAW);
+    r->gl.BindBuffer(GL_ELEMENT_ARRAY_BUFFER, rf->mesh_ibo);
+    r->gl.BufferData(GL_ELEMENT_ARRAY_BUFFER, (GLsizeiptr)n * 3 * (GLsizeiptr)sizeof(uint32_t), idx,
+                     GL_STATIC_DRAW);
     r->gl.VertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, 6 * sizeof(float), (void *)0);
     r->gl.VertexAttribPointer(1, 3, GL_FLOAT, GL_FALSE, 6 * sizeof(float), (void *)(3 * sizeof(float)));
     r->gl.EnableVertexAttribArray(0);
     r->gl.EnableVertexAttribArray(1);
     r->gl.BindVertexArray(0);
     free(tri);
+    free(idx);
     return 0;
 }
 
@@ -360,6 +469,109 @@ static int upload_fragment(render *r, render_frag *rf, const frag *f, const vol 
     return rc;
 }
 
+/* The raycaster's proxy for rf: the boundary faces of its occupied bricks (RENDER_PROXY_BLOCKS^3
+ * blocks of the dilated occupancy g), as triangles in local mm clamped to the texture's box. */
+static int upload_proxy(render *r, render_frag *rf, const uint8_t *g)
+{
+    const int *od = rf->occ_dim, B = RENDER_PROXY_BLOCKS;
+    int pd[3];
+    for (int a = 0; a < 3; a++)
+        pd[a] = (od[a] + B - 1) / B;
+    size_t n = (size_t)pd[0] * (size_t)pd[1] * (size_t)pd[2];
+    uint8_t *occ = calloc(n ? n : 1, 1);
+    if (!occ)
+        return fn_err_set(FN_ENOMEM, "render: out of memory for the raycaster's bricks");
+    for (int k = 0; k < od[2]; k++)
+        for (int j = 0; j < od[1]; j++)
+            for (int i = 0; i < od[0]; i++)
+                if (g[((size_t)k * (size_t)od[1] + (size_t)j) * (size_t)od[0] + (size_t)i])
+                    occ[((size_t)(k / B) * (size_t)pd[1] + (size_t)(j / B)) * (size_t)pd[0] + (size_t)(i / B)] = 1;
+#define PROXY_AT(x, y, z)                                                                          \
+    ((x) >= 0 && (y) >= 0 && (z) >= 0 && (x) < pd[0] && (y) < pd[1] && (z) < pd[2] &&             \
+     occ[((size_t)(z) * (size_t)pd[1] + (size_t)(y)) * (size_t)pd[0] + (size_t)(x)])
+    size_t faces = 0;
+    for (int pass = 0; pass < 2; pass++) {
+        float *v = NULL;
+        if (pass == 1) {
+            v = malloc((faces ? faces : 1) * 6 * 3 * sizeof *v);
+            if (!v) {
+                free(occ);
+                return fn_err_set(FN_ENOMEM, "render: out of memory for the raycaster's bricks");
+            }
+        }
+        size_t nv = 0;
+        for (int z = 0; z < pd[2]; z++)
+            for (int y = 0; y < pd[1]; y++)
+                for (int x = 0; x < pd[0]; x++) {
+                    if (!PROXY_AT(x, y, z))
+                        continue;
+                    int c[3] = {x, y, z};
+                    double lo[3], hi[3];
+                    for (int a = 0; a < 3; a++) {
+                        double l = (double)c[a] * B * RENDER_BLOCK - 0.5, h = l + B * RENDER_BLOCK;
+                        lo[a] = l * rf->spacing[a];
+                        hi[a] = (h < rf->dim[a] - 0.5 ? h : rf->dim[a] - 0.5) * rf->spacing[a];
+                    }
+                    for (int f = 0; f < 6; f++) {
+                        int axis = f / 2, side = f & 1, nb[3] = {x, y, z};
+                        nb[axis] += side ? 1 : -1;
+                        if (PROXY_AT(nb[0], nb[1], nb[2]))
+                            continue;
+                        if (pass == 0) {
+                            faces++;
+                            continue;
+                        }
+                        int u = (axis + 1) % 3, w = (axis + 2) % 3;
+                        static const int quad[6][2] = {{0, 0}, {1, 0}, {1, 1}, {0, 0}, {1, 1}, {0, 1}};
+                        for (int q = 0; q < 6; q++, nv++) {
+                            v[nv * 3 + axis] = (float)(side ? hi[axis] : lo[axis]);
+                            v[nv * 3 + u] = (float)(quad[q][0] ? hi[u] : lo[u]);
+                            v[nv * 3 + w] = (float)(quad[q][1] ? hi[w] : lo[w]);
+                        }
+                    }
+                }
+#undef PROXY_AT
+        if (pass == 1) {
+            r->gl.GenVertexArrays(1, &rf->proxy_vao);
+            r->gl.GenBuffers(1, &rf->proxy_vbo);
+            r->gl.BindVertexArray(rf->proxy_vao);
+            r->gl.BindBuffer(GL_ARRAY_BUFFER, rf->proxy_vbo);
+            r->gl.BufferData(GL_ARRAY_BUFFER, (GLsizeiptr)(nv * 3 * sizeof(float)), v, GL_STATIC_DRAW);
+            r->gl.VertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, 3 * sizeof(float), (void *)0);
+            r->gl.EnableVertexAttribArray(0);
+            r->gl.BindVertexArray(0);
+            rf->proxy_vertices = (int)nv;
+            free(v);
+        }
+    }
+    free(occ);
+    return 0;
+}
+
+/* The per-fragment brick spans (span_tex), one layer per 4 fragments. */
+static int upload_spans(render *r, int nfrag)
+{
+    r->span_layers = nfrag < 1 ? 1 : (nfrag + 3) / 4;
+    r->gl.GenTextures(2, r->span_tex);
+    r->gl.BindFramebuffer(GL_FRAMEBUFFER, r->span_fbo);
+    unsigned st = GL_FRAMEBUFFER_COMPLETE;
+    for (int i = 0; i < 2; i++) {
+        r->gl.BindTexture(GL_TEXTURE_2D_ARRAY, r->span_tex[i]);
+        r->gl.TexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
+        r->gl.TexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
+        r->gl.TexImage3D(GL_TEXTURE_2D_ARRAY, 0, GL_RGBA16F, r->w, r->h, r->span_layers, 0, GL_RGBA,
+                         GL_FLOAT, NULL);
+        r->gl.FramebufferTextureLayer(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, r->span_tex[i], 0, 0);
+        if (st == GL_FRAMEBUFFER_COMPLETE)
+            st = r->gl.CheckFramebufferStatus(GL_FRAMEBUFFER);
+    }
+    r->gl.BindFramebuffer(GL_FRAMEBUFFER, 0);
+    if (st != GL_FRAMEBUFFER_COMPLETE)
+        return fn_err_set(FN_ENODEV, "render (%s): the brick span framebuffer is incomplete (0x%04x)",
+                          r->plat->name, st);
+    return 0;
+}
+
 /* All fragments' occupancy grids stacked along z in one R8UI texture (one texture unit). */
 static int upload_occupancy(render *r, const frag *frags)
 {
@@ -388,7 +600,12 @@ static int upload_occupancy(render *r, const frag *frags)
                 memcpy(all + (size_t)(rf->occ_z + k) * plane + (size_t)j * (size_t)od[0],
                        g + ((size_t)k * (size_t)rf->occ_dim[1] + (size_t)j) * (size_t)rf->occ_dim[0],
                        (size_t)rf->occ_dim[0]);
+        int rc = upload_proxy(r, rf, g);
         free(g);
+        if (rc) {
+            free(all);
+            return rc;
+        }
     }
     r->gl.GenTextures(1, &r->occ_tex);
     r->gl.BindTexture(GL_TEXTURE_3D, r->occ_tex);
@@ -474,7 +691,7 @@ int render_set_scene(render *r, const vol *ct, const frag *frags, int nfrag, dou
     if (!rc)
         rc = upload_occupancy(r, frags);
     if (!rc)
-        rc = ray_program(r, nfrag);
+        rc = upload_spans(r, nfrag);
     if (!rc) {
         upload_tf(r);
         if (ct)

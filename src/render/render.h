@@ -18,7 +18,8 @@
  *    outline (and a light fill) at its current pose in its colour; with the 3D view they make the
  *    four-up layout (axial top left, 3D top right, sagittal bottom left, coronal bottom right);
  *  - overlays on the 3D view: the hierarchy's boxes at a depth, the principal axes, the colliding
- *    voxel pairs.
+ *    voxel pairs with the contact region tinted, the reduction's VOI boxes;
+ *  - a HUD: lines of text over the frame (render_hud).
  *
  * Coordinates: world = patient LPS mm. The 3D camera is orthographic; a translation of d mm across
  * the view moves a fragment by d * height / (2 * half_height) pixels.
@@ -54,9 +55,13 @@ typedef struct render_camera {
 } render_camera;
 
 /* Overlays on the 3D view. HIERARCHY and CONTACTS need the hierarchies (render_set_scene's hp):
- * CONTACTS outlines, in yellow, both voxels of every colliding voxel pair (obb_collide, up to
- * RENDER_MAX_CONTACTS per fragment pair) at the frame's poses. */
-enum { RENDER_OVERLAY_HIERARCHY = 1, RENDER_OVERLAY_AXES = 2, RENDER_OVERLAY_CONTACTS = 4 };
+ * CONTACTS tints the contact region (a translucent yellow over both voxels of every colliding
+ * voxel pair, obb_collide, up to RENDER_MAX_CONTACTS per fragment pair, at the frame's poses) and
+ * outlines those voxels. VOI outlines the options' VOI boxes (world mm) in cyan. */
+enum {
+    RENDER_OVERLAY_HIERARCHY = 1, RENDER_OVERLAY_AXES = 2, RENDER_OVERLAY_CONTACTS = 4,
+    RENDER_OVERLAY_VOI = 8
+};
 #define RENDER_MAX_CONTACTS 4096
 
 typedef struct render_options {
@@ -66,6 +71,8 @@ typedef struct render_options {
     double slice_point[3];  /* world mm: where the slice views cut (four-up) */
     unsigned overlays;      /* RENDER_OVERLAY_* */
     int hierarchy_depth;    /* the depth of the boxes drawn (root = 1) */
+    int nvoi;               /* RENDER_OVERLAY_VOI: boxes lo x y z, hi x y z (world mm) */
+    double voi[RENDER_MAX_FRAGS][6];
 } render_options;
 
 /* Opens a GL 4.5 core context of w x h pixels. platform: "osmesa" (offscreen), "glfw" (a window;
@@ -95,6 +102,24 @@ int render_frame(render *r, const pose *poses, const render_options *o);
 int render_read_rgb(render *r, uint8_t *rgb);
 /* Shows the last frame in the window (no-op offscreen). */
 int render_present(render *r);
+
+/* Text over the last frame, top left, on a dark translucent box: lines separated by '\n', in a
+ * built-in 5x7 font (letters drawn as capitals; bytes outside ASCII as '?') scaled by `scale`
+ * (1..4) pixels per font pixel; a line holding "WARNING" or "OFF" is drawn in amber. Call after
+ * render_frame, before render_read_rgb or render_present. 0 or FN_E*. */
+int render_hud(render *r, const char *text, int scale);
+
+/* Input that reached the window since the last call (nothing offscreen). */
+#define RENDER_INPUT_KEYS 64
+typedef struct render_input {
+    int keys[RENDER_INPUT_KEYS]; /* characters typed (ASCII), 27 for Escape, in order */
+    int nkeys;
+    double drag[3][2]; /* the pointer's movement in pixels (x right, y down) while the left, right
+                        * or middle button was held */
+    double scroll;     /* wheel steps, positive away from the user */
+    int close;         /* the window was asked to close */
+} render_input;
+int render_poll(render *r, render_input *in);
 
 /* The standard camera for view v fitted to the fragments at their home positions (so poses move
  * pictures, not the camera). */

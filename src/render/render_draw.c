@@ -8,7 +8,7 @@
 #include <string.h>
 
 static const float BG[3] = {0.08f, 0.09f, 0.11f};
-enum { UNIT_OCC = RENDER_MAX_FRAGS, UNIT_TF, UNIT_CT };
+enum { UNIT_OCC = RENDER_MAX_FRAGS, UNIT_TF, UNIT_CT, UNIT_NEAR, UNIT_FAR };
 
 /* ---- 4x4 row-major doubles, sent to GL transposed (column-major) ---- */
 
@@ -190,7 +190,7 @@ static int loc(const render *r, unsigned prog, const char *name)
 }
 
 /* Binds the fragments' volumes to units 0.. and sets the uniforms both volume programs share. */
-static void set_frag_uniforms(render *r, unsigned prog, const pose *poses, const int vp[4])
+static void set_frag_uniforms(render *r, unsigned prog, int ray, const pose *poses, const int vp[4])
 {
     float w2t[RENDER_MAX_FRAGS][16], nmat[RENDER_MAX_FRAGS][9], col[RENDER_MAX_FRAGS][3], model[16];
     float occ_scale[RENDER_MAX_FRAGS][3];
@@ -209,16 +209,16 @@ static void set_frag_uniforms(render *r, unsigned prog, const pose *poses, const
         r->gl.ActiveTexture(GL_TEXTURE0 + (unsigned)i);
         r->gl.BindTexture(GL_TEXTURE_3D, f->tex);
     }
-    if (prog != r->prog_ray) /* the raycaster has its count compiled in */
+    if (!ray) /* the raycaster has its count compiled in */
         r->gl.Uniform1i(loc(r, prog, "nfrag"), r->nfrag);
     r->gl.Uniform4f(loc(r, prog, "viewport"), (float)vp[0], (float)vp[1], (float)vp[2], (float)vp[3]);
-    r->gl.Uniform1iv(loc(r, prog, "vol"), prog == r->prog_ray ? (r->nfrag ? r->nfrag : 1) : RENDER_MAX_FRAGS, units);
+    r->gl.Uniform1iv(loc(r, prog, "vol"), ray ? (r->nfrag ? r->nfrag : 1) : RENDER_MAX_FRAGS, units);
     r->gl.Uniform3fv(loc(r, prog, "bg"), 1, BG);
     if (r->nfrag == 0)
         return;
     r->gl.UniformMatrix4fv(loc(r, prog, "w2t"), r->nfrag, GL_FALSE, &w2t[0][0]);
     r->gl.Uniform3fv(loc(r, prog, "colour"), r->nfrag, &col[0][0]);
-    if (prog != r->prog_ray)
+    if (!ray)
         return;
     r->gl.UniformMatrix3fv(loc(r, prog, "nmat"), r->nfrag, GL_FALSE, &nmat[0][0]);
     r->gl.Uniform3fv(loc(r, prog, "occ_scale"), r->nfrag, &occ_scale[0][0]);
@@ -227,30 +227,70 @@ static void set_frag_uniforms(render *r, unsigned prog, const pose *poses, const
 
 /* ---- the 3D view ---- */
 
-static void draw_raycast(render *r, const pose *poses, const render_options *o, const int vp[4],
-                         const mat4 inv)
+/* Each fragment's span of occupied bricks into span_tex (within the viewport and scissor already
+ * set), then one ray per pixel through the spans. */
+static int draw_raycast(render *r, const pose *poses, const render_options *o, const int vp[4],
+                        const mat4 vpm, const mat4 inv)
 {
-    unsigned p = r->prog_ray;
-    float m[16];
+    unsigned pd = r->prog_depth;
+    float m[16], vpf[16], model[16], w2t[16], nmat[9];
     if (r->nfrag == 0)
-        return;
+        return 0;
+    int rc = render__ray_program(r, o->mode);
+    if (rc)
+        return rc;
+    unsigned p = r->prog_ray[o->mode];
+    mat4_to_gl(vpm, vpf);
+    r->gl.UseProgram(pd);
+    r->gl.UniformMatrix4fv(loc(r, pd, "vp"), 1, GL_FALSE, vpf);
+    r->gl.BindFramebuffer(GL_FRAMEBUFFER, r->span_fbo);
+    r->gl.Enable(GL_BLEND);
+    for (int k = 0; k < 2; k++) {
+        r->gl.BlendEquation(k ? GL_MAX : GL_MIN);
+        r->gl.Uniform1f(loc(r, pd, "fill"), k ? 0.0f : 1.0f);
+        r->gl.ClearColor(k ? 0.0f : 1.0f, k ? 0.0f : 1.0f, k ? 0.0f : 1.0f, k ? 0.0f : 1.0f);
+        for (int layer = 0; layer < r->span_layers; layer++) {
+            r->gl.FramebufferTextureLayer(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, r->span_tex[k], 0, layer);
+            r->gl.Clear(GL_COLOR_BUFFER_BIT);
+            for (int i = layer * 4; i < r->nfrag && i < layer * 4 + 4; i++) {
+                frag_mats(r, i, poses, model, w2t, nmat);
+                r->gl.UniformMatrix4fv(loc(r, pd, "model"), 1, GL_FALSE, model);
+                r->gl.Uniform1i(loc(r, pd, "comp"), i & 3);
+                r->gl.BindVertexArray(r->frag[i].proxy_vao);
+                r->gl.DrawArrays(GL_TRIANGLES, 0, r->frag[i].proxy_vertices);
+            }
+        }
+    }
+    r->gl.BlendEquation(GL_FUNC_ADD);
+    r->gl.Disable(GL_BLEND);
+    r->gl.BindFramebuffer(GL_FRAMEBUFFER, 0);
+    r->gl.ClearColor(BG[0], BG[1], BG[2], 1);
+    for (int k = 0; k < 2; k++) {
+        r->gl.ActiveTexture(GL_TEXTURE0 + UNIT_NEAR + (unsigned)k);
+        r->gl.BindTexture(GL_TEXTURE_2D_ARRAY, r->span_tex[k]);
+    }
     r->gl.UseProgram(p);
-    set_frag_uniforms(r, p, poses, vp);
+    set_frag_uniforms(r, p, 1, poses, vp);
     r->gl.ActiveTexture(GL_TEXTURE0 + UNIT_OCC);
     r->gl.BindTexture(GL_TEXTURE_3D, r->occ_tex);
     r->gl.ActiveTexture(GL_TEXTURE0 + UNIT_TF);
     r->gl.BindTexture(GL_TEXTURE_1D, r->tf_tex);
     r->gl.Uniform1i(loc(r, p, "occ"), UNIT_OCC);
     r->gl.Uniform1i(loc(r, p, "tf"), UNIT_TF);
-    r->gl.Uniform1i(loc(r, p, "mode"), (int)o->mode);
     mat4_to_gl(inv, m);
     r->gl.UniformMatrix4fv(loc(r, p, "inv_vp"), 1, GL_FALSE, m);
     r->gl.Uniform2f(loc(r, p, "tf_range"), (float)(r->iso_hu - 500), (float)(r->iso_hu + 1500));
     r->gl.Uniform1f(loc(r, p, "iso"), (float)r->iso_hu);
     r->gl.Uniform1f(loc(r, p, "step_fine"), (float)r->min_spacing);
     r->gl.Uniform1f(loc(r, p, "step_coarse"), (float)(0.9 * RENDER_BLOCK * r->min_spacing));
+    /* From a point outside every occupied (dilated) block, no voxel of a label is within 3.5
+     * voxels, so no sample reaches the level within 2.5. */
+    r->gl.Uniform1f(loc(r, p, "entry_skip"), (float)(2.5 * r->min_spacing));
+    r->gl.Uniform1i(loc(r, p, "near_depth"), UNIT_NEAR);
+    r->gl.Uniform1i(loc(r, p, "far_depth"), UNIT_FAR);
     r->gl.BindVertexArray(r->vao_empty);
     r->gl.DrawArrays(GL_TRIANGLES, 0, 3);
+    return 0;
 }
 
 static void draw_surface(render *r, const pose *poses, const render_options *o, const mat4 vp)
@@ -265,13 +305,18 @@ static void draw_surface(render *r, const pose *poses, const render_options *o, 
     r->gl.Uniform3fv(loc(r, p, "forward"), 1, fw);
     r->gl.Enable(GL_DEPTH_TEST);
     r->gl.Clear(GL_DEPTH_BUFFER_BIT);
+    /* The meshes are closed and wound counter-clockwise from outside: half their triangles face
+     * away and are dropped before rasterizing. */
+    r->gl.Enable(GL_CULL_FACE);
+    r->gl.CullFace(GL_BACK);
     for (int i = 0; i < r->nfrag; i++) {
         frag_mats(r, i, poses, m, w2t, nmat);
         r->gl.UniformMatrix4fv(loc(r, p, "model"), 1, GL_FALSE, m);
         r->gl.Uniform3fv(loc(r, p, "colour"), 1, r->frag[i].rgb);
         r->gl.BindVertexArray(r->frag[i].mesh_vao);
-        r->gl.DrawArrays(GL_TRIANGLES, 0, (int)(r->frag[i].mesh_triangles * 3));
+        r->gl.DrawElements(GL_TRIANGLES, (int)(r->frag[i].mesh_triangles * 3), GL_UNSIGNED_INT, (void *)0);
     }
+    r->gl.Disable(GL_CULL_FACE);
     r->gl.Disable(GL_DEPTH_TEST);
 }
 
@@ -427,12 +472,32 @@ static int voxel_box(line_buf *b, const pose *m, const uint16_t v[3], const doub
     return rc;
 }
 
-/* Both voxels of every colliding voxel pair, for every pair of fragments. */
+/* One voxel's box as 12 triangles at world placement m (the contact tint). */
+static int voxel_solid(line_buf *b, const pose *m, const uint16_t v[3], const double sp[3], const float c[3])
+{
+    static const int quad[6] = {0, 1, 3, 0, 3, 2};
+    int rc = 0;
+    for (int f = 0; f < 6 && !rc; f++) {
+        int axis = f / 2, u = (axis + 1) % 3, w = (axis + 2) % 3;
+        for (int k = 0; k < 6 && !rc; k++) {
+            double l[3], q[3];
+            l[axis] = (v[axis] + ((f & 1) ? 0.5 : -0.5)) * sp[axis];
+            l[u] = (v[u] + ((quad[k] & 1) ? 0.5 : -0.5)) * sp[u];
+            l[w] = (v[w] + ((quad[k] & 2) ? 0.5 : -0.5)) * sp[w];
+            pose_apply(m, l, q);
+            rc = line_push(b, q, c);
+        }
+    }
+    return rc;
+}
+
+/* Both voxels of every colliding voxel pair, for every pair of fragments: a translucent tint,
+ * then outlines. */
 static int draw_contacts(render *r, const pose *poses)
 {
     static const float yellow[3] = {1, 0.9f, 0.1f};
     obb_pair *pairs = malloc(RENDER_MAX_CONTACTS * sizeof *pairs);
-    line_buf b = {0};
+    line_buf b = {0}, tint = {0};
     int rc = pairs ? 0 : FN_ENOMEM;
     for (int i = 0; i < r->nfrag && !rc; i++)
         for (int j = i + 1; j < r->nfrag && !rc; j++) {
@@ -444,8 +509,26 @@ static int draw_contacts(render *r, const pose *poses)
                 rc = voxel_box(&b, &wi, pairs[k].a, r->frag[i].spacing, yellow);
                 if (!rc)
                     rc = voxel_box(&b, &wj, pairs[k].b, r->frag[j].spacing, yellow);
+                if (!rc)
+                    rc = voxel_solid(&tint, &wi, pairs[k].a, r->frag[i].spacing, yellow);
+                if (!rc)
+                    rc = voxel_solid(&tint, &wj, pairs[k].b, r->frag[j].spacing, yellow);
             }
         }
+    if (!rc && tint.n) {
+        static const float id[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+        r->gl.UniformMatrix4fv(loc(r, r->prog_line, "model"), 1, GL_FALSE, id);
+        r->gl.Uniform1f(loc(r, r->prog_line, "alpha"), 0.45f);
+        r->gl.Enable(GL_BLEND);
+        r->gl.BlendFunc(GL_SRC_ALPHA, GL_ONE_MINUS_SRC_ALPHA);
+        r->gl.BindVertexArray(r->line_vao);
+        r->gl.BindBuffer(GL_ARRAY_BUFFER, r->line_vbo);
+        r->gl.BufferData(GL_ARRAY_BUFFER, (GLsizeiptr)(tint.n * 6 * sizeof(float)), tint.v, GL_STREAM_DRAW);
+        r->gl.DrawArrays(GL_TRIANGLES, 0, (int)tint.n);
+        r->gl.Disable(GL_BLEND);
+        r->gl.Uniform1f(loc(r, r->prog_line, "alpha"), 1.0f);
+    }
+    free(tint.v);
     if (!rc && b.n) {
         static const float id[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
         r->gl.UniformMatrix4fv(loc(r, r->prog_line, "model"), 1, GL_FALSE, id);
@@ -461,6 +544,26 @@ static int draw_contacts(render *r, const pose *poses)
     return rc;
 }
 
+/* The VOI boxes (world mm) in cyan. */
+static int draw_voi(render *r, const render_options *o)
+{
+    static const float cyan[3] = {0.2f, 0.95f, 1.0f};
+    line_buf b = {0};
+    int rc = 0;
+    for (int i = 0; i < o->nvoi && i < RENDER_MAX_FRAGS && !rc; i++)
+        rc = box_edges(&b, o->voi[i], o->voi[i] + 3, cyan);
+    if (!rc && b.n) {
+        static const float id[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+        r->gl.UniformMatrix4fv(loc(r, r->prog_line, "model"), 1, GL_FALSE, id);
+        r->gl.BindVertexArray(r->line_vao);
+        r->gl.BindBuffer(GL_ARRAY_BUFFER, r->line_vbo);
+        r->gl.BufferData(GL_ARRAY_BUFFER, (GLsizeiptr)(b.n * 6 * sizeof(float)), b.v, GL_STREAM_DRAW);
+        r->gl.DrawArrays(GL_LINES, 0, (int)b.n);
+    }
+    free(b.v);
+    return rc ? fn_err_set(FN_ENOMEM, "render: out of memory for the VOI overlay") : 0;
+}
+
 static int draw_overlays(render *r, const pose *poses, const render_options *o, const mat4 vp)
 {
     unsigned p = r->prog_line;
@@ -469,6 +572,7 @@ static int draw_overlays(render *r, const pose *poses, const render_options *o, 
     mat4_to_gl(vp, m);
     r->gl.UniformMatrix4fv(loc(r, p, "vp"), 1, GL_FALSE, m);
     r->gl.Uniform1i(loc(r, p, "use_tint"), 0);
+    r->gl.Uniform1f(loc(r, p, "alpha"), 1.0f);
     int rc = 0;
     if ((o->overlays & (RENDER_OVERLAY_HIERARCHY | RENDER_OVERLAY_CONTACTS)) && r->nfrag && !r->frag[0].tree)
         return fn_err_set(FN_EINVAL, "render: the hierarchy and contacts overlays need the scene's "
@@ -486,6 +590,8 @@ static int draw_overlays(render *r, const pose *poses, const render_options *o, 
         rc = draw_contacts(r, poses);
     if (!rc && (o->overlays & RENDER_OVERLAY_AXES))
         rc = draw_axes(r, poses);
+    if (!rc && (o->overlays & RENDER_OVERLAY_VOI))
+        rc = draw_voi(r, o);
     return rc;
 }
 
@@ -493,11 +599,12 @@ static int draw_3d(render *r, const pose *poses, const render_options *o, const 
 {
     mat4 m, inv;
     camera_mats(&o->camera, (double)vp[2] / vp[3], m, inv);
+    int rc = 0;
     if (o->mode == RENDER_SURFACE)
         draw_surface(r, poses, o, m);
     else
-        draw_raycast(r, poses, o, vp, inv);
-    return draw_overlays(r, poses, o, m);
+        rc = draw_raycast(r, poses, o, vp, m, inv);
+    return rc ? rc : draw_overlays(r, poses, o, m);
 }
 
 /* ---- slices ---- */
@@ -514,7 +621,7 @@ static void draw_slice(render *r, const pose *poses, const render_options *o, in
 {
     unsigned p = r->prog_slice;
     r->gl.UseProgram(p);
-    set_frag_uniforms(r, p, poses, vp);
+    set_frag_uniforms(r, p, 0, poses, vp);
     double hh = o->camera.half_height, hw = hh * vp[2] / vp[3];
     float centre[3], u[3], v[3], m[16];
     double off = dot3(planes[which].n, o->slice_point) - dot3(planes[which].n, o->camera.centre);

@@ -9,6 +9,54 @@
 #ifdef FRACNAV_HAVE_GLFW
 #include <GLFW/glfw3.h>
 
+#include <string.h>
+
+/* The window and the input that arrived since the last render_poll. */
+typedef struct glfw_state {
+    GLFWwindow *win;
+    render_input in;
+    double x, y;
+    int have_pos;
+} glfw_state;
+
+static void on_char(GLFWwindow *w, unsigned int c)
+{
+    glfw_state *st = glfwGetWindowUserPointer(w);
+    if (c < 128 && st->in.nkeys < RENDER_INPUT_KEYS)
+        st->in.keys[st->in.nkeys++] = (int)c;
+}
+
+static void on_key(GLFWwindow *w, int key, int scancode, int action, int mods)
+{
+    glfw_state *st = glfwGetWindowUserPointer(w);
+    (void)scancode;
+    (void)mods;
+    if (action == GLFW_PRESS && key == GLFW_KEY_ESCAPE && st->in.nkeys < RENDER_INPUT_KEYS)
+        st->in.keys[st->in.nkeys++] = 27;
+}
+
+static void on_cursor(GLFWwindow *w, double x, double y)
+{
+    glfw_state *st = glfwGetWindowUserPointer(w);
+    static const int buttons[3] = {GLFW_MOUSE_BUTTON_LEFT, GLFW_MOUSE_BUTTON_RIGHT, GLFW_MOUSE_BUTTON_MIDDLE};
+    if (st->have_pos)
+        for (int b = 0; b < 3; b++)
+            if (glfwGetMouseButton(w, buttons[b]) == GLFW_PRESS) {
+                st->in.drag[b][0] += x - st->x;
+                st->in.drag[b][1] += y - st->y;
+            }
+    st->x = x;
+    st->y = y;
+    st->have_pos = 1;
+}
+
+static void on_scroll(GLFWwindow *w, double dx, double dy)
+{
+    glfw_state *st = glfwGetWindowUserPointer(w);
+    (void)dx;
+    st->in.scroll += dy;
+}
+
 static int glfw_open(render *r, int w, int h)
 {
     if (!glfwInit())
@@ -27,28 +75,54 @@ static int glfw_open(render *r, int w, int h)
         return fn_err_set(FN_ENODEV, "glfw: no OpenGL 4.5 core window: %s (install Mesa 20 or later "
                                      "or a newer GPU driver)", why ? why : "unknown reason");
     }
+    glfw_state *st = calloc(1, sizeof *st);
+    if (!st) {
+        glfwDestroyWindow(win);
+        glfwTerminate();
+        return fn_err_set(FN_ENOMEM, "glfw: out of memory");
+    }
+    st->win = win;
+    glfwSetWindowUserPointer(win, st);
+    glfwSetCharCallback(win, on_char);
+    glfwSetKeyCallback(win, on_key);
+    glfwSetCursorPosCallback(win, on_cursor);
+    glfwSetScrollCallback(win, on_scroll);
     glfwMakeContextCurrent(win);
     glfwSwapInterval(0);
-    r->plat_state = win;
+    r->plat_state = st;
     return 0;
 }
 
 static void *glfw_proc(render *r, const char *name)
 {
+    (void)r;
     return (void *)glfwGetProcAddress(name);
 }
 
 static int glfw_present(render *r)
 {
-    glfwSwapBuffers(r->plat_state);
+    glfw_state *st = r->plat_state;
+    glfwSwapBuffers(st->win);
     glfwPollEvents();
+    return 0;
+}
+
+static int glfw_poll(render *r, render_input *in)
+{
+    glfw_state *st = r->plat_state;
+    glfwPollEvents();
+    *in = st->in;
+    in->close = glfwWindowShouldClose(st->win);
+    memset(&st->in, 0, sizeof st->in);
     return 0;
 }
 
 static void glfw_close(render *r)
 {
-    glfwDestroyWindow(r->plat_state);
+    glfw_state *st = r->plat_state;
+    glfwDestroyWindow(st->win);
     glfwTerminate();
+    free(st);
     r->plat_state = NULL;
 }
 
@@ -58,6 +132,7 @@ const render_platform render__glfw = {
     .open = glfw_open,
     .proc = glfw_proc,
     .present = glfw_present,
+    .poll = glfw_poll,
     .close = glfw_close,
 };
 #else

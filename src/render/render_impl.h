@@ -33,7 +33,14 @@
     X(PFNGLDELETEVERTEXARRAYSPROC, DeleteVertexArrays) X(PFNGLGENBUFFERSPROC, GenBuffers)          \
     X(PFNGLBINDBUFFERPROC, BindBuffer) X(PFNGLBUFFERDATAPROC, BufferData)                          \
     X(PFNGLDELETEBUFFERSPROC, DeleteBuffers) X(PFNGLVERTEXATTRIBPOINTERPROC, VertexAttribPointer)  \
-    X(PFNGLENABLEVERTEXATTRIBARRAYPROC, EnableVertexAttribArray) X(PFNGLDRAWARRAYSPROC, DrawArrays)
+    X(PFNGLENABLEVERTEXATTRIBARRAYPROC, EnableVertexAttribArray) X(PFNGLDRAWARRAYSPROC, DrawArrays)    \
+    X(PFNGLDEPTHFUNCPROC, DepthFunc) X(PFNGLDEPTHMASKPROC, DepthMask) X(PFNGLCLEARDEPTHPROC, ClearDepth) \
+    X(PFNGLTEXIMAGE2DPROC, TexImage2D) X(PFNGLGENFRAMEBUFFERSPROC, GenFramebuffers)                 \
+    X(PFNGLDELETEFRAMEBUFFERSPROC, DeleteFramebuffers) X(PFNGLBINDFRAMEBUFFERPROC, BindFramebuffer) \
+    X(PFNGLFRAMEBUFFERTEXTURELAYERPROC, FramebufferTextureLayer) X(PFNGLDRAWBUFFERPROC, DrawBuffer) \
+    X(PFNGLBLENDEQUATIONPROC, BlendEquation) X(PFNGLDRAWELEMENTSPROC, DrawElements) \
+    X(PFNGLCULLFACEPROC, CullFace) X(PFNGLBLENDFUNCPROC, BlendFunc)        \
+    X(PFNGLCHECKFRAMEBUFFERSTATUSPROC, CheckFramebufferStatus)
 
 typedef struct render_gl {
 #define RENDER_GL_MEMBER(type, name) type name;
@@ -50,6 +57,7 @@ typedef struct render_platform {
     int (*open)(render *r, int w, int h);
     void *(*proc)(render *r, const char *name);
     int (*present)(render *r);
+    int (*poll)(render *r, render_input *in); /* NULL: no input (offscreen) */
     void (*close)(render *r);
 } render_platform;
 
@@ -64,8 +72,10 @@ typedef struct render_frag {
     pose home, pose; /* as segmented; the pose given at render_set_scene */
     double spacing[3];
     float rgb[3];
-    unsigned mesh_vao, mesh_vbo;
+    unsigned mesh_vao, mesh_vbo, mesh_ibo; /* welded: unique vertices and 32-bit indices */
     long mesh_triangles;
+    unsigned proxy_vao, proxy_vbo; /* the occupied bricks' boundary faces, local mm (triangles) */
+    int proxy_vertices;
     obb_tree *tree;            /* for the box overlay; NULL without one */
     unsigned box_vao, box_vbo; /* the boxes' edges at box_depth, local mm */
     int box_depth, box_vertices;
@@ -75,6 +85,7 @@ typedef struct render_frag {
 #define RENDER_OUTSIDE_HU (-1024.0f) /* outside the CT */
 #define RENDER_OUTSIDE_MARGIN 100.0   /* outside the label: at most iso - this */
 #define RENDER_BLOCK 4
+#define RENDER_PROXY_BLOCKS 1 /* a raycaster's brick is this many blocks along each axis */
 
 struct render {
     const render_platform *plat;
@@ -82,8 +93,14 @@ struct render {
     int w, h;
     render_gl gl;
     char renderer[256], version[256];
-    unsigned prog_ray, prog_slice, prog_mesh, prog_line;
+    unsigned prog_ray[3]; /* per raycast mode, compiled for the scene on first use (0: not yet) */
+    unsigned prog_slice, prog_mesh, prog_line, prog_depth, prog_hud;
+    unsigned hud_tex;
     unsigned vao_empty, line_vao, line_vbo;
+    /* Per fragment, the nearest and farthest depth of its occupied bricks: 2D array textures of
+     * w x h RGBA16F, fragment i in layer i / 4, channel i % 4 (made per scene). */
+    unsigned span_fbo, span_tex[2];
+    int span_layers;
     unsigned occ_tex, tf_tex, ct_tex;
     int have_ct;
     double ct_w2t[4][4]; /* world -> CT texture coordinates */
@@ -93,7 +110,11 @@ struct render {
 };
 
 /* GLSL sources (render_shader.c). */
-extern const char *const render__ray_fs, *const render__quad_vs, *const render__slice_fs,
+extern const char *const render__ray_fs, *const render__quad_vs, *const render__proxy_vs,
+    *const render__depth_fs, *const render__hud_fs, *const render__slice_fs,
     *const render__mesh_vs, *const render__mesh_fs, *const render__line_vs, *const render__line_fs;
+
+/* Compiles r->prog_ray[m] for the scene when it is not yet (render.c). 0 or FN_E*. */
+int render__ray_program(render *r, render_mode m);
 
 #endif

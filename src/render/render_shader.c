@@ -11,15 +11,34 @@ const char *const render__quad_vs =
     "    gl_Position = vec4(p * 2.0 - 1.0, 0.0, 1.0);\n"
     "}\n";
 
+/* The raycaster's bricks: the occupied bricks' boundary faces of each fragment, placed by its
+ * model matrix and drawn with MIN (then MAX) blending into channel `comp` of a layer of span_tex:
+ * per pixel and fragment, the nearest and farthest occupied brick. Orthographic, so window depth
+ * is the ray's parameter over its length; each ray samples a fragment only inside its span, and
+ * pixels that no brick covers cost a few texel fetches. */
+const char *const render__proxy_vs =
+    "#version 450 core\n"
+    "layout(location = 0) in vec3 pos;\n"
+    "uniform mat4 vp, model;\n"
+    "void main() { gl_Position = vp * model * vec4(pos, 1.0); }\n";
+
+const char *const render__depth_fs =
+    "#version 450 core\n"
+    "uniform int comp;\n"
+    "uniform float fill;\n"
+    "out vec4 frag_colour;\n"
+    "void main() { vec4 v = vec4(fill); v[comp] = gl_FragCoord.z; frag_colour = v; }\n";
+
 /* The raycaster. Every fragment's ray is o[i] + d[i] * t in its texture coordinates, with t the
  * same world distance for all, so one march visits every fragment at once. It is compiled per
- * scene after "#version 450 core" and "#define NF <fragments>": with a constant count the loops
+ * scene and mode after "#version 450 core", "#define NF <fragments>" and "#define mode <0 iso,
+ * 1 dvr, 2 mip>" (llvmpipe runs both sides of a branch its lanes disagree on, so code for the
+ * other modes would cost every step): with a constant count the loops
  * unroll and the per-ray arrays stay in registers (llvmpipe lowers a dynamically indexed local
  * array to a select over all its elements, so 16 slots for 3 fragments cost 2 to 4 times as much). */
 const char *const render__ray_fs =
     "#define MAXF NF\n"
     "#define nfrag NF\n"
-    "uniform int mode;\n" /* 0 iso, 1 dvr, 2 mip */
     "uniform mat4 inv_vp;\n"
     "uniform vec4 viewport;\n"
     "uniform mat4 w2t[MAXF];\n"
@@ -31,26 +50,28 @@ const char *const render__ray_fs =
     "uniform usampler3D occ;\n"
     "uniform sampler1D tf;\n"
     "uniform vec2 tf_range;\n"
-    "uniform float iso, step_fine, step_coarse;\n"
+    "uniform float iso, step_fine, step_coarse, entry_skip;\n"
     "uniform vec3 bg;\n"
+    "uniform sampler2DArray near_depth, far_depth;\n"
     "out vec4 frag_colour;\n"
     "vec3 o[MAXF]; vec3 d[MAXF]; float tn[MAXF]; float tx[MAXF];\n"
+    "bool occupied(int i, vec3 p) {\n"
+    "    ivec3 c = clamp(ivec3(p * occ_scale[i]), ivec3(0), occ_info[i].xyz - 1);\n"
+    "    c.z += occ_info[i].w;\n"
+    "    return texelFetch(occ, c, 0).r != 0u;\n"
+    "}\n"
     "bool any_occupied(float t) {\n"
     "    bool any = false;\n"
-    "    for (int i = 0; i < nfrag; ++i) {\n"
-    "        if (t >= tn[i] && t <= tx[i]) {\n"
-    "            ivec3 c = clamp(ivec3((o[i] + d[i] * t) * occ_scale[i]), ivec3(0), occ_info[i].xyz - 1);\n"
-    "            c.z += occ_info[i].w;\n"
-    "            any = any || texelFetch(occ, c, 0).r != 0u;\n"
-    "        }\n"
-    "    }\n"
+    "    for (int i = 0; i < nfrag; ++i)\n"
+    "        any = any || (t >= tn[i] && t <= tx[i] && occupied(i, o[i] + d[i] * t));\n"
     "    return any;\n"
     "}\n"
     "float sample_max(float t, out int best) {\n"
     "    float m = -4000.0; best = -1;\n"
     "    for (int i = 0; i < nfrag; ++i) {\n"
+    "        vec3 p = o[i] + d[i] * t;\n"
     "        if (t >= tn[i] && t <= tx[i]) {\n"
-    "            float v = texture(vol[i], o[i] + d[i] * t).r;\n"
+    "            float v = texture(vol[i], p).r;\n"
     "            if (v > m) { m = v; best = i; }\n"
     "        }\n"
     "    }\n"
@@ -72,6 +93,7 @@ const char *const render__ray_fs =
     "    return c * (0.2 + 0.8 * diff) + vec3(0.25 * pow(diff, 24.0));\n"
     "}\n"
     "void main() {\n"
+    "    frag_colour = vec4(bg, 1.0);\n"
     "    vec2 ndc = (gl_FragCoord.xy - viewport.xy) / viewport.zw * 2.0 - 1.0;\n"
     "    vec4 a = inv_vp * vec4(ndc, -1.0, 1.0), b = inv_vp * vec4(ndc, 1.0, 1.0);\n"
     "    vec3 ro = a.xyz / a.w, re = b.xyz / b.w;\n"
@@ -82,26 +104,28 @@ const char *const render__ray_fs =
     "        vec3 dd = mix(d[i], vec3(1e-12), lessThan(abs(d[i]), vec3(1e-12)));\n"
     "        vec3 ta = -o[i] / dd, tb = (1.0 - o[i]) / dd;\n"
     "        vec3 lo = min(ta, tb), hi = max(ta, tb);\n"
-    "        tn[i] = max(max(lo.x, lo.y), max(lo.z, 0.0));\n"
-    "        tx[i] = min(min(hi.x, hi.y), min(hi.z, len));\n"
+    "        ivec3 px = ivec3(ivec2(gl_FragCoord.xy), i >> 2);\n"
+    "        float zn = texelFetch(near_depth, px, 0)[i & 3], zf = texelFetch(far_depth, px, 0)[i & 3];\n"
+    "        tn[i] = max(max(lo.x, lo.y), max(lo.z, max(zn - 0.002, 0.0) * len));\n" /* RGBA16F: a margin */
+    "        tx[i] = min(min(hi.x, hi.y), min(hi.z, min(zf + 0.002, 1.0) * len));\n"
+    "        if (zn >= 1.0) tx[i] = -1e30;\n"
     "        if (tn[i] <= tx[i]) { t0 = min(t0, tn[i]); t1 = max(t1, tx[i]); }\n"
     "        else { tn[i] = 1e30; tx[i] = -1e30; }\n"
     "    }\n"
-    "    frag_colour = vec4(bg, 1.0);\n"
     "    if (t0 > t1) return;\n"
     "    float t = t0, prev = t0, fine_end = -1.0;\n"
     "    vec4 acc = vec4(0.0); float vmax = -4000.0; int fmax = -1;\n"
-    "    bool done = false; int hit = -1;\n"
+    "    bool done = false, prev_empty = true; int hit = -1;\n"
     "    for (int s = 0; s < 8192 && t <= t1 && !done; ++s) {\n"
     "        bool fine = t <= fine_end;\n"
     "        if (!fine && any_occupied(t)) {\n" /* re-march the last coarse step finely */
-    "            fine_end = t + step_coarse; t = prev; fine = true;\n"
+    "            fine_end = t + step_coarse; t = prev_empty ? min(prev + entry_skip, t) : prev; fine = true;\n"
     "        }\n"
-    "        if (!fine) { prev = t; t += step_coarse; }\n"
+    "        if (!fine) { prev = t; prev_empty = true; t += step_coarse; }\n"
     "        else if (mode == 0) {\n"
     "            int f; float v = sample_max(t, f);\n"
     "            if (v >= iso) { hit = f; done = true; }\n"
-    "            else { if (v > iso - 400.0) fine_end = max(fine_end, t + step_coarse); prev = t; t += step_fine; }\n"
+    "            else { if (v > iso - 400.0) fine_end = max(fine_end, t + step_coarse); prev = t; prev_empty = false; t += step_fine; }\n"
     "        } else {\n"
     "            bool inside = false;\n"
     "            for (int i = 0; i < nfrag; ++i) {\n"
@@ -117,7 +141,7 @@ const char *const render__ray_fs =
     "            }\n"
     "            if (inside) fine_end = max(fine_end, t + step_coarse);\n"
     "            done = acc.a > 0.98;\n"
-    "            prev = t; t += step_fine;\n"
+    "            prev = t; prev_empty = false; t += step_fine;\n"
     "        }\n"
     "    }\n"
     "    if (mode == 0) {\n"
@@ -212,6 +236,21 @@ const char *const render__line_fs =
     "#version 450 core\n"
     "uniform vec3 tint;\n"
     "uniform int use_tint;\n"
+    "uniform float alpha;\n"
     "in vec3 c;\n"
     "out vec4 frag_colour;\n"
-    "void main() { frag_colour = vec4(use_tint != 0 ? tint : c, 1.0); }\n";
+    "void main() { frag_colour = vec4(use_tint != 0 ? tint : c, alpha); }\n";
+
+/* The HUD: its R8 texture (rows top to bottom from `origin`, the box's top-left pixel in window
+ * coordinates) over the frame, inside the scissor box: 1 text, 0.5 warning text, 0 the box. */
+const char *const render__hud_fs =
+    "#version 450 core\n"
+    "uniform sampler2D hud;\n"
+    "uniform vec2 origin;\n"
+    "out vec4 frag_colour;\n"
+    "void main() {\n"
+    "    ivec2 p = ivec2(int(gl_FragCoord.x - origin.x), int(origin.y - gl_FragCoord.y));\n"
+    "    float v = texelFetch(hud, p, 0).r;\n"
+    "    frag_colour = v > 0.75 ? vec4(0.92, 0.95, 1.0, 1.0)\n"
+    "                : v > 0.25 ? vec4(1.0, 0.72, 0.1, 1.0) : vec4(0.0, 0.0, 0.0, 0.55);\n"
+    "}\n";

@@ -1,0 +1,109 @@
+/* framedump: pictures of a replay (see framedump.h). */
+#include "framedump.h"
+
+#include "err.h"
+#include "render.h"
+#include "snap.h"
+
+#include <errno.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+
+struct framedump {
+    char dir[4096];
+    const fcase *c;
+    render *r;
+    render_options o;
+    int w, h;
+    int64_t step_us, next_us;
+    int started;
+    long count;
+    uint8_t *rgb;
+};
+
+framedump *framedump_open(const char *dir, const fcase *c, double frame_ms, int w, int h)
+{
+    if (mkdir(dir, 0777) != 0 && errno != EEXIST) {
+        fn_err_set(FN_EIO, "--frames %s: cannot make the folder: %s", dir, strerror(errno));
+        return NULL;
+    }
+    if (c->nfrag > RENDER_MAX_FRAGS) {
+        fn_err_set(FN_EINVAL, "--frames: the case has %d fragments; at most %d can be drawn", c->nfrag,
+                   RENDER_MAX_FRAGS);
+        return NULL;
+    }
+    framedump *d = calloc(1, sizeof *d);
+    uint8_t *rgb = malloc((size_t)w * (size_t)h * 3);
+    if (!d || !rgb) {
+        free(d);
+        free(rgb);
+        fn_err_set(FN_ENOMEM, "--frames: out of memory");
+        return NULL;
+    }
+    snprintf(d->dir, sizeof d->dir, "%s", dir);
+    d->c = c;
+    d->w = w;
+    d->h = h;
+    d->rgb = rgb;
+    d->step_us = (int64_t)(frame_ms * 1000.0 + 0.5);
+    d->step_us = d->step_us < 1 ? 1 : d->step_us;
+    d->r = render_open("osmesa", w, h);
+    if (!d->r || render_set_scene(d->r, c->ct, c->frag, c->nfrag, c->seg.threshold, NULL)) {
+        framedump_close(d);
+        return NULL;
+    }
+    render_options_default(&d->o, c->frag, c->nfrag);
+    return d;
+}
+
+static int write_frame(framedump *d, loop *L)
+{
+    pose poses[RENDER_MAX_FRAGS];
+    for (int i = 0; i < d->c->nfrag; i++)
+        poses[i] = loop_pose(L, i);
+    char path[4200];
+    snprintf(path, sizeof path, "%s/frame_%05ld.png", d->dir, d->count);
+    int rc = render_frame(d->r, poses, &d->o);
+    if (!rc)
+        rc = render_read_rgb(d->r, d->rgb);
+    if (!rc)
+        rc = snap_write_png(path, d->rgb, d->w, d->h);
+    if (!rc)
+        d->count++;
+    return rc;
+}
+
+int framedump_before(framedump *d, loop *L, int64_t t_us)
+{
+    if (!d->started) {
+        d->started = 1;
+        d->next_us = t_us; /* frame 0: the poses before the first event */
+    }
+    int rc = 0;
+    while (!rc && d->next_us < t_us) {
+        rc = write_frame(d, L);
+        d->next_us += d->step_us;
+    }
+    return rc;
+}
+
+int framedump_finish(framedump *d, loop *L)
+{
+    return write_frame(d, L);
+}
+
+long framedump_count(const framedump *d)
+{
+    return d->count;
+}
+
+void framedump_close(framedump *d)
+{
+    if (!d)
+        return;
+    render_close(d->r);
+    free(d->rgb);
+    free(d);
+}
