@@ -41,7 +41,7 @@ static void write_ct(const char *path, float bone)
     vol_free(v);
 }
 
-static fcase *make_case(const char *dir, const char *src)
+static planning_case *make_case(const char *dir, const char *src)
 {
     vol *ct = volio_read(src);
     assert_non_null(ct);
@@ -53,7 +53,7 @@ static fcase *make_case(const char *dir, const char *src)
     vol *labels = r.labels;
     r.labels = NULL;
     seg_result_free(&r);
-    fcase *c = case_create(dir, src, ct, labels, &p);
+    planning_case *c = case_create(dir, src, ct, labels, &p);
     assert_non_null(c);
     return c;
 }
@@ -64,7 +64,7 @@ static void test_round_trip(void **st)
     snprintf(src, sizeof src, "%s/ct.nii.gz", dir);
     snprintf(cdir, sizeof cdir, "%s/case", dir);
     write_ct(src, 700);
-    fcase *c = make_case(cdir, src);
+    planning_case *c = make_case(cdir, src);
     assert_int_equal(c->nfrag, 2);
     double ax[3] = {0, 0, 1};
     c->frag[1].pose = pose_from_axis_angle(ax, 0.3);
@@ -76,7 +76,7 @@ static void test_round_trip(void **st)
     c->tau_min = 0.25;
     assert_int_equal(case_save(c), 0);
 
-    fcase *d = case_load(cdir);
+    planning_case *d = case_load(cdir);
     if (!d)
         fail_msg("%s", fn_err_msg());
     assert_int_equal(d->nfrag, 2);
@@ -102,7 +102,7 @@ static void test_round_trip(void **st)
     json_object_set_new(d->extra, "voi", json_pack("{s:[iii]}", "min", 1, 2, 3));
     json_object_set_new(d->extra, "version", json_integer(99)); /* not theirs: ignored */
     assert_int_equal(case_save(d), 0);
-    fcase *e = case_load(cdir);
+    planning_case *e = case_load(cdir);
     if (!e)
         fail_msg("%s", fn_err_msg());
     json_t *voi = json_object_get(e->extra, "voi");
@@ -125,7 +125,7 @@ static void test_folder_moves(void **st)
     snprintf(moved, sizeof moved, "%s/b", dir);
     assert_int_equal(mkdir(cdir, 0755), 0);
     write_ct(src, 700);
-    fcase *c = make_case(cdir, src);
+    planning_case *c = make_case(cdir, src);
     assert_int_equal(case_save(c), 0);
     case_free(c);
     char *text = tu_slurp(strcat(strcpy(moved, cdir), "/case.json"), NULL);
@@ -133,7 +133,7 @@ static void test_folder_moves(void **st)
     free(text);
     snprintf(moved, sizeof moved, "%s/b", dir);
     assert_int_equal(rename(cdir, moved), 0);
-    fcase *d = case_load(moved);
+    planning_case *d = case_load(moved);
     if (!d)
         fail_msg("%s", fn_err_msg());
     assert_int_equal(d->nfrag, 2);
@@ -150,7 +150,7 @@ static void expect_load_error(void (*damage)(json_t *), int code, const char *wa
     snprintf(cdir, sizeof cdir, "%s/case", dir);
     snprintf(json, sizeof json, "%s/case.json", cdir);
     write_ct(src, 700);
-    fcase *c = make_case(cdir, src);
+    planning_case *c = make_case(cdir, src);
     assert_int_equal(case_save(c), 0);
     case_free(c);
     json_t *root = json_load_file(json, 0, NULL);
@@ -258,7 +258,7 @@ static void test_changed_files(void **st)
     snprintf(src, sizeof src, "%s/ct.nii.gz", dir);
     snprintf(cdir, sizeof cdir, "%s/case", dir);
     write_ct(src, 700);
-    fcase *c = make_case(cdir, src);
+    planning_case *c = make_case(cdir, src);
     assert_int_equal(case_save(c), 0);
 
     /* The source volume was replaced: the sha256 check says so and names it. */
@@ -268,7 +268,7 @@ static void test_changed_files(void **st)
     assert_non_null(strstr(fn_err_msg(), "ct.nii.gz"));
     assert_non_null(strstr(fn_err_msg(), "changed"));
     write_ct(src, 700);
-    fcase *ok = case_load(cdir);
+    planning_case *ok = case_load(cdir);
     assert_non_null(ok);
     case_free(ok);
 
@@ -319,7 +319,7 @@ static void test_interrupted_save_recovers(void **st)
     snprintf(lab, sizeof lab, "%s/labels.nii.gz", cdir);
     snprintf(prev, sizeof prev, "%s/labels.prev.nii.gz", cdir);
     write_ct(src, 700);
-    fcase *c = make_case(cdir, src);
+    planning_case *c = make_case(cdir, src);
     assert_int_equal(case_save(c), 0);
     assert_int_equal(case_save(c), 0);
     struct stat sb;
@@ -333,7 +333,7 @@ static void test_interrupted_save_recovers(void **st)
     c->labels->data[i0] = 0; /* the edit whose save was cut short */
     assert_int_equal(volio_write(c->labels, lab, VOL_U16), 0);
 
-    fcase *d = case_load(cdir);
+    planning_case *d = case_load(cdir);
     if (!d)
         fail_msg("%s", fn_err_msg());
     assert_true(d->labels->data[i0] != 0);
@@ -365,7 +365,7 @@ static void test_corruption_battery(void **st)
     snprintf(cdir, sizeof cdir, "%s/case", dir);
     snprintf(json, sizeof json, "%s/case.json", cdir);
     write_ct(src, 700);
-    fcase *c = make_case(cdir, src);
+    planning_case *c = make_case(cdir, src);
     assert_int_equal(case_save(c), 0);
     case_free(c);
     size_t len;
@@ -382,7 +382,7 @@ static void test_corruption_battery(void **st)
             else
                 buf[off] = subst[v];
             tu_write_file(json, buf, n);
-            fcase *d = case_load(cdir);
+            planning_case *d = case_load(cdir);
             if (d) {
                 loaded++;
                 case_free(d);
@@ -396,7 +396,7 @@ static void test_corruption_battery(void **st)
     }
     assert_true(refused > 60);
     tu_write_file(json, orig, len);
-    fcase *d = case_load(cdir);
+    planning_case *d = case_load(cdir);
     assert_non_null(d);
     case_free(d);
     free(orig);

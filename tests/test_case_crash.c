@@ -114,7 +114,7 @@ static void test_segment_refuses_existing_and_leaves_no_half_folder(void **st)
     int killed = kill_when_written(spawn(args), dir, "case", ".labels.tmp.nii.gz", NULL);
     struct stat sb;
     if (stat(cdir, &sb) == 0) {
-        fcase *c = case_load(cdir);
+        planning_case *c = case_load(cdir);
         if (!c)
             fail_msg("killed=%d: a half-made case folder is left: %s", killed, fn_err_msg());
         case_free(c);
@@ -122,7 +122,7 @@ static void test_segment_refuses_existing_and_leaves_no_half_folder(void **st)
     char *out = NULL;
     assert_int_equal(tu_run_cli(&out, "%s", args), 0); /* what was left is no obstacle */
     free(out);
-    fcase *c = case_load(cdir);
+    planning_case *c = case_load(cdir);
     assert_non_null(c);
     char before[65];
     memcpy(before, c->json_sha256, sizeof before);
@@ -157,7 +157,7 @@ static void test_fracture_killed_keeps_old_case(void **st)
     char *out = NULL;
     assert_int_equal(tu_run_cli(&out, "fracture '%s' -o '%s' --seed 1", src, cdir), 0);
     free(out);
-    fcase *c = case_load(cdir);
+    planning_case *c = case_load(cdir);
     if (!c)
         fail_msg("%s", fn_err_msg());
     char before[65];

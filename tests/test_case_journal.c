@@ -83,9 +83,9 @@ static int teardown(void **st)
     return 0;
 }
 
-static fcase *load(const struct fixture *f)
+static planning_case *load(const struct fixture *f)
 {
-    fcase *c = case_load(f->cdir);
+    planning_case *c = case_load(f->cdir);
     if (!c)
         fail_msg("%s", fn_err_msg());
     return c;
@@ -113,7 +113,7 @@ static void write_journal(const struct fixture *f, const journal_bind *b, journa
 /* A journal that moves fragment index `frag` of the case as it is now to x mm. */
 static void interrupted(const struct fixture *f, int frag, double x)
 {
-    fcase *c = load(f);
+    planning_case *c = load(f);
     journal_bind b;
     case_journal_bind(c, &b);
     case_free(c);
@@ -121,7 +121,7 @@ static void interrupted(const struct fixture *f, int frag, double x)
     write_journal(f, &b, &r, 1);
 }
 
-static double pose_x(const fcase *c, int id)
+static double pose_x(const planning_case *c, int id)
 {
     int k = case_find(c, id);
     assert_true(k >= 0);
@@ -154,7 +154,7 @@ static void test_edit_never_moves_journaled_poses_to_another_fragment(void **st)
     free(out);
     rc = tu_run_cli(&out, "replay '%s' '%s' --recover --save", f->cdir, f->idle);
     free(out);
-    fcase *c = load(f);
+    planning_case *c = load(f);
     assert_int_equal(c->nfrag, 2);
     assert_true(pose_x(c, 2) == 0 && pose_x(c, 3) == 0);
     case_free(c);
@@ -166,7 +166,7 @@ static void test_edit_never_moves_journaled_poses_to_another_fragment(void **st)
 static void test_journal_of_another_case_state_is_refused(void **st)
 {
     struct fixture *f = *st;
-    fcase *c = load(f);
+    planning_case *c = load(f);
     journal_bind b;
     case_journal_bind(c, &b);
     case_free(c);
@@ -197,7 +197,7 @@ static void test_poses_already_saved_are_not_offered(void **st)
 {
     struct fixture *f = *st;
     interrupted(f, 1, 2.25);
-    fcase *c = load(f);
+    planning_case *c = load(f);
     c->frag[1].pose = moved(2.25);
     assert_int_equal(case_save(c), 0);
     case_free(c);
@@ -237,7 +237,7 @@ static void test_damaged_first_record_is_kept_aside(void **st)
 static void test_damage_in_the_middle_recovers_what_precedes(void **st)
 {
     struct fixture *f = *st;
-    fcase *c = load(f);
+    planning_case *c = load(f);
     journal_bind b;
     case_journal_bind(c, &b);
     case_free(c);
@@ -311,7 +311,7 @@ static void test_fixed_in_session_is_saved(void **st)
     int rc = tu_run_cli(&out, "replay '%s' '%s' --save", f->cdir, rec);
     if (rc != 0)
         fail_msg("replay: %s", out);
-    fcase *c = load(f);
+    planning_case *c = load(f);
     if (c->fixed != case_find(c, 1))
         fail_msg("fixed %d: %s", c->fixed, out);
     free(out);

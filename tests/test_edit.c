@@ -74,9 +74,9 @@ static int teardown(void **st)
     return 0;
 }
 
-static fcase *load(const struct fixture *f)
+static planning_case *load(const struct fixture *f)
 {
-    fcase *c = case_load(f->cdir);
+    planning_case *c = case_load(f->cdir);
     if (!c)
         fail_msg("%s", fn_err_msg());
     return c;
@@ -93,7 +93,7 @@ static void test_merge_and_bad_ids(void **st)
     char *out;
     assert_int_equal(edit(f, &out, "merge 1 3"), 0);
     free(out);
-    fcase *c = load(f);
+    planning_case *c = load(f);
     assert_int_equal(c->nfrag, 2);
     assert_int_equal((int)c->frag[0].voxels, 1080);
     assert_int_equal(c->frag[1].id, 2);
@@ -120,7 +120,7 @@ static void test_split(void **st)
     assert_int_equal(edit(f, &out, "split 1 --plane 105.5 0 0 1 0 0"), 0);
     assert_non_null(strstr(out, "fragment 4"));
     free(out);
-    fcase *c = load(f);
+    planning_case *c = load(f);
     assert_int_equal(c->nfrag, 4);
     int i1 = case_find(c, 1), i4 = case_find(c, 4);
     assert_int_equal((int)c->frag[i1].voxels, 400);
@@ -152,7 +152,7 @@ static void test_erase_keep_drop_fix(void **st)
     assert_int_equal(edit(f, &out, "erase-sphere 124.5 206.5 303.5 1.5"), 0);
     assert_non_null(strstr(out, "erased 8 voxels"));
     free(out);
-    fcase *c = load(f);
+    planning_case *c = load(f);
     assert_int_equal((int)c->frag[0].voxels, 700);
     assert_int_equal((int)c->frag[1].voxels, 392);
     case_free(c);
@@ -199,7 +199,7 @@ static void test_grow(void **st)
     free(out);
     assert_int_equal(edit(f, &out, "grow 131 222 315 --into 1"), 0);
     free(out);
-    fcase *c = load(f);
+    planning_case *c = load(f);
     assert_int_equal(c->nfrag, 2);
     assert_int_equal((int)c->frag[0].voxels, 1080);
     case_free(c);
@@ -227,7 +227,7 @@ static void test_failed_save_keeps_case(void **st)
     char *j1 = tu_slurp(json, &jn1), *l1 = tu_slurp(labels, &ln1);
     assert_true(jn1 == jn && !memcmp(j0, j1, jn));
     assert_true(ln1 == ln && !memcmp(l0, l1, ln));
-    fcase *c = load(f);
+    planning_case *c = load(f);
     assert_int_equal(c->nfrag, 3);
     case_free(c);
     rmdir(block);
@@ -246,7 +246,7 @@ static void test_failed_save_keeps_case(void **st)
 static void test_api(void **st)
 {
     struct fixture *f = *st;
-    fcase *c = load(f);
+    planning_case *c = load(f);
     double p[3] = {0, 0, 307}, n[3] = {0, 0, 1};
     int id = case_split(c, 1, p, n);
     assert_int_equal(id, 4);

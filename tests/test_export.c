@@ -166,7 +166,7 @@ static void test_tfm_maps_as_the_pose(void **st)
     (void)st;
     if (access(python, X_OK) != 0 && missing("python3", "python3"))
         return;
-    fcase *c = case_load(frac);
+    planning_case *c = case_load(frac);
     assert_non_null(c);
     int moved = 0;
     for (int i = 0; i < c->nfrag; i++) {
@@ -204,7 +204,7 @@ static void test_nifti_and_seg_nrrd(void **st)
     (void)st;
     if (!have_python("numpy, nibabel") && missing("python3 with numpy and nibabel", "python3-numpy python3-nibabel"))
         return;
-    fcase *c = case_load(frac);
+    planning_case *c = case_load(frac);
     assert_non_null(c);
     char nii[4300], seg[4300];
     snprintf(nii, sizeof nii, "%s/planned.nii.gz", out);
@@ -292,7 +292,7 @@ static void test_stl_closed_in_mm(void **st)
     (void)st;
     if (!have_python("struct") && missing("python3", "python3"))
         return;
-    fcase *c = case_load(frac);
+    planning_case *c = case_load(frac);
     assert_non_null(c);
     char path[8800], ras_dir[4300], small_dir[4300];
     snprintf(ras_dir, sizeof ras_dir, "%s/ras", dir);

@@ -267,7 +267,7 @@ static void test_same_seed_same_case(void **st)
     assert_false(na == nc && !memcmp(ja, jc, na));
     /* The case loads, the fixed fragment is 1, and truth is stored per fragment. */
     snprintf(pa, sizeof pa, "%s/a", dir);
-    fcase *c = case_load(pa);
+    planning_case *c = case_load(pa);
     if (!c)
         fail_msg("%s", fn_err_msg());
     assert_int_equal(c->nfrag, 2);
@@ -308,7 +308,7 @@ static void test_cli_prints_centroid_shift(void **st)
     const char *at = strstr(line, "ground truth moves its centroid back ");
     assert_non_null(at);
     assert_int_equal(sscanf(at, "ground truth moves its centroid back %lf mm and turns it %lf deg", &mm, &deg), 2);
-    fcase *c = case_load(cdir);
+    planning_case *c = case_load(cdir);
     if (!c)
         fail_msg("%s", fn_err_msg());
     int k = case_find(c, 2);
@@ -509,7 +509,7 @@ static void test_cli_threshold_auto(void **st)
     if (rc != 0)
         fail_msg("fracture failed (%d): %s", rc, out);
     free(out);
-    fcase *c = case_load(cdir);
+    planning_case *c = case_load(cdir);
     if (!c)
         fail_msg("%s", fn_err_msg());
     /* Otsu over the brighter class falls between soft tissue (100..119) and bone (200..239). */

@@ -333,7 +333,7 @@ static void test_navigate_saves_on_exit(void **st)
 /* Writes one journal record that puts fragment B (index 1) at p: an interrupted session. */
 static void interrupted_at(pose p)
 {
-    fcase *c = case_load(case_dir);
+    planning_case *c = case_load(case_dir);
     assert_non_null(c);
     journal_bind b;
     case_journal_bind(c, &b);

@@ -181,7 +181,7 @@ static void test_case_separate_and_fill(void **st)
     seg_params sp;
     seg_defaults(&sp);
     assert_int_equal(volio_write(ct, src, VOL_I16), 0);
-    fcase *c = case_create(dir, src, ct, labels, &sp);
+    planning_case *c = case_create(dir, src, ct, labels, &sp);
     if (!c)
         fail_msg("%s", fn_err_msg());
     assert_int_equal(c->nfrag, 1);

@@ -155,7 +155,7 @@ static void test_case(void **st)
     vol *labels = r.labels;
     r.labels = NULL;
     seg_result_free(&r);
-    fcase *c = case_create(cdir, src, ct, labels, &p);
+    planning_case *c = case_create(cdir, src, ct, labels, &p);
     assert_non_null(c);
     assert_int_equal(case_save(c), 0);
     case_free(c);

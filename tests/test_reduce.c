@@ -253,7 +253,7 @@ static vol *bone(void)
     return v;
 }
 
-static fcase *fractured(const char *dir, int pieces, uint64_t seed)
+static planning_case *fractured(const char *dir, int pieces, uint64_t seed)
 {
     vol *ct = bone();
     fracture_params p;
@@ -262,14 +262,14 @@ static fcase *fractured(const char *dir, int pieces, uint64_t seed)
     p.pieces = pieces;
     p.displace_mm = 4;
     p.rotate_deg = 5;
-    fcase *c = fracture_make_case(ct, &p, dir);
+    planning_case *c = fracture_make_case(ct, &p, dir);
     vol_free(ct);
     if (!c)
         fail_msg("%s", fn_err_msg());
     return c;
 }
 
-static void check_errors(const fcase *c, int fixed, double mm, double deg)
+static void check_errors(const planning_case *c, int fixed, double mm, double deg)
 {
     for (int i = 0; i < c->nfrag; i++) {
         if (i == fixed)
@@ -284,7 +284,7 @@ static void check_errors(const fcase *c, int fixed, double mm, double deg)
 static void test_reduce_two_pieces(void **st)
 {
     char *dir = tu_tmpdir("reduce2");
-    fcase *c = fractured(dir, 2, 3);
+    planning_case *c = fractured(dir, 2, 3);
     reduce_opts o;
     reduce_defaults(&o);
     o.prealign = 0;
@@ -299,7 +299,7 @@ static void test_reduce_two_pieces(void **st)
     assert_int_equal(reduce_store(c, 0, &o, r, 1), 0);
     assert_int_equal(case_save(c), 0);
     pose want = c->frag[1].pose;
-    fcase *back = case_load(dir);
+    planning_case *back = case_load(dir);
     assert_non_null(back);
     assert_true(pose_angle_between(back->frag[1].pose, want) < 1e-9 && pose_distance(back->frag[1].pose, want) < 1e-9);
     json_t *red = json_object_get((json_t *)back->extra, "reduction");
@@ -320,7 +320,7 @@ static void test_reduce_two_pieces(void **st)
 static void test_reduce_three_pieces(void **st)
 {
     char *dir = tu_tmpdir("reduce3");
-    fcase *c = fractured(dir, 3, 5);
+    planning_case *c = fractured(dir, 3, 5);
     reduce_opts o;
     reduce_defaults(&o);
     o.prealign = 0;
@@ -338,7 +338,7 @@ static void test_reduce_three_pieces(void **st)
 static void test_reduce_nlopt_methods(void **st)
 {
     char *dir = tu_tmpdir("reduce_nlopt");
-    fcase *c = fractured(dir, 2, 3);
+    planning_case *c = fractured(dir, 2, 3);
     pose placed = c->frag[1].pose;
     for (int m = REDUCE_PRAXIS; m < REDUCE_METHODS; m++) {
         reduce_opts o;
@@ -378,7 +378,7 @@ static void on_progress(void *ctx, int id, int iter, int evals, double f, double
 static void test_fit_one(void **st)
 {
     char *dir = tu_tmpdir("reduce_fit_one");
-    fcase *c = fractured(dir, 2, 3);
+    planning_case *c = fractured(dir, 2, 3);
     pose placed = c->frag[1].pose;
     const frag *others[1] = {&c->frag[0]};
     reduce_opts o;
@@ -415,7 +415,7 @@ static void test_fit_one(void **st)
 static void test_cli_from_journal(void **st)
 {
     char *dir = tu_tmpdir("reduce_journal"), *out = NULL;
-    fcase *c = fractured(dir, 2, 3);
+    planning_case *c = fractured(dir, 2, 3);
     /* the hand left fragment 2 half way back: 2 mm and 2 degrees from its true pose */
     pose want = c->truth[1];
     double axis[3] = {0, 0.6, 0.8}, cw[3], rc2[3];
@@ -436,7 +436,7 @@ static void test_cli_from_journal(void **st)
     if (rc != 0 || !strstr(out, "journal"))
         fail_msg("rc %d: %s", rc, out);
     free(out);
-    fcase *back = case_load(dir);
+    planning_case *back = case_load(dir);
     if (!back)
         fail_msg("%s", fn_err_msg());
     json_t *fr = json_array_get(json_object_get(json_object_get((json_t *)back->extra, "reduction"), "fragments"), 0);
@@ -455,7 +455,7 @@ static void test_cli_from_journal(void **st)
 static void test_cli(void **st)
 {
     char *dir = tu_tmpdir("reduce_cli"), *out = NULL, path[4200], newcase[4200];
-    fcase *c = fractured(dir, 2, 3);
+    planning_case *c = fractured(dir, 2, 3);
     case_free(c);
     assert_int_equal(tu_run_cli(&out, "reduce %s --method newton", dir), 2);
     assert_non_null(strstr(out, "--method"));
@@ -480,7 +480,7 @@ static void test_cli(void **st)
     assert_true(json_is_real(json_object_get(f, "tre_mm")) && json_is_integer(json_object_get(f, "evaluations")));
     json_decref(j);
     free(out);
-    fcase *back = case_load(newcase);
+    planning_case *back = case_load(newcase);
     if (!back)
         fail_msg("%s", fn_err_msg());
     assert_non_null(json_object_get((json_t *)back->extra, "reduction"));

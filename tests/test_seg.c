@@ -293,7 +293,7 @@ static void test_cli_nonfinite(void **st)
     if (!strstr(out, "3 voxels are NaN or infinite"))
         fail_msg("got: %s", out);
     free(out);
-    fcase *c = case_load(out_dir);
+    planning_case *c = case_load(out_dir);
     if (!c)
         fail_msg("the case does not load: %s", fn_err_msg());
     assert_true(isfinite(c->seg.threshold));
@@ -327,7 +327,7 @@ static void test_cli_labels_import(void **st)
         if (rc != 0)
             fail_msg("segment --labels: %s", out);
         free(out);
-        fcase *c = case_load(out_dir);
+        planning_case *c = case_load(out_dir);
         if (!c)
             fail_msg("%s", fn_err_msg());
         assert_int_equal(c->nfrag, 3);
@@ -370,7 +370,7 @@ static void test_cli_fill(void **st)
     if (rc != 0 || !strstr(out, "\"filled_voxels\": 1000"))
         fail_msg("rc %d: %s", rc, out);
     free(out);
-    fcase *c = case_load(out_dir);
+    planning_case *c = case_load(out_dir);
     if (!c)
         fail_msg("%s", fn_err_msg());
     assert_int_equal(c->nfrag, 1);

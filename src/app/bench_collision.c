@@ -134,7 +134,7 @@ static int work_long_bone(work *w)
 
 static int work_from_case(work *w, const char *dir)
 {
-    fcase *c = case_load(dir);
+    planning_case *c = case_load(dir);
     if (!c)
         return FN_EIO;
     int rc = 0;

@@ -95,7 +95,7 @@ int cmd_tau_apply(const cmd_tau *t, double *tau_min, double *tau_max)
     return 0;
 }
 
-int cmd_tau_prepare(void *ctx, fcase *c)
+int cmd_tau_prepare(void *ctx, planning_case *c)
 {
     return cmd_tau_apply(ctx, &c->tau_min, &c->tau_max);
 }

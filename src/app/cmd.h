@@ -89,7 +89,7 @@ void cmd_warn_replaced_journal(const char *cmd, const char *dir, int force);
 
 /* --tau-min/--tau-max over a case's own values, as a session's prepare hook (session_params):
  * ctx is the cmd_tau. 0 or FN_EINVAL (cmd_tau_apply). */
-int cmd_tau_prepare(void *ctx, fcase *c);
+int cmd_tau_prepare(void *ctx, planning_case *c);
 
 /* --pivot X Y Z (world mm): argv[*i] is --pivot; parses the three numbers after it into out and
  * moves *i past them. 0, or a usage error for `cmd` (returns 2). */

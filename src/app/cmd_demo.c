@@ -192,7 +192,7 @@ static double num(json_t *o, const char *key)
 }
 
 /* A picture of a case at its poses by the renderer (iso surfaces, anterior view). */
-static int picture(const fcase *c, render_view view, const char *path)
+static int picture(const planning_case *c, render_view view, const char *path)
 {
     const int w = 512, h = 512;
     if (c->nfrag > RENDER_MAX_FRAGS)
@@ -218,7 +218,7 @@ static int picture(const fcase *c, render_view view, const char *path)
 }
 
 /* Step 1: segmentation, saved as a case. Takes ownership of ct. */
-static fcase *segment(const char *ct_path, vol *ct, const char *dir, const cmd_tau *tau)
+static planning_case *segment(const char *ct_path, vol *ct, const char *dir, const cmd_tau *tau)
 {
     seg_params sp;
     seg_defaults(&sp);
@@ -236,7 +236,7 @@ static fcase *segment(const char *ct_path, vol *ct, const char *dir, const cmd_t
     sr.labels = NULL;
     char casedir[PATH_MAX], png[PATH_MAX];
     snprintf(casedir, sizeof casedir, "%s/case", dir);
-    fcase *c = case_create(casedir, ct_path, ct, labels, &sp);
+    planning_case *c = case_create(casedir, ct_path, ct, labels, &sp);
     if (!c) {
         seg_result_free(&sr);
         return NULL;
@@ -262,7 +262,7 @@ static fcase *segment(const char *ct_path, vol *ct, const char *dir, const cmd_t
 }
 
 /* Step 2: a synthetic fracture of the segmented CT, with its ground truth. */
-static int fracture(const fcase *seg, const char *dir, const cmd_tau *tau)
+static int fracture(const planning_case *seg, const char *dir, const cmd_tau *tau)
 {
     fracture_params fp;
     fracture_defaults(&fp);
@@ -270,7 +270,7 @@ static int fracture(const fcase *seg, const char *dir, const cmd_tau *tau)
     char casedir[PATH_MAX], png[PATH_MAX];
     snprintf(casedir, sizeof casedir, "%s/fracture", dir);
     int64_t t0 = fnclock_now_us();
-    fcase *c = fracture_make_case(seg->ct, &fp, casedir);
+    planning_case *c = fracture_make_case(seg->ct, &fp, casedir);
     if (!c)
         return -1;
     printf("2. synthetic fracture (seed %llu) in %.1f s, saved in %s:\n", (unsigned long long)fp.seed,
@@ -346,7 +346,7 @@ static void watch_journal(void *ctx)
 
 /* Frames of the navigation, drawn headless from the poses navigate journalled: nframes pictures
  * evenly over the session's report time. c: the case as it was before navigation. */
-static int frames(const fcase *c, const journal_scan *j, const char *dir, int nframes)
+static int frames(const planning_case *c, const journal_scan *j, const char *dir, int nframes)
 {
     if (j->n == 0 || c->nfrag > RENDER_MAX_FRAGS)
         return 0;
@@ -432,7 +432,7 @@ static json_t *navigate(char *exe, const char *bindir, const char *dir, char *re
     }
     printf("3. navigation: the recording %s (%.1f s), %s:\n", rec, seconds, how);
     fflush(stdout);
-    fcase *before = case_load(casedir); /* the poses the frames start from */
+    planning_case *before = case_load(casedir); /* the poses the frames start from */
     journal_watch w;
     memset(&w, 0, sizeof w);
     snprintf(w.path, sizeof w.path, "%s/journal", casedir);
@@ -509,7 +509,7 @@ int cmd_demo(int argc, char **argv)
     printf("fracnav demo on %s\n0. CT: %dx%dx%d voxels, %.3fx%.3fx%.3f mm, read in %.0f ms\n", ct_path,
            ct->dim[0], ct->dim[1], ct->dim[2], ct->spacing[0], ct->spacing[1], ct->spacing[2],
            (double)(fnclock_now_us() - t0) * 1e-3);
-    fcase *c = segment(ct_path, ct, dir, &tau);
+    planning_case *c = segment(ct_path, ct, dir, &tau);
     if (!c)
         return fail("segmentation");
     rc = fracture(c, dir, &tau);

@@ -113,7 +113,7 @@ static void made(FILE *msg, json_t *res, const char *key, long value, const char
 
 /* Applies the operation; returns 0, 2 (usage) or 1 (runtime, fn_err set). The line that says what
  * it did goes to msg; with --json, res gets its figures. */
-static int apply(fcase *c, const char *op, int argc, char **argv, FILE *msg, json_t *res)
+static int apply(planning_case *c, const char *op, int argc, char **argv, FILE *msg, json_t *res)
 {
     double v[6];
     int a, b, id, ids[256], n;
@@ -258,7 +258,7 @@ static int apply(fcase *c, const char *op, int argc, char **argv, FILE *msg, jso
 }
 
 /* The case after the edit: its fragments and the fixed one. */
-static int print_json(const fcase *c, const char *dir, const char *op, json_t *res)
+static int print_json(const planning_case *c, const char *dir, const char *op, json_t *res)
 {
     json_t *o = jsonw_object("edit"), *frags = json_array();
     for (int i = 0; i < c->nfrag; i++)
@@ -298,7 +298,7 @@ int cmd_edit(int argc, char **argv)
     argc = take_json(argc, argv, &json);
     if (argc < 3)
         return cmd_usage_error("edit", "needs CASE and an operation");
-    fcase *c = case_load(argv[1]);
+    planning_case *c = case_load(argv[1]);
     if (!c) {
         fprintf(stderr, "fracnav edit: %s\n", fn_err_msg());
         return 1;

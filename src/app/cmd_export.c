@@ -148,7 +148,7 @@ static int make_dir(const char *dir)
     return 0;
 }
 
-static int run(const fcase *c, const export_args *a, written *w)
+static int run(const planning_case *c, const export_args *a, written *w)
 {
     char buf[5][4200];
     const char *tfm = a->tfm, *seg = a->seg, *nifti = a->nifti, *stl = a->stl, *report = a->report;
@@ -214,7 +214,7 @@ int cmd_export(int argc, char **argv)
     int rc = parse_args(argc, argv, &a);
     if (rc)
         return rc;
-    fcase *c = case_load(a.dir);
+    planning_case *c = case_load(a.dir);
     if (!c) {
         fprintf(stderr, "fracnav export: %s\n", fn_err_msg());
         return 1;

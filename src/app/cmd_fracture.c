@@ -126,7 +126,7 @@ static void print_truth(const frag *f, const pose *truth)
            pose_angle_between(*truth, POSE_IDENTITY) * 180 / M_PI);
 }
 
-static int print_json(const fcase *c, const fracture_params *p, const char *in, const char *out,
+static int print_json(const planning_case *c, const fracture_params *p, const char *in, const char *out,
                       double read_ms, double fracture_ms)
 {
     json_t *o = jsonw_object("fracture"), *frags = json_array();
@@ -172,7 +172,7 @@ int cmd_fracture(int argc, char **argv)
     vol *ct = case_stage_begin(out, args.force, NULL, tmp, sizeof tmp) == 0 ? volio_read(in) : NULL;
     int64_t t1 = fnclock_now_us();
     /* The whole case, source.nii.gz included, is written in tmp and renamed into place at once. */
-    fcase *c = ct ? fracture_make_case(ct, &p, tmp) : NULL;
+    planning_case *c = ct ? fracture_make_case(ct, &p, tmp) : NULL;
     int64_t t2 = fnclock_now_us();
     if (!c || case_stage_commit(tmp, out) < 0) {
         fprintf(stderr, "fracnav fracture: %s\n", fn_err_msg());

@@ -131,7 +131,7 @@ static int parse(int argc, char **argv, args *A)
 }
 
 /* Fragment indices: the fixed one and the moving ones. 0, or 2 after a usage error. */
-static int pick(const fcase *c, const args *A, int *fixed, int *mv, int *nmv)
+static int pick(const planning_case *c, const args *A, int *fixed, int *mv, int *nmv)
 {
     if (A->fixed_id) {
         if ((*fixed = case_find(c, A->fixed_id)) < 0)
@@ -180,7 +180,7 @@ static json_t *voi_json(const reduce_voi *v)
     return jsonw_exact_array(b, 6);
 }
 
-static json_t *result_json(const fcase *c, int fixed, const reduce_result *r)
+static json_t *result_json(const planning_case *c, int fixed, const reduce_result *r)
 {
     json_t *o = json_object();
     if (!o)
@@ -204,7 +204,7 @@ static json_t *result_json(const fcase *c, int fixed, const reduce_result *r)
     return o;
 }
 
-static int report(const fcase *c, const args *A, int fixed, const reduce_result *r, int n, double seconds)
+static int report(const planning_case *c, const args *A, int fixed, const reduce_result *r, int n, double seconds)
 {
     if (!A->json) {
         for (int i = 0; i < n; i++) {
@@ -237,7 +237,7 @@ static int report(const fcase *c, const args *A, int fixed, const reduce_result 
 }
 
 /* -o: the new folder, with the source kept where it is (an absolute path). */
-static int retarget(fcase *c, const char *out)
+static int retarget(planning_case *c, const char *out)
 {
     char abs[PATH_MAX];
     if (!realpath(c->source, abs))
@@ -259,7 +259,7 @@ int cmd_reduce(int argc, char **argv)
     int rc = parse(argc, argv, &A);
     if (rc)
         return rc;
-    fcase *c = case_load(A.dir);
+    planning_case *c = case_load(A.dir);
     if (!c) {
         fprintf(stderr, "fracnav reduce: %s\n", fn_err_msg());
         return 1;

@@ -152,7 +152,7 @@ static int parse_args(int argc, char **argv, render_args *a)
 }
 
 /* The VOI boxes of the case's reduction (case.json's reduction.fragments[].voi_mm) into o. */
-static int case_voi(const fcase *c, render_options *o)
+static int case_voi(const planning_case *c, render_options *o)
 {
     json_t *frs = json_object_get(json_object_get(c->extra, "reduction"), "fragments");
     o->nvoi = 0;
@@ -170,7 +170,7 @@ static int case_voi(const fcase *c, render_options *o)
     return 0;
 }
 
-static int draw(fcase *c, render_args *a)
+static int draw(planning_case *c, render_args *a)
 {
     render_options o = a->o, d;
     render_options_default(&d, c->frag, c->nfrag);
@@ -213,7 +213,7 @@ int cmd_render(int argc, char **argv)
     int rc = parse_args(argc, argv, &a);
     if (rc)
         return rc;
-    fcase *c = case_load(a.dir);
+    planning_case *c = case_load(a.dir);
     if (!c) {
         fprintf(stderr, "fracnav render: %s\n", fn_err_msg());
         return 1;

@@ -104,7 +104,7 @@ static int parse(int argc, char **argv, seg_params *p, cmd_case_args *c, extra *
     return cmd_tau_check("segment", &c->tau);
 }
 
-static void report(const fcase *c, const seg_result *r)
+static void report(const planning_case *c, const seg_result *r)
 {
     printf("threshold %g: %d components, %d kept\n", r->threshold, r->raw_components, c->nfrag);
     for (int i = 0; i < c->nfrag; i++) {
@@ -115,7 +115,7 @@ static void report(const fcase *c, const seg_result *r)
     }
 }
 
-static int report_json(const fcase *c, const seg_result *r, const char *in, const char *out,
+static int report_json(const planning_case *c, const seg_result *r, const char *in, const char *out,
                        const double ms[4], long filled)
 {
     json_t *o = jsonw_object("segment"), *frags = json_array();
@@ -185,7 +185,7 @@ int cmd_segment(int argc, char **argv)
     vol *labels = r.labels;
     r.labels = NULL;
     int64_t t2 = fnclock_now_us();
-    fcase *c = case_create(tmp, in, ct, labels, &p);
+    planning_case *c = case_create(tmp, in, ct, labels, &p);
     if (c)
         cmd_tau_apply(&args.tau, &c->tau_min, &c->tau_max); /* checked by parse */
     long filled = 0;

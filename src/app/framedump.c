@@ -13,7 +13,7 @@
 
 struct framedump {
     char dir[4096];
-    const fcase *c;
+    const planning_case *c;
     render *r;
     render_options o;
     int w, h;
@@ -23,7 +23,7 @@ struct framedump {
     uint8_t *rgb;
 };
 
-framedump *framedump_open(const char *dir, const fcase *c, double frame_ms, int w, int h)
+framedump *framedump_open(const char *dir, const planning_case *c, double frame_ms, int w, int h)
 {
     if (mkdir(dir, 0777) != 0 && errno != EEXIST) {
         fn_err_set(FN_EIO, "--frames %s: cannot make the folder: %s", dir, strerror(errno));

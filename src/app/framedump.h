@@ -17,7 +17,7 @@ typedef struct framedump framedump;
 
 /* Creates dir (it may exist) and an offscreen renderer of c's fragments (w x h, iso mode,
  * anterior view); frame_ms > 0. */
-framedump *framedump_open(const char *dir, const fcase *c, double frame_ms, int w, int h);
+framedump *framedump_open(const char *dir, const planning_case *c, double frame_ms, int w, int h);
 /* Before L steps an event stamped t_us: writes the frames due before it. */
 int framedump_before(framedump *d, loop *L, int64_t t_us);
 /* After the last event: the final frame. */

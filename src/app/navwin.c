@@ -14,7 +14,7 @@
 struct navwin {
     render *r;
     loop *L;
-    const fcase *c;
+    const planning_case *c;
     int w, h;
     render_options o;
     uint64_t drawn_seq;
@@ -56,7 +56,7 @@ static void camera_to_loop(navwin *w)
     loop_set_camera(w->L, right, w->o.camera.up, w->o.camera.forward);
 }
 
-navwin *navwin_open(const fcase *c, loop *L, int width, int height)
+navwin *navwin_open(const planning_case *c, loop *L, int width, int height)
 {
     if (c->nfrag > RENDER_MAX_FRAGS) {
         fn_err_set(FN_EINVAL, "the window draws at most %d fragments; the case has %d", RENDER_MAX_FRAGS,

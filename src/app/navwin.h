@@ -19,7 +19,7 @@ typedef struct navwin navwin;
 #define NAVWIN_KEYS 64 /* keys handed back per frame at most */
 
 /* A w x h window over c's fragments (c and L must outlive it). */
-navwin *navwin_open(const fcase *c, loop *L, int w, int h);
+navwin *navwin_open(const planning_case *c, loop *L, int w, int h);
 void navwin_close(navwin *w);
 
 /* Handles the window's input, then draws sc (when it, the camera or hud changed since the last

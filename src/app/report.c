@@ -23,7 +23,7 @@
 #define PIC 480
 
 /* The reduction record's entry for fragment id (NULL: none). */
-static json_t *record_of(const fcase *c, int id)
+static json_t *record_of(const planning_case *c, int id)
 {
     json_t *red = c->extra ? json_object_get(c->extra, "reduction") : NULL;
     json_t *frs = red ? json_object_get(red, "fragments") : NULL, *e;
@@ -50,7 +50,7 @@ static int pose_of(json_t *o, pose *p)
 }
 
 /* Before-reduction poses; returns 1 when the case has a reduction record. */
-static int before_poses(const fcase *c, pose *before)
+static int before_poses(const planning_case *c, pose *before)
 {
     int have = c->extra && json_object_get(c->extra, "reduction");
     for (int i = 0; i < c->nfrag; i++) {
@@ -63,7 +63,7 @@ static int before_poses(const fcase *c, pose *before)
     return have;
 }
 
-static int render_pictures(const fcase *c, const pose *before, const char *dir, const char *platform,
+static int render_pictures(const planning_case *c, const pose *before, const char *dir, const char *platform,
                            report_wrote_fn wrote, void *ctx)
 {
     if (c->nfrag > RENDER_MAX_FRAGS)
@@ -99,7 +99,7 @@ static int render_pictures(const fcase *c, const pose *before, const char *dir, 
 
 #ifdef FRACNAV_HAVE_PLPLOT
 typedef struct plot_ctx {
-    const fcase *c;
+    const planning_case *c;
     json_t **hist;
     int *ids;
     int n;
@@ -158,7 +158,7 @@ static int draw_plot(const char *tmp, void *vctx)
 #endif
 
 /* The convergence plot; 1 when drawn, 0 when there is nothing to plot (why in *why). */
-static int plot(const fcase *c, const char *dir, const char **why, report_wrote_fn wrote, void *ctx)
+static int plot(const planning_case *c, const char *dir, const char **why, report_wrote_fn wrote, void *ctx)
 {
     json_t *hist[64];
     int ids[64], n = 0;
@@ -207,7 +207,7 @@ static void html_text(FILE *fp, const char *s)
 }
 
 typedef struct page_ctx {
-    const fcase *c;
+    const planning_case *c;
     const pose *before;
     int reduced, plotted, rendered;
     const char *why;
@@ -226,7 +226,7 @@ static void cell(FILE *fp, double v, const char *fmt)
 static int write_page(const char *tmp, void *vctx)
 {
     const page_ctx *p = vctx;
-    const fcase *c = p->c;
+    const planning_case *c = p->c;
     FILE *fp = fopen(tmp, "w");
     if (!fp)
         return fn_err_set(FN_EIO, "%s: %s", tmp, strerror(errno));
@@ -310,7 +310,7 @@ static int write_page(const char *tmp, void *vctx)
     return fclose(fp) == 0 ? 0 : fn_err_set(FN_EIO, "%s: write failed", tmp);
 }
 
-int report_write(const fcase *c, const vol *planned, const double *overlap_ml, const char *dir,
+int report_write(const planning_case *c, const vol *planned, const double *overlap_ml, const char *dir,
                  const char *platform, report_wrote_fn wrote, void *ctx)
 {
     if (mkdir(dir, 0777) != 0 && errno != EEXIST)

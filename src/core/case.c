@@ -156,7 +156,7 @@ int case_file_sha256(const char *path, char hex[65])
 
 /* ---- fragments ---- */
 
-int case_find(const fcase *c, int id)
+int case_find(const planning_case *c, int id)
 {
     for (int i = 0; i < c->nfrag; i++)
         if (c->frag[i].id == id)
@@ -204,7 +204,7 @@ static void label_boxes(const vol *labels, int (*lo)[3], int (*hi)[3])
             }
 }
 
-static void inherit(frag *f, pose *truth, const fcase *old, int from_id, int keep_looks)
+static void inherit(frag *f, pose *truth, const planning_case *old, int from_id, int keep_looks)
 {
     int i = case_find(old, from_id);
     if (i < 0)
@@ -218,7 +218,7 @@ static void inherit(frag *f, pose *truth, const fcase *old, int from_id, int kee
         *truth = old->truth[i];
 }
 
-int case_rebuild(fcase *c, int new_id, int parent_id)
+int case_rebuild(planning_case *c, int new_id, int parent_id)
 {
     int rc = check_labels(c->labels);
     if (rc < 0)
@@ -279,9 +279,9 @@ done:
     return rc;
 }
 
-fcase *case_create(const char *dir, const char *source, vol *ct, vol *labels, const seg_params *sp)
+planning_case *case_create(const char *dir, const char *source, vol *ct, vol *labels, const seg_params *sp)
 {
-    fcase *c = calloc(1, sizeof *c);
+    planning_case *c = calloc(1, sizeof *c);
     if (!c) {
         vol_free(ct);
         vol_free(labels);
@@ -315,7 +315,7 @@ fcase *case_create(const char *dir, const char *source, vol *ct, vol *labels, co
     return c;
 }
 
-void case_free(fcase *c)
+void case_free(planning_case *c)
 {
     if (!c)
         return;

@@ -27,7 +27,7 @@
 #define CASE_TAU_MIN 0.5  /* a new case's tau_min and tau_max */
 #define CASE_TAU_MAX 0.95
 
-typedef struct fcase {
+typedef struct planning_case {
     char dir[4096];          /* the case folder */
     char source[4096];       /* source volume path (absolute, or as given) */
     char sha256[65];         /* of the source volume file */
@@ -50,13 +50,13 @@ typedef struct fcase {
                               * start, end ({q [4], t [3]}), iterations, evaluations, seconds,
                               * metric_start, metric_end, push_mm, collides, history [metric per
                               * iteration: the convergence plot]} */
-} fcase;
+} planning_case;
 
 /* A new case in folder dir (not yet saved) over the source volume file `source`, already read into
  * ct; takes ownership of ct and labels. Builds every fragment present in labels (ids = label values,
  * ascending), poses identity, no fixed fragment, no truth. NULL with fn_err on failure (ct and labels
  * are freed then too). */
-fcase *case_create(const char *dir, const char *source, vol *ct, vol *labels, const seg_params *sp);
+planning_case *case_create(const char *dir, const char *source, vol *ct, vol *labels, const seg_params *sp);
 
 /* A whole case folder written aside and put in place in one step (segment, fracture), so that a
  * kill at any moment leaves the old case or the new one at dir, never a mix or a half-made folder.
@@ -73,20 +73,20 @@ void case_stage_abort(const char *tmp);
 /* Reads dir/case.json, dir/labels.nii.gz and the source volume. Checks the version, the source's
  * sha256 and geometry, and the labels checksum; each mismatch is an FN_EMISMATCH error that says
  * what differs. A damaged case.json gets FN_EFORMAT naming the file and the field. */
-fcase *case_load(const char *dir);
+planning_case *case_load(const char *dir);
 
 /* Writes labels.nii.gz and case.json atomically (creates dir if missing). 0 or FN_E*. */
-int case_save(fcase *c);
-void case_free(fcase *c);
+int case_save(planning_case *c);
+void case_free(planning_case *c);
 
 /* Rebuilds the fragments from c->labels after an edit: fragments keep their pose, name, colour and
  * truth by id; fragment new_id (when > 0) inherits pose and truth from parent_id (a split), other
  * new ids get identity; ids that vanished are removed (the fixed index follows its fragment or
  * becomes -1). Labels must be integers 0..65535. 0 or FN_E*. */
-int case_rebuild(fcase *c, int new_id, int parent_id);
+int case_rebuild(planning_case *c, int new_id, int parent_id);
 
 /* Index of the fragment with label id, or -1. */
-int case_find(const fcase *c, int id);
+int case_find(const planning_case *c, int id);
 
 /* sha256 of a file's bytes as 64 hex digits. 0 or FN_EIO (also for a file that is not regular:
  * a FIFO or a device would never end or never start). */
@@ -99,27 +99,27 @@ int case_open_regular(const char *path, const char *what);
 /* Edits. Each changes c->labels and rebuilds the fragments (case_rebuild); the caller saves.
  * A bad id is FN_EINVAL naming it and listing the ids the case has. Volumes: world LPS mm. */
 /* Fragment b joins fragment a (b's voxels take label a). */
-int case_merge(fcase *c, int a, int b);
+int case_merge(planning_case *c, int a, int b);
 /* The voxels of id on the side of the plane (point p, normal n) that n points to become a new
  * fragment (the next free id, returned); it inherits id's pose and truth. */
-int case_split(fcase *c, int id, const double p[3], const double n[3]);
+int case_split(planning_case *c, int id, const double p[3], const double n[3]);
 /* Voxel centres inside the box (any two opposite corners) or sphere become background; only those
  * of fragment id when id > 0. Returns the number of voxels erased. */
-long case_erase_box(fcase *c, const double a[3], const double b[3], int id);
-long case_erase_sphere(fcase *c, const double centre[3], double radius, int id);
+long case_erase_box(planning_case *c, const double a[3], const double b[3], int id);
+long case_erase_sphere(planning_case *c, const double centre[3], double radius, int id);
 /* Region growing: the unlabelled voxels >= threshold 26-connected to the voxel nearest `seed`
  * join fragment `into` (0: a new fragment, the next free id). Returns the fragment's id; FN_EINVAL
  * when the seed is outside the grid, labelled already, or below the threshold. */
-int case_grow(fcase *c, const double seed[3], double threshold, int into);
+int case_grow(planning_case *c, const double seed[3], double threshold, int into);
 /* Keeps only, or drops, the listed fragments. */
-int case_keep(fcase *c, const int *ids, int n);
-int case_drop(fcase *c, const int *ids, int n);
+int case_keep(planning_case *c, const int *ids, int n);
+int case_drop(planning_case *c, const int *ids, int n);
 /* Makes id the fixed fragment (0: none). */
-int case_fix(fcase *c, int id);
+int case_fix(planning_case *c, int id);
 /* Fragment id's enclosed interior (morph_fill's mode: MORPH_FILL_3D and/or MORPH_FILL_SLICES; the
  * cancellous bone below the threshold inside the cortex) joins it; voxels of other fragments stay
  * theirs. Returns the voxels added. */
-long case_fill(fcase *c, int id, int mode);
+long case_fill(planning_case *c, int id, int mode);
 /* Separates fragment id into the pieces that touch in it (morph_separate: one seed per piece,
  * world mm, when nseeds > 0; else erosion by erode_mm, or the smallest that splits it when
  * erode_mm <= 0; then a marker-based watershed on the distance map inside the fragment). The
@@ -127,7 +127,7 @@ long case_fill(fcase *c, int id, int mode);
  * new_ids, room for as many pieces as can be) inheriting id's pose and truth. *erode_used (may be
  * NULL): the erosion that split it. Returns the number of new fragments (>= 1), FN_EINVAL when it
  * does not split or a seed lies outside the fragment, or FN_E*. */
-int case_separate(fcase *c, int id, double erode_mm, const double (*seeds)[3], int nseeds, int *new_ids,
+int case_separate(planning_case *c, int id, double erode_mm, const double (*seeds)[3], int nseeds, int *new_ids,
                   double *erode_used);
 
 #endif

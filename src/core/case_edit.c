@@ -11,7 +11,7 @@
 #include <string.h>
 
 /* FN_EINVAL naming the missing id and listing the ones the case has. */
-static int no_such(const fcase *c, int id)
+static int no_such(const planning_case *c, int id)
 {
     char list[512] = "";
     size_t used = 0;
@@ -20,12 +20,12 @@ static int no_such(const fcase *c, int id)
     return fn_err_set(FN_EINVAL, "no fragment %d (the case has %s)", id, c->nfrag ? list : "none");
 }
 
-static int need(const fcase *c, int id)
+static int need(const planning_case *c, int id)
 {
     return case_find(c, id) < 0 ? no_such(c, id) : 0;
 }
 
-static int next_free_id(const fcase *c)
+static int next_free_id(const planning_case *c)
 {
     int next = 0;
     for (int i = 0; i < c->nfrag; i++)
@@ -34,7 +34,7 @@ static int next_free_id(const fcase *c)
     return next + 1;
 }
 
-static void relabel(fcase *c, int from, int to)
+static void relabel(planning_case *c, int from, int to)
 {
     size_t n = vol_count(c->labels);
     for (size_t i = 0; i < n; i++)
@@ -42,7 +42,7 @@ static void relabel(fcase *c, int from, int to)
             c->labels->data[i] = (float)to;
 }
 
-int case_merge(fcase *c, int a, int b)
+int case_merge(planning_case *c, int a, int b)
 {
     int rc = need(c, a);
     if (rc == 0)
@@ -58,7 +58,7 @@ int case_merge(fcase *c, int a, int b)
 typedef int (*voxel_test)(const double w[3], const void *ctx);
 
 /* Relabels to `to` every voxel of label id (any label when 0) whose world centre passes test. */
-static long relabel_where(fcase *c, int id, voxel_test test, const void *ctx, int to)
+static long relabel_where(planning_case *c, int id, voxel_test test, const void *ctx, int to)
 {
     long n = 0;
     size_t idx = 0;
@@ -89,7 +89,7 @@ static int in_front(const double w[3], const void *ctx)
     return (w[0] - pl->p[0]) * pl->n[0] + (w[1] - pl->p[1]) * pl->n[1] + (w[2] - pl->p[2]) * pl->n[2] > 0;
 }
 
-int case_split(fcase *c, int id, const double p[3], const double n[3])
+int case_split(planning_case *c, int id, const double p[3], const double n[3])
 {
     int rc = need(c, id);
     if (rc < 0)
@@ -134,7 +134,7 @@ static int in_sphere(const double w[3], const void *ctx)
     return d[0] * d[0] + d[1] * d[1] + d[2] * d[2] <= s->r2;
 }
 
-static long erase(fcase *c, int id, voxel_test test, const void *ctx)
+static long erase(planning_case *c, int id, voxel_test test, const void *ctx)
 {
     if (id > 0 && need(c, id) < 0)
         return FN_EINVAL;
@@ -143,7 +143,7 @@ static long erase(fcase *c, int id, voxel_test test, const void *ctx)
     return rc < 0 ? rc : n;
 }
 
-long case_erase_box(fcase *c, const double a[3], const double b[3], int id)
+long case_erase_box(planning_case *c, const double a[3], const double b[3], int id)
 {
     struct box bx;
     for (int i = 0; i < 3; i++) {
@@ -153,7 +153,7 @@ long case_erase_box(fcase *c, const double a[3], const double b[3], int id)
     return erase(c, id, in_box, &bx);
 }
 
-long case_erase_sphere(fcase *c, const double centre[3], double radius, int id)
+long case_erase_sphere(planning_case *c, const double centre[3], double radius, int id)
 {
     if (!(radius > 0) || !isfinite(radius))
         return fn_err_set(FN_EINVAL, "erase-sphere: the radius must be a positive number");
@@ -163,7 +163,7 @@ long case_erase_sphere(fcase *c, const double centre[3], double radius, int id)
 
 /* Flood fill from voxel `start` over unlabelled voxels >= threshold (26-connected), labelling them
  * `to`. The queue holds each voxel once, so it needs at most one slot per voxel. */
-static long flood(fcase *c, size_t start, double threshold, int to)
+static long flood(planning_case *c, size_t start, double threshold, int to)
 {
     vol *l = c->labels;
     const int nx = l->dim[0], ny = l->dim[1], nz = l->dim[2];
@@ -195,7 +195,7 @@ static long flood(fcase *c, size_t start, double threshold, int to)
     return (long)tail;
 }
 
-int case_grow(fcase *c, const double seed[3], double threshold, int into)
+int case_grow(planning_case *c, const double seed[3], double threshold, int into)
 {
     if (into > 0 && need(c, into) < 0)
         return FN_EINVAL;
@@ -233,7 +233,7 @@ static int listed(const int *ids, int n, int id)
     return 0;
 }
 
-static int keep_or_drop(fcase *c, const int *ids, int n, int keep)
+static int keep_or_drop(planning_case *c, const int *ids, int n, int keep)
 {
     for (int i = 0; i < n; i++) {
         int rc = need(c, ids[i]);
@@ -249,17 +249,17 @@ static int keep_or_drop(fcase *c, const int *ids, int n, int keep)
     return case_rebuild(c, 0, 0);
 }
 
-int case_keep(fcase *c, const int *ids, int n)
+int case_keep(planning_case *c, const int *ids, int n)
 {
     return keep_or_drop(c, ids, n, 1);
 }
 
-int case_drop(fcase *c, const int *ids, int n)
+int case_drop(planning_case *c, const int *ids, int n)
 {
     return keep_or_drop(c, ids, n, 0);
 }
 
-int case_fix(fcase *c, int id)
+int case_fix(planning_case *c, int id)
 {
     if (id == 0) {
         c->fixed = -1;
@@ -276,7 +276,7 @@ int case_fix(fcase *c, int id)
 
 /* Fragment id's voxels as a mask over its label box grown by one voxel on every side (voxels
  * beyond the grid are outside). lo: the box's first source index. */
-static uint8_t *id_mask(const fcase *c, int id, int lo[3], int dim[3])
+static uint8_t *id_mask(const planning_case *c, int id, int lo[3], int dim[3])
 {
     int hi[3];
     if (frag_label_box(c->labels, id, lo, hi) < 0)
@@ -303,7 +303,7 @@ static uint8_t *id_mask(const fcase *c, int id, int lo[3], int dim[3])
     return m;
 }
 
-long case_fill(fcase *c, int id, int mode)
+long case_fill(planning_case *c, int id, int mode)
 {
     int rc = need(c, id);
     if (rc < 0)
@@ -340,7 +340,7 @@ long case_fill(fcase *c, int id, int mode)
     return took;
 }
 
-int case_separate(fcase *c, int id, double erode_mm, const double (*seeds)[3], int nseeds, int *new_ids,
+int case_separate(planning_case *c, int id, double erode_mm, const double (*seeds)[3], int nseeds, int *new_ids,
                   double *erode_used)
 {
     int rc = need(c, id);

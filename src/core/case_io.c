@@ -83,7 +83,7 @@ static json_t *frag_json(const frag *f, const pose *truth)
 }
 
 /* The source path as stored: relative when it lies inside the case folder. */
-static void stored_source(const fcase *c, char *out, size_t cap)
+static void stored_source(const planning_case *c, char *out, size_t cap)
 {
     char rdir[PATH_MAX], rsrc[PATH_MAX];
     if (realpath(c->dir, rdir) && realpath(c->source, rsrc)) {
@@ -98,7 +98,7 @@ static void stored_source(const fcase *c, char *out, size_t cap)
     snprintf(out, cap, "%s", c->source);
 }
 
-static json_t *case_json(const fcase *c, const char *labels_sha)
+static json_t *case_json(const planning_case *c, const char *labels_sha)
 {
     json_t *root = json_object();
     json_object_set_new(root, "format", json_string(CASE_FORMAT));
@@ -201,7 +201,7 @@ static int keep_previous_labels(const char *lfin, const char *lprev, const char 
 }
 
 /* Renames labels then case.json; the previous labels stay linked until both are in place. */
-int case_save(fcase *c)
+int case_save(planning_case *c)
 {
     if (mkdir(c->dir, 0755) != 0 && errno != EEXIST)
         return fn_err_set(FN_EIO, "%s: cannot create the case folder: %s", c->dir, strerror(errno));
@@ -426,7 +426,7 @@ static int same_grid(const vol *a, const vol *b, const char *what)
 }
 
 /* Names, colours, poses and truth from the fragments array; ids must match the labels, each once. */
-static int read_fragment_list(struct reader *r, json_t *fr, fcase *c, uint8_t *seen)
+static int read_fragment_list(struct reader *r, json_t *fr, planning_case *c, uint8_t *seen)
 {
     for (int i = 0; i < c->nfrag; i++) {
         json_t *o = json_array_get(fr, (size_t)i);
@@ -464,7 +464,7 @@ static int read_fragment_list(struct reader *r, json_t *fr, fcase *c, uint8_t *s
     return 0;
 }
 
-static int read_fragments(struct reader *r, json_t *root, fcase *c)
+static int read_fragments(struct reader *r, json_t *root, planning_case *c)
 {
     json_t *fr = get(r, root, "", "fragments");
     if (!fr)
@@ -483,7 +483,7 @@ static int read_fragments(struct reader *r, json_t *root, fcase *c)
 }
 
 /* Top-level members this module does not own, kept for the modules that do. */
-static int keep_extra(json_t *root, fcase *c)
+static int keep_extra(json_t *root, planning_case *c)
 {
     static const char *own[] = {"format", "version", "source", "labels", "segmentation", "tau_min",
                                 "tau_max", "fixed", "has_truth", "fragments"};
@@ -532,7 +532,7 @@ static void warn_penetrating(const struct reader *r, json_t *root)
     }
 }
 
-static int read_case(struct reader *r, json_t *root, fcase *c)
+static int read_case(struct reader *r, json_t *root, planning_case *c)
 {
     const char *fmt = get_str(r, root, "", "format");
     if (!fmt)
@@ -637,9 +637,9 @@ static char *read_json_file(const char *path, size_t *len)
     return buf;
 }
 
-fcase *case_load(const char *dir)
+planning_case *case_load(const char *dir)
 {
-    fcase *c = calloc(1, sizeof *c);
+    planning_case *c = calloc(1, sizeof *c);
     if (!c) {
         fn_err_set(FN_ENOMEM, "case: out of memory");
         return NULL;

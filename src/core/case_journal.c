@@ -8,7 +8,7 @@
 #include <string.h>
 #include <unistd.h>
 
-void case_journal_bind(const fcase *c, journal_bind *b)
+void case_journal_bind(const planning_case *c, journal_bind *b)
 {
     memset(b, 0, sizeof *b);
     snprintf(b->case_sha256, sizeof b->case_sha256, "%s", c->json_sha256);
@@ -28,7 +28,7 @@ static void ids_text(const journal_bind *b, char *out, size_t cap)
 }
 
 /* 1 when applying the records to c's poses changes none of them: c holds them already. */
-static int already_saved(const fcase *c, const journal_rec *recs, size_t n)
+static int already_saved(const planning_case *c, const journal_rec *recs, size_t n)
 {
     pose *p = malloc(sizeof *p * (size_t)(c->nfrag ? c->nfrag : 1));
     if (!p)
@@ -43,7 +43,7 @@ static int already_saved(const fcase *c, const journal_rec *recs, size_t n)
 }
 
 /* Damage: the whole file aside, the good records before it kept as the journal. */
-static int keep_damaged(const fcase *c, journal_scan *s)
+static int keep_damaged(const planning_case *c, journal_scan *s)
 {
     char aside[4300];
     int rc = journal_set_aside(c->dir, "damaged", &s->bind, s->recs, s->n, aside, sizeof aside);
@@ -57,7 +57,7 @@ static int keep_damaged(const fcase *c, journal_scan *s)
     return 0;
 }
 
-static int refuse(const fcase *c, journal_scan *s, const journal_bind *now)
+static int refuse(const planning_case *c, journal_scan *s, const journal_bind *now)
 {
     char aside[4300], was[400], is[400];
     int rc = journal_set_aside(c->dir, "mismatch", NULL, NULL, 0, aside, sizeof aside);
@@ -72,7 +72,7 @@ static int refuse(const fcase *c, journal_scan *s, const journal_bind *now)
     return 1;
 }
 
-int case_journal_check(const fcase *c, journal_rec **recs, size_t *n)
+int case_journal_check(const planning_case *c, journal_rec **recs, size_t *n)
 {
     *recs = NULL;
     *n = 0;
@@ -122,7 +122,7 @@ size_t case_journal_pending(const char *dir)
     return n;
 }
 
-int case_journal_apply(fcase *c, const journal_rec *recs, size_t n)
+int case_journal_apply(planning_case *c, const journal_rec *recs, size_t n)
 {
     pose *p = malloc(sizeof *p * (size_t)(c->nfrag ? c->nfrag : 1));
     if (!p)
@@ -139,7 +139,7 @@ int case_journal_apply(fcase *c, const journal_rec *recs, size_t n)
     return rc < 0 ? fn_err_wrap(rc, "%s/journal", c->dir) : 0;
 }
 
-int case_journal_remove(const fcase *c)
+int case_journal_remove(const planning_case *c)
 {
     char path[4200];
     snprintf(path, sizeof path, "%s/journal", c->dir);

@@ -15,12 +15,12 @@
 #include "journal.h"
 
 /* The binding of a journal that extends c as loaded or last saved. */
-void case_journal_bind(const fcase *c, journal_bind *b);
+void case_journal_bind(const planning_case *c, journal_bind *b);
 
 /* Reconciles c->dir's journal with c as above. recs, n: the pending records (malloc'd, caller
  * frees; none: NULL, 0). Returns 0, 1 when a journal was refused and kept aside (its poses not
  * applied), or FN_E* (an unreadable journal). */
-int case_journal_check(const fcase *c, journal_rec **recs, size_t *n);
+int case_journal_check(const planning_case *c, journal_rec **recs, size_t *n);
 
 /* Pending records of DIR/journal bound to DIR/case.json as it is now (0 when none, unreadable,
  * damaged or bound elsewhere): what an interrupted session left to recover. Reads no volume. */
@@ -28,9 +28,9 @@ size_t case_journal_pending(const char *dir);
 
 /* The journal's pending records applied to c's poses (edit does this before it changes the case).
  * 0 or FN_EFORMAT. */
-int case_journal_apply(fcase *c, const journal_rec *recs, size_t n);
+int case_journal_apply(planning_case *c, const journal_rec *recs, size_t n);
 
 /* Removes c->dir's journal once c (saved) holds its poses. 0 or FN_EIO. */
-int case_journal_remove(const fcase *c);
+int case_journal_remove(const planning_case *c);
 
 #endif

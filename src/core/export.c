@@ -66,7 +66,7 @@ static void world_to_crop(const frag *f, double m[3][4])
     }
 }
 
-vol *export_planned_labels(const fcase *c, double *overlap_ml)
+vol *export_planned_labels(const planning_case *c, double *overlap_ml)
 {
     const vol *src = c->labels;
     vol *out = vol_new(src->dim[0], src->dim[1], src->dim[2]);
@@ -149,7 +149,7 @@ static int write_text(const char *tmp, void *ctx)
     return bad ? fn_err_set(FN_EIO, "%s: write failed", tmp) : 0;
 }
 
-int export_tfm(const fcase *c, int i, const char *path)
+int export_tfm(const planning_case *c, int i, const char *path)
 {
     const frag *f = &c->frag[i];
     pose inv = pose_inverse(f->pose); /* planned -> home: ITK's resampling direction */
@@ -174,7 +174,7 @@ int export_tfm(const fcase *c, int i, const char *path)
 /* ---- NIfTI and 3D Slicer segmentation ---- */
 
 typedef struct vol_ctx {
-    const fcase *c;
+    const planning_case *c;
     const vol *v;
 } vol_ctx;
 
@@ -204,7 +204,7 @@ static int write_seg(const char *tmp, void *ctx)
 {
     const vol_ctx *x = ctx;
     const vol *v = x->v;
-    const fcase *c = x->c;
+    const planning_case *c = x->c;
     size_t count = vol_count(v);
     uint16_t *buf = malloc(count * sizeof *buf);
     int(*ext)[6] = malloc((size_t)(c->nfrag ? c->nfrag : 1) * sizeof *ext);
@@ -283,7 +283,7 @@ static int write_seg(const char *tmp, void *ctx)
     return rc;
 }
 
-int export_seg_nrrd(const fcase *c, const vol *planned, const char *path)
+int export_seg_nrrd(const planning_case *c, const vol *planned, const char *path)
 {
     vol_ctx x = {c, planned};
     return export_atomic(path, write_seg, &x);
@@ -339,7 +339,7 @@ static int write_stl(const char *tmp, void *ctx)
     return bad ? fn_err_set(FN_EIO, "%s: write failed", tmp) : 0;
 }
 
-int export_stl(const fcase *c, int i, const export_stl_opts *o, const char *path, long *triangles)
+int export_stl(const planning_case *c, int i, const export_stl_opts *o, const char *path, long *triangles)
 {
     const frag *f = &c->frag[i];
     size_t n = (size_t)f->dim[0] * (size_t)f->dim[1] * (size_t)f->dim[2];
@@ -415,7 +415,7 @@ static int dilate(unsigned char *m, const int d[3], const int r[3])
     return 0;
 }
 
-int export_contacts(const fcase *c, const vol *planned, double gap_mm, double *contact_mm2, double *gap_ml)
+int export_contacts(const planning_case *c, const vol *planned, double gap_mm, double *contact_mm2, double *gap_ml)
 {
     const vol *v = planned;
     const double *s = v->spacing;

@@ -32,15 +32,15 @@ int export_atomic(const char *path, int (*write)(const char *tmp, void *ctx), vo
 
 /* The planned labelmap on the source grid (see above). overlap_ml, when not NULL, gets per
  * fragment (index order) the volume it shares with others. NULL with fn_err (FN_ENOMEM). */
-vol *export_planned_labels(const fcase *c, double *overlap_ml);
+vol *export_planned_labels(const planning_case *c, double *overlap_ml);
 
 /* The ITK transform of fragment i (see above). */
-int export_tfm(const fcase *c, int i, const char *path);
+int export_tfm(const planning_case *c, int i, const char *path);
 /* The planned labelmap as NIfTI (uint16 labels, sform and qform). */
 int export_nifti(const vol *planned, const char *path);
 /* A 3D Slicer segmentation (.seg.nrrd, one layer, gzip) of the planned labelmap with the case's
  * fragment names, colours and label values (Segment<N>_ID/_Name/_Color/_LabelValue/_Layer/_Extent). */
-int export_seg_nrrd(const fcase *c, const vol *planned, const char *path);
+int export_seg_nrrd(const planning_case *c, const vol *planned, const char *path);
 
 typedef struct export_stl_opts {
     int ras;          /* 1: RAS coordinates */
@@ -48,11 +48,11 @@ typedef struct export_stl_opts {
     long decimate;    /* target triangles (0: all) */
 } export_stl_opts;
 /* The binary STL of fragment i at its pose; *triangles gets the count. */
-int export_stl(const fcase *c, int i, const export_stl_opts *o, const char *path, long *triangles);
+int export_stl(const planning_case *c, int i, const export_stl_opts *o, const char *path, long *triangles);
 
 /* Figures of the planned configuration per fragment (index order), on the planned labelmap:
  * contact area (faces shared with another fragment's voxels, mm^2), gap (background voxels within
  * gap_mm of both the fragment and another, ml). */
-int export_contacts(const fcase *c, const vol *planned, double gap_mm, double *contact_mm2, double *gap_ml);
+int export_contacts(const planning_case *c, const vol *planned, double gap_mm, double *contact_mm2, double *gap_ml);
 
 #endif

@@ -741,7 +741,7 @@ double fracture_truth_shift(const pose *truth, const double centroid[3])
     return sqrt(d2);
 }
 
-fcase *fracture_make_case(const vol *ct, const fracture_params *p, const char *dir)
+planning_case *fracture_make_case(const vol *ct, const fracture_params *p, const char *dir)
 {
     fracture_result r;
     if (fracture_make(ct, p, &r) < 0)
@@ -749,7 +749,7 @@ fcase *fracture_make_case(const vol *ct, const fracture_params *p, const char *d
     char src[4200];
     snprintf(src, sizeof src, "%s/source.nii.gz", dir);
     vol_type t = ct->src_type == VOL_F64 ? VOL_F32 : ct->src_type;
-    fcase *c = NULL;
+    planning_case *c = NULL;
     if (mkdir(dir, 0755) != 0 && errno != EEXIST)
         fn_err_set(FN_EIO, "%s: cannot create the case folder: %s", dir, strerror(errno));
     else if (volio_write(r.ct, src, t) == 0) {

@@ -67,11 +67,11 @@ void fracture_result_free(fracture_result *r);
  * displacement that fracnav prints (a pose's translation alone depends on where the origin is). */
 double fracture_truth_shift(const pose *truth, const double centroid[3]);
 
-struct fcase;
+struct planning_case;
 /* The whole thing as a saved case: fractures ct, writes dir/source.nii.gz (ct's voxel type), makes
  * the case over it (fragment i = piece i, poses identity, fixed = piece 1, truth set) and saves it.
  * Returns the case (free with case_free) or NULL with fn_err. ct is not consumed. */
-struct fcase *fracture_make_case(const vol *ct, const fracture_params *p, const char *dir);
+struct planning_case *fracture_make_case(const vol *ct, const fracture_params *p, const char *dir);
 
 /* The deterministic pieces, exposed for tests: splitmix64 step, uniform [0,1), and fBm value
  * noise at point x (in noise-lattice units), scaled to a standard deviation of about 1. */

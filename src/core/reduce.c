@@ -999,7 +999,7 @@ static void merge_sweep(reduce_result *r, reduce_result *r2)
     reduce_result_free(r2);
 }
 
-int reduce_case(fcase *c, int fixed, const int *moving, int nmoving, const reduce_opts *o, reduce_result *r)
+int reduce_case(planning_case *c, int fixed, const int *moving, int nmoving, const reduce_opts *o, reduce_result *r)
 {
     if (!c || fixed < 0 || fixed >= c->nfrag || nmoving < 1 || !r)
         return fn_err_set(FN_EINVAL, "reduce: bad fixed fragment or nothing to move");
@@ -1063,7 +1063,7 @@ int reduce_case(fcase *c, int fixed, const int *moving, int nmoving, const reduc
 
 /* ---- ground truth -------------------------------------------------------------------------- */
 
-int reduce_truth_errors(const fcase *c, int fi, int mi, double *rot_deg, double *trans_mm, double *tre_mm)
+int reduce_truth_errors(const planning_case *c, int fi, int mi, double *rot_deg, double *trans_mm, double *tre_mm)
 {
     if (!c || !c->has_truth || fi < 0 || mi < 0 || fi >= c->nfrag || mi >= c->nfrag)
         return fn_err_set(FN_EINVAL, "reduce: the case has no ground truth");
@@ -1144,7 +1144,7 @@ static json_t *result_obj(const reduce_result *r)
                      "push_mm", r->push_mm, "collides", r->collides, "history", h);
 }
 
-int reduce_store(fcase *c, int fixed, const reduce_opts *o, const reduce_result *r, int n)
+int reduce_store(planning_case *c, int fixed, const reduce_opts *o, const reduce_result *r, int n)
 {
     json_t *extra = c->extra ? c->extra : json_object(), *frs = json_array();
     json_t *rec = json_pack("{s:s,s:s,s:i,s:b,s:f,s:o}", "method", reduce_method_name(o->method), "counting",

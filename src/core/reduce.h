@@ -37,7 +37,7 @@
 #include <stddef.h>
 
 struct obb_tree;
-struct fcase;
+struct planning_case;
 
 typedef enum { REDUCE_POWELL, REDUCE_PRAXIS, REDUCE_SBPLX, REDUCE_BOBYQA, REDUCE_METHODS } reduce_method;
 typedef enum { REDUCE_TRILINEAR, REDUCE_NEAREST } reduce_count;
@@ -193,14 +193,14 @@ int reduce_fit_one(const frag *const *others, int nothers, const frag *moving, c
 /* Reduces the case's fragments: fixed (index) stays, the moving ones (indices; NULL = all others)
  * are fitted one by one against the growing assembly, the one of largest contact first. r has
  * room for nmoving results (filled in the order done). Sets their poses. 0 or FN_E*. */
-int reduce_case(struct fcase *c, int fixed, const int *moving, int nmoving, const reduce_opts *o,
+int reduce_case(struct planning_case *c, int fixed, const int *moving, int nmoving, const reduce_opts *o,
                 reduce_result *r);
 
 /* With ground truth: the errors of fragment mi's pose relative to fixed fi against the truth:
  * rotation (degrees), the moving centroid's displacement (mm), and the RMS displacement (TRE, mm)
  * over its fracture-surface voxels (within 1.5 voxels of the fixed fragment in the true pose; all
  * its voxels when none). 0 or FN_EINVAL (no truth). */
-int reduce_truth_errors(const struct fcase *c, int fi, int mi, double *rot_deg, double *trans_mm,
+int reduce_truth_errors(const struct planning_case *c, int fi, int mi, double *rot_deg, double *trans_mm,
                         double *tre_mm);
 
 /* The errors of m's pose against want (its true pose, for f where it is now): as above. */
@@ -210,6 +210,6 @@ void reduce_errors(const frag *f, const frag *m, const pose *want, double *rot_d
 /* Stores the results in c->extra as "reduction": {method, counting, fixed, fragments: [{id, voi,
  * placed, start, end, iterations, evaluations, seconds, metric_start, metric_end, push_mm,
  * history}]}, replacing an earlier one. 0 or FN_ENOMEM. */
-int reduce_store(struct fcase *c, int fixed, const reduce_opts *o, const reduce_result *r, int n);
+int reduce_store(struct planning_case *c, int fixed, const reduce_opts *o, const reduce_result *r, int n);
 
 #endif

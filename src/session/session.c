@@ -86,7 +86,7 @@ static int open_case(session *s, const session_params *p)
 {
     journal_rec *recs = NULL;
     size_t pending = 0;
-    fcase *c = s->c;
+    planning_case *c = s->c;
     int rc = check_journal(s, p->flags, p->command, &recs, &pending);
     if (rc == 0 && c->nfrag > LOOP_MAX_FRAGS)
         rc = fn_err_set(FN_EINVAL, "%s: %d fragments, the loop steers at most %d", s->dir, c->nfrag,
@@ -187,7 +187,7 @@ loop *session_loop(session *s)
     return s->L;
 }
 
-fcase *session_case(session *s)
+planning_case *session_case(session *s)
 {
     return s->c;
 }
@@ -229,7 +229,7 @@ static void rebind(session *s)
 /* The pairs that overlap at the case's poses, into s->penetrating and case.json's "penetrating". */
 static int check_penetration(session *s)
 {
-    fcase *c = s->c;
+    planning_case *c = s->c;
     if (!s->check) {
         obb_params op = {c->tau_min, c->tau_max};
         if (!(s->check = loop_obb_new(c->frag, c->nfrag, &op, NULL)))
@@ -266,7 +266,7 @@ static int check_penetration(session *s)
 /* case.json keeps one fixed fragment: the case's own while it stays fixed, else the first. */
 static void take_fixed(session *s, const uint8_t *fixed)
 {
-    fcase *c = s->c;
+    planning_case *c = s->c;
     if (c->fixed < 0 || !fixed[c->fixed]) {
         c->fixed = -1;
         for (int i = 0; i < c->nfrag && c->fixed < 0; i++)

@@ -56,7 +56,7 @@ typedef struct session_params {
     const char *command; /* names the command in advice ("run `fracnav navigate` with --recover") */
     /* NULL, or called with the loaded case before its collider is built (e.g. the CLI's
      * --tau-min/--tau-max over the case's, which a save then keeps). 0 or FN_E*. */
-    int (*prepare)(void *ctx, fcase *c);
+    int (*prepare)(void *ctx, planning_case *c);
     void *prepare_ctx;
 } session_params;
 
@@ -83,7 +83,7 @@ size_t session_journal_pending(const char *dir);
  * fragments and their number, the journal records applied at open, the case folder ("" without a
  * case). Valid until session_close. */
 loop *session_loop(session *s);
-fcase *session_case(session *s);
+planning_case *session_case(session *s);
 const frag *session_frags(const session *s);
 int session_nfrag(const session *s);
 size_t session_resumed(const session *s);

@@ -12,7 +12,7 @@
 #define SESSION_QUEUE 8 /* events waiting for session_wait_event (saves done by session_stop) */
 
 struct session {
-    fcase *c; /* NULL: session_open_fragments */
+    planning_case *c; /* NULL: session_open_fragments */
     const frag *frags;
     int nfrag;
     double tau[2];

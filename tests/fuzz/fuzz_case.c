@@ -74,7 +74,7 @@ static void init(void)
         die("source");
     seg_params p;
     seg_defaults(&p);
-    fcase *c = case_create(dir, src, ct, lab, &p);
+    planning_case *c = case_create(dir, src, ct, lab, &p);
     if (!c || case_save(c) < 0 || case_file_sha256(labels, fixture_labels_sha) < 0)
         die("fixture case");
     case_free(c);
@@ -129,7 +129,7 @@ static int put_labels(const uint8_t *lab, size_t len, char sha[65])
     return 1;
 }
 
-static void check(const fcase *c)
+static void check(const planning_case *c)
 {
     for (int i = 0; i < c->nfrag; i++) {
         const pose *p = &c->frag[i].pose;
@@ -165,7 +165,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     char *json = expand(data, json_len, lsha, &n);
     write_file("case.json", json, n);
     free(json);
-    fcase *c = case_load(dir);
+    planning_case *c = case_load(dir);
     if (c)
         check(c);
     else if (!strstr(fn_err_msg(), dir) && !strstr(fn_err_msg(), "labels") &&
