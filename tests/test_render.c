@@ -13,7 +13,7 @@
 #include "err.h"
 #include "frag.h"
 #include "render.h"
-#include "snap.h"
+#include "picture.h"
 #include "testutil.h"
 #include "vol.h"
 
@@ -114,7 +114,7 @@ static void check_golden(const uint8_t *rgb, const char *name)
     snprintf(path, sizeof path, "%s/tests/golden/render_%s.png", getenv("FRACNAV_SRC"), name);
     const char *update = getenv("FRACNAV_UPDATE_GOLDEN");
     if (update && !strcmp(update, "1")) {
-        assert_int_equal(snap_write_png(path, rgb, W, H), 0);
+        assert_int_equal(picture_write_png(path, rgb, W, H), 0);
         return;
     }
     png_image im = {.version = PNG_IMAGE_VERSION};

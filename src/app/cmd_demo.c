@@ -9,7 +9,7 @@
 #include "journal.h"
 #include "render.h"
 #include "seg.h"
-#include "snap.h"
+#include "picture.h"
 #include "vol.h"
 #include "volio.h"
 
@@ -211,7 +211,7 @@ static int picture(const planning_case *c, render_view view, const char *path)
     if (!rc)
         rc = render_read_rgb(r, rgb);
     if (!rc)
-        rc = snap_write_png(path, rgb, w, h);
+        rc = picture_write_png(path, rgb, w, h);
     free(rgb);
     render_close(r);
     return rc;
@@ -378,7 +378,7 @@ static int frames(const planning_case *c, const journal_scan *j, const char *dir
         if (!rc)
             rc = render_read_rgb(r, rgb);
         if (!rc)
-            rc = snap_write_png(path, rgb, w, h);
+            rc = picture_write_png(path, rgb, w, h);
     }
     if (!rc)
         printf("   frames (headless, from the poses navigate journalled): %s/navigation-00.png .. -%02d.png\n", fdir,

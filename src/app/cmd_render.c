@@ -4,7 +4,7 @@
 #include "case.h"
 #include "err.h"
 #include "render.h"
-#include "snap.h"
+#include "picture.h"
 
 #include <jansson.h>
 
@@ -192,7 +192,7 @@ static int draw(planning_case *c, render_args *a)
     if (!rc)
         rc = render_read_rgb(r, rgb);
     if (!rc)
-        rc = snap_write_png(a->out, rgb, a->w, a->h);
+        rc = picture_write_png(a->out, rgb, a->w, a->h);
     if (!rc)
         fprintf(stderr, "fracnav render: %s (%s, %d fragments, %s)\n", a->out, render_mode_name(o.mode),
                 c->nfrag, render_gl_renderer(r));

@@ -3,7 +3,7 @@
 
 #include "err.h"
 #include "render.h"
-#include "snap.h"
+#include "picture.h"
 
 #include <errno.h>
 #include <stdio.h>
@@ -69,7 +69,7 @@ static int write_frame(framedump *d, loop *L)
     if (!rc)
         rc = render_read_rgb(d->r, d->rgb);
     if (!rc)
-        rc = snap_write_png(path, d->rgb, d->w, d->h);
+        rc = picture_write_png(path, d->rgb, d->w, d->h);
     if (!rc)
         d->count++;
     return rc;

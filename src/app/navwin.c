@@ -4,7 +4,7 @@
 #include "err.h"
 #include "fnclock.h"
 #include "render.h"
-#include "snap.h"
+#include "picture.h"
 
 #include <math.h>
 #include <stdio.h>
@@ -191,7 +191,7 @@ int navwin_screenshot(navwin *w, const char *png)
     if (!rc)
         rc = render_read_rgb(w->r, rgb);
     if (!rc)
-        rc = snap_write_png(png, rgb, w->w, w->h);
+        rc = picture_write_png(png, rgb, w->w, w->h);
     free(rgb);
     return rc;
 }

@@ -5,7 +5,7 @@
 #include "export.h"
 #include "reduce.h"
 #include "render.h"
-#include "snap.h"
+#include "picture.h"
 
 #include <jansson.h>
 
@@ -88,7 +88,7 @@ static int render_pictures(const planning_case *c, const pose *before, const cha
             if (!rc)
                 rc = render_read_rgb(r, rgb);
             if (!rc)
-                rc = snap_write_png(path, rgb, PIC, PIC);
+                rc = picture_write_png(path, rgb, PIC, PIC);
             if (!rc && wrote)
                 wrote(ctx, path);
         }

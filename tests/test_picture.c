@@ -5,7 +5,7 @@
 #include <cmocka.h>
 
 #include "err.h"
-#include "snap.h"
+#include "picture.h"
 #include "testutil.h"
 
 #include <png.h>
@@ -13,7 +13,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-/* Reads back a PNG written by snap and returns the pixel at (x, y). */
+/* Reads back a PNG written by picture_write_png and returns the pixel at (x, y). */
 static void read_pixel(const char *path, int x, int y, int *w, int *h, uint8_t out[3])
 {
     png_image im = {.version = PNG_IMAGE_VERSION};
@@ -28,7 +28,7 @@ static void read_pixel(const char *path, int x, int y, int *w, int *h, uint8_t o
     free(buf);
 }
 
-/* What snap writes reads back, pixel for pixel, through libpng. */
+/* What picture_write_png writes reads back, pixel for pixel, through libpng. */
 static void test_pixels_read_back(void **st)
 {
     (void)st;
@@ -36,10 +36,10 @@ static void test_pixels_read_back(void **st)
     uint8_t rgb[7 * 5 * 3];
     for (int i = 0; i < W * H * 3; i++)
         rgb[i] = (uint8_t)(i * 37 + 11);
-    char *dir = tu_tmpdir("snap");
+    char *dir = tu_tmpdir("picture");
     char path[4200];
     snprintf(path, sizeof path, "%s/view.png", dir);
-    assert_int_equal(snap_write_png(path, rgb, W, H), 0);
+    assert_int_equal(picture_write_png(path, rgb, W, H), 0);
     for (int y = 0; y < H; y++)
         for (int x = 0; x < W; x++) {
             int w, h;
@@ -56,7 +56,7 @@ static void test_pixels_read_back(void **st)
 static void test_unwritable_path_names_the_file(void **st)
 {
     uint8_t px[3] = {1, 2, 3};
-    assert_int_equal(snap_write_png("/nonexistent-dir/x.png", px, 1, 1), FN_EIO);
+    assert_int_equal(picture_write_png("/nonexistent-dir/x.png", px, 1, 1), FN_EIO);
     assert_non_null(strstr(fn_err_msg(), "/nonexistent-dir/x.png"));
 }
 

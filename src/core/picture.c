@@ -1,4 +1,4 @@
-#include "snap.h"
+#include "picture.h"
 
 #include "err.h"
 
@@ -9,7 +9,7 @@
 #include <string.h>
 #include <unistd.h>
 
-int snap_write_png(const char *path, const uint8_t *rgb, int w, int h)
+int picture_write_png(const char *path, const uint8_t *rgb, int w, int h)
 {
     char tmp[4200];
     snprintf(tmp, sizeof tmp, "%s.tmp", path);
