@@ -20,6 +20,8 @@
 #include <string.h>
 #include <time.h>
 
+#define MIN_LOOP_FRAMES 5 /* frames drawn while the loop runs, at the least */
+
 static void usage(FILE *out)
 {
     fprintf(out, "usage: fracnav bench render [--json] [--frames N] [--size WxH] [--ct FILE]\n"
@@ -250,7 +252,9 @@ static int measure_loop(render *r, const frag *f, int nfrag, double secs, uint8_
             int64_t t0 = fnclock_now_us(), end = t0 + (int64_t)(secs * 1e6);
             loop_scene sc = {0};
             int drc = 0;
-            while (!drc && fnclock_now_us() < end && nf < fcap) {
+            /* --loop-s, but at least MIN_LOOP_FRAMES frames: a slow machine (or a sanitizer
+             * build) still sees reports reach frames */
+            while (!drc && nf < fcap && (fnclock_now_us() < end || nf < MIN_LOOP_FRAMES)) {
                 loop_scene_read(L, &sc);
                 drc = render_frame(r, sc.pose, &ro);
                 if (!drc)
