@@ -42,7 +42,8 @@ static void usage(FILE *out)
             "  --nearest              count voxels at the nearest cell instead of trilinear weights\n"
             "  --tolerance MM         collision tolerance of the result (default 0.5)\n"
             "  --gap MM               bone lost at the fracture: the fit leaves a gap of MM between\n"
-            "                         the fragments instead of closing it (default 0)\n"
+            "                         the fragments instead of closing it (default 0; counted in\n"
+            "                         whole voxels: less than a voxel spacing leaves none)\n"
             CMD_TAU_HELP
             "  -o, --output NEWCASE   save into a new case folder (the source stays where it is)\n"
             "  --json                 one JSON object on stdout: command, case, method, fixed,\n"

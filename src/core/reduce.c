@@ -1147,9 +1147,10 @@ static json_t *result_obj(const reduce_result *r)
 int reduce_store(planning_case *c, int fixed, const reduce_opts *o, const reduce_result *r, int n)
 {
     json_t *extra = c->extra ? c->extra : json_object(), *frs = json_array();
-    json_t *rec = json_pack("{s:s,s:s,s:i,s:b,s:f,s:o}", "method", reduce_method_name(o->method), "counting",
+    json_t *rec = json_pack("{s:s,s:s,s:i,s:b,s:f,s:f,s:o}", "method", reduce_method_name(o->method), "counting",
                             o->count == REDUCE_NEAREST ? "nearest" : "trilinear", "fixed", c->frag[fixed].id,
-                            "prealign", o->prealign, "tolerance_mm", o->tolerance_mm, "fragments", frs);
+                            "prealign", o->prealign, "tolerance_mm", o->tolerance_mm, "gap_mm", o->gap_mm,
+                            "fragments", frs);
     int ok = extra && rec && frs;
     for (int i = 0; i < n && ok; i++) {
         json_t *ro = result_obj(&r[i]);
