@@ -253,13 +253,14 @@ static vol *bone(void)
     return v;
 }
 
-static planning_case *fractured(const char *dir, int pieces, uint64_t seed)
+static planning_case *fractured_loss(const char *dir, int pieces, uint64_t seed, double loss_mm)
 {
     vol *ct = bone();
     fracture_params p;
     fracture_defaults(&p);
     p.seed = seed;
     p.pieces = pieces;
+    p.bone_loss_mm = loss_mm;
     p.displace_mm = 4;
     p.rotate_deg = 5;
     planning_case *c = fracture_make_case(ct, &p, dir);
@@ -267,6 +268,11 @@ static planning_case *fractured(const char *dir, int pieces, uint64_t seed)
     if (!c)
         fail_msg("%s", fn_err_msg());
     return c;
+}
+
+static planning_case *fractured(const char *dir, int pieces, uint64_t seed)
+{
+    return fractured_loss(dir, pieces, seed, 0);
 }
 
 static void check_errors(const planning_case *c, int fixed, double mm, double deg)
@@ -313,6 +319,31 @@ static void test_reduce_two_pieces(void **st)
     case_free(back);
     reduce_result_free(&r[0]);
     case_free(c);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* 1 mm of bone lost at the cut: the true pose leaves a gap, which the fit closes unless told of
+ * it (without gap_mm: 1.1 mm off); told (reduce --gap 1), it lands within 1 mm and 1 degree. */
+static void test_reduce_gap(void **st)
+{
+    char *dir = tu_tmpdir("reduce_gap");
+    planning_case *c = fractured_loss(dir, 2, 3, 1);
+    reduce_opts o;
+    reduce_defaults(&o);
+    o.prealign = 0;
+    o.gap_mm = 1;
+    reduce_result r[1];
+    int mv[1] = {1};
+    assert_int_equal(reduce_case(c, 0, mv, 1, &o, r), 0);
+    check_errors(c, 0, 1, 1);
+    assert_int_equal(r[0].collides, 0);
+    reduce_result_free(&r[0]);
+    case_free(c);
+    char *out = NULL;
+    assert_int_equal(tu_run_cli(&out, "reduce %s --gap -1", dir), 2);
+    assert_non_null(strstr(out, "--gap"));
+    free(out);
     tu_rmtree(dir);
     free(dir);
 }
@@ -547,6 +578,7 @@ int main(void)
         cmocka_unit_test(test_powell_bad_arguments),
         cmocka_unit_test(test_method_names),
         cmocka_unit_test(test_reduce_two_pieces),
+        cmocka_unit_test(test_reduce_gap),
         cmocka_unit_test(test_reduce_three_pieces),
         cmocka_unit_test(test_reduce_nlopt_methods),
         cmocka_unit_test(test_fit_one),

@@ -25,7 +25,7 @@ typedef struct opts {
     double max_mm, max_deg, band_mm, voi_max_mm;
     int fit_starts, coarse, axis_scale;
     int pieces, threshold_auto, touching;
-    double threshold, bone_loss_mm;
+    double threshold, bone_loss_mm, gap_mm;
     int nconf;
     reduce_method method[MAX_CONFIGS];
     reduce_count count[MAX_CONFIGS];
@@ -295,6 +295,7 @@ static int run_case(const vol *ct, uint64_t seed, const opts *o, config_stats *c
                 ro.starts = o->fit_starts;
             if (o->coarse)
                 ro.coarse = 1;
+            ro.gap_mm = o->gap_mm;
             if (o->axis_scale)
                 ro.axis_scale = o->axis_scale > 0;
             m.pose = start;
@@ -412,13 +413,14 @@ static int usage(FILE *out, int rc)
             "                   is thresholded and separated (edit separate) first, and the fits\n"
             "                   use the separated pieces; separated_dice_min, separate_mean_s\n"
             "  --bone-loss MM   bone lost along each cut (default 0)\n"
+            "  --gap MM         the fits leave a gap of MM at the cut (reduce --gap; default 0)\n"
             "  --threshold HU|auto|auto-bone  the fracture's bone threshold (default 300; for a\n"
             "                   CT not in HU, as tests/data/CT_pitch.nii.gz: auto-bone)\n"
             "  --ct FILE        the CT to fracture (default: the example CT); long-bone: a bowed\n"
             "                   shaft with a cortex and a medullary canal, made in memory\n"
             "  --verbose        one line per run on stderr\n"
             "  --json           one JSON object on stdout: command, ct, seeds, starts, max_mm,\n"
-            "                   max_deg, pieces, bone_loss_mm, touching, separated_dice_min,\n"
+            "                   max_deg, pieces, bone_loss_mm, gap_mm, touching, separated_dice_min,\n"
             "                   separate_mean_s (null unless --touching), default_method, methods (one per\n"
             "                   configuration)\n");
     return rc;
@@ -460,6 +462,11 @@ static int parse(int argc, char **argv, opts *o)
             if (!cmd_number(val, &d) || !(d >= 0 && d <= 10))
                 return cmd_bad_value("bench reduce", a, val, "a number of mm 0..10");
             o->bone_loss_mm = d;
+            i++;
+        } else if (!strcmp(a, "--gap")) {
+            if (!cmd_number(val, &d) || !(d >= 0 && d <= 10))
+                return cmd_bad_value("bench reduce", a, val, "a number of mm 0..10");
+            o->gap_mm = d;
             i++;
         } else if (!strcmp(a, "--threshold")) {
             if (val && !strcmp(val, "auto"))
@@ -556,6 +563,7 @@ int bench_reduce(int argc, char **argv)
         jsonw_set(root, "separated_dice_min", o.touching ? jsonw_measure(cs[0].separate_dice) : json_null());
         jsonw_set(root, "separate_mean_s", o.touching ? jsonw_measure(cs[0].separate_s / o.seeds) : json_null());
         jsonw_set(root, "bone_loss_mm", jsonw_exact(o.bone_loss_mm));
+        jsonw_set(root, "gap_mm", jsonw_exact(o.gap_mm));
         reduce_opts def;
         reduce_defaults(&def);
         jsonw_set(root, "default_method", jsonw_string(reduce_method_name(def.method)));

@@ -41,6 +41,9 @@ static void usage(FILE *out)
             "                         placed by hand and starts where it is)\n"
             "  --nearest              count voxels at the nearest cell instead of trilinear weights\n"
             "  --tolerance MM         collision tolerance of the result (default 0.5)\n"
+            "  --gap MM               bone lost at the fracture: the fit leaves a gap of MM between\n"
+            "                         the fragments instead of closing it (default 0; counted in\n"
+            "                         whole voxels: less than a voxel spacing leaves none)\n"
             CMD_TAU_HELP
             "  -o, --output NEWCASE   save into a new case folder (the source stays where it is)\n"
             "  --json                 one JSON object on stdout: command, case, method, fixed,\n"
@@ -107,6 +110,11 @@ static int parse(int argc, char **argv, args *A)
             if (!cmd_number(val, &d) || !(d >= 0 && d <= 10))
                 return cmd_bad_value("reduce", a, val, "a number of mm from 0 to 10");
             A->o.tolerance_mm = d;
+            i++;
+        } else if (!strcmp(a, "--gap")) {
+            if (!cmd_number(val, &d) || !(d >= 0 && d <= 10))
+                return cmd_bad_value("reduce", a, val, "a number of mm from 0 to 10");
+            A->o.gap_mm = d;
             i++;
         } else if (!strcmp(a, "--voi")) {
             double v[6];

@@ -351,7 +351,7 @@ static void world_box(const frag *f, const pose *p, double lo[3], double hi[3])
 
 /* A candidate's score: the metric over the overlap of the two world boxes grown by 5 mm. */
 static double candidate_score(const pair_ctx *pc, reduce_bricks *b, const pose *p, reduce_count mode,
-                              double band)
+                              double band, double gap)
 {
     double alo[3], ahi[3], mlo[3], mhi[3];
     world_box(pc->asm_[0], &pc->asm_[0]->pose, alo, ahi);
@@ -363,7 +363,7 @@ static double candidate_score(const pair_ctx *pc, reduce_bricks *b, const pose *
         if (v.lo[a] >= v.hi[a])
             return INFINITY;
     }
-    reduce_metric *m = reduce__metric_with(pc->asm_, pc->nasm, pc->moving, b, &v, mode, band);
+    reduce_metric *m = reduce__metric_with(pc->asm_, pc->nasm, pc->moving, b, &v, mode, band, gap);
     if (!m)
         return INFINITY;
     double f = reduce_metric_eval(m, p, NULL);
@@ -415,7 +415,7 @@ static int prealign(const pair_ctx *pc, reduce_bricks *b, const reduce_opts *o, 
     const frag *fx = pc->asm_[0];
     frag *m = pc->moving;
     pose placed = m->pose, best = placed;
-    double bestf = candidate_score(pc, b, &placed, o->count, o->band_mm);
+    double bestf = candidate_score(pc, b, &placed, o->count, o->band_mm, o->gap_mm);
     double af[3], am[3], cf[3], cm[3];
     axis_world(fx, 0, af);
     axis_world(m, 0, am);
@@ -441,7 +441,7 @@ static int prealign(const pair_ctx *pc, reduce_bricks *b, const reduce_opts *o, 
                     return rc;
                 if (!rc)
                     continue;
-                double f = candidate_score(pc, b, &cand, o->count, o->band_mm);
+                double f = candidate_score(pc, b, &cand, o->count, o->band_mm, o->gap_mm);
                 if (f < bestf) {
                     bestf = f;
                     best = cand;
@@ -846,9 +846,9 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
             if (rc == 0 && use_coarse) {
                 double cs = fmax(cf[0].spacing[0], fmax(cf[0].spacing[1], cf[0].spacing[2]));
                 double band = o->band_mm > 0 ? fmax(o->band_mm, cs) : 0;
-                if (!(m = reduce__metric_with(cfp, nasm, &cf[nasm], cb, &r->voi, o->count, band)))
+                if (!(m = reduce__metric_with(cfp, nasm, &cf[nasm], cb, &r->voi, o->count, band, o->gap_mm)))
                     rc = FN_EINVAL;
-            } else if (rc == 0 && !(m = reduce__metric_with(asm_, nasm, moving, b, &r->voi, o->count, o->band_mm)))
+            } else if (rc == 0 && !(m = reduce__metric_with(asm_, nasm, moving, b, &r->voi, o->count, o->band_mm, o->gap_mm)))
                 rc = FN_EINVAL;
             if (rc)
                 break;
@@ -920,7 +920,7 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
                 u.lo[a] = fmin(u.lo[a], vois[i].lo[a]);
                 u.hi[a] = fmax(u.hi[a], vois[i].hi[a]);
             }
-        reduce_metric *mu = reduce__metric_with(asm_, nasm, moving, b, &u, o->count, o->band_mm);
+        reduce_metric *mu = reduce__metric_with(asm_, nasm, moving, b, &u, o->count, o->band_mm, o->gap_mm);
         if (!mu)
             rc = FN_EINVAL;
         double fbest = INFINITY;
@@ -939,7 +939,7 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
         r->voi = vois[w];
         if (rc == 0 && w != attempts - 1) { /* the final metric is the winner's */
             reduce_metric_free(m);
-            if (!(m = reduce__metric_with(asm_, nasm, moving, b, &r->voi, o->count, o->band_mm)))
+            if (!(m = reduce__metric_with(asm_, nasm, moving, b, &r->voi, o->count, o->band_mm, o->gap_mm)))
                 rc = FN_EINVAL;
         }
     }
@@ -1147,9 +1147,10 @@ static json_t *result_obj(const reduce_result *r)
 int reduce_store(planning_case *c, int fixed, const reduce_opts *o, const reduce_result *r, int n)
 {
     json_t *extra = c->extra ? c->extra : json_object(), *frs = json_array();
-    json_t *rec = json_pack("{s:s,s:s,s:i,s:b,s:f,s:o}", "method", reduce_method_name(o->method), "counting",
+    json_t *rec = json_pack("{s:s,s:s,s:i,s:b,s:f,s:f,s:o}", "method", reduce_method_name(o->method), "counting",
                             o->count == REDUCE_NEAREST ? "nearest" : "trilinear", "fixed", c->frag[fixed].id,
-                            "prealign", o->prealign, "tolerance_mm", o->tolerance_mm, "fragments", frs);
+                            "prealign", o->prealign, "tolerance_mm", o->tolerance_mm, "gap_mm", o->gap_mm,
+                            "fragments", frs);
     int ok = extra && rec && frs;
     for (int i = 0; i < n && ok; i++) {
         json_t *ro = result_obj(&r[i]);

@@ -16,6 +16,10 @@
  * mostly empty, and the paper's count then prefers any pose that crams more of the moving
  * fragment into that space over the fit; the band keeps the count to where the fragments meet.
  * band_mm = 0 is the paper's box.
+ * The gap (reduce_opts.gap_mm > 0, for bone lost at the cut): the VOI cells within gap_mm
+ * (Euclidean) of the assembly's bone count as its bone (for n_1, n_I and the band), so the true
+ * pose, which leaves that gap, scores as a fit that touches; without it the metric closes the gap
+ * (bench reduce --bone-loss 1: translation error about the loss).
  * A moving voxel counts in units of the grid's voxel volume (the ratio of the two voxel volumes;
  * 1 for fragments of one CT). Empty space is skipped by 8^3 bricks of the moving fragment, each
  * with its runs of bone voxels along i, culled against the VOI by a bounding sphere.
@@ -111,6 +115,8 @@ typedef struct reduce_opts {
     int max_eval;        /* evaluations per fragment (every stage and attempt together) */
     double voi_max_mm;   /* automatic VOI: the longest side (reduce_auto_voi's max_mm) */
     double band_mm;      /* the metric's band (0: the whole box) */
+    double gap_mm;       /* bone lost at the cut (0: none): the fit leaves this gap (see above);
+                          * bench reduce --bone-loss 1 --gap 1: success 0.55 -> 0.95 */
     int starts;          /* the first stage's starts: the start, then turned +-8 degrees about
                           * the principal axes in turn; the best fit wins */
     int axis_scale;      /* 1 (default): the rotation is scaled per principal axis of the moving
@@ -133,7 +139,7 @@ typedef struct reduce_opts {
 } reduce_opts;
 
 /* PRAXIS (the most successful in `fracnav bench reduce`), trilinear, a 1 mm band, pre-alignment on,
- * automatic VOI of any size, 3 first-stage starts, rotation scaled per principal axis, no coarse
+ * no gap, automatic VOI of any size, 3 first-stage starts, rotation scaled per principal axis, no coarse
  * stage, trust 12 mm / 18 degrees, tau 0.5/0.95, tolerance 0.5 mm, xtol 0.01 mm, 4000 evaluations
  * (all stages and attempts together). */
 void reduce_defaults(reduce_opts *o);

@@ -58,9 +58,10 @@ struct reduce_metric {
 
 reduce_bricks *reduce__bricks_new(const frag *m);
 void reduce__bricks_free(reduce_bricks *b);
-/* A metric over shared bricks (not freed with it). */
+/* A metric over shared bricks (not freed with it). gap_mm > 0: the VOI cells within gap_mm
+ * (Euclidean) of the assembly's bone count as its bone (reduce_opts.gap_mm); 0: none. */
 reduce_metric *reduce__metric_with(const frag *const *asm_, int nasm, const frag *moving, reduce_bricks *b,
-                                   const reduce_voi *voi, reduce_count mode, double band_mm);
+                                   const reduce_voi *voi, reduce_count mode, double band_mm, double gap_mm);
 /* A coarse copy of f (the first stage's level): 2 voxels a cell along each axis whose spacing is
  * within 1.5 times the finest, bone where at least half of a cell's voxels are; same id, pose,
  * centroid and axes, home moved to the cell centres. 0 or FN_ENOMEM (*c then holds nothing to free). */

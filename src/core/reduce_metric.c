@@ -168,6 +168,30 @@ static void band_cells(const double sg[3], double band_mm, int k[3])
         k[a] = band_mm > 0 ? (int)floor(band_mm / sg[a] + 1e-9) : -1;
 }
 
+/* v[cell] = 1 where some bone cell of bone[] lies within r mm (Euclidean, on the grid's spacing
+ * sg); v and bone span d[0]*d[1]*d[2] cells. Brute force over the ball's offsets: r is a gap of a
+ * few voxels. */
+static void dilate_ball(const uint8_t *bone, uint8_t *v, const int d[3], const double sg[3], double r)
+{
+    int k[3];
+    band_cells(sg, r, k);
+    memcpy(v, bone, (size_t)d[0] * d[1] * d[2]);
+    for (int z = 0; z < d[2]; z++)
+        for (int y = 0; y < d[1]; y++)
+            for (int x = 0; x < d[0]; x++) {
+                size_t i = ((size_t)z * d[1] + y) * d[0] + x;
+                for (int c = -k[2]; c <= k[2] && !v[i]; c++)
+                    for (int b = -k[1]; b <= k[1] && !v[i]; b++)
+                        for (int a = -k[0]; a <= k[0] && !v[i]; a++) {
+                            int X = x + a, Y = y + b, Z = z + c;
+                            double q = (a * sg[0]) * (a * sg[0]) + (b * sg[1]) * (b * sg[1]) + (c * sg[2]) * (c * sg[2]);
+                            if (X >= 0 && Y >= 0 && Z >= 0 && X < d[0] && Y < d[1] && Z < d[2] && q <= r * r + 1e-9 &&
+                                bone[((size_t)Z * d[1] + Y) * d[0] + X])
+                                v[i] = 1;
+                        }
+            }
+}
+
 /* v[cell] = 1 where some bone cell of bone[] lies within k cells on every axis (a box); v and bone
  * span d[0]*d[1]*d[2] cells. Separable: one sliding window count per axis. */
 static int dilate_box(const uint8_t *bone, uint8_t *v, const int d[3], const int k[3])
@@ -244,7 +268,7 @@ static uint32_t blocks_counted(const reduce_metric *m, const int lo[3], const in
 }
 
 reduce_metric *reduce__metric_with(const frag *const *asm_, int nasm, const frag *moving, reduce_bricks *b,
-                                   const reduce_voi *voi, reduce_count mode, double band_mm)
+                                   const reduce_voi *voi, reduce_count mode, double band_mm, double gap_mm)
 {
     if (!asm_ || nasm < 1 || !moving || !voi) {
         fn_err_set(FN_EINVAL, "reduce metric: no fragment or VOI");
@@ -287,6 +311,22 @@ reduce_metric *reduce__metric_with(const frag *const *asm_, int nasm, const frag
                     m->n1 += 1;
                     sum[0] += i, sum[1] += j, sum[2] += k;
                 }
+    if (gap_mm > 0) { /* the gap left where bone was lost counts as the assembly's */
+        uint8_t *gb = malloc(nv);
+        if (!gb) {
+            fn_err_set(FN_ENOMEM, "reduce metric: out of memory for the gap");
+            free(bone);
+            free(in);
+            reduce_metric_free(m);
+            return NULL;
+        }
+        dilate_ball(bone, gb, m->d, m->sg, gap_mm);
+        memcpy(bone, gb, nv);
+        free(gb);
+        m->n1 = 0;
+        for (size_t q = 0; q < nv; q++)
+            m->n1 += bone[q];
+    }
     int kb[3];
     band_cells(m->sg, band_mm, kb);
     if (kb[0] < 0)
@@ -334,7 +374,7 @@ reduce_metric *reduce_metric_new(const frag *const *asm_, int nasm, const frag *
     reduce_bricks *b = reduce__bricks_new(moving);
     if (!b)
         return NULL;
-    reduce_metric *m = reduce__metric_with(asm_, nasm, moving, b, voi, mode, band_mm);
+    reduce_metric *m = reduce__metric_with(asm_, nasm, moving, b, voi, mode, band_mm, 0);
     if (!m)
         reduce__bricks_free(b);
     else
