@@ -685,7 +685,8 @@ static void test_replay_window_matches_render(void **st)
 }
 
 /* replay --frames: one picture per --frame-ms of the recording's time, the fragment moving
- * between the first and the last; --realtime and a --frame-ms without --frames are refused. */
+ * between the first and the last; --realtime and a --frame-ms without --frames are refused, and
+ * so are a window or a screenshot without --realtime. */
 static void test_replay_frames(void **st)
 {
     (void)st;
@@ -727,6 +728,12 @@ static void test_replay_frames(void **st)
     free(last);
     assert_int_equal(tu_run_cli(NULL, "replay '%s' '%s' --frames '%s/f2' --realtime", case_dir, rec, dir), 2);
     assert_int_equal(tu_run_cli(NULL, "replay '%s' '%s' --frame-ms 10", case_dir, rec), 2);
+    /* The window shows a replay at its pace: --view window and --screenshot need --realtime. */
+    assert_int_equal(tu_run_cli(NULL, "replay '%s' '%s' --view window", case_dir, rec), 2);
+    assert_int_equal(tu_run_cli(NULL, "replay '%s' '%s' --screenshot '%s/s.png'", case_dir, rec, dir), 2);
+    assert_int_equal(tu_run_cli(NULL, "replay '%s' '%s' --realtime --view terminal --screenshot '%s/s.png'",
+                                case_dir, rec, dir), 2);
+    assert_int_equal(tu_run_cli(NULL, "replay '%s' '%s' --realtime --view bogus", case_dir, rec), 2);
     tu_rmtree(dir);
     free(dir);
 }
