@@ -17,7 +17,8 @@
 static void usage(FILE *out)
 {
     fprintf(out,
-            "usage: fracnav replay CASE FILE.fnrec [--realtime [--view window|terminal]] [--json] [options]\n\n"
+            "usage: fracnav replay CASE FILE.fnrec [--realtime [--view window|terminal]\n"
+            "                      [--screenshot FILE.png]] [--json] [options]\n\n"
             "Play a recording of a 6-DOF controller through the navigation loop on CASE: every report\n"
             "is parsed, calibrated and stepped (collision-checked against every other fragment), and\n"
             "every accepted pose is appended to CASE/journal (kept if the run is killed, for\n"
@@ -25,8 +26,9 @@ static void usage(FILE *out)
             "--recover and did not --save). Stepping uses only the recorded\n"
             "timestamps, so the same case and recording give the same poses and pose_digest on every\n"
             "run and machine, with or without the window. A recording's save and fit buttons do\n"
-            "nothing here (--save saves at the end). Prints a summary (with --json the object alone on stdout, labelled\n"
-            "\"command\": \"replay\", as navigate --json; see the README's \"Machine output\"):\n"
+            "nothing here (--save saves at the end). Prints a summary (with --json the object alone\n"
+            "on stdout, labelled \"command\": \"replay\", as navigate --json; see the README's\n"
+            "\"Machine output\"):\n"
             "  events, steps        events handled; motion steps (accepted + limited + slid + refused)\n"
             "  accepted, limited, slid, refused   outcomes of the steps\n"
             "  collisions_in_accepted   accepted poses found colliding on re-check (always 0)\n"
@@ -236,6 +238,9 @@ static int play_live(session *k, loop_source src, const opts *o)
         if (n < 0 || ((closed || quit) && !last)) {
             navwin_close(win);
             win = NULL;
+            if (o->screenshot)
+                fprintf(stderr, "fracnav replay: --screenshot %s: the window was closed before the end\n",
+                        o->screenshot);
         }
     }
     if (win && o->screenshot && navwin_save_screenshot(win, "replay", o->screenshot) < 0)
@@ -305,6 +310,8 @@ int cmd_replay(int argc, char **argv)
     } else if (o.realtime && navwin_wanted("replay", o.view, "the replay runs on without one")) {
         rc = play_live(k, src, &o);
     } else {
+        if (o.screenshot) /* asked for, but no display */
+            fprintf(stderr, "fracnav replay: --screenshot %s: no window to save\n", o.screenshot);
         rc = session_play(k, src, o.realtime ? SESSION_PLAY_REALTIME : SESSION_PLAY_FAST);
     }
     if (fd && rc == 0)
