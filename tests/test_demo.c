@@ -68,11 +68,19 @@ static void test_demo_runs_the_workflow(void **st)
     assert_non_null(strstr(json, "\"reduction\""));
     free(json);
     /* A second run over the same folder works too (the README's command is idempotent), here with
-     * the recording played in-process; the hierarchy thresholds given go into both cases. */
+     * the recording played in-process; the hierarchy thresholds given go into both cases. --view
+     * reaches navigate: without a display it says so, and the demo goes on headless. */
     free(out);
-    rc = tu_run_cli(&out, "demo '%s' -o '%s/d' --no-fuse --tau-min 0.25 --tau-max 0.75", ct, dir);
+    const char *display = getenv("DISPLAY");
+    char *display_saved = display ? strdup(display) : NULL;
+    unsetenv("DISPLAY");
+    rc = tu_run_cli(&out, "demo '%s' -o '%s/d' --no-fuse --tau-min 0.25 --tau-max 0.75 --view window", ct, dir);
+    if (display_saved)
+        setenv("DISPLAY", display_saved, 1);
+    free(display_saved);
     if (rc != 0)
         fail_msg("second fracnav demo exited %d:\n%s", rc, out);
+    assert_non_null(strstr(out, "fracnav navigate: no window ($DISPLAY is not set)"));
     assert_non_null(strstr(out, "replay-realtime"));
     assert_non_null(strstr(out, "collisions in accepted poses: 0"));
     free(out);
@@ -113,6 +121,9 @@ static void test_demo_names_a_missing_ct(void **st)
     assert_non_null(strstr(out, ".ci/setup"));
     free(out);
     assert_int_equal(tu_run_cli(&out, "demo --bogus"), 2);
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "demo --view bogus"), 2);
+    assert_non_null(strstr(out, "--view: 'bogus' is not window or terminal"));
     free(out);
 }
 

@@ -581,8 +581,112 @@ static void test_navigate_window_matches_render(void **st)
     free(dir);
 }
 
+/* The "pose_digest" of a replay's JSON in out ("" when there is none). */
+static void pose_digest(const char *out, char digest[64])
+{
+    const char *p = strstr(out, "\"pose_digest\"");
+    if (!p || sscanf(p, "\"pose_digest\": \"%63[0-9a-f]\"", digest) != 1)
+        digest[0] = 0;
+}
+
+/* replay --realtime --view window on Xvfb: the window shows the replay, its screenshot at the end
+ * matches `fracnav render` of the saved result (OSMesa) below the HUD, and the window changes
+ * nothing: the pose digest is the headless replay's. */
+static void test_replay_window_matches_render(void **st)
+{
+    (void)st;
+#if defined(__SANITIZE_THREAD__)
+    /* As test_navigate_window_matches_render: Xlib's and GLX's own locking. */
+    print_message("skipped under ThreadSanitizer: Xlib's and GLX's own locking\n");
+    skip();
+#endif
+    int display;
+    pid_t xvfb = start_xvfb(&display);
+    if (!xvfb)
+        no_xvfb();
+    char *dir = tu_tmpdir("replaywin"), case_dir[4200], path[4400], rec[4200], d[32];
+    char headless[64], live[64];
+    tu_two_blocks_case(dir, case_dir, sizeof case_dir);
+    snprintf(rec, sizeof rec, "%s/sim/recordings/head-on.fnrec", getenv("FRACNAV_SRC"));
+    char *out = NULL;
+    unsetenv("DISPLAY");
+    int rc = tu_run_cli(&out, "replay '%s' '%s' --json --no-journal", case_dir, rec);
+    if (rc != 0)
+        fail_msg("replay: exit %d: %s", rc, out);
+    pose_digest(out, headless);
+    free(out);
+    assert_int_not_equal(headless[0], 0);
+    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/before.png' --mode surface --size 768x768",
+                                case_dir, dir), 0);
+    free(out);
+    snprintf(d, sizeof d, ":%d", display);
+    setenv("DISPLAY", d, 1); /* for the replay child alone: this process draws through OSMesa */
+    /* As in test_navigate_window_matches_render: no leak report for the unloaded GL driver. */
+    const char *asan = getenv("ASAN_OPTIONS");
+    char *asan_saved = asan ? strdup(asan) : NULL, asan_child[1024];
+    snprintf(asan_child, sizeof asan_child, "%s%sdetect_leaks=0", asan ? asan : "", asan && *asan ? ":" : "");
+    setenv("ASAN_OPTIONS", asan_child, 1);
+    rc = tu_run_cli(&out, "replay '%s' '%s' --realtime --view window --screenshot '%s/shot.png' --json --save "
+                          "--no-journal </dev/null", case_dir, rec, dir);
+    unsetenv("DISPLAY");
+    if (asan_saved)
+        setenv("ASAN_OPTIONS", asan_saved, 1);
+    else
+        unsetenv("ASAN_OPTIONS");
+    free(asan_saved);
+    kill(xvfb, SIGTERM);
+    waitpid(xvfb, NULL, 0);
+    if (rc != 0 || strstr(out, "no window"))
+        fail_msg("replay --realtime --view window: exit %d: %s", rc, out);
+    pose_digest(out, live);
+    if (strcmp(live, headless))
+        fail_msg("the pose digest with the window is '%s', headless '%s': %s", live, headless, out);
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/after.png' --mode surface --size 768x768",
+                                case_dir, dir), 0);
+    free(out);
+    int w, h, w1, h1, w2, h2;
+    snprintf(path, sizeof path, "%s/shot.png", dir);
+    uint8_t *shot = read_png(path, &w, &h);
+    snprintf(path, sizeof path, "%s/before.png", dir);
+    uint8_t *before = read_png(path, &w1, &h1);
+    snprintf(path, sizeof path, "%s/after.png", dir);
+    uint8_t *after = read_png(path, &w2, &h2);
+    assert_int_equal(w, 768);
+    assert_int_equal(h, 768);
+    assert_int_equal(w2, w);
+    assert_int_equal(h2, h);
+    assert_int_equal(w1, w);
+    assert_int_equal(h1, h);
+    /* The HUD covers the top left; compare below it. */
+    const int y0 = 200;
+    long differ = 0, content = 0, moved = 0;
+    for (int i = y0 * w; i < w * h; i++) {
+        int dd = 0, dm = 0;
+        for (int c = 0; c < 3; c++) {
+            dd |= abs(shot[i * 3 + c] - after[i * 3 + c]) > 32;
+            dm |= abs(before[i * 3 + c] - after[i * 3 + c]) > 32;
+        }
+        differ += dd;
+        moved += dm;
+        content += !is_background(shot + i * 3);
+    }
+    if (content < 1000)
+        fail_msg("the window's screenshot shows no fragments (%ld content pixels)", content);
+    if (moved < 500)
+        fail_msg("the recording moved the fragment by only %ld pixels in the render", moved);
+    if (differ > (long)(w * (h - y0)) / 100)
+        fail_msg("the window's screenshot differs from the OSMesa render of the result in %ld pixels", differ);
+    free(shot);
+    free(before);
+    free(after);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 /* replay --frames: one picture per --frame-ms of the recording's time, the fragment moving
- * between the first and the last; --realtime and a --frame-ms without --frames are refused. */
+ * between the first and the last; --realtime and a --frame-ms without --frames are refused, and
+ * so are a window or a screenshot without --realtime. */
 static void test_replay_frames(void **st)
 {
     (void)st;
@@ -624,6 +728,12 @@ static void test_replay_frames(void **st)
     free(last);
     assert_int_equal(tu_run_cli(NULL, "replay '%s' '%s' --frames '%s/f2' --realtime", case_dir, rec, dir), 2);
     assert_int_equal(tu_run_cli(NULL, "replay '%s' '%s' --frame-ms 10", case_dir, rec), 2);
+    /* The window shows a replay at its pace: --view window and --screenshot need --realtime. */
+    assert_int_equal(tu_run_cli(NULL, "replay '%s' '%s' --view window", case_dir, rec), 2);
+    assert_int_equal(tu_run_cli(NULL, "replay '%s' '%s' --screenshot '%s/s.png'", case_dir, rec, dir), 2);
+    assert_int_equal(tu_run_cli(NULL, "replay '%s' '%s' --realtime --view terminal --screenshot '%s/s.png'",
+                                case_dir, rec, dir), 2);
+    assert_int_equal(tu_run_cli(NULL, "replay '%s' '%s' --realtime --view bogus", case_dir, rec), 2);
     tu_rmtree(dir);
     free(dir);
 }
@@ -642,6 +752,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_pose_moves_picture_by_expected_pixels, setup, teardown),
         cmocka_unit_test_setup_teardown(test_window_matches_offscreen, setup, teardown),
         cmocka_unit_test(test_navigate_window_matches_render),
+        cmocka_unit_test(test_replay_window_matches_render),
         cmocka_unit_test(test_replay_frames),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

@@ -7,6 +7,7 @@
 #include "fnrec.h"
 #include "fracture.h"
 #include "journal.h"
+#include "navwin.h"
 #include "render.h"
 #include "seg.h"
 #include "picture.h"
@@ -34,7 +35,7 @@ static void usage(FILE *out)
 {
     fprintf(out,
             "usage: fracnav demo [CT] [-o DIR] [--recording FILE.fnrec] [--no-fuse]\n"
-            "                    [--tau-min T] [--tau-max T]\n\n"
+            "                    [--view window|terminal] [--tau-min T] [--tau-max T]\n\n"
             "Runs fracnav's whole workflow on a CT (default: the example skull CT that .ci/setup\n"
             "caches, $FRACNAV_DATA/Cranium.inv3 or /var/cache/fracnav/Cranium.inv3) and writes its\n"
             "results to DIR (default ./fracnav-demo):\n"
@@ -47,9 +48,10 @@ static void usage(FILE *out)
             "     recording " RECORDING " and steers the loose piece with it through\n"
             "     `fracnav navigate` and the real hidraw driver: lifted, turned and pushed towards\n"
             "     its place, the push refused where the fracture surfaces meet (without FUSE, the\n"
-            "     recording plays in-process: replay-realtime:); navigate's view shows it live on\n"
-            "     standard error, and the renderer draws 8 frames of it from the poses navigate\n"
-            "     journalled: DIR/frames/navigation-00.png .. -07.png;\n"
+            "     recording plays in-process: replay-realtime:); navigate shows it live, in its\n"
+            "     window when a display exists (else on standard error), and the renderer draws 8\n"
+            "     frames of it headless from the poses navigate journalled:\n"
+            "     DIR/frames/navigation-00.png .. -07.png;\n"
             "  4. runs the automatic reduction (`fracnav reduce`) and measures it against the truth;\n"
             "  5. exports everything (`fracnav export --all DIR/export`): ITK transforms, a 3D Slicer\n"
             "     segmentation, a NIfTI labelmap, STL models and the report DIR/export/report/index.html;\n"
@@ -58,7 +60,9 @@ static void usage(FILE *out)
             "  -o DIR                     where the results go (default ./fracnav-demo)\n"
             "  --recording FILE           the navigation recording (default: the shipped\n"
             "                             sim/recordings/" RECORDING ")\n"
-            "  --no-fuse                  play the recording in-process, not through fracnav-sim\n" CMD_TAU_HELP
+            "  --no-fuse                  play the recording in-process, not through fracnav-sim\n"
+            "  --view V                   navigate's view: window (default when $DISPLAY is set and\n"
+            "                             OpenGL 4.5 is there) or terminal (standard error alone)\n" CMD_TAU_HELP
             "                             (kept in both cases the demo saves)\n");
 }
 
@@ -390,7 +394,7 @@ static int frames(const planning_case *c, const journal_scan *j, const char *dir
 }
 
 /* Step 3: the shipped recording through the virtual device and navigate. The navigate summary. */
-static json_t *navigate(char *exe, const char *bindir, const char *dir, char *rec, int no_fuse)
+static json_t *navigate(char *exe, const char *bindir, const char *dir, char *rec, int no_fuse, int view)
 {
     char casedir[PATH_MAX], mnt[PATH_MAX], node[PATH_MAX + 16], sim[PATH_MAX + 32], dur[32], dev[PATH_MAX + 128];
     snprintf(casedir, sizeof casedir, "%s/fracture", dir);
@@ -436,7 +440,11 @@ static json_t *navigate(char *exe, const char *bindir, const char *dir, char *re
     journal_watch w;
     memset(&w, 0, sizeof w);
     snprintf(w.path, sizeof w.path, "%s/journal", casedir);
-    char *args[] = {"navigate", casedir, "--device", dev, "--discard-journal", "--duration", dur, NULL};
+    char *args[] = {"navigate", casedir, "--device", dev, "--discard-journal", "--duration", dur, NULL, NULL, NULL};
+    if (view != NAVWIN_VIEW_AUTO) { /* else navigate's own default: the window with a display */
+        args[7] = "--view";
+        args[8] = view == NAVWIN_VIEW_WINDOW ? "window" : "terminal";
+    }
     json_t *j = before ? fracnav_json(exe, dir, "navigate", args, 1, watch_journal, &w) : NULL;
     if (server > 0) {
         kill(server, SIGTERM);
@@ -456,7 +464,7 @@ int cmd_demo(int argc, char **argv)
     const char *ct_path = NULL, *dir = "fracnav-demo";
     char *rec = NULL;
     cmd_tau tau = {0};
-    int rc, no_fuse = 0;
+    int rc, no_fuse = 0, view = NAVWIN_VIEW_AUTO;
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "-h") || !strcmp(argv[i], "--help")) {
             usage(stdout);
@@ -467,7 +475,8 @@ int cmd_demo(int argc, char **argv)
             rec = argv[++i];
         } else if (!strcmp(argv[i], "--no-fuse")) {
             no_fuse = 1;
-        } else if (cmd_tau_option("demo", argv[i], i + 1 < argc ? argv[i + 1] : NULL, &tau, &rc)) {
+        } else if (cmd_tau_option("demo", argv[i], i + 1 < argc ? argv[i + 1] : NULL, &tau, &rc) ||
+                   navwin_view_option("demo", argv[i], i + 1 < argc ? argv[i + 1] : NULL, &view, &rc)) {
             if (rc)
                 return rc;
             i++;
@@ -517,7 +526,7 @@ int cmd_demo(int argc, char **argv)
     if (rc < 0)
         return fail("fracture");
 
-    json_t *nav = navigate(exe, bindir, dir, rec, no_fuse);
+    json_t *nav = navigate(exe, bindir, dir, rec, no_fuse, view);
     if (!nav)
         return fail("navigation");
     printf("   %lld steps: %lld accepted, %lld limited, %lld slid, %lld refused; collisions in accepted poses: "

@@ -84,11 +84,9 @@ typedef struct opts {
     cmd_tau tau;
     int have_pivot;
     double pivot[3];
-    int view; /* NAV_VIEW_* */
+    int view; /* NAVWIN_VIEW_* */
     const char *screenshot;
 } opts;
-
-enum { NAV_VIEW_AUTO, NAV_VIEW_WINDOW, NAV_VIEW_TERMINAL };
 
 /* The transport of a played recording (replay:FILE, replay-realtime:FILE) with its file in *file,
  * else NULL: a device spec that names no recording, or none that resolves (dev_open says why). */
@@ -110,7 +108,7 @@ static int parse(int argc, char **argv, opts *o)
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
         int rc;
-        if (cmd_tau_option("navigate", a, v, &o->tau, &rc)) {
+        if (cmd_tau_option("navigate", a, v, &o->tau, &rc) || navwin_view_option("navigate", a, v, &o->view, &rc)) {
             if (rc)
                 return rc;
             i++;
@@ -126,12 +124,7 @@ static int parse(int argc, char **argv, opts *o)
             o->json = 1;
         else if (!strcmp(a, "--loop"))
             o->again = 1;
-        else if (!strcmp(a, "--view")) {
-            if (!v || (strcmp(v, "window") && strcmp(v, "terminal")))
-                return cmd_bad_value("navigate", a, v, "window or terminal");
-            o->view = !strcmp(v, "window") ? NAV_VIEW_WINDOW : NAV_VIEW_TERMINAL;
-            i++;
-        } else if (!strcmp(a, "--screenshot")) {
+        else if (!strcmp(a, "--screenshot")) {
             if (!v)
                 return cmd_bad_value("navigate", a, v, "a PNG file to write");
             o->screenshot = argv[++i];
@@ -162,7 +155,7 @@ static int parse(int argc, char **argv, opts *o)
         fprintf(stderr, "fracnav navigate: --recover and --discard-journal exclude each other\n");
         return 2;
     }
-    if (o->screenshot && o->view == NAV_VIEW_TERMINAL)
+    if (o->screenshot && o->view == NAVWIN_VIEW_TERMINAL)
         return cmd_usage_error("navigate", "--screenshot saves the window: it needs --view window");
     const char *file;
     if (o->again && !recording_spec(o->device, &file))
@@ -327,17 +320,14 @@ static navview_extra view_extra(view *v, char *refused, size_t cap)
  * like q. */
 static void window_frame(view *v, const loop_scene *sc)
 {
-    char refused[512], text[4096];
+    char refused[512], device[256];
     navview_extra x = view_extra(v, refused, sizeof refused);
-    navview_format(sc, &x, 100, text, sizeof text);
     const devtab_row *row = v->ds && v->ds->d ? dev_row(v->ds->d) : NULL;
-    size_t len = strlen(text);
-    snprintf(text + len, sizeof text - len, "\ndevice: %s%s", row && row->name ? row->name : v->ds ? "?" : "a recording",
+    snprintf(device, sizeof device, "%s%s", row && row->name ? row->name : v->ds ? "?" : "a recording",
              x.battery >= 0 ? "" : ", battery unknown");
-    if (v->help)
-        snprintf(text + strlen(text), sizeof text - strlen(text), "\n%s", navview_help(v->keyboard));
     int keys[NAVWIN_KEYS], closed = 0;
-    int n = navwin_frame(v->win, sc, text, keys, NAVWIN_KEYS, &closed);
+    int n = navwin_show(v->win, sc, &x, device, v->help ? navview_help(v->keyboard) : NULL, keys, NAVWIN_KEYS,
+                        &closed);
     if (n < 0) {
         fprintf(stderr, "fracnav navigate: the window: %s\n", fn_err_msg());
         quit = 1;
@@ -426,17 +416,9 @@ static void ui(view *v, int keys, double duration)
  * 4.5 the terminal view stays, and a line says why. */
 static void open_window(const opts *o, view *v)
 {
-    const char *display = getenv("DISPLAY");
-    if (o->view == NAV_VIEW_TERMINAL)
-        return;
-    if (!display || !*display) {
-        fprintf(stderr, "fracnav navigate: no window ($DISPLAY is not set): the terminal view stays\n");
-        return;
-    }
-    v->win = navwin_open(session_case(v->k), session_loop(v->k), 768, 768);
-    if (!v->win)
-        fprintf(stderr, "fracnav navigate: no window (%s): the terminal view stays\n", fn_err_msg());
-    else if (v->tty)
+    v->win = navwin_open_view("navigate", o->view, "the terminal view stays", session_case(v->k),
+                              session_loop(v->k), 1);
+    if (v->win && v->tty)
         fprintf(stderr, "window: %s\n", navwin_gl_renderer(v->win));
 }
 
@@ -470,10 +452,8 @@ static int run(view *v, loop_source src, int keys, const opts *o)
     draw(v, &sc);
     if (v->tty)
         fputc('\n', stderr);
-    if (v->win && o->screenshot && navwin_screenshot(v->win, o->screenshot) < 0) {
-        fprintf(stderr, "fracnav navigate: --screenshot %s: %s\n", o->screenshot, fn_err_msg());
+    if (v->win && o->screenshot && navwin_save_screenshot(v->win, "navigate", o->screenshot) < 0)
         rc = rc ? rc : FN_EIO;
-    }
     navwin_close(v->win);
     v->win = NULL;
     return rc == 0 ? session_save(k) : rc;

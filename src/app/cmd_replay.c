@@ -5,24 +5,30 @@
 #include "err.h"
 #include "fnclock.h"
 #include "framedump.h"
+#include "navwin.h"
 #include "session.h"
 #include "sim_replay.h"
 
+#include <libgen.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
 static void usage(FILE *out)
 {
     fprintf(out,
-            "usage: fracnav replay CASE FILE.fnrec [--realtime] [--json] [options]\n\n"
+            "usage: fracnav replay CASE FILE.fnrec [--realtime [--view window|terminal]\n"
+            "                      [--screenshot FILE.png]] [--json] [options]\n\n"
             "Play a recording of a 6-DOF controller through the navigation loop on CASE: every report\n"
             "is parsed, calibrated and stepped (collision-checked against every other fragment), and\n"
             "every accepted pose is appended to CASE/journal (kept if the run is killed, for\n"
             "--recover; emptied when it finishes, unless it continued from the journal with\n"
             "--recover and did not --save). Stepping uses only the recorded\n"
             "timestamps, so the same case and recording give the same poses and pose_digest on every\n"
-            "run and machine. Prints a summary (with --json the object alone on stdout, labelled\n"
-            "\"command\": \"replay\", as navigate --json; see the README's \"Machine output\"):\n"
+            "run and machine, with or without the window. A recording's save and fit buttons do\n"
+            "nothing here (--save saves at the end). Prints a summary (with --json the object alone\n"
+            "on stdout, labelled \"command\": \"replay\", as navigate --json; see the README's\n"
+            "\"Machine output\"):\n"
             "  events, steps        events handled; motion steps (accepted + limited + slid + refused)\n"
             "  accepted, limited, slid, refused   outcomes of the steps\n"
             "  collisions_in_accepted   accepted poses found colliding on re-check (always 0)\n"
@@ -47,6 +53,13 @@ static void usage(FILE *out)
             "                       without --save\n\n"
             "  --realtime          pace the reports at recorded speed through the input thread and\n"
             "                      the live loop (default: as fast as possible, one thread)\n"
+            "  --view V            with --realtime: window (default when $DISPLAY is set and OpenGL\n"
+            "                      4.5 is there: the fragments drawn live at the loop's poses with\n"
+            "                      navigate's HUD; the pointer and keys 1-6 move the view, never the\n"
+            "                      fragments; q, Escape or closing it closes the window and the\n"
+            "                      replay runs on to its end) or terminal (no window); without a\n"
+            "                      display or GL 4.5 there is no window, and a line says why\n"
+            "  --screenshot FILE   the window at the end (the final poses), as a PNG\n"
             "  --json              print the summary as JSON\n"
             "  --recover           start from the poses the journal holds beyond case.json (a\n"
             "                      journal of another state of the case is kept aside as\n"
@@ -79,6 +92,8 @@ typedef struct opts {
     double pivot[3];
     const char *frames; /* --frames DIR */
     double frame_ms;
+    int view; /* NAVWIN_VIEW_* */
+    const char *screenshot;
 } opts;
 
 static int parse(int argc, char **argv, opts *o)
@@ -87,7 +102,8 @@ static int parse(int argc, char **argv, opts *o)
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
         int rc;
-        if (cmd_tau_option("replay", a, i + 1 < argc ? argv[i + 1] : NULL, &o->tau, &rc)) {
+        const char *v = i + 1 < argc ? argv[i + 1] : NULL;
+        if (cmd_tau_option("replay", a, v, &o->tau, &rc) || navwin_view_option("replay", a, v, &o->view, &rc)) {
             if (rc)
                 return rc;
             i++;
@@ -116,8 +132,11 @@ static int parse(int argc, char **argv, opts *o)
             if (i + 1 >= argc)
                 return cmd_bad_value("replay", a, NULL, "a folder for the pictures");
             o->frames = argv[++i];
+        } else if (!strcmp(a, "--screenshot")) {
+            if (!v)
+                return cmd_bad_value("replay", a, v, "a PNG file to write");
+            o->screenshot = argv[++i];
         } else if (!strcmp(a, "--frame-ms")) {
-            const char *v = i + 1 < argc ? argv[i + 1] : NULL;
             if (!cmd_number(v, &o->frame_ms) || !(o->frame_ms >= 1) || o->frame_ms > 3600000)
                 return cmd_bad_value("replay", a, v, "milliseconds from 1 to 3600000");
             i++;
@@ -141,6 +160,10 @@ static int parse(int argc, char **argv, opts *o)
     if (o->frames && o->realtime)
         return cmd_usage_error("replay", "--frames draws the recording's time, not the wall clock's: "
                                          "leave out --realtime");
+    if (o->view == NAVWIN_VIEW_WINDOW && !o->realtime)
+        return cmd_usage_error("replay", "--view window shows the replay live: it needs --realtime");
+    if (o->screenshot && (!o->realtime || o->view == NAVWIN_VIEW_TERMINAL))
+        return cmd_usage_error("replay", "--screenshot saves the window: it needs --realtime (and --view window)");
     if (o->frame_ms && !o->frames)
         return cmd_usage_error("replay", "--frame-ms sets the pace of --frames DIR, which is missing");
     if (!o->frame_ms)
@@ -172,6 +195,60 @@ static int run_frames(loop *L, loop_source src, framedump *fd)
     }
 }
 
+/* --realtime with a window: the session runs the recording on its threads (as navigate does)
+ * while this thread draws the window at display rate, until the recording's end; then the
+ * final poses are drawn and --screenshot saved. The window only watches: its keys and pointer
+ * move the view, never the fragments, and closing it leaves the replay running. The poses are
+ * those of session_play's, event for event. */
+static int play_live(session *k, loop_source src, const opts *o)
+{
+    loop_reset_timing(session_loop(k));
+    int rc = session_start(k, src);
+    if (rc < 0)
+        return rc;
+    /* Opened once the loop runs, as navigate's: the loop prefaults the libraries loaded when it
+     * starts, and GL's are none of its business. */
+    const char *without = "the replay runs on without one";
+    navwin *win = navwin_open_view("replay", o->view, without, session_case(k), session_loop(k), 0);
+    if (o->screenshot && !win)
+        fprintf(stderr, "fracnav replay: --screenshot %s: no window to save\n", o->screenshot);
+    char copy[4096], device[4200];
+    snprintf(copy, sizeof copy, "%s", o->rec);
+    snprintf(device, sizeof device, "the recording %s", basename(copy));
+    navview_extra x = {-1, NULL, NULL, session_frags(k), NULL};
+    loop_scene sc = {0};
+    session_event ev;
+    for (int ended = 0, last = 0; !last;) {
+        last = ended; /* one frame more after the end: the poses the loop reached */
+        if (!ended && session_wait_event(k, win ? 16 : 100, &ev) == SESSION_EV_END) {
+            ended = 1;
+            rc = session_stop(k);
+            while (session_wait_event(k, 0, &ev) != SESSION_EV_NONE)
+                ;
+        }
+        if (!win)
+            continue;
+        session_scene_read(k, &sc);
+        int keys[NAVWIN_KEYS], closed = 0, quit = 0;
+        int n = navwin_show(win, &sc, &x, device, NULL, keys, NAVWIN_KEYS, &closed);
+        if (n < 0)
+            fprintf(stderr, "fracnav replay: the window: %s; %s\n", fn_err_msg(), without);
+        for (int i = 0; i < n; i++)
+            quit |= keys[i] == 'q' || keys[i] == 27;
+        if (n < 0 || ((closed || quit) && !last)) {
+            navwin_close(win);
+            win = NULL;
+            if (o->screenshot)
+                fprintf(stderr, "fracnav replay: --screenshot %s: the window was closed before the end\n",
+                        o->screenshot);
+        }
+    }
+    if (win && o->screenshot && navwin_save_screenshot(win, "replay", o->screenshot) < 0)
+        rc = rc ? rc : FN_EIO;
+    navwin_close(win);
+    return rc;
+}
+
 int cmd_replay(int argc, char **argv)
 {
     if (cmd_wants_help(argc, argv)) {
@@ -197,6 +274,11 @@ int cmd_replay(int argc, char **argv)
     loop_config_default(&cfg);
     const fnrec_header *hdr = sim_replay_header(h);
     loop_config_actions_at(&cfg, devtab_key1_button(devtab_find(hdr->vid, hdr->pid)));
+    /* A replay saves only at its end (--save) and never fits: with the window its session
+     * would carry those buttons out mid-run, and the results would depend on the view. */
+    for (size_t b = 0; b < sizeof cfg.button_action; b++)
+        if (cfg.button_action[b] == LOOP_ACT_SAVE || cfg.button_action[b] == LOOP_ACT_FIT)
+            cfg.button_action[b] = LOOP_ACT_NONE;
     cfg.frame = o.frame;
     cfg.check_invariant = 1;
     session_params sp = {cfg, o.flags, "replay", cmd_tau_prepare, &o.tau};
@@ -225,7 +307,11 @@ int cmd_replay(int argc, char **argv)
     if (fd) {
         loop_reset_timing(session_loop(k));
         rc = run_frames(session_loop(k), src, fd);
+    } else if (o.realtime && navwin_wanted("replay", o.view, "the replay runs on without one")) {
+        rc = play_live(k, src, &o);
     } else {
+        if (o.screenshot) /* asked for, but no display */
+            fprintf(stderr, "fracnav replay: --screenshot %s: no window to save\n", o.screenshot);
         rc = session_play(k, src, o.realtime ? SESSION_PLAY_REALTIME : SESSION_PLAY_FAST);
     }
     if (fd && rc == 0)

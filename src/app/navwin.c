@@ -1,6 +1,7 @@
-/* navwin: the navigate window (see navwin.h). */
+/* navwin: the window of navigate and replay (see navwin.h). */
 #include "navwin.h"
 
+#include "cmd.h"
 #include "err.h"
 #include "fnclock.h"
 #include "render.h"
@@ -14,6 +15,7 @@
 struct navwin {
     render *r;
     loop *L;
+    int steer; /* the loop's camera frame follows the view */
     const planning_case *c;
     int w, h;
     render_options o;
@@ -51,12 +53,14 @@ static void turn(double v[3], const double k[3], double angle)
 
 static void camera_to_loop(navwin *w)
 {
+    if (!w->steer)
+        return;
     double right[3];
     cross(w->o.camera.forward, w->o.camera.up, right);
     loop_set_camera(w->L, right, w->o.camera.up, w->o.camera.forward);
 }
 
-navwin *navwin_open(const planning_case *c, loop *L, int width, int height)
+navwin *navwin_open(const planning_case *c, loop *L, int steer, int width, int height)
 {
     if (c->nfrag > RENDER_MAX_FRAGS) {
         fn_err_set(FN_EINVAL, "the window draws at most %d fragments; the case has %d", RENDER_MAX_FRAGS,
@@ -74,6 +78,7 @@ navwin *navwin_open(const planning_case *c, loop *L, int width, int height)
         return NULL;
     }
     w->L = L;
+    w->steer = steer;
     w->c = c;
     w->w = width;
     w->h = height;
@@ -97,6 +102,41 @@ void navwin_close(navwin *w)
         return;
     render_close(w->r);
     free(w);
+}
+
+int navwin_view_option(const char *cmd, const char *a, const char *val, int *view, int *rc)
+{
+    if (strcmp(a, "--view"))
+        return 0;
+    *rc = 0;
+    if (!val || (strcmp(val, "window") && strcmp(val, "terminal")))
+        *rc = cmd_bad_value(cmd, a, val, "window or terminal");
+    else
+        *view = !strcmp(val, "window") ? NAVWIN_VIEW_WINDOW : NAVWIN_VIEW_TERMINAL;
+    return 1;
+}
+
+int navwin_wanted(const char *cmd, int view, const char *without)
+{
+    const char *display = getenv("DISPLAY");
+    if (view == NAVWIN_VIEW_TERMINAL)
+        return 0;
+    if (!display || !*display) {
+        fprintf(stderr, "fracnav %s: no window ($DISPLAY is not set): %s\n", cmd, without);
+        return 0;
+    }
+    return 1;
+}
+
+navwin *navwin_open_view(const char *cmd, int view, const char *without, const planning_case *c, loop *L,
+                         int steer)
+{
+    if (!navwin_wanted(cmd, view, without))
+        return NULL;
+    navwin *w = navwin_open(c, L, steer, 768, 768);
+    if (!w)
+        fprintf(stderr, "fracnav %s: no window (%s): %s\n", cmd, fn_err_msg(), without);
+    return w;
 }
 
 /* The pointer and the view keys move the camera; other keys go to the caller. */
@@ -172,6 +212,28 @@ int navwin_frame(navwin *w, const loop_scene *sc, const char *hud, int *keys, in
     w->frame_ms_sum += w->last_ms;
     w->frames++;
     return n;
+}
+
+int navwin_show(navwin *w, const loop_scene *sc, const navview_extra *x, const char *device, const char *help,
+                int *keys, int cap, int *close)
+{
+    char text[4096];
+    navview_format(sc, x, 100, text, sizeof text);
+    size_t len = strlen(text);
+    snprintf(text + len, sizeof text - len, "\ndevice: %s", device);
+    if (help) {
+        len = strlen(text);
+        snprintf(text + len, sizeof text - len, "\n%s", help);
+    }
+    return navwin_frame(w, sc, text, keys, cap, close);
+}
+
+int navwin_save_screenshot(navwin *w, const char *cmd, const char *png)
+{
+    int rc = navwin_screenshot(w, png);
+    if (rc < 0)
+        fprintf(stderr, "fracnav %s: --screenshot %s: %s\n", cmd, png, fn_err_msg());
+    return rc;
 }
 
 int navwin_screenshot(navwin *w, const char *png)

@@ -1,9 +1,12 @@
-/* navwin: the window of `fracnav navigate --view window`. It draws the case's fragments at the
- * poses of a loop_scene (render.h, GLFW) with a HUD, turns the pointer into the camera (left drag
- * orbits, right or middle drag pans, the wheel zooms; keys 1-6 give the anterior, posterior,
- * left, right, superior and inferior views) and keeps the loop's camera frame on the view
- * (loop_set_camera), so "push right" moves the fragment right on screen. Every other key typed in
- * the window is handed back to the caller, which treats it as a terminal key.
+/* navwin: the window of `fracnav navigate --view window` and `fracnav replay --realtime`. It
+ * draws the case's fragments at the poses of a loop_scene (render.h, GLFW) with a HUD, turns the
+ * pointer into the camera (left drag orbits, right or middle drag pans, the wheel zooms; keys 1-6
+ * give the anterior, posterior, left, right, superior and inferior views) and, when it steers
+ * (navigate), keeps the loop's camera frame on the view (loop_set_camera), so "push right" moves
+ * the fragment right on screen; a window that only watches (replay) leaves the loop's camera
+ * alone, so the recording's moves stay the recorded ones. Every other key typed in the window is
+ * handed back to the caller, which treats it as a terminal key. The commands share --view
+ * (navwin_view_option) and the opening it decides (navwin_open_view).
  *
  * Threads: one thread opens, draws and closes a window (its GL context is current there); it only
  * reads the loop through the scenes it is given and loop_set_camera, so the loop never waits.
@@ -13,21 +16,43 @@
 
 #include "case.h"
 #include "loop.h"
+#include "navview.h"
 
 typedef struct navwin navwin;
 
 #define NAVWIN_KEYS 64 /* keys handed back per frame at most */
 
-/* A w x h window over c's fragments (c and L must outlive it). */
-navwin *navwin_open(const planning_case *c, loop *L, int w, int h);
+/* A w x h window over c's fragments (c and L must outlive it). steer: the loop's camera frame
+ * follows the view (navigate); 0: the window only watches (replay). */
+navwin *navwin_open(const planning_case *c, loop *L, int steer, int w, int h);
 void navwin_close(navwin *w);
+
+/* --view window|terminal (NAVWIN_VIEW_AUTO when not given). */
+enum { NAVWIN_VIEW_AUTO, NAVWIN_VIEW_WINDOW, NAVWIN_VIEW_TERMINAL };
+/* When a is --view: parses val into *view and returns 1 with *rc 0, or with *rc 2 after printing
+ * a usage error for `cmd` that names the option. Other a: 0. */
+int navwin_view_option(const char *cmd, const char *a, const char *val, int *view, int *rc);
+/* Whether --view asks for a window that can be tried: 1 unless it is NAVWIN_VIEW_TERMINAL (0) or
+ * $DISPLAY is unset (0, after "fracnav CMD: no window ($DISPLAY is not set): WITHOUT" on stderr). */
+int navwin_wanted(const char *cmd, int view, const char *without);
+/* The window --view asks for: NULL for NAVWIN_VIEW_TERMINAL; for the others, a 768x768 window
+ * (navwin_open) when $DISPLAY is set and GL 4.5 works, else NULL after one line on stderr,
+ * "fracnav CMD: no window (WHY): WITHOUT" (e.g. without = "the terminal view stays"). */
+navwin *navwin_open_view(const char *cmd, int view, const char *without, const planning_case *c, loop *L,
+                         int steer);
 
 /* Handles the window's input, then draws sc (when it, the camera or hud changed since the last
  * frame) with hud's lines and the frame time. Up to cap typed keys go to keys (ASCII, 27 for
  * Escape); *close becomes 1 when the window was asked to close. Returns the keys stored, or FN_E*. */
 int navwin_frame(navwin *w, const loop_scene *sc, const char *hud, int *keys, int cap, int *close);
-/* The last frame drawn (HUD included) as a PNG file. 0 or FN_E*. */
+/* navwin_frame with the HUD of the terminal view: navview_format's lines of sc and x, then
+ * "device: DEVICE", then help (NULL: none). */
+int navwin_show(navwin *w, const loop_scene *sc, const navview_extra *x, const char *device, const char *help,
+                int *keys, int cap, int *close);
+/* The last frame drawn (HUD included) at the loop's newest scene, as a PNG file. 0 or FN_E*. */
 int navwin_screenshot(navwin *w, const char *png);
+/* navwin_screenshot, its failure said on stderr as "fracnav CMD: --screenshot PNG: WHY". */
+int navwin_save_screenshot(navwin *w, const char *cmd, const char *png);
 /* The mean time of the frames drawn so far, ms (0 before the first). */
 double navwin_frame_ms(const navwin *w);
 /* The renderer's name (GL_RENDERER). */
