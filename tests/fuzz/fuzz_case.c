@@ -83,7 +83,10 @@ static void init(void)
 /* text with every "@SRC_SHA@" and "@LABELS_SHA@" replaced, malloc'd and NUL-terminated. */
 static char *expand(const uint8_t *text, size_t len, const char *labels_sha, size_t *out_len)
 {
-    char *out = malloc(len * 7 + 1), *o = out;
+    /* a 9-byte "@SRC_SHA@" becomes 64 characters: at most 8 out per byte in, and the NUL */
+    char *out = malloc(len * 8 + 1), *o = out;
+    if (!out)
+        die("out of memory");
     for (size_t i = 0; i < len;) {
         if (len - i >= 9 && !memcmp(text + i, "@SRC_SHA@", 9)) {
             o += sprintf(o, "%s", src_sha);
