@@ -495,6 +495,81 @@ static double content_column(const uint8_t *rgb, int w, int h, int y0)
     return n ? sum / (double)n : -1;
 }
 
+#define WINDOW_HUD_ROWS 200 /* the HUD covers the window's top rows: compared below them */
+
+/* Runs `fracnav CMD` (cmd, already formatted) with its window on Xvfb's display: DISPLAY is set for
+ * the child alone (this process draws through OSMesa), and under AddressSanitizer leak checking is
+ * off for it (glfwTerminate unloads the GL driver, whose leaks then come from an unknown module
+ * that no suppression can name; leak checking stays on everywhere else). Stops Xvfb after. */
+static int run_in_window(pid_t xvfb, int display, char **out, const char *cmd)
+{
+    char d[32];
+    snprintf(d, sizeof d, ":%d", display);
+    setenv("DISPLAY", d, 1);
+    const char *asan = getenv("ASAN_OPTIONS");
+    char *asan_saved = asan ? strdup(asan) : NULL, asan_child[1024];
+    snprintf(asan_child, sizeof asan_child, "%s%sdetect_leaks=0", asan ? asan : "", asan && *asan ? ":" : "");
+    setenv("ASAN_OPTIONS", asan_child, 1);
+    int rc = tu_run_cli(out, "%s", cmd);
+    unsetenv("DISPLAY");
+    if (asan_saved)
+        setenv("ASAN_OPTIONS", asan_saved, 1);
+    else
+        unsetenv("ASAN_OPTIONS");
+    free(asan_saved);
+    kill(xvfb, SIGTERM);
+    waitpid(xvfb, NULL, 0);
+    return rc;
+}
+
+/* What a window test compares, below the HUD (which covers the top left): DIR/shot.png (the
+ * window's screenshot) against DIR/after.png, `fracnav render` of the case as the run saved it
+ * (made here), and DIR/before.png (made by the test before the run). */
+typedef struct window_vs_render {
+    long differ;   /* pixels where the screenshot and the render differ */
+    long content;  /* pixels of the screenshot that are not background */
+    long moved;    /* pixels where before and after differ */
+    double c0, c1; /* the content's mean column before and after */
+} window_vs_render;
+
+static window_vs_render compare_window(const char *dir, const char *case_dir)
+{
+    char *out = NULL, path[4400];
+    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/after.png' --mode surface --size 768x768",
+                                case_dir, dir), 0);
+    free(out);
+    int w, h, w1, h1, w2, h2;
+    snprintf(path, sizeof path, "%s/shot.png", dir);
+    uint8_t *shot = read_png(path, &w, &h);
+    snprintf(path, sizeof path, "%s/before.png", dir);
+    uint8_t *before = read_png(path, &w1, &h1);
+    snprintf(path, sizeof path, "%s/after.png", dir);
+    uint8_t *after = read_png(path, &w2, &h2);
+    assert_int_equal(w, 768);
+    assert_int_equal(h, 768);
+    assert_int_equal(w2, w);
+    assert_int_equal(h2, h);
+    assert_int_equal(w1, w);
+    assert_int_equal(h1, h);
+    window_vs_render r = {0};
+    for (int i = WINDOW_HUD_ROWS * w; i < w * h; i++) {
+        int dd = 0, dm = 0;
+        for (int c = 0; c < 3; c++) {
+            dd |= abs(shot[i * 3 + c] - after[i * 3 + c]) > 32;
+            dm |= abs(before[i * 3 + c] - after[i * 3 + c]) > 32;
+        }
+        r.differ += dd;
+        r.moved += dm;
+        r.content += !is_background(shot + i * 3);
+    }
+    r.c0 = content_column(before, w1, h1, WINDOW_HUD_ROWS);
+    r.c1 = content_column(after, w, h, WINDOW_HUD_ROWS);
+    free(shot);
+    free(before);
+    free(after);
+    return r;
+}
+
 /* navigate --view window on Xvfb with a virtual controller that pushes right: the window opens,
  * the fragment moves right on screen (the camera frame follows the view), and the window's
  * screenshot matches `fracnav render` of the saved case (OSMesa) below the HUD. */
@@ -512,7 +587,7 @@ static void test_navigate_window_matches_render(void **st)
     pid_t xvfb = start_xvfb(&display);
     if (!xvfb)
         no_xvfb();
-    char *dir = tu_tmpdir("navwin"), case_dir[4200], path[4400], d[32];
+    char *dir = tu_tmpdir("navwin"), case_dir[4200], path[4400];
     tu_two_blocks_case(dir, case_dir, sizeof case_dir);
     snprintf(path, sizeof path, "%s/right.script", dir);
     const char *script = "wait 100 ms\ntranslate +x 6 mm over 0.6 s\n";
@@ -521,62 +596,21 @@ static void test_navigate_window_matches_render(void **st)
     assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/before.png' --mode surface --size 768x768",
                                 case_dir, dir), 0);
     free(out);
-    snprintf(d, sizeof d, ":%d", display);
-    setenv("DISPLAY", d, 1); /* for the navigate child alone: this process draws through OSMesa */
-    /* Under AddressSanitizer: glfwTerminate unloads the GL driver, whose leaks then come from an
-     * unknown module that no suppression can name; leak checking stays on everywhere else. */
-    const char *asan = getenv("ASAN_OPTIONS");
-    char *asan_saved = asan ? strdup(asan) : NULL, asan_child[1024];
-    snprintf(asan_child, sizeof asan_child, "%s%sdetect_leaks=0", asan ? asan : "", asan && *asan ? ":" : "");
-    setenv("ASAN_OPTIONS", asan_child, 1);
-    int rc = tu_run_cli(&out, "navigate '%s' --device virtual:spacenavigator:script='%s' --view window "
+    char cmd[9000];
+    snprintf(cmd, sizeof cmd, "navigate '%s' --device virtual:spacenavigator:script='%s' --view window "
                               "--duration 3 --discard-journal --screenshot '%s/shot.png' </dev/null",
-                        case_dir, path, dir);
-    unsetenv("DISPLAY");
-    if (asan_saved)
-        setenv("ASAN_OPTIONS", asan_saved, 1);
-    else
-        unsetenv("ASAN_OPTIONS");
-    free(asan_saved);
-    kill(xvfb, SIGTERM);
-    waitpid(xvfb, NULL, 0);
+             case_dir, path, dir);
+    int rc = run_in_window(xvfb, display, &out, cmd);
     if (rc != 0 || strstr(out, "no window"))
         fail_msg("navigate --view window: exit %d: %s", rc, out);
     free(out);
-    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/after.png' --mode surface --size 768x768",
-                                case_dir, dir), 0);
-    free(out);
-    int w, h, w1, h1, w2, h2;
-    snprintf(path, sizeof path, "%s/shot.png", dir);
-    uint8_t *shot = read_png(path, &w, &h);
-    snprintf(path, sizeof path, "%s/before.png", dir);
-    uint8_t *before = read_png(path, &w1, &h1);
-    snprintf(path, sizeof path, "%s/after.png", dir);
-    uint8_t *after = read_png(path, &w2, &h2);
-    assert_int_equal(w, 768);
-    assert_int_equal(h, 768);
-    assert_int_equal(w2, w);
-    assert_int_equal(h2, h);
-    /* The HUD covers the top left; compare below it. */
-    const int y0 = 200;
-    long differ = 0, content = 0;
-    for (int i = y0 * w; i < w * h; i++) {
-        int dd = 0;
-        for (int c = 0; c < 3; c++)
-            dd |= abs(shot[i * 3 + c] - after[i * 3 + c]) > 32;
-        differ += dd;
-        content += !is_background(shot + i * 3);
-    }
-    if (content < 1000)
-        fail_msg("the window's screenshot shows no fragments (%ld content pixels)", content);
-    if (differ > (long)(w * (h - y0)) / 100)
-        fail_msg("the window's screenshot differs from the OSMesa render in %ld pixels", differ);
-    double c0 = content_column(before, w1, h1, y0), c1 = content_column(after, w, h, y0);
-    if (!(c1 > c0 + 3))
-        fail_msg("pushing right moved the picture from column %.1f to %.1f", c0, c1);
-    free(shot);
-    free(before);
-    free(after);
+    window_vs_render r = compare_window(dir, case_dir);
+    if (r.content < 1000)
+        fail_msg("the window's screenshot shows no fragments (%ld content pixels)", r.content);
+    if (r.differ > 768L * (768 - WINDOW_HUD_ROWS) / 100)
+        fail_msg("the window's screenshot differs from the OSMesa render in %ld pixels", r.differ);
+    if (!(r.c1 > r.c0 + 3))
+        fail_msg("pushing right moved the picture from column %.1f to %.1f", r.c0, r.c1);
     tu_rmtree(dir);
     free(dir);
 }
@@ -604,7 +638,7 @@ static void test_replay_window_matches_render(void **st)
     pid_t xvfb = start_xvfb(&display);
     if (!xvfb)
         no_xvfb();
-    char *dir = tu_tmpdir("replaywin"), case_dir[4200], path[4400], rec[4200], d[32];
+    char *dir = tu_tmpdir("replaywin"), case_dir[4200], rec[4200];
     char headless[64], live[64];
     tu_two_blocks_case(dir, case_dir, sizeof case_dir);
     snprintf(rec, sizeof rec, "%s/sim/recordings/head-on.fnrec", getenv("FRACNAV_SRC"));
@@ -619,67 +653,23 @@ static void test_replay_window_matches_render(void **st)
     assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/before.png' --mode surface --size 768x768",
                                 case_dir, dir), 0);
     free(out);
-    snprintf(d, sizeof d, ":%d", display);
-    setenv("DISPLAY", d, 1); /* for the replay child alone: this process draws through OSMesa */
-    /* As in test_navigate_window_matches_render: no leak report for the unloaded GL driver. */
-    const char *asan = getenv("ASAN_OPTIONS");
-    char *asan_saved = asan ? strdup(asan) : NULL, asan_child[1024];
-    snprintf(asan_child, sizeof asan_child, "%s%sdetect_leaks=0", asan ? asan : "", asan && *asan ? ":" : "");
-    setenv("ASAN_OPTIONS", asan_child, 1);
-    rc = tu_run_cli(&out, "replay '%s' '%s' --realtime --view window --screenshot '%s/shot.png' --json --save "
-                          "--no-journal </dev/null", case_dir, rec, dir);
-    unsetenv("DISPLAY");
-    if (asan_saved)
-        setenv("ASAN_OPTIONS", asan_saved, 1);
-    else
-        unsetenv("ASAN_OPTIONS");
-    free(asan_saved);
-    kill(xvfb, SIGTERM);
-    waitpid(xvfb, NULL, 0);
+    char cmd[9000];
+    snprintf(cmd, sizeof cmd, "replay '%s' '%s' --realtime --view window --screenshot '%s/shot.png' --json --save "
+                              "--no-journal </dev/null", case_dir, rec, dir);
+    rc = run_in_window(xvfb, display, &out, cmd);
     if (rc != 0 || strstr(out, "no window"))
         fail_msg("replay --realtime --view window: exit %d: %s", rc, out);
     pose_digest(out, live);
     if (strcmp(live, headless))
         fail_msg("the pose digest with the window is '%s', headless '%s': %s", live, headless, out);
     free(out);
-    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/after.png' --mode surface --size 768x768",
-                                case_dir, dir), 0);
-    free(out);
-    int w, h, w1, h1, w2, h2;
-    snprintf(path, sizeof path, "%s/shot.png", dir);
-    uint8_t *shot = read_png(path, &w, &h);
-    snprintf(path, sizeof path, "%s/before.png", dir);
-    uint8_t *before = read_png(path, &w1, &h1);
-    snprintf(path, sizeof path, "%s/after.png", dir);
-    uint8_t *after = read_png(path, &w2, &h2);
-    assert_int_equal(w, 768);
-    assert_int_equal(h, 768);
-    assert_int_equal(w2, w);
-    assert_int_equal(h2, h);
-    assert_int_equal(w1, w);
-    assert_int_equal(h1, h);
-    /* The HUD covers the top left; compare below it. */
-    const int y0 = 200;
-    long differ = 0, content = 0, moved = 0;
-    for (int i = y0 * w; i < w * h; i++) {
-        int dd = 0, dm = 0;
-        for (int c = 0; c < 3; c++) {
-            dd |= abs(shot[i * 3 + c] - after[i * 3 + c]) > 32;
-            dm |= abs(before[i * 3 + c] - after[i * 3 + c]) > 32;
-        }
-        differ += dd;
-        moved += dm;
-        content += !is_background(shot + i * 3);
-    }
-    if (content < 1000)
-        fail_msg("the window's screenshot shows no fragments (%ld content pixels)", content);
-    if (moved < 500)
-        fail_msg("the recording moved the fragment by only %ld pixels in the render", moved);
-    if (differ > (long)(w * (h - y0)) / 100)
-        fail_msg("the window's screenshot differs from the OSMesa render of the result in %ld pixels", differ);
-    free(shot);
-    free(before);
-    free(after);
+    window_vs_render r = compare_window(dir, case_dir);
+    if (r.content < 1000)
+        fail_msg("the window's screenshot shows no fragments (%ld content pixels)", r.content);
+    if (r.moved < 500)
+        fail_msg("the recording moved the fragment by only %ld pixels in the render", r.moved);
+    if (r.differ > 768L * (768 - WINDOW_HUD_ROWS) / 100)
+        fail_msg("the window's screenshot differs from the OSMesa render of the result in %ld pixels", r.differ);
     tu_rmtree(dir);
     free(dir);
 }
