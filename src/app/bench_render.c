@@ -58,9 +58,7 @@ static int cmp_double(const void *a, const void *b)
  * figure that says what a frame costs. */
 static double process_cpu_ms(void)
 {
-    struct timespec ts;
-    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
-    return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec * 1e-6;
+    return (double)fnclock_process_cpu_ns() * 1e-6;
 }
 
 /* Three pieces of ct's bone as fragments; *n = how many were built. */

@@ -4,6 +4,7 @@
 #include "case.h"
 #include "case_journal.h"
 #include "err.h"
+#include "fnclock.h"
 #include "jsonw.h"
 #include "reduce.h"
 
@@ -304,10 +305,9 @@ int cmd_reduce(int argc, char **argv)
     if (isatty(STDERR_FILENO))
         A.o.progress = progress;
     res = calloc((size_t)nmv, sizeof *res);
-    struct timespec t0, t1;
-    clock_gettime(CLOCK_MONOTONIC, &t0);
+    int64_t t0 = fnclock_now_us();
     int err = res ? reduce_case(c, fixed, mvp, nmv, &A.o, res) : fn_err_set(FN_ENOMEM, "out of memory");
-    clock_gettime(CLOCK_MONOTONIC, &t1);
+    int64_t t1 = fnclock_now_us();
     if (A.o.progress)
         fprintf(stderr, "\n");
     if (err == 0)
@@ -323,7 +323,7 @@ int cmd_reduce(int argc, char **argv)
         rc = 1;
         goto done;
     }
-    double secs = (double)(t1.tv_sec - t0.tv_sec) + 1e-9 * (double)(t1.tv_nsec - t0.tv_nsec);
+    double secs = (double)(t1 - t0) * 1e-6;
     if (report(c, &A, fixed, res, nmv, secs) < 0) {
         fprintf(stderr, "fracnav reduce: %s\n", fn_err_msg());
         rc = 1;

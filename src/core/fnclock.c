@@ -19,11 +19,21 @@ int64_t fnclock_now_us(void)
     return fnclock_now_ns() / NS_PER_US;
 }
 
-int64_t fnclock_thread_cpu_ns(void)
+static int64_t clock_ns(clockid_t id)
 {
     struct timespec ts;
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+    clock_gettime(id, &ts);
     return (int64_t)ts.tv_sec * NS_PER_S + ts.tv_nsec;
+}
+
+int64_t fnclock_thread_cpu_ns(void)
+{
+    return clock_ns(CLOCK_THREAD_CPUTIME_ID);
+}
+
+int64_t fnclock_process_cpu_ns(void)
+{
+    return clock_ns(CLOCK_PROCESS_CPUTIME_ID);
 }
 
 /* Whole seconds first, then the nanoseconds carried into 0..NS_PER_S-1 (C division truncates

@@ -15,6 +15,8 @@ int64_t fnclock_now_us(void);
 int64_t fnclock_now_ns(void);
 /* CPU time the calling thread has used, in nanoseconds: immune to being descheduled. */
 int64_t fnclock_thread_cpu_ns(void);
+/* CPU time the whole process has used (all its threads, a library's too), in nanoseconds. */
+int64_t fnclock_process_cpu_ns(void);
 
 /* t moved by us microseconds (either sign), with tv_nsec kept in 0..999999999. */
 struct timespec fnclock_add_us(struct timespec t, int64_t us);

@@ -5,6 +5,7 @@
 
 #include "case.h"
 #include "err.h"
+#include "fnclock.h"
 #include "obb.h"
 #include "powell.h"
 
@@ -72,9 +73,7 @@ void reduce_result_free(reduce_result *r)
 
 static double now_s(void)
 {
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+    return (double)fnclock_now_us() * 1e-6;
 }
 
 /* ---- the contact zone ---------------------------------------------------------------------- */
