@@ -524,7 +524,8 @@ static int run_in_window(pid_t xvfb, int display, char **out, const char *cmd)
 
 /* What a window test compares, below the HUD (which covers the top left): DIR/shot.png (the
  * window's screenshot) against DIR/after.png, `fracnav render` of the case as the run saved it
- * (made here), and DIR/before.png (made by the test before the run). */
+ * (made here, surface mode at the window's size, with look: more options for render, such as the
+ * view and the layout), and DIR/before.png (made by the test before the run). */
 typedef struct window_vs_render {
     long differ;   /* pixels where the screenshot and the render differ */
     long content;  /* pixels of the screenshot that are not background */
@@ -532,11 +533,11 @@ typedef struct window_vs_render {
     double c0, c1; /* the content's mean column before and after */
 } window_vs_render;
 
-static window_vs_render compare_window(const char *dir, const char *case_dir)
+static window_vs_render compare_window(const char *dir, const char *case_dir, const char *look)
 {
     char *out = NULL, path[4400];
-    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/after.png' --mode surface --size 768x768",
-                                case_dir, dir), 0);
+    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/after.png' --mode surface --size 768x768 %s",
+                                case_dir, dir, look), 0);
     free(out);
     int w, h, w1, h1, w2, h2;
     snprintf(path, sizeof path, "%s/shot.png", dir);
@@ -604,13 +605,75 @@ static void test_navigate_window_matches_render(void **st)
     if (rc != 0 || strstr(out, "no window"))
         fail_msg("navigate --view window: exit %d: %s", rc, out);
     free(out);
-    window_vs_render r = compare_window(dir, case_dir);
+    window_vs_render r = compare_window(dir, case_dir, "");
     if (r.content < 1000)
         fail_msg("the window's screenshot shows no fragments (%ld content pixels)", r.content);
     if (r.differ > 768L * (768 - WINDOW_HUD_ROWS) / 100)
         fail_msg("the window's screenshot differs from the OSMesa render in %ld pixels", r.differ);
     if (!(r.c1 > r.c0 + 3))
         fail_msg("pushing right moved the picture from column %.1f to %.1f", r.c0, r.c1);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* Without xdotool: a visible skip, or a failure under CI (where .ci/setup installs it). */
+static void no_xdotool(void)
+{
+    if (getenv("CI"))
+        fail_msg("xdotool is not installed (/usr/bin/xdotool; package xdotool, in .ci/setup)");
+    print_message("skipped: xdotool is not installed (package xdotool)\n");
+    skip();
+}
+
+/* The pointer and the window's keys drive navigate's window (xdotool on Xvfb, through XTEST as a
+ * hand would): a left drag of 180 pixels to the right orbits the view by 90 degrees, from the
+ * anterior view to the right one, l gives the four-up layout (its slices through the selected
+ * fragment's centroid), a the principal axes, and q quits. The screenshot must match `fracnav
+ * render --view right --layout four-up --overlay axes` at that point, and differ from the
+ * anterior view. The events arrive in order, so q comes after the drag and the keys. */
+static void test_navigate_window_mouse_and_keys(void **st)
+{
+    (void)st;
+#if defined(__SANITIZE_THREAD__)
+    print_message("skipped under ThreadSanitizer: Xlib's and GLX's own locking\n");
+    skip();
+#endif
+    if (access("/usr/bin/xdotool", X_OK) != 0)
+        no_xdotool();
+    int display;
+    pid_t xvfb = start_xvfb(&display);
+    if (!xvfb)
+        no_xvfb();
+    char *dir = tu_tmpdir("navmouse"), case_dir[4200];
+    tu_two_blocks_case(dir, case_dir, sizeof case_dir);
+    char *out = NULL;
+    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/before.png' --mode surface --size 768x768 "
+                                      "--layout four-up --overlay axes --point 22.5,15.5,15.5",
+                                case_dir, dir), 0);
+    free(out);
+    /* navigate in the background; xdotool waits for its window (at most 300 s: a navigate that
+     * never opens one is killed), drags, types, and the shell waits for navigate to end. */
+    char cmd[9000];
+    snprintf(cmd, sizeof cmd,
+             "navigate '%s' --device virtual:spacenavigator --view window --discard-journal --screenshot "
+             "'%s/shot.png' </dev/null & nav=$!; "
+             "if timeout 300 xdotool search --sync --onlyvisible --name '^fracnav$' >/dev/null; then "
+             "xdotool mousemove 384 560 mousedown 1 mousemove_relative -- 180 0 mouseup 1 key l key a key q; "
+             "else echo 'no fracnav window appeared'; kill $nav; fi; wait $nav",
+             case_dir, dir);
+    int rc = run_in_window(xvfb, display, &out, cmd);
+    if (rc != 0 || strstr(out, "no window") || strstr(out, "no fracnav window"))
+        fail_msg("navigate --view window driven by xdotool: exit %d: %s", rc, out);
+    free(out);
+    window_vs_render r = compare_window(dir, case_dir, "--view right --layout four-up --overlay axes "
+                                                      "--point 22.5,15.5,15.5");
+    if (r.content < 1000)
+        fail_msg("the window's screenshot shows no fragments (%ld content pixels)", r.content);
+    if (r.differ > 768L * (768 - WINDOW_HUD_ROWS) / 100)
+        fail_msg("after the drag and l, the window differs from render --view right --layout four-up in %ld "
+                 "pixels", r.differ);
+    if (r.moved < 1000)
+        fail_msg("the right view differs from the anterior one in only %ld pixels", r.moved);
     tu_rmtree(dir);
     free(dir);
 }
@@ -663,7 +726,7 @@ static void test_replay_window_matches_render(void **st)
     if (strcmp(live, headless))
         fail_msg("the pose digest with the window is '%s', headless '%s': %s", live, headless, out);
     free(out);
-    window_vs_render r = compare_window(dir, case_dir);
+    window_vs_render r = compare_window(dir, case_dir, "");
     if (r.content < 1000)
         fail_msg("the window's screenshot shows no fragments (%ld content pixels)", r.content);
     if (r.moved < 500)
@@ -742,6 +805,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_pose_moves_picture_by_expected_pixels, setup, teardown),
         cmocka_unit_test_setup_teardown(test_window_matches_offscreen, setup, teardown),
         cmocka_unit_test(test_navigate_window_matches_render),
+        cmocka_unit_test(test_navigate_window_mouse_and_keys),
         cmocka_unit_test(test_replay_window_matches_render),
         cmocka_unit_test(test_replay_frames),
     };

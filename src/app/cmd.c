@@ -6,6 +6,8 @@
 #include "case_journal.h"
 #include "err.h"
 
+#include <jansson.h>
+
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
@@ -45,6 +47,21 @@ int cmd_bad_value(const char *cmd, const char *opt, const char *val, const char 
     if (!val)
         return cmd_usage_error(cmd, "%s needs a value (%s)", opt, accepted);
     return cmd_usage_error(cmd, "%s: '%s' is not %s", opt, val, accepted);
+}
+
+int cmd_case_voi(const planning_case *c, double (*voi)[6], int cap)
+{
+    json_t *frs = json_object_get(json_object_get(c->extra, "reduction"), "fragments");
+    int n = 0;
+    for (size_t i = 0; i < json_array_size(frs) && n < cap; i++) {
+        json_t *v = json_object_get(json_array_get(frs, i), "voi_mm");
+        if (json_array_size(v) != 6)
+            continue;
+        for (int k = 0; k < 6; k++)
+            voi[n][k] = json_number_value(json_array_get(v, (size_t)k));
+        n++;
+    }
+    return n;
 }
 
 int cmd_tau_option(const char *cmd, const char *a, const char *val, cmd_tau *t, int *rc)

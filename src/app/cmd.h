@@ -36,6 +36,9 @@ int cmd_usage_error(const char *cmd, const char *fmt, ...) __attribute__((format
  * or "OPT needs a value (ACCEPTED)", e.g. accepted = "a number (HU), 'auto' or 'auto-bone'".
  * Returns 2. */
 int cmd_bad_value(const char *cmd, const char *opt, const char *val, const char *accepted);
+/* The VOI boxes of the case's reduction (case.json's reduction.fragments[].voi_mm: lo x y z, hi x
+ * y z, world mm), up to cap of them, into voi. Returns how many (0: reduce has defined none). */
+int cmd_case_voi(const planning_case *c, double (*voi)[6], int cap);
 /* --tau-min T / --tau-max T, the OBB hierarchy's thresholds (obb.h), for every command that
  * builds one. given: bit 0 --tau-min, bit 1 --tau-max were on the command line. */
 typedef struct cmd_tau {

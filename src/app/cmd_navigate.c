@@ -50,6 +50,13 @@ static void usage(FILE *out)
             "                      anterior, posterior, left, right, superior and inferior views,\n"
             "                      and the camera frame follows the view) or terminal; without a\n"
             "                      display or GL 4.5 the terminal view stays, with a line saying why\n"
+            "  --mode M            the window's mode: iso (default on a GPU), dvr, mip or surface\n"
+            "                      (default on software GL)\n"
+            "  --layout L          the window's layout: 3d (default) or four-up (axial, 3D,\n"
+            "                      sagittal, coronal; the slices cut through the selected\n"
+            "                      fragment's centroid at its pose)\n"
+            "  --overlay LIST      on the window's 3D view: hierarchy[:DEPTH], contacts, axes, voi,\n"
+            "                      as fracnav render takes them\n"
             "  --screenshot FILE   the window as last drawn, as a PNG, at exit\n"
             "  --json              print a JSON summary on exit (as fracnav replay): standard\n"
             "                      output holds the JSON alone; the view goes to standard error\n\n"
@@ -58,11 +65,11 @@ static void usage(FILE *out)
             "pose shown), its position and its rotation (degrees about an axis, world LPS), the\n"
             "frame and rates, and what the last key or button did. Off a terminal it is one line\n"
             "a second, and one at each warning or action.\n\n"
-            "%s"
+            "%s%s"
             "With --device keyboard (what auto picks without a controller) the keys steer instead:\n"
             "%s"
             "The camera frame looks from the patient's front (along +y, LPS), superior up.\n",
-            navview_help(0), strchr(navview_help(1), '\n') + 1);
+            navview_help(0), navwin_help(), strchr(navview_help(1), '\n') + 1);
 }
 
 /* Set by the signal handler, which may run on another thread (the keyboard device raises SIGINT for
@@ -85,6 +92,7 @@ typedef struct opts {
     int have_pivot;
     double pivot[3];
     int view; /* NAVWIN_VIEW_* */
+    navwin_look look;
     const char *screenshot;
 } opts;
 
@@ -103,12 +111,14 @@ static const dev_transport *recording_spec(const char *spec, const char **file)
 static int parse(int argc, char **argv, opts *o)
 {
     memset(o, 0, sizeof *o);
+    o->look = (navwin_look)NAVWIN_LOOK_DEFAULT;
     o->device = "auto";
     o->flags = SESSION_JOURNAL;
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
         int rc;
-        if (cmd_tau_option("navigate", a, v, &o->tau, &rc) || navwin_view_option("navigate", a, v, &o->view, &rc)) {
+        if (cmd_tau_option("navigate", a, v, &o->tau, &rc) || navwin_view_option("navigate", a, v, &o->view, &rc) ||
+            navwin_look_option("navigate", a, v, &o->look, &rc)) {
             if (rc)
                 return rc;
             i++;
@@ -416,7 +426,7 @@ static void ui(view *v, int keys, double duration)
  * 4.5 the terminal view stays, and a line says why. */
 static void open_window(const opts *o, view *v)
 {
-    v->win = navwin_open_view("navigate", o->view, "the terminal view stays", session_case(v->k),
+    v->win = navwin_open_view("navigate", o->view, &o->look, "the terminal view stays", session_case(v->k),
                               session_loop(v->k), 1);
     if (v->win && v->tty)
         fprintf(stderr, "window: %s\n", navwin_gl_renderer(v->win));

@@ -6,8 +6,6 @@
 #include "render.h"
 #include "picture.h"
 
-#include <jansson.h>
-
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -63,35 +61,6 @@ static int parse_point(const char *s, double p[3])
     return tok == NULL;
 }
 
-/* "hierarchy:3,axes" into o's overlay bits. 0, or 2 after a usage error. */
-static int parse_overlays(const char *s, render_options *o)
-{
-    char buf[256];
-    if (!s || strlen(s) >= sizeof buf)
-        return cmd_bad_value("render", "--overlay", s, "a list of hierarchy[:DEPTH], contacts, axes, voi");
-    strcpy(buf, s);
-    char *save = NULL;
-    for (char *tok = strtok_r(buf, ",", &save); tok; tok = strtok_r(NULL, ",", &save)) {
-        double depth;
-        if (!strcmp(tok, "axes"))
-            o->overlays |= RENDER_OVERLAY_AXES;
-        else if (!strcmp(tok, "hierarchy"))
-            o->overlays |= RENDER_OVERLAY_HIERARCHY;
-        else if (!strncmp(tok, "hierarchy:", 10) && cmd_number(tok + 10, &depth) && depth >= 1 &&
-                 depth <= 32 && depth == (int)depth) {
-            o->overlays |= RENDER_OVERLAY_HIERARCHY;
-            o->hierarchy_depth = (int)depth;
-        } else if (!strcmp(tok, "contacts"))
-            o->overlays |= RENDER_OVERLAY_CONTACTS;
-        else if (!strcmp(tok, "voi"))
-            o->overlays |= RENDER_OVERLAY_VOI;
-        else
-            return cmd_bad_value("render", "--overlay", tok,
-                                 "hierarchy[:DEPTH] (DEPTH 1..32), contacts, axes or voi");
-    }
-    return 0;
-}
-
 typedef struct render_args {
     const char *dir, *out, *platform;
     int w, h, have_point;
@@ -121,9 +90,9 @@ static int parse_args(int argc, char **argv, render_args *a)
             if (render_layout_parse(val, &a->o.layout))
                 return cmd_bad_value("render", opt, val, "3d or four-up");
         } else if (!strcmp(opt, "--overlay")) {
-            int rc = parse_overlays(val, &a->o);
-            if (rc)
-                return rc;
+            if (render_overlays_parse(val, &a->o.overlays, &a->o.hierarchy_depth))
+                return val ? cmd_usage_error("render", "--overlay: %s", fn_err_msg())
+                           : cmd_bad_value("render", opt, val, "hierarchy[:DEPTH], contacts, axes, voi");
         } else if (!strcmp(opt, "--point")) {
             if (!parse_point(val, a->point))
                 return cmd_bad_value("render", opt, val, "X,Y,Z in mm");
@@ -151,33 +120,15 @@ static int parse_args(int argc, char **argv, render_args *a)
     return 0;
 }
 
-/* The VOI boxes of the case's reduction (case.json's reduction.fragments[].voi_mm) into o. */
-static int case_voi(const planning_case *c, render_options *o)
-{
-    json_t *frs = json_object_get(json_object_get(c->extra, "reduction"), "fragments");
-    o->nvoi = 0;
-    for (size_t i = 0; i < json_array_size(frs) && o->nvoi < RENDER_MAX_FRAGS; i++) {
-        json_t *v = json_object_get(json_array_get(frs, i), "voi_mm");
-        if (json_array_size(v) != 6)
-            continue;
-        for (int k = 0; k < 6; k++)
-            o->voi[o->nvoi][k] = json_number_value(json_array_get(v, (size_t)k));
-        o->nvoi++;
-    }
-    if (!o->nvoi)
-        return fn_err_set(FN_EINVAL, "--overlay voi: the case holds no reduction VOI (fracnav reduce "
-                                     "defines one)");
-    return 0;
-}
-
 static int draw(planning_case *c, render_args *a)
 {
     render_options o = a->o, d;
     render_options_default(&d, c->frag, c->nfrag);
     render_camera_standard(&o.camera, a->view, c->frag, c->nfrag);
     memcpy(o.slice_point, a->have_point ? a->point : d.slice_point, sizeof o.slice_point);
-    if ((o.overlays & RENDER_OVERLAY_VOI) && case_voi(c, &o))
-        return FN_EINVAL;
+    if ((o.overlays & RENDER_OVERLAY_VOI) && !(o.nvoi = cmd_case_voi(c, o.voi, RENDER_MAX_FRAGS)))
+        return fn_err_set(FN_EINVAL, "--overlay voi: the case holds no reduction VOI (fracnav reduce "
+                                     "defines one)");
     render *r = render_open(a->platform ? a->platform : "osmesa", a->w, a->h);
     if (!r)
         return FN_ENODEV;

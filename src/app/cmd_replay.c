@@ -74,11 +74,18 @@ static void usage(FILE *out)
             "  --config FILE       calibration in spnavrc syntax (default: none, sensitivity 1)\n"
             "  --tau-min T, --tau-max T   hierarchy thresholds instead of the case's (0 <= T_min\n"
             "                      <= T_max <= 1); --save keeps them in the case\n"
-            "  --frames DIR        draw the fragments (iso, anterior, 512x512, headless) at the\n"
-            "                      loop's poses once per --frame-ms of the recording's time into\n"
+            "  --frames DIR        draw the fragments (anterior, 512x512, headless) at the loop's\n"
+            "                      poses once per --frame-ms of the recording's time into\n"
             "                      DIR/frame_NNNNN.png (the last one: the final poses); not with\n"
             "                      --realtime\n"
             "  --frame-ms N        the recording's milliseconds per picture (default 40)\n"
+            "  --mode M            how the window and --frames draw: iso (default for --frames and\n"
+            "                      on a GPU), dvr, mip or surface (the window's default on\n"
+            "                      software GL); the window's v key changes it\n"
+            "  --layout L          3d (default) or four-up (slices through the selected fragment's\n"
+            "                      centroid); the window's l key changes it\n"
+            "  --overlay LIST      hierarchy[:DEPTH], contacts, axes, voi, as fracnav render takes\n"
+            "                      them; the window's b, k, a and o keys turn them on and off\n"
             "  --help              this text\n");
 }
 
@@ -93,17 +100,20 @@ typedef struct opts {
     const char *frames; /* --frames DIR */
     double frame_ms;
     int view; /* NAVWIN_VIEW_* */
+    navwin_look look;
     const char *screenshot;
 } opts;
 
 static int parse(int argc, char **argv, opts *o)
 {
     memset(o, 0, sizeof *o);
+    o->look = (navwin_look)NAVWIN_LOOK_DEFAULT;
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
         int rc;
         const char *v = i + 1 < argc ? argv[i + 1] : NULL;
-        if (cmd_tau_option("replay", a, v, &o->tau, &rc) || navwin_view_option("replay", a, v, &o->view, &rc)) {
+        if (cmd_tau_option("replay", a, v, &o->tau, &rc) || navwin_view_option("replay", a, v, &o->view, &rc) ||
+            navwin_look_option("replay", a, v, &o->look, &rc)) {
             if (rc)
                 return rc;
             i++;
@@ -209,7 +219,7 @@ static int play_live(session *k, loop_source src, const opts *o)
     /* Opened once the loop runs, as navigate's: the loop prefaults the libraries loaded when it
      * starts, and GL's are none of its business. */
     const char *without = "the replay runs on without one";
-    navwin *win = navwin_open_view("replay", o->view, without, session_case(k), session_loop(k), 0);
+    navwin *win = navwin_open_view("replay", o->view, &o->look, without, session_case(k), session_loop(k), 0);
     if (o->screenshot && !win)
         fprintf(stderr, "fracnav replay: --screenshot %s: no window to save\n", o->screenshot);
     char copy[4096], device[4200];
@@ -297,7 +307,7 @@ int cmd_replay(int argc, char **argv)
     if (o.have_pivot)
         loop_set_pivot(session_loop(k), o.pivot);
     framedump *fd = NULL;
-    if (o.frames && !(fd = framedump_open(o.frames, session_case(k), o.frame_ms, 512, 512))) {
+    if (o.frames && !(fd = framedump_open(o.frames, session_case(k), o.frame_ms, 512, 512, &o.look))) {
         fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
         session_close(k);
         sim_replay_transport.close(h);

@@ -1,6 +1,7 @@
 /* framedump: pictures of a replay (see framedump.h). */
 #include "framedump.h"
 
+#include "cmd.h"
 #include "err.h"
 #include "render.h"
 #include "picture.h"
@@ -23,7 +24,8 @@ struct framedump {
     uint8_t *rgb;
 };
 
-framedump *framedump_open(const char *dir, const planning_case *c, double frame_ms, int w, int h)
+framedump *framedump_open(const char *dir, const planning_case *c, double frame_ms, int w, int h,
+                          const navwin_look *look)
 {
     if (mkdir(dir, 0777) != 0 && errno != EEXIST) {
         fn_err_set(FN_EIO, "--frames %s: cannot make the folder: %s", dir, strerror(errno));
@@ -49,12 +51,23 @@ framedump *framedump_open(const char *dir, const planning_case *c, double frame_
     d->rgb = rgb;
     d->step_us = (int64_t)(frame_ms * 1000.0 + 0.5);
     d->step_us = d->step_us < 1 ? 1 : d->step_us;
-    d->r = render_open("osmesa", w, h);
-    if (!d->r || render_set_scene(d->r, c->ct, c->frag, c->nfrag, c->seg.threshold, NULL)) {
+    render_options_default(&d->o, c->frag, c->nfrag);
+    d->o.mode = look->mode >= 0 ? (render_mode)look->mode : RENDER_ISO;
+    d->o.layout = look->layout;
+    d->o.overlays = look->overlays;
+    d->o.hierarchy_depth = look->hierarchy_depth;
+    if ((d->o.overlays & RENDER_OVERLAY_VOI) && !(d->o.nvoi = cmd_case_voi(c, d->o.voi, RENDER_MAX_FRAGS))) {
+        fn_err_set(FN_EINVAL, "--overlay voi: the case holds no reduction VOI (fracnav reduce defines one)");
         framedump_close(d);
         return NULL;
     }
-    render_options_default(&d->o, c->frag, c->nfrag);
+    obb_params hp = {c->tau_min, c->tau_max};
+    int trees = (d->o.overlays & (RENDER_OVERLAY_HIERARCHY | RENDER_OVERLAY_CONTACTS)) != 0;
+    d->r = render_open("osmesa", w, h);
+    if (!d->r || render_set_scene(d->r, c->ct, c->frag, c->nfrag, c->seg.threshold, trees ? &hp : NULL)) {
+        framedump_close(d);
+        return NULL;
+    }
     return d;
 }
 
@@ -63,6 +76,9 @@ static int write_frame(framedump *d, loop *L)
     pose poses[RENDER_MAX_FRAGS];
     for (int i = 0; i < d->c->nfrag; i++)
         poses[i] = loop_pose(L, i);
+    int sel = loop_selected(L);
+    sel = sel >= 0 && sel < d->c->nfrag ? sel : 0;
+    pose_apply(&poses[sel], d->c->frag[sel].centroid, d->o.slice_point); /* four-up cuts there */
     char path[4200];
     snprintf(path, sizeof path, "%s/frame_%05ld.png", d->dir, d->count);
     int rc = render_frame(d->r, poses, &d->o);

@@ -10,14 +10,17 @@
 
 #include "case.h"
 #include "loop.h"
+#include "navwin.h"
 
 #include <stdint.h>
 
 typedef struct framedump framedump;
 
-/* Creates dir (it may exist) and an offscreen renderer of c's fragments (w x h, iso mode,
- * anterior view); frame_ms > 0. */
-framedump *framedump_open(const char *dir, const planning_case *c, double frame_ms, int w, int h);
+/* Creates dir (it may exist) and an offscreen renderer of c's fragments (w x h, anterior view)
+ * drawn as look says (its mode -1: iso; in four-up the slices cut through the selected fragment's
+ * centroid at its pose); frame_ms > 0. */
+framedump *framedump_open(const char *dir, const planning_case *c, double frame_ms, int w, int h,
+                          const navwin_look *look);
 /* Before L steps an event stamped t_us: writes the frames due before it. */
 int framedump_before(framedump *d, loop *L, int64_t t_us);
 /* After the last event: the final frame. */

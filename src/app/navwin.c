@@ -8,9 +8,14 @@
 #include "picture.h"
 
 #include <math.h>
+#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+
+#define ORBIT_DEG_PER_PX 0.5   /* a drag of 180 pixels turns the view by 90 degrees */
+#define NOTE_SHOWN_US 2000000  /* what a window key did stays on the HUD this long */
+#define R2F_WINDOW_US 1000000  /* the HUD's report-to-frame is the worst of this long */
 
 struct navwin {
     render *r;
@@ -19,12 +24,19 @@ struct navwin {
     const planning_case *c;
     int w, h;
     render_options o;
+    int have_trees; /* the renderer holds the hierarchies (boxes, contacts) */
+    int nvoi;       /* the case's reduction VOI boxes (o.voi) */
     uint64_t drawn_seq;
     int dirty;
     char hud[4096];
+    char note[128]; /* what the last window key did, until note_until_us */
+    int64_t note_until_us;
     double frame_ms_sum;
     long frames;
     double last_ms;
+    int64_t prev_arrival_us;  /* the newest report in the last frame drawn */
+    double r2f_ms, r2f_worst; /* the shown report-to-frame (worst of the last window), the current */
+    int64_t r2f_since_us;
 };
 
 static void cross(const double a[3], const double b[3], double c[3])
@@ -60,8 +72,66 @@ static void camera_to_loop(navwin *w)
     loop_set_camera(w->L, right, w->o.camera.up, w->o.camera.forward);
 }
 
-navwin *navwin_open(const planning_case *c, loop *L, int steer, int width, int height)
+static void note(navwin *w, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+static void note(navwin *w, const char *fmt, ...)
 {
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(w->note, sizeof w->note, fmt, ap);
+    va_end(ap);
+    w->note_until_us = fnclock_now_us() + NOTE_SHOWN_US;
+    w->dirty = 1;
+}
+
+/* The hierarchy and contacts overlays need the fragments' hierarchies: built once, when first
+ * asked for. 0, or FN_E* with the overlays turned off. */
+static int need_trees(navwin *w)
+{
+    if (w->have_trees || !(w->o.overlays & (RENDER_OVERLAY_HIERARCHY | RENDER_OVERLAY_CONTACTS)))
+        return 0;
+    obb_params hp = {w->c->tau_min, w->c->tau_max};
+    int rc = render_set_hierarchies(w->r, w->c->frag, &hp);
+    if (rc)
+        w->o.overlays &= ~(unsigned)(RENDER_OVERLAY_HIERARCHY | RENDER_OVERLAY_CONTACTS);
+    else
+        w->have_trees = 1;
+    return rc;
+}
+
+int navwin_look_option(const char *cmd, const char *a, const char *val, navwin_look *look, int *rc)
+{
+    *rc = 0;
+    if (!strcmp(a, "--mode")) {
+        render_mode m;
+        if (render_mode_parse(val, &m))
+            *rc = cmd_bad_value(cmd, a, val, "iso, dvr, mip or surface");
+        else
+            look->mode = (int)m;
+    } else if (!strcmp(a, "--layout")) {
+        if (render_layout_parse(val, &look->layout))
+            *rc = cmd_bad_value(cmd, a, val, "3d or four-up");
+    } else if (!strcmp(a, "--overlay")) {
+        if (!val)
+            *rc = cmd_bad_value(cmd, a, val, "hierarchy[:DEPTH], contacts, axes, voi");
+        else if (render_overlays_parse(val, &look->overlays, &look->hierarchy_depth))
+            *rc = cmd_usage_error(cmd, "--overlay: %s", fn_err_msg());
+    } else
+        return 0;
+    return 1;
+}
+
+const char *navwin_help(void)
+{
+    return "window: 1-6 anterior, posterior, left, right, superior, inferior view   v mode\n"
+           "  l layout (3D, four-up)   a axes   k contacts   b hierarchy boxes ([ ] depth)   o VOI\n"
+           "  left drag orbits, right or middle drag pans, the wheel zooms\n";
+}
+
+navwin *navwin_open(const planning_case *c, loop *L, int steer, int width, int height, const navwin_look *look)
+{
+    static const navwin_look defaults = NAVWIN_LOOK_DEFAULT;
+    if (!look)
+        look = &defaults;
     if (c->nfrag > RENDER_MAX_FRAGS) {
         fn_err_set(FN_EINVAL, "the window draws at most %d fragments; the case has %d", RENDER_MAX_FRAGS,
                    c->nfrag);
@@ -91,7 +161,22 @@ navwin *navwin_open(const planning_case *c, loop *L, int steer, int width, int h
     /* Software GL rasterizes meshes far faster than it casts rays: surface is its interactive
      * mode. */
     const char *rn = render_gl_renderer(w->r);
-    w->o.mode = strstr(rn, "llvmpipe") || strstr(rn, "softpipe") ? RENDER_SURFACE : RENDER_ISO;
+    w->o.mode = look->mode >= 0                                    ? (render_mode)look->mode
+                : strstr(rn, "llvmpipe") || strstr(rn, "softpipe") ? RENDER_SURFACE
+                                                                   : RENDER_ISO;
+    w->o.layout = look->layout;
+    w->o.overlays = look->overlays;
+    w->o.hierarchy_depth = look->hierarchy_depth;
+    w->nvoi = cmd_case_voi(c, w->o.voi, RENDER_MAX_FRAGS);
+    if ((w->o.overlays & RENDER_OVERLAY_VOI) && !w->nvoi) {
+        w->o.overlays &= ~(unsigned)RENDER_OVERLAY_VOI;
+        note(w, "no VOI: fracnav reduce defines one");
+    }
+    w->o.nvoi = w->nvoi;
+    if (need_trees(w)) {
+        navwin_close(w);
+        return NULL;
+    }
     camera_to_loop(w);
     return w;
 }
@@ -128,18 +213,69 @@ int navwin_wanted(const char *cmd, int view, const char *without)
     return 1;
 }
 
-navwin *navwin_open_view(const char *cmd, int view, const char *without, const planning_case *c, loop *L,
-                         int steer)
+navwin *navwin_open_view(const char *cmd, int view, const navwin_look *look, const char *without,
+                         const planning_case *c, loop *L, int steer)
 {
     if (!navwin_wanted(cmd, view, without))
         return NULL;
-    navwin *w = navwin_open(c, L, steer, 768, 768);
+    navwin *w = navwin_open(c, L, steer, 768, 768, look);
     if (!w)
         fprintf(stderr, "fracnav %s: no window (%s): %s\n", cmd, fn_err_msg(), without);
     return w;
 }
 
-/* The pointer and the view keys move the camera; other keys go to the caller. */
+/* Turns an overlay on or off, and says so. */
+static void toggle(navwin *w, unsigned bit, const char *name)
+{
+    w->o.overlays ^= bit;
+    note(w, "%s %s", name, (w->o.overlays & bit) ? "on" : "off");
+}
+
+/* A key of the window's own (the look); 0 when k is none of them. */
+static int look_key(navwin *w, int k)
+{
+    render_options *o = &w->o;
+    switch (k) {
+    case 'v':
+        o->mode = (render_mode)((o->mode + 1) % 4);
+        note(w, "mode: %s", render_mode_name(o->mode));
+        return 1;
+    case 'l':
+        o->layout = o->layout == RENDER_LAYOUT_3D ? RENDER_LAYOUT_FOUR_UP : RENDER_LAYOUT_3D;
+        note(w, "layout: %s", o->layout == RENDER_LAYOUT_3D ? "3D" : "four-up");
+        return 1;
+    case 'a':
+        toggle(w, RENDER_OVERLAY_AXES, "principal axes");
+        return 1;
+    case 'k':
+        toggle(w, RENDER_OVERLAY_CONTACTS, "contacts");
+        break;
+    case 'b':
+        toggle(w, RENDER_OVERLAY_HIERARCHY, "hierarchy boxes");
+        break;
+    case '[':
+    case ']':
+        o->hierarchy_depth += k == ']' ? 1 : -1;
+        o->hierarchy_depth = o->hierarchy_depth < 1 ? 1 : o->hierarchy_depth > 32 ? 32 : o->hierarchy_depth;
+        o->overlays |= RENDER_OVERLAY_HIERARCHY;
+        note(w, "hierarchy boxes at depth %d", o->hierarchy_depth);
+        break;
+    case 'o':
+        if (w->nvoi)
+            toggle(w, RENDER_OVERLAY_VOI, "VOI");
+        else
+            note(w, "no VOI: fracnav reduce defines one");
+        return 1;
+    default:
+        return 0;
+    }
+    if (need_trees(w))
+        note(w, "no hierarchy: %s", fn_err_msg());
+    return 1;
+}
+
+/* The pointer and the view keys move the camera, the look keys change the look; other keys go
+ * to the caller. */
 static int handle_input(navwin *w, const render_input *in, int *keys, int cap)
 {
     render_camera *cam = &w->o.camera;
@@ -149,7 +285,7 @@ static int handle_input(navwin *w, const render_input *in, int *keys, int cap)
         if (k >= '1' && k <= '6') {
             render_camera_standard(cam, (render_view)(k - '1'), w->c->frag, w->c->nfrag);
             moved = 1;
-        } else if (n < cap)
+        } else if (!look_key(w, k) && n < cap)
             keys[n++] = k;
     }
     double right[3];
@@ -158,10 +294,10 @@ static int handle_input(navwin *w, const render_input *in, int *keys, int cap)
     if (orbit[0] != 0 || orbit[1] != 0) {
         /* Dragging right turns the scene to the right (the camera to its left), about up; dragging
          * down tips it towards the viewer, about right. */
-        double up[3] = {cam->up[0], cam->up[1], cam->up[2]};
-        turn(cam->forward, up, -orbit[0] * 0.01);
-        turn(cam->forward, right, -orbit[1] * 0.01);
-        turn(cam->up, right, -orbit[1] * 0.01);
+        double up[3] = {cam->up[0], cam->up[1], cam->up[2]}, rad = ORBIT_DEG_PER_PX * M_PI / 180.0;
+        turn(cam->forward, up, -orbit[0] * rad);
+        turn(cam->forward, right, -orbit[1] * rad);
+        turn(cam->up, right, -orbit[1] * rad);
         normalize(cam->forward);
         normalize(cam->up);
         moved = 1;
@@ -184,6 +320,45 @@ static int handle_input(navwin *w, const render_input *in, int *keys, int cap)
     return n;
 }
 
+/* The HUD's text: hud's lines, what the last window key did, the frame and report-to-frame
+ * times, the mode and the renderer. */
+static void hud_text(const navwin *w, const char *hud, char *text, size_t cap)
+{
+    int noted = w->note[0] && fnclock_now_us() < w->note_until_us;
+    char r2f[64] = "";
+    if (w->r2f_ms > 0)
+        snprintf(r2f, sizeof r2f, ", report to frame <= %.0f ms", w->r2f_ms);
+    snprintf(text, cap, "%s%s%s\nframe %.1f ms%s (%s, %s)", hud, noted ? "\nwindow: " : "", noted ? w->note : "",
+             w->last_ms, r2f, render_mode_name(w->o.mode), render_gl_renderer(w->r));
+}
+
+/* Draws sc with the HUD's text into the back buffer. In four-up the slices cut through the
+ * selected fragment's centroid at its pose. */
+static int draw(navwin *w, const loop_scene *sc, const char *text)
+{
+    int sel = sc->selected >= 0 && sc->selected < w->c->nfrag ? sc->selected : 0;
+    if (sc->nfrag == w->c->nfrag)
+        pose_apply(&sc->pose[sel], w->c->frag[sel].centroid, w->o.slice_point);
+    int rc = render_frame(w->r, sc->nfrag == w->c->nfrag ? sc->pose : NULL, &w->o);
+    return rc ? rc : render_hud(w->r, text, w->w >= 900 ? 2 : 1);
+}
+
+/* After a frame shown at `shown`: the worst report-to-frame of the last R2F_WINDOW_US. */
+static void report_to_frame(navwin *w, const loop_scene *sc, int64_t shown)
+{
+    int64_t newest = sc->stats.last_arrival_us;
+    if (newest > w->prev_arrival_us && w->prev_arrival_us > 0) {
+        double ms = (double)(shown - w->prev_arrival_us) / 1000.0;
+        w->r2f_worst = ms > w->r2f_worst ? ms : w->r2f_worst;
+    }
+    w->prev_arrival_us = newest;
+    if (shown - w->r2f_since_us >= R2F_WINDOW_US) {
+        w->r2f_ms = w->r2f_worst;
+        w->r2f_worst = 0;
+        w->r2f_since_us = shown;
+    }
+}
+
 int navwin_frame(navwin *w, const loop_scene *sc, const char *hud, int *keys, int cap, int *close)
 {
     render_input in;
@@ -192,23 +367,26 @@ int navwin_frame(navwin *w, const loop_scene *sc, const char *hud, int *keys, in
         return rc;
     *close = in.close;
     int n = handle_input(w, &in, keys, cap);
+    if (w->note[0] && fnclock_now_us() >= w->note_until_us) {
+        w->note[0] = 0;
+        w->dirty = 1;
+    }
     if (!w->dirty && sc->seq == w->drawn_seq && !strcmp(hud, w->hud))
         return n;
     snprintf(w->hud, sizeof w->hud, "%s", hud);
     w->drawn_seq = sc->seq;
     w->dirty = 0;
-    char text[4200];
-    snprintf(text, sizeof text, "%s\nframe %.1f ms (%s, %s)", hud, w->last_ms, render_mode_name(w->o.mode),
-             render_gl_renderer(w->r));
+    char text[4400];
+    hud_text(w, hud, text, sizeof text);
     int64_t t0 = fnclock_now_us();
-    rc = render_frame(w->r, sc->pose, &w->o);
-    if (!rc)
-        rc = render_hud(w->r, text, w->w >= 900 ? 2 : 1);
+    rc = draw(w, sc, text);
     if (!rc)
         rc = render_present(w->r);
     if (rc)
         return rc;
-    w->last_ms = (double)(fnclock_now_us() - t0) / 1000.0;
+    int64_t t1 = fnclock_now_us();
+    report_to_frame(w, sc, t1);
+    w->last_ms = (double)(t1 - t0) / 1000.0;
     w->frame_ms_sum += w->last_ms;
     w->frames++;
     return n;
@@ -223,7 +401,7 @@ int navwin_show(navwin *w, const loop_scene *sc, const navview_extra *x, const c
     snprintf(text + len, sizeof text - len, "\ndevice: %s", device);
     if (help) {
         len = strlen(text);
-        snprintf(text + len, sizeof text - len, "\n%s", help);
+        snprintf(text + len, sizeof text - len, "\n%s%s", help, navwin_help());
     }
     return navwin_frame(w, sc, text, keys, cap, close);
 }
@@ -244,12 +422,9 @@ int navwin_screenshot(navwin *w, const char *png)
     /* After a swap the back buffer is undefined: draw the last frame again, then read it. */
     loop_scene sc = {0};
     loop_scene_read(w->L, &sc);
-    char text[4200];
-    snprintf(text, sizeof text, "%s\nframe %.1f ms (%s, %s)", w->hud, w->last_ms, render_mode_name(w->o.mode),
-             render_gl_renderer(w->r));
-    int rc = render_frame(w->r, sc.pose, &w->o);
-    if (!rc)
-        rc = render_hud(w->r, text, w->w >= 900 ? 2 : 1);
+    char text[4400];
+    hud_text(w, w->hud, text, sizeof text);
+    int rc = draw(w, &sc, text);
     if (!rc)
         rc = render_read_rgb(w->r, rgb);
     if (!rc)

@@ -17,14 +17,32 @@
 #include "case.h"
 #include "loop.h"
 #include "navview.h"
+#include "render.h"
 
 typedef struct navwin navwin;
 
 #define NAVWIN_KEYS 64 /* keys handed back per frame at most */
 
-/* A w x h window over c's fragments (c and L must outlive it). steer: the loop's camera frame
- * follows the view (navigate); 0: the window only watches (replay). */
-navwin *navwin_open(const planning_case *c, loop *L, int steer, int w, int h);
+/* How the window draws: --mode, --layout and --overlay, as `fracnav render` takes them. In the
+ * window, keys change them: v the next mode, l the layout, a the principal axes, k the contacts, b
+ * the hierarchy's boxes ([ and ] a level up or down), o the VOI. */
+typedef struct navwin_look {
+    int mode;             /* render_mode, or -1: surface on software GL, iso on a GPU */
+    render_layout layout; /* four-up: the slices cut through the selected fragment's centroid */
+    unsigned overlays;    /* RENDER_OVERLAY_*; voi when the case has a reduction VOI */
+    int hierarchy_depth;  /* root = 1 */
+} navwin_look;
+#define NAVWIN_LOOK_DEFAULT {-1, RENDER_LAYOUT_3D, 0, 3}
+/* When a is --mode, --layout or --overlay: parses val into *look and returns 1 with *rc 0, or
+ * with *rc 2 after a usage error for `cmd` that names the option and the value. Other a: 0. */
+int navwin_look_option(const char *cmd, const char *a, const char *val, navwin_look *look, int *rc);
+/* The window's keys and pointer, for a help text (lines ending in '\n'). */
+const char *navwin_help(void);
+
+/* A w x h window over c's fragments (c and L must outlive it), drawn as look says (NULL: the
+ * default). steer: the loop's camera frame follows the view (navigate); 0: the window only
+ * watches (replay). */
+navwin *navwin_open(const planning_case *c, loop *L, int steer, int w, int h, const navwin_look *look);
 void navwin_close(navwin *w);
 
 /* --view window|terminal (NAVWIN_VIEW_AUTO when not given). */
@@ -38,15 +56,18 @@ int navwin_wanted(const char *cmd, int view, const char *without);
 /* The window --view asks for: NULL for NAVWIN_VIEW_TERMINAL; for the others, a 768x768 window
  * (navwin_open) when $DISPLAY is set and GL 4.5 works, else NULL after one line on stderr,
  * "fracnav CMD: no window (WHY): WITHOUT" (e.g. without = "the terminal view stays"). */
-navwin *navwin_open_view(const char *cmd, int view, const char *without, const planning_case *c, loop *L,
-                         int steer);
+navwin *navwin_open_view(const char *cmd, int view, const navwin_look *look, const char *without,
+                         const planning_case *c, loop *L, int steer);
 
-/* Handles the window's input, then draws sc (when it, the camera or hud changed since the last
- * frame) with hud's lines and the frame time. Up to cap typed keys go to keys (ASCII, 27 for
+/* Handles the window's input, then draws sc (when it, the camera, the look or hud changed since
+ * the last frame) with hud's lines, what the last window key did, the frame time, and the report
+ * to frame time: from the arrival of the first report a frame shows to that frame on screen, at
+ * most (the worst of the last second; the bound is the arrival of the newest report in the frame
+ * before, so it may exceed the truth by one report period). Up to cap typed keys go to keys (ASCII, 27 for
  * Escape); *close becomes 1 when the window was asked to close. Returns the keys stored, or FN_E*. */
 int navwin_frame(navwin *w, const loop_scene *sc, const char *hud, int *keys, int cap, int *close);
 /* navwin_frame with the HUD of the terminal view: navview_format's lines of sc and x, then
- * "device: DEVICE", then help (NULL: none). */
+ * "device: DEVICE", then help (NULL: none) followed by navwin_help(). */
 int navwin_show(navwin *w, const loop_scene *sc, const navview_extra *x, const char *device, const char *help,
                 int *keys, int cap, int *close);
 /* The last frame drawn (HUD included) at the loop's newest scene, as a PNG file. 0 or FN_E*. */

@@ -643,8 +643,10 @@ int loop_feed(loop *L, const loop_event *ev)
     default:
         break;
     }
-    if (ev->kind == LOOP_EV_MOTION && ev->arrival_us > 0)
+    if (ev->kind == LOOP_EV_MOTION && ev->arrival_us > 0) {
         loop__stats_latency(L, loop__now_us(L) - ev->arrival_us);
+        L->st.last_arrival_us = ev->arrival_us;
+    }
     verify(L);
     if (out > 0)
         L->last_outcome = (loop_outcome)out;

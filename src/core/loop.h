@@ -149,6 +149,8 @@ typedef struct loop_stats {
     double tick_hz;                  /* loop_run timer ticks per second (period_us apart) */
     double latency_p50_us, latency_p99_us, latency_max_us; /* report arrival -> pose accepted */
     uint64_t latency_samples;
+    int64_t last_arrival_us;         /* when the newest motion report stepped arrived (its
+                                      * arrival_us; 0: none yet): a renderer's report-to-frame */
     uint64_t dropped;                /* events lost to a full ring */
     uint64_t journal_errors;         /* journal writes that failed (disk full, I/O error) */
     uint64_t pose_digest;            /* FNV-1a 64 over every accepted (frag, q, t) in order */

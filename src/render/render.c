@@ -704,6 +704,14 @@ int render_set_scene(render *r, const vol *ct, const frag *frags, int nfrag, dou
     return rc;
 }
 
+int render_set_hierarchies(render *r, const frag *frags, const obb_params *hp)
+{
+    for (int i = 0; i < r->nfrag; i++)
+        if (!r->frag[i].tree && !(r->frag[i].tree = obb_tree_build(&frags[i], hp)))
+            return fn_err_set(FN_ENOMEM, "render: out of memory for fragment %d's hierarchy", i + 1);
+    return 0;
+}
+
 long render_surface_triangles(const render *r)
 {
     long n = 0;

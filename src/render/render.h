@@ -92,6 +92,10 @@ const char *render_gl_version(const render *r);
  * fragments (FN_EINVAL names the count). Replaces any previous scene. 0 or FN_E*. */
 int render_set_scene(render *r, const vol *ct, const frag *frags, int nfrag, double iso_hu,
                      const obb_params *hp);
+/* Builds the hierarchies of the scene's fragments (frags as given to render_set_scene) for the
+ * hierarchy and contacts overlays, when render_set_scene was given none (a window that turns those
+ * overlays on later). 0 or FN_ENOMEM. */
+int render_set_hierarchies(render *r, const frag *frags, const obb_params *hp);
 /* Triangles of the surface meshes of the scene. */
 long render_surface_triangles(const render *r);
 
@@ -132,6 +136,9 @@ void render_options_default(render_options *o, const frag *frags, int nfrag);
 int render_mode_parse(const char *s, render_mode *m);
 int render_view_parse(const char *s, render_view *v);
 int render_layout_parse(const char *s, render_layout *l);
+/* "hierarchy:3,axes,contacts,voi" (comma-separated; DEPTH 1..32) into *overlays' bits (added to
+ * those set) and *depth (when given). 0, or FN_EINVAL naming the item that is wrong. */
+int render_overlays_parse(const char *s, unsigned *overlays, int *depth);
 const char *render_mode_name(render_mode m);
 
 /* Parses a GL_VERSION string ("4.5 (Core Profile) Mesa 22.3.6", "OpenGL ES 3.2 ...") into

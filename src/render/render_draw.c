@@ -88,6 +88,36 @@ const char *render_mode_name(render_mode m)
     return (unsigned)m < 4 ? mode_names[m] : "?";
 }
 
+int render_overlays_parse(const char *s, unsigned *overlays, int *depth)
+{
+    char buf[256];
+    if (!s || !*s || strlen(s) >= sizeof buf)
+        return fn_err_set(FN_EINVAL, "'%s' is not a list of overlays (hierarchy[:DEPTH], contacts, axes, voi)",
+                          s ? s : "");
+    strcpy(buf, s);
+    char *save = NULL;
+    for (char *tok = strtok_r(buf, ",", &save); tok; tok = strtok_r(NULL, ",", &save)) {
+        char *end;
+        if (!strcmp(tok, "axes"))
+            *overlays |= RENDER_OVERLAY_AXES;
+        else if (!strcmp(tok, "hierarchy"))
+            *overlays |= RENDER_OVERLAY_HIERARCHY;
+        else if (!strncmp(tok, "hierarchy:", 10)) {
+            long d = strtol(tok + 10, &end, 10);
+            if (end == tok + 10 || *end || d < 1 || d > 32)
+                return fn_err_set(FN_EINVAL, "'%s': the hierarchy's depth is a whole number from 1 to 32", tok);
+            *overlays |= RENDER_OVERLAY_HIERARCHY;
+            *depth = (int)d;
+        } else if (!strcmp(tok, "contacts"))
+            *overlays |= RENDER_OVERLAY_CONTACTS;
+        else if (!strcmp(tok, "voi"))
+            *overlays |= RENDER_OVERLAY_VOI;
+        else
+            return fn_err_set(FN_EINVAL, "'%s' is not an overlay (hierarchy[:DEPTH], contacts, axes, voi)", tok);
+    }
+    return 0;
+}
+
 int render_layout_parse(const char *s, render_layout *l)
 {
     if (s && !strcmp(s, "3d"))

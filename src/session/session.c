@@ -236,6 +236,13 @@ static int check_penetration(session *s)
             return FN_EFORMAT;
     }
     loop_collider col = loop_obb_collider(s->check);
+    /* Why they overlap: the loop refuses every move into another fragment while it checks. */
+    loop_scene sc;
+    loop_scene_read(s->L, &sc);
+    const char *why = sc.stats.unchecked ? "moved while collision checking was off"
+                      : json_object_get(c->extra, "reduction")
+                          ? "as the case was loaded: fracnav reduce leaves overlap up to its tolerance_mm"
+                          : "as the case was loaded";
     json_t *list = json_array();
     int rc = 0;
     for (int a = 0; rc == 0 && a < c->nfrag; a++)
@@ -249,8 +256,8 @@ static int check_penetration(session *s)
             json_array_append_new(list, json_pack("{s:[i,i],s:f}", "fragments", c->frag[a].id,
                                                   c->frag[b].id, "overlap_ml", mm3 / 1000));
             fprintf(stderr, "\nWARNING: saving a penetrating plan: fragments %d and %d overlap by "
-                            "%.3f ml (moved while collision checking was off)\n",
-                    c->frag[a].id, c->frag[b].id, mm3 / 1000);
+                            "%.3f ml (%s)\n",
+                    c->frag[a].id, c->frag[b].id, mm3 / 1000, why);
         }
     json_decref(s->penetrating);
     s->penetrating = list;
