@@ -327,6 +327,58 @@ static void test_pose_moves_picture_by_expected_pixels(void **st)
     }
 }
 
+/* Late latching: render_frame_early with the poses then, render_frame_late with the newest, gives
+ * the picture render_frame gives of the newest poses: when only the late fragment moved in
+ * between (the split frame), when another one moved too (the whole frame again), and in a mode
+ * that cannot split (iso: render_frame_late draws it all). The ball and the box overlap, so the
+ * late fragment's depth test against the early one's is checked too. */
+static void test_late_latching_draws_the_newest_poses(void **st)
+{
+    scene *s = *st;
+    static uint8_t want[W * H * 3];
+    const render_mode modes[2] = {RENDER_SURFACE, RENDER_ISO};
+    for (int m = 0; m < 2; m++) {
+        render_options o;
+        options(s, &o, modes[m]);
+        pose then[2] = {POSE_IDENTITY, POSE_IDENTITY}, newest[2] = {POSE_IDENTITY, POSE_IDENTITY};
+        then[1].t[0] = -8;   /* the box half into the ball */
+        newest[1].t[0] = -5; /* the late fragment (the box) moved on */
+        newest[1].t[2] = 2;
+        for (int other_moved = 0; other_moved < 2; other_moved++) {
+            newest[0].t[1] = other_moved ? 3 : 0;
+            newest[0].t[0] = other_moved ? 4 : 0;
+            draw(s, newest, &o);
+            memcpy(want, s->rgb, sizeof want);
+            if (modes[m] == RENDER_SURFACE && !other_moved) {
+                /* the early part is the ball alone: the frame is split */
+                pose ball_alone[2] = {then[0], then[1]};
+                ball_alone[1].t[0] = 200;
+                draw(s, ball_alone, &o);
+                long ball = content_pixels(s->rgb);
+                assert_int_equal(render_frame_early(s->r, then, 1, &o), 0);
+                assert_int_equal(render_read_rgb(s->r, s->rgb), 0);
+                if (labs(content_pixels(s->rgb) - ball) > 20)
+                    fail_msg("render_frame_early drew %ld pixels of content, the ball alone %ld",
+                             content_pixels(s->rgb), ball);
+            }
+            assert_int_equal(render_frame_early(s->r, then, 1, &o), 0);
+            if (render_frame_late(s->r, newest, &o))
+                fail_msg("render_frame_late: %s", fn_err_msg());
+            assert_int_equal(render_read_rgb(s->r, s->rgb), 0);
+            long differ = 0;
+            for (int i = 0; i < W * H * 3; i += 3)
+                differ += abs(want[i] - s->rgb[i]) > 32 || abs(want[i + 1] - s->rgb[i + 1]) > 32 ||
+                          abs(want[i + 2] - s->rgb[i + 2]) > 32;
+            if (differ > W * H / 200)
+                fail_msg("%s, %s: the late-latched frame differs from render_frame's in %ld pixels",
+                         render_mode_name(modes[m]), other_moved ? "another fragment moved" : "only the late one",
+                         differ);
+            if (content_pixels(s->rgb) < 400)
+                fail_msg("%s: the late-latched frame shows no fragments", render_mode_name(modes[m]));
+        }
+    }
+}
+
 static void test_gl_version_parse(void **st)
 {
     int major = 0, minor = 0;
@@ -340,7 +392,9 @@ static void test_gl_version_parse(void **st)
 }
 
 /* Mesa told to offer GL 3.3 only: opening fails, naming 3.3 and the 4.5 it needs. In a child, so
- * the override cannot leak into the other tests. */
+ * the override cannot leak into the other tests; and before any test loads OSMesa into this
+ * process (the child would inherit a Mesa that has read its environment already), so it stays
+ * near the top of the list. */
 static void test_old_gl_is_refused_with_its_version(void **st)
 {
     int fds[2];
@@ -803,6 +857,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_voi_overlay_outlines_the_box, setup, teardown),
         cmocka_unit_test_setup_teardown(test_hud_draws_text, setup, teardown),
         cmocka_unit_test_setup_teardown(test_pose_moves_picture_by_expected_pixels, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_late_latching_draws_the_newest_poses, setup, teardown),
         cmocka_unit_test_setup_teardown(test_window_matches_offscreen, setup, teardown),
         cmocka_unit_test(test_navigate_window_matches_render),
         cmocka_unit_test(test_navigate_window_mouse_and_keys),

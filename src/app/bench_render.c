@@ -37,9 +37,13 @@ static void usage(FILE *out)
                  "                 its own thread: loop_alone_hz and latency_alone_p99_us for S seconds\n"
                  "                 alone, loop_rendering_hz and latency_rendering_p99_us for S seconds\n"
                  "                 while this thread draws its scenes in surface mode as fast as it\n"
-                 "                 can, and report_to_frame_p99_ms: from a report's arrival to the\n"
-                 "                 end of the first frame that shows its pose (read back), beside\n"
-                 "                 frame_looping_mean_ms, the frame period then\n"
+                 "                 can with late latching as the window does (the other fragments\n"
+                 "                 first, then the moving one at its newest pose), and\n"
+                 "                 report_to_frame_p99_ms: from a report's arrival to the end of\n"
+                 "                 the first frame that shows its pose (read back), beside\n"
+                 "                 frame_looping_mean_ms, the frame period then; the same two for\n"
+                 "                 S more seconds drawing each frame whole after one read:\n"
+                 "                 report_to_frame_one_pass_p99_ms, frame_looping_one_pass_mean_ms\n"
                  "  --frames N     timed frames per case after one warm-up frame (default 10)\n"
                  "  --size WxH     pixels (default 512x512)\n"
                  "  --ct FILE      the CT to fracture (default %s)\n"
@@ -191,8 +195,73 @@ static int phase_end(loop *L, synth *sy, loop_thread_arg *a, pthread_t th, int64
     return a->rc;
 }
 
+/* What one rendering phase measured. */
+typedef struct phase_out {
+    loop_stats st;
+    double hz, r2f_p99_ms, frame_mean_ms;
+    size_t frames;
+} phase_out;
+
+/* One phase of `secs` while r draws the loop's scenes in surface mode as fast as it can, each
+ * frame read back; split: late latching (render_frame_early with the scene then, render_frame_late
+ * with the newest), else the whole frame after one read. From the frames' ends and the reports'
+ * arrivals: report i is in a frame once the frame's scene counts more than i events. */
+static int render_phase(render *r, const frag *f, int nfrag, loop *L, synth *sy, loop_thread_arg *a, double secs,
+                        int split, uint8_t *rgb, int64_t *f_done, long *f_events, size_t fcap, double *lat,
+                        phase_out *po)
+{
+    render_options ro;
+    render_options_default(&ro, f, nfrag);
+    ro.mode = RENDER_SURFACE;
+    loop_stats before;
+    loop_get_stats(L, &before);
+    loop_reset_timing(L);
+    pthread_t th;
+    int rc = phase_start(L, sy, a, &th);
+    if (rc)
+        return rc;
+    long first_report = atomic_load(&sy->n);
+    int64_t t0 = fnclock_now_us(), end = t0 + (int64_t)(secs * 1e6);
+    loop_scene sc = {0};
+    int drc = 0;
+    size_t nf = 0;
+    /* --loop-s, but at least MIN_LOOP_FRAMES frames: a slow machine (or a sanitizer build) still
+     * sees reports reach frames */
+    while (!drc && nf < fcap && (fnclock_now_us() < end || nf < MIN_LOOP_FRAMES)) {
+        loop_scene_read(L, &sc);
+        if (split) {
+            drc = render_frame_early(r, sc.pose, sc.selected, &ro);
+            loop_scene_read(L, &sc);
+            if (!drc)
+                drc = render_frame_late(r, sc.pose, &ro);
+        } else
+            drc = render_frame(r, sc.pose, &ro);
+        if (!drc)
+            drc = render_read_rgb(r, rgb);
+        f_done[nf] = fnclock_now_us();
+        f_events[nf++] = (long)sc.stats.events;
+    }
+    long last_report = atomic_load(&sy->n);
+    rc = phase_end(L, sy, a, th, t0, &po->st, before.steps, &po->hz);
+    if (drc)
+        return drc;
+    size_t nl = 0, k = 0;
+    for (long i = first_report; i < last_report && i < SYNTH_MAX; i++) {
+        while (k < nf && f_events[k] <= i)
+            k++;
+        if (k == nf)
+            break;
+        lat[nl++] = (double)(f_done[k] - sy->arrival[i]) / 1000.0;
+    }
+    po->r2f_p99_ms = p99_of(lat, nl);
+    po->frames = nf;
+    po->frame_mean_ms = nf > 1 ? (double)(f_done[nf - 1] - f_done[0]) / 1000.0 / (double)(nf - 1) : JSONW_NA;
+    return rc;
+}
+
 /* The loop over f (3 fragments) on its own thread: `secs` alone, then `secs` while r draws its
- * scenes (surface mode). Each phase is its own loop_run, its timing restarted before it starts
+ * scenes (surface mode) with late latching, as the window does, then `secs` drawing each frame
+ * whole after one read. Each phase is its own loop_run, its timing restarted before it starts
  * (loop_reset_timing and loop_get_stats only while the loop is stopped). Sets the figures in o. */
 static int measure_loop(render *r, const frag *f, int nfrag, double secs, uint8_t *rgb, json_t *o)
 {
@@ -208,7 +277,7 @@ static int measure_loop(render *r, const frag *f, int nfrag, double secs, uint8_
     atomic_init(&sy.active, 0);
     atomic_init(&sy.n, 0);
     sy.arrival = malloc(SYNTH_MAX * sizeof *sy.arrival);
-    size_t fcap = 100000, nf = 0;
+    size_t fcap = 100000;
     int64_t *f_done = malloc(fcap * sizeof *f_done);
     long *f_events = malloc(fcap * sizeof *f_events);
     double *lat = malloc(SYNTH_MAX * sizeof *lat);
@@ -224,9 +293,9 @@ static int measure_loop(render *r, const frag *f, int nfrag, double secs, uint8_
         if (!rd)
             rc = fn_err_set(FN_EIO, "bench render: cannot start the loop's reader");
     }
-    loop_stats alone = {0}, rendering = {0};
-    double alone_hz = JSONW_NA, rendering_hz = JSONW_NA;
-    long first_report = 0, last_report = 0;
+    loop_stats alone = {0};
+    double alone_hz = JSONW_NA;
+    phase_out late = {0}, whole = {0};
     if (!rc) {
         loop_get_stats(L, &alone);
         uint64_t steps0 = alone.steps;
@@ -238,56 +307,27 @@ static int measure_loop(render *r, const frag *f, int nfrag, double secs, uint8_
             rc = phase_end(L, &sy, &a, th, t0, &alone, steps0, &alone_hz);
         }
     }
-    if (!rc) {
-        render_options ro;
-        render_options_default(&ro, f, nfrag);
-        ro.mode = RENDER_SURFACE;
-        uint64_t steps0 = alone.steps;
-        loop_reset_timing(L);
-        rc = phase_start(L, &sy, &a, &th);
-        if (!rc) {
-            first_report = atomic_load(&sy.n);
-            int64_t t0 = fnclock_now_us(), end = t0 + (int64_t)(secs * 1e6);
-            loop_scene sc = {0};
-            int drc = 0;
-            /* --loop-s, but at least MIN_LOOP_FRAMES frames: a slow machine (or a sanitizer
-             * build) still sees reports reach frames */
-            while (!drc && nf < fcap && (fnclock_now_us() < end || nf < MIN_LOOP_FRAMES)) {
-                loop_scene_read(L, &sc);
-                drc = render_frame(r, sc.pose, &ro);
-                if (!drc)
-                    drc = render_read_rgb(r, rgb);
-                f_done[nf] = fnclock_now_us();
-                f_events[nf++] = (long)sc.stats.events;
-            }
-            last_report = atomic_load(&sy.n);
-            rc = phase_end(L, &sy, &a, th, t0, &rendering, steps0, &rendering_hz);
-            rc = drc ? drc : rc;
-        }
-    }
+    if (!rc)
+        rc = render_phase(r, f, nfrag, L, &sy, &a, secs, 1, rgb, f_done, f_events, fcap, lat, &late);
+    if (!rc)
+        rc = render_phase(r, f, nfrag, L, &sy, &a, secs, 0, rgb, f_done, f_events, fcap, lat, &whole);
     loop_reader_stop(rd);
     if (!rc) {
-        /* Report i is in a scene once the scene's event count exceeds i. */
-        size_t nl = 0, k = 0;
-        for (long i = first_report; i < last_report && i < SYNTH_MAX; i++) {
-            while (k < nf && f_events[k] <= i)
-                k++;
-            if (k == nf)
-                break;
-            lat[nl++] = (double)(f_done[k] - sy.arrival[i]) / 1000.0;
-        }
-        double r2f = p99_of(lat, nl);
         jsonw_set(o, "loop_alone_hz", jsonw_measure(alone_hz));
         jsonw_set(o, "latency_alone_p99_us", jsonw_measure(alone.latency_p99_us));
-        jsonw_set(o, "loop_rendering_hz", jsonw_measure(rendering_hz));
-        jsonw_set(o, "latency_rendering_p99_us", jsonw_measure(rendering.latency_p99_us));
-        jsonw_set(o, "report_to_frame_p99_ms", jsonw_measure(r2f));
-        jsonw_set(o, "frames_while_looping", json_integer((json_int_t)nf));
-        jsonw_set(o, "frame_looping_mean_ms",
-                  jsonw_measure(nf > 1 ? (double)(f_done[nf - 1] - f_done[0]) / 1000.0 / (double)(nf - 1) : JSONW_NA));
+        jsonw_set(o, "loop_rendering_hz", jsonw_measure(late.hz));
+        jsonw_set(o, "latency_rendering_p99_us", jsonw_measure(late.st.latency_p99_us));
+        jsonw_set(o, "report_to_frame_p99_ms", jsonw_measure(late.r2f_p99_ms));
+        jsonw_set(o, "frames_while_looping", json_integer((json_int_t)late.frames));
+        jsonw_set(o, "frame_looping_mean_ms", jsonw_measure(late.frame_mean_ms));
+        jsonw_set(o, "report_to_frame_one_pass_p99_ms", jsonw_measure(whole.r2f_p99_ms));
+        jsonw_set(o, "frame_looping_one_pass_mean_ms", jsonw_measure(whole.frame_mean_ms));
         fprintf(stderr, "bench render: loop alone %.0f Hz p99 %.0f us; while rendering %.0f Hz p99 %.0f us, "
-                        "%zu frames, report to frame p99 %.1f ms\n",
-                alone_hz, alone.latency_p99_us, rendering_hz, rendering.latency_p99_us, nf, nl ? r2f : -1.0);
+                        "%zu frames of %.1f ms, report to frame p99 %.1f ms (%.2f frames); one pass: "
+                        "frames of %.1f ms, report to frame p99 %.1f ms (%.2f frames)\n",
+                alone_hz, alone.latency_p99_us, late.hz, late.st.latency_p99_us, late.frames, late.frame_mean_ms,
+                late.r2f_p99_ms, late.r2f_p99_ms / late.frame_mean_ms, whole.frame_mean_ms, whole.r2f_p99_ms,
+                whole.r2f_p99_ms / whole.frame_mean_ms);
     }
     if (rc == FN_ENOMEM)
         fn_err_set(FN_ENOMEM, "bench render: out of memory for the loop");

@@ -332,14 +332,24 @@ static void hud_text(const navwin *w, const char *hud, char *text, size_t cap)
              w->last_ms, r2f, render_mode_name(w->o.mode), render_gl_renderer(w->r));
 }
 
-/* Draws sc with the HUD's text into the back buffer. In four-up the slices cut through the
- * selected fragment's centroid at its pose. */
-static int draw(navwin *w, const loop_scene *sc, const char *text)
+/* Draws the scene with the HUD's text into the back buffer, late latched (render_frame_early
+ * with sc, then render_frame_late with the loop's newest scene, into *shown): a surface frame in
+ * the 3D layout draws the moving fragment at the newest pose there is. In four-up the slices cut
+ * through the selected fragment's centroid at its pose. */
+static int draw(navwin *w, const loop_scene *sc, const char *text, loop_scene *shown)
 {
-    int sel = sc->selected >= 0 && sc->selected < w->c->nfrag ? sc->selected : 0;
-    if (sc->nfrag == w->c->nfrag)
-        pose_apply(&sc->pose[sel], w->c->frag[sel].centroid, w->o.slice_point);
-    int rc = render_frame(w->r, sc->nfrag == w->c->nfrag ? sc->pose : NULL, &w->o);
+    int n = w->c->nfrag;
+    *shown = *sc;
+    if (sc->nfrag == n) {
+        int rc = render_frame_early(w->r, sc->pose, sc->selected, &w->o);
+        if (rc)
+            return rc;
+        loop_scene_read(w->L, shown);
+    }
+    int ok = shown->nfrag == n, sel = ok && shown->selected >= 0 && shown->selected < n ? shown->selected : 0;
+    if (ok)
+        pose_apply(&shown->pose[sel], w->c->frag[sel].centroid, w->o.slice_point);
+    int rc = render_frame_late(w->r, ok ? shown->pose : NULL, &w->o);
     return rc ? rc : render_hud(w->r, text, w->w >= 900 ? 2 : 1);
 }
 
@@ -374,18 +384,19 @@ int navwin_frame(navwin *w, const loop_scene *sc, const char *hud, int *keys, in
     if (!w->dirty && sc->seq == w->drawn_seq && !strcmp(hud, w->hud))
         return n;
     snprintf(w->hud, sizeof w->hud, "%s", hud);
-    w->drawn_seq = sc->seq;
     w->dirty = 0;
     char text[4400];
     hud_text(w, hud, text, sizeof text);
     int64_t t0 = fnclock_now_us();
-    rc = draw(w, sc, text);
+    loop_scene shown;
+    rc = draw(w, sc, text, &shown);
     if (!rc)
         rc = render_present(w->r);
     if (rc)
         return rc;
+    w->drawn_seq = shown.seq;
     int64_t t1 = fnclock_now_us();
-    report_to_frame(w, sc, t1);
+    report_to_frame(w, &shown, t1);
     w->last_ms = (double)(t1 - t0) / 1000.0;
     w->frame_ms_sum += w->last_ms;
     w->frames++;
@@ -420,11 +431,11 @@ int navwin_screenshot(navwin *w, const char *png)
     if (!rgb)
         return fn_err_set(FN_ENOMEM, "out of memory for a %dx%d screenshot", w->w, w->h);
     /* After a swap the back buffer is undefined: draw the last frame again, then read it. */
-    loop_scene sc = {0};
+    loop_scene sc = {0}, shown;
     loop_scene_read(w->L, &sc);
     char text[4400];
     hud_text(w, w->hud, text, sizeof text);
-    int rc = draw(w, &sc, text);
+    int rc = draw(w, &sc, text, &shown);
     if (!rc)
         rc = render_read_rgb(w->r, rgb);
     if (!rc)

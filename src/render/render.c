@@ -165,6 +165,7 @@ render *render_open(const char *platform, int w, int h)
         return NULL;
     }
     r->plat = p;
+    r->early_late = -1;
     r->w = w;
     r->h = h;
     if (p->open(r, w, h) || gl_load(r) || check_version(r) || gl_setup(r)) {
@@ -677,6 +678,7 @@ int render_set_scene(render *r, const vol *ct, const frag *frags, int nfrag, dou
         return fn_err_set(FN_EINVAL, "render: %d fragments, at most %d can be drawn", nfrag,
                           RENDER_MAX_FRAGS);
     scene_release(r);
+    r->early_late = -1;
     r->iso_hu = iso_hu;
     r->min_spacing = 1e30;
     int rc = 0;

@@ -102,6 +102,15 @@ long render_surface_triangles(const render *r);
 /* Draws one frame with fragment i at poses[i] (NULL: each fragment's own pose). 0 or FN_E*
  * (FN_EINVAL: the hierarchy or contacts overlay without hierarchies). */
 int render_frame(render *r, const pose *poses, const render_options *o);
+/* A frame in two parts, for the least delay from a pose to the picture that shows it ("late
+ * latching"): render_frame_early draws every fragment but `late` at poses and hands that work to
+ * the GL (glFlush), which rasterizes it while the caller reads the newest poses; render_frame_late
+ * then draws fragment `late` at its newest pose, and the overlays, over it. The split needs surface
+ * mode, the 3D layout, no contacts overlay, and poses (not NULL) whose other entries are the early
+ * ones: otherwise render_frame_early draws nothing and render_frame_late draws the whole frame
+ * (render_frame). Same options for both. 0 or FN_E*, as render_frame. */
+int render_frame_early(render *r, const pose *poses, int late, const render_options *o);
+int render_frame_late(render *r, const pose *poses, const render_options *o);
 /* Reads the last frame as 8-bit RGB, rows top to bottom (w*h*3 bytes). Waits for the frame. */
 int render_read_rgb(render *r, uint8_t *rgb);
 /* Shows the last frame in the window (no-op offscreen). */

@@ -323,7 +323,10 @@ static int draw_raycast(render *r, const pose *poses, const render_options *o, c
     return 0;
 }
 
-static void draw_surface(render *r, const pose *poses, const render_options *o, const mat4 vp)
+/* The meshes of the fragments i with (only < 0 or i == only) and i != skip. A pass over them all
+ * (only < 0) starts on a clear depth buffer; a pass over one (render_frame_late's) draws into the
+ * depth of the pass before. */
+static void draw_surface(render *r, const pose *poses, const render_options *o, const mat4 vp, int only, int skip)
 {
     unsigned p = r->prog_mesh;
     float m[16], w2t[16], nmat[9], fw[3];
@@ -334,12 +337,15 @@ static void draw_surface(render *r, const pose *poses, const render_options *o, 
         fw[a] = (float)o->camera.forward[a];
     r->gl.Uniform3fv(loc(r, p, "forward"), 1, fw);
     r->gl.Enable(GL_DEPTH_TEST);
-    r->gl.Clear(GL_DEPTH_BUFFER_BIT);
+    if (only < 0)
+        r->gl.Clear(GL_DEPTH_BUFFER_BIT);
     /* The meshes are closed and wound counter-clockwise from outside: half their triangles face
      * away and are dropped before rasterizing. */
     r->gl.Enable(GL_CULL_FACE);
     r->gl.CullFace(GL_BACK);
     for (int i = 0; i < r->nfrag; i++) {
+        if ((only >= 0 && i != only) || i == skip)
+            continue;
         frag_mats(r, i, poses, m, w2t, nmat);
         r->gl.UniformMatrix4fv(loc(r, p, "model"), 1, GL_FALSE, m);
         r->gl.Uniform3fv(loc(r, p, "colour"), 1, r->frag[i].rgb);
@@ -631,7 +637,7 @@ static int draw_3d(render *r, const pose *poses, const render_options *o, const 
     camera_mats(&o->camera, (double)vp[2] / vp[3], m, inv);
     int rc = 0;
     if (o->mode == RENDER_SURFACE)
-        draw_surface(r, poses, o, m);
+        draw_surface(r, poses, o, m, -1, -1);
     else
         rc = draw_raycast(r, poses, o, vp, m, inv);
     return rc ? rc : draw_overlays(r, poses, o, m);
@@ -683,16 +689,35 @@ static void set_viewport(render *r, const int vp[4])
     r->gl.Scissor(vp[0], vp[1], vp[2], vp[3]);
 }
 
-int render_frame(render *r, const pose *poses, const render_options *o)
+/* The start of every frame: the whole target cleared, scissored to the viewport. */
+static void frame_start(render *r)
 {
-    if ((unsigned)o->mode > RENDER_SURFACE)
-        return fn_err_set(FN_EINVAL, "render: mode %d is not one of iso, dvr, mip, surface", (int)o->mode);
     r->gl.Enable(GL_SCISSOR_TEST);
     int full[4] = {0, 0, r->w, r->h};
     set_viewport(r, full);
     r->gl.ClearColor(BG[0], BG[1], BG[2], 1);
     r->gl.Clear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT);
-    int rc = 0;
+}
+
+/* The end of every frame: GL state back, and its errors. */
+static int frame_end(render *r, int rc)
+{
+    r->gl.Disable(GL_SCISSOR_TEST);
+    r->gl.BindVertexArray(0);
+    r->gl.UseProgram(0);
+    unsigned e = r->gl.GetError();
+    if (!rc && e != GL_NO_ERROR)
+        rc = fn_err_set(e == GL_OUT_OF_MEMORY ? FN_ENOMEM : FN_ENODEV, "render: GL error 0x%04x drawing a frame", e);
+    return rc;
+}
+
+int render_frame(render *r, const pose *poses, const render_options *o)
+{
+    r->early_late = -1;
+    if ((unsigned)o->mode > RENDER_SURFACE)
+        return fn_err_set(FN_EINVAL, "render: mode %d is not one of iso, dvr, mip, surface", (int)o->mode);
+    frame_start(r);
+    int rc = 0, full[4] = {0, 0, r->w, r->h};
     if (o->layout == RENDER_LAYOUT_3D) {
         rc = draw_3d(r, poses, o, full);
     } else {
@@ -709,13 +734,46 @@ int render_frame(render *r, const pose *poses, const render_options *o)
         set_viewport(r, q3d);
         rc = draw_3d(r, poses, o, q3d);
     }
-    r->gl.Disable(GL_SCISSOR_TEST);
-    r->gl.BindVertexArray(0);
-    r->gl.UseProgram(0);
-    unsigned e = r->gl.GetError();
-    if (!rc && e != GL_NO_ERROR)
-        rc = fn_err_set(e == GL_OUT_OF_MEMORY ? FN_ENOMEM : FN_ENODEV, "render: GL error 0x%04x drawing a frame", e);
+    return frame_end(r, rc);
+}
+
+/* Whether a frame of o can be split: surface meshes in the 3D layout, and no contacts (a pair's). */
+static int splits(const render_options *o)
+{
+    return o->mode == RENDER_SURFACE && o->layout == RENDER_LAYOUT_3D && !(o->overlays & RENDER_OVERLAY_CONTACTS);
+}
+
+int render_frame_early(render *r, const pose *poses, int late, const render_options *o)
+{
+    r->early_late = -1;
+    if (!poses || late < 0 || late >= r->nfrag || !splits(o))
+        return 0;
+    mat4 m, inv;
+    camera_mats(&o->camera, (double)r->w / r->h, m, inv);
+    frame_start(r);
+    draw_surface(r, poses, o, m, -1, late);
+    int rc = frame_end(r, 0);
+    r->gl.Flush(); /* the GL rasterizes these while the caller reads the newest pose */
+    if (!rc) {
+        r->early_late = late;
+        memcpy(r->early_pose, poses, (size_t)r->nfrag * sizeof *poses);
+    }
     return rc;
+}
+
+int render_frame_late(render *r, const pose *poses, const render_options *o)
+{
+    int late = r->early_late, same = late >= 0 && poses && splits(o);
+    for (int i = 0; same && i < r->nfrag; i++)
+        same = i == late || !memcmp(&poses[i], &r->early_pose[i], sizeof poses[i]);
+    if (!same)
+        return render_frame(r, poses, o);
+    r->early_late = -1;
+    mat4 m, inv;
+    camera_mats(&o->camera, (double)r->w / r->h, m, inv);
+    r->gl.Enable(GL_SCISSOR_TEST);
+    draw_surface(r, poses, o, m, late, -1);
+    return frame_end(r, draw_overlays(r, poses, o, m));
 }
 
 int render_read_rgb(render *r, uint8_t *rgb)

@@ -13,7 +13,7 @@
     X(PFNGLGETERRORPROC, GetError) X(PFNGLVIEWPORTPROC, Viewport) X(PFNGLENABLEPROC, Enable)       \
     X(PFNGLDISABLEPROC, Disable) X(PFNGLCLEARPROC, Clear) X(PFNGLCLEARCOLORPROC, ClearColor)       \
     X(PFNGLSCISSORPROC, Scissor) X(PFNGLREADPIXELSPROC, ReadPixels)                                \
-    X(PFNGLPIXELSTOREIPROC, PixelStorei) X(PFNGLFINISHPROC, Finish)                                \
+    X(PFNGLPIXELSTOREIPROC, PixelStorei) X(PFNGLFINISHPROC, Finish) X(PFNGLFLUSHPROC, Flush)       \
     X(PFNGLGENTEXTURESPROC, GenTextures) X(PFNGLDELETETEXTURESPROC, DeleteTextures)                \
     X(PFNGLBINDTEXTUREPROC, BindTexture) X(PFNGLACTIVETEXTUREPROC, ActiveTexture)                  \
     X(PFNGLTEXIMAGE3DPROC, TexImage3D) X(PFNGLTEXIMAGE1DPROC, TexImage1D)                          \
@@ -107,6 +107,10 @@ struct render {
     int nfrag;
     render_frag frag[RENDER_MAX_FRAGS];
     double iso_hu, min_spacing;
+    /* render_frame_early's part of the frame: the fragment left for render_frame_late (-1: no
+     * early part drawn) and the poses the others were drawn at. */
+    int early_late;
+    pose early_pose[RENDER_MAX_FRAGS];
 };
 
 /* GLSL sources (render_shader.c). */
