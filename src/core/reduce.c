@@ -25,6 +25,8 @@
 #define APPROACH_MM 10.0 /* the farthest a fragment slides into contact before the fit */
 #define PLACED_MM 10.0  /* nearer than this to the assembly, a fragment counts as placed */
 #define START_DEG 8.0   /* the first stage's extra starts: turned this much about each axis */
+#define VOI_GROW 1.25      /* a contact zone this much larger (volume) than the fit's VOI: again */
+#define VOI_GROW_STAGES 2  /* at most this many stages more for it */
 #define COLLIDE_COST 1.0 /* more than any metric difference: the fit stays collision-free */
 
 static const char *method_names[REDUCE_METHODS] = {"powell", "praxis", "sbplx", "bobyqa"};
@@ -248,6 +250,11 @@ int reduce_auto_voi(const frag *const *asm_, int nasm, const frag *moving, doubl
     free(g.tmp);
     free(mnear);
     return rc;
+}
+
+static double voi_volume(const reduce_voi *v)
+{
+    return (v->hi[0] - v->lo[0]) * (v->hi[1] - v->lo[1]) * (v->hi[2] - v->lo[2]);
 }
 
 /* ---- collision ----------------------------------------------------------------------------- */
@@ -821,7 +828,8 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
             }
             moving->pose = r->start;
         }
-        for (int stage = 0; stage < (o->has_voi ? 1 : 2) && rc == 0 && !F.cancelled; stage++) {
+        int nstage = o->has_voi ? 1 : 2;
+        for (int stage = 0; stage < nstage && rc == 0 && !F.cancelled; stage++) {
             if (o->has_voi)
                 r->voi = o->voi;
             else
@@ -866,7 +874,7 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
                 rc = 0;
             }
             F.metric = m;
-            F.pc = stage == (o->has_voi ? 0 : 1) ? &pc : NULL;
+            F.pc = stage >= (o->has_voi ? 0 : 1) ? &pc : NULL;
             F.xtol = F.pc ? o->xtol_mm : 5 * o->xtol_mm; /* the first of two stages stops coarser */
             pose base = moving->pose, best = base;
             double bestf = INFINITY;
@@ -906,6 +914,16 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
             }
             moving->pose = best;
             pose_normalize(&moving->pose);
+            if (rc == 0 && !o->has_voi && stage == nstage - 1 && nstage < 2 + VOI_GROW_STAGES &&
+                !F.cancelled) {
+                /* The second stage's VOI is the contact zone where the first ended: a first stage
+                 * off the fit touches along part of the fracture only, and the second then fits to
+                 * that part. Where the zone at the end has grown, the fit goes again over it. */
+                reduce_voi now;
+                if (reduce_auto_voi(asm_, nasm, moving, 2, 6, o->voi_max_mm, &now, NULL) == 0 &&
+                    voi_volume(&now) > VOI_GROW * voi_volume(&r->voi))
+                    nstage++;
+            }
         }
         if (rc == 0) {
             ends[attempts] = moving->pose;
