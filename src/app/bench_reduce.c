@@ -439,6 +439,8 @@ static int usage(FILE *out, int rc)
             "  --ct FILE        the CT to fracture (default: the example CT); long-bone: a bowed\n"
             "                   shaft with a cortex and a medullary canal, made in memory\n"
             "  --verbose        one line per run on stderr\n"
+            "  --verbose-truth  that, and the same fit started at the true pose (where the\n"
+            "                   metric's own basin ends; for the analysis of failures)\n"
             "  --json           one JSON object on stdout: command, ct, seeds, starts, max_mm,\n"
             "                   max_deg, pieces, bone_loss_mm, gap_mm, touching, separated_dice_min,\n"
             "                   separate_mean_s (null unless --touching), default_method, methods (one per\n"
