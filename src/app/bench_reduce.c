@@ -323,12 +323,32 @@ static int run_case(const vol *ct, uint64_t seed, const opts *o, config_stats *c
                 m.pose = keep;
                 fprintf(stderr, "  start error %.2f deg %.2f mm; fit moved %.2f deg\n", sr, st,
                         pose_angle_between(r.fitted, r.start) * 180 / M_PI);
+                {
+                    pose d = pose_compose(r.fitted, pose_inverse(truth));
+                    double ax[3] = {m.axes[0][0], m.axes[1][0], m.axes[2][0]}, aw[3];
+                    pose_rotate(&truth, ax, aw);
+                    double n = sqrt(d.q[1] * d.q[1] + d.q[2] * d.q[2] + d.q[3] * d.q[3]);
+                    fprintf(stderr, "  error axis . long axis %.2f\n",
+                            n > 0 ? fabs(d.q[1] * aw[0] + d.q[2] * aw[1] + d.q[3] * aw[2]) / n : 0);
+                }
                 fprintf(stderr, "  fitted %.3f deg %.3f mm; voi %.0fx%.0fx%.0f mm\n", fr_, ft_,
                         r.voi.hi[0] - r.voi.lo[0],
                         r.voi.hi[1] - r.voi.lo[1], r.voi.hi[2] - r.voi.lo[2]);
                 reduce_metric *me = reduce_metric_new(asm_, 1, &m, &r.voi, ro.count, ro.band_mm);
                 double ft = me ? reduce_metric_eval(me, &truth, NULL) : NAN;
                 fprintf(stderr, "  fitted metric %.6f\n", me ? reduce_metric_eval(me, &r.fitted, NULL) : NAN);
+                if (o->verbose > 1) { /* the same fit started at the truth: where the metric's own basin ends */
+                    reduce_result rt;
+                    m.pose = truth;
+                    if (reduce_pair(asm_, nasm, &m, &ro, &rt) == 0) {
+                        double tr_, tt_, ttre_;
+                        reduce_errors(&f, &m, &truth, &tr_, &tt_, &ttre_);
+                        fprintf(stderr, "  from the truth: %.3f deg %.3f mm, metric %.6f over its voi, %.6f over this fit's\n",
+                                tr_, tt_, rt.metric_end, me ? reduce_metric_eval(me, &rt.end, NULL) : NAN);
+                        reduce_result_free(&rt);
+                    }
+                    m.pose = keep;
+                }
                 reduce_metric_free(me);
                 fprintf(stderr, "seed %llu start %d %s/%s: %.3f deg %.3f mm tre %.3f, metric %.6f (truth %.6f),"
                         " %d evals, %.3f s cpu, push %.2f\n", (unsigned long long)seed, s,
@@ -419,6 +439,8 @@ static int usage(FILE *out, int rc)
             "  --ct FILE        the CT to fracture (default: the example CT); long-bone: a bowed\n"
             "                   shaft with a cortex and a medullary canal, made in memory\n"
             "  --verbose        one line per run on stderr\n"
+            "  --verbose-truth  that, and the same fit started at the true pose (where the\n"
+            "                   metric's own basin ends; for the analysis of failures)\n"
             "  --json           one JSON object on stdout: command, ct, seeds, starts, max_mm,\n"
             "                   max_deg, pieces, bone_loss_mm, gap_mm, touching, separated_dice_min,\n"
             "                   separate_mean_s (null unless --touching), default_method, methods (one per\n"
@@ -437,6 +459,8 @@ static int parse(int argc, char **argv, opts *o)
             o->json = 1;
         else if (!strcmp(a, "--verbose"))
             o->verbose = 1;
+        else if (!strcmp(a, "--verbose-truth"))
+            o->verbose = 2;
         else if (!strcmp(a, "--coarse"))
             o->coarse = 1;
         else if (!strcmp(a, "--axis-scale") || !strcmp(a, "--no-axis-scale"))

@@ -25,6 +25,10 @@
 #define APPROACH_MM 10.0 /* the farthest a fragment slides into contact before the fit */
 #define PLACED_MM 10.0  /* nearer than this to the assembly, a fragment counts as placed */
 #define START_DEG 8.0   /* the first stage's extra starts: turned this much about each axis */
+#define VOI_GROW 1.25      /* a contact zone this much larger (volume) than the fit's VOI: again */
+#define VOI_GROW_STAGES 2  /* at most this many stages more for it */
+#define HOP_ELONGATION 4.0 /* a long piece: its largest principal variance this many times the next */
+#define HOP_DEG 3.0        /* a hop's turn */
 #define COLLIDE_COST 1.0 /* more than any metric difference: the fit stays collision-free */
 
 static const char *method_names[REDUCE_METHODS] = {"powell", "praxis", "sbplx", "bobyqa"};
@@ -60,6 +64,7 @@ void reduce_defaults(reduce_opts *o)
     o->trust_deg = 18;
     o->coarse = 0;
     o->axis_scale = 1;
+    o->hops = 3;
 }
 
 void reduce_result_free(reduce_result *r)
@@ -248,6 +253,11 @@ int reduce_auto_voi(const frag *const *asm_, int nasm, const frag *moving, doubl
     free(g.tmp);
     free(mnear);
     return rc;
+}
+
+static double voi_volume(const reduce_voi *v)
+{
+    return (v->hi[0] - v->lo[0]) * (v->hi[1] - v->lo[1]) * (v->hi[2] - v->lo[2]);
 }
 
 /* ---- collision ----------------------------------------------------------------------------- */
@@ -821,7 +831,8 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
             }
             moving->pose = r->start;
         }
-        for (int stage = 0; stage < (o->has_voi ? 1 : 2) && rc == 0 && !F.cancelled; stage++) {
+        int nstage = o->has_voi ? 1 : 2;
+        for (int stage = 0; stage < nstage && rc == 0 && !F.cancelled; stage++) {
             if (o->has_voi)
                 r->voi = o->voi;
             else
@@ -866,7 +877,7 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
                 rc = 0;
             }
             F.metric = m;
-            F.pc = stage == (o->has_voi ? 0 : 1) ? &pc : NULL;
+            F.pc = stage >= (o->has_voi ? 0 : 1) ? &pc : NULL;
             F.xtol = F.pc ? o->xtol_mm : 5 * o->xtol_mm; /* the first of two stages stops coarser */
             pose base = moving->pose, best = base;
             double bestf = INFINITY;
@@ -906,6 +917,16 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
             }
             moving->pose = best;
             pose_normalize(&moving->pose);
+            if (rc == 0 && !o->has_voi && stage == nstage - 1 && nstage < 2 + VOI_GROW_STAGES &&
+                !F.cancelled) {
+                /* The second stage's VOI is the contact zone where the first ended: a first stage
+                 * off the fit touches along part of the fracture only, and the second then fits to
+                 * that part. Where the zone at the end has grown, the fit goes again over it. */
+                reduce_voi now;
+                if (reduce_auto_voi(asm_, nasm, moving, 2, 6, o->voi_max_mm, &now, NULL) == 0 &&
+                    voi_volume(&now) > VOI_GROW * voi_volume(&r->voi))
+                    nstage++;
+            }
         }
         if (rc == 0) {
             ends[attempts] = moving->pose;
@@ -941,6 +962,50 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
             if (!(m = reduce__metric_with(asm_, nasm, moving, b, &r->voi, o->count, o->band_mm, o->gap_mm)))
                 rc = FN_EINVAL;
         }
+    }
+    if (rc == 0 && !F.cancelled && o->hops > 0 && moving->eigval[0] > HOP_ELONGATION * moving->eigval[1]) {
+        /* A long piece: a cut through a tube is nearly symmetric under a turn about its axis and
+         * the metric ripples in the turns (bench reduce --ct long-bone: fits stopped 4-12 degrees
+         * off, at a metric worse than that of the fit started at the truth). Hops: the fit again
+         * from the result turned HOP_DEG either way about each principal axis of the piece, the
+         * best kept (colliding poses costed), until a round gains nothing (o->hops rounds). */
+        F.metric = m;
+        F.pc = &pc;
+        F.xtol = o->xtol_mm;
+        pose cur = moving->pose;
+        double fcur = objective_at(&F, &cur);
+        for (int round = 0; round < o->hops && rc == 0 && !F.cancelled; round++) {
+            pose next = cur;
+            double fnext = fcur;
+            for (int h = 0; h < 6 && rc == 0 && !F.cancelled; h++) {
+                double axis[3], cm[3];
+                moving->pose = cur;
+                axis_world(moving, h / 2, axis);
+                centroid_world(moving, cm);
+                pose turn = pose_from_axis_angle(axis, (h % 2 ? 1 : -1) * HOP_DEG * PI / 180);
+                F.start = turned(&cur, &turn, cm, cm);
+                moving->pose = F.start;
+                F.best = INFINITY;
+                F.improvements = 0;
+                centroid_world(moving, F.c);
+                set_scale(&F, m);
+                double f0 = objective_at(&F, &F.start);
+                int it = 0;
+                rc = run_optimizer(&F, &it);
+                r->iterations += it;
+                double fb = fmin(F.best, f0);
+                if (rc == 0 && fb < fnext - 1e-7) {
+                    fnext = fb;
+                    next = F.best < f0 ? pose_of(&F, F.bestx) : F.start;
+                }
+            }
+            if (!(fnext < fcur - 1e-7))
+                break;
+            cur = next;
+            pose_normalize(&cur);
+            fcur = fnext;
+        }
+        moving->pose = cur;
     }
     if (rc == 0 && F.cancelled)
         rc = 1; /* the placed pose stays */

@@ -125,6 +125,11 @@ typedef struct reduce_opts {
                           * about a cross axis (bench reduce, long bone: success 0.30 -> 0.55, skull
                           * unchanged); 0: one radius for all three (the RMS distance from the
                           * centroid) */
+    int hops;            /* a long piece (largest principal variance over 4 times the next): up to
+                          * this many rounds of hops after the fit, each the fit again from the
+                          * result turned 3 degrees either way about each of the piece's principal
+                          * axes, the best kept while a round gains (bench reduce --ct long-bone:
+                          * success 0.55 -> 0.75; other pieces never hop); 0: none */
     int coarse;          /* 1: the first stage (automatic VOI) fits coarse copies of the fragments
                           * (2 voxels a cell per axis where the spacing is finest). Off by default:
                           * in `bench reduce` its flatter metric led fits astray (success 0.25
@@ -139,9 +144,9 @@ typedef struct reduce_opts {
 } reduce_opts;
 
 /* PRAXIS (the most successful in `fracnav bench reduce`), trilinear, a 1 mm band, pre-alignment on,
- * no gap, automatic VOI of any size, 3 first-stage starts, rotation scaled per principal axis, no coarse
- * stage, trust 12 mm / 18 degrees, tau 0.5/0.95, tolerance 0.5 mm, xtol 0.01 mm, 4000 evaluations
- * (all stages and attempts together). */
+ * no gap, automatic VOI of any size, 3 first-stage starts, rotation scaled per principal axis, 3
+ * rounds of hops for a long piece, no coarse stage, trust 12 mm / 18 degrees, tau 0.5/0.95,
+ * tolerance 0.5 mm, xtol 0.01 mm, 4000 evaluations (all stages, attempts and hops together). */
 void reduce_defaults(reduce_opts *o);
 
 typedef struct reduce_result {
@@ -172,11 +177,12 @@ void reduce_result_free(reduce_result *r);
 
 /* Fits moving (from its current pose) to the assembly: pre-alignment when o->prealign, then, with an
  * automatic VOI, two stages: the optimizer over the contact zone where the fragment starts, then
- * again over the tighter zone where that ended, with colliding poses refused (costed); a given VOI
- * gets one stage, with that refusal. A fit that ends on the trust wall (within 1 mm or 1 degree)
+ * again over the tighter zone where that ended, with colliding poses refused (costed), and again
+ * (up to twice more) while the zone where it ended is over a quarter larger (volume) than the VOI
+ * it was fitted over; a given VOI gets one stage, with that refusal. A fit that ends on the trust wall (within 1 mm or 1 degree)
  * or colliding is tried again from the start turned 8 degrees about the other two principal axes,
  * then 12 degrees about all three; the result of best metric (collisions costed) over the union of
- * the attempts' VOIs wins. A result that still collides beyond the tolerance is pushed out along
+ * the attempts' VOIs wins. A long piece then hops (o->hops). A result that still collides beyond the tolerance is pushed out along
  * the contact normal (up to 5 mm), else the start is kept. Sets moving->pose = r->end.
  * 0, 1 when o->cancel was set (then moving->pose = r->end = the placed pose), or FN_E*. */
 int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_opts *o, reduce_result *r);
