@@ -349,6 +349,137 @@ static void test_cli_labels_import(void **st)
     free(dir);
 }
 
+/* A 3D Slicer .seg.nrrd on a 6x5x4 grid of 1 mm at the origin (LPS), u8, raw: `layers` layers
+ * (4D when > 1, the layer axis first), the value of layer l at voxel (i, j, k) from val(l, i, j, k),
+ * and the header lines `keys` (Segment<N>_...:=...). */
+static void write_seg_nrrd(const char *path, int layers, const char *keys, int (*val)(int, int, int, int))
+{
+    char head[2048];
+    snprintf(head, sizeof head,
+             "NRRD0004\ntype: unsigned char\ndimension: %d\nspace: left-posterior-superior\n"
+             "sizes: %s6 5 4\nspace directions: %s(1,0,0) (0,1,0) (0,0,1)\nkinds: %sdomain domain domain\n"
+             "encoding: raw\nspace origin: (0,0,0)\nSegmentation_MasterRepresentation:=Binary labelmap\n%s\n",
+             layers > 1 ? 4 : 3, layers > 1 ? (layers == 2 ? "2 " : "3 ") : "", layers > 1 ? "none " : "",
+             layers > 1 ? "list " : "", keys);
+    size_t hl = strlen(head), n = (size_t)layers * 6 * 5 * 4;
+    unsigned char *b = malloc(hl + n);
+    memcpy(b, head, hl);
+    for (int k = 0, at = 0; k < 4; k++)
+        for (int j = 0; j < 5; j++)
+            for (int i = 0; i < 6; i++)
+                for (int l = 0; l < layers; l++)
+                    b[hl + at++] = (unsigned char)val(l, i, j, k);
+    tu_write_file(path, b, hl + n);
+    free(b);
+}
+
+/* Two layers: Segment0 (layer 0, value 1) is the slab i 0..2, Segment2 (layer 0, value 5) the slab
+ * i 4..5, Segment1 (layer 1, value 1) the slab i 2..3, overlapping Segment0 at i = 2 (20 voxels). */
+static int two_layers(int l, int i, int j, int k)
+{
+    (void)j, (void)k;
+    if (l == 0)
+        return i < 3 ? 1 : i >= 4 ? 5 : 0;
+    return i >= 2 && i < 4 ? 1 : 0;
+}
+
+/* One layer: value 7 (Segment0) at i 0..1, 3 (Segment1) at i 2..4, 9 (no segment's) at i 5. */
+static int one_layer(int l, int i, int j, int k)
+{
+    (void)l, (void)j, (void)k;
+    return i < 2 ? 7 : i < 5 ? 3 : 9;
+}
+
+#define SEG_KEYS(n, value, layer) "Segment" #n "_ID:=Segment_" #n "\nSegment" #n "_Name:=piece " #n "\n" \
+    "Segment" #n "_LabelValue:=" #value "\nSegment" #n "_Layer:=" #layer "\nSegment" #n "_Extent:=0 5 0 4 0 3\n"
+
+/* segment --labels with a 3D Slicer .seg.nrrd: segment N = fragment N + 1 where its layer holds
+ * its label value, in a multi-layer (4D) file and in a one-layer one; overlapping voxels go to the
+ * first segment, each pair's overlap reported (stderr and --json); a layer out of range and a
+ * missing label value are refused naming the file and the key. */
+static void test_cli_labels_seg_nrrd(void **st)
+{
+    char *dir = tu_tmpdir("seg-layers"), ct[4300], lab[4300], out_dir[4300], *out = NULL;
+    vol *v = vol_new(6, 5, 4);
+    for (size_t i = 0; i < vol_count(v); i++)
+        v->data[i] = 1000;
+    snprintf(ct, sizeof ct, "%s/ct.nii.gz", dir);
+    assert_int_equal(volio_write(v, ct, VOL_I16), 0);
+    snprintf(lab, sizeof lab, "%s/layers.seg.nrrd", dir);
+    write_seg_nrrd(lab, 2, SEG_KEYS(0, 1, 0) SEG_KEYS(1, 1, 1) SEG_KEYS(2, 5, 0), two_layers);
+
+    snprintf(out_dir, sizeof out_dir, "%s/case", dir);
+    int rc = tu_run_cli(&out, "segment '%s' --labels '%s' -o '%s'", ct, lab, out_dir);
+    if (rc != 0 || !strstr(out, "warning") || !strstr(out, lab) ||
+        !strstr(out, "Segment0 and Segment1 overlap in 20 voxels: given to fragment 1 (the first segment), "
+                     "not fragment 2") || strstr(out, "Segment2 overlap") || strstr(out, "and Segment2"))
+        fail_msg("rc %d: %s", rc, out);
+    free(out);
+    planning_case *c = case_load(out_dir);
+    if (!c)
+        fail_msg("%s", fn_err_msg());
+    assert_int_equal(c->nfrag, 3);
+    static const size_t want[3] = {60, 20, 40}; /* Segment1 keeps only what Segment0 does not hold */
+    for (int f = 0; f < 3; f++) {
+        assert_int_equal(c->frag[f].id, f + 1);
+        assert_int_equal(c->frag[f].voxels, want[f]);
+    }
+    for (int i = 0; i < 6; i++) /* fragment by slab: 1 1 1 2 3 3 */
+        assert_true(c->labels->data[vol_idx(c->labels, i, 2, 1)] == (i < 3 ? 1 : i < 4 ? 2 : 3));
+    case_free(c);
+
+    snprintf(out_dir, sizeof out_dir, "%s/case-json", dir);
+    rc = tu_run_cli(&out, "segment '%s' --labels '%s' -o '%s' --json 2>/dev/null", ct, lab, out_dir);
+    if (rc != 0 || !strstr(out, "\"overlaps\": [\n    {\n      \"fragment\": 1,\n      \"other_fragment\": 2,\n"
+                                "      \"voxels\": 20\n    }\n  ]"))
+        fail_msg("rc %d: %s", rc, out);
+    free(out);
+
+    /* One layer: by the keys, not by the value (7 -> 1, 3 -> 2); 9 is no segment's. */
+    snprintf(lab, sizeof lab, "%s/one.seg.nrrd", dir);
+    write_seg_nrrd(lab, 1, SEG_KEYS(0, 7, 0) SEG_KEYS(1, 3, 0), one_layer);
+    snprintf(out_dir, sizeof out_dir, "%s/case-one", dir);
+    rc = tu_run_cli(&out, "segment '%s' --labels '%s' -o '%s' --json", ct, lab, out_dir);
+    if (rc != 0 || !strstr(out, "20 voxels hold a value that no segment's LabelValue lists") ||
+        !strstr(out, "\"overlaps\": []"))
+        fail_msg("rc %d: %s", rc, out);
+    free(out);
+    c = case_load(out_dir);
+    if (!c)
+        fail_msg("%s", fn_err_msg());
+    assert_int_equal(c->nfrag, 2);
+    assert_int_equal(c->frag[0].voxels, 40);
+    assert_int_equal(c->frag[1].voxels, 60);
+    assert_true(c->labels->data[vol_idx(c->labels, 0, 0, 0)] == 1);
+    assert_true(c->labels->data[vol_idx(c->labels, 5, 0, 0)] == 0);
+    case_free(c);
+
+    /* Refused, naming the file and the key; no case is left. */
+    static const struct {
+        const char *keys, *want;
+    } bad[] = {
+        {SEG_KEYS(0, 1, 0) SEG_KEYS(1, 1, 1) SEG_KEYS(2, 5, 2), "Segment2_Layer: '2' is no layer of this file: "
+                                                                "it has 2 layers (0..1)"},
+        {SEG_KEYS(0, 1, 0) "Segment1_ID:=Segment_1\nSegment1_Layer:=1\n" SEG_KEYS(2, 5, 0),
+         "Segment1_LabelValue: missing"},
+        {SEG_KEYS(0, 1, 0) SEG_KEYS(1, 1, 1) SEG_KEYS(2, 1, 0), "Segment2_LabelValue: 1 in layer 0 is Segment0's"},
+        {"", "dimension: 4 without Segment<N>_ keys: not a 3D Slicer segmentation"},
+    };
+    snprintf(lab, sizeof lab, "%s/bad.seg.nrrd", dir);
+    snprintf(out_dir, sizeof out_dir, "%s/case-bad", dir);
+    for (size_t b = 0; b < sizeof bad / sizeof bad[0]; b++) {
+        write_seg_nrrd(lab, 2, bad[b].keys, two_layers);
+        rc = tu_run_cli(&out, "segment '%s' --labels '%s' -o '%s'", ct, lab, out_dir);
+        if (rc != 1 || !strstr(out, lab) || !strstr(out, bad[b].want))
+            fail_msg("case %zu: rc %d: %s", b, rc, out);
+        free(out);
+        assert_int_equal(access(out_dir, F_OK), -1);
+    }
+    vol_free(v);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 /* segment --fill: a hollow box (a cortex around a dark interior) becomes one solid fragment. */
 static void test_cli_fill(void **st)
 {
@@ -526,6 +657,7 @@ int main(void)
         cmocka_unit_test(test_all_nonfinite_refused),
         cmocka_unit_test(test_cli_nonfinite),
         cmocka_unit_test(test_cli_labels_import),
+        cmocka_unit_test(test_cli_labels_seg_nrrd),
         cmocka_unit_test(test_cli_fill),
         cmocka_unit_test(test_cli_usage),
         cmocka_unit_test(test_prob_ramp),

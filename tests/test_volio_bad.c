@@ -764,6 +764,85 @@ static void test_nrrd_encodings_hold_what_they_claim(void **st)
     expect_error(p, "encoding", "not supported");
 }
 
+/* volio_read_labels must fail with a message holding the path and the words. */
+static void expect_labels_error(const char *path, const char *w1, const char *w2)
+{
+    volio_segs segs;
+    fn_err_clear();
+    vol *v = volio_read_labels(path, &segs);
+    if (v) {
+        vol_free(v);
+        volio_segs_free(&segs);
+        fail_msg("%s was read, expected an error about '%s'", path, w1);
+    }
+    assert_int_equal(segs.segments, 0);
+    assert_null(segs.overlap);
+    const char *m = fn_err_msg();
+    if (!strstr(m, path) || !strstr(m, w1) || (w2 && !strstr(m, w2)))
+        fail_msg("error for %s lacks '%s'/'%s': %s", path, w1, w2 ? w2 : "", m);
+}
+
+#define SEG4_HEAD(type, sizes, enc) "NRRD0004\ntype: " type "\ndimension: 4\nsizes: " sizes "\n" \
+    "spacings: nan 1 1 1\nkinds: list domain domain domain\nendian: little\nencoding: " enc "\n"      \
+    "Segment0_LabelValue:=1\nSegment0_Layer:=0\nSegment1_LabelValue:=1\nSegment1_Layer:=1\n\n"
+
+/* A multi-layer .seg.nrrd is checked as a 3D NRRD is, over all its layers, before its data is
+ * read: the data file's size, what gzip really inflates to and the memory budget (the file's
+ * values and the float volume, held at once); its layer axis must be one. */
+static void test_seg_nrrd_checked_before_reading(void **st)
+{
+    const char *p = in_dir("layers.seg.nrrd");
+    write_nrrd(p, SEG4_HEAD("unsigned short", "2 20 20 20", "raw"), 32000);
+    volio_segs segs;
+    vol *v = volio_read_labels(p, &segs);
+    if (!v)
+        fail_msg("%s", fn_err_msg());
+    assert_int_equal(segs.segments, 2);
+    assert_int_equal(segs.layers, 2);
+    assert_true(v->dim[0] == 20 && v->dim[2] == 20 && v->spacing[0] == 1);
+    vol_free(v);
+    volio_segs_free(&segs);
+    /* 8000 voxels of 2 u16 values and a float: 64000 bytes; one layer would need 48000 */
+    setenv("FRACNAV_MAX_BYTES", "50000", 1);
+    expect_labels_error(p, "memory budget", NULL);
+    write_nrrd(p, "NRRD0004\ntype: unsigned short\ndimension: 3\nsizes: 20 20 20\nspacings: 1 1 1\n"
+                  "endian: little\nencoding: raw\nSegment0_LabelValue:=1\n\n", 16000);
+    v = volio_read_labels(p, &segs);
+    if (!v)
+        fail_msg("%s", fn_err_msg());
+    vol_free(v);
+    volio_segs_free(&segs);
+    unsetenv("FRACNAV_MAX_BYTES");
+
+    write_nrrd(p, SEG4_HEAD("unsigned short", "2 20 20 20", "raw"), 16000);
+    expect_labels_error(p, "sizes 20 20 20 in 2 layers of uint16 need 32000 data bytes (raw)", "has 16000");
+    write_nrrd(p, SEG4_HEAD("unsigned char", "3 1000 1000 1000", "gzip"), 100);
+    expect_labels_error(p, "need 3000000000 data bytes (gzip)", "can inflate to at most 103200");
+    unsigned char noise[4000]; /* hardly compressible: passes the cheap ratio check */
+    for (int i = 0; i < 4000; i++)
+        noise[i] = (unsigned char)((i * 7919 + (i >> 3) * 104729) >> 3);
+    write_nrrd(p, SEG4_HEAD("unsigned char", "2 30 30 30", "gzip"), 0);
+    gzFile gz = gzopen(p, "ab");
+    assert_int_equal(gzwrite(gz, noise, sizeof noise), (int)sizeof noise);
+    assert_int_equal(gzclose(gz), Z_OK);
+    expect_labels_error(p, "need 54000 data bytes (gzip)", "gzip data inflate to 4000");
+    write_nrrd(p, SEG4_HEAD("unsigned char", "70000 2 2 2", "raw"), 560000);
+    expect_labels_error(p, "70000 layers", NULL);
+    write_nrrd(p, "NRRD0004\ntype: unsigned char\ndimension: 4\nsizes: 2 2 2 2\nspacings: 1 1 1 1\n"
+                  "kinds: domain domain domain domain\nencoding: raw\nSegment0_LabelValue:=1\n"
+                  "Segment0_Layer:=0\n\n", 16);
+    expect_labels_error(p, "kinds: axis 0 is domain", NULL);
+    write_nrrd(p, "NRRD0004\ntype: unsigned char\ndimension: 4\nsizes: 2 2 2 2\nspacings: 1 1 1 1\n"
+                  "encoding: raw\nSegment0_LabelValue:=0\nSegment0_Layer:=0\n\n", 16);
+    expect_labels_error(p, "Segment0_LabelValue: '0' is not a whole number >= 1", NULL);
+    write_nrrd(p, "NRRD0004\ntype: unsigned char\ndimension: 4\nsizes: 2 2 2 2\nspacings: 1 1 1 1\n"
+                  "encoding: raw\nSegment0_LabelValue:=1\nSegment0_Layer:=0\nSegment123456_Layer:=0\n\n", 16);
+    expect_labels_error(p, "Segment123456_Layer: over 65535 segments", NULL);
+    /* volio_read still reads 3D only */
+    write_nrrd(p, SEG4_HEAD("unsigned char", "2 2 2 2", "raw"), 16);
+    expect_error(p, "dimension: 4, only 3D volumes are supported", NULL);
+}
+
 /* Only regular files are read: a FIFO would block the open, /dev/zero never ends. */
 static void test_only_regular_files(void **st)
 {
@@ -887,6 +966,7 @@ int main(void)
         cmocka_unit_test(test_nrrd_geometry_not_made_up),
         cmocka_unit_test(test_nifti_geometry_not_made_up),
         cmocka_unit_test(test_nrrd_encodings_hold_what_they_claim),
+        cmocka_unit_test(test_seg_nrrd_checked_before_reading),
         cmocka_unit_test(test_only_regular_files),
         cmocka_unit_test(test_nifti_extension_not_read),
         cmocka_unit_test(test_inv3_entries_bounded),

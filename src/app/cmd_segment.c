@@ -32,9 +32,13 @@ static void usage(FILE *out)
             "                             head holder (300-600 HU) goes with e.g. 1000\n"
             "  --keep N                   keep only the N largest components\n"
             "  --labels LABELMAP          take the fragments from a labelmap instead of the\n"
-            "                             threshold: a NIfTI or NRRD on the CT's grid, or a 3D\n"
-            "                             Slicer .seg.nrrd (one layer); label k = fragment k. The\n"
-            "                             threshold then only shapes the probability maps\n"
+            "                             threshold: a NIfTI or NRRD on the CT's grid, label k =\n"
+            "                             fragment k; or a 3D Slicer .seg.nrrd (one layer or\n"
+            "                             multi-layer 4D): segment N (SegmentN_ keys) = fragment\n"
+            "                             N+1 where its layer holds its LabelValue; a voxel in\n"
+            "                             several segments goes to the first, and each pair's\n"
+            "                             overlap is reported as a warning. The threshold then\n"
+            "                             only shapes the probability maps\n"
             "  --fill                     fill each fragment's enclosed interior (cancellous bone\n"
             "                             under the threshold inside the cortex), in 3D\n"
             "  --fill-slices              the same, also slice-wise along each axis (long bones,\n"
@@ -45,7 +49,9 @@ static void usage(FILE *out)
             "  --json                     one JSON object on stdout instead of the text: command,\n"
             "                             case, source, threshold, components (before filtering),\n"
             "                             fragments (id, voxels, volume_ml, peak, centroid_mm),\n"
-            "                             filled_voxels (null without --fill),\n"
+            "                             filled_voxels (null without --fill), overlaps\n"
+            "                             (fragment, other_fragment, voxels; null unless --labels\n"
+            "                             is a .seg.nrrd),\n"
             "                             read_ms, segment_ms, fragments_ms, save_ms\n"
             "  --help                     this text\n");
 }
@@ -115,8 +121,35 @@ static void report(const planning_case *c, const seg_result *r)
     }
 }
 
+/* The overlaps of a .seg.nrrd's segments (null for any other source). */
+static json_t *overlaps_json(const volio_segs *s)
+{
+    if (!s->segments)
+        return json_null();
+    json_t *a = json_array();
+    for (int i = 0; a && i < s->noverlap; i++)
+        json_array_append_new(a, json_pack("{s:i,s:i,s:I}", "fragment", s->overlap[i].fragment,
+                                           "other_fragment", s->overlap[i].other, "voxels",
+                                           (json_int_t)s->overlap[i].voxels));
+    return a;
+}
+
+/* The .seg.nrrd's overlaps and unlisted voxels, as warnings on stderr. */
+static void warn_segments(const volio_segs *s, const char *labels)
+{
+    for (int i = 0; i < s->noverlap; i++) {
+        const volio_overlap *o = &s->overlap[i];
+        fprintf(stderr, "fracnav segment: warning: %s: Segment%d and Segment%d overlap in %zu voxel%s: "
+                        "given to fragment %d (the first segment), not fragment %d\n", labels,
+                o->fragment - 1, o->other - 1, o->voxels, o->voxels == 1 ? "" : "s", o->fragment, o->other);
+    }
+    if (s->unlisted)
+        fprintf(stderr, "fracnav segment: warning: %s: %zu voxels hold a value that no segment's "
+                        "LabelValue lists; left as background\n", labels, s->unlisted);
+}
+
 static int report_json(const planning_case *c, const seg_result *r, const char *in, const char *out,
-                       const double ms[4], long filled)
+                       const double ms[4], long filled, const volio_segs *segs)
 {
     json_t *o = jsonw_object("segment"), *frags = json_array();
     for (int i = 0; i < c->nfrag; i++) {
@@ -134,6 +167,7 @@ static int report_json(const planning_case *c, const seg_result *r, const char *
         jsonw_set(o, "components", json_integer(r->raw_components));
         jsonw_set(o, "fragments", frags);
         jsonw_set(o, "filled_voxels", filled >= 0 ? json_integer(filled) : json_null());
+        jsonw_set(o, "overlaps", overlaps_json(segs));
         for (int i = 0; i < 4; i++)
             jsonw_set(o, steps[i], jsonw_measure(ms[i]));
     } else
@@ -165,7 +199,8 @@ int cmd_segment(int argc, char **argv)
     vol *ct = volio_read(in);
     int64_t t1 = fnclock_now_us();
     seg_result r = {0};
-    vol *imported = ct && x.labels ? volio_read(x.labels) : NULL;
+    volio_segs segs = {0};
+    vol *imported = ct && x.labels ? volio_read_labels(x.labels, &segs) : NULL;
     int err = !ct || (x.labels && !imported);
     if (!err && x.labels && seg_from_labels(ct, imported, &p, &r) < 0) {
         fn_err_wrap(FN_EINVAL, "%s", x.labels);
@@ -178,6 +213,7 @@ int cmd_segment(int argc, char **argv)
         vol_free(ct);
         if (!r.labels)
             vol_free(imported);
+        volio_segs_free(&segs);
         case_stage_abort(tmp);
         return 1;
     }
@@ -203,6 +239,7 @@ int cmd_segment(int argc, char **argv)
         case_stage_abort(tmp);
         case_free(c);
         seg_result_free(&r);
+        volio_segs_free(&segs);
         return 1;
     }
     double ms[4] = {(double)(t1 - t0) * 1e-3, (double)(t2 - t1) * 1e-3, (double)(t3 - t2) * 1e-3,
@@ -210,10 +247,11 @@ int cmd_segment(int argc, char **argv)
     if (r.nonfinite)
         fprintf(stderr, "fracnav segment: warning: %s: %zu voxels are NaN or infinite; left out of the "
                         "threshold and never bone\n", in, r.nonfinite);
+    warn_segments(&segs, x.labels);
     if (c->nfrag == 0)
         fprintf(stderr, "fracnav segment: warning: no component left at threshold %g (lower it, or "
                         "--min-volume)\n", r.threshold);
-    if (args.json && (rc = report_json(c, &r, in, out, ms, x.fill ? filled : -1)) < 0)
+    if (args.json && (rc = report_json(c, &r, in, out, ms, x.fill ? filled : -1, &segs)) < 0)
         fprintf(stderr, "fracnav segment: %s\n", fn_err_msg());
     else if (!args.json) {
         report(c, &r);
@@ -224,5 +262,6 @@ int cmd_segment(int argc, char **argv)
     }
     case_free(c);
     seg_result_free(&r);
+    volio_segs_free(&segs);
     return rc < 0 ? 1 : 0;
 }

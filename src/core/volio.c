@@ -5,6 +5,7 @@
 
 #include <errno.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 #include <strings.h>
 #include <sys/stat.h>
@@ -50,25 +51,29 @@ static const char *extensions(int writable, const char *last, char *buf, size_t 
     return buf;
 }
 
-vol *volio_read(const char *path)
+/* 1 for a folder, 0 for a regular file, else a negative FN_E* code with fn_err set. */
+static int source_kind(const char *path)
 {
     struct stat st;
-    if (!path || !*path) {
-        fn_err_set(FN_EINVAL, "volio: no file name given");
-        return NULL;
-    }
-    if (stat(path, &st) != 0) {
-        fn_err_set(FN_EIO, "%s: cannot open: %s", path, strerror(errno));
-        return NULL;
-    }
+    if (!path || !*path)
+        return fn_err_set(FN_EINVAL, "volio: no file name given");
+    if (stat(path, &st) != 0)
+        return fn_err_set(FN_EIO, "%s: cannot open: %s", path, strerror(errno));
     if (S_ISDIR(st.st_mode))
-        return volio__read_dicom(path);
-    if (!S_ISREG(st.st_mode)) {
-        /* a FIFO would block the open, /dev/zero would never end */
-        fn_err_set(FN_EINVAL, "%s: not a regular file (a device, FIFO or socket): give a volume file",
-                   path);
+        return 1;
+    if (!S_ISREG(st.st_mode)) /* a FIFO would block the open, /dev/zero would never end */
+        return fn_err_set(FN_EINVAL, "%s: not a regular file (a device, FIFO or socket): give a volume "
+                          "file", path);
+    return 0;
+}
+
+vol *volio_read(const char *path)
+{
+    int kind = source_kind(path);
+    if (kind < 0)
         return NULL;
-    }
+    if (kind == 1)
+        return volio__read_dicom(path);
     const volio_format *f = format_of(path);
     if (f)
         return f->read(path);
@@ -76,6 +81,23 @@ vol *volio_read(const char *path)
     fn_err_set(FN_EINVAL, "%s: unknown volume format (expected %s)", path,
                extensions(0, "a DICOM folder", list, sizeof list));
     return NULL;
+}
+
+vol *volio_read_labels(const char *path, volio_segs *segs)
+{
+    memset(segs, 0, sizeof *segs);
+    const volio_format *f = path && *path ? format_of(path) : NULL;
+    if (!f || f->read != volio__read_nrrd || source_kind(path) != 0)
+        return volio_read(path); /* which names what is wrong with path, if anything */
+    return volio__read_nrrd_labels(path, segs);
+}
+
+void volio_segs_free(volio_segs *segs)
+{
+    if (!segs)
+        return;
+    free(segs->overlap);
+    memset(segs, 0, sizeof *segs);
 }
 
 int volio_write(const vol *v, const char *path, vol_type type)

@@ -52,6 +52,38 @@
  * fn_err set: "PATH: <field>: <cause>". */
 vol *volio_read(const char *path);
 
+/* Two segments of a 3D Slicer .seg.nrrd that hold the same voxels: `voxels` of them went to
+ * fragment `fragment` (the earlier segment's) and not to `other` (the later one's). */
+typedef struct volio_overlap {
+    int fragment, other;
+    size_t voxels;
+} volio_overlap;
+
+/* What volio_read_labels found besides the labelmap. */
+typedef struct volio_segs {
+    int segments;           /* SegmentN entries; 0: a labelmap without them (label k = fragment k) */
+    int layers;             /* the .seg.nrrd's layers (1 for a 3D file; 0 without segments) */
+    size_t unlisted;        /* voxels holding a value no segment lists: left as background */
+    int noverlap;
+    volio_overlap *overlap; /* noverlap entries by fragment, then other; owned */
+} volio_segs;
+
+/* Reads a labelmap of fragments for `segment --labels`. A NRRD (.nrrd, .nhdr) with 3D Slicer
+ * segment keys (Segment<N>_LabelValue, Segment<N>_Layer, ...: a .seg.nrrd) is mapped by them:
+ * segment N becomes fragment N + 1 wherever its layer holds its label value. Such a file is 3D
+ * (one layer; Layer may be absent, meaning 0) or 4D, "multi-layer": the first axis (kind list or
+ * none, no space direction) indexes the layers, the other three are space. A voxel that several
+ * segments hold goes to the first of them (lowest N); the overlaps are counted per pair in
+ * segs->overlap. Refused, naming the file and the key or field: a 4D NRRD without segment keys,
+ * a missing or malformed LabelValue (whole number >= 1), a 4D file's missing Layer, a Layer out of
+ * range, two segments with one label value in one layer, more than 65535 segments or layers; the
+ * size, encoding and memory checks are those of volio_read, over all the layers, before any data
+ * is read. Any other file (a NRRD without segment keys, NIfTI, ...) is read as volio_read does,
+ * voxel values as they are (label k = fragment k), with segs->segments 0. Returns the labelmap
+ * (free with vol_free; segs: volio_segs_free) or NULL with fn_err set. */
+vol *volio_read_labels(const char *path, volio_segs *segs);
+void volio_segs_free(volio_segs *segs);
+
 /* Writes V to PATH (.nii .nii.gz .nrrd .nhdr; .nhdr also writes a .raw data file beside it),
  * converting voxels to TYPE: integer types round to nearest (ties to even) and clamp to the
  * type's range, NaN becomes 0. NIfTI gets sform and qform (code 1, scanner) in RAS; NRRD gets

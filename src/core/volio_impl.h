@@ -18,6 +18,8 @@ typedef struct volio_format {
 vol *volio__read_inv3(const char *path);
 vol *volio__read_nifti(const char *path);
 vol *volio__read_nrrd(const char *path);
+/* volio_read_labels for a NRRD (.nrrd, .nhdr); segs is zeroed by the caller. */
+vol *volio__read_nrrd_labels(const char *path, volio_segs *segs);
 /* A DICOM series folder (not a table row: a folder has no extension). */
 vol *volio__read_dicom(const char *dir);
 int volio__write_nifti(const vol *v, const char *path, vol_type type);

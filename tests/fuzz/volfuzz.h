@@ -3,7 +3,8 @@
  * call, removed at exit), read back, checked and removed. The memory budget is lowered to 64 MiB
  * so a header that lies about its size cannot make the fuzzer allocate much; the replay runner
  * calls no LLVMFuzzerInitialize, so this is done on the first input. Every volume read is also
- * given to Otsu's histogram (src/core/seg.c), which reads whatever voxel values a file holds. */
+ * given to Otsu's histogram (src/core/seg.c), which reads whatever voxel values a file holds.
+ * A NRRD is also read as a labelmap (volio_read_labels: 3D Slicer .seg.nrrd, multi-layer too). */
 #ifndef FN_VOLFUZZ_H
 #define FN_VOLFUZZ_H
 
@@ -68,6 +69,22 @@ static void volfuzz_check(const vol *v, const char *path)
         volfuzz_sink = (float)seg_otsu_above(v, t);
 }
 
+/* A labelmap volio_read_labels returned: a usable volume of fragment labels (whole numbers
+ * 0..65535; 1..segments for a .seg.nrrd) and overlaps between its fragments. */
+static void volfuzz_check_labels(const vol *v, const volio_segs *s, const char *path)
+{
+    volfuzz_check(v, path);
+    if (!v)
+        return;
+    for (size_t i = 0, n = vol_count(v); i < n && s->segments; i++)
+        if (!(v->data[i] >= 0 && v->data[i] <= s->segments && v->data[i] == floorf(v->data[i])))
+            abort();
+    for (int i = 0; i < s->noverlap; i++)
+        if (s->overlap[i].fragment < 1 || s->overlap[i].fragment >= s->overlap[i].other ||
+            s->overlap[i].other > s->segments || s->overlap[i].voxels == 0)
+            abort();
+}
+
 /* Writes the input as "in" + ext, reads it with volio_read and checks the result. */
 static void volfuzz_read(const uint8_t *data, size_t size, const char *ext)
 {
@@ -83,6 +100,14 @@ static void volfuzz_read(const uint8_t *data, size_t size, const char *ext)
     vol *v = volio_read(path);
     volfuzz_check(v, path);
     vol_free(v);
+    if (strstr(ext, "nrrd")) {
+        volio_segs s;
+        fn_err_clear();
+        v = volio_read_labels(path, &s);
+        volfuzz_check_labels(v, &s, path);
+        vol_free(v);
+        volio_segs_free(&s);
+    }
     unlink(path);
 }
 
