@@ -11,6 +11,15 @@ const char *const render__quad_vs =
     "    gl_Position = vec4(p * 2.0 - 1.0, 0.0, 1.0);\n"
     "}\n";
 
+/* The raycaster's triangle: the same, at depth 1, so that a depth test of GREATER passes only
+ * where a brick was drawn into the depth buffer (draw_raycast). */
+const char *const render__ray_vs =
+    "#version 450 core\n"
+    "void main() {\n"
+    "    vec2 p = vec2((gl_VertexID << 1) & 2, gl_VertexID & 2);\n"
+    "    gl_Position = vec4(p * 2.0 - 1.0, 1.0, 1.0);\n"
+    "}\n";
+
 /* The raycaster's bricks: the occupied bricks' boundary faces of each fragment, placed by its
  * model matrix and drawn with MIN (then MAX) blending into channel `comp` of a layer of span_tex:
  * per pixel and fragment, the nearest and farthest occupied brick. Orthographic, so window depth
