@@ -107,7 +107,7 @@ int render__ray_program(render *r, render_mode m)
     if (!src)
         return fn_err_set(FN_ENOMEM, "render: out of memory");
     snprintf(src, n, "%s%s", head, render__ray_fs);
-    r->prog_ray[m] = program(r, render__quad_vs, src, "raycast");
+    r->prog_ray[m] = program(r, render__ray_vs, src, "raycast");
     free(src);
     return r->prog_ray[m] ? 0 : FN_ENODEV;
 }

@@ -295,6 +295,22 @@ static int draw_raycast(render *r, const pose *poses, const render_options *o, c
     r->gl.Disable(GL_BLEND);
     r->gl.BindFramebuffer(GL_FRAMEBUFFER, 0);
     r->gl.ClearColor(BG[0], BG[1], BG[2], 1);
+    /* The bricks once more, depth only, into the target's depth buffer (cleared to 1 at the
+     * frame's start); the ray's triangle lies at depth 1 and passes only where it is greater, so
+     * llvmpipe's early depth test skips the blocks of pixels that no brick covers (they keep the
+     * frame's clear colour, the background the shader would have written) before any of the
+     * shader runs: it has no branches that skip, so such a ray paid for a whole march, its
+     * bisection and its shading. */
+    r->gl.ColorMask(GL_FALSE, GL_FALSE, GL_FALSE, GL_FALSE);
+    r->gl.Enable(GL_DEPTH_TEST);
+    r->gl.DepthFunc(GL_LESS);
+    for (int i = 0; i < r->nfrag; i++) {
+        frag_mats(r, i, poses, model, w2t, nmat);
+        r->gl.UniformMatrix4fv(loc(r, pd, "model"), 1, GL_FALSE, model);
+        r->gl.BindVertexArray(r->frag[i].proxy_vao);
+        r->gl.DrawArrays(GL_TRIANGLES, 0, r->frag[i].proxy_vertices);
+    }
+    r->gl.ColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
     for (int k = 0; k < 2; k++) {
         r->gl.ActiveTexture(GL_TEXTURE0 + UNIT_NEAR + (unsigned)k);
         r->gl.BindTexture(GL_TEXTURE_2D_ARRAY, r->span_tex[k]);
@@ -318,8 +334,14 @@ static int draw_raycast(render *r, const pose *poses, const render_options *o, c
     r->gl.Uniform1f(loc(r, p, "entry_skip"), (float)(2.5 * r->min_spacing));
     r->gl.Uniform1i(loc(r, p, "near_depth"), UNIT_NEAR);
     r->gl.Uniform1i(loc(r, p, "far_depth"), UNIT_FAR);
+    r->gl.DepthFunc(GL_GREATER);
+    r->gl.DepthMask(GL_FALSE);
     r->gl.BindVertexArray(r->vao_empty);
     r->gl.DrawArrays(GL_TRIANGLES, 0, 3);
+    r->gl.DepthMask(GL_TRUE);
+    r->gl.DepthFunc(GL_LESS);
+    r->gl.Disable(GL_DEPTH_TEST);
+    r->gl.Clear(GL_DEPTH_BUFFER_BIT); /* back to the frame's clear, for what follows */
     return 0;
 }
 

@@ -39,7 +39,7 @@
     X(PFNGLDELETEFRAMEBUFFERSPROC, DeleteFramebuffers) X(PFNGLBINDFRAMEBUFFERPROC, BindFramebuffer) \
     X(PFNGLFRAMEBUFFERTEXTURELAYERPROC, FramebufferTextureLayer) X(PFNGLDRAWBUFFERPROC, DrawBuffer) \
     X(PFNGLBLENDEQUATIONPROC, BlendEquation) X(PFNGLDRAWELEMENTSPROC, DrawElements) \
-    X(PFNGLCULLFACEPROC, CullFace) X(PFNGLBLENDFUNCPROC, BlendFunc)        \
+    X(PFNGLCULLFACEPROC, CullFace) X(PFNGLBLENDFUNCPROC, BlendFunc) X(PFNGLCOLORMASKPROC, ColorMask) \
     X(PFNGLCHECKFRAMEBUFFERSTATUSPROC, CheckFramebufferStatus)
 
 typedef struct render_gl {
@@ -114,7 +114,7 @@ struct render {
 };
 
 /* GLSL sources (render_shader.c). */
-extern const char *const render__ray_fs, *const render__quad_vs, *const render__proxy_vs,
+extern const char *const render__ray_fs, *const render__ray_vs, *const render__quad_vs, *const render__proxy_vs,
     *const render__depth_fs, *const render__hud_fs, *const render__slice_fs,
     *const render__mesh_vs, *const render__mesh_fs, *const render__line_vs, *const render__line_fs;
 

@@ -11,6 +11,15 @@ const char *const render__quad_vs =
     "    gl_Position = vec4(p * 2.0 - 1.0, 0.0, 1.0);\n"
     "}\n";
 
+/* The raycaster's triangle: the same, at depth 1, so that a depth test of GREATER passes only
+ * where a brick was drawn into the depth buffer (draw_raycast). */
+const char *const render__ray_vs =
+    "#version 450 core\n"
+    "void main() {\n"
+    "    vec2 p = vec2((gl_VertexID << 1) & 2, gl_VertexID & 2);\n"
+    "    gl_Position = vec4(p * 2.0 - 1.0, 1.0, 1.0);\n"
+    "}\n";
+
 /* The raycaster's bricks: the occupied bricks' boundary faces of each fragment, placed by its
  * model matrix and drawn with MIN (then MAX) blending into channel `comp` of a layer of span_tex:
  * per pixel and fragment, the nearest and farthest occupied brick. Orthographic, so window depth
@@ -35,7 +44,11 @@ const char *const render__depth_fs =
  * 1 dvr, 2 mip>" (llvmpipe runs both sides of a branch its lanes disagree on, so code for the
  * other modes would cost every step): with a constant count the loops
  * unroll and the per-ray arrays stay in registers (llvmpipe lowers a dynamically indexed local
- * array to a select over all its elements, so 16 slots for 3 fragments cost 2 to 4 times as much). */
+ * array to a select over all its elements, so 16 slots for 3 fragments cost 2 to 4 times as much).
+ * In iso mode the march is two inner loops, coarse steps (occupancy fetches only) until a fragment's
+ * block is occupied, then fine steps (volume fetches only) to fine_end: llvmpipe runs every
+ * statement of a loop body for all lanes, so one body doing both paid for both kinds of fetch at
+ * every step. The steps are the same as the one loop of dvr and mip takes. */
 const char *const render__ray_fs =
     "#define MAXF NF\n"
     "#define nfrag NF\n"
@@ -116,6 +129,19 @@ const char *const render__ray_fs =
     "    float t = t0, prev = t0, fine_end = -1.0;\n"
     "    vec4 acc = vec4(0.0); float vmax = -4000.0; int fmax = -1;\n"
     "    bool done = false, prev_empty = true; int hit = -1;\n"
+    "#if mode == 0\n"
+    "    int s = 0;\n"
+    "    while (s < 8192 && t <= t1 && !done) {\n"
+    "        while (s < 8192 && t <= t1 && !any_occupied(t)) { prev = t; prev_empty = true; t += step_coarse; ++s; }\n"
+    "        if (s < 8192 && t <= t1) { fine_end = t + step_coarse; t = prev_empty ? min(prev + entry_skip, t) : prev; }\n"
+    "        while (s < 8192 && t <= t1 && t <= fine_end && !done) {\n"
+    "            int f; float v = sample_max(t, f);\n"
+    "            if (v >= iso) { hit = f; done = true; }\n"
+    "            else { if (v > iso - 400.0) fine_end = max(fine_end, t + step_coarse); prev = t; prev_empty = false; t += step_fine; }\n"
+    "            ++s;\n"
+    "        }\n"
+    "    }\n"
+    "#else\n"
     "    for (int s = 0; s < 8192 && t <= t1 && !done; ++s) {\n"
     "        bool fine = t <= fine_end;\n"
     "        if (!fine && any_occupied(t)) {\n" /* re-march the last coarse step finely */
@@ -143,7 +169,7 @@ const char *const render__ray_fs =
     "            done = acc.a > 0.98;\n"
     "            prev = t; prev_empty = false; t += step_fine;\n"
     "        }\n"
-    "    }\n"
+    "    }\n"    "#endif\n"
     "    if (mode == 0) {\n"
     "        if (hit < 0) return;\n"
     "        float lo = prev, hi = t;\n"
