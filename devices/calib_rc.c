@@ -3,6 +3,7 @@
 
 #include <ctype.h>
 #include <errno.h>
+#include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -411,19 +412,42 @@ static void FN_PRINTF(3, 4) put(char *out, size_t cap, const char *fmt, ...)
     va_end(ap);
 }
 
+/* The shortest %g text (6 digits when they do, up to 9) of a value that parse_float reads and
+ * then divides by scale (1, or RAW_FULL_SCALE for dead zones) back into exactly v: v * scale, or
+ * a float next to it when the product rounds off. So a value written and read again calibrates
+ * exactly as before (the fuzz harness checks). */
+static const char *num_scaled(float v, float scale, char buf[32])
+{
+    float w = v * scale, tries[3] = {w, nextafterf(w, -INFINITY), nextafterf(w, INFINITY)};
+    for (int k = 0; k < 3; k++)
+        for (int digits = 6; digits <= 9; digits++) {
+            snprintf(buf, 32, "%.*g", digits, (double)tries[k]);
+            if ((float)strtod(buf, NULL) / scale == v)
+                return buf;
+        }
+    snprintf(buf, 32, "%.9g", (double)w);
+    return buf;
+}
+
+static const char *num(float v, char buf[32])
+{
+    return num_scaled(v, 1.0f, buf);
+}
+
 size_t calib_format_spnavrc(const calib *c, char *out, size_t cap)
 {
+    char a[32], b[32];
     static const char *const lock[] = {"false", "true"};
     if (!cap)
         return 0;
     out[0] = '\0';
-    put(out, cap, "# fracnav calibration (spacenavd spnavrc syntax)\nsensitivity = %g\n", c->sens_base);
-    put(out, cap, "sensitivity-translation = %g\nsensitivity-rotation = %g\n", c->sens_t, c->sens_r);
+    put(out, cap, "# fracnav calibration (spacenavd spnavrc syntax)\nsensitivity = %s\n", num(c->sens_base, a));
+    put(out, cap, "sensitivity-translation = %s\nsensitivity-rotation = %s\n", num(c->sens_t, a), num(c->sens_r, b));
     for (int i = 0; i < 6; i++)
-        put(out, cap, "sensitivity-%s-%c = %g\n", i < 3 ? "translation" : "rotation", "xyz"[i % 3],
-            c->sens_axis[i]);
+        put(out, cap, "sensitivity-%s-%c = %s\n", i < 3 ? "translation" : "rotation", "xyz"[i % 3],
+            num(c->sens_axis[i], a));
     for (int i = 0; i < 6; i++)
-        put(out, cap, "dead-zone%d = %g\n", i, c->dead[i] * RAW_FULL_SCALE);
+        put(out, cap, "dead-zone%d = %s\n", i, num_scaled(c->dead[i], RAW_FULL_SCALE, a));
     for (int r = 0; r < 2; r++) {
         if (!(c->invert >> 3 * r & 7))
             continue;
@@ -443,12 +467,12 @@ size_t calib_format_spnavrc(const calib *c, char *out, size_t cap)
         if (c->bnact[i] != CALIB_ACT_NONE)
             put(out, cap, "bnact%d = %s\n", i, calib_action_name(c->bnact[i]));
     }
-    put(out, cap, "led = %s\nresponse = %s\ncubic-mix = %g\n", c->led == 2 ? "auto" : lock[!!c->led],
-        c->response == CALIB_CUBIC ? "cubic" : "linear", c->cubic_mix);
+    put(out, cap, "led = %s\nresponse = %s\ncubic-mix = %s\n", c->led == 2 ? "auto" : lock[!!c->led],
+        c->response == CALIB_CUBIC ? "cubic" : "linear", num(c->cubic_mix, a));
     put(out, cap, "dominant-axis = %s\ndisable-rotation = %s\ndisable-translation = %s\n",
         lock[!!c->dominant], lock[c->lock == CALIB_LOCK_TRANSLATION], lock[c->lock == CALIB_LOCK_ROTATION]);
     for (int i = 0; i < 6; i++)
-        put(out, cap, "zero-offset%d = %g\n", i, c->zero[i]);
+        put(out, cap, "zero-offset%d = %s\n", i, num(c->zero[i], a));
     return strlen(out);
 }
 
