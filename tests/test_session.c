@@ -63,9 +63,11 @@ static int fresh_case(void **st)
     return 0;
 }
 
+static double fit_gap_mm; /* the next open_case's session_params.fit_gap_mm */
+
 static session *open_case(unsigned flags)
 {
-    session_params p = {.flags = flags, .command = "navigate"};
+    session_params p = {.flags = flags, .command = "navigate", .fit_gap_mm = fit_gap_mm};
     loop_config_default(&p.cfg);
     p.cfg.check_invariant = 1;
     session *s = session_open(case_dir, &p);
@@ -549,6 +551,41 @@ static void test_fit_lands_as_one_undoable_step(void **st)
     session_close(s);
 }
 
+/* Fits fragment 2 from the hand's pose (as test_fit_lands_as_one_undoable_step) in a session whose
+ * fit leaves gap_mm; returns the pose that landed. */
+static pose fit_with_gap(double gap_mm)
+{
+    fit_gap_mm = gap_mm;
+    session *s = start_quiet(0);
+    fit_gap_mm = 0;
+    pose hand = moved_by(moved_by(pose_of(s, 1), 1, 1.0), 2, -1.0);
+    assert_int_equal(propose(s, 1, &hand), LOOP_ACCEPTED);
+    act(s, LOOP_ACT_FIT);
+    session_event *e;
+    do
+        e = next_event(s, SESSION_EV_POSE | SESSION_EV_FIT);
+    while (e->kind == SESSION_EV_FIT && e->result == 0 && !strstr(e->text, "fit: frag 2 moved"));
+    if (e->kind == SESSION_EV_FIT)
+        e = next_event(s, SESSION_EV_POSE);
+    assert_int_equal(e->result, LOOP_ACCEPTED);
+    pose fit = e->scene.pose[1];
+    stop_quiet(s);
+    session_close(s);
+    fresh_case(NULL);
+    return fit;
+}
+
+/* navigate --gap: the fit action leaves the bone lost at the cut. The blocks' facing sides end
+ * further apart, along x (the axis they face along), with a gap of 2 mm than without. */
+static void test_fit_leaves_the_gap(void **st)
+{
+    (void)st;
+    pose closed = fit_with_gap(0), gapped = fit_with_gap(2);
+    print_message("fit ends at x %+.2f mm without a gap, %+.2f mm with 2 mm\n", closed.t[0], gapped.t[0]);
+    if (!(gapped.t[0] > closed.t[0] + 1.0))
+        fail_msg("with a 2 mm gap the fit ends at x %+.2f mm, without at %+.2f mm", gapped.t[0], closed.t[0]);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -558,6 +595,7 @@ int main(void)
         cmocka_unit_test_setup(test_actions_fix_undo_redo, fresh_case),
         cmocka_unit_test_setup(test_propose_pose_one_undoable_step, fresh_case),
         cmocka_unit_test_setup(test_fit_lands_as_one_undoable_step, fresh_case),
+        cmocka_unit_test_setup(test_fit_leaves_the_gap, fresh_case),
         cmocka_unit_test_setup(test_propose_from_threads, fresh_case),
         cmocka_unit_test_setup(test_journal_recovery_and_save, fresh_case),
         cmocka_unit_test_setup(test_save_at_stop, fresh_case),

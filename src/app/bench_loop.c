@@ -194,7 +194,7 @@ int bench_loop(int argc, char **argv)
     double wall = 0;
     loop_stats s;
     if (case_dir) {
-        session_params sp = {cfg, SESSION_RESUME, "bench loop", cmd_tau_prepare, &tau};
+        session_params sp = {cfg, SESSION_RESUME, "bench loop", cmd_tau_prepare, &tau, 0};
         session *k = session_open(case_dir, &sp);
         rc = k ? drive(k, rec, &wall) : FN_EIO;
         if (k) {

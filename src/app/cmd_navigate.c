@@ -43,6 +43,9 @@ static void usage(FILE *out)
             "                      LPS) instead of its centroid, until the selection changes\n"
             "  --tau-min T, --tau-max T   hierarchy thresholds instead of the case's (0 <= T_min\n"
             "                      <= T_max <= 1), saved into the case with the poses\n"
+            "  --gap MM            bone lost at the fracture: the fit action (g, or button 12)\n"
+            "                      leaves a gap of MM at the cut, as fracnav reduce --gap does\n"
+            "                      (0 to 10, default 0)\n"
             "  --duration S        stop after S seconds (scripts, tests)\n"
             "  --view V            window (default when $DISPLAY is set and OpenGL 4.5 is there:\n"
             "                      the fragments drawn at their poses with a HUD; left drag orbits,\n"
@@ -93,6 +96,7 @@ typedef struct opts {
     double pivot[3];
     int view; /* NAVWIN_VIEW_* */
     navwin_look look;
+    double gap_mm; /* --gap: the fit action's */
     const char *screenshot;
 } opts;
 
@@ -138,6 +142,11 @@ static int parse(int argc, char **argv, opts *o)
             if (!v)
                 return cmd_bad_value("navigate", a, v, "a PNG file to write");
             o->screenshot = argv[++i];
+        }
+        else if (!strcmp(a, "--gap")) {
+            if (!cmd_number(v, &o->gap_mm) || !(o->gap_mm >= 0 && o->gap_mm <= 10))
+                return cmd_bad_value("navigate", a, v, "a number of mm from 0 to 10");
+            i++;
         }
         else if (!strcmp(a, "--duration")) {
             if (!cmd_number(v, &o->duration) || !(o->duration > 0))
@@ -536,7 +545,7 @@ int cmd_navigate(int argc, char **argv)
     }
     if (v.tty)
         fprintf(stderr, "loading %s and building its collision hierarchy...\n", o.dir);
-    session_params sp = {cfg, o.flags, "navigate", cmd_tau_prepare, &o.tau};
+    session_params sp = {cfg, o.flags, "navigate", cmd_tau_prepare, &o.tau, o.gap_mm};
     session *k = session_open(o.dir, &sp);
     rc = k ? 0 : FN_EIO;
     if (k) {

@@ -291,7 +291,7 @@ int cmd_replay(int argc, char **argv)
             cfg.button_action[b] = LOOP_ACT_NONE;
     cfg.frame = o.frame;
     cfg.check_invariant = 1;
-    session_params sp = {cfg, o.flags, "replay", cmd_tau_prepare, &o.tau};
+    session_params sp = {cfg, o.flags, "replay", cmd_tau_prepare, &o.tau, 0};
     session *k = session_open(o.dir, &sp);
     if (!k) {
         fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());

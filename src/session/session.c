@@ -99,6 +99,7 @@ static int open_case(session *s, const session_params *p)
     s->nfrag = c->nfrag;
     s->tau[0] = c->tau_min;
     s->tau[1] = c->tau_max;
+    s->fit_gap_mm = p->fit_gap_mm;
     if (rc == 0)
         rc = build_common(s);
     if (rc == 0 && (p->flags & SESSION_JOURNAL)) {

@@ -58,6 +58,7 @@ typedef struct session_params {
      * --tau-min/--tau-max over the case's, which a save then keeps). 0 or FN_E*. */
     int (*prepare)(void *ctx, planning_case *c);
     void *prepare_ctx;
+    double fit_gap_mm; /* the fit action leaves this gap at the cut (reduce_opts.gap_mm; 0: none) */
 } session_params;
 
 /* Loads the case, reconciles its journal (case_journal_check: damage and journals of another case

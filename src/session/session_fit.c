@@ -52,6 +52,7 @@ static void *fit_thread(void *arg)
     o.tau_min = s->tau[0];
     o.tau_max = s->tau[1];
     o.tolerance_mm = 0; /* the loop's own query (session.c: tolerance 0), so its pose is accepted */
+    o.gap_mm = s->fit_gap_mm;
     o.progress = on_progress;
     o.progress_ctx = s;
     o.cancel = &s->fit_cancel;
