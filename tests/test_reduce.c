@@ -578,12 +578,13 @@ static vol *tube(void)
     return v;
 }
 
-/* The fit from a start turned deg about the long axis of piece 2 through its centroid (true pose
- * want), with o->hops = hops. */
-static void fit_turned(const planning_case *c, const pose *want, double deg, int hops, reduce_result *r)
+/* The fit from a start turned deg about principal axis `axis` of piece 2 through its centroid
+ * (true pose want), with o->hops = hops. */
+static void fit_turned_about(const planning_case *c, const pose *want, int axis, double deg, int hops,
+                             reduce_result *r)
 {
     const frag *m = &c->frag[1], *others[1] = {&c->frag[0]};
-    double ax[3] = {m->axes[0][0], m->axes[1][0], m->axes[2][0]}, aw[3], cw[3], rc[3];
+    double ax[3] = {m->axes[0][axis], m->axes[1][axis], m->axes[2][axis]}, aw[3], cw[3], rc[3];
     pose_rotate(want, ax, aw);
     pose_apply(want, m->centroid, cw);
     pose turn = pose_from_axis_angle(aw, deg * 3.14159265358979 / 180), start = pose_compose(turn, *want);
@@ -598,10 +599,44 @@ static void fit_turned(const planning_case *c, const pose *want, double deg, int
     assert_int_equal(r->collides, 0);
 }
 
+/* The same about the long axis. */
+static void fit_turned(const planning_case *c, const pose *want, double deg, int hops, reduce_result *r)
+{
+    fit_turned_about(c, want, 0, deg, hops, r);
+}
+
+/* A piece that is not long hops only where the first stage found a rival basin (reduce_result.rival),
+ * and strictly: the ellipsoid's piece (seed 4) started 12 degrees about its third axis ends two
+ * first-stage starts more than 1 degree apart at about the same metric, so the hops run (more
+ * evaluations than without them); a hop is kept only free of collision and better by a margin, so
+ * the result is never worse than without hops, and where no round gained it is the same pose. */
+static void test_reduce_rival_hops(void **st)
+{
+    char *dir = tu_tmpdir("reduce_rival");
+    planning_case *c = fractured(dir, 2, 4);
+    assert_false(c->frag[1].eigval[0] > 4 * c->frag[1].eigval[1]);
+    pose want = pose_compose(c->frag[0].pose, pose_compose(pose_inverse(c->truth[0]), c->truth[1]));
+    reduce_result r0, r3;
+    fit_turned_about(c, &want, 2, -12, 0, &r0);
+    fit_turned_about(c, &want, 2, -12, 3, &r3);
+    assert_int_equal(r3.rival, 1);
+    assert_int_equal(r0.hops, 0);
+    if (!(r3.evaluations > r0.evaluations && r3.metric_end <= r0.metric_end + 1e-12))
+        fail_msg("rival hops: metric %.6f (without %.6f), %d evaluations (without %d)", r3.metric_end,
+                 r0.metric_end, r3.evaluations, r0.evaluations);
+    if (r3.hops == 0)
+        assert_true(pose_distance(r3.end, r0.end) < 1e-12 && pose_angle_between(r3.end, r0.end) < 1e-12);
+    reduce_result_free(&r0);
+    reduce_result_free(&r3);
+    case_free(c);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 /* A long piece hops (reduce_opts.hops): a fit of a tube's piece from 6 degrees about its axis
  * stops in a ripple of the metric; the hops go on from there to a better metric over the same
- * VOI (more evaluations). A piece that is not long never hops: the same fit, evaluation for
- * evaluation. */
+ * VOI (more evaluations). A piece that is not long does not hop without a rival basin
+ * (test_reduce_rival_hops): the same fit, evaluation for evaluation. */
 static void test_reduce_long_piece_hops(void **st)
 {
     char *dir = tu_tmpdir("reduce_hops");
@@ -668,6 +703,7 @@ int main(void)
         cmocka_unit_test(test_cli_from_journal),
         cmocka_unit_test(test_prealign_rods),
         cmocka_unit_test(test_reduce_long_piece_hops),
+        cmocka_unit_test(test_reduce_rival_hops),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -29,6 +29,9 @@
 #define VOI_GROW_STAGES 2  /* at most this many stages more for it */
 #define HOP_ELONGATION 4.0 /* a long piece: its largest principal variance this many times the next */
 #define HOP_DEG 3.0        /* a hop's turn */
+#define HOP_MARGIN 1e-4    /* a hop of a piece that is not long must gain this much metric */
+#define AMBIG_METRIC 0.002 /* a first-stage end this close in metric to the best is a rival */
+#define MAX_STARTS_SEEN 16 /* the first stage's ends looked at for rivals */
 #define COLLIDE_COST 1.0 /* more than any metric difference: the fit stays collision-free */
 
 static const char *method_names[REDUCE_METHODS] = {"powell", "praxis", "sbplx", "bobyqa"};
@@ -819,7 +822,9 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
      * true pose collides with nothing): a second attempt from the start turned about the other
      * principal axes, and, if that ends there too, a third with wider turns about every axis; the
      * best over the union of their VOIs wins. */
-    pose ends[3];
+    pose ends[3], sends[MAX_STARTS_SEEN];
+    double sf[MAX_STARTS_SEEN];
+    int nsends = 0;
     reduce_voi vois[3];
     int attempts = 0;
     for (int attempt = 0; attempt < 3 && rc == 0 && !F.cancelled; attempt++) {
@@ -910,6 +915,11 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
                 int it = 0;
                 rc = run_optimizer(&F, &it);
                 r->iterations += it;
+                if (rc == 0 && stage == 0 && attempt == 0 && k < MAX_STARTS_SEEN) {
+                    sends[k] = F.best < f0 ? pose_of(&F, F.bestx) : F.start;
+                    sf[k] = fmin(F.best, f0);
+                    nsends = k + 1;
+                }
                 if (rc == 0 && fmin(F.best, f0) < bestf) {
                     bestf = fmin(F.best, f0);
                     best = F.best < f0 ? pose_of(&F, F.bestx) : F.start;
@@ -963,7 +973,26 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
                 rc = FN_EINVAL;
         }
     }
-    if (rc == 0 && !F.cancelled && o->hops > 0 && moving->eigval[0] > HOP_ELONGATION * moving->eigval[1]) {
+    /* A rival: a start of the first stage that ends about as well as the best one (within
+     * AMBIG_METRIC) but more than 1 degree or 1 mm from it. The metric has rival basins there, and
+     * the fit may sit in the wrong one without touching the trust wall or colliding (bench reduce
+     * --ct CT_pitch.nii.gz: 3.4 mm and 2.7 degrees off). */
+    int ambiguous = 0, kb = 0;
+    for (int k = 1; k < nsends; k++)
+        if (sf[k] < sf[kb])
+            kb = k;
+    for (int k = 0; k < nsends && !ambiguous; k++)
+        if (k != kb && sf[k] < sf[kb] + AMBIG_METRIC) {
+            double a[3], c[3], d2 = 0;
+            pose_apply(&sends[k], moving->centroid, a);
+            pose_apply(&sends[kb], moving->centroid, c);
+            for (int i = 0; i < 3; i++)
+                d2 += (a[i] - c[i]) * (a[i] - c[i]);
+            ambiguous = sqrt(d2) > 1 || pose_angle_between(sends[k], sends[kb]) * 180 / PI > 1;
+        }
+    r->rival = ambiguous;
+    int is_long = moving->eigval[0] > HOP_ELONGATION * moving->eigval[1];
+    if (rc == 0 && !F.cancelled && o->hops > 0 && (is_long || ambiguous)) {
         /* A long piece: a cut through a tube is nearly symmetric under a turn about its axis and
          * the metric ripples in the turns (bench reduce --ct long-bone: fits stopped 4-12 degrees
          * off, at a metric worse than that of the fit started at the truth). Hops: the fit again
@@ -974,6 +1003,15 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
         F.xtol = o->xtol_mm;
         pose cur = moving->pose;
         double fcur = objective_at(&F, &cur);
+        /* Other pieces hop only where the first stage was ambiguous, and strictly: a hop's end is
+         * taken only when it is free of collision (at the tolerance) and its metric alone beats the
+         * current one by HOP_MARGIN. A fit that ends interpenetrating (to be pushed out) costs
+         * COLLIDE_COST in the objective, and any free pose nearby would beat that: hopping everywhere
+         * with the plain rule swapped such fits for worse poses (CT_pitch success 0.90 -> 0.80). */
+        int strict = !is_long;
+        double margin = strict ? HOP_MARGIN : 1e-7;
+        if (strict)
+            fcur = reduce_metric_eval(m, &cur, NULL);
         for (int round = 0; round < o->hops && rc == 0 && !F.cancelled; round++) {
             pose next = cur;
             double fnext = fcur;
@@ -994,14 +1032,22 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
                 rc = run_optimizer(&F, &it);
                 r->iterations += it;
                 double fb = fmin(F.best, f0);
-                if (rc == 0 && fb < fnext - 1e-7) {
+                pose hp = F.best < f0 ? pose_of(&F, F.bestx) : F.start;
+                if (rc == 0 && strict) {
+                    int c = collides(&pc, &hp, NULL);
+                    if (c < 0)
+                        rc = c;
+                    fb = c ? INFINITY : reduce_metric_eval(m, &hp, NULL);
+                }
+                if (rc == 0 && fb < fnext - margin) {
                     fnext = fb;
-                    next = F.best < f0 ? pose_of(&F, F.bestx) : F.start;
+                    next = hp;
                 }
             }
-            if (!(fnext < fcur - 1e-7))
+            if (!(fnext < fcur - margin))
                 break;
             cur = next;
+            r->hops++;
             pose_normalize(&cur);
             fcur = fnext;
         }
@@ -1060,6 +1106,8 @@ static void merge_sweep(reduce_result *r, reduce_result *r2)
     r->metric_end = r2->metric_end;
     r->push_mm += r2->push_mm;
     r->collides = r2->collides;
+    r->rival |= r2->rival;
+    r->hops += r2->hops;
     reduce_result_free(r2);
 }
 

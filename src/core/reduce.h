@@ -129,7 +129,11 @@ typedef struct reduce_opts {
                           * this many rounds of hops after the fit, each the fit again from the
                           * result turned 3 degrees either way about each of the piece's principal
                           * axes, the best kept while a round gains (bench reduce --ct long-bone:
-                          * success 0.55 -> 0.75; other pieces never hop); 0: none */
+                          * success 0.55 -> 0.75). Any other piece hops only when a first-stage
+                          * start ended in a rival basin (reduce_result.rival: within 0.002 of the
+                          * best start's metric, over 1 degree or 1 mm from it), and a hop is then
+                          * kept only free of collision and better in metric alone by 1e-4
+                          * (CT_pitch: 0.90 -> 0.95); 0: none */
     int coarse;          /* 1: the first stage (automatic VOI) fits coarse copies of the fragments
                           * (2 voxels a cell per axis where the spacing is finest). Off by default:
                           * in `bench reduce` its flatter metric led fits astray (success 0.25
@@ -164,6 +168,8 @@ typedef struct reduce_result {
     double metric_end;
     double push_mm;       /* how far the collision check pushed the result out (0: not at all) */
     int collides;         /* 1 only when no collision-free pose could be found (then end = start) */
+    int rival;            /* 1: a first-stage start ended in a rival basin (see reduce_opts.hops) */
+    int hops;             /* rounds of hops that gained (each moved the result) */
     double *history;      /* metric per iteration, nhistory values; malloc'd */
     int nhistory;
 } reduce_result;
@@ -182,7 +188,8 @@ void reduce_result_free(reduce_result *r);
  * it was fitted over; a given VOI gets one stage, with that refusal. A fit that ends on the trust wall (within 1 mm or 1 degree)
  * or colliding is tried again from the start turned 8 degrees about the other two principal axes,
  * then 12 degrees about all three; the result of best metric (collisions costed) over the union of
- * the attempts' VOIs wins. A long piece then hops (o->hops). A result that still collides beyond the tolerance is pushed out along
+ * the attempts' VOIs wins. A long piece then hops (o->hops), another one where its first stage
+ * found a rival basin. A result that still collides beyond the tolerance is pushed out along
  * the contact normal (up to 5 mm), else the start is kept. Sets moving->pose = r->end.
  * 0, 1 when o->cancel was set (then moving->pose = r->end = the placed pose), or FN_E*. */
 int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_opts *o, reduce_result *r);
