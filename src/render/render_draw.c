@@ -474,6 +474,19 @@ static int ensure_boxes(render *r, render_frag *f, int depth)
     return 0;
 }
 
+/* Lines already in world mm (the line program bound): streamed through the shared line buffer. */
+static void draw_world_lines(render *r, const line_buf *b)
+{
+    static const float id[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+    if (!b->n)
+        return;
+    r->gl.UniformMatrix4fv(loc(r, r->prog_line, "model"), 1, GL_FALSE, id);
+    r->gl.BindVertexArray(r->line_vao);
+    r->gl.BindBuffer(GL_ARRAY_BUFFER, r->line_vbo);
+    r->gl.BufferData(GL_ARRAY_BUFFER, (GLsizeiptr)(b->n * 6 * sizeof(float)), b->v, GL_STREAM_DRAW);
+    r->gl.DrawArrays(GL_LINES, 0, (int)b->n);
+}
+
 /* Each fragment's principal axes at its current pose: red, green, blue for the largest first. */
 static int draw_axes(render *r, const pose *poses)
 {
@@ -496,14 +509,8 @@ static int draw_axes(render *r, const pose *poses)
                 rc = line_push(&b, wc, colours[k]);
         }
     }
-    if (!rc) {
-        static const float id[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
-        r->gl.UniformMatrix4fv(loc(r, r->prog_line, "model"), 1, GL_FALSE, id);
-        r->gl.BindVertexArray(r->line_vao);
-        r->gl.BindBuffer(GL_ARRAY_BUFFER, r->line_vbo);
-        r->gl.BufferData(GL_ARRAY_BUFFER, (GLsizeiptr)(b.n * 6 * sizeof(float)), b.v, GL_STREAM_DRAW);
-        r->gl.DrawArrays(GL_LINES, 0, (int)b.n);
-    }
+    if (!rc)
+        draw_world_lines(r, &b);
     free(b.v);
     return rc ? fn_err_set(FN_ENOMEM, "render: out of memory for the axes overlay") : 0;
 }
@@ -587,14 +594,8 @@ static int draw_contacts(render *r, const pose *poses)
         r->gl.Uniform1f(loc(r, r->prog_line, "alpha"), 1.0f);
     }
     free(tint.v);
-    if (!rc && b.n) {
-        static const float id[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
-        r->gl.UniformMatrix4fv(loc(r, r->prog_line, "model"), 1, GL_FALSE, id);
-        r->gl.BindVertexArray(r->line_vao);
-        r->gl.BindBuffer(GL_ARRAY_BUFFER, r->line_vbo);
-        r->gl.BufferData(GL_ARRAY_BUFFER, (GLsizeiptr)(b.n * 6 * sizeof(float)), b.v, GL_STREAM_DRAW);
-        r->gl.DrawArrays(GL_LINES, 0, (int)b.n);
-    }
+    if (!rc)
+        draw_world_lines(r, &b);
     free(b.v);
     free(pairs);
     if (rc == FN_ENOMEM)
@@ -610,14 +611,8 @@ static int draw_voi(render *r, const render_options *o)
     int rc = 0;
     for (int i = 0; i < o->nvoi && i < RENDER_MAX_FRAGS && !rc; i++)
         rc = box_edges(&b, o->voi[i], o->voi[i] + 3, cyan);
-    if (!rc && b.n) {
-        static const float id[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
-        r->gl.UniformMatrix4fv(loc(r, r->prog_line, "model"), 1, GL_FALSE, id);
-        r->gl.BindVertexArray(r->line_vao);
-        r->gl.BindBuffer(GL_ARRAY_BUFFER, r->line_vbo);
-        r->gl.BufferData(GL_ARRAY_BUFFER, (GLsizeiptr)(b.n * 6 * sizeof(float)), b.v, GL_STREAM_DRAW);
-        r->gl.DrawArrays(GL_LINES, 0, (int)b.n);
-    }
+    if (!rc)
+        draw_world_lines(r, &b);
     free(b.v);
     return rc ? fn_err_set(FN_ENOMEM, "render: out of memory for the VOI overlay") : 0;
 }
