@@ -158,6 +158,7 @@ loop *loop_new(const frag *frags, int n, const uint8_t *fixed, const loop_collid
     sem_init(&L->wake, 0, 0);
     atomic_init(&L->done, 0);
     atomic_init(&L->rt_cpu, -1);
+    atomic_init(&L->running, 0);
     loop__stats_init(L);
     L->at_rest = 1;
     return L;

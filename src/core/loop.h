@@ -306,7 +306,9 @@ typedef struct loop_source {
  * under loop_realtime_priority, the thread moves to the loop's CPU at the next lower SCHED_FIFO
  * priority: a report then wakes the loop on a CPU this thread holds, not on another one, where
  * the loop could wait milliseconds for a task inside the kernel; and this thread never delays a
- * step. */
+ * step. With L, the thread reads nothing before loop_run has started (loop_running): a report
+ * that came earlier waits in the device's buffer instead of in the ring while the loop maps its
+ * pages (milliseconds, which the first report's latency would count). */
 typedef struct loop_reader loop_reader;
 loop_reader *loop_reader_start(loop_source src, ring *r, loop *L, int lockstep);
 /* 1 once the source has ended (all its events are in the ring). */
@@ -317,6 +319,9 @@ const atomic_int *loop_reader_done_flag(loop_reader *rd);
 int loop_reader_stop(loop_reader *rd);
 /* Events the loop has finished (any thread). */
 uint64_t loop_events_done(const loop *L);
+/* 1 while loop_run steps: past its start (stack and code mapped, CPU announced), before its
+ * return (any thread). */
+int loop_running(const loop *L);
 /* Wakes a loop_run waiting for its next tick (any thread). */
 void loop_notify(loop *L);
 

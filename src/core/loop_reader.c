@@ -55,10 +55,19 @@ static void push(loop_reader *rd, loop_event *ev)
         loop_notify(rd->L);
 }
 
+/* Waits until the loop runs (or this thread is stopped): the loop's start maps its pages, and a
+ * report pushed meanwhile would wait for that in the ring. */
+static void await_loop(loop_reader *rd)
+{
+    while (rd->L && !loop_running(rd->L) && !atomic_load(&rd->stop))
+        fnclock_sleep_us(50);
+}
+
 /* Waits up to 10 ms for an event, then takes every event already waiting without waiting. */
 static void *reader_main(void *arg)
 {
     loop_reader *rd = arg;
+    await_loop(rd);
     while (!atomic_load(&rd->stop)) {
         int timeout = 10;
         for (;;) {

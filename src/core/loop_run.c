@@ -67,6 +67,11 @@ static void announce_cpu(loop *L, int on)
     atomic_store(&L->rt_cpu, on ? sched_getcpu() : -1);
 }
 
+int loop_running(const loop *L)
+{
+    return atomic_load(&L->running);
+}
+
 uint64_t loop_events_done(const loop *L)
 {
     return atomic_load_explicit(&L->done, memory_order_acquire);
@@ -176,7 +181,9 @@ int loop_run(loop *L, ring *r, int64_t period_us, const atomic_int *stop)
     prefault_stack();
     dl_iterate_phdr(prefault_object, NULL);
     announce_cpu(L, 1);
+    atomic_store(&L->running, 1);
     int rc = run_until(L, r, period_us, stop);
+    atomic_store(&L->running, 0);
     announce_cpu(L, 0);
     hold_huge_pages(0);
     return rc;
