@@ -670,6 +670,43 @@ static void test_navigate_window_matches_render(void **st)
     free(dir);
 }
 
+/* Whether an overlay shows in the window: DIR/plain.png is rendered with look_without (the
+ * look of DIR/after.png, made by compare_window, without the overlay); of the pixels below the
+ * HUD where the two renders differ (the overlay's own, *drawn), returns how many the screenshot
+ * shows as after.png does rather than as plain.png. The overlay covers under 1% of the picture,
+ * which compare_window's tolerance alone would let pass unseen. */
+static long overlay_shown(const char *dir, const char *case_dir, const char *look_without, long *drawn)
+{
+    char *out = NULL, path[4400];
+    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/plain.png' --mode surface --size 768x768 %s",
+                                case_dir, dir, look_without), 0);
+    free(out);
+    int w[3], h[3];
+    const char *name[3] = {"shot", "after", "plain"};
+    uint8_t *img[3];
+    for (int k = 0; k < 3; k++) {
+        snprintf(path, sizeof path, "%s/%s.png", dir, name[k]);
+        img[k] = read_png(path, &w[k], &h[k]);
+        assert_int_equal(w[k], w[0]);
+        assert_int_equal(h[k], h[0]);
+    }
+    long shown = 0;
+    *drawn = 0;
+    for (int i = WINDOW_HUD_ROWS * w[0]; i < w[0] * h[0]; i++) {
+        int to_after = 0, to_plain = 0, differ = 0;
+        for (int c = 0; c < 3; c++) {
+            differ |= abs(img[1][i * 3 + c] - img[2][i * 3 + c]) > 32;
+            to_after += abs(img[0][i * 3 + c] - img[1][i * 3 + c]);
+            to_plain += abs(img[0][i * 3 + c] - img[2][i * 3 + c]);
+        }
+        *drawn += differ;
+        shown += differ && to_after < to_plain;
+    }
+    for (int k = 0; k < 3; k++)
+        free(img[k]);
+    return shown;
+}
+
 /* Without xdotool: a visible skip, or a failure under CI (where .ci/setup installs it). */
 static void no_xdotool(void)
 {
@@ -728,6 +765,9 @@ static void test_navigate_window_mouse_and_keys(void **st)
                  "pixels", r.differ);
     if (r.moved < 1000)
         fail_msg("the right view differs from the anterior one in only %ld pixels", r.moved);
+    long drawn, shown = overlay_shown(dir, case_dir, "--view right --layout four-up --point 22.5,15.5,15.5", &drawn);
+    if (drawn < 50 || shown < drawn * 9 / 10)
+        fail_msg("after a, the window shows %ld of the axes' %ld pixels", shown, drawn);
     tu_rmtree(dir);
     free(dir);
 }
