@@ -235,22 +235,10 @@ static void test_powell_bad_arguments(void **st)
 
 /* ---- synthetic fractures ---- */
 
-/* A textured ellipsoidal "bone" (semi-axes 36, 21, 18 mm) on a 1 mm grid, solid. */
+/* A textured ellipsoidal "bone" (tu_ellipsoid_ct). */
 static vol *bone(void)
 {
-    vol *v = vol_new(80, 48, 42);
-    const double dir[3][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
-    double sp[3] = {1, 1, 1}, org[3] = {-30, 20, 5};
-    vol_set_geometry(v, dir, sp, org);
-    for (int k = 0; k < 42; k++)
-        for (int j = 0; j < 48; j++)
-            for (int i = 0; i < 80; i++) {
-                double x = (i - 39.5) / 36, y = (j - 23.5) / 21, z = (k - 20.5) / 18;
-                int in = x * x + y * y + z * z <= 1;
-                v->data[vol_idx(v, i, j, k)] = in ? (float)(700 + (i * 7 + j * 13 + k * 3) % 400) : -50;
-            }
-    v->src_type = VOL_I16;
-    return v;
+    return tu_ellipsoid_ct();
 }
 
 static planning_case *fractured_loss(const char *dir, int pieces, uint64_t seed, double loss_mm)

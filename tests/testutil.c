@@ -197,6 +197,24 @@ void tu_box_frag(frag *f, int id, const int dim[3], const double at[3])
         f->centroid[a] = at[a] + (dim[a] - 1) / 2.0;
 }
 
+struct vol *tu_ellipsoid_ct(void)
+{
+    vol *v = vol_new(80, 48, 42);
+    assert_non_null(v);
+    const double dir[3][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
+    double sp[3] = {1, 1, 1}, org[3] = {-30, 20, 5};
+    vol_set_geometry(v, dir, sp, org);
+    for (int k = 0; k < 42; k++)
+        for (int j = 0; j < 48; j++)
+            for (int i = 0; i < 80; i++) {
+                double x = (i - 39.5) / 36, y = (j - 23.5) / 21, z = (k - 20.5) / 18;
+                int in = x * x + y * y + z * z <= 1;
+                v->data[vol_idx(v, i, j, k)] = in ? (float)(700 + (i * 7 + j * 13 + k * 3) % 400) : -50;
+            }
+    v->src_type = VOL_I16;
+    return v;
+}
+
 void tu_two_blocks_case(const char *dir, char *case_dir, size_t cap)
 {
     vol *v = vol_new(40, 32, 32);

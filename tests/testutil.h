@@ -45,4 +45,9 @@ void tu_box_frag(struct frag *f, int id, const int dim[3], const double at[3]);
  * larger, id 1) fixed. */
 void tu_two_blocks_case(const char *dir, char *case_dir, size_t cap);
 
+/* A textured ellipsoidal "bone" CT (semi-axes 36, 21, 18 mm) on a 1 mm grid, solid, int16:
+ * 80x48x42 voxels, for synthetic fractures (fracture_make_case). Free with vol_free. */
+struct vol;
+struct vol *tu_ellipsoid_ct(void);
+
 #endif

@@ -22,7 +22,7 @@
 
 typedef struct opts {
     int seeds, starts, json, verbose;
-    double max_mm, max_deg, band_mm, voi_max_mm;
+    double max_mm, max_deg, band_mm, voi_max_mm, tolerance_mm, settle_mm;
     int fit_starts, coarse, axis_scale;
     int pieces, threshold_auto, touching;
     double threshold, bone_loss_mm, gap_mm;
@@ -291,6 +291,10 @@ static int run_case(const vol *ct, uint64_t seed, const opts *o, config_stats *c
                 ro.band_mm = o->band_mm;
             if (o->voi_max_mm >= 0)
                 ro.voi_max_mm = o->voi_max_mm;
+            if (o->tolerance_mm >= 0)
+                ro.tolerance_mm = o->tolerance_mm;
+            if (o->settle_mm >= 0)
+                ro.settle_mm = o->settle_mm;
             if (o->fit_starts)
                 ro.starts = o->fit_starts;
             if (o->coarse)
@@ -423,6 +427,9 @@ static int usage(FILE *out, int rc)
             "                   /nearest (default: the four methods, trilinear, and powell/nearest)\n"
             "  --band MM        the metric's band (default: reduce's, 1 mm; 0 = the paper's box)\n"
             "  --voi-max MM     the automatic VOI's longest side (default: reduce's, 0 = no limit)\n"
+            "  --tolerance MM   the fit's collision tolerance (default: reduce's, 0.5; 0 = the loop's)\n"
+            "  --settle MM      the result pushed out up to MM to be free at the loop's tolerance 0\n"
+            "                   (default: reduce's, 0.25; 0 = not)\n"
             "  --fit-starts N   starts of each fit's first stage (default: reduce's, 3)\n"
             "  --coarse         the first stage on coarse copies (reduce_opts.coarse; default off)\n"
             "  --axis-scale, --no-axis-scale  the rotation scaled per principal axis, or by one\n"
@@ -450,7 +457,8 @@ static int usage(FILE *out, int rc)
 
 static int parse(int argc, char **argv, opts *o)
 {
-    *o = (opts){.seeds = 4, .starts = 5, .max_mm = 10, .max_deg = 15, .band_mm = -1, .voi_max_mm = -1, .pieces = 2,
+    *o = (opts){.seeds = 4, .starts = 5, .max_mm = 10, .max_deg = 15, .band_mm = -1, .voi_max_mm = -1,
+                .tolerance_mm = -1, .settle_mm = -1, .pieces = 2,
                 .threshold = 300};
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i], *val = i + 1 < argc ? argv[i + 1] : NULL;
@@ -509,6 +517,11 @@ static int parse(int argc, char **argv, opts *o)
             if (!cmd_number(val, &d) || !(d >= 1 && d <= 7 && d == (int)d))
                 return cmd_bad_value("bench reduce", a, val, "a whole number 1..7");
             o->fit_starts = (int)d;
+            i++;
+        } else if (!strcmp(a, "--tolerance") || !strcmp(a, "--settle")) {
+            if (!cmd_number(val, &d) || !(d >= 0 && d <= 10))
+                return cmd_bad_value("bench reduce", a, val, "a number of mm 0..10");
+            *(a[2] == 't' ? &o->tolerance_mm : &o->settle_mm) = d;
             i++;
         } else if (!strcmp(a, "--voi-max")) {
             if (!cmd_number(val, &d) || !(d >= 0 && d <= 1000))

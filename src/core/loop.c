@@ -16,7 +16,7 @@
 
 /* How an accepted pose was checked: not at all (checking off), found free, or found still
  * interpenetrating but no deeper than before (pulled out after checking came back on). */
-enum { LOOP_UNCHECKED, LOOP_CHECKED, LOOP_ESCAPING };
+enum { LOOP_UNCHECKED, LOOP_CHECKED, LOOP_ESCAPING, LOOP_TOLERATED };
 static void accept_pose(loop *L, int s, pose p, int64_t t_us, uint32_t kind, int checked);
 static void undo_push(loop *L, int s);
 
@@ -466,6 +466,8 @@ static void accept_pose(loop *L, int s, pose p, int64_t t_us, uint32_t kind, int
         L->st.unchecked++;
     else if (checked == LOOP_ESCAPING)
         L->st.escaping++;
+    else if (checked == LOOP_TOLERATED)
+        L->st.tolerated++;
     else if (L->cfg.check_invariant)
         L->verify = 1;
 }
@@ -577,7 +579,7 @@ static int settle(loop *L)
 }
 
 /* A proposed pose for fragment i: one undo step of its own, taken whole or refused. */
-static int propose(loop *L, int i, const pose *p)
+static int propose(loop *L, int i, const pose *p, double tolerance_mm)
 {
     int out = LOOP_REFUSED;
     if (i >= 0 && i < L->n && !L->fixed[i]) {
@@ -585,9 +587,12 @@ static int propose(loop *L, int i, const pose *p)
         int rc = L->collision_on ? collide_all(L, i, p, 0, &sep) : 0;
         if (rc < 0)
             return rc;
-        if (rc == 0) {
+        if (rc == 0 || tolerance_mm > 0) {
+            /* inside within the proposer's tolerance: the next move of the fragment finds it
+             * interpenetrating and may not deepen it (escape) */
+            int how = !L->collision_on ? LOOP_UNCHECKED : rc ? LOOP_TOLERATED : LOOP_CHECKED;
             gesture_end(L);
-            accept_pose(L, i, *p, L->last_t, JOURNAL_MOVE, L->collision_on ? LOOP_CHECKED : LOOP_UNCHECKED);
+            accept_pose(L, i, *p, L->last_t, JOURNAL_MOVE, how);
             gesture_end(L);
             L->gap_valid = L->in_collision = 0; /* the selected one's contact may have changed */
             out = LOOP_ACCEPTED;
@@ -630,7 +635,7 @@ int loop_feed(loop *L, const loop_event *ev)
         journal_saved(L);
         break;
     case LOOP_EV_POSE:
-        out = propose(L, ev->frag, &ev->pose);
+        out = propose(L, ev->frag, &ev->pose, ev->tolerance_mm);
         break;
     case LOOP_EV_UNPLUG:
     case LOOP_EV_REPLUG:

@@ -44,7 +44,11 @@
  *
  * A pose proposal (LOOP_EV_POSE, e.g. from the reduction worker through the control ring) moves
  * one movable fragment to a given pose as one step of its own: with checking on it is queried
- * there and refused when it collides (or the fragment is fixed, or out of range); accepted, it is
+ * there and refused when it collides (or the fragment is fixed, or out of range), unless its
+ * proposer checked it at a tolerance of its own (tolerance_mm > 0: the reduction's fit, whose
+ * voxel surfaces interlock at the loop's tolerance 0, so that a fit within tenths of a millimetre
+ * of the truth touches inside by a fraction of a voxel): such a pose is accepted as a plan loaded
+ * that way, counted in `tolerated`, and the moves after it may not deepen it; accepted, it is
  * journaled (JOURNAL_START) and one undo step, apart from the gestures before and after it. Its
  * result is in the scene (proposals, proposal_result); it is not a motion step (not in steps).
  *
@@ -101,6 +105,8 @@ typedef struct loop_event {
     float motion[6];    /* LOOP_EV_MOTION: calibrated, -1..1: tx ty tz rx ry rz, device axes */
     int32_t frag;       /* LOOP_EV_POSE: the fragment (0-based) proposed to move to pose */
     pose pose;          /* LOOP_EV_POSE: home world -> current world */
+    double tolerance_mm; /* LOOP_EV_POSE: > 0: the proposer found the pose free at this collision
+                          * tolerance (the loop's is 0); 0: the loop's query decides */
 } loop_event;
 
 /* Result of one pair query. */
@@ -143,6 +149,8 @@ typedef struct loop_stats {
     uint64_t unchecked;              /* poses accepted while collision checking was off */
     uint64_t escaping;               /* poses accepted while still interpenetrating after checking
                                       * came back on, each no deeper than the one before */
+    uint64_t tolerated;              /* proposals accepted inside another fragment, within the
+                                      * tolerance their proposer checked (a fit) */
     uint64_t queries;                /* pair queries (the invariant check's not counted) */
     double query_us_mean, query_us_max;
     double step_hz;                  /* steps per second of wall time, since the last reset */

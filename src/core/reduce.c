@@ -58,6 +58,7 @@ void reduce_defaults(reduce_opts *o)
     o->tau_min = CASE_TAU_MIN;
     o->tau_max = CASE_TAU_MAX;
     o->tolerance_mm = 0.5;
+    o->settle_mm = 0.25;
     o->xtol_mm = 0.01;
     o->max_eval = 4000;
     o->voi_max_mm = 0;
@@ -684,7 +685,7 @@ static int run_optimizer(fit *F, int *iterations)
 /* Pushes a colliding pose out by the smallest step (PUSH_STEP_MM up to PUSH_MAX_MM) along the
  * contact normal (from the assembly's bone in the VOI to the moving centroid) or a world axis.
  * 1 when *p is (now) free, 0 when no push frees it (*p unchanged), <0 on error. */
-static int push_out(const pair_ctx *pc, const reduce_metric *m, pose *p, double *pushed)
+static int push_out(const pair_ctx *pc, const reduce_metric *m, double max_mm, pose *p, double *pushed)
 {
     int c = collides(pc, p, NULL);
     if (c <= 0)
@@ -701,7 +702,7 @@ static int push_out(const pair_ctx *pc, const reduce_metric *m, pose *p, double 
         dir[1 + 2 * a][a] = 1;
         dir[2 + 2 * a][a] = -1;
     }
-    for (double s = PUSH_STEP_MM; s <= PUSH_MAX_MM + 1e-9; s += PUSH_STEP_MM)
+    for (double s = PUSH_STEP_MM; s <= max_mm + 1e-9; s += PUSH_STEP_MM)
         for (int d = len > 0 ? 0 : 1; d < 7; d++) {
             pose t = *p;
             for (int a = 0; a < 3; a++)
@@ -717,10 +718,19 @@ static int push_out(const pair_ctx *pc, const reduce_metric *m, pose *p, double 
     return 0;
 }
 
-/* A result that collides is pushed out; failing that, the start (where the hand left it) stays. */
-static int resolve_collision(const pair_ctx *pc, const reduce_metric *m, reduce_result *r)
+/* A result that collides is pushed out; failing that, the start (where the hand left it) stays.
+ * A free one is then settled: pushed out up to settle_mm more until it is free at tolerance 0
+ * (the loop's), and left where it is when that is not enough. */
+static int resolve_collision(const pair_ctx *pc, const reduce_metric *m, double settle_mm, reduce_result *r)
 {
-    int c = push_out(pc, m, &r->end, &r->push_mm);
+    int c = push_out(pc, m, PUSH_MAX_MM, &r->end, &r->push_mm);
+    if (c > 0 && settle_mm > 0 && pc->q.tolerance_mm > 0) {
+        pair_ctx exact = *pc;
+        exact.q.tolerance_mm = 0;
+        exact.cache = NULL;
+        c = push_out(&exact, m, settle_mm, &r->end, &r->push_mm);
+        return c < 0 ? c : 0;
+    }
     if (c != 0)
         return c < 0 ? c : 0;
     if ((c = collides(pc, &r->start, NULL)) < 0)
@@ -1057,7 +1067,7 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
         rc = 1; /* the placed pose stays */
     if (rc == 0) {
         r->end = r->fitted = moving->pose;
-        rc = resolve_collision(&pc, m, r);
+        rc = resolve_collision(&pc, m, o->settle_mm, r);
     }
     if (rc == 0) {
         moving->pose = r->end;

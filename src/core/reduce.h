@@ -109,7 +109,12 @@ typedef struct reduce_opts {
     reduce_voi voi;
     double tau_min, tau_max; /* the hierarchy's thresholds (the case's) */
     double tolerance_mm; /* collision tolerance of the final check (obb.h); at most 0.45 times the
-                          * smallest voxel spacing is used */
+                          * smallest voxel spacing is used. At 0 a fit near the truth of a rough
+                          * fracture interlocks its voxels with the other side's and is pushed off
+                          * by millimetres (bench reduce --tolerance 0: skull 0.95 -> 0.00, 2.9 mm) */
+    double settle_mm;    /* then the result is pushed out up to this far to be free at tolerance
+                          * 0 (the loop's: navigate then finds it touching, not inside), and
+                          * left where it is when that is not enough (0: not tried) */
     double xtol_mm;      /* convergence: a step that moves the surface less than this (5 times
                           * that in the first of two stages) */
     int max_eval;        /* evaluations per fragment (every stage and attempt together) */
@@ -190,7 +195,8 @@ void reduce_result_free(reduce_result *r);
  * then 12 degrees about all three; the result of best metric (collisions costed) over the union of
  * the attempts' VOIs wins. A long piece then hops (o->hops), another one where its first stage
  * found a rival basin. A result that still collides beyond the tolerance is pushed out along
- * the contact normal (up to 5 mm), else the start is kept. Sets moving->pose = r->end.
+ * the contact normal (up to 5 mm), else the start is kept; a free one is settled (o->settle_mm).
+ * Sets moving->pose = r->end.
  * 0, 1 when o->cancel was set (then moving->pose = r->end = the placed pose), or FN_E*. */
 int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_opts *o, reduce_result *r);
 

@@ -241,6 +241,8 @@ static int check_penetration(session *s)
     loop_scene sc;
     loop_scene_read(s->L, &sc);
     const char *why = sc.stats.unchecked ? "moved while collision checking was off"
+                      : sc.stats.tolerated ? "the fit leaves overlap up to reduce's tolerance (0.5 mm, at most "
+                                             "0.45 voxel), where voxel surfaces interlock"
                       : json_object_get(c->extra, "reduction")
                           ? "as the case was loaded: fracnav reduce leaves overlap up to its tolerance_mm"
                           : "as the case was loaded";

@@ -51,7 +51,10 @@ static void *fit_thread(void *arg)
     reduce_defaults(&o);
     o.tau_min = s->tau[0];
     o.tau_max = s->tau[1];
-    o.tolerance_mm = 0; /* the loop's own query (session.c: tolerance 0), so its pose is accepted */
+    /* reduce's tolerance (0.5 mm, at most 0.45 voxel): at the loop's 0 the voxel surfaces of a
+     * fit near the truth interlock, and the result would be pushed off it by millimetres (the
+     * skull: 3.4 mm); the loop takes the result within it (session__propose) */
+    s->fit_tolerance_mm = o.tolerance_mm;
     o.gap_mm = s->fit_gap_mm;
     o.progress = on_progress;
     o.progress_ctx = s;

@@ -62,6 +62,7 @@ struct session {
     frag fit_frags[LOOP_MAX_FRAGS];
     char fit_why[256];     /* a failed fit's message (under fit_mu) */
     pose fit_out;          /* the finished fit's pose (under fit_mu) */
+    double fit_tolerance_mm; /* the collision tolerance the fit checked it at */
 };
 
 /* Frees everything session_open built (no thread may run). */
@@ -73,6 +74,8 @@ void session__fit_start(session *s, session_event *ev);
 /* A fit that finished since the last call: fills ev (SESSION_EV_FIT) and *fitted (its pose, to
  * propose when ev->result is 0) and returns 1; else 0. */
 int session__fit_finished(session *s, session_event *ev, pose *fitted);
+/* session_propose_pose with the tolerance its proposer checked the pose at (loop_event). */
+int session__propose(session *s, int fragment, const pose *p, double tolerance_mm, uint64_t *id);
 /* Cancels a running fit and joins the worker. Owner's thread. */
 void session__fit_join(session *s);
 

@@ -129,6 +129,11 @@ loop_action session_key_action(int ch)
 
 int session_propose_pose(session *s, int fragment, const pose *p, uint64_t *id)
 {
+    return session__propose(s, fragment, p, 0, id);
+}
+
+int session__propose(session *s, int fragment, const pose *p, double tolerance_mm, uint64_t *id)
+{
     if (fragment < 0 || fragment >= s->nfrag)
         return fn_err_set(FN_EINVAL, "fragment %d: the session has %d (0..%d)", fragment, s->nfrag,
                           s->nfrag - 1);
@@ -136,6 +141,7 @@ int session_propose_pose(session *s, int fragment, const pose *p, uint64_t *id)
     ev.kind = LOOP_EV_POSE;
     ev.frag = fragment;
     ev.pose = *p;
+    ev.tolerance_mm = tolerance_mm;
     pthread_mutex_lock(&s->push_mu);
     int rc = 0;
     if (s->proposed - atomic_load(&s->seen_proposals) >= PROPOSALS_AHEAD)
@@ -216,7 +222,8 @@ static int derive(session *s, session_event *ev)
         s->seen_fits = sc->fit_requests;
         session__fit_start(s, ev);
     } else if (session__fit_finished(s, ev, &fitted)) {
-        if (ev->result == 0 && session_propose_pose(s, ev->fit.frag, &fitted, NULL) < 0) {
+        /* the fit checked its result at reduce's tolerance: the loop takes it within that */
+        if (ev->result == 0 && session__propose(s, ev->fit.frag, &fitted, s->fit_tolerance_mm, NULL) < 0) {
             ev->result = FN_EAGAIN;
             snprintf(ev->text, sizeof ev->text, "fit of frag %d not applied: %.1000s",
                      ev->fit.frag + 1, fn_err_msg());
