@@ -15,6 +15,7 @@
 #include "reduce.h"
 #include "vol.h"
 #include "journal.h"
+#include "navview.h"
 #include "script.h"
 #include "session.h"
 #include "sim_replay.h"
@@ -631,6 +632,20 @@ static void test_fit_lands_on_a_rough_fracture(void **st)
     c->frag[1].pose = e->scene.pose[1];
     loop_stats ls = e->scene.stats; /* the loop's own stats belong to its thread while it runs */
     stop_quiet(s);
+    assert_int_equal(session_save(s), 0);
+    session_close(s);
+    /* saved where the fit left it, it opens inside by no more than the fit's tolerance: said so,
+     * not warned of (case.json: "penetrating" within_fit_tolerance) */
+    s = session_open(fdir, &prm);
+    assert_non_null(s);
+    loop_scene sc = {0};
+    session_scene_read(s, &sc);
+    char line[2048];
+    navview_format(&sc, NULL, 0, line, sizeof line);
+    print_message("reopened: %s\n", line);
+    assert_int_equal(sc.penetrating, 1); /* this fracture's voxels interlock where the fit ends */
+    if (!sc.tolerated || strstr(line, "PENETRATING") || !strstr(line, "within the fit's tolerance"))
+        fail_msg("reopened where the fit left it, the view says: %s", line);
     session_close(s);
     double rot, trans, tre;
     assert_int_equal(reduce_truth_errors(c, 0, 1, &rot, &trans, &tre), 0);

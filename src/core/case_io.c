@@ -524,6 +524,8 @@ static void warn_penetrating(const struct reader *r, json_t *root)
     size_t i;
     json_array_foreach(pen, i, e) {
         json_t *ids = json_object_get(e, "fragments");
+        if (json_is_true(json_object_get(e, "within_fit_tolerance")))
+            continue; /* where a fit left them: not a plan to warn of */
         fprintf(stderr, "fracnav: warning: %s: the saved poses put fragments %lld and %lld inside "
                         "each other (%.3f ml)\n", r->file,
                 (long long)json_integer_value(json_array_get(ids, 0)),

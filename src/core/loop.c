@@ -457,6 +457,8 @@ static void accept_pose(loop *L, int s, pose p, int64_t t_us, uint32_t kind, int
     L->pose[s] = p;
     L->gap_fresh = 0;
     L->verify_frag = s;
+    if (checked != LOOP_ESCAPING) /* escaping goes no deeper: a tolerated overlap stays one */
+        L->tolerated[s] = checked == LOOP_TOLERATED;
     if (checked != LOOP_CHECKED)
         L->gap_valid = 0;
     loop__stats_pose(L, s, &p);
@@ -738,6 +740,7 @@ static int undo_redo(loop *L, int redo)
         return LOOP_ACCEPTED;
     }
     loop_undo back = {u.frag, L->pose[u.frag], 0};
+    L->tolerated[u.frag] = 0; /* the pose it goes back to may be inside for another reason */
     int rc = restore(L, &u, redo ? JOURNAL_REDO : JOURNAL_UNDO);
     verify(L);
     if (rc <= 0)
@@ -851,7 +854,14 @@ void loop_set_pose(loop *L, int i, pose p)
     if (i >= 0 && i < L->n) {
         L->pose[i] = p;
         L->gap_valid = L->in_collision = 0;
+        L->tolerated[i] = 0;
     }
+}
+
+void loop_tolerate(loop *L, int i)
+{
+    if (i >= 0 && i < L->n)
+        L->tolerated[i] = 1;
 }
 
 pose loop_pose(const loop *L, int i)

@@ -170,6 +170,8 @@ typedef struct loop_scene {
     int nfrag, selected;
     int collision_on; /* 0: checking is off -- show a warning */
     int penetrating;  /* checking is on but the selected fragment is inside another: warn */
+    int tolerated;    /* ... unless this is 1: it is inside by no more than a fit's tolerance (a
+                       * fit put it there, or the plan was loaded so: loop_tolerate) */
     int trans_only, rot_only, device_present;
     unsigned save_requests; /* LOOP_ACT_SAVE presses so far: the application saves when it grows */
     unsigned fit_requests;  /* LOOP_ACT_FIT presses so far: the application fits when it grows */
@@ -192,6 +194,8 @@ typedef struct loop_scene {
     loop_stats stats;
     pose pose[LOOP_MAX_FRAGS];
     uint8_t fixed[LOOP_MAX_FRAGS];
+    uint8_t tolerated_frag[LOOP_MAX_FRAGS]; /* per fragment: marked as `tolerated` says (whether
+                                             * inside or not) */
 } loop_scene;
 
 typedef struct loop loop;
@@ -257,6 +261,11 @@ void loop_set_saved(loop *L, const pose *saved);
 int loop_measure(loop *L);
 /* Moves a fragment without collision checking (recovery, loading): no journal, no stats. */
 void loop_set_pose(loop *L, int i, pose p);
+/* Marks fragment i, as loaded, as inside another by no more than a fit's tolerance (a plan that
+ * fracnav reduce left so): the scene says `tolerated` rather than warn while it stays there. Its
+ * next move found free, unchecked, or an undo or redo of it, clears the mark. Before the loop
+ * runs. */
+void loop_tolerate(loop *L, int i);
 
 pose loop_pose(const loop *L, int i);
 int loop_selected(const loop *L);

@@ -80,6 +80,7 @@ struct loop {
     atomic_int rt_cpu;   /* the CPU loop_run runs on under SCHED_FIFO (-1: not), for the reader */
     int rt_prio;         /* its priority, written before rt_cpu */
     atomic_int running;  /* loop_run is past its start (pages mapped): the reader may read */
+    uint8_t tolerated[LOOP_MAX_FRAGS]; /* inside another within a fit's tolerance (loop_tolerate) */
     atomic_ullong done; /* events finished, for other threads */
     loop_clock clock;   /* loop_set_clock; wait_until NULL: loop_run waits for loop_notify */
     uint64_t proposals; /* LOOP_EV_POSE handled, and their latest results */

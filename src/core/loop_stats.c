@@ -171,6 +171,8 @@ void loop_publish(loop *L)
     s->frame = L->cfg.frame;
     s->last_outcome = L->last_outcome;
     s->penetrating = L->collision_on && L->in_collision;
+    s->tolerated = s->penetrating && L->tolerated[L->selected];
+    memcpy(s->tolerated_frag, L->tolerated, (size_t)L->n);
     s->separation_mm = !L->collision_on ? NAN : L->in_collision ? L->pen : L->gap_valid ? L->gap : NAN;
     s->actions = L->actions;
     s->last_action = (loop_action)L->last_action;

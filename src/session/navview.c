@@ -46,7 +46,7 @@ double navview_rotation(const pose *p, double axis[3])
 static void warnings(const loop_scene *s, const navview_extra *x, fields *f)
 {
     const char *w[] = {s->collision_on ? NULL : "COLLISION CHECKING OFF",
-                       s->penetrating ? "PENETRATING" : NULL,
+                       s->penetrating && !s->tolerated ? "PENETRATING" : NULL,
                        s->device_present ? NULL : "DEVICE UNPLUGGED",
                        s->stats.journal_errors ? "JOURNAL WRITE FAILED" : NULL};
     char line[FIELD_MAX] = "";
@@ -67,6 +67,8 @@ static void contact(const loop_scene *s, fields *f)
     double g = s->separation_mm;
     if (!s->collision_on)
         add(f, 0, "contact not checked");
+    else if (s->penetrating && s->tolerated)
+        add(f, 0, "fitted: inside by ~%.2f mm, within the fit's tolerance", g < 0 ? -g : 0);
     else if (s->penetrating)
         add(f, 0, "inside another fragment by ~%.2f mm", g < 0 ? -g : 0);
     else if (isnan(g))

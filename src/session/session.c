@@ -6,6 +6,7 @@
 #include "obb.h"
 
 #include <errno.h>
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
@@ -81,6 +82,38 @@ static session *alloc_session(void)
     return s;
 }
 
+/* The fragments that stand where a fit left them are inside the others by no more than its
+ * tolerance: the loop says so rather than warn. They are those at fracnav reduce's end pose (its
+ * record, not moved since by the journal), and, when the journal moved nothing, the pairs a
+ * session saved as overlapping within a fit's tolerance ("penetrating", within_fit_tolerance). */
+static void tolerate_reduced(session *s)
+{
+    json_t *pen = json_object_get(s->c->extra, "penetrating"), *e;
+    size_t n;
+    json_array_foreach(pen, n, e) {
+        if (s->resumed || !json_is_true(json_object_get(e, "within_fit_tolerance")))
+            continue;
+        for (size_t a = 0; a < 2; a++)
+            loop_tolerate(s->L, case_find(s->c, (int)json_integer_value(json_array_get(json_object_get(e, "fragments"), a))));
+    }
+    json_t *frs = json_object_get(json_object_get(s->c->extra, "reduction"), "fragments"), *fr;
+    size_t k;
+    json_array_foreach(frs, k, fr) {
+        int i = case_find(s->c, (int)json_integer_value(json_object_get(fr, "id")));
+        json_t *q = json_object_get(json_object_get(fr, "end"), "q"), *t = json_object_get(json_object_get(fr, "end"), "t");
+        if (i < 0 || json_array_size(q) != 4 || json_array_size(t) != 3)
+            continue;
+        pose now = loop_pose(s->L, i);
+        double d = 0;
+        for (int a = 0; a < 4; a++)
+            d = fmax(d, fabs(json_number_value(json_array_get(q, (size_t)a)) - now.q[a]));
+        for (int a = 0; a < 3; a++)
+            d = fmax(d, fabs(json_number_value(json_array_get(t, (size_t)a)) - now.t[a]));
+        if (d < 1e-9)
+            loop_tolerate(s->L, i);
+    }
+}
+
 /* Everything after the case is loaded; s->c set. */
 static int open_case(session *s, const session_params *p)
 {
@@ -121,6 +154,8 @@ static int open_case(session *s, const session_params *p)
             fn_err_wrap(rc, "%s/journal", s->dir);
     }
     free(recs);
+    if (rc == 0)
+        tolerate_reduced(s);
     return rc == 0 ? loop_measure(s->L) : rc;
 }
 
@@ -240,12 +275,7 @@ static int check_penetration(session *s)
     /* Why they overlap: the loop refuses every move into another fragment while it checks. */
     loop_scene sc;
     loop_scene_read(s->L, &sc);
-    const char *why = sc.stats.unchecked ? "moved while collision checking was off"
-                      : sc.stats.tolerated ? "the fit leaves overlap up to reduce's tolerance (0.5 mm, at most "
-                                             "0.45 voxel), where voxel surfaces interlock"
-                      : json_object_get(c->extra, "reduction")
-                          ? "as the case was loaded: fracnav reduce leaves overlap up to its tolerance_mm"
-                          : "as the case was loaded";
+    const char *why = sc.stats.unchecked ? "moved while collision checking was off" : "as the case was loaded";
     json_t *list = json_array();
     int rc = 0;
     for (int a = 0; rc == 0 && a < c->nfrag; a++)
@@ -256,11 +286,19 @@ static int check_penetration(session *s)
             if (rc < 0 || !ct.collides)
                 continue;
             rc = col.overlap(col.ctx, a, &c->frag[a].pose, b, &c->frag[b].pose, &mm3);
-            json_array_append_new(list, json_pack("{s:[i,i],s:f}", "fragments", c->frag[a].id,
-                                                  c->frag[b].id, "overlap_ml", mm3 / 1000));
-            fprintf(stderr, "\nWARNING: saving a penetrating plan: fragments %d and %d overlap by "
-                            "%.3f ml (%s)\n",
-                    c->frag[a].id, c->frag[b].id, mm3 / 1000, why);
+            /* a fit (reduce, or the fit action) left one of them there: inside by no more than
+             * its tolerance, where the voxel surfaces of the two sides interlock */
+            int fitted = sc.tolerated_frag[a] || sc.tolerated_frag[b];
+            json_array_append_new(list, json_pack("{s:[i,i],s:f,s:b}", "fragments", c->frag[a].id, c->frag[b].id,
+                                                  "overlap_ml", mm3 / 1000, "within_fit_tolerance", fitted));
+            if (fitted)
+                fprintf(stderr, "\nnote: fragments %d and %d overlap by %.3f ml where a fit left them: "
+                                "within its tolerance (0.5 mm, at most 0.45 voxel)\n",
+                        c->frag[a].id, c->frag[b].id, mm3 / 1000);
+            else
+                fprintf(stderr, "\nWARNING: saving a penetrating plan: fragments %d and %d overlap by "
+                                "%.3f ml (%s)\n",
+                        c->frag[a].id, c->frag[b].id, mm3 / 1000, why);
         }
     json_decref(s->penetrating);
     s->penetrating = list;
