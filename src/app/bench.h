@@ -23,6 +23,9 @@ double bench_now_us(void);
 double bench_cpu_us(void);
 /* Peak resident set size of this process in KiB (0 when unknown). */
 long bench_peak_rss_kib(void);
+/* CT_pitch ships in the repository's tests/data/: under $FRACNAV_SRC when set, else in the source
+ * tree this binary was built from; its path into path. */
+void bench_pitch_path(char *path, size_t cap);
 
 /* The FCL peer (src/bench_fcl.cpp, built when libfcl-dev is found: FRACNAV_HAVE_FCL). A geometry
  * holds one fragment's voxels whose effective probability (obb_effective_prob) is non-zero:

@@ -151,14 +151,6 @@ static int work_from_case(work *w, const char *dir)
     return rc;
 }
 
-/* CT_pitch ships in the repository's tests/data/: under $FRACNAV_SRC when set, else in the source
- * tree this binary was built from. */
-static void pitch_path(char *path, size_t cap)
-{
-    const char *src = getenv("FRACNAV_SRC");
-    snprintf(path, cap, "%s/tests/data/CT_pitch.nii.gz", src && *src ? src : FRACNAV_SOURCE_DIR);
-}
-
 static int work_load(work *w, const char *name, const opts *o)
 {
     char path[4200];
@@ -168,7 +160,7 @@ static int work_load(work *w, const char *name, const opts *o)
     if (!strcmp(name, "skull"))
         return work_from_file(w, cmd_example_ct(), 300, 200);
     if (!strcmp(name, "pitch")) {
-        pitch_path(path, sizeof path);
+        bench_pitch_path(path, sizeof path);
         if (access(path, R_OK) != 0)
             return fn_err_set(FN_EIO, "workload pitch: %s: %s (it ships in the repository's tests/data/: "
                               "set FRACNAV_SRC to the repository's root)", path, strerror(errno));

@@ -3,6 +3,8 @@
 
 #include "fnclock.h"
 
+#include <stdio.h>
+#include <stdlib.h>
 #include <sys/resource.h>
 
 double bench_now_us(void)
@@ -19,4 +21,10 @@ long bench_peak_rss_kib(void)
 {
     struct rusage ru;
     return getrusage(RUSAGE_SELF, &ru) == 0 ? ru.ru_maxrss : 0;
+}
+
+void bench_pitch_path(char *path, size_t cap)
+{
+    const char *src = getenv("FRACNAV_SRC");
+    snprintf(path, cap, "%s/tests/data/CT_pitch.nii.gz", src && *src ? src : FRACNAV_SOURCE_DIR);
 }

@@ -24,7 +24,7 @@ typedef struct opts {
     int seeds, starts, json, verbose;
     double max_mm, max_deg, band_mm, voi_max_mm, tolerance_mm, settle_mm;
     int fit_starts, coarse, axis_scale;
-    int pieces, threshold_auto, touching;
+    int pieces, threshold_auto, touching, suite;
     double threshold, bone_loss_mm, gap_mm;
     int nconf;
     reduce_method method[MAX_CONFIGS];
@@ -444,7 +444,13 @@ static int usage(FILE *out, int rc)
             "  --threshold HU|auto|auto-bone  the fracture's bone threshold (default 300; for a\n"
             "                   CT not in HU, as tests/data/CT_pitch.nii.gz: auto-bone)\n"
             "  --ct FILE        the CT to fracture (default: the example CT); long-bone: a bowed\n"
-            "                   shaft with a cortex and a medullary canal, made in memory\n"
+            "                   shaft with a cortex and a medullary canal, made in memory; pitch:\n"
+            "                   tests/data/CT_pitch.nii.gz (under $FRACNAV_SRC, else the source tree)\n"
+            "  --suite          every workload of the README's table in one run (the skull; 3\n"
+            "                   pieces; touching; 1 mm lost with --gap 1; CT_pitch; the long bone),\n"
+            "                   with the default method unless --method says; JSON: workloads (one\n"
+            "                   object each, as without --suite, with its name) and pooled (per\n"
+            "                   method, over every run)\n"
             "  --verbose        one line per run on stderr\n"
             "  --verbose-truth  that, and the same fit started at the true pose (where the\n"
             "                   metric's own basin ends; for the analysis of failures)\n"
@@ -455,11 +461,9 @@ static int usage(FILE *out, int rc)
     return rc;
 }
 
-static int parse(int argc, char **argv, opts *o)
+/* The options from argv[1] on, over what *o holds. */
+static int parse_more(int argc, char **argv, opts *o)
 {
-    *o = (opts){.seeds = 4, .starts = 5, .max_mm = 10, .max_deg = 15, .band_mm = -1, .voi_max_mm = -1,
-                .tolerance_mm = -1, .settle_mm = -1, .pieces = 2,
-                .threshold = 300};
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i], *val = i + 1 < argc ? argv[i + 1] : NULL;
         double d;
@@ -471,6 +475,8 @@ static int parse(int argc, char **argv, opts *o)
             o->verbose = 2;
         else if (!strcmp(a, "--coarse"))
             o->coarse = 1;
+        else if (!strcmp(a, "--suite"))
+            o->suite = 1;
         else if (!strcmp(a, "--axis-scale") || !strcmp(a, "--no-axis-scale"))
             o->axis_scale = a[2] == 'a' ? 1 : -1;
         else if (!strcmp(a, "--seeds") || !strcmp(a, "--starts")) {
@@ -549,6 +555,22 @@ static int parse(int argc, char **argv, opts *o)
         } else
             return cmd_usage_error("bench reduce", "unknown option '%s'", a);
     }
+    return 0;
+}
+
+static int parse(int argc, char **argv, opts *o)
+{
+    *o = (opts){.seeds = 4, .starts = 5, .max_mm = 10, .max_deg = 15, .band_mm = -1, .voi_max_mm = -1,
+                .tolerance_mm = -1, .settle_mm = -1, .pieces = 2, .threshold = 300};
+    int rc = parse_more(argc, argv, o);
+    if (rc)
+        return rc;
+    if (!o->nconf && o->suite) { /* the suite: the default method alone, unless --method says */
+        reduce_opts def;
+        reduce_defaults(&def);
+        o->method[0] = def.method;
+        o->count[o->nconf++] = def.count;
+    }
     if (!o->nconf) {
         for (int m = 0; m < REDUCE_METHODS; m++) {
             o->method[o->nconf] = (reduce_method)m;
@@ -560,20 +582,36 @@ static int parse(int argc, char **argv, opts *o)
     return 0;
 }
 
-int bench_reduce(int argc, char **argv)
+/* Appends a workload's runs to the pool's (per configuration). */
+static int pool_add(config_stats *pool, const config_stats *cs, int nconf)
 {
-    if (cmd_wants_help(argc, argv))
-        return usage(stdout, 0);
-    opts o;
-    int rc = parse(argc, argv, &o);
-    if (rc)
-        return rc;
+    for (int k = 0; k < nconf; k++) {
+        sample *s = realloc(pool[k].s, (size_t)(pool[k].n + cs[k].n + 1) * sizeof *s);
+        if (!s)
+            return fn_err_set(FN_ENOMEM, "out of memory");
+        memcpy(s + pool[k].n, cs[k].s, (size_t)cs[k].n * sizeof *s);
+        pool[k].s = s;
+        pool[k].n += cs[k].n;
+        pool[k].eval_us = pool[k].eval_us > 0 ? pool[k].eval_us : cs[k].eval_us;
+    }
+    return 0;
+}
+
+/* One workload (o's CT, pieces, loss, ...): its JSON object, the runs also added to pool (may be
+ * NULL). NULL with fn_err on failure. */
+static json_t *run_workload(const opts *op, config_stats *pool)
+{
+    opts o = *op;
+    char pitch[4200];
+    if (o.ct && !strcmp(o.ct, "pitch")) {
+        bench_pitch_path(pitch, sizeof pitch);
+        o.ct = pitch;
+    }
     const char *path = o.ct ? o.ct : cmd_example_ct();
     vol *ct = o.ct && !strcmp(o.ct, "long-bone") ? long_bone() : volio_read(path);
-    if (!ct) {
-        fprintf(stderr, "fracnav bench reduce: %s\n", fn_err_msg());
-        return 1;
-    }
+    if (!ct)
+        return NULL;
+    int rc = 0;
     config_stats cs[MAX_CONFIGS] = {0};
     cs[0].separate_dice = 1;
     for (int k = 0; k < o.nconf; k++)
@@ -586,8 +624,12 @@ int bench_reduce(int argc, char **argv)
             fn_err_wrap(rc, "seed %d", s + 1);
     }
     vol_free(ct);
+    if (rc == 0 && pool)
+        rc = pool_add(pool, cs, o.nconf);
+    json_t *root = NULL;
     if (rc == 0) {
-        json_t *root = jsonw_object("bench reduce"), *rows = json_array();
+        json_t *rows = json_array();
+        root = jsonw_object("bench reduce");
         for (int k = 0; k < o.nconf; k++)
             json_array_append_new(rows, config_json(&o, k, &cs[k]));
         jsonw_set(root, "ct", jsonw_string(path));
@@ -605,21 +647,89 @@ int bench_reduce(int argc, char **argv)
         reduce_defaults(&def);
         jsonw_set(root, "default_method", jsonw_string(reduce_method_name(def.method)));
         jsonw_set(root, "methods", rows);
-        if (o.json)
-            rc = jsonw_print(root, stdout);
-        else {
-            char *text = jsonw_dumps(root);
-            if (text)
-                fputs(text, stdout);
-            free(text);
-            json_decref(root);
-        }
     }
     for (int k = 0; k < o.nconf; k++)
         free(cs[k].s);
-    if (rc < 0) {
+    return root;
+}
+
+/* --suite: the workloads of the README's table, one after another, each with the options given
+ * (seeds, starts, methods: by default the default method alone), and every run pooled. */
+static const struct {
+    const char *name;
+    char *args[6]; /* string literals, which parse_more only reads */
+} SUITE[] = {
+    {"skull", {NULL}},
+    {"skull, 3 pieces", {"--pieces", "3", NULL}},
+    {"skull, pieces left touching, separated first", {"--touching", NULL}},
+    {"skull, 1 mm of bone lost, the fit told (--gap 1)", {"--bone-loss", "1", "--gap", "1", NULL}},
+    {"CT_pitch (8-bit, 2.4 mm slices)", {"--ct", "pitch", "--threshold", "auto-bone", NULL}},
+    {"long bone made in memory", {"--ct", "long-bone", NULL}},
+};
+
+static json_t *run_suite(const opts *o)
+{
+    config_stats pool[MAX_CONFIGS] = {0};
+    json_t *root = jsonw_object("bench reduce"), *list = json_array();
+    int ok = root && list;
+    for (size_t w = 0; ok && w < sizeof SUITE / sizeof SUITE[0]; w++) {
+        opts wo = *o;
+        char *argv[8] = {"suite"};
+        int argc = 1;
+        while (SUITE[w].args[argc - 1])
+            argv[argc] = SUITE[w].args[argc - 1], argc++;
+        json_t *one = NULL;
+        if (parse_more(argc, argv, &wo) == 0)
+            one = run_workload(&wo, pool);
+        if (!one) {
+            fn_err_wrap(FN_EINVAL, "workload '%s'", SUITE[w].name);
+            ok = 0;
+            break;
+        }
+        fprintf(stderr, "bench reduce --suite: %s done\n", SUITE[w].name);
+        json_object_set_new(one, "workload", json_string(SUITE[w].name));
+        json_object_del(one, "command");
+        json_array_append_new(list, one);
+    }
+    if (ok) {
+        json_t *rows = json_array();
+        for (int k = 0; k < o->nconf; k++)
+            json_array_append_new(rows, config_json(o, k, &pool[k]));
+        reduce_opts def;
+        reduce_defaults(&def);
+        jsonw_set(root, "default_method", jsonw_string(reduce_method_name(def.method)));
+        jsonw_set(root, "workloads", list);
+        jsonw_set(root, "pooled", rows);
+    }
+    for (int k = 0; k < o->nconf; k++)
+        free(pool[k].s);
+    if (!ok) {
+        json_decref(root);
+        json_decref(list);
+        return NULL;
+    }
+    return root;
+}
+
+int bench_reduce(int argc, char **argv)
+{
+    if (cmd_wants_help(argc, argv))
+        return usage(stdout, 0);
+    opts o;
+    int rc = parse(argc, argv, &o);
+    if (rc)
+        return rc;
+    json_t *root = o.suite ? run_suite(&o) : run_workload(&o, NULL);
+    if (!root) {
         fprintf(stderr, "fracnav bench reduce: %s\n", fn_err_msg());
         return 1;
     }
+    if (o.json)
+        return jsonw_print(root, stdout) < 0 ? 1 : 0;
+    char *text = jsonw_dumps(root);
+    if (text)
+        fputs(text, stdout);
+    free(text);
+    json_decref(root);
     return 0;
 }
