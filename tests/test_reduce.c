@@ -235,27 +235,10 @@ static void test_powell_bad_arguments(void **st)
 
 /* ---- synthetic fractures ---- */
 
-/* A textured ellipsoidal "bone" (tu_ellipsoid_ct). */
-static vol *bone(void)
-{
-    return tu_ellipsoid_ct();
-}
 
 static planning_case *fractured_loss(const char *dir, int pieces, uint64_t seed, double loss_mm)
 {
-    vol *ct = bone();
-    fracture_params p;
-    fracture_defaults(&p);
-    p.seed = seed;
-    p.pieces = pieces;
-    p.bone_loss_mm = loss_mm;
-    p.displace_mm = 4;
-    p.rotate_deg = 5;
-    planning_case *c = fracture_make_case(ct, &p, dir);
-    vol_free(ct);
-    if (!c)
-        fail_msg("%s", fn_err_msg());
-    return c;
+    return tu_ellipsoid_fracture(dir, pieces, seed, loss_mm);
 }
 
 static planning_case *fractured(const char *dir, int pieces, uint64_t seed)

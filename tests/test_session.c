@@ -600,16 +600,7 @@ static void test_fit_lands_on_a_rough_fracture(void **st)
 {
     (void)st;
     char *fdir = tu_tmpdir("session_rough");
-    vol *ct = tu_ellipsoid_ct();
-    fracture_params fp;
-    fracture_defaults(&fp);
-    fp.seed = 3;
-    fp.displace_mm = 4;
-    fp.rotate_deg = 5;
-    planning_case *c = fracture_make_case(ct, &fp, fdir);
-    vol_free(ct);
-    if (!c)
-        fail_msg("%s", fn_err_msg());
+    planning_case *c = tu_ellipsoid_fracture(fdir, 2, 3, 0);
     session_params prm = {.command = "navigate"};
     loop_config_default(&prm.cfg);
     sem_init(&Q.tick, 0, 0);

@@ -487,7 +487,7 @@ static void test_serial_and_name(void **st)
     srv = start_server("--as", "spacepilot", NULL);
     assert_string_equal(raw_string(node, HIDIOCGRAWNAME(64)), "3Dconnexion SpacePilot");
     stop_server(srv);
-    char cmd[1200];
+    char cmd[2048];
     snprintf(cmd, sizeof cmd, "'%s' serve --mount '%s' --serial 'a b' 2>&1", sim_bin(), mnt);
     FILE *p = popen(cmd, "r");
     char line[256] = "";
@@ -771,7 +771,7 @@ static void test_serve_unprivileged(void **st)
     }
     assert_int_equal(chmod(workdir, 0755), 0);
     assert_int_equal(chmod(mnt, 0777), 0);
-    char cmd[1500];
+    char cmd[2048];
     snprintf(cmd, sizeof cmd, "setpriv --reuid=nobody --regid=nogroup --clear-groups '%s' serve "
                               "--mount '%s' 2>&1", sim_bin(), mnt);
     FILE *p = popen(cmd, "r");
@@ -797,7 +797,7 @@ static void test_cli_usage_and_errors(void **st)
     assert_non_null(strstr(out, "fracnav record: "));
     assert_non_null(strstr(out, "/nonexistent/hidraw9"));
     free(out);
-    char cmd[1200];
+    char cmd[2048];
     snprintf(cmd, sizeof cmd, "'%s' serve 2>&1", sim_bin());
     FILE *p = popen(cmd, "r");
     char line[256] = "";

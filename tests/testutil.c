@@ -1,5 +1,8 @@
 #include "testutil.h"
+#include "case.h"
+#include "err.h"
 #include "frag.h"
+#include "fracture.h"
 #include "vol.h"
 #include "volio.h"
 
@@ -213,6 +216,23 @@ struct vol *tu_ellipsoid_ct(void)
             }
     v->src_type = VOL_I16;
     return v;
+}
+
+struct planning_case *tu_ellipsoid_fracture(const char *dir, int pieces, unsigned long long seed, double loss_mm)
+{
+    vol *ct = tu_ellipsoid_ct();
+    fracture_params p;
+    fracture_defaults(&p);
+    p.seed = seed;
+    p.pieces = pieces;
+    p.bone_loss_mm = loss_mm;
+    p.displace_mm = 4;
+    p.rotate_deg = 5;
+    planning_case *c = fracture_make_case(ct, &p, dir);
+    vol_free(ct);
+    if (!c)
+        fail_msg("%s", fn_err_msg());
+    return c;
 }
 
 void tu_two_blocks_case(const char *dir, char *case_dir, size_t cap)

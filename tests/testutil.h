@@ -49,5 +49,10 @@ void tu_two_blocks_case(const char *dir, char *case_dir, size_t cap);
  * 80x48x42 voxels, for synthetic fractures (fracture_make_case). Free with vol_free. */
 struct vol;
 struct vol *tu_ellipsoid_ct(void);
+/* tu_ellipsoid_ct fractured (fracture_make_case: `pieces` pieces, seed, loss_mm of bone lost at
+ * each cut, the pieces moved 4 mm and turned 5 degrees off, as a hand leaves them) and saved as a
+ * case in dir. Fails the test when it cannot. Free with case_free. */
+struct planning_case;
+struct planning_case *tu_ellipsoid_fracture(const char *dir, int pieces, unsigned long long seed, double loss_mm);
 
 #endif
