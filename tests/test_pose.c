@@ -36,11 +36,29 @@ static void test_rotation_about_z(void **st)
     assert_true(pose_angle_between(back, p) < 1e-9);
 }
 
+/* pose_to_rotvec undoes pose_from_rotvec, and q and -q give the same rotation vector. */
+static void test_rotvec_round_trip(void **st)
+{
+    double rv[3] = {0.3, -0.5, 0.8}, back[3];
+    pose p = pose_from_rotvec(rv, NULL);
+    double a = pose_to_rotvec(&p, back);
+    assert_true(fabs(a - sqrt(0.98)) < 1e-12);
+    for (int i = 0; i < 3; i++)
+        assert_true(fabs(back[i] - rv[i]) < 1e-12);
+    for (int i = 0; i < 4; i++)
+        p.q[i] = -p.q[i];
+    pose_to_rotvec(&p, back);
+    for (int i = 0; i < 3; i++)
+        assert_true(fabs(back[i] - rv[i]) < 1e-12);
+    assert_true(pose_to_rotvec(&POSE_IDENTITY, back) == 0 && back[0] == 0 && back[1] == 0 && back[2] == 0);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_compose_inverse),
         cmocka_unit_test(test_rotation_about_z),
+        cmocka_unit_test(test_rotvec_round_trip),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

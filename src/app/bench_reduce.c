@@ -158,6 +158,25 @@ static double eval_us(const frag *f, const frag *m, const pose *truth, const red
     return isfinite(sink) ? us : NAN;
 }
 
+/* The moving piece's voxel grid (at pose p) against the fixed piece's: its turn about the fixed
+ * piece's long axis and across it, in degrees, into turn[0] and turn[1]. The voxel count favours
+ * poses where the grids line up: a fit whose turn across is near 0 while the truth's is not has
+ * snapped to the fixed grid. */
+static void grid_turn(const frag *f, const frag *m, const pose *p, double turn[2])
+{
+    double ax[3] = {f->axes[0][0], f->axes[1][0], f->axes[2][0]}, axg[3], rv[3], d = 0, c2 = 0;
+    pose ginv = pose_inverse(f->home);
+    pose_rotate(&ginv, ax, axg);
+    pose rel = pose_compose(pose_inverse(pose_compose(f->pose, f->home)), pose_compose(*p, m->home));
+    pose_to_rotvec(&rel, rv);
+    for (int a = 0; a < 3; a++)
+        d += rv[a] * axg[a];
+    for (int a = 0; a < 3; a++)
+        c2 += (rv[a] - d * axg[a]) * (rv[a] - d * axg[a]);
+    turn[0] = fabs(d) * 180 / M_PI;
+    turn[1] = sqrt(c2) * 180 / M_PI;
+}
+
 typedef struct config_stats {
     sample *s;
     int n;
@@ -338,31 +357,11 @@ static int run_case(const vol *ct, uint64_t seed, const opts *o, config_stats *c
                 fprintf(stderr, "  fitted %.3f deg %.3f mm; voi %.0fx%.0fx%.0f mm\n", fr_, ft_,
                         r.voi.hi[0] - r.voi.lo[0],
                         r.voi.hi[1] - r.voi.lo[1], r.voi.hi[2] - r.voi.lo[2]);
-                {
-                    /* The moving piece's voxel grid against the fixed piece's, at the fit and at
-                     * the truth: its turn about the fixed piece's long axis and across it. The
-                     * voxel count favours poses where the grids line up: a fit whose turn across
-                     * is near 0 while the truth's is not has snapped to the fixed grid */
-                    double along[2], across[2], ax[3] = {f.axes[0][0], f.axes[1][0], f.axes[2][0]}, axg[3];
-                    pose ginv = pose_inverse(f.home);
-                    pose_rotate(&ginv, ax, axg);
-                    for (int w = 0; w < 2; w++) {
-                        pose rel = pose_compose(pose_inverse(pose_compose(f.pose, f.home)),
-                                                pose_compose(w ? truth : r.fitted, m.home));
-                        double sn = sqrt(rel.q[1] * rel.q[1] + rel.q[2] * rel.q[2] + rel.q[3] * rel.q[3]);
-                        double ang = 2 * atan2(sn, fabs(rel.q[0])) * 180 / M_PI, rv[3], d = 0, c2 = 0;
-                        for (int a = 0; a < 3; a++) {
-                            rv[a] = sn > 0 ? rel.q[a + 1] / sn * ang * (rel.q[0] < 0 ? -1 : 1) : 0;
-                            d += rv[a] * axg[a];
-                        }
-                        for (int a = 0; a < 3; a++)
-                            c2 += (rv[a] - d * axg[a]) * (rv[a] - d * axg[a]);
-                        along[w] = fabs(d);
-                        across[w] = sqrt(c2);
-                    }
-                    fprintf(stderr, "  grids: the moving grid turned %.2f deg about the long axis and %.2f across it"
-                            " from the fixed grid (the truth: %.2f, %.2f)\n", along[0], across[0], along[1], across[1]);
-                }
+                double gf[2], gt[2];
+                grid_turn(&f, &m, &r.fitted, gf);
+                grid_turn(&f, &m, &truth, gt);
+                fprintf(stderr, "  grids: the moving grid turned %.2f deg about the long axis and %.2f across it"
+                        " from the fixed grid (the truth: %.2f, %.2f)\n", gf[0], gf[1], gt[0], gt[1]);
                 reduce_metric *me = reduce_metric_new(asm_, 1, &m, &r.voi, ro.count, ro.band_mm);
                 double ft = me ? reduce_metric_eval(me, &truth, NULL) : NAN;
                 fprintf(stderr, "  fitted metric %.6f\n", me ? reduce_metric_eval(me, &r.fitted, NULL) : NAN);

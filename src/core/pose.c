@@ -134,6 +134,16 @@ pose pose_from_rotvec(const double rv[3], const double t[3])
     return p;
 }
 
+double pose_to_rotvec(const pose *p, double rv[3])
+{
+    double w = fabs(p->q[0]) > 1 ? 1 : fabs(p->q[0]), sgn = p->q[0] < 0 ? -1 : 1;
+    double s = sqrt(p->q[1] * p->q[1] + p->q[2] * p->q[2] + p->q[3] * p->q[3]);
+    double a = 2 * atan2(s, w); /* q and -q are the same turn: the one of angle <= pi */
+    for (int i = 0; i < 3; i++)
+        rv[i] = s > 0 ? sgn * p->q[i + 1] / s * a : 0;
+    return a;
+}
+
 void pose_normalize(pose *p)
 {
     double n = sqrt(p->q[0] * p->q[0] + p->q[1] * p->q[1] + p->q[2] * p->q[2] + p->q[3] * p->q[3]);

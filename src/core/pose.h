@@ -26,6 +26,8 @@ pose pose_from_matrix(const double r[3][3], const double t[3]);
 pose pose_from_axis_angle(const double axis[3], double angle);
 /* Rotation vector (axis * angle, radians) + translation. */
 pose pose_from_rotvec(const double rv[3], const double t[3]);
+/* p's rotation as a rotation vector (axis * angle, radians, the angle in 0..pi); returns the angle. */
+double pose_to_rotvec(const pose *p, double rv[3]);
 /* Renormalises q and makes w >= 0 so equal rotations compare equal. */
 void pose_normalize(pose *p);
 /* Angle of the relative rotation between a and b (radians) and the distance between t's (mm). */

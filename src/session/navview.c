@@ -32,15 +32,15 @@ static void add(fields *f, int new_group, const char *fmt, ...)
 
 double navview_rotation(const pose *p, double axis[3])
 {
-    double w = fabs(p->q[0]) > 1 ? 1 : fabs(p->q[0]), sgn = p->q[0] < 0 ? -1 : 1;
     double s = sqrt(p->q[1] * p->q[1] + p->q[2] * p->q[2] + p->q[3] * p->q[3]);
     if (s < 1e-12) {
         axis[0] = 1, axis[1] = axis[2] = 0;
         return 0;
     }
-    for (int i = 0; i < 3; i++) /* q and -q are the same turn: take the one of angle <= 180 */
-        axis[i] = sgn * p->q[i + 1] / s;
-    return 2 * atan2(s, w) * 180 / M_PI;
+    double rv[3], a = pose_to_rotvec(p, rv);
+    for (int i = 0; i < 3; i++)
+        axis[i] = rv[i] / a;
+    return a * 180 / M_PI;
 }
 
 static void warnings(const loop_scene *s, const navview_extra *x, fields *f)
