@@ -70,15 +70,20 @@ static int fresh_case(void **st)
 
 static double fit_gap_mm; /* the next open_case's session_params.fit_gap_mm */
 
-static session *open_case(unsigned flags)
+static session *open_case_at(const char *at, unsigned flags)
 {
     session_params p = {.flags = flags, .command = "navigate", .fit_gap_mm = fit_gap_mm};
     loop_config_default(&p.cfg);
     p.cfg.check_invariant = 1;
-    session *s = session_open(case_dir, &p);
+    session *s = session_open(at, &p);
     if (!s)
         fail_msg("session_open: %s", fn_err_msg());
     return s;
+}
+
+static session *open_case(unsigned flags)
+{
+    return open_case_at(case_dir, flags);
 }
 
 /* ---- recordings ---- */
@@ -195,13 +200,19 @@ static int quiet_next(void *ctx, loop_event *ev, int timeout_ms)
 
 static quiet Q;
 
-static session *start_quiet(unsigned flags)
+/* A session on the case at `at`, running on the quiet source. */
+static session *start_quiet_at(const char *at, unsigned flags)
 {
     sem_init(&Q.tick, 0, 0);
     atomic_init(&Q.end, 0);
-    session *s = open_case(flags);
+    session *s = open_case_at(at, flags);
     assert_int_equal(session_start(s, (loop_source){quiet_next, &Q}), 0);
     return s;
+}
+
+static session *start_quiet(unsigned flags)
+{
+    return start_quiet_at(case_dir, flags);
 }
 
 static void stop_quiet(session *s)
@@ -556,6 +567,23 @@ static void test_fit_lands_as_one_undoable_step(void **st)
     session_close(s);
 }
 
+/* Asks for the fit of fragment 2 and waits until its pose lands: returns that event (accepted). */
+static session_event *fit_and_land(session *s)
+{
+    act(s, LOOP_ACT_FIT);
+    session_event *e;
+    do
+        e = next_event(s, SESSION_EV_POSE | SESSION_EV_FIT);
+    while (e->kind == SESSION_EV_FIT && e->result == 0 && !strstr(e->text, "fit: frag 2 moved"));
+    if (e->kind == SESSION_EV_FIT) {
+        if (e->result != 0)
+            fail_msg("%s", e->text);
+        e = next_event(s, SESSION_EV_POSE);
+    }
+    assert_int_equal(e->result, LOOP_ACCEPTED);
+    return e;
+}
+
 /* Fits fragment 2 from the hand's pose (as test_fit_lands_as_one_undoable_step) in a session whose
  * fit leaves gap_mm; returns the pose that landed. */
 static pose fit_with_gap(double gap_mm)
@@ -565,15 +593,7 @@ static pose fit_with_gap(double gap_mm)
     fit_gap_mm = 0;
     pose hand = moved_by(moved_by(pose_of(s, 1), 1, 1.0), 2, -1.0);
     assert_int_equal(propose(s, 1, &hand), LOOP_ACCEPTED);
-    act(s, LOOP_ACT_FIT);
-    session_event *e;
-    do
-        e = next_event(s, SESSION_EV_POSE | SESSION_EV_FIT);
-    while (e->kind == SESSION_EV_FIT && e->result == 0 && !strstr(e->text, "fit: frag 2 moved"));
-    if (e->kind == SESSION_EV_FIT)
-        e = next_event(s, SESSION_EV_POSE);
-    assert_int_equal(e->result, LOOP_ACCEPTED);
-    pose fit = e->scene.pose[1];
+    pose fit = fit_and_land(s)->scene.pose[1];
     stop_quiet(s);
     session_close(s);
     fresh_case(NULL);
@@ -601,25 +621,8 @@ static void test_fit_lands_on_a_rough_fracture(void **st)
     (void)st;
     char *fdir = tu_tmpdir("session_rough");
     planning_case *c = tu_ellipsoid_fracture(fdir, 2, 3, 0);
-    session_params prm = {.command = "navigate"};
-    loop_config_default(&prm.cfg);
-    sem_init(&Q.tick, 0, 0);
-    atomic_init(&Q.end, 0);
-    session *s = session_open(fdir, &prm);
-    if (!s)
-        fail_msg("session_open: %s", fn_err_msg());
-    assert_int_equal(session_start(s, (loop_source){quiet_next, &Q}), 0);
-    act(s, LOOP_ACT_FIT);
-    session_event *e;
-    do
-        e = next_event(s, SESSION_EV_POSE | SESSION_EV_FIT);
-    while (e->kind == SESSION_EV_FIT && e->result == 0 && !strstr(e->text, "fit: frag 2 moved"));
-    if (e->kind == SESSION_EV_FIT) {
-        if (e->result != 0)
-            fail_msg("%s", e->text);
-        e = next_event(s, SESSION_EV_POSE);
-    }
-    assert_int_equal(e->result, LOOP_ACCEPTED);
+    session *s = start_quiet_at(fdir, 0);
+    session_event *e = fit_and_land(s);
     c->frag[1].pose = e->scene.pose[1];
     loop_stats ls = e->scene.stats; /* the loop's own stats belong to its thread while it runs */
     stop_quiet(s);
@@ -627,8 +630,7 @@ static void test_fit_lands_on_a_rough_fracture(void **st)
     session_close(s);
     /* saved where the fit left it, it opens inside by no more than the fit's tolerance: said so,
      * not warned of (case.json: "penetrating" within_fit_tolerance) */
-    s = session_open(fdir, &prm);
-    assert_non_null(s);
+    s = open_case_at(fdir, 0);
     loop_scene sc = {0};
     session_scene_read(s, &sc);
     char line[2048];

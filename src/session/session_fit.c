@@ -51,10 +51,9 @@ static void *fit_thread(void *arg)
     reduce_defaults(&o);
     o.tau_min = s->tau[0];
     o.tau_max = s->tau[1];
-    /* reduce's tolerance (0.5 mm, at most 0.45 voxel): at the loop's 0 the voxel surfaces of a
-     * fit near the truth interlock, and the result would be pushed off it by millimetres (the
-     * skull: 3.4 mm); the loop takes the result within it (session__propose) */
-    s->fit_tolerance_mm = o.tolerance_mm;
+    /* o.tolerance_mm stays reduce's (0.5 mm, at most 0.45 voxel): at the loop's 0 the voxel
+     * surfaces of a fit near the truth interlock, and the result would be pushed off it by
+     * millimetres (the skull: 3.4 mm); the loop takes the result within it (session__propose) */
     o.gap_mm = s->fit_gap_mm;
     o.progress = on_progress;
     o.progress_ctx = s;
@@ -80,6 +79,7 @@ static void *fit_thread(void *arg)
     s->fit.turned_deg = rc == 0 ? deg : 0;
     s->fit.finished++;
     s->fit_out = out;
+    s->fit_tolerance_mm = o.tolerance_mm;
     snprintf(s->fit_why, sizeof s->fit_why, "%s", why);
     pthread_mutex_unlock(&s->fit_mu);
     reduce_result_free(&r);
@@ -144,13 +144,14 @@ void session__fit_start(session *s, session_event *ev)
     snprintf(ev->text, sizeof ev->text, "fitting frag %d to the others...", sel + 1);
 }
 
-int session__fit_finished(session *s, session_event *ev, pose *fitted)
+int session__fit_finished(session *s, session_event *ev, pose *fitted, double *tolerance_mm)
 {
     pthread_mutex_lock(&s->fit_mu);
     int news = s->fit.finished != s->fits_told;
     if (news) {
         s->fits_told = s->fit.finished;
         *fitted = s->fit_out;
+        *tolerance_mm = s->fit_tolerance_mm;
         ev->fit = s->fit;
         ev->result = s->fit.result;
         if (s->fit.result == 0)

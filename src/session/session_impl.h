@@ -62,7 +62,7 @@ struct session {
     frag fit_frags[LOOP_MAX_FRAGS];
     char fit_why[256];     /* a failed fit's message (under fit_mu) */
     pose fit_out;          /* the finished fit's pose (under fit_mu) */
-    double fit_tolerance_mm; /* the collision tolerance the fit checked it at */
+    double fit_tolerance_mm; /* the collision tolerance the fit checked it at (under fit_mu) */
 };
 
 /* Frees everything session_open built (no thread may run). */
@@ -71,9 +71,10 @@ void session__free(session *s);
 /* LOOP_ACT_FIT seen in the scene: starts the worker on the selected fragment, or says why not;
  * fills ev (SESSION_EV_FIT). Owner's thread. */
 void session__fit_start(session *s, session_event *ev);
-/* A fit that finished since the last call: fills ev (SESSION_EV_FIT) and *fitted (its pose, to
- * propose when ev->result is 0) and returns 1; else 0. */
-int session__fit_finished(session *s, session_event *ev, pose *fitted);
+/* A fit that finished since the last call: fills ev (SESSION_EV_FIT), *fitted (its pose, to
+ * propose when ev->result is 0) and *tolerance_mm (the collision tolerance it was checked at) and
+ * returns 1; else 0. */
+int session__fit_finished(session *s, session_event *ev, pose *fitted, double *tolerance_mm);
 /* session_propose_pose with the tolerance its proposer checked the pose at (loop_event). */
 int session__propose(session *s, int fragment, const pose *p, double tolerance_mm, uint64_t *id);
 /* Cancels a running fit and joins the worker. Owner's thread. */

@@ -202,6 +202,7 @@ static int derive(session *s, session_event *ev)
 {
     const loop_scene *sc = &s->scene;
     pose fitted;
+    double fit_tol;
     memset(ev, 0, offsetof(session_event, scene));
     uint64_t seen = atomic_load(&s->seen_proposals);
     if (sc->proposals > seen) {
@@ -221,9 +222,9 @@ static int derive(session *s, session_event *ev)
     } else if (sc->fit_requests != s->seen_fits) {
         s->seen_fits = sc->fit_requests;
         session__fit_start(s, ev);
-    } else if (session__fit_finished(s, ev, &fitted)) {
+    } else if (session__fit_finished(s, ev, &fitted, &fit_tol)) {
         /* the fit checked its result at reduce's tolerance: the loop takes it within that */
-        if (ev->result == 0 && session__propose(s, ev->fit.frag, &fitted, s->fit_tolerance_mm, NULL) < 0) {
+        if (ev->result == 0 && session__propose(s, ev->fit.frag, &fitted, fit_tol, NULL) < 0) {
             ev->result = FN_EAGAIN;
             snprintf(ev->text, sizeof ev->text, "fit of frag %d not applied: %.1000s",
                      ev->fit.frag + 1, fn_err_msg());
