@@ -93,12 +93,50 @@ static void test_pitch_workload_from_the_repository(void **st)
     free(dir);
 }
 
+/* bench reduce --suite (one fit per workload: seconds): every workload of the README's table in
+ * one object, each named and with its own runs, and the runs pooled per method, with the default
+ * method alone; the pooled evaluation time is null (each CT has its own). */
+static void test_reduce_suite_pools_every_workload(void **st)
+{
+    tu_example_ct(); /* the skull workloads: skipped (or failed under CI) without it */
+    char *out = NULL;
+    int rc = tu_run_cli(&out, "bench reduce --suite --seeds 1 --starts 1 --json");
+    /* stdout and stderr come together here: the JSON follows the progress lines ("... done") */
+    const char *at = out && out[0] == '{' ? out : out ? strstr(out, "\n{") : NULL;
+    json_error_t e;
+    json_t *j = rc == 0 && at ? json_loads(at, 0, &e) : NULL;
+    if (!j)
+        fail_msg("bench reduce --suite: exit %d: %s", rc, out);
+    free(out);
+    static const char *const names[] = {"skull", "skull, 3 pieces", "skull, pieces left touching",
+                                        "skull, 1 mm of bone lost", "CT_pitch", "long bone"};
+    json_t *ws = json_object_get(j, "workloads"), *pooled = json_array_get(json_object_get(j, "pooled"), 0);
+    assert_int_equal(json_array_size(ws), 6);
+    json_int_t runs = 0;
+    for (size_t i = 0; i < 6; i++) {
+        json_t *w = json_array_get(ws, i), *m = json_object_get(w, "methods");
+        const char *name = json_string_value(json_object_get(w, "workload"));
+        if (!name || strncmp(name, names[i], strlen(names[i])))
+            fail_msg("workload %zu is '%s', not '%s...'", i, name ? name : "(none)", names[i]);
+        assert_int_equal(json_array_size(m), 1);
+        runs += json_integer_value(json_object_get(json_array_get(m, 0), "runs"));
+    }
+    assert_int_equal(runs, 6);
+    assert_string_equal(json_string_value(json_object_get(j, "command")), "bench reduce");
+    assert_string_equal(json_string_value(json_object_get(pooled, "method")),
+                        json_string_value(json_object_get(j, "default_method")));
+    assert_int_equal(json_integer_value(json_object_get(pooled, "runs")), runs);
+    assert_true(json_is_null(json_object_get(pooled, "metric_eval_us")));
+    json_decref(j);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_usage),
         cmocka_unit_test(test_collision_on_small_bone),
         cmocka_unit_test(test_pitch_workload_from_the_repository),
+        cmocka_unit_test(test_reduce_suite_pools_every_workload),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -474,7 +474,7 @@ static int usage(FILE *out, int rc)
             "                   pieces; touching; 1 mm lost with --gap 1; CT_pitch; the long bone),\n"
             "                   with the default method unless --method says; JSON: workloads (one\n"
             "                   object each, as without --suite, with its name) and pooled (per\n"
-            "                   method, over every run)\n"
+            "                   method, over every run; metric_eval_us null)\n"
             "  --verbose        one line per run on stderr, after its details (start error, VOI,\n"
             "                   the turn of the moving piece's voxel grid from the fixed one's)\n"
             "  --verbose-truth  that, and the same fit started at the true pose (where the\n"
@@ -617,7 +617,7 @@ static int pool_add(config_stats *pool, const config_stats *cs, int nconf)
         memcpy(s + pool[k].n, cs[k].s, (size_t)cs[k].n * sizeof *s);
         pool[k].s = s;
         pool[k].n += cs[k].n;
-        pool[k].eval_us = pool[k].eval_us > 0 ? pool[k].eval_us : cs[k].eval_us;
+        pool[k].eval_us = NAN; /* one CT's figure: each workload has its own */
     }
     return 0;
 }
