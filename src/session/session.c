@@ -93,14 +93,15 @@ static void tolerate_reduced(session *s)
     json_array_foreach(pen, n, e) {
         if (s->resumed || !json_is_true(json_object_get(e, "within_fit_tolerance")))
             continue;
+        json_t *ids = json_object_get(e, "fragments");
         for (size_t a = 0; a < 2; a++)
-            loop_tolerate(s->L, case_find(s->c, (int)json_integer_value(json_array_get(json_object_get(e, "fragments"), a))));
+            loop_tolerate(s->L, case_find(s->c, (int)json_integer_value(json_array_get(ids, a))));
     }
     json_t *frs = json_object_get(json_object_get(s->c->extra, "reduction"), "fragments"), *fr;
     size_t k;
     json_array_foreach(frs, k, fr) {
         int i = case_find(s->c, (int)json_integer_value(json_object_get(fr, "id")));
-        json_t *q = json_object_get(json_object_get(fr, "end"), "q"), *t = json_object_get(json_object_get(fr, "end"), "t");
+        json_t *end = json_object_get(fr, "end"), *q = json_object_get(end, "q"), *t = json_object_get(end, "t");
         if (i < 0 || json_array_size(q) != 4 || json_array_size(t) != 3)
             continue;
         pose now = loop_pose(s->L, i);
