@@ -28,7 +28,7 @@ static void usage(FILE *out)
             "leaves fragments colliding beyond the tolerance. Poses, VOIs and the convergence\n"
             "history are saved in the case (atomic save). Poses that a navigation session left in\n"
             "CASE/journal are applied first (the fit starts where the hand left the fragments)\n"
-            "and the journal is emptied once the case is saved. README \"Automatic reduction\" has the\n"
+            "and the journal is emptied once the case is saved. docs/reduction.md has the\n"
             "details and the measured accuracy.\n\n"
             "  --fixed ID             the fragment that stays (default: the case's fixed one, else\n"
             "                         the largest)\n"

@@ -27,7 +27,7 @@ static void usage(FILE *out)
             "timestamps, so the same case and recording give the same poses and pose_digest on every\n"
             "run and machine, with or without the window. A recording's save and fit buttons do\n"
             "nothing here (--save saves at the end). Prints a summary (with --json the object alone\n"
-            "on stdout, labelled \"command\": \"replay\", as navigate --json; see the README's\n"
+            "on stdout, labelled \"command\": \"replay\", as navigate --json; see docs/formats.md,\n"
             "\"Machine output\"):\n"
             "  events, steps        events handled; motion steps (accepted + limited + slid + refused)\n"
             "  accepted, limited, slid, refused   outcomes of the steps\n"
