@@ -90,7 +90,7 @@ static int kill_when_written(char *const args[], const char *parent, const char 
                              const struct stat *old)
 {
     watch w = {tu_spawn_cli("/dev/null", NULL, args), parent, base, name, old};
-    if (!tu_wait_for(written_or_ended, &w, TU_WAIT_MAX_S))
+    if (!tu_wait_for_every(written_or_ended, &w, TU_WAIT_MAX_S, 100))
         fail_msg("fracnav %s neither wrote %s nor ended", args[0], name);
     int hit = written(parent, base, name, old);
     tu_end(w.pid, hit ? SIGKILL : 0, "fracnav, killed as it writes a case");

@@ -104,7 +104,12 @@ int tu_run_cli(char **out, const char *fmt, ...)
 
 int tu_wait_for(int (*cond)(void *arg), void *arg, double max_s)
 {
-    struct timespec now, end, poll = {0, 5000000};
+    return tu_wait_for_every(cond, arg, max_s, 5000);
+}
+
+int tu_wait_for_every(int (*cond)(void *arg), void *arg, double max_s, long period_us)
+{
+    struct timespec now, end, poll = {period_us / 1000000, period_us % 1000000 * 1000};
     clock_gettime(CLOCK_MONOTONIC, &end);
     end.tv_sec += (time_t)max_s;
     for (;;) {

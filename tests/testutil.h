@@ -25,6 +25,9 @@ int tu_run_cli(char **out, const char *fmt, ...);
  * seconds (a bound for when the event never comes, never a duration a test relies on). Returns 1
  * when cond held, 0 when max_s passed. */
 int tu_wait_for(int (*cond)(void *arg), void *arg, double max_s);
+/* tu_wait_for, checking every period_us microseconds (it polls every 5 ms): for an event that
+ * lasts only a moment, as a file while it is written. */
+int tu_wait_for_every(int (*cond)(void *arg), void *arg, double max_s, long period_us);
 /* The usual max_s: 30 s times $FRACNAV_TEST_SLOW (a positive number, default 1), so a broken test
  * fails in tens of seconds. CMake sets the multiplier for sanitizer builds (FRACNAV_TEST_SLOW);
  * set it by hand on a machine loaded far beyond its cores. */
