@@ -27,7 +27,7 @@ void loop_config_default(loop_config *c)
     c->trans_mm_s = 50; /* sim/script.h: SCRIPT_MM_PER_S_FULL */
     c->rot_deg_s = 45;  /* SCRIPT_DEG_PER_S_FULL */
     c->frame = LOOP_FRAME_CAMERA;
-    c->dt_max_us = 20000;
+    c->dt_max_us = FNCLOCK_PAUSE_MAX_US;
     c->dt_first_us = 8000; /* the SpaceNavigator's report period */
     c->bisect_iters = 6;
     c->slide_iters = 2;
