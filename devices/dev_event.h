@@ -7,9 +7,11 @@
 #ifndef FN_DEV_EVENT_H
 #define FN_DEV_EVENT_H
 
+#include "fnclock.h"
+
 #include <stdint.h>
 
-#define DEV_DT_MAX_US 50000 /* dt after a pause is clamped to this (no jump after a stall) */
+#define DEV_DT_MAX_US FNCLOCK_PAUSE_MAX_US /* dt after a pause is clamped to this, as in the loop */
 
 /* What changed in an event (flags). */
 enum {

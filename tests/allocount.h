@@ -23,12 +23,20 @@
 
 static atomic_int allocount_counting;
 static atomic_long allocount_calls;
+static atomic_llong allocount_bytes_asked; /* bytes asked for by the calls counted */
 
 /* Starts counting from zero. */
 static inline void allocount_start(void)
 {
     atomic_store(&allocount_calls, 0);
+    atomic_store(&allocount_bytes_asked, 0);
     atomic_store(&allocount_counting, 1);
+}
+
+/* The bytes asked for by the calls counted since allocount_start() (realloc: the new size). */
+static inline long long allocount_bytes(void)
+{
+    return atomic_load(&allocount_bytes_asked);
 }
 
 /* Stops counting; returns the calls counted since allocount_start(). */
@@ -51,39 +59,41 @@ extern void *__libc_calloc(size_t, size_t);
 extern void *__libc_realloc(void *, size_t);
 extern void *__libc_memalign(size_t, size_t);
 
-static void allocount_note(void)
+static void allocount_note(size_t bytes)
 {
-    if (atomic_load_explicit(&allocount_counting, memory_order_relaxed))
+    if (atomic_load_explicit(&allocount_counting, memory_order_relaxed)) {
         atomic_fetch_add(&allocount_calls, 1);
+        atomic_fetch_add(&allocount_bytes_asked, (long long)bytes);
+    }
 }
 
 void *malloc(size_t n)
 {
-    allocount_note();
+    allocount_note(n);
     return __libc_malloc(n);
 }
 
 void *calloc(size_t n, size_t size)
 {
-    allocount_note();
+    allocount_note(n * size);
     return __libc_calloc(n, size);
 }
 
 void *realloc(void *p, size_t n)
 {
-    allocount_note();
+    allocount_note(n);
     return __libc_realloc(p, n);
 }
 
 void *aligned_alloc(size_t align, size_t n)
 {
-    allocount_note();
+    allocount_note(n);
     return __libc_memalign(align, n);
 }
 
 int posix_memalign(void **out, size_t align, size_t n)
 {
-    allocount_note();
+    allocount_note(n);
     if (align < sizeof(void *) || (align & (align - 1)))
         return EINVAL;
     void *p = __libc_memalign(align, n);

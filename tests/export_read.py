@@ -1,6 +1,6 @@
 #!/usr/bin/python3
 """Independent readers for fracnav's exports (test_export.c): nothing here shares code with the
-writers in src/core/export.c. Each command prints one JSON object.
+writers in src/core/io/export.c. Each command prints one JSON object.
 
   export_read.py tfm FILE X,Y,Z ...   the ITK transform (parsed here) applied to each point
   export_read.py nifti FILE           shape, RAS affine and label counts (nibabel)

@@ -1,14 +1,71 @@
 #!/bin/sh
-# The build enforces the layers: a file of a lower layer that includes a header of a higher one fails
-# to compile. Builds every probe of tests/layers/ (EXCLUDE_FROM_ALL) in BUILD_DIR; each must fail
-# with its header not found. Exit 0 when all fail so, 1 when one builds or fails for another reason.
-# Usage: tests/layers.sh BUILD_DIR
+# The build enforces the layers:
+# - a file of a lower layer that includes a header of a higher one fails to compile. Builds every
+#   probe of tests/layers/*.c (EXCLUDE_FROM_ALL) in BUILD_DIR; each must fail with its header not
+#   found;
+# - each folder of the core (src/core/*/) includes only the system headers of its allow-list below,
+#   so no device, window or GL header (hidapi, GLFW, OSMesa) reaches the core. The probes
+#   tests/layers/system/FOLDER_*.c stand for a core file of FOLDER that includes one: each must be
+#   refused.
+# Exit 0 when all is so, 1 otherwise.
+# Usage: tests/layers.sh BUILD_DIR   (probes and headers)
+#        tests/layers.sh --headers   (the core's headers only: the build runs this)
 set -u
-build=${1:?usage: layers.sh BUILD_DIR}
-here=$(dirname "$0")/layers
+here=$(dirname "$0")
+core=$here/../src/core
+
+# The C library's headers, which every core folder may include.
+C_HEADERS="assert.h errno.h float.h limits.h math.h stdarg.h stdatomic.h stdbool.h stddef.h stdint.h
+           stdio.h stdlib.h string.h strings.h time.h"
+# What each folder adds: the OS only in platform (and POSIX files and threads where the folder
+# writes files or runs threads), third-party libraries only where their target links them.
+allowed() {
+    case $1 in
+    base | segment | geometry) ;;
+    platform) echo "fcntl.h link.h pthread.h sched.h spawn.h sys/mman.h sys/prctl.h sys/wait.h unistd.h" ;;
+    navigation) echo "fcntl.h pthread.h semaphore.h sys/stat.h unistd.h zlib.h" ;;
+    json) echo "jansson.h" ;;
+    io) echo "dirent.h fcntl.h signal.h sys/stat.h unistd.h jansson.h png.h nifti1_io.h teem/nrrd.h zlib.h" ;;
+    reduction) echo "sys/stat.h jansson.h nlopt.h" ;;
+    *) echo "?" ;; # a folder without a list: every system header is refused until it has one
+    esac
+}
+
+# The system headers that FILE includes and core FOLDER may not, one per line.
+refused() {
+    ok=" $(echo $C_HEADERS $(allowed "$1")) "
+    for h in $(sed -n 's/^[[:space:]]*#[[:space:]]*include[[:space:]]*<\([^>]*\)>.*/\1/p' "$2"); do
+        case $ok in *" $h "*) ;; *) echo "$h" ;; esac
+    done
+}
+
 bad=0
+for dir in "$core"/*/; do
+    folder=$(basename "$dir")
+    for f in "$dir"*.c "$dir"*.h; do
+        [ -e "$f" ] || continue
+        for h in $(refused "$folder" "$f"); do
+            echo "layers: src/core/$folder/$(basename "$f") includes <$h>, which the core's $folder may" \
+                 "not (its allow-list is in tests/layers.sh)" >&2
+            bad=1
+        done
+    done
+done
 n=0
-for src in "$here"/*.c; do
+for f in "$here"/layers/system/*.c; do
+    name=$(basename "$f" .c)
+    n=$((n + 1))
+    if [ -n "$(refused "${name%%_*}" "$f")" ]; then
+        echo "layers: $name: $(refused "${name%%_*}" "$f" | tr '\n' ' ')refused in the core's ${name%%_*}, as it should be"
+    else
+        echo "layers: $name: its system header was not refused" >&2
+        bad=1
+    fi
+done
+[ "${1:-}" = --headers ] && exit $bad
+
+build=${1:?usage: layers.sh BUILD_DIR | --headers}
+for src in "$here"/layers/*.c; do
     name=$(basename "$src" .c)
     header=$(sed -n 's/^#include "\(.*\)"/\1/p' "$src")
     out=$(cmake --build "$build" --target "layer_probe_$name" 2>&1)

@@ -43,20 +43,6 @@ static void write_ct(const char *path)
     vol_free(v);
 }
 
-static pid_t spawn(const char *args)
-{
-    const char *bin = getenv("FRACNAV_BIN");
-    char cmd[9400];
-    snprintf(cmd, sizeof cmd, "exec '%s' %s >/dev/null 2>&1", bin && *bin ? bin : "fracnav", args);
-    pid_t pid = fork();
-    assert_true(pid >= 0);
-    if (pid == 0) {
-        execl("/bin/sh", "sh", "-c", cmd, (char *)NULL);
-        _exit(127);
-    }
-    return pid;
-}
-
 /* The file `name` is being written: in the case folder (other than `old`, when given) or in a
  * staged sibling folder of it. */
 static int written(const char *parent, const char *base, const char *name, const struct stat *old)
@@ -83,22 +69,32 @@ static int written(const char *parent, const char *base, const char *name, const
     return hit;
 }
 
-/* Waits until the child writes `name` (then kills it: returns 1) or ends by itself (returns 0). */
-static int kill_when_written(pid_t pid, const char *parent, const char *base, const char *name,
+typedef struct watch {
+    pid_t pid;
+    const char *parent, *base, *name;
+    const struct stat *old;
+} watch;
+
+/* The file is being written, or the child ended by itself (left to be reaped). */
+static int written_or_ended(void *arg)
+{
+    const watch *w = arg;
+    siginfo_t info = {0};
+    return written(w->parent, w->base, w->name, w->old) ||
+           (waitid(P_PID, (id_t)w->pid, &info, WEXITED | WNOHANG | WNOWAIT) == 0 && info.si_pid == w->pid);
+}
+
+/* Runs `fracnav ARGS...` until it writes `name` (then kills it: returns 1) or ends by itself
+ * (returns 0). */
+static int kill_when_written(char *const args[], const char *parent, const char *base, const char *name,
                              const struct stat *old)
 {
-    int status;
-    for (;;) {
-        if (written(parent, base, name, old)) {
-            kill(pid, SIGKILL);
-            waitpid(pid, &status, 0);
-            return 1;
-        }
-        if (waitpid(pid, &status, WNOHANG) == pid)
-            return 0;
-        struct timespec nap = {0, 100000};
-        nanosleep(&nap, NULL);
-    }
+    watch w = {tu_spawn_cli("/dev/null", NULL, args), parent, base, name, old};
+    if (!tu_wait_for_every(written_or_ended, &w, TU_WAIT_MAX_S, 100))
+        fail_msg("fracnav %s neither wrote %s nor ended", args[0], name);
+    int hit = written(parent, base, name, old);
+    tu_end(w.pid, hit ? SIGKILL : 0, "fracnav, killed as it writes a case");
+    return hit;
 }
 
 static void test_segment_refuses_existing_and_leaves_no_half_folder(void **st)
@@ -111,7 +107,8 @@ static void test_segment_refuses_existing_and_leaves_no_half_folder(void **st)
     /* Killed while writing its labels into a new folder: no folder, or a whole case. */
     char args[9000];
     snprintf(args, sizeof args, "segment '%s' -o '%s'", src, cdir);
-    int killed = kill_when_written(spawn(args), dir, "case", ".labels.tmp.nii.gz", NULL);
+    int killed = kill_when_written((char *[]){"segment", src, "-o", cdir, NULL}, dir, "case", ".labels.tmp.nii.gz",
+                                   NULL);
     struct stat sb;
     if (stat(cdir, &sb) == 0) {
         planning_case *c = case_load(cdir);
@@ -172,7 +169,8 @@ static void test_fracture_killed_keeps_old_case(void **st)
     assert_int_equal(stat(srcfile, &sb), 0);
     char args[9000];
     snprintf(args, sizeof args, "fracture '%s' -o '%s' --seed 2 --force", src, cdir);
-    int killed = kill_when_written(spawn(args), dir, "case", "source.nii.gz", &sb);
+    int killed = kill_when_written((char *[]){"fracture", src, "-o", cdir, "--seed", "2", "--force", NULL}, dir, "case",
+                                   "source.nii.gz", &sb);
     c = case_load(cdir);
     if (!c)
         fail_msg("killed=%d: the case no longer loads: %s", killed, fn_err_msg());

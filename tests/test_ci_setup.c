@@ -35,8 +35,7 @@ static const char *const stubs[][2] = {
 static int run_setup(const char *dir, char **out)
 {
     char cmd[8192];
-    const char *src = getenv("FRACNAV_SRC");
-    assert_non_null(src);
+    const char *src = tu_src();
     snprintf(cmd, sizeof cmd,
              "cd '%s' && PATH='%s/bin':/usr/bin:/bin STUB_LOG='%s/log' STUB_STATE='%s' "
              "FRACNAV_DATA='%s/data' sh '%s/.ci/setup' 2>&1",

@@ -134,8 +134,7 @@ static char *stderr_of(int *rc, const char *fmt, ...)
     va_start(ap, fmt);
     vsnprintf(args, sizeof args, fmt, ap);
     va_end(ap);
-    const char *bin = getenv("FRACNAV_BIN");
-    snprintf(cmd, sizeof cmd, "'%s' %s 2>&1 >/dev/null", bin && *bin ? bin : "fracnav", args);
+    snprintf(cmd, sizeof cmd, "'%s' %s 2>&1 >/dev/null", tu_fracnav(), args);
     FILE *p = popen(cmd, "r");
     assert_non_null(p);
     char *out = calloc(1, 65536);

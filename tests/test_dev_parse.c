@@ -11,6 +11,7 @@
 
 #include "devparse.h"
 #include "devtab.h"
+#include "loop.h"
 
 static int near(float a, float b)
 {
@@ -202,6 +203,21 @@ static void test_sparse_buttons(void **s)
     assert_int_equal(ev.buttons, 1u << 6); /* bit 3 is not a button of this device */
 }
 
+/* One pause clamp: after a pause an event's dt_us is what the loop integrates a report over. */
+static void test_one_pause_clamp(void **s)
+{
+    devparse_state st;
+    devparse_init(&st, NULL, 0);
+    uint8_t buf[16];
+    int v[6] = {35, 0, 0, 0, 0, 0};
+    dev_event ev;
+    devparse_report(&st, buf, devparse_make_combined(buf, v), 0, &ev);
+    devparse_report(&st, buf, devparse_make_combined(buf, v), 5000000, &ev); /* 5 s pause */
+    loop_config c;
+    loop_config_default(&c);
+    assert_int_equal(ev.dt_us, c.dt_max_us);
+}
+
 static void test_merge_and_dt_clamp(void **s)
 {
     devparse_state st;
@@ -259,6 +275,7 @@ int main(void)
         cmocka_unit_test(test_bad_reports_counted), cmocka_unit_test(test_battery_and_keys),
         cmocka_unit_test(test_enterprise_keys_are_buttons),
         cmocka_unit_test(test_sparse_buttons),      cmocka_unit_test(test_merge_and_dt_clamp),
+        cmocka_unit_test(test_one_pause_clamp),
         cmocka_unit_test(test_descriptor_axis_max), cmocka_unit_test(test_open_features),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

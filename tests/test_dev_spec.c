@@ -41,7 +41,7 @@ static size_t hex_bytes(const char *text, size_t len, uint8_t *out, size_t cap)
 static size_t spec_descriptor(uint8_t *out, size_t cap)
 {
     char path[4096];
-    snprintf(path, sizeof path, "%s/firmware-spec/open-controller.desc.hex", getenv("FRACNAV_SRC"));
+    snprintf(path, sizeof path, "%s/firmware-spec/open-controller.desc.hex", tu_src());
     size_t len;
     char *text = tu_slurp(path, &len);
     assert_non_null(text);
@@ -97,7 +97,7 @@ static void test_spec_document_lists_the_file(void **s)
     uint8_t file[512], doc[512];
     size_t nf = spec_descriptor(file, sizeof file);
     char path[4096];
-    snprintf(path, sizeof path, "%s/firmware-spec/open-controller.md", getenv("FRACNAV_SRC"));
+    snprintf(path, sizeof path, "%s/firmware-spec/open-controller.md", tu_src());
     size_t len;
     char *text = tu_slurp(path, &len);
     assert_non_null(text);

@@ -15,7 +15,7 @@
 static char *rules(void)
 {
     char path[4096];
-    snprintf(path, sizeof path, "%s/udev/70-fracnav.rules", getenv("FRACNAV_SRC"));
+    snprintf(path, sizeof path, "%s/udev/70-fracnav.rules", tu_src());
     char *text = tu_slurp(path, NULL);
     assert_non_null(text);
     return text;

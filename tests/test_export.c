@@ -94,8 +94,7 @@ static int setup(void **st)
     snprintf(tube, sizeof tube, "%s/tube.nii.gz", dir);
     snprintf(frac, sizeof frac, "%s/frac", dir);
     snprintf(out, sizeof out, "%s/out", dir);
-    const char *src = getenv("FRACNAV_SRC");
-    snprintf(reader, sizeof reader, "%s/tests/export_read.py", src && *src ? src : FRACNAV_TEST_DATA "/../..");
+    snprintf(reader, sizeof reader, "%s/tests/export_read.py", tu_src());
     vol *v = vol_new(40, 40, 48);
     assert_non_null(v);
     for (int k = 0; k < 48; k++)
@@ -135,8 +134,7 @@ static long file_size(const char *path)
 static void test_all_json(void **st)
 {
     (void)st;
-    const char *bin = getenv("FRACNAV_BIN");
-    json_t *j = run_json("'%s' export '%s' --all '%s' --json 2>/dev/null", bin, frac, out);
+    json_t *j = run_json("'%s' export '%s' --all '%s' --json 2>/dev/null", tu_fracnav(), frac, out);
     assert_non_null(j);
     assert_string_equal(json_string_value(json_object_get(j, "command")), "export");
     json_t *files = json_object_get(j, "files"), *f;

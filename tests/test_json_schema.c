@@ -157,8 +157,7 @@ static json_t *fracnav(const char *command, const char *fmt, ...)
     va_start(ap, fmt);
     vsnprintf(args, sizeof args, fmt, ap);
     va_end(ap);
-    const char *bin = getenv("FRACNAV_BIN");
-    return run_json(bin && *bin ? bin : "fracnav", command, "%s", args);
+    return run_json(tu_fracnav(), command, "%s", args);
 }
 
 /* Why key breaks the convention, or NULL. Tokens split on '_': a unit only last; a statistic last
@@ -463,12 +462,9 @@ static void test_bench_render(void **st)
 /* fracnav-sim bench, where FUSE can be served (the simulator is built beside fracnav). */
 static void test_sim_bench(void **st)
 {
-    const char *bin = getenv("FRACNAV_BIN");
-    char sim[4300], copy[4096];
-    snprintf(copy, sizeof copy, "%s", bin && *bin ? bin : "fracnav");
-    snprintf(sim, sizeof sim, "%s/sim/fracnav-sim", dirname(copy));
-    if (access(sim, X_OK) != 0 || access("/dev/fuse", R_OK | W_OK) != 0) {
-        fprintf(stderr, "SKIP: fracnav-sim bench needs %s and /dev/fuse\n", sim);
+    const char *sim = tu_sim();
+    if (access("/dev/fuse", R_OK | W_OK) != 0) {
+        fprintf(stderr, "SKIP: fracnav-sim bench needs /dev/fuse\n");
         skip();
     }
     json_t *j = run_json(sim, "fracnav-sim bench", "bench --seconds 0.2");

@@ -216,11 +216,65 @@ static void test_steps_touch_no_new_page(void **st)
     free(dir);
 }
 
+/* A collider whose cache remembers the pair it was given for: a pair must never find another pair's
+ * state in its cache (only zeros, or its own). */
+typedef struct pair_mark {
+    int a, b, set;
+} pair_mark;
+
+static int foreign; /* queries that found another pair's mark */
+
+static int marking(void *ctx, int a, const pose *pa, int b, const pose *pb, void *cache, loop_contact *out)
+{
+    pair_mark *m = cache;
+    if (m->set && (m->a != a || m->b != b))
+        foreign++;
+    *m = (pair_mark){a, b, 1};
+    out->collides = 0;
+    out->separation_mm = 0.01; /* close: every step queries */
+    return 0;
+}
+
+/* The pair caches grow with the fragments, not with their pairs: 16 fragments with 1 MiB caches
+ * ask for about 17 MiB (a slot per fragment and a scratch), not 257 MiB (n*n). Each fragment in
+ * turn moves against the others, and no pair is handed another's cache. */
+static void test_pair_caches_grow_with_fragments(void **st)
+{
+    enum { N = 16 };
+    const size_t cb = 1u << 20;
+    frag f[N];
+    for (int i = 0; i < N; i++)
+        tu_box_frag(&f[i], i + 1, (const int[3]){2, 2, 2}, (const double[3]){10.0 * i, 0, 0});
+    loop_collider col = {.query = marking, .cache_bytes = cb};
+    allocount_start();
+    loop *L = loop_new(f, N, NULL, &col, NULL, NULL);
+    long long asked = allocount_bytes();
+    allocount_stop();
+    assert_non_null(L);
+    if (allocount_available() && asked > (long long)(N + 4) * (long long)cb)
+        fail_msg("loop_new asked for %lld bytes for %d fragments with %zu-byte caches", asked, N, cb);
+    foreign = 0;
+    for (int k = 0; k < 3 * N; k++) {
+        loop_event e = motion(2 * k, 0.1f, 0, 0);
+        assert_true(loop_feed(L, &e) >= 0);
+        e = action(2 * k + 1, LOOP_ACT_NEXT);
+        assert_true(loop_feed(L, &e) >= 0);
+    }
+    loop_stats stats;
+    loop_get_stats(L, &stats);
+    assert_true(stats.queries > (uint64_t)N * (N - 1));
+    assert_int_equal(foreign, 0);
+    loop_free(L);
+    for (int i = 0; i < N; i++)
+        free(f[i].prob);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_steps_touch_no_new_page), /* first: nothing has run the step yet */
         cmocka_unit_test(test_steps_allocate_nothing),
+        cmocka_unit_test(test_pair_caches_grow_with_fragments),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -181,8 +181,7 @@ static void test_shipped_grazing_slides_on_example(void **st)
         fprintf(stderr, "%s\n", out);
     free(out);
     assert_int_equal(rc, 0);
-    const char *src = getenv("FRACNAV_SRC");
-    snprintf(rec, sizeof rec, "%s/sim/recordings/grazing-slide.fnrec", src ? src : "..");
+    snprintf(rec, sizeof rec, "%s/sim/recordings/grazing-slide.fnrec", tu_src());
     rc = tu_run_cli(&out, "replay '%s' '%s' --json --no-journal", ex, rec);
     assert_int_equal(rc, 0);
     json_t *j = json_loads(strchr(out, '{'), 0, NULL);
@@ -195,36 +194,6 @@ static void test_shipped_grazing_slides_on_example(void **st)
     tu_rmtree(ex);
 }
 
-/* Starts `fracnav ARGS...` (stdin from /dev/null) with its stderr readable through *err, its
- * stdout into the file out (NULL: inherited). Without err, stderr goes into out too. */
-static pid_t start_cli(FILE **err, const char *out, char *const args[])
-{
-    const char *bin = getenv("FRACNAV_BIN");
-    char *argv[16] = {(char *)bin};
-    for (int i = 0; args[i] && i < 14; i++)
-        argv[i + 1] = args[i];
-    int fds[2];
-    assert_int_equal(pipe(fds), 0);
-    pid_t pid = fork();
-    if (pid == 0) {
-        int o = out ? open(out, O_WRONLY | O_CREAT | O_TRUNC | O_APPEND, 0644) : 1;
-        if (o < 0 || !freopen("/dev/null", "r", stdin))
-            _exit(126);
-        dup2(o, 1);
-        dup2(err ? fds[1] : o, 2);
-        close(fds[0]);
-        execv(bin, argv);
-        _exit(127);
-    }
-    close(fds[1]);
-    if (err)
-        *err = fdopen(fds[0], "r");
-    else
-        close(fds[0]);
-    assert_true(!err || *err);
-    return pid;
-}
-
 /* Killed mid-replay (SIGKILL) once the journal on disk holds 300 ms of its motion: the next
  * start refuses to silently drop those poses, and --recover starts from the last of them. The
  * recording stays plugged in long after its motion, so the kill is mid-replay however slow the
@@ -235,19 +204,17 @@ static void test_crash_recovery(void **st)
                                         "wait 600 s\nunplug\n");
     char cmd[9000];
     FILE *err;
-    pid_t pid = start_cli(&err, NULL, (char *[]){"replay", case_dir, (char *)rec, "--realtime",
-                                                 "--discard-journal", NULL});
-    char line[1024];
-    assert_non_null(fgets(line, sizeof line, err));
+    pid_t pid = tu_spawn_cli(NULL, &err, (char *[]){"replay", case_dir, (char *)rec, "--realtime",
+                                                    "--discard-journal", NULL});
+    char line[1024] = "";
+    assert_true(tu_wait_line(err, "\n", line, sizeof line));
     assert_non_null(strstr(line, "stepping"));
     int64_t span = 300000;
     int midway = tu_wait_for(journal_spans, &span, TU_WAIT_MAX_S);
-    kill(pid, SIGKILL);
-    int status;
-    waitpid(pid, &status, 0);
+    int status = tu_end(pid, SIGKILL, "replay, killed");
     fclose(err);
     assert_true(midway);
-    assert_true(WIFSIGNALED(status));
+    assert_int_equal(status, 128 + SIGKILL);
 
     journal_scan s;
     assert_int_equal(journal_read(case_dir, &s), 0);
@@ -299,15 +266,13 @@ static void test_navigate_saves_on_exit(void **st)
     snprintf(path, sizeof path, "%s/case.json", case_dir);
     size_t len;
     char *before = tu_slurp(path, &len);
-    pid_t pid = start_cli(NULL, outp, (char *[]){"navigate", case_dir, "--device", spec, "--json", NULL});
+    pid_t pid = tu_spawn_cli(outp, NULL, (char *[]){"navigate", case_dir, "--device", spec, "--json", NULL});
     int shown = tu_wait_for_text(outp, "| world", TU_WAIT_MAX_S); /* a status line, once a second */
-    kill(pid, SIGTERM);
-    int status;
-    waitpid(pid, &status, 0);
+    int status = tu_end(pid, SIGTERM, "navigate after SIGTERM");
     char *out = tu_slurp(outp, NULL);
     if (!shown)
         fail_msg("navigate never showed the frame key's effect: %s", out);
-    assert_true(WIFEXITED(status) && WEXITSTATUS(status) == 0);
+    assert_int_equal(status, 0);
     assert_non_null(strstr(out, "frag 2/2"));
     assert_non_null(strstr(out, "steps/s"));
     json_t *j = json_loads(strchr(out, '{'), JSON_DISABLE_EOF_CHECK, NULL);
@@ -403,17 +368,14 @@ static char *navigate_keys(const char *keys, const char *until)
     snprintf(outp, sizeof outp, "%s/keys.out", dir);
     snprintf(spec, sizeof spec, "keyboard:%s", path);
     tu_write_file(path, keys, strlen(keys));
-    pid_t pid = start_cli(NULL, outp, (char *[]){"navigate", case_dir, "--device", spec, "--json", NULL});
+    pid_t pid = tu_spawn_cli(outp, NULL, (char *[]){"navigate", case_dir, "--device", spec, "--json", NULL});
     int shown = !until || tu_wait_for_text(outp, until, TU_WAIT_MAX_S);
-    if (until)
-        kill(pid, SIGTERM);
-    int status;
-    waitpid(pid, &status, 0);
+    int status = tu_end(pid, until ? SIGTERM : 0, "navigate with keys");
     char *out = tu_slurp(outp, NULL);
     if (!shown)
         fail_msg("navigate with keys '%s' never printed '%s': %s", keys, until, out);
-    if (!WIFEXITED(status) || WEXITSTATUS(status) != 0)
-        fail_msg("navigate with keys '%s' ended with status %#x: %s", keys, status, out);
+    if (status != 0)
+        fail_msg("navigate with keys '%s' ended with status %d: %s", keys, status, out);
     return out;
 }
 

@@ -1,4 +1,4 @@
-/* mesh (src/core/mesh.h): closed, consistently wound surfaces for export and printing. A ball's
+/* mesh (src/core/geometry/mesh.h): closed, consistently wound surfaces for export and printing. A ball's
  * surface is one closed 2-manifold (every directed edge once and its reverse once, Euler
  * characteristic 2) enclosing about the ball's volume; bone touching the grid's border is closed
  * too; Taubin smoothing keeps the volume and decimation keeps the surface closed. */

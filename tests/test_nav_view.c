@@ -34,8 +34,6 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
-#define FAILSAFE_MS 60000 /* only so that a broken build fails instead of hanging */
-
 static char *dir;
 static char case_dir[4200];
 
@@ -85,52 +83,6 @@ static double moved_t(json_t *j, int axis)
 {
     json_t *p = json_array_get(json_object_get(j, "final_poses"), 1);
     return json_number_value(json_array_get(json_object_get(p, "t"), (size_t)axis));
-}
-
-/* Starts `fracnav ARGS...`: stdin /dev/null, stdout into the file `out`, stderr on *err. */
-static pid_t start_cli(FILE **err, const char *out, char *const args[])
-{
-    const char *bin = getenv("FRACNAV_BIN");
-    char *argv[20] = {(char *)bin};
-    for (int i = 0; args[i] && i < 18; i++)
-        argv[i + 1] = args[i];
-    int fds[2];
-    assert_int_equal(pipe(fds), 0);
-    pid_t pid = fork();
-    if (pid == 0) {
-        dup2(fds[1], 2);
-        close(fds[0]);
-        int fd = open(out, O_WRONLY | O_CREAT | O_TRUNC, 0644);
-        if (fd < 0 || dup2(fd, 1) < 0 || !freopen("/dev/null", "r", stdin))
-            _exit(126);
-        execv(bin, argv);
-        _exit(127);
-    }
-    close(fds[1]);
-    *err = fdopen(fds[0], "r");
-    assert_non_null(*err);
-    return pid;
-}
-
-/* Reads lines from f until one holds `needle` (0 at end of file); the lines read are appended to
- * seen (cap bytes). */
-static int line_with(FILE *f, const char *needle, char *seen, size_t cap)
-{
-    char line[4096];
-    while (fgets(line, sizeof line, f)) {
-        size_t n = strlen(seen);
-        snprintf(seen + n, cap - n, "%s", line);
-        if (strstr(line, needle))
-            return 1;
-    }
-    return 0;
-}
-
-static int exit_code(pid_t pid)
-{
-    int st;
-    assert_int_equal(waitpid(pid, &st, 0), pid);
-    return WIFEXITED(st) ? WEXITSTATUS(st) : -1;
 }
 
 /* The whole of a file as JSON (NULL when it is anything more or less than one JSON value). */
@@ -399,12 +351,12 @@ static void test_recording_ends_navigate(void **st)
     snprintf(spec, sizeof spec, "replay-realtime:%s", rec);
     snprintf(out, sizeof out, "%s/ends.json", dir);
     FILE *err;
-    pid_t pid = start_cli(&err, out, (char *[]){"navigate", (char *)c, "--device", spec, "--json",
-                                                "--duration", "60", NULL});
-    int ended = line_with(err, "end of the recording", seen, sizeof seen);
-    line_with(err, "\001", seen, sizeof seen); /* the rest, to the end */
+    pid_t pid = tu_spawn_cli(out, &err, (char *[]){"navigate", (char *)c, "--device", spec, "--json",
+                                                   "--duration", "60", NULL});
+    int ended = tu_wait_line(err, "end of the recording", seen, sizeof seen);
+    tu_wait_line(err, "\001", seen, sizeof seen); /* the rest, to the end */
     fclose(err);
-    assert_int_equal(exit_code(pid), 0);
+    assert_int_equal(tu_end(pid, 0, "navigate"), 0);
     if (!ended)
         fail_msg("navigate did not say the recording ended: %s", seen);
     assert_null(strstr(seen, "DEVICE UNPLUGGED"));
@@ -426,13 +378,13 @@ static void test_loop_plays_again(void **st)
     snprintf(spec, sizeof spec, "replay-realtime:%s", rec);
     snprintf(out, sizeof out, "%s/loops.json", dir);
     FILE *err;
-    pid_t pid = start_cli(&err, out, (char *[]){"navigate", (char *)c, "--device", spec, "--json",
-                                                "--loop", "--duration", "60", NULL});
-    int third = line_with(err, "(play 3)", seen, sizeof seen);
+    pid_t pid = tu_spawn_cli(out, &err, (char *[]){"navigate", (char *)c, "--device", spec, "--json",
+                                                   "--loop", "--duration", "60", NULL});
+    int third = tu_wait_line(err, "(play 3)", seen, sizeof seen);
     kill(pid, SIGTERM); /* quits and saves, as Ctrl-C */
-    line_with(err, "\001", seen, sizeof seen);
+    tu_wait_line(err, "\001", seen, sizeof seen);
     fclose(err);
-    assert_int_equal(exit_code(pid), 0);
+    assert_int_equal(tu_end(pid, 0, "navigate"), 0);
     if (!third)
         fail_msg("no third play announced: %s", seen);
     json_t *j = json_file(out);
@@ -459,7 +411,7 @@ static void test_json_alone_on_stdout(void **st)
     snprintf(errp, sizeof errp, "%s/alone.err", dir);
     char cmd[20000]; /* not tu_run_cli, which sends standard error to standard output */
     snprintf(cmd, sizeof cmd, "'%s' navigate '%s' --device 'keyboard:%s' --duration 0.3 --json < /dev/null "
-             "> '%s' 2> '%s'", getenv("FRACNAV_BIN"), c, keys, out, errp);
+             "> '%s' 2> '%s'", tu_fracnav(), c, keys, out, errp);
     assert_int_equal(system(cmd), 0);
     json_t *j = json_file(out);
     assert_non_null(j);
@@ -481,13 +433,13 @@ static void keyboard_shows(const char *keys, const char *needle)
     snprintf(spec, sizeof spec, "keyboard:%s", path);
     snprintf(out, sizeof out, "%s/kb.json", dir);
     FILE *err;
-    pid_t pid = start_cli(&err, out, (char *[]){"navigate", (char *)c, "--device", spec, "--json",
-                                                "--duration", "60", NULL});
-    int shown = line_with(err, needle, seen, sizeof seen);
+    pid_t pid = tu_spawn_cli(out, &err, (char *[]){"navigate", (char *)c, "--device", spec, "--json",
+                                                   "--duration", "60", NULL});
+    int shown = tu_wait_line(err, needle, seen, sizeof seen);
     kill(pid, SIGTERM);
-    line_with(err, "\001", seen, sizeof seen);
+    tu_wait_line(err, "\001", seen, sizeof seen);
     fclose(err);
-    assert_int_equal(exit_code(pid), 0);
+    assert_int_equal(tu_end(pid, 0, "navigate"), 0);
     if (!shown)
         fail_msg("'%s' never shown after the keys '%s': %s", needle, keys, seen);
     json_t *j = json_file(out);
@@ -512,7 +464,7 @@ static int pty_until(int fd, char *acc, size_t cap, size_t from, const char *nee
         if (needle && strstr(acc + from, needle))
             return 1;
         struct pollfd p = {fd, POLLIN, 0};
-        if (poll(&p, 1, FAILSAFE_MS) <= 0)
+        if (poll(&p, 1, TU_WAIT_MAX_S * 1000) <= 0)
             return 0;
         size_t n = strlen(acc);
         if (n + 1 >= cap)
@@ -566,7 +518,7 @@ static void test_terminal_of_80_columns(void **st)
     const char *rec = recording("turn", "translate +x 4 mm over 0.2 s\nmove rz 10 deg over 0.3 s\nwait 60 s\nunplug\n");
     char spec[4400];
     snprintf(spec, sizeof spec, "replay-realtime:%s", rec);
-    const char *bin = getenv("FRACNAV_BIN");
+    const char *bin = tu_fracnav();
     struct winsize ws = {24, 80, 0, 0};
     int fd;
     pid_t pid = forkpty(&fd, NULL, NULL, &ws);
@@ -584,7 +536,7 @@ static void test_terminal_of_80_columns(void **st)
     assert_int_equal(write(fd, "q", 1), 1);
     pty_until(fd, acc, sizeof acc, 0, NULL);
     close(fd);
-    assert_int_equal(exit_code(pid), 0);
+    assert_int_equal(tu_end(pid, 0, "navigate"), 0);
     if (!turned || !help)
         fail_msg("the 80-column screen never showed %s: %s", turned ? "the help" : "the turn", acc);
     pieces_fit(acc, 80);
@@ -600,46 +552,11 @@ static void test_terminal_of_80_columns(void **st)
 
 /* ---- another controller at the device's path (FUSE) ---- */
 
-static const char *sim_bin(void)
-{
-    static char path[4200];
-    char copy[4096];
-    snprintf(copy, sizeof copy, "%s", getenv("FRACNAV_BIN"));
-    snprintf(path, sizeof path, "%s/sim/fracnav-sim", dirname(copy));
-    return path;
-}
-
-/* fracnav-sim serve --mount mnt --as DEVICE; returns once the node answers a stat. */
-static pid_t serve_as(const char *mnt, const char *device)
-{
-    char node[4300], log[4300];
-    snprintf(node, sizeof node, "%s/hidraw0", mnt);
-    snprintf(log, sizeof log, "%s/sim.log", dir);
-    pid_t pid = fork();
-    if (pid == 0) {
-        int fd = open(log, O_WRONLY | O_CREAT | O_APPEND, 0644);
-        if (fd >= 0)
-            dup2(fd, 1), dup2(fd, 2);
-        execl(sim_bin(), sim_bin(), "serve", "--mount", mnt, "--as", device, (char *)NULL);
-        _exit(127);
-    }
-    struct stat sb;
-    for (int waited = 0; stat(node, &sb) != 0; waited += 10) {
-        if (waited > FAILSAFE_MS || waitpid(pid, NULL, WNOHANG) == pid)
-            fail_msg("fracnav-sim did not serve %s (see %s)", node, log);
-        usleep(10000);
-    }
-    return pid;
-}
-
+/* Stops the server at mnt as Ctrl-C does, and undoes its mount. */
 static void unserve(pid_t pid, const char *mnt)
 {
-    kill(pid, SIGTERM);
-    waitpid(pid, NULL, 0);
-    char cmd[4400];
-    snprintf(cmd, sizeof cmd, "fusermount3 -u -z '%s' >/dev/null 2>&1", mnt);
-    if (system(cmd) == -1)
-        perror("fusermount3");
+    tu_end(pid, SIGTERM, "fracnav-sim after SIGTERM");
+    tu_unmount(mnt);
 }
 
 /* The issue: restart the virtual device as another model at the same mount and navigate showed
@@ -656,20 +573,22 @@ static void test_other_controller_is_reported(void **st)
     snprintf(node, sizeof node, "%s/hidraw0", mnt);
     snprintf(out, sizeof out, "%s/other.json", dir);
     const char *c = case_copy("other");
-    pid_t srv = serve_as(mnt, "spacenavigator");
+    char log[4400];
+    snprintf(log, sizeof log, "%s/sim.log", dir);
+    pid_t srv = tu_serve(mnt, log, "--as", "spacenavigator", NULL);
     FILE *err;
-    pid_t pid = start_cli(&err, out, (char *[]){"navigate", (char *)c, "--device", node, "--json",
-                                                "--duration", "60", NULL});
-    int up = line_with(err, "frag 2/2", seen, sizeof seen);
+    pid_t pid = tu_spawn_cli(out, &err, (char *[]){"navigate", (char *)c, "--device", node, "--json",
+                                                   "--duration", "60", NULL});
+    int up = tu_wait_line(err, "frag 2/2", seen, sizeof seen);
     unserve(srv, mnt);
-    int gone = up && line_with(err, "DEVICE UNPLUGGED", seen, sizeof seen);
-    srv = serve_as(mnt, "spaceexplorer");
-    int told = gone && line_with(err, "not taken", seen, sizeof seen);
+    int gone = up && tu_wait_line(err, "DEVICE UNPLUGGED", seen, sizeof seen);
+    srv = tu_serve(mnt, log, "--as", "spaceexplorer", NULL);
+    int told = gone && tu_wait_line(err, "not taken", seen, sizeof seen);
     kill(pid, SIGTERM);
-    line_with(err, "\001", seen, sizeof seen);
+    tu_wait_line(err, "\001", seen, sizeof seen);
     fclose(err);
     unserve(srv, mnt);
-    assert_int_equal(exit_code(pid), 0);
+    assert_int_equal(tu_end(pid, 0, "navigate"), 0);
     if (!told)
         fail_msg("the other controller was not reported: %s", seen);
     const char *at = strstr(seen, "not taken");

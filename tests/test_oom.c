@@ -168,8 +168,7 @@ static void test_case(void **st)
 
 static void test_recording(void **st)
 {
-    const char *src = getenv("FRACNAV_SRC");
-    assert_non_null(src);
+    const char *src = tu_src();
     char p[512];
     snprintf(p, sizeof p, "%s/sim/recordings/buttons.fnrec", src);
     long n = fail_each(load_fnrec, free_fnrec, p);

@@ -25,8 +25,6 @@
 #include "simdev.h"
 #include "testutil.h"
 
-#define HANG_S TU_WAIT_MAX_S /* a wait still unmet after this long never ends */
-
 static char *dir;
 
 static int setup(void **st)
@@ -58,35 +56,6 @@ static const char *write_script(const char *name, const char *text)
     return p;
 }
 
-static void pause_ms(int ms)
-{
-    nanosleep(&(struct timespec){0, ms * 1000000L}, NULL);
-}
-
-/* Starts `fracnav record ARGS...` with stderr to err_fd (stdout to /dev/null). */
-static pid_t start_record(int err_fd, const char *first, ...)
-{
-    const char *bin = getenv("FRACNAV_BIN");
-    char *argv[16] = {(char *)(bin ? bin : "fracnav"), "record"};
-    int n = 2;
-    va_list ap;
-    va_start(ap, first);
-    for (const char *a = first; a && n < 15; a = va_arg(ap, const char *))
-        argv[n++] = (char *)a;
-    va_end(ap);
-    argv[n] = NULL;
-    pid_t pid = fork();
-    if (pid == 0) {
-        int null = open("/dev/null", O_WRONLY);
-        dup2(null, 1);
-        dup2(err_fd, 2);
-        execv(argv[0], argv);
-        _exit(127);
-    }
-    return pid;
-}
-
-
 static size_t count_in(const fnrec *r)
 {
     size_t n = 0;
@@ -112,10 +81,8 @@ static void test_record_stops_at_script_end(void **st)
     const char *rec = path_in("s.fnrec"), *log = path_in("s.log");
     char dev[700];
     snprintf(dev, sizeof dev, "virtual:spacenavigator:script=%s", scr);
-    int fd = open(log, O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    pid_t pid = start_record(fd, "-o", rec, "--device", dev, NULL);
-    close(fd);
-    assert_int_equal(tu_wait_exit(pid, "record of a virtual script"), 0);
+    pid_t pid = tu_spawn_cli(log, NULL, (char *[]){"record", "-o", (char *)rec, "--device", dev, NULL});
+    assert_int_equal(tu_end(pid, 0, "record of a virtual script"), 0);
     char *text = tu_slurp(log, NULL);
     assert_non_null(strstr(text, "end of the virtual device's script"));
     free(text);
@@ -126,6 +93,17 @@ static void test_record_stops_at_script_end(void **st)
     fnrec_free(got);
 }
 
+/* At least 20 input reports are in the recording at path. */
+static int twenty_reports(void *path)
+{
+    char *text = tu_slurp(path, NULL);
+    size_t lines = 0;
+    for (const char *p = text; p && (p = strstr(p, " in ")); p++)
+        lines++;
+    free(text);
+    return lines >= 20;
+}
+
 /* Ctrl-C mid-recording: exit 0, says so, and the file holds what was recorded. */
 static void test_record_ctrl_c_keeps_what_it_has(void **st)
 {
@@ -133,22 +111,9 @@ static void test_record_ctrl_c_keeps_what_it_has(void **st)
     const char *rec = path_in("c.fnrec"), *log = path_in("c.log");
     char dev[700];
     snprintf(dev, sizeof dev, "virtual:spacenavigator:script=%s", scr);
-    int fd = open(log, O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    pid_t pid = start_record(fd, "-o", rec, "--device", dev, NULL);
-    close(fd);
-    size_t lines = 0;
-    for (int i = 0; i < HANG_S * 100 && lines < 20; i++) { /* until 20 reports are on disk */
-        char *text = tu_slurp(rec, NULL);
-        lines = 0;
-        for (const char *p = text; p && (p = strstr(p, " in ")); p++)
-            lines++;
-        free(text);
-        if (lines < 20)
-            pause_ms(10);
-    }
-    assert_true(lines >= 20);
-    kill(pid, SIGINT);
-    assert_int_equal(tu_wait_exit(pid, "record after Ctrl-C"), 0);
+    pid_t pid = tu_spawn_cli(log, NULL, (char *[]){"record", "-o", (char *)rec, "--device", dev, NULL});
+    assert_true(tu_wait_for(twenty_reports, (void *)rec, TU_WAIT_MAX_S));
+    assert_int_equal(tu_end(pid, SIGINT, "record after Ctrl-C"), 0);
     char *text = tu_slurp(log, NULL);
     assert_non_null(strstr(text, "(stopped by Ctrl-C)"));
     free(text);
@@ -169,7 +134,10 @@ static void test_record_progress_on_terminal(void **st)
     assert_true(master >= 0 && grantpt(master) == 0 && unlockpt(master) == 0);
     int slave = open(ptsname(master), O_RDWR | O_NOCTTY);
     assert_true(slave >= 0);
-    pid_t pid = start_record(slave, "-o", rec, "--device", dev, "--seconds", "30", NULL); /* ends with the script */
+    /* It ends with the script; the terminal stays open here until it has, so what it wrote waits. */
+    pid_t pid = tu_spawn_cli(ptsname(master), NULL, (char *[]){"record", "-o", (char *)rec, "--device", dev,
+                                                               "--seconds", "30", NULL});
+    assert_int_equal(tu_end(pid, 0, "record on a terminal"), 0);
     close(slave);
     char text[8192];
     size_t n = 0;
@@ -178,7 +146,6 @@ static void test_record_progress_on_terminal(void **st)
         n += (size_t)got; /* EIO once the child, the last holder of the terminal, is gone */
     text[n] = '\0';
     close(master);
-    assert_int_equal(tu_wait_exit(pid, "record on a terminal"), 0);
     if (!strstr(text, "\rrecording ") || !strstr(text, " reports, ") || !strstr(text, " s"))
         fail_msg("no progress line on the terminal: '%s'", text);
     char *out = NULL;

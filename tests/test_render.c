@@ -111,7 +111,7 @@ static long content_pixels(const uint8_t *rgb)
 static void check_golden(const uint8_t *rgb, const char *name)
 {
     char path[4200];
-    snprintf(path, sizeof path, "%s/tests/golden/render_%s.png", getenv("FRACNAV_SRC"), name);
+    snprintf(path, sizeof path, "%s/tests/golden/render_%s.png", tu_src(), name);
     const char *update = getenv("FRACNAV_UPDATE_GOLDEN");
     if (update && !strcmp(update, "1")) {
         assert_int_equal(picture_write_png(path, rgb, W, H), 0);
@@ -798,7 +798,7 @@ static void test_replay_window_matches_render(void **st)
     char *dir = tu_tmpdir("replaywin"), case_dir[4200], rec[4200];
     char headless[64], live[64];
     tu_two_blocks_case(dir, case_dir, sizeof case_dir);
-    snprintf(rec, sizeof rec, "%s/sim/recordings/head-on.fnrec", getenv("FRACNAV_SRC"));
+    snprintf(rec, sizeof rec, "%s/sim/recordings/head-on.fnrec", tu_src());
     char *out = NULL;
     unsetenv("DISPLAY");
     int rc = tu_run_cli(&out, "replay '%s' '%s' --json --no-journal", case_dir, rec);
@@ -840,7 +840,7 @@ static void test_replay_frames(void **st)
     char *dir = tu_tmpdir("frames"), case_dir[4200], path[4400], *out = NULL;
     tu_two_blocks_case(dir, case_dir, sizeof case_dir);
     char rec[4200];
-    snprintf(rec, sizeof rec, "%s/sim/recordings/head-on.fnrec", getenv("FRACNAV_SRC"));
+    snprintf(rec, sizeof rec, "%s/sim/recordings/head-on.fnrec", tu_src());
     int rc = tu_run_cli(&out, "replay '%s' '%s' --frames '%s/frames' --frame-ms 250 --no-journal", case_dir,
                         rec, dir);
     if (rc != 0)

@@ -402,9 +402,8 @@ static void test_every_devtab_row_is_impersonable(void **st)
 /* The open controller's descriptor is firmware-spec/open-controller.desc.hex byte for byte. */
 static void test_open_controller_descriptor_is_the_spec(void **st)
 {
-    const char *src = getenv("FRACNAV_SRC");
     char path[1024];
-    snprintf(path, sizeof path, "%s/firmware-spec/open-controller.desc.hex", src ? src : "..");
+    snprintf(path, sizeof path, "%s/firmware-spec/open-controller.desc.hex", tu_src());
     size_t len;
     char *text = tu_slurp(path, &len);
     assert_non_null(text);
@@ -608,11 +607,11 @@ static void test_virtual_transport(void **st)
 static void test_shipped_recordings(void **st)
 {
     const char *names[] = {"head-on", "grazing-slide", "buttons", "demo-approach"};
-    const char *src = getenv("FRACNAV_SRC");
+    const char *src = tu_src();
     for (size_t i = 0; i < sizeof names / sizeof *names; i++) {
         char path[1024], spath[1024], id[16];
-        snprintf(path, sizeof path, "%s/sim/recordings/%s.fnrec", src ? src : "..", names[i]);
-        snprintf(spath, sizeof spath, "%s/sim/recordings/%s.script", src ? src : "..", names[i]);
+        snprintf(path, sizeof path, "%s/sim/recordings/%s.fnrec", src, names[i]);
+        snprintf(spath, sizeof spath, "%s/sim/recordings/%s.script", src, names[i]);
         fnrec *r = fnrec_load(path);
         if (!r)
             fail_msg("%s", fn_err_msg());
@@ -679,21 +678,15 @@ static void test_record_cli_virtual_and_replay(void **st)
     fnrec *want = render(text, "spacenavigator");
     char spec[600];
     snprintf(spec, sizeof spec, "virtual:spacenavigator:script=%s", scr);
-    const char *bin = getenv("FRACNAV_BIN");
-    pid_t pid = fork();
-    if (pid == 0) {
-        execl(bin ? bin : "fracnav", "fracnav", "record", "-o", rec, "--device", spec, "--seconds", "600",
-              (char *)NULL);
-        _exit(127);
-    }
+    pid_t pid = tu_spawn_cli(NULL, NULL, (char *[]){"record", "-o", (char *)rec, "--device", spec, "--seconds", "600",
+                                                    NULL});
     recorded_ins all = {rec, 0};
     for (size_t i = 0; i < want->n; i++)
         all.n += want->ev[i].dir == FNREC_IN;
-    int complete = tu_wait_for(holds_ins, &all, TU_WAIT_MAX_S), status;
-    kill(pid, SIGINT);
-    waitpid(pid, &status, 0);
+    int complete = tu_wait_for(holds_ins, &all, TU_WAIT_MAX_S);
+    int status = tu_end(pid, SIGINT, "record after Ctrl-C");
     assert_true(complete);
-    assert_true(WIFEXITED(status) && WEXITSTATUS(status) == 0);
+    assert_int_equal(status, 0);
     int rc;
     fnrec *got = fnrec_load(rec);
     assert_non_null(got);

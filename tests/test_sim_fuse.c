@@ -31,11 +31,8 @@
 #include "vol.h"
 #include "volio.h"
 
-#define MAX_CHILDREN 6
-
 static char *workdir;
 static char mnt[512];
-static pid_t children[MAX_CHILDREN]; /* servers, recorders, navigate: killed in teardown */
 
 static int64_t now_us(void)
 {
@@ -44,107 +41,19 @@ static int64_t now_us(void)
     return (int64_t)ts.tv_sec * 1000000 + ts.tv_nsec / 1000;
 }
 
-static const char *sim_bin(void)
+static const char *server_log(void)
 {
-    static char path[1024];
-    const char *bin = getenv("FRACNAV_BIN");
-    char copy[1024];
-    snprintf(copy, sizeof copy, "%s", bin ? bin : "./fracnav");
-    snprintf(path, sizeof path, "%s/sim/fracnav-sim", dirname(copy));
-    return path;
+    static char log[600];
+    snprintf(log, sizeof log, "%s/server.log", workdir);
+    return log;
 }
 
-static void unmount_quietly(void)
-{
-    char cmd[700];
-    snprintf(cmd, sizeof cmd, "fusermount3 -u -z '%s' >/dev/null 2>&1", mnt);
-    if (system(cmd) == -1)
-        perror("fusermount3");
-}
-
-static void forget_child(pid_t pid)
-{
-    for (int i = 0; i < MAX_CHILDREN; i++)
-        if (children[i] == pid)
-            children[i] = 0;
-}
-
-typedef struct child {
-    pid_t pid;
-    int status;
-} child;
-
-static int exited(void *arg)
-{
-    child *c = arg;
-    return waitpid(c->pid, &c->status, WNOHANG) == c->pid;
-}
-
-/* Waits for a child to exit, at most max_s seconds; kills it when it does not. Returns its wait
- * status (-1 when it had to be killed). */
-static int reap(pid_t pid, double max_s)
-{
-    child c = {pid, -1};
-    forget_child(pid);
-    if (tu_wait_for(exited, &c, max_s))
-        return c.status;
-    kill(pid, SIGKILL);
-    waitpid(pid, &c.status, 0);
-    return -1;
-}
-
+/* Stops a server as Ctrl-C does: it must exit 0. */
 static void stop_server(pid_t pid)
 {
-    kill(pid, SIGTERM);
-    int st = reap(pid, TU_WAIT_MAX_S);
-    unmount_quietly();
-    assert_true(WIFEXITED(st) && WEXITSTATUS(st) == 0);
-}
-
-static pid_t spawn(char *const argv[], const char *log)
-{
-    pid_t pid = fork();
-    if (pid == 0) {
-        int fd = open(log, O_WRONLY | O_CREAT | O_APPEND, 0644);
-        if (fd >= 0) {
-            dup2(fd, 1);
-            dup2(fd, 2);
-        }
-        execv(argv[0], argv);
-        _exit(127);
-    }
-    for (int i = 0; i < MAX_CHILDREN; i++)
-        if (!children[i]) {
-            children[i] = pid;
-            break;
-        }
-    return pid;
-}
-
-static int node_served(void *node)
-{
-    struct stat st;
-    return stat(node, &st) == 0;
-}
-
-/* Starts fracnav-sim serve --mount mnt ARGS... and waits for the node. */
-static pid_t start_server(const char *first, ...)
-{
-    char *argv[24] = {(char *)sim_bin(), "serve", "--mount", mnt};
-    int n = 4;
-    va_list ap;
-    va_start(ap, first);
-    for (const char *a = first; a && n < 23; a = va_arg(ap, const char *))
-        argv[n++] = (char *)a;
-    va_end(ap);
-    argv[n] = NULL;
-    char log[600], node[600];
-    snprintf(log, sizeof log, "%s/server.log", workdir);
-    snprintf(node, sizeof node, "%s/hidraw0", mnt);
-    pid_t pid = spawn(argv, log);
-    if (!tu_wait_for(node_served, node, TU_WAIT_MAX_S))
-        fail_msg("fracnav-sim did not serve %s (see %s)", node, log);
-    return pid;
+    int rc = tu_end(pid, SIGTERM, "fracnav-sim after SIGTERM");
+    tu_unmount(mnt);
+    assert_int_equal(rc, 0);
 }
 
 static int setup(void **st)
@@ -160,13 +69,8 @@ static int setup(void **st)
 
 static int teardown(void **st)
 {
-    for (int i = 0; i < MAX_CHILDREN; i++)
-        if (children[i] > 0) {
-            kill(children[i], SIGKILL);
-            waitpid(children[i], NULL, 0);
-            children[i] = 0;
-        }
-    unmount_quietly();
+    tu_end_all();
+    tu_unmount(mnt);
     tu_rmtree(workdir);
     free(workdir);
     return 0;
@@ -280,10 +184,8 @@ static void await_recording(const char *path, rec_state want)
  * unplugs too (--wait-replug). */
 static pid_t record_in_background(const char *rec, const char *dev, const char *log)
 {
-    const char *bin = getenv("FRACNAV_BIN");
-    char *argv[] = {(char *)(bin ? bin : "fracnav"), "record", "-o", (char *)rec, "--device", (char *)dev,
-                    "--seconds", "600", "--wait-replug", NULL};
-    return spawn(argv, log);
+    return tu_spawn_cli(log, NULL, (char *[]){"record", "-o", (char *)rec, "--device", (char *)dev, "--seconds",
+                                              "600", "--wait-replug", NULL});
 }
 
 static const char *node_path(void)
@@ -297,12 +199,11 @@ static const char *node_path(void)
  * the recorder wrote; the recorder must have exited 0. */
 static fnrec *finish_recording(pid_t recp, pid_t srv, const char *rec)
 {
-    kill(recp, SIGINT);
-    int status = reap(recp, TU_WAIT_MAX_S);
+    int rc = tu_end(recp, SIGINT, "fracnav record after SIGINT");
     if (srv)
         stop_server(srv);
-    if (!WIFEXITED(status) || WEXITSTATUS(status) != 0)
-        fail_msg("fracnav record ended with status %#x", status);
+    if (rc != 0)
+        fail_msg("fracnav record ended with status %d", rc);
     fnrec *r = fnrec_load(rec);
     assert_non_null(r);
     return r;
@@ -316,7 +217,7 @@ static void serve_and_record(const char *device, const char *text)
     const char *scr = write_script("motion.script", text);
     const char *served = path_in("served.fnrec"), *rec = path_in("rec.fnrec"), *out = path_in("record.log");
     unlink(rec); /* the last device's, when called in turn */
-    pid_t srv = start_server("--as", device, "--script", scr, "--start-on-read", "--log", served, NULL);
+    pid_t srv = tu_serve(mnt, server_log(), "--as", device, "--script", scr, "--start-on-read", "--log", served, NULL);
     fnrec *want = rendered(scr, device);
     static fnrec_event scratch[4096];
     pid_t recp = record_in_background(rec, node_path(), out);
@@ -376,14 +277,13 @@ static void test_server_killed_then_back(void **st)
 {
     const char *scr = write_script("long.script", "translate +y 400 mm over 900 s\n");
     const char *rec = path_in("rec.fnrec"), *log = path_in("record.log");
-    pid_t srv = start_server("--script", scr, "--start-on-read", NULL);
+    pid_t srv = tu_serve(mnt, server_log(), "--script", scr, "--start-on-read", NULL);
     pid_t recp = record_in_background(rec, node_path(), log);
     await_recording(rec, (rec_state){.connects = 1, .ins = 11});
-    kill(srv, SIGKILL);
-    reap(srv, TU_WAIT_MAX_S);
-    unmount_quietly();
+    tu_end(srv, SIGKILL, "fracnav-sim");
+    tu_unmount(mnt);
     await_recording(rec, (rec_state){.disconnects = 1});
-    srv = start_server("--script", scr, "--start-on-read", NULL);
+    srv = tu_serve(mnt, server_log(), "--script", scr, "--start-on-read", NULL);
     await_recording(rec, (rec_state){.connects = 2, .ins_since_connect = 11});
     fnrec *r = finish_recording(recp, srv, rec);
     char *out = tu_slurp(log, NULL);
@@ -406,7 +306,7 @@ static void test_unplug_replug_on_signal(void **st)
 {
     const char *scr = write_script("long.script", "translate +z 300 mm over 900 s\n");
     const char *rec = path_in("rec.fnrec"), *log = path_in("record.log");
-    pid_t srv = start_server("--script", scr, "--start-on-read", NULL);
+    pid_t srv = tu_serve(mnt, server_log(), "--script", scr, "--start-on-read", NULL);
     pid_t recp = record_in_background(rec, node_path(), log);
     await_recording(rec, (rec_state){.connects = 1, .ins = 11});
     kill(srv, SIGUSR1);
@@ -429,7 +329,7 @@ static void test_live_replug_sends_battery(void **st)
 {
     const char *scr = write_script("long.script", "translate +z 300 mm over 900 s\n");
     const char *fifo = path_in("control"), *rec = path_in("rec.fnrec"), *log = path_in("record.log");
-    pid_t srv = start_server("--as", "spacemouse-wireless", "--script", scr, "--start-on-read",
+    pid_t srv = tu_serve(mnt, server_log(), "--as", "spacemouse-wireless", "--script", scr, "--start-on-read",
                              "--control", fifo, NULL);
     pid_t recp = record_in_background(rec, node_path(), log);
     await_recording(rec, (rec_state){.connects = 1, .ins = 3});
@@ -479,16 +379,16 @@ static void test_serial_and_name(void **st)
 {
     char node[600];
     snprintf(node, sizeof node, "%s/hidraw0", mnt);
-    pid_t srv = start_server("--as", "1209:0001", NULL);
+    pid_t srv = tu_serve(mnt, server_log(), "--as", "1209:0001", NULL);
     const char *sn = raw_string(node, HIDIOCGRAWUNIQ(64));
     assert_string_equal(sn, "FNSIM12090001");
     assert_string_equal(raw_string(node, HIDIOCGRAWNAME(64)), "fracnav fracnav open 6-DOF controller");
     stop_server(srv);
-    srv = start_server("--as", "spacepilot", NULL);
+    srv = tu_serve(mnt, server_log(), "--as", "spacepilot", NULL);
     assert_string_equal(raw_string(node, HIDIOCGRAWNAME(64)), "3Dconnexion SpacePilot");
     stop_server(srv);
     char cmd[2048];
-    snprintf(cmd, sizeof cmd, "'%s' serve --mount '%s' --serial 'a b' 2>&1", sim_bin(), mnt);
+    snprintf(cmd, sizeof cmd, "'%s' serve --mount '%s' --serial 'a b' 2>&1", tu_sim(), mnt);
     FILE *p = popen(cmd, "r");
     char line[256] = "";
     if (!fgets(line, sizeof line, p))
@@ -501,7 +401,7 @@ static void test_serial_and_name(void **st)
 static void test_hidapi_led_feature_timeout(void **st)
 {
     const char *served = path_in("served.fnrec");
-    pid_t srv = start_server("--as", "open-controller", "--start-on-read", "--log", served, "--serial",
+    pid_t srv = tu_serve(mnt, server_log(), "--as", "open-controller", "--start-on-read", "--log", served, "--serial",
                              "OC-12345678", NULL);
     const dev_transport *t = dev_transport_find("hidraw");
     assert_non_null(t);
@@ -570,7 +470,7 @@ static void test_open_controller_settings_applied(void **st)
 {
     const char *scr = write_script("x.script", "translate +x 4 mm over 0.3 s\n");
     const char *fifo = path_in("control");
-    pid_t srv = start_server("--as", "open-controller", "--script", scr, "--start-on-read", "--control",
+    pid_t srv = tu_serve(mnt, server_log(), "--as", "open-controller", "--script", scr, "--start-on-read", "--control",
                              fifo, NULL);
     const dev_transport *t = dev_transport_find("hidraw");
     char node[600];
@@ -628,11 +528,11 @@ static void test_play_recording(void **st)
     fnrec *want = rendered(scr, "spacemouse-wireless");
     const char *file = path_in("play.fnrec"), *rec = path_in("rec.fnrec");
     assert_int_equal(fnrec_save(want, file), 0);
-    pid_t srv = start_server("--play", file, "--fast", "--exit-at-end", NULL);
+    pid_t srv = tu_serve(mnt, server_log(), "--play", file, "--fast", "--exit-at-end", NULL);
     pid_t recp = record_in_background(rec, node_path(), path_in("record.log"));
-    int status = reap(srv, TU_WAIT_MAX_S); /* it leaves by itself once everything was read */
-    unmount_quietly();
-    assert_true(WIFEXITED(status) && WEXITSTATUS(status) == 0);
+    int rc = tu_end(srv, 0, "fracnav-sim --exit-at-end"); /* it leaves by itself once everything was read */
+    tu_unmount(mnt);
+    assert_int_equal(rc, 0);
     await_recording(rec, (rec_state){.disconnects = 1}); /* the recorder saw it go */
     fnrec *got = finish_recording(recp, 0, rec);
     assert_same_reports(want, got, "--play --fast");
@@ -647,7 +547,7 @@ static void test_play_recording(void **st)
 static void test_serial_selects_fuse_node(void **st)
 {
     const char *rec = path_in("sn.fnrec"), *fifo = path_in("control");
-    pid_t srv = start_server("--as", "spacemouse-wireless", "--serial", "FNTESTSN01", "--control", fifo, NULL);
+    pid_t srv = tu_serve(mnt, server_log(), "--as", "spacemouse-wireless", "--serial", "FNTESTSN01", "--control", fifo, NULL);
     char *out = NULL, env[1300];
     assert_int_equal(tu_run_cli(&out, "devices"), 0);
     assert_null(strstr(out, node_path())); /* not udev's: not listed without the variable */
@@ -679,7 +579,7 @@ static void test_serial_selects_fuse_node(void **st)
 static void test_control_fifo(void **st)
 {
     const char *fifo = path_in("control"), *rec = path_in("rec.fnrec"), *log = path_in("record.log");
-    pid_t srv = start_server("--as", "spacenavigator", "--control", fifo, NULL);
+    pid_t srv = tu_serve(mnt, server_log(), "--as", "spacenavigator", "--control", fifo, NULL);
     pid_t recp = record_in_background(rec, node_path(), log);
     await_recording(rec, (rec_state){.connects = 1});
     FILE *f = fopen(fifo, "w");
@@ -716,7 +616,7 @@ static int sim_cli(char **out, const char *fmt, ...)
     va_start(ap, fmt);
     vsnprintf(args, sizeof args, fmt, ap);
     va_end(ap);
-    snprintf(cmd, sizeof cmd, "'%s' %s 2>&1", sim_bin(), args);
+    snprintf(cmd, sizeof cmd, "'%s' %s 2>&1", tu_sim(), args);
     FILE *p = popen(cmd, "r");
     size_t n = 0, cap = 8192;
     *out = calloc(1, cap);
@@ -773,7 +673,7 @@ static void test_serve_unprivileged(void **st)
     assert_int_equal(chmod(mnt, 0777), 0);
     char cmd[2048];
     snprintf(cmd, sizeof cmd, "setpriv --reuid=nobody --regid=nogroup --clear-groups '%s' serve "
-                              "--mount '%s' 2>&1", sim_bin(), mnt);
+                              "--mount '%s' 2>&1", tu_sim(), mnt);
     FILE *p = popen(cmd, "r");
     char text[1024] = "";
     size_t n = fread(text, 1, sizeof text - 1, p);
@@ -798,7 +698,7 @@ static void test_cli_usage_and_errors(void **st)
     assert_non_null(strstr(out, "/nonexistent/hidraw9"));
     free(out);
     char cmd[2048];
-    snprintf(cmd, sizeof cmd, "'%s' serve 2>&1", sim_bin());
+    snprintf(cmd, sizeof cmd, "'%s' serve 2>&1", tu_sim());
     FILE *p = popen(cmd, "r");
     char line[256] = "";
     if (!fgets(line, sizeof line, p))
@@ -837,16 +737,13 @@ static void test_navigate_lights_led_while_held(void **st)
     assert_int_equal(tu_run_cli(NULL, "edit '%s' fix 1", casedir), 0);
     const char *script = write_script("led.script", "wait 200 ms\ntranslate +z 1 mm over 0.3 s\nwait 400 ms\n");
     const char *log = path_in("led.fnrec"), *nav_log = path_in("navigate.log");
-    pid_t pid = start_server("--script", script, "--start-on-read", "--log", log, NULL);
-    const char *bin = getenv("FRACNAV_BIN");
-    char *argv[] = {(char *)(bin ? bin : "fracnav"), "navigate", casedir, "--device", (char *)node_path(), NULL};
-    pid_t nav = spawn(argv, nav_log);
+    pid_t pid = tu_serve(mnt, server_log(), "--script", script, "--start-on-read", "--log", log, NULL);
+    pid_t nav = tu_spawn_cli(nav_log, NULL, (char *[]){"navigate", casedir, "--device", (char *)node_path(), NULL});
     int seen = tu_wait_for(led_on_then_off, (void *)log, TU_WAIT_MAX_S);
-    kill(nav, SIGTERM); /* Ctrl-C: saves and exits 0 */
-    int status = reap(nav, TU_WAIT_MAX_S);
+    int rc = tu_end(nav, SIGTERM, "navigate after SIGTERM"); /* Ctrl-C: saves and exits 0 */
     char *out = tu_slurp(nav_log, NULL);
-    if (!seen || !WIFEXITED(status) || WEXITSTATUS(status) != 0)
-        fail_msg("navigate (status %#x, LED off %s): %s", status, seen ? "seen" : "never seen", out);
+    if (!seen || rc != 0)
+        fail_msg("navigate (status %d, LED off %s): %s", rc, seen ? "seen" : "never seen", out);
     free(out);
     stop_server(pid);
     fnrec *r = fnrec_load(log);

@@ -28,31 +28,9 @@
 #include "simdev.h"
 #include "testutil.h"
 
-#define HANG_S TU_WAIT_MAX_S /* a wait still unmet after this long never ends */
-
 static char *workdir;
 static char mnt[512];
 static pid_t server;
-
-static void pause_ms(int ms)
-{
-    nanosleep(&(struct timespec){0, ms * 1000000L}, NULL);
-}
-
-static const char *bin(void)
-{
-    const char *b = getenv("FRACNAV_BIN");
-    return b ? b : "fracnav";
-}
-
-static const char *sim_bin(void)
-{
-    static char path[1024];
-    char copy[1024];
-    snprintf(copy, sizeof copy, "%s", bin());
-    snprintf(path, sizeof path, "%s/sim/fracnav-sim", dirname(copy));
-    return path;
-}
 
 static char *path_in(const char *name)
 {
@@ -63,58 +41,13 @@ static char *path_in(const char *name)
     return p[k];
 }
 
-static pid_t spawn(char *const argv[], const char *log)
-{
-    pid_t pid = fork();
-    if (pid == 0) {
-        int fd = open(log, O_WRONLY | O_CREAT | O_APPEND, 0644);
-        dup2(fd, 1);
-        dup2(fd, 2);
-        execv(argv[0], argv);
-        _exit(127);
-    }
-    return pid;
-}
-
-
-/* Unmounts mnt, as often as something is mounted there (a server that mounted over another). */
-static void unmount_quietly(void)
-{
-    char cmd[700];
-    snprintf(cmd, sizeof cmd, "fusermount3 -u -z '%s' >/dev/null 2>&1", mnt);
-    for (int i = 0; i < 4 && system(cmd) == 0; i++)
-        ;
-}
-
-/* fracnav-sim serve --mount mnt ARGS..., once its node is there. */
-static void start_server(const char *first, ...)
-{
-    char *argv[16] = {(char *)sim_bin(), "serve", "--mount", mnt};
-    int n = 4;
-    va_list ap;
-    va_start(ap, first);
-    for (const char *a = first; a && n < 15; a = va_arg(ap, const char *))
-        argv[n++] = (char *)a;
-    va_end(ap);
-    argv[n] = NULL;
-    char node[600];
-    snprintf(node, sizeof node, "%s/hidraw0", mnt);
-    server = spawn(argv, path_in("server.log"));
-    struct stat st;
-    for (int i = 0; i < HANG_S * 100 && stat(node, &st); i++)
-        pause_ms(10);
-    if (stat(node, &st))
-        fail_msg("fracnav-sim did not serve %s (see %s)", node, path_in("server.log"));
-}
-
 static void stop_server(void)
 {
     if (server > 0) {
-        kill(server, SIGTERM);
-        tu_wait_exit(server, "fracnav-sim after SIGTERM");
+        tu_end(server, SIGTERM, "fracnav-sim after SIGTERM");
         server = 0;
     }
-    unmount_quietly();
+    tu_unmount(mnt);
 }
 
 static int setup(void **st)
@@ -130,12 +63,9 @@ static int teardown(void **st)
 {
     if (!workdir)
         return 0;
-    if (server > 0) {
-        kill(server, SIGKILL);
-        waitpid(server, NULL, 0);
-        server = 0;
-    }
-    unmount_quietly();
+    tu_end_all();
+    server = 0;
+    tu_unmount(mnt);
     tu_rmtree(workdir);
     free(workdir);
     workdir = NULL;
@@ -187,9 +117,8 @@ static int record_node(const char *rec, const char *seconds)
 {
     char dev[600];
     snprintf(dev, sizeof dev, "%s/hidraw0", mnt);
-    char *argv[] = {(char *)bin(), "record", "-o", (char *)rec, "--device", dev, seconds ? "--seconds" : NULL,
-                    (char *)seconds, NULL};
-    return tu_wait_exit(spawn(argv, path_in("record.log")), "fracnav record");
+    char *args[] = {"record", "-o", (char *)rec, "--device", dev, seconds ? "--seconds" : NULL, (char *)seconds, NULL};
+    return tu_end(tu_spawn_cli(path_in("record.log"), NULL, args), 0, "fracnav record");
 }
 
 /* A server that exits at the end of its script ends the recording: no wait for a replug. */
@@ -198,11 +127,11 @@ static void test_record_ends_when_server_exits(void **st)
     need_fuse();
     const char *scr = write_script("s.script", "translate +x 5 mm over 0.3 s\npress 1\nrelease\n");
     const char *rec = path_in("end.fnrec");
-    start_server("--script", scr, "--start-on-read", "--exit-at-end", NULL);
+    server = tu_serve(mnt, path_in("server.log"), "--script", scr, "--start-on-read", "--exit-at-end", NULL);
     assert_int_equal(record_node(rec, NULL), 0);
-    assert_int_equal(tu_wait_exit(server, "fracnav-sim --exit-at-end"), 0);
+    assert_int_equal(tu_end(server, 0, "fracnav-sim --exit-at-end"), 0);
     server = 0;
-    unmount_quietly();
+    tu_unmount(mnt);
     char *log = tu_slurp(path_in("record.log"), NULL);
     assert_non_null(strstr(log, "device disconnected"));
     assert_non_null(strstr(log, "recording stopped"));
@@ -223,11 +152,11 @@ static void test_record_from_fast_keeps_cadence(void **st)
     need_fuse();
     const char *scr = write_script("f.script", "translate +x 10 mm over 0.5 s\nrotate z 10 deg over 0.3 s\n");
     const char *rec = path_in("fast.fnrec");
-    start_server("--script", scr, "--fast", "--exit-at-end", NULL);
+    server = tu_serve(mnt, path_in("server.log"), "--script", scr, "--fast", "--exit-at-end", NULL);
     assert_int_equal(record_node(rec, "20"), 0); /* ends with the server, well before 20 s */
-    assert_int_equal(tu_wait_exit(server, "fracnav-sim --fast --exit-at-end"), 0);
+    assert_int_equal(tu_end(server, 0, "fracnav-sim --fast --exit-at-end"), 0);
     server = 0;
-    unmount_quietly();
+    tu_unmount(mnt);
     fnrec *want = rendered(scr, "spacenavigator"), *got = fnrec_load(rec);
     assert_non_null(got);
     int64_t want_span, got_span;
@@ -263,7 +192,7 @@ static void test_wireless_battery_for_every_open(void **st)
     need_fuse();
     char node[600], *out = NULL;
     snprintf(node, sizeof node, "%s/hidraw0", mnt);
-    start_server("--as", "spacemouse-wireless", NULL);
+    server = tu_serve(mnt, path_in("server.log"), "--as", "spacemouse-wireless", NULL);
     assert_int_equal(json_battery(node), 100);
     assert_int_equal(json_battery(node), 100);
     assert_int_equal(tu_run_cli(&out, "device-test --device '%s' --seconds 0.3", node), 0);
@@ -280,9 +209,9 @@ static void test_wireless_battery_for_every_open(void **st)
 static void test_second_serve_on_same_folder_refused(void **st)
 {
     need_fuse();
-    start_server("--as", "spacepilot", NULL);
-    char *argv[] = {(char *)sim_bin(), "serve", "--mount", mnt, "--as", "spacenavigator", NULL};
-    assert_int_equal(tu_wait_exit(spawn(argv, path_in("second.log")), "a second fracnav-sim on the folder"), 1);
+    server = tu_serve(mnt, path_in("server.log"), "--as", "spacepilot", NULL);
+    char *argv[] = {(char *)tu_sim(), "serve", "--mount", mnt, "--as", "spacenavigator", NULL};
+    assert_int_equal(tu_end(tu_spawn(argv, path_in("second.log"), NULL), 0, "a second fracnav-sim on the folder"), 1);
     char *log = tu_slurp(path_in("second.log"), NULL);
     if (!strstr(log, "already a mount point") || !strstr(log, "another fracnav-sim"))
         fail_msg("second serve said: %s", log);
@@ -304,10 +233,10 @@ static void test_node_without_permission(void **st)
         skip();
     }
     assert_int_equal(chmod(workdir, 0755), 0);
-    start_server(NULL);
+    server = tu_serve(mnt, path_in("server.log"), NULL);
     char cmd[2000], text[4096];
     snprintf(cmd, sizeof cmd, "setpriv --reuid=nobody --regid=nogroup --clear-groups env HOME=/nonexistent "
-                              "'%s' device-test --device '%s/hidraw0' --seconds 0.3 2>&1", bin(), mnt);
+                              "'%s' device-test --device '%s/hidraw0' --seconds 0.3 2>&1", tu_fracnav(), mnt);
     FILE *p = popen(cmd, "r");
     size_t n = fread(text, 1, sizeof text - 1, p);
     text[n] = '\0';
@@ -321,7 +250,7 @@ static void test_node_without_permission(void **st)
     if (!strstr(text, "permission problem on this path") || strstr(text, "udev/70-fracnav.rules"))
         fail_msg("device-test as nobody said: %s", text);
     snprintf(cmd, sizeof cmd, "setpriv --reuid=nobody --regid=nogroup --clear-groups env HOME=/nonexistent "
-                              "FRACNAV_HIDRAW_PATH='%s' '%s' devices 2>&1", mnt, bin());
+                              "FRACNAV_HIDRAW_PATH='%s' '%s' devices 2>&1", mnt, tu_fracnav());
     p = popen(cmd, "r");
     n = fread(text, 1, sizeof text - 1, p);
     text[n] = '\0';

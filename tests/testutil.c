@@ -6,6 +6,9 @@
 #include "vol.h"
 #include "volio.h"
 
+#include <fcntl.h>
+#include <libgen.h>
+#include <poll.h>
 #include <stdarg.h>
 #include <stddef.h>
 #include <setjmp.h>
@@ -78,8 +81,7 @@ int tu_run_cli(char **out, const char *fmt, ...)
     va_start(ap, fmt);
     vsnprintf(args, sizeof args, fmt, ap);
     va_end(ap);
-    const char *bin = getenv("FRACNAV_BIN");
-    snprintf(cmd, sizeof cmd, "'%s' %s 2>&1", bin && *bin ? bin : "fracnav", args);
+    snprintf(cmd, sizeof cmd, "'%s' %s 2>&1", tu_fracnav(), args);
     FILE *f = popen(cmd, "r");
     if (!f)
         return -1;
@@ -102,7 +104,12 @@ int tu_run_cli(char **out, const char *fmt, ...)
 
 int tu_wait_for(int (*cond)(void *arg), void *arg, double max_s)
 {
-    struct timespec now, end, poll = {0, 5000000};
+    return tu_wait_for_every(cond, arg, max_s, 5000);
+}
+
+int tu_wait_for_every(int (*cond)(void *arg), void *arg, double max_s, long period_us)
+{
+    struct timespec now, end, poll = {period_us / 1000000, period_us % 1000000 * 1000};
     clock_gettime(CLOCK_MONOTONIC, &end);
     end.tv_sec += (time_t)max_s;
     for (;;) {
@@ -128,6 +135,174 @@ static int file_has_text(void *arg)
     return has;
 }
 
+int tu_wait_for_text(const char *path, const char *text, double max_s)
+{
+    return tu_wait_for(file_has_text, &(file_text){path, text}, max_s);
+}
+
+int tu_wait_max_s(void)
+{
+    const char *slow = getenv("FRACNAV_TEST_SLOW");
+    double k = slow && *slow ? atof(slow) : 1;
+    return (int)(30 * (k > 0 ? k : 1));
+}
+
+/* ---- Processes ---- */
+
+#define MAX_CHILDREN 16
+static pid_t children[MAX_CHILDREN]; /* started and not yet ended: tu_end_all's */
+
+const char *tu_fracnav(void)
+{
+    const char *bin = getenv("FRACNAV_BIN");
+    if (!bin || !*bin)
+        fail_msg("FRACNAV_BIN is not set: run the tests through ctest, or set FRACNAV_BIN to the "
+                 "built fracnav (build/fracnav) and FRACNAV_SRC to the source tree");
+    return bin;
+}
+
+const char *tu_src(void)
+{
+    const char *src = getenv("FRACNAV_SRC");
+    if (!src || !*src)
+        fail_msg("FRACNAV_SRC is not set: run the tests through ctest, or set FRACNAV_SRC to the "
+                 "source tree and FRACNAV_BIN to the built fracnav (build/fracnav)");
+    return src;
+}
+
+const char *tu_sim(void)
+{
+    static char path[4200];
+    char copy[4096];
+    snprintf(copy, sizeof copy, "%s", tu_fracnav());
+    snprintf(path, sizeof path, "%s/sim/fracnav-sim", dirname(copy));
+    if (access(path, X_OK)) {
+        print_message("%s is not built (no libfuse3): skipped\n", path);
+        skip();
+    }
+    return path;
+}
+
+pid_t tu_spawn(char *const argv[], const char *out, FILE **err)
+{
+    int fds[2];
+    assert_int_equal(pipe(fds), 0);
+    fflush(NULL);
+    pid_t pid = fork();
+    assert_true(pid >= 0);
+    if (pid == 0) {
+        int o = out ? open(out, O_WRONLY | O_CREAT | O_TRUNC | O_APPEND, 0644) : 1;
+        if (o < 0 || !freopen("/dev/null", "r", stdin))
+            _exit(126);
+        dup2(o, 1);
+        dup2(err ? fds[1] : o, 2);
+        close(fds[0]);
+        execv(argv[0], argv);
+        _exit(127);
+    }
+    close(fds[1]);
+    if (err) {
+        *err = fdopen(fds[0], "r");
+        assert_non_null(*err);
+        setvbuf(*err, NULL, _IONBF, 0); /* nothing hides in a buffer from tu_wait_line's poll */
+    } else {
+        close(fds[0]);
+    }
+    for (int i = 0; i < MAX_CHILDREN; i++)
+        if (!children[i]) {
+            children[i] = pid;
+            break;
+        }
+    return pid;
+}
+
+pid_t tu_spawn_cli(const char *out, FILE **err, char *const args[])
+{
+    char *argv[32] = {(char *)tu_fracnav()};
+    for (int i = 0; args[i]; i++) {
+        assert_true(i < 30);
+        argv[i + 1] = args[i];
+    }
+    return tu_spawn(argv, out, err);
+}
+
+static int path_exists(void *path)
+{
+    struct stat sb;
+    return stat(path, &sb) == 0;
+}
+
+int tu_wait_path(const char *path)
+{
+    return tu_wait_for(path_exists, (void *)path, TU_WAIT_MAX_S);
+}
+
+int tu_wait_line(FILE *err, const char *needle, char *seen, size_t cap)
+{
+    char line[4096];
+    size_t n = 0;
+    struct pollfd p = {fileno(err), POLLIN, 0};
+    while (poll(&p, 1, TU_WAIT_MAX_S * 1000) > 0) {
+        int c = fgetc(err);
+        if (c == EOF)
+            break;
+        if (n < sizeof line - 1)
+            line[n++] = (char)c;
+        if (c != '\n')
+            continue;
+        line[n] = '\0';
+        size_t len = strlen(seen);
+        snprintf(seen + len, cap - len, "%s", line);
+        if (strstr(line, needle))
+            return 1;
+        n = 0;
+    }
+    line[n] = '\0';
+    size_t len = strlen(seen);
+    snprintf(seen + len, cap - len, "%s", line);
+    return n && strstr(line, needle);
+}
+
+typedef struct served {
+    pid_t pid;
+    char node[4200];
+} served;
+
+/* The node is there, or the server ended (left for tu_end to reap). */
+static int served_or_ended(void *arg)
+{
+    served *s = arg;
+    siginfo_t info = {0};
+    return path_exists(s->node) ||
+           (waitid(P_PID, (id_t)s->pid, &info, WEXITED | WNOHANG | WNOWAIT) == 0 && info.si_pid == s->pid);
+}
+
+pid_t tu_serve(const char *mnt, const char *log, ...)
+{
+    char *argv[32] = {(char *)tu_sim(), "serve", "--mount", (char *)mnt};
+    int n = 4;
+    va_list ap;
+    va_start(ap, log);
+    for (const char *a = va_arg(ap, const char *); a; a = va_arg(ap, const char *)) {
+        assert_true(n < 31);
+        argv[n++] = (char *)a;
+    }
+    va_end(ap);
+    served s = {tu_spawn(argv, log, NULL), ""};
+    snprintf(s.node, sizeof s.node, "%s/hidraw0", mnt);
+    if (!tu_wait_for(served_or_ended, &s, TU_WAIT_MAX_S) || !path_exists(s.node))
+        fail_msg("fracnav-sim did not serve %s (see %s)", s.node, log);
+    return s.pid;
+}
+
+void tu_unmount(const char *mnt)
+{
+    char cmd[4200];
+    snprintf(cmd, sizeof cmd, "fusermount3 -u -z '%s' >/dev/null 2>&1", mnt);
+    for (int i = 0; i < 4 && system(cmd) == 0; i++)
+        ;
+}
+
 typedef struct child {
     pid_t pid;
     int status;
@@ -139,9 +314,19 @@ static int child_ended(void *arg)
     return waitpid(c->pid, &c->status, WNOHANG) == c->pid;
 }
 
-int tu_wait_exit(int pid, const char *what)
+static void forget(pid_t pid)
+{
+    for (int i = 0; i < MAX_CHILDREN; i++)
+        if (children[i] == pid)
+            children[i] = 0;
+}
+
+int tu_end(pid_t pid, int sig, const char *what)
 {
     child c = {pid, 0};
+    forget(pid);
+    if (sig)
+        kill(pid, sig);
     if (!tu_wait_for(child_ended, &c, TU_WAIT_MAX_S)) {
         kill(pid, SIGKILL);
         waitpid(pid, &c.status, 0);
@@ -150,9 +335,14 @@ int tu_wait_exit(int pid, const char *what)
     return WIFEXITED(c.status) ? WEXITSTATUS(c.status) : 128 + WTERMSIG(c.status);
 }
 
-int tu_wait_for_text(const char *path, const char *text, double max_s)
+void tu_end_all(void)
 {
-    return tu_wait_for(file_has_text, &(file_text){path, text}, max_s);
+    for (int i = 0; i < MAX_CHILDREN; i++)
+        if (children[i] > 0) {
+            kill(children[i], SIGKILL);
+            waitpid(children[i], NULL, 0);
+            children[i] = 0;
+        }
 }
 
 char *tu_slurp(const char *path, size_t *len)

@@ -3,6 +3,8 @@
 #define FN_TESTUTIL_H
 
 #include <stddef.h>
+#include <stdio.h>
+#include <sys/types.h>
 
 /* A fresh empty directory under $TMPDIR for this test; removed by tu_rmtree. Returns a static-owned
  * copy the caller must free(). */
@@ -23,14 +25,52 @@ int tu_run_cli(char **out, const char *fmt, ...);
  * seconds (a bound for when the event never comes, never a duration a test relies on). Returns 1
  * when cond held, 0 when max_s passed. */
 int tu_wait_for(int (*cond)(void *arg), void *arg, double max_s);
-/* The usual max_s: long enough for a machine loaded far beyond its cores (the suite passes at
- * nice 19 beside busy loops), so that only an event that never comes reaches it. */
-#define TU_WAIT_MAX_S 900
+/* tu_wait_for, checking every period_us microseconds (it polls every 5 ms): for an event that
+ * lasts only a moment, as a file while it is written. */
+int tu_wait_for_every(int (*cond)(void *arg), void *arg, double max_s, long period_us);
+/* The usual max_s: 30 s times $FRACNAV_TEST_SLOW (a positive number, default 1), so a broken test
+ * fails in tens of seconds. CMake sets the multiplier for sanitizer builds (FRACNAV_TEST_SLOW);
+ * set it by hand on a machine loaded far beyond its cores. */
+int tu_wait_max_s(void);
+#define TU_WAIT_MAX_S tu_wait_max_s()
 /* Waits (as tu_wait_for) until the file at path holds text; returns 1 when it does. */
 int tu_wait_for_text(const char *path, const char *text, double max_s);
-/* Waits for child pid to end and returns its exit status (128 + signal when killed); one still
- * running after TU_WAIT_MAX_S is killed and fails the test, named by what. */
-int tu_wait_exit(int pid, const char *what);
+
+/* ---- Processes: spawn, wait for a file, a node or a line, end ---- */
+
+/* The fracnav under test: $FRACNAV_BIN (ctest sets it). Unset, it fails the test at once, saying
+ * what to set. */
+const char *tu_fracnav(void);
+/* The source tree: $FRACNAV_SRC (ctest sets it). Unset, it fails the test at once, saying what to set. */
+const char *tu_src(void);
+/* fracnav-sim, built beside fracnav (sim/fracnav-sim); skips the test, saying so, when it was not
+ * built (no libfuse3). */
+const char *tu_sim(void);
+/* Starts argv[0] with argv, stdin from /dev/null, stdout into the file out (emptied first) (NULL: this
+ * test's stdout); stderr into a pipe read through *err (unbuffered, for tu_wait_line; the caller
+ * fcloses it) when err is not NULL, else into out too. The child is remembered until tu_end or
+ * tu_end_all. */
+pid_t tu_spawn(char *const argv[], const char *out, FILE **err);
+/* tu_spawn of `fracnav ARGS...` (args ends with NULL). */
+pid_t tu_spawn_cli(const char *out, FILE **err, char *const args[]);
+/* Waits (TU_WAIT_MAX_S at most) until path exists: a file written, a node served. Returns 1 when it does. */
+int tu_wait_path(const char *path);
+/* Reads err line by line until a line holds needle (returns 1), the stream ends or TU_WAIT_MAX_S
+ * passes without a byte (0); what it read is appended to seen (cap bytes, NUL-terminated). */
+int tu_wait_line(FILE *err, const char *needle, char *seen, size_t cap);
+/* Sends sig to the child (0: none) and waits for it to end; returns its exit status (128 + signal
+ * when a signal ended it). One still running after TU_WAIT_MAX_S is killed and fails the test,
+ * named by what. */
+int tu_end(pid_t pid, int sig, const char *what);
+/* fracnav-sim serve --mount mnt ARGS... (NULL-terminated), its output into log; returns
+ * once mnt/hidraw0 is served, or fails the test naming log. */
+pid_t tu_serve(const char *mnt, const char *log, ...);
+/* Undoes the mounts at mnt (lazily, as often as something is mounted there: a server that mounted
+ * over another). */
+void tu_unmount(const char *mnt);
+/* Kills (SIGKILL) and reaps every child still running: for a teardown, after a failed test. */
+void tu_end_all(void);
+
 /* Whole file into a malloc'd NUL-terminated buffer; NULL if unreadable. */
 char *tu_slurp(const char *path, size_t *len);
 void tu_write_file(const char *path, const void *data, size_t len);

@@ -435,8 +435,7 @@ static void ui(view *v, int keys, double duration)
  * 4.5 the terminal view stays, and a line says why. */
 static void open_window(const opts *o, view *v)
 {
-    v->win = navwin_open_view("navigate", o->view, &o->look, "the terminal view stays", session_case(v->k),
-                              session_loop(v->k), 1);
+    v->win = navwin_open_view("navigate", o->view, &o->look, "the terminal view stays", v->k, 1);
     if (v->win && v->tty)
         fprintf(stderr, "window: %s\n", navwin_gl_renderer(v->win));
 }

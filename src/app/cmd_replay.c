@@ -219,7 +219,7 @@ static int play_live(session *k, loop_source src, const opts *o)
     /* Opened once the loop runs, as navigate's: the loop prefaults the libraries loaded when it
      * starts, and GL's are none of its business. */
     const char *without = "the replay runs on without one";
-    navwin *win = navwin_open_view("replay", o->view, &o->look, without, session_case(k), session_loop(k), 0);
+    navwin *win = navwin_open_view("replay", o->view, &o->look, without, k, 0);
     if (o->screenshot && !win)
         fprintf(stderr, "fracnav replay: --screenshot %s: no window to save\n", o->screenshot);
     char copy[4096], device[4200];

@@ -1,54 +1,51 @@
 #!/bin/sh
-# manpage.sh PROGRAM NAME VERSION: writes NAME(1) in troff on standard output, made from the
-# program's own --help texts (its overview, then each command's), so the man page says what
-# --help says and never drifts from it.
+# Writes the man page of a program from its --help texts, so the two never disagree: the
+# top-level --help, then, for every entry of a "commands:" or "benchmarks:" list in a help text,
+# `PROGRAM ... ENTRY --help`, each verbatim under its own heading.
+# Usage: manpage.sh PROGRAM NAME VERSION SUMMARY OUT.1
 set -eu
-prog=$1 name=$2 version=$3
+prog=$1 name=$2 version=$3 summary=$4 out=$5
+exec >"$out.tmp"
 
-# Text as troff: backslashes escaped, and a line starting with . or ' kept from being a request.
-esc() { sed -e 's/\\/\\e/g' -e "s/^\\([.']\\)/\\\\\\&\\1/"; }
-
-# The commands an overview lists: the indented words under its "commands:" (or "benchmarks:")
-# heading, for fracnav; fracnav-sim's usage lines name its subcommands.
-commands() {
-    "$prog" "$@" --help | awk '
-        /^(commands|benchmarks):$/ { on = 1; next }
-        on && /^  [a-z]/ { print $1; next }
-        on && !/^  / { on = 0 }'
+# Help text as roff: verbatim lines, backslashes and hyphens escaped, no line read as a request.
+roff() {
+    printf '.nf\n'
+    sed -e 's/\\/\\e/g' -e 's/-/\\-/g' -e "s/^[.']/\\\\\\&&/"
+    printf '.fi\n'
 }
 
-printf '.TH %s 1 "" "%s %s" "User Commands"\n' "$(echo "$name" | tr a-z A-Z)" "$name" "$version"
-printf '.SH NAME\n'
-case $name in
-fracnav) printf '%s \\- plan bone-fracture reductions with a 6-DOF controller\n' "$name" ;;
-*) printf '%s \\- the virtual 6-DOF controller of fracnav\n' "$name" ;;
-esac
-printf '.SH SYNOPSIS\n.nf\n'
-"$prog" --help | awk 'NR == 1, /^$/' | esc
-printf '.fi\n.SH DESCRIPTION\n.nf\n'
-"$prog" --help | awk 'f; /^$/ && !f { f = 1 }' | esc
-printf '.fi\n'
+# The entries of the "commands:" and "benchmarks:" lists of a help text, one per line.
+entries() {
+    awk '/^(commands|benchmarks):$/ { on = 1; next }
+         on && /^  [a-z][a-z-]*  / { print $1; next }
+         { on = 0 }'
+}
 
+# The help of `PROGRAM ARGS --help` under the heading ARGS, then its own entries, one level down.
+section() {
+    text=$("$prog" "$@" --help 2>&1)
+    printf '.SS "%s %s"\n' "$name" "$*"
+    printf '%s\n' "$text" | roff
+    for e in $(printf '%s\n' "$text" | entries); do
+        section "$@" "$e"
+    done
+}
+
+top=$("$prog" --help 2>&1)
+printf '.TH %s 1 "" "%s %s" "User Commands"\n' "$(echo "$name" | tr a-z A-Z)" "$name" "$version"
+printf '.SH NAME\n%s \\- %s\n' "$name" "$summary"
+printf '.SH DESCRIPTION\n'
+printf '%s\n' "$top" | roff
+printf '.SH COMMANDS\n'
+subs=$(printf '%s\n' "$top" | entries)
+[ -n "$subs" ] || printf '.PP\nEvery subcommand is described above.\n'
+for e in $subs; do
+    section "$e"
+done
+printf '.SH SEE ALSO\n'
 if [ "$name" = fracnav ]; then
-    printf '.SH COMMANDS\n'
-    for c in $(commands); do
-        printf '.SS %s\n.nf\n' "$c"
-        "$prog" "$c" --help | esc
-        printf '.fi\n'
-        if [ "$c" = bench ]; then
-            for b in $(commands bench); do
-                printf '.SS "bench %s"\n.nf\n' "$b"
-                "$prog" bench "$b" --help | esc
-                printf '.fi\n'
-            done
-        fi
-    done
+    printf 'fracnav\\-sim(1); the README and the documentation in /usr/share/doc/fracnav.\n'
 else
-    printf '.SH COMMANDS\n'
-    for c in $("$prog" --help | sed -n 's/^usage: fracnav-sim \([a-z]*\).*/\1/p; s/^ *fracnav-sim \([a-z]*\) .*/\1/p; s/^ *fracnav-sim \([a-z]*\)$/\1/p' | sort -u); do
-        printf '.SS %s\n.nf\n' "$c"
-        "$prog" "$c" --help | esc
-        printf '.fi\n'
-    done
+    printf 'fracnav(1); sim/FNREC.md (the recording format) in /usr/share/doc/fracnav.\n'
 fi
-printf '.SH SEE ALSO\nThe documentation in /usr/share/doc/fracnav (README.md and docs/).\n'
+mv "$out.tmp" "$out"

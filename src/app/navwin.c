@@ -19,8 +19,8 @@
 
 struct navwin {
     render *r;
-    loop *L;
-    int steer; /* the loop's camera frame follows the view */
+    session *k;
+    int steer; /* the session's camera frame follows the view */
     const planning_case *c;
     int w, h;
     render_options o;
@@ -69,7 +69,7 @@ static void camera_to_loop(navwin *w)
         return;
     double right[3];
     cross(w->o.camera.forward, w->o.camera.up, right);
-    loop_set_camera(w->L, right, w->o.camera.up, w->o.camera.forward);
+    session_set_camera(w->k, right, w->o.camera.up, w->o.camera.forward);
 }
 
 static void note(navwin *w, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
@@ -127,9 +127,10 @@ const char *navwin_help(void)
            "  left drag orbits, right or middle drag pans, the wheel zooms\n";
 }
 
-navwin *navwin_open(const planning_case *c, loop *L, int steer, int width, int height, const navwin_look *look)
+navwin *navwin_open(session *k, int steer, int width, int height, const navwin_look *look)
 {
     static const navwin_look defaults = NAVWIN_LOOK_DEFAULT;
+    const planning_case *c = session_case(k);
     if (!look)
         look = &defaults;
     if (c->nfrag > RENDER_MAX_FRAGS) {
@@ -147,7 +148,7 @@ navwin *navwin_open(const planning_case *c, loop *L, int steer, int width, int h
         free(w);
         return NULL;
     }
-    w->L = L;
+    w->k = k;
     w->steer = steer;
     w->c = c;
     w->w = width;
@@ -213,12 +214,12 @@ int navwin_wanted(const char *cmd, int view, const char *without)
     return 1;
 }
 
-navwin *navwin_open_view(const char *cmd, int view, const navwin_look *look, const char *without,
-                         const planning_case *c, loop *L, int steer)
+navwin *navwin_open_view(const char *cmd, int view, const navwin_look *look, const char *without, session *k,
+                         int steer)
 {
     if (!navwin_wanted(cmd, view, without))
         return NULL;
-    navwin *w = navwin_open(c, L, steer, 768, 768, look);
+    navwin *w = navwin_open(k, steer, 768, 768, look);
     if (!w)
         fprintf(stderr, "fracnav %s: no window (%s): %s\n", cmd, fn_err_msg(), without);
     return w;
@@ -344,7 +345,7 @@ static int draw(navwin *w, const loop_scene *sc, const char *text, loop_scene *s
         int rc = render_frame_early(w->r, sc->pose, sc->selected, &w->o);
         if (rc)
             return rc;
-        loop_scene_read(w->L, shown);
+        session_scene_read(w->k, shown);
     }
     int ok = shown->nfrag == n, sel = ok && shown->selected >= 0 && shown->selected < n ? shown->selected : 0;
     if (ok)
@@ -432,7 +433,7 @@ int navwin_screenshot(navwin *w, const char *png)
         return fn_err_set(FN_ENOMEM, "out of memory for a %dx%d screenshot", w->w, w->h);
     /* After a swap the back buffer is undefined: draw the last frame again, then read it. */
     loop_scene sc = {0}, shown;
-    loop_scene_read(w->L, &sc);
+    session_scene_read(w->k, &sc);
     char text[4400];
     hud_text(w, w->hud, text, sizeof text);
     int rc = draw(w, &sc, text, &shown);

@@ -9,15 +9,15 @@
  * (navwin_view_option) and the opening it decides (navwin_open_view).
  *
  * Threads: one thread opens, draws and closes a window (its GL context is current there); it only
- * reads the loop through the scenes it is given and loop_set_camera, so the loop never waits.
+ * reaches the session through the scenes it is given, session_scene_read and session_set_camera,
+ * so the loop never waits.
  * Errors: NULL or FN_E* with fn_err naming the cause (no display, GLFW missing, GL < 4.5). */
 #ifndef FN_NAVWIN_H
 #define FN_NAVWIN_H
 
-#include "case.h"
-#include "loop.h"
 #include "navview.h"
 #include "render.h"
+#include "session.h"
 
 typedef struct navwin navwin;
 
@@ -39,10 +39,10 @@ int navwin_look_option(const char *cmd, const char *a, const char *val, navwin_l
 /* The window's keys and pointer, for a help text (lines ending in '\n'). */
 const char *navwin_help(void);
 
-/* A w x h window over c's fragments (c and L must outlive it), drawn as look says (NULL: the
- * default). steer: the loop's camera frame follows the view (navigate); 0: the window only
- * watches (replay). */
-navwin *navwin_open(const planning_case *c, loop *L, int steer, int w, int h, const navwin_look *look);
+/* A w x h window over the fragments of k's case (k must outlive it), drawn as look says (NULL:
+ * the default). steer: the session's camera frame follows the view (navigate); 0: the window
+ * only watches (replay). */
+navwin *navwin_open(session *k, int steer, int w, int h, const navwin_look *look);
 void navwin_close(navwin *w);
 
 /* --view window|terminal (NAVWIN_VIEW_AUTO when not given). */
@@ -56,8 +56,8 @@ int navwin_wanted(const char *cmd, int view, const char *without);
 /* The window --view asks for: NULL for NAVWIN_VIEW_TERMINAL; for the others, a 768x768 window
  * (navwin_open) when $DISPLAY is set and GL 4.5 works, else NULL after one line on stderr,
  * "fracnav CMD: no window (WHY): WITHOUT" (e.g. without = "the terminal view stays"). */
-navwin *navwin_open_view(const char *cmd, int view, const navwin_look *look, const char *without,
-                         const planning_case *c, loop *L, int steer);
+navwin *navwin_open_view(const char *cmd, int view, const navwin_look *look, const char *without, session *k,
+                         int steer);
 
 /* Handles the window's input, then draws sc (when it, the camera, the look or hud changed since
  * the last frame) with hud's lines, what the last window key did, the frame time, and the report

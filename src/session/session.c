@@ -48,10 +48,11 @@ static int build_common(session *s)
     atomic_init(&s->running, 0);
     atomic_init(&s->seen_proposals, 0);
     s->kinds = ~0u & ~(unsigned)SESSION_EV_SCENE;
+    if (sem_init(&s->wake, 0, 0) != 0)
+        return fn_err_set(FN_EINVAL, "session: no semaphore for its wake-up: %s", strerror(errno));
     pthread_mutex_init(&s->push_mu, NULL);
     pthread_mutex_init(&s->fit_mu, NULL);
     s->fit.frag = -1;
-    sem_init(&s->wake, 0, 0);
     s->built = 1;
     s->in = ring_new(sizeof(loop_event), 1024);
     s->ctl = ring_new(sizeof(loop_event), 64);

@@ -133,6 +133,9 @@ int session_propose_pose(session *s, int fragment, const pose *p, uint64_t *id);
 
 /* The newest scene (loop_scene_read). Any thread. 1 when its seq differs from out's on entry. */
 int session_scene_read(session *s, loop_scene *out);
+/* The camera frame of the device's motion (loop_set_camera: the view's right, up and forward in
+ * world coordinates), so that "push right" moves the fragment right on screen. Any thread. */
+void session_set_camera(session *s, const double right[3], const double up[3], const double forward[3]);
 
 typedef enum {
     SESSION_EV_NONE = 0,   /* the wait timed out */

@@ -164,6 +164,11 @@ int session_scene_read(session *s, loop_scene *out)
     return loop_scene_read(s->L, out);
 }
 
+void session_set_camera(session *s, const double right[3], const double up[3], const double forward[3])
+{
+    loop_set_camera(s->L, right, up, forward);
+}
+
 void session_subscribe(session *s, unsigned kinds)
 {
     s->kinds = kinds;

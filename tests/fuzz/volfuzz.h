@@ -3,7 +3,7 @@
  * call, removed at exit), read back, checked and removed. The memory budget is lowered to 64 MiB
  * so a header that lies about its size cannot make the fuzzer allocate much; the replay runner
  * calls no LLVMFuzzerInitialize, so this is done on the first input. Every volume read is also
- * given to Otsu's histogram (src/core/seg.c), which reads whatever voxel values a file holds.
+ * given to Otsu's histogram (src/core/segment/seg.c), which reads whatever voxel values a file holds.
  * A NRRD is also read as a labelmap (volio_read_labels: 3D Slicer .seg.nrrd, multi-layer too). */
 #ifndef FN_VOLFUZZ_H
 #define FN_VOLFUZZ_H

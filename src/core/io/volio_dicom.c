@@ -4,19 +4,15 @@
 #include "volio_impl.h"
 
 #include "err.h"
+#include "platform.h"
 
 #include <dirent.h>
 #include <errno.h>
-#include <fcntl.h>
-#include <spawn.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
-#include <sys/wait.h>
 #include <unistd.h>
-
-extern char **environ;
 
 #define PATH_CAP 4096
 
@@ -29,29 +25,14 @@ static int ends_with(const char *s, const char *suffix)
 /* Runs dcm2niix with its output in log; returns its exit status, 127 if it could not start. */
 static int run_dcm2niix(const char *dir, const char *out, const char *log)
 {
-    posix_spawn_file_actions_t fa;
-    posix_spawn_file_actions_init(&fa);
-    posix_spawn_file_actions_addopen(&fa, STDOUT_FILENO, log, O_WRONLY | O_CREAT | O_TRUNC, 0600);
-    posix_spawn_file_actions_adddup2(&fa, STDOUT_FILENO, STDERR_FILENO);
-    /* posix_spawn takes char *const argv[]: give it writable copies rather than casting const away. */
+    /* platform_run takes char *const argv[]: give it writable copies rather than casting const away. */
     char prog[] = "dcm2niix", z[] = "-z", b[] = "-b", no[] = "n", o[] = "-o", f[] = "-f", name[] = "vol";
     char outb[4096], dirb[4096];
     if (snprintf(outb, sizeof outb, "%s", out) >= (int)sizeof outb ||
-        snprintf(dirb, sizeof dirb, "%s", dir) >= (int)sizeof dirb) {
-        posix_spawn_file_actions_destroy(&fa);
+        snprintf(dirb, sizeof dirb, "%s", dir) >= (int)sizeof dirb)
         return fn_err_set(FN_EINVAL, "%s: path too long for dcm2niix", dir);
-    }
     char *argv[] = {prog, z, no, b, no, o, outb, f, name, dirb, NULL};
-    pid_t pid;
-    int rc = posix_spawnp(&pid, "dcm2niix", &fa, NULL, argv, environ);
-    posix_spawn_file_actions_destroy(&fa);
-    if (rc != 0)
-        return 127;
-    int st;
-    while (waitpid(pid, &st, 0) < 0)
-        if (errno != EINTR)
-            return 127;
-    return WIFEXITED(st) ? WEXITSTATUS(st) : 128;
+    return platform_run(argv, log);
 }
 
 /* The last "Error" line dcm2niix printed, for the error message. */

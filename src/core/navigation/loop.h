@@ -117,8 +117,9 @@ typedef struct loop_contact {
 
 /* The collision seam: a table the application fills (loop_obb.c wraps the OBB octree). */
 typedef struct loop_collider {
-    /* Fragment a at pose pa (home world -> current world) against b at pb. cache is this ordered
-     * pair's own cache_bytes of memory, zeroed at loop_new. Returns 0 or a negative FN_E*.
+    /* Fragment a at pose pa (home world -> current world) against b at pb. cache is cache_bytes
+     * of memory for this ordered pair, zeroed whenever it held another pair's (the loop keeps one
+     * per fragment b, for the last fragment moved against it). Returns 0 or a negative FN_E*.
      * Must not allocate; called only from the stepping thread. */
     int (*query)(void *ctx, int a, const pose *pa, int b, const pose *pb, void *cache,
                  loop_contact *out);

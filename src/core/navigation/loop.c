@@ -6,6 +6,7 @@
 #include "fnclock.h"
 #include "journal.h"
 
+#include <errno.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -26,7 +27,7 @@ void loop_config_default(loop_config *c)
     c->trans_mm_s = 50; /* sim/script.h: SCRIPT_MM_PER_S_FULL */
     c->rot_deg_s = 45;  /* SCRIPT_DEG_PER_S_FULL */
     c->frame = LOOP_FRAME_CAMERA;
-    c->dt_max_us = 20000;
+    c->dt_max_us = FNCLOCK_PAUSE_MAX_US;
     c->dt_first_us = 8000; /* the SpaceNavigator's report period */
     c->bisect_iters = 6;
     c->slide_iters = 2;
@@ -122,15 +123,21 @@ loop *loop_new(const frag *frags, int n, const uint8_t *fixed, const loop_collid
     }
     loop *L = calloc(1, sizeof *L);
     size_t cb = col->cache_bytes ? col->cache_bytes : 1;
-    unsigned char *caches = calloc((size_t)n * (size_t)n + 1, cb);
+    unsigned char *caches = calloc((size_t)n + 1, cb); /* a slot per other fragment, and a scratch */
     if (!L || !caches) {
         free(L);
         free(caches);
         fn_err_set(FN_ENOMEM, "loop: out of memory for %d fragments", n);
         return NULL;
     }
+    if (sem_init(&L->wake, 0, 0) != 0) {
+        fn_err_set(FN_EINVAL, "loop: no semaphore for its wake-up: %s", strerror(errno));
+        free(L);
+        free(caches);
+        return NULL;
+    }
     loop__prefault(L, sizeof *L);
-    loop__prefault(caches, ((size_t)n * (size_t)n + 1) * cb);
+    loop__prefault(caches, ((size_t)n + 1) * cb);
     L->frags = frags;
     L->n = n;
     for (int i = 0; i < 9; i++)
@@ -139,7 +146,7 @@ loop *loop_new(const frag *frags, int n, const uint8_t *fixed, const loop_collid
     L->col = *col;
     L->cache_stride = cb;
     L->caches = caches;
-    L->scratch = caches + (size_t)n * (size_t)n * cb;
+    L->scratch = caches + (size_t)n * cb;
     if (cfg)
         L->cfg = *cfg;
     else
@@ -155,7 +162,6 @@ loop *loop_new(const frag *frags, int n, const uint8_t *fixed, const loop_collid
     L->selected = 0;
     if (L->fixed[0])
         loop_action_do(L, LOOP_ACT_NEXT);
-    sem_init(&L->wake, 0, 0);
     atomic_init(&L->done, 0);
     atomic_init(&L->rt_cpu, -1);
     atomic_init(&L->running, 0);
@@ -183,10 +189,13 @@ static int collide_all(loop *L, int s, const pose *p, int fresh, double *sep)
     for (int j = 0; j < L->n; j++) {
         if (j == s)
             continue;
-        void *cache = L->caches + ((size_t)s * (size_t)L->n + (size_t)j) * L->cache_stride;
+        void *cache = L->caches + (size_t)j * L->cache_stride;
         if (fresh) {
             memset(L->scratch, 0, L->cache_stride);
             cache = L->scratch;
+        } else if (L->cache_mover[j] != s + 1) { /* the slot held the pair of another mover */
+            memset(cache, 0, L->cache_stride);
+            L->cache_mover[j] = (uint8_t)(s + 1);
         }
         loop_contact c = {0, INFINITY};
         int64_t t0 = fresh ? 0 : fnclock_now_ns();

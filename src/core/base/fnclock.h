@@ -10,6 +10,11 @@
 #include <stdint.h>
 #include <time.h>
 
+/* The longest interval one motion report acts over: after a pause (a stall, a replug) motion
+ * resumes from there and never jumps. The one pause clamp: the loop's (loop_config.dt_max_us by
+ * default) and the device events' (dev_event.dt_us). */
+#define FNCLOCK_PAUSE_MAX_US 20000
+
 /* Monotonic time in microseconds, and in nanoseconds (for measuring short work). */
 int64_t fnclock_now_us(void);
 int64_t fnclock_now_ns(void);

@@ -2,13 +2,13 @@
 #include "obb.h"
 
 #include "err.h"
+#include "platform.h"
 #include "vol.h"
 
 #include <limits.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/mman.h>
 
 #define MAX_LEVELS 18
 #define MAX_NODES (1u << 24)
@@ -61,20 +61,6 @@ uint8_t obb_effective_prob(uint8_t p, const obb_params *params)
     if (p == 255 || v > hi)
         return 255;
     return p;
-}
-
-/* Asks for transparent huge pages on a large array: the build touches each of its pages once,
- * and a fault per 4 KiB page would cost more than the work on it. */
-static void huge(void *p, size_t bytes)
-{
-#ifdef MADV_HUGEPAGE
-    uintptr_t page = 4096, lo = ((uintptr_t)p + page - 1) & ~(page - 1);
-    uintptr_t hi = ((uintptr_t)p + bytes) & ~(page - 1);
-    if (p && bytes >= (4u << 20) && hi > lo)
-        madvise((void *)lo, hi - lo, MADV_HUGEPAGE);
-#else
-    (void)p, (void)bytes;
-#endif
 }
 
 static size_t cells(const int d[3])
@@ -306,7 +292,7 @@ static int reserve(builder *b, size_t cap)
         return fn_err_set(FN_ENOMEM, "the hierarchy needs more than %u nodes", MAX_NODES);
     obb_node *nn = realloc(b->nodes, cap * sizeof *nn);
     if (nn)
-        b->nodes = nn, huge(nn, cap * sizeof *nn);
+        b->nodes = nn, platform_huge_pages(nn, cap * sizeof *nn);
     uint8_t *np = realloc(b->lvl, cap);
     if (np)
         b->lvl = np;
@@ -433,7 +419,7 @@ static int alloc_levels(builder *b, const int d0[3])
         size_t n = cells(d);
         level *L = &b->lv[l];
         L->cell = malloc(n * sizeof *L->cell);
-        huge(L->cell, n * sizeof *L->cell);
+        platform_huge_pages(L->cell, n * sizeof *L->cell);
         if (!L->cell)
             return fn_err_set(FN_ENOMEM, "out of memory for the hierarchy pyramid (%zu cells)", n);
     }

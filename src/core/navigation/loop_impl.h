@@ -27,8 +27,12 @@ struct loop {
     uint8_t fixed[LOOP_MAX_FRAGS];
     double radius[LOOP_MAX_FRAGS]; /* centroid to farthest crop corner, mm */
     loop_collider col;
+    /* The pair caches: one slot per other fragment j, holding the pair (mover, j) of the last
+     * fragment that moved against j (cache_mover: 1 + its index, 0 none), so memory grows with n,
+     * not n*n (64 fragments: 10 MB, not 672); one scratch for fresh queries. */
     size_t cache_stride;
-    unsigned char *caches, *scratch; /* n*n pair caches, one scratch for fresh queries */
+    unsigned char *caches, *scratch;
+    uint8_t cache_mover[LOOP_MAX_FRAGS];
     loop_config cfg;
     struct journal *jr;
     ring *ctl; /* actions from the application's thread */

@@ -1,9 +1,9 @@
 /* loop: the input thread that drains a source into the loop's ring. */
-#define _GNU_SOURCE /* CPU affinity: pthread_setaffinity_np */
 #include "fnclock.h"
 #include "loop_impl.h"
 
 #include "err.h"
+#include "platform.h"
 
 #include <pthread.h>
 #include <stdlib.h>
@@ -31,14 +31,8 @@ static void follow_loop(loop_reader *rd)
     if (cpu == rd->cpu)
         return;
     rd->cpu = cpu;
-    if (cpu < 0)
-        return;
-    cpu_set_t one;
-    CPU_ZERO(&one);
-    CPU_SET(cpu, &one);
-    struct sched_param sp = {.sched_priority = rd->L->rt_prio > 1 ? rd->L->rt_prio - 1 : 1};
-    if (pthread_setaffinity_np(pthread_self(), sizeof one, &one) == 0)
-        pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp);
+    if (cpu >= 0)
+        platform_rt_follow(cpu, rd->L->rt_prio > 1 ? rd->L->rt_prio - 1 : 1);
 }
 
 static void push(loop_reader *rd, loop_event *ev)
