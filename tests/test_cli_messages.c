@@ -97,6 +97,11 @@ static void test_fracture(void **st)
            "fracture '%s' -o '%s/f' --seed 1 --pieces 11", f->ct, o);
     expect(2, "fracnav fracture: bone loss must be 0..20 mm (got 25) (see",
            "fracture '%s' -o '%s/f' --seed 1 --bone-loss 25", f->ct, o);
+    /* The threshold given, and the CT's range, not 0. */
+    expect(1, "no bone at or above 1500: the CT's values run from -1000 to 1200",
+           "fracture '%s' -o '%s/f' --seed 1 --threshold 1500", f->ct, o);
+    /* demo takes --threshold too, for steps 1 and 2. */
+    expect(1, "no bone at or above 1500", "demo '%s' -o '%s/d' --threshold 1500 --no-fuse", f->ct, o);
 }
 
 static void test_edit(void **st)

@@ -47,30 +47,39 @@ static size_t count_label(const vol *l, int id)
     return n;
 }
 
+/* The voxel of v nearest world point x (asserting that x is within half a voxel of its centre,
+ * inside v's grid). */
+static size_t nearest_voxel(const vol *v, const double x[3])
+{
+    double s[3];
+    int si[3];
+    vol_world_to_index(v, x, s);
+    for (int a = 0; a < 3; a++) {
+        si[a] = (int)floor(s[a] + 0.5);
+        assert_true(fabs(s[a] - si[a]) <= 0.5 + 1e-9);
+        assert_true(si[a] >= 0 && si[a] < v->dim[a]);
+    }
+    return vol_idx(v, si[0], si[1], si[2]);
+}
+
 /* Every displaced voxel of a moved piece, sent through its truth, lands on that piece in the cut
- * (nearest voxel, so exactly) and carries the original CT value there. */
+ * (nearest voxel, so exactly) and carries the original CT value there. The output grid may have
+ * grown past ct's (the cut's). */
 static void check_truth(const vol *ct, const fracture_result *r)
 {
     size_t idx = 0, checked = 0;
-    for (int k = 0; k < ct->dim[2]; k++)
-        for (int j = 0; j < ct->dim[1]; j++)
-            for (int i = 0; i < ct->dim[0]; i++, idx++) {
-                int id = (int)r->labels->data[idx];
+    const vol *l = r->labels;
+    for (int k = 0; k < l->dim[2]; k++)
+        for (int j = 0; j < l->dim[1]; j++)
+            for (int i = 0; i < l->dim[0]; i++, idx++) {
+                int id = (int)l->data[idx];
                 if (id < 1)
                     continue;
-                double y[3], x[3], s[3], ijk[3] = {i, j, k};
-                vol_index_to_world(r->labels, ijk, y);
+                double y[3], x[3], ijk[3] = {i, j, k};
+                vol_index_to_world(l, ijk, y);
                 pose_apply(&r->truth[id - 1], y, x);
-                vol_world_to_index(ct, x, s);
-                int si[3];
-                for (int a = 0; a < 3; a++) {
-                    si[a] = (int)floor(s[a] + 0.5);
-                    assert_true(fabs(s[a] - si[a]) <= 0.5 + 1e-9);
-                    assert_true(si[a] >= 0 && si[a] < ct->dim[a]);
-                }
-                size_t from = vol_idx(ct, si[0], si[1], si[2]);
-                assert_true(r->cut->data[from] == (float)id);
-                assert_true(r->ct->data[idx] == ct->data[from]);
+                assert_true(r->cut->data[nearest_voxel(r->cut, x)] == (float)id);
+                assert_true(r->ct->data[idx] == ct->data[nearest_voxel(ct, x)]);
                 checked++;
             }
     assert_true(checked > 1000);
@@ -462,11 +471,41 @@ static void test_micro_ct(void **st)
     assert_true(fracture_make(ct, &p, &r) < 0);
     if (!strstr(fn_err_msg(), "10% of the bone") || !strstr(fn_err_msg(), "fewer --pieces"))
         fail_msg("%s", fn_err_msg());
-    p.pieces = 2;
+    vol_free(ct);
+}
+
+/* A piece pushed past the CT's edge is kept whole: the grid grows to hold it (the new voxels are
+ * the CT's lowest value, nothing scanned), and the truth still restores every voxel. */
+static void test_piece_past_edge_grows_grid(void **st)
+{
+    size_t bone_voxels;
+    vol *ct = micro_skeleton(&bone_voxels);
+    fracture_params p;
+    fracture_defaults(&p);
+    p.threshold = 160;
+    p.roughness_mm = 0.3;
+    p.wavelength_mm = 3;
     p.displace_mm = 8;
-    assert_true(fracture_make(ct, &p, &r) < 0);
-    if (!strstr(fn_err_msg(), "would leave the volume") || !strstr(fn_err_msg(), "--displace"))
-        fail_msg("%s", fn_err_msg());
+    for (uint64_t seed = 1; seed <= 3; seed++) {
+        p.seed = seed;
+        fracture_result r;
+        if (fracture_make(ct, &p, &r) < 0)
+            fail_msg("seed %llu: %s", (unsigned long long)seed, fn_err_msg());
+        assert_true(vol_count(r.labels) > vol_count(ct));
+        assert_true(vol_count(r.ct) == vol_count(r.labels) && vol_count(r.cut) == vol_count(ct));
+        check_truth(ct, &r);
+        for (int id = 1; id <= 2; id++) {
+            size_t home = count_label(r.cut, id), placed = count_label(r.labels, id);
+            if (fabs((double)placed - (double)home) > 0.05 * (double)home)
+                fail_msg("seed %llu, piece %d: %zu voxels at home, %zu placed", (unsigned long long)seed,
+                         id, home, placed);
+        }
+        size_t outside = 0;
+        for (size_t i = 0; i < vol_count(r.ct); i++)
+            outside += r.ct->data[i] == 5 && r.labels->data[i] == 0;
+        assert_true(outside > vol_count(r.ct) - vol_count(ct));
+        fracture_result_free(&r);
+    }
     vol_free(ct);
 }
 
@@ -610,6 +649,7 @@ int main(void)
         cmocka_unit_test(test_golden_case),
         cmocka_unit_test(test_cli_prints_centroid_shift),
         cmocka_unit_test(test_micro_ct),
+        cmocka_unit_test(test_piece_past_edge_grows_grid),
         cmocka_unit_test(test_pieces_clear_near),
         cmocka_unit_test(test_cli_threshold_auto),
     };

@@ -13,8 +13,9 @@
  * on in steps of one voxel (the smallest spacing) along the outward direction that clears it in
  * the fewest steps. It is resampled (nearest neighbour) into the output CT, which shows the
  * DISPLACED configuration; where a piece left, `fill` is written. The displaced labels are built
- * from the pieces, not re-segmented, so touching pieces stay apart. A piece that would leave the
- * grid (over 10% of it) is an error.
+ * from the pieces, not re-segmented, so touching pieces stay apart. A piece that lands past the
+ * grid's edge is kept whole: the grid grows to hold it (new voxels: the CT's lowest value), and
+ * where a piece lands never depends on the grid's size.
  * truth[i] maps piece i+1's displaced position back to where it belongs (identity for piece 1).
  *
  * Randomness comes only from splitmix64 seeded with `seed`, and the arithmetic uses + - * / and
@@ -46,9 +47,11 @@ typedef struct fracture_params {
 } fracture_params;
 
 typedef struct fracture_result {
-    vol *ct;      /* the fractured CT (displaced configuration), on the input grid; owned */
+    vol *ct;      /* the fractured CT (displaced configuration), on the input grid or, where a
+                   * moved piece landed past its edge, that grid grown (same spacing and
+                   * directions, whole voxels added before or after); owned */
     vol *labels;  /* pieces 1..n in the displaced configuration, on the same grid; owned */
-    vol *cut;     /* pieces 1..n before displacement (after bone loss), on the same grid; owned */
+    vol *cut;     /* pieces 1..n before displacement (after bone loss), on the input grid; owned */
     int pieces;
     double threshold; /* the bone threshold used (Otsu's when threshold_auto) */
     pose *truth;  /* pieces entries: displaced (home) world -> original world; owned */
