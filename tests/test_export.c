@@ -10,6 +10,8 @@
 #include <cmocka.h>
 
 #include "case.h"
+#include "err.h"
+#include "export.h"
 #include "testutil.h"
 #include "vol.h"
 #include "volio.h"
@@ -432,6 +434,24 @@ static void test_bad_input(void **st)
     free(after);
 }
 
+static int fails_naming_tmp(const char *tmp, void *ctx)
+{
+    (void)ctx;
+    return fn_err_set(FN_EIO, "%s: cannot write this format", tmp);
+}
+
+/* A writer's error names the path the user gave, never the temporary file written first. */
+static void test_error_names_the_target(void **st)
+{
+    (void)st;
+    char path[4300];
+    snprintf(path, sizeof path, "%s/cases", dir);
+    assert_int_equal(export_atomic(path, fails_naming_tmp, NULL), FN_EIO);
+    char want[4400];
+    snprintf(want, sizeof want, "%s: cannot write this format", path);
+    assert_string_equal(fn_err_msg(), want);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -442,6 +462,7 @@ int main(void)
         cmocka_unit_test(test_report_in_chromium),
         cmocka_unit_test(test_report_without_renderer),
         cmocka_unit_test(test_bad_input),
+        cmocka_unit_test(test_error_names_the_target),
     };
     return cmocka_run_group_tests(tests, setup, teardown);
 }

@@ -100,6 +100,20 @@ int cmd_parse_pivot(const char *cmd, int argc, char **argv, int *i, double out[3
 /* --frame NAME: camera, world or fragment. 0, or a usage error for `cmd` (returns 2). */
 int cmd_parse_frame(const char *cmd, const char *name, loop_frame *out);
 
+/* Output paths, checked before any work. No output lands in a case folder (one that holds
+ * case.json: its files are written by the case's own saves alone) or on the source volume of the
+ * case in use (in, may be NULL); links are followed to where they lead. Both return 0, or FN_EINVAL
+ * with a message that names the path and why. */
+/* A file: not a folder, in a folder that exists. */
+int cmd_out_file(const char *path, const planning_case *in);
+/* A folder a command fills with files: missing (made later), empty, or holding files only with
+ * force (those of the names written are replaced), and never a case folder. */
+int cmd_out_folder(const char *dir, int force);
+
+/* 0 when dir holds a case (a case.json), else FN_EIO naming dir and why: a check before anything
+ * slow (opening a device) that a missing case makes pointless. */
+int cmd_case_exists(const char *dir);
+
 /* Path of the example CT that .ci/setup caches: $FRACNAV_DATA/Cranium.inv3, else
  * /var/cache/fracnav/Cranium.inv3 (a static buffer). */
 const char *cmd_example_ct(void);

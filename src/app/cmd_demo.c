@@ -572,7 +572,7 @@ int cmd_demo(int argc, char **argv)
            num(red, "seconds"), num(fr, "rot_err_deg"), num(fr, "trans_err_mm"), num(fr, "tre_mm"));
 
     printf("5. export (fracnav export --all %s):\n", exdir);
-    char *eargs[] = {"export", casedir, "--all", exdir, "--smooth", "10", "--decimate", "200000", NULL};
+    char *eargs[] = {"export", casedir, "--all", exdir, "--smooth", "10", "--decimate", "200000", "--force", NULL};
     json_t *ex = fracnav_json(exe, dir, "export", eargs, 0, NULL, NULL);
     if (!ex) {
         json_decref(nav);

@@ -19,10 +19,12 @@ static void usage(FILE *out)
     fprintf(out,
             "usage: fracnav export CASE [--tfm DIR] [--seg-nrrd FILE] [--nifti FILE] [--stl DIR]\n"
             "                      [--ras] [--smooth N] [--decimate TRIANGLES] [--report DIR]\n"
-            "                      [--all DIR] [--platform osmesa|glfw] [--json]\n\n"
+            "                      [--all DIR] [--platform osmesa|glfw] [--force] [--json]\n\n"
             "Writes the case's plan (every fragment at its current, planned pose) for other tools.\n"
             "Every file is written atomically (a temporary file, synced, then renamed). Coordinates\n"
-            "are LPS mm unless said otherwise.\n\n"
+            "are LPS mm unless said otherwise. Every path is checked before anything is written: a\n"
+            "folder must be missing or empty (or --force), and nothing goes into a case folder or\n"
+            "onto the case's source volume.\n\n"
             "  --tfm DIR          one ITK transform per fragment, DIR/fragment-ID.tfm\n"
             "                     (AffineTransform_double_3_3), in ITK's resampling direction: it maps\n"
             "                     a planned point back to where the fragment was segmented. In 3D Slicer,\n"
@@ -43,6 +45,8 @@ static void usage(FILE *out)
             "  --all DIR          all of them: DIR/transforms, DIR/planned.seg.nrrd,\n"
             "                     DIR/planned.nii.gz, DIR/models, DIR/report\n"
             "  --platform P       the report's renderer: osmesa (default) or glfw\n"
+            "  --force            write into folders that hold files already (files of the same\n"
+            "                     names are replaced, others left alone)\n"
             "  --json             one JSON object: the files written and their sizes\n"
             "  --help             this text\n");
 }
@@ -50,7 +54,7 @@ static void usage(FILE *out)
 typedef struct export_args {
     const char *dir, *tfm, *seg, *nifti, *stl, *report, *all, *platform;
     export_stl_opts stl_o;
-    int json;
+    int json, force;
 } export_args;
 
 typedef struct written {
@@ -107,6 +111,8 @@ static int parse_args(int argc, char **argv, export_args *a)
             a->stl_o.ras = 1;
         } else if (!strcmp(opt, "--json")) {
             a->json = 1;
+        } else if (!strcmp(opt, "--force")) {
+            a->force = 1;
         } else if (!strcmp(opt, "--smooth")) {
             if (!parse_count(val, 0, 1000, &n))
                 return cmd_bad_value("export", opt, val, "a whole number of iterations, 0 to 1000");
@@ -146,6 +152,33 @@ static int make_dir(const char *dir)
     if (stat(dir, &st) != 0 || !S_ISDIR(st.st_mode))
         return fn_err_set(FN_EIO, "%s: not a folder", dir);
     return 0;
+}
+
+static int ends_with(const char *s, const char *tail)
+{
+    size_t n = strlen(s), t = strlen(tail);
+    return n > t && !strcmp(s + n - t, tail);
+}
+
+/* Every output path, before anything is written (cmd_out_file, cmd_out_folder), and the formats
+ * the names ask for. */
+static int check_outputs(const planning_case *c, const export_args *a)
+{
+    const char *folders[4] = {a->all, a->tfm, a->stl, a->report};
+    int rc = 0;
+    for (int i = 0; i < 4 && rc == 0; i++)
+        if (folders[i])
+            rc = cmd_out_folder(folders[i], a->force);
+    if (rc == 0 && a->nifti && !ends_with(a->nifti, ".nii") && !ends_with(a->nifti, ".nii.gz"))
+        rc = fn_err_set(FN_EINVAL, "--nifti %s: a NIfTI file's name ends in .nii or .nii.gz", a->nifti);
+    if (rc == 0 && a->seg && !ends_with(a->seg, ".nrrd"))
+        rc = fn_err_set(FN_EINVAL, "--seg-nrrd %s: a 3D Slicer segmentation's name ends in .seg.nrrd",
+                        a->seg);
+    if (rc == 0 && a->nifti)
+        rc = cmd_out_file(a->nifti, c);
+    if (rc == 0 && a->seg)
+        rc = cmd_out_file(a->seg, c);
+    return rc;
 }
 
 static int run(const planning_case *c, const export_args *a, written *w)
@@ -220,9 +253,11 @@ int cmd_export(int argc, char **argv)
         return 1;
     }
     written w = {a.json ? json_array() : NULL, 0, 0, a.json};
-    if (!a.json)
+    rc = check_outputs(c, &a);
+    if (!rc && !a.json)
         printf("fracnav export: %s (%d fragments)\n", a.dir, c->nfrag);
-    rc = run(c, &a, &w);
+    if (!rc)
+        rc = run(c, &a, &w);
     if (rc) {
         fprintf(stderr, "fracnav export: %s\n", fn_err_msg());
         json_decref(w.files);

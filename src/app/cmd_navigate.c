@@ -521,6 +521,11 @@ int cmd_navigate(int argc, char **argv)
     int rc = parse(argc, argv, &o);
     if (rc)
         return rc;
+    /* the case first: a missing one is the first thing to say, before any device */
+    if (cmd_case_exists(o.dir) < 0 || (o.screenshot && cmd_out_file(o.screenshot, NULL) < 0)) {
+        fprintf(stderr, "fracnav navigate: %s\n", fn_err_msg());
+        return 1;
+    }
     calib cal;
     if (calib_setup(&cal, o.config, 0, stderr, "fracnav navigate", NULL, 0) < 0) {
         fprintf(stderr, "fracnav navigate: %s\n", fn_err_msg());

@@ -169,6 +169,11 @@ int cmd_render(int argc, char **argv)
         fprintf(stderr, "fracnav render: %s\n", fn_err_msg());
         return 1;
     }
+    if (cmd_out_file(a.out, c) < 0) {
+        fprintf(stderr, "fracnav render: -o %s\n", fn_err_msg());
+        case_free(c);
+        return 1;
+    }
     if (c->nfrag > RENDER_MAX_FRAGS) {
         fprintf(stderr, "fracnav render: %s has %d fragments; at most %d can be drawn\n", a.dir,
                 c->nfrag, RENDER_MAX_FRAGS);
