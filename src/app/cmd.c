@@ -260,6 +260,24 @@ int cmd_out_folder(const char *dir, int force)
     return rc;
 }
 
+int cmd_seg_found(const vol *v, const seg_params *p, const seg_result *r, const char *labels)
+{
+    if (r->ncomp > 0)
+        return 0;
+    if (labels)
+        return fn_err_set(FN_EINVAL, "%s holds no label over 0: no fragment to make", labels);
+    float lo, hi;
+    vol_range(v, &lo, &hi);
+    if (r->raw_components == 0)
+        return fn_err_set(FN_EINVAL, "no bone: the volume's values run from %g to %g, none at or above the "
+                                     "threshold %g%s; give another --threshold", (double)lo, (double)hi,
+                          r->threshold, p->threshold_auto ? " (Otsu's)" : "");
+    return fn_err_set(FN_EINVAL, "no bone: at the threshold %g%s (values run from %g to %g) none of the %d "
+                                 "components reaches --min-volume %g ml; lower it or the threshold",
+                      r->threshold, p->threshold_auto ? " (Otsu's)" : "", (double)lo, (double)hi,
+                      r->raw_components, p->min_volume_ml);
+}
+
 int cmd_case_exists(const char *dir)
 {
     char json[PATH_MAX + 16];

@@ -17,7 +17,7 @@
     X(record, "record raw reports from a controller to a .fnrec file")                       \
     X(replay, "replay a .fnrec recording through the navigation loop")                      \
     X(navigate, "steer fragments with a 6-DOF controller, collision-checked")               \
-    X(reduce, "fit fragments back together: pre-alignment and Powell's method on the VOI")  \
+    X(reduce, "fit fragments back together: pre-alignment, then PRAXIS (or Powell) on the VOI") \
     X(render, "draw a case's fragments at their poses into a PNG (OpenGL 4.5)")              \
     X(export, "write the plan for 3D Slicer, ITK and printers (tfm, seg.nrrd, NIfTI, STL), and a report") \
     X(bench, "benchmarks with JSON output: collision, build, loop, reduce, render")
@@ -109,6 +109,11 @@ int cmd_out_file(const char *path, const planning_case *in);
 /* A folder a command fills with files: missing (made later), empty, or holding files only with
  * force (those of the names written are replaced), and never a case folder. */
 int cmd_out_folder(const char *dir, int force);
+
+/* An empty segmentation is an error: 0 when r kept a fragment, else FN_EINVAL saying what was
+ * found (v's range, the threshold used, the components dropped by --min-volume); labels: the
+ * --labels file r came from, or NULL. */
+int cmd_seg_found(const vol *v, const seg_params *p, const seg_result *r, const char *labels);
 
 /* 0 when dir holds a case (a case.json), else FN_EIO naming dir and why: a check before anything
  * slow (opening a device) that a missing case makes pointless. */

@@ -241,7 +241,8 @@ static planning_case *segment(const char *ct_path, vol *ct, const char *dir, con
     sp.threshold_auto = thr->automatic;
     int64_t t0 = fnclock_now_us();
     seg_result sr;
-    if (seg_run(ct, &sp, &sr) < 0) {
+    if (seg_run(ct, &sp, &sr) < 0 || cmd_seg_found(ct, &sp, &sr, NULL) < 0) {
+        seg_result_free(&sr);
         vol_free(ct);
         return NULL;
     }

@@ -146,7 +146,8 @@ static int parse(int argc, char **argv, args *A)
     return cmd_tau_check("reduce", &A->tau);
 }
 
-/* Fragment indices: the fixed one and the moving ones. 0, or 2 after a usage error. */
+/* Fragment indices: the fixed one and the moving ones. 0, or 2 after a usage error, or 1 when the
+ * case has no fragment to move. */
 static int pick(const planning_case *c, const args *A, int *fixed, int *mv, int *nmv)
 {
     if (A->fixed_id) {
@@ -178,8 +179,11 @@ static int pick(const planning_case *c, const args *A, int *fixed, int *mv, int 
             if (i != *fixed)
                 mv[(*nmv)++] = i;
     }
-    if (!*nmv)
-        return cmd_usage_error("reduce", "%s", "the case has no fragment to move");
+    if (!*nmv) { /* the case's content, not the command line: a runtime error */
+        fprintf(stderr, "fracnav reduce: %s has %d fragment%s: none to fit against another\n", c->dir, c->nfrag,
+                c->nfrag == 1 ? "" : "s");
+        return 1;
+    }
     return 0;
 }
 
