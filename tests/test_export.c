@@ -301,6 +301,13 @@ static void test_stl_closed_in_mm(void **st)
     snprintf(small_dir, sizeof small_dir, "%s/small", dir);
     assert_int_equal(tu_run_cli(NULL, "export '%s' --stl '%s' --ras", frac, ras_dir), 0);
     assert_int_equal(tu_run_cli(NULL, "export '%s' --stl '%s' --smooth 10 --decimate 3000", frac, small_dir), 0);
+    /* a target no closed, unfolded surface reaches is said, with the count reached */
+    char tiny_dir[4300], *o = NULL;
+    snprintf(tiny_dir, sizeof tiny_dir, "%s/tiny", dir);
+    assert_int_equal(tu_run_cli(&o, "export '%s' --stl '%s' --decimate 4", frac, tiny_dir), 0);
+    if (!strstr(o, "triangles, over --decimate 4: no edge collapses further"))
+        fail_msg("%s", o);
+    free(o);
     for (int i = 0; i < c->nfrag; i++) {
         const frag *f = &c->frag[i];
         double mm3 = f->volume_ml * 1000;

@@ -35,10 +35,14 @@ static void usage(FILE *out)
             "  --nifti FILE       the planned labelmap (.nii or .nii.gz, uint16 labels) on the source\n"
             "                     grid\n"
             "  --stl DIR          one binary STL per fragment at its planned pose, DIR/fragment-ID.stl:\n"
-            "                     a closed surface, mm\n"
+            "                     a closed surface, mm: the outer surface and the walls of cavities\n"
+            "                     inside (bone touching the rest only at a voxel's edge or corner,\n"
+            "                     which would float apart, is left out)\n"
             "  --ras              STL coordinates in RAS (x and y negated) instead of LPS\n"
             "  --smooth N         N Taubin smoothing iterations of the STL surfaces (default 0)\n"
-            "  --decimate T       at most T triangles per STL surface (edge collapses; default: all)\n"
+            "  --decimate T       down to T triangles per STL surface (edge collapses that keep it\n"
+            "                     closed and unfolded; where none is left above T, a warning says\n"
+            "                     how many remain; default: all)\n"
             "  --report DIR       DIR/index.html: renders before and after the reduction, the\n"
             "                     optimizer's convergence plot, and per fragment the move, contact\n"
             "                     area, gap and overlap volumes, and errors against any ground truth\n"
@@ -216,6 +220,9 @@ static int run(const planning_case *c, const export_args *a, written *w)
             long nt = 0;
             if ((rc = export_stl(c, i, &a->stl_o, path, &nt)) == 0)
                 wrote(w, path);
+            if (rc == 0 && a->stl_o.decimate && nt > a->stl_o.decimate)
+                fprintf(stderr, "fracnav export: %s: %ld triangles, over --decimate %ld: no edge collapses "
+                                "further without opening or folding the surface\n", path, nt, a->stl_o.decimate);
         }
     }
     if (rc || (!seg && !nifti && !report))

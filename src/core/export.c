@@ -362,6 +362,8 @@ int export_stl(const planning_case *c, int i, const export_stl_opts *o, const ch
     mesh m;
     int rc = mesh_extract(mask, f->dim, f->spacing, 0.5f, &m);
     free(mask);
+    if (rc == 0 && mesh_drop_islands(&m) < 0)
+        rc = FN_ENOMEM;
     if (rc == 0 && o->smooth > 0)
         rc = mesh_smooth(&m, o->smooth, 0.5, -0.53);
     if (rc == 0 && o->decimate > 0 && m.nt > o->decimate) {
