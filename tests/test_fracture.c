@@ -384,7 +384,8 @@ static void label_centroid(const vol *l, int id, double c[3])
         c[a] = s[a] / (double)n;
 }
 
-/* Every piece keeps at least 10% of the bone, and every moved piece goes outward from the bone's
+/* Every piece keeps at least its share of the bone (fracture_min_piece: 10%, 1/(2K) beyond 6
+ * pieces), and every moved piece goes outward from the bone's
  * centre (or across) by --displace plus at most `slack_mm` of push-out. */
 static void check_pieces(const fracture_result *r, size_t bone_voxels, double displace, double slack_mm)
 {
@@ -405,7 +406,8 @@ static void check_pieces(const fracture_result *r, size_t bone_voxels, double di
         centre[a] /= (double)n;
     for (int id = 1; id <= r->pieces; id++) {
         size_t home = count_label(r->cut, id), placed = count_label(r->labels, id);
-        if (home * 10 < bone_voxels || placed * 10 < bone_voxels * 9 / 10)
+        size_t least = fracture_min_piece(bone_voxels, r->pieces);
+        if (home < least || placed < least * 9 / 10)
             fail_msg("piece %d: %zu voxels at home, %zu placed, of a bone of %zu", id, home, placed,
                      bone_voxels);
         if (id == 1)
@@ -467,9 +469,13 @@ static void test_micro_ct(void **st)
             check_pieces(&r, bone_voxels, p.displace_mm, 2);
             fracture_result_free(&r);
         }
+    vol_free(ct);
+    /* two voxels of bone: no third piece */
+    ct = vol_new(4, 4, 4);
+    ct->data[vol_idx(ct, 1, 1, 1)] = ct->data[vol_idx(ct, 2, 1, 1)] = 200;
     p.pieces = 10;
     assert_true(fracture_make(ct, &p, &r) < 0);
-    if (!strstr(fn_err_msg(), "10% of the bone") || !strstr(fn_err_msg(), "fewer --pieces"))
+    if (!strstr(fn_err_msg(), "5% of the bone") || !strstr(fn_err_msg(), "fewer --pieces"))
         fail_msg("%s", fn_err_msg());
     vol_free(ct);
 }
@@ -529,6 +535,30 @@ static void test_pieces_clear_near(void **st)
             check_pieces(&r, bone_voxels, p.displace_mm, 3);
             fracture_result_free(&r);
         }
+    vol_free(ct);
+}
+
+/* --pieces 10 is made (10 pieces of 10% each never were): each piece keeps 5% of the bone, and
+ * the truth restores every one. */
+static void test_ten_pieces(void **st)
+{
+    vol *ct = bone();
+    size_t bone_voxels = 0;
+    for (size_t i = 0; i < vol_count(ct); i++)
+        bone_voxels += ct->data[i] >= 300;
+    fracture_params p;
+    fracture_defaults(&p);
+    p.pieces = 10;
+    for (uint64_t seed = 1; seed <= 3; seed++) {
+        p.seed = seed;
+        fracture_result r;
+        if (fracture_make(ct, &p, &r) < 0)
+            fail_msg("seed %llu: %s", (unsigned long long)seed, fn_err_msg());
+        check_truth(ct, &r);
+        for (int id = 1; id <= 10; id++)
+            assert_true(count_label(r.cut, id) >= fracture_min_piece(bone_voxels, 10));
+        fracture_result_free(&r);
+    }
     vol_free(ct);
 }
 
@@ -651,6 +681,7 @@ int main(void)
         cmocka_unit_test(test_micro_ct),
         cmocka_unit_test(test_piece_past_edge_grows_grid),
         cmocka_unit_test(test_pieces_clear_near),
+        cmocka_unit_test(test_ten_pieces),
         cmocka_unit_test(test_cli_threshold_auto),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

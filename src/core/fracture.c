@@ -241,8 +241,21 @@ static int piece_stats(const vol *lab, int id, frag *f)
     return frag_from_labels(f, lab, NULL, id, lo, hi, 0, 0);
 }
 
+/* A piece keeps at least 1/share_divisor of the bone: 10 pieces of 10% each would all have to be
+ * cut exactly, so beyond 6 pieces the share is 1/(2 pieces). */
+static int share_divisor(int pieces)
+{
+    return pieces > 6 ? 2 * pieces : 10;
+}
+
+size_t fracture_min_piece(size_t bone_voxels, int pieces)
+{
+    int d = share_divisor(pieces);
+    return (bone_voxels + (size_t)d - 1) / (size_t)d;
+}
+
 /* Splits the largest piece so far with a random rough cut; its smaller side becomes piece `to`.
- * Both sides keep at least min_piece voxels (10% of the bone), or the cut is refused. */
+ * Both sides keep at least min_piece voxels (fracture_min_piece), or the cut is refused. */
 static int make_cut(vol *lab, vol *ct, int to, uint64_t *rng, const fracture_params *p,
                     size_t min_piece, double normal_out[3])
 {
@@ -262,10 +275,11 @@ static int make_cut(vol *lab, vol *ct, int to, uint64_t *rng, const fracture_par
             from = id;
         }
     }
+    double pct = 100.0 / share_divisor(p->pieces);
     if (best < 2 * min_piece)
         return fn_err_set(FN_EINVAL, "fracture: cannot cut piece %d: the largest piece so far "
-                          "(%zu voxels) is under twice the smallest piece allowed (10%% of the "
-                          "bone, %zu voxels); ask for fewer --pieces", to, best, min_piece);
+                          "(%zu voxels) is under twice the smallest piece allowed (%.3g%% of the "
+                          "bone, %zu voxels); ask for fewer --pieces", to, best, pct, min_piece);
     frag f;
     int rc = piece_stats(lab, from, &f);
     if (rc < 0)
@@ -320,8 +334,8 @@ static int make_cut(vol *lab, vol *ct, int to, uint64_t *rng, const fracture_par
     }
     frag_free(&f);
     return fn_err_set(FN_EINVAL, "fracture: no cut of piece %d (%zu voxels) leaves both sides at "
-                      "least 10%% of the bone (%zu voxels) in 32 tries: the bone is too thin or "
-                      "irregular for %d pieces; ask for fewer --pieces", from, best, min_piece,
+                      "least %.3g%% of the bone (%zu voxels) in 32 tries: the bone is too thin or "
+                      "irregular for %d pieces; ask for fewer --pieces", from, best, pct, min_piece,
                       p->pieces);
 }
 
@@ -458,7 +472,7 @@ int fracture_check(const fracture_params *p)
         const char *name;
         double value, lo, hi;
         const char *unit;
-    } rows[] = {{"pieces", p->pieces, 2, 10, " (each at least 10% of the bone)"},
+    } rows[] = {{"pieces", p->pieces, 2, 10, ""},
                 {"displace", p->displace_mm, 0, 200, " mm"},
                 {"rotate", p->rotate_deg, 0, 180, " deg"},
                 {"bone loss", p->bone_loss_mm, 0, 20, " mm"},
@@ -745,8 +759,8 @@ int fracture_make(const vol *ct, const fracture_params *p, fracture_result *out)
         fracture_result_free(out);
         return rc;
     }
-    /* Every piece keeps at least 10% of the bone: smaller ones are crumbs, not fragments. */
-    size_t min_piece = (bone.voxels + 9) / 10;
+    /* Smaller pieces are crumbs, not fragments. */
+    size_t min_piece = fracture_min_piece(bone.voxels, p->pieces);
     double centre[3] = {bone.centroid[0], bone.centroid[1], bone.centroid[2]};
     frag_free(&bone);
     out->pieces = p->pieces;

@@ -5,7 +5,7 @@
  * (normal near the piece's main axis, through a point near its centroid) displaced along its
  * normal by fractal value noise (fBm, 4 octaves). The new piece of a cut is its smaller side.
  * Each side is made one connected piece (islands the rough surface leaves join the other side)
- * and keeps at least 10% of the bone's voxels, or the cut is tried again (32 times, then an
+ * and keeps at least fracture_min_piece voxels, or the cut is tried again (32 times, then an
  * error). bone_loss_mm of bone around each cut is replaced by `fill` (soft tissue). Piece 1
  * (what is left of the first piece) stays fixed; every other piece is moved by a random rigid
  * transform: rotation of rotate_deg about its centroid, translation of displace_mm outward from
@@ -26,6 +26,7 @@
 #include "pose.h"
 #include "vol.h"
 
+#include <stddef.h>
 #include <stdint.h>
 
 typedef struct fracture_params {
@@ -66,6 +67,9 @@ int fracture_check(const fracture_params *p);
 /* 0 and *out filled (free with fracture_result_free), or a negative FN_E* code. */
 int fracture_make(const vol *ct, const fracture_params *p, fracture_result *out);
 void fracture_result_free(fracture_result *r);
+/* The fewest voxels a piece of a bone of bone_voxels keeps: 10% of them, or 1/(2 pieces) beyond 6
+ * pieces (5% for 10), so that the last cuts still have room. */
+size_t fracture_min_piece(size_t bone_voxels, int pieces);
 /* How far truth moves a point (a fragment's centroid, in mm): the one measure of a piece's
  * displacement that fracnav prints (a pose's translation alone depends on where the origin is). */
 double fracture_truth_shift(const pose *truth, const double centroid[3]);
