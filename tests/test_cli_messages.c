@@ -15,6 +15,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/wait.h>
+#include <unistd.h>
 
 struct fixture {
     char *tmp;
@@ -80,6 +81,31 @@ static void test_segment(void **st)
     expect(2, "--keep: '1.5' is not a whole number", "segment '%s' -o '%s/s' --keep 1.5", f->ct, o);
     expect(2, "--ramp: 'wide' is not a number >= 0", "segment '%s' -o '%s/s' --ramp wide", f->ct, o);
     expect(0, "1 kept", "segment '%s' -o '%s/s' --threshold auto-bone --ramp 0", f->ct, o);
+    /* No bone is an error that says what was found, and leaves no case. */
+    expect(1, "no bone: the volume's values run from -1000 to 1200, none at or above the threshold 1500",
+           "segment '%s' -o '%s/none' --threshold 1500", f->ct, o);
+    expect(1, "none of the 1 components reaches --min-volume 5 ml",
+           "segment '%s' -o '%s/none' --min-volume 5", f->ct, o);
+    char none[4300];
+    snprintf(none, sizeof none, "%s/none", o);
+    assert_int_not_equal(access(none, F_OK), 0);
+    /* --labels uses no threshold, and says so. */
+    char lab[4300], *out = NULL;
+    snprintf(lab, sizeof lab, "%s/labels.nii.gz", o);
+    vol *v = volio_read(f->ct);
+    assert_non_null(v);
+    for (size_t i = 0; i < vol_count(v); i++)
+        v->data[i] = v->data[i] > 0 ? 3 : 0;
+    assert_int_equal(volio_write(v, lab, VOL_U8), 0);
+    assert_int_equal(tu_run_cli(&out, "segment '%s' -o '%s/l' --labels '%s'", f->ct, o, lab), 0);
+    if (!strstr(out, "labels of ") || strstr(out, "threshold"))
+        fail_msg("%s", out);
+    free(out);
+    for (size_t i = 0; i < vol_count(v); i++)
+        v->data[i] = 0;
+    assert_int_equal(volio_write(v, lab, VOL_U8), 0);
+    vol_free(v);
+    expect(1, "labels.nii.gz holds no label over 0", "segment '%s' -o '%s/none' --labels '%s'", f->ct, o, lab);
 }
 
 static void test_fracture(void **st)
@@ -97,6 +123,12 @@ static void test_fracture(void **st)
            "fracture '%s' -o '%s/f' --seed 1 --pieces 11", f->ct, o);
     expect(2, "fracnav fracture: bone loss must be 0..20 mm (got 25) (see",
            "fracture '%s' -o '%s/f' --seed 1 --bone-loss 25", f->ct, o);
+    /* The threshold given, and the CT's range, not 0. */
+    expect(1, "no bone at or above 1500: the CT's values run from -1000 to 1200",
+           "fracture '%s' -o '%s/f' --seed 1 --threshold 1500", f->ct, o);
+    /* demo takes --threshold too, for steps 1 and 2. */
+    expect(1, "fracnav demo: segmentation: no bone: the volume's values run from -1000 to 1200, none at or above "
+              "the threshold 1500", "demo '%s' -o '%s/d' --threshold 1500 --no-fuse", f->ct, o);
 }
 
 static void test_edit(void **st)
@@ -109,6 +141,19 @@ static void test_edit(void **st)
     expect(2, "grow: unknown option '--bogus'", "edit '%s' grow 0 0 0 --bogus", f->cdir);
     expect(2, "--threshold: 'abc' is not a number (HU)", "edit '%s' grow 0 0 0 --threshold abc", f->cdir);
     expect(0, "1 fragment left\n", "edit '%s' keep 1", f->cdir);
+    /* the --erode given is named, not asked for */
+    expect(1, "fragment 1 does not split at --erode 0.5 mm", "edit '%s' separate 1 --erode 0.5", f->cdir);
+}
+
+/* What a case cannot give is a runtime error (1) that says why, before any device or drawing. */
+static void test_case_errors(void **st)
+{
+    struct fixture *f = *st;
+    expect(1, "has 1 fragment: none to fit against another", "reduce '%s'", f->cdir);
+    expect(1, "--point 1e+06,0,0 lies outside the CT (24x24x24 voxels)",
+           "render '%s' -o '%s/p.png' --point 1e6,0,0 --layout four-up", f->cdir, f->tmp);
+    expect(1, "fracnav navigate: /nonexistent is not a case", "navigate /nonexistent </dev/null");
+    expect(0, "pre-alignment, then PRAXIS (or Powell)", "--help");
 }
 
 /* Bad values name the option and the value, not "unexpected argument". */
@@ -175,6 +220,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_segment, setup, teardown),
         cmocka_unit_test_setup_teardown(test_fracture, setup, teardown),
         cmocka_unit_test_setup_teardown(test_edit, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_case_errors, setup, teardown),
         cmocka_unit_test_setup_teardown(test_bad_values, setup, teardown),
         cmocka_unit_test_setup_teardown(test_replay_save_says_so, setup, teardown),
     };

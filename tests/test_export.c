@@ -10,6 +10,8 @@
 #include <cmocka.h>
 
 #include "case.h"
+#include "err.h"
+#include "export.h"
 #include "testutil.h"
 #include "vol.h"
 #include "volio.h"
@@ -297,6 +299,13 @@ static void test_stl_closed_in_mm(void **st)
     snprintf(small_dir, sizeof small_dir, "%s/small", dir);
     assert_int_equal(tu_run_cli(NULL, "export '%s' --stl '%s' --ras", frac, ras_dir), 0);
     assert_int_equal(tu_run_cli(NULL, "export '%s' --stl '%s' --smooth 10 --decimate 3000", frac, small_dir), 0);
+    /* a target no closed, unfolded surface reaches is said, with the count reached */
+    char tiny_dir[4300], *o = NULL;
+    snprintf(tiny_dir, sizeof tiny_dir, "%s/tiny", dir);
+    assert_int_equal(tu_run_cli(&o, "export '%s' --stl '%s' --decimate 4", frac, tiny_dir), 0);
+    if (!strstr(o, "triangles, over --decimate 4: no edge collapses further"))
+        fail_msg("%s", o);
+    free(o);
     for (int i = 0; i < c->nfrag; i++) {
         const frag *f = &c->frag[i];
         double mm3 = f->volume_ml * 1000;
@@ -430,6 +439,24 @@ static void test_bad_input(void **st)
     free(after);
 }
 
+static int fails_naming_tmp(const char *tmp, void *ctx)
+{
+    (void)ctx;
+    return fn_err_set(FN_EIO, "%s: cannot write this format", tmp);
+}
+
+/* A writer's error names the path the user gave, never the temporary file written first. */
+static void test_error_names_the_target(void **st)
+{
+    (void)st;
+    char path[4300];
+    snprintf(path, sizeof path, "%s/cases", dir);
+    assert_int_equal(export_atomic(path, fails_naming_tmp, NULL), FN_EIO);
+    char want[4400];
+    snprintf(want, sizeof want, "%s: cannot write this format", path);
+    assert_string_equal(fn_err_msg(), want);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -440,6 +467,7 @@ int main(void)
         cmocka_unit_test(test_report_in_chromium),
         cmocka_unit_test(test_report_without_renderer),
         cmocka_unit_test(test_bad_input),
+        cmocka_unit_test(test_error_names_the_target),
     };
     return cmocka_run_group_tests(tests, setup, teardown);
 }

@@ -47,30 +47,39 @@ static size_t count_label(const vol *l, int id)
     return n;
 }
 
+/* The voxel of v nearest world point x (asserting that x is within half a voxel of its centre,
+ * inside v's grid). */
+static size_t nearest_voxel(const vol *v, const double x[3])
+{
+    double s[3];
+    int si[3];
+    vol_world_to_index(v, x, s);
+    for (int a = 0; a < 3; a++) {
+        si[a] = (int)floor(s[a] + 0.5);
+        assert_true(fabs(s[a] - si[a]) <= 0.5 + 1e-9);
+        assert_true(si[a] >= 0 && si[a] < v->dim[a]);
+    }
+    return vol_idx(v, si[0], si[1], si[2]);
+}
+
 /* Every displaced voxel of a moved piece, sent through its truth, lands on that piece in the cut
- * (nearest voxel, so exactly) and carries the original CT value there. */
+ * (nearest voxel, so exactly) and carries the original CT value there. The output grid may have
+ * grown past ct's (the cut's). */
 static void check_truth(const vol *ct, const fracture_result *r)
 {
     size_t idx = 0, checked = 0;
-    for (int k = 0; k < ct->dim[2]; k++)
-        for (int j = 0; j < ct->dim[1]; j++)
-            for (int i = 0; i < ct->dim[0]; i++, idx++) {
-                int id = (int)r->labels->data[idx];
+    const vol *l = r->labels;
+    for (int k = 0; k < l->dim[2]; k++)
+        for (int j = 0; j < l->dim[1]; j++)
+            for (int i = 0; i < l->dim[0]; i++, idx++) {
+                int id = (int)l->data[idx];
                 if (id < 1)
                     continue;
-                double y[3], x[3], s[3], ijk[3] = {i, j, k};
-                vol_index_to_world(r->labels, ijk, y);
+                double y[3], x[3], ijk[3] = {i, j, k};
+                vol_index_to_world(l, ijk, y);
                 pose_apply(&r->truth[id - 1], y, x);
-                vol_world_to_index(ct, x, s);
-                int si[3];
-                for (int a = 0; a < 3; a++) {
-                    si[a] = (int)floor(s[a] + 0.5);
-                    assert_true(fabs(s[a] - si[a]) <= 0.5 + 1e-9);
-                    assert_true(si[a] >= 0 && si[a] < ct->dim[a]);
-                }
-                size_t from = vol_idx(ct, si[0], si[1], si[2]);
-                assert_true(r->cut->data[from] == (float)id);
-                assert_true(r->ct->data[idx] == ct->data[from]);
+                assert_true(r->cut->data[nearest_voxel(r->cut, x)] == (float)id);
+                assert_true(r->ct->data[idx] == ct->data[nearest_voxel(ct, x)]);
                 checked++;
             }
     assert_true(checked > 1000);
@@ -375,7 +384,8 @@ static void label_centroid(const vol *l, int id, double c[3])
         c[a] = s[a] / (double)n;
 }
 
-/* Every piece keeps at least 10% of the bone, and every moved piece goes outward from the bone's
+/* Every piece keeps at least its share of the bone (fracture_min_piece: 10%, 1/(2K) beyond 6
+ * pieces), and every moved piece goes outward from the bone's
  * centre (or across) by --displace plus at most `slack_mm` of push-out. */
 static void check_pieces(const fracture_result *r, size_t bone_voxels, double displace, double slack_mm)
 {
@@ -396,7 +406,8 @@ static void check_pieces(const fracture_result *r, size_t bone_voxels, double di
         centre[a] /= (double)n;
     for (int id = 1; id <= r->pieces; id++) {
         size_t home = count_label(r->cut, id), placed = count_label(r->labels, id);
-        if (home * 10 < bone_voxels || placed * 10 < bone_voxels * 9 / 10)
+        size_t least = fracture_min_piece(bone_voxels, r->pieces);
+        if (home < least || placed < least * 9 / 10)
             fail_msg("piece %d: %zu voxels at home, %zu placed, of a bone of %zu", id, home, placed,
                      bone_voxels);
         if (id == 1)
@@ -458,15 +469,49 @@ static void test_micro_ct(void **st)
             check_pieces(&r, bone_voxels, p.displace_mm, 2);
             fracture_result_free(&r);
         }
+    vol_free(ct);
+    /* two voxels of bone: no third piece */
+    ct = vol_new(4, 4, 4);
+    ct->data[vol_idx(ct, 1, 1, 1)] = ct->data[vol_idx(ct, 2, 1, 1)] = 200;
     p.pieces = 10;
     assert_true(fracture_make(ct, &p, &r) < 0);
-    if (!strstr(fn_err_msg(), "10% of the bone") || !strstr(fn_err_msg(), "fewer --pieces"))
+    if (!strstr(fn_err_msg(), "5% of the bone") || !strstr(fn_err_msg(), "fewer --pieces"))
         fail_msg("%s", fn_err_msg());
-    p.pieces = 2;
+    vol_free(ct);
+}
+
+/* A piece pushed past the CT's edge is kept whole: the grid grows to hold it (the new voxels are
+ * the CT's lowest value, nothing scanned), and the truth still restores every voxel. */
+static void test_piece_past_edge_grows_grid(void **st)
+{
+    size_t bone_voxels;
+    vol *ct = micro_skeleton(&bone_voxels);
+    fracture_params p;
+    fracture_defaults(&p);
+    p.threshold = 160;
+    p.roughness_mm = 0.3;
+    p.wavelength_mm = 3;
     p.displace_mm = 8;
-    assert_true(fracture_make(ct, &p, &r) < 0);
-    if (!strstr(fn_err_msg(), "would leave the volume") || !strstr(fn_err_msg(), "--displace"))
-        fail_msg("%s", fn_err_msg());
+    for (uint64_t seed = 1; seed <= 3; seed++) {
+        p.seed = seed;
+        fracture_result r;
+        if (fracture_make(ct, &p, &r) < 0)
+            fail_msg("seed %llu: %s", (unsigned long long)seed, fn_err_msg());
+        assert_true(vol_count(r.labels) > vol_count(ct));
+        assert_true(vol_count(r.ct) == vol_count(r.labels) && vol_count(r.cut) == vol_count(ct));
+        check_truth(ct, &r);
+        for (int id = 1; id <= 2; id++) {
+            size_t home = count_label(r.cut, id), placed = count_label(r.labels, id);
+            if (fabs((double)placed - (double)home) > 0.05 * (double)home)
+                fail_msg("seed %llu, piece %d: %zu voxels at home, %zu placed", (unsigned long long)seed,
+                         id, home, placed);
+        }
+        size_t outside = 0;
+        for (size_t i = 0; i < vol_count(r.ct); i++)
+            outside += r.ct->data[i] == 5 && r.labels->data[i] == 0;
+        assert_true(outside > vol_count(r.ct) - vol_count(ct));
+        fracture_result_free(&r);
+    }
     vol_free(ct);
 }
 
@@ -490,6 +535,30 @@ static void test_pieces_clear_near(void **st)
             check_pieces(&r, bone_voxels, p.displace_mm, 3);
             fracture_result_free(&r);
         }
+    vol_free(ct);
+}
+
+/* --pieces 10 is made (10 pieces of 10% each never were): each piece keeps 5% of the bone, and
+ * the truth restores every one. */
+static void test_ten_pieces(void **st)
+{
+    vol *ct = bone();
+    size_t bone_voxels = 0;
+    for (size_t i = 0; i < vol_count(ct); i++)
+        bone_voxels += ct->data[i] >= 300;
+    fracture_params p;
+    fracture_defaults(&p);
+    p.pieces = 10;
+    for (uint64_t seed = 1; seed <= 3; seed++) {
+        p.seed = seed;
+        fracture_result r;
+        if (fracture_make(ct, &p, &r) < 0)
+            fail_msg("seed %llu: %s", (unsigned long long)seed, fn_err_msg());
+        check_truth(ct, &r);
+        for (int id = 1; id <= 10; id++)
+            assert_true(count_label(r.cut, id) >= fracture_min_piece(bone_voxels, 10));
+        fracture_result_free(&r);
+    }
     vol_free(ct);
 }
 
@@ -610,7 +679,9 @@ int main(void)
         cmocka_unit_test(test_golden_case),
         cmocka_unit_test(test_cli_prints_centroid_shift),
         cmocka_unit_test(test_micro_ct),
+        cmocka_unit_test(test_piece_past_edge_grows_grid),
         cmocka_unit_test(test_pieces_clear_near),
+        cmocka_unit_test(test_ten_pieces),
         cmocka_unit_test(test_cli_threshold_auto),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

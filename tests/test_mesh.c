@@ -122,12 +122,44 @@ static void test_empty(void **st)
     mesh_free(&m);
 }
 
+/* A 6^3 block with a one-voxel cavity, and (islands) a voxel touching it at a corner only and
+ * one apart: the islands go, the outer surface and the cavity's wall stay (two spheres, Euler 4),
+ * as the same block meshed without the islands. */
+static void test_islands_dropped(void **st)
+{
+    (void)st;
+    const int dim[3] = {12, 12, 12};
+    const double sp[3] = {1, 1, 1};
+    float *v = calloc(12 * 12 * 12, sizeof *v);
+    assert_non_null(v);
+    for (int k = 2; k < 8; k++)
+        for (int j = 2; j < 8; j++)
+            for (int i = 2; i < 8; i++)
+                v[(k * 12 + j) * 12 + i] = i == 4 && j == 4 && k == 4 ? 0.0f : 1.0f;
+    mesh want, m;
+    assert_int_equal(mesh_extract(v, dim, sp, 0.5f, &want), 0);
+    v[(1 * 12 + 8) * 12 + 8] = 1;  /* (8, 8, 1): a corner of (7, 7, 2) */
+    v[(10 * 12 + 1) * 12 + 10] = 1; /* (10, 1, 10): apart */
+    assert_int_equal(mesh_extract(v, dim, sp, 0.5f, &m), 0);
+    assert_true(m.nt > want.nt);
+    assert_true(mesh_drop_islands(&m) >= 1);
+    assert_int_equal(m.nt, want.nt);
+    long ne = closed_edges(&m);
+    assert_true(ne > 0);
+    assert_int_equal(m.nv - ne + m.nt, 4);
+    assert_true(fabs(mesh_volume(&m) - mesh_volume(&want)) < 1e-9);
+    mesh_free(&m);
+    mesh_free(&want);
+    free(v);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_ball_is_closed),
         cmocka_unit_test(test_border_is_closed),
         cmocka_unit_test(test_empty),
+        cmocka_unit_test(test_islands_dropped),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -8,6 +8,7 @@
 #include <stdint.h>
 #include <cmocka.h>
 
+#include "case.h"
 #include "frag.h"
 #include "loop.h"
 #include "navview.h"
@@ -486,13 +487,14 @@ static void pieces_fit(const char *acc, int width)
     size_t len = 0;
     char piece[1024];
     for (const char *p = acc; *p; p++) {
-        if (*p == '\033') { /* CSI: ESC [ params final */
+        if (*p == '\033') { /* CSI: ESC [ params final; else ESC and one character (ESC 7) */
             p++;
-            if (*p == '[')
+            if (*p == '[') {
                 while (p[1] && !((p[1] >= '@' && p[1] <= '~')))
                     p++;
-            if (*p)
-                p++;
+                if (*p)
+                    p++;
+            }
             if (!*p)
                 break;
             continue;
@@ -548,6 +550,146 @@ static void test_terminal_of_80_columns(void **st)
     if (!z || !strstr(z, " mm") || !strstr(last, "turned ") || !strstr(last, "camera frame"))
         fail_msg("the last view lacks the translation, the turn or the frame: %s", last);
     assert_non_null(strstr(acc, "saved "));
+}
+
+/* A terminal's screen, as far as the view and the notes use one: text with autowrap, CR, LF
+ * (scrolling the scroll region at its bottom margin), ESC 7 / ESC 8, and CSI A, H, J, K, r. */
+enum { SCR_ROWS = 30, SCR_COLS = 120 };
+typedef struct screen {
+    char cell[SCR_ROWS][SCR_COLS + 1];
+    int row, col, top, bottom, saved_row, saved_col;
+} screen;
+
+static void scr_scroll(screen *s)
+{
+    for (int r = s->top; r < s->bottom; r++)
+        memcpy(s->cell[r], s->cell[r + 1], sizeof s->cell[r]);
+    memset(s->cell[s->bottom], ' ', SCR_COLS);
+}
+
+static void scr_lf(screen *s)
+{
+    if (s->row == s->bottom)
+        scr_scroll(s);
+    else if (s->row < SCR_ROWS - 1)
+        s->row++;
+}
+
+static void scr_csi(screen *s, const char *params, char final)
+{
+    int a = 0, b = 0, n = sscanf(params, "%d;%d", &a, &b);
+    switch (final) {
+    case 'A':
+        s->row -= n > 0 && a > 0 ? a : 1;
+        s->row = s->row < 0 ? 0 : s->row;
+        break;
+    case 'H':
+        s->row = (n > 0 ? a : 1) - 1, s->col = (n > 1 ? b : 1) - 1;
+        break;
+    case 'J':
+    case 'K':
+        memset(s->cell[s->row] + s->col, ' ', (size_t)(SCR_COLS - s->col));
+        for (int r = s->row + 1; final == 'J' && r < SCR_ROWS; r++)
+            memset(s->cell[r], ' ', SCR_COLS);
+        break;
+    case 'r':
+        s->top = n > 0 ? a - 1 : 0, s->bottom = n > 1 ? b - 1 : SCR_ROWS - 1;
+        s->row = s->col = 0;
+        break;
+    default:
+        break;
+    }
+}
+
+static void scr_feed(screen *s, const char *p)
+{
+    for (; *p; p++) {
+        if (*p == '\033' && p[1] == '[') {
+            char params[64] = "";
+            size_t k = 0;
+            for (p += 2; *p && !(*p >= '@' && *p <= '~'); p++)
+                if (k + 1 < sizeof params)
+                    params[k++] = *p, params[k] = '\0';
+            if (!*p)
+                return;
+            scr_csi(s, params, *p);
+        } else if (*p == '\033' && p[1]) {
+            p++;
+            if (*p == '7')
+                s->saved_row = s->row, s->saved_col = s->col;
+            else if (*p == '8')
+                s->row = s->saved_row, s->col = s->saved_col;
+        } else if (*p == '\r') {
+            s->col = 0;
+        } else if (*p == '\n') {
+            scr_lf(s);
+        } else if ((unsigned char)*p >= ' ') {
+            if (s->col == SCR_COLS)
+                s->col = 0, scr_lf(s);
+            s->cell[s->row][s->col++] = *p;
+        }
+    }
+}
+
+static int scr_rows_with(const screen *s, const char *text)
+{
+    int n = 0;
+    for (int r = 0; r < SCR_ROWS; r++)
+        n += strstr(s->cell[r], text) != NULL;
+    return n;
+}
+
+/* The issue: on a reduced case in a wide terminal (tmux 120x30) every save repeated the view's
+ * first lines, since the save's notes moved the cursor under the view's feet. Here each save of a
+ * case whose fragments overlap prints a warning: the screen ends with the view once and the
+ * warnings above it. */
+static void test_view_stays_put_while_notes_print(void **st)
+{
+    const char *c = case_copy("notes");
+    planning_case *pc = case_load(c);
+    assert_non_null(pc);
+    pc->frag[1].pose.t[0] -= 4; /* B 4 mm into A (they lie 2 mm apart) */
+    assert_int_equal(case_save(pc), 0);
+    case_free(pc);
+    const char *rec = recording("still", "wait 60 s\nunplug\n");
+    char spec[4400];
+    snprintf(spec, sizeof spec, "replay-realtime:%s", rec);
+    const char *bin = getenv("FRACNAV_BIN");
+    struct winsize ws = {SCR_ROWS, SCR_COLS, 0, 0};
+    int fd;
+    pid_t pid = forkpty(&fd, NULL, NULL, &ws);
+    assert_true(pid >= 0);
+    if (pid == 0) {
+        execl(bin, bin, "navigate", c, "--device", spec, "--duration", "60", (char *)NULL);
+        _exit(127);
+    }
+    static char acc[1 << 20];
+    acc[0] = '\0';
+    int ok = pty_until(fd, acc, sizeof acc, 0, "frag 2/2");
+    for (int save = 0; ok && save < 2; save++) {
+        size_t mark = strlen(acc);
+        ok = write(fd, "s", 1) == 1 && pty_until(fd, acc, sizeof acc, mark, "saving a penetrating plan");
+        mark = strlen(acc);
+        ok = ok && pty_until(fd, acc, sizeof acc, mark, "frag 2/2"); /* the view drawn after it */
+    }
+    assert_int_equal(write(fd, "q", 1), 1);
+    pty_until(fd, acc, sizeof acc, 0, NULL);
+    close(fd);
+    assert_int_equal(tu_end(pid, 0, "navigate"), 0);
+    if (!ok)
+        fail_msg("the saves' warnings or the view never came: %s", acc);
+    screen s;
+    memset(&s, 0, sizeof s);
+    for (int r = 0; r < SCR_ROWS; r++)
+        memset(s.cell[r], ' ', SCR_COLS);
+    s.bottom = SCR_ROWS - 1;
+    scr_feed(&s, acc);
+    if (scr_rows_with(&s, "frag 2/2") != 1 || scr_rows_with(&s, "saving a penetrating plan") < 2) {
+        for (int r = 0; r < SCR_ROWS; r++)
+            fprintf(stderr, "|%s|\n", s.cell[r]);
+        fail_msg("the screen shows the view's first line %d times and %d warnings (want 1 and at least 2)",
+                 scr_rows_with(&s, "frag 2/2"), scr_rows_with(&s, "saving a penetrating plan"));
+    }
 }
 
 /* ---- another controller at the device's path (FUSE) ---- */
@@ -607,6 +749,7 @@ int main(void)
         cmocka_unit_test(test_json_alone_on_stdout),
         cmocka_unit_test(test_keyboard_help_and_acknowledgement),
         cmocka_unit_test(test_terminal_of_80_columns),
+        cmocka_unit_test(test_view_stays_put_while_notes_print),
         cmocka_unit_test(test_other_controller_is_reported),
     };
     return cmocka_run_group_tests(tests, setup, teardown);

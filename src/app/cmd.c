@@ -1,5 +1,5 @@
 /* cmd: what the subcommands share -- help and usage errors, numbers, the tau and threshold options,
- * the example CT's path. */
+ * the checks of output paths, the example CT's path. */
 #include "cmd.h"
 
 #include "case.h"
@@ -8,11 +8,16 @@
 
 #include <jansson.h>
 
+#include <dirent.h>
+#include <errno.h>
+#include <limits.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
 int cmd_wants_help(int argc, char **argv)
 {
@@ -180,6 +185,106 @@ void cmd_warn_replaced_journal(const char *cmd, const char *dir, int force)
     if (n)
         fprintf(stderr, "fracnav %s: warning: %s/journal holds %zu poses not saved in "
                         "case.json; they go with the case this replaces\n", cmd, dir, n);
+}
+
+/* The folder that holds path, links resolved, into where (PATH_MAX). 0, or FN_EINVAL naming path
+ * when that folder does not exist. */
+static int holding_folder(const char *path, char *where)
+{
+    char resolved[PATH_MAX], parent[PATH_MAX];
+    snprintf(parent, sizeof parent, "%s", realpath(path, resolved) ? resolved : path);
+    size_t n = strlen(parent);
+    while (n > 1 && parent[n - 1] == '/')
+        parent[--n] = '\0';
+    char *slash = strrchr(parent, '/');
+    if (!slash)
+        snprintf(parent, sizeof parent, ".");
+    else if (slash == parent)
+        parent[1] = '\0'; /* the root */
+    else
+        *slash = '\0';
+    if (!realpath(parent, where))
+        return fn_err_set(FN_EINVAL, "%s: its folder %s does not exist", path, parent);
+    return 0;
+}
+
+static int is_case_folder(const char *dir)
+{
+    char json[PATH_MAX + 16];
+    snprintf(json, sizeof json, "%s/case.json", dir);
+    return access(json, F_OK) == 0;
+}
+
+static int in_case_folder(const char *path)
+{
+    char where[PATH_MAX];
+    int rc = holding_folder(path, where);
+    if (rc == 0 && is_case_folder(where))
+        rc = fn_err_set(FN_EINVAL, "%s lies in the case folder %s, whose files only the case's own "
+                                   "saves write: choose a path outside it", path, where);
+    return rc;
+}
+
+int cmd_out_file(const char *path, const planning_case *in)
+{
+    struct stat st, src;
+    int exists = stat(path, &st) == 0;
+    if (exists && S_ISDIR(st.st_mode))
+        return fn_err_set(FN_EINVAL, "%s is a folder: name a file", path);
+    int rc = in_case_folder(path);
+    if (rc == 0 && in && exists && stat(in->source, &src) == 0 && st.st_dev == src.st_dev &&
+        st.st_ino == src.st_ino)
+        rc = fn_err_set(FN_EINVAL, "%s is the source volume of the case %s: choose another file", path,
+                        in->dir);
+    return rc;
+}
+
+int cmd_out_folder(const char *dir, int force)
+{
+    struct stat st;
+    if (stat(dir, &st) != 0)
+        return in_case_folder(dir);
+    if (!S_ISDIR(st.st_mode))
+        return fn_err_set(FN_EINVAL, "%s exists and is not a folder", dir);
+    if (is_case_folder(dir))
+        return fn_err_set(FN_EINVAL, "%s is a case folder: choose another folder", dir);
+    int rc = in_case_folder(dir);
+    DIR *d = rc == 0 && !force ? opendir(dir) : NULL;
+    struct dirent *e;
+    while (d && rc == 0 && (e = readdir(d)))
+        if (strcmp(e->d_name, ".") && strcmp(e->d_name, ".."))
+            rc = fn_err_set(FN_EINVAL, "%s holds files already (%s): --force writes over those of "
+                                       "the same names, or choose another folder", dir, e->d_name);
+    if (d)
+        closedir(d);
+    return rc;
+}
+
+int cmd_seg_found(const vol *v, const seg_params *p, const seg_result *r, const char *labels)
+{
+    if (r->ncomp > 0)
+        return 0;
+    if (labels)
+        return fn_err_set(FN_EINVAL, "%s holds no label over 0: no fragment to make", labels);
+    float lo, hi;
+    vol_range(v, &lo, &hi);
+    if (r->raw_components == 0)
+        return fn_err_set(FN_EINVAL, "no bone: the volume's values run from %g to %g, none at or above the "
+                                     "threshold %g%s; give another --threshold", (double)lo, (double)hi,
+                          r->threshold, p->threshold_auto ? " (Otsu's)" : "");
+    return fn_err_set(FN_EINVAL, "no bone: at the threshold %g%s (values run from %g to %g) none of the %d "
+                                 "components reaches --min-volume %g ml; lower it or the threshold",
+                      r->threshold, p->threshold_auto ? " (Otsu's)" : "", (double)lo, (double)hi,
+                      r->raw_components, p->min_volume_ml);
+}
+
+int cmd_case_exists(const char *dir)
+{
+    char json[PATH_MAX + 16];
+    snprintf(json, sizeof json, "%s/case.json", dir);
+    if (access(json, F_OK) != 0)
+        return fn_err_set(FN_EIO, "%s is not a case: %s: %s", dir, json, strerror(errno));
+    return 0;
 }
 
 const char *cmd_example_ct(void)

@@ -17,7 +17,7 @@
     X(record, "record raw reports from a controller to a .fnrec file")                       \
     X(replay, "replay a .fnrec recording through the navigation loop")                      \
     X(navigate, "steer fragments with a 6-DOF controller, collision-checked")               \
-    X(reduce, "fit fragments back together: pre-alignment and Powell's method on the VOI")  \
+    X(reduce, "fit fragments back together: pre-alignment, then PRAXIS (or Powell) on the VOI") \
     X(render, "draw a case's fragments at their poses into a PNG (OpenGL 4.5)")              \
     X(export, "write the plan for 3D Slicer, ITK and printers (tfm, seg.nrrd, NIfTI, STL), and a report") \
     X(bench, "benchmarks with JSON output: collision, build, loop, reduce, render")
@@ -99,6 +99,25 @@ int cmd_tau_prepare(void *ctx, planning_case *c);
 int cmd_parse_pivot(const char *cmd, int argc, char **argv, int *i, double out[3]);
 /* --frame NAME: camera, world or fragment. 0, or a usage error for `cmd` (returns 2). */
 int cmd_parse_frame(const char *cmd, const char *name, loop_frame *out);
+
+/* Output paths, checked before any work. No output lands in a case folder (one that holds
+ * case.json: its files are written by the case's own saves alone) or on the source volume of the
+ * case in use (in, may be NULL); links are followed to where they lead. Both return 0, or FN_EINVAL
+ * with a message that names the path and why. */
+/* A file: not a folder, in a folder that exists. */
+int cmd_out_file(const char *path, const planning_case *in);
+/* A folder a command fills with files: missing (made later), empty, or holding files only with
+ * force (those of the names written are replaced), and never a case folder. */
+int cmd_out_folder(const char *dir, int force);
+
+/* An empty segmentation is an error: 0 when r kept a fragment, else FN_EINVAL saying what was
+ * found (v's range, the threshold used, the components dropped by --min-volume); labels: the
+ * --labels file r came from, or NULL. */
+int cmd_seg_found(const vol *v, const seg_params *p, const seg_result *r, const char *labels);
+
+/* 0 when dir holds a case (a case.json), else FN_EIO naming dir and why: a check before anything
+ * slow (opening a device) that a missing case makes pointless. */
+int cmd_case_exists(const char *dir);
 
 /* Path of the example CT that .ci/setup caches: $FRACNAV_DATA/Cranium.inv3, else
  * /var/cache/fracnav/Cranium.inv3 (a static buffer). */

@@ -35,12 +35,13 @@ static void usage(FILE *out)
 {
     fprintf(out,
             "usage: fracnav demo [CT] [-o DIR] [--recording FILE.fnrec] [--no-fuse]\n"
-            "                    [--view window|terminal] [--tau-min T] [--tau-max T]\n\n"
+            "                    [--view window|terminal] [--threshold HU|auto|auto-bone]\n"
+            "                    [--tau-min T] [--tau-max T]\n\n"
             "Runs fracnav's whole workflow on a CT (default: the example skull CT that .ci/setup\n"
             "caches, $FRACNAV_DATA/Cranium.inv3 or /var/cache/fracnav/Cranium.inv3) and writes its\n"
             "results to DIR (default ./fracnav-demo):\n"
-            "  1. segments the bone at 300 HU into fragments and saves the case in DIR/case\n"
-            "     (picture: DIR/segmentation-anterior.png, drawn by the renderer);\n"
+            "  1. segments the bone at 300 HU (or --threshold) into fragments and saves the case\n"
+            "     in DIR/case (picture: DIR/segmentation-anterior.png, drawn by the renderer);\n"
             "  2. breaks the skull in two along a rough fractal surface and displaces one piece by a\n"
             "     known rigid transform: a synthetic fracture with ground truth, DIR/fracture\n"
             "     (picture: DIR/fracture-anterior.png);\n"
@@ -62,12 +63,15 @@ static void usage(FILE *out)
             "                             sim/recordings/" RECORDING ")\n"
             "  --no-fuse                  play the recording in-process, not through fracnav-sim\n"
             "  --view V                   navigate's view: window (default when $DISPLAY is set and\n"
-            "                             OpenGL 4.5 is there) or terminal (standard error alone)\n" CMD_TAU_HELP
+            "                             OpenGL 4.5 is there) or terminal (standard error alone)\n"
+            CMD_THRESHOLD_HELP "                             (for segmentation and fracture alike)\n" CMD_TAU_HELP
             "                             (kept in both cases the demo saves)\n");
 }
 
 static int fail(const char *what)
 {
+    if (what && !strncmp(fn_err_msg(), what, strlen(what)))
+        what = NULL; /* the message names the step already */
     fprintf(stderr, "fracnav demo: %s%s%s\n", what ? what : "", what ? ": " : "", fn_err_msg());
     return 1;
 }
@@ -221,15 +225,24 @@ static int picture(const planning_case *c, render_view view, const char *path)
     return rc;
 }
 
+/* --threshold, for steps 1 and 2. */
+typedef struct demo_threshold {
+    double value;
+    int automatic;
+} demo_threshold;
+
 /* Step 1: segmentation, saved as a case. Takes ownership of ct. */
-static planning_case *segment(const char *ct_path, vol *ct, const char *dir, const cmd_tau *tau)
+static planning_case *segment(const char *ct_path, vol *ct, const char *dir, const cmd_tau *tau,
+                              const demo_threshold *thr)
 {
     seg_params sp;
     seg_defaults(&sp);
-    sp.threshold = 300;
+    sp.threshold = thr->value;
+    sp.threshold_auto = thr->automatic;
     int64_t t0 = fnclock_now_us();
     seg_result sr;
-    if (seg_run(ct, &sp, &sr) < 0) {
+    if (seg_run(ct, &sp, &sr) < 0 || cmd_seg_found(ct, &sp, &sr, NULL) < 0) {
+        seg_result_free(&sr);
         vol_free(ct);
         return NULL;
     }
@@ -266,10 +279,13 @@ static planning_case *segment(const char *ct_path, vol *ct, const char *dir, con
 }
 
 /* Step 2: a synthetic fracture of the segmented CT, with its ground truth. */
-static int fracture(const planning_case *seg, const char *dir, const cmd_tau *tau)
+static int fracture(const planning_case *seg, const char *dir, const cmd_tau *tau,
+                    const demo_threshold *thr)
 {
     fracture_params fp;
     fracture_defaults(&fp);
+    fp.threshold = thr->value;
+    fp.threshold_auto = thr->automatic;
     cmd_tau_apply(tau, &fp.tau_min, &fp.tau_max);
     char casedir[PATH_MAX], png[PATH_MAX];
     snprintf(casedir, sizeof casedir, "%s/fracture", dir);
@@ -464,6 +480,7 @@ int cmd_demo(int argc, char **argv)
     const char *ct_path = NULL, *dir = "fracnav-demo";
     char *rec = NULL;
     cmd_tau tau = {0};
+    demo_threshold thr = {300, 0};
     int rc, no_fuse = 0, view = NAVWIN_VIEW_AUTO;
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "-h") || !strcmp(argv[i], "--help")) {
@@ -476,6 +493,8 @@ int cmd_demo(int argc, char **argv)
         } else if (!strcmp(argv[i], "--no-fuse")) {
             no_fuse = 1;
         } else if (cmd_tau_option("demo", argv[i], i + 1 < argc ? argv[i + 1] : NULL, &tau, &rc) ||
+                   cmd_threshold_option("demo", argv[i], i + 1 < argc ? argv[i + 1] : NULL, &thr.value,
+                                        &thr.automatic, &rc) ||
                    navwin_view_option("demo", argv[i], i + 1 < argc ? argv[i + 1] : NULL, &view, &rc)) {
             if (rc)
                 return rc;
@@ -518,10 +537,10 @@ int cmd_demo(int argc, char **argv)
     printf("fracnav demo on %s\n0. CT: %dx%dx%d voxels, %.3fx%.3fx%.3f mm, read in %.0f ms\n", ct_path,
            ct->dim[0], ct->dim[1], ct->dim[2], ct->spacing[0], ct->spacing[1], ct->spacing[2],
            (double)(fnclock_now_us() - t0) * 1e-3);
-    planning_case *c = segment(ct_path, ct, dir, &tau);
+    planning_case *c = segment(ct_path, ct, dir, &tau, &thr);
     if (!c)
         return fail("segmentation");
-    rc = fracture(c, dir, &tau);
+    rc = fracture(c, dir, &tau, &thr);
     case_free(c);
     if (rc < 0)
         return fail("fracture");
@@ -554,7 +573,7 @@ int cmd_demo(int argc, char **argv)
            num(red, "seconds"), num(fr, "rot_err_deg"), num(fr, "trans_err_mm"), num(fr, "tre_mm"));
 
     printf("5. export (fracnav export --all %s):\n", exdir);
-    char *eargs[] = {"export", casedir, "--all", exdir, "--smooth", "10", "--decimate", "200000", NULL};
+    char *eargs[] = {"export", casedir, "--all", exdir, "--smooth", "10", "--decimate", "200000", "--force", NULL};
     json_t *ex = fracnav_json(exe, dir, "export", eargs, 0, NULL, NULL);
     if (!ex) {
         json_decref(nav);

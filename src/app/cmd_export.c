@@ -19,10 +19,12 @@ static void usage(FILE *out)
     fprintf(out,
             "usage: fracnav export CASE [--tfm DIR] [--seg-nrrd FILE] [--nifti FILE] [--stl DIR]\n"
             "                      [--ras] [--smooth N] [--decimate TRIANGLES] [--report DIR]\n"
-            "                      [--all DIR] [--platform osmesa|glfw] [--json]\n\n"
+            "                      [--all DIR] [--platform osmesa|glfw] [--force] [--json]\n\n"
             "Writes the case's plan (every fragment at its current, planned pose) for other tools.\n"
             "Every file is written atomically (a temporary file, synced, then renamed). Coordinates\n"
-            "are LPS mm unless said otherwise.\n\n"
+            "are LPS mm unless said otherwise. Every path is checked before anything is written: a\n"
+            "folder must be missing or empty (or --force), and nothing goes into a case folder or\n"
+            "onto the case's source volume.\n\n"
             "  --tfm DIR          one ITK transform per fragment, DIR/fragment-ID.tfm\n"
             "                     (AffineTransform_double_3_3), in ITK's resampling direction: it maps\n"
             "                     a planned point back to where the fragment was segmented. In 3D Slicer,\n"
@@ -33,16 +35,22 @@ static void usage(FILE *out)
             "  --nifti FILE       the planned labelmap (.nii or .nii.gz, uint16 labels) on the source\n"
             "                     grid\n"
             "  --stl DIR          one binary STL per fragment at its planned pose, DIR/fragment-ID.stl:\n"
-            "                     a closed surface, mm\n"
+            "                     a closed surface, mm: the outer surface and the walls of cavities\n"
+            "                     inside (bone touching the rest only at a voxel's edge or corner,\n"
+            "                     which would float apart, is left out)\n"
             "  --ras              STL coordinates in RAS (x and y negated) instead of LPS\n"
             "  --smooth N         N Taubin smoothing iterations of the STL surfaces (default 0)\n"
-            "  --decimate T       at most T triangles per STL surface (edge collapses; default: all)\n"
+            "  --decimate T       down to T triangles per STL surface (edge collapses that keep it\n"
+            "                     closed and unfolded; where none is left above T, a warning says\n"
+            "                     how many remain; default: all)\n"
             "  --report DIR       DIR/index.html: renders before and after the reduction, the\n"
             "                     optimizer's convergence plot, and per fragment the move, contact\n"
             "                     area, gap and overlap volumes, and errors against any ground truth\n"
             "  --all DIR          all of them: DIR/transforms, DIR/planned.seg.nrrd,\n"
             "                     DIR/planned.nii.gz, DIR/models, DIR/report\n"
             "  --platform P       the report's renderer: osmesa (default) or glfw\n"
+            "  --force            write into folders that hold files already (files of the same\n"
+            "                     names are replaced, others left alone)\n"
             "  --json             one JSON object: the files written and their sizes\n"
             "  --help             this text\n");
 }
@@ -50,7 +58,7 @@ static void usage(FILE *out)
 typedef struct export_args {
     const char *dir, *tfm, *seg, *nifti, *stl, *report, *all, *platform;
     export_stl_opts stl_o;
-    int json;
+    int json, force;
 } export_args;
 
 typedef struct written {
@@ -107,6 +115,8 @@ static int parse_args(int argc, char **argv, export_args *a)
             a->stl_o.ras = 1;
         } else if (!strcmp(opt, "--json")) {
             a->json = 1;
+        } else if (!strcmp(opt, "--force")) {
+            a->force = 1;
         } else if (!strcmp(opt, "--smooth")) {
             if (!parse_count(val, 0, 1000, &n))
                 return cmd_bad_value("export", opt, val, "a whole number of iterations, 0 to 1000");
@@ -148,6 +158,33 @@ static int make_dir(const char *dir)
     return 0;
 }
 
+static int ends_with(const char *s, const char *tail)
+{
+    size_t n = strlen(s), t = strlen(tail);
+    return n > t && !strcmp(s + n - t, tail);
+}
+
+/* Every output path, before anything is written (cmd_out_file, cmd_out_folder), and the formats
+ * the names ask for. */
+static int check_outputs(const planning_case *c, const export_args *a)
+{
+    const char *folders[4] = {a->all, a->tfm, a->stl, a->report};
+    int rc = 0;
+    for (int i = 0; i < 4 && rc == 0; i++)
+        if (folders[i])
+            rc = cmd_out_folder(folders[i], a->force);
+    if (rc == 0 && a->nifti && !ends_with(a->nifti, ".nii") && !ends_with(a->nifti, ".nii.gz"))
+        rc = fn_err_set(FN_EINVAL, "--nifti %s: a NIfTI file's name ends in .nii or .nii.gz", a->nifti);
+    if (rc == 0 && a->seg && !ends_with(a->seg, ".nrrd"))
+        rc = fn_err_set(FN_EINVAL, "--seg-nrrd %s: a 3D Slicer segmentation's name ends in .seg.nrrd",
+                        a->seg);
+    if (rc == 0 && a->nifti)
+        rc = cmd_out_file(a->nifti, c);
+    if (rc == 0 && a->seg)
+        rc = cmd_out_file(a->seg, c);
+    return rc;
+}
+
 static int run(const planning_case *c, const export_args *a, written *w)
 {
     char buf[5][4200];
@@ -183,6 +220,9 @@ static int run(const planning_case *c, const export_args *a, written *w)
             long nt = 0;
             if ((rc = export_stl(c, i, &a->stl_o, path, &nt)) == 0)
                 wrote(w, path);
+            if (rc == 0 && a->stl_o.decimate && nt > a->stl_o.decimate)
+                fprintf(stderr, "fracnav export: %s: %ld triangles, over --decimate %ld: no edge collapses "
+                                "further without opening or folding the surface\n", path, nt, a->stl_o.decimate);
         }
     }
     if (rc || (!seg && !nifti && !report))
@@ -220,9 +260,11 @@ int cmd_export(int argc, char **argv)
         return 1;
     }
     written w = {a.json ? json_array() : NULL, 0, 0, a.json};
-    if (!a.json)
+    rc = check_outputs(c, &a);
+    if (!rc && !a.json)
         printf("fracnav export: %s (%d fragments)\n", a.dir, c->nfrag);
-    rc = run(c, &a, &w);
+    if (!rc)
+        rc = run(c, &a, &w);
     if (rc) {
         fprintf(stderr, "fracnav export: %s\n", fn_err_msg());
         json_decref(w.files);

@@ -221,7 +221,8 @@ typedef struct view {
     session_tsource *ts; /* a played recording; NULL for a live device */
     unsigned plays_seen;
     int keyboard;        /* the keyboard device steers: its keys are the help */
-    int tty, help, lines;
+    int tty, help, lines; /* lines: the rows the terminal view holds at the screen's bottom */
+    int rows;             /* the terminal's height when they were set aside */
     char ack[sizeof(((session_event *)0)->text)];
     int64_t ack_until_us, last_print_us;
     char logged[2048]; /* the warnings and acknowledgement of the last log line */
@@ -292,25 +293,71 @@ static void new_plays(view *v)
     acknowledge(v, text);
 }
 
-static int terminal_width(void)
+static struct winsize terminal_size(void)
 {
     struct winsize ws;
-    return ioctl(STDERR_FILENO, TIOCGWINSZ, &ws) == 0 && ws.ws_col > 0 ? ws.ws_col : 80;
+    if (ioctl(STDERR_FILENO, TIOCGWINSZ, &ws) != 0 || ws.ws_col == 0 || ws.ws_row == 0)
+        ws.ws_col = 80, ws.ws_row = 24;
+    return ws;
 }
 
-/* The help below the view, each line cut to the width. Returns the lines drawn. */
-static int draw_help(const view *v, int width)
+/* The help below the view (appended to text at *len), each line cut to the width. Returns the
+ * lines added. */
+static int add_help(const view *v, int width, char *text, size_t cap, size_t *len)
 {
     const char *t = navview_help(v->keyboard);
     int n = 0;
     while (*t) {
         const char *end = strchr(t, '\n');
-        int len = (int)(end - t);
-        fprintf(stderr, "\n%.*s", len < width - 1 ? len : width - 1, t);
+        int w = (int)(end - t) < width - 1 ? (int)(end - t) : width - 1;
+        int k = snprintf(text + *len, cap - *len, "\n%.*s", w, t);
+        if (k < 0 || (size_t)k >= cap - *len)
+            break;
+        *len += (size_t)k;
         n++;
         t = end + 1;
     }
     return n;
+}
+
+/* The view's n lines drawn in the bottom rows of the terminal, which the scroll region (the rows
+ * above) leaves alone: what else is written to the terminal (a save's notes) scrolls up there and
+ * never mixes with the view. The cursor stays in the region between draws (saved and restored
+ * around each). */
+static void draw_bottom(view *v, const char *text, int n, int rows)
+{
+    if (n > rows - 1) /* the region keeps a row */
+        n = rows - 1;
+    if (n != v->lines || rows != v->rows) {
+        /* the old view's rows cleared, the whole screen scrolling again, and room made below the
+         * cursor for the new view before the region is set above it */
+        fputs("\0337", stderr);
+        if (v->lines)
+            fprintf(stderr, "\033[r\033[%d;1H\033[J", v->rows - v->lines + 1);
+        fputs("\0338", stderr);
+        for (int i = 0; i < n; i++)
+            fputc('\n', stderr);
+        fprintf(stderr, "\033[%dA\0337\033[1;%dr\0338", n, rows - n);
+        v->lines = n;
+        v->rows = rows;
+    }
+    fprintf(stderr, "\0337\033[%d;1H\033[J", rows - n + 1);
+    for (int i = 0; i < n; i++) {
+        const char *end = strchr(text, '\n');
+        int len = end ? (int)(end - text) : (int)strlen(text);
+        fprintf(stderr, "%s%.*s", i ? "\n" : "", len, text);
+        text = end ? end + 1 : text + len;
+    }
+    fputs("\0338", stderr);
+}
+
+/* The terminal view ends: the whole screen scrolls again, and what follows goes below the view. */
+static void end_bottom(view *v)
+{
+    if (!v->lines)
+        return;
+    fprintf(stderr, "\033[r\033[%d;1H\n", v->rows);
+    v->lines = 0;
 }
 
 /* What the view shows besides the scene (refused: room for the refusal). */
@@ -363,12 +410,12 @@ static void draw(view *v, const loop_scene *sc)
     navview_extra x = view_extra(v, refused, sizeof refused);
     int64_t now = fnclock_now_us();
     if (v->tty) {
-        int width = terminal_width();
-        int n = navview_format(sc, &x, width, text, sizeof text);
-        if (v->lines > 1)
-            fprintf(stderr, "\033[%dA", v->lines - 1);
-        fprintf(stderr, "\r\033[J%s", text);
-        v->lines = n + (v->help ? draw_help(v, width) : 0);
+        struct winsize ws = terminal_size();
+        int n = navview_format(sc, &x, ws.ws_col, text, sizeof text);
+        size_t len = strlen(text);
+        if (v->help)
+            n += add_help(v, ws.ws_col, text, sizeof text, &len);
+        draw_bottom(v, text, n, ws.ws_row);
         v->last_print_us = now;
     } else {
         snprintf(sig, sizeof sig, "%d%d%d%d %.900s %.900s", sc->collision_on, sc->penetrating,
@@ -469,7 +516,7 @@ static int run(view *v, loop_source src, int keys, const opts *o)
     v->last_print_us = 0;
     draw(v, &sc);
     if (v->tty)
-        fputc('\n', stderr);
+        end_bottom(v);
     if (v->win && o->screenshot && navwin_save_screenshot(v->win, "navigate", o->screenshot) < 0)
         rc = rc ? rc : FN_EIO;
     navwin_close(v->win);
@@ -520,6 +567,11 @@ int cmd_navigate(int argc, char **argv)
     int rc = parse(argc, argv, &o);
     if (rc)
         return rc;
+    /* the case first: a missing one is the first thing to say, before any device */
+    if (cmd_case_exists(o.dir) < 0 || (o.screenshot && cmd_out_file(o.screenshot, NULL) < 0)) {
+        fprintf(stderr, "fracnav navigate: %s\n", fn_err_msg());
+        return 1;
+    }
     calib cal;
     if (calib_setup(&cal, o.config, 0, stderr, "fracnav navigate", NULL, 0) < 0) {
         fprintf(stderr, "fracnav navigate: %s\n", fn_err_msg());

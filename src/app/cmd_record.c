@@ -272,6 +272,10 @@ int cmd_record(int argc, char **argv)
     int rc = parse_args(argc, argv, &r, &device, &seconds);
     if (rc)
         return rc;
+    if (cmd_out_file(r.out, NULL) < 0) {
+        fprintf(stderr, "fracnav record: -o %s\n", fn_err_msg());
+        return 1;
+    }
     /* From the start: a Ctrl-C as soon as the device is open still ends in a whole recording. */
     struct sigaction sa = {.sa_handler = on_signal};
     sigaction(SIGINT, &sa, NULL);

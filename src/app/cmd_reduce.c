@@ -46,7 +46,10 @@ static void usage(FILE *out)
             "                         the fragments instead of closing it (default 0; counted in\n"
             "                         whole voxels: less than a voxel spacing leaves none)\n"
             CMD_TAU_HELP
-            "  -o, --output NEWCASE   save into a new case folder (the source stays where it is)\n"
+            "  -o, --output NEWCASE   save into a new case folder (the source stays where it is):\n"
+            "                         missing or empty, or a case that --force replaces; checked\n"
+            "                         before the fit\n"
+            "  --force                with -o: replace the case NEWCASE holds (with its journal)\n"
             "  --json                 one JSON object on stdout: command, case, method, fixed,\n"
             "                         fragments (id, iterations, evaluations, seconds, metric_start,\n"
             "                         metric_end, push_mm, prealigned, voi_mm, and with ground truth\n"
@@ -58,7 +61,7 @@ typedef struct args {
     const char *dir, *out;
     int fixed_id;
     int moving[256], nmoving;
-    int json;
+    int json, force;
     cmd_tau tau;
     reduce_opts o;
 } args;
@@ -71,6 +74,8 @@ static int parse(int argc, char **argv, args *A)
         double d;
         if (!strcmp(a, "--json"))
             A->json = 1;
+        else if (!strcmp(a, "--force"))
+            A->force = 1;
         else if (!strcmp(a, "--no-prealign"))
             A->o.prealign = 0;
         else if (!strcmp(a, "--nearest"))
@@ -136,10 +141,13 @@ static int parse(int argc, char **argv, args *A)
     }
     if (!A->dir)
         return cmd_usage_error("reduce", "%s", "needs CASE");
+    if (A->force && !A->out)
+        return cmd_usage_error("reduce", "%s", "--force goes with -o NEWCASE");
     return cmd_tau_check("reduce", &A->tau);
 }
 
-/* Fragment indices: the fixed one and the moving ones. 0, or 2 after a usage error. */
+/* Fragment indices: the fixed one and the moving ones. 0, or 2 after a usage error, or 1 when the
+ * case has no fragment to move. */
 static int pick(const planning_case *c, const args *A, int *fixed, int *mv, int *nmv)
 {
     if (A->fixed_id) {
@@ -171,8 +179,11 @@ static int pick(const planning_case *c, const args *A, int *fixed, int *mv, int 
             if (i != *fixed)
                 mv[(*nmv)++] = i;
     }
-    if (!*nmv)
-        return cmd_usage_error("reduce", "%s", "the case has no fragment to move");
+    if (!*nmv) { /* the case's content, not the command line: a runtime error */
+        fprintf(stderr, "fracnav reduce: %s has %d fragment%s: none to fit against another\n", c->dir, c->nfrag,
+                c->nfrag == 1 ? "" : "s");
+        return 1;
+    }
     return 0;
 }
 
@@ -245,7 +256,7 @@ static int report(const planning_case *c, const args *A, int fixed, const reduce
     return jsonw_print(o, stdout);
 }
 
-/* -o: the new folder, with the source kept where it is (an absolute path). */
+/* -o: the new folder (its staged copy), with the source kept where it is (an absolute path). */
 static int retarget(planning_case *c, const char *out)
 {
     char abs[PATH_MAX];
@@ -274,6 +285,7 @@ int cmd_reduce(int argc, char **argv)
         return 1;
     }
     int fixed, mv[256 + 1], nmv;
+    char tmp[4200] = "";
     int *mvp = A.nmoving ? mv : malloc((size_t)c->nfrag * sizeof *mvp);
     reduce_result *res = NULL;
     if (!mvp) {
@@ -296,6 +308,12 @@ int cmd_reduce(int argc, char **argv)
                 c->dir);
     if ((rc = pick(c, &A, &fixed, mvp, &nmv)) != 0)
         goto done;
+    /* -o is built aside and put in place at once, as segment and fracture do */
+    if (A.out && case_stage_begin(A.out, A.force, c->source, tmp, sizeof tmp) < 0) {
+        fprintf(stderr, "fracnav reduce: %s\n", fn_err_msg());
+        rc = 1;
+        goto done;
+    }
     if (cmd_tau_apply(&A.tau, &c->tau_min, &c->tau_max) < 0) {
         rc = cmd_usage_error("reduce", "%s", fn_err_msg());
         goto done;
@@ -313,13 +331,17 @@ int cmd_reduce(int argc, char **argv)
     if (err == 0)
         err = reduce_store(c, fixed, &A.o, res, nmv);
     if (err == 0 && A.out)
-        err = retarget(c, A.out);
+        err = retarget(c, tmp);
     if (err == 0)
         err = case_save(c);
+    if (err == 0 && A.out && (err = case_stage_commit(tmp, A.out)) == 0)
+        snprintf(c->dir, sizeof c->dir, "%s", A.out);
     if (err == 0 && !A.out) /* case.json holds the journal's poses now */
         err = case_journal_remove(c);
     if (err < 0) {
         fprintf(stderr, "fracnav reduce: %s\n", fn_err_msg());
+        if (A.out)
+            case_stage_abort(tmp);
         rc = 1;
         goto done;
     }

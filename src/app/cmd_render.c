@@ -120,6 +120,17 @@ static int parse_args(int argc, char **argv, render_args *a)
     return 0;
 }
 
+/* 1 when world point p lies in one of v's voxels. */
+static int inside_ct(const vol *v, const double p[3])
+{
+    double ijk[3];
+    vol_world_to_index(v, p, ijk);
+    for (int a = 0; a < 3; a++)
+        if (!(ijk[a] >= -0.5 && ijk[a] <= v->dim[a] - 0.5))
+            return 0;
+    return 1;
+}
+
 static int draw(planning_case *c, render_args *a)
 {
     render_options o = a->o, d;
@@ -167,6 +178,18 @@ int cmd_render(int argc, char **argv)
     planning_case *c = case_load(a.dir);
     if (!c) {
         fprintf(stderr, "fracnav render: %s\n", fn_err_msg());
+        return 1;
+    }
+    if (cmd_out_file(a.out, c) < 0) {
+        fprintf(stderr, "fracnav render: -o %s\n", fn_err_msg());
+        case_free(c);
+        return 1;
+    }
+    if (a.have_point && !inside_ct(c->ct, a.point)) {
+        fprintf(stderr, "fracnav render: --point %g,%g,%g lies outside the CT (%dx%dx%d voxels): the slices "
+                        "through it would be empty\n", a.point[0], a.point[1], a.point[2], c->ct->dim[0],
+                c->ct->dim[1], c->ct->dim[2]);
+        case_free(c);
         return 1;
     }
     if (c->nfrag > RENDER_MAX_FRAGS) {

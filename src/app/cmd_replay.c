@@ -269,6 +269,11 @@ int cmd_replay(int argc, char **argv)
     int rc = parse(argc, argv, &o);
     if (rc)
         return rc;
+    /* --frames replaces the frames a replay drew there before */
+    if ((o.screenshot && cmd_out_file(o.screenshot, NULL) < 0) || (o.frames && cmd_out_folder(o.frames, 1) < 0)) {
+        fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
+        return 1;
+    }
     calib cal;
     if (calib_setup(&cal, o.config, CALIB_NAMED_ONLY, stderr, "fracnav replay", NULL, 0) < 0) {
         fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());

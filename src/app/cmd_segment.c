@@ -110,9 +110,12 @@ static int parse(int argc, char **argv, seg_params *p, cmd_case_args *c, extra *
     return cmd_tau_check("segment", &c->tau);
 }
 
-static void report(const planning_case *c, const seg_result *r)
+static void report(const planning_case *c, const seg_result *r, const char *labels)
 {
-    printf("threshold %g: %d components, %d kept\n", r->threshold, r->raw_components, c->nfrag);
+    if (labels)
+        printf("labels of %s: %d fragments\n", labels, c->nfrag);
+    else
+        printf("threshold %g: %d components, %d kept\n", r->threshold, r->raw_components, c->nfrag);
     for (int i = 0; i < c->nfrag; i++) {
         const frag *f = &c->frag[i];
         printf("  fragment %d: %zu voxels, %.2f ml, peak %g, centroid %.1f %.1f %.1f mm (LPS)\n",
@@ -208,11 +211,14 @@ int cmd_segment(int argc, char **argv)
     }
     if (!err && !x.labels)
         err = seg_run(ct, &p, &r) < 0;
+    if (!err)
+        err = cmd_seg_found(ct, &p, &r, x.labels) < 0;
     if (err) {
         fprintf(stderr, "fracnav segment: %s\n", fn_err_msg());
         vol_free(ct);
         if (!r.labels)
             vol_free(imported);
+        seg_result_free(&r);
         volio_segs_free(&segs);
         case_stage_abort(tmp);
         return 1;
@@ -248,13 +254,10 @@ int cmd_segment(int argc, char **argv)
         fprintf(stderr, "fracnav segment: warning: %s: %zu voxels are NaN or infinite; left out of the "
                         "threshold and never bone\n", in, r.nonfinite);
     warn_segments(&segs, x.labels);
-    if (c->nfrag == 0)
-        fprintf(stderr, "fracnav segment: warning: no component left at threshold %g (lower it, or "
-                        "--min-volume)\n", r.threshold);
     if (args.json && (rc = report_json(c, &r, in, out, ms, x.fill ? filled : -1, &segs)) < 0)
         fprintf(stderr, "fracnav segment: %s\n", fn_err_msg());
     else if (!args.json) {
-        report(c, &r);
+        report(c, &r, x.labels);
         if (x.fill)
             printf("filled %ld voxels of the fragments' enclosed interiors\n", filled);
         printf("saved %s (read %.3f s, segmentation %.3f s, fragments %.3f s, save %.3f s)\n", out,

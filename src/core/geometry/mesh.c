@@ -344,15 +344,20 @@ void mesh_free(mesh *m)
     memset(m, 0, sizeof *m);
 }
 
+/* Signed volume of triangle t's cone from the origin, times 6. */
+static double tri_volume6(const mesh *m, long t)
+{
+    const float *a = m->v + (size_t)m->tri[t * 3] * 3, *b = m->v + (size_t)m->tri[t * 3 + 1] * 3,
+                *c = m->v + (size_t)m->tri[t * 3 + 2] * 3;
+    return a[0] * ((double)b[1] * c[2] - (double)b[2] * c[1]) - a[1] * ((double)b[0] * c[2] - (double)b[2] * c[0]) +
+           a[2] * ((double)b[0] * c[1] - (double)b[1] * c[0]);
+}
+
 double mesh_volume(const mesh *m)
 {
     double s = 0;
-    for (long t = 0; t < m->nt; t++) {
-        const float *a = m->v + (size_t)m->tri[t * 3] * 3, *b = m->v + (size_t)m->tri[t * 3 + 1] * 3,
-                    *c = m->v + (size_t)m->tri[t * 3 + 2] * 3;
-        s += a[0] * ((double)b[1] * c[2] - (double)b[2] * c[1]) - a[1] * ((double)b[0] * c[2] - (double)b[2] * c[0]) +
-             a[2] * ((double)b[0] * c[1] - (double)b[1] * c[0]);
-    }
+    for (long t = 0; t < m->nt; t++)
+        s += tri_volume6(m, t);
     return s / 6;
 }
 
@@ -511,6 +516,70 @@ static int can_collapse(const mesh *m, const int *vstart, const int *vt, int a, 
     return 1;
 }
 
+/* Removes the vertices no triangle uses (their order kept); fill is scratch for nv ints. */
+static void drop_unused_vertices(mesh *m, int *fill)
+{
+    long nv = 0;
+    for (long v = 0; v < m->nv; v++)
+        fill[v] = -1;
+    for (long t = 0; t < m->nt * 3; t++)
+        fill[m->tri[t]] = 0;
+    for (long v = 0; v < m->nv; v++)
+        if (fill[v] == 0) { /* in index order: the slot nv <= v is free */
+            fill[v] = (int)nv;
+            memmove(m->v + nv * 3, m->v + (size_t)v * 3, 3 * sizeof *m->v);
+            nv++;
+        }
+    for (long t = 0; t < m->nt * 3; t++)
+        m->tri[t] = fill[m->tri[t]];
+    m->nv = nv;
+}
+
+static int uf_root(int *parent, int v)
+{
+    while (parent[v] != v)
+        v = parent[v] = parent[parent[v]];
+    return v;
+}
+
+long mesh_drop_islands(mesh *m)
+{
+    int *parent = malloc((size_t)(m->nv ? m->nv : 1) * sizeof *parent);
+    double *vol = calloc((size_t)(m->nv ? m->nv : 1), sizeof *vol);
+    if (!parent || !vol) {
+        free(parent), free(vol);
+        return fn_err_set(FN_ENOMEM, "mesh: out of memory finding the parts of %ld triangles", m->nt);
+    }
+    for (long v = 0; v < m->nv; v++)
+        parent[v] = (int)v;
+    for (long t = 0; t < m->nt; t++)
+        for (int e = 1; e < 3; e++) {
+            int a = uf_root(parent, m->tri[t * 3]), b = uf_root(parent, m->tri[t * 3 + e]);
+            parent[b] = a;
+        }
+    int outer = -1;
+    for (long t = 0; t < m->nt; t++)
+        vol[uf_root(parent, m->tri[t * 3])] += tri_volume6(m, t);
+    for (long v = 0; v < m->nv; v++)
+        if (parent[v] == v && vol[v] > 0 && (outer < 0 || vol[v] > vol[outer]))
+            outer = (int)v;
+    /* positive parts but the outer one are islands; negative ones are cavities' walls */
+    long nt = 0, dropped = 0;
+    for (long v = 0; v < m->nv; v++)
+        dropped += parent[v] == v && vol[v] > 0 && v != outer;
+    for (long t = 0; t < m->nt; t++) {
+        int r = uf_root(parent, m->tri[t * 3]);
+        if (r != outer && vol[r] > 0)
+            continue;
+        memmove(m->tri + nt * 3, m->tri + t * 3, 3 * sizeof *m->tri);
+        nt++;
+    }
+    m->nt = nt;
+    drop_unused_vertices(m, parent);
+    free(parent), free(vol);
+    return dropped;
+}
+
 long mesh_decimate(mesh *m, long target)
 {
     if (target < 4)
@@ -570,20 +639,7 @@ long mesh_decimate(mesh *m, long target)
             nt++;
         }
         m->nt = nt;
-        long nv = 0;
-        for (long v = 0; v < m->nv; v++)
-            fill[v] = -1;
-        for (long t = 0; t < nt * 3; t++)
-            fill[m->tri[t]] = 0;
-        for (long v = 0; v < m->nv; v++)
-            if (fill[v] == 0) { /* in index order: the slot nv <= v is free */
-                fill[v] = (int)nv;
-                memmove(m->v + nv * 3, m->v + (size_t)v * 3, 3 * sizeof *m->v);
-                nv++;
-            }
-        for (long t = 0; t < nt * 3; t++)
-            m->tri[t] = fill[m->tri[t]];
-        m->nv = nv;
+        drop_unused_vertices(m, fill);
         free(vstart), free(vt), free(fill), free(remap), free(lock), free(c);
         if (done == 0)
             break;

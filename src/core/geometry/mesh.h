@@ -38,6 +38,10 @@ int mesh_extract(const float *vals, const int dim[3], const double spacing[3], f
 /* Taubin smoothing: iterations of a uniform Laplacian step by lambda (0.5) then by mu (-0.53),
  * which smooths the voxel steps without shrinking the whole. 0 or FN_ENOMEM (m unchanged). */
 int mesh_smooth(mesh *m, int iterations, double lambda, double mu);
+/* Keeps the outer surface (the part of largest positive volume) and the walls of cavities inside
+ * (parts of negative volume); other parts, islands (voxels that touch the rest only at an edge or
+ * a corner, which the surface leaves floating), go. Returns how many went, or FN_ENOMEM. */
+long mesh_drop_islands(mesh *m);
 /* Collapses the shortest edges (to their midpoints) until at most target triangles remain or no
  * edge can go without breaking the manifold (link condition) or flipping a triangle; never below
  * 4 triangles. Returns the triangle count, or FN_ENOMEM (m unchanged). */

@@ -368,6 +368,9 @@ int case_separate(planning_case *c, int id, double erode_mm, const double (*seed
                          : rc;
     if (pieces < 0)
         rc = pieces;
+    else if (pieces < 2 && erode_mm > 0 && !nseeds)
+        rc = fn_err_set(FN_EINVAL, "separate: fragment %d does not split at --erode %g mm (it leaves no two "
+                        "cores of 0.02 ml): try another --erode, or one --seeds point per piece", id, erode_mm);
     else if (pieces < 2)
         rc = fn_err_set(FN_EINVAL, "separate: fragment %d does not split (no erosion leaves two cores of "
                         "0.02 ml; give --erode MM or one --seeds point per piece)", id);

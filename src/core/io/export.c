@@ -27,6 +27,17 @@ static int sync_path(const char *path, int dir)
     return rc;
 }
 
+/* A writer's message names the temporary file: name the target, the path the user gave, instead. */
+static int name_target(int rc, const char *tmp, const char *path)
+{
+    char msg[1024];
+    const char *m = fn_err_msg(), *at = strstr(m, tmp);
+    if (!at)
+        return rc;
+    snprintf(msg, sizeof msg, "%.*s%s%s", (int)(at - m), m, path, at + strlen(tmp));
+    return fn_err_set(rc, "%s", msg);
+}
+
 int export_atomic(const char *path, int (*write)(const char *tmp, void *ctx), void *ctx)
 {
     const char *slash = strrchr(path, '/');
@@ -47,7 +58,7 @@ int export_atomic(const char *path, int (*write)(const char *tmp, void *ctx), vo
         rc = fn_err_set(FN_EIO, "%s: cannot put in place: %s", path, strerror(errno));
     if (rc) {
         unlink(tmp);
-        return rc;
+        return name_target(rc, tmp, path);
     }
     sync_path(dir, 1); /* best effort: some file systems refuse to sync a folder */
     return 0;
@@ -351,6 +362,8 @@ int export_stl(const planning_case *c, int i, const export_stl_opts *o, const ch
     mesh m;
     int rc = mesh_extract(mask, f->dim, f->spacing, 0.5f, &m);
     free(mask);
+    if (rc == 0 && mesh_drop_islands(&m) < 0)
+        rc = FN_ENOMEM;
     if (rc == 0 && o->smooth > 0)
         rc = mesh_smooth(&m, o->smooth, 0.5, -0.53);
     if (rc == 0 && o->decimate > 0 && m.nt > o->decimate) {

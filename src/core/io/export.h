@@ -14,7 +14,8 @@
  *  - The planned labelmap is resampled on the source grid (nearest): a voxel takes the label of
  *    the fragment (at its pose) whose crop voxel nearest to it is bone; where two fragments claim
  *    one voxel the later fragment wins and both count it as overlap.
- *  - STL: binary, little-endian, one closed surface (mesh.h) per fragment at its pose, mm, LPS (or
+ *  - STL: binary, little-endian, one closed surface (mesh.h) per fragment at its pose (its outer
+ *    surface and the walls of cavities inside; islands dropped: mesh_drop_islands), mm, LPS (or
  *    RAS: x and y negated, a turn that keeps the winding outward); the 80-byte header says
  *    "SPACE=LPS" or "SPACE=RAS", as 3D Slicer writes and reads it.
  * Threads: volio's rule (teem and nifticlib keep global state): one thread at a time.

@@ -241,8 +241,21 @@ static int piece_stats(const vol *lab, int id, frag *f)
     return frag_from_labels(f, lab, NULL, id, lo, hi, 0, 0);
 }
 
+/* A piece keeps at least 1/share_divisor of the bone: 10 pieces of 10% each would all have to be
+ * cut exactly, so beyond 6 pieces the share is 1/(2 pieces). */
+static int share_divisor(int pieces)
+{
+    return pieces > 6 ? 2 * pieces : 10;
+}
+
+size_t fracture_min_piece(size_t bone_voxels, int pieces)
+{
+    int d = share_divisor(pieces);
+    return (bone_voxels + (size_t)d - 1) / (size_t)d;
+}
+
 /* Splits the largest piece so far with a random rough cut; its smaller side becomes piece `to`.
- * Both sides keep at least min_piece voxels (10% of the bone), or the cut is refused. */
+ * Both sides keep at least min_piece voxels (fracture_min_piece), or the cut is refused. */
 static int make_cut(vol *lab, vol *ct, int to, uint64_t *rng, const fracture_params *p,
                     size_t min_piece, double normal_out[3])
 {
@@ -262,10 +275,11 @@ static int make_cut(vol *lab, vol *ct, int to, uint64_t *rng, const fracture_par
             from = id;
         }
     }
+    double pct = 100.0 / share_divisor(p->pieces);
     if (best < 2 * min_piece)
         return fn_err_set(FN_EINVAL, "fracture: cannot cut piece %d: the largest piece so far "
-                          "(%zu voxels) is under twice the smallest piece allowed (10%% of the "
-                          "bone, %zu voxels); ask for fewer --pieces", to, best, min_piece);
+                          "(%zu voxels) is under twice the smallest piece allowed (%.3g%% of the "
+                          "bone, %zu voxels); ask for fewer --pieces", to, best, pct, min_piece);
     frag f;
     int rc = piece_stats(lab, from, &f);
     if (rc < 0)
@@ -320,8 +334,8 @@ static int make_cut(vol *lab, vol *ct, int to, uint64_t *rng, const fracture_par
     }
     frag_free(&f);
     return fn_err_set(FN_EINVAL, "fracture: no cut of piece %d (%zu voxels) leaves both sides at "
-                      "least 10%% of the bone (%zu voxels) in 32 tries: the bone is too thin or "
-                      "irregular for %d pieces; ask for fewer --pieces", from, best, min_piece,
+                      "least %.3g%% of the bone (%zu voxels) in 32 tries: the bone is too thin or "
+                      "irregular for %d pieces; ask for fewer --pieces", from, best, pct, min_piece,
                       p->pieces);
 }
 
@@ -346,21 +360,17 @@ static pose random_motion(uint64_t *rng, const double centroid[3], const double 
     return m;
 }
 
-/* Whether a moved piece may not land on voxel idx: another piece is there already, or a bright
- * object that is not bone (the head holder: >= threshold in src_ct but in no piece). */
-static int occupied(const vol *cut, const vol *src_ct, const vol *out_lab, size_t idx, int id,
-                    double threshold)
+/* Whether a moved piece may not land on output voxel idx: another piece is there already, or a
+ * bright object that is not bone (obstacle: the head holder, >= threshold but in no piece). */
+static int occupied(const vol *out_lab, const vol *obstacle, size_t idx, int id)
 {
     float l = out_lab->data[idx];
-    float v = src_ct->data[idx];
-    return (l != 0 && l != (float)id) || (cut->data[idx] == 0 && isfinite(v) && v >= threshold);
+    return (l != 0 && l != (float)id) || obstacle->data[idx] != 0;
 }
 
-/* Resamples piece `id` of cut (on the original grid) moved by m into out_lab/out_ct (nearest
- * neighbour). Counts voxels that would land where `occupied` says no; writes only when apply, and
- * without apply stops at the first such voxel (returns 1). */
-static size_t place_piece(const vol *cut, const vol *src_ct, vol *out_lab, vol *out_ct, int id,
-                          pose m, double threshold, int apply)
+/* The box of output voxels (index, a voxel to spare, not clamped to the grid) that piece `id` of
+ * cut moved by m may reach. */
+static void moved_box(const vol *cut, int id, pose m, const vol *out_lab, int olo[3], int ohi[3])
 {
     int lo[3], hi[3];
     frag_label_box(cut, id, lo, hi);
@@ -377,10 +387,24 @@ static size_t place_piece(const vol *cut, const vol *src_ct, vol *out_lab, vol *
             bhi[a] = fmax(bhi[a], oi[a]);
         }
     }
-    int olo[3], ohi[3];
     for (int a = 0; a < 3; a++) {
-        olo[a] = (int)fmax(0, floor(blo[a]) - 1);
-        ohi[a] = (int)fmin(out_lab->dim[a] - 1, ceil(bhi[a]) + 1);
+        olo[a] = (int)floor(blo[a]) - 1;
+        ohi[a] = (int)ceil(bhi[a]) + 1;
+    }
+}
+
+/* Resamples piece `id` of cut (home: cut and src_ct on the input grid) moved by m into
+ * out_lab/out_ct (output grid, nearest neighbour). Counts voxels that would land where `occupied`
+ * says no (past the grid's edge there is nothing: fit_grid makes room there before apply);
+ * writes only when apply, and without apply stops at the first such voxel (returns 1). */
+static size_t place_piece(const vol *cut, const vol *src_ct, const vol *obstacle, vol *out_lab,
+                          vol *out_ct, int id, pose m, int apply)
+{
+    int olo[3], ohi[3];
+    moved_box(cut, id, m, out_lab, olo, ohi);
+    for (int a = 0; a < 3; a++) {
+        olo[a] = olo[a] < 0 ? 0 : olo[a];
+        ohi[a] = ohi[a] > out_lab->dim[a] - 1 ? out_lab->dim[a] - 1 : ohi[a];
     }
     pose inv = pose_inverse(m);
     size_t conflicts = 0;
@@ -403,7 +427,7 @@ static size_t place_piece(const vol *cut, const vol *src_ct, vol *out_lab, vol *
                 if (cut->data[from] != (float)id)
                     continue;
                 size_t to = vol_idx(out_lab, i, j, k);
-                if (occupied(cut, src_ct, out_lab, to, id, threshold)) {
+                if (occupied(out_lab, obstacle, to, id)) {
                     if (!apply)
                         return 1; /* the push-out loop only asks whether there is any */
                     conflicts++;
@@ -417,13 +441,26 @@ static size_t place_piece(const vol *cut, const vol *src_ct, vol *out_lab, vol *
     return conflicts;
 }
 
-static vol *vol_clone(const vol *v)
+/* v on a grid grown by lo[a] voxels before and hi[a] after along each axis (0 0: a copy); the new
+ * voxels hold `value`, the old ones keep their world positions. NULL with fn_err. */
+static vol *padded(const vol *v, const int lo[3], const int hi[3], float value)
 {
-    vol *c = vol_new(v->dim[0], v->dim[1], v->dim[2]);
+    vol *c = vol_new(v->dim[0] + lo[0] + hi[0], v->dim[1] + lo[1] + hi[1], v->dim[2] + lo[2] + hi[2]);
     if (!c)
         return NULL;
-    memcpy(c->data, v->data, vol_count(v) * sizeof(float));
+    for (size_t i = 0; i < vol_count(c); i++)
+        c->data[i] = value;
+    for (int k = 0; k < v->dim[2]; k++)
+        for (int j = 0; j < v->dim[1]; j++)
+            memcpy(&c->data[vol_idx(c, lo[0], j + lo[1], k + lo[2])], &v->data[vol_idx(v, 0, j, k)],
+                   (size_t)v->dim[0] * sizeof(float));
+    double first[3] = {-lo[0], -lo[1], -lo[2]};
     memcpy(c->affine, v->affine, sizeof v->affine);
+    for (int a = 0; a < 3; a++) {
+        c->affine[a][3] = v->affine[a][3];
+        for (int b = 0; b < 3; b++)
+            c->affine[a][3] += v->affine[a][b] * first[b];
+    }
     memcpy(c->spacing, v->spacing, sizeof v->spacing);
     c->src_type = v->src_type;
     return c;
@@ -435,7 +472,7 @@ int fracture_check(const fracture_params *p)
         const char *name;
         double value, lo, hi;
         const char *unit;
-    } rows[] = {{"pieces", p->pieces, 2, 10, " (each at least 10% of the bone)"},
+    } rows[] = {{"pieces", p->pieces, 2, 10, ""},
                 {"displace", p->displace_mm, 0, 200, " mm"},
                 {"rotate", p->rotate_deg, 0, 180, " deg"},
                 {"bone loss", p->bone_loss_mm, 0, 20, " mm"},
@@ -495,18 +532,27 @@ static void push_dirs(const double dir[3], const double out[3], const double nor
 /* A moved piece's voxels, forward-mapped into the output grid (index coordinates), for a fast
  * search of the push that clears it; place_piece's exact test has the last word. */
 struct push {
-    double *q;        /* n index triples */
-    size_t n, lost_max; /* voxels; how many may land off the grid (10%) */
-    const vol *cut, *src_ct, *out_lab;
+    double *q; /* n index triples */
+    size_t n;
+    const vol *cut, *src_ct, *obstacle;
+    vol *out_lab, *out_ct;
     int id;
-    double threshold;
+    pose turned; /* the piece's rotation about its centroid, before any push */
 };
 
-/* 1 if the piece moved by s*dq (index units) lands clear; 0 on another piece; -1 when more than
- * lost_max voxels fall off the grid. */
+/* The turned piece pushed by len mm along d. */
+static pose pushed(const struct push *pp, double len, const double d[3])
+{
+    pose t = pp->turned;
+    for (int a = 0; a < 3; a++)
+        t.t[a] += len * d[a];
+    return t;
+}
+
+/* 1 if the piece moved by s*dq (index units) lands clear; 0 on another piece. Past the grid's
+ * edge there is nothing to land on: the grid grows to hold the piece (fit_grid). */
 static int push_clear(const struct push *pp, double s, const double dq[3])
 {
-    size_t lost = 0;
     const int *dim = pp->out_lab->dim;
     for (size_t v = 0; v < pp->n; v++) {
         int si[3], inside = 1;
@@ -514,21 +560,16 @@ static int push_clear(const struct push *pp, double s, const double dq[3])
             si[a] = (int)floor(pp->q[3 * v + a] + s * dq[a] + 0.5);
             inside &= si[a] >= 0 && si[a] < dim[a];
         }
-        if (!inside) {
-            if (++lost > pp->lost_max)
-                return -1;
-            continue;
-        }
-        if (occupied(pp->cut, pp->src_ct, pp->out_lab, vol_idx(pp->out_lab, si[0], si[1], si[2]),
-                     pp->id, pp->threshold))
+        if (inside && occupied(pp->out_lab, pp->obstacle, vol_idx(pp->out_lab, si[0], si[1], si[2]), pp->id))
             return 0;
     }
     return 1;
 }
 
 /* The piece's voxels moved by m, as output index coordinates; 0 or FN_ENOMEM. */
-static int push_init(struct push *pp, const vol *cut, int id, pose m)
+static int push_init(struct push *pp, int id, pose m)
 {
+    const vol *cut = pp->cut;
     int lo[3], hi[3];
     frag_label_box(cut, id, lo, hi);
     size_t cap = (size_t)(hi[0] - lo[0] + 1) * (size_t)(hi[1] - lo[1] + 1) *
@@ -545,9 +586,8 @@ static int push_init(struct push *pp, const vol *cut, int id, pose m)
                 double ijk[3] = {i, j, k}, w[3], mw[3];
                 vol_index_to_world(cut, ijk, w);
                 pose_apply(&m, w, mw);
-                vol_world_to_index(cut, mw, &pp->q[3 * pp->n++]);
+                vol_world_to_index(pp->out_lab, mw, &pp->q[3 * pp->n++]);
             }
-    pp->lost_max = pp->n / 10;
     return 0;
 }
 
@@ -561,7 +601,7 @@ static int push_search(const struct push *pp, const double dir[3], const double 
     double d[PUSH_DIRS][3], o[3] = {0, 0, 0}, oq[3];
     push_dirs(dir, out, normal, d);
     vol_world_to_index(pp->out_lab, o, oq);
-    int best = -1, off_grid = 0;
+    int best = -1;
     for (int c = 0; c < PUSH_DIRS; c++) {
         double x[3], dq[3];
         for (int a = 0; a < 3; a++)
@@ -571,25 +611,17 @@ static int push_search(const struct push *pp, const double dir[3], const double 
             dq[a] -= oq[a];
         /* A later direction must do strictly better: the first ones point straighter out. */
         int limit = best < 0 ? max_steps : best - 1;
-        for (int s = 0; s <= limit; s++) {
-            int clear = push_clear(pp, displace / step + s, dq);
-            if (clear < 0) {
-                off_grid = 1;
-                break; /* farther out along this direction only loses more */
-            }
-            if (clear) {
+        for (int s = 0; s <= limit; s++)
+            if (push_clear(pp, displace / step + s, dq) &&
+                place_piece(pp->cut, pp->src_ct, pp->obstacle, pp->out_lab, pp->out_ct, pp->id,
+                            pushed(pp, displace + s * step, d[c]), 0) == 0) {
                 best = s;
                 memcpy(move, d[c], sizeof d[c]);
                 break;
             }
-        }
         if (best == 0)
             break;
     }
-    if (best < 0 && off_grid)
-        return fn_err_set(FN_EINVAL, "fracture: piece %d would leave the volume (over 10%% of it "
-                          "off the grid) before it lands clear of the others: lower --displace",
-                          pp->id);
     if (best < 0)
         return fn_err_set(FN_EINVAL, "fracture: piece %d cannot be placed clear of the others "
                           "within %.1f mm of --displace", pp->id, max_steps * step);
@@ -597,26 +629,80 @@ static int push_search(const struct push *pp, const double dir[3], const double 
     return 0;
 }
 
-/* Moves pieces 2..n, each away from the bone's centre, pushed on in voxel steps (the shortest push
- * out of push_dirs) until it lands on no other piece. */
-static int displace_pieces(fracture_result *r, const vol *ct, uint64_t *rng,
-                           const fracture_params *p, const double centre[3], double (*normals)[3])
+/* Grows the output grids (r->ct, r->labels and *obstacle) where piece `id` moved by m would reach
+ * past their edge, so that a piece pushed out of the scanned field is kept whole. The new voxels
+ * are `outside` in the CT (its lowest value: nothing scanned), 0 in the others. */
+static int fit_grid(fracture_result *r, vol **obstacle, int id, pose m, float outside)
 {
-    size_t n = vol_count(ct);
-    for (size_t i = 0; i < n; i++) {
+    int olo[3], ohi[3], lo[3], hi[3], grow = 0;
+    moved_box(r->cut, id, m, r->labels, olo, ohi);
+    for (int a = 0; a < 3; a++) {
+        lo[a] = olo[a] < 0 ? -olo[a] : 0;
+        hi[a] = ohi[a] >= r->labels->dim[a] ? ohi[a] - r->labels->dim[a] + 1 : 0;
+        grow |= lo[a] | hi[a];
+    }
+    if (!grow)
+        return 0;
+    vol *g[3] = {padded(r->ct, lo, hi, outside), padded(r->labels, lo, hi, 0), padded(*obstacle, lo, hi, 0)};
+    vol **slot[3] = {&r->ct, &r->labels, obstacle};
+    int ok = g[0] && g[1] && g[2];
+    for (int v = 0; v < 3; v++) {
+        vol_free(ok ? *slot[v] : g[v]);
+        if (ok)
+            *slot[v] = g[v];
+    }
+    return ok ? 0 : fn_err_wrap(FN_ENOMEM, "fracture: piece %d lands past the CT's edge, and the "
+                                "grid grown to hold it does not fit", id);
+}
+
+/* Moves piece id (turned by m, the random part of its motion) on in voxel steps, the shortest push
+ * out of push_dirs, until it lands on no other piece; grows the grid where it lands past it. */
+static int displace_piece(fracture_result *r, const vol *src_ct, vol **obstacle, int id, pose m,
+                          const double push[3][3], double displace, int max_steps, float outside)
+{
+    double step = fmin(src_ct->spacing[0], fmin(src_ct->spacing[1], src_ct->spacing[2])), move[3];
+    int steps = 0;
+    struct push pp = {.cut = r->cut, .src_ct = src_ct, .obstacle = *obstacle, .out_lab = r->labels,
+                      .out_ct = r->ct, .id = id, .turned = m};
+    int rc = push_init(&pp, id, m);
+    if (rc == 0)
+        rc = push_search(&pp, push[0], push[1], push[2], displace, step, max_steps, move, &steps);
+    free(pp.q);
+    if (rc == 0)
+        rc = fit_grid(r, obstacle, id, m = pushed(&pp, displace + steps * step, move), outside);
+    if (rc < 0)
+        return rc;
+    place_piece(r->cut, src_ct, *obstacle, r->labels, r->ct, id, m, 1);
+    r->moved[id - 1] = m;
+    r->truth[id - 1] = pose_inverse(m);
+    return 0;
+}
+
+/* Moves pieces 2..n (cut on src_ct's grid), each away from the bone's centre, turned, then pushed
+ * on until it lands clear (displace_piece). */
+static int displace_pieces(fracture_result *r, const vol *src_ct, uint64_t *rng, const fracture_params *p,
+                           const double centre[3], double (*normals)[3], float outside)
+{
+    const int none[3] = {0, 0, 0};
+    vol *obstacle = padded(r->cut, none, none, 0);
+    if (!obstacle)
+        return fn_err_set(FN_ENOMEM, "fracture: out of memory");
+    for (size_t i = 0; i < vol_count(src_ct); i++) {
+        float v = src_ct->data[i];
+        obstacle->data[i] = r->cut->data[i] == 0 && isfinite(v) && v >= r->threshold;
         r->labels->data[i] = r->cut->data[i] == 1 ? 1 : 0;
         if (r->cut->data[i] > 1)
             r->ct->data[i] = (float)p->fill;
     }
-    double step = fmin(ct->spacing[0], fmin(ct->spacing[1], ct->spacing[2]));
+    double step = fmin(src_ct->spacing[0], fmin(src_ct->spacing[1], src_ct->spacing[2]));
     double displace = p->touching ? 0 : p->displace_mm; /* touching: the first clear place */
     r->truth[0] = r->moved[0] = POSE_IDENTITY;
-    for (int id = 2; id <= r->pieces; id++) {
+    int rc = 0;
+    for (int id = 2; id <= r->pieces && rc == 0; id++) {
         frag f;
-        int rc = piece_stats(r->cut, id, &f);
-        if (rc < 0)
-            return rc;
-        double out[3], dist = 0, dir[3], move[3];
+        if ((rc = piece_stats(r->cut, id, &f)) < 0)
+            break;
+        double out[3], dist = 0, push[3][3];
         for (int a = 0; a < 3; a++) {
             out[a] = f.centroid[a] - centre[a];
             dist += out[a] * out[a];
@@ -625,38 +711,17 @@ static int displace_pieces(fracture_result *r, const vol *ct, uint64_t *rng,
         if (sqrt(dist) < step)
             memcpy(out, normals[id - 2], sizeof out);
         normalize3(out);
-        pose m = random_motion(rng, f.centroid, out, p, dir);
+        /* push: the direction it moves in, out, and its cut's normal */
+        pose m = random_motion(rng, f.centroid, out, p, push[0]);
+        memcpy(push[1], out, sizeof out);
+        memcpy(push[2], normals[id - 2], sizeof out);
         /* A push as long as the piece is wide clears it in any direction that leads out. */
-        int max_steps = (int)ceil(4 * sqrt(f.eigval[0]) / step) + 2, steps = 0;
+        int max_steps = (int)ceil(4 * sqrt(f.eigval[0]) / step) + 2;
         frag_free(&f);
-        struct push pp = {.cut = r->cut, .src_ct = ct, .out_lab = r->labels, .id = id,
-                          .threshold = r->threshold};
-        rc = push_init(&pp, r->cut, id, m);
-        if (rc == 0)
-            rc = push_search(&pp, dir, out, normals[id - 2], displace, step, max_steps, move,
-                             &steps);
-        free(pp.q);
-        if (rc < 0)
-            return rc;
-        /* Forward-mapped voxels can miss one that nearest-neighbour resampling fills: a few more
-         * steps settle it. */
-        for (int extra = 0;; extra++, steps++) {
-            pose t = m;
-            for (int a = 0; a < 3; a++)
-                t.t[a] += (displace + steps * step) * move[a];
-            if (place_piece(r->cut, ct, r->labels, r->ct, id, t, r->threshold, 0) == 0) {
-                m = t;
-                break;
-            }
-            if (extra == 8)
-                return fn_err_set(FN_EINVAL, "fracture: piece %d cannot be placed clear of the "
-                                  "others", id);
-        }
-        place_piece(r->cut, ct, r->labels, r->ct, id, m, r->threshold, 1);
-        r->moved[id - 1] = m;
-        r->truth[id - 1] = pose_inverse(m);
+        rc = displace_piece(r, src_ct, &obstacle, id, m, push, displace, max_steps, outside);
     }
-    return 0;
+    vol_free(obstacle);
+    return rc;
 }
 
 int fracture_make(const vol *ct, const fracture_params *p, fracture_result *out)
@@ -676,8 +741,13 @@ int fracture_make(const vol *ct, const fracture_params *p, fracture_result *out)
     if (rc < 0)
         return rc;
     if (seg.ncomp < 1) {
+        float lo, hi;
+        vol_range(ct, &lo, &hi);
+        rc = fn_err_set(FN_EINVAL, "fracture: no bone at or above %g%s: the CT's values run from %g to "
+                        "%g; give another --threshold", seg.threshold, p->threshold_auto ? " (Otsu's)" : "",
+                        (double)lo, (double)hi);
         seg_result_free(&seg);
-        return fn_err_set(FN_EINVAL, "fracture: no bone at or above %g", seg.threshold);
+        return rc;
     }
     out->threshold = seg.threshold;
     out->cut = seg.labels;
@@ -689,14 +759,15 @@ int fracture_make(const vol *ct, const fracture_params *p, fracture_result *out)
         fracture_result_free(out);
         return rc;
     }
-    /* Every piece keeps at least 10% of the bone: smaller ones are crumbs, not fragments. */
-    size_t min_piece = (bone.voxels + 9) / 10;
+    /* Smaller pieces are crumbs, not fragments. */
+    size_t min_piece = fracture_min_piece(bone.voxels, p->pieces);
     double centre[3] = {bone.centroid[0], bone.centroid[1], bone.centroid[2]};
     frag_free(&bone);
     out->pieces = p->pieces;
-    out->ct = vol_clone(ct);
-    vol *work_ct = vol_clone(ct);
-    out->labels = vol_clone(out->cut);
+    const int none[3] = {0, 0, 0};
+    out->ct = padded(ct, none, none, 0);
+    vol *work_ct = padded(ct, none, none, 0);
+    out->labels = padded(out->cut, none, none, 0);
     out->truth = calloc((size_t)p->pieces, sizeof *out->truth);
     out->moved = calloc((size_t)p->pieces, sizeof *out->moved);
     double(*normals)[3] = calloc((size_t)p->pieces, sizeof *normals);
@@ -710,7 +781,9 @@ int fracture_make(const vol *ct, const fracture_params *p, fracture_result *out)
     if (rc == 0) {
         /* The output starts from the CT after bone loss. */
         memcpy(out->ct->data, work_ct->data, vol_count(ct) * sizeof(float));
-        rc = displace_pieces(out, work_ct, &rng, p, centre, normals);
+        float lowest, highest;
+        vol_range(ct, &lowest, &highest);
+        rc = displace_pieces(out, work_ct, &rng, p, centre, normals, lowest);
     }
 done:
     vol_free(work_ct);

@@ -5,7 +5,7 @@
  * (normal near the piece's main axis, through a point near its centroid) displaced along its
  * normal by fractal value noise (fBm, 4 octaves). The new piece of a cut is its smaller side.
  * Each side is made one connected piece (islands the rough surface leaves join the other side)
- * and keeps at least 10% of the bone's voxels, or the cut is tried again (32 times, then an
+ * and keeps at least fracture_min_piece voxels, or the cut is tried again (32 times, then an
  * error). bone_loss_mm of bone around each cut is replaced by `fill` (soft tissue). Piece 1
  * (what is left of the first piece) stays fixed; every other piece is moved by a random rigid
  * transform: rotation of rotate_deg about its centroid, translation of displace_mm outward from
@@ -13,8 +13,9 @@
  * on in steps of one voxel (the smallest spacing) along the outward direction that clears it in
  * the fewest steps. It is resampled (nearest neighbour) into the output CT, which shows the
  * DISPLACED configuration; where a piece left, `fill` is written. The displaced labels are built
- * from the pieces, not re-segmented, so touching pieces stay apart. A piece that would leave the
- * grid (over 10% of it) is an error.
+ * from the pieces, not re-segmented, so touching pieces stay apart. A piece that lands past the
+ * grid's edge is kept whole: the grid grows to hold it (new voxels: the CT's lowest value), and
+ * where a piece lands never depends on the grid's size.
  * truth[i] maps piece i+1's displaced position back to where it belongs (identity for piece 1).
  *
  * Randomness comes only from splitmix64 seeded with `seed`, and the arithmetic uses + - * / and
@@ -25,6 +26,7 @@
 #include "pose.h"
 #include "vol.h"
 
+#include <stddef.h>
 #include <stdint.h>
 
 typedef struct fracture_params {
@@ -46,9 +48,11 @@ typedef struct fracture_params {
 } fracture_params;
 
 typedef struct fracture_result {
-    vol *ct;      /* the fractured CT (displaced configuration), on the input grid; owned */
+    vol *ct;      /* the fractured CT (displaced configuration), on the input grid or, where a
+                   * moved piece landed past its edge, that grid grown (same spacing and
+                   * directions, whole voxels added before or after); owned */
     vol *labels;  /* pieces 1..n in the displaced configuration, on the same grid; owned */
-    vol *cut;     /* pieces 1..n before displacement (after bone loss), on the same grid; owned */
+    vol *cut;     /* pieces 1..n before displacement (after bone loss), on the input grid; owned */
     int pieces;
     double threshold; /* the bone threshold used (Otsu's when threshold_auto) */
     pose *truth;  /* pieces entries: displaced (home) world -> original world; owned */
@@ -63,6 +67,9 @@ int fracture_check(const fracture_params *p);
 /* 0 and *out filled (free with fracture_result_free), or a negative FN_E* code. */
 int fracture_make(const vol *ct, const fracture_params *p, fracture_result *out);
 void fracture_result_free(fracture_result *r);
+/* The fewest voxels a piece of a bone of bone_voxels keeps: 10% of them, or 1/(2 pieces) beyond 6
+ * pieces (5% for 10), so that the last cuts still have room. */
+size_t fracture_min_piece(size_t bone_voxels, int pieces);
 /* How far truth moves a point (a fragment's centroid, in mm): the one measure of a piece's
  * displacement that fracnav prints (a pose's translation alone depends on where the origin is). */
 double fracture_truth_shift(const pose *truth, const double centroid[3]);
