@@ -837,7 +837,7 @@ static void test_seg_nrrd_checked_before_reading(void **st)
     expect_labels_error(p, "Segment0_LabelValue: '0' is not a whole number >= 1", NULL);
     write_nrrd(p, "NRRD0004\ntype: unsigned char\ndimension: 4\nsizes: 2 2 2 2\nspacings: 1 1 1 1\n"
                   "encoding: raw\nSegment0_LabelValue:=1\nSegment0_Layer:=0\nSegment123456_Layer:=0\n\n", 16);
-    expect_labels_error(p, "Segment123456_Layer: over 65535 segments", NULL);
+    expect_labels_error(p, "line 9: Segment123456_Layer:=0: over 256 segments", NULL);
     /* volio_read still reads 3D only */
     write_nrrd(p, SEG4_HEAD("unsigned char", "2 2 2 2", "raw"), 16);
     expect_error(p, "dimension: 4, only 3D volumes are supported", NULL);

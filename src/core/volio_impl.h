@@ -20,6 +20,18 @@ vol *volio__read_nifti(const char *path);
 vol *volio__read_nrrd(const char *path);
 /* volio_read_labels for a NRRD (.nrrd, .nhdr); segs is zeroed by the caller. */
 vol *volio__read_nrrd_labels(const char *path, volio_segs *segs);
+/* volio_nrrdhdr.c */
+/* Segments a .seg.nrrd may hold (and layers): a Slicer segmentation has tens. */
+#define VOLIO_MAX_SEGMENTS 256
+/* Reads path's NRRD header as teem will and refuses, naming the line, what teem must not see:
+ * data files (single, LIST or numbered) that are not regular files inside the header's folder or
+ * outnumber its slices, a numbered name that is not one bounded integer conversion, over 4096
+ * key/value lines, a block size, and with `labels` segment numbers of VOLIO_MAX_SEGMENTS or more.
+ * 0 also when path cannot be opened or is no NRRD (teem reports those). */
+int volio__nrrd_scan(const char *path, int labels);
+/* N of a key "Segment<N>_...", or -1 ("Segmentation_..." and every other key); -2 when N has
+ * more digits than any segment number may. */
+int volio__segment_number(const char *key);
 /* A DICOM series folder (not a table row: a folder has no extension). */
 vol *volio__read_dicom(const char *dir);
 int volio__write_nifti(const vol *v, const char *path, vol_type type);
