@@ -41,8 +41,16 @@ int volio__write_nrrd(const vol *v, const char *path, vol_type type);
 /* 0 if the columns of m (index axes) are finite, non-zero and orthogonal within 1e-4, else
  * FN_EFORMAT naming path and field. */
 int volio__check_axes(const double m[3][3], const char *path, const char *field);
+/* Voxel sizes a file may give, in mm: a micron to a metre (at 1e15 mm a contact search adding
+ * 0.1 mm never moves). */
+#define VOLIO_MIN_SPACING_MM 1e-3
+#define VOLIO_MAX_SPACING_MM 1e3
+/* 0 if every spacing is in VOLIO_MIN_SPACING_MM..VOLIO_MAX_SPACING_MM, else FN_EFORMAT naming
+ * path, field and axis. */
+int volio__check_spacing(const double sp[3], const char *path, const char *field);
 /* Sets v's geometry from the index-to-LPS matrix a (columns: index axes, mm) and the origin:
- * checked as volio__check_axes does, then split into direction cosines and spacings. */
+ * checked as volio__check_axes and volio__check_spacing do, then split into direction cosines and
+ * spacings. */
 int volio__set_affine(vol *v, const double a[3][3], const double origin[3], const char *path,
                       const char *field);
 size_t volio__type_size(vol_type t);

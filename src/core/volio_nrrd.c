@@ -173,8 +173,10 @@ static int geometry(const Nrrd *n, const int *seen, const char *path, unsigned a
             sp[c] = s;
             org[c] = seen[nrrdField_axis_mins] ? m : 0.0;
         }
-        vol_set_geometry(v, eye, sp, org);
-        return 0;
+        int rc = volio__check_spacing(sp, path, "spacings");
+        if (rc == 0)
+            vol_set_geometry(v, eye, sp, org);
+        return rc;
     }
     switch (n->space) {
     case nrrdSpaceRightAnteriorSuperior: flip[0] = flip[1] = -1; break;
