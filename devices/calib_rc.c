@@ -321,12 +321,14 @@ int calib_parse_spnavrc(calib *c, const char *text, size_t len, const char *fnam
 
 static int read_file(const char *path, char **out, size_t *len)
 {
-    FILE *f = fopen(path, "rb");
-    if (!f)
+    /* O_NONBLOCK: opening a FIFO must not wait for a writer; it is refused below */
+    int fd = open(path, O_RDONLY | O_NONBLOCK | O_CLOEXEC);
+    if (fd < 0)
         return errno == ENOENT ? FN_ENODEV : fn_err_set(FN_EIO, "%s: %s", path, strerror(errno));
     struct stat st;
-    if (fstat(fileno(f), &st) || st.st_size > RC_MAX_BYTES) {
-        fclose(f);
+    FILE *f = NULL;
+    if (fstat(fd, &st) || !S_ISREG(st.st_mode) || st.st_size > RC_MAX_BYTES || !(f = fdopen(fd, "rb"))) {
+        close(fd);
         return fn_err_set(FN_EIO, "%s: not a regular file under %d bytes", path, RC_MAX_BYTES);
     }
     char *buf = malloc((size_t)st.st_size + 1);

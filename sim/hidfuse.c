@@ -17,14 +17,18 @@
 #include <linux/hidraw.h>
 #include <poll.h>
 #include <signal.h>
+#include <spawn.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/file.h>
 #include <sys/ioctl.h>
+#include <sys/mount.h>
 #include <sys/signalfd.h>
 #include <sys/stat.h>
 #include <sys/timerfd.h>
+#include <sys/wait.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -657,12 +661,32 @@ static void unescape_octal(char *s)
     *o = '\0';
 }
 
+/* dir with its parent's links resolved, dir's own name kept: realpath(dir) fails on a dead FUSE
+ * mount (its root answers ENOTCONN), which must still be found in mountinfo. */
+static int resolve_parent(const char *dir, char *out)
+{
+    char copy[PATH_MAX], parent[PATH_MAX];
+    snprintf(copy, sizeof copy, "%s", dir);
+    size_t n = strlen(copy);
+    while (n > 1 && copy[n - 1] == '/')
+        copy[--n] = '\0';
+    char *slash = strrchr(copy, '/');
+    const char *base = slash ? slash + 1 : copy;
+    if (!strcmp(base, ".") || !strcmp(base, "..") || !*base)
+        return realpath(dir, out) ? 0 : -1;
+    if (slash)
+        *slash = '\0';
+    if (!realpath(slash ? (copy[0] ? copy : "/") : ".", parent))
+        return -1;
+    return snprintf(out, PATH_MAX, "%s/%s", strcmp(parent, "/") ? parent : "", base) < PATH_MAX ? 0 : -1;
+}
+
 /* The file system type already mounted at dir ("fuse.hidraw" for another fracnav-sim), into type;
  * 0 when dir is no mount point. */
 static int mounted_at(const char *dir, char *type, size_t cap)
 {
     char want[PATH_MAX], line[2 * PATH_MAX], point[PATH_MAX], fstype[64];
-    FILE *f = realpath(dir, want) ? fopen("/proc/self/mountinfo", "r") : NULL;
+    FILE *f = resolve_parent(dir, want) == 0 ? fopen("/proc/self/mountinfo", "r") : NULL;
     int found = 0;
     while (f && !found && fgets(line, sizeof line, f)) {
         const char *sep = strstr(line, " - "); /* optional fields end here; the type follows */
@@ -726,6 +750,31 @@ static void teardown(hidfuse_server *srv, const char *mount)
                     " dropped by full reader queues)\n", mount, srv->served, srv->dropped);
 }
 
+extern char **environ; /* for posix_spawnp */
+
+/* A mount of ours whose server was killed (its root answers ENOTCONN) refused every later serve
+ * until fusermount3 -u: it is removed (lazily, as fusermount3 -u -z does). */
+static void clean_dead_mount(const char *mount)
+{
+    struct stat st;
+    char type[64];
+    if (stat(mount, &st) == 0 || errno != ENOTCONN || !mounted_at(mount, type, sizeof type) ||
+        strcmp(type, "fuse.hidraw"))
+        return;
+    int ok = umount2(mount, MNT_DETACH) == 0;
+    if (!ok) { /* not root: through the setuid helper */
+        char dir[PATH_MAX];
+        snprintf(dir, sizeof dir, "%s", mount);
+        char *argv[] = {"fusermount3", "-u", "-z", dir, NULL};
+        pid_t pid;
+        int status;
+        ok = posix_spawnp(&pid, "fusermount3", NULL, NULL, argv, environ) == 0 &&
+             waitpid(pid, &status, 0) == pid && WIFEXITED(status) && WEXITSTATUS(status) == 0;
+    }
+    fprintf(stderr, "fracnav-sim serve: %s a dead mount of a killed fracnav-sim at %s\n",
+            ok ? "removed" : "cannot remove", mount);
+}
+
 static int serve(hidfuse_server *srv, const char *mount, const char *control)
 {
     if (check_fuse_access(mount) || (control && open_control(srv, control)))
@@ -776,7 +825,19 @@ int hidfuse_serve(const char *mount, const char *control, const hidfuse_source *
                           .ctl_keep = -1};
     simdev_init(&srv.dev, src->p);
     srv.dev.battery_pending = 0; /* the source holds the power-on reports */
-    int rc = serve(&srv, mount, control);
+    clean_dead_mount(mount);
+    /* The folder's own inode, locked until the server ends: the check that nothing is mounted
+     * there and the mount are one step for every fracnav-sim (two started at once both mounted).
+     * One started after the mount opens the mounted root instead, and check_fuse_access refuses
+     * it. A folder that cannot be opened is left to check_fuse_access to explain. */
+    int lock = open(mount, O_RDONLY | O_DIRECTORY | O_CLOEXEC), rc = 1;
+    if (lock >= 0 && flock(lock, LOCK_EX | LOCK_NB))
+        fprintf(stderr, "fracnav-sim serve: another fracnav-sim is mounting at %s: stop it, or serve at "
+                        "another folder\n", mount);
+    else
+        rc = serve(&srv, mount, control);
+    if (lock >= 0)
+        close(lock);
     release(&srv);
     return rc;
 }

@@ -41,7 +41,8 @@ static const struct sub_help {
      "                         [--control FIFO] [--serial SN]\n",
      "Serves the virtual device as DIR/" HIDFUSE_NODE " through FUSE until SIGINT/SIGTERM (then\n"
      "unmounts). SIGUSR1 unplugs it, the next SIGUSR1 plugs it back. A DIR that is already a mount\n"
-     "point (another server's) is refused.\n"
+     "point (another server's, or one starting at once) is refused; a killed server's dead mount\n"
+     "there is removed first.\n"
      "  --mount DIR      the folder to serve the node in (required)\n"
      "  --as DEVICE      device to impersonate, by name or VID:PID (default spacenavigator;\n"
      "                   fracnav-sim list shows every row of the table)\n"

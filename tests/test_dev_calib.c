@@ -10,9 +10,11 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
+#include <unistd.h>
 
 #include "calib.h"
 #include "devparse.h"
+#include "err.h"
 #include "testutil.h"
 
 static float one_axis(const calib *c, int axis, float v)
@@ -176,6 +178,52 @@ static void test_load_falls_back_to_system_file(void **s)
     free(dir);
 }
 
+/* In a child (opening a FIFO would block the test): calib_load(path) is refused as not a
+ * regular file. */
+static void expect_rc_refused(const char *path, const char *what)
+{
+    fflush(NULL);
+    pid_t pid = fork();
+    assert_true(pid >= 0);
+    if (pid == 0) {
+        calib c;
+        calib_default(&c);
+        char used[512], diag[256];
+        int rc = calib_load(&c, path, used, sizeof used, diag, sizeof diag);
+        int ok = rc < 0 && strstr(fn_err_msg(), "not a regular file");
+        if (!ok)
+            fprintf(stderr, "%s: rc %d: %s\n", what, rc, fn_err_msg());
+        _exit(ok ? 0 : 1);
+    }
+    if (tu_end(pid, 0, what) != 0)
+        fail_msg("%s: not refused as not a regular file", what);
+}
+
+/* A FIFO or a device as the config (given, or the default path linked to one) is refused at once:
+ * a FIFO hung replay and navigate, /dev/zero was read as an empty config. */
+static void test_load_refuses_fifo_and_device(void **s)
+{
+    char *dir = tu_tmpdir("rcfifo"), fifo[4300], f[4300];
+    snprintf(fifo, sizeof fifo, "%s/fifo", dir);
+    assert_int_equal(mkfifo(fifo, 0600), 0);
+    expect_rc_refused(fifo, "--config FIFO");
+    expect_rc_refused("/dev/zero", "--config /dev/zero");
+    char *old_home = getenv("HOME") ? strdup(getenv("HOME")) : NULL;
+    setenv("HOME", dir, 1);
+    snprintf(f, sizeof f, "%s/.config", dir);
+    assert_int_equal(mkdir(f, 0700), 0);
+    snprintf(f, sizeof f, "%s/.config/fracnav", dir);
+    assert_int_equal(mkdir(f, 0700), 0);
+    snprintf(f, sizeof f, "%s/.config/fracnav/spnavrc", dir);
+    assert_int_equal(symlink(fifo, f), 0);
+    expect_rc_refused(NULL, "default spnavrc linked to a FIFO");
+    if (old_home)
+        setenv("HOME", old_home, 1);
+    free(old_home);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 static void test_mapping_invert_swap_sensitivity(void **s)
 {
     calib c;
@@ -331,6 +379,7 @@ int main(void)
         cmocka_unit_test(test_enterprise_key_bindings),
         cmocka_unit_test(test_axismap_is_a_permutation),
         cmocka_unit_test(test_load_falls_back_to_system_file),
+        cmocka_unit_test(test_load_refuses_fifo_and_device),
         cmocka_unit_test(test_mapping_invert_swap_sensitivity),
         cmocka_unit_test(test_cubic_and_zero_offset),
         cmocka_unit_test(test_spnavrc_reader),

@@ -413,6 +413,41 @@ static void test_report_without_renderer(void **st)
     free(page);
 }
 
+/* A hostile reduction history never reaches PLplot as a window it refuses (it printed "PLPLOT
+ * ERROR, ABORTING OPERATION" into export's output): a flat line at 1e20 is drawn, values that are
+ * no number within 1e30 leave the plot out, saying why. */
+static void test_report_hostile_history(void **st)
+{
+    (void)st;
+    static const char *const hist[] = {"[1e20, 1e20]", "[1, 1e300]", "[1, \"x\"]"};
+    char *d = tu_tmpdir("report-history"), cs[4300], cjson[4400], rdir[4400], html[4500];
+    tu_two_blocks_case(d, cs, sizeof cs);
+    snprintf(cjson, sizeof cjson, "%s/case.json", cs);
+    for (size_t i = 0; i < sizeof hist / sizeof hist[0]; i++) {
+        json_t *root = json_load_file(cjson, 0, NULL), *h = json_loads(hist[i], 0, NULL);
+        assert_non_null(root);
+        assert_non_null(h);
+        json_object_set_new(root, "reduction",
+                            json_pack("{s:[{s:i,s:o}]}", "fragments", "id", 1, "history", h));
+        assert_int_equal(json_dump_file(root, cjson, JSON_INDENT(2)), 0);
+        json_decref(root);
+        snprintf(rdir, sizeof rdir, "%s/report-%zu", d, i);
+        char *o = NULL;
+        int rc = tu_run_cli(&o, "export '%s' --report '%s' --platform glfw", cs, rdir);
+        if (rc != 0 || strstr(o, "PLPLOT") || strstr(o, "ABORTING"))
+            fail_msg("history %s: exit %d:\n%s", hist[i], rc, o);
+        free(o);
+        snprintf(html, sizeof html, "%s/index.html", rdir);
+        char *page = tu_slurp(html, NULL);
+        assert_non_null(page);
+        if (i == 0 ? !strstr(page, "convergence.png") : !strstr(page, "not a number within 1e30"))
+            fail_msg("history %s: the page lacks its plot or why", hist[i]);
+        free(page);
+    }
+    tu_rmtree(d);
+    free(d);
+}
+
 /* Bad input: exit 2 naming the option; a failed write (a missing folder) exits 1 naming the file
  * and leaves the earlier export as it was. */
 static void test_bad_input(void **st)
@@ -466,6 +501,7 @@ int main(void)
         cmocka_unit_test(test_stl_closed_in_mm),
         cmocka_unit_test(test_report_in_chromium),
         cmocka_unit_test(test_report_without_renderer),
+        cmocka_unit_test(test_report_hostile_history),
         cmocka_unit_test(test_bad_input),
         cmocka_unit_test(test_error_names_the_target),
     };

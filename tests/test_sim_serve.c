@@ -1,7 +1,8 @@
 /* fracnav-sim serve against fracnav's commands, as a user meets them: a recording that ends with
  * the server, a --fast server recorded at the device's cadence, a wireless model's battery in every
- * program that opens the node, a second server on a served folder refused, and a node this user may
- * not open named as a permission problem. Needs /dev/fuse and root (CI has both); the tests skip
+ * program that opens the node, a second server on a served folder refused (also when two start at
+ * once), a killed server's dead mount removed by the next, and a node this user may not open named
+ * as a permission problem. Needs /dev/fuse and root (CI has both); the tests skip
  * visibly without them. Waits are on events (a node appearing, a child's exit); bounds only catch
  * a hang. */
 #include <stdarg.h>
@@ -10,7 +11,9 @@
 #include <stdint.h>
 #include <cmocka.h>
 
+#include <errno.h>
 #include <fcntl.h>
+#include <limits.h>
 #include <jansson.h>
 #include <libgen.h>
 #include <signal.h>
@@ -223,6 +226,104 @@ static void test_second_serve_on_same_folder_refused(void **st)
     stop_server();
 }
 
+/* Mounts at mnt in this process' mountinfo (a second mount stacks over the first). */
+static int mounts_at_mnt(void)
+{
+    char want[PATH_MAX], line[2 * PATH_MAX], point[PATH_MAX];
+    if (!realpath(workdir, want))
+        return -1;
+    strncat(want, "/mnt", sizeof want - strlen(want) - 1);
+    FILE *f = fopen("/proc/self/mountinfo", "r");
+    int n = 0;
+    while (f && fgets(line, sizeof line, f))
+        n += sscanf(line, "%*s %*s %*s %*s %4095s", point) == 1 && !strcmp(point, want);
+    if (f)
+        fclose(f);
+    return n;
+}
+
+/* Servers a and b started at once: one has exited (its status kept), or both mounted. */
+typedef struct race {
+    pid_t pid[2];
+    int status[2], exited;
+} race;
+
+static int one_exited_or_both_mounted(void *arg)
+{
+    race *r = arg;
+    for (int i = 0; i < 2 && r->exited < 0; i++)
+        if (waitpid(r->pid[i], &r->status[i], WNOHANG) == r->pid[i])
+            r->exited = i;
+    return r->exited >= 0 || mounts_at_mnt() >= 2;
+}
+
+static int node_served(void *arg)
+{
+    struct stat st;
+    char node[600];
+    snprintf(node, sizeof node, "%s/hidraw0", mnt);
+    return stat(node, &st) == 0;
+}
+
+/* The server r->pid[0] serves its node, or has exited (its status kept). */
+static int served_or_exited(void *arg)
+{
+    race *r = arg;
+    if (waitpid(r->pid[0], &r->status[0], WNOHANG) == r->pid[0])
+        r->exited = 0;
+    return r->exited >= 0 || node_served(NULL);
+}
+
+/* Two servers started at once on one folder: the check and the mount are one step, so one mounts
+ * and the other is refused (both mounted in 1 of 5 tries before). */
+static void test_two_serves_at_once_one_mounts(void **st)
+{
+    need_fuse();
+    for (int round = 0; round < 10; round++) {
+        char *argv[] = {(char *)tu_sim(), "serve", "--mount", mnt, "--as", "spacepilot", NULL};
+        race r = {.exited = -1};
+        r.pid[0] = tu_spawn(argv, path_in("a.log"), NULL);
+        r.pid[1] = tu_spawn(argv, path_in("b.log"), NULL);
+        assert_true(tu_wait_for(one_exited_or_both_mounted, &r, TU_WAIT_MAX_S));
+        int mounted = mounts_at_mnt();
+        if (r.exited < 0 || mounted > 1) {
+            kill(r.pid[0], SIGKILL);
+            kill(r.pid[1], SIGKILL);
+            waitpid(r.pid[0], NULL, 0);
+            waitpid(r.pid[1], NULL, 0);
+            tu_unmount(mnt);
+            fail_msg("round %d: both servers mounted (%d mounts at %s)", round, mounted, mnt);
+        }
+        assert_true(WIFEXITED(r.status[r.exited]) && WEXITSTATUS(r.status[r.exited]) == 1);
+        server = r.pid[1 - r.exited];
+        assert_true(tu_wait_for(node_served, NULL, TU_WAIT_MAX_S));
+        assert_int_equal(mounts_at_mnt(), 1);
+        stop_server();
+    }
+}
+
+/* A killed server leaves a dead mount (its root answers ENOTCONN): the next server removes it and
+ * serves, where before every later serve was refused until fusermount3 -u. */
+static void test_dead_mount_removed(void **st)
+{
+    need_fuse();
+    server = tu_serve(mnt, path_in("server.log"), "--as", "spacepilot", NULL);
+    tu_end(server, SIGKILL, "fracnav-sim after SIGKILL");
+    server = 0;
+    struct stat sb;
+    assert_true(stat(mnt, &sb) != 0 && errno == ENOTCONN);
+    char *argv[] = {(char *)tu_sim(), "serve", "--mount", mnt, "--as", "spacenavigator", NULL};
+    race r = {.pid = {tu_spawn(argv, path_in("again.log"), NULL)}, .exited = -1};
+    assert_true(tu_wait_for(served_or_exited, &r, TU_WAIT_MAX_S));
+    char *log = tu_slurp(path_in("again.log"), NULL);
+    if (r.exited >= 0 || !strstr(log, "removed a dead mount"))
+        fail_msg("the next server: %s", log ? log : "");
+    free(log);
+    server = r.pid[0];
+    assert_int_equal(mounts_at_mnt(), 1);
+    stop_server();
+}
+
 /* A node this user may not open (a FUSE mount of root's, as the user nobody): the message says it
  * is a permission problem on that path, not "no controller" and not the udev rule. */
 static void test_node_without_permission(void **st)
@@ -267,6 +368,8 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_record_from_fast_keeps_cadence, setup, teardown),
         cmocka_unit_test_setup_teardown(test_wireless_battery_for_every_open, setup, teardown),
         cmocka_unit_test_setup_teardown(test_second_serve_on_same_folder_refused, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_two_serves_at_once_one_mounts, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_dead_mount_removed, setup, teardown),
         cmocka_unit_test_setup_teardown(test_node_without_permission, setup, teardown),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

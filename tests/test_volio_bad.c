@@ -837,7 +837,7 @@ static void test_seg_nrrd_checked_before_reading(void **st)
     expect_labels_error(p, "Segment0_LabelValue: '0' is not a whole number >= 1", NULL);
     write_nrrd(p, "NRRD0004\ntype: unsigned char\ndimension: 4\nsizes: 2 2 2 2\nspacings: 1 1 1 1\n"
                   "encoding: raw\nSegment0_LabelValue:=1\nSegment0_Layer:=0\nSegment123456_Layer:=0\n\n", 16);
-    expect_labels_error(p, "Segment123456_Layer: over 65535 segments", NULL);
+    expect_labels_error(p, "line 9: Segment123456_Layer:=0: over 256 segments", NULL);
     /* volio_read still reads 3D only */
     write_nrrd(p, SEG4_HEAD("unsigned char", "2 2 2 2", "raw"), 16);
     expect_error(p, "dimension: 4, only 3D volumes are supported", NULL);
@@ -934,6 +934,95 @@ static void test_inv3_entries_bounded(void **st)
     free(pl);
 }
 
+/* What the NIfTI-1 standard forbids is refused by name, never read as something else: nifticlib
+ * reads a NaN scl_slope or an infinite scl_inter as 0 (unscaled voxels), and a vox_offset of
+ * 349.5 read the voxels shifted. */
+static void test_nifti_scaling_and_offset_refused(void **st)
+{
+    const char *p = in_dir("scl.nii");
+    nifti_1_header h = good_header(4, 4, 4, DT_INT16, 16);
+    h.scl_slope = NAN;
+    write_nii(p, &h, 128, 0);
+    expect_error(p, "scl_slope is nan", NULL);
+    h.scl_slope = 2;
+    h.scl_inter = INFINITY;
+    write_nii(p, &h, 128, 0);
+    expect_error(p, "scl_inter is inf", NULL);
+    h.scl_slope = 0; /* no scaling: the intercept is unused */
+    write_nii(p, &h, 128, 0);
+    vol *v = volio_read(p);
+    if (!v)
+        fail_msg("%s", fn_err_msg());
+    vol_free(v);
+    h.scl_slope = 2;
+    h.scl_inter = 10;
+    write_nii(p, &h, 128, 0);
+    v = volio_read(p);
+    if (!v)
+        fail_msg("%s", fn_err_msg());
+    int16_t first = (int16_t)((352 * 37 & 0xff) | (353 * 37 & 0xff) << 8);
+    assert_true(v->data[0] == 2.0f * first + 10);
+    vol_free(v);
+    h = good_header(4, 4, 4, DT_INT16, 16);
+    h.vox_offset = 349.5f;
+    write_nii(p, &h, 128, 0);
+    expect_error(p, "vox_offset is 349.5, must be a whole number of bytes", NULL);
+}
+
+/* Spacings outside a micron to a metre are refused at read time, naming the field: at 1e15 mm
+ * reduce's contact search never finished. */
+static void test_spacing_physical_range(void **st)
+{
+    const char *p = in_dir("huge.nrrd");
+    write_nrrd(p, NRRD_HEAD "sizes: 4 4 4\nspacings: 1 1e15 1\n\n", 128);
+    expect_error(p, "spacings: axis 1 is 1e+15 mm, outside a micron to a metre", NULL);
+    write_nrrd(p, NRRD_HEAD "sizes: 4 4 4\nspacings: 1 1 0.0001\n\n", 128);
+    expect_error(p, "spacings: axis 2 is 0.0001 mm", NULL);
+    write_nrrd(p, NRRD_HEAD "sizes: 4 4 4\nspace: left-posterior-superior\n"
+                  "space directions: (1e15,0,0) (0,1,0) (0,0,1)\n\n", 128);
+    expect_error(p, "space directions: axis 0 is 1e+15 mm", NULL);
+    write_nrrd(p, NRRD_HEAD "sizes: 4 4 4\nspacings: 0.001 1000 0.5\n\n", 128);
+    vol *v = volio_read(p);
+    if (!v)
+        fail_msg("a micron and a metre are in range: %s", fn_err_msg());
+    vol_free(v);
+    p = in_dir("huge.nii");
+    nifti_1_header h = good_header(4, 4, 4, DT_INT16, 16);
+    h.sform_code = 0;
+    h.pixdim[3] = 1e15f;
+    write_nii(p, &h, 128, 0);
+    expect_error(p, "pixdim", "axis 2 is 1e+15 mm");
+    h = good_header(4, 4, 4, DT_INT16, 16);
+    h.srow_x[0] = 2e3f;
+    write_nii(p, &h, 128, 0);
+    expect_error(p, "sform", "axis 0 is 2000 mm");
+}
+
+/* info on a volume whose every voxel is NaN has no range: it says so (null in --json). */
+static void test_info_all_nan(void **st)
+{
+    const char *p = in_dir("nan.nrrd");
+    float nan[8];
+    for (int i = 0; i < 8; i++)
+        nan[i] = NAN;
+    const char *head = "NRRD0004\ntype: float\ndimension: 3\nsizes: 2 2 2\nspacings: 1 1 1\n"
+                       "endian: little\nencoding: raw\n\n";
+    unsigned char b[256];
+    memcpy(b, head, strlen(head));
+    memcpy(b + strlen(head), nan, sizeof nan);
+    tu_write_file(p, b, strlen(head) + sizeof nan);
+    char *out = NULL;
+    assert_int_equal(tu_run_cli(&out, "info '%s'", p), 0);
+    if (!strstr(out, "range:       none (every voxel is NaN)") || strstr(out, "inf"))
+        fail_msg("got: %s", out);
+    free(out);
+    out = NULL;
+    assert_int_equal(tu_run_cli(&out, "info '%s' --json", p), 0);
+    if (!strstr(out, "\"range\": null"))
+        fail_msg("got: %s", out);
+    free(out);
+}
+
 static void test_cli_reports_bad_file(void **st)
 {
     const char *p = in_dir("cli.nii");
@@ -970,6 +1059,9 @@ int main(void)
         cmocka_unit_test(test_only_regular_files),
         cmocka_unit_test(test_nifti_extension_not_read),
         cmocka_unit_test(test_inv3_entries_bounded),
+        cmocka_unit_test(test_nifti_scaling_and_offset_refused),
+        cmocka_unit_test(test_spacing_physical_range),
+        cmocka_unit_test(test_info_all_nan),
         cmocka_unit_test(test_cli_reports_bad_file),
     };
     return cmocka_run_group_tests(tests, setup, teardown);

@@ -16,7 +16,7 @@ static void usage(FILE *out)
                  "(LPS mm, 3x4: world = A * [i j k 1]) and intensity range.\n"
                  "FILE: .nii .nii.gz .nrrd .nhdr .inv3, or a folder of DICOM files (via dcm2niix).\n\n"
                  "  --json   one JSON object instead of text: command, file, dim, type, spacing_mm,\n"
-                 "           space, affine (3x4), range\n"
+                 "           space, affine (3x4), range (null when every voxel is NaN)\n"
                  "  --help   this text\n");
 }
 
@@ -30,7 +30,10 @@ static void print_text(const char *path, const vol *v, float lo, float hi)
     for (int r = 0; r < 3; r++) /* + 0.0 prints -0 as 0 */
         printf("  [ %12.6f %12.6f %12.6f %12.6f ]\n", v->affine[r][0] + 0.0, v->affine[r][1] + 0.0,
                v->affine[r][2] + 0.0, v->affine[r][3] + 0.0);
-    printf("range:       %.6g .. %.6g\n", lo, hi);
+    if (lo <= hi)
+        printf("range:       %.6g .. %.6g\n", lo, hi);
+    else
+        printf("range:       none (every voxel is NaN)\n");
 }
 
 static int print_json(const char *path, const vol *v, float lo, float hi)
@@ -46,7 +49,7 @@ static int print_json(const char *path, const vol *v, float lo, float hi)
         jsonw_set(o, "spacing_mm", jsonw_exact_array(v->spacing, 3));
         jsonw_set(o, "space", json_string("LPS"));
         jsonw_set(o, "affine", aff);
-        jsonw_set(o, "range", jsonw_exact_array(range, 2));
+        jsonw_set(o, "range", lo <= hi ? jsonw_exact_array(range, 2) : json_null());
     } else
         json_decref(aff);
     return jsonw_print(o, stdout);

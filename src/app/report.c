@@ -119,7 +119,8 @@ static int draw_plot(const char *tmp, void *vctx)
             hi = v > hi ? v : hi;
         }
     }
-    double pad = hi > lo ? 0.05 * (hi - lo) : 0.05;
+    /* a margin PLplot can tell from the values: 0.05 at 1e20 is lost and plenv aborts */
+    double pad = 0.05 * fmax(hi > lo ? hi - lo : 1.0, 1e-3 * fmax(fabs(lo), fabs(hi)));
     plsdev("pngcairo");
     plsfnam(tmp);
     plspage(0, 0, 800, 480, 0, 0);
@@ -157,6 +158,18 @@ static int draw_plot(const char *tmp, void *vctx)
 }
 #endif
 
+/* 1 when every value of a history is a number PLplot can place (|v| <= 1e30). */
+static int plottable(json_t *h)
+{
+    size_t i;
+    json_t *v;
+    json_array_foreach(h, i, v) {
+        if (!json_is_number(v) || !(fabs(json_number_value(v)) <= 1e30))
+            return 0;
+    }
+    return 1;
+}
+
 /* The convergence plot; 1 when drawn, 0 when there is nothing to plot (why in *why). */
 static int plot(const planning_case *c, const char *dir, const char **why, report_wrote_fn wrote, void *ctx)
 {
@@ -164,6 +177,10 @@ static int plot(const planning_case *c, const char *dir, const char **why, repor
     int ids[64], n = 0;
     for (int i = 0; i < c->nfrag && n < 64; i++) {
         json_t *e = record_of(c, c->frag[i].id), *h = e ? json_object_get(e, "history") : NULL;
+        if (json_array_size(h) > 0 && !plottable(h)) {
+            *why = "the case's reduction record holds a history value that is not a number within 1e30";
+            return 0;
+        }
         if (json_array_size(h) > 0) {
             hist[n] = h;
             ids[n++] = c->frag[i].id;

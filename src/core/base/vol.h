@@ -48,7 +48,7 @@ static inline size_t vol_idx(const vol *v, int i, int j, int k)
 void vol_index_to_world(const vol *v, const double ijk[3], double lps[3]);
 /* The inverse, for orthogonal affines. */
 void vol_world_to_index(const vol *v, const double lps[3], double ijk[3]);
-/* Minimum and maximum voxel value. */
+/* Minimum and maximum voxel value, NaN left out; lo > hi (+inf, -inf) when every voxel is NaN. */
 void vol_range(const vol *v, float *lo, float *hi);
 const char *vol_type_name(vol_type t);
 

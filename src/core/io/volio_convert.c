@@ -29,6 +29,16 @@ int volio__check_axes(const double m[3][3], const char *path, const char *field)
     return 0;
 }
 
+int volio__check_spacing(const double sp[3], const char *path, const char *field)
+{
+    for (int c = 0; c < 3; c++)
+        if (!(sp[c] >= VOLIO_MIN_SPACING_MM && sp[c] <= VOLIO_MAX_SPACING_MM))
+            return fn_err_set(FN_EFORMAT, "%s: %s: axis %d is %g mm, outside a micron to a metre "
+                              "(%g..%g mm)", path, field, c, sp[c], VOLIO_MIN_SPACING_MM,
+                              VOLIO_MAX_SPACING_MM);
+    return 0;
+}
+
 int volio__set_affine(vol *v, const double a[3][3], const double origin[3], const char *path,
                       const char *field)
 {
@@ -36,8 +46,11 @@ int volio__set_affine(vol *v, const double a[3][3], const double origin[3], cons
     if (rc < 0)
         return rc;
     double dir[3][3], sp[3];
-    for (int c = 0; c < 3; c++) {
+    for (int c = 0; c < 3; c++)
         sp[c] = sqrt(a[0][c] * a[0][c] + a[1][c] * a[1][c] + a[2][c] * a[2][c]);
+    if ((rc = volio__check_spacing(sp, path, field)) < 0)
+        return rc;
+    for (int c = 0; c < 3; c++) {
         for (int r = 0; r < 3; r++)
             dir[r][c] = a[r][c] / sp[c];
     }

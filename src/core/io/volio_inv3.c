@@ -318,9 +318,10 @@ static int read_info(char *text, size_t len, const char *path, inv3_info *info)
         rc = fn_err_set(FN_EFORMAT, "%s: main.plist: matrix.dtype missing or unsupported (uint8..float64)", path);
     } else if (node_triple(&p, dict_get(&p, matrix, "shape"), shape) < 0) {
         rc = fn_err_set(FN_EFORMAT, "%s: main.plist: matrix.shape must be 3 integers", path);
-    } else if (node_triple(&p, dict_get(&p, root, "spacing"), info->spacing) < 0 ||
-               !(info->spacing[0] > 0 && info->spacing[1] > 0 && info->spacing[2] > 0)) {
-        rc = fn_err_set(FN_EFORMAT, "%s: main.plist: spacing must be 3 positive numbers", path);
+    } else if (node_triple(&p, dict_get(&p, root, "spacing"), info->spacing) < 0) {
+        rc = fn_err_set(FN_EFORMAT, "%s: main.plist: spacing must be 3 numbers", path);
+    } else if (volio__check_spacing(info->spacing, path, "main.plist: spacing") < 0) {
+        rc = FN_EFORMAT; /* the message names the axis */
     } else if (!orientation_ok(&p, dict_get(&p, root, "orientation"))) {
         rc = fn_err_set(FN_EFORMAT, "%s: main.plist: orientation must be 0-3 or AXIAL/CORONAL/SAGITAL", path);
     } else {

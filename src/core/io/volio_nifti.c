@@ -93,6 +93,8 @@ static int check_header(const unsigned char *h, size_t n, const char *path, int6
     if (off.f > 1e9)
         return fn_err_set(FN_EFORMAT, "%s: vox_offset is %g, too large: the data would start beyond "
                                       "the end of the file (over 1e9 bytes in)", path, off.f);
+    if (off.f != floorf(off.f))
+        return fn_err_set(FN_EFORMAT, "%s: vox_offset is %g, must be a whole number of bytes", path, off.f);
     *vox_offset = (uint64_t)off.f;
     *bytes = (uint64_t)dim[0] * (uint64_t)dim[1] * (uint64_t)dim[2] * volio__type_size(t);
     return 0;
@@ -155,6 +157,19 @@ static int check_geometry_fields(const unsigned char *h, const char *path)
     return 0;
 }
 
+/* nifticlib reads a non-finite scl_slope or scl_inter as 0 (no scaling): the voxels would be read
+ * unscaled without a word. A slope of 0 means no scaling, and then the intercept is unused. */
+static int check_scaling(const unsigned char *h, const char *path)
+{
+    int swap = get32(h, 0) != HDR_SIZE;
+    float slope = getf(h, FIELD(scl_slope), swap), inter = getf(h, FIELD(scl_inter), swap);
+    if (!isfinite(slope))
+        return fn_err_set(FN_EFORMAT, "%s: scl_slope is %g, must be finite (0: no scaling)", path, slope);
+    if (slope != 0 && !isfinite(inter))
+        return fn_err_set(FN_EFORMAT, "%s: scl_inter is %g, must be finite", path, inter);
+    return 0;
+}
+
 /* Reads the header (through zlib, so .nii and .nii.gz alike) into h and checks it against the
  * file's size and the memory budget. */
 static int precheck(const char *path, unsigned char h[HDR_SIZE])
@@ -175,7 +190,7 @@ static int precheck(const char *path, unsigned char h[HDR_SIZE])
     int64_t dim[3];
     uint64_t bytes = 0, off = 0;
     if (rc < 0 || (rc = check_header(h, (size_t)got, path, dim, &bytes, &off)) < 0 ||
-        (rc = check_geometry_fields(h, path)) < 0)
+        (rc = check_geometry_fields(h, path)) < 0 || (rc = check_scaling(h, path)) < 0)
         return rc;
     if (!direct && off > HDR_SIZE + EXT_MAX_GZ)
         return fn_err_set(FN_EFORMAT, "%s: vox_offset is %llu: header extensions over %d MiB in a .nii.gz "
@@ -220,7 +235,7 @@ static int load_data(const nifti_image *nim, const char *path, vol_type t, vol *
     size_t es = volio__type_size(t), n = vol_count(v);
     int swap = nim->byteorder != nifti_short_order() && es > 1;
     double slope = nim->scl_slope, inter = nim->scl_inter;
-    if (slope == 0 || !isfinite(slope) || !isfinite(inter)) {
+    if (slope == 0) { /* non-finite values were refused with the header */
         slope = 1;
         inter = 0;
     }

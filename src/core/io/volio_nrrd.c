@@ -10,7 +10,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <strings.h>
 #include <sys/stat.h>
 #include <teem/nrrd.h>
 #include <zlib.h>
@@ -174,8 +173,10 @@ static int geometry(const Nrrd *n, const int *seen, const char *path, unsigned a
             sp[c] = s;
             org[c] = seen[nrrdField_axis_mins] ? m : 0.0;
         }
-        vol_set_geometry(v, eye, sp, org);
-        return 0;
+        int rc = volio__check_spacing(sp, path, "spacings");
+        if (rc == 0)
+            vol_set_geometry(v, eye, sp, org);
+        return rc;
     }
     switch (n->space) {
     case nrrdSpaceRightAnteriorSuperior: flip[0] = flip[1] = -1; break;
@@ -206,50 +207,7 @@ static int geometry(const Nrrd *n, const int *seen, const char *path, unsigned a
     return volio__set_affine(v, a, org, path, "space directions");
 }
 
-/* A detached header's one data file (data file: NAME, relative to the header's folder) must be
- * a regular file before teem opens it: opening a FIFO would block. The LIST and numbered forms
- * are left to teem (and to check_size, which checks the first file it opened). */
-static int data_file_regular(const char *path, const char *v)
-{
-    v += strspn(v, " \t");
-    int n = (int)strcspn(v, "\r\n");
-    if (n == 0 || memchr(v, ' ', (size_t)n) || (n == 4 && !strncmp(v, "LIST", 4)))
-        return 0;
-    char name[8200];
-    const char *slash = strrchr(path, '/');
-    if (v[0] == '/' || !slash)
-        snprintf(name, sizeof name, "%.*s", n, v);
-    else
-        snprintf(name, sizeof name, "%.*s/%.*s", (int)(slash - path), path, n, v);
-    struct stat st;
-    if (stat(name, &st) == 0 && !S_ISREG(st.st_mode))
-        return fn_err_set(FN_EFORMAT, "%s: data file: %s is not a regular file (a device or FIFO?)",
-                          path, name);
-    return 0;
-}
-
-/* Header lines that must be refused before teem reads them: a data file that is not a regular
- * file, and a block size (only for type block, not supported: teem 1.12 finds the mismatch only
- * after reading, then leaks and closes the file it was asked to keep open). */
-static int prescan(const char *path)
-{
-    FILE *f = fopen(path, "rb");
-    if (!f)
-        return 0; /* teem reports it */
-    char line[4096];
-    int rc = 0;
-    while (rc == 0 && fgets(line, sizeof line, f) && line[0] != '\n' && strcmp(line, "\r\n") != 0) {
-        if (!strncasecmp(line, "data file:", 10) || !strncasecmp(line, "datafile:", 9))
-            rc = data_file_regular(path, strchr(line, ':') + 1);
-        else if (!strncasecmp(line, "block size:", 11) || !strncasecmp(line, "blocksize:", 10))
-            rc = fn_err_set(FN_EFORMAT, "%s: block size: only for type block, which is not supported", path);
-    }
-    fclose(f);
-    return rc;
-}
-
 /* A .seg.nrrd's segment keys, checked with the header. */
-#define MAX_SEGMENTS 65535 /* fragment labels are 1..65535 */
 typedef struct seg_keys {
     int n;      /* segments (Segment0.. Segment<n-1>); 0: no segment keys */
     int layers; /* 1 for a 3D file, else the first axis' size */
@@ -261,21 +219,6 @@ static void seg_keys_free(seg_keys *k)
     free(k->layer);
     free(k->value);
     memset(k, 0, sizeof *k);
-}
-
-/* N of a key "Segment<N>_...", or -1 ("Segmentation_..." and every other key); -2 when N has
- * more digits than any segment number may. */
-static int segment_number(const char *key)
-{
-    if (strncmp(key, "Segment", 7) != 0)
-        return -1;
-    const char *d = key + 7;
-    size_t nd = strspn(d, "0123456789");
-    if (nd == 0 || d[nd] != '_')
-        return -1;
-    if (nd > 5)
-        return -2;
-    return atoi(d);
 }
 
 /* A whole number lo..hi written in a key's value (blanks around it allowed), else -1. */
@@ -304,20 +247,15 @@ static int segment_keys(const Nrrd *n, const char *path, int layers, seg_keys *k
     memset(k, 0, sizeof *k);
     k->layers = layers;
     int count = 0, rc = 0;
-    for (unsigned i = 0; i < nrrdKeyValueSize(n) && rc == 0; i++) {
+    for (unsigned i = 0; i < nrrdKeyValueSize(n); i++) { /* segment numbers: bounded by the scan */
         char *key = NULL, *val = NULL;
         nrrdKeyValueIndex(n, &key, &val, i);
-        int seg = key ? segment_number(key) : -1;
-        if (seg == -2 || seg >= MAX_SEGMENTS)
-            rc = fn_err_set(FN_EFORMAT, "%s: %s: over %d segments (fragments are 1..%d)", path, key,
-                            MAX_SEGMENTS, MAX_SEGMENTS);
-        else if (seg + 1 > count)
+        int seg = key ? volio__segment_number(key) : -1;
+        if (seg + 1 > count)
             count = seg + 1;
         free(key);
         free(val);
     }
-    if (rc < 0)
-        return rc;
     if (count == 0)
         return layers > 1 ? fn_err_set(FN_EFORMAT, "%s: dimension: 4 without Segment<N>_ keys: not a 3D "
                                        "Slicer segmentation (.seg.nrrd), the only 4D labelmap read",
@@ -369,9 +307,9 @@ static int layer_axis(const Nrrd *n, const char *path)
     if (n->spaceDim > 0 && isfinite(a->spaceDirection[0]))
         return fn_err_set(FN_EFORMAT, "%s: space directions: axis 0 has one; a 4D .seg.nrrd's first axis "
                           "lists its layers (none)", path);
-    if (a->size < 1 || a->size > MAX_SEGMENTS)
+    if (a->size < 1 || a->size > VOLIO_MAX_SEGMENTS)
         return fn_err_set(FN_EFORMAT, "%s: sizes: %zu layers (must be 1..%d)", path, a->size,
-                          MAX_SEGMENTS);
+                          VOLIO_MAX_SEGMENTS);
     return 0;
 }
 
@@ -382,7 +320,7 @@ static int precheck(const char *path, seg_keys *k)
 {
     if (k)
         memset(k, 0, sizeof *k);
-    if (prescan(path) < 0)
+    if (volio__nrrd_scan(path, k != NULL) < 0)
         return FN_EFORMAT;
     Nrrd *n = nrrdNew();
     NrrdIoState *nio = nrrdIoStateNew();
@@ -391,7 +329,7 @@ static int precheck(const char *path, seg_keys *k)
     nio->skipData = 1;
     nio->keepNrrdDataFileOpen = 1;
     if (nrrdLoad(n, path, nio)) {
-        nio->dataFile = NULL; /* teem may have closed it already (see prescan) */
+        nio->dataFile = NULL; /* teem may have closed it already (see block size in volio_nrrdhdr.c) */
         rc = teem_error(FN_EFORMAT, path, "header");
     } else if (n->dim != 3 && !(k && n->dim == 4)) {
         rc = fn_err_set(FN_EFORMAT, "%s: dimension: %u, only 3D volumes are supported%s", path, n->dim,
