@@ -790,6 +790,15 @@ static void free_trees(obb_tree **t, int n)
     free(t);
 }
 
+double reduce_tolerance(const reduce_opts *o, const frag *const *f, int n)
+{
+    double smin = INFINITY;
+    for (int i = 0; i < n; i++)
+        for (int a = 0; a < 3; a++)
+            smin = fmin(smin, f[i]->spacing[a]);
+    return fmin(o->tolerance_mm, 0.45 * smin);
+}
+
 int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_opts *o, reduce_result *r)
 {
     if (!asm_ || nasm < 1 || !moving || !o || !r)
@@ -799,13 +808,10 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
     r->id = moving->id;
     r->placed = moving->pose;
     obb_params op = {o->tau_min, o->tau_max};
-    /* the query takes tolerances below half a voxel */
-    double smin = fmin(moving->spacing[0], fmin(moving->spacing[1], moving->spacing[2]));
-    for (int f = 0; f < nasm; f++)
-        for (int a = 0; a < 3; a++)
-            smin = fmin(smin, asm_[f]->spacing[a]);
+    const frag *mv = moving;
+    double tol = fmin(reduce_tolerance(o, asm_, nasm), reduce_tolerance(o, &mv, 1));
     pair_ctx pc = {asm_, nasm, moving, calloc((size_t)nasm + 1, sizeof(obb_tree *)),
-                   {.threshold = 0, .tolerance_mm = fmin(o->tolerance_mm, 0.45 * smin)}, NULL};
+                   {.threshold = 0, .tolerance_mm = tol}, NULL};
     reduce_bricks *b = reduce__bricks_new(moving);
     reduce_metric *m = NULL;
     fit F = {0};

@@ -158,6 +158,10 @@ typedef struct reduce_opts {
  * tolerance 0.5 mm, xtol 0.01 mm, 4000 evaluations (all stages, attempts and hops together). */
 void reduce_defaults(reduce_opts *o);
 
+/* The collision tolerance a fit of these fragments works at: o->tolerance_mm, at most 0.45 times
+ * the smallest voxel spacing among them (the query takes tolerances below half a voxel). */
+double reduce_tolerance(const reduce_opts *o, const frag *const *f, int n);
+
 typedef struct reduce_result {
     int id;               /* the moving fragment's label */
     pose placed;          /* its pose before (as the user left it) */

@@ -4,6 +4,7 @@
 #include "case_journal.h"
 #include "err.h"
 #include "obb.h"
+#include "reduce.h"
 
 #include <errno.h>
 #include <math.h>
@@ -88,6 +89,15 @@ static session *alloc_session(void)
  * session saved as overlapping within a fit's tolerance ("penetrating", within_fit_tolerance). */
 static void tolerate_reduced(session *s)
 {
+    json_t *red = json_object_get(s->c->extra, "reduction");
+    reduce_opts o;
+    reduce_defaults(&o);
+    if (json_is_number(json_object_get(red, "tolerance_mm")))
+        o.tolerance_mm = json_number_value(json_object_get(red, "tolerance_mm"));
+    const frag *all[LOOP_MAX_FRAGS];
+    for (int i = 0; i < s->nfrag; i++)
+        all[i] = &s->frags[i];
+    double tol = reduce_tolerance(&o, all, s->nfrag);
     json_t *pen = json_object_get(s->c->extra, "penetrating"), *e;
     size_t n;
     json_array_foreach(pen, n, e) {
@@ -95,9 +105,9 @@ static void tolerate_reduced(session *s)
             continue;
         json_t *ids = json_object_get(e, "fragments");
         for (size_t a = 0; a < 2; a++)
-            loop_tolerate(s->L, case_find(s->c, (int)json_integer_value(json_array_get(ids, a))));
+            loop_tolerate(s->L, case_find(s->c, (int)json_integer_value(json_array_get(ids, a))), tol);
     }
-    json_t *frs = json_object_get(json_object_get(s->c->extra, "reduction"), "fragments"), *fr;
+    json_t *frs = json_object_get(red, "fragments"), *fr;
     size_t k;
     json_array_foreach(frs, k, fr) {
         int i = case_find(s->c, (int)json_integer_value(json_object_get(fr, "id")));
@@ -111,7 +121,7 @@ static void tolerate_reduced(session *s)
         for (int a = 0; a < 3; a++)
             d = fmax(d, fabs(json_number_value(json_array_get(t, (size_t)a)) - now.t[a]));
         if (d < 1e-9)
-            loop_tolerate(s->L, i);
+            loop_tolerate(s->L, i, tol);
     }
 }
 
@@ -283,7 +293,7 @@ static int check_penetration(session *s)
         for (int b = a + 1; rc == 0 && b < c->nfrag; b++) {
             loop_contact ct;
             double mm3 = 0;
-            rc = col.query(col.ctx, a, &c->frag[a].pose, b, &c->frag[b].pose, NULL, &ct);
+            rc = col.query(col.ctx, a, &c->frag[a].pose, b, &c->frag[b].pose, 0, NULL, &ct);
             if (rc < 0 || !ct.collides)
                 continue;
             rc = col.overlap(col.ctx, a, &c->frag[a].pose, b, &c->frag[b].pose, &mm3);
