@@ -716,6 +716,61 @@ static void test_fitted_fragment_moved(void **st)
     free(fdir);
 }
 
+/* One overlap figure: block B pushed 4 mm into A (2 mm apart: 2 mm inside, over B's 12x12 mm
+ * face, parallel grids, so 0.288 ml exactly) is saved by a session and recorded by reduce_store
+ * with the same overlap_ml, case_overlap_ml's. Before, the session summed its voxel pairs' boxes
+ * (0.547 ml on the demo's reduced pose) and the report counted a resampled labelmap (0.142 ml). */
+static void test_one_overlap_figure(void **st)
+{
+    (void)st;
+    session *s = open_case(0);
+    pose p[2] = {pose_of(s, 0), moved_by(pose_of(s, 1), 0, -4.0)};
+    uint8_t fixed[2] = {1, 0};
+    assert_int_equal(session_save_case(s, p, fixed), 0);
+    json_t *e = json_array_get(session_penetrating(s), 0);
+    assert_non_null(e);
+    double saved = json_number_value(json_object_get(e, "overlap_ml"));
+    assert_false(json_is_true(json_object_get(e, "within_fit_tolerance")));
+    session_close(s);
+    planning_case *c = case_load(case_dir);
+    assert_non_null(c);
+    double ml = case_overlap_ml(c, 0, 1);
+    print_message("session %.6f ml, case_overlap_ml %.6f ml\n", saved, ml);
+    assert_true(fabs(ml - 0.288) < 1e-9);
+    assert_true(saved == ml);
+    /* turned 10 degrees (grids no longer parallel), the session's figure is still the one */
+    double axis[3] = {0, 0, 1}, c1[3];
+    pose turn = pose_from_axis_angle(axis, 10 * M_PI / 180);
+    pose_apply(&p[1], c->frag[1].centroid, c1);
+    double rc1[3];
+    pose_rotate(&turn, c1, rc1);
+    for (int i = 0; i < 3; i++)
+        turn.t[i] = c1[i] - rc1[i];
+    c->frag[1].pose = p[1] = pose_compose(turn, p[1]);
+    s = open_case(0);
+    assert_int_equal(session_save_case(s, p, fixed), 0);
+    double turned = json_number_value(json_object_get(json_array_get(session_penetrating(s), 0), "overlap_ml"));
+    session_close(s);
+    print_message("turned: session %.6f ml, case_overlap_ml %.6f ml\n", turned, case_overlap_ml(c, 0, 1));
+    assert_true(turned == case_overlap_ml(c, 0, 1));
+    reduce_opts o;
+    reduce_defaults(&o);
+    reduce_result r;
+    memset(&r, 0, sizeof r);
+    r.id = c->frag[1].id;
+    assert_int_equal(reduce_store(c, 0, &o, &r, 1), 0);
+    assert_int_equal(case_save(c), 0);
+    case_free(c);
+    char path[4300];
+    snprintf(path, sizeof path, "%s/case.json", case_dir);
+    json_t *j = json_load_file(path, 0, NULL);
+    e = json_array_get(json_object_get(j, "penetrating"), 0);
+    assert_non_null(e);
+    assert_true(json_number_value(json_object_get(e, "overlap_ml")) == turned);
+    assert_true(json_is_true(json_object_get(e, "within_fit_tolerance")));
+    json_decref(j);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -728,6 +783,7 @@ int main(void)
         cmocka_unit_test_setup(test_fit_leaves_the_gap, fresh_case),
         cmocka_unit_test(test_fit_lands_on_a_rough_fracture),
         cmocka_unit_test(test_fitted_fragment_moved),
+        cmocka_unit_test_setup(test_one_overlap_figure, fresh_case),
         cmocka_unit_test_setup(test_propose_from_threads, fresh_case),
         cmocka_unit_test_setup(test_journal_recovery_and_save, fresh_case),
         cmocka_unit_test_setup(test_save_at_stop, fresh_case),

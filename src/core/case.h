@@ -88,6 +88,26 @@ int case_rebuild(planning_case *c, int new_id, int parent_id);
 /* Index of the fragment with label id, or -1. */
 int case_find(const planning_case *c, int id);
 
+/* The overlap of fragments a and b (indices) at their poses: the volume (ml) in which their bone
+ * voxels (obb.h's effective probability > 0 under the case's tau) overlap, sampled at 27 points
+ * per voxel of a. The one overlap figure: navigate's and reduce's saves, case.json's
+ * "penetrating" and the report use it. */
+double case_overlap_ml(const planning_case *c, int a, int b);
+
+typedef struct case_overlap {
+    int a, b;   /* fragment indices, a < b */
+    double ml;  /* case_overlap_ml */
+    int fitted; /* fitted[a] || fitted[b]: a fit left them so, within its tolerance */
+} case_overlap;
+
+/* The pairs that interpenetrate at the case's poses (obb_collide at tolerance 0, as the loop
+ * checks), with their overlap; the first max go to out (may be NULL). fitted: per fragment (NULL
+ * = none). Returns how many, or FN_E*. */
+int case_penetrating(const planning_case *c, const uint8_t *fitted, case_overlap *out, int max);
+/* Records o[0..n-1] as case.json's "penetrating" ({"fragments": [id, id], "overlap_ml",
+ * "within_fit_tolerance"}), or removes it when n is 0. 0 or FN_ENOMEM. */
+int case_record_penetrating(planning_case *c, const case_overlap *o, int n);
+
 /* sha256 of a file's bytes as 64 hex digits. 0 or FN_EIO (also for a file that is not regular:
  * a FIFO or a device would never end or never start). */
 int case_file_sha256(const char *path, char hex[65]);

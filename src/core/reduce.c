@@ -1290,7 +1290,22 @@ int reduce_store(planning_case *c, int fixed, const reduce_opts *o, const reduce
         json_decref(rec);
     if (!c->extra)
         c->extra = extra;
-    return ok ? 0 : fn_err_set(FN_ENOMEM, "reduce: out of memory for the case record");
+    if (!ok)
+        return fn_err_set(FN_ENOMEM, "reduce: out of memory for the case record");
+    size_t npairs = (size_t)c->nfrag * (size_t)c->nfrag / 2 + 1;
+    uint8_t *fitted = calloc((size_t)c->nfrag + 1, 1);
+    case_overlap *pen = malloc(npairs * sizeof *pen);
+    int rc = fitted && pen ? 0 : fn_err_set(FN_ENOMEM, "reduce: out of memory for the case record");
+    for (int i = 0; i < n && rc == 0; i++) {
+        int k = case_find(c, r[i].id);
+        if (k >= 0)
+            fitted[k] = 1;
+    }
+    if (rc == 0 && (rc = case_penetrating(c, fitted, pen, (int)npairs)) >= 0)
+        rc = case_record_penetrating(c, pen, rc);
+    free(fitted);
+    free(pen);
+    return rc;
 }
 
 int reduce_fit_one(const frag *const *others, int nothers, const frag *moving, const pose *start,

@@ -216,7 +216,6 @@ void session__free(session *s)
     if (s->jr)
         journal_close(s->jr);
     loop_obb_free(s->obb);
-    loop_obb_free(s->check);
     json_decref(s->penetrating);
     case_free(s->c);
     ring_free(s->in);
@@ -277,49 +276,30 @@ static void rebind(session *s)
 static int check_penetration(session *s)
 {
     planning_case *c = s->c;
-    if (!s->check) {
-        obb_params op = {c->tau_min, c->tau_max};
-        if (!(s->check = loop_obb_new(c->frag, c->nfrag, &op, NULL)))
-            return FN_EFORMAT;
-    }
-    loop_collider col = loop_obb_collider(s->check);
     /* Why they overlap: the loop refuses every move into another fragment while it checks. */
     loop_scene sc;
     loop_scene_read(s->L, &sc);
     const char *why = sc.stats.unchecked ? "moved while collision checking was off" : "as the case was loaded";
-    json_t *list = json_array();
-    int rc = 0;
-    for (int a = 0; rc == 0 && a < c->nfrag; a++)
-        for (int b = a + 1; rc == 0 && b < c->nfrag; b++) {
-            loop_contact ct;
-            double mm3 = 0;
-            rc = col.query(col.ctx, a, &c->frag[a].pose, b, &c->frag[b].pose, 0, NULL, &ct);
-            if (rc < 0 || !ct.collides)
-                continue;
-            rc = col.overlap(col.ctx, a, &c->frag[a].pose, b, &c->frag[b].pose, &mm3);
-            /* a fit (reduce, or the fit action) left one of them there: inside by no more than
-             * its tolerance, where the voxel surfaces of the two sides interlock */
-            int fitted = sc.tolerated_frag[a] || sc.tolerated_frag[b];
-            json_array_append_new(list, json_pack("{s:[i,i],s:f,s:b}", "fragments", c->frag[a].id, c->frag[b].id,
-                                                  "overlap_ml", mm3 / 1000, "within_fit_tolerance", fitted));
-            if (fitted)
-                fprintf(stderr, "\nnote: fragments %d and %d overlap by %.3f ml where a fit left them: "
-                                "within its tolerance (0.5 mm, at most 0.45 voxel)\n",
-                        c->frag[a].id, c->frag[b].id, mm3 / 1000);
-            else
-                fprintf(stderr, "\nWARNING: saving a penetrating plan: fragments %d and %d overlap by "
-                                "%.3f ml (%s)\n",
-                        c->frag[a].id, c->frag[b].id, mm3 / 1000, why);
-        }
+    case_overlap o[LOOP_MAX_FRAGS * (LOOP_MAX_FRAGS - 1) / 2];
+    int n = case_penetrating(c, sc.tolerated_frag, o, (int)(sizeof o / sizeof o[0]));
+    int rc = n < 0 ? n : case_record_penetrating(c, o, n);
+    if (rc < 0)
+        return rc;
+    for (int k = 0; k < n; k++) {
+        int a = c->frag[o[k].a].id, b = c->frag[o[k].b].id;
+        /* a fit (reduce, or the fit action) left one of them there: inside by no more than its
+         * tolerance, where the voxel surfaces of the two sides interlock */
+        if (o[k].fitted)
+            fprintf(stderr, "\nnote: fragments %d and %d overlap by %.3f ml where a fit left them: "
+                            "within its tolerance (0.5 mm, at most 0.45 voxel)\n", a, b, o[k].ml);
+        else
+            fprintf(stderr, "\nWARNING: saving a penetrating plan: fragments %d and %d overlap by "
+                            "%.3f ml (%s)\n", a, b, o[k].ml, why);
+    }
+    json_t *list = json_object_get(c->extra, "penetrating");
     json_decref(s->penetrating);
-    s->penetrating = list;
-    if (!c->extra)
-        c->extra = json_object();
-    if (json_array_size(list))
-        json_object_set(c->extra, "penetrating", list);
-    else
-        json_object_del(c->extra, "penetrating");
-    return rc;
+    s->penetrating = list ? json_incref(list) : json_array();
+    return 0;
 }
 
 /* case.json keeps one fixed fragment: the case's own while it stays fixed, else the first. */
