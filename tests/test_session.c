@@ -771,6 +771,52 @@ static void test_one_overlap_figure(void **st)
     json_decref(j);
 }
 
+/* case.json's "fixed" in the case at case_dir. */
+static json_t *saved_fixed(void)
+{
+    char path[4300];
+    snprintf(path, sizeof path, "%s/case.json", case_dir);
+    json_t *j = json_load_file(path, 0, NULL);
+    assert_non_null(j);
+    json_t *f = json_incref(json_object_get(j, "fixed"));
+    json_decref(j);
+    return f;
+}
+
+/* A second fixed fragment is saved (it was named in a warning and lost): B fixed beside A, saved,
+ * reopens fixed; case.json's "fixed" lists both, A (the case's own) first. Unfixed again, undone
+ * and redone like a move, it saves as the single id of before. */
+static void test_second_fixed_fragment_saved(void **st)
+{
+    (void)st;
+    session *s = start_quiet(0);
+    session_event *e = act(s, LOOP_ACT_FIX);
+    assert_int_equal(e->scene.selected, 1);
+    assert_int_equal(e->scene.fixed[1], 1);
+    stop_quiet(s);
+    assert_int_equal(session_save(s), 0);
+    session_close(s);
+    json_t *f = saved_fixed();
+    assert_true(json_is_array(f) && json_array_size(f) == 2);
+    assert_int_equal(json_integer_value(json_array_get(f, 0)), 1);
+    assert_int_equal(json_integer_value(json_array_get(f, 1)), 2);
+    json_decref(f);
+
+    s = start_quiet(0);
+    loop_scene sc = {0};
+    session_scene_read(s, &sc);
+    assert_true(sc.fixed[0] && sc.fixed[1]);
+    assert_int_equal(act(s, LOOP_ACT_FIX)->scene.fixed[sc.selected], 0);
+    assert_int_equal(act(s, LOOP_ACT_UNDO)->scene.fixed[sc.selected], 1);
+    assert_int_equal(act(s, LOOP_ACT_REDO)->scene.fixed[sc.selected], 0);
+    stop_quiet(s);
+    assert_int_equal(session_save(s), 0);
+    session_close(s);
+    f = saved_fixed();
+    assert_true(json_is_integer(f) && json_integer_value(f) == 1);
+    json_decref(f);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -784,6 +830,7 @@ int main(void)
         cmocka_unit_test(test_fit_lands_on_a_rough_fracture),
         cmocka_unit_test(test_fitted_fragment_moved),
         cmocka_unit_test_setup(test_one_overlap_figure, fresh_case),
+        cmocka_unit_test_setup(test_second_fixed_fragment_saved, fresh_case),
         cmocka_unit_test_setup(test_propose_from_threads, fresh_case),
         cmocka_unit_test_setup(test_journal_recovery_and_save, fresh_case),
         cmocka_unit_test_setup(test_save_at_stop, fresh_case),

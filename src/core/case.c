@@ -269,6 +269,30 @@ int case_record_penetrating(planning_case *c, const case_overlap *o, int n)
     return 0;
 }
 
+int case_is_fixed(const planning_case *c, int i)
+{
+    if (i < 0 || i >= c->nfrag)
+        return 0;
+    int fixed = i == c->fixed;
+    for (int k = 0; k < c->nfixed_also && !fixed; k++)
+        fixed = c->fixed_also[k] == c->frag[i].id;
+    return fixed;
+}
+
+void case_set_fixed(planning_case *c, const uint8_t *fixed)
+{
+    if (c->fixed < 0 || c->fixed >= c->nfrag || !fixed[c->fixed]) {
+        c->fixed = -1;
+        for (int i = 0; i < c->nfrag && c->fixed < 0; i++)
+            if (fixed[i])
+                c->fixed = i;
+    }
+    c->nfixed_also = 0;
+    for (int i = 0; i < c->nfrag && c->nfixed_also < CASE_FIXED_MAX; i++)
+        if (fixed[i] && i != c->fixed)
+            c->fixed_also[c->nfixed_also++] = c->frag[i].id;
+}
+
 static int check_labels(const vol *labels)
 {
     size_t n = vol_count(labels);
@@ -376,6 +400,11 @@ int case_rebuild(planning_case *c, int new_id, int parent_id)
     nf = NULL;
     nt = NULL;
     c->fixed = case_find(c, fixed_id);
+    int kept = 0; /* fixed ids that vanished go */
+    for (int k = 0; k < c->nfixed_also; k++)
+        if (case_find(c, c->fixed_also[k]) >= 0)
+            c->fixed_also[kept++] = c->fixed_also[k];
+    c->nfixed_also = kept;
 done:
     free(lo);
     free(hi);

@@ -154,8 +154,8 @@ static int open_case(session *s, const session_params *p)
     }
     if (rc == 0) {
         uint8_t fixed[LOOP_MAX_FRAGS] = {0};
-        if (c->fixed >= 0 && c->fixed < c->nfrag)
-            fixed[c->fixed] = 1;
+        for (int i = 0; i < c->nfrag; i++)
+            fixed[i] = (uint8_t)case_is_fixed(c, i);
         rc = build_loop(s, fixed, &p->cfg);
     }
     if (rc == 0 && pending) {
@@ -302,29 +302,13 @@ static int check_penetration(session *s)
     return 0;
 }
 
-/* case.json keeps one fixed fragment: the case's own while it stays fixed, else the first. */
-static void take_fixed(session *s, const uint8_t *fixed)
-{
-    planning_case *c = s->c;
-    if (c->fixed < 0 || !fixed[c->fixed]) {
-        c->fixed = -1;
-        for (int i = 0; i < c->nfrag && c->fixed < 0; i++)
-            if (fixed[i])
-                c->fixed = i;
-    }
-    for (int i = 0; i < c->nfrag; i++)
-        if (fixed[i] && i != c->fixed)
-            fprintf(stderr, "\nfracnav: fragment %d is fixed here too, but case.json records one "
-                            "fixed fragment (%d)\n", c->frag[i].id, c->frag[c->fixed].id);
-}
-
 int session_save_case(session *s, const pose *poses, const uint8_t *fixed)
 {
     if (!s->c)
         return fn_err_set(FN_EINVAL, "this session has no case to save (fragments only)");
     for (int i = 0; i < s->c->nfrag; i++)
         s->c->frag[i].pose = poses[i];
-    take_fixed(s, fixed);
+    case_set_fixed(s->c, fixed);
     int rc = check_penetration(s);
     if (rc == 0)
         rc = case_save(s->c);
