@@ -817,6 +817,34 @@ static void test_second_fixed_fragment_saved(void **st)
     json_decref(f);
 }
 
+/* The redo of a fit on a rough fracture (inside the other piece within the fit's tolerance) goes
+ * back to the fitted pose, "fitted" again: it is checked at the tolerance the pose held (it was
+ * refused, "that pose collides now", checked at the loop's 0). */
+static void test_redo_of_a_fit(void **st)
+{
+    (void)st;
+    char *fdir = tu_tmpdir("session_redo_fit");
+    planning_case *c = tu_ellipsoid_fracture(fdir, 2, 3, 0);
+    session *s = start_quiet_at(fdir, 0);
+    pose hand = pose_of(s, 1);
+    session_event *e = fit_and_land(s);
+    pose fit = e->scene.pose[1];
+    assert_int_equal(e->scene.tolerated_frag[1], 1);
+    e = act(s, LOOP_ACT_UNDO);
+    assert_int_equal(e->result, LOOP_ACCEPTED);
+    assert_memory_equal(&e->scene.pose[1], &hand, sizeof hand);
+    assert_int_equal(e->scene.tolerated_frag[1], 0);
+    e = act(s, LOOP_ACT_REDO);
+    assert_int_equal(e->result, LOOP_ACCEPTED);
+    assert_memory_equal(&e->scene.pose[1], &fit, sizeof fit);
+    assert_int_equal(e->scene.tolerated_frag[1], 1);
+    stop_quiet(s);
+    session_close(s);
+    case_free(c);
+    tu_rmtree(fdir);
+    free(fdir);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -831,6 +859,7 @@ int main(void)
         cmocka_unit_test(test_fitted_fragment_moved),
         cmocka_unit_test_setup(test_one_overlap_figure, fresh_case),
         cmocka_unit_test_setup(test_second_fixed_fragment_saved, fresh_case),
+        cmocka_unit_test(test_redo_of_a_fit),
         cmocka_unit_test_setup(test_propose_from_threads, fresh_case),
         cmocka_unit_test_setup(test_journal_recovery_and_save, fresh_case),
         cmocka_unit_test_setup(test_save_at_stop, fresh_case),
