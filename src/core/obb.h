@@ -102,7 +102,10 @@ typedef struct obb_result {
  *   was made at. A later query moves B by at most delta relative to A (from the two poses and B's
  *   root box); a pair whose gap exceeds delta is still apart and is skipped, the rest are searched
  *   again, so the answer stays exact. When too many pairs need a look, the search runs from the
- *   root and makes a new front (also when the front would exceed OBB_FRONT_MAX pairs: no front). */
+ *   root and makes a new front (also when the front would exceed OBB_FRONT_MAX pairs: no front).
+ * The yes or no is the same with a cache as without; the separation is a valid bound either way,
+ * but with a cache it depends on the queries before (which pairs the front kept): a caller that
+ * steps by it and must not depend on its history queries without a cache (reduce does). */
 #define OBB_FRONT_MAX 16384 /* a fitted piece of the skull, interlocked at the fit's tolerance: 9,232 */
 #define OBB_WITNESSES 8
 

@@ -275,7 +275,10 @@ typedef struct pair_ctx {
     obb_cache *cache; /* nasm, for the queries of the optimizer (temporal coherence) */
 } pair_ctx;
 
-/* 1 collides, 0 free, <0 error; *sep: the smallest separation estimate over the assembly. */
+/* 1 collides, 0 free, <0 error; *sep: the smallest separation estimate over the assembly. The
+ * yes or no is exact either way; a separation is asked without the caches, whose bound depends on
+ * the queries before (a front answers with a looser one), so that it, and every step taken by it
+ * (slide_to_contact), depends on the pose alone. */
 static int collides(const pair_ctx *pc, const pose *mp, double *sep)
 {
     pose mw = pose_compose(*mp, pc->moving->home);
@@ -284,7 +287,8 @@ static int collides(const pair_ctx *pc, const pose *mp, double *sep)
     for (int f = 0; f < pc->nasm; f++) {
         pose aw = pose_compose(pc->asm_[f]->pose, pc->asm_[f]->home);
         obb_result r;
-        int rc = obb_collide(pc->trees[f], &aw, pc->trees[pc->nasm], &mw, &pc->q, pc->cache ? &pc->cache[f] : NULL, &r);
+        obb_cache *cache = pc->cache && !sep ? &pc->cache[f] : NULL;
+        int rc = obb_collide(pc->trees[f], &aw, pc->trees[pc->nasm], &mw, &pc->q, cache, &r);
         if (rc < 0)
             return rc;
         hit |= r.collides;
@@ -1076,9 +1080,19 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
         rc = resolve_collision(&pc, m, o->settle_mm, r);
     }
     if (rc == 0) {
-        moving->pose = r->end;
         r->metric_start = reduce_metric_eval(m, &r->start, NULL); /* both over the final VOI */
         r->metric_end = reduce_metric_eval(m, &r->end, NULL);
+        /* a fit never keeps an end worse than a free start */
+        if (r->metric_end > r->metric_start && (rc = collides(&pc, &r->start, NULL)) == 0) {
+            r->end = r->fitted = r->start;
+            r->metric_end = r->metric_start;
+            r->push_mm = 0;
+            r->collides = 0;
+        }
+        rc = rc < 0 ? rc : 0;
+    }
+    if (rc == 0) {
+        moving->pose = r->end;
         r->evaluations = F.evals;
         r->history = F.hist;
         r->nhistory = F.nhist;
