@@ -314,7 +314,7 @@ static void test_crash_loses_at_most_the_flush_interval(void **st)
 }
 
 /* The loop writes every accepted pose; the journal replays to the loop's final poses. */
-static int free_query(void *ctx, int a, const pose *pa, int b, const pose *pb, void *cache,
+static int free_query(void *ctx, int a, const pose *pa, int b, const pose *pb, double tol, void *cache,
                       loop_contact *out)
 {
     out->collides = 0;

@@ -79,7 +79,7 @@ static double max_x(const frag *f, const pose *p)
     return m;
 }
 
-static int wall_query(void *ctx, int a, const pose *pa, int b, const pose *pb, void *cache,
+static int wall_query(void *ctx, int a, const pose *pa, int b, const pose *pb, double tol, void *cache,
                       loop_contact *out)
 {
     world *w = ctx;

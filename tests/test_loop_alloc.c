@@ -224,7 +224,8 @@ typedef struct pair_mark {
 
 static int foreign; /* queries that found another pair's mark */
 
-static int marking(void *ctx, int a, const pose *pa, int b, const pose *pb, void *cache, loop_contact *out)
+static int marking(void *ctx, int a, const pose *pa, int b, const pose *pb, double tol_mm,
+                   void *cache, loop_contact *out)
 {
     pair_mark *m = cache;
     if (m->set && (m->a != a || m->b != b))

@@ -43,7 +43,7 @@ static atomic_int thp_off_in_step; /* PR_GET_THP_DISABLE seen by the last step *
 static int loop_cpus; /* CPUs the loop's thread may run on */
 
 /* A collider that never collides and records the thread that steps. */
-static int query(void *ctx, int a, const pose *pa, int b, const pose *pb, void *cache,
+static int query(void *ctx, int a, const pose *pa, int b, const pose *pb, double tol, void *cache,
                  loop_contact *out)
 {
     loop_at = here();

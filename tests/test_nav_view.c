@@ -252,7 +252,7 @@ static double fresh_gap(world *w, const loop_scene *sc, int s)
             continue;
         memset(cache, 0, w->col.cache_bytes);
         loop_contact c;
-        assert_int_equal(w->col.query(w->col.ctx, s, &sc->pose[s], j, &sc->pose[j], cache, &c), 0);
+        assert_int_equal(w->col.query(w->col.ctx, s, &sc->pose[s], j, &sc->pose[j], 0, cache, &c), 0);
         best = fmin(best, c.separation_mm);
     }
     return best;

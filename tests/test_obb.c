@@ -456,6 +456,70 @@ static void test_cache_follows_small_steps(void **st)
     assert_true(hits > poses / 10 && hits < poses * 9 / 10);
 }
 
+/* A collision answer never depends on the queries before it. A walk of poses near contact (small
+ * steps and jumps, as the loop and the optimizer make them) is queried in order with one cache, and
+ * backwards after random warm-up queries with another: every yes or no equals brute force's, and
+ * without a cache the whole answer (with the separation, which with a cache is a bound that
+ * depends on the pairs its front kept) is the same bit for bit as before any other query. */
+static void test_answers_ignore_history(void **st)
+{
+    static obb_cache warm, cold;
+    enum { WALK = 60, WARM = 25 };
+    int hits = 0, poses = 0;
+    for (int n = 0; n < 10; n++) {
+        frag *fa = random_frag(12, n % 2), *fb = random_frag(12, n % 2);
+        obb_params prm = {0, 1};
+        obb_tree *ta = build(fa, 0, 1), *tb = build(fb, 0, 1);
+        double reach = radius(fa) + radius(fb), o[3] = {0, 0, 0}, at[3];
+        for (int i = 0; i < 3; i++)
+            at[i] = srand1() * reach / 2;
+        pose pa = place(fa, random_rotation(), o), walk[WALK];
+        walk[0] = place(fb, random_rotation(), at);
+        for (int k = 1; k < WALK; k++) {
+            double step = k % 15 == 0 ? 1.5 : 0.05, ax[3] = {srand1(), srand1(), srand1()};
+            walk[k] = pose_compose(pose_from_axis_angle(ax, step * 0.03 * srand1()), walk[k - 1]);
+            for (int i = 0; i < 3; i++)
+                walk[k].t[i] += step * srand1() - 0.03 * at[i] / (reach + 1e-9);
+        }
+        obb_query q = {.tolerance_mm = n % 3 ? 0 : 0.2, .threshold = n % 4 == 3 ? 0.3 : 0};
+        obb_result first[WALK];
+        for (int k = 0; k < WALK; k++)
+            assert_int_equal(obb_collide(ta, &pa, tb, &walk[k], &q, NULL, &first[k]), 0);
+        obb_cache_reset(&warm);
+        obb_cache_reset(&cold);
+        for (int k = 0; k < WARM; k++) { /* warm-up: random poses, answers unused */
+            double far[3] = {srand1() * reach, srand1() * reach, srand1() * reach};
+            pose pw = place(fb, random_rotation(), far);
+            obb_result rw;
+            assert_int_equal(obb_collide(ta, &pa, tb, &pw, &q, &warm, &rw), 0);
+        }
+        for (int k = 0; k < WALK; k++) {
+            int kw = WALK - 1 - k; /* the warm cache walks backwards */
+            const pose *pk[2] = {&walk[k], &walk[kw]};
+            obb_cache *ck[2] = {&cold, &warm};
+            for (int w = 0; w < 2; w++) {
+                obb_result rc, rf, rb;
+                assert_int_equal(obb_collide(ta, &pa, tb, pk[w], &q, ck[w], &rc), 0);
+                assert_int_equal(obb_collide(ta, &pa, tb, pk[w], &q, NULL, &rf), 0);
+                assert_int_equal(obb_collide_brute(fa, &pa, fb, pk[w], &prm, &q, &rb), 0);
+                if (rc.collides != rb.collides || rf.collides != rb.collides)
+                    fail_msg("pose %d (%s cache): cached %d, from scratch %d, brute force %d", w ? kw : k,
+                             w ? "warm" : "cold", rc.collides, rf.collides, rb.collides);
+                if (memcmp(&rf, &first[w ? kw : k], sizeof rf))
+                    fail_msg("pose %d: from scratch, separation %.9g after other queries, %.9g before",
+                             w ? kw : k, rf.separation_mm, first[w ? kw : k].separation_mm);
+                hits += rb.collides;
+                poses++;
+            }
+        }
+        obb_tree_free(ta);
+        obb_tree_free(tb);
+        tfrag_free(fa);
+        tfrag_free(fb);
+    }
+    assert_true(hits > poses / 10 && hits < poses * 9 / 10);
+}
+
 static void test_pairs_listed(void **st)
 {
     frag *a = tfrag_new(3, 3, 3, 1, 1, 1), *b = tfrag_new(3, 3, 3, 1, 1, 1);
@@ -688,6 +752,7 @@ int main(void)
         cmocka_unit_test(test_separation_is_a_lower_bound),
         cmocka_unit_test(test_bad_input),
         cmocka_unit_test(test_concurrent_queries_allocate_nothing),
+        cmocka_unit_test(test_answers_ignore_history), /* last: it draws random numbers the others use */
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -32,7 +32,7 @@ int __wrap_sem_init(sem_t *sem, int pshared, unsigned value)
     return __real_sem_init(sem, pshared, value);
 }
 
-static int apart(void *ctx, int a, const pose *pa, int b, const pose *pb, void *cache, loop_contact *out)
+static int apart(void *ctx, int a, const pose *pa, int b, const pose *pb, double tol_mm, void *cache, loop_contact *out)
 {
     out->collides = 0;
     out->separation_mm = 100;

@@ -5,13 +5,16 @@
  * fixed, probability maps and hierarchy thresholds as `fracnav fracture` gives a case. Input: a motion script (pushing piece 2 into piece 1 and along it, turning it) rendered
  * by the virtual device's generator into SpaceNavigator reports, replayed as fast as the loop takes
  * them: the input thread hands over one report, stamps it, and waits until the loop has taken it
- * (no queueing in the latency). The loop runs as in `navigate`: its own thread, woken per event. */
+ * (no queueing in the latency). The loop runs as in `navigate`: its own thread, woken per event.
+ * --fitted: piece 2 fitted first (reduce_fit_one, as navigate's fit action), so that it starts
+ * inside piece 1 within the fit's tolerance, as a case that `reduce` left. */
 #include "cmd.h"
 #include "bench.h"
 
 #include "err.h"
 #include "fracture.h"
 #include "jsonw.h"
+#include "reduce.h"
 #include "script.h"
 #include "seg.h"
 #include "session.h"
@@ -31,7 +34,7 @@ static const char SCRIPT[] = "move y 10 mm x 3 mm over 2 s\n"
 
 static void usage(FILE *out)
 {
-    fprintf(out, "usage: fracnav bench loop [--json] [--ct FILE | --case DIR] [--repeat N]\n\n"
+    fprintf(out, "usage: fracnav bench loop [--json] [--ct FILE [--fitted] | --case DIR] [--repeat N]\n\n"
                  "Drive the navigation loop near contact as fast as the (virtual) device's reports\n"
                  "can be fed, and report loop_hz (steps per second), latency_p50/p99/max_us (report\n"
                  "read -> accepted pose), outcomes and collision query time.\n\n"
@@ -40,6 +43,8 @@ static void usage(FILE *out)
                  "                loop_thread_sched_fifo and targets)\n"
                  "  --ct FILE     CT to fracture (default: the example CT, $FRACNAV_DATA/Cranium.inv3\n"
                  "                or /var/cache/fracnav/Cranium.inv3)\n"
+                 "  --fitted      fit piece 2 to piece 1 first (as navigate's fit action): the\n"
+                 "                loop starts where a fit left it, inside within the fit's tolerance\n"
                  "  --case DIR    steer an existing case instead (its journal is left alone)\n"
                  "  --repeat N    play the 9 s motion script N times (default 10)\n"
                  "  --tau-min T, --tau-max T   hierarchy thresholds (default: the case's, or a new\n"
@@ -69,6 +74,25 @@ static int fragments_from_ct(const char *path, frag f[2])
     }
     fracture_result_free(&fr);
     return rc;
+}
+
+/* Fits f[1] to f[0] as navigate's fit action does; *tolerance_mm: the fit's. */
+static int fit_piece(frag f[2], double tau_min, double tau_max, double *tolerance_mm)
+{
+    reduce_opts o;
+    reduce_defaults(&o);
+    o.tau_min = tau_min;
+    o.tau_max = tau_max;
+    const frag *both[2] = {&f[0], &f[1]};
+    reduce_result r;
+    memset(&r, 0, sizeof r);
+    pose out;
+    int rc = reduce_fit_one(both, 1, &f[1], &f[1].pose, &o, &out, &r);
+    reduce_result_free(&r);
+    if (rc == 0)
+        f[1].pose = out;
+    *tolerance_mm = reduce_tolerance(&o, both, 2);
+    return rc < 0 ? rc : 0;
 }
 
 static fnrec *render(int repeat)
@@ -120,7 +144,8 @@ static json_t *fragments_json(const frag *f, int nfrag)
     return a;
 }
 
-static int print(const loop_stats *s, double wall_s, const frag *f, int nfrag, const char *case_dir, int json)
+static int print(const loop_stats *s, double wall_s, const frag *f, int nfrag, const char *case_dir,
+                 int fitted, int json)
 {
     if (!json) {
         printf("loop: %.0f steps/s, latency p50 %.0f us, p99 %.0f us, max %.0f us; %llu steps "
@@ -134,9 +159,9 @@ static int print(const loop_stats *s, double wall_s, const frag *f, int nfrag, c
     json_t *j = session_stats_json("bench loop", s);
     if (j) {
         char what[4200];
-        snprintf(what, sizeof what, "%s%s, script pushing the selected fragment into and along the others",
+        snprintf(what, sizeof what, "%s%s%s, script pushing the selected fragment into and along the others",
                  case_dir ? "the case " : "two-piece fracture of the CT, piece 1 fixed",
-                 case_dir ? case_dir : "");
+                 case_dir ? case_dir : "", fitted ? ", piece 2 fitted first" : "");
         json_object_set_new(j, "workload", jsonw_string(what));
         json_object_set_new(j, "fragments", fragments_json(f, nfrag));
         json_object_set_new(j, "loop_thread_sched_fifo", json_boolean(realtime));
@@ -151,7 +176,7 @@ static int print(const loop_stats *s, double wall_s, const frag *f, int nfrag, c
 
 int bench_loop(int argc, char **argv)
 {
-    int json = 0, repeat = 10, rc;
+    int json = 0, repeat = 10, fitted = 0, rc;
     const char *ct = NULL, *case_dir = NULL;
     cmd_tau tau = {0};
     for (int i = 1; i < argc; i++) {
@@ -166,6 +191,8 @@ int bench_loop(int argc, char **argv)
             json = 1;
         else if (!strcmp(argv[i], "--ct") && i + 1 < argc)
             ct = argv[++i];
+        else if (!strcmp(argv[i], "--fitted"))
+            fitted = 1;
         else if (!strcmp(argv[i], "--case") && i + 1 < argc)
             case_dir = argv[++i];
         else if (!strcmp(argv[i], "--repeat")) {
@@ -178,6 +205,10 @@ int bench_loop(int argc, char **argv)
             fprintf(stderr, "fracnav bench loop: unexpected argument '%s' (see --help)\n", argv[i]);
             return 2;
         }
+    }
+    if (fitted && case_dir) {
+        fprintf(stderr, "fracnav bench loop: --fitted fits the fracture of --ct, not a case (reduce it instead)\n");
+        return 2;
     }
     if (!ct && !case_dir)
         ct = cmd_example_ct();
@@ -200,7 +231,7 @@ int bench_loop(int argc, char **argv)
         if (k) {
             loop_get_stats(session_loop(k), &s);
             if (rc == 0)
-                rc = print(&s, wall, session_frags(k), session_nfrag(k), case_dir, json);
+                rc = print(&s, wall, session_frags(k), session_nfrag(k), case_dir, 0, json);
         }
         session_close(k);
     } else {
@@ -210,14 +241,19 @@ int bench_loop(int argc, char **argv)
         double op[2] = {CASE_TAU_MIN, CASE_TAU_MAX};
         cmd_tau_apply(&tau, &op[0], &op[1]); /* checked above */
         uint8_t fixed[2] = {1, 0};
+        double tol = 0;
+        if (rc == 0 && fitted)
+            rc = fit_piece(f, op[0], op[1], &tol);
         session *k = rc == 0 ? session_open_fragments(f, 2, fixed, op, &cfg) : NULL;
         if (rc == 0 && !k)
             rc = FN_EFORMAT;
+        if (rc == 0 && fitted)
+            loop_tolerate(session_loop(k), 1, tol);
         if (rc == 0) {
             rc = drive(k, rec, &wall);
             loop_get_stats(session_loop(k), &s);
             if (rc == 0)
-                rc = print(&s, wall, f, 2, NULL, json);
+                rc = print(&s, wall, f, 2, NULL, fitted, json);
         }
         session_close(k);
         frag_free(&f[0]);

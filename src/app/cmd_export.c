@@ -227,11 +227,19 @@ static int run(const planning_case *c, const export_args *a, written *w)
     }
     if (rc || (!seg && !nifti && !report))
         return rc;
-    double *overlap = calloc((size_t)(c->nfrag ? c->nfrag : 1), sizeof *overlap);
-    vol *planned = overlap ? export_planned_labels(c, overlap) : NULL;
+    size_t npairs = (size_t)c->nfrag * (size_t)c->nfrag / 2 + 1;
+    double *overlap = calloc((size_t)c->nfrag + 1, sizeof *overlap);
+    case_overlap *pen = malloc(npairs * sizeof *pen);
+    int n = overlap && pen ? case_penetrating(c, NULL, pen, (int)npairs) : fn_err_set(FN_ENOMEM, "out of memory");
+    for (int k = 0; k < n; k++) {
+        overlap[pen[k].a] += pen[k].ml;
+        overlap[pen[k].b] += pen[k].ml;
+    }
+    free(pen);
+    vol *planned = n >= 0 ? export_planned_labels(c) : NULL;
     if (!planned) {
         free(overlap);
-        return overlap ? -1 : fn_err_set(FN_ENOMEM, "out of memory");
+        return -1;
     }
     if (seg && (rc = export_seg_nrrd(c, planned, seg)) == 0)
         wrote(w, seg);

@@ -176,7 +176,7 @@ static int pick(const planning_case *c, const args *A, int *fixed, int *mv, int 
         }
     } else {
         for (int i = 0; i < c->nfrag; i++)
-            if (i != *fixed)
+            if (i != *fixed && !case_is_fixed(c, i))
                 mv[(*nmv)++] = i;
     }
     if (!*nmv) { /* the case's content, not the command line: a runtime error */

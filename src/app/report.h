@@ -19,7 +19,8 @@
 
 typedef void (*report_wrote_fn)(void *ctx, const char *path);
 
-/* planned: export_planned_labels(c, overlap_ml). platform: render_open's (NULL: osmesa). wrote,
+/* planned: export_planned_labels(c); overlap_ml: per fragment, the sum of its pairs' overlaps
+ * (case_penetrating, case_overlap_ml). platform: render_open's (NULL: osmesa). wrote,
  * when given, is called with each file's path once it is in place. */
 int report_write(const planning_case *c, const vol *planned, const double *overlap_ml, const char *dir,
                  const char *platform, report_wrote_fn wrote, void *ctx);

@@ -4,6 +4,7 @@
 #include "case_journal.h"
 #include "err.h"
 #include "obb.h"
+#include "reduce.h"
 
 #include <errno.h>
 #include <math.h>
@@ -89,6 +90,15 @@ static session *alloc_session(void)
  * session saved as overlapping within a fit's tolerance ("penetrating", within_fit_tolerance). */
 static void tolerate_reduced(session *s)
 {
+    json_t *red = json_object_get(s->c->extra, "reduction");
+    reduce_opts o;
+    reduce_defaults(&o);
+    if (json_is_number(json_object_get(red, "tolerance_mm")))
+        o.tolerance_mm = json_number_value(json_object_get(red, "tolerance_mm"));
+    const frag *all[LOOP_MAX_FRAGS];
+    for (int i = 0; i < s->nfrag; i++)
+        all[i] = &s->frags[i];
+    double tol = reduce_tolerance(&o, all, s->nfrag);
     json_t *pen = json_object_get(s->c->extra, "penetrating"), *e;
     size_t n;
     json_array_foreach(pen, n, e) {
@@ -96,9 +106,9 @@ static void tolerate_reduced(session *s)
             continue;
         json_t *ids = json_object_get(e, "fragments");
         for (size_t a = 0; a < 2; a++)
-            loop_tolerate(s->L, case_find(s->c, (int)json_integer_value(json_array_get(ids, a))));
+            loop_tolerate(s->L, case_find(s->c, (int)json_integer_value(json_array_get(ids, a))), tol);
     }
-    json_t *frs = json_object_get(json_object_get(s->c->extra, "reduction"), "fragments"), *fr;
+    json_t *frs = json_object_get(red, "fragments"), *fr;
     size_t k;
     json_array_foreach(frs, k, fr) {
         int i = case_find(s->c, (int)json_integer_value(json_object_get(fr, "id")));
@@ -112,7 +122,7 @@ static void tolerate_reduced(session *s)
         for (int a = 0; a < 3; a++)
             d = fmax(d, fabs(json_number_value(json_array_get(t, (size_t)a)) - now.t[a]));
         if (d < 1e-9)
-            loop_tolerate(s->L, i);
+            loop_tolerate(s->L, i, tol);
     }
 }
 
@@ -145,8 +155,8 @@ static int open_case(session *s, const session_params *p)
     }
     if (rc == 0) {
         uint8_t fixed[LOOP_MAX_FRAGS] = {0};
-        if (c->fixed >= 0 && c->fixed < c->nfrag)
-            fixed[c->fixed] = 1;
+        for (int i = 0; i < c->nfrag; i++)
+            fixed[i] = (uint8_t)case_is_fixed(c, i);
         rc = build_loop(s, fixed, &p->cfg);
     }
     if (rc == 0 && pending) {
@@ -207,7 +217,6 @@ void session__free(session *s)
     if (s->jr)
         journal_close(s->jr);
     loop_obb_free(s->obb);
-    loop_obb_free(s->check);
     json_decref(s->penetrating);
     case_free(s->c);
     ring_free(s->in);
@@ -268,65 +277,30 @@ static void rebind(session *s)
 static int check_penetration(session *s)
 {
     planning_case *c = s->c;
-    if (!s->check) {
-        obb_params op = {c->tau_min, c->tau_max};
-        if (!(s->check = loop_obb_new(c->frag, c->nfrag, &op, NULL)))
-            return FN_EFORMAT;
-    }
-    loop_collider col = loop_obb_collider(s->check);
     /* Why they overlap: the loop refuses every move into another fragment while it checks. */
     loop_scene sc;
     loop_scene_read(s->L, &sc);
     const char *why = sc.stats.unchecked ? "moved while collision checking was off" : "as the case was loaded";
-    json_t *list = json_array();
-    int rc = 0;
-    for (int a = 0; rc == 0 && a < c->nfrag; a++)
-        for (int b = a + 1; rc == 0 && b < c->nfrag; b++) {
-            loop_contact ct;
-            double mm3 = 0;
-            rc = col.query(col.ctx, a, &c->frag[a].pose, b, &c->frag[b].pose, NULL, &ct);
-            if (rc < 0 || !ct.collides)
-                continue;
-            rc = col.overlap(col.ctx, a, &c->frag[a].pose, b, &c->frag[b].pose, &mm3);
-            /* a fit (reduce, or the fit action) left one of them there: inside by no more than
-             * its tolerance, where the voxel surfaces of the two sides interlock */
-            int fitted = sc.tolerated_frag[a] || sc.tolerated_frag[b];
-            json_array_append_new(list, json_pack("{s:[i,i],s:f,s:b}", "fragments", c->frag[a].id, c->frag[b].id,
-                                                  "overlap_ml", mm3 / 1000, "within_fit_tolerance", fitted));
-            if (fitted)
-                fprintf(stderr, "\nnote: fragments %d and %d overlap by %.3f ml where a fit left them: "
-                                "within its tolerance (0.5 mm, at most 0.45 voxel)\n",
-                        c->frag[a].id, c->frag[b].id, mm3 / 1000);
-            else
-                fprintf(stderr, "\nWARNING: saving a penetrating plan: fragments %d and %d overlap by "
-                                "%.3f ml (%s)\n",
-                        c->frag[a].id, c->frag[b].id, mm3 / 1000, why);
-        }
-    json_decref(s->penetrating);
-    s->penetrating = list;
-    if (!c->extra)
-        c->extra = json_object();
-    if (json_array_size(list))
-        json_object_set(c->extra, "penetrating", list);
-    else
-        json_object_del(c->extra, "penetrating");
-    return rc;
-}
-
-/* case.json keeps one fixed fragment: the case's own while it stays fixed, else the first. */
-static void take_fixed(session *s, const uint8_t *fixed)
-{
-    planning_case *c = s->c;
-    if (c->fixed < 0 || !fixed[c->fixed]) {
-        c->fixed = -1;
-        for (int i = 0; i < c->nfrag && c->fixed < 0; i++)
-            if (fixed[i])
-                c->fixed = i;
+    case_overlap o[LOOP_MAX_FRAGS * (LOOP_MAX_FRAGS - 1) / 2];
+    int n = case_penetrating(c, sc.tolerated_frag, o, (int)(sizeof o / sizeof o[0]));
+    int rc = n < 0 ? n : case_record_penetrating(c, o, n);
+    if (rc < 0)
+        return rc;
+    for (int k = 0; k < n; k++) {
+        int a = c->frag[o[k].a].id, b = c->frag[o[k].b].id;
+        /* a fit (reduce, or the fit action) left one of them there: inside by no more than its
+         * tolerance, where the voxel surfaces of the two sides interlock */
+        if (o[k].fitted)
+            fprintf(stderr, "\nnote: fragments %d and %d overlap by %.3f ml where a fit left them: "
+                            "within its tolerance (0.5 mm, at most 0.45 voxel)\n", a, b, o[k].ml);
+        else
+            fprintf(stderr, "\nWARNING: saving a penetrating plan: fragments %d and %d overlap by "
+                            "%.3f ml (%s)\n", a, b, o[k].ml, why);
     }
-    for (int i = 0; i < c->nfrag; i++)
-        if (fixed[i] && i != c->fixed)
-            fprintf(stderr, "\nfracnav: fragment %d is fixed here too, but case.json records one "
-                            "fixed fragment (%d)\n", c->frag[i].id, c->frag[c->fixed].id);
+    json_t *list = json_object_get(c->extra, "penetrating");
+    json_decref(s->penetrating);
+    s->penetrating = list ? json_incref(list) : json_array();
+    return 0;
 }
 
 int session_save_case(session *s, const pose *poses, const uint8_t *fixed)
@@ -335,7 +309,7 @@ int session_save_case(session *s, const pose *poses, const uint8_t *fixed)
         return fn_err_set(FN_EINVAL, "this session has no case to save (fragments only)");
     for (int i = 0; i < s->c->nfrag; i++)
         s->c->frag[i].pose = poses[i];
-    take_fixed(s, fixed);
+    case_set_fixed(s->c, fixed);
     int rc = check_penetration(s);
     if (rc == 0)
         rc = case_save(s->c);

@@ -211,8 +211,8 @@ int session_save(session *s);
  * and binds the journal to the new case.json. Fragments that interpenetrate (collision checking
  * was off) are not refused but said: a warning on stderr naming them and their overlap,
  * session_penetrating for --json, and case.json's "penetrating" member (absent when none) for
- * later commands. case.json has one fixed fragment: the case's own when it is still fixed, else
- * the first fixed one; others fixed are named in a warning. Owner's thread. 0 or FN_E*. */
+ * later commands. case.json records every fixed fragment (case_set_fixed: the case's own first
+ * while it stays fixed). Owner's thread. 0 or FN_E*. */
 int session_save_case(session *s, const pose *poses, const uint8_t *fixed);
 /* At the last save: [{"fragments": [A, B], "overlap_ml": V}, ...]; NULL before any save. Owned
  * by the session. */

@@ -79,7 +79,8 @@ static void *fit_thread(void *arg)
     s->fit.turned_deg = rc == 0 ? deg : 0;
     s->fit.finished++;
     s->fit_out = out;
-    s->fit_tolerance_mm = o.tolerance_mm;
+    others[n] = &s->fit_frags[s->fit_sel];
+    s->fit_tolerance_mm = reduce_tolerance(&o, others, n + 1);
     snprintf(s->fit_why, sizeof s->fit_why, "%s", why);
     pthread_mutex_unlock(&s->fit_mu);
     reduce_result_free(&r);

@@ -18,7 +18,6 @@ struct session {
     double tau[2];
     double fit_gap_mm; /* session_params' */
     loop_obb *obb;
-    loop_obb *check;     /* the saver's own collider (the loop thread owns obb's scratch), at need */
     json_t *penetrating; /* at the last save */
     loop *L;
     journal *jr;

@@ -95,14 +95,19 @@ typedef struct obb_result {
 /* Temporal coherence for one ordered pair of trees. Caller-owned plain data (about 160 KB): zero it
  * (or obb_cache_reset) before first use; it notices a different tree or query setting by itself,
  * but not a tree rebuilt at the same address: reset it then. Never share one between threads.
- * - witness: the last colliding voxel pair, tried first (a colliding pose stays colliding while
- *   the user pushes into contact: answered in one test).
+ * - witnesses: the last OBB_WITNESSES colliding voxel pairs, tried first (a colliding pose stays
+ *   colliding while the user pushes into contact, and a fragment pushed into a contact of many
+ *   points, as a fit's, meets one of a few pairs: answered in a few tests).
  * - front: every node pair the last full search rejected, with its gap, for the relative pose it
  *   was made at. A later query moves B by at most delta relative to A (from the two poses and B's
  *   root box); a pair whose gap exceeds delta is still apart and is skipped, the rest are searched
  *   again, so the answer stays exact. When too many pairs need a look, the search runs from the
- *   root and makes a new front (also when the front would exceed OBB_FRONT_MAX pairs: no front). */
-#define OBB_FRONT_MAX 4096
+ *   root and makes a new front (also when the front would exceed OBB_FRONT_MAX pairs: no front).
+ * The yes or no is the same with a cache as without; the separation is a valid bound either way,
+ * but with a cache it depends on the queries before (which pairs the front kept): a caller that
+ * steps by it and must not depend on its history queries without a cache (reduce does). */
+#define OBB_FRONT_MAX 16384 /* a fitted piece of the skull, interlocked at the fit's tolerance: 9,232 */
+#define OBB_WITNESSES 8
 
 typedef struct obb_front_pair {
     obb_node a, b;
@@ -110,8 +115,8 @@ typedef struct obb_front_pair {
 } obb_front_pair;
 
 typedef struct obb_cache {
-    int has_witness;
-    obb_node wa, wb;           /* last colliding voxel pair */
+    int nwit, wnext;           /* witnesses held, the next one replaced */
+    obb_node wa[OBB_WITNESSES], wb[OBB_WITNESSES]; /* recent colliding voxel pairs */
     int front_valid;
     size_t front_n;
     const obb_tree *ta, *tb;   /* what the front was made for */

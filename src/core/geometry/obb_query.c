@@ -84,6 +84,17 @@ static int split(const obb_node *n, const obb_node *all, obb_node buf[8], const 
     return k;
 }
 
+/* Adds a colliding voxel pair to the cache's witnesses, unless it is one of them. */
+static void keep_witness(obb_cache *k, const obb_node *a, const obb_node *b)
+{
+    for (int i = 0; i < k->nwit; i++)
+        if (!memcmp(&k->wa[i], a, sizeof *a) && !memcmp(&k->wb[i], b, sizeof *b))
+            return;
+    k->wa[k->wnext] = *a, k->wb[k->wnext] = *b;
+    k->wnext = (k->wnext + 1) % OBB_WITNESSES;
+    k->nwit += k->nwit < OBB_WITNESSES;
+}
+
 static void record(ctx *c, const obb_node *a, const obb_node *b, double gap)
 {
     obb_result *r = c->r;
@@ -95,10 +106,8 @@ static void record(ctx *c, const obb_node *a, const obb_node *b, double gap)
     r->pairs_total++;
     r->collides = 1;
     c->pen = gap < c->pen ? gap : c->pen;
-    if (c->cache) {
-        c->cache->wa = *a, c->cache->wb = *b;
-        c->cache->has_witness = 1;
-    }
+    if (c->cache)
+        keep_witness(c->cache, a, b);
 }
 
 static void box_a(const ctx *c, const obb_node *a, double ca[3], double ha[3])
@@ -436,15 +445,16 @@ int obb_collide(const obb_tree *a, const pose *a_world, const obb_tree *b, const
     for (int i = 0; i < 3; i++)
         for (int j = 0; j < 3; j++)
             c.Rt[i][j] = c.rel.R[j][i], c.ARt[i][j] = c.rel.AR[j][i];
-    if (cache && cache->has_witness && !c.want_pairs) {
-        npair w = {cache->wa, cache->wb};
-        cache->has_witness = 0;
-        test_pair(&c, &w);
+    if (cache && cache->nwit && !c.want_pairs) {
+        for (int i = 0; i < cache->nwit && !done(&c); i++) {
+            npair w = {cache->wa[i], cache->wb[i]};
+            test_pair(&c, &w);
+        }
         if (done(&c)) {
             r->separation_mm = c.pen;
             return 0;
         }
-        c.best_gap = INFINITY; /* a witness gap says nothing about the other pairs */
+        c.best_gap = INFINITY; /* the witnesses' gaps say nothing about the other pairs */
     }
     int answered = cache && !c.want_pairs && front_fits(&c, cache, a, b) && from_front(&c, cache);
     if (!answered)

@@ -1,6 +1,7 @@
 #include "case.h"
 
 #include "err.h"
+#include "obb.h"
 
 #include <errno.h>
 #include <fcntl.h>
@@ -164,6 +165,134 @@ int case_find(const planning_case *c, int id)
     return -1;
 }
 
+#define OVERLAP_SAMPLES 3 /* per axis and voxel */
+
+/* Index of b's voxel holding sample point x (continuous index); -1 outside b's crop. */
+static long voxel_at(const frag *b, const double x[3])
+{
+    long l[3];
+    for (int i = 0; i < 3; i++) {
+        l[i] = lround(x[i]);
+        if (l[i] < 0 || l[i] >= b->dim[i])
+            return -1;
+    }
+    return (l[2] * b->dim[1] + l[1]) * (long)b->dim[0] + l[0];
+}
+
+double case_overlap_ml(const planning_case *c, int a, int b)
+{
+    const frag *A = &c->frag[a], *B = &c->frag[b];
+    obb_params op = {c->tau_min, c->tau_max};
+    pose wa = pose_compose(A->pose, A->home), wb = pose_compose(B->pose, B->home);
+    pose rel = pose_compose(pose_inverse(wb), wa); /* a's local mm -> b's local mm */
+    double R[3][3], G[3][4]; /* a's voxel index -> b's continuous voxel index */
+    pose_to_matrix(&rel, R);
+    for (int i = 0; i < 3; i++) {
+        for (int k = 0; k < 3; k++)
+            G[i][k] = R[i][k] * A->spacing[k] / B->spacing[i];
+        G[i][3] = rel.t[i] / B->spacing[i];
+    }
+    double reach = 1; /* a voxel's samples lie within this many of b's voxels of its centre */
+    for (int i = 0; i < 3; i++)
+        reach = fmax(reach, 0.5 * (fabs(G[i][0]) + fabs(G[i][1]) + fabs(G[i][2])) + 1);
+    long hits = 0;
+    for (int k = 0; k < A->dim[2]; k++)
+        for (int j = 0; j < A->dim[1]; j++)
+            for (int i = 0; i < A->dim[0]; i++) {
+                uint8_t p = A->prob[((size_t)k * (size_t)A->dim[1] + (size_t)j) * (size_t)A->dim[0] + (size_t)i];
+                if (!obb_effective_prob(p, &op))
+                    continue;
+                double ctr[3];
+                int near = 1;
+                for (int r = 0; r < 3; r++) {
+                    ctr[r] = G[r][0] * i + G[r][1] * j + G[r][2] * k + G[r][3];
+                    near &= ctr[r] > -reach && ctr[r] < B->dim[r] - 1 + reach;
+                }
+                if (!near)
+                    continue;
+                for (int s = 0; s < OVERLAP_SAMPLES * OVERLAP_SAMPLES * OVERLAP_SAMPLES; s++) {
+                    double o[3] = {s % OVERLAP_SAMPLES, s / OVERLAP_SAMPLES % OVERLAP_SAMPLES,
+                                   s / (OVERLAP_SAMPLES * OVERLAP_SAMPLES)}, x[3];
+                    for (int q = 0; q < 3; q++)
+                        o[q] = (o[q] + 0.5) / OVERLAP_SAMPLES - 0.5;
+                    for (int r = 0; r < 3; r++)
+                        x[r] = ctr[r] + G[r][0] * o[0] + G[r][1] * o[1] + G[r][2] * o[2];
+                    long v = voxel_at(B, x);
+                    hits += v >= 0 && obb_effective_prob(B->prob[v], &op) != 0;
+                }
+            }
+    double voxel_ml = A->spacing[0] * A->spacing[1] * A->spacing[2] * 1e-3;
+    return (double)hits * voxel_ml / (OVERLAP_SAMPLES * OVERLAP_SAMPLES * OVERLAP_SAMPLES);
+}
+
+int case_penetrating(const planning_case *c, const uint8_t *fitted, case_overlap *out, int max)
+{
+    obb_params op = {c->tau_min, c->tau_max};
+    obb_tree **t = calloc((size_t)(c->nfrag ? c->nfrag : 1), sizeof *t);
+    int rc = t ? 0 : fn_err_set(FN_ENOMEM, "out of memory for the overlap check"), n = 0;
+    for (int i = 0; i < c->nfrag && rc == 0; i++)
+        if (!(t[i] = obb_tree_build(&c->frag[i], &op)))
+            rc = fn_err_wrap(FN_EFORMAT, "fragment %d", c->frag[i].id);
+    for (int a = 0; rc == 0 && a < c->nfrag; a++)
+        for (int b = a + 1; rc == 0 && b < c->nfrag; b++) {
+            pose wa = pose_compose(c->frag[a].pose, c->frag[a].home);
+            pose wb = pose_compose(c->frag[b].pose, c->frag[b].home);
+            obb_result r;
+            if ((rc = obb_collide(t[a], &wa, t[b], &wb, NULL, NULL, &r)) < 0 || !r.collides)
+                continue;
+            if (out && n < max)
+                out[n] = (case_overlap){a, b, case_overlap_ml(c, a, b), fitted && (fitted[a] || fitted[b])};
+            n++;
+        }
+    for (int i = 0; t && i < c->nfrag; i++)
+        obb_tree_free(t[i]);
+    free(t);
+    return rc < 0 ? rc : n;
+}
+
+int case_record_penetrating(planning_case *c, const case_overlap *o, int n)
+{
+    json_t *list = json_array();
+    if (!c->extra)
+        c->extra = json_object();
+    for (int k = 0; list && k < n; k++)
+        json_array_append_new(list, json_pack("{s:[i,i],s:f,s:b}", "fragments", c->frag[o[k].a].id,
+                                              c->frag[o[k].b].id, "overlap_ml", o[k].ml,
+                                              "within_fit_tolerance", o[k].fitted));
+    if (!list || !c->extra || (n ? json_object_set(c->extra, "penetrating", list) : 0) != 0) {
+        json_decref(list);
+        return fn_err_set(FN_ENOMEM, "out of memory for case.json's penetrating");
+    }
+    if (!n)
+        json_object_del(c->extra, "penetrating");
+    json_decref(list);
+    return 0;
+}
+
+int case_is_fixed(const planning_case *c, int i)
+{
+    if (i < 0 || i >= c->nfrag)
+        return 0;
+    int fixed = i == c->fixed;
+    for (int k = 0; k < c->nfixed_also && !fixed; k++)
+        fixed = c->fixed_also[k] == c->frag[i].id;
+    return fixed;
+}
+
+void case_set_fixed(planning_case *c, const uint8_t *fixed)
+{
+    if (c->fixed < 0 || c->fixed >= c->nfrag || !fixed[c->fixed]) {
+        c->fixed = -1;
+        for (int i = 0; i < c->nfrag && c->fixed < 0; i++)
+            if (fixed[i])
+                c->fixed = i;
+    }
+    c->nfixed_also = 0;
+    for (int i = 0; i < c->nfrag && c->nfixed_also < CASE_FIXED_MAX; i++)
+        if (fixed[i] && i != c->fixed)
+            c->fixed_also[c->nfixed_also++] = c->frag[i].id;
+}
+
 static int check_labels(const vol *labels)
 {
     size_t n = vol_count(labels);
@@ -271,6 +400,11 @@ int case_rebuild(planning_case *c, int new_id, int parent_id)
     nf = NULL;
     nt = NULL;
     c->fixed = case_find(c, fixed_id);
+    int kept = 0; /* fixed ids that vanished go */
+    for (int k = 0; k < c->nfixed_also; k++)
+        if (case_find(c, c->fixed_also[k]) >= 0)
+            c->fixed_also[kept++] = c->fixed_also[k];
+    c->nfixed_also = kept;
 done:
     free(lo);
     free(hi);

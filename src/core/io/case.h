@@ -24,6 +24,7 @@
 
 #define CASE_VERSION 1
 
+#define CASE_FIXED_MAX 64 /* fixed fragments a case records */
 #define CASE_TAU_MIN 0.5  /* a new case's tau_min and tau_max */
 #define CASE_TAU_MAX 0.95
 
@@ -37,7 +38,9 @@ typedef struct planning_case {
     vol *labels;             /* labelmap on the source grid (float label values), owned */
     int nfrag;
     frag *frag;              /* frag[i].id is its label; prob maps, centroid, axes ready after load */
-    int fixed;               /* index of the fixed fragment, -1 none */
+    int fixed;               /* index of the fixed fragment, -1 none (reduce's, the report's) */
+    int nfixed_also;         /* fragments fixed besides it (a session fixed several), by id */
+    int fixed_also[CASE_FIXED_MAX];
     double tau_min, tau_max; /* hierarchy thresholds (collision probability) */
     int has_truth;
     pose *truth;             /* when has_truth: per fragment, the pose that restores it (home -> true) */
@@ -88,6 +91,32 @@ int case_rebuild(planning_case *c, int new_id, int parent_id);
 /* Index of the fragment with label id, or -1. */
 int case_find(const planning_case *c, int id);
 
+/* Whether fragment i (index) is fixed: c->fixed or one of fixed_also. */
+int case_is_fixed(const planning_case *c, int i);
+/* Fixes the fragments flagged in fixed (per index; at most CASE_FIXED_MAX): c->fixed stays while
+ * it is among them, else becomes the first; the others go to fixed_also. */
+void case_set_fixed(planning_case *c, const uint8_t *fixed);
+
+/* The overlap of fragments a and b (indices) at their poses: the volume (ml) in which their bone
+ * voxels (obb.h's effective probability > 0 under the case's tau) overlap, sampled at 27 points
+ * per voxel of a. The one overlap figure: navigate's and reduce's saves, case.json's
+ * "penetrating" and the report use it. */
+double case_overlap_ml(const planning_case *c, int a, int b);
+
+typedef struct case_overlap {
+    int a, b;   /* fragment indices, a < b */
+    double ml;  /* case_overlap_ml */
+    int fitted; /* fitted[a] || fitted[b]: a fit left them so, within its tolerance */
+} case_overlap;
+
+/* The pairs that interpenetrate at the case's poses (obb_collide at tolerance 0, as the loop
+ * checks), with their overlap; the first max go to out (may be NULL). fitted: per fragment (NULL
+ * = none). Returns how many, or FN_E*. */
+int case_penetrating(const planning_case *c, const uint8_t *fitted, case_overlap *out, int max);
+/* Records o[0..n-1] as case.json's "penetrating" ({"fragments": [id, id], "overlap_ml",
+ * "within_fit_tolerance"}), or removes it when n is 0. 0 or FN_ENOMEM. */
+int case_record_penetrating(planning_case *c, const case_overlap *o, int n);
+
 /* sha256 of a file's bytes as 64 hex digits. 0 or FN_EIO (also for a file that is not regular:
  * a FIFO or a device would never end or never start). */
 int case_file_sha256(const char *path, char hex[65]);
@@ -114,7 +143,7 @@ int case_grow(planning_case *c, const double seed[3], double threshold, int into
 /* Keeps only, or drops, the listed fragments. */
 int case_keep(planning_case *c, const int *ids, int n);
 int case_drop(planning_case *c, const int *ids, int n);
-/* Makes id the fixed fragment (0: none). */
+/* Makes id the fixed fragment, the only one (0: none). */
 int case_fix(planning_case *c, int id);
 /* Fragment id's enclosed interior (morph_fill's mode: MORPH_FILL_3D and/or MORPH_FILL_SLICES; the
  * cancellous bone below the threshold inside the cortex) joins it; voxels of other fragments stay

@@ -263,12 +263,14 @@ int case_fix(planning_case *c, int id)
 {
     if (id == 0) {
         c->fixed = -1;
+        c->nfixed_also = 0;
         return 0;
     }
     int rc = need(c, id);
     if (rc < 0)
         return rc;
     c->fixed = case_find(c, id);
+    c->nfixed_also = 0;
     return 0;
 }
 

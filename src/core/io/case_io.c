@@ -98,6 +98,20 @@ static void stored_source(const planning_case *c, char *out, size_t cap)
     snprintf(out, cap, "%s", c->source);
 }
 
+/* "fixed": null, the fixed fragment's id, or (several fixed) their ids, c->fixed's first. */
+static json_t *fixed_json(const planning_case *c)
+{
+    if (c->fixed < 0)
+        return json_null();
+    if (!c->nfixed_also)
+        return json_integer(c->frag[c->fixed].id);
+    json_t *a = json_array();
+    json_array_append_new(a, json_integer(c->frag[c->fixed].id));
+    for (int k = 0; k < c->nfixed_also; k++)
+        json_array_append_new(a, json_integer(c->fixed_also[k]));
+    return a;
+}
+
 static json_t *case_json(const planning_case *c, const char *labels_sha)
 {
     json_t *root = json_object();
@@ -131,7 +145,7 @@ static json_t *case_json(const planning_case *c, const char *labels_sha)
     json_object_set_new(root, "segmentation", sg);
     json_object_set_new(root, "tau_min", json_real(c->tau_min));
     json_object_set_new(root, "tau_max", json_real(c->tau_max));
-    json_object_set_new(root, "fixed", c->fixed >= 0 ? json_integer(c->frag[c->fixed].id) : json_null());
+    json_object_set_new(root, "fixed", fixed_json(c));
     json_object_set_new(root, "has_truth", json_boolean(c->has_truth));
     json_t *fr = json_array();
     for (int i = 0; i < c->nfrag; i++)
@@ -265,6 +279,7 @@ static int bad(const struct reader *r, const char *what)
     return fn_err_set(FN_EFORMAT, "%s: field %s: %s", r->file, r->field, what);
 }
 
+
 static json_t *get(struct reader *r, json_t *obj, const char *prefix, const char *key)
 {
     snprintf(r->field, sizeof r->field, "%s%s", prefix, key);
@@ -297,6 +312,33 @@ static int get_int(struct reader *r, json_t *obj, const char *prefix, const char
         return bad(r, msg);
     }
     *out = (long)json_integer_value(v);
+    return 0;
+}
+
+/* "fixed" as fixed_json writes it: null, one id (the older form), or an array of ids. */
+static int read_fixed(struct reader *r, json_t *root, planning_case *c)
+{
+    json_t *fixed = get(r, root, "", "fixed"), *v;
+    if (!fixed)
+        return FN_EFORMAT;
+    if (json_is_null(fixed))
+        return 0;
+    json_t *one = json_is_array(fixed) ? NULL : fixed;
+    size_t n = one ? 1 : json_array_size(fixed);
+    if (!n || n > CASE_FIXED_MAX)
+        return bad(r, "expected a fragment id, null, or an array of 1..64 fragment ids");
+    int idx[CASE_FIXED_MAX];
+    for (size_t k = 0; k < n; k++) {
+        v = one ? one : json_array_get(fixed, k);
+        if (!json_is_integer(v) || json_integer_value(v) < 1 || json_integer_value(v) > 65535)
+            return bad(r, "expected fragment ids, integers in 1..65535");
+        if ((idx[k] = case_find(c, (int)json_integer_value(v))) < 0)
+            return bad(r, "names a fragment the case does not have");
+    }
+    c->fixed = idx[0];
+    c->nfixed_also = 0;
+    for (size_t k = 1; k < n; k++)
+        c->fixed_also[c->nfixed_also++] = c->frag[idx[k]].id;
     return 0;
 }
 
@@ -590,16 +632,8 @@ static int read_case(struct reader *r, json_t *root, planning_case *c)
         return rc;
     if ((rc = case_rebuild(c, 0, 0)) < 0)
         return fn_err_wrap(rc, "%s", lpath);
-    json_t *fixed = get(r, root, "", "fixed");
-    if (!fixed)
-        return FN_EFORMAT;
-    if (!json_is_null(fixed)) {
-        long id;
-        if (get_int(r, root, "", "fixed", 1, 65535, &id) < 0)
-            return FN_EFORMAT;
-        if ((c->fixed = case_find(c, (int)id)) < 0)
-            return bad(r, "names a fragment the case does not have");
-    }
+    if ((rc = read_fixed(r, root, c)) < 0)
+        return rc;
     if ((rc = read_fragments(r, root, c)) < 0)
         return rc;
     warn_penetrating(r, root);

@@ -132,9 +132,17 @@ int case_journal_apply(planning_case *c, const journal_rec *recs, size_t n)
     int rc = journal_final_poses(recs, n, c->nfrag, p);
     for (int i = 0; rc == 0 && i < c->nfrag; i++)
         c->frag[i].pose = p[i];
-    for (size_t i = 0; rc == 0 && i < n; i++) /* case.json has one fixed fragment: the last fixed */
-        if (recs[i].kind == JOURNAL_FIX && (recs[i].flag || c->fixed == recs[i].frag))
-            c->fixed = recs[i].flag ? recs[i].frag : -1;
+    uint8_t *fixed = rc == 0 ? calloc((size_t)c->nfrag + 1, 1) : NULL;
+    if (rc == 0 && !fixed)
+        rc = FN_ENOMEM;
+    for (int i = 0; fixed && i < c->nfrag; i++)
+        fixed[i] = (uint8_t)case_is_fixed(c, i);
+    for (size_t i = 0; fixed && i < n; i++)
+        if (recs[i].kind == JOURNAL_FIX && recs[i].frag >= 0 && recs[i].frag < c->nfrag)
+            fixed[recs[i].frag] = (uint8_t)(recs[i].flag != 0);
+    if (fixed)
+        case_set_fixed(c, fixed);
+    free(fixed);
     free(p);
     return rc < 0 ? fn_err_wrap(rc, "%s/journal", c->dir) : 0;
 }

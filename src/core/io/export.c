@@ -77,7 +77,7 @@ static void world_to_crop(const frag *f, double m[3][4])
     }
 }
 
-vol *export_planned_labels(const planning_case *c, double *overlap_ml)
+vol *export_planned_labels(const planning_case *c)
 {
     const vol *src = c->labels;
     vol *out = vol_new(src->dim[0], src->dim[1], src->dim[2]);
@@ -86,11 +86,8 @@ vol *export_planned_labels(const planning_case *c, double *overlap_ml)
     memcpy(out->affine, src->affine, sizeof out->affine);
     memcpy(out->spacing, src->spacing, sizeof out->spacing);
     out->src_type = VOL_U16;
-    double vox_ml = src->spacing[0] * src->spacing[1] * src->spacing[2] * 1e-3;
     for (int fi = 0; fi < c->nfrag; fi++) {
         const frag *f = &c->frag[fi];
-        if (overlap_ml)
-            overlap_ml[fi] = 0;
         /* The crop's box at its pose, in source indices. */
         pose wp = pose_compose(f->pose, f->home);
         int lo[3] = {INT32_MAX, INT32_MAX, INT32_MAX}, hi[3] = {INT32_MIN, INT32_MIN, INT32_MIN};
@@ -129,14 +126,7 @@ vol *export_planned_labels(const planning_case *c, double *overlap_ml)
                         continue;
                     if (!f->prob[((size_t)l[2] * (size_t)f->dim[1] + (size_t)l[1]) * (size_t)f->dim[0] + (size_t)l[0]])
                         continue;
-                    float *o = &out->data[vol_idx(out, i, j, k)];
-                    if (*o != 0 && overlap_ml) {
-                        overlap_ml[fi] += vox_ml;
-                        int other = case_find(c, (int)*o);
-                        if (other >= 0)
-                            overlap_ml[other] += vox_ml;
-                    }
-                    *o = (float)f->id;
+                    out->data[vol_idx(out, i, j, k)] = (float)f->id;
                 }
     }
     return out;

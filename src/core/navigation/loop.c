@@ -181,11 +181,29 @@ void loop_free(loop *L)
 
 /* ---- collision ---- */
 
-/* Fragment s at p against every other. Returns 1 colliding, 0 free, or a negative FN_E*;
- * *sep gets the smallest separation seen. fresh: a zeroed scratch cache instead of the pair's. */
-static int collide_all(loop *L, int s, const pose *p, int fresh, double *sep)
+/* The tolerance pair (s, j) is queried at: the larger of the two fragments' holds. */
+static double pair_hold(const loop *L, int s, int j)
+{
+    return fmax(L->hold_mm[s], L->hold_mm[j]);
+}
+
+/* Does fragment s stand, or may it stand, inside another within a fit's tolerance? */
+static int held(const loop *L, int s)
+{
+    for (int j = 0; j < L->n; j++)
+        if (j != s && pair_hold(L, s, j) > 0)
+            return 1;
+    return 0;
+}
+
+/* Fragment s at p against every other, each pair at its hold (or at 0: strict). Returns 1
+ * colliding, 0 free, or a negative FN_E*; *sep gets the smallest separation seen. fresh: a
+ * zeroed scratch cache instead of the pair's (always when strict: the pair's cache serves the
+ * pair's hold). */
+static int collide_at(loop *L, int s, const pose *p, int fresh, int strict, double *sep)
 {
     *sep = INFINITY;
+    fresh |= strict;
     for (int j = 0; j < L->n; j++) {
         if (j == s)
             continue;
@@ -199,7 +217,7 @@ static int collide_all(loop *L, int s, const pose *p, int fresh, double *sep)
         }
         loop_contact c = {0, INFINITY};
         int64_t t0 = fresh ? 0 : fnclock_now_ns();
-        int rc = L->col.query(L->col.ctx, s, p, j, &L->pose[j], cache, &c);
+        int rc = L->col.query(L->col.ctx, s, p, j, &L->pose[j], strict ? 0 : pair_hold(L, s, j), cache, &c);
         if (!fresh) /* the invariant check's queries are not part of the loop's cost */
             loop__stats_query(L, fnclock_now_ns() - t0);
         if (rc < 0)
@@ -210,6 +228,11 @@ static int collide_all(loop *L, int s, const pose *p, int fresh, double *sep)
             return 1;
     }
     return 0;
+}
+
+static int collide_all(loop *L, int s, const pose *p, int fresh, double *sep)
+{
+    return collide_at(L, s, p, fresh, 0, sep);
 }
 
 /* ---- motion ---- */
@@ -366,6 +389,7 @@ static int overlap_all(loop *L, int s, const pose *p, double *sum)
         int rc = j == s ? 0 : L->col.overlap(L->col.ctx, s, p, j, &L->pose[j], &mm3);
         if (rc < 0)
             return rc;
+        L->st.overlaps += j != s;
         *sum += mm3;
     }
     return 0;
@@ -373,18 +397,29 @@ static int overlap_all(loop *L, int s, const pose *p, double *sum)
 
 /* Queries fragment s where it stands: the gap, or that it interpenetrates and how deep. fresh:
  * from scratch (no cache, not in the statistics), whose bound on the gap is the collider's best
- * for this pose; the pair caches' may be carried over from earlier poses. */
+ * for this pose; the pair caches' may be carried over from earlier poses. A held fragment is
+ * also queried at 0: inside there but free at its hold, it is shown penetrating (in_collision)
+ * while its gap at the hold stays valid, so that it moves as a free one does; free at 0, its
+ * hold ends. */
 static int refresh_contact(loop *L, int s, int fresh)
 {
-    double sep;
+    double sep, sep0;
     int rc = collide_all(L, s, &L->pose[s], fresh, &sep);
     if (rc < 0)
         return rc;
-    L->in_collision = rc;
+    int inside = rc;
+    if (rc == 0 && held(L, s)) {
+        inside = collide_at(L, s, &L->pose[s], 1, 1, &sep0);
+        if (inside < 0)
+            return inside;
+        if (!inside)
+            L->hold_mm[s] = 0;
+    }
+    L->in_collision = inside;
     L->gap_valid = !rc;
     L->gap_fresh = !rc && fresh;
     L->gap = rc ? 0 : sep;
-    L->pen = rc ? fmin(sep, 0) : 0;
+    L->pen = rc ? fmin(sep, 0) : inside ? fmin(sep0, 0) : 0;
     return rc ? overlap_all(L, s, &L->pose[s], &L->overlap) : 0;
 }
 
@@ -428,7 +463,7 @@ static int move(loop *L, int s, double c[3], const double d[3], const double r[3
         if (rc < 0)
             return rc;
     }
-    if (L->in_collision) {
+    if (L->in_collision && !L->gap_valid) {
         pose cand = moved(&start, c, d, r, 1);
         return escape(L, s, &cand, t_us);
     }
@@ -466,8 +501,13 @@ static void accept_pose(loop *L, int s, pose p, int64_t t_us, uint32_t kind, int
     L->pose[s] = p;
     L->gap_fresh = 0;
     L->verify_frag = s;
-    if (checked != LOOP_ESCAPING) /* escaping goes no deeper: a tolerated overlap stays one */
-        L->tolerated[s] = checked == LOOP_TOLERATED;
+    /* "fitted" holds until it moves; a plan loaded so marks both of a pair (loop_tolerate), and
+     * either one's move ends it for both */
+    if (L->tolerated[s] && checked != LOOP_TOLERATED)
+        memset(L->tolerated, 0, sizeof L->tolerated);
+    L->tolerated[s] = checked == LOOP_TOLERATED;
+    if (checked == LOOP_UNCHECKED || checked == LOOP_ESCAPING)
+        L->hold_mm[s] = 0; /* not checked at the hold: it no longer bounds how deep it is */
     if (checked != LOOP_CHECKED)
         L->gap_valid = 0;
     loop__stats_pose(L, s, &p);
@@ -584,9 +624,30 @@ static void journal_saved(loop *L)
  * the contact. */
 static int settle(loop *L)
 {
-    if (!L->collision_on || L->in_collision || (L->gap_valid && (L->gap_fresh || !L->at_rest)))
+    if (!L->collision_on || (L->in_collision && !L->gap_valid) ||
+        (L->gap_valid && (L->gap_fresh || !L->at_rest)))
         return 0;
     return refresh_contact(L, L->selected, 1);
+}
+
+/* Fragment s at p, holding hold_mm there: free at its hold (1 inside at 0 but free at the hold:
+ * *how = LOOP_TOLERATED, else LOOP_CHECKED), 0 colliding, or negative. The hold is set on
+ * success, kept as it was otherwise. */
+static int free_within(loop *L, int s, const pose *p, double hold_mm, int *how)
+{
+    double was = L->hold_mm[s], sep;
+    L->hold_mm[s] = hold_mm;
+    int rc = collide_all(L, s, p, 0, &sep), inside = 0;
+    if (rc == 0 && held(L, s))
+        inside = collide_at(L, s, p, 1, 1, &sep);
+    if (rc != 0 || inside < 0) {
+        L->hold_mm[s] = was;
+        return rc < 0 ? rc : inside < 0 ? inside : 0;
+    }
+    if (!inside)
+        L->hold_mm[s] = 0;
+    *how = inside ? LOOP_TOLERATED : LOOP_CHECKED;
+    return 1;
 }
 
 /* A proposed pose for fragment i: one undo step of its own, taken whole or refused. */
@@ -594,14 +655,12 @@ static int propose(loop *L, int i, const pose *p, double tolerance_mm)
 {
     int out = LOOP_REFUSED;
     if (i >= 0 && i < L->n && !L->fixed[i]) {
-        double sep = 0;
-        int rc = L->collision_on ? collide_all(L, i, p, 0, &sep) : 0;
+        int how = LOOP_UNCHECKED, rc = 1;
+        if (L->collision_on)
+            rc = free_within(L, i, p, tolerance_mm > 0 ? tolerance_mm : 0, &how);
         if (rc < 0)
             return rc;
-        if (rc == 0 || tolerance_mm > 0) {
-            /* inside within the proposer's tolerance: the next move of the fragment finds it
-             * interpenetrating and may not deepen it (escape) */
-            int how = !L->collision_on ? LOOP_UNCHECKED : rc ? LOOP_TOLERATED : LOOP_CHECKED;
+        if (rc == 1) {
             gesture_end(L);
             accept_pose(L, i, *p, L->last_t, JOURNAL_MOVE, how);
             gesture_end(L);
@@ -692,16 +751,18 @@ static void select_next(loop *L, int dir)
     }
 }
 
-/* Restores one saved pose, unless it collides now. Returns 1 when restored. */
+/* Restores one saved pose, unless it collides now at the tolerance it held there. Returns 1
+ * when restored. */
 static int restore(loop *L, const loop_undo *u, uint32_t kind)
 {
+    int how = LOOP_UNCHECKED;
     if (L->collision_on) {
-        double sep;
-        int rc = collide_all(L, u->frag, &u->p, 0, &sep);
-        if (rc != 0)
-            return rc < 0 ? rc : 0;
+        int rc = free_within(L, u->frag, &u->p, u->hold_mm, &how);
+        if (rc != 1)
+            return rc;
     }
-    accept_pose(L, u->frag, u->p, L->last_t, kind, L->collision_on ? LOOP_CHECKED : LOOP_UNCHECKED);
+    accept_pose(L, u->frag, u->p, L->last_t, kind, how == LOOP_UNCHECKED ? how : LOOP_CHECKED);
+    L->tolerated[u->frag] = (uint8_t)(u->tolerated && how == LOOP_TOLERATED);
     L->gap_valid = 0;
     L->in_collision = 0;
     gesture_end(L);
@@ -743,13 +804,12 @@ static int undo_redo(loop *L, int redo)
         return LOOP_IDLE;
     loop_undo u = from[*nfrom - 1];
     if (u.fix) {
-        loop_undo back = {u.frag, L->pose[u.frag], 1 + L->fixed[u.frag]};
+        loop_undo back = {u.frag, L->pose[u.frag], 1 + L->fixed[u.frag], 0, 0};
         set_fixed(L, u.frag, u.fix - 1);
         shift(nfrom, to, nto, back);
         return LOOP_ACCEPTED;
     }
-    loop_undo back = {u.frag, L->pose[u.frag], 0};
-    L->tolerated[u.frag] = 0; /* the pose it goes back to may be inside for another reason */
+    loop_undo back = {u.frag, L->pose[u.frag], 0, L->hold_mm[u.frag], L->tolerated[u.frag]};
     int rc = restore(L, &u, redo ? JOURNAL_REDO : JOURNAL_UNDO);
     verify(L);
     if (rc <= 0)
@@ -764,7 +824,7 @@ static void undo_push(loop *L, int s)
         memmove(L->undo, L->undo + 1, (LOOP_UNDO_MAX - 1) * sizeof *L->undo);
         L->nundo--;
     }
-    L->undo[L->nundo++] = (loop_undo){s, L->pose[s], 0};
+    L->undo[L->nundo++] = (loop_undo){s, L->pose[s], 0, L->hold_mm[s], L->tolerated[s]};
     L->nredo = 0;
 }
 
@@ -820,7 +880,7 @@ int loop_recover(loop *L, const journal_rec *recs, size_t n)
         if (r->frag < 0 || r->frag >= L->n)
             return fn_err_set(FN_EFORMAT, "journal record %zu (seq %llu): fragment %d, the case has %d",
                               i + 1, (unsigned long long)r->seq, r->frag, L->n);
-        loop_undo before = {r->frag, L->pose[r->frag], 0};
+        loop_undo before = {r->frag, L->pose[r->frag], 0, 0, 0};
         if (r->kind == JOURNAL_FIX) {
             push_fix(L, r->frag);
             L->fixed[r->frag] = (uint8_t)r->flag;
@@ -864,13 +924,16 @@ void loop_set_pose(loop *L, int i, pose p)
         L->pose[i] = p;
         L->gap_valid = L->in_collision = 0;
         L->tolerated[i] = 0;
+        L->hold_mm[i] = 0;
     }
 }
 
-void loop_tolerate(loop *L, int i)
+void loop_tolerate(loop *L, int i, double tolerance_mm)
 {
-    if (i >= 0 && i < L->n)
+    if (i >= 0 && i < L->n && tolerance_mm > 0) {
         L->tolerated[i] = 1;
+        L->hold_mm[i] = tolerance_mm;
+    }
 }
 
 pose loop_pose(const loop *L, int i)

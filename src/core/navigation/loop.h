@@ -44,13 +44,18 @@
  *
  * A pose proposal (LOOP_EV_POSE, e.g. from the reduction worker through the control ring) moves
  * one movable fragment to a given pose as one step of its own: with checking on it is queried
- * there and refused when it collides (or the fragment is fixed, or out of range), unless its
- * proposer checked it at a tolerance of its own (tolerance_mm > 0: the reduction's fit, whose
- * voxel surfaces interlock at the loop's tolerance 0, so that a fit within tenths of a millimetre
- * of the truth touches inside by a fraction of a voxel): such a pose is accepted as a plan loaded
- * that way, counted in `tolerated`, and the moves after it may not deepen it; accepted, it is
- * journaled (JOURNAL_START) and one undo step, apart from the gestures before and after it. Its
- * result is in the scene (proposals, proposal_result); it is not a motion step (not in steps).
+ * there and refused when it collides (or the fragment is fixed, or out of range). A proposer may
+ * give a tolerance of its own (tolerance_mm > 0: the reduction's fit, whose voxel surfaces
+ * interlock at the loop's tolerance 0, so that a fit within tenths of a millimetre of the truth
+ * touches inside by a fraction of a voxel): the pose is then queried at that tolerance, and one
+ * inside another at 0 but free at it is accepted as `tolerated` (counted so; the scene's
+ * `tolerated` until the fragment moves). The fragment then holds that tolerance: its pairs are
+ * queried at it, so the moves after it are checked, limited and slid as usual but may not go
+ * deeper than the fit's tolerance, at the cost of an ordinary query; once it stands free at 0
+ * (queried where it rests) the hold ends. Accepted, a proposal is journaled (JOURNAL_START) and
+ * one undo step, apart from the gestures before and after it; undo and redo give a pose back the
+ * tolerance it was left with. Its result is in the scene (proposals, proposal_result); it is not
+ * a motion step (not in steps).
  *
  * Threads and memory: loop_new allocates everything; loop_feed, loop_drain and loop_run allocate
  * nothing. One thread steps a loop; renderers read it through loop_scene_read from any number of
@@ -117,12 +122,13 @@ typedef struct loop_contact {
 
 /* The collision seam: a table the application fills (loop_obb.c wraps the OBB octree). */
 typedef struct loop_collider {
-    /* Fragment a at pose pa (home world -> current world) against b at pb. cache is cache_bytes
-     * of memory for this ordered pair, zeroed whenever it held another pair's (the loop keeps one
-     * per fragment b, for the last fragment moved against it). Returns 0 or a negative FN_E*.
-     * Must not allocate; called only from the stepping thread. */
-    int (*query)(void *ctx, int a, const pose *pa, int b, const pose *pb, void *cache,
-                 loop_contact *out);
+    /* Fragment a at pose pa (home world -> current world) against b at pb, each voxel shrunk by
+     * tolerance_mm (0: the loop's own; > 0: a fit's, while the pair stands where a fit left it).
+     * cache is cache_bytes of memory for this ordered pair, zeroed whenever it held another
+     * pair's (the loop keeps one per fragment b, for the last fragment moved against it), or NULL.
+     * Returns 0 or a negative FN_E*. Must not allocate; called only from the stepping thread. */
+    int (*query)(void *ctx, int a, const pose *pa, int b, const pose *pb, double tolerance_mm,
+                 void *cache, loop_contact *out);
     size_t cache_bytes;
     void *ctx;
     /* Optional (NULL: the query's penetration estimate stands in): an estimate of the volume (mm^3)
@@ -153,6 +159,7 @@ typedef struct loop_stats {
     uint64_t tolerated;              /* proposals accepted inside another fragment, within the
                                       * tolerance their proposer checked (a fit) */
     uint64_t queries;                /* pair queries (the invariant check's not counted) */
+    uint64_t overlaps;               /* overlap volumes measured (escaping moves: costly) */
     double query_us_mean, query_us_max;
     double step_hz;                  /* steps per second of wall time, since the last reset */
     double tick_hz;                  /* loop_run timer ticks per second (period_us apart) */
@@ -262,11 +269,10 @@ void loop_set_saved(loop *L, const pose *saved);
 int loop_measure(loop *L);
 /* Moves a fragment without collision checking (recovery, loading): no journal, no stats. */
 void loop_set_pose(loop *L, int i, pose p);
-/* Marks fragment i, as loaded, as inside another by no more than a fit's tolerance (a plan that
- * fracnav reduce left so): the scene says `tolerated` rather than warn while it stays there. Its
- * next move found free, unchecked, or an undo or redo of it, clears the mark. Before the loop
- * runs. */
-void loop_tolerate(loop *L, int i);
+/* Marks fragment i, as loaded, as inside another by no more than a fit's tolerance_mm (a plan
+ * that fracnav reduce left so): the scene says `tolerated` rather than warn until it moves, and it
+ * holds that tolerance as a proposal's does (above). Before the loop runs. */
+void loop_tolerate(loop *L, int i, double tolerance_mm);
 
 pose loop_pose(const loop *L, int i);
 int loop_selected(const loop *L);

@@ -18,6 +18,8 @@ typedef struct loop_undo {
     int frag;
     pose p;
     int fix; /* 0: a pose step (p); 1 + flag: a fix step, back to fixed[frag] = flag */
+    double hold_mm; /* a pose step: the tolerance the fragment held there (hold_mm) */
+    int tolerated;  /* ... and whether it stood where a fit left it */
 } loop_undo;
 
 struct loop {
@@ -84,7 +86,10 @@ struct loop {
     atomic_int rt_cpu;   /* the CPU loop_run runs on under SCHED_FIFO (-1: not), for the reader */
     int rt_prio;         /* its priority, written before rt_cpu */
     atomic_int running;  /* loop_run is past its start (pages mapped): the reader may read */
-    uint8_t tolerated[LOOP_MAX_FRAGS]; /* inside another within a fit's tolerance (loop_tolerate) */
+    uint8_t tolerated[LOOP_MAX_FRAGS]; /* where a fit left it, not moved since (the scene's label) */
+    /* > 0: the fragment may stand inside another by up to this fit's tolerance: its pairs are
+     * queried at it until it rests free at 0 (loop.h, proposals) */
+    double hold_mm[LOOP_MAX_FRAGS];
     atomic_ullong done; /* events finished, for other threads */
     loop_clock clock;   /* loop_set_clock; wait_until NULL: loop_run waits for loop_notify */
     uint64_t proposals; /* LOOP_EV_POSE handled, and their latest results */

@@ -61,13 +61,15 @@ void loop_obb_free(loop_obb *o)
 }
 
 /* The loop's poses map home world -> world; a tree wants local mm -> world. */
-static int query(void *ctx, int a, const pose *pa, int b, const pose *pb, void *cache,
-                 loop_contact *out)
+static int query(void *ctx, int a, const pose *pa, int b, const pose *pb, double tolerance_mm,
+                 void *cache, loop_contact *out)
 {
     loop_obb *o = ctx;
     pose wa = pose_compose(*pa, o->frags[a].home), wb = pose_compose(*pb, o->frags[b].home);
+    obb_query q = o->q;
+    q.tolerance_mm = fmax(q.tolerance_mm, tolerance_mm);
     obb_result r;
-    int rc = obb_collide(o->tree[a], &wa, o->tree[b], &wb, &o->q, cache, &r);
+    int rc = obb_collide(o->tree[a], &wa, o->tree[b], &wb, &q, cache, &r);
     if (rc < 0)
         return rc;
     out->collides = r.collides;

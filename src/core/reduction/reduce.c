@@ -275,7 +275,10 @@ typedef struct pair_ctx {
     obb_cache *cache; /* nasm, for the queries of the optimizer (temporal coherence) */
 } pair_ctx;
 
-/* 1 collides, 0 free, <0 error; *sep: the smallest separation estimate over the assembly. */
+/* 1 collides, 0 free, <0 error; *sep: the smallest separation estimate over the assembly. The
+ * yes or no is exact either way; a separation is asked without the caches, whose bound depends on
+ * the queries before (a front answers with a looser one), so that it, and every step taken by it
+ * (slide_to_contact), depends on the pose alone. */
 static int collides(const pair_ctx *pc, const pose *mp, double *sep)
 {
     pose mw = pose_compose(*mp, pc->moving->home);
@@ -284,7 +287,8 @@ static int collides(const pair_ctx *pc, const pose *mp, double *sep)
     for (int f = 0; f < pc->nasm; f++) {
         pose aw = pose_compose(pc->asm_[f]->pose, pc->asm_[f]->home);
         obb_result r;
-        int rc = obb_collide(pc->trees[f], &aw, pc->trees[pc->nasm], &mw, &pc->q, pc->cache ? &pc->cache[f] : NULL, &r);
+        obb_cache *cache = pc->cache && !sep ? &pc->cache[f] : NULL;
+        int rc = obb_collide(pc->trees[f], &aw, pc->trees[pc->nasm], &mw, &pc->q, cache, &r);
         if (rc < 0)
             return rc;
         hit |= r.collides;
@@ -790,6 +794,15 @@ static void free_trees(obb_tree **t, int n)
     free(t);
 }
 
+double reduce_tolerance(const reduce_opts *o, const frag *const *f, int n)
+{
+    double smin = INFINITY;
+    for (int i = 0; i < n; i++)
+        for (int a = 0; a < 3; a++)
+            smin = fmin(smin, f[i]->spacing[a]);
+    return fmin(o->tolerance_mm, 0.45 * smin);
+}
+
 int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_opts *o, reduce_result *r)
 {
     if (!asm_ || nasm < 1 || !moving || !o || !r)
@@ -799,13 +812,10 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
     r->id = moving->id;
     r->placed = moving->pose;
     obb_params op = {o->tau_min, o->tau_max};
-    /* the query takes tolerances below half a voxel */
-    double smin = fmin(moving->spacing[0], fmin(moving->spacing[1], moving->spacing[2]));
-    for (int f = 0; f < nasm; f++)
-        for (int a = 0; a < 3; a++)
-            smin = fmin(smin, asm_[f]->spacing[a]);
+    const frag *mv = moving;
+    double tol = fmin(reduce_tolerance(o, asm_, nasm), reduce_tolerance(o, &mv, 1));
     pair_ctx pc = {asm_, nasm, moving, calloc((size_t)nasm + 1, sizeof(obb_tree *)),
-                   {.threshold = 0, .tolerance_mm = fmin(o->tolerance_mm, 0.45 * smin)}, NULL};
+                   {.threshold = 0, .tolerance_mm = tol}, NULL};
     reduce_bricks *b = reduce__bricks_new(moving);
     reduce_metric *m = NULL;
     fit F = {0};
@@ -1070,9 +1080,19 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
         rc = resolve_collision(&pc, m, o->settle_mm, r);
     }
     if (rc == 0) {
-        moving->pose = r->end;
         r->metric_start = reduce_metric_eval(m, &r->start, NULL); /* both over the final VOI */
         r->metric_end = reduce_metric_eval(m, &r->end, NULL);
+        /* a fit never keeps an end worse than a free start */
+        if (r->metric_end > r->metric_start && (rc = collides(&pc, &r->start, NULL)) == 0) {
+            r->end = r->fitted = r->start;
+            r->metric_end = r->metric_start;
+            r->push_mm = 0;
+            r->collides = 0;
+        }
+        rc = rc < 0 ? rc : 0;
+    }
+    if (rc == 0) {
+        moving->pose = r->end;
         r->evaluations = F.evals;
         r->history = F.hist;
         r->nhistory = F.nhist;
@@ -1284,7 +1304,22 @@ int reduce_store(planning_case *c, int fixed, const reduce_opts *o, const reduce
         json_decref(rec);
     if (!c->extra)
         c->extra = extra;
-    return ok ? 0 : fn_err_set(FN_ENOMEM, "reduce: out of memory for the case record");
+    if (!ok)
+        return fn_err_set(FN_ENOMEM, "reduce: out of memory for the case record");
+    size_t npairs = (size_t)c->nfrag * (size_t)c->nfrag / 2 + 1;
+    uint8_t *fitted = calloc((size_t)c->nfrag + 1, 1);
+    case_overlap *pen = malloc(npairs * sizeof *pen);
+    int rc = fitted && pen ? 0 : fn_err_set(FN_ENOMEM, "reduce: out of memory for the case record");
+    for (int i = 0; i < n && rc == 0; i++) {
+        int k = case_find(c, r[i].id);
+        if (k >= 0)
+            fitted[k] = 1;
+    }
+    if (rc == 0 && (rc = case_penetrating(c, fitted, pen, (int)npairs)) >= 0)
+        rc = case_record_penetrating(c, pen, rc);
+    free(fitted);
+    free(pen);
+    return rc;
 }
 
 int reduce_fit_one(const frag *const *others, int nothers, const frag *moving, const pose *start,

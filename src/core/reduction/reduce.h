@@ -158,6 +158,10 @@ typedef struct reduce_opts {
  * tolerance 0.5 mm, xtol 0.01 mm, 4000 evaluations (all stages, attempts and hops together). */
 void reduce_defaults(reduce_opts *o);
 
+/* The collision tolerance a fit of these fragments works at: o->tolerance_mm, at most 0.45 times
+ * the smallest voxel spacing among them (the query takes tolerances below half a voxel). */
+double reduce_tolerance(const reduce_opts *o, const frag *const *f, int n);
+
 typedef struct reduce_result {
     int id;               /* the moving fragment's label */
     pose placed;          /* its pose before (as the user left it) */
@@ -234,7 +238,9 @@ void reduce_errors(const frag *f, const frag *m, const pose *want, double *rot_d
 
 /* Stores the results in c->extra as "reduction": {method, counting, fixed, fragments: [{id, voi,
  * placed, start, end, iterations, evaluations, seconds, metric_start, metric_end, push_mm,
- * history}]}, replacing an earlier one. 0 or FN_ENOMEM. */
+ * history}]}, replacing an earlier one, and the pairs the fitted poses leave inside each other as
+ * "penetrating" (case_penetrating; within_fit_tolerance where a fitted fragment is one of them).
+ * 0 or FN_E*. */
 int reduce_store(struct planning_case *c, int fixed, const reduce_opts *o, const reduce_result *r, int n);
 
 #endif
