@@ -3,7 +3,9 @@
  * than teem can parse in good time. teem trusts a detached header: it prints the numbered form's
  * name with the header's own printf format into a buffer of fixed size, opens LIST entries
  * whatever they are (a FIFO blocks, /dev/urandom never ends), and adds key/value pairs in time
- * quadratic in their number (80,000 took 16 s). */
+ * quadratic in their number (80,000 took 16 s). The files are looked at (realpath, stat), never
+ * opened; one swapped between this check and teem's open (in a folder someone else may write to)
+ * is not caught. */
 #include "volio_impl.h"
 
 #include "err.h"
