@@ -9,6 +9,7 @@
 #include <cmocka.h>
 
 #include "case.h"
+#include "durable.h"
 #include "err.h"
 #include "testutil.h"
 #include "volio.h"
@@ -57,16 +58,44 @@ static pid_t spawn(const char *args)
     return pid;
 }
 
+/* 1 when folder holds `name`, or a temporary of it (durable.h: .fracnav-tmp-PID-N-NAME), that is
+ * not empty. */
+static int holds(const char *folder, const char *name)
+{
+    DIR *d = opendir(folder);
+    if (!d)
+        return 0;
+    struct dirent *e;
+    int hit = 0;
+    size_t n = strlen(name), tl = strlen(DURABLE_TMP_TAG);
+    char p[8400];
+    struct stat sb;
+    while (!hit && (e = readdir(d))) {
+        size_t len = strlen(e->d_name);
+        int tmp = !strncmp(e->d_name, DURABLE_TMP_TAG, tl) && len > n && e->d_name[len - n - 1] == '-' &&
+                  !strcmp(e->d_name + len - n, name);
+        if (tmp || !strcmp(e->d_name, name)) {
+            snprintf(p, sizeof p, "%s/%s", folder, e->d_name);
+            hit = stat(p, &sb) == 0 && sb.st_size > 0;
+        }
+    }
+    closedir(d);
+    return hit;
+}
+
 /* The file `name` is being written: in the case folder (other than `old`, when given) or in a
- * staged sibling folder of it. */
+ * staged sibling folder of it, under its name or as a temporary of it. */
 static int written(const char *parent, const char *base, const char *name, const struct stat *old)
 {
     char p[8400];
     struct stat sb;
     snprintf(p, sizeof p, "%s/%s/%s", parent, base, name);
-    if (stat(p, &sb) == 0 &&
-        (!old || sb.st_ino != old->st_ino || sb.st_size != old->st_size ||
+    if (old && stat(p, &sb) == 0 &&
+        (sb.st_ino != old->st_ino || sb.st_size != old->st_size ||
          sb.st_mtim.tv_sec != old->st_mtim.tv_sec || sb.st_mtim.tv_nsec != old->st_mtim.tv_nsec))
+        return 1;
+    snprintf(p, sizeof p, "%s/%s", parent, base);
+    if (!old && holds(p, name))
         return 1;
     DIR *d = opendir(parent);
     if (!d)
@@ -76,8 +105,8 @@ static int written(const char *parent, const char *base, const char *name, const
     size_t n = strlen(base);
     while (!hit && (e = readdir(d)))
         if (e->d_name[0] == '.' && !strncmp(e->d_name + 1, base, n) && e->d_name[n + 1] == '.') {
-            snprintf(p, sizeof p, "%s/%s/%s", parent, e->d_name, name);
-            hit = stat(p, &sb) == 0 && sb.st_size > 0;
+            snprintf(p, sizeof p, "%s/%s", parent, e->d_name);
+            hit = holds(p, name);
         }
     closedir(d);
     return hit;
@@ -111,7 +140,7 @@ static void test_segment_refuses_existing_and_leaves_no_half_folder(void **st)
     /* Killed while writing its labels into a new folder: no folder, or a whole case. */
     char args[9000];
     snprintf(args, sizeof args, "segment '%s' -o '%s'", src, cdir);
-    int killed = kill_when_written(spawn(args), dir, "case", ".labels.tmp.nii.gz", NULL);
+    int killed = kill_when_written(spawn(args), dir, "case", "labels.nii.gz", NULL);
     struct stat sb;
     if (stat(cdir, &sb) == 0) {
         planning_case *c = case_load(cdir);
