@@ -195,36 +195,6 @@ static void test_shipped_grazing_slides_on_example(void **st)
     tu_rmtree(ex);
 }
 
-/* Starts `fracnav ARGS...` (stdin from /dev/null) with its stderr readable through *err, its
- * stdout into the file out (NULL: inherited). Without err, stderr goes into out too. */
-static pid_t start_cli(FILE **err, const char *out, char *const args[])
-{
-    const char *bin = getenv("FRACNAV_BIN");
-    char *argv[16] = {(char *)bin};
-    for (int i = 0; args[i] && i < 14; i++)
-        argv[i + 1] = args[i];
-    int fds[2];
-    assert_int_equal(pipe(fds), 0);
-    pid_t pid = fork();
-    if (pid == 0) {
-        int o = out ? open(out, O_WRONLY | O_CREAT | O_TRUNC | O_APPEND, 0644) : 1;
-        if (o < 0 || !freopen("/dev/null", "r", stdin))
-            _exit(126);
-        dup2(o, 1);
-        dup2(err ? fds[1] : o, 2);
-        close(fds[0]);
-        execv(bin, argv);
-        _exit(127);
-    }
-    close(fds[1]);
-    if (err)
-        *err = fdopen(fds[0], "r");
-    else
-        close(fds[0]);
-    assert_true(!err || *err);
-    return pid;
-}
-
 /* Killed mid-replay (SIGKILL) once the journal on disk holds 300 ms of its motion: the next
  * start refuses to silently drop those poses, and --recover starts from the last of them. The
  * recording stays plugged in long after its motion, so the kill is mid-replay however slow the
@@ -235,7 +205,7 @@ static void test_crash_recovery(void **st)
                                         "wait 600 s\nunplug\n");
     char cmd[9000];
     FILE *err;
-    pid_t pid = start_cli(&err, NULL, (char *[]){"replay", case_dir, (char *)rec, "--realtime",
+    pid_t pid = tu_start_cli(&err, NULL, (char *[]){"replay", case_dir, (char *)rec, "--realtime",
                                                  "--discard-journal", NULL});
     char line[1024];
     assert_non_null(fgets(line, sizeof line, err));
@@ -299,7 +269,7 @@ static void test_navigate_saves_on_exit(void **st)
     snprintf(path, sizeof path, "%s/case.json", case_dir);
     size_t len;
     char *before = tu_slurp(path, &len);
-    pid_t pid = start_cli(NULL, outp, (char *[]){"navigate", case_dir, "--device", spec, "--json", NULL});
+    pid_t pid = tu_start_cli(NULL, outp, (char *[]){"navigate", case_dir, "--device", spec, "--json", NULL});
     int shown = tu_wait_for_text(outp, "| world", TU_WAIT_MAX_S); /* a status line, once a second */
     kill(pid, SIGTERM);
     int status;
@@ -403,7 +373,7 @@ static char *navigate_keys(const char *keys, const char *until)
     snprintf(outp, sizeof outp, "%s/keys.out", dir);
     snprintf(spec, sizeof spec, "keyboard:%s", path);
     tu_write_file(path, keys, strlen(keys));
-    pid_t pid = start_cli(NULL, outp, (char *[]){"navigate", case_dir, "--device", spec, "--json", NULL});
+    pid_t pid = tu_start_cli(NULL, outp, (char *[]){"navigate", case_dir, "--device", spec, "--json", NULL});
     int shown = !until || tu_wait_for_text(outp, until, TU_WAIT_MAX_S);
     if (until)
         kill(pid, SIGTERM);

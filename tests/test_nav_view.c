@@ -87,31 +87,6 @@ static double moved_t(json_t *j, int axis)
     return json_number_value(json_array_get(json_object_get(p, "t"), (size_t)axis));
 }
 
-/* Starts `fracnav ARGS...`: stdin /dev/null, stdout into the file `out`, stderr on *err. */
-static pid_t start_cli(FILE **err, const char *out, char *const args[])
-{
-    const char *bin = getenv("FRACNAV_BIN");
-    char *argv[20] = {(char *)bin};
-    for (int i = 0; args[i] && i < 18; i++)
-        argv[i + 1] = args[i];
-    int fds[2];
-    assert_int_equal(pipe(fds), 0);
-    pid_t pid = fork();
-    if (pid == 0) {
-        dup2(fds[1], 2);
-        close(fds[0]);
-        int fd = open(out, O_WRONLY | O_CREAT | O_TRUNC, 0644);
-        if (fd < 0 || dup2(fd, 1) < 0 || !freopen("/dev/null", "r", stdin))
-            _exit(126);
-        execv(bin, argv);
-        _exit(127);
-    }
-    close(fds[1]);
-    *err = fdopen(fds[0], "r");
-    assert_non_null(*err);
-    return pid;
-}
-
 /* Reads lines from f until one holds `needle` (0 at end of file); the lines read are appended to
  * seen (cap bytes). */
 static int line_with(FILE *f, const char *needle, char *seen, size_t cap)
@@ -399,7 +374,7 @@ static void test_recording_ends_navigate(void **st)
     snprintf(spec, sizeof spec, "replay-realtime:%s", rec);
     snprintf(out, sizeof out, "%s/ends.json", dir);
     FILE *err;
-    pid_t pid = start_cli(&err, out, (char *[]){"navigate", (char *)c, "--device", spec, "--json",
+    pid_t pid = tu_start_cli(&err, out, (char *[]){"navigate", (char *)c, "--device", spec, "--json",
                                                 "--duration", "60", NULL});
     int ended = line_with(err, "end of the recording", seen, sizeof seen);
     line_with(err, "\001", seen, sizeof seen); /* the rest, to the end */
@@ -426,7 +401,7 @@ static void test_loop_plays_again(void **st)
     snprintf(spec, sizeof spec, "replay-realtime:%s", rec);
     snprintf(out, sizeof out, "%s/loops.json", dir);
     FILE *err;
-    pid_t pid = start_cli(&err, out, (char *[]){"navigate", (char *)c, "--device", spec, "--json",
+    pid_t pid = tu_start_cli(&err, out, (char *[]){"navigate", (char *)c, "--device", spec, "--json",
                                                 "--loop", "--duration", "60", NULL});
     int third = line_with(err, "(play 3)", seen, sizeof seen);
     kill(pid, SIGTERM); /* quits and saves, as Ctrl-C */
@@ -481,7 +456,7 @@ static void keyboard_shows(const char *keys, const char *needle)
     snprintf(spec, sizeof spec, "keyboard:%s", path);
     snprintf(out, sizeof out, "%s/kb.json", dir);
     FILE *err;
-    pid_t pid = start_cli(&err, out, (char *[]){"navigate", (char *)c, "--device", spec, "--json",
+    pid_t pid = tu_start_cli(&err, out, (char *[]){"navigate", (char *)c, "--device", spec, "--json",
                                                 "--duration", "60", NULL});
     int shown = line_with(err, needle, seen, sizeof seen);
     kill(pid, SIGTERM);
@@ -658,7 +633,7 @@ static void test_other_controller_is_reported(void **st)
     const char *c = case_copy("other");
     pid_t srv = serve_as(mnt, "spacenavigator");
     FILE *err;
-    pid_t pid = start_cli(&err, out, (char *[]){"navigate", (char *)c, "--device", node, "--json",
+    pid_t pid = tu_start_cli(&err, out, (char *[]){"navigate", (char *)c, "--device", node, "--json",
                                                 "--duration", "60", NULL});
     int up = line_with(err, "frag 2/2", seen, sizeof seen);
     unserve(srv, mnt);

@@ -11,6 +11,7 @@
 #include <setjmp.h>
 #include <stdint.h>
 #include <cmocka.h>
+#include <fcntl.h>
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -98,6 +99,34 @@ int tu_run_cli(char **out, const char *fmt, ...)
     else
         free(buf);
     return WIFEXITED(st) ? WEXITSTATUS(st) : -1;
+}
+
+pid_t tu_start_cli(FILE **err, const char *out, char *const args[])
+{
+    const char *bin = getenv("FRACNAV_BIN");
+    char *argv[20] = {(char *)bin};
+    for (int i = 0; args[i] && i < 18; i++)
+        argv[i + 1] = args[i];
+    int fds[2];
+    assert_int_equal(pipe(fds), 0);
+    pid_t pid = fork();
+    if (pid == 0) {
+        int o = out ? open(out, O_WRONLY | O_CREAT | O_TRUNC | O_APPEND, 0644) : 1;
+        if (o < 0 || !freopen("/dev/null", "r", stdin))
+            _exit(126);
+        dup2(o, 1);
+        dup2(err ? fds[1] : o, 2);
+        close(fds[0]);
+        execv(bin, argv);
+        _exit(127);
+    }
+    close(fds[1]);
+    if (err)
+        *err = fdopen(fds[0], "r");
+    else
+        close(fds[0]);
+    assert_true(!err || *err);
+    return pid;
 }
 
 int tu_wait_for(int (*cond)(void *arg), void *arg, double max_s)

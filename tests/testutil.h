@@ -3,6 +3,8 @@
 #define FN_TESTUTIL_H
 
 #include <stddef.h>
+#include <stdio.h>
+#include <sys/types.h>
 
 /* A fresh empty directory under $TMPDIR for this test; removed by tu_rmtree. Returns a static-owned
  * copy the caller must free(). */
@@ -19,6 +21,10 @@ const char *tu_test_data(const char *name);
 /* Runs `fracnav ARGS` (the built CLI) through /bin/sh, capturing stdout+stderr into out (malloc'd,
  * NUL-terminated; may be NULL). Returns the exit status (or -1). */
 int tu_run_cli(char **out, const char *fmt, ...);
+/* Starts `fracnav ARGS...` (the built CLI; args ends with NULL, at most 18) with stdin from
+ * /dev/null, its stderr readable through *err, its stdout into the file out (NULL: inherited).
+ * Without err, stderr goes into out too. Returns its pid (tu_wait_exit ends it). */
+pid_t tu_start_cli(FILE **err, const char *out, char *const args[]);
 /* Waits for an event: checks cond(arg) every few milliseconds until it holds, for at most max_s
  * seconds (a bound for when the event never comes, never a duration a test relies on). Returns 1
  * when cond held, 0 when max_s passed. */

@@ -22,6 +22,26 @@ int cmd_wants_help(int argc, char **argv)
     return 0;
 }
 
+int cmd_take_flag(int *argc, char **argv, const char *flag)
+{
+    int n = 0, given = 0;
+    for (int i = 0; i < *argc; i++)
+        if (i > 0 && !strcmp(argv[i], flag))
+            given = 1;
+        else
+            argv[n++] = argv[i];
+    *argc = n;
+    return given;
+}
+
+caselock *cmd_lock_case(const char *cmd, const char *dir, int exclusive, int wait)
+{
+    caselock *l = caselock_take(dir, exclusive, wait);
+    if (!l)
+        fprintf(stderr, "fracnav %s: %s\n", cmd, fn_err_msg());
+    return l;
+}
+
 int cmd_number(const char *s, double *out)
 {
     if (!s)
@@ -154,6 +174,10 @@ int cmd_case_arg(const char *cmd, int argc, char **argv, int *i, cmd_case_args *
     }
     if (!strcmp(a, "--force")) {
         c->force = 1;
+        return 1;
+    }
+    if (!strcmp(a, "--wait")) {
+        c->wait = 1;
         return 1;
     }
     if (a[0] != '-') {

@@ -51,6 +51,7 @@ static void usage(FILE *out)
             "                         fragments (id, iterations, evaluations, seconds, metric_start,\n"
             "                         metric_end, push_mm, prealigned, voi_mm, and with ground truth\n"
             "                         rot_err_deg, trans_err_mm, tre_mm), seconds\n"
+            CMD_WAIT_HELP
             "  --help                 this text\n");
 }
 
@@ -265,12 +266,16 @@ int cmd_reduce(int argc, char **argv)
     }
     args A = {0};
     reduce_defaults(&A.o);
+    int wait = cmd_take_flag(&argc, argv, "--wait");
     int rc = parse(argc, argv, &A);
     if (rc)
         return rc;
-    planning_case *c = case_load(A.dir);
+    caselock *lock = cmd_lock_case("reduce", A.dir, !A.out, wait); /* -o: the case is only read */
+    planning_case *c = lock ? case_load(A.dir) : NULL;
     if (!c) {
-        fprintf(stderr, "fracnav reduce: %s\n", fn_err_msg());
+        if (lock)
+            fprintf(stderr, "fracnav reduce: %s\n", fn_err_msg());
+        caselock_release(lock);
         return 1;
     }
     int fixed, mv[256 + 1], nmv;
@@ -279,6 +284,7 @@ int cmd_reduce(int argc, char **argv)
     if (!mvp) {
         fprintf(stderr, "fracnav reduce: out of memory\n");
         case_free(c);
+        caselock_release(lock);
         return 1;
     }
     /* the poses a navigation session journaled beyond case.json are where the hand left them */
@@ -335,5 +341,6 @@ done:
     if (mvp != mv)
         free(mvp);
     case_free(c);
+    caselock_release(lock);
     return rc;
 }
