@@ -9,6 +9,7 @@
 #include <cmocka.h>
 
 #include "case.h"
+#include "caselock.h"
 #include "durable.h"
 #include "err.h"
 #include "testutil.h"
@@ -112,22 +113,68 @@ static int written(const char *parent, const char *base, const char *name, const
     return hit;
 }
 
-/* Waits until the child writes `name` (then kills it: returns 1) or ends by itself (returns 0). */
-static int kill_when_written(pid_t pid, const char *parent, const char *base, const char *name,
-                             const struct stat *old)
+/* What a kill waits for: in folder `parent`, the step named by the condition. */
+typedef struct watch {
+    const char *parent, *base, *name;
+    const struct stat *old;
+    pid_t pid;
+} watch;
+
+static int is_written(const watch *w)
+{
+    return written(w->parent, w->base, w->name, w->old);
+}
+
+/* A temporary (durable.h) is being written in folder w->parent. */
+static int temporary_in(const watch *w)
+{
+    DIR *d = opendir(w->parent);
+    if (!d)
+        return 0;
+    struct dirent *e;
+    int hit = 0;
+    while (!hit && (e = readdir(d)))
+        hit = !strncmp(e->d_name, DURABLE_TMP_TAG, strlen(DURABLE_TMP_TAG));
+    closedir(d);
+    return hit;
+}
+
+/* The child holds the case's lock: the lock file in w->parent names its pid. */
+static int lock_taken(const watch *w)
+{
+    char p[4400], want[32];
+    snprintf(p, sizeof p, "%s/" CASELOCK_FILE, w->parent);
+    snprintf(want, sizeof want, "%ld ", (long)w->pid);
+    char *s = tu_slurp(p, NULL);
+    int hit = s && !strncmp(s, want, strlen(want));
+    free(s);
+    return hit;
+}
+
+/* Waits until cond holds (then kills the child w->pid: returns 1) or the child ends by itself
+ * (returns 0). */
+static int kill_when(int (*cond)(const watch *), watch *w)
 {
     int status;
     for (;;) {
-        if (written(parent, base, name, old)) {
-            kill(pid, SIGKILL);
-            waitpid(pid, &status, 0);
+        if (cond(w)) {
+            kill(w->pid, SIGKILL);
+            waitpid(w->pid, &status, 0);
             return 1;
         }
-        if (waitpid(pid, &status, WNOHANG) == pid)
+        if (waitpid(w->pid, &status, WNOHANG) == w->pid)
             return 0;
         struct timespec nap = {0, 100000};
         nanosleep(&nap, NULL);
     }
+}
+
+/* Waits until the child writes `name` (then kills it: returns 1) or ends by itself (returns 0). */
+static int kill_when_written(pid_t pid, const char *parent, const char *base, const char *name,
+                             const struct stat *old)
+{
+    watch w = {parent, base, name, old, pid};
+    return kill_when(is_written, &w);
 }
 
 static void test_segment_refuses_existing_and_leaves_no_half_folder(void **st)
@@ -226,11 +273,82 @@ static void test_fracture_killed_keeps_old_case(void **st)
     free(dir);
 }
 
+/* No temporary left in folder. */
+static void assert_no_temporary(const char *folder)
+{
+    watch w = {folder, NULL, NULL, NULL, 0};
+    if (temporary_in(&w))
+        fail_msg("a temporary is left in %s", folder);
+}
+
+/* edit killed at the lock's step and at its temporaries' step: the case loads as it was saved,
+ * the lock died with its holder (the next edit needs no --wait), and the next edit removes what
+ * the killed one left. */
+static void test_edit_killed_at_lock_and_temporaries(void **st)
+{
+    (void)st;
+    char *dir = tu_tmpdir("casecrash"), src[4200], cdir[4200], args[9000];
+    snprintf(src, sizeof src, "%s/ct.nii.gz", dir);
+    snprintf(cdir, sizeof cdir, "%s/case", dir);
+    write_ct(src);
+    char *out = NULL;
+    assert_int_equal(tu_run_cli(&out, "segment '%s' -o '%s'", src, cdir), 0);
+    free(out);
+    planning_case *c = case_load(cdir);
+    assert_non_null(c);
+    char before[65];
+    memcpy(before, c->json_sha256, sizeof before);
+    case_free(c);
+    snprintf(args, sizeof args, "edit '%s' erase-sphere 80 70 45 12", cdir);
+    static int (*const steps[2])(const watch *) = {lock_taken, temporary_in};
+    for (int k = 0; k < 2; k++) {
+        watch w = {cdir, NULL, NULL, NULL, spawn(args)};
+        int killed = kill_when(steps[k], &w);
+        c = case_load(cdir);
+        if (!c)
+            fail_msg("killed=%d at step %d: the case no longer loads: %s", killed, k, fn_err_msg());
+        if (killed)
+            assert_string_equal(c->json_sha256, before);
+        memcpy(before, c->json_sha256, sizeof before);
+        case_free(c);
+    }
+    assert_int_equal(tu_run_cli(&out, "edit '%s' fix 1", cdir), 0);
+    free(out);
+    assert_no_temporary(cdir);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* export killed while its temporary is in the output folder: the next export removes it. */
+static void test_export_killed_leftover_removed(void **st)
+{
+    (void)st;
+    char *dir = tu_tmpdir("casecrash"), src[4200], cdir[4200], odir[4200], args[9000];
+    snprintf(src, sizeof src, "%s/ct.nii.gz", dir);
+    snprintf(cdir, sizeof cdir, "%s/case", dir);
+    snprintf(odir, sizeof odir, "%s/out", dir);
+    write_ct(src);
+    char *out = NULL;
+    assert_int_equal(tu_run_cli(&out, "segment '%s' -o '%s'", src, cdir), 0);
+    free(out);
+    assert_int_equal(mkdir(odir, 0755), 0);
+    snprintf(args, sizeof args, "export '%s' --nifti '%s/planned.nii.gz'", cdir, odir);
+    watch w = {odir, NULL, NULL, NULL, spawn(args)};
+    kill_when(temporary_in, &w);
+    assert_int_equal(tu_run_cli(&out, "%s", args), 0);
+    free(out);
+    assert_no_temporary(odir);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_segment_refuses_existing_and_leaves_no_half_folder),
         cmocka_unit_test(test_fracture_killed_keeps_old_case),
+        cmocka_unit_test(test_edit_killed_at_lock_and_temporaries),
+        cmocka_unit_test(test_export_killed_leftover_removed),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -203,6 +203,7 @@ int durable_create(durable_file *f, const char *path)
     int rc = split_path(path, dir, sizeof dir, &name);
     if (rc < 0)
         return rc;
+    durable_sweep(dir, 0);
     int n = snprintf(f->tmp, sizeof f->tmp, "%s/" DURABLE_TMP_TAG "%ld-%u-%s", dir, (long)getpid(),
                      atomic_fetch_add(&tmp_counter, 1), name);
     if (n < 0 || (size_t)n >= sizeof f->tmp)

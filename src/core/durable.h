@@ -6,7 +6,8 @@
  *   1. durable_create makes a temporary beside it, DIR/.fracnav-tmp-PID-N-NAME (N counts per
  *      process, so two threads or two processes never share one; NAME keeps PATH's extension for
  *      writers that choose a format by it), opened O_CREAT|O_EXCL|O_NOFOLLOW: a name planted there
- *      (a link, a file) is never written through, the create fails instead.
+ *      (a link, a file) is never written through, the create fails instead. It first removes the
+ *      temporaries that dead processes left in DIR (durable_sweep).
  *   2. The caller writes it: through f->fd (durable_write_all, durable_stream), or by its name
  *      f->tmp for a library that only takes a name (nifticlib, teem).
  *   3. durable_seal checks that f->tmp is still the regular file that step 1 created (a link or
