@@ -34,6 +34,28 @@ int cmd_take_flag(int *argc, char **argv, const char *flag)
     return given;
 }
 
+int cmd_journal_poses(const char *cmd, planning_case *c, int recover)
+{
+    if (!recover) {
+        size_t n = case_journal_pending(c->dir);
+        if (n)
+            fprintf(stderr, "fracnav %s: warning: %s/journal holds %zu poses beyond case.json (an "
+                            "interrupted session): using case.json's; --recover uses the journal's\n",
+                    cmd, c->dir, n);
+        return 0;
+    }
+    journal_rec *recs = NULL;
+    size_t n = 0;
+    int rc = case_journal_check(c, &recs, &n);
+    if (rc >= 0)
+        rc = case_journal_apply(c, recs, n);
+    free(recs);
+    if (rc == 0 && n)
+        fprintf(stderr, "fracnav %s: using the %zu poses that %s/journal holds beyond case.json\n", cmd, n,
+                c->dir);
+    return rc < 0 ? rc : 0;
+}
+
 caselock *cmd_lock_case(const char *cmd, const char *dir, int exclusive, int wait)
 {
     caselock *l = caselock_take(dir, exclusive, wait);

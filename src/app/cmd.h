@@ -29,7 +29,7 @@ CMD_LIST(CMD_DECLARE)
 
 /* True when argv holds -h or --help. */
 int cmd_wants_help(int argc, char **argv);
-/* A flag (--wait, which every command that opens a case takes): removed from argv
+/* A flag (--wait, which every command that opens a case takes; --recover): removed from argv
  * (anywhere after the command's name, *argc lowered); 1 when it was there. */
 int cmd_take_flag(int *argc, char **argv, const char *flag);
 #define CMD_WAIT_HELP                                                                             \
@@ -38,6 +38,16 @@ int cmd_take_flag(int *argc, char **argv, const char *flag);
 /* The case's lock (caselock.h: exclusive for a command that writes the case), or NULL after
  * printing "fracnav CMD: why" on stderr. */
 caselock *cmd_lock_case(const char *cmd, const char *dir, int exclusive, int wait);
+/* For a command that reads a case (export, render): the poses its journal holds beyond case.json
+ * (an interrupted navigate or replay). With recover they are applied to c (edit's reconciliation:
+ * case_journal_check, which may set a bad journal aside, so the caller holds the case exclusively);
+ * without, c keeps case.json's poses and a warning says how many the journal holds and that
+ * --recover uses them. Said on stderr. 0, or FN_E* with fn_err. */
+int cmd_journal_poses(const char *cmd, planning_case *c, int recover);
+#define CMD_RECOVER_HELP                                                                          \
+    "  --recover                  use the poses that CASE/journal holds beyond case.json (left by\n" \
+    "                             an interrupted navigate or replay; without it they are only\n"   \
+    "                             counted in a warning)\n"
 /* Parses the whole of s as a finite number (NULL or trailing text: 0). 1 on success. */
 int cmd_number(const char *s, double *out);
 /* Prints "fracnav CMD: MESSAGE (see fracnav CMD --help)" on stderr; returns 2, the usage exit. */
