@@ -210,15 +210,20 @@ int durable_create(durable_file *f, const char *path)
         return fn_err_set(FN_EINVAL, "%s: path too long", path);
     f->fd = open(f->tmp, O_WRONLY | O_CREAT | O_EXCL | O_NOFOLLOW | O_CLOEXEC, 0644);
     struct stat sb;
-    if (f->fd < 0 || fstat(f->fd, &sb) != 0) {
-        int e = errno;
-        durable_abort(f);
-        return fn_err_set(FN_EIO, "%s: cannot create a temporary beside it (%s): %s", path, f->tmp,
-                          strerror(e));
+    if (f->fd >= 0 && fstat(f->fd, &sb) == 0) {
+        f->dev = sb.st_dev;
+        f->ino = sb.st_ino;
+        return 0;
     }
-    f->dev = sb.st_dev;
-    f->ino = sb.st_ino;
-    return 0;
+    rc = fn_err_set(FN_EIO, "%s: cannot create a temporary beside it (%s): %s", path, f->tmp,
+                    strerror(errno));
+    if (f->fd >= 0) { /* made, but not to be trusted */
+        close(f->fd);
+        unlink(f->tmp);
+    }
+    f->fd = -1;
+    f->tmp[0] = '\0';
+    return rc;
 }
 
 int durable_write_all(durable_file *f, const void *p, size_t n)
