@@ -10,6 +10,7 @@
 #include "case.h"
 #include "durable.h"
 #include "err.h"
+#include "fnrec.h"
 #include "journal.h"
 #include "testutil.h"
 
@@ -184,6 +185,23 @@ static void test_linked_journal_refused(void **st)
     free(dir);
 }
 
+/* A recording (fracnav record -o) is written in place as it comes, but never through a link. */
+static void test_recording_not_written_through_link(void **st)
+{
+    (void)st;
+    char *dir = tu_tmpdir("durable"), outside[4200], path[4200];
+    make_outside(dir, outside, sizeof outside);
+    plant(outside, dir, "rec.fnrec");
+    snprintf(path, sizeof path, "%s/rec.fnrec", dir);
+    fnrec_header h = {.version = FNREC_VERSION, .vid = 0x46d, .pid = 0xc62b, .name = "x",
+                      .format = "split", .source = "test"};
+    assert_null(fnrec_writer_open(path, &h));
+    assert_non_null(strstr(fn_err_msg(), "symbolic link"));
+    assert_outside_intact(outside);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -193,6 +211,7 @@ int main(void)
         cmocka_unit_test(test_edit_ignores_planted_old_temporaries),
         cmocka_unit_test(test_edit_refuses_linked_case_json),
         cmocka_unit_test(test_linked_journal_refused),
+        cmocka_unit_test(test_recording_not_written_through_link),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
