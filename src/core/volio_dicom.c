@@ -31,7 +31,7 @@ static int run_dcm2niix(const char *dir, const char *out, const char *log)
 {
     posix_spawn_file_actions_t fa;
     posix_spawn_file_actions_init(&fa);
-    posix_spawn_file_actions_addopen(&fa, STDOUT_FILENO, log, O_WRONLY | O_CREAT | O_TRUNC, 0600);
+    posix_spawn_file_actions_addopen(&fa, STDOUT_FILENO, log, O_WRONLY | O_CREAT | O_TRUNC | O_NOFOLLOW, 0600);
     posix_spawn_file_actions_adddup2(&fa, STDOUT_FILENO, STDERR_FILENO);
     /* posix_spawn takes char *const argv[]: give it writable copies rather than casting const away. */
     char prog[] = "dcm2niix", z[] = "-z", b[] = "-b", no[] = "n", o[] = "-o", f[] = "-f", name[] = "vol";
