@@ -12,6 +12,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include "durable.h"
 #include "err.h"
 
 #define RC_MAX_BYTES (1 << 20)
@@ -626,7 +627,7 @@ int calib_merge_spnavrc(const calib *c, const char *old, size_t old_len, char **
 
 int calib_save(const calib *c, const char *path, char *used, size_t used_cap)
 {
-    char def[600], tmp[700];
+    char def[600];
     if (!path) {
         if (default_path(def, sizeof def))
             return FN_EIO;
@@ -641,20 +642,10 @@ int calib_save(const calib *c, const char *path, char *used, size_t used_cap)
     free(old);
     if (rc)
         return rc;
-    snprintf(tmp, sizeof tmp, "%s.tmp", path);
-    int fd = open(tmp, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-    if (fd < 0) {
-        free(merged);
-        return fn_err_set(FN_EIO, "%s: %s", tmp, strerror(errno));
-    }
-    int ok = write(fd, merged, n) == (ssize_t)n && fsync(fd) == 0;
+    rc = durable_replace_bytes(path, merged, n);
     free(merged);
-    ok = close(fd) == 0 && ok;
-    if (!ok || rename(tmp, path) != 0) {
-        int e = errno;
-        unlink(tmp);
-        return fn_err_set(FN_EIO, "%s: cannot save the calibration: %s", path, strerror(e));
-    }
+    if (rc)
+        return fn_err_wrap(rc, "cannot save the calibration");
     if (used && used_cap)
         snprintf(used, used_cap, "%s", path);
     return 0;

@@ -7,6 +7,7 @@
 #include <string.h>
 #include <unistd.h>
 
+#include "durable.h"
 #include "err.h"
 #include "simfile.h"
 #include "hiddesc.h"
@@ -388,9 +389,15 @@ fnrec_writer *fnrec_writer_stream(FILE *f, const fnrec_header *h)
 
 fnrec_writer *fnrec_writer_open(const char *path, const fnrec_header *h)
 {
-    FILE *f = fopen(path, "w");
+    /* Written as it is recorded (a kill keeps what came before it), so in place, never through
+     * a link nor into a FIFO or device. */
+    int fd = durable_open_log(path);
+    if (fd < 0)
+        return NULL;
+    FILE *f = ftruncate(fd, 0) == 0 ? fdopen(fd, "w") : NULL;
     if (!f) {
         fn_err_set(FN_EIO, "%s: cannot create: %s", path, strerror(errno));
+        close(fd);
         return NULL;
     }
     fnrec_writer *w = fnrec_writer_stream(f, h);

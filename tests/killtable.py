@@ -61,7 +61,8 @@ def staged_state(parent, base):
             return "staging: " + (",".join(files) if files else "empty")
     p = os.path.join(parent, base)
     if os.path.isdir(p):
-        tmp = [n for n in os.listdir(p) if n.startswith(".") or n.endswith(".prev.nii.gz")]
+        tmp = [n for n in os.listdir(p)
+               if (n.startswith(".") and n != ".fracnav-lock") or n.endswith(".prev.nii.gz")]
         if tmp:
             return "in place: " + ",".join(sorted(tmp))
     return "before writing"

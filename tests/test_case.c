@@ -7,6 +7,7 @@
 #include <cmocka.h>
 
 #include "case.h"
+#include "durable.h"
 #include "err.h"
 #include "testutil.h"
 #include "volio.h"
@@ -295,7 +296,7 @@ static void test_changed_files(void **st)
     char fifo[4300];
     snprintf(fifo, sizeof fifo, "%s/fifo", dir);
     assert_int_equal(mkfifo(fifo, 0600), 0);
-    assert_int_equal(case_file_sha256(fifo, path), FN_EIO);
+    assert_int_equal(durable_file_sha256(fifo, path), FN_EIO);
     assert_non_null(strstr(fn_err_msg(), "not a regular file"));
     snprintf(path, sizeof path, "%s/case.json", cdir);
     unlink(path);

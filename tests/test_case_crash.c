@@ -9,6 +9,8 @@
 #include <cmocka.h>
 
 #include "case.h"
+#include "caselock.h"
+#include "durable.h"
 #include "err.h"
 #include "testutil.h"
 #include "volio.h"
@@ -43,16 +45,52 @@ static void write_ct(const char *path)
     vol_free(v);
 }
 
+/* `fracnav ARGS` (a shell word list, quoted as for tu_run_cli) started through tu_spawn. */
+static pid_t spawn(const char *args)
+{
+    char cmd[9400];
+    snprintf(cmd, sizeof cmd, "exec '%s' %s", tu_fracnav(), args);
+    return tu_spawn((char *[]){"/bin/sh", "-c", cmd, NULL}, "/dev/null", NULL);
+}
+
+/* 1 when folder holds `name`, or a temporary of it (durable.h: .fracnav-tmp-PID-N-NAME), that is
+ * not empty. */
+static int holds(const char *folder, const char *name)
+{
+    DIR *d = opendir(folder);
+    if (!d)
+        return 0;
+    struct dirent *e;
+    int hit = 0;
+    size_t n = strlen(name), tl = strlen(DURABLE_TMP_TAG);
+    char p[8400];
+    struct stat sb;
+    while (!hit && (e = readdir(d))) {
+        size_t len = strlen(e->d_name);
+        int tmp = !strncmp(e->d_name, DURABLE_TMP_TAG, tl) && len > n && e->d_name[len - n - 1] == '-' &&
+                  !strcmp(e->d_name + len - n, name);
+        if (tmp || !strcmp(e->d_name, name)) {
+            snprintf(p, sizeof p, "%s/%s", folder, e->d_name);
+            hit = stat(p, &sb) == 0 && sb.st_size > 0;
+        }
+    }
+    closedir(d);
+    return hit;
+}
+
 /* The file `name` is being written: in the case folder (other than `old`, when given) or in a
- * staged sibling folder of it. */
+ * staged sibling folder of it, under its name or as a temporary of it. */
 static int written(const char *parent, const char *base, const char *name, const struct stat *old)
 {
     char p[8400];
     struct stat sb;
     snprintf(p, sizeof p, "%s/%s/%s", parent, base, name);
-    if (stat(p, &sb) == 0 &&
-        (!old || sb.st_ino != old->st_ino || sb.st_size != old->st_size ||
+    if (old && stat(p, &sb) == 0 &&
+        (sb.st_ino != old->st_ino || sb.st_size != old->st_size ||
          sb.st_mtim.tv_sec != old->st_mtim.tv_sec || sb.st_mtim.tv_nsec != old->st_mtim.tv_nsec))
+        return 1;
+    snprintf(p, sizeof p, "%s/%s", parent, base);
+    if (!old && holds(p, name))
         return 1;
     DIR *d = opendir(parent);
     if (!d)
@@ -62,39 +100,83 @@ static int written(const char *parent, const char *base, const char *name, const
     size_t n = strlen(base);
     while (!hit && (e = readdir(d)))
         if (e->d_name[0] == '.' && !strncmp(e->d_name + 1, base, n) && e->d_name[n + 1] == '.') {
-            snprintf(p, sizeof p, "%s/%s/%s", parent, e->d_name, name);
-            hit = stat(p, &sb) == 0 && sb.st_size > 0;
+            snprintf(p, sizeof p, "%s/%s", parent, e->d_name);
+            hit = holds(p, name);
         }
     closedir(d);
     return hit;
 }
 
+/* What a kill waits for: in folder `parent`, the step named by the condition. */
 typedef struct watch {
-    pid_t pid;
     const char *parent, *base, *name;
     const struct stat *old;
+    pid_t pid;
 } watch;
 
-/* The file is being written, or the child ended by itself (left to be reaped). */
-static int written_or_ended(void *arg)
+static int is_written(const watch *w)
 {
-    const watch *w = arg;
-    siginfo_t info = {0};
-    return written(w->parent, w->base, w->name, w->old) ||
-           (waitid(P_PID, (id_t)w->pid, &info, WEXITED | WNOHANG | WNOWAIT) == 0 && info.si_pid == w->pid);
+    return written(w->parent, w->base, w->name, w->old);
 }
 
-/* Runs `fracnav ARGS...` until it writes `name` (then kills it: returns 1) or ends by itself
- * (returns 0). */
-static int kill_when_written(char *const args[], const char *parent, const char *base, const char *name,
+/* A temporary (durable.h) is being written in folder w->parent. */
+static int temporary_in(const watch *w)
+{
+    DIR *d = opendir(w->parent);
+    if (!d)
+        return 0;
+    struct dirent *e;
+    int hit = 0;
+    while (!hit && (e = readdir(d)))
+        hit = !strncmp(e->d_name, DURABLE_TMP_TAG, strlen(DURABLE_TMP_TAG));
+    closedir(d);
+    return hit;
+}
+
+/* The child holds the case's lock: the lock file in w->parent names its pid. */
+static int lock_taken(const watch *w)
+{
+    char p[4400], want[32];
+    snprintf(p, sizeof p, "%s/" CASELOCK_FILE, w->parent);
+    snprintf(want, sizeof want, "%ld ", (long)w->pid);
+    char *s = tu_slurp(p, NULL);
+    int hit = s && !strncmp(s, want, strlen(want));
+    free(s);
+    return hit;
+}
+
+typedef struct kill_watch {
+    int (*cond)(const watch *);
+    const watch *w;
+} kill_watch;
+
+/* The step is reached, or the child ended by itself (left to be reaped). */
+static int reached_or_ended(void *arg)
+{
+    const kill_watch *k = arg;
+    siginfo_t info = {0};
+    return k->cond(k->w) ||
+           (waitid(P_PID, (id_t)k->w->pid, &info, WEXITED | WNOHANG | WNOWAIT) == 0 && info.si_pid == k->w->pid);
+}
+
+/* Waits until cond holds (then kills the child w->pid: returns 1) or the child ends by itself
+ * (returns 0), looking every 0.1 ms. */
+static int kill_when(int (*cond)(const watch *), watch *w)
+{
+    kill_watch k = {cond, w};
+    if (!tu_wait_for_every(reached_or_ended, &k, TU_WAIT_MAX_S, 100))
+        fail_msg("the child neither reached the step nor ended");
+    int hit = cond(w);
+    tu_end(w->pid, hit ? SIGKILL : 0, "fracnav, killed at a step of a save");
+    return hit;
+}
+
+/* Waits until the child writes `name` (then kills it: returns 1) or ends by itself (returns 0). */
+static int kill_when_written(pid_t pid, const char *parent, const char *base, const char *name,
                              const struct stat *old)
 {
-    watch w = {tu_spawn_cli("/dev/null", NULL, args), parent, base, name, old};
-    if (!tu_wait_for_every(written_or_ended, &w, TU_WAIT_MAX_S, 100))
-        fail_msg("fracnav %s neither wrote %s nor ended", args[0], name);
-    int hit = written(parent, base, name, old);
-    tu_end(w.pid, hit ? SIGKILL : 0, "fracnav, killed as it writes a case");
-    return hit;
+    watch w = {parent, base, name, old, pid};
+    return kill_when(is_written, &w);
 }
 
 static void test_segment_refuses_existing_and_leaves_no_half_folder(void **st)
@@ -107,8 +189,7 @@ static void test_segment_refuses_existing_and_leaves_no_half_folder(void **st)
     /* Killed while writing its labels into a new folder: no folder, or a whole case. */
     char args[9000];
     snprintf(args, sizeof args, "segment '%s' -o '%s'", src, cdir);
-    int killed = kill_when_written((char *[]){"segment", src, "-o", cdir, NULL}, dir, "case", ".labels.tmp.nii.gz",
-                                   NULL);
+    int killed = kill_when_written(spawn(args), dir, "case", "labels.nii.gz", NULL);
     struct stat sb;
     if (stat(cdir, &sb) == 0) {
         planning_case *c = case_load(cdir);
@@ -169,8 +250,7 @@ static void test_fracture_killed_keeps_old_case(void **st)
     assert_int_equal(stat(srcfile, &sb), 0);
     char args[9000];
     snprintf(args, sizeof args, "fracture '%s' -o '%s' --seed 2 --force", src, cdir);
-    int killed = kill_when_written((char *[]){"fracture", src, "-o", cdir, "--seed", "2", "--force", NULL}, dir, "case",
-                                   "source.nii.gz", &sb);
+    int killed = kill_when_written(spawn(args), dir, "case", "source.nii.gz", &sb);
     c = case_load(cdir);
     if (!c)
         fail_msg("killed=%d: the case no longer loads: %s", killed, fn_err_msg());
@@ -195,11 +275,82 @@ static void test_fracture_killed_keeps_old_case(void **st)
     free(dir);
 }
 
+/* No temporary left in folder. */
+static void assert_no_temporary(const char *folder)
+{
+    watch w = {folder, NULL, NULL, NULL, 0};
+    if (temporary_in(&w))
+        fail_msg("a temporary is left in %s", folder);
+}
+
+/* edit killed at the lock's step and at its temporaries' step: the case loads as it was saved,
+ * the lock died with its holder (the next edit needs no --wait), and the next edit removes what
+ * the killed one left. */
+static void test_edit_killed_at_lock_and_temporaries(void **st)
+{
+    (void)st;
+    char *dir = tu_tmpdir("casecrash"), src[4200], cdir[4200], args[9000];
+    snprintf(src, sizeof src, "%s/ct.nii.gz", dir);
+    snprintf(cdir, sizeof cdir, "%s/case", dir);
+    write_ct(src);
+    char *out = NULL;
+    assert_int_equal(tu_run_cli(&out, "segment '%s' -o '%s'", src, cdir), 0);
+    free(out);
+    planning_case *c = case_load(cdir);
+    assert_non_null(c);
+    char before[65];
+    memcpy(before, c->json_sha256, sizeof before);
+    case_free(c);
+    snprintf(args, sizeof args, "edit '%s' erase-sphere 80 70 45 12", cdir);
+    static int (*const steps[2])(const watch *) = {lock_taken, temporary_in};
+    for (int k = 0; k < 2; k++) {
+        watch w = {cdir, NULL, NULL, NULL, spawn(args)};
+        int killed = kill_when(steps[k], &w);
+        c = case_load(cdir);
+        if (!c)
+            fail_msg("killed=%d at step %d: the case no longer loads: %s", killed, k, fn_err_msg());
+        if (killed)
+            assert_string_equal(c->json_sha256, before);
+        memcpy(before, c->json_sha256, sizeof before);
+        case_free(c);
+    }
+    assert_int_equal(tu_run_cli(&out, "edit '%s' fix 1", cdir), 0);
+    free(out);
+    assert_no_temporary(cdir);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* export killed while its temporary is in the output folder: the next export removes it. */
+static void test_export_killed_leftover_removed(void **st)
+{
+    (void)st;
+    char *dir = tu_tmpdir("casecrash"), src[4200], cdir[4200], odir[4200], args[9000];
+    snprintf(src, sizeof src, "%s/ct.nii.gz", dir);
+    snprintf(cdir, sizeof cdir, "%s/case", dir);
+    snprintf(odir, sizeof odir, "%s/out", dir);
+    write_ct(src);
+    char *out = NULL;
+    assert_int_equal(tu_run_cli(&out, "segment '%s' -o '%s'", src, cdir), 0);
+    free(out);
+    assert_int_equal(mkdir(odir, 0755), 0);
+    snprintf(args, sizeof args, "export '%s' --nifti '%s/planned.nii.gz'", cdir, odir);
+    watch w = {odir, NULL, NULL, NULL, spawn(args)};
+    kill_when(temporary_in, &w);
+    assert_int_equal(tu_run_cli(&out, "%s", args), 0);
+    free(out);
+    assert_no_temporary(odir);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_segment_refuses_existing_and_leaves_no_half_folder),
         cmocka_unit_test(test_fracture_killed_keeps_old_case),
+        cmocka_unit_test(test_edit_killed_at_lock_and_temporaries),
+        cmocka_unit_test(test_export_killed_leftover_removed),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

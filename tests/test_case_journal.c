@@ -350,6 +350,37 @@ static void test_force_warns_of_unsaved_journal(void **st)
     }
 }
 
+/* export and render of a case whose journal holds unsaved poses (a killed navigate) say so, as
+ * edit does, and use those poses only with --recover; the journal stays for navigate to offer. */
+static void test_export_and_render_say_unsaved_poses(void **st)
+{
+    struct fixture *f = *st;
+    interrupted(f, 1, 6.0);
+    char *out = NULL, plain[4300], recovered[4300], p[4400];
+    snprintf(plain, sizeof plain, "%s/plain", f->tmp);
+    snprintf(recovered, sizeof recovered, "%s/recovered", f->tmp);
+    assert_int_equal(tu_run_cli(&out, "export '%s' --tfm '%s'", f->cdir, plain), 0);
+    assert_non_null(strstr(out, "journal holds 1 poses beyond case.json"));
+    assert_non_null(strstr(out, "--recover"));
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "export '%s' --tfm '%s' --recover", f->cdir, recovered), 0);
+    assert_non_null(strstr(out, "using the 1 poses"));
+    free(out);
+    snprintf(p, sizeof p, "%s/fragment-2.tfm", plain);
+    char *t0 = tu_slurp(p, NULL);
+    snprintf(p, sizeof p, "%s/fragment-2.tfm", recovered);
+    char *t1 = tu_slurp(p, NULL);
+    assert_true(t0 && t1);
+    assert_non_null(strstr(t0, "Parameters: 1 0 0 0 1 0 0 0 1 ")); /* case.json's pose: none */
+    assert_string_not_equal(t0, t1);
+    free(t0);
+    free(t1);
+    assert_int_equal(case_journal_pending(f->cdir), 1);
+    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/r.png' --size 64x64", f->cdir, f->tmp), 0);
+    assert_non_null(strstr(out, "journal holds 1 poses beyond case.json"));
+    free(out);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -363,6 +394,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_penetrating_plan_is_said_and_recorded, setup, teardown),
         cmocka_unit_test_setup_teardown(test_fixed_in_session_is_saved, setup, teardown),
         cmocka_unit_test_setup_teardown(test_force_warns_of_unsaved_journal, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_export_and_render_say_unsaved_poses, setup, teardown),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

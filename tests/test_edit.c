@@ -214,10 +214,11 @@ static void test_failed_save_keeps_case(void **st)
     char json[4300], labels[4300], block[4300];
     snprintf(json, sizeof json, "%s/case.json", f->cdir);
     snprintf(labels, sizeof labels, "%s/labels.nii.gz", f->cdir);
-    snprintf(block, sizeof block, "%s/.case.json.tmp", f->cdir);
+    snprintf(block, sizeof block, "%s/labels.prev.nii.gz", f->cdir);
     size_t jn, ln;
     char *j0 = tu_slurp(json, &jn), *l0 = tu_slurp(labels, &ln);
-    /* A folder where the temporary case.json must go makes the save fail after labels are written. */
+    /* A folder where the previous labels are kept makes the save fail after both files are
+     * written aside, before any rename. */
     assert_int_equal(mkdir(block, 0755), 0);
     char *out;
     assert_int_equal(edit(f, &out, "merge 1 2"), 1);

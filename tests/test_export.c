@@ -11,6 +11,7 @@
 
 #include "case.h"
 #include "err.h"
+#include "durable.h"
 #include "export.h"
 #include "testutil.h"
 #include "vol.h"
@@ -474,10 +475,10 @@ static void test_bad_input(void **st)
     free(after);
 }
 
-static int fails_naming_tmp(const char *tmp, void *ctx)
+static int fails_naming_tmp(durable_file *f, void *ctx)
 {
     (void)ctx;
-    return fn_err_set(FN_EIO, "%s: cannot write this format", tmp);
+    return fn_err_set(FN_EIO, "%s: cannot write this format", f->tmp);
 }
 
 /* A writer's error names the path the user gave, never the temporary file written first. */
@@ -486,7 +487,7 @@ static void test_error_names_the_target(void **st)
     (void)st;
     char path[4300];
     snprintf(path, sizeof path, "%s/cases", dir);
-    assert_int_equal(export_atomic(path, fails_naming_tmp, NULL), FN_EIO);
+    assert_int_equal(durable_replace(path, fails_naming_tmp, NULL), FN_EIO);
     char want[4400];
     snprintf(want, sizeof want, "%s: cannot write this format", path);
     assert_string_equal(fn_err_msg(), want);

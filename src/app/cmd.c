@@ -27,6 +27,48 @@ int cmd_wants_help(int argc, char **argv)
     return 0;
 }
 
+int cmd_take_flag(int *argc, char **argv, const char *flag)
+{
+    int n = 0, given = 0;
+    for (int i = 0; i < *argc; i++)
+        if (i > 0 && !strcmp(argv[i], flag))
+            given = 1;
+        else
+            argv[n++] = argv[i];
+    *argc = n;
+    return given;
+}
+
+int cmd_journal_poses(const char *cmd, planning_case *c, int recover)
+{
+    if (!recover) {
+        size_t n = case_journal_pending(c->dir);
+        if (n)
+            fprintf(stderr, "fracnav %s: warning: %s/journal holds %zu poses beyond case.json (an "
+                            "interrupted session): using case.json's; --recover uses the journal's\n",
+                    cmd, c->dir, n);
+        return 0;
+    }
+    journal_rec *recs = NULL;
+    size_t n = 0;
+    int rc = case_journal_check(c, &recs, &n);
+    if (rc >= 0)
+        rc = case_journal_apply(c, recs, n);
+    free(recs);
+    if (rc == 0 && n)
+        fprintf(stderr, "fracnav %s: using the %zu poses that %s/journal holds beyond case.json\n", cmd, n,
+                c->dir);
+    return rc < 0 ? rc : 0;
+}
+
+caselock *cmd_lock_case(const char *cmd, const char *dir, int exclusive, int wait)
+{
+    caselock *l = caselock_take(dir, exclusive, wait);
+    if (!l)
+        fprintf(stderr, "fracnav %s: %s\n", cmd, fn_err_msg());
+    return l;
+}
+
 int cmd_number(const char *s, double *out)
 {
     if (!s)
@@ -159,6 +201,10 @@ int cmd_case_arg(const char *cmd, int argc, char **argv, int *i, cmd_case_args *
     }
     if (!strcmp(a, "--force")) {
         c->force = 1;
+        return 1;
+    }
+    if (!strcmp(a, "--wait")) {
+        c->wait = 1;
         return 1;
     }
     if (a[0] != '-') {

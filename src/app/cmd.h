@@ -4,6 +4,7 @@
 #define FN_CMD_H
 
 #include "case.h"
+#include "caselock.h"
 #include "loop.h"
 
 #define CMD_LIST(X)                                                                          \
@@ -28,6 +29,25 @@ CMD_LIST(CMD_DECLARE)
 
 /* True when argv holds -h or --help. */
 int cmd_wants_help(int argc, char **argv);
+/* A flag (--wait, which every command that opens a case takes; --recover): removed from argv
+ * (anywhere after the command's name, *argc lowered); 1 when it was there. */
+int cmd_take_flag(int *argc, char **argv, const char *flag);
+#define CMD_WAIT_HELP                                                                             \
+    "  --wait                     when another command holds the case, wait for it (else that\n" \
+    "                             is an error at once, naming the command and its pid)\n"
+/* The case's lock (caselock.h: exclusive for a command that writes the case), or NULL after
+ * printing "fracnav CMD: why" on stderr. */
+caselock *cmd_lock_case(const char *cmd, const char *dir, int exclusive, int wait);
+/* For a command that reads a case (export, render): the poses its journal holds beyond case.json
+ * (an interrupted navigate or replay). With recover they are applied to c (edit's reconciliation:
+ * case_journal_check, which may set a bad journal aside, so the caller holds the case exclusively);
+ * without, c keeps case.json's poses and a warning says how many the journal holds and that
+ * --recover uses them. Said on stderr. 0, or FN_E* with fn_err. */
+int cmd_journal_poses(const char *cmd, planning_case *c, int recover);
+#define CMD_RECOVER_HELP                                                                          \
+    "  --recover                  use the poses that CASE/journal holds beyond case.json (left by\n" \
+    "                             an interrupted navigate or replay; without it they are only\n"   \
+    "                             counted in a warning)\n"
 /* Parses the whole of s as a finite number (NULL or trailing text: 0). 1 on success. */
 int cmd_number(const char *s, double *out);
 /* Prints "fracnav CMD: MESSAGE (see fracnav CMD --help)" on stderr; returns 2, the usage exit. */
@@ -73,11 +93,11 @@ int cmd_threshold_option(const char *cmd, const char *a, const char *val, double
                          int *threshold_auto, int *rc);
 
 /* The arguments of a command that makes a new case from a volume (segment, fracture): VOLUME,
- * -o/--output CASE, --force, --json, --threshold and --tau-min/--tau-max. The caller points
+ * -o/--output CASE, --force, --wait, --json, --threshold and --tau-min/--tau-max. The caller points
  * threshold and threshold_auto at its own parameters. */
 typedef struct cmd_case_args {
     const char *in, *out;
-    int json, force;
+    int json, force, wait;
     double *threshold;
     int *threshold_auto;
     cmd_tau tau;

@@ -126,12 +126,12 @@ static pid_t spawn(char *const argv[], const char *out_path, const char *err_pat
     if (in >= 0)
         dup2(in, 0);
     if (out_path) {
-        int fd = open(out_path, O_WRONLY | O_CREAT | O_TRUNC, 0644);
+        int fd = open(out_path, O_WRONLY | O_CREAT | O_TRUNC | O_NOFOLLOW, 0644);
         if (fd >= 0)
             dup2(fd, 1);
     }
     if (err_path) {
-        int fd = open(err_path, O_WRONLY | O_CREAT | O_TRUNC, 0644);
+        int fd = open(err_path, O_WRONLY | O_CREAT | O_TRUNC | O_NOFOLLOW, 0644);
         if (fd >= 0)
             dup2(fd, 2);
     }

@@ -48,6 +48,7 @@ static void usage(FILE *out)
             "           operation, what it made (fragment, new_fragment, erased_voxels,\n"
             "           filled_voxels, or new_fragments and erode_mm), the\n"
             "           fragments after the edit (id, voxels, volume_ml) and fixed_fragment\n"
+            CMD_WAIT_HELP
             "  --help   this text\n");
 }
 
@@ -296,11 +297,15 @@ int cmd_edit(int argc, char **argv)
     }
     int json = 0;
     argc = take_json(argc, argv, &json);
+    int wait = cmd_take_flag(&argc, argv, "--wait");
     if (argc < 3)
         return cmd_usage_error("edit", "needs CASE and an operation");
-    planning_case *c = case_load(argv[1]);
+    caselock *lock = cmd_lock_case("edit", argv[1], 1, wait);
+    planning_case *c = lock ? case_load(argv[1]) : NULL;
     if (!c) {
-        fprintf(stderr, "fracnav edit: %s\n", fn_err_msg());
+        if (lock)
+            fprintf(stderr, "fracnav edit: %s\n", fn_err_msg());
+        caselock_release(lock);
         return 1;
     }
     journal_rec *recs;
@@ -321,5 +326,6 @@ int cmd_edit(int argc, char **argv)
         fprintf(stderr, "fracnav edit: %s\n", fn_err_msg());
     json_decref(res);
     case_free(c);
+    caselock_release(lock);
     return rc;
 }

@@ -19,7 +19,8 @@ static void usage(FILE *out)
     fprintf(out,
             "usage: fracnav export CASE [--tfm DIR] [--seg-nrrd FILE] [--nifti FILE] [--stl DIR]\n"
             "                      [--ras] [--smooth N] [--decimate TRIANGLES] [--report DIR]\n"
-            "                      [--all DIR] [--platform osmesa|glfw] [--force] [--json]\n\n"
+            "                      [--all DIR] [--platform osmesa|glfw] [--force] [--json] [--recover]\n"
+            "                      [--wait]\n\n"
             "Writes the case's plan (every fragment at its current, planned pose) for other tools.\n"
             "Every file is written atomically (a temporary file, synced, then renamed). Coordinates\n"
             "are LPS mm unless said otherwise. Every path is checked before anything is written: a\n"
@@ -52,6 +53,8 @@ static void usage(FILE *out)
             "  --force            write into folders that hold files already (files of the same\n"
             "                     names are replaced, others left alone)\n"
             "  --json             one JSON object: the files written and their sizes\n"
+            CMD_RECOVER_HELP
+            CMD_WAIT_HELP
             "  --help             this text\n");
 }
 
@@ -259,10 +262,19 @@ int cmd_export(int argc, char **argv)
         return 0;
     }
     export_args a = {0};
+    int wait = cmd_take_flag(&argc, argv, "--wait"), recover = cmd_take_flag(&argc, argv, "--recover");
     int rc = parse_args(argc, argv, &a);
     if (rc)
         return rc;
+    caselock *lock = cmd_lock_case("export", a.dir, recover, wait);
+    if (!lock)
+        return 1;
     planning_case *c = case_load(a.dir);
+    if (c && cmd_journal_poses("export", c, recover) < 0) {
+        case_free(c);
+        c = NULL;
+    }
+    caselock_release(lock); /* what is exported is the case as loaded */
     if (!c) {
         fprintf(stderr, "fracnav export: %s\n", fn_err_msg());
         return 1;

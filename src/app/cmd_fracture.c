@@ -31,6 +31,7 @@ static void usage(FILE *out)
             "                         folder)\n"
             "  --force                replace CASE if it holds a case already (with its journal);\n"
             "                         a kill leaves the old case or the new one\n"
+            CMD_WAIT_HELP
             "  --seed N               the random seed (required)\n"
             "  --pieces K             number of pieces, 2..10 (default 2); a bone too small or\n"
             "                         thin to give K such pieces is an error that says so\n"
@@ -168,6 +169,9 @@ int cmd_fracture(int argc, char **argv)
         return rc;
     const char *in = args.in, *out = args.out;
     char tmp[4200] = "";
+    caselock *lock = cmd_lock_case("fracture", out, 1, args.wait); /* a case there that --force replaces */
+    if (!lock)
+        return 1;
     cmd_warn_replaced_journal("fracture", out, args.force);
     int64_t t0 = fnclock_now_us();
     vol *ct = case_stage_begin(out, args.force, NULL, tmp, sizeof tmp) == 0 ? volio_read(in) : NULL;
@@ -180,6 +184,7 @@ int cmd_fracture(int argc, char **argv)
         case_stage_abort(tmp);
         case_free(c);
         vol_free(ct);
+        caselock_release(lock);
         return 1;
     }
     if (args.json && (rc = print_json(c, &p, in, out, (double)(t1 - t0) * 1e-3, (double)(t2 - t1) * 1e-3)) < 0)
@@ -191,5 +196,6 @@ int cmd_fracture(int argc, char **argv)
     }
     case_free(c);
     vol_free(ct);
+    caselock_release(lock);
     return rc < 0 ? 1 : 0;
 }

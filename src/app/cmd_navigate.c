@@ -62,7 +62,8 @@ static void usage(FILE *out)
             "                      as fracnav render takes them\n"
             "  --screenshot FILE   the window as last drawn, as a PNG, at exit\n"
             "  --json              print a JSON summary on exit (as fracnav replay): standard\n"
-            "                      output holds the JSON alone; the view goes to standard error\n\n"
+            "                      output holds the JSON alone; the view goes to standard error\n"
+            CMD_WAIT_HELP "\n"
             "The view (on standard error) is laid out for the terminal's width: warnings first,\n"
             "then the selected fragment, its contact (the gap is a lower bound measured at the\n"
             "pose shown), its position and its rotation (degrees about an axis, world LPS), the\n"
@@ -564,6 +565,7 @@ int cmd_navigate(int argc, char **argv)
         return 0;
     }
     opts o;
+    int wait = cmd_take_flag(&argc, argv, "--wait");
     int rc = parse(argc, argv, &o);
     if (rc)
         return rc;
@@ -577,6 +579,11 @@ int cmd_navigate(int argc, char **argv)
         fprintf(stderr, "fracnav navigate: %s\n", fn_err_msg());
         return 1;
     }
+    /* Held for the whole session: a second writer is refused, and the journal this session keeps
+     * is never taken for an interrupted one. */
+    caselock *lock = cmd_lock_case("navigate", o.dir, 1, wait);
+    if (!lock)
+        return 1;
     offer_recovery(&o);
     loop_config cfg;
     loop_config_default(&cfg);
@@ -592,6 +599,7 @@ int cmd_navigate(int argc, char **argv)
     if (rc < 0) {
         fprintf(stderr, "fracnav navigate: %s\n", fn_err_msg());
         session_dsource_destroy(&ds);
+        caselock_release(lock);
         return 1;
     }
     if (v.tty)
@@ -625,5 +633,6 @@ int cmd_navigate(int argc, char **argv)
         played->close(ts.h);
     dev_close(ds.d);
     session_dsource_destroy(&ds);
+    caselock_release(lock);
     return rc < 0 ? 1 : 0;
 }

@@ -54,6 +54,7 @@ static void usage(FILE *out)
             "                         fragments (id, iterations, evaluations, seconds, metric_start,\n"
             "                         metric_end, push_mm, prealigned, voi_mm, and with ground truth\n"
             "                         rot_err_deg, trans_err_mm, tre_mm), seconds\n"
+            CMD_WAIT_HELP
             "  --help                 this text\n");
 }
 
@@ -276,12 +277,16 @@ int cmd_reduce(int argc, char **argv)
     }
     args A = {0};
     reduce_defaults(&A.o);
+    int wait = cmd_take_flag(&argc, argv, "--wait");
     int rc = parse(argc, argv, &A);
     if (rc)
         return rc;
-    planning_case *c = case_load(A.dir);
+    caselock *lock = cmd_lock_case("reduce", A.dir, !A.out, wait); /* -o: the case is only read */
+    planning_case *c = lock ? case_load(A.dir) : NULL;
     if (!c) {
-        fprintf(stderr, "fracnav reduce: %s\n", fn_err_msg());
+        if (lock)
+            fprintf(stderr, "fracnav reduce: %s\n", fn_err_msg());
+        caselock_release(lock);
         return 1;
     }
     int fixed, mv[256 + 1], nmv;
@@ -291,6 +296,7 @@ int cmd_reduce(int argc, char **argv)
     if (!mvp) {
         fprintf(stderr, "fracnav reduce: out of memory\n");
         case_free(c);
+        caselock_release(lock);
         return 1;
     }
     /* the poses a navigation session journaled beyond case.json are where the hand left them */
@@ -357,5 +363,6 @@ done:
     if (mvp != mv)
         free(mvp);
     case_free(c);
+    caselock_release(lock);
     return rc;
 }

@@ -15,7 +15,7 @@ static void usage(FILE *out)
     fprintf(out,
             "usage: fracnav render CASE -o FILE.png [--mode iso|dvr|mip|surface] [--size WxH]\n"
             "                      [--view VIEW] [--layout 3d|four-up] [--overlay LIST]\n"
-            "                      [--point X,Y,Z] [--platform osmesa|glfw]\n\n"
+            "                      [--point X,Y,Z] [--platform osmesa|glfw] [--recover] [--wait]\n\n"
             "Draw a case's fragments at their current poses with OpenGL 4.5 core: offscreen through\n"
             "OSMesa (llvmpipe) unless --platform glfw asks for a window. Each fragment is its CT\n"
             "crop masked by its label, in its colour.\n\n"
@@ -38,6 +38,8 @@ static void usage(FILE *out)
             "  --point X,Y,Z     where the slices cut, LPS mm (default: the first fragment's\n"
             "                    centroid at its pose)\n"
             "  --platform P      osmesa (default) or glfw (needs a display)\n"
+            CMD_RECOVER_HELP
+            CMD_WAIT_HELP
             "  --help            this text\n\n"
             "A GL older than 4.5 is an error that names the version found.\n");
 }
@@ -172,10 +174,19 @@ int cmd_render(int argc, char **argv)
     render_args a = {.w = 512, .h = 512, .view = RENDER_ANTERIOR};
     a.o.mode = RENDER_ISO;
     a.o.hierarchy_depth = 3;
+    int wait = cmd_take_flag(&argc, argv, "--wait"), recover = cmd_take_flag(&argc, argv, "--recover");
     int rc = parse_args(argc, argv, &a);
     if (rc)
         return rc;
+    caselock *lock = cmd_lock_case("render", a.dir, recover, wait);
+    if (!lock)
+        return 1;
     planning_case *c = case_load(a.dir);
+    if (c && cmd_journal_poses("render", c, recover) < 0) {
+        case_free(c);
+        c = NULL;
+    }
+    caselock_release(lock); /* what is drawn is the case as loaded */
     if (!c) {
         fprintf(stderr, "fracnav render: %s\n", fn_err_msg());
         return 1;

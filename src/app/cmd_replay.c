@@ -68,6 +68,7 @@ static void usage(FILE *out)
             "  --discard-journal   start from case.json, emptying the journal\n"
             "  --no-journal        do not write CASE/journal\n"
             "  --save              save the final poses into the case (and empty the journal)\n"
+            CMD_WAIT_HELP
             "  --frame F           camera (default), world or fragment\n"
             "  --pivot X Y Z       turn the first selected fragment about this point (world mm,\n"
             "                      LPS) instead of its centroid, until the selection changes\n"
@@ -266,6 +267,7 @@ int cmd_replay(int argc, char **argv)
         return 0;
     }
     opts o;
+    int wait = cmd_take_flag(&argc, argv, "--wait");
     int rc = parse(argc, argv, &o);
     if (rc)
         return rc;
@@ -279,10 +281,16 @@ int cmd_replay(int argc, char **argv)
         fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
         return 1;
     }
+    /* Exclusive when it writes the journal or the case, for the whole run. */
+    int writes = !o.no_journal || o.save || (o.flags & SESSION_DISCARD);
+    caselock *lock = cmd_lock_case("replay", o.dir, writes, wait);
+    if (!lock)
+        return 1;
     sim_replay_opts ro = {o.realtime, 1};
     dev_handle *h;
     if (sim_replay_open_file(o.rec, &ro, &h) < 0) {
         fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
+        caselock_release(lock);
         return 1;
     }
     loop_config cfg;
@@ -301,6 +309,7 @@ int cmd_replay(int argc, char **argv)
     if (!k) {
         fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
         sim_replay_transport.close(h);
+        caselock_release(lock);
         return 1;
     }
     session_tsource ts = {0};
@@ -316,6 +325,7 @@ int cmd_replay(int argc, char **argv)
         fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
         session_close(k);
         sim_replay_transport.close(h);
+        caselock_release(lock);
         return 1;
     }
     loop_source src = session_transport_source(&ts);
@@ -357,5 +367,6 @@ int cmd_replay(int argc, char **argv)
     }
     session_close(k);
     sim_replay_transport.close(h);
+    caselock_release(lock);
     return rc < 0 ? 1 : 0;
 }

@@ -26,6 +26,7 @@ static void usage(FILE *out)
             "                             half-made folder)\n"
             "  --force                    replace CASE if it holds a case already (with its\n"
             "                             journal); a kill leaves the old case or the new one\n"
+            CMD_WAIT_HELP
             CMD_THRESHOLD_HELP
             "  --min-volume ML            drop components under ML millilitres (default 0.5)\n"
             "  --exclude-below-peak HU    drop components whose brightest voxel is under HU: the CT\n"
@@ -193,9 +194,13 @@ int cmd_segment(int argc, char **argv)
         return rc;
     const char *in = args.in, *out = args.out;
     char tmp[4200];
+    caselock *lock = cmd_lock_case("segment", out, 1, args.wait); /* a case there that --force replaces */
+    if (!lock)
+        return 1;
     cmd_warn_replaced_journal("segment", out, args.force);
     if (case_stage_begin(out, args.force, in, tmp, sizeof tmp) < 0) {
         fprintf(stderr, "fracnav segment: %s\n", fn_err_msg());
+        caselock_release(lock);
         return 1;
     }
     int64_t t0 = fnclock_now_us();
@@ -221,6 +226,7 @@ int cmd_segment(int argc, char **argv)
         seg_result_free(&r);
         volio_segs_free(&segs);
         case_stage_abort(tmp);
+        caselock_release(lock);
         return 1;
     }
     p.threshold = r.threshold;
@@ -246,6 +252,7 @@ int cmd_segment(int argc, char **argv)
         case_free(c);
         seg_result_free(&r);
         volio_segs_free(&segs);
+        caselock_release(lock);
         return 1;
     }
     double ms[4] = {(double)(t1 - t0) * 1e-3, (double)(t2 - t1) * 1e-3, (double)(t3 - t2) * 1e-3,
@@ -266,5 +273,6 @@ int cmd_segment(int argc, char **argv)
     case_free(c);
     seg_result_free(&r);
     volio_segs_free(&segs);
+    caselock_release(lock);
     return rc < 0 ? 1 : 0;
 }

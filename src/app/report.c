@@ -1,6 +1,7 @@
 /* report: the HTML page of a case's plan (see report.h). */
 #include "report.h"
 
+#include "durable.h"
 #include "err.h"
 #include "export.h"
 #include "reduce.h"
@@ -105,8 +106,9 @@ typedef struct plot_ctx {
     int n;
 } plot_ctx;
 
-static int draw_plot(const char *tmp, void *vctx)
+static int draw_plot(durable_file *df, void *vctx)
 {
+    const char *tmp = df->tmp;
     const plot_ctx *p = vctx;
     double lo = INFINITY, hi = -INFINITY;
     size_t longest = 1;
@@ -196,7 +198,7 @@ static int plot(const planning_case *c, const char *dir, const char **why, repor
     char path[4200];
     snprintf(path, sizeof path, "%s/convergence.png", dir);
     plot_ctx p = {c, hist, ids, n};
-    int rc = export_atomic(path, draw_plot, &p);
+    int rc = durable_replace(path, draw_plot, &p);
     if (rc)
         return rc;
     if (wrote)
@@ -240,13 +242,13 @@ static void cell(FILE *fp, double v, const char *fmt)
         fputs("<td>&ndash;</td>", fp);
 }
 
-static int write_page(const char *tmp, void *vctx)
+static int write_page(durable_file *df, void *vctx)
 {
     const page_ctx *p = vctx;
     const planning_case *c = p->c;
-    FILE *fp = fopen(tmp, "w");
+    FILE *fp = durable_stream(df);
     if (!fp)
-        return fn_err_set(FN_EIO, "%s: %s", tmp, strerror(errno));
+        return FN_EIO;
     fputs("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">\n<title>fracnav report</title>\n"
           "<style>body{font-family:sans-serif;margin:2em;max-width:1100px}img{border:1px solid #ccc;"
           "margin:4px}table{border-collapse:collapse}td,th{border:1px solid #bbb;padding:3px 8px;"
@@ -324,7 +326,7 @@ static int write_page(const char *tmp, void *vctx)
           "  document.getElementById('images').textContent = 'images: ' + ok + ' of ' + im.length + ' loaded';\n"
           "});\n</script>\n</body></html>\n",
           fp);
-    return fclose(fp) == 0 ? 0 : fn_err_set(FN_EIO, "%s: write failed", tmp);
+    return fclose(fp) == 0 ? 0 : fn_err_set(FN_EIO, "%s: write failed", df->tmp);
 }
 
 int report_write(const planning_case *c, const vol *planned, const double *overlap_ml, const char *dir,
@@ -356,7 +358,7 @@ int report_write(const planning_case *c, const vol *planned, const double *overl
     if (!rc) {
         char path[4200];
         snprintf(path, sizeof path, "%s/index.html", dir);
-        rc = export_atomic(path, write_page, &p);
+        rc = durable_replace(path, write_page, &p);
         if (!rc && wrote)
             wrote(ctx, path);
     }

@@ -14,6 +14,7 @@
 #include <unistd.h>
 
 #include "case.h"
+#include "durable.h"
 #include "err.h"
 #include "seg.h"
 #include "vol.h"
@@ -70,12 +71,12 @@ static void init(void)
     char src[4200], labels[4200];
     path_of("source.nii", src, sizeof src);
     path_of("labels.nii.gz", labels, sizeof labels);
-    if (volio_write(ct, src, VOL_I16) < 0 || case_file_sha256(src, src_sha) < 0)
+    if (volio_write(ct, src, VOL_I16) < 0 || durable_file_sha256(src, src_sha) < 0)
         die("source");
     seg_params p;
     seg_defaults(&p);
     planning_case *c = case_create(dir, src, ct, lab, &p);
-    if (!c || case_save(c) < 0 || case_file_sha256(labels, fixture_labels_sha) < 0)
+    if (!c || case_save(c) < 0 || durable_file_sha256(labels, fixture_labels_sha) < 0)
         die("fixture case");
     case_free(c);
 }
@@ -120,15 +121,15 @@ static int put_labels(const uint8_t *lab, size_t len, char sha[65])
         path_of("labels.nii.gz", p, sizeof p);
         if (!fixture && !(fixture = volio_read(p)))
             die("fixture labels");
-        if (case_file_sha256(p, sha) < 0 || strcmp(sha, fixture_labels_sha)) {
-            if (volio_write(fixture, p, VOL_U16) < 0 || case_file_sha256(p, sha) < 0)
+        if (durable_file_sha256(p, sha) < 0 || strcmp(sha, fixture_labels_sha)) {
+            if (volio_write(fixture, p, VOL_U16) < 0 || durable_file_sha256(p, sha) < 0)
                 die("fixture labels");
             memcpy(fixture_labels_sha, sha, 65);
         }
         return 0;
     }
     write_file("labels.nii.gz", lab, len);
-    case_sha256(lab, len, sha);
+    durable_sha256(lab, len, sha);
     return 1;
 }
 

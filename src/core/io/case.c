@@ -1,5 +1,6 @@
 #include "case.h"
 
+#include "durable.h"
 #include "err.h"
 #include "obb.h"
 
@@ -15,145 +16,6 @@
 #include <unistd.h>
 
 #define LABEL_MAX 65535
-
-/* ---- sha256 (FIPS 180-4) ---- */
-
-typedef struct sha256_ctx {
-    uint32_t h[8];
-    uint8_t buf[64];
-    size_t fill;
-    uint64_t bytes;
-} sha256_ctx;
-
-static const uint32_t sha_k[64] = {
-    0x428a2f98, 0x71374491, 0xb5c0fbcf, 0xe9b5dba5, 0x3956c25b, 0x59f111f1, 0x923f82a4, 0xab1c5ed5,
-    0xd807aa98, 0x12835b01, 0x243185be, 0x550c7dc3, 0x72be5d74, 0x80deb1fe, 0x9bdc06a7, 0xc19bf174,
-    0xe49b69c1, 0xefbe4786, 0x0fc19dc6, 0x240ca1cc, 0x2de92c6f, 0x4a7484aa, 0x5cb0a9dc, 0x76f988da,
-    0x983e5152, 0xa831c66d, 0xb00327c8, 0xbf597fc7, 0xc6e00bf3, 0xd5a79147, 0x06ca6351, 0x14292967,
-    0x27b70a85, 0x2e1b2138, 0x4d2c6dfc, 0x53380d13, 0x650a7354, 0x766a0abb, 0x81c2c92e, 0x92722c85,
-    0xa2bfe8a1, 0xa81a664b, 0xc24b8b70, 0xc76c51a3, 0xd192e819, 0xd6990624, 0xf40e3585, 0x106aa070,
-    0x19a4c116, 0x1e376c08, 0x2748774c, 0x34b0bcb5, 0x391c0cb3, 0x4ed8aa4a, 0x5b9cca4f, 0x682e6ff3,
-    0x748f82ee, 0x78a5636f, 0x84c87814, 0x8cc70208, 0x90befffa, 0xa4506ceb, 0xbef9a3f7, 0xc67178f2};
-
-static uint32_t ror(uint32_t x, int n)
-{
-    return (x >> n) | (x << (32 - n));
-}
-
-static void sha_block(uint32_t h[8], const uint8_t *p)
-{
-    uint32_t w[64];
-    for (int i = 0; i < 16; i++)
-        w[i] = (uint32_t)p[4 * i] << 24 | (uint32_t)p[4 * i + 1] << 16 | (uint32_t)p[4 * i + 2] << 8 |
-               p[4 * i + 3];
-    for (int i = 16; i < 64; i++) {
-        uint32_t s0 = ror(w[i - 15], 7) ^ ror(w[i - 15], 18) ^ (w[i - 15] >> 3);
-        uint32_t s1 = ror(w[i - 2], 17) ^ ror(w[i - 2], 19) ^ (w[i - 2] >> 10);
-        w[i] = w[i - 16] + s0 + w[i - 7] + s1;
-    }
-    uint32_t a = h[0], b = h[1], c = h[2], d = h[3], e = h[4], f = h[5], g = h[6], k = h[7];
-    for (int i = 0; i < 64; i++) {
-        uint32_t t1 = k + (ror(e, 6) ^ ror(e, 11) ^ ror(e, 25)) + ((e & f) ^ (~e & g)) + sha_k[i] + w[i];
-        uint32_t t2 = (ror(a, 2) ^ ror(a, 13) ^ ror(a, 22)) + ((a & b) ^ (a & c) ^ (b & c));
-        k = g;
-        g = f;
-        f = e;
-        e = d + t1;
-        d = c;
-        c = b;
-        b = a;
-        a = t1 + t2;
-    }
-    h[0] += a, h[1] += b, h[2] += c, h[3] += d, h[4] += e, h[5] += f, h[6] += g, h[7] += k;
-}
-
-static void sha_init(sha256_ctx *s)
-{
-    static const uint32_t h0[8] = {0x6a09e667, 0xbb67ae85, 0x3c6ef372, 0xa54ff53a,
-                                   0x510e527f, 0x9b05688c, 0x1f83d9ab, 0x5be0cd19};
-    memcpy(s->h, h0, sizeof h0);
-    s->fill = 0;
-    s->bytes = 0;
-}
-
-static void sha_update(sha256_ctx *s, const uint8_t *p, size_t n)
-{
-    s->bytes += n;
-    while (n) {
-        size_t take = 64 - s->fill < n ? 64 - s->fill : n;
-        memcpy(s->buf + s->fill, p, take);
-        s->fill += take;
-        p += take;
-        n -= take;
-        if (s->fill == 64) {
-            sha_block(s->h, s->buf);
-            s->fill = 0;
-        }
-    }
-}
-
-static void sha_final(sha256_ctx *s, char hex[65])
-{
-    uint64_t bits = s->bytes * 8;
-    uint8_t pad = 0x80, zero = 0, len[8];
-    sha_update(s, &pad, 1);
-    while (s->fill != 56)
-        sha_update(s, &zero, 1);
-    for (int i = 0; i < 8; i++)
-        len[i] = (uint8_t)(bits >> (56 - 8 * i));
-    sha_update(s, len, 8);
-    for (int i = 0; i < 8; i++)
-        snprintf(hex + 8 * i, 9, "%08x", s->h[i]);
-}
-
-void case_sha256(const void *data, size_t len, char hex[65])
-{
-    sha256_ctx s;
-    sha_init(&s);
-    sha_update(&s, data, len);
-    sha_final(&s, hex);
-}
-
-int case_open_regular(const char *path, const char *what)
-{
-    /* O_NONBLOCK: opening a FIFO must not wait for a writer before it can be refused. */
-    int fd = open(path, O_RDONLY | O_NONBLOCK | O_CLOEXEC);
-    if (fd < 0)
-        return fn_err_set(FN_EIO, "%s: cannot open%s%s: %s", path, what ? " " : "", what ? what : "",
-                          strerror(errno));
-    struct stat sb;
-    if (fstat(fd, &sb) != 0 || !S_ISREG(sb.st_mode)) {
-        close(fd);
-        return fn_err_set(FN_EIO, "%s: not a regular file (a folder, FIFO or device)%s%s", path,
-                          what ? ": " : "", what ? what : "");
-    }
-    fcntl(fd, F_SETFL, fcntl(fd, F_GETFL) & ~O_NONBLOCK);
-    return fd;
-}
-
-int case_file_sha256(const char *path, char hex[65])
-{
-    int fd = case_open_regular(path, NULL);
-    if (fd < 0)
-        return fd;
-    sha256_ctx s;
-    sha_init(&s);
-    uint8_t buf[1 << 16];
-    ssize_t n;
-    while ((n = read(fd, buf, sizeof buf)) != 0) {
-        if (n < 0 && errno == EINTR)
-            continue;
-        if (n < 0) {
-            int e = errno;
-            close(fd);
-            return fn_err_set(FN_EIO, "%s: read error: %s", path, strerror(e));
-        }
-        sha_update(&s, buf, (size_t)n);
-    }
-    close(fd);
-    sha_final(&s, hex);
-    return 0;
-}
 
 /* ---- fragments ---- */
 
@@ -442,7 +304,7 @@ planning_case *case_create(const char *dir, const char *source, vol *ct, vol *la
             case_free(c);
             return NULL;
         }
-    if (case_file_sha256(source, c->sha256) < 0 || case_rebuild(c, 0, 0) < 0) {
+    if (durable_file_sha256(source, c->sha256) < 0 || case_rebuild(c, 0, 0) < 0) {
         case_free(c);
         return NULL;
     }

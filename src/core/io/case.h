@@ -117,14 +117,6 @@ int case_penetrating(const planning_case *c, const uint8_t *fitted, case_overlap
  * "within_fit_tolerance"}), or removes it when n is 0. 0 or FN_ENOMEM. */
 int case_record_penetrating(planning_case *c, const case_overlap *o, int n);
 
-/* sha256 of a file's bytes as 64 hex digits. 0 or FN_EIO (also for a file that is not regular:
- * a FIFO or a device would never end or never start). */
-int case_file_sha256(const char *path, char hex[65]);
-void case_sha256(const void *data, size_t len, char hex[65]);
-/* Opens a regular file for reading (never blocks on a FIFO); what, if not NULL, is added to the
- * message. The descriptor, or FN_EIO naming the path. */
-int case_open_regular(const char *path, const char *what);
-
 /* Edits. Each changes c->labels and rebuilds the fragments (case_rebuild); the caller saves.
  * A bad id is FN_EINVAL naming it and listing the ids the case has. Volumes: world LPS mm. */
 /* Fragment b joins fragment a (b's voxels take label a). */

@@ -1,6 +1,7 @@
 /* case_save / case_load: case.json through jansson, labels.nii.gz through volio. */
 #include "case.h"
 
+#include "durable.h"
 #include "err.h"
 #include "volio.h"
 
@@ -17,10 +18,8 @@
 
 #define CASE_FORMAT "fracnav-case"
 #define LABELS_FILE "labels.nii.gz"
-#define LABELS_TMP ".labels.tmp.nii.gz"
 #define LABELS_PREV "labels.prev.nii.gz" /* the labels the on-disk case.json names, during a save */
 #define JSON_FILE "case.json"
-#define JSON_TMP ".case.json.tmp"
 #define JSON_MAX_BYTES (64 << 20) /* 64 MiB: ~100,000 fragments */
 
 /* ---- writing ---- */
@@ -159,41 +158,6 @@ static json_t *case_json(const planning_case *c, const char *labels_sha)
     return root;
 }
 
-static int fsync_path(const char *path, int dir)
-{
-    int fd = open(path, dir ? O_RDONLY | O_DIRECTORY : O_RDONLY);
-    if (fd < 0)
-        return fn_err_set(FN_EIO, "%s: cannot open to sync: %s", path, strerror(errno));
-    int rc = fsync(fd);
-    close(fd);
-    return rc ? fn_err_set(FN_EIO, "%s: fsync failed: %s", path, strerror(errno)) : 0;
-}
-
-static int write_file(const char *path, const char *text)
-{
-    int fd = open(path, O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    if (fd < 0)
-        return fn_err_set(FN_EIO, "%s: cannot create: %s", path, strerror(errno));
-    size_t n = strlen(text), done = 0;
-    while (done < n) {
-        ssize_t w = write(fd, text + done, n - done);
-        if (w < 0 && errno == EINTR)
-            continue;
-        if (w <= 0) {
-            int e = errno;
-            close(fd);
-            return fn_err_set(FN_EIO, "%s: write failed: %s", path, strerror(e));
-        }
-        done += (size_t)w;
-    }
-    if (fsync(fd) != 0) {
-        int e = errno;
-        close(fd);
-        return fn_err_set(FN_EIO, "%s: fsync failed: %s", path, strerror(e));
-    }
-    return close(fd) ? fn_err_set(FN_EIO, "%s: close failed: %s", path, strerror(errno)) : 0;
-}
-
 static void join(char *out, size_t cap, const char *dir, const char *name)
 {
     snprintf(out, cap, "%s/%s", dir, name);
@@ -211,57 +175,69 @@ static int keep_previous_labels(const char *lfin, const char *lprev, const char 
             return 0;
         return fn_err_set(FN_EIO, "%s: cannot link to %s: %s", lprev, lfin, strerror(errno));
     }
-    return fsync_path(dir, 1);
+    return durable_sync_path(dir);
 }
 
-/* Renames labels then case.json; the previous labels stay linked until both are in place. */
+/* case.json's text for labels of sha256 lsha, with a final newline; NULL with fn_err. */
+static char *case_text(const planning_case *c, const char *lsha, const char *jfin)
+{
+    json_t *root = case_json(c, lsha);
+    char *text = json_dumps(root, JSON_INDENT(2) | JSON_REAL_PRECISION(17));
+    json_decref(root);
+    if (!text) {
+        fn_err_set(FN_ENOMEM, "%s: cannot serialise the case", jfin);
+        return NULL;
+    }
+    size_t n = strlen(text);
+    char *nl = realloc(text, n + 2);
+    if (nl) {
+        text = nl;
+        strcpy(text + n, "\n");
+    }
+    return text;
+}
+
+/* Writes both files aside (durable.h), then renames labels then case.json; the previous labels stay
+ * linked until both are in place. */
 int case_save(planning_case *c)
 {
     if (mkdir(c->dir, 0755) != 0 && errno != EEXIST)
         return fn_err_set(FN_EIO, "%s: cannot create the case folder: %s", c->dir, strerror(errno));
-    char ltmp[4200], jtmp[4200], lfin[4200], jfin[4200], lprev[4200], lsha[65], jsha[65];
+    char lfin[4200], jfin[4200], lprev[4200], lsha[65], jsha[65];
     join(lprev, sizeof lprev, c->dir, LABELS_PREV);
-    join(ltmp, sizeof ltmp, c->dir, LABELS_TMP);
-    join(jtmp, sizeof jtmp, c->dir, JSON_TMP);
     join(lfin, sizeof lfin, c->dir, LABELS_FILE);
     join(jfin, sizeof jfin, c->dir, JSON_FILE);
-    int rc = volio_write(c->labels, ltmp, VOL_U16);
+    durable_file lt = {.fd = -1}, jt = {.fd = -1};
+    int rc = durable_create(&lt, lfin);
     if (rc == 0)
-        rc = fsync_path(ltmp, 0);
+        rc = volio_write(c->labels, lt.tmp, VOL_U16);
     if (rc == 0)
-        rc = case_file_sha256(ltmp, lsha);
+        rc = durable_seal(&lt);
+    if (rc == 0)
+        rc = durable_file_sha256(lt.tmp, lsha);
+    if (rc == 0)
+        rc = durable_create(&jt, jfin);
     if (rc == 0) {
-        json_t *root = case_json(c, lsha);
-        char *text = json_dumps(root, JSON_INDENT(2) | JSON_REAL_PRECISION(17));
-        json_decref(root);
-        if (!text)
-            rc = fn_err_set(FN_ENOMEM, "%s: cannot serialise the case", jfin);
-        else {
-            size_t n = strlen(text);
-            char *nl = realloc(text, n + 2);
-            if (nl) {
-                text = nl;
-                strcpy(text + n, "\n");
-            }
-            rc = write_file(jtmp, text);
-            if (rc == 0)
-                case_sha256(text, strlen(text), jsha);
-            free(text);
-        }
+        char *text = case_text(c, lsha, jfin);
+        rc = text ? durable_write_all(&jt, text, strlen(text)) : FN_ENOMEM;
+        if (rc == 0)
+            durable_sha256(text, strlen(text), jsha);
+        free(text);
     }
+    if (rc == 0)
+        rc = durable_seal(&jt);
     if (rc == 0)
         rc = keep_previous_labels(lfin, lprev, c->dir);
-    if (rc == 0 && rename(ltmp, lfin) != 0)
-        rc = fn_err_set(FN_EIO, "%s: rename failed: %s", lfin, strerror(errno));
-    if (rc == 0 && rename(jtmp, jfin) != 0)
-        rc = fn_err_set(FN_EIO, "%s: rename failed: %s", jfin, strerror(errno));
     if (rc == 0)
-        rc = fsync_path(c->dir, 1);
-    if (rc < 0) {
-        unlink(ltmp);
-        unlink(jtmp);
+        rc = durable_rename(&lt, lfin);
+    if (rc == 0)
+        rc = durable_rename(&jt, jfin);
+    if (rc == 0)
+        rc = durable_sync_path(c->dir);
+    durable_abort(&lt);
+    durable_abort(&jt);
+    if (rc < 0)
         return fn_err_wrap(rc, "saving case %s", c->dir);
-    }
     unlink(lprev); /* a leftover is harmless: the next save replaces it */
     memcpy(c->json_sha256, jsha, sizeof jsha);
     return 0;
@@ -544,10 +520,10 @@ static int find_labels(const char *dir, const char *json, const char *lsha, char
     char lprev[4200], lnow[65], pnow[65];
     join(lpath, cap, dir, LABELS_FILE);
     join(lprev, sizeof lprev, dir, LABELS_PREV);
-    int rc = case_file_sha256(lpath, lnow);
+    int rc = durable_file_sha256(lpath, lnow);
     if (rc < 0 || !strcmp(lnow, lsha))
         return rc;
-    if (case_file_sha256(lprev, pnow) < 0 || strcmp(pnow, lsha))
+    if (durable_file_sha256(lprev, pnow) < 0 || strcmp(pnow, lsha))
         return fn_err_set(FN_EMISMATCH, "%s has sha256 %.12s..., but %s expects %.12s...: it was "
                                         "changed or a save was interrupted", lpath, lnow, json, lsha);
     int moved = rename(lprev, lpath) == 0;
@@ -613,7 +589,7 @@ static int read_case(struct reader *r, json_t *root, planning_case *c)
         return truth ? bad(r, "expected true or false") : FN_EFORMAT;
     c->has_truth = json_is_true(truth);
     /* The source must be the very file the case was made from. */
-    if ((rc = case_file_sha256(c->source, c->sha256)) < 0)
+    if ((rc = durable_file_sha256(c->source, c->sha256)) < 0)
         return fn_err_wrap(rc, "%s: source.path", r->file);
     if (strcmp(c->sha256, sha))
         return fn_err_set(FN_EMISMATCH, "source %s has sha256 %.12s..., but %s expects %.12s...: "
@@ -643,7 +619,7 @@ static int read_case(struct reader *r, json_t *root, planning_case *c)
 /* case.json's bytes (a regular file, at most JSON_MAX_BYTES), malloc'd and NUL-terminated. */
 static char *read_json_file(const char *path, size_t *len)
 {
-    int fd = case_open_regular(path, "(not a case folder?)");
+    int fd = durable_open_regular(path, "(not a case folder?)");
     if (fd < 0)
         return NULL;
     struct stat sb;
@@ -690,7 +666,7 @@ planning_case *case_load(const char *dir)
         case_free(c);
         return NULL;
     }
-    case_sha256(text, len, c->json_sha256);
+    durable_sha256(text, len, c->json_sha256);
     json_error_t je;
     json_t *root = json_loadb(text, len, JSON_REJECT_DUPLICATES, &je);
     free(text);

@@ -1,5 +1,6 @@
 #include "case_journal.h"
 
+#include "durable.h"
 #include "err.h"
 
 #include <errno.h>
@@ -115,7 +116,7 @@ size_t case_journal_pending(const char *dir)
     char json[4200], sha[65];
     snprintf(json, sizeof json, "%s/case.json", dir);
     journal_scan s;
-    if (case_file_sha256(json, sha) < 0 || journal_read(dir, &s) < 0)
+    if (durable_file_sha256(json, sha) < 0 || journal_read(dir, &s) < 0)
         return 0;
     size_t n = strcmp(s.bind.case_sha256, sha) ? 0 : s.n;
     journal_scan_free(&s);

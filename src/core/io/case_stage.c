@@ -4,6 +4,7 @@
 #define _GNU_SOURCE /* renameat2 */
 #include "case.h"
 
+#include "durable.h"
 #include "err.h"
 
 #include <dirent.h>
@@ -149,16 +150,6 @@ int case_stage_begin(const char *dir, int force, const char *keep, char *tmp, si
     return 0;
 }
 
-static int fsync_fd_path(const char *path, int flags)
-{
-    int fd = open(path, flags | O_RDONLY | O_CLOEXEC);
-    if (fd < 0)
-        return fn_err_set(FN_EIO, "%s: cannot open to sync: %s", path, strerror(errno));
-    int rc = fsync(fd);
-    close(fd);
-    return rc ? fn_err_set(FN_EIO, "%s: fsync failed: %s", path, strerror(errno)) : 0;
-}
-
 /* Every file of the staged folder on disk before the folder is put in place. */
 static int sync_folder(const char *tmp)
 {
@@ -171,10 +162,10 @@ static int sync_folder(const char *tmp)
     while (rc == 0 && (e = readdir(d)))
         if (strcmp(e->d_name, ".") && strcmp(e->d_name, "..")) {
             snprintf(p, sizeof p, "%s/%s", tmp, e->d_name);
-            rc = fsync_fd_path(p, 0);
+            rc = durable_sync_path(p);
         }
     closedir(d);
-    return rc == 0 ? fsync_fd_path(tmp, O_DIRECTORY) : rc;
+    return rc == 0 ? durable_sync_path(tmp) : rc;
 }
 
 /* dir holds a case: the staged folder and dir trade places in one step, the old case is removed. */
@@ -212,7 +203,7 @@ int case_stage_commit(const char *tmp, const char *dir)
     else if (rename(tmp, dir) != 0)
         rc = fn_err_set(FN_EIO, "%s: cannot rename %s to it: %s", dir, tmp, strerror(errno));
     if (rc == 0)
-        rc = fsync_fd_path(parent, O_DIRECTORY);
+        rc = durable_sync_path(parent);
     if (rc == 0 && replace && remove_flat(tmp) != 0)
         fprintf(stderr, "fracnav: the replaced case stays in %s (it holds a folder); remove it by "
                         "hand\n", tmp);

@@ -2,6 +2,7 @@
  * case's planned configuration (see export.h). */
 #include "export.h"
 
+#include "durable.h"
 #include "err.h"
 #include "mesh.h"
 #include "volio.h"
@@ -16,53 +17,6 @@
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
-
-static int sync_path(const char *path, int dir)
-{
-    int fd = open(path, (dir ? O_DIRECTORY : 0) | O_RDONLY | O_CLOEXEC);
-    if (fd < 0)
-        return -1;
-    int rc = fsync(fd);
-    close(fd);
-    return rc;
-}
-
-/* A writer's message names the temporary file: name the target, the path the user gave, instead. */
-static int name_target(int rc, const char *tmp, const char *path)
-{
-    char msg[1024];
-    const char *m = fn_err_msg(), *at = strstr(m, tmp);
-    if (!at)
-        return rc;
-    snprintf(msg, sizeof msg, "%.*s%s%s", (int)(at - m), m, path, at + strlen(tmp));
-    return fn_err_set(rc, "%s", msg);
-}
-
-int export_atomic(const char *path, int (*write)(const char *tmp, void *ctx), void *ctx)
-{
-    const char *slash = strrchr(path, '/');
-    char dir[4096], tmp[4200];
-    if (slash)
-        snprintf(dir, sizeof dir, "%.*s", (int)(slash - path), path);
-    else
-        snprintf(dir, sizeof dir, ".");
-    if (slash == path)
-        snprintf(dir, sizeof dir, "/");
-    if (strlen(path) >= sizeof dir)
-        return fn_err_set(FN_EINVAL, "%s: path too long", path);
-    snprintf(tmp, sizeof tmp, "%s/.fracnav-tmp-%ld-%s", dir, (long)getpid(), slash ? slash + 1 : path);
-    int rc = write(tmp, ctx);
-    if (rc == 0 && sync_path(tmp, 0) != 0)
-        rc = fn_err_set(FN_EIO, "%s: fsync: %s", tmp, strerror(errno));
-    if (rc == 0 && rename(tmp, path) != 0)
-        rc = fn_err_set(FN_EIO, "%s: cannot put in place: %s", path, strerror(errno));
-    if (rc) {
-        unlink(tmp);
-        return name_target(rc, tmp, path);
-    }
-    sync_path(dir, 1); /* best effort: some file systems refuse to sync a folder */
-    return 0;
-}
 
 /* world -> crop index of fragment f at its pose: idx = M [w; 1]. */
 static void world_to_crop(const frag *f, double m[3][4])
@@ -134,22 +88,6 @@ vol *export_planned_labels(const planning_case *c)
 
 /* ---- ITK transform ---- */
 
-typedef struct text_ctx {
-    const char *text;
-} text_ctx;
-
-static int write_text(const char *tmp, void *ctx)
-{
-    const char *t = ((text_ctx *)ctx)->text;
-    FILE *fp = fopen(tmp, "wb");
-    if (!fp)
-        return fn_err_set(FN_EIO, "%s: %s", tmp, strerror(errno));
-    size_t n = strlen(t);
-    int bad = fwrite(t, 1, n, fp) != n;
-    bad |= fclose(fp) != 0;
-    return bad ? fn_err_set(FN_EIO, "%s: write failed", tmp) : 0;
-}
-
 int export_tfm(const planning_case *c, int i, const char *path)
 {
     const frag *f = &c->frag[i];
@@ -168,8 +106,7 @@ int export_tfm(const planning_case *c, int i, const char *path)
              "FixedParameters: %.17g %.17g %.17g\n",
              a[0][0], a[0][1], a[0][2], a[1][0], a[1][1], a[1][2], a[2][0], a[2][1], a[2][2], tr[0], tr[1],
              tr[2], cen[0], cen[1], cen[2]);
-    text_ctx t = {text};
-    return export_atomic(path, write_text, &t);
+    return durable_replace_bytes(path, text, strlen(text));
 }
 
 /* ---- NIfTI and 3D Slicer segmentation ---- */
@@ -179,15 +116,15 @@ typedef struct vol_ctx {
     const vol *v;
 } vol_ctx;
 
-static int write_nifti(const char *tmp, void *ctx)
+static int write_nifti(durable_file *f, void *ctx)
 {
-    return volio_write(((vol_ctx *)ctx)->v, tmp, VOL_U16);
+    return volio_write(((vol_ctx *)ctx)->v, f->tmp, VOL_U16);
 }
 
 int export_nifti(const vol *planned, const char *path)
 {
     vol_ctx x = {NULL, planned};
-    return export_atomic(path, write_nifti, &x);
+    return durable_replace(path, write_nifti, &x);
 }
 
 static int teem_fail(int code, const char *path, const char *what)
@@ -201,8 +138,9 @@ static int teem_fail(int code, const char *path, const char *what)
     return code;
 }
 
-static int write_seg(const char *tmp, void *ctx)
+static int write_seg(durable_file *df, void *ctx)
 {
+    const char *tmp = df->tmp;
     const vol_ctx *x = ctx;
     const vol *v = x->v;
     const planning_case *c = x->c;
@@ -287,7 +225,7 @@ static int write_seg(const char *tmp, void *ctx)
 int export_seg_nrrd(const planning_case *c, const vol *planned, const char *path)
 {
     vol_ctx x = {c, planned};
-    return export_atomic(path, write_seg, &x);
+    return durable_replace(path, write_seg, &x);
 }
 
 /* ---- STL ---- */
@@ -305,13 +243,13 @@ static void put_f32(unsigned char *p, float f)
         p[k] = (unsigned char)(u >> (8 * k));
 }
 
-static int write_stl(const char *tmp, void *ctx)
+static int write_stl(durable_file *f, void *ctx)
 {
     const stl_ctx *x = ctx;
     const mesh *m = x->m;
-    FILE *fp = fopen(tmp, "wb");
+    FILE *fp = durable_stream(f);
     if (!fp)
-        return fn_err_set(FN_EIO, "%s: %s", tmp, strerror(errno));
+        return FN_EIO;
     unsigned char head[84] = {0};
     snprintf((char *)head, 80, "%s", x->header);
     for (int k = 0; k < 4; k++)
@@ -337,7 +275,7 @@ static int write_stl(const char *tmp, void *ctx)
         bad = fwrite(rec, 1, 50, fp) != 50;
     }
     bad |= fclose(fp) != 0;
-    return bad ? fn_err_set(FN_EIO, "%s: write failed", tmp) : 0;
+    return bad ? fn_err_set(FN_EIO, "%s: write failed", f->tmp) : 0;
 }
 
 int export_stl(const planning_case *c, int i, const export_stl_opts *o, const char *path, long *triangles)
@@ -377,7 +315,7 @@ int export_stl(const planning_case *c, int i, const export_stl_opts *o, const ch
     /* 3D Slicer reads the coordinate system from "SPACE=" in the header. */
     snprintf(header, sizeof header, "fracnav fragment %d, mm, SPACE=%s", f->id, o->ras ? "RAS" : "LPS");
     stl_ctx x = {&m, header};
-    rc = export_atomic(path, write_stl, &x);
+    rc = durable_replace(path, write_stl, &x);
     if (triangles)
         *triangles = m.nt;
     mesh_free(&m);

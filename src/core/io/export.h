@@ -27,10 +27,6 @@
 
 #include <stddef.h>
 
-/* Writes path atomically: write(tmp, ctx) writes the temporary file tmp (same folder and
- * extension as path), which is then synced and renamed. 0 or the writer's error / FN_EIO. */
-int export_atomic(const char *path, int (*write)(const char *tmp, void *ctx), void *ctx);
-
 /* The planned labelmap on the source grid (see above). NULL with fn_err (FN_ENOMEM). */
 vol *export_planned_labels(const planning_case *c);
 

@@ -6,7 +6,7 @@
 #include <stdint.h>
 
 /* Writes an 8-bit RGB image (w*h*3 bytes, rows top to bottom) to path, atomically (a temporary
- * file, then a rename). Returns 0 or a negative FN_E* code with fn_err set (file name included). */
+ * file, then a rename: durable_replace). Returns 0 or a negative FN_E* code with fn_err set (file name included). */
 int picture_write_png(const char *path, const uint8_t *rgb, int w, int h);
 
 #endif

@@ -1,5 +1,6 @@
 #include "journal.h"
 
+#include "durable.h"
 #include "err.h"
 #include "vol.h"
 
@@ -320,7 +321,10 @@ int journal_read(const char *case_dir, journal_scan *s)
     char path[4096];
     journal_path(case_dir, path, sizeof path);
     scan_init(s);
-    int fd = open(path, O_RDONLY | O_NONBLOCK | O_CLOEXEC);
+    int fd = open(path, O_RDONLY | O_NONBLOCK | O_NOFOLLOW | O_CLOEXEC);
+    if (fd < 0 && errno == ELOOP)
+        return fn_err_set(FN_EIO, "%s is a symbolic link: fracnav neither reads nor writes a journal "
+                                  "through one; remove it", path);
     if (fd < 0)
         return errno == ENOENT ? 0 : fn_err_set(FN_EIO, "%s: cannot open: %s", path, strerror(errno));
     struct stat sb;
@@ -366,9 +370,8 @@ journal *journal_open(const char *case_dir, const journal_bind *b)
         return NULL;
     journal_path(case_dir, j->path, sizeof j->path);
     j->bind = *b;
-    j->fd = open(j->path, O_WRONLY | O_CREAT | O_CLOEXEC, 0644);
+    j->fd = durable_open_log(j->path);
     if (j->fd < 0) {
-        fn_err_set(FN_EIO, "%s: cannot open for writing: %s", j->path, strerror(errno));
         free(j);
         return NULL;
     }
@@ -451,28 +454,22 @@ int journal_truncate(journal *j)
     return write_all(j->fd, h, sizeof h, j->path);
 }
 
-/* A new journal at path holding recs, written aside and renamed into place. */
-static int write_journal(const char *path, const journal_bind *b, const journal_rec *recs, size_t n)
+typedef struct journal_text {
+    const journal_bind *b;
+    const journal_rec *recs;
+    size_t n;
+} journal_text;
+
+static int write_records(durable_file *f, void *ctx)
 {
-    char tmp[4200];
-    snprintf(tmp, sizeof tmp, "%s.tmp", path);
-    int fd = open(tmp, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-    if (fd < 0)
-        return fn_err_set(FN_EIO, "%s: cannot create: %s", tmp, strerror(errno));
+    const journal_text *x = ctx;
     unsigned char h[JOURNAL_HEADER_SIZE], rec[JOURNAL_RECORD_SIZE];
-    header(h, b);
-    int rc = write_all(fd, h, sizeof h, tmp);
-    for (size_t i = 0; rc == 0 && i < n; i++) {
-        encode(rec, &recs[i]);
-        rc = write_all(fd, rec, sizeof rec, tmp);
+    header(h, x->b);
+    int rc = durable_write_all(f, h, sizeof h);
+    for (size_t i = 0; rc == 0 && i < x->n; i++) {
+        encode(rec, &x->recs[i]);
+        rc = durable_write_all(f, rec, sizeof rec);
     }
-    if (rc == 0 && fsync(fd) != 0)
-        rc = fn_err_set(FN_EIO, "%s: fsync: %s", tmp, strerror(errno));
-    close(fd);
-    if (rc == 0 && rename(tmp, path) != 0)
-        rc = fn_err_set(FN_EIO, "%s: rename: %s", path, strerror(errno));
-    if (rc < 0)
-        unlink(tmp);
     return rc;
 }
 
@@ -491,7 +488,8 @@ int journal_set_aside(const char *case_dir, const char *tag, const journal_bind 
         return fn_err_set(FN_EIO, "%s: %s.1 to .9999 all exist: remove old ones", path, tag);
     if (rename(path, aside) != 0)
         return fn_err_set(FN_EIO, "%s: cannot move to %s: %s", path, aside, strerror(errno));
-    return n ? write_journal(path, b, recs, n) : 0;
+    journal_text x = {b, recs, n};
+    return n ? durable_replace(path, write_records, &x) : 0;
 }
 
 uint64_t journal_count(const journal *j)

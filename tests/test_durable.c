@@ -1,0 +1,217 @@
+/* The durable-file module (durable.h) and the writers that use it: links planted in a case folder,
+ * under the old temporary names, under any temporary name, as case.json or as the journal, are
+ * never written through; the save succeeds without following them or refuses naming the path. */
+#include <stdarg.h>
+#include <stddef.h>
+#include <setjmp.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include "case.h"
+#include "durable.h"
+#include "err.h"
+#include "fnrec.h"
+#include "journal.h"
+#include "testutil.h"
+
+#include <errno.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#define OUTSIDE "outside file: must never change\n"
+
+/* dir/outside: a file that no planted link may let a save write. */
+static void make_outside(const char *dir, char *path, size_t cap)
+{
+    snprintf(path, cap, "%s/outside", dir);
+    tu_write_file(path, OUTSIDE, strlen(OUTSIDE));
+}
+
+static void assert_outside_intact(const char *path)
+{
+    size_t n;
+    char *s = tu_slurp(path, &n);
+    assert_non_null(s);
+    assert_true(n == strlen(OUTSIDE) && !memcmp(s, OUTSIDE, n));
+    free(s);
+}
+
+static void plant(const char *target, const char *dir, const char *name)
+{
+    char p[8400];
+    snprintf(p, sizeof p, "%s/%s", dir, name);
+    if (symlink(target, p) != 0)
+        fail_msg("symlink %s: %s", p, strerror(errno));
+}
+
+static int is_regular(const char *path)
+{
+    struct stat sb;
+    return lstat(path, &sb) == 0 && S_ISREG(sb.st_mode);
+}
+
+static void test_replace_writes_and_leaves_no_temporary(void **st)
+{
+    (void)st;
+    char *dir = tu_tmpdir("durable"), path[4200];
+    snprintf(path, sizeof path, "%s/a.txt", dir);
+    assert_int_equal(durable_replace_bytes(path, "one\n", 4), 0);
+    assert_int_equal(durable_replace_bytes(path, "two\n", 4), 0);
+    size_t n;
+    char *s = tu_slurp(path, &n);
+    assert_true(n == 4 && !memcmp(s, "two\n", 4));
+    free(s);
+    char *out = NULL;
+    assert_int_equal(tu_run_cli(&out, "--version && ls -A '%s'", dir), 0);
+    assert_null(strstr(out, DURABLE_TMP_TAG));
+    free(out);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* A target that is a link, or not a regular file, is refused by name; the link's file is untouched. */
+static void test_link_target_refused(void **st)
+{
+    (void)st;
+    char *dir = tu_tmpdir("durable"), outside[4200], path[4200];
+    make_outside(dir, outside, sizeof outside);
+    plant(outside, dir, "link.txt");
+    snprintf(path, sizeof path, "%s/link.txt", dir);
+    assert_int_equal(durable_replace_bytes(path, "x", 1), FN_EIO);
+    assert_non_null(strstr(fn_err_msg(), path));
+    assert_non_null(strstr(fn_err_msg(), "symbolic link"));
+    assert_outside_intact(outside);
+    snprintf(path, sizeof path, "%s/sub", dir);
+    assert_int_equal(mkdir(path, 0755), 0);
+    assert_int_equal(durable_replace_bytes(path, "x", 1), FN_EIO);
+    assert_non_null(strstr(fn_err_msg(), "not a regular file"));
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* Every temporary name this process could use next is a planted link: the create fails (O_EXCL,
+ * O_NOFOLLOW), naming the path, and nothing is written through. */
+static void test_planted_temporaries_never_written(void **st)
+{
+    (void)st;
+    char *dir = tu_tmpdir("durable"), outside[4200], path[4200], name[200];
+    make_outside(dir, outside, sizeof outside);
+    for (int k = 0; k < 256; k++) {
+        snprintf(name, sizeof name, DURABLE_TMP_TAG "%ld-%d-a.txt", (long)getpid(), k);
+        plant(outside, dir, name);
+    }
+    snprintf(path, sizeof path, "%s/a.txt", dir);
+    assert_int_equal(durable_replace_bytes(path, "x", 1), FN_EIO);
+    assert_non_null(strstr(fn_err_msg(), path));
+    assert_outside_intact(outside);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* The old fixed temporary names of a case save, planted as links out of the case: edit succeeds,
+ * writes neither outside file, and case.json and labels.nii.gz stay regular files. */
+static void test_edit_ignores_planted_old_temporaries(void **st)
+{
+    (void)st;
+    char *dir = tu_tmpdir("durable"), cdir[4200], out1[4200], out2[4200], p[8400];
+    tu_two_blocks_case(dir, cdir, sizeof cdir);
+    make_outside(dir, out1, sizeof out1);
+    snprintf(out2, sizeof out2, "%s/outside2", dir);
+    tu_write_file(out2, OUTSIDE, strlen(OUTSIDE));
+    plant(out1, cdir, ".case.json.tmp");
+    plant(out2, cdir, ".labels.tmp.nii.gz");
+    char *out = NULL;
+    assert_int_equal(tu_run_cli(&out, "edit '%s' fix 2", cdir), 0);
+    free(out);
+    assert_outside_intact(out1);
+    assert_outside_intact(out2);
+    snprintf(p, sizeof p, "%s/case.json", cdir);
+    assert_true(is_regular(p));
+    snprintf(p, sizeof p, "%s/labels.nii.gz", cdir);
+    assert_true(is_regular(p));
+    planning_case *c = case_load(cdir);
+    assert_non_null(c);
+    assert_int_equal(c->frag[c->fixed].id, 2);
+    case_free(c);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* case.json itself a link out of the case: the save refuses, naming it; the outside copy is
+ * untouched. */
+static void test_edit_refuses_linked_case_json(void **st)
+{
+    (void)st;
+    char *dir = tu_tmpdir("durable"), cdir[4200], json[4300], copy[4300];
+    tu_two_blocks_case(dir, cdir, sizeof cdir);
+    snprintf(json, sizeof json, "%s/case.json", cdir);
+    snprintf(copy, sizeof copy, "%s/case-copy.json", dir);
+    size_t n;
+    char *text = tu_slurp(json, &n);
+    tu_write_file(copy, text, n);
+    assert_int_equal(unlink(json), 0);
+    assert_int_equal(symlink(copy, json), 0);
+    char *out = NULL;
+    assert_int_equal(tu_run_cli(&out, "edit '%s' fix 2", cdir), 1);
+    assert_non_null(strstr(out, json));
+    assert_non_null(strstr(out, "symbolic link"));
+    free(out);
+    size_t m;
+    char *now = tu_slurp(copy, &m);
+    assert_true(m == n && !memcmp(now, text, n));
+    free(now);
+    free(text);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* A journal that links out of the case is neither read nor written through (replay and navigate
+ * open it with journal_open). */
+static void test_linked_journal_refused(void **st)
+{
+    (void)st;
+    static const journal_bind b = {"1111111111111111111111111111111111111111111111111111111111111111",
+                                   1, {1}};
+    char *dir = tu_tmpdir("durable"), outside[4200];
+    make_outside(dir, outside, sizeof outside);
+    plant(outside, dir, "journal");
+    assert_null(journal_open(dir, &b));
+    assert_non_null(strstr(fn_err_msg(), "journal is a symbolic link"));
+    assert_outside_intact(outside);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* A recording (fracnav record -o) is written in place as it comes, but never through a link. */
+static void test_recording_not_written_through_link(void **st)
+{
+    (void)st;
+    char *dir = tu_tmpdir("durable"), outside[4200], path[4200];
+    make_outside(dir, outside, sizeof outside);
+    plant(outside, dir, "rec.fnrec");
+    snprintf(path, sizeof path, "%s/rec.fnrec", dir);
+    fnrec_header h = {.version = FNREC_VERSION, .vid = 0x46d, .pid = 0xc62b, .name = "x",
+                      .format = "split", .source = "test"};
+    assert_null(fnrec_writer_open(path, &h));
+    assert_non_null(strstr(fn_err_msg(), "symbolic link"));
+    assert_outside_intact(outside);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_replace_writes_and_leaves_no_temporary),
+        cmocka_unit_test(test_link_target_refused),
+        cmocka_unit_test(test_planted_temporaries_never_written),
+        cmocka_unit_test(test_edit_ignores_planted_old_temporaries),
+        cmocka_unit_test(test_edit_refuses_linked_case_json),
+        cmocka_unit_test(test_linked_journal_refused),
+        cmocka_unit_test(test_recording_not_written_through_link),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
