@@ -295,6 +295,44 @@ static void test_actions_fix_undo_redo(void **st)
     session_close(s);
 }
 
+static int movable_is(session_dsource *ds, int want)
+{
+    return atomic_load(&ds->movable) == want;
+}
+
+static int led_says_fixed(void *ds)
+{
+    return movable_is(ds, 0);
+}
+
+static int led_says_movable(void *ds)
+{
+    return movable_is(ds, 1);
+}
+
+/* The session tells a device source, after every scene, whether the selected fragment can move:
+ * its LED lights only while a movable one is held, and its input thread never reads the loop. */
+static void test_session_pushes_movable_for_led(void **st)
+{
+    (void)st;
+    calib cal;
+    calib_default(&cal);
+    session_dsource ds;
+    session_dsource_init(&ds, NULL, &cal);
+    session *s = open_case(0);
+    session_drive_led(s, &ds);
+    sem_init(&Q.tick, 0, 0);
+    atomic_init(&Q.end, 0);
+    assert_int_equal(session_start(s, (loop_source){quiet_next, &Q}), 0);
+    assert_int_equal(act(s, LOOP_ACT_FIX)->scene.fixed[1], 1); /* B, the selected one, fixed */
+    assert_true(tu_wait_for(led_says_fixed, &ds, TU_WAIT_MAX_S));
+    act(s, LOOP_ACT_UNDO);
+    assert_true(tu_wait_for(led_says_movable, &ds, TU_WAIT_MAX_S));
+    stop_quiet(s);
+    session_close(s);
+    session_dsource_destroy(&ds);
+}
+
 /* A proposed pose lands as one step: accepted when free, refused inside A (and for the fixed A),
  * undone and redone whole; with checking off, accepted anywhere. */
 static void test_propose_pose_one_undoable_step(void **st)
@@ -658,6 +696,7 @@ int main(void)
         cmocka_unit_test_setup(test_grazing_slides, fresh_case),
         cmocka_unit_test_setup(test_unplug_keeps_pose, fresh_case),
         cmocka_unit_test_setup(test_actions_fix_undo_redo, fresh_case),
+        cmocka_unit_test_setup(test_session_pushes_movable_for_led, fresh_case),
         cmocka_unit_test_setup(test_propose_pose_one_undoable_step, fresh_case),
         cmocka_unit_test_setup(test_fit_lands_as_one_undoable_step, fresh_case),
         cmocka_unit_test_setup(test_fit_leaves_the_gap, fresh_case),

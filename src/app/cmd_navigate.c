@@ -550,7 +550,7 @@ int cmd_navigate(int argc, char **argv)
     if (k) {
         if (session_resumed(k))
             fprintf(stderr, "recovered %zu journal records\n", session_resumed(k));
-        ds.L = session_loop(k);
+        session_drive_led(k, &ds);
         if (o.have_pivot)
             loop_set_pivot(session_loop(k), o.pivot);
         v.k = k;

@@ -263,13 +263,14 @@ loop_source session_transport_source(session_tsource *ts);
 
 /* A loop_source over an opened device (live): dev_poll folds what is queued into one event. On
  * its (input) thread it also drives the LED -- lit while a fragment is held: the cap deflected
- * with a movable fragment selected (the `led` setting can force it on or off) -- and publishes
- * for the view the battery level and, while another controller sits at the device's path, why
- * it was not taken (dev_poll's DEV_EV_REFUSED). */
+ * with a movable fragment selected (the session pushes which: session_drive_led; the `led`
+ * setting can force it on or off) -- and publishes for the view the battery level and, while
+ * another controller sits at the device's path, why it was not taken (dev_poll's
+ * DEV_EV_REFUSED). It never reads the loop. */
 typedef struct session_dsource {
     dev_device *d;
     calib cal;
-    loop *L;             /* for the selected fragment's state; NULL: holding = cap deflected */
+    _Atomic int movable; /* the selected fragment can move (session_drive_led; 1 until then) */
     int led;             /* the LED state last sent, -1 none yet */
     _Atomic int battery; /* 0..100, -1 unknown; read by the status line */
     pthread_mutex_t mu;  /* guards refused */
@@ -281,5 +282,8 @@ void session_dsource_destroy(session_dsource *ds);
 loop_source session_device_source(session_dsource *ds);
 /* Copies the refusal's message (any thread); 0 when there is none. */
 int session_dsource_refused(session_dsource *ds, char *out, size_t cap);
+/* After every scene, s tells ds whether its selected fragment can move (for ds's LED). Before
+ * session_start; ds must outlive session_stop. NULL: none. */
+void session_drive_led(session *s, session_dsource *ds);
 
 #endif

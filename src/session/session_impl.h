@@ -35,6 +35,7 @@ struct session {
     int loop_rc, ended;
     atomic_int stop;
     sem_t wake; /* posted at every publish */
+    session_dsource *led; /* session_drive_led's: told after every scene */
     void (*wakeup)(void *ctx);
     void *wakeup_ctx;
 

@@ -110,11 +110,7 @@ static int holding(const session_dsource *s, const loop_event *ev)
     int deflected = 0;
     for (int a = 0; a < 6; a++)
         deflected |= ev->motion[a] != 0;
-    if (!deflected || !s->L)
-        return deflected;
-    loop_scene sc = {0};
-    loop_scene_read(s->L, &sc);
-    return !sc.fixed[sc.selected];
+    return deflected && atomic_load_explicit(&s->movable, memory_order_relaxed);
 }
 
 static void update_led(session_dsource *s, int held)
@@ -130,6 +126,7 @@ void session_dsource_init(session_dsource *s, dev_device *d, const calib *cal)
     s->d = d;
     s->cal = *cal;
     s->led = -1;
+    atomic_init(&s->movable, 1);
     atomic_init(&s->battery, -1);
     pthread_mutex_init(&s->mu, NULL);
 }
