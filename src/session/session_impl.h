@@ -6,6 +6,7 @@
 #include "session.h"
 
 #include <jansson.h>
+#include <pthread.h>
 #include <semaphore.h>
 #include <stdatomic.h>
 
@@ -80,5 +81,8 @@ int session__fit_finished(session *s, session_event *ev, pose *fitted, double *t
 int session__propose(session *s, int fragment, const pose *p, double tolerance_mm, uint64_t *id);
 /* Cancels a running fit and joins the worker. Owner's thread. */
 void session__fit_join(session *s);
+
+/* Tells ds whether the selected fragment can move (session_drive_led's push). Any thread. */
+void session__led_movable(session_dsource *ds, int movable);
 
 #endif

@@ -17,7 +17,7 @@ static void on_publish(void *ctx)
 {
     session *s = ctx;
     if (s->led) /* on the publishing thread: the loop's state is this thread's to read */
-        atomic_store_explicit(&s->led->movable, !loop_fixed(s->L, loop_selected(s->L)), memory_order_relaxed);
+        session__led_movable(s->led, !loop_fixed(s->L, loop_selected(s->L)));
     sem_post(&s->wake);
     if (s->wakeup)
         s->wakeup(s->wakeup_ctx);
