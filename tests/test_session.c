@@ -99,13 +99,13 @@ static void play(session *s, const char *text, int mode, loop_stats *out, pose *
     free(sc);
     assert_non_null(rec);
     sim_replay_opts ro = {mode == SESSION_PLAY_REALTIME, 1};
-    session_tsource ts = {0};
-    assert_int_equal(sim_replay_open_rec(rec, &ro, &ts.h), 0);
-    ts.tr = &sim_replay_transport;
-    ts.finished = sim_replay_finished;
-    session_decoder_init(&ts.dec, rec->hdr.vid, rec->hdr.pid, NULL);
-    assert_int_equal(session_play(s, session_transport_source(&ts), mode), 0);
-    sim_replay_transport.close(ts.h);
+    dev_handle *h;
+    assert_int_equal(sim_replay_open_rec(rec, &ro, &h), 0);
+    session_tsource *ts = session_tsource_new(&sim_replay_transport, h, rec->hdr.vid, rec->hdr.pid, NULL,
+                                              sim_replay_finished, NULL);
+    assert_non_null(ts);
+    assert_int_equal(session_play(s, session_transport_source(ts), mode), 0);
+    session_tsource_free(ts);
     fnrec_free(rec);
     loop_get_stats(session_loop(s), out);
     *b = loop_pose(session_loop(s), 1);
@@ -294,6 +294,40 @@ static void test_actions_fix_undo_redo(void **st)
     assert_int_equal(e->result, LOOP_IDLE); /* nothing left to redo */
     stop_quiet(s);
     session_close(s);
+}
+
+static int led_says_fixed(void *ds)
+{
+    return session_dsource_movable(ds) == 0;
+}
+
+static int led_says_movable(void *ds)
+{
+    return session_dsource_movable(ds) == 1;
+}
+
+/* The session tells a device source, after every scene, whether the selected fragment can move:
+ * its LED lights only while a movable one is held, and its input thread never reads the loop. */
+static void test_session_pushes_movable_for_led(void **st)
+{
+    (void)st;
+    calib cal;
+    calib_default(&cal);
+    session_dsource *ds = session_dsource_new(NULL, &cal);
+    assert_non_null(ds);
+    assert_int_equal(session_dsource_movable(ds), 1); /* until the session says otherwise */
+    session *s = open_case(0);
+    session_drive_led(s, ds);
+    sem_init(&Q.tick, 0, 0);
+    atomic_init(&Q.end, 0);
+    assert_int_equal(session_start(s, (loop_source){quiet_next, &Q}), 0);
+    assert_int_equal(act(s, LOOP_ACT_FIX)->scene.fixed[1], 1); /* B, the selected one, fixed */
+    assert_true(tu_wait_for(led_says_fixed, ds, TU_WAIT_MAX_S));
+    act(s, LOOP_ACT_UNDO);
+    assert_true(tu_wait_for(led_says_movable, ds, TU_WAIT_MAX_S));
+    stop_quiet(s);
+    session_close(s);
+    session_dsource_free(ds);
 }
 
 /* A proposed pose lands as one step: accepted when free, refused inside A (and for the fixed A),
@@ -852,6 +886,7 @@ int main(void)
         cmocka_unit_test_setup(test_grazing_slides, fresh_case),
         cmocka_unit_test_setup(test_unplug_keeps_pose, fresh_case),
         cmocka_unit_test_setup(test_actions_fix_undo_redo, fresh_case),
+        cmocka_unit_test_setup(test_session_pushes_movable_for_led, fresh_case),
         cmocka_unit_test_setup(test_propose_pose_one_undoable_step, fresh_case),
         cmocka_unit_test_setup(test_fit_lands_as_one_undoable_step, fresh_case),
         cmocka_unit_test_setup(test_fit_leaves_the_gap, fresh_case),

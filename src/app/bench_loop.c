@@ -122,16 +122,15 @@ static int drive(session *k, const fnrec *rec, double *wall_s)
     dev_handle *h;
     if (sim_replay_open_rec(rec, &ro, &h) < 0)
         return FN_EIO;
-    session_tsource ts = {0};
-    ts.tr = &sim_replay_transport;
-    ts.h = h;
-    ts.finished = sim_replay_finished;
-    session_decoder_init(&ts.dec, rec->hdr.vid, rec->hdr.pid, NULL);
+    session_tsource *ts = session_tsource_new(&sim_replay_transport, h, rec->hdr.vid, rec->hdr.pid, NULL,
+                                              sim_replay_finished, NULL);
+    if (!ts)
+        return FN_ENOMEM;
     realtime = loop_realtime_priority() == 0;
     double t0 = bench_now_us();
-    int rc = session_play(k, session_transport_source(&ts), SESSION_PLAY_LOCKSTEP);
+    int rc = session_play(k, session_transport_source(ts), SESSION_PLAY_LOCKSTEP);
     *wall_s = (bench_now_us() - t0) * 1e-6;
-    sim_replay_transport.close(h);
+    session_tsource_free(ts);
     return rc;
 }
 

@@ -285,7 +285,7 @@ static void new_actions(view *v, const loop_scene *sc)
 /* --loop: each new play of the recording is acknowledged. */
 static void new_plays(view *v)
 {
-    unsigned plays = v->ts ? atomic_load(&v->ts->plays) : 0;
+    unsigned plays = v->ts ? session_tsource_plays(v->ts) : 0;
     if (plays == v->plays_seen)
         return;
     v->plays_seen = plays;
@@ -373,7 +373,7 @@ static navview_extra view_extra(view *v, char *refused, size_t cap)
         x.fit = v->fit;
     }
     if (v->ds) {
-        x.battery = atomic_load(&v->ds->battery);
+        x.battery = session_dsource_battery(v->ds);
         if (session_dsource_refused(v->ds, refused, cap))
             x.refused = refused;
     }
@@ -389,7 +389,7 @@ static void window_frame(view *v, const loop_scene *sc)
 {
     char refused[512], device[256];
     navview_extra x = view_extra(v, refused, sizeof refused);
-    const devtab_row *row = v->ds && v->ds->d ? dev_row(v->ds->d) : NULL;
+    const devtab_row *row = v->ds ? dev_row(session_dsource_device(v->ds)) : NULL;
     snprintf(device, sizeof device, "%s%s", row && row->name ? row->name : v->ds ? "?" : "a recording",
              x.battery >= 0 ? "" : ", battery unknown");
     int keys[NAVWIN_KEYS], closed = 0;
@@ -525,37 +525,35 @@ static int run(view *v, loop_source src, int keys, const opts *o)
     return rc == 0 ? session_save(k) : rc;
 }
 
-/* A played recording as the source (navigate ends at its end, or plays it again with --loop):
- * opens it into ts with the decoder for its device. 0 or negative. */
+/* A played recording as the source (navigate ends at its end, or plays it again with --loop),
+ * with the decoder for its device. 0 or negative. */
 static int open_recording(const opts *o, const dev_transport *t, const char *file, const calib *cal,
-                          session_tsource *ts, loop_config *cfg)
+                          session_tsource **ts, loop_config *cfg)
 {
-    memset(ts, 0, sizeof *ts);
-    int rc = t->open(file, &ts->h);
+    dev_handle *h;
+    int rc = t->open(file, &h);
     if (rc < 0)
         return rc;
-    const fnrec_header *hdr = sim_replay_header(ts->h);
-    ts->tr = t;
-    ts->finished = t->finished;
-    ts->again = o->again ? file : NULL;
-    session_decoder_init(&ts->dec, hdr->vid, hdr->pid, cal);
+    const fnrec_header *hdr = sim_replay_header(h);
     loop_config_actions_at(cfg, devtab_key1_button(devtab_find(hdr->vid, hdr->pid)));
-    return 0;
+    *ts = session_tsource_new(t, h, hdr->vid, hdr->pid, cal, t->finished, o->again ? file : NULL);
+    return *ts ? 0 : FN_ENOMEM;
 }
 
 /* The live device as the source: a device that reads the terminal steers with keys (its help key,
- * the keyboard's button 11, shows them). */
-static int open_device(const opts *o, session_dsource *ds, loop_config *cfg, int *keyboard)
+ * the keyboard's button 11, shows them). 0 or negative. */
+static int open_device(const opts *o, const calib *cal, session_dsource **ds, loop_config *cfg, int *keyboard)
 {
-    ds->d = dev_open(o->device);
-    if (!ds->d)
+    dev_device *d = dev_open(o->device);
+    if (!d)
         return FN_ENODEV;
-    const dev_transport *t = dev_transport_of(ds->d);
+    const dev_transport *t = dev_transport_of(d);
     *keyboard = (t->caps & DEV_CAP_TERMINAL) != 0;
-    loop_config_actions_at(cfg, devtab_key1_button(dev_row(ds->d)));
+    loop_config_actions_at(cfg, devtab_key1_button(dev_row(d)));
     if (t->help_button)
         cfg->button_action[t->help_button - 1] = LOOP_ACT_HELP;
-    return 0;
+    *ds = session_dsource_new(d, cal);
+    return *ds ? 0 : FN_ENOMEM;
 }
 
 int cmd_navigate(int argc, char **argv)
@@ -590,15 +588,13 @@ int cmd_navigate(int argc, char **argv)
     cfg.frame = o.frame;
     const char *file = NULL;
     const dev_transport *played = recording_spec(o.device, &file);
-    session_tsource ts;
-    session_dsource ds;
-    session_dsource_init(&ds, NULL, &cal);
+    session_tsource *ts = NULL;
+    session_dsource *ds = NULL;
     view v = {0};
     v.tty = isatty(STDERR_FILENO);
-    rc = played ? open_recording(&o, played, file, &cal, &ts, &cfg) : open_device(&o, &ds, &cfg, &v.keyboard);
+    rc = played ? open_recording(&o, played, file, &cal, &ts, &cfg) : open_device(&o, &cal, &ds, &cfg, &v.keyboard);
     if (rc < 0) {
         fprintf(stderr, "fracnav navigate: %s\n", fn_err_msg());
-        session_dsource_destroy(&ds);
         caselock_release(lock);
         return 1;
     }
@@ -610,29 +606,27 @@ int cmd_navigate(int argc, char **argv)
     if (k) {
         if (session_resumed(k))
             fprintf(stderr, "recovered %zu journal records\n", session_resumed(k));
-        ds.L = session_loop(k);
+        session_drive_led(k, ds);
         if (o.have_pivot)
             loop_set_pivot(session_loop(k), o.pivot);
         v.k = k;
-        v.ds = played ? NULL : &ds;
-        v.ts = played ? &ts : NULL;
-        loop_source src = played ? session_transport_source(&ts) : session_device_source(&ds);
+        v.ds = ds;
+        v.ts = ts;
+        loop_source src = played ? session_transport_source(ts) : session_device_source(ds);
         rc = run(&v, src, played || !v.keyboard, &o);
         if (!played)
-            dev_set_led(ds.d, 0);
+            dev_set_led(session_dsource_device(ds), 0);
         if (rc == 0 && o.json)
-            rc = session_print_json(k, stdout, "navigate", played ? (long)ts.unplugs : -1,
-                                    played ? ts.dec.ps.n_unknown_id + ts.dec.ps.n_bad_len : dev_skipped(ds.d));
+            rc = session_print_json(k, stdout, "navigate", played ? (long)session_tsource_unplugs(ts) : -1,
+                                    played ? session_tsource_skipped(ts) : dev_skipped(session_dsource_device(ds)));
         else if (rc == 0)
             fprintf(stderr, "saved %s\n", o.dir);
         session_close(k);
     }
     if (rc < 0)
         fprintf(stderr, "fracnav navigate: %s\n", fn_err_msg());
-    if (played && ts.h)
-        played->close(ts.h);
-    dev_close(ds.d);
-    session_dsource_destroy(&ds);
+    session_tsource_free(ts);
+    session_dsource_free(ds);
     caselock_release(lock);
     return rc < 0 ? 1 : 0;
 }

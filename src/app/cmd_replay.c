@@ -312,11 +312,13 @@ int cmd_replay(int argc, char **argv)
         caselock_release(lock);
         return 1;
     }
-    session_tsource ts = {0};
-    ts.tr = &sim_replay_transport;
-    ts.h = h;
-    ts.finished = sim_replay_finished;
-    session_decoder_init(&ts.dec, hdr->vid, hdr->pid, &cal);
+    session_tsource *ts = session_tsource_new(&sim_replay_transport, h, hdr->vid, hdr->pid, &cal, sim_replay_finished,
+                                              NULL);
+    if (!ts) {
+        fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
+        session_close(k);
+        return 1;
+    }
     fprintf(stderr, "fracnav replay: stepping %s on %s\n", o.rec, o.dir);
     if (o.have_pivot)
         loop_set_pivot(session_loop(k), o.pivot);
@@ -324,11 +326,11 @@ int cmd_replay(int argc, char **argv)
     if (o.frames && !(fd = framedump_open(o.frames, session_case(k), o.frame_ms, 512, 512, &o.look))) {
         fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
         session_close(k);
-        sim_replay_transport.close(h);
+        session_tsource_free(ts);
         caselock_release(lock);
         return 1;
     }
-    loop_source src = session_transport_source(&ts);
+    loop_source src = session_transport_source(ts);
     if (fd) {
         loop_reset_timing(session_loop(k));
         rc = run_frames(session_loop(k), src, fd);
@@ -352,7 +354,7 @@ int cmd_replay(int argc, char **argv)
     if (rc < 0) {
         fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
     } else if (o.json) {
-        rc = session_print_json(k, stdout, "replay", (long)ts.unplugs, ts.dec.ps.n_unknown_id + ts.dec.ps.n_bad_len);
+        rc = session_print_json(k, stdout, "replay", (long)session_tsource_unplugs(ts), session_tsource_skipped(ts));
         if (rc < 0)
             fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
     } else {
@@ -366,7 +368,7 @@ int cmd_replay(int argc, char **argv)
                s.latency_p99_us, (unsigned long long)s.pose_digest);
     }
     session_close(k);
-    sim_replay_transport.close(h);
+    session_tsource_free(ts);
     caselock_release(lock);
     return rc < 0 ? 1 : 0;
 }

@@ -32,11 +32,9 @@
 #include "calib.h"
 #include "case.h"
 #include "dev.h"
-#include "devparse.h"
 #include "journal.h"
 #include "loop.h"
 
-#include <pthread.h>
 #include <stdio.h>
 
 struct json_t; /* jansson's */
@@ -234,52 +232,46 @@ struct json_t *session_stats_json(const char *command, const loop_stats *st);
 
 /* ---- event sources ---- */
 
-/* Raw reports -> loop events (parser, then calibration). */
-typedef struct session_decoder {
-    devparse_state ps;
-    calib cal;
-} session_decoder;
-/* cal NULL: the default calibration. */
-void session_decoder_init(session_decoder *d, uint16_t vid, uint16_t pid, const calib *cal);
-/* 1 when the report changed motion or buttons (ev filled), 0 to skip it. */
-int session_decode(session_decoder *d, const uint8_t *rep, size_t len, int64_t t_us, loop_event *ev);
-
-/* A loop_source over an open transport handle: every report is one event; a read that says the
- * device went away is an unplug (or the end, when `finished` says so, e.g. sim_replay_finished).
- * With `again` set, the end opens tr at `again` once more and plays it from the start (navigate
- * --loop): the loop gets LOOP_EV_REPLUG, so the recording's clock starting over is no jump. */
-typedef struct session_tsource {
-    const dev_transport *tr;
-    dev_handle *h;
-    session_decoder dec;
-    int (*finished)(const dev_handle *h);
-    const char *again;
-    int unplugged, has_pending;
-    loop_event pending;
-    unsigned unplugs;
-    _Atomic unsigned plays; /* plays begun after the first (again); read by the view */
-} session_tsource;
+/* A loop_source over an open transport handle h of tr (a recording, the virtual device), whose
+ * reports are those of device vid:pid: every report is one event, through the device's parser
+ * and cal (NULL: the default calibration). A read that says the device went away is an unplug,
+ * or the end when finished(h) says so (e.g. sim_replay_finished). With again set, the end opens
+ * tr at again once more and plays it from the start (navigate --loop): the loop gets
+ * LOOP_EV_REPLUG, so the recording's clock starting over is no jump. The source owns h from here
+ * (session_tsource_free closes it). NULL with fn_err (h closed) when out of memory. */
+typedef struct session_tsource session_tsource;
+session_tsource *session_tsource_new(const dev_transport *tr, dev_handle *h, uint16_t vid, uint16_t pid,
+                                     const calib *cal, int (*finished)(const dev_handle *h), const char *again);
+void session_tsource_free(session_tsource *ts);
 loop_source session_transport_source(session_tsource *ts);
+/* Unplugs read so far, and reports the parser skipped (an unknown ID or a wrong length): for the
+ * summary, once the source stopped. */
+unsigned session_tsource_unplugs(const session_tsource *ts);
+uint64_t session_tsource_skipped(const session_tsource *ts);
+/* Plays begun after the first (again). Any thread. */
+unsigned session_tsource_plays(session_tsource *ts);
 
-/* A loop_source over an opened device (live): dev_poll folds what is queued into one event. On
- * its (input) thread it also drives the LED -- lit while a fragment is held: the cap deflected
- * with a movable fragment selected (the `led` setting can force it on or off) -- and publishes
- * for the view the battery level and, while another controller sits at the device's path, why
- * it was not taken (dev_poll's DEV_EV_REFUSED). */
-typedef struct session_dsource {
-    dev_device *d;
-    calib cal;
-    loop *L;             /* for the selected fragment's state; NULL: holding = cap deflected */
-    int led;             /* the LED state last sent, -1 none yet */
-    _Atomic int battery; /* 0..100, -1 unknown; read by the status line */
-    pthread_mutex_t mu;  /* guards refused */
-    char refused[512];   /* "" or the refusal's message, until the device comes back */
-} session_dsource;
-/* Sets up ds for device d (not owned) with calibration cal. */
-void session_dsource_init(session_dsource *ds, dev_device *d, const calib *cal);
-void session_dsource_destroy(session_dsource *ds);
+/* A loop_source over an opened device d (live; the source owns it: session_dsource_free closes
+ * it), through cal: dev_poll folds what is queued into one event. On its (input) thread it also
+ * drives the LED -- lit while a fragment is held: the cap deflected with a movable fragment
+ * selected (the session pushes which: session_drive_led; the `led` setting can force it on or
+ * off) -- and publishes for the view the battery level and, while another controller sits at the
+ * device's path, why it was not taken (dev_poll's DEV_EV_REFUSED). It never reads the loop. NULL
+ * with fn_err (d closed) when out of memory. */
+typedef struct session_dsource session_dsource;
+session_dsource *session_dsource_new(dev_device *d, const calib *cal);
+void session_dsource_free(session_dsource *ds);
 loop_source session_device_source(session_dsource *ds);
+dev_device *session_dsource_device(session_dsource *ds);
+/* The battery level, 0..100, -1 unknown (any thread). */
+int session_dsource_battery(session_dsource *ds);
+/* 1 while the selected fragment can move, as the session last said (session_drive_led; 1 until
+ * then): the LED lights while the cap is deflected and this holds. Any thread. */
+int session_dsource_movable(session_dsource *ds);
 /* Copies the refusal's message (any thread); 0 when there is none. */
 int session_dsource_refused(session_dsource *ds, char *out, size_t cap);
+/* After every scene, s tells ds whether its selected fragment can move (for ds's LED). Before
+ * session_start; ds must outlive session_stop. NULL: none. */
+void session_drive_led(session *s, session_dsource *ds);
 
 #endif

@@ -6,6 +6,7 @@
 #include "session.h"
 
 #include <jansson.h>
+#include <pthread.h>
 #include <semaphore.h>
 #include <stdatomic.h>
 
@@ -34,6 +35,7 @@ struct session {
     int loop_rc, ended;
     atomic_int stop;
     sem_t wake; /* posted at every publish */
+    session_dsource *led; /* session_drive_led's: told after every scene */
     void (*wakeup)(void *ctx);
     void *wakeup_ctx;
 
@@ -78,5 +80,8 @@ int session__fit_finished(session *s, session_event *ev, pose *fitted, double *t
 int session__propose(session *s, int fragment, const pose *p, double tolerance_mm, uint64_t *id);
 /* Cancels a running fit and joins the worker. Owner's thread. */
 void session__fit_join(session *s);
+
+/* Tells ds whether the selected fragment can move (session_drive_led's push). Any thread. */
+void session__led_movable(session_dsource *ds, int movable);
 
 #endif

@@ -16,6 +16,8 @@
 static void on_publish(void *ctx)
 {
     session *s = ctx;
+    if (s->led) /* on the publishing thread: the loop's state is this thread's to read */
+        session__led_movable(s->led, !loop_fixed(s->L, loop_selected(s->L)));
     sem_post(&s->wake);
     if (s->wakeup)
         s->wakeup(s->wakeup_ctx);
@@ -172,6 +174,11 @@ void session_set_camera(session *s, const double right[3], const double up[3], c
 void session_subscribe(session *s, unsigned kinds)
 {
     s->kinds = kinds;
+}
+
+void session_drive_led(session *s, session_dsource *ds)
+{
+    s->led = ds;
 }
 
 void session_set_wakeup(session *s, void (*fn)(void *ctx), void *ctx)

@@ -1,13 +1,45 @@
 /* session: event sources -- raw reports through the parser and calibration into loop events,
  * from a transport handle (recordings, the virtual device) or from a live device. */
-#include "session.h"
+#include "session_impl.h"
 
+#include "devparse.h"
 #include "err.h"
 
+#include <pthread.h>
 #include <stdatomic.h>
+#include <stdlib.h>
 #include <string.h>
 
-void session_decoder_init(session_decoder *d, uint16_t vid, uint16_t pid, const calib *cal)
+/* Raw reports -> loop events (parser, then calibration). */
+typedef struct session_decoder {
+    devparse_state ps;
+    calib cal;
+} session_decoder;
+
+struct session_tsource {
+    const dev_transport *tr;
+    dev_handle *h;
+    session_decoder dec;
+    int (*finished)(const dev_handle *h);
+    const char *again;
+    int unplugged, has_pending;
+    loop_event pending;
+    unsigned unplugs;
+    _Atomic unsigned plays; /* plays begun after the first (again); read by the view */
+};
+
+struct session_dsource {
+    dev_device *d;
+    calib cal;
+    _Atomic int movable; /* the selected fragment can move (session_drive_led; 1 until then) */
+    int led;             /* the LED state last sent, -1 none yet */
+    _Atomic int battery; /* 0..100, -1 unknown; read by the status line */
+    pthread_mutex_t mu;  /* guards refused */
+    char refused[512];   /* "" or the refusal's message, until the device comes back */
+};
+
+/* cal NULL: the default calibration. */
+static void decoder_init(session_decoder *d, uint16_t vid, uint16_t pid, const calib *cal)
 {
     devparse_init(&d->ps, devtab_find(vid, pid), 0);
     if (cal)
@@ -33,7 +65,8 @@ static int from_dev_event(calib *cal, dev_event *de, loop_event *ev)
     return 1;
 }
 
-int session_decode(session_decoder *d, const uint8_t *rep, size_t len, int64_t t_us, loop_event *ev)
+/* 1 when the report changed motion or buttons (ev filled), 0 to skip it. */
+static int decode(session_decoder *d, const uint8_t *rep, size_t len, int64_t t_us, loop_event *ev)
 {
     dev_event de;
     if (!devparse_report(&d->ps, rep, len, t_us, &de))
@@ -87,15 +120,42 @@ static int tsource_next(void *ctx, loop_event *ev, int timeout_ms)
         if (s->unplugged) {
             /* The first report after an unplug: say the device is back, then give the report. */
             s->unplugged = 0;
-            s->has_pending = session_decode(&s->dec, buf, (size_t)n, t_us, &s->pending);
+            s->has_pending = decode(&s->dec, buf, (size_t)n, t_us, &s->pending);
             memset(ev, 0, sizeof *ev);
             ev->kind = LOOP_EV_REPLUG;
             ev->t_us = t_us;
             return 1;
         }
-        if (session_decode(&s->dec, buf, (size_t)n, t_us, ev) == 1)
+        if (decode(&s->dec, buf, (size_t)n, t_us, ev) == 1)
             return 1;
     }
+}
+
+session_tsource *session_tsource_new(const dev_transport *tr, dev_handle *h, uint16_t vid, uint16_t pid,
+                                     const calib *cal, int (*finished)(const dev_handle *h), const char *again)
+{
+    session_tsource *s = calloc(1, sizeof *s);
+    if (!s) {
+        tr->close(h);
+        fn_err_set(FN_ENOMEM, "out of memory for an event source");
+        return NULL;
+    }
+    s->tr = tr;
+    s->h = h;
+    s->finished = finished;
+    s->again = again;
+    decoder_init(&s->dec, vid, pid, cal);
+    atomic_init(&s->plays, 0);
+    return s;
+}
+
+void session_tsource_free(session_tsource *s)
+{
+    if (!s)
+        return;
+    if (s->h)
+        s->tr->close(s->h);
+    free(s);
 }
 
 loop_source session_transport_source(session_tsource *s)
@@ -104,17 +164,28 @@ loop_source session_transport_source(session_tsource *s)
     return src;
 }
 
+unsigned session_tsource_unplugs(const session_tsource *s)
+{
+    return s->unplugs;
+}
+
+uint64_t session_tsource_skipped(const session_tsource *s)
+{
+    return s->dec.ps.n_unknown_id + s->dec.ps.n_bad_len;
+}
+
+unsigned session_tsource_plays(session_tsource *s)
+{
+    return atomic_load(&s->plays);
+}
+
 /* A fragment is held while the cap is deflected and the selected fragment can move. */
 static int holding(const session_dsource *s, const loop_event *ev)
 {
     int deflected = 0;
     for (int a = 0; a < 6; a++)
         deflected |= ev->motion[a] != 0;
-    if (!deflected || !s->L)
-        return deflected;
-    loop_scene sc = {0};
-    loop_scene_read(s->L, &sc);
-    return !sc.fixed[sc.selected];
+    return deflected && atomic_load_explicit(&s->movable, memory_order_relaxed);
 }
 
 static void update_led(session_dsource *s, int held)
@@ -124,19 +195,50 @@ static void update_led(session_dsource *s, int held)
         s->led = on;
 }
 
-void session_dsource_init(session_dsource *s, dev_device *d, const calib *cal)
+session_dsource *session_dsource_new(dev_device *d, const calib *cal)
 {
-    memset(s, 0, sizeof *s);
+    session_dsource *s = calloc(1, sizeof *s);
+    if (!s) {
+        dev_close(d);
+        fn_err_set(FN_ENOMEM, "out of memory for an event source");
+        return NULL;
+    }
     s->d = d;
     s->cal = *cal;
     s->led = -1;
+    atomic_init(&s->movable, 1);
     atomic_init(&s->battery, -1);
     pthread_mutex_init(&s->mu, NULL);
+    return s;
 }
 
-void session_dsource_destroy(session_dsource *s)
+void session_dsource_free(session_dsource *s)
 {
+    if (!s)
+        return;
     pthread_mutex_destroy(&s->mu);
+    dev_close(s->d);
+    free(s);
+}
+
+void session__led_movable(session_dsource *s, int movable)
+{
+    atomic_store_explicit(&s->movable, movable, memory_order_relaxed);
+}
+
+dev_device *session_dsource_device(session_dsource *s)
+{
+    return s->d;
+}
+
+int session_dsource_movable(session_dsource *s)
+{
+    return atomic_load_explicit(&s->movable, memory_order_relaxed);
+}
+
+int session_dsource_battery(session_dsource *s)
+{
+    return atomic_load(&s->battery);
 }
 
 int session_dsource_refused(session_dsource *s, char *out, size_t cap)
