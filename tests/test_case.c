@@ -84,6 +84,7 @@ static void test_round_trip(void **st)
     assert_string_equal(d->sha256, c->sha256);
     assert_string_equal(d->frag[0].name, "occiput");
     assert_int_equal(d->fixed, 0);
+    assert_int_equal(d->nfixed_also, 0);
     assert_int_equal(d->has_truth, 1);
     assert_true(d->tau_min == 0.25);
     for (int i = 0; i < 2; i++) {
@@ -108,6 +109,17 @@ static void test_round_trip(void **st)
         fail_msg("%s", fn_err_msg());
     json_t *voi = json_object_get(e->extra, "voi");
     assert_int_equal(json_integer_value(json_array_get(json_object_get(voi, "min"), 2)), 3);
+    /* both fixed: "fixed" lists them, the case's own first, and comes back so */
+    uint8_t both[2] = {1, 1};
+    case_set_fixed(e, both);
+    assert_int_equal(case_save(e), 0);
+    case_free(e);
+    e = case_load(cdir);
+    assert_non_null(e);
+    assert_int_equal(e->fixed, 0);
+    assert_true(case_is_fixed(e, 0) && case_is_fixed(e, 1));
+    assert_int_equal(e->nfixed_also, 1);
+    assert_int_equal(e->fixed_also[0], e->frag[1].id);
     case_free(e);
     /* The brighter block is 2 (same size, later in scan order), its probabilities saturate. */
     assert_int_equal(d->frag[1].prob[d->frag[1].dim[0] * d->frag[1].dim[1] + d->frag[1].dim[0] + 1], 255);
@@ -238,8 +250,26 @@ static void source_dev_zero(json_t *r)
     json_object_set_new(json_object_get(r, "source"), "path", json_string("/dev/zero"));
 }
 
+static void fixed_unknown(json_t *r)
+{
+    json_object_set_new(r, "fixed", json_pack("[ii]", 1, 9));
+}
+
+static void fixed_empty(json_t *r)
+{
+    json_object_set_new(r, "fixed", json_array());
+}
+
+static void fixed_not_ids(json_t *r)
+{
+    json_object_set_new(r, "fixed", json_pack("[is]", 1, "two"));
+}
+
 static void test_damaged_fields(void **st)
 {
+    expect_load_error(fixed_unknown, FN_EFORMAT, "field fixed", "names a fragment the case does not have");
+    expect_load_error(fixed_empty, FN_EFORMAT, "field fixed", "array of 1..64");
+    expect_load_error(fixed_not_ids, FN_EFORMAT, "field fixed", "integers in 1..65535");
     expect_load_error(duplicate_id, FN_EFORMAT, "fragments[1].id", "listed twice");
     expect_load_error(negative_ramp, FN_EFORMAT, "segmentation.ramp", ">= 0");
     expect_load_error(long_source_path, FN_EFORMAT, "source.path", "too long");

@@ -322,6 +322,8 @@ int session_save(session *s)
 {
     pose poses[LOOP_MAX_FRAGS];
     uint8_t fixed[LOOP_MAX_FRAGS];
+    loop_publish(s->L); /* the scene the save reads (fitted marks, why) is this state's: a
+                         * session_play publishes only as often as it is read */
     for (int i = 0; i < s->nfrag; i++) {
         poses[i] = loop_pose(s->L, i);
         fixed[i] = (uint8_t)loop_fixed(s->L, i);

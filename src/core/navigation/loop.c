@@ -501,10 +501,12 @@ static void accept_pose(loop *L, int s, pose p, int64_t t_us, uint32_t kind, int
     L->pose[s] = p;
     L->gap_fresh = 0;
     L->verify_frag = s;
-    /* "fitted" holds until it moves; a plan loaded so marks both of a pair (loop_tolerate), and
-     * either one's move ends it for both */
-    if (L->tolerated[s] && checked != LOOP_TOLERATED)
-        memset(L->tolerated, 0, sizeof L->tolerated);
+    /* "fitted" holds until the fragment moves, or another that may stand inside it (held) or
+     * that it stood inside (a plan loaded so marks both of a pair: loop_tolerate) */
+    if (checked != LOOP_TOLERATED)
+        for (int j = 0, was = L->tolerated[s]; j < L->n; j++)
+            if (was || L->hold_mm[s] > 0 || L->hold_mm[j] > 0)
+                L->tolerated[j] = 0;
     L->tolerated[s] = checked == LOOP_TOLERATED;
     if (checked == LOOP_UNCHECKED || checked == LOOP_ESCAPING)
         L->hold_mm[s] = 0; /* not checked at the hold: it no longer bounds how deep it is */
