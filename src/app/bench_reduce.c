@@ -382,6 +382,8 @@ static int run_case(const vol *ct, uint64_t seed, const opts *o, config_stats *c
                         " %d evals, %.3f s cpu, push %.2f\n", (unsigned long long)seed, s,
                         reduce_method_name(ro.method), ro.count == REDUCE_NEAREST ? "nearest" : "trilinear",
                         x->rot, x->trans, x->tre, r.metric_end, ft, r.evaluations, x->cpu_s, r.push_mm);
+                fprintf(stderr, "  end pose q %.17g %.17g %.17g %.17g t %.17g %.17g %.17g\n", r.end.q[0],
+                        r.end.q[1], r.end.q[2], r.end.q[3], r.end.t[0], r.end.t[1], r.end.t[2]);
             }
             reduce_result_free(&r);
         }
@@ -476,7 +478,8 @@ static int usage(FILE *out, int rc)
             "                   object each, as without --suite, with its name) and pooled (per\n"
             "                   method, over every run; metric_eval_us null)\n"
             "  --verbose        one line per run on stderr, after its details (start error, VOI,\n"
-            "                   the turn of the moving piece's voxel grid from the fixed one's)\n"
+            "                   the turn of the moving piece's voxel grid from the fixed one's),\n"
+            "                   then the end pose in full (to compare fits pose for pose)\n"
             "  --verbose-truth  that, and the same fit started at the true pose (where the\n"
             "                   metric's own basin ends; for the analysis of failures)\n"
             "  --json           one JSON object on stdout: command, ct, seeds, starts, max_mm,\n"
