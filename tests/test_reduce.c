@@ -273,7 +273,7 @@ static void test_reduce_two_pieces(void **st)
     assert_true(r[0].nhistory >= 2);
     assert_int_equal(r[0].collides, 0);
     /* the result is stored and comes back from disk */
-    assert_int_equal(reduce_store(c, 0, &o, r, 1), 0);
+    assert_int_equal(case_set_reduction(c, 0, &o, r, 1), 0);
     assert_int_equal(case_save(c), 0);
     pose want = c->frag[1].pose;
     planning_case *back = case_load(dir);

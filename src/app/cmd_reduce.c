@@ -311,7 +311,7 @@ int cmd_reduce(int argc, char **argv)
     if (A.o.progress)
         fprintf(stderr, "\n");
     if (err == 0)
-        err = reduce_store(c, fixed, &A.o, res, nmv);
+        err = case_set_reduction(c, fixed, &A.o, res, nmv);
     if (err == 0 && A.out)
         err = retarget(c, A.out);
     if (err == 0)

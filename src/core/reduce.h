@@ -232,9 +232,4 @@ int reduce_truth_errors(const struct planning_case *c, int fi, int mi, double *r
 void reduce_errors(const frag *f, const frag *m, const pose *want, double *rot_deg, double *trans_mm,
                    double *tre_mm);
 
-/* Stores the results in c->extra as "reduction": {method, counting, fixed, fragments: [{id, voi,
- * placed, start, end, iterations, evaluations, seconds, metric_start, metric_end, push_mm,
- * history}]}, replacing an earlier one. 0 or FN_ENOMEM. */
-int reduce_store(struct planning_case *c, int fixed, const reduce_opts *o, const reduce_result *r, int n);
-
 #endif

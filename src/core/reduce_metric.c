@@ -1,4 +1,5 @@
-/* reduce_metric: the VOI metric (see reduce.h), fast and by brute force, and the automatic VOI. */
+/* reduce_metric: the VOI metric (see reduce.h), fast and by brute force, and the coarse copies of
+ * fragments it can be made over. */
 #include "reduce.h"
 #include "reduce_impl.h"
 
@@ -638,4 +639,45 @@ double reduce_metric_brute(const frag *const *asm_, int nasm, const frag *moving
     if (counts)
         *counts = c;
     return reduce_counts_metric(&c);
+}
+
+/* A coarse copy of f for the first stage: 2x2x2 (or 2 in-plane where a slice is already thick) voxels
+ * per cell, bone where at least half of them are; same id, pose, centroid and axes (home world). 0
+ * or FN_ENOMEM (*c then holds nothing to free). */
+int reduce__coarse_frag(const frag *f, frag *c)
+{
+    *c = *f;
+    int s[3];
+    double smin = fmin(f->spacing[0], fmin(f->spacing[1], f->spacing[2]));
+    for (int a = 0; a < 3; a++) {
+        s[a] = f->spacing[a] < 1.5 * smin + 1e-9 ? 2 : 1;
+        c->dim[a] = (f->dim[a] + s[a] - 1) / s[a];
+        c->spacing[a] = f->spacing[a] * s[a];
+    }
+    int need = s[0] * s[1] * s[2] / 2;
+    pose shift = POSE_IDENTITY;
+    for (int a = 0; a < 3; a++)
+        shift.t[a] = 0.5 * (s[a] - 1) * f->spacing[a];
+    c->home = pose_compose(f->home, shift);
+    c->prob = calloc((size_t)c->dim[0] * c->dim[1] * c->dim[2], 1);
+    if (!c->prob)
+        return fn_err_set(FN_ENOMEM, "reduce: out of memory for fragment %d's coarse copy", f->id);
+    c->voxels = 0;
+    for (int k = 0; k < c->dim[2]; k++)
+        for (int j = 0; j < c->dim[1]; j++)
+            for (int i = 0; i < c->dim[0]; i++) {
+                int n = 0;
+                for (int dk = 0; dk < s[2]; dk++)
+                    for (int dj = 0; dj < s[1]; dj++)
+                        for (int di = 0; di < s[0]; di++) {
+                            int x = i * s[0] + di, y = j * s[1] + dj, z = k * s[2] + dk;
+                            if (x < f->dim[0] && y < f->dim[1] && z < f->dim[2])
+                                n += f->prob[((size_t)z * f->dim[1] + y) * f->dim[0] + x] != 0;
+                        }
+                if (n >= need) {
+                    c->prob[((size_t)k * c->dim[1] + j) * c->dim[0] + i] = 255;
+                    c->voxels++;
+                }
+            }
+    return 0;
 }
