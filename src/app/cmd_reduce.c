@@ -32,7 +32,9 @@ static void usage(FILE *out)
             "details and the measured accuracy.\n\n"
             "  --fixed ID             the fragment that stays (default: the case's fixed one, else\n"
             "                         the largest)\n"
-            "  --moving ID...         the fragments to fit (default: all others)\n"
+            "  --moving ID...         the fragments to fit (default: all others that touch another\n"
+            "                         in the CT; one that touches nothing there, as a CT's head\n"
+            "                         holder, is skipped with a word, and --moving still fits it)\n"
             "  --method M             powell (ours), praxis, sbplx or bobyqa (NLopt); default: praxis,\n"
             "                         the most successful in `fracnav bench reduce`\n"
             "  --voi X0 Y0 Z0 X1 Y1 Z1  the VOI box, world LPS mm (default: automatic, around the\n"
@@ -140,7 +142,8 @@ static int parse(int argc, char **argv, args *A)
 }
 
 /* Fragment indices: the fixed one and the moving ones. 0, or 2 after a usage error. */
-static int pick(const planning_case *c, const args *A, int *fixed, int *mv, int *nmv)
+/* The fixed fragment and the moving ones (indices); skipped: those left out by default. */
+static int pick(const planning_case *c, const args *A, int *fixed, int *mv, int *nmv, int *skipped, int *nskipped)
 {
     if (A->fixed_id) {
         if ((*fixed = case_find(c, A->fixed_id)) < 0)
@@ -167,12 +170,19 @@ static int pick(const planning_case *c, const args *A, int *fixed, int *mv, int 
             mv[(*nmv)++] = i;
         }
     } else {
-        for (int i = 0; i < c->nfrag; i++)
-            if (i != *fixed)
-                mv[(*nmv)++] = i;
+        int n = reduce_pick_moving(c, *fixed, mv, skipped, nskipped);
+        if (n < 0) {
+            fprintf(stderr, "fracnav reduce: %s\n", fn_err_msg());
+            return 1;
+        }
+        *nmv = n;
+        for (int k = 0; k < *nskipped; k++)
+            fprintf(stderr, "fracnav reduce: fragment %d touches no other fragment in the CT: skipped "
+                    "(--moving %d fits it)\n", c->frag[skipped[k]].id, c->frag[skipped[k]].id);
     }
     if (!*nmv)
-        return cmd_usage_error("reduce", "%s", "the case has no fragment to move");
+        return cmd_usage_error("reduce", "%s", *nskipped ? "no fragment touches another in the CT; --moving ID "
+                               "names the ones to fit" : "the case has no fragment to move");
     return 0;
 }
 
@@ -213,7 +223,8 @@ static json_t *result_json(const planning_case *c, int fixed, const reduce_resul
     return o;
 }
 
-static int report(const planning_case *c, const args *A, int fixed, const reduce_result *r, int n, double seconds)
+static int report(const planning_case *c, const args *A, int fixed, const reduce_result *r, int n, const int *skipped,
+                  int nskipped, double seconds)
 {
     if (!A->json) {
         for (int i = 0; i < n; i++) {
@@ -239,6 +250,10 @@ static int report(const planning_case *c, const args *A, int fixed, const reduce
         jsonw_set(o, "counting", jsonw_string(A->o.count == REDUCE_NEAREST ? "nearest" : "trilinear"));
         jsonw_set(o, "fixed", json_integer(c->frag[fixed].id));
         jsonw_set(o, "fragments", frs);
+        json_t *sk = json_array();
+        for (int k = 0; k < nskipped; k++)
+            json_array_append_new(sk, json_integer(c->frag[skipped[k]].id));
+        jsonw_set(o, "skipped", sk);
         jsonw_set(o, "seconds", jsonw_measure(seconds));
     } else
         json_decref(frs);
@@ -273,11 +288,15 @@ int cmd_reduce(int argc, char **argv)
         fprintf(stderr, "fracnav reduce: %s\n", fn_err_msg());
         return 1;
     }
-    int fixed, mv[256 + 1], nmv;
+    int fixed, mv[256 + 1], nmv, nskipped = 0;
     int *mvp = A.nmoving ? mv : malloc((size_t)c->nfrag * sizeof *mvp);
+    int *skipped = malloc((size_t)c->nfrag * sizeof *skipped);
     reduce_result *res = NULL;
-    if (!mvp) {
+    if (!mvp || !skipped) {
         fprintf(stderr, "fracnav reduce: out of memory\n");
+        if (mvp != mv)
+            free(mvp);
+        free(skipped);
         case_free(c);
         return 1;
     }
@@ -294,7 +313,7 @@ int cmd_reduce(int argc, char **argv)
     if (nrec)
         fprintf(stderr, "fracnav reduce: starting from the %zu poses that %s/journal held beyond case.json\n", nrec,
                 c->dir);
-    if ((rc = pick(c, &A, &fixed, mvp, &nmv)) != 0)
+    if ((rc = pick(c, &A, &fixed, mvp, &nmv, skipped, &nskipped)) != 0)
         goto done;
     if (cmd_tau_apply(&A.tau, &c->tau_min, &c->tau_max) < 0) {
         rc = cmd_usage_error("reduce", "%s", fn_err_msg());
@@ -324,7 +343,7 @@ int cmd_reduce(int argc, char **argv)
         goto done;
     }
     double secs = (double)(t1 - t0) * 1e-6;
-    if (report(c, &A, fixed, res, nmv, secs) < 0) {
+    if (report(c, &A, fixed, res, nmv, skipped, nskipped, secs) < 0) {
         fprintf(stderr, "fracnav reduce: %s\n", fn_err_msg());
         rc = 1;
     }
@@ -334,6 +353,7 @@ done:
     free(res);
     if (mvp != mv)
         free(mvp);
+    free(skipped);
     case_free(c);
     return rc;
 }

@@ -58,6 +58,9 @@ const reduce_tuning reduce__tune = {
     .long_margin = 1e-7,
     .order_delta_mm = 3,
     .order_margin_mm = 6,
+    /* the example CT's head holder lies 18 mm and more from the skull; the pieces of a fracture
+     * (fracture, edit separate) lie within a voxel of each other somewhere */
+    .touch_mm = 4,
 };
 
 static const char *method_names[REDUCE_METHODS] = {"powell", "praxis", "sbplx", "bobyqa"};

@@ -120,9 +120,17 @@ typedef struct reduce_tuning {
     double long_margin;      /* and one of a long piece this much */
     /* the order of several fragments */
     double order_delta_mm, order_margin_mm; /* contact zone that measures a piece's contact */
+    double touch_mm;         /* a piece with no bone this near another's in the CT touches nothing */
 } reduce_tuning;
 
 extern const reduce_tuning reduce__tune;
+
+/* ---- the contact zone (reduce_voi.c) ----------------------------------------------------------- */
+
+/* 1 when some bone voxel of moving lies within about mm of the others' bone at their poses (on the
+ * contact zone's grid: boxes of whole zone_cell_mm cells, so a cell or two farther may count as
+ * near), 0 when none does, or FN_E*. */
+int reduce__touches(const frag *const *others, int n, const frag *moving, double mm);
 
 /* ---- collision (reduce_collide.c) -------------------------------------------------------------- */
 

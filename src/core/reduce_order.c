@@ -119,3 +119,32 @@ int reduce_case(planning_case *c, int fixed, const int *moving, int nmoving, con
     free(todo);
     return rc;
 }
+
+int reduce_pick_moving(const planning_case *c, int fixed, int *mv, int *skipped, int *nskipped)
+{
+    frag *home = calloc((size_t)c->nfrag, sizeof *home);
+    const frag **others = calloc((size_t)c->nfrag, sizeof *others);
+    int rc = home && others ? 0 : fn_err_set(FN_ENOMEM, "reduce: out of memory"), nmv = 0;
+    for (int i = 0; i < c->nfrag && rc == 0; i++) {
+        home[i] = c->frag[i]; /* a struct copy sharing the voxels, at the CT pose */
+        home[i].pose = POSE_IDENTITY;
+    }
+    *nskipped = 0;
+    for (int i = 0; i < c->nfrag && rc == 0; i++) {
+        if (i == fixed)
+            continue;
+        int n = 0;
+        for (int k = 0; k < c->nfrag; k++)
+            if (k != i)
+                others[n++] = &home[k];
+        rc = reduce__touches(others, n, &home[i], reduce__tune.touch_mm);
+        if (rc > 0)
+            mv[nmv++] = i;
+        else if (rc == 0)
+            skipped[(*nskipped)++] = i;
+        rc = rc < 0 ? rc : 0;
+    }
+    free(home);
+    free(others);
+    return rc < 0 ? rc : nmv;
+}

@@ -215,3 +215,17 @@ int reduce_auto_voi(const frag *const *asm_, int nasm, const frag *moving, doubl
     zone_free(&g);
     return rc;
 }
+
+int reduce__touches(const frag *const *others, int n, const frag *moving, double mm)
+{
+    zone g = {0};
+    int rc = zone_open(&g, others, n, moving);
+    if (rc == 0) {
+        size_t near_m;
+        reduce_voi v;
+        zone_at(&g, mm, 0, 0, &v, &near_m);
+        rc = near_m > 0;
+    }
+    zone_free(&g);
+    return rc;
+}
