@@ -127,6 +127,8 @@ static void test_reduce_suite_pools_every_workload(void **st)
                         json_string_value(json_object_get(j, "default_method")));
     assert_int_equal(json_integer_value(json_object_get(pooled, "runs")), runs);
     assert_true(json_is_null(json_object_get(pooled, "metric_eval_us")));
+    /* the fits' own evaluations pool: a figure over every run */
+    assert_true(json_real_value(json_object_get(pooled, "fit_eval_mean_us")) > 0);
     json_decref(j);
 }
 

@@ -273,6 +273,7 @@ static void test_reduce_two_pieces(void **st)
     assert_true(r[0].metric_end < r[0].metric_start);
     assert_true(r[0].nhistory >= 2);
     assert_int_equal(r[0].collides, 0);
+    assert_true(r[0].eval_cpu_s > 0); /* the fit's own evaluations are timed */
     /* the result is stored and comes back from disk */
     assert_int_equal(case_set_reduction(c, 0, &o, r, 1), 0);
     assert_int_equal(case_save(c), 0);

@@ -33,7 +33,7 @@ typedef struct opts {
 } opts;
 
 typedef struct sample {
-    double rot, trans, tre, cpu_s, wall_s, metric_end, metric_truth;
+    double rot, trans, tre, cpu_s, wall_s, metric_end, metric_truth, eval_cpu_s;
     int evals;
 } sample;
 
@@ -333,6 +333,7 @@ static int run_case(const vol *ct, uint64_t seed, const opts *o, config_stats *c
             x->cpu_s = (c1 - c0) * 1e-6;
             x->wall_s = r.seconds;
             x->evals = r.evaluations;
+            x->eval_cpu_s = r.eval_cpu_s;
             x->metric_end = r.metric_end;
             if (o->verbose) {
                 double fr_, ft_, fre_;
@@ -430,6 +431,12 @@ static json_t *config_json(const opts *o, int k, config_stats *cs)
     STAT("median_evaluations", evals, 0.5);
 #undef STAT
     jsonw_set(j, "metric_eval_us", jsonw_measure(cs->eval_us));
+    double eval_s = 0, nevals = 0;
+    for (int i = 0; i < n; i++) {
+        eval_s += cs->s[i].eval_cpu_s;
+        nevals += cs->s[i].evals;
+    }
+    jsonw_set(j, "fit_eval_mean_us", jsonw_measure(nevals > 0 ? eval_s / nevals * 1e6 : NAN));
     free(v);
     return j;
 }
@@ -444,7 +451,8 @@ static int usage(FILE *out, int rc)
             "leaves it); no pre-alignment. Per method: success_rate (within 1 mm and 1 degree),\n"
             "median and p90 errors, median_seconds and p90_seconds (CPU time of the fit, immune to\n"
             "a busy machine; median_wall_seconds beside it), metric_eval_us (one evaluation over a\n"
-            "64^3 VOI at the fracture, one core).\n\n"
+            "64^3 VOI at the fracture, one core) and fit_eval_mean_us beside it (the mean over the\n"
+            "fits' own evaluations, over their VOIs; pooled too).\n\n"
             "  --seeds N        fractures (default 4)\n"
             "  --starts N       starts per fracture (default 5)\n"
             "  --max-mm MM      largest start translation (default 10)\n"

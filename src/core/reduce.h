@@ -168,6 +168,7 @@ typedef struct reduce_result {
     int prealigned;       /* 1: pre-alignment chose a pose other than placed */
     int iterations;       /* Powell: iterations; NLopt: improvements of the best value */
     int evaluations;
+    double eval_cpu_s;    /* thread CPU seconds those evaluations spent in the metric (their VOIs) */
     double seconds;
     double metric_start;  /* at start, over voi */
     double metric_end;

@@ -40,6 +40,7 @@ typedef struct objective {
     double raxis[3][3]; /* the rotation parameters' axes (columns, world) */
     double ra[3];       /* and their scales, mm per radian */
     int evals;
+    int64_t eval_ns;    /* thread CPU time in the metric over those evaluations */
     double best;
     double bestx[6];
     int improvements;
@@ -144,7 +145,9 @@ static double cost(const double *x, void *ctx)
     if (cancel_seen(ob))
         return ob->best < INFINITY ? ob->best + 1 : reduce__tune.collide_cost;
     pose p = pose_of(ob, x);
+    int64_t t = fnclock_thread_cpu_ns();
     double f = reduce_metric_eval(ob->metric, &p, NULL);
+    ob->eval_ns += fnclock_thread_cpu_ns() - t;
     if (ob->pc && reduce__collides(ob->pc, &p, NULL) > 0)
         f += reduce__tune.collide_cost;
     f += trust_cost(ob, &p);
@@ -662,6 +665,7 @@ static int stage_finish(fit_state *s, int rc)
         r->metric_start = reduce_metric_eval(s->metric, &r->start, NULL);
         r->metric_end = reduce_metric_eval(s->metric, &r->end, NULL);
         r->evaluations = s->obj.evals;
+        r->eval_cpu_s = (double)s->obj.eval_ns * 1e-9;
         r->history = s->obj.hist;
         r->nhistory = s->obj.nhist;
         s->obj.hist = NULL;

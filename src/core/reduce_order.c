@@ -61,6 +61,7 @@ static void merge_sweep(reduce_result *r, reduce_result *r2)
     r->voi = r2->voi;
     r->iterations += r2->iterations;
     r->evaluations += r2->evaluations;
+    r->eval_cpu_s += r2->eval_cpu_s;
     r->seconds += r2->seconds;
     r->metric_start = r2->metric_start;
     r->metric_end = r2->metric_end;
