@@ -269,6 +269,7 @@ typedef struct fit_state {
     reduce_result *r;
     reduce_collider col;
     reduce_bricks *bricks; /* the moving fragment's, for every metric of the fit */
+    reduce_cloud asm_pts;  /* the assembly's bone, for every contact zone of the fit (made once) */
     level coarse;
     reduce_metric *metric; /* the current stage's */
     objective obj;
@@ -338,6 +339,16 @@ static void level_close(level *L)
     free(L->asm_);
 }
 
+/* The contact zone where the piece is now (reduce_auto_voi with delta_mm, the table's margin). */
+static int zone_voi(fit_state *s, double delta_mm, reduce_voi *voi)
+{
+    int rc = 0;
+    if (!s->asm_pts.p)
+        rc = reduce__cloud_new(&s->asm_pts, s->asm_, s->nasm);
+    return rc ? rc : reduce__zone_voi(&s->asm_pts, s->moving, delta_mm, reduce__tune.zone_margin_mm, s->o->voi_max_mm,
+                                      voi, NULL);
+}
+
 /* A stage's VOI (given, or the contact zone where the piece is now) and its metric, on the coarse
  * level in the first stage when o->coarse. */
 static int stage_metric(fit_state *s, int stage)
@@ -348,8 +359,7 @@ static int stage_metric(fit_state *s, int stage)
     if (o->has_voi)
         s->r->voi = o->voi;
     else
-        rc = reduce_auto_voi(s->asm_, s->nasm, s->moving, T->zone_delta_mm[stage ? 1 : 0], T->zone_margin_mm,
-                             o->voi_max_mm, &s->r->voi, NULL);
+        rc = zone_voi(s, T->zone_delta_mm[stage ? 1 : 0], &s->r->voi);
     reduce_metric_free(s->metric);
     s->metric = NULL;
     int use_coarse = stage == 0 && !o->has_voi && o->coarse;
@@ -469,11 +479,10 @@ static double voi_volume(const reduce_voi *v)
 /* 1 when the contact zone where the piece ended is zone_grow times larger than the VOI it was fitted
  * over: a first stage off the fit touches along part of the fracture only, and the next stage then
  * fits to that part; where the zone has grown, the fit goes again over it. */
-static int zone_grew(const fit_state *s)
+static int zone_grew(fit_state *s)
 {
     reduce_voi now;
-    return reduce_auto_voi(s->asm_, s->nasm, s->moving, reduce__tune.zone_delta_mm[1], reduce__tune.zone_margin_mm,
-                           s->o->voi_max_mm, &now, NULL) == 0 &&
+    return zone_voi(s, reduce__tune.zone_delta_mm[1], &now) == 0 &&
            voi_volume(&now) > reduce__tune.zone_grow * voi_volume(&s->r->voi);
 }
 
@@ -681,6 +690,7 @@ static void stage_close(fit_state *s)
     free(s->obj.hist);
     reduce_metric_free(s->metric);
     reduce__bricks_free(s->bricks);
+    reduce__cloud_free(&s->asm_pts);
     level_close(&s->coarse);
     reduce__collider_close(&s->col);
 }

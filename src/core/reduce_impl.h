@@ -61,6 +61,9 @@ struct reduce_metric {
 
 #define REDUCE_BLOCK 4
 
+/* out = in dilated by k[a] cells along each axis a (a box), by a sliding window count per line;
+ * in, out and tmp (scratch) span d[0]*d[1]*d[2] cells. */
+void reduce__dilate_box(const uint8_t *in, uint8_t *out, uint8_t *tmp, const int d[3], const int k[3]);
 reduce_bricks *reduce__bricks_new(const frag *m);
 void reduce__bricks_free(reduce_bricks *b);
 /* A metric over shared bricks (not freed with it). gap_mm > 0: the VOI cells within gap_mm
@@ -127,6 +130,19 @@ extern const reduce_tuning reduce__tune;
 
 /* ---- the contact zone (reduce_voi.c) ----------------------------------------------------------- */
 
+/* Bone voxels as world points (float xyz), at their fragments' poses. */
+typedef struct reduce_cloud {
+    float *p;
+    size_t n;
+} reduce_cloud;
+
+/* The assembly's bone voxels at its poses: made once per fit, for every contact zone of it. 0 or
+ * FN_ENOMEM (free it either way). */
+int reduce__cloud_new(reduce_cloud *c, const frag *const *asm_, int nasm);
+void reduce__cloud_free(reduce_cloud *c);
+/* reduce_auto_voi over an assembly's points A (made by reduce__cloud_new at the same poses). */
+int reduce__zone_voi(const reduce_cloud *A, const frag *moving, double delta_mm, double margin_mm, double max_mm,
+                     reduce_voi *voi, double *contact_ml);
 /* 1 when some bone voxel of moving lies within about mm of the others' bone at their poses (on the
  * contact zone's grid: boxes of whole zone_cell_mm cells, so a cell or two farther may count as
  * near), 0 when none does, or FN_E*. */

@@ -193,33 +193,42 @@ static void dilate_ball(const uint8_t *bone, uint8_t *v, const int d[3], const d
             }
 }
 
-/* v[cell] = 1 where some bone cell of bone[] lies within k cells on every axis (a box); v and bone
- * span d[0]*d[1]*d[2] cells. Separable: one sliding window count per axis. */
-static int dilate_box(const uint8_t *bone, uint8_t *v, const int d[3], const int k[3])
+void reduce__dilate_box(const uint8_t *in, uint8_t *out, uint8_t *tmp, const int d[3], const int k[3])
 {
     size_t n = (size_t)d[0] * d[1] * d[2];
-    uint8_t *tmp = malloc(n);
-    if (!tmp)
-        return FN_ENOMEM;
-    memcpy(v, bone, n);
+    memcpy(out, in, n);
     size_t stride[3] = {1, (size_t)d[0], (size_t)d[0] * d[1]};
     for (int a = 0; a < 3; a++) {
-        memcpy(tmp, v, n);
-        for (size_t base = 0; base < n; base++) {
-            if ((base / stride[a]) % (size_t)d[a])
-                continue;
-            int count = 0;
-            for (int i = 0; i < k[a] && i < d[a]; i++)
-                count += tmp[base + (size_t)i * stride[a]];
-            for (int i = 0; i < d[a]; i++) {
-                if (i + k[a] < d[a])
-                    count += tmp[base + (size_t)(i + k[a]) * stride[a]];
-                if (i - k[a] - 1 >= 0)
-                    count -= tmp[base + (size_t)(i - k[a] - 1) * stride[a]];
-                v[base + (size_t)i * stride[a]] = count > 0;
+        memcpy(tmp, out, n);
+        int len = d[a], b1 = (a + 1) % 3, b2 = (a + 2) % 3;
+        size_t st = stride[a];
+        for (int u = 0; u < d[b2]; u++)
+            for (int v = 0; v < d[b1]; v++) { /* the line through (u, v) along a */
+                size_t base = (size_t)u * stride[b2] + (size_t)v * stride[b1];
+                const uint8_t *src = tmp + base;
+                uint8_t *dst = out + base;
+                int count = 0;
+                for (int i = 0; i < k[a] && i < len; i++)
+                    count += src[(size_t)i * st];
+                for (int i = 0; i < len; i++) {
+                    if (i + k[a] < len)
+                        count += src[(size_t)(i + k[a]) * st];
+                    if (i - k[a] - 1 >= 0)
+                        count -= src[(size_t)(i - k[a] - 1) * st];
+                    dst[(size_t)i * st] = count > 0;
+                }
             }
-        }
     }
+}
+
+/* v[cell] = 1 where some bone cell of bone[] lies within k cells on every axis (a box); v and bone
+ * span d[0]*d[1]*d[2] cells. */
+static int dilate_box(const uint8_t *bone, uint8_t *v, const int d[3], const int k[3])
+{
+    uint8_t *tmp = malloc((size_t)d[0] * d[1] * d[2]);
+    if (!tmp)
+        return FN_ENOMEM;
+    reduce__dilate_box(bone, v, tmp, d, k);
     free(tmp);
     return 0;
 }

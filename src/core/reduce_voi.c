@@ -10,13 +10,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-/* Bone voxels as world points. */
-typedef struct cloud {
-    float *p; /* xyz world */
-    size_t n;
-} cloud;
-
-static int cloud_add(cloud *c, const frag *f)
+static int cloud_add(reduce_cloud *c, const frag *f)
 {
     float *p = realloc(c->p, (c->n + f->voxels + 1) * 3 * sizeof *p);
     if (!p)
@@ -38,9 +32,26 @@ static int cloud_add(cloud *c, const frag *f)
     return 0;
 }
 
+int reduce__cloud_new(reduce_cloud *c, const frag *const *asm_, int nasm)
+{
+    *c = (reduce_cloud){0};
+    int rc = 0;
+    for (int f = 0; f < nasm && rc == 0; f++)
+        rc = cloud_add(c, asm_[f]);
+    return rc;
+}
+
+void reduce__cloud_free(reduce_cloud *c)
+{
+    free(c->p);
+    *c = (reduce_cloud){0};
+}
+
 /* The two sides and their occupancy on a grid of zone_cell_mm cells. */
 typedef struct zone {
-    cloud A, M;       /* the assembly's bone, the moving fragment's */
+    const reduce_cloud *A; /* the assembly's bone (borrowed) */
+    reduce_cloud M;        /* the moving fragment's */
+    uint32_t *cell_a, *cell_m; /* each point's cell */
     double lo[3];
     int dim[3];
     uint8_t *occa, *occm, *dil, *tmp;
@@ -57,37 +68,11 @@ static size_t cell_of(const zone *g, const float *x)
     return ((size_t)c[2] * g->dim[1] + c[1]) * g->dim[0] + c[0];
 }
 
-/* out = occupancy dilated by k cells along each axis (a box), by a sliding window count per line. */
-static void dilate(const zone *g, const uint8_t *in, uint8_t *out, int k)
-{
-    size_t n = (size_t)g->dim[0] * g->dim[1] * g->dim[2];
-    memcpy(out, in, n);
-    size_t stride[3] = {1, (size_t)g->dim[0], (size_t)g->dim[0] * g->dim[1]};
-    for (int a = 0; a < 3; a++) {
-        memcpy(g->tmp, out, n);
-        int len = g->dim[a];
-        for (size_t base = 0; base < n; base++) {
-            /* lines start where the coordinate along a is 0 */
-            if ((base / stride[a]) % (size_t)len)
-                continue;
-            int count = 0;
-            for (int i = 0; i < k && i < len; i++)
-                count += g->tmp[base + (size_t)i * stride[a]];
-            for (int i = 0; i < len; i++) {
-                if (i + k < len)
-                    count += g->tmp[base + (size_t)(i + k) * stride[a]];
-                if (i - k - 1 >= 0)
-                    count -= g->tmp[base + (size_t)(i - k - 1) * stride[a]];
-                out[base + (size_t)i * stride[a]] = count > 0;
-            }
-        }
-    }
-}
-
 static void zone_free(zone *g)
 {
-    free(g->A.p);
     free(g->M.p);
+    free(g->cell_a);
+    free(g->cell_m);
     free(g->occa);
     free(g->occm);
     free(g->dil);
@@ -95,28 +80,31 @@ static void zone_free(zone *g)
     free(g->mnear);
 }
 
-/* Both sides' points and the grid around them, a cell beyond the points. 0 or FN_E* (free g either
- * way). */
-static int zone_open(zone *g, const frag *const *asm_, int nasm, const frag *moving)
+/* The box of points p[0..n-1] joined to lo, hi (finite points: plain comparisons do fmin's work). */
+static void box_add(const float *p, size_t n, double lo[3], double hi[3])
+{
+    for (size_t i = 0; i < n; i++)
+        for (int a = 0; a < 3; a++) {
+            double x = p[3 * i + a];
+            lo[a] = x < lo[a] ? x : lo[a];
+            hi[a] = x > hi[a] ? x : hi[a];
+        }
+}
+
+/* The moving side's points and the grid around both sides, a cell beyond the points. 0 or FN_E*
+ * (free g either way). */
+static int zone_open(zone *g, const reduce_cloud *A, const frag *moving)
 {
     const double cell = reduce__tune.zone_cell_mm;
-    int rc = 0;
-    for (int f = 0; f < nasm && rc == 0; f++)
-        rc = cloud_add(&g->A, asm_[f]);
-    if (rc == 0)
-        rc = cloud_add(&g->M, moving);
-    if (rc == 0 && (!g->A.n || !g->M.n))
+    g->A = A;
+    int rc = cloud_add(&g->M, moving);
+    if (rc == 0 && (!A->n || !g->M.n))
         rc = fn_err_set(FN_EINVAL, "reduce: a fragment has no voxel");
     if (rc)
         return rc;
     double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-    const cloud *cs[2] = {&g->A, &g->M};
-    for (int c = 0; c < 2; c++)
-        for (size_t i = 0; i < cs[c]->n; i++)
-            for (int a = 0; a < 3; a++) {
-                lo[a] = fmin(lo[a], cs[c]->p[3 * i + a]);
-                hi[a] = fmax(hi[a], cs[c]->p[3 * i + a]);
-            }
+    box_add(A->p, A->n, lo, hi);
+    box_add(g->M.p, g->M.n, lo, hi);
     size_t n = 1;
     for (int a = 0; a < 3; a++) {
         g->lo[a] = lo[a] - cell;
@@ -125,12 +113,13 @@ static int zone_open(zone *g, const frag *const *asm_, int nasm, const frag *mov
     }
     g->occa = calloc(n, 1), g->occm = calloc(n, 1), g->dil = malloc(n), g->tmp = malloc(n);
     g->mnear = malloc(g->M.n);
-    if (n > ((size_t)1 << 28) || !g->occa || !g->occm || !g->dil || !g->tmp || !g->mnear)
+    g->cell_a = malloc(A->n * sizeof *g->cell_a), g->cell_m = malloc(g->M.n * sizeof *g->cell_m);
+    if (n > ((size_t)1 << 28) || !g->occa || !g->occm || !g->dil || !g->tmp || !g->mnear || !g->cell_a || !g->cell_m)
         return fn_err_set(FN_ENOMEM, "reduce: out of memory for the contact grid (%zu cells)", n);
-    for (size_t i = 0; i < g->A.n; i++)
-        g->occa[cell_of(g, g->A.p + 3 * i)] = 1;
+    for (size_t i = 0; i < A->n; i++)
+        g->occa[g->cell_a[i] = (uint32_t)cell_of(g, A->p + 3 * i)] = 1;
     for (size_t i = 0; i < g->M.n; i++)
-        g->occm[cell_of(g, g->M.p + 3 * i)] = 1;
+        g->occm[g->cell_m[i] = (uint32_t)cell_of(g, g->M.p + 3 * i)] = 1;
     return 0;
 }
 
@@ -162,19 +151,21 @@ static void zone_at(zone *g, double delta, double margin_mm, double max_mm, redu
     double sum[3] = {0, 0, 0};
     *near_m = 0;
     for (int side = 0; side < 2; side++) {
-        const cloud *c = side ? &g->A : &g->M;
-        dilate(g, side ? g->occm : g->occa, g->dil, k);
+        const reduce_cloud *c = side ? g->A : &g->M;
+        const uint32_t *cell = side ? g->cell_a : g->cell_m;
+        if (side == 1 && !*near_m)
+            return; /* nothing near: the zone is not made */
+        reduce__dilate_box(side ? g->occm : g->occa, g->dil, g->tmp, g->dim, (int[3]){k, k, k});
         for (size_t i = 0; i < c->n; i++) {
+            uint8_t near = g->dil[cell[i]];
             if (side == 0)
-                g->mnear[i] = g->dil[cell_of(g, c->p + 3 * i)];
-            if (!g->dil[cell_of(g, c->p + 3 * i)])
+                g->mnear[i] = near;
+            if (!near)
                 continue;
             *near_m += side == 0;
-            for (int a = 0; a < 3; a++) {
+            for (int a = 0; a < 3; a++)
                 sum[a] += side == 0 ? c->p[3 * i + a] : 0;
-                lo[a] = fmin(lo[a], c->p[3 * i + a]);
-                hi[a] = fmax(hi[a], c->p[3 * i + a]);
-            }
+            box_add(c->p + 3 * i, 1, lo, hi);
         }
     }
     if (!*near_m)
@@ -195,8 +186,19 @@ static void zone_at(zone *g, double delta, double margin_mm, double max_mm, redu
 int reduce_auto_voi(const frag *const *asm_, int nasm, const frag *moving, double delta_mm, double margin_mm,
                     double max_mm, reduce_voi *voi, double *contact_ml)
 {
+    reduce_cloud A;
+    int rc = reduce__cloud_new(&A, asm_, nasm);
+    if (rc == 0)
+        rc = reduce__zone_voi(&A, moving, delta_mm, margin_mm, max_mm, voi, contact_ml);
+    reduce__cloud_free(&A);
+    return rc;
+}
+
+int reduce__zone_voi(const reduce_cloud *A, const frag *moving, double delta_mm, double margin_mm, double max_mm,
+                     reduce_voi *voi, double *contact_ml)
+{
     zone g = {0};
-    int rc = zone_open(&g, asm_, nasm, moving);
+    int rc = zone_open(&g, A, moving);
     if (rc == 0) {
         rc = FN_EINVAL;
         for (double delta = delta_mm; delta <= reduce__tune.zone_reach_mm && rc == FN_EINVAL; delta *= 2) {
@@ -218,8 +220,11 @@ int reduce_auto_voi(const frag *const *asm_, int nasm, const frag *moving, doubl
 
 int reduce__touches(const frag *const *others, int n, const frag *moving, double mm)
 {
+    reduce_cloud A;
     zone g = {0};
-    int rc = zone_open(&g, others, n, moving);
+    int rc = reduce__cloud_new(&A, others, n);
+    if (rc == 0)
+        rc = zone_open(&g, &A, moving);
     if (rc == 0) {
         size_t near_m;
         reduce_voi v;
@@ -227,5 +232,6 @@ int reduce__touches(const frag *const *others, int n, const frag *moving, double
         rc = near_m > 0;
     }
     zone_free(&g);
+    reduce__cloud_free(&A);
     return rc;
 }
