@@ -22,7 +22,7 @@
 
 typedef struct opts {
     int seeds, starts, json, verbose;
-    double max_mm, max_deg, band_mm, voi_max_mm, tolerance_mm, settle_mm;
+    double max_mm, max_deg, band_mm, voi_max_mm, tolerance_mm, settle_mm, trust_mm, trust_deg;
     int fit_starts, coarse, axis_scale;
     int pieces, threshold_auto, touching, suite;
     double threshold, bone_loss_mm, gap_mm;
@@ -314,6 +314,10 @@ static int run_case(const vol *ct, uint64_t seed, const opts *o, config_stats *c
                 ro.tolerance_mm = o->tolerance_mm;
             if (o->settle_mm >= 0)
                 ro.settle_mm = o->settle_mm;
+            if (o->trust_mm >= 0)
+                ro.trust_mm = o->trust_mm;
+            if (o->trust_deg >= 0)
+                ro.trust_deg = o->trust_deg;
             if (o->fit_starts)
                 ro.starts = o->fit_starts;
             if (o->coarse)
@@ -465,6 +469,8 @@ static int usage(FILE *out, int rc)
             "  --settle MM      the result pushed out up to MM to be free at the loop's tolerance 0\n"
             "                   (default: reduce's, 0.25; 0 = not)\n"
             "  --fit-starts N   starts of each fit's first stage (default: reduce's, 3)\n"
+            "  --trust-mm MM, --trust-deg DEG  the fit's trust region around its start (default:\n"
+            "                   reduce's, 12 mm and 18 degrees)\n"
             "  --coarse         the first stage on coarse copies (reduce_opts.coarse; default off)\n"
             "  --axis-scale, --no-axis-scale  the rotation scaled per principal axis, or by one\n"
             "                   radius (reduce_opts.axis_scale; default: reduce's)\n"
@@ -480,8 +486,9 @@ static int usage(FILE *out, int rc)
             "  --ct FILE        the CT to fracture (default: the example CT); long-bone: a bowed\n"
             "                   shaft with a cortex and a medullary canal, made in memory; pitch:\n"
             "                   tests/data/CT_pitch.nii.gz (under $FRACNAV_SRC, else the source tree)\n"
-            "  --suite          every workload of the README's table in one run (the skull; 3\n"
-            "                   pieces; touching; 1 mm lost with --gap 1; CT_pitch; the long bone),\n"
+            "  --suite          every workload of the README's table in one run (the skull; the\n"
+            "                   skull from starts up to 20 mm and 25 degrees; 3 pieces; touching;\n"
+            "                   1 mm lost with --gap 1; CT_pitch; the long bone),\n"
             "                   with the default method unless --method says; JSON: workloads (one\n"
             "                   object each, as without --suite, with its name) and pooled (per\n"
             "                   method, over every run; metric_eval_us null)\n"
@@ -565,6 +572,11 @@ static int parse_more(int argc, char **argv, opts *o)
                 return cmd_bad_value("bench reduce", a, val, "a number of mm 0..10");
             *(a[2] == 't' ? &o->tolerance_mm : &o->settle_mm) = d;
             i++;
+        } else if (!strcmp(a, "--trust-mm") || !strcmp(a, "--trust-deg")) {
+            if (!cmd_number(val, &d) || !(d >= 0 && d <= 1000))
+                return cmd_bad_value("bench reduce", a, val, "a number 0..1000");
+            *(a[8] == 'm' ? &o->trust_mm : &o->trust_deg) = d;
+            i++;
         } else if (!strcmp(a, "--voi-max")) {
             if (!cmd_number(val, &d) || !(d >= 0 && d <= 1000))
                 return cmd_bad_value("bench reduce", a, val, "a number of mm 0..1000");
@@ -597,7 +609,7 @@ static int parse_more(int argc, char **argv, opts *o)
 static int parse(int argc, char **argv, opts *o)
 {
     *o = (opts){.seeds = 4, .starts = 5, .max_mm = 10, .max_deg = 15, .band_mm = -1, .voi_max_mm = -1,
-                .tolerance_mm = -1, .settle_mm = -1, .pieces = 2, .threshold = 300};
+                .tolerance_mm = -1, .settle_mm = -1, .trust_mm = -1, .trust_deg = -1, .pieces = 2, .threshold = 300};
     int rc = parse_more(argc, argv, o);
     if (rc)
         return rc;
@@ -696,6 +708,7 @@ static const struct {
     char *args[6]; /* string literals, which parse_more only reads */
 } SUITE[] = {
     {"skull", {NULL}},
+    {"skull, starts up to 20 mm and 25 degrees", {"--max-mm", "20", "--max-deg", "25", NULL}},
     {"skull, 3 pieces", {"--pieces", "3", NULL}},
     {"skull, pieces left touching, separated first", {"--touching", NULL}},
     {"skull, 1 mm of bone lost, the fit told (--gap 1)", {"--bone-loss", "1", "--gap", "1", NULL}},
