@@ -16,6 +16,7 @@
 #include "powell.h"
 #include "reduce.h"
 #include "testutil.h"
+#include "volio.h"
 
 #include <jansson.h>
 #include <math.h>
@@ -272,8 +273,9 @@ static void test_reduce_two_pieces(void **st)
     assert_true(r[0].metric_end < r[0].metric_start);
     assert_true(r[0].nhistory >= 2);
     assert_int_equal(r[0].collides, 0);
+    assert_true(r[0].eval_cpu_s > 0); /* the fit's own evaluations are timed */
     /* the result is stored and comes back from disk */
-    assert_int_equal(reduce_store(c, 0, &o, r, 1), 0);
+    assert_int_equal(case_set_reduction(c, 0, &o, r, 1), 0);
     assert_int_equal(case_save(c), 0);
     pose want = c->frag[1].pose;
     planning_case *back = case_load(dir);
@@ -488,6 +490,65 @@ static void test_cli(void **st)
     assert_non_null(json_object_get((json_t *)back->extra, "reduction"));
     check_errors(back, 0, 1, 1);
     case_free(back);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* A piece that touches nothing in the CT (as a head holder, apart from the bone) is skipped when no
+ * fragment is named, with a word, and fitted when --moving names it. Two blocks 3 mm apart (a
+ * fracture) and a third 30 mm beyond them. */
+static void test_cli_skips_what_touches_nothing(void **st)
+{
+    char *dir = tu_tmpdir("reduce_skip"), *out = NULL, path[4200], cdir[4200];
+    vol *v = vol_new(80, 32, 32);
+    for (size_t i = 0; i < vol_count(v); i++)
+        v->data[i] = -1000;
+    static const int box[3][6] = {{4, 16, 6, 26, 6, 26}, {18, 28, 10, 22, 10, 22}, {58, 70, 8, 20, 8, 20}};
+    for (int b = 0; b < 3; b++)
+        for (int k = box[b][4]; k < box[b][5]; k++)
+            for (int j = box[b][2]; j < box[b][3]; j++)
+                for (int i = box[b][0]; i < box[b][1]; i++)
+                    v->data[vol_idx(v, i, j, k)] = 1000;
+    snprintf(path, sizeof path, "%s/blocks.nii.gz", dir);
+    assert_int_equal(volio_write(v, path, VOL_I16), 0);
+    vol_free(v);
+    snprintf(cdir, sizeof cdir, "%s/case", dir);
+    assert_int_equal(tu_run_cli(&out, "segment '%s' -o '%s' --min-volume 0 --ramp 0", path, cdir), 0);
+    free(out);
+    /* ids in scan order: the largest block (1) stays, the far one (2) touches nothing, 3 touches 1;
+     * stderr goes to a file (tu_run_cli joins it to stdout) */
+    int rc = tu_run_cli(&out, "reduce '%s' --no-prealign --json 2>'%s/err' | cat", cdir, dir);
+    if (rc != 0)
+        fail_msg("rc %d: %s", rc, out);
+    json_error_t e;
+    json_t *j = json_loads(out, 0, &e);
+    if (!j)
+        fail_msg("not JSON (%s): %s", e.text, out);
+    json_t *frs = json_object_get(j, "fragments"), *sk = json_object_get(j, "skipped");
+    assert_int_equal((int)json_array_size(frs), 1);
+    assert_int_equal(json_integer_value(json_object_get(json_array_get(frs, 0), "id")), 3);
+    assert_int_equal((int)json_array_size(sk), 1);
+    assert_int_equal(json_integer_value(json_array_get(sk, 0)), 2);
+    json_decref(j);
+    free(out);
+    char errpath[4300], said[512] = "";
+    snprintf(errpath, sizeof errpath, "%s/err", dir);
+    FILE *f = fopen(errpath, "r");
+    assert_non_null(f);
+    size_t n = fread(said, 1, sizeof said - 1, f);
+    said[n] = 0;
+    fclose(f);
+    if (!strstr(said, "fragment 2 touches no other") || !strstr(said, "--moving 2"))
+        fail_msg("no word of the skip: %s", said);
+    /* asked for by name, it is fitted */
+    assert_int_equal(tu_run_cli(&out, "reduce '%s' --moving 2 --no-prealign --json 2>/dev/null | cat", cdir), 0);
+    j = json_loads(out, 0, &e);
+    if (!j)
+        fail_msg("not JSON (%s): %s", e.text, out);
+    assert_int_equal(json_integer_value(json_object_get(json_array_get(json_object_get(j, "fragments"), 0), "id")), 2);
+    assert_int_equal((int)json_array_size(json_object_get(j, "skipped")), 0);
+    json_decref(j);
+    free(out);
     tu_rmtree(dir);
     free(dir);
 }
@@ -778,6 +839,7 @@ int main(void)
         cmocka_unit_test(test_fit_one),
         cmocka_unit_test(test_cli),
         cmocka_unit_test(test_cli_from_journal),
+        cmocka_unit_test(test_cli_skips_what_touches_nothing),
         cmocka_unit_test(test_prealign_rods),
         cmocka_unit_test(test_reduce_long_piece_hops),
         cmocka_unit_test(test_reduce_rival_hops),

@@ -752,7 +752,7 @@ static void test_fitted_fragment_moved(void **st)
 }
 
 /* One overlap figure: block B pushed 4 mm into A (2 mm apart: 2 mm inside, over B's 12x12 mm
- * face, parallel grids, so 0.288 ml exactly) is saved by a session and recorded by reduce_store
+ * face, parallel grids, so 0.288 ml exactly) is saved by a session and recorded by case_set_reduction
  * with the same overlap_ml, case_overlap_ml's. Before, the session summed its voxel pairs' boxes
  * (0.547 ml on the demo's reduced pose) and the report counted a resampled labelmap (0.142 ml). */
 static void test_one_overlap_figure(void **st)
@@ -793,7 +793,7 @@ static void test_one_overlap_figure(void **st)
     reduce_result r;
     memset(&r, 0, sizeof r);
     r.id = c->frag[1].id;
-    assert_int_equal(reduce_store(c, 0, &o, &r, 1), 0);
+    assert_int_equal(case_set_reduction(c, 0, &o, &r, 1), 0);
     assert_int_equal(case_save(c), 0);
     case_free(c);
     char path[4300];

@@ -22,7 +22,7 @@
 
 typedef struct opts {
     int seeds, starts, json, verbose;
-    double max_mm, max_deg, band_mm, voi_max_mm, tolerance_mm, settle_mm;
+    double max_mm, max_deg, band_mm, voi_max_mm, tolerance_mm, settle_mm, trust_mm, trust_deg;
     int fit_starts, coarse, axis_scale;
     int pieces, threshold_auto, touching, suite;
     double threshold, bone_loss_mm, gap_mm;
@@ -33,7 +33,7 @@ typedef struct opts {
 } opts;
 
 typedef struct sample {
-    double rot, trans, tre, cpu_s, wall_s, metric_end, metric_truth;
+    double rot, trans, tre, cpu_s, wall_s, metric_end, metric_truth, eval_cpu_s;
     int evals;
 } sample;
 
@@ -314,6 +314,10 @@ static int run_case(const vol *ct, uint64_t seed, const opts *o, config_stats *c
                 ro.tolerance_mm = o->tolerance_mm;
             if (o->settle_mm >= 0)
                 ro.settle_mm = o->settle_mm;
+            if (o->trust_mm >= 0)
+                ro.trust_mm = o->trust_mm;
+            if (o->trust_deg >= 0)
+                ro.trust_deg = o->trust_deg;
             if (o->fit_starts)
                 ro.starts = o->fit_starts;
             if (o->coarse)
@@ -333,6 +337,7 @@ static int run_case(const vol *ct, uint64_t seed, const opts *o, config_stats *c
             x->cpu_s = (c1 - c0) * 1e-6;
             x->wall_s = r.seconds;
             x->evals = r.evaluations;
+            x->eval_cpu_s = r.eval_cpu_s;
             x->metric_end = r.metric_end;
             if (o->verbose) {
                 double fr_, ft_, fre_;
@@ -382,6 +387,8 @@ static int run_case(const vol *ct, uint64_t seed, const opts *o, config_stats *c
                         " %d evals, %.3f s cpu, push %.2f\n", (unsigned long long)seed, s,
                         reduce_method_name(ro.method), ro.count == REDUCE_NEAREST ? "nearest" : "trilinear",
                         x->rot, x->trans, x->tre, r.metric_end, ft, r.evaluations, x->cpu_s, r.push_mm);
+                fprintf(stderr, "  end pose q %.17g %.17g %.17g %.17g t %.17g %.17g %.17g\n", r.end.q[0],
+                        r.end.q[1], r.end.q[2], r.end.q[3], r.end.t[0], r.end.t[1], r.end.t[2]);
             }
             reduce_result_free(&r);
         }
@@ -428,6 +435,12 @@ static json_t *config_json(const opts *o, int k, config_stats *cs)
     STAT("median_evaluations", evals, 0.5);
 #undef STAT
     jsonw_set(j, "metric_eval_us", jsonw_measure(cs->eval_us));
+    double eval_s = 0, nevals = 0;
+    for (int i = 0; i < n; i++) {
+        eval_s += cs->s[i].eval_cpu_s;
+        nevals += cs->s[i].evals;
+    }
+    jsonw_set(j, "fit_eval_mean_us", jsonw_measure(nevals > 0 ? eval_s / nevals * 1e6 : NAN));
     free(v);
     return j;
 }
@@ -442,7 +455,8 @@ static int usage(FILE *out, int rc)
             "leaves it); no pre-alignment. Per method: success_rate (within 1 mm and 1 degree),\n"
             "median and p90 errors, median_seconds and p90_seconds (CPU time of the fit, immune to\n"
             "a busy machine; median_wall_seconds beside it), metric_eval_us (one evaluation over a\n"
-            "64^3 VOI at the fracture, one core).\n\n"
+            "64^3 VOI at the fracture, one core) and fit_eval_mean_us beside it (the mean over the\n"
+            "fits' own evaluations, over their VOIs; pooled too).\n\n"
             "  --seeds N        fractures (default 4)\n"
             "  --starts N       starts per fracture (default 5)\n"
             "  --max-mm MM      largest start translation (default 10)\n"
@@ -455,6 +469,8 @@ static int usage(FILE *out, int rc)
             "  --settle MM      the result pushed out up to MM to be free at the loop's tolerance 0\n"
             "                   (default: reduce's, 0.25; 0 = not)\n"
             "  --fit-starts N   starts of each fit's first stage (default: reduce's, 3)\n"
+            "  --trust-mm MM, --trust-deg DEG  the fit's trust region around its start (default:\n"
+            "                   reduce's, 12 mm and 18 degrees)\n"
             "  --coarse         the first stage on coarse copies (reduce_opts.coarse; default off)\n"
             "  --axis-scale, --no-axis-scale  the rotation scaled per principal axis, or by one\n"
             "                   radius (reduce_opts.axis_scale; default: reduce's)\n"
@@ -470,13 +486,15 @@ static int usage(FILE *out, int rc)
             "  --ct FILE        the CT to fracture (default: the example CT); long-bone: a bowed\n"
             "                   shaft with a cortex and a medullary canal, made in memory; pitch:\n"
             "                   tests/data/CT_pitch.nii.gz (under $FRACNAV_SRC, else the source tree)\n"
-            "  --suite          the workloads of docs/benchmarks.md in one run (the skull; 3 pieces;\n"
-            "                   touching; 1 mm lost with --gap 1; CT_pitch; the long bone),\n"
+            "  --suite          the workloads of docs/benchmarks.md in one run (the skull; the skull\n"
+            "                   from starts up to 20 mm and 25 degrees; 3 pieces; touching; 1 mm\n"
+            "                   lost with --gap 1; CT_pitch; the long bone),\n"
             "                   with the default method unless --method says; JSON: workloads (one\n"
             "                   object each, as without --suite, with its name) and pooled (per\n"
             "                   method, over every run; metric_eval_us null)\n"
             "  --verbose        one line per run on stderr, after its details (start error, VOI,\n"
-            "                   the turn of the moving piece's voxel grid from the fixed one's)\n"
+            "                   the turn of the moving piece's voxel grid from the fixed one's),\n"
+            "                   then the end pose in full (to compare fits pose for pose)\n"
             "  --verbose-truth  that, and the same fit started at the true pose (where the\n"
             "                   metric's own basin ends; for the analysis of failures)\n"
             "  --json           one JSON object on stdout: command, ct, seeds, starts, max_mm,\n"
@@ -554,6 +572,11 @@ static int parse_more(int argc, char **argv, opts *o)
                 return cmd_bad_value("bench reduce", a, val, "a number of mm 0..10");
             *(a[2] == 't' ? &o->tolerance_mm : &o->settle_mm) = d;
             i++;
+        } else if (!strcmp(a, "--trust-mm") || !strcmp(a, "--trust-deg")) {
+            if (!cmd_number(val, &d) || !(d >= 0 && d <= 1000))
+                return cmd_bad_value("bench reduce", a, val, "a number 0..1000");
+            *(a[8] == 'm' ? &o->trust_mm : &o->trust_deg) = d;
+            i++;
         } else if (!strcmp(a, "--voi-max")) {
             if (!cmd_number(val, &d) || !(d >= 0 && d <= 1000))
                 return cmd_bad_value("bench reduce", a, val, "a number of mm 0..1000");
@@ -586,7 +609,7 @@ static int parse_more(int argc, char **argv, opts *o)
 static int parse(int argc, char **argv, opts *o)
 {
     *o = (opts){.seeds = 4, .starts = 5, .max_mm = 10, .max_deg = 15, .band_mm = -1, .voi_max_mm = -1,
-                .tolerance_mm = -1, .settle_mm = -1, .pieces = 2, .threshold = 300};
+                .tolerance_mm = -1, .settle_mm = -1, .trust_mm = -1, .trust_deg = -1, .pieces = 2, .threshold = 300};
     int rc = parse_more(argc, argv, o);
     if (rc)
         return rc;
@@ -685,6 +708,7 @@ static const struct {
     char *args[6]; /* string literals, which parse_more only reads */
 } SUITE[] = {
     {"skull", {NULL}},
+    {"skull, starts up to 20 mm and 25 degrees", {"--max-mm", "20", "--max-deg", "25", NULL}},
     {"skull, 3 pieces", {"--pieces", "3", NULL}},
     {"skull, pieces left touching, separated first", {"--touching", NULL}},
     {"skull, 1 mm of bone lost, the fit told (--gap 1)", {"--bone-loss", "1", "--gap", "1", NULL}},

@@ -32,7 +32,9 @@ static void usage(FILE *out)
             "details and the measured accuracy.\n\n"
             "  --fixed ID             the fragment that stays (default: the case's fixed one, else\n"
             "                         the largest)\n"
-            "  --moving ID...         the fragments to fit (default: all others)\n"
+            "  --moving ID...         the fragments to fit (default: all others that touch another\n"
+            "                         in the CT; one that touches nothing there, as a CT's head\n"
+            "                         holder, is skipped with a word, and --moving still fits it)\n"
             "  --method M             powell (ours), praxis, sbplx or bobyqa (NLopt); default: praxis,\n"
             "                         the most successful in `fracnav bench reduce`\n"
             "  --voi X0 Y0 Z0 X1 Y1 Z1  the VOI box, world LPS mm (default: automatic, around the\n"
@@ -147,9 +149,9 @@ static int parse(int argc, char **argv, args *A)
     return cmd_tau_check("reduce", &A->tau);
 }
 
-/* Fragment indices: the fixed one and the moving ones. 0, or 2 after a usage error, or 1 when the
- * case has no fragment to move. */
-static int pick(const planning_case *c, const args *A, int *fixed, int *mv, int *nmv)
+/* Fragment indices: the fixed one and the moving ones; skipped: those left out by default (they
+ * touch nothing). 0, or 2 after a usage error, or 1 when the case has no fragment to move. */
+static int pick(const planning_case *c, const args *A, int *fixed, int *mv, int *nmv, int *skipped, int *nskipped)
 {
     if (A->fixed_id) {
         if ((*fixed = case_find(c, A->fixed_id)) < 0)
@@ -176,13 +178,23 @@ static int pick(const planning_case *c, const args *A, int *fixed, int *mv, int 
             mv[(*nmv)++] = i;
         }
     } else {
-        for (int i = 0; i < c->nfrag; i++)
-            if (i != *fixed && !case_is_fixed(c, i))
-                mv[(*nmv)++] = i;
+        int n = reduce_pick_moving(c, *fixed, mv, skipped, nskipped);
+        if (n < 0) {
+            fprintf(stderr, "fracnav reduce: %s\n", fn_err_msg());
+            return 1;
+        }
+        *nmv = n;
+        for (int k = 0; k < *nskipped; k++)
+            fprintf(stderr, "fracnav reduce: fragment %d touches no other fragment in the CT: skipped "
+                    "(--moving %d fits it)\n", c->frag[skipped[k]].id, c->frag[skipped[k]].id);
     }
     if (!*nmv) { /* the case's content, not the command line: a runtime error */
-        fprintf(stderr, "fracnav reduce: %s has %d fragment%s: none to fit against another\n", c->dir, c->nfrag,
-                c->nfrag == 1 ? "" : "s");
+        if (*nskipped)
+            fprintf(stderr, "fracnav reduce: %s: no fragment touches another in the CT; --moving ID names "
+                    "the ones to fit\n", c->dir);
+        else
+            fprintf(stderr, "fracnav reduce: %s has %d fragment%s: none to fit against another\n", c->dir,
+                    c->nfrag, c->nfrag == 1 ? "" : "s");
         return 1;
     }
     return 0;
@@ -225,7 +237,8 @@ static json_t *result_json(const planning_case *c, int fixed, const reduce_resul
     return o;
 }
 
-static int report(const planning_case *c, const args *A, int fixed, const reduce_result *r, int n, double seconds)
+static int report(const planning_case *c, const args *A, int fixed, const reduce_result *r, int n, const int *skipped,
+                  int nskipped, double seconds)
 {
     if (!A->json) {
         for (int i = 0; i < n; i++) {
@@ -251,6 +264,10 @@ static int report(const planning_case *c, const args *A, int fixed, const reduce
         jsonw_set(o, "counting", jsonw_string(A->o.count == REDUCE_NEAREST ? "nearest" : "trilinear"));
         jsonw_set(o, "fixed", json_integer(c->frag[fixed].id));
         jsonw_set(o, "fragments", frs);
+        json_t *sk = json_array();
+        for (int k = 0; k < nskipped; k++)
+            json_array_append_new(sk, json_integer(c->frag[skipped[k]].id));
+        jsonw_set(o, "skipped", sk);
         jsonw_set(o, "seconds", jsonw_measure(seconds));
     } else
         json_decref(frs);
@@ -289,12 +306,16 @@ int cmd_reduce(int argc, char **argv)
         caselock_release(lock);
         return 1;
     }
-    int fixed, mv[256 + 1], nmv;
+    int fixed, mv[256 + 1], nmv, nskipped = 0;
     char tmp[4200] = "";
     int *mvp = A.nmoving ? mv : malloc((size_t)c->nfrag * sizeof *mvp);
+    int *skipped = malloc((size_t)c->nfrag * sizeof *skipped);
     reduce_result *res = NULL;
-    if (!mvp) {
+    if (!mvp || !skipped) {
         fprintf(stderr, "fracnav reduce: out of memory\n");
+        if (mvp != mv)
+            free(mvp);
+        free(skipped);
         case_free(c);
         caselock_release(lock);
         return 1;
@@ -312,7 +333,7 @@ int cmd_reduce(int argc, char **argv)
     if (nrec)
         fprintf(stderr, "fracnav reduce: starting from the %zu poses that %s/journal held beyond case.json\n", nrec,
                 c->dir);
-    if ((rc = pick(c, &A, &fixed, mvp, &nmv)) != 0)
+    if ((rc = pick(c, &A, &fixed, mvp, &nmv, skipped, &nskipped)) != 0)
         goto done;
     /* -o is built aside and put in place at once, as segment and fracture do */
     if (A.out && case_stage_begin(A.out, A.force, c->source, tmp, sizeof tmp) < 0) {
@@ -335,7 +356,7 @@ int cmd_reduce(int argc, char **argv)
     if (A.o.progress)
         fprintf(stderr, "\n");
     if (err == 0)
-        err = reduce_store(c, fixed, &A.o, res, nmv);
+        err = case_set_reduction(c, fixed, &A.o, res, nmv);
     if (err == 0 && A.out)
         err = retarget(c, tmp);
     if (err == 0)
@@ -352,7 +373,7 @@ int cmd_reduce(int argc, char **argv)
         goto done;
     }
     double secs = (double)(t1 - t0) * 1e-6;
-    if (report(c, &A, fixed, res, nmv, secs) < 0) {
+    if (report(c, &A, fixed, res, nmv, skipped, nskipped, secs) < 0) {
         fprintf(stderr, "fracnav reduce: %s\n", fn_err_msg());
         rc = 1;
     }
@@ -362,6 +383,7 @@ done:
     free(res);
     if (mvp != mv)
         free(mvp);
+    free(skipped);
     case_free(c);
     caselock_release(lock);
     return rc;

@@ -48,7 +48,7 @@ typedef struct planning_case {
     void *extra;             /* case.json's other top-level members (a jansson json_t object, owned,
                               * may be NULL): other modules keep theirs here (VOIs, optimisation
                               * results) and they survive load and save unchanged. "reduction"
-                              * (reduce.h, reduce_store): method, counting, fixed, prealign,
+                              * (case_set_reduction): method, counting, fixed, prealign,
                               * tolerance_mm, fragments[] {id, voi_mm [6], prealigned, placed,
                               * start, end ({q [4], t [3]}), iterations, evaluations, seconds,
                               * metric_start, metric_end, push_mm, collides, history [metric per
@@ -150,5 +150,15 @@ long case_fill(planning_case *c, int id, int mode);
  * does not split or a seed lies outside the fragment, or FN_E*. */
 int case_separate(planning_case *c, int id, double erode_mm, const double (*seeds)[3], int nseeds, int *new_ids,
                   double *erode_used);
+
+struct reduce_opts;
+struct reduce_result;
+/* Stores n results of reduce_case (reduce.h), fitted with o against fragment index fixed, in
+ * c->extra as "reduction" (see extra above), replacing an earlier one, and the pairs the fitted
+ * poses leave inside each other as "penetrating" (case_penetrating; within_fit_tolerance where a
+ * fitted fragment is one of them). Implemented with the reduction (reduction/case_reduction.c),
+ * which knows reduce_result. 0 or FN_E*. */
+int case_set_reduction(planning_case *c, int fixed, const struct reduce_opts *o, const struct reduce_result *r,
+                       int n);
 
 #endif

@@ -172,6 +172,7 @@ typedef struct reduce_result {
     int prealigned;       /* 1: pre-alignment chose a pose other than placed */
     int iterations;       /* Powell: iterations; NLopt: improvements of the best value */
     int evaluations;
+    double eval_cpu_s;    /* thread CPU seconds those evaluations spent in the metric (their VOIs) */
     double seconds;
     double metric_start;  /* at start, over voi */
     double metric_end;
@@ -219,6 +220,13 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
 int reduce_fit_one(const frag *const *others, int nothers, const frag *moving, const pose *start,
                    const reduce_opts *o, pose *out, reduce_result *r);
 
+/* The fragments to move when none is named: every one but fixed (index) that, in the CT (every
+ * pose the identity, as segmented), has bone within about 4 mm of another fragment's. One that
+ * touches nothing there (a CT's head holder, which lies apart from the bone) is left out. mv and
+ * skipped (indices) have room for c->nfrag. Returns the number put in mv (*nskipped: the number
+ * skipped), or FN_E*. */
+int reduce_pick_moving(const struct planning_case *c, int fixed, int *mv, int *skipped, int *nskipped);
+
 /* Reduces the case's fragments: fixed (index) stays, the moving ones (indices; NULL = all others)
  * are fitted one by one against the growing assembly, the one of largest contact first. r has
  * room for nmoving results (filled in the order done). Sets their poses. 0 or FN_E*. */
@@ -235,12 +243,5 @@ int reduce_truth_errors(const struct planning_case *c, int fi, int mi, double *r
 /* The errors of m's pose against want (its true pose, for f where it is now): as above. */
 void reduce_errors(const frag *f, const frag *m, const pose *want, double *rot_deg, double *trans_mm,
                    double *tre_mm);
-
-/* Stores the results in c->extra as "reduction": {method, counting, fixed, fragments: [{id, voi,
- * placed, start, end, iterations, evaluations, seconds, metric_start, metric_end, push_mm,
- * history}]}, replacing an earlier one, and the pairs the fitted poses leave inside each other as
- * "penetrating" (case_penetrating; within_fit_tolerance where a fitted fragment is one of them).
- * 0 or FN_E*. */
-int reduce_store(struct planning_case *c, int fixed, const reduce_opts *o, const reduce_result *r, int n);
 
 #endif

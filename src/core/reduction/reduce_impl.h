@@ -1,7 +1,12 @@
-/* reduce_impl: what reduce_metric.c and reduce.c share (not part of the interface). */
+/* reduce_impl: what the files of the reduction share (not part of the interface): the metric's
+ * internals (reduce_metric.c), the tuning table (reduce.c), the collision context
+ * (reduce_collide.c), the geometry and the pre-alignment (reduce_prealign.c); the automatic VOI is
+ * in reduce_voi.c, the fit's stages in reduce_fit.c, the order of several fragments in
+ * reduce_order.c. */
 #ifndef FN_REDUCE_IMPL_H
 #define FN_REDUCE_IMPL_H
 
+#include "obb.h"
 #include "reduce.h"
 
 #include <stddef.h>
@@ -56,6 +61,9 @@ struct reduce_metric {
 
 #define REDUCE_BLOCK 4
 
+/* out = in dilated by k[a] cells along each axis a (a box), by a sliding window count per line;
+ * in, out and tmp (scratch) span d[0]*d[1]*d[2] cells. */
+void reduce__dilate_box(const uint8_t *in, uint8_t *out, uint8_t *tmp, const int d[3], const int k[3]);
 reduce_bricks *reduce__bricks_new(const frag *m);
 void reduce__bricks_free(reduce_bricks *b);
 /* A metric over shared bricks (not freed with it). gap_mm > 0: the VOI cells within gap_mm
@@ -66,5 +74,119 @@ reduce_metric *reduce__metric_with(const frag *const *asm_, int nasm, const frag
  * within 1.5 times the finest, bone where at least half of a cell's voxels are; same id, pose,
  * centroid and axes, home moved to the cell centres. 0 or FN_ENOMEM (*c then holds nothing to free). */
 int reduce__coarse_frag(const frag *f, frag *c);
+
+/* ---- the tuning table ------------------------------------------------------------------------ */
+
+/* The first stage's ends looked at for rival basins (the size of an array; part of the table). */
+#define REDUCE_STARTS_SEEN 16
+
+/* Every number the reduction's stages are tuned by, in one place (reduce.c holds the values, with
+ * the measurement that chose each where one did). What a user may set is in reduce_opts instead. */
+typedef struct reduce_tuning {
+    /* the contact zone (reduce_auto_voi) */
+    double zone_cell_mm;     /* its coarse occupancy grid's cell */
+    double zone_reach_mm;    /* delta doubles up to this; nothing nearer: the piece is apart */
+    double zone_delta_mm[2]; /* the fit's contact distance: first stage, later stages */
+    double zone_margin_mm;   /* the fit's zone grown by this */
+    double zone_grow;        /* a zone at the end this much larger (volume) than the VOI fitted: again */
+    int zone_grow_stages;    /* at most this many stages more for it */
+    /* collision */
+    double tolerance_voxels; /* the query's tolerance: at most this times the smallest spacing
+                              * (the query takes tolerances below half a voxel) */
+    double collide_cost;     /* a colliding pose's cost: more than any metric difference */
+    double push_step_mm, push_max_mm; /* a colliding result pushed out by this step, this far */
+    /* pre-alignment and the approach */
+    double placed_mm;        /* nearer than this to the assembly, a piece counts as placed by hand */
+    double prealign_turn_deg; /* the candidates' turn about the fixed long axis (a divisor of 180) */
+    double prealign_span_mm; /* the slide starts this much beyond the two pieces' lengths */
+    double prealign_box_mm;  /* a candidate is scored over the two boxes' overlap grown by this */
+    double approach_mm;      /* the farthest a piece slides into contact before the fit */
+    double slide_step_mm;    /* the slide's smallest step (it advances by the separation bound) */
+    int slide_halvings;      /* bisections of the last step to contact */
+    /* the optimizer */
+    double scale_min_mm, scale_max_mm; /* the rotation parameters' scale (mm per radian) clamped */
+    double bound;            /* the parameters' bounds (not PRAXIS, which takes none) */
+    double nlopt_step;       /* NLopt's initial step */
+    double powell_step[3];   /* our Powell's restarts: one step each */
+    double gain;             /* a restart or a hop that gains less ends its sequence */
+    double first_xtol;       /* the first of two stages stops at this times reduce_opts.xtol_mm */
+    /* starts and attempts */
+    double start_deg;        /* the first stage's extra starts: turned this much about each axis */
+    double wide_starts;      /* the third attempt turns its starts this many times wider */
+    double wall_mm, wall_deg; /* a fit ending this near the trust wall is at it */
+    /* rival basins and hops */
+    double rival_metric;     /* a first-stage end this close in metric to the best is a rival... */
+    double rival_mm, rival_deg; /* ...when it lies farther than this from the best */
+    double hop_elongation;   /* a long piece: largest principal variance this many times the next */
+    double hop_deg;          /* a hop's turn */
+    double hop_margin;       /* a hop of a piece that is not long must gain this much metric */
+    double long_margin;      /* and one of a long piece this much */
+    /* the order of several fragments */
+    double order_delta_mm, order_margin_mm; /* contact zone that measures a piece's contact */
+    double touch_mm;         /* a piece with no bone this near another's in the CT touches nothing */
+} reduce_tuning;
+
+extern const reduce_tuning reduce__tune;
+
+/* ---- the contact zone (reduce_voi.c) ----------------------------------------------------------- */
+
+/* Bone voxels as world points (float xyz), at their fragments' poses. */
+typedef struct reduce_cloud {
+    float *p;
+    size_t n;
+} reduce_cloud;
+
+/* The assembly's bone voxels at its poses: made once per fit, for every contact zone of it. 0 or
+ * FN_ENOMEM (free it either way). */
+int reduce__cloud_new(reduce_cloud *c, const frag *const *asm_, int nasm);
+void reduce__cloud_free(reduce_cloud *c);
+/* reduce_auto_voi over an assembly's points A (made by reduce__cloud_new at the same poses). */
+int reduce__zone_voi(const reduce_cloud *A, const frag *moving, double delta_mm, double margin_mm, double max_mm,
+                     reduce_voi *voi, double *contact_ml);
+/* 1 when some bone voxel of moving lies within about mm of the others' bone at their poses (on the
+ * contact zone's grid: boxes of whole zone_cell_mm cells, so a cell or two farther may count as
+ * near), 0 when none does, or FN_E*. */
+int reduce__touches(const frag *const *others, int n, const frag *moving, double mm);
+
+/* ---- collision (reduce_collide.c) -------------------------------------------------------------- */
+
+/* The moving fragment against the assembly: their hierarchies and the query. */
+typedef struct reduce_collider {
+    const frag *const *asm_;
+    int nasm;
+    frag *moving;
+    obb_tree **trees; /* nasm + 1: the last is the moving fragment's */
+    obb_query q;
+    obb_cache *cache; /* nasm, for the queries of the optimizer (temporal coherence) */
+} reduce_collider;
+
+/* Builds the hierarchies (o's thresholds) and the query (o's tolerance, capped by the table). 0 or
+ * FN_ENOMEM; close it either way. */
+int reduce__collider_open(reduce_collider *c, const frag *const *asm_, int nasm, frag *moving,
+                          const reduce_opts *o);
+void reduce__collider_close(reduce_collider *c);
+/* 1 collides, 0 free, <0 error; *sep (may be NULL): the smallest separation estimate. */
+int reduce__collides(const reduce_collider *c, const pose *mp, double *sep);
+/* r->end colliding is pushed out along the contact normal (from m's assembly bone to the moving
+ * centroid) or a world axis; failing that, r->start stays (r->collides: whether it collides). A
+ * free end is then settled: pushed out up to settle_mm more until free at tolerance 0, and left
+ * where it is when that is not enough. r->push_mm grows by the pushes. 0 or <0. */
+int reduce__resolve_collision(const reduce_collider *c, const reduce_metric *m, double settle_mm,
+                              reduce_result *r);
+
+/* ---- geometry and pre-alignment (reduce_prealign.c) -------------------------------------------- */
+
+/* Principal axis col of f at its pose (world), and its centroid (world). */
+void reduce__axis_world(const frag *f, int col, double v[3]);
+void reduce__centroid_world(const frag *f, double c[3]);
+/* x -> rot (P(x) - c) + to: the pose P turned about point c and moved to `to`. */
+pose reduce__turned(const pose *P, const pose *rot, const double c[3], const double to[3]);
+/* Slides *p from where it is along unit dir until the moving fragment touches (at most 2 span
+ * mm), by conservative advancement and bisection. 1 when it touches (*p moved there), 0 when it
+ * never does or collides from the start (*p unchanged), <0 on error. */
+int reduce__slide_to_contact(const reduce_collider *c, pose *p, const double dir[3], double span);
+/* The paper's pre-alignment (see reduce.h): sets c->moving->pose to the best candidate (the placed
+ * pose included); *changed: 1 when that is not the placed pose. 0 or <0. */
+int reduce__prealign(const reduce_collider *c, reduce_bricks *b, const reduce_opts *o, int *changed);
 
 #endif

@@ -1,4 +1,5 @@
-/* reduce_metric: the VOI metric (see reduce.h), fast and by brute force, and the automatic VOI. */
+/* reduce_metric: the VOI metric (see reduce.h), fast and by brute force, and the coarse copies of
+ * fragments it can be made over. */
 #include "reduce.h"
 #include "reduce_impl.h"
 
@@ -192,33 +193,42 @@ static void dilate_ball(const uint8_t *bone, uint8_t *v, const int d[3], const d
             }
 }
 
-/* v[cell] = 1 where some bone cell of bone[] lies within k cells on every axis (a box); v and bone
- * span d[0]*d[1]*d[2] cells. Separable: one sliding window count per axis. */
-static int dilate_box(const uint8_t *bone, uint8_t *v, const int d[3], const int k[3])
+void reduce__dilate_box(const uint8_t *in, uint8_t *out, uint8_t *tmp, const int d[3], const int k[3])
 {
     size_t n = (size_t)d[0] * d[1] * d[2];
-    uint8_t *tmp = malloc(n);
-    if (!tmp)
-        return FN_ENOMEM;
-    memcpy(v, bone, n);
+    memcpy(out, in, n);
     size_t stride[3] = {1, (size_t)d[0], (size_t)d[0] * d[1]};
     for (int a = 0; a < 3; a++) {
-        memcpy(tmp, v, n);
-        for (size_t base = 0; base < n; base++) {
-            if ((base / stride[a]) % (size_t)d[a])
-                continue;
-            int count = 0;
-            for (int i = 0; i < k[a] && i < d[a]; i++)
-                count += tmp[base + (size_t)i * stride[a]];
-            for (int i = 0; i < d[a]; i++) {
-                if (i + k[a] < d[a])
-                    count += tmp[base + (size_t)(i + k[a]) * stride[a]];
-                if (i - k[a] - 1 >= 0)
-                    count -= tmp[base + (size_t)(i - k[a] - 1) * stride[a]];
-                v[base + (size_t)i * stride[a]] = count > 0;
+        memcpy(tmp, out, n);
+        int len = d[a], b1 = (a + 1) % 3, b2 = (a + 2) % 3;
+        size_t st = stride[a];
+        for (int u = 0; u < d[b2]; u++)
+            for (int v = 0; v < d[b1]; v++) { /* the line through (u, v) along a */
+                size_t base = (size_t)u * stride[b2] + (size_t)v * stride[b1];
+                const uint8_t *src = tmp + base;
+                uint8_t *dst = out + base;
+                int count = 0;
+                for (int i = 0; i < k[a] && i < len; i++)
+                    count += src[(size_t)i * st];
+                for (int i = 0; i < len; i++) {
+                    if (i + k[a] < len)
+                        count += src[(size_t)(i + k[a]) * st];
+                    if (i - k[a] - 1 >= 0)
+                        count -= src[(size_t)(i - k[a] - 1) * st];
+                    dst[(size_t)i * st] = count > 0;
+                }
             }
-        }
     }
+}
+
+/* v[cell] = 1 where some bone cell of bone[] lies within k cells on every axis (a box); v and bone
+ * span d[0]*d[1]*d[2] cells. */
+static int dilate_box(const uint8_t *bone, uint8_t *v, const int d[3], const int k[3])
+{
+    uint8_t *tmp = malloc((size_t)d[0] * d[1] * d[2]);
+    if (!tmp)
+        return FN_ENOMEM;
+    reduce__dilate_box(bone, v, tmp, d, k);
     free(tmp);
     return 0;
 }
@@ -638,4 +648,45 @@ double reduce_metric_brute(const frag *const *asm_, int nasm, const frag *moving
     if (counts)
         *counts = c;
     return reduce_counts_metric(&c);
+}
+
+/* A coarse copy of f for the first stage: 2x2x2 (or 2 in-plane where a slice is already thick) voxels
+ * per cell, bone where at least half of them are; same id, pose, centroid and axes (home world). 0
+ * or FN_ENOMEM (*c then holds nothing to free). */
+int reduce__coarse_frag(const frag *f, frag *c)
+{
+    *c = *f;
+    int s[3];
+    double smin = fmin(f->spacing[0], fmin(f->spacing[1], f->spacing[2]));
+    for (int a = 0; a < 3; a++) {
+        s[a] = f->spacing[a] < 1.5 * smin + 1e-9 ? 2 : 1;
+        c->dim[a] = (f->dim[a] + s[a] - 1) / s[a];
+        c->spacing[a] = f->spacing[a] * s[a];
+    }
+    int need = s[0] * s[1] * s[2] / 2;
+    pose shift = POSE_IDENTITY;
+    for (int a = 0; a < 3; a++)
+        shift.t[a] = 0.5 * (s[a] - 1) * f->spacing[a];
+    c->home = pose_compose(f->home, shift);
+    c->prob = calloc((size_t)c->dim[0] * c->dim[1] * c->dim[2], 1);
+    if (!c->prob)
+        return fn_err_set(FN_ENOMEM, "reduce: out of memory for fragment %d's coarse copy", f->id);
+    c->voxels = 0;
+    for (int k = 0; k < c->dim[2]; k++)
+        for (int j = 0; j < c->dim[1]; j++)
+            for (int i = 0; i < c->dim[0]; i++) {
+                int n = 0;
+                for (int dk = 0; dk < s[2]; dk++)
+                    for (int dj = 0; dj < s[1]; dj++)
+                        for (int di = 0; di < s[0]; di++) {
+                            int x = i * s[0] + di, y = j * s[1] + dj, z = k * s[2] + dk;
+                            if (x < f->dim[0] && y < f->dim[1] && z < f->dim[2])
+                                n += f->prob[((size_t)z * f->dim[1] + y) * f->dim[0] + x] != 0;
+                        }
+                if (n >= need) {
+                    c->prob[((size_t)k * c->dim[1] + j) * c->dim[0] + i] = 255;
+                    c->voxels++;
+                }
+            }
+    return 0;
 }

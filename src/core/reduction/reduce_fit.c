@@ -1,0 +1,740 @@
+/* reduce_fit: the fit of one moving fragment to a fixed assembly (reduce_pair, reduce_fit_one; see
+ * reduce.h), a sequence of named stages over one state (fit_state):
+ *  1. open:     the hierarchies and the query, the moving fragment's bricks;
+ *  2. prealign: the paper's pre-alignment, for a piece apart from the assembly;
+ *  3. attempts: up to three, each a sequence of stages over a contact zone (the approach, then the
+ *               starts); another attempt only after one that ended on the trust wall or colliding;
+ *  4. winner:   the attempts' ends compared over the union of their VOIs;
+ *  5. rivals:   whether the first stage's starts ended in rival basins;
+ *  6. hops:     a long piece, or one with rival basins, fitted again from turns of the result;
+ *  7. finish:   the result pushed out of collision, its metrics and history.
+ * Every number they are tuned by is in the table reduce__tune (reduce_impl.h, reduce.c). */
+#include "reduce.h"
+#include "reduce_impl.h"
+
+#include "err.h"
+#include "fnclock.h"
+#include "powell.h"
+
+#include <math.h>
+#include <nlopt.h>
+#include <stdatomic.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define PI 3.14159265358979323846
+#define ATTEMPTS 3 /* the start; turns about the other axes; wider turns about all three */
+#define HOP_TURNS 6 /* a hop round: either way about each of the three principal axes */
+
+static double now_s(void)
+{
+    return (double)fnclock_now_us() * 1e-6;
+}
+
+/* ---- the objective: the metric over six parameters, with the optimizers' bookkeeping --------- */
+
+typedef struct objective {
+    const reduce_metric *metric;
+    pose start;
+    double c[3];     /* rotation centre, world */
+    double raxis[3][3]; /* the rotation parameters' axes (columns, world) */
+    double ra[3];       /* and their scales, mm per radian */
+    int evals;
+    int64_t eval_ns;    /* thread CPU time in the metric over those evaluations */
+    double best;
+    double bestx[6];
+    int improvements;
+    double *hist;
+    int nhist, caphist;
+    const reduce_opts *o;
+    int id;
+    double t0;
+    const reduce_collider *pc; /* non-NULL: a colliding pose costs reduce__tune.collide_cost more */
+    double xtol;        /* this stage's convergence step */
+    pose placed;        /* where the hand left it: the trust region's centre */
+    double moving_centroid[3]; /* home world */
+    nlopt_opt opt;      /* the NLopt run in progress, for a cancel */
+    int cancelled;
+} objective;
+
+/* 1 once the caller's cancel flag is set (remembered, and an NLopt run told to stop). */
+static int cancel_seen(objective *ob)
+{
+    if (!ob->cancelled && ob->o->cancel && atomic_load(ob->o->cancel)) {
+        ob->cancelled = 1;
+        if (ob->opt)
+            nlopt_force_stop(ob->opt);
+    }
+    return ob->cancelled;
+}
+
+static pose pose_of(const objective *ob, const double *x)
+{
+    double rv[3] = {0, 0, 0}, zero[3] = {0, 0, 0}, to[3];
+    for (int a = 0; a < 3; a++)
+        for (int i = 0; i < 3; i++)
+            rv[i] += x[3 + a] / ob->ra[a] * ob->raxis[i][a];
+    pose rot = pose_from_rotvec(rv, zero);
+    for (int a = 0; a < 3; a++)
+        to[a] = ob->c[a] + x[a];
+    return reduce__turned(&ob->start, &rot, ob->c, to);
+}
+
+/* The rotation's axes and scales: the principal axes of the moving voxels in the VOI at the start,
+ * each scaled by their RMS distance from it (o->axis_scale), or the world axes all scaled by the RMS
+ * distance from the centroid; clamped to the table's scale_min_mm .. scale_max_mm. */
+static void set_scale(objective *ob, const reduce_metric *m)
+{
+    const reduce_tuning *T = &reduce__tune;
+    double S[3][3], val[3];
+    reduce_metric_spread(m, &ob->start, ob->c, S);
+    double tr = S[0][0] + S[1][1] + S[2][2];
+    if (ob->o->axis_scale) {
+        frag_eigen_sym3(S, ob->raxis, val);
+        for (int a = 0; a < 3; a++)
+            ob->ra[a] = fmin(fmax(sqrt(fmax(tr - val[a], 0)), T->scale_min_mm), T->scale_max_mm);
+    } else
+        for (int a = 0; a < 3; a++) {
+            for (int i = 0; i < 3; i++)
+                ob->raxis[i][a] = i == a;
+            ob->ra[a] = fmin(fmax(sqrt(tr), T->scale_min_mm), T->scale_max_mm);
+        }
+}
+
+static void hist_add(objective *ob, double f)
+{
+    if (ob->nhist == ob->caphist) {
+        int nc = ob->caphist ? 2 * ob->caphist : 64;
+        double *h = realloc(ob->hist, (size_t)nc * sizeof *h);
+        if (!h)
+            return; /* the history is a report: a shorter one is no failure */
+        ob->hist = h;
+        ob->caphist = nc;
+    }
+    ob->hist[ob->nhist++] = f;
+}
+
+/* A wall around the placed pose: the fit refines a placement, it does not search the skull for
+ * another one (a thin bone offers many poses that fill a VOI better than the fit does). */
+static double trust_cost(const objective *ob, const pose *p)
+{
+    double a[3], b[3], d2 = 0;
+    pose_apply(p, ob->moving_centroid, a);
+    pose_apply(&ob->placed, ob->moving_centroid, b);
+    for (int i = 0; i < 3; i++)
+        d2 += (a[i] - b[i]) * (a[i] - b[i]);
+    double et = sqrt(d2) - ob->o->trust_mm, er = pose_angle_between(*p, ob->placed) * 180 / PI - ob->o->trust_deg;
+    return (et > 0 ? 1 + et : 0) + (er > 0 ? 1 + er : 0);
+}
+
+/* 1 when p lies within wall_mm or wall_deg of the trust wall. */
+static int at_wall(const objective *ob, const pose *p)
+{
+    double a[3], b[3], d2 = 0;
+    pose_apply(p, ob->moving_centroid, a);
+    pose_apply(&ob->placed, ob->moving_centroid, b);
+    for (int i = 0; i < 3; i++)
+        d2 += (a[i] - b[i]) * (a[i] - b[i]);
+    return sqrt(d2) > ob->o->trust_mm - reduce__tune.wall_mm ||
+           pose_angle_between(*p, ob->placed) * 180 / PI > ob->o->trust_deg - reduce__tune.wall_deg;
+}
+
+static double cost(const double *x, void *ctx)
+{
+    objective *ob = ctx;
+    if (cancel_seen(ob))
+        return ob->best < INFINITY ? ob->best + 1 : reduce__tune.collide_cost;
+    pose p = pose_of(ob, x);
+    int64_t t = fnclock_thread_cpu_ns();
+    double f = reduce_metric_eval(ob->metric, &p, NULL);
+    ob->eval_ns += fnclock_thread_cpu_ns() - t;
+    if (ob->pc && reduce__collides(ob->pc, &p, NULL) > 0)
+        f += reduce__tune.collide_cost;
+    f += trust_cost(ob, &p);
+    ob->evals++;
+    if (f < ob->best) {
+        ob->best = f;
+        memcpy(ob->bestx, x, sizeof ob->bestx);
+    }
+    return f;
+}
+
+/* The cost at a pose (the start of a fit). */
+static double cost_at(objective *ob, const pose *p)
+{
+    double f = reduce_metric_eval(ob->metric, p, NULL) + trust_cost(ob, p);
+    if (ob->pc && reduce__collides(ob->pc, p, NULL) > 0)
+        f += reduce__tune.collide_cost;
+    return f;
+}
+
+static int powell_iter(int iter, double f, void *ctx)
+{
+    objective *ob = ctx;
+    hist_add(ob, f);
+    if (cancel_seen(ob))
+        return 1;
+    if (ob->o->progress)
+        ob->o->progress(ob->o->progress_ctx, ob->id, iter, ob->evals, f, now_s() - ob->t0);
+    return 0;
+}
+
+static double nlopt_cost(unsigned n, const double *x, double *grad, void *ctx)
+{
+    objective *ob = ctx;
+    double before = ob->best, f = cost(x, ctx);
+    if (ob->best < before) {
+        ob->improvements++;
+        hist_add(ob, ob->best);
+        if (ob->o->progress && ob->improvements % 10 == 0)
+            ob->o->progress(ob->o->progress_ctx, ob->id, ob->improvements, ob->evals, ob->best, now_s() - ob->t0);
+    }
+    return f;
+}
+
+static int run_optimizer(objective *ob, int *iterations)
+{
+    const reduce_opts *o = ob->o;
+    double x[6] = {0, 0, 0, 0, 0, 0};
+    if (o->method == REDUCE_POWELL) {
+        /* Restarts (the table's powell_step); a restart that gains nothing ends it. */
+        *iterations = 0;
+        double fprev = INFINITY;
+        for (int k = 0; k < 3; k++) {
+            powell_opts po;
+            powell_defaults(&po);
+            po.step = reduce__tune.powell_step[k];
+            po.xtol = ob->xtol;
+            po.line_tol = ob->xtol;
+            po.ftol = 1e-9;
+            po.max_eval = o->max_eval - ob->evals;
+            po.on_iter = powell_iter;
+            po.iter_ctx = ob;
+            if (po.max_eval < 10)
+                break;
+            powell_stats st;
+            int rc = powell_minimize(cost, ob, x, 6, &po, &st);
+            *iterations += st.iterations;
+            if (rc)
+                return rc;
+            if (!(st.f < fprev - reduce__tune.gain) || ob->cancelled)
+                break;
+            fprev = st.f;
+        }
+        return 0;
+    }
+    static const nlopt_algorithm alg[REDUCE_METHODS] = {NLOPT_LN_PRAXIS, NLOPT_LN_PRAXIS, NLOPT_LN_SBPLX,
+                                                        NLOPT_LN_BOBYQA};
+    nlopt_opt opt = nlopt_create(alg[o->method], 6);
+    if (!opt)
+        return fn_err_set(FN_ENOMEM, "reduce: NLopt could not make its optimizer");
+    nlopt_set_min_objective(opt, nlopt_cost, ob);
+    nlopt_set_xtol_abs1(opt, ob->xtol);
+    nlopt_set_maxeval(opt, o->max_eval - ob->evals > 10 ? o->max_eval - ob->evals : 10);
+    nlopt_set_initial_step1(opt, reduce__tune.nlopt_step);
+    if (o->method != REDUCE_PRAXIS) { /* PRAXIS takes no bounds */
+        nlopt_set_lower_bounds1(opt, -reduce__tune.bound);
+        nlopt_set_upper_bounds1(opt, reduce__tune.bound);
+    }
+    double f;
+    nlopt_srand(1); /* PRAXIS draws random numbers: the same case gives the same fit */
+    ob->opt = opt;
+    nlopt_result res = nlopt_optimize(opt, x, &f);
+    ob->opt = NULL;
+    nlopt_destroy(opt);
+    if (res == NLOPT_FORCED_STOP && ob->cancelled)
+        res = NLOPT_SUCCESS;
+    *iterations = ob->improvements;
+    if (res < 0 && res != NLOPT_ROUNDOFF_LIMITED)
+        return fn_err_set(FN_EINVAL, "reduce: NLopt %s failed (code %d)", reduce_method_name(o->method), (int)res);
+    return 0;
+}
+
+
+/* ---- the state and its stages ---------------------------------------------------------------- */
+
+/* Coarse copies (reduce_opts.coarse): the assembly's nasm fragments, then the moving one. */
+typedef struct level {
+    frag *frag;
+    const frag **asm_;
+    int nfrag;             /* made so far (to free) */
+    reduce_bricks *bricks; /* the moving copy's */
+} level;
+
+typedef struct fit_state {
+    const frag *const *asm_;
+    int nasm;
+    frag *moving;          /* its pose moves through the stages */
+    const reduce_opts *o;
+    reduce_result *r;
+    reduce_collider col;
+    reduce_bricks *bricks; /* the moving fragment's, for every metric of the fit */
+    reduce_cloud asm_pts;  /* the assembly's bone, for every contact zone of the fit (made once) */
+    level coarse;
+    reduce_metric *metric; /* the current stage's */
+    objective obj;
+    /* attempts: where each ended, over which VOI */
+    pose attempt_end[ATTEMPTS];
+    reduce_voi attempt_voi[ATTEMPTS];
+    int attempts;
+    /* the first attempt's first-stage starts: where each ended and its cost (for rivals) */
+    pose start_end[REDUCE_STARTS_SEEN];
+    double start_cost[REDUCE_STARTS_SEEN];
+    int nstart_ends;
+} fit_state;
+
+static int stage_open(fit_state *s, const frag *const *asm_, int nasm, frag *moving, const reduce_opts *o,
+                      reduce_result *r)
+{
+    double t0 = now_s();
+    *s = (fit_state){.asm_ = asm_, .nasm = nasm, .moving = moving, .o = o, .r = r};
+    s->obj.t0 = t0;
+    memset(r, 0, sizeof *r);
+    r->id = moving->id;
+    r->start = r->placed = moving->pose;
+    int rc = reduce__collider_open(&s->col, asm_, nasm, moving, o);
+    s->bricks = reduce__bricks_new(moving);
+    return rc == 0 && !s->bricks ? fn_err_set(FN_ENOMEM, "reduce: out of memory") : rc;
+}
+
+/* A piece apart from the assembly is pre-aligned; one nearer than placed_mm was placed by hand and
+ * keeps its placement. The fit's start, and the centre of its trust region, is the result. */
+static int stage_prealign(fit_state *s)
+{
+    double sep = INFINITY;
+    int rc = 0;
+    if (s->o->prealign && (rc = reduce__collides(&s->col, &s->moving->pose, &sep)) >= 0)
+        rc = sep > reduce__tune.placed_mm ? reduce__prealign(&s->col, s->bricks, s->o, &s->r->prealigned) : 0;
+    s->r->start = s->moving->pose;
+    objective *ob = &s->obj;
+    *ob = (objective){.start = s->r->start, .best = INFINITY, .o = s->o, .id = s->moving->id, .t0 = ob->t0,
+                      .placed = s->r->start};
+    memcpy(ob->moving_centroid, s->moving->centroid, sizeof ob->moving_centroid);
+    return rc;
+}
+
+static int level_open(fit_state *s)
+{
+    level *L = &s->coarse;
+    L->frag = calloc((size_t)s->nasm + 1, sizeof *L->frag);
+    L->asm_ = calloc((size_t)s->nasm, sizeof *L->asm_);
+    int rc = L->frag && L->asm_ ? 0 : fn_err_set(FN_ENOMEM, "reduce: out of memory");
+    for (int f = 0; f <= s->nasm && rc == 0; f++) {
+        rc = reduce__coarse_frag(f < s->nasm ? s->asm_[f] : s->moving, &L->frag[f]);
+        L->nfrag += rc == 0;
+        if (f < s->nasm)
+            L->asm_[f] = &L->frag[f];
+    }
+    if (rc == 0 && !(L->bricks = reduce__bricks_new(&L->frag[s->nasm])))
+        rc = FN_ENOMEM;
+    return rc;
+}
+
+static void level_close(level *L)
+{
+    reduce__bricks_free(L->bricks);
+    for (int f = 0; f < L->nfrag; f++)
+        frag_free(&L->frag[f]);
+    free(L->frag);
+    free(L->asm_);
+}
+
+/* The contact zone where the piece is now (reduce_auto_voi with delta_mm, the table's margin). */
+static int zone_voi(fit_state *s, double delta_mm, reduce_voi *voi)
+{
+    int rc = 0;
+    if (!s->asm_pts.p)
+        rc = reduce__cloud_new(&s->asm_pts, s->asm_, s->nasm);
+    return rc ? rc : reduce__zone_voi(&s->asm_pts, s->moving, delta_mm, reduce__tune.zone_margin_mm, s->o->voi_max_mm,
+                                      voi, NULL);
+}
+
+/* A stage's VOI (given, or the contact zone where the piece is now) and its metric, on the coarse
+ * level in the first stage when o->coarse. */
+static int stage_metric(fit_state *s, int stage)
+{
+    const reduce_opts *o = s->o;
+    const reduce_tuning *T = &reduce__tune;
+    int rc = 0;
+    if (o->has_voi)
+        s->r->voi = o->voi;
+    else
+        rc = zone_voi(s, T->zone_delta_mm[stage ? 1 : 0], &s->r->voi);
+    reduce_metric_free(s->metric);
+    s->metric = NULL;
+    int use_coarse = stage == 0 && !o->has_voi && o->coarse;
+    if (rc == 0 && use_coarse && !s->coarse.bricks) /* made once */
+        rc = level_open(s);
+    if (rc == 0 && use_coarse) {
+        const level *L = &s->coarse;
+        double cs = fmax(L->frag[0].spacing[0], fmax(L->frag[0].spacing[1], L->frag[0].spacing[2]));
+        double band = o->band_mm > 0 ? fmax(o->band_mm, cs) : 0;
+        s->metric = reduce__metric_with(L->asm_, s->nasm, &L->frag[s->nasm], L->bricks, &s->r->voi, o->count, band,
+                                        o->gap_mm);
+    } else if (rc == 0)
+        s->metric = reduce__metric_with(s->asm_, s->nasm, s->moving, s->bricks, &s->r->voi, o->count, o->band_mm,
+                                        o->gap_mm);
+    return rc == 0 && !s->metric ? FN_EINVAL : rc;
+}
+
+/* A piece left apart first slides straight into contact, towards the assembly's bone in the VOI. */
+static int stage_approach(fit_state *s)
+{
+    double cm[3], dir[3], len = 0;
+    reduce__centroid_world(s->moving, cm);
+    for (int a = 0; a < 3; a++) {
+        dir[a] = s->metric->fixed_centre[a] - cm[a];
+        len += dir[a] * dir[a];
+    }
+    len = sqrt(len);
+    for (int a = 0; a < 3 && len > 0; a++)
+        dir[a] /= len;
+    int rc = len > 0 ? reduce__slide_to_contact(&s->col, &s->moving->pose, dir, reduce__tune.approach_mm) : 0;
+    return rc < 0 ? rc : 0;
+}
+
+/* One run of the optimizer from s->obj.start, turning about centre c: *end and *f its best (the
+ * start when nothing beat it). record_start: the start's cost goes into the history. */
+static int fit_from(fit_state *s, const double c[3], int record_start, pose *end, double *f)
+{
+    objective *ob = &s->obj;
+    ob->best = INFINITY;
+    ob->improvements = 0;
+    memcpy(ob->c, c, sizeof ob->c);
+    set_scale(ob, ob->metric);
+    double f0 = cost_at(ob, &ob->start);
+    if (record_start)
+        hist_add(ob, f0);
+    int it = 0;
+    int rc = run_optimizer(ob, &it);
+    s->r->iterations += it;
+    *f = fmin(ob->best, f0);
+    *end = ob->best < f0 ? pose_of(ob, ob->bestx) : ob->start;
+    return rc;
+}
+
+/* The starts of a stage, [*k0, *n): 0 the base, k > 0 the base turned start_deg about principal
+ * axis (k - 1) / 2 % 3, either way. The first stage starts o->starts times; a second attempt
+ * turns about the other two axes, a third wider about all three; a later stage starts once. */
+static void start_range(const reduce_opts *o, int stage, int attempt, int *k0, int *n)
+{
+    *k0 = 0;
+    *n = stage == 0 && o->starts > 1 ? o->starts : 1;
+    if (attempt == 1 && stage == 0) {
+        *k0 = *n > 1 ? *n : 1;
+        *n = *k0 + 4;
+    } else if (attempt == 2 && stage == 0) {
+        *k0 = 1;
+        *n = 7;
+    }
+}
+
+/* The starts of one stage, each fitted; the piece moves to the best end. The first stage stops
+ * coarser and refuses no collision; later ones (and a given VOI's one) cost a colliding pose. */
+static int stage_starts(fit_state *s, int stage, int attempt)
+{
+    const reduce_opts *o = s->o;
+    objective *ob = &s->obj;
+    ob->metric = s->metric;
+    ob->pc = stage >= (o->has_voi ? 0 : 1) ? &s->col : NULL;
+    ob->xtol = ob->pc ? o->xtol_mm : reduce__tune.first_xtol * o->xtol_mm;
+    pose base = s->moving->pose, best = base;
+    double bestf = INFINITY;
+    int k0, nstarts, rc = 0;
+    start_range(o, stage, attempt, &k0, &nstarts);
+    for (int k = k0; k < nstarts && rc == 0 && !ob->cancelled; k++) {
+        ob->start = base;
+        if (k > 0) {
+            double axis[3], cm[3];
+            reduce__axis_world(s->moving, (k - 1) / 2 % 3, axis);
+            double deg = (k % 2 ? 1 : -1) * (attempt == 2 ? reduce__tune.wide_starts : 1) * reduce__tune.start_deg;
+            pose turn = pose_from_axis_angle(axis, deg * PI / 180);
+            reduce__centroid_world(s->moving, cm);
+            ob->start = reduce__turned(&base, &turn, cm, cm);
+        }
+        double c[3], f;
+        pose end;
+        reduce__centroid_world(s->moving, c);
+        rc = fit_from(s, c, 1, &end, &f);
+        if (rc == 0 && stage == 0 && attempt == 0 && k < REDUCE_STARTS_SEEN) {
+            s->start_end[k] = end;
+            s->start_cost[k] = f;
+            s->nstart_ends = k + 1;
+        }
+        if (rc == 0 && f < bestf) {
+            bestf = f;
+            best = end;
+        }
+    }
+    s->moving->pose = best;
+    pose_normalize(&s->moving->pose);
+    return rc;
+}
+
+static double voi_volume(const reduce_voi *v)
+{
+    return (v->hi[0] - v->lo[0]) * (v->hi[1] - v->lo[1]) * (v->hi[2] - v->lo[2]);
+}
+
+/* 1 when the contact zone where the piece ended is zone_grow times larger than the VOI it was fitted
+ * over: a first stage off the fit touches along part of the fracture only, and the next stage then
+ * fits to that part; where the zone has grown, the fit goes again over it. */
+static int zone_grew(fit_state *s)
+{
+    reduce_voi now;
+    return zone_voi(s, reduce__tune.zone_delta_mm[1], &now) == 0 &&
+           voi_volume(&now) > reduce__tune.zone_grow * voi_volume(&s->r->voi);
+}
+
+/* One attempt: two stages unless the VOI is given (the first over the contact zone where the hand
+ * left the piece, the second over the tighter zone where the first ended), and up to
+ * zone_grow_stages more while the zone grows. */
+static int attempt_stages(fit_state *s, int attempt)
+{
+    const reduce_opts *o = s->o;
+    int nstage = o->has_voi ? 1 : 2, rc = 0;
+    for (int stage = 0; stage < nstage && rc == 0 && !s->obj.cancelled; stage++) {
+        if ((rc = stage_metric(s, stage)) != 0)
+            break;
+        if (stage == 0 && (rc = stage_approach(s)) != 0)
+            break;
+        rc = stage_starts(s, stage, attempt);
+        if (rc == 0 && !o->has_voi && stage == nstage - 1 && nstage < 2 + reduce__tune.zone_grow_stages &&
+            !s->obj.cancelled && zone_grew(s))
+            nstage++;
+    }
+    return rc;
+}
+
+/* A fit that ends on the trust wall, or in collision, has wandered off (a wrong basin; the true
+ * pose collides with nothing): another attempt from the start, turned otherwise. */
+static int stage_attempts(fit_state *s)
+{
+    int rc = 0;
+    for (int attempt = 0; attempt < ATTEMPTS && rc == 0 && !s->obj.cancelled; attempt++) {
+        if (attempt) {
+            int c = at_wall(&s->obj, &s->moving->pose) ? 1 : reduce__collides(&s->col, &s->moving->pose, NULL);
+            if (c <= 0) {
+                rc = c;
+                break;
+            }
+            s->moving->pose = s->r->start;
+        }
+        rc = attempt_stages(s, attempt);
+        if (rc == 0) {
+            s->attempt_end[s->attempts] = s->moving->pose;
+            s->attempt_voi[s->attempts++] = s->r->voi;
+        }
+    }
+    return rc;
+}
+
+/* Several attempts: the end of best metric over the union of their VOIs wins, collisions costed;
+ * the final metric is then the winner's. */
+static int stage_winner(fit_state *s)
+{
+    if (s->attempts < 2)
+        return 0;
+    const reduce_opts *o = s->o;
+    reduce_voi u = s->attempt_voi[0];
+    for (int i = 1; i < s->attempts; i++)
+        for (int a = 0; a < 3; a++) {
+            u.lo[a] = fmin(u.lo[a], s->attempt_voi[i].lo[a]);
+            u.hi[a] = fmax(u.hi[a], s->attempt_voi[i].hi[a]);
+        }
+    reduce_metric *mu = reduce__metric_with(s->asm_, s->nasm, s->moving, s->bricks, &u, o->count, o->band_mm, o->gap_mm);
+    int rc = mu ? 0 : FN_EINVAL, w = s->attempts - 1;
+    double fbest = INFINITY;
+    for (int i = 0; i < s->attempts && rc == 0; i++) {
+        int c = reduce__collides(&s->col, &s->attempt_end[i], NULL);
+        double fu = reduce_metric_eval(mu, &s->attempt_end[i], NULL) + (c > 0 ? reduce__tune.collide_cost : 0);
+        rc = c < 0 ? c : 0;
+        if (fu < fbest) {
+            fbest = fu;
+            w = i;
+        }
+    }
+    reduce_metric_free(mu);
+    s->moving->pose = s->attempt_end[w];
+    s->r->voi = s->attempt_voi[w];
+    if (rc == 0 && w != s->attempts - 1) {
+        reduce_metric_free(s->metric);
+        if (!(s->metric = reduce__metric_with(s->asm_, s->nasm, s->moving, s->bricks, &s->r->voi, o->count,
+                                              o->band_mm, o->gap_mm)))
+            rc = FN_EINVAL;
+    }
+    return rc;
+}
+
+/* A rival: a start of the first stage that ends about as well as the best one (within
+ * rival_metric) but farther than rival_mm or rival_deg from it. The metric has rival basins
+ * there, and the fit may sit in the wrong one without touching the trust wall or colliding. */
+static void stage_rivals(fit_state *s)
+{
+    const reduce_tuning *T = &reduce__tune;
+    int best = 0;
+    for (int k = 1; k < s->nstart_ends; k++)
+        if (s->start_cost[k] < s->start_cost[best])
+            best = k;
+    s->r->rival = 0;
+    for (int k = 0; k < s->nstart_ends && !s->r->rival; k++)
+        if (k != best && s->start_cost[k] < s->start_cost[best] + T->rival_metric) {
+            double a[3], c[3], d2 = 0;
+            pose_apply(&s->start_end[k], s->moving->centroid, a);
+            pose_apply(&s->start_end[best], s->moving->centroid, c);
+            for (int i = 0; i < 3; i++)
+                d2 += (a[i] - c[i]) * (a[i] - c[i]);
+            s->r->rival = sqrt(d2) > T->rival_mm ||
+                          pose_angle_between(s->start_end[k], s->start_end[best]) * 180 / PI > T->rival_deg;
+        }
+}
+
+/* One round of hops from cur (cost fcur): the fit again from cur turned hop_deg either way about
+ * each principal axis of the piece; *next, *fnext: the best end that beats fnext by margin (left
+ * as they are when none does). strict: an end counts only free of collision, by its metric alone. */
+static int hop_round(fit_state *s, const pose *cur, int strict, double margin, pose *next, double *fnext)
+{
+    objective *ob = &s->obj;
+    int rc = 0;
+    for (int h = 0; h < HOP_TURNS && rc == 0 && !ob->cancelled; h++) {
+        double axis[3], cm[3], c[3], fb;
+        s->moving->pose = *cur;
+        reduce__axis_world(s->moving, h / 2, axis);
+        reduce__centroid_world(s->moving, cm);
+        pose turn = pose_from_axis_angle(axis, (h % 2 ? 1 : -1) * reduce__tune.hop_deg * PI / 180), hp;
+        ob->start = reduce__turned(cur, &turn, cm, cm);
+        s->moving->pose = ob->start;
+        reduce__centroid_world(s->moving, c);
+        rc = fit_from(s, c, 0, &hp, &fb);
+        if (rc == 0 && strict) {
+            int hit = reduce__collides(&s->col, &hp, NULL);
+            if (hit < 0)
+                rc = hit;
+            fb = hit ? INFINITY : reduce_metric_eval(s->metric, &hp, NULL);
+        }
+        if (rc == 0 && fb < *fnext - margin) {
+            *fnext = fb;
+            *next = hp;
+        }
+    }
+    return rc;
+}
+
+/* Hops. A long piece: a cut through a tube is nearly symmetric under a turn about its axis and the
+ * metric ripples in the turns (bench reduce --ct long-bone: fits stopped 4-12 degrees off, at a
+ * metric worse than that of the fit started at the truth); rounds of hops, the best kept (colliding
+ * poses costed), until a round gains nothing (o->hops rounds). Other pieces hop only where the
+ * first stage found a rival basin, and strictly (see hop_round): a fit that ends interpenetrating
+ * (to be pushed out) costs collide_cost, and any free pose nearby would beat that (hopping
+ * everywhere with the plain rule: CT_pitch success 0.90 -> 0.80). */
+static int stage_hops(fit_state *s)
+{
+    const reduce_opts *o = s->o;
+    objective *ob = &s->obj;
+    int is_long = s->moving->eigval[0] > reduce__tune.hop_elongation * s->moving->eigval[1];
+    if (ob->cancelled || o->hops <= 0 || !(is_long || s->r->rival))
+        return 0;
+    ob->metric = s->metric;
+    ob->pc = &s->col;
+    ob->xtol = o->xtol_mm;
+    pose cur = s->moving->pose;
+    double fcur = cost_at(ob, &cur); /* its collision query also primes the cache */
+    int strict = !is_long, rc = 0;
+    double margin = strict ? reduce__tune.hop_margin : reduce__tune.long_margin;
+    if (strict)
+        fcur = reduce_metric_eval(s->metric, &cur, NULL);
+    for (int round = 0; round < o->hops && rc == 0 && !ob->cancelled; round++) {
+        pose next = cur;
+        double fnext = fcur;
+        rc = hop_round(s, &cur, strict, margin, &next, &fnext);
+        if (!(fnext < fcur - margin))
+            break;
+        cur = next;
+        s->r->hops++;
+        pose_normalize(&cur);
+        fcur = fnext;
+    }
+    s->moving->pose = cur;
+    return rc;
+}
+
+/* The result: out of collision (reduce__resolve_collision), with both metrics over the final VOI,
+ * or, on failure or cancel, the placed pose. */
+static int stage_finish(fit_state *s, int rc)
+{
+    reduce_result *r = s->r;
+    if (rc == 0 && s->obj.cancelled)
+        rc = 1;
+    if (rc == 0) {
+        r->end = r->fitted = s->moving->pose;
+        rc = reduce__resolve_collision(&s->col, s->metric, s->o->settle_mm, r);
+    }
+    if (rc == 0) {
+        r->metric_start = reduce_metric_eval(s->metric, &r->start, NULL); /* both over the final VOI */
+        r->metric_end = reduce_metric_eval(s->metric, &r->end, NULL);
+        /* a fit never keeps an end worse than a free start */
+        if (r->metric_end > r->metric_start && (rc = reduce__collides(&s->col, &r->start, NULL)) == 0) {
+            r->end = r->fitted = r->start;
+            r->metric_end = r->metric_start;
+            r->push_mm = 0;
+            r->collides = 0;
+        }
+        rc = rc < 0 ? rc : 0;
+    }
+    if (rc == 0) {
+        s->moving->pose = r->end;
+        r->evaluations = s->obj.evals;
+        r->eval_cpu_s = (double)s->obj.eval_ns * 1e-9;
+        r->history = s->obj.hist;
+        r->nhistory = s->obj.nhist;
+        s->obj.hist = NULL;
+    } else {
+        s->moving->pose = r->end = r->fitted = r->placed;
+    }
+    r->seconds = now_s() - s->obj.t0;
+    return rc;
+}
+
+static void stage_close(fit_state *s)
+{
+    free(s->obj.hist);
+    reduce_metric_free(s->metric);
+    reduce__bricks_free(s->bricks);
+    reduce__cloud_free(&s->asm_pts);
+    level_close(&s->coarse);
+    reduce__collider_close(&s->col);
+}
+
+int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_opts *o, reduce_result *r)
+{
+    if (!asm_ || nasm < 1 || !moving || !o || !r)
+        return fn_err_set(FN_EINVAL, "reduce: no fragments");
+    fit_state s;
+    int rc = stage_open(&s, asm_, nasm, moving, o, r);
+    if (rc == 0)
+        rc = stage_prealign(&s);
+    if (rc == 0)
+        rc = stage_attempts(&s);
+    if (rc == 0)
+        rc = stage_winner(&s);
+    stage_rivals(&s);
+    if (rc == 0)
+        rc = stage_hops(&s);
+    rc = stage_finish(&s, rc);
+    stage_close(&s);
+    return rc;
+}
+
+int reduce_fit_one(const frag *const *others, int nothers, const frag *moving, const pose *start,
+                   const reduce_opts *o, pose *out, reduce_result *r)
+{
+    if (!others || nothers < 1 || !moving || !start || !o || !out || !r)
+        return fn_err_set(FN_EINVAL, "reduce: no fragments");
+    frag m = *moving; /* a private copy: only its pose changes, its voxels are read */
+    m.pose = *start;
+    reduce_opts fo = *o;
+    fo.prealign = 0;
+    int rc = reduce_pair(others, nothers, &m, &fo, r);
+    *out = rc == 0 ? r->end : *start;
+    return rc;
+}
