@@ -174,7 +174,8 @@ static void test_render(void **st)
     cases_load(f);
 }
 
-/* record, replay and navigate: their output files are checked before any device or recording. */
+/* record, replay, navigate and demo: their outputs are checked before any device, recording or
+ * step. */
 static void test_record_replay_navigate(void **st)
 {
     struct fixture *f = *st;
@@ -182,6 +183,8 @@ static void test_record_replay_navigate(void **st)
     expect(1, "is a case folder", "replay '%s' /nonexistent.fnrec --frames '%s'", f->cdir, f->other);
     expect(1, "x.png lies in the case folder", "navigate '%s' --screenshot '%s/x.png' --device bogus:", f->cdir,
            f->other);
+    expect(1, "fracnav demo: -o", "demo '%s' -o '%s' --no-fuse", f->ct, f->other);
+    expect(1, "is a case folder", "demo '%s' -o '%s' --no-fuse", f->ct, f->other);
     cases_load(f);
 }
 

@@ -326,10 +326,8 @@ int cmd_seg_found(const vol *v, const seg_params *p, const seg_result *r, const 
 
 int cmd_case_exists(const char *dir)
 {
-    char json[PATH_MAX + 16];
-    snprintf(json, sizeof json, "%s/case.json", dir);
-    if (access(json, F_OK) != 0)
-        return fn_err_set(FN_EIO, "%s is not a case: %s: %s", dir, json, strerror(errno));
+    if (!is_case_folder(dir))
+        return fn_err_set(FN_EIO, "%s is not a case: %s/case.json: %s", dir, dir, strerror(errno));
     return 0;
 }
 

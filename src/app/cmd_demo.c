@@ -58,7 +58,8 @@ static void usage(FILE *out)
             "     segmentation, a NIfTI labelmap, STL models and the report DIR/export/report/index.html;\n"
             "  6. prints where the results are and the figures measured: collision query time, loop\n"
             "     rate, reduction error and time.\n\n"
-            "  -o DIR                     where the results go (default ./fracnav-demo)\n"
+            "  -o DIR                     where the results go (default ./fracnav-demo; a run\n"
+            "                             replaces an earlier demo's there; never a case folder)\n"
             "  --recording FILE           the navigation recording (default: the shipped\n"
             "                             sim/recordings/" RECORDING ")\n"
             "  --no-fuse                  play the recording in-process, not through fracnav-sim\n"
@@ -509,6 +510,11 @@ int cmd_demo(int argc, char **argv)
     }
     if ((rc = cmd_tau_check("demo", &tau)) != 0)
         return rc;
+    /* a run replaces the results an earlier demo left in DIR, never a case's files */
+    if (cmd_out_folder(dir, 1) < 0) {
+        fprintf(stderr, "fracnav demo: -o %s\n", fn_err_msg());
+        return 1;
+    }
     char exe[PATH_MAX], bindir[PATH_MAX / 2];
     if (self_path(exe, sizeof exe, bindir, sizeof bindir) != 0) {
         fprintf(stderr, "fracnav demo: cannot find this program (/proc/self/exe): %s\n", strerror(errno));
