@@ -264,7 +264,7 @@ static void test_voi_overlay_outlines_the_box(void **st)
     check_golden(s->rgb, "voi");
 }
 
-/* The HUD: text over the frame, top left, a warning line in amber. */
+/* The HUD: text over the frame, top left, in mixed case, a warning line in amber. */
 static void test_hud_draws_text(void **st)
 {
     scene *s = *st;
@@ -286,6 +286,20 @@ static void test_hud_draws_text(void **st)
         fail_msg("the HUD drew %ld white pixels in its first line, %ld amber in its second, %ld elsewhere",
                  white, amber, below);
     check_golden(s->rgb, "hud");
+    /* Mixed case: n and N are two glyphs (the issue: "N/P" read where the keys are n/p). */
+    uint8_t *capital = malloc((size_t)W * H * 3);
+    assert_int_equal(render_frame(s->r, NULL, &o), 0);
+    assert_int_equal(render_hud(s->r, "N", 2), 0);
+    assert_int_equal(render_read_rgb(s->r, capital), 0);
+    assert_int_equal(render_frame(s->r, NULL, &o), 0);
+    assert_int_equal(render_hud(s->r, "n", 2), 0);
+    assert_int_equal(render_read_rgb(s->r, s->rgb), 0);
+    long differ = 0;
+    for (int i = 0; i < W * H * 3; i++)
+        differ += s->rgb[i] != capital[i];
+    free(capital);
+    if (differ < 10)
+        fail_msg("n and N draw the same glyph (%ld bytes differ)", differ);
 }
 
 static void centroid(const uint8_t *rgb, double *cx, double *cy)
@@ -718,8 +732,8 @@ static void no_xdotool(void)
 
 /* The pointer and the window's keys drive navigate's window (xdotool on Xvfb, through XTEST as a
  * hand would): a left drag of 180 pixels to the right orbits the view by 90 degrees, from the
- * anterior view to the right one, l gives the four-up layout (its slices through the selected
- * fragment's centroid), a the principal axes, and q quits. The screenshot must match `fracnav
+ * anterior view to the right one, F3 gives the four-up layout (its slices through the selected
+ * fragment's centroid), F4 the principal axes, and q quits. The screenshot must match `fracnav
  * render --view right --layout four-up --overlay axes` at that point, and differ from the
  * anterior view. The events arrive in order, so q comes after the drag and the keys. */
 static void test_navigate_window_mouse_and_keys(void **st)
@@ -749,7 +763,7 @@ static void test_navigate_window_mouse_and_keys(void **st)
              "navigate '%s' --device virtual:spacenavigator --view window --discard-journal --screenshot "
              "'%s/shot.png' </dev/null & nav=$!; "
              "if timeout 300 xdotool search --sync --onlyvisible --name '^fracnav$' >/dev/null; then "
-             "xdotool mousemove 384 560 mousedown 1 mousemove_relative -- 180 0 mouseup 1 key l key a key q; "
+             "xdotool mousemove 384 560 mousedown 1 mousemove_relative -- 180 0 mouseup 1 key F3 key F4 key q; "
              "else echo 'no fracnav window appeared'; kill $nav; fi; wait $nav",
              case_dir, dir);
     int rc = run_in_window(xvfb, display, &out, cmd);
@@ -761,13 +775,61 @@ static void test_navigate_window_mouse_and_keys(void **st)
     if (r.content < 1000)
         fail_msg("the window's screenshot shows no fragments (%ld content pixels)", r.content);
     if (r.differ > 768L * (768 - WINDOW_HUD_ROWS) / 100)
-        fail_msg("after the drag and l, the window differs from render --view right --layout four-up in %ld "
+        fail_msg("after the drag and F3, the window differs from render --view right --layout four-up in %ld "
                  "pixels", r.differ);
     if (r.moved < 1000)
         fail_msg("the right view differs from the anterior one in only %ld pixels", r.moved);
     long drawn, shown = overlay_shown(dir, case_dir, "--view right --layout four-up --point 22.5,15.5,15.5", &drawn);
     if (drawn < 50 || shown < drawn * 9 / 10)
-        fail_msg("after a, the window shows %ld of the axes' %ld pixels", shown, drawn);
+        fail_msg("after F4, the window shows %ld of the axes' %ld pixels", shown, drawn);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* The issue: with --device keyboard the steering keys typed into the window did nothing, and the
+ * window took letters a keyboard user steers with (l its layout, a its axes). Typed in the window
+ * (xdotool), d pushes the selected fragment right on screen as it does in the terminal (the camera
+ * frame follows the anterior view), and q quits and saves: the screenshot matches `fracnav render`
+ * of the saved case, in the 3D layout. */
+static void test_navigate_window_keyboard_steers(void **st)
+{
+    (void)st;
+#if defined(__SANITIZE_THREAD__)
+    print_message("skipped under ThreadSanitizer: Xlib's and GLX's own locking\n");
+    skip();
+#endif
+    if (access("/usr/bin/xdotool", X_OK) != 0)
+        no_xdotool();
+    int display;
+    pid_t xvfb = start_xvfb(&display);
+    if (!xvfb)
+        no_xvfb();
+    char *dir = tu_tmpdir("navkeys"), case_dir[4200];
+    tu_two_blocks_case(dir, case_dir, sizeof case_dir);
+    char *out = NULL;
+    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/before.png' --mode surface --size 768x768", case_dir,
+                                dir), 0);
+    free(out);
+    char cmd[9000];
+    snprintf(cmd, sizeof cmd,
+             "navigate '%s' --device keyboard:/dev/null --view window --discard-journal --screenshot "
+             "'%s/shot.png' </dev/null & nav=$!; "
+             "if timeout 300 xdotool search --sync --onlyvisible --name '^fracnav$' >/dev/null; then "
+             "xdotool key --delay 40 d d d d d d d d d d d d d d d d d d d d l a q; "
+             "else echo 'no fracnav window appeared'; kill $nav; fi; wait $nav",
+             case_dir, dir);
+    int rc = run_in_window(xvfb, display, &out, cmd);
+    if (rc != 0 || strstr(out, "no window") || strstr(out, "no fracnav window"))
+        fail_msg("navigate --device keyboard --view window driven by xdotool: exit %d: %s", rc, out);
+    free(out);
+    window_vs_render r = compare_window(dir, case_dir, "");
+    if (r.content < 1000)
+        fail_msg("the window's screenshot shows no fragments (%ld content pixels)", r.content);
+    if (r.differ > 768L * (768 - WINDOW_HUD_ROWS) / 100)
+        fail_msg("after d typed in the window, it differs from the OSMesa render in %ld pixels (l or a "
+                 "changed its look?)", r.differ);
+    if (!(r.c1 > r.c0 + 3))
+        fail_msg("d typed in the window moved the picture from column %.1f to %.1f", r.c0, r.c1);
     tu_rmtree(dir);
     free(dir);
 }
@@ -901,6 +963,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_window_matches_offscreen, setup, teardown),
         cmocka_unit_test(test_navigate_window_matches_render),
         cmocka_unit_test(test_navigate_window_mouse_and_keys),
+        cmocka_unit_test(test_navigate_window_keyboard_steers),
         cmocka_unit_test(test_replay_window_matches_render),
         cmocka_unit_test(test_replay_frames),
     };

@@ -122,8 +122,9 @@ int navwin_look_option(const char *cmd, const char *a, const char *val, navwin_l
 
 const char *navwin_help(void)
 {
-    return "window: 1-6 anterior, posterior, left, right, superior, inferior view   v mode\n"
-           "  l layout (3D, four-up)   a axes   k contacts   b hierarchy boxes ([ ] depth)   o VOI\n"
+    return "window: Ctrl+1..6 anterior, posterior, left, right, superior, inferior view\n"
+           "  F1 these keys  F2 mode  F3 layout (3D, four-up)  F4 axes  F5 contacts\n"
+           "  F6 hierarchy boxes  F7/F8 their depth  F9 VOI   other keys as in the terminal\n"
            "  left drag orbits, right or middle drag pans, the wheel zooms\n";
 }
 
@@ -231,36 +232,36 @@ static void toggle(navwin *w, unsigned bit, const char *name)
     note(w, "%s %s", name, (w->o.overlays & bit) ? "on" : "off");
 }
 
-/* A key of the window's own (the look); 0 when k is none of them. */
+/* A key of the window's own (the look: F2-F9); 0 when k is none of them. */
 static int look_key(navwin *w, int k)
 {
     render_options *o = &w->o;
-    switch (k) {
-    case 'v':
+    switch (k - RENDER_KEY_F1 + 1) {
+    case 2:
         o->mode = (render_mode)((o->mode + 1) % 4);
         note(w, "mode: %s", render_mode_name(o->mode));
         return 1;
-    case 'l':
+    case 3:
         o->layout = o->layout == RENDER_LAYOUT_3D ? RENDER_LAYOUT_FOUR_UP : RENDER_LAYOUT_3D;
         note(w, "layout: %s", o->layout == RENDER_LAYOUT_3D ? "3D" : "four-up");
         return 1;
-    case 'a':
+    case 4:
         toggle(w, RENDER_OVERLAY_AXES, "principal axes");
         return 1;
-    case 'k':
+    case 5:
         toggle(w, RENDER_OVERLAY_CONTACTS, "contacts");
         break;
-    case 'b':
+    case 6:
         toggle(w, RENDER_OVERLAY_HIERARCHY, "hierarchy boxes");
         break;
-    case '[':
-    case ']':
-        o->hierarchy_depth += k == ']' ? 1 : -1;
+    case 7:
+    case 8:
+        o->hierarchy_depth += k == RENDER_KEY_F1 + 7 ? 1 : -1;
         o->hierarchy_depth = o->hierarchy_depth < 1 ? 1 : o->hierarchy_depth > 32 ? 32 : o->hierarchy_depth;
         o->overlays |= RENDER_OVERLAY_HIERARCHY;
         note(w, "hierarchy boxes at depth %d", o->hierarchy_depth);
         break;
-    case 'o':
+    case 9:
         if (w->nvoi)
             toggle(w, RENDER_OVERLAY_VOI, "VOI");
         else
@@ -274,19 +275,19 @@ static int look_key(navwin *w, int k)
     return 1;
 }
 
-/* The pointer and the view keys move the camera, the look keys change the look; other keys go
- * to the caller. */
+/* The pointer and the view keys (Ctrl+1..6) move the camera, the look keys (F2-F9) change the
+ * look; F1 goes to the caller as '?', and every other key as it came. */
 static int handle_input(navwin *w, const render_input *in, int *keys, int cap)
 {
     render_camera *cam = &w->o.camera;
     int n = 0, moved = 0;
     for (int i = 0; i < in->nkeys; i++) {
         int k = in->keys[i];
-        if (k >= '1' && k <= '6') {
-            render_camera_standard(cam, (render_view)(k - '1'), w->c->frag, w->c->nfrag);
+        if (k >= (RENDER_KEY_CTRL | '1') && k <= (RENDER_KEY_CTRL | '6')) {
+            render_camera_standard(cam, (render_view)(k - (RENDER_KEY_CTRL | '1')), w->c->frag, w->c->nfrag);
             moved = 1;
         } else if (!look_key(w, k) && n < cap)
-            keys[n++] = k;
+            keys[n++] = k == RENDER_KEY_F1 ? '?' : k;
     }
     double right[3];
     cross(cam->forward, cam->up, right);
@@ -328,7 +329,7 @@ static void hud_text(const navwin *w, const char *hud, char *text, size_t cap)
     char r2f[64] = "";
     if (w->r2f_ms > 0)
         snprintf(r2f, sizeof r2f, ", report to frame <= %.0f ms", w->r2f_ms);
-    snprintf(text, cap, "%s%s%s\nframe %.1f ms%s (%s, %s)", hud, noted ? "\nwindow: " : "", noted ? w->note : "",
+    snprintf(text, cap, "%s%s%s\nframe %.1f ms%s\n%s on %s", hud, noted ? "\nwindow: " : "", noted ? w->note : "",
              w->last_ms, r2f, render_mode_name(w->o.mode), render_gl_renderer(w->r));
 }
 
@@ -350,7 +351,7 @@ static int draw(navwin *w, const loop_scene *sc, const char *text, loop_scene *s
     if (ok)
         pose_apply(&shown->pose[sel], w->c->frag[sel].centroid, w->o.slice_point);
     int rc = render_frame_late(w->r, ok ? shown->pose : NULL, &w->o);
-    return rc ? rc : render_hud(w->r, text, w->w >= 900 ? 2 : 1);
+    return rc ? rc : render_hud(w->r, text, render_hud_scale(w->r));
 }
 
 /* After a frame shown at `shown`: the worst report-to-frame of the last R2F_WINDOW_US. */
@@ -403,16 +404,44 @@ int navwin_frame(navwin *w, const loop_scene *sc, const char *hud, int *keys, in
     return n;
 }
 
+/* Appends src to dst (at *len, cap) with every line wrapped at the last space before cols
+ * characters; a wrapped line goes on indented by four spaces. */
+static void wrap(char *dst, size_t cap, size_t *len, const char *src, int cols)
+{
+    int col = 0;
+    for (const char *p = src; *p && *len + 6 < cap; p++) {
+        if (*p == '\n') {
+            dst[(*len)++] = '\n';
+            col = 0;
+            continue;
+        }
+        if (*p == ' ' && col > 4 && col + 1 + (int)strcspn(p + 1, " \n") > cols) {
+            memcpy(dst + *len, "\n    ", 5);
+            *len += 5;
+            col = 4;
+            continue;
+        }
+        dst[(*len)++] = *p;
+        col++;
+    }
+    dst[*len] = '\0';
+}
+
 int navwin_show(navwin *w, const loop_scene *sc, const navview_extra *x, const char *device, const char *help,
                 int *keys, int cap, int *close)
 {
-    char text[4096];
-    navview_format(sc, x, 100, text, sizeof text);
-    size_t len = strlen(text);
-    snprintf(text + len, sizeof text - len, "\ndevice: %s", device);
+    char view[4096], text[8192];
+    int cols = render_hud_columns(w->r);
+    navview_format(sc, x, cols + 1, view, sizeof view);
+    size_t len = 0;
+    text[0] = '\0';
+    wrap(text, sizeof text, &len, view, cols);
+    wrap(text, sizeof text, &len, "\ndevice: ", cols);
+    wrap(text, sizeof text, &len, device, cols);
     if (help) {
-        len = strlen(text);
-        snprintf(text + len, sizeof text - len, "\n%s%s", help, navwin_help());
+        wrap(text, sizeof text, &len, "\n", cols);
+        wrap(text, sizeof text, &len, help, cols);
+        wrap(text, sizeof text, &len, navwin_help(), cols);
     }
     return navwin_frame(w, sc, text, keys, cap, close);
 }

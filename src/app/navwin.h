@@ -1,11 +1,12 @@
 /* navwin: the window of `fracnav navigate --view window` and `fracnav replay --realtime`. It
  * draws the case's fragments at the poses of a loop_scene (render.h, GLFW) with a HUD, turns the
- * pointer into the camera (left drag orbits, right or middle drag pans, the wheel zooms; keys 1-6
+ * pointer into the camera (left drag orbits, right or middle drag pans, the wheel zooms; Ctrl+1..6
  * give the anterior, posterior, left, right, superior and inferior views) and, when it steers
  * (navigate), keeps the loop's camera frame on the view (loop_set_camera), so "push right" moves
  * the fragment right on screen; a window that only watches (replay) leaves the loop's camera
- * alone, so the recording's moves stay the recorded ones. Every other key typed in the window is
- * handed back to the caller, which treats it as a terminal key. The commands share --view
+ * alone, so the recording's moves stay the recorded ones. The window's own keys are F-keys and
+ * Ctrl+digits, so that no letter, digit or arrow a keyboard user steers with is taken: every other
+ * key typed in the window is handed back to the caller, which treats it as a terminal key. The commands share --view
  * (navwin_view_option) and the opening it decides (navwin_open_view).
  *
  * Threads: one thread opens, draws and closes a window (its GL context is current there); it only
@@ -24,8 +25,8 @@ typedef struct navwin navwin;
 #define NAVWIN_KEYS 64 /* keys handed back per frame at most */
 
 /* How the window draws: --mode, --layout and --overlay, as `fracnav render` takes them. In the
- * window, keys change them: v the next mode, l the layout, a the principal axes, k the contacts, b
- * the hierarchy's boxes ([ and ] a level up or down), o the VOI. */
+ * window, keys change them: F2 the next mode, F3 the layout, F4 the principal axes, F5 the
+ * contacts, F6 the hierarchy's boxes (F7 and F8 a level up or down), F9 the VOI. */
 typedef struct navwin_look {
     int mode;             /* render_mode, or -1: surface on software GL, iso on a GPU */
     render_layout layout; /* four-up: the slices cut through the selected fragment's centroid */
@@ -63,8 +64,8 @@ navwin *navwin_open_view(const char *cmd, int view, const navwin_look *look, con
  * the last frame) with hud's lines, what the last window key did, the frame time, and the report
  * to frame time: from the arrival of the first report a frame shows to that frame on screen, at
  * most (the worst of the last second; the bound is the arrival of the newest report in the frame
- * before, so it may exceed the truth by one report period). Up to cap typed keys go to keys (ASCII, 27 for
- * Escape); *close becomes 1 when the window was asked to close. Returns the keys stored, or FN_E*. */
+ * before, so it may exceed the truth by one report period). Up to cap typed keys go to keys (ASCII,
+ * 27 for Escape, F1 as '?', the arrows and Ctrl+letters as RENDER_KEY_*); *close becomes 1 when the window was asked to close. Returns the keys stored, or FN_E*. */
 int navwin_frame(navwin *w, const loop_scene *sc, const char *hud, int *keys, int cap, int *close);
 /* navwin_frame with the HUD of the terminal view: navview_format's lines of sc and x, then
  * "device: DEVICE", then help (NULL: none) followed by navwin_help(). */

@@ -117,15 +117,29 @@ int render_read_rgb(render *r, uint8_t *rgb);
 int render_present(render *r);
 
 /* Text over the last frame, top left, on a dark translucent box: lines separated by '\n', in a
- * built-in 5x7 font (letters drawn as capitals; bytes outside ASCII as '?') scaled by `scale`
+ * built-in 5x7 font (capitals and small letters; bytes outside ASCII as '?') scaled by `scale`
  * (1..4) pixels per font pixel; a line holding "WARNING" or "OFF" is drawn in amber. Call after
  * render_frame, before render_read_rgb or render_present. 0 or FN_E*. */
 int render_hud(render *r, const char *text, int scale);
+/* The HUD's scale for r: one font pixel per 384 rows of the picture, times the window's content
+ * scale (its DPI over 96; 1 offscreen), 1..4. */
+int render_hud_scale(const render *r);
+/* The characters of a HUD line that fit across r at render_hud_scale. */
+int render_hud_columns(const render *r);
 
 /* Input that reached the window since the last call (nothing offscreen). */
 #define RENDER_INPUT_KEYS 64
+/* Keys beyond ASCII in render_input.keys: F1..F12 (RENDER_KEY_F1 + n - 1 for Fn), the arrows,
+ * and Ctrl with a digit or a letter (RENDER_KEY_CTRL | '1', RENDER_KEY_CTRL | 'a'). The F-keys and
+ * the arrows come again while held (key repeat). */
+enum {
+    RENDER_KEY_ESCAPE = 27,
+    RENDER_KEY_F1 = 0x100,
+    RENDER_KEY_LEFT = 0x110, RENDER_KEY_RIGHT, RENDER_KEY_UP, RENDER_KEY_DOWN,
+    RENDER_KEY_CTRL = 0x200
+};
 typedef struct render_input {
-    int keys[RENDER_INPUT_KEYS]; /* characters typed (ASCII), 27 for Escape, in order */
+    int keys[RENDER_INPUT_KEYS]; /* characters typed (ASCII) and RENDER_KEY_*, in order */
     int nkeys;
     double drag[3][2]; /* the pointer's movement in pixels (x right, y down) while the left, right
                         * or middle button was held */

@@ -26,13 +26,33 @@ static void on_char(GLFWwindow *w, unsigned int c)
         st->in.keys[st->in.nkeys++] = (int)c;
 }
 
+/* The keys that type no character (render.h's RENDER_KEY_*); 0 for the others. */
+static int special_key(int key, int action, int mods)
+{
+    if (key >= GLFW_KEY_F1 && key <= GLFW_KEY_F12)
+        return RENDER_KEY_F1 + key - GLFW_KEY_F1;
+    if (key >= GLFW_KEY_RIGHT && key <= GLFW_KEY_UP) {
+        static const int arrow[] = {RENDER_KEY_RIGHT, RENDER_KEY_LEFT, RENDER_KEY_DOWN, RENDER_KEY_UP};
+        return arrow[key - GLFW_KEY_RIGHT];
+    }
+    if (action != GLFW_PRESS)
+        return 0;
+    if (key == GLFW_KEY_ESCAPE)
+        return RENDER_KEY_ESCAPE;
+    if ((mods & GLFW_MOD_CONTROL) && key >= GLFW_KEY_0 && key <= GLFW_KEY_9)
+        return RENDER_KEY_CTRL | ('0' + key - GLFW_KEY_0);
+    if ((mods & GLFW_MOD_CONTROL) && key >= GLFW_KEY_A && key <= GLFW_KEY_Z)
+        return RENDER_KEY_CTRL | ('a' + key - GLFW_KEY_A);
+    return 0;
+}
+
 static void on_key(GLFWwindow *w, int key, int scancode, int action, int mods)
 {
     glfw_state *st = glfwGetWindowUserPointer(w);
     (void)scancode;
-    (void)mods;
-    if (action == GLFW_PRESS && key == GLFW_KEY_ESCAPE && st->in.nkeys < RENDER_INPUT_KEYS)
-        st->in.keys[st->in.nkeys++] = 27;
+    int k = action == GLFW_RELEASE ? 0 : special_key(key, action, mods);
+    if (k && st->in.nkeys < RENDER_INPUT_KEYS)
+        st->in.keys[st->in.nkeys++] = k;
 }
 
 static void on_cursor(GLFWwindow *w, double x, double y)
@@ -117,6 +137,14 @@ static int glfw_poll(render *r, render_input *in)
     return 0;
 }
 
+static float glfw_content_scale(const render *r)
+{
+    glfw_state *st = r->plat_state;
+    float x = 1, y = 1;
+    glfwGetWindowContentScale(st->win, &x, &y);
+    return y > 0 ? y : 1;
+}
+
 static void glfw_close(render *r)
 {
     glfw_state *st = r->plat_state;
@@ -133,6 +161,7 @@ const render_platform render__glfw = {
     .proc = glfw_proc,
     .present = glfw_present,
     .poll = glfw_poll,
+    .content_scale = glfw_content_scale,
     .close = glfw_close,
 };
 #else

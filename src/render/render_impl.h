@@ -58,6 +58,7 @@ typedef struct render_platform {
     void *(*proc)(render *r, const char *name);
     int (*present)(render *r);
     int (*poll)(render *r, render_input *in); /* NULL: no input (offscreen) */
+    float (*content_scale)(const render *r);      /* NULL: 1 (offscreen) */
     void (*close)(render *r);
 } render_platform;
 

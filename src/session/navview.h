@@ -1,8 +1,10 @@
 /* navview: what `fracnav navigate` shows of a navigation session, as text laid out for a terminal.
  *
  * The scene (loop_scene_read) becomes fields in order of importance -- warnings, the selected
- * fragment and its contact, its pose (how far its centroid moved, and its rotation as degrees
- * about an axis through it; world LPS), the
+ * fragment and its contact, its pose in the patient's anatomical terms (how far its centroid moved
+ * in mm right or left, anterior or posterior, inferior or superior: "moved 2.00 left, 0.50
+ * posterior, 0.00 S/I mm"; its rotation in degrees and its rotation vector's parts about the L/R,
+ * A/P and S/I axes, right-handed about left, posterior and superior, world LPS), the
  * frame, locks and rates, then the acknowledgement of the latest action -- packed into lines no
  * wider than the terminal, so that nothing is cut: a narrow terminal gets more lines. Off a
  * terminal the same fields make one line for a log. Pure functions: no I/O, no allocation. */
