@@ -9,6 +9,7 @@
 #include <setjmp.h>
 #include <stdint.h>
 #include <cmocka.h>
+#include <jansson.h>
 
 #include "err.h"
 #include "frag.h"
@@ -436,6 +437,62 @@ static void test_old_gl_is_refused_with_its_version(void **st)
         fail_msg("expected an error naming 4.5 and 3.3, got: %s", buf);
 }
 
+/* The share of fragment `id`'s projected pixels that `fracnav render CASE --json LOOK` shows
+ * (visible_pixels / projected_pixels of its entry in "fragments"). */
+static double shown_share(const char *case_dir, const char *dir, int id, const char *look)
+{
+    char *out = NULL;
+    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/view.png' --size 256x256 --mode surface --fragment %d "
+                                      "--json %s", case_dir, dir, id, look), 0);
+    json_error_t e;
+    const char *brace = strchr(out, '{'); /* after render's line on standard error */
+    json_t *j = brace ? json_loads(brace, JSON_DISABLE_EOF_CHECK, &e) : NULL, *frags = j ? json_object_get(j, "fragments") : NULL;
+    if (!json_is_array(frags))
+        fail_msg("render --json printed no fragments array: %s", out);
+    double share = -1;
+    for (size_t i = 0; i < json_array_size(frags); i++) {
+        json_t *f = json_array_get(frags, i);
+        if (json_integer_value(json_object_get(f, "id")) != id)
+            continue;
+        json_int_t proj = json_integer_value(json_object_get(f, "projected_pixels"));
+        json_int_t vis = json_integer_value(json_object_get(f, "visible_pixels"));
+        assert_true(proj > 0 && vis >= 0 && vis <= proj);
+        share = (double)vis / (double)proj;
+    }
+    json_decref(j);
+    free(out);
+    return share;
+}
+
+/* The issue: the default anterior camera looked at the face while the moving piece sat at the back
+ * of the skull, mostly hidden. On the demo's fracture of the example CT (2 pieces, seed 1) and on a
+ * 3-piece one, the default view (auto) shows each moving fragment at >= 50% of its projected
+ * pixels; the anterior view hides fragment 2 (so the measure tells them apart). */
+static void test_auto_view_shows_the_moving_fragment(void **st)
+{
+    (void)st;
+    const char *ct = tu_example_ct();
+    char *dir = tu_tmpdir("autoview"), case_dir[4200];
+    const int pieces[2] = {2, 3};
+    for (int k = 0; k < 2; k++) {
+        snprintf(case_dir, sizeof case_dir, "%s/f%d", dir, pieces[k]);
+        char *out = NULL;
+        assert_int_equal(tu_run_cli(&out, "fracture '%s' -o '%s' --seed 1 --pieces %d", ct, case_dir, pieces[k]), 0);
+        free(out);
+        for (int id = 2; id <= pieces[k]; id++) {
+            double share = shown_share(case_dir, dir, id, "");
+            if (share < 0.5)
+                fail_msg("%d pieces: the default view shows %.0f%% of fragment %d", pieces[k], 100 * share, id);
+        }
+        double anterior = shown_share(case_dir, dir, 2, "--view anterior");
+        if (anterior >= 0.5)
+            fail_msg("%d pieces: the anterior view shows %.0f%% of fragment 2: the test tells nothing", pieces[k],
+                     100 * anterior);
+    }
+    tu_rmtree(dir);
+    free(dir);
+}
+
 /* Without Xvfb: a visible skip, or a failure under CI (where .ci/setup installs it). */
 static void no_xvfb(void)
 {
@@ -604,7 +661,7 @@ typedef struct window_vs_render {
 static window_vs_render compare_window(const char *dir, const char *case_dir, const char *look)
 {
     char *out = NULL, path[4400];
-    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/after.png' --mode surface --size 768x768 %s",
+    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/after.png' --mode surface --size 768x768 --view anterior %s",
                                 case_dir, dir, look), 0);
     free(out);
     int w, h, w1, h1, w2, h2;
@@ -662,7 +719,7 @@ static void test_navigate_window_matches_render(void **st)
     const char *script = "wait 100 ms\ntranslate +x 6 mm over 0.6 s\n";
     tu_write_file(path, script, strlen(script));
     char *out = NULL;
-    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/before.png' --mode surface --size 768x768",
+    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/before.png' --mode surface --size 768x768 --view anterior",
                                 case_dir, dir), 0);
     free(out);
     char cmd[9000];
@@ -692,7 +749,7 @@ static void test_navigate_window_matches_render(void **st)
 static long overlay_shown(const char *dir, const char *case_dir, const char *look_without, long *drawn)
 {
     char *out = NULL, path[4400];
-    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/plain.png' --mode surface --size 768x768 %s",
+    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/plain.png' --mode surface --size 768x768 --view anterior %s",
                                 case_dir, dir, look_without), 0);
     free(out);
     int w[3], h[3];
@@ -752,7 +809,7 @@ static void test_navigate_window_mouse_and_keys(void **st)
     char *dir = tu_tmpdir("navmouse"), case_dir[4200];
     tu_two_blocks_case(dir, case_dir, sizeof case_dir);
     char *out = NULL;
-    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/before.png' --mode surface --size 768x768 "
+    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/before.png' --mode surface --size 768x768 --view anterior "
                                       "--layout four-up --overlay axes --point 22.5,15.5,15.5",
                                 case_dir, dir), 0);
     free(out);
@@ -807,7 +864,7 @@ static void test_navigate_window_keyboard_steers(void **st)
     char *dir = tu_tmpdir("navkeys"), case_dir[4200];
     tu_two_blocks_case(dir, case_dir, sizeof case_dir);
     char *out = NULL;
-    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/before.png' --mode surface --size 768x768", case_dir,
+    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/before.png' --mode surface --size 768x768 --view anterior", case_dir,
                                 dir), 0);
     free(out);
     char cmd[9000];
@@ -869,7 +926,7 @@ static void test_replay_window_matches_render(void **st)
     pose_digest(out, headless);
     free(out);
     assert_int_not_equal(headless[0], 0);
-    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/before.png' --mode surface --size 768x768",
+    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/before.png' --mode surface --size 768x768 --view anterior",
                                 case_dir, dir), 0);
     free(out);
     char cmd[9000];
@@ -966,6 +1023,7 @@ int main(void)
         cmocka_unit_test(test_navigate_window_keyboard_steers),
         cmocka_unit_test(test_replay_window_matches_render),
         cmocka_unit_test(test_replay_frames),
+        cmocka_unit_test(test_auto_view_shows_the_moving_fragment),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -25,6 +25,8 @@ struct navwin {
     int w, h;
     render_options o;
     int have_trees; /* the renderer holds the hierarchies (boxes, contacts) */
+    int auto_view;  /* Ctrl+0: the camera frames the selected fragment (render_camera_auto) */
+    int auto_for;   /* the fragment it was framed on; -1: frame it again */
     int nvoi;       /* the case's reduction VOI boxes (o.voi) */
     uint64_t drawn_seq;
     int dirty;
@@ -123,6 +125,7 @@ int navwin_look_option(const char *cmd, const char *a, const char *val, navwin_l
 const char *navwin_help(void)
 {
     return "window: Ctrl+1..6 anterior, posterior, left, right, superior, inferior view\n"
+           "  Ctrl+0 auto view: framed on the selected fragment, following the selection\n"
            "  F1 these keys  F2 mode  F3 layout (3D, four-up)  F4 axes  F5 contacts\n"
            "  F6 hierarchy boxes  F7/F8 their depth  F9 VOI   other keys as in the terminal\n"
            "  left drag orbits, right or middle drag pans, the wheel zooms\n";
@@ -285,7 +288,12 @@ static int handle_input(navwin *w, const render_input *in, int *keys, int cap)
         int k = in->keys[i];
         if (k >= (RENDER_KEY_CTRL | '1') && k <= (RENDER_KEY_CTRL | '6')) {
             render_camera_standard(cam, (render_view)(k - (RENDER_KEY_CTRL | '1')), w->c->frag, w->c->nfrag);
+            w->auto_view = 0;
             moved = 1;
+        } else if (k == (RENDER_KEY_CTRL | '0')) {
+            w->auto_view = 1;
+            w->auto_for = -1;
+            note(w, "view: auto (follows the selected fragment)");
         } else if (!look_key(w, k) && n < cap)
             keys[n++] = k == RENDER_KEY_F1 ? '?' : k;
     }
@@ -293,6 +301,7 @@ static int handle_input(navwin *w, const render_input *in, int *keys, int cap)
     cross(cam->forward, cam->up, right);
     const double *orbit = in->drag[0];
     if (orbit[0] != 0 || orbit[1] != 0) {
+        w->auto_view = 0;
         /* Dragging right turns the scene to the right (the camera to its left), about up; dragging
          * down tips it towards the viewer, about right. */
         double up[3] = {cam->up[0], cam->up[1], cam->up[2]}, rad = ORBIT_DEG_PER_PX * M_PI / 180.0;
@@ -378,6 +387,14 @@ int navwin_frame(navwin *w, const loop_scene *sc, const char *hud, int *keys, in
         return rc;
     *close = in.close;
     int n = handle_input(w, &in, keys, cap);
+    if (w->auto_view && sc->nfrag == w->c->nfrag && sc->selected != w->auto_for) {
+        rc = render_camera_auto(w->r, &w->o.camera, w->c->frag, w->c->nfrag, sc->pose, sc->selected);
+        if (rc)
+            return rc;
+        w->auto_for = sc->selected;
+        camera_to_loop(w);
+        w->dirty = 1;
+    }
     if (w->note[0] && fnclock_now_us() >= w->note_until_us) {
         w->note[0] = 0;
         w->dirty = 1;

@@ -119,7 +119,8 @@ static int gl_setup(render *r)
     r->prog_line = r->prog_mesh ? program(r, render__line_vs, render__line_fs, "overlay") : 0;
     r->prog_depth = r->prog_line ? program(r, render__proxy_vs, render__depth_fs, "depth") : 0;
     r->prog_hud = r->prog_depth ? program(r, render__quad_vs, render__hud_fs, "hud") : 0;
-    if (!r->prog_hud)
+    r->prog_id = r->prog_hud ? program(r, render__mesh_vs, render__id_fs, "fragment ids") : 0;
+    if (!r->prog_id)
         return FN_ENODEV;
     r->gl.GenVertexArrays(1, &r->vao_empty);
     r->gl.GenVertexArrays(1, &r->line_vao);
@@ -234,8 +235,8 @@ void render_close(render *r)
         return;
     if (r->gl.DeleteTextures) {
         scene_release(r);
-        unsigned progs[] = {r->prog_slice, r->prog_mesh, r->prog_line, r->prog_depth, r->prog_hud};
-        for (int i = 0; i < 5; i++)
+        unsigned progs[] = {r->prog_slice, r->prog_mesh, r->prog_line, r->prog_depth, r->prog_hud, r->prog_id};
+        for (int i = 0; i < 6; i++)
             if (progs[i])
                 r->gl.DeleteProgram(progs[i]);
         if (r->line_vbo)

@@ -151,6 +151,19 @@ int render_poll(render *r, render_input *in);
 /* The standard camera for view v fitted to the fragments at their home positions (so poses move
  * pictures, not the camera). */
 void render_camera_standard(render_camera *c, render_view v, const frag *frags, int nfrag);
+/* The auto view (`--view auto`): the camera that frames fragment `selected` at poses[selected]
+ * (NULL: each fragment's own pose) with its surroundings, looking from the side where it is seen
+ * best: of the six named views, its principal axes both ways and the view from its side onto the
+ * nearest other fragment, the one where the largest share of its projected pixels is visible
+ * (render_fragment_pixels), ties going to a view across the line between the two (the fracture
+ * seen from the side). r must hold the scene of frags (render_set_scene). Draws into the frame
+ * (call before render_frame). A selected out of range gives the anterior view. 0 or FN_E*. */
+int render_camera_auto(render *r, render_camera *c, const frag *frags, int nfrag, const pose *poses, int selected);
+/* What a picture through cam shows of each fragment of r's scene (at poses; NULL: their own),
+ * drawn as the surface meshes: projected[i] the pixels fragment i covers drawn alone, visible[i]
+ * those where it is the front-most (arrays of r's fragment count). Draws into the frame (call it
+ * after reading a frame, or before drawing one). 0 or FN_E*. */
+int render_fragment_pixels(render *r, const pose *poses, const render_camera *cam, long *projected, long *visible);
 /* Defaults: iso, 3D layout, anterior camera over the fragments, slice point at the first
  * fragment's home centroid, no overlay, hierarchy depth 3. */
 void render_options_default(render_options *o, const frag *frags, int nfrag);

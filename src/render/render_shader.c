@@ -250,6 +250,13 @@ const char *const render__mesh_fs =
     "    frag_colour = vec4(colour * (0.2 + 0.8 * diff) + vec3(0.25 * pow(diff, 24.0)), 1.0);\n"
     "}\n";
 
+/* Fragment i's mesh in the flat colour (i + 1) / 255: which fragment is front-most where. */
+const char *const render__id_fs =
+    "#version 450 core\n"
+    "uniform vec3 colour;\n"
+    "out vec4 frag_colour;\n"
+    "void main() { frag_colour = vec4(colour, 1.0); }\n";
+
 const char *const render__line_vs =
     "#version 450 core\n"
     "layout(location = 0) in vec3 pos;\n"
