@@ -97,10 +97,28 @@ static void along(char *buf, size_t cap, double v, int axis)
     snprintf(buf, cap, "%.2f %s", fabs(v), name[axis][v > 0 ? 2 : v < 0 ? 0 : 1]);
 }
 
+void navview_move_text(const double d[3], char *buf, size_t cap)
+{
+    char a[3][32];
+    for (int i = 0; i < 3; i++)
+        along(a[i], sizeof a[i], d[i], i);
+    snprintf(buf, cap, "%s, %s, %s mm", a[0], a[1], a[2]);
+}
+
+void navview_turn_text(const pose *p, char *buf, size_t cap)
+{
+    double axis[3], deg = navview_rotation(p, axis);
+    if (deg < 0.005)
+        snprintf(buf, cap, "not turned");
+    else
+        snprintf(buf, cap, "turned %.2f deg: L/R %+.2f, A/P %+.2f, S/I %+.2f", deg, shown(axis[0] * deg),
+                 shown(axis[1] * deg), shown(axis[2] * deg));
+}
+
 static void pose_fields(const loop_scene *s, const navview_extra *x, fields *f)
 {
     const pose *p = &s->pose[s->selected];
-    double axis[3], deg = navview_rotation(p, axis), d[3];
+    double d[3];
     if (x && x->frags) {
         const double *c = x->frags[s->selected].centroid;
         pose_apply(p, c, d);
@@ -109,15 +127,11 @@ static void pose_fields(const loop_scene *s, const navview_extra *x, fields *f)
     } else {
         memcpy(d, p->t, sizeof d);
     }
-    char a[3][32];
-    for (int i = 0; i < 3; i++)
-        along(a[i], sizeof a[i], d[i], i);
-    add(f, 1, "%s%s, %s, %s mm", x && x->frags ? "moved " : "", a[0], a[1], a[2]);
-    if (deg < 0.005)
-        add(f, 0, "not turned");
-    else
-        add(f, 0, "turned %.2f deg: L/R %+.2f, A/P %+.2f, S/I %+.2f", deg, shown(axis[0] * deg),
-            shown(axis[1] * deg), shown(axis[2] * deg));
+    char move[128], turn[128];
+    navview_move_text(d, move, sizeof move);
+    navview_turn_text(p, turn, sizeof turn);
+    add(f, 1, "%s%s", x && x->frags ? "moved " : "", move);
+    add(f, 0, "%s", turn);
 }
 
 static void fill(const loop_scene *s, const navview_extra *x, fields *f)

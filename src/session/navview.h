@@ -38,6 +38,11 @@ void navview_ack(const loop_scene *s, char *buf, size_t cap);
 
 /* The rotation of p as an angle in degrees (0..180) about a unit axis (x when there is none). */
 double navview_rotation(const pose *p, double axis[3]);
+/* A move d (world LPS, mm) in anatomical terms: "2.00 left, 0.50 posterior, 0.00 S/I mm". */
+void navview_move_text(const double d[3], char *buf, size_t cap);
+/* p's rotation in anatomical terms: "turned 3.00 deg: L/R +0.50, A/P -2.90, S/I +0.00" (the
+ * rotation vector's parts, right-handed about left, posterior and superior), or "not turned". */
+void navview_turn_text(const pose *p, char *buf, size_t cap);
 
 /* The keys and controller buttons and what each does, one per line (lines of at most 79
  * columns). keyboard: the keys of --device keyboard, which steer instead. */
