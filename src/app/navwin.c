@@ -162,12 +162,7 @@ navwin *navwin_open(const planning_case *c, loop *L, int steer, int width, int h
         return NULL;
     }
     render_options_default(&w->o, c->frag, c->nfrag);
-    /* Software GL rasterizes meshes far faster than it casts rays: surface is its interactive
-     * mode. */
-    const char *rn = render_gl_renderer(w->r);
-    w->o.mode = look->mode >= 0                                    ? (render_mode)look->mode
-                : strstr(rn, "llvmpipe") || strstr(rn, "softpipe") ? RENDER_SURFACE
-                                                                   : RENDER_ISO;
+    w->o.mode = look->mode >= 0 ? (render_mode)look->mode : render_default_mode(w->r);
     w->o.layout = look->layout;
     w->o.overlays = look->overlays;
     w->o.hierarchy_depth = look->hierarchy_depth;

@@ -181,6 +181,11 @@ const char *render_gl_renderer(const render *r)
     return r->renderer;
 }
 
+render_mode render_default_mode(const render *r)
+{
+    return strstr(r->renderer, "llvmpipe") || strstr(r->renderer, "softpipe") ? RENDER_SURFACE : RENDER_ISO;
+}
+
 const char *render_gl_version(const render *r)
 {
     return r->version;

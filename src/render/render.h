@@ -84,6 +84,9 @@ void render_close(render *r);
 /* GL_RENDERER and GL_VERSION of the context (valid while r is open). */
 const char *render_gl_renderer(const render *r);
 const char *render_gl_version(const render *r);
+/* The interactive mode for r's GL: surface on software GL (llvmpipe, softpipe), which rasterizes
+ * meshes far faster than it casts rays; iso on a GPU. */
+render_mode render_default_mode(const render *r);
 
 /* Uploads the scene: the fragments' masked CT crops, occupancy grids, meshes (iso_hu is the
  * surface level: values >= iso_hu are bone) and, when hp is given, their hierarchies for the box
