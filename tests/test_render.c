@@ -723,7 +723,7 @@ static void test_navigate_window_matches_render(void **st)
                                 case_dir, dir), 0);
     free(out);
     char cmd[9000];
-    snprintf(cmd, sizeof cmd, "navigate '%s' --device virtual:spacenavigator:script='%s' --view window "
+    snprintf(cmd, sizeof cmd, "navigate '%s' --device virtual:spacenavigator:script='%s' --view window --camera anterior "
                               "--duration 3 --discard-journal --screenshot '%s/shot.png' </dev/null",
              case_dir, path, dir);
     int rc = run_in_window(xvfb, display, &out, cmd);
@@ -817,7 +817,7 @@ static void test_navigate_window_mouse_and_keys(void **st)
      * never opens one is killed), drags, types, and the shell waits for navigate to end. */
     char cmd[9000];
     snprintf(cmd, sizeof cmd,
-             "navigate '%s' --device virtual:spacenavigator --view window --discard-journal --screenshot "
+             "navigate '%s' --device virtual:spacenavigator --view window --camera anterior --discard-journal --screenshot "
              "'%s/shot.png' </dev/null & nav=$!; "
              "if timeout 300 xdotool search --sync --onlyvisible --name '^fracnav$' >/dev/null; then "
              "xdotool mousemove 384 560 mousedown 1 mousemove_relative -- 180 0 mouseup 1 key F3 key F4 key q; "
@@ -869,7 +869,7 @@ static void test_navigate_window_keyboard_steers(void **st)
     free(out);
     char cmd[9000];
     snprintf(cmd, sizeof cmd,
-             "navigate '%s' --device keyboard:/dev/null --view window --discard-journal --screenshot "
+             "navigate '%s' --device keyboard:/dev/null --view window --camera anterior --discard-journal --screenshot "
              "'%s/shot.png' </dev/null & nav=$!; "
              "if timeout 300 xdotool search --sync --onlyvisible --name '^fracnav$' >/dev/null; then "
              "xdotool key --delay 40 d d d d d d d d d d d d d d d d d d d d l a q; "
@@ -930,7 +930,7 @@ static void test_replay_window_matches_render(void **st)
                                 case_dir, dir), 0);
     free(out);
     char cmd[9000];
-    snprintf(cmd, sizeof cmd, "replay '%s' '%s' --realtime --view window --screenshot '%s/shot.png' --json --save "
+    snprintf(cmd, sizeof cmd, "replay '%s' '%s' --realtime --view window --camera anterior --screenshot '%s/shot.png' --json --save "
                               "--no-journal </dev/null", case_dir, rec, dir);
     rc = run_in_window(xvfb, display, &out, cmd);
     if (rc != 0 || strstr(out, "no window"))

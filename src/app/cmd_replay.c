@@ -81,11 +81,13 @@ static void usage(FILE *out)
             "  --frame-ms N        the recording's milliseconds per picture (default 40)\n"
             "  --mode M            how the window and --frames draw: iso (default for --frames and\n"
             "                      on a GPU), dvr, mip or surface (the window's default on\n"
-            "                      software GL); the window's v key changes it\n"
+            "                      software GL); the window's F2 key changes it\n"
             "  --layout L          3d (default) or four-up (slices through the selected fragment's\n"
-            "                      centroid); the window's l key changes it\n"
+            "                      centroid); the window's F3 key changes it\n"
+            "  --camera VIEW       the window's first view: auto (default), or anterior, posterior,\n"
+            "                      left, right, superior, inferior, as navigate takes it\n"
             "  --overlay LIST      hierarchy[:DEPTH], contacts, axes, voi, as fracnav render takes\n"
-            "                      them; the window's b, k, a and o keys turn them on and off\n"
+            "                      them; the window's F6, F5, F4 and F9 keys turn them on and off\n"
             "  --help              this text\n");
 }
 

@@ -112,6 +112,14 @@ int navwin_look_option(const char *cmd, const char *a, const char *val, navwin_l
     } else if (!strcmp(a, "--layout")) {
         if (render_layout_parse(val, &look->layout))
             *rc = cmd_bad_value(cmd, a, val, "3d or four-up");
+    } else if (!strcmp(a, "--camera")) {
+        render_view v;
+        if (val && !strcmp(val, "auto"))
+            look->camera = -1;
+        else if (render_view_parse(val, &v))
+            *rc = cmd_bad_value(cmd, a, val, "auto, anterior, posterior, left, right, superior or inferior");
+        else
+            look->camera = (int)v;
     } else if (!strcmp(a, "--overlay")) {
         if (!val)
             *rc = cmd_bad_value(cmd, a, val, "hierarchy[:DEPTH], contacts, axes, voi");
@@ -164,6 +172,10 @@ navwin *navwin_open(const planning_case *c, loop *L, int steer, int width, int h
     render_options_default(&w->o, c->frag, c->nfrag);
     w->o.mode = look->mode >= 0 ? (render_mode)look->mode : render_default_mode(w->r);
     w->o.layout = look->layout;
+    if (look->camera >= 0)
+        render_camera_standard(&w->o.camera, (render_view)look->camera, c->frag, c->nfrag);
+    w->auto_view = look->camera < 0;
+    w->auto_for = -1;
     w->o.overlays = look->overlays;
     w->o.hierarchy_depth = look->hierarchy_depth;
     w->nvoi = cmd_case_voi(c, w->o.voi, RENDER_MAX_FRAGS);

@@ -32,9 +32,11 @@ typedef struct navwin_look {
     render_layout layout; /* four-up: the slices cut through the selected fragment's centroid */
     unsigned overlays;    /* RENDER_OVERLAY_*; voi when the case has a reduction VOI */
     int hierarchy_depth;  /* root = 1 */
+    int camera;           /* --camera: a render_view, or -1: auto (render_camera_auto on the
+                           * selected fragment, again at each change of the selection) */
 } navwin_look;
-#define NAVWIN_LOOK_DEFAULT {-1, RENDER_LAYOUT_3D, 0, 3}
-/* When a is --mode, --layout or --overlay: parses val into *look and returns 1 with *rc 0, or
+#define NAVWIN_LOOK_DEFAULT {-1, RENDER_LAYOUT_3D, 0, 3, -1}
+/* When a is --mode, --layout, --overlay or --camera: parses val into *look and returns 1 with *rc 0, or
  * with *rc 2 after a usage error for `cmd` that names the option and the value. Other a: 0. */
 int navwin_look_option(const char *cmd, const char *a, const char *val, navwin_look *look, int *rc);
 /* The window's keys and pointer, for a help text (lines ending in '\n'). */
