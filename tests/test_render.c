@@ -175,6 +175,41 @@ static void test_four_up_with_overlays_matches(void **st)
     check_golden(s->rgb, "surface_superior_axes");
 }
 
+/* Four-up as 3D Slicer's "3D and three slices": the 3D view over the top two thirds, the slices
+ * below. A pixel of the axial slice maps back to the world point it shows: the box's outline,
+ * drawn there, centres where render_slice_point_at puts the box's centroid (a click there moves
+ * the window's crosshair to it). */
+static void test_four_up_pixel_to_world(void **st)
+{
+    scene *s = *st;
+    render_options o;
+    options(s, &o, RENDER_SURFACE);
+    o.layout = RENDER_LAYOUT_FOUR_UP;
+    memcpy(o.slice_point, s->f[1].centroid, sizeof o.slice_point);
+    draw(s, NULL, &o);
+    int rect[4][4];
+    render_four_up_panes(W, H, rect);
+    assert_true(rect[RENDER_PANE_3D][3] > H / 2 && rect[RENDER_PANE_3D][2] == W); /* the large 3D view */
+    const int *q = rect[RENDER_PANE_AXIAL];
+    double sx = 0, sy = 0, n = 0;
+    for (int y = q[1]; y < q[1] + q[3]; y++)
+        for (int x = q[0]; x < q[0] + q[2]; x++) {
+            const uint8_t *p = s->rgb + (y * W + x) * 3;
+            if (p[0] > 120 && (double)p[1] / p[0] < 0.7)
+                sx += x + 0.5, sy += y + 0.5, n++;
+        }
+    if (n < 10)
+        fail_msg("the axial slice shows %.0f pixels of the box", n);
+    double world[3];
+    assert_int_equal(render_slice_point_at(s->r, &o, sx / n, sy / n, world), RENDER_PANE_AXIAL);
+    for (int a = 0; a < 2; a++)
+        if (fabs(world[a] - s->f[1].centroid[a]) > 1.5)
+            fail_msg("the box's outline centres at (%.1f, %.1f) mm, its centroid is (%.1f, %.1f)", world[0],
+                     world[1], s->f[1].centroid[0], s->f[1].centroid[1]);
+    assert_true(fabs(world[2] - s->f[1].centroid[2]) < 1e-9); /* on the slice's plane */
+    assert_int_equal(render_slice_point_at(s->r, &o, W / 2, H / 4, world), -1); /* the 3D view */
+}
+
 /* Ball colour (230,216,190): g/r near 0.94; box colour (220,90,80): near 0.41. */
 static void count_colours(const uint8_t *rgb, long *ball, long *box)
 {
@@ -1011,6 +1046,7 @@ int main(void)
         cmocka_unit_test(test_old_gl_is_refused_with_its_version),
         cmocka_unit_test_setup_teardown(test_every_mode_draws_and_matches, setup, teardown),
         cmocka_unit_test_setup_teardown(test_four_up_with_overlays_matches, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_four_up_pixel_to_world, setup, teardown),
         cmocka_unit_test_setup_teardown(test_interpenetrating_fragments_both_show, setup, teardown),
         cmocka_unit_test_setup_teardown(test_contacts_overlay_marks_colliding_voxels, setup, teardown),
         cmocka_unit_test_setup_teardown(test_voi_overlay_outlines_the_box, setup, teardown),

@@ -27,6 +27,11 @@ struct navwin {
     int have_trees; /* the renderer holds the hierarchies (boxes, contacts) */
     int auto_view;  /* Ctrl+0: the camera frames the selected fragment (render_camera_auto) */
     int auto_for;   /* the fragment it was framed on; -1: frame it again */
+    int slice_set;  /* a click or the wheel put the slices' point: it stays until the selection
+                     * changes (else it follows the selected fragment's centroid) */
+    int slice_for;  /* the selected fragment when it was put */
+    navwin_click_fn on_click;
+    void *click_ctx;
     int nvoi;       /* the case's reduction VOI boxes (o.voi) */
     uint64_t drawn_seq;
     int dirty;
@@ -136,7 +141,8 @@ const char *navwin_help(void)
            "  Ctrl+0 auto view: framed on the selected fragment, following the selection\n"
            "  F1 these keys  F2 mode  F3 layout (3D, four-up)  F4 axes  F5 contacts\n"
            "  F6 hierarchy boxes  F7/F8 their depth  F9 VOI   other keys as in the terminal\n"
-           "  left drag orbits, right or middle drag pans, the wheel zooms\n";
+           "  left drag orbits, right or middle drag pans, the wheel zooms; in four-up the\n"
+           "  wheel over a slice moves it, a click on a slice moves the slices' crosshair\n";
 }
 
 navwin *navwin_open(const planning_case *c, loop *L, int steer, int width, int height, const navwin_look *look)
@@ -285,6 +291,37 @@ static int look_key(navwin *w, int k)
     return 1;
 }
 
+/* In four-up, over a slice: the wheel moves that slice along its normal (a millimetre a step), a
+ * click puts the slices' point where it is (and goes to the click hook). 1 when it did either. */
+static int slice_input(navwin *w, const render_input *in)
+{
+    if (w->o.layout != RENDER_LAYOUT_FOUR_UP)
+        return 0;
+    double p[3], n[3];
+    int did = 0, pane = in->scroll != 0 ? render_slice_point_at(w->r, &w->o, in->x, in->y, p) : -1;
+    if (pane >= 0) {
+        render_slice_normal(pane, n);
+        for (int a = 0; a < 3; a++)
+            w->o.slice_point[a] += n[a] * in->scroll;
+        did = 1;
+    }
+    if (in->clicked && render_slice_point_at(w->r, &w->o, in->click[0], in->click[1], p) >= 0) {
+        memcpy(w->o.slice_point, p, sizeof p);
+        note(w, "slices through (%.1f, %.1f, %.1f) mm", p[0], p[1], p[2]);
+        if (w->on_click)
+            w->on_click(w->click_ctx, p);
+        did = 1;
+    }
+    w->slice_set |= did;
+    return did;
+}
+
+void navwin_on_click(navwin *w, navwin_click_fn fn, void *ctx)
+{
+    w->on_click = fn;
+    w->click_ctx = ctx;
+}
+
 /* The pointer and the view keys (Ctrl+1..6) move the camera, the look keys (F2-F9) change the
  * look; F1 goes to the caller as '?', and every other key as it came. */
 static int handle_input(navwin *w, const render_input *in, int *keys, int cap)
@@ -319,6 +356,7 @@ static int handle_input(navwin *w, const render_input *in, int *keys, int cap)
         normalize(cam->up);
         moved = 1;
     }
+    render_size(w->r, &w->w, &w->h);
     double mm_per_px = 2.0 * cam->half_height / w->h;
     for (int b = 1; b < 3; b++)
         if (in->drag[b][0] != 0 || in->drag[b][1] != 0) {
@@ -326,7 +364,9 @@ static int handle_input(navwin *w, const render_input *in, int *keys, int cap)
                 cam->centre[a] += (-right[a] * in->drag[b][0] + cam->up[a] * in->drag[b][1]) * mm_per_px;
             moved = 1;
         }
-    if (in->scroll != 0) {
+    if (slice_input(w, in))
+        moved = 1;
+    else if (in->scroll != 0) {
         cam->half_height *= pow(0.9, in->scroll);
         moved = 1;
     }
@@ -352,7 +392,8 @@ static void hud_text(const navwin *w, const char *hud, char *text, size_t cap)
 /* Draws the scene with the HUD's text into the back buffer, late latched (render_frame_early
  * with sc, then render_frame_late with the loop's newest scene, into *shown): a surface frame in
  * the 3D layout draws the moving fragment at the newest pose there is. In four-up the slices cut
- * through the selected fragment's centroid at its pose. */
+ * through the selected fragment's centroid at its pose, or where a click or the wheel put them
+ * (until the selection changes). */
 static int draw(navwin *w, const loop_scene *sc, const char *text, loop_scene *shown)
 {
     int n = w->c->nfrag;
@@ -364,8 +405,12 @@ static int draw(navwin *w, const loop_scene *sc, const char *text, loop_scene *s
         loop_scene_read(w->L, shown);
     }
     int ok = shown->nfrag == n, sel = ok && shown->selected >= 0 && shown->selected < n ? shown->selected : 0;
-    if (ok)
+    if (ok && w->slice_set && sel != w->slice_for)
+        w->slice_set = 0;
+    if (ok && !w->slice_set) {
         pose_apply(&shown->pose[sel], w->c->frag[sel].centroid, w->o.slice_point);
+        w->slice_for = sel;
+    }
     int rc = render_frame_late(w->r, ok ? shown->pose : NULL, &w->o);
     return rc ? rc : render_hud(w->r, text, render_hud_scale(w->r));
 }
@@ -393,7 +438,9 @@ int navwin_frame(navwin *w, const loop_scene *sc, const char *hud, int *keys, in
     if (rc)
         return rc;
     *close = in.close;
+    int w0 = w->w, h0 = w->h;
     int n = handle_input(w, &in, keys, cap);
+    w->dirty |= w->w != w0 || w->h != h0; /* resized */
     if (w->auto_view && sc->nfrag == w->c->nfrag && sc->selected != w->auto_for) {
         rc = render_camera_auto(w->r, &w->o.camera, w->c->frag, w->c->nfrag, sc->pose, sc->selected);
         if (rc)

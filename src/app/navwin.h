@@ -1,6 +1,7 @@
 /* navwin: the window of `fracnav navigate --view window` and `fracnav replay --realtime`. It
  * draws the case's fragments at the poses of a loop_scene (render.h, GLFW) with a HUD, turns the
- * pointer into the camera (left drag orbits, right or middle drag pans, the wheel zooms; Ctrl+1..6
+ * pointer into the camera (left drag orbits, right or middle drag pans, the wheel zooms; in four-up
+ * the wheel over a slice moves it and a click there puts the slices' point; Ctrl+1..6
  * give the anterior, posterior, left, right, superior and inferior views) and, when it steers
  * (navigate), keeps the loop's camera frame on the view (loop_set_camera), so "push right" moves
  * the fragment right on screen; a window that only watches (replay) leaves the loop's camera
@@ -73,6 +74,10 @@ int navwin_frame(navwin *w, const loop_scene *sc, const char *hud, int *keys, in
  * "device: DEVICE", then help (NULL: none) followed by navwin_help(). */
 int navwin_show(navwin *w, const loop_scene *sc, const navview_extra *x, const char *device, const char *help,
                 int *keys, int cap, int *close);
+/* Called with the world point (LPS mm) of a click on a slice of the four-up layout, after the
+ * slices moved there (the seed clicks of a separation can land here). NULL: none. */
+typedef void (*navwin_click_fn)(void *ctx, const double world[3]);
+void navwin_on_click(navwin *w, navwin_click_fn fn, void *ctx);
 /* The last frame drawn (HUD included) at the loop's newest scene, as a PNG file. 0 or FN_E*. */
 int navwin_screenshot(navwin *w, const char *png);
 /* navwin_screenshot, its failure said on stderr as "fracnav CMD: --screenshot PNG: WHY". */

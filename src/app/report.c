@@ -89,7 +89,7 @@ static int save_picture(render *r, uint8_t *rgb, const char *dir, const char *na
 
 /* before.png and after.png through the auto view of the moving fragment at its poses before (so
  * both show it from the same side), and slice.png: the axial slice of the CT through its planned
- * centroid with every fragment's planned outline (the four-up layout's axial quarter). */
+ * centroid with every fragment's planned outline (the four-up layout's axial pane). */
 static int render_pictures(const planning_case *c, const pose *before, const char *dir, const char *platform,
                            report_wrote_fn wrote, void *ctx)
 {
@@ -113,17 +113,21 @@ static int render_pictures(const planning_case *c, const pose *before, const cha
             rc = save_picture(r, rgb, dir, s ? "after" : "before", wrote, ctx);
     }
     render_close(r);
-    /* The slice: a four-up frame twice the size, cut down to its axial quarter (top left). */
-    r = rc ? NULL : render_open(platform ? platform : "osmesa", 2 * PIC + 2, 2 * PIC + 2);
+    /* The slice: a four-up frame whose axial pane is PIC x PIC, cut down to that pane. */
+    const int bw = 3 * (PIC + 1), bh = 3 * PIC;
+    int rect[4][4];
+    render_four_up_panes(bw, bh, rect);
+    r = rc ? NULL : render_open(platform ? platform : "osmesa", bw, bh);
     if (!rc && !r)
         rc = FN_ENODEV;
-    uint8_t *big = rc ? NULL : malloc((size_t)(2 * PIC + 2) * (2 * PIC + 2) * 3);
+    uint8_t *big = rc ? NULL : malloc((size_t)bw * bh * 3);
     if (!rc && !big)
         rc = fn_err_set(FN_ENOMEM, "out of memory for the slice");
     if (!rc)
         rc = render_set_scene(r, c->ct, c->frag, c->nfrag, c->seg.threshold, NULL);
     if (!rc) {
         o.layout = RENDER_LAYOUT_FOUR_UP;
+        render_camera_standard(&o.camera, RENDER_ANTERIOR, c->frag, c->nfrag); /* the whole CT */
         pose_apply(&c->frag[sel].pose, c->frag[sel].centroid, o.slice_point);
         rc = render_frame(r, NULL, &o);
     }
@@ -132,8 +136,9 @@ static int render_pictures(const planning_case *c, const pose *before, const cha
     if (!rc) {
         char path[4200];
         snprintf(path, sizeof path, "%s/slice.png", dir);
+        const int *q = rect[RENDER_PANE_AXIAL];
         for (int y = 0; y < PIC; y++)
-            memcpy(rgb + (size_t)y * PIC * 3, big + (size_t)y * (2 * PIC + 2) * 3, (size_t)PIC * 3);
+            memcpy(rgb + (size_t)y * PIC * 3, big + ((size_t)(q[1] + y) * bw + (size_t)q[0]) * 3, (size_t)PIC * 3);
         rc = picture_write_png(path, rgb, PIC, PIC);
         if (!rc && wrote)
             wrote(ctx, path);

@@ -181,6 +181,12 @@ const char *render_gl_renderer(const render *r)
     return r->renderer;
 }
 
+void render_size(const render *r, int *w, int *h)
+{
+    *w = r->w;
+    *h = r->h;
+}
+
 render_mode render_default_mode(const render *r)
 {
     return strstr(r->renderer, "llvmpipe") || strstr(r->renderer, "softpipe") ? RENDER_SURFACE : RENDER_ISO;

@@ -16,7 +16,7 @@
  *    built once at render_set_scene, moved by the pose), rasterized with depth;
  *  - slice views (axial, coronal, sagittal through a point): the CT in grey, every fragment's
  *    outline (and a light fill) at its current pose in its colour; with the 3D view they make the
- *    four-up layout (axial top left, 3D top right, sagittal bottom left, coronal bottom right);
+ *    four-up layout (render_four_up_panes: the 3D view large on top, the three slices below);
  *  - overlays on the 3D view: the hierarchy's boxes at a depth, the principal axes, the colliding
  *    voxel pairs with the contact region tinted, the reduction's VOI boxes;
  *  - a HUD: lines of text over the frame (render_hud).
@@ -147,6 +147,9 @@ typedef struct render_input {
     double drag[3][2]; /* the pointer's movement in pixels (x right, y down) while the left, right
                         * or middle button was held */
     double scroll;     /* wheel steps, positive away from the user */
+    double x, y;       /* the pointer, pixels from the top left */
+    int clicked;       /* the left button was pressed and released without a drag, at click */
+    double click[2];
     int close;         /* the window was asked to close */
 } render_input;
 int render_poll(render *r, render_input *in);
@@ -170,6 +173,20 @@ int render_fragment_pixels(render *r, const pose *poses, const render_camera *ca
 /* Defaults: iso, 3D layout, anterior camera over the fragments, slice point at the first
  * fragment's home centroid, no overlay, hierarchy depth 3. */
 void render_options_default(render_options *o, const frag *frags, int nfrag);
+
+/* The four-up layout of a w x h picture, as 3D Slicer's "3D and three slices": the 3D view over
+ * the top two thirds, the axial, coronal and sagittal slices side by side below it. rect[pane] =
+ * {x, y, width, height}, pixels from the top left. */
+enum { RENDER_PANE_AXIAL, RENDER_PANE_CORONAL, RENDER_PANE_SAGITTAL, RENDER_PANE_3D };
+void render_four_up_panes(int w, int h, int rect[4][4]);
+/* The world point (mm) that pixel (x, y) (from the top left) of r's four-up frame of o shows in
+ * its slice pane, into world; returns the pane (RENDER_PANE_AXIAL..SAGITTAL), or -1 when (x, y)
+ * is in the 3D view or between the panes. */
+int render_slice_point_at(const render *r, const render_options *o, double x, double y, double world[3]);
+/* The unit normal of a slice pane's plane (axial: z, coronal: y, sagittal: x). */
+void render_slice_normal(int pane, double n[3]);
+/* The size of r's frame (a resized window's, since the last render_poll). */
+void render_size(const render *r, int *w, int *h);
 
 /* Names to and from the enums: 0 on success, FN_EINVAL for an unknown name. */
 int render_mode_parse(const char *s, render_mode *m);

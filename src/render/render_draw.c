@@ -735,6 +735,51 @@ static int frame_end(render *r, int rc)
     return rc;
 }
 
+void render_four_up_panes(int w, int h, int rect[4][4])
+{
+    /* The 3D view over two thirds of the height; the slices side by side below it, one pixel of
+     * background between the panes. */
+    int hs = h / 3, w3 = w / 3;
+    const int panes[4][4] = {{0, h - hs, w3 - 1, hs}, {w3, h - hs, w3 - 1, hs}, {2 * w3, h - hs, w - 2 * w3, hs},
+                             {0, 0, w, h - hs - 1}};
+    memcpy(rect, panes, sizeof panes);
+}
+
+/* Pane v of the four-up layout as a GL viewport (origin at the bottom left). */
+static void pane_viewport(const render *r, int v, int vp[4])
+{
+    int rect[4][4];
+    render_four_up_panes(r->w, r->h, rect);
+    vp[0] = rect[v][0];
+    vp[1] = r->h - rect[v][1] - rect[v][3];
+    vp[2] = rect[v][2];
+    vp[3] = rect[v][3];
+}
+
+void render_slice_normal(int pane, double n[3])
+{
+    memcpy(n, planes[pane].n, 3 * sizeof *n);
+}
+
+int render_slice_point_at(const render *r, const render_options *o, double x, double y, double world[3])
+{
+    int rect[4][4];
+    render_four_up_panes(r->w, r->h, rect);
+    for (int s = 0; s < 3; s++) {
+        const int *q = rect[s];
+        if (x < q[0] || x >= q[0] + q[2] || y < q[1] || y >= q[1] + q[3])
+            continue;
+        /* As draw_slice: the pane's centre is the camera's centre moved onto the plane. */
+        double hh = o->camera.half_height, hw = hh * q[2] / q[3];
+        double sx = 2.0 * (x - q[0]) / q[2] - 1, sy = 1 - 2.0 * (y - q[1]) / q[3];
+        double off = dot3(planes[s].n, o->slice_point) - dot3(planes[s].n, o->camera.centre);
+        for (int a = 0; a < 3; a++)
+            world[a] = o->camera.centre[a] + off * planes[s].n[a] + planes[s].u[a] * hw * sx + planes[s].v[a] * hh * sy;
+        return s;
+    }
+    return -1;
+}
+
 int render_frame(render *r, const pose *poses, const render_options *o)
 {
     r->early_late = -1;
@@ -745,18 +790,15 @@ int render_frame(render *r, const pose *poses, const render_options *o)
     if (o->layout == RENDER_LAYOUT_3D) {
         rc = draw_3d(r, poses, o, full);
     } else {
-        /* GL's origin is the bottom left; one pixel of background between the quarters. */
-        int w2 = r->w / 2, h2 = r->h / 2;
-        int q3d[4] = {w2 + 1, h2 + 1, r->w - w2 - 1, r->h - h2 - 1};
-        int qax[4] = {0, h2 + 1, w2 - 1, r->h - h2 - 1};
-        int qsag[4] = {0, 0, w2 - 1, h2 - 1}, qcor[4] = {w2 + 1, 0, r->w - w2 - 1, h2 - 1};
-        const int *slices[3] = {qax, qcor, qsag};
+        int vp[4];
         for (int s = 0; s < 3; s++) {
-            set_viewport(r, slices[s]);
-            draw_slice(r, poses, o, s, slices[s]);
+            pane_viewport(r, s, vp);
+            set_viewport(r, vp);
+            draw_slice(r, poses, o, s, vp);
         }
-        set_viewport(r, q3d);
-        rc = draw_3d(r, poses, o, q3d);
+        pane_viewport(r, RENDER_PANE_3D, vp);
+        set_viewport(r, vp);
+        rc = draw_3d(r, poses, o, vp);
     }
     return frame_end(r, rc);
 }

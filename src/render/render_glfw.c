@@ -9,6 +9,7 @@
 #ifdef FRACNAV_HAVE_GLFW
 #include <GLFW/glfw3.h>
 
+#include <math.h>
 #include <string.h>
 
 /* The window and the input that arrived since the last render_poll. */
@@ -17,6 +18,8 @@ typedef struct glfw_state {
     render_input in;
     double x, y;
     int have_pos;
+    double press[2]; /* where the left button went down */
+    int pressed;
 } glfw_state;
 
 static void on_char(GLFWwindow *w, unsigned int c)
@@ -70,6 +73,23 @@ static void on_cursor(GLFWwindow *w, double x, double y)
     st->have_pos = 1;
 }
 
+/* A left press and release within 3 pixels is a click (a longer way is a drag: an orbit). */
+static void on_button(GLFWwindow *w, int button, int action, int mods)
+{
+    glfw_state *st = glfwGetWindowUserPointer(w);
+    (void)mods;
+    if (button != GLFW_MOUSE_BUTTON_LEFT)
+        return;
+    if (action == GLFW_PRESS) {
+        st->press[0] = st->x, st->press[1] = st->y;
+        st->pressed = 1;
+    } else if (st->pressed && fabs(st->x - st->press[0]) < 3 && fabs(st->y - st->press[1]) < 3) {
+        st->in.clicked = 1;
+        st->in.click[0] = st->x, st->in.click[1] = st->y;
+        st->pressed = 0;
+    }
+}
+
 static void on_scroll(GLFWwindow *w, double dx, double dy)
 {
     glfw_state *st = glfwGetWindowUserPointer(w);
@@ -86,7 +106,7 @@ static int glfw_open(render *r, int w, int h)
     glfwWindowHint(GLFW_CONTEXT_VERSION_MINOR, 5);
     glfwWindowHint(GLFW_OPENGL_PROFILE, GLFW_OPENGL_CORE_PROFILE);
     glfwWindowHint(GLFW_OPENGL_FORWARD_COMPAT, GLFW_TRUE);
-    glfwWindowHint(GLFW_RESIZABLE, GLFW_FALSE);
+    glfwWindowHint(GLFW_RESIZABLE, GLFW_TRUE);
     GLFWwindow *win = glfwCreateWindow(w, h, "fracnav", NULL, NULL);
     if (!win) {
         const char *why = NULL;
@@ -107,6 +127,7 @@ static int glfw_open(render *r, int w, int h)
     glfwSetKeyCallback(win, on_key);
     glfwSetCursorPosCallback(win, on_cursor);
     glfwSetScrollCallback(win, on_scroll);
+    glfwSetMouseButtonCallback(win, on_button);
     glfwMakeContextCurrent(win);
     glfwSwapInterval(0);
     r->plat_state = st;
@@ -133,7 +154,13 @@ static int glfw_poll(render *r, render_input *in)
     glfwPollEvents();
     *in = st->in;
     in->close = glfwWindowShouldClose(st->win);
+    in->x = st->x, in->y = st->y;
     memset(&st->in, 0, sizeof st->in);
+    /* A resized window: the frame follows its framebuffer. */
+    int w, h;
+    glfwGetFramebufferSize(st->win, &w, &h);
+    if (w > 0 && h > 0)
+        r->w = w, r->h = h;
     return 0;
 }
 
