@@ -211,6 +211,31 @@ static void test_four_up_pixel_to_world(void **st)
 }
 
 /* Ball colour (230,216,190): g/r near 0.94; box colour (220,90,80): near 0.41. */
+static void count_colours(const uint8_t *rgb, long *ball, long *box);
+
+/* Seen from the right the ball hides the box; with the cut-away kept for the box, the ball's
+ * surface in front of it is not drawn, and the box shows (render_fragment_pixels and the
+ * picture). */
+static void test_cutaway_shows_the_piece_in_hand(void **st)
+{
+    scene *s = *st;
+    render_options o;
+    options(s, &o, RENDER_SURFACE);
+    render_camera_standard(&o.camera, RENDER_RIGHT, s->f, 2);
+    long proj[2], vis[2], ball, box;
+    assert_int_equal(render_fragment_pixels(s->r, NULL, &o, proj, vis), 0);
+    if (!(proj[1] > 50 && vis[1] < proj[1] / 10))
+        fail_msg("without the cut-away the box shows %ld of %ld pixels: it should be hidden", vis[1], proj[1]);
+    o.cutaway = 2;
+    assert_int_equal(render_fragment_pixels(s->r, NULL, &o, proj, vis), 0);
+    if (vis[1] < proj[1] * 9 / 10)
+        fail_msg("with the cut-away the box shows %ld of %ld pixels", vis[1], proj[1]);
+    draw(s, NULL, &o);
+    count_colours(s->rgb, &ball, &box);
+    if (box < 50 || ball < 200)
+        fail_msg("with the cut-away the picture shows %ld pixels of the box and %ld of the ball", box, ball);
+}
+
 static void count_colours(const uint8_t *rgb, long *ball, long *box)
 {
     *ball = *box = 0;
@@ -1047,6 +1072,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_every_mode_draws_and_matches, setup, teardown),
         cmocka_unit_test_setup_teardown(test_four_up_with_overlays_matches, setup, teardown),
         cmocka_unit_test_setup_teardown(test_four_up_pixel_to_world, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_cutaway_shows_the_piece_in_hand, setup, teardown),
         cmocka_unit_test_setup_teardown(test_interpenetrating_fragments_both_show, setup, teardown),
         cmocka_unit_test_setup_teardown(test_contacts_overlay_marks_colliding_voxels, setup, teardown),
         cmocka_unit_test_setup_teardown(test_voi_overlay_outlines_the_box, setup, teardown),

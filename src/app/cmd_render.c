@@ -158,7 +158,7 @@ static int selected(const planning_case *c, int id)
 static int print_json(render *r, const planning_case *c, const render_args *a, const render_options *o, int sel)
 {
     long proj[RENDER_MAX_FRAGS], vis[RENDER_MAX_FRAGS];
-    int rc = render_fragment_pixels(r, NULL, &o->camera, proj, vis);
+    int rc = render_fragment_pixels(r, NULL, o, proj, vis);
     if (rc)
         return rc;
     static const char *names[] = {"anterior", "posterior", "left", "right", "superior", "inferior"};

@@ -407,6 +407,7 @@ static int draw(navwin *w, const loop_scene *sc, const char *text, loop_scene *s
     int ok = shown->nfrag == n, sel = ok && shown->selected >= 0 && shown->selected < n ? shown->selected : 0;
     if (ok && w->slice_set && sel != w->slice_for)
         w->slice_set = 0;
+    w->o.cutaway = ok && w->auto_view ? sel + 1 : 0; /* the auto view keeps the piece in hand in sight */
     if (ok && !w->slice_set) {
         pose_apply(&shown->pose[sel], w->c->frag[sel].centroid, w->o.slice_point);
         w->slice_for = sel;

@@ -72,6 +72,10 @@ typedef struct render_options {
     unsigned overlays;      /* RENDER_OVERLAY_* */
     int hierarchy_depth;    /* the depth of the boxes drawn (root = 1) */
     int nvoi;               /* RENDER_OVERLAY_VOI: boxes lo x y z, hi x y z (world mm) */
+    int cutaway;            /* 0: none; i + 1: in surface mode, the other fragments' surfaces in
+                             * front of fragment i (within a cylinder of 3/8 of its crop's
+                             * diagonal around the line from its centroid to the viewer) are cut
+                             * away, so the piece in hand is always seen */
     double voi[RENDER_MAX_FRAGS][6];
 } render_options;
 
@@ -165,11 +169,11 @@ void render_camera_standard(render_camera *c, render_view v, const frag *frags, 
  * seen from the side). r must hold the scene of frags (render_set_scene). Draws into the frame
  * (call before render_frame). A selected out of range gives the anterior view. 0 or FN_E*. */
 int render_camera_auto(render *r, render_camera *c, const frag *frags, int nfrag, const pose *poses, int selected);
-/* What a picture through cam shows of each fragment of r's scene (at poses; NULL: their own),
- * drawn as the surface meshes: projected[i] the pixels fragment i covers drawn alone, visible[i]
- * those where it is the front-most (arrays of r's fragment count). Draws into the frame (call it
- * after reading a frame, or before drawing one). 0 or FN_E*. */
-int render_fragment_pixels(render *r, const pose *poses, const render_camera *cam, long *projected, long *visible);
+/* What a picture through o's camera shows of each fragment of r's scene (at poses; NULL: their
+ * own), drawn as the surface meshes (with o's cut-away): projected[i] the pixels fragment i covers
+ * drawn alone, visible[i] those where it is the front-most (arrays of r's fragment count). Draws
+ * into the frame (call it after reading a frame, or before drawing one). 0 or FN_E*. */
+int render_fragment_pixels(render *r, const pose *poses, const render_options *o, long *projected, long *visible);
 /* Defaults: iso, 3D layout, anterior camera over the fragments, slice point at the first
  * fragment's home centroid, no overlay, hierarchy depth 3. */
 void render_options_default(render_options *o, const frag *frags, int nfrag);

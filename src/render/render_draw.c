@@ -345,6 +345,15 @@ static int draw_raycast(render *r, const pose *poses, const render_options *o, c
     return 0;
 }
 
+/* How far fragment f reaches from its centroid (half its crop's diagonal): the cut-away's radius. */
+static double frag_reach(const render_frag *f)
+{
+    double d2 = 0;
+    for (int a = 0; a < 3; a++)
+        d2 += 0.25 * (f->dim[a] * f->spacing[a]) * (f->dim[a] * f->spacing[a]);
+    return 0.75 * sqrt(d2);
+}
+
 /* The meshes of the fragments i with (only < 0 or i == only) and i != skip, shaded, or with ids
  * in their flat id colours (render__id_fs). A pass over them all (only < 0) starts on a clear depth
  * buffer; a pass over one (render_frame_late's) draws into the depth of the pass before. */
@@ -371,7 +380,17 @@ static void draw_meshes(render *r, const pose *poses, const render_options *o, c
             continue;
         frag_mats(r, i, poses, m, w2t, nmat);
         r->gl.UniformMatrix4fv(loc(r, p, "model"), 1, GL_FALSE, m);
-        float id[3] = {(float)(i + 1) / 255.0f, 0, 0};
+        float id[3] = {(float)(i + 1) / 255.0f, 0, 0}, cut[4] = {0, 0, 0, 0};
+        int keep = o->cutaway - 1;
+        if (keep >= 0 && keep < r->nfrag && keep != i) {
+            double c[3];
+            const pose *at = poses ? &poses[keep] : &r->frag[keep].pose;
+            pose_apply(at, r->frag[keep].centroid, c);
+            for (int a = 0; a < 3; a++)
+                cut[a] = (float)c[a];
+            cut[3] = (float)frag_reach(&r->frag[keep]);
+        }
+        r->gl.Uniform4fv(loc(r, p, "cut"), 1, cut);
         r->gl.Uniform3fv(loc(r, p, "colour"), 1, ids ? id : r->frag[i].rgb);
         r->gl.BindVertexArray(r->frag[i].mesh_vao);
         r->gl.DrawElements(GL_TRIANGLES, (int)(r->frag[i].mesh_triangles * 3), GL_UNSIGNED_INT, (void *)0);
@@ -864,16 +883,16 @@ int render_present(render *r)
 
 /* One pass of fragment ids through cam (all fragments, or `only`), counted per fragment into n
  * (zeroed first). id: room for w * h bytes. */
-static int id_pass(render *r, const pose *poses, const render_camera *cam, int only, uint8_t *id, long *n)
+static int id_pass(render *r, const pose *poses, const render_options *o, int only, uint8_t *id, long *n)
 {
-    render_options o = {.camera = *cam};
+    const render_camera *cam = &o->camera;
     mat4 vp, inv;
     camera_mats(cam, (double)r->w / r->h, vp, inv);
     int full[4] = {0, 0, r->w, r->h};
     set_viewport(r, full);
     r->gl.ClearColor(0, 0, 0, 1);
     r->gl.Clear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT);
-    draw_meshes(r, poses, &o, vp, only, -1, 1);
+    draw_meshes(r, poses, o, vp, only, -1, 1);
     r->gl.PixelStorei(GL_PACK_ALIGNMENT, 1);
     r->gl.ReadPixels(0, 0, r->w, r->h, GL_RED, GL_UNSIGNED_BYTE, id);
     memset(n, 0, (size_t)r->nfrag * sizeof *n);
@@ -883,15 +902,15 @@ static int id_pass(render *r, const pose *poses, const render_camera *cam, int o
     return frame_end(r, 0);
 }
 
-int render_fragment_pixels(render *r, const pose *poses, const render_camera *cam, long *projected, long *visible)
+int render_fragment_pixels(render *r, const pose *poses, const render_options *o, long *projected, long *visible)
 {
     uint8_t *id = malloc((size_t)r->w * (size_t)r->h);
     if (!id)
         return fn_err_set(FN_ENOMEM, "render: out of memory counting a %dx%d frame's pixels", r->w, r->h);
     long n[RENDER_MAX_FRAGS];
-    int rc = id_pass(r, poses, cam, -1, id, visible);
+    int rc = id_pass(r, poses, o, -1, id, visible);
     for (int i = 0; i < r->nfrag && !rc; i++) {
-        rc = id_pass(r, poses, cam, i, id, n);
+        rc = id_pass(r, poses, o, i, id, n);
         projected[i] = n[i];
     }
     free(id);
@@ -975,11 +994,13 @@ int render_camera_auto(render *r, render_camera *c, const frag *frags, int nfrag
     long vis[RENDER_MAX_FRAGS], proj[RENDER_MAX_FRAGS];
     double best = -1, best_f[3];
     int rc = 0;
+    render_options o = {0}; /* no cut-away: the view itself must show the fragment */
     for (int k = 0; k < nc && !rc; k++) {
         look_along(c, cand[k]);
-        rc = id_pass(r, poses, c, -1, id, vis);
+        o.camera = *c;
+        rc = id_pass(r, poses, &o, -1, id, vis);
         if (!rc)
-            rc = id_pass(r, poses, c, selected, id, proj);
+            rc = id_pass(r, poses, &o, selected, id, proj);
         /* Seen whole counts most; then seeing the fracture from the side (across the normal). */
         double seen = proj[selected] ? (double)vis[selected] / (double)proj[selected] : 0;
         double across = 1 - fabs(cand[k][0] * normal[0] + cand[k][1] * normal[1] + cand[k][2] * normal[2]);

@@ -28,6 +28,7 @@
     X(PFNGLUNIFORM1FPROC, Uniform1f) X(PFNGLUNIFORM1IVPROC, Uniform1iv)                            \
     X(PFNGLUNIFORM2FPROC, Uniform2f) X(PFNGLUNIFORM3FVPROC, Uniform3fv)                            \
     X(PFNGLUNIFORM4FPROC, Uniform4f) X(PFNGLUNIFORM4IVPROC, Uniform4iv)                            \
+    X(PFNGLUNIFORM4FVPROC, Uniform4fv)                                                             \
     X(PFNGLUNIFORMMATRIX4FVPROC, UniformMatrix4fv) X(PFNGLUNIFORMMATRIX3FVPROC, UniformMatrix3fv)  \
     X(PFNGLGENVERTEXARRAYSPROC, GenVertexArrays) X(PFNGLBINDVERTEXARRAYPROC, BindVertexArray)      \
     X(PFNGLDELETEVERTEXARRAYSPROC, DeleteVertexArrays) X(PFNGLGENBUFFERSPROC, GenBuffers)          \
