@@ -73,9 +73,10 @@ typedef struct render_options {
     int hierarchy_depth;    /* the depth of the boxes drawn (root = 1) */
     int nvoi;               /* RENDER_OVERLAY_VOI: boxes lo x y z, hi x y z (world mm) */
     int cutaway;            /* 0: none; i + 1: in surface mode, the other fragments' surfaces in
-                             * front of fragment i (within a cylinder of 3/8 of its crop's
-                             * diagonal around the line from its centroid to the viewer) are cut
-                             * away, so the piece in hand is always seen */
+                             * front of fragment i (nearer the viewer than its crop's nearest
+                             * corner, within a cylinder of 3/8 of its crop's diagonal around the
+                             * line from its centroid to the viewer) are cut away, so the piece
+                             * in hand is always seen */
     double voi[RENDER_MAX_FRAGS][6];
 } render_options;
 

@@ -345,13 +345,31 @@ static int draw_raycast(render *r, const pose *poses, const render_options *o, c
     return 0;
 }
 
-/* How far fragment f reaches from its centroid (half its crop's diagonal): the cut-away's radius. */
-static double frag_reach(const render_frag *f)
+/* The cut-away kept for fragment `keep` at poses (render__mesh_fs's cut and cut_front): its
+ * centroid, the radius (3/8 of its crop's diagonal), and how far in front of the centroid (along
+ * forward, negative) its crop's nearest corner lies: only what lies in front of that is cut. */
+static void cutaway(const render *r, int keep, const pose *poses, const double forward[3], float cut[4],
+                    float *front)
 {
-    double d2 = 0;
-    for (int a = 0; a < 3; a++)
+    const render_frag *f = &r->frag[keep];
+    const pose *at = poses ? &poses[keep] : &f->pose;
+    pose m = frag_world(r, keep, poses);
+    double c[3], d2 = 0, near = 0;
+    pose_apply(at, f->centroid, c);
+    for (int b = 0; b < 8; b++) {
+        double x[3], w[3];
+        for (int a = 0; a < 3; a++)
+            x[a] = ((b >> a & 1) ? f->dim[a] - 0.5 : -0.5) * f->spacing[a];
+        pose_apply(&m, x, w);
+        double along = (w[0] - c[0]) * forward[0] + (w[1] - c[1]) * forward[1] + (w[2] - c[2]) * forward[2];
+        near = along < near ? along : near;
+    }
+    for (int a = 0; a < 3; a++) {
+        cut[a] = (float)c[a];
         d2 += 0.25 * (f->dim[a] * f->spacing[a]) * (f->dim[a] * f->spacing[a]);
-    return 0.75 * sqrt(d2);
+    }
+    cut[3] = (float)(0.75 * sqrt(d2));
+    *front = (float)near;
 }
 
 /* The meshes of the fragments i with (only < 0 or i == only) and i != skip, shaded, or with ids
@@ -380,17 +398,12 @@ static void draw_meshes(render *r, const pose *poses, const render_options *o, c
             continue;
         frag_mats(r, i, poses, m, w2t, nmat);
         r->gl.UniformMatrix4fv(loc(r, p, "model"), 1, GL_FALSE, m);
-        float id[3] = {(float)(i + 1) / 255.0f, 0, 0}, cut[4] = {0, 0, 0, 0};
+        float id[3] = {(float)(i + 1) / 255.0f, 0, 0}, cut[4] = {0, 0, 0, 0}, front = 0;
         int keep = o->cutaway - 1;
-        if (keep >= 0 && keep < r->nfrag && keep != i) {
-            double c[3];
-            const pose *at = poses ? &poses[keep] : &r->frag[keep].pose;
-            pose_apply(at, r->frag[keep].centroid, c);
-            for (int a = 0; a < 3; a++)
-                cut[a] = (float)c[a];
-            cut[3] = (float)frag_reach(&r->frag[keep]);
-        }
+        if (keep >= 0 && keep < r->nfrag && keep != i)
+            cutaway(r, keep, poses, o->camera.forward, cut, &front);
         r->gl.Uniform4fv(loc(r, p, "cut"), 1, cut);
+        r->gl.Uniform1f(loc(r, p, "cut_front"), front);
         r->gl.Uniform3fv(loc(r, p, "colour"), 1, ids ? id : r->frag[i].rgb);
         r->gl.BindVertexArray(r->frag[i].mesh_vao);
         r->gl.DrawElements(GL_TRIANGLES, (int)(r->frag[i].mesh_triangles * 3), GL_UNSIGNED_INT, (void *)0);

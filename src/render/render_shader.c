@@ -241,13 +241,15 @@ const char *const render__mesh_vs =
     "}\n";
 
 /* The cut-away (render_options.cutaway): another fragment's surface inside the cylinder of radius
- * cut.w from the kept fragment's centroid cut.xyz towards the viewer is not drawn. */
+ * cut.w from the kept fragment's centroid cut.xyz towards the viewer, and in front of the kept
+ * fragment's nearest corner (cut_front along forward, from the centroid), is not drawn. */
 #define CUTAWAY_GLSL \
     "uniform vec4 cut;\n" \
+    "uniform float cut_front;\n" \
     "bool cut_away(vec3 p, vec3 forward) {\n" \
     "    vec3 d = p - cut.xyz;\n" \
     "    float along = dot(d, forward);\n" \
-    "    return cut.w > 0.0 && along < 0.0 && length(d - along * forward) < cut.w;\n" \
+    "    return cut.w > 0.0 && along < cut_front && length(d - along * forward) < cut.w;\n" \
     "}\n"
 
 const char *const render__mesh_fs =
