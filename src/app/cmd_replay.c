@@ -55,7 +55,7 @@ static void usage(FILE *out)
             "                      the live loop (default: as fast as possible, one thread)\n"
             "  --view V            with --realtime: window (default when $DISPLAY is set and OpenGL\n"
             "                      4.5 is there: the fragments drawn live at the loop's poses with\n"
-            "                      navigate's HUD; the pointer and keys 1-6 move the view, never the\n"
+            "                      navigate's HUD; the pointer and Ctrl+1..6 move the view, never the\n"
             "                      fragments; q, Escape or closing it closes the window and the\n"
             "                      replay runs on to its end) or terminal (no window); without a\n"
             "                      display or GL 4.5 there is no window, and a line says why\n"
