@@ -473,6 +473,13 @@ int dev_finished(const dev_device *d)
     return d->h && d->t->finished && d->t->finished(d->h);
 }
 
+int dev_feed_keys(dev_device *d, const char *bytes, size_t n)
+{
+    if (!d->t->feed_keys || !d->h)
+        return fn_err_set(FN_EINVAL, "%s: this device reads no keys", d->t->name);
+    return d->t->feed_keys(d->h, bytes, n);
+}
+
 uint64_t dev_skipped(const dev_device *d)
 {
     return d->ps.n_unknown_id + d->ps.n_bad_len;

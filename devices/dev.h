@@ -79,6 +79,9 @@ typedef struct dev_transport {
     void (*describe)(char *buf, size_t cap);
     /* Optional: 1 once the handle has played all it had (a recording, a script), else 0. */
     int (*finished)(const dev_handle *h);
+    /* Optional: keys typed elsewhere (a window), read as if typed where the device reads (the
+     * keyboard's terminal). Any thread. Returns 0 or negative. */
+    int (*feed_keys)(dev_handle *h, const char *bytes, size_t n);
 } dev_transport;
 
 /* Registry. The built-in transports (hidraw or libusb, spnav, keyboard) are always present;
@@ -152,6 +155,11 @@ const dev_transport *dev_transport_of(const dev_device *d);
 /* 1 when the device's input has a scripted or recorded end and has played it all (a virtual
  * device's script, a replay); 0 for a live device. */
 int dev_finished(const dev_device *d);
+/* Keys typed elsewhere (navigate's window) for a device that reads keys (the keyboard): they
+ * act as if typed in its terminal, arrows as "\033[A".."\033[D". Any thread, while d is open (a
+ * device that reads keys is never unplugged). Returns 0, FN_EINVAL when the device reads no keys,
+ * or FN_EIO. */
+int dev_feed_keys(dev_device *d, const char *bytes, size_t n);
 /* Reports skipped because of an unknown ID or a wrong length. */
 uint64_t dev_skipped(const dev_device *d);
 

@@ -9,7 +9,8 @@
  *   mouse: left drag rotates (rz, rx), middle drag rolls (ry), right drag moves (x, y), wheel z
  * The row has 12 buttons, sent in report 3. A terminal has no key-up: a key holds its axis for
  * KEY_HOLD_MS, and auto-repeat keeps it held.
- * "keyboard:FILE" reads the same bytes from FILE instead of the terminal (scripts, tests). */
+ * "keyboard:FILE" reads the same bytes from FILE instead of the terminal (scripts, tests). Keys
+ * typed in navigate's window come through a pipe (kb_feed_keys) and act the same. */
 #include <errno.h>
 #include <fcntl.h>
 #include <poll.h>
@@ -37,6 +38,8 @@ static const char MOUSE_ON[] = "\033[?1002h\033[?1006h", MOUSE_OFF[] = "\033[?10
 
 struct dev_handle {
     int fd, own_fd, raw_mode;
+    int fd_done;        /* fd is at its end (a key file read to the end): only feed is read */
+    int feed[2];        /* a pipe: keys typed elsewhere (a window, kb_feed_keys) */
     struct termios saved;
     int v[6];
     uint32_t buttons;
@@ -63,6 +66,15 @@ static int kb_open(const char *path, dev_handle **out)
         free(h);
         return fn_err_set(FN_ENODEV, "keyboard: standard input is not a terminal");
     }
+    if (pipe(h->feed) != 0) {
+        int e = errno;
+        if (h->own_fd)
+            close(h->fd);
+        free(h);
+        return fn_err_set(FN_EIO, "keyboard: a pipe for the window's keys: %s", strerror(e));
+    }
+    for (int i = 0; i < 2; i++)
+        fcntl(h->feed[i], F_SETFL, O_NONBLOCK), fcntl(h->feed[i], F_SETFD, FD_CLOEXEC);
     if (isatty(h->fd) && tcgetattr(h->fd, &h->saved) == 0) {
         struct termios t = h->saved;
         t.c_lflag &= (tcflag_t) ~(ICANON | ECHO);
@@ -216,20 +228,35 @@ static int kb_read(dev_handle *h, uint8_t *buf, size_t cap, int timeout_ms, int6
         int left_ms = h->release_us > *t_us ? (int)((h->release_us - *t_us + 999) / 1000) : 0;
         timeout_ms = timeout_ms < 0 || timeout_ms > left_ms ? left_ms : timeout_ms;
     }
-    struct pollfd p = {h->fd, POLLIN, 0};
-    char keys[32];
-    ssize_t n = poll(&p, 1, timeout_ms) > 0 ? read(h->fd, keys, sizeof keys) : 0;
-    if (n == 0 && p.revents && timeout_ms != 0) /* end of a key file: wait like a quiet terminal */
-        usleep((useconds_t)(timeout_ms < 0 ? 10 : timeout_ms) * 1000);
+    /* At the end of a key file only the feed is polled: the device waits like a quiet terminal. */
+    struct pollfd p[2] = {{h->fd_done ? -1 : h->fd, POLLIN, 0}, {h->feed[0], POLLIN, 0}};
+    ssize_t n = 0;
+    if (poll(p, 2, timeout_ms) > 0)
+        for (int f = 0; f < 2; f++) {
+            char keys[32];
+            ssize_t got = p[f].revents ? read(p[f].fd, keys, sizeof keys) : -1;
+            h->fd_done |= f == 0 && got == 0;
+            *t_us = fnclock_now_us();
+            for (ssize_t i = 0; i < got; i++)
+                apply_key(h, keys[i], *t_us);
+            n += got > 0 ? got : 0;
+        }
     *t_us = fnclock_now_us();
-    for (ssize_t i = 0; i < n; i++)
-        apply_key(h, keys[i], *t_us);
     if (n <= 0 && held(h) && *t_us >= h->release_us) {
         h->pending = (h->buttons ? PENDING_BUTTONS : 0) | PENDING_MOTION;
         h->buttons = 0;
         memset(h->v, 0, sizeof h->v);
     }
     return next_report(h, buf);
+}
+
+static int kb_feed_keys(dev_handle *h, const char *bytes, size_t n)
+{
+    ssize_t put = write(h->feed[1], bytes, n);
+    if (put != (ssize_t)n)
+        return fn_err_set(FN_EIO, "keyboard: %zu keys from the window were dropped: %s", n,
+                          put < 0 ? strerror(errno) : "the pipe is full");
+    return 0;
 }
 
 static int kb_info(dev_handle *h, dev_info *out)
@@ -249,6 +276,8 @@ static void kb_close(dev_handle *h)
     }
     if (h->own_fd)
         close(h->fd);
+    close(h->feed[0]);
+    close(h->feed[1]);
     free(h);
 }
 
@@ -267,4 +296,5 @@ const dev_transport dev__keyboard_transport = {
     .info = kb_info,
     .close = kb_close,
     .describe = kb_describe,
+    .feed_keys = kb_feed_keys,
 };

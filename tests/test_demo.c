@@ -51,7 +51,7 @@ static void test_demo_runs_the_workflow(void **st)
                            "fracture/case.json", "fracture-anterior.png", "navigate.json",
                            "frames/navigation-00.png", "frames/navigation-07.png",
                            "export/report/index.html", "export/report/convergence.png",
-                           "export/report/before-anterior.png", "export/report/after-anterior.png",
+                           "export/report/before.png", "export/report/after.png",
                            "export/models/fragment-2.stl", "export/transforms/fragment-2.tfm",
                            "export/planned.seg.nrrd", "export/planned.nii.gz"};
     for (size_t i = 0; i < sizeof files / sizeof files[0]; i++) {

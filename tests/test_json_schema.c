@@ -457,6 +457,8 @@ static void test_bench_render(void **st)
         if (!json_is_real(json_object_get(j, keys[i])))
             fail_msg("bench render: %s is not a number", keys[i]);
     assert_true(json_is_integer(json_object_get(j, "surface_triangles")));
+    /* The window's mode on this GL: surface on llvmpipe (OSMesa), named for the figures beside it. */
+    assert_string_equal(json_string_value(json_object_get(j, "default_mode")), "surface");
 }
 
 /* fracnav-sim bench, where FUSE can be served (the simulator is built beside fracnav). */

@@ -154,7 +154,8 @@ static void test_view_fits_the_width(void **st)
         assert_true(n >= 4);
         assert_true(strncmp(text, "WARNING: PENETRATING | DEVICE UNPLUGGED | JOURNAL", widths[w] - 1 < 49 ? 20 : 49) == 0);
         const char *all = lines_fit(text, widths[w]);
-        const char *want[] = {"frag 11/12", "x -123.45 y +67.89 z -0.50 mm", "turned 30.00 deg about (+0.00 +0.00 +1.00)",
+        const char *want[] = {"frag 11/12", "123.45 right, 67.89 posterior, 0.50 inferior mm",
+                              "turned 30.00 deg: L/R +0.00, A/P +0.00, S/I +30.00",
                               "inside another fragment by ~0.42 mm", "sliding along the contact",
                               "fragment frame, rotation only", "battery 80%", "046d:c627", "046d:c626",
                               "undo: one move", "1000 steps/s", "? or h: keys"};
@@ -166,7 +167,7 @@ static void test_view_fits_the_width(void **st)
     char line[4096];
     assert_int_equal(navview_format(&sc, &x, 0, line, sizeof line), 1);
     assert_null(strchr(line, '\n'));
-    assert_non_null(strstr(line, "turned 30.00 deg about (+0.00 +0.00 +1.00)"));
+    assert_non_null(strstr(line, "turned 30.00 deg: L/R +0.00, A/P +0.00, S/I +30.00"));
     /* q and -q are one turn: the angle stays within 180 degrees. */
     pose p = sc.pose[10];
     for (int i = 0; i < 4; i++)
@@ -174,6 +175,17 @@ static void test_view_fits_the_width(void **st)
     double axis[3];
     assert_true(fabs(navview_rotation(&p, axis) - 30) < 1e-9);
     assert_true(fabs(axis[2] - 1) < 1e-9);
+}
+
+/* The issue: at 80 columns the keyboard's help was cut ("? or h these key"). Every line of both
+ * helps fits in 79 columns, and the keyboard's says the window's keys steer too. */
+static void test_help_fits_80_columns(void **st)
+{
+    (void)st;
+    for (int keyboard = 0; keyboard < 2; keyboard++)
+        lines_fit(navview_help(keyboard), 80);
+    assert_non_null(strstr(navview_help(1), "? or h keys\n"));
+    assert_non_null(strstr(navview_help(1), "the window"));
 }
 
 /* ---- the contact reading, in process ---- */
@@ -336,7 +348,7 @@ static void test_actions_are_acknowledged(void **st)
     char text[4096];
     navview_format(&sc, &x, 80, text, sizeof text);
     assert_non_null(strstr(text, "> frame: fragment"));
-    assert_non_null(strstr(text, "moved x +0.00 y +0.00 z +0.00 mm")); /* undone: back home */
+    assert_non_null(strstr(text, "moved 0.00 L/R, 0.00 A/P, 0.00 S/I mm")); /* undone: back home */
     world_free(&w);
 }
 
@@ -531,7 +543,7 @@ static void test_terminal_of_80_columns(void **st)
     }
     static char acc[1 << 20];
     acc[0] = '\0';
-    int turned = pty_until(fd, acc, sizeof acc, 0, " deg about (");
+    int turned = pty_until(fd, acc, sizeof acc, 0, " deg: L/R ");
     size_t mark = strlen(acc);
     assert_int_equal(write(fd, "?", 1), 1);
     int help = pty_until(fd, acc, sizeof acc, mark, "controller buttons: 1 next");
@@ -546,8 +558,8 @@ static void test_terminal_of_80_columns(void **st)
     for (const char *p = strstr(acc, "frag 2/2"); p; p = strstr(p + 1, "frag 2/2"))
         last = p;
     assert_non_null(last);
-    const char *x = strstr(last, "x +"), *y = x ? strstr(x, " y ") : NULL, *z = y ? strstr(y, " z ") : NULL;
-    if (!z || !strstr(z, " mm") || !strstr(last, "turned ") || !strstr(last, "camera frame"))
+    const char *moved = strstr(last, "moved "), *mm = moved ? strstr(moved, " mm") : NULL;
+    if (!mm || !strstr(last, "turned ") || !strstr(last, "camera frame"))
         fail_msg("the last view lacks the translation, the turn or the frame: %s", last);
     assert_non_null(strstr(acc, "saved "));
 }
@@ -742,6 +754,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_view_fits_the_width),
+        cmocka_unit_test(test_help_fits_80_columns),
         cmocka_unit_test(test_gap_is_measured_for_the_pose_shown),
         cmocka_unit_test(test_actions_are_acknowledged),
         cmocka_unit_test(test_recording_ends_navigate),

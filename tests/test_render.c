@@ -9,6 +9,7 @@
 #include <setjmp.h>
 #include <stdint.h>
 #include <cmocka.h>
+#include <jansson.h>
 
 #include "err.h"
 #include "frag.h"
@@ -174,7 +175,67 @@ static void test_four_up_with_overlays_matches(void **st)
     check_golden(s->rgb, "surface_superior_axes");
 }
 
+/* Four-up as 3D Slicer's "3D and three slices": the 3D view over the top two thirds, the slices
+ * below. A pixel of the axial slice maps back to the world point it shows: the box's outline,
+ * drawn there, centres where render_slice_point_at puts the box's centroid (a click there moves
+ * the window's crosshair to it). */
+static void test_four_up_pixel_to_world(void **st)
+{
+    scene *s = *st;
+    render_options o;
+    options(s, &o, RENDER_SURFACE);
+    o.layout = RENDER_LAYOUT_FOUR_UP;
+    memcpy(o.slice_point, s->f[1].centroid, sizeof o.slice_point);
+    draw(s, NULL, &o);
+    int rect[4][4];
+    render_four_up_panes(W, H, rect);
+    assert_true(rect[RENDER_PANE_3D][3] > H / 2 && rect[RENDER_PANE_3D][2] == W); /* the large 3D view */
+    const int *q = rect[RENDER_PANE_AXIAL];
+    double sx = 0, sy = 0, n = 0;
+    for (int y = q[1]; y < q[1] + q[3]; y++)
+        for (int x = q[0]; x < q[0] + q[2]; x++) {
+            const uint8_t *p = s->rgb + (y * W + x) * 3;
+            if (p[0] > 120 && (double)p[1] / p[0] < 0.7)
+                sx += x + 0.5, sy += y + 0.5, n++;
+        }
+    if (n < 10)
+        fail_msg("the axial slice shows %.0f pixels of the box", n);
+    double world[3];
+    assert_int_equal(render_slice_point_at(s->r, &o, sx / n, sy / n, world), RENDER_PANE_AXIAL);
+    for (int a = 0; a < 2; a++)
+        if (fabs(world[a] - s->f[1].centroid[a]) > 1.5)
+            fail_msg("the box's outline centres at (%.1f, %.1f) mm, its centroid is (%.1f, %.1f)", world[0],
+                     world[1], s->f[1].centroid[0], s->f[1].centroid[1]);
+    assert_true(fabs(world[2] - s->f[1].centroid[2]) < 1e-9); /* on the slice's plane */
+    assert_int_equal(render_slice_point_at(s->r, &o, W / 2, H / 4, world), -1); /* the 3D view */
+}
+
 /* Ball colour (230,216,190): g/r near 0.94; box colour (220,90,80): near 0.41. */
+static void count_colours(const uint8_t *rgb, long *ball, long *box);
+
+/* Seen from the right the ball hides the box; with the cut-away kept for the box, the ball's
+ * surface in front of it is not drawn, and the box shows (render_fragment_pixels and the
+ * picture). */
+static void test_cutaway_shows_the_piece_in_hand(void **st)
+{
+    scene *s = *st;
+    render_options o;
+    options(s, &o, RENDER_SURFACE);
+    render_camera_standard(&o.camera, RENDER_RIGHT, s->f, 2);
+    long proj[2], vis[2], ball, box;
+    assert_int_equal(render_fragment_pixels(s->r, NULL, &o, proj, vis), 0);
+    if (!(proj[1] > 50 && vis[1] < proj[1] / 10))
+        fail_msg("without the cut-away the box shows %ld of %ld pixels: it should be hidden", vis[1], proj[1]);
+    o.cutaway = 2;
+    assert_int_equal(render_fragment_pixels(s->r, NULL, &o, proj, vis), 0);
+    if (vis[1] < proj[1] * 9 / 10)
+        fail_msg("with the cut-away the box shows %ld of %ld pixels", vis[1], proj[1]);
+    draw(s, NULL, &o);
+    count_colours(s->rgb, &ball, &box);
+    if (box < 50 || ball < 200)
+        fail_msg("with the cut-away the picture shows %ld pixels of the box and %ld of the ball", box, ball);
+}
+
 static void count_colours(const uint8_t *rgb, long *ball, long *box)
 {
     *ball = *box = 0;
@@ -264,7 +325,7 @@ static void test_voi_overlay_outlines_the_box(void **st)
     check_golden(s->rgb, "voi");
 }
 
-/* The HUD: text over the frame, top left, a warning line in amber. */
+/* The HUD: text over the frame, top left, in mixed case, a warning line in amber. */
 static void test_hud_draws_text(void **st)
 {
     scene *s = *st;
@@ -286,6 +347,20 @@ static void test_hud_draws_text(void **st)
         fail_msg("the HUD drew %ld white pixels in its first line, %ld amber in its second, %ld elsewhere",
                  white, amber, below);
     check_golden(s->rgb, "hud");
+    /* Mixed case: n and N are two glyphs (the issue: "N/P" read where the keys are n/p). */
+    uint8_t *capital = malloc((size_t)W * H * 3);
+    assert_int_equal(render_frame(s->r, NULL, &o), 0);
+    assert_int_equal(render_hud(s->r, "N", 2), 0);
+    assert_int_equal(render_read_rgb(s->r, capital), 0);
+    assert_int_equal(render_frame(s->r, NULL, &o), 0);
+    assert_int_equal(render_hud(s->r, "n", 2), 0);
+    assert_int_equal(render_read_rgb(s->r, s->rgb), 0);
+    long differ = 0;
+    for (int i = 0; i < W * H * 3; i++)
+        differ += s->rgb[i] != capital[i];
+    free(capital);
+    if (differ < 10)
+        fail_msg("n and N draw the same glyph (%ld bytes differ)", differ);
 }
 
 static void centroid(const uint8_t *rgb, double *cx, double *cy)
@@ -420,6 +495,62 @@ static void test_old_gl_is_refused_with_its_version(void **st)
     waitpid(pid, &status, 0);
     if (!strstr(buf, "4.5") || !strstr(buf, "3.3"))
         fail_msg("expected an error naming 4.5 and 3.3, got: %s", buf);
+}
+
+/* The share of fragment `id`'s projected pixels that `fracnav render CASE --json LOOK` shows
+ * (visible_pixels / projected_pixels of its entry in "fragments"). */
+static double shown_share(const char *case_dir, const char *dir, int id, const char *look)
+{
+    char *out = NULL;
+    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/view.png' --size 256x256 --mode surface --fragment %d "
+                                      "--json %s", case_dir, dir, id, look), 0);
+    json_error_t e;
+    const char *brace = strchr(out, '{'); /* after render's line on standard error */
+    json_t *j = brace ? json_loads(brace, JSON_DISABLE_EOF_CHECK, &e) : NULL, *frags = j ? json_object_get(j, "fragments") : NULL;
+    if (!json_is_array(frags))
+        fail_msg("render --json printed no fragments array: %s", out);
+    double share = -1;
+    for (size_t i = 0; i < json_array_size(frags); i++) {
+        json_t *f = json_array_get(frags, i);
+        if (json_integer_value(json_object_get(f, "id")) != id)
+            continue;
+        json_int_t proj = json_integer_value(json_object_get(f, "projected_pixels"));
+        json_int_t vis = json_integer_value(json_object_get(f, "visible_pixels"));
+        assert_true(proj > 0 && vis >= 0 && vis <= proj);
+        share = (double)vis / (double)proj;
+    }
+    json_decref(j);
+    free(out);
+    return share;
+}
+
+/* The issue: the default anterior camera looked at the face while the moving piece sat at the back
+ * of the skull, mostly hidden. On the demo's fracture of the example CT (2 pieces, seed 1) and on a
+ * 3-piece one, the default view (auto) shows each moving fragment at >= 50% of its projected
+ * pixels; the anterior view hides fragment 2 (so the measure tells them apart). */
+static void test_auto_view_shows_the_moving_fragment(void **st)
+{
+    (void)st;
+    const char *ct = tu_example_ct();
+    char *dir = tu_tmpdir("autoview"), case_dir[4200];
+    const int pieces[2] = {2, 3};
+    for (int k = 0; k < 2; k++) {
+        snprintf(case_dir, sizeof case_dir, "%s/f%d", dir, pieces[k]);
+        char *out = NULL;
+        assert_int_equal(tu_run_cli(&out, "fracture '%s' -o '%s' --seed 1 --pieces %d", ct, case_dir, pieces[k]), 0);
+        free(out);
+        for (int id = 2; id <= pieces[k]; id++) {
+            double share = shown_share(case_dir, dir, id, "");
+            if (share < 0.5)
+                fail_msg("%d pieces: the default view shows %.0f%% of fragment %d", pieces[k], 100 * share, id);
+        }
+        double anterior = shown_share(case_dir, dir, 2, "--view anterior");
+        if (anterior >= 0.5)
+            fail_msg("%d pieces: the anterior view shows %.0f%% of fragment 2: the test tells nothing", pieces[k],
+                     100 * anterior);
+    }
+    tu_rmtree(dir);
+    free(dir);
 }
 
 /* Without Xvfb: a visible skip, or a failure under CI (where .ci/setup installs it). */
@@ -590,7 +721,7 @@ typedef struct window_vs_render {
 static window_vs_render compare_window(const char *dir, const char *case_dir, const char *look)
 {
     char *out = NULL, path[4400];
-    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/after.png' --mode surface --size 768x768 %s",
+    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/after.png' --mode surface --size 768x768 --view anterior %s",
                                 case_dir, dir, look), 0);
     free(out);
     int w, h, w1, h1, w2, h2;
@@ -648,11 +779,11 @@ static void test_navigate_window_matches_render(void **st)
     const char *script = "wait 100 ms\ntranslate +x 6 mm over 0.6 s\n";
     tu_write_file(path, script, strlen(script));
     char *out = NULL;
-    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/before.png' --mode surface --size 768x768",
+    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/before.png' --mode surface --size 768x768 --view anterior",
                                 case_dir, dir), 0);
     free(out);
     char cmd[9000];
-    snprintf(cmd, sizeof cmd, "navigate '%s' --device virtual:spacenavigator:script='%s' --view window "
+    snprintf(cmd, sizeof cmd, "navigate '%s' --device virtual:spacenavigator:script='%s' --view window --camera anterior "
                               "--duration 3 --discard-journal --screenshot '%s/shot.png' </dev/null",
              case_dir, path, dir);
     int rc = run_in_window(xvfb, display, &out, cmd);
@@ -678,7 +809,7 @@ static void test_navigate_window_matches_render(void **st)
 static long overlay_shown(const char *dir, const char *case_dir, const char *look_without, long *drawn)
 {
     char *out = NULL, path[4400];
-    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/plain.png' --mode surface --size 768x768 %s",
+    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/plain.png' --mode surface --size 768x768 --view anterior %s",
                                 case_dir, dir, look_without), 0);
     free(out);
     int w[3], h[3];
@@ -718,8 +849,8 @@ static void no_xdotool(void)
 
 /* The pointer and the window's keys drive navigate's window (xdotool on Xvfb, through XTEST as a
  * hand would): a left drag of 180 pixels to the right orbits the view by 90 degrees, from the
- * anterior view to the right one, l gives the four-up layout (its slices through the selected
- * fragment's centroid), a the principal axes, and q quits. The screenshot must match `fracnav
+ * anterior view to the right one, F3 gives the four-up layout (its slices through the selected
+ * fragment's centroid), F4 the principal axes, and q quits. The screenshot must match `fracnav
  * render --view right --layout four-up --overlay axes` at that point, and differ from the
  * anterior view. The events arrive in order, so q comes after the drag and the keys. */
 static void test_navigate_window_mouse_and_keys(void **st)
@@ -738,7 +869,7 @@ static void test_navigate_window_mouse_and_keys(void **st)
     char *dir = tu_tmpdir("navmouse"), case_dir[4200];
     tu_two_blocks_case(dir, case_dir, sizeof case_dir);
     char *out = NULL;
-    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/before.png' --mode surface --size 768x768 "
+    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/before.png' --mode surface --size 768x768 --view anterior "
                                       "--layout four-up --overlay axes --point 22.5,15.5,15.5",
                                 case_dir, dir), 0);
     free(out);
@@ -746,10 +877,10 @@ static void test_navigate_window_mouse_and_keys(void **st)
      * never opens one is killed), drags, types, and the shell waits for navigate to end. */
     char cmd[9000];
     snprintf(cmd, sizeof cmd,
-             "navigate '%s' --device virtual:spacenavigator --view window --discard-journal --screenshot "
+             "navigate '%s' --device virtual:spacenavigator --view window --camera anterior --discard-journal --screenshot "
              "'%s/shot.png' </dev/null & nav=$!; "
              "if timeout 300 xdotool search --sync --onlyvisible --name '^fracnav$' >/dev/null; then "
-             "xdotool mousemove 384 560 mousedown 1 mousemove_relative -- 180 0 mouseup 1 key l key a key q; "
+             "xdotool mousemove 384 560 mousedown 1 mousemove_relative -- 180 0 mouseup 1 key F3 key F4 key q; "
              "else echo 'no fracnav window appeared'; kill $nav; fi; wait $nav",
              case_dir, dir);
     int rc = run_in_window(xvfb, display, &out, cmd);
@@ -761,13 +892,61 @@ static void test_navigate_window_mouse_and_keys(void **st)
     if (r.content < 1000)
         fail_msg("the window's screenshot shows no fragments (%ld content pixels)", r.content);
     if (r.differ > 768L * (768 - WINDOW_HUD_ROWS) / 100)
-        fail_msg("after the drag and l, the window differs from render --view right --layout four-up in %ld "
+        fail_msg("after the drag and F3, the window differs from render --view right --layout four-up in %ld "
                  "pixels", r.differ);
     if (r.moved < 1000)
         fail_msg("the right view differs from the anterior one in only %ld pixels", r.moved);
     long drawn, shown = overlay_shown(dir, case_dir, "--view right --layout four-up --point 22.5,15.5,15.5", &drawn);
     if (drawn < 50 || shown < drawn * 9 / 10)
-        fail_msg("after a, the window shows %ld of the axes' %ld pixels", shown, drawn);
+        fail_msg("after F4, the window shows %ld of the axes' %ld pixels", shown, drawn);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* The issue: with --device keyboard the steering keys typed into the window did nothing, and the
+ * window took letters a keyboard user steers with (l its layout, a its axes). Typed in the window
+ * (xdotool), d pushes the selected fragment right on screen as it does in the terminal (the camera
+ * frame follows the anterior view), and q quits and saves: the screenshot matches `fracnav render`
+ * of the saved case, in the 3D layout. */
+static void test_navigate_window_keyboard_steers(void **st)
+{
+    (void)st;
+#if defined(__SANITIZE_THREAD__)
+    print_message("skipped under ThreadSanitizer: Xlib's and GLX's own locking\n");
+    skip();
+#endif
+    if (access("/usr/bin/xdotool", X_OK) != 0)
+        no_xdotool();
+    int display;
+    pid_t xvfb = start_xvfb(&display);
+    if (!xvfb)
+        no_xvfb();
+    char *dir = tu_tmpdir("navkeys"), case_dir[4200];
+    tu_two_blocks_case(dir, case_dir, sizeof case_dir);
+    char *out = NULL;
+    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/before.png' --mode surface --size 768x768 --view anterior", case_dir,
+                                dir), 0);
+    free(out);
+    char cmd[9000];
+    snprintf(cmd, sizeof cmd,
+             "navigate '%s' --device keyboard:/dev/null --view window --camera anterior --discard-journal --screenshot "
+             "'%s/shot.png' </dev/null & nav=$!; "
+             "if timeout 300 xdotool search --sync --onlyvisible --name '^fracnav$' >/dev/null; then "
+             "xdotool key --delay 40 d d d d d d d d d d d d d d d d d d d d l a q; "
+             "else echo 'no fracnav window appeared'; kill $nav; fi; wait $nav",
+             case_dir, dir);
+    int rc = run_in_window(xvfb, display, &out, cmd);
+    if (rc != 0 || strstr(out, "no window") || strstr(out, "no fracnav window"))
+        fail_msg("navigate --device keyboard --view window driven by xdotool: exit %d: %s", rc, out);
+    free(out);
+    window_vs_render r = compare_window(dir, case_dir, "");
+    if (r.content < 1000)
+        fail_msg("the window's screenshot shows no fragments (%ld content pixels)", r.content);
+    if (r.differ > 768L * (768 - WINDOW_HUD_ROWS) / 100)
+        fail_msg("after d typed in the window, it differs from the OSMesa render in %ld pixels (l or a "
+                 "changed its look?)", r.differ);
+    if (!(r.c1 > r.c0 + 3))
+        fail_msg("d typed in the window moved the picture from column %.1f to %.1f", r.c0, r.c1);
     tu_rmtree(dir);
     free(dir);
 }
@@ -807,11 +986,11 @@ static void test_replay_window_matches_render(void **st)
     pose_digest(out, headless);
     free(out);
     assert_int_not_equal(headless[0], 0);
-    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/before.png' --mode surface --size 768x768",
+    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/before.png' --mode surface --size 768x768 --view anterior",
                                 case_dir, dir), 0);
     free(out);
     char cmd[9000];
-    snprintf(cmd, sizeof cmd, "replay '%s' '%s' --realtime --view window --screenshot '%s/shot.png' --json --save "
+    snprintf(cmd, sizeof cmd, "replay '%s' '%s' --realtime --view window --camera anterior --screenshot '%s/shot.png' --json --save "
                               "--no-journal </dev/null", case_dir, rec, dir);
     rc = run_in_window(xvfb, display, &out, cmd);
     if (rc != 0 || strstr(out, "no window"))
@@ -892,6 +1071,8 @@ int main(void)
         cmocka_unit_test(test_old_gl_is_refused_with_its_version),
         cmocka_unit_test_setup_teardown(test_every_mode_draws_and_matches, setup, teardown),
         cmocka_unit_test_setup_teardown(test_four_up_with_overlays_matches, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_four_up_pixel_to_world, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_cutaway_shows_the_piece_in_hand, setup, teardown),
         cmocka_unit_test_setup_teardown(test_interpenetrating_fragments_both_show, setup, teardown),
         cmocka_unit_test_setup_teardown(test_contacts_overlay_marks_colliding_voxels, setup, teardown),
         cmocka_unit_test_setup_teardown(test_voi_overlay_outlines_the_box, setup, teardown),
@@ -901,8 +1082,10 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_window_matches_offscreen, setup, teardown),
         cmocka_unit_test(test_navigate_window_matches_render),
         cmocka_unit_test(test_navigate_window_mouse_and_keys),
+        cmocka_unit_test(test_navigate_window_keyboard_steers),
         cmocka_unit_test(test_replay_window_matches_render),
         cmocka_unit_test(test_replay_frames),
+        cmocka_unit_test(test_auto_view_shows_the_moving_fragment),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -29,7 +29,8 @@ static void usage(FILE *out)
                  "Frame time of every mode (iso, dvr, mip, surface) for 1 and 3 fragments of a\n"
                  "three-piece synthetic fracture (seed 1) of the example CT, each frame with the\n"
                  "fragments turned a little further, read back to memory.\n\n"
-                 "  --json         one JSON object: command, gl_renderer, gl_version, results\n"
+                 "  --json         one JSON object: command, gl_renderer, gl_version, default_mode\n"
+                 "                 (the window's: surface on software GL, iso on a GPU), results\n"
                  "                 (mode, fragment_count, width, height, frame_mean_ms, frame_p99_ms,\n"
                  "                 frame_hz, frame_cpu_mean_ms: CPU time of the whole process,\n"
                  "                 llvmpipe's threads included), surface_triangles (3 fragments), and the\n"
@@ -417,6 +418,7 @@ static int run(const char *ct_path, const char *platform, int w, int h, int fram
     }
     if (!rc) {
         jsonw_set(o, "gl_renderer", jsonw_string(render_gl_renderer(r)));
+        jsonw_set(o, "default_mode", jsonw_string(render_mode_name(render_default_mode(r))));
         jsonw_set(o, "gl_version", jsonw_string(render_gl_version(r)));
         jsonw_set(o, "results", results);
         results = NULL;

@@ -1,9 +1,11 @@
 /* fracnav export: a case's plan for other tools (ITK/3D Slicer transforms, segmentations, NIfTI,
  * STL models for printing) and an HTML report. */
+#define _XOPEN_SOURCE 700 /* nftw: removing Chromium's profile folder */
 #include "cmd.h"
 
 #include "case.h"
 #include "err.h"
+#include "durable.h"
 #include "export.h"
 #include "jsonw.h"
 #include "report.h"
@@ -11,16 +13,21 @@
 #include <errno.h>
 #include <stdio.h>
 #include <stdlib.h>
+#include <fcntl.h>
+#include <ftw.h>
+#include <limits.h>
 #include <string.h>
 #include <sys/stat.h>
+#include <sys/wait.h>
+#include <unistd.h>
 
 static void usage(FILE *out)
 {
     fprintf(out,
             "usage: fracnav export CASE [--tfm DIR] [--seg-nrrd FILE] [--nifti FILE] [--stl DIR]\n"
             "                      [--ras] [--smooth N] [--decimate TRIANGLES] [--report DIR]\n"
-            "                      [--all DIR] [--platform osmesa|glfw] [--force] [--json] [--recover]\n"
-            "                      [--wait]\n\n"
+            "                      [--report-pdf FILE] [--all DIR] [--platform osmesa|glfw] [--force]\n"
+            "                      [--json] [--recover] [--wait]\n\n"
             "Writes the case's plan (every fragment at its current, planned pose) for other tools.\n"
             "Every file is written atomically (a temporary file, synced, then renamed). Coordinates\n"
             "are LPS mm unless said otherwise. Every path is checked before anything is written: a\n"
@@ -44,28 +51,34 @@ static void usage(FILE *out)
             "  --decimate T       down to T triangles per STL surface (edge collapses that keep it\n"
             "                     closed and unfolded; where none is left above T, a warning says\n"
             "                     how many remain; default: all)\n"
-            "  --report DIR       DIR/index.html: renders before and after the reduction, the\n"
-            "                     optimizer's convergence plot, and per fragment the move, contact\n"
-            "                     area, gap and overlap volumes, and errors against any ground truth\n"
+            "  --report DIR       DIR/index.html (works offline): the case, CT, date, version,\n"
+            "                     method and tolerance; before and after pictures from the auto view\n"
+            "                     and a CT slice with the planned outlines; per fragment the planned\n"
+            "                     move in anatomical terms, the fit's metric, the gap across the\n"
+            "                     fracture (median, 95%%, max mm), overlap, contact, errors against any\n"
+            "                     ground truth; the convergence plot, one line per stage or attempt\n"
+            "  --report-pdf FILE  the report (with --report or --all) printed to a PDF by headless\n"
+            "                     Chromium (package chromium)\n"
             "  --all DIR          all of them: DIR/transforms, DIR/planned.seg.nrrd,\n"
             "                     DIR/planned.nii.gz, DIR/models, DIR/report\n"
             "  --platform P       the report's renderer: osmesa (default) or glfw\n"
             "  --force            write into folders that hold files already (files of the same\n"
             "                     names are replaced, others left alone)\n"
-            "  --json             one JSON object: the files written and their sizes\n"
+            "  --json             one JSON object: the files written and their sizes, and per\n"
+            "                     fragment gap_median_mm, gap_p95_mm, gap_max_mm and overlap_ml\n"
             CMD_RECOVER_HELP
             CMD_WAIT_HELP
             "  --help             this text\n");
 }
 
 typedef struct export_args {
-    const char *dir, *tfm, *seg, *nifti, *stl, *report, *all, *platform;
+    const char *dir, *tfm, *seg, *nifti, *stl, *report, *all, *platform, *pdf;
     export_stl_opts stl_o;
     int json, force;
 } export_args;
 
 typedef struct written {
-    json_t *files;
+    json_t *files, *fragments; /* --json: the files, and the fragments' figures */
     long n;
     long long bytes;
     int json;
@@ -107,6 +120,7 @@ static int parse_args(int argc, char **argv, export_args *a)
                             : !strcmp(opt, "--stl")      ? &a->stl
                             : !strcmp(opt, "--report")   ? &a->report
                             : !strcmp(opt, "--all")      ? &a->all
+                            : !strcmp(opt, "--report-pdf") ? &a->pdf
                                                          : NULL;
         long n;
         if (slot) {
@@ -145,6 +159,8 @@ static int parse_args(int argc, char **argv, export_args *a)
     }
     if (!a->dir)
         return cmd_usage_error("export", "CASE is missing");
+    if (a->pdf && !a->report && !a->all)
+        return cmd_usage_error("export", "--report-pdf prints the report: give --report DIR or --all DIR");
     if (!a->tfm && !a->seg && !a->nifti && !a->stl && !a->report && !a->all)
         return cmd_usage_error("export", "nothing to export: give --tfm, --seg-nrrd, --nifti, --stl, --report "
                                          "or --all");
@@ -185,7 +201,75 @@ static int check_outputs(const planning_case *c, const export_args *a)
         rc = cmd_out_file(a->nifti, c);
     if (rc == 0 && a->seg)
         rc = cmd_out_file(a->seg, c);
+    if (rc == 0 && a->pdf)
+        rc = cmd_out_file(a->pdf, c);
     return rc;
+}
+
+/* --json: per fragment the gap across its fracture (report_gaps) and its overlap. */
+static int fragment_figures(const planning_case *c, const vol *planned, const double *overlap, json_t *out)
+{
+    report_gap *g = malloc((size_t)(c->nfrag ? c->nfrag : 1) * sizeof *g);
+    int rc = g ? report_gaps(c, planned, g) : fn_err_set(FN_ENOMEM, "out of memory");
+    for (int i = 0; i < c->nfrag && !rc; i++) {
+        json_t *o = json_object();
+        jsonw_set(o, "id", json_integer(c->frag[i].id));
+        jsonw_set(o, "gap_median_mm", jsonw_measure(g[i].median_mm));
+        jsonw_set(o, "gap_p95_mm", jsonw_measure(g[i].p95_mm));
+        jsonw_set(o, "gap_max_mm", jsonw_measure(g[i].max_mm));
+        jsonw_set(o, "overlap_ml", jsonw_measure(overlap[i]));
+        json_array_append_new(out, o);
+    }
+    free(g);
+    return rc;
+}
+
+static int remove_entry(const char *path, const struct stat *st, int flag, struct FTW *ftw)
+{
+    (void)st, (void)flag, (void)ftw;
+    return remove(path);
+}
+
+/* Prints the page at the absolute path ctx into tmp with headless Chromium (its own profile in a
+ * temporary folder, removed after). */
+static int print_page(durable_file *f, void *ctx)
+{
+    const char *tmp = f->tmp;
+    char profile[] = "/tmp/fracnav-chromium-XXXXXX", url[PATH_MAX + 16], pdf[sizeof f->tmp + 32], udd[64];
+    if (!mkdtemp(profile))
+        return fn_err_set(FN_EIO, "--report-pdf: a folder for Chromium's profile: %s", strerror(errno));
+    snprintf(url, sizeof url, "file://%s", (const char *)ctx);
+    snprintf(pdf, sizeof pdf, "--print-to-pdf=%s", tmp);
+    snprintf(udd, sizeof udd, "--user-data-dir=%s", profile);
+    pid_t pid = fork();
+    if (pid == 0) {
+        int null = open("/dev/null", O_RDWR);
+        dup2(null, STDIN_FILENO), dup2(null, STDOUT_FILENO), dup2(null, STDERR_FILENO);
+        execlp("chromium", "chromium", "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run",
+               "--disable-background-networking", "--disable-component-update", "--disable-sync",
+               "--no-pdf-header-footer", udd, pdf, url, (char *)NULL);
+        _exit(127);
+    }
+    int status = 0;
+    if (pid < 0 || waitpid(pid, &status, 0) < 0)
+        status = -1;
+    nftw(profile, remove_entry, 16, FTW_DEPTH | FTW_PHYS);
+    struct stat st;
+    if (WIFEXITED(status) && WEXITSTATUS(status) == 127)
+        return fn_err_set(FN_ENODEV, "--report-pdf: chromium is not installed (apt-get install chromium)");
+    if (status != 0 || stat(tmp, &st) != 0 || st.st_size == 0)
+        return fn_err_set(FN_EIO, "--report-pdf: chromium printed no PDF of %s (status %#x)", url, status);
+    return 0;
+}
+
+/* FILE.pdf: the report in dir printed by headless Chromium, written atomically. */
+static int report_pdf(const char *dir, const char *pdf)
+{
+    char html[PATH_MAX + 16], abs[PATH_MAX];
+    if (!realpath(dir, abs))
+        return fn_err_set(FN_EIO, "--report-pdf: %s: %s", dir, strerror(errno));
+    snprintf(html, sizeof html, "%s/index.html", abs);
+    return durable_replace(pdf, print_page, html);
 }
 
 static int run(const planning_case *c, const export_args *a, written *w)
@@ -228,7 +312,7 @@ static int run(const planning_case *c, const export_args *a, written *w)
                                 "further without opening or folding the surface\n", path, nt, a->stl_o.decimate);
         }
     }
-    if (rc || (!seg && !nifti && !report))
+    if (rc || (!seg && !nifti && !report && !w->fragments))
         return rc;
     size_t npairs = (size_t)c->nfrag * (size_t)c->nfrag / 2 + 1;
     double *overlap = calloc((size_t)c->nfrag + 1, sizeof *overlap);
@@ -250,6 +334,10 @@ static int run(const planning_case *c, const export_args *a, written *w)
         wrote(w, nifti);
     if (!rc && report)
         rc = report_write(c, planned, overlap, report, a->platform, wrote, w);
+    if (!rc && report && a->pdf && (rc = report_pdf(report, a->pdf)) == 0)
+        wrote(w, a->pdf);
+    if (!rc && w->fragments)
+        rc = fragment_figures(c, planned, overlap, w->fragments);
     vol_free(planned);
     free(overlap);
     return rc;
@@ -279,7 +367,7 @@ int cmd_export(int argc, char **argv)
         fprintf(stderr, "fracnav export: %s\n", fn_err_msg());
         return 1;
     }
-    written w = {a.json ? json_array() : NULL, 0, 0, a.json};
+    written w = {a.json ? json_array() : NULL, a.json ? json_array() : NULL, 0, 0, a.json};
     rc = check_outputs(c, &a);
     if (!rc && !a.json)
         printf("fracnav export: %s (%d fragments)\n", a.dir, c->nfrag);
@@ -288,6 +376,7 @@ int cmd_export(int argc, char **argv)
     if (rc) {
         fprintf(stderr, "fracnav export: %s\n", fn_err_msg());
         json_decref(w.files);
+        json_decref(w.fragments);
         case_free(c);
         return 1;
     }
@@ -296,10 +385,12 @@ int cmd_export(int argc, char **argv)
         if (o) {
             jsonw_set(o, "case", jsonw_string(a.dir));
             jsonw_set(o, "files", w.files);
+            jsonw_set(o, "fragments", w.fragments);
             jsonw_set(o, "files_written", json_integer(w.n));
             jsonw_set(o, "written_total_bytes", json_integer(w.bytes));
         } else {
             json_decref(w.files);
+            json_decref(w.fragments);
         }
         rc = jsonw_print(o, stdout) ? 1 : 0;
     } else {

@@ -49,15 +49,22 @@ static void usage(FILE *out)
             "  --duration S        stop after S seconds (scripts, tests)\n"
             "  --view V            window (default when $DISPLAY is set and OpenGL 4.5 is there:\n"
             "                      the fragments drawn at their poses with a HUD; left drag orbits,\n"
-            "                      right or middle drag pans, the wheel zooms, keys 1-6 give the\n"
+            "                      right or middle drag pans, the wheel zooms, Ctrl+1..6 give the\n"
             "                      anterior, posterior, left, right, superior and inferior views,\n"
+            "                      the window's other keys are F-keys, every other key typed there\n"
+            "                      acts as in the terminal (with --device keyboard it steers),\n"
             "                      and the camera frame follows the view) or terminal; without a\n"
             "                      display or GL 4.5 the terminal view stays, with a line saying why\n"
             "  --mode M            the window's mode: iso (default on a GPU), dvr, mip or surface\n"
             "                      (default on software GL)\n"
-            "  --layout L          the window's layout: 3d (default) or four-up (axial, 3D,\n"
-            "                      sagittal, coronal; the slices cut through the selected\n"
-            "                      fragment's centroid at its pose)\n"
+            "  --layout L          the window's layout: 3d (default) or four-up (the 3D view large,\n"
+            "                      the axial, coronal and sagittal slices below; they cut through\n"
+            "                      the selected fragment's centroid at its pose, or where a click\n"
+            "                      or the wheel over a slice puts them)\n"
+            "  --camera VIEW       the window's first view: auto (default: framed on the selected\n"
+            "                      fragment from the side where it is seen, again at each change of\n"
+            "                      the selection; Ctrl+0), or anterior, posterior, left, right,\n"
+            "                      superior, inferior\n"
             "  --overlay LIST      on the window's 3D view: hierarchy[:DEPTH], contacts, axes, voi,\n"
             "                      as fracnav render takes them\n"
             "  --screenshot FILE   the window as last drawn, as a PNG, at exit\n"
@@ -66,7 +73,8 @@ static void usage(FILE *out)
             CMD_WAIT_HELP "\n"
             "The view (on standard error) is laid out for the terminal's width: warnings first,\n"
             "then the selected fragment, its contact (the gap is a lower bound measured at the\n"
-            "pose shown), its position and its rotation (degrees about an axis, world LPS), the\n"
+            "pose shown), its move (mm right/left, anterior/posterior, inferior/superior) and its\n"
+            "turn (degrees about those axes, world LPS), the\n"
             "frame and rates, and what the last key or button did. Off a terminal it is one line\n"
             "a second, and one at each warning or action.\n\n"
             "%s%s"
@@ -302,11 +310,13 @@ static struct winsize terminal_size(void)
     return ws;
 }
 
-/* The help below the view (appended to text at *len), each line cut to the width. Returns the
- * lines added. */
+/* The help below the view (with the window's keys when it is open; appended to text at *len),
+ * each line cut to the width. Returns the lines added. */
 static int add_help(const view *v, int width, char *text, size_t cap, size_t *len)
 {
-    const char *t = navview_help(v->keyboard);
+    char all[4096];
+    snprintf(all, sizeof all, "%s%s", navview_help(v->keyboard), v->win ? navwin_help() : "");
+    const char *t = all;
     int n = 0;
     while (*t) {
         const char *end = strchr(t, '\n');
@@ -361,17 +371,40 @@ static void end_bottom(view *v)
     v->lines = 0;
 }
 
+/* A key typed in the window: with the keyboard device it steers as in the terminal (the device
+ * reads it, arrows as the terminal's escape sequences); otherwise it is a terminal key. Escape
+ * quits either way. */
+static void window_key(view *v, int k)
+{
+    static const char *arrow[] = {"\033[D", "\033[C", "\033[A", "\033[B"}; /* RENDER_KEY_LEFT.. */
+    char c = (char)k;
+    const char *bytes = k >= RENDER_KEY_LEFT && k <= RENDER_KEY_DOWN ? arrow[k - RENDER_KEY_LEFT]
+                        : k > 0 && k < 128 && k != 27                ? &c
+                                                                     : NULL;
+    if (!v->keyboard || !v->ds || !bytes) {
+        if (k > 0 && k < 128)
+            handle_key(v, k);
+    } else if (dev_feed_keys(session_dsource_device(v->ds), bytes, bytes == &c ? 1 : strlen(bytes)) < 0)
+        acknowledge(v, fn_err_msg());
+}
+
 /* What the view shows besides the scene (refused: room for the refusal). */
 static navview_extra view_extra(view *v, char *refused, size_t cap)
 {
     navview_extra x = {-1, NULL, NULL, session_frags(v->k), NULL};
     session_fit fs;
     session_fit_status(v->k, &fs);
-    if (fs.running) {
+    if (fs.running)
         snprintf(v->fit, sizeof v->fit, "fitting frag %d: iteration %d, metric %.4f, %.1f s",
                  fs.frag + 1, fs.iterations, fs.metric, fs.seconds);
-        x.fit = v->fit;
-    }
+    else if (fs.finished && fs.result == 0)
+        snprintf(v->fit, sizeof v->fit, "fit of frag %d: metric %.4f -> %.4f, moved %.2f mm, turned %.2f deg",
+                 fs.frag + 1, fs.metric_start, fs.metric, fs.moved_mm, fs.turned_deg);
+    else if (fs.finished)
+        snprintf(v->fit, sizeof v->fit, "fit of frag %d %s", fs.frag + 1, fs.result > 0 ? "cancelled" : "failed");
+    else
+        snprintf(v->fit, sizeof v->fit, "not fitted yet (g fits)");
+    x.fit = v->fit;
     if (v->ds) {
         x.battery = session_dsource_battery(v->ds);
         if (session_dsource_refused(v->ds, refused, cap))
@@ -400,7 +433,7 @@ static void window_frame(view *v, const loop_scene *sc)
         quit = 1;
     }
     for (int i = 0; i < n; i++)
-        handle_key(v, keys[i]);
+        window_key(v, keys[i]);
     if (closed)
         quit = 1;
 }
@@ -428,7 +461,7 @@ static void draw(view *v, const loop_scene *sc)
         navview_format(sc, &x, 0, text, sizeof text);
         fprintf(stderr, "%s\n", text);
         if (v->help && !v->logged_help)
-            fputs(navview_help(v->keyboard), stderr);
+            fprintf(stderr, "%s%s", navview_help(v->keyboard), v->win ? navwin_help() : "");
         v->logged_help = v->help;
         v->last_print_us = now;
     }

@@ -6,6 +6,7 @@
 #include "err.h"
 #include "fnclock.h"
 #include "jsonw.h"
+#include "navview.h"
 #include "reduce.h"
 
 #include <limits.h>
@@ -242,9 +243,21 @@ static int report(const planning_case *c, const args *A, int fixed, const reduce
 {
     if (!A->json) {
         for (int i = 0; i < n; i++) {
-            printf("fragment %d: metric %.6f -> %.6f, %d iterations, %d evaluations, %.3f s%s", r[i].id,
-                   r[i].metric_start, r[i].metric_end, r[i].iterations, r[i].evaluations, r[i].seconds,
-                   r[i].prealigned ? ", pre-aligned" : "");
+            /* The piece's own move: a multi-fragment fit can move pieces a lot for a metric that
+             * hardly changes (the issue: "metric -0.722651 -> -0.722651"). */
+            const double *cen = c->frag[case_find(c, r[i].id)].centroid;
+            double a[3], b[3], d[3];
+            pose_apply(&r[i].placed, cen, a);
+            pose_apply(&r[i].end, cen, b);
+            for (int k = 0; k < 3; k++)
+                d[k] = b[k] - a[k];
+            char move[128];
+            navview_move_text(d, move, sizeof move);
+            printf("fragment %d: metric %.6f -> %.6f; moved %.2f mm (%s), turned %.2f deg; %d iterations, "
+                   "%d evaluations, %.3f s%s",
+                   r[i].id, r[i].metric_start, r[i].metric_end, sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]), move,
+                   pose_angle_between(r[i].placed, r[i].end) * 180 / M_PI, r[i].iterations, r[i].evaluations,
+                   r[i].seconds, r[i].prealigned ? ", pre-aligned" : "");
             double rot, trans, tre;
             if (c->has_truth && reduce_truth_errors(c, fixed, case_find(c, r[i].id), &rot, &trans, &tre) == 0)
                 printf("; error %.3f deg, %.3f mm, TRE %.3f mm", rot, trans, tre);

@@ -3,6 +3,7 @@
 
 #include "case.h"
 #include "err.h"
+#include "jsonw.h"
 #include "render.h"
 #include "picture.h"
 
@@ -15,7 +16,8 @@ static void usage(FILE *out)
     fprintf(out,
             "usage: fracnav render CASE -o FILE.png [--mode iso|dvr|mip|surface] [--size WxH]\n"
             "                      [--view VIEW] [--layout 3d|four-up] [--overlay LIST]\n"
-            "                      [--point X,Y,Z] [--platform osmesa|glfw] [--recover] [--wait]\n\n"
+            "                      [--point X,Y,Z] [--fragment ID] [--platform osmesa|glfw]\n"
+            "                      [--json] [--recover] [--wait]\n\n"
             "Draw a case's fragments at their current poses with OpenGL 4.5 core: offscreen through\n"
             "OSMesa (llvmpipe) unless --platform glfw asks for a window. Each fragment is its CT\n"
             "crop masked by its label, in its colour.\n\n"
@@ -24,11 +26,15 @@ static void usage(FILE *out)
             "                    dvr: volume rendering through a transfer function over HU;\n"
             "                    mip: maximum intensity; surface: triangle meshes (default iso)\n"
             "  --size WxH        pixels (default 512x512)\n"
-            "  --view VIEW       anterior, posterior, left, right, superior, inferior (default\n"
-            "                    anterior); the camera fits the fragments at home\n"
-            "  --layout L        3d, or four-up: axial (top left), 3D (top right), sagittal (bottom\n"
-            "                    left), coronal (bottom right); slices show the CT in grey and each\n"
-            "                    fragment's outline in its colour\n"
+            "  --view VIEW       auto (default): framed on the selected fragment (--fragment) from\n"
+            "                    the side where most of it is seen (its principal axes, the\n"
+            "                    named views, the view onto the nearest fragment); or anterior,\n"
+            "                    posterior, left, right, superior, inferior: the camera fits\n"
+            "                    the fragments at home\n"
+            "  --fragment ID     the selected fragment (default: the first that is not fixed)\n"
+            "  --layout L        3d, or four-up: the 3D view over the top two thirds, and below it\n"
+            "                    the axial, coronal and sagittal slices; slices show the CT in grey\n"
+            "                    and each fragment's outline in its colour\n"
             "  --overlay LIST    comma-separated: hierarchy[:DEPTH] (the OBB octree's boxes at\n"
             "                    DEPTH, root = 1, default 3), contacts (both voxels of every\n"
             "                    colliding voxel pair outlined and the contact region tinted,\n"
@@ -38,6 +44,9 @@ static void usage(FILE *out)
             "  --point X,Y,Z     where the slices cut, LPS mm (default: the first fragment's\n"
             "                    centroid at its pose)\n"
             "  --platform P      osmesa (default) or glfw (needs a display)\n"
+            "  --json            print {\"command\": \"render\", \"view\", \"fragments\": [{\"id\",\n"
+            "                    \"projected_pixels\", \"visible_pixels\"}]}: the pixels each fragment\n"
+            "                    covers drawn alone, and those where it is in front (as meshes)\n"
             CMD_RECOVER_HELP
             CMD_WAIT_HELP
             "  --help            this text\n\n"
@@ -65,9 +74,9 @@ static int parse_point(const char *s, double p[3])
 
 typedef struct render_args {
     const char *dir, *out, *platform;
-    int w, h, have_point;
+    int w, h, have_point, json, fragment; /* fragment: an id, 0 for the first that is not fixed */
     double point[3];
-    render_view view;
+    int view; /* render_view, or -1: auto */
     render_options o;
 } render_args;
 
@@ -85,9 +94,22 @@ static int parse_args(int argc, char **argv, render_args *a)
             if (!parse_size(val, &a->w, &a->h))
                 return cmd_bad_value("render", opt, val, "WxH, 16 to 8192 pixels each");
         } else if (!strcmp(opt, "--view")) {
-            if (render_view_parse(val, &a->view))
+            render_view v;
+            if (val && !strcmp(val, "auto"))
+                a->view = -1;
+            else if (render_view_parse(val, &v))
                 return cmd_bad_value("render", opt, val,
-                                     "anterior, posterior, left, right, superior or inferior");
+                                     "auto, anterior, posterior, left, right, superior or inferior");
+            else
+                a->view = (int)v;
+        } else if (!strcmp(opt, "--fragment")) {
+            double id;
+            if (!val || !cmd_number(val, &id) || id < 1 || id != (int)id)
+                return cmd_bad_value("render", opt, val, "a fragment's id (1, 2, ...)");
+            a->fragment = (int)id;
+        } else if (!strcmp(opt, "--json")) {
+            a->json = 1;
+            takes = 0;
         } else if (!strcmp(opt, "--layout")) {
             if (render_layout_parse(val, &a->o.layout))
                 return cmd_bad_value("render", opt, val, "3d or four-up");
@@ -133,11 +155,47 @@ static int inside_ct(const vol *v, const double p[3])
     return 1;
 }
 
+/* The index of the selected fragment: --fragment's, or the first that is not fixed. -1 with
+ * fn_err when --fragment names none. */
+static int selected(const planning_case *c, int id)
+{
+    for (int i = 0; i < c->nfrag; i++)
+        if (id ? c->frag[i].id == id : i != c->fixed)
+            return i;
+    if (id)
+        return fn_err_set(FN_EINVAL, "--fragment %d: the case has no such fragment", id), -1;
+    return 0;
+}
+
+/* --json: the view and each fragment's pixels through o's camera. */
+static int print_json(render *r, const planning_case *c, const render_args *a, const render_options *o, int sel)
+{
+    long proj[RENDER_MAX_FRAGS], vis[RENDER_MAX_FRAGS];
+    int rc = render_fragment_pixels(r, NULL, o, proj, vis);
+    if (rc)
+        return rc;
+    static const char *names[] = {"anterior", "posterior", "left", "right", "superior", "inferior"};
+    json_t *j = jsonw_object("render"), *frags = json_array();
+    jsonw_set(j, "file", jsonw_string(a->out));
+    jsonw_set(j, "view", jsonw_string(a->view < 0 ? "auto" : names[a->view]));
+    jsonw_set(j, "mode", jsonw_string(render_mode_name(o->mode)));
+    jsonw_set(j, "selected", json_integer(c->frag[sel].id));
+    jsonw_set(j, "camera_forward", jsonw_exact_array(o->camera.forward, 3));
+    for (int i = 0; i < c->nfrag; i++)
+        json_array_append_new(frags, json_pack("{s:i,s:I,s:I}", "id", c->frag[i].id, "projected_pixels",
+                                               (json_int_t)proj[i], "visible_pixels", (json_int_t)vis[i]));
+    jsonw_set(j, "fragments", frags);
+    return jsonw_print(j, stdout);
+}
+
 static int draw(planning_case *c, render_args *a)
 {
     render_options o = a->o, d;
+    int sel = selected(c, a->fragment);
+    if (sel < 0)
+        return FN_EINVAL;
     render_options_default(&d, c->frag, c->nfrag);
-    render_camera_standard(&o.camera, a->view, c->frag, c->nfrag);
+    render_camera_standard(&o.camera, a->view < 0 ? RENDER_ANTERIOR : (render_view)a->view, c->frag, c->nfrag);
     memcpy(o.slice_point, a->have_point ? a->point : d.slice_point, sizeof o.slice_point);
     if ((o.overlays & RENDER_OVERLAY_VOI) && !(o.nvoi = cmd_case_voi(c, o.voi, RENDER_MAX_FRAGS)))
         return fn_err_set(FN_EINVAL, "--overlay voi: the case holds no reduction VOI (fracnav reduce "
@@ -151,6 +209,8 @@ static int draw(planning_case *c, render_args *a)
     if (!rc)
         rc = render_set_scene(r, c->ct, c->frag, c->nfrag, c->seg.threshold,
                               (o.overlays & (RENDER_OVERLAY_HIERARCHY | RENDER_OVERLAY_CONTACTS)) ? &hp : NULL);
+    if (!rc && a->view < 0)
+        rc = render_camera_auto(r, &o.camera, c->frag, c->nfrag, NULL, sel);
     if (!rc)
         rc = render_frame(r, NULL, &o);
     if (!rc)
@@ -160,6 +220,8 @@ static int draw(planning_case *c, render_args *a)
     if (!rc)
         fprintf(stderr, "fracnav render: %s (%s, %d fragments, %s)\n", a->out, render_mode_name(o.mode),
                 c->nfrag, render_gl_renderer(r));
+    if (!rc && a->json)
+        rc = print_json(r, c, a, &o, sel);
     free(rgb);
     render_close(r);
     return rc;
@@ -171,7 +233,7 @@ int cmd_render(int argc, char **argv)
         usage(stdout);
         return 0;
     }
-    render_args a = {.w = 512, .h = 512, .view = RENDER_ANTERIOR};
+    render_args a = {.w = 512, .h = 512, .view = -1};
     a.o.mode = RENDER_ISO;
     a.o.hierarchy_depth = 3;
     int wait = cmd_take_flag(&argc, argv, "--wait"), recover = cmd_take_flag(&argc, argv, "--recover");

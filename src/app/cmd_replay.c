@@ -55,7 +55,7 @@ static void usage(FILE *out)
             "                      the live loop (default: as fast as possible, one thread)\n"
             "  --view V            with --realtime: window (default when $DISPLAY is set and OpenGL\n"
             "                      4.5 is there: the fragments drawn live at the loop's poses with\n"
-            "                      navigate's HUD; the pointer and keys 1-6 move the view, never the\n"
+            "                      navigate's HUD; the pointer and Ctrl+1..6 move the view, never the\n"
             "                      fragments; q, Escape or closing it closes the window and the\n"
             "                      replay runs on to its end) or terminal (no window); without a\n"
             "                      display or GL 4.5 there is no window, and a line says why\n"
@@ -82,11 +82,13 @@ static void usage(FILE *out)
             "  --frame-ms N        the recording's milliseconds per picture (default 40)\n"
             "  --mode M            how the window and --frames draw: iso (default for --frames and\n"
             "                      on a GPU), dvr, mip or surface (the window's default on\n"
-            "                      software GL); the window's v key changes it\n"
+            "                      software GL); the window's F2 key changes it\n"
             "  --layout L          3d (default) or four-up (slices through the selected fragment's\n"
-            "                      centroid); the window's l key changes it\n"
+            "                      centroid); the window's F3 key changes it\n"
+            "  --camera VIEW       the window's first view: auto (default), or anterior, posterior,\n"
+            "                      left, right, superior, inferior, as navigate takes it\n"
             "  --overlay LIST      hierarchy[:DEPTH], contacts, axes, voi, as fracnav render takes\n"
-            "                      them; the window's b, k, a and o keys turn them on and off\n"
+            "                      them; the window's F6, F5, F4 and F9 keys turn them on and off\n"
             "  --help              this text\n");
 }
 

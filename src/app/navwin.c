@@ -25,6 +25,13 @@ struct navwin {
     int w, h;
     render_options o;
     int have_trees; /* the renderer holds the hierarchies (boxes, contacts) */
+    int auto_view;  /* Ctrl+0: the camera frames the selected fragment (render_camera_auto) */
+    int auto_for;   /* the fragment it was framed on; -1: frame it again */
+    int slice_set;  /* a click or the wheel put the slices' point: it stays until the selection
+                     * changes (else it follows the selected fragment's centroid) */
+    int slice_for;  /* the selected fragment when it was put */
+    navwin_click_fn on_click;
+    void *click_ctx;
     int nvoi;       /* the case's reduction VOI boxes (o.voi) */
     uint64_t drawn_seq;
     int dirty;
@@ -110,6 +117,14 @@ int navwin_look_option(const char *cmd, const char *a, const char *val, navwin_l
     } else if (!strcmp(a, "--layout")) {
         if (render_layout_parse(val, &look->layout))
             *rc = cmd_bad_value(cmd, a, val, "3d or four-up");
+    } else if (!strcmp(a, "--camera")) {
+        render_view v;
+        if (val && !strcmp(val, "auto"))
+            look->camera = -1;
+        else if (render_view_parse(val, &v))
+            *rc = cmd_bad_value(cmd, a, val, "auto, anterior, posterior, left, right, superior or inferior");
+        else
+            look->camera = (int)v;
     } else if (!strcmp(a, "--overlay")) {
         if (!val)
             *rc = cmd_bad_value(cmd, a, val, "hierarchy[:DEPTH], contacts, axes, voi");
@@ -122,9 +137,12 @@ int navwin_look_option(const char *cmd, const char *a, const char *val, navwin_l
 
 const char *navwin_help(void)
 {
-    return "window: 1-6 anterior, posterior, left, right, superior, inferior view   v mode\n"
-           "  l layout (3D, four-up)   a axes   k contacts   b hierarchy boxes ([ ] depth)   o VOI\n"
-           "  left drag orbits, right or middle drag pans, the wheel zooms\n";
+    return "window: Ctrl+1..6 anterior, posterior, left, right, superior, inferior view\n"
+           "  Ctrl+0 auto view: framed on the selected fragment, following the selection\n"
+           "  F1 these keys  F2 mode  F3 layout (3D, four-up)  F4 axes  F5 contacts\n"
+           "  F6 hierarchy boxes  F7/F8 their depth  F9 VOI   other keys as in the terminal\n"
+           "  left drag orbits, right or middle drag pans, the wheel zooms; in four-up the\n"
+           "  wheel over a slice moves it, a click on a slice moves the slices' crosshair\n";
 }
 
 navwin *navwin_open(session *k, int steer, int width, int height, const navwin_look *look)
@@ -159,13 +177,12 @@ navwin *navwin_open(session *k, int steer, int width, int height, const navwin_l
         return NULL;
     }
     render_options_default(&w->o, c->frag, c->nfrag);
-    /* Software GL rasterizes meshes far faster than it casts rays: surface is its interactive
-     * mode. */
-    const char *rn = render_gl_renderer(w->r);
-    w->o.mode = look->mode >= 0                                    ? (render_mode)look->mode
-                : strstr(rn, "llvmpipe") || strstr(rn, "softpipe") ? RENDER_SURFACE
-                                                                   : RENDER_ISO;
+    w->o.mode = look->mode >= 0 ? (render_mode)look->mode : render_default_mode(w->r);
     w->o.layout = look->layout;
+    if (look->camera >= 0)
+        render_camera_standard(&w->o.camera, (render_view)look->camera, c->frag, c->nfrag);
+    w->auto_view = look->camera < 0;
+    w->auto_for = -1;
     w->o.overlays = look->overlays;
     w->o.hierarchy_depth = look->hierarchy_depth;
     w->nvoi = cmd_case_voi(c, w->o.voi, RENDER_MAX_FRAGS);
@@ -232,36 +249,36 @@ static void toggle(navwin *w, unsigned bit, const char *name)
     note(w, "%s %s", name, (w->o.overlays & bit) ? "on" : "off");
 }
 
-/* A key of the window's own (the look); 0 when k is none of them. */
+/* A key of the window's own (the look: F2-F9); 0 when k is none of them. */
 static int look_key(navwin *w, int k)
 {
     render_options *o = &w->o;
-    switch (k) {
-    case 'v':
+    switch (k - RENDER_KEY_F1 + 1) {
+    case 2:
         o->mode = (render_mode)((o->mode + 1) % 4);
         note(w, "mode: %s", render_mode_name(o->mode));
         return 1;
-    case 'l':
+    case 3:
         o->layout = o->layout == RENDER_LAYOUT_3D ? RENDER_LAYOUT_FOUR_UP : RENDER_LAYOUT_3D;
         note(w, "layout: %s", o->layout == RENDER_LAYOUT_3D ? "3D" : "four-up");
         return 1;
-    case 'a':
+    case 4:
         toggle(w, RENDER_OVERLAY_AXES, "principal axes");
         return 1;
-    case 'k':
+    case 5:
         toggle(w, RENDER_OVERLAY_CONTACTS, "contacts");
         break;
-    case 'b':
+    case 6:
         toggle(w, RENDER_OVERLAY_HIERARCHY, "hierarchy boxes");
         break;
-    case '[':
-    case ']':
-        o->hierarchy_depth += k == ']' ? 1 : -1;
+    case 7:
+    case 8:
+        o->hierarchy_depth += k == RENDER_KEY_F1 + 7 ? 1 : -1;
         o->hierarchy_depth = o->hierarchy_depth < 1 ? 1 : o->hierarchy_depth > 32 ? 32 : o->hierarchy_depth;
         o->overlays |= RENDER_OVERLAY_HIERARCHY;
         note(w, "hierarchy boxes at depth %d", o->hierarchy_depth);
         break;
-    case 'o':
+    case 9:
         if (w->nvoi)
             toggle(w, RENDER_OVERLAY_VOI, "VOI");
         else
@@ -275,24 +292,61 @@ static int look_key(navwin *w, int k)
     return 1;
 }
 
-/* The pointer and the view keys move the camera, the look keys change the look; other keys go
- * to the caller. */
+/* In four-up, over a slice: the wheel moves that slice along its normal (a millimetre a step), a
+ * click puts the slices' point where it is (and goes to the click hook). 1 when it did either. */
+static int slice_input(navwin *w, const render_input *in)
+{
+    if (w->o.layout != RENDER_LAYOUT_FOUR_UP)
+        return 0;
+    double p[3], n[3];
+    int did = 0, pane = in->scroll != 0 ? render_slice_point_at(w->r, &w->o, in->x, in->y, p) : -1;
+    if (pane >= 0) {
+        render_slice_normal(pane, n);
+        for (int a = 0; a < 3; a++)
+            w->o.slice_point[a] += n[a] * in->scroll;
+        did = 1;
+    }
+    if (in->clicked && render_slice_point_at(w->r, &w->o, in->click[0], in->click[1], p) >= 0) {
+        memcpy(w->o.slice_point, p, sizeof p);
+        note(w, "slices through (%.1f, %.1f, %.1f) mm", p[0], p[1], p[2]);
+        if (w->on_click)
+            w->on_click(w->click_ctx, p);
+        did = 1;
+    }
+    w->slice_set |= did;
+    return did;
+}
+
+void navwin_on_click(navwin *w, navwin_click_fn fn, void *ctx)
+{
+    w->on_click = fn;
+    w->click_ctx = ctx;
+}
+
+/* The pointer and the view keys (Ctrl+1..6) move the camera, the look keys (F2-F9) change the
+ * look; F1 goes to the caller as '?', and every other key as it came. */
 static int handle_input(navwin *w, const render_input *in, int *keys, int cap)
 {
     render_camera *cam = &w->o.camera;
     int n = 0, moved = 0;
     for (int i = 0; i < in->nkeys; i++) {
         int k = in->keys[i];
-        if (k >= '1' && k <= '6') {
-            render_camera_standard(cam, (render_view)(k - '1'), w->c->frag, w->c->nfrag);
+        if (k >= (RENDER_KEY_CTRL | '1') && k <= (RENDER_KEY_CTRL | '6')) {
+            render_camera_standard(cam, (render_view)(k - (RENDER_KEY_CTRL | '1')), w->c->frag, w->c->nfrag);
+            w->auto_view = 0;
             moved = 1;
+        } else if (k == (RENDER_KEY_CTRL | '0')) {
+            w->auto_view = 1;
+            w->auto_for = -1;
+            note(w, "view: auto (follows the selected fragment)");
         } else if (!look_key(w, k) && n < cap)
-            keys[n++] = k;
+            keys[n++] = k == RENDER_KEY_F1 ? '?' : k;
     }
     double right[3];
     cross(cam->forward, cam->up, right);
     const double *orbit = in->drag[0];
     if (orbit[0] != 0 || orbit[1] != 0) {
+        w->auto_view = 0;
         /* Dragging right turns the scene to the right (the camera to its left), about up; dragging
          * down tips it towards the viewer, about right. */
         double up[3] = {cam->up[0], cam->up[1], cam->up[2]}, rad = ORBIT_DEG_PER_PX * M_PI / 180.0;
@@ -303,6 +357,7 @@ static int handle_input(navwin *w, const render_input *in, int *keys, int cap)
         normalize(cam->up);
         moved = 1;
     }
+    render_size(w->r, &w->w, &w->h);
     double mm_per_px = 2.0 * cam->half_height / w->h;
     for (int b = 1; b < 3; b++)
         if (in->drag[b][0] != 0 || in->drag[b][1] != 0) {
@@ -310,7 +365,9 @@ static int handle_input(navwin *w, const render_input *in, int *keys, int cap)
                 cam->centre[a] += (-right[a] * in->drag[b][0] + cam->up[a] * in->drag[b][1]) * mm_per_px;
             moved = 1;
         }
-    if (in->scroll != 0) {
+    if (slice_input(w, in))
+        moved = 1;
+    else if (in->scroll != 0) {
         cam->half_height *= pow(0.9, in->scroll);
         moved = 1;
     }
@@ -329,14 +386,15 @@ static void hud_text(const navwin *w, const char *hud, char *text, size_t cap)
     char r2f[64] = "";
     if (w->r2f_ms > 0)
         snprintf(r2f, sizeof r2f, ", report to frame <= %.0f ms", w->r2f_ms);
-    snprintf(text, cap, "%s%s%s\nframe %.1f ms%s (%s, %s)", hud, noted ? "\nwindow: " : "", noted ? w->note : "",
+    snprintf(text, cap, "%s%s%s\nframe %.1f ms%s\n%s on %s", hud, noted ? "\nwindow: " : "", noted ? w->note : "",
              w->last_ms, r2f, render_mode_name(w->o.mode), render_gl_renderer(w->r));
 }
 
 /* Draws the scene with the HUD's text into the back buffer, late latched (render_frame_early
  * with sc, then render_frame_late with the loop's newest scene, into *shown): a surface frame in
  * the 3D layout draws the moving fragment at the newest pose there is. In four-up the slices cut
- * through the selected fragment's centroid at its pose. */
+ * through the selected fragment's centroid at its pose, or where a click or the wheel put them
+ * (until the selection changes). */
 static int draw(navwin *w, const loop_scene *sc, const char *text, loop_scene *shown)
 {
     int n = w->c->nfrag;
@@ -348,10 +406,15 @@ static int draw(navwin *w, const loop_scene *sc, const char *text, loop_scene *s
         session_scene_read(w->k, shown);
     }
     int ok = shown->nfrag == n, sel = ok && shown->selected >= 0 && shown->selected < n ? shown->selected : 0;
-    if (ok)
+    if (ok && w->slice_set && sel != w->slice_for)
+        w->slice_set = 0;
+    w->o.cutaway = ok && w->auto_view ? sel + 1 : 0; /* the auto view keeps the piece in hand in sight */
+    if (ok && !w->slice_set) {
         pose_apply(&shown->pose[sel], w->c->frag[sel].centroid, w->o.slice_point);
+        w->slice_for = sel;
+    }
     int rc = render_frame_late(w->r, ok ? shown->pose : NULL, &w->o);
-    return rc ? rc : render_hud(w->r, text, w->w >= 900 ? 2 : 1);
+    return rc ? rc : render_hud(w->r, text, render_hud_scale(w->r));
 }
 
 /* After a frame shown at `shown`: the worst report-to-frame of the last R2F_WINDOW_US. */
@@ -377,7 +440,17 @@ int navwin_frame(navwin *w, const loop_scene *sc, const char *hud, int *keys, in
     if (rc)
         return rc;
     *close = in.close;
+    int w0 = w->w, h0 = w->h;
     int n = handle_input(w, &in, keys, cap);
+    w->dirty |= w->w != w0 || w->h != h0; /* resized */
+    if (w->auto_view && sc->nfrag == w->c->nfrag && sc->selected != w->auto_for) {
+        rc = render_camera_auto(w->r, &w->o.camera, w->c->frag, w->c->nfrag, sc->pose, sc->selected);
+        if (rc)
+            return rc;
+        w->auto_for = sc->selected;
+        camera_to_loop(w);
+        w->dirty = 1;
+    }
     if (w->note[0] && fnclock_now_us() >= w->note_until_us) {
         w->note[0] = 0;
         w->dirty = 1;
@@ -404,16 +477,44 @@ int navwin_frame(navwin *w, const loop_scene *sc, const char *hud, int *keys, in
     return n;
 }
 
+/* Appends src to dst (at *len, cap) with every line wrapped at the last space before cols
+ * characters; a wrapped line goes on indented by four spaces. */
+static void wrap(char *dst, size_t cap, size_t *len, const char *src, int cols)
+{
+    int col = 0;
+    for (const char *p = src; *p && *len + 6 < cap; p++) {
+        if (*p == '\n') {
+            dst[(*len)++] = '\n';
+            col = 0;
+            continue;
+        }
+        if (*p == ' ' && col > 4 && col + 1 + (int)strcspn(p + 1, " \n") > cols) {
+            memcpy(dst + *len, "\n    ", 5);
+            *len += 5;
+            col = 4;
+            continue;
+        }
+        dst[(*len)++] = *p;
+        col++;
+    }
+    dst[*len] = '\0';
+}
+
 int navwin_show(navwin *w, const loop_scene *sc, const navview_extra *x, const char *device, const char *help,
                 int *keys, int cap, int *close)
 {
-    char text[4096];
-    navview_format(sc, x, 100, text, sizeof text);
-    size_t len = strlen(text);
-    snprintf(text + len, sizeof text - len, "\ndevice: %s", device);
+    char view[4096], text[8192];
+    int cols = render_hud_columns(w->r);
+    navview_format(sc, x, cols + 1, view, sizeof view);
+    size_t len = 0;
+    text[0] = '\0';
+    wrap(text, sizeof text, &len, view, cols);
+    wrap(text, sizeof text, &len, "\ndevice: ", cols);
+    wrap(text, sizeof text, &len, device, cols);
     if (help) {
-        len = strlen(text);
-        snprintf(text + len, sizeof text - len, "\n%s%s", help, navwin_help());
+        wrap(text, sizeof text, &len, "\n", cols);
+        wrap(text, sizeof text, &len, help, cols);
+        wrap(text, sizeof text, &len, navwin_help(), cols);
     }
     return navwin_frame(w, sc, text, keys, cap, close);
 }

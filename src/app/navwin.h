@@ -1,11 +1,13 @@
 /* navwin: the window of `fracnav navigate --view window` and `fracnav replay --realtime`. It
  * draws the case's fragments at the poses of a loop_scene (render.h, GLFW) with a HUD, turns the
- * pointer into the camera (left drag orbits, right or middle drag pans, the wheel zooms; keys 1-6
+ * pointer into the camera (left drag orbits, right or middle drag pans, the wheel zooms; in four-up
+ * the wheel over a slice moves it and a click there puts the slices' point; Ctrl+1..6
  * give the anterior, posterior, left, right, superior and inferior views) and, when it steers
  * (navigate), keeps the loop's camera frame on the view (loop_set_camera), so "push right" moves
  * the fragment right on screen; a window that only watches (replay) leaves the loop's camera
- * alone, so the recording's moves stay the recorded ones. Every other key typed in the window is
- * handed back to the caller, which treats it as a terminal key. The commands share --view
+ * alone, so the recording's moves stay the recorded ones. The window's own keys are F-keys and
+ * Ctrl+digits, so that no letter, digit or arrow a keyboard user steers with is taken: every other
+ * key typed in the window is handed back to the caller, which treats it as a terminal key. The commands share --view
  * (navwin_view_option) and the opening it decides (navwin_open_view).
  *
  * Threads: one thread opens, draws and closes a window (its GL context is current there); it only
@@ -24,16 +26,18 @@ typedef struct navwin navwin;
 #define NAVWIN_KEYS 64 /* keys handed back per frame at most */
 
 /* How the window draws: --mode, --layout and --overlay, as `fracnav render` takes them. In the
- * window, keys change them: v the next mode, l the layout, a the principal axes, k the contacts, b
- * the hierarchy's boxes ([ and ] a level up or down), o the VOI. */
+ * window, keys change them: F2 the next mode, F3 the layout, F4 the principal axes, F5 the
+ * contacts, F6 the hierarchy's boxes (F7 and F8 a level up or down), F9 the VOI. */
 typedef struct navwin_look {
     int mode;             /* render_mode, or -1: surface on software GL, iso on a GPU */
     render_layout layout; /* four-up: the slices cut through the selected fragment's centroid */
     unsigned overlays;    /* RENDER_OVERLAY_*; voi when the case has a reduction VOI */
     int hierarchy_depth;  /* root = 1 */
+    int camera;           /* --camera: a render_view, or -1: auto (render_camera_auto on the
+                           * selected fragment, again at each change of the selection) */
 } navwin_look;
-#define NAVWIN_LOOK_DEFAULT {-1, RENDER_LAYOUT_3D, 0, 3}
-/* When a is --mode, --layout or --overlay: parses val into *look and returns 1 with *rc 0, or
+#define NAVWIN_LOOK_DEFAULT {-1, RENDER_LAYOUT_3D, 0, 3, -1}
+/* When a is --mode, --layout, --overlay or --camera: parses val into *look and returns 1 with *rc 0, or
  * with *rc 2 after a usage error for `cmd` that names the option and the value. Other a: 0. */
 int navwin_look_option(const char *cmd, const char *a, const char *val, navwin_look *look, int *rc);
 /* The window's keys and pointer, for a help text (lines ending in '\n'). */
@@ -63,13 +67,17 @@ navwin *navwin_open_view(const char *cmd, int view, const navwin_look *look, con
  * the last frame) with hud's lines, what the last window key did, the frame time, and the report
  * to frame time: from the arrival of the first report a frame shows to that frame on screen, at
  * most (the worst of the last second; the bound is the arrival of the newest report in the frame
- * before, so it may exceed the truth by one report period). Up to cap typed keys go to keys (ASCII, 27 for
- * Escape); *close becomes 1 when the window was asked to close. Returns the keys stored, or FN_E*. */
+ * before, so it may exceed the truth by one report period). Up to cap typed keys go to keys (ASCII,
+ * 27 for Escape, F1 as '?', the arrows and Ctrl+letters as RENDER_KEY_*); *close becomes 1 when the window was asked to close. Returns the keys stored, or FN_E*. */
 int navwin_frame(navwin *w, const loop_scene *sc, const char *hud, int *keys, int cap, int *close);
 /* navwin_frame with the HUD of the terminal view: navview_format's lines of sc and x, then
  * "device: DEVICE", then help (NULL: none) followed by navwin_help(). */
 int navwin_show(navwin *w, const loop_scene *sc, const navview_extra *x, const char *device, const char *help,
                 int *keys, int cap, int *close);
+/* Called with the world point (LPS mm) of a click on a slice of the four-up layout, after the
+ * slices moved there (the seed clicks of a separation can land here). NULL: none. */
+typedef void (*navwin_click_fn)(void *ctx, const double world[3]);
+void navwin_on_click(navwin *w, navwin_click_fn fn, void *ctx);
 /* The last frame drawn (HUD included) at the loop's newest scene, as a PNG file. 0 or FN_E*. */
 int navwin_screenshot(navwin *w, const char *png);
 /* navwin_screenshot, its failure said on stderr as "fracnav CMD: --screenshot PNG: WHY". */

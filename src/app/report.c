@@ -4,6 +4,7 @@
 #include "durable.h"
 #include "err.h"
 #include "export.h"
+#include "navview.h"
 #include "reduce.h"
 #include "render.h"
 #include "picture.h"
@@ -20,6 +21,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
+#include <time.h>
 
 #define PIC 480
 
@@ -64,6 +66,31 @@ static int before_poses(const planning_case *c, pose *before)
     return have;
 }
 
+/* The moving fragment the pictures frame: the first that is not fixed. */
+static int moving(const planning_case *c)
+{
+    for (int i = 0; i < c->nfrag; i++)
+        if (i != c->fixed)
+            return i;
+    return 0;
+}
+
+static int save_picture(render *r, uint8_t *rgb, const char *dir, const char *name, report_wrote_fn wrote,
+                        void *ctx)
+{
+    char path[4200];
+    snprintf(path, sizeof path, "%s/%s.png", dir, name);
+    int rc = render_read_rgb(r, rgb);
+    if (!rc)
+        rc = picture_write_png(path, rgb, PIC, PIC);
+    if (!rc && wrote)
+        wrote(ctx, path);
+    return rc;
+}
+
+/* before.png and after.png through the auto view of the moving fragment at its poses before (so
+ * both show it from the same side), and slice.png: the axial slice of the CT through its planned
+ * centroid with every fragment's planned outline (the four-up layout's axial pane). */
 static int render_pictures(const planning_case *c, const pose *before, const char *dir, const char *platform,
                            report_wrote_fn wrote, void *ctx)
 {
@@ -76,26 +103,122 @@ static int render_pictures(const planning_case *c, const pose *before, const cha
     uint8_t *rgb = malloc((size_t)PIC * PIC * 3);
     int rc = rgb ? render_set_scene(r, c->ct, c->frag, c->nfrag, c->seg.threshold, NULL)
                  : fn_err_set(FN_ENOMEM, "out of memory for a picture");
-    static const render_view views[2] = {RENDER_ANTERIOR, RENDER_RIGHT};
-    static const char *names[2] = {"anterior", "right"};
-    for (int v = 0; v < 2 && !rc; v++)
-        for (int s = 0; s < 2 && !rc; s++) {
-            render_options o;
-            render_options_default(&o, c->frag, c->nfrag);
-            render_camera_standard(&o.camera, views[v], c->frag, c->nfrag);
-            char path[4200];
-            snprintf(path, sizeof path, "%s/%s-%s.png", dir, s ? "after" : "before", names[v]);
-            rc = render_frame(r, s ? NULL : before, &o);
-            if (!rc)
-                rc = render_read_rgb(r, rgb);
-            if (!rc)
-                rc = picture_write_png(path, rgb, PIC, PIC);
-            if (!rc && wrote)
-                wrote(ctx, path);
-        }
+    render_options o;
+    render_options_default(&o, c->frag, c->nfrag);
+    int sel = moving(c);
+    if (!rc)
+        rc = render_camera_auto(r, &o.camera, c->frag, c->nfrag, before, sel);
+    for (int s = 0; s < 2 && !rc; s++) {
+        rc = render_frame(r, s ? NULL : before, &o);
+        if (!rc)
+            rc = save_picture(r, rgb, dir, s ? "after" : "before", wrote, ctx);
+    }
+    render_close(r);
+    /* The slice: a four-up frame whose axial pane is PIC x PIC, cut down to that pane. */
+    const int bw = 3 * (PIC + 1), bh = 3 * PIC;
+    int rect[4][4];
+    render_four_up_panes(bw, bh, rect);
+    r = rc ? NULL : render_open(platform ? platform : "osmesa", bw, bh);
+    if (!rc && !r)
+        rc = FN_ENODEV;
+    uint8_t *big = rc ? NULL : malloc((size_t)bw * bh * 3);
+    if (!rc && !big)
+        rc = fn_err_set(FN_ENOMEM, "out of memory for the slice");
+    if (!rc)
+        rc = render_set_scene(r, c->ct, c->frag, c->nfrag, c->seg.threshold, NULL);
+    if (!rc) {
+        o.layout = RENDER_LAYOUT_FOUR_UP;
+        render_camera_standard(&o.camera, RENDER_ANTERIOR, c->frag, c->nfrag); /* the whole CT */
+        pose_apply(&c->frag[sel].pose, c->frag[sel].centroid, o.slice_point);
+        rc = render_frame(r, NULL, &o);
+    }
+    if (!rc)
+        rc = render_read_rgb(r, big);
+    if (!rc) {
+        char path[4200];
+        snprintf(path, sizeof path, "%s/slice.png", dir);
+        const int *q = rect[RENDER_PANE_AXIAL];
+        for (int y = 0; y < PIC; y++)
+            memcpy(rgb + (size_t)y * PIC * 3, big + ((size_t)(q[1] + y) * bw + (size_t)q[0]) * 3, (size_t)PIC * 3);
+        rc = picture_write_png(path, rgb, PIC, PIC);
+        if (!rc && wrote)
+            wrote(ctx, path);
+    }
+    free(big);
     free(rgb);
     render_close(r);
     return rc;
+}
+
+static int cmp_float(const void *a, const void *b)
+{
+    float x = *(const float *)a, y = *(const float *)b;
+    return (x > y) - (x < y);
+}
+
+/* Fragment id's gaps into *d (grown as needed, *cap floats): from every face of its voxels that
+ * borders a voxel not its own, the empty voxels crossed along the face's normal before another
+ * fragment's voxel, within REPORT_GAP_REACH_MM (faces that meet none do not count). Returns how
+ * many, or FN_ENOMEM. */
+static long face_gaps(const vol *v, int id, float **d, size_t *cap)
+{
+    int reach[3];
+    for (int a = 0; a < 3; a++)
+        reach[a] = (int)floor(REPORT_GAP_REACH_MM / v->spacing[a]) + 1;
+    long n = 0;
+    for (int k = 0; k < v->dim[2]; k++)
+        for (int j = 0; j < v->dim[1]; j++)
+            for (int i = 0; i < v->dim[0]; i++) {
+                if ((int)v->data[vol_idx(v, i, j, k)] != id)
+                    continue;
+                for (int f = 0; f < 6; f++) {
+                    int a = f / 2, step = f % 2 ? 1 : -1, p[3] = {i, j, k};
+                    for (int t = 1; t <= reach[a]; t++) {
+                        p[a] += step;
+                        if (p[a] < 0 || p[a] >= v->dim[a])
+                            break;
+                        int l = (int)v->data[vol_idx(v, p[0], p[1], p[2])];
+                        if (l == id)
+                            break;
+                        if (!l)
+                            continue;
+                        if ((size_t)n == *cap) {
+                            size_t c2 = *cap ? *cap * 2 : 4096;
+                            float *g = realloc(*d, c2 * sizeof *g);
+                            if (!g)
+                                return fn_err_set(FN_ENOMEM, "out of memory measuring gaps");
+                            *d = g, *cap = c2;
+                        }
+                        (*d)[n++] = (float)((t - 1) * v->spacing[a]);
+                        break;
+                    }
+                }
+            }
+    return n;
+}
+
+int report_gaps(const planning_case *c, const vol *planned, report_gap *gaps)
+{
+    float *d = NULL;
+    size_t cap = 0;
+    for (int fi = 0; fi < c->nfrag; fi++) {
+        long n = face_gaps(planned, c->frag[fi].id, &d, &cap);
+        if (n < 0) {
+            free(d);
+            return (int)n;
+        }
+        report_gap *g = &gaps[fi];
+        g->faces = n;
+        g->median_mm = g->p95_mm = g->max_mm = NAN;
+        if (!n)
+            continue;
+        qsort(d, (size_t)n, sizeof *d, cmp_float);
+        g->median_mm = d[(n - 1) / 2];
+        g->p95_mm = d[(long)ceil(0.95 * (double)n) - 1];
+        g->max_mm = d[n - 1];
+    }
+    free(d);
+    return 0;
 }
 
 #ifdef FRACNAV_HAVE_PLPLOT
@@ -105,6 +228,17 @@ typedef struct plot_ctx {
     int *ids;
     int n;
 } plot_ctx;
+
+/* The metric history's runs: a rise starts a new one (each stage and attempt of the fit starts
+ * over from its own start, while within one the best so far only falls). */
+static int next_run(json_t *h, size_t from, size_t *end)
+{
+    size_t n = json_array_size(h), e = from + 1;
+    while (e < n && json_number_value(json_array_get(h, e)) <= json_number_value(json_array_get(h, e - 1)))
+        e++;
+    *end = e;
+    return from < n;
+}
 
 static int draw_plot(durable_file *df, void *vctx)
 {
@@ -129,11 +263,16 @@ static int draw_plot(durable_file *df, void *vctx)
     plscolbg(255, 255, 255);
     plscol0(1, 0, 0, 0);
     plinit();
+    pladv(0);
     plcol0(1);
-    plenv(0, (double)(longest > 1 ? longest - 1 : 1), lo - pad, hi + pad, 0, 0);
-    pllab("iteration", "metric (lower is better)", "the optimizer's convergence, per fragment");
+    /* The plot on the left; each fragment's label in the margin on the right, off the curves. */
+    plvpor(0.10, 0.68, 0.12, 0.90);
+    plwind(0, (double)longest * 1.03, lo - pad, hi + pad);
+    plbox("bcnst", 0, 0, "bcnstv", 0, 0);
+    pllab("iteration", "metric (lower is better)", "the fit's convergence: one line per stage or attempt");
     for (int k = 0; k < p->n; k++) {
-        size_t n = json_array_size(p->hist[k]);
+        json_t *h = p->hist[k];
+        size_t n = json_array_size(h), from = 0, end;
         double *x = malloc(n * sizeof *x), *y = malloc(n * sizeof *y);
         if (!x || !y) {
             free(x);
@@ -143,17 +282,30 @@ static int draw_plot(durable_file *df, void *vctx)
         }
         for (size_t i = 0; i < n; i++) {
             x[i] = (double)i;
-            y[i] = json_number_value(json_array_get(p->hist[k], i));
+            y[i] = json_number_value(json_array_get(h, i));
         }
         const frag *f = &p->c->frag[case_find(p->c, p->ids[k])];
         plscol0(2 + k % 13, f->rgb[0], f->rgb[1], f->rgb[2]);
         plcol0(2 + k % 13);
         plwidth(2);
-        plline((PLINT)n, x, y);
-        plptex((double)(n - 1), y[n - 1], 1, 0, 1.05, f->name);
+        int runs = 0;
+        for (; next_run(h, from, &end); from = end, runs++) {
+            pllsty(1 + runs % 8);
+            plline((PLINT)(end - from), x + from, y + from);
+        }
+        pllsty(1);
+        plssym(0, 2.5);
+        plpoin(1, &x[n - 1], &y[n - 1], 17); /* the final metric */
+        char label[160];
+        plmtex("rv", 1.0, 1.0 - 0.12 * k - 0.04, 0, f->name);
+        snprintf(label, sizeof label, "%d run%s, final %.4f", runs, runs == 1 ? "" : "s", y[n - 1]);
+        plmtex("rv", 1.0, 1.0 - 0.12 * k - 0.09, 0, label);
         free(x);
         free(y);
     }
+    plcol0(1);
+    plmtex("rv", 1.0, 0.09, 0, "dot: the final metric;");
+    plmtex("rv", 1.0, 0.04, 0, "a dashed line: a later run");
     plend();
     struct stat st;
     return stat(tmp, &st) == 0 && st.st_size > 0 ? 0 : fn_err_set(FN_EIO, "%s: PLplot wrote nothing", tmp);
@@ -231,7 +383,8 @@ typedef struct page_ctx {
     int reduced, plotted, rendered;
     const char *why;
     char no_render[512]; /* why there are no renders (rendered = 0) */
-    const double *overlap_ml, *contact_mm2, *gap_ml;
+    const double *overlap_ml, *contact_mm2;
+    const report_gap *gaps;
 } page_ctx;
 
 static void cell(FILE *fp, double v, const char *fmt)
@@ -242,6 +395,82 @@ static void cell(FILE *fp, double v, const char *fmt)
         fputs("<td>&ndash;</td>", fp);
 }
 
+/* The header: the case, the CT, the date, fracnav's version, the fit's method and tolerance. */
+static void header(FILE *fp, const planning_case *c)
+{
+    const char *name = strrchr(c->dir, '/');
+    name = name && name[1] ? name + 1 : c->dir;
+    fputs("<h1>Fracture reduction plan: ", fp);
+    html_text(fp, name);
+    fputs("</h1>\n<table class=\"head\"><tr><th>case</th><td><code>", fp);
+    html_text(fp, c->dir);
+    fputs("</code></td></tr>\n<tr><th>CT</th><td><code>", fp);
+    html_text(fp, c->source);
+    fputs("</code>", fp);
+    if (c->ct)
+        fprintf(fp, ", %d x %d x %d voxels of %.3f x %.3f x %.3f mm", c->ct->dim[0], c->ct->dim[1], c->ct->dim[2],
+                c->ct->spacing[0], c->ct->spacing[1], c->ct->spacing[2]);
+    time_t now = time(NULL);
+    char date[32];
+    strftime(date, sizeof date, "%Y-%m-%d %H:%M UTC", gmtime(&now));
+    json_t *red = c->extra ? json_object_get(c->extra, "reduction") : NULL;
+    const char *method = json_string_value(json_object_get(red, "method"));
+    json_t *tol = json_object_get(red, "tolerance_mm");
+    fprintf(fp, "</td></tr>\n<tr><th>date</th><td>%s</td></tr>\n<tr><th>fracnav</th><td>%s</td></tr>\n"
+                "<tr><th>method</th><td>",
+            date, FRACNAV_VERSION);
+    if (method) {
+        html_text(fp, method);
+        if (json_is_number(tol))
+            fprintf(fp, ", collision tolerance %.2f mm", json_number_value(tol));
+    } else
+        fputs("not reduced (fracnav reduce)", fp);
+    fprintf(fp, "</td></tr>\n<tr><th>fragments</th><td>%d%s; coordinates LPS mm</td></tr>\n</table>\n", c->nfrag,
+            c->has_truth ? ", with the synthetic fracture's ground truth" : "");
+}
+
+/* One fragment's row: its planned move and turn in anatomical terms, the fit's metric, the gap
+ * and overlap, the errors against the truth. */
+static void fragment_row(FILE *fp, const page_ctx *p, int i)
+{
+    const planning_case *c = p->c;
+    const frag *f = &c->frag[i];
+    double a[3], b[3], d[3];
+    pose_apply(&p->before[i], f->centroid, a);
+    pose_apply(&f->pose, f->centroid, b);
+    for (int k = 0; k < 3; k++)
+        d[k] = b[k] - a[k];
+    pose rel = pose_compose(f->pose, pose_inverse(p->before[i]));
+    char move[128], turn[128];
+    navview_move_text(d, move, sizeof move);
+    navview_turn_text(&rel, turn, sizeof turn);
+    fprintf(fp, "<tr><td><span style=\"color:#%02x%02x%02x\">&#9632;</span> %d ", f->rgb[0], f->rgb[1], f->rgb[2],
+            f->id);
+    html_text(fp, f->name);
+    fprintf(fp, "%s</td><td>%s</td><td>%s</td>", i == c->fixed ? " (fixed)" : "", move, turn);
+    json_t *e = record_of(c, f->id);
+    json_t *m0 = json_object_get(e, "metric_start"), *m1 = json_object_get(e, "metric_end");
+    if (json_is_number(m0) && json_is_number(m1))
+        fprintf(fp, "<td>%.4f &rarr; %.4f</td>", json_number_value(m0), json_number_value(m1));
+    else
+        fputs("<td>&ndash;</td>", fp);
+    const report_gap *g = &p->gaps[i];
+    cell(fp, g->median_mm, "<td>%.2f</td>");
+    cell(fp, g->p95_mm, "<td>%.2f</td>");
+    cell(fp, g->max_mm, "<td>%.2f</td>");
+    cell(fp, p->overlap_ml[i], "<td>%.3f</td>");
+    cell(fp, p->contact_mm2[i], "<td>%.0f</td>");
+    if (c->has_truth && c->fixed >= 0) {
+        double rot = NAN, tr = NAN, tre = NAN;
+        if (i != c->fixed)
+            reduce_truth_errors(c, c->fixed, i, &rot, &tr, &tre);
+        cell(fp, rot, "<td>%.2f</td>");
+        cell(fp, tr, "<td>%.2f</td>");
+        cell(fp, tre, "<td>%.2f</td>");
+    }
+    fputs("</tr>\n", fp);
+}
+
 static int write_page(durable_file *df, void *vctx)
 {
     const page_ctx *p = vctx;
@@ -250,28 +479,55 @@ static int write_page(durable_file *df, void *vctx)
     if (!fp)
         return FN_EIO;
     fputs("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">\n<title>fracnav report</title>\n"
-          "<style>body{font-family:sans-serif;margin:2em;max-width:1100px}img{border:1px solid #ccc;"
-          "margin:4px}table{border-collapse:collapse}td,th{border:1px solid #bbb;padding:3px 8px;"
-          "text-align:right}th{background:#eee}td:first-child{text-align:left}</style>\n</head><body>\n"
-          "<h1>fracnav: reduction report</h1>\n<p>Case <code>",
+          "<style>body{font-family:sans-serif;margin:1.5em;max-width:1000px}img{border:1px solid #ccc;"
+          "margin:4px;max-width:100%;height:auto}table{border-collapse:collapse;margin:0.5em 0}"
+          "td,th{border:1px solid #bbb;padding:3px 6px;text-align:right;font-size:90%}th{background:#eee}"
+          "td:first-child,.head td{text-align:left}.head th{text-align:left}"
+          ".pics{display:flex;flex-wrap:wrap}.pics figure{margin:0 8px 8px 0;width:320px}"
+          ".pics img{width:320px}figcaption{font-size:85%}"
+          "@media print{body{margin:0}h2{page-break-after:avoid}}</style>\n</head><body>\n",
           fp);
-    html_text(fp, c->dir);
-    fputs("</code>, source <code>", fp);
-    html_text(fp, c->source);
-    fprintf(fp, "</code>: %d fragments; coordinates LPS mm.</p>\n", c->nfrag);
-    fprintf(fp, "<h2>Before and after</h2>\n<p>Before: %s. After: the planned poses.</p>\n",
+    header(fp, c);
+    fprintf(fp, "<h2>Before and after</h2>\n<p>Before: %s. After: the planned poses. Seen from the side "
+                "where the moving fragment shows best (the auto view).</p>\n",
             p->reduced ? "the poses before the last automatic reduction" : "as segmented (home positions)");
-    static const char *views[2] = {"anterior", "right"};
     if (!p->rendered) {
         fputs("<p>No renders: ", fp);
         html_text(fp, p->no_render);
         fputs("</p>\n", fp);
-    }
-    for (int v = 0; v < 2 && p->rendered; v++)
-        fprintf(fp, "<div><img src=\"before-%s.png\" width=\"%d\" height=\"%d\" alt=\"before, %s\">"
-                    "<img src=\"after-%s.png\" width=\"%d\" height=\"%d\" alt=\"after, %s\"></div>\n",
-                views[v], PIC, PIC, views[v], views[v], PIC, PIC, views[v]);
-    fputs("<h2>Convergence</h2>\n", fp);
+    } else
+        fprintf(fp, "<div class=\"pics\"><figure><img src=\"before.png\" width=\"%d\" height=\"%d\" alt=\"before\">"
+                    "<figcaption>before</figcaption></figure><figure><img src=\"after.png\" width=\"%d\" "
+                    "height=\"%d\" alt=\"after\"><figcaption>after (planned)</figcaption></figure><figure>"
+                    "<img src=\"slice.png\" width=\"%d\" height=\"%d\" alt=\"axial slice\"><figcaption>axial CT "
+                    "slice through the moving fragment, planned outlines</figcaption></figure></div>\n",
+                PIC, PIC, PIC, PIC, PIC, PIC);
+    fputs("<h2>Fragments</h2>\n<table><tr><th rowspan=\"2\">fragment</th><th rowspan=\"2\">planned move</th>"
+          "<th rowspan=\"2\">planned turn</th><th rowspan=\"2\">fit metric</th><th colspan=\"3\">gap (mm)</th>"
+          "<th rowspan=\"2\">overlap (ml)</th><th rowspan=\"2\">contact (mm&sup2;)</th>",
+          fp);
+    int truth = c->has_truth && c->fixed >= 0;
+    if (truth)
+        fputs("<th colspan=\"3\">error against the truth</th>", fp);
+    fputs("</tr>\n<tr><th>median</th><th>95%</th><th>max</th>", fp);
+    if (truth)
+        fputs("<th>rotation (deg)</th><th>translation (mm)</th><th>TRE (mm)</th>", fp);
+    fputs("</tr>\n", fp);
+    for (int i = 0; i < c->nfrag; i++)
+        fragment_row(fp, p, i);
+    fprintf(fp, "</table>\n<p>Planned move and turn: from before to after, of the fragment's centroid, in mm "
+                "right/left, anterior/posterior and inferior/superior, and degrees about those axes (right-handed "
+                "about left, posterior, superior). Fit metric: the reduction's voxel metric at its start and end "
+                "(lower is better). Gap: across the fracture surface in the planned poses, from each face of the "
+                "fragment's voxels along its normal to another fragment's voxel (faces that meet none within "
+                "%.0f mm do not count). Overlap: the volume it shares with another fragment. Contact: the faces "
+                "its voxels share with another fragment's.",
+            REPORT_GAP_REACH_MM);
+    if (c->has_truth)
+        fputs(" Errors: the planned pose relative to the fixed fragment against the synthetic fracture's "
+              "ground truth (TRE over the fracture surface).",
+              fp);
+    fputs("</p>\n<h2>Convergence</h2>\n", fp);
     if (p->plotted)
         fputs("<img src=\"convergence.png\" width=\"800\" height=\"480\" alt=\"convergence plot\">\n", fp);
     else {
@@ -279,51 +535,14 @@ static int write_page(durable_file *df, void *vctx)
         html_text(fp, p->why);
         fputs(".</p>\n", fp);
     }
-    fputs("<h2>Fragments</h2>\n<table><tr><th>fragment</th><th>move (mm)</th><th>turn (deg)</th>"
-          "<th>contact (mm&sup2;)</th><th>gap (ml)</th><th>overlap (ml)</th>", fp);
-    if (c->has_truth && c->fixed >= 0)
-        fputs("<th>rotation error (deg)</th><th>translation error (mm)</th><th>TRE (mm)</th>", fp);
-    fputs("</tr>\n", fp);
-    for (int i = 0; i < c->nfrag; i++) {
-        const frag *f = &c->frag[i];
-        double a[3], b[3];
-        pose_apply(&p->before[i], f->centroid, a);
-        pose_apply(&f->pose, f->centroid, b);
-        double move = sqrt((a[0] - b[0]) * (a[0] - b[0]) + (a[1] - b[1]) * (a[1] - b[1]) + (a[2] - b[2]) * (a[2] - b[2]));
-        double turn = pose_angle_between(p->before[i], f->pose) * 180 / M_PI;
-        fprintf(fp, "<tr><td><span style=\"color:#%02x%02x%02x\">&#9632;</span> %d ", f->rgb[0], f->rgb[1],
-                f->rgb[2], f->id);
-        html_text(fp, f->name);
-        fprintf(fp, "%s</td>", i == c->fixed ? " (fixed)" : "");
-        cell(fp, move, "<td>%.2f</td>");
-        cell(fp, turn, "<td>%.2f</td>");
-        cell(fp, p->contact_mm2[i], "<td>%.1f</td>");
-        cell(fp, p->gap_ml[i], "<td>%.3f</td>");
-        cell(fp, p->overlap_ml[i], "<td>%.3f</td>");
-        if (c->has_truth && c->fixed >= 0) {
-            double rot = NAN, tr = NAN, tre = NAN;
-            if (i != c->fixed)
-                reduce_truth_errors(c, c->fixed, i, &rot, &tr, &tre);
-            cell(fp, rot, "<td>%.2f</td>");
-            cell(fp, tr, "<td>%.2f</td>");
-            cell(fp, tre, "<td>%.2f</td>");
-        }
-        fputs("</tr>\n", fp);
-    }
-    fputs("</table>\n<p>Move and turn: each fragment's centroid displacement and rotation from before to "
-          "after. Contact: the faces its voxels share with another fragment's on the source grid, planned "
-          "configuration. Gap: empty voxels within 2 mm of it and of another fragment. Overlap: voxels "
-          "it shares with another fragment.",
-          fp);
-    if (c->has_truth)
-        fputs(" Errors: the planned pose relative to the fixed fragment against the synthetic fracture's "
-              "ground truth (TRE over the fracture surface).",
-              fp);
-    fputs("</p>\n<p id=\"images\">images: not checked (needs scripts)</p>\n"
-          "<script>\nwindow.addEventListener('load', function () {\n"
+    /* For tests: how many pictures loaded and whether anything is wider than the window, on the
+     * body's data-images and data-overflow (not shown). */
+    fputs("<script>\nwindow.addEventListener('load', function () {\n"
           "  var im = document.images, ok = 0;\n"
           "  for (var i = 0; i < im.length; i++) if (im[i].complete && im[i].naturalWidth > 0) ok++;\n"
-          "  document.getElementById('images').textContent = 'images: ' + ok + ' of ' + im.length + ' loaded';\n"
+          "  document.body.setAttribute('data-images', ok + ' of ' + im.length + ' loaded');\n"
+          "  var wide = document.documentElement.scrollWidth > window.innerWidth;\n"
+          "  document.body.setAttribute('data-overflow', wide ? 'yes' : 'no');\n"
           "});\n</script>\n</body></html>\n",
           fp);
     return fclose(fp) == 0 ? 0 : fn_err_set(FN_EIO, "%s: write failed", df->tmp);
@@ -341,8 +560,12 @@ int report_write(const planning_case *c, const vol *planned, const double *overl
         free(contact);
         return fn_err_set(FN_ENOMEM, "out of memory for the report");
     }
-    page_ctx p = {c, before, before_poses(c, before), 0, 1, NULL, "", overlap_ml, contact, contact + c->nfrag};
-    int rc = export_contacts(c, planned, 2.0, contact, contact + c->nfrag);
+    report_gap *gaps = malloc((size_t)(c->nfrag ? c->nfrag : 1) * sizeof *gaps);
+    page_ctx p = {c, before, before_poses(c, before), 0, 1, NULL, "", overlap_ml, contact, gaps};
+    int rc = gaps ? export_contacts(c, planned, 2.0, contact, contact + c->nfrag)
+                  : fn_err_set(FN_ENOMEM, "out of memory for the report");
+    if (!rc)
+        rc = report_gaps(c, planned, gaps);
     if (!rc && (rc = render_pictures(c, before, dir, platform, wrote, ctx)) == FN_ENODEV) {
         /* No GL 4.5 here: the page goes without its renders and says why. */
         snprintf(p.no_render, sizeof p.no_render, "%s", fn_err_msg());
@@ -364,5 +587,6 @@ int report_write(const planning_case *c, const vol *planned, const double *overl
     }
     free(before);
     free(contact);
+    free(gaps);
     return rc;
 }

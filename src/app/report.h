@@ -19,6 +19,18 @@
 
 typedef void (*report_wrote_fn)(void *ctx, const char *path);
 
+/* The gap across a fragment's fracture surface in its planned pose (planned labelmap): from every
+ * face of its voxels that borders another voxel, the empty space along the face's normal up to
+ * another fragment's voxel; faces that meet none within REPORT_GAP_REACH_MM (the bone's outer
+ * surfaces) do not count. At the truth of a synthetic fracture the pieces touch: 0 mm. */
+#define REPORT_GAP_REACH_MM 5.0
+typedef struct report_gap {
+    double median_mm, p95_mm, max_mm; /* NAN when no face meets another fragment */
+    long faces;                       /* the faces measured */
+} report_gap;
+/* Per fragment (index order) into gaps. 0 or FN_ENOMEM. */
+int report_gaps(const planning_case *c, const vol *planned, report_gap *gaps);
+
 /* planned: export_planned_labels(c); overlap_ml: per fragment, the sum of its pairs' overlaps
  * (case_penetrating, case_overlap_ml). platform: render_open's (NULL: osmesa). wrote,
  * when given, is called with each file's path once it is in place. */

@@ -119,7 +119,8 @@ static int gl_setup(render *r)
     r->prog_line = r->prog_mesh ? program(r, render__line_vs, render__line_fs, "overlay") : 0;
     r->prog_depth = r->prog_line ? program(r, render__proxy_vs, render__depth_fs, "depth") : 0;
     r->prog_hud = r->prog_depth ? program(r, render__quad_vs, render__hud_fs, "hud") : 0;
-    if (!r->prog_hud)
+    r->prog_id = r->prog_hud ? program(r, render__mesh_vs, render__id_fs, "fragment ids") : 0;
+    if (!r->prog_id)
         return FN_ENODEV;
     r->gl.GenVertexArrays(1, &r->vao_empty);
     r->gl.GenVertexArrays(1, &r->line_vao);
@@ -180,6 +181,17 @@ const char *render_gl_renderer(const render *r)
     return r->renderer;
 }
 
+void render_size(const render *r, int *w, int *h)
+{
+    *w = r->w;
+    *h = r->h;
+}
+
+render_mode render_default_mode(const render *r)
+{
+    return strstr(r->renderer, "llvmpipe") || strstr(r->renderer, "softpipe") ? RENDER_SURFACE : RENDER_ISO;
+}
+
 const char *render_gl_version(const render *r)
 {
     return r->version;
@@ -234,8 +246,8 @@ void render_close(render *r)
         return;
     if (r->gl.DeleteTextures) {
         scene_release(r);
-        unsigned progs[] = {r->prog_slice, r->prog_mesh, r->prog_line, r->prog_depth, r->prog_hud};
-        for (int i = 0; i < 5; i++)
+        unsigned progs[] = {r->prog_slice, r->prog_mesh, r->prog_line, r->prog_depth, r->prog_hud, r->prog_id};
+        for (int i = 0; i < 6; i++)
             if (progs[i])
                 r->gl.DeleteProgram(progs[i]);
         if (r->line_vbo)
@@ -369,18 +381,57 @@ static long weld_triangles(float *tri, long *ntri, uint32_t **idx_out)
     return (long)nu;
 }
 
+/* vals averaged over blocks of s^3 voxels (each value first clamped to the level +- 600 HU, so
+ * that dense bone does not outweigh its surroundings): a grid of d (out) cells, malloc'd; NULL
+ * when out of memory. A surface through the averages is smooth where one through every s-th
+ * voxel is stepped (aliasing). */
+static float *block_means(const float *vals, const int dim[3], int s, float level, int d[3])
+{
+    for (int a = 0; a < 3; a++)
+        d[a] = (dim[a] + s - 1) / s;
+    float *m = calloc((size_t)d[0] * (size_t)d[1] * (size_t)d[2], sizeof *m);
+    if (!m)
+        return NULL;
+    for (int k = 0; k < d[2]; k++)
+        for (int j = 0; j < d[1]; j++)
+            for (int i = 0; i < d[0]; i++) {
+                double sum = 0;
+                int n = 0;
+                for (int z = k * s; z < (k + 1) * s && z < dim[2]; z++)
+                    for (int y = j * s; y < (j + 1) * s && y < dim[1]; y++)
+                        for (int x = i * s; x < (i + 1) * s && x < dim[0]; x++, n++) {
+                            float v = vals[((size_t)z * (size_t)dim[1] + (size_t)y) * (size_t)dim[0] + (size_t)x];
+                            sum += v < level - 600 ? level - 600 : v > level + 600 ? level + 600 : v;
+                        }
+                m[((size_t)k * (size_t)d[1] + (size_t)j) * (size_t)d[0] + (size_t)i] = (float)(sum / n);
+            }
+    return m;
+}
+
 static int upload_mesh(render *r, render_frag *rf, const float *vals)
 {
     /* Cells of about 0.5M voxels at most: a skull's mesh stays a few hundred thousand triangles.
-     * (Coarser grids drew faster but lost the face's detail.) */
+     * (Coarser grids drew faster but lost the face's detail.) Where that takes blocks of s^3
+     * voxels, the mesh follows their means. */
     double voxels = (double)rf->dim[0] * rf->dim[1] * rf->dim[2];
     int s = (int)ceil(cbrt(voxels / (1 << 19)));
-    const int stride[3] = {s < 1 ? 1 : s, s < 1 ? 1 : s, s < 1 ? 1 : s};
+    s = s < 1 ? 1 : s;
+    const int one[3] = {1, 1, 1};
+    int d[3];
+    double sp[3] = {rf->spacing[0] * s, rf->spacing[1] * s, rf->spacing[2] * s};
+    float *means = s > 1 ? block_means(vals, rf->dim, s, (float)r->iso_hu, d) : NULL;
+    if (s > 1 && !means)
+        return fn_err_set(FN_ENOMEM, "render: out of memory for a surface mesh's grid");
     float *tri = NULL;
     uint32_t *idx = NULL;
-    long n = mesh_build(vals, rf->dim, rf->spacing, (float)r->iso_hu, stride, &tri);
+    long n = mesh_build(means ? means : vals, means ? d : rf->dim, sp, (float)r->iso_hu, one, &tri);
+    free(means);
     if (n < 0)
         return (int)n;
+    /* A block's mean stands for its centre. */
+    for (long v = 0; s > 1 && v < n * 3; v++)
+        for (int a = 0; a < 3; a++)
+            tri[v * 6 + a] += (float)(0.5 * (s - 1) * rf->spacing[a]);
     long nu = weld_triangles(tri, &n, &idx);
     if (nu < 0) {
         free(tri);

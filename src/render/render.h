@@ -16,7 +16,7 @@
  *    built once at render_set_scene, moved by the pose), rasterized with depth;
  *  - slice views (axial, coronal, sagittal through a point): the CT in grey, every fragment's
  *    outline (and a light fill) at its current pose in its colour; with the 3D view they make the
- *    four-up layout (axial top left, 3D top right, sagittal bottom left, coronal bottom right);
+ *    four-up layout (render_four_up_panes: the 3D view large on top, the three slices below);
  *  - overlays on the 3D view: the hierarchy's boxes at a depth, the principal axes, the colliding
  *    voxel pairs with the contact region tinted, the reduction's VOI boxes;
  *  - a HUD: lines of text over the frame (render_hud).
@@ -72,6 +72,11 @@ typedef struct render_options {
     unsigned overlays;      /* RENDER_OVERLAY_* */
     int hierarchy_depth;    /* the depth of the boxes drawn (root = 1) */
     int nvoi;               /* RENDER_OVERLAY_VOI: boxes lo x y z, hi x y z (world mm) */
+    int cutaway;            /* 0: none; i + 1: in surface mode, the other fragments' surfaces in
+                             * front of fragment i (nearer the viewer than its crop's nearest
+                             * corner, within a cylinder of 3/8 of its crop's diagonal around the
+                             * line from its centroid to the viewer) are cut away, so the piece
+                             * in hand is always seen */
     double voi[RENDER_MAX_FRAGS][6];
 } render_options;
 
@@ -84,6 +89,9 @@ void render_close(render *r);
 /* GL_RENDERER and GL_VERSION of the context (valid while r is open). */
 const char *render_gl_renderer(const render *r);
 const char *render_gl_version(const render *r);
+/* The interactive mode for r's GL: surface on software GL (llvmpipe, softpipe), which rasterizes
+ * meshes far faster than it casts rays; iso on a GPU. */
+render_mode render_default_mode(const render *r);
 
 /* Uploads the scene: the fragments' masked CT crops, occupancy grids, meshes (iso_hu is the
  * surface level: values >= iso_hu are bone) and, when hp is given, their hierarchies for the box
@@ -117,19 +125,36 @@ int render_read_rgb(render *r, uint8_t *rgb);
 int render_present(render *r);
 
 /* Text over the last frame, top left, on a dark translucent box: lines separated by '\n', in a
- * built-in 5x7 font (letters drawn as capitals; bytes outside ASCII as '?') scaled by `scale`
+ * built-in 5x7 font (capitals and small letters; bytes outside ASCII as '?') scaled by `scale`
  * (1..4) pixels per font pixel; a line holding "WARNING" or "OFF" is drawn in amber. Call after
  * render_frame, before render_read_rgb or render_present. 0 or FN_E*. */
 int render_hud(render *r, const char *text, int scale);
+/* The HUD's scale for r: one font pixel per 384 rows of the picture, times the window's content
+ * scale (its DPI over 96; 1 offscreen), 1..4. */
+int render_hud_scale(const render *r);
+/* The characters of a HUD line that fit across r at render_hud_scale. */
+int render_hud_columns(const render *r);
 
 /* Input that reached the window since the last call (nothing offscreen). */
 #define RENDER_INPUT_KEYS 64
+/* Keys beyond ASCII in render_input.keys: F1..F12 (RENDER_KEY_F1 + n - 1 for Fn), the arrows,
+ * and Ctrl with a digit or a letter (RENDER_KEY_CTRL | '1', RENDER_KEY_CTRL | 'a'). The F-keys and
+ * the arrows come again while held (key repeat). */
+enum {
+    RENDER_KEY_ESCAPE = 27,
+    RENDER_KEY_F1 = 0x100,
+    RENDER_KEY_LEFT = 0x110, RENDER_KEY_RIGHT, RENDER_KEY_UP, RENDER_KEY_DOWN,
+    RENDER_KEY_CTRL = 0x200
+};
 typedef struct render_input {
-    int keys[RENDER_INPUT_KEYS]; /* characters typed (ASCII), 27 for Escape, in order */
+    int keys[RENDER_INPUT_KEYS]; /* characters typed (ASCII) and RENDER_KEY_*, in order */
     int nkeys;
     double drag[3][2]; /* the pointer's movement in pixels (x right, y down) while the left, right
                         * or middle button was held */
     double scroll;     /* wheel steps, positive away from the user */
+    double x, y;       /* the pointer, pixels from the top left */
+    int clicked;       /* the left button was pressed and released without a drag, at click */
+    double click[2];
     int close;         /* the window was asked to close */
 } render_input;
 int render_poll(render *r, render_input *in);
@@ -137,9 +162,36 @@ int render_poll(render *r, render_input *in);
 /* The standard camera for view v fitted to the fragments at their home positions (so poses move
  * pictures, not the camera). */
 void render_camera_standard(render_camera *c, render_view v, const frag *frags, int nfrag);
+/* The auto view (`--view auto`): the camera that frames fragment `selected` at poses[selected]
+ * (NULL: each fragment's own pose) with its surroundings, looking from the side where it is seen
+ * best: of the six named views, its principal axes both ways and the view from its side onto the
+ * nearest other fragment, the one where the largest share of its projected pixels is visible
+ * (render_fragment_pixels), ties going to a view across the line between the two (the fracture
+ * seen from the side). r must hold the scene of frags (render_set_scene). Draws into the frame
+ * (call before render_frame). A selected out of range gives the anterior view. 0 or FN_E*. */
+int render_camera_auto(render *r, render_camera *c, const frag *frags, int nfrag, const pose *poses, int selected);
+/* What a picture through o's camera shows of each fragment of r's scene (at poses; NULL: their
+ * own), drawn as the surface meshes (with o's cut-away): projected[i] the pixels fragment i covers
+ * drawn alone, visible[i] those where it is the front-most (arrays of r's fragment count). Draws
+ * into the frame (call it after reading a frame, or before drawing one). 0 or FN_E*. */
+int render_fragment_pixels(render *r, const pose *poses, const render_options *o, long *projected, long *visible);
 /* Defaults: iso, 3D layout, anterior camera over the fragments, slice point at the first
  * fragment's home centroid, no overlay, hierarchy depth 3. */
 void render_options_default(render_options *o, const frag *frags, int nfrag);
+
+/* The four-up layout of a w x h picture, as 3D Slicer's "3D and three slices": the 3D view over
+ * the top two thirds, the axial, coronal and sagittal slices side by side below it. rect[pane] =
+ * {x, y, width, height}, pixels from the top left. */
+enum { RENDER_PANE_AXIAL, RENDER_PANE_CORONAL, RENDER_PANE_SAGITTAL, RENDER_PANE_3D };
+void render_four_up_panes(int w, int h, int rect[4][4]);
+/* The world point (mm) that pixel (x, y) (from the top left) of r's four-up frame of o shows in
+ * its slice pane, into world; returns the pane (RENDER_PANE_AXIAL..SAGITTAL), or -1 when (x, y)
+ * is in the 3D view or between the panes. */
+int render_slice_point_at(const render *r, const render_options *o, double x, double y, double world[3]);
+/* The unit normal of a slice pane's plane (axial: z, coronal: y, sagittal: x). */
+void render_slice_normal(int pane, double n[3]);
+/* The size of r's frame (a resized window's, since the last render_poll). */
+void render_size(const render *r, int *w, int *h);
 
 /* Names to and from the enums: 0 on success, FN_EINVAL for an unknown name. */
 int render_mode_parse(const char *s, render_mode *m);

@@ -345,12 +345,40 @@ static int draw_raycast(render *r, const pose *poses, const render_options *o, c
     return 0;
 }
 
-/* The meshes of the fragments i with (only < 0 or i == only) and i != skip. A pass over them all
- * (only < 0) starts on a clear depth buffer; a pass over one (render_frame_late's) draws into the
- * depth of the pass before. */
-static void draw_surface(render *r, const pose *poses, const render_options *o, const mat4 vp, int only, int skip)
+/* The cut-away kept for fragment `keep` at poses (render__mesh_fs's cut and cut_front): its
+ * centroid, the radius (3/8 of its crop's diagonal), and how far in front of the centroid (along
+ * forward, negative) its crop's nearest corner lies: only what lies in front of that is cut. */
+static void cutaway(const render *r, int keep, const pose *poses, const double forward[3], float cut[4],
+                    float *front)
 {
-    unsigned p = r->prog_mesh;
+    const render_frag *f = &r->frag[keep];
+    const pose *at = poses ? &poses[keep] : &f->pose;
+    pose m = frag_world(r, keep, poses);
+    double c[3], d2 = 0, near = 0;
+    pose_apply(at, f->centroid, c);
+    for (int b = 0; b < 8; b++) {
+        double x[3], w[3];
+        for (int a = 0; a < 3; a++)
+            x[a] = ((b >> a & 1) ? f->dim[a] - 0.5 : -0.5) * f->spacing[a];
+        pose_apply(&m, x, w);
+        double along = (w[0] - c[0]) * forward[0] + (w[1] - c[1]) * forward[1] + (w[2] - c[2]) * forward[2];
+        near = along < near ? along : near;
+    }
+    for (int a = 0; a < 3; a++) {
+        cut[a] = (float)c[a];
+        d2 += 0.25 * (f->dim[a] * f->spacing[a]) * (f->dim[a] * f->spacing[a]);
+    }
+    cut[3] = (float)(0.75 * sqrt(d2));
+    *front = (float)near;
+}
+
+/* The meshes of the fragments i with (only < 0 or i == only) and i != skip, shaded, or with ids
+ * in their flat id colours (render__id_fs). A pass over them all (only < 0) starts on a clear depth
+ * buffer; a pass over one (render_frame_late's) draws into the depth of the pass before. */
+static void draw_meshes(render *r, const pose *poses, const render_options *o, const mat4 vp, int only, int skip,
+                        int ids)
+{
+    unsigned p = ids ? r->prog_id : r->prog_mesh;
     float m[16], w2t[16], nmat[9], fw[3];
     r->gl.UseProgram(p);
     mat4_to_gl(vp, m);
@@ -370,12 +398,23 @@ static void draw_surface(render *r, const pose *poses, const render_options *o, 
             continue;
         frag_mats(r, i, poses, m, w2t, nmat);
         r->gl.UniformMatrix4fv(loc(r, p, "model"), 1, GL_FALSE, m);
-        r->gl.Uniform3fv(loc(r, p, "colour"), 1, r->frag[i].rgb);
+        float id[3] = {(float)(i + 1) / 255.0f, 0, 0}, cut[4] = {0, 0, 0, 0}, front = 0;
+        int keep = o->cutaway - 1;
+        if (keep >= 0 && keep < r->nfrag && keep != i)
+            cutaway(r, keep, poses, o->camera.forward, cut, &front);
+        r->gl.Uniform4fv(loc(r, p, "cut"), 1, cut);
+        r->gl.Uniform1f(loc(r, p, "cut_front"), front);
+        r->gl.Uniform3fv(loc(r, p, "colour"), 1, ids ? id : r->frag[i].rgb);
         r->gl.BindVertexArray(r->frag[i].mesh_vao);
         r->gl.DrawElements(GL_TRIANGLES, (int)(r->frag[i].mesh_triangles * 3), GL_UNSIGNED_INT, (void *)0);
     }
     r->gl.Disable(GL_CULL_FACE);
     r->gl.Disable(GL_DEPTH_TEST);
+}
+
+static void draw_surface(render *r, const pose *poses, const render_options *o, const mat4 vp, int only, int skip)
+{
+    draw_meshes(r, poses, o, vp, only, skip, 0);
 }
 
 /* ---- overlays ---- */
@@ -728,6 +767,51 @@ static int frame_end(render *r, int rc)
     return rc;
 }
 
+void render_four_up_panes(int w, int h, int rect[4][4])
+{
+    /* The 3D view over two thirds of the height; the slices side by side below it, one pixel of
+     * background between the panes. */
+    int hs = h / 3, w3 = w / 3;
+    const int panes[4][4] = {{0, h - hs, w3 - 1, hs}, {w3, h - hs, w3 - 1, hs}, {2 * w3, h - hs, w - 2 * w3, hs},
+                             {0, 0, w, h - hs - 1}};
+    memcpy(rect, panes, sizeof panes);
+}
+
+/* Pane v of the four-up layout as a GL viewport (origin at the bottom left). */
+static void pane_viewport(const render *r, int v, int vp[4])
+{
+    int rect[4][4];
+    render_four_up_panes(r->w, r->h, rect);
+    vp[0] = rect[v][0];
+    vp[1] = r->h - rect[v][1] - rect[v][3];
+    vp[2] = rect[v][2];
+    vp[3] = rect[v][3];
+}
+
+void render_slice_normal(int pane, double n[3])
+{
+    memcpy(n, planes[pane].n, 3 * sizeof *n);
+}
+
+int render_slice_point_at(const render *r, const render_options *o, double x, double y, double world[3])
+{
+    int rect[4][4];
+    render_four_up_panes(r->w, r->h, rect);
+    for (int s = 0; s < 3; s++) {
+        const int *q = rect[s];
+        if (x < q[0] || x >= q[0] + q[2] || y < q[1] || y >= q[1] + q[3])
+            continue;
+        /* As draw_slice: the pane's centre is the camera's centre moved onto the plane. */
+        double hh = o->camera.half_height, hw = hh * q[2] / q[3];
+        double sx = 2.0 * (x - q[0]) / q[2] - 1, sy = 1 - 2.0 * (y - q[1]) / q[3];
+        double off = dot3(planes[s].n, o->slice_point) - dot3(planes[s].n, o->camera.centre);
+        for (int a = 0; a < 3; a++)
+            world[a] = o->camera.centre[a] + off * planes[s].n[a] + planes[s].u[a] * hw * sx + planes[s].v[a] * hh * sy;
+        return s;
+    }
+    return -1;
+}
+
 int render_frame(render *r, const pose *poses, const render_options *o)
 {
     r->early_late = -1;
@@ -738,18 +822,15 @@ int render_frame(render *r, const pose *poses, const render_options *o)
     if (o->layout == RENDER_LAYOUT_3D) {
         rc = draw_3d(r, poses, o, full);
     } else {
-        /* GL's origin is the bottom left; one pixel of background between the quarters. */
-        int w2 = r->w / 2, h2 = r->h / 2;
-        int q3d[4] = {w2 + 1, h2 + 1, r->w - w2 - 1, r->h - h2 - 1};
-        int qax[4] = {0, h2 + 1, w2 - 1, r->h - h2 - 1};
-        int qsag[4] = {0, 0, w2 - 1, h2 - 1}, qcor[4] = {w2 + 1, 0, r->w - w2 - 1, h2 - 1};
-        const int *slices[3] = {qax, qcor, qsag};
+        int vp[4];
         for (int s = 0; s < 3; s++) {
-            set_viewport(r, slices[s]);
-            draw_slice(r, poses, o, s, slices[s]);
+            pane_viewport(r, s, vp);
+            set_viewport(r, vp);
+            draw_slice(r, poses, o, s, vp);
         }
-        set_viewport(r, q3d);
-        rc = draw_3d(r, poses, o, q3d);
+        pane_viewport(r, RENDER_PANE_3D, vp);
+        set_viewport(r, vp);
+        rc = draw_3d(r, poses, o, vp);
     }
     return frame_end(r, rc);
 }
@@ -811,4 +892,139 @@ int render_read_rgb(render *r, uint8_t *rgb)
 int render_present(render *r)
 {
     return r->plat->present(r);
+}
+
+/* One pass of fragment ids through cam (all fragments, or `only`), counted per fragment into n
+ * (zeroed first). id: room for w * h bytes. */
+static int id_pass(render *r, const pose *poses, const render_options *o, int only, uint8_t *id, long *n)
+{
+    const render_camera *cam = &o->camera;
+    mat4 vp, inv;
+    camera_mats(cam, (double)r->w / r->h, vp, inv);
+    int full[4] = {0, 0, r->w, r->h};
+    set_viewport(r, full);
+    r->gl.ClearColor(0, 0, 0, 1);
+    r->gl.Clear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT);
+    draw_meshes(r, poses, o, vp, only, -1, 1);
+    r->gl.PixelStorei(GL_PACK_ALIGNMENT, 1);
+    r->gl.ReadPixels(0, 0, r->w, r->h, GL_RED, GL_UNSIGNED_BYTE, id);
+    memset(n, 0, (size_t)r->nfrag * sizeof *n);
+    for (size_t k = 0; k < (size_t)r->w * (size_t)r->h; k++)
+        if (id[k] && id[k] <= r->nfrag)
+            n[id[k] - 1]++;
+    return frame_end(r, 0);
+}
+
+int render_fragment_pixels(render *r, const pose *poses, const render_options *o, long *projected, long *visible)
+{
+    uint8_t *id = malloc((size_t)r->w * (size_t)r->h);
+    if (!id)
+        return fn_err_set(FN_ENOMEM, "render: out of memory counting a %dx%d frame's pixels", r->w, r->h);
+    long n[RENDER_MAX_FRAGS];
+    int rc = id_pass(r, poses, o, -1, id, visible);
+    for (int i = 0; i < r->nfrag && !rc; i++) {
+        rc = id_pass(r, poses, o, i, id, n);
+        projected[i] = n[i];
+    }
+    free(id);
+    return rc;
+}
+
+/* The camera looking along f (unit) at centre: up is superior, or anterior when f is nearly along
+ * the body's axis. */
+static void look_along(render_camera *c, const double f[3])
+{
+    double up[3] = {0, 0, 1}, d;
+    if (fabs(f[2]) > 0.9)
+        up[1] = -1, up[2] = 0;
+    d = up[0] * f[0] + up[1] * f[1] + up[2] * f[2];
+    double n = 0;
+    for (int a = 0; a < 3; a++) {
+        c->forward[a] = f[a];
+        c->up[a] = up[a] - d * f[a];
+        n += c->up[a] * c->up[a];
+    }
+    for (int a = 0; a < 3; a++)
+        c->up[a] /= sqrt(n);
+}
+
+int render_camera_auto(render *r, render_camera *c, const frag *frags, int nfrag, const pose *poses, int selected)
+{
+    render_camera_standard(c, RENDER_ANTERIOR, frags, nfrag);
+    if (selected < 0 || selected >= nfrag || nfrag != r->nfrag)
+        return 0;
+    const frag *s = &frags[selected];
+    const pose *ps = poses ? &poses[selected] : &s->pose;
+    double centre[3], normal[3] = {0, -1, 0}, radius = 0, best_d2 = HUGE_VAL;
+    pose_apply(ps, s->centroid, centre);
+    for (int b = 0; b < 8; b++) { /* the crop's corners: how far the fragment reaches */
+        double x[3], w[3], d2 = 0;
+        for (int a = 0; a < 3; a++)
+            x[a] = ((b >> a & 1) ? s->dim[a] - 0.5 : -0.5) * s->spacing[a];
+        pose_apply(&s->home, x, w);
+        pose_apply(ps, w, x);
+        for (int a = 0; a < 3; a++)
+            d2 += (x[a] - centre[a]) * (x[a] - centre[a]);
+        radius = sqrt(d2) > radius ? sqrt(d2) : radius;
+    }
+    for (int i = 0; i < nfrag; i++) { /* the contact normal: from the nearest other piece to this one */
+        double o[3], d2 = 0;
+        if (i == selected)
+            continue;
+        pose_apply(poses ? &poses[i] : &frags[i].pose, frags[i].centroid, o);
+        for (int a = 0; a < 3; a++)
+            d2 += (centre[a] - o[a]) * (centre[a] - o[a]);
+        if (d2 < best_d2 && d2 > 0)
+            for (int a = 0; a < 3; a++)
+                normal[a] = (centre[a] - o[a]) / sqrt(d2);
+        best_d2 = d2 < best_d2 ? d2 : best_d2;
+    }
+    double shift = 0;
+    for (int a = 0; a < 3; a++)
+        shift += (centre[a] - c->centre[a]) * (centre[a] - c->centre[a]);
+    c->depth += sqrt(shift);
+    memcpy(c->centre, centre, sizeof centre);
+    c->half_height = 1.1 * radius;
+    /* Candidates: the six named views, the fragment's principal axes both ways (at its pose), and
+     * the view from its own side onto the others. */
+    double cand[13][3];
+    int nc = 0;
+    for (int v = 0; v < 6; v++, nc++)
+        memcpy(cand[nc], views[v].forward, sizeof cand[nc]);
+    for (int k = 0; k < 3; k++)
+        for (int sign = -1; sign <= 1; sign += 2, nc++) {
+            double ax[3] = {s->axes[0][k], s->axes[1][k], s->axes[2][k]};
+            pose_rotate(ps, ax, cand[nc]);
+            for (int a = 0; a < 3; a++)
+                cand[nc][a] *= sign;
+        }
+    for (int a = 0; a < 3; a++)
+        cand[nc][a] = -normal[a];
+    nc++;
+    uint8_t *id = malloc((size_t)r->w * (size_t)r->h);
+    if (!id)
+        return fn_err_set(FN_ENOMEM, "render: out of memory choosing a view at %dx%d", r->w, r->h);
+    long vis[RENDER_MAX_FRAGS], proj[RENDER_MAX_FRAGS];
+    double best = -1, best_f[3];
+    int rc = 0;
+    render_options o = {0}; /* no cut-away: the view itself must show the fragment */
+    for (int k = 0; k < nc && !rc; k++) {
+        look_along(c, cand[k]);
+        o.camera = *c;
+        rc = id_pass(r, poses, &o, -1, id, vis);
+        if (!rc)
+            rc = id_pass(r, poses, &o, selected, id, proj);
+        /* Seen whole counts most; then seeing the fracture from the side (across the normal). */
+        double seen = proj[selected] ? (double)vis[selected] / (double)proj[selected] : 0;
+        double across = 1 - fabs(cand[k][0] * normal[0] + cand[k][1] * normal[1] + cand[k][2] * normal[2]);
+        double score = seen + 0.1 * across;
+        if (!rc && score > best + 1e-9) {
+            best = score;
+            memcpy(best_f, cand[k], sizeof best_f);
+        }
+    }
+    free(id);
+    if (!rc)
+        look_along(c, best_f);
+    return rc;
 }

@@ -9,6 +9,7 @@
 #ifdef FRACNAV_HAVE_GLFW
 #include <GLFW/glfw3.h>
 
+#include <math.h>
 #include <string.h>
 
 /* The window and the input that arrived since the last render_poll. */
@@ -17,6 +18,8 @@ typedef struct glfw_state {
     render_input in;
     double x, y;
     int have_pos;
+    double press[2]; /* where the left button went down */
+    int pressed;
 } glfw_state;
 
 static void on_char(GLFWwindow *w, unsigned int c)
@@ -26,13 +29,33 @@ static void on_char(GLFWwindow *w, unsigned int c)
         st->in.keys[st->in.nkeys++] = (int)c;
 }
 
+/* The keys that type no character (render.h's RENDER_KEY_*); 0 for the others. */
+static int special_key(int key, int action, int mods)
+{
+    if (key >= GLFW_KEY_F1 && key <= GLFW_KEY_F12)
+        return RENDER_KEY_F1 + key - GLFW_KEY_F1;
+    if (key >= GLFW_KEY_RIGHT && key <= GLFW_KEY_UP) {
+        static const int arrow[] = {RENDER_KEY_RIGHT, RENDER_KEY_LEFT, RENDER_KEY_DOWN, RENDER_KEY_UP};
+        return arrow[key - GLFW_KEY_RIGHT];
+    }
+    if (action != GLFW_PRESS)
+        return 0;
+    if (key == GLFW_KEY_ESCAPE)
+        return RENDER_KEY_ESCAPE;
+    if ((mods & GLFW_MOD_CONTROL) && key >= GLFW_KEY_0 && key <= GLFW_KEY_9)
+        return RENDER_KEY_CTRL | ('0' + key - GLFW_KEY_0);
+    if ((mods & GLFW_MOD_CONTROL) && key >= GLFW_KEY_A && key <= GLFW_KEY_Z)
+        return RENDER_KEY_CTRL | ('a' + key - GLFW_KEY_A);
+    return 0;
+}
+
 static void on_key(GLFWwindow *w, int key, int scancode, int action, int mods)
 {
     glfw_state *st = glfwGetWindowUserPointer(w);
     (void)scancode;
-    (void)mods;
-    if (action == GLFW_PRESS && key == GLFW_KEY_ESCAPE && st->in.nkeys < RENDER_INPUT_KEYS)
-        st->in.keys[st->in.nkeys++] = 27;
+    int k = action == GLFW_RELEASE ? 0 : special_key(key, action, mods);
+    if (k && st->in.nkeys < RENDER_INPUT_KEYS)
+        st->in.keys[st->in.nkeys++] = k;
 }
 
 static void on_cursor(GLFWwindow *w, double x, double y)
@@ -48,6 +71,23 @@ static void on_cursor(GLFWwindow *w, double x, double y)
     st->x = x;
     st->y = y;
     st->have_pos = 1;
+}
+
+/* A left press and release within 3 pixels is a click (a longer way is a drag: an orbit). */
+static void on_button(GLFWwindow *w, int button, int action, int mods)
+{
+    glfw_state *st = glfwGetWindowUserPointer(w);
+    (void)mods;
+    if (button != GLFW_MOUSE_BUTTON_LEFT)
+        return;
+    if (action == GLFW_PRESS) {
+        st->press[0] = st->x, st->press[1] = st->y;
+        st->pressed = 1;
+    } else if (st->pressed && fabs(st->x - st->press[0]) < 3 && fabs(st->y - st->press[1]) < 3) {
+        st->in.clicked = 1;
+        st->in.click[0] = st->x, st->in.click[1] = st->y;
+        st->pressed = 0;
+    }
 }
 
 static void on_scroll(GLFWwindow *w, double dx, double dy)
@@ -66,7 +106,7 @@ static int glfw_open(render *r, int w, int h)
     glfwWindowHint(GLFW_CONTEXT_VERSION_MINOR, 5);
     glfwWindowHint(GLFW_OPENGL_PROFILE, GLFW_OPENGL_CORE_PROFILE);
     glfwWindowHint(GLFW_OPENGL_FORWARD_COMPAT, GLFW_TRUE);
-    glfwWindowHint(GLFW_RESIZABLE, GLFW_FALSE);
+    glfwWindowHint(GLFW_RESIZABLE, GLFW_TRUE);
     GLFWwindow *win = glfwCreateWindow(w, h, "fracnav", NULL, NULL);
     if (!win) {
         const char *why = NULL;
@@ -87,6 +127,7 @@ static int glfw_open(render *r, int w, int h)
     glfwSetKeyCallback(win, on_key);
     glfwSetCursorPosCallback(win, on_cursor);
     glfwSetScrollCallback(win, on_scroll);
+    glfwSetMouseButtonCallback(win, on_button);
     glfwMakeContextCurrent(win);
     glfwSwapInterval(0);
     r->plat_state = st;
@@ -113,8 +154,22 @@ static int glfw_poll(render *r, render_input *in)
     glfwPollEvents();
     *in = st->in;
     in->close = glfwWindowShouldClose(st->win);
+    in->x = st->x, in->y = st->y;
     memset(&st->in, 0, sizeof st->in);
+    /* A resized window: the frame follows its framebuffer. */
+    int w, h;
+    glfwGetFramebufferSize(st->win, &w, &h);
+    if (w > 0 && h > 0)
+        r->w = w, r->h = h;
     return 0;
+}
+
+static float glfw_content_scale(const render *r)
+{
+    glfw_state *st = r->plat_state;
+    float x = 1, y = 1;
+    glfwGetWindowContentScale(st->win, &x, &y);
+    return y > 0 ? y : 1;
 }
 
 static void glfw_close(render *r)
@@ -133,6 +188,7 @@ const render_platform render__glfw = {
     .proc = glfw_proc,
     .present = glfw_present,
     .poll = glfw_poll,
+    .content_scale = glfw_content_scale,
     .close = glfw_close,
 };
 #else

@@ -28,6 +28,7 @@
     X(PFNGLUNIFORM1FPROC, Uniform1f) X(PFNGLUNIFORM1IVPROC, Uniform1iv)                            \
     X(PFNGLUNIFORM2FPROC, Uniform2f) X(PFNGLUNIFORM3FVPROC, Uniform3fv)                            \
     X(PFNGLUNIFORM4FPROC, Uniform4f) X(PFNGLUNIFORM4IVPROC, Uniform4iv)                            \
+    X(PFNGLUNIFORM4FVPROC, Uniform4fv)                                                             \
     X(PFNGLUNIFORMMATRIX4FVPROC, UniformMatrix4fv) X(PFNGLUNIFORMMATRIX3FVPROC, UniformMatrix3fv)  \
     X(PFNGLGENVERTEXARRAYSPROC, GenVertexArrays) X(PFNGLBINDVERTEXARRAYPROC, BindVertexArray)      \
     X(PFNGLDELETEVERTEXARRAYSPROC, DeleteVertexArrays) X(PFNGLGENBUFFERSPROC, GenBuffers)          \
@@ -58,6 +59,7 @@ typedef struct render_platform {
     void *(*proc)(render *r, const char *name);
     int (*present)(render *r);
     int (*poll)(render *r, render_input *in); /* NULL: no input (offscreen) */
+    float (*content_scale)(const render *r);      /* NULL: 1 (offscreen) */
     void (*close)(render *r);
 } render_platform;
 
@@ -94,7 +96,7 @@ struct render {
     render_gl gl;
     char renderer[256], version[256];
     unsigned prog_ray[3]; /* per raycast mode, compiled for the scene on first use (0: not yet) */
-    unsigned prog_slice, prog_mesh, prog_line, prog_depth, prog_hud;
+    unsigned prog_slice, prog_mesh, prog_line, prog_depth, prog_hud, prog_id;
     unsigned hud_tex;
     unsigned vao_empty, line_vao, line_vbo;
     /* Per fragment, the nearest and farthest depth of its occupied bricks: 2D array textures of
@@ -116,7 +118,7 @@ struct render {
 /* GLSL sources (render_shader.c). */
 extern const char *const render__ray_fs, *const render__ray_vs, *const render__quad_vs, *const render__proxy_vs,
     *const render__depth_fs, *const render__hud_fs, *const render__slice_fs,
-    *const render__mesh_vs, *const render__mesh_fs, *const render__line_vs, *const render__line_fs;
+    *const render__mesh_vs, *const render__mesh_fs, *const render__id_fs, *const render__line_vs, *const render__line_fs;
 
 /* Compiles r->prog_ray[m] for the scene when it is not yet (render.c). 0 or FN_E*. */
 int render__ray_program(render *r, render_mode m);

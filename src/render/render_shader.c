@@ -233,21 +233,50 @@ const char *const render__mesh_vs =
     "layout(location = 0) in vec3 pos;\n"
     "layout(location = 1) in vec3 nrm;\n"
     "uniform mat4 vp, model;\n"
-    "out vec3 n_world;\n"
+    "out vec3 n_world, p_world;\n"
     "void main() {\n"
     "    n_world = mat3(model) * nrm;\n"
+    "    p_world = (model * vec4(pos, 1.0)).xyz;\n"
     "    gl_Position = vp * model * vec4(pos, 1.0);\n"
     "}\n";
+
+/* The cut-away (render_options.cutaway): another fragment's surface inside the cylinder of radius
+ * cut.w from the kept fragment's centroid cut.xyz towards the viewer, and in front of the kept
+ * fragment's nearest corner (cut_front along forward, from the centroid), is not drawn. */
+#define CUTAWAY_GLSL \
+    "uniform vec4 cut;\n" \
+    "uniform float cut_front;\n" \
+    "bool cut_away(vec3 p, vec3 forward) {\n" \
+    "    vec3 d = p - cut.xyz;\n" \
+    "    float along = dot(d, forward);\n" \
+    "    return cut.w > 0.0 && along < cut_front && length(d - along * forward) < cut.w;\n" \
+    "}\n"
 
 const char *const render__mesh_fs =
     "#version 450 core\n"
     "uniform vec3 colour, forward;\n"
-    "in vec3 n_world;\n"
+    "in vec3 n_world, p_world;\n"
     "out vec4 frag_colour;\n"
+    CUTAWAY_GLSL
     "void main() {\n"
+    "    if (cut_away(p_world, forward))\n"
+    "        discard;\n"
     "    float len = length(n_world);\n"
     "    float diff = len > 0.0 ? abs(dot(n_world / len, forward)) : 1.0;\n"
     "    frag_colour = vec4(colour * (0.2 + 0.8 * diff) + vec3(0.25 * pow(diff, 24.0)), 1.0);\n"
+    "}\n";
+
+/* Fragment i's mesh in the flat colour (i + 1) / 255: which fragment is front-most where. */
+const char *const render__id_fs =
+    "#version 450 core\n"
+    "uniform vec3 colour, forward;\n"
+    "in vec3 p_world;\n"
+    "out vec4 frag_colour;\n"
+    CUTAWAY_GLSL
+    "void main() {\n"
+    "    if (cut_away(p_world, forward))\n"
+    "        discard;\n"
+    "    frag_colour = vec4(colour, 1.0);\n"
     "}\n";
 
 const char *const render__line_vs =

@@ -88,10 +88,37 @@ static double shown(double v)
     return fabs(v) < 0.005 ? 0 : v;
 }
 
+/* "12.30 left": a distance along one anatomical axis (LPS: +x left, +y posterior, +z superior). */
+static void along(char *buf, size_t cap, double v, int axis)
+{
+    static const char *name[3][3] = {{"right", "L/R", "left"}, {"anterior", "A/P", "posterior"},
+                                     {"inferior", "S/I", "superior"}};
+    v = shown(v);
+    snprintf(buf, cap, "%.2f %s", fabs(v), name[axis][v > 0 ? 2 : v < 0 ? 0 : 1]);
+}
+
+void navview_move_text(const double d[3], char *buf, size_t cap)
+{
+    char a[3][32];
+    for (int i = 0; i < 3; i++)
+        along(a[i], sizeof a[i], d[i], i);
+    snprintf(buf, cap, "%s, %s, %s mm", a[0], a[1], a[2]);
+}
+
+void navview_turn_text(const pose *p, char *buf, size_t cap)
+{
+    double axis[3], deg = navview_rotation(p, axis);
+    if (deg < 0.005)
+        snprintf(buf, cap, "not turned");
+    else
+        snprintf(buf, cap, "turned %.2f deg: L/R %+.2f, A/P %+.2f, S/I %+.2f", deg, shown(axis[0] * deg),
+                 shown(axis[1] * deg), shown(axis[2] * deg));
+}
+
 static void pose_fields(const loop_scene *s, const navview_extra *x, fields *f)
 {
     const pose *p = &s->pose[s->selected];
-    double axis[3], deg = navview_rotation(p, axis), d[3];
+    double d[3];
     if (x && x->frags) {
         const double *c = x->frags[s->selected].centroid;
         pose_apply(p, c, d);
@@ -100,13 +127,11 @@ static void pose_fields(const loop_scene *s, const navview_extra *x, fields *f)
     } else {
         memcpy(d, p->t, sizeof d);
     }
-    add(f, 1, "%sx %+.2f y %+.2f z %+.2f mm", x && x->frags ? "moved " : "", shown(d[0]), shown(d[1]),
-        shown(d[2]));
-    if (deg < 0.005)
-        add(f, 0, "not turned");
-    else
-        add(f, 0, "turned %.2f deg about (%+.2f %+.2f %+.2f)", deg, shown(axis[0]), shown(axis[1]),
-            shown(axis[2]));
+    char move[128], turn[128];
+    navview_move_text(d, move, sizeof move);
+    navview_turn_text(p, turn, sizeof turn);
+    add(f, 1, "%s%s", x && x->frags ? "moved " : "", move);
+    add(f, 0, "%s", turn);
 }
 
 static void fill(const loop_scene *s, const navview_extra *x, fields *f)
@@ -266,19 +291,20 @@ void navview_ack(const loop_scene *s, char *buf, size_t cap)
 const char *navview_help(int keyboard)
 {
     if (keyboard)
-        return "keys (the keyboard steers):\n"
+        return "keys (the keyboard steers, typed in the terminal or the window):\n"
                "  arrows or a/d w/s  move in x and y        r/f  up/down\n"
                "  i/k j/l u/o        rotate                 space or x  stop\n"
                "  1 next  2 previous  3 fix  4 collision  5 translation only  6 rotation only\n"
-               "  7 undo  8 redo  9 save  0 or m frame  g fit  q quit (saves)  ? or h these keys\n"
-               "  mouse: left drag rotates, middle drag rolls, right drag moves, wheel up/down\n"
+               "  7 undo  8 redo  9 save  0 or m frame  g fit  q quit (saves)  ? or h keys\n"
+               "  terminal mouse: left drag rotates, middle rolls, right moves, wheel up/down\n"
                "Ctrl-C quits and saves.\n";
     return "keys beside a controller: n/p next/previous fragment   f fix or unfix\n"
            "  c collision checking on/off   t translation only   r rotation only\n"
            "  u undo   y redo   m frame   s save   g fit to the others   q quit (saves)\n"
            "  ? or h these keys\n"
            "controller buttons: 1 next  2 previous  3 fix  4 collision  5 translation only\n"
-           "  6 rotation only  7 undo  8 redo  9 save  10 frame  12 fit (SpaceMouse Enterprise:\n"
-           "  its keys labelled 1-10; spnavrc's bnmapN moves them, bnmapN = 11 puts fit on N)\n"
+           "  6 rotation only  7 undo  8 redo  9 save  10 frame  12 fit (SpaceMouse\n"
+           "  Enterprise: its keys labelled 1-10; spnavrc's bnmapN moves them, bnmapN = 11\n"
+           "  puts fit on N)\n"
            "Ctrl-C quits and saves.\n";
 }

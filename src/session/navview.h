@@ -1,8 +1,10 @@
 /* navview: what `fracnav navigate` shows of a navigation session, as text laid out for a terminal.
  *
  * The scene (loop_scene_read) becomes fields in order of importance -- warnings, the selected
- * fragment and its contact, its pose (how far its centroid moved, and its rotation as degrees
- * about an axis through it; world LPS), the
+ * fragment and its contact, its pose in the patient's anatomical terms (how far its centroid moved
+ * in mm right or left, anterior or posterior, inferior or superior: "moved 2.00 left, 0.50
+ * posterior, 0.00 S/I mm"; its rotation in degrees and its rotation vector's parts about the L/R,
+ * A/P and S/I axes, right-handed about left, posterior and superior, world LPS), the
  * frame, locks and rates, then the acknowledgement of the latest action -- packed into lines no
  * wider than the terminal, so that nothing is cut: a narrow terminal gets more lines. Off a
  * terminal the same fields make one line for a log. Pure functions: no I/O, no allocation. */
@@ -36,6 +38,11 @@ void navview_ack(const loop_scene *s, char *buf, size_t cap);
 
 /* The rotation of p as an angle in degrees (0..180) about a unit axis (x when there is none). */
 double navview_rotation(const pose *p, double axis[3]);
+/* A move d (world LPS, mm) in anatomical terms: "2.00 left, 0.50 posterior, 0.00 S/I mm". */
+void navview_move_text(const double d[3], char *buf, size_t cap);
+/* p's rotation in anatomical terms: "turned 3.00 deg: L/R +0.50, A/P -2.90, S/I +0.00" (the
+ * rotation vector's parts, right-handed about left, posterior and superior), or "not turned". */
+void navview_turn_text(const pose *p, char *buf, size_t cap);
 
 /* The keys and controller buttons and what each does, one per line (lines of at most 79
  * columns). keyboard: the keys of --device keyboard, which steer instead. */
