@@ -512,6 +512,38 @@ static void test_cli_fill(void **st)
     free(dir);
 }
 
+/* segment --whole-bone on a bone cut out of its CT (0 outside): a cortex open on one side (a
+ * threshold and --fill leave the interior out) around a 40-70 HU interior is found whole. */
+static void test_cli_whole_bone(void **st)
+{
+    char *dir = tu_tmpdir("seg-whole"), ct[4300], out_dir[4300], *out = NULL;
+    vol *v = vol_new(20, 20, 20);
+    size_t solid = 0;
+    for (int k = 3; k < 17; k++)
+        for (int j = 3; j < 17; j++)
+            for (int i = 3; i < 17; i++) {
+                int wall = i < 5 || j < 5 || j >= 15 || k < 5 || k >= 15; /* open at high i */
+                v->data[vol_idx(v, i, j, k)] = wall ? 800 : 40 + (i + j + k) % 31;
+                solid++;
+            }
+    snprintf(ct, sizeof ct, "%s/bone.nii.gz", dir);
+    snprintf(out_dir, sizeof out_dir, "%s/case", dir);
+    assert_int_equal(volio_write(v, ct, VOL_I16), 0);
+    int rc = tu_run_cli(&out, "segment '%s' -o '%s' --min-volume 0 --whole-bone --json", ct, out_dir);
+    if (rc != 0)
+        fail_msg("rc %d: %s", rc, out);
+    free(out);
+    planning_case *c = case_load(out_dir);
+    if (!c)
+        fail_msg("%s", fn_err_msg());
+    assert_int_equal(c->nfrag, 1);
+    assert_int_equal(c->frag[0].voxels, solid);
+    case_free(c);
+    vol_free(v);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 static void test_cli_usage(void **st)
 {
     char *out;
@@ -659,6 +691,7 @@ int main(void)
         cmocka_unit_test(test_cli_labels_import),
         cmocka_unit_test(test_cli_labels_seg_nrrd),
         cmocka_unit_test(test_cli_fill),
+        cmocka_unit_test(test_cli_whole_bone),
         cmocka_unit_test(test_cli_usage),
         cmocka_unit_test(test_prob_ramp),
         cmocka_unit_test(test_eigen),

@@ -1,6 +1,7 @@
 /* fracnav segment: threshold + 26-connected components into a new case. */
 #include "cmd.h"
 
+#include "bone.h"
 #include "case.h"
 #include "err.h"
 #include "fnclock.h"
@@ -39,6 +40,10 @@ static void usage(FILE *out)
             "                             several segments goes to the first, and each pair's\n"
             "                             overlap is reported as a warning. The threshold then\n"
             "                             only shapes the probability maps\n"
+            "  --whole-bone               the whole bone, cancellous interior included: on a CT\n"
+            "                             that holds only the bone (0 elsewhere), every non-zero\n"
+            "                             voxel connected to the threshold's cortex; on a full CT,\n"
+            "                             the threshold's voxels; then --fill\n"
             "  --fill                     fill each fragment's enclosed interior (cancellous bone\n"
             "                             under the threshold inside the cortex), in 3D\n"
             "  --fill-slices              the same, also slice-wise along each axis (long bones,\n"
@@ -59,6 +64,7 @@ static void usage(FILE *out)
 typedef struct extra {
     const char *labels; /* --labels */
     int fill;           /* morph_fill's mode, 0: none */
+    int whole_bone;     /* --whole-bone: bone_find instead of the threshold */
 } extra;
 
 static int parse(int argc, char **argv, seg_params *p, cmd_case_args *c, extra *x)
@@ -72,6 +78,11 @@ static int parse(int argc, char **argv, seg_params *p, cmd_case_args *c, extra *
         }
         const char *a = argv[i], *val = i + 1 < argc ? argv[i + 1] : NULL;
         double d;
+        if (!strcmp(a, "--whole-bone")) {
+            x->whole_bone = 1;
+            x->fill |= MORPH_FILL_3D;
+            continue;
+        }
         if (!strcmp(a, "--fill")) {
             x->fill |= MORPH_FILL_3D;
             continue;
@@ -175,6 +186,20 @@ static int report_json(const planning_case *c, const seg_result *r, const char *
     return jsonw_print(o, stdout);
 }
 
+/* seg_run over bone_find's mask. */
+static int whole_bone(const vol *ct, const seg_params *p, seg_result *r)
+{
+    double thr = seg_threshold(ct, p);
+    uint8_t *mask = malloc(vol_count(ct));
+    if (!mask)
+        return fn_err_set(FN_ENOMEM, "segment: out of memory for the bone mask");
+    int rc = bone_find(ct, thr, mask);
+    if (rc >= 0)
+        rc = seg_run_mask(ct, mask, p, r);
+    free(mask);
+    return rc;
+}
+
 int cmd_segment(int argc, char **argv)
 {
     if (cmd_wants_help(argc, argv)) {
@@ -207,7 +232,7 @@ int cmd_segment(int argc, char **argv)
         err = 1;
     }
     if (!err && !x.labels)
-        err = seg_run(ct, &p, &r) < 0;
+        err = (x.whole_bone ? whole_bone(ct, &p, &r) : seg_run(ct, &p, &r)) < 0;
     if (err) {
         fprintf(stderr, "fracnav segment: %s\n", fn_err_msg());
         vol_free(ct);
