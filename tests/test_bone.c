@@ -7,6 +7,7 @@
 
 #include "bone.h"
 #include "err.h"
+#include "grow.h"
 #include "testutil.h"
 #include "vol.h"
 
@@ -72,11 +73,61 @@ static void test_full_ct_keeps_the_threshold(void **st)
     vol_free(v);
 }
 
+/* A growth updated after one more seed gives the forest that growing all the seeds anew gives, and
+ * a seed outside the domain or on another's voxel is refused. */
+static void test_grow_incremental_matches_fresh(void **st)
+{
+    (void)st;
+    enum { X = 40, Y = 24, Z = 20, N = X * Y * Z };
+    static float hu[N];
+    static uint8_t dom[N], first[N];
+    unsigned r = 12345;
+    for (int k = 0; k < Z; k++)
+        for (int j = 0; j < Y; j++)
+            for (int i = 0; i < X; i++) {
+                size_t v = ((size_t)k * Y + j) * X + i;
+                r = r * 1103515245u + 12345u;
+                hu[v] = (float)(100 + (r >> 16) % 700);
+                dom[v] = !(i == 20 && (j < 8 || k < 6)); /* a wall with a gap */
+            }
+    const int dim[3] = {X, Y, Z};
+    const double sp[3] = {0.8, 0.8, 1.0};
+    const size_t a = (10 * Y + 12) * X + 5, b = (10 * Y + 12) * X + 35, c = (3 * Y + 3) * X + 30;
+    grow *g = grow_new(hu, dom, dim, sp);
+    assert_non_null(g);
+    assert_int_equal(grow_add_seed(g, a, 1), 0);
+    assert_int_equal(grow_add_seed(g, b, 2), 0);
+    assert_int_equal(grow_run(g), 0);
+    memcpy(first, grow_labels(g), N);
+    assert_int_equal(first[a], 1);
+    assert_int_equal(first[b], 2);
+    assert_int_equal(grow_add_seed(g, c, 3), 0);
+    assert_int_equal(grow_run(g), 0);
+    grow *fresh = grow_new(hu, dom, dim, sp);
+    assert_int_equal(grow_add_seed(fresh, a, 1), 0);
+    assert_int_equal(grow_add_seed(fresh, b, 2), 0);
+    assert_int_equal(grow_add_seed(fresh, c, 3), 0);
+    assert_int_equal(grow_run(fresh), 0);
+    assert_memory_equal(grow_labels(g), grow_labels(fresh), N);
+    size_t moved = 0;
+    for (size_t v = 0; v < N; v++)
+        moved += grow_labels(g)[v] != first[v];
+    assert_true(moved > 0);
+    assert_int_equal(grow_labels(g)[(10 * Y + 3) * X + 20], 0); /* the wall is outside the domain */
+    assert_int_equal(grow_add_seed(g, (10 * Y + 3) * X + 20, 1), FN_EINVAL);
+    assert_int_equal(grow_add_seed(g, a, 2), FN_EINVAL);
+    assert_int_equal(grow_add_seed(g, N, 1), FN_EINVAL);
+    assert_int_equal(grow_add_seed(g, b, 0), FN_EINVAL);
+    grow_free(g);
+    grow_free(fresh);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_bone_only_ct_keeps_the_cancellous_interior),
         cmocka_unit_test(test_full_ct_keeps_the_threshold),
+        cmocka_unit_test(test_grow_incremental_matches_fresh),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

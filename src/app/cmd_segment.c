@@ -186,20 +186,6 @@ static int report_json(const planning_case *c, const seg_result *r, const char *
     return jsonw_print(o, stdout);
 }
 
-/* seg_run over bone_find's mask. */
-static int whole_bone(const vol *ct, const seg_params *p, seg_result *r)
-{
-    double thr = seg_threshold(ct, p);
-    uint8_t *mask = malloc(vol_count(ct));
-    if (!mask)
-        return fn_err_set(FN_ENOMEM, "segment: out of memory for the bone mask");
-    int rc = bone_find(ct, thr, mask);
-    if (rc >= 0)
-        rc = seg_run_mask(ct, mask, p, r);
-    free(mask);
-    return rc;
-}
-
 int cmd_segment(int argc, char **argv)
 {
     if (cmd_wants_help(argc, argv)) {
@@ -232,7 +218,7 @@ int cmd_segment(int argc, char **argv)
         err = 1;
     }
     if (!err && !x.labels)
-        err = (x.whole_bone ? whole_bone(ct, &p, &r) : seg_run(ct, &p, &r)) < 0;
+        err = (x.whole_bone ? bone_segment(ct, &p, &r) : seg_run(ct, &p, &r)) < 0;
     if (err) {
         fprintf(stderr, "fracnav segment: %s\n", fn_err_msg());
         vol_free(ct);

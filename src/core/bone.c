@@ -1,7 +1,6 @@
 #include "bone.h"
 
 #include "err.h"
-#include "seg.h"
 
 #include <math.h>
 #include <stdlib.h>
@@ -44,4 +43,16 @@ int bone_find(const vol *v, double threshold, uint8_t *mask)
     free(cortex);
     free(lab);
     return kind;
+}
+
+int bone_segment(const vol *v, const seg_params *p, seg_result *out)
+{
+    uint8_t *mask = malloc(vol_count(v));
+    if (!mask)
+        return fn_err_set(FN_ENOMEM, "bone: out of memory for the bone mask");
+    int rc = bone_find(v, seg_threshold(v, p), mask);
+    if (rc >= 0)
+        rc = seg_run_mask(v, mask, p, out);
+    free(mask);
+    return rc;
 }

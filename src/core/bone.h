@@ -12,6 +12,7 @@
 #ifndef FN_BONE_H
 #define FN_BONE_H
 
+#include "seg.h"
 #include "vol.h"
 
 #include <stdint.h>
@@ -26,5 +27,8 @@ bone_kind bone_kind_of(const vol *v);
  * finite voxels 26-connected to a voxel >= threshold; for a full CT, the finite voxels >=
  * threshold. Returns the kind found, or FN_ENOMEM. */
 int bone_find(const vol *v, double threshold, uint8_t *mask);
+
+/* seg_run over bone_find's mask at p's threshold: the whole bones as fragments. */
+int bone_segment(const vol *v, const seg_params *p, seg_result *out);
 
 #endif
