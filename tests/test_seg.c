@@ -544,6 +544,48 @@ static void test_cli_whole_bone(void **st)
     free(dir);
 }
 
+/* segment --separate on a bone-only CT (0 outside) of two blocks that touch across a thin contact:
+ * with one seed each, two fragments; a seed off the CT is refused naming the point; automatically,
+ * the intact single block stays one fragment. */
+static void test_cli_separate(void **st)
+{
+    char *dir = tu_tmpdir("seg-separate"), ct[4300], out_dir[4300], *out = NULL;
+    vol *v = vol_new(60, 30, 30); /* most of it 0: a CT that holds only the bone */
+    for (int k = 2; k < 22; k++)
+        for (int j = 2; j < 22; j++)
+            for (int i = 2; i < 42; i++) {
+                int a = i < 21, contact = i == 21 && j >= 10 && j < 14 && k >= 10 && k < 14;
+                int rim = i < 4 || j < 4 || k < 4 || j >= 20 || k >= 20 || i >= 40 || i == 19 || i == 20 || i == 22 ||
+                          i == 23;
+                if (i == 21 && !contact)
+                    continue; /* the fracture gap */
+                v->data[vol_idx(v, i, j, k)] = rim && !contact ? 900 : 60 + (a ? 0 : 10);
+            }
+    snprintf(ct, sizeof ct, "%s/bone.nii.gz", dir);
+    snprintf(out_dir, sizeof out_dir, "%s/case", dir);
+    assert_int_equal(volio_write(v, ct, VOL_I16), 0);
+    int rc = tu_run_cli(&out, "segment '%s' -o '%s' --min-volume 0 --separate --seeds 10 12 12 31 12 12 --json", ct,
+                        out_dir);
+    if (rc != 0 || !strstr(out, "\"separated_fragments\": 1"))
+        fail_msg("rc %d: %s", rc, out);
+    free(out);
+    planning_case *c = case_load(out_dir);
+    if (!c)
+        fail_msg("%s", fn_err_msg());
+    assert_int_equal(c->nfrag, 2);
+    assert_true(c->labels->data[vol_idx(c->labels, 5, 12, 12)] != c->labels->data[vol_idx(c->labels, 38, 12, 12)]);
+    case_free(c);
+    rc = tu_run_cli(&out, "segment '%s' -o '%s' --force --separate --seeds 10 12 12 31 12 99", ct, out_dir);
+    if (rc != 1 || !strstr(out, "the seed (31.0, 12.0, 99.0) mm is outside the CT"))
+        fail_msg("rc %d: %s", rc, out);
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "segment '%s' -o '%s' --seeds 1 2 3", ct, out_dir), 2);
+    free(out);
+    vol_free(v);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 static void test_cli_usage(void **st)
 {
     char *out;
@@ -692,6 +734,7 @@ int main(void)
         cmocka_unit_test(test_cli_labels_seg_nrrd),
         cmocka_unit_test(test_cli_fill),
         cmocka_unit_test(test_cli_whole_bone),
+        cmocka_unit_test(test_cli_separate),
         cmocka_unit_test(test_cli_usage),
         cmocka_unit_test(test_prob_ramp),
         cmocka_unit_test(test_eigen),
