@@ -544,44 +544,66 @@ static void test_cli_whole_bone(void **st)
     free(dir);
 }
 
-/* segment --separate on a bone-only CT (0 outside) of two blocks that touch across a thin contact:
- * with one seed each, two fragments; a seed off the CT is refused naming the point; automatically,
- * the intact single block stays one fragment. */
+/* A bone-only CT (0 outside) of two blocks 2..41 and 43..81 along x (20 x 20 mm across, a cortex of
+ * 900 HU around 60-70 HU) broken apart by a 1 mm gap at x = 42 but where they touch over 4 x 4 mm;
+ * whole: no gap. */
+static vol *broken_blocks(int whole)
+{
+    vol *v = vol_new(84, 30, 30); /* most of it 0: a CT that holds only the bone */
+    for (int k = 2; k < 22; k++)
+        for (int j = 2; j < 22; j++)
+            for (int i = 2; i < 82; i++) {
+                int contact = j >= 10 && j < 14 && k >= 10 && k < 14;
+                int rim = i < 4 || j < 4 || k < 4 || j >= 20 || k >= 20 || i >= 80 ||
+                          (!whole && (i == 40 || i == 41 || i == 43 || i == 44));
+                if (i == 42 && !contact && !whole)
+                    continue; /* the fracture gap */
+                v->data[vol_idx(v, i, j, k)] = rim && !contact ? 900 : 60 + (i < 42 ? 0 : 10);
+            }
+    return v;
+}
+
+/* segment --separate: with one seed per block, two fragments; a seed off the CT is refused naming
+ * the point; automatically, the broken blocks split where the gap is, and the whole ones stay one
+ * fragment. */
 static void test_cli_separate(void **st)
 {
     char *dir = tu_tmpdir("seg-separate"), ct[4300], out_dir[4300], *out = NULL;
-    vol *v = vol_new(60, 30, 30); /* most of it 0: a CT that holds only the bone */
-    for (int k = 2; k < 22; k++)
-        for (int j = 2; j < 22; j++)
-            for (int i = 2; i < 42; i++) {
-                int a = i < 21, contact = i == 21 && j >= 10 && j < 14 && k >= 10 && k < 14;
-                int rim = i < 4 || j < 4 || k < 4 || j >= 20 || k >= 20 || i >= 40 || i == 19 || i == 20 || i == 22 ||
-                          i == 23;
-                if (i == 21 && !contact)
-                    continue; /* the fracture gap */
-                v->data[vol_idx(v, i, j, k)] = rim && !contact ? 900 : 60 + (a ? 0 : 10);
-            }
     snprintf(ct, sizeof ct, "%s/bone.nii.gz", dir);
     snprintf(out_dir, sizeof out_dir, "%s/case", dir);
+    vol *v = broken_blocks(0);
     assert_int_equal(volio_write(v, ct, VOL_I16), 0);
-    int rc = tu_run_cli(&out, "segment '%s' -o '%s' --min-volume 0 --separate --seeds 10 12 12 31 12 12 --json", ct,
-                        out_dir);
-    if (rc != 0 || !strstr(out, "\"separated_fragments\": 1"))
-        fail_msg("rc %d: %s", rc, out);
-    free(out);
-    planning_case *c = case_load(out_dir);
-    if (!c)
-        fail_msg("%s", fn_err_msg());
-    assert_int_equal(c->nfrag, 2);
-    assert_true(c->labels->data[vol_idx(c->labels, 5, 12, 12)] != c->labels->data[vol_idx(c->labels, 38, 12, 12)]);
-    case_free(c);
-    rc = tu_run_cli(&out, "segment '%s' -o '%s' --force --separate --seeds 10 12 12 31 12 99", ct, out_dir);
+    vol_free(v);
+    static const char *const how[2] = {"--seeds 20 12 12 60 12 12", ""};
+    for (int h = 0; h < 2; h++) {
+        int rc = tu_run_cli(&out, "segment '%s' -o '%s' --force --min-volume 0 --separate %s --json", ct, out_dir,
+                            how[h]);
+        if (rc != 0 || !strstr(out, "\"separated_fragments\": 1"))
+            fail_msg("%s: rc %d: %s", how[h], rc, out);
+        free(out);
+        planning_case *c = case_load(out_dir);
+        if (!c)
+            fail_msg("%s", fn_err_msg());
+        assert_int_equal(c->nfrag, 2);
+        const vol *l = c->labels;
+        assert_true(l->data[vol_idx(l, 5, 12, 12)] == l->data[vol_idx(l, 39, 5, 5)]);
+        assert_true(l->data[vol_idx(l, 45, 5, 5)] == l->data[vol_idx(l, 78, 12, 12)]);
+        assert_true(l->data[vol_idx(l, 5, 12, 12)] != l->data[vol_idx(l, 78, 12, 12)]);
+        case_free(c);
+    }
+    int rc = tu_run_cli(&out, "segment '%s' -o '%s' --force --separate --seeds 10 12 12 31 12 99", ct, out_dir);
     if (rc != 1 || !strstr(out, "the seed (31.0, 12.0, 99.0) mm is outside the CT"))
         fail_msg("rc %d: %s", rc, out);
     free(out);
     assert_int_equal(tu_run_cli(&out, "segment '%s' -o '%s' --seeds 1 2 3", ct, out_dir), 2);
     free(out);
+    v = broken_blocks(1);
+    assert_int_equal(volio_write(v, ct, VOL_I16), 0);
     vol_free(v);
+    rc = tu_run_cli(&out, "segment '%s' -o '%s' --force --min-volume 0 --separate --json", ct, out_dir);
+    if (rc != 0 || !strstr(out, "\"separated_fragments\": 0"))
+        fail_msg("rc %d: %s", rc, out);
+    free(out);
     tu_rmtree(dir);
     free(dir);
 }

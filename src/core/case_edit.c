@@ -5,6 +5,7 @@
 #include "err.h"
 #include "grow.h"
 #include "morph.h"
+#include "split.h"
 
 #include <math.h>
 #include <stdint.h>
@@ -413,6 +414,19 @@ int case_separate(planning_case *c, int id, double erode_mm, int *new_ids, doubl
 
 /* ---- seeded separation -------------------------------------------------------------------- */
 
+/* The CT's values over a fragment's box (id_mask's), 0 outside the mask; NULL when out of memory. */
+static float *box_values(const planning_case *c, const uint8_t *m, const int lo[3], const int dim[3])
+{
+    float *hu = malloc((size_t)dim[0] * dim[1] * dim[2] * sizeof *hu);
+    for (int k = 0; hu && k < dim[2]; k++)
+        for (int j = 0; j < dim[1]; j++)
+            for (int i = 0; i < dim[0]; i++) {
+                size_t b = ((size_t)k * dim[1] + j) * dim[0] + i;
+                hu[b] = m[b] ? c->ct->data[vol_idx(c->ct, lo[0] + i, lo[1] + j, lo[2] + k)] : 0;
+            }
+    return hu;
+}
+
 /* The voxel of seed s on the grid (its nearest centre), or FN_EINVAL naming the point. */
 static int seed_voxel(const planning_case *c, const case_seed *s, int v[3])
 {
@@ -496,16 +510,10 @@ int case_separate_seeds(planning_case *c, int id, const case_seed *seeds, int n,
     int lo[3], dim[3];
     uint8_t *m = rc == 0 ? id_mask(c, id, lo, dim) : NULL;
     size_t nb = m ? (size_t)dim[0] * dim[1] * dim[2] : 0;
-    float *hu = m ? malloc(nb * sizeof *hu) : NULL;
+    float *hu = m ? box_values(c, m, lo, dim) : NULL;
     int32_t *lab = m ? malloc(nb * sizeof *lab) : NULL;
     if (rc == 0 && (!hu || !lab))
         rc = fn_err_set(FN_ENOMEM, "separate: out of memory for fragment %d's box", id);
-    for (int k = 0; rc == 0 && k < dim[2]; k++)
-        for (int j = 0; j < dim[1]; j++)
-            for (int i = 0; i < dim[0]; i++) {
-                size_t b = ((size_t)k * dim[1] + j) * dim[0] + i;
-                hu[b] = m[b] ? c->ct->data[vol_idx(c->ct, lo[0] + i, lo[1] + j, lo[2] + k)] : 0;
-            }
     grow *g = rc == 0 ? grow_new(hu, m, dim, c->labels->spacing) : NULL;
     if (rc == 0 && !g)
         rc = FN_ENOMEM;
@@ -645,6 +653,19 @@ int case_separate_all(planning_case *c, const case_seed *seeds, int n)
 
 int case_separate_auto(planning_case *c, int id, int *new_ids)
 {
-    (void)new_ids;
-    return need(c, id);
+    int rc = need(c, id);
+    if (rc < 0)
+        return rc;
+    int lo[3], dim[3];
+    uint8_t *m = id_mask(c, id, lo, dim);
+    float *hu = m ? box_values(c, m, lo, dim) : NULL;
+    int32_t *lab = hu ? malloc((size_t)dim[0] * dim[1] * dim[2] * sizeof *lab) : NULL;
+    if (!lab)
+        rc = fn_err_set(FN_ENOMEM, "separate: out of memory for fragment %d's box", id);
+    int pieces = rc == 0 ? split_auto(hu, m, dim, c->labels->spacing, lab) : rc;
+    rc = pieces < 2 ? (pieces < 0 ? pieces : 0) : store_pieces(c, id, lab, lo, dim, pieces, new_ids);
+    free(m);
+    free(hu);
+    free(lab);
+    return rc;
 }
