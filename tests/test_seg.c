@@ -15,6 +15,7 @@
 #include "volio.h"
 
 #include <float.h>
+#include <jansson.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -608,6 +609,41 @@ static void test_cli_separate(void **st)
     free(dir);
 }
 
+/* bench separate over a folder of one annotated pair (the broken blocks, label 1 and 2 either side
+ * of the gap): the bone and both modes match; without a folder it says to give one. */
+static void test_cli_bench_separate(void **st)
+{
+    char *dir = tu_tmpdir("bench-separate"), path[4300], *out = NULL;
+    vol *v = broken_blocks(0), *mask = vol_new(v->dim[0], v->dim[1], v->dim[2]);
+    for (int k = 0; k < v->dim[2]; k++)
+        for (int j = 0; j < v->dim[1]; j++)
+            for (int i = 0; i < v->dim[0]; i++)
+                if (v->data[vol_idx(v, i, j, k)] != 0)
+                    mask->data[vol_idx(mask, i, j, k)] = i < 42 ? 1 : 2;
+    snprintf(path, sizeof path, "%s/001_XX.nii.gz", dir);
+    assert_int_equal(volio_write(v, path, VOL_I16), 0);
+    snprintf(path, sizeof path, "%s/001_XX_mask.nii.gz", dir);
+    assert_int_equal(volio_write(mask, path, VOL_U8), 0);
+    int rc = tu_run_cli(&out, "bench separate --json '%s'", dir);
+    json_t *j = rc == 0 && strchr(out, '{') ? json_loads(strchr(out, '{'), 0, NULL) : NULL; /* after the progress */
+    json_t *bone = json_array_get(json_object_get(j, "bones"), 0);
+    if (!bone)
+        fail_msg("rc %d: %s", rc, out);
+    assert_true(json_real_value(json_object_get(bone, "bone_dice")) == 1.0);
+    assert_true(json_real_value(json_object_get(json_object_get(bone, "seeded"), "fragment_dice_min")) >= 0.95);
+    assert_int_equal(json_integer_value(json_object_get(json_object_get(bone, "automatic"), "fragments_found")), 2);
+    assert_int_equal(json_integer_value(json_object_get(json_object_get(j, "pooled"), "intact_bones")), 0);
+    json_decref(j);
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "bench separate --json"), 2);
+    assert_non_null(strstr(out, "give the folder of NNN_BONE.nii.gz and NNN_BONE_mask.nii.gz pairs"));
+    free(out);
+    vol_free(v);
+    vol_free(mask);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 static void test_cli_usage(void **st)
 {
     char *out;
@@ -757,6 +793,7 @@ int main(void)
         cmocka_unit_test(test_cli_fill),
         cmocka_unit_test(test_cli_whole_bone),
         cmocka_unit_test(test_cli_separate),
+        cmocka_unit_test(test_cli_bench_separate),
         cmocka_unit_test(test_cli_usage),
         cmocka_unit_test(test_prob_ramp),
         cmocka_unit_test(test_eigen),
