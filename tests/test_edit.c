@@ -207,6 +207,43 @@ static void test_grow(void **st)
     free(out);
 }
 
+/* separate from seeds on the command line and from a seed file; the same point given twice is
+ * refused, naming it, and nothing is saved. */
+static void test_separate_seeds(void **st)
+{
+    struct fixture *f = *st;
+    char *out, seeds[4300];
+    assert_int_equal(edit(f, &out, "separate 1 --seeds 105 205 305 105 205 305"), 1);
+    if (!strstr(out, "the seeds (105.0, 205.0, 305.0) and (105.0, 205.0, 305.0) mm fall in one voxel"))
+        fail_msg("%s", out);
+    free(out);
+    assert_int_equal(edit(f, &out, "separate 1 --seeds 105 205 305"), 0);
+    assert_non_null(strstr(out, "fragment 1 stays one piece (from 1 seed)"));
+    free(out);
+    snprintf(seeds, sizeof seeds, "%s/seeds.txt", f->tmp);
+    const char *bad = "1 103 203 303\n1 104 204 303\nthree 110 210 310\n", *good = "1 103 203 303\n1 104 204 "
+                                                                               "303\n2 110 210 310\n";
+    tu_write_file(seeds, bad, strlen(bad));
+    char args[4400];
+    snprintf(args, sizeof args, "separate 1 --seed-file '%s'", seeds);
+    assert_int_equal(edit(f, &out, args), 1);
+    if (!strstr(out, "seeds.txt: line 3: expected PIECE X Y Z"))
+        fail_msg("%s", out);
+    free(out);
+    planning_case *c = load(f);
+    assert_int_equal(c->nfrag, 3);
+    case_free(c);
+    tu_write_file(seeds, good, strlen(good));
+    assert_int_equal(edit(f, &out, args), 0);
+    if (!strstr(out, "separated fragment 1 into 2 pieces (new fragments 4; from 3 seeds)"))
+        fail_msg("%s", out);
+    free(out);
+    c = load(f);
+    assert_int_equal(c->nfrag, 4);
+    assert_int_equal((int)(c->frag[0].voxels + c->frag[3].voxels), 1000);
+    case_free(c);
+}
+
 /* A save that cannot complete leaves the previous case byte for byte. */
 static void test_failed_save_keeps_case(void **st)
 {
@@ -270,6 +307,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_split, setup, teardown),
         cmocka_unit_test_setup_teardown(test_erase_keep_drop_fix, setup, teardown),
         cmocka_unit_test_setup_teardown(test_grow, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_separate_seeds, setup, teardown),
         cmocka_unit_test_setup_teardown(test_failed_save_keeps_case, setup, teardown),
         cmocka_unit_test_setup_teardown(test_api, setup, teardown),
     };

@@ -186,7 +186,7 @@ static void test_case_separate_and_fill(void **st)
         fail_msg("%s", fn_err_msg());
     assert_int_equal(c->nfrag, 1);
     int news[4];
-    assert_int_equal(case_separate(c, 1, 0, NULL, 0, news, NULL), 1);
+    assert_int_equal(case_separate(c, 1, 0, news, NULL), 1);
     assert_int_equal(c->nfrag, 2);
     assert_int_equal(news[0], 2);
     static int32_t lab[NX * NY * NZ];
@@ -194,7 +194,7 @@ static void test_case_separate_and_fill(void **st)
         lab[v] = (int32_t)c->labels->data[v];
     check_dice(lab, 2, truth, 0.85);
     /* separate again: a single block does not split, and says so */
-    assert_int_equal(case_separate(c, 2, 0, NULL, 0, news, NULL), FN_EINVAL);
+    assert_int_equal(case_separate(c, 2, 0, news, NULL), FN_EINVAL);
     assert_non_null(strstr(fn_err_msg(), "does not split"));
     /* hollow out block A's core (label 0), then fill it back */
     long hole = 0;
@@ -215,6 +215,108 @@ static void test_case_separate_and_fill(void **st)
     free(dir);
 }
 
+/* The touching blocks as one fragment of a full CT (1000 HU, air -1000), with a loose bone voxel
+ * run (x 44..46 at y = z = 20, joined to no fragment) and its case in dir. */
+static planning_case *blocks_case(const char *dir, int *truth)
+{
+    char src[4200];
+    snprintf(src, sizeof src, "%s/ct.nii.gz", dir);
+    vol *ct = vol_new(NX, NY, NZ), *labels = vol_new(NX, NY, NZ);
+    static uint8_t mask[NX * NY * NZ];
+    touching_blocks(mask, truth);
+    for (size_t v = 0; v < vol_count(ct); v++) {
+        ct->data[v] = mask[v] ? 1000 : -1000;
+        labels->data[v] = mask[v] ? 1 : 0;
+    }
+    for (int i = 43; i < 47; i++)
+        ct->data[at(i, 20, 20)] = 1000;
+    seg_params sp;
+    seg_defaults(&sp);
+    assert_int_equal(volio_write(ct, src, VOL_I16), 0);
+    planning_case *c = case_create(dir, src, ct, labels, &sp);
+    if (!c)
+        fail_msg("%s", fn_err_msg());
+    return c;
+}
+
+/* Seeded separation: one seed per block splits them; a seed on bone the fragment missed grows it
+ * there; bad seeds are refused naming the point in world mm (the grid is world = index here). */
+static void test_case_separate_seeds(void **st)
+{
+    (void)st;
+    char *dir = tu_tmpdir("morph-seeds");
+    static int truth[NX * NY * NZ];
+    planning_case *c = blocks_case(dir, truth);
+    int news[4];
+    /* the same point twice, as two pieces: refused, not "2 pieces" of which one is empty */
+    case_seed twice[2] = {{{10, 10, 10}, 1}, {{10, 10, 10}, 2}};
+    assert_int_equal(case_separate_seeds(c, 1, twice, 2, news), FN_EINVAL);
+    assert_non_null(strstr(fn_err_msg(), "(10.0, 10.0, 10.0) and (10.0, 10.0, 10.0) mm fall in one voxel"));
+    case_seed outside[2] = {{{10, 10, 10}, 1}, {{10, 10, -7}, 2}};
+    assert_int_equal(case_separate_seeds(c, 1, outside, 2, news), FN_EINVAL);
+    assert_non_null(strstr(fn_err_msg(), "the seed (10.0, 10.0, -7.0) mm is outside the CT (its voxel centres span "
+                                         "(0.0, 0.0, 0.0) to (47.0, 37.0, 37.0) mm"));
+    case_seed air[2] = {{{10, 10, 10}, 1}, {{1, 1, 1}, 2}};
+    assert_int_equal(case_separate_seeds(c, 1, air, 2, news), FN_EINVAL);
+    assert_non_null(strstr(fn_err_msg(), "the seed (1.0, 1.0, 1.0) mm is outside fragment 1, and the CT there "
+                                         "(-1000) is under the case's bone threshold 300"));
+    assert_int_equal(c->nfrag, 1);
+    /* one seed per block, and one on the loose bone run: the run joins the piece that reaches it */
+    case_seed good[3] = {{{10, 10, 10}, 1}, {{33, 25, 25}, 2}, {{45, 20, 20}, 2}};
+    assert_int_equal(case_separate_seeds(c, 1, good, 3, news), 1);
+    assert_int_equal(c->nfrag, 2);
+    assert_int_equal(news[0], 2);
+    static int32_t lab[NX * NY * NZ];
+    for (size_t v = 0; v < vol_count(c->labels); v++)
+        lab[v] = (int32_t)c->labels->data[v];
+    check_dice(lab, 2, truth, 0.95);
+    assert_int_equal(lab[at(45, 20, 20)], lab[at(33, 25, 25)]);
+    /* B and the run are the larger piece: B keeps id 1, A is fragment 2 */
+    assert_int_equal(lab[at(33, 25, 25)], 1);
+    /* a seed in another fragment is refused by name */
+    case_seed other[2] = {{{33, 25, 25}, 1}, {{10, 10, 10}, 2}};
+    assert_int_equal(case_separate_seeds(c, 1, other, 2, news), FN_EINVAL);
+    assert_non_null(strstr(fn_err_msg(), "the seed (10.0, 10.0, 10.0) mm lies in fragment 2, not in fragment 1"));
+    /* a not-bone seed takes its part away; one piece left: no new fragment */
+    size_t before = c->frag[case_find(c, 2)].voxels;
+    case_seed trim[2] = {{{10, 10, 10}, 1}, {{4, 4, 4}, 0}};
+    assert_int_equal(case_separate_seeds(c, 2, trim, 2, news), 0);
+    assert_true(c->frag[case_find(c, 2)].voxels < before);
+    assert_true(c->labels->data[at(4, 4, 4)] == 0);
+    case_free(c);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+static void test_seed_file(void **st)
+{
+    (void)st;
+    case_seed *s;
+    assert_int_equal(case_seeds_parse("# pieces\n1 10 20 30\n\n1 -1.5 2 3e1 # again\nnone 0 0 0\n2 5 5 5\n",
+                                      "seeds.txt", &s), 4);
+    assert_int_equal(s[0].piece, 1);
+    assert_true(s[1].at[0] == -1.5 && s[1].at[2] == 30);
+    assert_int_equal(s[2].piece, 0);
+    assert_int_equal(s[3].piece, 2);
+    free(s);
+    static const struct {
+        const char *text, *want;
+    } bad[] = {
+        {"1 2 3\n", "seeds.txt: line 1: expected PIECE X Y Z"},
+        {"1 2 3 4\n0 1 2 3\n", "seeds.txt: line 2: expected PIECE X Y Z"},
+        {"\n\n1.5 1 2 3\n", "seeds.txt: line 3:"},
+        {"1 2 3 4 5\n", "seeds.txt: line 1:"},
+        {"255 2 3 4\n", "seeds.txt: line 1:"},
+        {"1 nan 3 4\n", "seeds.txt: line 1:"},
+        {"# nothing\n", "seeds.txt: no seed in the file"},
+    };
+    for (size_t i = 0; i < sizeof bad / sizeof bad[0]; i++) {
+        if (case_seeds_parse(bad[i].text, "seeds.txt", &s) != FN_EFORMAT || !strstr(fn_err_msg(), bad[i].want))
+            fail_msg("case %zu: %s", i, fn_err_msg());
+        assert_null(s);
+    }
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -224,6 +326,8 @@ int main(void)
         cmocka_unit_test(test_fill),
         cmocka_unit_test(test_distance),
         cmocka_unit_test(test_case_separate_and_fill),
+        cmocka_unit_test(test_case_separate_seeds),
+        cmocka_unit_test(test_seed_file),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

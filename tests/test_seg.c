@@ -15,6 +15,7 @@
 #include "volio.h"
 
 #include <float.h>
+#include <jansson.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -512,6 +513,137 @@ static void test_cli_fill(void **st)
     free(dir);
 }
 
+/* segment --whole-bone on a bone cut out of its CT (0 outside): a cortex open on one side (a
+ * threshold and --fill leave the interior out) around a 40-70 HU interior is found whole. */
+static void test_cli_whole_bone(void **st)
+{
+    char *dir = tu_tmpdir("seg-whole"), ct[4300], out_dir[4300], *out = NULL;
+    vol *v = vol_new(20, 20, 20);
+    size_t solid = 0;
+    for (int k = 3; k < 17; k++)
+        for (int j = 3; j < 17; j++)
+            for (int i = 3; i < 17; i++) {
+                int wall = i < 5 || j < 5 || j >= 15 || k < 5 || k >= 15; /* open at high i */
+                v->data[vol_idx(v, i, j, k)] = wall ? 800 : 40 + (i + j + k) % 31;
+                solid++;
+            }
+    snprintf(ct, sizeof ct, "%s/bone.nii.gz", dir);
+    snprintf(out_dir, sizeof out_dir, "%s/case", dir);
+    assert_int_equal(volio_write(v, ct, VOL_I16), 0);
+    int rc = tu_run_cli(&out, "segment '%s' -o '%s' --min-volume 0 --whole-bone --json", ct, out_dir);
+    if (rc != 0)
+        fail_msg("rc %d: %s", rc, out);
+    free(out);
+    planning_case *c = case_load(out_dir);
+    if (!c)
+        fail_msg("%s", fn_err_msg());
+    assert_int_equal(c->nfrag, 1);
+    assert_int_equal(c->frag[0].voxels, solid);
+    case_free(c);
+    vol_free(v);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* A bone-only CT (0 outside) of two blocks 2..41 and 43..81 along x (20 x 20 mm across, a cortex of
+ * 900 HU around 60-70 HU) broken apart by a 1 mm gap at x = 42 but where they touch over 4 x 4 mm;
+ * whole: no gap. */
+static vol *broken_blocks(int whole)
+{
+    vol *v = vol_new(84, 30, 30); /* most of it 0: a CT that holds only the bone */
+    for (int k = 2; k < 22; k++)
+        for (int j = 2; j < 22; j++)
+            for (int i = 2; i < 82; i++) {
+                int contact = j >= 10 && j < 14 && k >= 10 && k < 14;
+                int rim = i < 4 || j < 4 || k < 4 || j >= 20 || k >= 20 || i >= 80 ||
+                          (!whole && (i == 40 || i == 41 || i == 43 || i == 44));
+                if (i == 42 && !contact && !whole)
+                    continue; /* the fracture gap */
+                v->data[vol_idx(v, i, j, k)] = rim && !contact ? 900 : 60 + (i < 42 ? 0 : 10);
+            }
+    return v;
+}
+
+/* segment --separate: with one seed per block, two fragments; a seed off the CT is refused naming
+ * the point; automatically, the broken blocks split where the gap is, and the whole ones stay one
+ * fragment. */
+static void test_cli_separate(void **st)
+{
+    char *dir = tu_tmpdir("seg-separate"), ct[4300], out_dir[4300], *out = NULL;
+    snprintf(ct, sizeof ct, "%s/bone.nii.gz", dir);
+    snprintf(out_dir, sizeof out_dir, "%s/case", dir);
+    vol *v = broken_blocks(0);
+    assert_int_equal(volio_write(v, ct, VOL_I16), 0);
+    vol_free(v);
+    static const char *const how[2] = {"--seeds 20 12 12 60 12 12", ""};
+    for (int h = 0; h < 2; h++) {
+        int rc = tu_run_cli(&out, "segment '%s' -o '%s' --force --min-volume 0 --separate %s --json", ct, out_dir,
+                            how[h]);
+        if (rc != 0 || !strstr(out, "\"separated_fragments\": 1"))
+            fail_msg("%s: rc %d: %s", how[h], rc, out);
+        free(out);
+        planning_case *c = case_load(out_dir);
+        if (!c)
+            fail_msg("%s", fn_err_msg());
+        assert_int_equal(c->nfrag, 2);
+        const vol *l = c->labels;
+        assert_true(l->data[vol_idx(l, 5, 12, 12)] == l->data[vol_idx(l, 39, 5, 5)]);
+        assert_true(l->data[vol_idx(l, 45, 5, 5)] == l->data[vol_idx(l, 78, 12, 12)]);
+        assert_true(l->data[vol_idx(l, 5, 12, 12)] != l->data[vol_idx(l, 78, 12, 12)]);
+        case_free(c);
+    }
+    int rc = tu_run_cli(&out, "segment '%s' -o '%s' --force --separate --seeds 10 12 12 31 12 99", ct, out_dir);
+    if (rc != 1 || !strstr(out, "the seed (31.0, 12.0, 99.0) mm is outside the CT"))
+        fail_msg("rc %d: %s", rc, out);
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "segment '%s' -o '%s' --seeds 1 2 3", ct, out_dir), 2);
+    free(out);
+    v = broken_blocks(1);
+    assert_int_equal(volio_write(v, ct, VOL_I16), 0);
+    vol_free(v);
+    rc = tu_run_cli(&out, "segment '%s' -o '%s' --force --min-volume 0 --separate --json", ct, out_dir);
+    if (rc != 0 || !strstr(out, "\"separated_fragments\": 0"))
+        fail_msg("rc %d: %s", rc, out);
+    free(out);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* bench separate over a folder of one annotated pair (the broken blocks, label 1 and 2 either side
+ * of the gap): the bone and both modes match; without a folder it says to give one. */
+static void test_cli_bench_separate(void **st)
+{
+    char *dir = tu_tmpdir("bench-separate"), path[4300], *out = NULL;
+    vol *v = broken_blocks(0), *mask = vol_new(v->dim[0], v->dim[1], v->dim[2]);
+    for (int k = 0; k < v->dim[2]; k++)
+        for (int j = 0; j < v->dim[1]; j++)
+            for (int i = 0; i < v->dim[0]; i++)
+                if (v->data[vol_idx(v, i, j, k)] != 0)
+                    mask->data[vol_idx(mask, i, j, k)] = i < 42 ? 1 : 2;
+    snprintf(path, sizeof path, "%s/001_XX.nii.gz", dir);
+    assert_int_equal(volio_write(v, path, VOL_I16), 0);
+    snprintf(path, sizeof path, "%s/001_XX_mask.nii.gz", dir);
+    assert_int_equal(volio_write(mask, path, VOL_U8), 0);
+    int rc = tu_run_cli(&out, "bench separate --json '%s'", dir);
+    json_t *j = rc == 0 && strchr(out, '{') ? json_loads(strchr(out, '{'), 0, NULL) : NULL; /* after the progress */
+    json_t *bone = json_array_get(json_object_get(j, "bones"), 0);
+    if (!bone)
+        fail_msg("rc %d: %s", rc, out);
+    assert_true(json_real_value(json_object_get(bone, "bone_dice")) == 1.0);
+    assert_true(json_real_value(json_object_get(json_object_get(bone, "seeded"), "fragment_dice_min")) >= 0.95);
+    assert_int_equal(json_integer_value(json_object_get(json_object_get(bone, "automatic"), "fragments_found")), 2);
+    assert_int_equal(json_integer_value(json_object_get(json_object_get(j, "pooled"), "intact_bones")), 0);
+    json_decref(j);
+    free(out);
+    assert_int_equal(tu_run_cli(&out, "bench separate --json"), 2);
+    assert_non_null(strstr(out, "give the folder of NNN_BONE.nii.gz and NNN_BONE_mask.nii.gz pairs"));
+    free(out);
+    vol_free(v);
+    vol_free(mask);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 static void test_cli_usage(void **st)
 {
     char *out;
@@ -659,6 +791,9 @@ int main(void)
         cmocka_unit_test(test_cli_labels_import),
         cmocka_unit_test(test_cli_labels_seg_nrrd),
         cmocka_unit_test(test_cli_fill),
+        cmocka_unit_test(test_cli_whole_bone),
+        cmocka_unit_test(test_cli_separate),
+        cmocka_unit_test(test_cli_bench_separate),
         cmocka_unit_test(test_cli_usage),
         cmocka_unit_test(test_prob_ramp),
         cmocka_unit_test(test_eigen),

@@ -15,6 +15,7 @@ int bench_build(int argc, char **argv);
 int bench_loop(int argc, char **argv);
 int bench_reduce(int argc, char **argv);
 int bench_render(int argc, char **argv);
+int bench_separate(int argc, char **argv);
 
 /* fnclock's monotonic clock in microseconds, with the nanoseconds as the fraction. */
 double bench_now_us(void);

@@ -4,6 +4,7 @@
 
 #include "case.h"
 #include "case_journal.h"
+#include "durable.h"
 #include "err.h"
 
 #include <jansson.h>
@@ -337,4 +338,76 @@ const char *cmd_example_ct(void)
     const char *d = getenv("FRACNAV_DATA");
     snprintf(path, sizeof path, "%s/Cranium.inv3", d && *d ? d : "/var/cache/fracnav");
     return path;
+}
+
+/* A seed file's text (at most 16 MiB), NUL-terminated and malloc'd; NULL with fn_err. */
+static char *read_seed_file(const char *path)
+{
+    enum { MAX = 16 << 20 };
+    int fd = durable_open_regular(path, "seed file");
+    if (fd < 0)
+        return NULL;
+    char *text = malloc(MAX + 1);
+    size_t len = 0;
+    ssize_t got = 1;
+    while (text && len < MAX && (got = read(fd, text + len, MAX - len)) > 0)
+        len += (size_t)got;
+    close(fd);
+    if (!text || got < 0 || len == MAX) {
+        free(text);
+        fn_err_set(text ? FN_EIO : FN_ENOMEM, "%s: %s", path, !text ? "out of memory" : got < 0 ? "read failed"
+                                                                      : "larger than 16 MiB");
+        return NULL;
+    }
+    text[len] = '\0';
+    return text;
+}
+
+static int add_seeds(case_seed **seeds, int *n, const case_seed *more, int m)
+{
+    case_seed *all = *n + m <= 1 << 20 ? realloc(*seeds, (size_t)(*n + m) * sizeof *all) : NULL;
+    if (!all)
+        return fn_err_set(FN_ENOMEM, "too many seeds");
+    memcpy(all + *n, more, (size_t)m * sizeof *all);
+    *seeds = all;
+    *n += m;
+    return 0;
+}
+
+int cmd_seeds_option(const char *cmd, int argc, char **argv, int *i, case_seed **seeds, int *n, int *rc)
+{
+    const char *a = argv[*i];
+    *rc = 0;
+    if (!strcmp(a, "--seed-file")) {
+        const char *path = *i + 1 < argc ? argv[++*i] : NULL;
+        if (!path)
+            return *rc = cmd_bad_value(cmd, a, NULL, "a seed file (PIECE X Y Z per line)"), 1;
+        char *text = read_seed_file(path);
+        case_seed *more = NULL;
+        int m = text ? case_seeds_parse(text, path, &more) : -1;
+        if (m < 0 || add_seeds(seeds, n, more, m) < 0)
+            *rc = 1;
+        free(text);
+        free(more);
+        return 1;
+    }
+    if (strcmp(a, "--seeds"))
+        return 0;
+    int k = *i + 1;
+    while (k < argc && strncmp(argv[k], "--", 2))
+        k++;
+    int nv = k - *i - 1;
+    if (nv < 3 || nv % 3 || nv / 3 >= 255)
+        return *rc = cmd_usage_error(cmd, "--seeds: give X Y Z (world mm) for each piece, up to 254 (got %d "
+                                     "numbers)", nv), 1;
+    for (int p = 0; p < nv / 3; p++) {
+        case_seed s = {.piece = p + 1};
+        for (int c = 0; c < 3; c++)
+            if (!cmd_number(argv[*i + 1 + 3 * p + c], &s.at[c]))
+                return *rc = cmd_usage_error(cmd, "--seeds: '%s' is not a number", argv[*i + 1 + 3 * p + c]), 1;
+        if (add_seeds(seeds, n, &s, 1) < 0)
+            return *rc = 1, 1;
+    }
+    *i = k - 1;
+    return 1;
 }

@@ -117,6 +117,16 @@ int cmd_tau_prepare(void *ctx, planning_case *c);
 /* --pivot X Y Z (world mm): argv[*i] is --pivot; parses the three numbers after it into out and
  * moves *i past them. 0, or a usage error for `cmd` (returns 2). */
 int cmd_parse_pivot(const char *cmd, int argc, char **argv, int *i, double out[3]);
+/* Seeds for a seeded separation (edit separate, segment --separate): when argv[*i] is --seeds
+ * (X Y Z world mm per point, each point a piece of its own: 1, 2, ... in order) or --seed-file
+ * PATH (case_seeds_parse's format), appends them to *seeds (malloc'd; *n counts them), moves *i
+ * past them and returns 1 with *rc 0, or with *rc 2 (usage) or 1 (unreadable file, fn_err set).
+ * Other options: 0. */
+int cmd_seeds_option(const char *cmd, int argc, char **argv, int *i, case_seed **seeds, int *n, int *rc);
+#define CMD_SEEDS_HELP                                                                                  \
+    "  --seeds X Y Z [X Y Z ...]  one point per piece (world LPS mm)\n"                            \
+    "  --seed-file PATH           labelled points, one per line: PIECE X Y Z (PIECE 1, 2, ...\n"  \
+    "                             or none: not bone); several points per piece\n"
 /* --frame NAME: camera, world or fragment. 0, or a usage error for `cmd` (returns 2). */
 int cmd_parse_frame(const char *cmd, const char *name, loop_frame *out);
 

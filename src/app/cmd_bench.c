@@ -14,6 +14,7 @@ static const struct {
     {"build", bench_build, "hierarchy build time and memory against volume size"},
     {"loop", bench_loop, "navigation loop rate and latency"},
     {"reduce", bench_reduce, "automatic reduction per method: success rate, errors, time"},
+    {"separate", bench_separate, "bone and fragments of real fracture CTs against hand annotations"},
     {"render", bench_render, "renderer frame time per mode (OpenGL 4.5, OSMesa offscreen)"},
 };
 

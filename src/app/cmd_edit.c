@@ -38,12 +38,17 @@ static void usage(FILE *out)
             "                                      and with --slices also in every slice along\n"
             "                                      each axis (a canal open at its ends; not for a\n"
             "                                      skull, whose slices enclose the brain)\n"
-            "  separate ID [--erode MM] [--seeds X Y Z X Y Z ...]\n"
-            "                                      split pieces that touch: erode until ID splits\n"
-            "                                      (or by MM, or from one seed per piece), then\n"
-            "                                      grow the cores back inside ID (a watershed on\n"
-            "                                      the distance map); the largest piece keeps ID,\n"
-            "                                      the others become new fragments\n\n"
+            "  separate ID [--erode MM]            split pieces that touch: erode until ID splits\n"
+            "                                      (or by MM), then grow the cores back inside ID\n"
+            "                                      (a watershed on the distance map); the largest\n"
+            "                                      piece keeps ID, the others become new fragments\n"
+            "  separate ID --seeds X Y Z [X Y Z ...] | --seed-file PATH\n"
+            "                                      the same from seeds: one point per piece, or a\n"
+            "                                      file of labelled points (PIECE X Y Z per line,\n"
+            "                                      PIECE 1, 2, ... or none: not bone); the pieces\n"
+            "                                      grow from them competing, following the CT's\n"
+            "                                      intensities; a seed on bone that ID missed\n"
+            "                                      grows ID over it first\n\n"
             "  --json   one JSON object on stdout (the text line goes to stderr): command, case,\n"
             "           operation, what it made (fragment, new_fragment, erased_voxels,\n"
             "           filled_voxels, or new_fragments and erode_mm), the\n"
@@ -191,40 +196,36 @@ static int apply(planning_case *c, const char *op, int argc, char **argv, FILE *
             return 1;
         made(msg, res, "filled_voxels", rc, "filled %ld voxels of fragment %d's interior\n", rc, id);
     } else if (!strcmp(op, "separate")) {
-        double erode = 0, (*seeds)[3] = NULL;
+        double erode = 0;
+        case_seed *seeds = NULL;
         int nseeds = 0, news[256];
         if (argc < 1 || !integer(argv[0], &id))
-            return cmd_usage_error("edit", "separate needs ID [--erode MM] [--seeds X Y Z ...]");
+            return cmd_usage_error("edit", "separate needs ID [--erode MM] [--seeds X Y Z ...] [--seed-file PATH]");
         for (int i = 1; i < argc; i++) {
             const char *val = i + 1 < argc ? argv[i + 1] : NULL;
-            if (!strcmp(argv[i], "--erode")) {
-                if (!cmd_number(val, &erode) || !(erode > 0 && erode < 1000))
-                    return cmd_bad_value("edit", argv[i], val, "a distance in mm > 0");
-                i++;
-            } else if (!strcmp(argv[i], "--seeds")) {
-                int k = i + 1;
-                while (k < argc && strncmp(argv[k], "--", 2))
-                    k++;
-                int nv = k - i - 1;
-                if (nv < 6 || nv % 3 || nv / 3 > 255 || nseeds)
-                    return cmd_usage_error("edit", "separate --seeds: give X Y Z (world mm) for each piece, two "
-                                           "pieces or more (got %d numbers)", nv);
-                seeds = malloc((size_t)(nv / 3) * sizeof *seeds);
-                if (!seeds)
-                    return fn_err_set(FN_ENOMEM, "out of memory"), 1;
-                if (!numbers(argv + i + 1, nv, &seeds[0][0])) {
+            int bad;
+            if (cmd_seeds_option("edit", argc, argv, &i, &seeds, &nseeds, &bad)) {
+                if (bad) {
                     free(seeds);
-                    return cmd_usage_error("edit", "separate --seeds: not a number among '%s' ...", argv[i + 1]);
+                    return bad;
                 }
-                nseeds = nv / 3;
-                i = k - 1;
+            } else if (!strcmp(argv[i], "--erode")) {
+                if (!cmd_number(val, &erode) || !(erode > 0 && erode < 1000)) {
+                    free(seeds);
+                    return cmd_bad_value("edit", argv[i], val, "a distance in mm > 0");
+                }
+                i++;
             } else {
                 free(seeds);
                 return cmd_usage_error("edit", "separate: unknown option '%s'", argv[i]);
             }
         }
+        if (nseeds && erode > 0) {
+            free(seeds);
+            return cmd_usage_error("edit", "%s", "separate: --erode or seeds, not both");
+        }
         double used = 0;
-        rc = case_separate(c, id, erode, (const double(*)[3])seeds, nseeds, news, &used);
+        rc = nseeds ? case_separate_seeds(c, id, seeds, nseeds, news) : case_separate(c, id, erode, news, &used);
         free(seeds);
         if (rc < 0)
             return 1;
@@ -235,12 +236,15 @@ static int apply(planning_case *c, const char *op, int argc, char **argv, FILE *
             jsonw_set(res, "new_fragments", arr);
             jsonw_set(res, "erode_mm", nseeds ? json_null() : jsonw_measure(used));
         }
-        fprintf(msg, "separated fragment %d into %ld pieces (new fragments", id, rc + 1);
+        if (rc == 0)
+            fprintf(msg, "fragment %d stays one piece (from %d seed%s)\n", id, nseeds, nseeds == 1 ? "" : "s");
+        else
+            fprintf(msg, "separated fragment %d into %ld pieces (new fragments", id, rc + 1);
         for (long i = 0; i < rc; i++)
             fprintf(msg, " %d", news[i]);
-        if (nseeds)
+        if (rc && nseeds)
             fprintf(msg, "; from %d seeds)\n", nseeds);
-        else
+        else if (rc)
             fprintf(msg, "; eroded %.2f mm)\n", used);
     } else if (!strcmp(op, "fix")) {
         if (argc != 1 || !integer(argv[0], &id))

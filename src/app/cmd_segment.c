@@ -1,6 +1,7 @@
 /* fracnav segment: threshold + 26-connected components into a new case. */
 #include "cmd.h"
 
+#include "bone.h"
 #include "case.h"
 #include "err.h"
 #include "fnclock.h"
@@ -9,6 +10,7 @@
 #include "seg.h"
 #include "volio.h"
 
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -40,6 +42,16 @@ static void usage(FILE *out)
             "                             several segments goes to the first, and each pair's\n"
             "                             overlap is reported as a warning. The threshold then\n"
             "                             only shapes the probability maps\n"
+            "  --whole-bone               the whole bone, cancellous interior included: on a CT\n"
+            "                             that holds only the bone (0 elsewhere), every non-zero\n"
+            "                             voxel connected to the threshold's cortex; on a full CT,\n"
+            "                             the threshold's voxels; then --fill\n"
+            "  --separate                 a real fracture CT to its bone and fragments: --whole-bone,\n"
+            "                             then every bone is separated where it is broken\n"
+            "                             (automatically), or from seeds:\n"
+            CMD_SEEDS_HELP
+            "                             (each point goes to the bone it lies in; a point on\n"
+            "                             bone the mask missed grows the bone there)\n"
             "  --fill                     fill each fragment's enclosed interior (cancellous bone\n"
             "                             under the threshold inside the cortex), in 3D\n"
             "  --fill-slices              the same, also slice-wise along each axis (long bones,\n"
@@ -50,7 +62,9 @@ static void usage(FILE *out)
             "  --json                     one JSON object on stdout instead of the text: command,\n"
             "                             case, source, threshold, components (before filtering),\n"
             "                             fragments (id, voxels, volume_ml, peak, centroid_mm),\n"
-            "                             filled_voxels (null without --fill), overlaps\n"
+            "                             filled_voxels (null without --fill),\n"
+            "                             separated_fragments (new fragments; null without\n"
+            "                             --separate), overlaps\n"
             "                             (fragment, other_fragment, voxels; null unless --labels\n"
             "                             is a .seg.nrrd),\n"
             "                             read_ms, segment_ms, fragments_ms, save_ms\n"
@@ -60,6 +74,10 @@ static void usage(FILE *out)
 typedef struct extra {
     const char *labels; /* --labels */
     int fill;           /* morph_fill's mode, 0: none */
+    int whole_bone;     /* --whole-bone: bone_find instead of the threshold */
+    int separate;       /* --separate: then case_separate_all */
+    case_seed *seeds;   /* --seeds, --seed-file (malloc'd) */
+    int nseeds;
 } extra;
 
 static int parse(int argc, char **argv, seg_params *p, cmd_case_args *c, extra *x)
@@ -73,6 +91,21 @@ static int parse(int argc, char **argv, seg_params *p, cmd_case_args *c, extra *
         }
         const char *a = argv[i], *val = i + 1 < argc ? argv[i + 1] : NULL;
         double d;
+        if (cmd_seeds_option("segment", argc, argv, &i, &x->seeds, &x->nseeds, &rc)) {
+            if (rc)
+                return rc;
+            continue;
+        }
+        if (!strcmp(a, "--separate")) {
+            x->separate = x->whole_bone = 1;
+            x->fill |= MORPH_FILL_3D;
+            continue;
+        }
+        if (!strcmp(a, "--whole-bone")) {
+            x->whole_bone = 1;
+            x->fill |= MORPH_FILL_3D;
+            continue;
+        }
         if (!strcmp(a, "--fill")) {
             x->fill |= MORPH_FILL_3D;
             continue;
@@ -108,7 +141,25 @@ static int parse(int argc, char **argv, seg_params *p, cmd_case_args *c, extra *
     }
     if (!c->in || !c->out)
         return cmd_usage_error("segment", "%s", "needs VOLUME and -o CASE");
+    if (x->nseeds && !x->separate)
+        return cmd_usage_error("segment", "%s", "--seeds and --seed-file go with --separate");
+    if (x->separate && x->labels)
+        return cmd_usage_error("segment", "%s", "--separate or --labels, not both");
     return cmd_tau_check("segment", &c->tau);
+}
+
+/* The brightest CT value of fragment i: the component's, or (after --separate made more fragments
+ * than components) measured over its voxels. */
+static double peak(const planning_case *c, const seg_result *r, int i)
+{
+    if (c->nfrag == r->ncomp)
+        return r->comp[i].peak;
+    float best = -INFINITY, id = (float)c->frag[i].id;
+    size_t n = vol_count(c->labels);
+    for (size_t v = 0; v < n; v++)
+        if (c->labels->data[v] == id && c->ct->data[v] > best)
+            best = c->ct->data[v];
+    return best;
 }
 
 static void report(const planning_case *c, const seg_result *r, const char *labels)
@@ -120,7 +171,7 @@ static void report(const planning_case *c, const seg_result *r, const char *labe
     for (int i = 0; i < c->nfrag; i++) {
         const frag *f = &c->frag[i];
         printf("  fragment %d: %zu voxels, %.2f ml, peak %g, centroid %.1f %.1f %.1f mm (LPS)\n",
-               f->id, f->voxels, f->volume_ml, (double)r->comp[i].peak, f->centroid[0],
+               f->id, f->voxels, f->volume_ml, peak(c, r, i), f->centroid[0],
                f->centroid[1], f->centroid[2]);
     }
 }
@@ -153,14 +204,14 @@ static void warn_segments(const volio_segs *s, const char *labels)
 }
 
 static int report_json(const planning_case *c, const seg_result *r, const char *in, const char *out,
-                       const double ms[4], long filled, const volio_segs *segs)
+                       const double ms[4], long filled, int separated, const volio_segs *segs)
 {
     json_t *o = jsonw_object("segment"), *frags = json_array();
     for (int i = 0; i < c->nfrag; i++) {
         const frag *f = &c->frag[i];
         json_array_append_new(frags, json_pack("{s:i,s:I,s:o,s:o,s:o}", "id", f->id, "voxels",
                                                (json_int_t)f->voxels, "volume_ml", jsonw_measure(f->volume_ml),
-                                               "peak", jsonw_exact(r->comp[i].peak), "centroid_mm",
+                                               "peak", jsonw_exact(peak(c, r, i)), "centroid_mm",
                                                jsonw_exact_array(f->centroid, 3)));
     }
     static const char *const steps[4] = {"read_ms", "segment_ms", "fragments_ms", "save_ms"};
@@ -171,6 +222,7 @@ static int report_json(const planning_case *c, const seg_result *r, const char *
         jsonw_set(o, "components", json_integer(r->raw_components));
         jsonw_set(o, "fragments", frags);
         jsonw_set(o, "filled_voxels", filled >= 0 ? json_integer(filled) : json_null());
+        jsonw_set(o, "separated_fragments", separated >= 0 ? json_integer(separated) : json_null());
         jsonw_set(o, "overlaps", overlaps_json(segs));
         for (int i = 0; i < 4; i++)
             jsonw_set(o, steps[i], jsonw_measure(ms[i]));
@@ -190,8 +242,10 @@ int cmd_segment(int argc, char **argv)
     cmd_case_args args = {.threshold = &p.threshold, .threshold_auto = &p.threshold_auto};
     extra x = {0};
     int rc = parse(argc, argv, &p, &args, &x);
-    if (rc)
+    if (rc) {
+        free(x.seeds);
         return rc;
+    }
     const char *in = args.in, *out = args.out;
     char tmp[4200];
     caselock *lock = cmd_lock_case("segment", out, 1, args.wait); /* a case there that --force replaces */
@@ -199,6 +253,7 @@ int cmd_segment(int argc, char **argv)
         return 1;
     cmd_warn_replaced_journal("segment", out, args.force);
     if (case_stage_begin(out, args.force, in, tmp, sizeof tmp) < 0) {
+        free(x.seeds);
         fprintf(stderr, "fracnav segment: %s\n", fn_err_msg());
         caselock_release(lock);
         return 1;
@@ -215,7 +270,7 @@ int cmd_segment(int argc, char **argv)
         err = 1;
     }
     if (!err && !x.labels)
-        err = seg_run(ct, &p, &r) < 0;
+        err = (x.whole_bone ? bone_segment(ct, &p, &r) : seg_run(ct, &p, &r)) < 0;
     if (!err)
         err = cmd_seg_found(ct, &p, &r, x.labels) < 0;
     if (err) {
@@ -227,6 +282,7 @@ int cmd_segment(int argc, char **argv)
         volio_segs_free(&segs);
         case_stage_abort(tmp);
         caselock_release(lock);
+        free(x.seeds);
         return 1;
     }
     p.threshold = r.threshold;
@@ -245,6 +301,12 @@ int cmd_segment(int argc, char **argv)
         } else
             filled += f;
     }
+    int made = c && x.separate ? case_separate_all(c, x.seeds, x.nseeds) : 0;
+    if (made < 0) {
+        case_free(c);
+        c = NULL;
+    }
+    free(x.seeds);
     int64_t t3 = fnclock_now_us();
     if (!c || case_save(c) < 0 || case_stage_commit(tmp, out) < 0) {
         fprintf(stderr, "fracnav segment: %s\n", fn_err_msg());
@@ -261,12 +323,15 @@ int cmd_segment(int argc, char **argv)
         fprintf(stderr, "fracnav segment: warning: %s: %zu voxels are NaN or infinite; left out of the "
                         "threshold and never bone\n", in, r.nonfinite);
     warn_segments(&segs, x.labels);
-    if (args.json && (rc = report_json(c, &r, in, out, ms, x.fill ? filled : -1, &segs)) < 0)
+    if (args.json && (rc = report_json(c, &r, in, out, ms, x.fill ? filled : -1, x.separate ? made : -1, &segs)) < 0)
         fprintf(stderr, "fracnav segment: %s\n", fn_err_msg());
     else if (!args.json) {
         report(c, &r, x.labels);
         if (x.fill)
             printf("filled %ld voxels of the fragments' enclosed interiors\n", filled);
+        if (x.separate)
+            printf("separated: %d new fragment%s (%s)\n", made, made == 1 ? "" : "s",
+                   x.nseeds ? "from seeds" : "automatically");
         printf("saved %s (read %.3f s, segmentation %.3f s, fragments %.3f s, save %.3f s)\n", out,
                ms[0] * 1e-3, ms[1] * 1e-3, ms[2] * 1e-3, ms[3] * 1e-3);
     }

@@ -141,15 +141,45 @@ int case_fix(planning_case *c, int id);
  * cancellous bone below the threshold inside the cortex) joins it; voxels of other fragments stay
  * theirs. Returns the voxels added. */
 long case_fill(planning_case *c, int id, int mode);
-/* Separates fragment id into the pieces that touch in it (morph_separate: one seed per piece,
- * world mm, when nseeds > 0; else erosion by erode_mm, or the smallest that splits it when
- * erode_mm <= 0; then a marker-based watershed on the distance map inside the fragment). The
- * largest piece keeps id; every other one becomes a new fragment (the next free id, written to
- * new_ids, room for as many pieces as can be) inheriting id's pose and truth. *erode_used (may be
- * NULL): the erosion that split it. Returns the number of new fragments (>= 1), FN_EINVAL when it
- * does not split or a seed lies outside the fragment, or FN_E*. */
-int case_separate(planning_case *c, int id, double erode_mm, const double (*seeds)[3], int nseeds, int *new_ids,
-                  double *erode_used);
+/* Separates fragment id into the pieces that touch in it (morph_separate: erosion by erode_mm, or
+ * the smallest that splits it when erode_mm <= 0, then a marker-based watershed on the distance map
+ * inside the fragment). The largest piece keeps id; every other one becomes a new fragment (the
+ * next free id, written to new_ids, room for as many pieces as can be) inheriting id's pose and
+ * truth. *erode_used (may be NULL): the erosion that split it. Returns the number of new fragments
+ * (>= 1), FN_EINVAL when it does not split, or FN_E*. */
+int case_separate(planning_case *c, int id, double erode_mm, int *new_ids, double *erode_used);
+
+/* A labelled point for case_separate_seeds: world LPS mm, and the piece it marks (1..254), or 0
+ * for "not bone". */
+typedef struct case_seed {
+    double at[3];
+    int piece;
+} case_seed;
+
+/* Separates fragment id from labelled seeds (grow: a competitive growth that follows the CT's
+ * intensities, inside the fragment). Each piece that wins voxels becomes a fragment (the largest
+ * keeps id, the others new ids as case_separate); voxels won by a not-bone seed leave the case.
+ * A piece's seed outside the fragment, on bone the mask missed (non-zero on a CT that holds only
+ * the bone, >= the case's threshold on a full CT), grows the fragment over that connected bone
+ * first. Returns the number of new fragments (0 when one piece wins all), or FN_EINVAL naming the
+ * point (world mm) and why: outside the CT, in another fragment, not bone, two pieces in one
+ * voxel, a bad piece number. */
+int case_separate_seeds(planning_case *c, int id, const case_seed *seeds, int n, int *new_ids);
+
+/* Separates fragment id where the bone is truly broken. Returns the new fragments (0 when it is
+ * whole), or FN_E*. */
+int case_separate_auto(planning_case *c, int id, int *new_ids);
+
+/* Separates every fragment automatically (case_separate_auto; seeds NULL, n 0), or from seeds:
+ * each seed goes to the fragment it lies in (one on no fragment to the largest), and each
+ * fragment with seeds is separated from them (case_separate_seeds). Returns the new fragments
+ * made, or FN_E* (a seed's error names the point). */
+int case_separate_all(planning_case *c, const case_seed *seeds, int n);
+
+/* A seed file's text: one seed per line, "PIECE X Y Z" (PIECE 1..254, or "none" for not bone;
+ * world LPS mm), blank lines and # comments skipped. Returns the count and *out (malloc'd), or
+ * FN_EFORMAT naming `name` and the line. */
+int case_seeds_parse(const char *text, const char *name, case_seed **out);
 
 struct reduce_opts;
 struct reduce_result;

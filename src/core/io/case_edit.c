@@ -1,8 +1,11 @@
 /* Manual corrections of a case's labelmap. */
 #include "case.h"
 
+#include "bone.h"
 #include "err.h"
+#include "grow.h"
 #include "morph.h"
+#include "split.h"
 
 #include <math.h>
 #include <stdint.h>
@@ -161,9 +164,10 @@ long case_erase_sphere(planning_case *c, const double centre[3], double radius, 
     return erase(c, id, in_sphere, &s);
 }
 
-/* Flood fill from voxel `start` over unlabelled voxels >= threshold (26-connected), labelling them
- * `to`. The queue holds each voxel once, so it needs at most one slot per voxel. */
-static long flood(planning_case *c, size_t start, double threshold, int to)
+/* Flood fill from voxel `start` over unlabelled voxels >= threshold, and not exactly 0 when
+ * skip_zero (26-connected), labelling them `to`. The queue holds each voxel once, so it needs at
+ * most one slot per voxel. */
+static long flood(planning_case *c, size_t start, double threshold, int skip_zero, int to)
 {
     vol *l = c->labels;
     const int nx = l->dim[0], ny = l->dim[1], nz = l->dim[2];
@@ -185,7 +189,8 @@ static long flood(planning_case *c, size_t start, double threshold, int to)
                     if (a < 0 || b < 0 || e < 0 || a >= nx || b >= ny || e >= nz)
                         continue;
                     size_t w = vol_idx(l, a, b, e);
-                    if (l->data[w] == 0 && c->ct->data[w] >= threshold) {
+                    float x = c->ct->data[w];
+                    if (l->data[w] == 0 && x >= threshold && !(skip_zero && x == 0)) {
                         l->data[w] = (float)to;
                         queue[tail++] = (uint32_t)w;
                     }
@@ -218,7 +223,7 @@ int case_grow(planning_case *c, const double seed[3], double threshold, int into
     int id = into > 0 ? into : next_free_id(c);
     if (id > 65535)
         return fn_err_set(FN_EINVAL, "grow: no free label left");
-    long n = flood(c, start, threshold, id);
+    long n = flood(c, start, threshold, 0, id);
     if (n < 0)
         return (int)n;
     int rc = case_rebuild(c, 0, 0);
@@ -342,8 +347,44 @@ long case_fill(planning_case *c, int id, int mode)
     return took;
 }
 
-int case_separate(planning_case *c, int id, double erode_mm, const double (*seeds)[3], int nseeds, int *new_ids,
-                  double *erode_used)
+/* Puts the pieces of fragment id found in its box (lab over the box at lo, dim: 1..pieces, 0 for a
+ * voxel left as it is, -1 for one that is not bone) into the labelmap: the largest piece keeps
+ * id, each other one becomes the next free id, inheriting id's pose. Returns the new ids made. */
+static int store_pieces(planning_case *c, int id, const int32_t *lab, const int lo[3], const int dim[3], int pieces,
+                        int *new_ids)
+{
+    size_t n = (size_t)dim[0] * dim[1] * dim[2];
+    size_t *count = calloc((size_t)pieces + 1, sizeof *count);
+    if (!count)
+        return fn_err_set(FN_ENOMEM, "separate: out of memory");
+    for (size_t v = 0; v < n; v++)
+        if (lab[v] > 0)
+            count[lab[v]]++;
+    int keep = 1;
+    for (int p = 2; p <= pieces; p++)
+        if (count[p] > count[keep])
+            keep = p;
+    int made = 0, rc = 0;
+    for (int p = -1; p <= pieces && rc == 0; p++) {
+        if (p == 0 || p == keep || (p > 0 && !count[p]))
+            continue;
+        int next = p < 0 ? 0 : next_free_id(c);
+        if (next > 65535)
+            return fn_err_set(FN_EINVAL, "separate: no free label left");
+        for (int k = 0; k < dim[2]; k++)
+            for (int j = 0; j < dim[1]; j++)
+                for (int i = 0; i < dim[0]; i++)
+                    if (lab[((size_t)k * dim[1] + j) * dim[0] + i] == p)
+                        c->labels->data[vol_idx(c->labels, lo[0] + i, lo[1] + j, lo[2] + k)] = (float)next;
+        rc = case_rebuild(c, next, id);
+        if (rc == 0 && p > 0 && new_ids)
+            new_ids[made++] = next;
+    }
+    free(count);
+    return rc < 0 ? rc : made;
+}
+
+int case_separate(planning_case *c, int id, double erode_mm, int *new_ids, double *erode_used)
 {
     int rc = need(c, id);
     if (rc < 0)
@@ -354,64 +395,282 @@ int case_separate(planning_case *c, int id, double erode_mm, const double (*seed
         return FN_ENOMEM;
     size_t n = (size_t)dim[0] * dim[1] * dim[2];
     int32_t *lab = malloc(n * sizeof *lab);
-    int (*sv)[3] = nseeds > 0 ? malloc((size_t)nseeds * sizeof *sv) : NULL;
-    if (!lab || (nseeds > 0 && !sv))
+    if (!lab)
         rc = fn_err_set(FN_ENOMEM, "separate: out of memory");
-    for (int s = 0; s < nseeds && rc == 0; s++) {
-        double ijk[3];
-        vol_world_to_index(c->labels, seeds[s], ijk);
-        for (int a = 0; a < 3; a++)
-            sv[s][a] = (int)floor(ijk[a] + 0.5) - lo[a];
-    }
     double vox = c->labels->spacing[0] * c->labels->spacing[1] * c->labels->spacing[2];
     size_t min_voxels = (size_t)fmax(8, 20 / vox); /* cores under 0.02 ml are noise */
-    int pieces = rc == 0 ? morph_separate(m, dim, c->labels->spacing, erode_mm, (const int(*)[3])sv, nseeds,
-                                          min_voxels, lab, erode_used)
+    int pieces = rc == 0 ? morph_separate(m, dim, c->labels->spacing, erode_mm, NULL, 0, min_voxels, lab,
+                                          erode_used)
                          : rc;
     if (pieces < 0)
         rc = pieces;
-    else if (pieces < 2 && erode_mm > 0 && !nseeds)
+    else if (pieces < 2 && erode_mm > 0)
         rc = fn_err_set(FN_EINVAL, "separate: fragment %d does not split at --erode %g mm (it leaves no two "
-                        "cores of 0.02 ml): try another --erode, or one --seeds point per piece", id, erode_mm);
+                        "cores of 0.02 ml): try another --erode, or --seeds", id, erode_mm);
     else if (pieces < 2)
         rc = fn_err_set(FN_EINVAL, "separate: fragment %d does not split (no erosion leaves two cores of "
-                        "0.02 ml; give --erode MM or one --seeds point per piece)", id);
-    if (rc == 0) {
-        /* the largest piece keeps id; each other becomes the next free id, inheriting id's pose */
-        size_t *count = calloc((size_t)pieces + 1, sizeof *count);
-        if (!count)
-            rc = fn_err_set(FN_ENOMEM, "separate: out of memory");
-        for (size_t v = 0; count && v < n; v++)
-            count[lab[v]]++;
-        int keep = 1;
-        for (int p = 2; count && p <= pieces; p++)
-            if (count[p] > count[keep])
-                keep = p;
-        int made = 0;
-        for (int p = 1; count && p <= pieces && rc == 0; p++) {
-            if (p == keep)
-                continue;
-            int next = next_free_id(c);
-            if (next > 65535) {
-                rc = fn_err_set(FN_EINVAL, "separate: no free label left");
-                break;
-            }
-            for (int k = 0; k < dim[2]; k++)
-                for (int j = 0; j < dim[1]; j++)
-                    for (int i = 0; i < dim[0]; i++)
-                        if (lab[((size_t)k * dim[1] + j) * dim[0] + i] == p)
-                            c->labels->data[vol_idx(c->labels, lo[0] + i, lo[1] + j, lo[2] + k)] = (float)next;
-            rc = case_rebuild(c, next, id);
-            if (rc == 0 && new_ids)
-                new_ids[made] = next;
-            made++;
-        }
-        free(count);
-        if (rc == 0)
-            rc = made;
-    }
+                        "0.02 ml; give --erode MM, or --seeds)", id);
+    if (rc == 0)
+        rc = store_pieces(c, id, lab, lo, dim, pieces, new_ids);
     free(m);
     free(lab);
-    free(sv);
+    return rc;
+}
+
+/* ---- seeded separation -------------------------------------------------------------------- */
+
+/* The CT's values over a fragment's box (id_mask's), 0 outside the mask; NULL when out of memory. */
+static float *box_values(const planning_case *c, const uint8_t *m, const int lo[3], const int dim[3])
+{
+    float *hu = malloc((size_t)dim[0] * dim[1] * dim[2] * sizeof *hu);
+    for (int k = 0; hu && k < dim[2]; k++)
+        for (int j = 0; j < dim[1]; j++)
+            for (int i = 0; i < dim[0]; i++) {
+                size_t b = ((size_t)k * dim[1] + j) * dim[0] + i;
+                hu[b] = m[b] ? c->ct->data[vol_idx(c->ct, lo[0] + i, lo[1] + j, lo[2] + k)] : 0;
+            }
+    return hu;
+}
+
+/* The voxel of seed s on the grid (its nearest centre), or FN_EINVAL naming the point. */
+static int seed_voxel(const planning_case *c, const case_seed *s, int v[3])
+{
+    const vol *l = c->labels;
+    double ijk[3];
+    vol_world_to_index(l, s->at, ijk);
+    for (int a = 0; a < 3; a++) {
+        if (!(ijk[a] > -0.5 && ijk[a] < l->dim[a] - 0.5)) {
+            double first[3] = {0, 0, 0}, last[3] = {l->dim[0] - 1, l->dim[1] - 1, l->dim[2] - 1}, w0[3], w1[3];
+            vol_index_to_world(l, first, w0);
+            vol_index_to_world(l, last, w1);
+            return fn_err_set(FN_EINVAL, "separate: the seed (%.1f, %.1f, %.1f) mm is outside the CT (its voxel "
+                              "centres span (%.1f, %.1f, %.1f) to (%.1f, %.1f, %.1f) mm, LPS)", s->at[0], s->at[1],
+                              s->at[2], w0[0], w0[1], w0[2], w1[0], w1[1], w1[2]);
+        }
+        v[a] = (int)floor(ijk[a] + 0.5);
+    }
+    return 0;
+}
+
+/* A seed of a piece on an unlabelled voxel: the bone mask is short there, so the bone connected to
+ * it (non-zero voxels on a bone-only CT, voxels >= the case's threshold on a full CT) joins
+ * fragment id; FN_EINVAL saying why not when the voxel is not bone, or lies in another fragment. */
+static int take_seed_bone(planning_case *c, int id, const case_seed *s, size_t at, bone_kind kind)
+{
+    float here = c->labels->data[at], hu = c->ct->data[at];
+    if (here == (float)id || s->piece == 0)
+        return 0;
+    if (here != 0)
+        return fn_err_set(FN_EINVAL, "separate: the seed (%.1f, %.1f, %.1f) mm lies in fragment %g, not in "
+                          "fragment %d", s->at[0], s->at[1], s->at[2], (double)here, id);
+    double thr = c->seg.threshold;
+    if (kind == BONE_ONLY_CT && !(isfinite(hu) && hu != 0))
+        return fn_err_set(FN_EINVAL, "separate: the seed (%.1f, %.1f, %.1f) mm is outside the bone: the CT holds "
+                          "only the bone, and is %g there", s->at[0], s->at[1], s->at[2], (double)hu);
+    if (kind == BONE_FULL_CT && !(hu >= thr))
+        return fn_err_set(FN_EINVAL, "separate: the seed (%.1f, %.1f, %.1f) mm is outside fragment %d, and the "
+                          "CT there (%g) is under the case's bone threshold %g: not bone to grow from",
+                          s->at[0], s->at[1], s->at[2], id, (double)hu, thr);
+    long n = kind == BONE_ONLY_CT ? flood(c, at, -INFINITY, 1, id) : flood(c, at, thr, 0, id);
+    return n < 0 ? (int)n : 0;
+}
+
+/* Checks the seeds and grows the bone to those outside fragment id; vox gets their voxels. */
+static int place_seeds(planning_case *c, int id, const case_seed *seeds, int n, size_t *vox)
+{
+    bone_kind kind = bone_kind_of(c->ct);
+    for (int s = 0; s < n; s++) {
+        int v[3];
+        if (seeds[s].piece < 0 || seeds[s].piece >= GROW_MAX_LABEL)
+            return fn_err_set(FN_EINVAL, "separate: the seed (%.1f, %.1f, %.1f) mm names piece %d (pieces are "
+                              "1..%d, 0 for not bone)", seeds[s].at[0], seeds[s].at[1], seeds[s].at[2],
+                              seeds[s].piece, GROW_MAX_LABEL - 1);
+        int rc = seed_voxel(c, &seeds[s], v);
+        if (rc < 0)
+            return rc;
+        vox[s] = vol_idx(c->labels, v[0], v[1], v[2]);
+        for (int t = 0; t < s; t++)
+            if (vox[t] == vox[s] && seeds[t].piece != seeds[s].piece)
+                return fn_err_set(FN_EINVAL, "separate: the seeds (%.1f, %.1f, %.1f) and (%.1f, %.1f, %.1f) mm "
+                                  "fall in one voxel but name different pieces (%d and %d)", seeds[t].at[0],
+                                  seeds[t].at[1], seeds[t].at[2], seeds[s].at[0], seeds[s].at[1], seeds[s].at[2],
+                                  seeds[t].piece, seeds[s].piece);
+        if ((rc = take_seed_bone(c, id, &seeds[s], vox[s], kind)) < 0)
+            return rc;
+    }
+    return 0;
+}
+
+int case_separate_seeds(planning_case *c, int id, const case_seed *seeds, int n, int *new_ids)
+{
+    int rc = need(c, id);
+    if (rc < 0)
+        return rc;
+    if (n < 1)
+        return fn_err_set(FN_EINVAL, "separate: no seed given");
+    size_t *vox = malloc((size_t)n * sizeof *vox);
+    if (!vox)
+        return fn_err_set(FN_ENOMEM, "separate: out of memory");
+    rc = place_seeds(c, id, seeds, n, vox);
+    int lo[3], dim[3];
+    uint8_t *m = rc == 0 ? id_mask(c, id, lo, dim) : NULL;
+    size_t nb = m ? (size_t)dim[0] * dim[1] * dim[2] : 0;
+    float *hu = m ? box_values(c, m, lo, dim) : NULL;
+    int32_t *lab = m ? malloc(nb * sizeof *lab) : NULL;
+    if (rc == 0 && (!hu || !lab))
+        rc = fn_err_set(FN_ENOMEM, "separate: out of memory for fragment %d's box", id);
+    grow *g = rc == 0 ? grow_new(hu, m, dim, c->labels->spacing) : NULL;
+    if (rc == 0 && !g)
+        rc = FN_ENOMEM;
+    int pieces = 0;
+    for (int s = 0; rc == 0 && s < n; s++) {
+        size_t at = vox[s], i = at % (size_t)c->labels->dim[0], j = at / (size_t)c->labels->dim[0] %
+                    (size_t)c->labels->dim[1], k = at / ((size_t)c->labels->dim[0] * c->labels->dim[1]);
+        size_t b = ((k - (size_t)lo[2]) * (size_t)dim[1] + (j - (size_t)lo[1])) * (size_t)dim[0] + (i - (size_t)lo[0]);
+        if (c->labels->data[at] != (float)id)
+            continue; /* a not-bone seed outside the fragment: nothing to take away there */
+        rc = grow_add_seed(g, b, seeds[s].piece ? seeds[s].piece : GROW_MAX_LABEL);
+        pieces = seeds[s].piece > pieces ? seeds[s].piece : pieces;
+    }
+    if (rc == 0)
+        rc = grow_run(g);
+    if (rc == 0) {
+        const uint8_t *won = grow_labels(g);
+        for (size_t b = 0; b < nb; b++)
+            lab[b] = won[b] == GROW_MAX_LABEL ? -1 : won[b];
+        rc = store_pieces(c, id, lab, lo, dim, pieces, new_ids);
+    }
+    grow_free(g);
+    free(vox);
+    free(m);
+    free(hu);
+    free(lab);
+    return rc;
+}
+
+/* One field of a seed line: a finite number. */
+static int seed_number(const char **p, double *out)
+{
+    char *end;
+    *out = strtod(*p, &end);
+    if (end == *p || !isfinite(*out))
+        return 0;
+    *p = end;
+    return 1;
+}
+
+int case_seeds_parse(const char *text, const char *name, case_seed **out)
+{
+    *out = NULL;
+    int n = 0, cap = 0, line = 0;
+    for (const char *p = text; *p;) {
+        const char *eol = strchr(p, '\n'), *next = eol ? eol + 1 : p + strlen(p);
+        char buf[512];
+        size_t len = (size_t)(next - p);
+        line++;
+        if (len >= sizeof buf) {
+            free(*out);
+            *out = NULL;
+            return fn_err_set(FN_EFORMAT, "%s: line %d: longer than %zu bytes", name, line, sizeof buf - 1);
+        }
+        memcpy(buf, p, len);
+        buf[len] = '\0';
+        p = next;
+        char *hash = strchr(buf, '#');
+        if (hash)
+            *hash = '\0';
+        const char *q = buf + strspn(buf, " \t\r\n");
+        if (!*q)
+            continue;
+        case_seed s;
+        double piece;
+        int ok = 1;
+        if (!strncmp(q, "none", 4) && strchr(" \t", q[4])) {
+            s.piece = 0;
+            q += 4;
+        } else if ((ok = seed_number(&q, &piece) && piece >= 1 && piece < GROW_MAX_LABEL && piece == floor(piece)))
+            s.piece = (int)piece;
+        for (int a = 0; ok && a < 3; a++)
+            ok = seed_number(&q, &s.at[a]);
+        if (!ok || q[strspn(q, " \t\r\n")]) {
+            free(*out);
+            *out = NULL;
+            return fn_err_set(FN_EFORMAT, "%s: line %d: expected PIECE X Y Z (PIECE 1..%d or none, world LPS "
+                              "mm), got '%.60s'", name, line, GROW_MAX_LABEL - 1, buf + strspn(buf, " \t"));
+        }
+        if (n == cap) {
+            cap = cap ? 2 * cap : 16;
+            case_seed *m = cap <= 1 << 20 ? realloc(*out, (size_t)cap * sizeof *m) : NULL;
+            if (!m) {
+                free(*out);
+                *out = NULL;
+                return fn_err_set(FN_ENOMEM, "%s: line %d: too many seeds", name, line);
+            }
+            *out = m;
+        }
+        (*out)[n++] = s;
+    }
+    if (!n)
+        return fn_err_set(FN_EFORMAT, "%s: no seed in the file (lines of PIECE X Y Z)", name);
+    return n;
+}
+
+int case_separate_all(planning_case *c, const case_seed *seeds, int n)
+{
+    int made = 0, nfrag = c->nfrag, *ids = malloc(((size_t)nfrag + 1) * sizeof *ids), news[GROW_MAX_LABEL];
+    case_seed *group = malloc(((size_t)n + 1) * sizeof *group);
+    if (!ids || !group) {
+        free(ids);
+        free(group);
+        return fn_err_set(FN_ENOMEM, "separate: out of memory");
+    }
+    for (int f = 0; f < nfrag; f++)
+        ids[f] = c->frag[f].id;
+    int rc = 0, biggest = 0;
+    for (int f = 1; f < nfrag; f++)
+        if (c->frag[f].voxels > c->frag[biggest].voxels)
+            biggest = f;
+    for (int s = 0; s < n && rc == 0; s++) {
+        int v[3];
+        rc = seed_voxel(c, &seeds[s], v);
+    }
+    for (int f = 0; f < nfrag && rc >= 0; f++) {
+        int m = 0;
+        /* Each seed goes to the fragment it lies in; one on no fragment to the largest, which grows
+         * over the bone there (or says why it cannot). */
+        for (int s = 0; s < n; s++) {
+            int v[3];
+            seed_voxel(c, &seeds[s], v);
+            float l = c->labels->data[vol_idx(c->labels, v[0], v[1], v[2])];
+            if (l == (float)ids[f] || (l == 0 && f == biggest))
+                group[m++] = seeds[s];
+        }
+        if (n == 0)
+            rc = case_separate_auto(c, ids[f], news);
+        else if (m > 0)
+            rc = case_separate_seeds(c, ids[f], group, m, news);
+        made += rc > 0 ? rc : 0;
+    }
+    free(ids);
+    free(group);
+    return rc < 0 ? rc : made;
+}
+
+int case_separate_auto(planning_case *c, int id, int *new_ids)
+{
+    int rc = need(c, id);
+    if (rc < 0)
+        return rc;
+    int lo[3], dim[3];
+    uint8_t *m = id_mask(c, id, lo, dim);
+    float *hu = m ? box_values(c, m, lo, dim) : NULL;
+    int32_t *lab = hu ? malloc((size_t)dim[0] * dim[1] * dim[2] * sizeof *lab) : NULL;
+    if (!lab)
+        rc = fn_err_set(FN_ENOMEM, "separate: out of memory for fragment %d's box", id);
+    int pieces = rc == 0 ? split_auto(hu, m, dim, c->labels->spacing, lab) : rc;
+    rc = pieces < 2 ? (pieces < 0 ? pieces : 0) : store_pieces(c, id, lab, lo, dim, pieces, new_ids);
+    free(m);
+    free(hu);
+    free(lab);
     return rc;
 }

@@ -221,37 +221,53 @@ static int validate(const seg_params *p)
     return 0;
 }
 
-int seg_run(const vol *v, const seg_params *p, seg_result *out)
+/* The threshold p asks for over v (Otsu's when auto), or NaN. Counts the non-finite voxels. */
+static double threshold_of(const vol *v, const seg_params *p, size_t *nonfinite)
+{
+    size_t n = vol_count(v);
+    *nonfinite = 0;
+    for (size_t i = 0; i < n; i++)
+        *nonfinite += !isfinite(v->data[i]);
+    if (*nonfinite == n)
+        return NAN;
+    if (p->threshold_auto)
+        return p->threshold_auto == 2 ? seg_otsu_above(v, seg_otsu(v)) : seg_otsu(v);
+    return p->threshold;
+}
+
+double seg_threshold(const vol *v, const seg_params *p)
+{
+    size_t nonfinite;
+    return threshold_of(v, p, &nonfinite);
+}
+
+static int run(const vol *v, const uint8_t *given, const seg_params *p, seg_result *out)
 {
     memset(out, 0, sizeof *out);
     int rc = validate(p);
     if (rc < 0)
         return rc;
-    size_t n = vol_count(v), nonfinite = 0;
-    for (size_t i = 0; i < n; i++)
-        nonfinite += !isfinite(v->data[i]);
+    size_t n = vol_count(v), nonfinite;
+    double thr = threshold_of(v, p, &nonfinite);
     if (nonfinite == n)
         return fn_err_set(FN_EFORMAT, "segmentation: all %zu voxels are NaN or infinite: nothing to "
                                       "segment", n);
-    double thr = p->threshold;
-    if (p->threshold_auto)
-        thr = p->threshold_auto == 2 ? seg_otsu_above(v, seg_otsu(v)) : seg_otsu(v);
     if (!isfinite(thr))
         return fn_err_set(FN_EFORMAT, "segmentation: no threshold found (%zu of %zu voxels are NaN "
                                       "or infinite)", nonfinite, n);
-    uint8_t *mask = malloc(n);
+    uint8_t *mask = given ? NULL : malloc(n);
     int32_t *lab = malloc(n * sizeof *lab);
     out->labels = vol_new(v->dim[0], v->dim[1], v->dim[2]);
-    if (!mask || !lab || !out->labels) {
+    if ((!given && !mask) || !lab || !out->labels) {
         free(mask);
         free(lab);
         vol_free(out->labels);
         out->labels = NULL;
         return fn_err_set(FN_ENOMEM, "segmentation: out of memory for %zu voxels", n);
     }
-    for (size_t i = 0; i < n; i++)
+    for (size_t i = 0; mask && i < n; i++)
         mask[i] = isfinite(v->data[i]) && v->data[i] >= thr; /* non-finite voxels are never bone */
-    int ncomp = seg_components(mask, v->dim, lab);
+    int ncomp = seg_components(given ? given : mask, v->dim, lab);
     free(mask);
     seg_component *c = ncomp >= 0 ? component_stats(v, lab, ncomp) : NULL;
     if (!c) {
@@ -295,6 +311,16 @@ int seg_run(const vol *v, const seg_params *p, seg_result *out)
     out->raw_components = ncomp;
     out->nonfinite = nonfinite;
     return 0;
+}
+
+int seg_run(const vol *v, const seg_params *p, seg_result *out)
+{
+    return run(v, NULL, p, out);
+}
+
+int seg_run_mask(const vol *v, const uint8_t *mask, const seg_params *p, seg_result *out)
+{
+    return run(v, mask, p, out);
 }
 
 void seg_result_free(seg_result *r)

@@ -59,6 +59,11 @@ int seg_components(const uint8_t *mask, const int dim[3], int32_t *lab);
  * Non-finite voxels are counted (out->nonfinite) and never bone; a volume with no finite voxel,
  * or one where Otsu finds no threshold, is refused (FN_EFORMAT). */
 int seg_run(const vol *v, const seg_params *p, seg_result *out);
+/* The same over a bone mask made elsewhere (bone_find: one byte per voxel of v, non-zero = bone)
+ * instead of the threshold; the threshold is still worked out (out->threshold). */
+int seg_run_mask(const vol *v, const uint8_t *mask, const seg_params *p, seg_result *out);
+/* The threshold p gives for v (Otsu's when auto); NaN when none. */
+double seg_threshold(const vol *v, const seg_params *p);
 void seg_result_free(seg_result *r);
 
 /* Fragments that another tool made: labels (a labelmap on v's grid: same dims, affine within

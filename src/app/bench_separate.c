@@ -1,0 +1,429 @@
+/* fracnav bench separate: bone and fragments of real fracture CTs against hand annotations. */
+#include "bench.h"
+
+#include "bone.h"
+#include "case.h"
+#include "cmd.h"
+#include "err.h"
+#include "grow.h"
+#include "jsonw.h"
+#include "morph.h"
+#include "volio.h"
+
+#include <dirent.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define MAX_BONES 256
+#define MAX_PIECES 64
+
+static void usage(FILE *out)
+{
+    fprintf(out,
+            "usage: fracnav bench separate [--json] DIR\n\n"
+            "Bone and fragments of real fracture CTs against fragments annotated by hand. DIR holds\n"
+            "pairs NNN_BONE.nii.gz (the CT) and NNN_BONE_mask.nii.gz (label k = fragment k, on the\n"
+            "CT's grid), as the PENGWIN/FracSegNet data. Each CT is segmented as `segment CT -o CASE\n"
+            "--separate` does, automatically, and again from one seed per annotated fragment at its\n"
+            "deepest voxel (`--separate --seeds`). Per bone: bone_dice (the union of the fragments\n"
+            "against the annotated union), fragment_dice_min and fragment_dice_median (each\n"
+            "annotated fragment against the fragment that matches it best) and fragments_found,\n"
+            "for both modes; separate_seconds (the seeded separation); regrow_seconds (the growth\n"
+            "updated after one more seed in the largest fragment); both in CPU seconds of the\n"
+            "thread (a busy machine does not inflate them). Then the pooled figures beside\n"
+            "their targets.\n\n"
+            "  --json   one JSON object on stdout\n"
+            "  --help   this text\n");
+}
+
+static int by_name(const void *a, const void *b)
+{
+    return strcmp(*(char *const *)a, *(char *const *)b);
+}
+
+/* The NNN_BONE names of DIR's *_mask.nii.gz files, sorted; their count or -1. */
+static int list_bones(const char *dir, char **names)
+{
+    DIR *d = opendir(dir);
+    if (!d) {
+        fn_err_set(FN_EIO, "bench separate: cannot open the folder %s", dir);
+        return -1;
+    }
+    int n = 0;
+    for (struct dirent *e; (e = readdir(d)) && n < MAX_BONES;) {
+        size_t len = strlen(e->d_name), tail = strlen("_mask.nii.gz");
+        if (len > tail && !strcmp(e->d_name + len - tail, "_mask.nii.gz"))
+            names[n++] = strndup(e->d_name, len - tail);
+    }
+    closedir(d);
+    qsort(names, (size_t)n, sizeof *names, by_name);
+    return n;
+}
+
+/* The CT segmented into its whole bones, as segment --separate does before separating. */
+static planning_case *whole_bone_case(const char *path)
+{
+    vol *ct = volio_read(path);
+    seg_params p;
+    seg_defaults(&p);
+    seg_result r = {0};
+    if (!ct || bone_segment(ct, &p, &r) < 0) {
+        vol_free(ct);
+        return NULL;
+    }
+    p.threshold = r.threshold;
+    vol *labels = r.labels;
+    r.labels = NULL;
+    seg_result_free(&r);
+    planning_case *c = case_create("(bench separate)", path, ct, labels, &p);
+    for (int f = 0; c && f < c->nfrag; f++)
+        if (case_fill(c, c->frag[f].id, MORPH_FILL_3D) < 0) {
+            case_free(c);
+            return NULL;
+        }
+    return c;
+}
+
+typedef struct truth {
+    vol *labels;
+    int n;                    /* annotated fragments */
+    int label[MAX_PIECES];    /* their label values */
+    size_t voxels[MAX_PIECES];
+    size_t deepest[MAX_PIECES]; /* the voxel farthest from the fragment's surface */
+    float *depth;             /* per voxel: its distance (mm) to its fragment's surface */
+} truth;
+
+/* The annotated fragments, their sizes, depth and deepest voxels. */
+static int read_truth(const char *path, truth *t)
+{
+    volio_segs segs = {0};
+    memset(t, 0, sizeof *t);
+    t->labels = volio_read_labels(path, &segs);
+    volio_segs_free(&segs);
+    if (!t->labels)
+        return -1;
+    vol *l = t->labels;
+    size_t n = vol_count(l);
+    uint8_t *m = malloc(n);
+    t->depth = calloc(n, sizeof *t->depth);
+    float *d = malloc(n * sizeof *d);
+    if (!m || !t->depth || !d) {
+        free(m);
+        free(d);
+        return fn_err_set(FN_ENOMEM, "bench separate: out of memory");
+    }
+    uint8_t *present = calloc(65536, 1);
+    if (!present) {
+        free(m);
+        free(d);
+        return fn_err_set(FN_ENOMEM, "bench separate: out of memory");
+    }
+    for (size_t i = 0; i < n; i++) {
+        float x = l->data[i];
+        if (!(x >= 0 && x <= 65535 && x == floorf(x))) {
+            free(present);
+            free(m);
+            free(d);
+            return fn_err_set(FN_EFORMAT, "%s: voxel %zu holds %g; labels are whole numbers 0..65535", path, i,
+                              (double)x);
+        }
+        present[(int)x] = 1;
+    }
+    for (int k = 1; k <= 65535 && t->n < MAX_PIECES; k++) {
+        if (!present[k])
+            continue;
+        size_t count = 0;
+        for (size_t i = 0; i < n; i++)
+            count += (m[i] = l->data[i] == (float)k);
+        morph_distance(m, l->dim, l->spacing, d);
+        size_t best = 0;
+        for (size_t i = 0; i < n; i++)
+            if (m[i]) {
+                t->depth[i] = d[i];
+                if (d[i] > d[best])
+                    best = i;
+            }
+        t->label[t->n] = k;
+        t->voxels[t->n] = count;
+        t->deepest[t->n++] = best;
+    }
+    free(present);
+    free(m);
+    free(d);
+    return 0;
+}
+
+static void voxel_world(const vol *v, size_t i, double w[3])
+{
+    double ijk[3] = {(double)(i % (size_t)v->dim[0]), (double)(i / (size_t)v->dim[0] % (size_t)v->dim[1]),
+                     (double)(i / ((size_t)v->dim[0] * v->dim[1]))};
+    vol_index_to_world(v, ijk, w);
+}
+
+typedef struct scores {
+    double dice_min, dice_median;
+    int found;
+} scores;
+
+static int by_value(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+/* Each annotated fragment against the case's fragment that matches it best. */
+static scores score(const planning_case *c, const truth *t)
+{
+    size_t n = vol_count(t->labels), *inter = calloc((size_t)t->n * (size_t)(c->nfrag + 1), sizeof *inter);
+    double dice[MAX_PIECES];
+    scores s = {NAN, NAN, c->nfrag};
+    if (!inter)
+        return s;
+    for (size_t i = 0; i < n; i++) {
+        float a = t->labels->data[i], b = c->labels->data[i];
+        if (a == 0 || b == 0)
+            continue;
+        int k = 0, f = case_find(c, (int)b);
+        while (k < t->n && t->label[k] != (int)a)
+            k++;
+        if (k < t->n && f >= 0)
+            inter[(size_t)k * (size_t)(c->nfrag + 1) + (size_t)f]++;
+    }
+    for (int k = 0; k < t->n; k++) {
+        dice[k] = 0;
+        for (int f = 0; f < c->nfrag; f++)
+            dice[k] = fmax(dice[k], 2.0 * (double)inter[(size_t)k * (size_t)(c->nfrag + 1) + (size_t)f] /
+                                        (double)(t->voxels[k] + c->frag[f].voxels));
+    }
+    free(inter);
+    qsort(dice, (size_t)t->n, sizeof *dice, by_value);
+    s.dice_min = dice[0];
+    s.dice_median = t->n % 2 ? dice[t->n / 2] : (dice[t->n / 2 - 1] + dice[t->n / 2]) / 2;
+    return s;
+}
+
+static double bone_dice(const planning_case *c, const truth *t)
+{
+    size_t n = vol_count(t->labels), a = 0, b = 0, both = 0;
+    for (size_t i = 0; i < n; i++) {
+        int x = c->labels->data[i] != 0, y = t->labels->data[i] != 0;
+        a += (size_t)x;
+        b += (size_t)y;
+        both += (size_t)(x && y);
+    }
+    return a + b ? 2.0 * (double)both / (double)(a + b) : NAN;
+}
+
+/* The growth of the seeds over the whole bone, then updated after one more seed: a deep voxel of
+ * the largest annotated fragment far from its first seed. Returns the update's seconds. */
+static double regrow_seconds(const planning_case *c, const truth *t)
+{
+    const vol *l = c->labels;
+    size_t n = vol_count(l);
+    uint8_t *domain = malloc(n);
+    float *hu = malloc(n * sizeof *hu);
+    grow *g = NULL;
+    double s = NAN;
+    if (domain && hu) {
+        for (size_t i = 0; i < n; i++) {
+            domain[i] = l->data[i] != 0;
+            hu[i] = c->ct->data[i];
+        }
+        g = grow_new(hu, domain, l->dim, l->spacing);
+    }
+    int big = 0;
+    for (int k = 1; k < t->n; k++)
+        big = t->voxels[k] > t->voxels[big] ? k : big;
+    int rc = g ? 0 : -1;
+    for (int k = 0; k < t->n && rc == 0; k++)
+        if (domain[t->deepest[k]])
+            rc = grow_add_seed(g, t->deepest[k], k + 1);
+    size_t extra = t->deepest[big];
+    double w0[3], w[3], best = -1;
+    voxel_world(l, t->deepest[big], w0);
+    for (size_t i = 0; rc == 0 && i < n; i++) {
+        if (t->labels->data[i] != (float)t->label[big] || !domain[i] || t->depth[i] <= best)
+            continue;
+        voxel_world(l, i, w);
+        if ((w[0] - w0[0]) * (w[0] - w0[0]) + (w[1] - w0[1]) * (w[1] - w0[1]) + (w[2] - w0[2]) * (w[2] - w0[2]) >
+            40 * 40) {
+            best = t->depth[i];
+            extra = i;
+        }
+    }
+    if (rc == 0 && grow_run(g) == 0 && grow_add_seed(g, extra, big + 1) == 0) {
+        double t0 = bench_cpu_us();
+        if (grow_run(g) == 0)
+            s = (bench_cpu_us() - t0) * 1e-6;
+    }
+    grow_free(g);
+    free(domain);
+    free(hu);
+    return s;
+}
+
+typedef struct bone_result {
+    char name[256];
+    int annotated;
+    double bone_dice, separate_s, regrow_s;
+    scores automatic, seeded;
+} bone_result;
+
+static int run_bone(const char *dir, const char *name, bone_result *r)
+{
+    char ct[4200], mask[4200];
+    snprintf(ct, sizeof ct, "%s/%s.nii.gz", dir, name);
+    snprintf(mask, sizeof mask, "%s/%s_mask.nii.gz", dir, name);
+    memset(r, 0, sizeof *r);
+    snprintf(r->name, sizeof r->name, "%s", name);
+    truth t;
+    if (read_truth(mask, &t) < 0)
+        return -1;
+    r->annotated = t.n;
+    planning_case *c = whole_bone_case(ct);
+    int rc = c ? 0 : -1;
+    if (rc == 0) {
+        r->bone_dice = bone_dice(c, &t);
+        rc = case_separate_all(c, NULL, 0);
+        r->automatic = score(c, &t);
+        case_free(c);
+    }
+    c = rc >= 0 ? whole_bone_case(ct) : NULL;
+    case_seed seeds[MAX_PIECES];
+    for (int k = 0; k < t.n; k++) {
+        voxel_world(t.labels, t.deepest[k], seeds[k].at);
+        seeds[k].piece = k + 1;
+    }
+    if (c) {
+        r->regrow_s = regrow_seconds(c, &t);
+        double t0 = bench_cpu_us();
+        rc = case_separate_all(c, seeds, t.n);
+        r->separate_s = (bench_cpu_us() - t0) * 1e-6;
+        r->seeded = score(c, &t);
+        case_free(c);
+    }
+    vol_free(t.labels);
+    free(t.depth);
+    return c ? rc : -1;
+}
+
+static json_t *scores_json(const scores *s)
+{
+    return json_pack("{s:o,s:o,s:i}", "fragment_dice_min", jsonw_measure(s->dice_min), "fragment_dice_median",
+                     jsonw_measure(s->dice_median), "fragments_found", s->found);
+}
+
+static json_t *bone_json(const bone_result *r)
+{
+    return json_pack("{s:s,s:i,s:o,s:o,s:o,s:o,s:o}", "bone", r->name, "fragments_annotated", r->annotated,
+                     "bone_dice", jsonw_measure(r->bone_dice), "automatic", scores_json(&r->automatic), "seeded",
+                     scores_json(&r->seeded), "separate_seconds", jsonw_measure(r->separate_s), "regrow_seconds",
+                     jsonw_measure(r->regrow_s));
+}
+
+typedef struct pooled {
+    double bone_dice_min, auto_min, seeded_min, separate_max, regrow_max;
+    int intact, intact_whole;
+} pooled;
+
+static pooled pool(const bone_result *r, int n)
+{
+    pooled p = {INFINITY, INFINITY, INFINITY, 0, 0, 0, 0};
+    for (int i = 0; i < n; i++) {
+        p.bone_dice_min = fmin(p.bone_dice_min, r[i].bone_dice);
+        p.separate_max = fmax(p.separate_max, r[i].separate_s);
+        p.regrow_max = fmax(p.regrow_max, r[i].regrow_s);
+        p.seeded_min = fmin(p.seeded_min, r[i].seeded.dice_min);
+        if (r[i].annotated > 1)
+            p.auto_min = fmin(p.auto_min, r[i].automatic.dice_min);
+        else {
+            p.intact++;
+            p.intact_whole += r[i].automatic.found == 1;
+        }
+    }
+    return p;
+}
+
+static json_t *pooled_json(const pooled *p)
+{
+    return json_pack("{s:o,s:o,s:o,s:i,s:i,s:o,s:o}", "bone_dice_min", jsonw_measure(p->bone_dice_min),
+                     "automatic_fragment_dice_min", isfinite(p->auto_min) ? jsonw_measure(p->auto_min) : json_null(),
+                     "seeded_fragment_dice_min", jsonw_measure(p->seeded_min), "intact_bones", p->intact,
+                     "intact_bones_whole", p->intact_whole, "separate_seconds_max", jsonw_measure(p->separate_max),
+                     "regrow_seconds_max", jsonw_measure(p->regrow_max));
+}
+
+static json_t *targets_json(void)
+{
+    return json_pack("{s:f,s:f,s:f,s:s,s:f,s:f}", "bone_dice_min", 0.97, "automatic_fragment_dice_min", 0.85,
+                     "seeded_fragment_dice_min", 0.95, "intact_bones_whole", "all", "separate_seconds_max", 1.0,
+                     "regrow_seconds_max", 0.2);
+}
+
+static void print_text(const bone_result *r, int n, const pooled *p)
+{
+    printf("%-8s %5s %9s %-22s %-22s %8s %8s\n", "bone", "parts", "bone_dice", "automatic min/med/found",
+           "seeded min/med/found", "sep_s", "regrow_s");
+    for (int i = 0; i < n; i++)
+        printf("%-8s %5d %9.4f %7.3f %6.3f %6d   %7.3f %6.3f %6d   %8.3f %8.3f\n", r[i].name, r[i].annotated,
+               r[i].bone_dice, r[i].automatic.dice_min, r[i].automatic.dice_median, r[i].automatic.found,
+               r[i].seeded.dice_min, r[i].seeded.dice_median, r[i].seeded.found, r[i].separate_s, r[i].regrow_s);
+    printf("pooled (target): bone Dice min %.4f (>= 0.97), automatic fragment Dice min %.3f (>= 0.85), intact "
+           "bones whole %d of %d (all), seeded fragment Dice min %.3f (>= 0.95), separate max %.3f s (<= 1), "
+           "regrow max %.3f s (<= 0.2)\n", p->bone_dice_min, p->auto_min, p->intact_whole, p->intact, p->seeded_min,
+           p->separate_max, p->regrow_max);
+}
+
+int bench_separate(int argc, char **argv)
+{
+    int json = 0;
+    const char *dir = NULL;
+    for (int i = 1; i < argc; i++) {
+        if (!strcmp(argv[i], "--help") || !strcmp(argv[i], "-h")) {
+            usage(stdout);
+            return 0;
+        }
+        if (!strcmp(argv[i], "--json"))
+            json = 1;
+        else if (argv[i][0] != '-' && !dir)
+            dir = argv[i];
+        else
+            return cmd_usage_error("bench separate", "unknown or extra argument '%s'", argv[i]);
+    }
+    if (!dir)
+        return cmd_usage_error("bench separate", "%s", "give the folder of NNN_BONE.nii.gz and "
+                               "NNN_BONE_mask.nii.gz pairs (e.g. the PENGWIN/FracSegNet data)");
+    char *names[MAX_BONES];
+    int n = list_bones(dir, names);
+    if (n == 0)
+        fn_err_set(FN_EINVAL, "bench separate: no NNN_BONE_mask.nii.gz in %s", dir);
+    bone_result *r = n > 0 ? calloc((size_t)n, sizeof *r) : NULL;
+    int rc = r ? 0 : -1;
+    for (int i = 0; i < n && rc >= 0; i++) {
+        fprintf(stderr, "bench separate: %s\n", names[i]);
+        rc = run_bone(dir, names[i], &r[i]);
+    }
+    for (int i = 0; i < (n > 0 ? n : 0); i++)
+        free(names[i]);
+    if (rc < 0) {
+        fprintf(stderr, "fracnav bench separate: %s\n", fn_err_msg());
+        free(r);
+        return 1;
+    }
+    pooled p = pool(r, n);
+    if (json) {
+        json_t *o = jsonw_object("bench separate"), *bones = json_array();
+        for (int i = 0; i < n; i++)
+            json_array_append_new(bones, bone_json(&r[i]));
+        jsonw_set(o, "folder", jsonw_string(dir));
+        jsonw_set(o, "bones", bones);
+        jsonw_set(o, "pooled", pooled_json(&p));
+        jsonw_set(o, "targets", targets_json());
+        rc = jsonw_print(o, stdout);
+    } else
+        print_text(r, n, &p);
+    free(r);
+    return rc < 0 ? 1 : 0;
+}
