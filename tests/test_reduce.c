@@ -482,6 +482,7 @@ static void test_cli(void **st)
     assert_true(json_real_value(json_object_get(f, "rot_err_deg")) <= 1);
     assert_true(json_real_value(json_object_get(f, "trans_err_mm")) <= 1);
     assert_true(json_is_real(json_object_get(f, "tre_mm")) && json_is_integer(json_object_get(f, "evaluations")));
+    assert_true(json_is_boolean(json_object_get(f, "single_answer")) && json_is_array(json_object_get(f, "candidates")));
     json_decref(j);
     free(out);
     planning_case *back = case_load(newcase);
@@ -652,6 +653,10 @@ static void test_reduce_rival_hops(void **st)
     fit_turned_about(c, &want, 2, -12, 0, &r0);
     fit_turned_about(c, &want, 2, -12, 3, &r3);
     assert_int_equal(r3.rival, 1);
+    /* no single answer: the candidates are kept, the best first, each with a metric */
+    assert_true(r3.ncandidates >= 2);
+    for (int i = 0; i < r3.ncandidates; i++)
+        assert_true(isfinite(r3.candidate[i].metric) && r3.candidate[i].metric < 0);
     assert_int_equal(r0.hops, 0);
     if (!(r3.evaluations > r0.evaluations && r3.metric_end <= r0.metric_end + 1e-12))
         fail_msg("rival hops: metric %.6f (without %.6f), %d evaluations (without %d)", r3.metric_end,

@@ -249,6 +249,91 @@ static int separate_pieces(fracture_result *fr, int pieces, config_stats *cs)
     return rc < 0 ? rc : 0;
 }
 
+/* The fit's options for configuration k: reduce's defaults, no pre-alignment, what o sets. */
+static void fit_opts(const opts *o, int k, reduce_opts *ro)
+{
+    reduce_defaults(ro);
+    ro->method = o->method[k];
+    ro->count = o->count[k];
+    ro->prealign = 0;
+    if (o->band_mm >= 0)
+        ro->band_mm = o->band_mm;
+    if (o->voi_max_mm >= 0)
+        ro->voi_max_mm = o->voi_max_mm;
+    if (o->tolerance_mm >= 0)
+        ro->tolerance_mm = o->tolerance_mm;
+    if (o->settle_mm >= 0)
+        ro->settle_mm = o->settle_mm;
+    if (o->trust_mm >= 0)
+        ro->trust_mm = o->trust_mm;
+    if (o->trust_deg >= 0)
+        ro->trust_deg = o->trust_deg;
+    if (o->fit_starts)
+        ro->starts = o->fit_starts;
+    if (o->coarse)
+        ro->coarse = 1;
+    ro->gap_mm = o->gap_mm;
+    if (o->axis_scale)
+        ro->axis_scale = o->axis_scale > 0;
+}
+
+/* --verbose: a fit's details on stderr (level 2: and the same fit started at the truth). m's pose
+ * is borrowed and given back. */
+static void verbose_fit(const frag *f, frag *m, const frag *const *asm_, int nasm, const pose *truth,
+                        const reduce_opts *ro, const reduce_result *r, const sample *x, uint64_t seed, int s,
+                        int level)
+{
+    double fr_, ft_, fre_;
+    pose keep = m->pose;
+    m->pose = r->fitted;
+    reduce_errors(f, m, truth, &fr_, &ft_, &fre_);
+    m->pose = keep;
+    double sr, st, stre;
+    m->pose = r->start;
+    reduce_errors(f, m, truth, &sr, &st, &stre);
+    m->pose = keep;
+    fprintf(stderr, "  start error %.2f deg %.2f mm; fit moved %.2f deg\n", sr, st,
+            pose_angle_between(r->fitted, r->start) * 180 / M_PI);
+    {
+        pose d = pose_compose(r->fitted, pose_inverse(*truth));
+        double ax[3] = {m->axes[0][0], m->axes[1][0], m->axes[2][0]}, aw[3];
+        pose_rotate(truth, ax, aw);
+        double n = sqrt(d.q[1] * d.q[1] + d.q[2] * d.q[2] + d.q[3] * d.q[3]);
+        fprintf(stderr, "  error axis . long axis %.2f\n",
+                n > 0 ? fabs(d.q[1] * aw[0] + d.q[2] * aw[1] + d.q[3] * aw[2]) / n : 0);
+    }
+    fprintf(stderr, "  fitted %.3f deg %.3f mm; voi %.0fx%.0fx%.0f mm\n", fr_, ft_,
+            r->voi.hi[0] - r->voi.lo[0],
+            r->voi.hi[1] - r->voi.lo[1], r->voi.hi[2] - r->voi.lo[2]);
+    double gf[2], gt[2];
+    grid_turn(f, m, &r->fitted, gf);
+    grid_turn(f, m, truth, gt);
+    fprintf(stderr, "  grids: the moving grid turned %.2f deg about the long axis and %.2f across it"
+            " from the fixed grid (the truth: %.2f, %.2f)\n", gf[0], gf[1], gt[0], gt[1]);
+    reduce_metric *me = reduce_metric_new(asm_, 1, m, &r->voi, ro->count, ro->band_mm);
+    double ft = me ? reduce_metric_eval(me, truth, NULL) : NAN;
+    fprintf(stderr, "  fitted metric %.6f\n", me ? reduce_metric_eval(me, &r->fitted, NULL) : NAN);
+    if (level > 1) { /* the same fit started at the truth: where the metric's own basin ends */
+        reduce_result rt;
+        m->pose = *truth;
+        if (reduce_pair(asm_, nasm, m, ro, &rt) == 0) {
+            double tr_, tt_, ttre_;
+            reduce_errors(f, m, truth, &tr_, &tt_, &ttre_);
+            fprintf(stderr, "  from the truth: %.3f deg %.3f mm, metric %.6f over its voi, %.6f over this fit's\n",
+                    tr_, tt_, rt.metric_end, me ? reduce_metric_eval(me, &rt.end, NULL) : NAN);
+            reduce_result_free(&rt);
+        }
+        m->pose = keep;
+    }
+    reduce_metric_free(me);
+    fprintf(stderr, "seed %llu start %d %s/%s: %.3f deg %.3f mm tre %.3f, metric %.6f (truth %.6f),"
+            " %d evals, %.3f s cpu, push %.2f\n", (unsigned long long)seed, s,
+            reduce_method_name(ro->method), ro->count == REDUCE_NEAREST ? "nearest" : "trilinear",
+            x->rot, x->trans, x->tre, r->metric_end, ft, r->evaluations, x->cpu_s, r->push_mm);
+    fprintf(stderr, "  end pose q %.17g %.17g %.17g %.17g t %.17g %.17g %.17g\n", r->end.q[0],
+            r->end.q[1], r->end.q[2], r->end.q[3], r->end.t[0], r->end.t[1], r->end.t[2]);
+}
+
 static int run_case(const vol *ct, uint64_t seed, const opts *o, config_stats *cs)
 {
     fracture_params fp;
@@ -302,29 +387,7 @@ static int run_case(const vol *ct, uint64_t seed, const opts *o, config_stats *c
         pose start = perturbed(&f, tf, &m, tm, &truth, o);
         for (int k = 0; k < o->nconf && rc == 0; k++) {
             reduce_opts ro;
-            reduce_defaults(&ro);
-            ro.method = o->method[k];
-            ro.count = o->count[k];
-            ro.prealign = 0;
-            if (o->band_mm >= 0)
-                ro.band_mm = o->band_mm;
-            if (o->voi_max_mm >= 0)
-                ro.voi_max_mm = o->voi_max_mm;
-            if (o->tolerance_mm >= 0)
-                ro.tolerance_mm = o->tolerance_mm;
-            if (o->settle_mm >= 0)
-                ro.settle_mm = o->settle_mm;
-            if (o->trust_mm >= 0)
-                ro.trust_mm = o->trust_mm;
-            if (o->trust_deg >= 0)
-                ro.trust_deg = o->trust_deg;
-            if (o->fit_starts)
-                ro.starts = o->fit_starts;
-            if (o->coarse)
-                ro.coarse = 1;
-            ro.gap_mm = o->gap_mm;
-            if (o->axis_scale)
-                ro.axis_scale = o->axis_scale > 0;
+            fit_opts(o, k, &ro);
             m.pose = start;
             reduce_result r;
             double c0 = bench_cpu_us();
@@ -339,57 +402,8 @@ static int run_case(const vol *ct, uint64_t seed, const opts *o, config_stats *c
             x->evals = r.evaluations;
             x->eval_cpu_s = r.eval_cpu_s;
             x->metric_end = r.metric_end;
-            if (o->verbose) {
-                double fr_, ft_, fre_;
-                pose keep = m.pose;
-                m.pose = r.fitted;
-                reduce_errors(&f, &m, &truth, &fr_, &ft_, &fre_);
-                m.pose = keep;
-                double sr, st, stre;
-                m.pose = r.start;
-                reduce_errors(&f, &m, &truth, &sr, &st, &stre);
-                m.pose = keep;
-                fprintf(stderr, "  start error %.2f deg %.2f mm; fit moved %.2f deg\n", sr, st,
-                        pose_angle_between(r.fitted, r.start) * 180 / M_PI);
-                {
-                    pose d = pose_compose(r.fitted, pose_inverse(truth));
-                    double ax[3] = {m.axes[0][0], m.axes[1][0], m.axes[2][0]}, aw[3];
-                    pose_rotate(&truth, ax, aw);
-                    double n = sqrt(d.q[1] * d.q[1] + d.q[2] * d.q[2] + d.q[3] * d.q[3]);
-                    fprintf(stderr, "  error axis . long axis %.2f\n",
-                            n > 0 ? fabs(d.q[1] * aw[0] + d.q[2] * aw[1] + d.q[3] * aw[2]) / n : 0);
-                }
-                fprintf(stderr, "  fitted %.3f deg %.3f mm; voi %.0fx%.0fx%.0f mm\n", fr_, ft_,
-                        r.voi.hi[0] - r.voi.lo[0],
-                        r.voi.hi[1] - r.voi.lo[1], r.voi.hi[2] - r.voi.lo[2]);
-                double gf[2], gt[2];
-                grid_turn(&f, &m, &r.fitted, gf);
-                grid_turn(&f, &m, &truth, gt);
-                fprintf(stderr, "  grids: the moving grid turned %.2f deg about the long axis and %.2f across it"
-                        " from the fixed grid (the truth: %.2f, %.2f)\n", gf[0], gf[1], gt[0], gt[1]);
-                reduce_metric *me = reduce_metric_new(asm_, 1, &m, &r.voi, ro.count, ro.band_mm);
-                double ft = me ? reduce_metric_eval(me, &truth, NULL) : NAN;
-                fprintf(stderr, "  fitted metric %.6f\n", me ? reduce_metric_eval(me, &r.fitted, NULL) : NAN);
-                if (o->verbose > 1) { /* the same fit started at the truth: where the metric's own basin ends */
-                    reduce_result rt;
-                    m.pose = truth;
-                    if (reduce_pair(asm_, nasm, &m, &ro, &rt) == 0) {
-                        double tr_, tt_, ttre_;
-                        reduce_errors(&f, &m, &truth, &tr_, &tt_, &ttre_);
-                        fprintf(stderr, "  from the truth: %.3f deg %.3f mm, metric %.6f over its voi, %.6f over this fit's\n",
-                                tr_, tt_, rt.metric_end, me ? reduce_metric_eval(me, &rt.end, NULL) : NAN);
-                        reduce_result_free(&rt);
-                    }
-                    m.pose = keep;
-                }
-                reduce_metric_free(me);
-                fprintf(stderr, "seed %llu start %d %s/%s: %.3f deg %.3f mm tre %.3f, metric %.6f (truth %.6f),"
-                        " %d evals, %.3f s cpu, push %.2f\n", (unsigned long long)seed, s,
-                        reduce_method_name(ro.method), ro.count == REDUCE_NEAREST ? "nearest" : "trilinear",
-                        x->rot, x->trans, x->tre, r.metric_end, ft, r.evaluations, x->cpu_s, r.push_mm);
-                fprintf(stderr, "  end pose q %.17g %.17g %.17g %.17g t %.17g %.17g %.17g\n", r.end.q[0],
-                        r.end.q[1], r.end.q[2], r.end.q[3], r.end.t[0], r.end.t[1], r.end.t[2]);
-            }
+            if (o->verbose)
+                verbose_fit(&f, &m, asm_, nasm, &truth, &ro, &r, x, seed, s, o->verbose);
             reduce_result_free(&r);
         }
     }

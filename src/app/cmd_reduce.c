@@ -55,8 +55,10 @@ static void usage(FILE *out)
             "  --force                with -o: replace the case NEWCASE holds (with its journal)\n"
             "  --json                 one JSON object on stdout: command, case, method, fixed,\n"
             "                         fragments (id, iterations, evaluations, seconds, metric_start,\n"
-            "                         metric_end, push_mm, prealigned, voi_mm, and with ground truth\n"
-            "                         rot_err_deg, trans_err_mm, tre_mm), seconds\n"
+            "                         metric_end, push_mm, prealigned, voi_mm, single_answer and,\n"
+            "                         when false, candidates (q, t, metric: the fit's distinct\n"
+            "                         answers, as good within 0.002), and with ground truth\n"
+            "                         rot_err_deg, trans_err_mm, tre_mm), skipped, seconds\n"
             CMD_WAIT_HELP
             "  --help                 this text\n");
 }
@@ -214,6 +216,20 @@ static json_t *voi_json(const reduce_voi *v)
     return jsonw_exact_array(b, 6);
 }
 
+/* No single answer: the candidates, each a pose and its metric over the final VOI. */
+static json_t *candidates_json(const reduce_result *r)
+{
+    json_t *list = json_array();
+    for (int i = 0; list && i < r->ncandidates; i++) {
+        json_t *o = json_object();
+        jsonw_set(o, "q", jsonw_exact_array(r->candidate[i].pose.q, 4));
+        jsonw_set(o, "t", jsonw_exact_array(r->candidate[i].pose.t, 3));
+        jsonw_set(o, "metric", jsonw_exact(r->candidate[i].metric));
+        json_array_append_new(list, o);
+    }
+    return list;
+}
+
 static json_t *result_json(const planning_case *c, int fixed, const reduce_result *r)
 {
     json_t *o = json_object();
@@ -232,6 +248,8 @@ static json_t *result_json(const planning_case *c, int fixed, const reduce_resul
     jsonw_set(o, "metric_end", jsonw_exact(r->metric_end));
     jsonw_set(o, "push_mm", jsonw_measure(r->push_mm));
     jsonw_set(o, "collides", json_boolean(r->collides));
+    jsonw_set(o, "single_answer", json_boolean(!r->rival));
+    jsonw_set(o, "candidates", candidates_json(r));
     jsonw_set(o, "rot_err_deg", jsonw_measure(rot));
     jsonw_set(o, "trans_err_mm", jsonw_measure(trans));
     jsonw_set(o, "tre_mm", jsonw_measure(tre));
@@ -263,6 +281,9 @@ static int report(const planning_case *c, const args *A, int fixed, const reduce
                 printf("; error %.3f deg, %.3f mm, TRE %.3f mm", rot, trans, tre);
             if (r[i].collides)
                 printf("; no collision-free fit: left where it started");
+            if (r[i].rival)
+                printf("; no single answer wins: %d candidates in distinct basins (--json lists them)",
+                       r[i].ncandidates);
             printf("\n");
         }
         printf("saved %s\n", c->dir);

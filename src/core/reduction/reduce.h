@@ -162,6 +162,13 @@ void reduce_defaults(reduce_opts *o);
  * the smallest voxel spacing among them (the query takes tolerances below half a voxel). */
 double reduce_tolerance(const reduce_opts *o, const frag *const *f, int n);
 
+/* An answer of a fit that did not find a single one: a pose and its metric over the final VOI. */
+#define REDUCE_CANDIDATES_MAX 16
+typedef struct reduce_candidate {
+    pose pose;
+    double metric;
+} reduce_candidate;
+
 typedef struct reduce_result {
     int id;               /* the moving fragment's label */
     pose placed;          /* its pose before (as the user left it) */
@@ -178,7 +185,12 @@ typedef struct reduce_result {
     double metric_end;
     double push_mm;       /* how far the collision check pushed the result out (0: not at all) */
     int collides;         /* 1 only when no collision-free pose could be found (then end = start) */
-    int rival;            /* 1: a first-stage start ended in a rival basin (see reduce_opts.hops) */
+    int rival;            /* 1: a first-stage start ended in a rival basin (see reduce_opts.hops):
+                           * no single answer wins */
+    int ncandidates;      /* when rival: the best first-stage end, then every rival one (distinct
+                           * basins about as good), with their metrics over the final VOI; 0
+                           * otherwise (or when the fit failed) */
+    reduce_candidate candidate[REDUCE_CANDIDATES_MAX];
     int hops;             /* rounds of hops that gained (each moved the result) */
     double *history;      /* metric per iteration, nhistory values; malloc'd */
     int nhistory;

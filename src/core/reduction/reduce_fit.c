@@ -281,6 +281,8 @@ typedef struct fit_state {
     pose start_end[REDUCE_STARTS_SEEN];
     double start_cost[REDUCE_STARTS_SEEN];
     int nstart_ends;
+    int rival_of[REDUCE_STARTS_SEEN]; /* the best of them, then the rivals (indices) */
+    int nrival_of;
 } fit_state;
 
 static int stage_open(fit_state *s, const frag *const *asm_, int nasm, frag *moving, const reduce_opts *o,
@@ -576,17 +578,34 @@ static void stage_rivals(fit_state *s)
     for (int k = 1; k < s->nstart_ends; k++)
         if (s->start_cost[k] < s->start_cost[best])
             best = k;
-    s->r->rival = 0;
-    for (int k = 0; k < s->nstart_ends && !s->r->rival; k++)
+    s->nrival_of = 0;
+    for (int k = 0; k < s->nstart_ends; k++)
         if (k != best && s->start_cost[k] < s->start_cost[best] + T->rival_metric) {
             double a[3], c[3], d2 = 0;
             pose_apply(&s->start_end[k], s->moving->centroid, a);
             pose_apply(&s->start_end[best], s->moving->centroid, c);
             for (int i = 0; i < 3; i++)
                 d2 += (a[i] - c[i]) * (a[i] - c[i]);
-            s->r->rival = sqrt(d2) > T->rival_mm ||
-                          pose_angle_between(s->start_end[k], s->start_end[best]) * 180 / PI > T->rival_deg;
+            if (sqrt(d2) > T->rival_mm ||
+                pose_angle_between(s->start_end[k], s->start_end[best]) * 180 / PI > T->rival_deg) {
+                s->rival_of[0] = best;
+                s->rival_of[++s->nrival_of] = k;
+            }
         }
+    s->nrival_of += s->nrival_of > 0;
+    s->r->rival = s->nrival_of > 0;
+}
+
+/* With rivals, the candidates: the best first-stage end and the rival ones, each with its metric
+ * over the final VOI (beside metric_end). */
+static void keep_candidates(fit_state *s)
+{
+    reduce_result *r = s->r;
+    r->ncandidates = s->nrival_of;
+    for (int i = 0; i < s->nrival_of; i++) {
+        r->candidate[i].pose = s->start_end[s->rival_of[i]];
+        r->candidate[i].metric = reduce_metric_eval(s->metric, &r->candidate[i].pose, NULL);
+    }
 }
 
 /* One round of hops from cur (cost fcur): the fit again from cur turned hop_deg either way about
@@ -683,6 +702,7 @@ static int stage_finish(fit_state *s, int rc)
     }
     if (rc == 0) {
         s->moving->pose = r->end;
+        keep_candidates(s);
         r->evaluations = s->obj.evals;
         r->eval_cpu_s = (double)s->obj.eval_ns * 1e-9;
         r->history = s->obj.hist;

@@ -78,7 +78,7 @@ int reduce__coarse_frag(const frag *f, frag *c);
 /* ---- the tuning table ------------------------------------------------------------------------ */
 
 /* The first stage's ends looked at for rival basins (the size of an array; part of the table). */
-#define REDUCE_STARTS_SEEN 16
+#define REDUCE_STARTS_SEEN REDUCE_CANDIDATES_MAX
 
 /* Every number the reduction's stages are tuned by, in one place (reduce.c holds the values, with
  * the measurement that chose each where one did). What a user may set is in reduce_opts instead. */

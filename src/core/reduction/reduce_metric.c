@@ -37,14 +37,25 @@ int reduce_voi_cells(const frag *grid, const reduce_voi *voi, int c0[3], int c1[
     return 0;
 }
 
-/* The assembly's bone at world point w: 1 when some fragment has a bone voxel nearest to it. */
-static int bone_at(const frag *const *asm_, int nasm, const double w[3])
+/* Each assembly fragment's world -> crop mm pose, for bone_at: malloc'd, NULL with fn_err. */
+static pose *crop_poses(const frag *const *asm_, int nasm)
+{
+    pose *inv = malloc((size_t)nasm * sizeof *inv);
+    if (!inv)
+        fn_err_set(FN_ENOMEM, "reduce metric: out of memory");
+    for (int f = 0; inv && f < nasm; f++)
+        inv[f] = pose_inverse(pose_compose(asm_[f]->pose, asm_[f]->home));
+    return inv;
+}
+
+/* The assembly's bone at world point w: 1 when some fragment has a bone voxel nearest to it (inv:
+ * their crop_poses). */
+static int bone_at(const frag *const *asm_, int nasm, const pose *inv, const double w[3])
 {
     for (int f = 0; f < nasm; f++) {
         const frag *g = asm_[f];
-        pose inv = pose_inverse(pose_compose(g->pose, g->home));
         double l[3];
-        pose_apply(&inv, w, l);
+        pose_apply(&inv[f], w, l);
         int idx[3], in = 1;
         for (int a = 0; a < 3 && in; a++) {
             idx[a] = (int)floor(l[a] / g->spacing[a] + 0.5);
@@ -58,7 +69,7 @@ static int bone_at(const frag *const *asm_, int nasm, const double w[3])
 
 /* Bone of the VOI cell (i, j, k) (0-based in the VOI): the grid fragment's own voxel when it has
  * one there, else the others sampled. */
-static int cell_bone(const frag *const *asm_, int nasm, const int c0[3], int i, int j, int k)
+static int cell_bone(const frag *const *asm_, int nasm, const pose *inv, const int c0[3], int i, int j, int k)
 {
     const frag *g = asm_[0];
     int l[3] = {c0[0] + i, c0[1] + j, c0[2] + k};
@@ -70,7 +81,7 @@ static int cell_bone(const frag *const *asm_, int nasm, const int c0[3], int i, 
     double h[3], w[3], x[3] = {l[0] * g->spacing[0], l[1] * g->spacing[1], l[2] * g->spacing[2]};
     pose_apply(&g->home, x, h);
     pose_apply(&g->pose, h, w);
-    return bone_at(asm_ + 1, nasm - 1, w);
+    return bone_at(asm_ + 1, nasm - 1, inv + 1, w);
 }
 
 void reduce__bricks_free(reduce_bricks *b)
@@ -305,10 +316,12 @@ reduce_metric *reduce__metric_with(const frag *const *asm_, int nasm, const frag
     size_t nv = (size_t)m->d[0] * m->d[1] * m->d[2];
     m->cell = calloc((size_t)m->D[0] * m->D[1] * m->D[2], sizeof *m->cell);
     uint8_t *bone = calloc(nv, 1), *in = malloc(nv);
-    if (!m->cell || !bone || !in) {
+    pose *inv = crop_poses(asm_, nasm);
+    if (!m->cell || !bone || !in || !inv) {
         fn_err_set(FN_ENOMEM, "reduce metric: out of memory for a %dx%dx%d VOI", m->d[0], m->d[1], m->d[2]);
         free(bone);
         free(in);
+        free(inv);
         reduce_metric_free(m);
         return NULL;
     }
@@ -317,10 +330,11 @@ reduce_metric *reduce__metric_with(const frag *const *asm_, int nasm, const frag
     for (int k = 0; k < m->d[2]; k++)
         for (int j = 0; j < m->d[1]; j++)
             for (int i = 0; i < m->d[0]; i++, idx++)
-                if ((bone[idx] = (uint8_t)cell_bone(asm_, nasm, m->c0, i, j, k))) {
+                if ((bone[idx] = (uint8_t)cell_bone(asm_, nasm, inv, m->c0, i, j, k))) {
                     m->n1 += 1;
                     sum[0] += i, sum[1] += j, sum[2] += k;
                 }
+    free(inv);
     if (gap_mm > 0) { /* the gap left where bone was lost counts as the assembly's */
         uint8_t *gb = malloc(nv);
         if (!gb) {
@@ -566,8 +580,8 @@ void reduce_metric_spread(const reduce_metric *m, const pose *p, const double c[
 }
 
 /* Brute force's band: a bone cell within k cells on every axis, looked for cell by cell. */
-static int in_band(const frag *const *asm_, int nasm, const int c0[3], const int d[3], const int k[3], int i, int j,
-                   int l)
+static int in_band(const frag *const *asm_, int nasm, const pose *inv, const int c0[3], const int d[3], const int k[3],
+                   int i, int j, int l)
 {
     if (k[0] < 0)
         return 1;
@@ -575,7 +589,7 @@ static int in_band(const frag *const *asm_, int nasm, const int c0[3], const int
         for (int y = j - k[1]; y <= j + k[1]; y++)
             for (int x = i - k[0]; x <= i + k[0]; x++)
                 if (x >= 0 && y >= 0 && z >= 0 && x < d[0] && y < d[1] && z < d[2] &&
-                    cell_bone(asm_, nasm, c0, x, y, z))
+                    cell_bone(asm_, nasm, inv, c0, x, y, z))
                     return 1;
     return 0;
 }
@@ -589,14 +603,17 @@ double reduce_metric_brute(const frag *const *asm_, int nasm, const frag *moving
         return NAN;
     for (int a = 0; a < 3; a++)
         d[a] = c1[a] - c0[a] + 1;
+    pose *inv = crop_poses(asm_, nasm);
+    if (!inv)
+        return NAN;
     double n1 = 0, n2 = 0, ni = 0, nvoi = 0;
     int kb[3];
     band_cells(g->spacing, band_mm, kb);
     for (int k = 0; k < d[2]; k++)
         for (int j = 0; j < d[1]; j++)
             for (int i = 0; i < d[0]; i++) {
-                n1 += cell_bone(asm_, nasm, c0, i, j, k);
-                nvoi += in_band(asm_, nasm, c0, d, kb, i, j, k);
+                n1 += cell_bone(asm_, nasm, inv, c0, i, j, k);
+                nvoi += in_band(asm_, nasm, inv, c0, d, kb, i, j, k);
             }
     pose ginv_pose = pose_inverse(g->pose), ginv_home = pose_inverse(g->home);
     for (int k = 0; k < moving->dim[2]; k++)
@@ -618,9 +635,9 @@ double reduce_metric_brute(const frag *const *asm_, int nasm, const frag *moving
                         c[a] = (int)floor(x[a] + 0.5);
                         in &= c[a] >= 0 && c[a] < d[a];
                     }
-                    if (in && in_band(asm_, nasm, c0, d, kb, c[0], c[1], c[2])) {
+                    if (in && in_band(asm_, nasm, inv, c0, d, kb, c[0], c[1], c[2])) {
                         n2 += 1;
-                        ni += cell_bone(asm_, nasm, c0, c[0], c[1], c[2]);
+                        ni += cell_bone(asm_, nasm, inv, c0, c[0], c[1], c[2]);
                     }
                     continue;
                 }
@@ -636,12 +653,13 @@ double reduce_metric_brute(const frag *const *asm_, int nasm, const frag *moving
                         wgt *= corner >> a & 1 ? x[a] - b[a] : 1 - (x[a] - b[a]);
                         in &= c[a] >= 0 && c[a] < d[a];
                     }
-                    if (!in || !in_band(asm_, nasm, c0, d, kb, c[0], c[1], c[2]))
+                    if (!in || !in_band(asm_, nasm, inv, c0, d, kb, c[0], c[1], c[2]))
                         continue;
                     n2 += wgt;
-                    ni += wgt * cell_bone(asm_, nasm, c0, c[0], c[1], c[2]);
+                    ni += wgt * cell_bone(asm_, nasm, inv, c0, c[0], c[1], c[2]);
                 }
             }
+    free(inv);
     double w = moving->spacing[0] * moving->spacing[1] * moving->spacing[2] /
                (g->spacing[0] * g->spacing[1] * g->spacing[2]);
     reduce_counts c = {n1, n2 * w, ni * w, nvoi};

@@ -68,6 +68,10 @@ static void merge_sweep(reduce_result *r, reduce_result *r2)
     r->push_mm += r2->push_mm;
     r->collides = r2->collides;
     r->rival |= r2->rival;
+    if (r2->ncandidates) { /* the last fit's answers */
+        r->ncandidates = r2->ncandidates;
+        memcpy(r->candidate, r2->candidate, sizeof r->candidate);
+    }
     r->hops += r2->hops;
     reduce_result_free(r2);
 }
