@@ -545,19 +545,23 @@ static void test_cli_whole_bone(void **st)
     free(dir);
 }
 
-/* A bone-only CT (0 outside) of two blocks 2..41 and 43..81 along x (20 x 20 mm across, a cortex of
- * 900 HU around 60-70 HU) broken apart by a 1 mm gap at x = 42 but where they touch over 4 x 4 mm;
- * whole: no gap. */
-static vol *broken_blocks(int whole)
+/* A bone-only CT (0 outside): a bar 2..81 along x, 20 x 20 mm across, a cortex of 900 HU around
+ * 60-70 HU, broken by `gaps` 1 mm gaps (none; at x = 42; at x = 28 and 56) but where the pieces
+ * touch over 4 x 4 mm, each piece's cortex closed at the gap. */
+static vol *broken_blocks(int gaps)
 {
+    const int at[3][2] = {{-9, -9}, {42, -9}, {28, 56}};
     vol *v = vol_new(84, 30, 30); /* most of it 0: a CT that holds only the bone */
     for (int k = 2; k < 22; k++)
         for (int j = 2; j < 22; j++)
             for (int i = 2; i < 82; i++) {
-                int contact = j >= 10 && j < 14 && k >= 10 && k < 14;
-                int rim = i < 4 || j < 4 || k < 4 || j >= 20 || k >= 20 || i >= 80 ||
-                          (!whole && (i == 40 || i == 41 || i == 43 || i == 44));
-                if (i == 42 && !contact && !whole)
+                int contact = j >= 10 && j < 14 && k >= 10 && k < 14, near = 0, gap = 0;
+                for (int g = 0; g < 2; g++) {
+                    gap |= i == at[gaps][g];
+                    near |= abs(i - at[gaps][g]) <= 2;
+                }
+                int rim = i < 4 || j < 4 || k < 4 || j >= 20 || k >= 20 || i >= 80 || (near && !gap);
+                if (gap && !contact)
                     continue; /* the fracture gap */
                 v->data[vol_idx(v, i, j, k)] = rim && !contact ? 900 : 60 + (i < 42 ? 0 : 10);
             }
@@ -572,7 +576,7 @@ static void test_cli_separate(void **st)
     char *dir = tu_tmpdir("seg-separate"), ct[4300], out_dir[4300], *out = NULL;
     snprintf(ct, sizeof ct, "%s/bone.nii.gz", dir);
     snprintf(out_dir, sizeof out_dir, "%s/case", dir);
-    vol *v = broken_blocks(0);
+    vol *v = broken_blocks(1);
     assert_int_equal(volio_write(v, ct, VOL_I16), 0);
     vol_free(v);
     static const char *const how[2] = {"--seeds 20 12 12 60 12 12", ""};
@@ -598,11 +602,19 @@ static void test_cli_separate(void **st)
     free(out);
     assert_int_equal(tu_run_cli(&out, "segment '%s' -o '%s' --seeds 1 2 3", ct, out_dir), 2);
     free(out);
-    v = broken_blocks(1);
+    v = broken_blocks(0);
     assert_int_equal(volio_write(v, ct, VOL_I16), 0);
     vol_free(v);
     rc = tu_run_cli(&out, "segment '%s' -o '%s' --force --min-volume 0 --separate --json", ct, out_dir);
     if (rc != 0 || !strstr(out, "\"separated_fragments\": 0"))
+        fail_msg("rc %d: %s", rc, out);
+    free(out);
+    /* two breaks: the split is tried again on each piece it made */
+    v = broken_blocks(2);
+    assert_int_equal(volio_write(v, ct, VOL_I16), 0);
+    vol_free(v);
+    rc = tu_run_cli(&out, "segment '%s' -o '%s' --force --min-volume 0 --separate --json", ct, out_dir);
+    if (rc != 0 || !strstr(out, "\"separated_fragments\": 2"))
         fail_msg("rc %d: %s", rc, out);
     free(out);
     tu_rmtree(dir);
@@ -614,7 +626,7 @@ static void test_cli_separate(void **st)
 static void test_cli_bench_separate(void **st)
 {
     char *dir = tu_tmpdir("bench-separate"), path[4300], *out = NULL;
-    vol *v = broken_blocks(0), *mask = vol_new(v->dim[0], v->dim[1], v->dim[2]);
+    vol *v = broken_blocks(1), *mask = vol_new(v->dim[0], v->dim[1], v->dim[2]);
     for (int k = 0; k < v->dim[2]; k++)
         for (int j = 0; j < v->dim[1]; j++)
             for (int i = 0; i < v->dim[0]; i++)

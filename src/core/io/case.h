@@ -170,7 +170,8 @@ int case_separate_seeds(planning_case *c, int id, const case_seed *seeds, int n,
  * whole), or FN_E*. */
 int case_separate_auto(planning_case *c, int id, int *new_ids);
 
-/* Separates every fragment automatically (case_separate_auto; seeds NULL, n 0), or from seeds:
+/* Separates every fragment automatically (case_separate_auto, again on each piece it makes until
+ * none splits; seeds NULL, n 0), or from seeds:
  * each seed goes to the fragment it lies in (one on no fragment to the largest), and each
  * fragment with seeds is separated from them (case_separate_seeds). Returns the new fragments
  * made, or FN_E* (a seed's error names the point). */

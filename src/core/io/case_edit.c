@@ -615,6 +615,25 @@ int case_seeds_parse(const char *text, const char *name, case_seed **out)
     return n;
 }
 
+/* case_separate_auto on fragment id, then on each of its pieces, until none splits. Returns the
+ * new fragments made. */
+static int separate_auto_all(planning_case *c, int id)
+{
+    int todo[GROW_MAX_LABEL], ntodo = 0, made = 0, news[2];
+    todo[ntodo++] = id;
+    while (ntodo > 0) {
+        int at = todo[--ntodo], rc = case_separate_auto(c, at, news);
+        if (rc < 0)
+            return rc;
+        for (int i = 0; i < rc && ntodo + 2 <= GROW_MAX_LABEL; i++) {
+            todo[ntodo++] = at;
+            todo[ntodo++] = news[i];
+        }
+        made += rc;
+    }
+    return made;
+}
+
 int case_separate_all(planning_case *c, const case_seed *seeds, int n)
 {
     int made = 0, nfrag = c->nfrag, *ids = malloc(((size_t)nfrag + 1) * sizeof *ids), news[GROW_MAX_LABEL];
@@ -646,7 +665,7 @@ int case_separate_all(planning_case *c, const case_seed *seeds, int n)
                 group[m++] = seeds[s];
         }
         if (n == 0)
-            rc = case_separate_auto(c, ids[f], news);
+            rc = separate_auto_all(c, ids[f]);
         else if (m > 0)
             rc = case_separate_seeds(c, ids[f], group, m, news);
         made += rc > 0 ? rc : 0;

@@ -165,7 +165,11 @@ int split_auto(const float *values, const uint8_t *domain, const int dim[3], con
         if (rc == 0)
             region_graph(domain, grow_labels(g), dim, sp, stride, facing, contact);
         size_t c = contact[1 * stride + 2], f = facing[1 * stride + 2] + facing[2 * stride + 1];
-        pieces = rc == 0 && f > c ? 2 : 1;
+        size_t half[3] = {0, 0, 0};
+        for (size_t v = 0; rc == 0 && v < n; v++)
+            half[grow_labels(g)[v]]++;
+        double small_ml = (double)(half[1] < half[2] ? half[1] : half[2]) * sp[0] * sp[1] * sp[2] / 1000;
+        pieces = rc == 0 && f > c && small_ml >= SPLIT_MIN_ML ? 2 : 1;
     }
     for (size_t v = 0; v < n && rc == 0; v++)
         lab[v] = !domain[v] ? 0 : pieces == 2 ? grow_labels(g)[v] : 1;

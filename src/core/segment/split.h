@@ -10,7 +10,8 @@
  *    where they touch;
  * 3. the pairs that face most for their contact (SPLIT_TRIES of them, at least SPLIT_FACING_MIN)
  *    are tried in turn: the bone is grown again from those two seeds alone, and the two halves
- *    are the fragments when they face each other across the gap more than they touch.
+ *    are the fragments when they face each other across the gap more than they touch, and the
+ *    smaller holds SPLIT_MIN_ML of bone or more.
  * An intact bone's halves touch over their whole cross-section and face little: it stays whole.
  * One split into two per call.
  *
@@ -27,6 +28,8 @@
 #define SPLIT_GAP_MM 5.0    /* a gap between fragments is at most this wide */
 #define SPLIT_FACING_MIN 0.25 /* pairs of regions facing less (for their contact) are not tried */
 #define SPLIT_TRIES 3       /* pairs tried as halves, best first */
+#define SPLIT_MIN_ML 2.0    /* the smaller half holds at least this much bone, so the contact's
+                             * crumbs never come off as fragments */
 
 /* Splits the domain (non-zero voxels) of the box into fragments: lab gets 1..n per voxel of the
  * domain, 0 elsewhere. Returns n (1: whole), or FN_ENOMEM. */
