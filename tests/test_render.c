@@ -13,6 +13,7 @@
 
 #include "err.h"
 #include "frag.h"
+#include "mesh.h"
 #include "render.h"
 #include "picture.h"
 #include "testutil.h"
@@ -156,6 +157,23 @@ static void test_every_mode_draws_and_matches(void **st)
             fail_msg("mode %s drew %ld pixels of content", render_mode_name((render_mode)m), n);
         check_golden(s->rgb, render_mode_name((render_mode)m));
     }
+}
+
+/* Software GL pays per triangle: the surface meshes hold at most 30% of the triangles of the
+ * closed marching-tetrahedra surface of the same bone (mesh_extract over the whole CT; the ball
+ * and the box are apart, so each crop holds the same surface), and the picture stays the
+ * reference's (test_every_mode_draws_and_matches). */
+static void test_surface_meshes_are_decimated(void **st)
+{
+    scene *s = *st;
+    const int dim[3] = {N, N, N};
+    const double sp[3] = {1, 1, 1};
+    mesh m;
+    assert_int_equal(mesh_extract(s->ct->data, dim, sp, 300.0f, &m), 0);
+    long full = m.nt, drawn = render_surface_triangles(s->r);
+    mesh_free(&m);
+    if (drawn <= 0 || drawn > 0.3 * (double)full)
+        fail_msg("the surface meshes hold %ld triangles; the full surface has %ld", drawn, full);
 }
 
 static void test_four_up_with_overlays_matches(void **st)
@@ -1070,6 +1088,7 @@ int main(void)
         cmocka_unit_test(test_gl_version_parse),
         cmocka_unit_test(test_old_gl_is_refused_with_its_version),
         cmocka_unit_test_setup_teardown(test_every_mode_draws_and_matches, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_surface_meshes_are_decimated, setup, teardown),
         cmocka_unit_test_setup_teardown(test_four_up_with_overlays_matches, setup, teardown),
         cmocka_unit_test_setup_teardown(test_four_up_pixel_to_world, setup, teardown),
         cmocka_unit_test_setup_teardown(test_cutaway_shows_the_piece_in_hand, setup, teardown),

@@ -13,7 +13,8 @@
  *    per-fragment occupancy grid of 4^3-voxel blocks. Rays step through all fragments together in
  *    world space, so interpenetrating fragments show where each is in front;
  *  - surface: per-fragment triangle meshes (marching tetrahedra over the masked CT at the iso level,
- *    built once at render_set_scene, moved by the pose), rasterized with depth;
+ *    decimated to a quarter of their triangles, normals from the CT's gradient; built once at
+ *    render_set_scene, moved by the pose), rasterized with depth;
  *  - slice views (axial, coronal, sagittal through a point): the CT in grey, every fragment's
  *    outline (and a light fill) at its current pose in its colour; with the 3D view they make the
  *    four-up layout (render_four_up_panes: the 3D view large on top, the three slices below);

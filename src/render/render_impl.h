@@ -88,6 +88,7 @@ typedef struct render_frag {
 #define RENDER_OUTSIDE_MARGIN 100.0   /* outside the label: at most iso - this */
 #define RENDER_BLOCK 4
 #define RENDER_PROXY_BLOCKS 1 /* a raycaster's brick is this many blocks along each axis */
+#define RENDER_MESH_KEEP 0.25/* the share of a surface mesh's triangles kept by decimation */
 
 struct render {
     const render_platform *plat;
