@@ -25,7 +25,7 @@
 static void usage(FILE *out)
 {
     fprintf(out, "usage: fracnav bench render [--json] [--frames N] [--size WxH] [--ct FILE]\n"
-                 "                            [--platform osmesa|glfw] [--loop-s S] [--mode M]\n\n"
+                 "                            [--platform P] [--loop-s S] [--mode M]\n\n"
                  "Frame time of every mode (iso, dvr, mip, surface) for 1 and 3 fragments of a\n"
                  "three-piece synthetic fracture (seed 1) of the example CT, each frame with the\n"
                  "fragments turned a little further, read back to memory.\n\n"
@@ -48,7 +48,8 @@ static void usage(FILE *out)
                  "  --frames N     timed frames per case after one warm-up frame (default 10)\n"
                  "  --size WxH     pixels (default 512x512)\n"
                  "  --ct FILE      the CT to fracture (default %s)\n"
-                 "  --platform P   osmesa (default) or glfw\n"
+                 "  --platform P   offscreen (default: egl on a GPU, else osmesa), osmesa, egl\n"
+                 "                 or glfw\n"
                  "  --loop-s S     seconds of each loop phase (default 3)\n"
                  "  --mode M       time only mode M (iso, dvr, mip or surface)\n",
             cmd_example_ct());
@@ -455,7 +456,7 @@ int bench_render(int argc, char **argv)
     }
     int json = 0, w = 512, h = 512;
     double frames = 10, loop_s = 3;
-    const char *ct = cmd_example_ct(), *platform = "osmesa";
+    const char *ct = cmd_example_ct(), *platform = "offscreen";
     render_mode mode = RENDER_ISO;
     int only = -1;
     for (int i = 1; i < argc; i++) {
@@ -480,8 +481,9 @@ int bench_render(int argc, char **argv)
             if (!cmd_number(val, &loop_s) || !(loop_s >= 0.1) || loop_s > 3600)
                 return cmd_bad_value("bench render", a, val, "seconds from 0.1 to 3600");
         } else if (!strcmp(a, "--platform")) {
-            if (!val || (strcmp(val, "osmesa") && strcmp(val, "glfw")))
-                return cmd_bad_value("bench render", a, val, "osmesa or glfw");
+            if (!val || (strcmp(val, "offscreen") && strcmp(val, "osmesa") && strcmp(val, "egl") &&
+                         strcmp(val, "glfw")))
+                return cmd_bad_value("bench render", a, val, "offscreen, osmesa, egl or glfw");
             platform = val;
         } else if (!strcmp(a, "--mode")) {
             if (render_mode_parse(val, &mode))

@@ -140,10 +140,14 @@ static const render_platform *pick_platform(const char *name)
 {
     if (!name) {
         const char *d = getenv("DISPLAY");
-        name = d && *d && render__glfw.available ? "glfw" : "osmesa";
+        name = d && *d && render__glfw.available ? "glfw" : "offscreen";
     }
+    if (!strcmp(name, "offscreen"))
+        name = render__egl_gpu() ? "egl" : "osmesa";
     if (!strcmp(name, "osmesa"))
         return &render__osmesa;
+    if (!strcmp(name, "egl"))
+        return &render__egl;
     if (!strcmp(name, "glfw"))
         return &render__glfw;
     return NULL;
@@ -157,7 +161,7 @@ render *render_open(const char *platform, int w, int h)
     }
     const render_platform *p = pick_platform(platform);
     if (!p) {
-        fn_err_set(FN_EINVAL, "render: unknown platform '%s' (osmesa or glfw)", platform);
+        fn_err_set(FN_EINVAL, "render: unknown platform '%s' (offscreen, osmesa, egl or glfw)", platform);
         return NULL;
     }
     render *r = calloc(1, sizeof *r);

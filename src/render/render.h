@@ -81,9 +81,11 @@ typedef struct render_options {
     double voi[RENDER_MAX_FRAGS][6];
 } render_options;
 
-/* Opens a GL 4.5 core context of w x h pixels. platform: "osmesa" (offscreen), "glfw" (a window;
- * needs a display and a build with GLFW) or NULL (glfw when $DISPLAY is set and GLFW was built in,
- * else osmesa). A GL older than 4.5 is FN_ENODEV with a message naming the version found and what
+/* Opens a GL 4.5 core context of w x h pixels. platform: "osmesa" (offscreen, llvmpipe), "egl"
+ * (offscreen on a GPU's EGL device, no display needed; FN_ENODEV where there is none),
+ * "offscreen" (egl where a GPU's EGL device is there, else osmesa), "glfw" (a window; needs a
+ * display and a build with GLFW) or NULL (glfw when $DISPLAY is set and GLFW was built in, else
+ * offscreen). A GL older than 4.5 is FN_ENODEV with a message naming the version found and what
  * to install. NULL with fn_err on failure. */
 render *render_open(const char *platform, int w, int h);
 void render_close(render *r);

@@ -65,6 +65,9 @@ typedef struct render_platform {
 
 extern const render_platform render__osmesa;
 extern const render_platform render__glfw; /* not available when built without GLFW */
+extern const render_platform render__egl;  /* a GPU's EGL device, headless */
+/* Whether a GPU's EGL device is there (libEGL loads and lists a device that is not software). */
+int render__egl_gpu(void);
 
 /* GPU resources of one fragment. */
 typedef struct render_frag {
