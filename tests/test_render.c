@@ -13,6 +13,7 @@
 
 #include "err.h"
 #include "frag.h"
+#include "mesh.h"
 #include "render.h"
 #include "picture.h"
 #include "testutil.h"
@@ -156,6 +157,45 @@ static void test_every_mode_draws_and_matches(void **st)
             fail_msg("mode %s drew %ld pixels of content", render_mode_name((render_mode)m), n);
         check_golden(s->rgb, render_mode_name((render_mode)m));
     }
+}
+
+/* The headless GPU path: "egl" opens on a GPU's EGL device or is refused naming EGL (FN_ENODEV:
+ * no GPU here, where this test was written: only that fallback has been seen), and "offscreen"
+ * then falls back to OSMesa's llvmpipe; on a GPU it is not llvmpipe. */
+static void test_offscreen_takes_egl_or_falls_back_to_osmesa(void **st)
+{
+    (void)st;
+    render *egl = render_open("egl", 32, 32);
+    char why[512];
+    snprintf(why, sizeof why, "%s", egl ? "" : fn_err_msg());
+    int gpu = egl != NULL;
+    if (!gpu && !strstr(why, "egl"))
+        fail_msg("render_open(egl) failed without naming EGL: %s", why);
+    render_close(egl);
+    render *r = render_open("offscreen", 32, 32);
+    if (!r)
+        fail_msg("render_open(offscreen): %s", fn_err_msg());
+    int llvmpipe = strstr(render_gl_renderer(r), "llvmpipe") != NULL;
+    print_message("offscreen: %s (egl: %s)\n", render_gl_renderer(r), gpu ? "a GPU" : why);
+    assert_int_equal(llvmpipe, !gpu);
+    render_close(r);
+}
+
+/* Software GL pays per triangle: the surface meshes hold at most 30% of the triangles of the
+ * closed marching-tetrahedra surface of the same bone (mesh_extract over the whole CT; the ball
+ * and the box are apart, so each crop holds the same surface), and the picture stays the
+ * reference's (test_every_mode_draws_and_matches). */
+static void test_surface_meshes_are_decimated(void **st)
+{
+    scene *s = *st;
+    const int dim[3] = {N, N, N};
+    const double sp[3] = {1, 1, 1};
+    mesh m;
+    assert_int_equal(mesh_extract(s->ct->data, dim, sp, 300.0f, &m), 0);
+    long full = m.nt, drawn = render_surface_triangles(s->r);
+    mesh_free(&m);
+    if (drawn <= 0 || drawn > 0.3 * (double)full)
+        fail_msg("the surface meshes hold %ld triangles; the full surface has %ld", drawn, full);
 }
 
 static void test_four_up_with_overlays_matches(void **st)
@@ -1069,7 +1109,9 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_gl_version_parse),
         cmocka_unit_test(test_old_gl_is_refused_with_its_version),
+        cmocka_unit_test(test_offscreen_takes_egl_or_falls_back_to_osmesa),
         cmocka_unit_test_setup_teardown(test_every_mode_draws_and_matches, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_surface_meshes_are_decimated, setup, teardown),
         cmocka_unit_test_setup_teardown(test_four_up_with_overlays_matches, setup, teardown),
         cmocka_unit_test_setup_teardown(test_four_up_pixel_to_world, setup, teardown),
         cmocka_unit_test_setup_teardown(test_cutaway_shows_the_piece_in_hand, setup, teardown),

@@ -25,7 +25,7 @@
 static void usage(FILE *out)
 {
     fprintf(out, "usage: fracnav bench render [--json] [--frames N] [--size WxH] [--ct FILE]\n"
-                 "                            [--platform osmesa|glfw] [--loop-s S]\n\n"
+                 "                            [--platform P] [--loop-s S] [--mode M]\n\n"
                  "Frame time of every mode (iso, dvr, mip, surface) for 1 and 3 fragments of a\n"
                  "three-piece synthetic fracture (seed 1) of the example CT, each frame with the\n"
                  "fragments turned a little further, read back to memory.\n\n"
@@ -48,8 +48,10 @@ static void usage(FILE *out)
                  "  --frames N     timed frames per case after one warm-up frame (default 10)\n"
                  "  --size WxH     pixels (default 512x512)\n"
                  "  --ct FILE      the CT to fracture (default %s)\n"
-                 "  --platform P   osmesa (default) or glfw\n"
-                 "  --loop-s S     seconds of each loop phase (default 3)\n",
+                 "  --platform P   offscreen (default: egl on a GPU, else osmesa), osmesa, egl\n"
+                 "                 or glfw\n"
+                 "  --loop-s S     seconds of each loop phase (default 3)\n"
+                 "  --mode M       time only mode M (iso, dvr, mip or surface)\n",
             cmd_example_ct());
 }
 
@@ -392,7 +394,9 @@ static int time_case(render *r, const frag *f, int nfrag, render_mode mode, int 
     return rc;
 }
 
-static int run(const char *ct_path, const char *platform, int w, int h, int frames, int json, double loop_s)
+/* only: the one mode timed, or -1 for every mode. */
+static int run(const char *ct_path, const char *platform, int w, int h, int frames, int json, double loop_s,
+               int only)
 {
     vol *ct = volio_read(ct_path);
     if (!ct)
@@ -414,7 +418,8 @@ static int run(const char *ct_path, const char *platform, int w, int h, int fram
         rc = render_set_scene(r, ct, f, counts[c], 300.0, NULL);
         triangles = render_surface_triangles(r);
         for (int m = RENDER_ISO; m <= RENDER_SURFACE && !rc; m++)
-            rc = time_case(r, f, counts[c], (render_mode)m, frames, w, h, rgb, results);
+            if (only < 0 || m == only)
+                rc = time_case(r, f, counts[c], (render_mode)m, frames, w, h, rgb, results);
     }
     if (!rc) {
         jsonw_set(o, "gl_renderer", jsonw_string(render_gl_renderer(r)));
@@ -451,7 +456,9 @@ int bench_render(int argc, char **argv)
     }
     int json = 0, w = 512, h = 512;
     double frames = 10, loop_s = 3;
-    const char *ct = cmd_example_ct(), *platform = "osmesa";
+    const char *ct = cmd_example_ct(), *platform = "offscreen";
+    render_mode mode = RENDER_ISO;
+    int only = -1;
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i], *val = i + 1 < argc ? argv[i + 1] : NULL;
         char tail;
@@ -474,14 +481,19 @@ int bench_render(int argc, char **argv)
             if (!cmd_number(val, &loop_s) || !(loop_s >= 0.1) || loop_s > 3600)
                 return cmd_bad_value("bench render", a, val, "seconds from 0.1 to 3600");
         } else if (!strcmp(a, "--platform")) {
-            if (!val || (strcmp(val, "osmesa") && strcmp(val, "glfw")))
-                return cmd_bad_value("bench render", a, val, "osmesa or glfw");
+            if (!val || (strcmp(val, "offscreen") && strcmp(val, "osmesa") && strcmp(val, "egl") &&
+                         strcmp(val, "glfw")))
+                return cmd_bad_value("bench render", a, val, "offscreen, osmesa, egl or glfw");
             platform = val;
+        } else if (!strcmp(a, "--mode")) {
+            if (render_mode_parse(val, &mode))
+                return cmd_bad_value("bench render", a, val, "iso, dvr, mip or surface");
+            only = (int)mode;
         } else
             return cmd_usage_error("bench render", "unknown option '%s'", a);
         i++;
     }
-    int rc = run(ct, platform, w, h, (int)frames, json, loop_s);
+    int rc = run(ct, platform, w, h, (int)frames, json, loop_s, only);
     if (rc) {
         fprintf(stderr, "fracnav bench render: %s\n", fn_err_msg());
         return 1;

@@ -16,10 +16,11 @@ static void usage(FILE *out)
     fprintf(out,
             "usage: fracnav render CASE -o FILE.png [--mode iso|dvr|mip|surface] [--size WxH]\n"
             "                      [--view VIEW] [--layout 3d|four-up] [--overlay LIST]\n"
-            "                      [--point X,Y,Z] [--fragment ID] [--platform osmesa|glfw]\n"
+            "                      [--point X,Y,Z] [--fragment ID] [--platform P]\n"
             "                      [--json] [--recover] [--wait]\n\n"
-            "Draw a case's fragments at their current poses with OpenGL 4.5 core: offscreen through\n"
-            "OSMesa (llvmpipe) unless --platform glfw asks for a window. Each fragment is its CT\n"
+            "Draw a case's fragments at their current poses with OpenGL 4.5 core: offscreen (on a\n"
+            "GPU through EGL, else OSMesa's llvmpipe) unless --platform glfw asks for a window.\n"
+            "Each fragment is its CT\n"
             "crop masked by its label, in its colour.\n\n"
             "  -o FILE.png       where the picture goes (written atomically)\n"
             "  --mode M          iso: the bone surface (first hit at the case's threshold, shaded);\n"
@@ -43,7 +44,9 @@ static void usage(FILE *out)
             "                    error when fracnav reduce has not run)\n"
             "  --point X,Y,Z     where the slices cut, LPS mm (default: the first fragment's\n"
             "                    centroid at its pose)\n"
-            "  --platform P      osmesa (default) or glfw (needs a display)\n"
+            "  --platform P      offscreen (default: egl on a GPU's EGL device where there is\n"
+            "                    one, else osmesa), osmesa (llvmpipe), egl, or glfw (needs a\n"
+            "                    display)\n"
             "  --json            print {\"command\": \"render\", \"view\", \"fragments\": [{\"id\",\n"
             "                    \"projected_pixels\", \"visible_pixels\"}]}: the pixels each fragment\n"
             "                    covers drawn alone, and those where it is in front (as meshes)\n"
@@ -122,8 +125,9 @@ static int parse_args(int argc, char **argv, render_args *a)
                 return cmd_bad_value("render", opt, val, "X,Y,Z in mm");
             a->have_point = 1;
         } else if (!strcmp(opt, "--platform")) {
-            if (!val || (strcmp(val, "osmesa") && strcmp(val, "glfw")))
-                return cmd_bad_value("render", opt, val, "osmesa or glfw");
+            if (!val || (strcmp(val, "offscreen") && strcmp(val, "osmesa") && strcmp(val, "egl") &&
+                         strcmp(val, "glfw")))
+                return cmd_bad_value("render", opt, val, "offscreen, osmesa, egl or glfw");
             a->platform = val;
         } else if (!strcmp(opt, "-o")) {
             return cmd_bad_value("render", opt, NULL, "a PNG file");
@@ -200,7 +204,7 @@ static int draw(planning_case *c, render_args *a)
     if ((o.overlays & RENDER_OVERLAY_VOI) && !(o.nvoi = cmd_case_voi(c, o.voi, RENDER_MAX_FRAGS)))
         return fn_err_set(FN_EINVAL, "--overlay voi: the case holds no reduction VOI (fracnav reduce "
                                      "defines one)");
-    render *r = render_open(a->platform ? a->platform : "osmesa", a->w, a->h);
+    render *r = render_open(a->platform ? a->platform : "offscreen", a->w, a->h);
     if (!r)
         return FN_ENODEV;
     obb_params hp = {c->tau_min, c->tau_max};

@@ -140,10 +140,14 @@ static const render_platform *pick_platform(const char *name)
 {
     if (!name) {
         const char *d = getenv("DISPLAY");
-        name = d && *d && render__glfw.available ? "glfw" : "osmesa";
+        name = d && *d && render__glfw.available ? "glfw" : "offscreen";
     }
+    if (!strcmp(name, "offscreen"))
+        name = render__egl_gpu() ? "egl" : "osmesa";
     if (!strcmp(name, "osmesa"))
         return &render__osmesa;
+    if (!strcmp(name, "egl"))
+        return &render__egl;
     if (!strcmp(name, "glfw"))
         return &render__glfw;
     return NULL;
@@ -157,7 +161,7 @@ render *render_open(const char *platform, int w, int h)
     }
     const render_platform *p = pick_platform(platform);
     if (!p) {
-        fn_err_set(FN_EINVAL, "render: unknown platform '%s' (osmesa or glfw)", platform);
+        fn_err_set(FN_EINVAL, "render: unknown platform '%s' (offscreen, osmesa, egl or glfw)", platform);
         return NULL;
     }
     render *r = calloc(1, sizeof *r);
@@ -304,83 +308,6 @@ static void tex3d_params(render *r, int filter)
     r->gl.TexParameteri(GL_TEXTURE_3D, GL_TEXTURE_WRAP_R, GL_CLAMP_TO_EDGE);
 }
 
-/* Welds a triangle soup (n triangles of 3 vertices of 6 floats) into unique vertices (in place at
- * the front of tri) and indices: a vertex shared by up to six triangles is then transformed once,
- * triangles that collapse to a line or point are dropped, and every triangle is wound
- * counter-clockwise seen along its normals. Vertices are equal when their
- * positions agree to 1 um. Returns the unique vertex count (*ntri updated), or FN_ENOMEM. */
-static long weld_triangles(float *tri, long *ntri, uint32_t **idx_out)
-{
-    size_t nv = (size_t)*ntri * 3, cap = 1024;
-    while (cap < 2 * nv)
-        cap *= 2;
-    uint32_t *slot = malloc(cap * sizeof *slot), *idx = malloc((nv ? nv : 1) * sizeof *idx);
-    if (!slot || !idx) {
-        free(slot);
-        free(idx);
-        return FN_ENOMEM;
-    }
-    memset(slot, 0xFF, cap * sizeof *slot);
-    uint32_t nu = 0;
-    for (size_t v = 0; v < nv; v++) {
-        const float *p = tri + v * 6;
-        int32_t q[3];
-        uint64_t h = 1469598103934665603u;
-        for (int a = 0; a < 3; a++) {
-            q[a] = (int32_t)lrintf(p[a] * 1000.0f);
-            h = (h ^ (uint32_t)q[a]) * 1099511628211u;
-        }
-        size_t k = (size_t)(h ^ (h >> 29)) & (cap - 1);
-        for (;; k = (k + 1) & (cap - 1)) {
-            uint32_t u = slot[k];
-            if (u == UINT32_MAX) {
-                slot[k] = nu;
-                if (nu != v)
-                    memcpy(tri + (size_t)nu * 6, p, 6 * sizeof *p);
-                idx[v] = nu++;
-                break;
-            }
-            const float *o = tri + (size_t)u * 6;
-            if ((int32_t)lrintf(o[0] * 1000.0f) == q[0] && (int32_t)lrintf(o[1] * 1000.0f) == q[1] &&
-                (int32_t)lrintf(o[2] * 1000.0f) == q[2]) {
-                idx[v] = u;
-                break;
-            }
-        }
-    }
-    free(slot);
-    size_t kept = 0;
-    for (size_t t = 0; t < nv / 3; t++) {
-        uint32_t a = idx[t * 3], b = idx[t * 3 + 1], c = idx[t * 3 + 2];
-        if (a == b || b == c || a == c)
-            continue;
-        /* Counter-clockwise seen from outside (the normals point out), so back faces can be
-         * culled. */
-        const float *pa = tri + (size_t)a * 6, *pb = tri + (size_t)b * 6, *pc = tri + (size_t)c * 6;
-        float e1[3], e2[3], dot = 0;
-        for (int k = 0; k < 3; k++) {
-            e1[k] = pb[k] - pa[k];
-            e2[k] = pc[k] - pa[k];
-        }
-        for (int k = 0; k < 3; k++) {
-            int k1 = (k + 1) % 3, k2 = (k + 2) % 3;
-            dot += (e1[k1] * e2[k2] - e1[k2] * e2[k1]) * (pa[3 + k] + pb[3 + k] + pc[3 + k]);
-        }
-        if (dot < 0) {
-            uint32_t t2 = b;
-            b = c;
-            c = t2;
-        }
-        idx[kept * 3] = a;
-        idx[kept * 3 + 1] = b;
-        idx[kept * 3 + 2] = c;
-        kept++;
-    }
-    *ntri = (long)kept;
-    *idx_out = idx;
-    return (long)nu;
-}
-
 /* vals averaged over blocks of s^3 voxels (each value first clamped to the level +- 600 HU, so
  * that dense bone does not outweigh its surroundings): a grid of d (out) cells, malloc'd; NULL
  * when out of memory. A surface through the averages is smooth where one through every s-th
@@ -408,52 +335,110 @@ static float *block_means(const float *vals, const int dim[3], int s, float leve
     return m;
 }
 
+/* The grid g (d cells of sp mm, cell (0,0,0) at the origin) at p mm: its value's gradient by
+ * central differences, interpolated trilinearly, into out. */
+static void grid_gradient(const float *g, const int d[3], const double sp[3], const float p[3], double out[3])
+{
+    int c0[3];
+    double f[3];
+    for (int a = 0; a < 3; a++) {
+        double x = p[a] / sp[a];
+        x = x < 0 ? 0 : x > d[a] - 1 ? d[a] - 1 : x;
+        c0[a] = (int)x < d[a] - 1 ? (int)x : (d[a] > 1 ? d[a] - 2 : 0);
+        f[a] = x - c0[a];
+        out[a] = 0;
+    }
+    for (int corner = 0; corner < 8; corner++) {
+        int c[3];
+        double w = 1;
+        for (int a = 0; a < 3; a++) {
+            int hi = corner >> a & 1;
+            c[a] = c0[a] + hi < d[a] ? c0[a] + hi : d[a] - 1;
+            w *= hi ? f[a] : 1 - f[a];
+        }
+        for (int a = 0; a < 3; a++) {
+            int lo[3] = {c[0], c[1], c[2]}, up[3] = {c[0], c[1], c[2]};
+            lo[a] = c[a] > 0 ? c[a] - 1 : 0;
+            up[a] = c[a] < d[a] - 1 ? c[a] + 1 : d[a] - 1;
+            float vl = g[((size_t)lo[2] * (size_t)d[1] + (size_t)lo[1]) * (size_t)d[0] + (size_t)lo[0]];
+            float vu = g[((size_t)up[2] * (size_t)d[1] + (size_t)up[1]) * (size_t)d[0] + (size_t)up[0]];
+            out[a] += w * (vu - vl) / (up[a] > lo[a] ? (up[a] - lo[a]) * sp[a] : 1);
+        }
+    }
+}
+
+/* m's vertices, 6 floats each: the position shifted by off mm, and the outward unit normal
+ * against the gradient of the grid g it was extracted from (see grid_gradient), which is smooth
+ * where the triangles' own normals show the voxel steps. malloc'd, NULL when out of memory. */
+static float *mesh_vertices(const mesh *m, const float *g, const int d[3], const double sp[3], const double off[3])
+{
+    float *v = malloc((size_t)(m->nv ? m->nv : 1) * 6 * sizeof *v);
+    if (!v)
+        return NULL;
+    for (long i = 0; i < m->nv; i++) {
+        float *o = v + (size_t)i * 6;
+        const float *p = m->v + (size_t)i * 3;
+        double n[3];
+        grid_gradient(g, d, sp, p, n);
+        double len = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+        for (int a = 0; a < 3; a++) {
+            o[a] = (float)(p[a] + off[a]);
+            o[3 + a] = len > 0 ? (float)(-n[a] / len) : 0;
+        }
+    }
+    return v;
+}
+
 static int upload_mesh(render *r, render_frag *rf, const float *vals)
 {
-    /* Cells of about 0.5M voxels at most: a skull's mesh stays a few hundred thousand triangles.
-     * (Coarser grids drew faster but lost the face's detail.) Where that takes blocks of s^3
-     * voxels, the mesh follows their means. */
+    /* Cells of about 0.5M voxels at most. Where that takes blocks of s^3 voxels, the mesh follows
+     * their means. The closed surface is then decimated by RENDER_MESH_KEEP (its shortest edges,
+     * the slivers that marching tetrahedra leaves, go first): software GL pays per triangle. */
     double voxels = (double)rf->dim[0] * rf->dim[1] * rf->dim[2];
     int s = (int)ceil(cbrt(voxels / (1 << 19)));
     s = s < 1 ? 1 : s;
-    const int one[3] = {1, 1, 1};
     int d[3];
-    double sp[3] = {rf->spacing[0] * s, rf->spacing[1] * s, rf->spacing[2] * s};
+    double sp[3], off[3];
+    for (int a = 0; a < 3; a++) {
+        sp[a] = rf->spacing[a] * s;
+        off[a] = 0.5 * (s - 1) * rf->spacing[a]; /* a block's mean stands for its centre */
+    }
     float *means = s > 1 ? block_means(vals, rf->dim, s, (float)r->iso_hu, d) : NULL;
     if (s > 1 && !means)
         return fn_err_set(FN_ENOMEM, "render: out of memory for a surface mesh's grid");
-    float *tri = NULL;
-    uint32_t *idx = NULL;
-    long n = mesh_build(means ? means : vals, means ? d : rf->dim, sp, (float)r->iso_hu, one, &tri);
-    free(means);
-    if (n < 0)
-        return (int)n;
-    /* A block's mean stands for its centre. */
-    for (long v = 0; s > 1 && v < n * 3; v++)
-        for (int a = 0; a < 3; a++)
-            tri[v * 6 + a] += (float)(0.5 * (s - 1) * rf->spacing[a]);
-    long nu = weld_triangles(tri, &n, &idx);
-    if (nu < 0) {
-        free(tri);
-        return fn_err_set(FN_ENOMEM, "render: out of memory welding a surface mesh");
+    const float *g = means ? means : vals;
+    if (!means)
+        memcpy(d, rf->dim, sizeof d);
+    mesh m;
+    int rc = mesh_extract(g, d, sp, (float)r->iso_hu, &m);
+    if (rc) {
+        free(means);
+        return rc;
     }
-    rf->mesh_triangles = n;
+    long nt = mesh_decimate(&m, (long)((double)m.nt * RENDER_MESH_KEEP));
+    float *v = nt < 0 ? NULL : mesh_vertices(&m, g, d, sp, off);
+    free(means);
+    if (!v) {
+        mesh_free(&m);
+        return nt < 0 ? (int)nt : fn_err_set(FN_ENOMEM, "render: out of memory for a surface mesh");
+    }
+    rf->mesh_triangles = m.nt;
     r->gl.GenVertexArrays(1, &rf->mesh_vao);
     r->gl.GenBuffers(1, &rf->mesh_vbo);
     r->gl.GenBuffers(1, &rf->mesh_ibo);
     r->gl.BindVertexArray(rf->mesh_vao);
     r->gl.BindBuffer(GL_ARRAY_BUFFER, rf->mesh_vbo);
-    r->gl.BufferData(GL_ARRAY_BUFFER, (GLsizeiptr)nu * 6 * (GLsizeiptr)sizeof(float), tri, GL_STATIC_DRAW);
+    r->gl.BufferData(GL_ARRAY_BUFFER, (GLsizeiptr)m.nv * 6 * (GLsizeiptr)sizeof(float), v, GL_STATIC_DRAW);
     r->gl.BindBuffer(GL_ELEMENT_ARRAY_BUFFER, rf->mesh_ibo);
-    r->gl.BufferData(GL_ELEMENT_ARRAY_BUFFER, (GLsizeiptr)n * 3 * (GLsizeiptr)sizeof(uint32_t), idx,
+    r->gl.BufferData(GL_ELEMENT_ARRAY_BUFFER, (GLsizeiptr)m.nt * 3 * (GLsizeiptr)sizeof(int), m.tri,
                      GL_STATIC_DRAW);
     r->gl.VertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, 6 * sizeof(float), (void *)0);
     r->gl.VertexAttribPointer(1, 3, GL_FLOAT, GL_FALSE, 6 * sizeof(float), (void *)(3 * sizeof(float)));
     r->gl.EnableVertexAttribArray(0);
     r->gl.EnableVertexAttribArray(1);
     r->gl.BindVertexArray(0);
-    free(tri);
-    free(idx);
+    free(v);
+    mesh_free(&m);
     return 0;
 }
 

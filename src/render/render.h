@@ -13,7 +13,8 @@
  *    per-fragment occupancy grid of 4^3-voxel blocks. Rays step through all fragments together in
  *    world space, so interpenetrating fragments show where each is in front;
  *  - surface: per-fragment triangle meshes (marching tetrahedra over the masked CT at the iso level,
- *    built once at render_set_scene, moved by the pose), rasterized with depth;
+ *    decimated to a quarter of their triangles, normals from the CT's gradient; built once at
+ *    render_set_scene, moved by the pose), rasterized with depth;
  *  - slice views (axial, coronal, sagittal through a point): the CT in grey, every fragment's
  *    outline (and a light fill) at its current pose in its colour; with the 3D view they make the
  *    four-up layout (render_four_up_panes: the 3D view large on top, the three slices below);
@@ -80,9 +81,11 @@ typedef struct render_options {
     double voi[RENDER_MAX_FRAGS][6];
 } render_options;
 
-/* Opens a GL 4.5 core context of w x h pixels. platform: "osmesa" (offscreen), "glfw" (a window;
- * needs a display and a build with GLFW) or NULL (glfw when $DISPLAY is set and GLFW was built in,
- * else osmesa). A GL older than 4.5 is FN_ENODEV with a message naming the version found and what
+/* Opens a GL 4.5 core context of w x h pixels. platform: "osmesa" (offscreen, llvmpipe), "egl"
+ * (offscreen on a GPU's EGL device, no display needed; FN_ENODEV where there is none),
+ * "offscreen" (egl where a GPU's EGL device is there, else osmesa), "glfw" (a window; needs a
+ * display and a build with GLFW) or NULL (glfw when $DISPLAY is set and GLFW was built in, else
+ * offscreen). A GL older than 4.5 is FN_ENODEV with a message naming the version found and what
  * to install. NULL with fn_err on failure. */
 render *render_open(const char *platform, int w, int h);
 void render_close(render *r);

@@ -65,6 +65,9 @@ typedef struct render_platform {
 
 extern const render_platform render__osmesa;
 extern const render_platform render__glfw; /* not available when built without GLFW */
+extern const render_platform render__egl;  /* a GPU's EGL device, headless */
+/* Whether a GPU's EGL device is there (libEGL loads and lists a device that is not software). */
+int render__egl_gpu(void);
 
 /* GPU resources of one fragment. */
 typedef struct render_frag {
@@ -88,6 +91,7 @@ typedef struct render_frag {
 #define RENDER_OUTSIDE_MARGIN 100.0   /* outside the label: at most iso - this */
 #define RENDER_BLOCK 4
 #define RENDER_PROXY_BLOCKS 1 /* a raycaster's brick is this many blocks along each axis */
+#define RENDER_MESH_KEEP 0.25/* the share of a surface mesh's triangles kept by decimation */
 
 struct render {
     const render_platform *plat;

@@ -1,10 +1,8 @@
 /* mesh: triangle surfaces of a scalar grid at an iso level (marching tetrahedra).
  *
- * mesh_build is the renderer's triangle soup: every cube of the (strided) grid split into the six
- * tetrahedra around its main diagonal; vertices are not shared and the grid's border is not closed.
- *
- * mesh_extract makes an indexed, closed surface for printing and export: the grid is padded by one
- * voxel below the level on every side (level - max(1, |level|), so bone touching the crop's border
+ * mesh_extract makes an indexed, closed surface (for printing, export and the renderer's surface
+ * mode): every cube of the grid is split into the six tetrahedra around its main diagonal; the
+ * grid is padded by one voxel below the level on every side (level - max(1, |level|), so bone touching the crop's border
  * is closed), every vertex lies on one grid edge and is shared by the triangles that cut that edge,
  * and every triangle turns counter-clockwise seen from outside (decided from the tetrahedron's
  * corners, not the interpolated positions, so it holds where those coincide). Inside is
@@ -18,13 +16,6 @@
 #ifndef FN_MESH_H
 #define FN_MESH_H
 
-/* Marching tetrahedra over a masked scalar grid: vals is dim[0]*dim[1]*dim[2] (i fastest),
- * spacing in mm; every stride[a] voxels along axis a. Triangles as 6 floats per vertex (position
- * in local mm, voxel (0,0,0) at the origin; outward normal), malloc'd into *out (the caller
- * frees it); returns the triangle count or FN_ENOMEM. */
-long mesh_build(const float *vals, const int dim[3], const double spacing[3], float level,
-                const int stride[3], float **out);
-
 /* An indexed triangle mesh. */
 typedef struct mesh {
     float *v;  /* nv * 3 positions, mm; owned */
@@ -32,7 +23,8 @@ typedef struct mesh {
     long nv, nt;
 } mesh;
 
-/* The closed surface of {vals >= level} (see above), positions in local mm as mesh_build's.
+/* The closed surface of {vals >= level} (see above), positions in local mm (voxel (0,0,0) at
+ * the origin).
  * 0 or FN_ENOMEM (m then holds nothing); an empty set gives an empty mesh. */
 int mesh_extract(const float *vals, const int dim[3], const double spacing[3], float level, mesh *m);
 /* Taubin smoothing: iterations of a uniform Laplacian step by lambda (0.5) then by mu (-0.53),
