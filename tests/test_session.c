@@ -467,6 +467,47 @@ static void test_save_at_stop(void **st)
     session_close(s);
 }
 
+/* A client that never waits on events still has its save done and its fit landed: the session
+ * carries them out on its own thread, and their events wait for it in order. */
+static int case_holds(void *arg)
+{
+    const pose *want = arg;
+    planning_case *c = case_load(case_dir);
+    int ok = c && fabs(c->frag[1].pose.t[1] - want->t[1]) < 1e-9;
+    case_free(c);
+    return ok;
+}
+
+/* arg: {session, pose}: B stands elsewhere than at the pose. */
+static int b_moved_from(void *arg)
+{
+    void **a = arg;
+    pose now = pose_of(a[0], 1);
+    return memcmp(&now, a[1], sizeof now) != 0;
+}
+
+static void test_actions_done_without_waiting(void **st)
+{
+    (void)st;
+    session *s = start_quiet(SESSION_JOURNAL);
+    pose hand = moved_by(moved_by(pose_of(s, 1), 1, 1.0), 2, -1.0);
+    assert_int_equal(session_propose_pose(s, 1, &hand, NULL), 0);
+    assert_int_equal(session_send_action(s, LOOP_ACT_SAVE), 0);
+    assert_true(tu_wait_for_every(case_holds, &hand, TU_WAIT_MAX_S, 50000));
+    assert_int_equal(session_send_action(s, LOOP_ACT_FIT), 0);
+    assert_true(tu_wait_for(b_moved_from, (void *[]){s, &hand}, TU_WAIT_MAX_S));
+    stop_quiet(s);
+    unsigned kinds = 0;
+    session_event ev;
+    while (session_wait_event(s, 0, &ev) != SESSION_EV_NONE) {
+        kinds |= (unsigned)ev.kind;
+        if (ev.kind == SESSION_EV_SAVED)
+            assert_int_equal(ev.result, 0);
+    }
+    assert_int_equal(kinds, SESSION_EV_POSE | SESSION_EV_ACTION | SESSION_EV_SAVED | SESSION_EV_FIT);
+    session_close(s);
+}
+
 /* A source that ends says so once (SESSION_EV_END); the wake-up callback runs at publishes;
  * scenes are events only when subscribed. */
 static atomic_int wakeups;
@@ -899,6 +940,7 @@ int main(void)
         cmocka_unit_test_setup(test_propose_from_threads, fresh_case),
         cmocka_unit_test_setup(test_journal_recovery_and_save, fresh_case),
         cmocka_unit_test_setup(test_save_at_stop, fresh_case),
+        cmocka_unit_test_setup(test_actions_done_without_waiting, fresh_case),
         cmocka_unit_test_setup(test_end_scene_and_wakeup, fresh_case),
         cmocka_unit_test_setup(test_open_errors, fresh_case),
         cmocka_unit_test(test_fragments_without_case),

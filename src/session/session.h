@@ -8,15 +8,19 @@
  * caller's thread) with a loop_source -> session_wait_event / session_send_action /
  * session_propose_pose / session_scene_read -> session_stop -> session_save -> session_close.
  *
- * Threads. session_start runs the source's reader thread and the loop thread (loop_run, under
- * real-time priority when granted). Then:
+ * Threads. session_start runs the source's reader thread, the loop thread (loop_run, under
+ * real-time priority when granted) and the session's event thread. Then:
  *  - session_send_action, session_propose_pose, session_scene_read and session_loop may be
  *    called from any thread, several at once;
  *  - session_wait_event, session_ended and session_stop from one client thread (the one that
- *    owns the handle), never two at once: save requests (LOOP_ACT_SAVE, a button or a key) are
- *    carried out there;
- *  - the wake-up callback (session_set_wakeup) runs on the loop thread (or the fit worker's);
- *  - a fit (LOOP_ACT_FIT) runs on a worker thread of the session's own.
+ *    owns the handle), never two at once;
+ *  - the event thread carries out save requests (LOOP_ACT_SAVE, a button or a key) and starts
+ *    fits (LOOP_ACT_FIT) as they come, whether or not the client waits, and queues their events;
+ *    while it runs, the case (session_case) is its to write: read it before session_start or
+ *    after session_stop;
+ *  - the wake-up callback (session_set_wakeup) runs on the loop thread, the event thread or the
+ *    fit worker's;
+ *  - a fit runs on a worker thread of the session's own.
  * Everything else (open, play, save, close, the JSON helpers) belongs to the owner's thread while
  * no loop thread runs.
  *
@@ -174,14 +178,17 @@ typedef struct session_event {
 } session_event;
 
 /* The event kinds session_wait_event returns (an OR of SESSION_EV_*; others are dropped, save
- * requests are carried out all the same). The default: all but SESSION_EV_SCENE. */
+ * requests are carried out all the same). The default: all but SESSION_EV_SCENE. Any thread. */
 void session_subscribe(session *s, unsigned kinds);
 /* Waits up to timeout_ms (0: does not wait, < 0: no limit) for the next event, into ev; returns
- * its kind, SESSION_EV_NONE on timeout. Carries out save requests (session_save_scene while the
- * loop runs on). Owner's thread. */
+ * its kind, SESSION_EV_NONE on timeout. Events wait in a queue of 128 in order
+ * (actions in a row merged into one, scenes into the newest); when it is full the oldest is
+ * dropped, so a client that never waits loses events but no save or fit. Without a running
+ * session (session_play, after session_stop) the events of the last scene are derived here, and
+ * its save requests carried out. Owner's thread. */
 session_event_kind session_wait_event(session *s, int timeout_ms, session_event *ev);
-/* fn(ctx) is called on the loop thread whenever a scene is published (an event may be waiting):
- * (and on the fit worker's thread when a fit ends): for a client with its own event loop
+/* fn(ctx) is called on the loop thread whenever a scene is published, on the event thread when
+ * events were queued, and on the fit worker's thread when a fit ends: for a client with its own event loop
  * (glfwPostEmptyEvent). It must return at once. NULL: none.
  * Before session_start. */
 void session_set_wakeup(session *s, void (*fn)(void *ctx), void *ctx);
@@ -195,7 +202,7 @@ void session_set_wakeup(session *s, void (*fn)(void *ctx), void *ctx);
  * and journaled as one undo step, so undo takes it back to the hand-placed pose; refused when it
  * collides (it never should: the fit keeps clear of the others). One fit at a time; a fixed or
  * lone fragment is refused with a SESSION_EV_FIT that says why. session_stop cancels a running
- * fit. The request is seen, and the worker started, by session_wait_event (owner's thread). */
+ * fit. The request is seen, and the worker started, by the session's event thread. */
 
 /* The worker's state now (any thread). */
 void session_fit_status(session *s, session_fit *out);
