@@ -101,11 +101,10 @@ static void play(session *s, const char *text, int mode, loop_stats *out, pose *
     sim_replay_opts ro = {mode == SESSION_PLAY_REALTIME, 1};
     dev_handle *h;
     assert_int_equal(sim_replay_open_rec(rec, &ro, &h), 0);
-    session_tsource *ts = session_tsource_new(&sim_replay_transport, h, rec->hdr.vid, rec->hdr.pid, NULL,
-                                              sim_replay_finished, NULL);
-    assert_non_null(ts);
-    assert_int_equal(session_play(s, session_transport_source(ts), mode), 0);
-    session_tsource_free(ts);
+    session_dsource *ds = session_recording_new(&sim_replay_transport, h, NULL, NULL);
+    assert_non_null(ds);
+    assert_int_equal(session_play(s, session_device_source(ds), mode), 0);
+    session_dsource_free(ds);
     fnrec_free(rec);
     loop_get_stats(session_loop(s), out);
     *b = loop_pose(session_loop(s), 1);

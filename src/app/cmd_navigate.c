@@ -227,7 +227,7 @@ static void offer_recovery(opts *o)
 typedef struct view {
     session *k;
     session_dsource *ds; /* a live device (battery, refusals); NULL for a played recording */
-    session_tsource *ts; /* a played recording; NULL for a live device */
+    session_dsource *rec; /* a played recording; NULL for a live device */
     unsigned plays_seen;
     int keyboard;        /* the keyboard device steers: its keys are the help */
     int tty, help, lines; /* lines: the rows the terminal view holds at the screen's bottom */
@@ -293,7 +293,7 @@ static void new_actions(view *v, const loop_scene *sc)
 /* --loop: each new play of the recording is acknowledged. */
 static void new_plays(view *v)
 {
-    unsigned plays = v->ts ? session_tsource_plays(v->ts) : 0;
+    unsigned plays = v->rec ? dev_plays(session_dsource_device(v->rec)) : 0;
     if (plays == v->plays_seen)
         return;
     v->plays_seen = plays;
@@ -561,7 +561,7 @@ static int run(view *v, loop_source src, int keys, const opts *o)
 /* A played recording as the source (navigate ends at its end, or plays it again with --loop),
  * with the decoder for its device. 0 or negative. */
 static int open_recording(const opts *o, const dev_transport *t, const char *file, const calib *cal,
-                          session_tsource **ts, loop_config *cfg)
+                          session_dsource **ds, loop_config *cfg)
 {
     dev_handle *h;
     int rc = t->open(file, &h);
@@ -569,8 +569,8 @@ static int open_recording(const opts *o, const dev_transport *t, const char *fil
         return rc;
     const fnrec_header *hdr = sim_replay_header(h);
     loop_config_actions_at(cfg, devtab_key1_button(devtab_find(hdr->vid, hdr->pid)));
-    *ts = session_tsource_new(t, h, hdr->vid, hdr->pid, cal, t->finished, o->again ? file : NULL);
-    return *ts ? 0 : FN_ENOMEM;
+    *ds = session_recording_new(t, h, cal, o->again ? file : NULL);
+    return *ds ? 0 : FN_ENOMEM;
 }
 
 /* The live device as the source: a device that reads the terminal steers with keys (its help key,
@@ -621,11 +621,10 @@ int cmd_navigate(int argc, char **argv)
     cfg.frame = o.frame;
     const char *file = NULL;
     const dev_transport *played = recording_spec(o.device, &file);
-    session_tsource *ts = NULL;
     session_dsource *ds = NULL;
     view v = {0};
     v.tty = isatty(STDERR_FILENO);
-    rc = played ? open_recording(&o, played, file, &cal, &ts, &cfg) : open_device(&o, &cal, &ds, &cfg, &v.keyboard);
+    rc = played ? open_recording(&o, played, file, &cal, &ds, &cfg) : open_device(&o, &cal, &ds, &cfg, &v.keyboard);
     if (rc < 0) {
         fprintf(stderr, "fracnav navigate: %s\n", fn_err_msg());
         caselock_release(lock);
@@ -639,26 +638,25 @@ int cmd_navigate(int argc, char **argv)
     if (k) {
         if (session_resumed(k))
             fprintf(stderr, "recovered %zu journal records\n", session_resumed(k));
-        session_drive_led(k, ds);
+        session_drive_led(k, played ? NULL : ds);
         if (o.have_pivot)
             loop_set_pivot(session_loop(k), o.pivot);
         v.k = k;
-        v.ds = ds;
-        v.ts = ts;
-        loop_source src = played ? session_transport_source(ts) : session_device_source(ds);
+        v.ds = played ? NULL : ds;
+        v.rec = played ? ds : NULL;
+        loop_source src = session_device_source(ds);
         rc = run(&v, src, played || !v.keyboard, &o);
         if (!played)
             dev_set_led(session_dsource_device(ds), 0);
         if (rc == 0 && o.json)
-            rc = session_print_json(k, stdout, "navigate", played ? (long)session_tsource_unplugs(ts) : -1,
-                                    played ? session_tsource_skipped(ts) : dev_skipped(session_dsource_device(ds)));
+            rc = session_print_json(k, stdout, "navigate", played ? (long)dev_unplugs(session_dsource_device(ds)) : -1,
+                                    dev_skipped(session_dsource_device(ds)));
         else if (rc == 0)
             fprintf(stderr, "saved %s\n", o.dir);
         session_close(k);
     }
     if (rc < 0)
         fprintf(stderr, "fracnav navigate: %s\n", fn_err_msg());
-    session_tsource_free(ts);
     session_dsource_free(ds);
     caselock_release(lock);
     return rc < 0 ? 1 : 0;

@@ -314,9 +314,8 @@ int cmd_replay(int argc, char **argv)
         caselock_release(lock);
         return 1;
     }
-    session_tsource *ts = session_tsource_new(&sim_replay_transport, h, hdr->vid, hdr->pid, &cal, sim_replay_finished,
-                                              NULL);
-    if (!ts) {
+    session_dsource *ds = session_recording_new(&sim_replay_transport, h, &cal, NULL);
+    if (!ds) {
         fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
         session_close(k);
         return 1;
@@ -328,11 +327,11 @@ int cmd_replay(int argc, char **argv)
     if (o.frames && !(fd = framedump_open(o.frames, session_case(k), o.frame_ms, 512, 512, &o.look))) {
         fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
         session_close(k);
-        session_tsource_free(ts);
+        session_dsource_free(ds);
         caselock_release(lock);
         return 1;
     }
-    loop_source src = session_transport_source(ts);
+    loop_source src = session_device_source(ds);
     if (fd) {
         loop_reset_timing(session_loop(k));
         rc = run_frames(session_loop(k), src, fd);
@@ -356,7 +355,8 @@ int cmd_replay(int argc, char **argv)
     if (rc < 0) {
         fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
     } else if (o.json) {
-        rc = session_print_json(k, stdout, "replay", (long)session_tsource_unplugs(ts), session_tsource_skipped(ts));
+        rc = session_print_json(k, stdout, "replay", (long)dev_unplugs(session_dsource_device(ds)),
+                                dev_skipped(session_dsource_device(ds)));
         if (rc < 0)
             fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
     } else {
@@ -370,7 +370,7 @@ int cmd_replay(int argc, char **argv)
                s.latency_p99_us, (unsigned long long)s.pose_digest);
     }
     session_close(k);
-    session_tsource_free(ts);
+    session_dsource_free(ds);
     caselock_release(lock);
     return rc < 0 ? 1 : 0;
 }

@@ -239,27 +239,9 @@ struct json_t *session_stats_json(const char *command, const loop_stats *st);
 
 /* ---- event sources ---- */
 
-/* A loop_source over an open transport handle h of tr (a recording, the virtual device), whose
- * reports are those of device vid:pid: every report is one event, through the device's parser
- * and cal (NULL: the default calibration). A read that says the device went away is an unplug,
- * or the end when finished(h) says so (e.g. sim_replay_finished). With again set, the end opens
- * tr at again once more and plays it from the start (navigate --loop): the loop gets
- * LOOP_EV_REPLUG, so the recording's clock starting over is no jump. The source owns h from here
- * (session_tsource_free closes it). NULL with fn_err (h closed) when out of memory. */
-typedef struct session_tsource session_tsource;
-session_tsource *session_tsource_new(const dev_transport *tr, dev_handle *h, uint16_t vid, uint16_t pid,
-                                     const calib *cal, int (*finished)(const dev_handle *h), const char *again);
-void session_tsource_free(session_tsource *ts);
-loop_source session_transport_source(session_tsource *ts);
-/* Unplugs read so far, and reports the parser skipped (an unknown ID or a wrong length): for the
- * summary, once the source stopped. */
-unsigned session_tsource_unplugs(const session_tsource *ts);
-uint64_t session_tsource_skipped(const session_tsource *ts);
-/* Plays begun after the first (again). Any thread. */
-unsigned session_tsource_plays(session_tsource *ts);
-
-/* A loop_source over an opened device d (live; the source owns it: session_dsource_free closes
- * it), through cal: dev_poll folds what is queued into one event. On its (input) thread it also
+/* A loop_source over an opened device d (the source owns it: session_dsource_free closes it),
+ * through cal (NULL: the default calibration): dev_poll reads it as its mode says (dev_set_mode:
+ * a live device's queued reports folded into one event, a recording's one event per report). On its (input) thread it also
  * drives the LED -- lit while a fragment is held: the cap deflected with a movable fragment
  * selected (the session pushes which: session_drive_led; the `led` setting can force it on or
  * off) -- and publishes for the view the battery level and, while another controller sits at the
@@ -267,6 +249,15 @@ unsigned session_tsource_plays(session_tsource *ts);
  * with fn_err (d closed) when out of memory. */
 typedef struct session_dsource session_dsource;
 session_dsource *session_dsource_new(dev_device *d, const calib *cal);
+/* The same over a recording: an open handle h of a recording transport tr (e.g. sim's replay),
+ * read by dev_poll in DEV_RECORDED mode (one event per report, the recorded unplugs and replugs,
+ * the end of the source when it played out). With again set, the end opens tr at again once more
+ * and plays it from the start (navigate --loop; DEV_RECORDED_LOOP): the loop gets LOOP_EV_REPLUG,
+ * so the recording's clock starting over is no jump. The source owns h from here. Unplugs,
+ * skipped reports and plays: dev_unplugs, dev_skipped and dev_plays of session_dsource_device.
+ * NULL with fn_err (h closed). */
+session_dsource *session_recording_new(const dev_transport *tr, dev_handle *h, const calib *cal,
+                                       const char *again);
 void session_dsource_free(session_dsource *ds);
 loop_source session_device_source(session_dsource *ds);
 dev_device *session_dsource_device(session_dsource *ds);
