@@ -398,6 +398,8 @@ static int recorded_unplug(dev_device *d, dev_event *ev, int64_t t_us)
 {
     if (d->t->finished && d->t->finished(d->h))
         return recording_end(d, ev);
+    if (d->rec_unplugged)
+        return 0; /* still away (a paced replay waits for its replug): said once */
     memset(ev, 0, sizeof *ev);
     ev->t_us = t_us;
     ev->flags = DEV_EV_UNPLUG;

@@ -249,6 +249,7 @@ static void test_recorded_one_event_per_report(void **s)
     fake.plugged = 0;
     assert_int_equal(dev_poll(d, &ev, 0), 1);
     assert_int_equal(ev.flags, DEV_EV_UNPLUG);
+    assert_int_equal(dev_poll(d, &ev, 0), 0); /* still away: said once */
     assert_int_equal(dev_unplugs(d), 1);
     fake.plugged = 1;
     push(r, devparse_make_split(r, 1, (int[3]){0, 70, 0}));

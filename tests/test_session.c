@@ -110,6 +110,42 @@ static void play(session *s, const char *text, int mode, loop_stats *out, pose *
     *b = loop_pose(session_loop(s), 1);
 }
 
+/* A recording opened by its --device spec (session_source_open, as navigate and replay do) is
+ * read one report per event, as one opened from its handle: the same poses, its unplug counted. */
+static void test_source_by_spec(void **st)
+{
+    (void)st;
+    char rec[4200], spec[4300];
+    snprintf(rec, sizeof rec, "%s/sim/recordings/buttons.fnrec", tu_src());
+    snprintf(spec, sizeof spec, "replay:%s", rec);
+    if (!dev_transport_find("replay"))
+        assert_int_equal(sim_register_transports(), 0);
+    assert_true(session_spec_recording(spec));
+    assert_false(session_spec_recording("auto"));
+    loop_config cfg;
+    loop_config_default(&cfg);
+    session_dsource *ds = session_source_open(spec, NULL, 0, &cfg);
+    assert_non_null(ds);
+    assert_true(session_source_recording(ds));
+    session *s = open_case(0);
+    assert_int_equal(session_play(s, session_device_source(ds), SESSION_PLAY_FAST), 0);
+    loop_stats a, b;
+    session_stats(s, &a);
+    assert_int_equal(session_source_unplugs(ds), 1);
+    session_close(s);
+    session_dsource_free(ds);
+    dev_handle *h;
+    assert_int_equal(sim_replay_open_file(rec, &(sim_replay_opts){0, 1}, &h), 0);
+    ds = session_recording_new(&sim_replay_transport, h, NULL, NULL);
+    s = open_case(0);
+    assert_int_equal(session_play(s, session_device_source(ds), SESSION_PLAY_FAST), 0);
+    session_stats(s, &b);
+    session_close(s);
+    session_dsource_free(ds);
+    assert_true(a.steps > 0);
+    assert_true(a.steps == b.steps && a.pose_digest == b.pose_digest);
+}
+
 /* Head-on into A: B stops at contact (never inside) and the rest of the push is refused; the same
  * recording gives the same poses bit for bit, through the reader thread and loop_run too. */
 static void test_head_on_stops_at_contact_deterministic(void **st)
@@ -926,6 +962,7 @@ int main(void)
         cmocka_unit_test_setup(test_head_on_stops_at_contact_deterministic, fresh_case),
         cmocka_unit_test_setup(test_grazing_slides, fresh_case),
         cmocka_unit_test_setup(test_unplug_keeps_pose, fresh_case),
+        cmocka_unit_test_setup(test_source_by_spec, fresh_case),
         cmocka_unit_test_setup(test_actions_fix_undo_redo, fresh_case),
         cmocka_unit_test_setup(test_session_pushes_movable_for_led, fresh_case),
         cmocka_unit_test_setup(test_propose_pose_one_undoable_step, fresh_case),

@@ -1,13 +1,11 @@
 /* fracnav replay: a .fnrec recording through the navigation loop, deterministic, JSON summary. */
 #include "cmd.h"
 
-#include "devtab.h"
 #include "err.h"
 #include "fnclock.h"
 #include "framedump.h"
 #include "navwin.h"
 #include "session.h"
-#include "sim_replay.h"
 
 #include <libgen.h>
 #include <stdio.h>
@@ -215,7 +213,6 @@ static int run_frames(loop *L, loop_source src, framedump *fd)
  * those of session_play's, event for event. */
 static int play_live(session *k, loop_source src, const opts *o)
 {
-    loop_reset_timing(session_loop(k));
     int rc = session_start(k, src);
     if (rc < 0)
         return rc;
@@ -288,17 +285,16 @@ int cmd_replay(int argc, char **argv)
     caselock *lock = cmd_lock_case("replay", o.dir, writes, wait);
     if (!lock)
         return 1;
-    sim_replay_opts ro = {o.realtime, 1};
-    dev_handle *h;
-    if (sim_replay_open_file(o.rec, &ro, &h) < 0) {
+    loop_config cfg;
+    loop_config_default(&cfg);
+    char spec[4200];
+    snprintf(spec, sizeof spec, "%s:%s", o.realtime ? "replay-realtime" : "replay", o.rec);
+    session_dsource *ds = session_source_open(spec, &cal, 0, &cfg);
+    if (!ds) {
         fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
         caselock_release(lock);
         return 1;
     }
-    loop_config cfg;
-    loop_config_default(&cfg);
-    const fnrec_header *hdr = sim_replay_header(h);
-    loop_config_actions_at(&cfg, devtab_key1_button(devtab_find(hdr->vid, hdr->pid)));
     /* A replay saves only at its end (--save) and never fits: with the window its session
      * would carry those buttons out mid-run, and the results would depend on the view. */
     for (size_t b = 0; b < sizeof cfg.button_action; b++)
@@ -310,19 +306,13 @@ int cmd_replay(int argc, char **argv)
     session *k = session_open(o.dir, &sp);
     if (!k) {
         fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
-        sim_replay_transport.close(h);
+        session_dsource_free(ds);
         caselock_release(lock);
-        return 1;
-    }
-    session_dsource *ds = session_recording_new(&sim_replay_transport, h, &cal, NULL);
-    if (!ds) {
-        fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
-        session_close(k);
         return 1;
     }
     fprintf(stderr, "fracnav replay: stepping %s on %s\n", o.rec, o.dir);
     if (o.have_pivot)
-        loop_set_pivot(session_loop(k), o.pivot);
+        session_set_pivot(k, o.pivot);
     framedump *fd = NULL;
     if (o.frames && !(fd = framedump_open(o.frames, session_case(k), o.frame_ms, 512, 512, &o.look))) {
         fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
@@ -355,13 +345,13 @@ int cmd_replay(int argc, char **argv)
     if (rc < 0) {
         fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
     } else if (o.json) {
-        rc = session_print_json(k, stdout, "replay", (long)dev_unplugs(session_dsource_device(ds)),
-                                dev_skipped(session_dsource_device(ds)));
+        rc = session_print_json(k, stdout, "replay", (long)session_source_unplugs(ds),
+                                session_source_skipped(ds));
         if (rc < 0)
             fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
     } else {
         loop_stats s;
-        loop_get_stats(session_loop(k), &s);
+        session_stats(k, &s);
         printf("%llu steps: %llu accepted, %llu limited, %llu slid, %llu refused; collisions in "
                "accepted poses: %llu; latency p99 %.0f us; pose digest %016llx\n",
                (unsigned long long)s.steps, (unsigned long long)s.accepted,

@@ -242,6 +242,16 @@ loop *session_loop(session *s)
     return s->L;
 }
 
+void session_set_pivot(session *s, const double world[3])
+{
+    loop_set_pivot(s->L, world);
+}
+
+void session_stats(session *s, loop_stats *out)
+{
+    loop_get_stats(s->L, out);
+}
+
 planning_case *session_case(session *s)
 {
     return s->c;

@@ -92,6 +92,11 @@ int session_nfrag(const session *s);
 size_t session_resumed(const session *s);
 const char *session_dir(const session *s);
 
+/* A pivot for the selected fragment's rotations (loop_set_pivot: world mm; NULL: its centroid),
+ * and the loop's statistics (loop_get_stats). While the loop does not run. */
+void session_set_pivot(session *s, const double world[3]);
+void session_stats(session *s, loop_stats *out);
+
 /* ---- running ---- */
 
 enum {
@@ -104,7 +109,8 @@ enum {
  * replay and benchmarks. 0 or the first source or collider error. */
 int session_play(session *s, loop_source src, int mode);
 
-/* Starts the reader thread on src and the loop thread; returns at once. 0 or FN_E*. */
+/* Starts the reader thread on src, the loop thread and the event thread (the loop's rate and
+ * latency windows restarted, as session_play does); returns at once. 0 or FN_E*. */
 int session_start(session *s, loop_source src);
 /* 1 once a started source has ended (all its events are in the loop's ring). Owner's thread. */
 int session_ended(session *s);
@@ -241,8 +247,8 @@ struct json_t *session_stats_json(const char *command, const loop_stats *st);
 
 /* A loop_source over an opened device d (the source owns it: session_dsource_free closes it),
  * through cal (NULL: the default calibration): dev_poll reads it as its mode says (dev_set_mode:
- * a live device's queued reports folded into one event, a recording's one event per report). On its (input) thread it also
- * drives the LED -- lit while a fragment is held: the cap deflected with a movable fragment
+ * a live device's queued reports folded into one event, a recording's one event per report). On
+ * its (input) thread it also drives the LED -- lit while a fragment is held: the cap deflected with a movable fragment
  * selected (the session pushes which: session_drive_led; the `led` setting can force it on or
  * off) -- and publishes for the view the battery level and, while another controller sits at the
  * device's path, why it was not taken (dev_poll's DEV_EV_REFUSED). It never reads the loop. NULL
@@ -253,14 +259,35 @@ session_dsource *session_dsource_new(dev_device *d, const calib *cal);
  * read by dev_poll in DEV_RECORDED mode (one event per report, the recorded unplugs and replugs,
  * the end of the source when it played out). With again set, the end opens tr at again once more
  * and plays it from the start (navigate --loop; DEV_RECORDED_LOOP): the loop gets LOOP_EV_REPLUG,
- * so the recording's clock starting over is no jump. The source owns h from here. Unplugs,
- * skipped reports and plays: dev_unplugs, dev_skipped and dev_plays of session_dsource_device.
- * NULL with fn_err (h closed). */
+ * so the recording's clock starting over is no jump (a recording in memory: bench loop, the
+ * tests). The source owns h from here. NULL with fn_err (h closed). */
 session_dsource *session_recording_new(const dev_transport *tr, dev_handle *h, const calib *cal,
                                        const char *again);
+/* Turns a live device's LED off, closes the device and frees ds. NULL is fine. */
 void session_dsource_free(session_dsource *ds);
 loop_source session_device_source(session_dsource *ds);
 dev_device *session_dsource_device(session_dsource *ds);
+/* Opens the event source a --device spec names (dev_open's specs): a recording (a transport that
+ * plays one, e.g. replay:FILE, replay-realtime:FILE) read one report per event (DEV_RECORDED; with
+ * again, played again from its start at its end: DEV_RECORDED_LOOP), or a live device, its
+ * queued reports folded (DEV_LIVE), both through cal (NULL: the default calibration). Sets cfg's
+ * button actions for the device (loop_config_actions_at at its key-1 button, its transport's
+ * help button). NULL with fn_err naming the spec and the cause. */
+session_dsource *session_source_open(const char *spec, const calib *cal, int again, loop_config *cfg);
+/* 1 when spec names a recording (a transport that plays one and resolves), else 0. */
+int session_spec_recording(const char *spec);
+/* 1 when the source plays a recording (session_source_open's); 1 when it reads the terminal's
+ * keys (the keyboard: its keys are the help); the device's name ("?" unknown). */
+int session_source_recording(const session_dsource *ds);
+int session_source_keyboard(const session_dsource *ds);
+const char *session_source_name(const session_dsource *ds);
+/* For the summary, once the source stopped: unplugs read so far (a recording's), reports skipped
+ * (an unknown ID or a wrong length); plays begun after the first (any thread). */
+unsigned session_source_unplugs(const session_dsource *ds);
+uint64_t session_source_skipped(const session_dsource *ds);
+unsigned session_source_plays(session_dsource *ds);
+/* Keys typed elsewhere (a window) for a source that reads keys (dev_feed_keys). Any thread. */
+int session_source_feed_keys(session_dsource *ds, const char *bytes, size_t n);
 /* The battery level, 0..100, -1 unknown (any thread). */
 int session_dsource_battery(session_dsource *ds);
 /* 1 while the selected fragment can move, as the session last said (session_drive_led; 1 until

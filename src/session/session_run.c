@@ -67,6 +67,7 @@ int session_start(session *s, loop_source src)
     if (atomic_load(&s->running))
         return fn_err_set(FN_EINVAL, "the session is already running");
     atomic_store(&s->stop, 0);
+    loop_reset_timing(s->L);
     s->ended = 0;
     s->end_told = 0;
     loop_set_publish_hook(s->L, on_publish, s);

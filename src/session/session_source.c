@@ -17,6 +17,7 @@ struct session_dsource {
     _Atomic int battery; /* 0..100, -1 unknown; read by the status line */
     pthread_mutex_t mu;  /* guards refused */
     char refused[512];   /* "" or the refusal's message, until the device comes back */
+    int recording;       /* opened as a recording (session_source_open) */
 };
 
 /* A parsed device event -> a loop event, through calibration. */
@@ -79,13 +80,91 @@ session_dsource *session_recording_new(const dev_transport *tr, dev_handle *h, c
     if (!d)
         return NULL;
     dev_set_mode(d, again ? DEV_RECORDED_LOOP : DEV_RECORDED);
-    return session_dsource_new(d, cal);
+    session_dsource *s = session_dsource_new(d, cal);
+    if (s)
+        s->recording = 1;
+    return s;
+}
+
+/* The transport of a played recording (replay:FILE, replay-realtime:FILE) with its file in *file,
+ * else NULL: a spec that names no recording, or none that resolves (dev_open says why). */
+static const dev_transport *recording_spec(const char *spec, const char **file)
+{
+    const dev_transport *t;
+    if (!strcmp(spec, "auto") || dev_spec_resolve(spec, &t, file) || !(t->caps & DEV_CAP_RECORDING)) {
+        fn_err_clear();
+        return NULL;
+    }
+    return t;
+}
+
+int session_spec_recording(const char *spec)
+{
+    const char *file;
+    return recording_spec(spec, &file) != NULL;
+}
+
+session_dsource *session_source_open(const char *spec, const calib *cal, int again, loop_config *cfg)
+{
+    const char *file = NULL;
+    const dev_transport *t = recording_spec(spec, &file);
+    dev_device *d = dev_open(spec);
+    if (!d)
+        return NULL;
+    if (t)
+        dev_set_mode(d, again ? DEV_RECORDED_LOOP : DEV_RECORDED);
+    loop_config_actions_at(cfg, devtab_key1_button(dev_row(d)));
+    const dev_transport *tr = dev_transport_of(d);
+    if (tr->help_button)
+        cfg->button_action[tr->help_button - 1] = LOOP_ACT_HELP;
+    session_dsource *s = session_dsource_new(d, cal);
+    if (s)
+        s->recording = t != NULL;
+    return s;
+}
+
+int session_source_recording(const session_dsource *s)
+{
+    return s->recording;
+}
+
+int session_source_keyboard(const session_dsource *s)
+{
+    return (dev_transport_of(s->d)->caps & DEV_CAP_TERMINAL) != 0;
+}
+
+const char *session_source_name(const session_dsource *s)
+{
+    const devtab_row *row = dev_row(s->d);
+    return row && row->name ? row->name : "?";
+}
+
+unsigned session_source_unplugs(const session_dsource *s)
+{
+    return dev_unplugs(s->d);
+}
+
+uint64_t session_source_skipped(const session_dsource *s)
+{
+    return dev_skipped(s->d);
+}
+
+unsigned session_source_plays(session_dsource *s)
+{
+    return dev_plays(s->d);
+}
+
+int session_source_feed_keys(session_dsource *s, const char *bytes, size_t n)
+{
+    return dev_feed_keys(s->d, bytes, n);
 }
 
 void session_dsource_free(session_dsource *s)
 {
     if (!s)
         return;
+    if (s->d && !s->recording)
+        dev_set_led(s->d, 0); /* the LED says a fragment is held: not once the session is over */
     pthread_mutex_destroy(&s->mu);
     dev_close(s->d);
     free(s);
