@@ -259,6 +259,59 @@ static int play_live(session *k, loop_source src, const opts *o)
     return rc;
 }
 
+/* Plays the recording: with --frames, pictures along; with --realtime, a window if one opens;
+ * else session_play. 0 or negative. */
+static int run(session *k, session_dsource *ds, const opts *o, framedump *fd)
+{
+    int rc;
+    loop_source src = session_device_source(ds);
+    if (fd) {
+        loop_reset_timing(session_loop(k));
+        rc = run_frames(session_loop(k), src, fd);
+    } else if (o->realtime && navwin_wanted("replay", o->view, "the replay runs on without one")) {
+        rc = play_live(k, src, o);
+    } else {
+        if (o->screenshot) /* asked for, but no display */
+            fprintf(stderr, "fracnav replay: --screenshot %s: no window to save\n", o->screenshot);
+        rc = session_play(k, src, o->realtime ? SESSION_PLAY_REALTIME : SESSION_PLAY_FAST);
+    }
+    if (fd && rc == 0)
+        fprintf(stderr, "fracnav replay: %ld pictures in %s\n", framedump_count(fd), o->frames);
+    framedump_close(fd);
+    return rc;
+}
+
+/* After the play (rc its result): the journal synced, the case saved (--save) or the journal
+ * emptied, the summary printed. 0 or negative. */
+static int finish(session *k, session_dsource *ds, const opts *o, int rc)
+{
+    if (rc == 0)
+        rc = session_journal_sync(k);
+    if (rc == 0 && o->save && (rc = session_save(k)) == 0)
+        fprintf(stderr, "fracnav replay: saved the final poses of %d fragments in %s/case.json\n",
+                session_nfrag(k), o->dir);
+    else if (rc == 0 && !session_resumed(k))
+        rc = session_journal_truncate(k); /* finished: the poses are in the summary, the case unchanged */
+    if (rc < 0) {
+        fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
+    } else if (o->json) {
+        rc = session_print_json(k, stdout, "replay", (long)session_source_unplugs(ds),
+                                session_source_skipped(ds));
+        if (rc < 0)
+            fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
+    } else {
+        loop_stats s;
+        session_stats(k, &s);
+        printf("%llu steps: %llu accepted, %llu limited, %llu slid, %llu refused; collisions in "
+               "accepted poses: %llu; latency p99 %.0f us; pose digest %016llx\n",
+               (unsigned long long)s.steps, (unsigned long long)s.accepted,
+               (unsigned long long)s.limited, (unsigned long long)s.slid,
+               (unsigned long long)s.refused, (unsigned long long)s.collisions_in_accepted,
+               s.latency_p99_us, (unsigned long long)s.pose_digest);
+    }
+    return rc;
+}
+
 int cmd_replay(int argc, char **argv)
 {
     if (cmd_wants_help(argc, argv)) {
@@ -321,44 +374,8 @@ int cmd_replay(int argc, char **argv)
         caselock_release(lock);
         return 1;
     }
-    loop_source src = session_device_source(ds);
-    if (fd) {
-        loop_reset_timing(session_loop(k));
-        rc = run_frames(session_loop(k), src, fd);
-    } else if (o.realtime && navwin_wanted("replay", o.view, "the replay runs on without one")) {
-        rc = play_live(k, src, &o);
-    } else {
-        if (o.screenshot) /* asked for, but no display */
-            fprintf(stderr, "fracnav replay: --screenshot %s: no window to save\n", o.screenshot);
-        rc = session_play(k, src, o.realtime ? SESSION_PLAY_REALTIME : SESSION_PLAY_FAST);
-    }
-    if (fd && rc == 0)
-        fprintf(stderr, "fracnav replay: %ld pictures in %s\n", framedump_count(fd), o.frames);
-    framedump_close(fd);
-    if (rc == 0)
-        rc = session_journal_sync(k);
-    if (rc == 0 && o.save && (rc = session_save(k)) == 0)
-        fprintf(stderr, "fracnav replay: saved the final poses of %d fragments in %s/case.json\n",
-                session_nfrag(k), o.dir);
-    else if (rc == 0 && !session_resumed(k))
-        rc = session_journal_truncate(k); /* finished: the poses are in the summary, the case unchanged */
-    if (rc < 0) {
-        fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
-    } else if (o.json) {
-        rc = session_print_json(k, stdout, "replay", (long)session_source_unplugs(ds),
-                                session_source_skipped(ds));
-        if (rc < 0)
-            fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
-    } else {
-        loop_stats s;
-        session_stats(k, &s);
-        printf("%llu steps: %llu accepted, %llu limited, %llu slid, %llu refused; collisions in "
-               "accepted poses: %llu; latency p99 %.0f us; pose digest %016llx\n",
-               (unsigned long long)s.steps, (unsigned long long)s.accepted,
-               (unsigned long long)s.limited, (unsigned long long)s.slid,
-               (unsigned long long)s.refused, (unsigned long long)s.collisions_in_accepted,
-               s.latency_p99_us, (unsigned long long)s.pose_digest);
-    }
+    rc = run(k, ds, &o, fd);
+    rc = finish(k, ds, &o, rc);
     session_close(k);
     session_dsource_free(ds);
     caselock_release(lock);
