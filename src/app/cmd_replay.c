@@ -2,7 +2,6 @@
 #include "cmd.h"
 
 #include "err.h"
-#include "fnclock.h"
 #include "framedump.h"
 #include "navwin.h"
 #include "session.h"
@@ -184,26 +183,17 @@ static int parse(int argc, char **argv, opts *o)
     return 0;
 }
 
-/* --frames: one thread reads and steps the session's loop, a picture before each event that
- * passes a frame's time. Latency = the step's own time. */
-static int run_frames(loop *L, loop_source src, framedump *fd)
+/* --frames: a picture before each event that passes a frame's time (session_play_each), the
+ * final one at the end. */
+typedef struct frames {
+    framedump *fd;
+    session *k;
+} frames;
+
+static int frame_before(void *ctx, int64_t t_us)
 {
-    loop_event ev;
-    for (;;) {
-        int rc = src.next(src.ctx, &ev, 0);
-        if (rc == LOOP_SOURCE_END)
-            return framedump_finish(fd, L);
-        if (rc < 0)
-            return rc;
-        if (rc == 0)
-            continue;
-        if ((rc = framedump_before(fd, L, ev.t_us)) < 0)
-            return rc;
-        ev.arrival_us = fnclock_now_us();
-        rc = loop_feed(L, &ev);
-        if (rc < 0)
-            return rc;
-    }
+    frames *f = ctx;
+    return t_us < 0 ? framedump_finish(f->fd, f->k) : framedump_before(f->fd, f->k, t_us);
 }
 
 /* --realtime with a window: the session runs the recording on its threads (as navigate does)
@@ -266,8 +256,7 @@ static int run(session *k, session_dsource *ds, const opts *o, framedump *fd)
     int rc;
     loop_source src = session_device_source(ds);
     if (fd) {
-        loop_reset_timing(session_loop(k));
-        rc = run_frames(session_loop(k), src, fd);
+        rc = session_play_each(k, src, frame_before, &(frames){fd, k});
     } else if (o->realtime && navwin_wanted("replay", o->view, "the replay runs on without one")) {
         rc = play_live(k, src, o);
     } else {

@@ -252,6 +252,16 @@ void session_stats(session *s, loop_stats *out)
     loop_get_stats(s->L, out);
 }
 
+pose session_pose(const session *s, int i)
+{
+    return loop_pose(s->L, i);
+}
+
+int session_selected(const session *s)
+{
+    return loop_selected(s->L);
+}
+
 planning_case *session_case(session *s)
 {
     return s->c;

@@ -96,6 +96,10 @@ const char *session_dir(const session *s);
  * and the loop's statistics (loop_get_stats). While the loop does not run. */
 void session_set_pivot(session *s, const double world[3]);
 void session_stats(session *s, loop_stats *out);
+/* Fragment i's pose and the selected fragment, now: while the loop does not run, or from
+ * session_play_each's callback. */
+pose session_pose(const session *s, int i);
+int session_selected(const session *s);
 
 /* ---- running ---- */
 
@@ -108,6 +112,12 @@ enum {
 /* Runs src through the loop on the calling thread until it ends (LOOP_SOURCE_END), then returns:
  * replay and benchmarks. 0 or the first source or collider error. */
 int session_play(session *s, loop_source src, int mode);
+
+/* As session_play(SESSION_PLAY_FAST) on the calling thread, calling each(ctx, t_us) before every
+ * event is stepped (t_us: its time) and once after the end (t_us < 0): e.g. pictures of the poses
+ * (session_pose) at a recording's times. A negative return stops the play with it. 0 or the
+ * first error. */
+int session_play_each(session *s, loop_source src, int (*each)(void *ctx, int64_t t_us), void *ctx);
 
 /* Starts the reader thread on src, the loop thread and the event thread (the loop's rate and
  * latency windows restarted, as session_play does); returns at once. 0 or FN_E*. */

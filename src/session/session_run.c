@@ -33,26 +33,33 @@ static void *loop_thread(void *arg)
     return NULL;
 }
 
-int session_play(session *s, loop_source src, int mode)
+int session_play_each(session *s, loop_source src, int (*each)(void *ctx, int64_t t_us), void *ctx)
 {
     loop_reset_timing(s->L);
-    if (mode == SESSION_PLAY_FAST) {
-        loop_event ev;
-        for (;;) {
-            int rc = src.next(src.ctx, &ev, 0);
-            s->ended = rc == LOOP_SOURCE_END;
-            if (rc == LOOP_SOURCE_END)
-                return 0;
-            if (rc < 0)
-                return rc;
-            if (rc == 0)
-                continue;
-            ev.arrival_us = fnclock_now_us();
-            rc = loop_feed(s->L, &ev);
-            if (rc < 0)
-                return rc;
-        }
+    loop_event ev;
+    for (;;) {
+        int rc = src.next(src.ctx, &ev, 0);
+        s->ended = rc == LOOP_SOURCE_END;
+        if (rc == LOOP_SOURCE_END)
+            return each ? each(ctx, -1) : 0;
+        if (rc < 0)
+            return rc;
+        if (rc == 0)
+            continue;
+        if (each && (rc = each(ctx, ev.t_us)) < 0)
+            return rc;
+        ev.arrival_us = fnclock_now_us();
+        rc = loop_feed(s->L, &ev);
+        if (rc < 0)
+            return rc;
     }
+}
+
+int session_play(session *s, loop_source src, int mode)
+{
+    if (mode == SESSION_PLAY_FAST)
+        return session_play_each(s, src, NULL, NULL);
+    loop_reset_timing(s->L);
     loop_reader *rd = loop_reader_start(src, s->in, s->L, mode == SESSION_PLAY_LOCKSTEP);
     if (!rd)
         return FN_EIO;
