@@ -276,7 +276,6 @@ session_dsource *session_recording_new(const dev_transport *tr, dev_handle *h, c
 /* Turns a live device's LED off, closes the device and frees ds. NULL is fine. */
 void session_dsource_free(session_dsource *ds);
 loop_source session_device_source(session_dsource *ds);
-dev_device *session_dsource_device(session_dsource *ds);
 /* Opens the event source a --device spec names (dev_open's specs): a recording (a transport that
  * plays one, e.g. replay:FILE, replay-realtime:FILE) read one report per event (DEV_RECORDED; with
  * again, played again from its start at its end: DEV_RECORDED_LOOP), or a live device, its

@@ -175,11 +175,6 @@ void session__led_movable(session_dsource *s, int movable)
     atomic_store_explicit(&s->movable, movable, memory_order_relaxed);
 }
 
-dev_device *session_dsource_device(session_dsource *s)
-{
-    return s->d;
-}
-
 int session_dsource_movable(session_dsource *s)
 {
     return atomic_load_explicit(&s->movable, memory_order_relaxed);
