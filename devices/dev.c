@@ -2,6 +2,7 @@
 
 #include <math.h>
 #include <poll.h>
+#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -36,6 +37,12 @@ struct dev_device {
     hotplug_monitor *mon; /* NULL: no monitor, polling alone */
     dev_raw_hook hook;
     void *hook_ctx;
+    dev_mode mode;
+    unsigned unplugs;
+    _Atomic unsigned plays; /* DEV_RECORDED_LOOP: plays begun after the first */
+    int rec_unplugged;      /* DEV_RECORDED: the recording's unplug, until its next report */
+    int has_pending;        /* the report that came with the replug, given next */
+    dev_event pending;
 };
 
 int dev_transport_register(const dev_transport *t)
@@ -129,6 +136,7 @@ dev_device *dev_open_handle(const dev_transport *t, dev_handle *h, const char *r
     }
     d->t = t;
     d->h = h;
+    atomic_init(&d->plays, 0);
     snprintf(d->reopen, sizeof d->reopen, "%s", reopen ? reopen : "");
     if (identify(d)) {
         dev_close(d);
@@ -266,6 +274,7 @@ static void lost(dev_device *d, dev_event *ev)
     memset(d->ps.keys, 0, sizeof d->ps.keys);
     memset(ev, 0, sizeof *ev);
     ev->t_us = fnclock_now_us();
+    d->unplugs++;
     ev->flags = DEV_EV_UNPLUG | DEV_EV_MOTION | (was ? DEV_EV_BUTTON : 0);
     ev->released = was;
     ev->battery = -1;
@@ -360,15 +369,75 @@ static int poll_unplugged(dev_device *d, dev_event *ev, int timeout_ms)
     return 1;
 }
 
+/* A recording that played out: DEV_RECORDED_LOOP opens it again from its start, as a replug. */
+static int recording_end(dev_device *d, dev_event *ev)
+{
+    memset(ev, 0, sizeof *ev);
+    ev->battery = -1;
+    if (d->mode != DEV_RECORDED_LOOP) {
+        ev->flags = DEV_EV_END;
+        return 1;
+    }
+    d->t->close(d->h);
+    d->h = NULL;
+    int rc = d->t->open(d->reopen, &d->h);
+    if (rc < 0)
+        return fn_err_wrap(rc, "%s: playing it again", d->reopen);
+    devparse_state *ps = &d->ps;
+    uint64_t ok = ps->n_ok, unknown = ps->n_unknown_id, bad = ps->n_bad_len;
+    devparse_init(ps, ps->row, ps->axis_max);
+    ps->n_ok = ok, ps->n_unknown_id = unknown, ps->n_bad_len = bad;
+    d->rec_unplugged = 0;
+    atomic_fetch_add(&d->plays, 1);
+    ev->flags = DEV_EV_REPLUG;
+    return 1;
+}
+
+/* A recording's unplug: the handle stays open; its next report is the replug. */
+static int recorded_unplug(dev_device *d, dev_event *ev, int64_t t_us)
+{
+    if (d->t->finished && d->t->finished(d->h))
+        return recording_end(d, ev);
+    if (d->rec_unplugged)
+        return 0; /* still away (a paced replay waits for its replug): said once */
+    memset(ev, 0, sizeof *ev);
+    ev->t_us = t_us;
+    ev->flags = DEV_EV_UNPLUG;
+    ev->battery = -1;
+    d->rec_unplugged = 1;
+    d->unplugs++;
+    return 1;
+}
+
+/* The first report after a recording's unplug: the replug now, the report's event next. */
+static int recorded_replug(dev_device *d, const uint8_t *rep, size_t len, int64_t t_us, dev_event *ev)
+{
+    d->rec_unplugged = 0;
+    d->has_pending = devparse_report(&d->ps, rep, len, t_us, &d->pending);
+    memset(ev, 0, sizeof *ev);
+    ev->t_us = t_us;
+    ev->flags = DEV_EV_REPLUG;
+    ev->battery = d->ps.battery;
+    return 1;
+}
+
 int dev_poll(dev_device *d, dev_event *ev, int timeout_ms)
 {
     if (!d->h)
         return poll_unplugged(d, ev, timeout_ms);
+    if (d->has_pending) {
+        d->has_pending = 0;
+        *ev = d->pending;
+        return 1;
+    }
+    int live = d->mode == DEV_LIVE;
     uint8_t buf[DEV_REPORT_MAX];
     int got = 0;
-    for (int i = 0; i < DRAIN_MAX; i++) {
+    for (int i = 0; i < DRAIN_MAX && (live || !got); i++) {
         int64_t t_us = 0;
-        int n = d->t->read(d->h, buf, sizeof buf, i == 0 ? timeout_ms : 0, &t_us);
+        int n = d->t->read(d->h, buf, sizeof buf, i == 0 || !live ? timeout_ms : 0, &t_us);
+        if (n == FN_ENODEV && !live)
+            return recorded_unplug(d, ev, t_us);
         if (n == FN_ENODEV) { /* keep the edges of what came before the unplug */
             dev_event u;
             lost(d, &u);
@@ -384,6 +453,8 @@ int dev_poll(dev_device *d, dev_event *ev, int timeout_ms)
             break;
         if (d->hook)
             d->hook(d->hook_ctx, buf, (size_t)n, t_us);
+        if (d->rec_unplugged)
+            return recorded_replug(d, buf, (size_t)n, t_us, ev);
         dev_event e;
         if (!devparse_report(&d->ps, buf, (size_t)n, t_us, &e))
             continue;
@@ -394,6 +465,21 @@ int dev_poll(dev_device *d, dev_event *ev, int timeout_ms)
         got = 1;
     }
     return got;
+}
+
+void dev_set_mode(dev_device *d, dev_mode mode)
+{
+    d->mode = mode;
+}
+
+unsigned dev_unplugs(const dev_device *d)
+{
+    return d->unplugs;
+}
+
+unsigned dev_plays(dev_device *d)
+{
+    return atomic_load(&d->plays);
 }
 
 int dev_zero_offsets(dev_device *d, const float rest[6], int16_t now[6])

@@ -121,13 +121,32 @@ dev_device *dev_open(const char *spec);
 void dev_close(dev_device *d);
 
 /* Drains every pending report (waiting up to timeout_ms for the first; <0 blocks), folds them into
- * one event and returns 1 when anything changed, 0 when nothing did, negative on a hard error.
+ * one event (DEV_LIVE; DEV_RECORDED: the first that changes something) and returns 1 when
+ * anything changed, 0 when nothing did, negative on a hard error.
  * Unplug is not an error: it yields DEV_EV_UNPLUG once, then the device is looked for every
  * DEV_REPLUG_MS, and at once when the hotplug monitor announces a new device (same path, or same
  * vid:pid:serial), and DEV_EV_REPLUG when it returns; a device
  * with another vid:pid:serial at the old path is refused (DEV_EV_REFUSED). Allocates
  * nothing after dev_open. */
 int dev_poll(dev_device *d, dev_event *ev, int timeout_ms);
+
+/* How dev_poll reads a device. */
+typedef enum dev_mode {
+    DEV_LIVE = 0,         /* the default: every queued report folded into one event (stale motion
+                           * never replays); an unplug closes the handle and the device is looked
+                           * for until it returns */
+    DEV_RECORDED = 1,     /* a recording: one event per report, at the recorded times; an unplug
+                           * is the recording's (the handle stays open and its next report is the
+                           * replug); DEV_EV_END once it played out */
+    DEV_RECORDED_LOOP = 2 /* DEV_RECORDED, played again from the start (reopened at the reopen path
+                           * of dev_open_handle) instead of ending: a replug */
+} dev_mode;
+/* Sets how dev_poll reads d, before the first dev_poll. */
+void dev_set_mode(dev_device *d, dev_mode mode);
+/* Unplugs so far (DEV_RECORDED: the recording's), and plays begun after the first
+ * (DEV_RECORDED_LOOP; any thread). */
+unsigned dev_unplugs(const dev_device *d);
+unsigned dev_plays(dev_device *d);
 
 /* Called by dev_poll with every raw report it reads, before parsing (recorders: `fracnav record`).
  * Runs on the polling thread; NULL removes it. */

@@ -20,8 +20,9 @@ enum {
     DEV_EV_BATTERY = 1u << 2, /* battery level reported */
     DEV_EV_UNPLUG = 1u << 3,  /* the device went away: hold the last pose */
     DEV_EV_REPLUG = 1u << 4,  /* the device is back */
-    DEV_EV_REFUSED = 1u << 5  /* another device (vid:pid:serial) sits where the lost one was: not
+    DEV_EV_REFUSED = 1u << 5, /* another device (vid:pid:serial) sits where the lost one was: not
                                * adopted, still waiting; fn_err_msg() names both. Once per refusal. */
+    DEV_EV_END = 1u << 6      /* a recording played out (DEV_RECORDED): nothing more will come */
 };
 
 /* A normalized event: the device's whole input state after the reports it folds in. */

@@ -6,7 +6,9 @@
 # - each folder of the core (src/core/*/) includes only the system headers of its allow-list below,
 #   so no device, window or GL header (hidapi, GLFW, OSMesa) reaches the core. The probes
 #   tests/layers/system/FOLDER_*.c stand for a core file of FOLDER that includes one: each must be
-#   refused.
+#   refused;
+# - navigate and replay (src/app/cmd_navigate.c, cmd_replay.c) include, of the layers below them,
+#   the session's headers only.
 # Exit 0 when all is so, 1 otherwise.
 # Usage: tests/layers.sh BUILD_DIR   (probes and headers)
 #        tests/layers.sh --headers   (the core's headers only: the build runs this)
@@ -61,6 +63,20 @@ for f in "$here"/layers/system/*.c; do
         echo "layers: $name: its system header was not refused" >&2
         bad=1
     fi
+done
+# The command line's session clients (navigate, replay) reach the layers below through the
+# session's headers alone (session.h, its terminal view navview.h) and the generic err.h and
+# fnclock.h, besides the application's own.
+CLIENT_HEADERS="session.h navview.h err.h fnclock.h cmd.h framedump.h navwin.h"
+for f in "$here"/../src/app/cmd_navigate.c "$here"/../src/app/cmd_replay.c; do
+    for h in $(sed -n 's/^[[:space:]]*#[[:space:]]*include[[:space:]]*"\([^"]*\)".*/\1/p' "$f"); do
+        case " $CLIENT_HEADERS " in
+        *" $h "*) ;;
+        *) echo "layers: src/app/$(basename "$f") includes \"$h\": a client of the session reaches" \
+                "the layers below through session.h" >&2
+           bad=1 ;;
+        esac
+    done
 done
 [ "${1:-}" = --headers ] && exit $bad
 

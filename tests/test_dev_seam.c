@@ -34,6 +34,7 @@ static struct {
     uint16_t vid, pid;
     uint8_t info20[8]; /* feature report 0x20 the device answers (open controller) */
     int info20_len;
+    int played_out; /* a recording's end: reads say unplugged, finished says so */
 } fake;
 
 struct dev_handle {
@@ -105,9 +106,14 @@ static void f_close(dev_handle *h)
     free(h);
 }
 
+static int f_finished(const dev_handle *h)
+{
+    return fake.played_out;
+}
+
 static const dev_transport fake_transport = {
     .name = "fake", .open = f_open, .read = f_read, .write = f_write, .info = f_info, .close = f_close,
-    .get_feature = f_get_feature,
+    .get_feature = f_get_feature, .finished = f_finished,
     .enumerate = f_enum, .hotplug_subsystem = "fake"};
 
 static void reset_fake(void)
@@ -220,6 +226,44 @@ static void test_unplug_replug(void **s)
     push(r, devparse_make_split(r, 1, t));
     assert_int_equal(dev_poll(d, &ev, 0), 1);
     assert_true(ev.axis[0] > 0.28f);
+    dev_close(d);
+}
+
+/* A recording travels dev_poll too, unfolded: one event per report at its own time, the
+ * recorded unplug (the handle kept) and replug (then the report that came with it), the end. */
+static void test_recorded_one_event_per_report(void **s)
+{
+    reset_fake();
+    dev_device *d = dev_open("fake:any");
+    assert_non_null(d);
+    dev_set_mode(d, DEV_RECORDED);
+    uint8_t r[16];
+    for (int i = 1; i <= 3; i++)
+        push(r, devparse_make_split(r, 1, (int[3]){35 * i, 0, 0}));
+    dev_event ev;
+    for (int i = 1; i <= 3; i++) {
+        assert_int_equal(dev_poll(d, &ev, 0), 1);
+        assert_true(fabsf(ev.axis[0] - 0.1f * (float)i) < 1e-6f);
+        assert_true(ev.t_us == 8000 * i);
+    }
+    fake.plugged = 0;
+    assert_int_equal(dev_poll(d, &ev, 0), 1);
+    assert_int_equal(ev.flags, DEV_EV_UNPLUG);
+    assert_int_equal(dev_poll(d, &ev, 0), 0); /* still away: said once */
+    assert_int_equal(dev_unplugs(d), 1);
+    fake.plugged = 1;
+    push(r, devparse_make_split(r, 1, (int[3]){0, 70, 0}));
+    assert_int_equal(dev_poll(d, &ev, 0), 1);
+    assert_int_equal(ev.flags, DEV_EV_REPLUG);
+    assert_true(ev.t_us == 32000);
+    assert_int_equal(dev_poll(d, &ev, 0), 1);
+    assert_true(fabsf(ev.axis[1] - 0.2f) < 1e-6f);
+    assert_int_equal(fake.opens, 1); /* the recording's handle was kept */
+    fake.plugged = 0;
+    fake.played_out = 1;
+    assert_int_equal(dev_poll(d, &ev, 0), 1);
+    assert_int_equal(ev.flags, DEV_EV_END);
+    assert_int_equal(dev_unplugs(d), 1);
     dev_close(d);
 }
 
@@ -572,6 +616,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_registry),       cmocka_unit_test(test_drain_newest_state),
         cmocka_unit_test(test_unplug_replug),  cmocka_unit_test(test_led_and_serial),
+        cmocka_unit_test(test_recorded_one_event_per_report),
         cmocka_unit_test(test_hidraw_path_errors), cmocka_unit_test(test_keyboard_keys),
         cmocka_unit_test(test_keyboard_mouse),     cmocka_unit_test(test_replug_elsewhere),
         cmocka_unit_test(test_replug_other_device_refused),

@@ -101,14 +101,49 @@ static void play(session *s, const char *text, int mode, loop_stats *out, pose *
     sim_replay_opts ro = {mode == SESSION_PLAY_REALTIME, 1};
     dev_handle *h;
     assert_int_equal(sim_replay_open_rec(rec, &ro, &h), 0);
-    session_tsource *ts = session_tsource_new(&sim_replay_transport, h, rec->hdr.vid, rec->hdr.pid, NULL,
-                                              sim_replay_finished, NULL);
-    assert_non_null(ts);
-    assert_int_equal(session_play(s, session_transport_source(ts), mode), 0);
-    session_tsource_free(ts);
+    session_dsource *ds = session_recording_new(&sim_replay_transport, h, NULL, NULL);
+    assert_non_null(ds);
+    assert_int_equal(session_play(s, session_device_source(ds), mode), 0);
+    session_dsource_free(ds);
     fnrec_free(rec);
     loop_get_stats(session_loop(s), out);
     *b = loop_pose(session_loop(s), 1);
+}
+
+/* A recording opened by its --device spec (session_source_open, as navigate and replay do) is
+ * read one report per event, as one opened from its handle: the same poses, its unplug counted. */
+static void test_source_by_spec(void **st)
+{
+    (void)st;
+    char rec[4200], spec[4300];
+    snprintf(rec, sizeof rec, "%s/sim/recordings/buttons.fnrec", tu_src());
+    snprintf(spec, sizeof spec, "replay:%s", rec);
+    if (!dev_transport_find("replay"))
+        assert_int_equal(sim_register_transports(), 0);
+    assert_true(session_spec_recording(spec));
+    assert_false(session_spec_recording("auto"));
+    loop_config cfg;
+    loop_config_default(&cfg);
+    session_dsource *ds = session_source_open(spec, NULL, 0, &cfg);
+    assert_non_null(ds);
+    assert_true(session_source_recording(ds));
+    session *s = open_case(0);
+    assert_int_equal(session_play(s, session_device_source(ds), SESSION_PLAY_FAST), 0);
+    loop_stats a, b;
+    session_stats(s, &a);
+    assert_int_equal(session_source_unplugs(ds), 1);
+    session_close(s);
+    session_dsource_free(ds);
+    dev_handle *h;
+    assert_int_equal(sim_replay_open_file(rec, &(sim_replay_opts){0, 1}, &h), 0);
+    ds = session_recording_new(&sim_replay_transport, h, NULL, NULL);
+    s = open_case(0);
+    assert_int_equal(session_play(s, session_device_source(ds), SESSION_PLAY_FAST), 0);
+    session_stats(s, &b);
+    session_close(s);
+    session_dsource_free(ds);
+    assert_true(a.steps > 0);
+    assert_true(a.steps == b.steps && a.pose_digest == b.pose_digest);
 }
 
 /* Head-on into A: B stops at contact (never inside) and the rest of the push is refused; the same
@@ -464,6 +499,47 @@ static void test_save_at_stop(void **st)
     s = open_case(0);
     pose now = loop_pose(session_loop(s), 1);
     assert_true(fabs(now.t[1] - up.t[1]) < 1e-9);
+    session_close(s);
+}
+
+/* A client that never waits on events still has its save done and its fit landed: the session
+ * carries them out on its own thread, and their events wait for it in order. */
+static int case_holds(void *arg)
+{
+    const pose *want = arg;
+    planning_case *c = case_load(case_dir);
+    int ok = c && fabs(c->frag[1].pose.t[1] - want->t[1]) < 1e-9;
+    case_free(c);
+    return ok;
+}
+
+/* arg: {session, pose}: B stands elsewhere than at the pose. */
+static int b_moved_from(void *arg)
+{
+    void **a = arg;
+    pose now = pose_of(a[0], 1);
+    return memcmp(&now, a[1], sizeof now) != 0;
+}
+
+static void test_actions_done_without_waiting(void **st)
+{
+    (void)st;
+    session *s = start_quiet(SESSION_JOURNAL);
+    pose hand = moved_by(moved_by(pose_of(s, 1), 1, 1.0), 2, -1.0);
+    assert_int_equal(session_propose_pose(s, 1, &hand, NULL), 0);
+    assert_int_equal(session_send_action(s, LOOP_ACT_SAVE), 0);
+    assert_true(tu_wait_for_every(case_holds, &hand, TU_WAIT_MAX_S, 50000));
+    assert_int_equal(session_send_action(s, LOOP_ACT_FIT), 0);
+    assert_true(tu_wait_for(b_moved_from, (void *[]){s, &hand}, TU_WAIT_MAX_S));
+    stop_quiet(s);
+    unsigned kinds = 0;
+    session_event ev;
+    while (session_wait_event(s, 0, &ev) != SESSION_EV_NONE) {
+        kinds |= (unsigned)ev.kind;
+        if (ev.kind == SESSION_EV_SAVED)
+            assert_int_equal(ev.result, 0);
+    }
+    assert_int_equal(kinds, SESSION_EV_POSE | SESSION_EV_ACTION | SESSION_EV_SAVED | SESSION_EV_FIT);
     session_close(s);
 }
 
@@ -886,6 +962,7 @@ int main(void)
         cmocka_unit_test_setup(test_head_on_stops_at_contact_deterministic, fresh_case),
         cmocka_unit_test_setup(test_grazing_slides, fresh_case),
         cmocka_unit_test_setup(test_unplug_keeps_pose, fresh_case),
+        cmocka_unit_test_setup(test_source_by_spec, fresh_case),
         cmocka_unit_test_setup(test_actions_fix_undo_redo, fresh_case),
         cmocka_unit_test_setup(test_session_pushes_movable_for_led, fresh_case),
         cmocka_unit_test_setup(test_propose_pose_one_undoable_step, fresh_case),
@@ -899,6 +976,7 @@ int main(void)
         cmocka_unit_test_setup(test_propose_from_threads, fresh_case),
         cmocka_unit_test_setup(test_journal_recovery_and_save, fresh_case),
         cmocka_unit_test_setup(test_save_at_stop, fresh_case),
+        cmocka_unit_test_setup(test_actions_done_without_waiting, fresh_case),
         cmocka_unit_test_setup(test_end_scene_and_wakeup, fresh_case),
         cmocka_unit_test_setup(test_open_errors, fresh_case),
         cmocka_unit_test(test_fragments_without_case),

@@ -122,15 +122,14 @@ static int drive(session *k, const fnrec *rec, double *wall_s)
     dev_handle *h;
     if (sim_replay_open_rec(rec, &ro, &h) < 0)
         return FN_EIO;
-    session_tsource *ts = session_tsource_new(&sim_replay_transport, h, rec->hdr.vid, rec->hdr.pid, NULL,
-                                              sim_replay_finished, NULL);
-    if (!ts)
+    session_dsource *ds = session_recording_new(&sim_replay_transport, h, NULL, NULL);
+    if (!ds)
         return FN_ENOMEM;
     realtime = loop_realtime_priority() == 0;
     double t0 = bench_now_us();
-    int rc = session_play(k, session_transport_source(ts), SESSION_PLAY_LOCKSTEP);
+    int rc = session_play(k, session_device_source(ds), SESSION_PLAY_LOCKSTEP);
     *wall_s = (bench_now_us() - t0) * 1e-6;
-    session_tsource_free(ts);
+    session_dsource_free(ds);
     return rc;
 }
 

@@ -476,38 +476,91 @@ static json_t *navigate(char *exe, const char *bindir, const char *dir, char *re
     return j;
 }
 
-int cmd_demo(int argc, char **argv)
+/* The navigation's line: its steps and the loop's figures. */
+static void print_navigation(json_t *nav)
 {
-    const char *ct_path = NULL, *dir = "fracnav-demo";
-    char *rec = NULL;
-    cmd_tau tau = {0};
-    demo_threshold thr = {300, 0};
-    int rc, no_fuse = 0, view = NAVWIN_VIEW_AUTO;
+    printf("   %lld steps: %lld accepted, %lld limited, %lld slid, %lld refused; collisions in accepted poses: "
+           "%lld; loop %.0f Hz, collision query mean %.2f us (max %.1f us), latency p99 %.0f us\n",
+           json_integer_value(json_object_get(nav, "steps")), json_integer_value(json_object_get(nav, "accepted")),
+           json_integer_value(json_object_get(nav, "limited")), json_integer_value(json_object_get(nav, "slid")),
+           json_integer_value(json_object_get(nav, "refused")),
+           json_integer_value(json_object_get(nav, "collisions_in_accepted")), num(nav, "loop_hz"),
+           num(nav, "query_mean_us"), num(nav, "query_max_us"), num(nav, "latency_p99_us"));
+}
+
+/* The closing lines: where the results are, the figures measured, what to do next. */
+static void print_results(const char *dir, const char *exdir, const char *casedir, json_t *nav, json_t *red,
+                          json_t *fr, double total)
+{
+    printf("\n6. results in %s:\n"
+           "   the report:        %s/report/index.html\n"
+           "   3D Slicer:         %s/planned.seg.nrrd, %s/transforms/fragment-ID.tfm\n"
+           "   labelmap:          %s/planned.nii.gz\n"
+           "   models (printing): %s/models/fragment-ID.stl\n"
+           "   cases:             %s/case (segmented), %s (fractured, navigated, reduced)\n"
+           "figures measured (on this machine, noisy when it is shared):\n"
+           "   collision query:   mean %.2f us, max %.1f us\n"
+           "   loop rate:         %.0f Hz (paced by the device's reports; latency p99 %.0f us)\n"
+           "   reduction:         %.2f s; error %.2f deg, %.2f mm, TRE %.2f mm\n"
+           "   whole demo:        %.1f s\n",
+           dir, exdir, exdir, exdir, exdir, exdir, dir, casedir, num(nav, "query_mean_us"), num(nav, "query_max_us"),
+           num(nav, "loop_hz"), num(nav, "latency_p99_us"), num(red, "seconds"), num(fr, "rot_err_deg"),
+           num(fr, "trans_err_mm"), num(fr, "tre_mm"), total);
+    printf("\nNext: open the report in a browser, or steer it yourself with `fracnav navigate %s` (a 3D "
+           "mouse, or --device keyboard).\n", casedir);
+}
+
+/* What the command line asks for. */
+typedef struct demo_opts {
+    const char *ct_path, *dir;
+    char *rec;
+    cmd_tau tau;
+    demo_threshold thr;
+    int no_fuse, view;
+} demo_opts;
+
+/* Reads the arguments into o; 0, 2 (usage) or -1 (--help printed). */
+static int parse(int argc, char **argv, demo_opts *o)
+{
+    int rc;
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "-h") || !strcmp(argv[i], "--help")) {
             usage(stdout);
-            return 0;
+            return -1;
         } else if (!strcmp(argv[i], "-o") && i + 1 < argc) {
-            dir = argv[++i];
+            o->dir = argv[++i];
         } else if (!strcmp(argv[i], "--recording") && i + 1 < argc) {
-            rec = argv[++i];
+            o->rec = argv[++i];
         } else if (!strcmp(argv[i], "--no-fuse")) {
-            no_fuse = 1;
-        } else if (cmd_tau_option("demo", argv[i], i + 1 < argc ? argv[i + 1] : NULL, &tau, &rc) ||
-                   cmd_threshold_option("demo", argv[i], i + 1 < argc ? argv[i + 1] : NULL, &thr.value,
-                                        &thr.automatic, &rc) ||
-                   navwin_view_option("demo", argv[i], i + 1 < argc ? argv[i + 1] : NULL, &view, &rc)) {
+            o->no_fuse = 1;
+        } else if (cmd_tau_option("demo", argv[i], i + 1 < argc ? argv[i + 1] : NULL, &o->tau, &rc) ||
+                   cmd_threshold_option("demo", argv[i], i + 1 < argc ? argv[i + 1] : NULL, &o->thr.value,
+                                        &o->thr.automatic, &rc) ||
+                   navwin_view_option("demo", argv[i], i + 1 < argc ? argv[i + 1] : NULL, &o->view, &rc)) {
             if (rc)
                 return rc;
             i++;
-        } else if (argv[i][0] == '-' || ct_path) {
+        } else if (argv[i][0] == '-' || o->ct_path) {
             fprintf(stderr, "fracnav demo: unexpected argument '%s'\n", argv[i]);
             usage(stderr);
             return 2;
         } else {
-            ct_path = argv[i];
+            o->ct_path = argv[i];
         }
     }
+    return 0;
+}
+
+int cmd_demo(int argc, char **argv)
+{
+    demo_opts o = {.dir = "fracnav-demo", .thr = {300, 0}, .view = NAVWIN_VIEW_AUTO};
+    int rc = parse(argc, argv, &o);
+    if (rc)
+        return rc < 0 ? 0 : rc;
+    const char *ct_path = o.ct_path, *dir = o.dir;
+    char *rec = o.rec;
+    cmd_tau tau = o.tau;
+    demo_threshold thr = o.thr;
     if ((rc = cmd_tau_check("demo", &tau)) != 0)
         return rc;
     /* a run replaces the results an earlier demo left in DIR, never a case's files */
@@ -551,16 +604,10 @@ int cmd_demo(int argc, char **argv)
     if (rc < 0)
         return fail("fracture");
 
-    json_t *nav = navigate(exe, bindir, dir, rec, no_fuse, view);
+    json_t *nav = navigate(exe, bindir, dir, rec, o.no_fuse, o.view);
     if (!nav)
         return fail("navigation");
-    printf("   %lld steps: %lld accepted, %lld limited, %lld slid, %lld refused; collisions in accepted poses: "
-           "%lld; loop %.0f Hz, collision query mean %.2f us (max %.1f us), latency p99 %.0f us\n",
-           json_integer_value(json_object_get(nav, "steps")), json_integer_value(json_object_get(nav, "accepted")),
-           json_integer_value(json_object_get(nav, "limited")), json_integer_value(json_object_get(nav, "slid")),
-           json_integer_value(json_object_get(nav, "refused")),
-           json_integer_value(json_object_get(nav, "collisions_in_accepted")), num(nav, "loop_hz"),
-           num(nav, "query_mean_us"), num(nav, "query_max_us"), num(nav, "latency_p99_us"));
+    print_navigation(nav);
 
     char casedir[PATH_MAX], exdir[PATH_MAX];
     snprintf(casedir, sizeof casedir, "%s/fracture", dir);
@@ -589,23 +636,7 @@ int cmd_demo(int argc, char **argv)
     printf("   %lld files, %.1f MB\n", json_integer_value(json_object_get(ex, "files_written")),
            (double)json_integer_value(json_object_get(ex, "written_total_bytes")) / 1e6);
 
-    double total = (double)(fnclock_now_us() - t0) * 1e-6;
-    printf("\n6. results in %s:\n"
-           "   the report:        %s/report/index.html\n"
-           "   3D Slicer:         %s/planned.seg.nrrd, %s/transforms/fragment-ID.tfm\n"
-           "   labelmap:          %s/planned.nii.gz\n"
-           "   models (printing): %s/models/fragment-ID.stl\n"
-           "   cases:             %s/case (segmented), %s (fractured, navigated, reduced)\n"
-           "figures measured (on this machine, noisy when it is shared):\n"
-           "   collision query:   mean %.2f us, max %.1f us\n"
-           "   loop rate:         %.0f Hz (paced by the device's reports; latency p99 %.0f us)\n"
-           "   reduction:         %.2f s; error %.2f deg, %.2f mm, TRE %.2f mm\n"
-           "   whole demo:        %.1f s\n",
-           dir, exdir, exdir, exdir, exdir, exdir, dir, casedir, num(nav, "query_mean_us"), num(nav, "query_max_us"),
-           num(nav, "loop_hz"), num(nav, "latency_p99_us"), num(red, "seconds"), num(fr, "rot_err_deg"),
-           num(fr, "trans_err_mm"), num(fr, "tre_mm"), total);
-    printf("\nNext: open the report in a browser, or steer it yourself with `fracnav navigate %s` (a 3D "
-           "mouse, or --device keyboard).\n", casedir);
+    print_results(dir, exdir, casedir, nav, red, fr, (double)(fnclock_now_us() - t0) * 1e-6);
     json_decref(nav);
     json_decref(red);
     json_decref(ex);

@@ -117,6 +117,115 @@ static void made(FILE *msg, json_t *res, const char *key, long value, const char
         json_object_set_new(res, key, json_integer(value));
 }
 
+/* edit grow X Y Z [--threshold HU] [--into ID]: as apply. */
+static int edit_grow(planning_case *c, int argc, char **argv, FILE *msg, json_t *res)
+{
+    double v[3];
+    int id;
+    double thr = c->seg.threshold;
+    int into = 0;
+    if (argc < 3 || !numbers(argv, 3, v))
+        return cmd_usage_error("edit", "grow needs X Y Z [--threshold HU] [--into ID]");
+    for (int i = 3; i < argc; i += 2) {
+        const char *val = i + 1 < argc ? argv[i + 1] : NULL;
+        if (!strcmp(argv[i], "--threshold")) {
+            if (!cmd_number(val, &thr))
+                return cmd_bad_value("edit", argv[i], val, "a number (HU)");
+        } else if (!strcmp(argv[i], "--into")) {
+            if (!val || !integer(val, &into))
+                return cmd_bad_value("edit", argv[i], val, "a fragment id (0..65535)");
+        } else
+            return cmd_usage_error("edit", "grow: unknown option '%s'", argv[i]);
+    }
+    if ((id = case_grow(c, v, thr, into)) < 0)
+        return 1;
+    made(msg, res, "fragment", id, "grew fragment %d to %zu voxels\n", id, c->frag[case_find(c, id)].voxels);
+    return 0;
+}
+
+/* edit fill ID [--slices]: as apply. */
+static int edit_fill(planning_case *c, int argc, char **argv, FILE *msg, json_t *res)
+{
+    int id;
+    long rc;
+    int mode = MORPH_FILL_3D;
+    if (argc < 1 || !integer(argv[0], &id))
+        return cmd_usage_error("edit", "fill needs ID [--slices]");
+    for (int i = 1; i < argc; i++)
+        if (!strcmp(argv[i], "--slices"))
+            mode |= MORPH_FILL_SLICES;
+        else
+            return cmd_usage_error("edit", "fill: unknown option '%s'", argv[i]);
+    if ((rc = case_fill(c, id, mode)) < 0)
+        return 1;
+    made(msg, res, "filled_voxels", rc, "filled %ld voxels of fragment %d's interior\n", rc, id);
+    return 0;
+}
+
+/* separate's line of text and figures: rc new fragments news, from nseeds seeds or eroded used mm. */
+static void separated(int id, long rc, const int *news, int nseeds, double used, FILE *msg, json_t *res)
+{
+    if (res) {
+        json_t *arr = json_array();
+        for (long i = 0; i < rc; i++)
+            json_array_append_new(arr, json_integer(news[i]));
+        jsonw_set(res, "new_fragments", arr);
+        jsonw_set(res, "erode_mm", nseeds ? json_null() : jsonw_measure(used));
+    }
+    if (rc == 0)
+        fprintf(msg, "fragment %d stays one piece (from %d seed%s)\n", id, nseeds, nseeds == 1 ? "" : "s");
+    else
+        fprintf(msg, "separated fragment %d into %ld pieces (new fragments", id, rc + 1);
+    for (long i = 0; i < rc; i++)
+        fprintf(msg, " %d", news[i]);
+    if (rc && nseeds)
+        fprintf(msg, "; from %d seeds)\n", nseeds);
+    else if (rc)
+        fprintf(msg, "; eroded %.2f mm)\n", used);
+}
+
+/* edit separate ID [--erode MM] [--seeds X Y Z ...] [--seed-file PATH]: as apply. */
+static int edit_separate(planning_case *c, int argc, char **argv, FILE *msg, json_t *res)
+{
+    int id;
+    long rc;
+    double erode = 0;
+    case_seed *seeds = NULL;
+    int nseeds = 0, news[256];
+    if (argc < 1 || !integer(argv[0], &id))
+        return cmd_usage_error("edit", "separate needs ID [--erode MM] [--seeds X Y Z ...] [--seed-file PATH]");
+    for (int i = 1; i < argc; i++) {
+        const char *val = i + 1 < argc ? argv[i + 1] : NULL;
+        int bad;
+        if (cmd_seeds_option("edit", argc, argv, &i, &seeds, &nseeds, &bad)) {
+            if (bad) {
+                free(seeds);
+                return bad;
+            }
+        } else if (!strcmp(argv[i], "--erode")) {
+            if (!cmd_number(val, &erode) || !(erode > 0 && erode < 1000)) {
+                free(seeds);
+                return cmd_bad_value("edit", argv[i], val, "a distance in mm > 0");
+            }
+            i++;
+        } else {
+            free(seeds);
+            return cmd_usage_error("edit", "separate: unknown option '%s'", argv[i]);
+        }
+    }
+    if (nseeds && erode > 0) {
+        free(seeds);
+        return cmd_usage_error("edit", "%s", "separate: --erode or seeds, not both");
+    }
+    double used = 0;
+    rc = nseeds ? case_separate_seeds(c, id, seeds, nseeds, news) : case_separate(c, id, erode, news, &used);
+    free(seeds);
+    if (rc < 0)
+        return 1;
+    separated(id, rc, news, nseeds, used, msg, res);
+    return 0;
+}
+
 /* Applies the operation; returns 0, 2 (usage) or 1 (runtime, fn_err set). The line that says what
  * it did goes to msg; with --json, res gets its figures. */
 static int apply(planning_case *c, const char *op, int argc, char **argv, FILE *msg, json_t *res)
@@ -159,24 +268,7 @@ static int apply(planning_case *c, const char *op, int argc, char **argv, FILE *
             return 1;
         made(msg, res, "erased_voxels", rc, "erased %ld voxels\n", rc);
     } else if (!strcmp(op, "grow")) {
-        double thr = c->seg.threshold;
-        int into = 0;
-        if (argc < 3 || !numbers(argv, 3, v))
-            return cmd_usage_error("edit", "grow needs X Y Z [--threshold HU] [--into ID]");
-        for (int i = 3; i < argc; i += 2) {
-            const char *val = i + 1 < argc ? argv[i + 1] : NULL;
-            if (!strcmp(argv[i], "--threshold")) {
-                if (!cmd_number(val, &thr))
-                    return cmd_bad_value("edit", argv[i], val, "a number (HU)");
-            } else if (!strcmp(argv[i], "--into")) {
-                if (!val || !integer(val, &into))
-                    return cmd_bad_value("edit", argv[i], val, "a fragment id (0..65535)");
-            } else
-                return cmd_usage_error("edit", "grow: unknown option '%s'", argv[i]);
-        }
-        if ((id = case_grow(c, v, thr, into)) < 0)
-            return 1;
-        made(msg, res, "fragment", id, "grew fragment %d to %zu voxels\n", id, c->frag[case_find(c, id)].voxels);
+        return edit_grow(c, argc, argv, msg, res);
     } else if (!strcmp(op, "keep") || !strcmp(op, "drop")) {
         if ((n = id_list(argc, argv, ids, 256)) < 0)
             return cmd_usage_error("edit", "keep/drop need fragment ids (1,3 or 1 3)");
@@ -184,68 +276,9 @@ static int apply(planning_case *c, const char *op, int argc, char **argv, FILE *
             return 1;
         made(msg, NULL, NULL, 0, "%d fragment%s left\n", c->nfrag, c->nfrag == 1 ? "" : "s");
     } else if (!strcmp(op, "fill")) {
-        int mode = MORPH_FILL_3D;
-        if (argc < 1 || !integer(argv[0], &id))
-            return cmd_usage_error("edit", "fill needs ID [--slices]");
-        for (int i = 1; i < argc; i++)
-            if (!strcmp(argv[i], "--slices"))
-                mode |= MORPH_FILL_SLICES;
-            else
-                return cmd_usage_error("edit", "fill: unknown option '%s'", argv[i]);
-        if ((rc = case_fill(c, id, mode)) < 0)
-            return 1;
-        made(msg, res, "filled_voxels", rc, "filled %ld voxels of fragment %d's interior\n", rc, id);
+        return edit_fill(c, argc, argv, msg, res);
     } else if (!strcmp(op, "separate")) {
-        double erode = 0;
-        case_seed *seeds = NULL;
-        int nseeds = 0, news[256];
-        if (argc < 1 || !integer(argv[0], &id))
-            return cmd_usage_error("edit", "separate needs ID [--erode MM] [--seeds X Y Z ...] [--seed-file PATH]");
-        for (int i = 1; i < argc; i++) {
-            const char *val = i + 1 < argc ? argv[i + 1] : NULL;
-            int bad;
-            if (cmd_seeds_option("edit", argc, argv, &i, &seeds, &nseeds, &bad)) {
-                if (bad) {
-                    free(seeds);
-                    return bad;
-                }
-            } else if (!strcmp(argv[i], "--erode")) {
-                if (!cmd_number(val, &erode) || !(erode > 0 && erode < 1000)) {
-                    free(seeds);
-                    return cmd_bad_value("edit", argv[i], val, "a distance in mm > 0");
-                }
-                i++;
-            } else {
-                free(seeds);
-                return cmd_usage_error("edit", "separate: unknown option '%s'", argv[i]);
-            }
-        }
-        if (nseeds && erode > 0) {
-            free(seeds);
-            return cmd_usage_error("edit", "%s", "separate: --erode or seeds, not both");
-        }
-        double used = 0;
-        rc = nseeds ? case_separate_seeds(c, id, seeds, nseeds, news) : case_separate(c, id, erode, news, &used);
-        free(seeds);
-        if (rc < 0)
-            return 1;
-        if (res) {
-            json_t *arr = json_array();
-            for (long i = 0; i < rc; i++)
-                json_array_append_new(arr, json_integer(news[i]));
-            jsonw_set(res, "new_fragments", arr);
-            jsonw_set(res, "erode_mm", nseeds ? json_null() : jsonw_measure(used));
-        }
-        if (rc == 0)
-            fprintf(msg, "fragment %d stays one piece (from %d seed%s)\n", id, nseeds, nseeds == 1 ? "" : "s");
-        else
-            fprintf(msg, "separated fragment %d into %ld pieces (new fragments", id, rc + 1);
-        for (long i = 0; i < rc; i++)
-            fprintf(msg, " %d", news[i]);
-        if (rc && nseeds)
-            fprintf(msg, "; from %d seeds)\n", nseeds);
-        else if (rc)
-            fprintf(msg, "; eroded %.2f mm)\n", used);
+        return edit_separate(c, argc, argv, msg, res);
     } else if (!strcmp(op, "fix")) {
         if (argc != 1 || !integer(argv[0], &id))
             return cmd_usage_error("edit", "fix needs one fragment id (0: none)");

@@ -6,7 +6,6 @@
 #include "navview.h"
 #include "navwin.h"
 #include "session.h"
-#include "sim_replay.h"
 
 #include <signal.h>
 #include <stdatomic.h>
@@ -109,18 +108,6 @@ typedef struct opts {
     const char *screenshot;
 } opts;
 
-/* The transport of a played recording (replay:FILE, replay-realtime:FILE) with its file in *file,
- * else NULL: a device spec that names no recording, or none that resolves (dev_open says why). */
-static const dev_transport *recording_spec(const char *spec, const char **file)
-{
-    const dev_transport *t;
-    if (!strcmp(spec, "auto") || dev_spec_resolve(spec, &t, file) || !(t->caps & DEV_CAP_RECORDING)) {
-        fn_err_clear();
-        return NULL;
-    }
-    return t;
-}
-
 static int parse(int argc, char **argv, opts *o)
 {
     memset(o, 0, sizeof *o);
@@ -185,8 +172,7 @@ static int parse(int argc, char **argv, opts *o)
     }
     if (o->screenshot && o->view == NAVWIN_VIEW_TERMINAL)
         return cmd_usage_error("navigate", "--screenshot saves the window: it needs --view window");
-    const char *file;
-    if (o->again && !recording_spec(o->device, &file))
+    if (o->again && !session_spec_recording(o->device))
         return cmd_usage_error("navigate", "--loop plays a recording again: it needs --device "
                                            "replay:FILE or replay-realtime:FILE, not '%s'", o->device);
     return 0;
@@ -227,7 +213,7 @@ static void offer_recovery(opts *o)
 typedef struct view {
     session *k;
     session_dsource *ds; /* a live device (battery, refusals); NULL for a played recording */
-    session_tsource *ts; /* a played recording; NULL for a live device */
+    session_dsource *rec; /* a played recording; NULL for a live device */
     unsigned plays_seen;
     int keyboard;        /* the keyboard device steers: its keys are the help */
     int tty, help, lines; /* lines: the rows the terminal view holds at the screen's bottom */
@@ -293,7 +279,7 @@ static void new_actions(view *v, const loop_scene *sc)
 /* --loop: each new play of the recording is acknowledged. */
 static void new_plays(view *v)
 {
-    unsigned plays = v->ts ? session_tsource_plays(v->ts) : 0;
+    unsigned plays = v->rec ? session_source_plays(v->rec) : 0;
     if (plays == v->plays_seen)
         return;
     v->plays_seen = plays;
@@ -384,7 +370,7 @@ static void window_key(view *v, int k)
     if (!v->keyboard || !v->ds || !bytes) {
         if (k > 0 && k < 128)
             handle_key(v, k);
-    } else if (dev_feed_keys(session_dsource_device(v->ds), bytes, bytes == &c ? 1 : strlen(bytes)) < 0)
+    } else if (session_source_feed_keys(v->ds, bytes, bytes == &c ? 1 : strlen(bytes)) < 0)
         acknowledge(v, fn_err_msg());
 }
 
@@ -422,8 +408,7 @@ static void window_frame(view *v, const loop_scene *sc)
 {
     char refused[512], device[256];
     navview_extra x = view_extra(v, refused, sizeof refused);
-    const devtab_row *row = v->ds ? dev_row(session_dsource_device(v->ds)) : NULL;
-    snprintf(device, sizeof device, "%s%s", row && row->name ? row->name : v->ds ? "?" : "a recording",
+    snprintf(device, sizeof device, "%s%s", v->ds ? session_source_name(v->ds) : "a recording",
              x.battery >= 0 ? "" : ", battery unknown");
     int keys[NAVWIN_KEYS], closed = 0;
     int n = navwin_show(v->win, sc, &x, device, v->help ? navview_help(v->keyboard) : NULL, keys, NAVWIN_KEYS,
@@ -558,37 +543,6 @@ static int run(view *v, loop_source src, int keys, const opts *o)
     return rc == 0 ? session_save(k) : rc;
 }
 
-/* A played recording as the source (navigate ends at its end, or plays it again with --loop),
- * with the decoder for its device. 0 or negative. */
-static int open_recording(const opts *o, const dev_transport *t, const char *file, const calib *cal,
-                          session_tsource **ts, loop_config *cfg)
-{
-    dev_handle *h;
-    int rc = t->open(file, &h);
-    if (rc < 0)
-        return rc;
-    const fnrec_header *hdr = sim_replay_header(h);
-    loop_config_actions_at(cfg, devtab_key1_button(devtab_find(hdr->vid, hdr->pid)));
-    *ts = session_tsource_new(t, h, hdr->vid, hdr->pid, cal, t->finished, o->again ? file : NULL);
-    return *ts ? 0 : FN_ENOMEM;
-}
-
-/* The live device as the source: a device that reads the terminal steers with keys (its help key,
- * the keyboard's button 11, shows them). 0 or negative. */
-static int open_device(const opts *o, const calib *cal, session_dsource **ds, loop_config *cfg, int *keyboard)
-{
-    dev_device *d = dev_open(o->device);
-    if (!d)
-        return FN_ENODEV;
-    const dev_transport *t = dev_transport_of(d);
-    *keyboard = (t->caps & DEV_CAP_TERMINAL) != 0;
-    loop_config_actions_at(cfg, devtab_key1_button(dev_row(d)));
-    if (t->help_button)
-        cfg->button_action[t->help_button - 1] = LOOP_ACT_HELP;
-    *ds = session_dsource_new(d, cal);
-    return *ds ? 0 : FN_ENOMEM;
-}
-
 int cmd_navigate(int argc, char **argv)
 {
     if (cmd_wants_help(argc, argv)) {
@@ -619,14 +573,12 @@ int cmd_navigate(int argc, char **argv)
     loop_config cfg;
     loop_config_default(&cfg);
     cfg.frame = o.frame;
-    const char *file = NULL;
-    const dev_transport *played = recording_spec(o.device, &file);
-    session_tsource *ts = NULL;
-    session_dsource *ds = NULL;
     view v = {0};
     v.tty = isatty(STDERR_FILENO);
-    rc = played ? open_recording(&o, played, file, &cal, &ts, &cfg) : open_device(&o, &cal, &ds, &cfg, &v.keyboard);
-    if (rc < 0) {
+    session_dsource *ds = session_source_open(o.device, &cal, o.again, &cfg);
+    int played = ds && session_source_recording(ds);
+    v.keyboard = ds && session_source_keyboard(ds);
+    if (!ds) {
         fprintf(stderr, "fracnav navigate: %s\n", fn_err_msg());
         caselock_release(lock);
         return 1;
@@ -639,26 +591,23 @@ int cmd_navigate(int argc, char **argv)
     if (k) {
         if (session_resumed(k))
             fprintf(stderr, "recovered %zu journal records\n", session_resumed(k));
-        session_drive_led(k, ds);
+        session_drive_led(k, played ? NULL : ds);
         if (o.have_pivot)
-            loop_set_pivot(session_loop(k), o.pivot);
+            session_set_pivot(k, o.pivot);
         v.k = k;
-        v.ds = ds;
-        v.ts = ts;
-        loop_source src = played ? session_transport_source(ts) : session_device_source(ds);
+        v.ds = played ? NULL : ds;
+        v.rec = played ? ds : NULL;
+        loop_source src = session_device_source(ds);
         rc = run(&v, src, played || !v.keyboard, &o);
-        if (!played)
-            dev_set_led(session_dsource_device(ds), 0);
         if (rc == 0 && o.json)
-            rc = session_print_json(k, stdout, "navigate", played ? (long)session_tsource_unplugs(ts) : -1,
-                                    played ? session_tsource_skipped(ts) : dev_skipped(session_dsource_device(ds)));
+            rc = session_print_json(k, stdout, "navigate", played ? (long)session_source_unplugs(ds) : -1,
+                                    session_source_skipped(ds));
         else if (rc == 0)
             fprintf(stderr, "saved %s\n", o.dir);
         session_close(k);
     }
     if (rc < 0)
         fprintf(stderr, "fracnav navigate: %s\n", fn_err_msg());
-    session_tsource_free(ts);
     session_dsource_free(ds);
     caselock_release(lock);
     return rc < 0 ? 1 : 0;

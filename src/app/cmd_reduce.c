@@ -320,6 +320,38 @@ static int retarget(planning_case *c, const char *out)
     return 0;
 }
 
+/* The poses a navigation session journaled beyond case.json are where the hand left them: they
+ * are applied to c (and said). 0 or negative. */
+static int from_journal(planning_case *c)
+{
+    journal_rec *recs = NULL;
+    size_t nrec = 0;
+    int rc = case_journal_check(c, &recs, &nrec);
+    if (rc >= 0)
+        rc = case_journal_apply(c, recs, nrec);
+    free(recs);
+    if (rc >= 0 && nrec)
+        fprintf(stderr, "fracnav reduce: starting from the %zu poses that %s/journal held beyond case.json\n", nrec,
+                c->dir);
+    return rc < 0 ? rc : 0;
+}
+
+/* The results into the case, saved in place (its journal then removed) or, with -o, through the
+ * staging folder tmp into A->out. 0 or negative. */
+static int store(planning_case *c, const args *A, int fixed, const reduce_result *res, int nmv, const char *tmp)
+{
+    int err = case_set_reduction(c, fixed, &A->o, res, nmv);
+    if (err == 0 && A->out)
+        err = retarget(c, tmp);
+    if (err == 0)
+        err = case_save(c);
+    if (err == 0 && A->out && (err = case_stage_commit(tmp, A->out)) == 0)
+        snprintf(c->dir, sizeof c->dir, "%s", A->out);
+    if (err == 0 && !A->out) /* case.json holds the journal's poses now */
+        err = case_journal_remove(c);
+    return err;
+}
+
 int cmd_reduce(int argc, char **argv)
 {
     if (cmd_wants_help(argc, argv)) {
@@ -354,19 +386,11 @@ int cmd_reduce(int argc, char **argv)
         caselock_release(lock);
         return 1;
     }
-    /* the poses a navigation session journaled beyond case.json are where the hand left them */
-    journal_rec *recs = NULL;
-    size_t nrec = 0;
-    if (case_journal_check(c, &recs, &nrec) < 0 || case_journal_apply(c, recs, nrec) < 0) {
-        free(recs);
+    if (from_journal(c) < 0) {
         fprintf(stderr, "fracnav reduce: %s\n", fn_err_msg());
         rc = 1;
         goto done;
     }
-    free(recs);
-    if (nrec)
-        fprintf(stderr, "fracnav reduce: starting from the %zu poses that %s/journal held beyond case.json\n", nrec,
-                c->dir);
     if ((rc = pick(c, &A, &fixed, mvp, &nmv, skipped, &nskipped)) != 0)
         goto done;
     /* -o is built aside and put in place at once, as segment and fracture do */
@@ -390,15 +414,7 @@ int cmd_reduce(int argc, char **argv)
     if (A.o.progress)
         fprintf(stderr, "\n");
     if (err == 0)
-        err = case_set_reduction(c, fixed, &A.o, res, nmv);
-    if (err == 0 && A.out)
-        err = retarget(c, tmp);
-    if (err == 0)
-        err = case_save(c);
-    if (err == 0 && A.out && (err = case_stage_commit(tmp, A.out)) == 0)
-        snprintf(c->dir, sizeof c->dir, "%s", A.out);
-    if (err == 0 && !A.out) /* case.json holds the journal's poses now */
-        err = case_journal_remove(c);
+        err = store(c, &A, fixed, res, nmv, tmp);
     if (err < 0) {
         fprintf(stderr, "fracnav reduce: %s\n", fn_err_msg());
         if (A.out)

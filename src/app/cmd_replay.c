@@ -1,13 +1,10 @@
 /* fracnav replay: a .fnrec recording through the navigation loop, deterministic, JSON summary. */
 #include "cmd.h"
 
-#include "devtab.h"
 #include "err.h"
-#include "fnclock.h"
 #include "framedump.h"
 #include "navwin.h"
 #include "session.h"
-#include "sim_replay.h"
 
 #include <libgen.h>
 #include <stdio.h>
@@ -186,26 +183,17 @@ static int parse(int argc, char **argv, opts *o)
     return 0;
 }
 
-/* --frames: one thread reads and steps the session's loop, a picture before each event that
- * passes a frame's time. Latency = the step's own time. */
-static int run_frames(loop *L, loop_source src, framedump *fd)
+/* --frames: a picture before each event that passes a frame's time (session_play_each), the
+ * final one at the end. */
+typedef struct frames {
+    framedump *fd;
+    session *k;
+} frames;
+
+static int frame_before(void *ctx, int64_t t_us)
 {
-    loop_event ev;
-    for (;;) {
-        int rc = src.next(src.ctx, &ev, 0);
-        if (rc == LOOP_SOURCE_END)
-            return framedump_finish(fd, L);
-        if (rc < 0)
-            return rc;
-        if (rc == 0)
-            continue;
-        if ((rc = framedump_before(fd, L, ev.t_us)) < 0)
-            return rc;
-        ev.arrival_us = fnclock_now_us();
-        rc = loop_feed(L, &ev);
-        if (rc < 0)
-            return rc;
-    }
+    frames *f = ctx;
+    return t_us < 0 ? framedump_finish(f->fd, f->k) : framedump_before(f->fd, f->k, t_us);
 }
 
 /* --realtime with a window: the session runs the recording on its threads (as navigate does)
@@ -215,7 +203,6 @@ static int run_frames(loop *L, loop_source src, framedump *fd)
  * those of session_play's, event for event. */
 static int play_live(session *k, loop_source src, const opts *o)
 {
-    loop_reset_timing(session_loop(k));
     int rc = session_start(k, src);
     if (rc < 0)
         return rc;
@@ -262,6 +249,58 @@ static int play_live(session *k, loop_source src, const opts *o)
     return rc;
 }
 
+/* Plays the recording: with --frames, pictures along; with --realtime, a window if one opens;
+ * else session_play. 0 or negative. */
+static int run(session *k, session_dsource *ds, const opts *o, framedump *fd)
+{
+    int rc;
+    loop_source src = session_device_source(ds);
+    if (fd) {
+        rc = session_play_each(k, src, frame_before, &(frames){fd, k});
+    } else if (o->realtime && navwin_wanted("replay", o->view, "the replay runs on without one")) {
+        rc = play_live(k, src, o);
+    } else {
+        if (o->screenshot) /* asked for, but no display */
+            fprintf(stderr, "fracnav replay: --screenshot %s: no window to save\n", o->screenshot);
+        rc = session_play(k, src, o->realtime ? SESSION_PLAY_REALTIME : SESSION_PLAY_FAST);
+    }
+    if (fd && rc == 0)
+        fprintf(stderr, "fracnav replay: %ld pictures in %s\n", framedump_count(fd), o->frames);
+    framedump_close(fd);
+    return rc;
+}
+
+/* After the play (rc its result): the journal synced, the case saved (--save) or the journal
+ * emptied, the summary printed. 0 or negative. */
+static int finish(session *k, session_dsource *ds, const opts *o, int rc)
+{
+    if (rc == 0)
+        rc = session_journal_sync(k);
+    if (rc == 0 && o->save && (rc = session_save(k)) == 0)
+        fprintf(stderr, "fracnav replay: saved the final poses of %d fragments in %s/case.json\n",
+                session_nfrag(k), o->dir);
+    else if (rc == 0 && !session_resumed(k))
+        rc = session_journal_truncate(k); /* finished: the poses are in the summary, the case unchanged */
+    if (rc < 0) {
+        fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
+    } else if (o->json) {
+        rc = session_print_json(k, stdout, "replay", (long)session_source_unplugs(ds),
+                                session_source_skipped(ds));
+        if (rc < 0)
+            fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
+    } else {
+        loop_stats s;
+        session_stats(k, &s);
+        printf("%llu steps: %llu accepted, %llu limited, %llu slid, %llu refused; collisions in "
+               "accepted poses: %llu; latency p99 %.0f us; pose digest %016llx\n",
+               (unsigned long long)s.steps, (unsigned long long)s.accepted,
+               (unsigned long long)s.limited, (unsigned long long)s.slid,
+               (unsigned long long)s.refused, (unsigned long long)s.collisions_in_accepted,
+               s.latency_p99_us, (unsigned long long)s.pose_digest);
+    }
+    return rc;
+}
+
 int cmd_replay(int argc, char **argv)
 {
     if (cmd_wants_help(argc, argv)) {
@@ -288,17 +327,16 @@ int cmd_replay(int argc, char **argv)
     caselock *lock = cmd_lock_case("replay", o.dir, writes, wait);
     if (!lock)
         return 1;
-    sim_replay_opts ro = {o.realtime, 1};
-    dev_handle *h;
-    if (sim_replay_open_file(o.rec, &ro, &h) < 0) {
+    loop_config cfg;
+    loop_config_default(&cfg);
+    char spec[4200];
+    snprintf(spec, sizeof spec, "%s:%s", o.realtime ? "replay-realtime" : "replay", o.rec);
+    session_dsource *ds = session_source_open(spec, &cal, 0, &cfg);
+    if (!ds) {
         fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
         caselock_release(lock);
         return 1;
     }
-    loop_config cfg;
-    loop_config_default(&cfg);
-    const fnrec_header *hdr = sim_replay_header(h);
-    loop_config_actions_at(&cfg, devtab_key1_button(devtab_find(hdr->vid, hdr->pid)));
     /* A replay saves only at its end (--save) and never fits: with the window its session
      * would carry those buttons out mid-run, and the results would depend on the view. */
     for (size_t b = 0; b < sizeof cfg.button_action; b++)
@@ -310,67 +348,25 @@ int cmd_replay(int argc, char **argv)
     session *k = session_open(o.dir, &sp);
     if (!k) {
         fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
-        sim_replay_transport.close(h);
+        session_dsource_free(ds);
         caselock_release(lock);
-        return 1;
-    }
-    session_tsource *ts = session_tsource_new(&sim_replay_transport, h, hdr->vid, hdr->pid, &cal, sim_replay_finished,
-                                              NULL);
-    if (!ts) {
-        fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
-        session_close(k);
         return 1;
     }
     fprintf(stderr, "fracnav replay: stepping %s on %s\n", o.rec, o.dir);
     if (o.have_pivot)
-        loop_set_pivot(session_loop(k), o.pivot);
+        session_set_pivot(k, o.pivot);
     framedump *fd = NULL;
     if (o.frames && !(fd = framedump_open(o.frames, session_case(k), o.frame_ms, 512, 512, &o.look))) {
         fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
         session_close(k);
-        session_tsource_free(ts);
+        session_dsource_free(ds);
         caselock_release(lock);
         return 1;
     }
-    loop_source src = session_transport_source(ts);
-    if (fd) {
-        loop_reset_timing(session_loop(k));
-        rc = run_frames(session_loop(k), src, fd);
-    } else if (o.realtime && navwin_wanted("replay", o.view, "the replay runs on without one")) {
-        rc = play_live(k, src, &o);
-    } else {
-        if (o.screenshot) /* asked for, but no display */
-            fprintf(stderr, "fracnav replay: --screenshot %s: no window to save\n", o.screenshot);
-        rc = session_play(k, src, o.realtime ? SESSION_PLAY_REALTIME : SESSION_PLAY_FAST);
-    }
-    if (fd && rc == 0)
-        fprintf(stderr, "fracnav replay: %ld pictures in %s\n", framedump_count(fd), o.frames);
-    framedump_close(fd);
-    if (rc == 0)
-        rc = session_journal_sync(k);
-    if (rc == 0 && o.save && (rc = session_save(k)) == 0)
-        fprintf(stderr, "fracnav replay: saved the final poses of %d fragments in %s/case.json\n",
-                session_nfrag(k), o.dir);
-    else if (rc == 0 && !session_resumed(k))
-        rc = session_journal_truncate(k); /* finished: the poses are in the summary, the case unchanged */
-    if (rc < 0) {
-        fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
-    } else if (o.json) {
-        rc = session_print_json(k, stdout, "replay", (long)session_tsource_unplugs(ts), session_tsource_skipped(ts));
-        if (rc < 0)
-            fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
-    } else {
-        loop_stats s;
-        loop_get_stats(session_loop(k), &s);
-        printf("%llu steps: %llu accepted, %llu limited, %llu slid, %llu refused; collisions in "
-               "accepted poses: %llu; latency p99 %.0f us; pose digest %016llx\n",
-               (unsigned long long)s.steps, (unsigned long long)s.accepted,
-               (unsigned long long)s.limited, (unsigned long long)s.slid,
-               (unsigned long long)s.refused, (unsigned long long)s.collisions_in_accepted,
-               s.latency_p99_us, (unsigned long long)s.pose_digest);
-    }
+    rc = run(k, ds, &o, fd);
+    rc = finish(k, ds, &o, rc);
     session_close(k);
-    session_tsource_free(ts);
+    session_dsource_free(ds);
     caselock_release(lock);
     return rc < 0 ? 1 : 0;
 }

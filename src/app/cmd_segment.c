@@ -231,6 +231,45 @@ static int report_json(const planning_case *c, const seg_result *r, const char *
     return jsonw_print(o, stdout);
 }
 
+/* The case of the labels in the staging folder tmp, with --tau, --fill and --separate applied:
+ * *filled voxels filled, *made fragments separated. NULL with fn_err. */
+static planning_case *make_case(const char *tmp, const char *in, vol *ct, vol *labels, const seg_params *p,
+                                const cmd_tau *tau, const extra *x, long *filled, int *made)
+{
+    planning_case *c = case_create(tmp, in, ct, labels, p);
+    if (c)
+        cmd_tau_apply(tau, &c->tau_min, &c->tau_max); /* checked by parse */
+    for (int i = 0; c && x->fill && i < c->nfrag; i++) {
+        long f = case_fill(c, c->frag[i].id, x->fill);
+        if (f < 0) {
+            case_free(c);
+            c = NULL;
+        } else
+            *filled += f;
+    }
+    *made = c && x->separate ? case_separate_all(c, x->seeds, x->nseeds) : 0;
+    if (*made < 0) {
+        case_free(c);
+        c = NULL;
+    }
+    return c;
+}
+
+/* What segment made, in words, with the times of its steps (ms: read, segmentation, fragments,
+ * save). */
+static void print_report(const planning_case *c, const seg_result *r, const extra *x, const char *out,
+                         const double ms[4], long filled, int made)
+{
+    report(c, r, x->labels);
+    if (x->fill)
+        printf("filled %ld voxels of the fragments' enclosed interiors\n", filled);
+    if (x->separate)
+        printf("separated: %d new fragment%s (%s)\n", made, made == 1 ? "" : "s",
+               x->nseeds ? "from seeds" : "automatically");
+    printf("saved %s (read %.3f s, segmentation %.3f s, fragments %.3f s, save %.3f s)\n", out,
+           ms[0] * 1e-3, ms[1] * 1e-3, ms[2] * 1e-3, ms[3] * 1e-3);
+}
+
 int cmd_segment(int argc, char **argv)
 {
     if (cmd_wants_help(argc, argv)) {
@@ -289,23 +328,9 @@ int cmd_segment(int argc, char **argv)
     vol *labels = r.labels;
     r.labels = NULL;
     int64_t t2 = fnclock_now_us();
-    planning_case *c = case_create(tmp, in, ct, labels, &p);
-    if (c)
-        cmd_tau_apply(&args.tau, &c->tau_min, &c->tau_max); /* checked by parse */
     long filled = 0;
-    for (int i = 0; c && x.fill && i < c->nfrag; i++) {
-        long f = case_fill(c, c->frag[i].id, x.fill);
-        if (f < 0) {
-            case_free(c);
-            c = NULL;
-        } else
-            filled += f;
-    }
-    int made = c && x.separate ? case_separate_all(c, x.seeds, x.nseeds) : 0;
-    if (made < 0) {
-        case_free(c);
-        c = NULL;
-    }
+    int made = 0;
+    planning_case *c = make_case(tmp, in, ct, labels, &p, &args.tau, &x, &filled, &made);
     free(x.seeds);
     int64_t t3 = fnclock_now_us();
     if (!c || case_save(c) < 0 || case_stage_commit(tmp, out) < 0) {
@@ -325,16 +350,8 @@ int cmd_segment(int argc, char **argv)
     warn_segments(&segs, x.labels);
     if (args.json && (rc = report_json(c, &r, in, out, ms, x.fill ? filled : -1, x.separate ? made : -1, &segs)) < 0)
         fprintf(stderr, "fracnav segment: %s\n", fn_err_msg());
-    else if (!args.json) {
-        report(c, &r, x.labels);
-        if (x.fill)
-            printf("filled %ld voxels of the fragments' enclosed interiors\n", filled);
-        if (x.separate)
-            printf("separated: %d new fragment%s (%s)\n", made, made == 1 ? "" : "s",
-                   x.nseeds ? "from seeds" : "automatically");
-        printf("saved %s (read %.3f s, segmentation %.3f s, fragments %.3f s, save %.3f s)\n", out,
-               ms[0] * 1e-3, ms[1] * 1e-3, ms[2] * 1e-3, ms[3] * 1e-3);
-    }
+    else if (!args.json)
+        print_report(c, &r, &x, out, ms, filled, made);
     case_free(c);
     seg_result_free(&r);
     volio_segs_free(&segs);

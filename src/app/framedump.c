@@ -71,12 +71,12 @@ framedump *framedump_open(const char *dir, const planning_case *c, double frame_
     return d;
 }
 
-static int write_frame(framedump *d, loop *L)
+static int write_frame(framedump *d, const session *k)
 {
     pose poses[RENDER_MAX_FRAGS];
     for (int i = 0; i < d->c->nfrag; i++)
-        poses[i] = loop_pose(L, i);
-    int sel = loop_selected(L);
+        poses[i] = session_pose(k, i);
+    int sel = session_selected(k);
     sel = sel >= 0 && sel < d->c->nfrag ? sel : 0;
     pose_apply(&poses[sel], d->c->frag[sel].centroid, d->o.slice_point); /* four-up cuts there */
     char path[4200];
@@ -91,7 +91,7 @@ static int write_frame(framedump *d, loop *L)
     return rc;
 }
 
-int framedump_before(framedump *d, loop *L, int64_t t_us)
+int framedump_before(framedump *d, const session *k, int64_t t_us)
 {
     if (!d->started) {
         d->started = 1;
@@ -99,15 +99,15 @@ int framedump_before(framedump *d, loop *L, int64_t t_us)
     }
     int rc = 0;
     while (!rc && d->next_us < t_us) {
-        rc = write_frame(d, L);
+        rc = write_frame(d, k);
         d->next_us += d->step_us;
     }
     return rc;
 }
 
-int framedump_finish(framedump *d, loop *L)
+int framedump_finish(framedump *d, const session *k)
 {
-    return write_frame(d, L);
+    return write_frame(d, k);
 }
 
 long framedump_count(const framedump *d)

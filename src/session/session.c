@@ -48,10 +48,16 @@ static int build_common(session *s)
     atomic_init(&s->stop, 0);
     atomic_init(&s->running, 0);
     atomic_init(&s->seen_proposals, 0);
-    s->kinds = ~0u & ~(unsigned)SESSION_EV_SCENE;
+    atomic_init(&s->ev_stop, 0);
+    atomic_init(&s->kinds, ~0u & ~(unsigned)SESSION_EV_SCENE);
     if (sem_init(&s->wake, 0, 0) != 0)
         return fn_err_set(FN_EINVAL, "session: no semaphore for its wake-up: %s", strerror(errno));
+    if (sem_init(&s->ev_ready, 0, 0) != 0) {
+        sem_destroy(&s->wake);
+        return fn_err_set(FN_EINVAL, "session: no semaphore for its events: %s", strerror(errno));
+    }
     pthread_mutex_init(&s->push_mu, NULL);
+    pthread_mutex_init(&s->ev_mu, NULL);
     pthread_mutex_init(&s->fit_mu, NULL);
     s->fit.frag = -1;
     s->built = 1;
@@ -224,7 +230,9 @@ void session__free(session *s)
     if (s->built) {
         pthread_mutex_destroy(&s->push_mu);
         pthread_mutex_destroy(&s->fit_mu);
+        pthread_mutex_destroy(&s->ev_mu);
         sem_destroy(&s->wake);
+        sem_destroy(&s->ev_ready);
     }
     free(s);
 }
@@ -232,6 +240,26 @@ void session__free(session *s)
 loop *session_loop(session *s)
 {
     return s->L;
+}
+
+void session_set_pivot(session *s, const double world[3])
+{
+    loop_set_pivot(s->L, world);
+}
+
+void session_stats(session *s, loop_stats *out)
+{
+    loop_get_stats(s->L, out);
+}
+
+pose session_pose(const session *s, int i)
+{
+    return loop_pose(s->L, i);
+}
+
+int session_selected(const session *s)
+{
+    return loop_selected(s->L);
 }
 
 planning_case *session_case(session *s)

@@ -8,15 +8,19 @@
  * caller's thread) with a loop_source -> session_wait_event / session_send_action /
  * session_propose_pose / session_scene_read -> session_stop -> session_save -> session_close.
  *
- * Threads. session_start runs the source's reader thread and the loop thread (loop_run, under
- * real-time priority when granted). Then:
+ * Threads. session_start runs the source's reader thread, the loop thread (loop_run, under
+ * real-time priority when granted) and the session's event thread. Then:
  *  - session_send_action, session_propose_pose, session_scene_read and session_loop may be
  *    called from any thread, several at once;
  *  - session_wait_event, session_ended and session_stop from one client thread (the one that
- *    owns the handle), never two at once: save requests (LOOP_ACT_SAVE, a button or a key) are
- *    carried out there;
- *  - the wake-up callback (session_set_wakeup) runs on the loop thread (or the fit worker's);
- *  - a fit (LOOP_ACT_FIT) runs on a worker thread of the session's own.
+ *    owns the handle), never two at once;
+ *  - the event thread carries out save requests (LOOP_ACT_SAVE, a button or a key) and starts
+ *    fits (LOOP_ACT_FIT) as they come, whether or not the client waits, and queues their events;
+ *    while it runs, the case (session_case) is its to write: read it before session_start or
+ *    after session_stop;
+ *  - the wake-up callback (session_set_wakeup) runs on the loop thread, the event thread or the
+ *    fit worker's;
+ *  - a fit runs on a worker thread of the session's own.
  * Everything else (open, play, save, close, the JSON helpers) belongs to the owner's thread while
  * no loop thread runs.
  *
@@ -88,6 +92,15 @@ int session_nfrag(const session *s);
 size_t session_resumed(const session *s);
 const char *session_dir(const session *s);
 
+/* A pivot for the selected fragment's rotations (loop_set_pivot: world mm; NULL: its centroid),
+ * and the loop's statistics (loop_get_stats). While the loop does not run. */
+void session_set_pivot(session *s, const double world[3]);
+void session_stats(session *s, loop_stats *out);
+/* Fragment i's pose and the selected fragment, now: while the loop does not run, or from
+ * session_play_each's callback. */
+pose session_pose(const session *s, int i);
+int session_selected(const session *s);
+
 /* ---- running ---- */
 
 enum {
@@ -100,7 +113,14 @@ enum {
  * replay and benchmarks. 0 or the first source or collider error. */
 int session_play(session *s, loop_source src, int mode);
 
-/* Starts the reader thread on src and the loop thread; returns at once. 0 or FN_E*. */
+/* As session_play(SESSION_PLAY_FAST) on the calling thread, calling each(ctx, t_us) before every
+ * event is stepped (t_us: its time) and once after the end (t_us < 0): e.g. pictures of the poses
+ * (session_pose) at a recording's times. A negative return stops the play with it. 0 or the
+ * first error. */
+int session_play_each(session *s, loop_source src, int (*each)(void *ctx, int64_t t_us), void *ctx);
+
+/* Starts the reader thread on src, the loop thread and the event thread (the loop's rate and
+ * latency windows restarted, as session_play does); returns at once. 0 or FN_E*. */
 int session_start(session *s, loop_source src);
 /* 1 once a started source has ended (all its events are in the loop's ring). Owner's thread. */
 int session_ended(session *s);
@@ -174,14 +194,17 @@ typedef struct session_event {
 } session_event;
 
 /* The event kinds session_wait_event returns (an OR of SESSION_EV_*; others are dropped, save
- * requests are carried out all the same). The default: all but SESSION_EV_SCENE. */
+ * requests are carried out all the same). The default: all but SESSION_EV_SCENE. Any thread. */
 void session_subscribe(session *s, unsigned kinds);
 /* Waits up to timeout_ms (0: does not wait, < 0: no limit) for the next event, into ev; returns
- * its kind, SESSION_EV_NONE on timeout. Carries out save requests (session_save_scene while the
- * loop runs on). Owner's thread. */
+ * its kind, SESSION_EV_NONE on timeout. Events wait in a queue of 128 in order
+ * (actions in a row merged into one, scenes into the newest); when it is full the oldest is
+ * dropped, so a client that never waits loses events but no save or fit. Without a running
+ * session (session_play, after session_stop) the events of the last scene are derived here, and
+ * its save requests carried out. Owner's thread. */
 session_event_kind session_wait_event(session *s, int timeout_ms, session_event *ev);
-/* fn(ctx) is called on the loop thread whenever a scene is published (an event may be waiting):
- * (and on the fit worker's thread when a fit ends): for a client with its own event loop
+/* fn(ctx) is called on the loop thread whenever a scene is published, on the event thread when
+ * events were queued, and on the fit worker's thread when a fit ends: for a client with its own event loop
  * (glfwPostEmptyEvent). It must return at once. NULL: none.
  * Before session_start. */
 void session_set_wakeup(session *s, void (*fn)(void *ctx), void *ctx);
@@ -195,7 +218,7 @@ void session_set_wakeup(session *s, void (*fn)(void *ctx), void *ctx);
  * and journaled as one undo step, so undo takes it back to the hand-placed pose; refused when it
  * collides (it never should: the fit keeps clear of the others). One fit at a time; a fixed or
  * lone fragment is refused with a SESSION_EV_FIT that says why. session_stop cancels a running
- * fit. The request is seen, and the worker started, by session_wait_event (owner's thread). */
+ * fit. The request is seen, and the worker started, by the session's event thread. */
 
 /* The worker's state now (any thread). */
 void session_fit_status(session *s, session_fit *out);
@@ -232,37 +255,48 @@ struct json_t *session_stats_json(const char *command, const loop_stats *st);
 
 /* ---- event sources ---- */
 
-/* A loop_source over an open transport handle h of tr (a recording, the virtual device), whose
- * reports are those of device vid:pid: every report is one event, through the device's parser
- * and cal (NULL: the default calibration). A read that says the device went away is an unplug,
- * or the end when finished(h) says so (e.g. sim_replay_finished). With again set, the end opens
- * tr at again once more and plays it from the start (navigate --loop): the loop gets
- * LOOP_EV_REPLUG, so the recording's clock starting over is no jump. The source owns h from here
- * (session_tsource_free closes it). NULL with fn_err (h closed) when out of memory. */
-typedef struct session_tsource session_tsource;
-session_tsource *session_tsource_new(const dev_transport *tr, dev_handle *h, uint16_t vid, uint16_t pid,
-                                     const calib *cal, int (*finished)(const dev_handle *h), const char *again);
-void session_tsource_free(session_tsource *ts);
-loop_source session_transport_source(session_tsource *ts);
-/* Unplugs read so far, and reports the parser skipped (an unknown ID or a wrong length): for the
- * summary, once the source stopped. */
-unsigned session_tsource_unplugs(const session_tsource *ts);
-uint64_t session_tsource_skipped(const session_tsource *ts);
-/* Plays begun after the first (again). Any thread. */
-unsigned session_tsource_plays(session_tsource *ts);
-
-/* A loop_source over an opened device d (live; the source owns it: session_dsource_free closes
- * it), through cal: dev_poll folds what is queued into one event. On its (input) thread it also
- * drives the LED -- lit while a fragment is held: the cap deflected with a movable fragment
+/* A loop_source over an opened device d (the source owns it: session_dsource_free closes it),
+ * through cal (NULL: the default calibration): dev_poll reads it as its mode says (dev_set_mode:
+ * a live device's queued reports folded into one event, a recording's one event per report). On
+ * its (input) thread it also drives the LED -- lit while a fragment is held: the cap deflected with a movable fragment
  * selected (the session pushes which: session_drive_led; the `led` setting can force it on or
  * off) -- and publishes for the view the battery level and, while another controller sits at the
  * device's path, why it was not taken (dev_poll's DEV_EV_REFUSED). It never reads the loop. NULL
  * with fn_err (d closed) when out of memory. */
 typedef struct session_dsource session_dsource;
 session_dsource *session_dsource_new(dev_device *d, const calib *cal);
+/* The same over a recording: an open handle h of a recording transport tr (e.g. sim's replay),
+ * read by dev_poll in DEV_RECORDED mode (one event per report, the recorded unplugs and replugs,
+ * the end of the source when it played out). With again set, the end opens tr at again once more
+ * and plays it from the start (navigate --loop; DEV_RECORDED_LOOP): the loop gets LOOP_EV_REPLUG,
+ * so the recording's clock starting over is no jump (a recording in memory: bench loop, the
+ * tests). The source owns h from here. NULL with fn_err (h closed). */
+session_dsource *session_recording_new(const dev_transport *tr, dev_handle *h, const calib *cal,
+                                       const char *again);
+/* Turns a live device's LED off, closes the device and frees ds. NULL is fine. */
 void session_dsource_free(session_dsource *ds);
 loop_source session_device_source(session_dsource *ds);
-dev_device *session_dsource_device(session_dsource *ds);
+/* Opens the event source a --device spec names (dev_open's specs): a recording (a transport that
+ * plays one, e.g. replay:FILE, replay-realtime:FILE) read one report per event (DEV_RECORDED; with
+ * again, played again from its start at its end: DEV_RECORDED_LOOP), or a live device, its
+ * queued reports folded (DEV_LIVE), both through cal (NULL: the default calibration). Sets cfg's
+ * button actions for the device (loop_config_actions_at at its key-1 button, its transport's
+ * help button). NULL with fn_err naming the spec and the cause. */
+session_dsource *session_source_open(const char *spec, const calib *cal, int again, loop_config *cfg);
+/* 1 when spec names a recording (a transport that plays one and resolves), else 0. */
+int session_spec_recording(const char *spec);
+/* 1 when the source plays a recording (session_source_open's); 1 when it reads the terminal's
+ * keys (the keyboard: its keys are the help); the device's name ("?" unknown). */
+int session_source_recording(const session_dsource *ds);
+int session_source_keyboard(const session_dsource *ds);
+const char *session_source_name(const session_dsource *ds);
+/* For the summary, once the source stopped: unplugs read so far (a recording's), reports skipped
+ * (an unknown ID or a wrong length); plays begun after the first (any thread). */
+unsigned session_source_unplugs(const session_dsource *ds);
+uint64_t session_source_skipped(const session_dsource *ds);
+unsigned session_source_plays(session_dsource *ds);
+/* Keys typed elsewhere (a window) for a source that reads keys (dev_feed_keys). Any thread. */
+int session_source_feed_keys(session_dsource *ds, const char *bytes, size_t n);
 /* The battery level, 0..100, -1 unknown (any thread). */
 int session_dsource_battery(session_dsource *ds);
 /* 1 while the selected fragment can move, as the session last said (session_drive_led; 1 until

@@ -10,7 +10,7 @@
 #include <semaphore.h>
 #include <stdatomic.h>
 
-#define SESSION_QUEUE 8 /* events waiting for session_wait_event (saves done by session_stop) */
+#define SESSION_QUEUE 128 /* events waiting for session_wait_event (full: the oldest is dropped) */
 
 struct session {
     planning_case *c; /* NULL: session_open_fragments */
@@ -39,16 +39,26 @@ struct session {
     void (*wakeup)(void *ctx);
     void *wakeup_ctx;
 
-    unsigned kinds;
-    loop_scene scene; /* the newest scene the waiter read */
+    /* Events are derived from the scenes by the event thread while the session runs (by the
+     * owner's thread when it does not): saves and fits happen there, whoever waits. */
+    pthread_t ev_th;
+    int ev_running;       /* owner's thread */
+    atomic_int ev_stop;
+    atomic_uint kinds;
+    loop_scene scene; /* the newest scene the deriving thread read */
     uint64_t seen_seq;
     unsigned seen_actions, seen_saves;
     int end_told;
+    uint64_t derived_proposals;    /* proposals whose event was derived */
     uint64_t proposed;             /* under push_mu */
-    atomic_ullong seen_proposals;  /* proposals whose event was derived */
+    atomic_ullong seen_proposals;  /* proposals whose event the client took (or was dropped) */
     int proposal_frag[LOOP_PROPOSALS_KEPT]; /* under push_mu */
+    pthread_mutex_t ev_mu;         /* guards the queue and the pending scene */
+    sem_t ev_ready;                /* posted when an event is queued */
     session_event queue[SESSION_QUEUE];
     int qhead, qn;
+    session_event scene_ev; /* the newest SESSION_EV_SCENE, given when the queue is empty */
+    int scene_pending;
 
     /* the reduction worker (session_fit.c) */
     pthread_t fit_th;
@@ -70,7 +80,7 @@ struct session {
 void session__free(session *s);
 
 /* LOOP_ACT_FIT seen in the scene: starts the worker on the selected fragment, or says why not;
- * fills ev (SESSION_EV_FIT). Owner's thread. */
+ * fills ev (SESSION_EV_FIT). The deriving thread (the event thread, or the owner's). */
 void session__fit_start(session *s, session_event *ev);
 /* A fit that finished since the last call: fills ev (SESSION_EV_FIT), *fitted (its pose, to
  * propose when ev->result is 0) and *tolerance_mm (the collision tolerance it was checked at) and

@@ -13,6 +13,8 @@
 /* Proposals may run this far ahead of their events (the scene keeps LOOP_PROPOSALS_KEPT). */
 #define PROPOSALS_AHEAD (LOOP_PROPOSALS_KEPT - 8)
 
+static void *event_thread(void *arg);
+
 static void on_publish(void *ctx)
 {
     session *s = ctx;
@@ -31,26 +33,33 @@ static void *loop_thread(void *arg)
     return NULL;
 }
 
-int session_play(session *s, loop_source src, int mode)
+int session_play_each(session *s, loop_source src, int (*each)(void *ctx, int64_t t_us), void *ctx)
 {
     loop_reset_timing(s->L);
-    if (mode == SESSION_PLAY_FAST) {
-        loop_event ev;
-        for (;;) {
-            int rc = src.next(src.ctx, &ev, 0);
-            s->ended = rc == LOOP_SOURCE_END;
-            if (rc == LOOP_SOURCE_END)
-                return 0;
-            if (rc < 0)
-                return rc;
-            if (rc == 0)
-                continue;
-            ev.arrival_us = fnclock_now_us();
-            rc = loop_feed(s->L, &ev);
-            if (rc < 0)
-                return rc;
-        }
+    loop_event ev;
+    for (;;) {
+        int rc = src.next(src.ctx, &ev, 0);
+        s->ended = rc == LOOP_SOURCE_END;
+        if (rc == LOOP_SOURCE_END)
+            return each ? each(ctx, -1) : 0;
+        if (rc < 0)
+            return rc;
+        if (rc == 0)
+            continue;
+        if (each && (rc = each(ctx, ev.t_us)) < 0)
+            return rc;
+        ev.arrival_us = fnclock_now_us();
+        rc = loop_feed(s->L, &ev);
+        if (rc < 0)
+            return rc;
     }
+}
+
+int session_play(session *s, loop_source src, int mode)
+{
+    if (mode == SESSION_PLAY_FAST)
+        return session_play_each(s, src, NULL, NULL);
+    loop_reset_timing(s->L);
     loop_reader *rd = loop_reader_start(src, s->in, s->L, mode == SESSION_PLAY_LOCKSTEP);
     if (!rd)
         return FN_EIO;
@@ -65,6 +74,7 @@ int session_start(session *s, loop_source src)
     if (atomic_load(&s->running))
         return fn_err_set(FN_EINVAL, "the session is already running");
     atomic_store(&s->stop, 0);
+    loop_reset_timing(s->L);
     s->ended = 0;
     s->end_told = 0;
     loop_set_publish_hook(s->L, on_publish, s);
@@ -77,6 +87,12 @@ int session_start(session *s, loop_source src)
         return fn_err_set(FN_EIO, "cannot start the loop thread");
     }
     atomic_store(&s->running, 1);
+    atomic_store(&s->ev_stop, 0);
+    if (pthread_create(&s->ev_th, NULL, event_thread, s) != 0) {
+        session_stop(s);
+        return fn_err_set(FN_EIO, "cannot start the session's event thread");
+    }
+    s->ev_running = 1;
     return 0;
 }
 
@@ -173,7 +189,7 @@ void session_set_camera(session *s, const double right[3], const double up[3], c
 
 void session_subscribe(session *s, unsigned kinds)
 {
-    s->kinds = kinds;
+    atomic_store(&s->kinds, kinds);
 }
 
 void session_drive_led(session *s, session_dsource *ds)
@@ -209,22 +225,20 @@ static void save_request(session *s, session_event *ev)
 }
 
 /* The next event the newest scene holds, in order: proposals, actions, saves, the end, the scene.
- * 1 when ev was filled. */
+ * 1 when ev was filled. On the deriving thread. */
 static int derive(session *s, session_event *ev)
 {
     const loop_scene *sc = &s->scene;
     pose fitted;
     double fit_tol;
     memset(ev, 0, offsetof(session_event, scene));
-    uint64_t seen = atomic_load(&s->seen_proposals);
-    if (sc->proposals > seen) {
+    if (sc->proposals > s->derived_proposals) {
         ev->kind = SESSION_EV_POSE;
-        ev->id = seen + 1;
+        ev->id = ++s->derived_proposals;
         ev->result = sc->proposal_result[ev->id % LOOP_PROPOSALS_KEPT];
         pthread_mutex_lock(&s->push_mu);
         ev->frag = s->proposal_frag[ev->id % LOOP_PROPOSALS_KEPT];
         pthread_mutex_unlock(&s->push_mu);
-        atomic_store(&s->seen_proposals, ev->id);
     } else if (sc->actions != s->seen_actions) {
         ev->kind = SESSION_EV_ACTION;
         ev->count = sc->actions - s->seen_actions;
@@ -256,59 +270,141 @@ static int derive(session *s, session_event *ev)
     return 1;
 }
 
-/* Waits for a publish until deadline_us (monotonic; < 0: no limit). */
-static void wait_publish(session *s, int64_t deadline_us)
+/* A POSE event leaves the queue: its proposal no longer holds the proposer back. */
+static void pose_told(session *s, const session_event *ev)
+{
+    if (ev->kind == SESSION_EV_POSE)
+        atomic_store(&s->seen_proposals, ev->id);
+}
+
+/* Queues ev for session_wait_event, under ev_mu: actions in a row merge, a scene replaces the
+ * pending one, a full queue drops its oldest event (a client that never waits loses nothing but
+ * events). 1 when the client has something new. */
+static int enqueue(session *s, const session_event *ev)
+{
+    if (!(atomic_load(&s->kinds) & (unsigned)ev->kind)) {
+        pose_told(s, ev);
+        return 0;
+    }
+    if (ev->kind == SESSION_EV_SCENE) {
+        s->scene_ev = *ev;
+        s->scene_pending = 1;
+        return 1;
+    }
+    session_event *last = s->qn ? &s->queue[(s->qhead + s->qn - 1) % SESSION_QUEUE] : NULL;
+    if (last && last->kind == SESSION_EV_ACTION && ev->kind == SESSION_EV_ACTION) {
+        unsigned count = last->count + ev->count;
+        *last = *ev;
+        last->count = count;
+        return 1;
+    }
+    if (s->qn == SESSION_QUEUE) {
+        pose_told(s, &s->queue[s->qhead]);
+        s->qhead = (s->qhead + 1) % SESSION_QUEUE;
+        s->qn--;
+    }
+    s->queue[(s->qhead + s->qn++) % SESSION_QUEUE] = *ev;
+    return 1;
+}
+
+/* Reads the newest scene and queues what it holds: saves and fits are carried out here. On the
+ * deriving thread; 1 when something was queued. */
+static int collect(session *s)
+{
+    loop_scene_read(s->L, &s->scene);
+    session_event ev;
+    int news = 0;
+    while (derive(s, &ev)) {
+        pthread_mutex_lock(&s->ev_mu);
+        news |= enqueue(s, &ev);
+        pthread_mutex_unlock(&s->ev_mu);
+    }
+    return news;
+}
+
+/* Waits for a post of sem until deadline_us (monotonic; < 0: no limit). */
+static void wait_post(sem_t *sem, int64_t deadline_us)
 {
     if (deadline_us < 0) {
-        while (sem_wait(&s->wake) != 0 && errno == EINTR)
+        while (sem_wait(sem) != 0 && errno == EINTR)
             ;
     } else if (deadline_us > fnclock_now_us()) {
         struct timespec until = fnclock_realtime_deadline(deadline_us);
-        while (sem_timedwait(&s->wake, &until) != 0 && errno == EINTR)
+        while (sem_timedwait(sem, &until) != 0 && errno == EINTR)
             ;
     }
-    while (sem_trywait(&s->wake) == 0)
-        ; /* one wake-up serves every publish so far */
+    while (sem_trywait(sem) == 0)
+        ; /* one wake-up serves every post so far */
+}
+
+/* The event thread: at every publish (and every fit's end), derives the events and tells the
+ * client, so that saves and fits happen whether or not it waits. */
+static void *event_thread(void *arg)
+{
+    session *s = arg;
+    while (!atomic_load(&s->ev_stop)) {
+        wait_post(&s->wake, -1);
+        if (collect(s)) {
+            sem_post(&s->ev_ready);
+            if (s->wakeup)
+                s->wakeup(s->wakeup_ctx);
+        }
+    }
+    return NULL;
+}
+
+static void stop_event_thread(session *s)
+{
+    if (!s->ev_running)
+        return;
+    atomic_store(&s->ev_stop, 1);
+    sem_post(&s->wake);
+    pthread_join(s->ev_th, NULL);
+    s->ev_running = 0;
+}
+
+/* The oldest queued event (then the pending scene) into ev; 1 when there was one. */
+static int pop(session *s, session_event *ev)
+{
+    pthread_mutex_lock(&s->ev_mu);
+    int got = 1;
+    if (s->qn > 0) {
+        *ev = s->queue[s->qhead];
+        s->qhead = (s->qhead + 1) % SESSION_QUEUE;
+        s->qn--;
+        pose_told(s, ev);
+    } else if (s->scene_pending) {
+        *ev = s->scene_ev;
+        s->scene_pending = 0;
+    } else
+        got = 0;
+    pthread_mutex_unlock(&s->ev_mu);
+    return got;
 }
 
 session_event_kind session_wait_event(session *s, int timeout_ms, session_event *ev)
 {
     int64_t deadline = timeout_ms < 0 ? -1 : fnclock_now_us() + (int64_t)timeout_ms * 1000;
     for (;;) {
-        if (s->qn > 0) {
-            *ev = s->queue[s->qhead];
-            s->qhead = (s->qhead + 1) % SESSION_QUEUE;
-            s->qn--;
+        if (!s->ev_running)
+            collect(s); /* no event thread (session_play, stopped): the owner derives */
+        if (pop(s, ev))
             return ev->kind;
-        }
-        loop_scene_read(s->L, &s->scene);
-        while (derive(s, ev))
-            if (s->kinds & (unsigned)ev->kind)
-                return ev->kind;
         if (deadline >= 0 && fnclock_now_us() >= deadline)
             break;
         if (!atomic_load(&s->running) && deadline < 0)
             break; /* nothing will ever come */
-        wait_publish(s, deadline);
+        wait_post(s->ev_running ? &s->ev_ready : &s->wake, deadline);
     }
     memset(ev, 0, sizeof *ev);
     return SESSION_EV_NONE;
-}
-
-/* What the last events did (their save requests carried out now), queued for session_wait_event. */
-static void last_events(session *s)
-{
-    loop_scene_read(s->L, &s->scene);
-    session_event ev;
-    while (s->qn < SESSION_QUEUE && derive(s, &ev))
-        if (ev.kind != SESSION_EV_SCENE && (s->kinds & (unsigned)ev.kind))
-            s->queue[(s->qhead + s->qn++) % SESSION_QUEUE] = ev;
 }
 
 int session_stop(session *s)
 {
     if (!atomic_load(&s->running))
         return 0;
+    stop_event_thread(s);
     session__fit_join(s); /* a fit's proposal would land in no loop */
     s->ended = loop_reader_done(s->rd);
     loop_reader_stop(s->rd);
@@ -319,7 +415,7 @@ int session_stop(session *s)
     atomic_store(&s->running, 0);
     loop_set_publish_hook(s->L, NULL, NULL);
     loop_publish(s->L);
-    last_events(s);
+    collect(s); /* the last events: their save requests carried out now */
     return s->loop_rc;
 }
 

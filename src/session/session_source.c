@@ -1,32 +1,13 @@
-/* session: event sources -- raw reports through the parser and calibration into loop events,
- * from a transport handle (recordings, the virtual device) or from a live device. */
+/* session: event sources -- a device's events (dev_poll: live, or a recording one report at a
+ * time) through the calibration into loop events. */
 #include "session_impl.h"
 
-#include "devparse.h"
 #include "err.h"
 
 #include <pthread.h>
 #include <stdatomic.h>
 #include <stdlib.h>
 #include <string.h>
-
-/* Raw reports -> loop events (parser, then calibration). */
-typedef struct session_decoder {
-    devparse_state ps;
-    calib cal;
-} session_decoder;
-
-struct session_tsource {
-    const dev_transport *tr;
-    dev_handle *h;
-    session_decoder dec;
-    int (*finished)(const dev_handle *h);
-    const char *again;
-    int unplugged, has_pending;
-    loop_event pending;
-    unsigned unplugs;
-    _Atomic unsigned plays; /* plays begun after the first (again); read by the view */
-};
 
 struct session_dsource {
     dev_device *d;
@@ -36,17 +17,8 @@ struct session_dsource {
     _Atomic int battery; /* 0..100, -1 unknown; read by the status line */
     pthread_mutex_t mu;  /* guards refused */
     char refused[512];   /* "" or the refusal's message, until the device comes back */
+    int recording;       /* opened as a recording (session_source_open) */
 };
-
-/* cal NULL: the default calibration. */
-static void decoder_init(session_decoder *d, uint16_t vid, uint16_t pid, const calib *cal)
-{
-    devparse_init(&d->ps, devtab_find(vid, pid), 0);
-    if (cal)
-        d->cal = *cal;
-    else
-        calib_default(&d->cal);
-}
 
 /* A parsed device event -> a loop event, through calibration. */
 static int from_dev_event(calib *cal, dev_event *de, loop_event *ev)
@@ -63,120 +35,6 @@ static int from_dev_event(calib *cal, dev_event *de, loop_event *ev)
     ev->buttons = buttons;
     memcpy(ev->motion, m, sizeof m);
     return 1;
-}
-
-/* 1 when the report changed motion or buttons (ev filled), 0 to skip it. */
-static int decode(session_decoder *d, const uint8_t *rep, size_t len, int64_t t_us, loop_event *ev)
-{
-    dev_event de;
-    if (!devparse_report(&d->ps, rep, len, t_us, &de))
-        return 0;
-    return from_dev_event(&d->cal, &de, ev);
-}
-
-/* The end of a recording with `again`: the same file from its start, as a replug. */
-static int play_again(session_tsource *s, loop_event *ev)
-{
-    s->tr->close(s->h);
-    s->h = NULL;
-    int rc = s->tr->open(s->again, &s->h);
-    if (rc < 0)
-        return rc;
-    devparse_state *ps = &s->dec.ps;
-    uint64_t ok = ps->n_ok, unknown = ps->n_unknown_id, bad = ps->n_bad_len;
-    devparse_init(ps, ps->row, ps->axis_max);
-    ps->n_ok = ok, ps->n_unknown_id = unknown, ps->n_bad_len = bad;
-    s->unplugged = 0;
-    atomic_fetch_add(&s->plays, 1);
-    memset(ev, 0, sizeof *ev);
-    ev->kind = LOOP_EV_REPLUG;
-    return 1;
-}
-
-static int tsource_next(void *ctx, loop_event *ev, int timeout_ms)
-{
-    session_tsource *s = ctx;
-    uint8_t buf[DEV_REPORT_MAX];
-    if (s->has_pending) {
-        s->has_pending = 0;
-        *ev = s->pending;
-        return 1;
-    }
-    for (;;) {
-        int64_t t_us = 0;
-        int n = s->tr->read(s->h, buf, sizeof buf, timeout_ms, &t_us);
-        if (n == FN_ENODEV) {
-            if (s->finished && s->finished(s->h))
-                return s->again ? play_again(s, ev) : LOOP_SOURCE_END;
-            memset(ev, 0, sizeof *ev);
-            ev->kind = LOOP_EV_UNPLUG;
-            ev->t_us = t_us;
-            s->unplugged = 1;
-            s->unplugs++;
-            return 1;
-        }
-        if (n <= 0)
-            return n;
-        if (s->unplugged) {
-            /* The first report after an unplug: say the device is back, then give the report. */
-            s->unplugged = 0;
-            s->has_pending = decode(&s->dec, buf, (size_t)n, t_us, &s->pending);
-            memset(ev, 0, sizeof *ev);
-            ev->kind = LOOP_EV_REPLUG;
-            ev->t_us = t_us;
-            return 1;
-        }
-        if (decode(&s->dec, buf, (size_t)n, t_us, ev) == 1)
-            return 1;
-    }
-}
-
-session_tsource *session_tsource_new(const dev_transport *tr, dev_handle *h, uint16_t vid, uint16_t pid,
-                                     const calib *cal, int (*finished)(const dev_handle *h), const char *again)
-{
-    session_tsource *s = calloc(1, sizeof *s);
-    if (!s) {
-        tr->close(h);
-        fn_err_set(FN_ENOMEM, "out of memory for an event source");
-        return NULL;
-    }
-    s->tr = tr;
-    s->h = h;
-    s->finished = finished;
-    s->again = again;
-    decoder_init(&s->dec, vid, pid, cal);
-    atomic_init(&s->plays, 0);
-    return s;
-}
-
-void session_tsource_free(session_tsource *s)
-{
-    if (!s)
-        return;
-    if (s->h)
-        s->tr->close(s->h);
-    free(s);
-}
-
-loop_source session_transport_source(session_tsource *s)
-{
-    loop_source src = {tsource_next, s};
-    return src;
-}
-
-unsigned session_tsource_unplugs(const session_tsource *s)
-{
-    return s->unplugs;
-}
-
-uint64_t session_tsource_skipped(const session_tsource *s)
-{
-    return s->dec.ps.n_unknown_id + s->dec.ps.n_bad_len;
-}
-
-unsigned session_tsource_plays(session_tsource *s)
-{
-    return atomic_load(&s->plays);
 }
 
 /* A fragment is held while the cap is deflected and the selected fragment can move. */
@@ -204,7 +62,10 @@ session_dsource *session_dsource_new(dev_device *d, const calib *cal)
         return NULL;
     }
     s->d = d;
-    s->cal = *cal;
+    if (cal)
+        s->cal = *cal;
+    else
+        calib_default(&s->cal);
     s->led = -1;
     atomic_init(&s->movable, 1);
     atomic_init(&s->battery, -1);
@@ -212,10 +73,98 @@ session_dsource *session_dsource_new(dev_device *d, const calib *cal)
     return s;
 }
 
+session_dsource *session_recording_new(const dev_transport *tr, dev_handle *h, const calib *cal,
+                                       const char *again)
+{
+    dev_device *d = dev_open_handle(tr, h, again);
+    if (!d)
+        return NULL;
+    dev_set_mode(d, again ? DEV_RECORDED_LOOP : DEV_RECORDED);
+    session_dsource *s = session_dsource_new(d, cal);
+    if (s)
+        s->recording = 1;
+    return s;
+}
+
+/* The transport of a played recording (replay:FILE, replay-realtime:FILE) with its file in *file,
+ * else NULL: a spec that names no recording, or none that resolves (dev_open says why). */
+static const dev_transport *recording_spec(const char *spec, const char **file)
+{
+    const dev_transport *t;
+    if (!strcmp(spec, "auto") || dev_spec_resolve(spec, &t, file) || !(t->caps & DEV_CAP_RECORDING)) {
+        fn_err_clear();
+        return NULL;
+    }
+    return t;
+}
+
+int session_spec_recording(const char *spec)
+{
+    const char *file;
+    return recording_spec(spec, &file) != NULL;
+}
+
+session_dsource *session_source_open(const char *spec, const calib *cal, int again, loop_config *cfg)
+{
+    const char *file = NULL;
+    const dev_transport *t = recording_spec(spec, &file);
+    dev_device *d = dev_open(spec);
+    if (!d)
+        return NULL;
+    if (t)
+        dev_set_mode(d, again ? DEV_RECORDED_LOOP : DEV_RECORDED);
+    loop_config_actions_at(cfg, devtab_key1_button(dev_row(d)));
+    const dev_transport *tr = dev_transport_of(d);
+    if (tr->help_button)
+        cfg->button_action[tr->help_button - 1] = LOOP_ACT_HELP;
+    session_dsource *s = session_dsource_new(d, cal);
+    if (s)
+        s->recording = t != NULL;
+    return s;
+}
+
+int session_source_recording(const session_dsource *s)
+{
+    return s->recording;
+}
+
+int session_source_keyboard(const session_dsource *s)
+{
+    return (dev_transport_of(s->d)->caps & DEV_CAP_TERMINAL) != 0;
+}
+
+const char *session_source_name(const session_dsource *s)
+{
+    const devtab_row *row = dev_row(s->d);
+    return row && row->name ? row->name : "?";
+}
+
+unsigned session_source_unplugs(const session_dsource *s)
+{
+    return dev_unplugs(s->d);
+}
+
+uint64_t session_source_skipped(const session_dsource *s)
+{
+    return dev_skipped(s->d);
+}
+
+unsigned session_source_plays(session_dsource *s)
+{
+    return dev_plays(s->d);
+}
+
+int session_source_feed_keys(session_dsource *s, const char *bytes, size_t n)
+{
+    return dev_feed_keys(s->d, bytes, n);
+}
+
 void session_dsource_free(session_dsource *s)
 {
     if (!s)
         return;
+    if (s->d && !s->recording)
+        dev_set_led(s->d, 0); /* the LED says a fragment is held: not once the session is over */
     pthread_mutex_destroy(&s->mu);
     dev_close(s->d);
     free(s);
@@ -224,11 +173,6 @@ void session_dsource_free(session_dsource *s)
 void session__led_movable(session_dsource *s, int movable)
 {
     atomic_store_explicit(&s->movable, movable, memory_order_relaxed);
-}
-
-dev_device *session_dsource_device(session_dsource *s)
-{
-    return s->d;
 }
 
 int session_dsource_movable(session_dsource *s)
@@ -264,6 +208,8 @@ static int dsource_next(void *ctx, loop_event *ev, int timeout_ms)
     int rc = dev_poll(s->d, &de, timeout_ms);
     if (rc <= 0)
         return rc;
+    if (de.flags & DEV_EV_END)
+        return LOOP_SOURCE_END;
     atomic_store(&s->battery, dev_battery(s->d));
     if (de.flags & DEV_EV_REFUSED)
         set_refused(s, fn_err_msg());

@@ -191,75 +191,59 @@ static int cores(const float *dist, size_t n, const int dim[3], double e, size_t
     return kept;
 }
 
-int morph_separate(const uint8_t *mask, const int dim[3], const double sp[3], double erode_mm, const int (*seeds)[3],
-                   int nseeds, size_t min_voxels, int32_t *lab, double *erode_used)
+/* One marker per seed (voxel coordinates of the box), numbered 1..nseeds in lab. nseeds, or
+ * FN_EINVAL naming a seed outside the mask. */
+static int seed_markers(const uint8_t *mask, const int dim[3], const int (*seeds)[3], int nseeds, int32_t *lab)
+{
+    int nm = 0;
+    for (int s = 0; s < nseeds; s++) {
+        const int *q = seeds[s];
+        int in = q[0] >= 0 && q[1] >= 0 && q[2] >= 0 && q[0] < dim[0] && q[1] < dim[1] && q[2] < dim[2];
+        size_t v = in ? ((size_t)q[2] * dim[1] + q[1]) * dim[0] + q[0] : 0;
+        if (!in || !mask[v])
+            return fn_err_set(FN_EINVAL,
+                              "separate: seed %d (voxel %d, %d, %d of the fragment's "
+                              "box) is not in the fragment",
+                              s + 1, q[0], q[1], q[2]);
+        lab[v] = ++nm;
+    }
+    return nm;
+}
+
+/* The markers of the least erosion (steps of half the finest spacing) that splits the mask in
+ * two or more cores; none (lab all 0) when no erosion does. Their number, or negative; *used:
+ * the erosion. */
+static int eroded_markers(const float *dist, size_t n, const int dim[3], const double sp[3], double dmax,
+                          size_t min_voxels, uint8_t *core, int32_t *lab, double *used)
+{
+    double step = 0.5 * fmin(sp[0], fmin(sp[1], sp[2]));
+    int nm = 0;
+    for (double e = step; e < dmax; e += step) {
+        nm = cores(dist, n, dim, e, min_voxels, core, lab);
+        if (nm < 0)
+            return nm;
+        if (nm >= 2) {
+            *used = e;
+            return nm;
+        }
+        if (nm == 0)
+            break;
+    }
+    memset(lab, 0, n * sizeof *lab); /* no erosion splits it: one piece */
+    return 0;
+}
+
+/* Grows the markers of lab inside mask by a priority flood from the deepest voxels (levels of
+ * 1/8 of the finest spacing). next: scratch of one uint32_t per voxel. 0 or FN_ENOMEM. */
+static int flood(const uint8_t *mask, const int dim[3], const double sp[3], const float *dist, double dmax,
+                 int32_t *lab, uint32_t *next)
 {
     size_t n = (size_t)dim[0] * dim[1] * dim[2];
-    if (n >= NONE)
-        return fn_err_set(FN_ENOMEM, "separate: the box has too many voxels (%zu)", n);
-    float *dist = malloc((n ? n : 1) * sizeof *dist);
-    uint8_t *core = malloc(n ? n : 1);
-    uint32_t *next = malloc((n ? n : 1) * sizeof *next);
-    uint32_t *head = NULL;
-    int rc = dist && core && next ? 0 : fn_err_set(FN_ENOMEM, "separate: out of memory for %zu voxels", n);
-    int nm = 0;
-    double used = 0, dmax = 0;
-    if (rc == 0) {
-        morph_distance(mask, dim, sp, dist);
-        for (size_t v = 0; v < n; v++)
-            dmax = fmax(dmax, dist[v]);
-        memset(lab, 0, n * sizeof *lab);
-    }
-    if (rc == 0 && nseeds > 0) {
-        for (int s = 0; s < nseeds && rc == 0; s++) {
-            const int *q = seeds[s];
-            int in = q[0] >= 0 && q[1] >= 0 && q[2] >= 0 && q[0] < dim[0] && q[1] < dim[1] && q[2] < dim[2];
-            size_t v = in ? ((size_t)q[2] * dim[1] + q[1]) * dim[0] + q[0] : 0;
-            if (!in || !mask[v])
-                rc = fn_err_set(FN_EINVAL,
-                                "separate: seed %d (voxel %d, %d, %d of the fragment's "
-                                "box) is not in the fragment",
-                                s + 1, q[0], q[1], q[2]);
-            else
-                lab[v] = ++nm;
-        }
-    } else if (rc == 0 && erode_mm > 0) {
-        used = erode_mm;
-        rc = nm = cores(dist, n, dim, erode_mm, min_voxels, core, lab);
-        rc = rc < 0 ? rc : 0;
-    } else if (rc == 0) {
-        double step = 0.5 * fmin(sp[0], fmin(sp[1], sp[2]));
-        for (double e = step; e < dmax && rc >= 0; e += step) {
-            rc = nm = cores(dist, n, dim, e, min_voxels, core, lab);
-            if (nm >= 2) {
-                used = e;
-                break;
-            }
-            if (nm == 0)
-                break;
-        }
-        if (rc >= 0 && nm < 2) { /* no erosion splits it: one piece */
-            nm = 0;
-            memset(lab, 0, n * sizeof *lab);
-        }
-        rc = rc < 0 ? rc : 0;
-    }
-    if (rc < 0) {
-        free(dist);
-        free(core);
-        free(next);
-        return rc;
-    }
-    /* the priority flood: levels of 1/8 of the finest spacing, deepest first */
     double q = fmin(sp[0], fmin(sp[1], sp[2])) / 8;
     int L = (int)(dmax / q) + 2;
-    head = malloc((size_t)L * sizeof *head);
-    if (!head) {
-        free(dist);
-        free(core);
-        free(next);
+    uint32_t *head = malloc((size_t)L * sizeof *head);
+    if (!head)
         return fn_err_set(FN_ENOMEM, "separate: out of memory");
-    }
     for (int l = 0; l < L; l++)
         head[l] = NONE;
     for (size_t v = 0; v < n; v++)
@@ -293,21 +277,53 @@ int morph_separate(const uint8_t *mask, const int dim[3], const double sp[3], do
                     head[l] = (uint32_t)w;
                 }
     }
-    /* parts of the mask no marker reached: pieces of their own */
-    for (size_t v = 0; v < n; v++)
-        core[v] = mask[v] && !lab[v];
-    int32_t *rest = (int32_t *)next; /* same size, no longer needed */
-    int nr = seg_components(core, dim, rest);
-    if (nr < 0)
-        rc = nr;
-    for (size_t v = 0; v < n && nr > 0; v++)
-        if (core[v])
-            lab[v] = nm + rest[v];
+    free(head);
+    return 0;
+}
+
+int morph_separate(const uint8_t *mask, const int dim[3], const double sp[3], double erode_mm, const int (*seeds)[3],
+                   int nseeds, size_t min_voxels, int32_t *lab, double *erode_used)
+{
+    size_t n = (size_t)dim[0] * dim[1] * dim[2];
+    if (n >= NONE)
+        return fn_err_set(FN_ENOMEM, "separate: the box has too many voxels (%zu)", n);
+    float *dist = malloc((n ? n : 1) * sizeof *dist);
+    uint8_t *core = malloc(n ? n : 1);
+    uint32_t *next = malloc((n ? n : 1) * sizeof *next);
+    int rc = dist && core && next ? 0 : fn_err_set(FN_ENOMEM, "separate: out of memory for %zu voxels", n);
+    int nm = 0, nr = 0;
+    double used = 0, dmax = 0;
+    if (rc == 0) {
+        morph_distance(mask, dim, sp, dist);
+        for (size_t v = 0; v < n; v++)
+            dmax = fmax(dmax, dist[v]);
+        memset(lab, 0, n * sizeof *lab);
+        if (nseeds > 0) {
+            rc = nm = seed_markers(mask, dim, seeds, nseeds, lab);
+        } else if (erode_mm > 0) {
+            used = erode_mm;
+            rc = nm = cores(dist, n, dim, erode_mm, min_voxels, core, lab);
+        } else
+            rc = nm = eroded_markers(dist, n, dim, sp, dmax, min_voxels, core, lab, &used);
+    }
+    if (rc >= 0)
+        rc = flood(mask, dim, sp, dist, dmax, lab, next);
+    if (rc >= 0) {
+        /* parts of the mask no marker reached: pieces of their own */
+        for (size_t v = 0; v < n; v++)
+            core[v] = mask[v] && !lab[v];
+        int32_t *rest = (int32_t *)next; /* same size, no longer needed */
+        nr = seg_components(core, dim, rest);
+        if (nr < 0)
+            rc = nr;
+        for (size_t v = 0; v < n && nr > 0; v++)
+            if (core[v])
+                lab[v] = nm + rest[v];
+        if (erode_used)
+            *erode_used = used;
+    }
     free(dist);
     free(core);
     free(next);
-    free(head);
-    if (erode_used)
-        *erode_used = used;
     return rc < 0 ? rc : nm + (nr > 0 ? nr : 0);
 }
