@@ -52,8 +52,14 @@ static int build_common(session *s)
     if (sem_init(&s->wake, 0, 0) != 0)
         return fn_err_set(FN_EINVAL, "session: no semaphore for its wake-up: %s", strerror(errno));
     pthread_mutex_init(&s->push_mu, NULL);
+    if (sem_init(&s->prev_wake, 0, 0) != 0) {
+        sem_destroy(&s->wake);
+        return fn_err_set(FN_EINVAL, "session: no semaphore for its preview: %s", strerror(errno));
+    }
     pthread_mutex_init(&s->fit_mu, NULL);
+    pthread_mutex_init(&s->prev_mu, NULL);
     s->fit.frag = -1;
+    s->prev.frag = -1;
     s->built = 1;
     s->in = ring_new(sizeof(loop_event), 1024);
     s->ctl = ring_new(sizeof(loop_event), 64);
@@ -224,7 +230,9 @@ void session__free(session *s)
     if (s->built) {
         pthread_mutex_destroy(&s->push_mu);
         pthread_mutex_destroy(&s->fit_mu);
+        pthread_mutex_destroy(&s->prev_mu);
         sem_destroy(&s->wake);
+        sem_destroy(&s->prev_wake);
     }
     free(s);
 }

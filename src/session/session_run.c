@@ -19,6 +19,8 @@ static void on_publish(void *ctx)
     if (s->led) /* on the publishing thread: the loop's state is this thread's to read */
         session__led_movable(s->led, !loop_fixed(s->L, loop_selected(s->L)));
     sem_post(&s->wake);
+    if (atomic_load(&s->prev_run)) /* the preview's worker looks at the new scene */
+        sem_post(&s->prev_wake);
     if (s->wakeup)
         s->wakeup(s->wakeup_ctx);
 }
@@ -77,7 +79,10 @@ int session_start(session *s, loop_source src)
         return fn_err_set(FN_EIO, "cannot start the loop thread");
     }
     atomic_store(&s->running, 1);
-    return 0;
+    int rc = session__preview_start(s);
+    if (rc < 0)
+        session_stop(s);
+    return rc;
 }
 
 int session_ended(session *s)
@@ -125,6 +130,8 @@ loop_action session_key_action(int ch)
     case '?':
     case 'h': return LOOP_ACT_HELP;
     case 'g': return LOOP_ACT_FIT;
+    case 'v': return LOOP_ACT_PREVIEW;
+    case 'b': return LOOP_ACT_ACCEPT;
     default: return LOOP_ACT_NONE;
     }
 }
@@ -241,6 +248,8 @@ static int derive(session *s, session_event *ev)
             snprintf(ev->text, sizeof ev->text, "fit of frag %d not applied: %.1000s",
                      ev->fit.frag + 1, fn_err_msg());
         }
+    } else if (session__preview_event(s, ev)) {
+        /* filled */
     } else if (sc->save_requests != s->seen_saves) {
         s->seen_saves = sc->save_requests;
         save_request(s, ev);
@@ -310,6 +319,7 @@ int session_stop(session *s)
     if (!atomic_load(&s->running))
         return 0;
     session__fit_join(s); /* a fit's proposal would land in no loop */
+    session__preview_join(s);
     s->ended = loop_reader_done(s->rd);
     loop_reader_stop(s->rd);
     s->rd = NULL;

@@ -95,6 +95,9 @@ typedef enum {
     LOOP_ACT_HELP,       /* show or hide the keys: the application's view (the scene's last_action) */
     LOOP_ACT_FIT,        /* fit the selected fragment to the others: counts in the scene's
                           * fit_requests; the application's reduction worker fits (session.h) */
+    LOOP_ACT_PREVIEW,    /* the live preview of the fit on/off: counts in preview_requests */
+    LOOP_ACT_ACCEPT,     /* move the selected fragment to the preview's ghost: counts in
+                          * accept_requests; the application proposes the pose (session.h) */
     LOOP_ACT_COUNT
 } loop_action;
 
@@ -183,6 +186,7 @@ typedef struct loop_scene {
     int trans_only, rot_only, device_present;
     unsigned save_requests; /* LOOP_ACT_SAVE presses so far: the application saves when it grows */
     unsigned fit_requests;  /* LOOP_ACT_FIT presses so far: the application fits when it grows */
+    unsigned preview_requests, accept_requests; /* LOOP_ACT_PREVIEW, LOOP_ACT_ACCEPT presses so far */
     loop_frame frame;
     loop_outcome last_outcome;
     /* The selected fragment's contact at the pose in this scene: > 0 a lower bound on its gap to
