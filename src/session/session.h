@@ -246,6 +246,10 @@ enum {
 void session_set_preview(session *s, int mode);
 /* The preview's state now (any thread). */
 void session_preview_status(session *s, session_preview *out);
+/* What the views show of p (the terminal's line, the window's HUD): "preview of frag 2: 1.20 mm,
+ * 3.40 deg away (b accepts)", "... fitting" before it converges, "preview on: fitting" while asked
+ * with no ghost yet; "" when there is nothing to show. */
+void session_preview_text(const session_preview *p, char *buf, size_t cap);
 
 /* ---- saving ---- */
 

@@ -35,6 +35,15 @@ void session_preview_status(session *s, session_preview *out)
     pthread_mutex_unlock(&s->prev_mu);
 }
 
+void session_preview_text(const session_preview *p, char *buf, size_t cap)
+{
+    if (p->shown)
+        snprintf(buf, cap, "preview of frag %d: %.2f mm, %.2f deg away%s", p->frag + 1, p->moved_mm, p->turned_deg,
+                 p->converged ? " (b accepts)" : ", fitting");
+    else
+        snprintf(buf, cap, "%s", p->asked ? "preview on: fitting" : "");
+}
+
 /* 1 when sc still holds the poses at[] (the selected fragment sel within the stale limits, the
  * others exactly) with sel selected. */
 static int fresh(const session *s, const loop_scene *sc, int sel, const pose *at)

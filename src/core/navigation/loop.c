@@ -47,7 +47,7 @@ void loop_config_default(loop_config *c)
 
 void loop_config_actions_at(loop_config *c, int first)
 {
-    uint8_t acts[12];
+    uint8_t acts[14];
     if (first <= 0 || first > 32 - (int)sizeof acts)
         return;
     memcpy(acts, c->button_action, sizeof acts);

@@ -213,10 +213,10 @@ typedef struct loop_scene {
 typedef struct loop loop;
 
 /* Defaults. Buttons 1-10 (bits 0-9) act: next, previous, fix, collision, translation only,
- * rotation only, undo, redo, save, frame; button 12 (bit 11) fits (button 11 is the keyboard
- * device's help). */
+ * rotation only, undo, redo, save, frame; button 12 (bit 11) fits, 13 the live preview on/off,
+ * 14 accepts it (button 11 is the keyboard device's help). */
 void loop_config_default(loop_config *c);
-/* Moves the twelve default button actions to start at bit first (a device whose numbered keys 1-10
+/* Moves the fourteen default button actions to start at bit first (a device whose numbered keys 1-10
  * are not its first buttons: devtab_key1_button); the bits below act no more. */
 void loop_config_actions_at(loop_config *c, int first);
 
