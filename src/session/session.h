@@ -97,7 +97,9 @@ enum {
                                 * (benchmarks: no queueing in the latency) */
 };
 /* Runs src through the loop on the calling thread until it ends (LOOP_SOURCE_END), then returns:
- * replay and benchmarks. 0 or the first source or collider error. */
+ * replay and benchmarks. REALTIME and LOCKSTEP run the live preview's worker beside it when
+ * session_set_preview asked for one (bench loop --preview; its ghosts are not accepted). 0 or the
+ * first source or collider error. */
 int session_play(session *s, loop_source src, int mode);
 
 /* Starts the reader thread on src and the loop thread; returns at once. 0 or FN_E*. */
@@ -242,7 +244,7 @@ enum {
     SESSION_PREVIEW_NEAR = 1, /* near contact, or asked */
     SESSION_PREVIEW_ASKED = 2 /* only when asked (LOOP_ACT_PREVIEW) */
 };
-/* The preview's mode (SESSION_PREVIEW_*). Before session_start. */
+/* The preview's mode (SESSION_PREVIEW_*). Before session_start or session_play. */
 void session_set_preview(session *s, int mode);
 /* The preview's state now (any thread). */
 void session_preview_status(session *s, session_preview *out);

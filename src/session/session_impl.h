@@ -102,9 +102,12 @@ void session__pose_change(const frag *f, const pose *a, const pose *b, double *m
 int session__preview_start(session *s);
 /* Stops the preview's worker and joins it. Owner's thread. */
 void session__preview_join(session *s);
-/* The preview's next event, if any: a key's toggle, an accept (proposed), a new ghost. 1 when ev
- * was filled. Owner's thread, s->scene the newest. */
+/* The preview's next event, if any: a key's toggle, a new ghost. 1 when ev was filled. Owner's
+ * thread, s->scene the newest. */
 int session__preview_event(session *s, session_event *ev);
+/* The ghost (*p) and the tolerance its fit checked it at; 1 when it is fresh for sc (its fragment
+ * selected and where the fit began, within the stale limits). Any thread. */
+int session__preview_ghost(session *s, const loop_scene *sc, session_preview *p, double *tolerance_mm);
 
 /* Tells ds whether the selected fragment can move (session_drive_led's push). Any thread. */
 void session__led_movable(session_dsource *ds, int movable);

@@ -83,7 +83,7 @@ static void on_progress(void *ctx, int id, int iter, int evals, double f, double
 {
     (void)id, (void)iter, (void)evals, (void)f, (void)seconds;
     preview_fit *pf = ctx;
-    session_scene_read(pf->s, &pf->sc);
+    loop_scene_read(pf->s->L, &pf->sc);
     if (!fresh(pf->s, &pf->sc, pf->sel, pf->at))
         atomic_store(&pf->s->prev_cancel, 1);
 }
@@ -149,7 +149,7 @@ static int fit_once(session *s, preview_fit *pf, const loop_scene *sc)
     double ms = (double)(fnclock_now_us() - t0) / 1000.0;
     double metric = r.metric_end;
     reduce_result_free(&r);
-    session_scene_read(s, &pf->sc);
+    loop_scene_read(s->L, &pf->sc);
     if (rc != 0 || !fresh(s, &pf->sc, sel, at)) {
         pthread_mutex_lock(&s->prev_mu);
         s->prev.dropped += rc >= 0; /* a failure (FN_E*) is not the hand's doing */
@@ -188,7 +188,7 @@ static void *preview_thread(void *arg)
             ; /* one look serves every publish so far */
         if (atomic_load(&s->prev_stop))
             break;
-        session_scene_read(s, &sc);
+        loop_scene_read(s->L, &sc);
         if (wanted(s, &sc)) {
             again = fit_once(s, &pf, &sc);
             continue;
@@ -231,27 +231,14 @@ void session__preview_join(session *s)
     s->prev_joinable = 0;
 }
 
-/* LOOP_ACT_ACCEPT: the ghost's pose proposed, when it is fresh for the scene. */
-static void accept(session *s, session_event *ev)
+int session__preview_ghost(session *s, const loop_scene *sc, session_preview *p, double *tolerance_mm)
 {
-    const loop_scene *sc = &s->scene;
     pthread_mutex_lock(&s->prev_mu);
-    session_preview p = s->prev;
-    int ok = p.shown && p.frag == sc->selected && fresh(s, sc, p.frag, s->prev_at);
-    double tol = s->prev_tolerance_mm;
+    *p = s->prev;
+    int ok = p->shown && p->frag == sc->selected && fresh(s, sc, p->frag, s->prev_at);
+    *tolerance_mm = s->prev_tolerance_mm;
     pthread_mutex_unlock(&s->prev_mu);
-    if (!ok) {
-        ev->result = FN_EINVAL;
-        snprintf(ev->text, sizeof ev->text, "accept refused: no preview of frag %d where it is now%s",
-                 sc->selected + 1, s->preview_mode == SESSION_PREVIEW_OFF ? " (the preview is off)" : "");
-        return;
-    }
-    ev->result = session__propose(s, p.frag, &p.ghost, tol, NULL);
-    if (ev->result < 0)
-        snprintf(ev->text, sizeof ev->text, "accept of frag %d not applied: %.1000s", p.frag + 1, fn_err_msg());
-    else
-        snprintf(ev->text, sizeof ev->text, "accepted: frag %d moved %.2f mm, turned %.2f deg to the preview",
-                 p.frag + 1, p.moved_mm, p.turned_deg);
+    return ok;
 }
 
 int session__preview_event(session *s, session_event *ev)
@@ -270,9 +257,6 @@ int session__preview_event(session *s, session_event *ev)
                  : atomic_load(&s->prev_asked) ? "preview on"
                  : s->preview_mode == SESSION_PREVIEW_NEAR ? "preview near contact only"
                                                            : "preview off");
-    } else if (sc->accept_requests != s->seen_accepts) {
-        s->seen_accepts = sc->accept_requests;
-        accept(s, ev);
     } else {
         pthread_mutex_lock(&s->prev_mu);
         int news = s->prev.updates != s->previews_told;

@@ -56,7 +56,12 @@ int session_play(session *s, loop_source src, int mode)
     loop_reader *rd = loop_reader_start(src, s->in, s->L, mode == SESSION_PLAY_LOCKSTEP);
     if (!rd)
         return FN_EIO;
-    int rc = loop_run(s->L, s->in, 1000, loop_reader_done_flag(rd));
+    loop_set_publish_hook(s->L, on_publish, s); /* wakes the preview's worker */
+    int rc = session__preview_start(s);
+    if (rc == 0)
+        rc = loop_run(s->L, s->in, 1000, loop_reader_done_flag(rd));
+    session__preview_join(s);
+    loop_set_publish_hook(s->L, NULL, NULL);
     loop_reader_stop(rd);
     s->ended = 1;
     return rc;
@@ -215,6 +220,28 @@ static void save_request(session *s, session_event *ev)
     pthread_mutex_unlock(&s->push_mu);
 }
 
+/* LOOP_ACT_ACCEPT: the preview's ghost proposed, as the fit action's result is, when it is fresh
+ * for the scene; ev (SESSION_EV_PREVIEW) says what was done. */
+static void accept_preview(session *s, session_event *ev)
+{
+    const loop_scene *sc = &s->scene;
+    double tol;
+    ev->kind = SESSION_EV_PREVIEW;
+    if (!session__preview_ghost(s, sc, &ev->preview, &tol)) {
+        ev->result = FN_EINVAL;
+        snprintf(ev->text, sizeof ev->text, "accept refused: no preview of frag %d where it is now%s",
+                 sc->selected + 1, s->preview_mode == SESSION_PREVIEW_OFF ? " (the preview is off)" : "");
+        return;
+    }
+    const session_preview *p = &ev->preview;
+    ev->result = session__propose(s, p->frag, &p->ghost, tol, NULL);
+    if (ev->result < 0)
+        snprintf(ev->text, sizeof ev->text, "accept of frag %d not applied: %.1000s", p->frag + 1, fn_err_msg());
+    else
+        snprintf(ev->text, sizeof ev->text, "accepted: frag %d moved %.2f mm, turned %.2f deg to the preview",
+                 p->frag + 1, p->moved_mm, p->turned_deg);
+}
+
 /* The next event the newest scene holds, in order: proposals, actions, saves, the end, the scene.
  * 1 when ev was filled. */
 static int derive(session *s, session_event *ev)
@@ -248,6 +275,9 @@ static int derive(session *s, session_event *ev)
             snprintf(ev->text, sizeof ev->text, "fit of frag %d not applied: %.1000s",
                      ev->fit.frag + 1, fn_err_msg());
         }
+    } else if (sc->accept_requests != s->seen_accepts) {
+        s->seen_accepts = sc->accept_requests;
+        accept_preview(s, ev);
     } else if (session__preview_event(s, ev)) {
         /* filled */
     } else if (sc->save_requests != s->seen_saves) {
