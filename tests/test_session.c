@@ -973,6 +973,10 @@ static void test_preview_off_refuses(void **st)
     session_event *e = next_event(s, SESSION_EV_PREVIEW);
     assert_int_equal(e->result, FN_EINVAL);
     assert_non_null(strstr(e->text, "has none"));
+    session_preview p;
+    session_preview_status(s, &p);
+    assert_int_equal(p.asked, 0);
+    assert_int_equal(p.shown, 0);
     assert_int_equal(session_send_action(s, LOOP_ACT_ACCEPT), 0);
     e = next_event(s, SESSION_EV_PREVIEW);
     assert_int_equal(e->result, FN_EINVAL);

@@ -15,8 +15,10 @@
  *  - session_wait_event, session_ended and session_stop from one client thread (the one that
  *    owns the handle), never two at once: save requests (LOOP_ACT_SAVE, a button or a key) are
  *    carried out there;
- *  - the wake-up callback (session_set_wakeup) runs on the loop thread (or the fit worker's);
- *  - a fit (LOOP_ACT_FIT) runs on a worker thread of the session's own.
+ *  - the wake-up callback (session_set_wakeup) runs on the loop thread (or the fit worker's, or
+ *    the live preview's);
+ *  - a fit (LOOP_ACT_FIT) runs on a worker thread of the session's own, the live preview's fits
+ *    on another (session_set_preview).
  * Everything else (open, play, save, close, the JSON helpers) belongs to the owner's thread while
  * no loop thread runs.
  *
@@ -203,9 +205,9 @@ void session_subscribe(session *s, unsigned kinds);
  * its kind, SESSION_EV_NONE on timeout. Carries out save requests (session_save_scene while the
  * loop runs on). Owner's thread. */
 session_event_kind session_wait_event(session *s, int timeout_ms, session_event *ev);
-/* fn(ctx) is called on the loop thread whenever a scene is published (an event may be waiting):
- * (and on the fit worker's thread when a fit ends): for a client with its own event loop
- * (glfwPostEmptyEvent). It must return at once. NULL: none.
+/* fn(ctx) is called on the loop thread whenever a scene is published (an event may be waiting),
+ * on the fit worker's thread when a fit ends and on the preview's when its ghost changes: for a
+ * client with its own event loop (glfwPostEmptyEvent). It must return at once. NULL: none.
  * Before session_start. */
 void session_set_wakeup(session *s, void (*fn)(void *ctx), void *ctx);
 

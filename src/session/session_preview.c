@@ -247,7 +247,7 @@ int session__preview_event(session *s, session_event *ev)
     if (sc->preview_requests != s->seen_previews) {
         unsigned presses = sc->preview_requests - s->seen_previews;
         s->seen_previews = sc->preview_requests;
-        if (presses % 2)
+        if (presses % 2 && s->preview_mode != SESSION_PREVIEW_OFF)
             atomic_store(&s->prev_asked, !atomic_load(&s->prev_asked));
         if (s->prev_joinable)
             sem_post(&s->prev_wake);
