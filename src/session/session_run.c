@@ -56,12 +56,15 @@ int session_play(session *s, loop_source src, int mode)
     loop_reader *rd = loop_reader_start(src, s->in, s->L, mode == SESSION_PLAY_LOCKSTEP);
     if (!rd)
         return FN_EIO;
-    loop_set_publish_hook(s->L, on_publish, s); /* wakes the preview's worker */
+    int preview = s->preview_mode != SESSION_PREVIEW_OFF;
+    if (preview)
+        loop_set_publish_hook(s->L, on_publish, s); /* wakes the preview's worker */
     int rc = session__preview_start(s);
     if (rc == 0)
         rc = loop_run(s->L, s->in, 1000, loop_reader_done_flag(rd));
     session__preview_join(s);
-    loop_set_publish_hook(s->L, NULL, NULL);
+    if (preview)
+        loop_set_publish_hook(s->L, NULL, NULL);
     loop_reader_stop(rd);
     s->ended = 1;
     return rc;
