@@ -5,9 +5,10 @@
  *   r/f  -z/+z (up/down)   i/k -rx/+rx   j/l -rz/+rz   u/o -ry/+ry
  *   1-9  buttons 1-9 (tap; 9 saves)    0 or m  button 10 (frame)    ? or h  button 11 (help)
  *   g  button 12 (fit the selected fragment to the others)
+ *   v  button 13 (the live preview on/off)   b  button 14 (accept the preview)
  *   space or x: stop all motion   q  quit (as Ctrl-C: raises SIGINT)
  *   mouse: left drag rotates (rz, rx), middle drag rolls (ry), right drag moves (x, y), wheel z
- * The row has 12 buttons, sent in report 3. A terminal has no key-up: a key holds its axis for
+ * The row has 14 buttons, sent in report 3. A terminal has no key-up: a key holds its axis for
  * KEY_HOLD_MS, and auto-repeat keeps it held.
  * "keyboard:FILE" reads the same bytes from FILE instead of the terminal (scripts, tests). Keys
  * typed in navigate's window come through a pipe (kb_feed_keys) and act the same. */
@@ -187,8 +188,8 @@ static void apply_key(dev_handle *h, char c, int64_t now)
     } else if (c == '?' || c == 'h') {
         h->buttons |= 1u << 10; /* navigate shows its keys */
         h->pending |= PENDING_BUTTONS;
-    } else if (c == 'g') {
-        h->buttons |= 1u << 11; /* navigate fits the selected fragment */
+    } else if (c == 'g' || c == 'v' || c == 'b') {
+        h->buttons |= 1u << (c == 'g' ? 11 : c == 'v' ? 12 : 13); /* fit, preview, accept */
         h->pending |= PENDING_BUTTONS;
     } else if (c == 'q') {
         raise(SIGINT);

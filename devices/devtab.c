@@ -46,7 +46,7 @@ static const devtab_row rows[] = {
      LED | BAT | DEVTAB_F_OPEN, "open-controller", "fracnav"},
     /* Synthetic rows: transports that make reports of their own. */
     {0, 0, "spnav", DEVTAB_COMBINED, 32, 0xffffffffu, 0, 350, DEVTAB_F_SYNTH | LED, NULL, NULL},
-    {0, 0, "keyboard", DEVTAB_COMBINED, 12, ALL(12), 0, 350, DEVTAB_F_SYNTH, NULL, NULL},
+    {0, 0, "keyboard", DEVTAB_COMBINED, 14, ALL(14), 0, 350, DEVTAB_F_SYNTH, NULL, NULL},
     /* An unlisted product whose descriptor declares 6-DOF motion reports (new ids keep working). */
     {0, 0, "generic", DEVTAB_COMBINED, 32, 0xffffffffu, 0, 350, DEVTAB_F_SYNTH | LED, NULL, NULL},
 };

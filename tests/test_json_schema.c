@@ -415,6 +415,13 @@ static void test_loop_commands(void **st)
     check(n, "navigate");
     json_t *b = fracnav("bench loop", "bench loop --case '%s' --repeat 1 --json", case_dir);
     check(b, "bench loop");
+    assert_true(json_is_null(json_object_get(b, "preview_updates_count")));
+    /* with the live preview beside, at the hand's pace: its counts too */
+    json_t *p = fracnav("bench loop", "bench loop --case '%s' --repeat 1 --realtime --preview --json", case_dir);
+    check(p, "bench loop");
+    assert_true(json_is_true(json_object_get(p, "preview")));
+    assert_true(json_is_integer(json_object_get(p, "preview_updates_count")));
+    assert_true(json_is_integer(json_object_get(p, "preview_dropped_count")));
     for (size_t i = 0; i < sizeof loop_keys / sizeof loop_keys[0]; i++) {
         assert_non_null(json_object_get(r, loop_keys[i]));
         assert_non_null(json_object_get(n, loop_keys[i]));

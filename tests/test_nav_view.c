@@ -146,7 +146,8 @@ static void test_view_fits_the_width(void **st)
     loop_scene sc = busy_scene();
     navview_extra x = {80, "/dev/hidraw3: 046d:c627 serial 'B' is not the device that was unplugged "
                            "(046d:c626 serial 'A'): still waiting for it",
-                       "undo: one move of a fragment taken back", NULL, NULL};
+                       "undo: one move of a fragment taken back", NULL, NULL,
+                       "preview of frag 11: 1.25 mm, 3.50 deg away (b accepts)"};
     const int widths[] = {80, 60, 40};
     for (int w = 0; w < 3; w++) {
         char text[4096];
@@ -158,7 +159,8 @@ static void test_view_fits_the_width(void **st)
                               "turned 30.00 deg: L/R +0.00, A/P +0.00, S/I +30.00",
                               "inside another fragment by ~0.42 mm", "sliding along the contact",
                               "fragment frame, rotation only", "battery 80%", "046d:c627", "046d:c626",
-                              "undo: one move", "1000 steps/s", "? or h: keys"};
+                              "undo: one move", "1000 steps/s", "? or h: keys",
+                              "preview of frag 11: 1.25 mm, 3.50 deg away"};
         for (size_t i = 0; i < sizeof want / sizeof *want; i++)
             if (!strstr(all, want[i]))
                 fail_msg("'%s' missing at %d columns: %s", want[i], widths[w], text);
@@ -344,7 +346,7 @@ static void test_actions_are_acknowledged(void **st)
     navview_ack(&sc, ack, sizeof ack);
     assert_string_equal(ack, "frame: fragment");
     assert_int_equal(sc.actions, 5);
-    navview_extra x = {-1, NULL, ack, w.f, NULL};
+    navview_extra x = {-1, NULL, ack, w.f, NULL, NULL};
     char text[4096];
     navview_format(&sc, &x, 80, text, sizeof text);
     assert_non_null(strstr(text, "> frame: fragment"));

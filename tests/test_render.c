@@ -442,6 +442,33 @@ static void test_pose_moves_picture_by_expected_pixels(void **st)
     }
 }
 
+/* navigate's live preview: the ghost (render_options.ghost) draws a fragment again, translucent, at
+ * the fitted pose, over everything, in every mode. The box is moved out of the picture and its
+ * ghost put back where it was segmented: the right of the picture (the ball's edge alone without
+ * the ghost) shows it. */
+static void test_ghost_draws_the_fitted_pose(void **st)
+{
+    scene *s = *st;
+    for (int m = RENDER_ISO; m <= RENDER_SURFACE; m++) {
+        render_options o;
+        options(s, &o, (render_mode)m);
+        pose poses[2] = {POSE_IDENTITY, POSE_IDENTITY};
+        poses[1].t[0] = 200;
+        long right[2];
+        for (int g = 0; g < 2; g++) {
+            o.ghost = g ? 2 : 0;
+            o.ghost_pose = POSE_IDENTITY;
+            draw(s, poses, &o);
+            right[g] = 0;
+            for (int i = 0; i < W * H; i++)
+                right[g] += i % W > W / 2 + 4 && !is_background(s->rgb + i * 3);
+        }
+        if (right[1] < right[0] + 200)
+            fail_msg("%s: %ld pixels on the right without the ghost, %ld with it", render_mode_name((render_mode)m),
+                     right[0], right[1]);
+    }
+}
+
 /* Late latching: render_frame_early with the poses then, render_frame_late with the newest, gives
  * the picture render_frame gives of the newest poses: when only the late fragment moved in
  * between (the split frame), when another one moved too (the whole frame again), and in a mode
@@ -824,7 +851,7 @@ static void test_navigate_window_matches_render(void **st)
     free(out);
     char cmd[9000];
     snprintf(cmd, sizeof cmd, "navigate '%s' --device virtual:spacenavigator:script='%s' --view window --camera anterior "
-                              "--duration 3 --discard-journal --screenshot '%s/shot.png' </dev/null",
+                              "--duration 3 --discard-journal --preview off --screenshot '%s/shot.png' </dev/null",
              case_dir, path, dir);
     int rc = run_in_window(xvfb, display, &out, cmd);
     if (rc != 0 || strstr(out, "no window"))
@@ -917,7 +944,8 @@ static void test_navigate_window_mouse_and_keys(void **st)
      * never opens one is killed), drags, types, and the shell waits for navigate to end. */
     char cmd[9000];
     snprintf(cmd, sizeof cmd,
-             "navigate '%s' --device virtual:spacenavigator --view window --camera anterior --discard-journal --screenshot "
+             "navigate '%s' --device virtual:spacenavigator --view window --camera anterior --discard-journal "
+             "--preview off --screenshot "
              "'%s/shot.png' </dev/null & nav=$!; "
              "if timeout 300 xdotool search --sync --onlyvisible --name '^fracnav$' >/dev/null; then "
              "xdotool mousemove 384 560 mousedown 1 mousemove_relative -- 180 0 mouseup 1 key F3 key F4 key q; "
@@ -947,7 +975,7 @@ static void test_navigate_window_mouse_and_keys(void **st)
  * window took letters a keyboard user steers with (l its layout, a its axes). Typed in the window
  * (xdotool), d pushes the selected fragment right on screen as it does in the terminal (the camera
  * frame follows the anterior view), and q quits and saves: the screenshot matches `fracnav render`
- * of the saved case, in the 3D layout. */
+ * of the saved case, in the 3D layout (--preview off: render draws no ghost). */
 static void test_navigate_window_keyboard_steers(void **st)
 {
     (void)st;
@@ -969,7 +997,8 @@ static void test_navigate_window_keyboard_steers(void **st)
     free(out);
     char cmd[9000];
     snprintf(cmd, sizeof cmd,
-             "navigate '%s' --device keyboard:/dev/null --view window --camera anterior --discard-journal --screenshot "
+             "navigate '%s' --device keyboard:/dev/null --view window --camera anterior --discard-journal "
+             "--preview off --screenshot "
              "'%s/shot.png' </dev/null & nav=$!; "
              "if timeout 300 xdotool search --sync --onlyvisible --name '^fracnav$' >/dev/null; then "
              "xdotool key --delay 40 d d d d d d d d d d d d d d d d d d d d l a q; "
@@ -1121,6 +1150,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_hud_draws_text, setup, teardown),
         cmocka_unit_test_setup_teardown(test_pose_moves_picture_by_expected_pixels, setup, teardown),
         cmocka_unit_test_setup_teardown(test_late_latching_draws_the_newest_poses, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_ghost_draws_the_fitted_pose, setup, teardown),
         cmocka_unit_test_setup_teardown(test_window_matches_offscreen, setup, teardown),
         cmocka_unit_test(test_navigate_window_matches_render),
         cmocka_unit_test(test_navigate_window_mouse_and_keys),

@@ -956,6 +956,110 @@ static void test_redo_of_a_fit(void **st)
     free(fdir);
 }
 
+/* The live preview (session.h): a recording steers the rough fracture's piece 2 most of the way to
+ * its truth, at the hand's pace, then holds still. Near the contact the worker keeps fitting it
+ * from where the hand holds it: its ghost converges within 1 mm and 1 degree of the truth while
+ * the piece stays where the hand left it, the key b accepts it (one proposal at the fit's
+ * tolerance, landing on the ghost), and undo puts the piece back in the hand's pose. */
+static void test_preview_follows_and_accepts(void **st)
+{
+    (void)st;
+    assert_int_equal(session_key_action('v'), LOOP_ACT_PREVIEW);
+    assert_int_equal(session_key_action('b'), LOOP_ACT_ACCEPT);
+    char *fdir = tu_tmpdir("session_preview");
+    planning_case *c = tu_ellipsoid_fracture(fdir, 2, 3, 0);
+    session *s = open_case_at(fdir, 0);
+    session_set_preview(s, SESSION_PREVIEW_NEAR);
+    /* the camera that makes the device's axes the world's, so the script can aim at the truth */
+    session_set_camera(s, (const double[3]){1, 0, 0}, (const double[3]){0, 0, -1}, (const double[3]){0, -1, 0});
+    double now[3], want[3], d[3];
+    pose_apply(&c->frag[1].pose, c->frag[1].centroid, now);
+    pose_apply(&c->truth[1], c->frag[1].centroid, want);
+    for (int i = 0; i < 3; i++)
+        d[i] = 0.7 * (want[i] - now[i]);
+    char text[256];
+    snprintf(text, sizeof text, "wait 0.2 s\nmove x %.3f mm y %.3f mm z %.3f mm over 1 s\nwait 0.5 s\n", d[0], d[1],
+             d[2]);
+    script *sc = NULL;
+    assert_int_equal(script_parse(text, strlen(text), "test", &sc), 0);
+    fnrec *rec = script_render(sc, sim_profile_find("spacenavigator"));
+    free(sc);
+    assert_non_null(rec);
+    dev_handle *h;
+    assert_int_equal(sim_replay_open_rec(rec, &(sim_replay_opts){1, 1}, &h), 0);
+    session_dsource *ds = session_recording_new(&sim_replay_transport, h, NULL, NULL);
+    assert_non_null(ds);
+    assert_int_equal(session_start(s, session_device_source(ds)), 0);
+    /* until the recording has played out and the ghost for where it left the piece converged */
+    session_event *e;
+    session_preview p;
+    int ended = 0;
+    for (;;) {
+        e = next_event(s, SESSION_EV_END | SESSION_EV_PREVIEW);
+        ended |= e->kind == SESSION_EV_END;
+        session_preview_status(s, &p);
+        if (ended && p.shown && p.converged && !memcmp(&p.hand, &e->scene.pose[1], sizeof(pose)))
+            break;
+    }
+    pose hand = p.hand;
+    print_message("preview: %u ghosts, %u dropped, last fit %.1f ms, ghost %.2f mm %.2f deg from the hand\n",
+                  p.updates, p.dropped, p.fit_ms, p.moved_mm, p.turned_deg);
+    double rot, trans, tre;
+    c->frag[1].pose = hand;
+    assert_int_equal(reduce_truth_errors(c, 0, 1, &rot, &trans, &tre), 0);
+    print_message("the hand: %.3f deg, %.3f mm from the truth\n", rot, trans);
+    assert_true(rot > 1 || trans > 1); /* the ghost has something to show */
+    c->frag[1].pose = p.ghost;
+    assert_int_equal(reduce_truth_errors(c, 0, 1, &rot, &trans, &tre), 0);
+    print_message("the ghost: %.3f deg, %.3f mm from the truth\n", rot, trans);
+    if (!(rot <= 1 && trans <= 1))
+        fail_msg("the ghost converged %.3f deg, %.3f mm from the truth", rot, trans);
+    assert_int_equal(p.frag, 1);
+    assert_true(p.updates >= 2);
+    /* accepted: one proposal landing on the ghost */
+    assert_int_equal(session_send_action(s, LOOP_ACT_ACCEPT), 0);
+    e = next_event(s, SESSION_EV_PREVIEW);
+    while (!strstr(e->text, "accept"))
+        e = next_event(s, SESSION_EV_PREVIEW);
+    if (e->result != 0)
+        fail_msg("%s", e->text);
+    e = next_event(s, SESSION_EV_POSE);
+    assert_int_equal(e->result, LOOP_ACCEPTED);
+    assert_int_equal(e->frag, 1);
+    assert_memory_equal(&e->scene.pose[1], &p.ghost, sizeof(pose));
+    e = act(s, LOOP_ACT_UNDO);
+    assert_int_equal(e->result, LOOP_ACCEPTED);
+    assert_memory_equal(&e->scene.pose[1], &hand, sizeof hand);
+    assert_int_equal(session_stop(s), 0);
+    session_close(s);
+    session_dsource_free(ds);
+    fnrec_free(rec);
+    case_free(c);
+    tu_rmtree(fdir);
+    free(fdir);
+}
+
+/* Without a preview (the default) the keys are refused, with the reason. */
+static void test_preview_off_refuses(void **st)
+{
+    (void)st;
+    session *s = start_quiet(0);
+    assert_int_equal(session_send_action(s, LOOP_ACT_PREVIEW), 0);
+    session_event *e = next_event(s, SESSION_EV_PREVIEW);
+    assert_int_equal(e->result, FN_EINVAL);
+    assert_non_null(strstr(e->text, "has none"));
+    session_preview p;
+    session_preview_status(s, &p);
+    assert_int_equal(p.asked, 0);
+    assert_int_equal(p.shown, 0);
+    assert_int_equal(session_send_action(s, LOOP_ACT_ACCEPT), 0);
+    e = next_event(s, SESSION_EV_PREVIEW);
+    assert_int_equal(e->result, FN_EINVAL);
+    assert_non_null(strstr(e->text, "preview is off"));
+    stop_quiet(s);
+    session_close(s);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -980,6 +1084,8 @@ int main(void)
         cmocka_unit_test_setup(test_end_scene_and_wakeup, fresh_case),
         cmocka_unit_test_setup(test_open_errors, fresh_case),
         cmocka_unit_test(test_fragments_without_case),
+        cmocka_unit_test(test_preview_follows_and_accepts),
+        cmocka_unit_test_setup(test_preview_off_refuses, fresh_case),
     };
     return cmocka_run_group_tests(tests, setup, teardown);
 }

@@ -7,7 +7,9 @@
  * them: the input thread hands over one report, stamps it, and waits until the loop has taken it
  * (no queueing in the latency). The loop runs as in `navigate`: its own thread, woken per event.
  * --fitted: piece 2 fitted first (reduce_fit_one, as navigate's fit action), so that it starts
- * inside piece 1 within the fit's tolerance, as a case that `reduce` left. */
+ * inside piece 1 within the fit's tolerance, as a case that `reduce` left.
+ * --preview: navigate's live preview fits beside the loop (its worker at SCHED_IDLE), so that its
+ * cost to the hand shows in the loop's figures. */
 #include "cmd.h"
 #include "bench.h"
 
@@ -34,18 +36,24 @@ static const char SCRIPT[] = "move y 10 mm x 3 mm over 2 s\n"
 
 static void usage(FILE *out)
 {
-    fprintf(out, "usage: fracnav bench loop [--json] [--ct FILE [--fitted] | --case DIR] [--repeat N]\n\n"
+    fprintf(out, "usage: fracnav bench loop [--json] [--ct FILE [--fitted] | --case DIR] [--preview] [--realtime]\n"
+                 "                        [--repeat N]\n\n"
                  "Drive the navigation loop near contact as fast as the (virtual) device's reports\n"
                  "can be fed, and report loop_hz (steps per second), latency_p50/p99/max_us (report\n"
                  "read -> accepted pose), outcomes and collision query time.\n\n"
                  "  --json        one JSON object on stdout (\"command\": \"bench loop\"; the keys\n"
                  "                of fracnav replay --json, with workload, fragments, wall_s,\n"
-                 "                loop_thread_sched_fifo and targets)\n"
+                 "                loop_thread_sched_fifo, targets and the preview's members)\n"
                  "  --ct FILE     CT to fracture (default: the example CT, $FRACNAV_DATA/Cranium.inv3\n"
                  "                or /var/cache/fracnav/Cranium.inv3)\n"
                  "  --fitted      fit piece 2 to piece 1 first (as navigate's fit action): the\n"
                  "                loop starts where a fit left it, inside within the fit's tolerance\n"
                  "  --case DIR    steer an existing case instead (its journal is left alone)\n"
+                 "  --preview     run navigate's live preview beside the loop (its worker fits the\n"
+                 "                moving piece near contact, at SCHED_IDLE): the loop's figures with it;\n"
+                 "                preview_updates_count, preview_updates_mean_hz, preview_dropped_count\n"
+                 "  --realtime    feed the reports at the recording's pace (9 s a play), as a hand\n"
+                 "                gives them, instead of as fast as the loop takes them\n"
                  "  --repeat N    play the 9 s motion script N times (default 10)\n"
                  "  --tau-min T, --tau-max T   hierarchy thresholds (default: the case's, or a new\n"
                  "                case's 0.5 and 0.95), 0 <= T_min <= T_max <= 1\n");
@@ -115,10 +123,12 @@ static fnrec *render(int repeat)
 
 /* Runs the recording through reader thread -> ring -> loop_run, in lockstep. */
 static int realtime; /* the loop thread got SCHED_FIFO */
+static int preview;  /* --preview */
+static int paced;    /* --realtime */
 
 static int drive(session *k, const fnrec *rec, double *wall_s)
 {
-    sim_replay_opts ro = {0, 1};
+    sim_replay_opts ro = {paced, 1};
     dev_handle *h;
     if (sim_replay_open_rec(rec, &ro, &h) < 0)
         return FN_EIO;
@@ -142,9 +152,11 @@ static json_t *fragments_json(const frag *f, int nfrag)
     return a;
 }
 
-static int print(const loop_stats *s, double wall_s, const frag *f, int nfrag, const char *case_dir,
+static int print(session *k, const loop_stats *s, double wall_s, const frag *f, int nfrag, const char *case_dir,
                  int fitted, int json)
 {
+    session_preview pv;
+    session_preview_status(k, &pv);
     if (!json) {
         printf("loop: %.0f steps/s, latency p50 %.0f us, p99 %.0f us, max %.0f us; %llu steps "
                "(%llu free, %llu limited, %llu slid, %llu refused); query mean %.1f us\n",
@@ -152,6 +164,9 @@ static int print(const loop_stats *s, double wall_s, const frag *f, int nfrag, c
                (unsigned long long)s->steps, (unsigned long long)s->accepted,
                (unsigned long long)s->limited, (unsigned long long)s->slid,
                (unsigned long long)s->refused, s->query_us_mean);
+        if (preview)
+            printf("preview: %u ghosts (%.1f a second), %u fits dropped as stale\n", pv.updates,
+                   pv.updates / wall_s, pv.dropped);
         return 0;
     }
     json_t *j = session_stats_json("bench loop", s);
@@ -164,6 +179,11 @@ static int print(const loop_stats *s, double wall_s, const frag *f, int nfrag, c
         json_object_set_new(j, "fragments", fragments_json(f, nfrag));
         json_object_set_new(j, "loop_thread_sched_fifo", json_boolean(realtime));
         json_object_set_new(j, "wall_s", jsonw_measure(wall_s));
+        json_object_set_new(j, "realtime", json_boolean(paced));
+        json_object_set_new(j, "preview", json_boolean(preview));
+        json_object_set_new(j, "preview_updates_count", preview ? json_integer(pv.updates) : json_null());
+        json_object_set_new(j, "preview_updates_mean_hz", preview ? jsonw_measure(pv.updates / wall_s) : json_null());
+        json_object_set_new(j, "preview_dropped_count", preview ? json_integer(pv.dropped) : json_null());
         /* loop_hz at least, the latencies at most */
         json_object_set_new(j, "targets", json_pack("{s:o,s:o,s:o}", "loop_hz", jsonw_measure(1000),
                                                     "latency_p99_us", jsonw_measure(1000),
@@ -191,6 +211,10 @@ int bench_loop(int argc, char **argv)
             ct = argv[++i];
         else if (!strcmp(argv[i], "--fitted"))
             fitted = 1;
+        else if (!strcmp(argv[i], "--preview"))
+            preview = 1;
+        else if (!strcmp(argv[i], "--realtime"))
+            paced = 1;
         else if (!strcmp(argv[i], "--case") && i + 1 < argc)
             case_dir = argv[++i];
         else if (!strcmp(argv[i], "--repeat")) {
@@ -225,11 +249,13 @@ int bench_loop(int argc, char **argv)
     if (case_dir) {
         session_params sp = {cfg, SESSION_RESUME, "bench loop", cmd_tau_prepare, &tau, 0};
         session *k = session_open(case_dir, &sp);
+        if (k)
+            session_set_preview(k, preview ? SESSION_PREVIEW_NEAR : SESSION_PREVIEW_OFF);
         rc = k ? drive(k, rec, &wall) : FN_EIO;
         if (k) {
             loop_get_stats(session_loop(k), &s);
             if (rc == 0)
-                rc = print(&s, wall, session_frags(k), session_nfrag(k), case_dir, 0, json);
+                rc = print(k, &s, wall, session_frags(k), session_nfrag(k), case_dir, 0, json);
         }
         session_close(k);
     } else {
@@ -248,10 +274,11 @@ int bench_loop(int argc, char **argv)
         if (rc == 0 && fitted)
             loop_tolerate(session_loop(k), 1, tol);
         if (rc == 0) {
+            session_set_preview(k, preview ? SESSION_PREVIEW_NEAR : SESSION_PREVIEW_OFF);
             rc = drive(k, rec, &wall);
             loop_get_stats(session_loop(k), &s);
             if (rc == 0)
-                rc = print(&s, wall, f, 2, NULL, fitted, json);
+                rc = print(k, &s, wall, f, 2, NULL, fitted, json);
         }
         session_close(k);
         frag_free(&f[0]);

@@ -45,6 +45,10 @@ static void usage(FILE *out)
             "  --gap MM            bone lost at the fracture: the fit action (g, or button 12)\n"
             "                      leaves a gap of MM at the cut, as fracnav reduce --gap does\n"
             "                      (0 to 10, default 0)\n"
+            "  --preview P         the live preview of the fit (a ghost at the fitted pose, its\n"
+            "                      distance in mm and degrees in the view; v on/off, b or button 14\n"
+            "                      accepts it as one undoable move): near (default: by itself\n"
+            "                      within 3 mm of contact, and on v), key (on v only) or off\n"
             "  --duration S        stop after S seconds (scripts, tests)\n"
             "  --view V            window (default when $DISPLAY is set and OpenGL 4.5 is there:\n"
             "                      the fragments drawn at their poses with a HUD; left drag orbits,\n"
@@ -105,6 +109,7 @@ typedef struct opts {
     int view; /* NAVWIN_VIEW_* */
     navwin_look look;
     double gap_mm; /* --gap: the fit action's */
+    int preview;   /* --preview: SESSION_PREVIEW_* */
     const char *screenshot;
 } opts;
 
@@ -114,6 +119,7 @@ static int parse(int argc, char **argv, opts *o)
     o->look = (navwin_look)NAVWIN_LOOK_DEFAULT;
     o->device = "auto";
     o->flags = SESSION_JOURNAL;
+    o->preview = SESSION_PREVIEW_NEAR;
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
         int rc;
@@ -142,6 +148,16 @@ static int parse(int argc, char **argv, opts *o)
         else if (!strcmp(a, "--gap")) {
             if (!cmd_number(v, &o->gap_mm) || !(o->gap_mm >= 0 && o->gap_mm <= 10))
                 return cmd_bad_value("navigate", a, v, "a number of mm from 0 to 10");
+            i++;
+        }
+        else if (!strcmp(a, "--preview")) {
+            static const char *names[] = {"off", "near", "key"}; /* SESSION_PREVIEW_* */
+            o->preview = -1;
+            for (int m = 0; m < 3 && v; m++)
+                if (!strcmp(v, names[m]))
+                    o->preview = m;
+            if (o->preview < 0)
+                return cmd_bad_value("navigate", a, v, "near, key or off");
             i++;
         }
         else if (!strcmp(a, "--duration")) {
@@ -224,6 +240,7 @@ typedef struct view {
     int logged_help;   /* the help was on at the last log line */
     navwin *win;       /* --view window: the window; NULL for the terminal view alone */
     char fit[160];     /* the running fit's progress, shown in the view */
+    char preview[160]; /* the live preview's figures, shown in the view */
 } view;
 
 static void acknowledge(view *v, const char *text)
@@ -377,7 +394,7 @@ static void window_key(view *v, int k)
 /* What the view shows besides the scene (refused: room for the refusal). */
 static navview_extra view_extra(view *v, char *refused, size_t cap)
 {
-    navview_extra x = {-1, NULL, NULL, session_frags(v->k), NULL};
+    navview_extra x = {-1, NULL, NULL, session_frags(v->k), NULL, NULL};
     session_fit fs;
     session_fit_status(v->k, &fs);
     if (fs.running)
@@ -391,6 +408,10 @@ static navview_extra view_extra(view *v, char *refused, size_t cap)
     else
         snprintf(v->fit, sizeof v->fit, "not fitted yet (g fits)");
     x.fit = v->fit;
+    session_preview ps;
+    session_preview_status(v->k, &ps);
+    session_preview_text(&ps, v->preview, sizeof v->preview);
+    x.preview = v->preview;
     if (v->ds) {
         x.battery = session_dsource_battery(v->ds);
         if (session_dsource_refused(v->ds, refused, cap))
@@ -458,7 +479,8 @@ static int handle(view *v, const session_event *ev)
 {
     if (ev->kind == SESSION_EV_ACTION)
         new_actions(v, &ev->scene);
-    else if (ev->kind == SESSION_EV_SAVED || ev->kind == SESSION_EV_FIT)
+    else if (ev->kind == SESSION_EV_SAVED || ev->kind == SESSION_EV_FIT ||
+             (ev->kind == SESSION_EV_PREVIEW && ev->text[0]))
         saved(v, ev);
     return ev->kind == SESSION_EV_END;
 }
@@ -592,6 +614,7 @@ int cmd_navigate(int argc, char **argv)
         if (session_resumed(k))
             fprintf(stderr, "recovered %zu journal records\n", session_resumed(k));
         session_drive_led(k, played ? NULL : ds);
+        session_set_preview(k, o.preview);
         if (o.have_pivot)
             session_set_pivot(k, o.pivot);
         v.k = k;

@@ -215,7 +215,7 @@ static int play_live(session *k, loop_source src, const opts *o)
     char copy[4096], device[4200];
     snprintf(copy, sizeof copy, "%s", o->rec);
     snprintf(device, sizeof device, "the recording %s", basename(copy));
-    navview_extra x = {-1, NULL, NULL, session_frags(k), NULL};
+    navview_extra x = {-1, NULL, NULL, session_frags(k), NULL, NULL};
     loop_scene sc = {0};
     session_event ev;
     for (int ended = 0, last = 0; !last;) {

@@ -34,6 +34,7 @@ struct navwin {
     void *click_ctx;
     int nvoi;       /* the case's reduction VOI boxes (o.voi) */
     uint64_t drawn_seq;
+    unsigned ghosts_seen; /* the live preview's updates drawn (session_preview.updates) */
     int dirty;
     char hud[4096];
     char note[128]; /* what the last window key did, until note_until_us */
@@ -455,6 +456,12 @@ int navwin_frame(navwin *w, const loop_scene *sc, const char *hud, int *keys, in
         w->note[0] = 0;
         w->dirty = 1;
     }
+    session_preview pv; /* its ghost, translucent at the fitted pose */
+    session_preview_status(w->k, &pv);
+    w->o.ghost = pv.shown && pv.frag >= 0 && pv.frag < w->c->nfrag ? pv.frag + 1 : 0;
+    w->o.ghost_pose = pv.ghost;
+    w->dirty |= pv.updates != w->ghosts_seen;
+    w->ghosts_seen = pv.updates;
     if (!w->dirty && sc->seq == w->drawn_seq && !strcmp(hud, w->hud))
         return n;
     snprintf(w->hud, sizeof w->hud, "%s", hud);

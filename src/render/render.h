@@ -79,6 +79,10 @@ typedef struct render_options {
                              * line from its centroid to the viewer) are cut away, so the piece
                              * in hand is always seen */
     double voi[RENDER_MAX_FRAGS][6];
+    int ghost;              /* 0: none; i + 1: on the 3D view, fragment i's surface drawn again at
+                             * ghost_pose, translucent and light, over everything (navigate's live
+                             * preview of the fit) */
+    pose ghost_pose;
 } render_options;
 
 /* Opens a GL 4.5 core context of w x h pixels. platform: "osmesa" (offscreen, llvmpipe), "egl"

@@ -656,6 +656,40 @@ static int draw_voi(render *r, const render_options *o)
     return rc ? fn_err_set(FN_ENOMEM, "render: out of memory for the VOI overlay") : 0;
 }
 
+/* The ghost (render_options.ghost): the fragment's mesh again at ghost_pose, translucent, over
+ * everything, so it shows in every mode. */
+static void draw_ghost(render *r, const pose *poses, const render_options *o, const mat4 vp)
+{
+    int g = o->ghost - 1;
+    pose at[RENDER_MAX_FRAGS];
+    memcpy(at, poses, sizeof(pose) * (size_t)r->nfrag);
+    at[g] = o->ghost_pose;
+    unsigned p = r->prog_mesh;
+    float m[16], w2t[16], nmat[9], fw[3], cut[4] = {0, 0, 0, 0};
+    static const float light[3] = {0.85f, 0.95f, 1.0f};
+    r->gl.UseProgram(p);
+    mat4_to_gl(vp, m);
+    r->gl.UniformMatrix4fv(loc(r, p, "vp"), 1, GL_FALSE, m);
+    for (int a = 0; a < 3; a++)
+        fw[a] = (float)o->camera.forward[a];
+    r->gl.Uniform3fv(loc(r, p, "forward"), 1, fw);
+    frag_mats(r, g, at, m, w2t, nmat);
+    r->gl.UniformMatrix4fv(loc(r, p, "model"), 1, GL_FALSE, m);
+    r->gl.Uniform4fv(loc(r, p, "cut"), 1, cut);
+    r->gl.Uniform1f(loc(r, p, "cut_front"), 0);
+    r->gl.Uniform3fv(loc(r, p, "colour"), 1, light);
+    r->gl.Uniform1f(loc(r, p, "alpha"), 0.35f);
+    r->gl.Enable(GL_BLEND);
+    r->gl.BlendFunc(GL_SRC_ALPHA, GL_ONE_MINUS_SRC_ALPHA);
+    r->gl.Enable(GL_CULL_FACE);
+    r->gl.CullFace(GL_BACK);
+    r->gl.BindVertexArray(r->frag[g].mesh_vao);
+    r->gl.DrawElements(GL_TRIANGLES, (int)(r->frag[g].mesh_triangles * 3), GL_UNSIGNED_INT, (void *)0);
+    r->gl.Disable(GL_CULL_FACE);
+    r->gl.Disable(GL_BLEND);
+    r->gl.Uniform1f(loc(r, p, "alpha"), 1.0f);
+}
+
 static int draw_overlays(render *r, const pose *poses, const render_options *o, const mat4 vp)
 {
     unsigned p = r->prog_line;
@@ -684,6 +718,8 @@ static int draw_overlays(render *r, const pose *poses, const render_options *o, 
         rc = draw_axes(r, poses);
     if (!rc && (o->overlays & RENDER_OVERLAY_VOI))
         rc = draw_voi(r, o);
+    if (!rc && poses && o->ghost > 0 && o->ghost <= r->nfrag)
+        draw_ghost(r, poses, o, vp);
     return rc;
 }
 

@@ -255,6 +255,7 @@ const char *const render__mesh_vs =
 const char *const render__mesh_fs =
     "#version 450 core\n"
     "uniform vec3 colour, forward;\n"
+    "uniform float alpha = 1.0;\n"
     "in vec3 n_world, p_world;\n"
     "out vec4 frag_colour;\n"
     CUTAWAY_GLSL
@@ -263,7 +264,7 @@ const char *const render__mesh_fs =
     "        discard;\n"
     "    float len = length(n_world);\n"
     "    float diff = len > 0.0 ? abs(dot(n_world / len, forward)) : 1.0;\n"
-    "    frag_colour = vec4(colour * (0.2 + 0.8 * diff) + vec3(0.25 * pow(diff, 24.0)), 1.0);\n"
+    "    frag_colour = vec4(colour * (0.2 + 0.8 * diff) + vec3(0.25 * pow(diff, 24.0)), alpha);\n"
     "}\n";
 
 /* Fragment i's mesh in the flat colour (i + 1) / 255: which fragment is front-most where. */

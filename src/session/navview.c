@@ -151,6 +151,8 @@ static void fill(const loop_scene *s, const navview_extra *x, fields *f)
     add(f, 0, "query %.0f us", s->stats.query_us_mean);
     if (x && x->fit)
         add(f, 1, "%s", x->fit);
+    if (x && x->preview && x->preview[0])
+        add(f, 1, "%s", x->preview);
     if (x && x->ack)
         add(f, 1, "> %s", x->ack);
     add(f, !(x && x->ack), "? or h: keys");
@@ -295,15 +297,18 @@ const char *navview_help(int keyboard)
                "  arrows or a/d w/s  move in x and y        r/f  up/down\n"
                "  i/k j/l u/o        rotate                 space or x  stop\n"
                "  1 next  2 previous  3 fix  4 collision  5 translation only  6 rotation only\n"
-               "  7 undo  8 redo  9 save  0 or m frame  g fit  q quit (saves)  ? or h keys\n"
+               "  7 undo  8 redo  9 save  0 or m frame  g fit  v preview  b accept it\n"
+               "  q quit (saves)  ? or h keys\n"
                "  terminal mouse: left drag rotates, middle rolls, right moves, wheel up/down\n"
                "Ctrl-C quits and saves.\n";
     return "keys beside a controller: n/p next/previous fragment   f fix or unfix\n"
            "  c collision checking on/off   t translation only   r rotation only\n"
            "  u undo   y redo   m frame   s save   g fit to the others   q quit (saves)\n"
+           "  v preview the fit on/off (on by itself near contact)   b accept the preview\n"
            "  ? or h these keys\n"
            "controller buttons: 1 next  2 previous  3 fix  4 collision  5 translation only\n"
-           "  6 rotation only  7 undo  8 redo  9 save  10 frame  12 fit (SpaceMouse\n"
+           "  6 rotation only  7 undo  8 redo  9 save  10 frame  12 fit  13 preview\n"
+           "  14 accept the preview (SpaceMouse\n"
            "  Enterprise: its keys labelled 1-10; spnavrc's bnmapN moves them, bnmapN = 11\n"
            "  puts fit on N)\n"
            "Ctrl-C quits and saves.\n";

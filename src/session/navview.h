@@ -24,6 +24,7 @@ typedef struct navview_extra {
     const frag *frags;   /* the scene's fragments: the view shows how far the selected one's
                           * centroid has moved; NULL: the pose's translation */
     const char *fit;     /* NULL, or the running fit's progress ("fitting frag 2: ...") */
+    const char *preview; /* NULL or "", or the live preview's figures (session_preview_text) */
 } navview_extra;
 
 /* The view of s for a terminal `width` columns wide: lines of at most width - 1 columns (the last

@@ -57,9 +57,16 @@ static int build_common(session *s)
         return fn_err_set(FN_EINVAL, "session: no semaphore for its events: %s", strerror(errno));
     }
     pthread_mutex_init(&s->push_mu, NULL);
+    if (sem_init(&s->prev_wake, 0, 0) != 0) {
+        sem_destroy(&s->wake);
+        sem_destroy(&s->ev_ready);
+        return fn_err_set(FN_EINVAL, "session: no semaphore for its preview: %s", strerror(errno));
+    }
     pthread_mutex_init(&s->ev_mu, NULL);
     pthread_mutex_init(&s->fit_mu, NULL);
+    pthread_mutex_init(&s->prev_mu, NULL);
     s->fit.frag = -1;
+    s->prev.frag = -1;
     s->built = 1;
     s->in = ring_new(sizeof(loop_event), 1024);
     s->ctl = ring_new(sizeof(loop_event), 64);
@@ -231,8 +238,10 @@ void session__free(session *s)
         pthread_mutex_destroy(&s->push_mu);
         pthread_mutex_destroy(&s->fit_mu);
         pthread_mutex_destroy(&s->ev_mu);
+        pthread_mutex_destroy(&s->prev_mu);
         sem_destroy(&s->wake);
         sem_destroy(&s->ev_ready);
+        sem_destroy(&s->prev_wake);
     }
     free(s);
 }

@@ -14,13 +14,14 @@
  *    called from any thread, several at once;
  *  - session_wait_event, session_ended and session_stop from one client thread (the one that
  *    owns the handle), never two at once;
- *  - the event thread carries out save requests (LOOP_ACT_SAVE, a button or a key) and starts
- *    fits (LOOP_ACT_FIT) as they come, whether or not the client waits, and queues their events;
- *    while it runs, the case (session_case) is its to write: read it before session_start or
- *    after session_stop;
- *  - the wake-up callback (session_set_wakeup) runs on the loop thread, the event thread or the
- *    fit worker's;
- *  - a fit runs on a worker thread of the session's own.
+ *  - the event thread carries out save requests (LOOP_ACT_SAVE, a button or a key), starts fits
+ *    (LOOP_ACT_FIT) and proposes an accepted preview (LOOP_ACT_ACCEPT) as they come, whether or
+ *    not the client waits, and queues their events; while it runs, the case (session_case) is its
+ *    to write: read it before session_start or after session_stop;
+ *  - the wake-up callback (session_set_wakeup) runs on the loop thread, the event thread, the fit
+ *    worker's or the live preview's;
+ *  - a fit runs on a worker thread of the session's own, the live preview's fits on another
+ *    (session_set_preview).
  * Everything else (open, play, save, close, the JSON helpers) belongs to the owner's thread while
  * no loop thread runs.
  *
@@ -110,7 +111,9 @@ enum {
                                 * (benchmarks: no queueing in the latency) */
 };
 /* Runs src through the loop on the calling thread until it ends (LOOP_SOURCE_END), then returns:
- * replay and benchmarks. 0 or the first source or collider error. */
+ * replay and benchmarks. REALTIME and LOCKSTEP run the live preview's worker beside it when
+ * session_set_preview asked for one (bench loop --preview; its ghosts are not accepted). 0 or the
+ * first source or collider error. */
 int session_play(session *s, loop_source src, int mode);
 
 /* As session_play(SESSION_PLAY_FAST) on the calling thread, calling each(ctx, t_us) before every
@@ -134,7 +137,7 @@ int session_stop(session *s);
  * 0, FN_EINVAL for an action out of range, FN_EAGAIN when the control queue is full (the loop
  * is far behind) or the loop is not running. */
 int session_send_action(session *s, loop_action a);
-/* The action of a terminal key (n p f c t r u y m s g, ? and h for help), LOOP_ACT_NONE for other
+/* The action of a terminal key (n p f c t r u y m s g v b, ? and h for help), LOOP_ACT_NONE for other
  * keys: what the terminal and the window send for the same key. q (quit) is the client's. */
 loop_action session_key_action(int ch);
 
@@ -164,8 +167,12 @@ typedef enum {
                             * or the error's message */
     SESSION_EV_POSE = 8,   /* a proposal landed: id, frag, result LOOP_ACCEPTED or LOOP_REFUSED */
     SESSION_EV_END = 16,   /* the source ended (a recording played out); once */
-    SESSION_EV_FIT = 32    /* a fit (LOOP_ACT_FIT) started, was refused, or finished: fit, result
+    SESSION_EV_FIT = 32,   /* a fit (LOOP_ACT_FIT) started, was refused, or finished: fit, result
                             * (started: 0; refused or failed: FN_E*; cancelled: 1), text */
+    SESSION_EV_PREVIEW = 64 /* the live preview changed: a new ghost, the ghost gone, the preview
+                            * asked on or off (LOOP_ACT_PREVIEW), or an accept (LOOP_ACT_ACCEPT:
+                            * result 0, its pose proposed: a SESSION_EV_POSE follows; FN_E*
+                            * refused); preview, text */
 } session_event_kind;
 
 /* The reduction worker's state (session_fit_status; SESSION_EV_FIT events carry it). */
@@ -181,6 +188,22 @@ typedef struct session_fit {
     unsigned finished;     /* fits finished so far */
 } session_fit;
 
+/* The live preview's state (session_preview_status; SESSION_EV_PREVIEW events carry it). */
+typedef struct session_preview {
+    int asked;             /* 1: on by LOOP_ACT_PREVIEW, whether near or not */
+    int shown;             /* 1: a ghost for the selected fragment where the hand holds it now */
+    int frag;              /* the ghost's fragment (-1: none yet) */
+    pose ghost;            /* where the fit puts it (home world -> world) */
+    pose hand;             /* the hand's pose it was fitted from */
+    double moved_mm, turned_deg; /* from the hand to the ghost: centroid distance, rotation */
+    double metric;         /* the VOI metric at the ghost (reduce.h; lower is better) */
+    int converged;         /* 1: a fit from the ghost no longer moves it: no more fits until
+                            * the hand or another fragment moves */
+    double fit_ms;         /* the last fit's wall time */
+    unsigned updates;      /* ghosts published so far */
+    unsigned dropped;      /* fits dropped because the hand moved on while they ran */
+} session_preview;
+
 typedef struct session_event {
     session_event_kind kind;
     loop_action action; /* ACTION */
@@ -190,6 +213,7 @@ typedef struct session_event {
     int frag;           /* POSE: the fragment */
     char text[1100];    /* SAVED, FIT */
     session_fit fit;    /* FIT */
+    session_preview preview; /* PREVIEW */
     loop_scene scene;   /* every event: the scene it was seen in (SAVED: the one saved) */
 } session_event;
 
@@ -204,8 +228,9 @@ void session_subscribe(session *s, unsigned kinds);
  * its save requests carried out. Owner's thread. */
 session_event_kind session_wait_event(session *s, int timeout_ms, session_event *ev);
 /* fn(ctx) is called on the loop thread whenever a scene is published, on the event thread when
- * events were queued, and on the fit worker's thread when a fit ends: for a client with its own event loop
- * (glfwPostEmptyEvent). It must return at once. NULL: none.
+ * events were queued, on the fit worker's thread when a fit ends and on the preview's when its
+ * ghost changes: for a client with its own event loop (glfwPostEmptyEvent). It must return at
+ * once. NULL: none.
  * Before session_start. */
 void session_set_wakeup(session *s, void (*fn)(void *ctx), void *ctx);
 
@@ -222,6 +247,36 @@ void session_set_wakeup(session *s, void (*fn)(void *ctx), void *ctx);
 
 /* The worker's state now (any thread). */
 void session_fit_status(session *s, session_fit *out);
+
+/* ---- the live preview ---- */
+
+/* While the selected movable fragment is near another (a gap of at most SESSION_PREVIEW_NEAR_MM,
+ * collision checking on) or the preview is asked on (LOOP_ACT_PREVIEW: the key v, loop button
+ * 13), a worker thread of its own, at the lowest priority (SCHED_IDLE), keeps fitting it
+ * (reduce_fit_one, a cheap fit: one start, no hops, SESSION_PREVIEW_EVALS evaluations) from where
+ * the hand holds it, then again from its own result while the hand holds still, until a fit no
+ * longer moves it. Each result is the ghost (session_preview_status, SESSION_EV_PREVIEW); a fit
+ * that the hand (or an action) has made stale -- the fragment moved over 0.5 mm or 0.5 degree
+ * from where the fit began, another one moved, another selected -- is cancelled and dropped. The
+ * worker reads the loop's scenes (lock-free) and works on copies; the loop thread only posts its
+ * semaphore at each publish. LOOP_ACT_ACCEPT (the key b, loop button 14) proposes the ghost's
+ * pose as the fit action's does (session_propose_pose at the fit's tolerance): one journaled
+ * move, one undo step. */
+#define SESSION_PREVIEW_NEAR_MM 3.0
+#define SESSION_PREVIEW_EVALS 200
+enum {
+    SESSION_PREVIEW_OFF = 0,  /* no worker (the default; LOOP_ACT_PREVIEW is refused) */
+    SESSION_PREVIEW_NEAR = 1, /* near contact, or asked */
+    SESSION_PREVIEW_ASKED = 2 /* only when asked (LOOP_ACT_PREVIEW) */
+};
+/* The preview's mode (SESSION_PREVIEW_*). Before session_start or session_play. */
+void session_set_preview(session *s, int mode);
+/* The preview's state now (any thread). */
+void session_preview_status(session *s, session_preview *out);
+/* What the views show of p (the terminal's line, the window's HUD): "preview of frag 2: 1.20 mm,
+ * 3.40 deg away (b accepts)", "... fitting" before it converges, "preview on: fitting" while asked
+ * with no ghost yet; "" when there is nothing to show. */
+void session_preview_text(const session_preview *p, char *buf, size_t cap);
 
 /* ---- saving ---- */
 

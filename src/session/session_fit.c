@@ -27,8 +27,7 @@ static void on_progress(void *ctx, int id, int iter, int evals, double f, double
     pthread_mutex_unlock(&s->fit_mu);
 }
 
-/* How far b moves frag f's centroid from where a put it (mm), and the angle between them (deg). */
-static void pose_change(const frag *f, const pose *a, const pose *b, double *mm, double *deg)
+void session__pose_change(const frag *f, const pose *a, const pose *b, double *mm, double *deg)
 {
     double ca[3], cb[3];
     pose_apply(a, f->centroid, ca);
@@ -66,7 +65,7 @@ static void *fit_thread(void *arg)
     if (rc < 0)
         snprintf(why, sizeof why, "%s", fn_err_msg());
     double mm = 0, deg = 0;
-    pose_change(&s->fit_frags[s->fit_sel], &s->fit_start, &out, &mm, &deg);
+    session__pose_change(&s->fit_frags[s->fit_sel], &s->fit_start, &out, &mm, &deg);
     pthread_mutex_lock(&s->fit_mu);
     s->fit.running = 0;
     s->fit.result = rc;

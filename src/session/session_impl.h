@@ -74,6 +74,21 @@ struct session {
     char fit_why[256];     /* a failed fit's message (under fit_mu) */
     pose fit_out;          /* the finished fit's pose (under fit_mu) */
     double fit_tolerance_mm; /* the collision tolerance the fit checked it at (under fit_mu) */
+
+    /* the live preview (session_preview.c) */
+    int preview_mode;       /* SESSION_PREVIEW_* */
+    pthread_t prev_th;
+    int prev_joinable;      /* owner's thread */
+    sem_t prev_wake;        /* posted at every publish while the worker runs */
+    atomic_int prev_run;    /* the worker runs (on_publish posts prev_wake) */
+    atomic_int prev_stop, prev_cancel, prev_asked;
+    pthread_mutex_t prev_mu; /* guards prev, prev_at, prev_tolerance_mm */
+    session_preview prev;
+    pose prev_at[LOOP_MAX_FRAGS]; /* every fragment's pose when the ghost's fit began */
+    double prev_tolerance_mm;
+    unsigned seen_previews, seen_accepts; /* the scene's preview and accept requests handled */
+    unsigned previews_told;  /* prev.updates whose event was derived */
+    frag prev_frags[LOOP_MAX_FRAGS]; /* the worker's copies (sharing the voxels) */
 };
 
 /* Frees everything session_open built (no thread may run). */
@@ -90,6 +105,19 @@ int session__fit_finished(session *s, session_event *ev, pose *fitted, double *t
 int session__propose(session *s, int fragment, const pose *p, double tolerance_mm, uint64_t *id);
 /* Cancels a running fit and joins the worker. Owner's thread. */
 void session__fit_join(session *s);
+
+/* How far b moves frag f's centroid from where a put it (mm), and the angle between them (deg). */
+void session__pose_change(const frag *f, const pose *a, const pose *b, double *mm, double *deg);
+/* Starts the preview's worker (mode not OFF) or does nothing. session_start. 0 or FN_E*. */
+int session__preview_start(session *s);
+/* Stops the preview's worker and joins it. Owner's thread. */
+void session__preview_join(session *s);
+/* The preview's next event, if any: a key's toggle, a new ghost. 1 when ev was filled. Owner's
+ * thread, s->scene the newest. */
+int session__preview_event(session *s, session_event *ev);
+/* The ghost (*p) and the tolerance its fit checked it at; 1 when it is fresh for sc (its fragment
+ * selected and where the fit began, within the stale limits). Any thread. */
+int session__preview_ghost(session *s, const loop_scene *sc, session_preview *p, double *tolerance_mm);
 
 /* Tells ds whether the selected fragment can move (session_drive_led's push). Any thread. */
 void session__led_movable(session_dsource *ds, int movable);

@@ -21,6 +21,8 @@ static void on_publish(void *ctx)
     if (s->led) /* on the publishing thread: the loop's state is this thread's to read */
         session__led_movable(s->led, !loop_fixed(s->L, loop_selected(s->L)));
     sem_post(&s->wake);
+    if (atomic_load(&s->prev_run)) /* the preview's worker looks at the new scene */
+        sem_post(&s->prev_wake);
     if (s->wakeup)
         s->wakeup(s->wakeup_ctx);
 }
@@ -63,7 +65,15 @@ int session_play(session *s, loop_source src, int mode)
     loop_reader *rd = loop_reader_start(src, s->in, s->L, mode == SESSION_PLAY_LOCKSTEP);
     if (!rd)
         return FN_EIO;
-    int rc = loop_run(s->L, s->in, 1000, loop_reader_done_flag(rd));
+    int preview = s->preview_mode != SESSION_PREVIEW_OFF;
+    if (preview)
+        loop_set_publish_hook(s->L, on_publish, s); /* wakes the preview's worker */
+    int rc = session__preview_start(s);
+    if (rc == 0)
+        rc = loop_run(s->L, s->in, 1000, loop_reader_done_flag(rd));
+    session__preview_join(s);
+    if (preview)
+        loop_set_publish_hook(s->L, NULL, NULL);
     loop_reader_stop(rd);
     s->ended = 1;
     return rc;
@@ -93,7 +103,10 @@ int session_start(session *s, loop_source src)
         return fn_err_set(FN_EIO, "cannot start the session's event thread");
     }
     s->ev_running = 1;
-    return 0;
+    int rc = session__preview_start(s);
+    if (rc < 0)
+        session_stop(s);
+    return rc;
 }
 
 int session_ended(session *s)
@@ -141,6 +154,8 @@ loop_action session_key_action(int ch)
     case '?':
     case 'h': return LOOP_ACT_HELP;
     case 'g': return LOOP_ACT_FIT;
+    case 'v': return LOOP_ACT_PREVIEW;
+    case 'b': return LOOP_ACT_ACCEPT;
     default: return LOOP_ACT_NONE;
     }
 }
@@ -224,6 +239,28 @@ static void save_request(session *s, session_event *ev)
     pthread_mutex_unlock(&s->push_mu);
 }
 
+/* LOOP_ACT_ACCEPT: the preview's ghost proposed, as the fit action's result is, when it is fresh
+ * for the scene; ev (SESSION_EV_PREVIEW) says what was done. */
+static void accept_preview(session *s, session_event *ev)
+{
+    const loop_scene *sc = &s->scene;
+    double tol;
+    ev->kind = SESSION_EV_PREVIEW;
+    if (!session__preview_ghost(s, sc, &ev->preview, &tol)) {
+        ev->result = FN_EINVAL;
+        snprintf(ev->text, sizeof ev->text, "accept refused: no preview of frag %d where it is now%s",
+                 sc->selected + 1, s->preview_mode == SESSION_PREVIEW_OFF ? " (the preview is off)" : "");
+        return;
+    }
+    const session_preview *p = &ev->preview;
+    ev->result = session__propose(s, p->frag, &p->ghost, tol, NULL);
+    if (ev->result < 0)
+        snprintf(ev->text, sizeof ev->text, "accept of frag %d not applied: %.1000s", p->frag + 1, fn_err_msg());
+    else
+        snprintf(ev->text, sizeof ev->text, "accepted: frag %d moved %.2f mm, turned %.2f deg to the preview",
+                 p->frag + 1, p->moved_mm, p->turned_deg);
+}
+
 /* The next event the newest scene holds, in order: proposals, actions, saves, the end, the scene.
  * 1 when ev was filled. On the deriving thread. */
 static int derive(session *s, session_event *ev)
@@ -255,6 +292,11 @@ static int derive(session *s, session_event *ev)
             snprintf(ev->text, sizeof ev->text, "fit of frag %d not applied: %.1000s",
                      ev->fit.frag + 1, fn_err_msg());
         }
+    } else if (sc->accept_requests != s->seen_accepts) {
+        s->seen_accepts = sc->accept_requests;
+        accept_preview(s, ev);
+    } else if (session__preview_event(s, ev)) {
+        /* filled */
     } else if (sc->save_requests != s->seen_saves) {
         s->seen_saves = sc->save_requests;
         save_request(s, ev);
@@ -406,6 +448,7 @@ int session_stop(session *s)
         return 0;
     stop_event_thread(s);
     session__fit_join(s); /* a fit's proposal would land in no loop */
+    session__preview_join(s);
     s->ended = loop_reader_done(s->rd);
     loop_reader_stop(s->rd);
     s->rd = NULL;

@@ -40,13 +40,14 @@ void loop_config_default(loop_config *c)
     static const uint8_t map[] = {LOOP_ACT_NEXT,       LOOP_ACT_PREV,     LOOP_ACT_FIX,
                                   LOOP_ACT_COLLISION,  LOOP_ACT_TRANS_ONLY, LOOP_ACT_ROT_ONLY,
                                   LOOP_ACT_UNDO,       LOOP_ACT_REDO,     LOOP_ACT_SAVE,
-                                  LOOP_ACT_FRAME,      LOOP_ACT_NONE,     LOOP_ACT_FIT};
+                                  LOOP_ACT_FRAME,      LOOP_ACT_NONE,     LOOP_ACT_FIT,
+                                  LOOP_ACT_PREVIEW,    LOOP_ACT_ACCEPT};
     memcpy(c->button_action, map, sizeof map);
 }
 
 void loop_config_actions_at(loop_config *c, int first)
 {
-    uint8_t acts[12];
+    uint8_t acts[14];
     if (first <= 0 || first > 32 - (int)sizeof acts)
         return;
     memcpy(acts, c->button_action, sizeof acts);
@@ -865,6 +866,12 @@ int loop_action_do(loop *L, loop_action a)
         return LOOP_IDLE;
     case LOOP_ACT_FIT:
         L->fit_requests++;
+        return LOOP_IDLE;
+    case LOOP_ACT_PREVIEW:
+        L->preview_requests++;
+        return LOOP_IDLE;
+    case LOOP_ACT_ACCEPT:
+        L->accept_requests++;
         return LOOP_IDLE;
     case LOOP_ACT_FRAME:
         L->cfg.frame = (loop_frame)((L->cfg.frame + 1) % 3);

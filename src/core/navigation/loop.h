@@ -95,6 +95,9 @@ typedef enum {
     LOOP_ACT_HELP,       /* show or hide the keys: the application's view (the scene's last_action) */
     LOOP_ACT_FIT,        /* fit the selected fragment to the others: counts in the scene's
                           * fit_requests; the application's reduction worker fits (session.h) */
+    LOOP_ACT_PREVIEW,    /* the live preview of the fit on/off: counts in preview_requests */
+    LOOP_ACT_ACCEPT,     /* move the selected fragment to the preview's ghost: counts in
+                          * accept_requests; the application proposes the pose (session.h) */
     LOOP_ACT_COUNT
 } loop_action;
 
@@ -183,6 +186,7 @@ typedef struct loop_scene {
     int trans_only, rot_only, device_present;
     unsigned save_requests; /* LOOP_ACT_SAVE presses so far: the application saves when it grows */
     unsigned fit_requests;  /* LOOP_ACT_FIT presses so far: the application fits when it grows */
+    unsigned preview_requests, accept_requests; /* LOOP_ACT_PREVIEW, LOOP_ACT_ACCEPT presses so far */
     loop_frame frame;
     loop_outcome last_outcome;
     /* The selected fragment's contact at the pose in this scene: > 0 a lower bound on its gap to
@@ -209,10 +213,10 @@ typedef struct loop_scene {
 typedef struct loop loop;
 
 /* Defaults. Buttons 1-10 (bits 0-9) act: next, previous, fix, collision, translation only,
- * rotation only, undo, redo, save, frame; button 12 (bit 11) fits (button 11 is the keyboard
- * device's help). */
+ * rotation only, undo, redo, save, frame; button 12 (bit 11) fits, 13 the live preview on/off,
+ * 14 accepts it (button 11 is the keyboard device's help). */
 void loop_config_default(loop_config *c);
-/* Moves the twelve default button actions to start at bit first (a device whose numbered keys 1-10
+/* Moves the fourteen default button actions to start at bit first (a device whose numbered keys 1-10
  * are not its first buttons: devtab_key1_button); the bits below act no more. */
 void loop_config_actions_at(loop_config *c, int first);
 

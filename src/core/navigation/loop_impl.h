@@ -47,6 +47,7 @@ struct loop {
     _Atomic double cam[9];
     unsigned save_requests;
     unsigned fit_requests;
+    unsigned preview_requests, accept_requests;
     int have_pivot;
     double pivot_home[3];
     int have_last_t;

@@ -168,6 +168,8 @@ void loop_publish(loop *L)
     s->device_present = L->device_present;
     s->save_requests = L->save_requests;
     s->fit_requests = L->fit_requests;
+    s->preview_requests = L->preview_requests;
+    s->accept_requests = L->accept_requests;
     s->frame = L->cfg.frame;
     s->last_outcome = L->last_outcome;
     s->penetrating = L->collision_on && L->in_collision;
