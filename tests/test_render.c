@@ -979,10 +979,15 @@ static void test_navigate_window_seed_mode_separates(void **st)
     snprintf(shot, sizeof shot, "%s/shot.png", dir);
     snprintf(out, sizeof out, "%s/out.json", dir);
     char *asan_saved = window_env_set(display);
+    /* navigate logs a line a second, so a wait for a line that never comes ends only with it:
+     * --duration bounds each of its runs */
     FILE *err;
+    char duration[32];
+    snprintf(duration, sizeof duration, "%d", 10 * TU_WAIT_MAX_S);
     pid_t nav = tu_spawn_cli(out, &err, (char *[]){"navigate", case_dir, "--device", "virtual:spacenavigator",
                                                    "--view", "window", "--camera", "anterior", "--layout", "four-up",
-                                                   "--discard-journal", "--screenshot", shot, NULL});
+                                                   "--discard-journal", "--screenshot", shot, "--duration",
+                                                   duration, NULL});
     /* each step waits for the view's line that shows it was taken (off a terminal, navigate logs
      * a line at each change): a click and a key that arrive in one frame are not kept in order */
     char cmd[1024], seen[16384] = "";
