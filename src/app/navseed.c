@@ -76,8 +76,10 @@ int navseed_apply(navseed *s, planning_case *c)
 {
     int rc = case_separate_all(c, s->seed, s->n);
     if (rc >= 0) {
+        char what[64];
+        snprintf(what, sizeof what, "separated, %d new fragment%s", rc, rc == 1 ? "" : "s");
         s->n = 0;
-        describe(s, "separated");
+        describe(s, what);
     } else
         describe(s, fn_err_msg());
     return rc;
