@@ -422,8 +422,8 @@ static navview_extra view_extra(view *v, char *refused, size_t cap)
 }
 
 /* --view window: one frame of the window (when something changed) with the view's lines as its
- * HUD; keys typed there go to the seed mode, or act as terminal keys. A window that fails or is closed ends the session
- * like q. */
+ * HUD; keys typed there go to the seed mode, or act as terminal keys. A window that fails or is
+ * closed ends the session like q. */
 static void window_frame(view *v, const loop_scene *sc)
 {
     char refused[512], device[256];
@@ -505,7 +505,8 @@ static void ui(view *v, int keys, double duration)
     int ended = 0;
     loop_scene sc = {0};
     session_event ev;
-    while (!quit && !ended && !v->seed.accepted && (duration <= 0 || (double)(fnclock_now_us() - t0) < duration * 1e6)) {
+    while (!quit && !ended && !v->seed.accepted &&
+           (duration <= 0 || (double)(fnclock_now_us() - t0) < duration * 1e6)) {
         if (raw)
             read_keys(v);
         /* keys at least every 20 ms; the window at display rate (a frame when something changed) */
