@@ -67,7 +67,7 @@ done
 # The command line's session clients (navigate, replay) reach the layers below through the
 # session's headers alone (session.h, its terminal view navview.h) and the generic err.h and
 # fnclock.h, besides the application's own.
-CLIENT_HEADERS="session.h navview.h err.h fnclock.h cmd.h framedump.h navwin.h"
+CLIENT_HEADERS="session.h navview.h err.h fnclock.h cmd.h framedump.h navwin.h navseed.h"
 for f in "$here"/../src/app/cmd_navigate.c "$here"/../src/app/cmd_replay.c; do
     for h in $(sed -n 's/^[[:space:]]*#[[:space:]]*include[[:space:]]*"\([^"]*\)".*/\1/p' "$f"); do
         case " $CLIENT_HEADERS " in

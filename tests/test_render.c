@@ -11,6 +11,7 @@
 #include <cmocka.h>
 #include <jansson.h>
 
+#include "case.h"
 #include "err.h"
 #include "frag.h"
 #include "mesh.h"
@@ -749,11 +750,12 @@ static double content_column(const uint8_t *rgb, int w, int h, int y0)
 
 #define WINDOW_HUD_ROWS 200 /* the HUD covers the window's top rows: compared below them */
 
-/* Runs `fracnav CMD` (cmd, already formatted) with its window on Xvfb's display: DISPLAY is set for
- * the child alone (this process draws through OSMesa), and under AddressSanitizer leak checking is
- * off for it (glfwTerminate unloads the GL driver, whose leaks then come from an unknown module
- * that no suppression can name; leak checking stays on everywhere else). Stops Xvfb after. */
-static int run_in_window(pid_t xvfb, int display, char **out, const char *cmd)
+/* The environment of a fracnav with its window on Xvfb's display: DISPLAY is set for the children
+ * alone (this process draws through OSMesa), and under AddressSanitizer leak checking is off for
+ * them (glfwTerminate unloads the GL driver, whose leaks then come from an unknown module that no
+ * suppression can name; leak checking stays on everywhere else). Returns the ASAN_OPTIONS to
+ * restore (window_env_end). */
+static char *window_env_set(int display)
 {
     char d[32];
     snprintf(d, sizeof d, ":%d", display);
@@ -762,7 +764,12 @@ static int run_in_window(pid_t xvfb, int display, char **out, const char *cmd)
     char *asan_saved = asan ? strdup(asan) : NULL, asan_child[1024];
     snprintf(asan_child, sizeof asan_child, "%s%sdetect_leaks=0", asan ? asan : "", asan && *asan ? ":" : "");
     setenv("ASAN_OPTIONS", asan_child, 1);
-    int rc = tu_run_cli(out, "%s", cmd);
+    return asan_saved;
+}
+
+/* Undoes window_env_set (asan_saved: what it returned), and stops Xvfb. */
+static void window_env_end(pid_t xvfb, char *asan_saved)
+{
     unsetenv("DISPLAY");
     if (asan_saved)
         setenv("ASAN_OPTIONS", asan_saved, 1);
@@ -771,6 +778,15 @@ static int run_in_window(pid_t xvfb, int display, char **out, const char *cmd)
     free(asan_saved);
     kill(xvfb, SIGTERM);
     waitpid(xvfb, NULL, 0);
+}
+
+/* Runs `fracnav CMD` (cmd, already formatted) with its window on Xvfb's display (window_env_set),
+ * then stops Xvfb. */
+static int run_in_window(pid_t xvfb, int display, char **out, const char *cmd)
+{
+    char *asan_saved = window_env_set(display);
+    int rc = tu_run_cli(out, "%s", cmd);
+    window_env_end(xvfb, asan_saved);
     return rc;
 }
 
@@ -971,6 +987,114 @@ static void test_navigate_window_mouse_and_keys(void **st)
     free(dir);
 }
 
+/* The pixel of the axial pane of a 768x768 four-up window (anterior camera, slices through
+ * `through`) that shows the world point nearest to `at`, into px. */
+static void axial_pixel(const planning_case *c, const double through[3], const double at[3], int px[2])
+{
+    render *r = render_open("osmesa", 768, 768);
+    assert_non_null(r);
+    render_options o;
+    render_options_default(&o, c->frag, c->nfrag);
+    render_camera_standard(&o.camera, RENDER_ANTERIOR, c->frag, c->nfrag);
+    o.layout = RENDER_LAYOUT_FOUR_UP;
+    memcpy(o.slice_point, through, sizeof o.slice_point);
+    int rect[4][4];
+    render_four_up_panes(768, 768, rect);
+    const int *q = rect[RENDER_PANE_AXIAL];
+    double best = 1e30, p[3];
+    for (int y = q[1]; y < q[1] + q[3]; y++)
+        for (int x = q[0]; x < q[0] + q[2]; x++) {
+            assert_int_equal(render_slice_point_at(r, &o, x + 0.5, y + 0.5, p), RENDER_PANE_AXIAL);
+            double d = hypot(p[0] - at[0], p[1] - at[1]);
+            if (d < best)
+                best = d, px[0] = x, px[1] = y;
+        }
+    render_close(r);
+    assert_true(best < 1.0);
+}
+
+/* Issue 25: the window's seed mode (xdotool on Xvfb). F10 enters it; 1, a click on the axial
+ * slice in block B's left part, 2, a click in its right part, and Enter separate B from the two
+ * seeds: navigate saves the case with B in two fragments, opens it again, and q ends it. The case
+ * then holds three fragments, B's voxels split between its id and the new one. */
+static void test_navigate_window_seed_mode_separates(void **st)
+{
+    (void)st;
+#if defined(__SANITIZE_THREAD__)
+    print_message("skipped under ThreadSanitizer: Xlib's and GLX's own locking\n");
+    skip();
+#endif
+    if (access("/usr/bin/xdotool", X_OK) != 0)
+        no_xdotool();
+    int display;
+    pid_t xvfb = start_xvfb(&display);
+    if (!xvfb)
+        no_xvfb();
+    char *dir = tu_tmpdir("navseed"), case_dir[4200], shot[4300], out[4300];
+    tu_two_blocks_case(dir, case_dir, sizeof case_dir);
+    planning_case *c = case_load(case_dir);
+    assert_non_null(c);
+    assert_int_equal(c->nfrag, 2);
+    const double *b = c->frag[case_find(c, 2)].centroid;
+    double left[3] = {b[0] - 3, b[1], b[2]}, right[3] = {b[0] + 3, b[1], b[2]};
+    int p1[2], p2[2];
+    axial_pixel(c, b, left, p1);
+    axial_pixel(c, b, right, p2);
+    long before = 0;
+    for (size_t i = 0; i < vol_count(c->labels); i++)
+        before += c->labels->data[i] == 2;
+    case_free(c);
+    snprintf(shot, sizeof shot, "%s/shot.png", dir);
+    snprintf(out, sizeof out, "%s/out.json", dir);
+    char *asan_saved = window_env_set(display);
+    /* navigate logs a line a second, so a wait for a line that never comes ends only with it:
+     * --duration bounds each of its runs */
+    FILE *err;
+    char duration[32];
+    snprintf(duration, sizeof duration, "%d", 10 * TU_WAIT_MAX_S);
+    pid_t nav = tu_spawn_cli(out, &err, (char *[]){"navigate", case_dir, "--device", "virtual:spacenavigator",
+                                                   "--view", "window", "--camera", "anterior", "--layout", "four-up",
+                                                   "--discard-journal", "--screenshot", shot, "--duration",
+                                                   duration, NULL});
+    /* each step waits for the view's line that shows it was taken (off a terminal, navigate logs
+     * a line at each change): a click and a key that arrive in one frame are not kept in order */
+    char cmd[1024], seen[16384] = "";
+    snprintf(cmd, sizeof cmd, "timeout 300 xdotool search --sync --onlyvisible --name '^fracnav$' >/dev/null && "
+             "xdotool key F10 key 1 mousemove %d %d click 1", p1[0], p1[1]);
+    assert_int_equal(system(cmd), 0);
+    if (!tu_wait_line(err, "1 seed 1@", seen, sizeof seen))
+        fail_msg("no seed after F10, 1 and a click: %s", seen);
+    assert_int_equal(system("xdotool key 2"), 0);
+    if (!tu_wait_line(err, "piece 2: chosen", seen, sizeof seen))
+        fail_msg("piece 2 not chosen: %s", seen);
+    snprintf(cmd, sizeof cmd, "xdotool mousemove %d %d click 1", p2[0], p2[1]);
+    assert_int_equal(system(cmd), 0);
+    if (!tu_wait_line(err, " 2@", seen, sizeof seen))
+        fail_msg("no second seed: %s", seen);
+    assert_int_equal(system("xdotool key Return"), 0);
+    if (!tu_wait_line(err, "new fragment", seen, sizeof seen) ||
+        !strstr(seen, "separated: 1 new fragment, 3 in all"))
+        fail_msg("no separation after Enter: %s", seen + (strlen(seen) > 2000 ? strlen(seen) - 2000 : 0));
+    /* the separated case opens in a new window (the old one is gone before the line above) */
+    assert_int_equal(system("timeout 300 xdotool search --sync --onlyvisible --name '^fracnav$' >/dev/null && "
+                            "xdotool key q"), 0);
+    assert_int_equal(tu_end(nav, 0, "navigate"), 0);
+    fclose(err);
+    window_env_end(xvfb, asan_saved);
+    c = case_load(case_dir);
+    assert_non_null(c);
+    assert_int_equal(c->nfrag, 3);
+    long pieces[2] = {0, 0};
+    for (size_t i = 0; i < vol_count(c->labels); i++)
+        if (c->labels->data[i] == 2 || c->labels->data[i] == 3)
+            pieces[c->labels->data[i] == 3]++;
+    if (pieces[0] + pieces[1] != before || pieces[0] < before / 3 || pieces[1] < before / 3)
+        fail_msg("block B (%ld voxels) split into %ld and %ld", before, pieces[0], pieces[1]);
+    case_free(c);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 /* The issue: with --device keyboard the steering keys typed into the window did nothing, and the
  * window took letters a keyboard user steers with (l its layout, a its axes). Typed in the window
  * (xdotool), d pushes the selected fragment right on screen as it does in the terminal (the camera
@@ -1155,6 +1279,7 @@ int main(void)
         cmocka_unit_test(test_navigate_window_matches_render),
         cmocka_unit_test(test_navigate_window_mouse_and_keys),
         cmocka_unit_test(test_navigate_window_keyboard_steers),
+        cmocka_unit_test(test_navigate_window_seed_mode_separates),
         cmocka_unit_test(test_replay_window_matches_render),
         cmocka_unit_test(test_replay_frames),
         cmocka_unit_test(test_auto_view_shows_the_moving_fragment),

@@ -3,6 +3,7 @@
 
 #include "err.h"
 #include "fnclock.h"
+#include "navseed.h"
 #include "navview.h"
 #include "navwin.h"
 #include "session.h"
@@ -80,11 +81,11 @@ static void usage(FILE *out)
             "turn (degrees about those axes, world LPS), the\n"
             "frame and rates, and what the last key or button did. Off a terminal it is one line\n"
             "a second, and one at each warning or action.\n\n"
-            "%s%s"
+            "%s%s%s"
             "With --device keyboard (what auto picks without a controller) the keys steer instead:\n"
             "%s"
             "The camera frame looks from the patient's front (along +y, LPS), superior up.\n",
-            navview_help(0), navwin_help(), strchr(navview_help(1), '\n') + 1);
+            navview_help(0), navwin_help(), navseed_help(), strchr(navview_help(1), '\n') + 1);
 }
 
 /* Set by the signal handler, which may run on another thread (the keyboard device raises SIGINT for
@@ -241,6 +242,7 @@ typedef struct view {
     navwin *win;       /* --view window: the window; NULL for the terminal view alone */
     char fit[160];     /* the running fit's progress, shown in the view */
     char preview[160]; /* the live preview's figures, shown in the view */
+    navseed seed;      /* the window's seed mode; Enter there ends the run to separate */
 } view;
 
 static void acknowledge(view *v, const char *text)
@@ -318,7 +320,8 @@ static struct winsize terminal_size(void)
 static int add_help(const view *v, int width, char *text, size_t cap, size_t *len)
 {
     char all[4096];
-    snprintf(all, sizeof all, "%s%s", navview_help(v->keyboard), v->win ? navwin_help() : "");
+    snprintf(all, sizeof all, "%s%s%s", navview_help(v->keyboard), v->win ? navwin_help() : "",
+             v->win ? navseed_help() : "");
     const char *t = all;
     int n = 0;
     while (*t) {
@@ -419,12 +422,14 @@ static navview_extra view_extra(view *v, char *refused, size_t cap)
     }
     if (v->ack[0] && fnclock_now_us() < v->ack_until_us)
         x.ack = v->ack;
+    if (navseed_status(&v->seed))
+        x.ack = navseed_status(&v->seed);
     return x;
 }
 
 /* --view window: one frame of the window (when something changed) with the view's lines as its
- * HUD; keys typed there act as terminal keys. A window that fails or is closed ends the session
- * like q. */
+ * HUD; keys typed there go to the seed mode, or act as terminal keys. A window that fails or is
+ * closed ends the session like q. */
 static void window_frame(view *v, const loop_scene *sc)
 {
     char refused[512], device[256];
@@ -432,14 +437,16 @@ static void window_frame(view *v, const loop_scene *sc)
     snprintf(device, sizeof device, "%s%s", v->ds ? session_source_name(v->ds) : "a recording",
              x.battery >= 0 ? "" : ", battery unknown");
     int keys[NAVWIN_KEYS], closed = 0;
-    int n = navwin_show(v->win, sc, &x, device, v->help ? navview_help(v->keyboard) : NULL, keys, NAVWIN_KEYS,
-                        &closed);
+    char help[2048];
+    snprintf(help, sizeof help, "%s%s", navview_help(v->keyboard), navseed_help());
+    int n = navwin_show(v->win, sc, &x, device, v->help ? help : NULL, keys, NAVWIN_KEYS, &closed);
     if (n < 0) {
         fprintf(stderr, "fracnav navigate: the window: %s\n", fn_err_msg());
         quit = 1;
     }
     for (int i = 0; i < n; i++)
-        window_key(v, keys[i]);
+        if (!navseed_key(&v->seed, keys[i]))
+            window_key(v, keys[i]);
     if (closed)
         quit = 1;
 }
@@ -467,7 +474,8 @@ static void draw(view *v, const loop_scene *sc)
         navview_format(sc, &x, 0, text, sizeof text);
         fprintf(stderr, "%s\n", text);
         if (v->help && !v->logged_help)
-            fprintf(stderr, "%s%s", navview_help(v->keyboard), v->win ? navwin_help() : "");
+            fprintf(stderr, "%s%s%s", navview_help(v->keyboard), v->win ? navwin_help() : "",
+                    v->win ? navseed_help() : "");
         v->logged_help = v->help;
         v->last_print_us = now;
     }
@@ -486,7 +494,8 @@ static int handle(view *v, const session_event *ev)
 }
 
 /* The main thread while the loop runs: keys, the session's events (saves on request), the view.
- * Returns when the user quits, at --duration, or when a played recording has ended. */
+ * Returns when the user quits, at --duration, when a played recording has ended, or when the seed
+ * mode's separation was accepted. */
 static void ui(view *v, int keys, double duration)
 {
     struct termios saved_tio;
@@ -502,7 +511,8 @@ static void ui(view *v, int keys, double duration)
     int ended = 0;
     loop_scene sc = {0};
     session_event ev;
-    while (!quit && !ended && (duration <= 0 || (double)(fnclock_now_us() - t0) < duration * 1e6)) {
+    while (!quit && !ended && !v->seed.accepted &&
+           (duration <= 0 || (double)(fnclock_now_us() - t0) < duration * 1e6)) {
         if (raw)
             read_keys(v);
         /* keys at least every 20 ms; the window at display rate (a frame when something changed) */
@@ -524,6 +534,8 @@ static void ui(view *v, int keys, double duration)
 static void open_window(const opts *o, view *v)
 {
     v->win = navwin_open_view("navigate", o->view, &o->look, "the terminal view stays", v->k, 1);
+    if (v->win)
+        navwin_on_click(v->win, navseed_click, &v->seed);
     if (v->win && v->tty)
         fprintf(stderr, "window: %s\n", navwin_gl_renderer(v->win));
 }
@@ -563,6 +575,53 @@ static int run(view *v, loop_source src, int keys, const opts *o)
     navwin_close(v->win);
     v->win = NULL;
     return rc == 0 ? session_save(k) : rc;
+}
+
+/* The seed mode's separation, after the session saved its poses and closed (navseed_separate:
+ * `fracnav edit CASE merge` takes it back). A bad seed leaves the case as it was and is said in
+ * the view. */
+static void separate(view *v, const char *dir)
+{
+    int nfrag = 0, made = navseed_separate(&v->seed, dir, &nfrag);
+    char text[sizeof v->ack];
+    if (made >= 0)
+        snprintf(text, sizeof text, "separated: %d new fragment%s, %d in all; saved %s", made, made == 1 ? "" : "s",
+                 nfrag, dir);
+    else
+        snprintf(text, sizeof text, "not separated: %s", fn_err_msg());
+    fprintf(stderr, "%s%s\n", made < 0 ? "fracnav navigate: " : "", text);
+    acknowledge(v, text);
+}
+
+/* One session over the case: opened, run (run()), saved and closed. *again: the seed mode asked
+ * for a separation, done here; the caller opens the separated case again. 0 or FN_E*. */
+static int navigate_once(const opts *o, view *v, const session_params *sp, session_dsource *ds, int played,
+                         int *again)
+{
+    session *k = session_open(o->dir, sp);
+    if (!k)
+        return FN_EIO;
+    if (session_resumed(k))
+        fprintf(stderr, "recovered %zu journal records\n", session_resumed(k));
+    session_drive_led(k, played ? NULL : ds);
+    session_set_preview(k, o->preview);
+    if (o->have_pivot)
+        session_set_pivot(k, o->pivot);
+    v->k = k;
+    int rc = run(v, session_device_source(ds), played || !v->keyboard, o);
+    if (rc == 0 && v->seed.accepted) {
+        session_close(k);
+        separate(v, o->dir);
+        *again = !quit;
+        return 0;
+    }
+    if (rc == 0 && o->json)
+        rc = session_print_json(k, stdout, "navigate", played ? (long)session_source_unplugs(ds) : -1,
+                                session_source_skipped(ds));
+    else if (rc == 0)
+        fprintf(stderr, "saved %s\n", o->dir);
+    session_close(k);
+    return rc;
 }
 
 int cmd_navigate(int argc, char **argv)
@@ -608,27 +667,14 @@ int cmd_navigate(int argc, char **argv)
     if (v.tty)
         fprintf(stderr, "loading %s and building its collision hierarchy...\n", o.dir);
     session_params sp = {cfg, o.flags, "navigate", cmd_tau_prepare, &o.tau, o.gap_mm};
-    session *k = session_open(o.dir, &sp);
-    rc = k ? 0 : FN_EIO;
-    if (k) {
-        if (session_resumed(k))
-            fprintf(stderr, "recovered %zu journal records\n", session_resumed(k));
-        session_drive_led(k, played ? NULL : ds);
-        session_set_preview(k, o.preview);
-        if (o.have_pivot)
-            session_set_pivot(k, o.pivot);
-        v.k = k;
-        v.ds = played ? NULL : ds;
-        v.rec = played ? ds : NULL;
-        loop_source src = session_device_source(ds);
-        rc = run(&v, src, played || !v.keyboard, &o);
-        if (rc == 0 && o.json)
-            rc = session_print_json(k, stdout, "navigate", played ? (long)session_source_unplugs(ds) : -1,
-                                    session_source_skipped(ds));
-        else if (rc == 0)
-            fprintf(stderr, "saved %s\n", o.dir);
-        session_close(k);
-    }
+    v.ds = played ? NULL : ds;
+    v.rec = played ? ds : NULL;
+    navseed_init(&v.seed);
+    int again;
+    do {
+        again = 0;
+        rc = navigate_once(&o, &v, &sp, ds, played, &again);
+    } while (rc == 0 && again);
     if (rc < 0)
         fprintf(stderr, "fracnav navigate: %s\n", fn_err_msg());
     session_dsource_free(ds);

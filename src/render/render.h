@@ -144,8 +144,8 @@ int render_hud_columns(const render *r);
 
 /* Input that reached the window since the last call (nothing offscreen). */
 #define RENDER_INPUT_KEYS 64
-/* Keys beyond ASCII in render_input.keys: F1..F12 (RENDER_KEY_F1 + n - 1 for Fn), the arrows,
- * and Ctrl with a digit or a letter (RENDER_KEY_CTRL | '1', RENDER_KEY_CTRL | 'a'). The F-keys and
+/* Enter and Backspace come as '\r' and '\b'. Keys beyond ASCII in render_input.keys: F1..F12
+ * (RENDER_KEY_F1 + n - 1 for Fn), the arrows, and Ctrl with a digit or a letter (RENDER_KEY_CTRL | '1', RENDER_KEY_CTRL | 'a'). The F-keys and
  * the arrows come again while held (key repeat). */
 enum {
     RENDER_KEY_ESCAPE = 27,

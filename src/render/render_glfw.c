@@ -42,6 +42,10 @@ static int special_key(int key, int action, int mods)
         return 0;
     if (key == GLFW_KEY_ESCAPE)
         return RENDER_KEY_ESCAPE;
+    if (key == GLFW_KEY_ENTER || key == GLFW_KEY_KP_ENTER)
+        return '\r';
+    if (key == GLFW_KEY_BACKSPACE)
+        return '\b';
     if ((mods & GLFW_MOD_CONTROL) && key >= GLFW_KEY_0 && key <= GLFW_KEY_9)
         return RENDER_KEY_CTRL | ('0' + key - GLFW_KEY_0);
     if ((mods & GLFW_MOD_CONTROL) && key >= GLFW_KEY_A && key <= GLFW_KEY_Z)

@@ -57,6 +57,7 @@ static int build_common(session *s)
         return fn_err_set(FN_EINVAL, "session: no semaphore for its events: %s", strerror(errno));
     }
     pthread_mutex_init(&s->push_mu, NULL);
+    pthread_mutex_init(&s->frag_mu, NULL);
     if (sem_init(&s->prev_wake, 0, 0) != 0) {
         sem_destroy(&s->wake);
         sem_destroy(&s->ev_ready);
@@ -236,6 +237,7 @@ void session__free(session *s)
     ring_free(s->ctl);
     if (s->built) {
         pthread_mutex_destroy(&s->push_mu);
+        pthread_mutex_destroy(&s->frag_mu);
         pthread_mutex_destroy(&s->fit_mu);
         pthread_mutex_destroy(&s->ev_mu);
         pthread_mutex_destroy(&s->prev_mu);
@@ -344,8 +346,10 @@ int session_save_case(session *s, const pose *poses, const uint8_t *fixed)
 {
     if (!s->c)
         return fn_err_set(FN_EINVAL, "this session has no case to save (fragments only)");
+    pthread_mutex_lock(&s->frag_mu);
     for (int i = 0; i < s->c->nfrag; i++)
         s->c->frag[i].pose = poses[i];
+    pthread_mutex_unlock(&s->frag_mu);
     case_set_fixed(s->c, fixed);
     int rc = check_penetration(s);
     if (rc == 0)

@@ -27,6 +27,8 @@ struct session {
 
     ring *in, *ctl;         /* the reader's events; actions, saves and proposals from clients */
     pthread_mutex_t push_mu; /* ctl has one producer at a time */
+    pthread_mutex_t frag_mu; /* the case's fragments: a save writes their poses while the
+                              * preview's worker copies them */
     pose saved[LOOP_MAX_FRAGS]; /* the poses of the last save while running (loop_set_saved) */
     loop_reader *rd;
     pthread_t th;

@@ -121,6 +121,7 @@ static int fit_once(session *s, preview_fit *pf, const loop_scene *sc)
     const frag *src = s->c ? s->c->frag : s->frags;
     const frag *others[LOOP_MAX_FRAGS];
     int n = 0;
+    pthread_mutex_lock(&s->frag_mu); /* a save may be writing their poses */
     for (int i = 0; i < s->nfrag; i++) {
         s->prev_frags[i] = src[i];
         s->prev_frags[i].pose = sc->pose[i];
@@ -128,6 +129,7 @@ static int fit_once(session *s, preview_fit *pf, const loop_scene *sc)
         if (i != sel)
             others[n++] = &s->prev_frags[i];
     }
+    pthread_mutex_unlock(&s->frag_mu);
     reduce_opts o;
     reduce_defaults(&o);
     o.tau_min = s->tau[0];

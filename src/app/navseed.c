@@ -1,0 +1,99 @@
+/* navseed: the window's seed mode (see navseed.h). */
+#include "navseed.h"
+
+#include "case_journal.h"
+#include "err.h"
+#include "render.h"
+
+#include <stdio.h>
+#include <string.h>
+
+#define KEY_F10 (RENDER_KEY_F1 + 9)
+
+void navseed_init(navseed *s)
+{
+    memset(s, 0, sizeof *s);
+    s->piece = 1;
+}
+
+static void describe(navseed *s, const char *what)
+{
+    size_t len = (size_t)snprintf(s->status, sizeof s->status, "seed mode, piece %d: %s; %d seed%s", s->piece,
+                                  what, s->n, s->n == 1 ? "" : "s");
+    for (int i = 0; i < s->n && len < sizeof s->status; i++)
+        len += (size_t)snprintf(s->status + len, sizeof s->status - len, "%s%d@(%.0f,%.0f,%.0f)", i ? " " : " ",
+                                s->seed[i].piece, s->seed[i].at[0], s->seed[i].at[1], s->seed[i].at[2]);
+}
+
+int navseed_key(navseed *s, int k)
+{
+    if (k == KEY_F10) {
+        s->on = !s->on;
+        describe(s, "click a slice (four-up, F3) to drop a seed");
+        return 1;
+    }
+    if (!s->on)
+        return 0;
+    if (k >= '1' && k <= '9') {
+        s->piece = k - '0';
+        describe(s, "chosen");
+    } else if (k == '\b' || k == 127) {
+        s->n -= s->n > 0;
+        describe(s, "last seed taken back");
+    } else if (k == '\r' || k == '\n') {
+        s->accepted = s->n > 0;
+        describe(s, s->n ? "separating" : "no seed to separate from");
+    } else
+        return 0;
+    return 1;
+}
+
+void navseed_click(void *ctx, const double world[3])
+{
+    navseed *s = ctx;
+    if (!s->on)
+        return;
+    if (s->n == NAVSEED_MAX) {
+        describe(s, "no room for more seeds");
+        return;
+    }
+    memcpy(s->seed[s->n].at, world, sizeof s->seed[s->n].at);
+    s->seed[s->n++].piece = s->piece;
+    describe(s, "seed dropped");
+}
+
+const char *navseed_status(const navseed *s)
+{
+    return s->on ? s->status : NULL;
+}
+
+const char *navseed_help(void)
+{
+    return "  F10 seed mode (separates fragments): then 1-9 the piece, a click on a slice drops\n"
+           "  its seed, Backspace takes the last seed back, Enter separates (saves the case)\n";
+}
+
+int navseed_apply(navseed *s, planning_case *c)
+{
+    int rc = case_separate_all(c, s->seed, s->n);
+    if (rc >= 0) {
+        char what[64];
+        snprintf(what, sizeof what, "separated, %d new fragment%s", rc, rc == 1 ? "" : "s");
+        s->n = 0;
+        describe(s, what);
+    } else
+        describe(s, fn_err_msg());
+    return rc;
+}
+
+int navseed_separate(navseed *s, const char *dir, int *nfrag)
+{
+    s->accepted = 0;
+    planning_case *c = case_load(dir);
+    int made = c ? navseed_apply(s, c) : FN_EIO;
+    if (made >= 0 && (case_save(c) < 0 || case_journal_remove(c) < 0))
+        made = FN_EIO;
+    *nfrag = c ? c->nfrag : 0;
+    case_free(c);
+    return made;
+}

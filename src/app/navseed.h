@@ -1,0 +1,45 @@
+/* navseed: the window's seed mode, which separates fragments from a click per piece (3D Slicer's
+ * "Grow from seeds"). F10 enters and leaves it; while it is on, a digit 1-9 chooses the piece the
+ * next seed marks, a click on a slice of the four-up layout drops a seed there (navwin_on_click),
+ * Backspace takes the last seed back, and Enter accepts: the caller then separates every fragment
+ * that holds seeds (navseed_apply, case_separate_all's competitive growth). While it is on, the
+ * digits are its own, not the steering keys'.
+ *
+ * Threads: the window's (the caller's) only. Errors: navseed_apply returns FN_E* with fn_err
+ * naming the seed's world point. */
+#ifndef FN_NAVSEED_H
+#define FN_NAVSEED_H
+
+#include "case.h"
+
+#define NAVSEED_MAX 64 /* seeds at most; more are refused with a note */
+
+typedef struct navseed {
+    int on;       /* seed mode is on */
+    int piece;    /* the piece the next seed marks, 1..9 */
+    int n;        /* seeds dropped */
+    case_seed seed[NAVSEED_MAX];
+    int accepted; /* Enter was pressed with seeds: the caller clears it and separates */
+    char status[512];
+} navseed;
+
+void navseed_init(navseed *s);
+/* A key typed in the window (navwin_frame's codes). Returns 1 when it was seed mode's (F10 always;
+ * digits, Backspace and Enter while it is on), 0 when it goes on as before. */
+int navseed_key(navseed *s, int k);
+/* navwin_click_fn: drops a seed of the current piece at world (LPS mm) while seed mode is on. */
+void navseed_click(void *ctx, const double world[3]);
+/* One line for the HUD while seed mode is on (the piece, the seeds and the keys); NULL when off. */
+const char *navseed_status(const navseed *s);
+/* The seed mode's keys, for a help text (lines ending in '\n'). */
+const char *navseed_help(void);
+/* Separates c's fragments from the seeds (case_separate_all) and empties the seed list. Returns
+ * the new fragments made, or FN_E* (the seeds are kept, so the user can take the bad one back). */
+int navseed_apply(navseed *s, planning_case *c);
+/* The accepted separation of the case folder dir, after its session saved its poses and closed:
+ * loaded again, separated (navseed_apply) and saved atomically (the journal holds poses only, so
+ * the edit cannot go there; the caller still holds the case's lock). Clears accepted. Returns the
+ * new fragments made (and *nfrag the case's count) or FN_E*; a bad seed leaves the case as it was. */
+int navseed_separate(navseed *s, const char *dir, int *nfrag);
+
+#endif
