@@ -6,6 +6,8 @@
 #include "case_journal.h"
 #include "durable.h"
 #include "err.h"
+#include "picture.h"
+#include "render.h"
 
 #include <jansson.h>
 
@@ -410,4 +412,14 @@ int cmd_seeds_option(const char *cmd, int argc, char **argv, int *i, case_seed *
     }
     *i = k - 1;
     return 1;
+}
+
+int cmd_write_png(struct render *r, const char *path, int w, int h)
+{
+    uint8_t *rgb = malloc((size_t)w * (size_t)h * 3);
+    int rc = rgb ? render_read_rgb(r, rgb) : fn_err_set(FN_ENOMEM, "out of memory for a %dx%d picture", w, h);
+    if (!rc)
+        rc = picture_write_png(path, rgb, w, h);
+    free(rgb);
+    return rc;
 }

@@ -38,6 +38,11 @@ int cmd_take_flag(int *argc, char **argv, const char *flag);
 /* The case's lock (caselock.h: exclusive for a command that writes the case), or NULL after
  * printing "fracnav CMD: why" on stderr. */
 caselock *cmd_lock_case(const char *cmd, const char *dir, int exclusive, int wait);
+/* The frame r has just drawn (w x h) read back and written to path as a PNG (atomically). 0 or
+ * FN_E* naming the path. */
+struct render;
+int cmd_write_png(struct render *r, const char *path, int w, int h);
+
 /* For a command that reads a case (export, render): the poses its journal holds beyond case.json
  * (an interrupted navigate or replay). With recover they are applied to c (edit's reconciliation:
  * case_journal_check, which may set a bad journal aside, so the caller holds the case exclusively);

@@ -5,7 +5,6 @@
 #include "err.h"
 #include "jsonw.h"
 #include "render.h"
-#include "picture.h"
 
 #include <stdio.h>
 #include <stdlib.h>
@@ -208,25 +207,19 @@ static int draw(planning_case *c, render_args *a)
     if (!r)
         return FN_ENODEV;
     obb_params hp = {c->tau_min, c->tau_max};
-    uint8_t *rgb = malloc((size_t)a->w * (size_t)a->h * 3);
-    int rc = rgb ? 0 : fn_err_set(FN_ENOMEM, "out of memory for a %dx%d picture", a->w, a->h);
-    if (!rc)
-        rc = render_set_scene(r, c->ct, c->frag, c->nfrag, c->seg.threshold,
+    int rc = render_set_scene(r, c->ct, c->frag, c->nfrag, c->seg.threshold,
                               (o.overlays & (RENDER_OVERLAY_HIERARCHY | RENDER_OVERLAY_CONTACTS)) ? &hp : NULL);
     if (!rc && a->view < 0)
         rc = render_camera_auto(r, &o.camera, c->frag, c->nfrag, NULL, sel);
     if (!rc)
         rc = render_frame(r, NULL, &o);
     if (!rc)
-        rc = render_read_rgb(r, rgb);
-    if (!rc)
-        rc = picture_write_png(a->out, rgb, a->w, a->h);
+        rc = cmd_write_png(r, a->out, a->w, a->h);
     if (!rc)
         fprintf(stderr, "fracnav render: %s (%s, %d fragments, %s)\n", a->out, render_mode_name(o.mode),
                 c->nfrag, render_gl_renderer(r));
     if (!rc && a->json)
         rc = print_json(r, c, a, &o, sel);
-    free(rgb);
     render_close(r);
     return rc;
 }

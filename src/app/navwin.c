@@ -5,7 +5,6 @@
 #include "err.h"
 #include "fnclock.h"
 #include "render.h"
-#include "picture.h"
 
 #include <math.h>
 #include <stdarg.h>
@@ -536,21 +535,13 @@ int navwin_save_screenshot(navwin *w, const char *cmd, const char *png)
 
 int navwin_screenshot(navwin *w, const char *png)
 {
-    uint8_t *rgb = malloc((size_t)w->w * (size_t)w->h * 3);
-    if (!rgb)
-        return fn_err_set(FN_ENOMEM, "out of memory for a %dx%d screenshot", w->w, w->h);
     /* After a swap the back buffer is undefined: draw the last frame again, then read it. */
     loop_scene sc = {0}, shown;
     session_scene_read(w->k, &sc);
     char text[4400];
     hud_text(w, w->hud, text, sizeof text);
     int rc = draw(w, &sc, text, &shown);
-    if (!rc)
-        rc = render_read_rgb(w->r, rgb);
-    if (!rc)
-        rc = picture_write_png(png, rgb, w->w, w->h);
-    free(rgb);
-    return rc;
+    return rc ? rc : cmd_write_png(w->r, png, w->w, w->h);
 }
 
 double navwin_frame_ms(const navwin *w)
