@@ -8,7 +8,7 @@
  * (no queueing in the latency). The loop runs as in `navigate`: its own thread, woken per event.
  * --fitted: piece 2 fitted first (reduce_fit_one, as navigate's fit action), so that it starts
  * inside piece 1 within the fit's tolerance, as a case that `reduce` left.
- * --preview: navigate's live preview fits beside the loop (its worker at SCHED_IDLE), so that its
+ * --preview: navigate's live preview fits beside the loop (its worker at nice 19), so that its
  * cost to the hand shows in the loop's figures. */
 #include "cmd.h"
 #include "bench.h"
@@ -50,7 +50,7 @@ static void usage(FILE *out)
                  "                loop starts where a fit left it, inside within the fit's tolerance\n"
                  "  --case DIR    steer an existing case instead (its journal is left alone)\n"
                  "  --preview     run navigate's live preview beside the loop (its worker fits the\n"
-                 "                moving piece near contact, at SCHED_IDLE): the loop's figures with it;\n"
+                 "                moving piece near contact, at nice 19): the loop's figures with it;\n"
                  "                preview_updates_count, preview_updates_mean_hz, preview_dropped_count\n"
                  "  --realtime    feed the reports at the recording's pace (9 s a play), as a hand\n"
                  "                gives them, instead of as fast as the loop takes them\n"
