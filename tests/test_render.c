@@ -79,6 +79,7 @@ static int setup(void **st)
 
 static int teardown(void **st)
 {
+    tu_end_all(); /* what a failed window test left running */
     scene *s = *st;
     render_close(s->r);
     frag_free(&s->f[0]);
@@ -630,6 +631,16 @@ static void no_xvfb(void)
     skip();
 }
 
+/* The teardown of a test that starts processes: what a failed test left running (Xvfb, a
+ * fracnav) is ended here, not at the end of the run. */
+static int end_children(void **st)
+{
+    (void)st;
+    tu_end_all();
+    unsetenv("DISPLAY");
+    return 0;
+}
+
 /* Starts Xvfb on a free display; its number comes back through -displayfd once it is ready.
  * Returns its pid (0 when Xvfb is not installed). */
 static pid_t start_xvfb(int *display)
@@ -638,9 +649,10 @@ static pid_t start_xvfb(int *display)
         return 0;
     int fds[2];
     assert_int_equal(pipe(fds), 0);
-    pid_t pid = fork();
+    pid_t parent = getpid(), pid = fork();
     assert_true(pid >= 0);
     if (pid == 0) {
+        tu_in_child(parent);
         char fd[16];
         snprintf(fd, sizeof fd, "%d", fds[1]);
         close(fds[0]);
@@ -658,6 +670,7 @@ static pid_t start_xvfb(int *display)
             break;
     }
     close(fds[0]);
+    tu_adopt(pid); /* a failed test's teardown ends it (end_children) */
     if (sscanf(buf, "%d", display) != 1)
         fail_msg("Xvfb gave no display number");
     return pid;
@@ -683,9 +696,10 @@ static void test_window_matches_offscreen(void **st)
     o.layout = RENDER_LAYOUT_FOUR_UP;
     int fds[2];
     assert_int_equal(pipe(fds), 0);
-    pid_t pid = fork();
+    pid_t parent = getpid(), pid = fork();
     assert_true(pid >= 0);
     if (pid == 0) {
+        tu_in_child(parent);
         char d[32];
         snprintf(d, sizeof d, ":%d", display);
         setenv("DISPLAY", d, 1);
@@ -709,8 +723,7 @@ static void test_window_matches_offscreen(void **st)
     close(fds[0]);
     int status;
     waitpid(pid, &status, 0);
-    kill(xvfb, SIGTERM);
-    waitpid(xvfb, NULL, 0);
+    tu_end(xvfb, SIGTERM, "Xvfb");
     assert_int_equal(n, sizeof win);
     draw(s, NULL, &o);
     long differ = 0;
@@ -776,8 +789,7 @@ static void window_env_end(pid_t xvfb, char *asan_saved)
     else
         unsetenv("ASAN_OPTIONS");
     free(asan_saved);
-    kill(xvfb, SIGTERM);
-    waitpid(xvfb, NULL, 0);
+    tu_end(xvfb, SIGTERM, "Xvfb");
 }
 
 /* Runs `fracnav CMD` (cmd, already formatted) with its window on Xvfb's display (window_env_set),
@@ -1276,13 +1288,13 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_late_latching_draws_the_newest_poses, setup, teardown),
         cmocka_unit_test_setup_teardown(test_ghost_draws_the_fitted_pose, setup, teardown),
         cmocka_unit_test_setup_teardown(test_window_matches_offscreen, setup, teardown),
-        cmocka_unit_test(test_navigate_window_matches_render),
-        cmocka_unit_test(test_navigate_window_mouse_and_keys),
-        cmocka_unit_test(test_navigate_window_keyboard_steers),
-        cmocka_unit_test(test_navigate_window_seed_mode_separates),
-        cmocka_unit_test(test_replay_window_matches_render),
-        cmocka_unit_test(test_replay_frames),
-        cmocka_unit_test(test_auto_view_shows_the_moving_fragment),
+        cmocka_unit_test_teardown(test_navigate_window_matches_render, end_children),
+        cmocka_unit_test_teardown(test_navigate_window_mouse_and_keys, end_children),
+        cmocka_unit_test_teardown(test_navigate_window_keyboard_steers, end_children),
+        cmocka_unit_test_teardown(test_navigate_window_seed_mode_separates, end_children),
+        cmocka_unit_test_teardown(test_replay_window_matches_render, end_children),
+        cmocka_unit_test_teardown(test_replay_frames, end_children),
+        cmocka_unit_test_teardown(test_auto_view_shows_the_moving_fragment, end_children),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

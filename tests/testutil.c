@@ -20,6 +20,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
+#include <sys/prctl.h>
 #include <sys/wait.h>
 #include <time.h>
 #include <unistd.h>
@@ -184,14 +185,31 @@ const char *tu_sim(void)
     return path;
 }
 
+void tu_in_child(pid_t parent)
+{
+    prctl(PR_SET_PDEATHSIG, SIGKILL);
+    if (getppid() != parent) /* it died before the line above */
+        _exit(125);
+}
+
+void tu_adopt(pid_t pid)
+{
+    for (int i = 0; i < MAX_CHILDREN; i++)
+        if (!children[i]) {
+            children[i] = pid;
+            return;
+        }
+}
+
 pid_t tu_spawn(char *const argv[], const char *out, FILE **err)
 {
     int fds[2];
     assert_int_equal(pipe(fds), 0);
     fflush(NULL);
-    pid_t pid = fork();
+    pid_t parent = getpid(), pid = fork();
     assert_true(pid >= 0);
     if (pid == 0) {
+        tu_in_child(parent);
         int o = out ? open(out, O_WRONLY | O_CREAT | O_TRUNC | O_APPEND, 0644) : 1;
         if (o < 0 || !freopen("/dev/null", "r", stdin))
             _exit(126);
@@ -209,11 +227,7 @@ pid_t tu_spawn(char *const argv[], const char *out, FILE **err)
     } else {
         close(fds[0]);
     }
-    for (int i = 0; i < MAX_CHILDREN; i++)
-        if (!children[i]) {
-            children[i] = pid;
-            break;
-        }
+    tu_adopt(pid);
     return pid;
 }
 

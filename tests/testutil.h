@@ -46,6 +46,12 @@ const char *tu_src(void);
 /* fracnav-sim, built beside fracnav (sim/fracnav-sim); skips the test, saying so, when it was not
  * built (no libfuse3). */
 const char *tu_sim(void);
+/* In a child just forked from parent (getpid() before the fork): it is killed when the test
+ * process ends, however it ends, so nothing a failed test started outlives the test run (and
+ * holds ctest's output pipe open). */
+void tu_in_child(pid_t parent);
+/* Remembers a child the test started itself, for tu_end_all. */
+void tu_adopt(pid_t pid);
 /* Starts argv[0] with argv, stdin from /dev/null, stdout into the file out (emptied first) (NULL: this
  * test's stdout); stderr into a pipe read through *err (unbuffered, for tu_wait_line; the caller
  * fcloses it) when err is not NULL, else into out too. The child is remembered until tu_end or

@@ -444,9 +444,14 @@ static void window_frame(view *v, const loop_scene *sc)
         fprintf(stderr, "fracnav navigate: the window: %s\n", fn_err_msg());
         quit = 1;
     }
-    for (int i = 0; i < n; i++)
-        if (!navseed_key(&v->seed, keys[i]))
+    for (int i = 0; i < n; i++) {
+        double at[3];
+        if (keys[i] == NAVWIN_KEY_CLICK) {
+            navwin_click_at(v->win, at);
+            navseed_click(&v->seed, at);
+        } else if (!navseed_key(&v->seed, keys[i]))
             window_key(v, keys[i]);
+    }
     if (closed)
         quit = 1;
 }
@@ -534,8 +539,6 @@ static void ui(view *v, int keys, double duration)
 static void open_window(const opts *o, view *v)
 {
     v->win = navwin_open_view("navigate", o->view, &o->look, "the terminal view stays", v->k, 1);
-    if (v->win)
-        navwin_on_click(v->win, navseed_click, &v->seed);
     if (v->win && v->tty)
         fprintf(stderr, "window: %s\n", navwin_gl_renderer(v->win));
 }

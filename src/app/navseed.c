@@ -48,9 +48,8 @@ int navseed_key(navseed *s, int k)
     return 1;
 }
 
-void navseed_click(void *ctx, const double world[3])
+void navseed_click(navseed *s, const double world[3])
 {
-    navseed *s = ctx;
     if (!s->on)
         return;
     if (s->n == NAVSEED_MAX) {

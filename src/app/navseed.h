@@ -1,6 +1,6 @@
 /* navseed: the window's seed mode, which separates fragments from a click per piece (3D Slicer's
  * "Grow from seeds"). F10 enters and leaves it; while it is on, a digit 1-9 chooses the piece the
- * next seed marks, a click on a slice of the four-up layout drops a seed there (navwin_on_click),
+ * next seed marks, a click on a slice of the four-up layout drops a seed there (NAVWIN_KEY_CLICK),
  * Backspace takes the last seed back, and Enter accepts: the caller then separates every fragment
  * that holds seeds (navseed_apply, case_separate_all's competitive growth). While it is on, the
  * digits are its own, not the steering keys'.
@@ -27,8 +27,9 @@ void navseed_init(navseed *s);
 /* A key typed in the window (navwin_frame's codes). Returns 1 when it was seed mode's (F10 always;
  * digits, Backspace and Enter while it is on), 0 when it goes on as before. */
 int navseed_key(navseed *s, int k);
-/* navwin_click_fn: drops a seed of the current piece at world (LPS mm) while seed mode is on. */
-void navseed_click(void *ctx, const double world[3]);
+/* A click on a slice (NAVWIN_KEY_CLICK at world, LPS mm): drops a seed of the current piece
+ * there while seed mode is on. */
+void navseed_click(navseed *s, const double world[3]);
 /* One line for the HUD while seed mode is on (the piece, the seeds and the keys); NULL when off. */
 const char *navseed_status(const navseed *s);
 /* The seed mode's keys, for a help text (lines ending in '\n'). */

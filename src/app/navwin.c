@@ -29,8 +29,7 @@ struct navwin {
     int slice_set;  /* a click or the wheel put the slices' point: it stays until the selection
                      * changes (else it follows the selected fragment's centroid) */
     int slice_for;  /* the selected fragment when it was put */
-    navwin_click_fn on_click;
-    void *click_ctx;
+    double click_world[3]; /* the last click on a slice (NAVWIN_KEY_CLICK), LPS mm */
     int nvoi;       /* the case's reduction VOI boxes (o.voi) */
     uint64_t drawn_seq;
     unsigned ghosts_seen; /* the live preview's updates drawn (session_preview.updates) */
@@ -292,35 +291,41 @@ static int look_key(navwin *w, int k)
     return 1;
 }
 
-/* In four-up, over a slice: the wheel moves that slice along its normal (a millimetre a step), a
- * click puts the slices' point where it is (and goes to the click hook). 1 when it did either. */
-static int slice_input(navwin *w, const render_input *in)
+/* In four-up, the wheel over a slice moves that slice along its normal (a millimetre a step). 1
+ * when it did. */
+static int slice_wheel(navwin *w, const render_input *in)
 {
-    if (w->o.layout != RENDER_LAYOUT_FOUR_UP)
-        return 0;
     double p[3], n[3];
-    int did = 0, pane = in->scroll != 0 ? render_slice_point_at(w->r, &w->o, in->x, in->y, p) : -1;
-    if (pane >= 0) {
-        render_slice_normal(pane, n);
-        for (int a = 0; a < 3; a++)
-            w->o.slice_point[a] += n[a] * in->scroll;
-        did = 1;
-    }
-    if (in->clicked && render_slice_point_at(w->r, &w->o, in->click[0], in->click[1], p) >= 0) {
-        memcpy(w->o.slice_point, p, sizeof p);
-        note(w, "slices through (%.1f, %.1f, %.1f) mm", p[0], p[1], p[2]);
-        if (w->on_click)
-            w->on_click(w->click_ctx, p);
-        did = 1;
-    }
-    w->slice_set |= did;
-    return did;
+    int pane = w->o.layout == RENDER_LAYOUT_FOUR_UP && in->scroll != 0
+                   ? render_slice_point_at(w->r, &w->o, in->x, in->y, p)
+                   : -1;
+    if (pane < 0)
+        return 0;
+    render_slice_normal(pane, n);
+    for (int a = 0; a < 3; a++)
+        w->o.slice_point[a] += n[a] * in->scroll;
+    w->slice_set = 1;
+    return 1;
 }
 
-void navwin_on_click(navwin *w, navwin_click_fn fn, void *ctx)
+/* In four-up, a click at xy on a slice puts the slices' point there (and w->click_world): 1 when
+ * it did. */
+static int slice_click(navwin *w, const double xy[2])
 {
-    w->on_click = fn;
-    w->click_ctx = ctx;
+    double p[3];
+    if (w->o.layout != RENDER_LAYOUT_FOUR_UP || render_slice_point_at(w->r, &w->o, xy[0], xy[1], p) < 0)
+        return 0;
+    memcpy(w->o.slice_point, p, sizeof p);
+    memcpy(w->click_world, p, sizeof p);
+    note(w, "slices through (%.1f, %.1f, %.1f) mm", p[0], p[1], p[2]);
+    w->slice_set = 1;
+    return 1;
+}
+
+int navwin_click_at(const navwin *w, double world[3])
+{
+    memcpy(world, w->click_world, sizeof w->click_world);
+    return 0;
 }
 
 /* The pointer and the view keys (Ctrl+1..6) move the camera, the look keys (F2-F9) change the
@@ -339,6 +344,13 @@ static int handle_input(navwin *w, const render_input *in, int *keys, int cap)
             w->auto_view = 1;
             w->auto_for = -1;
             note(w, "view: auto (follows the selected fragment)");
+        } else if (k >= RENDER_KEY_CLICK && k < RENDER_KEY_CLICK + in->nclicks) {
+            /* handed back in its place among the keys: a key typed before it acts first */
+            if (slice_click(w, in->click[k - RENDER_KEY_CLICK])) {
+                if (n < cap)
+                    keys[n++] = NAVWIN_KEY_CLICK;
+                moved = 1;
+            }
         } else if (!look_key(w, k) && n < cap)
             keys[n++] = k == RENDER_KEY_F1 ? '?' : k;
     }
@@ -365,7 +377,7 @@ static int handle_input(navwin *w, const render_input *in, int *keys, int cap)
                 cam->centre[a] += (-right[a] * in->drag[b][0] + cam->up[a] * in->drag[b][1]) * mm_per_px;
             moved = 1;
         }
-    if (slice_input(w, in))
+    if (slice_wheel(w, in))
         moved = 1;
     else if (in->scroll != 0) {
         cam->half_height *= pow(0.9, in->scroll);

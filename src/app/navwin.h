@@ -68,16 +68,19 @@ navwin *navwin_open_view(const char *cmd, int view, const navwin_look *look, con
  * to frame time: from the arrival of the first report a frame shows to that frame on screen, at
  * most (the worst of the last second; the bound is the arrival of the newest report in the frame
  * before, so it may exceed the truth by one report period). Up to cap typed keys go to keys (ASCII,
- * 27 for Escape, F1 as '?', the arrows and Ctrl+letters as RENDER_KEY_*); *close becomes 1 when the window was asked to close. Returns the keys stored, or FN_E*. */
+ * 27 for Escape, F1 as '?', the arrows and Ctrl+letters as RENDER_KEY_*, a click on a slice as
+ * NAVWIN_KEY_CLICK); *close becomes 1 when the window was asked to close. Returns the keys stored, or FN_E*. */
 int navwin_frame(navwin *w, const loop_scene *sc, const char *hud, int *keys, int cap, int *close);
 /* navwin_frame with the HUD of the terminal view: navview_format's lines of sc and x, then
  * "device: DEVICE", then help (NULL: none) followed by navwin_help(). */
 int navwin_show(navwin *w, const loop_scene *sc, const navview_extra *x, const char *device, const char *help,
                 int *keys, int cap, int *close);
-/* Called with the world point (LPS mm) of a click on a slice of the four-up layout, after the
- * slices moved there (the seed clicks of a separation can land here). NULL: none. */
-typedef void (*navwin_click_fn)(void *ctx, const double world[3]);
-void navwin_on_click(navwin *w, navwin_click_fn fn, void *ctx);
+/* A click on a slice of the four-up layout moves the slices there and comes back among the keys
+ * as NAVWIN_KEY_CLICK, in the order it came with them (a piece chosen by a key and then clicked
+ * is chosen first, though both arrive in one frame); navwin_click_at gives the world point (LPS
+ * mm) of the last one handed back. 0. */
+#define NAVWIN_KEY_CLICK RENDER_KEY_CLICK
+int navwin_click_at(const navwin *w, double world[3]);
 /* The last frame drawn (HUD included) at the loop's newest scene, as a PNG file. 0 or FN_E*. */
 int navwin_screenshot(navwin *w, const char *png);
 /* navwin_screenshot, its failure said on stderr as "fracnav CMD: --screenshot PNG: WHY". */

@@ -144,13 +144,17 @@ int render_hud_columns(const render *r);
 
 /* Input that reached the window since the last call (nothing offscreen). */
 #define RENDER_INPUT_KEYS 64
-/* Enter and Backspace come as '\r' and '\b'. Keys beyond ASCII in render_input.keys: F1..F12
+#define RENDER_INPUT_CLICKS 8
+/* Enter and Backspace come as '\r' and '\b'. A click comes as RENDER_KEY_CLICK where it
+ * happened among the keys, so a key typed before it in the same frame is handled first. Keys beyond ASCII in render_input.keys: F1..F12
  * (RENDER_KEY_F1 + n - 1 for Fn), the arrows, and Ctrl with a digit or a letter (RENDER_KEY_CTRL | '1', RENDER_KEY_CTRL | 'a'). The F-keys and
  * the arrows come again while held (key repeat). */
 enum {
     RENDER_KEY_ESCAPE = 27,
     RENDER_KEY_F1 = 0x100,
     RENDER_KEY_LEFT = 0x110, RENDER_KEY_RIGHT, RENDER_KEY_UP, RENDER_KEY_DOWN,
+    RENDER_KEY_CLICK = 0x120, /* + i: the frame's left click i (at render_input.click[i]), in its
+                               * place among the keys */
     RENDER_KEY_CTRL = 0x200
 };
 typedef struct render_input {
@@ -160,8 +164,8 @@ typedef struct render_input {
                         * or middle button was held */
     double scroll;     /* wheel steps, positive away from the user */
     double x, y;       /* the pointer, pixels from the top left */
-    int clicked;       /* the left button was pressed and released without a drag, at click */
-    double click[2];
+    int nclicks;       /* the left button was pressed and released without a drag, at click[i] */
+    double click[RENDER_INPUT_CLICKS][2];
     int close;         /* the window was asked to close */
 } render_input;
 int render_poll(render *r, render_input *in);

@@ -88,9 +88,11 @@ static void on_button(GLFWwindow *w, int button, int action, int mods)
         st->press[0] = st->x, st->press[1] = st->y;
         st->pressed = 1;
     } else if (st->pressed && fabs(st->x - st->press[0]) < 3 && fabs(st->y - st->press[1]) < 3) {
-        st->in.clicked = 1;
-        st->in.click[0] = st->x, st->in.click[1] = st->y;
         st->pressed = 0;
+        if (st->in.nclicks < RENDER_INPUT_CLICKS && st->in.nkeys < RENDER_INPUT_KEYS) {
+            st->in.click[st->in.nclicks][0] = st->x, st->in.click[st->in.nclicks][1] = st->y;
+            st->in.keys[st->in.nkeys++] = RENDER_KEY_CLICK + st->in.nclicks++;
+        }
     }
 }
 
