@@ -11,8 +11,6 @@
 #include "case_journal.h"
 #include "err.h"
 #include "journal.h"
-#include "script.h"
-#include "simdev.h"
 #include "testutil.h"
 #include "vol.h"
 #include "volio.h"
@@ -32,12 +30,7 @@ struct fixture {
 /* A SpaceExplorer recording (it has buttons 1-10) of a motion script at path. */
 static void record(const char *path, const char *text)
 {
-    script *s = NULL;
-    assert_int_equal(script_parse(text, strlen(text), "test", &s), 0);
-    fnrec *r = script_render(s, sim_profile_find("spaceexplorer"));
-    assert_int_equal(fnrec_save(r, path), 0);
-    fnrec_free(r);
-    free(s);
+    tu_write_recording(path, "spaceexplorer", text);
 }
 
 /* Three bone blocks (ids 1, 2, 3 by size; 1 and 2 are 4 mm apart along x), none fixed, and a
@@ -63,23 +56,10 @@ static int setup(void **st)
     assert_int_equal(volio_write(v, src, VOL_I16), 0);
     vol_free(v);
     snprintf(f->cdir, sizeof f->cdir, "%s/case", f->tmp);
-    char *out = NULL;
-    int rc = tu_run_cli(&out, "segment '%s' -o '%s' --min-volume 0 --ramp 0", src, f->cdir);
-    if (rc != 0)
-        fail_msg("segment: %s", out);
-    free(out);
+    tu_segment(src, f->cdir, "--ramp 0");
     snprintf(f->idle, sizeof f->idle, "%s/idle.fnrec", f->tmp);
     record(f->idle, "wait 0.1 s\n");
     *st = f;
-    return 0;
-}
-
-static int teardown(void **st)
-{
-    struct fixture *f = *st;
-    tu_rmtree(f->tmp);
-    free(f->tmp);
-    free(f);
     return 0;
 }
 
@@ -385,16 +365,16 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test_setup_teardown(test_edit_never_moves_journaled_poses_to_another_fragment,
-                                        setup, teardown),
-        cmocka_unit_test_setup_teardown(test_journal_of_another_case_state_is_refused, setup, teardown),
-        cmocka_unit_test_setup_teardown(test_poses_already_saved_are_not_offered, setup, teardown),
-        cmocka_unit_test_setup_teardown(test_damaged_first_record_is_kept_aside, setup, teardown),
+                                        setup, tu_fixture_teardown),
+        cmocka_unit_test_setup_teardown(test_journal_of_another_case_state_is_refused, setup, tu_fixture_teardown),
+        cmocka_unit_test_setup_teardown(test_poses_already_saved_are_not_offered, setup, tu_fixture_teardown),
+        cmocka_unit_test_setup_teardown(test_damaged_first_record_is_kept_aside, setup, tu_fixture_teardown),
         cmocka_unit_test_setup_teardown(test_damage_in_the_middle_recovers_what_precedes, setup,
-                                        teardown),
-        cmocka_unit_test_setup_teardown(test_penetrating_plan_is_said_and_recorded, setup, teardown),
-        cmocka_unit_test_setup_teardown(test_fixed_in_session_is_saved, setup, teardown),
-        cmocka_unit_test_setup_teardown(test_force_warns_of_unsaved_journal, setup, teardown),
-        cmocka_unit_test_setup_teardown(test_export_and_render_say_unsaved_poses, setup, teardown),
+                                        tu_fixture_teardown),
+        cmocka_unit_test_setup_teardown(test_penetrating_plan_is_said_and_recorded, setup, tu_fixture_teardown),
+        cmocka_unit_test_setup_teardown(test_fixed_in_session_is_saved, setup, tu_fixture_teardown),
+        cmocka_unit_test_setup_teardown(test_force_warns_of_unsaved_journal, setup, tu_fixture_teardown),
+        cmocka_unit_test_setup_teardown(test_export_and_render_say_unsaved_poses, setup, tu_fixture_teardown),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -56,21 +56,8 @@ static int setup(void **st)
     snprintf(src, sizeof src, "%s/ct.nii.gz", f->tmp);
     snprintf(f->cdir, sizeof f->cdir, "%s/case", f->tmp);
     write_ct(src);
-    char *out = NULL;
-    int rc = tu_run_cli(&out, "segment '%s' -o '%s' --min-volume 0", src, f->cdir);
-    if (rc != 0)
-        fail_msg("segment failed (%d): %s", rc, out);
-    free(out);
+    tu_segment(src, f->cdir, "");
     *st = f;
-    return 0;
-}
-
-static int teardown(void **st)
-{
-    struct fixture *f = *st;
-    tu_rmtree(f->tmp);
-    free(f->tmp);
-    free(f);
     return 0;
 }
 
@@ -303,13 +290,13 @@ static void test_api(void **st)
 int main(void)
 {
     const struct CMUnitTest tests[] = {
-        cmocka_unit_test_setup_teardown(test_merge_and_bad_ids, setup, teardown),
-        cmocka_unit_test_setup_teardown(test_split, setup, teardown),
-        cmocka_unit_test_setup_teardown(test_erase_keep_drop_fix, setup, teardown),
-        cmocka_unit_test_setup_teardown(test_grow, setup, teardown),
-        cmocka_unit_test_setup_teardown(test_separate_seeds, setup, teardown),
-        cmocka_unit_test_setup_teardown(test_failed_save_keeps_case, setup, teardown),
-        cmocka_unit_test_setup_teardown(test_api, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_merge_and_bad_ids, setup, tu_fixture_teardown),
+        cmocka_unit_test_setup_teardown(test_split, setup, tu_fixture_teardown),
+        cmocka_unit_test_setup_teardown(test_erase_keep_drop_fix, setup, tu_fixture_teardown),
+        cmocka_unit_test_setup_teardown(test_grow, setup, tu_fixture_teardown),
+        cmocka_unit_test_setup_teardown(test_separate_seeds, setup, tu_fixture_teardown),
+        cmocka_unit_test_setup_teardown(test_failed_save_keeps_case, setup, tu_fixture_teardown),
+        cmocka_unit_test_setup_teardown(test_api, setup, tu_fixture_teardown),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -10,6 +10,16 @@
  * copy the caller must free(). */
 char *tu_tmpdir(const char *tag);
 void tu_rmtree(const char *dir);
+/* A folder for each test, as cmocka setup and teardown functions: tu_dir_setup makes tu_dir (a
+ * tu_tmpdir tagged with the test program's name), tu_dir_teardown removes it. tu_in_dir(name) is
+ * tu_dir/name in a static buffer that the next call overwrites. */
+extern char *tu_dir;
+int tu_dir_setup(void **st);
+int tu_dir_teardown(void **st);
+const char *tu_in_dir(const char *name);
+/* A cmocka teardown for a fixture (*st, calloc'd) whose first member is a tu_tmpdir (char *):
+ * removes the folder and frees both. */
+int tu_fixture_teardown(void **st);
 /* Path of the example CT (Cranium.inv3): $FRACNAV_DATA/Cranium.inv3, else
  * /var/cache/fracnav/Cranium.inv3. When missing, the test is skipped (cmocka skip()) with a message
  * saying how to get it (.ci/setup); under CI (the CI variable set) it fails instead. Call it before
@@ -21,6 +31,12 @@ const char *tu_test_data(const char *name);
 /* Runs `fracnav ARGS` (the built CLI) through /bin/sh, capturing stdout+stderr into out (malloc'd,
  * NUL-terminated; may be NULL). Returns the exit status (or -1). */
 int tu_run_cli(char **out, const char *fmt, ...);
+/* Runs `fracnav ARGS` (tu_run_cli) and fails the test, showing the output, unless it exits with
+ * rc and its output holds want and no temporary file's name (.fracnav-tmp). */
+void tu_expect_cli(int rc, const char *want, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+/* `fracnav segment CT -o CASE_DIR --min-volume 0 EXTRA`; fails the test, showing the output, when
+ * it fails. */
+void tu_segment(const char *ct, const char *case_dir, const char *extra);
 /* Waits for an event: checks cond(arg) every few milliseconds until it holds, for at most max_s
  * seconds (a bound for when the event never comes, never a duration a test relies on). Returns 1
  * when cond held, 0 when max_s passed. */
@@ -76,6 +92,11 @@ pid_t tu_serve(const char *mnt, const char *log, ...);
 void tu_unmount(const char *mnt);
 /* Kills (SIGKILL) and reaps every child still running: for a teardown, after a failed test. */
 void tu_end_all(void);
+
+/* The motion script text (sim/script.h) rendered for the device profile `device`
+ * (sim_profile_find: "spacenavigator", ...) and saved as a recording at path; fails the test when
+ * it cannot. */
+void tu_write_recording(const char *path, const char *device, const char *text);
 
 /* Whole file into a malloc'd NUL-terminated buffer; NULL if unreadable. */
 char *tu_slurp(const char *path, size_t *len);
