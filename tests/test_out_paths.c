@@ -87,7 +87,8 @@ static void test_segment_and_fracture(void **st)
     cases_load(f);
 }
 
-/* reduce -o: the same rules, checked before the fit; --force replaces the case. */
+/* reduce -o: the same rules, checked before the fit; --force replaces the case; never a case
+ * inside the case being read, nor that case or a folder around it. */
 static void test_reduce(void **st)
 {
     struct fixture *f = *st;
@@ -98,6 +99,16 @@ static void test_reduce(void **st)
     free(json);
     tu_expect_cli(1, "a folder with files but no case.json", "reduce '%s' -o '%s' --force", f->cdir, f->junk);
     tu_expect_cli(2, "--force goes with -o NEWCASE", "reduce '%s' --force", f->cdir);
+    /* a new case never inside the case being read, nor on it or around it */
+    snprintf(out, sizeof out, "%s/sub", f->cdir);
+    char want[9000];
+    snprintf(want, sizeof want, "-o %s lies inside the case being read (%s)", out, f->cdir);
+    tu_expect_cli(1, want, "reduce '%s' -o '%s'", f->cdir, out);
+    assert_int_equal(access(out, F_OK), -1);
+    snprintf(want, sizeof want, "-o %s/ is the case being read (%s)", f->cdir, f->cdir);
+    tu_expect_cli(1, want, "reduce '%s' -o '%s/' --force", f->cdir, f->cdir);
+    snprintf(want, sizeof want, "-o %s holds the case being read (%s)", f->tmp, f->cdir);
+    tu_expect_cli(1, want, "reduce '%s' -o '%s' --force", f->cdir, f->tmp);
     snprintf(out, sizeof out, "%s/reduced", f->tmp);
     tu_expect_cli(0, "saved", "reduce '%s' -o '%s'", f->cdir, out);
     tu_expect_cli(0, "saved", "reduce '%s' -o '%s' --force", f->cdir, out);

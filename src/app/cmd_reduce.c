@@ -50,8 +50,8 @@ static void usage(FILE *out)
             "                         whole voxels: less than a voxel spacing leaves none)\n"
             CMD_TAU_HELP
             "  -o, --output NEWCASE   save into a new case folder (the source stays where it is):\n"
-            "                         missing or empty, or a case that --force replaces; checked\n"
-            "                         before the fit\n"
+            "                         missing or empty, or a case that --force replaces, never in\n"
+            "                         or around CASE; checked before the fit\n"
             "  --force                with -o: replace the case NEWCASE holds (with its journal)\n"
             "  --json                 one JSON object on stdout: command, case, method, fixed,\n"
             "                         fragments (id, iterations, evaluations, seconds, metric_start,\n"
@@ -364,6 +364,10 @@ int cmd_reduce(int argc, char **argv)
     int rc = parse(argc, argv, &A);
     if (rc)
         return rc;
+    if (A.out && cmd_out_case(A.out, A.dir) < 0) {
+        fprintf(stderr, "fracnav reduce: %s\n", fn_err_msg());
+        return 1;
+    }
     caselock *lock = cmd_lock_case("reduce", A.dir, !A.out, wait); /* -o: the case is only read */
     planning_case *c = lock ? case_load(A.dir) : NULL;
     if (!c) {
