@@ -320,22 +320,6 @@ static int retarget(planning_case *c, const char *out)
     return 0;
 }
 
-/* The poses a navigation session journaled beyond case.json are where the hand left them: they
- * are applied to c (and said). 0 or negative. */
-static int from_journal(planning_case *c)
-{
-    journal_rec *recs = NULL;
-    size_t nrec = 0;
-    int rc = case_journal_check(c, &recs, &nrec);
-    if (rc >= 0)
-        rc = case_journal_apply(c, recs, nrec);
-    free(recs);
-    if (rc >= 0 && nrec)
-        fprintf(stderr, "fracnav reduce: starting from the %zu poses that %s/journal held beyond case.json\n", nrec,
-                c->dir);
-    return rc < 0 ? rc : 0;
-}
-
 /* The results into the case, saved in place (its journal then removed) or, with -o, through the
  * staging folder tmp into A->out. 0 or negative. */
 static int store(planning_case *c, const args *A, int fixed, const reduce_result *res, int nmv, const char *tmp)
@@ -390,7 +374,7 @@ int cmd_reduce(int argc, char **argv)
         caselock_release(lock);
         return 1;
     }
-    if (from_journal(c) < 0) {
+    if (cmd_journal_poses("reduce", c, 1) < 0) { /* the poses a session left are where the hand left them */
         fprintf(stderr, "fracnav reduce: %s\n", fn_err_msg());
         rc = 1;
         goto done;
