@@ -434,6 +434,16 @@ void tu_write_recording(const char *path, const char *device, const char *text)
     fnrec_free(r);
 }
 
+fnrec *tu_render_script(const char *script_path, const char *device)
+{
+    script *s = script_load(script_path);
+    fnrec *r = s ? script_render(s, sim_profile_find(device)) : NULL;
+    free(s);
+    if (!r)
+        fail_msg("%s for %s: %s", script_path, device, fn_err_msg());
+    return r;
+}
+
 char *tu_slurp(const char *path, size_t *len)
 {
     FILE *f = fopen(path, "rb");

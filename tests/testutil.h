@@ -97,6 +97,10 @@ void tu_end_all(void);
  * (sim_profile_find: "spacenavigator", ...) and saved as a recording at path; fails the test when
  * it cannot. */
 void tu_write_recording(const char *path, const char *device, const char *text);
+/* The motion script file at script_path rendered for the device profile `device` (free with
+ * fnrec_free); fails the test when it cannot. */
+struct fnrec;
+struct fnrec *tu_render_script(const char *script_path, const char *device);
 
 /* Whole file into a malloc'd NUL-terminated buffer; NULL if unreadable. */
 char *tu_slurp(const char *path, size_t *len);
