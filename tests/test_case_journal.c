@@ -63,14 +63,6 @@ static int setup(void **st)
     return 0;
 }
 
-static planning_case *load(const struct fixture *f)
-{
-    planning_case *c = case_load(f->cdir);
-    if (!c)
-        fail_msg("%s", fn_err_msg());
-    return c;
-}
-
 static pose moved(double x)
 {
     pose p = POSE_IDENTITY;
@@ -93,7 +85,7 @@ static void write_journal(const struct fixture *f, const journal_bind *b, journa
 /* A journal that moves fragment index `frag` of the case as it is now to x mm. */
 static void interrupted(const struct fixture *f, int frag, double x)
 {
-    planning_case *c = load(f);
+    planning_case *c = tu_case_load(f->cdir);
     journal_bind b;
     case_journal_bind(c, &b);
     case_free(c);
@@ -134,7 +126,7 @@ static void test_edit_never_moves_journaled_poses_to_another_fragment(void **st)
     free(out);
     rc = tu_run_cli(&out, "replay '%s' '%s' --recover --save", f->cdir, f->idle);
     free(out);
-    planning_case *c = load(f);
+    planning_case *c = tu_case_load(f->cdir);
     assert_int_equal(c->nfrag, 2);
     assert_true(pose_x(c, 2) == 0 && pose_x(c, 3) == 0);
     case_free(c);
@@ -146,7 +138,7 @@ static void test_edit_never_moves_journaled_poses_to_another_fragment(void **st)
 static void test_journal_of_another_case_state_is_refused(void **st)
 {
     struct fixture *f = *st;
-    planning_case *c = load(f);
+    planning_case *c = tu_case_load(f->cdir);
     journal_bind b;
     case_journal_bind(c, &b);
     case_free(c);
@@ -159,14 +151,14 @@ static void test_journal_of_another_case_state_is_refused(void **st)
     assert_non_null(strstr(out, "journal.mismatch.1"));
     free(out);
     assert_true(exists(f, "journal.mismatch.1", NULL));
-    c = load(f);
+    c = tu_case_load(f->cdir);
     assert_true(pose_x(c, 2) == 0);
     case_free(c);
     write_journal(f, &b, &r, 1);
     assert_int_equal(tu_run_cli(&out, "replay '%s' '%s' --save", f->cdir, f->idle), 0);
     assert_non_null(strstr(out, "journal.mismatch.2"));
     free(out);
-    c = load(f);
+    c = tu_case_load(f->cdir);
     assert_true(pose_x(c, 2) == 0);
     case_free(c);
 }
@@ -177,7 +169,7 @@ static void test_poses_already_saved_are_not_offered(void **st)
 {
     struct fixture *f = *st;
     interrupted(f, 1, 2.25);
-    planning_case *c = load(f);
+    planning_case *c = tu_case_load(f->cdir);
     c->frag[1].pose = moved(2.25);
     assert_int_equal(case_save(c), 0);
     case_free(c);
@@ -217,7 +209,7 @@ static void test_damaged_first_record_is_kept_aside(void **st)
 static void test_damage_in_the_middle_recovers_what_precedes(void **st)
 {
     struct fixture *f = *st;
-    planning_case *c = load(f);
+    planning_case *c = tu_case_load(f->cdir);
     journal_bind b;
     case_journal_bind(c, &b);
     case_free(c);
@@ -237,7 +229,7 @@ static void test_damage_in_the_middle_recovers_what_precedes(void **st)
     assert_non_null(strstr(out, "the 2 records before the damage"));
     free(out);
     assert_true(exists(f, "journal.damaged.1", NULL));
-    c = load(f); /* the saved case loads, with the last good pose */
+    c = tu_case_load(f->cdir); /* the saved case loads, with the last good pose */
     assert_true(pose_x(c, 2) == 2);
     case_free(c);
 }
@@ -291,7 +283,7 @@ static void test_fixed_in_session_is_saved(void **st)
     int rc = tu_run_cli(&out, "replay '%s' '%s' --save", f->cdir, rec);
     if (rc != 0)
         fail_msg("replay: %s", out);
-    planning_case *c = load(f);
+    planning_case *c = tu_case_load(f->cdir);
     if (c->fixed != case_find(c, 1))
         fail_msg("fixed %d: %s", c->fixed, out);
     free(out);
@@ -306,7 +298,7 @@ static void test_fixed_in_session_is_saved(void **st)
     if (rc != 0)
         fail_msg("replay --recover: %s", out);
     free(out);
-    c = load(f);
+    c = tu_case_load(f->cdir);
     assert_int_equal(c->fixed, case_find(c, 3));
     case_free(c);
 }

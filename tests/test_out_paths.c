@@ -65,10 +65,7 @@ static void cases_load(const struct fixture *f)
 {
     const char *dirs[2] = {f->cdir, f->other};
     for (int i = 0; i < 2; i++) {
-        planning_case *c = case_load(dirs[i]);
-        if (!c)
-            fail_msg("%s", fn_err_msg());
-        case_free(c);
+        case_free(tu_case_load(dirs[i]));
     }
 }
 
@@ -113,9 +110,7 @@ static void test_reduce(void **st)
     tu_expect_cli(0, "saved", "reduce '%s' -o '%s'", f->cdir, out);
     tu_expect_cli(0, "saved", "reduce '%s' -o '%s' --force", f->cdir, out);
     cases_load(f);
-    planning_case *c = case_load(out);
-    if (!c)
-        fail_msg("%s", fn_err_msg());
+    planning_case *c = tu_case_load(out);
     assert_int_equal(c->nfrag, 2);
     case_free(c);
     tu_rmtree(out);

@@ -524,6 +524,14 @@ struct planning_case *tu_ellipsoid_fracture(const char *dir, int pieces, unsigne
     return c;
 }
 
+planning_case *tu_case_load(const char *dir)
+{
+    planning_case *c = case_load(dir);
+    if (!c)
+        fail_msg("%s", fn_err_msg());
+    return c;
+}
+
 void tu_two_blocks_case(const char *dir, char *case_dir, size_t cap)
 {
     vol *v = vol_new(40, 32, 32);

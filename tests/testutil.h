@@ -111,6 +111,9 @@ void tu_write_file(const char *path, const void *data, size_t len);
 struct frag;
 void tu_box_frag(struct frag *f, int id, const int dim[3], const double at[3]);
 
+/* case_load(dir), failing the test with its message when it does not load. */
+struct planning_case *tu_case_load(const char *dir);
+
 /* Two bone blocks 2 mm apart along x, A (12x20x20 mm, x 4..15) and B (10x12x12 mm, x 18..27), as
  * an int16 NIfTI in dir, segmented by the CLI into dir/case (its path into case_dir), A (the
  * larger, id 1) fixed. */
