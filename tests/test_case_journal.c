@@ -9,7 +9,6 @@
 #include <cmocka.h>
 
 #include "case_journal.h"
-#include "err.h"
 #include "journal.h"
 #include "testutil.h"
 #include "vol.h"

@@ -9,7 +9,6 @@
 #include <cmocka.h>
 
 #include "case.h"
-#include "err.h"
 #include "testutil.h"
 
 #include <stdio.h>
