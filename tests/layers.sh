@@ -24,7 +24,7 @@ C_HEADERS="assert.h errno.h float.h limits.h math.h stdarg.h stdatomic.h stdbool
 allowed() {
     case $1 in
     base | segment | geometry) ;;
-    platform) echo "dirent.h fcntl.h link.h pthread.h sched.h signal.h spawn.h sys/mman.h sys/prctl.h sys/stat.h sys/types.h sys/wait.h unistd.h" ;;
+    platform) echo "dirent.h fcntl.h link.h pthread.h sched.h signal.h spawn.h sys/mman.h sys/prctl.h sys/resource.h sys/stat.h sys/syscall.h sys/types.h sys/wait.h unistd.h" ;;
     navigation) echo "fcntl.h pthread.h semaphore.h sys/stat.h unistd.h zlib.h" ;;
     json) echo "jansson.h" ;;
     io) echo "dirent.h fcntl.h signal.h sys/file.h sys/stat.h unistd.h jansson.h png.h nifti1_io.h teem/nrrd.h zlib.h" ;;

@@ -2,11 +2,29 @@
 # The man pages say what --help says: every command that fracnav --help lists (and every
 # benchmark of fracnav bench --help) has its section in fracnav.1, every subcommand of
 # fracnav-sim's usage is in fracnav-sim.1, and every option that any of those --help texts
-# lists appears in the page. groff, when there, reads the pages without a warning.
+# lists appears in the page. groff, when there, reads the pages without a warning. The pages are
+# built as they are installed, compressed with gzip -9n (Debian's policy).
 # Usage: tests/man_pages.sh BUILD_DIR
 set -u
 build=${1:?usage: man_pages.sh BUILD_DIR}
 bad=0
+tmp=$(mktemp -d)
+trap 'rm -rf "$tmp"' EXIT
+
+# unpack NAME: BUILD_DIR/NAME.1.gz, checked to be gzip -9n (its header names no file and holds no
+# time stamp, and says best compression), as text in $tmp/NAME.1.
+unpack() {
+    gz=$build/$1.1.gz
+    [ -s "$gz" ] || { echo "man_pages: $gz is missing (build first)" >&2; exit 1; }
+    # the header: 31 139 8, flags, 4 bytes of time, extra flags (2: best compression), OS
+    head=$(od -An -tu1 -N9 "$gz" | tr -s ' \n' ' ')
+    case $head in
+    " 31 139 8 0 0 0 0 0 2 ") ;;
+    *) echo "man_pages: $gz is not compressed with gzip -9n (its header:$head)" >&2
+       bad=1 ;;
+    esac
+    gzip -dc "$gz" >"$tmp/$1.1" || { echo "man_pages: $gz does not decompress" >&2; exit 1; }
+}
 
 # The options a help text lists: --long ones and single-letter ones (-o) standing alone.
 options() {
@@ -45,8 +63,8 @@ listed() {
 }
 
 n=0
-page=$build/fracnav.1
-[ -s "$page" ] || { echo "man_pages: $page is missing (build first)" >&2; exit 1; }
+unpack fracnav
+page=$tmp/fracnav.1
 check "$build/fracnav" "$page"
 for c in $(listed "$build/fracnav"); do
     check "$build/fracnav" "$page" "$c"
@@ -58,9 +76,9 @@ for c in $(listed "$build/fracnav"); do
 done
 pages=$page
 if [ -x "$build/sim/fracnav-sim" ]; then
-    page=$build/fracnav-sim.1
+    unpack fracnav-sim
+    page=$tmp/fracnav-sim.1
     pages="$pages $page"
-    [ -s "$page" ] || { echo "man_pages: $page is missing (build first)" >&2; exit 1; }
     check "$build/sim/fracnav-sim" "$page"
     for c in $("$build/sim/fracnav-sim" --help | sed -n 's/^ *\(usage: \)\{0,1\}fracnav-sim \([a-z][a-z-]*\).*/\2/p'); do
         help=$("$build/sim/fracnav-sim" "$c" --help 2>&1)
@@ -77,5 +95,5 @@ if command -v groff >/dev/null; then
         [ -z "$w" ] || { echo "man_pages: groff on $p: $w" >&2; bad=1; }
     done
 fi
-[ $bad -eq 0 ] && echo "man_pages: $n commands and every option of their --help are in $pages"
+[ $bad -eq 0 ] && echo "man_pages: $n commands and every option of their --help are in $(echo "$pages" | sed "s|$tmp/||g") (gzip -9n)"
 exit $bad

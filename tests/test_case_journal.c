@@ -9,10 +9,7 @@
 #include <cmocka.h>
 
 #include "case_journal.h"
-#include "err.h"
 #include "journal.h"
-#include "script.h"
-#include "simdev.h"
 #include "testutil.h"
 #include "vol.h"
 #include "volio.h"
@@ -32,12 +29,7 @@ struct fixture {
 /* A SpaceExplorer recording (it has buttons 1-10) of a motion script at path. */
 static void record(const char *path, const char *text)
 {
-    script *s = NULL;
-    assert_int_equal(script_parse(text, strlen(text), "test", &s), 0);
-    fnrec *r = script_render(s, sim_profile_find("spaceexplorer"));
-    assert_int_equal(fnrec_save(r, path), 0);
-    fnrec_free(r);
-    free(s);
+    tu_write_recording(path, "spaceexplorer", text);
 }
 
 /* Three bone blocks (ids 1, 2, 3 by size; 1 and 2 are 4 mm apart along x), none fixed, and a
@@ -63,32 +55,11 @@ static int setup(void **st)
     assert_int_equal(volio_write(v, src, VOL_I16), 0);
     vol_free(v);
     snprintf(f->cdir, sizeof f->cdir, "%s/case", f->tmp);
-    char *out = NULL;
-    int rc = tu_run_cli(&out, "segment '%s' -o '%s' --min-volume 0 --ramp 0", src, f->cdir);
-    if (rc != 0)
-        fail_msg("segment: %s", out);
-    free(out);
+    tu_segment(src, f->cdir, "--ramp 0");
     snprintf(f->idle, sizeof f->idle, "%s/idle.fnrec", f->tmp);
     record(f->idle, "wait 0.1 s\n");
     *st = f;
     return 0;
-}
-
-static int teardown(void **st)
-{
-    struct fixture *f = *st;
-    tu_rmtree(f->tmp);
-    free(f->tmp);
-    free(f);
-    return 0;
-}
-
-static planning_case *load(const struct fixture *f)
-{
-    planning_case *c = case_load(f->cdir);
-    if (!c)
-        fail_msg("%s", fn_err_msg());
-    return c;
 }
 
 static pose moved(double x)
@@ -113,7 +84,7 @@ static void write_journal(const struct fixture *f, const journal_bind *b, journa
 /* A journal that moves fragment index `frag` of the case as it is now to x mm. */
 static void interrupted(const struct fixture *f, int frag, double x)
 {
-    planning_case *c = load(f);
+    planning_case *c = tu_case_load(f->cdir);
     journal_bind b;
     case_journal_bind(c, &b);
     case_free(c);
@@ -154,7 +125,7 @@ static void test_edit_never_moves_journaled_poses_to_another_fragment(void **st)
     free(out);
     rc = tu_run_cli(&out, "replay '%s' '%s' --recover --save", f->cdir, f->idle);
     free(out);
-    planning_case *c = load(f);
+    planning_case *c = tu_case_load(f->cdir);
     assert_int_equal(c->nfrag, 2);
     assert_true(pose_x(c, 2) == 0 && pose_x(c, 3) == 0);
     case_free(c);
@@ -166,7 +137,7 @@ static void test_edit_never_moves_journaled_poses_to_another_fragment(void **st)
 static void test_journal_of_another_case_state_is_refused(void **st)
 {
     struct fixture *f = *st;
-    planning_case *c = load(f);
+    planning_case *c = tu_case_load(f->cdir);
     journal_bind b;
     case_journal_bind(c, &b);
     case_free(c);
@@ -179,14 +150,14 @@ static void test_journal_of_another_case_state_is_refused(void **st)
     assert_non_null(strstr(out, "journal.mismatch.1"));
     free(out);
     assert_true(exists(f, "journal.mismatch.1", NULL));
-    c = load(f);
+    c = tu_case_load(f->cdir);
     assert_true(pose_x(c, 2) == 0);
     case_free(c);
     write_journal(f, &b, &r, 1);
     assert_int_equal(tu_run_cli(&out, "replay '%s' '%s' --save", f->cdir, f->idle), 0);
     assert_non_null(strstr(out, "journal.mismatch.2"));
     free(out);
-    c = load(f);
+    c = tu_case_load(f->cdir);
     assert_true(pose_x(c, 2) == 0);
     case_free(c);
 }
@@ -197,7 +168,7 @@ static void test_poses_already_saved_are_not_offered(void **st)
 {
     struct fixture *f = *st;
     interrupted(f, 1, 2.25);
-    planning_case *c = load(f);
+    planning_case *c = tu_case_load(f->cdir);
     c->frag[1].pose = moved(2.25);
     assert_int_equal(case_save(c), 0);
     case_free(c);
@@ -237,7 +208,7 @@ static void test_damaged_first_record_is_kept_aside(void **st)
 static void test_damage_in_the_middle_recovers_what_precedes(void **st)
 {
     struct fixture *f = *st;
-    planning_case *c = load(f);
+    planning_case *c = tu_case_load(f->cdir);
     journal_bind b;
     case_journal_bind(c, &b);
     case_free(c);
@@ -257,7 +228,7 @@ static void test_damage_in_the_middle_recovers_what_precedes(void **st)
     assert_non_null(strstr(out, "the 2 records before the damage"));
     free(out);
     assert_true(exists(f, "journal.damaged.1", NULL));
-    c = load(f); /* the saved case loads, with the last good pose */
+    c = tu_case_load(f->cdir); /* the saved case loads, with the last good pose */
     assert_true(pose_x(c, 2) == 2);
     case_free(c);
 }
@@ -311,7 +282,7 @@ static void test_fixed_in_session_is_saved(void **st)
     int rc = tu_run_cli(&out, "replay '%s' '%s' --save", f->cdir, rec);
     if (rc != 0)
         fail_msg("replay: %s", out);
-    planning_case *c = load(f);
+    planning_case *c = tu_case_load(f->cdir);
     if (c->fixed != case_find(c, 1))
         fail_msg("fixed %d: %s", c->fixed, out);
     free(out);
@@ -326,7 +297,7 @@ static void test_fixed_in_session_is_saved(void **st)
     if (rc != 0)
         fail_msg("replay --recover: %s", out);
     free(out);
-    c = load(f);
+    c = tu_case_load(f->cdir);
     assert_int_equal(c->fixed, case_find(c, 3));
     case_free(c);
 }
@@ -385,16 +356,16 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test_setup_teardown(test_edit_never_moves_journaled_poses_to_another_fragment,
-                                        setup, teardown),
-        cmocka_unit_test_setup_teardown(test_journal_of_another_case_state_is_refused, setup, teardown),
-        cmocka_unit_test_setup_teardown(test_poses_already_saved_are_not_offered, setup, teardown),
-        cmocka_unit_test_setup_teardown(test_damaged_first_record_is_kept_aside, setup, teardown),
+                                        setup, tu_fixture_teardown),
+        cmocka_unit_test_setup_teardown(test_journal_of_another_case_state_is_refused, setup, tu_fixture_teardown),
+        cmocka_unit_test_setup_teardown(test_poses_already_saved_are_not_offered, setup, tu_fixture_teardown),
+        cmocka_unit_test_setup_teardown(test_damaged_first_record_is_kept_aside, setup, tu_fixture_teardown),
         cmocka_unit_test_setup_teardown(test_damage_in_the_middle_recovers_what_precedes, setup,
-                                        teardown),
-        cmocka_unit_test_setup_teardown(test_penetrating_plan_is_said_and_recorded, setup, teardown),
-        cmocka_unit_test_setup_teardown(test_fixed_in_session_is_saved, setup, teardown),
-        cmocka_unit_test_setup_teardown(test_force_warns_of_unsaved_journal, setup, teardown),
-        cmocka_unit_test_setup_teardown(test_export_and_render_say_unsaved_poses, setup, teardown),
+                                        tu_fixture_teardown),
+        cmocka_unit_test_setup_teardown(test_penetrating_plan_is_said_and_recorded, setup, tu_fixture_teardown),
+        cmocka_unit_test_setup_teardown(test_fixed_in_session_is_saved, setup, tu_fixture_teardown),
+        cmocka_unit_test_setup_teardown(test_force_warns_of_unsaved_journal, setup, tu_fixture_teardown),
+        cmocka_unit_test_setup_teardown(test_export_and_render_say_unsaved_poses, setup, tu_fixture_teardown),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

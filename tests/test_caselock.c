@@ -35,15 +35,6 @@ static int setup(void **st)
     return 0;
 }
 
-static int teardown(void **st)
-{
-    struct fixture *f = *st;
-    tu_rmtree(f->dir);
-    free(f->dir);
-    free(f);
-    return 0;
-}
-
 /* A child process that holds dir's lock (exclusive or shared) until *release is closed. */
 typedef struct holder {
     pid_t pid;
@@ -222,11 +213,11 @@ static void test_linked_lock_file_refused(void **st)
 int main(void)
 {
     const struct CMUnitTest tests[] = {
-        cmocka_unit_test_setup_teardown(test_second_writer_refused_naming_holder, setup, teardown),
-        cmocka_unit_test_setup_teardown(test_readers_share_writers_wait, setup, teardown),
-        cmocka_unit_test_setup_teardown(test_two_writers_never_lose_an_edit, setup, teardown),
-        cmocka_unit_test_setup_teardown(test_navigate_holds_the_case, setup, teardown),
-        cmocka_unit_test_setup_teardown(test_linked_lock_file_refused, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_second_writer_refused_naming_holder, setup, tu_fixture_teardown),
+        cmocka_unit_test_setup_teardown(test_readers_share_writers_wait, setup, tu_fixture_teardown),
+        cmocka_unit_test_setup_teardown(test_two_writers_never_lose_an_edit, setup, tu_fixture_teardown),
+        cmocka_unit_test_setup_teardown(test_navigate_holds_the_case, setup, tu_fixture_teardown),
+        cmocka_unit_test_setup_teardown(test_linked_lock_file_refused, setup, tu_fixture_teardown),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

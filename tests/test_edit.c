@@ -56,30 +56,9 @@ static int setup(void **st)
     snprintf(src, sizeof src, "%s/ct.nii.gz", f->tmp);
     snprintf(f->cdir, sizeof f->cdir, "%s/case", f->tmp);
     write_ct(src);
-    char *out = NULL;
-    int rc = tu_run_cli(&out, "segment '%s' -o '%s' --min-volume 0", src, f->cdir);
-    if (rc != 0)
-        fail_msg("segment failed (%d): %s", rc, out);
-    free(out);
+    tu_segment(src, f->cdir, "");
     *st = f;
     return 0;
-}
-
-static int teardown(void **st)
-{
-    struct fixture *f = *st;
-    tu_rmtree(f->tmp);
-    free(f->tmp);
-    free(f);
-    return 0;
-}
-
-static planning_case *load(const struct fixture *f)
-{
-    planning_case *c = case_load(f->cdir);
-    if (!c)
-        fail_msg("%s", fn_err_msg());
-    return c;
 }
 
 static int edit(const struct fixture *f, char **out, const char *args)
@@ -93,7 +72,7 @@ static void test_merge_and_bad_ids(void **st)
     char *out;
     assert_int_equal(edit(f, &out, "merge 1 3"), 0);
     free(out);
-    planning_case *c = load(f);
+    planning_case *c = tu_case_load(f->cdir);
     assert_int_equal(c->nfrag, 2);
     assert_int_equal((int)c->frag[0].voxels, 1080);
     assert_int_equal(c->frag[1].id, 2);
@@ -120,7 +99,7 @@ static void test_split(void **st)
     assert_int_equal(edit(f, &out, "split 1 --plane 105.5 0 0 1 0 0"), 0);
     assert_non_null(strstr(out, "fragment 4"));
     free(out);
-    planning_case *c = load(f);
+    planning_case *c = tu_case_load(f->cdir);
     assert_int_equal(c->nfrag, 4);
     int i1 = case_find(c, 1), i4 = case_find(c, 4);
     assert_int_equal((int)c->frag[i1].voxels, 400);
@@ -132,7 +111,7 @@ static void test_split(void **st)
     assert_int_equal(edit(f, &out, "split 2 --plane 0 0 0 1 0 0"), 1);
     assert_non_null(strstr(out, "one side"));
     free(out);
-    c = load(f);
+    c = tu_case_load(f->cdir);
     assert_int_equal(c->nfrag, 4);
     case_free(c);
 }
@@ -152,7 +131,7 @@ static void test_erase_keep_drop_fix(void **st)
     assert_int_equal(edit(f, &out, "erase-sphere 124.5 206.5 303.5 1.5"), 0);
     assert_non_null(strstr(out, "erased 8 voxels"));
     free(out);
-    planning_case *c = load(f);
+    planning_case *c = tu_case_load(f->cdir);
     assert_int_equal((int)c->frag[0].voxels, 700);
     assert_int_equal((int)c->frag[1].voxels, 392);
     case_free(c);
@@ -161,13 +140,13 @@ static void test_erase_keep_drop_fix(void **st)
     free(out);
     assert_int_equal(edit(f, &out, "drop 3"), 0);
     free(out);
-    c = load(f);
+    c = tu_case_load(f->cdir);
     assert_int_equal(c->nfrag, 2);
     assert_int_equal(c->frag[c->fixed].id, 2);
     case_free(c);
     assert_int_equal(edit(f, &out, "keep 1"), 0);
     free(out);
-    c = load(f);
+    c = tu_case_load(f->cdir);
     assert_int_equal(c->nfrag, 1);
     assert_int_equal(c->fixed, -1); /* the fixed fragment went with the drop */
     case_free(c);
@@ -199,7 +178,7 @@ static void test_grow(void **st)
     free(out);
     assert_int_equal(edit(f, &out, "grow 131 222 315 --into 1"), 0);
     free(out);
-    planning_case *c = load(f);
+    planning_case *c = tu_case_load(f->cdir);
     assert_int_equal(c->nfrag, 2);
     assert_int_equal((int)c->frag[0].voxels, 1080);
     case_free(c);
@@ -230,7 +209,7 @@ static void test_separate_seeds(void **st)
     if (!strstr(out, "seeds.txt: line 3: expected PIECE X Y Z"))
         fail_msg("%s", out);
     free(out);
-    planning_case *c = load(f);
+    planning_case *c = tu_case_load(f->cdir);
     assert_int_equal(c->nfrag, 3);
     case_free(c);
     tu_write_file(seeds, good, strlen(good));
@@ -238,7 +217,7 @@ static void test_separate_seeds(void **st)
     if (!strstr(out, "separated fragment 1 into 2 pieces (new fragments 4; from 3 seeds)"))
         fail_msg("%s", out);
     free(out);
-    c = load(f);
+    c = tu_case_load(f->cdir);
     assert_int_equal(c->nfrag, 4);
     assert_int_equal((int)(c->frag[0].voxels + c->frag[3].voxels), 1000);
     case_free(c);
@@ -265,13 +244,13 @@ static void test_failed_save_keeps_case(void **st)
     char *j1 = tu_slurp(json, &jn1), *l1 = tu_slurp(labels, &ln1);
     assert_true(jn1 == jn && !memcmp(j0, j1, jn));
     assert_true(ln1 == ln && !memcmp(l0, l1, ln));
-    planning_case *c = load(f);
+    planning_case *c = tu_case_load(f->cdir);
     assert_int_equal(c->nfrag, 3);
     case_free(c);
     rmdir(block);
     assert_int_equal(edit(f, &out, "merge 1 2"), 0);
     free(out);
-    c = load(f);
+    c = tu_case_load(f->cdir);
     assert_int_equal(c->nfrag, 2);
     case_free(c);
     free(j0);
@@ -284,7 +263,7 @@ static void test_failed_save_keeps_case(void **st)
 static void test_api(void **st)
 {
     struct fixture *f = *st;
-    planning_case *c = load(f);
+    planning_case *c = tu_case_load(f->cdir);
     double p[3] = {0, 0, 307}, n[3] = {0, 0, 1};
     int id = case_split(c, 1, p, n);
     assert_int_equal(id, 4);
@@ -303,13 +282,13 @@ static void test_api(void **st)
 int main(void)
 {
     const struct CMUnitTest tests[] = {
-        cmocka_unit_test_setup_teardown(test_merge_and_bad_ids, setup, teardown),
-        cmocka_unit_test_setup_teardown(test_split, setup, teardown),
-        cmocka_unit_test_setup_teardown(test_erase_keep_drop_fix, setup, teardown),
-        cmocka_unit_test_setup_teardown(test_grow, setup, teardown),
-        cmocka_unit_test_setup_teardown(test_separate_seeds, setup, teardown),
-        cmocka_unit_test_setup_teardown(test_failed_save_keeps_case, setup, teardown),
-        cmocka_unit_test_setup_teardown(test_api, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_merge_and_bad_ids, setup, tu_fixture_teardown),
+        cmocka_unit_test_setup_teardown(test_split, setup, tu_fixture_teardown),
+        cmocka_unit_test_setup_teardown(test_erase_keep_drop_fix, setup, tu_fixture_teardown),
+        cmocka_unit_test_setup_teardown(test_grow, setup, tu_fixture_teardown),
+        cmocka_unit_test_setup_teardown(test_separate_seeds, setup, tu_fixture_teardown),
+        cmocka_unit_test_setup_teardown(test_failed_save_keeps_case, setup, tu_fixture_teardown),
+        cmocka_unit_test_setup_teardown(test_api, setup, tu_fixture_teardown),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

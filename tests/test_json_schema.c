@@ -10,7 +10,6 @@
 
 #include "err.h"
 #include "jsonw.h"
-#include "script.h"
 #include "testutil.h"
 #include "vol.h"
 #include "volio.h"
@@ -92,14 +91,7 @@ static int setup(void **st)
     snprintf(rec, sizeof rec, "%s/push.fnrec", dir);
     write_ct(blocks, 40, 32, 32, two_blocks);
     write_ct(tube, 40, 40, 48, tube_wall);
-    const char *text = "translate -x 4 mm over 0.3 s\n";
-    script *s = NULL;
-    assert_int_equal(script_parse(text, strlen(text), "push", &s), 0);
-    fnrec *r = script_render(s, sim_profile_find("spacenavigator"));
-    assert_non_null(r);
-    assert_int_equal(fnrec_save(r, rec), 0);
-    fnrec_free(r);
-    free(s);
+    tu_write_recording(rec, "spacenavigator", "translate -x 4 mm over 0.3 s\n");
     return 0;
 }
 

@@ -12,7 +12,6 @@
 #include "journal.h"
 #include "loop.h"
 #include "pose.h"
-#include "script.h"
 #include "testutil.h"
 #include "vol.h"
 #include "volio.h"
@@ -27,36 +26,22 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
-static char *dir; /* the group's temp folder */
 static char case_dir[4200];
 
-/* The two-blocks case of tu_two_blocks_case: B is the one that moves. */
+/* The two-blocks case of tu_two_blocks_case in tu_dir (the group's folder): B is the one that moves. */
 static int setup(void **st)
 {
-    dir = tu_tmpdir("loopcli");
-    tu_two_blocks_case(dir, case_dir, sizeof case_dir);
+    tu_dir_setup(st);
+    tu_two_blocks_case(tu_dir, case_dir, sizeof case_dir);
     return 0;
 }
 
-static int teardown(void **st)
-{
-    tu_rmtree(dir);
-    free(dir);
-    return 0;
-}
-
-/* Renders a motion script for the device `as` into dir/NAME.fnrec; returns the path (static). */
+/* Renders a motion script for the device `as` into tu_dir/NAME.fnrec; returns the path (static). */
 static const char *recording_as(const char *as, const char *name, const char *text)
 {
     static char path[4200];
-    script *s = NULL;
-    assert_int_equal(script_parse(text, strlen(text), name, &s), 0);
-    fnrec *r = script_render(s, sim_profile_find(as));
-    assert_non_null(r);
-    snprintf(path, sizeof path, "%s/%s.fnrec", dir, name);
-    assert_int_equal(fnrec_save(r, path), 0);
-    fnrec_free(r);
-    free(s);
+    snprintf(path, sizeof path, "%s/%s.fnrec", tu_dir, name);
+    tu_write_recording(path, as, text);
     return path;
 }
 
@@ -141,7 +126,7 @@ static void test_replay_json_rates_and_skips(void **st)
     char *at = strstr(text, "0 connect\n"), path[4300];
     assert_non_null(at);
     at += strlen("0 connect\n");
-    snprintf(path, sizeof path, "%s/skips.fnrec", dir);
+    snprintf(path, sizeof path, "%s/skips.fnrec", tu_dir);
     FILE *f = fopen(path, "w");
     fprintf(f, "%.*s1000 in 09000000000000\n2000 in 0174ff0000\n%s", (int)(at - text), text, at);
     fclose(f);
@@ -175,7 +160,7 @@ static void test_replay_twice_with_journal(void **st)
 static void test_shipped_grazing_slides_on_example(void **st)
 {
     char ex[4300], rec[4300], *out = NULL;
-    snprintf(ex, sizeof ex, "%s/example", dir);
+    snprintf(ex, sizeof ex, "%s/example", tu_dir);
     int rc = tu_run_cli(&out, "fracture '%s' -o '%s' --seed 1", tu_example_ct(), ex);
     if (rc != 0)
         fprintf(stderr, "%s\n", out);
@@ -262,7 +247,7 @@ static void test_navigate_saves_on_exit(void **st)
                                    "press 10\nwait 50 ms\nrelease 10\nwait 600 s\nunplug\n");
     char spec[4300], outp[4300], path[4300];
     snprintf(spec, sizeof spec, "replay-realtime:%s", rec);
-    snprintf(outp, sizeof outp, "%s/nav.out", dir);
+    snprintf(outp, sizeof outp, "%s/nav.out", tu_dir);
     snprintf(path, sizeof path, "%s/case.json", case_dir);
     size_t len;
     char *before = tu_slurp(path, &len);
@@ -314,8 +299,8 @@ static void interrupted_at(pose p)
 static json_t *navigate_answering(const char *answer)
 {
     char keys[4300], ans[4300];
-    snprintf(keys, sizeof keys, "%s/nokeys", dir);
-    snprintf(ans, sizeof ans, "%s/answer", dir);
+    snprintf(keys, sizeof keys, "%s/nokeys", tu_dir);
+    snprintf(ans, sizeof ans, "%s/answer", tu_dir);
     tu_write_file(keys, "", 0);
     tu_write_file(ans, answer, strlen(answer));
     char *out = NULL;
@@ -358,14 +343,14 @@ static void test_navigate_keyboard_offers_recovery(void **st)
     json_decref(navigate_answering("Y\n"));
 }
 
-/* navigate --device keyboard fed KEYS from a file, all it prints into dir/keys.out; stopped by
+/* navigate --device keyboard fed KEYS from a file, all it prints into tu_dir/keys.out; stopped by
  * SIGTERM (Ctrl-C: it saves and exits 0) once that output holds `until` (NULL: it must stop by
  * itself). Returns what it printed. */
 static char *navigate_keys(const char *keys, const char *until)
 {
     char path[4300], spec[4400], outp[4300];
-    snprintf(path, sizeof path, "%s/keys", dir);
-    snprintf(outp, sizeof outp, "%s/keys.out", dir);
+    snprintf(path, sizeof path, "%s/keys", tu_dir);
+    snprintf(outp, sizeof outp, "%s/keys.out", tu_dir);
     snprintf(spec, sizeof spec, "keyboard:%s", path);
     tu_write_file(path, keys, strlen(keys));
     pid_t pid = tu_spawn_cli(outp, NULL, (char *[]){"navigate", case_dir, "--device", spec, "--json", NULL});
@@ -456,8 +441,8 @@ static double case_number(const char *case_path, const char *key)
 static void test_tau_options(void **st)
 {
     char tc[4300], vol_path[4300], *out = NULL;
-    snprintf(tc, sizeof tc, "%s/taucase", dir);
-    snprintf(vol_path, sizeof vol_path, "%s/blocks.nii.gz", dir);
+    snprintf(tc, sizeof tc, "%s/taucase", tu_dir);
+    snprintf(vol_path, sizeof vol_path, "%s/blocks.nii.gz", tu_dir);
     assert_int_equal(tu_run_cli(&out, "segment '%s' -o '%s' --min-volume 0 --tau-min 0.3", vol_path, tc), 0);
     free(out);
     assert_true(case_number(tc, "tau_min") == 0.3);
@@ -467,7 +452,7 @@ static void test_tau_options(void **st)
         assert_int_equal(tu_run_cli(&out, "segment '%s' -o '%s' %s", vol_path, tc, bad[i]), 2);
         assert_non_null(strstr(out, strchr(bad[i], '-') ? "--tau-m" : "tau"));
         free(out);
-        assert_int_equal(tu_run_cli(&out, "fracture '%s' -o '%s/f' --seed 1 %s", vol_path, dir, bad[i]), 2);
+        assert_int_equal(tu_run_cli(&out, "fracture '%s' -o '%s/f' --seed 1 %s", vol_path, tu_dir, bad[i]), 2);
         assert_non_null(strstr(out, "--tau-m"));
         free(out);
     }
@@ -525,5 +510,5 @@ int main(void)
         cmocka_unit_test(test_replay_pivot),
         cmocka_unit_test(test_enterprise_numbered_keys_act),
     };
-    return cmocka_run_group_tests(tests, setup, teardown);
+    return cmocka_run_group_tests(tests, setup, tu_dir_teardown);
 }

@@ -9,7 +9,6 @@
 #include <cmocka.h>
 
 #include "case.h"
-#include "err.h"
 #include "testutil.h"
 
 #include <stdio.h>
@@ -32,37 +31,13 @@ static int setup(void **st)
     snprintf(f->ct, sizeof f->ct, "%s/blocks.nii.gz", f->tmp);
     snprintf(f->other, sizeof f->other, "%s/other", f->tmp);
     snprintf(f->junk, sizeof f->junk, "%s/junk", f->tmp);
-    assert_int_equal(tu_run_cli(NULL, "segment '%s' -o '%s' --min-volume 0", f->ct, f->other), 0);
+    tu_segment(f->ct, f->other, "");
     assert_int_equal(mkdir(f->junk, 0755), 0);
     char keep[4300];
     snprintf(keep, sizeof keep, "%s/notes.txt", f->junk);
     tu_write_file(keep, "mine\n", 5);
     *st = f;
     return 0;
-}
-
-static int teardown(void **st)
-{
-    struct fixture *f = *st;
-    tu_rmtree(f->tmp);
-    free(f->tmp);
-    free(f);
-    return 0;
-}
-
-/* Runs `fracnav ARGS`, expects exit status rc and `want` in the output (and never a temporary
- * file's name). */
-static void expect(int rc, const char *want, const char *fmt, ...)
-{
-    char args[8192], *out = NULL;
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(args, sizeof args, fmt, ap);
-    va_end(ap);
-    int got = tu_run_cli(&out, "%s", args);
-    if (got != rc || !strstr(out, want) || strstr(out, ".fracnav-tmp"))
-        fail_msg("fracnav %s: exit %d (want %d), output lacks \"%s\":\n%s", args, got, rc, want, out);
-    free(out);
 }
 
 /* A file's bytes, to see that a refused command left it as it was. */
@@ -89,10 +64,7 @@ static void cases_load(const struct fixture *f)
 {
     const char *dirs[2] = {f->cdir, f->other};
     for (int i = 0; i < 2; i++) {
-        planning_case *c = case_load(dirs[i]);
-        if (!c)
-            fail_msg("%s", fn_err_msg());
-        case_free(c);
+        case_free(tu_case_load(dirs[i]));
     }
 }
 
@@ -102,33 +74,42 @@ static void test_segment_and_fracture(void **st)
     struct fixture *f = *st;
     size_t n;
     char *json = bytes(f->other, "case.json", &n);
-    expect(1, "holds a case already; --force replaces it", "segment '%s' -o '%s'", f->ct, f->other);
-    expect(1, "holds a case already; --force replaces it", "fracture '%s' -o '%s' --seed 1", f->ct, f->other);
-    expect(1, "a folder with files but no case.json", "segment '%s' -o '%s' --force", f->ct, f->junk);
-    expect(1, "a folder with files but no case.json", "fracture '%s' -o '%s' --seed 1", f->ct, f->junk);
+    tu_expect_cli(1, "holds a case already; --force replaces it", "segment '%s' -o '%s'", f->ct, f->other);
+    tu_expect_cli(1, "holds a case already; --force replaces it", "fracture '%s' -o '%s' --seed 1", f->ct, f->other);
+    tu_expect_cli(1, "a folder with files but no case.json", "segment '%s' -o '%s' --force", f->ct, f->junk);
+    tu_expect_cli(1, "a folder with files but no case.json", "fracture '%s' -o '%s' --seed 1", f->ct, f->junk);
     same_bytes(f->other, "case.json", json, n);
     free(json);
     cases_load(f);
 }
 
-/* reduce -o: the same rules, checked before the fit; --force replaces the case. */
+/* reduce -o: the same rules, checked before the fit; --force replaces the case; never a case
+ * inside the case being read, nor that case or a folder around it. */
 static void test_reduce(void **st)
 {
     struct fixture *f = *st;
     size_t n;
     char *json = bytes(f->other, "case.json", &n), out[4300];
-    expect(1, "holds a case already; --force replaces it", "reduce '%s' -o '%s'", f->cdir, f->other);
+    tu_expect_cli(1, "holds a case already; --force replaces it", "reduce '%s' -o '%s'", f->cdir, f->other);
     same_bytes(f->other, "case.json", json, n);
     free(json);
-    expect(1, "a folder with files but no case.json", "reduce '%s' -o '%s' --force", f->cdir, f->junk);
-    expect(2, "--force goes with -o NEWCASE", "reduce '%s' --force", f->cdir);
+    tu_expect_cli(1, "a folder with files but no case.json", "reduce '%s' -o '%s' --force", f->cdir, f->junk);
+    tu_expect_cli(2, "--force goes with -o NEWCASE", "reduce '%s' --force", f->cdir);
+    /* a new case never inside the case being read, nor on it or around it */
+    snprintf(out, sizeof out, "%s/sub", f->cdir);
+    char want[9000];
+    snprintf(want, sizeof want, "-o %s lies inside the case being read (%s)", out, f->cdir);
+    tu_expect_cli(1, want, "reduce '%s' -o '%s'", f->cdir, out);
+    assert_int_equal(access(out, F_OK), -1);
+    snprintf(want, sizeof want, "-o %s/ is the case being read (%s)", f->cdir, f->cdir);
+    tu_expect_cli(1, want, "reduce '%s' -o '%s/' --force", f->cdir, f->cdir);
+    snprintf(want, sizeof want, "-o %s holds the case being read (%s)", f->tmp, f->cdir);
+    tu_expect_cli(1, want, "reduce '%s' -o '%s' --force", f->cdir, f->tmp);
     snprintf(out, sizeof out, "%s/reduced", f->tmp);
-    expect(0, "saved", "reduce '%s' -o '%s'", f->cdir, out);
-    expect(0, "saved", "reduce '%s' -o '%s' --force", f->cdir, out);
+    tu_expect_cli(0, "saved", "reduce '%s' -o '%s'", f->cdir, out);
+    tu_expect_cli(0, "saved", "reduce '%s' -o '%s' --force", f->cdir, out);
     cases_load(f);
-    planning_case *c = case_load(out);
-    if (!c)
-        fail_msg("%s", fn_err_msg());
+    planning_case *c = tu_case_load(out);
     assert_int_equal(c->nfrag, 2);
     case_free(c);
     tu_rmtree(out);
@@ -141,23 +122,25 @@ static void test_export(void **st)
     struct fixture *f = *st;
     size_t n;
     char *src = tu_slurp(f->ct, &n), out[4300];
-    expect(1, "labels.nii.gz lies in the case folder", "export '%s' --nifti '%s/labels.nii.gz'", f->cdir, f->cdir);
-    expect(1, "lies in the case folder", "export '%s' --seg-nrrd '%s/planned.seg.nrrd'", f->cdir, f->other);
-    expect(1, "is the source volume of the case", "export '%s' --nifti '%s'", f->cdir, f->ct);
-    expect(1, "--seg-nrrd x.json: a 3D Slicer segmentation's name ends in .seg.nrrd",
-           "export '%s' --seg-nrrd x.json", f->cdir);
-    expect(1, "--nifti cases: a NIfTI file's name ends in .nii or .nii.gz", "export '%s' --nifti cases", f->cdir);
-    expect(1, "is a case folder", "export '%s' --tfm '%s'", f->cdir, f->other);
-    expect(1, "is a case folder", "export '%s' --all '%s'", f->cdir, f->cdir);
-    expect(1, "lies in the case folder", "export '%s' --stl '%s/models'", f->cdir, f->cdir);
-    expect(1, "holds files already (notes.txt): --force", "export '%s' --tfm '%s'", f->cdir, f->junk);
+    tu_expect_cli(1, "labels.nii.gz lies in the case folder",
+                  "export '%s' --nifti '%s/labels.nii.gz'", f->cdir, f->cdir);
+    tu_expect_cli(1, "lies in the case folder", "export '%s' --seg-nrrd '%s/planned.seg.nrrd'", f->cdir, f->other);
+    tu_expect_cli(1, "is the source volume of the case", "export '%s' --nifti '%s'", f->cdir, f->ct);
+    tu_expect_cli(1, "--seg-nrrd x.json: a 3D Slicer segmentation's name ends in .seg.nrrd",
+                  "export '%s' --seg-nrrd x.json", f->cdir);
+    tu_expect_cli(1, "--nifti cases: a NIfTI file's name ends in .nii or .nii.gz",
+                  "export '%s' --nifti cases", f->cdir);
+    tu_expect_cli(1, "is a case folder", "export '%s' --tfm '%s'", f->cdir, f->other);
+    tu_expect_cli(1, "is a case folder", "export '%s' --all '%s'", f->cdir, f->cdir);
+    tu_expect_cli(1, "lies in the case folder", "export '%s' --stl '%s/models'", f->cdir, f->cdir);
+    tu_expect_cli(1, "holds files already (notes.txt): --force", "export '%s' --tfm '%s'", f->cdir, f->junk);
     /* nothing of a refused export was written, not even its other outputs */
     snprintf(out, sizeof out, "%s/fresh", f->tmp);
-    expect(1, "holds files already", "export '%s' --tfm '%s' --stl '%s'", f->cdir, out, f->junk);
+    tu_expect_cli(1, "holds files already", "export '%s' --tfm '%s' --stl '%s'", f->cdir, out, f->junk);
     assert_int_not_equal(access(out, F_OK), 0);
-    expect(0, "fragment-1.tfm", "export '%s' --tfm '%s' --force", f->cdir, f->junk);
-    expect(0, "fragment-2.tfm", "export '%s' --tfm '%s'", f->cdir, out);
-    expect(1, "holds files already", "export '%s' --tfm '%s'", f->cdir, out);
+    tu_expect_cli(0, "fragment-1.tfm", "export '%s' --tfm '%s' --force", f->cdir, f->junk);
+    tu_expect_cli(0, "fragment-2.tfm", "export '%s' --tfm '%s'", f->cdir, out);
+    tu_expect_cli(1, "holds files already", "export '%s' --tfm '%s'", f->cdir, out);
     same_bytes(f->tmp, "blocks.nii.gz", src, n);
     free(src);
     cases_load(f);
@@ -167,10 +150,10 @@ static void test_export(void **st)
 static void test_render(void **st)
 {
     struct fixture *f = *st;
-    expect(1, "fracnav render: -o", "render '%s' -o '%s'", f->cdir, f->junk);
-    expect(1, "is a folder: name a file", "render '%s' -o '%s'", f->cdir, f->junk);
-    expect(1, "x.png lies in the case folder", "render '%s' -o '%s/x.png'", f->cdir, f->other);
-    expect(1, "does not exist", "render '%s' -o '%s/no/such/x.png'", f->cdir, f->tmp);
+    tu_expect_cli(1, "fracnav render: -o", "render '%s' -o '%s'", f->cdir, f->junk);
+    tu_expect_cli(1, "is a folder: name a file", "render '%s' -o '%s'", f->cdir, f->junk);
+    tu_expect_cli(1, "x.png lies in the case folder", "render '%s' -o '%s/x.png'", f->cdir, f->other);
+    tu_expect_cli(1, "does not exist", "render '%s' -o '%s/no/such/x.png'", f->cdir, f->tmp);
     cases_load(f);
 }
 
@@ -179,12 +162,12 @@ static void test_render(void **st)
 static void test_record_replay_navigate(void **st)
 {
     struct fixture *f = *st;
-    expect(1, "journal lies in the case folder", "record -o '%s/journal' --device bogus:", f->cdir);
-    expect(1, "is a case folder", "replay '%s' /nonexistent.fnrec --frames '%s'", f->cdir, f->other);
-    expect(1, "x.png lies in the case folder", "navigate '%s' --screenshot '%s/x.png' --device bogus:", f->cdir,
-           f->other);
-    expect(1, "fracnav demo: -o", "demo '%s' -o '%s' --no-fuse", f->ct, f->other);
-    expect(1, "is a case folder", "demo '%s' -o '%s' --no-fuse", f->ct, f->other);
+    tu_expect_cli(1, "journal lies in the case folder", "record -o '%s/journal' --device bogus:", f->cdir);
+    tu_expect_cli(1, "is a case folder", "replay '%s' /nonexistent.fnrec --frames '%s'", f->cdir, f->other);
+    tu_expect_cli(1, "x.png lies in the case folder", "navigate '%s' --screenshot '%s/x.png' --device bogus:", f->cdir,
+                  f->other);
+    tu_expect_cli(1, "fracnav demo: -o", "demo '%s' -o '%s' --no-fuse", f->ct, f->other);
+    tu_expect_cli(1, "is a case folder", "demo '%s' -o '%s' --no-fuse", f->ct, f->other);
     cases_load(f);
 }
 
@@ -197,5 +180,5 @@ int main(void)
         cmocka_unit_test(test_render),
         cmocka_unit_test(test_record_replay_navigate),
     };
-    return cmocka_run_group_tests(tests, setup, teardown);
+    return cmocka_run_group_tests(tests, setup, tu_fixture_teardown);
 }

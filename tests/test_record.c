@@ -21,8 +21,6 @@
 
 #include "err.h"
 #include "fnrec.h"
-#include "script.h"
-#include "simdev.h"
 #include "testutil.h"
 
 static char *dir;
@@ -64,16 +62,6 @@ static size_t count_in(const fnrec *r)
     return n;
 }
 
-static fnrec *rendered(const char *script_path, const char *device)
-{
-    script *s = script_load(script_path);
-    assert_non_null(s);
-    fnrec *r = script_render(s, sim_profile_find(device));
-    free(s);
-    assert_non_null(r);
-    return r;
-}
-
 /* Without --seconds, record ends with the virtual device's script, having all of its reports. */
 static void test_record_stops_at_script_end(void **st)
 {
@@ -86,7 +74,7 @@ static void test_record_stops_at_script_end(void **st)
     char *text = tu_slurp(log, NULL);
     assert_non_null(strstr(text, "end of the virtual device's script"));
     free(text);
-    fnrec *want = rendered(scr, "spacenavigator"), *got = fnrec_load(rec);
+    fnrec *want = tu_render_script(scr, "spacenavigator"), *got = fnrec_load(rec);
     assert_non_null(got);
     assert_int_equal(count_in(got), count_in(want));
     fnrec_free(want);
@@ -160,7 +148,7 @@ static void test_virtual_play_warns_of_its_device(void **st)
 {
     const char *scr = write_script("w.script", "translate +x 2 mm over 0.1 s\n");
     const char *rec = path_in("w.fnrec"), *rec2 = path_in("w2.fnrec");
-    fnrec *r = rendered(scr, "spacenavigator");
+    fnrec *r = tu_render_script(scr, "spacenavigator");
     assert_int_equal(fnrec_save(r, rec), 0);
     fnrec_free(r);
     char *out = NULL;

@@ -1,3 +1,4 @@
+#define _GNU_SOURCE /* CPU_COUNT, sched_getaffinity */
 /* The navigation session in-process, on the two-blocks case (A fixed, B 2 mm beside it): poses
  * from recordings (contact, sliding, unplug, determinism), actions and their events, fix, undo
  * and redo, proposed poses landing as one undoable step or refused, saves on request and after,
@@ -21,6 +22,7 @@
 #include "sim_replay.h"
 #include "testutil.h"
 
+#include <dirent.h>
 #include <jansson.h>
 #include <math.h>
 #include <pthread.h>
@@ -1039,6 +1041,91 @@ static void test_preview_follows_and_accepts(void **st)
     free(fdir);
 }
 
+/* A session played on a real-time thread (bench loop --realtime plays on its loop's thread): the
+ * preview's worker does not keep the policy and the CPU it inherits from that thread, where it
+ * would share the loop's CPU under SCHED_FIFO (the loop then ran 17 steps a second for 124), but
+ * runs under ordinary scheduling, at nice 19, on every CPU the process may use. */
+struct rt_play {
+    session *s;
+    fnrec *rec;
+    int rt, rc;
+    atomic_int done;
+};
+
+static void *play_realtime(void *arg)
+{
+    struct rt_play *p = arg;
+    p->rt = loop_realtime_priority() == 0;
+    dev_handle *h;
+    assert_int_equal(sim_replay_open_rec(p->rec, &(sim_replay_opts){1, 1}, &h), 0);
+    session_dsource *ds = session_recording_new(&sim_replay_transport, h, NULL, NULL);
+    p->rc = p->rt ? session_play(p->s, session_device_source(ds), SESSION_PLAY_LOCKSTEP) : 0;
+    session_dsource_free(ds);
+    atomic_store(&p->done, 1);
+    return NULL;
+}
+
+/* Until a thread of this process runs at nice 19 (the preview's worker, once it has set its
+ * priority; its id into *(pid_t *)arg) or the play has ended. */
+static atomic_int *play_done;
+static int nice_thread(void *arg)
+{
+    DIR *d = opendir("/proc/self/task");
+    assert_non_null(d);
+    for (struct dirent *e; (e = readdir(d));) {
+        char path[300];
+        snprintf(path, sizeof path, "/proc/self/task/%s/stat", e->d_name);
+        FILE *f = e->d_name[0] != '.' ? fopen(path, "r") : NULL;
+        char stat[1024] = "";
+        if (f && !fgets(stat, sizeof stat, f))
+            stat[0] = '\0';
+        if (f)
+            fclose(f);
+        const char *end = strrchr(stat, ')'); /* after the name, which may hold spaces */
+        long nice = 0;
+        if (end && sscanf(end + 2, "%*c %*d %*d %*d %*d %*d %*u %*u %*u %*u %*u %*u %*u %*d %*d %*d %ld", &nice) == 1 &&
+            nice == 19)
+            *(pid_t *)arg = (pid_t)atoi(e->d_name);
+    }
+    closedir(d);
+    return *(pid_t *)arg != 0 || atomic_load(play_done);
+}
+
+static void test_preview_worker_leaves_the_loops_cpu(void **st)
+{
+    (void)st;
+    cpu_set_t allowed;
+    assert_int_equal(sched_getaffinity(0, sizeof allowed, &allowed), 0);
+    const char *text = "translate +y 1 mm over 3 s\n";
+    script *sc = NULL;
+    assert_int_equal(script_parse(text, strlen(text), "test", &sc), 0);
+    struct rt_play p = {.s = open_case(0), .rec = script_render(sc, sim_profile_find("spacenavigator"))};
+    free(sc);
+    assert_non_null(p.rec);
+    session_set_preview(p.s, SESSION_PREVIEW_ASKED);
+    play_done = &p.done;
+    pthread_t th;
+    assert_int_equal(pthread_create(&th, NULL, play_realtime, &p), 0);
+    pid_t worker = 0;
+    assert_true(tu_wait_for(nice_thread, &worker, TU_WAIT_MAX_S));
+    int policy = worker ? sched_getscheduler(worker) : -1;
+    cpu_set_t cpus;
+    CPU_ZERO(&cpus);
+    if (worker)
+        assert_int_equal(sched_getaffinity(worker, sizeof cpus, &cpus), 0);
+    pthread_join(th, NULL);
+    session_close(p.s);
+    fnrec_free(p.rec);
+    if (!p.rt)
+        skip(); /* no real-time priority here (root or an rtprio limit grants it) */
+    assert_int_equal(p.rc, 0);
+    if (!worker)
+        fail_msg("no thread at nice 19 while the session played with its preview");
+    if (policy != SCHED_OTHER || CPU_COUNT(&cpus) != CPU_COUNT(&allowed))
+        fail_msg("the preview's worker runs under policy %d (SCHED_OTHER is %d) on %d CPUs of %d", policy,
+                 SCHED_OTHER, CPU_COUNT(&cpus), CPU_COUNT(&allowed));
+}
+
 /* Without a preview (the default) the keys are refused, with the reason. */
 static void test_preview_off_refuses(void **st)
 {
@@ -1086,6 +1173,7 @@ int main(void)
         cmocka_unit_test(test_fragments_without_case),
         cmocka_unit_test(test_preview_follows_and_accepts),
         cmocka_unit_test_setup(test_preview_off_refuses, fresh_case),
+        cmocka_unit_test_setup(test_preview_worker_leaves_the_loops_cpu, fresh_case),
     };
     return cmocka_run_group_tests(tests, setup, teardown);
 }

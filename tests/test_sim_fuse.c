@@ -25,7 +25,6 @@
 #include "devtab.h"
 #include "err.h"
 #include "fnrec.h"
-#include "script.h"
 #include "simdev.h"
 #include "testutil.h"
 #include "vol.h"
@@ -113,16 +112,6 @@ static void assert_same_reports(const fnrec *want, const fnrec *got, const char 
     for (size_t i = 0; i < na; i++)
         if (a[i].len != b[i].len || memcmp(a[i].data, b[i].data, a[i].len))
             fail_msg("%s: report %zu differs", what, i);
-}
-
-static fnrec *rendered(const char *script_path, const char *device)
-{
-    script *s = script_load(script_path);
-    assert_non_null(s);
-    fnrec *r = script_render(s, sim_profile_find(device));
-    free(s);
-    assert_non_null(r);
-    return r;
 }
 
 /* What a recording being written holds so far (fracnav record flushes every line). */
@@ -218,7 +207,7 @@ static void serve_and_record(const char *device, const char *text)
     const char *served = path_in("served.fnrec"), *rec = path_in("rec.fnrec"), *out = path_in("record.log");
     unlink(rec); /* the last device's, when called in turn */
     pid_t srv = tu_serve(mnt, server_log(), "--as", device, "--script", scr, "--start-on-read", "--log", served, NULL);
-    fnrec *want = rendered(scr, device);
+    fnrec *want = tu_render_script(scr, device);
     static fnrec_event scratch[4096];
     pid_t recp = record_in_background(rec, node_path(), out);
     await_recording(rec, (rec_state){.connects = 1, .ins = (int)inputs(want, scratch, 4096)});
@@ -525,7 +514,7 @@ static void test_open_controller_settings_applied(void **st)
 static void test_play_recording(void **st)
 {
     const char *scr = write_script("s.script", "translate -x 5 mm over 0.2 s\npress 1\nrelease\n");
-    fnrec *want = rendered(scr, "spacemouse-wireless");
+    fnrec *want = tu_render_script(scr, "spacemouse-wireless");
     const char *file = path_in("play.fnrec"), *rec = path_in("rec.fnrec");
     assert_int_equal(fnrec_save(want, file), 0);
     pid_t srv = tu_serve(mnt, server_log(), "--play", file, "--fast", "--exit-at-end", NULL);
@@ -642,7 +631,7 @@ static void test_sim_cli_option_checks(void **st)
     assert_int_equal(sim_cli(&out, "bench --fast"), 2);
     assert_non_null(strstr(out, "option '--fast' does not apply to bench"));
     free(out);
-    fnrec *r = rendered(write_script("s.script", "press 1\n"), "spacemouse-wireless");
+    fnrec *r = tu_render_script(write_script("s.script", "press 1\n"), "spacemouse-wireless");
     const char *file = path_in("w.fnrec");
     assert_int_equal(fnrec_save(r, file), 0);
     fnrec_free(r);

@@ -27,7 +27,6 @@
 
 #include "err.h"
 #include "fnrec.h"
-#include "script.h"
 #include "simdev.h"
 #include "testutil.h"
 
@@ -105,16 +104,6 @@ static size_t inputs(const fnrec *r, int64_t *span)
     return n;
 }
 
-static fnrec *rendered(const char *script_path, const char *device)
-{
-    script *s = script_load(script_path);
-    assert_non_null(s);
-    fnrec *r = script_render(s, sim_profile_find(device));
-    free(s);
-    assert_non_null(r);
-    return r;
-}
-
 /* Records the node in the background, without --seconds unless given; returns its exit status. */
 static int record_node(const char *rec, const char *seconds)
 {
@@ -139,7 +128,7 @@ static void test_record_ends_when_server_exits(void **st)
     assert_non_null(strstr(log, "device disconnected"));
     assert_non_null(strstr(log, "recording stopped"));
     free(log);
-    fnrec *want = rendered(scr, "spacenavigator"), *got = fnrec_load(rec);
+    fnrec *want = tu_render_script(scr, "spacenavigator"), *got = fnrec_load(rec);
     assert_non_null(got);
     int64_t span;
     assert_int_equal(inputs(got, &span), inputs(want, &span));
@@ -160,7 +149,7 @@ static void test_record_from_fast_keeps_cadence(void **st)
     assert_int_equal(tu_end(server, 0, "fracnav-sim --fast --exit-at-end"), 0);
     server = 0;
     tu_unmount(mnt);
-    fnrec *want = rendered(scr, "spacenavigator"), *got = fnrec_load(rec);
+    fnrec *want = tu_render_script(scr, "spacenavigator"), *got = fnrec_load(rec);
     assert_non_null(got);
     int64_t want_span, got_span;
     size_t n = inputs(got, &got_span);

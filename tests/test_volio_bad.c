@@ -22,28 +22,6 @@
 #include <unistd.h>
 #include <zlib.h>
 
-static char *dir;
-
-static int setup(void **st)
-{
-    dir = tu_tmpdir("volio-bad");
-    return 0;
-}
-
-static int teardown(void **st)
-{
-    tu_rmtree(dir);
-    free(dir);
-    return 0;
-}
-
-static const char *in_dir(const char *name)
-{
-    static char p[4300];
-    snprintf(p, sizeof p, "%s/%s", dir, name);
-    return p;
-}
-
 /* Reading path must fail with a message holding the path and every one of the words. */
 static void expect_error(const char *path, const char *w1, const char *w2)
 {
@@ -103,69 +81,69 @@ static void write_nii(const char *path, const nifti_1_header *h, size_t data_byt
 static void test_nifti_battery(void **st)
 {
     nifti_1_header h = good_header(4, 4, 4, DT_INT16, 16);
-    const char *p = in_dir("good.nii");
+    const char *p = tu_in_dir("good.nii");
     write_nii(p, &h, 128, 0);
     vol *v = volio_read(p);
     assert_non_null(v); /* the baseline is fine */
     vol_free(v);
 
-    p = in_dir("short_header.nii");
+    p = tu_in_dir("short_header.nii");
     tu_write_file(p, &h, 100);
     expect_error(p, "header truncated", NULL);
 
     h = good_header(4, 4, 4, DT_INT16, 16);
     memcpy(h.magic, "xyz", 4);
-    write_nii(p = in_dir("magic.nii"), &h, 128, 0);
+    write_nii(p = tu_in_dir("magic.nii"), &h, 128, 0);
     expect_error(p, "magic", NULL);
 
     h = good_header(4, 4, 4, DT_INT16, 16);
     h.sizeof_hdr = 1234;
-    write_nii(p = in_dir("sizeof.nii"), &h, 128, 0);
+    write_nii(p = tu_in_dir("sizeof.nii"), &h, 128, 0);
     expect_error(p, "sizeof_hdr", NULL);
 
     h = good_header(4, -4, 4, DT_INT16, 16);
-    write_nii(p = in_dir("negative.nii"), &h, 128, 0);
+    write_nii(p = tu_in_dir("negative.nii"), &h, 128, 0);
     expect_error(p, "dim[2] = -4", NULL);
 
     h = good_header(30000, 30000, 30000, DT_UINT8, 8);
-    write_nii(p = in_dir("lying.nii"), &h, 64, 0);
+    write_nii(p = tu_in_dir("lying.nii"), &h, 64, 0);
     expect_error(p, "data truncated", NULL);
-    write_nii(p = in_dir("lying.nii.gz"), &h, 64, 1);
+    write_nii(p = tu_in_dir("lying.nii.gz"), &h, 64, 1);
     expect_error(p, "more than a", "can hold");
 
     h = good_header(4, 4, 4, DT_INT16, 16);
-    write_nii(p = in_dir("truncated.nii"), &h, 100, 0);
+    write_nii(p = tu_in_dir("truncated.nii"), &h, 100, 0);
     expect_error(p, "data truncated", NULL);
-    write_nii(p = in_dir("truncated.nii.gz"), &h, 100, 1);
+    write_nii(p = tu_in_dir("truncated.nii.gz"), &h, 100, 1);
     expect_error(p, "data truncated", NULL);
 
     h = good_header(4, 4, 4, 32 /* complex64 */, 64);
-    write_nii(p = in_dir("complex.nii"), &h, 512, 0);
+    write_nii(p = tu_in_dir("complex.nii"), &h, 512, 0);
     expect_error(p, "datatype 32", NULL);
 
     h = good_header(4, 4, 4, DT_INT16, 16);
     h.dim[0] = 4, h.dim[4] = 3;
-    write_nii(p = in_dir("4d.nii"), &h, 384, 0);
+    write_nii(p = tu_in_dir("4d.nii"), &h, 384, 0);
     expect_error(p, "dim[4] = 3", "3D");
 
     h = good_header(4, 4, 4, DT_INT16, 16);
     h.vox_offset = 1e12f;
-    write_nii(p = in_dir("far_offset.nii"), &h, 128, 0);
+    write_nii(p = tu_in_dir("far_offset.nii"), &h, 128, 0);
     expect_error(p, "vox_offset is 1e+12, too large", "beyond the end of the file");
     h.vox_offset = 100;
-    write_nii(p = in_dir("near_offset.nii"), &h, 128, 0);
+    write_nii(p = tu_in_dir("near_offset.nii"), &h, 128, 0);
     expect_error(p, "vox_offset is 100, must be at least 348", NULL);
 
     h = good_header(4, 4, 4, DT_INT16, 16);
     h.srow_x[1] = 0.5f; /* the j axis leans into x: shear */
-    write_nii(p = in_dir("shear.nii"), &h, 128, 0);
+    write_nii(p = tu_in_dir("shear.nii"), &h, 128, 0);
     expect_error(p, "sform", "sheared");
 }
 
 static void test_nifti_budget(void **st)
 {
     nifti_1_header h = good_header(20, 20, 20, DT_FLOAT32, 32);
-    const char *p = in_dir("honest.nii");
+    const char *p = tu_in_dir("honest.nii");
     write_nii(p, &h, 32000, 0);
     setenv("FRACNAV_MAX_BYTES", "10000", 1);
     fn_err_clear();
@@ -201,7 +179,7 @@ static void test_nifti_corrupt_gzip(void **st)
     vol *v = vol_new(32, 32, 32);
     for (size_t i = 0; i < vol_count(v); i++)
         v->data[i] = (float)((i * 2654435761u) % 4096);
-    const char *p = in_dir("corrupt.nii.gz");
+    const char *p = tu_in_dir("corrupt.nii.gz");
     assert_int_equal(volio_write(v, p, VOL_I16), 0);
     vol_free(v);
     size_t n;
@@ -308,7 +286,7 @@ static void test_inv3_small_project(void **st)
 {
     char *pl = plist_text(SHAPE_234, "int16", "1");
     for (int first = 0; first < 2; first++) {
-        const char *p = in_dir(first ? "matrix_first.inv3" : "plist_first.inv3");
+        const char *p = tu_in_dir(first ? "matrix_first.inv3" : "plist_first.inv3");
         write_inv3(p, pl, first, 48, 1);
         vol *v = volio_read(p);
         if (!v)
@@ -340,7 +318,7 @@ static void test_inv3_folder_and_link_entries(void **st)
     tar_add(&t, "tmpdir/matrix.dat", m, sizeof m);
     static const unsigned char end[1024];
     put(&t, end, sizeof end);
-    const char *p = in_dir("folder_first.inv3");
+    const char *p = tu_in_dir("folder_first.inv3");
     write_gz(p, t.b, t.n);
     free(t.b);
     free(pl);
@@ -393,7 +371,7 @@ static size_t find_bytes(const unsigned char *hay, size_t n, const void *needle,
  * gzip check at the stream's end, not read as plausible voxels. */
 static void test_inv3_crc_checked(void **st)
 {
-    const char *p = in_dir("crc.inv3");
+    const char *p = tu_in_dir("crc.inv3");
     write_inv3_with_tail(p, "wb0"); /* level 0: the voxels lie in the file as they are */
     vol *v = volio_read(p);
     if (!v)
@@ -417,7 +395,7 @@ static void test_inv3_crc_checked(void **st)
 
 static void test_inv3_battery(void **st)
 {
-    const char *p = in_dir("bad.inv3");
+    const char *p = tu_in_dir("bad.inv3");
     char *pl;
 
     write_inv3(p, NULL, 0, 48, 1);
@@ -461,7 +439,7 @@ static void test_inv3_battery(void **st)
 
 static void test_inv3_damaged_archive(void **st)
 {
-    const char *p = in_dir("damaged.inv3");
+    const char *p = tu_in_dir("damaged.inv3");
     char *pl = plist_text(SHAPE_234, "int16", "1");
     write_inv3(p, pl, 0, 48, 1);
     free(pl);
@@ -492,41 +470,41 @@ static void write_nrrd(const char *path, const char *header, size_t data_bytes)
 
 static void test_nrrd_battery(void **st)
 {
-    const char *p = in_dir("good.nrrd");
+    const char *p = tu_in_dir("good.nrrd");
     write_nrrd(p, NRRD_HEAD "sizes: 4 4 4\nspace: left-posterior-superior\n"
                   "space directions: (1,0,0) (0,1,0) (0,0,1)\nspace origin: (0,0,0)\n\n", 128);
     vol *v = volio_read(p);
     assert_non_null(v);
     vol_free(v);
 
-    write_nrrd(p = in_dir("magic.nrrd"), "NRRX0004\ntype: short\ndimension: 3\nsizes: 4 4 4\n\n", 128);
+    write_nrrd(p = tu_in_dir("magic.nrrd"), "NRRX0004\ntype: short\ndimension: 3\nsizes: 4 4 4\n\n", 128);
     expect_error(p, "header", NULL);
 
-    write_nrrd(p = in_dir("truncated.nrrd"), NRRD_HEAD "sizes: 4 4 4\n\n", 100);
+    write_nrrd(p = tu_in_dir("truncated.nrrd"), NRRD_HEAD "sizes: 4 4 4\n\n", 100);
     expect_error(p, "the data file has 100", NULL);
 
-    write_nrrd(p = in_dir("lying.nrrd"), NRRD_HEAD "sizes: 100000 100000 100000\n\n", 100);
+    write_nrrd(p = tu_in_dir("lying.nrrd"), NRRD_HEAD "sizes: 100000 100000 100000\n\n", 100);
     expect_error(p, "need", "data file has 100");
 
-    write_nrrd(p = in_dir("negative.nrrd"), NRRD_HEAD "sizes: 4 -4 4\n\n", 128);
+    write_nrrd(p = tu_in_dir("negative.nrrd"), NRRD_HEAD "sizes: 4 -4 4\n\n", 128);
     expect_error(p, "header", NULL);
 
-    write_nrrd(p = in_dir("4d.nrrd"), "NRRD0004\ntype: short\ndimension: 4\nendian: little\n"
+    write_nrrd(p = tu_in_dir("4d.nrrd"), "NRRD0004\ntype: short\ndimension: 4\nendian: little\n"
                                       "encoding: raw\nsizes: 2 2 2 2\n\n", 32);
     expect_error(p, "dimension: 4", NULL);
 
-    write_nrrd(p = in_dir("shear.nrrd"), NRRD_HEAD "sizes: 4 4 4\nspace: left-posterior-superior\n"
+    write_nrrd(p = tu_in_dir("shear.nrrd"), NRRD_HEAD "sizes: 4 4 4\nspace: left-posterior-superior\n"
                                          "space directions: (1,0,0) (0.5,1,0) (0,0,1)\n\n", 128);
     expect_error(p, "space directions", "sheared");
 
-    write_nrrd(p = in_dir("llong.nrrd"), "NRRD0004\ntype: long long\ndimension: 3\nendian: little\n"
+    write_nrrd(p = tu_in_dir("llong.nrrd"), "NRRD0004\ntype: long long\ndimension: 3\nendian: little\n"
                                          "encoding: raw\nsizes: 2 2 2\n\n", 64);
     expect_error(p, "type", "not supported");
 
-    write_nrrd(p = in_dir("missing.nhdr"), NRRD_HEAD "sizes: 4 4 4\ndata file: missing.raw\n", 0);
+    write_nrrd(p = tu_in_dir("missing.nhdr"), NRRD_HEAD "sizes: 4 4 4\ndata file: missing.raw\n", 0);
     expect_error(p, "missing.raw", NULL);
 
-    write_nrrd(p = in_dir("budget.nrrd"), NRRD_HEAD "sizes: 20 20 20\n\n", 16000);
+    write_nrrd(p = tu_in_dir("budget.nrrd"), NRRD_HEAD "sizes: 20 20 20\n\n", 16000);
     setenv("FRACNAV_MAX_BYTES", "10000", 1);
     expect_error(p, "memory budget", NULL);
     unsetenv("FRACNAV_MAX_BYTES");
@@ -567,10 +545,10 @@ static void test_mutations(void **st)
     nifti_1_header h = good_header(4, 4, 4, DT_INT16, 16);
     unsigned char nii[352 + 128] = {0};
     memcpy(nii, &h, sizeof h);
-    mutate_and_read(in_dir("m.nii"), nii, sizeof nii, 352, 0);
+    mutate_and_read(tu_in_dir("m.nii"), nii, sizeof nii, 352, 0);
 
     char *pl = plist_text(SHAPE_234, "int16", "1");
-    const char *p = in_dir("m.inv3");
+    const char *p = tu_in_dir("m.inv3");
     write_inv3(p, pl, 0, 48, 0); /* a plain tar: zlib reads it as is, so the damage hits the parsers */
     free(pl);
     size_t n;
@@ -584,7 +562,7 @@ static void test_mutations(void **st)
     unsigned char nrrd[512] = {0};
     size_t hl = strlen(head);
     memcpy(nrrd, head, hl);
-    mutate_and_read(in_dir("m.nrrd"), nrrd, hl + 128, hl, 0);
+    mutate_and_read(tu_in_dir("m.nrrd"), nrrd, hl + 128, hl, 0);
     unsetenv("FRACNAV_MAX_BYTES");
 }
 
@@ -620,7 +598,7 @@ static long child_peak_kib(const char *path, int *ok)
 static void test_nrrd_error_after_open_no_double_free(void **st)
 {
     /* teem closes the file on this error; the reader used to fclose it a second time */
-    const char *p = in_dir("blocksize.nrrd");
+    const char *p = tu_in_dir("blocksize.nrrd");
     const char *h = "NRRD0004\ntype: uint8\nblock size: 4\ndimension: 3\nsizes: 2 4 3\nendian: little\n"
                     "encoding: raw\n\n";
     tu_write_file(p, h, strlen(h));
@@ -641,7 +619,7 @@ static void test_nrrd_geometry_not_made_up(void **st)
          "space origin: (nan,nan,nan)\n", "space origin: component 0 is nan", NULL},
     };
     char head[512];
-    const char *p = in_dir("geo.nrrd");
+    const char *p = tu_in_dir("geo.nrrd");
     for (size_t i = 0; i < sizeof bad / sizeof bad[0]; i++) {
         snprintf(head, sizeof head, NRRD_HEAD "sizes: 4 4 4\n%s\n", bad[i].fields);
         write_nrrd(p, head, 128);
@@ -663,7 +641,7 @@ static void test_nrrd_geometry_not_made_up(void **st)
 
 static void test_nifti_geometry_not_made_up(void **st)
 {
-    const char *p = in_dir("geo.nii");
+    const char *p = tu_in_dir("geo.nii");
     nifti_1_header h;
     /* no sform, no qform: pixdim gives the spacing and must be a positive number */
     const float bad_pixdim[] = {NAN, INFINITY, 0, -1};
@@ -716,7 +694,7 @@ static void test_nifti_geometry_not_made_up(void **st)
  * inflate to the data (trailing junk is not data). Each is refused before a voxel is allocated. */
 static void test_nrrd_encodings_hold_what_they_claim(void **st)
 {
-    const char *p = in_dir("enc.nrrd");
+    const char *p = tu_in_dir("enc.nrrd");
     write_nrrd(p, FLOAT_HEAD("100 100 100", "ascii") "0 1 2 3\n", 0);
     expect_error(p, "need 1999999 data bytes (ASCII)", "has 8");
     write_nrrd(p, FLOAT_HEAD("1000 1000 1000", "ascii") "0 1 2 3\n", 0);
@@ -791,7 +769,7 @@ static void expect_labels_error(const char *path, const char *w1, const char *w2
  * values and the float volume, held at once); its layer axis must be one. */
 static void test_seg_nrrd_checked_before_reading(void **st)
 {
-    const char *p = in_dir("layers.seg.nrrd");
+    const char *p = tu_in_dir("layers.seg.nrrd");
     write_nrrd(p, SEG4_HEAD("unsigned short", "2 20 20 20", "raw"), 32000);
     volio_segs segs;
     vol *v = volio_read_labels(p, &segs);
@@ -846,25 +824,25 @@ static void test_seg_nrrd_checked_before_reading(void **st)
 /* Only regular files are read: a FIFO would block the open, /dev/zero never ends. */
 static void test_only_regular_files(void **st)
 {
-    const char *p = in_dir("zero.nii");
+    const char *p = tu_in_dir("zero.nii");
     assert_int_equal(symlink("/dev/zero", p), 0);
     expect_error(p, "not a regular file", NULL);
-    p = in_dir("fifo.nrrd");
+    p = tu_in_dir("fifo.nrrd");
     assert_int_equal(mkfifo(p, 0600), 0);
     expect_error(p, "not a regular file", NULL);
-    p = in_dir("zero.nhdr");
+    p = tu_in_dir("zero.nhdr");
     write_nrrd(p, NRRD_HEAD "sizes: 4 4 4\nspacings: 1 1 1\ndata file: /dev/zero\n", 0);
     expect_error(p, "data file", "not a regular file");
-    assert_int_equal(mkfifo(in_dir("fifo.raw"), 0600), 0);
-    p = in_dir("fifo.nhdr");
+    assert_int_equal(mkfifo(tu_in_dir("fifo.raw"), 0600), 0);
+    p = tu_in_dir("fifo.nhdr");
     write_nrrd(p, NRRD_HEAD "sizes: 4 4 4\nspacings: 1 1 1\ndata file: fifo.raw\n", 0);
     expect_error(p, "data file", "fifo.raw is not a regular file");
     /* a link to a regular file is fine */
     nifti_1_header h = good_header(4, 4, 4, DT_INT16, 16);
     char real[4300];
-    snprintf(real, sizeof real, "%s", in_dir("real.nii"));
+    snprintf(real, sizeof real, "%s", tu_in_dir("real.nii"));
     write_nii(real, &h, 128, 0);
-    assert_int_equal(symlink(real, p = in_dir("link.nii")), 0);
+    assert_int_equal(symlink(real, p = tu_in_dir("link.nii")), 0);
     vol *v = volio_read(p);
     assert_non_null(v);
     vol_free(v);
@@ -877,7 +855,7 @@ static void test_nifti_extension_not_read(void **st)
     const size_t ext = (size_t)48 << 20;
     nifti_1_header h = good_header(4, 4, 4, DT_INT16, 16);
     h.vox_offset = (float)(352 + ext);
-    const char *p = in_dir("ext.nii.gz");
+    const char *p = tu_in_dir("ext.nii.gz");
     gzFile gz = gzopen(p, "wb1");
     assert_non_null(gz);
     unsigned char chunk[1 << 16] = {0};
@@ -919,7 +897,7 @@ static void test_inv3_entries_bounded(void **st)
         tar_add(&t, "tmpdir/main.plist", pl, strlen(pl));
         static const unsigned char end[1024];
         put(&t, end, sizeof end);
-        const char *p = in_dir("many.inv3");
+        const char *p = tu_in_dir("many.inv3");
         write_gz(p, t.b, t.n);
         free(t.b);
         if (many) {
@@ -939,7 +917,7 @@ static void test_inv3_entries_bounded(void **st)
  * 349.5 read the voxels shifted. */
 static void test_nifti_scaling_and_offset_refused(void **st)
 {
-    const char *p = in_dir("scl.nii");
+    const char *p = tu_in_dir("scl.nii");
     nifti_1_header h = good_header(4, 4, 4, DT_INT16, 16);
     h.scl_slope = NAN;
     write_nii(p, &h, 128, 0);
@@ -973,7 +951,7 @@ static void test_nifti_scaling_and_offset_refused(void **st)
  * reduce's contact search never finished. */
 static void test_spacing_physical_range(void **st)
 {
-    const char *p = in_dir("huge.nrrd");
+    const char *p = tu_in_dir("huge.nrrd");
     write_nrrd(p, NRRD_HEAD "sizes: 4 4 4\nspacings: 1 1e15 1\n\n", 128);
     expect_error(p, "spacings: axis 1 is 1e+15 mm, outside a micron to a metre", NULL);
     write_nrrd(p, NRRD_HEAD "sizes: 4 4 4\nspacings: 1 1 0.0001\n\n", 128);
@@ -986,7 +964,7 @@ static void test_spacing_physical_range(void **st)
     if (!v)
         fail_msg("a micron and a metre are in range: %s", fn_err_msg());
     vol_free(v);
-    p = in_dir("huge.nii");
+    p = tu_in_dir("huge.nii");
     nifti_1_header h = good_header(4, 4, 4, DT_INT16, 16);
     h.sform_code = 0;
     h.pixdim[3] = 1e15f;
@@ -1001,7 +979,7 @@ static void test_spacing_physical_range(void **st)
 /* info on a volume whose every voxel is NaN has no range: it says so (null in --json). */
 static void test_info_all_nan(void **st)
 {
-    const char *p = in_dir("nan.nrrd");
+    const char *p = tu_in_dir("nan.nrrd");
     float nan[8];
     for (int i = 0; i < 8; i++)
         nan[i] = NAN;
@@ -1025,7 +1003,7 @@ static void test_info_all_nan(void **st)
 
 static void test_cli_reports_bad_file(void **st)
 {
-    const char *p = in_dir("cli.nii");
+    const char *p = tu_in_dir("cli.nii");
     nifti_1_header h = good_header(4, 4, 4, DT_INT16, 16);
     memcpy(h.magic, "xyz", 4);
     write_nii(p, &h, 128, 0);
@@ -1064,5 +1042,5 @@ int main(void)
         cmocka_unit_test(test_info_all_nan),
         cmocka_unit_test(test_cli_reports_bad_file),
     };
-    return cmocka_run_group_tests(tests, setup, teardown);
+    return cmocka_run_group_tests(tests, tu_dir_setup, tu_dir_teardown);
 }

@@ -19,28 +19,6 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
-static char *dir;
-
-static int setup(void **st)
-{
-    dir = tu_tmpdir("volio-nrrd-header");
-    return 0;
-}
-
-static int teardown(void **st)
-{
-    tu_rmtree(dir);
-    free(dir);
-    return 0;
-}
-
-static const char *in_dir(const char *name)
-{
-    static char p[4300];
-    snprintf(p, sizeof p, "%s/%s", dir, name);
-    return p;
-}
-
 /* 4x4x4 unsigned char, 1 mm: the header up to (not including) its data file line. */
 #define HEAD "NRRD0004\ntype: unsigned char\ndimension: 3\nsizes: 4 4 4\nspacings: 1 1 1\nencoding: raw\n"
 
@@ -52,15 +30,15 @@ static void write_slices(void)
         memset(b, k + 1, sizeof b);
         char name[32];
         snprintf(name, sizeof name, "s%d.raw", k);
-        tu_write_file(in_dir(name), b, sizeof b);
+        tu_write_file(tu_in_dir(name), b, sizeof b);
         snprintf(name, sizeof name, "s%03d.raw", k);
-        tu_write_file(in_dir(name), b, sizeof b);
+        tu_write_file(tu_in_dir(name), b, sizeof b);
     }
 }
 
 static void write_header(const char *name, const char *text)
 {
-    tu_write_file(in_dir(name), text, strlen(text));
+    tu_write_file(tu_in_dir(name), text, strlen(text));
 }
 
 /* In a child: volio_read (labels: volio_read_labels) of path fails with a message that holds the
@@ -116,21 +94,21 @@ static void test_numbered_names_bounded(void **st)
         char text[256];
         snprintf(text, sizeof text, HEAD "data file: %s\n", bad[i]);
         write_header("bad.nhdr", text);
-        expect_both_refused(in_dir("bad.nhdr"), "line 7: data file", "exactly one %d");
+        expect_both_refused(tu_in_dir("bad.nhdr"), "line 7: data file", "exactly one %d");
     }
     write_header("range.nhdr", HEAD "data file: s%d.raw 0 2147483647 1 2\n");
-    expect_both_refused(in_dir("range.nhdr"), "line 7: data file", "at most 9 digits");
+    expect_both_refused(tu_in_dir("range.nhdr"), "line 7: data file", "at most 9 digits");
     write_header("many.nhdr", HEAD "data file: s%d.raw 0 999 1 2\n");
-    expect_both_refused(in_dir("many.nhdr"), "1000 files, more than the 4 slices", NULL);
+    expect_both_refused(tu_in_dir("many.nhdr"), "1000 files, more than the 4 slices", NULL);
     write_header("step.nhdr", HEAD "data file: s%d.raw 3 0 1 2\n");
-    expect_both_refused(in_dir("step.nhdr"), "step 1 does not lead from 3 to 0", NULL);
+    expect_both_refused(tu_in_dir("step.nhdr"), "step 1 does not lead from 3 to 0", NULL);
     write_header("gap.nhdr", HEAD "data file: s%d.raw 1 4 1 2\n"); /* s4.raw is missing */
-    expect_both_refused(in_dir("gap.nhdr"), "'s4.raw'", "No such file");
+    expect_both_refused(tu_in_dir("gap.nhdr"), "'s4.raw'", "No such file");
 
     write_header("good.nhdr", HEAD "data file: s%03d.raw 0 3 1 2\n");
-    expect_slices(in_dir("good.nhdr"));
+    expect_slices(tu_in_dir("good.nhdr"));
     write_header("good.nhdr", HEAD "data file: s%d.raw 3 0 -1\n");
-    vol *v = volio_read(in_dir("good.nhdr"));
+    vol *v = volio_read(tu_in_dir("good.nhdr"));
     if (!v)
         fail_msg("%s", fn_err_msg());
     assert_true(v->data[0] == 4 && v->data[63] == 1); /* read from s3.raw down to s0.raw */
@@ -142,47 +120,47 @@ static void test_data_files_regular_and_inside(void **st)
 {
     write_slices();
     write_header("list.nhdr", HEAD "data file: LIST 2\ns0.raw\ns1.raw\ns2.raw\ns3.raw\n");
-    expect_slices(in_dir("list.nhdr"));
+    expect_slices(tu_in_dir("list.nhdr"));
     char text[8400];
-    snprintf(text, sizeof text, HEAD "data file: LIST\n%s\n%s/s1.raw\ns2.raw\ns3.raw\n", in_dir("s0.raw"), dir);
+    snprintf(text, sizeof text, HEAD "data file: LIST\n%s\n%s/s1.raw\ns2.raw\ns3.raw\n", tu_in_dir("s0.raw"), tu_dir);
     write_header("absolute.nhdr", text); /* absolute names inside the folder */
-    expect_slices(in_dir("absolute.nhdr"));
+    expect_slices(tu_in_dir("absolute.nhdr"));
 
     for (int k = 0; k < 4; k++) {
         char name[16];
         snprintf(name, sizeof name, "f%d.raw", k);
-        assert_int_equal(mkfifo(in_dir(name), 0600), 0);
+        assert_int_equal(mkfifo(tu_in_dir(name), 0600), 0);
     }
     write_header("fifos.nhdr", HEAD "data file: LIST\nf0.raw\nf1.raw\nf2.raw\nf3.raw\n");
-    expect_both_refused(in_dir("fifos.nhdr"), "line 8: data file: f0.raw is not a regular file", NULL);
+    expect_both_refused(tu_in_dir("fifos.nhdr"), "line 8: data file: f0.raw is not a regular file", NULL);
     write_header("fifo.nhdr", HEAD "data file: f%d.raw 0 3 1\n");
-    expect_both_refused(in_dir("fifo.nhdr"), "line 7: data file: f0.raw is not a regular file", NULL);
+    expect_both_refused(tu_in_dir("fifo.nhdr"), "line 7: data file: f0.raw is not a regular file", NULL);
     write_header("urandom.nhdr", HEAD "data file: LIST\ns0.raw\n/dev/urandom\ns2.raw\ns3.raw\n");
-    expect_both_refused(in_dir("urandom.nhdr"), "line 9: data file: /dev/urandom is not a regular file", NULL);
+    expect_both_refused(tu_in_dir("urandom.nhdr"), "line 9: data file: /dev/urandom is not a regular file", NULL);
     write_header("passwd.nhdr", HEAD "data file: LIST\n/etc/passwd\ns1.raw\ns2.raw\ns3.raw\n");
-    expect_both_refused(in_dir("passwd.nhdr"), "line 8: data file: '/etc/passwd'", "outside the header's folder");
+    expect_both_refused(tu_in_dir("passwd.nhdr"), "line 8: data file: '/etc/passwd'", "outside the header's folder");
     write_header("passwd1.nhdr", HEAD "data file: /etc/passwd\n");
-    expect_both_refused(in_dir("passwd1.nhdr"), "line 7: data file: '/etc/passwd'", "outside");
+    expect_both_refused(tu_in_dir("passwd1.nhdr"), "line 7: data file: '/etc/passwd'", "outside");
     write_header("up.nhdr", HEAD "data file: LIST\ns0.raw\nx/../s1.raw\ns2.raw\ns3.raw\n");
-    expect_both_refused(in_dir("up.nhdr"), "line 9: data file: 'x/../s1.raw' leaves the header's folder", NULL);
-    assert_int_equal(symlink("/etc/passwd", in_dir("out.raw")), 0);
+    expect_both_refused(tu_in_dir("up.nhdr"), "line 9: data file: 'x/../s1.raw' leaves the header's folder", NULL);
+    assert_int_equal(symlink("/etc/passwd", tu_in_dir("out.raw")), 0);
     write_header("link.nhdr", HEAD "data file: out.raw\n");
-    expect_both_refused(in_dir("link.nhdr"), "'out.raw' is /etc/passwd, outside", NULL);
+    expect_both_refused(tu_in_dir("link.nhdr"), "'out.raw' is /etc/passwd, outside", NULL);
     write_header("stdin.nhdr", HEAD "data file: LIST\n-\ns1.raw\ns2.raw\ns3.raw\n");
-    expect_both_refused(in_dir("stdin.nhdr"), "'-' is standard input", NULL);
+    expect_both_refused(tu_in_dir("stdin.nhdr"), "'-' is standard input", NULL);
     write_header("five.nhdr", HEAD "data file: LIST\ns0.raw\ns1.raw\ns2.raw\ns3.raw\ns0.raw\n");
-    expect_both_refused(in_dir("five.nhdr"), "line 12: data file: 5 files, more than the 4 slices", NULL);
+    expect_both_refused(tu_in_dir("five.nhdr"), "line 12: data file: 5 files, more than the 4 slices", NULL);
     write_header("empty.nhdr", HEAD "data file: LIST\ns0.raw\n\ns2.raw\ns3.raw\n");
-    expect_both_refused(in_dir("empty.nhdr"), "line 9: data file: an empty name", NULL);
+    expect_both_refused(tu_in_dir("empty.nhdr"), "line 9: data file: an empty name", NULL);
     write_header("nodim.nhdr", "NRRD0004\ntype: unsigned char\ndimension: 3\ndata file: LIST\ns0.raw\n");
-    expect_both_refused(in_dir("nodim.nhdr"), "needs dimension and sizes before it", NULL);
+    expect_both_refused(tu_in_dir("nodim.nhdr"), "needs dimension and sizes before it", NULL);
     write_header("skip.nhdr", HEAD "data file: SKIPLIST\n0 s0.raw\n");
-    expect_both_refused(in_dir("skip.nhdr"), "SKIPLIST is not supported", NULL);
+    expect_both_refused(tu_in_dir("skip.nhdr"), "SKIPLIST is not supported", NULL);
     /* a line ends at "\r" for teem too: the name is "f0.raw", not "f0.raw\rs0.raw" */
     write_header("cr.nhdr", HEAD "data file: LIST\ns0.raw\rf0.raw\r\ns2.raw\ns3.raw\n");
-    expect_both_refused(in_dir("cr.nhdr"), "line 9: data file: f0.raw is not a regular file", NULL);
+    expect_both_refused(tu_in_dir("cr.nhdr"), "line 9: data file: f0.raw is not a regular file", NULL);
     write_header("datafile.nhdr", HEAD "DataFile: LIST\ns0.raw\ns1.raw\nf2.raw\ns3.raw\n");
-    expect_both_refused(in_dir("datafile.nhdr"), "f2.raw is not a regular file", NULL);
+    expect_both_refused(tu_in_dir("datafile.nhdr"), "f2.raw is not a regular file", NULL);
 }
 
 /* `segment --labels` reads its labelmap through the same check. */
@@ -192,7 +170,7 @@ static void test_labels_cli_refuses(void **st)
     write_header("labels.nhdr", HEAD "data file: s%0999999d.raw 0 3 1 2\n");
     write_header("ct.nhdr", HEAD "data file: LIST\ns0.raw\ns1.raw\ns2.raw\ns3.raw\n");
     char *out = NULL;
-    int rc = tu_run_cli(&out, "segment '%s/ct.nhdr' --labels '%s/labels.nhdr' -o '%s/case'", dir, dir, dir);
+    int rc = tu_run_cli(&out, "segment '%s/ct.nhdr' --labels '%s/labels.nhdr' -o '%s/case'", tu_dir, tu_dir, tu_dir);
     if (rc != 1 || !strstr(out, "exactly one %d"))
         fail_msg("exit %d: %s", rc, out ? out : "");
     free(out);
@@ -209,22 +187,22 @@ static void test_header_bounded(void **st)
     for (int i = 0; i < 5000; i++)
         n += (size_t)snprintf(h + n, cap - n, "key%d:=%d\n", i, i);
     n += (size_t)snprintf(h + n, cap - n, "\n");
-    tu_write_file(in_dir("keys.nrrd"), h, n + 64);
-    expect_both_refused(in_dir("keys.nrrd"), "line 4103: over 4096 key/value lines", NULL);
+    tu_write_file(tu_in_dir("keys.nrrd"), h, n + 64);
+    expect_both_refused(tu_in_dir("keys.nrrd"), "line 4103: over 4096 key/value lines", NULL);
     free(h);
     write_header("segs.nrrd", HEAD "Segment0_LabelValue:=1\nSegment256_LabelValue:=2\n\n");
-    expect_refused(in_dir("segs.nrrd"), 1, "line 8: Segment256_LabelValue:=2: over 256 segments", NULL);
+    expect_refused(tu_in_dir("segs.nrrd"), 1, "line 8: Segment256_LabelValue:=2: over 256 segments", NULL);
     write_header("segs.nrrd", HEAD "Segment0_LabelValue:=1\nSegment123456_LabelValue:=2\n\n");
-    expect_refused(in_dir("segs.nrrd"), 1, "line 8: Segment123456_LabelValue:=2: over 256 segments", NULL);
+    expect_refused(tu_in_dir("segs.nrrd"), 1, "line 8: Segment123456_LabelValue:=2: over 256 segments", NULL);
 }
 
 int main(void)
 {
     const struct CMUnitTest tests[] = {
-        cmocka_unit_test_setup_teardown(test_numbered_names_bounded, setup, teardown),
-        cmocka_unit_test_setup_teardown(test_data_files_regular_and_inside, setup, teardown),
-        cmocka_unit_test_setup_teardown(test_labels_cli_refuses, setup, teardown),
-        cmocka_unit_test_setup_teardown(test_header_bounded, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_numbered_names_bounded, tu_dir_setup, tu_dir_teardown),
+        cmocka_unit_test_setup_teardown(test_data_files_regular_and_inside, tu_dir_setup, tu_dir_teardown),
+        cmocka_unit_test_setup_teardown(test_labels_cli_refuses, tu_dir_setup, tu_dir_teardown),
+        cmocka_unit_test_setup_teardown(test_header_bounded, tu_dir_setup, tu_dir_teardown),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -1,11 +1,16 @@
+#define _GNU_SOURCE /* program_invocation_short_name */
 #include "testutil.h"
 #include "case.h"
 #include "err.h"
 #include "frag.h"
+#include "fnrec.h"
 #include "fracture.h"
+#include "script.h"
+#include "simdev.h"
 #include "vol.h"
 #include "volio.h"
 
+#include <errno.h>
 #include <fcntl.h>
 #include <libgen.h>
 #include <poll.h>
@@ -43,6 +48,40 @@ void tu_rmtree(const char *dir)
     snprintf(cmd, sizeof cmd, "rm -rf '%s'", dir);
     if (system(cmd) != 0)
         fprintf(stderr, "could not remove %s\n", dir);
+}
+
+char *tu_dir;
+
+int tu_dir_setup(void **st)
+{
+    (void)st;
+    tu_dir = tu_tmpdir(program_invocation_short_name);
+    return 0;
+}
+
+int tu_dir_teardown(void **st)
+{
+    (void)st;
+    tu_rmtree(tu_dir);
+    free(tu_dir);
+    tu_dir = NULL;
+    return 0;
+}
+
+const char *tu_in_dir(const char *name)
+{
+    static char p[4300];
+    snprintf(p, sizeof p, "%s/%s", tu_dir, name);
+    return p;
+}
+
+int tu_fixture_teardown(void **st)
+{
+    char **tmp = *st; /* the fixture's first member */
+    tu_rmtree(*tmp);
+    free(*tmp);
+    free(*st);
+    return 0;
 }
 
 const char *tu_example_ct(void)
@@ -102,6 +141,29 @@ int tu_run_cli(char **out, const char *fmt, ...)
     else
         free(buf);
     return WIFEXITED(st) ? WEXITSTATUS(st) : -1;
+}
+
+void tu_expect_cli(int rc, const char *want, const char *fmt, ...)
+{
+    char args[8192], *out = NULL;
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(args, sizeof args, fmt, ap);
+    va_end(ap);
+    int got = tu_run_cli(&out, "%s", args);
+    if (got != rc || !strstr(out, want) || strstr(out, ".fracnav-tmp"))
+        fail_msg("fracnav %s: exit %d (want %d), output lacks \"%s\" or names a temporary file:\n%s", args, got, rc,
+                 want, out);
+    free(out);
+}
+
+void tu_segment(const char *ct, const char *case_dir, const char *extra)
+{
+    char *out = NULL;
+    int rc = tu_run_cli(&out, "segment '%s' -o '%s' --min-volume 0 %s", ct, case_dir, extra);
+    if (rc != 0)
+        fail_msg("segment %s failed (exit %d): %s", ct, rc, out);
+    free(out);
 }
 
 int tu_wait_for(int (*cond)(void *arg), void *arg, double max_s)
@@ -360,6 +422,28 @@ void tu_end_all(void)
         }
 }
 
+void tu_write_recording(const char *path, const char *device, const char *text)
+{
+    script *s = NULL;
+    if (script_parse(text, strlen(text), path, &s) < 0)
+        fail_msg("%s: %s", path, fn_err_msg());
+    fnrec *r = script_render(s, sim_profile_find(device));
+    free(s);
+    if (!r || fnrec_save(r, path) < 0)
+        fail_msg("%s: %s", path, fn_err_msg());
+    fnrec_free(r);
+}
+
+fnrec *tu_render_script(const char *script_path, const char *device)
+{
+    script *s = script_load(script_path);
+    fnrec *r = s ? script_render(s, sim_profile_find(device)) : NULL;
+    free(s);
+    if (!r)
+        fail_msg("%s for %s: %s", script_path, device, fn_err_msg());
+    return r;
+}
+
 char *tu_slurp(const char *path, size_t *len)
 {
     FILE *f = fopen(path, "rb");
@@ -440,6 +524,14 @@ struct planning_case *tu_ellipsoid_fracture(const char *dir, int pieces, unsigne
     return c;
 }
 
+planning_case *tu_case_load(const char *dir)
+{
+    planning_case *c = case_load(dir);
+    if (!c)
+        fail_msg("%s", fn_err_msg());
+    return c;
+}
+
 void tu_two_blocks_case(const char *dir, char *case_dir, size_t cap)
 {
     vol *v = vol_new(40, 32, 32);
@@ -458,11 +550,6 @@ void tu_two_blocks_case(const char *dir, char *case_dir, size_t cap)
     assert_int_equal(volio_write(v, path, VOL_I16), 0);
     vol_free(v);
     snprintf(case_dir, cap, "%s/case", dir);
-    char *out = NULL;
-    int rc = tu_run_cli(&out, "segment '%s' -o '%s' --min-volume 0 --ramp 0", path, case_dir);
-    if (rc != 0)
-        fprintf(stderr, "%s\n", out);
-    free(out);
-    assert_int_equal(rc, 0);
+    tu_segment(path, case_dir, "--ramp 0");
     assert_int_equal(tu_run_cli(NULL, "edit '%s' fix 1", case_dir), 0);
 }

@@ -10,6 +10,16 @@
  * copy the caller must free(). */
 char *tu_tmpdir(const char *tag);
 void tu_rmtree(const char *dir);
+/* A folder for each test, as cmocka setup and teardown functions: tu_dir_setup makes tu_dir (a
+ * tu_tmpdir tagged with the test program's name), tu_dir_teardown removes it. tu_in_dir(name) is
+ * tu_dir/name in a static buffer that the next call overwrites. */
+extern char *tu_dir;
+int tu_dir_setup(void **st);
+int tu_dir_teardown(void **st);
+const char *tu_in_dir(const char *name);
+/* A cmocka teardown for a fixture (*st, calloc'd) whose first member is a tu_tmpdir (char *):
+ * removes the folder and frees both. */
+int tu_fixture_teardown(void **st);
 /* Path of the example CT (Cranium.inv3): $FRACNAV_DATA/Cranium.inv3, else
  * /var/cache/fracnav/Cranium.inv3. When missing, the test is skipped (cmocka skip()) with a message
  * saying how to get it (.ci/setup); under CI (the CI variable set) it fails instead. Call it before
@@ -21,6 +31,12 @@ const char *tu_test_data(const char *name);
 /* Runs `fracnav ARGS` (the built CLI) through /bin/sh, capturing stdout+stderr into out (malloc'd,
  * NUL-terminated; may be NULL). Returns the exit status (or -1). */
 int tu_run_cli(char **out, const char *fmt, ...);
+/* Runs `fracnav ARGS` (tu_run_cli) and fails the test, showing the output, unless it exits with
+ * rc and its output holds want and no temporary file's name (.fracnav-tmp). */
+void tu_expect_cli(int rc, const char *want, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+/* `fracnav segment CT -o CASE_DIR --min-volume 0 EXTRA`; fails the test, showing the output, when
+ * it fails. */
+void tu_segment(const char *ct, const char *case_dir, const char *extra);
 /* Waits for an event: checks cond(arg) every few milliseconds until it holds, for at most max_s
  * seconds (a bound for when the event never comes, never a duration a test relies on). Returns 1
  * when cond held, 0 when max_s passed. */
@@ -77,6 +93,15 @@ void tu_unmount(const char *mnt);
 /* Kills (SIGKILL) and reaps every child still running: for a teardown, after a failed test. */
 void tu_end_all(void);
 
+/* The motion script text (sim/script.h) rendered for the device profile `device`
+ * (sim_profile_find: "spacenavigator", ...) and saved as a recording at path; fails the test when
+ * it cannot. */
+void tu_write_recording(const char *path, const char *device, const char *text);
+/* The motion script file at script_path rendered for the device profile `device` (free with
+ * fnrec_free); fails the test when it cannot. */
+struct fnrec;
+struct fnrec *tu_render_script(const char *script_path, const char *device);
+
 /* Whole file into a malloc'd NUL-terminated buffer; NULL if unreadable. */
 char *tu_slurp(const char *path, size_t *len);
 void tu_write_file(const char *path, const void *data, size_t len);
@@ -85,6 +110,9 @@ void tu_write_file(const char *path, const void *data, size_t len);
  * centre at world `at` (home translation), centroid set; f->prob is malloc'd (free it). */
 struct frag;
 void tu_box_frag(struct frag *f, int id, const int dim[3], const double at[3]);
+
+/* case_load(dir), failing the test with its message when it does not load. */
+struct planning_case *tu_case_load(const char *dir);
 
 /* Two bone blocks 2 mm apart along x, A (12x20x20 mm, x 4..15) and B (10x12x12 mm, x 18..27), as
  * an int16 NIfTI in dir, segmented by the CLI into dir/case (its path into case_dir), A (the

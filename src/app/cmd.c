@@ -309,6 +309,54 @@ int cmd_out_folder(const char *dir, int force)
     return rc;
 }
 
+/* path with links resolved where only a leading part of it exists: that part resolved (the
+ * working folder when none), the rest as written. 0, or -1 when nothing resolves. */
+static int resolve_partly(const char *path, char out[PATH_MAX])
+{
+    char head[PATH_MAX];
+    size_t kept = (size_t)snprintf(head, sizeof head, "%s", path); /* head: path's first kept bytes */
+    if (kept >= sizeof head)
+        return -1;
+    while (!realpath(kept ? head : ".", out)) {
+        if (!kept)
+            return -1;
+        char *slash = strrchr(head, '/');
+        kept = !slash ? 0 : slash == head ? 1 : (size_t)(slash - head); /* "/x": the root */
+        head[kept] = '\0';
+    }
+    const char *tail = path + kept;
+    while (*tail == '/')
+        tail++;
+    size_t n = strlen(out);
+    if (*tail)
+        snprintf(out + n, PATH_MAX - n, "%s%s", out[n - 1] == '/' ? "" : "/", tail);
+    return 0;
+}
+
+/* 1 when path is dir or lies below it (both resolved). */
+static int within(const char *path, const char *dir)
+{
+    size_t n = strlen(dir);
+    return !strncmp(path, dir, n) && (path[n] == '\0' || path[n] == '/' || (n == 1 && dir[0] == '/'));
+}
+
+int cmd_out_case(const char *out, const char *in)
+{
+    char ro[PATH_MAX], ri[PATH_MAX];
+    if (resolve_partly(out, ro) < 0 || !realpath(in, ri))
+        return 0; /* the case's own checks name what is missing */
+    if (!strcmp(ro, ri))
+        return fn_err_set(FN_EINVAL, "-o %s is the case being read (%s): choose another folder, or "
+                                     "drop -o to save in place", out, in);
+    if (within(ro, ri))
+        return fn_err_set(FN_EINVAL, "-o %s lies inside the case being read (%s): a case is not built "
+                                     "in another; choose a folder outside it", out, in);
+    if (within(ri, ro))
+        return fn_err_set(FN_EINVAL, "-o %s holds the case being read (%s), which it would replace: "
+                                     "choose another folder", out, in);
+    return 0;
+}
+
 int cmd_seg_found(const vol *v, const seg_params *p, const seg_result *r, const char *labels)
 {
     if (r->ncomp > 0)

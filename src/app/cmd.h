@@ -144,6 +144,10 @@ int cmd_out_file(const char *path, const planning_case *in);
 /* A folder a command fills with files: missing (made later), empty, or holding files only with
  * force (those of the names written are replaced), and never a case folder. */
 int cmd_out_folder(const char *dir, int force);
+/* A new case (-o) made from the case folder in: neither that folder, nor inside it, nor holding it
+ * (the new case is built beside its path and put in place: it would land in the case being read,
+ * or replace it). */
+int cmd_out_case(const char *out, const char *in);
 
 /* An empty segmentation is an error: 0 when r kept a fragment, else FN_EINVAL saying what was
  * found (v's range, the threshold used, the components dropped by --min-volume); labels: the

@@ -10,7 +10,6 @@
 #include "navwin.h"
 #include "render.h"
 #include "seg.h"
-#include "picture.h"
 #include "vol.h"
 #include "volio.h"
 
@@ -209,19 +208,14 @@ static int picture(const planning_case *c, render_view view, const char *path)
     render *r = render_open("osmesa", w, h);
     if (!r)
         return FN_ENODEV;
-    uint8_t *rgb = malloc((size_t)w * h * 3);
-    int rc = rgb ? render_set_scene(r, c->ct, c->frag, c->nfrag, c->seg.threshold, NULL)
-                 : fn_err_set(FN_ENOMEM, "out of memory for a picture");
+    int rc = render_set_scene(r, c->ct, c->frag, c->nfrag, c->seg.threshold, NULL);
     render_options o;
     render_options_default(&o, c->frag, c->nfrag);
     render_camera_standard(&o.camera, view, c->frag, c->nfrag);
     if (!rc)
         rc = render_frame(r, NULL, &o);
     if (!rc)
-        rc = render_read_rgb(r, rgb);
-    if (!rc)
-        rc = picture_write_png(path, rgb, w, h);
-    free(rgb);
+        rc = cmd_write_png(r, path, w, h);
     render_close(r);
     return rc;
 }
@@ -377,9 +371,8 @@ static int frames(const planning_case *c, const journal_scan *j, const char *dir
         return fn_err_set(FN_EIO, "%s: %s", fdir, strerror(errno));
     const int w = 384, h = 384;
     pose *p = malloc((size_t)c->nfrag * sizeof *p);
-    uint8_t *rgb = malloc((size_t)w * h * 3);
-    render *r = p && rgb ? render_open("osmesa", w, h) : NULL;
-    int rc = !p || !rgb ? fn_err_set(FN_ENOMEM, "out of memory for the frames") : r ? 0 : FN_ENODEV;
+    render *r = p ? render_open("osmesa", w, h) : NULL;
+    int rc = !p ? fn_err_set(FN_ENOMEM, "out of memory for the frames") : r ? 0 : FN_ENODEV;
     if (!rc)
         rc = render_set_scene(r, c->ct, c->frag, c->nfrag, c->seg.threshold, NULL);
     render_options o;
@@ -397,16 +390,13 @@ static int frames(const planning_case *c, const journal_scan *j, const char *dir
         snprintf(path, sizeof path, "%s/navigation-%02d.png", fdir, f);
         rc = render_frame(r, p, &o);
         if (!rc)
-            rc = render_read_rgb(r, rgb);
-        if (!rc)
-            rc = picture_write_png(path, rgb, w, h);
+            rc = cmd_write_png(r, path, w, h);
     }
     if (!rc)
         printf("   frames (headless, from the poses navigate journalled): %s/navigation-00.png .. -%02d.png\n", fdir,
                nframes - 1);
     render_close(r);
     free(p);
-    free(rgb);
     return rc;
 }
 

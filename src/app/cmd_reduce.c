@@ -50,8 +50,8 @@ static void usage(FILE *out)
             "                         whole voxels: less than a voxel spacing leaves none)\n"
             CMD_TAU_HELP
             "  -o, --output NEWCASE   save into a new case folder (the source stays where it is):\n"
-            "                         missing or empty, or a case that --force replaces; checked\n"
-            "                         before the fit\n"
+            "                         missing or empty, or a case that --force replaces, never in\n"
+            "                         or around CASE; checked before the fit\n"
             "  --force                with -o: replace the case NEWCASE holds (with its journal)\n"
             "  --json                 one JSON object on stdout: command, case, method, fixed,\n"
             "                         fragments (id, iterations, evaluations, seconds, metric_start,\n"
@@ -320,22 +320,6 @@ static int retarget(planning_case *c, const char *out)
     return 0;
 }
 
-/* The poses a navigation session journaled beyond case.json are where the hand left them: they
- * are applied to c (and said). 0 or negative. */
-static int from_journal(planning_case *c)
-{
-    journal_rec *recs = NULL;
-    size_t nrec = 0;
-    int rc = case_journal_check(c, &recs, &nrec);
-    if (rc >= 0)
-        rc = case_journal_apply(c, recs, nrec);
-    free(recs);
-    if (rc >= 0 && nrec)
-        fprintf(stderr, "fracnav reduce: starting from the %zu poses that %s/journal held beyond case.json\n", nrec,
-                c->dir);
-    return rc < 0 ? rc : 0;
-}
-
 /* The results into the case, saved in place (its journal then removed) or, with -o, through the
  * staging folder tmp into A->out. 0 or negative. */
 static int store(planning_case *c, const args *A, int fixed, const reduce_result *res, int nmv, const char *tmp)
@@ -364,6 +348,10 @@ int cmd_reduce(int argc, char **argv)
     int rc = parse(argc, argv, &A);
     if (rc)
         return rc;
+    if (A.out && cmd_out_case(A.out, A.dir) < 0) {
+        fprintf(stderr, "fracnav reduce: %s\n", fn_err_msg());
+        return 1;
+    }
     caselock *lock = cmd_lock_case("reduce", A.dir, !A.out, wait); /* -o: the case is only read */
     planning_case *c = lock ? case_load(A.dir) : NULL;
     if (!c) {
@@ -386,7 +374,7 @@ int cmd_reduce(int argc, char **argv)
         caselock_release(lock);
         return 1;
     }
-    if (from_journal(c) < 0) {
+    if (cmd_journal_poses("reduce", c, 1) < 0) { /* the poses a session left are where the hand left them */
         fprintf(stderr, "fracnav reduce: %s\n", fn_err_msg());
         rc = 1;
         goto done;

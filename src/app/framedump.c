@@ -4,7 +4,6 @@
 #include "cmd.h"
 #include "err.h"
 #include "render.h"
-#include "picture.h"
 
 #include <errno.h>
 #include <stdio.h>
@@ -21,7 +20,6 @@ struct framedump {
     int64_t step_us, next_us;
     int started;
     long count;
-    uint8_t *rgb;
 };
 
 framedump *framedump_open(const char *dir, const planning_case *c, double frame_ms, int w, int h,
@@ -37,10 +35,7 @@ framedump *framedump_open(const char *dir, const planning_case *c, double frame_
         return NULL;
     }
     framedump *d = calloc(1, sizeof *d);
-    uint8_t *rgb = malloc((size_t)w * (size_t)h * 3);
-    if (!d || !rgb) {
-        free(d);
-        free(rgb);
+    if (!d) {
         fn_err_set(FN_ENOMEM, "--frames: out of memory");
         return NULL;
     }
@@ -48,7 +43,6 @@ framedump *framedump_open(const char *dir, const planning_case *c, double frame_
     d->c = c;
     d->w = w;
     d->h = h;
-    d->rgb = rgb;
     d->step_us = (int64_t)(frame_ms * 1000.0 + 0.5);
     d->step_us = d->step_us < 1 ? 1 : d->step_us;
     render_options_default(&d->o, c->frag, c->nfrag);
@@ -83,9 +77,7 @@ static int write_frame(framedump *d, const session *k)
     snprintf(path, sizeof path, "%s/frame_%05ld.png", d->dir, d->count);
     int rc = render_frame(d->r, poses, &d->o);
     if (!rc)
-        rc = render_read_rgb(d->r, d->rgb);
-    if (!rc)
-        rc = picture_write_png(path, d->rgb, d->w, d->h);
+        rc = cmd_write_png(d->r, path, d->w, d->h);
     if (!rc)
         d->count++;
     return rc;
@@ -120,6 +112,5 @@ void framedump_close(framedump *d)
     if (!d)
         return;
     render_close(d->r);
-    free(d->rgb);
     free(d);
 }

@@ -1,11 +1,13 @@
 #!/bin/sh
 # Writes the man page of a program from its --help texts, so the two never disagree: the
 # top-level --help, then, for every entry of a "commands:" or "benchmarks:" list in a help text,
-# `PROGRAM ... ENTRY --help`, each verbatim under its own heading.
-# Usage: manpage.sh PROGRAM NAME VERSION SUMMARY OUT.1
+# `PROGRAM ... ENTRY --help`, each verbatim under its own heading. The page is written compressed
+# (gzip -9n: best compression, no name or time stamp in the header), as Debian's policy asks of
+# installed man pages, so the build makes the same bytes every time.
+# Usage: manpage.sh PROGRAM NAME VERSION SUMMARY OUT.1.gz
 set -eu
 prog=$1 name=$2 version=$3 summary=$4 out=$5
-exec >"$out.tmp"
+exec >"$out.tmp.1"
 
 # Help text as roff: verbatim lines, backslashes and hyphens escaped, no line read as a request.
 roff() {
@@ -48,4 +50,7 @@ if [ "$name" = fracnav ]; then
 else
     printf 'fracnav(1); sim/FNREC.md (the recording format) in /usr/share/doc/fracnav.\n'
 fi
+exec >&-
+gzip -9n -c "$out.tmp.1" >"$out.tmp"
+rm -f "$out.tmp.1"
 mv "$out.tmp" "$out"

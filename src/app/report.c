@@ -1,6 +1,7 @@
 /* report: the HTML page of a case's plan (see report.h). */
 #include "report.h"
 
+#include "cmd.h"
 #include "durable.h"
 #include "err.h"
 #include "export.h"
@@ -75,14 +76,11 @@ static int moving(const planning_case *c)
     return 0;
 }
 
-static int save_picture(render *r, uint8_t *rgb, const char *dir, const char *name, report_wrote_fn wrote,
-                        void *ctx)
+static int save_picture(render *r, const char *dir, const char *name, report_wrote_fn wrote, void *ctx)
 {
     char path[4200];
     snprintf(path, sizeof path, "%s/%s.png", dir, name);
-    int rc = render_read_rgb(r, rgb);
-    if (!rc)
-        rc = picture_write_png(path, rgb, PIC, PIC);
+    int rc = cmd_write_png(r, path, PIC, PIC);
     if (!rc && wrote)
         wrote(ctx, path);
     return rc;
@@ -111,7 +109,7 @@ static int render_pictures(const planning_case *c, const pose *before, const cha
     for (int s = 0; s < 2 && !rc; s++) {
         rc = render_frame(r, s ? NULL : before, &o);
         if (!rc)
-            rc = save_picture(r, rgb, dir, s ? "after" : "before", wrote, ctx);
+            rc = save_picture(r, dir, s ? "after" : "before", wrote, ctx);
     }
     render_close(r);
     /* The slice: a four-up frame whose axial pane is PIC x PIC, cut down to that pane. */

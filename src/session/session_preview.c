@@ -4,7 +4,6 @@
  * never waits for it: the worker reads the published scenes (lock-free) and fits struct copies of
  * the fragments (sharing their voxels, which nothing writes while a case is open); the loop only
  * posts prev_wake when it publishes (session_run.c). */
-#define _GNU_SOURCE /* syscall */
 #include "session_impl.h"
 
 #include "err.h"
@@ -15,9 +14,6 @@
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
-#include <sys/resource.h>
-#include <sys/syscall.h>
-#include <unistd.h>
 
 #define STALE_MM 0.5   /* a fit that began where the hand has since left by more is dropped */
 #define STALE_DEG 0.5
@@ -179,10 +175,11 @@ static int fit_once(session *s, preview_fit *pf, const loop_scene *sc)
 static void *preview_thread(void *arg)
 {
     session *s = arg;
-    /* The lowest share of the normal class (nice 19), best effort: the hand comes first, yet the
-     * ghost still advances on a busy machine, where SCHED_IDLE starved it (two busy loops beside
-     * the suite: no ghost in 30 s). */
-    setpriority(PRIO_PROCESS, (id_t)syscall(SYS_gettid), 19);
+    /* The lowest share of the normal class (nice 19): the hand comes first, yet the ghost still
+     * advances on a busy machine, where SCHED_IDLE starved it (two busy loops beside the suite: no
+     * ghost in 30 s). Explicitly so: started by session_play's thread, which may be the loop's
+     * under SCHED_FIFO (bench loop --realtime), it would share the loop's CPU and policy. */
+    loop_background_priority();
     preview_fit pf = {.s = s};
     loop_scene sc = {0};
     int again = 1; /* the first look needs no publish */

@@ -39,6 +39,11 @@ int loop_realtime_priority(void)
     return platform_rt_priority();
 }
 
+void loop_background_priority(void)
+{
+    platform_background_priority();
+}
+
 /* Tells the reader where the loop runs: on one CPU under SCHED_FIFO, or not real-time (-1). */
 static void announce_cpu(loop *L, int on)
 {

@@ -1,6 +1,6 @@
 /* platform on Linux: SCHED_FIFO and CPU affinity, prctl's THP switch, dl_iterate_phdr with
  * MADV_POPULATE_READ, MADV_HUGEPAGE, posix_spawn. */
-#define _GNU_SOURCE /* CPU affinity: sched_getcpu, pthread_setaffinity_np */
+#define _GNU_SOURCE /* CPU affinity: sched_getcpu, pthread_setaffinity_np; syscall */
 #include "platform.h"
 
 #include "err.h"
@@ -16,6 +16,8 @@
 #include <string.h>
 #include <sys/mman.h>
 #include <sys/prctl.h>
+#include <sys/resource.h>
+#include <sys/syscall.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -55,6 +57,18 @@ void platform_rt_follow(int cpu, int prio)
     struct sched_param sp = {.sched_priority = prio};
     if (pthread_setaffinity_np(pthread_self(), sizeof one, &one) == 0)
         pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp);
+}
+
+void platform_background_priority(void)
+{
+    struct sched_param sp = {.sched_priority = 0};
+    pthread_setschedparam(pthread_self(), SCHED_OTHER, &sp);
+    cpu_set_t all;
+    CPU_ZERO(&all);
+    for (int c = 0; c < CPU_SETSIZE; c++)
+        CPU_SET(c, &all); /* the kernel keeps those the process may use */
+    pthread_setaffinity_np(pthread_self(), sizeof all, &all);
+    setpriority(PRIO_PROCESS, (id_t)syscall(SYS_gettid), 19);
 }
 
 /* khugepaged, when it merges a process's pages into a huge page, takes the range away while it
