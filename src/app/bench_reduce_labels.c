@@ -168,7 +168,8 @@ static int fit_piece(const frag *fixed, frag *moving, int starts, const reduce_o
     const pose ct = POSE_IDENTITY;
     for (int s = 0; s < starts && rc == 0; s++) {
         fit x;
-        moving->pose = bench_reduce_start(fixed, tf, moving, tm, &ct, START_MM, START_DEG, rng);
+        pose start = bench_reduce_start(fixed, tf, moving, tm, &ct, START_MM, START_DEG, rng);
+        moving->pose = start;
         reduce_errors(fixed, moving, &ct, &x.start_rot, &x.start_trans, &x.tre);
         reduce_result r;
         double c0 = bench_cpu_us();
@@ -182,10 +183,15 @@ static int fit_piece(const frag *fixed, frag *moving, int starts, const reduce_o
         x.metric_end = me ? reduce_metric_eval(me, &r.end, NULL) : NAN;
         reduce_metric_free(me);
         reduce_result_free(&r);
-        if (verbose)
+        if (verbose) {
             fprintf(stderr, "%s fragment %d start %d: from %.2f deg %.2f mm to %.3f deg %.3f mm, metric %.6f "
                             "(CT pose %.6f), %.3f s\n", name, moving->id, s, x.start_rot, x.start_trans, x.rot,
                     x.trans, x.metric_end, x.metric_ct, x.cpu_s);
+            const pose *p[2] = {&start, &moving->pose};
+            for (int e = 0; e < 2; e++)
+                fprintf(stderr, "  %s pose q %.17g %.17g %.17g %.17g t %.17g %.17g %.17g\n", e ? "end" : "start",
+                        p[e]->q[0], p[e]->q[1], p[e]->q[2], p[e]->q[3], p[e]->t[0], p[e]->t[1], p[e]->t[2]);
+        }
         rc = fits_add(out, &x);
     }
     obb_tree_free(tf);
