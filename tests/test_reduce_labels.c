@@ -98,6 +98,12 @@ static void test_starts_in_range(void **st)
     assert_true(num(b, "start_trans_max_mm") > num(b, "start_trans_min_mm"));
     double back = num(b, "back_rate");
     assert_true(back >= 0 && back <= 1);
+    /* every fit not back is counted on one side of the CT pose's metric */
+    json_int_t failed = json_integer_value(json_object_get(b, "failed_ct_better_count")) +
+                        json_integer_value(json_object_get(b, "failed_end_better_count"));
+    assert_true(fabs((double)failed - (1 - back) * 4) < 1e-3);
+    json_int_t farther = json_integer_value(json_object_get(b, "ended_farther_count"));
+    assert_true(farther >= 0 && farther <= 4);
     assert_int_equal(json_integer_value(json_object_get(json_object_get(j, "pooled"), "runs")), 4);
     assert_true(num(json_object_get(j, "targets"), "back_rate") == 0.95);
     json_decref(j);

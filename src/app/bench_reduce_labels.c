@@ -58,12 +58,13 @@ static int back(const fit *x)
 /* The figures of fits s[0..n-1] into j. */
 static void fits_json(json_t *j, const fits *s)
 {
-    int n = s->n, nback = 0, nfail = 0, ct_better = 0;
+    int n = s->n, nback = 0, nfail = 0, ct_better = 0, farther = 0;
     double *v = malloc((size_t)(n ? n : 1) * sizeof *v);
     if (!v)
         return;
     for (int i = 0; i < n; i++) {
         nback += back(&s->f[i]);
+        farther += s->f[i].trans > s->f[i].start_trans || s->f[i].rot > s->f[i].start_rot;
         if (!back(&s->f[i])) {
             nfail++;
             ct_better += s->f[i].metric_ct < s->f[i].metric_end;
@@ -96,6 +97,8 @@ static void fits_json(json_t *j, const fits *s)
     jsonw_set(j, "metric_end_minus_ct_median", jsonw_measure(bench_quantile(v, n, 0.5)));
     jsonw_set(j, "failed_ct_better_count", json_integer(ct_better));
     jsonw_set(j, "failed_end_better_count", json_integer(nfail - ct_better));
+    /* fits that ended farther from the CT pose than they started (in mm or in degrees) */
+    jsonw_set(j, "ended_farther_count", json_integer(farther));
     free(v);
 }
 
