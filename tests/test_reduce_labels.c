@@ -1,7 +1,7 @@
 /* bench reduce --labels on a tiny labelled CT made here (no shared data): a bone of two annotated
  * fragments, interlocked by a wavy cut, and an intact bone. The starts stay in their ranges (3-10
- * mm, 5-15 degrees off the CT pose), the intact bone is named and left alone, bad folders are
- * refused with their name. */
+ * mm, 5-15 degrees off the CT pose), the intact bone is named and left alone (and is the one
+ * --intact fractures), bad folders are refused with their name. */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -109,6 +109,24 @@ static void test_starts_in_range(void **st)
     json_decref(j);
 }
 
+/* --intact: only the bone of one label is fractured (model 1) and fitted. */
+static void test_intact_bones_fractured(void **st)
+{
+    char *out = NULL, json_path[4300];
+    snprintf(json_path, sizeof json_path, "%s/intact.json", dir);
+    int rc = tu_run_cli(&out, "bench reduce --intact '%s' --seeds 1 --starts 2 --method praxis --json > '%s'", dir,
+                        json_path);
+    if (rc != 0)
+        fail_msg("bench reduce --intact: exit %d\n%s", rc, out);
+    free(out);
+    json_t *j = json_load_file(json_path, 0, NULL);
+    assert_non_null(j);
+    assert_string_equal(json_string_value(json_object_get(j, "ct")), dir);
+    json_t *m = json_array_get(json_object_get(j, "methods"), 0);
+    assert_int_equal(json_integer_value(json_object_get(m, "runs")), 2); /* one bone, 1 seed x 2 starts */
+    json_decref(j);
+}
+
 static void test_bad_folder(void **st)
 {
     char *out = NULL;
@@ -126,6 +144,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_starts_in_range),
+        cmocka_unit_test(test_intact_bones_fractured),
         cmocka_unit_test(test_bad_folder),
     };
     return cmocka_run_group_tests(tests, setup, teardown);

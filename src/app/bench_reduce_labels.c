@@ -306,20 +306,37 @@ json_t *bench_reduce_labels(const char *dir, int starts, const reduce_opts *ro, 
     return root;
 }
 
+/* Whether the annotation at path holds one label (an intact bone): 1, 0, or FN_E*. */
+static int one_label(const char *path)
+{
+    volio_segs segs = {0};
+    vol *l = volio_read_labels(path, &segs);
+    volio_segs_free(&segs);
+    if (!l)
+        return fn_err_wrap(FN_EINVAL, "%s", path);
+    float first = 0;
+    int one = 1;
+    for (size_t i = 0; i < vol_count(l) && one; i++)
+        if (l->data[i] != 0) {
+            one = !first || l->data[i] == first;
+            first = l->data[i];
+        }
+    vol_free(l);
+    return one && first != 0;
+}
+
 int bench_labels_intact(const char *dir, char **paths, int max)
 {
     char *names[BENCH_MAX_BONES];
     int n = bench_list_bones(dir, names), got = 0, rc = n;
     for (int i = 0; i < n; i++) {
-        bone b;
-        if (rc >= 0 && (rc = bone_read(dir, names[i], &b)) == 0 && b.seg.ncomp == 1 && got < max) {
-            char path[4200];
+        char path[4200];
+        snprintf(path, sizeof path, "%s/%s_mask.nii.gz", dir, names[i]);
+        if (rc >= 0 && (rc = one_label(path)) == 1 && got < max) {
             snprintf(path, sizeof path, "%s/%s.nii.gz", dir, names[i]);
             if (!(paths[got++] = strdup(path)))
                 rc = fn_err_set(FN_ENOMEM, "bench reduce: out of memory");
         }
-        if (rc >= 0)
-            bone_free(&b);
         free(names[i]);
     }
     if (rc < 0) {
