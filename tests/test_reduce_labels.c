@@ -9,6 +9,7 @@
 
 #include <cmocka.h>
 
+#include "reduce.h"
 #include "testutil.h"
 #include "vol.h"
 #include "volio.h"
@@ -106,6 +107,9 @@ static void test_starts_in_range(void **st)
     assert_true(farther >= 0 && farther <= 4);
     assert_int_equal(json_integer_value(json_object_get(json_object_get(j, "pooled"), "runs")), 4);
     assert_true(num(json_object_get(j, "targets"), "back_rate") == 0.95);
+    reduce_opts def;
+    reduce_defaults(&def);
+    assert_string_equal(json_string_value(json_object_get(j, "method")), reduce_method_name(def.method));
     json_decref(j);
 }
 

@@ -419,7 +419,9 @@ static int usage(FILE *out, int rc)
             "  --max-mm MM      largest start translation (default 10)\n"
             "  --max-deg DEG    largest start rotation (default 15)\n"
             "  --method M       add a configuration: powell, praxis, sbplx, bobyqa, optionally\n"
-            "                   /nearest (default: the four methods, trilinear, and powell/nearest)\n"
+            "                   /nearest (default: the four methods, trilinear, and powell/nearest;\n"
+            "                   with --suite or --labels, reduce's default; --labels fits with the\n"
+            "                   first configuration)\n"
             "  --band MM        the metric's band (default: reduce's, 1 mm; 0 = the paper's box)\n"
             "  --voi-max MM     the automatic VOI's longest side (default: reduce's, 0 = no limit)\n"
             "  --tolerance MM   the fit's collision tolerance (default: reduce's, 0.5; 0 = the loop's)\n"
@@ -604,7 +606,7 @@ static int parse(int argc, char **argv, opts *o)
     int rc = parse_more(argc, argv, o);
     if (rc)
         return rc;
-    if (!o->nconf && o->suite) { /* the suite: the default method alone, unless --method says */
+    if (!o->nconf && (o->suite || o->labels)) { /* the default method alone, unless --method says */
         reduce_opts def;
         reduce_defaults(&def);
         o->method[0] = def.method;
