@@ -379,7 +379,7 @@ static json_t *config_json(const opts *o, int k, config_stats *cs)
     do {                                                                                           \
         for (int i = 0; i < n; i++)                                                                \
             v[i] = cs->s[i].field;                                                                 \
-        jsonw_set(j, key, jsonw_measure(bench_quantile(v, n, q)));                                       \
+        jsonw_set(j, key, jsonw_measure(bench_quantile(v, n, q)));                                 \
     } while (0)
     STAT("median_rot_err_deg", rot, 0.5);
     STAT("median_trans_err_mm", trans, 0.5);
