@@ -9,6 +9,10 @@
 #include "pose.h"
 
 #include <stddef.h>
+#include <stdint.h>
+
+struct json_t;
+struct reduce_opts;
 
 int bench_collision(int argc, char **argv);
 int bench_build(int argc, char **argv);
@@ -27,6 +31,35 @@ long bench_peak_rss_kib(void);
 /* CT_pitch ships in the repository's tests/data/: under $FRACNAV_SRC when set, else in the source
  * tree this binary was built from; its path into path. */
 void bench_pitch_path(char *path, size_t cap);
+
+/* The q-quantile (0..1, linear between order statistics) of v[0..n-1], which it sorts; NaN when
+ * n < 1. */
+double bench_quantile(double *v, int n, double q);
+
+/* Real fracture CTs with annotated fragments (bench_separate.c): the NNN_BONE names of DIR's
+ * NNN_BONE_mask.nii.gz files (each beside its CT NNN_BONE.nii.gz), sorted, into names (malloc'd;
+ * the caller frees them). Their count, or -1 with fn_err. */
+#define BENCH_MAX_BONES 256
+int bench_list_bones(const char *dir, char **names);
+
+/* bench reduce (bench_start.c): a start off m's true pose, as a hand leaves a piece: turned by
+ * deg[0]..deg[1] degrees about its centroid (about a random axis) and moved by mm[0]..mm[1] mm (in a
+ * random direction), drawn from *rng (a 64-bit LCG), and drawn again while it collides with f (up
+ * to 100 times; then the last one drawn). tf, tm: their hierarchies. */
+pose bench_reduce_start(const frag *f, const obb_tree *tf, const frag *m, const obb_tree *tm, const pose *truth,
+                        const double mm[2], const double deg[2], uint64_t *rng);
+
+/* bench reduce --labels (bench_reduce_labels.c): the real pieces of dir (as bench_list_bones), each
+ * smaller fragment of a fractured bone fitted against the largest from `starts` hand-like starts
+ * off its CT pose (3-10 mm, 5-15 degrees) with ro; the JSON object (command "bench reduce"), or NULL
+ * with fn_err. verbose: a line per fit on stderr. */
+struct json_t *bench_reduce_labels(const char *dir, int starts, const struct reduce_opts *ro, int verbose);
+/* The CTs (paths, malloc'd, at most max) of dir's intact bones: those whose mask holds one label.
+ * Their count, or -1 with fn_err. */
+int bench_labels_intact(const char *dir, char **paths, int max);
+/* Where the development set is looked for by default: $FRACNAV_DATA/pelvis-dev (FRACNAV_DATA:
+ * /var/cache/fracnav when unset). */
+const char *bench_labels_default_dir(void);
 
 /* The FCL peer (src/bench_fcl.cpp, built when libfcl-dev is found: FRACNAV_HAVE_FCL). A geometry
  * holds one fragment's voxels whose effective probability (obb_effective_prob) is non-zero:

@@ -11,12 +11,12 @@
 #include "volio.h"
 
 #include <dirent.h>
+#include <errno.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
-#define MAX_BONES 256
 #define MAX_PIECES 64
 
 static void usage(FILE *out)
@@ -43,16 +43,15 @@ static int by_name(const void *a, const void *b)
     return strcmp(*(char *const *)a, *(char *const *)b);
 }
 
-/* The NNN_BONE names of DIR's *_mask.nii.gz files, sorted; their count or -1. */
-static int list_bones(const char *dir, char **names)
+int bench_list_bones(const char *dir, char **names)
 {
     DIR *d = opendir(dir);
     if (!d) {
-        fn_err_set(FN_EIO, "bench separate: cannot open the folder %s", dir);
+        fn_err_set(FN_EIO, "cannot open the folder %s: %s", dir, strerror(errno));
         return -1;
     }
     int n = 0;
-    for (struct dirent *e; (e = readdir(d)) && n < MAX_BONES;) {
+    for (struct dirent *e; (e = readdir(d)) && n < BENCH_MAX_BONES;) {
         size_t len = strlen(e->d_name), tail = strlen("_mask.nii.gz");
         if (len > tail && !strcmp(e->d_name + len - tail, "_mask.nii.gz"))
             names[n++] = strndup(e->d_name, len - tail);
@@ -395,8 +394,8 @@ int bench_separate(int argc, char **argv)
     if (!dir)
         return cmd_usage_error("bench separate", "%s", "give the folder of NNN_BONE.nii.gz and "
                                "NNN_BONE_mask.nii.gz pairs (e.g. the PENGWIN/FracSegNet data)");
-    char *names[MAX_BONES];
-    int n = list_bones(dir, names);
+    char *names[BENCH_MAX_BONES];
+    int n = bench_list_bones(dir, names);
     if (n == 0)
         fn_err_set(FN_EINVAL, "bench separate: no NNN_BONE_mask.nii.gz in %s", dir);
     bone_result *r = n > 0 ? calloc((size_t)n, sizeof *r) : NULL;

@@ -49,7 +49,15 @@ static void usage(FILE *out)
             "                         a real fracture CT: segmenting source.nii.gz joins them\n"
             "                         (see edit separate); the truth is kept as ever\n"
             "  --bone-loss MM         thickness of bone lost along each cut (default 0)\n"
-            "  --roughness MM         RMS relief of the fracture surface (default 2)\n"
+            "  --roughness MM         RMS relief of the fracture surface (default 2; model 2: the\n"
+            "                         zig-zag's amplitude)\n"
+            "  --model 2              the second fracture model: two pieces, cut by a bent sheet\n"
+            "                         with a zig-zag relief, the moved piece resampled trilinearly\n"
+            "                         (partial volume at its edges, the fracture's included) and\n"
+            "                         noise added to the CT (docs/reduction.md); no --touching or\n"
+            "                         --bone-loss; a seed gives the same case on one machine\n"
+            "                         (libm). Default: 1\n"
+            "  --noise HU             model 2: the noise's standard deviation (default 20)\n"
             CMD_THRESHOLD_HELP
             CMD_TAU_HELP
             "  --json                 one JSON object on stdout instead of the text: command, case,\n"
@@ -70,7 +78,8 @@ static double *number_option(fracture_params *p, const char *opt, const char **a
     } rows[] = {{"--displace", &p->displace_mm, "a number of mm"},
                 {"--rotate", &p->rotate_deg, "a number of degrees"},
                 {"--bone-loss", &p->bone_loss_mm, "a number of mm"},
-                {"--roughness", &p->roughness_mm, "a number of mm"}};
+                {"--roughness", &p->roughness_mm, "a number of mm"},
+                {"--noise", &p->noise_hu, "a number of HU"}};
     for (size_t i = 0; i < sizeof rows / sizeof rows[0]; i++)
         if (!strcmp(opt, rows[i].name)) {
             *accepted = rows[i].accepted;
@@ -102,6 +111,10 @@ static int parse(int argc, char **argv, fracture_params *p, cmd_case_args *c)
                 return cmd_bad_value("fracture", a, val, "a whole number 0..2^53");
             p->seed = (uint64_t)d;
             have_seed = 1;
+        } else if (!strcmp(a, "--model")) {
+            if (!cmd_number(val, &d) || !(d == 1 || d == 2))
+                return cmd_bad_value("fracture", a, val, "1 or 2");
+            p->model = (int)d;
         } else if (!strcmp(a, "--pieces")) {
             if (!cmd_number(val, &d) || !(d >= 2 && d <= 10 && d == (int)d))
                 return cmd_bad_value("fracture", a, val, "a whole number 2..10");

@@ -1,17 +1,14 @@
 #include "fracture.h"
+#include "fracture_impl.h"
 
 #include "case.h"
 #include "err.h"
 #include "frag.h"
 #include "seg.h"
-#include "volio.h"
 
-#include <errno.h>
 #include <math.h>
 #include <stdlib.h>
-#include <stdio.h>
 #include <string.h>
-#include <sys/stat.h>
 
 void fracture_defaults(fracture_params *p)
 {
@@ -24,6 +21,8 @@ void fracture_defaults(fracture_params *p)
     p->wavelength_mm = 16;
     p->threshold = 300;
     p->fill = 40;
+    p->model = 1;
+    p->noise_hu = 20;
     p->tau_min = CASE_TAU_MIN;
     p->tau_max = CASE_TAU_MAX;
 }
@@ -441,9 +440,7 @@ static size_t place_piece(const vol *cut, const vol *src_ct, const vol *obstacle
     return conflicts;
 }
 
-/* v on a grid grown by lo[a] voxels before and hi[a] after along each axis (0 0: a copy); the new
- * voxels hold `value`, the old ones keep their world positions. NULL with fn_err. */
-static vol *padded(const vol *v, const int lo[3], const int hi[3], float value)
+vol *fracture__padded(const vol *v, const int lo[3], const int hi[3], float value)
 {
     vol *c = vol_new(v->dim[0] + lo[0] + hi[0], v->dim[1] + lo[1] + hi[1], v->dim[2] + lo[2] + hi[2]);
     if (!c)
@@ -477,7 +474,9 @@ int fracture_check(const fracture_params *p)
                 {"rotate", p->rotate_deg, 0, 180, " deg"},
                 {"bone loss", p->bone_loss_mm, 0, 20, " mm"},
                 {"roughness", p->roughness_mm, 0, 50, " mm"},
-                {"wavelength", p->wavelength_mm, 0.5, 1000, " mm"}};
+                {"wavelength", p->wavelength_mm, 0.5, 1000, " mm"},
+                {"model", p->model, 1, 2, ""},
+                {"noise", p->noise_hu, 0, 10000, " HU"}};
     for (size_t i = 0; i < sizeof rows / sizeof rows[0]; i++)
         if (!(rows[i].value >= rows[i].lo && rows[i].value <= rows[i].hi))
             return fn_err_set(FN_EINVAL, "%s must be %g..%g%s (got %g)", rows[i].name, rows[i].lo,
@@ -643,7 +642,8 @@ static int fit_grid(fracture_result *r, vol **obstacle, int id, pose m, float ou
     }
     if (!grow)
         return 0;
-    vol *g[3] = {padded(r->ct, lo, hi, outside), padded(r->labels, lo, hi, 0), padded(*obstacle, lo, hi, 0)};
+    vol *g[3] = {fracture__padded(r->ct, lo, hi, outside), fracture__padded(r->labels, lo, hi, 0),
+                 fracture__padded(*obstacle, lo, hi, 0)};
     vol **slot[3] = {&r->ct, &r->labels, obstacle};
     int ok = g[0] && g[1] && g[2];
     for (int v = 0; v < 3; v++) {
@@ -684,7 +684,7 @@ static int displace_pieces(fracture_result *r, const vol *src_ct, uint64_t *rng,
                            const double centre[3], double (*normals)[3], float outside)
 {
     const int none[3] = {0, 0, 0};
-    vol *obstacle = padded(r->cut, none, none, 0);
+    vol *obstacle = fracture__padded(r->cut, none, none, 0);
     if (!obstacle)
         return fn_err_set(FN_ENOMEM, "fracture: out of memory");
     for (size_t i = 0; i < vol_count(src_ct); i++) {
@@ -724,7 +724,7 @@ static int displace_pieces(fracture_result *r, const vol *src_ct, uint64_t *rng,
     return rc;
 }
 
-int fracture_make(const vol *ct, const fracture_params *p, fracture_result *out)
+int fracture__model1(const vol *ct, const fracture_params *p, fracture_result *out)
 {
     memset(out, 0, sizeof *out);
     int rc = fracture_check(p);
@@ -765,9 +765,9 @@ int fracture_make(const vol *ct, const fracture_params *p, fracture_result *out)
     frag_free(&bone);
     out->pieces = p->pieces;
     const int none[3] = {0, 0, 0};
-    out->ct = padded(ct, none, none, 0);
-    vol *work_ct = padded(ct, none, none, 0);
-    out->labels = padded(out->cut, none, none, 0);
+    out->ct = fracture__padded(ct, none, none, 0);
+    vol *work_ct = fracture__padded(ct, none, none, 0);
+    out->labels = fracture__padded(out->cut, none, none, 0);
     out->truth = calloc((size_t)p->pieces, sizeof *out->truth);
     out->moved = calloc((size_t)p->pieces, sizeof *out->moved);
     double(*normals)[3] = calloc((size_t)p->pieces, sizeof *normals);
@@ -812,40 +812,4 @@ double fracture_truth_shift(const pose *truth, const double centroid[3])
     for (int a = 0; a < 3; a++)
         d2 += (back[a] - centroid[a]) * (back[a] - centroid[a]);
     return sqrt(d2);
-}
-
-planning_case *fracture_make_case(const vol *ct, const fracture_params *p, const char *dir)
-{
-    fracture_result r;
-    if (fracture_make(ct, p, &r) < 0)
-        return NULL;
-    char src[4200];
-    snprintf(src, sizeof src, "%s/source.nii.gz", dir);
-    vol_type t = ct->src_type == VOL_F64 ? VOL_F32 : ct->src_type;
-    planning_case *c = NULL;
-    if (mkdir(dir, 0755) != 0 && errno != EEXIST)
-        fn_err_set(FN_EIO, "%s: cannot create the case folder: %s", dir, strerror(errno));
-    else if (volio_write(r.ct, src, t) == 0) {
-        seg_params sp;
-        seg_defaults(&sp);
-        sp.threshold = r.threshold;
-        sp.min_volume_ml = 0;
-        c = case_create(dir, src, r.ct, r.labels, &sp);
-        r.ct = r.labels = NULL;
-    }
-    if (c) {
-        /* Fragment ids are piece numbers; a piece pushed off the grid entirely has no fragment. */
-        c->has_truth = 1;
-        for (int i = 0; i < c->nfrag; i++)
-            c->truth[i] = r.truth[c->frag[i].id - 1];
-        c->fixed = case_find(c, 1);
-        c->tau_min = p->tau_min;
-        c->tau_max = p->tau_max;
-        if (case_save(c) < 0) {
-            case_free(c);
-            c = NULL;
-        }
-    }
-    fracture_result_free(&r);
-    return c;
 }

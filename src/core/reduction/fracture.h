@@ -45,6 +45,8 @@ typedef struct fracture_params {
                            * must to land clear, so it stays in contact (a voxel apart, one
                            * component at the threshold) with the piece it was cut from;
                            * displace_mm is then not used */
+    int model;            /* 1: the rough plane above (fracture.c); 2: fracture_model2 */
+    double noise_hu;      /* model 2: standard deviation of the noise added to the CT (HU) */
 } fracture_params;
 
 typedef struct fracture_result {
@@ -60,12 +62,32 @@ typedef struct fracture_result {
 } fracture_result;
 
 /* Defaults: 2 pieces, 3 mm, 3 degrees, no bone loss, roughness 2 mm, wavelength 16 mm, 300 HU
- * (threshold_auto 0), fill 40 HU, seed 1. */
+ * (threshold_auto 0), fill 40 HU, seed 1, model 1 (noise 20 HU for model 2). */
 void fracture_defaults(fracture_params *p);
 /* 0 if the parameters are in range, else FN_EINVAL saying which. */
 int fracture_check(const fracture_params *p);
-/* 0 and *out filled (free with fracture_result_free), or a negative FN_E* code. */
+/* 0 and *out filled (free with fracture_result_free), or a negative FN_E* code. p->model 2 makes
+ * it fracture_model2's. */
 int fracture_make(const vol *ct, const fracture_params *p, fracture_result *out);
+/* The second fracture model (fracture_model2.c), so that what is measured on synthetic fractures
+ * is not tuned to one generator. Two pieces (p->pieces must be 2; no touching, no bone loss):
+ *  - the cut: a bent sheet (random curvatures of up to 1/(3 L) along two tangents, L the RMS
+ *    extent of the bone along its main axis) across the main axis (tilted, through a point near
+ *    the centroid), with a zig-zag relief (triangle waves of amplitude roughness_mm, period
+ *    wavelength_mm along one tangent, half that amplitude and 0.6 the period along the other)
+ *    and three sinusoids of 0.3 the amplitude in random directions; islands of the new (smaller)
+ *    piece join piece 1, islands of piece 1 stay in the CT unlabelled (crumbs);
+ *  - the move: piece 2 turned by rotate_deg about its centroid (random axis), moved displace_mm
+ *    away from piece 1 across the cut (the sheet's normal, perturbed), then on a voxel at a time
+ *    until it lands on no
+ *    piece or bright non-bone; where it lands past the grid's edge the grid grows (as model 1's);
+ *  - the resampling: trilinear; each output voxel mixes piece 2's values (weight o, the share of
+ *    its trilinear weights on piece 2) with what lies there (1 - o), so the fracture's edge shows
+ *    partial volume, and is labelled 2 where o >= 0.5;
+ *  - noise: Gaussian (a sum of four uniforms), noise_hu, on every voxel.
+ * truth and moved as fracture_make's; cut holds the pieces before the move. Deterministic for a
+ * seed (on one machine: it uses libm's sin). 0 or FN_E*. */
+int fracture_model2(const vol *ct, const fracture_params *p, fracture_result *out);
 void fracture_result_free(fracture_result *r);
 /* The fewest voxels a piece of a bone of bone_voxels keeps: 10% of them, or 1/(2 pieces) beyond 6
  * pieces (5% for 10), so that the last cuts still have room. */

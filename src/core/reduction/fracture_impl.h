@@ -1,0 +1,16 @@
+/* fracture_impl: what the fracture files (fracture.c: model 1 and the shared parts,
+ * fracture_model2.c, fracture_make.c: the entry) share inside the reduction target. */
+#ifndef FN_FRACTURE_IMPL_H
+#define FN_FRACTURE_IMPL_H
+
+#include "fracture.h"
+#include "vol.h"
+
+/* v on a grid grown by lo[a] voxels before and hi[a] after along each axis (0 0: a copy); the new
+ * voxels hold `value`, the old ones keep their world positions. NULL with fn_err. */
+vol *fracture__padded(const vol *v, const int lo[3], const int hi[3], float value);
+
+/* Model 1 (fracture.c): fracture_make for p->model 1. */
+int fracture__model1(const vol *ct, const fracture_params *p, fracture_result *out);
+
+#endif
