@@ -14,7 +14,9 @@
  *    SPLIT_FACING_MIN) are tried in turn: the bone is grown again from those two seeds alone, and
  *    the two halves are the fragments when the cut between them is broken (facing + broken >=
  *    SPLIT_BROKEN_MIN * contact) and narrow for the smaller half (contact <= SPLIT_NECK_MAX *
- *    its voxels^(2/3)), and the smaller holds SPLIT_MIN_ML and SPLIT_MIN_SHARE of the bone.
+ *    its voxels^(2/3)), and the smaller holds SPLIT_MIN_ML and SPLIT_MIN_SHARE of the bone;
+ * 4. the halves kept are grown again, each from its own deepest voxel (the seeds of step 1 lie
+ *    anywhere in the thick of them; a seed deep in each fragment places the cut best).
  * Measured on real pelvic bones (docs/benchmarks.md), neither test alone keeps every intact bone
  * whole: a sacrum faces itself across its foramina, an ilium's wing is thin; together they do.
  * One split into two per call.
