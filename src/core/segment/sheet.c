@@ -4,7 +4,6 @@
 
 #include <math.h>
 #include <stdlib.h>
-#include <string.h>
 
 /* Convolves f along axis ax (voxel step in mm) with a Gaussian of SHEET_SIGMA_MM, in place; line
  * and out hold one line each. */

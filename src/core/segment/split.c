@@ -5,7 +5,6 @@
 #include "morph.h"
 #include "sheet.h"
 
-
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -178,9 +177,9 @@ int split_auto(const float *values, const uint8_t *domain, const int dim[3], con
         const uint8_t *label = grow_labels(g);
         region_graph(domain, label, sheet, dim, sp, stride, facing, contact, broken);
     }
-    /* The pairs of regions that face most across a gap for their contact, best first: grown again
-     * from those two seeds alone, two halves are the fragments when they face each other across
-     * the gap more than they touch. */
+    /* The pairs of regions whose cut is most broken (facing + broken) for their contact, best first:
+     * grown again from those two seeds alone, two halves are the fragments when the cut between
+     * them is broken and narrow (split.h). */
     int pair[SPLIT_TRIES][2] = {{0}};
     double ratio[SPLIT_TRIES] = {0};
     for (int a = 1; g && a <= k; a++)
