@@ -158,6 +158,12 @@ int grow_run(grow *g)
     return 0;
 }
 
+void grow_weigh(grow *g, const float *w)
+{
+    for (size_t i = 0; i < g->n; i++)
+        g->thin[i] *= w[i];
+}
+
 const uint8_t *grow_labels(const grow *g)
 {
     return g->label;

@@ -32,6 +32,10 @@ typedef struct grow grow;
 grow *grow_new(const float *values, const uint8_t *domain, const int dim[3], const double sp[3]);
 void grow_free(grow *g);
 
+/* Multiplies the cost of every step into voxel q by w[q] (>= 1; one float per voxel of the box),
+ * before the first grow_run: a barrier where w is high. */
+void grow_weigh(grow *g, const float *w);
+
 /* Seeds voxel v (an index into the box, inside the domain) with label 1..GROW_MAX_LABEL; grows at
  * the next grow_run. 0, or FN_EINVAL: outside the box or the domain, a bad label, or a voxel
  * seeded already with another label. */

@@ -3,6 +3,7 @@
 #include "err.h"
 #include "grow.h"
 #include "morph.h"
+#include "sheet.h"
 
 #include <math.h>
 #include <stdlib.h>
@@ -48,9 +49,10 @@ static int spread_seeds(const float *depth, const int dim[3], const double sp[3]
 }
 
 /* facing[a * stride + b]: surface voxels of region a that see region b across the background
- * within SPLIT_GAP_MM; contact[a * stride + b]: voxel faces between a and b. */
-static void region_graph(const uint8_t *domain, const uint8_t *label, const int dim[3],
-                         const double sp[3], int stride, size_t *facing, size_t *contact)
+ * within SPLIT_GAP_MM; contact[a * stride + b]: voxel faces between a and b; broken[a * stride + b]:
+ * those of them on a fracture line (the sheetness of either voxel >= SPLIT_SHEET_HU). */
+static void region_graph(const uint8_t *domain, const uint8_t *label, const float *sheet, const int dim[3],
+                         const double sp[3], int stride, size_t *facing, size_t *contact, size_t *broken)
 {
     const long st[3] = {1, dim[0], (long)dim[0] * dim[1]};
     uint8_t seen[GROW_MAX_LABEL + 1];
@@ -75,6 +77,10 @@ static void region_graph(const uint8_t *domain, const uint8_t *label, const int 
                         else if (s > 0 && label[w] && label[w] != a) {
                             contact[a * stride + label[w]]++;
                             contact[label[w] * stride + a]++;
+                            if (fmaxf(sheet[v], sheet[w]) >= SPLIT_SHEET_HU) {
+                                broken[a * stride + label[w]]++;
+                                broken[label[w] * stride + a]++;
+                            }
                         }
                     }
                 if (!surface)
@@ -103,6 +109,38 @@ static void region_graph(const uint8_t *domain, const uint8_t *label, const int 
             }
 }
 
+/* The two halves of *g grown again, each from its own deepest voxel (its distance map into dist):
+ * the seeds the split found lie anywhere in the thick of the halves, and a seed deep in each
+ * fragment places the cut best (docs/benchmarks.md). *g becomes the new growth. */
+static int regrow_from_cores(const float *values, const uint8_t *domain, const int dim[3], const double sp[3],
+                             const float *weight, float *dist, grow **g)
+{
+    size_t n = (size_t)dim[0] * dim[1] * dim[2], deepest[2] = {0, 0};
+    uint8_t *half = malloc(n);
+    if (!half)
+        return fn_err_set(FN_ENOMEM, "split: out of memory for %zu voxels", n);
+    for (int h = 0; h < 2; h++) {
+        for (size_t v = 0; v < n; v++)
+            half[v] = grow_labels(*g)[v] == h + 1;
+        morph_distance(half, dim, sp, dist);
+        for (size_t v = 0; v < n; v++)
+            deepest[h] = dist[v] > dist[deepest[h]] ? v : deepest[h];
+    }
+    free(half);
+    grow *r = grow_new(values, domain, dim, sp);
+    if (!r)
+        return FN_ENOMEM;
+    grow_weigh(r, weight);
+    int rc = grow_add_seed(r, deepest[0], 1);
+    if (rc == 0)
+        rc = grow_add_seed(r, deepest[1], 2);
+    if (rc == 0)
+        rc = grow_run(r);
+    grow_free(*g);
+    *g = r;
+    return rc;
+}
+
 int split_auto(const float *values, const uint8_t *domain, const int dim[3], const double sp[3], int32_t *lab)
 {
     size_t n = (size_t)dim[0] * dim[1] * dim[2];
@@ -115,10 +153,16 @@ int split_auto(const float *values, const uint8_t *domain, const int dim[3], con
     morph_distance(domain, dim, sp, depth);
     size_t seeds[SPLIT_SEEDS];
     int k = spread_seeds(depth, dim, sp, n, far2, seeds);
-    free(depth);
-    free(far2);
-    grow *g = k > 1 ? grow_new(values, domain, dim, sp) : NULL;
-    int rc = k > 1 && !g ? FN_ENOMEM : 0;
+    /* the depth and the seeds' distances are done with: their room holds the sheetness, and the
+     * growth's barrier on fracture lines */
+    float *sheet = depth, *weight = far2;
+    int rc = sheet_map(values, domain, dim, sp, sheet);
+    for (size_t v = 0; v < n; v++)
+        weight[v] = 1 + sheet[v] / (float)SPLIT_BARRIER_HU;
+    grow *g = k > 1 && rc == 0 ? grow_new(values, domain, dim, sp) : NULL;
+    if (g)
+        grow_weigh(g, weight);
+    rc = rc == 0 && k > 1 && !g ? FN_ENOMEM : rc;
     for (int s = 0; g && s < k && rc == 0; s++)
         rc = grow_add_seed(g, seeds[s], s + 1);
     if (g && rc == 0)
@@ -126,21 +170,22 @@ int split_auto(const float *values, const uint8_t *domain, const int dim[3], con
     int stride = k + 1;
     size_t *facing = calloc((size_t)stride * stride, sizeof *facing), *contact = calloc((size_t)stride * stride,
                                                                                          sizeof *contact);
-    if (rc == 0 && (!facing || !contact))
+    size_t *broken = calloc((size_t)stride * stride, sizeof *broken);
+    if (rc == 0 && (!facing || !contact || !broken))
         rc = fn_err_set(FN_ENOMEM, "split: out of memory");
     if (g && rc == 0) {
         const uint8_t *label = grow_labels(g);
-        region_graph(domain, label, dim, sp, stride, facing, contact);
+        region_graph(domain, label, sheet, dim, sp, stride, facing, contact, broken);
     }
-    /* The pairs of regions that face most across a gap for their contact, best first: grown again
-     * from those two seeds alone, two halves are the fragments when they face each other across
-     * the gap more than they touch. */
+    /* The pairs of regions whose cut is most broken (facing + broken) for their contact, best first:
+     * grown again from those two seeds alone, two halves are the fragments when the cut between
+     * them is broken and narrow (split.h). */
     int pair[SPLIT_TRIES][2] = {{0}};
     double ratio[SPLIT_TRIES] = {0};
     for (int a = 1; g && a <= k; a++)
         for (int b = a + 1; b <= k; b++) {
             size_t c = contact[a * stride + b], f = facing[a * stride + b] + facing[b * stride + a];
-            double r = c ? (double)f / (double)c : 0;
+            double r = c ? (double)(f + broken[a * stride + b]) / (double)c : 0;
             for (int t = 0; t < SPLIT_TRIES; t++)
                 if (r >= SPLIT_FACING_MIN && r > ratio[t]) {
                     memmove(&ratio[t + 1], &ratio[t], (size_t)(SPLIT_TRIES - 1 - t) * sizeof *ratio);
@@ -155,6 +200,8 @@ int split_auto(const float *values, const uint8_t *domain, const int dim[3], con
     for (int t = 0; t < SPLIT_TRIES && pair[t][0] && rc == 0 && pieces == 1; t++) {
         grow_free(g);
         g = grow_new(values, domain, dim, sp);
+        if (g)
+            grow_weigh(g, weight);
         rc = !g ? FN_ENOMEM : grow_add_seed(g, seeds[pair[t][0] - 1], 1);
         if (rc == 0)
             rc = grow_add_seed(g, seeds[pair[t][1] - 1], 2);
@@ -162,18 +209,28 @@ int split_auto(const float *values, const uint8_t *domain, const int dim[3], con
             rc = grow_run(g);
         memset(facing, 0, (size_t)stride * stride * sizeof *facing);
         memset(contact, 0, (size_t)stride * stride * sizeof *contact);
+        memset(broken, 0, (size_t)stride * stride * sizeof *broken);
         if (rc == 0)
-            region_graph(domain, grow_labels(g), dim, sp, stride, facing, contact);
-        size_t c = contact[1 * stride + 2], f = facing[1 * stride + 2] + facing[2 * stride + 1];
+            region_graph(domain, grow_labels(g), sheet, dim, sp, stride, facing, contact, broken);
+        size_t c = contact[1 * stride + 2], f = facing[1 * stride + 2] + facing[2 * stride + 1], br = broken[1 * stride + 2];
         size_t half[3] = {0, 0, 0};
         for (size_t v = 0; rc == 0 && v < n; v++)
             half[grow_labels(g)[v]]++;
-        double small_ml = (double)(half[1] < half[2] ? half[1] : half[2]) * sp[0] * sp[1] * sp[2] / 1000;
-        pieces = rc == 0 && f > c && small_ml >= SPLIT_MIN_ML ? 2 : 1;
+        size_t small = half[1] < half[2] ? half[1] : half[2];
+        double small_ml = (double)small * sp[0] * sp[1] * sp[2] / 1000, neck = (double)c / pow((double)small, 2.0 / 3);
+        pieces = rc == 0 && f + br >= SPLIT_BROKEN_MIN * (double)c && neck <= SPLIT_NECK_MAX && small_ml >= SPLIT_MIN_ML &&
+                         (double)small >= SPLIT_MIN_SHARE * (double)(half[1] + half[2])
+                     ? 2
+                     : 1;
     }
+    if (pieces == 2 && rc == 0)
+        rc = regrow_from_cores(values, domain, dim, sp, weight, sheet, &g);
     for (size_t v = 0; v < n && rc == 0; v++)
         lab[v] = !domain[v] ? 0 : pieces == 2 ? grow_labels(g)[v] : 1;
     grow_free(g);
+    free(depth);
+    free(far2);
+    free(broken);
     free(facing);
     free(contact);
     return rc < 0 ? rc : pieces;
