@@ -660,7 +660,7 @@ static int fit_grid(fracture_result *r, vol **obstacle, int id, pose m, float ou
 static int displace_piece(fracture_result *r, const vol *src_ct, vol **obstacle, int id, pose m,
                           const double push[3][3], double displace, int max_steps, float outside)
 {
-    double step = fmin(src_ct->spacing[0], fmin(src_ct->spacing[1], src_ct->spacing[2])), move[3];
+    double step = fmin(src_ct->spacing[0], fmin(src_ct->spacing[1], src_ct->spacing[2])), move[3] = {0, 0, 0};
     int steps = 0;
     struct push pp = {.cut = r->cut, .src_ct = src_ct, .obstacle = *obstacle, .out_lab = r->labels,
                       .out_ct = r->ct, .id = id, .turned = m};
