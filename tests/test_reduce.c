@@ -15,6 +15,7 @@
 #include "fracture.h"
 #include "powell.h"
 #include "reduce.h"
+#include "reduce_impl.h"
 #include "testutil.h"
 #include "volio.h"
 
@@ -114,6 +115,20 @@ static void check_metric(reduce_count mode, double band)
         pose_rotate(&p, b.centroid, rc);
         for (int k = 0; k < 3; k++)
             p.t[k] += b.centroid[k] - rc[k];
+        if (t % 2) { /* the band made near p, as a fit makes it: the evaluation counts its voxels */
+            double near_rv[3], near_t[3];
+            for (int k = 0; k < 3; k++) {
+                near_rv[k] = (urand(&s) - 0.5) * 0.02;
+                near_t[k] = p.t[k] + (urand(&s) - 0.5) * 1.6;
+            }
+            pose ref = pose_compose(pose_from_rotvec(near_rv, (double[3]){0, 0, 0}), p);
+            memcpy(ref.t, near_t, sizeof ref.t);
+            assert_int_equal(reduce__metric_rebase(m, &ref), 0);
+            size_t nv = 0;
+            for (size_t r = 0; r < m->nband; r++)
+                nv += m->band[r].len;
+            assert_true(nv > 0 && (band == 0 || nv < m->b->voxels)); /* the band: part of the fragment */
+        }
         reduce_counts fast, slow;
         double f = reduce_metric_eval(m, &p, &fast);
         double g = reduce_metric_brute(asm_, 1, &b, &p, &voi, mode, band, &slow);

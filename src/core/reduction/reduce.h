@@ -22,7 +22,10 @@
  * (bench reduce --bone-loss 1: translation error about the loss).
  * A moving voxel counts in units of the grid's voxel volume (the ratio of the two voxel volumes;
  * 1 for fragments of one CT). Empty space is skipped by 8^3 bricks of the moving fragment, each
- * with its runs of bone voxels along i, culled against the VOI by a bounding sphere.
+ * with its runs of bone voxels along i, culled against the VOI by a bounding sphere. The fit counts
+ * on a band: the moving voxels that lay near the counted cells where it made the band (remade as
+ * the search moves); a brick that has moved farther than the band allows counts all its runs, so
+ * an evaluation is exact at any pose and costs the band's voxels near the fracture.
  *
  * Parameters of the fit (6): translation in world mm, and the rotation vector about the moving
  * fragment's centroid (at the start pose) in the principal axes of its voxels in the VOI, each
