@@ -208,6 +208,21 @@ static void dilate_ball(const uint8_t *bone, uint8_t *v, const int d[3], const d
             }
 }
 
+/* dst |= src over n bytes, eight at a time. */
+static void or_bytes(uint8_t *dst, const uint8_t *src, size_t n)
+{
+    size_t i = 0;
+    for (; i + 8 <= n; i += 8) {
+        uint64_t a, b;
+        memcpy(&a, dst + i, 8);
+        memcpy(&b, src + i, 8);
+        a |= b;
+        memcpy(dst + i, &a, 8);
+    }
+    for (; i < n; i++)
+        dst[i] |= src[i];
+}
+
 /* out |= t shifted by r lines either way, in blocks of len lines of inner elements each (an axis
  * with the axes below it: the lines of a block are contiguous, whichever the axis). */
 static void or_shifted(uint8_t *out, const uint8_t *t, size_t outer, int len, size_t inner, int r)
@@ -216,12 +231,8 @@ static void or_shifted(uint8_t *out, const uint8_t *t, size_t outer, int len, si
         return;
     size_t n = (size_t)(len - r) * inner, sh = (size_t)r * inner, block = (size_t)len * inner;
     for (size_t o = 0; o < outer; o++) {
-        uint8_t *dst = out + o * block;
-        const uint8_t *src = t + o * block;
-        for (size_t i = 0; i < n; i++)
-            dst[i] |= src[i + sh];
-        for (size_t i = 0; i < n; i++)
-            dst[i + sh] |= src[i];
+        or_bytes(out + o * block, t + o * block + sh, n);
+        or_bytes(out + o * block + sh, t + o * block, n);
     }
 }
 
