@@ -93,15 +93,21 @@ static double urand(uint64_t *s)
     return (double)(*s >> 11) / 9007199254740992.0;
 }
 
-static void check_metric(reduce_count mode, double band)
+/* nasm 2: a third ball, turned and moved, joins the assembly (sampled on the first one's grid). */
+static void check_metric(reduce_count mode, double band, int nasm)
 {
-    frag a, b;
-    double at_a[3] = {0, 0, 0}, at_b[3] = {14, 2, -1};
+    frag a, b, e;
+    double at_a[3] = {0, 0, 0}, at_b[3] = {14, 2, -1}, at_e[3] = {8, 10, 6}, turn[3] = {0.3, -0.2, 0.5}, ec[3];
     ball_frag(&a, 1, 20, 9, at_a);
     ball_frag(&b, 2, 18, 8, at_b);
+    ball_frag(&e, 3, 16, 7, at_e);
+    e.pose = pose_from_rotvec(turn, (double[3]){0.4, -1.3, 0.7}); /* turned about its centroid */
+    pose_rotate(&e.pose, e.centroid, ec);
+    for (int k = 0; k < 3; k++)
+        e.pose.t[k] += e.centroid[k] - ec[k];
     reduce_voi voi = {{3.3, -2.2, 0.4}, {27.1, 21.7, 24.9}};
-    const frag *asm_[1] = {&a};
-    reduce_metric *m = reduce_metric_new(asm_, 1, &b, &voi, mode, band);
+    const frag *asm_[2] = {&a, &e};
+    reduce_metric *m = reduce_metric_new(asm_, nasm, &b, &voi, mode, band);
     assert_non_null(m);
     uint64_t s = 7;
     for (int t = 0; t < 40; t++) {
@@ -127,11 +133,11 @@ static void check_metric(reduce_count mode, double band)
             size_t nv = 0;
             for (size_t r = 0; r < m->nband; r++)
                 nv += m->band[r].len;
-            assert_true(nv > 0 && (band == 0 || nv < m->b->voxels)); /* the band: part of the fragment */
+            assert_true(nv > 0 && (band == 0 || nasm > 1 || nv < m->b->voxels)); /* the band: a part */
         }
         reduce_counts fast, slow;
         double f = reduce_metric_eval(m, &p, &fast);
-        double g = reduce_metric_brute(asm_, 1, &b, &p, &voi, mode, band, &slow);
+        double g = reduce_metric_brute(asm_, nasm, &b, &p, &voi, mode, band, &slow);
         assert_true(fast.n1 == slow.n1 && fast.nvoi == slow.nvoi);
         assert_true(slow.n2 > 0);
         if (mode == REDUCE_TRILINEAR) {
@@ -145,18 +151,21 @@ static void check_metric(reduce_count mode, double band)
     reduce_metric_free(m);
     frag_free(&a);
     frag_free(&b);
+    frag_free(&e);
 }
 
 static void test_metric_trilinear_vs_brute(void **st)
 {
-    check_metric(REDUCE_TRILINEAR, 0);
-    check_metric(REDUCE_TRILINEAR, 2);
+    check_metric(REDUCE_TRILINEAR, 0, 1);
+    check_metric(REDUCE_TRILINEAR, 2, 1);
+    check_metric(REDUCE_TRILINEAR, 2, 2);
 }
 
 static void test_metric_nearest_vs_brute(void **st)
 {
-    check_metric(REDUCE_NEAREST, 0);
-    check_metric(REDUCE_NEAREST, 2);
+    check_metric(REDUCE_NEAREST, 0, 1);
+    check_metric(REDUCE_NEAREST, 2, 1);
+    check_metric(REDUCE_NEAREST, 2, 2);
 }
 
 /* The trilinear count changes continuously: a tiny step changes it a tiny bit. */

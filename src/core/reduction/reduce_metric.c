@@ -310,6 +310,72 @@ static uint32_t blocks_counted(const reduce_metric *m, const int lo[3], const in
 #undef S
 }
 
+/* bone[] |= fragment f's bone sampled (nearest) at the VOI cells (c0: the first, d per axis, in
+ * the grid fragment g's crop), over the cells its crop box reaches: what cell_bone finds there, by
+ * one affine map from a cell to f's voxel index instead of poses per cell. */
+static void sample_into(const frag *g, const frag *f, const int c0[3], const int d[3], uint8_t *bone)
+{
+    pose P = pose_compose(pose_inverse(pose_compose(f->pose, f->home)), pose_compose(g->pose, g->home)), Q;
+    double R[3][3], A[3][3], b[3], lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    pose_to_matrix(&P, R);
+    for (int a = 0; a < 3; a++) {
+        b[a] = P.t[a] / f->spacing[a];
+        for (int c = 0; c < 3; c++) {
+            A[a][c] = R[a][c] * g->spacing[c] / f->spacing[a];
+            b[a] += A[a][c] * c0[c];
+        }
+    }
+    Q = pose_inverse(P); /* f's crop box into the VOI's cells, for the range to sample */
+    for (int corner = 0; corner < 8; corner++) {
+        double l[3], x[3];
+        for (int a = 0; a < 3; a++)
+            l[a] = ((corner >> a & 1) ? f->dim[a] - 0.5 : -0.5) * f->spacing[a];
+        pose_apply(&Q, l, x);
+        for (int a = 0; a < 3; a++) {
+            lo[a] = fmin(lo[a], x[a] / g->spacing[a] - c0[a]);
+            hi[a] = fmax(hi[a], x[a] / g->spacing[a] - c0[a]);
+        }
+    }
+    int r0[3], r1[3];
+    for (int a = 0; a < 3; a++) {
+        r0[a] = lo[a] < 0 ? 0 : (int)lo[a];
+        r1[a] = hi[a] > d[a] - 1 ? d[a] - 1 : (int)ceil(hi[a]);
+        if (r1[a] < r0[a])
+            return;
+    }
+    for (int k = r0[2]; k <= r1[2]; k++)
+        for (int j = r0[1]; j <= r1[1]; j++) {
+            uint8_t *row = bone + ((size_t)k * d[1] + j) * d[0];
+            for (int i = r0[0]; i <= r1[0]; i++) {
+                if (row[i])
+                    continue;
+                int v[3], in = 1;
+                for (int a = 0; a < 3 && in; a++) {
+                    v[a] = (int)floor(A[a][0] * i + A[a][1] * j + A[a][2] * k + b[a] + 0.5);
+                    in = v[a] >= 0 && v[a] < f->dim[a];
+                }
+                row[i] = in && f->prob[((size_t)v[2] * f->dim[1] + v[1]) * f->dim[0] + v[0]];
+            }
+        }
+}
+
+/* The assembly's bone on the VOI cells (cell_bone for each, 0 or 1): the grid fragment's own
+ * voxels, then each other fragment sampled where the grid has none. */
+static void voi_bone(const frag *const *asm_, int nasm, const int c0[3], const int d[3], uint8_t *bone)
+{
+    const frag *g = asm_[0];
+    size_t idx = 0;
+    for (int k = 0; k < d[2]; k++)
+        for (int j = 0; j < d[1]; j++)
+            for (int i = 0; i < d[0]; i++, idx++) {
+                int l[3] = {c0[0] + i, c0[1] + j, c0[2] + k};
+                bone[idx] = l[0] >= 0 && l[1] >= 0 && l[2] >= 0 && l[0] < g->dim[0] && l[1] < g->dim[1] &&
+                            l[2] < g->dim[2] && g->prob[((size_t)l[2] * g->dim[1] + l[1]) * g->dim[0] + l[0]];
+            }
+    for (int f = 1; f < nasm; f++)
+        sample_into(g, asm_[f], c0, d, bone);
+}
+
 reduce_metric *reduce__metric_with(const frag *const *asm_, int nasm, const frag *moving, reduce_bricks *b,
                                    const reduce_voi *voi, reduce_count mode, double band_mm, double gap_mm)
 {
@@ -338,25 +404,23 @@ reduce_metric *reduce__metric_with(const frag *const *asm_, int nasm, const frag
     size_t nv = (size_t)m->d[0] * m->d[1] * m->d[2];
     m->cell = calloc((size_t)m->D[0] * m->D[1] * m->D[2], sizeof *m->cell);
     uint8_t *bone = calloc(nv, 1), *in = malloc(nv);
-    pose *inv = crop_poses(asm_, nasm);
-    if (!m->cell || !bone || !in || !inv) {
+    if (!m->cell || !bone || !in) {
         fn_err_set(FN_ENOMEM, "reduce metric: out of memory for a %dx%dx%d VOI", m->d[0], m->d[1], m->d[2]);
         free(bone);
         free(in);
-        free(inv);
         reduce_metric_free(m);
         return NULL;
     }
+    voi_bone(asm_, nasm, m->c0, m->d, bone);
     double sum[3] = {0, 0, 0};
     size_t idx = 0;
     for (int k = 0; k < m->d[2]; k++)
         for (int j = 0; j < m->d[1]; j++)
             for (int i = 0; i < m->d[0]; i++, idx++)
-                if ((bone[idx] = (uint8_t)cell_bone(asm_, nasm, inv, m->c0, i, j, k))) {
+                if (bone[idx]) {
                     m->n1 += 1;
                     sum[0] += i, sum[1] += j, sum[2] += k;
                 }
-    free(inv);
     if (gap_mm > 0) { /* the gap left where bone was lost counts as the assembly's */
         uint8_t *gb = malloc(nv);
         if (!gb) {
