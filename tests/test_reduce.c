@@ -362,6 +362,43 @@ static void test_reduce_three_pieces(void **st)
     free(dir);
 }
 
+/* The second sweep fits pieces apart from each other at once: on two threads the same poses, to
+ * the bit, as on one (a wave of two or more pieces among them). */
+#define PAR_PIECES 5
+#define PAR_SEED 2
+static void test_reduce_parallel_pairs(void **st)
+{
+    char *dir = tu_tmpdir("reduce_par");
+    char *dir2 = tu_tmpdir("reduce_par2");
+    planning_case *c[2] = {fractured(dir, PAR_PIECES, PAR_SEED), fractured(dir2, PAR_PIECES, PAR_SEED)};
+    reduce_result r[2][PAR_PIECES - 1];
+    int widest = 0;
+    for (int t = 0; t < 2; t++) {
+        reduce_opts o;
+        reduce_defaults(&o);
+        o.prealign = 0;
+        o.threads = t + 1;
+        assert_int_equal(reduce_case(c[t], 0, NULL, PAR_PIECES - 1, &o, r[t]), 0);
+    }
+    for (int i = 0; i < PAR_PIECES - 1; i++) {
+        assert_int_equal(r[0][i].id, r[1][i].id);
+        assert_int_equal(r[0][i].evaluations, r[1][i].evaluations);
+        assert_int_equal(r[0][i].wave, r[1][i].wave);
+        widest = r[0][i].wave > widest ? r[0][i].wave : widest;
+        reduce_result_free(&r[0][i]);
+        reduce_result_free(&r[1][i]);
+    }
+    for (int f = 0; f < PAR_PIECES; f++)
+        assert_memory_equal(&c[0]->frag[f].pose, &c[1]->frag[f].pose, sizeof(pose));
+    assert_true(widest >= 2);
+    case_free(c[0]);
+    case_free(c[1]);
+    tu_rmtree(dir);
+    tu_rmtree(dir2);
+    free(dir);
+    free(dir2);
+}
+
 /* Every NLopt method runs and improves the metric. */
 static void test_reduce_nlopt_methods(void **st)
 {
@@ -864,6 +901,7 @@ int main(void)
         cmocka_unit_test(test_reduce_two_pieces),
         cmocka_unit_test(test_reduce_gap),
         cmocka_unit_test(test_reduce_three_pieces),
+        cmocka_unit_test(test_reduce_parallel_pairs),
         cmocka_unit_test(test_reduce_nlopt_methods),
         cmocka_unit_test(test_fit_one),
         cmocka_unit_test(test_cli),

@@ -99,6 +99,7 @@ void reduce_defaults(reduce_opts *o)
     o->coarse = 0;
     o->axis_scale = 1;
     o->hops = 3;
+    o->threads = 2;
 }
 
 void reduce_result_free(reduce_result *r)

@@ -103,6 +103,8 @@ int reduce_auto_voi(const frag *const *asm_, int nasm, const frag *moving, doubl
 
 typedef void (*reduce_progress_fn)(void *ctx, int id, int iter, int evals, double f, double seconds);
 
+#define REDUCE_THREADS_MAX 16
+
 typedef struct reduce_opts {
     reduce_method method;
     reduce_count count;
@@ -148,8 +150,12 @@ typedef struct reduce_opts {
                           * against 0.90 for PRAXIS) */
     double trust_mm, trust_deg; /* the fit stays this close to the start (after pre-alignment):
                           * centroid distance and rotation angle */
+    int threads;         /* reduce_case's second sweep fits fragments that do not touch (no bone
+                          * within about 4 mm of each other) at once, on up to this many threads
+                          * (1 .. REDUCE_THREADS_MAX; default 2, the machine's cores); the same
+                          * poses on any number */
     reduce_progress_fn progress; /* after each iteration; may be NULL. Called on the thread that
-                          * runs the fit */
+                          * runs the fit (several at once in reduce_case's second sweep) */
     void *progress_ctx;
     const atomic_int *cancel; /* may be NULL; once another thread sets it non-zero, the fit stops
                           * within one metric evaluation and returns 1 with the placed pose */
@@ -195,6 +201,8 @@ typedef struct reduce_result {
                            * otherwise (or when the fit failed) */
     reduce_candidate candidate[REDUCE_CANDIDATES_MAX];
     int hops;             /* rounds of hops that gained (each moved the result) */
+    int wave;             /* reduce_case with several moving: the fragments of its second-sweep
+                           * wave, fitted at once with it (itself included) */
     double *history;      /* metric per iteration, nhistory values; malloc'd */
     int nhistory;
 } reduce_result;

@@ -143,7 +143,8 @@ typedef struct reduce_tuning {
     double long_margin;      /* and one of a long piece this much */
     /* the order of several fragments */
     double order_delta_mm, order_margin_mm; /* contact zone that measures a piece's contact */
-    double touch_mm;         /* a piece with no bone this near another's in the CT touches nothing */
+    double touch_mm;         /* a piece with no bone this near another's in the CT touches nothing;
+                              * in the second sweep, pieces this far apart fit at once */
 } reduce_tuning;
 
 extern const reduce_tuning reduce__tune;
