@@ -108,7 +108,7 @@ static void test_reduce_suite_pools_every_workload(void **st)
     if (!j)
         fail_msg("bench reduce --suite: exit %d: %s", rc, out);
     free(out);
-    static const char *const names[] = {"skull", "skull, starts up to 20 mm", "skull, 3 pieces",
+    static const char *const names[] = {"skull", "skull, starts up to 20 mm", "skull, 3 pieces", "skull, 6 pieces",
                                         "skull, pieces left touching", "skull, 1 mm of bone lost", "CT_pitch",
                                         "long bone"};
     const size_t nw = sizeof names / sizeof names[0];

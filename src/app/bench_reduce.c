@@ -501,7 +501,8 @@ static int usage(FILE *out, int rc)
             "                   shaft with a cortex and a medullary canal, made in memory; pitch:\n"
             "                   tests/data/CT_pitch.nii.gz (under $FRACNAV_SRC, else the source tree)\n"
             "  --suite          the workloads of docs/benchmarks.md in one run (the skull; the skull\n"
-            "                   from starts up to 20 mm and 25 degrees; 3 pieces; touching; 1 mm\n"
+            "                   from starts up to 20 mm and 25 degrees; 3 pieces; 6 pieces;\n"
+            "                   touching; 1 mm\n"
             "                   lost with --gap 1; CT_pitch; the long bone),\n"
             "                   with the default method unless --method says; JSON: workloads (one\n"
             "                   object each, as without --suite, with its name) and pooled (per\n"
@@ -724,6 +725,7 @@ static const struct {
     {"skull", {NULL}},
     {"skull, starts up to 20 mm and 25 degrees", {"--max-mm", "20", "--max-deg", "25", NULL}},
     {"skull, 3 pieces", {"--pieces", "3", NULL}},
+    {"skull, 6 pieces", {"--pieces", "6", NULL}},
     {"skull, pieces left touching, separated first", {"--touching", NULL}},
     {"skull, 1 mm of bone lost, the fit told (--gap 1)", {"--bone-loss", "1", "--gap", "1", NULL}},
     {"CT_pitch (8-bit, 2.4 mm slices)", {"--ct", "pitch", "--threshold", "auto-bone", NULL}},
