@@ -112,7 +112,7 @@ static void test_reduce_suite_pools_every_workload(void **st)
                      "/nonexistent/pelvis-dev"))
         fail_msg("no word of the skipped workloads:\n%s", out);
     free(out);
-    static const char *const names[] = {"skull", "skull, starts up to 20 mm", "skull, 3 pieces",
+    static const char *const names[] = {"skull", "skull, starts up to 20 mm", "skull, 3 pieces", "skull, 6 pieces",
                                         "skull, pieces left touching", "skull, 1 mm of bone lost", "CT_pitch",
                                         "long bone", "skull, second fracture model", "pelvis, intact bones",
                                         "pelvis, real fragments"};

@@ -15,6 +15,7 @@
 #include "fracture.h"
 #include "powell.h"
 #include "reduce.h"
+#include "reduce_impl.h"
 #include "testutil.h"
 #include "volio.h"
 
@@ -92,15 +93,21 @@ static double urand(uint64_t *s)
     return (double)(*s >> 11) / 9007199254740992.0;
 }
 
-static void check_metric(reduce_count mode, double band)
+/* nasm 2: a third ball, turned and moved, joins the assembly (sampled on the first one's grid). */
+static void check_metric(reduce_count mode, double band, int nasm)
 {
-    frag a, b;
-    double at_a[3] = {0, 0, 0}, at_b[3] = {14, 2, -1};
+    frag a, b, e;
+    double at_a[3] = {0, 0, 0}, at_b[3] = {14, 2, -1}, at_e[3] = {8, 10, 6}, turn[3] = {0.3, -0.2, 0.5}, ec[3];
     ball_frag(&a, 1, 20, 9, at_a);
     ball_frag(&b, 2, 18, 8, at_b);
+    ball_frag(&e, 3, 16, 7, at_e);
+    e.pose = pose_from_rotvec(turn, (double[3]){0.4, -1.3, 0.7}); /* turned about its centroid */
+    pose_rotate(&e.pose, e.centroid, ec);
+    for (int k = 0; k < 3; k++)
+        e.pose.t[k] += e.centroid[k] - ec[k];
     reduce_voi voi = {{3.3, -2.2, 0.4}, {27.1, 21.7, 24.9}};
-    const frag *asm_[1] = {&a};
-    reduce_metric *m = reduce_metric_new(asm_, 1, &b, &voi, mode, band);
+    const frag *asm_[2] = {&a, &e};
+    reduce_metric *m = reduce_metric_new(asm_, nasm, &b, &voi, mode, band);
     assert_non_null(m);
     uint64_t s = 7;
     for (int t = 0; t < 40; t++) {
@@ -114,9 +121,23 @@ static void check_metric(reduce_count mode, double band)
         pose_rotate(&p, b.centroid, rc);
         for (int k = 0; k < 3; k++)
             p.t[k] += b.centroid[k] - rc[k];
+        if (t % 2) { /* the band made near p, as a fit makes it: the evaluation counts its voxels */
+            double near_rv[3], near_t[3];
+            for (int k = 0; k < 3; k++) {
+                near_rv[k] = (urand(&s) - 0.5) * 0.02;
+                near_t[k] = p.t[k] + (urand(&s) - 0.5) * 1.6;
+            }
+            pose ref = pose_compose(pose_from_rotvec(near_rv, (double[3]){0, 0, 0}), p);
+            memcpy(ref.t, near_t, sizeof ref.t);
+            assert_int_equal(reduce__metric_rebase(m, &ref), 0);
+            size_t nv = 0;
+            for (size_t r = 0; r < m->nband; r++)
+                nv += m->band[r].len;
+            assert_true(nv > 0 && (band == 0 || nasm > 1 || nv < m->b->voxels)); /* the band: a part */
+        }
         reduce_counts fast, slow;
         double f = reduce_metric_eval(m, &p, &fast);
-        double g = reduce_metric_brute(asm_, 1, &b, &p, &voi, mode, band, &slow);
+        double g = reduce_metric_brute(asm_, nasm, &b, &p, &voi, mode, band, &slow);
         assert_true(fast.n1 == slow.n1 && fast.nvoi == slow.nvoi);
         assert_true(slow.n2 > 0);
         if (mode == REDUCE_TRILINEAR) {
@@ -130,18 +151,21 @@ static void check_metric(reduce_count mode, double band)
     reduce_metric_free(m);
     frag_free(&a);
     frag_free(&b);
+    frag_free(&e);
 }
 
 static void test_metric_trilinear_vs_brute(void **st)
 {
-    check_metric(REDUCE_TRILINEAR, 0);
-    check_metric(REDUCE_TRILINEAR, 2);
+    check_metric(REDUCE_TRILINEAR, 0, 1);
+    check_metric(REDUCE_TRILINEAR, 2, 1);
+    check_metric(REDUCE_TRILINEAR, 2, 2);
 }
 
 static void test_metric_nearest_vs_brute(void **st)
 {
-    check_metric(REDUCE_NEAREST, 0);
-    check_metric(REDUCE_NEAREST, 2);
+    check_metric(REDUCE_NEAREST, 0, 1);
+    check_metric(REDUCE_NEAREST, 2, 1);
+    check_metric(REDUCE_NEAREST, 2, 2);
 }
 
 /* The trilinear count changes continuously: a tiny step changes it a tiny bit. */
@@ -336,6 +360,43 @@ static void test_reduce_three_pieces(void **st)
     case_free(c);
     tu_rmtree(dir);
     free(dir);
+}
+
+/* The second sweep fits pieces apart from each other at once: on two threads the same poses, to
+ * the bit, as on one (a wave of two or more pieces among them). */
+#define PAR_PIECES 5
+#define PAR_SEED 2
+static void test_reduce_parallel_pairs(void **st)
+{
+    char *dir = tu_tmpdir("reduce_par");
+    char *dir2 = tu_tmpdir("reduce_par2");
+    planning_case *c[2] = {fractured(dir, PAR_PIECES, PAR_SEED), fractured(dir2, PAR_PIECES, PAR_SEED)};
+    reduce_result r[2][PAR_PIECES - 1];
+    int widest = 0;
+    for (int t = 0; t < 2; t++) {
+        reduce_opts o;
+        reduce_defaults(&o);
+        o.prealign = 0;
+        o.threads = t + 1;
+        assert_int_equal(reduce_case(c[t], 0, NULL, PAR_PIECES - 1, &o, r[t]), 0);
+    }
+    for (int i = 0; i < PAR_PIECES - 1; i++) {
+        assert_int_equal(r[0][i].id, r[1][i].id);
+        assert_int_equal(r[0][i].evaluations, r[1][i].evaluations);
+        assert_int_equal(r[0][i].wave, r[1][i].wave);
+        widest = r[0][i].wave > widest ? r[0][i].wave : widest;
+        reduce_result_free(&r[0][i]);
+        reduce_result_free(&r[1][i]);
+    }
+    for (int f = 0; f < PAR_PIECES; f++)
+        assert_memory_equal(&c[0]->frag[f].pose, &c[1]->frag[f].pose, sizeof(pose));
+    assert_true(widest >= 2);
+    case_free(c[0]);
+    case_free(c[1]);
+    tu_rmtree(dir);
+    tu_rmtree(dir2);
+    free(dir);
+    free(dir2);
 }
 
 /* Every NLopt method runs and improves the metric. */
@@ -841,6 +902,7 @@ int main(void)
         cmocka_unit_test(test_reduce_two_pieces),
         cmocka_unit_test(test_reduce_gap),
         cmocka_unit_test(test_reduce_three_pieces),
+        cmocka_unit_test(test_reduce_parallel_pairs),
         cmocka_unit_test(test_reduce_nlopt_methods),
         cmocka_unit_test(test_fit_one),
         cmocka_unit_test(test_cli),

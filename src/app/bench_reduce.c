@@ -464,15 +464,15 @@ static int usage(FILE *out, int rc)
             "  --intact DIR     the intact bones of DIR (a mask of one label) fractured as above,\n"
             "                   --seeds fractures each\n"
             "  --suite          the workloads of docs/benchmarks.md in one run (the skull; the skull\n"
-            "                   from starts up to 20 mm and 25 degrees; 3 pieces; touching; 1 mm\n"
-            "                   lost with --gap 1; CT_pitch; the long bone; the skull fractured by\n"
-            "                   the second model; the pelvic development set's intact bones\n"
-            "                   fractured (--intact) and its real fragments (--labels), from\n"
-            "                   --labels DIR or $FRACNAV_DATA/pelvis-dev, skipped with a word when\n"
-            "                   it is not there), with the default method unless --method says;\n"
-            "                   JSON: workloads (one object each, as without --suite, with its\n"
-            "                   name) and pooled (per method, over every run but the real\n"
-            "                   fragments'; metric_eval_us null)\n"
+            "                   from starts up to 20 mm and 25 degrees; 3 pieces; 6 pieces;\n"
+            "                   touching; 1 mm lost with --gap 1; CT_pitch; the long bone; the\n"
+            "                   skull fractured by the second model; the pelvic development set's\n"
+            "                   intact bones fractured (--intact) and its real fragments\n"
+            "                   (--labels), from --labels DIR or $FRACNAV_DATA/pelvis-dev,\n"
+            "                   skipped with a word when it is not there), with the default method\n"
+            "                   unless --method says; JSON: workloads (one object each, as without\n"
+            "                   --suite, with its name) and pooled (per method, over every run but\n"
+            "                   the real fragments'; metric_eval_us null)\n"
             "  --verbose        one line per run on stderr, after its details (start error, VOI,\n"
             "                   the turn of the moving piece's voxel grid from the fixed one's),\n"
             "                   then the end pose in full (to compare fits pose for pose); with\n"
@@ -739,6 +739,7 @@ static const struct {
     {"skull", {NULL}, 0},
     {"skull, starts up to 20 mm and 25 degrees", {"--max-mm", "20", "--max-deg", "25", NULL}, 0},
     {"skull, 3 pieces", {"--pieces", "3", NULL}, 0},
+    {"skull, 6 pieces", {"--pieces", "6", NULL}, 0},
     {"skull, pieces left touching, separated first", {"--touching", NULL}, 0},
     {"skull, 1 mm of bone lost, the fit told (--gap 1)", {"--bone-loss", "1", "--gap", "1", NULL}, 0},
     {"CT_pitch (8-bit, 2.4 mm slices)", {"--ct", "pitch", "--threshold", "auto-bone", NULL}, 0},

@@ -20,6 +20,7 @@ const reduce_tuning reduce__tune = {
     .zone_margin_mm = 6,
     .zone_grow = 1.25,
     .zone_grow_stages = 2,
+    .band_reach_mm = 1.5,
     .tolerance_voxels = 0.45,
     .collide_cost = 1.0,
     .push_step_mm = 0.05,
@@ -98,6 +99,7 @@ void reduce_defaults(reduce_opts *o)
     o->coarse = 0;
     o->axis_scale = 1;
     o->hops = 3;
+    o->threads = 2;
 }
 
 void reduce_result_free(reduce_result *r)

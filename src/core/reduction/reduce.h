@@ -22,7 +22,10 @@
  * (bench reduce --bone-loss 1: translation error about the loss).
  * A moving voxel counts in units of the grid's voxel volume (the ratio of the two voxel volumes;
  * 1 for fragments of one CT). Empty space is skipped by 8^3 bricks of the moving fragment, each
- * with its runs of bone voxels along i, culled against the VOI by a bounding sphere.
+ * with its runs of bone voxels along i, culled against the VOI by a bounding sphere. The fit counts
+ * on a band: the moving voxels that lay near the counted cells where it made the band (remade as
+ * the search moves); a brick that has moved farther than the band allows counts all its runs, so
+ * an evaluation is exact at any pose and costs the band's voxels near the fracture.
  *
  * Parameters of the fit (6): translation in world mm, and the rotation vector about the moving
  * fragment's centroid (at the start pose) in the principal axes of its voxels in the VOI, each
@@ -100,6 +103,8 @@ int reduce_auto_voi(const frag *const *asm_, int nasm, const frag *moving, doubl
 
 typedef void (*reduce_progress_fn)(void *ctx, int id, int iter, int evals, double f, double seconds);
 
+#define REDUCE_THREADS_MAX 16
+
 typedef struct reduce_opts {
     reduce_method method;
     reduce_count count;
@@ -145,8 +150,12 @@ typedef struct reduce_opts {
                           * against 0.90 for PRAXIS) */
     double trust_mm, trust_deg; /* the fit stays this close to the start (after pre-alignment):
                           * centroid distance and rotation angle */
+    int threads;         /* reduce_case's second sweep fits fragments that do not touch (no bone
+                          * within about 4 mm of each other) at once, on up to this many threads
+                          * (1 .. REDUCE_THREADS_MAX; default 2, the machine's cores); the same
+                          * poses on any number */
     reduce_progress_fn progress; /* after each iteration; may be NULL. Called on the thread that
-                          * runs the fit */
+                          * runs the fit (several at once in reduce_case's second sweep) */
     void *progress_ctx;
     const atomic_int *cancel; /* may be NULL; once another thread sets it non-zero, the fit stops
                           * within one metric evaluation and returns 1 with the placed pose */
@@ -192,6 +201,8 @@ typedef struct reduce_result {
                            * otherwise (or when the fit failed) */
     reduce_candidate candidate[REDUCE_CANDIDATES_MAX];
     int hops;             /* rounds of hops that gained (each moved the result) */
+    int wave;             /* reduce_case with several moving: the fragments of its second-sweep
+                           * wave, fitted at once with it (itself included) */
     double *history;      /* metric per iteration, nhistory values; malloc'd */
     int nhistory;
 } reduce_result;

@@ -34,7 +34,7 @@ static double now_s(void)
 /* ---- the objective: the metric over six parameters, with the optimizers' bookkeeping --------- */
 
 typedef struct objective {
-    const reduce_metric *metric;
+    reduce_metric *metric;
     pose start;
     double c[3];     /* rotation centre, world */
     double raxis[3][3]; /* the rotation parameters' axes (columns, world) */
@@ -155,6 +155,9 @@ static double cost(const double *x, void *ctx)
     if (f < ob->best) {
         ob->best = f;
         memcpy(ob->bestx, x, sizeof ob->bestx);
+        /* the band follows the search (exact without it, and slower); failing, it stays where it was */
+        if (reduce__metric_drifted(ob->metric, &p))
+            (void)reduce__metric_rebase(ob->metric, &p);
     }
     return f;
 }
@@ -403,6 +406,8 @@ static int fit_from(fit_state *s, const double c[3], int record_start, pose *end
     ob->best = INFINITY;
     ob->improvements = 0;
     memcpy(ob->c, c, sizeof ob->c);
+    if (reduce__metric_rebase(s->metric, &ob->start) < 0)
+        return FN_ENOMEM;
     set_scale(ob, ob->metric);
     double f0 = cost_at(ob, &ob->start);
     if (record_start)

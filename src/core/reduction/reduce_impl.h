@@ -36,11 +36,10 @@ typedef struct reduce_bricks {
     pose home;
 } reduce_bricks;
 
-/* A VOI cell: v 1 where it counts (inside the box, and within the band of the assembly's bone),
- * a 1 where the assembly has bone. */
-typedef struct reduce_cell {
-    float v, a;
-} reduce_cell;
+/* A VOI cell's bits: it counts (inside the box, and within the band of the assembly's bone), and
+ * the assembly has bone there (a cell with bone counts). One byte a cell keeps a VOI of a skull's
+ * contact zone in the caches. */
+enum { REDUCE_CELL_V = 1, REDUCE_CELL_A = 2 };
 
 struct reduce_metric {
     reduce_count mode;
@@ -49,7 +48,7 @@ struct reduce_metric {
     int c0[3];          /* the VOI's first cell in the grid fragment's crop indices */
     int d[3];           /* VOI cells per axis */
     int D[3];           /* d + 2: the raster has a ring of empty cells around the VOI */
-    reduce_cell *cell;  /* the padded VOI cells */
+    uint8_t *cell;      /* the padded VOI cells (REDUCE_CELL_*) */
     int nb[3];          /* blocks of REDUCE_BLOCK^3 padded cells per axis */
     uint32_t *bsum;     /* (nb+1)^3 summed-volume table of blocks holding a counted cell */
     double sg[3];       /* the grid's spacing */
@@ -57,15 +56,35 @@ struct reduce_metric {
     pose grid_inv;      /* world -> grid crop mm */
     pose grid_world;    /* grid crop mm -> world */
     double fixed_centre[3]; /* world centroid of the assembly's bone in the VOI */
+    /* The band (reduce__metric_rebase): per brick, the runs of its voxels that lay within band_k
+     * cells of a counted cell at a reference pose. A brick that moved less than band_slack cells
+     * from there can weigh no counted cell with its other voxels, so an evaluation near that pose
+     * counts its band runs alone; one farther away counts all its runs. */
+    uint8_t *reach;     /* d cells: 1 within band_k cells (per axis) of a counted cell */
+    int band_k[3];
+    double band_slack[3]; /* band_k - 1.5: the voxels a trilinear weight reaches, half a cell more */
+    int band_ref;       /* 1 once the band is made (else every brick counts all its runs) */
+    double band_M[3][3]; /* the reference pose's carry */
+    double (*band_x)[3]; /* per brick: its centre's VOI cell coordinates there */
+    size_t *band_first; /* per brick: its band runs band[band_first[bi] .. band_first[bi + 1] - 1] */
+    reduce_run *band;
+    size_t nband, capband;
 };
 
 #define REDUCE_BLOCK 4
 
-/* out = in dilated by k[a] cells along each axis a (a box), by a sliding window count per line;
+/* out = in dilated by k[a] cells along each axis a (a box), by ORs of whole shifted lines;
  * in, out and tmp (scratch) span d[0]*d[1]*d[2] cells. */
 void reduce__dilate_box(const uint8_t *in, uint8_t *out, uint8_t *tmp, const int d[3], const int k[3]);
 reduce_bricks *reduce__bricks_new(const frag *m);
 void reduce__bricks_free(reduce_bricks *b);
+/* The metric's band made again at pose ref (the moving fragment's world pose), where the next
+ * evaluations will be: they cost the band's voxels near it, and stay exact anywhere. 0 or FN_ENOMEM
+ * (the metric then counts every run, exact and slower). Not thread-safe with evaluations of m. */
+int reduce__metric_rebase(reduce_metric *m, const pose *ref);
+/* 1 when some brick of the band moved halfway to where it would count all its runs, from the band's
+ * reference pose to p: time to rebase there. */
+int reduce__metric_drifted(const reduce_metric *m, const pose *p);
 /* A metric over shared bricks (not freed with it). gap_mm > 0: the VOI cells within gap_mm
  * (Euclidean) of the assembly's bone count as its bone (reduce_opts.gap_mm); 0: none. */
 reduce_metric *reduce__metric_with(const frag *const *asm_, int nasm, const frag *moving, reduce_bricks *b,
@@ -89,6 +108,7 @@ typedef struct reduce_tuning {
     double zone_delta_mm[2]; /* the fit's contact distance: first stage, later stages */
     double zone_margin_mm;   /* the fit's zone grown by this */
     double zone_grow;        /* a zone at the end this much larger (volume) than the VOI fitted: again */
+    double band_reach_mm;    /* the metric's band holds the moving voxels this near its counted cells */
     int zone_grow_stages;    /* at most this many stages more for it */
     /* collision */
     double tolerance_voxels; /* the query's tolerance: at most this times the smallest spacing
@@ -123,7 +143,8 @@ typedef struct reduce_tuning {
     double long_margin;      /* and one of a long piece this much */
     /* the order of several fragments */
     double order_delta_mm, order_margin_mm; /* contact zone that measures a piece's contact */
-    double touch_mm;         /* a piece with no bone this near another's in the CT touches nothing */
+    double touch_mm;         /* a piece with no bone this near another's in the CT touches nothing;
+                              * in the second sweep, pieces this far apart fit at once */
 } reduce_tuning;
 
 extern const reduce_tuning reduce__tune;

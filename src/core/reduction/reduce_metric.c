@@ -167,6 +167,10 @@ void reduce_metric_free(reduce_metric *m)
     if (m) {
         free(m->cell);
         free(m->bsum);
+        free(m->reach);
+        free(m->band_x);
+        free(m->band_first);
+        free(m->band);
         if (m->own_bricks)
             reduce__bricks_free(m->b);
         free(m);
@@ -204,31 +208,49 @@ static void dilate_ball(const uint8_t *bone, uint8_t *v, const int d[3], const d
             }
 }
 
+/* dst |= src over n bytes, eight at a time. */
+static void or_bytes(uint8_t *dst, const uint8_t *src, size_t n)
+{
+    size_t i = 0;
+    for (; i + 8 <= n; i += 8) {
+        uint64_t a, b;
+        memcpy(&a, dst + i, 8);
+        memcpy(&b, src + i, 8);
+        a |= b;
+        memcpy(dst + i, &a, 8);
+    }
+    for (; i < n; i++)
+        dst[i] |= src[i];
+}
+
+/* out |= t shifted by r lines either way, in blocks of len lines of inner elements each (an axis
+ * with the axes below it: the lines of a block are contiguous, whichever the axis). */
+static void or_shifted(uint8_t *out, const uint8_t *t, size_t outer, int len, size_t inner, int r)
+{
+    if (r >= len)
+        return;
+    size_t n = (size_t)(len - r) * inner, sh = (size_t)r * inner, block = (size_t)len * inner;
+    for (size_t o = 0; o < outer; o++) {
+        or_bytes(out + o * block, t + o * block + sh, n);
+        or_bytes(out + o * block + sh, t + o * block, n);
+    }
+}
+
 void reduce__dilate_box(const uint8_t *in, uint8_t *out, uint8_t *tmp, const int d[3], const int k[3])
 {
-    size_t n = (size_t)d[0] * d[1] * d[2];
-    memcpy(out, in, n);
-    size_t stride[3] = {1, (size_t)d[0], (size_t)d[0] * d[1]};
+    size_t n = (size_t)d[0] * d[1] * d[2], inner = 1;
+    for (size_t i = 0; i < n; i++)
+        out[i] = in[i] != 0;
     for (int a = 0; a < 3; a++) {
-        memcpy(tmp, out, n);
-        int len = d[a], b1 = (a + 1) % 3, b2 = (a + 2) % 3;
-        size_t st = stride[a];
-        for (int u = 0; u < d[b2]; u++)
-            for (int v = 0; v < d[b1]; v++) { /* the line through (u, v) along a */
-                size_t base = (size_t)u * stride[b2] + (size_t)v * stride[b1];
-                const uint8_t *src = tmp + base;
-                uint8_t *dst = out + base;
-                int count = 0;
-                for (int i = 0; i < k[a] && i < len; i++)
-                    count += src[(size_t)i * st];
-                for (int i = 0; i < len; i++) {
-                    if (i + k[a] < len)
-                        count += src[(size_t)(i + k[a]) * st];
-                    if (i - k[a] - 1 >= 0)
-                        count -= src[(size_t)(i - k[a] - 1) * st];
-                    dst[(size_t)i * st] = count > 0;
-                }
-            }
+        size_t outer = n / inner / (size_t)d[a];
+        /* a box of radius c grown by a step s <= c + 1 either way is a box of radius c + s: radii
+         * 1, 3, 7, ... up to k in about log2(k) whole-line passes */
+        for (int c = 0, s; c < k[a]; c += s) {
+            s = c + 1 < k[a] - c ? c + 1 : k[a] - c;
+            memcpy(tmp, out, n);
+            or_shifted(out, tmp, outer, d[a], inner, s);
+        }
+        inner *= (size_t)d[a];
     }
 }
 
@@ -258,7 +280,7 @@ static int block_table(reduce_metric *m)
     for (int k = 0; k < m->D[2]; k++)
         for (int j = 0; j < m->D[1]; j++)
             for (int i = 0; i < m->D[0]; i++)
-                if (m->cell[((size_t)k * m->D[1] + j) * m->D[0] + i].v > 0)
+                if (m->cell[((size_t)k * m->D[1] + j) * m->D[0] + i] & REDUCE_CELL_V)
                     m->bsum[((size_t)(k / B + 1) * s1 + (size_t)(j / B + 1)) * s0 + (size_t)(i / B + 1)] = 1;
     for (int k = 1; k <= m->nb[2]; k++) /* prefix sums along each axis in turn */
         for (int j = 1; j <= m->nb[1]; j++)
@@ -286,6 +308,72 @@ static uint32_t blocks_counted(const reduce_metric *m, const int lo[3], const in
     return S(a1, b1, c1) - S(a0, b1, c1) - S(a1, b0, c1) - S(a1, b1, c0) + S(a0, b0, c1) + S(a0, b1, c0) +
            S(a1, b0, c0) - S(a0, b0, c0);
 #undef S
+}
+
+/* bone[] |= fragment f's bone sampled (nearest) at the VOI cells (c0: the first, d per axis, in
+ * the grid fragment g's crop), over the cells its crop box reaches: what cell_bone finds there, by
+ * one affine map from a cell to f's voxel index instead of poses per cell. */
+static void sample_into(const frag *g, const frag *f, const int c0[3], const int d[3], uint8_t *bone)
+{
+    pose P = pose_compose(pose_inverse(pose_compose(f->pose, f->home)), pose_compose(g->pose, g->home)), Q;
+    double R[3][3], A[3][3], b[3], lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    pose_to_matrix(&P, R);
+    for (int a = 0; a < 3; a++) {
+        b[a] = P.t[a] / f->spacing[a];
+        for (int c = 0; c < 3; c++) {
+            A[a][c] = R[a][c] * g->spacing[c] / f->spacing[a];
+            b[a] += A[a][c] * c0[c];
+        }
+    }
+    Q = pose_inverse(P); /* f's crop box into the VOI's cells, for the range to sample */
+    for (int corner = 0; corner < 8; corner++) {
+        double l[3], x[3];
+        for (int a = 0; a < 3; a++)
+            l[a] = ((corner >> a & 1) ? f->dim[a] - 0.5 : -0.5) * f->spacing[a];
+        pose_apply(&Q, l, x);
+        for (int a = 0; a < 3; a++) {
+            lo[a] = fmin(lo[a], x[a] / g->spacing[a] - c0[a]);
+            hi[a] = fmax(hi[a], x[a] / g->spacing[a] - c0[a]);
+        }
+    }
+    int r0[3], r1[3];
+    for (int a = 0; a < 3; a++) {
+        r0[a] = lo[a] < 0 ? 0 : (int)lo[a];
+        r1[a] = hi[a] > d[a] - 1 ? d[a] - 1 : (int)ceil(hi[a]);
+        if (r1[a] < r0[a])
+            return;
+    }
+    for (int k = r0[2]; k <= r1[2]; k++)
+        for (int j = r0[1]; j <= r1[1]; j++) {
+            uint8_t *row = bone + ((size_t)k * d[1] + j) * d[0];
+            for (int i = r0[0]; i <= r1[0]; i++) {
+                if (row[i])
+                    continue;
+                int v[3], in = 1;
+                for (int a = 0; a < 3 && in; a++) {
+                    v[a] = (int)floor(A[a][0] * i + A[a][1] * j + A[a][2] * k + b[a] + 0.5);
+                    in = v[a] >= 0 && v[a] < f->dim[a];
+                }
+                row[i] = in && f->prob[((size_t)v[2] * f->dim[1] + v[1]) * f->dim[0] + v[0]];
+            }
+        }
+}
+
+/* The assembly's bone on the VOI cells (cell_bone for each, 0 or 1): the grid fragment's own
+ * voxels, then each other fragment sampled where the grid has none. */
+static void voi_bone(const frag *const *asm_, int nasm, const int c0[3], const int d[3], uint8_t *bone)
+{
+    const frag *g = asm_[0];
+    size_t idx = 0;
+    for (int k = 0; k < d[2]; k++)
+        for (int j = 0; j < d[1]; j++)
+            for (int i = 0; i < d[0]; i++, idx++) {
+                int l[3] = {c0[0] + i, c0[1] + j, c0[2] + k};
+                bone[idx] = l[0] >= 0 && l[1] >= 0 && l[2] >= 0 && l[0] < g->dim[0] && l[1] < g->dim[1] &&
+                            l[2] < g->dim[2] && g->prob[((size_t)l[2] * g->dim[1] + l[1]) * g->dim[0] + l[0]];
+            }
+    for (int f = 1; f < nasm; f++)
+        sample_into(g, asm_[f], c0, d, bone);
 }
 
 reduce_metric *reduce__metric_with(const frag *const *asm_, int nasm, const frag *moving, reduce_bricks *b,
@@ -316,25 +404,23 @@ reduce_metric *reduce__metric_with(const frag *const *asm_, int nasm, const frag
     size_t nv = (size_t)m->d[0] * m->d[1] * m->d[2];
     m->cell = calloc((size_t)m->D[0] * m->D[1] * m->D[2], sizeof *m->cell);
     uint8_t *bone = calloc(nv, 1), *in = malloc(nv);
-    pose *inv = crop_poses(asm_, nasm);
-    if (!m->cell || !bone || !in || !inv) {
+    if (!m->cell || !bone || !in) {
         fn_err_set(FN_ENOMEM, "reduce metric: out of memory for a %dx%dx%d VOI", m->d[0], m->d[1], m->d[2]);
         free(bone);
         free(in);
-        free(inv);
         reduce_metric_free(m);
         return NULL;
     }
+    voi_bone(asm_, nasm, m->c0, m->d, bone);
     double sum[3] = {0, 0, 0};
     size_t idx = 0;
     for (int k = 0; k < m->d[2]; k++)
         for (int j = 0; j < m->d[1]; j++)
             for (int i = 0; i < m->d[0]; i++, idx++)
-                if ((bone[idx] = (uint8_t)cell_bone(asm_, nasm, inv, m->c0, i, j, k))) {
+                if (bone[idx]) {
                     m->n1 += 1;
                     sum[0] += i, sum[1] += j, sum[2] += k;
                 }
-    free(inv);
     if (gap_mm > 0) { /* the gap left where bone was lost counts as the assembly's */
         uint8_t *gb = malloc(nv);
         if (!gb) {
@@ -366,15 +452,22 @@ reduce_metric *reduce__metric_with(const frag *const *asm_, int nasm, const frag
     for (int k = 0; k < m->d[2]; k++)
         for (int j = 0; j < m->d[1]; j++)
             for (int i = 0; i < m->d[0]; i++, idx++) {
-                reduce_cell *c = &m->cell[((size_t)(k + 1) * m->D[1] + j + 1) * m->D[0] + i + 1];
-                c->v = in[idx];
-                c->a = bone[idx];
-                m->nvoi += in[idx];
+                m->cell[((size_t)(k + 1) * m->D[1] + j + 1) * m->D[0] + i + 1] =
+                    (uint8_t)((in[idx] ? REDUCE_CELL_V : 0) | (bone[idx] ? REDUCE_CELL_A : 0));
+                m->nvoi += in[idx] != 0;
             }
+    for (int a = 0; a < 3; a++) {
+        m->band_k[a] = (int)ceil(reduce__tune.band_reach_mm / m->sg[a]) + 2;
+        m->band_slack[a] = m->band_k[a] - 1.5;
+    }
+    m->reach = malloc(nv);
+    m->band_x = malloc((size_t)b->nbrick * sizeof *m->band_x + 1);
+    m->band_first = malloc(((size_t)b->nbrick + 1) * sizeof *m->band_first);
+    int rc = m->reach && m->band_x && m->band_first ? dilate_box(in, m->reach, m->d, m->band_k) : FN_ENOMEM;
     free(bone);
     free(in);
-    if (block_table(m) < 0) {
-        fn_err_set(FN_ENOMEM, "reduce metric: out of memory for the block table");
+    if (rc < 0 || block_table(m) < 0) {
+        fn_err_set(FN_ENOMEM, "reduce metric: out of memory for the band");
         reduce_metric_free(m);
         return NULL;
     }
@@ -385,6 +478,10 @@ reduce_metric *reduce__metric_with(const frag *const *asm_, int nasm, const frag
         l[a] = m->n1 > 0 ? (m->c0[a] + sum[a] / m->n1) * m->sg[a] : (m->c0[a] + 0.5 * (m->d[a] - 1)) * m->sg[a];
     pose_apply(&m->grid_world, l, m->fixed_centre);
     m->w = moving->spacing[0] * moving->spacing[1] * moving->spacing[2] / (m->sg[0] * m->sg[1] * m->sg[2]);
+    if (reduce__metric_rebase(m, &moving->pose) < 0) {
+        reduce_metric_free(m);
+        return NULL;
+    }
     return m;
 }
 
@@ -419,18 +516,24 @@ static void carry(const reduce_metric *m, const pose *p, double M[3][3], double 
     }
 }
 
-/* The bricks whose bounding sphere can reach the VOI (lo_pad below cell 0, hi_pad above d-1). */
-static int brick_visible(const reduce_metric *m, const reduce_brick *br, double M[3][3], const double T[3],
-                         double pad)
+/* The VOI cell coordinates of a point u of the moving crop (index units). */
+static void carried(double M[3][3], const double T[3], const float u[3], double x[3])
 {
-    double smin = fmin(m->sg[0], fmin(m->sg[1], m->sg[2])), r = br->r_mm / smin + pad;
+    for (int a = 0; a < 3; a++)
+        x[a] = M[a][0] * u[0] + M[a][1] * u[1] + M[a][2] * u[2] + T[a];
+}
+
+/* Whether a brick whose centre lies at VOI cell coordinates x can weigh a counted cell when its
+ * voxels move pad cells more: its bounding sphere reaches a counted block. */
+static int brick_visible(const reduce_metric *m, const reduce_brick *br, const double x[3], int pad)
+{
+    double smin = fmin(m->sg[0], fmin(m->sg[1], m->sg[2])), r = br->r_mm / smin + 1 + pad;
     int lo[3], hi[3];
     for (int a = 0; a < 3; a++) {
-        double x = M[a][0] * br->c[0] + M[a][1] * br->c[1] + M[a][2] * br->c[2] + T[a];
-        if (x < -r || x > m->d[a] - 1 + r)
+        if (x[a] < -r || x[a] > m->d[a] - 1 + r)
             return 0;
         /* padded cells x - r - 1 .. x + r + 2 hold every cell a voxel of the brick can weigh */
-        int p0 = (int)floor(x - r) , p1 = (int)ceil(x + r) + 2;
+        int p0 = (int)floor(x[a] - r), p1 = (int)ceil(x[a] + r) + 2;
         p0 = p0 < 0 ? 0 : p0;
         p1 = p1 > m->D[a] - 1 ? m->D[a] - 1 : p1;
         lo[a] = p0 / REDUCE_BLOCK;
@@ -439,17 +542,17 @@ static int brick_visible(const reduce_metric *m, const reduce_brick *br, double 
     return blocks_counted(m, lo, hi) > 0;
 }
 
-/* Whether a run from (x, y, z) with len voxels can weigh a counted cell (the block table again,
- * at the run's reach): most runs of a visible brick lie away from the fixed bone. */
-static int run_visible(const reduce_metric *m, double M[3][3], double x, double y, double z, int len)
+/* Whether a run from x with len voxels can weigh a counted cell when its voxels move pad cells
+ * more (the block table again, at the run's reach): most runs of a visible brick lie away from the
+ * fixed bone. */
+static int run_visible(const reduce_metric *m, const double x[3], const double step[3], int len, int pad)
 {
-    double p[3] = {x, y, z}, q[3] = {x + (len - 1) * M[0][0], y + (len - 1) * M[1][0], z + (len - 1) * M[2][0]};
     int lo[3], hi[3];
     for (int a = 0; a < 3; a++) {
-        double l = fmin(p[a], q[a]), h = fmax(p[a], q[a]);
-        if (h <= -1 || l >= m->d[a])
+        double e = x[a] + (len - 1) * step[a], l = fmin(x[a], e), h = fmax(x[a], e);
+        if (h <= -1 - pad || l >= m->d[a] + pad)
             return 0;
-        int p0 = (int)floor(l), p1 = (int)floor(h) + 2; /* padded cells floor(l)+1 .. floor(h)+2 */
+        int p0 = (int)floor(l) - pad, p1 = (int)floor(h) + 2 + pad; /* padded cells floor(l)+1 .. floor(h)+2 */
         p0 = p0 < 0 ? 0 : p0;
         p1 = p1 > m->D[a] - 1 ? m->D[a] - 1 : p1;
         lo[a] = p0 / REDUCE_BLOCK;
@@ -458,85 +561,196 @@ static int run_visible(const reduce_metric *m, double M[3][3], double x, double 
     return blocks_counted(m, lo, hi) > 0;
 }
 
-static void eval_trilinear(const reduce_metric *m, double M[3][3], const double T[3], double *n2, double *ni)
+/* What is done with one run of moving voxels: its first voxel at VOI cell coordinates x, the next
+ * ones step apart. */
+typedef void run_fn(const reduce_metric *m, const reduce_run *run, const double x[3], const double step[3], void *acc);
+
+/* How far (VOI cells along each axis) a brick's centre may move from the band's reference pose with
+ * its band runs still exact, at the carry M. */
+static void band_reach(const reduce_metric *m, double M[3][3], double reach[3])
 {
-    const int d0 = m->d[0], d1 = m->d[1], d2 = m->d[2];
-    const size_t sy = (size_t)m->D[0], sz = (size_t)m->D[0] * m->D[1];
-    double s2 = 0, si = 0;
-    for (int bi = 0; bi < m->b->nbrick; bi++) {
-        const reduce_brick *br = &m->b->brick[bi];
-        if (!brick_visible(m, br, M, T, 1))
-            continue;
-        for (int r = br->first; r < br->first + br->n; r++) {
-            const reduce_run *run = &m->b->run[r];
-            double x = M[0][0] * run->i0 + M[0][1] * run->j + M[0][2] * run->k + T[0];
-            double y = M[1][0] * run->i0 + M[1][1] * run->j + M[1][2] * run->k + T[1];
-            double z = M[2][0] * run->i0 + M[2][1] * run->j + M[2][2] * run->k + T[2];
-            if (!run_visible(m, M, x, y, z, run->len))
-                continue;
-            for (int n = 0; n < run->len; n++, x += M[0][0], y += M[1][0], z += M[2][0]) {
-                if (!(x > -1 && y > -1 && z > -1 && x < d0 && y < d1 && z < d2))
-                    continue;
-                int i = (int)(x + 1) - 1, j = (int)(y + 1) - 1, k = (int)(z + 1) - 1;
-                float fx = (float)(x - i), fy = (float)(y - j), fz = (float)(z - k);
-                const reduce_cell *c = m->cell + (size_t)(k + 1) * sz + (size_t)(j + 1) * sy + (size_t)(i + 1);
-                /* v and a interpolated together, as pairs */
-                float v00 = c[0].v + fx * (c[1].v - c[0].v), a00 = c[0].a + fx * (c[1].a - c[0].a);
-                float v10 = c[sy].v + fx * (c[sy + 1].v - c[sy].v), a10 = c[sy].a + fx * (c[sy + 1].a - c[sy].a);
-                float v01 = c[sz].v + fx * (c[sz + 1].v - c[sz].v), a01 = c[sz].a + fx * (c[sz + 1].a - c[sz].a);
-                float v11 = c[sz + sy].v + fx * (c[sz + sy + 1].v - c[sz + sy].v);
-                float a11 = c[sz + sy].a + fx * (c[sz + sy + 1].a - c[sz + sy].a);
-                float v0 = v00 + fy * (v10 - v00), v1 = v01 + fy * (v11 - v01);
-                float a0 = a00 + fy * (a10 - a00), a1 = a01 + fy * (a11 - a01);
-                s2 += v0 + fz * (v1 - v0);
-                si += a0 + fz * (a1 - a0);
-            }
-        }
+    for (int a = 0; a < 3; a++) {
+        /* a voxel of a brick lies (BRICK - 1) / 2 voxels or less from its centre along each crop axis */
+        double turn = 0;
+        for (int c = 0; c < 3; c++)
+            turn += fabs(M[a][c] - m->band_M[a][c]);
+        reach[a] = m->band_ref ? m->band_slack[a] - 0.5 * (BRICK - 1) * turn : -1;
     }
-    *n2 = s2;
-    *ni = si;
 }
 
-static void eval_nearest(const reduce_metric *m, double M[3][3], const double T[3], double *n2, double *ni)
+int reduce__metric_drifted(const reduce_metric *m, const pose *p)
 {
-    const double e0 = m->d[0] - 0.5, e1 = m->d[1] - 0.5, e2 = m->d[2] - 0.5;
-    const size_t sy = (size_t)m->D[0], sz = (size_t)m->D[0] * m->D[1];
-    double s2 = 0, si = 0;
+    double M[3][3], T[3], reach[3];
+    carry(m, p, M, T);
+    band_reach(m, M, reach);
+    for (int bi = 0; bi < m->b->nbrick; bi++) {
+        if (m->band_first[bi + 1] == m->band_first[bi])
+            continue;
+        double x[3];
+        carried(M, T, m->b->brick[bi].c, x);
+        for (int a = 0; a < 3; a++)
+            if (fabs(x[a] - m->band_x[bi][a]) > 0.5 * reach[a])
+                return 1;
+    }
+    return 0;
+}
+
+/* Every run of moving voxels at pose p that can lie in the VOI, handed to fn. counted: only the
+ * runs that can weigh a counted cell, and, for the bricks that moved less than the band's reach from
+ * its reference pose, only their band runs (reduce__metric_rebase). */
+static void walk_runs(const reduce_metric *m, const pose *p, int counted, run_fn *fn, void *acc)
+{
+    double M[3][3], T[3], step[3], reach[3];
+    carry(m, p, M, T);
+    band_reach(m, M, reach);
+    for (int a = 0; a < 3; a++) {
+        step[a] = M[a][0];
+        reach[a] = counted ? reach[a] : -1;
+    }
     for (int bi = 0; bi < m->b->nbrick; bi++) {
         const reduce_brick *br = &m->b->brick[bi];
-        if (!brick_visible(m, br, M, T, 1))
+        double x[3];
+        carried(M, T, br->c, x);
+        const reduce_run *run = m->b->run + br->first;
+        int n = br->n, cull = counted;
+        if (fabs(x[0] - m->band_x[bi][0]) <= reach[0] && fabs(x[1] - m->band_x[bi][1]) <= reach[1] &&
+            fabs(x[2] - m->band_x[bi][2]) <= reach[2]) {
+            run = m->band + m->band_first[bi];
+            n = m->band_first[bi + 1] - m->band_first[bi];
+            cull = 0;
+        } else if (!brick_visible(m, br, x, 0))
             continue;
-        for (int r = br->first; r < br->first + br->n; r++) {
-            const reduce_run *run = &m->b->run[r];
-            double x = M[0][0] * run->i0 + M[0][1] * run->j + M[0][2] * run->k + T[0];
-            double y = M[1][0] * run->i0 + M[1][1] * run->j + M[1][2] * run->k + T[1];
-            double z = M[2][0] * run->i0 + M[2][1] * run->j + M[2][2] * run->k + T[2];
-            for (int n = 0; n < run->len; n++, x += M[0][0], y += M[1][0], z += M[2][0]) {
-                if (!(x >= -0.5 && y >= -0.5 && z >= -0.5 && x < e0 && y < e1 && z < e2))
-                    continue;
-                int i = (int)(x + 0.5), j = (int)(y + 0.5), k = (int)(z + 0.5);
-                const reduce_cell *c = m->cell + (size_t)(k + 1) * sz + (size_t)(j + 1) * sy + (size_t)(i + 1);
-                s2 += c->v;
-                si += c->a;
-            }
+        for (int r = 0; r < n; r++) {
+            double u[3] = {run[r].i0, run[r].j, run[r].k}, x0[3];
+            for (int a = 0; a < 3; a++)
+                x0[a] = M[a][0] * u[0] + M[a][1] * u[1] + M[a][2] * u[2] + T[a];
+            if (!cull || run_visible(m, x0, step, run[r].len, 0))
+                fn(m, &run[r], x0, step, acc);
         }
     }
-    *n2 = s2;
-    *ni = si;
+}
+
+/* n_2 and n_I of a run (acc: the two sums), nearest or trilinear. */
+static void run_counts(const reduce_metric *m, const reduce_run *run, const double x0[3], const double step[3],
+                       void *acc)
+{
+    const int len = run->len;
+    const int d0 = m->d[0], d1 = m->d[1], d2 = m->d[2];
+    const size_t sy = (size_t)m->D[0], sz = (size_t)m->D[0] * m->D[1];
+    double x = x0[0], y = x0[1], z = x0[2], s2 = 0, si = 0;
+    if (m->mode == REDUCE_NEAREST) {
+        for (int n = 0; n < len; n++, x += step[0], y += step[1], z += step[2]) {
+            if (!(x >= -0.5 && y >= -0.5 && z >= -0.5 && x < d0 - 0.5 && y < d1 - 0.5 && z < d2 - 0.5))
+                continue;
+            int i = (int)(x + 0.5), j = (int)(y + 0.5), k = (int)(z + 0.5);
+            uint8_t c = m->cell[(size_t)(k + 1) * sz + (size_t)(j + 1) * sy + (size_t)(i + 1)];
+            s2 += c & REDUCE_CELL_V;
+            si += c >> 1;
+        }
+    } else
+        for (int n = 0; n < len; n++, x += step[0], y += step[1], z += step[2]) {
+            if (!(x > -1 && y > -1 && z > -1 && x < d0 && y < d1 && z < d2))
+                continue;
+            int i = (int)(x + 1) - 1, j = (int)(y + 1) - 1, k = (int)(z + 1) - 1;
+            const uint8_t *c = m->cell + (size_t)(k + 1) * sz + (size_t)(j + 1) * sy + (size_t)(i + 1);
+            unsigned c00 = c[0] | c[1] << 2, c10 = c[sy] | c[sy + 1] << 2; /* a cell and the next along i */
+            unsigned c01 = c[sz] | c[sz + 1] << 2, c11 = c[sz + sy] | c[sz + sy + 1] << 2;
+            if (!(c00 | c10 | c01 | c11))
+                continue;
+            float fx = (float)(x - i), fy = (float)(y - j), fz = (float)(z - k), e[2][2][2];
+            unsigned q[2][2] = {{c00, c10}, {c01, c11}};
+            for (int b = 0; b < 2; b++) /* e[bit][z][y]: v or a interpolated along i */
+                for (int a = 0; a < 2; a++)
+                    for (int bit = 0; bit < 2; bit++) {
+                        float lo = (float)(q[b][a] >> bit & 1), hi = (float)(q[b][a] >> (bit + 2) & 1);
+                        e[bit][b][a] = lo + fx * (hi - lo);
+                    }
+            float v0 = e[0][0][0] + fy * (e[0][0][1] - e[0][0][0]), v1 = e[0][1][0] + fy * (e[0][1][1] - e[0][1][0]);
+            float a0 = e[1][0][0] + fy * (e[1][0][1] - e[1][0][0]), a1 = e[1][1][0] + fy * (e[1][1][1] - e[1][1][0]);
+            s2 += v0 + fz * (v1 - v0);
+            si += a0 + fz * (a1 - a0);
+        }
+    double *sum = acc;
+    sum[0] += s2;
+    sum[1] += si;
 }
 
 double reduce_metric_eval(const reduce_metric *m, const pose *p, reduce_counts *counts)
 {
-    double M[3][3], T[3], n2, ni;
-    carry(m, p, M, T);
-    if (m->mode == REDUCE_NEAREST)
-        eval_nearest(m, M, T, &n2, &ni);
-    else
-        eval_trilinear(m, M, T, &n2, &ni);
-    reduce_counts c = {m->n1, n2 * m->w, ni * m->w, m->nvoi};
+    double sum[2] = {0, 0};
+    walk_runs(m, p, 1, run_counts, sum);
+    reduce_counts c = {m->n1, sum[0] * m->w, sum[1] * m->w, m->nvoi};
     if (counts)
         *counts = c;
     return reduce_counts_metric(&c);
+}
+
+/* Whether a voxel at VOI cell coordinates x lies within band_k cells (per axis) of a counted cell. */
+static int in_reach(const reduce_metric *m, const double x[3])
+{
+    int c[3];
+    for (int a = 0; a < 3; a++) {
+        c[a] = (int)floor(x[a] + 0.5);
+        if (c[a] < -m->band_k[a] || c[a] > m->d[a] - 1 + m->band_k[a])
+            return 0;
+        c[a] = c[a] < 0 ? 0 : c[a] > m->d[a] - 1 ? m->d[a] - 1 : c[a]; /* no nearer a cell inside */
+    }
+    return m->reach[((size_t)c[2] * m->d[1] + c[1]) * m->d[0] + c[0]];
+}
+
+static int push_band(reduce_metric *m, int i0, int len, int j, int k)
+{
+    if (m->nband == m->capband) {
+        size_t nc = m->capband ? 2 * m->capband : 1024;
+        reduce_run *r = realloc(m->band, nc * sizeof *r);
+        if (!r)
+            return FN_ENOMEM;
+        m->band = r;
+        m->capband = nc;
+    }
+    m->band[m->nband++] = (reduce_run){(uint16_t)i0, (uint16_t)len, (uint16_t)j, (uint16_t)k};
+    return 0;
+}
+
+int reduce__metric_rebase(reduce_metric *m, const pose *ref)
+{
+    double M[3][3], T[3];
+    carry(m, ref, M, T);
+    memcpy(m->band_M, M, sizeof M);
+    m->band_ref = 0;
+    m->nband = 0;
+    int pad = m->band_k[0] > m->band_k[1] ? m->band_k[0] : m->band_k[1];
+    pad = pad > m->band_k[2] ? pad : m->band_k[2];
+    for (int bi = 0; bi < m->b->nbrick; bi++) {
+        const reduce_brick *br = &m->b->brick[bi];
+        double *x = m->band_x[bi];
+        carried(M, T, br->c, x);
+        m->band_first[bi] = m->nband;
+        int near = brick_visible(m, br, x, pad);
+        for (int q = br->first; near && q < br->first + br->n; q++) {
+            const reduce_run *run = &m->b->run[q];
+            double u[3] = {run->i0, run->j, run->k}, y[3];
+            for (int a = 0; a < 3; a++)
+                y[a] = M[a][0] * u[0] + M[a][1] * u[1] + M[a][2] * u[2] + T[a];
+            if (!run_visible(m, y, (double[3]){M[0][0], M[1][0], M[2][0]}, run->len, pad))
+                continue;
+            for (int n = 0, s = -1; n <= run->len; n++) { /* s: the first kept voxel of a sub-run */
+                int keep = n < run->len && in_reach(m, y);
+                if (keep && s < 0)
+                    s = n;
+                if (!keep && s >= 0) {
+                    if (push_band(m, run->i0 + s, n - s, run->j, run->k) < 0)
+                        return fn_err_set(FN_ENOMEM, "reduce metric: out of memory for the band");
+                    s = -1;
+                }
+                for (int a = 0; a < 3; a++)
+                    y[a] += M[a][0];
+            }
+        }
+    }
+    m->band_first[m->b->nbrick] = m->nband;
+    m->band_ref = 1;
+    return 0;
 }
 
 double reduce_metric_radius(const reduce_metric *m, const pose *p, const double c[3])
@@ -546,37 +760,40 @@ double reduce_metric_radius(const reduce_metric *m, const pose *p, const double 
     return sqrt(S[0][0] + S[1][1] + S[2][2]);
 }
 
+/* The scatter of a run's voxels inside the VOI about a centre (acc: a spread). */
+typedef struct spread {
+    double c[3], s[3][3];
+    size_t n;
+} spread;
+
+static void run_spread(const reduce_metric *m, const reduce_run *run, const double x0[3], const double step[3],
+                       void *acc)
+{
+    spread *sp = acc;
+    for (int k = 0; k < run->len; k++) {
+        double x[3], l[3], w[3];
+        for (int a = 0; a < 3; a++)
+            x[a] = x0[a] + k * step[a];
+        if (x[0] < -0.5 || x[1] < -0.5 || x[2] < -0.5 || x[0] >= m->d[0] - 0.5 || x[1] >= m->d[1] - 0.5 ||
+            x[2] >= m->d[2] - 0.5)
+            continue;
+        for (int a = 0; a < 3; a++)
+            l[a] = (x[a] + m->c0[a]) * m->sg[a];
+        pose_apply(&m->grid_world, l, w);
+        for (int a = 0; a < 3; a++)
+            for (int b = 0; b < 3; b++)
+                sp->s[a][b] += (w[a] - sp->c[a]) * (w[b] - sp->c[b]);
+        sp->n++;
+    }
+}
+
 void reduce_metric_spread(const reduce_metric *m, const pose *p, const double c[3], double S[3][3])
 {
-    double M[3][3], T[3], s[3][3] = {{0}};
-    size_t n = 0;
-    carry(m, p, M, T);
-    for (int bi = 0; bi < m->b->nbrick; bi++) {
-        const reduce_brick *br = &m->b->brick[bi];
-        if (!brick_visible(m, br, M, T, 1))
-            continue;
-        for (int r = br->first; r < br->first + br->n; r++) {
-            const reduce_run *run = &m->b->run[r];
-            for (int k = 0; k < run->len; k++) {
-                double u[3] = {run->i0 + k, run->j, run->k}, x[3], l[3], w[3];
-                for (int a = 0; a < 3; a++)
-                    x[a] = M[a][0] * u[0] + M[a][1] * u[1] + M[a][2] * u[2] + T[a];
-                if (x[0] < -0.5 || x[1] < -0.5 || x[2] < -0.5 || x[0] >= m->d[0] - 0.5 ||
-                    x[1] >= m->d[1] - 0.5 || x[2] >= m->d[2] - 0.5)
-                    continue;
-                for (int a = 0; a < 3; a++)
-                    l[a] = (x[a] + m->c0[a]) * m->sg[a];
-                pose_apply(&m->grid_world, l, w);
-                for (int a = 0; a < 3; a++)
-                    for (int b = 0; b < 3; b++)
-                        s[a][b] += (w[a] - c[a]) * (w[b] - c[b]);
-                n++;
-            }
-        }
-    }
+    spread sp = {{c[0], c[1], c[2]}, {{0}}, 0};
+    walk_runs(m, p, 0, run_spread, &sp);
     for (int a = 0; a < 3; a++)
         for (int b = 0; b < 3; b++)
-            S[a][b] = n ? s[a][b] / (double)n : 0;
+            S[a][b] = sp.n ? sp.s[a][b] / (double)sp.n : 0;
 }
 
 /* Brute force's band: a bone cell within k cells on every axis, looked for cell by cell. */

@@ -1,11 +1,15 @@
 /* reduce_order: several fragments of a case (reduce_case, see reduce.h): fitted one by one against
- * the growing assembly, the one of largest contact first, then each again against all the others. */
+ * the growing assembly, the one of largest contact first, then each again against all the others,
+ * those apart from each other at once on o->threads threads. */
 #include "reduce.h"
 #include "reduce_impl.h"
 
 #include "case.h"
 #include "err.h"
 
+#include <pthread.h>
+#include <stdatomic.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -76,32 +80,124 @@ static void merge_sweep(reduce_result *r, reduce_result *r2)
     reduce_result_free(r2);
 }
 
+/* A wave of the second sweep: fragments apart from each other, each fitted on a private copy (a
+ * struct copy sharing the voxels) against all the others at their poses before the wave, so that
+ * the fits depend on nothing another one changes and give the same poses on any number of threads. */
+typedef struct wave {
+    const planning_case *c;
+    const frag **asm_;
+    int nasm;
+    const reduce_opts *o;
+    const reduce_result *r;
+    const int *d;      /* its fragments' places in r */
+    int n;
+    frag *moving;      /* n: the private copies */
+    reduce_result *r2; /* n: their fits */
+    int *rc;           /* n */
+    char (*msg)[256];  /* n: a failed fit's message (err.h's are per thread) */
+    atomic_int next;
+} wave;
+
+static void *wave_worker(void *arg)
+{
+    wave *w = arg;
+    const frag **others = calloc((size_t)w->nasm, sizeof *others);
+    for (int i; (i = atomic_fetch_add(&w->next, 1)) < w->n;) {
+        const frag *f = &w->c->frag[case_find(w->c, w->r[w->d[i]].id)];
+        int n2 = 0;
+        for (int k = 0; others && k < w->nasm; k++)
+            if (w->asm_[k] != f)
+                others[n2++] = w->asm_[k];
+        w->moving[i] = *f;
+        w->rc[i] = others ? reduce_pair(others, n2, &w->moving[i], w->o, &w->r2[i])
+                          : fn_err_set(FN_ENOMEM, "reduce: out of memory");
+        if (w->rc[i] < 0)
+            snprintf(w->msg[i], sizeof w->msg[i], "fragment %d: %s", f->id, fn_err_msg());
+    }
+    free(others);
+    return NULL;
+}
+
+/* Runs the wave on up to o->threads threads (this one among them; fewer when a thread cannot be
+ * made), then moves its fragments and merges their fits in order. 0, 1 (cancelled) or FN_E*. */
+static int wave_run(wave *w, planning_case *c, reduce_result *r)
+{
+    pthread_t th[REDUCE_THREADS_MAX];
+    int nth = 0;
+    while (nth + 1 < w->o->threads && nth + 1 < w->n && nth < REDUCE_THREADS_MAX &&
+           pthread_create(&th[nth], NULL, wave_worker, w) == 0)
+        nth++;
+    wave_worker(w);
+    for (int t = 0; t < nth; t++)
+        pthread_join(th[t], NULL);
+    int rc = 0;
+    for (int i = 0; i < w->n; i++) {
+        if (rc == 0 && w->rc[i] < 0)
+            rc = fn_err_set(w->rc[i], "%s", w->msg[i]);
+        else if (rc == 0)
+            rc = w->rc[i];
+        if (w->rc[i] < 0) {
+            reduce_result_free(&w->r2[i]);
+            continue;
+        }
+        c->frag[case_find(c, w->moving[i].id)].pose = w->moving[i].pose;
+        merge_sweep(&r[w->d[i]], &w->r2[i]);
+        r[w->d[i]].wave = w->n;
+    }
+    return rc;
+}
+
+/* 1 when fragments a and b lie farther apart than the table's touch_mm, 0 when not, or FN_E*. */
+static int apart(const frag *a, const frag *b)
+{
+    const frag *o[1] = {b};
+    int t = reduce__touches(o, 1, a, reduce__tune.touch_mm);
+    return t < 0 ? t : !t;
+}
+
 /* The second sweep: each fragment again, now against all the others (no pre-alignment), so that a
  * fragment fitted early sees those that came after it (a chain of pieces does not pile up its
- * errors). 0 or FN_E*. */
+ * errors). In waves: in the first sweep's order, each wave the next fragment not yet fitted and
+ * every later one apart from all in the wave. 0 or FN_E*. */
 static int second_sweep(planning_case *c, const frag **asm_, int nasm, int nmoving, const reduce_opts *o,
                         reduce_result *r)
 {
     reduce_opts again = *o;
     again.prealign = 0;
-    const frag **others = calloc((size_t)nasm, sizeof *others);
-    if (!others)
-        return fn_err_set(FN_ENOMEM, "reduce: out of memory");
-    int rc = 0;
-    for (int d = 0; d < nmoving && rc == 0; d++) {
-        int mi = case_find(c, r[d].id), n2 = 0;
-        for (int k = 0; k < nasm; k++)
-            if (asm_[k] != &c->frag[mi])
-                others[n2++] = asm_[k];
-        reduce_result r2;
-        rc = reduce_pair(others, n2, &c->frag[mi], &again, &r2);
-        if (rc < 0) {
-            fn_err_wrap(rc, "fragment %d", c->frag[mi].id);
-            break;
+    wave w = {.c = c, .asm_ = asm_, .nasm = nasm, .o = &again, .r = r};
+    int *d = calloc((size_t)nmoving, sizeof *d), *done = calloc((size_t)nmoving, sizeof *done);
+    w.moving = calloc((size_t)nmoving, sizeof *w.moving);
+    w.r2 = calloc((size_t)nmoving, sizeof *w.r2);
+    w.rc = calloc((size_t)nmoving, sizeof *w.rc);
+    w.msg = calloc((size_t)nmoving, sizeof *w.msg);
+    int rc = d && done && w.moving && w.r2 && w.rc && w.msg ? 0 : fn_err_set(FN_ENOMEM, "reduce: out of memory");
+    for (int d0 = 0; d0 < nmoving && rc == 0; d0++) {
+        if (done[d0])
+            continue;
+        w.n = 0;
+        d[w.n++] = d0;
+        for (int e = d0 + 1; e < nmoving && rc == 0; e++) {
+            const frag *fe = &c->frag[case_find(c, r[e].id)];
+            int ok = !done[e];
+            for (int i = 0; i < w.n && ok > 0; i++)
+                ok = apart(fe, &c->frag[case_find(c, r[d[i]].id)]);
+            if (ok > 0)
+                d[w.n++] = e;
+            rc = ok < 0 ? ok : 0;
         }
-        merge_sweep(&r[d], &r2);
+        for (int i = 0; i < w.n; i++)
+            done[d[i]] = 1;
+        w.d = d;
+        atomic_store(&w.next, 0);
+        if (rc == 0)
+            rc = wave_run(&w, c, r);
     }
-    free(others);
+    free(d);
+    free(done);
+    free(w.moving);
+    free(w.r2);
+    free(w.rc);
+    free(w.msg);
     return rc;
 }
 
