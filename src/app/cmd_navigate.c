@@ -452,6 +452,12 @@ static void window_frame(view *v, const loop_scene *sc)
         } else if (!navseed_key(&v->seed, keys[i]))
             window_key(v, keys[i]);
     }
+    /* the split the seeds make, grown on this thread between frames (tens of ms on real bones) */
+    if (navseed_preview(&v->seed, session_case(v->k), sc->nfrag == session_case(v->k)->nfrag ? sc->pose : NULL) &&
+        navwin_set_pieces(v->win, v->seed.pieces, v->seed.npieces) < 0) {
+        fprintf(stderr, "fracnav navigate: the window: %s\n", fn_err_msg());
+        quit = 1;
+    }
     if (closed)
         quit = 1;
 }
@@ -577,6 +583,8 @@ static int run(view *v, loop_source src, int keys, const opts *o)
         rc = rc ? rc : FN_EIO;
     navwin_close(v->win);
     v->win = NULL;
+    navseed_free(&v->seed);
+    v->seed.changed = 1; /* the preview again, in the next window */
     return rc == 0 ? session_save(k) : rc;
 }
 

@@ -3,9 +3,11 @@
 
 #include "case_journal.h"
 #include "err.h"
+#include "fnclock.h"
 #include "render.h"
 
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
 #define KEY_F10 (RENDER_KEY_F1 + 9)
@@ -14,6 +16,20 @@ void navseed_init(navseed *s)
 {
     memset(s, 0, sizeof *s);
     s->piece = 1;
+}
+
+static void drop_preview(navseed *s)
+{
+    for (int i = 0; i < s->npieces; i++)
+        frag_free(&s->pieces[i]);
+    free(s->pieces);
+    s->pieces = NULL;
+    s->npieces = 0;
+}
+
+void navseed_free(navseed *s)
+{
+    drop_preview(s);
 }
 
 static void describe(navseed *s, const char *what)
@@ -29,6 +45,7 @@ int navseed_key(navseed *s, int k)
 {
     if (k == KEY_F10) {
         s->on = !s->on;
+        s->changed = 1;
         describe(s, "click a slice (four-up, F3) to drop a seed");
         return 1;
     }
@@ -39,6 +56,7 @@ int navseed_key(navseed *s, int k)
         describe(s, "chosen");
     } else if (k == '\b' || k == 127) {
         s->n -= s->n > 0;
+        s->changed = 1;
         describe(s, "last seed taken back");
     } else if (k == '\r' || k == '\n') {
         s->accepted = s->n > 0;
@@ -58,7 +76,30 @@ void navseed_click(navseed *s, const double world[3])
     }
     memcpy(s->seed[s->n].at, world, sizeof s->seed[s->n].at);
     s->seed[s->n++].piece = s->piece;
+    s->changed = 1;
     describe(s, "seed dropped");
+}
+
+int navseed_preview(navseed *s, const planning_case *c, const pose *poses)
+{
+    if (!s->changed)
+        return 0;
+    s->changed = 0;
+    int had = s->npieces;
+    drop_preview(s);
+    if (!s->on || !s->n)
+        return had > 0;
+    int64_t t0 = fnclock_now_us();
+    int n = case_separate_preview(c, poses, s->seed, s->n, &s->pieces);
+    char what[300];
+    if (n >= 0) {
+        s->npieces = n;
+        snprintf(what, sizeof what, "preview: %d fragment%s (%.0f ms), Enter accepts", n, n == 1 ? "" : "s",
+                 (double)(fnclock_now_us() - t0) / 1000.0);
+    } else
+        snprintf(what, sizeof what, "no preview: %s", fn_err_msg());
+    describe(s, what);
+    return 1;
 }
 
 const char *navseed_status(const navseed *s)
@@ -69,7 +110,8 @@ const char *navseed_status(const navseed *s)
 const char *navseed_help(void)
 {
     return "  F10 seed mode (separates fragments): then 1-9 the piece, a click on a slice drops\n"
-           "  its seed, Backspace takes the last seed back, Enter separates (saves the case)\n";
+           "  its seed, Backspace takes the last seed back (the split is previewed in colour\n"
+           "  after each), Enter separates (saves the case)\n";
 }
 
 int navseed_apply(navseed *s, planning_case *c)

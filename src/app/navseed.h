@@ -2,8 +2,9 @@
  * "Grow from seeds"). F10 enters and leaves it; while it is on, a digit 1-9 chooses the piece the
  * next seed marks, a click on a slice of the four-up layout drops a seed there (NAVWIN_KEY_CLICK),
  * Backspace takes the last seed back, and Enter accepts: the caller then separates every fragment
- * that holds seeds (navseed_apply, case_separate_all's competitive growth). While it is on, the
- * digits are its own, not the steering keys'.
+ * that holds seeds (navseed_apply, case_separate_all's competitive growth). After each seed and
+ * each Backspace, navseed_preview grows the pieces the seeds would make, for the window to show
+ * in their colours before Enter. While it is on, the digits are its own, not the steering keys'.
  *
  * Threads: the window's (the caller's) only. Errors: navseed_apply returns FN_E* with fn_err
  * naming the seed's world point. */
@@ -20,16 +21,26 @@ typedef struct navseed {
     int n;        /* seeds dropped */
     case_seed seed[NAVSEED_MAX];
     int accepted; /* Enter was pressed with seeds: the caller clears it and separates */
+    int changed;  /* the seeds changed since the last navseed_preview */
+    frag *pieces; /* the preview: the fragments the seeds would make (npieces, 0: none) */
+    int npieces;
     char status[512];
 } navseed;
 
 void navseed_init(navseed *s);
+/* Frees the preview. */
+void navseed_free(navseed *s);
 /* A key typed in the window (navwin_frame's codes). Returns 1 when it was seed mode's (F10 always;
  * digits, Backspace and Enter while it is on), 0 when it goes on as before. */
 int navseed_key(navseed *s, int k);
 /* A click on a slice (NAVWIN_KEY_CLICK at world, LPS mm): drops a seed of the current piece
  * there while seed mode is on. */
 void navseed_click(navseed *s, const double world[3]);
+/* The preview of the split, when the seeds changed since the last call: s->pieces become the
+ * fragments Enter would make of c (case_separate_preview, each at its parent's pose of poses), or
+ * none when seed mode is off, has no seed or a seed is bad (the status says why). Returns 1 when
+ * s->pieces changed, 0 when not. */
+int navseed_preview(navseed *s, const planning_case *c, const pose *poses);
 /* One line for the HUD while seed mode is on (the piece, the seeds and the keys); NULL when off. */
 const char *navseed_status(const navseed *s);
 /* The seed mode's keys, for a help text (lines ending in '\n'). */

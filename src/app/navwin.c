@@ -33,6 +33,7 @@ struct navwin {
     int nvoi;       /* the case's reduction VOI boxes (o.voi) */
     uint64_t drawn_seq;
     unsigned ghosts_seen; /* the live preview's updates drawn (session_preview.updates) */
+    int split_preview;    /* the scene holds the seed mode's pieces (navwin_set_pieces) */
     int dirty;
     char hud[4096];
     char note[128]; /* what the last window key did, until note_until_us */
@@ -196,6 +197,20 @@ navwin *navwin_open(session *k, int steer, int width, int height, const navwin_l
     }
     camera_to_loop(w);
     return w;
+}
+
+int navwin_set_pieces(navwin *w, const frag *pieces, int n)
+{
+    const frag *f = n > 0 ? pieces : w->c->frag;
+    int nf = n > 0 ? n : w->c->nfrag;
+    if (nf > RENDER_MAX_FRAGS)
+        return fn_err_set(FN_EINVAL, "the window draws at most %d fragments; the split makes %d", RENDER_MAX_FRAGS,
+                          nf);
+    w->have_trees = 0;
+    w->split_preview = n > 0;
+    w->dirty = 1;
+    int rc = render_set_scene(w->r, w->c->ct, f, nf, w->c->seg.threshold, NULL);
+    return rc ? rc : n > 0 ? 0 : need_trees(w);
 }
 
 void navwin_close(navwin *w)
@@ -411,6 +426,13 @@ static int draw(navwin *w, const loop_scene *sc, const char *text, loop_scene *s
 {
     int n = w->c->nfrag;
     *shown = *sc;
+    if (w->split_preview) { /* the pieces at their own poses, with no overlay that needs the case's */
+        render_options o = w->o;
+        o.overlays &= ~(unsigned)(RENDER_OVERLAY_HIERARCHY | RENDER_OVERLAY_CONTACTS);
+        o.ghost = o.cutaway = 0;
+        int rc = render_frame(w->r, NULL, &o);
+        return rc ? rc : render_hud(w->r, text, render_hud_scale(w->r));
+    }
     if (sc->nfrag == n) {
         int rc = render_frame_early(w->r, sc->pose, sc->selected, &w->o);
         if (rc)
@@ -455,7 +477,7 @@ int navwin_frame(navwin *w, const loop_scene *sc, const char *hud, int *keys, in
     int w0 = w->w, h0 = w->h;
     int n = handle_input(w, &in, keys, cap);
     w->dirty |= w->w != w0 || w->h != h0; /* resized */
-    if (w->auto_view && sc->nfrag == w->c->nfrag && sc->selected != w->auto_for) {
+    if (w->auto_view && !w->split_preview && sc->nfrag == w->c->nfrag && sc->selected != w->auto_for) {
         rc = render_camera_auto(w->r, &w->o.camera, w->c->frag, w->c->nfrag, sc->pose, sc->selected);
         if (rc)
             return rc;

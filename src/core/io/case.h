@@ -177,6 +177,12 @@ int case_separate_auto(planning_case *c, int id, int *new_ids);
  * made, or FN_E* (a seed's error names the point). */
 int case_separate_all(planning_case *c, const case_seed *seeds, int n);
 
+/* What case_separate_all(c, seeds, n) would make, c left as it is: the fragments after it, each
+ * at its parent's pose (poses[i] for c's fragment i; NULL: their own), in *pieces (malloc'd: the
+ * caller frees each with frag_free, then the array). Returns their count, or FN_E* as
+ * case_separate_all. */
+int case_separate_preview(const planning_case *c, const pose *poses, const case_seed *seeds, int n, frag **pieces);
+
 /* A seed file's text: one seed per line, "PIECE X Y Z" (PIECE 1..254, or "none" for not bone;
  * world LPS mm), blank lines and # comments skipped. Returns the count and *out (malloc'd), or
  * FN_EFORMAT naming `name` and the line. */

@@ -675,6 +675,40 @@ int case_separate_all(planning_case *c, const case_seed *seeds, int n)
     return rc < 0 ? rc : made;
 }
 
+int case_separate_preview(const planning_case *c, const pose *poses, const case_seed *seeds, int n, frag **pieces)
+{
+    *pieces = NULL;
+    planning_case *p = calloc(1, sizeof *p);
+    vol *l = p ? vol_new(c->labels->dim[0], c->labels->dim[1], c->labels->dim[2]) : NULL;
+    if (!l) {
+        free(p);
+        return fn_err_set(FN_ENOMEM, "separate: out of memory for the preview");
+    }
+    memcpy(l->data, c->labels->data, vol_count(l) * sizeof *l->data);
+    memcpy(l->spacing, c->labels->spacing, sizeof l->spacing);
+    memcpy(l->affine, c->labels->affine, sizeof l->affine);
+    p->ct = c->ct; /* borrowed: taken back before case_free */
+    p->labels = l;
+    p->seg = c->seg;
+    p->fixed = -1;
+    int rc = case_rebuild(p, 0, 0);
+    for (int i = 0; rc == 0 && i < p->nfrag; i++) {
+        int at = case_find(c, p->frag[i].id);
+        p->frag[i].pose = at < 0 ? POSE_IDENTITY : poses ? poses[at] : c->frag[at].pose;
+    }
+    if (rc == 0)
+        rc = case_separate_all(p, seeds, n);
+    if (rc >= 0) {
+        *pieces = p->frag;
+        rc = p->nfrag;
+        p->frag = NULL;
+        p->nfrag = 0;
+    }
+    p->ct = NULL;
+    case_free(p);
+    return rc;
+}
+
 int case_separate_auto(planning_case *c, int id, int *new_ids)
 {
     int rc = need(c, id);
