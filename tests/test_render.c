@@ -1152,6 +1152,32 @@ static void test_navigate_window_seed_mode_separates(void **st)
     seed_run_free(&s);
 }
 
+/* Issue 25: the separation is an edit that undo takes back. After Enter separated block B, u (the
+ * steering's undo) in the reopened window, with no move to undo, takes the separation back: the
+ * case opens again with B whole, as fragment 2. */
+static void test_navigate_window_seed_mode_undoes(void **st)
+{
+    (void)st;
+    seed_run s;
+    seed_run_start(&s, "navundo");
+    seed_run_two_seeds(&s);
+    assert_int_equal(system("xdotool key Return"), 0);
+    seed_run_wait(&s, "separated: 1 new fragment, 3 in all", "no separation after Enter");
+    assert_int_equal(system("timeout 300 xdotool search --sync --onlyvisible --name '^fracnav$' >/dev/null && "
+                            "xdotool key u"), 0);
+    seed_run_wait(&s, "undo: the separation taken back, 2 fragments", "no undo of the separation after u");
+    seed_run_quit(&s);
+    planning_case *c = case_load(s.case_dir);
+    assert_non_null(c);
+    assert_int_equal(c->nfrag, 2);
+    long b = 0;
+    for (size_t i = 0; i < vol_count(c->labels); i++)
+        b += c->labels->data[i] == 2;
+    assert_int_equal(b, s.before);
+    case_free(c);
+    seed_run_free(&s);
+}
+
 /* The pixels of the axial pane of a 768x768 four-up screenshot within 2 of colour rgb. */
 static long axial_pixels_of(const uint8_t *shot, const uint8_t rgb[3])
 {
@@ -1385,6 +1411,7 @@ int main(void)
         cmocka_unit_test_teardown(test_replay_frames, end_children),
         cmocka_unit_test_teardown(test_auto_view_shows_the_moving_fragment, end_children),
         cmocka_unit_test_teardown(test_navigate_window_seed_mode_previews, end_children),
+        cmocka_unit_test_teardown(test_navigate_window_seed_mode_undoes, end_children),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -2,6 +2,8 @@
 #include "navseed.h"
 
 #include "case_journal.h"
+#include "cmd.h"
+#include "durable.h"
 #include "err.h"
 #include "fnclock.h"
 #include "render.h"
@@ -9,6 +11,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #define KEY_F10 (RENDER_KEY_F1 + 9)
 
@@ -111,7 +114,7 @@ const char *navseed_help(void)
 {
     return "  F10 seed mode (separates fragments): then 1-9 the piece, a click on a slice drops\n"
            "  its seed, Backspace takes the last seed back (the split is previewed in colour\n"
-           "  after each), Enter separates (saves the case)\n";
+           "  after each), Enter separates (saves the case; undo takes it back)\n";
 }
 
 int navseed_apply(navseed *s, planning_case *c)
@@ -127,14 +130,84 @@ int navseed_apply(navseed *s, planning_case *c)
     return rc;
 }
 
+/* CASE/separation: the seeds of an accepted separation (case_seeds_parse's lines) under a line
+ * naming the case.json they apply to, written before the separation and removed once the
+ * separated case is saved, so that a crash in between leaves the case intact and the separation
+ * to recover (navseed_recover). */
+static void pending_path(const char *dir, char *path, size_t cap)
+{
+    snprintf(path, cap, "%s/separation", dir);
+}
+
+static int write_pending(const navseed *s, const planning_case *c, const char *path)
+{
+    char text[128 + NAVSEED_MAX * 128];
+    size_t len = (size_t)snprintf(text, sizeof text, "# fracnav navigate: a separation of case.json sha256 %s\n",
+                                  c->json_sha256);
+    for (int i = 0; i < s->n; i++)
+        len += (size_t)snprintf(text + len, sizeof text - len, "%d %.17g %.17g %.17g\n", s->seed[i].piece,
+                                s->seed[i].at[0], s->seed[i].at[1], s->seed[i].at[2]);
+    return durable_replace_bytes(path, text, len);
+}
+
 int navseed_separate(navseed *s, const char *dir, int *nfrag)
 {
     s->accepted = 0;
+    char pending[4200];
+    pending_path(dir, pending, sizeof pending);
     planning_case *c = case_load(dir);
-    int made = c ? navseed_apply(s, c) : FN_EIO;
-    if (made >= 0 && (case_save(c) < 0 || case_journal_remove(c) < 0))
+    int made = c ? write_pending(s, c, pending) : FN_EIO;
+    if (made == 0)
+        made = navseed_apply(s, c);
+    if (made >= 0 && (case_save_undoable(c) < 0 || case_journal_remove(c) < 0)) {
         made = FN_EIO;
+        describe(s, fn_err_msg());
+    }
+    if (c)
+        unlink(pending);
     *nfrag = c ? c->nfrag : 0;
     case_free(c);
     return made;
+}
+
+int navseed_recover(const char *dir, int *nfrag)
+{
+    char pending[4200], path[4300], sha[65];
+    pending_path(dir, pending, sizeof pending);
+    if (access(pending, F_OK) != 0)
+        return 0;
+    snprintf(path, sizeof path, "%s/case.json", dir);
+    char *text = cmd_read_seed_file(pending);
+    const char *bound = text ? strstr(text, "sha256 ") : NULL;
+    case_seed *seeds = NULL;
+    int n = bound && durable_file_sha256(path, sha) == 0 && !strncmp(bound + 7, sha, 64)
+                ? case_seeds_parse(text, pending, &seeds) : 0;
+    free(text);
+    int made = n < 0 ? n : 0;
+    if (n > 0 && n <= NAVSEED_MAX) {
+        navseed s;
+        navseed_init(&s);
+        memcpy(s.seed, seeds, (size_t)n * sizeof *seeds);
+        s.n = n;
+        made = navseed_separate(&s, dir, nfrag);
+    } else
+        unlink(pending); /* a separation saved before a crash, or none to recover */
+    free(seeds);
+    return made < 0 ? made : n > 0 ? made + 1 : 0;
+}
+
+int navseed_can_undo(const char *dir)
+{
+    return case_undo_steps(dir) > 0;
+}
+
+int navseed_undo(const char *dir, int *nfrag)
+{
+    int rc = case_undo(dir);
+    planning_case *c = rc > 0 ? case_load(dir) : NULL;
+    if (rc > 0 && (!c || case_journal_remove(c) < 0))
+        rc = FN_EIO;
+    *nfrag = c ? c->nfrag : 0;
+    case_free(c);
+    return rc;
 }

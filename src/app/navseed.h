@@ -6,6 +6,9 @@
  * each Backspace, navseed_preview grows the pieces the seeds would make, for the window to show
  * in their colours before Enter. While it is on, the digits are its own, not the steering keys'.
  *
+ * The separation is saved as an undoable edit (navseed_undo takes it back) and survives a crash
+ * (navseed_recover).
+ *
  * Threads: the window's (the caller's) only. Errors: navseed_apply returns FN_E* with fn_err
  * naming the seed's world point. */
 #ifndef FN_NAVSEED_H
@@ -49,9 +52,21 @@ const char *navseed_help(void);
  * the new fragments made, or FN_E* (the seeds are kept, so the user can take the bad one back). */
 int navseed_apply(navseed *s, planning_case *c);
 /* The accepted separation of the case folder dir, after its session saved its poses and closed:
- * loaded again, separated (navseed_apply) and saved atomically (the journal holds poses only, so
- * the edit cannot go there; the caller still holds the case's lock). Clears accepted. Returns the
- * new fragments made (and *nfrag the case's count) or FN_E*; a bad seed leaves the case as it was. */
+ * the seeds written to DIR/separation (durably, naming the case.json they apply to), the case
+ * loaded again, separated (navseed_apply) and saved as an undoable edit (case_save_undoable:
+ * navseed_undo takes it back), the journal (bound to the case.json that was) removed, and
+ * DIR/separation removed; the caller still holds the case's lock. A crash before the save leaves
+ * the case as it was and DIR/separation for navseed_recover. Clears accepted. Returns the new
+ * fragments made (and *nfrag the case's count) or FN_E*; a bad seed leaves the case as it was. */
 int navseed_separate(navseed *s, const char *dir, int *nfrag);
+/* A separation that a crash interrupted (DIR/separation naming the case.json as it is): done now
+ * (navseed_separate). Returns 1 + the new fragments made when there was one, 0 when none (a
+ * DIR/separation of another case.json, which a crash after the save left, is removed), or FN_E*. */
+int navseed_recover(const char *dir, int *nfrag);
+/* Whether dir's case has a separation to take back (case_undo_steps). */
+int navseed_can_undo(const char *dir);
+/* Takes the last separation back (case_undo) and removes the journal, after the session saved
+ * and closed. 1 (and *nfrag the case's count), 0 when there was none, or FN_E*. */
+int navseed_undo(const char *dir, int *nfrag);
 
 #endif

@@ -5,6 +5,7 @@
 #include "err.h"
 #include "volio.h"
 
+#include <dirent.h>
 #include <errno.h>
 #include <fcntl.h>
 #include <jansson.h>
@@ -20,6 +21,8 @@
 #define LABELS_FILE "labels.nii.gz"
 #define LABELS_PREV "labels.prev.nii.gz" /* the labels the on-disk case.json names, during a save */
 #define JSON_FILE "case.json"
+#define UNDO_DIR "undo" /* CASE/undo/N/: the case before an undoable edit (case_save_undoable) */
+#define LABELS_AFTER "labels.after.nii.gz" /* in a step: the labels its edit saved */
 #define JSON_MAX_BYTES (64 << 20) /* 64 MiB: ~100,000 fragments */
 
 /* ---- writing ---- */
@@ -241,6 +244,156 @@ int case_save(planning_case *c)
     unlink(lprev); /* a leftover is harmless: the next save replaces it */
     memcpy(c->json_sha256, jsha, sizeof jsha);
     return 0;
+}
+
+/* ---- undo ---- */
+
+/* The newest undo step of dir (the largest N of dir/undo/N) into step; 0 when none. */
+static int newest_step(const char *dir, char *step, size_t cap)
+{
+    char undo[4200];
+    join(undo, sizeof undo, dir, UNDO_DIR);
+    DIR *d = opendir(undo);
+    int newest = 0;
+    for (struct dirent *e; d && (e = readdir(d));) {
+        char *end;
+        long n = strtol(e->d_name, &end, 10);
+        if (end != e->d_name && !*end && n > newest && n < INT_MAX)
+            newest = (int)n;
+    }
+    if (d)
+        closedir(d);
+    snprintf(step, cap, "%s/%d", undo, newest);
+    return newest;
+}
+
+/* Whether files a and b hold the same bytes (by sha256; both must be readable). */
+static int same_file(const char *a, const char *b)
+{
+    char ha[65], hb[65];
+    return durable_file_sha256(a, ha) == 0 && durable_file_sha256(b, hb) == 0 && !strcmp(ha, hb);
+}
+
+static int remove_step(const char *dir, const char *step)
+{
+    char f[4300];
+    join(f, sizeof f, step, JSON_FILE);
+    unlink(f);
+    join(f, sizeof f, step, LABELS_FILE);
+    unlink(f);
+    join(f, sizeof f, step, LABELS_AFTER);
+    unlink(f);
+    if (rmdir(step) != 0 && errno != ENOENT)
+        return fn_err_set(FN_EIO, "%s: cannot remove: %s", step, strerror(errno));
+    join(f, sizeof f, dir, UNDO_DIR);
+    return durable_sync_path(f);
+}
+
+/* The newest step that differs from the case as it is (one equal to it is what a crash left
+ * between keeping it and the save, or after an undo's renames: dropped). 0 when none. */
+static int live_step(const char *dir, char *step, size_t cap)
+{
+    char jfin[4200], sj[4300];
+    join(jfin, sizeof jfin, dir, JSON_FILE);
+    for (int n; (n = newest_step(dir, step, cap)) > 0;) {
+        join(sj, sizeof sj, step, JSON_FILE);
+        if (!same_file(sj, jfin))
+            return n;
+        int rc = remove_step(dir, step);
+        if (rc < 0)
+            return rc;
+    }
+    return 0;
+}
+
+/* The newest step when its edit's labels are the case's still (no later edit changed them: an
+ * undo would lose it), else 0. */
+static int undoable_step(const char *dir, char *step, size_t cap)
+{
+    char lfin[4200], after[4400];
+    int n = live_step(dir, step, cap);
+    join(lfin, sizeof lfin, dir, LABELS_FILE);
+    join(after, sizeof after, step, LABELS_AFTER);
+    return n > 0 && !same_file(after, lfin) ? 0 : n;
+}
+
+int case_undo_steps(const char *dir)
+{
+    char step[4300];
+    return undoable_step(dir, step, sizeof step);
+}
+
+/* Links from to to (to replaced). */
+static int link_over(const char *from, const char *to)
+{
+    if ((unlink(to) != 0 && errno != ENOENT) || link(from, to) != 0)
+        return fn_err_set(FN_EIO, "%s: cannot link to %s: %s (the undo step needs hard links)", to, from,
+                          strerror(errno));
+    return 0;
+}
+
+int case_save_undoable(planning_case *c)
+{
+    char step[4300], undo[4200], f[4400], jfin[4200], lfin[4200];
+    join(jfin, sizeof jfin, c->dir, JSON_FILE);
+    join(lfin, sizeof lfin, c->dir, LABELS_FILE);
+    join(undo, sizeof undo, c->dir, UNDO_DIR);
+    int n = live_step(c->dir, step, sizeof step);
+    if (n < 0)
+        return n;
+    snprintf(step, sizeof step, "%s/%d", undo, n + 1);
+    if ((mkdir(undo, 0755) != 0 && errno != EEXIST) || (mkdir(step, 0755) != 0 && errno != EEXIST))
+        return fn_err_set(FN_EIO, "%s: cannot create: %s", step, strerror(errno));
+    join(f, sizeof f, step, LABELS_FILE);
+    int rc = link_over(lfin, f);
+    join(f, sizeof f, step, JSON_FILE);
+    if (rc == 0)
+        rc = link_over(jfin, f);
+    if (rc == 0 && (rc = durable_sync_path(step)) == 0 && (rc = durable_sync_path(undo)) == 0)
+        rc = durable_sync_path(c->dir);
+    if (rc < 0)
+        return fn_err_wrap(rc, "keeping case %s for undo", c->dir);
+    if ((rc = case_save(c)) < 0)
+        return rc;
+    join(f, sizeof f, step, LABELS_AFTER); /* a crash before this link leaves the step unoffered */
+    if ((rc = link_over(lfin, f)) == 0)
+        rc = durable_sync_path(step);
+    return rc;
+}
+
+int case_undo(const char *dir)
+{
+    char step[4300], sj[4400], sl[4400], jfin[4200], lfin[4200], lprev[4200], jtmp[4300], ltmp[4300];
+    int n = undoable_step(dir, step, sizeof step);
+    if (n <= 0)
+        return n;
+    join(sj, sizeof sj, step, JSON_FILE);
+    join(sl, sizeof sl, step, LABELS_FILE);
+    join(jfin, sizeof jfin, dir, JSON_FILE);
+    join(lfin, sizeof lfin, dir, LABELS_FILE);
+    join(lprev, sizeof lprev, dir, LABELS_PREV);
+    join(jtmp, sizeof jtmp, dir, ".case.json.undo");
+    join(ltmp, sizeof ltmp, dir, ".labels.nii.gz.undo");
+    /* As case_save: the labels, then case.json, the labels case.json names kept until both are in
+     * place; the step's files are linked in, so a crash keeps the step whole until it is done. */
+    int rc = link_over(sl, ltmp);
+    if (rc == 0)
+        rc = link_over(sj, jtmp);
+    if (rc == 0)
+        rc = durable_sync_path(dir);
+    if (rc == 0)
+        rc = keep_previous_labels(lfin, lprev, dir);
+    if (rc == 0 && (rename(ltmp, lfin) != 0 || rename(jtmp, jfin) != 0))
+        rc = fn_err_set(FN_EIO, "%s: cannot put %s back: %s", dir, step, strerror(errno));
+    if (rc == 0)
+        rc = durable_sync_path(dir);
+    unlink(ltmp);
+    unlink(jtmp);
+    if (rc < 0)
+        return fn_err_wrap(rc, "undoing the last edit of case %s", dir);
+    unlink(lprev);
+    rc = remove_step(dir, step);
+    return rc < 0 ? rc : 1;
 }
 
 /* ---- reading ---- */
