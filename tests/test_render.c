@@ -1178,6 +1178,52 @@ static void test_navigate_window_seed_mode_undoes(void **st)
     seed_run_free(&s);
 }
 
+/* Issue 25: a click on a fragment in the 3D view drops a seed too. In seed mode, a click on block
+ * B's middle in the four-up's 3D pane (anterior view) drops seed 1 on B's front face: at B's
+ * centroid across the view, 4-7 mm in front of it along the view (B is 12 mm deep). */
+static void test_navigate_window_seed_mode_3d_click(void **st)
+{
+    (void)st;
+    seed_run s;
+    seed_run_start(&s, "nav3d");
+    planning_case *c = case_load(s.case_dir);
+    assert_non_null(c);
+    double b[3], right[3], d[3];
+    memcpy(b, c->frag[case_find(c, 2)].centroid, sizeof b);
+    render_camera cam;
+    render_camera_standard(&cam, RENDER_ANTERIOR, c->frag, c->nfrag);
+    case_free(c);
+    int rect[4][4];
+    render_four_up_panes(768, 768, rect);
+    const int *q = rect[RENDER_PANE_3D];
+    for (int a = 0; a < 3; a++) {
+        right[a] = cam.forward[(a + 1) % 3] * cam.up[(a + 2) % 3] - cam.forward[(a + 2) % 3] * cam.up[(a + 1) % 3];
+        d[a] = b[a] - cam.centre[a];
+    }
+    double sx = (d[0] * right[0] + d[1] * right[1] + d[2] * right[2]) / (cam.half_height * q[2] / q[3]);
+    double sy = (d[0] * cam.up[0] + d[1] * cam.up[1] + d[2] * cam.up[2]) / cam.half_height;
+    char cmd[1024];
+    snprintf(cmd, sizeof cmd, "timeout 300 xdotool search --sync --onlyvisible --name '^fracnav$' >/dev/null && "
+             "xdotool key F10 mousemove %d %d click 1", (int)(q[0] + (sx + 1) / 2 * q[2]),
+             (int)(q[1] + (1 - sy) / 2 * q[3]));
+    assert_int_equal(system(cmd), 0);
+    seed_run_wait(&s, "1 seed 1@(", "no seed after F10 and a click on block B in the 3D view");
+    double at[3];
+    if (sscanf(strstr(s.seen, "1 seed 1@(") + strlen("1 seed 1@("), "%lf,%lf,%lf", &at[0], &at[1], &at[2]) != 3)
+        fail_msg("no seed point in: %s", s.seen);
+    double across = 0, along = 0;
+    for (int a = 0; a < 3; a++) {
+        double e = at[a] - b[a], f = e * cam.forward[a];
+        along += f;
+        across += (e - f * cam.forward[a]) * (e - f * cam.forward[a]);
+    }
+    if (sqrt(across) > 1.5 || along > -4 || along < -7)
+        fail_msg("the seed (%.0f, %.0f, %.0f) is not on B's front face (centroid %.1f, %.1f, %.1f)", at[0], at[1],
+                 at[2], b[0], b[1], b[2]);
+    seed_run_quit(&s);
+    seed_run_free(&s);
+}
+
 /* The pixels of the axial pane of a 768x768 four-up screenshot within 2 of colour rgb. */
 static long axial_pixels_of(const uint8_t *shot, const uint8_t rgb[3])
 {
@@ -1412,6 +1458,7 @@ int main(void)
         cmocka_unit_test_teardown(test_auto_view_shows_the_moving_fragment, end_children),
         cmocka_unit_test_teardown(test_navigate_window_seed_mode_previews, end_children),
         cmocka_unit_test_teardown(test_navigate_window_seed_mode_undoes, end_children),
+        cmocka_unit_test_teardown(test_navigate_window_seed_mode_3d_click, end_children),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

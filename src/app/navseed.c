@@ -49,7 +49,7 @@ int navseed_key(navseed *s, int k)
     if (k == KEY_F10) {
         s->on = !s->on;
         s->changed = 1;
-        describe(s, "click a slice (four-up, F3) to drop a seed");
+        describe(s, "click a slice (four-up, F3) or a fragment to drop a seed");
         return 1;
     }
     if (!s->on)
@@ -112,8 +112,8 @@ const char *navseed_status(const navseed *s)
 
 const char *navseed_help(void)
 {
-    return "  F10 seed mode (separates fragments): then 1-9 the piece, a click on a slice drops\n"
-           "  its seed, Backspace takes the last seed back (the split is previewed in colour\n"
+    return "  F10 seed mode (separates fragments): then 1-9 the piece, a click on a slice or on\n"
+           "  a fragment in 3D drops its seed, Backspace takes the last seed back (the split is previewed in colour\n"
            "  after each), Enter separates (saves the case; undo takes it back)\n";
 }
 

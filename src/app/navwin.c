@@ -142,7 +142,8 @@ const char *navwin_help(void)
            "  F1 these keys  F2 mode  F3 layout (3D, four-up)  F4 axes  F5 contacts\n"
            "  F6 hierarchy boxes  F7/F8 their depth  F9 VOI   other keys as in the terminal\n"
            "  left drag orbits, right or middle drag pans, the wheel zooms; in four-up the\n"
-           "  wheel over a slice moves it, a click on a slice moves the slices' crosshair\n";
+           "  wheel over a slice moves it, a click on a slice moves the slices' crosshair\n"
+           "  (in seed mode, F10, a click on a slice or on a fragment in 3D drops a seed)\n";
 }
 
 navwin *navwin_open(session *k, int steer, int width, int height, const navwin_look *look)
@@ -337,6 +338,53 @@ static int slice_click(navwin *w, const double xy[2])
     return 1;
 }
 
+/* The point of the fragments' surface that a click at xy on the 3D view (the whole window, or the
+ * four-up's 3D pane) shows: along the camera's ray through xy, from the viewer, the first voxel
+ * of a fragment's mask at its pose in sc, as a point of that fragment's home (the CT's grid,
+ * where the seeds and the slices' CT are). 1 when the ray meets a fragment, 0 when not. */
+static int surface_pick(const navwin *w, const loop_scene *sc, const double xy[2], double home[3])
+{
+    const planning_case *c = w->c;
+    int q[4] = {0, 0, w->w, w->h}, rect[4][4];
+    if (w->o.layout == RENDER_LAYOUT_FOUR_UP) {
+        render_four_up_panes(w->w, w->h, rect);
+        memcpy(q, rect[RENDER_PANE_3D], sizeof q);
+    }
+    if (sc->nfrag != c->nfrag || xy[0] < q[0] || xy[0] >= q[0] + q[2] || xy[1] < q[1] || xy[1] >= q[1] + q[3])
+        return 0;
+    const render_camera *cam = &w->o.camera;
+    double right[3], at[3], step = 1e30;
+    cross(cam->forward, cam->up, right);
+    double hh = cam->half_height, hw = hh * q[2] / q[3];
+    double sx = 2.0 * (xy[0] - q[0]) / q[2] - 1, sy = 1 - 2.0 * (xy[1] - q[1]) / q[3];
+    pose to_local[RENDER_MAX_FRAGS];
+    for (int i = 0; i < c->nfrag; i++) {
+        to_local[i] = pose_inverse(pose_compose(sc->pose[i], c->frag[i].home));
+        for (int a = 0; a < 3; a++)
+            step = fmin(step, c->frag[i].spacing[a] / 2);
+    }
+    for (double t = -cam->depth; t <= cam->depth; t += step) {
+        for (int a = 0; a < 3; a++)
+            at[a] = cam->centre[a] + right[a] * hw * sx + cam->up[a] * hh * sy + cam->forward[a] * t;
+        for (int i = 0; i < c->nfrag; i++) {
+            const frag *f = &c->frag[i];
+            double local[3];
+            int l[3], in = 1;
+            pose_apply(&to_local[i], at, local);
+            for (int a = 0; a < 3; a++) {
+                l[a] = (int)floor(local[a] / f->spacing[a] + 0.5);
+                in &= l[a] >= 0 && l[a] < f->dim[a];
+            }
+            if (in && f->prob[((size_t)l[2] * f->dim[1] + l[1]) * f->dim[0] + l[0]]) {
+                pose back = pose_inverse(sc->pose[i]);
+                pose_apply(&back, at, home);
+                return 1;
+            }
+        }
+    }
+    return 0;
+}
+
 int navwin_click_at(const navwin *w, double world[3])
 {
     memcpy(world, w->click_world, sizeof w->click_world);
@@ -345,7 +393,7 @@ int navwin_click_at(const navwin *w, double world[3])
 
 /* The pointer and the view keys (Ctrl+1..6) move the camera, the look keys (F2-F9) change the
  * look; F1 goes to the caller as '?', and every other key as it came. */
-static int handle_input(navwin *w, const render_input *in, int *keys, int cap)
+static int handle_input(navwin *w, const loop_scene *sc, const render_input *in, int *keys, int cap)
 {
     render_camera *cam = &w->o.camera;
     int n = 0, moved = 0;
@@ -361,7 +409,8 @@ static int handle_input(navwin *w, const render_input *in, int *keys, int cap)
             note(w, "view: auto (follows the selected fragment)");
         } else if (k >= RENDER_KEY_CLICK && k < RENDER_KEY_CLICK + in->nclicks) {
             /* handed back in its place among the keys: a key typed before it acts first */
-            if (slice_click(w, in->click[k - RENDER_KEY_CLICK])) {
+            const double *xy = in->click[k - RENDER_KEY_CLICK];
+            if (slice_click(w, xy) || surface_pick(w, sc, xy, w->click_world)) {
                 if (n < cap)
                     keys[n++] = NAVWIN_KEY_CLICK;
                 moved = 1;
@@ -475,7 +524,7 @@ int navwin_frame(navwin *w, const loop_scene *sc, const char *hud, int *keys, in
         return rc;
     *close = in.close;
     int w0 = w->w, h0 = w->h;
-    int n = handle_input(w, &in, keys, cap);
+    int n = handle_input(w, sc, &in, keys, cap);
     w->dirty |= w->w != w0 || w->h != h0; /* resized */
     if (w->auto_view && !w->split_preview && sc->nfrag == w->c->nfrag && sc->selected != w->auto_for) {
         rc = render_camera_auto(w->r, &w->o.camera, w->c->frag, w->c->nfrag, sc->pose, sc->selected);

@@ -69,7 +69,7 @@ navwin *navwin_open_view(const char *cmd, int view, const navwin_look *look, con
  * most (the worst of the last second; the bound is the arrival of the newest report in the frame
  * before, so it may exceed the truth by one report period). Up to cap typed keys go to keys (ASCII,
  * 27 for Escape, F1 as '?', the arrows and Ctrl+letters as RENDER_KEY_*, a click on a slice as
- * NAVWIN_KEY_CLICK); *close becomes 1 when the window was asked to close. Returns the keys stored, or FN_E*. */
+ * NAVWIN_KEY_CLICK, and one on the 3D view's fragments too); *close becomes 1 when the window was asked to close. Returns the keys stored, or FN_E*. */
 int navwin_frame(navwin *w, const loop_scene *sc, const char *hud, int *keys, int cap, int *close);
 /* navwin_frame with the HUD of the terminal view: navview_format's lines of sc and x, then
  * "device: DEVICE", then help (NULL: none) followed by navwin_help(). */
@@ -77,8 +77,10 @@ int navwin_show(navwin *w, const loop_scene *sc, const navview_extra *x, const c
                 int *keys, int cap, int *close);
 /* A click on a slice of the four-up layout moves the slices there and comes back among the keys
  * as NAVWIN_KEY_CLICK, in the order it came with them (a piece chosen by a key and then clicked
- * is chosen first, though both arrive in one frame); navwin_click_at gives the world point (LPS
- * mm) of the last one handed back. 0. */
+ * is chosen first, though both arrive in one frame); so does a click on a fragment's surface in
+ * the 3D view. navwin_click_at gives the world point (LPS mm) of the last one handed back: on a
+ * slice, where it shows; on the surface, the first voxel of the fragment's mask along the view's
+ * ray, in the fragment's home (where it lies in the CT), whatever its pose. 0. */
 #define NAVWIN_KEY_CLICK RENDER_KEY_CLICK
 int navwin_click_at(const navwin *w, double world[3]);
 /* The seed mode's preview: the window draws pieces[0..n-1] (the fragments a split would make, each
