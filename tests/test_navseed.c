@@ -5,6 +5,7 @@
 
 #include "case.h"
 #include "durable.h"
+#include "err.h"
 
 #include <setjmp.h>
 #include <stdarg.h>
@@ -189,6 +190,45 @@ static void test_undo_never_loses_a_later_edit(void **st)
     blocks_free(&k);
 }
 
+/* The live preview shows what Enter makes: after seeds 1 and 2 in block B (the second grown
+ * incrementally from the first's growth), its fragments have the ids, colours and voxel counts of
+ * case_separate_all's; with seed 2 taken back (a growth anew) it shows the case as it is; a seed
+ * on no fragment is refused, naming its point. */
+static void test_preview_matches_the_separation(void **st)
+{
+    (void)st;
+    blocks k;
+    blocks_make(&k, "navseed-preview");
+    planning_case *c = case_load(k.case_dir);
+    assert_non_null(c);
+    case_seed seeds[3] = {{{k.b[0] - 3, k.b[1], k.b[2]}, 1}, {{k.b[0] + 3, k.b[1], k.b[2]}, 2},
+                          {{k.b[0], k.b[1], k.b[2] + 8}, 1}};
+    case_preview *p = case_preview_new(c);
+    assert_non_null(p);
+    const frag *shown;
+    assert_int_equal(case_preview_update(p, NULL, seeds, 1, &shown), 2);
+    int n = case_preview_update(p, NULL, seeds, 2, &shown);
+    assert_int_equal(n, 3);
+    planning_case *sep = case_load(k.case_dir);
+    assert_non_null(sep);
+    assert_int_equal(case_separate_all(sep, seeds, 2), 1);
+    assert_int_equal(sep->nfrag, 3);
+    for (int i = 0; i < 3; i++) {
+        const frag *f = &sep->frag[case_find(sep, shown[i].id)];
+        assert_int_equal(shown[i].voxels, f->voxels);
+        assert_memory_equal(shown[i].rgb, f->rgb, 3);
+    }
+    case_free(sep);
+    assert_int_equal(case_preview_update(p, NULL, seeds, 1, &shown), 2);
+    assert_int_equal(shown[1].voxels, c->frag[1].voxels);
+    case_seed off[2] = {seeds[0], seeds[2]};
+    assert_int_equal(case_preview_update(p, NULL, off, 2, &shown), FN_EINVAL);
+    assert_non_null(strstr(fn_err_msg(), "on no fragment"));
+    case_preview_free(p);
+    case_free(c);
+    blocks_free(&k);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -196,6 +236,7 @@ int main(void)
         cmocka_unit_test(test_separation_file_of_another_case_json_is_dropped),
         cmocka_unit_test(test_undo_step_equal_to_the_case_is_dropped),
         cmocka_unit_test(test_undo_never_loses_a_later_edit),
+        cmocka_unit_test(test_preview_matches_the_separation),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

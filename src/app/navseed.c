@@ -21,18 +21,12 @@ void navseed_init(navseed *s)
     s->piece = 1;
 }
 
-static void drop_preview(navseed *s)
-{
-    for (int i = 0; i < s->npieces; i++)
-        frag_free(&s->pieces[i]);
-    free(s->pieces);
-    s->pieces = NULL;
-    s->npieces = 0;
-}
-
 void navseed_free(navseed *s)
 {
-    drop_preview(s);
+    case_preview_free(s->preview);
+    s->preview = NULL;
+    s->pieces = NULL;
+    s->npieces = 0;
 }
 
 static void describe(navseed *s, const char *what)
@@ -89,11 +83,13 @@ int navseed_preview(navseed *s, const planning_case *c, const pose *poses)
         return 0;
     s->changed = 0;
     int had = s->npieces;
-    drop_preview(s);
+    s->npieces = 0;
     if (!s->on || !s->n)
         return had > 0;
     int64_t t0 = fnclock_now_us();
-    int n = case_separate_preview(c, poses, s->seed, s->n, &s->pieces);
+    if (!s->preview)
+        s->preview = case_preview_new(c);
+    int n = s->preview ? case_preview_update(s->preview, poses, s->seed, s->n, &s->pieces) : FN_ENOMEM;
     char what[300];
     if (n >= 0) {
         s->npieces = n;

@@ -26,13 +26,14 @@ typedef struct navseed {
     case_seed seed[NAVSEED_MAX];
     int accepted; /* Enter was pressed with seeds: the caller clears it and separates */
     int changed;  /* the seeds changed since the last navseed_preview */
-    frag *pieces; /* the preview: the fragments the seeds would make (npieces, 0: none) */
+    case_preview *preview;
+    const frag *pieces; /* the preview: the fragments the seeds would make (npieces, 0: none) */
     int npieces;
     char status[512];
 } navseed;
 
 void navseed_init(navseed *s);
-/* Frees the preview. */
+/* Frees the preview (before its case goes). */
 void navseed_free(navseed *s);
 /* A key typed in the window (navwin_frame's codes). Returns 1 when it was seed mode's (F10 always;
  * digits, Backspace and Enter while it is on), 0 when it goes on as before. */
@@ -41,8 +42,9 @@ int navseed_key(navseed *s, int k);
  * there while seed mode is on. */
 void navseed_click(navseed *s, const double world[3]);
 /* The preview of the split, when the seeds changed since the last call: s->pieces become the
- * fragments Enter would make of c (case_separate_preview, each at its parent's pose of poses), or
- * none when seed mode is off, has no seed or a seed is bad (the status says why). Returns 1 when
+ * fragments Enter would make of c (case_preview_update: after a new seed only its growth is
+ * updated; each piece at its parent's pose of poses), or none when seed mode is off, has no seed
+ * or a seed is bad (the status says why). c must stay the same until navseed_free. Returns 1 when
  * s->pieces changed, 0 when not. */
 int navseed_preview(navseed *s, const planning_case *c, const pose *poses);
 /* One line for the HUD while seed mode is on (the piece, the seeds and the keys); NULL when off. */

@@ -191,11 +191,20 @@ int case_separate_auto(planning_case *c, int id, int *new_ids);
  * made, or FN_E* (a seed's error names the point). */
 int case_separate_all(planning_case *c, const case_seed *seeds, int n);
 
-/* What case_separate_all(c, seeds, n) would make, c left as it is: the fragments after it, each
- * at its parent's pose (poses[i] for c's fragment i; NULL: their own), in *pieces (malloc'd: the
- * caller frees each with frag_free, then the array). Returns their count, or FN_E* as
- * case_separate_all. */
-int case_separate_preview(const planning_case *c, const pose *poses, const case_seed *seeds, int n, frag **pieces);
+/* A live preview of case_separate_all(c, seeds, n) from seeds of pieces 1..254 on c's fragments
+ * (the window's seed mode): case_preview_update grows the split and gives the fragments it would
+ * make, in *shown (n of them, returned; valid until the next update or case_preview_free): each
+ * fragment with seeds as its pieces, the largest keeping its id and colour and the others the ids
+ * and colours case_separate_all would give them, and the others as they are; all at the pose of
+ * the fragment they come from (poses[i] for c's fragment i; NULL: their own). When the seeds
+ * extend those of the last update, only the new ones grow (grow.h's incremental update); else the
+ * growth starts anew. c must outlive p, unchanged. FN_EINVAL naming the seed (world mm) that is
+ * outside the CT or on no fragment (Enter would grow the bone there; the preview does not), or
+ * FN_ENOMEM. */
+typedef struct case_preview case_preview;
+case_preview *case_preview_new(const planning_case *c);
+void case_preview_free(case_preview *p);
+int case_preview_update(case_preview *p, const pose *poses, const case_seed *seeds, int n, const frag **shown);
 
 /* A seed file's text: one seed per line, "PIECE X Y Z" (PIECE 1..254, or "none" for not bone;
  * world LPS mm), blank lines and # comments skipped. Returns the count and *out (malloc'd), or
