@@ -459,8 +459,8 @@ static void window_frame(view *v, const loop_scene *sc)
         } else if (!navseed_key(&v->seed, keys[i]))
             window_key(v, keys[i]);
     }
-    /* the split the seeds make, grown on this thread between frames (tens of ms on real bones) */
-    if (navseed_preview(&v->seed, session_case(v->k), sc->nfrag == session_case(v->k)->nfrag ? sc->pose : NULL) &&
+    /* the split the seeds make, grown on the seed mode's worker, shown once it is done */
+    if (navseed_preview(&v->seed, session_case(v->k), sc->pose, sc->nfrag) &&
         navwin_set_pieces(v->win, v->seed.pieces, v->seed.npieces) < 0) {
         fprintf(stderr, "fracnav navigate: the window: %s\n", fn_err_msg());
         quit = 1;

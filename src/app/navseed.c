@@ -23,6 +23,11 @@ void navseed_init(navseed *s)
 
 void navseed_free(navseed *s)
 {
+    if (s->running)
+        pthread_join(s->worker, NULL);
+    s->running = 0;
+    free(s->job_poses);
+    s->job_poses = NULL;
     case_preview_free(s->preview);
     s->preview = NULL;
     s->pieces = NULL;
@@ -77,28 +82,79 @@ void navseed_click(navseed *s, const double world[3])
     describe(s, "seed dropped");
 }
 
-int navseed_preview(navseed *s, const planning_case *c, const pose *poses)
+/* The worker: one case_preview_update over the job. */
+static void *grow_job(void *arg)
 {
-    if (!s->changed)
-        return 0;
-    s->changed = 0;
-    int had = s->npieces;
-    s->npieces = 0;
-    if (!s->on || !s->n)
-        return had > 0;
+    navseed *s = arg;
     int64_t t0 = fnclock_now_us();
     if (!s->preview)
-        s->preview = case_preview_new(c);
-    int n = s->preview ? case_preview_update(s->preview, poses, s->seed, s->n, &s->pieces) : FN_ENOMEM;
-    char what[300];
-    if (n >= 0) {
-        s->npieces = n;
-        snprintf(what, sizeof what, "preview: %d fragment%s (%.0f ms), Enter accepts", n, n == 1 ? "" : "s",
-                 (double)(fnclock_now_us() - t0) / 1000.0);
-    } else
-        snprintf(what, sizeof what, "no preview: %s", fn_err_msg());
-    describe(s, what);
-    return 1;
+        s->preview = case_preview_new(s->job_case);
+    s->job_result = s->preview ? case_preview_update(s->preview, s->job_poses, s->job_seed, s->job_n, &s->job_pieces)
+                               : FN_ENOMEM;
+    s->job_ms = (double)(fnclock_now_us() - t0) / 1000.0;
+    snprintf(s->job_error, sizeof s->job_error, "%s", s->job_result < 0 ? fn_err_msg() : "");
+    atomic_store(&s->done, 1);
+    return NULL;
+}
+
+/* A job for the seeds as they are, on the worker (or here when no thread can start). */
+static void start_job(navseed *s, const planning_case *c, const pose *poses, int nposes)
+{
+    if (nposes != c->nfrag)
+        poses = NULL; /* no scene of this case yet */
+    pose *p = poses && nposes != s->job_nposes ? realloc(s->job_poses, (size_t)nposes * sizeof *p) : s->job_poses;
+    if (poses && p) {
+        memcpy(p, poses, (size_t)nposes * sizeof *p);
+        s->job_poses = p;
+        s->job_nposes = nposes;
+    }
+    if (!poses || !p) {
+        free(s->job_poses);
+        s->job_poses = NULL;
+        s->job_nposes = 0;
+    }
+    s->job_case = c;
+    memcpy(s->job_seed, s->seed, (size_t)s->n * sizeof *s->seed);
+    s->job_n = s->n;
+    atomic_store(&s->done, 0);
+    s->running = 1;
+    if (pthread_create(&s->worker, NULL, grow_job, s) != 0) {
+        s->running = 0;
+        grow_job(s);
+    }
+}
+
+int navseed_preview(navseed *s, const planning_case *c, const pose *poses, int nposes)
+{
+    int shown = 0;
+    if (s->running && !atomic_load(&s->done))
+        return 0;
+    if (s->running) {
+        pthread_join(s->worker, NULL);
+        s->running = 0;
+    }
+    if (atomic_exchange(&s->done, 0)) {
+        char what[400];
+        s->npieces = s->job_result > 0 ? s->job_result : 0;
+        s->pieces = s->job_pieces;
+        if (s->job_result >= 0)
+            snprintf(what, sizeof what, "preview: %d fragment%s (%.0f ms), Enter accepts", s->job_result,
+                     s->job_result == 1 ? "" : "s", s->job_ms);
+        else
+            snprintf(what, sizeof what, "no preview: %s", s->job_error);
+        describe(s, what);
+        shown = 1;
+    }
+    if (!s->changed)
+        return shown;
+    s->changed = 0;
+    if (s->on && s->n) {
+        start_job(s, c, poses, nposes);
+        return shown;
+    }
+    shown |= s->npieces > 0;
+    s->npieces = 0;
+    return shown;
 }
 
 const char *navseed_status(const navseed *s)

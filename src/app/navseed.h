@@ -17,6 +17,9 @@
 
 #include "case.h"
 
+#include <pthread.h>
+#include <stdatomic.h>
+
 #define NAVSEED_MAX 64 /* seeds at most; more are refused with a note */
 
 typedef struct navseed {
@@ -29,11 +32,24 @@ typedef struct navseed {
     case_preview *preview;
     const frag *pieces; /* the preview: the fragments the seeds would make (npieces, 0: none) */
     int npieces;
+    /* The preview's growth runs on a worker thread, a job at a time: while running, the worker
+     * alone touches preview and the job's fields, until it sets done. */
+    pthread_t worker;
+    int running;
+    atomic_int done;
+    const planning_case *job_case;
+    case_seed job_seed[NAVSEED_MAX];
+    int job_n, job_nposes;
+    pose *job_poses;      /* malloc'd, job_nposes; NULL: the fragments' own */
+    int job_result;       /* case_preview_update's */
+    const frag *job_pieces;
+    double job_ms;
+    char job_error[256];
     char status[512];
 } navseed;
 
 void navseed_init(navseed *s);
-/* Frees the preview (before its case goes). */
+/* Waits for the preview's worker and frees the preview (before its case goes). */
 void navseed_free(navseed *s);
 /* A key typed in the window (navwin_frame's codes). Returns 1 when it was seed mode's (F10 always;
  * digits, Backspace and Enter while it is on), 0 when it goes on as before. */
@@ -41,12 +57,14 @@ int navseed_key(navseed *s, int k);
 /* A click on a slice or the surface (NAVWIN_KEY_CLICK at world, LPS mm): drops a seed of the current piece
  * there while seed mode is on. */
 void navseed_click(navseed *s, const double world[3]);
-/* The preview of the split, when the seeds changed since the last call: s->pieces become the
- * fragments Enter would make of c (case_preview_update: after a new seed only its growth is
- * updated; each piece at its parent's pose of poses), or none when seed mode is off, has no seed
- * or a seed is bad (the status says why). c must stay the same until navseed_free. Returns 1 when
- * s->pieces changed, 0 when not. */
-int navseed_preview(navseed *s, const planning_case *c, const pose *poses);
+/* The preview of the split, called at every frame: when the seeds changed, a worker thread grows
+ * the fragments Enter would make of c (case_preview_update: after a new seed only its growth is
+ * updated; each piece at its parent's pose of poses, nposes of them; NULL: their own), and when it
+ * is done, s->pieces become them, or none when seed mode is off, has no seed or a seed is bad (the
+ * status says why). The window never waits for the growth; c must stay the same until
+ * navseed_free, and only its labels, CT and fragments' voxels are read off the caller's thread.
+ * Returns 1 when s->pieces changed, 0 when not. */
+int navseed_preview(navseed *s, const planning_case *c, const pose *poses, int nposes);
 /* One line for the HUD while seed mode is on (the piece, the seeds and the keys); NULL when off. */
 const char *navseed_status(const navseed *s);
 /* The seed mode's keys, for a help text (lines ending in '\n'). */

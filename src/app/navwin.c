@@ -210,7 +210,7 @@ int navwin_set_pieces(navwin *w, const frag *pieces, int n)
     w->have_trees = 0;
     w->split_preview = n > 0;
     w->dirty = 1;
-    int rc = render_set_scene(w->r, w->c->ct, f, nf, w->c->seg.threshold, NULL);
+    int rc = render_set_fragments(w->r, w->c->ct, f, nf);
     return rc ? rc : n > 0 ? 0 : need_trees(w);
 }
 

@@ -8,6 +8,7 @@
 #include "split.h"
 
 #include <math.h>
+#include <stddef.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -858,8 +859,9 @@ int case_preview_update(case_preview *p, const pose *poses, const case_seed *see
         if (t->dirty && (rc = grow_run(t->g)) == 0)
             rc = part_pieces(c, t, at);
         t->dirty = 0;
-        if (!t->npieces) {
-            p->out[m] = c->frag[i]; /* shallow: shown, never freed here */
+        if (!t->npieces) { /* shallow: shown, never freed here; its pose (the last member, which a
+                            * session's save may be writing) not read */
+            memcpy(&p->out[m], &c->frag[i], offsetof(frag, pose));
             p->out[m++].pose = *at;
         }
         for (int k = 0; k < t->npieces; k++) {
