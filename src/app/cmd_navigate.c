@@ -601,9 +601,11 @@ static void separate(view *v, const char *dir)
 {
     int nfrag = 0, made = v->undo_edit ? navseed_undo(dir, &nfrag) : navseed_separate(&v->seed, dir, &nfrag);
     char text[sizeof v->ack];
-    if (v->undo_edit && made >= 0)
+    if (v->undo_edit && made > 0)
         snprintf(text, sizeof text, "undo: the separation taken back, %d fragment%s; saved %s", nfrag,
                  nfrag == 1 ? "" : "s", dir);
+    else if (v->undo_edit && made == 0)
+        snprintf(text, sizeof text, "undo: the separation stays (the case was saved since)");
     else if (made >= 0)
         snprintf(text, sizeof text, "separated: %d new fragment%s, %d in all; saved %s (undo takes it back)", made,
                  made == 1 ? "" : "s", nfrag, dir);

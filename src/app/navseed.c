@@ -165,8 +165,8 @@ const char *navseed_status(const navseed *s)
 const char *navseed_help(void)
 {
     return "  F10 seed mode (separates fragments): then 1-9 the piece, a click on a slice or on\n"
-           "  a fragment in 3D drops its seed, Backspace takes the last seed back (the split is previewed in colour\n"
-           "  after each), Enter separates (saves the case; undo takes it back)\n";
+           "  a fragment in 3D drops its seed, Backspace takes the last seed back (the split is\n"
+           "  previewed in colour after each), Enter separates (saves it; undo takes it back)\n";
 }
 
 int navseed_apply(navseed *s, planning_case *c)

@@ -1,17 +1,18 @@
 /* navseed: the window's seed mode, which separates fragments from a click per piece (3D Slicer's
  * "Grow from seeds"). F10 enters and leaves it; while it is on, a digit 1-9 chooses the piece the
  * next seed marks, a click on a slice of the four-up layout or on a fragment's surface in the 3D
- * view drops a seed there (NAVWIN_KEY_CLICK),
- * Backspace takes the last seed back, and Enter accepts: the caller then separates every fragment
- * that holds seeds (navseed_apply, case_separate_all's competitive growth). After each seed and
- * each Backspace, navseed_preview grows the pieces the seeds would make, for the window to show
- * in their colours before Enter. While it is on, the digits are its own, not the steering keys'.
+ * view drops a seed there (NAVWIN_KEY_CLICK), Backspace takes the last seed back, and Enter
+ * accepts: the caller then separates every fragment that holds seeds (navseed_apply,
+ * case_separate_all's competitive growth). After each seed and each Backspace, navseed_preview
+ * grows the pieces the seeds would make, for the window to show in their colours before Enter.
+ * While it is on, the digits are its own, not the steering keys'.
  *
  * The separation is saved as an undoable edit (navseed_undo takes it back) and survives a crash
  * (navseed_recover).
  *
- * Threads: the window's (the caller's) only. Errors: navseed_apply returns FN_E* with fn_err
- * naming the seed's world point. */
+ * Threads: the window's (the caller's); the preview grows on a worker of its own
+ * (navseed_preview). Errors: navseed_apply returns FN_E* with fn_err naming the seed's world
+ * point. */
 #ifndef FN_NAVSEED_H
 #define FN_NAVSEED_H
 
@@ -54,8 +55,8 @@ void navseed_free(navseed *s);
 /* A key typed in the window (navwin_frame's codes). Returns 1 when it was seed mode's (F10 always;
  * digits, Backspace and Enter while it is on), 0 when it goes on as before. */
 int navseed_key(navseed *s, int k);
-/* A click on a slice or the surface (NAVWIN_KEY_CLICK at world, LPS mm): drops a seed of the current piece
- * there while seed mode is on. */
+/* A click on a slice or the surface (NAVWIN_KEY_CLICK at world, LPS mm): drops a seed of the
+ * current piece there while seed mode is on. */
 void navseed_click(navseed *s, const double world[3]);
 /* The preview of the split, called at every frame: when the seeds changed, a worker thread grows
  * the fragments Enter would make of c (case_preview_update: after a new seed only its growth is

@@ -22,7 +22,8 @@
 #define LABELS_PREV "labels.prev.nii.gz" /* the labels the on-disk case.json names, during a save */
 #define JSON_FILE "case.json"
 #define UNDO_DIR "undo" /* CASE/undo/N/: the case before an undoable edit (case_save_undoable) */
-#define LABELS_AFTER "labels.after.nii.gz" /* in a step: the labels its edit saved */
+#define LABELS_AFTER "labels.after.nii.gz" /* in a step: the case its edit saved */
+#define JSON_AFTER "case.after.json"
 #define JSON_MAX_BYTES (64 << 20) /* 64 MiB: ~100,000 fragments */
 
 /* ---- writing ---- */
@@ -283,6 +284,8 @@ static int remove_step(const char *dir, const char *step)
     unlink(f);
     join(f, sizeof f, step, LABELS_AFTER);
     unlink(f);
+    join(f, sizeof f, step, JSON_AFTER);
+    unlink(f);
     if (rmdir(step) != 0 && errno != ENOENT)
         return fn_err_set(FN_EIO, "%s: cannot remove: %s", step, strerror(errno));
     join(f, sizeof f, dir, UNDO_DIR);
@@ -306,15 +309,17 @@ static int live_step(const char *dir, char *step, size_t cap)
     return 0;
 }
 
-/* The newest step when its edit's labels are the case's still (no later edit changed them: an
- * undo would lose it), else 0. */
+/* The newest step when the case is still as its edit saved it (nothing saved since, which an
+ * undo would lose), else 0. */
 static int undoable_step(const char *dir, char *step, size_t cap)
 {
-    char lfin[4200], after[4400];
+    char lfin[4200], jfin[4200], lafter[4400], jafter[4400];
     int n = live_step(dir, step, cap);
     join(lfin, sizeof lfin, dir, LABELS_FILE);
-    join(after, sizeof after, step, LABELS_AFTER);
-    return n > 0 && !same_file(after, lfin) ? 0 : n;
+    join(jfin, sizeof jfin, dir, JSON_FILE);
+    join(lafter, sizeof lafter, step, LABELS_AFTER);
+    join(jafter, sizeof jafter, step, JSON_AFTER);
+    return n > 0 && !(same_file(lafter, lfin) && same_file(jafter, jfin)) ? 0 : n;
 }
 
 int case_undo_steps(const char *dir)
@@ -355,10 +360,12 @@ int case_save_undoable(planning_case *c)
         return fn_err_wrap(rc, "keeping case %s for undo", c->dir);
     if ((rc = case_save(c)) < 0)
         return rc;
-    join(f, sizeof f, step, LABELS_AFTER); /* a crash before this link leaves the step unoffered */
-    if ((rc = link_over(lfin, f)) == 0)
-        rc = durable_sync_path(step);
-    return rc;
+    join(f, sizeof f, step, LABELS_AFTER); /* a crash before these links leaves the step unoffered */
+    if ((rc = link_over(lfin, f)) == 0) {
+        join(f, sizeof f, step, JSON_AFTER);
+        rc = link_over(jfin, f);
+    }
+    return rc ? rc : durable_sync_path(step);
 }
 
 int case_undo(const char *dir)
