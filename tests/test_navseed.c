@@ -13,7 +13,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/stat.h>
 #include <unistd.h>
 
 #include <cmocka.h>
@@ -138,19 +137,15 @@ static void test_undo_step_equal_to_the_case_is_dropped(void **st)
     (void)st;
     blocks k;
     blocks_make(&k, "navseed-undo");
-    char step[4300], from[4300], to[4400];
-    snprintf(step, sizeof step, "%s/undo", k.case_dir);
-    assert_int_equal(mkdir(step, 0755), 0);
-    snprintf(step, sizeof step, "%s/undo/1", k.case_dir);
-    assert_int_equal(mkdir(step, 0755), 0);
-    const char *files[] = {"case.json", "labels.nii.gz"};
+    char from[4300], to[4400];
+    const char *files[] = {"labels.nii.gz", "case.json"};
     for (int i = 0; i < 2; i++) {
         snprintf(from, sizeof from, "%s/%s", k.case_dir, files[i]);
-        snprintf(to, sizeof to, "%s/%s", step, files[i]);
+        snprintf(to, sizeof to, "%s/undo.1.%s", k.case_dir, files[i]);
         assert_int_equal(link(from, to), 0);
     }
     assert_int_equal(case_undo_steps(k.case_dir), 0);
-    assert_int_not_equal(access(step, F_OK), 0);
+    assert_int_not_equal(access(to, F_OK), 0);
     planning_case *c = case_load(k.case_dir);
     assert_non_null(c);
     assert_int_equal(case_merge(c, 1, 2), 0);
@@ -188,6 +183,31 @@ static void test_undo_never_loses_a_later_save(void **st)
     assert_int_equal(c->nfrag, 3);
     assert_true(c->frag[case_find(c, 3)].pose.t[0] != 0);
     case_free(c);
+    blocks_free(&k);
+}
+
+/* The undo steps lie in the case folder itself, which stays flat: segment --force replaces a case
+ * that holds one whole, leaving nothing aside. */
+static void test_force_replaces_a_case_with_undo_steps(void **st)
+{
+    (void)st;
+    blocks k;
+    blocks_make(&k, "navseed-force");
+    planning_case *c = case_load(k.case_dir);
+    assert_non_null(c);
+    assert_int_equal(case_merge(c, 1, 2), 0);
+    assert_int_equal(case_save_undoable(c), 0);
+    case_free(c);
+    assert_int_equal(case_undo_steps(k.case_dir), 1);
+    char *out = NULL;
+    int rc = tu_run_cli(&out, "segment '%s/blocks.nii.gz' -o '%s' --force --min-volume 0 --ramp 0", k.dir,
+                        k.case_dir);
+    if (rc != 0 || strstr(out, "stays in"))
+        fail_msg("segment --force over a case with an undo step: exit %d: %s", rc, out);
+    free(out);
+    assert_int_equal(case_undo_steps(k.case_dir), 0);
+    int as_made;
+    assert_int_equal(fragments(&k, &as_made), 2);
     blocks_free(&k);
 }
 
@@ -237,6 +257,7 @@ int main(void)
         cmocka_unit_test(test_separation_file_of_another_case_json_is_dropped),
         cmocka_unit_test(test_undo_step_equal_to_the_case_is_dropped),
         cmocka_unit_test(test_undo_never_loses_a_later_save),
+        cmocka_unit_test(test_force_replaces_a_case_with_undo_steps),
         cmocka_unit_test(test_preview_matches_the_separation),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

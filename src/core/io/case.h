@@ -84,7 +84,7 @@ void case_free(planning_case *c);
 
 /* Edits that can be taken back (the window's separation). case_save_undoable keeps the case as it
  * is on disk (case.json and labels.nii.gz, hard links, no copy) as the newest undo step,
- * CASE/undo/N/, then saves c (case_save) and links the case it saved into the step.
+ * CASE/undo.N.case.json and CASE/undo.N.labels.nii.gz, then saves c (case_save) and links the case it saved into the step.
  * case_undo puts the newest step back in place as case_save would save it (labels, then
  * case.json; a crash between leaves the case as it was, the step whole) and removes the step: 1,
  * or 0 when there is none to undo. case_undo_steps: the newest step's N, 0 when none. A step equal

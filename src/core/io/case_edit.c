@@ -680,7 +680,6 @@ int case_separate_all(planning_case *c, const case_seed *seeds, int n)
 
 /* One fragment with seeds: its box, its growth, and the pieces it grew into. */
 typedef struct preview_part {
-    int index;      /* the fragment's index in the case */
     int lo[3], dim[3];
     uint8_t *m;     /* id_mask */
     float *hu;      /* box_values */
@@ -759,7 +758,6 @@ static vol *box_vol(const planning_case *c, const preview_part *t)
 /* Fragment index f's box, mask, values and growth, made at its first seed. */
 static int part_open(const planning_case *c, preview_part *t, int f)
 {
-    t->index = f;
     t->m = id_mask(c, c->frag[f].id, t->lo, t->dim);
     t->hu = t->m ? box_values(c, t->m, t->lo, t->dim) : NULL;
     t->g = t->hu ? grow_new(t->hu, t->m, t->dim, c->labels->spacing) : NULL;
@@ -779,8 +777,8 @@ static int part_open(const planning_case *c, preview_part *t, int f)
 }
 
 /* The pieces of t after its growth: one fragment per piece label that won voxels, the largest
- * first, each placed as the fragment it came from (pose at). */
-static int part_pieces(const planning_case *c, preview_part *t, const pose *at)
+ * first. */
+static int part_pieces(const planning_case *c, preview_part *t)
 {
     part_pieces_free(t);
     const uint8_t *won = grow_labels(t->g);
@@ -806,7 +804,6 @@ static int part_pieces(const planning_case *c, preview_part *t, const pose *at)
         t->npieces++;
         for (int a = 0; a < 3; a++)
             f->origin[a] += t->lo[a];
-        f->pose = *at;
     }
     return 0;
 }
@@ -857,7 +854,7 @@ int case_preview_update(case_preview *p, const pose *poses, const case_seed *see
         preview_part *t = &p->part[i];
         const pose *at = poses ? &poses[i] : &c->frag[i].pose;
         if (t->dirty && (rc = grow_run(t->g)) == 0)
-            rc = part_pieces(c, t, at);
+            rc = part_pieces(c, t);
         t->dirty = 0;
         if (!t->npieces) { /* shallow: shown, never freed here; its pose (the last member, which a
                             * session's save may be writing) not read */
@@ -868,6 +865,7 @@ int case_preview_update(case_preview *p, const pose *poses, const case_seed *see
             frag *f = &t->pieces[k];
             f->id = k == 0 ? c->frag[i].id : next++;
             frag_colour(f->id, f->rgb);
+            f->pose = *at; /* placed as the fragment it comes from */
             p->out[m++] = *f;
         }
     }

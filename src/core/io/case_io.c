@@ -21,7 +21,7 @@
 #define LABELS_FILE "labels.nii.gz"
 #define LABELS_PREV "labels.prev.nii.gz" /* the labels the on-disk case.json names, during a save */
 #define JSON_FILE "case.json"
-#define UNDO_DIR "undo" /* CASE/undo/N/: the case before an undoable edit (case_save_undoable) */
+#define UNDO_PREFIX "undo." /* CASE/undo.N.*: the case before an undoable edit (case_save_undoable) */
 #define LABELS_AFTER "labels.after.nii.gz" /* in a step: the case its edit saved */
 #define JSON_AFTER "case.after.json"
 #define JSON_MAX_BYTES (64 << 20) /* 64 MiB: ~100,000 fragments */
@@ -249,23 +249,30 @@ int case_save(planning_case *c)
 
 /* ---- undo ---- */
 
-/* The newest undo step of dir (the largest N of dir/undo/N) into step; 0 when none. */
+/* The newest undo step of dir (the largest N of its files UNDO_PREFIX N.case.json): its files'
+ * common start, DIR/undo.N., into step; 0 when none. The steps' files lie in the case folder
+ * itself, which stays flat (case_stage replaces only such folders). */
 static int newest_step(const char *dir, char *step, size_t cap)
 {
-    char undo[4200];
-    join(undo, sizeof undo, dir, UNDO_DIR);
-    DIR *d = opendir(undo);
+    DIR *d = opendir(dir);
     int newest = 0;
+    size_t plen = strlen(UNDO_PREFIX);
     for (struct dirent *e; d && (e = readdir(d));) {
-        char *end;
-        long n = strtol(e->d_name, &end, 10);
-        if (end != e->d_name && !*end && n > newest && n < INT_MAX)
+        char *end = "";
+        long n = strncmp(e->d_name, UNDO_PREFIX, plen) ? 0 : strtol(e->d_name + plen, &end, 10);
+        if (n > newest && n < INT_MAX && !strcmp(end, "." JSON_FILE))
             newest = (int)n;
     }
     if (d)
         closedir(d);
-    snprintf(step, cap, "%s/%d", undo, newest);
+    snprintf(step, cap, "%s/" UNDO_PREFIX "%d.", dir, newest);
     return newest;
+}
+
+/* A file of a step (newest_step's prefix). */
+static void step_file(char *out, size_t cap, const char *step, const char *name)
+{
+    snprintf(out, cap, "%s%s", step, name);
 }
 
 /* Whether files a and b hold the same bytes (by sha256; both must be readable). */
@@ -277,29 +284,25 @@ static int same_file(const char *a, const char *b)
 
 static int remove_step(const char *dir, const char *step)
 {
-    char f[4300];
-    join(f, sizeof f, step, JSON_FILE);
-    unlink(f);
-    join(f, sizeof f, step, LABELS_FILE);
-    unlink(f);
-    join(f, sizeof f, step, LABELS_AFTER);
-    unlink(f);
-    join(f, sizeof f, step, JSON_AFTER);
-    unlink(f);
-    if (rmdir(step) != 0 && errno != ENOENT)
-        return fn_err_set(FN_EIO, "%s: cannot remove: %s", step, strerror(errno));
-    join(f, sizeof f, dir, UNDO_DIR);
-    return durable_sync_path(f);
+    const char *names[] = {LABELS_FILE, LABELS_AFTER, JSON_AFTER, JSON_FILE}; /* case.json, which names
+                                                                              * the step, last */
+    char f[4400];
+    for (int i = 0; i < 4; i++) {
+        step_file(f, sizeof f, step, names[i]);
+        if (unlink(f) != 0 && errno != ENOENT)
+            return fn_err_set(FN_EIO, "%s: cannot remove: %s", f, strerror(errno));
+    }
+    return durable_sync_path(dir);
 }
 
 /* The newest step that differs from the case as it is (one equal to it is what a crash left
  * between keeping it and the save, or after an undo's renames: dropped). 0 when none. */
 static int live_step(const char *dir, char *step, size_t cap)
 {
-    char jfin[4200], sj[4300];
+    char jfin[4200], sj[4400];
     join(jfin, sizeof jfin, dir, JSON_FILE);
     for (int n; (n = newest_step(dir, step, cap)) > 0;) {
-        join(sj, sizeof sj, step, JSON_FILE);
+        step_file(sj, sizeof sj, step, JSON_FILE);
         if (!same_file(sj, jfin))
             return n;
         int rc = remove_step(dir, step);
@@ -317,8 +320,8 @@ static int undoable_step(const char *dir, char *step, size_t cap)
     int n = live_step(dir, step, cap);
     join(lfin, sizeof lfin, dir, LABELS_FILE);
     join(jfin, sizeof jfin, dir, JSON_FILE);
-    join(lafter, sizeof lafter, step, LABELS_AFTER);
-    join(jafter, sizeof jafter, step, JSON_AFTER);
+    step_file(lafter, sizeof lafter, step, LABELS_AFTER);
+    step_file(jafter, sizeof jafter, step, JSON_AFTER);
     return n > 0 && !(same_file(lafter, lfin) && same_file(jafter, jfin)) ? 0 : n;
 }
 
@@ -339,33 +342,30 @@ static int link_over(const char *from, const char *to)
 
 int case_save_undoable(planning_case *c)
 {
-    char step[4300], undo[4200], f[4400], jfin[4200], lfin[4200];
+    char step[4300], f[4400], jfin[4200], lfin[4200];
     join(jfin, sizeof jfin, c->dir, JSON_FILE);
     join(lfin, sizeof lfin, c->dir, LABELS_FILE);
-    join(undo, sizeof undo, c->dir, UNDO_DIR);
     int n = live_step(c->dir, step, sizeof step);
     if (n < 0)
         return n;
-    snprintf(step, sizeof step, "%s/%d", undo, n + 1);
-    if ((mkdir(undo, 0755) != 0 && errno != EEXIST) || (mkdir(step, 0755) != 0 && errno != EEXIST))
-        return fn_err_set(FN_EIO, "%s: cannot create: %s", step, strerror(errno));
-    join(f, sizeof f, step, LABELS_FILE);
+    snprintf(step, sizeof step, "%s/" UNDO_PREFIX "%d.", c->dir, n + 1);
+    step_file(f, sizeof f, step, LABELS_FILE);
     int rc = link_over(lfin, f);
-    join(f, sizeof f, step, JSON_FILE);
+    step_file(f, sizeof f, step, JSON_FILE); /* last: it makes the step */
     if (rc == 0)
         rc = link_over(jfin, f);
-    if (rc == 0 && (rc = durable_sync_path(step)) == 0 && (rc = durable_sync_path(undo)) == 0)
+    if (rc == 0)
         rc = durable_sync_path(c->dir);
     if (rc < 0)
         return fn_err_wrap(rc, "keeping case %s for undo", c->dir);
     if ((rc = case_save(c)) < 0)
         return rc;
-    join(f, sizeof f, step, LABELS_AFTER); /* a crash before these links leaves the step unoffered */
+    step_file(f, sizeof f, step, LABELS_AFTER); /* a crash before these links leaves the step unoffered */
     if ((rc = link_over(lfin, f)) == 0) {
-        join(f, sizeof f, step, JSON_AFTER);
+        step_file(f, sizeof f, step, JSON_AFTER);
         rc = link_over(jfin, f);
     }
-    return rc ? rc : durable_sync_path(step);
+    return rc ? rc : durable_sync_path(c->dir);
 }
 
 int case_undo(const char *dir)
@@ -374,8 +374,8 @@ int case_undo(const char *dir)
     int n = undoable_step(dir, step, sizeof step);
     if (n <= 0)
         return n;
-    join(sj, sizeof sj, step, JSON_FILE);
-    join(sl, sizeof sl, step, LABELS_FILE);
+    step_file(sj, sizeof sj, step, JSON_FILE);
+    step_file(sl, sizeof sl, step, LABELS_FILE);
     join(jfin, sizeof jfin, dir, JSON_FILE);
     join(lfin, sizeof lfin, dir, LABELS_FILE);
     join(lprev, sizeof lprev, dir, LABELS_PREV);
