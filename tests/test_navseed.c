@@ -211,6 +211,22 @@ static void test_force_replaces_a_case_with_undo_steps(void **st)
     blocks_free(&k);
 }
 
+/* A real fracture segments to one fragment (the whole bone), which is what the seed mode is for:
+ * navigate opens a case of one fragment (it refused one, "steering needs at least two"). */
+static void test_navigate_opens_one_fragment(void **st)
+{
+    (void)st;
+    blocks k;
+    blocks_make(&k, "navseed-one");
+    assert_int_equal(tu_run_cli(NULL, "edit '%s' merge 1 2", k.case_dir), 0);
+    char *out = NULL;
+    int rc = navigate(&k, &out);
+    if (rc != 0)
+        fail_msg("navigate over a case of one fragment: exit %d: %s", rc, out);
+    free(out);
+    blocks_free(&k);
+}
+
 /* The live preview shows what Enter makes: after seeds 1 and 2 in block B (the second grown
  * incrementally from the first's growth), its fragments have the ids, colours and voxel counts of
  * case_separate_all's; with seed 2 taken back (a growth anew) it shows the case as it is; a seed
@@ -258,6 +274,7 @@ int main(void)
         cmocka_unit_test(test_undo_step_equal_to_the_case_is_dropped),
         cmocka_unit_test(test_undo_never_loses_a_later_save),
         cmocka_unit_test(test_force_replaces_a_case_with_undo_steps),
+        cmocka_unit_test(test_navigate_opens_one_fragment),
         cmocka_unit_test(test_preview_matches_the_separation),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
