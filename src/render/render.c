@@ -743,8 +743,10 @@ static int set_scene(render *r, const vol *ct, const frag *frags, int nfrag, dou
     }
     if (!rc)
         rc = gl_check(r, "uploading the scene");
-    if (rc)
+    if (rc) {
+        r->ct_tex = kept ? kept : r->ct_tex; /* deleted with the rest */
         scene_release(r);
+    }
     return rc;
 }
 

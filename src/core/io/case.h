@@ -84,15 +84,15 @@ void case_free(planning_case *c);
 
 /* Edits that can be taken back (the window's separation). case_save_undoable keeps the case as it
  * is on disk (case.json and labels.nii.gz, hard links, no copy) as the newest undo step,
- * CASE/undo.N.case.json and CASE/undo.N.labels.nii.gz, then saves c (case_save) and links the case it saved into the step.
- * case_undo puts the newest step back in place as case_save would save it (labels, then
- * case.json; a crash between leaves the case as it was, the step whole) and removes the step: 1,
- * or 0 when there is none to undo. case_undo_steps: the newest step's N, 0 when none. A step equal
- * to the case as it is (a crash before the save, or after an undo's renames) is dropped, never
- * applied; a step whose edit's case.json or labels are no longer the case's (a save since: an
- * edit, a fit, moved poses; or a crash before they were linked) is not undone, so nothing saved
- * later is lost. The caller holds the
- * case's lock and removes its journal (bound to the case.json that was). FN_E* naming the file. */
+ * CASE/undo.N.case.json and CASE/undo.N.labels.nii.gz, then saves c (case_save) and links the
+ * case it saved into the step. case_undo puts the newest step back in place as case_save would
+ * save it (labels, then case.json; a crash between leaves the case as it was, the step whole) and
+ * removes the step: 1, or 0 when there is none to undo. case_undo_steps: the newest step's N, 0
+ * when none. A step equal to the case as it is (a crash before the save, or after an undo's
+ * renames) is dropped, never applied; a step whose edit's case.json or labels are no longer the
+ * case's (a save since: an edit, a fit, moved poses; or a crash before they were linked) is not
+ * undone, so nothing saved later is lost. The caller holds the case's lock and removes its
+ * journal (bound to the case.json that was). FN_E* naming the file. */
 int case_save_undoable(planning_case *c);
 int case_undo(const char *dir);
 int case_undo_steps(const char *dir);
