@@ -1037,9 +1037,9 @@ typedef struct seed_run {
     int p1[2], p2[2]; /* the axial pixels of the seeds: 3 mm left and right of B's centroid */
 } seed_run;
 
-/* Starts Xvfb and navigate (four-up, anterior camera, its screenshot at the end to s->shot).
- * Skips the test where there is no xdotool or Xvfb. */
-static void seed_run_start(seed_run *s, const char *name)
+/* Starts Xvfb and navigate (four-up, anterior camera, its screenshot at the end to s->shot), block
+ * B saved moved by b_moved mm along x first. Skips the test where there is no xdotool or Xvfb. */
+static void seed_run_start(seed_run *s, const char *name, double b_moved)
 {
 #if defined(__SANITIZE_THREAD__)
     print_message("skipped under ThreadSanitizer: Xlib's and GLX's own locking\n");
@@ -1064,6 +1064,8 @@ static void seed_run_start(seed_run *s, const char *name)
     s->before = 0;
     for (size_t i = 0; i < vol_count(c->labels); i++)
         s->before += c->labels->data[i] == 2;
+    c->frag[case_find(c, 2)].pose.t[0] = b_moved;
+    assert_int_equal(case_save(c), 0);
     case_free(c);
     snprintf(s->shot, sizeof s->shot, "%s/shot.png", s->dir);
     snprintf(s->out, sizeof s->out, "%s/out.json", s->dir);
@@ -1140,7 +1142,7 @@ static void test_navigate_window_seed_mode_separates(void **st)
 {
     (void)st;
     seed_run s;
-    seed_run_start(&s, "navseed");
+    seed_run_start(&s, "navseed", 0);
     seed_run_two_seeds(&s);
     assert_int_equal(system("xdotool key Return"), 0);
     seed_run_wait(&s, "new fragment", "no separation after Enter");
@@ -1159,7 +1161,7 @@ static void test_navigate_window_seed_mode_undoes(void **st)
 {
     (void)st;
     seed_run s;
-    seed_run_start(&s, "navundo");
+    seed_run_start(&s, "navundo", 0);
     seed_run_two_seeds(&s);
     assert_int_equal(system("xdotool key Return"), 0);
     seed_run_wait(&s, "separated: 1 new fragment, 3 in all", "no separation after Enter");
@@ -1185,7 +1187,7 @@ static void test_navigate_window_seed_mode_3d_click(void **st)
 {
     (void)st;
     seed_run s;
-    seed_run_start(&s, "nav3d");
+    seed_run_start(&s, "nav3d", 0);
     planning_case *c = case_load(s.case_dir);
     assert_non_null(c);
     double b[3], right[3], d[3];
@@ -1224,6 +1226,38 @@ static void test_navigate_window_seed_mode_3d_click(void **st)
     seed_run_free(&s);
 }
 
+/* Issue 25: a seed goes where the clicked voxel lies in the CT, whatever its fragment's pose.
+ * With block B saved 5 mm along x from where it was segmented, a click on its middle in the axial
+ * slice (which shows it moved) drops the seed at B's centroid in the CT, not 5 mm beside it. */
+static void test_navigate_window_seed_on_a_moved_fragment(void **st)
+{
+    (void)st;
+    seed_run s;
+    seed_run_start(&s, "navmoved", 5);
+    planning_case *c = case_load(s.case_dir);
+    assert_non_null(c);
+    double b[3], moved[3];
+    memcpy(b, c->frag[case_find(c, 2)].centroid, sizeof b);
+    memcpy(moved, b, sizeof b);
+    moved[0] += 5;
+    int px[2];
+    axial_pixel(c, moved, moved, px);
+    case_free(c);
+    char cmd[1024];
+    snprintf(cmd, sizeof cmd, "timeout 300 xdotool search --sync --onlyvisible --name '^fracnav$' >/dev/null && "
+             "xdotool key F10 mousemove %d %d click 1", px[0], px[1]);
+    assert_int_equal(system(cmd), 0);
+    seed_run_wait(&s, "1 seed 1@(", "no seed after F10 and a click on moved block B's middle");
+    double at[3];
+    if (sscanf(strstr(s.seen, "1 seed 1@(") + strlen("1 seed 1@("), "%lf,%lf,%lf", &at[0], &at[1], &at[2]) != 3)
+        fail_msg("no seed point in: %s", s.seen);
+    if (fabs(at[0] - b[0]) > 1 || fabs(at[1] - b[1]) > 1 || fabs(at[2] - b[2]) > 1)
+        fail_msg("the seed (%.0f, %.0f, %.0f) is not at B's centroid in the CT (%.1f, %.1f, %.1f)", at[0], at[1],
+                 at[2], b[0], b[1], b[2]);
+    seed_run_quit(&s);
+    seed_run_free(&s);
+}
+
 /* The pixels of the axial pane of a 768x768 four-up screenshot within 2 of colour rgb. */
 static long axial_pixels_of(const uint8_t *shot, const uint8_t rgb[3])
 {
@@ -1247,7 +1281,7 @@ static void test_navigate_window_seed_mode_previews(void **st)
 {
     (void)st;
     seed_run s;
-    seed_run_start(&s, "navpreview");
+    seed_run_start(&s, "navpreview", 0);
     seed_run_two_seeds(&s);
     seed_run_wait(&s, "preview: 3 fragments", "no preview of the split after two seeds");
     seed_run_quit(&s);
@@ -1459,6 +1493,7 @@ int main(void)
         cmocka_unit_test_teardown(test_navigate_window_seed_mode_previews, end_children),
         cmocka_unit_test_teardown(test_navigate_window_seed_mode_undoes, end_children),
         cmocka_unit_test_teardown(test_navigate_window_seed_mode_3d_click, end_children),
+        cmocka_unit_test_teardown(test_navigate_window_seed_on_a_moved_fragment, end_children),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -324,15 +324,54 @@ static int slice_wheel(navwin *w, const render_input *in)
     return 1;
 }
 
-/* In four-up, a click at xy on a slice puts the slices' point there (and w->click_world): 1 when
- * it did. */
-static int slice_click(navwin *w, const double xy[2])
+/* Per fragment of sc (the case's, at their poses there): the map from the world to its crop's
+ * local mm. 0 when sc is not a scene of the case. */
+static int to_locals(const navwin *w, const loop_scene *sc, pose *to_local)
+{
+    for (int i = 0; i < w->c->nfrag && sc->nfrag == w->c->nfrag; i++)
+        to_local[i] = pose_inverse(pose_compose(sc->pose[i], w->c->frag[i].home));
+    return sc->nfrag == w->c->nfrag;
+}
+
+/* The fragment whose mask holds world point at (to_local: to_locals'), or -1. */
+static int frag_holding(const navwin *w, const pose *to_local, const double at[3])
+{
+    for (int i = 0; i < w->c->nfrag; i++) {
+        const frag *f = &w->c->frag[i];
+        double local[3];
+        int l[3], in = 1;
+        pose_apply(&to_local[i], at, local);
+        for (int a = 0; a < 3; a++) {
+            l[a] = (int)floor(local[a] / f->spacing[a] + 0.5);
+            in &= l[a] >= 0 && l[a] < f->dim[a];
+        }
+        if (in && f->prob[((size_t)l[2] * f->dim[1] + l[1]) * f->dim[0] + l[0]])
+            return i;
+    }
+    return -1;
+}
+
+/* World point at of fragment i at its pose in sc, where it lies in the CT (its home). */
+static void home_of(const loop_scene *sc, int i, const double at[3], double home[3])
+{
+    pose back = pose_inverse(sc->pose[i]);
+    pose_apply(&back, at, home);
+}
+
+/* In four-up, a click at xy on a slice puts the slices' point there, and w->click_world: the point
+ * where it lies in the CT (a moved fragment's voxel at its home). 1 when it did. */
+static int slice_click(navwin *w, const loop_scene *sc, const double xy[2])
 {
     double p[3];
+    pose to_local[RENDER_MAX_FRAGS];
     if (w->o.layout != RENDER_LAYOUT_FOUR_UP || render_slice_point_at(w->r, &w->o, xy[0], xy[1], p) < 0)
         return 0;
     memcpy(w->o.slice_point, p, sizeof p);
-    memcpy(w->click_world, p, sizeof p);
+    int i = to_locals(w, sc, to_local) ? frag_holding(w, to_local, p) : -1;
+    if (i >= 0)
+        home_of(sc, i, p, w->click_world);
+    else
+        memcpy(w->click_world, p, sizeof p);
     note(w, "slices through (%.1f, %.1f, %.1f) mm", p[0], p[1], p[2]);
     w->slice_set = 1;
     return 1;
@@ -350,36 +389,25 @@ static int surface_pick(const navwin *w, const loop_scene *sc, const double xy[2
         render_four_up_panes(w->w, w->h, rect);
         memcpy(q, rect[RENDER_PANE_3D], sizeof q);
     }
-    if (sc->nfrag != c->nfrag || xy[0] < q[0] || xy[0] >= q[0] + q[2] || xy[1] < q[1] || xy[1] >= q[1] + q[3])
+    pose to_local[RENDER_MAX_FRAGS];
+    if (!to_locals(w, sc, to_local) || xy[0] < q[0] || xy[0] >= q[0] + q[2] || xy[1] < q[1] ||
+        xy[1] >= q[1] + q[3])
         return 0;
     const render_camera *cam = &w->o.camera;
     double right[3], at[3], step = 1e30;
     cross(cam->forward, cam->up, right);
     double hh = cam->half_height, hw = hh * q[2] / q[3];
     double sx = 2.0 * (xy[0] - q[0]) / q[2] - 1, sy = 1 - 2.0 * (xy[1] - q[1]) / q[3];
-    pose to_local[RENDER_MAX_FRAGS];
-    for (int i = 0; i < c->nfrag; i++) {
-        to_local[i] = pose_inverse(pose_compose(sc->pose[i], c->frag[i].home));
+    for (int i = 0; i < c->nfrag; i++)
         for (int a = 0; a < 3; a++)
             step = fmin(step, c->frag[i].spacing[a] / 2);
-    }
     for (double t = -cam->depth; t <= cam->depth; t += step) {
         for (int a = 0; a < 3; a++)
             at[a] = cam->centre[a] + right[a] * hw * sx + cam->up[a] * hh * sy + cam->forward[a] * t;
-        for (int i = 0; i < c->nfrag; i++) {
-            const frag *f = &c->frag[i];
-            double local[3];
-            int l[3], in = 1;
-            pose_apply(&to_local[i], at, local);
-            for (int a = 0; a < 3; a++) {
-                l[a] = (int)floor(local[a] / f->spacing[a] + 0.5);
-                in &= l[a] >= 0 && l[a] < f->dim[a];
-            }
-            if (in && f->prob[((size_t)l[2] * f->dim[1] + l[1]) * f->dim[0] + l[0]]) {
-                pose back = pose_inverse(sc->pose[i]);
-                pose_apply(&back, at, home);
-                return 1;
-            }
+        int i = frag_holding(w, to_local, at);
+        if (i >= 0) {
+            home_of(sc, i, at, home);
+            return 1;
         }
     }
     return 0;
@@ -410,7 +438,7 @@ static int handle_input(navwin *w, const loop_scene *sc, const render_input *in,
         } else if (k >= RENDER_KEY_CLICK && k < RENDER_KEY_CLICK + in->nclicks) {
             /* handed back in its place among the keys: a key typed before it acts first */
             const double *xy = in->click[k - RENDER_KEY_CLICK];
-            if (slice_click(w, xy) || surface_pick(w, sc, xy, w->click_world)) {
+            if (slice_click(w, sc, xy) || surface_pick(w, sc, xy, w->click_world)) {
                 if (n < cap)
                     keys[n++] = NAVWIN_KEY_CLICK;
                 moved = 1;

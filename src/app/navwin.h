@@ -78,9 +78,10 @@ int navwin_show(navwin *w, const loop_scene *sc, const navview_extra *x, const c
 /* A click on a slice of the four-up layout moves the slices there and comes back among the keys
  * as NAVWIN_KEY_CLICK, in the order it came with them (a piece chosen by a key and then clicked
  * is chosen first, though both arrive in one frame); so does a click on a fragment's surface in
- * the 3D view. navwin_click_at gives the world point (LPS mm) of the last one handed back: on a
- * slice, where it shows; on the surface, the first voxel of the fragment's mask along the view's
- * ray, in the fragment's home (where it lies in the CT), whatever its pose. 0. */
+ * the 3D view. navwin_click_at gives the world point (LPS mm) of the last one handed back, where
+ * it lies in the CT: on a slice, the point clicked (on a fragment, mapped back from its pose to
+ * its home); on the surface, the first voxel of a fragment's mask along the view's ray, in the
+ * fragment's home. 0. */
 #define NAVWIN_KEY_CLICK RENDER_KEY_CLICK
 int navwin_click_at(const navwin *w, double world[3]);
 /* The seed mode's preview: the window draws pieces[0..n-1] (the fragments a split would make, each
