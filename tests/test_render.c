@@ -1025,13 +1025,22 @@ static void axial_pixel(const planning_case *c, const double through[3], const d
     assert_true(best < 1.0);
 }
 
-/* Issue 25: the window's seed mode (xdotool on Xvfb). F10 enters it; 1, a click on the axial
- * slice in block B's left part, 2, a click in its right part, and Enter separate B from the two
- * seeds: navigate saves the case with B in two fragments, opens it again, and q ends it. The case
- * then holds three fragments, B's voxels split between its id and the new one. */
-static void test_navigate_window_seed_mode_separates(void **st)
+/* A navigate run in seed mode on Xvfb (xdotool), over tu_two_blocks_case: block B (fragment 2)
+ * is what the seeds split. */
+typedef struct seed_run {
+    pid_t xvfb, nav;
+    char *asan_saved, *dir;
+    char case_dir[4200], shot[4300], out[4300];
+    FILE *err;
+    char seen[16384];
+    long before; /* block B's voxels */
+    int p1[2], p2[2]; /* the axial pixels of the seeds: 3 mm left and right of B's centroid */
+} seed_run;
+
+/* Starts Xvfb and navigate (four-up, anterior camera, its screenshot at the end to s->shot), block
+ * B saved moved by b_moved mm along x first. Skips the test where there is no xdotool or Xvfb. */
+static void seed_run_start(seed_run *s, const char *name, double b_moved)
 {
-    (void)st;
 #if defined(__SANITIZE_THREAD__)
     print_message("skipped under ThreadSanitizer: Xlib's and GLX's own locking\n");
     skip();
@@ -1039,61 +1048,82 @@ static void test_navigate_window_seed_mode_separates(void **st)
     if (access("/usr/bin/xdotool", X_OK) != 0)
         no_xdotool();
     int display;
-    pid_t xvfb = start_xvfb(&display);
-    if (!xvfb)
+    s->xvfb = start_xvfb(&display);
+    if (!s->xvfb)
         no_xvfb();
-    char *dir = tu_tmpdir("navseed"), case_dir[4200], shot[4300], out[4300];
-    tu_two_blocks_case(dir, case_dir, sizeof case_dir);
-    planning_case *c = case_load(case_dir);
+    s->dir = tu_tmpdir(name);
+    s->seen[0] = '\0';
+    tu_two_blocks_case(s->dir, s->case_dir, sizeof s->case_dir);
+    planning_case *c = case_load(s->case_dir);
     assert_non_null(c);
     assert_int_equal(c->nfrag, 2);
     const double *b = c->frag[case_find(c, 2)].centroid;
     double left[3] = {b[0] - 3, b[1], b[2]}, right[3] = {b[0] + 3, b[1], b[2]};
-    int p1[2], p2[2];
-    axial_pixel(c, b, left, p1);
-    axial_pixel(c, b, right, p2);
-    long before = 0;
+    axial_pixel(c, b, left, s->p1);
+    axial_pixel(c, b, right, s->p2);
+    s->before = 0;
     for (size_t i = 0; i < vol_count(c->labels); i++)
-        before += c->labels->data[i] == 2;
+        s->before += c->labels->data[i] == 2;
+    c->frag[case_find(c, 2)].pose.t[0] = b_moved;
+    assert_int_equal(case_save(c), 0);
     case_free(c);
-    snprintf(shot, sizeof shot, "%s/shot.png", dir);
-    snprintf(out, sizeof out, "%s/out.json", dir);
-    char *asan_saved = window_env_set(display);
+    snprintf(s->shot, sizeof s->shot, "%s/shot.png", s->dir);
+    snprintf(s->out, sizeof s->out, "%s/out.json", s->dir);
+    s->asan_saved = window_env_set(display);
     /* navigate logs a line a second, so a wait for a line that never comes ends only with it:
      * --duration bounds each of its runs */
-    FILE *err;
     char duration[32];
     snprintf(duration, sizeof duration, "%d", 10 * TU_WAIT_MAX_S);
-    pid_t nav = tu_spawn_cli(out, &err, (char *[]){"navigate", case_dir, "--device", "virtual:spacenavigator",
-                                                   "--view", "window", "--camera", "anterior", "--layout", "four-up",
-                                                   "--discard-journal", "--screenshot", shot, "--duration",
-                                                   duration, NULL});
-    /* each step waits for the view's line that shows it was taken (off a terminal, navigate logs
-     * a line at each change): a click and a key that arrive in one frame are not kept in order */
-    char cmd[1024], seen[16384] = "";
+    s->nav = tu_spawn_cli(s->out, &s->err, (char *[]){"navigate", s->case_dir, "--device", "virtual:spacenavigator",
+                                                      "--view", "window", "--camera", "anterior", "--layout",
+                                                      "four-up", "--discard-journal", "--screenshot", s->shot,
+                                                      "--duration", duration, NULL});
+}
+
+/* Waits for a line of the view holding what (fails with the last lines seen, saying why). */
+static void seed_run_wait(seed_run *s, const char *what, const char *why)
+{
+    if (!tu_wait_line(s->err, what, s->seen, sizeof s->seen))
+        fail_msg("%s: %s", why, s->seen + (strlen(s->seen) > 2000 ? strlen(s->seen) - 2000 : 0));
+}
+
+/* F10, 1, a click on the axial slice in block B's left part, 2, a click in its right part: each
+ * step waits for the view's line that shows it was taken (off a terminal, navigate logs a line at
+ * each change), as a click and a key that arrive in one frame are not kept in order. */
+static void seed_run_two_seeds(seed_run *s)
+{
+    char cmd[1024];
     snprintf(cmd, sizeof cmd, "timeout 300 xdotool search --sync --onlyvisible --name '^fracnav$' >/dev/null && "
-             "xdotool key F10 key 1 mousemove %d %d click 1", p1[0], p1[1]);
+             "xdotool key F10 key 1 mousemove %d %d click 1", s->p1[0], s->p1[1]);
     assert_int_equal(system(cmd), 0);
-    if (!tu_wait_line(err, "1 seed 1@", seen, sizeof seen))
-        fail_msg("no seed after F10, 1 and a click: %s", seen);
+    seed_run_wait(s, "1 seed 1@", "no seed after F10, 1 and a click");
     assert_int_equal(system("xdotool key 2"), 0);
-    if (!tu_wait_line(err, "piece 2: chosen", seen, sizeof seen))
-        fail_msg("piece 2 not chosen: %s", seen);
-    snprintf(cmd, sizeof cmd, "xdotool mousemove %d %d click 1", p2[0], p2[1]);
+    seed_run_wait(s, "piece 2: chosen", "piece 2 not chosen");
+    snprintf(cmd, sizeof cmd, "xdotool mousemove %d %d click 1", s->p2[0], s->p2[1]);
     assert_int_equal(system(cmd), 0);
-    if (!tu_wait_line(err, " 2@", seen, sizeof seen))
-        fail_msg("no second seed: %s", seen);
-    assert_int_equal(system("xdotool key Return"), 0);
-    if (!tu_wait_line(err, "new fragment", seen, sizeof seen) ||
-        !strstr(seen, "separated: 1 new fragment, 3 in all"))
-        fail_msg("no separation after Enter: %s", seen + (strlen(seen) > 2000 ? strlen(seen) - 2000 : 0));
-    /* the separated case opens in a new window (the old one is gone before the line above) */
+    seed_run_wait(s, " 2@", "no second seed");
+}
+
+/* q in the (new) window: navigate ends and exits 0; Xvfb stops. */
+static void seed_run_quit(seed_run *s)
+{
     assert_int_equal(system("timeout 300 xdotool search --sync --onlyvisible --name '^fracnav$' >/dev/null && "
                             "xdotool key q"), 0);
-    assert_int_equal(tu_end(nav, 0, "navigate"), 0);
-    fclose(err);
-    window_env_end(xvfb, asan_saved);
-    c = case_load(case_dir);
+    assert_int_equal(tu_end(s->nav, 0, "navigate"), 0);
+    fclose(s->err);
+    window_env_end(s->xvfb, s->asan_saved);
+}
+
+static void seed_run_free(seed_run *s)
+{
+    tu_rmtree(s->dir);
+    free(s->dir);
+}
+
+/* Block B's voxels split between fragments 2 and 3 of the case at dir, each with a third or more. */
+static void assert_b_split(const char *case_dir, long before)
+{
+    planning_case *c = case_load(case_dir);
     assert_non_null(c);
     assert_int_equal(c->nfrag, 3);
     long pieces[2] = {0, 0};
@@ -1103,8 +1133,173 @@ static void test_navigate_window_seed_mode_separates(void **st)
     if (pieces[0] + pieces[1] != before || pieces[0] < before / 3 || pieces[1] < before / 3)
         fail_msg("block B (%ld voxels) split into %ld and %ld", before, pieces[0], pieces[1]);
     case_free(c);
-    tu_rmtree(dir);
-    free(dir);
+}
+
+/* Issue 25: the window's seed mode (xdotool on Xvfb). Two seeds of two pieces in block B, and
+ * Enter separate B: navigate saves the case with B in two fragments, opens it again, and q ends
+ * it. The case then holds three fragments, B's voxels split between its id and the new one. */
+static void test_navigate_window_seed_mode_separates(void **st)
+{
+    (void)st;
+    seed_run s;
+    seed_run_start(&s, "navseed", 0);
+    seed_run_two_seeds(&s);
+    assert_int_equal(system("xdotool key Return"), 0);
+    seed_run_wait(&s, "new fragment", "no separation after Enter");
+    if (!strstr(s.seen, "separated: 1 new fragment, 3 in all"))
+        fail_msg("not one new fragment: %s", s.seen + (strlen(s.seen) > 2000 ? strlen(s.seen) - 2000 : 0));
+    /* the separated case opens in a new window (the old one is gone before the line above) */
+    seed_run_quit(&s);
+    assert_b_split(s.case_dir, s.before);
+    seed_run_free(&s);
+}
+
+/* Issue 25: the separation is an edit that undo takes back. After Enter separated block B, u (the
+ * steering's undo) in the reopened window, with no move to undo, takes the separation back: the
+ * case opens again with B whole, as fragment 2. */
+static void test_navigate_window_seed_mode_undoes(void **st)
+{
+    (void)st;
+    seed_run s;
+    seed_run_start(&s, "navundo", 0);
+    seed_run_two_seeds(&s);
+    assert_int_equal(system("xdotool key Return"), 0);
+    seed_run_wait(&s, "separated: 1 new fragment, 3 in all", "no separation after Enter");
+    assert_int_equal(system("timeout 300 xdotool search --sync --onlyvisible --name '^fracnav$' >/dev/null && "
+                            "xdotool key u"), 0);
+    seed_run_wait(&s, "undo: the separation taken back, 2 fragments", "no undo of the separation after u");
+    seed_run_quit(&s);
+    planning_case *c = case_load(s.case_dir);
+    assert_non_null(c);
+    assert_int_equal(c->nfrag, 2);
+    long b = 0;
+    for (size_t i = 0; i < vol_count(c->labels); i++)
+        b += c->labels->data[i] == 2;
+    assert_int_equal(b, s.before);
+    case_free(c);
+    seed_run_free(&s);
+}
+
+/* Issue 25: a click on a fragment in the 3D view drops a seed too. In seed mode, a click on block
+ * B's middle in the four-up's 3D pane (anterior view) drops seed 1 on B's front face: at B's
+ * centroid across the view, 4-7 mm in front of it along the view (B is 12 mm deep). */
+static void test_navigate_window_seed_mode_3d_click(void **st)
+{
+    (void)st;
+    seed_run s;
+    seed_run_start(&s, "nav3d", 0);
+    planning_case *c = case_load(s.case_dir);
+    assert_non_null(c);
+    double b[3], right[3], d[3];
+    memcpy(b, c->frag[case_find(c, 2)].centroid, sizeof b);
+    render_camera cam;
+    render_camera_standard(&cam, RENDER_ANTERIOR, c->frag, c->nfrag);
+    case_free(c);
+    int rect[4][4];
+    render_four_up_panes(768, 768, rect);
+    const int *q = rect[RENDER_PANE_3D];
+    for (int a = 0; a < 3; a++) {
+        right[a] = cam.forward[(a + 1) % 3] * cam.up[(a + 2) % 3] - cam.forward[(a + 2) % 3] * cam.up[(a + 1) % 3];
+        d[a] = b[a] - cam.centre[a];
+    }
+    double sx = (d[0] * right[0] + d[1] * right[1] + d[2] * right[2]) / (cam.half_height * q[2] / q[3]);
+    double sy = (d[0] * cam.up[0] + d[1] * cam.up[1] + d[2] * cam.up[2]) / cam.half_height;
+    char cmd[1024];
+    snprintf(cmd, sizeof cmd, "timeout 300 xdotool search --sync --onlyvisible --name '^fracnav$' >/dev/null && "
+             "xdotool key F10 mousemove %d %d click 1", (int)(q[0] + (sx + 1) / 2 * q[2]),
+             (int)(q[1] + (1 - sy) / 2 * q[3]));
+    assert_int_equal(system(cmd), 0);
+    seed_run_wait(&s, "1 seed 1@(", "no seed after F10 and a click on block B in the 3D view");
+    double at[3];
+    if (sscanf(strstr(s.seen, "1 seed 1@(") + strlen("1 seed 1@("), "%lf,%lf,%lf", &at[0], &at[1], &at[2]) != 3)
+        fail_msg("no seed point in: %s", s.seen);
+    double across = 0, along = 0;
+    for (int a = 0; a < 3; a++) {
+        double e = at[a] - b[a], f = e * cam.forward[a];
+        along += f;
+        across += (e - f * cam.forward[a]) * (e - f * cam.forward[a]);
+    }
+    if (sqrt(across) > 1.5 || along > -4 || along < -7)
+        fail_msg("the seed (%.0f, %.0f, %.0f) is not on B's front face (centroid %.1f, %.1f, %.1f)", at[0], at[1],
+                 at[2], b[0], b[1], b[2]);
+    seed_run_quit(&s);
+    seed_run_free(&s);
+}
+
+/* Issue 25: a seed goes where the clicked voxel lies in the CT, whatever its fragment's pose.
+ * With block B saved 5 mm along x from where it was segmented, a click on its middle in the axial
+ * slice (which shows it moved) drops the seed at B's centroid in the CT, not 5 mm beside it. */
+static void test_navigate_window_seed_on_a_moved_fragment(void **st)
+{
+    (void)st;
+    seed_run s;
+    seed_run_start(&s, "navmoved", 5);
+    planning_case *c = case_load(s.case_dir);
+    assert_non_null(c);
+    double b[3], moved[3];
+    memcpy(b, c->frag[case_find(c, 2)].centroid, sizeof b);
+    memcpy(moved, b, sizeof b);
+    moved[0] += 5;
+    int px[2];
+    axial_pixel(c, moved, moved, px);
+    case_free(c);
+    char cmd[1024];
+    snprintf(cmd, sizeof cmd, "timeout 300 xdotool search --sync --onlyvisible --name '^fracnav$' >/dev/null && "
+             "xdotool key F10 mousemove %d %d click 1", px[0], px[1]);
+    assert_int_equal(system(cmd), 0);
+    seed_run_wait(&s, "1 seed 1@(", "no seed after F10 and a click on moved block B's middle");
+    double at[3];
+    if (sscanf(strstr(s.seen, "1 seed 1@(") + strlen("1 seed 1@("), "%lf,%lf,%lf", &at[0], &at[1], &at[2]) != 3)
+        fail_msg("no seed point in: %s", s.seen);
+    if (fabs(at[0] - b[0]) > 1 || fabs(at[1] - b[1]) > 1 || fabs(at[2] - b[2]) > 1)
+        fail_msg("the seed (%.0f, %.0f, %.0f) is not at B's centroid in the CT (%.1f, %.1f, %.1f)", at[0], at[1],
+                 at[2], b[0], b[1], b[2]);
+    seed_run_quit(&s);
+    seed_run_free(&s);
+}
+
+/* The pixels of the axial pane of a 768x768 four-up screenshot within 2 of colour rgb. */
+static long axial_pixels_of(const uint8_t *shot, const uint8_t rgb[3])
+{
+    int rect[4][4];
+    render_four_up_panes(768, 768, rect);
+    const int *q = rect[RENDER_PANE_AXIAL];
+    long n = 0;
+    for (int y = q[1]; y < q[1] + q[3]; y++)
+        for (int x = q[0]; x < q[0] + q[2]; x++) {
+            const uint8_t *p = shot + ((size_t)y * 768 + (size_t)x) * 3;
+            n += abs(p[0] - rgb[0]) <= 2 && abs(p[1] - rgb[1]) <= 2 && abs(p[2] - rgb[2]) <= 2;
+        }
+    return n;
+}
+
+/* Issue 25: the split is previewed in colour before Enter. After two seeds of two pieces in block
+ * B the view says the preview makes 3 fragments, and the axial pane (the screenshot at q, before
+ * any Enter) outlines both would-be pieces, each in its own colour: fragment 2's and that of the
+ * new fragment 3, which the case does not hold. Quitting leaves the case unseparated. */
+static void test_navigate_window_seed_mode_previews(void **st)
+{
+    (void)st;
+    seed_run s;
+    seed_run_start(&s, "navpreview", 0);
+    seed_run_two_seeds(&s);
+    seed_run_wait(&s, "preview: 3 fragments", "no preview of the split after two seeds");
+    seed_run_quit(&s);
+    int w, h;
+    uint8_t *shot = read_png(s.shot, &w, &h), two[3], three[3];
+    assert_int_equal(w, 768);
+    assert_int_equal(h, 768);
+    frag_colour(2, two);
+    frag_colour(3, three);
+    long n2 = axial_pixels_of(shot, two), n3 = axial_pixels_of(shot, three);
+    free(shot);
+    if (n2 < 50 || n3 < 50)
+        fail_msg("the axial pane shows %ld pixels in fragment 2's colour and %ld in the new piece's", n2, n3);
+    planning_case *c = case_load(s.case_dir);
+    assert_non_null(c);
+    assert_int_equal(c->nfrag, 2);
+    case_free(c);
+    seed_run_free(&s);
 }
 
 /* The issue: with --device keyboard the steering keys typed into the window did nothing, and the
@@ -1295,6 +1490,10 @@ int main(void)
         cmocka_unit_test_teardown(test_replay_window_matches_render, end_children),
         cmocka_unit_test_teardown(test_replay_frames, end_children),
         cmocka_unit_test_teardown(test_auto_view_shows_the_moving_fragment, end_children),
+        cmocka_unit_test_teardown(test_navigate_window_seed_mode_previews, end_children),
+        cmocka_unit_test_teardown(test_navigate_window_seed_mode_undoes, end_children),
+        cmocka_unit_test_teardown(test_navigate_window_seed_mode_3d_click, end_children),
+        cmocka_unit_test_teardown(test_navigate_window_seed_on_a_moved_fragment, end_children),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -390,8 +390,7 @@ const char *cmd_example_ct(void)
     return path;
 }
 
-/* A seed file's text (at most 16 MiB), NUL-terminated and malloc'd; NULL with fn_err. */
-static char *read_seed_file(const char *path)
+char *cmd_read_seed_file(const char *path)
 {
     enum { MAX = 16 << 20 };
     int fd = durable_open_regular(path, "seed file");
@@ -432,7 +431,7 @@ int cmd_seeds_option(const char *cmd, int argc, char **argv, int *i, case_seed *
         const char *path = *i + 1 < argc ? argv[++*i] : NULL;
         if (!path)
             return *rc = cmd_bad_value(cmd, a, NULL, "a seed file (PIECE X Y Z per line)"), 1;
-        char *text = read_seed_file(path);
+        char *text = cmd_read_seed_file(path);
         case_seed *more = NULL;
         int m = text ? case_seeds_parse(text, path, &more) : -1;
         if (m < 0 || add_seeds(seeds, n, more, m) < 0)

@@ -122,6 +122,8 @@ int cmd_tau_prepare(void *ctx, planning_case *c);
 /* --pivot X Y Z (world mm): argv[*i] is --pivot; parses the three numbers after it into out and
  * moves *i past them. 0, or a usage error for `cmd` (returns 2). */
 int cmd_parse_pivot(const char *cmd, int argc, char **argv, int *i, double out[3]);
+/* A seed file's text (at most 16 MiB), NUL-terminated and malloc'd; NULL with fn_err. */
+char *cmd_read_seed_file(const char *path);
 /* Seeds for a seeded separation (edit separate, segment --separate): when argv[*i] is --seeds
  * (X Y Z world mm per point, each point a piece of its own: 1, 2, ... in order) or --seed-file
  * PATH (case_seeds_parse's format), appends them to *seeds (malloc'd; *n counts them), moves *i

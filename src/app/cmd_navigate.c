@@ -243,6 +243,9 @@ typedef struct view {
     char fit[160];     /* the running fit's progress, shown in the view */
     char preview[160]; /* the live preview's figures, shown in the view */
     navseed seed;      /* the window's seed mode; Enter there ends the run to separate */
+    const char *dir;   /* the case folder */
+    int undo_edit;     /* undo with no move left to undo, and a separation to take back: the run
+                        * ends to take it back */
 } view;
 
 static void acknowledge(view *v, const char *text)
@@ -287,6 +290,10 @@ static void new_actions(view *v, const loop_scene *sc)
 {
     if (sc->last_action == LOOP_ACT_HELP) {
         v->help = !v->help;
+        return;
+    }
+    if (sc->last_action == LOOP_ACT_UNDO && sc->last_action_result == LOOP_IDLE && navseed_can_undo(v->dir)) {
+        v->undo_edit = 1; /* the moves are all undone: the separation before them is next */
         return;
     }
     char text[256];
@@ -452,6 +459,12 @@ static void window_frame(view *v, const loop_scene *sc)
         } else if (!navseed_key(&v->seed, keys[i]))
             window_key(v, keys[i]);
     }
+    /* the split the seeds make, grown on the seed mode's worker, shown once it is done */
+    if (navseed_preview(&v->seed, session_case(v->k), sc->pose, sc->nfrag) &&
+        navwin_set_pieces(v->win, v->seed.pieces, v->seed.npieces) < 0) {
+        fprintf(stderr, "fracnav navigate: the window: %s\n", fn_err_msg());
+        quit = 1;
+    }
     if (closed)
         quit = 1;
 }
@@ -516,7 +529,7 @@ static void ui(view *v, int keys, double duration)
     int ended = 0;
     loop_scene sc = {0};
     session_event ev;
-    while (!quit && !ended && !v->seed.accepted &&
+    while (!quit && !ended && !v->seed.accepted && !v->undo_edit &&
            (duration <= 0 || (double)(fnclock_now_us() - t0) < duration * 1e6)) {
         if (raw)
             read_keys(v);
@@ -577,27 +590,34 @@ static int run(view *v, loop_source src, int keys, const opts *o)
         rc = rc ? rc : FN_EIO;
     navwin_close(v->win);
     v->win = NULL;
+    navseed_free(&v->seed);
+    v->seed.changed = 1; /* the preview again, in the next window */
     return rc == 0 ? session_save(k) : rc;
 }
 
-/* The seed mode's separation, after the session saved its poses and closed (navseed_separate:
- * `fracnav edit CASE merge` takes it back). A bad seed leaves the case as it was and is said in
- * the view. */
+/* The seed mode's separation, or its undo, after the session saved its poses and closed
+ * (navseed_separate, navseed_undo). A bad seed leaves the case as it was and is said in the view. */
 static void separate(view *v, const char *dir)
 {
-    int nfrag = 0, made = navseed_separate(&v->seed, dir, &nfrag);
+    int nfrag = 0, made = v->undo_edit ? navseed_undo(dir, &nfrag) : navseed_separate(&v->seed, dir, &nfrag);
     char text[sizeof v->ack];
-    if (made >= 0)
-        snprintf(text, sizeof text, "separated: %d new fragment%s, %d in all; saved %s", made, made == 1 ? "" : "s",
-                 nfrag, dir);
+    if (v->undo_edit && made > 0)
+        snprintf(text, sizeof text, "undo: the separation taken back, %d fragment%s; saved %s", nfrag,
+                 nfrag == 1 ? "" : "s", dir);
+    else if (v->undo_edit && made == 0)
+        snprintf(text, sizeof text, "undo: the separation stays (the case was saved since)");
+    else if (made >= 0)
+        snprintf(text, sizeof text, "separated: %d new fragment%s, %d in all; saved %s (undo takes it back)", made,
+                 made == 1 ? "" : "s", nfrag, dir);
     else
-        snprintf(text, sizeof text, "not separated: %s", fn_err_msg());
+        snprintf(text, sizeof text, "not %s: %s", v->undo_edit ? "undone" : "separated", fn_err_msg());
+    v->undo_edit = 0;
     fprintf(stderr, "%s%s\n", made < 0 ? "fracnav navigate: " : "", text);
     acknowledge(v, text);
 }
 
 /* One session over the case: opened, run (run()), saved and closed. *again: the seed mode asked
- * for a separation, done here; the caller opens the separated case again. 0 or FN_E*. */
+ * for a separation, or undo for its undo, done here; the caller opens the case again. 0 or FN_E*. */
 static int navigate_once(const opts *o, view *v, const session_params *sp, session_dsource *ds, int played,
                          int *again)
 {
@@ -612,7 +632,7 @@ static int navigate_once(const opts *o, view *v, const session_params *sp, sessi
         session_set_pivot(k, o->pivot);
     v->k = k;
     int rc = run(v, session_device_source(ds), played || !v->keyboard, o);
-    if (rc == 0 && v->seed.accepted) {
+    if (rc == 0 && (v->seed.accepted || v->undo_edit)) {
         session_close(k);
         separate(v, o->dir);
         *again = !quit;
@@ -673,6 +693,14 @@ int cmd_navigate(int argc, char **argv)
     v.ds = played ? NULL : ds;
     v.rec = played ? ds : NULL;
     navseed_init(&v.seed);
+    v.dir = o.dir;
+    int nfrag, made = navseed_recover(o.dir, &nfrag);
+    if (made < 0)
+        fprintf(stderr, "fracnav navigate: %s: a separation interrupted by a crash failed again: %s\n", o.dir,
+                fn_err_msg());
+    else if (made)
+        fprintf(stderr, "%s: recovered a separation interrupted by a crash: %d new fragment%s, %d in all\n", o.dir,
+                made - 1, made == 2 ? "" : "s", nfrag);
     int again;
     do {
         again = 0;

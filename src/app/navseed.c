@@ -2,11 +2,16 @@
 #include "navseed.h"
 
 #include "case_journal.h"
+#include "cmd.h"
+#include "durable.h"
 #include "err.h"
+#include "fnclock.h"
 #include "render.h"
 
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #define KEY_F10 (RENDER_KEY_F1 + 9)
 
@@ -14,6 +19,19 @@ void navseed_init(navseed *s)
 {
     memset(s, 0, sizeof *s);
     s->piece = 1;
+}
+
+void navseed_free(navseed *s)
+{
+    if (s->running)
+        pthread_join(s->worker, NULL);
+    s->running = 0;
+    free(s->job_poses);
+    s->job_poses = NULL;
+    case_preview_free(s->preview);
+    s->preview = NULL;
+    s->pieces = NULL;
+    s->npieces = 0;
 }
 
 static void describe(navseed *s, const char *what)
@@ -29,7 +47,8 @@ int navseed_key(navseed *s, int k)
 {
     if (k == KEY_F10) {
         s->on = !s->on;
-        describe(s, "click a slice (four-up, F3) to drop a seed");
+        s->changed = 1;
+        describe(s, "click a slice (four-up, F3) or a fragment to drop a seed");
         return 1;
     }
     if (!s->on)
@@ -39,6 +58,7 @@ int navseed_key(navseed *s, int k)
         describe(s, "chosen");
     } else if (k == '\b' || k == 127) {
         s->n -= s->n > 0;
+        s->changed = 1;
         describe(s, "last seed taken back");
     } else if (k == '\r' || k == '\n') {
         s->accepted = s->n > 0;
@@ -58,7 +78,83 @@ void navseed_click(navseed *s, const double world[3])
     }
     memcpy(s->seed[s->n].at, world, sizeof s->seed[s->n].at);
     s->seed[s->n++].piece = s->piece;
+    s->changed = 1;
     describe(s, "seed dropped");
+}
+
+/* The worker: one case_preview_update over the job. */
+static void *grow_job(void *arg)
+{
+    navseed *s = arg;
+    int64_t t0 = fnclock_now_us();
+    if (!s->preview)
+        s->preview = case_preview_new(s->job_case);
+    s->job_result = s->preview ? case_preview_update(s->preview, s->job_poses, s->job_seed, s->job_n, &s->job_pieces)
+                               : FN_ENOMEM;
+    s->job_ms = (double)(fnclock_now_us() - t0) / 1000.0;
+    snprintf(s->job_error, sizeof s->job_error, "%s", s->job_result < 0 ? fn_err_msg() : "");
+    atomic_store(&s->done, 1);
+    return NULL;
+}
+
+/* A job for the seeds as they are, on the worker (or here when no thread can start). */
+static void start_job(navseed *s, const planning_case *c, const pose *poses, int nposes)
+{
+    if (nposes != c->nfrag)
+        poses = NULL; /* no scene of this case yet */
+    pose *p = poses && nposes != s->job_nposes ? realloc(s->job_poses, (size_t)nposes * sizeof *p) : s->job_poses;
+    if (poses && p) {
+        memcpy(p, poses, (size_t)nposes * sizeof *p);
+        s->job_poses = p;
+        s->job_nposes = nposes;
+    }
+    if (!poses || !p) {
+        free(s->job_poses);
+        s->job_poses = NULL;
+        s->job_nposes = 0;
+    }
+    s->job_case = c;
+    memcpy(s->job_seed, s->seed, (size_t)s->n * sizeof *s->seed);
+    s->job_n = s->n;
+    atomic_store(&s->done, 0);
+    s->running = 1;
+    if (pthread_create(&s->worker, NULL, grow_job, s) != 0) {
+        s->running = 0;
+        grow_job(s);
+    }
+}
+
+int navseed_preview(navseed *s, const planning_case *c, const pose *poses, int nposes)
+{
+    int shown = 0;
+    if (s->running && !atomic_load(&s->done))
+        return 0;
+    if (s->running) {
+        pthread_join(s->worker, NULL);
+        s->running = 0;
+    }
+    if (atomic_exchange(&s->done, 0)) {
+        char what[400];
+        s->npieces = s->job_result > 0 ? s->job_result : 0;
+        s->pieces = s->job_pieces;
+        if (s->job_result >= 0)
+            snprintf(what, sizeof what, "preview: %d fragment%s (%.0f ms), Enter accepts", s->job_result,
+                     s->job_result == 1 ? "" : "s", s->job_ms);
+        else
+            snprintf(what, sizeof what, "no preview: %s", s->job_error);
+        describe(s, what);
+        shown = 1;
+    }
+    if (!s->changed)
+        return shown;
+    s->changed = 0;
+    if (s->on && s->n) {
+        start_job(s, c, poses, nposes);
+        return shown;
+    }
+    shown |= s->npieces > 0;
+    s->npieces = 0;
+    return shown;
 }
 
 const char *navseed_status(const navseed *s)
@@ -68,8 +164,9 @@ const char *navseed_status(const navseed *s)
 
 const char *navseed_help(void)
 {
-    return "  F10 seed mode (separates fragments): then 1-9 the piece, a click on a slice drops\n"
-           "  its seed, Backspace takes the last seed back, Enter separates (saves the case)\n";
+    return "  F10 seed mode (separates fragments): then 1-9 the piece, a click on a slice or on\n"
+           "  a fragment in 3D drops its seed, Backspace takes the last seed back (the split is\n"
+           "  previewed in colour after each), Enter separates (saves it; undo takes it back)\n";
 }
 
 int navseed_apply(navseed *s, planning_case *c)
@@ -85,14 +182,84 @@ int navseed_apply(navseed *s, planning_case *c)
     return rc;
 }
 
+/* CASE/separation: the seeds of an accepted separation (case_seeds_parse's lines) under a line
+ * naming the case.json they apply to, written before the separation and removed once the
+ * separated case is saved, so that a crash in between leaves the case intact and the separation
+ * to recover (navseed_recover). */
+static void pending_path(const char *dir, char *path, size_t cap)
+{
+    snprintf(path, cap, "%s/separation", dir);
+}
+
+static int write_pending(const navseed *s, const planning_case *c, const char *path)
+{
+    char text[128 + NAVSEED_MAX * 128];
+    size_t len = (size_t)snprintf(text, sizeof text, "# fracnav navigate: a separation of case.json sha256 %s\n",
+                                  c->json_sha256);
+    for (int i = 0; i < s->n; i++)
+        len += (size_t)snprintf(text + len, sizeof text - len, "%d %.17g %.17g %.17g\n", s->seed[i].piece,
+                                s->seed[i].at[0], s->seed[i].at[1], s->seed[i].at[2]);
+    return durable_replace_bytes(path, text, len);
+}
+
 int navseed_separate(navseed *s, const char *dir, int *nfrag)
 {
     s->accepted = 0;
+    char pending[4200];
+    pending_path(dir, pending, sizeof pending);
     planning_case *c = case_load(dir);
-    int made = c ? navseed_apply(s, c) : FN_EIO;
-    if (made >= 0 && (case_save(c) < 0 || case_journal_remove(c) < 0))
+    int made = c ? write_pending(s, c, pending) : FN_EIO;
+    if (made == 0)
+        made = navseed_apply(s, c);
+    if (made >= 0 && (case_save_undoable(c) < 0 || case_journal_remove(c) < 0)) {
         made = FN_EIO;
+        describe(s, fn_err_msg());
+    }
+    if (c)
+        unlink(pending);
     *nfrag = c ? c->nfrag : 0;
     case_free(c);
     return made;
+}
+
+int navseed_recover(const char *dir, int *nfrag)
+{
+    char pending[4200], path[4300], sha[65];
+    pending_path(dir, pending, sizeof pending);
+    if (access(pending, F_OK) != 0)
+        return 0;
+    snprintf(path, sizeof path, "%s/case.json", dir);
+    char *text = cmd_read_seed_file(pending);
+    const char *bound = text ? strstr(text, "sha256 ") : NULL;
+    case_seed *seeds = NULL;
+    int n = bound && durable_file_sha256(path, sha) == 0 && !strncmp(bound + 7, sha, 64)
+                ? case_seeds_parse(text, pending, &seeds) : 0;
+    free(text);
+    int made = n < 0 ? n : 0;
+    if (n > 0 && n <= NAVSEED_MAX) {
+        navseed s;
+        navseed_init(&s);
+        memcpy(s.seed, seeds, (size_t)n * sizeof *seeds);
+        s.n = n;
+        made = navseed_separate(&s, dir, nfrag);
+    } else
+        unlink(pending); /* a separation saved before a crash, or none to recover */
+    free(seeds);
+    return made < 0 ? made : n > 0 ? made + 1 : 0;
+}
+
+int navseed_can_undo(const char *dir)
+{
+    return case_undo_steps(dir) > 0;
+}
+
+int navseed_undo(const char *dir, int *nfrag)
+{
+    int rc = case_undo(dir);
+    planning_case *c = rc > 0 ? case_load(dir) : NULL;
+    if (rc > 0 && (!c || case_journal_remove(c) < 0))
+        rc = FN_EIO;
+    *nfrag = c ? c->nfrag : 0;
+    case_free(c);
+    return rc;
 }

@@ -33,6 +33,7 @@ struct navwin {
     int nvoi;       /* the case's reduction VOI boxes (o.voi) */
     uint64_t drawn_seq;
     unsigned ghosts_seen; /* the live preview's updates drawn (session_preview.updates) */
+    int split_preview;    /* the scene holds the seed mode's pieces (navwin_set_pieces) */
     int dirty;
     char hud[4096];
     char note[128]; /* what the last window key did, until note_until_us */
@@ -141,7 +142,8 @@ const char *navwin_help(void)
            "  F1 these keys  F2 mode  F3 layout (3D, four-up)  F4 axes  F5 contacts\n"
            "  F6 hierarchy boxes  F7/F8 their depth  F9 VOI   other keys as in the terminal\n"
            "  left drag orbits, right or middle drag pans, the wheel zooms; in four-up the\n"
-           "  wheel over a slice moves it, a click on a slice moves the slices' crosshair\n";
+           "  wheel over a slice moves it, a click on a slice moves the slices' crosshair\n"
+           "  (in seed mode, F10, a click on a slice or on a fragment in 3D drops a seed)\n";
 }
 
 navwin *navwin_open(session *k, int steer, int width, int height, const navwin_look *look)
@@ -196,6 +198,20 @@ navwin *navwin_open(session *k, int steer, int width, int height, const navwin_l
     }
     camera_to_loop(w);
     return w;
+}
+
+int navwin_set_pieces(navwin *w, const frag *pieces, int n)
+{
+    const frag *f = n > 0 ? pieces : w->c->frag;
+    int nf = n > 0 ? n : w->c->nfrag;
+    if (nf > RENDER_MAX_FRAGS)
+        return fn_err_set(FN_EINVAL, "the window draws at most %d fragments; the split makes %d", RENDER_MAX_FRAGS,
+                          nf);
+    w->have_trees = 0;
+    w->split_preview = n > 0;
+    w->dirty = 1;
+    int rc = render_set_fragments(w->r, w->c->ct, f, nf);
+    return rc ? rc : n > 0 ? 0 : need_trees(w);
 }
 
 void navwin_close(navwin *w)
@@ -308,18 +324,93 @@ static int slice_wheel(navwin *w, const render_input *in)
     return 1;
 }
 
-/* In four-up, a click at xy on a slice puts the slices' point there (and w->click_world): 1 when
- * it did. */
-static int slice_click(navwin *w, const double xy[2])
+/* Per fragment of sc (the case's, at their poses there): the map from the world to its crop's
+ * local mm. 0 when sc is not a scene of the case. */
+static int to_locals(const navwin *w, const loop_scene *sc, pose *to_local)
+{
+    for (int i = 0; i < w->c->nfrag && sc->nfrag == w->c->nfrag; i++)
+        to_local[i] = pose_inverse(pose_compose(sc->pose[i], w->c->frag[i].home));
+    return sc->nfrag == w->c->nfrag;
+}
+
+/* The fragment whose mask holds world point at (to_local: to_locals'), or -1. */
+static int frag_holding(const navwin *w, const pose *to_local, const double at[3])
+{
+    for (int i = 0; i < w->c->nfrag; i++) {
+        const frag *f = &w->c->frag[i];
+        double local[3];
+        int l[3], in = 1;
+        pose_apply(&to_local[i], at, local);
+        for (int a = 0; a < 3; a++) {
+            l[a] = (int)floor(local[a] / f->spacing[a] + 0.5);
+            in &= l[a] >= 0 && l[a] < f->dim[a];
+        }
+        if (in && f->prob[((size_t)l[2] * f->dim[1] + l[1]) * f->dim[0] + l[0]])
+            return i;
+    }
+    return -1;
+}
+
+/* World point at of fragment i at its pose in sc, where it lies in the CT (its home). */
+static void home_of(const loop_scene *sc, int i, const double at[3], double home[3])
+{
+    pose back = pose_inverse(sc->pose[i]);
+    pose_apply(&back, at, home);
+}
+
+/* In four-up, a click at xy on a slice puts the slices' point there, and w->click_world: the point
+ * where it lies in the CT (a moved fragment's voxel at its home). 1 when it did. */
+static int slice_click(navwin *w, const loop_scene *sc, const double xy[2])
 {
     double p[3];
+    pose to_local[RENDER_MAX_FRAGS];
     if (w->o.layout != RENDER_LAYOUT_FOUR_UP || render_slice_point_at(w->r, &w->o, xy[0], xy[1], p) < 0)
         return 0;
     memcpy(w->o.slice_point, p, sizeof p);
-    memcpy(w->click_world, p, sizeof p);
+    int i = to_locals(w, sc, to_local) ? frag_holding(w, to_local, p) : -1;
+    if (i >= 0)
+        home_of(sc, i, p, w->click_world);
+    else
+        memcpy(w->click_world, p, sizeof p);
     note(w, "slices through (%.1f, %.1f, %.1f) mm", p[0], p[1], p[2]);
     w->slice_set = 1;
     return 1;
+}
+
+/* The point of the fragments' surface that a click at xy on the 3D view (the whole window, or the
+ * four-up's 3D pane) shows: along the camera's ray through xy, from the viewer, the first voxel
+ * of a fragment's mask at its pose in sc, as a point of that fragment's home (the CT's grid,
+ * where the seeds and the slices' CT are). 1 when the ray meets a fragment, 0 when not. */
+static int surface_pick(const navwin *w, const loop_scene *sc, const double xy[2], double home[3])
+{
+    const planning_case *c = w->c;
+    int q[4] = {0, 0, w->w, w->h}, rect[4][4];
+    if (w->o.layout == RENDER_LAYOUT_FOUR_UP) {
+        render_four_up_panes(w->w, w->h, rect);
+        memcpy(q, rect[RENDER_PANE_3D], sizeof q);
+    }
+    pose to_local[RENDER_MAX_FRAGS];
+    if (!to_locals(w, sc, to_local) || xy[0] < q[0] || xy[0] >= q[0] + q[2] || xy[1] < q[1] ||
+        xy[1] >= q[1] + q[3])
+        return 0;
+    const render_camera *cam = &w->o.camera;
+    double right[3], at[3], step = 1e30;
+    cross(cam->forward, cam->up, right);
+    double hh = cam->half_height, hw = hh * q[2] / q[3];
+    double sx = 2.0 * (xy[0] - q[0]) / q[2] - 1, sy = 1 - 2.0 * (xy[1] - q[1]) / q[3];
+    for (int i = 0; i < c->nfrag; i++)
+        for (int a = 0; a < 3; a++)
+            step = fmin(step, c->frag[i].spacing[a] / 2);
+    for (double t = -cam->depth; t <= cam->depth; t += step) {
+        for (int a = 0; a < 3; a++)
+            at[a] = cam->centre[a] + right[a] * hw * sx + cam->up[a] * hh * sy + cam->forward[a] * t;
+        int i = frag_holding(w, to_local, at);
+        if (i >= 0) {
+            home_of(sc, i, at, home);
+            return 1;
+        }
+    }
+    return 0;
 }
 
 int navwin_click_at(const navwin *w, double world[3])
@@ -330,7 +421,7 @@ int navwin_click_at(const navwin *w, double world[3])
 
 /* The pointer and the view keys (Ctrl+1..6) move the camera, the look keys (F2-F9) change the
  * look; F1 goes to the caller as '?', and every other key as it came. */
-static int handle_input(navwin *w, const render_input *in, int *keys, int cap)
+static int handle_input(navwin *w, const loop_scene *sc, const render_input *in, int *keys, int cap)
 {
     render_camera *cam = &w->o.camera;
     int n = 0, moved = 0;
@@ -346,7 +437,8 @@ static int handle_input(navwin *w, const render_input *in, int *keys, int cap)
             note(w, "view: auto (follows the selected fragment)");
         } else if (k >= RENDER_KEY_CLICK && k < RENDER_KEY_CLICK + in->nclicks) {
             /* handed back in its place among the keys: a key typed before it acts first */
-            if (slice_click(w, in->click[k - RENDER_KEY_CLICK])) {
+            const double *xy = in->click[k - RENDER_KEY_CLICK];
+            if (slice_click(w, sc, xy) || surface_pick(w, sc, xy, w->click_world)) {
                 if (n < cap)
                     keys[n++] = NAVWIN_KEY_CLICK;
                 moved = 1;
@@ -411,6 +503,13 @@ static int draw(navwin *w, const loop_scene *sc, const char *text, loop_scene *s
 {
     int n = w->c->nfrag;
     *shown = *sc;
+    if (w->split_preview) { /* the pieces at their own poses, with no overlay that needs the case's */
+        render_options o = w->o;
+        o.overlays &= ~(unsigned)(RENDER_OVERLAY_HIERARCHY | RENDER_OVERLAY_CONTACTS);
+        o.ghost = o.cutaway = 0;
+        int rc = render_frame(w->r, NULL, &o);
+        return rc ? rc : render_hud(w->r, text, render_hud_scale(w->r));
+    }
     if (sc->nfrag == n) {
         int rc = render_frame_early(w->r, sc->pose, sc->selected, &w->o);
         if (rc)
@@ -453,9 +552,9 @@ int navwin_frame(navwin *w, const loop_scene *sc, const char *hud, int *keys, in
         return rc;
     *close = in.close;
     int w0 = w->w, h0 = w->h;
-    int n = handle_input(w, &in, keys, cap);
+    int n = handle_input(w, sc, &in, keys, cap);
     w->dirty |= w->w != w0 || w->h != h0; /* resized */
-    if (w->auto_view && sc->nfrag == w->c->nfrag && sc->selected != w->auto_for) {
+    if (w->auto_view && !w->split_preview && sc->nfrag == w->c->nfrag && sc->selected != w->auto_for) {
         rc = render_camera_auto(w->r, &w->o.camera, w->c->frag, w->c->nfrag, sc->pose, sc->selected);
         if (rc)
             return rc;

@@ -69,7 +69,7 @@ navwin *navwin_open_view(const char *cmd, int view, const navwin_look *look, con
  * most (the worst of the last second; the bound is the arrival of the newest report in the frame
  * before, so it may exceed the truth by one report period). Up to cap typed keys go to keys (ASCII,
  * 27 for Escape, F1 as '?', the arrows and Ctrl+letters as RENDER_KEY_*, a click on a slice as
- * NAVWIN_KEY_CLICK); *close becomes 1 when the window was asked to close. Returns the keys stored, or FN_E*. */
+ * NAVWIN_KEY_CLICK, and one on the 3D view's fragments too); *close becomes 1 when the window was asked to close. Returns the keys stored, or FN_E*. */
 int navwin_frame(navwin *w, const loop_scene *sc, const char *hud, int *keys, int cap, int *close);
 /* navwin_frame with the HUD of the terminal view: navview_format's lines of sc and x, then
  * "device: DEVICE", then help (NULL: none) followed by navwin_help(). */
@@ -77,10 +77,17 @@ int navwin_show(navwin *w, const loop_scene *sc, const navview_extra *x, const c
                 int *keys, int cap, int *close);
 /* A click on a slice of the four-up layout moves the slices there and comes back among the keys
  * as NAVWIN_KEY_CLICK, in the order it came with them (a piece chosen by a key and then clicked
- * is chosen first, though both arrive in one frame); navwin_click_at gives the world point (LPS
- * mm) of the last one handed back. 0. */
+ * is chosen first, though both arrive in one frame); so does a click on a fragment's surface in
+ * the 3D view. navwin_click_at gives the world point (LPS mm) of the last one handed back, where
+ * it lies in the CT: on a slice, the point clicked (on a fragment, mapped back from its pose to
+ * its home); on the surface, the first voxel of a fragment's mask along the view's ray, in the
+ * fragment's home. 0. */
 #define NAVWIN_KEY_CLICK RENDER_KEY_CLICK
 int navwin_click_at(const navwin *w, double world[3]);
+/* The seed mode's preview: the window draws pieces[0..n-1] (the fragments a split would make, each
+ * at its own pose; they must outlive the next call) in place of the case's fragments, until it is
+ * called again; n 0 draws the case's again. 0 or FN_E*. */
+int navwin_set_pieces(navwin *w, const frag *pieces, int n);
 /* The last frame drawn (HUD included) at the loop's newest scene, as a PNG file. 0 or FN_E*. */
 int navwin_screenshot(navwin *w, const char *png);
 /* navwin_screenshot, its failure said on stderr as "fracnav CMD: --screenshot PNG: WHY". */

@@ -707,12 +707,15 @@ static int gl_check(render *r, const char *what)
     return 0;
 }
 
-int render_set_scene(render *r, const vol *ct, const frag *frags, int nfrag, double iso_hu,
-                     const obb_params *hp)
+/* render_set_scene; keep_ct: the CT texture stays as it is (render_set_fragments). */
+static int set_scene(render *r, const vol *ct, const frag *frags, int nfrag, double iso_hu, const obb_params *hp,
+                     int keep_ct)
 {
     if (nfrag < 0 || nfrag > RENDER_MAX_FRAGS)
         return fn_err_set(FN_EINVAL, "render: %d fragments, at most %d can be drawn", nfrag,
                           RENDER_MAX_FRAGS);
+    unsigned kept = keep_ct && r->have_ct ? r->ct_tex : 0;
+    r->ct_tex = kept ? 0 : r->ct_tex; /* not deleted with the scene */
     scene_release(r);
     r->early_late = -1;
     r->iso_hu = iso_hu;
@@ -732,14 +735,30 @@ int render_set_scene(render *r, const vol *ct, const frag *frags, int nfrag, dou
         rc = upload_spans(r, nfrag);
     if (!rc) {
         upload_tf(r);
-        if (ct)
+        if (kept) {
+            r->ct_tex = kept;
+            r->have_ct = 1;
+        } else if (ct)
             rc = upload_ct(r, ct);
     }
     if (!rc)
         rc = gl_check(r, "uploading the scene");
-    if (rc)
+    if (rc) {
+        r->ct_tex = kept ? kept : r->ct_tex; /* deleted with the rest */
         scene_release(r);
+    }
     return rc;
+}
+
+int render_set_scene(render *r, const vol *ct, const frag *frags, int nfrag, double iso_hu,
+                     const obb_params *hp)
+{
+    return set_scene(r, ct, frags, nfrag, iso_hu, hp, 0);
+}
+
+int render_set_fragments(render *r, const vol *ct, const frag *frags, int nfrag)
+{
+    return set_scene(r, ct, frags, nfrag, r->iso_hu, NULL, 1);
 }
 
 int render_set_hierarchies(render *r, const frag *frags, const obb_params *hp)

@@ -107,6 +107,11 @@ render_mode render_default_mode(const render *r);
  * fragments (FN_EINVAL names the count). Replaces any previous scene. 0 or FN_E*. */
 int render_set_scene(render *r, const vol *ct, const frag *frags, int nfrag, double iso_hu,
                      const obb_params *hp);
+/* Replaces the scene's fragments (as render_set_scene, without hierarchies), keeping the CT
+ * texture and the surface level that render_set_scene uploaded: ct must be that same volume,
+ * unchanged (its values fill the crops). For a scene whose fragments change over one CT (the seed
+ * mode's preview): the CT is not uploaded again. 0 or FN_E*. */
+int render_set_fragments(render *r, const vol *ct, const frag *frags, int nfrag);
 /* Builds the hierarchies of the scene's fragments (frags as given to render_set_scene) for the
  * hierarchy and contacts overlays, when render_set_scene was given none (a window that turns those
  * overlays on later). 0 or FN_ENOMEM. */

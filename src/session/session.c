@@ -150,8 +150,8 @@ static int open_case(session *s, const session_params *p)
     if (rc == 0 && c->nfrag > LOOP_MAX_FRAGS)
         rc = fn_err_set(FN_EINVAL, "%s: %d fragments, the loop steers at most %d", s->dir, c->nfrag,
                         LOOP_MAX_FRAGS);
-    if (rc == 0 && c->nfrag < 2)
-        rc = fn_err_set(FN_EINVAL, "%s: %d fragment(s); steering needs at least two", s->dir, c->nfrag);
+    if (rc == 0 && c->nfrag < 1) /* one is enough: the window's seed mode separates it */
+        rc = fn_err_set(FN_EINVAL, "%s: no fragment to steer", s->dir);
     if (rc == 0 && p->prepare)
         rc = p->prepare(p->prepare_ctx, c);
     s->frags = c->frag;

@@ -82,6 +82,21 @@ planning_case *case_load(const char *dir);
 int case_save(planning_case *c);
 void case_free(planning_case *c);
 
+/* Edits that can be taken back (the window's separation). case_save_undoable keeps the case as it
+ * is on disk (case.json and labels.nii.gz, hard links, no copy) as the newest undo step,
+ * CASE/undo.N.case.json and CASE/undo.N.labels.nii.gz, then saves c (case_save) and links the
+ * case it saved into the step. case_undo puts the newest step back in place as case_save would
+ * save it (labels, then case.json; a crash between leaves the case as it was, the step whole) and
+ * removes the step: 1, or 0 when there is none to undo. case_undo_steps: the newest step's N, 0
+ * when none. A step equal to the case as it is (a crash before the save, or after an undo's
+ * renames) is dropped, never applied; a step whose edit's case.json or labels are no longer the
+ * case's (a save since: an edit, a fit, moved poses; or a crash before they were linked) is not
+ * undone, so nothing saved later is lost. The caller holds the case's lock and removes its
+ * journal (bound to the case.json that was). FN_E* naming the file. */
+int case_save_undoable(planning_case *c);
+int case_undo(const char *dir);
+int case_undo_steps(const char *dir);
+
 /* Rebuilds the fragments from c->labels after an edit: fragments keep their pose, name, colour and
  * truth by id; fragment new_id (when > 0) inherits pose and truth from parent_id (a split), other
  * new ids get identity; ids that vanished are removed (the fixed index follows its fragment or
@@ -176,6 +191,21 @@ int case_separate_auto(planning_case *c, int id, int *new_ids);
  * fragment with seeds is separated from them (case_separate_seeds). Returns the new fragments
  * made, or FN_E* (a seed's error names the point). */
 int case_separate_all(planning_case *c, const case_seed *seeds, int n);
+
+/* A live preview of case_separate_all(c, seeds, n) from seeds of pieces 1..254 on c's fragments
+ * (the window's seed mode): case_preview_update grows the split and gives the fragments it would
+ * make, in *shown (n of them, returned; valid until the next update or case_preview_free): each
+ * fragment with seeds as its pieces, the largest keeping its id and colour and the others the ids
+ * and colours case_separate_all would give them, and the others as they are; all at the pose of
+ * the fragment they come from (poses[i] for c's fragment i; NULL: their own). When the seeds
+ * extend those of the last update, only the new ones grow (grow.h's incremental update); else the
+ * growth starts anew. c must outlive p, unchanged. FN_EINVAL naming the seed (world mm) that is
+ * outside the CT or on no fragment (Enter would grow the bone there; the preview does not), or
+ * FN_ENOMEM. */
+typedef struct case_preview case_preview;
+case_preview *case_preview_new(const planning_case *c);
+void case_preview_free(case_preview *p);
+int case_preview_update(case_preview *p, const pose *poses, const case_seed *seeds, int n, const frag **shown);
 
 /* A seed file's text: one seed per line, "PIECE X Y Z" (PIECE 1..254, or "none" for not bone;
  * world LPS mm), blank lines and # comments skipped. Returns the count and *out (malloc'd), or

@@ -8,6 +8,7 @@
 #include "split.h"
 
 #include <math.h>
+#include <stddef.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -673,6 +674,209 @@ int case_separate_all(planning_case *c, const case_seed *seeds, int n)
     free(ids);
     free(group);
     return rc < 0 ? rc : made;
+}
+
+/* ---- the seeded separation's live preview ---------------------------------------------- */
+
+/* One fragment with seeds: its box, its growth, and the pieces it grew into. */
+typedef struct preview_part {
+    int lo[3], dim[3];
+    uint8_t *m;     /* id_mask */
+    float *hu;      /* box_values */
+    grow *g;
+    vol *won, *ct;  /* the box's labels as grown and its CT, on the box's grid (lo its first voxel) */
+    frag *pieces;   /* per piece label 1..GROW_MAX_LABEL - 1 that won voxels, the largest first */
+    int npieces, dirty;
+} preview_part;
+
+struct case_preview {
+    const planning_case *c;
+    preview_part *part; /* per fragment index; part[i].m NULL: no seed there yet */
+    case_seed *seeds;   /* those grown so far */
+    int nseeds, cap;
+    frag *out;          /* the fragments shown: pieces and shallow copies of the others */
+};
+
+case_preview *case_preview_new(const planning_case *c)
+{
+    case_preview *p = calloc(1, sizeof *p);
+    if (p) {
+        p->c = c;
+        p->part = calloc((size_t)c->nfrag + 1, sizeof *p->part);
+        p->out = malloc(((size_t)c->nfrag * GROW_MAX_LABEL + 1) * sizeof *p->out);
+    }
+    if (!p || !p->part || !p->out) {
+        case_preview_free(p);
+        fn_err_set(FN_ENOMEM, "separate: out of memory for the preview");
+        return NULL;
+    }
+    return p;
+}
+
+static void part_pieces_free(preview_part *t)
+{
+    for (int i = 0; i < t->npieces; i++)
+        frag_free(&t->pieces[i]);
+    free(t->pieces);
+    t->pieces = NULL;
+    t->npieces = 0;
+}
+
+void case_preview_free(case_preview *p)
+{
+    if (!p)
+        return;
+    for (int i = 0; p->part && i < p->c->nfrag; i++) {
+        preview_part *t = &p->part[i];
+        part_pieces_free(t);
+        grow_free(t->g);
+        free(t->m);
+        free(t->hu);
+        vol_free(t->won);
+        vol_free(t->ct);
+    }
+    free(p->part);
+    free(p->seeds);
+    free(p->out);
+    free(p);
+}
+
+/* A vol over the box of t on c's grid, values filled by the caller. */
+static vol *box_vol(const planning_case *c, const preview_part *t)
+{
+    vol *v = vol_new(t->dim[0], t->dim[1], t->dim[2]);
+    if (!v)
+        return NULL;
+    memcpy(v->spacing, c->labels->spacing, sizeof v->spacing);
+    memcpy(v->affine, c->labels->affine, sizeof v->affine);
+    for (int r = 0; r < 3; r++)
+        for (int a = 0; a < 3; a++)
+            v->affine[r][3] += c->labels->affine[r][a] * t->lo[a];
+    return v;
+}
+
+/* Fragment index f's box, mask, values and growth, made at its first seed. */
+static int part_open(const planning_case *c, preview_part *t, int f)
+{
+    t->m = id_mask(c, c->frag[f].id, t->lo, t->dim);
+    t->hu = t->m ? box_values(c, t->m, t->lo, t->dim) : NULL;
+    t->g = t->hu ? grow_new(t->hu, t->m, t->dim, c->labels->spacing) : NULL;
+    t->won = t->g ? box_vol(c, t) : NULL;
+    t->ct = t->won ? box_vol(c, t) : NULL;
+    if (!t->ct)
+        return fn_err_set(FN_ENOMEM, "separate: out of memory for fragment %d's preview", c->frag[f].id);
+    for (int k = 0; k < t->dim[2]; k++)
+        for (int j = 0; j < t->dim[1]; j++)
+            for (int i = 0; i < t->dim[0]; i++) {
+                int s[3] = {t->lo[0] + i, t->lo[1] + j, t->lo[2] + k}, in = 1;
+                for (int a = 0; a < 3; a++)
+                    in &= s[a] >= 0 && s[a] < c->ct->dim[a];
+                t->ct->data[vol_idx(t->ct, i, j, k)] = in ? c->ct->data[vol_idx(c->ct, s[0], s[1], s[2])] : 0;
+            }
+    return 0;
+}
+
+/* The pieces of t after its growth: one fragment per piece label that won voxels, the largest
+ * first. */
+static int part_pieces(const planning_case *c, preview_part *t)
+{
+    part_pieces_free(t);
+    const uint8_t *won = grow_labels(t->g);
+    size_t n = vol_count(t->won), count[GROW_MAX_LABEL + 1] = {0};
+    for (size_t v = 0; v < n; v++) {
+        t->won->data[v] = won[v];
+        count[won[v]]++;
+    }
+    t->pieces = calloc(GROW_MAX_LABEL, sizeof *t->pieces);
+    if (!t->pieces)
+        return fn_err_set(FN_ENOMEM, "separate: out of memory for the preview");
+    int keep = 1;
+    for (int l = 2; l < GROW_MAX_LABEL; l++)
+        keep = count[l] > count[keep] ? l : keep;
+    for (int k = 0; k < GROW_MAX_LABEL; k++) {
+        int l = k == 0 ? keep : k, lo[3], hi[3];
+        if ((k > 0 && l == keep) || !count[l] || frag_label_box(t->won, l, lo, hi) < 0)
+            continue;
+        frag *f = &t->pieces[t->npieces];
+        int rc = frag_from_labels(f, t->won, t->ct, l, lo, hi, c->seg.threshold, c->seg.ramp);
+        if (rc < 0)
+            return rc;
+        t->npieces++;
+        for (int a = 0; a < 3; a++)
+            f->origin[a] += t->lo[a];
+    }
+    return 0;
+}
+
+int case_preview_update(case_preview *p, const pose *poses, const case_seed *seeds, int n, const frag **shown)
+{
+    const planning_case *c = p->c;
+    int grown = n >= p->nseeds && (p->nseeds == 0 || !memcmp(seeds, p->seeds, (size_t)p->nseeds * sizeof *seeds))
+                    ? p->nseeds : 0;
+    if (n > p->cap) {
+        case_seed *more = realloc(p->seeds, (size_t)n * sizeof *more);
+        if (!more)
+            return fn_err_set(FN_ENOMEM, "separate: out of memory for the preview's seeds");
+        p->seeds = more;
+        p->cap = n;
+    }
+    if (!grown)
+        for (int i = 0; i < c->nfrag; i++) {
+            if (p->part[i].g)
+                grow_clear(p->part[i].g);
+            part_pieces_free(&p->part[i]);
+        }
+    int rc = 0;
+    for (int s = grown; s < n && rc == 0; s++) {
+        int v[3];
+        if ((rc = seed_voxel(c, &seeds[s], v)) < 0)
+            break;
+        float l = c->labels->data[vol_idx(c->labels, v[0], v[1], v[2])];
+        int f = l > 0 ? case_find(c, (int)l) : -1;
+        if (f < 0 || seeds[s].piece < 1 || seeds[s].piece >= GROW_MAX_LABEL) {
+            rc = fn_err_set(FN_EINVAL, "separate: the seed (%.1f, %.1f, %.1f) mm is %s", seeds[s].at[0],
+                            seeds[s].at[1], seeds[s].at[2], f < 0 ? "on no fragment (Enter grows the bone to it)"
+                                                                   : "of no piece 1..254");
+            break;
+        }
+        preview_part *t = &p->part[f];
+        if (!t->m && (rc = part_open(c, t, f)) < 0)
+            break;
+        size_t b = ((size_t)(v[2] - t->lo[2]) * t->dim[1] + (size_t)(v[1] - t->lo[1])) * t->dim[0] +
+                   (size_t)(v[0] - t->lo[0]);
+        if (grow_add_seed(t->g, b, seeds[s].piece) < 0)
+            rc = fn_err_set(FN_EINVAL, "separate: the seed (%.1f, %.1f, %.1f) mm falls in the voxel of a seed of "
+                            "another piece", seeds[s].at[0], seeds[s].at[1], seeds[s].at[2]);
+        t->dirty = 1;
+    }
+    int m = 0, next = next_free_id(c);
+    for (int i = 0; i < c->nfrag && rc == 0; i++) {
+        preview_part *t = &p->part[i];
+        const pose *at = poses ? &poses[i] : &c->frag[i].pose;
+        if (t->dirty && (rc = grow_run(t->g)) == 0)
+            rc = part_pieces(c, t);
+        t->dirty = 0;
+        if (!t->npieces) { /* shallow: shown, never freed here; its pose (the last member, which a
+                            * session's save may be writing) not read */
+            memcpy(&p->out[m], &c->frag[i], offsetof(frag, pose));
+            p->out[m++].pose = *at;
+        }
+        for (int k = 0; k < t->npieces; k++) {
+            frag *f = &t->pieces[k];
+            f->id = k == 0 ? c->frag[i].id : next++;
+            frag_colour(f->id, f->rgb);
+            f->pose = *at; /* placed as the fragment it comes from */
+            p->out[m++] = *f;
+        }
+    }
+    if (rc < 0) { /* a bad seed: the next update starts anew */
+        p->nseeds = 0;
+        return rc;
+    }
+    memcpy(p->seeds, seeds, (size_t)n * sizeof *seeds);
+    p->nseeds = n;
+    *shown = p->out;
+    return m;
 }
 
 int case_separate_auto(planning_case *c, int id, int *new_ids)

@@ -5,6 +5,7 @@
 #include "err.h"
 #include "volio.h"
 
+#include <dirent.h>
 #include <errno.h>
 #include <fcntl.h>
 #include <jansson.h>
@@ -20,6 +21,9 @@
 #define LABELS_FILE "labels.nii.gz"
 #define LABELS_PREV "labels.prev.nii.gz" /* the labels the on-disk case.json names, during a save */
 #define JSON_FILE "case.json"
+#define UNDO_PREFIX "undo." /* CASE/undo.N.*: the case before an undoable edit (case_save_undoable) */
+#define LABELS_AFTER "labels.after.nii.gz" /* in a step: the case its edit saved */
+#define JSON_AFTER "case.after.json"
 #define JSON_MAX_BYTES (64 << 20) /* 64 MiB: ~100,000 fragments */
 
 /* ---- writing ---- */
@@ -241,6 +245,162 @@ int case_save(planning_case *c)
     unlink(lprev); /* a leftover is harmless: the next save replaces it */
     memcpy(c->json_sha256, jsha, sizeof jsha);
     return 0;
+}
+
+/* ---- undo ---- */
+
+/* The newest undo step of dir (the largest N of its files UNDO_PREFIX N.case.json): its files'
+ * common start, DIR/undo.N., into step; 0 when none. The steps' files lie in the case folder
+ * itself, which stays flat (case_stage replaces only such folders). */
+static int newest_step(const char *dir, char *step, size_t cap)
+{
+    DIR *d = opendir(dir);
+    int newest = 0;
+    size_t plen = strlen(UNDO_PREFIX);
+    for (struct dirent *e; d && (e = readdir(d));) {
+        char *end = "";
+        long n = strncmp(e->d_name, UNDO_PREFIX, plen) ? 0 : strtol(e->d_name + plen, &end, 10);
+        if (n > newest && n < INT_MAX && !strcmp(end, "." JSON_FILE))
+            newest = (int)n;
+    }
+    if (d)
+        closedir(d);
+    snprintf(step, cap, "%s/" UNDO_PREFIX "%d.", dir, newest);
+    return newest;
+}
+
+/* A file of a step (newest_step's prefix). */
+static void step_file(char *out, size_t cap, const char *step, const char *name)
+{
+    snprintf(out, cap, "%s%s", step, name);
+}
+
+/* Whether files a and b hold the same bytes (by sha256; both must be readable). */
+static int same_file(const char *a, const char *b)
+{
+    char ha[65], hb[65];
+    return durable_file_sha256(a, ha) == 0 && durable_file_sha256(b, hb) == 0 && !strcmp(ha, hb);
+}
+
+static int remove_step(const char *dir, const char *step)
+{
+    const char *names[] = {LABELS_FILE, LABELS_AFTER, JSON_AFTER, JSON_FILE}; /* case.json, which names
+                                                                              * the step, last */
+    char f[4400];
+    for (int i = 0; i < 4; i++) {
+        step_file(f, sizeof f, step, names[i]);
+        if (unlink(f) != 0 && errno != ENOENT)
+            return fn_err_set(FN_EIO, "%s: cannot remove: %s", f, strerror(errno));
+    }
+    return durable_sync_path(dir);
+}
+
+/* The newest step that differs from the case as it is (one equal to it is what a crash left
+ * between keeping it and the save, or after an undo's renames: dropped). 0 when none. */
+static int live_step(const char *dir, char *step, size_t cap)
+{
+    char jfin[4200], sj[4400];
+    join(jfin, sizeof jfin, dir, JSON_FILE);
+    for (int n; (n = newest_step(dir, step, cap)) > 0;) {
+        step_file(sj, sizeof sj, step, JSON_FILE);
+        if (!same_file(sj, jfin))
+            return n;
+        int rc = remove_step(dir, step);
+        if (rc < 0)
+            return rc;
+    }
+    return 0;
+}
+
+/* The newest step when the case is still as its edit saved it (nothing saved since, which an
+ * undo would lose), else 0. */
+static int undoable_step(const char *dir, char *step, size_t cap)
+{
+    char lfin[4200], jfin[4200], lafter[4400], jafter[4400];
+    int n = live_step(dir, step, cap);
+    join(lfin, sizeof lfin, dir, LABELS_FILE);
+    join(jfin, sizeof jfin, dir, JSON_FILE);
+    step_file(lafter, sizeof lafter, step, LABELS_AFTER);
+    step_file(jafter, sizeof jafter, step, JSON_AFTER);
+    return n > 0 && !(same_file(lafter, lfin) && same_file(jafter, jfin)) ? 0 : n;
+}
+
+int case_undo_steps(const char *dir)
+{
+    char step[4300];
+    return undoable_step(dir, step, sizeof step);
+}
+
+/* Links from to to (to replaced). */
+static int link_over(const char *from, const char *to)
+{
+    if ((unlink(to) != 0 && errno != ENOENT) || link(from, to) != 0)
+        return fn_err_set(FN_EIO, "%s: cannot link to %s: %s (the undo step needs hard links)", to, from,
+                          strerror(errno));
+    return 0;
+}
+
+int case_save_undoable(planning_case *c)
+{
+    char step[4300], f[4400], jfin[4200], lfin[4200];
+    join(jfin, sizeof jfin, c->dir, JSON_FILE);
+    join(lfin, sizeof lfin, c->dir, LABELS_FILE);
+    int n = live_step(c->dir, step, sizeof step);
+    if (n < 0)
+        return n;
+    snprintf(step, sizeof step, "%s/" UNDO_PREFIX "%d.", c->dir, n + 1);
+    step_file(f, sizeof f, step, LABELS_FILE);
+    int rc = link_over(lfin, f);
+    step_file(f, sizeof f, step, JSON_FILE); /* last: it makes the step */
+    if (rc == 0)
+        rc = link_over(jfin, f);
+    if (rc == 0)
+        rc = durable_sync_path(c->dir);
+    if (rc < 0)
+        return fn_err_wrap(rc, "keeping case %s for undo", c->dir);
+    if ((rc = case_save(c)) < 0)
+        return rc;
+    step_file(f, sizeof f, step, LABELS_AFTER); /* a crash before these links leaves the step unoffered */
+    if ((rc = link_over(lfin, f)) == 0) {
+        step_file(f, sizeof f, step, JSON_AFTER);
+        rc = link_over(jfin, f);
+    }
+    return rc ? rc : durable_sync_path(c->dir);
+}
+
+int case_undo(const char *dir)
+{
+    char step[4300], sj[4400], sl[4400], jfin[4200], lfin[4200], lprev[4200], jtmp[4300], ltmp[4300];
+    int n = undoable_step(dir, step, sizeof step);
+    if (n <= 0)
+        return n;
+    step_file(sj, sizeof sj, step, JSON_FILE);
+    step_file(sl, sizeof sl, step, LABELS_FILE);
+    join(jfin, sizeof jfin, dir, JSON_FILE);
+    join(lfin, sizeof lfin, dir, LABELS_FILE);
+    join(lprev, sizeof lprev, dir, LABELS_PREV);
+    join(jtmp, sizeof jtmp, dir, ".case.json.undo");
+    join(ltmp, sizeof ltmp, dir, ".labels.nii.gz.undo");
+    /* As case_save: the labels, then case.json, the labels case.json names kept until both are in
+     * place; the step's files are linked in, so a crash keeps the step whole until it is done. */
+    int rc = link_over(sl, ltmp);
+    if (rc == 0)
+        rc = link_over(sj, jtmp);
+    if (rc == 0)
+        rc = durable_sync_path(dir);
+    if (rc == 0)
+        rc = keep_previous_labels(lfin, lprev, dir);
+    if (rc == 0 && (rename(ltmp, lfin) != 0 || rename(jtmp, jfin) != 0))
+        rc = fn_err_set(FN_EIO, "%s: cannot put %s back: %s", dir, step, strerror(errno));
+    if (rc == 0)
+        rc = durable_sync_path(dir);
+    unlink(ltmp);
+    unlink(jtmp);
+    if (rc < 0)
+        return fn_err_wrap(rc, "undoing the last edit of case %s", dir);
+    unlink(lprev);
+    rc = remove_step(dir, step);
+    return rc < 0 ? rc : 1;
 }
 
 /* ---- reading ---- */

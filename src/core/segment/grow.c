@@ -113,6 +113,14 @@ static item pop(grow *g)
     return top;
 }
 
+void grow_clear(grow *g)
+{
+    for (size_t i = 0; i < g->n; i++)
+        g->cost[i] = INFINITY;
+    memset(g->label, 0, g->n);
+    g->len = 0;
+}
+
 int grow_add_seed(grow *g, size_t v, int label)
 {
     if (v >= g->n || !g->domain[v])

@@ -41,6 +41,9 @@ void grow_weigh(grow *g, const float *w);
  * seeded already with another label. */
 int grow_add_seed(grow *g, size_t v, int label);
 
+/* Takes every seed back (a growth with none, its depths kept): cheaper than a new handle. */
+void grow_clear(grow *g);
+
 /* Grows the seeds added since the last run (all of them at the first). 0 or FN_ENOMEM. */
 int grow_run(grow *g);
 
