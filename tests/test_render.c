@@ -341,6 +341,131 @@ static void test_contacts_overlay_marks_colliding_voxels(void **st)
     check_golden(s->rgb, "contacts");
 }
 
+/* The contacts colour: red through orange (not yellow, not a fragment's palette colour). */
+static int gap_red(const uint8_t *p)
+{
+    return p[0] > 150 && p[1] < 0.75 * p[0] && p[2] < 0.45 * p[0];
+}
+
+/* Two blocks of bone side by side along x (labels 1 and 3: beige and blue), touching face to face
+ * at voxel x 20 (1 mm voxels at the origin); drawn WxW in surface mode with the contacts overlay at
+ * B's pose b. Returns the red pixels and their mean column into *col; *legend: the red ones in the
+ * legend's corner (bottom right), which the count leaves out. */
+typedef struct blocks {
+    vol *ct, *labels;
+    frag f[2];
+    render *r;
+} blocks;
+enum { BW = 256 };
+
+static void blocks_open(blocks *b)
+{
+    b->ct = vol_new(N, N, N);
+    b->labels = vol_new(N, N, N);
+    for (int k = 0; k < N; k++)
+        for (int j = 0; j < N; j++)
+            for (int i = 0; i < N; i++) {
+                int in = i >= 8 && i < 32 && j >= 12 && j < 28 && k >= 12 && k < 28;
+                size_t x = vol_idx(b->ct, i, j, k);
+                b->ct->data[x] = in ? 900.0f : -1000.0f;
+                b->labels->data[x] = !in ? 0 : i < 20 ? 1 : 3;
+            }
+    for (int n = 0; n < 2; n++) {
+        int lo[3], hi[3], id = n ? 3 : 1;
+        assert_int_equal(frag_label_box(b->labels, id, lo, hi), 0);
+        assert_int_equal(frag_from_labels(&b->f[n], b->labels, b->ct, id, lo, hi, 300, 200), 0);
+    }
+    b->r = render_open("osmesa", BW, BW);
+    if (!b->r)
+        fail_msg("render_open: %s", fn_err_msg());
+    obb_params hp = {0.5, 0.95};
+    assert_int_equal(render_set_scene(b->r, b->ct, b->f, 2, 300, &hp), 0);
+}
+
+static void blocks_close(blocks *b)
+{
+    render_close(b->r);
+    frag_free(&b->f[0]);
+    frag_free(&b->f[1]);
+    vol_free(b->ct);
+    vol_free(b->labels);
+}
+
+static long blocks_red(blocks *b, const render_options *o, double gap, uint8_t *rgb, double *col, long *legend)
+{
+    pose poses[2] = {POSE_IDENTITY, POSE_IDENTITY};
+    poses[1].t[0] = gap;
+    if (render_frame(b->r, poses, o))
+        fail_msg("render_frame: %s", fn_err_msg());
+    assert_int_equal(render_read_rgb(b->r, rgb), 0);
+    long n = 0;
+    double sum = 0;
+    *legend = 0;
+    for (int i = 0; i < BW * BW; i++) {
+        if (!gap_red(rgb + i * 3))
+            continue;
+        if (i % BW > BW / 2 && i / BW > BW * 3 / 4) {
+            ++*legend;
+            continue;
+        }
+        n++;
+        sum += i % BW;
+    }
+    *col = n ? sum / n : -1;
+    return n;
+}
+
+/* Both facing surfaces turn red where the blocks touch, each seen through the other (the cut-away
+ * kept for it), and keep their own colours 6 mm apart; from above, red shows in a band along the
+ * fracture line only (within the 3 mm of the scale), not on the blocks' far parts; the legend's
+ * bar shows at the bottom right. Without the overlay nothing is red. */
+static void test_contacts_colour_both_facing_surfaces(void **st)
+{
+    (void)st;
+    blocks b;
+    blocks_open(&b);
+    uint8_t *rgb = malloc(BW * BW * 3);
+    render_options o;
+    render_options_default(&o, b.f, 2);
+    o.mode = RENDER_SURFACE;
+    o.overlays = RENDER_OVERLAY_CONTACTS;
+    double col;
+    long legend;
+    for (int side = 0; side < 2; side++) { /* B's face seen from A's side, then A's from B's */
+        render_camera_standard(&o.camera, side ? RENDER_LEFT : RENDER_RIGHT, b.f, 2);
+        o.cutaway = side ? 1 : 2;
+        long touching = blocks_red(&b, &o, 0, rgb, &col, &legend);
+        long apart = blocks_red(&b, &o, 6, rgb, &col, &legend);
+        print_message("%s's facing surface: %ld red pixels touching, %ld 6 mm apart\n", side ? "A" : "B",
+                      touching, apart);
+        if (touching < 2000 || apart > 0)
+            fail_msg("%s's facing surface: %ld red pixels touching, %ld 6 mm apart", side ? "A" : "B", touching,
+                     apart);
+        if (legend < 50)
+            fail_msg("the legend's bar shows %ld red pixels", legend);
+    }
+    /* From above: the junction at world x 19.5, the blocks over x 7.5 .. 31.5; screen right is
+     * world -x. */
+    render_camera_standard(&o.camera, RENDER_SUPERIOR, b.f, 2);
+    o.cutaway = 0;
+    double px_mm = BW / (2 * o.camera.half_height);
+    double junction = BW / 2.0 - (19.5 - o.camera.centre[0]) * px_mm;
+    long top = blocks_red(&b, &o, 0, rgb, &col, &legend);
+    long outside = 0;
+    for (int i = 0; i < BW * BW; i++)
+        outside += gap_red(rgb + i * 3) && fabs(i % BW - junction) > 3.0 * px_mm && !(i % BW > BW / 2 && i / BW > BW * 3 / 4);
+    print_message("from above: %ld red pixels around column %.1f (the junction %.1f), %ld beyond 3 mm of it\n", top, col,
+                  junction, outside);
+    if (top < 100 || fabs(col - junction) > 1.5 * px_mm || outside > 0)
+        fail_msg("from above: %ld red pixels around column %.1f (the junction %.1f), %ld beyond 3 mm of it", top, col,
+                 junction, outside);
+    o.overlays = 0;
+    if (blocks_red(&b, &o, 0, rgb, &col, &legend) + legend > 0)
+        fail_msg("without the overlay %ld pixels are red", blocks_red(&b, &o, 0, rgb, &col, &legend) + legend);
+    free(rgb);
+    blocks_close(&b);
+}
+
 /* The VOI overlay outlines its box in cyan, where the box is. */
 static void test_voi_overlay_outlines_the_box(void **st)
 {
@@ -1282,6 +1407,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_cutaway_shows_the_piece_in_hand, setup, teardown),
         cmocka_unit_test_setup_teardown(test_interpenetrating_fragments_both_show, setup, teardown),
         cmocka_unit_test_setup_teardown(test_contacts_overlay_marks_colliding_voxels, setup, teardown),
+        cmocka_unit_test(test_contacts_colour_both_facing_surfaces),
         cmocka_unit_test_setup_teardown(test_voi_overlay_outlines_the_box, setup, teardown),
         cmocka_unit_test_setup_teardown(test_hud_draws_text, setup, teardown),
         cmocka_unit_test_setup_teardown(test_pose_moves_picture_by_expected_pixels, setup, teardown),

@@ -2,6 +2,7 @@
 #include "render_impl.h"
 
 #include "err.h"
+#include "morph.h"
 
 #include <math.h>
 #include <stdint.h>
@@ -221,6 +222,8 @@ static void frag_release(render *r, render_frag *f)
         r->gl.DeleteVertexArrays(1, &f->proxy_vao);
     if (f->box_vao)
         r->gl.DeleteVertexArrays(1, &f->box_vao);
+    if (f->dist_tex)
+        r->gl.DeleteTextures(1, &f->dist_tex);
     obb_tree_free(f->tree);
     memset(f, 0, sizeof *f);
 }
@@ -707,6 +710,31 @@ static int gl_check(render *r, const char *what)
     return 0;
 }
 
+/* The contacts overlay's distance map of f (render_frag.dist_tex) and the hierarchy of both
+ * overlays, when rf has them not yet. 0 or FN_ENOMEM. */
+static int upload_contacts(render *r, render_frag *rf, const frag *f, const obb_params *hp)
+{
+    if (!rf->tree && !(rf->tree = obb_tree_build(f, hp)))
+        return fn_err_set(FN_ENOMEM, "render: out of memory for fragment %d's hierarchy", f->id);
+    if (rf->dist_tex)
+        return 0;
+    size_t n = (size_t)f->dim[0] * (size_t)f->dim[1] * (size_t)f->dim[2];
+    float *d = malloc((n ? n : 1) * sizeof *d);
+    if (!d || morph_distance_to(f->prob, f->dim, f->spacing, d)) {
+        free(d);
+        return fn_err_set(FN_ENOMEM, "render: out of memory for fragment %d's distance map", f->id);
+    }
+    for (size_t i = 0; i < n; i++)
+        d[i] = d[i] < RENDER_DIST_MAX_MM ? d[i] : (float)RENDER_DIST_MAX_MM;
+    r->gl.GenTextures(1, &rf->dist_tex);
+    r->gl.BindTexture(GL_TEXTURE_3D, rf->dist_tex);
+    tex3d_params(r, GL_LINEAR);
+    r->gl.PixelStorei(GL_UNPACK_ALIGNMENT, 1);
+    r->gl.TexImage3D(GL_TEXTURE_3D, 0, GL_R16F, f->dim[0], f->dim[1], f->dim[2], 0, GL_RED, GL_FLOAT, d);
+    free(d);
+    return gl_check(r, "uploading a distance map");
+}
+
 int render_set_scene(render *r, const vol *ct, const frag *frags, int nfrag, double iso_hu,
                      const obb_params *hp)
 {
@@ -723,8 +751,8 @@ int render_set_scene(render *r, const vol *ct, const frag *frags, int nfrag, dou
         rc = upload_fragment(r, &r->frag[i], &frags[i], ct);
         for (int a = 0; a < 3; a++)
             r->min_spacing = frags[i].spacing[a] < r->min_spacing ? frags[i].spacing[a] : r->min_spacing;
-        if (!rc && hp && !(r->frag[i].tree = obb_tree_build(&frags[i], hp)))
-            rc = FN_ENOMEM;
+        if (!rc && hp)
+            rc = upload_contacts(r, &r->frag[i], &frags[i], hp);
     }
     if (!rc)
         rc = upload_occupancy(r, frags);
@@ -744,10 +772,10 @@ int render_set_scene(render *r, const vol *ct, const frag *frags, int nfrag, dou
 
 int render_set_hierarchies(render *r, const frag *frags, const obb_params *hp)
 {
-    for (int i = 0; i < r->nfrag; i++)
-        if (!r->frag[i].tree && !(r->frag[i].tree = obb_tree_build(&frags[i], hp)))
-            return fn_err_set(FN_ENOMEM, "render: out of memory for fragment %d's hierarchy", i + 1);
-    return 0;
+    int rc = 0;
+    for (int i = 0; i < r->nfrag && !rc; i++)
+        rc = upload_contacts(r, &r->frag[i], &frags[i], hp);
+    return rc;
 }
 
 long render_surface_triangles(const render *r)

@@ -372,6 +372,35 @@ static void cutaway(const render *r, int keep, const pose *poses, const double f
     *front = (float)near;
 }
 
+/* The contacts colour's uniforms of the surface program p (render__mesh_fs): every fragment's
+ * distance map at its pose, bound to units 0.. */
+static void gap_uniforms(render *r, unsigned p, const pose *poses)
+{
+    float w2t[RENDER_MAX_FRAGS][16], box[RENDER_MAX_FRAGS][3], off[RENDER_MAX_FRAGS], model[16], nmat[9];
+    int units[RENDER_MAX_FRAGS];
+    for (int i = 0; i < RENDER_MAX_FRAGS; i++)
+        units[i] = i;
+    for (int i = 0; i < r->nfrag; i++) {
+        const render_frag *f = &r->frag[i];
+        frag_mats(r, i, poses, model, w2t[i], nmat);
+        double least = f->spacing[0];
+        for (int a = 0; a < 3; a++) {
+            box[i][a] = (float)(f->dim[a] * f->spacing[a]);
+            least = f->spacing[a] < least ? f->spacing[a] : least;
+        }
+        off[i] = (float)(0.5 * least);
+        r->gl.ActiveTexture(GL_TEXTURE0 + (unsigned)i);
+        r->gl.BindTexture(GL_TEXTURE_3D, f->dist_tex);
+    }
+    r->gl.Uniform1i(loc(r, p, "nfrag"), r->nfrag);
+    r->gl.Uniform1iv(loc(r, p, "dist"), RENDER_MAX_FRAGS, units);
+    r->gl.UniformMatrix4fv(loc(r, p, "w2t"), r->nfrag, GL_FALSE, &w2t[0][0]);
+    r->gl.Uniform3fv(loc(r, p, "box_mm"), r->nfrag, &box[0][0]);
+    r->gl.Uniform1fv(loc(r, p, "dist_off"), r->nfrag, off);
+    r->gl.Uniform3fv(loc(r, p, "ramp"), 2, &render__gap_ramp[0][0]);
+    r->gl.Uniform1f(loc(r, p, "gap_scale"), (float)RENDER_GAP_SCALE_MM);
+}
+
 /* The meshes of the fragments i with (only < 0 or i == only) and i != skip, shaded, or with ids
  * in their flat id colours (render__id_fs). A pass over them all (only < 0) starts on a clear depth
  * buffer; a pass over one (render_frame_late's) draws into the depth of the pass before. */
@@ -386,6 +415,11 @@ static void draw_meshes(render *r, const pose *poses, const render_options *o, c
     for (int a = 0; a < 3; a++)
         fw[a] = (float)o->camera.forward[a];
     r->gl.Uniform3fv(loc(r, p, "forward"), 1, fw);
+    int gaps = !ids && (o->overlays & RENDER_OVERLAY_CONTACTS) && r->nfrag && r->frag[0].dist_tex;
+    if (!ids)
+        r->gl.Uniform1i(loc(r, p, "contacts"), gaps);
+    if (gaps)
+        gap_uniforms(r, p, poses);
     r->gl.Enable(GL_DEPTH_TEST);
     if (only < 0)
         r->gl.Clear(GL_DEPTH_BUFFER_BIT);
@@ -405,6 +439,8 @@ static void draw_meshes(render *r, const pose *poses, const render_options *o, c
         r->gl.Uniform4fv(loc(r, p, "cut"), 1, cut);
         r->gl.Uniform1f(loc(r, p, "cut_front"), front);
         r->gl.Uniform3fv(loc(r, p, "colour"), 1, ids ? id : r->frag[i].rgb);
+        if (gaps)
+            r->gl.Uniform1i(loc(r, p, "self"), i);
         r->gl.BindVertexArray(r->frag[i].mesh_vao);
         r->gl.DrawElements(GL_TRIANGLES, (int)(r->frag[i].mesh_triangles * 3), GL_UNSIGNED_INT, (void *)0);
     }
@@ -678,6 +714,7 @@ static void draw_ghost(render *r, const pose *poses, const render_options *o, co
     r->gl.Uniform4fv(loc(r, p, "cut"), 1, cut);
     r->gl.Uniform1f(loc(r, p, "cut_front"), 0);
     r->gl.Uniform3fv(loc(r, p, "colour"), 1, light);
+    r->gl.Uniform1i(loc(r, p, "contacts"), 0);
     r->gl.Uniform1f(loc(r, p, "alpha"), 0.35f);
     r->gl.Enable(GL_BLEND);
     r->gl.BlendFunc(GL_SRC_ALPHA, GL_ONE_MINUS_SRC_ALPHA);
@@ -712,8 +749,8 @@ static int draw_overlays(render *r, const pose *poses, const render_options *o, 
             r->gl.BindVertexArray(f->box_vao);
             r->gl.DrawArrays(GL_LINES, 0, f->box_vertices);
         }
-    if (!rc && (o->overlays & RENDER_OVERLAY_CONTACTS))
-        rc = draw_contacts(r, poses);
+    if (!rc && (o->overlays & RENDER_OVERLAY_CONTACTS) && o->mode != RENDER_SURFACE)
+        rc = draw_contacts(r, poses); /* the surfaces show the gap in colour */
     if (!rc && (o->overlays & RENDER_OVERLAY_AXES))
         rc = draw_axes(r, poses);
     if (!rc && (o->overlays & RENDER_OVERLAY_VOI))
@@ -732,7 +769,14 @@ static int draw_3d(render *r, const pose *poses, const render_options *o, const 
         draw_surface(r, poses, o, m, -1, -1);
     else
         rc = draw_raycast(r, poses, o, vp, m, inv);
-    return rc ? rc : draw_overlays(r, poses, o, m);
+    rc = rc ? rc : draw_overlays(r, poses, o, m);
+    if (!rc && o->mode == RENDER_SURFACE && (o->overlays & RENDER_OVERLAY_CONTACTS)) {
+        rc = render__gap_legend(r, vp);
+        r->gl.Viewport(vp[0], vp[1], vp[2], vp[3]);
+        r->gl.Scissor(vp[0], vp[1], vp[2], vp[3]);
+        r->gl.Enable(GL_SCISSOR_TEST);
+    }
+    return rc;
 }
 
 /* ---- slices ---- */
