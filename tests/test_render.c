@@ -528,6 +528,21 @@ static void test_hud_draws_text(void **st)
     free(capital);
     if (differ < 10)
         fail_msg("n and N draw the same glyph (%ld bytes differ)", differ);
+    /* g hangs below the line, as in print, where a's foot stands (at 5x7 a g on the line read as
+     * 9: "9 fits", "9ap (mm)"). */
+    int lowest[2];
+    for (int k = 0; k < 2; k++) {
+        assert_int_equal(render_frame(s->r, NULL, &o), 0);
+        assert_int_equal(render_hud(s->r, k ? "g" : "a", 1), 0);
+        assert_int_equal(render_read_rgb(s->r, s->rgb), 0);
+        lowest[k] = -1;
+        for (int y = 0; y < 16; y++)
+            for (int x = 0; x < 12; x++)
+                if (s->rgb[(y * W + x) * 3] > 200)
+                    lowest[k] = y;
+    }
+    if (lowest[1] <= lowest[0])
+        fail_msg("g's lowest row %d is not below a's (%d)", lowest[1], lowest[0]);
 }
 
 static void centroid(const uint8_t *rgb, double *cx, double *cy)

@@ -141,6 +141,7 @@ int render__text(render *r, const char *text, int scale, int x, int y)
                 ink = 128;
         for (int c = 0; c < len; c++) {
             const unsigned char *g = glyph(line[c]);
+            int drop = line[c] == 'g'; /* its tail below the line: at 5x7 a g standing on it reads as 9 */
             for (int gy = 0; g && gy < 7; gy++)
                 for (int gx = 0; gx < 5; gx++) {
                     if (!(g[gy] >> (4 - gx) & 1))
@@ -148,7 +149,7 @@ int render__text(render *r, const char *text, int scale, int x, int y)
                     for (int sy = 0; sy < scale; sy++)
                         for (int sx = 0; sx < scale; sx++) {
                             int px = PAD + (c * CELL_W + gx) * scale + sx;
-                            int py = PAD + (l * CELL_H + 1 + gy) * scale + sy;
+                            int py = PAD + (l * CELL_H + 1 + drop + gy) * scale + sy;
                             if (px < tw && py < th)
                                 img[(size_t)py * (size_t)tw + (size_t)px] = ink;
                         }
