@@ -94,6 +94,21 @@ static unsigned program(render *r, const char *vs_src, const char *fs_src, const
     return p;
 }
 
+/* The program of vs and head followed by body (its fragment shader). 0 with fn_err on failure. */
+static unsigned program_with_head(render *r, const char *vs, const char *head, const char *body, const char *what)
+{
+    size_t n = strlen(head) + strlen(body) + 1;
+    char *src = malloc(n);
+    if (!src) {
+        fn_err_set(FN_ENOMEM, "render: out of memory");
+        return 0;
+    }
+    snprintf(src, n, "%s%s", head, body);
+    unsigned p = program(r, vs, src, what);
+    free(src);
+    return p;
+}
+
 /* The raycaster for the scene's fragments in mode m (render__ray_fs after its header), compiled
  * once per scene and mode. 0 or FN_E*. */
 int render__ray_program(render *r, render_mode m)
@@ -103,20 +118,26 @@ int render__ray_program(render *r, render_mode m)
     char head[96];
     snprintf(head, sizeof head, "#version 450 core\n#define NF %d\n#define mode %d\n",
              r->nfrag < 1 ? 1 : r->nfrag, (int)m);
-    size_t n = strlen(head) + strlen(render__ray_fs) + 1;
-    char *src = malloc(n);
-    if (!src)
-        return fn_err_set(FN_ENOMEM, "render: out of memory");
-    snprintf(src, n, "%s%s", head, render__ray_fs);
-    r->prog_ray[m] = program(r, render__ray_vs, src, "raycast");
-    free(src);
+    r->prog_ray[m] = program_with_head(r, render__ray_vs, head, render__ray_fs, "raycast");
     return r->prog_ray[m] ? 0 : FN_ENODEV;
+}
+
+int render__gaps_program(render *r)
+{
+    if (r->prog_gaps)
+        return 0;
+    char head[64];
+    snprintf(head, sizeof head, "#version 450 core\n#define NF %d\n", r->nfrag - 1);
+    r->prog_gaps = program_with_head(r, render__mesh_vs, head, render__mesh_fs, "contacts surface");
+    return r->prog_gaps ? 0 : FN_ENODEV;
 }
 
 static int gl_setup(render *r)
 {
     r->prog_slice = program(r, render__quad_vs, render__slice_fs, "slice");
-    r->prog_mesh = r->prog_slice ? program(r, render__mesh_vs, render__mesh_fs, "surface") : 0;
+    r->prog_mesh = r->prog_slice ? program_with_head(r, render__mesh_vs, "#version 450 core\n#define NF 0\n",
+                                                     render__mesh_fs, "surface")
+                                 : 0;
     r->prog_line = r->prog_mesh ? program(r, render__line_vs, render__line_fs, "overlay") : 0;
     r->prog_depth = r->prog_line ? program(r, render__proxy_vs, render__depth_fs, "depth") : 0;
     r->prog_hud = r->prog_depth ? program(r, render__quad_vs, render__hud_fs, "hud") : 0;
@@ -245,6 +266,10 @@ static void scene_release(render *r)
             r->gl.DeleteProgram(r->prog_ray[m]);
             r->prog_ray[m] = 0;
         }
+    if (r->prog_gaps) {
+        r->gl.DeleteProgram(r->prog_gaps);
+        r->prog_gaps = 0;
+    }
 }
 
 void render_close(render *r)

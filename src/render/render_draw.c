@@ -372,31 +372,33 @@ static void cutaway(const render *r, int keep, const pose *poses, const double f
     *front = (float)near;
 }
 
-/* The contacts colour's uniforms of the surface program p (render__mesh_fs): every fragment's
- * distance map at its pose, bound to units 0.. */
-static void gap_uniforms(render *r, unsigned p, const pose *poses)
+/* The contacts colour's uniforms of r->prog_gaps (bound) for drawing fragment self: the other
+ * fragments' distance maps at their poses, bound to units 0.. */
+static void gap_uniforms(render *r, const pose *poses, int self)
 {
+    unsigned p = r->prog_gaps;
     float w2t[RENDER_MAX_FRAGS][16], box[RENDER_MAX_FRAGS][3], off[RENDER_MAX_FRAGS], model[16], nmat[9];
-    int units[RENDER_MAX_FRAGS];
-    for (int i = 0; i < RENDER_MAX_FRAGS; i++)
-        units[i] = i;
+    int units[RENDER_MAX_FRAGS], n = 0;
     for (int i = 0; i < r->nfrag; i++) {
+        if (i == self)
+            continue;
         const render_frag *f = &r->frag[i];
-        frag_mats(r, i, poses, model, w2t[i], nmat);
+        frag_mats(r, i, poses, model, w2t[n], nmat);
         double least = f->spacing[0];
         for (int a = 0; a < 3; a++) {
-            box[i][a] = (float)(f->dim[a] * f->spacing[a]);
+            box[n][a] = (float)(f->dim[a] * f->spacing[a]);
             least = f->spacing[a] < least ? f->spacing[a] : least;
         }
-        off[i] = (float)(0.5 * least);
-        r->gl.ActiveTexture(GL_TEXTURE0 + (unsigned)i);
+        off[n] = (float)(0.5 * least);
+        units[n] = n;
+        r->gl.ActiveTexture(GL_TEXTURE0 + (unsigned)n);
         r->gl.BindTexture(GL_TEXTURE_3D, f->dist_tex);
+        n++;
     }
-    r->gl.Uniform1i(loc(r, p, "nfrag"), r->nfrag);
-    r->gl.Uniform1iv(loc(r, p, "dist"), RENDER_MAX_FRAGS, units);
-    r->gl.UniformMatrix4fv(loc(r, p, "w2t"), r->nfrag, GL_FALSE, &w2t[0][0]);
-    r->gl.Uniform3fv(loc(r, p, "box_mm"), r->nfrag, &box[0][0]);
-    r->gl.Uniform1fv(loc(r, p, "dist_off"), r->nfrag, off);
+    r->gl.Uniform1iv(loc(r, p, "dist"), n, units);
+    r->gl.UniformMatrix4fv(loc(r, p, "w2t"), n, GL_FALSE, &w2t[0][0]);
+    r->gl.Uniform3fv(loc(r, p, "box_mm"), n, &box[0][0]);
+    r->gl.Uniform1fv(loc(r, p, "dist_off"), n, off);
     r->gl.Uniform3fv(loc(r, p, "ramp"), 2, &render__gap_ramp[0][0]);
     r->gl.Uniform1f(loc(r, p, "gap_scale"), (float)RENDER_GAP_SCALE_MM);
 }
@@ -407,7 +409,8 @@ static void gap_uniforms(render *r, unsigned p, const pose *poses)
 static void draw_meshes(render *r, const pose *poses, const render_options *o, const mat4 vp, int only, int skip,
                         int ids)
 {
-    unsigned p = ids ? r->prog_id : r->prog_mesh;
+    int gaps = !ids && (o->overlays & RENDER_OVERLAY_CONTACTS) && r->prog_gaps;
+    unsigned p = ids ? r->prog_id : gaps ? r->prog_gaps : r->prog_mesh;
     float m[16], w2t[16], nmat[9], fw[3];
     r->gl.UseProgram(p);
     mat4_to_gl(vp, m);
@@ -415,11 +418,6 @@ static void draw_meshes(render *r, const pose *poses, const render_options *o, c
     for (int a = 0; a < 3; a++)
         fw[a] = (float)o->camera.forward[a];
     r->gl.Uniform3fv(loc(r, p, "forward"), 1, fw);
-    int gaps = !ids && (o->overlays & RENDER_OVERLAY_CONTACTS) && r->nfrag && r->frag[0].dist_tex;
-    if (!ids)
-        r->gl.Uniform1i(loc(r, p, "contacts"), gaps);
-    if (gaps)
-        gap_uniforms(r, p, poses);
     r->gl.Enable(GL_DEPTH_TEST);
     if (only < 0)
         r->gl.Clear(GL_DEPTH_BUFFER_BIT);
@@ -440,7 +438,7 @@ static void draw_meshes(render *r, const pose *poses, const render_options *o, c
         r->gl.Uniform1f(loc(r, p, "cut_front"), front);
         r->gl.Uniform3fv(loc(r, p, "colour"), 1, ids ? id : r->frag[i].rgb);
         if (gaps)
-            r->gl.Uniform1i(loc(r, p, "self"), i);
+            gap_uniforms(r, poses, i);
         r->gl.BindVertexArray(r->frag[i].mesh_vao);
         r->gl.DrawElements(GL_TRIANGLES, (int)(r->frag[i].mesh_triangles * 3), GL_UNSIGNED_INT, (void *)0);
     }
@@ -714,7 +712,6 @@ static void draw_ghost(render *r, const pose *poses, const render_options *o, co
     r->gl.Uniform4fv(loc(r, p, "cut"), 1, cut);
     r->gl.Uniform1f(loc(r, p, "cut_front"), 0);
     r->gl.Uniform3fv(loc(r, p, "colour"), 1, light);
-    r->gl.Uniform1i(loc(r, p, "contacts"), 0);
     r->gl.Uniform1f(loc(r, p, "alpha"), 0.35f);
     r->gl.Enable(GL_BLEND);
     r->gl.BlendFunc(GL_SRC_ALPHA, GL_ONE_MINUS_SRC_ALPHA);
@@ -764,13 +761,15 @@ static int draw_3d(render *r, const pose *poses, const render_options *o, const 
 {
     mat4 m, inv;
     camera_mats(&o->camera, (double)vp[2] / vp[3], m, inv);
-    int rc = 0;
-    if (o->mode == RENDER_SURFACE)
+    int rc = 0, gaps = o->mode == RENDER_SURFACE && (o->overlays & RENDER_OVERLAY_CONTACTS);
+    if (gaps && r->nfrag > 1 && r->frag[0].dist_tex)
+        rc = render__gaps_program(r);
+    if (!rc && o->mode == RENDER_SURFACE)
         draw_surface(r, poses, o, m, -1, -1);
-    else
+    else if (!rc)
         rc = draw_raycast(r, poses, o, vp, m, inv);
     rc = rc ? rc : draw_overlays(r, poses, o, m);
-    if (!rc && o->mode == RENDER_SURFACE && (o->overlays & RENDER_OVERLAY_CONTACTS)) {
+    if (!rc && gaps) {
         rc = render__gap_legend(r, vp);
         r->gl.Viewport(vp[0], vp[1], vp[2], vp[3]);
         r->gl.Scissor(vp[0], vp[1], vp[2], vp[3]);

@@ -104,6 +104,7 @@ struct render {
     render_gl gl;
     char renderer[256], version[256];
     unsigned prog_ray[3]; /* per raycast mode, compiled for the scene on first use (0: not yet) */
+    unsigned prog_gaps;   /* the surface with the contacts colour, the same way */
     unsigned prog_slice, prog_mesh, prog_line, prog_depth, prog_hud, prog_id;
     unsigned hud_tex;
     unsigned vao_empty, line_vao, line_vbo;
@@ -140,5 +141,8 @@ int render__gap_legend(render *r, const int vp[4]);
 
 /* Compiles r->prog_ray[m] for the scene when it is not yet (render.c). 0 or FN_E*. */
 int render__ray_program(render *r, render_mode m);
+/* Compiles r->prog_gaps for the scene (of 2 fragments or more) when it is not yet (render.c). 0
+ * or FN_E*. */
+int render__gaps_program(render *r);
 
 #endif

@@ -252,40 +252,44 @@ const char *const render__mesh_vs =
     "    return cut.w > 0.0 && along < cut_front && length(d - along * forward) < cut.w;\n" \
     "}\n"
 
-/* The contacts colour (contacts != 0): the gap from this point of fragment `self` to the nearest
- * other fragment, from that one's distance map (dist[j], texture coordinates w2t[j]; beyond its
+/* After "#version 450 core" and "#define NF <n>": with NF 0 the shaded surface; with NF > 0
+ * (compiled per scene, render__gaps_program, so the loop unrolls and its samplers are fixed) the
+ * contacts colour too: the gap from this point to the nearest of the NF other fragments (all but
+ * the one drawn), from that one's distance map (dist[j], texture coordinates w2t[j]; beyond its
  * box, the distance to the box added; less half a voxel, dist_off[j], as its surface lies about
  * there), coloured along ramp[0] (0 mm) to ramp[1] (gap_scale / 2) to the bone's own colour
  * (gap_scale and beyond). */
 const char *const render__mesh_fs =
-    "#version 450 core\n"
-    "#define MAXF 16\n"
     "uniform vec3 colour, forward;\n"
     "uniform float alpha = 1.0;\n"
-    "uniform int contacts, self, nfrag;\n"
-    "uniform mat4 w2t[MAXF];\n"
-    "uniform vec3 box_mm[MAXF];\n"
-    "uniform float dist_off[MAXF];\n"
-    "uniform sampler3D dist[MAXF];\n"
-    "uniform vec3 ramp[2];\n"
-    "uniform float gap_scale;\n"
     "in vec3 n_world, p_world;\n"
     "out vec4 frag_colour;\n"
     CUTAWAY_GLSL
+    "#if NF > 0\n"
+    "uniform mat4 w2t[NF];\n"
+    "uniform vec3 box_mm[NF];\n"
+    "uniform float dist_off[NF];\n"
+    "uniform sampler3D dist[NF];\n"
+    "uniform vec3 ramp[2];\n"
+    "uniform float gap_scale;\n"
     "vec3 gap_colour(vec3 bone) {\n"
     "    float gap = 1e30;\n"
-    "    for (int j = 0; j < nfrag; ++j) {\n"
+    "    for (int j = 0; j < NF; ++j) {\n"
     "        vec3 tc = (w2t[j] * vec4(p_world, 1.0)).xyz, in_box = clamp(tc, 0.0, 1.0);\n"
-    "        float d = texture(dist[j], in_box).r + length((tc - in_box) * box_mm[j]) - dist_off[j];\n"
-    "        gap = j == self ? gap : min(gap, d);\n"
+    "        gap = min(gap, texture(dist[j], in_box).r + length((tc - in_box) * box_mm[j]) - dist_off[j]);\n"
     "    }\n"
     "    float h = 0.5 * gap_scale, g = max(gap, 0.0);\n"
     "    return g < h ? mix(ramp[0], ramp[1], g / h) : g < gap_scale ? mix(ramp[1], bone, (g - h) / h) : bone;\n"
     "}\n"
+    "#endif\n"
     "void main() {\n"
     "    if (cut_away(p_world, forward))\n"
     "        discard;\n"
-    "    vec3 c = contacts != 0 ? gap_colour(colour) : colour;\n"
+    "#if NF > 0\n"
+    "    vec3 c = gap_colour(colour);\n"
+    "#else\n"
+    "    vec3 c = colour;\n"
+    "#endif\n"
     "    float len = length(n_world);\n"
     "    float diff = len > 0.0 ? abs(dot(n_world / len, forward)) : 1.0;\n"
     "    frag_colour = vec4(c * (0.2 + 0.8 * diff) + vec3(0.25 * pow(diff, 24.0)), alpha);\n"
