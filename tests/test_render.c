@@ -347,6 +347,12 @@ static int gap_red(const uint8_t *p)
     return p[0] > 150 && p[1] < 0.75 * p[0] && p[2] < 0.45 * p[0];
 }
 
+/* Its yellow (about 1.5 mm): not red, not a fragment's palette colour. */
+static int gap_yellow(const uint8_t *p)
+{
+    return p[0] > 150 && p[1] >= 0.75 * p[0] && p[2] < 0.5 * p[0];
+}
+
 /* Two blocks of bone side by side along x (labels 1 and 3: beige and blue), touching face to face
  * at voxel x 20 (1 mm voxels at the origin); drawn WxW in surface mode with the contacts overlay at
  * B's pose b. Returns the red pixels and their mean column into *col; *legend: the red ones in the
@@ -416,7 +422,7 @@ static long blocks_red(blocks *b, const render_options *o, double gap, uint8_t *
 }
 
 /* Both facing surfaces turn red where the blocks touch, each seen through the other (the cut-away
- * kept for it), and keep their own colours 6 mm apart; from above, red shows in a band along the
+ * kept for it), mostly yellow 1.5 mm apart, and keep their own colours 6 mm apart; from above, red shows in a band along the
  * fracture line only (within the 3 mm of the scale), not on the blocks' far parts; the legend's
  * bar shows at the bottom right. Without the overlay nothing is red. */
 static void test_contacts_colour_both_facing_surfaces(void **st)
@@ -436,11 +442,15 @@ static void test_contacts_colour_both_facing_surfaces(void **st)
         o.cutaway = side ? 1 : 2;
         long touching = blocks_red(&b, &o, 0, rgb, &col, &legend);
         long apart = blocks_red(&b, &o, 6, rgb, &col, &legend);
-        print_message("%s's facing surface: %ld red pixels touching, %ld 6 mm apart\n", side ? "A" : "B",
-                      touching, apart);
-        if (touching < 2000 || apart > 0)
-            fail_msg("%s's facing surface: %ld red pixels touching, %ld 6 mm apart", side ? "A" : "B", touching,
-                     apart);
+        long near = blocks_red(&b, &o, 1.5, rgb, &col, &legend), yellow = 0;
+        for (int i = 0; i < BW * BW; i++)
+            yellow += gap_yellow(rgb + i * 3) && !(i % BW > BW / 2 && i / BW > BW * 3 / 4);
+        print_message("%s's facing surface: %ld red pixels touching, %ld 6 mm apart; 1.5 mm apart %ld red, %ld "
+                      "yellow\n",
+                      side ? "A" : "B", touching, apart, near, yellow);
+        if (touching < 2000 || apart > 0 || yellow < 2000 || near * 3 > yellow) /* the rim, shaded darker, reads orange */
+            fail_msg("%s's facing surface: %ld red pixels touching, %ld 6 mm apart; 1.5 mm apart %ld red, %ld yellow",
+                     side ? "A" : "B", touching, apart, near, yellow);
         if (legend < 50)
             fail_msg("the legend's bar shows %ld red pixels", legend);
     }

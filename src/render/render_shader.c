@@ -256,8 +256,8 @@ const char *const render__mesh_vs =
  * (compiled per scene, render__gaps_program, so the loop unrolls and its samplers are fixed) the
  * contacts colour too: the gap from this point to the nearest of the NF other fragments (all but
  * the one drawn), from that one's distance map (dist[j], texture coordinates w2t[j]; beyond its
- * box, the distance to the box added; less half a voxel, dist_off[j], as its surface lies about
- * there), coloured along ramp[0] (0 mm) to ramp[1] (gap_scale / 2) to the bone's own colour
+ * outer voxel centres, the distance to the nearest of them added; less half a voxel, dist_off[j],
+ * as its surface lies about there), coloured along ramp[0] (0 mm) to ramp[1] (gap_scale / 2) to the bone's own colour
  * (gap_scale and beyond). */
 const char *const render__mesh_fs =
     "uniform vec3 colour, forward;\n"
@@ -275,7 +275,8 @@ const char *const render__mesh_fs =
     "vec3 gap_colour(vec3 bone) {\n"
     "    float gap = 1e30;\n"
     "    for (int j = 0; j < NF; ++j) {\n"
-    "        vec3 tc = (w2t[j] * vec4(p_world, 1.0)).xyz, in_box = clamp(tc, 0.0, 1.0);\n"
+    "        vec3 edge = 0.5 / vec3(textureSize(dist[j], 0)), tc = (w2t[j] * vec4(p_world, 1.0)).xyz;\n"
+    "        vec3 in_box = clamp(tc, edge, 1.0 - edge);\n"
     "        gap = min(gap, texture(dist[j], in_box).r + length((tc - in_box) * box_mm[j]) - dist_off[j]);\n"
     "    }\n"
     "    float h = 0.5 * gap_scale, g = max(gap, 0.0);\n"
