@@ -313,8 +313,8 @@ static void test_interpenetrating_fragments_both_show(void **st)
     }
 }
 
-/* The contacts overlay outlines the colliding voxels in yellow where the box is inside the ball,
- * and draws nothing when the two are apart. */
+/* The contacts overlay in a raycast mode that shows no surface (dvr) outlines the colliding voxels
+ * in yellow where the box is inside the ball, and draws nothing when the two are apart. */
 static long yellow_pixels(const uint8_t *rgb)
 {
     long n = 0;
@@ -327,7 +327,7 @@ static void test_contacts_overlay_marks_colliding_voxels(void **st)
 {
     scene *s = *st;
     render_options o;
-    options(s, &o, RENDER_ISO);
+    options(s, &o, RENDER_DVR);
     o.overlays = RENDER_OVERLAY_CONTACTS;
     draw(s, NULL, &o);
     assert_int_equal(yellow_pixels(s->rgb), 0);
@@ -422,9 +422,10 @@ static long blocks_red(blocks *b, const render_options *o, double gap, uint8_t *
 }
 
 /* Both facing surfaces turn red where the blocks touch, each seen through the other (the cut-away
- * kept for it), mostly yellow 1.5 mm apart, and keep their own colours 6 mm apart; from above, red shows in a band along the
- * fracture line only (within the 3 mm of the scale), not on the blocks' far parts; the legend's
- * bar shows at the bottom right. Without the overlay nothing is red. */
+ * kept for it), mostly yellow 1.5 mm apart, and keep their own colours 6 mm apart; from above,
+ * red shows in a band along the fracture line only (within the 3 mm of the scale), not on the
+ * blocks' far parts, in surface mode and in iso; the legend's bar shows at the bottom right.
+ * Without the overlay nothing is red. */
 static void test_contacts_colour_both_facing_surfaces(void **st)
 {
     (void)st;
@@ -469,6 +470,19 @@ static void test_contacts_colour_both_facing_surfaces(void **st)
     if (top < 100 || fabs(col - junction) > 1.5 * px_mm || outside > 0)
         fail_msg("from above: %ld red pixels around column %.1f (the junction %.1f), %ld beyond 3 mm of it", top, col,
                  junction, outside);
+    /* The same in iso (the raycaster colours its hits): red along the junction only, the legend. */
+    o.mode = RENDER_ISO;
+    long iso = blocks_red(&b, &o, 0, rgb, &col, &legend), iso_outside = 0;
+    for (int i = 0; i < BW * BW; i++)
+        iso_outside += gap_red(rgb + i * 3) && fabs(i % BW - junction) > 3.0 * px_mm &&
+                       !(i % BW > BW / 2 && i / BW > BW * 3 / 4);
+    print_message("iso from above: %ld red pixels around column %.1f, %ld beyond 3 mm, legend %ld\n", iso, col,
+                  iso_outside, legend);
+    if (iso < 100 || fabs(col - junction) > 1.5 * px_mm || iso_outside > 0 || legend < 50)
+        fail_msg("iso from above: %ld red pixels around column %.1f (the junction %.1f), %ld beyond 3 mm of it, "
+                 "legend %ld",
+                 iso, col, junction, iso_outside, legend);
+    o.mode = RENDER_SURFACE;
     o.overlays = 0;
     if (blocks_red(&b, &o, 0, rgb, &col, &legend) + legend > 0)
         fail_msg("without the overlay %ld pixels are red", blocks_red(&b, &o, 0, rgb, &col, &legend) + legend);

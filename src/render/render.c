@@ -111,15 +111,16 @@ static unsigned program_with_head(render *r, const char *vs, const char *head, c
 
 /* The raycaster for the scene's fragments in mode m (render__ray_fs after its header), compiled
  * once per scene and mode. 0 or FN_E*. */
-int render__ray_program(render *r, render_mode m)
+int render__ray_program(render *r, render_mode m, int gaps)
 {
-    if (r->prog_ray[m])
+    unsigned *p = gaps ? &r->prog_ray_gaps : &r->prog_ray[m];
+    if (*p)
         return 0;
-    char head[96];
-    snprintf(head, sizeof head, "#version 450 core\n#define NF %d\n#define mode %d\n",
-             r->nfrag < 1 ? 1 : r->nfrag, (int)m);
-    r->prog_ray[m] = program_with_head(r, render__ray_vs, head, render__ray_fs, "raycast");
-    return r->prog_ray[m] ? 0 : FN_ENODEV;
+    char head[128];
+    snprintf(head, sizeof head, "#version 450 core\n#define NF %d\n#define mode %d\n#define GAPS %d\n",
+             r->nfrag < 1 ? 1 : r->nfrag, gaps ? 0 : (int)m, gaps);
+    *p = program_with_head(r, render__ray_vs, head, render__ray_fs, gaps ? "contacts raycast" : "raycast");
+    return *p ? 0 : FN_ENODEV;
 }
 
 int render__gaps_program(render *r)
@@ -266,10 +267,12 @@ static void scene_release(render *r)
             r->gl.DeleteProgram(r->prog_ray[m]);
             r->prog_ray[m] = 0;
         }
-    if (r->prog_gaps) {
-        r->gl.DeleteProgram(r->prog_gaps);
-        r->prog_gaps = 0;
-    }
+    unsigned *scene_progs[] = {&r->prog_gaps, &r->prog_ray_gaps};
+    for (int i = 0; i < 2; i++)
+        if (*scene_progs[i]) {
+            r->gl.DeleteProgram(*scene_progs[i]);
+            *scene_progs[i] = 0;
+        }
 }
 
 void render_close(render *r)

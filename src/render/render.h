@@ -57,11 +57,12 @@ typedef struct render_camera {
 } render_camera;
 
 /* Overlays on the 3D view. HIERARCHY and CONTACTS need the hierarchies (render_set_scene's hp,
- * or render_set_hierarchies, which also build each fragment's distance map): in surface mode
- * CONTACTS colours every surface point by its gap to the nearest other fragment (its distance
+ * or render_set_hierarchies, which also build each fragment's distance map): in surface and iso
+ * mode CONTACTS colours every surface point by its gap to the nearest other fragment (its distance
  * map, less half a voxel) from red at 0 through yellow at 1.5 mm to the fragment's own colour
- * at 3 mm and beyond, and draws the legend (the bar and its mm) at the 3D view's bottom right;
- * in the raycast modes it tints the contact region (a translucent yellow over both voxels of
+ * at 3 mm and beyond, and draws the legend (the bar and its mm) at the 3D view's bottom right
+ * (iso needs a texture unit per fragment beyond the raycaster's 21: up to 11 fragments on
+ * llvmpipe's 32); in dvr and mip, and in iso beyond that, it tints the contact region (a translucent yellow over both voxels of
  * every colliding voxel pair, obb_collide, up to RENDER_MAX_CONTACTS per fragment pair, at the
  * frame's poses) and outlines those voxels. VOI outlines the options' VOI boxes (world mm) in
  * cyan. */
