@@ -163,6 +163,37 @@ static void test_distance(void **st)
     assert_true(d[at(9, 14, 14)] == 0);
 }
 
+/* The exact distance to a mask: against brute force over a scatter of inside voxels on an
+ * anisotropic grid, and INFINITY everywhere for an empty mask. */
+static void test_distance_to(void **st)
+{
+    (void)st;
+    enum { X = 13, Y = 9, Z = 7 };
+    const double sp[3] = {0.5, 1.0, 1.5};
+    static uint8_t mask[X * Y * Z];
+    static float d[X * Y * Z];
+    memset(mask, 0, sizeof mask);
+    assert_int_equal(morph_distance_to(mask, (int[3]){X, Y, Z}, sp, d), 0);
+    assert_true(isinf(d[0]) && isinf(d[X * Y * Z - 1]));
+    unsigned seed = 7;
+    for (int n = 0; n < 6; n++) {
+        seed = seed * 1103515245u + 12345u;
+        mask[(seed >> 8) % (X * Y * Z)] = 1;
+    }
+    assert_int_equal(morph_distance_to(mask, (int[3]){X, Y, Z}, sp, d), 0);
+    for (int v = 0; v < X * Y * Z; v++) {
+        double best = INFINITY;
+        for (int u = 0; u < X * Y * Z; u++)
+            if (mask[u]) {
+                double dx = (v % X - u % X) * sp[0], dy = (v / X % Y - u / X % Y) * sp[1],
+                       dz = (v / (X * Y) - u / (X * Y)) * sp[2];
+                best = fmin(best, sqrt(dx * dx + dy * dy + dz * dz));
+            }
+        if (fabs(d[v] - best) > 1e-4)
+            fail_msg("voxel %d: distance %g, brute force %g", v, d[v], best);
+    }
+}
+
 /* Through the case: the two blocks segmented as one fragment separate into two;
  * a hollow one fills. */
 static void test_case_separate_and_fill(void **st)
@@ -325,6 +356,7 @@ int main(void)
         cmocka_unit_test(test_separate_one_block),
         cmocka_unit_test(test_fill),
         cmocka_unit_test(test_distance),
+        cmocka_unit_test(test_distance_to),
         cmocka_unit_test(test_case_separate_and_fill),
         cmocka_unit_test(test_case_separate_seeds),
         cmocka_unit_test(test_seed_file),

@@ -313,8 +313,8 @@ static void test_interpenetrating_fragments_both_show(void **st)
     }
 }
 
-/* The contacts overlay outlines the colliding voxels in yellow where the box is inside the ball,
- * and draws nothing when the two are apart. */
+/* The contacts overlay in a raycast mode that shows no surface (dvr) outlines the colliding voxels
+ * in yellow where the box is inside the ball, and draws nothing when the two are apart. */
 static long yellow_pixels(const uint8_t *rgb)
 {
     long n = 0;
@@ -327,7 +327,7 @@ static void test_contacts_overlay_marks_colliding_voxels(void **st)
 {
     scene *s = *st;
     render_options o;
-    options(s, &o, RENDER_ISO);
+    options(s, &o, RENDER_DVR);
     o.overlays = RENDER_OVERLAY_CONTACTS;
     draw(s, NULL, &o);
     assert_int_equal(yellow_pixels(s->rgb), 0);
@@ -339,6 +339,155 @@ static void test_contacts_overlay_marks_colliding_voxels(void **st)
     if (n < 50)
         fail_msg("the contacts overlay drew %ld yellow pixels", n);
     check_golden(s->rgb, "contacts");
+}
+
+/* The contacts colour: red through orange (not yellow, not a fragment's palette colour). */
+static int gap_red(const uint8_t *p)
+{
+    return p[0] > 150 && p[1] < 0.75 * p[0] && p[2] < 0.45 * p[0];
+}
+
+/* Its yellow (about 1.5 mm): not red, not a fragment's palette colour. */
+static int gap_yellow(const uint8_t *p)
+{
+    return p[0] > 150 && p[1] >= 0.75 * p[0] && p[2] < 0.5 * p[0];
+}
+
+/* Two blocks of bone side by side along x (labels 1 and 3: beige and blue), touching face to face
+ * at voxel x 20 (1 mm voxels at the origin); drawn WxW in surface mode with the contacts overlay at
+ * B's pose b. Returns the red pixels and their mean column into *col; *legend: the red ones in the
+ * legend's corner (bottom right), which the count leaves out. */
+typedef struct blocks {
+    vol *ct, *labels;
+    frag f[2];
+    render *r;
+} blocks;
+enum { BW = 256 };
+
+static void blocks_open(blocks *b)
+{
+    b->ct = vol_new(N, N, N);
+    b->labels = vol_new(N, N, N);
+    for (int k = 0; k < N; k++)
+        for (int j = 0; j < N; j++)
+            for (int i = 0; i < N; i++) {
+                int in = i >= 8 && i < 32 && j >= 12 && j < 28 && k >= 12 && k < 28;
+                size_t x = vol_idx(b->ct, i, j, k);
+                b->ct->data[x] = in ? 900.0f : -1000.0f;
+                b->labels->data[x] = !in ? 0 : i < 20 ? 1 : 3;
+            }
+    for (int n = 0; n < 2; n++) {
+        int lo[3], hi[3], id = n ? 3 : 1;
+        assert_int_equal(frag_label_box(b->labels, id, lo, hi), 0);
+        assert_int_equal(frag_from_labels(&b->f[n], b->labels, b->ct, id, lo, hi, 300, 200), 0);
+    }
+    b->r = render_open("osmesa", BW, BW);
+    if (!b->r)
+        fail_msg("render_open: %s", fn_err_msg());
+    obb_params hp = {0.5, 0.95};
+    assert_int_equal(render_set_scene(b->r, b->ct, b->f, 2, 300, &hp), 0);
+}
+
+static void blocks_close(blocks *b)
+{
+    render_close(b->r);
+    frag_free(&b->f[0]);
+    frag_free(&b->f[1]);
+    vol_free(b->ct);
+    vol_free(b->labels);
+}
+
+static long blocks_red(blocks *b, const render_options *o, double gap, uint8_t *rgb, double *col, long *legend)
+{
+    pose poses[2] = {POSE_IDENTITY, POSE_IDENTITY};
+    poses[1].t[0] = gap;
+    if (render_frame(b->r, poses, o))
+        fail_msg("render_frame: %s", fn_err_msg());
+    assert_int_equal(render_read_rgb(b->r, rgb), 0);
+    long n = 0;
+    double sum = 0;
+    *legend = 0;
+    for (int i = 0; i < BW * BW; i++) {
+        if (!gap_red(rgb + i * 3))
+            continue;
+        if (i % BW > BW / 2 && i / BW > BW * 3 / 4) {
+            ++*legend;
+            continue;
+        }
+        n++;
+        sum += i % BW;
+    }
+    *col = n ? sum / n : -1;
+    return n;
+}
+
+/* Both facing surfaces turn red where the blocks touch, each seen through the other (the cut-away
+ * kept for it), mostly yellow 1.5 mm apart, and keep their own colours 6 mm apart; from above,
+ * red shows in a band along the fracture line only (within the 3 mm of the scale), not on the
+ * blocks' far parts, in surface mode and in iso; the legend's bar shows at the bottom right.
+ * Without the overlay nothing is red. */
+static void test_contacts_colour_both_facing_surfaces(void **st)
+{
+    (void)st;
+    blocks b;
+    blocks_open(&b);
+    uint8_t *rgb = malloc(BW * BW * 3);
+    render_options o;
+    render_options_default(&o, b.f, 2);
+    o.mode = RENDER_SURFACE;
+    o.overlays = RENDER_OVERLAY_CONTACTS;
+    double col;
+    long legend;
+    for (int side = 0; side < 2; side++) { /* B's face seen from A's side, then A's from B's */
+        render_camera_standard(&o.camera, side ? RENDER_LEFT : RENDER_RIGHT, b.f, 2);
+        o.cutaway = side ? 1 : 2;
+        long touching = blocks_red(&b, &o, 0, rgb, &col, &legend);
+        long apart = blocks_red(&b, &o, 6, rgb, &col, &legend);
+        long near = blocks_red(&b, &o, 1.5, rgb, &col, &legend), yellow = 0;
+        for (int i = 0; i < BW * BW; i++)
+            yellow += gap_yellow(rgb + i * 3) && !(i % BW > BW / 2 && i / BW > BW * 3 / 4);
+        print_message("%s's facing surface: %ld red pixels touching, %ld 6 mm apart; 1.5 mm apart %ld red, %ld "
+                      "yellow\n",
+                      side ? "A" : "B", touching, apart, near, yellow);
+        if (touching < 2000 || apart > 0 || yellow < 2000 || near * 3 > yellow) /* the rim, shaded darker, reads orange */
+            fail_msg("%s's facing surface: %ld red pixels touching, %ld 6 mm apart; 1.5 mm apart %ld red, %ld yellow",
+                     side ? "A" : "B", touching, apart, near, yellow);
+        if (legend < 50)
+            fail_msg("the legend's bar shows %ld red pixels", legend);
+    }
+    /* From above: the junction at world x 19.5, the blocks over x 7.5 .. 31.5; screen right is
+     * world -x. */
+    render_camera_standard(&o.camera, RENDER_SUPERIOR, b.f, 2);
+    o.cutaway = 0;
+    double px_mm = BW / (2 * o.camera.half_height);
+    double junction = BW / 2.0 - (19.5 - o.camera.centre[0]) * px_mm;
+    long top = blocks_red(&b, &o, 0, rgb, &col, &legend);
+    long outside = 0;
+    for (int i = 0; i < BW * BW; i++)
+        outside += gap_red(rgb + i * 3) && fabs(i % BW - junction) > 3.0 * px_mm && !(i % BW > BW / 2 && i / BW > BW * 3 / 4);
+    print_message("from above: %ld red pixels around column %.1f (the junction %.1f), %ld beyond 3 mm of it\n", top, col,
+                  junction, outside);
+    if (top < 100 || fabs(col - junction) > 1.5 * px_mm || outside > 0)
+        fail_msg("from above: %ld red pixels around column %.1f (the junction %.1f), %ld beyond 3 mm of it", top, col,
+                 junction, outside);
+    /* The same in iso (the raycaster colours its hits): red along the junction only, the legend. */
+    o.mode = RENDER_ISO;
+    long iso = blocks_red(&b, &o, 0, rgb, &col, &legend), iso_outside = 0;
+    for (int i = 0; i < BW * BW; i++)
+        iso_outside += gap_red(rgb + i * 3) && fabs(i % BW - junction) > 3.0 * px_mm &&
+                       !(i % BW > BW / 2 && i / BW > BW * 3 / 4);
+    print_message("iso from above: %ld red pixels around column %.1f, %ld beyond 3 mm, legend %ld\n", iso, col,
+                  iso_outside, legend);
+    if (iso < 100 || fabs(col - junction) > 1.5 * px_mm || iso_outside > 0 || legend < 50)
+        fail_msg("iso from above: %ld red pixels around column %.1f (the junction %.1f), %ld beyond 3 mm of it, "
+                 "legend %ld",
+                 iso, col, junction, iso_outside, legend);
+    o.mode = RENDER_SURFACE;
+    o.overlays = 0;
+    if (blocks_red(&b, &o, 0, rgb, &col, &legend) + legend > 0)
+        fail_msg("without the overlay %ld pixels are red", blocks_red(&b, &o, 0, rgb, &col, &legend) + legend);
+    free(rgb);
+    blocks_close(&b);
 }
 
 /* The VOI overlay outlines its box in cyan, where the box is. */
@@ -403,6 +552,21 @@ static void test_hud_draws_text(void **st)
     free(capital);
     if (differ < 10)
         fail_msg("n and N draw the same glyph (%ld bytes differ)", differ);
+    /* g hangs below the line, as in print, where a's foot stands (at 5x7 a g on the line read as
+     * 9: "9 fits", "9ap (mm)"). */
+    int lowest[2];
+    for (int k = 0; k < 2; k++) {
+        assert_int_equal(render_frame(s->r, NULL, &o), 0);
+        assert_int_equal(render_hud(s->r, k ? "g" : "a", 1), 0);
+        assert_int_equal(render_read_rgb(s->r, s->rgb), 0);
+        lowest[k] = -1;
+        for (int y = 0; y < 16; y++)
+            for (int x = 0; x < 12; x++)
+                if (s->rgb[(y * W + x) * 3] > 200)
+                    lowest[k] = y;
+    }
+    if (lowest[1] <= lowest[0])
+        fail_msg("g's lowest row %d is not below a's (%d)", lowest[1], lowest[0]);
 }
 
 static void centroid(const uint8_t *rgb, double *cx, double *cy)
@@ -1477,6 +1641,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_cutaway_shows_the_piece_in_hand, setup, teardown),
         cmocka_unit_test_setup_teardown(test_interpenetrating_fragments_both_show, setup, teardown),
         cmocka_unit_test_setup_teardown(test_contacts_overlay_marks_colliding_voxels, setup, teardown),
+        cmocka_unit_test(test_contacts_colour_both_facing_surfaces),
         cmocka_unit_test_setup_teardown(test_voi_overlay_outlines_the_box, setup, teardown),
         cmocka_unit_test_setup_teardown(test_hud_draws_text, setup, teardown),
         cmocka_unit_test_setup_teardown(test_pose_moves_picture_by_expected_pixels, setup, teardown),

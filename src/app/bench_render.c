@@ -25,7 +25,8 @@
 static void usage(FILE *out)
 {
     fprintf(out, "usage: fracnav bench render [--json] [--frames N] [--size WxH] [--ct FILE]\n"
-                 "                            [--platform P] [--loop-s S] [--mode M]\n\n"
+                 "                            [--platform P] [--loop-s S] [--mode M]\n"
+                 "                            [--overlay LIST]\n\n"
                  "Frame time of every mode (iso, dvr, mip, surface) for 1 and 3 fragments of a\n"
                  "three-piece synthetic fracture (seed 1) of the example CT, each frame with the\n"
                  "fragments turned a little further, read back to memory.\n\n"
@@ -51,7 +52,11 @@ static void usage(FILE *out)
                  "  --platform P   offscreen (default: egl on a GPU, else osmesa), osmesa, egl\n"
                  "                 or glfw\n"
                  "  --loop-s S     seconds of each loop phase (default 3)\n"
-                 "  --mode M       time only mode M (iso, dvr, mip or surface)\n",
+                 "  --mode M       time only mode M (iso, dvr, mip or surface)\n"
+                 "  --overlay LIST contacts, axes or both (comma-separated): every timed frame\n"
+                 "                 with these overlays, as render draws them (contacts: the gap\n"
+                 "                 in colour in surface mode); the JSON's \"overlay\" names them\n"
+                 "                 (null: none)\n",
             cmd_example_ct());
 }
 
@@ -345,12 +350,13 @@ static int measure_loop(render *r, const frag *f, int nfrag, double secs, uint8_
 }
 
 /* Times `frames` frames of mode with the first nfrag fragments; fills one result object. */
-static int time_case(render *r, const frag *f, int nfrag, render_mode mode, int frames, int w, int h,
-                     uint8_t *rgb, json_t *results)
+static int time_case(render *r, const frag *f, int nfrag, render_mode mode, unsigned overlays, int frames, int w,
+                     int h, uint8_t *rgb, json_t *results)
 {
     render_options o;
     render_options_default(&o, f, nfrag);
     o.mode = mode;
+    o.overlays = overlays;
     pose poses[3];
     double *ms = malloc((size_t)frames * sizeof *ms), cpu = 0;
     if (!ms)
@@ -394,10 +400,12 @@ static int time_case(render *r, const frag *f, int nfrag, render_mode mode, int 
     return rc;
 }
 
-/* only: the one mode timed, or -1 for every mode. */
+/* only: the one mode timed, or -1 for every mode; overlay: --overlay's list (NULL: none), parsed
+ * into overlays. */
 static int run(const char *ct_path, const char *platform, int w, int h, int frames, int json, double loop_s,
-               int only)
+               int only, const char *overlay, unsigned overlays)
 {
+    const obb_params hp = {0.5, 0.95};
     vol *ct = volio_read(ct_path);
     if (!ct)
         return FN_EIO;
@@ -415,16 +423,17 @@ static int run(const char *ct_path, const char *platform, int w, int h, int fram
     long triangles = 0;
     const int counts[2] = {1, 3};
     for (int c = 0; c < 2 && !rc; c++) {
-        rc = render_set_scene(r, ct, f, counts[c], 300.0, NULL);
+        rc = render_set_scene(r, ct, f, counts[c], 300.0, overlays ? &hp : NULL);
         triangles = render_surface_triangles(r);
         for (int m = RENDER_ISO; m <= RENDER_SURFACE && !rc; m++)
             if (only < 0 || m == only)
-                rc = time_case(r, f, counts[c], (render_mode)m, frames, w, h, rgb, results);
+                rc = time_case(r, f, counts[c], (render_mode)m, overlays, frames, w, h, rgb, results);
     }
     if (!rc) {
         jsonw_set(o, "gl_renderer", jsonw_string(render_gl_renderer(r)));
         jsonw_set(o, "default_mode", jsonw_string(render_mode_name(render_default_mode(r))));
         jsonw_set(o, "gl_version", jsonw_string(render_gl_version(r)));
+        jsonw_set(o, "overlay", overlay ? json_string(overlay) : json_null());
         jsonw_set(o, "results", results);
         results = NULL;
         jsonw_set(o, "surface_triangles", json_integer(triangles));
@@ -458,7 +467,9 @@ int bench_render(int argc, char **argv)
     double frames = 10, loop_s = 3;
     const char *ct = cmd_example_ct(), *platform = "offscreen";
     render_mode mode = RENDER_ISO;
-    int only = -1;
+    int only = -1, depth = 3;
+    unsigned overlays = 0;
+    const char *overlay = NULL;
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i], *val = i + 1 < argc ? argv[i + 1] : NULL;
         char tail;
@@ -489,11 +500,16 @@ int bench_render(int argc, char **argv)
             if (render_mode_parse(val, &mode))
                 return cmd_bad_value("bench render", a, val, "iso, dvr, mip or surface");
             only = (int)mode;
+        } else if (!strcmp(a, "--overlay")) {
+            if (!val || render_overlays_parse(val, &overlays, &depth) ||
+                (overlays & (RENDER_OVERLAY_VOI | RENDER_OVERLAY_HIERARCHY)))
+                return cmd_bad_value("bench render", a, val, "contacts, axes, or both");
+            overlay = val;
         } else
             return cmd_usage_error("bench render", "unknown option '%s'", a);
         i++;
     }
-    int rc = run(ct, platform, w, h, (int)frames, json, loop_s, only);
+    int rc = run(ct, platform, w, h, (int)frames, json, loop_s, only, overlay, overlays);
     if (rc) {
         fprintf(stderr, "fracnav bench render: %s\n", fn_err_msg());
         return 1;

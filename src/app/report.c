@@ -5,6 +5,7 @@
 #include "durable.h"
 #include "err.h"
 #include "export.h"
+#include "morph.h"
 #include "navview.h"
 #include "reduce.h"
 #include "render.h"
@@ -154,10 +155,90 @@ static int cmp_float(const void *a, const void *b)
     return (x > y) - (x < y);
 }
 
-/* Fragment id's gaps into *d (grown as needed, *cap floats): from every face of its voxels that
- * borders a voxel not its own, the empty voxels crossed along the face's normal before another
- * fragment's voxel, within REPORT_GAP_REACH_MM (faces that meet none do not count). Returns how
+/* Appends g to *d (n values, *cap floats, grown as needed). 0 or FN_ENOMEM. */
+static int push_gap(float **d, size_t *cap, long n, float g)
+{
+    if ((size_t)n == *cap) {
+        size_t c2 = *cap ? *cap * 2 : 4096;
+        float *grown = realloc(*d, c2 * sizeof *grown);
+        if (!grown)
+            return fn_err_set(FN_ENOMEM, "out of memory measuring gaps");
+        *d = grown, *cap = c2;
+    }
+    (*d)[n] = g;
+    return 0;
+}
+
+/* dist (one value per voxel of v) at world point w, trilinearly; NAN outside the grid. */
+static double sample(const vol *v, const float *dist, const double w[3])
+{
+    double x[3], f[3], s = 0;
+    int c0[3];
+    vol_world_to_index(v, w, x);
+    for (int a = 0; a < 3; a++) {
+        if (!(x[a] >= 0 && x[a] <= v->dim[a] - 1))
+            return NAN;
+        c0[a] = (int)x[a] < v->dim[a] - 1 ? (int)x[a] : (v->dim[a] > 1 ? v->dim[a] - 2 : 0);
+        f[a] = x[a] - c0[a];
+    }
+    for (int corner = 0; corner < 8; corner++) {
+        double wt = 1;
+        int c[3];
+        for (int a = 0; a < 3; a++) {
+            int hi = corner >> a & 1;
+            c[a] = c0[a] + hi < v->dim[a] ? c0[a] + hi : v->dim[a] - 1;
+            wt *= hi ? f[a] : 1 - f[a];
+        }
+        s += wt * dist[vol_idx(v, c[0], c[1], c[2])];
+    }
+    return s;
+}
+
+/* With ground truth, fragment fi's fracture surface is known: the faces its voxels share with
+ * another fragment's when every fragment is at its truth (truth: that labelmap). Each such face's
+ * centre is carried to fi's planned pose, and its gap is the distance from there to the nearest
+ * other fragment in the planned labelmap v (dist, interpolated), less the half voxel from a
+ * face to the voxel centres; 0 where it lies inside another. Into *d from index 0; returns how
  * many, or FN_ENOMEM. */
+static long truth_gaps(const planning_case *c, int fi, const vol *truth, const vol *v, const float *dist,
+                       float **d, size_t *cap)
+{
+    int id = c->frag[fi].id;
+    pose move = pose_compose(c->frag[fi].pose, pose_inverse(c->truth[fi])); /* true -> planned */
+    long n = 0;
+    for (int k = 0; k < truth->dim[2]; k++)
+        for (int j = 0; j < truth->dim[1]; j++)
+            for (int i = 0; i < truth->dim[0]; i++) {
+                if ((int)truth->data[vol_idx(truth, i, j, k)] != id)
+                    continue;
+                for (int f = 0; f < 6; f++) {
+                    int a = f / 2, step = f % 2 ? 1 : -1, u[3] = {i, j, k};
+                    u[a] += step;
+                    if (u[a] < 0 || u[a] >= truth->dim[a])
+                        continue;
+                    int l = (int)truth->data[vol_idx(truth, u[0], u[1], u[2])];
+                    if (!l || l == id)
+                        continue;
+                    double x[3] = {i, j, k}, w[3], p[3];
+                    x[a] += 0.5 * step;
+                    vol_index_to_world(truth, x, w);
+                    pose_apply(&move, w, p);
+                    double g = sample(v, dist, p) - 0.5 * v->spacing[a];
+                    if (isnan(g))
+                        continue;
+                    if (push_gap(d, cap, n, (float)(g > 1e-6 ? g : 0))) /* rounding at the truth */
+                        return FN_ENOMEM;
+                    n++;
+                }
+            }
+    return n;
+}
+
+/* Without ground truth, fragment id's gaps in the planned labelmap v: from every face of its
+ * voxels that borders a voxel not its own, the empty voxels crossed along the face's normal before
+ * another fragment's voxel, within REPORT_GAP_REACH_MM (faces that meet none do not count: the
+ * bone's outer surfaces). A face across a cavity or the air beside the fracture line from the
+ * other piece counts too. Into *d from index 0; returns how many, or FN_ENOMEM. */
 static long face_gaps(const vol *v, int id, float **d, size_t *cap)
 {
     int reach[3];
@@ -180,14 +261,9 @@ static long face_gaps(const vol *v, int id, float **d, size_t *cap)
                             break;
                         if (!l)
                             continue;
-                        if ((size_t)n == *cap) {
-                            size_t c2 = *cap ? *cap * 2 : 4096;
-                            float *g = realloc(*d, c2 * sizeof *g);
-                            if (!g)
-                                return fn_err_set(FN_ENOMEM, "out of memory measuring gaps");
-                            *d = g, *cap = c2;
-                        }
-                        (*d)[n++] = (float)((t - 1) * v->spacing[a]);
+                        if (push_gap(d, cap, n, (float)((t - 1) * v->spacing[a])))
+                            return FN_ENOMEM;
+                        n++;
                         break;
                     }
                 }
@@ -195,15 +271,48 @@ static long face_gaps(const vol *v, int id, float **d, size_t *cap)
     return n;
 }
 
+/* The labelmap with every fragment at its truth (export_planned_labels of those poses). */
+static vol *truth_labels(const planning_case *c)
+{
+    planning_case t = *c;
+    frag *f = malloc((size_t)(c->nfrag ? c->nfrag : 1) * sizeof *f);
+    if (!f) {
+        fn_err_set(FN_ENOMEM, "out of memory measuring gaps");
+        return NULL;
+    }
+    for (int i = 0; i < c->nfrag; i++) {
+        f[i] = c->frag[i]; /* the same voxels, at the truth */
+        f[i].pose = c->truth[i];
+    }
+    t.frag = f;
+    vol *v = export_planned_labels(&t);
+    free(f);
+    return v;
+}
+
 int report_gaps(const planning_case *c, const vol *planned, report_gap *gaps)
 {
-    float *d = NULL;
+    size_t nv = vol_count(planned);
+    float *d = NULL, *dist = NULL;
+    uint8_t *others = NULL;
+    vol *truth = NULL;
     size_t cap = 0;
-    for (int fi = 0; fi < c->nfrag; fi++) {
-        long n = face_gaps(planned, c->frag[fi].id, &d, &cap);
+    int rc = 0;
+    if (c->has_truth && (!(dist = malloc(nv * sizeof *dist)) || !(others = malloc(nv)) || !(truth = truth_labels(c))))
+        rc = fn_err_set(FN_ENOMEM, "out of memory measuring gaps");
+    for (int fi = 0; fi < c->nfrag && !rc; fi++) {
+        int id = c->frag[fi].id;
+        long n = 0;
+        if (truth) { /* the others' distance map in the planned poses */
+            for (size_t i = 0; i < nv; i++)
+                others[i] = planned->data[i] != 0 && (int)planned->data[i] != id;
+            n = morph_distance_to(others, planned->dim, planned->spacing, dist);
+            n = n ? n : truth_gaps(c, fi, truth, planned, dist, &d, &cap);
+        } else
+            n = face_gaps(planned, id, &d, &cap);
         if (n < 0) {
-            free(d);
-            return (int)n;
+            rc = (int)n;
+            break;
         }
         report_gap *g = &gaps[fi];
         g->faces = n;
@@ -215,8 +324,11 @@ int report_gaps(const planning_case *c, const vol *planned, report_gap *gaps)
         g->p95_mm = d[(long)ceil(0.95 * (double)n) - 1];
         g->max_mm = d[n - 1];
     }
+    vol_free(truth);
     free(d);
-    return 0;
+    free(dist);
+    free(others);
+    return rc;
 }
 
 #ifdef FRACNAV_HAVE_PLPLOT
@@ -516,9 +628,10 @@ static int write_page(durable_file *df, void *vctx)
     fprintf(fp, "</table>\n<p>Planned move and turn: from before to after, of the fragment's centroid, in mm "
                 "right/left, anterior/posterior and inferior/superior, and degrees about those axes (right-handed "
                 "about left, posterior, superior). Fit metric: the reduction's voxel metric at its start and end "
-                "(lower is better). Gap: across the fracture surface in the planned poses, from each face of the "
-                "fragment's voxels along its normal to another fragment's voxel (faces that meet none within "
-                "%.0f mm do not count). Overlap: the volume it shares with another fragment. Contact: the faces "
+                "(lower is better). Gap: across the fracture surface in the planned poses; with ground truth from "
+                "each face the fragment shares with another at the truth, to the nearest other fragment; else "
+                "from each face of the fragment's voxels along its normal to another fragment's voxel (faces "
+                "that meet none within %.0f mm do not count). Overlap: the volume it shares with another fragment. Contact: the faces "
                 "its voxels share with another fragment's.",
             REPORT_GAP_REACH_MM);
     if (c->has_truth)

@@ -19,10 +19,15 @@
 
 typedef void (*report_wrote_fn)(void *ctx, const char *path);
 
-/* The gap across a fragment's fracture surface in its planned pose (planned labelmap): from every
- * face of its voxels that borders another voxel, the empty space along the face's normal up to
- * another fragment's voxel; faces that meet none within REPORT_GAP_REACH_MM (the bone's outer
- * surfaces) do not count. At the truth of a synthetic fracture the pieces touch: 0 mm. */
+/* The gap across a fragment's fracture surface in its planned pose (planned labelmap), per face.
+ * With ground truth the fracture surface is known: the faces its voxels share with another
+ * fragment's when every fragment is at its truth; each is carried to the planned pose, and its gap
+ * is the distance from there to the nearest other fragment (an exact distance map, less the half
+ * voxel from a face to the voxel centres; 0 inside another). At the truth: 0 mm. Without it:
+ * from every face of its voxels that borders another voxel, the empty space along the face's
+ * normal up to another fragment's voxel; faces that meet none within REPORT_GAP_REACH_MM (the
+ * bone's outer surfaces) do not count, but faces across a cavity or the air beside the fracture
+ * line from the other piece do (the example skull's fracture at its truth: max 4.79 mm). */
 #define REPORT_GAP_REACH_MM 5.0
 typedef struct report_gap {
     double median_mm, p95_mm, max_mm; /* NAN when no face meets another fragment */

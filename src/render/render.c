@@ -2,6 +2,7 @@
 #include "render_impl.h"
 
 #include "err.h"
+#include "morph.h"
 
 #include <math.h>
 #include <stdint.h>
@@ -93,29 +94,51 @@ static unsigned program(render *r, const char *vs_src, const char *fs_src, const
     return p;
 }
 
+/* The program of vs and head followed by body (its fragment shader). 0 with fn_err on failure. */
+static unsigned program_with_head(render *r, const char *vs, const char *head, const char *body, const char *what)
+{
+    size_t n = strlen(head) + strlen(body) + 1;
+    char *src = malloc(n);
+    if (!src) {
+        fn_err_set(FN_ENOMEM, "render: out of memory");
+        return 0;
+    }
+    snprintf(src, n, "%s%s", head, body);
+    unsigned p = program(r, vs, src, what);
+    free(src);
+    return p;
+}
+
 /* The raycaster for the scene's fragments in mode m (render__ray_fs after its header), compiled
  * once per scene and mode. 0 or FN_E*. */
-int render__ray_program(render *r, render_mode m)
+int render__ray_program(render *r, render_mode m, int gaps)
 {
-    if (r->prog_ray[m])
+    unsigned *p = gaps ? &r->prog_ray_gaps : &r->prog_ray[m];
+    if (*p)
         return 0;
-    char head[96];
-    snprintf(head, sizeof head, "#version 450 core\n#define NF %d\n#define mode %d\n",
-             r->nfrag < 1 ? 1 : r->nfrag, (int)m);
-    size_t n = strlen(head) + strlen(render__ray_fs) + 1;
-    char *src = malloc(n);
-    if (!src)
-        return fn_err_set(FN_ENOMEM, "render: out of memory");
-    snprintf(src, n, "%s%s", head, render__ray_fs);
-    r->prog_ray[m] = program(r, render__ray_vs, src, "raycast");
-    free(src);
-    return r->prog_ray[m] ? 0 : FN_ENODEV;
+    char head[128];
+    snprintf(head, sizeof head, "#version 450 core\n#define NF %d\n#define mode %d\n#define GAPS %d\n",
+             r->nfrag < 1 ? 1 : r->nfrag, gaps ? 0 : (int)m, gaps);
+    *p = program_with_head(r, render__ray_vs, head, render__ray_fs, gaps ? "contacts raycast" : "raycast");
+    return *p ? 0 : FN_ENODEV;
+}
+
+int render__gaps_program(render *r)
+{
+    if (r->prog_gaps)
+        return 0;
+    char head[64];
+    snprintf(head, sizeof head, "#version 450 core\n#define NF %d\n", r->nfrag - 1);
+    r->prog_gaps = program_with_head(r, render__mesh_vs, head, render__mesh_fs, "contacts surface");
+    return r->prog_gaps ? 0 : FN_ENODEV;
 }
 
 static int gl_setup(render *r)
 {
     r->prog_slice = program(r, render__quad_vs, render__slice_fs, "slice");
-    r->prog_mesh = r->prog_slice ? program(r, render__mesh_vs, render__mesh_fs, "surface") : 0;
+    r->prog_mesh = r->prog_slice ? program_with_head(r, render__mesh_vs, "#version 450 core\n#define NF 0\n",
+                                                     render__mesh_fs, "surface")
+                                 : 0;
     r->prog_line = r->prog_mesh ? program(r, render__line_vs, render__line_fs, "overlay") : 0;
     r->prog_depth = r->prog_line ? program(r, render__proxy_vs, render__depth_fs, "depth") : 0;
     r->prog_hud = r->prog_depth ? program(r, render__quad_vs, render__hud_fs, "hud") : 0;
@@ -221,6 +244,8 @@ static void frag_release(render *r, render_frag *f)
         r->gl.DeleteVertexArrays(1, &f->proxy_vao);
     if (f->box_vao)
         r->gl.DeleteVertexArrays(1, &f->box_vao);
+    if (f->dist_tex)
+        r->gl.DeleteTextures(1, &f->dist_tex);
     obb_tree_free(f->tree);
     memset(f, 0, sizeof *f);
 }
@@ -241,6 +266,12 @@ static void scene_release(render *r)
         if (r->prog_ray[m]) {
             r->gl.DeleteProgram(r->prog_ray[m]);
             r->prog_ray[m] = 0;
+        }
+    unsigned *scene_progs[] = {&r->prog_gaps, &r->prog_ray_gaps};
+    for (int i = 0; i < 2; i++)
+        if (*scene_progs[i]) {
+            r->gl.DeleteProgram(*scene_progs[i]);
+            *scene_progs[i] = 0;
         }
 }
 
@@ -707,6 +738,31 @@ static int gl_check(render *r, const char *what)
     return 0;
 }
 
+/* The contacts overlay's distance map of f (render_frag.dist_tex) and the hierarchy of both
+ * overlays, when rf has them not yet. 0 or FN_ENOMEM. */
+static int upload_contacts(render *r, render_frag *rf, const frag *f, const obb_params *hp)
+{
+    if (!rf->tree && !(rf->tree = obb_tree_build(f, hp)))
+        return fn_err_set(FN_ENOMEM, "render: out of memory for fragment %d's hierarchy", f->id);
+    if (rf->dist_tex)
+        return 0;
+    size_t n = (size_t)f->dim[0] * (size_t)f->dim[1] * (size_t)f->dim[2];
+    float *d = malloc((n ? n : 1) * sizeof *d);
+    if (!d || morph_distance_to(f->prob, f->dim, f->spacing, d)) {
+        free(d);
+        return fn_err_set(FN_ENOMEM, "render: out of memory for fragment %d's distance map", f->id);
+    }
+    for (size_t i = 0; i < n; i++)
+        d[i] = d[i] < RENDER_DIST_MAX_MM ? d[i] : (float)RENDER_DIST_MAX_MM;
+    r->gl.GenTextures(1, &rf->dist_tex);
+    r->gl.BindTexture(GL_TEXTURE_3D, rf->dist_tex);
+    tex3d_params(r, GL_LINEAR);
+    r->gl.PixelStorei(GL_UNPACK_ALIGNMENT, 1);
+    r->gl.TexImage3D(GL_TEXTURE_3D, 0, GL_R16F, f->dim[0], f->dim[1], f->dim[2], 0, GL_RED, GL_FLOAT, d);
+    free(d);
+    return gl_check(r, "uploading a distance map");
+}
+
 /* render_set_scene; keep_ct: the CT texture stays as it is (render_set_fragments). */
 static int set_scene(render *r, const vol *ct, const frag *frags, int nfrag, double iso_hu, const obb_params *hp,
                      int keep_ct)
@@ -726,8 +782,8 @@ static int set_scene(render *r, const vol *ct, const frag *frags, int nfrag, dou
         rc = upload_fragment(r, &r->frag[i], &frags[i], ct);
         for (int a = 0; a < 3; a++)
             r->min_spacing = frags[i].spacing[a] < r->min_spacing ? frags[i].spacing[a] : r->min_spacing;
-        if (!rc && hp && !(r->frag[i].tree = obb_tree_build(&frags[i], hp)))
-            rc = FN_ENOMEM;
+        if (!rc && hp)
+            rc = upload_contacts(r, &r->frag[i], &frags[i], hp);
     }
     if (!rc)
         rc = upload_occupancy(r, frags);
@@ -763,10 +819,10 @@ int render_set_fragments(render *r, const vol *ct, const frag *frags, int nfrag)
 
 int render_set_hierarchies(render *r, const frag *frags, const obb_params *hp)
 {
-    for (int i = 0; i < r->nfrag; i++)
-        if (!r->frag[i].tree && !(r->frag[i].tree = obb_tree_build(&frags[i], hp)))
-            return fn_err_set(FN_ENOMEM, "render: out of memory for fragment %d's hierarchy", i + 1);
-    return 0;
+    int rc = 0;
+    for (int i = 0; i < r->nfrag && !rc; i++)
+        rc = upload_contacts(r, &r->frag[i], &frags[i], hp);
+    return rc;
 }
 
 long render_surface_triangles(const render *r)

@@ -18,8 +18,9 @@
  *  - slice views (axial, coronal, sagittal through a point): the CT in grey, every fragment's
  *    outline (and a light fill) at its current pose in its colour; with the 3D view they make the
  *    four-up layout (render_four_up_panes: the 3D view large on top, the three slices below);
- *  - overlays on the 3D view: the hierarchy's boxes at a depth, the principal axes, the colliding
- *    voxel pairs with the contact region tinted, the reduction's VOI boxes;
+ *  - overlays on the 3D view: the hierarchy's boxes at a depth, the principal axes, the contacts
+ *    (the gap to the other fragments as a colour on the surfaces, or the colliding voxel pairs
+ *    tinted), the reduction's VOI boxes;
  *  - a HUD: lines of text over the frame (render_hud).
  *
  * Coordinates: world = patient LPS mm. The 3D camera is orthographic; a translation of d mm across
@@ -55,10 +56,16 @@ typedef struct render_camera {
     double half_height, depth;
 } render_camera;
 
-/* Overlays on the 3D view. HIERARCHY and CONTACTS need the hierarchies (render_set_scene's hp):
- * CONTACTS tints the contact region (a translucent yellow over both voxels of every colliding
- * voxel pair, obb_collide, up to RENDER_MAX_CONTACTS per fragment pair, at the frame's poses) and
- * outlines those voxels. VOI outlines the options' VOI boxes (world mm) in cyan. */
+/* Overlays on the 3D view. HIERARCHY and CONTACTS need the hierarchies (render_set_scene's hp,
+ * or render_set_hierarchies, which also build each fragment's distance map): in surface and iso
+ * mode CONTACTS colours every surface point by its gap to the nearest other fragment (its distance
+ * map, less half a voxel) from red at 0 through yellow at 1.5 mm to the fragment's own colour
+ * at 3 mm and beyond, and draws the legend (the bar and its mm) at the 3D view's bottom right
+ * (iso needs a texture unit per fragment beyond the raycaster's 21: up to 11 fragments on
+ * llvmpipe's 32); in dvr and mip, and in iso beyond that, it tints the contact region (a translucent yellow over both voxels of
+ * every colliding voxel pair, obb_collide, up to RENDER_MAX_CONTACTS per fragment pair, at the
+ * frame's poses) and outlines those voxels. VOI outlines the options' VOI boxes (world mm) in
+ * cyan. */
 enum {
     RENDER_OVERLAY_HIERARCHY = 1, RENDER_OVERLAY_AXES = 2, RENDER_OVERLAY_CONTACTS = 4,
     RENDER_OVERLAY_VOI = 8
@@ -101,7 +108,7 @@ const char *render_gl_version(const render *r);
 render_mode render_default_mode(const render *r);
 
 /* Uploads the scene: the fragments' masked CT crops, occupancy grids, meshes (iso_hu is the
- * surface level: values >= iso_hu are bone) and, when hp is given, their hierarchies for the box
+ * surface level: values >= iso_hu are bone) and, when hp is given, their hierarchies (and distance maps) for the box
  * overlay. ct gives the grey of the slice views and the values of the crops; ct may be NULL (the
  * crops then hold iso_hu + 500 inside, and slices show no grey). At most RENDER_MAX_FRAGS
  * fragments (FN_EINVAL names the count). Replaces any previous scene. 0 or FN_E*. */
@@ -112,9 +119,9 @@ int render_set_scene(render *r, const vol *ct, const frag *frags, int nfrag, dou
  * unchanged (its values fill the crops). For a scene whose fragments change over one CT (the seed
  * mode's preview): the CT is not uploaded again. 0 or FN_E*. */
 int render_set_fragments(render *r, const vol *ct, const frag *frags, int nfrag);
-/* Builds the hierarchies of the scene's fragments (frags as given to render_set_scene) for the
- * hierarchy and contacts overlays, when render_set_scene was given none (a window that turns those
- * overlays on later). 0 or FN_ENOMEM. */
+/* Builds the hierarchies and distance maps of the scene's fragments (frags as given to
+ * render_set_scene) for the hierarchy and contacts overlays, when render_set_scene was given none
+ * (a window that turns those overlays on later). 0 or FN_ENOMEM. */
 int render_set_hierarchies(render *r, const frag *frags, const obb_params *hp);
 /* Triangles of the surface meshes of the scene. */
 long render_surface_triangles(const render *r);

@@ -8,7 +8,7 @@
 #include <string.h>
 
 static const float BG[3] = {0.08f, 0.09f, 0.11f};
-enum { UNIT_OCC = RENDER_MAX_FRAGS, UNIT_TF, UNIT_CT, UNIT_NEAR, UNIT_FAR };
+enum { UNIT_OCC = RENDER_MAX_FRAGS, UNIT_TF, UNIT_CT, UNIT_NEAR, UNIT_FAR, UNIT_DIST };
 
 /* ---- 4x4 row-major doubles, sent to GL transposed (column-major) ---- */
 
@@ -257,6 +257,49 @@ static void set_frag_uniforms(render *r, unsigned prog, int ray, const pose *pos
 
 /* ---- the 3D view ---- */
 
+/* Whether a frame of o shows the contacts overlay as a colour on the surfaces: in surface mode,
+ * and in iso where the GL has a texture unit for every fragment's distance map besides the
+ * raycaster's; else the colliding voxels are tinted. */
+static int gap_colour(const render *r, const render_options *o)
+{
+    if (!(o->overlays & RENDER_OVERLAY_CONTACTS) || !r->nfrag || !r->frag[0].dist_tex)
+        return 0;
+    int units = 0;
+    r->gl.GetIntegerv(GL_MAX_TEXTURE_IMAGE_UNITS, &units);
+    return o->mode == RENDER_SURFACE || (o->mode == RENDER_ISO && UNIT_DIST + r->nfrag <= units);
+}
+
+/* The contacts colour's uniforms of program p (bound, GAP_GLSL's): the distance maps of every
+ * fragment but skip (-1: none) at their poses, bound to units unit0.., and their w2t. */
+static void gap_uniforms(render *r, unsigned p, const pose *poses, int skip, int unit0)
+{
+    float w2t[RENDER_MAX_FRAGS][16], box[RENDER_MAX_FRAGS][3], off[RENDER_MAX_FRAGS], model[16], nmat[9];
+    int units[RENDER_MAX_FRAGS], n = 0;
+    for (int i = 0; i < r->nfrag; i++) {
+        if (i == skip)
+            continue;
+        const render_frag *f = &r->frag[i];
+        frag_mats(r, i, poses, model, w2t[n], nmat);
+        double least = f->spacing[0];
+        for (int a = 0; a < 3; a++) {
+            box[n][a] = (float)(f->dim[a] * f->spacing[a]);
+            least = f->spacing[a] < least ? f->spacing[a] : least;
+        }
+        off[n] = (float)(0.5 * least);
+        units[n] = unit0 + n;
+        r->gl.ActiveTexture(GL_TEXTURE0 + (unsigned)(unit0 + n));
+        r->gl.BindTexture(GL_TEXTURE_3D, f->dist_tex);
+        n++;
+    }
+    r->gl.Uniform1iv(loc(r, p, "dist"), n, units);
+    r->gl.UniformMatrix4fv(loc(r, p, "w2t"), n, GL_FALSE, &w2t[0][0]);
+    r->gl.Uniform3fv(loc(r, p, "box_mm"), n, &box[0][0]);
+    r->gl.Uniform1fv(loc(r, p, "dist_off"), n, off);
+    r->gl.Uniform3fv(loc(r, p, "ramp"), 2, &render__gap_ramp[0][0]);
+    r->gl.Uniform1f(loc(r, p, "gap_scale"), (float)RENDER_GAP_SCALE_MM);
+}
+
+
 /* Each fragment's span of occupied bricks into span_tex (within the viewport and scissor already
  * set), then one ray per pixel through the spans. */
 static int draw_raycast(render *r, const pose *poses, const render_options *o, const int vp[4],
@@ -266,10 +309,10 @@ static int draw_raycast(render *r, const pose *poses, const render_options *o, c
     float m[16], vpf[16], model[16], w2t[16], nmat[9];
     if (r->nfrag == 0)
         return 0;
-    int rc = render__ray_program(r, o->mode);
+    int gaps = gap_colour(r, o), rc = render__ray_program(r, o->mode, gaps);
     if (rc)
         return rc;
-    unsigned p = r->prog_ray[o->mode];
+    unsigned p = gaps ? r->prog_ray_gaps : r->prog_ray[o->mode];
     mat4_to_gl(vpm, vpf);
     r->gl.UseProgram(pd);
     r->gl.UniformMatrix4fv(loc(r, pd, "vp"), 1, GL_FALSE, vpf);
@@ -334,6 +377,8 @@ static int draw_raycast(render *r, const pose *poses, const render_options *o, c
     r->gl.Uniform1f(loc(r, p, "entry_skip"), (float)(2.5 * r->min_spacing));
     r->gl.Uniform1i(loc(r, p, "near_depth"), UNIT_NEAR);
     r->gl.Uniform1i(loc(r, p, "far_depth"), UNIT_FAR);
+    if (gaps)
+        gap_uniforms(r, p, poses, -1, UNIT_DIST);
     r->gl.DepthFunc(GL_GREATER);
     r->gl.DepthMask(GL_FALSE);
     r->gl.BindVertexArray(r->vao_empty);
@@ -378,7 +423,8 @@ static void cutaway(const render *r, int keep, const pose *poses, const double f
 static void draw_meshes(render *r, const pose *poses, const render_options *o, const mat4 vp, int only, int skip,
                         int ids)
 {
-    unsigned p = ids ? r->prog_id : r->prog_mesh;
+    int gaps = !ids && (o->overlays & RENDER_OVERLAY_CONTACTS) && r->prog_gaps;
+    unsigned p = ids ? r->prog_id : gaps ? r->prog_gaps : r->prog_mesh;
     float m[16], w2t[16], nmat[9], fw[3];
     r->gl.UseProgram(p);
     mat4_to_gl(vp, m);
@@ -405,6 +451,8 @@ static void draw_meshes(render *r, const pose *poses, const render_options *o, c
         r->gl.Uniform4fv(loc(r, p, "cut"), 1, cut);
         r->gl.Uniform1f(loc(r, p, "cut_front"), front);
         r->gl.Uniform3fv(loc(r, p, "colour"), 1, ids ? id : r->frag[i].rgb);
+        if (gaps)
+            gap_uniforms(r, p, poses, i, 0);
         r->gl.BindVertexArray(r->frag[i].mesh_vao);
         r->gl.DrawElements(GL_TRIANGLES, (int)(r->frag[i].mesh_triangles * 3), GL_UNSIGNED_INT, (void *)0);
     }
@@ -712,7 +760,7 @@ static int draw_overlays(render *r, const pose *poses, const render_options *o, 
             r->gl.BindVertexArray(f->box_vao);
             r->gl.DrawArrays(GL_LINES, 0, f->box_vertices);
         }
-    if (!rc && (o->overlays & RENDER_OVERLAY_CONTACTS))
+    if (!rc && (o->overlays & RENDER_OVERLAY_CONTACTS) && !gap_colour(r, o))
         rc = draw_contacts(r, poses);
     if (!rc && (o->overlays & RENDER_OVERLAY_AXES))
         rc = draw_axes(r, poses);
@@ -727,12 +775,21 @@ static int draw_3d(render *r, const pose *poses, const render_options *o, const 
 {
     mat4 m, inv;
     camera_mats(&o->camera, (double)vp[2] / vp[3], m, inv);
-    int rc = 0;
-    if (o->mode == RENDER_SURFACE)
+    int rc = 0, gaps = gap_colour(r, o);
+    if (gaps && o->mode == RENDER_SURFACE && r->nfrag > 1)
+        rc = render__gaps_program(r);
+    if (!rc && o->mode == RENDER_SURFACE)
         draw_surface(r, poses, o, m, -1, -1);
-    else
+    else if (!rc)
         rc = draw_raycast(r, poses, o, vp, m, inv);
-    return rc ? rc : draw_overlays(r, poses, o, m);
+    rc = rc ? rc : draw_overlays(r, poses, o, m);
+    if (!rc && gaps) {
+        rc = render__gap_legend(r, vp);
+        r->gl.Viewport(vp[0], vp[1], vp[2], vp[3]);
+        r->gl.Scissor(vp[0], vp[1], vp[2], vp[3]);
+        r->gl.Enable(GL_SCISSOR_TEST);
+    }
+    return rc;
 }
 
 /* ---- slices ---- */

@@ -87,30 +87,49 @@ static size_t ascii_of(const char *text, char *out, size_t cap)
     return n;
 }
 
-int render_hud(render *r, const char *text, int scale)
+/* The lines and the longest line's characters of buf. */
+static void text_extent(const char *buf, int *lines, int *cols)
 {
-    scale = scale < 1 ? 1 : scale > 4 ? 4 : scale;
-    char buf[8192];
-    ascii_of(text ? text : "", buf, sizeof buf);
-    int lines = 0, cols = 0, col = 0;
+    int col = 0;
+    *lines = *cols = 0;
     for (const char *p = buf;; p++) {
         if (*p == '\n' || !*p) {
-            lines++;
-            cols = col > cols ? col : cols;
+            ++*lines;
+            *cols = col > *cols ? col : *cols;
             col = 0;
             if (!*p)
                 break;
         } else
             col++;
     }
-    if (!buf[0])
+}
+
+void render__text_size(const char *text, int scale, int *w, int *h)
+{
+    char buf[8192];
+    int lines, cols;
+    ascii_of(text ? text : "", buf, sizeof buf);
+    text_extent(buf, &lines, &cols);
+    *w = buf[0] ? cols * CELL_W * scale + 2 * PAD : 0;
+    *h = buf[0] ? lines * CELL_H * scale + 2 * PAD : 0;
+}
+
+int render__text(render *r, const char *text, int scale, int x, int y)
+{
+    char buf[8192];
+    ascii_of(text ? text : "", buf, sizeof buf);
+    int lines, cols;
+    text_extent(buf, &lines, &cols);
+    x = x < 0 ? 0 : x;
+    y = y < 0 ? 0 : y;
+    if (!buf[0] || x >= r->w || y >= r->h)
         return 0;
     int tw = cols * CELL_W * scale + 2 * PAD, th = lines * CELL_H * scale + 2 * PAD;
-    tw = tw > r->w ? r->w : tw;
-    th = th > r->h ? r->h : th;
+    tw = tw > r->w - x ? r->w - x : tw;
+    th = th > r->h - y ? r->h - y : th;
     uint8_t *img = calloc((size_t)tw * (size_t)th, 1);
     if (!img)
-        return fn_err_set(FN_ENOMEM, "render: out of memory for the HUD");
+        return fn_err_set(FN_ENOMEM, "render: out of memory for text");
     /* Rows top to bottom here; value 255 text, 128 warning text, 0 the box. */
     const char *line = buf;
     for (int l = 0; l < lines; l++) {
@@ -122,16 +141,17 @@ int render_hud(render *r, const char *text, int scale)
                 ink = 128;
         for (int c = 0; c < len; c++) {
             const unsigned char *g = glyph(line[c]);
+            int drop = line[c] == 'g'; /* its tail below the line: at 5x7 a g standing on it reads as 9 */
             for (int gy = 0; g && gy < 7; gy++)
                 for (int gx = 0; gx < 5; gx++) {
                     if (!(g[gy] >> (4 - gx) & 1))
                         continue;
                     for (int sy = 0; sy < scale; sy++)
                         for (int sx = 0; sx < scale; sx++) {
-                            int x = PAD + (c * CELL_W + gx) * scale + sx;
-                            int y = PAD + (l * CELL_H + 1 + gy) * scale + sy;
-                            if (x < tw && y < th)
-                                img[(size_t)y * (size_t)tw + (size_t)x] = ink;
+                            int px = PAD + (c * CELL_W + gx) * scale + sx;
+                            int py = PAD + (l * CELL_H + 1 + drop + gy) * scale + sy;
+                            if (px < tw && py < th)
+                                img[(size_t)py * (size_t)tw + (size_t)px] = ink;
                         }
                 }
         }
@@ -149,11 +169,11 @@ int render_hud(render *r, const char *text, int scale)
     unsigned p = r->prog_hud;
     r->gl.UseProgram(p);
     r->gl.Uniform1i(r->gl.GetUniformLocation(p, "hud"), 0);
-    /* GL's rows run bottom to top: the box's top row is the window's row h - 1. */
-    r->gl.Uniform2f(r->gl.GetUniformLocation(p, "origin"), 0.0f, (float)(r->h - 1));
+    /* GL's rows run bottom to top: the box's top row is the window's row h - 1 - y. */
+    r->gl.Uniform2f(r->gl.GetUniformLocation(p, "origin"), (float)x, (float)(r->h - 1 - y));
     r->gl.Viewport(0, 0, r->w, r->h);
     r->gl.Enable(GL_SCISSOR_TEST);
-    r->gl.Scissor(0, r->h - th, tw, th);
+    r->gl.Scissor(x, r->h - y - th, tw, th);
     r->gl.Enable(GL_BLEND);
     r->gl.BlendFunc(GL_SRC_ALPHA, GL_ONE_MINUS_SRC_ALPHA);
     r->gl.BindVertexArray(r->vao_empty);
@@ -163,7 +183,59 @@ int render_hud(render *r, const char *text, int scale)
     r->gl.BindVertexArray(0);
     r->gl.UseProgram(0);
     unsigned e = r->gl.GetError();
-    return e == GL_NO_ERROR ? 0 : fn_err_set(FN_ENODEV, "render: GL error 0x%04x drawing the HUD", e);
+    return e == GL_NO_ERROR ? 0 : fn_err_set(FN_ENODEV, "render: GL error 0x%04x drawing text", e);
+}
+
+int render_hud(render *r, const char *text, int scale)
+{
+    return render__text(r, text, scale < 1 ? 1 : scale > 4 ? 4 : scale, 0, 0);
+}
+
+const float render__gap_ramp[2][3] = {{1.0f, 0.08f, 0.05f}, {1.0f, 0.9f, 0.1f}};
+
+int render__gap_legend(render *r, const int vp[4])
+{
+    /* Labels every 5 characters: 1 mm apart on the bar, which runs from the first label's middle
+     * to the last's (RENDER_GAP_SCALE_MM), over the empty line. */
+    static const char text[] = "gap (mm)\n\n0    1    2    3";
+    static const float bone[3] = {0.8f, 0.8f, 0.76f};
+    int s = render_hud_scale(r), tw, th;
+    render__text_size(text, s, &tw, &th);
+    int x = vp[0] + vp[2] - tw - 4 * s, y = r->h - vp[1] - th - 4 * s;
+    int rc = render__text(r, text, s, x, y);
+    if (rc)
+        return rc;
+    float x0 = (float)(x + PAD + 2.5 * s), x1 = (float)(x + PAD + (15 * CELL_W + 2.5) * s);
+    float y0 = (float)(y + PAD + (CELL_H + 1) * s), y1 = (float)(y + PAD + (CELL_H + 8) * s);
+    const float xs[3] = {x0, 0.5f * (x0 + x1), x1};
+    const float *cs[3] = {render__gap_ramp[0], render__gap_ramp[1], bone};
+    float v[12][6];
+    static const int quad[6][2] = {{0, 0}, {1, 0}, {1, 1}, {0, 0}, {1, 1}, {0, 1}};
+    for (int seg = 0; seg < 2; seg++)
+        for (int q = 0; q < 6; q++) {
+            float *o = v[seg * 6 + q];
+            int e = seg + quad[q][0];
+            o[0] = xs[e];
+            o[1] = quad[q][1] ? y1 : y0;
+            o[2] = 0;
+            memcpy(o + 3, cs[e], 3 * sizeof *o);
+        }
+    /* pixels from the top left to clip space */
+    const float px[16] = {2.0f / r->w, 0, 0, 0, 0, -2.0f / r->h, 0, 0, 0, 0, 1, 0, -1, 1, 0, 1};
+    static const float id[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+    unsigned p = r->prog_line;
+    r->gl.UseProgram(p);
+    r->gl.UniformMatrix4fv(r->gl.GetUniformLocation(p, "vp"), 1, GL_FALSE, px);
+    r->gl.UniformMatrix4fv(r->gl.GetUniformLocation(p, "model"), 1, GL_FALSE, id);
+    r->gl.Uniform1i(r->gl.GetUniformLocation(p, "use_tint"), 0);
+    r->gl.Uniform1f(r->gl.GetUniformLocation(p, "alpha"), 1.0f);
+    r->gl.Viewport(0, 0, r->w, r->h);
+    r->gl.BindVertexArray(r->line_vao);
+    r->gl.BindBuffer(GL_ARRAY_BUFFER, r->line_vbo);
+    r->gl.BufferData(GL_ARRAY_BUFFER, (GLsizeiptr)sizeof v, v, GL_STREAM_DRAW);
+    r->gl.DrawArrays(GL_TRIANGLES, 0, 12);
+    r->gl.BindVertexArray(0);
+    return 0;
 }
 
 int render_hud_scale(const render *r)

@@ -25,7 +25,7 @@
     X(PFNGLGETPROGRAMIVPROC, GetProgramiv) X(PFNGLGETPROGRAMINFOLOGPROC, GetProgramInfoLog)        \
     X(PFNGLUSEPROGRAMPROC, UseProgram) X(PFNGLDELETEPROGRAMPROC, DeleteProgram)                    \
     X(PFNGLGETUNIFORMLOCATIONPROC, GetUniformLocation) X(PFNGLUNIFORM1IPROC, Uniform1i)            \
-    X(PFNGLUNIFORM1FPROC, Uniform1f) X(PFNGLUNIFORM1IVPROC, Uniform1iv)                            \
+    X(PFNGLUNIFORM1FPROC, Uniform1f) X(PFNGLUNIFORM1IVPROC, Uniform1iv) X(PFNGLUNIFORM1FVPROC, Uniform1fv)                            \
     X(PFNGLUNIFORM2FPROC, Uniform2f) X(PFNGLUNIFORM3FVPROC, Uniform3fv)                            \
     X(PFNGLUNIFORM4FPROC, Uniform4f) X(PFNGLUNIFORM4IVPROC, Uniform4iv)                            \
     X(PFNGLUNIFORM4FVPROC, Uniform4fv)                                                             \
@@ -82,6 +82,8 @@ typedef struct render_frag {
     unsigned proxy_vao, proxy_vbo; /* the occupied bricks' boundary faces, local mm (triangles) */
     int proxy_vertices;
     obb_tree *tree;            /* for the box overlay; NULL without one */
+    unsigned dist_tex;         /* with the tree, R16F 3D: the distance (mm) from each voxel of the
+                                * crop to the fragment's nearest voxel, up to RENDER_DIST_MAX_MM */
     unsigned box_vao, box_vbo; /* the boxes' edges at box_depth, local mm */
     int box_depth, box_vertices;
     double centroid[3], axes[3][3], eigval[3];
@@ -92,6 +94,8 @@ typedef struct render_frag {
 #define RENDER_BLOCK 4
 #define RENDER_PROXY_BLOCKS 1 /* a raycaster's brick is this many blocks along each axis */
 #define RENDER_MESH_KEEP 0.25/* the share of a surface mesh's triangles kept by decimation */
+#define RENDER_DIST_MAX_MM 16.0 /* the distance maps hold at most this: far beyond the gap scale */
+#define RENDER_GAP_SCALE_MM 3.0 /* the contacts colour: red at 0, yellow at half, none from this */
 
 struct render {
     const render_platform *plat;
@@ -100,6 +104,8 @@ struct render {
     render_gl gl;
     char renderer[256], version[256];
     unsigned prog_ray[3]; /* per raycast mode, compiled for the scene on first use (0: not yet) */
+    unsigned prog_gaps;   /* the surface with the contacts colour, the same way */
+    unsigned prog_ray_gaps; /* iso with the contacts colour, the same way */
     unsigned prog_slice, prog_mesh, prog_line, prog_depth, prog_hud, prog_id;
     unsigned hud_tex;
     unsigned vao_empty, line_vao, line_vbo;
@@ -124,7 +130,21 @@ extern const char *const render__ray_fs, *const render__ray_vs, *const render__q
     *const render__depth_fs, *const render__hud_fs, *const render__slice_fs,
     *const render__mesh_vs, *const render__mesh_fs, *const render__id_fs, *const render__line_vs, *const render__line_fs;
 
-/* Compiles r->prog_ray[m] for the scene when it is not yet (render.c). 0 or FN_E*. */
-int render__ray_program(render *r, render_mode m);
+/* Text as render_hud draws it, its box's top-left corner at pixel (x, y) from the frame's top left.
+ * render__text_size gives the box's size. Leaves the scissor test off. 0 or FN_E*. */
+int render__text(render *r, const char *text, int scale, int x, int y);
+void render__text_size(const char *text, int scale, int *w, int *h);
+/* The contacts colour's ramp: the colours at 0 and at RENDER_GAP_SCALE_MM / 2 (render_hud.c). */
+extern const float render__gap_ramp[2][3];
+/* The contacts colour's legend at the bottom right of viewport vp (GL's, from the bottom left):
+ * its label, the bar and its mm, at render_hud_scale. Leaves the scissor test off. 0 or FN_E*. */
+int render__gap_legend(render *r, const int vp[4]);
+
+/* Compiles r->prog_ray[m] (gaps: r->prog_ray_gaps, iso with the contacts colour) for the scene
+ * when it is not yet (render.c). 0 or FN_E*. */
+int render__ray_program(render *r, render_mode m, int gaps);
+/* Compiles r->prog_gaps for the scene (of 2 fragments or more) when it is not yet (render.c). 0
+ * or FN_E*. */
+int render__gaps_program(render *r);
 
 #endif

@@ -38,10 +38,31 @@ const char *const render__depth_fs =
     "out vec4 frag_colour;\n"
     "void main() { vec4 v = vec4(fill); v[comp] = gl_FragCoord.z; frag_colour = v; }\n";
 
+/* The contacts colour (render.h), shared by the surface and the raycaster, after "#define NF":
+ * gap_to(j, tc), the gap (mm) from the point at texture coordinates tc of fragment j to fragment
+ * j's voxels, from its distance map (beyond its outer voxel centres the distance to the nearest of
+ * them added; less half a voxel, dist_off[j], as its surface lies about there); gap_ramp, its
+ * colour: ramp[0] at 0, ramp[1] at gap_scale / 2, the bone's own colour from gap_scale. */
+#define GAP_GLSL \
+    "uniform sampler3D dist[NF];\n" \
+    "uniform vec3 box_mm[NF];\n" \
+    "uniform float dist_off[NF];\n" \
+    "uniform vec3 ramp[2];\n" \
+    "uniform float gap_scale;\n" \
+    "float gap_to(int j, vec3 tc) {\n" \
+    "    vec3 edge = 0.5 / vec3(textureSize(dist[j], 0)), in_box = clamp(tc, edge, 1.0 - edge);\n" \
+    "    return texture(dist[j], in_box).r + length((tc - in_box) * box_mm[j]) - dist_off[j];\n" \
+    "}\n" \
+    "vec3 gap_ramp(float gap, vec3 bone) {\n" \
+    "    float h = 0.5 * gap_scale, g = max(gap, 0.0);\n" \
+    "    return g < h ? mix(ramp[0], ramp[1], g / h) : g < gap_scale ? mix(ramp[1], bone, (g - h) / h) : bone;\n" \
+    "}\n"
+
 /* The raycaster. Every fragment's ray is o[i] + d[i] * t in its texture coordinates, with t the
  * same world distance for all, so one march visits every fragment at once. It is compiled per
- * scene and mode after "#version 450 core", "#define NF <fragments>" and "#define mode <0 iso,
- * 1 dvr, 2 mip>" (llvmpipe runs both sides of a branch its lanes disagree on, so code for the
+ * scene and mode after "#version 450 core", "#define NF <fragments>", "#define mode <0 iso,
+ * 1 dvr, 2 mip>" and "#define GAPS <0, or 1: iso with the contacts colour at the hit (GAP_GLSL)>"
+ * (llvmpipe runs both sides of a branch its lanes disagree on, so code for the
  * other modes would cost every step): with a constant count the loops
  * unroll and the per-ray arrays stay in registers (llvmpipe lowers a dynamically indexed local
  * array to a select over all its elements, so 16 slots for 3 fragments cost 2 to 4 times as much).
@@ -68,6 +89,9 @@ const char *const render__ray_fs =
     "uniform sampler2DArray near_depth, far_depth;\n"
     "out vec4 frag_colour;\n"
     "vec3 o[MAXF]; vec3 d[MAXF]; float tn[MAXF]; float tx[MAXF];\n"
+    "#if GAPS\n"
+    GAP_GLSL
+    "#endif\n"
     "bool occupied(int i, vec3 p) {\n"
     "    ivec3 c = clamp(ivec3(p * occ_scale[i]), ivec3(0), occ_info[i].xyz - 1);\n"
     "    c.z += occ_info[i].w;\n"
@@ -101,6 +125,11 @@ const char *const render__ray_fs =
     "            n = nmat[i] * g; c = colour[i];\n"
     "        }\n"
     "    }\n"
+    "#if GAPS\n" /* the gap from the hit on fragment f to the others */
+    "    float gap = 1e30;\n"
+    "    for (int j = 0; j < nfrag; ++j) { float g = gap_to(j, o[j] + d[j] * t); gap = j == f ? gap : min(gap, g); }\n"
+    "    c = gap_ramp(gap, c);\n"
+    "#endif\n"
     "    float len = length(n);\n"
     "    float diff = len > 0.0 ? abs(dot(n / len, rd)) : 1.0;\n"
     "    return c * (0.2 + 0.8 * diff) + vec3(0.25 * pow(diff, 24.0));\n"
@@ -252,19 +281,37 @@ const char *const render__mesh_vs =
     "    return cut.w > 0.0 && along < cut_front && length(d - along * forward) < cut.w;\n" \
     "}\n"
 
+/* After "#version 450 core" and "#define NF <n>": with NF 0 the shaded surface; with NF > 0
+ * (compiled per scene, render__gaps_program, so the loop unrolls and its samplers are fixed) the
+ * contacts colour too (GAP_GLSL): the gap from this point to the nearest of the NF other fragments
+ * (all but the one drawn; texture coordinates w2t[j]). */
 const char *const render__mesh_fs =
-    "#version 450 core\n"
     "uniform vec3 colour, forward;\n"
     "uniform float alpha = 1.0;\n"
     "in vec3 n_world, p_world;\n"
     "out vec4 frag_colour;\n"
     CUTAWAY_GLSL
+    "#if NF > 0\n"
+    "uniform mat4 w2t[NF];\n"
+    GAP_GLSL
+    "vec3 gap_colour(vec3 bone) {\n"
+    "    float gap = 1e30;\n"
+    "    for (int j = 0; j < NF; ++j)\n"
+    "        gap = min(gap, gap_to(j, (w2t[j] * vec4(p_world, 1.0)).xyz));\n"
+    "    return gap_ramp(gap, bone);\n"
+    "}\n"
+    "#endif\n"
     "void main() {\n"
     "    if (cut_away(p_world, forward))\n"
     "        discard;\n"
+    "#if NF > 0\n"
+    "    vec3 c = gap_colour(colour);\n"
+    "#else\n"
+    "    vec3 c = colour;\n"
+    "#endif\n"
     "    float len = length(n_world);\n"
     "    float diff = len > 0.0 ? abs(dot(n_world / len, forward)) : 1.0;\n"
-    "    frag_colour = vec4(colour * (0.2 + 0.8 * diff) + vec3(0.25 * pow(diff, 24.0)), alpha);\n"
+    "    frag_colour = vec4(c * (0.2 + 0.8 * diff) + vec3(0.25 * pow(diff, 24.0)), alpha);\n"
     "}\n";
 
 /* Fragment i's mesh in the flat colour (i + 1) / 255: which fragment is front-most where. */

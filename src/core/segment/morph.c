@@ -156,6 +156,65 @@ void morph_distance(const uint8_t *mask, const int dim[3], const double sp[3], f
     }
 }
 
+/* One line of n squared distances (stride apart) through the lower envelope of their parabolas
+ * s2 * (q - p)^2 + f[p]: f, v (n each) and z (n + 1) are scratch. Infinite entries are no sites. */
+static void envelope_line(float *d, size_t stride, int n, double s2, double *f, int *v, double *z)
+{
+    int k = -1;
+    for (int q = 0; q < n; q++) {
+        f[q] = d[(size_t)q * stride];
+        if (isinf(f[q]))
+            continue;
+        double x = -INFINITY;
+        while (k >= 0) {
+            x = ((f[q] + s2 * q * q) - (f[v[k]] + s2 * v[k] * v[k])) / (2 * s2 * (q - v[k]));
+            if (x > z[k])
+                break;
+            k--;
+        }
+        k++;
+        v[k] = q;
+        z[k] = k ? x : -INFINITY;
+        z[k + 1] = INFINITY;
+    }
+    for (int q = 0, j = 0; q < n && k >= 0; q++) {
+        while (z[j + 1] < q)
+            j++;
+        d[(size_t)q * stride] = (float)(s2 * (q - v[j]) * (q - v[j]) + f[v[j]]);
+    }
+}
+
+int morph_distance_to(const uint8_t *mask, const int dim[3], const double sp[3], float *dist)
+{
+    size_t n = (size_t)dim[0] * (size_t)dim[1] * (size_t)dim[2];
+    int most = dim[0] > dim[1] ? dim[0] : dim[1];
+    most = most > dim[2] ? most : dim[2];
+    double *f = malloc((size_t)most * sizeof *f), *z = malloc(((size_t)most + 1) * sizeof *z);
+    int *v = malloc((size_t)most * sizeof *v);
+    if (!f || !z || !v) {
+        free(f);
+        free(z);
+        free(v);
+        return fn_err_set(FN_ENOMEM, "out of memory for a distance map of %dx%dx%d voxels", dim[0], dim[1], dim[2]);
+    }
+    for (size_t i = 0; i < n; i++)
+        dist[i] = mask[i] ? 0.0f : INFINITY;
+    const size_t stride[3] = {1, (size_t)dim[0], (size_t)dim[0] * (size_t)dim[1]};
+    for (int a = 0; a < 3; a++) {
+        int u = a ? 0 : 1, w = a == 2 ? 1 : 2; /* the other two axes */
+        for (int j = 0; j < dim[w]; j++)
+            for (int i = 0; i < dim[u]; i++)
+                envelope_line(dist + (size_t)i * stride[u] + (size_t)j * stride[w], stride[a], dim[a],
+                              sp[a] * sp[a], f, v, z);
+    }
+    for (size_t i = 0; i < n; i++)
+        dist[i] = sqrtf(dist[i]);
+    free(f);
+    free(z);
+    free(v);
+    return 0;
+}
+
 /* The cores: components of dist > e, those of fewer than min_voxels voxels or
  * under 5% of the largest dropped, numbered 1..returned count in lab (0
  * elsewhere). core: scratch of one byte per voxel. */

@@ -24,6 +24,12 @@ long morph_fill(uint8_t *mask, const int dim[3], int mode);
  * dist has one float per voxel. */
 void morph_distance(const uint8_t *mask, const int dim[3], const double sp[3], float *dist);
 
+/* The exact Euclidean distance (mm) from each voxel's centre to the nearest inside voxel's
+ * centre: 0 inside, INFINITY everywhere when the mask is empty (the lower envelope of parabolas of
+ * Felzenszwalb and Huttenlocher, one axis after another). dist has one float per voxel. 0 or
+ * FN_ENOMEM. */
+int morph_distance_to(const uint8_t *mask, const int dim[3], const double sp[3], float *dist);
+
 /* Separates the mask into pieces. Markers: one per seed (seeds: nseeds voxel indices (i, j, k),
  * each inside the mask) when nseeds > 0; else the 26-connected cores left by eroding to distance >
  * erode_mm (erode_mm > 0), or, with erode_mm <= 0, by the smallest erosion (in steps of min(sp) /
