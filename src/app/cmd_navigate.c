@@ -416,7 +416,7 @@ static navview_extra view_extra(view *v, char *refused, size_t cap)
     else if (fs.finished)
         snprintf(v->fit, sizeof v->fit, "fit of frag %d %s", fs.frag + 1, fs.result > 0 ? "cancelled" : "failed");
     else
-        snprintf(v->fit, sizeof v->fit, "not fitted yet (g fits)");
+        snprintf(v->fit, sizeof v->fit, "no fit run here yet (g fits)");
     x.fit = v->fit;
     session_preview ps;
     session_preview_status(v->k, &ps);
