@@ -99,9 +99,9 @@ void reduce_defaults(reduce_opts *o)
     o->max_eval = 4000;
     o->voi_max_mm = 0;
     o->band_mm = 1;
-    o->trust_mm = 0;
+    o->trust_mm = 12;
     o->starts = 3;
-    o->trust_deg = 0;
+    o->trust_deg = 18;
     o->coarse = 0;
     o->axis_scale = 1;
     o->hops = 3;
