@@ -215,8 +215,8 @@ void reduce_result_free(reduce_result *r);
  * more) while the zone where it ended is over a quarter larger (volume) than the VOI it was fitted
  * over; a given VOI gets one stage, with that refusal. A fit that ends on the trust wall (within
  * 1 mm or 1 degree) or colliding is tried again from the start turned 8 degrees about the other
- * two principal axes, then 12 degrees about all three. When none of these stands (free and off the
- * wall), the global stage: candidate starts (the start, it turned 15 degrees and moved 8 mm either
+ * two principal axes, then 12 degrees about all three; but when the first ends on the wall, the
+ * global stage instead: candidate starts (the start, it turned 15 degrees and moved 8 mm either
  * way about and along each principal axis, and the pre-alignment when o->prealign) fitted coarse,
  * the best one or two refined as above without the wall, the end of best metric over the union of
  * their VOIs the result (rivals: see reduce_result). A long piece then hops (o->hops), another
