@@ -6,9 +6,8 @@
  *               only after one that ended colliding (or a retry on the trust wall);
  *  3. global:   where the first attempt ended on the wall: candidate starts (the placed pose,
  *               it turned and moved about its principal axes, the pre-alignment) each fitted
- *               coarse, ranked by their
- *               metric over one VOI, the best kept (and a second where about as good), each
- *               refined as above but without the wall;
+ *               coarse, ranked by their metric over one VOI, the best kept (and a second where
+ *               about as good), each refined as above but without the wall;
  *  4. winner:   the attempts' ends compared over the union of their VOIs (rivals among them kept);
  *  5. rivals:   whether the first stage's starts ended in rival basins;
  *  6. hops:     a long piece, or one with rival basins, fitted again from turns of the result;
@@ -713,7 +712,7 @@ static int stage_attempts(fit_state *s)
  * reduce --suite, 20 fits a workload): handing over after a colliding first attempt too lost fits
  * that those retries find (CT_pitch 0.90 -> 0.70, 3 pieces 1.00 -> 0.85); handing over only
  * where all three ended on the wall or colliding kept retries that stood in wrong basins (starts
- * up to 20 mm: 0.25, against 0.65). */
+ * up to 20 mm: 0.25, against 0.55 with this rule). */
 static int stage_local(fit_state *s)
 {
     int rc = 0;
