@@ -14,6 +14,7 @@
 #include "frag.h"
 #include "fracture.h"
 #include "powell.h"
+#include "obb.h"
 #include "reduce.h"
 #include "reduce_impl.h"
 #include "testutil.h"
@@ -880,6 +881,82 @@ static void test_same_fit_with_or_without_prealign(void **st)
     free(dir);
 }
 
+/* The same answer from any start (issue 28): ten random starts around one fracture of the
+ * ellipsoid (seed 5), up to 20 mm and 25 degrees from the truth (redrawn while they collide, as a
+ * hand never leaves them), all end within 1 mm and 1 degree of each other and of the truth, and
+ * none ends at a worse metric than its start. Before the global stage most of them ended apart
+ * (stopped at the 12 mm trust wall or in other basins). Not every fracture is there yet: from the
+ * same starts, seed 3's pieces end apart in some of them (see docs/benchmarks.md). */
+static void test_same_answer_from_any_start(void **st)
+{
+    char *dir = tu_tmpdir("reduce_any_start");
+    planning_case *c = fractured(dir, 2, 5);
+    const frag *f = &c->frag[0], *m = &c->frag[1], *others[1] = {f};
+    pose want = pose_compose(f->pose, pose_compose(pose_inverse(c->truth[0]), c->truth[1]));
+    obb_params op = {CASE_TAU_MIN, CASE_TAU_MAX};
+    obb_tree *tf = obb_tree_build(f, &op), *tm = obb_tree_build(m, &op);
+    assert_non_null(tf);
+    assert_non_null(tm);
+    pose fw = pose_compose(f->pose, f->home), end[10];
+    uint64_t rng = 12345;
+    for (int s = 0; s < 10; s++) {
+        pose start = want;
+        for (int tries = 0; tries < 100; tries++) {
+            double u[7];
+            for (int i = 0; i < 7; i++) {
+                rng = rng * 6364136223846793005ULL + 1442695040888963407ULL;
+                u[i] = (double)(rng >> 11) / 9007199254740992.0;
+            }
+            double axis[3] = {u[0] - 0.5, u[1] - 0.5, u[2] - 0.5}, dir3[3] = {u[3] - 0.5, u[4] - 0.5, u[5] - 0.5};
+            double na = sqrt(axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2]);
+            double nd = sqrt(dir3[0] * dir3[0] + dir3[1] * dir3[1] + dir3[2] * dir3[2]);
+            double cw[3], rc[3];
+            for (int a = 0; a < 3; a++)
+                axis[a] /= na;
+            pose rot = pose_from_axis_angle(axis, 25 * u[6] * M_PI / 180);
+            start = pose_compose(rot, want);
+            pose_apply(&want, m->centroid, cw);
+            pose_rotate(&rot, cw, rc);
+            for (int a = 0; a < 3; a++)
+                start.t[a] += cw[a] - rc[a] + 20 * u[(a + 3 * s) % 7] * dir3[a] / nd;
+            pose mw = pose_compose(start, m->home);
+            obb_query q = {.threshold = 0, .tolerance_mm = 0};
+            obb_result hit;
+            if (obb_collide(tf, &fw, tm, &mw, &q, NULL, &hit) == 0 && !hit.collides)
+                break;
+        }
+        reduce_opts o;
+        reduce_defaults(&o);
+        reduce_result r;
+        assert_int_equal(reduce_fit_one(others, 1, m, &start, &o, &end[s], &r), 0);
+        if (!(r.metric_end <= r.metric_start))
+            fail_msg("start %d: the fit ended at metric %.6f, worse than its start's %.6f", s, r.metric_end,
+                     r.metric_start);
+        reduce_result_free(&r);
+        frag moved = *m;
+        moved.pose = end[s];
+        double rot_deg, trans_mm, tre_mm;
+        reduce_errors(f, &moved, &want, &rot_deg, &trans_mm, &tre_mm);
+        if (!(rot_deg <= 1 && trans_mm <= 1))
+            fail_msg("start %d: %.3f deg, %.3f mm from the truth", s, rot_deg, trans_mm);
+        for (int k = 0; k < s; k++) {
+            double x[3], y[3], d2 = 0;
+            pose_apply(&end[k], m->centroid, x);
+            pose_apply(&end[s], m->centroid, y);
+            for (int a = 0; a < 3; a++)
+                d2 += (x[a] - y[a]) * (x[a] - y[a]);
+            if (!(sqrt(d2) <= 1 && pose_angle_between(end[k], end[s]) * 180 / M_PI <= 1))
+                fail_msg("starts %d and %d end %.3f mm, %.3f deg apart", k, s, sqrt(d2),
+                         pose_angle_between(end[k], end[s]) * 180 / M_PI);
+        }
+    }
+    obb_tree_free(tf);
+    obb_tree_free(tm);
+    case_free(c);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 static void test_method_names(void **st)
 {
     for (int m = 0; m < REDUCE_METHODS; m++)
@@ -913,6 +990,7 @@ int main(void)
         cmocka_unit_test(test_reduce_rival_hops),
         cmocka_unit_test(test_reduce_stays_at_the_truth_on_one_grid),
         cmocka_unit_test(test_same_fit_with_or_without_prealign),
+        cmocka_unit_test(test_same_answer_from_any_start),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

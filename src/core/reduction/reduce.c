@@ -43,6 +43,13 @@ const reduce_tuning reduce__tune = {
     .powell_step = {1, 3, 0.3},
     .gain = 1e-7,
     .first_xtol = 5,
+    .global_deg = 15,
+    .global_mm = 8,
+    .global_coarse = 1,
+    .global_evals = 300,
+    .global_xtol_mm = 0.1,
+    .global_keep = 2,
+    .global_margin = 0.01,
     /* the metric's basin is narrow: the first stage also starts turned this much, the best wins */
     .start_deg = 8.0,
     .wide_starts = 1.5,

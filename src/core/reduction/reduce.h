@@ -108,8 +108,9 @@ typedef void (*reduce_progress_fn)(void *ctx, int id, int iter, int evals, doubl
 typedef struct reduce_opts {
     reduce_method method;
     reduce_count count;
-    int prealign;        /* 1: principal-axis pre-alignment first, for a fragment more than 10 mm
-                          * from the assembly (nearer, it counts as placed by hand) */
+    int prealign;        /* 1: principal-axis pre-alignment: the local fit's start for a fragment
+                          * more than 10 mm from the assembly (nearer, it counts as placed by
+                          * hand), and one of the global stage's candidates (near or far) */
     int has_voi;         /* 1: voi below for every fragment; 0: automatic (reduce_auto_voi) */
     reduce_voi voi;
     double tau_min, tau_max; /* the hierarchy's thresholds (the case's) */
@@ -148,8 +149,9 @@ typedef struct reduce_opts {
                           * (2 voxels a cell per axis where the spacing is finest). Off by default:
                           * in `bench reduce` its flatter metric led fits astray (success 0.25
                           * against 0.90 for PRAXIS) */
-    double trust_mm, trust_deg; /* the fit stays this close to the start (after pre-alignment):
-                          * centroid distance and rotation angle */
+    double trust_mm, trust_deg; /* the local fit stays this close to the start (centroid distance
+                          * and rotation angle); one that ends on this wall hands over to the
+                          * global stage, which has none (0: no wall, no hand-over) */
     int threads;         /* reduce_case's second sweep fits fragments that do not touch (no bone
                           * within about 4 mm of each other) at once, on up to this many threads
                           * (1 .. REDUCE_THREADS_MAX; default 2, the machine's cores); the same
@@ -161,7 +163,8 @@ typedef struct reduce_opts {
                           * within one metric evaluation and returns 1 with the placed pose */
 } reduce_opts;
 
-/* PRAXIS (the most successful in `fracnav bench reduce`), trilinear, a 1 mm band, pre-alignment on,
+/* PRAXIS (the most successful in `fracnav bench reduce`), trilinear, a 1 mm band, pre-alignment on
+ * (a global candidate),
  * no gap, automatic VOI of any size, 3 first-stage starts, rotation scaled per principal axis, 3
  * rounds of hops for a long piece, no coarse stage, trust 12 mm / 18 degrees, tau 0.5/0.95,
  * tolerance 0.5 mm, xtol 0.01 mm, 4000 evaluations (all stages, attempts and hops together). */
@@ -185,7 +188,8 @@ typedef struct reduce_result {
     pose fitted;          /* what the optimizer found, before any push out of collision */
     pose end;             /* the result */
     reduce_voi voi;
-    int prealigned;       /* 1: pre-alignment chose a pose other than placed */
+    int prealigned;       /* 1: pre-alignment chose the local fit's start, or the result came from
+                           * the global stage's pre-aligned candidate */
     int iterations;       /* Powell: iterations; NLopt: improvements of the best value */
     int evaluations;
     double eval_cpu_s;    /* thread CPU seconds those evaluations spent in the metric (their VOIs) */
@@ -194,11 +198,12 @@ typedef struct reduce_result {
     double metric_end;
     double push_mm;       /* how far the collision check pushed the result out (0: not at all) */
     int collides;         /* 1 only when no collision-free pose could be found (then end = start) */
-    int rival;            /* 1: a first-stage start ended in a rival basin (see reduce_opts.hops):
-                           * no single answer wins */
-    int ncandidates;      /* when rival: the best first-stage end, then every rival one (distinct
-                           * basins about as good), with their metrics over the final VOI; 0
-                           * otherwise (or when the fit failed) */
+    int rival;            /* 1: a first-stage start ended in a rival basin (see reduce_opts.hops),
+                           * or another kept candidate of the global stage ended as good (within
+                           * 0.002 over the union of their VOIs) but apart: no single answer wins */
+    int ncandidates;      /* when rival: the global stage's winner and its rivals, else the best
+                           * first-stage end, then every rival one, with their metrics over the
+                           * final VOI; 0 otherwise (or when the fit failed) */
     reduce_candidate candidate[REDUCE_CANDIDATES_MAX];
     int hops;             /* rounds of hops that gained (each moved the result) */
     int wave;             /* reduce_case with several moving: the fragments of its second-sweep
@@ -209,22 +214,27 @@ typedef struct reduce_result {
 
 void reduce_result_free(reduce_result *r);
 
-/* Pre-alignment (paper Fig. 5), inside reduce_pair: the moving fragment's long axis onto the
- * assembly's first fragment's (both signs), its centroid on that axis, slid along it (from either
- * end) to contact by the collision query and turned about it in 30 degree steps; the candidate of
- * best metric over the overlap of the two boxes wins, the placed pose included. */
+/* Pre-alignment (paper Fig. 5), a candidate of reduce_pair's global stage: the moving fragment's
+ * long axis onto the assembly's first fragment's (both signs), its centroid on that axis, slid along
+ * it (from either end) to contact by the collision query and turned about it in 30 degree steps; the
+ * candidate of best metric over the overlap of the two boxes, unless the placed pose beats them. */
 
-/* Fits moving (from its current pose) to the assembly: pre-alignment when o->prealign, then, with an
- * automatic VOI, two stages: the optimizer over the contact zone where the fragment starts, then
- * again over the tighter zone where that ended, with colliding poses refused (costed), and again
- * (up to twice more) while the zone where it ended is over a quarter larger (volume) than the VOI
- * it was fitted over; a given VOI gets one stage, with that refusal. A fit that ends on the trust wall (within 1 mm or 1 degree)
- * or colliding is tried again from the start turned 8 degrees about the other two principal axes,
- * then 12 degrees about all three; the result of best metric (collisions costed) over the union of
- * the attempts' VOIs wins. A long piece then hops (o->hops), another one where its first stage
- * found a rival basin. A result that still collides beyond the tolerance is pushed out along
- * the contact normal (up to 5 mm), else the start is kept; a free one is settled (o->settle_mm).
- * Sets moving->pose = r->end.
+/* Fits moving (from its current pose, pre-aligned first when o->prealign and it lies more than
+ * 10 mm from the assembly) to the assembly. The local fit: with an automatic VOI, two
+ * stages: the optimizer over the contact zone where the fragment starts, then again over the
+ * tighter zone where that ended, with colliding poses refused (costed), and again (up to twice
+ * more) while the zone where it ended is over a quarter larger (volume) than the VOI it was fitted
+ * over; a given VOI gets one stage, with that refusal. A fit that ends on the trust wall (within
+ * 1 mm or 1 degree) or colliding is tried again from the start turned 8 degrees about the other
+ * two principal axes, then 12 degrees about all three; but when the first ends on the wall, the
+ * global stage instead: candidate starts (the start, it turned 15 degrees and moved 8 mm either
+ * way about and along each principal axis, and the pre-alignment when o->prealign) fitted coarse,
+ * the best one or two refined as above without the wall, the end of best metric over the union of
+ * their VOIs the result (rivals: see reduce_result). A long piece then hops (o->hops), another
+ * one where its fit found a rival basin. A result that still collides beyond the tolerance is
+ * pushed out along the contact normal (up to 5 mm), else the start is kept; a free one is settled
+ * (o->settle_mm). A result whose metric is worse than the start's (over the final VOI) is not
+ * kept when the start is free. Sets moving->pose = r->end.
  * 0, 1 when o->cancel was set (then moving->pose = r->end = the placed pose), or FN_E*. */
 int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_opts *o, reduce_result *r);
 

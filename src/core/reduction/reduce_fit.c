@@ -1,10 +1,14 @@
 /* reduce_fit: the fit of one moving fragment to a fixed assembly (reduce_pair, reduce_fit_one; see
  * reduce.h), a sequence of named stages over one state (fit_state):
  *  1. open:     the hierarchies and the query, the moving fragment's bricks;
- *  2. prealign: the paper's pre-alignment, for a piece apart from the assembly;
- *  3. attempts: up to three, each a sequence of stages over a contact zone (the approach, then the
- *               starts); another attempt only after one that ended on the trust wall or colliding;
- *  4. winner:   the attempts' ends compared over the union of their VOIs;
+ *  2. local:    attempts from where the hand left the piece, each a sequence of stages over a
+ *               contact zone (the approach, then the starts), within the trust region; another
+ *               only after one that ended colliding (or a retry on the trust wall);
+ *  3. global:   where the first attempt ended on the wall: candidate starts (the placed pose,
+ *               it turned and moved about its principal axes, the pre-alignment) each fitted
+ *               coarse, ranked by their metric over one VOI, the best kept (and a second where
+ *               about as good), each refined as above but without the wall;
+ *  4. winner:   the attempts' ends compared over the union of their VOIs (rivals among them kept);
  *  5. rivals:   whether the first stage's starts ended in rival basins;
  *  6. hops:     a long piece, or one with rival basins, fitted again from turns of the result;
  *  7. finish:   the result pushed out of collision, its metrics and history.
@@ -24,6 +28,8 @@
 
 #define PI 3.14159265358979323846
 #define ATTEMPTS 3 /* the start; turns about the other axes; wider turns about all three */
+#define GLOBAL_CANDIDATES 14 /* the placed pose, six turns of it, six shifts, the pre-aligned pose */
+#define ENDS (ATTEMPTS * REDUCE_GLOBAL_KEEP_MAX)
 #define HOP_TURNS 6 /* a hop round: either way about each of the three principal axes */
 
 static double now_s(void)
@@ -51,6 +57,8 @@ typedef struct objective {
     double t0;
     const reduce_collider *pc; /* non-NULL: a colliding pose costs reduce__tune.collide_cost more */
     double xtol;        /* this stage's convergence step */
+    int nowall;         /* 1: no trust wall (the global stage and its refinements) */
+    int cap;            /* > 0: this run stops after this many evaluations */
     pose placed;        /* where the hand left it: the trust region's centre */
     double moving_centroid[3]; /* home world */
     nlopt_opt opt;      /* the NLopt run in progress, for a cancel */
@@ -114,10 +122,13 @@ static void hist_add(objective *ob, double f)
     ob->hist[ob->nhist++] = f;
 }
 
-/* A wall around the placed pose: the fit refines a placement, it does not search the skull for
- * another one (a thin bone offers many poses that fill a VOI better than the fit does). */
+/* A wall around the placed pose for the local fit (reduce_opts.trust_mm, trust_deg): a fit that
+ * runs into it has left the basin where the hand put the piece (a thin bone offers many poses that
+ * fill a VOI better than the fit does), and the global stage takes over, without it. */
 static double trust_cost(const objective *ob, const pose *p)
 {
+    if (ob->o->trust_mm <= 0 || ob->nowall)
+        return 0;
     double a[3], b[3], d2 = 0;
     pose_apply(p, ob->moving_centroid, a);
     pose_apply(&ob->placed, ob->moving_centroid, b);
@@ -130,6 +141,8 @@ static double trust_cost(const objective *ob, const pose *p)
 /* 1 when p lies within wall_mm or wall_deg of the trust wall. */
 static int at_wall(const objective *ob, const pose *p)
 {
+    if (ob->o->trust_mm <= 0 || ob->nowall)
+        return 0;
     double a[3], b[3], d2 = 0;
     pose_apply(p, ob->moving_centroid, a);
     pose_apply(&ob->placed, ob->moving_centroid, b);
@@ -199,10 +212,12 @@ static int run_optimizer(objective *ob, int *iterations)
 {
     const reduce_opts *o = ob->o;
     double x[6] = {0, 0, 0, 0, 0, 0};
+    int left = ob->cap > 0 ? ob->cap : o->max_eval - ob->evals;
     if (o->method == REDUCE_POWELL) {
         /* Restarts (the table's powell_step); a restart that gains nothing ends it. */
         *iterations = 0;
         double fprev = INFINITY;
+        int evals0 = ob->evals;
         for (int k = 0; k < 3; k++) {
             powell_opts po;
             powell_defaults(&po);
@@ -210,7 +225,7 @@ static int run_optimizer(objective *ob, int *iterations)
             po.xtol = ob->xtol;
             po.line_tol = ob->xtol;
             po.ftol = 1e-9;
-            po.max_eval = o->max_eval - ob->evals;
+            po.max_eval = left - (ob->evals - evals0);
             po.on_iter = powell_iter;
             po.iter_ctx = ob;
             if (po.max_eval < 10)
@@ -233,7 +248,7 @@ static int run_optimizer(objective *ob, int *iterations)
         return fn_err_set(FN_ENOMEM, "reduce: NLopt could not make its optimizer");
     nlopt_set_min_objective(opt, nlopt_cost, ob);
     nlopt_set_xtol_abs1(opt, ob->xtol);
-    nlopt_set_maxeval(opt, o->max_eval - ob->evals > 10 ? o->max_eval - ob->evals : 10);
+    nlopt_set_maxeval(opt, left > 10 ? left : 10);
     nlopt_set_initial_step1(opt, reduce__tune.nlopt_step);
     if (o->method != REDUCE_PRAXIS) { /* PRAXIS takes no bounds */
         nlopt_set_lower_bounds1(opt, -reduce__tune.bound);
@@ -276,10 +291,17 @@ typedef struct fit_state {
     level coarse;
     reduce_metric *metric; /* the current stage's */
     objective obj;
-    /* attempts: where each ended, over which VOI */
-    pose attempt_end[ATTEMPTS];
-    reduce_voi attempt_voi[ATTEMPTS];
+    /* the global stage: the candidates kept, best first, and which was the pre-aligned one */
+    pose keep[REDUCE_GLOBAL_KEEP_MAX];
+    int nkeep, keep_pa, refine; /* refine: the kept candidate being refined */
+    int global_evals;
+    /* attempts: where each ended, over which VOI, from which kept candidate */
+    pose attempt_end[ENDS];
+    reduce_voi attempt_voi[ENDS];
+    int attempt_from[ENDS];
     int attempts;
+    pose rival_end[ENDS]; /* the winner's end, then the ends of other kept candidates as good */
+    int nrival_ends;
     /* the first attempt's first-stage starts: where each ended and its cost (for rivals) */
     pose start_end[REDUCE_STARTS_SEEN];
     double start_cost[REDUCE_STARTS_SEEN];
@@ -302,9 +324,10 @@ static int stage_open(fit_state *s, const frag *const *asm_, int nasm, frag *mov
     return rc == 0 && !s->bricks ? fn_err_set(FN_ENOMEM, "reduce: out of memory") : rc;
 }
 
-/* A piece apart from the assembly is pre-aligned; one nearer than placed_mm was placed by hand and
- * keeps its placement. The fit's start, and the centre of its trust region, is the result. */
-static int stage_prealign(fit_state *s)
+/* A piece apart from the assembly is pre-aligned (the paper's remedy for a far start); one nearer
+ * than placed_mm was placed by hand and keeps its placement. The local fit's start, and the centre
+ * of its trust region, is the result. */
+static int stage_start(fit_state *s)
 {
     double sep = INFINITY;
     int rc = 0;
@@ -315,6 +338,9 @@ static int stage_prealign(fit_state *s)
     *ob = (objective){.start = s->r->start, .best = INFINITY, .o = s->o, .id = s->moving->id, .t0 = ob->t0,
                       .placed = s->r->start};
     memcpy(ob->moving_centroid, s->moving->centroid, sizeof ob->moving_centroid);
+    s->keep[0] = s->r->start;
+    s->nkeep = 1;
+    s->keep_pa = -1;
     return rc;
 }
 
@@ -355,8 +381,8 @@ static int zone_voi(fit_state *s, double delta_mm, reduce_voi *voi)
 }
 
 /* A stage's VOI (given, or the contact zone where the piece is now) and its metric, on the coarse
- * level in the first stage when o->coarse. */
-static int stage_metric(fit_state *s, int stage)
+ * level in the first stage when coarse (and the VOI is automatic). */
+static int stage_metric(fit_state *s, int stage, int coarse)
 {
     const reduce_opts *o = s->o;
     const reduce_tuning *T = &reduce__tune;
@@ -367,7 +393,7 @@ static int stage_metric(fit_state *s, int stage)
         rc = zone_voi(s, T->zone_delta_mm[stage ? 1 : 0], &s->r->voi);
     reduce_metric_free(s->metric);
     s->metric = NULL;
-    int use_coarse = stage == 0 && !o->has_voi && o->coarse;
+    int use_coarse = stage == 0 && !o->has_voi && coarse;
     if (rc == 0 && use_coarse && !s->coarse.bricks) /* made once */
         rc = level_open(s);
     if (rc == 0 && use_coarse) {
@@ -420,6 +446,151 @@ static int fit_from(fit_state *s, const double c[3], int record_start, pose *end
     return rc;
 }
 
+/* 1 when poses a and b of the moving piece lie farther apart than rival_mm (its centroid) or
+ * rival_deg: distinct answers. */
+static int apart(const fit_state *s, const pose *a, const pose *b)
+{
+    double x[3], y[3], d2 = 0;
+    pose_apply(a, s->moving->centroid, x);
+    pose_apply(b, s->moving->centroid, y);
+    for (int i = 0; i < 3; i++)
+        d2 += (x[i] - y[i]) * (x[i] - y[i]);
+    return sqrt(d2) > reduce__tune.rival_mm || pose_angle_between(*a, *b) * 180 / PI > reduce__tune.rival_deg;
+}
+
+static void voi_join(reduce_voi *u, const reduce_voi *v)
+{
+    for (int a = 0; a < 3; a++) {
+        u->lo[a] = fmin(u->lo[a], v->lo[a]);
+        u->hi[a] = fmax(u->hi[a], v->hi[a]);
+    }
+}
+
+/* The global stage's candidate starts: the placed pose, it turned global_deg either way about each
+ * of the piece's principal axes and moved global_mm either way along each, and the paper's
+ * pre-alignment when o->prealign and it chose another pose (*pa: its index, else -1). Returns
+ * their number. */
+static int global_candidates(fit_state *s, pose *cand, int *pa)
+{
+    pose base = s->moving->pose;
+    double cm[3];
+    reduce__centroid_world(s->moving, cm);
+    int n = 0, changed = 0;
+    cand[n++] = base;
+    for (int h = 0; h < 6; h++) {
+        double axis[3];
+        reduce__axis_world(s->moving, h / 2, axis);
+        pose turn = pose_from_axis_angle(axis, (h % 2 ? 1 : -1) * reduce__tune.global_deg * PI / 180);
+        cand[n++] = reduce__turned(&base, &turn, cm, cm);
+        cand[n] = base;
+        for (int a = 0; a < 3; a++)
+            cand[n].t[a] += (h % 2 ? 1 : -1) * reduce__tune.global_mm * axis[a];
+        n++;
+    }
+    *pa = -1;
+    if (s->o->prealign && reduce__prealign(&s->col, s->bricks, s->o, &changed) == 0 && changed) {
+        *pa = n;
+        cand[n++] = s->moving->pose;
+    }
+    s->moving->pose = base;
+    return n;
+}
+
+/* One candidate fitted coarse: over the contact zone where it lies (on the coarse level when the
+ * table says), slid into contact, a few evaluations, collisions not costed. 0, or <0 when it has
+ * no contact zone (it is then dropped). */
+static int global_fit(fit_state *s, const pose *cand, pose *end)
+{
+    objective *ob = &s->obj;
+    s->moving->pose = *cand;
+    int rc = stage_metric(s, 0, reduce__tune.global_coarse);
+    if (rc == 0)
+        rc = stage_approach(s);
+    if (rc == 0) {
+        double c[3], f;
+        ob->metric = s->metric;
+        ob->pc = NULL;
+        ob->xtol = reduce__tune.global_xtol_mm;
+        ob->cap = reduce__tune.global_evals;
+        ob->start = s->moving->pose;
+        reduce__centroid_world(s->moving, c);
+        rc = fit_from(s, c, 0, end, &f);
+        ob->cap = 0;
+    }
+    return rc;
+}
+
+/* The global stage: every candidate fitted coarse, their ends scored by the metric over the union
+ * of the contact zones where they ended (the same cells for all), the best kept, and the next
+ * distinct one too when it scores within global_margin of it. Its evaluations do not count against
+ * o->max_eval (they are reported with the others). */
+static int stage_global(fit_state *s)
+{
+    const reduce_tuning *T = &reduce__tune;
+    objective *ob = &s->obj;
+    pose cand[GLOBAL_CANDIDATES], end[GLOBAL_CANDIDATES], base = s->moving->pose;
+    double score[GLOBAL_CANDIDATES];
+    int pa, n = global_candidates(s, cand, &pa), evals0 = ob->evals, rc = 0, nok = 0;
+    reduce_voi u = {{INFINITY, INFINITY, INFINITY}, {-INFINITY, -INFINITY, -INFINITY}};
+    for (int i = 0; i < n && rc == 0 && !ob->cancelled; i++) {
+        reduce_voi v;
+        int ci = global_fit(s, &cand[i], &end[i]);
+        score[i] = INFINITY;
+        if (ci == 0 && !s->o->has_voi) {
+            s->moving->pose = end[i];
+            ci = zone_voi(s, T->zone_delta_mm[1], &v);
+        }
+        if (ci == FN_ENOMEM)
+            rc = ci;
+        else if (ci == 0) {
+            score[i] = 0;
+            nok++;
+            if (!s->o->has_voi)
+                voi_join(&u, &v);
+        }
+    }
+    s->global_evals = ob->evals - evals0;
+    ob->evals = evals0;
+    s->moving->pose = base;
+    if (rc || ob->cancelled || nok == 0) {
+        s->keep[0] = base; /* nothing ranked: the fit goes on from the placed pose */
+        s->nkeep = 1;
+        s->keep_pa = -1;
+        return rc;
+    }
+    reduce_metric *mu = reduce__metric_with(s->asm_, s->nasm, s->moving, s->bricks, s->o->has_voi ? &s->o->voi : &u,
+                                            s->o->count, s->o->band_mm, s->o->gap_mm);
+    if (!mu)
+        return FN_EINVAL;
+    for (int i = 0; i < n; i++)
+        if (score[i] == 0)
+            score[i] = reduce_metric_eval(mu, &end[i], NULL);
+    reduce_metric_free(mu);
+    int best = 0;
+    for (int i = 1; i < n; i++)
+        if (score[i] < score[best])
+            best = i;
+    s->keep[0] = end[best];
+    s->nkeep = 1;
+    s->keep_pa = best == pa ? 0 : -1;
+    while (s->nkeep < T->global_keep) {
+        int next = -1;
+        for (int i = 0; i < n; i++) {
+            int distinct = score[i] < score[best] + T->global_margin;
+            for (int k = 0; k < s->nkeep && distinct; k++)
+                distinct = apart(s, &end[i], &s->keep[k]);
+            if (distinct && (next < 0 || score[i] < score[next]))
+                next = i;
+        }
+        if (next < 0)
+            break;
+        if (next == pa)
+            s->keep_pa = s->nkeep;
+        s->keep[s->nkeep++] = end[next];
+    }
+    return 0;
+}
+
 /* The starts of a stage, [*k0, *n): 0 the base, k > 0 the base turned start_deg about principal
  * axis (k - 1) / 2 % 3, either way. The first stage starts o->starts times; a second attempt
  * turns about the other two axes, a third wider about all three; a later stage starts once. */
@@ -463,7 +634,7 @@ static int stage_starts(fit_state *s, int stage, int attempt)
         pose end;
         reduce__centroid_world(s->moving, c);
         rc = fit_from(s, c, 1, &end, &f);
-        if (rc == 0 && stage == 0 && attempt == 0 && k < REDUCE_STARTS_SEEN) {
+        if (rc == 0 && stage == 0 && attempt == 0 && s->refine == 0 && k < REDUCE_STARTS_SEEN) {
             s->start_end[k] = end;
             s->start_cost[k] = f;
             s->nstart_ends = k + 1;
@@ -501,7 +672,7 @@ static int attempt_stages(fit_state *s, int attempt)
     const reduce_opts *o = s->o;
     int nstage = o->has_voi ? 1 : 2, rc = 0;
     for (int stage = 0; stage < nstage && rc == 0 && !s->obj.cancelled; stage++) {
-        if ((rc = stage_metric(s, stage)) != 0)
+        if ((rc = stage_metric(s, stage, o->coarse)) != 0)
             break;
         if (stage == 0 && (rc = stage_approach(s)) != 0)
             break;
@@ -513,23 +684,61 @@ static int attempt_stages(fit_state *s, int attempt)
     return rc;
 }
 
-/* A fit that ends on the trust wall, or in collision, has wandered off (a wrong basin; the true
- * pose collides with nothing): another attempt from the start, turned otherwise. */
+/* Each kept candidate refined (after the global stage): attempts from it. A fit that ends in
+ * collision has wandered off (a wrong basin; the true pose collides with nothing): another
+ * attempt from the candidate, turned otherwise. */
 static int stage_attempts(fit_state *s)
+{
+    int rc = 0;
+    for (s->refine = 0; s->refine < s->nkeep && rc == 0 && !s->obj.cancelled; s->refine++)
+        for (int attempt = 0; attempt < ATTEMPTS && rc == 0 && !s->obj.cancelled; attempt++) {
+            if (attempt) {
+                int c = at_wall(&s->obj, &s->moving->pose) ? 1 : reduce__collides(&s->col, &s->moving->pose, NULL);
+                if (c <= 0) {
+                    rc = c;
+                    break;
+                }
+            }
+            s->moving->pose = s->keep[s->refine];
+            rc = attempt_stages(s, attempt);
+            if (rc == 0) {
+                s->attempt_end[s->attempts] = s->moving->pose;
+                s->attempt_from[s->attempts] = s->refine;
+                s->attempt_voi[s->attempts++] = s->r->voi;
+            }
+        }
+    return rc;
+}
+
+/* The local fit: attempts from where the hand left the piece, within the trust region. When the
+ * first ends on the trust wall, the piece has left the basin the hand put it in: 1 (it is dropped,
+ * and the global stage takes over). Else, after one that ended colliding, another from the start
+ * turned otherwise (up to three; the winner: stage_winner); 0, or <0 on error. Measured (bench
+ * reduce --suite, 20 fits a workload): handing over after a colliding first attempt too lost fits
+ * that those retries find (CT_pitch 0.90 -> 0.70, 3 pieces 1.00 -> 0.85); handing over only
+ * where all three ended on the wall or colliding kept retries that stood in wrong basins (starts
+ * up to 20 mm: 0.25, against 0.55 with this rule). */
+static int stage_local(fit_state *s)
 {
     int rc = 0;
     for (int attempt = 0; attempt < ATTEMPTS && rc == 0 && !s->obj.cancelled; attempt++) {
         if (attempt) {
-            int c = at_wall(&s->obj, &s->moving->pose) ? 1 : reduce__collides(&s->col, &s->moving->pose, NULL);
+            int c = at_wall(&s->obj, &s->moving->pose) ? 2 : reduce__collides(&s->col, &s->moving->pose, NULL);
+            if (c == 2 && attempt == 1) {
+                s->attempts = 0;
+                s->moving->pose = s->r->start;
+                return 1;
+            }
             if (c <= 0) {
                 rc = c;
                 break;
             }
-            s->moving->pose = s->r->start;
         }
+        s->moving->pose = s->r->start;
         rc = attempt_stages(s, attempt);
         if (rc == 0) {
             s->attempt_end[s->attempts] = s->moving->pose;
+            s->attempt_from[s->attempts] = 0;
             s->attempt_voi[s->attempts++] = s->r->voi;
         }
     }
@@ -537,33 +746,45 @@ static int stage_attempts(fit_state *s)
 }
 
 /* Several attempts: the end of best metric over the union of their VOIs wins, collisions costed;
- * the final metric is then the winner's. */
+ * the final metric is then the winner's. The free ends of other kept candidates that score within
+ * rival_metric of the winner but lie apart from it are rival answers (s->rival_end). */
 static int stage_winner(fit_state *s)
 {
-    if (s->attempts < 2)
+    s->nrival_ends = 0;
+    if (s->attempts < 2) {
+        s->r->prealigned |= s->attempts == 1 && s->keep_pa == 0;
         return 0;
+    }
     const reduce_opts *o = s->o;
     reduce_voi u = s->attempt_voi[0];
     for (int i = 1; i < s->attempts; i++)
-        for (int a = 0; a < 3; a++) {
-            u.lo[a] = fmin(u.lo[a], s->attempt_voi[i].lo[a]);
-            u.hi[a] = fmax(u.hi[a], s->attempt_voi[i].hi[a]);
-        }
+        voi_join(&u, &s->attempt_voi[i]);
     reduce_metric *mu = reduce__metric_with(s->asm_, s->nasm, s->moving, s->bricks, &u, o->count, o->band_mm, o->gap_mm);
     int rc = mu ? 0 : FN_EINVAL, w = s->attempts - 1;
-    double fbest = INFINITY;
+    double fbest = INFINITY, fu[ENDS];
     for (int i = 0; i < s->attempts && rc == 0; i++) {
         int c = reduce__collides(&s->col, &s->attempt_end[i], NULL);
-        double fu = reduce_metric_eval(mu, &s->attempt_end[i], NULL) + (c > 0 ? reduce__tune.collide_cost : 0);
+        fu[i] = reduce_metric_eval(mu, &s->attempt_end[i], NULL) + (c > 0 ? reduce__tune.collide_cost : 0);
         rc = c < 0 ? c : 0;
-        if (fu < fbest) {
-            fbest = fu;
+        if (fu[i] < fbest) {
+            fbest = fu[i];
             w = i;
         }
     }
     reduce_metric_free(mu);
     s->moving->pose = s->attempt_end[w];
     s->r->voi = s->attempt_voi[w];
+    s->r->prealigned |= s->attempt_from[w] == s->keep_pa;
+    for (int i = 0; i < s->attempts && rc == 0; i++) {
+        int distinct = s->attempt_from[i] != s->attempt_from[w] && fu[i] < fbest + reduce__tune.rival_metric;
+        for (int k = 0; k < s->nrival_ends && distinct; k++)
+            distinct = apart(s, &s->attempt_end[i], &s->rival_end[k]);
+        if (distinct && s->nrival_ends == 0)
+            s->rival_end[s->nrival_ends++] = s->attempt_end[w];
+        if (distinct && apart(s, &s->attempt_end[i], &s->attempt_end[w]))
+            s->rival_end[s->nrival_ends++] = s->attempt_end[i];
+    }
+    s->nrival_ends -= s->nrival_ends == 1; /* the winner alone: no rival */
     if (rc == 0 && w != s->attempts - 1) {
         reduce_metric_free(s->metric);
         if (!(s->metric = reduce__metric_with(s->asm_, s->nasm, s->moving, s->bricks, &s->r->voi, o->count,
@@ -575,7 +796,8 @@ static int stage_winner(fit_state *s)
 
 /* A rival: a start of the first stage that ends about as well as the best one (within
  * rival_metric) but farther than rival_mm or rival_deg from it. The metric has rival basins
- * there, and the fit may sit in the wrong one without touching the trust wall or colliding. */
+ * there, and the fit may sit in the wrong one without touching the trust wall or colliding. The
+ * winner's rivals among the kept candidates (stage_winner) count too. */
 static void stage_rivals(fit_state *s)
 {
     const reduce_tuning *T = &reduce__tune;
@@ -585,30 +807,24 @@ static void stage_rivals(fit_state *s)
             best = k;
     s->nrival_of = 0;
     for (int k = 0; k < s->nstart_ends; k++)
-        if (k != best && s->start_cost[k] < s->start_cost[best] + T->rival_metric) {
-            double a[3], c[3], d2 = 0;
-            pose_apply(&s->start_end[k], s->moving->centroid, a);
-            pose_apply(&s->start_end[best], s->moving->centroid, c);
-            for (int i = 0; i < 3; i++)
-                d2 += (a[i] - c[i]) * (a[i] - c[i]);
-            if (sqrt(d2) > T->rival_mm ||
-                pose_angle_between(s->start_end[k], s->start_end[best]) * 180 / PI > T->rival_deg) {
-                s->rival_of[0] = best;
-                s->rival_of[++s->nrival_of] = k;
-            }
+        if (k != best && s->start_cost[k] < s->start_cost[best] + T->rival_metric &&
+            apart(s, &s->start_end[k], &s->start_end[best])) {
+            s->rival_of[0] = best;
+            s->rival_of[++s->nrival_of] = k;
         }
     s->nrival_of += s->nrival_of > 0;
-    s->r->rival = s->nrival_of > 0;
+    s->r->rival = s->nrival_of > 0 || s->nrival_ends > 0;
 }
 
-/* With rivals, the candidates: the best first-stage end and the rival ones, each with its metric
- * over the final VOI (beside metric_end). */
+/* With rivals, the candidates, each with its metric over the final VOI (beside metric_end): the
+ * winner and its rivals among the kept candidates, else the best first-stage end and the rival
+ * ones. */
 static void keep_candidates(fit_state *s)
 {
     reduce_result *r = s->r;
-    r->ncandidates = s->nrival_of;
-    for (int i = 0; i < s->nrival_of; i++) {
-        r->candidate[i].pose = s->start_end[s->rival_of[i]];
+    r->ncandidates = s->nrival_ends ? s->nrival_ends : s->nrival_of;
+    for (int i = 0; i < r->ncandidates; i++) {
+        r->candidate[i].pose = s->nrival_ends ? s->rival_end[i] : s->start_end[s->rival_of[i]];
         r->candidate[i].metric = reduce_metric_eval(s->metric, &r->candidate[i].pose, NULL);
     }
 }
@@ -708,7 +924,7 @@ static int stage_finish(fit_state *s, int rc)
     if (rc == 0) {
         s->moving->pose = r->end;
         keep_candidates(s);
-        r->evaluations = s->obj.evals;
+        r->evaluations = s->obj.evals + s->global_evals;
         r->eval_cpu_s = (double)s->obj.eval_ns * 1e-9;
         r->history = s->obj.hist;
         r->nhistory = s->obj.nhist;
@@ -737,9 +953,13 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
     fit_state s;
     int rc = stage_open(&s, asm_, nasm, moving, o, r);
     if (rc == 0)
-        rc = stage_prealign(&s);
-    if (rc == 0)
-        rc = stage_attempts(&s);
+        rc = stage_start(&s);
+    if (rc == 0 && (rc = stage_local(&s)) == 1) {
+        s.obj.nowall = 1;
+        rc = stage_global(&s);
+        if (rc == 0)
+            rc = stage_attempts(&s);
+    }
     if (rc == 0)
         rc = stage_winner(&s);
     stage_rivals(&s);

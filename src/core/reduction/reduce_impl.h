@@ -98,6 +98,8 @@ int reduce__coarse_frag(const frag *f, frag *c);
 
 /* The first stage's ends looked at for rival basins (the size of an array; part of the table). */
 #define REDUCE_STARTS_SEEN REDUCE_CANDIDATES_MAX
+/* The global stage's candidates refined, at most (the size of an array; part of the table). */
+#define REDUCE_GLOBAL_KEEP_MAX 3
 
 /* Every number the reduction's stages are tuned by, in one place (reduce.c holds the values, with
  * the measurement that chose each where one did). What a user may set is in reduce_opts instead. */
@@ -130,6 +132,14 @@ typedef struct reduce_tuning {
     double powell_step[3];   /* our Powell's restarts: one step each */
     double gain;             /* a restart or a hop that gains less ends its sequence */
     double first_xtol;       /* the first of two stages stops at this times reduce_opts.xtol_mm */
+    /* the global stage */
+    double global_deg;       /* its candidates: the placed pose turned this much about each axis */
+    double global_mm;        /* and moved this much along each */
+    int global_coarse;       /* 1: their fits on the coarse level (reduce__coarse_frag) */
+    int global_evals;        /* evaluations per candidate's fit */
+    double global_xtol_mm;   /* and its convergence step */
+    int global_keep;         /* at most this many candidates refined (<= REDUCE_GLOBAL_KEEP_MAX)... */
+    double global_margin;    /* ...the best, and others distinct from it that score this close */
     /* starts and attempts */
     double start_deg;        /* the first stage's extra starts: turned this much about each axis */
     double wide_starts;      /* the third attempt turns its starts this many times wider */
