@@ -46,4 +46,11 @@
  * domain, 0 elsewhere. Returns n (1: whole), or FN_ENOMEM. */
 int split_auto(const float *values, const uint8_t *domain, const int dim[3], const double sp[3], int32_t *lab);
 
+/* The pieces 1..n of lab over the domain, made by splits in turn, joined again where the cut
+ * between two of them alone is no break (the test of step 3): a cut kept for the gap a third piece
+ * faced across (a joint beside it) is undone once that piece has come off. join[1..n] gets the
+ * piece each joins (the lowest of its group; itself when none). 0, or FN_ENOMEM. */
+int split_rejoin(const float *values, const uint8_t *domain, const int dim[3], const double sp[3],
+                 const int32_t *lab, int n, int *join);
+
 #endif
