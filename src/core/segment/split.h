@@ -19,7 +19,9 @@
  *    anywhere in the thick of them; a seed deep in each fragment places the cut best).
  * Measured on real pelvic bones (docs/benchmarks.md), neither test alone keeps every intact bone
  * whole: a sacrum faces itself across its foramina, an ilium's wing is thin; together they do.
- * One split into two per call.
+ * One split into two per call; a caller that splits the pieces again in turn ends with
+ * split_rejoin, which joins two pieces whose cut alone is neither broken nor narrow (a cut kept
+ * for the gap of a third piece beside it: the joint between a sacrum and its ilium).
  *
  * Boxes as grow.h. OS-free, no global state. */
 #ifndef FN_SPLIT_H
