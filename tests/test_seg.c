@@ -647,6 +647,34 @@ static void test_cli_bench_separate(void **st)
     assert_int_equal(json_integer_value(json_object_get(json_object_get(j, "pooled"), "intact_bones")), 0);
     json_decref(j);
     free(out);
+    /* --pelvis: the blocks as two bones of patient 002, each CT holding its own; added into one */
+    vol *part = vol_new(v->dim[0], v->dim[1], v->dim[2]), *one = vol_new(v->dim[0], v->dim[1], v->dim[2]);
+    for (int b = 0; b < 2; b++) {
+        for (size_t i = 0; i < vol_count(v); i++) {
+            int mine = (mask->data[i] == 1) == (b == 0) && mask->data[i] != 0;
+            part->data[i] = mine ? v->data[i] : 0;
+            one->data[i] = mine;
+        }
+        snprintf(path, sizeof path, "%s/002_%s.nii.gz", dir, b ? "XB" : "XA");
+        assert_int_equal(volio_write(part, path, VOL_I16), 0);
+        snprintf(path, sizeof path, "%s/002_%s_mask.nii.gz", dir, b ? "XB" : "XA");
+        assert_int_equal(volio_write(one, path, VOL_U8), 0);
+    }
+    rc = tu_run_cli(&out, "bench separate --json --pelvis '%s'", dir);
+    j = rc == 0 && strchr(out, '{') ? json_loads(strchr(out, '{'), 0, NULL) : NULL;
+    json_t *bones = json_object_get(j, "bones"), *pelvis = json_array_get(bones, 1);
+    if (json_array_size(bones) != 2 || !pelvis)
+        fail_msg("rc %d: %s", rc, out);
+    assert_string_equal(json_string_value(json_object_get(pelvis, "bone")), "002_pelvis");
+    assert_int_equal(json_integer_value(json_object_get(pelvis, "fragments_annotated")), 2);
+    assert_true(json_real_value(json_object_get(pelvis, "bone_dice")) == 1.0);
+    json_t *each = json_object_get(json_object_get(pelvis, "automatic"), "fragment_dice");
+    assert_int_equal(json_array_size(each), 2);
+    assert_true(json_real_value(json_array_get(each, 1)) >= 0.95);
+    json_decref(j);
+    free(out);
+    vol_free(part);
+    vol_free(one);
     assert_int_equal(tu_run_cli(&out, "bench separate --json"), 2);
     assert_non_null(strstr(out, "give the folder of NNN_BONE.nii.gz and NNN_BONE_mask.nii.gz pairs"));
     free(out);

@@ -91,11 +91,45 @@ static void test_split_pressed_pieces(void **st)
     free(lab);
 }
 
+/* Pieces made by splits in turn: A and B, halves of one intact bar (a wide cut through sound
+ * bone), and C, a bone across a 2 mm joint from B. A cut kept for the joint's gap (B with C faced
+ * A across it) is undone: A and B join; C stays apart. Halves of the broken bar stay apart. */
+static void test_rejoin_cut_beside_joint(void **st)
+{
+    (void)st;
+    float *hu = malloc(NX * NY * NZ * sizeof *hu);
+    uint8_t *mask = malloc(NX * NY * NZ);
+    int32_t *lab = malloc(NX * NY * NZ * sizeof *lab);
+    int join[4];
+    bar(0, hu, mask);
+    for (size_t v = 0; v < NX * NY * NZ; v++) {
+        int i = (int)(v % NX);
+        if (i == 52 || i == 53) /* the joint */
+            hu[v] = 0, mask[v] = 0;
+        else if (mask[v] && (i == 50 || i == 51 || i == 54 || i == 55)) /* the cortices facing across it */
+            hu[v] = 900;
+        lab[v] = !mask[v] ? 0 : i < 40 ? 1 : i < 52 ? 2 : 3;
+    }
+    assert_int_equal(split_rejoin(hu, mask, dim, sp, lab, 3, join), 0);
+    assert_int_equal(join[1], 1);
+    assert_int_equal(join[2], 1);
+    assert_int_equal(join[3], 3);
+    bar(1, hu, mask);
+    for (size_t v = 0; v < NX * NY * NZ; v++)
+        lab[v] = !mask[v] ? 0 : (int)(v % NX) < 36 ? 1 : 2;
+    assert_int_equal(split_rejoin(hu, mask, dim, sp, lab, 2, join), 0);
+    assert_int_equal(join[2], 2);
+    free(hu);
+    free(mask);
+    free(lab);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_sheet_valley_not_flank),
         cmocka_unit_test(test_split_pressed_pieces),
+        cmocka_unit_test(test_rejoin_cut_beside_joint),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

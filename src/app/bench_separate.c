@@ -22,7 +22,7 @@
 static void usage(FILE *out)
 {
     fprintf(out,
-            "usage: fracnav bench separate [--json] DIR\n\n"
+            "usage: fracnav bench separate [--json] [--pelvis] DIR\n\n"
             "Bone and fragments of real fracture CTs against fragments annotated by hand. DIR holds\n"
             "pairs NNN_BONE.nii.gz (the CT) and NNN_BONE_mask.nii.gz (label k = fragment k, on the\n"
             "CT's grid), as the PENGWIN/FracSegNet data. Each CT is segmented as `segment CT -o CASE\n"
@@ -34,8 +34,10 @@ static void usage(FILE *out)
             "seeded one), regrow_seconds (the growth updated after one more seed in the largest\n"
             "fragment), all in CPU seconds of the thread (a busy machine does not inflate them).\n"
             "Then the pooled figures beside their targets.\n\n"
-            "  --json   one JSON object on stdout\n"
-            "  --help   this text\n");
+            "  --json     one JSON object on stdout\n"
+            "  --pelvis   per patient NNN, its bones' CTs added into one (a full pelvis) and scored\n"
+            "             against the annotated fragments of them all, as one bone NNN_pelvis\n"
+            "  --help     this text\n");
 }
 
 static int by_name(const void *a, const void *b)
@@ -61,10 +63,24 @@ int bench_list_bones(const char *dir, char **names)
     return n;
 }
 
-/* The CT segmented into its whole bones, as segment --separate does before separating. */
-static planning_case *whole_bone_case(const char *path)
+/* A copy of v; NULL (with fn_err) when out of memory. */
+static vol *vol_copy(const vol *v)
 {
-    vol *ct = volio_read(path);
+    vol *c = vol_new(v->dim[0], v->dim[1], v->dim[2]);
+    if (c) {
+        memcpy(c->spacing, v->spacing, sizeof c->spacing);
+        memcpy(c->affine, v->affine, sizeof c->affine);
+        c->src_type = v->src_type;
+        memcpy(c->data, v->data, vol_count(v) * sizeof *v->data);
+    }
+    return c;
+}
+
+/* The CT (a copy of ct; path names it) segmented into its whole bones, as segment --separate does
+ * before separating. */
+static planning_case *whole_bone_case(const vol *ct_in, const char *path)
+{
+    vol *ct = vol_copy(ct_in);
     seg_params p;
     seg_defaults(&p);
     seg_result r = {0};
@@ -94,13 +110,12 @@ typedef struct truth {
     float *depth;             /* per voxel: its distance (mm) to its fragment's surface */
 } truth;
 
-/* The annotated fragments, their sizes, depth and deepest voxels. */
-static int read_truth(const char *path, truth *t)
+/* The annotated fragments (a copy of labels; path names them), their sizes, depth and deepest
+ * voxels. */
+static int read_truth(const vol *labels, const char *path, truth *t)
 {
-    volio_segs segs = {0};
     memset(t, 0, sizeof *t);
-    t->labels = volio_read_labels(path, &segs);
-    volio_segs_free(&segs);
+    t->labels = vol_copy(labels);
     if (!t->labels)
         return -1;
     vol *l = t->labels;
@@ -163,7 +178,8 @@ static void voxel_world(const vol *v, size_t i, double w[3])
 
 typedef struct scores {
     double dice_min, dice_median;
-    int found;
+    double dice[MAX_PIECES]; /* per annotated fragment, in the order of their labels */
+    int n, found;
 } scores;
 
 static int by_value(const void *a, const void *b)
@@ -177,7 +193,7 @@ static scores score(const planning_case *c, const truth *t)
 {
     size_t n = vol_count(t->labels), *inter = calloc((size_t)t->n * (size_t)(c->nfrag + 1), sizeof *inter);
     double dice[MAX_PIECES];
-    scores s = {NAN, NAN, c->nfrag};
+    scores s = {.dice_min = NAN, .dice_median = NAN, .n = t->n, .found = c->nfrag};
     if (!inter)
         return s;
     for (size_t i = 0; i < n; i++) {
@@ -197,6 +213,7 @@ static scores score(const planning_case *c, const truth *t)
                                         (double)(t->voxels[k] + c->frag[f].voxels));
     }
     free(inter);
+    memcpy(s.dice, dice, (size_t)t->n * sizeof *dice);
     qsort(dice, (size_t)t->n, sizeof *dice, by_value);
     s.dice_min = dice[0];
     s.dice_median = t->n % 2 ? dice[t->n / 2] : (dice[t->n / 2 - 1] + dice[t->n / 2]) / 2;
@@ -270,18 +287,17 @@ typedef struct bone_result {
     scores automatic, seeded;
 } bone_result;
 
-static int run_bone(const char *dir, const char *name, bone_result *r)
+/* ct (named path) and its annotation labels (named mask) scored as the bone name. */
+static int run_bone(const vol *ct, const char *path, const vol *labels, const char *mask, const char *name,
+                    bone_result *r)
 {
-    char ct[4200], mask[4200];
-    snprintf(ct, sizeof ct, "%s/%s.nii.gz", dir, name);
-    snprintf(mask, sizeof mask, "%s/%s_mask.nii.gz", dir, name);
     memset(r, 0, sizeof *r);
     snprintf(r->name, sizeof r->name, "%s", name);
     truth t;
-    if (read_truth(mask, &t) < 0)
+    if (read_truth(labels, mask, &t) < 0)
         return -1;
     r->annotated = t.n;
-    planning_case *c = whole_bone_case(ct);
+    planning_case *c = whole_bone_case(ct, path);
     int rc = c ? 0 : -1;
     if (rc == 0) {
         r->bone_dice = bone_dice(c, &t);
@@ -291,7 +307,7 @@ static int run_bone(const char *dir, const char *name, bone_result *r)
         r->automatic = score(c, &t);
         case_free(c);
     }
-    c = rc >= 0 ? whole_bone_case(ct) : NULL;
+    c = rc >= 0 ? whole_bone_case(ct, path) : NULL;
     case_seed seeds[MAX_PIECES];
     for (int k = 0; k < t.n; k++) {
         voxel_world(t.labels, t.deepest[k], seeds[k].at);
@@ -310,10 +326,83 @@ static int run_bone(const char *dir, const char *name, bone_result *r)
     return c ? rc : -1;
 }
 
+/* The CT and annotation of bones[0..n-1] in dir: the CTs added into one (each holds only its bone,
+ * 0 elsewhere), the labels of each bone after those of the bones before it. */
+static int read_bones(const char *dir, char *const *bones, int n, vol **ct, vol **labels)
+{
+    *ct = *labels = NULL;
+    int offset = 0;
+    for (int b = 0; b < n; b++) {
+        char path[4200], mask[4200];
+        snprintf(path, sizeof path, "%s/%s.nii.gz", dir, bones[b]);
+        snprintf(mask, sizeof mask, "%s/%s_mask.nii.gz", dir, bones[b]);
+        volio_segs segs = {0};
+        vol *c = volio_read(path), *l = c ? volio_read_labels(mask, &segs) : NULL;
+        volio_segs_free(&segs);
+        if (!l) {
+            vol_free(c);
+            return -1;
+        }
+        if (!*ct) {
+            *ct = c;
+            *labels = l;
+        } else if (memcmp(c->dim, (*ct)->dim, sizeof c->dim) || memcmp(l->dim, c->dim, sizeof c->dim)) {
+            vol_free(c);
+            vol_free(l);
+            return fn_err_set(FN_EFORMAT, "%s: its grid (%dx%dx%d) is not the grid of %s", path, c->dim[0],
+                              c->dim[1], c->dim[2], bones[0]);
+        } else {
+            for (size_t i = 0; i < vol_count(c); i++) {
+                (*ct)->data[i] = (*ct)->data[i] != 0 ? (*ct)->data[i] : c->data[i];
+                (*labels)->data[i] = l->data[i] != 0 ? l->data[i] + (float)offset : (*labels)->data[i];
+            }
+            vol_free(c);
+            vol_free(l);
+        }
+        float lo, hi;
+        vol_range(*labels, &lo, &hi);
+        offset = (int)hi;
+    }
+    return 0;
+}
+
+/* The bones names[0..n-1] of dir scored one by one, or (pelvis) those of each patient NNN added
+ * into one, as the bone NNN_pelvis. Returns the bones scored, or -1. */
+static int run_all(const char *dir, char **names, int n, int pelvis, bone_result *r)
+{
+    int done = 0;
+    for (int i = 0; i < n;) {
+        int m = 1;
+        while (pelvis && i + m < n && !strncmp(names[i], names[i + m], strcspn(names[i], "_") + 1))
+            m++;
+        char name[256], path[4200], mask[4200];
+        snprintf(name, sizeof name, pelvis ? "%.*s_pelvis" : "%.*s", pelvis ? (int)strcspn(names[i], "_") : 248,
+                 names[i]);
+        /* the case's source (its sha256 is taken, nothing else): the first bone's CT */
+        snprintf(path, sizeof path, "%s/%s.nii.gz", dir, names[i]);
+        snprintf(mask, sizeof mask, pelvis ? "%s/%.*s_*_mask.nii.gz" : "%s/%.*s_mask.nii.gz", dir,
+                 pelvis ? (int)strcspn(names[i], "_") : 255, names[i]);
+        fprintf(stderr, "bench separate: %s\n", name);
+        vol *ct, *labels;
+        int rc = read_bones(dir, names + i, m, &ct, &labels);
+        if (rc == 0)
+            rc = run_bone(ct, path, labels, mask, name, &r[done++]);
+        vol_free(ct);
+        vol_free(labels);
+        if (rc < 0)
+            return -1;
+        i += m;
+    }
+    return done;
+}
+
 static json_t *scores_json(const scores *s)
 {
-    return json_pack("{s:o,s:o,s:i}", "fragment_dice_min", jsonw_measure(s->dice_min), "fragment_dice_median",
-                     jsonw_measure(s->dice_median), "fragments_found", s->found);
+    json_t *each = json_array();
+    for (int k = 0; k < s->n; k++)
+        json_array_append_new(each, jsonw_measure(s->dice[k]));
+    return json_pack("{s:o,s:o,s:o,s:i}", "fragment_dice_min", jsonw_measure(s->dice_min), "fragment_dice_median",
+                     jsonw_measure(s->dice_median), "fragment_dice", each, "fragments_found", s->found);
 }
 
 static json_t *bone_json(const bone_result *r)
@@ -382,7 +471,7 @@ static void print_text(const bone_result *r, int n, const pooled *p)
 
 int bench_separate(int argc, char **argv)
 {
-    int json = 0;
+    int json = 0, pelvis = 0;
     const char *dir = NULL;
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "--help") || !strcmp(argv[i], "-h")) {
@@ -391,6 +480,8 @@ int bench_separate(int argc, char **argv)
         }
         if (!strcmp(argv[i], "--json"))
             json = 1;
+        else if (!strcmp(argv[i], "--pelvis"))
+            pelvis = 1;
         else if (argv[i][0] != '-' && !dir)
             dir = argv[i];
         else
@@ -404,13 +495,10 @@ int bench_separate(int argc, char **argv)
     if (n == 0)
         fn_err_set(FN_EINVAL, "bench separate: no NNN_BONE_mask.nii.gz in %s", dir);
     bone_result *r = n > 0 ? calloc((size_t)n, sizeof *r) : NULL;
-    int rc = r ? 0 : -1;
-    for (int i = 0; i < n && rc >= 0; i++) {
-        fprintf(stderr, "bench separate: %s\n", names[i]);
-        rc = run_bone(dir, names[i], &r[i]);
-    }
+    int rc = r ? run_all(dir, names, n, pelvis, r) : -1;
     for (int i = 0; i < (n > 0 ? n : 0); i++)
         free(names[i]);
+    n = rc;
     if (rc < 0) {
         fprintf(stderr, "fracnav bench separate: %s\n", fn_err_msg());
         free(r);

@@ -616,23 +616,79 @@ int case_seeds_parse(const char *text, const char *name, case_seed **out)
     return n;
 }
 
-/* case_separate_auto on fragment id, then on each of its pieces, until none splits. Returns the
- * new fragments made. */
+/* The pieces ids[0..n-1] over their joint box: lab gets i + 1 on ids[i]'s voxels, m the mask of
+ * them all, hu the CT there (0 elsewhere). 0 or FN_ENOMEM. */
+static int pieces_box(const planning_case *c, const int *ids, int n, int lo[3], int dim[3], int32_t **lab,
+                      uint8_t **m, float **hu)
+{
+    int hi[3];
+    for (int i = 0; i < n; i++) {
+        int l[3], h[3];
+        if (frag_label_box(c->labels, ids[i], l, h) < 0)
+            return FN_EFORMAT;
+        for (int a = 0; a < 3; a++) {
+            lo[a] = i == 0 || l[a] < lo[a] ? l[a] : lo[a];
+            hi[a] = i == 0 || h[a] > hi[a] ? h[a] : hi[a];
+        }
+    }
+    size_t nv = 1;
+    for (int a = 0; a < 3; a++) /* one voxel more on every side, as id_mask */
+        nv *= (size_t)(dim[a] = hi[a] - --lo[a] + 2);
+    *lab = malloc(nv * sizeof **lab);
+    *m = malloc(nv);
+    *hu = malloc(nv * sizeof **hu);
+    if (!*lab || !*m || !*hu)
+        return fn_err_set(FN_ENOMEM, "separate: out of memory for a box of %zu voxels", nv);
+    size_t b = 0;
+    for (int k = 0; k < dim[2]; k++)
+        for (int j = 0; j < dim[1]; j++)
+            for (int i = 0; i < dim[0]; i++, b++) {
+                int s[3] = {lo[0] + i, lo[1] + j, lo[2] + k};
+                int in = s[0] >= 0 && s[1] >= 0 && s[2] >= 0 && s[0] < c->labels->dim[0] &&
+                         s[1] < c->labels->dim[1] && s[2] < c->labels->dim[2];
+                size_t v = in ? vol_idx(c->labels, s[0], s[1], s[2]) : 0;
+                (*lab)[b] = 0;
+                for (int p = 0; in && p < n; p++)
+                    (*lab)[b] = c->labels->data[v] == (float)ids[p] ? p + 1 : (*lab)[b];
+                (*m)[b] = (*lab)[b] > 0;
+                (*hu)[b] = (*m)[b] ? c->ct->data[vol_idx(c->ct, s[0], s[1], s[2])] : 0;
+            }
+    return 0;
+}
+
+/* case_separate_auto on fragment id, then on each of its pieces, until none splits; then the
+ * pieces whose cut alone is no break are joined again (split_rejoin). Returns the new fragments
+ * left. */
 static int separate_auto_all(planning_case *c, int id)
 {
-    int todo[GROW_MAX_LABEL], ntodo = 0, made = 0, news[2];
+    int todo[GROW_MAX_LABEL], ntodo = 0, made = 0, news[2], ids[GROW_MAX_LABEL] = {id};
     todo[ntodo++] = id;
     while (ntodo > 0) {
         int at = todo[--ntodo], rc = case_separate_auto(c, at, news);
         if (rc < 0)
             return rc;
-        for (int i = 0; i < rc && ntodo + 2 <= GROW_MAX_LABEL; i++) {
+        for (int i = 0; i < rc && ntodo + 2 <= GROW_MAX_LABEL && made + 1 < GROW_MAX_LABEL - 1; i++) {
             todo[ntodo++] = at;
             todo[ntodo++] = news[i];
+            ids[++made] = news[i];
         }
-        made += rc;
     }
-    return made;
+    if (made < 2)
+        return made;
+    int lo[3], dim[3], join[GROW_MAX_LABEL + 1], joined = 0;
+    int32_t *lab = NULL;
+    uint8_t *m = NULL;
+    float *hu = NULL;
+    int rc = pieces_box(c, ids, made + 1, lo, dim, &lab, &m, &hu);
+    if (rc == 0)
+        rc = split_rejoin(hu, m, dim, c->labels->spacing, lab, made + 1, join);
+    for (int p = 1; rc == 0 && p <= made + 1; p++)
+        if (join[p] != p && (rc = case_merge(c, ids[join[p] - 1], ids[p - 1])) == 0)
+            joined++;
+    free(lab);
+    free(m);
+    free(hu);
+    return rc < 0 ? rc : made - joined;
 }
 
 int case_separate_all(planning_case *c, const case_seed *seeds, int n)

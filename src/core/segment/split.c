@@ -235,3 +235,45 @@ int split_auto(const float *values, const uint8_t *domain, const int dim[3], con
     free(contact);
     return rc < 0 ? rc : pieces;
 }
+
+int split_rejoin(const float *values, const uint8_t *domain, const int dim[3], const double sp[3],
+                 const int32_t *lab, int n, int *join)
+{
+    size_t nv = (size_t)dim[0] * dim[1] * dim[2], stride = (size_t)n + 1;
+    float *sheet = malloc(nv * sizeof *sheet);
+    uint8_t *label = malloc(nv);
+    size_t *facing = calloc(stride * stride, sizeof *facing), *contact = calloc(stride * stride, sizeof *contact);
+    size_t *broken = calloc(stride * stride, sizeof *broken), *count = calloc(stride, sizeof *count);
+    int rc = sheet && label && facing && contact && broken && count && n < GROW_MAX_LABEL
+                 ? 0
+                 : fn_err_set(FN_ENOMEM, "split: out of memory for %zu voxels", nv);
+    if (rc == 0)
+        rc = sheet_map(values, domain, dim, sp, sheet);
+    for (size_t v = 0; rc == 0 && v < nv; v++) {
+        label[v] = (uint8_t)(domain[v] ? lab[v] : 0);
+        count[label[v]]++;
+    }
+    if (rc == 0)
+        region_graph(domain, label, sheet, dim, sp, (int)stride, facing, contact, broken);
+    for (int a = 1; a <= n; a++)
+        join[a] = a;
+    /* each piece joins the lowest piece it reaches over cuts that are neither broken nor narrow */
+    for (int a = 1; rc == 0 && a <= n; a++)
+        for (int b = a + 1; b <= n; b++) {
+            size_t i = (size_t)a * stride + b, j = (size_t)b * stride + a;
+            size_t small = count[a] < count[b] ? count[a] : count[b];
+            if (!contact[i] || facing[i] + facing[j] + broken[i] >= SPLIT_BROKEN_MIN * (double)contact[i] ||
+                (double)contact[i] <= SPLIT_NECK_MAX * pow((double)small, 2.0 / 3))
+                continue;
+            int ra = join[a], rb = join[b], lo = ra < rb ? ra : rb, hi = ra < rb ? rb : ra;
+            for (int p = 1; p <= n; p++)
+                join[p] = join[p] == hi ? lo : join[p];
+        }
+    free(sheet);
+    free(label);
+    free(facing);
+    free(contact);
+    free(broken);
+    free(count);
+    return rc;
+}

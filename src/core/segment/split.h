@@ -19,7 +19,9 @@
  *    anywhere in the thick of them; a seed deep in each fragment places the cut best).
  * Measured on real pelvic bones (docs/benchmarks.md), neither test alone keeps every intact bone
  * whole: a sacrum faces itself across its foramina, an ilium's wing is thin; together they do.
- * One split into two per call.
+ * One split into two per call; a caller that splits the pieces again in turn ends with
+ * split_rejoin, which joins two pieces whose cut alone is neither broken nor narrow (a cut kept
+ * for the gap of a third piece beside it: the joint between a sacrum and its ilium).
  *
  * Boxes as grow.h. OS-free, no global state. */
 #ifndef FN_SPLIT_H
@@ -45,5 +47,12 @@
 /* Splits the domain (non-zero voxels) of the box into fragments: lab gets 1..n per voxel of the
  * domain, 0 elsewhere. Returns n (1: whole), or FN_ENOMEM. */
 int split_auto(const float *values, const uint8_t *domain, const int dim[3], const double sp[3], int32_t *lab);
+
+/* The pieces 1..n of lab over the domain, made by splits in turn, joined again where the cut
+ * between two of them alone is no break (the test of step 3): a cut kept for the gap a third piece
+ * faced across (a joint beside it) is undone once that piece has come off. join[1..n] gets the
+ * piece each joins (the lowest of its group; itself when none). 0, or FN_ENOMEM. */
+int split_rejoin(const float *values, const uint8_t *domain, const int dim[3], const double sp[3],
+                 const int32_t *lab, int n, int *join);
 
 #endif
