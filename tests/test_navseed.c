@@ -129,6 +129,31 @@ static void test_separation_file_of_another_case_json_is_dropped(void **st)
     blocks_free(&k);
 }
 
+/* A separation file for this case.json whose seed lines do not parse (a hand-edited or hostile
+ * file): navigate names the file and the line, opens the case as it is, and keeps the file. */
+static void test_garbled_separation_file_is_named_and_kept(void **st)
+{
+    (void)st;
+    blocks k;
+    blocks_make(&k, "navseed-garbled");
+    char json[4300], sha[65], pending[4300], text[256], *out = NULL;
+    snprintf(json, sizeof json, "%s/case.json", k.case_dir);
+    snprintf(pending, sizeof pending, "%s/separation", k.case_dir);
+    assert_int_equal(durable_file_sha256(json, sha), 0);
+    int len = snprintf(text, sizeof text, "# fracnav navigate: a separation of case.json sha256 %s\n"
+                       "1 nan-ish 2 3\n", sha);
+    tu_write_file(pending, text, (size_t)len);
+    int rc = navigate(&k, &out);
+    if (rc != 0 || !strstr(out, "not recovered") || !strstr(out, "separation: line 2"))
+        fail_msg("navigate with a garbled separation file: exit %d: %s", rc, out);
+    free(out);
+    int as_made;
+    assert_int_equal(fragments(&k, &as_made), 2);
+    assert_true(as_made);
+    assert_int_equal(access(pending, F_OK), 0);
+    blocks_free(&k);
+}
+
 /* An undo step equal to the case as it is (what a crash leaves after the step was kept, before
  * the save) is dropped, never applied; a step kept by case_save_undoable before an edit takes that
  * edit back. */
@@ -271,6 +296,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_crash_after_enter_is_recovered_and_undone),
         cmocka_unit_test(test_separation_file_of_another_case_json_is_dropped),
+        cmocka_unit_test(test_garbled_separation_file_is_named_and_kept),
         cmocka_unit_test(test_undo_step_equal_to_the_case_is_dropped),
         cmocka_unit_test(test_undo_never_loses_a_later_save),
         cmocka_unit_test(test_force_replaces_a_case_with_undo_steps),

@@ -696,8 +696,8 @@ int cmd_navigate(int argc, char **argv)
     v.dir = o.dir;
     int nfrag, made = navseed_recover(o.dir, &nfrag);
     if (made < 0)
-        fprintf(stderr, "fracnav navigate: %s: a separation interrupted by a crash failed again: %s\n", o.dir,
-                fn_err_msg());
+        fprintf(stderr, "fracnav navigate: %s: the separation a crash interrupted is not recovered (the case "
+                "opens as it was saved; the file stays): %s\n", o.dir, fn_err_msg());
     else if (made)
         fprintf(stderr, "%s: recovered a separation interrupted by a crash: %d new fragment%s, %d in all\n", o.dir,
                 made - 1, made == 2 ? "" : "s", nfrag);

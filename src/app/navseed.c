@@ -236,13 +236,18 @@ int navseed_recover(const char *dir, int *nfrag)
                 ? case_seeds_parse(text, pending, &seeds) : 0;
     free(text);
     int made = n < 0 ? n : 0;
-    if (n > 0 && n <= NAVSEED_MAX) {
+    if (n > NAVSEED_MAX) { /* not written by navigate: kept, for the user to look at */
+        free(seeds);
+        return fn_err_set(FN_EINVAL, "%s: %d seeds, more than a separation in the window takes (%d)",
+                          pending, n, NAVSEED_MAX);
+    }
+    if (n > 0) {
         navseed s;
         navseed_init(&s);
         memcpy(s.seed, seeds, (size_t)n * sizeof *seeds);
         s.n = n;
         made = navseed_separate(&s, dir, nfrag);
-    } else
+    } else if (n == 0)
         unlink(pending); /* a separation saved before a crash, or none to recover */
     free(seeds);
     return made < 0 ? made : n > 0 ? made + 1 : 0;

@@ -594,6 +594,7 @@ int case_seeds_parse(const char *text, const char *name, case_seed **out)
         for (int a = 0; ok && a < 3; a++)
             ok = seed_number(&q, &s.at[a]);
         if (!ok || q[strspn(q, " \t\r\n")]) {
+            buf[strcspn(buf, "\r\n")] = '\0'; /* the line as written, without its end */
             free(*out);
             *out = NULL;
             return fn_err_set(FN_EFORMAT, "%s: line %d: expected PIECE X Y Z (PIECE 1..%d or none, world LPS "
