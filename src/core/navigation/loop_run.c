@@ -39,9 +39,16 @@ int loop_realtime_priority(void)
     return platform_rt_priority();
 }
 
-void loop_background_priority(void)
+int loop_background_priority(loop *L)
 {
-    platform_background_priority();
+    int cpu = L ? atomic_load(&L->rt_cpu) : -1;
+    platform_background_priority(cpu);
+    return cpu;
+}
+
+int loop_rt_cpu(loop *L)
+{
+    return atomic_load(&L->rt_cpu);
 }
 
 /* Tells the reader where the loop runs: on one CPU under SCHED_FIFO, or not real-time (-1). */
