@@ -179,7 +179,7 @@ static void *preview_thread(void *arg)
      * advances on a busy machine, where SCHED_IDLE starved it (two busy loops beside the suite: no
      * ghost in 30 s). Explicitly so: started by session_play's thread, which may be the loop's
      * under SCHED_FIFO (bench loop --realtime), it would share the loop's CPU and policy. */
-    int off_cpu = loop_background_priority(s->L);
+    loop_background_priority();
     preview_fit pf = {.s = s};
     loop_scene sc = {0};
     int again = 1; /* the first look needs no publish */
@@ -191,8 +191,6 @@ static void *preview_thread(void *arg)
             ; /* one look serves every publish so far */
         if (atomic_load(&s->prev_stop))
             break;
-        if (loop_rt_cpu(s->L) != off_cpu) /* the loop started (or moved) after this worker */
-            off_cpu = loop_background_priority(s->L);
         loop_scene_read(s->L, &sc);
         if (wanted(s, &sc)) {
             again = fit_once(s, &pf, &sc);

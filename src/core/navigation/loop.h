@@ -302,17 +302,11 @@ int loop_scene_read(loop *L, loop_scene *out);
  * limit); returns 0, or FN_EINVAL when not allowed (the loop then runs as before). Safe:
  * loop_run sleeps between events and a step's work is bounded (max_tries). */
 int loop_realtime_priority(void);
-/* Runs the calling thread, a worker beside L's loop (the live preview's), under ordinary
- * scheduling at the lowest priority (nice 19), whatever it inherited from the thread that
- * started it: one started by a loop_realtime_priority thread would otherwise share the loop's CPU
- * under SCHED_FIFO, and the loop would wait for it. It runs on every CPU but the one the loop runs
- * on under SCHED_FIFO (when there is another), so that its work does not preempt into, or evict
- * the caches of, the loop's core. L may be NULL (every CPU). Best effort; returns the CPU it
- * kept off (-1: none). The loop may start (and announce its CPU) after the worker: a worker calls
- * it again when loop_rt_cpu changes. */
-int loop_background_priority(loop *L);
-/* The CPU L's loop runs on under SCHED_FIFO, -1 when it does not. */
-int loop_rt_cpu(loop *L);
+/* Runs the calling thread, a worker beside the loop (the live preview's), under ordinary
+ * scheduling at the lowest priority (nice 19) on every CPU, whatever it inherited from the thread
+ * that started it: one started by a loop_realtime_priority thread would otherwise share the
+ * loop's CPU under SCHED_FIFO, and the loop would wait for it. Best effort. */
+void loop_background_priority(void);
 
 /* The loop's clock: what loop_run ticks by and the rates, latencies and journal stamps count in.
  * The default is the monotonic clock (fnclock_now_us, which also stamps the reader's arrival_us),

@@ -39,16 +39,9 @@ int loop_realtime_priority(void)
     return platform_rt_priority();
 }
 
-int loop_background_priority(loop *L)
+void loop_background_priority(void)
 {
-    int cpu = L ? atomic_load(&L->rt_cpu) : -1;
-    platform_background_priority(cpu);
-    return cpu;
-}
-
-int loop_rt_cpu(loop *L)
-{
-    return atomic_load(&L->rt_cpu);
+    platform_background_priority();
 }
 
 /* Tells the reader where the loop runs: on one CPU under SCHED_FIFO, or not real-time (-1). */

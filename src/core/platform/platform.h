@@ -19,10 +19,9 @@ int platform_rt_cpu(int *prio);
  * nothing changes where it is refused). */
 void platform_rt_follow(int cpu, int prio);
 /* Puts the calling thread under ordinary scheduling at the lowest priority (nice 19), free to run
- * on every CPU the process may use but avoid_cpu (-1: none; kept when it is the only one): a
- * thread inherits its creator's policy and CPU, so one started by a real-time thread would
- * otherwise run under SCHED_FIFO on that thread's CPU. Best effort. */
-void platform_background_priority(int avoid_cpu);
+ * on every CPU: a thread inherits its creator's policy and CPU, so one started by a real-time
+ * thread would otherwise run under SCHED_FIFO on that thread's CPU. Best effort. */
+void platform_background_priority(void);
 /* on: keeps the process's memory out of khugepaged's reach (counted: the last off gives it back,
  * unless it was kept out before the first on). */
 void platform_hold_huge_pages(int on);

@@ -59,7 +59,7 @@ void platform_rt_follow(int cpu, int prio)
         pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp);
 }
 
-void platform_background_priority(int avoid_cpu)
+void platform_background_priority(void)
 {
     struct sched_param sp = {.sched_priority = 0};
     pthread_setschedparam(pthread_self(), SCHED_OTHER, &sp);
@@ -68,12 +68,6 @@ void platform_background_priority(int avoid_cpu)
     for (int c = 0; c < CPU_SETSIZE; c++)
         CPU_SET(c, &all); /* the kernel keeps those the process may use */
     pthread_setaffinity_np(pthread_self(), sizeof all, &all);
-    if (avoid_cpu >= 0 && avoid_cpu < CPU_SETSIZE &&
-        pthread_getaffinity_np(pthread_self(), sizeof all, &all) == 0 && CPU_ISSET(avoid_cpu, &all) &&
-        CPU_COUNT(&all) > 1) {
-        CPU_CLR(avoid_cpu, &all);
-        pthread_setaffinity_np(pthread_self(), sizeof all, &all);
-    }
     setpriority(PRIO_PROCESS, (id_t)syscall(SYS_gettid), 19);
 }
 
