@@ -367,9 +367,7 @@ static int occupied(const vol *out_lab, const vol *obstacle, size_t idx, int id)
     return (l != 0 && l != (float)id) || obstacle->data[idx] != 0;
 }
 
-/* The box of output voxels (index, a voxel to spare, not clamped to the grid) that piece `id` of
- * cut moved by m may reach. */
-static void moved_box(const vol *cut, int id, pose m, const vol *out_lab, int olo[3], int ohi[3])
+void fracture__moved_box(const vol *cut, int id, pose m, const vol *out_lab, int spare, int olo[3], int ohi[3])
 {
     int lo[3], hi[3];
     frag_label_box(cut, id, lo, hi);
@@ -387,8 +385,8 @@ static void moved_box(const vol *cut, int id, pose m, const vol *out_lab, int ol
         }
     }
     for (int a = 0; a < 3; a++) {
-        olo[a] = (int)floor(blo[a]) - 1;
-        ohi[a] = (int)ceil(bhi[a]) + 1;
+        olo[a] = (int)floor(blo[a]) - spare;
+        ohi[a] = (int)ceil(bhi[a]) + spare;
     }
 }
 
@@ -400,7 +398,7 @@ static size_t place_piece(const vol *cut, const vol *src_ct, const vol *obstacle
                           vol *out_ct, int id, pose m, int apply)
 {
     int olo[3], ohi[3];
-    moved_box(cut, id, m, out_lab, olo, ohi);
+    fracture__moved_box(cut, id, m, out_lab, 1, olo, ohi);
     for (int a = 0; a < 3; a++) {
         olo[a] = olo[a] < 0 ? 0 : olo[a];
         ohi[a] = ohi[a] > out_lab->dim[a] - 1 ? out_lab->dim[a] - 1 : ohi[a];
@@ -634,7 +632,7 @@ static int push_search(const struct push *pp, const double dir[3], const double 
 static int fit_grid(fracture_result *r, vol **obstacle, int id, pose m, float outside)
 {
     int olo[3], ohi[3], lo[3], hi[3], grow = 0;
-    moved_box(r->cut, id, m, r->labels, olo, ohi);
+    fracture__moved_box(r->cut, id, m, r->labels, 1, olo, ohi);
     for (int a = 0; a < 3; a++) {
         lo[a] = olo[a] < 0 ? -olo[a] : 0;
         hi[a] = ohi[a] >= r->labels->dim[a] ? ohi[a] - r->labels->dim[a] + 1 : 0;

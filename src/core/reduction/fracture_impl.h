@@ -10,6 +10,10 @@
  * voxels hold `value`, the old ones keep their world positions. NULL with fn_err. */
 vol *fracture__padded(const vol *v, const int lo[3], const int hi[3], float value);
 
+/* The box of out_lab's voxel indices (spare voxels to spare, not clamped to its grid) that piece
+ * `id` of cut moved by m may reach (the moved corners of the piece's label box). */
+void fracture__moved_box(const vol *cut, int id, pose m, const vol *out_lab, int spare, int olo[3], int ohi[3]);
+
 /* Model 1 (fracture.c): fracture_make for p->model 1. */
 int fracture__model1(const vol *ct, const fracture_params *p, fracture_result *out);
 

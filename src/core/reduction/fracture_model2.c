@@ -226,29 +226,6 @@ static int model2_motion(const vol *cut, const uint8_t *obstacle, uint64_t *rng,
     return fn_err_set(FN_EINVAL, "fracture model 2: the moved piece found no clear place in 8 draws");
 }
 
-/* The box of out's voxel indices (two to spare, not clamped to its grid) that piece 2 of cut
- * moved by m may reach. */
-static void moved_box(const vol *cut, const pose *m, const vol *out, int olo[3], int ohi[3])
-{
-    int lo[3], hi[3];
-    frag_label_box(cut, 2, lo, hi);
-    for (int a = 0; a < 3; a++) {
-        olo[a] = INT32_MAX;
-        ohi[a] = INT32_MIN;
-    }
-    for (int corner = 0; corner < 8; corner++) {
-        double ijk[3] = {corner & 1 ? hi[0] : lo[0], corner & 2 ? hi[1] : lo[1], corner & 4 ? hi[2] : lo[2]};
-        double w[3], mw[3], o[3];
-        vol_index_to_world(cut, ijk, w);
-        pose_apply(m, w, mw);
-        vol_world_to_index(out, mw, o);
-        for (int a = 0; a < 3; a++) {
-            olo[a] = (int)fmin(olo[a], floor(o[a]) - 2);
-            ohi[a] = (int)fmax(ohi[a], ceil(o[a]) + 2);
-        }
-    }
-}
-
 /* Piece 2 of cut (values from src) carried by m into out_ct/out_lab: each output voxel takes the
  * trilinear weights of the eight source voxels around its preimage; o, the weight that falls on
  * piece 2, mixes the piece's value with what is there (partial volume at every edge of the piece,
@@ -256,7 +233,7 @@ static void moved_box(const vol *cut, const pose *m, const vol *out, int olo[3],
 static void model2_resample(const vol *cut, const vol *src, const pose *m, vol *out_ct, vol *out_lab)
 {
     int olo[3], ohi[3];
-    moved_box(cut, m, out_ct, olo, ohi);
+    fracture__moved_box(cut, 2, *m, out_ct, 2, olo, ohi);
     for (int a = 0; a < 3; a++) {
         olo[a] = olo[a] < 0 ? 0 : olo[a];
         ohi[a] = ohi[a] > out_ct->dim[a] - 1 ? out_ct->dim[a] - 1 : ohi[a];
@@ -360,7 +337,7 @@ int fracture_model2(const vol *ct, const fracture_params *p, fracture_result *ou
     int grow_lo[3] = {0, 0, 0}, grow_hi[3] = {0, 0, 0};
     if (rc == 0) { /* where the piece lands past the grid's edge, the grid grows to hold it */
         int olo[3], ohi[3];
-        moved_box(out->cut, &m, ct, olo, ohi);
+        fracture__moved_box(out->cut, 2, m, ct, 2, olo, ohi);
         for (int a = 0; a < 3; a++) {
             grow_lo[a] = olo[a] < 0 ? -olo[a] : 0;
             grow_hi[a] = ohi[a] >= ct->dim[a] ? ohi[a] - ct->dim[a] + 1 : 0;
