@@ -161,6 +161,23 @@ static void test_data_files_regular_and_inside(void **st)
     expect_both_refused(tu_in_dir("cr.nhdr"), "line 9: data file: f0.raw is not a regular file", NULL);
     write_header("datafile.nhdr", HEAD "DataFile: LIST\ns0.raw\ns1.raw\nf2.raw\ns3.raw\n");
     expect_both_refused(tu_in_dir("datafile.nhdr"), "f2.raw is not a regular file", NULL);
+    /* the last entry needs no line end: teem reads it as a name too */
+    write_header("noend.nhdr", HEAD "data file: LIST\ns0.raw\ns1.raw\ns2.raw\nf3.raw");
+    expect_both_refused(tu_in_dir("noend.nhdr"), "line 11: data file: f3.raw is not a regular file", NULL);
+}
+
+/* CI's fuzz smoke found it: a NUL byte in a LIST entry after the last listed slice, with no line
+ * end, ran teem's line reader past its buffer (ASan: heap-buffer-overflow in biffAddf). A header is
+ * text: a NUL byte in any of its lines is refused by line and character. */
+static void test_nul_in_header_refused(void **st)
+{
+    write_slices();
+    static const char crash[] = HEAD "data file: LIST\ns0.raw\ns1.raw\ns2.raw\ns3.raw\ns0.\0\0\0\0\0raw'";
+    tu_write_file(tu_in_dir("nul.nhdr"), crash, sizeof crash - 1);
+    expect_both_refused(tu_in_dir("nul.nhdr"), "line 12: a NUL byte at character 4", "a NRRD header is text");
+    static const char field[] = "NRRD0004\ntype: unsigned\0 char\ndimension: 3\n";
+    tu_write_file(tu_in_dir("nulfield.nrrd"), field, sizeof field - 1);
+    expect_both_refused(tu_in_dir("nulfield.nrrd"), "line 2: a NUL byte at character 15", NULL);
 }
 
 /* `segment --labels` reads its labelmap through the same check. */
@@ -201,6 +218,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test_setup_teardown(test_numbered_names_bounded, tu_dir_setup, tu_dir_teardown),
         cmocka_unit_test_setup_teardown(test_data_files_regular_and_inside, tu_dir_setup, tu_dir_teardown),
+        cmocka_unit_test_setup_teardown(test_nul_in_header_refused, tu_dir_setup, tu_dir_teardown),
         cmocka_unit_test_setup_teardown(test_labels_cli_refuses, tu_dir_setup, tu_dir_teardown),
         cmocka_unit_test_setup_teardown(test_header_bounded, tu_dir_setup, tu_dir_teardown),
     };

@@ -36,9 +36,10 @@ typedef struct scan {
     int labels;       /* read as a labelmap: segment numbers are bounded */
 } scan;
 
-/* The next line as airOneLine cuts it: ended by "\n", "\r" or "\r\n" (characters after the last
- * line end are no line), and as a C string (teem stops at a NUL byte too). 1 when a line was read,
- * 0 at the end of the file, <0 on a line over MAX_LINE characters. */
+/* The next line as airOneLine cuts it: ended by "\n", "\r", "\r\n" or the end of the file (teem
+ * reads characters after the last line end as one more line). 1 when a line was read, 0 at the end
+ * of the file, <0 on a line over MAX_LINE characters or one that holds a NUL byte: a header is text,
+ * and teem's own line reader runs past the end of its buffer on a NUL in a LIST entry. */
 static int next_line(scan *s)
 {
     size_t n = 0;
@@ -47,9 +48,12 @@ static int next_line(scan *s)
         if (n == MAX_LINE)
             return fn_err_set(FN_EFORMAT, "%s: line %d: over %d characters", s->path, s->lineno + 1,
                               MAX_LINE);
+        if (c == '\0')
+            return fn_err_set(FN_EFORMAT, "%s: line %d: a NUL byte at character %zu: a NRRD header is "
+                              "text", s->path, s->lineno + 1, n + 1);
         s->line[n++] = (char)c;
     }
-    if (c == EOF)
+    if (c == EOF && n == 0)
         return 0;
     if (c == '\r' && (c = getc(s->f)) != '\n' && c != EOF)
         ungetc(c, s->f);
