@@ -356,6 +356,11 @@ static void test_reduce_three_pieces(void **st)
     reduce_result r[2];
     assert_int_equal(reduce_case(c, 0, NULL, 2, &o, r), 0);
     check_errors(c, 0, 1, 1);
+    /* each piece's start and end metric say what the reduction did, not only its second sweep
+     * (issue 27: "metric -0.722651 -> -0.722651" for pieces moved by 5-7 mm) */
+    for (int i = 0; i < 2; i++)
+        if (!(r[i].metric_end < r[i].metric_start - 0.01))
+            fail_msg("piece %d: metric %.6f -> %.6f", i + 2, r[i].metric_start, r[i].metric_end);
     for (int i = 0; i < 2; i++)
         reduce_result_free(&r[i]);
     case_free(c);

@@ -194,7 +194,8 @@ typedef struct reduce_result {
     int evaluations;
     double eval_cpu_s;    /* thread CPU seconds those evaluations spent in the metric (their VOIs) */
     double seconds;
-    double metric_start;  /* at start, over voi */
+    double metric_start;  /* at start, over voi (several fragments: at the first sweep's start,
+                           * over that sweep's VOI) */
     double metric_end;
     double push_mm;       /* how far the collision check pushed the result out (0: not at all) */
     int collides;         /* 1 only when no collision-free pose could be found (then end = start) */

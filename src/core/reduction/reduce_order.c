@@ -67,7 +67,9 @@ static void merge_sweep(reduce_result *r, reduce_result *r2)
     r->evaluations += r2->evaluations;
     r->eval_cpu_s += r2->eval_cpu_s;
     r->seconds += r2->seconds;
-    r->metric_start = r2->metric_start;
+    /* metric_start stays the first sweep's: the metric where the hand left the piece, so that
+     * "start -> end" says what the whole reduction did (the second sweep's start is the first's
+     * end: printed alone it read "-0.7227 -> -0.7227" for a piece moved 6 mm) */
     r->metric_end = r2->metric_end;
     r->push_mm += r2->push_mm;
     r->collides = r2->collides;
