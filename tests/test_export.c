@@ -422,6 +422,34 @@ static void test_report_in_chromium(void **st)
     free(dom);
 }
 
+/* The convergence plot's dot and label mark the kept pose's metric (the record's metric_end), not
+ * the last value of the history (a global stage's last candidate: "final 0.2589" for a fit that
+ * ended at -0.7515); the page says it beside the plot. */
+static void test_report_plot_marks_the_final_metric(void **st)
+{
+    (void)st;
+    char cj[4300], html[4300], want[128];
+    snprintf(cj, sizeof cj, "%s/case.json", frac);
+    snprintf(html, sizeof html, "%s/report/index.html", out);
+    json_t *root = json_load_file(cj, 0, NULL);
+    assert_non_null(root);
+    json_t *fr = json_object_get(json_object_get(root, "reduction"), "fragments");
+    assert_true(json_array_size(fr) >= 1);
+    char *page = tu_slurp(html, NULL);
+    assert_non_null(page);
+    size_t i;
+    json_t *e;
+    json_array_foreach(fr, i, e) {
+        int id = (int)json_integer_value(json_object_get(e, "id"));
+        snprintf(want, sizeof want, "<span data-fragment=\"%d\">%.4f</span>", id,
+                 json_number_value(json_object_get(e, "metric_end")));
+        if (!strstr(page, want))
+            fail_msg("the report's plot does not mark fragment %d's final metric: no '%s'", id, want);
+    }
+    free(page);
+    json_decref(root);
+}
+
 /* export --report-pdf: the report printed by headless Chromium is a PDF. */
 static void test_report_pdf(void **st)
 {
@@ -642,6 +670,7 @@ int main(void)
         cmocka_unit_test(test_nifti_and_seg_nrrd),
         cmocka_unit_test(test_stl_closed_in_mm),
         cmocka_unit_test(test_report_in_chromium),
+        cmocka_unit_test(test_report_plot_marks_the_final_metric),
         cmocka_unit_test(test_report_pdf),
         cmocka_unit_test(test_gap_near_zero_at_the_truth),
         cmocka_unit_test(test_report_without_renderer),

@@ -337,6 +337,8 @@ typedef struct plot_ctx {
     json_t **hist;
     int *ids;
     int n;
+    double lo, hi;    /* the metric axis (plot_range) */
+    const double *fin; /* per fragment: the record's metric_end, where the dot goes */
 } plot_ctx;
 
 /* The metric history's runs: a rise starts a new one (each stage and attempt of the fit starts
@@ -354,16 +356,11 @@ static int draw_plot(durable_file *df, void *vctx)
 {
     const char *tmp = df->tmp;
     const plot_ctx *p = vctx;
-    double lo = INFINITY, hi = -INFINITY;
+    double lo = p->lo, hi = p->hi;
     size_t longest = 1;
     for (int k = 0; k < p->n; k++) {
         size_t n = json_array_size(p->hist[k]);
         longest = n > longest ? n : longest;
-        for (size_t i = 0; i < n; i++) {
-            double v = json_number_value(json_array_get(p->hist[k], i));
-            lo = v < lo ? v : lo;
-            hi = v > hi ? v : hi;
-        }
     }
     /* a margin PLplot can tell from the values: 0.05 at 1e20 is lost and plenv aborts */
     double pad = 0.05 * fmax(hi > lo ? hi - lo : 1.0, 1e-3 * fmax(fabs(lo), fabs(hi)));
@@ -405,17 +402,19 @@ static int draw_plot(durable_file *df, void *vctx)
         }
         pllsty(1);
         plssym(0, 2.5);
-        plpoin(1, &x[n - 1], &y[n - 1], 17); /* the final metric */
+        double fin = p->fin[k];
+        plpoin(1, &x[n - 1], &fin, 17); /* the final metric: the kept pose's, not the last run's */
         char label[160];
         plmtex("rv", 1.0, 1.0 - 0.12 * k - 0.04, 0, f->name);
-        snprintf(label, sizeof label, "%d run%s, final %.4f", runs, runs == 1 ? "" : "s", y[n - 1]);
+        snprintf(label, sizeof label, "%d run%s, final %.4f", runs, runs == 1 ? "" : "s", fin);
         plmtex("rv", 1.0, 1.0 - 0.12 * k - 0.09, 0, label);
         free(x);
         free(y);
     }
     plcol0(1);
-    plmtex("rv", 1.0, 0.09, 0, "dot: the final metric;");
-    plmtex("rv", 1.0, 0.04, 0, "a dashed line: a later run");
+    plmtex("rv", 1.0, 0.14, 0, "dot: the final metric;");
+    plmtex("rv", 1.0, 0.09, 0, "a dashed line: a later run;");
+    plmtex("rv", 1.0, 0.04, 0, "runs above the start: cut");
     plend();
     struct stat st;
     return stat(tmp, &st) == 0 && st.st_size > 0 ? 0 : fn_err_set(FN_EIO, "%s: PLplot wrote nothing", tmp);
@@ -434,11 +433,34 @@ static int plottable(json_t *h)
     return 1;
 }
 
-/* The convergence plot; 1 when drawn, 0 when there is nothing to plot (why in *why). */
-static int plot(const planning_case *c, const char *dir, const char **why, report_wrote_fn wrote, void *ctx)
+#ifdef FRACNAV_HAVE_PLPLOT
+/* The metric axis: from the lowest value to the highest first value or final metric. A later run
+ * that starts above them (a global stage's candidate far from the answer, +0.3 where the fit runs
+ * from -0.7 to -0.8) is cut at the top instead of squeezing the fit into a flat line. */
+static void plot_range(json_t **hist, const double *fin, int n, double *lo, double *hi)
+{
+    *lo = INFINITY;
+    *hi = -INFINITY;
+    for (int k = 0; k < n; k++) {
+        size_t i;
+        json_t *v;
+        json_array_foreach(hist[k], i, v)
+            *lo = fmin(*lo, json_number_value(v));
+        *lo = fmin(*lo, fin[k]);
+        *hi = fmax(*hi, fmax(json_number_value(json_array_get(hist[k], 0)), fin[k]));
+    }
+}
+#endif
+
+/* The convergence plot; 1 when drawn, 0 when there is nothing to plot (why in *why). fin gets
+ * each plotted fragment's final metric (the record's metric_end; the last value without one), ids
+ * their ids, *nplot how many. */
+static int plot(const planning_case *c, const char *dir, const char **why, report_wrote_fn wrote, void *ctx,
+                int *ids, double *fin, int *nplot)
 {
     json_t *hist[64];
-    int ids[64], n = 0;
+    int n = 0;
+    *nplot = 0;
     for (int i = 0; i < c->nfrag && n < 64; i++) {
         json_t *e = record_of(c, c->frag[i].id), *h = e ? json_object_get(e, "history") : NULL;
         if (json_array_size(h) > 0 && !plottable(h)) {
@@ -446,6 +468,9 @@ static int plot(const planning_case *c, const char *dir, const char **why, repor
             return 0;
         }
         if (json_array_size(h) > 0) {
+            json_t *m1 = json_object_get(e, "metric_end");
+            double last = json_number_value(json_array_get(h, json_array_size(h) - 1));
+            fin[n] = json_is_number(m1) && fabs(json_number_value(m1)) <= 1e30 ? json_number_value(m1) : last;
             hist[n] = h;
             ids[n++] = c->frag[i].id;
         }
@@ -459,12 +484,14 @@ static int plot(const planning_case *c, const char *dir, const char **why, repor
 #ifdef FRACNAV_HAVE_PLPLOT
     char path[4200];
     snprintf(path, sizeof path, "%s/convergence.png", dir);
-    plot_ctx p = {c, hist, ids, n};
+    plot_ctx p = {c, hist, ids, n, 0, 0, fin};
+    plot_range(hist, fin, n, &p.lo, &p.hi);
     int rc = durable_replace(path, draw_plot, &p);
     if (rc)
         return rc;
     if (wrote)
         wrote(ctx, path);
+    *nplot = n;
     return 1;
 #else
     (void)dir, (void)wrote, (void)ctx;
@@ -495,6 +522,8 @@ typedef struct page_ctx {
     char no_render[512]; /* why there are no renders (rendered = 0) */
     const double *overlap_ml, *contact_mm2;
     const report_gap *gaps;
+    int plot_ids[64], nplot; /* the plotted fragments and their final metrics */
+    double plot_fin[64];
 } page_ctx;
 
 static void cell(FILE *fp, double v, const char *fmt)
@@ -639,9 +668,14 @@ static int write_page(durable_file *df, void *vctx)
               "ground truth (TRE over the fracture surface).",
               fp);
     fputs("</p>\n<h2>Convergence</h2>\n", fp);
-    if (p->plotted)
+    if (p->plotted) {
         fputs("<img src=\"convergence.png\" width=\"800\" height=\"480\" alt=\"convergence plot\">\n", fp);
-    else {
+        fputs("<p class=\"plot-final\">Final metric (the dot):", fp);
+        for (int k = 0; k < p->nplot; k++)
+            fprintf(fp, "%s fragment %d <span data-fragment=\"%d\">%.4f</span>", k ? ";" : "", p->plot_ids[k],
+                    p->plot_ids[k], p->plot_fin[k]);
+        fputs(". A run that starts above the fit's start is cut at the top.</p>\n", fp);
+    } else {
         fputs("<p>No plot: ", fp);
         html_text(fp, p->why);
         fputs(".</p>\n", fp);
@@ -672,7 +706,7 @@ int report_write(const planning_case *c, const vol *planned, const double *overl
         return fn_err_set(FN_ENOMEM, "out of memory for the report");
     }
     report_gap *gaps = malloc((size_t)(c->nfrag ? c->nfrag : 1) * sizeof *gaps);
-    page_ctx p = {c, before, before_poses(c, before), 0, 1, NULL, "", overlap_ml, contact, gaps};
+    page_ctx p = {c, before, before_poses(c, before), 0, 1, NULL, "", overlap_ml, contact, gaps, {0}, 0, {0}};
     int rc = gaps ? export_contacts(c, planned, 2.0, contact, contact + c->nfrag)
                   : fn_err_set(FN_ENOMEM, "out of memory for the report");
     if (!rc)
@@ -685,7 +719,7 @@ int report_write(const planning_case *c, const vol *planned, const double *overl
         rc = 0;
     }
     if (!rc) {
-        int r = plot(c, dir, &p.why, wrote, ctx);
+        int r = plot(c, dir, &p.why, wrote, ctx, p.plot_ids, p.plot_fin, &p.nplot);
         rc = r < 0 ? r : 0;
         p.plotted = r > 0;
     }
