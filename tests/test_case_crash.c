@@ -1,7 +1,7 @@
 /* Killed while writing a case: `segment` and `fracture` are killed with SIGKILL at the moment they
  * write a file of the case (watched for, not timed), and what is left at the case's path must be
  * the old case or the new one, never a mix or a half-made folder. An existing case is replaced only
- * with --force. */
+ * with --force, also one that another process saved while this one worked on a new case. */
 #include <stdarg.h>
 #include <stddef.h>
 #include <setjmp.h>
@@ -392,6 +392,54 @@ static void test_export_killed_leftover_removed(void **st)
     free(dir);
 }
 
+/* The child's staged folder of the new case w->base is made: it found no case there. */
+static int staged(const watch *w)
+{
+    char p[4400];
+    struct stat sb;
+    snprintf(p, sizeof p, "%s/.%s.new-%ld", w->parent, w->base, (long)w->pid);
+    return stat(p, &sb) == 0;
+}
+
+/* Two `fracture -o NEW` at once, without --force: the first is stopped once it has found no case
+ * there (its staged folder made), the second saves the case meanwhile; the first, let go on, is
+ * refused, saying so, and the second's case is kept. */
+static void test_two_writers_of_a_new_case(void **st)
+{
+    (void)st;
+    char *dir = tu_tmpdir("casecrash"), src[4200], cdir[4200], log[4200], cmd[9400];
+    snprintf(src, sizeof src, "%s/ct.nii.gz", dir);
+    snprintf(cdir, sizeof cdir, "%s/nc", dir);
+    snprintf(log, sizeof log, "%s/first.out", dir);
+    write_ct(src);
+    snprintf(cmd, sizeof cmd, "exec '%s' fracture '%s' -o '%s' --seed 1", tu_fracnav(), src, cdir);
+    watch w = {dir, "nc", NULL, NULL, tu_spawn((char *[]){"/bin/sh", "-c", cmd, NULL}, log, NULL)};
+    kill_watch k = {staged, &w};
+    if (!tu_wait_for_every(reached_or_ended, &k, TU_WAIT_MAX_S, 100) || ended(w.pid))
+        fail_msg("the first fracture ended before it was seen staging the new case");
+    struct stat sb;
+    assert_int_equal(stat(cdir, &sb), -1); /* stopped before its case was put in place */
+    char *out = NULL;
+    assert_int_equal(tu_run_cli(&out, "fracture '%s' -o '%s' --seed 2", src, cdir), 0);
+    free(out);
+    planning_case *c = tu_case_load(cdir);
+    char second[65];
+    memcpy(second, c->json_sha256, sizeof second);
+    case_free(c);
+    kill(w.pid, SIGCONT);
+    int rc = tu_end(w.pid, 0, "the first fracture");
+    out = tu_slurp(log, NULL);
+    if (rc != 1 || !strstr(out, "another process saved a case there") || !strstr(out, "--force"))
+        fail_msg("the first fracture: exit %d, expected its refusal: %s", rc, out ? out : "");
+    free(out);
+    c = tu_case_load(cdir);
+    assert_string_equal(c->json_sha256, second);
+    case_free(c);
+    assert_false(staged(&w)); /* the refused one removed its staged folder */
+    tu_rmtree(dir);
+    free(dir);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -399,6 +447,7 @@ int main(void)
         cmocka_unit_test(test_fracture_killed_keeps_old_case),
         cmocka_unit_test(test_edit_killed_at_lock_and_temporaries),
         cmocka_unit_test(test_export_killed_leftover_removed),
+        cmocka_unit_test(test_two_writers_of_a_new_case),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

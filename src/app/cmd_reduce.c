@@ -332,7 +332,7 @@ static int store(planning_case *c, const args *A, int fixed, const reduce_result
         err = retarget(c, tmp);
     if (err == 0)
         err = case_save(c);
-    if (err == 0 && A->out && (err = case_stage_commit(tmp, A->out)) == 0)
+    if (err == 0 && A->out && (err = case_stage_commit(tmp, A->out, A->force)) == 0)
         snprintf(c->dir, sizeof c->dir, "%s", A->out);
     if (err == 0 && !A->out) /* case.json holds the journal's poses now */
         err = case_journal_remove(c);
