@@ -134,16 +134,22 @@ static int is_written(const watch *w)
     return written(w->parent, w->base, w->name, w->old);
 }
 
-/* A temporary (durable.h) is being written in folder w->parent. */
+/* A temporary (durable.h: .fracnav-tmp-PID-N-NAME) is in folder w->parent: the child's own (its
+ * pid in the name) when w->pid is set, else anyone's. */
 static int temporary_in(const watch *w)
 {
+    char tag[64];
+    if (w->pid)
+        snprintf(tag, sizeof tag, DURABLE_TMP_TAG "%ld-", (long)w->pid);
+    else
+        snprintf(tag, sizeof tag, DURABLE_TMP_TAG);
     DIR *d = opendir(w->parent);
     if (!d)
         return 0;
     struct dirent *e;
     int hit = 0;
     while (!hit && (e = readdir(d)))
-        hit = !strncmp(e->d_name, DURABLE_TMP_TAG, strlen(DURABLE_TMP_TAG));
+        hit = !strncmp(e->d_name, tag, strlen(tag));
     closedir(d);
     return hit;
 }
