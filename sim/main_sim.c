@@ -9,6 +9,7 @@
 #include <string.h>
 
 #include "bench_sim.h"
+#include "durable.h"
 #include "err.h"
 #include "fnclock.h"
 #include "fnrec.h"
@@ -52,14 +53,14 @@ static const struct sub_help {
      "  --fast           play as fast as the readers read (implies --start-on-read); fracnav\n"
      "                   record keeps the device's cadence in its timestamps all the same\n"
      "  --exit-at-end    unmount and exit once the playback is over and read\n"
-     "  --log FILE       write every report served to a .fnrec file\n"
+     "  --log FILE       write every report served to a .fnrec file (not in a case folder)\n"
      "  --control FIFO   script lines written to this FIFO (made if absent) play in turn, as\n"
      "                   soon as possible: echo 'press 1' > FIFO\n"
      "  --serial SN      serial number served (HIDIOCGRAWUNIQ; 8-32 characters; default\n"
      "                   FNSIM + VID + PID)\n"},
     {"render", "fracnav-sim render [--as DEVICE] --script FILE -o FILE.fnrec\n",
      "Writes the reports a motion script produces on DEVICE (default spacenavigator) to a .fnrec\n"
-     "file.\n"},
+     "file (never one in a case folder, whose files only fracnav's saves write).\n"},
     {"list", "fracnav-sim list\n", "Prints the devices the simulator can impersonate.\n"},
     {"bench", "fracnav-sim bench [--mount DIR] [--seconds S]\n",
      "Measures report throughput (as fast as possible) and timing jitter (at the 8 ms cadence,\n"
@@ -205,7 +206,8 @@ static int setup(const opts *o, hidfuse_source *src)
     src->start_on_read = o->start_on_read;
     src->fast = o->fast;
     src->exit_at_end = o->exit_at_end;
-    if (o->log && !(src->log = fnrec_writer_open(o->log, &src->id)))
+    /* a recording is never written into a case folder, as fracnav's own outputs */
+    if (o->log && (durable_out_of_case(o->log) < 0 || !(src->log = fnrec_writer_open(o->log, &src->id))))
         return -1;
     return 0;
 }
@@ -248,6 +250,10 @@ int main(int argc, char **argv)
                                                                             : "--mount DIR");
     }
     hidfuse_source src;
+    if (o.out && durable_out_of_case(o.out) < 0) { /* render -o, before the work */
+        fprintf(stderr, "fracnav-sim %s: %s\n", cmd, fn_err_msg());
+        return 1;
+    }
     if (setup(&o, &src)) {
         fprintf(stderr, "fracnav-sim %s: %s\n", cmd, fn_err_msg());
         fnrec_free(src.rec);

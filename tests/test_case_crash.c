@@ -1,7 +1,7 @@
 /* Killed while writing a case: `segment` and `fracture` are killed with SIGKILL at the moment they
  * write a file of the case (watched for, not timed), and what is left at the case's path must be
  * the old case or the new one, never a mix or a half-made folder. An existing case is replaced only
- * with --force. */
+ * with --force, also one that another process saved while this one worked on a new case. */
 #include <stdarg.h>
 #include <stddef.h>
 #include <setjmp.h>
@@ -16,10 +16,13 @@
 #include "volio.h"
 
 #include <dirent.h>
+#include <errno.h>
+#include <fcntl.h>
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/file.h>
 #include <sys/stat.h>
 #include <sys/wait.h>
 #include <time.h>
@@ -107,6 +110,18 @@ static int written(const char *parent, const char *base, const char *name, const
     return hit;
 }
 
+/* 1 when some process holds a flock on the file at path: a non-blocking shared flock of it is
+ * refused (one that is granted is let go at once). */
+static int lock_is_held(const char *path)
+{
+    int fd = open(path, O_RDONLY | O_NOFOLLOW | O_CLOEXEC);
+    if (fd < 0)
+        return 0;
+    int held = flock(fd, LOCK_SH | LOCK_NB) != 0 && errno == EWOULDBLOCK;
+    close(fd); /* releases a lock granted */
+    return held;
+}
+
 /* What a kill waits for: in folder `parent`, the step named by the condition. */
 typedef struct watch {
     const char *parent, *base, *name;
@@ -119,30 +134,37 @@ static int is_written(const watch *w)
     return written(w->parent, w->base, w->name, w->old);
 }
 
-/* A temporary (durable.h) is being written in folder w->parent. */
+/* A temporary (durable.h: .fracnav-tmp-PID-N-NAME) is in folder w->parent: the child's own (its
+ * pid in the name) when w->pid is set, else anyone's. */
 static int temporary_in(const watch *w)
 {
+    char tag[64];
+    if (w->pid)
+        snprintf(tag, sizeof tag, DURABLE_TMP_TAG "%ld-", (long)w->pid);
+    else
+        snprintf(tag, sizeof tag, DURABLE_TMP_TAG);
     DIR *d = opendir(w->parent);
     if (!d)
         return 0;
     struct dirent *e;
     int hit = 0;
     while (!hit && (e = readdir(d)))
-        hit = !strncmp(e->d_name, DURABLE_TMP_TAG, strlen(DURABLE_TMP_TAG));
+        hit = !strncmp(e->d_name, tag, strlen(tag));
     closedir(d);
     return hit;
 }
 
-/* The child holds the case's lock: the lock file in w->parent names its pid. */
+/* The child holds the case's lock: the lock file in w->parent names its pid (the holder writes it
+ * once it has the lock), and a non-blocking flock of the file from here is refused. */
 static int lock_taken(const watch *w)
 {
     char p[4400], want[32];
     snprintf(p, sizeof p, "%s/" CASELOCK_FILE, w->parent);
     snprintf(want, sizeof want, "%ld ", (long)w->pid);
     char *s = tu_slurp(p, NULL);
-    int hit = s && !strncmp(s, want, strlen(want));
+    int named = s && !strncmp(s, want, strlen(want));
     free(s);
-    return hit;
+    return named && lock_is_held(p);
 }
 
 typedef struct kill_watch {
@@ -150,23 +172,46 @@ typedef struct kill_watch {
     const watch *w;
 } kill_watch;
 
-/* The step is reached, or the child ended by itself (left to be reaped). */
+/* 1 when the child has ended by itself (left to be reaped). */
+static int ended(pid_t pid)
+{
+    siginfo_t info = {0};
+    return waitid(P_PID, (id_t)pid, &info, WEXITED | WNOHANG | WNOWAIT) == 0 && info.si_pid == pid;
+}
+
+/* The child at the step: seen there, then stopped (SIGSTOP, waited for) and seen there again, so
+ * that it cannot move past the step before the kill. 1 with the child stopped; 0 with it running
+ * on (or ended). */
+static int stopped_at_step(const kill_watch *k)
+{
+    if (!k->cond(k->w))
+        return 0;
+    pid_t pid = k->w->pid;
+    siginfo_t info = {0};
+    if (kill(pid, SIGSTOP) != 0 || waitid(P_PID, (id_t)pid, &info, WSTOPPED | WEXITED | WNOWAIT) != 0 ||
+        info.si_code != CLD_STOPPED)
+        return 0; /* it ended meanwhile */
+    if (k->cond(k->w))
+        return 1;
+    kill(pid, SIGCONT);
+    return 0;
+}
+
+/* The child stopped at the step, or ended by itself. */
 static int reached_or_ended(void *arg)
 {
     const kill_watch *k = arg;
-    siginfo_t info = {0};
-    return k->cond(k->w) ||
-           (waitid(P_PID, (id_t)k->w->pid, &info, WEXITED | WNOHANG | WNOWAIT) == 0 && info.si_pid == k->w->pid);
+    return stopped_at_step(k) || ended(k->w->pid);
 }
 
-/* Waits until cond holds (then kills the child w->pid: returns 1) or the child ends by itself
+/* Waits until the child is at the step (then kills it there: returns 1) or ends by itself
  * (returns 0), looking every 0.1 ms. */
 static int kill_when(int (*cond)(const watch *), watch *w)
 {
     kill_watch k = {cond, w};
     if (!tu_wait_for_every(reached_or_ended, &k, TU_WAIT_MAX_S, 100))
         fail_msg("the child neither reached the step nor ended");
-    int hit = cond(w);
+    int hit = !ended(w->pid);
     tu_end(w->pid, hit ? SIGKILL : 0, "fracnav, killed at a step of a save");
     return hit;
 }
@@ -303,15 +348,21 @@ static void test_edit_killed_at_lock_and_temporaries(void **st)
     case_free(c);
     snprintf(args, sizeof args, "edit '%s' erase-sphere 80 70 45 12", cdir);
     static int (*const steps[2])(const watch *) = {lock_taken, temporary_in};
+    static const char *const step_name[2] = {"holding the case's lock", "writing a temporary"};
+    char lock[4300];
+    snprintf(lock, sizeof lock, "%s/" CASELOCK_FILE, cdir);
     for (int k = 0; k < 2; k++) {
         watch w = {cdir, NULL, NULL, NULL, spawn(args)};
-        int killed = kill_when(steps[k], &w);
+        if (!kill_when(steps[k], &w))
+            fail_msg("edit ended by itself before it was seen %s: the kill tested nothing", step_name[k]);
+        /* killed there: the lock went with it, its temporary stays until the next writer */
+        assert_false(lock_is_held(lock));
+        if (k == 1 && !temporary_in(&w))
+            fail_msg("edit killed while writing a temporary left none in %s", cdir);
         c = case_load(cdir);
         if (!c)
-            fail_msg("killed=%d at step %d: the case no longer loads: %s", killed, k, fn_err_msg());
-        if (killed)
-            assert_string_equal(c->json_sha256, before);
-        memcpy(before, c->json_sha256, sizeof before);
+            fail_msg("killed %s: the case no longer loads: %s", step_name[k], fn_err_msg());
+        assert_string_equal(c->json_sha256, before);
         case_free(c);
     }
     assert_int_equal(tu_run_cli(&out, "edit '%s' fix 1", cdir), 0);
@@ -336,10 +387,61 @@ static void test_export_killed_leftover_removed(void **st)
     assert_int_equal(mkdir(odir, 0755), 0);
     snprintf(args, sizeof args, "export '%s' --nifti '%s/planned.nii.gz'", cdir, odir);
     watch w = {odir, NULL, NULL, NULL, spawn(args)};
-    kill_when(temporary_in, &w);
+    if (!kill_when(temporary_in, &w))
+        fail_msg("export ended by itself before it was seen writing a temporary: the kill tested nothing");
+    if (!temporary_in(&w))
+        fail_msg("export killed while writing a temporary left none in %s", odir);
     assert_int_equal(tu_run_cli(&out, "%s", args), 0);
     free(out);
     assert_no_temporary(odir);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* The child's staged folder of the new case w->base is made: it found no case there. */
+static int staged(const watch *w)
+{
+    char p[4400];
+    struct stat sb;
+    snprintf(p, sizeof p, "%s/.%s.new-%ld", w->parent, w->base, (long)w->pid);
+    return stat(p, &sb) == 0;
+}
+
+/* Two `fracture -o NEW` at once, without --force: the first is stopped once it has found no case
+ * there (its staged folder made), the second saves the case meanwhile; the first, let go on, is
+ * refused, saying so, and the second's case is kept. */
+static void test_two_writers_of_a_new_case(void **st)
+{
+    (void)st;
+    char *dir = tu_tmpdir("casecrash"), src[4200], cdir[4200], log[4200], cmd[9400];
+    snprintf(src, sizeof src, "%s/ct.nii.gz", dir);
+    snprintf(cdir, sizeof cdir, "%s/nc", dir);
+    snprintf(log, sizeof log, "%s/first.out", dir);
+    write_ct(src);
+    snprintf(cmd, sizeof cmd, "exec '%s' fracture '%s' -o '%s' --seed 1", tu_fracnav(), src, cdir);
+    watch w = {dir, "nc", NULL, NULL, tu_spawn((char *[]){"/bin/sh", "-c", cmd, NULL}, log, NULL)};
+    kill_watch k = {staged, &w};
+    if (!tu_wait_for_every(reached_or_ended, &k, TU_WAIT_MAX_S, 100) || ended(w.pid))
+        fail_msg("the first fracture ended before it was seen staging the new case");
+    struct stat sb;
+    assert_int_equal(stat(cdir, &sb), -1); /* stopped before its case was put in place */
+    char *out = NULL;
+    assert_int_equal(tu_run_cli(&out, "fracture '%s' -o '%s' --seed 2", src, cdir), 0);
+    free(out);
+    planning_case *c = tu_case_load(cdir);
+    char second[65];
+    memcpy(second, c->json_sha256, sizeof second);
+    case_free(c);
+    kill(w.pid, SIGCONT);
+    int rc = tu_end(w.pid, 0, "the first fracture");
+    out = tu_slurp(log, NULL);
+    if (rc != 1 || !strstr(out, "another process saved a case there") || !strstr(out, "--force"))
+        fail_msg("the first fracture: exit %d, expected its refusal: %s", rc, out ? out : "");
+    free(out);
+    c = tu_case_load(cdir);
+    assert_string_equal(c->json_sha256, second);
+    case_free(c);
+    assert_false(staged(&w)); /* the refused one removed its staged folder */
     tu_rmtree(dir);
     free(dir);
 }
@@ -351,6 +453,7 @@ int main(void)
         cmocka_unit_test(test_fracture_killed_keeps_old_case),
         cmocka_unit_test(test_edit_killed_at_lock_and_temporaries),
         cmocka_unit_test(test_export_killed_leftover_removed),
+        cmocka_unit_test(test_two_writers_of_a_new_case),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

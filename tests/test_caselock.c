@@ -1,6 +1,7 @@
 /* The lock on a case (caselock.h): a second writer is refused at once, naming the holder's
  * command and pid; --wait waits and then completes; readers share; two writers started together
- * never lose an edit; navigate holds the lock for its whole session. Every wait is on an event (a
+ * never lose an edit; navigate holds the lock for its whole session; reduce -o holds its output,
+ * and the benchmarks hold the case they open. Every wait is on an event (a
  * pipe, a line in a file, a child's exit). */
 #include <stdarg.h>
 #include <stddef.h>
@@ -166,6 +167,68 @@ static void test_two_writers_never_lose_an_edit(void **st)
     }
 }
 
+static void json_sha(const char *cdir, char out[65])
+{
+    planning_case *c = tu_case_load(cdir);
+    memcpy(out, c->json_sha256, 65);
+    case_free(c);
+}
+
+/* reduce -o OUT --force writes OUT: while another process holds OUT, it is refused, naming the
+ * holder, and OUT is as it was. */
+static void test_reduce_out_locked(void **st)
+{
+    struct fixture *f = *st;
+    char out_dir[4300], before[65], after[65], pid[64];
+    snprintf(out_dir, sizeof out_dir, "%s/reduced", f->dir);
+    assert_int_equal(tu_run_cli(NULL, "reduce '%s' -o '%s'", f->cdir, out_dir), 0);
+    json_sha(out_dir, before);
+    holder h = hold(out_dir, 1);
+    snprintf(pid, sizeof pid, "(pid %ld)", (long)h.pid);
+    char *out = NULL;
+    int rc = tu_run_cli(&out, "reduce '%s' -o '%s' --force --gap 0.5", f->cdir, out_dir);
+    if (rc != 1 || !strstr(out, out_dir) || !strstr(out, "is in use by") || !strstr(out, pid))
+        fail_msg("reduce -o a held case: exit %d, expected a refusal naming the holder: %s", rc, out ? out : "");
+    free(out);
+    json_sha(out_dir, after);
+    assert_string_equal(after, before);
+    let_go(&h);
+}
+
+/* The benchmarks that open a case hold it too: bench loop --case as navigate does (it reads the
+ * journal as a session does: a live one half-written must not be set aside), bench collision
+ * shared, as render. While a writer holds the case both are refused, naming it, and its journal is
+ * left as it is. */
+static void test_benchmarks_lock_the_case(void **st)
+{
+    struct fixture *f = *st;
+    char journal[4300], pid[64];
+    snprintf(journal, sizeof journal, "%s/journal", f->cdir);
+    static const char live[] = "FNJ1 a record being written"; /* as navigate's, half-written */
+    tu_write_file(journal, live, sizeof live - 1);
+    holder h = hold(f->cdir, 1);
+    snprintf(pid, sizeof pid, "(pid %ld)", (long)h.pid);
+    static const char *const bench[2] = {"bench loop --repeat 1 --case", "bench collision --poses 2 --reps 1 --no-fcl"};
+    for (int k = 0; k < 2; k++) {
+        char *out = NULL;
+        int rc = tu_run_cli(&out, "%s '%s'", bench[k], f->cdir);
+        if (rc != 1 || !strstr(out, "is in use by") || !strstr(out, pid) || !strstr(out, "--wait"))
+            fail_msg("%s of a held case: exit %d, expected a refusal naming the holder: %s", bench[k], rc,
+                     out ? out : "");
+        free(out);
+        size_t n = 0;
+        char *j = tu_slurp(journal, &n);
+        if (!j || n != sizeof live - 1 || memcmp(j, live, n))
+            fail_msg("%s touched the held case's journal", bench[k]);
+        free(j);
+    }
+    let_go(&h);
+    unlink(journal);
+    h = hold(f->cdir, 0); /* a reader: bench collision shares the case with it */
+    assert_int_equal(tu_run_cli(NULL, "bench collision --poses 2 --reps 1 --no-fcl '%s'", f->cdir), 0);
+    let_go(&h);
+}
+
 /* navigate holds the lock for its whole session: a second navigate (or any writer) is refused,
  * naming it. */
 static void test_navigate_holds_the_case(void **st)
@@ -216,6 +279,8 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_second_writer_refused_naming_holder, setup, tu_fixture_teardown),
         cmocka_unit_test_setup_teardown(test_readers_share_writers_wait, setup, tu_fixture_teardown),
         cmocka_unit_test_setup_teardown(test_two_writers_never_lose_an_edit, setup, tu_fixture_teardown),
+        cmocka_unit_test_setup_teardown(test_reduce_out_locked, setup, tu_fixture_teardown),
+        cmocka_unit_test_setup_teardown(test_benchmarks_lock_the_case, setup, tu_fixture_teardown),
         cmocka_unit_test_setup_teardown(test_navigate_holds_the_case, setup, tu_fixture_teardown),
         cmocka_unit_test_setup_teardown(test_linked_lock_file_refused, setup, tu_fixture_teardown),
     };

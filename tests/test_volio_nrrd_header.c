@@ -1,6 +1,6 @@
 /* volio: NRRD headers that teem must not see. Detached data files (one name, LIST, numbered) are
  * regular files inside the header's folder, at most one a slice, and a numbered name is one
- * bounded integer conversion; key/value lines and segments are bounded. Each hostile header is
+ * bounded integer conversion; key/value lines, comment lines and segments are bounded. Each hostile header is
  * read in a child, so that a crash or a hang inside teem fails the test by name. */
 #include <stdarg.h>
 #include <stddef.h>
@@ -194,7 +194,7 @@ static void test_labels_cli_refuses(void **st)
 }
 
 /* teem adds key/value pairs in quadratic time: 80,000 took 16 s. A header holds at most 4096,
- * and a .seg.nrrd at most 256 segments. */
+ * at most 4096 comment lines, and a .seg.nrrd at most 256 segments. */
 static void test_header_bounded(void **st)
 {
     size_t cap = 200000, n = 0;
@@ -206,6 +206,14 @@ static void test_header_bounded(void **st)
     n += (size_t)snprintf(h + n, cap - n, "\n");
     tu_write_file(tu_in_dir("keys.nrrd"), h, n + 64);
     expect_both_refused(tu_in_dir("keys.nrrd"), "line 4103: over 4096 key/value lines", NULL);
+    /* and comments as slowly: 400,000 took 18 s; at most 4096 */
+    n = (size_t)snprintf(h, cap, "%s", HEAD);
+    for (int i = 0; i < 5000; i++)
+        n += (size_t)snprintf(h + n, cap - n, "# comment %d\n", i);
+    n += (size_t)snprintf(h + n, cap - n, "\n");
+    memset(h + n, 0, 64); /* the voxels */
+    tu_write_file(tu_in_dir("comments.nrrd"), h, n + 64);
+    expect_both_refused(tu_in_dir("comments.nrrd"), "line 4103: over 4096 comment lines", NULL);
     free(h);
     write_header("segs.nrrd", HEAD "Segment0_LabelValue:=1\nSegment256_LabelValue:=2\n\n");
     expect_refused(tu_in_dir("segs.nrrd"), 1, "line 8: Segment256_LabelValue:=2: over 256 segments", NULL);

@@ -35,7 +35,7 @@
 #include <unistd.h>
 
 typedef struct opts {
-    int poses, reps, json, fcl;
+    int poses, reps, json, fcl, wait;
     unsigned long long seed;
     double threshold, tolerance, bone;
     obb_params tau;
@@ -132,9 +132,12 @@ static int work_long_bone(work *w)
     return rc ? fn_err_wrap(rc, "long bone") : 0;
 }
 
-static int work_from_case(work *w, const char *dir)
+/* A case's first two fragments, read under its shared lock (caselock.h), as render reads it. */
+static int work_from_case(work *w, const char *dir, int wait)
 {
-    planning_case *c = case_load(dir);
+    caselock *lock = caselock_take(dir, 0, wait);
+    planning_case *c = lock ? case_load(dir) : NULL;
+    caselock_release(lock);
     if (!c)
         return FN_EIO;
     int rc = 0;
@@ -169,7 +172,7 @@ static int work_load(work *w, const char *name, const opts *o)
     if (!strcmp(name, "longbone"))
         return work_long_bone(w);
     if (stat(name, &st) == 0 && S_ISDIR(st.st_mode))
-        return work_from_case(w, name);
+        return work_from_case(w, name, o->wait);
     if (stat(name, &st) == 0)
         return work_from_file(w, name, o->bone > 0 ? o->bone : 300, 200);
     return fn_err_set(FN_EINVAL, "'%s' is neither a workload (skull, pitch, longbone, all), a case "
@@ -601,7 +604,8 @@ static int usage(FILE *out, int rc)
             "CASE: skull (default: a synthetic fracture of the example CT), pitch\n"
             "      (tests/data/CT_pitch.nii.gz under $FRACNAV_SRC, else under the source tree\n"
             "      fracnav was built from), longbone (synthetic), all (the three),\n"
-            "      a case folder (its first two fragments), or a volume file to fracture.\n"
+            "      a case folder (its first two fragments, read under the case's shared\n"
+            "      lock), or a volume file to fracture.\n"
             "  --poses N        poses per workload (default 1000; half near contact)\n"
             "  --json           one JSON object on stdout: {\"command\": \"bench collision\",\n"
             "                   \"workloads\": [one per workload]}\n"
@@ -612,6 +616,8 @@ static int usage(FILE *out, int rc)
             "  --tau-min T, --tau-max T   hierarchy thresholds (default 0, 1)\n"
             "  --bone V         bone threshold for a volume file or pitch (HU or raw units)\n"
             "  --no-fcl         skip the FCL contenders\n"
+            "  --wait           a case folder another command writes: wait for it (else\n"
+            "                   refused, naming that command)\n"
             "Exit status: 0, 1 on failure or any false answer, 2 on usage errors.\n");
     return rc;
 }
@@ -633,6 +639,8 @@ static int parse(int argc, char **argv, opts *o, const char **which)
             o->json = 1;
         else if (!strcmp(a, "--no-fcl"))
             o->fcl = 0;
+        else if (!strcmp(a, "--wait"))
+            o->wait = 1;
         else if (a[0] != '-')
             *which = a;
         else if (more && !strcmp(a, "--poses"))

@@ -36,8 +36,8 @@ static const char SCRIPT[] = "move y 10 mm x 3 mm over 2 s\n"
 
 static void usage(FILE *out)
 {
-    fprintf(out, "usage: fracnav bench loop [--json] [--ct FILE [--fitted] | --case DIR] [--preview] [--realtime]\n"
-                 "                        [--repeat N]\n\n"
+    fprintf(out, "usage: fracnav bench loop [--json] [--ct FILE [--fitted] | --case DIR [--wait]] [--preview]\n"
+                 "                        [--realtime] [--repeat N]\n\n"
                  "Drive the navigation loop near contact as fast as the (virtual) device's reports\n"
                  "can be fed, and report loop_hz (steps per second), latency_p50/p99/max_us (report\n"
                  "read -> accepted pose), outcomes and collision query time.\n\n"
@@ -48,7 +48,10 @@ static void usage(FILE *out)
                  "                or /var/cache/fracnav/Cranium.inv3)\n"
                  "  --fitted      fit piece 2 to piece 1 first (as navigate's fit action): the\n"
                  "                loop starts where a fit left it, inside within the fit's tolerance\n"
-                 "  --case DIR    steer an existing case instead (its journal is left alone)\n"
+                 "  --case DIR    steer an existing case instead (its journal is left alone),\n"
+                 "                holding it as navigate does: refused while another command\n"
+                 "                holds it\n"
+                 "  --wait        with --case: wait for the case while another command holds it\n"
                  "  --preview     run navigate's live preview beside the loop (its worker fits the\n"
                  "                moving piece near contact, at nice 19): the loop's figures with it;\n"
                  "                preview_updates_count, preview_updates_mean_hz, preview_dropped_count\n"
@@ -192,9 +195,33 @@ static int print(session *k, const loop_stats *s, double wall_s, const frag *f, 
     return jsonw_print(j, stdout);
 }
 
+/* The case's loop driven by rec, with the case's exclusive lock held (caselock.h): its journal is
+ * read and reconciled as a session does, never while navigate writes it. 0 or FN_E*. */
+static int run_case(const char *dir, const loop_config *cfg, cmd_tau *tau, const fnrec *rec, int wait, int json)
+{
+    caselock *lock = caselock_take(dir, 1, wait);
+    if (!lock)
+        return FN_EAGAIN; /* fn_err names the case and its holder */
+    session_params sp = {*cfg, SESSION_RESUME, "bench loop", cmd_tau_prepare, tau, 0};
+    session *k = session_open(dir, &sp);
+    if (k)
+        session_set_preview(k, preview ? SESSION_PREVIEW_NEAR : SESSION_PREVIEW_OFF);
+    double wall = 0;
+    int rc = k ? drive(k, rec, &wall) : FN_EIO;
+    if (k) {
+        loop_stats s;
+        loop_get_stats(session_loop(k), &s);
+        if (rc == 0)
+            rc = print(k, &s, wall, session_frags(k), session_nfrag(k), dir, 0, json);
+    }
+    session_close(k);
+    caselock_release(lock);
+    return rc;
+}
+
 int bench_loop(int argc, char **argv)
 {
-    int json = 0, repeat = 10, fitted = 0, rc;
+    int json = 0, repeat = 10, fitted = 0, wait = 0, rc;
     const char *ct = NULL, *case_dir = NULL;
     cmd_tau tau = {0};
     for (int i = 1; i < argc; i++) {
@@ -217,6 +244,8 @@ int bench_loop(int argc, char **argv)
             paced = 1;
         else if (!strcmp(argv[i], "--case") && i + 1 < argc)
             case_dir = argv[++i];
+        else if (!strcmp(argv[i], "--wait"))
+            wait = 1;
         else if (!strcmp(argv[i], "--repeat")) {
             double d;
             const char *v = i + 1 < argc ? argv[++i] : NULL;
@@ -247,17 +276,7 @@ int bench_loop(int argc, char **argv)
     double wall = 0;
     loop_stats s;
     if (case_dir) {
-        session_params sp = {cfg, SESSION_RESUME, "bench loop", cmd_tau_prepare, &tau, 0};
-        session *k = session_open(case_dir, &sp);
-        if (k)
-            session_set_preview(k, preview ? SESSION_PREVIEW_NEAR : SESSION_PREVIEW_OFF);
-        rc = k ? drive(k, rec, &wall) : FN_EIO;
-        if (k) {
-            loop_get_stats(session_loop(k), &s);
-            if (rc == 0)
-                rc = print(k, &s, wall, session_frags(k), session_nfrag(k), case_dir, 0, json);
-        }
-        session_close(k);
+        rc = run_case(case_dir, &cfg, &tau, rec, wait, json);
     } else {
         frag f[2];
         memset(f, 0, sizeof f);

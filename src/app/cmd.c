@@ -236,42 +236,11 @@ void cmd_warn_replaced_journal(const char *cmd, const char *dir, int force)
                         "case.json; they go with the case this replaces\n", cmd, dir, n);
 }
 
-/* The folder that holds path, links resolved, into where (PATH_MAX). 0, or FN_EINVAL naming path
- * when that folder does not exist. */
-static int holding_folder(const char *path, char *where)
-{
-    char resolved[PATH_MAX], parent[PATH_MAX];
-    snprintf(parent, sizeof parent, "%s", realpath(path, resolved) ? resolved : path);
-    size_t n = strlen(parent);
-    while (n > 1 && parent[n - 1] == '/')
-        parent[--n] = '\0';
-    char *slash = strrchr(parent, '/');
-    if (!slash)
-        snprintf(parent, sizeof parent, ".");
-    else if (slash == parent)
-        parent[1] = '\0'; /* the root */
-    else
-        *slash = '\0';
-    if (!realpath(parent, where))
-        return fn_err_set(FN_EINVAL, "%s: its folder %s does not exist", path, parent);
-    return 0;
-}
-
 static int is_case_folder(const char *dir)
 {
     char json[PATH_MAX + 16];
     snprintf(json, sizeof json, "%s/case.json", dir);
     return access(json, F_OK) == 0;
-}
-
-static int in_case_folder(const char *path)
-{
-    char where[PATH_MAX];
-    int rc = holding_folder(path, where);
-    if (rc == 0 && is_case_folder(where))
-        rc = fn_err_set(FN_EINVAL, "%s lies in the case folder %s, whose files only the case's own "
-                                   "saves write: choose a path outside it", path, where);
-    return rc;
 }
 
 int cmd_out_file(const char *path, const planning_case *in)
@@ -280,7 +249,7 @@ int cmd_out_file(const char *path, const planning_case *in)
     int exists = stat(path, &st) == 0;
     if (exists && S_ISDIR(st.st_mode))
         return fn_err_set(FN_EINVAL, "%s is a folder: name a file", path);
-    int rc = in_case_folder(path);
+    int rc = durable_out_of_case(path);
     if (rc == 0 && in && exists && stat(in->source, &src) == 0 && st.st_dev == src.st_dev &&
         st.st_ino == src.st_ino)
         rc = fn_err_set(FN_EINVAL, "%s is the source volume of the case %s: choose another file", path,
@@ -292,12 +261,12 @@ int cmd_out_folder(const char *dir, int force)
 {
     struct stat st;
     if (stat(dir, &st) != 0)
-        return in_case_folder(dir);
+        return durable_out_of_case(dir);
     if (!S_ISDIR(st.st_mode))
         return fn_err_set(FN_EINVAL, "%s exists and is not a folder", dir);
     if (is_case_folder(dir))
         return fn_err_set(FN_EINVAL, "%s is a case folder: choose another folder", dir);
-    int rc = in_case_folder(dir);
+    int rc = durable_out_of_case(dir);
     DIR *d = rc == 0 && !force ? opendir(dir) : NULL;
     struct dirent *e;
     while (d && rc == 0 && (e = readdir(d)))

@@ -192,7 +192,7 @@ int cmd_fracture(int argc, char **argv)
     /* The whole case, source.nii.gz included, is written in tmp and renamed into place at once. */
     planning_case *c = ct ? fracture_make_case(ct, &p, tmp) : NULL;
     int64_t t2 = fnclock_now_us();
-    if (!c || case_stage_commit(tmp, out) < 0) {
+    if (!c || case_stage_commit(tmp, out, args.force) < 0) {
         fprintf(stderr, "fracnav fracture: %s\n", fn_err_msg());
         case_stage_abort(tmp);
         case_free(c);

@@ -332,7 +332,7 @@ static int store(planning_case *c, const args *A, int fixed, const reduce_result
         err = retarget(c, tmp);
     if (err == 0)
         err = case_save(c);
-    if (err == 0 && A->out && (err = case_stage_commit(tmp, A->out)) == 0)
+    if (err == 0 && A->out && (err = case_stage_commit(tmp, A->out, A->force)) == 0)
         snprintf(c->dir, sizeof c->dir, "%s", A->out);
     if (err == 0 && !A->out) /* case.json holds the journal's poses now */
         err = case_journal_remove(c);
@@ -356,10 +356,13 @@ int cmd_reduce(int argc, char **argv)
         return 1;
     }
     caselock *lock = cmd_lock_case("reduce", A.dir, !A.out, wait); /* -o: the case is only read */
-    planning_case *c = lock ? case_load(A.dir) : NULL;
+    /* -o: a case there that --force replaces is written, so held as edit holds its case */
+    caselock *out_lock = lock && A.out ? cmd_lock_case("reduce", A.out, 1, wait) : NULL;
+    planning_case *c = lock && (out_lock || !A.out) ? case_load(A.dir) : NULL;
     if (!c) {
-        if (lock)
+        if (lock && (out_lock || !A.out))
             fprintf(stderr, "fracnav reduce: %s\n", fn_err_msg());
+        caselock_release(out_lock);
         caselock_release(lock);
         return 1;
     }
@@ -374,6 +377,7 @@ int cmd_reduce(int argc, char **argv)
             free(mvp);
         free(skipped);
         case_free(c);
+        caselock_release(out_lock);
         caselock_release(lock);
         return 1;
     }
@@ -426,6 +430,7 @@ done:
         free(mvp);
     free(skipped);
     case_free(c);
+    caselock_release(out_lock);
     caselock_release(lock);
     return rc;
 }

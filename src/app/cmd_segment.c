@@ -333,7 +333,7 @@ int cmd_segment(int argc, char **argv)
     planning_case *c = make_case(tmp, in, ct, labels, &p, &args.tau, &x, &filled, &made);
     free(x.seeds);
     int64_t t3 = fnclock_now_us();
-    if (!c || case_save(c) < 0 || case_stage_commit(tmp, out) < 0) {
+    if (!c || case_save(c) < 0 || case_stage_commit(tmp, out, args.force) < 0) {
         fprintf(stderr, "fracnav segment: %s\n", fn_err_msg());
         case_stage_abort(tmp);
         case_free(c);

@@ -67,10 +67,14 @@ planning_case *case_create(const char *dir, const char *source, vol *ct, vol *la
  * must not lie inside a folder it would replace), removes what killed runs left, and creates the
  * hidden sibling folder tmp (PARENT/.NAME.new-PID) to build the case in. case_stage_commit syncs
  * every file of tmp and renames it to dir; an existing case is exchanged with it atomically
- * (renameat2 RENAME_EXCHANGE) and then removed. case_stage_abort removes tmp after a failure.
+ * (renameat2 RENAME_EXCHANGE) and then removed. A new case has no lock (caselock.h): when another
+ * process saved a case at dir after case_stage_begin found none, case_stage_commit without force
+ * refuses (FN_EINVAL, saying so), and its rename never lands on a folder that holds files, so of
+ * two writers of one new case the second is refused and the first's case kept. With force it is
+ * exchanged as a case found at begin. case_stage_abort removes tmp after a failure.
  * 0 or FN_E* with a message naming the folder. */
 int case_stage_begin(const char *dir, int force, const char *keep, char *tmp, size_t cap);
-int case_stage_commit(const char *tmp, const char *dir);
+int case_stage_commit(const char *tmp, const char *dir, int force);
 void case_stage_abort(const char *tmp);
 
 /* Reads dir/case.json, dir/labels.nii.gz and the source volume. Checks the version, the source's

@@ -188,7 +188,14 @@ static int exchange(const char *tmp, const char *dir)
     return rename(old, tmp) == 0 ? 0 : fn_err_set(FN_EIO, "%s: %s", old, strerror(errno));
 }
 
-int case_stage_commit(const char *tmp, const char *dir)
+/* A case that another process saved at dir after case_stage_begin found none there. */
+static int appeared(const char *dir)
+{
+    return fn_err_set(FN_EINVAL, "%s: another process saved a case there while this one worked; it "
+                                 "is kept (--force replaces it)", dir);
+}
+
+int case_stage_commit(const char *tmp, const char *dir, int force)
 {
     char parent[4096], base[1024];
     int rc = split_dir(dir, parent, sizeof parent, base, sizeof base);
@@ -198,10 +205,14 @@ int case_stage_commit(const char *tmp, const char *dir)
         return rc;
     struct stat sb;
     int replace = stat(dir, &sb) == 0 && !folder_is_empty(dir);
+    if (replace && !force)
+        return appeared(dir); /* begin found none: a second writer of one new case */
     if (replace)
         rc = exchange(tmp, dir);
-    else if (rename(tmp, dir) != 0)
-        rc = fn_err_set(FN_EIO, "%s: cannot rename %s to it: %s", dir, tmp, strerror(errno));
+    else if (rename(tmp, dir) != 0) /* never over a folder that filled meanwhile (ENOTEMPTY) */
+        rc = errno == ENOTEMPTY || errno == EEXIST
+                 ? appeared(dir)
+                 : fn_err_set(FN_EIO, "%s: cannot rename %s to it: %s", dir, tmp, strerror(errno));
     if (rc == 0)
         rc = durable_sync_path(parent);
     if (rc == 0 && replace && remove_flat(tmp) != 0)

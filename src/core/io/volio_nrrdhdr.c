@@ -3,7 +3,7 @@
  * than teem can parse in good time. teem trusts a detached header: it prints the numbered form's
  * name with the header's own printf format into a buffer of fixed size, opens LIST entries
  * whatever they are (a FIFO blocks, /dev/urandom never ends), and adds key/value pairs in time
- * quadratic in their number (80,000 took 16 s). The files are looked at (realpath, stat), never
+ * quadratic in their number (80,000 took 16 s), and comments as slowly (400,000 took 18 s). The files are looked at (realpath, stat), never
  * opened; one swapped between this check and teem's open (in a folder someone else may write to)
  * is not caught. */
 #include "volio_impl.h"
@@ -19,13 +19,16 @@
 #include <sys/stat.h>
 #include <teem/nrrd.h>
 
-/* Key/value lines; a Slicer segment writes about ten. teem adds each in time linear in those
- * before it: 4,096 take 48 ms here, but under libFuzzer, whose hooks trace every strcmp, 4,000 took
- * 13 s and stopped CI's fuzz smoke at its 10 s timeout. The fuzz build bounds them lower. */
+/* Key/value and comment lines; a Slicer segment writes about ten keys. teem adds each in time
+ * linear in those before it: 4,096 keys take 48 ms here, but under libFuzzer, whose hooks trace
+ * every strcmp, 4,000 took 13 s and stopped CI's fuzz smoke at its 10 s timeout. The fuzz build
+ * bounds them lower. */
 #ifdef FUZZING_BUILD_MODE_UNSAFE_FOR_PRODUCTION
 #define MAX_KEYS 512
+#define MAX_COMMENTS 512
 #else
 #define MAX_KEYS 4096
+#define MAX_COMMENTS 4096 /* comment lines ('#'): teem keeps them as it keeps keys */
 #endif
 #define MAX_DATA_FILES 16384     /* and never more than the header's slices */
 #define MAX_LINE 65536           /* characters in a header line */
@@ -40,6 +43,7 @@ typedef struct scan {
     unsigned dim;     /* dimension: (0: not seen yet) */
     uint64_t slices;  /* the last axis' size (0: sizes not seen yet) */
     int keys;
+    int comments;
     int labels;       /* read as a labelmap: segment numbers are bounded */
 } scan;
 
@@ -218,6 +222,16 @@ static int key_value(scan *s)
     return 0;
 }
 
+/* A comment line: counted, as teem adds each to the nrrd in time that grows with their number
+ * (400,000 took 18 s). */
+static int comment(scan *s)
+{
+    if (++s->comments > MAX_COMMENTS)
+        return fn_err_set(FN_EFORMAT, "%s: line %d: over %d comment lines", s->path, s->lineno,
+                          MAX_COMMENTS);
+    return 0;
+}
+
 /* One header line (not a comment): its field as teem's own table names it. */
 static int field(scan *s)
 {
@@ -266,7 +280,7 @@ int volio__nrrd_scan(const char *path, int labels)
         rc = fn_err_set(FN_ENOMEM, "%s: out of memory", path);
     else if (s.f && next_line(&s) > 0 && !strncmp(s.line, "NRRD", 4))
         while (rc >= 0 && (rc = next_line(&s)) > 0 && s.line[0])
-            rc = s.line[0] == '#' ? 0 : field(&s);
+            rc = s.line[0] == '#' ? comment(&s) : field(&s);
     if (s.f)
         fclose(s.f);
     free(s.line);

@@ -8,6 +8,7 @@
 #include <dirent.h>
 #include <errno.h>
 #include <fcntl.h>
+#include <limits.h>
 #include <signal.h>
 #include <stdatomic.h>
 #include <stdint.h>
@@ -398,4 +399,37 @@ int durable_sweep(const char *dir, int all)
     }
     closedir(d);
     return removed;
+}
+
+/* The folder that holds path, links resolved, into where (PATH_MAX). 0, or FN_EINVAL naming path
+ * when that folder does not exist. */
+static int holding_folder(const char *path, char *where)
+{
+    char resolved[PATH_MAX], parent[PATH_MAX];
+    snprintf(parent, sizeof parent, "%s", realpath(path, resolved) ? resolved : path);
+    size_t n = strlen(parent);
+    while (n > 1 && parent[n - 1] == '/')
+        parent[--n] = '\0';
+    char *slash = strrchr(parent, '/');
+    if (!slash)
+        snprintf(parent, sizeof parent, ".");
+    else if (slash == parent)
+        parent[1] = '\0'; /* the root */
+    else
+        *slash = '\0';
+    if (!realpath(parent, where))
+        return fn_err_set(FN_EINVAL, "%s: its folder %s does not exist", path, parent);
+    return 0;
+}
+
+int durable_out_of_case(const char *path)
+{
+    char where[PATH_MAX], json[PATH_MAX + 16];
+    int rc = holding_folder(path, where);
+    if (rc == 0)
+        snprintf(json, sizeof json, "%s/" DURABLE_CASE_FILE, where);
+    if (rc == 0 && access(json, F_OK) == 0)
+        rc = fn_err_set(FN_EINVAL, "%s lies in the case folder %s, whose files only the case's own "
+                                   "saves write: choose a path outside it", path, where);
+    return rc;
 }

@@ -72,6 +72,14 @@ int durable_open_log(const char *path);
  * every one but this process's own. Says each removal on stderr. Returns how many were removed. */
 int durable_sweep(const char *dir, int all);
 
+/* A case folder is one that holds this file (the io layer's case.json): only the case's own saves
+ * write there. */
+#define DURABLE_CASE_FILE "case.json"
+/* Checks an output path of a command, other than the case's own files (an export, a picture, a
+ * recording: fracnav's and fracnav-sim's), before anything is written: 0, or FN_EINVAL naming the
+ * path when the folder that holds it (links resolved) is a case folder or does not exist. */
+int durable_out_of_case(const char *path);
+
 /* Opens a regular file for reading (never blocks on a FIFO); what, if not NULL, is added to the
  * message. The descriptor, or FN_EIO naming the path. */
 int durable_open_regular(const char *path, const char *what);
