@@ -253,7 +253,7 @@ int bench_loop(int argc, char **argv)
             session_set_preview(k, preview ? SESSION_PREVIEW_NEAR : SESSION_PREVIEW_OFF);
         rc = k ? drive(k, rec, &wall) : FN_EIO;
         if (k) {
-            loop_get_stats(session_loop(k), &s);
+            session_stats(k, &s);
             if (rc == 0)
                 rc = print(k, &s, wall, session_frags(k), session_nfrag(k), case_dir, 0, json);
         }
@@ -272,11 +272,11 @@ int bench_loop(int argc, char **argv)
         if (rc == 0 && !k)
             rc = FN_EFORMAT;
         if (rc == 0 && fitted)
-            loop_tolerate(session_loop(k), 1, tol);
+            session_tolerate(k, 1, tol);
         if (rc == 0) {
             session_set_preview(k, preview ? SESSION_PREVIEW_NEAR : SESSION_PREVIEW_OFF);
             rc = drive(k, rec, &wall);
-            loop_get_stats(session_loop(k), &s);
+            session_stats(k, &s);
             if (rc == 0)
                 rc = print(k, &s, wall, f, 2, NULL, fitted, json);
         }

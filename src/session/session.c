@@ -1,5 +1,6 @@
 /* session: opening a case for steering (journal reconciled, collider, loop), accessors, saves. */
 #include "session_impl.h"
+#include "session_test.h"
 
 #include "case_journal.h"
 #include "err.h"
@@ -248,7 +249,7 @@ void session__free(session *s)
     free(s);
 }
 
-loop *session_loop(session *s)
+loop *session__loop(session *s)
 {
     return s->L;
 }
@@ -261,6 +262,11 @@ void session_set_pivot(session *s, const double world[3])
 void session_stats(session *s, loop_stats *out)
 {
     loop_get_stats(s->L, out);
+}
+
+void session_tolerate(session *s, int i, double tolerance_mm)
+{
+    loop_tolerate(s->L, i, tolerance_mm);
 }
 
 pose session_pose(const session *s, int i)

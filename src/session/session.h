@@ -10,8 +10,8 @@
  *
  * Threads. session_start runs the source's reader thread, the loop thread (loop_run, under
  * real-time priority when granted) and the session's event thread. Then:
- *  - session_send_action, session_propose_pose, session_scene_read and session_loop may be
- *    called from any thread, several at once;
+ *  - session_send_action, session_propose_pose and session_scene_read may be called from any
+ *    thread, several at once;
  *  - session_wait_event, session_ended and session_stop from one client thread (the one that
  *    owns the handle), never two at once;
  *  - the event thread carries out save requests (LOOP_ACT_SAVE, a button or a key), starts fits
@@ -30,7 +30,7 @@
  *
  * Ownership: the session owns its case, collider, loop, journal and rings; a loop_source's
  * context stays the caller's and must outlive session_stop. Pointers it returns (session_case,
- * session_loop) live until session_close. */
+ * session_frags) live until session_close. */
 #ifndef FN_SESSION_H
 #define FN_SESSION_H
 
@@ -82,11 +82,8 @@ void session_close(session *s);
  * bound to another case state): what session_open would need SESSION_RESUME or SESSION_DISCARD for. */
 size_t session_journal_pending(const char *dir);
 
-/* The loop (for loop_scene_read from any thread, e.g. the window's; loop_set_pivot and the
- * statistics only while it does not run), the case (NULL for session_open_fragments), its
- * fragments and their number, the journal records applied at open, the case folder ("" without a
- * case). Valid until session_close. */
-loop *session_loop(session *s);
+/* The case (NULL for session_open_fragments), its fragments and their number, the journal
+ * records applied at open, the case folder ("" without a case). Valid until session_close. */
 planning_case *session_case(session *s);
 const frag *session_frags(const session *s);
 int session_nfrag(const session *s);
@@ -97,6 +94,9 @@ const char *session_dir(const session *s);
  * and the loop's statistics (loop_get_stats). While the loop does not run. */
 void session_set_pivot(session *s, const double world[3]);
 void session_stats(session *s, loop_stats *out);
+/* Marks fragment i as inside another by no more than a fit's tolerance_mm (loop_tolerate: a plan
+ * that fracnav reduce left so). Before the loop runs. */
+void session_tolerate(session *s, int i, double tolerance_mm);
 /* Fragment i's pose and the selected fragment, now: while the loop does not run, or from
  * session_play_each's callback. */
 pose session_pose(const session *s, int i);
