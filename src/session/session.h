@@ -34,15 +34,24 @@
 #ifndef FN_SESSION_H
 #define FN_SESSION_H
 
+/* The session's API is made of these: its errors are err.h's (FN_E*, fn_err_msg), its times
+ * fnclock's, a source reads through a calibration (calib.h), it runs a loop (loop.h: its
+ * configuration, actions and scenes) over a case (case.h: what the window draws). Its clients
+ * include nothing else of the layers below. */
 #include "calib.h"
 #include "case.h"
-#include "dev.h"
-#include "journal.h"
+#include "err.h"
+#include "fnclock.h"
 #include "loop.h"
 
 #include <stdio.h>
 
 struct json_t; /* jansson's */
+/* The lower layers' handles that pass through the session's API without clients looking in. */
+typedef struct dev_device dev_device; /* dev.h */
+typedef struct dev_transport dev_transport;
+typedef struct dev_handle dev_handle;
+typedef struct caselock caselock;     /* caselock.h */
 
 typedef struct session session;
 
@@ -63,6 +72,26 @@ typedef struct session_params {
     void *prepare_ctx;
     double fit_gap_mm; /* the fit action leaves this gap at the cut (reduce_opts.gap_mm; 0: none) */
 } session_params;
+
+/* ---- around a session: what a command needs before it opens one ---- */
+
+/* The loop's defaults (loop_config_default), for session_params.cfg. */
+void session_config_default(loop_config *cfg);
+/* The motion frame a name gives (--frame): camera, world or fragment. 0, or FN_EINVAL with fn_err
+ * "--frame NAME: use camera, world or fragment". */
+int session_frame_parse(const char *name, loop_frame *out);
+/* The calibration a command's source reads through (session_source_open), loaded as every command
+ * loads it (calib_setup): the defaults, then the file config, else (unless named_only) the user's
+ * ~/.config/fracnav/spnavrc; bad lines are said on stderr, "WHO: N bad line(s) skipped: ...".
+ * 0, or negative with fn_err naming the file that cannot be read. */
+int session_calib_setup(calib *cal, const char *config, int named_only, const char *who);
+/* The case's lock (caselock_take: exclusive for a command that writes the case; wait: for another
+ * holder), held for as long as the command steers it, across its sessions (navigate opens one again
+ * after a separation in the window): a second writer is refused, and the journal the session keeps
+ * is never taken for an interrupted one. NULL after printing "fracnav COMMAND: why" on stderr. */
+caselock *session_lock_case(const char *command, const char *dir, int exclusive, int wait);
+/* Releases it (NULL: nothing). */
+void session_unlock(caselock *lock);
 
 /* Loads the case, reconciles its journal (case_journal_check: damage and journals of another case
  * state are kept aside, never applied) and builds everything. A journal holding unsaved poses
