@@ -15,9 +15,11 @@
  *   4. durable_rename refuses a PATH that is a symbolic link or not a regular file (so a link is
  *      never replaced silently nor written through) and renames the temporary over PATH.
  *   5. durable_sync_path fsyncs the folder, so the rename itself is on disk.
- * durable_replace does the five steps for one file. A kill at any step leaves PATH as it was or
- * as it was meant to be, and at most a temporary, which durable_sweep removes once its process is
- * gone.
+ * durable_replace does the five steps for one file. A file that exists already (a case's undo step)
+ * takes steps 1 to 3 at once by durable_link; a file renamed within its folder (a journal set aside,
+ * the previous labels put back) goes by durable_move, which checks and syncs as steps 4 and 5 do.
+ * A kill at any step leaves PATH as it was or as it was meant to be, and at most a temporary, which
+ * durable_sweep removes once its process is gone.
  *
  * Reading: durable_open_regular opens a regular file without blocking on a FIFO; durable_sha256
  * and durable_file_sha256 give the checksums that bind a case to its files.
