@@ -65,12 +65,19 @@ for f in "$here"/layers/system/*.c; do
     fi
 done
 # The command line's session clients (navigate, replay) and the window reach the layers below
-# through the session's headers alone (session.h, its terminal view navview.h) and the generic
-# err.h and fnclock.h, besides the application's own; the window also draws (render.h).
-CLIENT_HEADERS="session.h navview.h err.h fnclock.h cmd.h framedump.h navwin.h navseed.h"
-for f in "$here"/../src/app/cmd_navigate.c "$here"/../src/app/cmd_replay.c "$here"/../src/app/navwin.c; do
+# through the session's headers alone (session.h, its terminal view navview.h), besides the
+# application's own headers, which include no other header of the layers below either: but the
+# window's (navwin.c, navwin.h), which draws (render.h), and navseed.h, whose seeds are the case's
+# (case.h).
+CLIENT_HEADERS="session.h navview.h cmd.h framedump.h navwin.h navseed.h"
+app=$here/../src/app
+for f in "$app"/cmd_navigate.c "$app"/cmd_replay.c "$app"/navwin.c "$app"/cmd.h "$app"/framedump.h \
+         "$app"/navwin.h "$app"/navseed.h; do
     allowed=$CLIENT_HEADERS
-    [ "$(basename "$f")" = navwin.c ] && allowed="$CLIENT_HEADERS render.h"
+    case $(basename "$f") in
+    navwin.[ch]) allowed="$CLIENT_HEADERS render.h" ;;
+    navseed.h) allowed="$CLIENT_HEADERS case.h" ;;
+    esac
     for h in $(sed -n 's/^[[:space:]]*#[[:space:]]*include[[:space:]]*"\([^"]*\)".*/\1/p' "$f"); do
         case " $allowed " in
         *" $h "*) ;;

@@ -140,6 +140,66 @@ static void test_edit_ignores_planted_old_temporaries(void **st)
     free(dir);
 }
 
+/* Fragment 1's x translation in the case at cdir. */
+static double frag1_x(const char *cdir)
+{
+    planning_case *c = case_load(cdir);
+    assert_non_null(c);
+    double x = c->frag[1].pose.t[0];
+    case_free(c);
+    return x;
+}
+
+/* Plants (or, with rm, removes) a link to target at every temporary name of NAME in cdir that
+ * this process could use next. */
+static void plant_temporaries(const char *target, const char *cdir, const char *name, int rm)
+{
+    char t[300], p[8400];
+    for (int k = 0; k < 1024; k++) {
+        snprintf(t, sizeof t, DURABLE_TMP_TAG "%ld-%d-%s", (long)getpid(), k, name);
+        snprintf(p, sizeof p, "%s/%s", cdir, t);
+        if (rm)
+            assert_int_equal(unlink(p), 0);
+        else
+            plant(target, cdir, t);
+    }
+}
+
+/* An undo puts the step's files back through temporaries of its own (durable_link): links planted
+ * under the old fixed names (.case.json.undo, .labels.nii.gz.undo) are not followed, and links
+ * planted at every temporary name it could use refuse the undo, naming the path; either way no
+ * outside file is written, and case.json and labels.nii.gz stay regular files. */
+static void test_undo_never_follows_planted_temporaries(void **st)
+{
+    (void)st;
+    char *dir = tu_tmpdir("durable"), cdir[4200], out1[4200], p[8400];
+    tu_two_blocks_case(dir, cdir, sizeof cdir);
+    make_outside(dir, out1, sizeof out1);
+    double before = frag1_x(cdir);
+    planning_case *c = case_load(cdir);
+    assert_non_null(c);
+    c->frag[1].pose.t[0] += 5; /* an undoable edit: fragment 1 moved 5 mm */
+    assert_int_equal(case_save_undoable(c), 0);
+    case_free(c);
+    plant(out1, cdir, ".case.json.undo");
+    plant(out1, cdir, ".labels.nii.gz.undo");
+    plant_temporaries(out1, cdir, "labels.nii.gz", 0);
+    assert_int_equal(case_undo(cdir), FN_EIO);
+    assert_non_null(strstr(fn_err_msg(), "labels.nii.gz"));
+    assert_outside_intact(out1);
+    assert_true(frag1_x(cdir) == before + 5);
+    plant_temporaries(out1, cdir, "labels.nii.gz", 1);
+    assert_int_equal(case_undo(cdir), 1);
+    assert_outside_intact(out1);
+    assert_true(frag1_x(cdir) == before);
+    snprintf(p, sizeof p, "%s/case.json", cdir);
+    assert_true(is_regular(p));
+    snprintf(p, sizeof p, "%s/labels.nii.gz", cdir);
+    assert_true(is_regular(p));
+    tu_rmtree(dir);
+    free(dir);
+}
+
 /* case.json itself a link out of the case: the save refuses, naming it; the outside copy is
  * untouched. */
 static void test_edit_refuses_linked_case_json(void **st)
@@ -210,6 +270,7 @@ int main(void)
         cmocka_unit_test(test_planted_temporaries_never_written),
         cmocka_unit_test(test_edit_ignores_planted_old_temporaries),
         cmocka_unit_test(test_edit_refuses_linked_case_json),
+        cmocka_unit_test(test_undo_never_follows_planted_temporaries),
         cmocka_unit_test(test_linked_journal_refused),
         cmocka_unit_test(test_recording_not_written_through_link),
     };

@@ -19,6 +19,7 @@
 #include "navview.h"
 #include "script.h"
 #include "session.h"
+#include "session_test.h"
 #include "sim_replay.h"
 #include "testutil.h"
 
@@ -108,8 +109,8 @@ static void play(session *s, const char *text, int mode, loop_stats *out, pose *
     assert_int_equal(session_play(s, session_device_source(ds), mode), 0);
     session_dsource_free(ds);
     fnrec_free(rec);
-    loop_get_stats(session_loop(s), out);
-    *b = loop_pose(session_loop(s), 1);
+    session_stats(s, out);
+    *b = session_pose(s, 1);
 }
 
 /* A recording opened by its --device spec (session_source_open, as navigate and replay do) is
@@ -396,7 +397,7 @@ static void test_propose_pose_one_undoable_step(void **st)
     assert_int_equal(e->scene.penetrating, 1);
     stop_quiet(s);
     loop_stats stats;
-    loop_get_stats(session_loop(s), &stats);
+    session_stats(s, &stats);
     assert_int_equal(stats.steps, 0); /* proposals are not motion steps */
     session_close(s);
 }
@@ -475,7 +476,7 @@ static void test_journal_recovery_and_save(void **st)
     session_close(s);
 
     s = open_case(SESSION_JOURNAL);
-    now = loop_pose(session_loop(s), 1);
+    now = session_pose(s, 1);
     assert_true(fabs(now.t[2] - up.t[2]) < 1e-9);
     assert_int_equal(session_resumed(s), 0);
     session_close(s);
@@ -499,7 +500,7 @@ static void test_save_at_stop(void **st)
     assert_int_equal(session_save(s), 0);
     session_close(s);
     s = open_case(0);
-    pose now = loop_pose(session_loop(s), 1);
+    pose now = session_pose(s, 1);
     assert_true(fabs(now.t[1] - up.t[1]) < 1e-9);
     session_close(s);
 }
@@ -807,7 +808,7 @@ static void test_fitted_fragment_moved(void **st)
     size_t i;
     json_array_foreach(session_penetrating(s), i, e)
         assert_false(json_is_true(json_object_get(e, "within_fit_tolerance")));
-    assert_int_equal(loop_measure(session_loop(s)), 0);
+    assert_int_equal(loop_measure(session__loop(s)), 0);
     loop_scene sc = {0};
     session_scene_read(s, &sc);
     char line[2048];

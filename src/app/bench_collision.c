@@ -19,6 +19,7 @@
 #include "bench.h"
 
 #include "case.h"
+#include "caselock.h"
 #include "cmd.h"
 #include "err.h"
 #include "fracture.h"

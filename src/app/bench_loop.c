@@ -12,6 +12,7 @@
  * cost to the hand shows in the loop's figures. */
 #include "cmd.h"
 #include "bench.h"
+#include "caselock.h"
 
 #include "err.h"
 #include "fracture.h"
@@ -210,7 +211,7 @@ static int run_case(const char *dir, const loop_config *cfg, cmd_tau *tau, const
     int rc = k ? drive(k, rec, &wall) : FN_EIO;
     if (k) {
         loop_stats s;
-        loop_get_stats(session_loop(k), &s);
+        session_stats(k, &s);
         if (rc == 0)
             rc = print(k, &s, wall, session_frags(k), session_nfrag(k), dir, 0, json);
     }
@@ -291,11 +292,11 @@ int bench_loop(int argc, char **argv)
         if (rc == 0 && !k)
             rc = FN_EFORMAT;
         if (rc == 0 && fitted)
-            loop_tolerate(session_loop(k), 1, tol);
+            session_tolerate(k, 1, tol);
         if (rc == 0) {
             session_set_preview(k, preview ? SESSION_PREVIEW_NEAR : SESSION_PREVIEW_OFF);
             rc = drive(k, rec, &wall);
-            loop_get_stats(session_loop(k), &s);
+            session_stats(k, &s);
             if (rc == 0)
                 rc = print(k, &s, wall, f, 2, NULL, fitted, json);
         }

@@ -14,6 +14,7 @@
 #include "volio.h"
 
 #include <math.h>
+#include <stddef.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -486,115 +487,133 @@ static int usage(FILE *out, int rc)
     return rc;
 }
 
-/* The options from argv[1] on, over what *o holds. */
+/* The options that set a field of opts to a constant. */
+static const struct flag_opt {
+    const char *name;
+    size_t field; /* offsetof(opts, an int) */
+    int value;
+} flag_opts[] = {
+    {"--json", offsetof(opts, json), 1},
+    {"--verbose", offsetof(opts, verbose), 1},
+    {"--verbose-truth", offsetof(opts, verbose), 2},
+    {"--coarse", offsetof(opts, coarse), 1},
+    {"--suite", offsetof(opts, suite), 1},
+    {"--axis-scale", offsetof(opts, axis_scale), 1},
+    {"--no-axis-scale", offsetof(opts, axis_scale), -1},
+    {"--touching", offsetof(opts, touching), 1},
+};
+
+/* The options that take a number in lo..hi: a whole one into an int field, else into a double. */
+static const struct number_opt {
+    const char *name;
+    size_t field; /* offsetof(opts, an int when whole, else a double) */
+    int whole;
+    double lo, hi;
+    const char *accepted; /* what the message says it takes */
+} number_opts[] = {
+    {"--seeds", offsetof(opts, seeds), 1, 1, 1000, "a whole number 1..1000"},
+    {"--starts", offsetof(opts, starts), 1, 1, 1000, "a whole number 1..1000"},
+    {"--max-mm", offsetof(opts, max_mm), 0, 0, 90, "a number 0..90"},
+    {"--max-deg", offsetof(opts, max_deg), 0, 0, 90, "a number 0..90"},
+    {"--pieces", offsetof(opts, pieces), 1, 2, 10, "a whole number 2..10"},
+    {"--bone-loss", offsetof(opts, bone_loss_mm), 0, 0, 10, "a number of mm 0..10"},
+    {"--gap", offsetof(opts, gap_mm), 0, 0, 10, "a number of mm 0..10"},
+    {"--band", offsetof(opts, band_mm), 0, 0, 100, "a number of mm 0..100"},
+    {"--fit-starts", offsetof(opts, fit_starts), 1, 1, 7, "a whole number 1..7"},
+    {"--tolerance", offsetof(opts, tolerance_mm), 0, 0, 10, "a number of mm 0..10"},
+    {"--settle", offsetof(opts, settle_mm), 0, 0, 10, "a number of mm 0..10"},
+    {"--trust-mm", offsetof(opts, trust_mm), 0, 0, 1000, "a number 0..1000"},
+    {"--trust-deg", offsetof(opts, trust_deg), 0, 0, 1000, "a number 0..1000"},
+    {"--voi-max", offsetof(opts, voi_max_mm), 0, 0, 1000, "a number of mm 0..1000"},
+    {"--model", offsetof(opts, model), 1, 1, 2, "1 or 2"},
+};
+
+#define COUNT(t) (sizeof(t) / sizeof(t)[0])
+
+/* A number option's value into its field. 0 or cmd_bad_value's code. */
+static int parse_number(const struct number_opt *n, const char *val, opts *o)
+{
+    double d;
+    if (!cmd_number(val, &d) || !(d >= n->lo && d <= n->hi && (!n->whole || d == (int)d)))
+        return cmd_bad_value("bench reduce", n->name, val, n->accepted);
+    if (n->whole)
+        *(int *)(void *)((char *)o + n->field) = (int)d;
+    else
+        *(double *)(void *)((char *)o + n->field) = d;
+    return 0;
+}
+
+/* --method M: one more configuration. 0 or cmd_bad_value's code. */
+static int parse_method(const char *val, opts *o)
+{
+    char name[32];
+    snprintf(name, sizeof name, "%s", val ? val : "");
+    char *slash = strchr(name, '/');
+    int nearest = slash && !strcmp(slash, "/nearest");
+    if (slash)
+        *slash = 0;
+    int m = reduce_method_parse(name);
+    if (m < 0 || (slash && !nearest) || o->nconf == MAX_CONFIGS)
+        return cmd_bad_value("bench reduce", "--method", val,
+                             "powell, praxis, sbplx or bobyqa, optionally /nearest (8 at most)");
+    o->method[o->nconf] = (reduce_method)m;
+    o->count[o->nconf++] = nearest ? REDUCE_NEAREST : REDUCE_TRILINEAR;
+    return 0;
+}
+
+/* The options of neither table, each taking argv[*i + 1] (*i moved past it): 0, cmd_bad_value's
+ * code, or -1 when argv[*i] is none of them. */
+static int parse_other(int argc, char **argv, int *i, opts *o)
+{
+    const char *a = argv[*i], *val = *i + 1 < argc ? argv[*i + 1] : NULL;
+    if (!strcmp(a, "--threshold")) {
+        if (val && !strcmp(val, "auto"))
+            o->threshold_auto = 1;
+        else if (val && !strcmp(val, "auto-bone"))
+            o->threshold_auto = 2;
+        else if (!cmd_number(val, &o->threshold))
+            return cmd_bad_value("bench reduce", a, val, "HU, auto or auto-bone");
+    } else if (!strcmp(a, "--labels") || !strcmp(a, "--intact")) {
+        if (!val)
+            return cmd_bad_value("bench reduce", a, val, "a folder of NNN_BONE.nii.gz and NNN_BONE_mask.nii.gz");
+        o->labels = a[2] == 'l';
+        o->intact = a[2] == 'i';
+        o->data_dir = val;
+    } else if (!strcmp(a, "--ct")) {
+        if (!val)
+            return cmd_bad_value("bench reduce", a, val, "a volume file");
+        o->ct = val;
+    } else if (!strcmp(a, "--method")) {
+        int rc = parse_method(val, o);
+        if (rc)
+            return rc;
+    } else
+        return -1;
+    ++*i;
+    return 0;
+}
+
+/* The options from argv[1] on, over what *o holds: the tables' first, then the others. */
 static int parse_more(int argc, char **argv, opts *o)
 {
     for (int i = 1; i < argc; i++) {
-        const char *a = argv[i], *val = i + 1 < argc ? argv[i + 1] : NULL;
-        double d;
-        if (!strcmp(a, "--json"))
-            o->json = 1;
-        else if (!strcmp(a, "--verbose"))
-            o->verbose = 1;
-        else if (!strcmp(a, "--verbose-truth"))
-            o->verbose = 2;
-        else if (!strcmp(a, "--coarse"))
-            o->coarse = 1;
-        else if (!strcmp(a, "--suite"))
-            o->suite = 1;
-        else if (!strcmp(a, "--axis-scale") || !strcmp(a, "--no-axis-scale"))
-            o->axis_scale = a[2] == 'a' ? 1 : -1;
-        else if (!strcmp(a, "--seeds") || !strcmp(a, "--starts")) {
-            if (!cmd_number(val, &d) || !(d >= 1 && d <= 1000 && d == (int)d))
-                return cmd_bad_value("bench reduce", a, val, "a whole number 1..1000");
-            *(a[3] == 'e' ? &o->seeds : &o->starts) = (int)d;
-            i++;
-        } else if (!strcmp(a, "--max-mm") || !strcmp(a, "--max-deg")) {
-            if (!cmd_number(val, &d) || !(d >= 0 && d <= 90))
-                return cmd_bad_value("bench reduce", a, val, "a number 0..90");
-            *(a[6] == 'm' ? &o->max_mm : &o->max_deg) = d;
-            i++;
-        } else if (!strcmp(a, "--touching")) {
-            o->touching = 1;
-        } else if (!strcmp(a, "--pieces")) {
-            if (!cmd_number(val, &d) || !(d >= 2 && d <= 10 && d == (int)d))
-                return cmd_bad_value("bench reduce", a, val, "a whole number 2..10");
-            o->pieces = (int)d;
-            i++;
-        } else if (!strcmp(a, "--bone-loss")) {
-            if (!cmd_number(val, &d) || !(d >= 0 && d <= 10))
-                return cmd_bad_value("bench reduce", a, val, "a number of mm 0..10");
-            o->bone_loss_mm = d;
-            i++;
-        } else if (!strcmp(a, "--gap")) {
-            if (!cmd_number(val, &d) || !(d >= 0 && d <= 10))
-                return cmd_bad_value("bench reduce", a, val, "a number of mm 0..10");
-            o->gap_mm = d;
-            i++;
-        } else if (!strcmp(a, "--threshold")) {
-            if (val && !strcmp(val, "auto"))
-                o->threshold_auto = 1;
-            else if (val && !strcmp(val, "auto-bone"))
-                o->threshold_auto = 2;
-            else if (!cmd_number(val, &o->threshold))
-                return cmd_bad_value("bench reduce", a, val, "HU, auto or auto-bone");
-            i++;
-        } else if (!strcmp(a, "--band")) {
-            if (!cmd_number(val, &d) || !(d >= 0 && d <= 100))
-                return cmd_bad_value("bench reduce", a, val, "a number of mm 0..100");
-            o->band_mm = d;
-            i++;
-        } else if (!strcmp(a, "--fit-starts")) {
-            if (!cmd_number(val, &d) || !(d >= 1 && d <= 7 && d == (int)d))
-                return cmd_bad_value("bench reduce", a, val, "a whole number 1..7");
-            o->fit_starts = (int)d;
-            i++;
-        } else if (!strcmp(a, "--tolerance") || !strcmp(a, "--settle")) {
-            if (!cmd_number(val, &d) || !(d >= 0 && d <= 10))
-                return cmd_bad_value("bench reduce", a, val, "a number of mm 0..10");
-            *(a[2] == 't' ? &o->tolerance_mm : &o->settle_mm) = d;
-            i++;
-        } else if (!strcmp(a, "--trust-mm") || !strcmp(a, "--trust-deg")) {
-            if (!cmd_number(val, &d) || !(d >= 0 && d <= 1000))
-                return cmd_bad_value("bench reduce", a, val, "a number 0..1000");
-            *(a[8] == 'm' ? &o->trust_mm : &o->trust_deg) = d;
-            i++;
-        } else if (!strcmp(a, "--voi-max")) {
-            if (!cmd_number(val, &d) || !(d >= 0 && d <= 1000))
-                return cmd_bad_value("bench reduce", a, val, "a number of mm 0..1000");
-            o->voi_max_mm = d;
-            i++;
-        } else if (!strcmp(a, "--model")) {
-            if (!cmd_number(val, &d) || !(d == 1 || d == 2))
-                return cmd_bad_value("bench reduce", a, val, "1 or 2");
-            o->model = (int)d;
-            i++;
-        } else if (!strcmp(a, "--labels") || !strcmp(a, "--intact")) {
-            if (!val)
-                return cmd_bad_value("bench reduce", a, val, "a folder of NNN_BONE.nii.gz and NNN_BONE_mask.nii.gz");
-            o->labels = a[2] == 'l';
-            o->intact = a[2] == 'i';
-            o->data_dir = argv[++i];
-        } else if (!strcmp(a, "--ct")) {
-            if (!val)
-                return cmd_bad_value("bench reduce", a, val, "a volume file");
-            o->ct = argv[++i];
-        } else if (!strcmp(a, "--method")) {
-            char name[32];
-            snprintf(name, sizeof name, "%s", val ? val : "");
-            char *slash = strchr(name, '/');
-            int nearest = slash && !strcmp(slash, "/nearest");
-            if (slash)
-                *slash = 0;
-            int m = reduce_method_parse(name);
-            if (m < 0 || (slash && !nearest) || o->nconf == MAX_CONFIGS)
-                return cmd_bad_value("bench reduce", a, val,
-                                     "powell, praxis, sbplx or bobyqa, optionally /nearest (8 at most)");
-            o->method[o->nconf] = (reduce_method)m;
-            o->count[o->nconf++] = nearest ? REDUCE_NEAREST : REDUCE_TRILINEAR;
-            i++;
-        } else
+        const char *a = argv[i];
+        size_t k;
+        for (k = 0; k < COUNT(flag_opts) && strcmp(a, flag_opts[k].name); k++)
+            ;
+        if (k < COUNT(flag_opts)) {
+            *(int *)(void *)((char *)o + flag_opts[k].field) = flag_opts[k].value;
+            continue;
+        }
+        for (k = 0; k < COUNT(number_opts) && strcmp(a, number_opts[k].name); k++)
+            ;
+        int rc;
+        if (k < COUNT(number_opts))
+            rc = parse_number(&number_opts[k], i + 1 < argc ? argv[++i] : NULL, o);
+        else if ((rc = parse_other(argc, argv, &i, o)) == -1)
             return cmd_usage_error("bench reduce", "unknown option '%s'", a);
+        if (rc)
+            return rc;
     }
     return 0;
 }

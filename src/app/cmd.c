@@ -3,6 +3,7 @@
 #include "cmd.h"
 
 #include "case.h"
+#include "caselock.h"
 #include "case_journal.h"
 #include "durable.h"
 #include "err.h"
@@ -174,18 +175,6 @@ int cmd_parse_pivot(const char *cmd, int argc, char **argv, int *i, double out[3
             return cmd_usage_error(cmd, "--pivot needs three numbers X Y Z (world mm)");
     *i += 3;
     return 0;
-}
-
-int cmd_parse_frame(const char *cmd, const char *name, loop_frame *out)
-{
-    static const char *names[] = {[LOOP_FRAME_CAMERA] = "camera", [LOOP_FRAME_WORLD] = "world",
-                                  [LOOP_FRAME_FRAGMENT] = "fragment"};
-    for (int f = 0; f < (int)(sizeof names / sizeof names[0]); f++)
-        if (names[f] && !strcmp(name, names[f])) {
-            *out = (loop_frame)f;
-            return 0;
-        }
-    return cmd_usage_error(cmd, "--frame %s: use camera, world or fragment", name);
 }
 
 int cmd_tau_check(const char *cmd, const cmd_tau *t)

@@ -3,9 +3,13 @@
 #ifndef FN_CMD_H
 #define FN_CMD_H
 
-#include "case.h"
-#include "caselock.h"
-#include "loop.h"
+/* The lower layers' types its helpers take, by pointer: a command includes their headers itself. */
+typedef struct planning_case planning_case; /* case.h */
+typedef struct case_seed case_seed;
+typedef struct caselock caselock;           /* caselock.h */
+typedef struct vol vol;                     /* vol.h */
+typedef struct seg_params seg_params;       /* seg.h */
+typedef struct seg_result seg_result;
 
 #define CMD_LIST(X)                                                                          \
     X(demo, "run the built-in demo on the example CT")                                      \
@@ -134,8 +138,6 @@ int cmd_seeds_option(const char *cmd, int argc, char **argv, int *i, case_seed *
     "  --seeds X Y Z [X Y Z ...]  one point per piece (world LPS mm)\n"                            \
     "  --seed-file PATH           labelled points, one per line: PIECE X Y Z (PIECE 1, 2, ...\n"  \
     "                             or none: not bone); several points per piece\n"
-/* --frame NAME: camera, world or fragment. 0, or a usage error for `cmd` (returns 2). */
-int cmd_parse_frame(const char *cmd, const char *name, loop_frame *out);
 
 /* Output paths, checked before any work. No output lands in a case folder (one that holds
  * case.json: its files are written by the case's own saves alone) or on the source volume of the

@@ -4,6 +4,7 @@
 #include "cmd.h"
 
 #include "case.h"
+#include "caselock.h"
 #include "err.h"
 #include "durable.h"
 #include "export.h"

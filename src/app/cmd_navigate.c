@@ -1,8 +1,6 @@
 /* fracnav navigate: steer a case's fragments with a 6-DOF controller, live, in a terminal. */
 #include "cmd.h"
 
-#include "err.h"
-#include "fnclock.h"
 #include "navseed.h"
 #include "navview.h"
 #include "navwin.h"
@@ -171,8 +169,8 @@ static int parse(int argc, char **argv, opts *o)
                 return 2;
             o->have_pivot = 1;
         } else if (!strcmp(a, "--frame") && v) {
-            if (cmd_parse_frame("navigate", argv[++i], &o->frame))
-                return 2;
+            if (session_frame_parse(argv[++i], &o->frame) < 0)
+                return cmd_usage_error("navigate", "%s", fn_err_msg());
         } else if (a[0] == '-' || o->dir) {
             fprintf(stderr, "fracnav navigate: unexpected argument '%s' (see fracnav navigate --help)\n", a);
             return 2;
@@ -664,18 +662,18 @@ int cmd_navigate(int argc, char **argv)
         return 1;
     }
     calib cal;
-    if (calib_setup(&cal, o.config, 0, stderr, "fracnav navigate", NULL, 0) < 0) {
+    if (session_calib_setup(&cal, o.config, 0, "fracnav navigate") < 0) {
         fprintf(stderr, "fracnav navigate: %s\n", fn_err_msg());
         return 1;
     }
     /* Held for the whole session: a second writer is refused, and the journal this session keeps
      * is never taken for an interrupted one. */
-    caselock *lock = cmd_lock_case("navigate", o.dir, 1, wait);
+    caselock *lock = session_lock_case("navigate", o.dir, 1, wait);
     if (!lock)
         return 1;
     offer_recovery(&o);
     loop_config cfg;
-    loop_config_default(&cfg);
+    session_config_default(&cfg);
     cfg.frame = o.frame;
     view v = {0};
     v.tty = isatty(STDERR_FILENO);
@@ -684,7 +682,7 @@ int cmd_navigate(int argc, char **argv)
     v.keyboard = ds && session_source_keyboard(ds);
     if (!ds) {
         fprintf(stderr, "fracnav navigate: %s\n", fn_err_msg());
-        caselock_release(lock);
+        session_unlock(lock);
         return 1;
     }
     if (v.tty)
@@ -709,6 +707,6 @@ int cmd_navigate(int argc, char **argv)
     if (rc < 0)
         fprintf(stderr, "fracnav navigate: %s\n", fn_err_msg());
     session_dsource_free(ds);
-    caselock_release(lock);
+    session_unlock(lock);
     return rc < 0 ? 1 : 0;
 }

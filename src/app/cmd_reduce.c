@@ -2,6 +2,7 @@
 #include "cmd.h"
 
 #include "case.h"
+#include "caselock.h"
 #include "case_journal.h"
 #include "err.h"
 #include "fnclock.h"

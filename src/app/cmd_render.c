@@ -2,6 +2,7 @@
 #include "cmd.h"
 
 #include "case.h"
+#include "caselock.h"
 #include "err.h"
 #include "jsonw.h"
 #include "render.h"

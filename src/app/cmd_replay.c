@@ -1,7 +1,6 @@
 /* fracnav replay: a .fnrec recording through the navigation loop, deterministic, JSON summary. */
 #include "cmd.h"
 
-#include "err.h"
 #include "framedump.h"
 #include "navwin.h"
 #include "session.h"
@@ -130,8 +129,8 @@ static int parse(int argc, char **argv, opts *o)
         else if (!strcmp(a, "--save"))
             o->save = 1;
         else if (!strcmp(a, "--frame") && i + 1 < argc) {
-            if (cmd_parse_frame("replay", argv[++i], &o->frame))
-                return 2;
+            if (session_frame_parse(argv[++i], &o->frame) < 0)
+                return cmd_usage_error("replay", "%s", fn_err_msg());
         } else if (!strcmp(a, "--pivot")) {
             if (cmd_parse_pivot("replay", argc, argv, &i, o->pivot))
                 return 2;
@@ -318,23 +317,23 @@ int cmd_replay(int argc, char **argv)
         return 1;
     }
     calib cal;
-    if (calib_setup(&cal, o.config, CALIB_NAMED_ONLY, stderr, "fracnav replay", NULL, 0) < 0) {
+    if (session_calib_setup(&cal, o.config, 1, "fracnav replay") < 0) {
         fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
         return 1;
     }
     /* Exclusive when it writes the journal or the case, for the whole run. */
     int writes = !o.no_journal || o.save || (o.flags & SESSION_DISCARD);
-    caselock *lock = cmd_lock_case("replay", o.dir, writes, wait);
+    caselock *lock = session_lock_case("replay", o.dir, writes, wait);
     if (!lock)
         return 1;
     loop_config cfg;
-    loop_config_default(&cfg);
+    session_config_default(&cfg);
     char spec[4200];
     snprintf(spec, sizeof spec, "%s:%s", o.realtime ? "replay-realtime" : "replay", o.rec);
     session_dsource *ds = session_source_open(spec, &cal, 0, &cfg);
     if (!ds) {
         fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
-        caselock_release(lock);
+        session_unlock(lock);
         return 1;
     }
     /* A replay saves only at its end (--save) and never fits: with the window its session
@@ -349,7 +348,7 @@ int cmd_replay(int argc, char **argv)
     if (!k) {
         fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
         session_dsource_free(ds);
-        caselock_release(lock);
+        session_unlock(lock);
         return 1;
     }
     fprintf(stderr, "fracnav replay: stepping %s on %s\n", o.rec, o.dir);
@@ -360,13 +359,13 @@ int cmd_replay(int argc, char **argv)
         fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
         session_close(k);
         session_dsource_free(ds);
-        caselock_release(lock);
+        session_unlock(lock);
         return 1;
     }
     rc = run(k, ds, &o, fd);
     rc = finish(k, ds, &o, rc);
     session_close(k);
     session_dsource_free(ds);
-    caselock_release(lock);
+    session_unlock(lock);
     return rc < 0 ? 1 : 0;
 }

@@ -3,6 +3,7 @@
 
 #include "bone.h"
 #include "case.h"
+#include "caselock.h"
 #include "err.h"
 #include "fnclock.h"
 #include "jsonw.h"

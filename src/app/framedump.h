@@ -8,7 +8,6 @@
 #ifndef FN_FRAMEDUMP_H
 #define FN_FRAMEDUMP_H
 
-#include "case.h"
 #include "navwin.h"
 #include "session.h"
 

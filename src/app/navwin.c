@@ -2,8 +2,6 @@
 #include "navwin.h"
 
 #include "cmd.h"
-#include "err.h"
-#include "fnclock.h"
 #include "render.h"
 
 #include <math.h>

@@ -1,5 +1,6 @@
 /* session: opening a case for steering (journal reconciled, collider, loop), accessors, saves. */
 #include "session_impl.h"
+#include "session_test.h"
 
 #include "case_journal.h"
 #include "err.h"
@@ -8,6 +9,7 @@
 
 #include <errno.h>
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
@@ -248,7 +250,42 @@ void session__free(session *s)
     free(s);
 }
 
-loop *session_loop(session *s)
+void session_config_default(loop_config *cfg)
+{
+    loop_config_default(cfg);
+}
+
+int session_frame_parse(const char *name, loop_frame *out)
+{
+    static const char *names[] = {[LOOP_FRAME_CAMERA] = "camera", [LOOP_FRAME_WORLD] = "world",
+                                  [LOOP_FRAME_FRAGMENT] = "fragment"};
+    for (int f = 0; f < (int)(sizeof names / sizeof names[0]); f++)
+        if (names[f] && !strcmp(name, names[f])) {
+            *out = (loop_frame)f;
+            return 0;
+        }
+    return fn_err_set(FN_EINVAL, "--frame %s: use camera, world or fragment", name);
+}
+
+int session_calib_setup(calib *cal, const char *config, int named_only, const char *who)
+{
+    return calib_setup(cal, config, named_only ? CALIB_NAMED_ONLY : 0, stderr, who, NULL, 0);
+}
+
+caselock *session_lock_case(const char *command, const char *dir, int exclusive, int wait)
+{
+    caselock *l = caselock_take(dir, exclusive, wait);
+    if (!l)
+        fprintf(stderr, "fracnav %s: %s\n", command, fn_err_msg());
+    return l;
+}
+
+void session_unlock(caselock *lock)
+{
+    caselock_release(lock);
+}
+
+loop *session__loop(session *s)
 {
     return s->L;
 }
@@ -261,6 +298,11 @@ void session_set_pivot(session *s, const double world[3])
 void session_stats(session *s, loop_stats *out)
 {
     loop_get_stats(s->L, out);
+}
+
+void session_tolerate(session *s, int i, double tolerance_mm)
+{
+    loop_tolerate(s->L, i, tolerance_mm);
 }
 
 pose session_pose(const session *s, int i)

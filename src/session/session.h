@@ -10,8 +10,8 @@
  *
  * Threads. session_start runs the source's reader thread, the loop thread (loop_run, under
  * real-time priority when granted) and the session's event thread. Then:
- *  - session_send_action, session_propose_pose, session_scene_read and session_loop may be
- *    called from any thread, several at once;
+ *  - session_send_action, session_propose_pose and session_scene_read may be called from any
+ *    thread, several at once;
  *  - session_wait_event, session_ended and session_stop from one client thread (the one that
  *    owns the handle), never two at once;
  *  - the event thread carries out save requests (LOOP_ACT_SAVE, a button or a key), starts fits
@@ -30,19 +30,28 @@
  *
  * Ownership: the session owns its case, collider, loop, journal and rings; a loop_source's
  * context stays the caller's and must outlive session_stop. Pointers it returns (session_case,
- * session_loop) live until session_close. */
+ * session_frags) live until session_close. */
 #ifndef FN_SESSION_H
 #define FN_SESSION_H
 
+/* The session's API is made of these: its errors are err.h's (FN_E*, fn_err_msg), its times
+ * fnclock's, a source reads through a calibration (calib.h), it runs a loop (loop.h: its
+ * configuration, actions and scenes) over a case (case.h: what the window draws). Its clients
+ * include nothing else of the layers below. */
 #include "calib.h"
 #include "case.h"
-#include "dev.h"
-#include "journal.h"
+#include "err.h"
+#include "fnclock.h"
 #include "loop.h"
 
 #include <stdio.h>
 
 struct json_t; /* jansson's */
+/* The lower layers' handles that pass through the session's API without clients looking in. */
+typedef struct dev_device dev_device; /* dev.h */
+typedef struct dev_transport dev_transport;
+typedef struct dev_handle dev_handle;
+typedef struct caselock caselock;     /* caselock.h */
 
 typedef struct session session;
 
@@ -64,6 +73,26 @@ typedef struct session_params {
     double fit_gap_mm; /* the fit action leaves this gap at the cut (reduce_opts.gap_mm; 0: none) */
 } session_params;
 
+/* ---- around a session: what a command needs before it opens one ---- */
+
+/* The loop's defaults (loop_config_default), for session_params.cfg. */
+void session_config_default(loop_config *cfg);
+/* The motion frame a name gives (--frame): camera, world or fragment. 0, or FN_EINVAL with fn_err
+ * "--frame NAME: use camera, world or fragment". */
+int session_frame_parse(const char *name, loop_frame *out);
+/* The calibration a command's source reads through (session_source_open), loaded as every command
+ * loads it (calib_setup): the defaults, then the file config, else (unless named_only) the user's
+ * ~/.config/fracnav/spnavrc; bad lines are said on stderr, "WHO: N bad line(s) skipped: ...".
+ * 0, or negative with fn_err naming the file that cannot be read. */
+int session_calib_setup(calib *cal, const char *config, int named_only, const char *who);
+/* The case's lock (caselock_take: exclusive for a command that writes the case; wait: for another
+ * holder), held for as long as the command steers it, across its sessions (navigate opens one again
+ * after a separation in the window): a second writer is refused, and the journal the session keeps
+ * is never taken for an interrupted one. NULL after printing "fracnav COMMAND: why" on stderr. */
+caselock *session_lock_case(const char *command, const char *dir, int exclusive, int wait);
+/* Releases it (NULL: nothing). */
+void session_unlock(caselock *lock);
+
 /* Loads the case, reconciles its journal (case_journal_check: damage and journals of another case
  * state are kept aside, never applied) and builds everything. A journal holding unsaved poses
  * without SESSION_RESUME or SESSION_DISCARD is an error (FN_EMISMATCH) whose message says how many
@@ -82,11 +111,8 @@ void session_close(session *s);
  * bound to another case state): what session_open would need SESSION_RESUME or SESSION_DISCARD for. */
 size_t session_journal_pending(const char *dir);
 
-/* The loop (for loop_scene_read from any thread, e.g. the window's; loop_set_pivot and the
- * statistics only while it does not run), the case (NULL for session_open_fragments), its
- * fragments and their number, the journal records applied at open, the case folder ("" without a
- * case). Valid until session_close. */
-loop *session_loop(session *s);
+/* The case (NULL for session_open_fragments), its fragments and their number, the journal
+ * records applied at open, the case folder ("" without a case). Valid until session_close. */
 planning_case *session_case(session *s);
 const frag *session_frags(const session *s);
 int session_nfrag(const session *s);
@@ -97,6 +123,9 @@ const char *session_dir(const session *s);
  * and the loop's statistics (loop_get_stats). While the loop does not run. */
 void session_set_pivot(session *s, const double world[3]);
 void session_stats(session *s, loop_stats *out);
+/* Marks fragment i as inside another by no more than a fit's tolerance_mm (loop_tolerate: a plan
+ * that fracnav reduce left so). Before the loop runs. */
+void session_tolerate(session *s, int i, double tolerance_mm);
 /* Fragment i's pose and the selected fragment, now: while the loop does not run, or from
  * session_play_each's callback. */
 pose session_pose(const session *s, int i);

@@ -5,6 +5,11 @@
 
 #include "session.h"
 
+#include "case.h"
+#include "caselock.h"
+#include "dev.h"
+#include "journal.h"
+
 #include <jansson.h>
 #include <pthread.h>
 #include <semaphore.h>

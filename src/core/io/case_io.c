@@ -370,7 +370,7 @@ int case_save_undoable(planning_case *c)
 
 int case_undo(const char *dir)
 {
-    char step[4300], sj[4400], sl[4400], jfin[4200], lfin[4200], lprev[4200], jtmp[4300], ltmp[4300];
+    char step[4300], sj[4400], sl[4400], jfin[4200], lfin[4200], lprev[4200];
     int n = undoable_step(dir, step, sizeof step);
     if (n <= 0)
         return n;
@@ -379,23 +379,25 @@ int case_undo(const char *dir)
     join(jfin, sizeof jfin, dir, JSON_FILE);
     join(lfin, sizeof lfin, dir, LABELS_FILE);
     join(lprev, sizeof lprev, dir, LABELS_PREV);
-    join(jtmp, sizeof jtmp, dir, ".case.json.undo");
-    join(ltmp, sizeof ltmp, dir, ".labels.nii.gz.undo");
     /* As case_save: the labels, then case.json, the labels case.json names kept until both are in
-     * place; the step's files are linked in, so a crash keeps the step whole until it is done. */
-    int rc = link_over(sl, ltmp);
+     * place; the step's files are linked in under temporaries of their own (durable_link: never a
+     * name planted there), so a crash keeps the step whole until it is done. */
+    durable_file lt = {.fd = -1}, jt = {.fd = -1};
+    int rc = durable_link(&lt, sl, lfin);
     if (rc == 0)
-        rc = link_over(sj, jtmp);
+        rc = durable_link(&jt, sj, jfin);
     if (rc == 0)
         rc = durable_sync_path(dir);
     if (rc == 0)
         rc = keep_previous_labels(lfin, lprev, dir);
-    if (rc == 0 && (rename(ltmp, lfin) != 0 || rename(jtmp, jfin) != 0))
-        rc = fn_err_set(FN_EIO, "%s: cannot put %s back: %s", dir, step, strerror(errno));
+    if (rc == 0)
+        rc = durable_rename(&lt, lfin);
+    if (rc == 0)
+        rc = durable_rename(&jt, jfin);
     if (rc == 0)
         rc = durable_sync_path(dir);
-    unlink(ltmp);
-    unlink(jtmp);
+    durable_abort(&lt);
+    durable_abort(&jt);
     if (rc < 0)
         return fn_err_wrap(rc, "undoing the last edit of case %s", dir);
     unlink(lprev);
@@ -686,7 +688,8 @@ static int find_labels(const char *dir, const char *json, const char *lsha, char
     if (durable_file_sha256(lprev, pnow) < 0 || strcmp(pnow, lsha))
         return fn_err_set(FN_EMISMATCH, "%s has sha256 %.12s..., but %s expects %.12s...: it was "
                                         "changed or a save was interrupted", lpath, lnow, json, lsha);
-    int moved = rename(lprev, lpath) == 0;
+    /* moved also when only the folder's sync failed: the previous labels are in place then */
+    int moved = durable_move(lprev, lpath) == 0 || access(lprev, F_OK) != 0;
     fprintf(stderr, "fracnav: %s: a save was interrupted; %s the previous labels, %s, which match %s\n",
             dir, moved ? "restored" : "using", LABELS_PREV, json);
     if (!moved)

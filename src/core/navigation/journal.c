@@ -486,8 +486,9 @@ int journal_set_aside(const char *case_dir, const char *tag, const journal_bind 
     }
     if (k > 9999)
         return fn_err_set(FN_EIO, "%s: %s.1 to .9999 all exist: remove old ones", path, tag);
-    if (rename(path, aside) != 0)
-        return fn_err_set(FN_EIO, "%s: cannot move to %s: %s", path, aside, strerror(errno));
+    int rc = durable_move(path, aside);
+    if (rc < 0)
+        return rc;
     journal_text x = {b, recs, n};
     return n ? durable_replace(path, write_records, &x) : 0;
 }

@@ -196,7 +196,8 @@ static int still_ours(const durable_file *f)
     return lstat(f->tmp, &sb) == 0 && S_ISREG(sb.st_mode) && sb.st_dev == f->dev && sb.st_ino == f->ino;
 }
 
-int durable_create(durable_file *f, const char *path)
+/* The next temporary's name for path into f->tmp (durable_create's), after sweeping its folder. */
+static int temp_name(durable_file *f, const char *path)
 {
     char dir[4096];
     const char *name;
@@ -208,8 +209,18 @@ int durable_create(durable_file *f, const char *path)
     durable_sweep(dir, 0);
     int n = snprintf(f->tmp, sizeof f->tmp, "%s/" DURABLE_TMP_TAG "%ld-%u-%s", dir, (long)getpid(),
                      atomic_fetch_add(&tmp_counter, 1), name);
-    if (n < 0 || (size_t)n >= sizeof f->tmp)
+    if (n < 0 || (size_t)n >= sizeof f->tmp) {
+        f->tmp[0] = '\0';
         return fn_err_set(FN_EINVAL, "%s: path too long", path);
+    }
+    return 0;
+}
+
+int durable_create(durable_file *f, const char *path)
+{
+    int rc = temp_name(f, path);
+    if (rc < 0)
+        return rc;
     f->fd = open(f->tmp, O_WRONLY | O_CREAT | O_EXCL | O_NOFOLLOW | O_CLOEXEC, 0644);
     struct stat sb;
     if (f->fd >= 0 && fstat(f->fd, &sb) == 0) {
@@ -226,6 +237,27 @@ int durable_create(durable_file *f, const char *path)
     f->fd = -1;
     f->tmp[0] = '\0';
     return rc;
+}
+
+int durable_link(durable_file *f, const char *src, const char *path)
+{
+    struct stat sb;
+    int rc = temp_name(f, path);
+    if (rc < 0)
+        return rc;
+    if (lstat(src, &sb) != 0)
+        rc = fn_err_set(FN_EIO, "%s: %s", src, strerror(errno));
+    else if (!S_ISREG(sb.st_mode))
+        rc = fn_err_set(FN_EIO, "%s is not a regular file (a link, a folder): not linked", src);
+    else if (link(src, f->tmp) != 0)
+        rc = fn_err_set(FN_EIO, "%s: cannot link %s beside it (%s): %s", path, src, f->tmp, strerror(errno));
+    if (rc < 0) {
+        f->tmp[0] = '\0';
+        return rc;
+    }
+    f->dev = sb.st_dev;
+    f->ino = sb.st_ino;
+    return 0;
 }
 
 int durable_write_all(durable_file *f, const void *p, size_t n)
@@ -270,6 +302,9 @@ int durable_seal(durable_file *f)
 int durable_rename(durable_file *f, const char *path)
 {
     int rc = check_target(path);
+    if (rc == 0 && !still_ours(f))
+        rc = fn_err_set(FN_EIO, "%s: the temporary %s is no longer the file written for it (a link "
+                                "or another file put in its place): not used", path, f->tmp);
     if (rc == 0 && rename(f->tmp, path) != 0)
         rc = fn_err_set(FN_EIO, "%s: cannot put %s in its place: %s", path, f->tmp, strerror(errno));
     if (rc == 0)
@@ -297,6 +332,21 @@ int durable_sync_path(const char *path)
     close(fd);
     /* Some file systems cannot sync a folder (EINVAL): nothing more can be done there. */
     return rc && e != EINVAL ? fn_err_set(FN_EIO, "%s: fsync failed: %s", path, strerror(e)) : 0;
+}
+
+int durable_move(const char *from, const char *to)
+{
+    char dir[4096];
+    const char *name;
+    struct stat sb;
+    int rc = split_path(to, dir, sizeof dir, &name);
+    if (rc == 0 && (lstat(from, &sb) != 0 || !S_ISREG(sb.st_mode)))
+        rc = fn_err_set(FN_EIO, "%s: not moved to %s: it is missing or not a regular file", from, to);
+    if (rc == 0)
+        rc = check_target(to);
+    if (rc == 0 && rename(from, to) != 0)
+        rc = fn_err_set(FN_EIO, "%s: cannot move to %s: %s", from, to, strerror(errno));
+    return rc ? rc : durable_sync_path(dir);
 }
 
 /* A writer's message names the temporary file: name the target, the path the user gave, instead. */

@@ -15,9 +15,11 @@
  *   4. durable_rename refuses a PATH that is a symbolic link or not a regular file (so a link is
  *      never replaced silently nor written through) and renames the temporary over PATH.
  *   5. durable_sync_path fsyncs the folder, so the rename itself is on disk.
- * durable_replace does the five steps for one file. A kill at any step leaves PATH as it was or
- * as it was meant to be, and at most a temporary, which durable_sweep removes once its process is
- * gone.
+ * durable_replace does the five steps for one file. A file that exists already (a case's undo step)
+ * takes steps 1 to 3 at once by durable_link; a file renamed within its folder (a journal set aside,
+ * the previous labels put back) goes by durable_move, which checks and syncs as steps 4 and 5 do.
+ * A kill at any step leaves PATH as it was or as it was meant to be, and at most a temporary, which
+ * durable_sweep removes once its process is gone.
  *
  * Reading: durable_open_regular opens a regular file without blocking on a FIFO; durable_sha256
  * and durable_file_sha256 give the checksums that bind a case to its files.
@@ -49,13 +51,24 @@ int durable_write_all(durable_file *f, const void *p, size_t n);
 FILE *durable_stream(durable_file *f);
 /* Step 3: still our regular file, fsync, close. */
 int durable_seal(durable_file *f);
-/* Step 4: refuses a link or non-regular path, renames the sealed temporary over it. */
+/* Step 4: refuses a link or non-regular path, and a temporary that is no longer the file step 1
+ * made (or durable_link linked), and renames the sealed temporary over it. */
 int durable_rename(durable_file *f, const char *path);
+/* Steps 1 to 3 for a file that exists already (a case's undo step): the temporary for path is a
+ * hard link to src, a regular file (a link there is refused, never followed), made by link(2)
+ * under durable_create's name, so a name planted there fails it. Nothing to write or seal: next
+ * durable_rename, then durable_sync_path. */
+int durable_link(durable_file *f, const char *src, const char *path);
 /* After a failure at any step: closes and removes the temporary (only if it is still ours). */
 void durable_abort(durable_file *f);
 /* Step 5, and for files already written (a staged case folder): fsyncs a file or a folder (a file
  * system that cannot sync a folder is no error). */
 int durable_sync_path(const char *path);
+
+/* Renames from, a regular file (never a link), to the name to in the same folder, which must be
+ * missing or a regular file (a link there is refused, never replaced), then fsyncs the folder: a
+ * file set aside (a journal), or a kept copy put back (a case's previous labels). */
+int durable_move(const char *from, const char *to);
 
 /* The five steps for one file: write(f, ctx) fills the temporary. Refuses a path that is a link or
  * not a regular file before writing anything. */

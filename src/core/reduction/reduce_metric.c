@@ -376,6 +376,105 @@ static void voi_bone(const frag *const *asm_, int nasm, const int c0[3], const i
         sample_into(g, asm_[f], c0, d, bone);
 }
 
+/* The VOI's cells in the grid fragment g (c0 and its size d), with a border of one (D), and g's
+ * spacing. 0 or reduce_voi_cells' error. */
+static int metric_grid(reduce_metric *m, const frag *g, const reduce_voi *voi)
+{
+    int c1[3];
+    if (reduce_voi_cells(g, voi, m->c0, c1) < 0)
+        return -1;
+    for (int a = 0; a < 3; a++) {
+        m->d[a] = c1[a] - m->c0[a] + 1;
+        m->D[a] = m->d[a] + 2;
+        m->sg[a] = g->spacing[a];
+    }
+    return 0;
+}
+
+/* The assembly's bone on the VOI's cells (voi_bone), its cells counted (m->n1) and their index sums
+ * (sum, for the fixed centre); with gap_mm > 0, the bone grown by the gap (what was lost counts as
+ * the assembly's) and counted again. 0 or FN_ENOMEM. */
+static int metric_bone(reduce_metric *m, const frag *const *asm_, int nasm, double gap_mm, uint8_t *bone,
+                       double sum[3])
+{
+    size_t nv = (size_t)m->d[0] * m->d[1] * m->d[2];
+    voi_bone(asm_, nasm, m->c0, m->d, bone);
+    size_t idx = 0;
+    for (int k = 0; k < m->d[2]; k++)
+        for (int j = 0; j < m->d[1]; j++)
+            for (int i = 0; i < m->d[0]; i++, idx++)
+                if (bone[idx]) {
+                    m->n1 += 1;
+                    sum[0] += i, sum[1] += j, sum[2] += k;
+                }
+    if (gap_mm > 0) { /* the gap left where bone was lost counts as the assembly's */
+        uint8_t *gb = malloc(nv);
+        if (!gb)
+            return fn_err_set(FN_ENOMEM, "reduce metric: out of memory for the gap");
+        dilate_ball(bone, gb, m->d, m->sg, gap_mm);
+        memcpy(bone, gb, nv);
+        free(gb);
+        m->n1 = 0;
+        for (size_t q = 0; q < nv; q++)
+            m->n1 += bone[q];
+    }
+    return 0;
+}
+
+/* The band around the bone (in: every cell when there is none), then each cell's flags (in the
+ * band, bone) into m->cell inside its border, and the band's cells counted (m->nvoi). 0 or
+ * FN_ENOMEM. */
+static int metric_cells(reduce_metric *m, const uint8_t *bone, uint8_t *in, double band_mm)
+{
+    size_t nv = (size_t)m->d[0] * m->d[1] * m->d[2];
+    int kb[3];
+    band_cells(m->sg, band_mm, kb);
+    if (kb[0] < 0)
+        memset(in, 1, nv);
+    else if (dilate_box(bone, in, m->d, kb) < 0)
+        return fn_err_set(FN_ENOMEM, "reduce metric: out of memory for the band");
+    size_t idx = 0;
+    for (int k = 0; k < m->d[2]; k++)
+        for (int j = 0; j < m->d[1]; j++)
+            for (int i = 0; i < m->d[0]; i++, idx++) {
+                m->cell[((size_t)(k + 1) * m->D[1] + j + 1) * m->D[0] + i + 1] =
+                    (uint8_t)((in[idx] ? REDUCE_CELL_V : 0) | (bone[idx] ? REDUCE_CELL_A : 0));
+                m->nvoi += in[idx] != 0;
+            }
+    return 0;
+}
+
+/* The band's reach (the band grown by band_k cells) and the brick tables (block_table). 0 or
+ * FN_ENOMEM. */
+static int metric_reach(reduce_metric *m, const reduce_bricks *b, const uint8_t *in)
+{
+    size_t nv = (size_t)m->d[0] * m->d[1] * m->d[2];
+    for (int a = 0; a < 3; a++) {
+        m->band_k[a] = (int)ceil(reduce__tune.band_reach_mm / m->sg[a]) + 2;
+        m->band_slack[a] = m->band_k[a] - 1.5;
+    }
+    m->reach = malloc(nv);
+    m->band_x = malloc((size_t)b->nbrick * sizeof *m->band_x + 1);
+    m->band_first = malloc(((size_t)b->nbrick + 1) * sizeof *m->band_first);
+    int rc = m->reach && m->band_x && m->band_first ? dilate_box(in, m->reach, m->d, m->band_k) : FN_ENOMEM;
+    if (rc < 0 || block_table(m) < 0)
+        return fn_err_set(FN_ENOMEM, "reduce metric: out of memory for the band");
+    return 0;
+}
+
+/* The grid's poses, the fixed centre (the bone's centroid, sum: its cells' index sums; the VOI's
+ * centre without bone) in world mm, and a moving voxel's volume in grid voxels. */
+static void metric_place(reduce_metric *m, const frag *g, const frag *moving, const double sum[3])
+{
+    m->grid_inv = pose_inverse(pose_compose(g->pose, g->home));
+    m->grid_world = pose_compose(g->pose, g->home);
+    double l[3];
+    for (int a = 0; a < 3; a++)
+        l[a] = m->n1 > 0 ? (m->c0[a] + sum[a] / m->n1) * m->sg[a] : (m->c0[a] + 0.5 * (m->d[a] - 1)) * m->sg[a];
+    pose_apply(&m->grid_world, l, m->fixed_centre);
+    m->w = moving->spacing[0] * moving->spacing[1] * moving->spacing[2] / (m->sg[0] * m->sg[1] * m->sg[2]);
+}
+
 reduce_metric *reduce__metric_with(const frag *const *asm_, int nasm, const frag *moving, reduce_bricks *b,
                                    const reduce_voi *voi, reduce_count mode, double band_mm, double gap_mm)
 {
@@ -391,93 +490,30 @@ reduce_metric *reduce__metric_with(const frag *const *asm_, int nasm, const frag
     m->mode = mode;
     m->b = b;
     const frag *g = asm_[0];
-    int c1[3];
-    if (reduce_voi_cells(g, voi, m->c0, c1) < 0) {
+    if (metric_grid(m, g, voi) < 0) {
         free(m);
         return NULL;
-    }
-    for (int a = 0; a < 3; a++) {
-        m->d[a] = c1[a] - m->c0[a] + 1;
-        m->D[a] = m->d[a] + 2;
-        m->sg[a] = g->spacing[a];
     }
     size_t nv = (size_t)m->d[0] * m->d[1] * m->d[2];
     m->cell = calloc((size_t)m->D[0] * m->D[1] * m->D[2], sizeof *m->cell);
     uint8_t *bone = calloc(nv, 1), *in = malloc(nv);
-    if (!m->cell || !bone || !in) {
-        fn_err_set(FN_ENOMEM, "reduce metric: out of memory for a %dx%dx%d VOI", m->d[0], m->d[1], m->d[2]);
-        free(bone);
-        free(in);
-        reduce_metric_free(m);
-        return NULL;
-    }
-    voi_bone(asm_, nasm, m->c0, m->d, bone);
     double sum[3] = {0, 0, 0};
-    size_t idx = 0;
-    for (int k = 0; k < m->d[2]; k++)
-        for (int j = 0; j < m->d[1]; j++)
-            for (int i = 0; i < m->d[0]; i++, idx++)
-                if (bone[idx]) {
-                    m->n1 += 1;
-                    sum[0] += i, sum[1] += j, sum[2] += k;
-                }
-    if (gap_mm > 0) { /* the gap left where bone was lost counts as the assembly's */
-        uint8_t *gb = malloc(nv);
-        if (!gb) {
-            fn_err_set(FN_ENOMEM, "reduce metric: out of memory for the gap");
-            free(bone);
-            free(in);
-            reduce_metric_free(m);
-            return NULL;
-        }
-        dilate_ball(bone, gb, m->d, m->sg, gap_mm);
-        memcpy(bone, gb, nv);
-        free(gb);
-        m->n1 = 0;
-        for (size_t q = 0; q < nv; q++)
-            m->n1 += bone[q];
-    }
-    int kb[3];
-    band_cells(m->sg, band_mm, kb);
-    if (kb[0] < 0)
-        memset(in, 1, nv);
-    else if (dilate_box(bone, in, m->d, kb) < 0) {
-        fn_err_set(FN_ENOMEM, "reduce metric: out of memory for the band");
-        free(bone);
-        free(in);
-        reduce_metric_free(m);
-        return NULL;
-    }
-    idx = 0;
-    for (int k = 0; k < m->d[2]; k++)
-        for (int j = 0; j < m->d[1]; j++)
-            for (int i = 0; i < m->d[0]; i++, idx++) {
-                m->cell[((size_t)(k + 1) * m->D[1] + j + 1) * m->D[0] + i + 1] =
-                    (uint8_t)((in[idx] ? REDUCE_CELL_V : 0) | (bone[idx] ? REDUCE_CELL_A : 0));
-                m->nvoi += in[idx] != 0;
-            }
-    for (int a = 0; a < 3; a++) {
-        m->band_k[a] = (int)ceil(reduce__tune.band_reach_mm / m->sg[a]) + 2;
-        m->band_slack[a] = m->band_k[a] - 1.5;
-    }
-    m->reach = malloc(nv);
-    m->band_x = malloc((size_t)b->nbrick * sizeof *m->band_x + 1);
-    m->band_first = malloc(((size_t)b->nbrick + 1) * sizeof *m->band_first);
-    int rc = m->reach && m->band_x && m->band_first ? dilate_box(in, m->reach, m->d, m->band_k) : FN_ENOMEM;
+    int rc = 0;
+    if (!m->cell || !bone || !in)
+        rc = fn_err_set(FN_ENOMEM, "reduce metric: out of memory for a %dx%dx%d VOI", m->d[0], m->d[1], m->d[2]);
+    if (rc == 0)
+        rc = metric_bone(m, asm_, nasm, gap_mm, bone, sum);
+    if (rc == 0)
+        rc = metric_cells(m, bone, in, band_mm);
+    if (rc == 0)
+        rc = metric_reach(m, b, in);
     free(bone);
     free(in);
-    if (rc < 0 || block_table(m) < 0) {
-        fn_err_set(FN_ENOMEM, "reduce metric: out of memory for the band");
+    if (rc < 0) {
         reduce_metric_free(m);
         return NULL;
     }
-    m->grid_inv = pose_inverse(pose_compose(g->pose, g->home));
-    m->grid_world = pose_compose(g->pose, g->home);
-    double l[3];
-    for (int a = 0; a < 3; a++)
-        l[a] = m->n1 > 0 ? (m->c0[a] + sum[a] / m->n1) * m->sg[a] : (m->c0[a] + 0.5 * (m->d[a] - 1)) * m->sg[a];
-    pose_apply(&m->grid_world, l, m->fixed_centre);
-    m->w = moving->spacing[0] * moving->spacing[1] * moving->spacing[2] / (m->sg[0] * m->sg[1] * m->sg[2]);
+    metric_place(m, g, moving, sum);
     if (reduce__metric_rebase(m, &moving->pose) < 0) {
         reduce_metric_free(m);
         return NULL;
