@@ -400,8 +400,8 @@ static int from_front(ctx *c, obb_cache *k)
     size_t near = 0, n0 = k->front_n;
     for (size_t i = 0; i < n0; i++)
         near += k->front[i].gap - k->lowered - OBB__SLACK <= delta;
-    if (near > n0 / 4 + 16)
-        return 0;
+    if (near > n0 / 4 + 16 || n0 > k->front_made + k->front_made / 2 + 64)
+        return 0; /* a search from the root is cheaper, or makes a tighter front */
     c->rec = 1;
     c->lowered = k->lowered + delta;
     for (size_t i = 0; i < n0 && !done(c); i++) {
@@ -444,8 +444,10 @@ static void search(ctx *c, obb_cache *k, const obb_tree *a, const obb_tree *b)
         else
             depth_first(c, &root);
     }
-    if (c->rec)
+    if (c->rec) {
         k->front_valid = !c->r->collides && !c->overflow;
+        k->front_made = k->front_n;
+    }
     c->rec = 0;
 }
 
