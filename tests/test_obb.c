@@ -456,6 +456,66 @@ static void test_cache_follows_small_steps(void **st)
     assert_true(hits > poses / 10 && hits < poses * 9 / 10);
 }
 
+/* The front follows the poses: a free answer from the front moves it to the pose queried, so the
+ * same pose queried again tests no pair but the witnesses (its motion since is 0), and the next
+ * small step searches only the pairs within that step of contact (a fitted fragment interlocked
+ * along its whole fracture surface stepped by a front that stayed at an old pose: every step
+ * searched the pairs within the whole way since, and then all again from the root). Along the
+ * walk every answer matches brute force, and each free answer's separation is a true bound: B
+ * moved by 0.9 of it does not collide. */
+static void test_front_moves_with_the_pose(void **st)
+{
+    static obb_cache cache;
+    int moved = 0, bounds = 0;
+    for (int n = 0; n < 10; n++) {
+        frag *fa = random_frag(14, 1), *fb = random_frag(14, 1);
+        obb_params prm = {0, 1};
+        obb_tree *ta = build(fa, 0, 1), *tb = build(fb, 0, 1);
+        obb_cache_reset(&cache);
+        double reach = radius(fa) + radius(fb), o[3] = {0, 0, 0}, dir[3];
+        for (int i = 0; i < 3; i++)
+            dir[i] = srand1() * reach / 2;
+        pose pa = place(fa, random_rotation(), o), pb = place(fb, random_rotation(), dir);
+        obb_query q = {.tolerance_mm = 0.1};
+        for (int k = 0; k < 120; k++) {
+            double ax[3] = {srand1(), srand1(), srand1()};
+            pb = pose_compose(pose_from_axis_angle(ax, 0.0005 * srand1()), pb);
+            for (int i = 0; i < 3; i++)
+                pb.t[i] += 0.03 * srand1() - 0.02 * dir[i] / (reach + 1e-9);
+            size_t reuses = cache.reuses;
+            tally tl = {0};
+            compare_pose(fa, ta, fb, tb, &prm, &pa, &pb, &q, &cache, &tl);
+            /* answered from the front, which stays below the size that calls for a new one */
+            int moves = cache.reuses == reuses + 1 && cache.front_valid &&
+                        cache.front_n <= cache.front_made + cache.front_made / 2 + 64;
+            obb_result r;
+            assert_int_equal(obb_collide(ta, &pa, tb, &pb, &q, &cache, &r), 0);
+            if (tl.hits || !moves)
+                continue;
+            assert_int_equal(r.collides, 0);
+            assert_true(r.tests <= (size_t)cache.nwit);
+            moved++;
+            double u[3] = {srand1(), srand1(), srand1()}, len = sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]);
+            if (!(r.separation_mm > 0 && r.separation_mm < INFINITY && len > 0.1))
+                continue;
+            pose pm = pb;
+            for (int i = 0; i < 3; i++)
+                pm.t[i] += 0.9 * r.separation_mm * u[i] / len;
+            obb_result rb;
+            assert_int_equal(obb_collide_brute(fa, &pa, fb, &pm, &prm, &q, &rb), 0);
+            assert_int_equal(rb.collides, 0);
+            bounds++;
+        }
+        obb_tree_free(ta);
+        obb_tree_free(tb);
+        tfrag_free(fa);
+        tfrag_free(fb);
+    }
+    print_message("%d free answers from a moved front, %d bounds checked\n", moved, bounds);
+    assert_true(moved > 100);
+    assert_true(bounds > 50);
+}
+
 /* A collision answer never depends on the queries before it. A walk of poses near contact (small
  * steps and jumps, as the loop and the optimizer make them) is queried in order with one cache, and
  * backwards after random warm-up queries with another: every yes or no equals brute force's, and
@@ -753,6 +813,7 @@ int main(void)
         cmocka_unit_test(test_bad_input),
         cmocka_unit_test(test_concurrent_queries_allocate_nothing),
         cmocka_unit_test(test_answers_ignore_history), /* last: it draws random numbers the others use */
+        cmocka_unit_test(test_front_moves_with_the_pose), /* last: it draws from the shared random sequence */
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -7,7 +7,10 @@
  * them: the input thread hands over one report, stamps it, and waits until the loop has taken it
  * (no queueing in the latency). The loop runs as in `navigate`: its own thread, woken per event.
  * --fitted: piece 2 fitted first (reduce_fit_one, as navigate's fit action), so that it starts
- * inside piece 1 within the fit's tolerance, as a case that `reduce` left.
+ * inside piece 1 within the fit's tolerance, as a case that `reduce` left; the loop measures it
+ * there as a session that opens such a case does, and the script starts with the motion of
+ * `fracnav demo`'s recording (APPROACH), as `replay` of it on a reduced case: lifted off the fit,
+ * turned and pushed home, its first steps taken with the pair caches the opening left.
  * --preview: navigate's live preview fits beside the loop (its worker at nice 19), so that its
  * cost to the hand shows in the loop's figures. */
 #include "cmd.h"
@@ -35,6 +38,17 @@ static const char SCRIPT[] = "move y 10 mm x 3 mm over 2 s\n"
                              "move x 4 mm y 2 mm z -3 mm ry 2 deg over 2 s\n"
                              "move y 6 mm rz -3 deg over 1 s\n";
 
+/* The motion of sim/recordings/demo-approach.script (the demo's recording), played first by
+ * --fitted: a replay of that recording on a reduced case is what this workload stands for. */
+static const char APPROACH[] = "wait 100 ms\n"
+                               "translate -y 3 mm over 0.5 s\n"
+                               "rotate z +2.4 deg over 0.4 s\n"
+                               "rotate y +1.7 deg over 0.4 s\n"
+                               "rotate x +0.4 deg over 0.2 s\n"
+                               "translate -x 1.2 mm over 0.3 s\n"
+                               "translate +z 1.4 mm over 0.3 s\n"
+                               "translate +y 10 mm over 1.2 s\n";
+
 static void usage(FILE *out)
 {
     fprintf(out, "usage: fracnav bench loop [--json] [--ct FILE [--fitted] | --case DIR [--wait]] [--preview]\n"
@@ -48,7 +62,10 @@ static void usage(FILE *out)
                  "  --ct FILE     CT to fracture (default: the example CT, $FRACNAV_DATA/Cranium.inv3\n"
                  "                or /var/cache/fracnav/Cranium.inv3)\n"
                  "  --fitted      fit piece 2 to piece 1 first (as navigate's fit action): the\n"
-                 "                loop starts where a fit left it, inside within the fit's tolerance\n"
+                 "                loop starts where a fit left it, inside within the fit's tolerance,\n"
+                 "                and the script starts with the motion of the demo's recording\n"
+                 "                (sim/recordings/demo-approach.script), as replay of it on a\n"
+                 "                reduced case\n"
                  "  --case DIR    steer an existing case instead (its journal is left alone),\n"
                  "                holding it as navigate does: refused while another command\n"
                  "                holds it\n"
@@ -107,15 +124,17 @@ static int fit_piece(frag f[2], double tau_min, double tau_max, double *toleranc
     return rc < 0 ? rc : 0;
 }
 
-static fnrec *render(int repeat)
+/* The script repeat times, after APPROACH when fitted. */
+static fnrec *render(int repeat, int fitted)
 {
-    size_t one = strlen(SCRIPT);
-    char *text = malloc(one * (size_t)repeat + 1);
+    size_t one = strlen(SCRIPT), first = fitted ? strlen(APPROACH) : 0;
+    char *text = malloc(first + one * (size_t)repeat + 1);
     if (!text)
         return NULL;
+    memcpy(text, APPROACH, first);
     for (int i = 0; i < repeat; i++)
-        memcpy(text + one * (size_t)i, SCRIPT, one);
-    text[one * (size_t)repeat] = '\0';
+        memcpy(text + first + one * (size_t)i, SCRIPT, one);
+    text[first + one * (size_t)repeat] = '\0';
     script *s = NULL;
     fnrec *rec = NULL;
     if (script_parse(text, strlen(text), "bench-loop script", &s) == 0)
@@ -178,7 +197,7 @@ static int print(session *k, const loop_stats *s, double wall_s, const frag *f, 
         char what[4200];
         snprintf(what, sizeof what, "%s%s%s, script pushing the selected fragment into and along the others",
                  case_dir ? "the case " : "two-piece fracture of the CT, piece 1 fixed",
-                 case_dir ? case_dir : "", fitted ? ", piece 2 fitted first" : "");
+                 case_dir ? case_dir : "", fitted ? ", piece 2 fitted first, the demo's approach played first" : "");
         json_object_set_new(j, "workload", jsonw_string(what));
         json_object_set_new(j, "fragments", fragments_json(f, nfrag));
         json_object_set_new(j, "loop_thread_sched_fifo", json_boolean(realtime));
@@ -269,7 +288,7 @@ int bench_loop(int argc, char **argv)
     loop_config cfg;
     loop_config_default(&cfg);
     cfg.check_invariant = 0; /* a benchmark of the loop as it runs in release builds */
-    fnrec *rec = render(repeat);
+    fnrec *rec = render(repeat, fitted);
     if (!rec) {
         fprintf(stderr, "fracnav bench loop: %s\n", fn_err_msg());
         return 1;
@@ -291,8 +310,8 @@ int bench_loop(int argc, char **argv)
         session *k = rc == 0 ? session_open_fragments(f, 2, fixed, op, &cfg) : NULL;
         if (rc == 0 && !k)
             rc = FN_EFORMAT;
-        if (rc == 0 && fitted)
-            session_tolerate(k, 1, tol);
+        if (rc == 0 && fitted) /* as a session opening a reduced case: held, then measured */
+            rc = session_tolerate(k, 1, tol);
         if (rc == 0) {
             session_set_preview(k, preview ? SESSION_PREVIEW_NEAR : SESSION_PREVIEW_OFF);
             rc = drive(k, rec, &wall);

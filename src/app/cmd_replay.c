@@ -33,6 +33,8 @@ static void usage(FILE *out)
             "                       turned back on while penetrating)\n"
             "  queries, dropped     pair collision queries; events lost to a full input ring (0\n"
             "                       unless the loop fell behind)\n"
+            "  queries_from_scratch   the queries that searched from scratch (their pair's\n"
+            "                       cache of no use: the costly ones)\n"
             "  journal_errors       failed journal writes\n"
             "  loop_hz, tick_hz     steps and loop timer ticks per second of wall time (tick_hz:\n"
             "                       null without --realtime, where no timer runs)\n"

@@ -300,9 +300,10 @@ void session_stats(session *s, loop_stats *out)
     loop_get_stats(s->L, out);
 }
 
-void session_tolerate(session *s, int i, double tolerance_mm)
+int session_tolerate(session *s, int i, double tolerance_mm)
 {
     loop_tolerate(s->L, i, tolerance_mm);
+    return loop_measure(s->L);
 }
 
 pose session_pose(const session *s, int i)

@@ -124,8 +124,9 @@ const char *session_dir(const session *s);
 void session_set_pivot(session *s, const double world[3]);
 void session_stats(session *s, loop_stats *out);
 /* Marks fragment i as inside another by no more than a fit's tolerance_mm (loop_tolerate: a plan
- * that fracnav reduce left so). Before the loop runs. */
-void session_tolerate(session *s, int i, double tolerance_mm);
+ * that fracnav reduce left so), then measures the selected fragment where it stands, as opening a
+ * reduced case does (loop_measure). Before the loop runs. 0 or the collider's error. */
+int session_tolerate(session *s, int i, double tolerance_mm);
 /* Fragment i's pose and the selected fragment, now: while the loop does not run, or from
  * session_play_each's callback. */
 pose session_pose(const session *s, int i);

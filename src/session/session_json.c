@@ -18,10 +18,10 @@ static void put_stats(json_t *j, const loop_stats *s)
 {
     static const char *const counts[] = {"events", "steps", "accepted", "limited", "slid", "refused",
                                          "collisions_in_accepted", "unchecked", "escaping", "queries",
-                                         "dropped", "journal_errors"};
+                                         "queries_from_scratch", "dropped", "journal_errors"};
     const uint64_t values[] = {s->events, s->steps, s->accepted, s->limited, s->slid, s->refused,
                                s->collisions_in_accepted, s->unchecked, s->escaping, s->queries,
-                               s->dropped, s->journal_errors};
+                               s->searches, s->dropped, s->journal_errors};
     for (size_t i = 0; i < sizeof counts / sizeof counts[0]; i++)
         json_object_set_new(j, counts[i], count(values[i]));
     int timed = s->latency_samples > 0, queried = s->queries > 0;

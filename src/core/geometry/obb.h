@@ -101,8 +101,12 @@ typedef struct obb_result {
  * - front: every node pair the last full search rejected, with its gap, for the relative pose it
  *   was made at. A later query moves B by at most delta relative to A (from the two poses and B's
  *   root box); a pair whose gap exceeds delta is still apart and is skipped, the rest are searched
- *   again, so the answer stays exact. When too many pairs need a look, the search runs from the
- *   root and makes a new front (also when the front would exceed OBB_FRONT_MAX pairs: no front).
+ *   again, so the answer stays exact. A free answer moves the front to the pose queried: the pairs
+ *   searched again are replaced by what their search rejected, the others keep their gaps less
+ *   delta (one number for all, `lowered`), so the next query's delta counts from there. When too
+ *   many pairs need a look, or the front has grown by half since its search (moved fronts keep
+ *   the fine pairs of contacts left behind), the search runs from the root and makes a new front
+ *   (also when the front would exceed OBB_FRONT_MAX pairs: no front).
  * The yes or no is the same with a cache as without; the separation is a valid bound either way,
  * but with a cache it depends on the queries before (which pairs the front kept): a caller that
  * steps by it and must not depend on its history queries without a cache (reduce does). */
@@ -122,7 +126,9 @@ typedef struct obb_cache {
     const obb_tree *ta, *tb;   /* what the front was made for */
     double threshold, tolerance_mm;
     int inner_axes;
-    double ref_R[3][3], ref_t[3]; /* B's frame in A's frame when the front was made */
+    double ref_R[3][3], ref_t[3]; /* B's frame in A's frame when the front was made or moved */
+    double lowered;            /* mm: a front pair's gap there is its gap field less this */
+    size_t front_made;         /* front_n when the search made it */
     size_t reuses, rebuilds;   /* queries answered from the front / that made a new one */
     obb_front_pair front[OBB_FRONT_MAX];
 } obb_cache;

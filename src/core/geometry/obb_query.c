@@ -25,6 +25,7 @@ typedef struct ctx {
     obb_result *r;
     obb_cache *cache;
     int rec, overflow; /* recording the front into cache; it did not fit */
+    double lowered;    /* the front's lowered when the recorded pairs are used */
     double best_gap, pen;
 } ctx;
 
@@ -127,7 +128,7 @@ static void rejected(ctx *c, const obb_node *a, const obb_node *b, int exact, do
 {
     if (c->rec) {
         if (c->cache->front_n < OBB_FRONT_MAX)
-            c->cache->front[c->cache->front_n++] = (obb_front_pair){*a, *b, gap};
+            c->cache->front[c->cache->front_n++] = (obb_front_pair){*a, *b, gap + c->lowered};
         else
             c->overflow = 1;
     }
@@ -374,23 +375,49 @@ static int front_fits(const ctx *c, const obb_cache *k, const obb_tree *a, const
            k->tolerance_mm == c->q->tolerance_mm && k->inner_axes == c->q->inner_axes;
 }
 
-/* Answers from the front when few of its pairs can have closed their gap; 0 when not worth it. */
+/* Moves the front to the pose queried: the first n0 pairs are the front at the reference pose,
+ * those after them what the search of its near pairs (gap within delta) rejected, at this pose.
+ * Each near pair gives way to one of the new ones (or to a kept one from the end); the kept pairs
+ * are delta closer at worst (lowered). */
+static void front_move(const ctx *c, obb_cache *k, size_t n0, double delta)
+{
+    size_t end = k->front_n;
+    for (size_t i = n0; i-- > 0;)
+        if (k->front[i].gap - k->lowered - OBB__SLACK <= delta)
+            k->front[i] = k->front[--end];
+    k->front_n = end;
+    k->lowered = c->lowered;
+    memcpy(k->ref_R, c->rel.R, sizeof k->ref_R);
+    memcpy(k->ref_t, c->rel.t, sizeof k->ref_t);
+}
+
+/* Answers from the front when few of its pairs can have closed their gap; 0 when not worth it.
+ * Free, it moves the front here (front_move) when what the near pairs' search rejected fits;
+ * colliding, the front stays as it was. */
 static int from_front(ctx *c, obb_cache *k)
 {
     double delta = motion_bound(c, k), rest = INFINITY;
-    size_t near = 0;
-    for (size_t i = 0; i < k->front_n; i++)
-        near += k->front[i].gap - OBB__SLACK <= delta;
-    if (near > k->front_n / 4 + 16)
-        return 0;
-    for (size_t i = 0; i < k->front_n && !done(c); i++) {
+    size_t near = 0, n0 = k->front_n;
+    for (size_t i = 0; i < n0; i++)
+        near += k->front[i].gap - k->lowered - OBB__SLACK <= delta;
+    if (near > n0 / 4 + 16 || n0 > k->front_made + k->front_made / 2 + 64)
+        return 0; /* a search from the root is cheaper, or makes a tighter front */
+    c->rec = 1;
+    c->lowered = k->lowered + delta;
+    for (size_t i = 0; i < n0 && !done(c); i++) {
         const obb_front_pair *f = &k->front[i];
+        double gap = f->gap - k->lowered - OBB__SLACK;
         npair p = {f->a, f->b};
-        if (f->gap - OBB__SLACK > delta)
-            rest = fmin(rest, f->gap - OBB__SLACK - delta);
+        if (gap > delta)
+            rest = fmin(rest, gap - delta);
         else if (test_pair(c, &p))
             depth_first(c, &p);
     }
+    c->rec = 0;
+    if (c->r->collides || c->overflow)
+        k->front_n = n0;
+    else
+        front_move(c, k, n0, delta);
     k->reuses++;
     c->best_gap = fmin(c->best_gap, rest + OBB__SLACK);
     return 1;
@@ -404,6 +431,7 @@ static void search(ctx *c, obb_cache *k, const obb_tree *a, const obb_tree *b)
         k->ta = a, k->tb = b;
         k->threshold = c->q->threshold, k->tolerance_mm = c->q->tolerance_mm;
         k->inner_axes = c->q->inner_axes;
+        k->lowered = 0;
         k->rebuilds++;
         memcpy(k->ref_R, c->rel.R, sizeof k->ref_R);
         memcpy(k->ref_t, c->rel.t, sizeof k->ref_t);
@@ -416,8 +444,10 @@ static void search(ctx *c, obb_cache *k, const obb_tree *a, const obb_tree *b)
         else
             depth_first(c, &root);
     }
-    if (c->rec)
+    if (c->rec) {
         k->front_valid = !c->r->collides && !c->overflow;
+        k->front_made = k->front_n;
+    }
     c->rec = 0;
 }
 

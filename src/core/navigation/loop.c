@@ -18,6 +18,9 @@
 /* How an accepted pose was checked: not at all (checking off), found free, or found still
  * interpenetrating but no deeper than before (pulled out after checking came back on). */
 enum { LOOP_UNCHECKED, LOOP_CHECKED, LOOP_ESCAPING, LOOP_TOLERATED };
+/* Which cache a query uses: the pair's, or a zeroed scratch (from scratch), forgotten after or
+ * kept as the pair's (what a query from scratch leaves is what a cached one would have). */
+enum { PAIR_CACHE = 0, FRESH = 1, FRESH_KEPT = 2 };
 static void accept_pose(loop *L, int s, pose p, int64_t t_us, uint32_t kind, int checked);
 static void undo_push(loop *L, int s);
 
@@ -148,6 +151,8 @@ loop *loop_new(const frag *frags, int n, const uint8_t *fixed, const loop_collid
     L->cache_stride = cb;
     L->caches = caches;
     L->scratch = caches + (size_t)n * cb;
+    for (int j = 0; j < n; j++)
+        L->slot[j] = caches + (size_t)j * cb;
     if (cfg)
         L->cfg = *cfg;
     else
@@ -198,17 +203,19 @@ static int held(const loop *L, int s)
 }
 
 /* Fragment s at p against every other, each pair at its hold (or at 0: strict). Returns 1
- * colliding, 0 free, or a negative FN_E*; *sep gets the smallest separation seen. fresh: a
- * zeroed scratch cache instead of the pair's (always when strict: the pair's cache serves the
- * pair's hold). */
+ * colliding, 0 free, or a negative FN_E*; *sep gets the smallest separation seen. fresh: FRESH
+ * or FRESH_KEPT, a zeroed scratch cache instead of the pair's (always FRESH when strict: the
+ * pair's cache serves the pair's hold); FRESH_KEPT: the scratch becomes the pair's cache after,
+ * so that the next step at this pose finds the front of the search it made. */
 static int collide_at(loop *L, int s, const pose *p, int fresh, int strict, double *sep)
 {
     *sep = INFINITY;
-    fresh |= strict;
+    if (strict)
+        fresh = FRESH;
     for (int j = 0; j < L->n; j++) {
         if (j == s)
             continue;
-        void *cache = L->caches + (size_t)j * L->cache_stride;
+        unsigned char *cache = L->slot[j];
         if (fresh) {
             memset(L->scratch, 0, L->cache_stride);
             cache = L->scratch;
@@ -216,13 +223,20 @@ static int collide_at(loop *L, int s, const pose *p, int fresh, int strict, doub
             memset(cache, 0, L->cache_stride);
             L->cache_mover[j] = (uint8_t)(s + 1);
         }
-        loop_contact c = {0, INFINITY};
+        loop_contact c = {0, INFINITY, 0};
         int64_t t0 = fresh ? 0 : fnclock_now_ns();
         int rc = L->col.query(L->col.ctx, s, p, j, &L->pose[j], strict ? 0 : pair_hold(L, s, j), cache, &c);
-        if (!fresh) /* the invariant check's queries are not part of the loop's cost */
+        if (!fresh) { /* the invariant check's queries are not part of the loop's cost */
             loop__stats_query(L, fnclock_now_ns() - t0);
+            L->st.searches += c.searched != 0;
+        }
         if (rc < 0)
             return rc;
+        if (fresh == FRESH_KEPT) {
+            L->scratch = L->slot[j];
+            L->slot[j] = cache;
+            L->cache_mover[j] = (uint8_t)(s + 1);
+        }
         if (c.separation_mm < *sep)
             *sep = c.separation_mm;
         if (c.collides)
@@ -396,9 +410,10 @@ static int overlap_all(loop *L, int s, const pose *p, double *sum)
     return 0;
 }
 
-/* Queries fragment s where it stands: the gap, or that it interpenetrates and how deep. fresh:
- * from scratch (no cache, not in the statistics), whose bound on the gap is the collider's best
- * for this pose; the pair caches' may be carried over from earlier poses. A held fragment is
+/* Queries fragment s where it stands: the gap, or that it interpenetrates and how deep. fresh
+ * (FRESH_KEPT): from scratch (not in the statistics), whose bound on the gap is the collider's
+ * best for this pose, its caches kept as the pairs' for the next step; the pair caches' may be
+ * carried over from earlier poses. A held fragment is
  * also queried at 0: inside there but free at its hold, it is shown penetrating (in_collision)
  * while its gap at the hold stays valid, so that it moves as a free one does; free at 0, its
  * hold ends. */
@@ -630,7 +645,7 @@ static int settle(loop *L)
     if (!L->collision_on || (L->in_collision && !L->gap_valid) ||
         (L->gap_valid && (L->gap_fresh || !L->at_rest)))
         return 0;
-    return refresh_contact(L, L->selected, 1);
+    return refresh_contact(L, L->selected, FRESH_KEPT);
 }
 
 /* Fragment s at p, holding hold_mm there: free at its hold (1 inside at 0 but free at the hold:
@@ -942,6 +957,7 @@ void loop_tolerate(loop *L, int i, double tolerance_mm)
     if (i >= 0 && i < L->n && tolerance_mm > 0) {
         L->tolerated[i] = 1;
         L->hold_mm[i] = tolerance_mm;
+        L->gap_valid = L->in_collision = 0; /* measured at the hold from now on */
     }
 }
 

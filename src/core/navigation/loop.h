@@ -121,6 +121,7 @@ typedef struct loop_event {
 typedef struct loop_contact {
     int collides;
     double separation_mm; /* > 0: a lower bound on the gap; <= 0 touching or penetrating */
+    int searched; /* 1: the query searched from scratch, its cache of no use (for statistics) */
 } loop_contact;
 
 /* The collision seam: a table the application fills (loop_obb.c wraps the OBB octree). */
@@ -162,6 +163,8 @@ typedef struct loop_stats {
     uint64_t tolerated;              /* proposals accepted inside another fragment, within the
                                       * tolerance their proposer checked (a fit) */
     uint64_t queries;                /* pair queries (the invariant check's not counted) */
+    uint64_t searches;               /* of those, the ones that searched from scratch (their
+                                      * pair's cache of no use: the costly ones) */
     uint64_t overlaps;               /* overlap volumes measured (escaping moves: costly) */
     double query_us_mean, query_us_max;
     double step_hz;                  /* steps per second of wall time, since the last reset */

@@ -31,9 +31,11 @@ struct loop {
     loop_collider col;
     /* The pair caches: one slot per other fragment j, holding the pair (mover, j) of the last
      * fragment that moved against j (cache_mover: 1 + its index, 0 none), so memory grows with n,
-     * not n*n (64 fragments: 10 MB, not 672); one scratch for fresh queries. */
+     * not n*n (64 fragments: 10 MB, not 672); one scratch for fresh queries. slot[j] points
+     * into caches; a query from scratch that the pair's cache may keep (settle) swaps its slot
+     * with the scratch. */
     size_t cache_stride;
-    unsigned char *caches, *scratch;
+    unsigned char *caches, *scratch, *slot[LOOP_MAX_FRAGS];
     uint8_t cache_mover[LOOP_MAX_FRAGS];
     loop_config cfg;
     struct journal *jr;

@@ -69,11 +69,14 @@ static int query(void *ctx, int a, const pose *pa, int b, const pose *pb, double
     obb_query q = o->q;
     q.tolerance_mm = fmax(q.tolerance_mm, tolerance_mm);
     obb_result r;
-    int rc = obb_collide(o->tree[a], &wa, o->tree[b], &wb, &q, cache, &r);
+    obb_cache *k = cache;
+    size_t rebuilds = k ? k->rebuilds : 0;
+    int rc = obb_collide(o->tree[a], &wa, o->tree[b], &wb, &q, k, &r);
     if (rc < 0)
         return rc;
     out->collides = r.collides;
     out->separation_mm = r.separation_mm;
+    out->searched = !k || k->rebuilds != rebuilds;
     return 0;
 }
 

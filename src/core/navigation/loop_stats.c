@@ -46,7 +46,7 @@ void loop_reset_timing(loop *L)
     L->st.latency_samples = 0;
     L->st.latency_p50_us = L->st.latency_p99_us = L->st.latency_max_us = 0;
     L->q_sum_ns = L->q_max_ns = 0;
-    L->st.queries = 0;
+    L->st.queries = L->st.searches = 0;
     L->win_start_us = loop__now_us(L);
     L->pct_at_us = 0;
     L->win_steps = L->win_ticks = 0;
