@@ -544,6 +544,21 @@ static void report_to_frame(navwin *w, const loop_scene *sc, int64_t shown)
     }
 }
 
+/* In the auto view, the camera frames sc's selected fragment again when the selection changed
+ * (render_camera_auto). 0 or FN_E*. */
+static int follow_selection(navwin *w, const loop_scene *sc)
+{
+    if (!w->auto_view || w->split_preview || sc->nfrag != w->c->nfrag || sc->selected == w->auto_for)
+        return 0;
+    int rc = render_camera_auto(w->r, &w->o.camera, w->c->frag, w->c->nfrag, sc->pose, sc->selected);
+    if (rc)
+        return rc;
+    w->auto_for = sc->selected;
+    camera_to_loop(w);
+    w->dirty = 1;
+    return 0;
+}
+
 int navwin_frame(navwin *w, const loop_scene *sc, const char *hud, int *keys, int cap, int *close)
 {
     render_input in;
@@ -554,14 +569,9 @@ int navwin_frame(navwin *w, const loop_scene *sc, const char *hud, int *keys, in
     int w0 = w->w, h0 = w->h;
     int n = handle_input(w, sc, &in, keys, cap);
     w->dirty |= w->w != w0 || w->h != h0; /* resized */
-    if (w->auto_view && !w->split_preview && sc->nfrag == w->c->nfrag && sc->selected != w->auto_for) {
-        rc = render_camera_auto(w->r, &w->o.camera, w->c->frag, w->c->nfrag, sc->pose, sc->selected);
-        if (rc)
-            return rc;
-        w->auto_for = sc->selected;
-        camera_to_loop(w);
-        w->dirty = 1;
-    }
+    rc = follow_selection(w, sc);
+    if (rc)
+        return rc;
     if (w->note[0] && fnclock_now_us() >= w->note_until_us) {
         w->note[0] = 0;
         w->dirty = 1;
@@ -651,7 +661,9 @@ int navwin_screenshot(navwin *w, const char *png)
     session_scene_read(w->k, &sc);
     char text[4400];
     hud_text(w, w->hud, text, sizeof text);
-    int rc = draw(w, &sc, text, &shown);
+    int rc = follow_selection(w, &sc); /* a selection changed since the last frame */
+    if (!rc)
+        rc = draw(w, &sc, text, &shown);
     return rc ? rc : cmd_write_png(w->r, png, w->w, w->h);
 }
 

@@ -80,11 +80,11 @@ typedef struct render_options {
     unsigned overlays;      /* RENDER_OVERLAY_* */
     int hierarchy_depth;    /* the depth of the boxes drawn (root = 1) */
     int nvoi;               /* RENDER_OVERLAY_VOI: boxes lo x y z, hi x y z (world mm) */
-    int cutaway;            /* 0: none; i + 1: in surface mode, the other fragments' surfaces in
+    int cutaway;            /* 0: none; i + 1: in surface and iso mode, the other fragments in
                              * front of fragment i (nearer the viewer than its crop's nearest
                              * corner, within a cylinder of 3/8 of its crop's diagonal around the
                              * line from its centroid to the viewer) are cut away, so the piece
-                             * in hand is always seen */
+                             * in hand is always seen (dvr and mip draw them all) */
     double voi[RENDER_MAX_FRAGS][6];
     int ghost;              /* 0: none; i + 1: on the 3D view, fragment i's surface drawn again at
                              * ghost_pose, translucent and light, over everything (navigate's live
@@ -151,6 +151,8 @@ int render_hud(render *r, const char *text, int scale);
 /* The HUD's scale for r: one font pixel per 384 rows of the picture, times the window's content
  * scale (its DPI over 96; 1 offscreen), 1..4. */
 int render_hud_scale(const render *r);
+/* The same for a picture of `height` rows on a display of dpi_scale (its DPI over 96). */
+int render_hud_scale_for(int height, double dpi_scale);
 /* The characters of a HUD line that fit across r at render_hud_scale. */
 int render_hud_columns(const render *r);
 

@@ -300,6 +300,48 @@ static void gap_uniforms(render *r, unsigned p, const pose *poses, int skip, int
 }
 
 
+/* The cut-away kept for fragment `keep` at poses (render__mesh_fs's cut and cut_front): its
+ * centroid, the radius (3/8 of its crop's diagonal), and how far in front of the centroid (along
+ * forward, negative) its crop's nearest corner lies: only what lies in front of that is cut. */
+static void cutaway(const render *r, int keep, const pose *poses, const double forward[3], float cut[4],
+                    float *front)
+{
+    const render_frag *f = &r->frag[keep];
+    const pose *at = poses ? &poses[keep] : &f->pose;
+    pose m = frag_world(r, keep, poses);
+    double c[3], d2 = 0, near = 0;
+    pose_apply(at, f->centroid, c);
+    for (int b = 0; b < 8; b++) {
+        double x[3], w[3];
+        for (int a = 0; a < 3; a++)
+            x[a] = ((b >> a & 1) ? f->dim[a] - 0.5 : -0.5) * f->spacing[a];
+        pose_apply(&m, x, w);
+        double along = (w[0] - c[0]) * forward[0] + (w[1] - c[1]) * forward[1] + (w[2] - c[2]) * forward[2];
+        near = along < near ? along : near;
+    }
+    for (int a = 0; a < 3; a++) {
+        cut[a] = (float)c[a];
+        d2 += 0.25 * (f->dim[a] * f->spacing[a]) * (f->dim[a] * f->spacing[a]);
+    }
+    cut[3] = (float)(0.75 * sqrt(d2));
+    *front = (float)near;
+}
+
+/* The cut-away's uniforms (cut, cut_front) of program p (bound) for the fragment drawn, `drawn`
+ * (-1: the raycaster, which draws them all and keeps cut_keep's): none when o keeps no fragment
+ * or keeps the one drawn. */
+static void cutaway_uniforms(render *r, unsigned p, const pose *poses, const render_options *o, int drawn)
+{
+    float cut[4] = {0, 0, 0, 0}, front = 0;
+    int keep = o->cutaway - 1;
+    if (keep >= 0 && keep < r->nfrag && keep != drawn)
+        cutaway(r, keep, poses, o->camera.forward, cut, &front);
+    r->gl.Uniform4fv(loc(r, p, "cut"), 1, cut);
+    r->gl.Uniform1f(loc(r, p, "cut_front"), front);
+    if (drawn < 0)
+        r->gl.Uniform1i(loc(r, p, "cut_keep"), cut[3] > 0 ? keep : -1);
+}
+
 /* Each fragment's span of occupied bricks into span_tex (within the viewport and scissor already
  * set), then one ray per pixel through the spans. */
 static int draw_raycast(render *r, const pose *poses, const render_options *o, const int vp[4],
@@ -377,6 +419,7 @@ static int draw_raycast(render *r, const pose *poses, const render_options *o, c
     r->gl.Uniform1f(loc(r, p, "entry_skip"), (float)(2.5 * r->min_spacing));
     r->gl.Uniform1i(loc(r, p, "near_depth"), UNIT_NEAR);
     r->gl.Uniform1i(loc(r, p, "far_depth"), UNIT_FAR);
+    cutaway_uniforms(r, p, poses, o, -1);
     if (gaps)
         gap_uniforms(r, p, poses, -1, UNIT_DIST);
     r->gl.DepthFunc(GL_GREATER);
@@ -390,32 +433,6 @@ static int draw_raycast(render *r, const pose *poses, const render_options *o, c
     return 0;
 }
 
-/* The cut-away kept for fragment `keep` at poses (render__mesh_fs's cut and cut_front): its
- * centroid, the radius (3/8 of its crop's diagonal), and how far in front of the centroid (along
- * forward, negative) its crop's nearest corner lies: only what lies in front of that is cut. */
-static void cutaway(const render *r, int keep, const pose *poses, const double forward[3], float cut[4],
-                    float *front)
-{
-    const render_frag *f = &r->frag[keep];
-    const pose *at = poses ? &poses[keep] : &f->pose;
-    pose m = frag_world(r, keep, poses);
-    double c[3], d2 = 0, near = 0;
-    pose_apply(at, f->centroid, c);
-    for (int b = 0; b < 8; b++) {
-        double x[3], w[3];
-        for (int a = 0; a < 3; a++)
-            x[a] = ((b >> a & 1) ? f->dim[a] - 0.5 : -0.5) * f->spacing[a];
-        pose_apply(&m, x, w);
-        double along = (w[0] - c[0]) * forward[0] + (w[1] - c[1]) * forward[1] + (w[2] - c[2]) * forward[2];
-        near = along < near ? along : near;
-    }
-    for (int a = 0; a < 3; a++) {
-        cut[a] = (float)c[a];
-        d2 += 0.25 * (f->dim[a] * f->spacing[a]) * (f->dim[a] * f->spacing[a]);
-    }
-    cut[3] = (float)(0.75 * sqrt(d2));
-    *front = (float)near;
-}
 
 /* The meshes of the fragments i with (only < 0 or i == only) and i != skip, shaded, or with ids
  * in their flat id colours (render__id_fs). A pass over them all (only < 0) starts on a clear depth
@@ -444,12 +461,8 @@ static void draw_meshes(render *r, const pose *poses, const render_options *o, c
             continue;
         frag_mats(r, i, poses, m, w2t, nmat);
         r->gl.UniformMatrix4fv(loc(r, p, "model"), 1, GL_FALSE, m);
-        float id[3] = {(float)(i + 1) / 255.0f, 0, 0}, cut[4] = {0, 0, 0, 0}, front = 0;
-        int keep = o->cutaway - 1;
-        if (keep >= 0 && keep < r->nfrag && keep != i)
-            cutaway(r, keep, poses, o->camera.forward, cut, &front);
-        r->gl.Uniform4fv(loc(r, p, "cut"), 1, cut);
-        r->gl.Uniform1f(loc(r, p, "cut_front"), front);
+        float id[3] = {(float)(i + 1) / 255.0f, 0, 0};
+        cutaway_uniforms(r, p, poses, o, i);
         r->gl.Uniform3fv(loc(r, p, "colour"), 1, ids ? id : r->frag[i].rgb);
         if (gaps)
             gap_uniforms(r, p, poses, i, 0);
