@@ -231,7 +231,7 @@ static void test_four_up_pixel_to_world(void **st)
     memcpy(o.slice_point, s->f[1].centroid, sizeof o.slice_point);
     draw(s, NULL, &o);
     int rect[4][4];
-    render_four_up_panes(W, H, rect);
+    render_four_up_panes(W, H, 0, rect);
     assert_true(rect[RENDER_PANE_3D][3] > H / 2 && rect[RENDER_PANE_3D][2] == W); /* the large 3D view */
     const int *q = rect[RENDER_PANE_AXIAL];
     double sx = 0, sy = 0, n = 0;
@@ -788,7 +788,8 @@ static double shown_share(const char *case_dir, const char *dir, int id, const c
 /* The issue: the default anterior camera looked at the face while the moving piece sat at the back
  * of the skull, mostly hidden. On the demo's fracture of the example CT (2 pieces, seed 1) and on a
  * 3-piece one, the default view (auto) shows each moving fragment at >= 50% of its projected
- * pixels; the anterior view hides fragment 2 (so the measure tells them apart). */
+ * pixels; the anterior view hides fragment 2 (so the measure tells them apart), and shows 90% of
+ * it with --cutaway on. */
 static void test_auto_view_shows_the_moving_fragment(void **st)
 {
     (void)st;
@@ -809,6 +810,10 @@ static void test_auto_view_shows_the_moving_fragment(void **st)
         if (anterior >= 0.5)
             fail_msg("%d pieces: the anterior view shows %.0f%% of fragment 2: the test tells nothing", pieces[k],
                      100 * anterior);
+        double cut = shown_share(case_dir, dir, 2, "--view anterior --cutaway on");
+        if (cut < 0.9)
+            fail_msg("%d pieces: the anterior view with the cut-away shows %.0f%% of fragment 2", pieces[k],
+                     100 * cut);
     }
     tu_rmtree(dir);
     free(dir);
@@ -1328,7 +1333,7 @@ static void axial_pixel(const planning_case *c, const double through[3], const d
     o.layout = RENDER_LAYOUT_FOUR_UP;
     memcpy(o.slice_point, through, sizeof o.slice_point);
     int rect[4][4];
-    render_four_up_panes(768, 768, rect);
+    render_four_up_panes(768, 768, 0, rect);
     const int *q = rect[RENDER_PANE_AXIAL];
     double best = 1e30, p[3];
     for (int y = q[1]; y < q[1] + q[3]; y++)
@@ -1416,7 +1421,7 @@ static void test_navigate_window_wheel_scrolls_a_slice(void **st)
 {
     (void)st;
     int rect[4][4];
-    render_four_up_panes(768, 768, rect);
+    render_four_up_panes(768, 768, 0, rect);
     const int *q = rect[RENDER_PANE_AXIAL];
     char actions[256];
     snprintf(actions, sizeof actions, "mousemove %d %d click --repeat 7 --delay 50 4", q[0] + q[2] / 2,
@@ -1449,6 +1454,22 @@ static void test_navigate_window_click_moves_the_crosshair(void **st)
     snprintf(actions, sizeof actions, "mousemove %d %d click 1", px[0], px[1]);
     snprintf(look, sizeof look, "--view anterior --layout four-up --point %.6f,%.6f,%.6f", at[0], at[1], at[2]);
     four_up_window("navclick", NULL, "--camera anterior", actions, NULL, look,
+                   "--view anterior --layout four-up --point 22.5,15.5,15.5");
+}
+
+/* In four-up, a left drag of the border between the 3D view and the slices (row 511 of 768: the
+ * 3D view over two thirds) 128 pixels up resizes them: the 3D view takes half the height, as
+ * render --split 0.5 draws it, and the view is not orbited. */
+static void test_navigate_window_drags_the_four_up_border(void **st)
+{
+    (void)st;
+    int rect[4][4];
+    render_four_up_panes(768, 768, 0, rect);
+    assert_int_equal(rect[RENDER_PANE_3D][3], 511);
+    render_four_up_panes(768, 768, 0.5, rect);
+    assert_int_equal(rect[RENDER_PANE_AXIAL][3], 384);
+    four_up_window("navsplit", NULL, "--camera anterior", "mousemove 384 511 mousedown 1 mousemove_relative -- 0 -128 "
+                   "mouseup 1", NULL, "--view anterior --layout four-up --split 0.5 --point 22.5,15.5,15.5",
                    "--view anterior --layout four-up --point 22.5,15.5,15.5");
 }
 
@@ -1634,7 +1655,7 @@ static void test_navigate_window_seed_mode_3d_click(void **st)
     render_camera_standard(&cam, RENDER_ANTERIOR, c->frag, c->nfrag);
     case_free(c);
     int rect[4][4];
-    render_four_up_panes(768, 768, rect);
+    render_four_up_panes(768, 768, 0, rect);
     const int *q = rect[RENDER_PANE_3D];
     for (int a = 0; a < 3; a++) {
         right[a] = cam.forward[(a + 1) % 3] * cam.up[(a + 2) % 3] - cam.forward[(a + 2) % 3] * cam.up[(a + 1) % 3];
@@ -1700,7 +1721,7 @@ static void test_navigate_window_seed_on_a_moved_fragment(void **st)
 static long axial_pixels_of(const uint8_t *shot, const uint8_t rgb[3])
 {
     int rect[4][4];
-    render_four_up_panes(768, 768, rect);
+    render_four_up_panes(768, 768, 0, rect);
     const int *q = rect[RENDER_PANE_AXIAL];
     long n = 0;
     for (int y = q[1]; y < q[1] + q[3]; y++)
@@ -1933,6 +1954,7 @@ int main(void)
         cmocka_unit_test_teardown(test_navigate_window_wheel_scrolls_a_slice, end_children),
         cmocka_unit_test_teardown(test_navigate_window_click_moves_the_crosshair, end_children),
         cmocka_unit_test_teardown(test_navigate_window_follows_the_selection, end_children),
+        cmocka_unit_test_teardown(test_navigate_window_drags_the_four_up_border, end_children),
         cmocka_unit_test_teardown(test_navigate_window_keyboard_steers, end_children),
         cmocka_unit_test_teardown(test_navigate_window_seed_mode_separates, end_children),
         cmocka_unit_test_teardown(test_replay_window_matches_render, end_children),

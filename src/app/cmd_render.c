@@ -16,7 +16,7 @@ static void usage(FILE *out)
             "usage: fracnav render CASE -o FILE.png [--mode iso|dvr|mip|surface] [--size WxH]\n"
             "                      [--view VIEW] [--layout 3d|four-up] [--overlay LIST]\n"
             "                      [--point X,Y,Z] [--fragment ID] [--cutaway on|off]\n"
-            "                      [--platform P]\n"
+            "                      [--split F] [--platform P]\n"
             "                      [--json] [--recover] [--wait]\n\n"
             "Draw a case's fragments at their current poses with OpenGL 4.5 core: offscreen (on a\n"
             "GPU through EGL, else OSMesa's llvmpipe) unless --platform glfw asks for a window.\n"
@@ -47,6 +47,8 @@ static void usage(FILE *out)
             "                    green, blue from the largest), voi (the VOI boxes of the\n"
             "                    case's reduction, cyan; an error when fracnav reduce has not\n"
             "                    run)\n"
+            "  --split F         four-up: the 3D view's share of the height, %.2f to %.2f\n"
+            "                    (default 2/3)\n"
             "  --point X,Y,Z     where the slices cut, LPS mm (default: the first fragment's\n"
             "                    centroid at its pose)\n"
             "  --platform P      offscreen (default: egl on a GPU's EGL device where there is\n"
@@ -58,7 +60,8 @@ static void usage(FILE *out)
             CMD_RECOVER_HELP
             CMD_WAIT_HELP
             "  --help            this text\n\n"
-            "A GL older than 4.5 is an error that names the version found.\n");
+            "A GL older than 4.5 is an error that names the version found.\n",
+            RENDER_SPLIT_MIN, RENDER_SPLIT_MAX);
 }
 
 static int parse_size(const char *s, int *w, int *h)
@@ -116,6 +119,10 @@ static int parse_args(int argc, char **argv, render_args *a)
             if (!val || !cmd_number(val, &id) || id < 1 || id != (int)id)
                 return cmd_bad_value("render", opt, val, "a fragment's id (1, 2, ...)");
             a->fragment = (int)id;
+        } else if (!strcmp(opt, "--split")) {
+            if (!val || !cmd_number(val, &a->o.four_up_split) || a->o.four_up_split < RENDER_SPLIT_MIN ||
+                a->o.four_up_split > RENDER_SPLIT_MAX)
+                return cmd_bad_value("render", opt, val, "a share of the height, 0.25 to 0.9");
         } else if (!strcmp(opt, "--cutaway")) {
             if (!val || (strcmp(val, "on") && strcmp(val, "off")))
                 return cmd_bad_value("render", opt, val, "on or off");

@@ -117,7 +117,7 @@ static int render_pictures(const planning_case *c, const pose *before, const cha
     /* The slice: a four-up frame whose axial pane is PIC x PIC, cut down to that pane. */
     const int bw = 3 * (PIC + 1), bh = 3 * PIC;
     int rect[4][4];
-    render_four_up_panes(bw, bh, rect);
+    render_four_up_panes(bw, bh, 0, rect);
     r = rc ? NULL : render_open(platform ? platform : "osmesa", bw, bh);
     if (!rc && !r)
         rc = FN_ENODEV;

@@ -873,21 +873,22 @@ static int frame_end(render *r, int rc)
     return rc;
 }
 
-void render_four_up_panes(int w, int h, int rect[4][4])
+void render_four_up_panes(int w, int h, double split, int rect[4][4])
 {
-    /* The 3D view over two thirds of the height; the slices side by side below it, one pixel of
-     * background between the panes. */
-    int hs = h / 3, w3 = w / 3;
+    /* The 3D view over `split` of the height (0: two thirds); the slices side by side below it,
+     * one pixel of background between the panes. */
+    split = split <= 0 ? 0 : split < RENDER_SPLIT_MIN ? RENDER_SPLIT_MIN : split > RENDER_SPLIT_MAX ? RENDER_SPLIT_MAX : split;
+    int hs = split > 0 ? (int)lround(h * (1 - split)) : h / 3, w3 = w / 3;
     const int panes[4][4] = {{0, h - hs, w3 - 1, hs}, {w3, h - hs, w3 - 1, hs}, {2 * w3, h - hs, w - 2 * w3, hs},
                              {0, 0, w, h - hs - 1}};
     memcpy(rect, panes, sizeof panes);
 }
 
 /* Pane v of the four-up layout as a GL viewport (origin at the bottom left). */
-static void pane_viewport(const render *r, int v, int vp[4])
+static void pane_viewport(const render *r, const render_options *o, int v, int vp[4])
 {
     int rect[4][4];
-    render_four_up_panes(r->w, r->h, rect);
+    render_four_up_panes(r->w, r->h, o->four_up_split, rect);
     vp[0] = rect[v][0];
     vp[1] = r->h - rect[v][1] - rect[v][3];
     vp[2] = rect[v][2];
@@ -902,7 +903,7 @@ void render_slice_normal(int pane, double n[3])
 int render_slice_point_at(const render *r, const render_options *o, double x, double y, double world[3])
 {
     int rect[4][4];
-    render_four_up_panes(r->w, r->h, rect);
+    render_four_up_panes(r->w, r->h, o->four_up_split, rect);
     for (int s = 0; s < 3; s++) {
         const int *q = rect[s];
         if (x < q[0] || x >= q[0] + q[2] || y < q[1] || y >= q[1] + q[3])
@@ -930,11 +931,11 @@ int render_frame(render *r, const pose *poses, const render_options *o)
     } else {
         int vp[4];
         for (int s = 0; s < 3; s++) {
-            pane_viewport(r, s, vp);
+            pane_viewport(r, o, s, vp);
             set_viewport(r, vp);
             draw_slice(r, poses, o, s, vp);
         }
-        pane_viewport(r, RENDER_PANE_3D, vp);
+        pane_viewport(r, o, RENDER_PANE_3D, vp);
         set_viewport(r, vp);
         rc = draw_3d(r, poses, o, vp);
     }
