@@ -351,10 +351,11 @@ static int draw_raycast(render *r, const pose *poses, const render_options *o, c
     float m[16], vpf[16], model[16], w2t[16], nmat[9];
     if (r->nfrag == 0)
         return 0;
-    int gaps = gap_colour(r, o), rc = render__ray_program(r, o->mode, gaps);
+    unsigned p;
+    int cut = o->cutaway >= 1 && o->cutaway <= r->nfrag;
+    int gaps = gap_colour(r, o), rc = render__ray_program(r, o->mode, gaps, cut, &p);
     if (rc)
         return rc;
-    unsigned p = gaps ? r->prog_ray_gaps : r->prog_ray[o->mode];
     mat4_to_gl(vpm, vpf);
     r->gl.UseProgram(pd);
     r->gl.UniformMatrix4fv(loc(r, pd, "vp"), 1, GL_FALSE, vpf);

@@ -73,7 +73,8 @@ const char *const render__depth_fs =
 /* The raycaster. Every fragment's ray is o[i] + d[i] * t in its texture coordinates, with t the
  * same world distance for all, so one march visits every fragment at once. It is compiled per
  * scene and mode after "#version 450 core", "#define NF <fragments>", "#define mode <0 iso,
- * 1 dvr, 2 mip>" and "#define GAPS <0, or 1: iso with the contacts colour at the hit (GAP_GLSL)>"
+ * 1 dvr, 2 mip>", "#define GAPS <0, or 1: iso with the contacts colour at the hit (GAP_GLSL)>" and
+ * "#define CUT <0, or 1: iso skips the samples of the fragments but cut_keep inside the cut-away>"
  * (llvmpipe runs both sides of a branch its lanes disagree on, so code for the
  * other modes would cost every step): with a constant count the loops
  * unroll and the per-ray arrays stay in registers (llvmpipe lowers a dynamically indexed local
@@ -120,7 +121,11 @@ const char *const render__ray_fs =
     "}\n"
     "float sample_max(float t, out int best) {\n"
     "    float m = -4000.0; best = -1;\n"
+    "#if CUT\n"
     "    bool cut_here = cut_away(ray_o + ray_d * t, ray_d);\n" /* the others are cut away here */
+    "#else\n"
+    "    const bool cut_here = false;\n"
+    "#endif\n"
     "    for (int i = 0; i < nfrag; ++i) {\n"
     "        vec3 p = o[i] + d[i] * t;\n"
     "        if (t >= tn[i] && t <= tx[i] && (i == cut_keep || !cut_here)) {\n"
