@@ -19,6 +19,7 @@
 #include "picture.h"
 #include "testutil.h"
 #include "vol.h"
+#include "volio.h"
 
 #include <math.h>
 #include <png.h>
@@ -814,6 +815,93 @@ static void test_auto_view_shows_the_moving_fragment(void **st)
         if (cut < 0.9)
             fail_msg("%d pieces: the anterior view with the cut-away shows %.0f%% of fragment 2", pieces[k],
                      100 * cut);
+    }
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* A case of a hollow box of bone (A, fixed: 32 voxels a side, walls 4 thick) around a block (B,
+ * 12 a side, 6 voxels of air around it): from every side A hides B. */
+static void enclosed_case(const char *dir, char *case_dir, size_t cap)
+{
+    vol *v = vol_new(40, 40, 40);
+    for (int k = 0; k < 40; k++)
+        for (int j = 0; j < 40; j++)
+            for (int i = 0; i < 40; i++) {
+                int x[3] = {i, j, k}, outer = 1, inner = 1, block = 1;
+                for (int a = 0; a < 3; a++) {
+                    outer &= x[a] >= 4 && x[a] < 36;
+                    inner &= x[a] >= 8 && x[a] < 32;
+                    block &= x[a] >= 14 && x[a] < 26;
+                }
+                v->data[vol_idx(v, i, j, k)] = (outer && !inner) || block ? 1000 : -1000;
+            }
+    char path[4200];
+    snprintf(path, sizeof path, "%s/enclosed.nii.gz", dir);
+    assert_int_equal(volio_write(v, path, VOL_I16), 0);
+    vol_free(v);
+    snprintf(case_dir, cap, "%s/case", dir);
+    tu_segment(path, case_dir, "--ramp 0");
+    planning_case *c = case_load(case_dir);
+    assert_non_null(c);
+    assert_int_equal(c->nfrag, 2);
+    int shell = c->frag[0].voxels > c->frag[1].voxels ? c->frag[0].id : c->frag[1].id;
+    case_free(c);
+    assert_int_equal(tu_run_cli(NULL, "edit '%s' fix %d", case_dir, shell), 0);
+}
+
+static uint8_t *read_png(const char *path, int *w, int *h);
+
+/* The pixels of png in colour want, shaded (its channels' shares of their sum within 0.04 of
+ * want's). */
+static long pixels_coloured(const char *png, const uint8_t want[3])
+{
+    int w, h;
+    uint8_t *rgb = read_png(png, &w, &h);
+    long n = 0;
+    for (long i = 0; i < (long)w * h; i++) {
+        const uint8_t *p = rgb + i * 3;
+        if (p[0] + p[1] + p[2] < 120)
+            continue;
+        double s = (double)(p[0] + p[1] + p[2]), t = (double)(want[0] + want[1] + want[2]);
+        int near = 1;
+        for (int c = 0; c < 3; c++)
+            near &= fabs(p[c] / s - want[c] / t) < 0.04;
+        n += near;
+    }
+    free(rgb);
+    return n;
+}
+
+/* Nothing hides the piece in hand: in a hollow box the block is hidden from every side, yet the
+ * auto view of render shows 90% of it (the cut-away on by default; under 10% with --cutaway off),
+ * and the report's before and after pictures (iso, the auto view) show it. */
+static void test_cutaway_shows_the_enclosed_piece(void **st)
+{
+    (void)st;
+    char *dir = tu_tmpdir("enclosed"), case_dir[4200], path[4400];
+    enclosed_case(dir, case_dir, sizeof case_dir);
+    planning_case *c = case_load(case_dir);
+    assert_non_null(c);
+    const frag *b = &c->frag[c->fixed == 0 ? 1 : 0];
+    int block = b->id;
+    uint8_t colour[3] = {b->rgb[0], b->rgb[1], b->rgb[2]};
+    case_free(c);
+    double shown = shown_share(case_dir, dir, block, ""), hidden = shown_share(case_dir, dir, block, "--cutaway off");
+    if (shown < 0.9 || hidden >= 0.1)
+        fail_msg("the auto view shows %.0f%% of the enclosed block, %.0f%% with --cutaway off", 100 * shown,
+                 100 * hidden);
+    char *out = NULL;
+    int rc = tu_run_cli(&out, "export '%s' --report '%s/report' --platform osmesa", case_dir, dir);
+    if (rc)
+        fail_msg("export --report exited %d: %s", rc, out);
+    free(out);
+    const char *pics[2] = {"before", "after"};
+    for (int k = 0; k < 2; k++) {
+        snprintf(path, sizeof path, "%s/report/%s.png", dir, pics[k]);
+        long n = pixels_coloured(path, colour);
+        if (n < 500)
+            fail_msg("the report's %s picture shows %ld pixels of the enclosed block", pics[k], n);
     }
     tu_rmtree(dir);
     free(dir);
@@ -1960,6 +2048,7 @@ int main(void)
         cmocka_unit_test_teardown(test_replay_window_matches_render, end_children),
         cmocka_unit_test_teardown(test_replay_frames, end_children),
         cmocka_unit_test_teardown(test_auto_view_shows_the_moving_fragment, end_children),
+        cmocka_unit_test_teardown(test_cutaway_shows_the_enclosed_piece, end_children),
         cmocka_unit_test_teardown(test_navigate_window_seed_mode_previews, end_children),
         cmocka_unit_test_teardown(test_navigate_window_seed_mode_undoes, end_children),
         cmocka_unit_test_teardown(test_navigate_window_seed_mode_3d_click, end_children),
