@@ -173,12 +173,21 @@ static void test_view_fits_the_width(void **st)
 }
 
 /* The issue: at 80 columns the keyboard's help was cut ("? or h these key"). Every line of both
- * helps fits in 79 columns, and the keyboard's says the window's keys steer too. */
+ * helps fits in 79 columns, and the keyboard's says the window's keys steer too; so does every
+ * line of the window's keys (navwin_help, shown by ? and by navigate --help). */
 static void test_help_fits_80_columns(void **st)
 {
     (void)st;
     for (int keyboard = 0; keyboard < 2; keyboard++)
         lines_fit(navview_help(keyboard), 80);
+    char *out = NULL; /* the window's keys (navwin_help), as navigate --help shows them */
+    assert_int_equal(tu_run_cli(&out, "navigate --help"), 0);
+    char *from = strstr(out, "window: Ctrl+1..6"), *to = from ? strstr(from, "  F10 seed mode") : NULL;
+    if (!to)
+        fail_msg("navigate --help holds no window keys: %s", out);
+    *to = '\0';
+    assert_non_null(strstr(lines_fit(from, 80), "F1 these keys"));
+    free(out);
     assert_non_null(strstr(navview_help(1), "? or h keys\n"));
     assert_non_null(strstr(navview_help(1), "the window"));
 }

@@ -19,6 +19,7 @@
 #include "picture.h"
 #include "testutil.h"
 #include "vol.h"
+#include "volio.h"
 
 #include <math.h>
 #include <png.h>
@@ -32,6 +33,7 @@
 #define W 128
 #define H 128
 #define N 40
+#define SMOOTH_MAX_ERR 7.5 /* test_surface_shading_is_smooth: grey levels, on average */
 
 typedef struct scene {
     vol *ct, *labels;
@@ -230,7 +232,7 @@ static void test_four_up_pixel_to_world(void **st)
     memcpy(o.slice_point, s->f[1].centroid, sizeof o.slice_point);
     draw(s, NULL, &o);
     int rect[4][4];
-    render_four_up_panes(W, H, rect);
+    render_four_up_panes(W, H, 0, rect);
     assert_true(rect[RENDER_PANE_3D][3] > H / 2 && rect[RENDER_PANE_3D][2] == W); /* the large 3D view */
     const int *q = rect[RENDER_PANE_AXIAL];
     double sx = 0, sy = 0, n = 0;
@@ -276,6 +278,33 @@ static void test_cutaway_shows_the_piece_in_hand(void **st)
     count_colours(s->rgb, &ball, &box);
     if (box < 50 || ball < 200)
         fail_msg("with the cut-away the picture shows %ld pixels of the box and %ld of the ball", box, ball);
+}
+
+/* The same in iso mode (the raycaster skips the other fragments' samples inside the cut): from
+ * the right the box shows in under a tenth of its pixels without the cut-away, and in 90% or more
+ * with it. */
+static void test_cutaway_in_iso_shows_the_piece_in_hand(void **st)
+{
+    scene *s = *st;
+    render_options o;
+    options(s, &o, RENDER_ISO);
+    render_camera_standard(&o.camera, RENDER_RIGHT, s->f, 2);
+    long proj[2], ball, box;
+    pose alone[2] = {POSE_IDENTITY, POSE_IDENTITY};
+    alone[0].t[1] = 1000; /* the ball out of sight: the box's own pixels in iso */
+    draw(s, alone, &o);
+    count_colours(s->rgb, &ball, &proj[1]);
+    o.cutaway = 0;
+    draw(s, NULL, &o);
+    count_colours(s->rgb, &ball, &box);
+    if (!(proj[1] > 50 && box < proj[1] / 10))
+        fail_msg("iso without the cut-away shows %ld of the box's %ld pixels: it should be hidden", box, proj[1]);
+    o.cutaway = 2;
+    draw(s, NULL, &o);
+    count_colours(s->rgb, &ball, &box);
+    if (box < proj[1] * 9 / 10 || ball < 200)
+        fail_msg("iso with the cut-away shows %ld of the box's %ld pixels (and %ld of the ball)", box, proj[1],
+                 ball);
 }
 
 static void count_colours(const uint8_t *rgb, long *ball, long *box)
@@ -760,7 +789,8 @@ static double shown_share(const char *case_dir, const char *dir, int id, const c
 /* The issue: the default anterior camera looked at the face while the moving piece sat at the back
  * of the skull, mostly hidden. On the demo's fracture of the example CT (2 pieces, seed 1) and on a
  * 3-piece one, the default view (auto) shows each moving fragment at >= 50% of its projected
- * pixels; the anterior view hides fragment 2 (so the measure tells them apart). */
+ * pixels; the anterior view hides fragment 2 (so the measure tells them apart), and shows 90% of
+ * it with --cutaway on. */
 static void test_auto_view_shows_the_moving_fragment(void **st)
 {
     (void)st;
@@ -781,6 +811,97 @@ static void test_auto_view_shows_the_moving_fragment(void **st)
         if (anterior >= 0.5)
             fail_msg("%d pieces: the anterior view shows %.0f%% of fragment 2: the test tells nothing", pieces[k],
                      100 * anterior);
+        double cut = shown_share(case_dir, dir, 2, "--view anterior --cutaway on");
+        if (cut < 0.9)
+            fail_msg("%d pieces: the anterior view with the cut-away shows %.0f%% of fragment 2", pieces[k],
+                     100 * cut);
+    }
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* A case of a hollow box of bone (A, fixed: 32 voxels a side, walls 4 thick) around a block (B,
+ * 12 a side, 6 voxels of air around it): from every side A hides B. */
+static void enclosed_case(const char *dir, char *case_dir, size_t cap)
+{
+    vol *v = vol_new(40, 40, 40);
+    for (int k = 0; k < 40; k++)
+        for (int j = 0; j < 40; j++)
+            for (int i = 0; i < 40; i++) {
+                int x[3] = {i, j, k}, outer = 1, inner = 1, block = 1;
+                for (int a = 0; a < 3; a++) {
+                    outer &= x[a] >= 4 && x[a] < 36;
+                    inner &= x[a] >= 8 && x[a] < 32;
+                    block &= x[a] >= 14 && x[a] < 26;
+                }
+                v->data[vol_idx(v, i, j, k)] = (outer && !inner) || block ? 1000 : -1000;
+            }
+    char path[4200];
+    snprintf(path, sizeof path, "%s/enclosed.nii.gz", dir);
+    assert_int_equal(volio_write(v, path, VOL_I16), 0);
+    vol_free(v);
+    snprintf(case_dir, cap, "%s/case", dir);
+    tu_segment(path, case_dir, "--ramp 0");
+    planning_case *c = case_load(case_dir);
+    assert_non_null(c);
+    assert_int_equal(c->nfrag, 2);
+    int shell = c->frag[0].voxels > c->frag[1].voxels ? c->frag[0].id : c->frag[1].id;
+    case_free(c);
+    assert_int_equal(tu_run_cli(NULL, "edit '%s' fix %d", case_dir, shell), 0);
+}
+
+static uint8_t *read_png(const char *path, int *w, int *h);
+
+/* The pixels of png in colour want, shaded (its channels' shares of their sum within 0.04 of
+ * want's). */
+static long pixels_coloured(const char *png, const uint8_t want[3])
+{
+    int w, h;
+    uint8_t *rgb = read_png(png, &w, &h);
+    long n = 0;
+    for (long i = 0; i < (long)w * h; i++) {
+        const uint8_t *p = rgb + i * 3;
+        if (p[0] + p[1] + p[2] < 120)
+            continue;
+        double s = (double)(p[0] + p[1] + p[2]), t = (double)(want[0] + want[1] + want[2]);
+        int near = 1;
+        for (int c = 0; c < 3; c++)
+            near &= fabs(p[c] / s - want[c] / t) < 0.04;
+        n += near;
+    }
+    free(rgb);
+    return n;
+}
+
+/* Nothing hides the piece in hand: in a hollow box the block is hidden from every side, yet the
+ * auto view of render shows 90% of it (the cut-away on by default; under 10% with --cutaway off),
+ * and the report's before and after pictures (iso, the auto view) show it. */
+static void test_cutaway_shows_the_enclosed_piece(void **st)
+{
+    (void)st;
+    char *dir = tu_tmpdir("enclosed"), case_dir[4200], path[4400];
+    enclosed_case(dir, case_dir, sizeof case_dir);
+    planning_case *c = case_load(case_dir);
+    assert_non_null(c);
+    const frag *b = &c->frag[c->fixed == 0 ? 1 : 0];
+    int block = b->id;
+    uint8_t colour[3] = {b->rgb[0], b->rgb[1], b->rgb[2]};
+    case_free(c);
+    double shown = shown_share(case_dir, dir, block, ""), hidden = shown_share(case_dir, dir, block, "--cutaway off");
+    if (shown < 0.9 || hidden >= 0.1)
+        fail_msg("the auto view shows %.0f%% of the enclosed block, %.0f%% with --cutaway off", 100 * shown,
+                 100 * hidden);
+    char *out = NULL;
+    int rc = tu_run_cli(&out, "export '%s' --report '%s/report' --platform osmesa", case_dir, dir);
+    if (rc)
+        fail_msg("export --report exited %d: %s", rc, out);
+    free(out);
+    const char *pics[2] = {"before", "after"};
+    for (int k = 0; k < 2; k++) {
+        snprintf(path, sizeof path, "%s/report/%s.png", dir, pics[k]);
+        long n = pixels_coloured(path, colour);
+        if (n < 500)
+            fail_msg("the report's %s picture shows %ld pixels of the enclosed block", pics[k], n);
     }
     tu_rmtree(dir);
     free(dir);
@@ -895,6 +1016,131 @@ static void test_window_matches_offscreen(void **st)
         differ += abs(win[i] - s->rgb[i]) > 32;
     if (differ > W * H / 100)
         fail_msg("the window's frame differs from OSMesa's in %ld channel values", differ);
+}
+
+/* How rough a surface-mode picture of a ball of bone looks (a binary CT, 1 mm voxels, radius
+ * `radius` voxels in a grid of n^3): the residual of its red channel (0-255) against the shading
+ * of the true sphere (render__mesh_fs: colour * (0.2 + 0.8 d) + 0.25 d^24, d the normal's share
+ * towards the viewer), its mean absolute change from a pixel to the next right and down, over the
+ * pixels within 0.9 of the outline's radius: voxel steps show as bands, a bias does not count. */
+static double ball_shading_error(int n, double radius)
+{
+    vol *ct = vol_new(n, n, n), *labels = vol_new(n, n, n);
+    double c = (n - 1) / 2.0;
+    for (int k = 0; k < n; k++)
+        for (int j = 0; j < n; j++)
+            for (int i = 0; i < n; i++) {
+                int in = (i - c) * (i - c) + (j - c) * (j - c) + (k - c) * (k - c) <= radius * radius;
+                ct->data[vol_idx(ct, i, j, k)] = in ? 1000.0f : -1000.0f;
+                labels->data[vol_idx(labels, i, j, k)] = (float)in;
+            }
+    frag f;
+    int lo[3], hi[3];
+    assert_int_equal(frag_label_box(labels, 1, lo, hi), 0);
+    assert_int_equal(frag_from_labels(&f, labels, ct, 1, lo, hi, 300, 200), 0);
+    const int size = 256;
+    render *r = render_open("osmesa", size, size);
+    assert_non_null(r);
+    assert_int_equal(render_set_scene(r, ct, &f, 1, 300, NULL), 0);
+    render_options o;
+    render_options_default(&o, &f, 1);
+    o.mode = RENDER_SURFACE;
+    uint8_t *rgb = malloc((size_t)size * size * 3);
+    assert_int_equal(render_frame(r, NULL, &o), 0);
+    assert_int_equal(render_read_rgb(r, rgb), 0);
+    double sx = 0, sy = 0, area = 0, red = f.rgb[0] / 255.0;
+    for (int y = 0; y < size; y++)
+        for (int x = 0; x < size; x++)
+            if (!is_background(rgb + ((size_t)y * size + (size_t)x) * 3))
+                sx += x, sy += y, area++;
+    double cx = sx / area, cy = sy / area, rpx = sqrt(area / M_PI), err = 0;
+    long used = 0;
+    for (int y = 0; y + 1 < size; y++)
+        for (int x = 0; x + 1 < size; x++) {
+            double res[3]; /* measured less the true sphere's shading, here and one pixel right, down */
+            const int at[3][2] = {{x, y}, {x + 1, y}, {x, y + 1}};
+            int inside = 1;
+            for (int k = 0; k < 3; k++) {
+                double rho = hypot(at[k][0] - cx, at[k][1] - cy) / rpx;
+                inside &= rho < 0.9;
+                double d = sqrt(rho < 1 ? 1 - rho * rho : 0), want = red * (0.2 + 0.8 * d) + 0.25 * pow(d, 24);
+                res[k] = rgb[((size_t)at[k][1] * size + (size_t)at[k][0]) * 3] - 255.0 * (want > 1 ? 1 : want);
+            }
+            if (inside) {
+                err += fabs(res[1] - res[0]) + fabs(res[2] - res[0]);
+                used++;
+            }
+        }
+    free(rgb);
+    render_close(r);
+    frag_free(&f);
+    vol_free(ct);
+    vol_free(labels);
+    assert_true(used > 1000);
+    return err / (double)used;
+}
+
+/* Surfaces look smooth: a ball's surface mesh, from a CT of bone or air alone (the voxel steps at
+ * their sharpest), shades as the true sphere does: its mesh taken through block means (over 2^3
+ * voxels, as the window's meshes of a whole CT are) with normals from the gradient of that grid.
+ * Measured (test_render, llvmpipe): 6.1 grey levels; with every second voxel point-sampled
+ * instead of the means, 11.6; with the mesh's own normals (the triangles' mean) instead of the
+ * gradient's, 8.1. */
+static void test_surface_shading_is_smooth(void **st)
+{
+    (void)st;
+    double err = ball_shading_error(100, 44);
+    print_message("ball of radius 44 voxels: rough by %.2f grey levels\n", err);
+    if (err > SMOOTH_MAX_ERR)
+        fail_msg("a ball of radius 44 voxels shades %.2f grey levels rougher than the true sphere (at most %.1f)",
+                 err, SMOOTH_MAX_ERR);
+}
+
+/* The HUD is sized for the window: a taller window or a higher DPI gives larger text (one font
+ * pixel per 384 rows, times the DPI's scale, 1..4), and a line of render_hud_columns characters
+ * fits across the picture at each size, reaching near its right edge. */
+static void test_hud_scale_follows_height_and_dpi(void **st)
+{
+    (void)st;
+    assert_int_equal(render_hud_scale_for(384, 1), 1);
+    assert_true(render_hud_scale_for(768, 1) > render_hud_scale_for(384, 1));
+    assert_true(render_hud_scale_for(1536, 1) > render_hud_scale_for(768, 1));
+    assert_true(render_hud_scale_for(768, 2) > render_hud_scale_for(768, 1));
+    assert_true(render_hud_scale_for(384, 2) > render_hud_scale_for(384, 1));
+    assert_int_equal(render_hud_scale_for(4000, 2), 4);
+    const int sizes[3][2] = {{512, 384}, {800, 768}, {1280, 1152}};
+    int last_scale = 0;
+    for (int k = 0; k < 3; k++) {
+        int w = sizes[k][0], h = sizes[k][1];
+        render *r = render_open("osmesa", w, h);
+        assert_non_null(r);
+        int scale = render_hud_scale(r), cols = render_hud_columns(r);
+        assert_int_equal(scale, render_hud_scale_for(h, 1));
+        assert_true(scale > last_scale);
+        last_scale = scale;
+        char line[1024];
+        memset(line, 'M', (size_t)cols);
+        line[cols] = '\0';
+        uint8_t *rgb = malloc((size_t)w * (size_t)h * 3);
+        render_options o;
+        memset(&o, 0, sizeof o);
+        o.mode = RENDER_SURFACE;
+        assert_int_equal(render_frame(r, NULL, &o), 0);
+        assert_int_equal(render_hud(r, line, scale), 0);
+        assert_int_equal(render_read_rgb(r, rgb), 0);
+        int right = -1; /* the rightmost text pixel */
+        for (int y = 0; y < 12 * scale; y++)
+            for (int x = 0; x < w; x++) {
+                const uint8_t *p = rgb + ((size_t)y * (size_t)w + (size_t)x) * 3;
+                if (p[0] > 200 && p[1] > 200 && p[2] > 200 && x > right)
+                    right = x;
+            }
+        free(rgb);
+        render_close(r);
+        /* the last M's right stroke, inside the picture with the box's margin */
+        if (right < w - 6 * scale - 12 || right > w - 1 - scale)
+            fail_msg("%dx%d at scale %d: a line of %d columns ends at pixel %d", w, h, scale, cols, right);
+    }
 }
 
 /* A PNG file as RGB (malloc'd), its size in *w, *h. */
@@ -1175,7 +1421,7 @@ static void axial_pixel(const planning_case *c, const double through[3], const d
     o.layout = RENDER_LAYOUT_FOUR_UP;
     memcpy(o.slice_point, through, sizeof o.slice_point);
     int rect[4][4];
-    render_four_up_panes(768, 768, rect);
+    render_four_up_panes(768, 768, 0, rect);
     const int *q = rect[RENDER_PANE_AXIAL];
     double best = 1e30, p[3];
     for (int y = q[1]; y < q[1] + q[3]; y++)
@@ -1187,6 +1433,143 @@ static void axial_pixel(const planning_case *c, const double through[3], const d
         }
     render_close(r);
     assert_true(best < 1.0);
+}
+
+/* The world point (LPS mm) that pixel (x, y) of a 768x768 four-up window of case c (anterior
+ * camera, slices through `through`) shows in a slice pane, into world; returns the pane. */
+static int four_up_world(const planning_case *c, const double through[3], double x, double y, double world[3])
+{
+    render *r = render_open("osmesa", 768, 768);
+    assert_non_null(r);
+    render_options o;
+    render_options_default(&o, c->frag, c->nfrag);
+    render_camera_standard(&o.camera, RENDER_ANTERIOR, c->frag, c->nfrag);
+    o.layout = RENDER_LAYOUT_FOUR_UP;
+    memcpy(o.slice_point, through, sizeof o.slice_point);
+    int pane = render_slice_point_at(r, &o, x, y, world);
+    render_close(r);
+    return pane;
+}
+
+/* A four-up navigate window (tu_two_blocks_case; edit: an edit of the case first, or NULL) on
+ * Xvfb driven by xdotool (actions; then, when wait_for is not NULL, a wait for a line of
+ * navigate's view holding it, the actions' effect on the session; then q): its screenshot must match `fracnav render` with look
+ * (surface, 768x768), and of the pixels where that render differs from one with look_before (the
+ * picture before the actions), show 90% or more as look's. */
+static void four_up_window(const char *name, const char *edit, const char *nav, const char *actions,
+                           const char *wait_for, const char *look, const char *look_before)
+{
+#if defined(__SANITIZE_THREAD__)
+    print_message("skipped under ThreadSanitizer: Xlib's and GLX's own locking\n");
+    skip();
+#endif
+    if (access("/usr/bin/xdotool", X_OK) != 0)
+        no_xdotool();
+    int display;
+    pid_t xvfb = start_xvfb(&display);
+    if (!xvfb)
+        no_xvfb();
+    char *dir = tu_tmpdir(name), case_dir[4200], *out = NULL;
+    tu_two_blocks_case(dir, case_dir, sizeof case_dir);
+    if (edit)
+        assert_int_equal(tu_run_cli(NULL, "edit '%s' %s", case_dir, edit), 0);
+    assert_int_equal(tu_run_cli(&out, "render '%s' -o '%s/before.png' --mode surface --size 768x768 %s", case_dir,
+                                dir, look_before), 0);
+    free(out);
+    char cmd[9000], wait[512] = "";
+    if (wait_for) /* tail ends with navigate, or at its next line (one a second) after grep's match */
+        snprintf(wait, sizeof wait, "tail -n +1 -f --pid=$nav '%s/view.txt' | grep -q -m1 '%s'; ", dir, wait_for);
+    snprintf(cmd, sizeof cmd,
+             "navigate '%s' --device virtual:spacenavigator --view window --layout four-up %s --discard-journal "
+             "--preview off --screenshot '%s/shot.png' </dev/null 2>'%s/view.txt' & nav=$!; "
+             "if timeout 300 xdotool search --sync --onlyvisible --name '^fracnav$' >/dev/null; then "
+             "xdotool %s; %s xdotool key q; else echo 'no fracnav window appeared'; kill $nav; fi; wait $nav; "
+             "rc=$?; cat '%s/view.txt'; exit $rc",
+             case_dir, nav, dir, dir, actions, wait, dir);
+    int rc = run_in_window(xvfb, display, &out, cmd);
+    if (rc != 0 || strstr(out, "no window") || strstr(out, "no fracnav window"))
+        fail_msg("navigate --view window driven by xdotool: exit %d: %s", rc, out);
+    free(out);
+    window_vs_render r = compare_window(dir, case_dir, look);
+    if (r.content < 1000 || r.differ > 768L * (768 - WINDOW_HUD_ROWS) / 100)
+        fail_msg("after '%s' the window differs from render %s in %ld pixels (%ld content)", actions, look,
+                 r.differ, r.content);
+    long drawn, shown = overlay_shown(dir, case_dir, look_before, &drawn);
+    if (drawn < 50 || shown < drawn * 9 / 10)
+        fail_msg("after '%s' the window shows %ld of the %ld pixels where render %s differs from %s", actions,
+                 shown, drawn, look, look_before);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* In four-up, the wheel over the axial slice moves it along z, a millimetre a step: seven steps
+ * up from block B's centroid (z 15.5) put the slice at z 22.5, above B (z 10..21), and the window
+ * shows render --point 22.5,15.5,22.5. */
+static void test_navigate_window_wheel_scrolls_a_slice(void **st)
+{
+    (void)st;
+    int rect[4][4];
+    render_four_up_panes(768, 768, 0, rect);
+    const int *q = rect[RENDER_PANE_AXIAL];
+    char actions[256];
+    snprintf(actions, sizeof actions, "mousemove %d %d click --repeat 7 --delay 50 4", q[0] + q[2] / 2,
+             q[1] + q[3] / 2);
+    four_up_window("navwheel", NULL, "--camera anterior", actions, NULL,
+                   "--view anterior --layout four-up --point 22.5,15.5,22.5",
+                   "--view anterior --layout four-up --point 22.5,15.5,15.5");
+}
+
+/* In four-up, a click on the axial slice over block A (x 4..15; B, at x 18..27, is selected)
+ * moves the slices' point there: the sagittal slice then cuts through A, and the window shows
+ * render --point at the clicked point. */
+static void test_navigate_window_click_moves_the_crosshair(void **st)
+{
+    (void)st;
+    const double b[3] = {22.5, 15.5, 15.5}; /* B's centroid: where the slices cut at first */
+    char *dir = tu_tmpdir("navclick0"), case_dir[4200];
+    tu_two_blocks_case(dir, case_dir, sizeof case_dir);
+    planning_case *c = case_load(case_dir);
+    assert_non_null(c);
+    const double a_mid[3] = {9.5, 15.5, 15.5};
+    int px[2];
+    double at[3];
+    axial_pixel(c, b, a_mid, px);
+    assert_int_equal(four_up_world(c, b, px[0], px[1], at), RENDER_PANE_AXIAL);
+    case_free(c);
+    tu_rmtree(dir);
+    free(dir);
+    char actions[256], look[256];
+    snprintf(actions, sizeof actions, "mousemove %d %d click 1", px[0], px[1]);
+    snprintf(look, sizeof look, "--view anterior --layout four-up --point %.6f,%.6f,%.6f", at[0], at[1], at[2]);
+    four_up_window("navclick", NULL, "--camera anterior", actions, NULL, look,
+                   "--view anterior --layout four-up --point 22.5,15.5,15.5");
+}
+
+/* In four-up, a left drag of the border between the 3D view and the slices (row 511 of 768: the
+ * 3D view over two thirds) 128 pixels up resizes them: the 3D view takes half the height, as
+ * render --split 0.5 draws it, and the view is not orbited. */
+static void test_navigate_window_drags_the_four_up_border(void **st)
+{
+    (void)st;
+    int rect[4][4];
+    render_four_up_panes(768, 768, 0, rect);
+    assert_int_equal(rect[RENDER_PANE_3D][3], 511);
+    render_four_up_panes(768, 768, 0.5, rect);
+    assert_int_equal(rect[RENDER_PANE_AXIAL][3], 384);
+    four_up_window("navsplit", NULL, "--camera anterior", "mousemove 384 511 mousedown 1 mousemove_relative -- 0 -128 "
+                   "mouseup 1", NULL, "--view anterior --layout four-up --split 0.5 --point 22.5,15.5,15.5",
+                   "--view anterior --layout four-up --point 22.5,15.5,15.5");
+}
+
+/* With no fragment fixed, A (id 1) is selected first; n selects B (id 2): the auto camera frames
+ * B (with what hides it cut away) and the slices move to B's centroid, as render --view auto
+ * --fragment 2 --point 22.5,15.5,15.5 shows. */
+static void test_navigate_window_follows_the_selection(void **st)
+{
+    (void)st;
+    four_up_window("navselect", "fix 0", "--camera auto", "key n", "next: frag 2/2",
+                   "--view auto --fragment 2 --layout four-up --point 22.5,15.5,15.5",
+                   "--view auto --fragment 1 --layout four-up --point 9.5,15.5,15.5");
 }
 
 /* A navigate run in seed mode on Xvfb (xdotool), over tu_two_blocks_case: block B (fragment 2)
@@ -1360,7 +1743,7 @@ static void test_navigate_window_seed_mode_3d_click(void **st)
     render_camera_standard(&cam, RENDER_ANTERIOR, c->frag, c->nfrag);
     case_free(c);
     int rect[4][4];
-    render_four_up_panes(768, 768, rect);
+    render_four_up_panes(768, 768, 0, rect);
     const int *q = rect[RENDER_PANE_3D];
     for (int a = 0; a < 3; a++) {
         right[a] = cam.forward[(a + 1) % 3] * cam.up[(a + 2) % 3] - cam.forward[(a + 2) % 3] * cam.up[(a + 1) % 3];
@@ -1426,7 +1809,7 @@ static void test_navigate_window_seed_on_a_moved_fragment(void **st)
 static long axial_pixels_of(const uint8_t *shot, const uint8_t rgb[3])
 {
     int rect[4][4];
-    render_four_up_panes(768, 768, rect);
+    render_four_up_panes(768, 768, 0, rect);
     const int *q = rect[RENDER_PANE_AXIAL];
     long n = 0;
     for (int y = q[1]; y < q[1] + q[3]; y++)
@@ -1630,6 +2013,9 @@ static void test_replay_frames(void **st)
 
 int main(void)
 {
+    const char *only = getenv("FRACNAV_TEST_ONLY"); /* a cmocka pattern: run those tests alone */
+    if (only && *only)
+        cmocka_set_test_filter(only);
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_gl_version_parse),
         cmocka_unit_test(test_old_gl_is_refused_with_its_version),
@@ -1639,22 +2025,30 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_four_up_with_overlays_matches, setup, teardown),
         cmocka_unit_test_setup_teardown(test_four_up_pixel_to_world, setup, teardown),
         cmocka_unit_test_setup_teardown(test_cutaway_shows_the_piece_in_hand, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_cutaway_in_iso_shows_the_piece_in_hand, setup, teardown),
         cmocka_unit_test_setup_teardown(test_interpenetrating_fragments_both_show, setup, teardown),
         cmocka_unit_test_setup_teardown(test_contacts_overlay_marks_colliding_voxels, setup, teardown),
         cmocka_unit_test(test_contacts_colour_both_facing_surfaces),
         cmocka_unit_test_setup_teardown(test_voi_overlay_outlines_the_box, setup, teardown),
         cmocka_unit_test_setup_teardown(test_hud_draws_text, setup, teardown),
+        cmocka_unit_test(test_hud_scale_follows_height_and_dpi),
+        cmocka_unit_test(test_surface_shading_is_smooth),
         cmocka_unit_test_setup_teardown(test_pose_moves_picture_by_expected_pixels, setup, teardown),
         cmocka_unit_test_setup_teardown(test_late_latching_draws_the_newest_poses, setup, teardown),
         cmocka_unit_test_setup_teardown(test_ghost_draws_the_fitted_pose, setup, teardown),
         cmocka_unit_test_setup_teardown(test_window_matches_offscreen, setup, teardown),
         cmocka_unit_test_teardown(test_navigate_window_matches_render, end_children),
         cmocka_unit_test_teardown(test_navigate_window_mouse_and_keys, end_children),
+        cmocka_unit_test_teardown(test_navigate_window_wheel_scrolls_a_slice, end_children),
+        cmocka_unit_test_teardown(test_navigate_window_click_moves_the_crosshair, end_children),
+        cmocka_unit_test_teardown(test_navigate_window_follows_the_selection, end_children),
+        cmocka_unit_test_teardown(test_navigate_window_drags_the_four_up_border, end_children),
         cmocka_unit_test_teardown(test_navigate_window_keyboard_steers, end_children),
         cmocka_unit_test_teardown(test_navigate_window_seed_mode_separates, end_children),
         cmocka_unit_test_teardown(test_replay_window_matches_render, end_children),
         cmocka_unit_test_teardown(test_replay_frames, end_children),
         cmocka_unit_test_teardown(test_auto_view_shows_the_moving_fragment, end_children),
+        cmocka_unit_test_teardown(test_cutaway_shows_the_enclosed_piece, end_children),
         cmocka_unit_test_teardown(test_navigate_window_seed_mode_previews, end_children),
         cmocka_unit_test_teardown(test_navigate_window_seed_mode_undoes, end_children),
         cmocka_unit_test_teardown(test_navigate_window_seed_mode_3d_click, end_children),

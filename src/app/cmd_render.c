@@ -16,7 +16,8 @@ static void usage(FILE *out)
     fprintf(out,
             "usage: fracnav render CASE -o FILE.png [--mode iso|dvr|mip|surface] [--size WxH]\n"
             "                      [--view VIEW] [--layout 3d|four-up] [--overlay LIST]\n"
-            "                      [--point X,Y,Z] [--fragment ID] [--platform P]\n"
+            "                      [--point X,Y,Z] [--fragment ID] [--cutaway on|off]\n"
+            "                      [--split F] [--platform P]\n"
             "                      [--json] [--recover] [--wait]\n\n"
             "Draw a case's fragments at their current poses with OpenGL 4.5 core: offscreen (on a\n"
             "GPU through EGL, else OSMesa's llvmpipe) unless --platform glfw asks for a window.\n"
@@ -33,6 +34,8 @@ static void usage(FILE *out)
             "                    posterior, left, right, superior, inferior: the camera fits\n"
             "                    the fragments at home\n"
             "  --fragment ID     the selected fragment (default: the first that is not fixed)\n"
+            "  --cutaway on|off  cut away the other fragments in front of the selected one, so\n"
+            "                    it is seen (surface and iso; default on with --view auto)\n"
             "  --layout L        3d, or four-up: the 3D view over the top two thirds, and below it\n"
             "                    the axial, coronal and sagittal slices; slices show the CT in grey\n"
             "                    and each fragment's outline in its colour\n"
@@ -41,9 +44,12 @@ static void usage(FILE *out)
             "                    each surface coloured by its gap to the nearest other fragment,\n"
             "                    red at 0 through yellow to its own colour at 3 mm, with a\n"
             "                    legend; in dvr and mip both voxels of every colliding voxel pair\n"
-            "                    outlined and tinted yellow), axes (principal axes: red, green, blue from the\n"
-            "                    largest), voi (the VOI boxes of the case's reduction, cyan; an\n"
-            "                    error when fracnav reduce has not run)\n"
+            "                    outlined and tinted yellow), axes (principal axes: red,\n"
+            "                    green, blue from the largest), voi (the VOI boxes of the\n"
+            "                    case's reduction, cyan; an error when fracnav reduce has not\n"
+            "                    run)\n"
+            "  --split F         four-up: the 3D view's share of the height, %.2f to %.2f\n"
+            "                    (default 2/3)\n"
             "  --point X,Y,Z     where the slices cut, LPS mm (default: the first fragment's\n"
             "                    centroid at its pose)\n"
             "  --platform P      offscreen (default: egl on a GPU's EGL device where there is\n"
@@ -55,7 +61,8 @@ static void usage(FILE *out)
             CMD_RECOVER_HELP
             CMD_WAIT_HELP
             "  --help            this text\n\n"
-            "A GL older than 4.5 is an error that names the version found.\n");
+            "A GL older than 4.5 is an error that names the version found.\n",
+            RENDER_SPLIT_MIN, RENDER_SPLIT_MAX);
 }
 
 static int parse_size(const char *s, int *w, int *h)
@@ -82,6 +89,7 @@ typedef struct render_args {
     int w, h, have_point, json, fragment; /* fragment: an id, 0 for the first that is not fixed */
     double point[3];
     int view; /* render_view, or -1: auto */
+    int cutaway; /* 1 on, 0 off, -1: on with the auto view */
     render_options o;
 } render_args;
 
@@ -112,6 +120,14 @@ static int parse_args(int argc, char **argv, render_args *a)
             if (!val || !cmd_number(val, &id) || id < 1 || id != (int)id)
                 return cmd_bad_value("render", opt, val, "a fragment's id (1, 2, ...)");
             a->fragment = (int)id;
+        } else if (!strcmp(opt, "--split")) {
+            if (!val || !cmd_number(val, &a->o.four_up_split) || a->o.four_up_split < RENDER_SPLIT_MIN ||
+                a->o.four_up_split > RENDER_SPLIT_MAX)
+                return cmd_bad_value("render", opt, val, "a share of the height, 0.25 to 0.9");
+        } else if (!strcmp(opt, "--cutaway")) {
+            if (!val || (strcmp(val, "on") && strcmp(val, "off")))
+                return cmd_bad_value("render", opt, val, "on or off");
+            a->cutaway = !strcmp(val, "on");
         } else if (!strcmp(opt, "--json")) {
             a->json = 1;
             takes = 0;
@@ -203,6 +219,7 @@ static int draw(planning_case *c, render_args *a)
     render_options_default(&d, c->frag, c->nfrag);
     render_camera_standard(&o.camera, a->view < 0 ? RENDER_ANTERIOR : (render_view)a->view, c->frag, c->nfrag);
     memcpy(o.slice_point, a->have_point ? a->point : d.slice_point, sizeof o.slice_point);
+    o.cutaway = (a->cutaway < 0 ? a->view < 0 : a->cutaway) ? sel + 1 : 0;
     if ((o.overlays & RENDER_OVERLAY_VOI) && !(o.nvoi = cmd_case_voi(c, o.voi, RENDER_MAX_FRAGS)))
         return fn_err_set(FN_EINVAL, "--overlay voi: the case holds no reduction VOI (fracnav reduce "
                                      "defines one)");
@@ -233,7 +250,7 @@ int cmd_render(int argc, char **argv)
         usage(stdout);
         return 0;
     }
-    render_args a = {.w = 512, .h = 512, .view = -1};
+    render_args a = {.w = 512, .h = 512, .view = -1, .cutaway = -1};
     a.o.mode = RENDER_ISO;
     a.o.hierarchy_depth = 3;
     int wait = cmd_take_flag(&argc, argv, "--wait"), recover = cmd_take_flag(&argc, argv, "--recover");

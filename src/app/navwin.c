@@ -13,6 +13,7 @@
 #define ORBIT_DEG_PER_PX 0.5   /* a drag of 180 pixels turns the view by 90 degrees */
 #define NOTE_SHOWN_US 2000000  /* what a window key did stays on the HUD this long */
 #define R2F_WINDOW_US 1000000  /* the HUD's report-to-frame is the worst of this long */
+#define BORDER_GRAB_PX 4       /* a left drag from this near four-up's border moves it */
 
 struct navwin {
     render *r;
@@ -28,6 +29,7 @@ struct navwin {
                      * changes (else it follows the selected fragment's centroid) */
     int slice_for;  /* the selected fragment when it was put */
     double click_world[3]; /* the last click on a slice (NAVWIN_KEY_CLICK), LPS mm */
+    int drag_mode;  /* the left drag in progress: 0 none, 1 an orbit, 2 four-up's border */
     int nvoi;       /* the case's reduction VOI boxes (o.voi) */
     uint64_t drawn_seq;
     unsigned ghosts_seen; /* the live preview's updates drawn (session_preview.updates) */
@@ -140,7 +142,8 @@ const char *navwin_help(void)
            "  F1 these keys  F2 mode  F3 layout (3D, four-up)  F4 axes  F5 contacts\n"
            "  F6 hierarchy boxes  F7/F8 their depth  F9 VOI   other keys as in the terminal\n"
            "  left drag orbits, right or middle drag pans, the wheel zooms; in four-up the\n"
-           "  wheel over a slice moves it, a click on a slice moves the slices' crosshair\n"
+           "  wheel over a slice moves it, a click on a slice moves the slices' crosshair,\n"
+           "  a drag of the border above the slices resizes them\n"
            "  (in seed mode, F10, a click on a slice or on a fragment in 3D drops a seed)\n";
 }
 
@@ -322,6 +325,31 @@ static int slice_wheel(navwin *w, const render_input *in)
     return 1;
 }
 
+/* In four-up, a left drag that starts on the border between the 3D view and the slices moves the
+ * border (the rest of that drag too). 1 when this frame's drag did. */
+static int border_drag(navwin *w, const render_input *in)
+{
+    const double *d = in->drag[0];
+    int rect[4][4], resize = 0;
+    render_four_up_panes(w->w, w->h, w->o.four_up_split, rect);
+    if (d[0] != 0 || d[1] != 0) {
+        double border = rect[RENDER_PANE_3D][3] + 0.5; /* the background row between the panes */
+        if (!w->drag_mode)
+            w->drag_mode = w->o.layout == RENDER_LAYOUT_FOUR_UP && fabs(in->press[1] - border) <= BORDER_GRAB_PX
+                               ? 2
+                               : 1;
+        resize = w->drag_mode == 2;
+    }
+    if (resize) {
+        double split = 1 - (double)rect[RENDER_PANE_AXIAL][3] / w->h + d[1] / w->h;
+        w->o.four_up_split = fmin(RENDER_SPLIT_MAX, fmax(RENDER_SPLIT_MIN, split));
+        w->dirty = 1;
+    }
+    if (!in->left_down)
+        w->drag_mode = 0;
+    return resize;
+}
+
 /* Per fragment of sc (the case's, at their poses there): the map from the world to its crop's
  * local mm. 0 when sc is not a scene of the case. */
 static int to_locals(const navwin *w, const loop_scene *sc, pose *to_local)
@@ -384,7 +412,7 @@ static int surface_pick(const navwin *w, const loop_scene *sc, const double xy[2
     const planning_case *c = w->c;
     int q[4] = {0, 0, w->w, w->h}, rect[4][4];
     if (w->o.layout == RENDER_LAYOUT_FOUR_UP) {
-        render_four_up_panes(w->w, w->h, rect);
+        render_four_up_panes(w->w, w->h, w->o.four_up_split, rect);
         memcpy(q, rect[RENDER_PANE_3D], sizeof q);
     }
     pose to_local[RENDER_MAX_FRAGS];
@@ -447,7 +475,7 @@ static int handle_input(navwin *w, const loop_scene *sc, const render_input *in,
     double right[3];
     cross(cam->forward, cam->up, right);
     const double *orbit = in->drag[0];
-    if (orbit[0] != 0 || orbit[1] != 0) {
+    if (!border_drag(w, in) && (orbit[0] != 0 || orbit[1] != 0)) {
         w->auto_view = 0;
         /* Dragging right turns the scene to the right (the camera to its left), about up; dragging
          * down tips it towards the viewer, about right. */
@@ -542,6 +570,21 @@ static void report_to_frame(navwin *w, const loop_scene *sc, int64_t shown)
     }
 }
 
+/* In the auto view, the camera frames sc's selected fragment again when the selection changed
+ * (render_camera_auto). 0 or FN_E*. */
+static int follow_selection(navwin *w, const loop_scene *sc)
+{
+    if (!w->auto_view || w->split_preview || sc->nfrag != w->c->nfrag || sc->selected == w->auto_for)
+        return 0;
+    int rc = render_camera_auto(w->r, &w->o.camera, w->c->frag, w->c->nfrag, sc->pose, sc->selected);
+    if (rc)
+        return rc;
+    w->auto_for = sc->selected;
+    camera_to_loop(w);
+    w->dirty = 1;
+    return 0;
+}
+
 int navwin_frame(navwin *w, const loop_scene *sc, const char *hud, int *keys, int cap, int *close)
 {
     render_input in;
@@ -552,14 +595,9 @@ int navwin_frame(navwin *w, const loop_scene *sc, const char *hud, int *keys, in
     int w0 = w->w, h0 = w->h;
     int n = handle_input(w, sc, &in, keys, cap);
     w->dirty |= w->w != w0 || w->h != h0; /* resized */
-    if (w->auto_view && !w->split_preview && sc->nfrag == w->c->nfrag && sc->selected != w->auto_for) {
-        rc = render_camera_auto(w->r, &w->o.camera, w->c->frag, w->c->nfrag, sc->pose, sc->selected);
-        if (rc)
-            return rc;
-        w->auto_for = sc->selected;
-        camera_to_loop(w);
-        w->dirty = 1;
-    }
+    rc = follow_selection(w, sc);
+    if (rc)
+        return rc;
     if (w->note[0] && fnclock_now_us() >= w->note_until_us) {
         w->note[0] = 0;
         w->dirty = 1;
@@ -649,7 +687,9 @@ int navwin_screenshot(navwin *w, const char *png)
     session_scene_read(w->k, &sc);
     char text[4400];
     hud_text(w, w->hud, text, sizeof text);
-    int rc = draw(w, &sc, text, &shown);
+    int rc = follow_selection(w, &sc); /* a selection changed since the last frame */
+    if (!rc)
+        rc = draw(w, &sc, text, &shown);
     return rc ? rc : cmd_write_png(w->r, png, w->w, w->h);
 }
 

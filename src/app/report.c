@@ -88,7 +88,7 @@ static int save_picture(render *r, const char *dir, const char *name, report_wro
 }
 
 /* before.png and after.png through the auto view of the moving fragment at its poses before (so
- * both show it from the same side), and slice.png: the axial slice of the CT through its planned
+ * both show it from the same side), the fragments in front of it cut away, and slice.png: the axial slice of the CT through its planned
  * centroid with every fragment's planned outline (the four-up layout's axial pane). */
 static int render_pictures(const planning_case *c, const pose *before, const char *dir, const char *platform,
                            report_wrote_fn wrote, void *ctx)
@@ -107,6 +107,7 @@ static int render_pictures(const planning_case *c, const pose *before, const cha
     int sel = moving(c);
     if (!rc)
         rc = render_camera_auto(r, &o.camera, c->frag, c->nfrag, before, sel);
+    o.cutaway = sel + 1; /* nothing hides the moving piece */
     for (int s = 0; s < 2 && !rc; s++) {
         rc = render_frame(r, s ? NULL : before, &o);
         if (!rc)
@@ -116,7 +117,7 @@ static int render_pictures(const planning_case *c, const pose *before, const cha
     /* The slice: a four-up frame whose axial pane is PIC x PIC, cut down to that pane. */
     const int bw = 3 * (PIC + 1), bh = 3 * PIC;
     int rect[4][4];
-    render_four_up_panes(bw, bh, rect);
+    render_four_up_panes(bw, bh, 0, rect);
     r = rc ? NULL : render_open(platform ? platform : "osmesa", bw, bh);
     if (!rc && !r)
         rc = FN_ENODEV;

@@ -111,15 +111,18 @@ static unsigned program_with_head(render *r, const char *vs, const char *head, c
 
 /* The raycaster for the scene's fragments in mode m (render__ray_fs after its header), compiled
  * once per scene and mode. 0 or FN_E*. */
-int render__ray_program(render *r, render_mode m, int gaps)
+int render__ray_program(render *r, render_mode m, int gaps, int cut, unsigned *prog)
 {
-    unsigned *p = gaps ? &r->prog_ray_gaps : &r->prog_ray[m];
-    if (*p)
-        return 0;
-    char head[128];
-    snprintf(head, sizeof head, "#version 450 core\n#define NF %d\n#define mode %d\n#define GAPS %d\n",
-             r->nfrag < 1 ? 1 : r->nfrag, gaps ? 0 : (int)m, gaps);
-    *p = program_with_head(r, render__ray_vs, head, render__ray_fs, gaps ? "contacts raycast" : "raycast");
+    cut = gaps || (cut && m == RENDER_ISO); /* the cut costs every iso sample: compiled in only when asked */
+    unsigned *p = gaps ? &r->prog_ray_gaps : cut ? &r->prog_ray_cut : &r->prog_ray[m];
+    if (!*p) {
+        char head[128];
+        snprintf(head, sizeof head,
+                 "#version 450 core\n#define NF %d\n#define mode %d\n#define GAPS %d\n#define CUT %d\n",
+                 r->nfrag < 1 ? 1 : r->nfrag, gaps ? 0 : (int)m, gaps, cut);
+        *p = program_with_head(r, render__ray_vs, head, render__ray_fs, gaps ? "contacts raycast" : "raycast");
+    }
+    *prog = *p;
     return *p ? 0 : FN_ENODEV;
 }
 
@@ -267,8 +270,8 @@ static void scene_release(render *r)
             r->gl.DeleteProgram(r->prog_ray[m]);
             r->prog_ray[m] = 0;
         }
-    unsigned *scene_progs[] = {&r->prog_gaps, &r->prog_ray_gaps};
-    for (int i = 0; i < 2; i++)
+    unsigned *scene_progs[] = {&r->prog_gaps, &r->prog_ray_gaps, &r->prog_ray_cut};
+    for (int i = 0; i < 3; i++)
         if (*scene_progs[i]) {
             r->gl.DeleteProgram(*scene_progs[i]);
             *scene_progs[i] = 0;

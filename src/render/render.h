@@ -80,17 +80,21 @@ typedef struct render_options {
     unsigned overlays;      /* RENDER_OVERLAY_* */
     int hierarchy_depth;    /* the depth of the boxes drawn (root = 1) */
     int nvoi;               /* RENDER_OVERLAY_VOI: boxes lo x y z, hi x y z (world mm) */
-    int cutaway;            /* 0: none; i + 1: in surface mode, the other fragments' surfaces in
+    int cutaway;            /* 0: none; i + 1: in surface and iso mode, the other fragments in
                              * front of fragment i (nearer the viewer than its crop's nearest
                              * corner, within a cylinder of 3/8 of its crop's diagonal around the
                              * line from its centroid to the viewer) are cut away, so the piece
-                             * in hand is always seen */
+                             * in hand is always seen (dvr and mip draw them all) */
     double voi[RENDER_MAX_FRAGS][6];
     int ghost;              /* 0: none; i + 1: on the 3D view, fragment i's surface drawn again at
                              * ghost_pose, translucent and light, over everything (navigate's live
                              * preview of the fit) */
     pose ghost_pose;
+    double four_up_split;   /* four-up: the 3D view's share of the height, RENDER_SPLIT_MIN..MAX
+                             * (0: two thirds) */
 } render_options;
+#define RENDER_SPLIT_MIN 0.25
+#define RENDER_SPLIT_MAX 0.9
 
 /* Opens a GL 4.5 core context of w x h pixels. platform: "osmesa" (offscreen, llvmpipe), "egl"
  * (offscreen on a GPU's EGL device, no display needed; FN_ENODEV where there is none),
@@ -151,6 +155,8 @@ int render_hud(render *r, const char *text, int scale);
 /* The HUD's scale for r: one font pixel per 384 rows of the picture, times the window's content
  * scale (its DPI over 96; 1 offscreen), 1..4. */
 int render_hud_scale(const render *r);
+/* The same for a picture of `height` rows on a display of dpi_scale (its DPI over 96). */
+int render_hud_scale_for(int height, double dpi_scale);
 /* The characters of a HUD line that fit across r at render_hud_scale. */
 int render_hud_columns(const render *r);
 
@@ -177,6 +183,8 @@ typedef struct render_input {
     double scroll;     /* wheel steps, positive away from the user */
     double x, y;       /* the pointer, pixels from the top left */
     int nclicks;       /* the left button was pressed and released without a drag, at click[i] */
+    int left_down;     /* the left button is held now */
+    double press[2];   /* with a left drag: where the left button went down */
     double click[RENDER_INPUT_CLICKS][2];
     int close;         /* the window was asked to close */
 } render_input;
@@ -203,10 +211,11 @@ int render_fragment_pixels(render *r, const pose *poses, const render_options *o
 void render_options_default(render_options *o, const frag *frags, int nfrag);
 
 /* The four-up layout of a w x h picture, as 3D Slicer's "3D and three slices": the 3D view over
- * the top two thirds, the axial, coronal and sagittal slices side by side below it. rect[pane] =
+ * the top `split` of the height (render_options.four_up_split, clamped to RENDER_SPLIT_MIN..MAX;
+ * 0: two thirds), the axial, coronal and sagittal slices side by side below it. rect[pane] =
  * {x, y, width, height}, pixels from the top left. */
 enum { RENDER_PANE_AXIAL, RENDER_PANE_CORONAL, RENDER_PANE_SAGITTAL, RENDER_PANE_3D };
-void render_four_up_panes(int w, int h, int rect[4][4]);
+void render_four_up_panes(int w, int h, double split, int rect[4][4]);
 /* The world point (mm) that pixel (x, y) (from the top left) of r's four-up frame of o shows in
  * its slice pane, into world; returns the pane (RENDER_PANE_AXIAL..SAGITTAL), or -1 when (x, y)
  * is in the 3D view or between the panes. */

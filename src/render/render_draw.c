@@ -300,6 +300,48 @@ static void gap_uniforms(render *r, unsigned p, const pose *poses, int skip, int
 }
 
 
+/* The cut-away kept for fragment `keep` at poses (render__mesh_fs's cut and cut_front): its
+ * centroid, the radius (3/8 of its crop's diagonal), and how far in front of the centroid (along
+ * forward, negative) its crop's nearest corner lies: only what lies in front of that is cut. */
+static void cutaway(const render *r, int keep, const pose *poses, const double forward[3], float cut[4],
+                    float *front)
+{
+    const render_frag *f = &r->frag[keep];
+    const pose *at = poses ? &poses[keep] : &f->pose;
+    pose m = frag_world(r, keep, poses);
+    double c[3], d2 = 0, near = 0;
+    pose_apply(at, f->centroid, c);
+    for (int b = 0; b < 8; b++) {
+        double x[3], w[3];
+        for (int a = 0; a < 3; a++)
+            x[a] = ((b >> a & 1) ? f->dim[a] - 0.5 : -0.5) * f->spacing[a];
+        pose_apply(&m, x, w);
+        double along = (w[0] - c[0]) * forward[0] + (w[1] - c[1]) * forward[1] + (w[2] - c[2]) * forward[2];
+        near = along < near ? along : near;
+    }
+    for (int a = 0; a < 3; a++) {
+        cut[a] = (float)c[a];
+        d2 += 0.25 * (f->dim[a] * f->spacing[a]) * (f->dim[a] * f->spacing[a]);
+    }
+    cut[3] = (float)(0.75 * sqrt(d2));
+    *front = (float)near;
+}
+
+/* The cut-away's uniforms (cut, cut_front) of program p (bound) for the fragment drawn, `drawn`
+ * (-1: the raycaster, which draws them all and keeps cut_keep's): none when o keeps no fragment
+ * or keeps the one drawn. */
+static void cutaway_uniforms(render *r, unsigned p, const pose *poses, const render_options *o, int drawn)
+{
+    float cut[4] = {0, 0, 0, 0}, front = 0;
+    int keep = o->cutaway - 1;
+    if (keep >= 0 && keep < r->nfrag && keep != drawn)
+        cutaway(r, keep, poses, o->camera.forward, cut, &front);
+    r->gl.Uniform4fv(loc(r, p, "cut"), 1, cut);
+    r->gl.Uniform1f(loc(r, p, "cut_front"), front);
+    if (drawn < 0)
+        r->gl.Uniform1i(loc(r, p, "cut_keep"), cut[3] > 0 ? keep : -1);
+}
+
 /* Each fragment's span of occupied bricks into span_tex (within the viewport and scissor already
  * set), then one ray per pixel through the spans. */
 static int draw_raycast(render *r, const pose *poses, const render_options *o, const int vp[4],
@@ -309,10 +351,11 @@ static int draw_raycast(render *r, const pose *poses, const render_options *o, c
     float m[16], vpf[16], model[16], w2t[16], nmat[9];
     if (r->nfrag == 0)
         return 0;
-    int gaps = gap_colour(r, o), rc = render__ray_program(r, o->mode, gaps);
+    unsigned p;
+    int cut = o->cutaway >= 1 && o->cutaway <= r->nfrag;
+    int gaps = gap_colour(r, o), rc = render__ray_program(r, o->mode, gaps, cut, &p);
     if (rc)
         return rc;
-    unsigned p = gaps ? r->prog_ray_gaps : r->prog_ray[o->mode];
     mat4_to_gl(vpm, vpf);
     r->gl.UseProgram(pd);
     r->gl.UniformMatrix4fv(loc(r, pd, "vp"), 1, GL_FALSE, vpf);
@@ -377,6 +420,7 @@ static int draw_raycast(render *r, const pose *poses, const render_options *o, c
     r->gl.Uniform1f(loc(r, p, "entry_skip"), (float)(2.5 * r->min_spacing));
     r->gl.Uniform1i(loc(r, p, "near_depth"), UNIT_NEAR);
     r->gl.Uniform1i(loc(r, p, "far_depth"), UNIT_FAR);
+    cutaway_uniforms(r, p, poses, o, -1);
     if (gaps)
         gap_uniforms(r, p, poses, -1, UNIT_DIST);
     r->gl.DepthFunc(GL_GREATER);
@@ -390,32 +434,6 @@ static int draw_raycast(render *r, const pose *poses, const render_options *o, c
     return 0;
 }
 
-/* The cut-away kept for fragment `keep` at poses (render__mesh_fs's cut and cut_front): its
- * centroid, the radius (3/8 of its crop's diagonal), and how far in front of the centroid (along
- * forward, negative) its crop's nearest corner lies: only what lies in front of that is cut. */
-static void cutaway(const render *r, int keep, const pose *poses, const double forward[3], float cut[4],
-                    float *front)
-{
-    const render_frag *f = &r->frag[keep];
-    const pose *at = poses ? &poses[keep] : &f->pose;
-    pose m = frag_world(r, keep, poses);
-    double c[3], d2 = 0, near = 0;
-    pose_apply(at, f->centroid, c);
-    for (int b = 0; b < 8; b++) {
-        double x[3], w[3];
-        for (int a = 0; a < 3; a++)
-            x[a] = ((b >> a & 1) ? f->dim[a] - 0.5 : -0.5) * f->spacing[a];
-        pose_apply(&m, x, w);
-        double along = (w[0] - c[0]) * forward[0] + (w[1] - c[1]) * forward[1] + (w[2] - c[2]) * forward[2];
-        near = along < near ? along : near;
-    }
-    for (int a = 0; a < 3; a++) {
-        cut[a] = (float)c[a];
-        d2 += 0.25 * (f->dim[a] * f->spacing[a]) * (f->dim[a] * f->spacing[a]);
-    }
-    cut[3] = (float)(0.75 * sqrt(d2));
-    *front = (float)near;
-}
 
 /* The meshes of the fragments i with (only < 0 or i == only) and i != skip, shaded, or with ids
  * in their flat id colours (render__id_fs). A pass over them all (only < 0) starts on a clear depth
@@ -444,12 +462,8 @@ static void draw_meshes(render *r, const pose *poses, const render_options *o, c
             continue;
         frag_mats(r, i, poses, m, w2t, nmat);
         r->gl.UniformMatrix4fv(loc(r, p, "model"), 1, GL_FALSE, m);
-        float id[3] = {(float)(i + 1) / 255.0f, 0, 0}, cut[4] = {0, 0, 0, 0}, front = 0;
-        int keep = o->cutaway - 1;
-        if (keep >= 0 && keep < r->nfrag && keep != i)
-            cutaway(r, keep, poses, o->camera.forward, cut, &front);
-        r->gl.Uniform4fv(loc(r, p, "cut"), 1, cut);
-        r->gl.Uniform1f(loc(r, p, "cut_front"), front);
+        float id[3] = {(float)(i + 1) / 255.0f, 0, 0};
+        cutaway_uniforms(r, p, poses, o, i);
         r->gl.Uniform3fv(loc(r, p, "colour"), 1, ids ? id : r->frag[i].rgb);
         if (gaps)
             gap_uniforms(r, p, poses, i, 0);
@@ -860,21 +874,22 @@ static int frame_end(render *r, int rc)
     return rc;
 }
 
-void render_four_up_panes(int w, int h, int rect[4][4])
+void render_four_up_panes(int w, int h, double split, int rect[4][4])
 {
-    /* The 3D view over two thirds of the height; the slices side by side below it, one pixel of
-     * background between the panes. */
-    int hs = h / 3, w3 = w / 3;
+    /* The 3D view over `split` of the height (0: two thirds); the slices side by side below it,
+     * one pixel of background between the panes. */
+    split = split <= 0 ? 0 : split < RENDER_SPLIT_MIN ? RENDER_SPLIT_MIN : split > RENDER_SPLIT_MAX ? RENDER_SPLIT_MAX : split;
+    int hs = split > 0 ? (int)lround(h * (1 - split)) : h / 3, w3 = w / 3;
     const int panes[4][4] = {{0, h - hs, w3 - 1, hs}, {w3, h - hs, w3 - 1, hs}, {2 * w3, h - hs, w - 2 * w3, hs},
                              {0, 0, w, h - hs - 1}};
     memcpy(rect, panes, sizeof panes);
 }
 
 /* Pane v of the four-up layout as a GL viewport (origin at the bottom left). */
-static void pane_viewport(const render *r, int v, int vp[4])
+static void pane_viewport(const render *r, const render_options *o, int v, int vp[4])
 {
     int rect[4][4];
-    render_four_up_panes(r->w, r->h, rect);
+    render_four_up_panes(r->w, r->h, o->four_up_split, rect);
     vp[0] = rect[v][0];
     vp[1] = r->h - rect[v][1] - rect[v][3];
     vp[2] = rect[v][2];
@@ -889,7 +904,7 @@ void render_slice_normal(int pane, double n[3])
 int render_slice_point_at(const render *r, const render_options *o, double x, double y, double world[3])
 {
     int rect[4][4];
-    render_four_up_panes(r->w, r->h, rect);
+    render_four_up_panes(r->w, r->h, o->four_up_split, rect);
     for (int s = 0; s < 3; s++) {
         const int *q = rect[s];
         if (x < q[0] || x >= q[0] + q[2] || y < q[1] || y >= q[1] + q[3])
@@ -917,11 +932,11 @@ int render_frame(render *r, const pose *poses, const render_options *o)
     } else {
         int vp[4];
         for (int s = 0; s < 3; s++) {
-            pane_viewport(r, s, vp);
+            pane_viewport(r, o, s, vp);
             set_viewport(r, vp);
             draw_slice(r, poses, o, s, vp);
         }
-        pane_viewport(r, RENDER_PANE_3D, vp);
+        pane_viewport(r, o, RENDER_PANE_3D, vp);
         set_viewport(r, vp);
         rc = draw_3d(r, poses, o, vp);
     }

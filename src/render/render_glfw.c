@@ -71,6 +71,8 @@ static void on_cursor(GLFWwindow *w, double x, double y)
             if (glfwGetMouseButton(w, buttons[b]) == GLFW_PRESS) {
                 st->in.drag[b][0] += x - st->x;
                 st->in.drag[b][1] += y - st->y;
+                if (b == 0)
+                    memcpy(st->in.press, st->press, sizeof st->press);
             }
     st->x = x;
     st->y = y;
@@ -161,6 +163,7 @@ static int glfw_poll(render *r, render_input *in)
     *in = st->in;
     in->close = glfwWindowShouldClose(st->win);
     in->x = st->x, in->y = st->y;
+    in->left_down = glfwGetMouseButton(st->win, GLFW_MOUSE_BUTTON_LEFT) == GLFW_PRESS;
     memset(&st->in, 0, sizeof st->in);
     /* A resized window: the frame follows its framebuffer. */
     int w, h;

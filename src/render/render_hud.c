@@ -238,11 +238,16 @@ int render__gap_legend(render *r, const int vp[4])
     return 0;
 }
 
+int render_hud_scale_for(int height, double dpi_scale)
+{
+    int s = (int)lround(height / 384.0 * dpi_scale);
+    return s < 1 ? 1 : s > 4 ? 4 : s;
+}
+
 int render_hud_scale(const render *r)
 {
     float dpi = r->plat->content_scale ? r->plat->content_scale(r) : 1.0f;
-    int s = (int)lround(r->h / 384.0 * dpi);
-    return s < 1 ? 1 : s > 4 ? 4 : s;
+    return render_hud_scale_for(r->h, dpi);
 }
 
 int render_hud_columns(const render *r)

@@ -105,7 +105,8 @@ struct render {
     char renderer[256], version[256];
     unsigned prog_ray[3]; /* per raycast mode, compiled for the scene on first use (0: not yet) */
     unsigned prog_gaps;   /* the surface with the contacts colour, the same way */
-    unsigned prog_ray_gaps; /* iso with the contacts colour, the same way */
+    unsigned prog_ray_gaps; /* iso with the contacts colour and the cut-away, the same way */
+    unsigned prog_ray_cut;  /* iso with the cut-away (render_options.cutaway), the same way */
     unsigned prog_slice, prog_mesh, prog_line, prog_depth, prog_hud, prog_id;
     unsigned hud_tex;
     unsigned vao_empty, line_vao, line_vbo;
@@ -140,9 +141,10 @@ extern const float render__gap_ramp[2][3];
  * its label, the bar and its mm, at render_hud_scale. Leaves the scissor test off. 0 or FN_E*. */
 int render__gap_legend(render *r, const int vp[4]);
 
-/* Compiles r->prog_ray[m] (gaps: r->prog_ray_gaps, iso with the contacts colour) for the scene
- * when it is not yet (render.c). 0 or FN_E*. */
-int render__ray_program(render *r, render_mode m, int gaps);
+/* The raycaster for mode m, gaps (iso with the contacts colour) and cut (iso with the cut-away),
+ * compiled for the scene when it is not yet (r->prog_ray[m], prog_ray_gaps, which cuts too, or
+ * prog_ray_cut), into *prog (render.c). 0 or FN_E*. */
+int render__ray_program(render *r, render_mode m, int gaps, int cut, unsigned *prog);
 /* Compiles r->prog_gaps for the scene (of 2 fragments or more) when it is not yet (render.c). 0
  * or FN_E*. */
 int render__gaps_program(render *r);

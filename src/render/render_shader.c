@@ -58,10 +58,23 @@ const char *const render__depth_fs =
     "    return g < h ? mix(ramp[0], ramp[1], g / h) : g < gap_scale ? mix(ramp[1], bone, (g - h) / h) : bone;\n" \
     "}\n"
 
+/* The cut-away (render_options.cutaway): another fragment's surface inside the cylinder of radius
+ * cut.w from the kept fragment's centroid cut.xyz towards the viewer, and in front of the kept
+ * fragment's nearest corner (cut_front along forward, from the centroid), is not drawn. */
+#define CUTAWAY_GLSL \
+    "uniform vec4 cut;\n" \
+    "uniform float cut_front;\n" \
+    "bool cut_away(vec3 p, vec3 forward) {\n" \
+    "    vec3 d = p - cut.xyz;\n" \
+    "    float along = dot(d, forward);\n" \
+    "    return cut.w > 0.0 && along < cut_front && length(d - along * forward) < cut.w;\n" \
+    "}\n"
+
 /* The raycaster. Every fragment's ray is o[i] + d[i] * t in its texture coordinates, with t the
  * same world distance for all, so one march visits every fragment at once. It is compiled per
  * scene and mode after "#version 450 core", "#define NF <fragments>", "#define mode <0 iso,
- * 1 dvr, 2 mip>" and "#define GAPS <0, or 1: iso with the contacts colour at the hit (GAP_GLSL)>"
+ * 1 dvr, 2 mip>", "#define GAPS <0, or 1: iso with the contacts colour at the hit (GAP_GLSL)>" and
+ * "#define CUT <0, or 1: iso skips the samples of the fragments but cut_keep inside the cut-away>"
  * (llvmpipe runs both sides of a branch its lanes disagree on, so code for the
  * other modes would cost every step): with a constant count the loops
  * unroll and the per-ray arrays stay in registers (llvmpipe lowers a dynamically indexed local
@@ -87,8 +100,11 @@ const char *const render__ray_fs =
     "uniform float iso, step_fine, step_coarse, entry_skip;\n"
     "uniform vec3 bg;\n"
     "uniform sampler2DArray near_depth, far_depth;\n"
+    "uniform int cut_keep;\n" /* the cut-away's kept fragment (cut, CUTAWAY_GLSL), -1: none */
     "out vec4 frag_colour;\n"
     "vec3 o[MAXF]; vec3 d[MAXF]; float tn[MAXF]; float tx[MAXF];\n"
+    "vec3 ray_o, ray_d;\n" /* the ray in world mm: ray_o + ray_d * t */
+    CUTAWAY_GLSL
     "#if GAPS\n"
     GAP_GLSL
     "#endif\n"
@@ -105,9 +121,14 @@ const char *const render__ray_fs =
     "}\n"
     "float sample_max(float t, out int best) {\n"
     "    float m = -4000.0; best = -1;\n"
+    "#if CUT\n"
+    "    bool cut_here = cut_away(ray_o + ray_d * t, ray_d);\n" /* the others are cut away here */
+    "#else\n"
+    "    const bool cut_here = false;\n"
+    "#endif\n"
     "    for (int i = 0; i < nfrag; ++i) {\n"
     "        vec3 p = o[i] + d[i] * t;\n"
-    "        if (t >= tn[i] && t <= tx[i]) {\n"
+    "        if (t >= tn[i] && t <= tx[i] && (i == cut_keep || !cut_here)) {\n"
     "            float v = texture(vol[i], p).r;\n"
     "            if (v > m) { m = v; best = i; }\n"
     "        }\n"
@@ -140,6 +161,7 @@ const char *const render__ray_fs =
     "    vec4 a = inv_vp * vec4(ndc, -1.0, 1.0), b = inv_vp * vec4(ndc, 1.0, 1.0);\n"
     "    vec3 ro = a.xyz / a.w, re = b.xyz / b.w;\n"
     "    float len = length(re - ro); vec3 rd = (re - ro) / len;\n"
+    "    ray_o = ro; ray_d = rd;\n"
     "    float t0 = 1e30, t1 = -1e30;\n"
     "    for (int i = 0; i < nfrag; ++i) {\n"
     "        o[i] = (w2t[i] * vec4(ro, 1.0)).xyz; d[i] = mat3(w2t[i]) * rd;\n"
@@ -269,17 +291,6 @@ const char *const render__mesh_vs =
     "    gl_Position = vp * model * vec4(pos, 1.0);\n"
     "}\n";
 
-/* The cut-away (render_options.cutaway): another fragment's surface inside the cylinder of radius
- * cut.w from the kept fragment's centroid cut.xyz towards the viewer, and in front of the kept
- * fragment's nearest corner (cut_front along forward, from the centroid), is not drawn. */
-#define CUTAWAY_GLSL \
-    "uniform vec4 cut;\n" \
-    "uniform float cut_front;\n" \
-    "bool cut_away(vec3 p, vec3 forward) {\n" \
-    "    vec3 d = p - cut.xyz;\n" \
-    "    float along = dot(d, forward);\n" \
-    "    return cut.w > 0.0 && along < cut_front && length(d - along * forward) < cut.w;\n" \
-    "}\n"
 
 /* After "#version 450 core" and "#define NF <n>": with NF 0 the shaded surface; with NF > 0
  * (compiled per scene, render__gaps_program, so the loop unrolls and its samplers are fixed) the
