@@ -408,6 +408,10 @@ static void test_loop_commands(void **st)
     json_t *b = fracnav("bench loop", "bench loop --case '%s' --repeat 1 --json", case_dir);
     check(b, "bench loop");
     assert_true(json_is_null(json_object_get(b, "preview_updates_count")));
+    /* issue 23's figures for every workload, fitted or not: p99 <= 200 us, max <= 1,000 us */
+    json_t *t = json_object_get(b, "targets");
+    assert_true(json_real_value(json_object_get(t, "latency_p99_us")) == 200);
+    assert_true(json_real_value(json_object_get(t, "latency_max_us")) == 1000);
     /* with the live preview beside, at the hand's pace: its counts too */
     json_t *p = fracnav("bench loop", "bench loop --case '%s' --repeat 1 --realtime --preview --json", case_dir);
     check(p, "bench loop");
