@@ -506,9 +506,13 @@ static void accept_pose(loop *L, int s, pose p, int64_t t_us, uint32_t kind, int
      * that it stood inside (a plan loaded so marks both of a pair: loop_tolerate) */
     if (checked != LOOP_TOLERATED)
         for (int j = 0, was = L->tolerated[s]; j < L->n; j++)
-            if (was || L->hold_mm[s] > 0 || L->hold_mm[j] > 0)
+            if (L->tolerated[j] && (was || L->hold_mm[s] > 0 || L->hold_mm[j] > 0)) {
                 L->tolerated[j] = 0;
+                L->fit_ended_by[j] = (uint8_t)(s + 1);
+            }
     L->tolerated[s] = checked == LOOP_TOLERATED;
+    if (L->tolerated[s])
+        L->fit_ended_by[s] = 0;
     if (checked == LOOP_UNCHECKED || checked == LOOP_ESCAPING)
         L->hold_mm[s] = 0; /* not checked at the hold: it no longer bounds how deep it is */
     if (checked != LOOP_CHECKED)
@@ -766,6 +770,8 @@ static int restore(loop *L, const loop_undo *u, uint32_t kind)
     }
     accept_pose(L, u->frag, u->p, L->last_t, kind, how == LOOP_UNCHECKED ? how : LOOP_CHECKED);
     L->tolerated[u->frag] = (uint8_t)(u->tolerated && how == LOOP_TOLERATED);
+    if (L->tolerated[u->frag])
+        L->fit_ended_by[u->frag] = 0;
     L->gap_valid = 0;
     L->in_collision = 0;
     gesture_end(L);
@@ -933,6 +939,7 @@ void loop_set_pose(loop *L, int i, pose p)
         L->pose[i] = p;
         L->gap_valid = L->in_collision = 0;
         L->tolerated[i] = 0;
+        L->fit_ended_by[i] = 0;
         L->hold_mm[i] = 0;
     }
 }
@@ -941,6 +948,7 @@ void loop_tolerate(loop *L, int i, double tolerance_mm)
 {
     if (i >= 0 && i < L->n && tolerance_mm > 0) {
         L->tolerated[i] = 1;
+        L->fit_ended_by[i] = 0;
         L->hold_mm[i] = tolerance_mm;
     }
 }

@@ -208,6 +208,10 @@ typedef struct loop_scene {
     uint8_t fixed[LOOP_MAX_FRAGS];
     uint8_t tolerated_frag[LOOP_MAX_FRAGS]; /* per fragment: marked as `tolerated` says (whether
                                              * inside or not) */
+    uint8_t held_frag[LOOP_MAX_FRAGS]; /* per fragment: holds a fit's tolerance (may stand inside
+                                        * another by up to it), moved since the fit or not */
+    uint8_t fit_ended_by[LOOP_MAX_FRAGS]; /* per fragment: 1 + the fragment whose move ended its
+                                           * `tolerated` mark (itself or another), 0: none since */
 } loop_scene;
 
 typedef struct loop loop;
