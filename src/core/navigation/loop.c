@@ -267,19 +267,23 @@ static double motion_bound(const loop *L, int s, const double c[3], const double
 }
 
 /* Is the fraction f of the motion free? Uses the last separation as a shortcut when it proves the
- * move free; otherwise queries. Returns 1 free (with *cand and *sep), 0 colliding, or negative. */
+ * move free; otherwise queries. Returns 1 free (with *cand and *sep), 0 colliding, or negative.
+ * Every candidate counts against the step's budget (max_tries), proved free by the shortcut or
+ * queried: the gap a cached query reports depends on the queries before it (obb.h), so were the
+ * shortcut free of charge, where the budget runs out, and the pose the step ends at, would too;
+ * this way the step's poses follow from the yes or no answers alone. */
 static int try_move(loop *L, int s, const pose *start, double gap, const double c[3],
                     const double d[3], const double r[3], double f, pose *cand, double *sep)
 {
     *cand = moved(start, c, d, r, f);
+    if (L->tries >= L->cfg.max_tries)
+        return 0; /* out of budget: treat as blocked, the step ends with what it has */
+    L->tries++;
     double b = motion_bound(L, s, c, d, r, f);
     if (gap - b > SAFETY_MM) {
         *sep = gap - b;
         return 1;
     }
-    if (L->tries >= L->cfg.max_tries)
-        return 0; /* out of budget: treat as blocked, the step ends with what it has */
-    L->tries++;
     int rc = collide_all(L, s, cand, 0, sep);
     return rc < 0 ? rc : !rc;
 }

@@ -148,7 +148,9 @@ typedef struct loop_config {
     int64_t dt_first_us;    /* what the first report after start or a replug integrates */
     int bisect_iters;       /* bisection depth of a limited step (fraction resolution 2^-n) */
     int slide_iters;        /* bisection depth of each slide component */
-    int max_tries;          /* candidate poses queried per step at most (bounds the step's time) */
+    int max_tries;          /* candidate poses tried per step at most, each proved free by the
+                             * separation shortcut or queried (bounds the step's time; counting
+                             * both keeps the step's poses independent of the queries before) */
     int check_invariant;    /* re-query accepted poses from scratch; on by default in debug builds */
     uint8_t button_action[32]; /* device button i pressed -> loop_action (0 = none) */
 } loop_config;
