@@ -288,6 +288,7 @@ static void test_empty_result_refused(void **st)
     assert_int_equal(c->nfrag, 0);
     assert_int_equal(case_save(c), 0);
     case_free(c);
+    tu_expect_cli(1, "holds no fragment (its labelmap labels no voxel): nothing to fix", "edit '%s' fix 0", f->cdir);
     snprintf(out_dir, sizeof out_dir, "%s/exported", f->tmp);
     tu_expect_cli(1, "holds no fragment (its labelmap labels no voxel): nothing to export",
                   "export '%s' --all '%s'", f->cdir, out_dir);

@@ -302,9 +302,12 @@ static int left_empty(const planning_case *c, const char *op, int nfrag_before, 
 {
     if (c->nfrag > 0)
         return 0;
-    fn_err_set(FN_EINVAL, "%s would leave no fragment: the case's %d fragment%s (%lld voxels) all went; "
-               "refused, %s is left as it was", op, nfrag_before, nfrag_before == 1 ? "" : "s",
-               (long long)voxels_before, c->dir);
+    if (nfrag_before == 0)
+        fn_err_set(FN_EINVAL, "%s holds no fragment (its labelmap labels no voxel): nothing to %s", c->dir, op);
+    else
+        fn_err_set(FN_EINVAL, "%s would leave no fragment: the case's %d fragment%s (%lld voxels) all "
+                   "went; refused, %s is left as it was", op, nfrag_before, nfrag_before == 1 ? "" : "s",
+                   (long long)voxels_before, c->dir);
     return 1;
 }
 

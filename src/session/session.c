@@ -318,8 +318,10 @@ static void rebind(session *s)
 static void penetration_why(const planning_case *c, const loop_scene *sc, int a, int b, char *why, size_t cap)
 {
     if (sc->held_frag[a] || sc->held_frag[b]) {
-        int by = sc->fit_ended_by[b] ? sc->fit_ended_by[b] - 1 : sc->fit_ended_by[a] ? sc->fit_ended_by[a] - 1
-                                                                : sc->held_frag[b] ? b : a;
+        /* the fragment whose move ended the pair's "fitted" mark (else the one holding) */
+        int by = (sc->fit_ended_by[b] ? sc->fit_ended_by[b] : sc->fit_ended_by[a]) - 1;
+        if (by < 0)
+            by = sc->held_frag[b] ? b : a;
         snprintf(why, cap, "fragment %d moved after a fit left them so: inside within the fit's "
                  "tolerance, but no longer where the fit left them", c->frag[by].id);
     } else
