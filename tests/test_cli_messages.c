@@ -102,6 +102,9 @@ static void test_fracture(void **st)
     /* The threshold given, and the CT's range, not 0. */
     tu_expect_cli(1, "no bone at or above 1500: the CT's values run from -1000 to 1200",
                   "fracture '%s' -o '%s/f' --seed 1 --threshold 1500", f->ct, o);
+    /* One prefix: the command's, not "fracnav fracture: fracture: ...". */
+    tu_expect_cli(1, "fracnav fracture: no bone at or above 1500",
+                  "fracture '%s' -o '%s/f' --seed 1 --threshold 1500", f->ct, o);
     /* demo takes --threshold too, for steps 1 and 2. */
     tu_expect_cli(1,
                   "fracnav demo: segmentation: no bone: the volume's values run from -1000 to 1200, none at or "

@@ -103,15 +103,15 @@ static void test_demo_runs_the_workflow(void **st)
 
 static void test_demo_names_a_missing_ct(void **st)
 {
-    char *out = NULL;
-    assert_int_equal(tu_run_cli(&out, "demo /nonexistent/ct.nii -o /tmp"), 1);
+    char *out = NULL, *o = tu_tmpdir("demo-missing-ct"); /* empty: -o /tmp, with others' files, is refused */
+    assert_int_equal(tu_run_cli(&out, "demo /nonexistent/ct.nii -o '%s'", o), 1);
     assert_non_null(strstr(out, "/nonexistent/ct.nii"));
     assert_null(strstr(out, ".ci/setup")); /* the user's own CT: .ci/setup cannot bring it */
     free(out);
     const char *data = getenv("FRACNAV_DATA");
     char *keep = data ? strdup(data) : NULL;
     setenv("FRACNAV_DATA", "/nonexistent-data", 1); /* the example CT, not fetched yet */
-    assert_int_equal(tu_run_cli(&out, "demo -o /tmp"), 1);
+    assert_int_equal(tu_run_cli(&out, "demo -o '%s'", o), 1);
     if (keep)
         setenv("FRACNAV_DATA", keep, 1);
     else
@@ -125,6 +125,8 @@ static void test_demo_names_a_missing_ct(void **st)
     assert_int_equal(tu_run_cli(&out, "demo --view bogus"), 2);
     assert_non_null(strstr(out, "--view: 'bogus' is not window or terminal"));
     free(out);
+    tu_rmtree(o);
+    free(o);
 }
 
 int main(void)

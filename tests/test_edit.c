@@ -259,6 +259,42 @@ static void test_failed_save_keeps_case(void **st)
     free(l1);
 }
 
+/* An empty result is an error: an edit that would leave no fragment exits 1, says what it found,
+ * and saves nothing (the case stays as it was); an export of a case with no fragment (one the API
+ * emptied) exits 1 and writes nothing. Before, both exited 0: an empty case, blank pictures. */
+static void test_empty_result_refused(void **st)
+{
+    struct fixture *f = *st;
+    char json[4300], labels[4300], out_dir[4300];
+    snprintf(json, sizeof json, "%s/case.json", f->cdir);
+    snprintf(labels, sizeof labels, "%s/labels.nii.gz", f->cdir);
+    size_t jn, ln;
+    char *j0 = tu_slurp(json, &jn), *l0 = tu_slurp(labels, &ln);
+    tu_expect_cli(1, "fracnav edit: erase-box would leave no fragment: the case's 3 fragments (1480 voxels) all went",
+                  "edit '%s' erase-box 0 0 0 1000 1000 1000", f->cdir);
+    tu_expect_cli(1, "fracnav edit: drop would leave no fragment", "edit '%s' drop 1 2 3", f->cdir);
+    size_t jn1, ln1;
+    char *j1 = tu_slurp(json, &jn1), *l1 = tu_slurp(labels, &ln1);
+    assert_true(jn1 == jn && !memcmp(j0, j1, jn));
+    assert_true(ln1 == ln && !memcmp(l0, l1, ln));
+    free(j0);
+    free(l0);
+    free(j1);
+    free(l1);
+
+    planning_case *c = tu_case_load(f->cdir);
+    int ids[3] = {1, 2, 3};
+    assert_int_equal(case_drop(c, ids, 3), 0);
+    assert_int_equal(c->nfrag, 0);
+    assert_int_equal(case_save(c), 0);
+    case_free(c);
+    tu_expect_cli(1, "holds no fragment (its labelmap labels no voxel): nothing to fix", "edit '%s' fix 0", f->cdir);
+    snprintf(out_dir, sizeof out_dir, "%s/exported", f->tmp);
+    tu_expect_cli(1, "holds no fragment (its labelmap labels no voxel): nothing to export",
+                  "export '%s' --all '%s'", f->cdir, out_dir);
+    assert_int_not_equal(access(out_dir, F_OK), 0);
+}
+
 /* The same edits through the API, as other modules use them. */
 static void test_api(void **st)
 {
@@ -289,6 +325,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_separate_seeds, setup, tu_fixture_teardown),
         cmocka_unit_test_setup_teardown(test_failed_save_keeps_case, setup, tu_fixture_teardown),
         cmocka_unit_test_setup_teardown(test_api, setup, tu_fixture_teardown),
+        cmocka_unit_test_setup_teardown(test_empty_result_refused, setup, tu_fixture_teardown),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

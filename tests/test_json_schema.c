@@ -408,6 +408,10 @@ static void test_loop_commands(void **st)
     json_t *b = fracnav("bench loop", "bench loop --case '%s' --repeat 1 --json", case_dir);
     check(b, "bench loop");
     assert_true(json_is_null(json_object_get(b, "preview_updates_count")));
+    /* issue 23's figures for every workload, fitted or not: p99 <= 200 us, max <= 1,000 us */
+    json_t *t = json_object_get(b, "targets");
+    assert_true(json_real_value(json_object_get(t, "latency_p99_us")) == 200);
+    assert_true(json_real_value(json_object_get(t, "latency_max_us")) == 1000);
     /* with the live preview beside, at the hand's pace: its counts too */
     json_t *p = fracnav("bench loop", "bench loop --case '%s' --repeat 1 --realtime --preview --json", case_dir);
     check(p, "bench loop");
@@ -428,6 +432,15 @@ static void test_bench_and_devices(void **st)
     assert_int_equal(json_integer_value(json_object_get(w, "false_negatives")), 0);
     assert_true(json_is_null(json_object_get(w, "fcl_octree_query_mean_us"))); /* --no-fcl */
     check(j, "bench collision");
+    /* two seeds of the tube, two pieces: the rate per number of pieces beside its target */
+    j = fracnav("bench fracture", "bench fracture --ct '%s' --seeds 2 --pieces 2 --json", tube);
+    json_t *c = json_array_get(json_object_get(j, "counts"), 0);
+    assert_int_equal(json_integer_value(json_object_get(c, "pieces")), 2);
+    assert_int_equal(json_integer_value(json_object_get(c, "runs")), 2);
+    assert_true(json_is_real(json_object_get(c, "made_pct")));
+    assert_true(json_is_array(json_object_get(c, "failed")));
+    assert_true(json_real_value(json_object_get(json_object_get(c, "targets"), "made_pct")) == 100);
+    check(j, "bench fracture");
     j = fracnav("bench build", "bench build --reps 1 --max 64 --json");
     assert_int_equal(json_array_size(json_object_get(j, "sizes")), 1);
     check(j, "bench build");

@@ -217,6 +217,65 @@ static void test_sim_outputs(void **st)
     cases_load(f);
 }
 
+/* A folder holding the named entries (a name ending in / is a folder), made fresh under tmp. */
+static void folder_with(const char *tmp, const char *name, const char *const *entries, int n, char *out, size_t cap)
+{
+    snprintf(out, cap, "%s/%s", tmp, name);
+    assert_int_equal(mkdir(out, 0755), 0);
+    for (int i = 0; i < n; i++) {
+        char p[4400];
+        snprintf(p, sizeof p, "%s/%s", out, entries[i]);
+        size_t len = strlen(p);
+        if (p[len - 1] == '/')
+            assert_int_equal(mkdir(p, 0755), 0);
+        else
+            tu_write_file(p, "x", 1);
+    }
+}
+
+/* replay --frames and demo -o, like every other command: a folder holding other files is refused
+ * without --force (before, both wrote into it); a folder holding only their own earlier output is
+ * taken (a replay's frames, a demo's results: the README's demo command runs again), and --force
+ * takes any. Each accepted run here stops at a later step (no recording; no bone), past the check. */
+static void test_replay_frames_and_demo_folders(void **st)
+{
+    struct fixture *f = *st;
+    char frames[4300], demo[4300];
+    tu_expect_cli(1, "fracnav replay: ", "replay '%s' /nonexistent.fnrec --frames '%s'", f->cdir, f->junk);
+    tu_expect_cli(1, "holds files already (", "replay '%s' /nonexistent.fnrec --frames '%s'",
+                  f->cdir, f->junk);
+    char *out = NULL;
+    assert_int_equal(tu_run_cli(&out, "replay '%s' /nonexistent.fnrec --frames '%s' --force", f->cdir, f->junk), 1);
+    if (strstr(out, "holds files already") || !strstr(out, "nonexistent.fnrec"))
+        fail_msg("replay --frames --force: %s", out);
+    free(out);
+    static const char *const old_frames[] = {"frame_00000.png", "frame_00001.png", "frame_123456.png"};
+    folder_with(f->tmp, "frames", old_frames, 3, frames, sizeof frames);
+    assert_int_equal(tu_run_cli(&out, "replay '%s' /nonexistent.fnrec --frames '%s'", f->cdir, frames), 1);
+    if (strstr(out, "holds files already") || !strstr(out, "nonexistent.fnrec"))
+        fail_msg("replay --frames into an earlier replay's frames: %s", out);
+    free(out);
+    tu_expect_cli(2, "--force goes with --frames DIR", "replay '%s' /nonexistent.fnrec --force", f->cdir);
+
+    tu_expect_cli(1, "fracnav demo: -o", "demo '%s' -o '%s' --no-fuse", f->ct, f->junk);
+    tu_expect_cli(1, "holds files already (", "demo '%s' -o '%s' --no-fuse", f->ct, f->junk);
+    static const char *const earlier[] = {"case/", "fracture/", "frames/", "export/", "segmentation-anterior.png",
+                                          "fracture-anterior.png", "navigate.json", "reduce.json", "reduce.log",
+                                          "export.json", "export.log", ".fracture.new-123"};
+    folder_with(f->tmp, "demo", earlier, 12, demo, sizeof demo);
+    const char *dirs[2] = {demo, f->junk};
+    for (int i = 0; i < 2; i++) {
+        assert_int_equal(tu_run_cli(&out, "demo '%s' -o '%s' --no-fuse --threshold 5000%s", f->ct, dirs[i],
+                                    i ? " --force" : ""), 1);
+        if (strstr(out, "holds files already") || !strstr(out, "no bone"))
+            fail_msg("demo -o %s: %s", dirs[i], out);
+        free(out);
+    }
+    size_t n;
+    free(bytes(f->junk, "notes.txt", &n));
+    cases_load(f);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -226,6 +285,7 @@ int main(void)
         cmocka_unit_test(test_render),
         cmocka_unit_test(test_record_replay_navigate),
         cmocka_unit_test(test_sim_outputs),
+        cmocka_unit_test(test_replay_frames_and_demo_folders),
     };
     return cmocka_run_group_tests(tests, setup, tu_fixture_teardown);
 }

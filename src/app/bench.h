@@ -16,6 +16,7 @@ struct reduce_opts;
 
 int bench_collision(int argc, char **argv);
 int bench_build(int argc, char **argv);
+int bench_fracture(int argc, char **argv);
 int bench_loop(int argc, char **argv);
 int bench_reduce(int argc, char **argv);
 int bench_render(int argc, char **argv);

@@ -207,9 +207,9 @@ static int print(session *k, const loop_stats *s, double wall_s, const frag *f, 
         json_object_set_new(j, "preview_updates_count", preview ? json_integer(pv.updates) : json_null());
         json_object_set_new(j, "preview_updates_mean_hz", preview ? jsonw_measure(pv.updates / wall_s) : json_null());
         json_object_set_new(j, "preview_dropped_count", preview ? json_integer(pv.dropped) : json_null());
-        /* loop_hz at least, the latencies at most */
+        /* loop_hz at least, the latencies at most: issue 23's figures, fitted or not */
         json_object_set_new(j, "targets", json_pack("{s:o,s:o,s:o}", "loop_hz", jsonw_measure(1000),
-                                                    "latency_p99_us", jsonw_measure(1000),
+                                                    "latency_p99_us", jsonw_measure(200),
                                                     "latency_max_us", jsonw_measure(1000)));
     }
     return jsonw_print(j, stdout);

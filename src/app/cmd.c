@@ -248,6 +248,11 @@ int cmd_out_file(const char *path, const planning_case *in)
 
 int cmd_out_folder(const char *dir, int force)
 {
+    return cmd_out_folder_own(dir, force, NULL);
+}
+
+int cmd_out_folder_own(const char *dir, int force, int (*own)(const char *name))
+{
     struct stat st;
     if (stat(dir, &st) != 0)
         return durable_out_of_case(dir);
@@ -259,7 +264,7 @@ int cmd_out_folder(const char *dir, int force)
     DIR *d = rc == 0 && !force ? opendir(dir) : NULL;
     struct dirent *e;
     while (d && rc == 0 && (e = readdir(d)))
-        if (strcmp(e->d_name, ".") && strcmp(e->d_name, ".."))
+        if (strcmp(e->d_name, ".") && strcmp(e->d_name, "..") && !(own && own(e->d_name)))
             rc = fn_err_set(FN_EINVAL, "%s holds files already (%s): --force writes over those of "
                                        "the same names, or choose another folder", dir, e->d_name);
     if (d)

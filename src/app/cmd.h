@@ -148,6 +148,9 @@ int cmd_out_file(const char *path, const planning_case *in);
 /* A folder a command fills with files: missing (made later), empty, or holding files only with
  * force (those of the names written are replaced), and never a case folder. */
 int cmd_out_folder(const char *dir, int force);
+/* cmd_out_folder, where a folder holding only entries that own(name) accepts (what this command
+ * itself writes there: an earlier run's output, which a run replaces) counts as empty. */
+int cmd_out_folder_own(const char *dir, int force, int (*own)(const char *name));
 /* A new case (-o) made from the case folder in: neither that folder, nor inside it, nor holding it
  * (the new case is built beside its path and put in place: it would land in the case being read,
  * or replace it). */

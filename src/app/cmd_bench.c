@@ -13,6 +13,7 @@ static const struct {
     {"collision", bench_collision, "OBB octree query vs brute force and FCL on fractured bones"},
     {"build", bench_build, "hierarchy build time and memory against volume size"},
     {"loop", bench_loop, "navigation loop rate and latency"},
+    {"fracture", bench_fracture, "fractures made per seed and number of pieces, against the targets"},
     {"reduce", bench_reduce, "automatic reduction per method: success rate, errors, time"},
     {"separate", bench_separate, "bone and fragments of real fracture CTs against hand annotations"},
     {"render", bench_render, "renderer frame time per mode (OpenGL 4.5, OSMesa offscreen)"},

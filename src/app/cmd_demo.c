@@ -59,6 +59,8 @@ static void usage(FILE *out)
             "     rate, reduction error and time.\n\n"
             "  -o DIR                     where the results go (default ./fracnav-demo; a run\n"
             "                             replaces an earlier demo's there; never a case folder)\n"
+            "  --force                    -o into a folder holding other files too (without it,\n"
+            "                             only an empty folder or an earlier demo's is taken)\n"
             "  --recording FILE           the navigation recording (default: the shipped\n"
             "                             sim/recordings/" RECORDING ")\n"
             "  --no-fuse                  play the recording in-process, not through fracnav-sim\n"
@@ -506,7 +508,7 @@ typedef struct demo_opts {
     char *rec;
     cmd_tau tau;
     demo_threshold thr;
-    int no_fuse, view;
+    int no_fuse, view, force;
 } demo_opts;
 
 /* Reads the arguments into o; 0, 2 (usage) or -1 (--help printed). */
@@ -523,6 +525,8 @@ static int parse(int argc, char **argv, demo_opts *o)
             o->rec = argv[++i];
         } else if (!strcmp(argv[i], "--no-fuse")) {
             o->no_fuse = 1;
+        } else if (!strcmp(argv[i], "--force")) {
+            o->force = 1;
         } else if (cmd_tau_option("demo", argv[i], i + 1 < argc ? argv[i + 1] : NULL, &o->tau, &rc) ||
                    cmd_threshold_option("demo", argv[i], i + 1 < argc ? argv[i + 1] : NULL, &o->thr.value,
                                         &o->thr.automatic, &rc) ||
@@ -541,6 +545,23 @@ static int parse(int argc, char **argv, demo_opts *o)
     return 0;
 }
 
+/* What a demo writes in DIR (its steps' folders, pictures, outputs and logs, and a staged case
+ * an interrupted step left): an earlier demo's results, which a run replaces. */
+static int own_result(const char *name)
+{
+    static const char *const names[] = {"case", "fracture", "frames", "device", "export",
+                                        "segmentation-anterior.png", "fracture-anterior.png",
+                                        "fracnav-sim.log", "navigate.json", "navigate.log",
+                                        "reduce.json", "reduce.log", "export.json", "export.log"};
+    for (size_t i = 0; i < sizeof names / sizeof names[0]; i++) {
+        size_t n = strlen(names[i]);
+        if (!strcmp(name, names[i]) || /* or staged: .NAME.new-PID (case_stage_begin) */
+            (name[0] == '.' && !strncmp(name + 1, names[i], n) && !strncmp(name + 1 + n, ".new-", 5)))
+            return 1;
+    }
+    return !strncmp(name, ".fracnav-tmp-", 13); /* a file being written (durable) */
+}
+
 int cmd_demo(int argc, char **argv)
 {
     demo_opts o = {.dir = "fracnav-demo", .thr = {300, 0}, .view = NAVWIN_VIEW_AUTO};
@@ -553,8 +574,9 @@ int cmd_demo(int argc, char **argv)
     demo_threshold thr = o.thr;
     if ((rc = cmd_tau_check("demo", &tau)) != 0)
         return rc;
-    /* a run replaces the results an earlier demo left in DIR, never a case's files */
-    if (cmd_out_folder(dir, 1) < 0) {
+    /* a run replaces the results an earlier demo left in DIR, never a case's files; other
+     * files only with --force */
+    if (cmd_out_folder_own(dir, o.force, own_result) < 0) {
         fprintf(stderr, "fracnav demo: -o %s\n", fn_err_msg());
         return 1;
     }

@@ -9,6 +9,7 @@
 #include "morph.h"
 
 #include <stdarg.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -296,6 +297,21 @@ static int apply(planning_case *c, const char *op, int argc, char **argv, FILE *
     return 0;
 }
 
+/* An edit that leaves no fragment is refused (1, fn_err set), saying what it found: nothing is
+ * saved, so the case stays as it was. */
+static int left_empty(const planning_case *c, const char *op, int nfrag_before, int64_t voxels_before)
+{
+    if (c->nfrag > 0)
+        return 0;
+    if (nfrag_before == 0)
+        fn_err_set(FN_EINVAL, "%s holds no fragment (its labelmap labels no voxel): nothing to %s", c->dir, op);
+    else
+        fn_err_set(FN_EINVAL, "%s would leave no fragment: the case's %d fragment%s (%lld voxels) all "
+                   "went; refused, %s is left as it was", op, nfrag_before, nfrag_before == 1 ? "" : "s",
+                   (long long)voxels_before, c->dir);
+    return 1;
+}
+
 /* The case after the edit: its fragments and the fixed one. */
 static int print_json(const planning_case *c, const char *dir, const char *op, json_t *res)
 {
@@ -354,8 +370,14 @@ int cmd_edit(int argc, char **argv)
     if (rc == 0 && n)
         fprintf(msg, "applied the %zu poses that %s/journal held beyond case.json\n", n, c->dir);
     json_t *res = json ? json_object() : NULL;
+    int nfrag_before = c->nfrag;
+    int64_t voxels_before = 0;
+    for (int i = 0; i < c->nfrag; i++)
+        voxels_before += (int64_t)c->frag[i].voxels;
     if (rc == 0)
         rc = apply(c, argv[2], argc - 3, argv + 3, msg, res);
+    if (rc == 0)
+        rc = left_empty(c, argv[2], nfrag_before, voxels_before);
     if (rc == 0 && (case_save(c) < 0 || case_journal_remove(c) < 0))
         rc = 1;
     if (rc == 0 && json && print_json(c, argv[1], argv[2], res) < 0)

@@ -369,7 +369,10 @@ int cmd_export(int argc, char **argv)
         return 1;
     }
     written w = {a.json ? json_array() : NULL, a.json ? json_array() : NULL, 0, 0, a.json};
-    rc = check_outputs(c, &a);
+    rc = c->nfrag > 0 ? 0 : fn_err_set(FN_EINVAL, "%s holds no fragment (its labelmap labels no voxel): "
+                                       "nothing to export, nothing written", a.dir);
+    if (!rc)
+        rc = check_outputs(c, &a);
     if (!rc && !a.json)
         printf("fracnav export: %s (%d fragments)\n", a.dir, c->nfrag);
     if (!rc)

@@ -77,6 +77,9 @@ static void usage(FILE *out)
             "                      poses once per --frame-ms of the recording's time into\n"
             "                      DIR/frame_NNNNN.png (the last one: the final poses); not with\n"
             "                      --realtime\n"
+            "  --force             --frames into a folder holding other files (those named\n"
+            "                      frame_NNNNN.png are replaced); without it only an empty folder\n"
+            "                      or one holding an earlier replay's frames alone is taken\n"
             "  --frame-ms N        the recording's milliseconds per picture (default 40)\n"
             "  --mode M            how the window and --frames draw: iso (default for --frames and\n"
             "                      on a GPU), dvr, mip or surface (the window's default on\n"
@@ -92,7 +95,7 @@ static void usage(FILE *out)
 
 typedef struct opts {
     const char *dir, *rec, *config;
-    int realtime, json, no_journal, save;
+    int realtime, json, no_journal, save, force;
     unsigned flags;
     loop_frame frame;
     cmd_tau tau;
@@ -130,6 +133,8 @@ static int parse(int argc, char **argv, opts *o)
             o->no_journal = 1;
         else if (!strcmp(a, "--save"))
             o->save = 1;
+        else if (!strcmp(a, "--force"))
+            o->force = 1;
         else if (!strcmp(a, "--frame") && i + 1 < argc) {
             if (session_frame_parse(argv[++i], &o->frame) < 0)
                 return cmd_usage_error("replay", "%s", fn_err_msg());
@@ -175,6 +180,8 @@ static int parse(int argc, char **argv, opts *o)
         return cmd_usage_error("replay", "--view window shows the replay live: it needs --realtime");
     if (o->screenshot && (!o->realtime || o->view == NAVWIN_VIEW_TERMINAL))
         return cmd_usage_error("replay", "--screenshot saves the window: it needs --realtime (and --view window)");
+    if (o->force && !o->frames)
+        return cmd_usage_error("replay", "--force goes with --frames DIR");
     if (o->frame_ms && !o->frames)
         return cmd_usage_error("replay", "--frame-ms sets the pace of --frames DIR, which is missing");
     if (!o->frame_ms)
@@ -302,6 +309,13 @@ static int finish(session *k, session_dsource *ds, const opts *o, int rc)
     return rc;
 }
 
+/* What --frames writes (framedump: frame_NNNNN.png): an earlier replay's frames, replaced. */
+static int own_frame(const char *name)
+{
+    size_t n = strlen(name), digits = strspn(name + (n > 6 ? 6 : n), "0123456789");
+    return n > 10 && !strncmp(name, "frame_", 6) && digits >= 5 && !strcmp(name + 6 + digits, ".png");
+}
+
 int cmd_replay(int argc, char **argv)
 {
     if (cmd_wants_help(argc, argv)) {
@@ -313,8 +327,9 @@ int cmd_replay(int argc, char **argv)
     int rc = parse(argc, argv, &o);
     if (rc)
         return rc;
-    /* --frames replaces the frames a replay drew there before */
-    if ((o.screenshot && cmd_out_file(o.screenshot, NULL) < 0) || (o.frames && cmd_out_folder(o.frames, 1) < 0)) {
+    /* --frames replaces the frames a replay drew there before; other files only with --force */
+    if ((o.screenshot && cmd_out_file(o.screenshot, NULL) < 0) ||
+        (o.frames && cmd_out_folder_own(o.frames, o.force, own_frame) < 0)) {
         fprintf(stderr, "fracnav replay: %s\n", fn_err_msg());
         return 1;
     }

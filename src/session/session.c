@@ -355,14 +355,30 @@ static void rebind(session *s)
     journal_rebind(s->jr, &b);
 }
 
+/* Why fragments a and b (indices) overlap, not where a fit left them, into why: the loop refuses
+ * every move into another fragment while it checks, except within a fit's tolerance, which a
+ * fragment holds after the fit until it rests free. */
+static void penetration_why(const planning_case *c, const loop_scene *sc, int a, int b, char *why, size_t cap)
+{
+    if (sc->held_frag[a] || sc->held_frag[b]) {
+        /* the fragment whose move ended the pair's "fitted" mark (else the one holding) */
+        int by = (sc->fit_ended_by[b] ? sc->fit_ended_by[b] : sc->fit_ended_by[a]) - 1;
+        if (by < 0)
+            by = sc->held_frag[b] ? b : a;
+        snprintf(why, cap, "fragment %d moved after a fit left them so: inside within the fit's "
+                 "tolerance, but no longer where the fit left them", c->frag[by].id);
+    } else
+        snprintf(why, cap, "%s", sc->stats.unchecked ? "moved while collision checking was off"
+                                                     : "as the case was loaded");
+}
+
 /* The pairs that overlap at the case's poses, into s->penetrating and case.json's "penetrating". */
 static int check_penetration(session *s)
 {
     planning_case *c = s->c;
-    /* Why they overlap: the loop refuses every move into another fragment while it checks. */
     loop_scene sc;
     loop_scene_read(s->L, &sc);
-    const char *why = sc.stats.unchecked ? "moved while collision checking was off" : "as the case was loaded";
+    char why[256];
     case_overlap o[LOOP_MAX_FRAGS * (LOOP_MAX_FRAGS - 1) / 2];
     int n = case_penetrating(c, sc.tolerated_frag, o, (int)(sizeof o / sizeof o[0]));
     int rc = n < 0 ? n : case_record_penetrating(c, o, n);
@@ -375,9 +391,11 @@ static int check_penetration(session *s)
         if (o[k].fitted)
             fprintf(stderr, "\nnote: fragments %d and %d overlap by %.3f ml where a fit left them: "
                             "within its tolerance (0.5 mm, at most 0.45 voxel)\n", a, b, o[k].ml);
-        else
+        else {
+            penetration_why(c, &sc, o[k].a, o[k].b, why, sizeof why);
             fprintf(stderr, "\nWARNING: saving a penetrating plan: fragments %d and %d overlap by "
                             "%.3f ml (%s)\n", a, b, o[k].ml, why);
+        }
     }
     json_t *list = json_object_get(c->extra, "penetrating");
     json_decref(s->penetrating);

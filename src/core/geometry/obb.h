@@ -109,7 +109,9 @@ typedef struct obb_result {
  *   (also when the front would exceed OBB_FRONT_MAX pairs: no front).
  * The yes or no is the same with a cache as without; the separation is a valid bound either way,
  * but with a cache it depends on the queries before (which pairs the front kept): a caller that
- * steps by it and must not depend on its history queries without a cache (reduce does). */
+ * steps by it and must not depend on its history queries without a cache (reduce does), or lets
+ * it decide only how an answer is found, never which (the loop: a move the bound proves free costs
+ * a try of the step's budget as a query would). */
 #define OBB_FRONT_MAX 16384 /* a fitted piece of the skull, interlocked at the fit's tolerance: 9,232 */
 #define OBB_WITNESSES 8
 

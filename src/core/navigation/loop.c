@@ -281,19 +281,23 @@ static double motion_bound(const loop *L, int s, const double c[3], const double
 }
 
 /* Is the fraction f of the motion free? Uses the last separation as a shortcut when it proves the
- * move free; otherwise queries. Returns 1 free (with *cand and *sep), 0 colliding, or negative. */
+ * move free; otherwise queries. Returns 1 free (with *cand and *sep), 0 colliding, or negative.
+ * Every candidate counts against the step's budget (max_tries), proved free by the shortcut or
+ * queried: the gap a cached query reports depends on the queries before it (obb.h), so were the
+ * shortcut free of charge, where the budget runs out, and the pose the step ends at, would too;
+ * this way the step's poses follow from the yes or no answers alone. */
 static int try_move(loop *L, int s, const pose *start, double gap, const double c[3],
                     const double d[3], const double r[3], double f, pose *cand, double *sep)
 {
     *cand = moved(start, c, d, r, f);
+    if (L->tries >= L->cfg.max_tries)
+        return 0; /* out of budget: treat as blocked, the step ends with what it has */
+    L->tries++;
     double b = motion_bound(L, s, c, d, r, f);
     if (gap - b > SAFETY_MM) {
         *sep = gap - b;
         return 1;
     }
-    if (L->tries >= L->cfg.max_tries)
-        return 0; /* out of budget: treat as blocked, the step ends with what it has */
-    L->tries++;
     int rc = collide_all(L, s, cand, 0, sep);
     return rc < 0 ? rc : !rc;
 }
@@ -521,9 +525,13 @@ static void accept_pose(loop *L, int s, pose p, int64_t t_us, uint32_t kind, int
      * that it stood inside (a plan loaded so marks both of a pair: loop_tolerate) */
     if (checked != LOOP_TOLERATED)
         for (int j = 0, was = L->tolerated[s]; j < L->n; j++)
-            if (was || L->hold_mm[s] > 0 || L->hold_mm[j] > 0)
+            if (L->tolerated[j] && (was || L->hold_mm[s] > 0 || L->hold_mm[j] > 0)) {
                 L->tolerated[j] = 0;
+                L->fit_ended_by[j] = (uint8_t)(s + 1);
+            }
     L->tolerated[s] = checked == LOOP_TOLERATED;
+    if (L->tolerated[s])
+        L->fit_ended_by[s] = 0;
     if (checked == LOOP_UNCHECKED || checked == LOOP_ESCAPING)
         L->hold_mm[s] = 0; /* not checked at the hold: it no longer bounds how deep it is */
     if (checked != LOOP_CHECKED)
@@ -781,6 +789,8 @@ static int restore(loop *L, const loop_undo *u, uint32_t kind)
     }
     accept_pose(L, u->frag, u->p, L->last_t, kind, how == LOOP_UNCHECKED ? how : LOOP_CHECKED);
     L->tolerated[u->frag] = (uint8_t)(u->tolerated && how == LOOP_TOLERATED);
+    if (L->tolerated[u->frag])
+        L->fit_ended_by[u->frag] = 0;
     L->gap_valid = 0;
     L->in_collision = 0;
     gesture_end(L);
@@ -948,6 +958,7 @@ void loop_set_pose(loop *L, int i, pose p)
         L->pose[i] = p;
         L->gap_valid = L->in_collision = 0;
         L->tolerated[i] = 0;
+        L->fit_ended_by[i] = 0;
         L->hold_mm[i] = 0;
     }
 }
@@ -956,6 +967,7 @@ void loop_tolerate(loop *L, int i, double tolerance_mm)
 {
     if (i >= 0 && i < L->n && tolerance_mm > 0) {
         L->tolerated[i] = 1;
+        L->fit_ended_by[i] = 0;
         L->hold_mm[i] = tolerance_mm;
         L->gap_valid = L->in_collision = 0; /* measured at the hold from now on */
     }

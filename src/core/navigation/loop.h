@@ -149,7 +149,9 @@ typedef struct loop_config {
     int64_t dt_first_us;    /* what the first report after start or a replug integrates */
     int bisect_iters;       /* bisection depth of a limited step (fraction resolution 2^-n) */
     int slide_iters;        /* bisection depth of each slide component */
-    int max_tries;          /* candidate poses queried per step at most (bounds the step's time) */
+    int max_tries;          /* candidate poses tried per step at most, each proved free by the
+                             * separation shortcut or queried (bounds the step's time; counting
+                             * both keeps the step's poses independent of the queries before) */
     int check_invariant;    /* re-query accepted poses from scratch; on by default in debug builds */
     uint8_t button_action[32]; /* device button i pressed -> loop_action (0 = none) */
 } loop_config;
@@ -211,6 +213,10 @@ typedef struct loop_scene {
     uint8_t fixed[LOOP_MAX_FRAGS];
     uint8_t tolerated_frag[LOOP_MAX_FRAGS]; /* per fragment: marked as `tolerated` says (whether
                                              * inside or not) */
+    uint8_t held_frag[LOOP_MAX_FRAGS]; /* per fragment: holds a fit's tolerance (may stand inside
+                                        * another by up to it), moved since the fit or not */
+    uint8_t fit_ended_by[LOOP_MAX_FRAGS]; /* per fragment: 1 + the fragment whose move ended its
+                                           * `tolerated` mark (itself or another), 0: none since */
 } loop_scene;
 
 typedef struct loop loop;

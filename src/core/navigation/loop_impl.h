@@ -90,6 +90,7 @@ struct loop {
     int rt_prio;         /* its priority, written before rt_cpu */
     atomic_int running;  /* loop_run is past its start (pages mapped): the reader may read */
     uint8_t tolerated[LOOP_MAX_FRAGS]; /* where a fit left it, not moved since (the scene's label) */
+    uint8_t fit_ended_by[LOOP_MAX_FRAGS]; /* 1 + the fragment whose move ended `tolerated` (0: none) */
     /* > 0: the fragment may stand inside another by up to this fit's tolerance: its pairs are
      * queried at it until it rests free at 0 (loop.h, proposals) */
     double hold_mm[LOOP_MAX_FRAGS];

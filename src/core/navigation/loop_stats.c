@@ -175,6 +175,9 @@ void loop_publish(loop *L)
     s->penetrating = L->collision_on && L->in_collision;
     s->tolerated = s->penetrating && L->tolerated[L->selected];
     memcpy(s->tolerated_frag, L->tolerated, (size_t)L->n);
+    for (int i = 0; i < L->n; i++)
+        s->held_frag[i] = L->hold_mm[i] > 0;
+    memcpy(s->fit_ended_by, L->fit_ended_by, (size_t)L->n);
     s->separation_mm = !L->collision_on ? NAN : L->in_collision ? L->pen : L->gap_valid ? L->gap : NAN;
     s->actions = L->actions;
     s->last_action = (loop_action)L->last_action;

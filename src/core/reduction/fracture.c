@@ -172,7 +172,7 @@ static int cut_islands(uint8_t *side, const int bdim[3], int which, int to, uint
         return nc;
     size_t *count = calloc((size_t)nc + 1, sizeof *count);
     if (!count)
-        return fn_err_set(FN_ENOMEM, "fracture: out of memory");
+        return fn_err_set(FN_ENOMEM, "out of memory");
     for (size_t b = 0; b < n; b++)
         count[comp[b]]++;
     int32_t big = 1;
@@ -193,7 +193,7 @@ static int cut_connect(uint8_t *side, const int bdim[3])
     size_t n = (size_t)bdim[0] * bdim[1] * bdim[2];
     uint8_t *mask = malloc(n);
     int32_t *comp = malloc(n * sizeof *comp);
-    int rc = mask && comp ? 0 : fn_err_set(FN_ENOMEM, "fracture: out of memory");
+    int rc = mask && comp ? 0 : fn_err_set(FN_ENOMEM, "out of memory");
     if (rc == 0)
         rc = cut_islands(side, bdim, SIDE_NEW, SIDE_STAYS, mask, comp);
     if (rc == 0)
@@ -236,7 +236,7 @@ static int piece_stats(const vol *lab, int id, frag *f)
 {
     int lo[3], hi[3];
     if (frag_label_box(lab, id, lo, hi) < 0)
-        return fn_err_set(FN_EINVAL, "fracture: piece %d is empty", id);
+        return fn_err_set(FN_EINVAL, "piece %d is empty", id);
     return frag_from_labels(f, lab, NULL, id, lo, hi, 0, 0);
 }
 
@@ -276,7 +276,7 @@ static int make_cut(vol *lab, vol *ct, int to, uint64_t *rng, const fracture_par
     }
     double pct = 100.0 / share_divisor(p->pieces);
     if (best < 2 * min_piece)
-        return fn_err_set(FN_EINVAL, "fracture: cannot cut piece %d: the largest piece so far "
+        return fn_err_set(FN_EINVAL, "cannot cut piece %d: the largest piece so far "
                           "(%zu voxels) is under twice the smallest piece allowed (%.3g%% of the "
                           "bone, %zu voxels); ask for fewer --pieces", to, best, pct, min_piece);
     frag f;
@@ -291,7 +291,7 @@ static int make_cut(vol *lab, vol *ct, int to, uint64_t *rng, const fracture_par
     uint8_t *side = malloc(nbox);
     if (!side) {
         frag_free(&f);
-        return fn_err_set(FN_ENOMEM, "fracture: out of memory");
+        return fn_err_set(FN_ENOMEM, "out of memory");
     }
     for (int attempt = 0; attempt < 32 && rc == 0; attempt++) {
         struct cut c = {.rough = p->roughness_mm, .wavelength = p->wavelength_mm};
@@ -332,7 +332,7 @@ static int make_cut(vol *lab, vol *ct, int to, uint64_t *rng, const fracture_par
         return rc;
     }
     frag_free(&f);
-    return fn_err_set(FN_EINVAL, "fracture: no cut of piece %d (%zu voxels) leaves both sides at "
+    return fn_err_set(FN_EINVAL, "no cut of piece %d (%zu voxels) leaves both sides at "
                       "least %.3g%% of the bone (%zu voxels) in 32 tries: the bone is too thin or "
                       "irregular for %d pieces; ask for fewer --pieces", from, best, pct, min_piece,
                       p->pieces);
@@ -573,7 +573,7 @@ static int push_init(struct push *pp, int id, pose m)
                  (size_t)(hi[2] - lo[2] + 1);
     pp->q = malloc(cap * 3 * sizeof *pp->q);
     if (!pp->q)
-        return fn_err_set(FN_ENOMEM, "fracture: out of memory");
+        return fn_err_set(FN_ENOMEM, "out of memory");
     pp->n = 0;
     for (int k = lo[2]; k <= hi[2]; k++)
         for (int j = lo[1]; j <= hi[1]; j++)
@@ -620,7 +620,7 @@ static int push_search(const struct push *pp, const double dir[3], const double 
             break;
     }
     if (best < 0)
-        return fn_err_set(FN_EINVAL, "fracture: piece %d cannot be placed clear of the others "
+        return fn_err_set(FN_EINVAL, "piece %d cannot be placed clear of the others "
                           "within %.1f mm of --displace", pp->id, max_steps * step);
     *steps = best;
     return 0;
@@ -649,7 +649,7 @@ static int fit_grid(fracture_result *r, vol **obstacle, int id, pose m, float ou
         if (ok)
             *slot[v] = g[v];
     }
-    return ok ? 0 : fn_err_wrap(FN_ENOMEM, "fracture: piece %d lands past the CT's edge, and the "
+    return ok ? 0 : fn_err_wrap(FN_ENOMEM, "piece %d lands past the CT's edge, and the "
                                 "grid grown to hold it does not fit", id);
 }
 
@@ -684,7 +684,7 @@ static int displace_pieces(fracture_result *r, const vol *src_ct, uint64_t *rng,
     const int none[3] = {0, 0, 0};
     vol *obstacle = fracture__padded(r->cut, none, none, 0);
     if (!obstacle)
-        return fn_err_set(FN_ENOMEM, "fracture: out of memory");
+        return fn_err_set(FN_ENOMEM, "out of memory");
     for (size_t i = 0; i < vol_count(src_ct); i++) {
         float v = src_ct->data[i];
         obstacle->data[i] = r->cut->data[i] == 0 && isfinite(v) && v >= r->threshold;
@@ -741,7 +741,7 @@ int fracture__model1(const vol *ct, const fracture_params *p, fracture_result *o
     if (seg.ncomp < 1) {
         float lo, hi;
         vol_range(ct, &lo, &hi);
-        rc = fn_err_set(FN_EINVAL, "fracture: no bone at or above %g%s: the CT's values run from %g to "
+        rc = fn_err_set(FN_EINVAL, "no bone at or above %g%s: the CT's values run from %g to "
                         "%g; give another --threshold", seg.threshold, p->threshold_auto ? " (Otsu's)" : "",
                         (double)lo, (double)hi);
         seg_result_free(&seg);
@@ -770,7 +770,7 @@ int fracture__model1(const vol *ct, const fracture_params *p, fracture_result *o
     out->moved = calloc((size_t)p->pieces, sizeof *out->moved);
     double(*normals)[3] = calloc((size_t)p->pieces, sizeof *normals);
     if (!out->ct || !work_ct || !out->labels || !out->truth || !out->moved || !normals) {
-        rc = fn_err_set(FN_ENOMEM, "fracture: out of memory");
+        rc = fn_err_set(FN_ENOMEM, "out of memory");
         goto done;
     }
     uint64_t rng = p->seed;

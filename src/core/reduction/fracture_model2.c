@@ -93,7 +93,7 @@ static long keep_largest(vol *lab, float keep, float to)
     size_t n = vol_count(lab);
     uint8_t *mask = malloc(n);
     int32_t *comp = malloc(n * sizeof *comp);
-    long rc = mask && comp ? 0 : fn_err_set(FN_ENOMEM, "fracture: out of memory");
+    long rc = mask && comp ? 0 : fn_err_set(FN_ENOMEM, "out of memory");
     int nc = 0;
     if (rc == 0) {
         for (size_t i = 0; i < n; i++)
@@ -102,7 +102,7 @@ static long keep_largest(vol *lab, float keep, float to)
     }
     size_t *size = rc >= 0 ? calloc((size_t)nc + 1, sizeof *size) : NULL;
     if (rc >= 0 && !size)
-        rc = fn_err_set(FN_ENOMEM, "fracture: out of memory");
+        rc = fn_err_set(FN_ENOMEM, "out of memory");
     if (size) {
         for (size_t i = 0; i < n; i++)
             size[comp[i]]++;
@@ -155,7 +155,7 @@ static int model2_cut(vol *cut, const uint8_t *is_bone, uint64_t *rng, const fra
         if ((size_t)moved >= min_piece && (size_t)stays >= min_piece)
             return 0;
     }
-    return fn_err_set(FN_EINVAL, "fracture model 2: no cut leaves both pieces at least %zu voxels in 32 "
+    return fn_err_set(FN_EINVAL, "model 2: no cut leaves both pieces at least %zu voxels in 32 "
                       "tries: the bone is too thin or irregular", min_piece);
 }
 
@@ -223,7 +223,7 @@ static int model2_motion(const vol *cut, const uint8_t *obstacle, uint64_t *rng,
         }
     }
     frag_free(&f);
-    return fn_err_set(FN_EINVAL, "fracture model 2: the moved piece found no clear place in 8 draws");
+    return fn_err_set(FN_EINVAL, "model 2: the moved piece found no clear place in 8 draws");
 }
 
 /* Piece 2 of cut (values from src) carried by m into out_ct/out_lab: each output voxel takes the
@@ -316,9 +316,9 @@ int fracture_model2(const vol *ct, const fracture_params *p, fracture_result *ou
     frag bone = {0};
     int lo[3], hi[3];
     if (ncomp < 1)
-        rc = fn_err_set(FN_EINVAL, "fracture model 2: no bone at or above %g", out->threshold);
+        rc = fn_err_set(FN_EINVAL, "model 2: no bone at or above %g", out->threshold);
     else if (!is_bone || !obstacle)
-        rc = fn_err_set(FN_ENOMEM, "fracture: out of memory");
+        rc = fn_err_set(FN_ENOMEM, "out of memory");
     else if ((rc = frag_label_box(out->cut, 1, lo, hi)) == 0)
         rc = frag_from_labels(&bone, out->cut, NULL, 1, lo, hi, 0, 0);
     uint64_t rng = p->seed ^ 0x6d6f64656c320000ull; /* not model 1's sequence for the same seed */
@@ -350,7 +350,7 @@ int fracture_model2(const vol *ct, const fracture_params *p, fracture_result *ou
     out->truth = calloc(2, sizeof *out->truth);
     out->moved = calloc(2, sizeof *out->moved);
     if (rc == 0 && (!out->labels || !out->truth || !out->moved))
-        rc = fn_err_set(FN_ENOMEM, "fracture: out of memory");
+        rc = fn_err_set(FN_ENOMEM, "out of memory");
     if (rc == 0) {
         for (int k = 0; k < ct->dim[2]; k++)
             for (int j = 0; j < ct->dim[1]; j++)
