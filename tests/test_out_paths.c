@@ -171,24 +171,6 @@ static void test_record_replay_navigate(void **st)
     cases_load(f);
 }
 
-/* Output and exit status of `fracnav-sim ARGS` (a shell word list; skips when it is not built). */
-static int sim_cli(char **out, const char *fmt, ...)
-{
-    char args[8400], cmd[8800];
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(args, sizeof args, fmt, ap);
-    va_end(ap);
-    snprintf(cmd, sizeof cmd, "'%s' %s 2>&1", tu_sim(), args);
-    FILE *p = popen(cmd, "r");
-    assert_non_null(p);
-    size_t cap = 16384;
-    *out = calloc(1, cap);
-    size_t n = fread(*out, 1, cap - 1, p);
-    (*out)[n] = '\0';
-    return WEXITSTATUS(pclose(p));
-}
-
 /* fracnav-sim render -o and serve --log: no recording lands in a case folder (checked before the
  * work, as fracnav's own outputs; serve's before its mount point, so no FUSE is needed). */
 static void test_sim_outputs(void **st)
@@ -201,13 +183,13 @@ static void test_sim_outputs(void **st)
     snprintf(mnt, sizeof mnt, "%s/nowhere", f->tmp); /* never served: the check comes first */
     size_t n;
     char *labels = bytes(f->cdir, "labels.nii.gz", &n);
-    int rc = sim_cli(&out, "render --script '%s' -o '%s/labels.nii.gz'", script, f->cdir);
+    int rc = tu_run_sim(&out, "render --script '%s' -o '%s/labels.nii.gz'", script, f->cdir);
     if (rc != 1 || !strstr(out, "labels.nii.gz lies in the case folder"))
         fail_msg("fracnav-sim render -o CASE/labels.nii.gz: exit %d: %s", rc, out);
     free(out);
     same_bytes(f->cdir, "labels.nii.gz", labels, n);
     free(labels);
-    rc = sim_cli(&out, "serve --mount '%s' --script '%s' --log '%s/x.fnrec'", mnt, script, f->other);
+    rc = tu_run_sim(&out, "serve --mount '%s' --script '%s' --log '%s/x.fnrec'", mnt, script, f->other);
     if (rc != 1 || !strstr(out, "x.fnrec lies in the case folder"))
         fail_msg("fracnav-sim serve --log CASE/x.fnrec: exit %d: %s", rc, out);
     free(out);

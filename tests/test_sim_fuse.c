@@ -597,51 +597,34 @@ static void test_control_fifo(void **st)
     fnrec_free(r);
 }
 
-/* Runs fracnav-sim ARGS (a shell fragment); returns its exit status, its output in *out (free). */
-static int sim_cli(char **out, const char *fmt, ...)
-{
-    char args[1500], cmd[2800];
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(args, sizeof args, fmt, ap);
-    va_end(ap);
-    snprintf(cmd, sizeof cmd, "'%s' %s 2>&1", tu_sim(), args);
-    FILE *p = popen(cmd, "r");
-    size_t n = 0, cap = 8192;
-    *out = calloc(1, cap);
-    while (n + 1 < cap && fgets(*out + n, (int)(cap - n), p))
-        n = strlen(*out);
-    return WEXITSTATUS(pclose(p));
-}
-
 /* Options that do not apply to a command are usage errors naming them; --as with --play is a
  * warning (the recording's identity is served); a missing mount point is named as missing. */
 static void test_sim_cli_option_checks(void **st)
 {
     char *out;
-    assert_int_equal(sim_cli(&out, "serve --mount '%s' -o x.fnrec", mnt), 2);
+    assert_int_equal(tu_run_sim(&out, "serve --mount '%s' -o x.fnrec", mnt), 2);
     assert_non_null(strstr(out, "option '-o' does not apply to serve"));
     free(out);
-    assert_int_equal(sim_cli(&out, "serve --mount '%s' --seconds 3", mnt), 2);
+    assert_int_equal(tu_run_sim(&out, "serve --mount '%s' --seconds 3", mnt), 2);
     assert_non_null(strstr(out, "option '--seconds' does not apply to serve"));
     free(out);
-    assert_int_equal(sim_cli(&out, "render --script x --log y -o z"), 2);
+    assert_int_equal(tu_run_sim(&out, "render --script x --log y -o z"), 2);
     assert_non_null(strstr(out, "option '--log' does not apply to render"));
     free(out);
-    assert_int_equal(sim_cli(&out, "bench --fast"), 2);
+    assert_int_equal(tu_run_sim(&out, "bench --fast"), 2);
     assert_non_null(strstr(out, "option '--fast' does not apply to bench"));
     free(out);
     fnrec *r = tu_render_script(write_script("s.script", "press 1\n"), "spacemouse-wireless");
     const char *file = path_in("w.fnrec");
     assert_int_equal(fnrec_save(r, file), 0);
     fnrec_free(r);
-    assert_int_equal(sim_cli(&out, "serve --mount '%s/nowhere' --as spacenavigator --play '%s'", mnt,
+    assert_int_equal(tu_run_sim(&out, "serve --mount '%s/nowhere' --as spacenavigator --play '%s'", mnt,
                              file), 1);
     assert_non_null(strstr(out, "warning: --as spacenavigator ignored"));
     assert_non_null(strstr(out, "256f:c62e"));
     assert_non_null(strstr(out, "nowhere does not exist"));
     free(out);
-    assert_int_equal(sim_cli(&out, "serve --mount '%s'", file), 1);
+    assert_int_equal(tu_run_sim(&out, "serve --mount '%s'", file), 1);
     assert_non_null(strstr(out, "is not a directory"));
     free(out);
 }

@@ -115,14 +115,12 @@ const char *tu_test_data(const char *name)
     return path;
 }
 
-int tu_run_cli(char **out, const char *fmt, ...)
+/* Runs `'prog' ARGS 2>&1` through /bin/sh; the exit status, the output in *out (or dropped). */
+static int run_prog(const char *prog, char **out, const char *fmt, va_list ap)
 {
     char args[8192], cmd[9000];
-    va_list ap;
-    va_start(ap, fmt);
     vsnprintf(args, sizeof args, fmt, ap);
-    va_end(ap);
-    snprintf(cmd, sizeof cmd, "'%s' %s 2>&1", tu_fracnav(), args);
+    snprintf(cmd, sizeof cmd, "'%s' %s 2>&1", prog, args);
     FILE *f = popen(cmd, "r");
     if (!f)
         return -1;
@@ -141,6 +139,25 @@ int tu_run_cli(char **out, const char *fmt, ...)
     else
         free(buf);
     return WIFEXITED(st) ? WEXITSTATUS(st) : -1;
+}
+
+int tu_run_cli(char **out, const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    int rc = run_prog(tu_fracnav(), out, fmt, ap);
+    va_end(ap);
+    return rc;
+}
+
+int tu_run_sim(char **out, const char *fmt, ...)
+{
+    const char *sim = tu_sim(); /* skips where fracnav-sim is not built */
+    va_list ap;
+    va_start(ap, fmt);
+    int rc = run_prog(sim, out, fmt, ap);
+    va_end(ap);
+    return rc;
 }
 
 void tu_expect_cli(int rc, const char *want, const char *fmt, ...)

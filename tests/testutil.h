@@ -31,6 +31,8 @@ const char *tu_test_data(const char *name);
 /* Runs `fracnav ARGS` (the built CLI) through /bin/sh, capturing stdout+stderr into out (malloc'd,
  * NUL-terminated; may be NULL). Returns the exit status (or -1). */
 int tu_run_cli(char **out, const char *fmt, ...);
+/* The same for `fracnav-sim ARGS` (skips the test, saying so, where it is not built: tu_sim). */
+int tu_run_sim(char **out, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
 /* Runs `fracnav ARGS` (tu_run_cli) and fails the test, showing the output, unless it exits with
  * rc and its output holds want and no temporary file's name (.fracnav-tmp). */
 void tu_expect_cli(int rc, const char *want, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
