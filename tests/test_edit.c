@@ -273,6 +273,12 @@ static void test_empty_result_refused(void **st)
     tu_expect_cli(1, "fracnav edit: erase-box would leave no fragment: the case's 3 fragments (1480 voxels) all went",
                   "edit '%s' erase-box 0 0 0 1000 1000 1000", f->cdir);
     tu_expect_cli(1, "fracnav edit: drop would leave no fragment", "edit '%s' drop 1 2 3", f->cdir);
+    /* a refused edit says nothing of what it would have made (it printed "0 fragments left") */
+    char *said = NULL;
+    assert_int_equal(tu_run_cli(&said, "edit '%s' drop 1 2 3", f->cdir), 1);
+    if (strstr(said, "fragments left") || strstr(said, "erased"))
+        fail_msg("a refused edit said what it made: %s", said);
+    free(said);
     size_t jn1, ln1;
     char *j1 = tu_slurp(json, &jn1), *l1 = tu_slurp(labels, &ln1);
     assert_true(jn1 == jn && !memcmp(j0, j1, jn));

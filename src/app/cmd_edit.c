@@ -374,12 +374,22 @@ int cmd_edit(int argc, char **argv)
     int64_t voxels_before = 0;
     for (int i = 0; i < c->nfrag; i++)
         voxels_before += (int64_t)c->frag[i].voxels;
+    /* What the operation made is said once it is saved: an edit refused after it ("0 fragments
+     * left", then "would leave no fragment") or a failed save says nothing of what it did. */
+    char *said = NULL;
+    size_t nsaid = 0;
+    FILE *ops = open_memstream(&said, &nsaid);
     if (rc == 0)
-        rc = apply(c, argv[2], argc - 3, argv + 3, msg, res);
+        rc = apply(c, argv[2], argc - 3, argv + 3, ops ? ops : msg, res);
+    if (ops)
+        fclose(ops);
     if (rc == 0)
         rc = left_empty(c, argv[2], nfrag_before, voxels_before);
     if (rc == 0 && (case_save(c) < 0 || case_journal_remove(c) < 0))
         rc = 1;
+    if (rc == 0 && said)
+        fputs(said, msg);
+    free(said);
     if (rc == 0 && json && print_json(c, argv[1], argv[2], res) < 0)
         rc = 1;
     if (rc == 1)
