@@ -1701,6 +1701,36 @@ static void test_navigate_window_seed_mode_separates(void **st)
     seed_run_free(&s);
 }
 
+/* Two clicks in one frame (a quick hand on a slow frame) are two seeds, each at its own point:
+ * both were given the last click's point. navigate is stopped (SIGSTOP) while xdotool queues F10,
+ * 1, a click, 2 and another click, so that the window reads them all in its next frame. */
+static void test_navigate_window_two_clicks_in_one_frame(void **st)
+{
+    (void)st;
+    seed_run s;
+    seed_run_start(&s, "navclicks", 0);
+    assert_int_equal(system("timeout 300 xdotool search --sync --onlyvisible --name '^fracnav$' >/dev/null"), 0);
+    seed_run_wait(&s, "frag ", "no view line from navigate");
+    char cmd[1024];
+    snprintf(cmd, sizeof cmd, "xdotool key F10 key 1 mousemove %d %d click 1 key 2 mousemove %d %d click 1",
+             s.p1[0], s.p1[1], s.p2[0], s.p2[1]);
+    assert_int_equal(kill(s.nav, SIGSTOP), 0);
+    int rc = system(cmd);
+    assert_int_equal(kill(s.nav, SIGCONT), 0);
+    assert_int_equal(rc, 0);
+    seed_run_wait(&s, " 2@(", "no second seed");
+    const char *a = strstr(s.seen, " 1@("), *b = strstr(s.seen, " 2@(");
+    assert_non_null(a);
+    double p1[3], p2[3];
+    assert_int_equal(sscanf(a, " 1@(%lf,%lf,%lf)", &p1[0], &p1[1], &p1[2]), 3);
+    assert_int_equal(sscanf(b, " 2@(%lf,%lf,%lf)", &p2[0], &p2[1], &p2[2]), 3);
+    if (!(fabs((p2[0] - p1[0]) - 6) <= 1.5 && fabs(p2[1] - p1[1]) <= 1.5 && fabs(p2[2] - p1[2]) <= 1.5))
+        fail_msg("the seeds of two clicks 6 mm apart, read in one frame: (%g, %g, %g) and (%g, %g, %g)", p1[0], p1[1],
+                 p1[2], p2[0], p2[1], p2[2]);
+    seed_run_quit(&s);
+    seed_run_free(&s);
+}
+
 /* Issue 25: the separation is an edit that undo takes back. After Enter separated block B, u (the
  * steering's undo) in the reopened window, with no move to undo, takes the separation back: the
  * case opens again with B whole, as fragment 2. */
@@ -2045,6 +2075,7 @@ int main(void)
         cmocka_unit_test_teardown(test_navigate_window_drags_the_four_up_border, end_children),
         cmocka_unit_test_teardown(test_navigate_window_keyboard_steers, end_children),
         cmocka_unit_test_teardown(test_navigate_window_seed_mode_separates, end_children),
+        cmocka_unit_test_teardown(test_navigate_window_two_clicks_in_one_frame, end_children),
         cmocka_unit_test_teardown(test_replay_window_matches_render, end_children),
         cmocka_unit_test_teardown(test_replay_frames, end_children),
         cmocka_unit_test_teardown(test_auto_view_shows_the_moving_fragment, end_children),

@@ -452,8 +452,8 @@ static void window_frame(view *v, const loop_scene *sc)
     for (int i = 0; i < n; i++) {
         double at[3];
         if (keys[i] == NAVWIN_KEY_CLICK) {
-            navwin_click_at(v->win, at);
-            navseed_click(&v->seed, at);
+            if (navwin_click_at(v->win, at) == 0)
+                navseed_click(&v->seed, at);
         } else if (!navseed_key(&v->seed, keys[i]))
             window_key(v, keys[i]);
     }

@@ -28,7 +28,10 @@ struct navwin {
     int slice_set;  /* a click or the wheel put the slices' point: it stays until the selection
                      * changes (else it follows the selected fragment's centroid) */
     int slice_for;  /* the selected fragment when it was put */
-    double click_world[3]; /* the last click on a slice (NAVWIN_KEY_CLICK), LPS mm */
+    /* the frame's clicks handed back (NAVWIN_KEY_CLICK), in order, LPS mm: a frame may take
+     * several (two quick seeds), each with its own point */
+    double click_world[RENDER_INPUT_CLICKS][3];
+    int nclick_world, click_next;
     int drag_mode;  /* the left drag in progress: 0 none, 1 an orbit, 2 four-up's border */
     int nvoi;       /* the case's reduction VOI boxes (o.voi) */
     uint64_t drawn_seq;
@@ -384,9 +387,9 @@ static void home_of(const loop_scene *sc, int i, const double at[3], double home
     pose_apply(&back, at, home);
 }
 
-/* In four-up, a click at xy on a slice puts the slices' point there, and w->click_world: the point
- * where it lies in the CT (a moved fragment's voxel at its home). 1 when it did. */
-static int slice_click(navwin *w, const loop_scene *sc, const double xy[2])
+/* In four-up, a click at xy on a slice puts the slices' point there, and in home the point where
+ * it lies in the CT (a moved fragment's voxel at its home). 1 when it did. */
+static int slice_click(navwin *w, const loop_scene *sc, const double xy[2], double home[3])
 {
     double p[3];
     pose to_local[RENDER_MAX_FRAGS];
@@ -395,9 +398,9 @@ static int slice_click(navwin *w, const loop_scene *sc, const double xy[2])
     memcpy(w->o.slice_point, p, sizeof p);
     int i = to_locals(w, sc, to_local) ? frag_holding(w, to_local, p) : -1;
     if (i >= 0)
-        home_of(sc, i, p, w->click_world);
+        home_of(sc, i, p, home);
     else
-        memcpy(w->click_world, p, sizeof p);
+        memcpy(home, p, sizeof p);
     note(w, "slices through (%.1f, %.1f, %.1f) mm", p[0], p[1], p[2]);
     w->slice_set = 1;
     return 1;
@@ -439,9 +442,12 @@ static int surface_pick(const navwin *w, const loop_scene *sc, const double xy[2
     return 0;
 }
 
-int navwin_click_at(const navwin *w, double world[3])
+int navwin_click_at(navwin *w, double world[3])
 {
-    memcpy(world, w->click_world, sizeof w->click_world);
+    if (w->nclick_world == 0)
+        return -1;
+    int i = w->click_next < w->nclick_world ? w->click_next++ : w->nclick_world - 1;
+    memcpy(world, w->click_world[i], sizeof w->click_world[i]);
     return 0;
 }
 
@@ -451,6 +457,7 @@ static int handle_input(navwin *w, const loop_scene *sc, const render_input *in,
 {
     render_camera *cam = &w->o.camera;
     int n = 0, moved = 0;
+    w->nclick_world = w->click_next = 0;
     for (int i = 0; i < in->nkeys; i++) {
         int k = in->keys[i];
         if (k >= (RENDER_KEY_CTRL | '1') && k <= (RENDER_KEY_CTRL | '6')) {
@@ -464,9 +471,11 @@ static int handle_input(navwin *w, const loop_scene *sc, const render_input *in,
         } else if (k >= RENDER_KEY_CLICK && k < RENDER_KEY_CLICK + in->nclicks) {
             /* handed back in its place among the keys: a key typed before it acts first */
             const double *xy = in->click[k - RENDER_KEY_CLICK];
-            if (slice_click(w, sc, xy) || surface_pick(w, sc, xy, w->click_world)) {
-                if (n < cap)
-                    keys[n++] = NAVWIN_KEY_CLICK;
+            double *home = w->click_world[w->nclick_world < RENDER_INPUT_CLICKS ? w->nclick_world : 0];
+            if ((slice_click(w, sc, xy, home) || surface_pick(w, sc, xy, home)) && n < cap &&
+                w->nclick_world < RENDER_INPUT_CLICKS) {
+                keys[n++] = NAVWIN_KEY_CLICK;
+                w->nclick_world++;
                 moved = 1;
             }
         } else if (!look_key(w, k) && n < cap)

@@ -78,12 +78,13 @@ int navwin_show(navwin *w, const loop_scene *sc, const navview_extra *x, const c
 /* A click on a slice of the four-up layout moves the slices there and comes back among the keys
  * as NAVWIN_KEY_CLICK, in the order it came with them (a piece chosen by a key and then clicked
  * is chosen first, though both arrive in one frame); so does a click on a fragment's surface in
- * the 3D view. navwin_click_at gives the world point (LPS mm) of the last one handed back, where
- * it lies in the CT: on a slice, the point clicked (on a fragment, mapped back from its pose to
- * its home); on the surface, the first voxel of a fragment's mask along the view's ray, in the
- * fragment's home. 0. */
+ * the 3D view. navwin_click_at, called once for each NAVWIN_KEY_CLICK in their order, gives each
+ * its own world point (LPS mm; two clicks in one frame were both given the last one's), where it
+ * lies in the CT: on a slice, the point clicked (on a fragment, mapped back from its pose to its
+ * home); on the surface, the first voxel of a fragment's mask along the view's ray, in the
+ * fragment's home. 0, or -1 when the frame handed back no click. */
 #define NAVWIN_KEY_CLICK RENDER_KEY_CLICK
-int navwin_click_at(const navwin *w, double world[3]);
+int navwin_click_at(navwin *w, double world[3]);
 /* The seed mode's preview: the window draws pieces[0..n-1] (the fragments a split would make, each
  * at its own pose; they must outlive the next call) in place of the case's fragments, until it is
  * called again; n 0 draws the case's again. 0 or FN_E*. */
