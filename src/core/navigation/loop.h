@@ -312,10 +312,10 @@ int loop_scene_read(loop *L, loop_scene *out);
  * loop_run sleeps between events and a step's work is bounded (max_tries). */
 int loop_realtime_priority(void);
 /* Runs the calling thread, a worker beside the loop (the live preview's), under ordinary
- * scheduling at the lowest priority (nice 19) on every CPU, whatever it inherited from the thread
- * that started it: one started by a loop_realtime_priority thread would otherwise share the
+ * scheduling at nice `nice` (19: the lowest priority) on every CPU, whatever it inherited from the
+ * thread that started it: one started by a loop_realtime_priority thread would otherwise share the
  * loop's CPU under SCHED_FIFO, and the loop would wait for it. Best effort. */
-void loop_background_priority(void);
+void loop_background_priority(int nice);
 
 /* The loop's clock: what loop_run ticks by and the rates, latencies and journal stamps count in.
  * The default is the monotonic clock (fnclock_now_us, which also stamps the reader's arrival_us),

@@ -39,9 +39,9 @@ int loop_realtime_priority(void)
     return platform_rt_priority();
 }
 
-void loop_background_priority(void)
+void loop_background_priority(int nice)
 {
-    platform_background_priority();
+    platform_background_priority(nice);
 }
 
 /* Tells the reader where the loop runs: on one CPU under SCHED_FIFO, or not real-time (-1). */

@@ -18,10 +18,10 @@ int platform_rt_cpu(int *prio);
 /* Moves the calling thread onto `cpu` under real-time scheduling at priority prio (best effort:
  * nothing changes where it is refused). */
 void platform_rt_follow(int cpu, int prio);
-/* Puts the calling thread under ordinary scheduling at the lowest priority (nice 19), free to run
- * on every CPU: a thread inherits its creator's policy and CPU, so one started by a real-time
+/* Puts the calling thread under ordinary scheduling at nice `nice` (0..19; 19 the lowest), free to
+ * run on every CPU: a thread inherits its creator's policy and CPU, so one started by a real-time
  * thread would otherwise run under SCHED_FIFO on that thread's CPU. Best effort. */
-void platform_background_priority(void);
+void platform_background_priority(int nice);
 /* on: keeps the process's memory out of khugepaged's reach (counted: the last off gives it back,
  * unless it was kept out before the first on). */
 void platform_hold_huge_pages(int on);

@@ -59,7 +59,7 @@ void platform_rt_follow(int cpu, int prio)
         pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp);
 }
 
-void platform_background_priority(void)
+void platform_background_priority(int nice)
 {
     struct sched_param sp = {.sched_priority = 0};
     pthread_setschedparam(pthread_self(), SCHED_OTHER, &sp);
@@ -68,7 +68,7 @@ void platform_background_priority(void)
     for (int c = 0; c < CPU_SETSIZE; c++)
         CPU_SET(c, &all); /* the kernel keeps those the process may use */
     pthread_setaffinity_np(pthread_self(), sizeof all, &all);
-    setpriority(PRIO_PROCESS, (id_t)syscall(SYS_gettid), 19);
+    setpriority(PRIO_PROCESS, (id_t)syscall(SYS_gettid), nice < 0 ? 0 : nice > 19 ? 19 : nice);
 }
 
 /* khugepaged, when it merges a process's pages into a huge page, takes the range away while it
