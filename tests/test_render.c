@@ -1352,6 +1352,23 @@ static void no_xdotool(void)
     skip();
 }
 
+/* Xvfb for a test that drives navigate's window with xdotool (its display in *display). Skips,
+ * saying why, under ThreadSanitizer (Xlib's and GLX's own locking), or where xdotool or Xvfb is
+ * missing (a failure under CI). */
+static pid_t xdotool_xvfb(int *display)
+{
+#if defined(__SANITIZE_THREAD__)
+    print_message("skipped under ThreadSanitizer: Xlib's and GLX's own locking\n");
+    skip();
+#endif
+    if (access("/usr/bin/xdotool", X_OK) != 0)
+        no_xdotool();
+    pid_t xvfb = start_xvfb(display);
+    if (!xvfb)
+        no_xvfb();
+    return xvfb;
+}
+
 /* The pointer and the window's keys drive navigate's window (xdotool on Xvfb, through XTEST as a
  * hand would): a left drag of 180 pixels to the right orbits the view by 90 degrees, from the
  * anterior view to the right one, F3 gives the four-up layout (its slices through the selected
@@ -1361,16 +1378,8 @@ static void no_xdotool(void)
 static void test_navigate_window_mouse_and_keys(void **st)
 {
     (void)st;
-#if defined(__SANITIZE_THREAD__)
-    print_message("skipped under ThreadSanitizer: Xlib's and GLX's own locking\n");
-    skip();
-#endif
-    if (access("/usr/bin/xdotool", X_OK) != 0)
-        no_xdotool();
     int display;
-    pid_t xvfb = start_xvfb(&display);
-    if (!xvfb)
-        no_xvfb();
+    pid_t xvfb = xdotool_xvfb(&display);
     char *dir = tu_tmpdir("navmouse"), case_dir[4200];
     tu_two_blocks_case(dir, case_dir, sizeof case_dir);
     char *out = NULL;
@@ -1459,16 +1468,8 @@ static int four_up_world(const planning_case *c, const double through[3], double
 static void four_up_window(const char *name, const char *edit, const char *nav, const char *actions,
                            const char *wait_for, const char *look, const char *look_before)
 {
-#if defined(__SANITIZE_THREAD__)
-    print_message("skipped under ThreadSanitizer: Xlib's and GLX's own locking\n");
-    skip();
-#endif
-    if (access("/usr/bin/xdotool", X_OK) != 0)
-        no_xdotool();
     int display;
-    pid_t xvfb = start_xvfb(&display);
-    if (!xvfb)
-        no_xvfb();
+    pid_t xvfb = xdotool_xvfb(&display);
     char *dir = tu_tmpdir(name), case_dir[4200], *out = NULL;
     tu_two_blocks_case(dir, case_dir, sizeof case_dir);
     if (edit)
@@ -1588,16 +1589,8 @@ typedef struct seed_run {
  * B saved moved by b_moved mm along x first. Skips the test where there is no xdotool or Xvfb. */
 static void seed_run_start(seed_run *s, const char *name, double b_moved)
 {
-#if defined(__SANITIZE_THREAD__)
-    print_message("skipped under ThreadSanitizer: Xlib's and GLX's own locking\n");
-    skip();
-#endif
-    if (access("/usr/bin/xdotool", X_OK) != 0)
-        no_xdotool();
     int display;
-    s->xvfb = start_xvfb(&display);
-    if (!s->xvfb)
-        no_xvfb();
+    s->xvfb = xdotool_xvfb(&display);
     s->dir = tu_tmpdir(name);
     s->seen[0] = '\0';
     tu_two_blocks_case(s->dir, s->case_dir, sizeof s->case_dir);
@@ -1887,16 +1880,8 @@ static void test_navigate_window_seed_mode_previews(void **st)
 static void test_navigate_window_keyboard_steers(void **st)
 {
     (void)st;
-#if defined(__SANITIZE_THREAD__)
-    print_message("skipped under ThreadSanitizer: Xlib's and GLX's own locking\n");
-    skip();
-#endif
-    if (access("/usr/bin/xdotool", X_OK) != 0)
-        no_xdotool();
     int display;
-    pid_t xvfb = start_xvfb(&display);
-    if (!xvfb)
-        no_xvfb();
+    pid_t xvfb = xdotool_xvfb(&display);
     char *dir = tu_tmpdir("navkeys"), case_dir[4200];
     tu_two_blocks_case(dir, case_dir, sizeof case_dir);
     char *out = NULL;
