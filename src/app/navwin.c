@@ -471,7 +471,8 @@ static int handle_input(navwin *w, const loop_scene *sc, const render_input *in,
         } else if (k >= RENDER_KEY_CLICK && k < RENDER_KEY_CLICK + in->nclicks) {
             /* handed back in its place among the keys: a key typed before it acts first */
             const double *xy = in->click[k - RENDER_KEY_CLICK];
-            double *home = w->click_world[w->nclick_world < RENDER_INPUT_CLICKS ? w->nclick_world : 0];
+            double spare[3]; /* never used: a frame holds at most RENDER_INPUT_CLICKS clicks */
+            double *home = w->nclick_world < RENDER_INPUT_CLICKS ? w->click_world[w->nclick_world] : spare;
             if ((slice_click(w, sc, xy, home) || surface_pick(w, sc, xy, home)) && n < cap &&
                 w->nclick_world < RENDER_INPUT_CLICKS) {
                 keys[n++] = NAVWIN_KEY_CLICK;
