@@ -645,6 +645,9 @@ static void test_cli_bench_separate(void **st)
     assert_true(json_real_value(json_object_get(json_object_get(bone, "seeded"), "fragment_dice_min")) >= 0.95);
     assert_int_equal(json_integer_value(json_object_get(json_object_get(bone, "automatic"), "fragments_found")), 2);
     assert_int_equal(json_integer_value(json_object_get(json_object_get(j, "pooled"), "intact_bones")), 0);
+    /* the window's click of the second seed was measured (a number, not null) */
+    assert_true(json_is_real(json_object_get(bone, "preview_seconds")));
+    assert_true(json_real_value(json_object_get(bone, "preview_seconds")) >= 0);
     json_decref(j);
     free(out);
     /* --pelvis: the blocks as two bones of patient 002, each CT holding its own; added into one */

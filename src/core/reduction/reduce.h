@@ -136,15 +136,15 @@ typedef struct reduce_opts {
                           * about a cross axis (bench reduce, long bone: success 0.30 -> 0.55, skull
                           * unchanged); 0: one radius for all three (the RMS distance from the
                           * centroid) */
-    int hops;            /* a long piece (largest principal variance over 4 times the next): up to
-                          * this many rounds of hops after the fit, each the fit again from the
-                          * result turned 3 degrees either way about each of the piece's principal
-                          * axes, the best kept while a round gains (bench reduce --ct long-bone:
-                          * success 0.55 -> 0.75). Any other piece hops only when a first-stage
-                          * start ended in a rival basin (reduce_result.rival: within 0.002 of the
-                          * best start's metric, over 1 degree or 1 mm from it), and a hop is then
-                          * kept only free of collision and better in metric alone by 1e-4
-                          * (CT_pitch: 0.90 -> 0.95); 0: none */
+    int hops;            /* up to this many rounds of hops after the fit, each the fit again from
+                          * the result turned 3 degrees either way about each of the piece's
+                          * principal axes and moved 1.5 mm either way along each, the best kept
+                          * while a round gains. A long piece (largest principal variance over 4
+                          * times the next; bench reduce --ct long-bone: success 0.55 -> 0.75)
+                          * costs colliding poses; any other piece hops strictly: short hops (60
+                          * evaluations each), the best refined, kept only free of collision and
+                          * better in metric alone by 1e-4 (CT_pitch: 0.90 -> 0.95; the real
+                          * pelvic pieces of bench reduce --labels: back_rate 0.77 -> 0.90); 0: none */
     int coarse;          /* 1: the first stage (automatic VOI) fits coarse copies of the fragments
                           * (2 voxels a cell per axis where the spacing is finest). Off by default:
                           * in `bench reduce` its flatter metric led fits astray (success 0.25
@@ -166,7 +166,7 @@ typedef struct reduce_opts {
 /* PRAXIS (the most successful in `fracnav bench reduce`), trilinear, a 1 mm band, pre-alignment on
  * (a global candidate),
  * no gap, automatic VOI of any size, 3 first-stage starts, rotation scaled per principal axis, 3
- * rounds of hops for a long piece, no coarse stage, trust 12 mm / 18 degrees, tau 0.5/0.95,
+ * rounds of hops, no coarse stage, trust 12 mm / 18 degrees, tau 0.5/0.95,
  * tolerance 0.5 mm, xtol 0.01 mm, 4000 evaluations (all stages, attempts and hops together). */
 void reduce_defaults(reduce_opts *o);
 
@@ -231,8 +231,7 @@ void reduce_result_free(reduce_result *r);
  * global stage instead: candidate starts (the start, it turned 15 degrees and moved 8 mm either
  * way about and along each principal axis, and the pre-alignment when o->prealign) fitted coarse,
  * the best one or two refined as above without the wall, the end of best metric over the union of
- * their VOIs the result (rivals: see reduce_result). A long piece then hops (o->hops), another
- * one where its fit found a rival basin. A result that still collides beyond the tolerance is
+ * their VOIs the result (rivals: see reduce_result). The piece then hops (o->hops). A result that still collides beyond the tolerance is
  * pushed out along the contact normal (up to 5 mm), else the start is kept; a free one is settled
  * (o->settle_mm). A result whose metric is worse than the start's (over the final VOI) is not
  * kept when the start is free. Sets moving->pose = r->end.

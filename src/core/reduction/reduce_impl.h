@@ -149,6 +149,8 @@ typedef struct reduce_tuning {
     double rival_mm, rival_deg; /* ...when it lies farther than this from the best */
     double hop_elongation;   /* a long piece: largest principal variance this many times the next */
     double hop_deg;          /* a hop's turn */
+    double hop_mm;           /* and a hop's move */
+    int hop_evals;           /* a strict hop's fit stops after this many evaluations */
     double hop_margin;       /* a hop of a piece that is not long must gain this much metric */
     double long_margin;      /* and one of a long piece this much */
     /* the order of several fragments */
