@@ -22,6 +22,7 @@
 #include "volio.h"
 
 #include <math.h>
+#include <pthread.h>
 #include <png.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -200,6 +201,51 @@ static void test_surface_meshes_are_decimated(void **st)
     mesh_free(&m);
     if (drawn <= 0 || drawn > 0.3 * (double)full)
         fail_msg("the surface meshes hold %ld triangles; the full surface has %ld", drawn, full);
+}
+
+typedef struct prep_job {
+    const scene *s;
+    double iso_hu;
+    render_prep *p;
+} prep_job;
+
+static void *prepare_on_a_thread(void *arg)
+{
+    prep_job *j = arg;
+    j->p = render_prepare(j->s->ct, j->s->f, 2, j->iso_hu, 2);
+    return NULL;
+}
+
+/* The seed mode's preview prepares its pieces' crops and meshes on its worker
+ * (render_prepare) and the window uploads them (render_set_prepared): the picture is
+ * render_set_fragments's, pixel for pixel; a preparation at another level is not used (the
+ * same picture again), and more fragments than can be drawn are refused by count. */
+static void test_prepared_fragments_draw_the_same(void **st)
+{
+    scene *s = *st;
+    render_options o;
+    options(s, &o, RENDER_SURFACE);
+    assert_int_equal(render_set_fragments(s->r, s->ct, s->f, 2), 0);
+    draw(s, NULL, &o);
+    uint8_t *want = malloc(sizeof s->rgb);
+    memcpy(want, s->rgb, sizeof s->rgb);
+    long tri = render_surface_triangles(s->r);
+    for (int other = 0; other < 2; other++) {
+        prep_job j = {s, other ? 500.0 : render_iso_hu(s->r), NULL};
+        pthread_t t;
+        assert_int_equal(pthread_create(&t, NULL, prepare_on_a_thread, &j), 0);
+        pthread_join(t, NULL);
+        if (!j.p)
+            fail_msg("render_prepare: %s", fn_err_msg());
+        assert_int_equal(render_set_prepared(s->r, s->ct, s->f, 2, j.p), 0);
+        render_prep_free(j.p);
+        draw(s, NULL, &o);
+        assert_int_equal(render_surface_triangles(s->r), tri);
+        assert_memory_equal(s->rgb, want, sizeof s->rgb);
+    }
+    free(want);
+    assert_null(render_prepare(s->ct, s->f, RENDER_MAX_FRAGS + 1, 300, 1));
+    assert_non_null(strstr(fn_err_msg(), "at most"));
 }
 
 static void test_four_up_with_overlays_matches(void **st)
@@ -2037,6 +2083,7 @@ int main(void)
         cmocka_unit_test(test_offscreen_takes_egl_or_falls_back_to_osmesa),
         cmocka_unit_test_setup_teardown(test_every_mode_draws_and_matches, setup, teardown),
         cmocka_unit_test_setup_teardown(test_surface_meshes_are_decimated, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_prepared_fragments_draw_the_same, setup, teardown),
         cmocka_unit_test_setup_teardown(test_four_up_with_overlays_matches, setup, teardown),
         cmocka_unit_test_setup_teardown(test_four_up_pixel_to_world, setup, teardown),
         cmocka_unit_test_setup_teardown(test_cutaway_shows_the_piece_in_hand, setup, teardown),

@@ -459,7 +459,7 @@ static void window_frame(view *v, const loop_scene *sc)
     }
     /* the split the seeds make, grown on the seed mode's worker, shown once it is done */
     if (navseed_preview(&v->seed, session_case(v->k), sc->pose, sc->nfrag) &&
-        navwin_set_pieces(v->win, v->seed.pieces, v->seed.npieces) < 0) {
+        navwin_set_pieces(v->win, v->seed.pieces, v->seed.npieces, v->seed.prep) < 0) {
         fprintf(stderr, "fracnav navigate: the window: %s\n", fn_err_msg());
         quit = 1;
     }

@@ -14,6 +14,9 @@
 #include <unistd.h>
 
 #define KEY_F10 (RENDER_KEY_F1 + 9)
+/* The pieces' crops and meshes are made on the worker and one more thread (the machine of the
+ * benchmarks has two cores; the window's thread only uploads them). */
+#define NAVSEED_PREP_THREADS 2
 
 void navseed_init(navseed *s)
 {
@@ -30,6 +33,9 @@ void navseed_free(navseed *s)
     s->job_poses = NULL;
     case_preview_free(s->preview);
     s->preview = NULL;
+    render_prep_free(s->job_prep);
+    render_prep_free(s->prep);
+    s->job_prep = s->prep = NULL;
     s->pieces = NULL;
     s->npieces = 0;
 }
@@ -82,7 +88,8 @@ void navseed_click(navseed *s, const double world[3])
     describe(s, "seed dropped");
 }
 
-/* The worker: one case_preview_update over the job. */
+/* The worker: one case_preview_update over the job, and the pieces' crops and meshes for the
+ * window (at the case's level, the window's; without them the window makes them itself). */
 static void *grow_job(void *arg)
 {
     navseed *s = arg;
@@ -91,6 +98,9 @@ static void *grow_job(void *arg)
         s->preview = case_preview_new(s->job_case);
     s->job_result = s->preview ? case_preview_update(s->preview, s->job_poses, s->job_seed, s->job_n, &s->job_pieces)
                                : FN_ENOMEM;
+    s->job_prep = s->job_result > 0 ? render_prepare(s->job_case->ct, s->job_pieces, s->job_result,
+                                                     s->job_case->seg.threshold, NAVSEED_PREP_THREADS)
+                                    : NULL;
     s->job_ms = (double)(fnclock_now_us() - t0) / 1000.0;
     snprintf(s->job_error, sizeof s->job_error, "%s", s->job_result < 0 ? fn_err_msg() : "");
     atomic_store(&s->done, 1);
@@ -127,6 +137,8 @@ static void start_job(navseed *s, const planning_case *c, const pose *poses, int
 int navseed_preview(navseed *s, const planning_case *c, const pose *poses, int nposes)
 {
     int shown = 0;
+    render_prep_free(s->prep); /* uploaded by now */
+    s->prep = NULL;
     if (s->running && !atomic_load(&s->done))
         return 0;
     if (s->running) {
@@ -137,6 +149,8 @@ int navseed_preview(navseed *s, const planning_case *c, const pose *poses, int n
         char what[400];
         s->npieces = s->job_result > 0 ? s->job_result : 0;
         s->pieces = s->job_pieces;
+        s->prep = s->job_prep;
+        s->job_prep = NULL;
         if (s->job_result >= 0)
             snprintf(what, sizeof what, "preview: %d fragment%s (%.0f ms), Enter accepts", s->job_result,
                      s->job_result == 1 ? "" : "s", s->job_ms);

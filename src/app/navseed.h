@@ -21,6 +21,8 @@
 #include <pthread.h>
 #include <stdatomic.h>
 
+struct render_prep; /* render.h */
+
 #define NAVSEED_MAX 64 /* seeds at most; more are refused with a note */
 
 typedef struct navseed {
@@ -33,6 +35,8 @@ typedef struct navseed {
     case_preview *preview;
     const frag *pieces; /* the preview: the fragments the seeds would make (npieces, 0: none) */
     int npieces;
+    struct render_prep *prep; /* their crops and meshes, made on the worker (NULL: none made), valid
+                         * until the next navseed_preview: navwin_set_pieces uploads them */
     /* The preview's growth runs on a worker thread, a job at a time: while running, the worker
      * alone touches preview and the job's fields, until it sets done. */
     pthread_t worker;
@@ -44,6 +48,7 @@ typedef struct navseed {
     pose *job_poses;      /* malloc'd, job_nposes; NULL: the fragments' own */
     int job_result;       /* case_preview_update's */
     const frag *job_pieces;
+    struct render_prep *job_prep; /* render_prepare of job_pieces at the case's level (the window's) */
     double job_ms;
     char job_error[256];
     char status[512];
@@ -61,8 +66,8 @@ void navseed_click(navseed *s, const double world[3]);
 /* The preview of the split, called at every frame: when the seeds changed, a worker thread grows
  * the fragments Enter would make of c (case_preview_update: after a new seed only its growth is
  * updated; each piece at its parent's pose of poses, nposes of them; NULL: their own), and when it
- * is done, s->pieces become them, or none when seed mode is off, has no seed or a seed is bad (the
- * status says why). The window never waits for the growth; c must stay the same until
+ * is done, s->pieces become them (their crops and meshes made there too, s->prep), or none when
+ * seed mode is off, has no seed or a seed is bad (the status says why). The window never waits for the growth; c must stay the same until
  * navseed_free, and only its labels, CT and fragments' voxels are read off the caller's thread.
  * Returns 1 when s->pieces changed, 0 when not. */
 int navseed_preview(navseed *s, const planning_case *c, const pose *poses, int nposes);

@@ -204,7 +204,7 @@ navwin *navwin_open(session *k, int steer, int width, int height, const navwin_l
     return w;
 }
 
-int navwin_set_pieces(navwin *w, const frag *pieces, int n)
+int navwin_set_pieces(navwin *w, const frag *pieces, int n, const render_prep *prep)
 {
     const frag *f = n > 0 ? pieces : w->c->frag;
     int nf = n > 0 ? n : w->c->nfrag;
@@ -214,7 +214,7 @@ int navwin_set_pieces(navwin *w, const frag *pieces, int n)
     w->have_trees = 0;
     w->split_preview = n > 0;
     w->dirty = 1;
-    int rc = render_set_fragments(w->r, w->c->ct, f, nf);
+    int rc = n > 0 ? render_set_prepared(w->r, w->c->ct, f, nf, prep) : render_set_fragments(w->r, w->c->ct, f, nf);
     return rc ? rc : n > 0 ? 0 : need_trees(w);
 }
 

@@ -87,8 +87,9 @@ int navwin_show(navwin *w, const loop_scene *sc, const navview_extra *x, const c
 int navwin_click_at(navwin *w, double world[3]);
 /* The seed mode's preview: the window draws pieces[0..n-1] (the fragments a split would make, each
  * at its own pose; they must outlive the next call) in place of the case's fragments, until it is
- * called again; n 0 draws the case's again. 0 or FN_E*. */
-int navwin_set_pieces(navwin *w, const frag *pieces, int n);
+ * called again; n 0 draws the case's again. prep: their crops and meshes made off this thread
+ * (render_prepare at the case's level; NULL: made here). 0 or FN_E*. */
+int navwin_set_pieces(navwin *w, const frag *pieces, int n, const render_prep *prep);
 /* The last frame drawn (HUD included) at the loop's newest scene, as a PNG file. 0 or FN_E*. */
 int navwin_screenshot(navwin *w, const char *png);
 /* navwin_screenshot, its failure said on stderr as "fracnav CMD: --screenshot PNG: WHY". */

@@ -5,6 +5,7 @@
 #include "morph.h"
 
 #include <math.h>
+#include <pthread.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -317,19 +318,25 @@ static float *masked_crop(const frag *f, const vol *ct, double iso_hu)
     const float lo = (float)iso_hu, below = (float)(iso_hu - RENDER_OUTSIDE_MARGIN);
     size_t idx = 0;
     for (int k = 0; k < f->dim[2]; k++)
-        for (int j = 0; j < f->dim[1]; j++)
-            for (int i = 0; i < f->dim[0]; i++, idx++) {
-                int l[3] = {i, j, k}, s[3];
-                frag_local_to_source(f, l, s);
-                int in_ct = ct && s[0] >= 0 && s[1] >= 0 && s[2] >= 0 && s[0] < ct->dim[0] &&
-                            s[1] < ct->dim[1] && s[2] < ct->dim[2];
-                float x = in_ct ? ct->data[vol_idx(ct, s[0], s[1], s[2])] : RENDER_OUTSIDE_HU;
+        for (int j = 0; j < f->dim[1]; j++) {
+            /* a row of the crop is a row of the CT, run one way or the other (a flip) */
+            int l[3] = {0, j, k}, s[3], last[3];
+            frag_local_to_source(f, l, s);
+            l[0] = f->dim[0] - 1;
+            frag_local_to_source(f, l, last);
+            int step = last[0] >= s[0] ? 1 : -1;
+            int row = ct && s[1] >= 0 && s[2] >= 0 && s[1] < ct->dim[1] && s[2] < ct->dim[2];
+            const float *src = row ? ct->data + vol_idx(ct, 0, s[1], s[2]) : NULL;
+            for (int i = 0, x0 = s[0]; i < f->dim[0]; i++, idx++, x0 += step) {
+                int in_ct = row && x0 >= 0 && x0 < ct->dim[0];
+                float x = in_ct ? src[x0] : RENDER_OUTSIDE_HU;
                 if (f->prob[idx])
                     x = in_ct && x >= lo ? x : lo + 500.0f;
                 else
                     x = x < below ? x : below;
                 v[idx] = x;
             }
+        }
     return v;
 }
 
@@ -423,39 +430,147 @@ static float *mesh_vertices(const mesh *m, const float *g, const int d[3], const
     return v;
 }
 
-static int upload_mesh(render *r, render_frag *rf, const float *vals)
+/* What a fragment's upload computes before any GL call (render_prepare can make it on another
+ * thread): its masked crop and its surface mesh's triangles and vertices. */
+typedef struct frag_prep {
+    float *vals;  /* masked_crop */
+    mesh m;       /* its triangles (m.tri, m.nt; m.nv vertices) */
+    float *verts; /* mesh_vertices */
+} frag_prep;
+
+struct render_prep {
+    double iso_hu;
+    int nfrag;
+    frag_prep f[RENDER_MAX_FRAGS];
+};
+
+static void frag_prep_free(frag_prep *p)
 {
+    free(p->vals);
+    free(p->verts);
+    mesh_free(&p->m);
+    memset(p, 0, sizeof *p);
+}
+
+/* f's crop and mesh at iso_hu. 0 or FN_ENOMEM (p then holds nothing). */
+static int frag_prep_make(frag_prep *p, const frag *f, const vol *ct, double iso_hu)
+{
+    memset(p, 0, sizeof *p);
+    p->vals = masked_crop(f, ct, iso_hu);
+    if (!p->vals)
+        return fn_err_set(FN_ENOMEM, "render: out of memory for fragment %d's %dx%dx%d crop", f->id, f->dim[0],
+                          f->dim[1], f->dim[2]);
     /* Cells of about 0.5M voxels at most. Where that takes blocks of s^3 voxels, the mesh follows
      * their means. The closed surface is then decimated by RENDER_MESH_KEEP (its shortest edges,
      * the slivers that marching tetrahedra leaves, go first): software GL pays per triangle. */
-    double voxels = (double)rf->dim[0] * rf->dim[1] * rf->dim[2];
+    double voxels = (double)f->dim[0] * f->dim[1] * f->dim[2];
     int s = (int)ceil(cbrt(voxels / (1 << 19)));
     s = s < 1 ? 1 : s;
     int d[3];
     double sp[3], off[3];
     for (int a = 0; a < 3; a++) {
-        sp[a] = rf->spacing[a] * s;
-        off[a] = 0.5 * (s - 1) * rf->spacing[a]; /* a block's mean stands for its centre */
+        sp[a] = f->spacing[a] * s;
+        off[a] = 0.5 * (s - 1) * f->spacing[a]; /* a block's mean stands for its centre */
     }
-    float *means = s > 1 ? block_means(vals, rf->dim, s, (float)r->iso_hu, d) : NULL;
-    if (s > 1 && !means)
+    float *means = s > 1 ? block_means(p->vals, f->dim, s, (float)iso_hu, d) : NULL;
+    if (s > 1 && !means) {
+        frag_prep_free(p);
         return fn_err_set(FN_ENOMEM, "render: out of memory for a surface mesh's grid");
-    const float *g = means ? means : vals;
+    }
+    const float *g = means ? means : p->vals;
     if (!means)
-        memcpy(d, rf->dim, sizeof d);
-    mesh m;
-    int rc = mesh_extract(g, d, sp, (float)r->iso_hu, &m);
+        memcpy(d, f->dim, sizeof d);
+    int rc = mesh_extract(g, d, sp, (float)iso_hu, &p->m);
     if (rc) {
         free(means);
+        frag_prep_free(p);
         return rc;
     }
-    long nt = mesh_decimate(&m, (long)((double)m.nt * RENDER_MESH_KEEP));
-    float *v = nt < 0 ? NULL : mesh_vertices(&m, g, d, sp, off);
+    long nt = mesh_decimate(&p->m, (long)((double)p->m.nt * RENDER_MESH_KEEP));
+    p->verts = nt < 0 ? NULL : mesh_vertices(&p->m, g, d, sp, off);
     free(means);
-    if (!v) {
-        mesh_free(&m);
+    if (!p->verts) {
+        frag_prep_free(p);
         return nt < 0 ? (int)nt : fn_err_set(FN_ENOMEM, "render: out of memory for a surface mesh");
     }
+    return 0;
+}
+
+typedef struct prep_share {
+    render_prep *p;
+    const vol *ct;
+    const frag *frags;
+    int nfrag, first, step, rc;
+} prep_share;
+
+/* Fragments first, first + step, ... of a preparation; the first error kept. */
+static void *prep_some(void *arg)
+{
+    prep_share *s = arg;
+    for (int i = s->first; i < s->nfrag && s->rc == 0; i += s->step)
+        s->rc = frag_prep_make(&s->p->f[i], &s->frags[i], s->ct, s->p->iso_hu);
+    return NULL;
+}
+
+render_prep *render_prepare(const vol *ct, const frag *frags, int nfrag, double iso_hu, int threads)
+{
+    if (nfrag < 0 || nfrag > RENDER_MAX_FRAGS) {
+        fn_err_set(FN_EINVAL, "render: %d fragments, at most %d can be drawn", nfrag, RENDER_MAX_FRAGS);
+        return NULL;
+    }
+    render_prep *p = calloc(1, sizeof *p);
+    if (!p) {
+        fn_err_set(FN_ENOMEM, "render: out of memory for a scene's preparation");
+        return NULL;
+    }
+    p->iso_hu = iso_hu;
+    p->nfrag = nfrag; /* each f[i] holds nothing until made (frag_prep_free takes that) */
+    threads = threads < 1 ? 1 : threads > RENDER_PREP_THREADS ? RENDER_PREP_THREADS : threads;
+    threads = threads > nfrag ? (nfrag > 0 ? nfrag : 1) : threads;
+    prep_share share[RENDER_PREP_THREADS];
+    pthread_t tid[RENDER_PREP_THREADS];
+    int started[RENDER_PREP_THREADS] = {0}, rc = 0;
+    for (int t = 0; t < threads; t++) {
+        share[t] = (prep_share){p, ct, frags, nfrag, t, threads, 0};
+        started[t] = t > 0 && pthread_create(&tid[t], NULL, prep_some, &share[t]) == 0;
+    }
+    for (int t = 0; t < threads; t++)
+        if (!started[t]) /* this thread's share, and any whose thread did not start */
+            prep_some(&share[t]);
+    for (int t = 0; t < threads; t++) {
+        if (started[t])
+            pthread_join(tid[t], NULL);
+        if (share[t].rc && !rc) {
+            rc = share[t].rc;
+            if (started[t]) /* fn_err is per thread: said again here */
+                fn_err_set(rc, "render: out of memory preparing the fragments' crops and meshes");
+        }
+    }
+    if (rc) {
+        render_prep_free(p);
+        return NULL;
+    }
+    return p;
+}
+
+void render_prep_free(render_prep *p)
+{
+    if (!p)
+        return;
+    for (int i = 0; i < p->nfrag; i++)
+        frag_prep_free(&p->f[i]);
+    free(p);
+}
+
+double render_iso_hu(const render *r)
+{
+    return r->iso_hu;
+}
+
+static int upload_mesh(render *r, render_frag *rf, const frag_prep *p)
+{
+    const mesh m = p->m;
+    const float *v = p->verts;
     rf->mesh_triangles = m.nt;
     r->gl.GenVertexArrays(1, &rf->mesh_vao);
     r->gl.GenBuffers(1, &rf->mesh_vbo);
@@ -471,8 +586,6 @@ static int upload_mesh(render *r, render_frag *rf, const float *vals)
     r->gl.EnableVertexAttribArray(0);
     r->gl.EnableVertexAttribArray(1);
     r->gl.BindVertexArray(0);
-    free(v);
-    mesh_free(&m);
     return 0;
 }
 
@@ -511,7 +624,8 @@ static uint8_t *occupancy(const frag *f, const int od[3])
     return dil;
 }
 
-static int upload_fragment(render *r, render_frag *rf, const frag *f, const vol *ct)
+/* f's crop and mesh: prep's when given (made for f at r's level), else made here. */
+static int upload_fragment(render *r, render_frag *rf, const frag *f, const vol *ct, const frag_prep *prep)
 {
     memcpy(rf->dim, f->dim, sizeof rf->dim);
     memcpy(rf->spacing, f->spacing, sizeof rf->spacing);
@@ -526,17 +640,21 @@ static int upload_fragment(render *r, render_frag *rf, const frag *f, const vol 
         for (int b = 0; b < 3; b++)
             rf->axes[a][b] = f->axes[a][b];
     }
-    float *vals = masked_crop(f, ct, r->iso_hu);
-    if (!vals)
-        return fn_err_set(FN_ENOMEM, "render: out of memory for fragment %d's %dx%dx%d crop", f->id,
-                          f->dim[0], f->dim[1], f->dim[2]);
+    frag_prep own;
+    if (!prep) {
+        int rc = frag_prep_make(&own, f, ct, r->iso_hu);
+        if (rc)
+            return rc;
+    }
+    const frag_prep *p = prep ? prep : &own;
     r->gl.GenTextures(1, &rf->tex);
     r->gl.BindTexture(GL_TEXTURE_3D, rf->tex);
     tex3d_params(r, GL_LINEAR);
     r->gl.PixelStorei(GL_UNPACK_ALIGNMENT, 1);
-    r->gl.TexImage3D(GL_TEXTURE_3D, 0, GL_R16F, f->dim[0], f->dim[1], f->dim[2], 0, GL_RED, GL_FLOAT, vals);
-    int rc = upload_mesh(r, rf, vals);
-    free(vals);
+    r->gl.TexImage3D(GL_TEXTURE_3D, 0, GL_R16F, f->dim[0], f->dim[1], f->dim[2], 0, GL_RED, GL_FLOAT, p->vals);
+    int rc = upload_mesh(r, rf, p);
+    if (!prep)
+        frag_prep_free(&own);
     return rc;
 }
 
@@ -768,7 +886,7 @@ static int upload_contacts(render *r, render_frag *rf, const frag *f, const obb_
 
 /* render_set_scene; keep_ct: the CT texture stays as it is (render_set_fragments). */
 static int set_scene(render *r, const vol *ct, const frag *frags, int nfrag, double iso_hu, const obb_params *hp,
-                     int keep_ct)
+                     int keep_ct, const render_prep *prep)
 {
     if (nfrag < 0 || nfrag > RENDER_MAX_FRAGS)
         return fn_err_set(FN_EINVAL, "render: %d fragments, at most %d can be drawn", nfrag,
@@ -782,7 +900,7 @@ static int set_scene(render *r, const vol *ct, const frag *frags, int nfrag, dou
     int rc = 0;
     for (int i = 0; i < nfrag && !rc; i++) {
         r->nfrag = i + 1;
-        rc = upload_fragment(r, &r->frag[i], &frags[i], ct);
+        rc = upload_fragment(r, &r->frag[i], &frags[i], ct, prep ? &prep->f[i] : NULL);
         for (int a = 0; a < 3; a++)
             r->min_spacing = frags[i].spacing[a] < r->min_spacing ? frags[i].spacing[a] : r->min_spacing;
         if (!rc && hp)
@@ -812,12 +930,18 @@ static int set_scene(render *r, const vol *ct, const frag *frags, int nfrag, dou
 int render_set_scene(render *r, const vol *ct, const frag *frags, int nfrag, double iso_hu,
                      const obb_params *hp)
 {
-    return set_scene(r, ct, frags, nfrag, iso_hu, hp, 0);
+    return set_scene(r, ct, frags, nfrag, iso_hu, hp, 0, NULL);
 }
 
 int render_set_fragments(render *r, const vol *ct, const frag *frags, int nfrag)
 {
-    return set_scene(r, ct, frags, nfrag, r->iso_hu, NULL, 1);
+    return set_scene(r, ct, frags, nfrag, r->iso_hu, NULL, 1, NULL);
+}
+
+int render_set_prepared(render *r, const vol *ct, const frag *frags, int nfrag, const render_prep *p)
+{
+    int fits = p && p->nfrag == nfrag && p->iso_hu == r->iso_hu; /* else made here, as without it */
+    return set_scene(r, ct, frags, nfrag, r->iso_hu, NULL, 1, fits ? p : NULL);
 }
 
 int render_set_hierarchies(render *r, const frag *frags, const obb_params *hp)

@@ -123,6 +123,20 @@ int render_set_scene(render *r, const vol *ct, const frag *frags, int nfrag, dou
  * unchanged (its values fill the crops). For a scene whose fragments change over one CT (the seed
  * mode's preview): the CT is not uploaded again. 0 or FN_E*. */
 int render_set_fragments(render *r, const vol *ct, const frag *frags, int nfrag);
+/* render_set_fragments in two halves, so that the slow one stays off the window's thread (the
+ * seed mode's preview: its worker prepares the pieces it grew). render_prepare, on any thread, no
+ * GL: the fragments' masked crops of ct and their surface meshes at level iso_hu (render_iso_hu
+ * of the render they are for), on up to `threads` threads (1..RENDER_PREP_THREADS: the caller's
+ * and threads - 1 of its own, a fragment each in turn); NULL with fn_err (FN_EINVAL: more than
+ * RENDER_MAX_FRAGS, or FN_ENOMEM). render_set_prepared, on r's thread: render_set_fragments with p's crops and meshes
+ * (p made from these frags and ct; one made at another level or for another count is not used,
+ * and the fragments are then prepared here). p stays the caller's. */
+typedef struct render_prep render_prep;
+#define RENDER_PREP_THREADS 8
+render_prep *render_prepare(const vol *ct, const frag *frags, int nfrag, double iso_hu, int threads);
+void render_prep_free(render_prep *p);
+double render_iso_hu(const render *r);
+int render_set_prepared(render *r, const vol *ct, const frag *frags, int nfrag, const render_prep *p);
 /* Builds the hierarchies and distance maps of the scene's fragments (frags as given to
  * render_set_scene) for the hierarchy and contacts overlays, when render_set_scene was given none
  * (a window that turns those overlays on later). 0 or FN_ENOMEM. */

@@ -62,9 +62,11 @@ const reduce_tuning reduce__tune = {
     .hop_elongation = 4.0,
     .hop_deg = 3.0,
     .hop_mm = 1.5,
-    /* bench reduce --labels (30 fits): hops fitted to the end 0.93 back, median 0.47 s; capped at
-     * 60 evaluations 0.90, 0.28 s; 120: 0.90, 0.37 s; without hops 0.77, 0.16 s */
-    .hop_evals = 60,
+    /* bench reduce --labels (30 fits) and the skull (20), back_rate and success, median s: no hops
+     * 0.77 0.19 s, 0.95 0.26 s; turns and moves, each fit to the end 0.93 0.47 s; capped at 60
+     * evaluations 0.90 0.29 s, 0.95 0.43 s; moves only at 40: 0.90 0.21 s, 0.95 0.29 s; at 25:
+     * 0.77; turns only at 60: 0.87 */
+    .hop_evals = 40,
     /* a strict margin for pieces that are not long: CT_pitch success 0.90 -> 0.95 */
     .hop_margin = 1e-4,
     .long_margin = 1e-7,

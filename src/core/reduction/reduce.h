@@ -136,15 +136,15 @@ typedef struct reduce_opts {
                           * about a cross axis (bench reduce, long bone: success 0.30 -> 0.55, skull
                           * unchanged); 0: one radius for all three (the RMS distance from the
                           * centroid) */
-    int hops;            /* up to this many rounds of hops after the fit, each the fit again from
-                          * the result turned 3 degrees either way about each of the piece's
-                          * principal axes and moved 1.5 mm either way along each, the best kept
-                          * while a round gains. A long piece (largest principal variance over 4
-                          * times the next; bench reduce --ct long-bone: success 0.55 -> 0.75)
-                          * costs colliding poses; any other piece hops strictly: short hops (60
+    int hops;            /* up to this many rounds of hops after the fit, the best kept while a
+                          * round gains. A long piece (largest principal variance over 4 times the
+                          * next): the fit again from the result turned 3 degrees either way about
+                          * each of its principal axes, colliding poses costed (bench reduce --ct
+                          * long-bone: success 0.55 -> 0.75). Any other piece, strictly: from the
+                          * result moved 1.5 mm either way along each axis, short fits (40
                           * evaluations each), the best refined, kept only free of collision and
-                          * better in metric alone by 1e-4 (CT_pitch: 0.90 -> 0.95; the real
-                          * pelvic pieces of bench reduce --labels: back_rate 0.77 -> 0.90); 0: none */
+                          * better in metric alone by 1e-4 (the real pelvic pieces of bench reduce
+                          * --labels: back_rate 0.77 -> 0.90); 0: none */
     int coarse;          /* 1: the first stage (automatic VOI) fits coarse copies of the fragments
                           * (2 voxels a cell per axis where the spacing is finest). Off by default:
                           * in `bench reduce` its flatter metric led fits astray (success 0.25

@@ -10,7 +10,7 @@
  *               about as good), each refined as above but without the wall;
  *  4. winner:   the attempts' ends compared over the union of their VOIs (rivals among them kept);
  *  5. rivals:   whether the first stage's starts ended in rival basins;
- *  6. hops:     the fit again from turns and moves of the result, the best kept while it gains;
+ *  6. hops:     the fit again from turns (a long piece) or moves of the result, the best kept;
  *  7. finish:   the result pushed out of collision, its metrics and history.
  * Every number they are tuned by is in the table reduce__tune (reduce_impl.h, reduce.c). */
 #include "reduce.h"
@@ -829,12 +829,12 @@ static void keep_candidates(fit_state *s)
     }
 }
 
-/* One round of hops from cur (cost fcur): the fit again from cur turned hop_deg either way about
- * each principal axis of the piece, then moved hop_mm either way along each; *next, *fnext: the
- * best end that beats fnext by margin (left as they are when none does). strict: an end counts
- * only free of collision, by its metric alone, and each hop is a short fit (the first stage's
- * coarser step, first_xtol, and at most hop_evals evaluations), the best one then fitted to the
- * full step from where it stopped. */
+/* One round of hops from cur (cost fcur); *next, *fnext: the best end that beats fnext by margin
+ * (left as they are when none does). Not strict (a long piece): the fit again from cur turned
+ * hop_deg either way about each principal axis of the piece. strict: from cur moved hop_mm either
+ * way along each, each hop a short fit (the first stage's coarser step, first_xtol, and at most
+ * hop_evals evaluations), the best one then fitted to the full step from where it stopped; an end
+ * counts only free of collision, by its metric alone. */
 static int hop_round(fit_state *s, const pose *cur, int strict, double margin, pose *next, double *fnext)
 {
     const reduce_tuning *T = &reduce__tune;
@@ -846,7 +846,7 @@ static int hop_round(fit_state *s, const pose *cur, int strict, double margin, p
         ob->xtol = T->first_xtol * xtol;
     if (strict)
         ob->cap = T->hop_evals;
-    for (int h = 0; h < 2 * HOP_TURNS && rc == 0 && !ob->cancelled; h++) {
+    for (int h = strict ? HOP_TURNS : 0; h < (strict ? 2 * HOP_TURNS : HOP_TURNS) && rc == 0 && !ob->cancelled; h++) {
         double axis[3], cm[3], c[3], fb, sign = h % 2 ? 1 : -1;
         s->moving->pose = *cur;
         reduce__axis_world(s->moving, h % HOP_TURNS / 2, axis);
@@ -893,16 +893,16 @@ static int hop_round(fit_state *s, const pose *cur, int strict, double margin, p
     return rc;
 }
 
-/* Hops: the fit again from turns and moves of its result, the best kept while a round gains (up to
- * o->hops rounds). The metric's basin on a real fracture surface is narrow and rippled: a fit can
- * stop in a nearby basin a degree or two and a millimetre or two off, where the true pose scores
- * better (bench reduce --labels, the pelvic development set's real pieces: 5 of 7 fits not back
- * stopped so; back_rate 0.77 -> 0.93 with every piece hopping, turns and moves). A long piece: a cut
- * through a tube is nearly symmetric under a turn about its axis and the metric ripples in the
- * turns (bench reduce --ct long-bone: fits stopped 4-12 degrees off); its hops cost colliding
- * poses. Any other piece hops strictly (see hop_round): a fit that ends interpenetrating (to be
- * pushed out) costs collide_cost, and any free pose nearby would beat that (hopping with the plain
- * rule: CT_pitch success 0.90 -> 0.80). */
+/* Hops: the fit again from turns or moves of its result, the best kept while a round gains (up to
+ * o->hops rounds). A long piece: a cut through a tube is nearly symmetric under a turn about its
+ * axis and the metric ripples in the turns (bench reduce --ct long-bone: fits stopped 4-12 degrees
+ * off); it hops by turns, colliding poses costed. Any other piece: the metric's basin on a real
+ * fracture surface is narrow and rippled, and a fit can stop a degree or two and a millimetre or
+ * two off, where the true pose scores better (bench reduce --labels, the pelvic development set's
+ * real pieces: 5 of the 7 fits not back stopped so); it hops by short moves, strictly (see
+ * hop_round): a fit that ends interpenetrating (to be pushed out) costs collide_cost, and any free
+ * pose nearby would beat that (hopping with the plain rule: CT_pitch success 0.90 -> 0.80). Measured
+ * (docs/benchmarks.md): back_rate 0.77 -> 0.90 for 10% more CPU a fit. */
 static int stage_hops(fit_state *s)
 {
     const reduce_opts *o = s->o;
