@@ -31,7 +31,9 @@ static void usage(FILE *out)
             "                             journal); a kill leaves the old case or the new one\n"
             CMD_WAIT_HELP
             CMD_THRESHOLD_HELP
-            "  --min-volume ML            drop components under ML millilitres (default 0.5)\n"
+            "  --min-volume ML            drop components under ML millilitres (default 0.5; 0.1\n"
+            "                             with --whole-bone on a CT that holds only the bone,\n"
+            "                             where a small component is a chip of bone)\n"
             "  --exclude-below-peak HU    drop components whose brightest voxel is under HU: the CT\n"
             "                             head holder (300-600 HU) goes with e.g. 1000\n"
             "  --keep N                   keep only the N largest components\n"
@@ -119,7 +121,7 @@ static int parse(int argc, char **argv, seg_params *p, cmd_case_args *c, extra *
         if (!strcmp(a, "--min-volume")) {
             if (!cmd_number(val, &d) || d < 0)
                 return cmd_bad_value("segment", a, val, "a number of ml >= 0");
-            p->min_volume_ml = d;
+            p->min_volume_ml = p->min_volume_bone_only_ml = d;
         } else if (!strcmp(a, "--exclude-below-peak")) {
             if (!cmd_number(val, &d))
                 return cmd_bad_value("segment", a, val, "a number (HU)");

@@ -51,8 +51,11 @@ int bone_segment(const vol *v, const seg_params *p, seg_result *out)
     if (!mask)
         return fn_err_set(FN_ENOMEM, "bone: out of memory for the bone mask");
     int rc = bone_find(v, seg_threshold(v, p), mask);
+    seg_params q = *p;
+    if (rc == BONE_ONLY_CT)
+        q.min_volume_ml = p->min_volume_bone_only_ml;
     if (rc >= 0)
-        rc = seg_run_mask(v, mask, p, out);
+        rc = seg_run_mask(v, mask, &q, out);
     free(mask);
     return rc;
 }

@@ -11,6 +11,7 @@ void seg_defaults(seg_params *p)
     memset(p, 0, sizeof *p);
     p->threshold = 300;
     p->min_volume_ml = 0.5;
+    p->min_volume_bone_only_ml = 0.1; /* bone.h's BONE_ONLY_MIN_ML */
     p->ramp = 200;
 }
 

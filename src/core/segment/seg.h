@@ -18,6 +18,8 @@ typedef struct seg_params {
     int threshold_auto;        /* 1: Otsu's threshold over the volume's histogram; 2: Otsu again
                                 * over the brighter class (bone within tissue, for head CT) */
     double min_volume_ml;      /* components smaller than this are dropped */
+    double min_volume_bone_only_ml; /* bone_segment on a CT that holds only the bone: this instead
+                                * (bone.h, BONE_ONLY_MIN_ML by default) */
     int exclude_peak;          /* 1: apply exclude_below_peak */
     double exclude_below_peak; /* components whose maximum value is below this are dropped */
     int keep;                  /* > 0: keep only the `keep` largest components */
