@@ -59,6 +59,44 @@ static planning_case *make_case(const char *dir, const char *src)
     return c;
 }
 
+/* A labelmap whose voxel is no whole label 0..65535 (1.5, -1, NaN, 70000) makes no case: the error
+ * names the voxel and its value; a whole label past the background's plain zeros is taken. */
+static void test_labels_not_whole_are_refused(void **st)
+{
+    (void)st;
+    char *dir = tu_tmpdir("case_badlabel"), src[4200], cdir[4300];
+    snprintf(src, sizeof src, "%s/ct.nii.gz", dir);
+    write_ct(src, 1000);
+    const float bad[] = {1.5f, -1.0f, NAN, 70000.0f};
+    for (int b = 0; b < 5; b++) {
+        vol *ct = volio_read(src), *labels = vol_new(ct->dim[0], ct->dim[1], ct->dim[2]);
+        memcpy(labels->affine, ct->affine, sizeof labels->affine); /* the CT's grid */
+        memcpy(labels->spacing, ct->spacing, sizeof labels->spacing);
+        for (int k = 2; k < 10; k++)
+            for (int j = 2; j < 14; j++)
+                for (int i = 2; i < 10; i++)
+                    labels->data[vol_idx(labels, i, j, k)] = 1;
+        labels->data[vol_idx(labels, 5, 7, 3)] = b < 4 ? bad[b] : 2;
+        seg_params p;
+        seg_defaults(&p);
+        snprintf(cdir, sizeof cdir, "%s/case%d", dir, b);
+        planning_case *c = case_create(cdir, src, ct, labels, &p);
+        if (b == 4) {
+            if (!c)
+                fail_msg("a whole label 2: %s", fn_err_msg());
+            assert_int_equal(c->nfrag, 2);
+            case_free(c);
+            continue;
+        }
+        if (c)
+            fail_msg("label %g was taken", (double)bad[b]);
+        if (!strstr(fn_err_msg(), "voxel (5,7,3) holds") || !strstr(fn_err_msg(), "not a label 0..65535"))
+            fail_msg("label %g: %s", (double)bad[b], fn_err_msg());
+    }
+    tu_rmtree(dir);
+    free(dir);
+}
+
 static void test_round_trip(void **st)
 {
     char *dir = tu_tmpdir("case"), src[4200], cdir[4200];
@@ -440,6 +478,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_round_trip),
+        cmocka_unit_test(test_labels_not_whole_are_refused),
         cmocka_unit_test(test_folder_moves),
         cmocka_unit_test(test_damaged_fields),
         cmocka_unit_test(test_changed_files),

@@ -155,36 +155,26 @@ void case_set_fixed(planning_case *c, const uint8_t *fixed)
             c->fixed_also[c->nfixed_also++] = c->frag[i].id;
 }
 
-static int check_labels(const vol *labels)
-{
-    size_t n = vol_count(labels);
-    for (size_t i = 0; i < n; i++) {
-        float v = labels->data[i];
-        if (!(v >= 0 && v <= LABEL_MAX) || v != floorf(v)) {
-            size_t x = i % (size_t)labels->dim[0], rest = i / (size_t)labels->dim[0];
-            return fn_err_set(FN_EFORMAT, "labels: voxel (%zu,%zu,%zu) holds %g, not a label 0..%d",
-                              x, rest % (size_t)labels->dim[1], rest / (size_t)labels->dim[1],
-                              (double)v, LABEL_MAX);
-        }
-    }
-    return 0;
-}
-
-/* Bounding boxes of every label 1..LABEL_MAX: lo/hi have LABEL_MAX+1 rows; hi[l][0] < 0 = absent. */
-static void label_boxes(const vol *labels, int (*lo)[3], int (*hi)[3])
+/* One pass over the labels: each voxel a whole number 0..LABEL_MAX (else FN_EFORMAT naming the
+ * voxel), and the bounding box of every label 1..LABEL_MAX (lo/hi have LABEL_MAX+1 rows; hi[l][0]
+ * < 0 = absent). The background is most of a CT: it costs one comparison a voxel. */
+static int label_boxes(const vol *labels, int (*lo)[3], int (*hi)[3])
 {
     for (int l = 0; l <= LABEL_MAX; l++)
         for (int a = 0; a < 3; a++) {
             lo[l][a] = INT_MAX;
             hi[l][a] = -1;
         }
-    size_t idx = 0;
+    const float *v = labels->data;
     for (int k = 0; k < labels->dim[2]; k++)
-        for (int j = 0; j < labels->dim[1]; j++)
-            for (int i = 0; i < labels->dim[0]; i++, idx++) {
-                int l = (int)labels->data[idx];
-                if (!l)
+        for (int j = 0; j < labels->dim[1]; j++, v += labels->dim[0])
+            for (int i = 0; i < labels->dim[0]; i++) {
+                if (v[i] == 0)
                     continue;
+                int l = v[i] > 0 && v[i] <= LABEL_MAX ? (int)v[i] : -1;
+                if (l < 0 || (float)l != v[i])
+                    return fn_err_set(FN_EFORMAT, "labels: voxel (%d,%d,%d) holds %g, not a label 0..%d", i, j,
+                                      k, (double)v[i], LABEL_MAX);
                 int ijk[3] = {i, j, k};
                 for (int a = 0; a < 3; a++) {
                     if (ijk[a] < lo[l][a])
@@ -193,6 +183,7 @@ static void label_boxes(const vol *labels, int (*lo)[3], int (*hi)[3])
                         hi[l][a] = ijk[a];
                 }
             }
+    return 0;
 }
 
 static void inherit(frag *f, pose *truth, const planning_case *old, int from_id, int keep_looks)
@@ -211,9 +202,7 @@ static void inherit(frag *f, pose *truth, const planning_case *old, int from_id,
 
 int case_rebuild(planning_case *c, int new_id, int parent_id)
 {
-    int rc = check_labels(c->labels);
-    if (rc < 0)
-        return rc;
+    int rc = 0;
     int(*lo)[3] = malloc((LABEL_MAX + 1) * sizeof *lo);
     int(*hi)[3] = malloc((LABEL_MAX + 1) * sizeof *hi);
     frag *nf = NULL;
@@ -222,7 +211,8 @@ int case_rebuild(planning_case *c, int new_id, int parent_id)
         rc = fn_err_set(FN_ENOMEM, "case: out of memory");
         goto done;
     }
-    label_boxes(c->labels, lo, hi);
+    if ((rc = label_boxes(c->labels, lo, hi)) < 0)
+        goto done;
     int n = 0;
     for (int l = 1; l <= LABEL_MAX; l++)
         n += hi[l][0] >= 0;
