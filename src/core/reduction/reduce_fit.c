@@ -842,27 +842,32 @@ static int hop_round(fit_state *s, const pose *cur, int strict, double margin, p
     double xtol = ob->xtol, fbest = *fnext;
     pose best = *cur;
     int rc = 0;
-    if (strict)
+    if (strict) {
         ob->xtol = T->first_xtol * xtol;
-    if (strict)
         ob->cap = T->hop_evals;
+    }
     for (int h = strict ? HOP_TURNS : 0; h < (strict ? 2 * HOP_TURNS : HOP_TURNS) && rc == 0 && !ob->cancelled; h++) {
         double axis[3], cm[3], c[3], fb, sign = h % 2 ? 1 : -1;
+        pose hp;
         s->moving->pose = *cur;
         reduce__axis_world(s->moving, h % HOP_TURNS / 2, axis);
         reduce__centroid_world(s->moving, cm);
-        pose turn = pose_from_axis_angle(axis, sign * T->hop_deg * PI / 180), hp;
-        ob->start = reduce__turned(cur, &turn, cm, cm);
-        if (h >= HOP_TURNS) { /* the moves */
-            ob->start = *cur;
+        ob->start = *cur;
+        if (h < HOP_TURNS) { /* a turn */
+            pose turn = pose_from_axis_angle(axis, sign * T->hop_deg * PI / 180);
+            ob->start = reduce__turned(cur, &turn, cm, cm);
+        } else /* a move */
             for (int a = 0; a < 3; a++)
                 ob->start.t[a] += sign * T->hop_mm * axis[a];
-        }
         s->moving->pose = ob->start;
         reduce__centroid_world(s->moving, c);
         rc = fit_from(s, c, 0, &hp, &fb);
-        if (rc == 0 && strict)
-            fb = reduce_metric_eval(s->metric, &hp, NULL);
+        if (rc == 0 && strict) {
+            int hit = reduce__collides(&s->col, &hp, NULL);
+            if (hit < 0)
+                rc = hit;
+            fb = hit ? INFINITY : reduce_metric_eval(s->metric, &hp, NULL);
+        }
         if (rc == 0 && fb < fbest - margin) {
             fbest = fb;
             best = hp;
@@ -902,7 +907,7 @@ static int hop_round(fit_state *s, const pose *cur, int strict, double margin, p
  * real pieces: 5 of the 7 fits not back stopped so); it hops by short moves, strictly (see
  * hop_round): a fit that ends interpenetrating (to be pushed out) costs collide_cost, and any free
  * pose nearby would beat that (hopping with the plain rule: CT_pitch success 0.90 -> 0.80). Measured
- * (docs/benchmarks.md): back_rate 0.77 -> 0.90 for 10% more CPU a fit. */
+ * (docs/benchmarks.md): back_rate 0.77 -> 0.90 for 10-30% more CPU a fit. */
 static int stage_hops(fit_state *s)
 {
     const reduce_opts *o = s->o;
