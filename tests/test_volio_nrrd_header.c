@@ -178,6 +178,12 @@ static void test_nul_in_header_refused(void **st)
     static const char field[] = "NRRD0004\ntype: unsigned\0 char\ndimension: 3\n";
     tu_write_file(tu_in_dir("nulfield.nrrd"), field, sizeof field - 1);
     expect_both_refused(tu_in_dir("nulfield.nrrd"), "line 2: a NUL byte at character 15", NULL);
+    /* in the magic line too (the scan passed such a header unread; teem reads "NRRD0004" up to the
+     * NUL and went on to a numbered name whose width overran its buffer: fuzz_nrrd, CI) */
+    static const char magic[] = "NRRD0004\0\0\0" "1\ntype: unsigned char\ndimension: 3\nsizes: 4 4 4\n"
+                                "spacings: 1 1 1\nencoding: raw\ndata file: s%5000d.raw 0 3 1 2\n";
+    tu_write_file(tu_in_dir("nulmagic.nrrd"), magic, sizeof magic - 1);
+    expect_both_refused(tu_in_dir("nulmagic.nrrd"), "line 1: a NUL byte at character 9", NULL);
 }
 
 /* `segment --labels` reads its labelmap through the same check. */

@@ -278,7 +278,7 @@ int volio__nrrd_scan(const char *path, int labels)
     int rc = 0;
     if (!s.line)
         rc = fn_err_set(FN_ENOMEM, "%s: out of memory", path);
-    else if (s.f && next_line(&s) > 0 && !strncmp(s.line, "NRRD", 4))
+    else if (s.f && (rc = next_line(&s)) > 0 && !strncmp(s.line, "NRRD", 4)) /* a bad magic line: refused */
         while (rc >= 0 && (rc = next_line(&s)) > 0 && s.line[0])
             rc = s.line[0] == '#' ? comment(&s) : field(&s);
     if (s.f)
