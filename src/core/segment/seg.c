@@ -1,5 +1,7 @@
 #include "seg.h"
 
+#include "bone.h"
+
 #include "err.h"
 
 #include <math.h>
@@ -11,7 +13,7 @@ void seg_defaults(seg_params *p)
     memset(p, 0, sizeof *p);
     p->threshold = 300;
     p->min_volume_ml = 0.5;
-    p->min_volume_bone_only_ml = 0.1; /* bone.h's BONE_ONLY_MIN_ML */
+    p->min_volume_bone_only_ml = BONE_ONLY_MIN_ML;
     p->ramp = 200;
 }
 
