@@ -9,6 +9,7 @@
 #include "case.h"
 #include "durable.h"
 #include "err.h"
+#include "obb.h"
 #include "testutil.h"
 #include "volio.h"
 
@@ -474,6 +475,138 @@ static void test_corruption_battery(void **st)
     free(dir);
 }
 
+/* The inode of path (0 when it cannot be read). */
+static ino_t inode_of(const char *path)
+{
+    struct stat sb;
+    return stat(path, &sb) == 0 ? sb.st_ino : 0;
+}
+
+/* A save whose labels are unchanged writes case.json alone (labels.nii.gz stays the same file);
+ * labels changed in memory, even without a rebuild, or a labels file changed behind the case's
+ * back, or another folder, get their labels written, and each loads as saved. */
+static void test_unchanged_labels_are_not_written(void **st)
+{
+    (void)st;
+    char *dir = tu_tmpdir("case_keep"), src[4200], cdir[4200], lab[4300], other[4300];
+    snprintf(src, sizeof src, "%s/ct.nii.gz", dir);
+    snprintf(cdir, sizeof cdir, "%s/case", dir);
+    snprintf(lab, sizeof lab, "%s/labels.nii.gz", cdir);
+    write_ct(src, 700);
+    planning_case *c = make_case(cdir, src);
+    assert_int_equal(case_save(c), 0);
+    ino_t first = inode_of(lab);
+    assert_true(first != 0);
+    c->frag[1].pose.t[0] = 2.5; /* a pose: only case.json changes */
+    assert_int_equal(case_save(c), 0);
+    assert_true(inode_of(lab) == first);
+    planning_case *d = case_load(cdir);
+    if (!d)
+        fail_msg("%s", fn_err_msg());
+    assert_true(d->frag[1].pose.t[0] == 2.5);
+    d->frag[1].pose.t[1] = -1; /* a loaded case keeps its labels file too */
+    assert_int_equal(case_save(d), 0);
+    assert_true(inode_of(lab) == first);
+    case_free(d);
+
+    /* One voxel changed in memory, with no rebuild: written. */
+    size_t i0 = vol_idx(c->labels, 3, 3, 3);
+    assert_true(c->labels->data[i0] != 0);
+    c->labels->data[i0] = 0;
+    assert_int_equal(case_save(c), 0);
+    assert_true(inode_of(lab) != first);
+    d = case_load(cdir);
+    if (!d)
+        fail_msg("%s", fn_err_msg());
+    assert_true(d->labels->data[i0] == 0);
+    case_free(d);
+
+    /* The file replaced behind the case's back (its sha256 is no longer the one saved): the save
+     * writes the case's labels over it, and the case loads as saved. */
+    c->labels->data[i0] = c->labels->data[vol_idx(c->labels, 3, 3, 4)];
+    assert_int_equal(volio_write(c->labels, lab, VOL_U16), 0);
+    c->labels->data[i0] = 0;
+    assert_int_equal(case_save(c), 0);
+    d = case_load(cdir);
+    if (!d)
+        fail_msg("%s", fn_err_msg());
+    assert_true(d->labels->data[i0] == 0);
+    case_free(d);
+
+    /* Another folder: its labels are written there. */
+    snprintf(c->dir, sizeof c->dir, "%s/moved", dir);
+    snprintf(other, sizeof other, "%s/moved/labels.nii.gz", dir);
+    assert_int_equal(case_save(c), 0);
+    assert_true(inode_of(other) != 0);
+    d = case_load(c->dir);
+    if (!d)
+        fail_msg("%s", fn_err_msg());
+    assert_true(d->labels->data[i0] == 0);
+    case_free(d);
+    case_free(c);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* The overlap as a plain count over every voxel of a: 27 samples each, nearest voxel of b. */
+static double overlap_every_voxel(const planning_case *c, int a, int b)
+{
+    const frag *A = &c->frag[a], *B = &c->frag[b];
+    obb_params op = {c->tau_min, c->tau_max};
+    pose rel = pose_compose(pose_inverse(pose_compose(B->pose, B->home)), pose_compose(A->pose, A->home));
+    double R[3][3];
+    pose_to_matrix(&rel, R);
+    long hits = 0;
+    for (int k = 0; k < A->dim[2]; k++)
+        for (int j = 0; j < A->dim[1]; j++)
+            for (int i = 0; i < A->dim[0]; i++) {
+                if (!obb_effective_prob(A->prob[((size_t)k * A->dim[1] + j) * A->dim[0] + i], &op))
+                    continue;
+                for (int s = 0; s < 27; s++) {
+                    double l[3] = {(i + (s % 3 - 1) / 3.0) * A->spacing[0], (j + (s / 3 % 3 - 1) / 3.0) * A->spacing[1],
+                                   (k + (s / 9 - 1) / 3.0) * A->spacing[2]};
+                    long v[3];
+                    int in = 1;
+                    for (int r = 0; r < 3; r++) {
+                        v[r] = lround((R[r][0] * l[0] + R[r][1] * l[1] + R[r][2] * l[2] + rel.t[r]) / B->spacing[r]);
+                        in &= v[r] >= 0 && v[r] < B->dim[r];
+                    }
+                    hits += in && obb_effective_prob(B->prob[(v[2] * B->dim[1] + v[1]) * B->dim[0] + v[0]], &op);
+                }
+            }
+    return hits * A->spacing[0] * A->spacing[1] * A->spacing[2] * 1e-3 / 27;
+}
+
+/* case_overlap_ml looks only where b can be: at poses that push one block into the other, turned
+ * about each axis, it counts what a count over every voxel counts. */
+static void test_overlap_counts_every_voxel(void **st)
+{
+    (void)st;
+    char *dir = tu_tmpdir("case_overlap"), src[4200], cdir[4200];
+    snprintf(src, sizeof src, "%s/ct.nii.gz", dir);
+    snprintf(cdir, sizeof cdir, "%s/case", dir);
+    write_ct(src, 700);
+    planning_case *c = make_case(cdir, src);
+    const double axes[4][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}, {0.6, -0.48, 0.64}};
+    int some = 0;
+    for (int p = 0; p < 12; p++) {
+        c->frag[1].pose = pose_from_axis_angle(axes[p % 4], (p - 6) * 0.11);
+        /* block 2 lies 4.5 mm along the CT's i axis from block 1 (13-10 voxels apart, 1.5 mm) */
+        c->frag[1].pose.t[0] = -(c->frag[1].centroid[0] - c->frag[0].centroid[0]) * (0.3 + 0.1 * p);
+        c->frag[1].pose.t[1] = -(c->frag[1].centroid[1] - c->frag[0].centroid[1]) * (0.3 + 0.1 * p);
+        for (int a = 0; a < 2; a++) {
+            double want = overlap_every_voxel(c, a, 1 - a), got = case_overlap_ml(c, a, 1 - a);
+            if (fabs(want - got) > 1e-12)
+                fail_msg("pose %d, fragment %d in %d: %.9f ml, every voxel counted %.9f", p, a, 1 - a, got, want);
+            some += want > 0;
+        }
+    }
+    assert_true(some >= 12);
+    case_free(c);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -484,6 +617,8 @@ int main(void)
         cmocka_unit_test(test_changed_files),
         cmocka_unit_test(test_corruption_battery),
         cmocka_unit_test(test_interrupted_save_recovers),
+        cmocka_unit_test(test_unchanged_labels_are_not_written),
+        cmocka_unit_test(test_overlap_counts_every_voxel),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

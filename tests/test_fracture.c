@@ -668,6 +668,56 @@ static void test_golden_case(void **st)
     vol_free(ct);
 }
 
+/* --whole-bone on a CT that holds only the bone (0 outside): the ellipsoid's 1 voxel cortex at
+ * 1000 HU holds an interior at -60..90 HU, as fatty cancellous bone. At the threshold the pieces are
+ * the shell alone; with whole_bone they are the whole ellipsoid, the truth restores them, and
+ * where a moved piece left, 0 (the CT's outside) is written, not 40 HU. */
+static void test_whole_bone_pieces(void **st)
+{
+    (void)st;
+    vol *ct = bone();
+    size_t inside = 0;
+    for (int k = 0; k < 40; k++)
+        for (int j = 0; j < 44; j++)
+            for (int i = 0; i < 64; i++) {
+                double x = (i - 31.5) / 24, y = (j - 21.5) / 15, z = (k - 19.5) / 13;
+                double r = sqrt(x * x + y * y + z * z);
+                float *v = &ct->data[vol_idx(ct, i, j, k)];
+                *v = r > 1 ? 0 : r > 0.9 ? 1000 : (float)(-60 + (i * 7 + j * 13 + k * 3) % 150);
+                inside += r <= 1 && *v != 0;
+            }
+    fracture_params p;
+    fracture_defaults(&p);
+    p.seed = 7;
+    p.displace_mm = 4;
+    p.rotate_deg = 5;
+    size_t shell = 0, whole = 0;
+    for (int w = 0; w < 2; w++) {
+        p.whole_bone = w;
+        fracture_result r;
+        if (fracture_make(ct, &p, &r) < 0)
+            fail_msg("whole_bone %d: %s", w, fn_err_msg());
+        size_t n = count_label(r.cut, 1) + count_label(r.cut, 2);
+        *(w ? &whole : &shell) = n;
+        if (w) {
+            check_truth(ct, &r);
+            size_t zeros = 0, forty = 0;
+            for (size_t i = 0; i < vol_count(ct); i++) {
+                int left = r.cut->data[i] > 1 && r.labels->data[i] == 0;
+                zeros += left && r.ct->data[i] == 0;
+                forty += left && r.ct->data[i] == 40;
+            }
+            assert_true(zeros > 0);
+            assert_int_equal((int)forty, 0);
+        }
+        fracture_result_free(&r);
+    }
+    print_message("pieces: %zu voxels at the threshold, %zu whole, of %zu non-zero\n", shell, whole, inside);
+    assert_true(shell < inside / 2);
+    assert_true(whole > inside * 99 / 100 && whole <= inside);
+    vol_free(ct);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -683,6 +733,7 @@ int main(void)
         cmocka_unit_test(test_pieces_clear_near),
         cmocka_unit_test(test_ten_pieces),
         cmocka_unit_test(test_cli_threshold_auto),
+        cmocka_unit_test(test_whole_bone_pieces),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

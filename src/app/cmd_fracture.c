@@ -60,6 +60,10 @@ static void usage(FILE *out)
             "                         (libm). Default: 1\n"
             "  --noise HU             model 2: the noise's standard deviation (default 20)\n"
             CMD_THRESHOLD_HELP
+            "  --whole-bone           the bone cut is segment --whole-bone's, not the\n"
+            "                         threshold's: on a CT that holds only the bone (0 outside),\n"
+            "                         every non-zero voxel joined to the cortex, its cancellous\n"
+            "                         interior included; the gaps left are then 0, not 40 HU\n"
             CMD_TAU_HELP
             "  --json                 one JSON object on stdout instead of the text: command, case,\n"
             "                         source, seed, pieces, threshold, fragments (id, voxels,\n"
@@ -102,8 +106,8 @@ static int parse(int argc, char **argv, fracture_params *p, cmd_case_args *c)
         }
         const char *a = argv[i], *val = i + 1 < argc ? argv[i + 1] : NULL;
         double d;
-        if (!strcmp(a, "--touching")) {
-            p->touching = 1;
+        if (!strcmp(a, "--touching") || !strcmp(a, "--whole-bone")) {
+            *(a[2] == 't' ? &p->touching : &p->whole_bone) = 1;
             continue;
         }
         i++; /* every other option takes a value; a missing one is reported by its branch */

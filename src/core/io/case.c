@@ -57,10 +57,31 @@ double case_overlap_ml(const planning_case *c, int a, int b)
     double reach = 1; /* a voxel's samples lie within this many of b's voxels of its centre */
     for (int i = 0; i < 3; i++)
         reach = fmax(reach, 0.5 * (fabs(G[i][0]) + fabs(G[i][1]) + fabs(G[i][2])) + 1);
+    /* Only a's voxels whose centres land in b's box widened by reach can count: the corners of
+     * that box taken back into a's voxel indices bound them. */
+    pose back = pose_inverse(rel);
+    double Ri[3][3];
+    pose_to_matrix(&back, Ri);
+    int lo[3] = {A->dim[0], A->dim[1], A->dim[2]}, hi[3] = {-1, -1, -1};
+    for (int corner = 0; corner < 8; corner++) {
+        double bmm[3];
+        for (int r = 0; r < 3; r++)
+            bmm[r] = ((corner >> r & 1) ? B->dim[r] - 1 + reach : -reach) * B->spacing[r];
+        for (int i = 0; i < 3; i++) {
+            double x = (Ri[i][0] * bmm[0] + Ri[i][1] * bmm[1] + Ri[i][2] * bmm[2] + back.t[i]) / A->spacing[i];
+            int f = (int)fmax(-1, fmin(A->dim[i], floor(x))), e = (int)fmax(-1, fmin(A->dim[i], ceil(x)));
+            lo[i] = f < lo[i] ? f : lo[i];
+            hi[i] = e > hi[i] ? e : hi[i];
+        }
+    }
+    for (int i = 0; i < 3; i++) {
+        lo[i] = lo[i] < 0 ? 0 : lo[i];
+        hi[i] = hi[i] > A->dim[i] - 1 ? A->dim[i] - 1 : hi[i];
+    }
     long hits = 0;
-    for (int k = 0; k < A->dim[2]; k++)
-        for (int j = 0; j < A->dim[1]; j++)
-            for (int i = 0; i < A->dim[0]; i++) {
+    for (int k = lo[2]; k <= hi[2]; k++)
+        for (int j = lo[1]; j <= hi[1]; j++)
+            for (int i = lo[0]; i <= hi[0]; i++) {
                 uint8_t p = A->prob[((size_t)k * (size_t)A->dim[1] + (size_t)j) * (size_t)A->dim[0] + (size_t)i];
                 if (!obb_effective_prob(p, &op))
                     continue;

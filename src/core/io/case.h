@@ -22,6 +22,8 @@
 #include "seg.h"
 #include "vol.h"
 
+#include <stdint.h>
+
 #define CASE_VERSION 1
 
 #define CASE_FIXED_MAX 64 /* fixed fragments a case records */
@@ -34,6 +36,9 @@ typedef struct planning_case {
     char sha256[65];         /* of the source volume file */
     char json_sha256[65];    /* of case.json as last loaded or saved ("" before): what a journal
                               * is bound to */
+    char labels_sha256[65];  /* of labels.nii.gz as last loaded or saved ("" before) */
+    uint64_t labels_sum[2];  /* a checksum of labels' values then: a save whose labels still have
+                              * it, with that file still in the folder, writes case.json alone */
     vol *ct;                 /* the source volume, owned */
     vol *labels;             /* labelmap on the source grid (float label values), owned */
     int nfrag;

@@ -201,8 +201,45 @@ static char *case_text(const planning_case *c, const char *lsha, const char *jfi
     return text;
 }
 
+/* A checksum of the labelmap's values (two independent 64-bit lanes of multiply-xorshift mixing
+ * over its bytes): what case_save compares to know the labels unchanged since the file was made. */
+static void labels_checksum(const vol *l, uint64_t sum[2])
+{
+    const unsigned char *b = (const unsigned char *)l->data;
+    size_t n = vol_count(l) * sizeof *l->data, words = n / 8;
+    uint64_t h0 = 0x243f6a8885a308d3ull ^ n, h1 = 0x13198a2e03707344ull ^ (n * 31);
+    for (size_t i = 0; i < words; i++) {
+        uint64_t w;
+        memcpy(&w, b + 8 * i, 8);
+        h0 = (h0 ^ w) * 0x9e3779b97f4a7c15ull;
+        h0 ^= h0 >> 29;
+        h1 = (h1 + w) * 0xc2b2ae3d27d4eb4full;
+        h1 ^= h1 >> 31;
+    }
+    for (size_t i = 8 * words; i < n; i++) {
+        h0 = (h0 ^ b[i]) * 0x9e3779b97f4a7c15ull;
+        h1 = (h1 + b[i]) * 0xc2b2ae3d27d4eb4full;
+    }
+    sum[0] = h0 ^ (h0 >> 32);
+    sum[1] = h1 ^ (h1 >> 33);
+}
+
+/* Whether c's labels are those of the labels file in the case folder: c->labels_sha256 is that
+ * file's sha256 now, and the labels' values still have the checksum they had when it was read or
+ * written. */
+static int labels_on_disk(const planning_case *c, const char *lfin)
+{
+    char now[65];
+    uint64_t sum[2];
+    if (!c->labels_sha256[0] || durable_file_sha256(lfin, now) < 0 || strcmp(now, c->labels_sha256))
+        return 0;
+    labels_checksum(c->labels, sum);
+    return sum[0] == c->labels_sum[0] && sum[1] == c->labels_sum[1];
+}
+
 /* Writes both files aside (durable.h), then renames labels then case.json; the previous labels stay
- * linked until both are in place. */
+ * linked until both are in place. Labels unchanged since the folder's file was read or written are
+ * not written again: case.json alone is, naming that file. */
 int case_save(planning_case *c)
 {
     if (mkdir(c->dir, 0755) != 0 && errno != EEXIST)
@@ -212,12 +249,14 @@ int case_save(planning_case *c)
     join(lfin, sizeof lfin, c->dir, LABELS_FILE);
     join(jfin, sizeof jfin, c->dir, JSON_FILE);
     durable_file lt = {.fd = -1}, jt = {.fd = -1};
-    int rc = durable_create(&lt, lfin);
-    if (rc == 0)
+    int keep = labels_on_disk(c, lfin), rc = 0;
+    if (keep)
+        memcpy(lsha, c->labels_sha256, sizeof lsha);
+    else if ((rc = durable_create(&lt, lfin)) == 0)
         rc = volio_write(c->labels, lt.tmp, VOL_U16);
-    if (rc == 0)
+    if (rc == 0 && !keep)
         rc = durable_seal(&lt);
-    if (rc == 0)
+    if (rc == 0 && !keep)
         rc = durable_file_sha256(lt.tmp, lsha);
     if (rc == 0)
         rc = durable_create(&jt, jfin);
@@ -230,9 +269,9 @@ int case_save(planning_case *c)
     }
     if (rc == 0)
         rc = durable_seal(&jt);
-    if (rc == 0)
+    if (rc == 0 && !keep)
         rc = keep_previous_labels(lfin, lprev, c->dir);
-    if (rc == 0)
+    if (rc == 0 && !keep)
         rc = durable_rename(&lt, lfin);
     if (rc == 0)
         rc = durable_rename(&jt, jfin);
@@ -242,7 +281,11 @@ int case_save(planning_case *c)
     durable_abort(&jt);
     if (rc < 0)
         return fn_err_wrap(rc, "saving case %s", c->dir);
-    unlink(lprev); /* a leftover is harmless: the next save replaces it */
+    if (!keep) {
+        unlink(lprev); /* a leftover is harmless: the next save replaces it */
+        memcpy(c->labels_sha256, lsha, sizeof lsha);
+        labels_checksum(c->labels, c->labels_sum);
+    }
     memcpy(c->json_sha256, jsha, sizeof jsha);
     return 0;
 }
@@ -771,6 +814,8 @@ static int read_case(struct reader *r, json_t *root, planning_case *c)
         return rc;
     if ((rc = case_rebuild(c, 0, 0)) < 0)
         return fn_err_wrap(rc, "%s", lpath);
+    snprintf(c->labels_sha256, sizeof c->labels_sha256, "%s", lsha);
+    labels_checksum(c->labels, c->labels_sum);
     if ((rc = read_fixed(r, root, c)) < 0)
         return rc;
     if ((rc = read_fragments(r, root, c)) < 0)

@@ -4,6 +4,7 @@
 #include "case.h"
 #include "err.h"
 #include "frag.h"
+#include "bone.h"
 #include "seg.h"
 
 #include <math.h>
@@ -722,20 +723,25 @@ static int displace_pieces(fracture_result *r, const vol *src_ct, uint64_t *rng,
     return rc;
 }
 
+int fracture__bone(const vol *ct, const fracture_params *p, seg_result *seg)
+{
+    seg_params sp;
+    seg_defaults(&sp);
+    sp.threshold = p->threshold;
+    sp.threshold_auto = p->threshold_auto;
+    sp.min_volume_ml = sp.min_volume_bone_only_ml = 0;
+    sp.keep = 1;
+    return p->whole_bone ? bone_segment(ct, &sp, seg) : seg_run(ct, &sp, seg);
+}
+
 int fracture__model1(const vol *ct, const fracture_params *p, fracture_result *out)
 {
     memset(out, 0, sizeof *out);
     int rc = fracture_check(p);
     if (rc < 0)
         return rc;
-    seg_params sp;
-    seg_defaults(&sp);
-    sp.threshold = p->threshold;
-    sp.threshold_auto = p->threshold_auto;
-    sp.min_volume_ml = 0;
-    sp.keep = 1;
     seg_result seg;
-    rc = seg_run(ct, &sp, &seg);
+    rc = fracture__bone(ct, p, &seg);
     if (rc < 0)
         return rc;
     if (seg.ncomp < 1) {

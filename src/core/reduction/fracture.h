@@ -1,6 +1,7 @@
 /* fracture: synthetic fractures with known ground truth, made from a real CT.
  *
- * The bone (the largest component at `threshold`, or at Otsu's when threshold_auto) is cut
+ * The bone (the largest component at `threshold`, or at Otsu's when threshold_auto; with
+ * whole_bone, the largest of bone_find's whole bone, as `segment --whole-bone` finds it) is cut
  * pieces-1 times; each cut splits the currently largest piece with a rough surface: a plane
  * (normal near the piece's main axis, through a point near its centroid) displaced along its
  * normal by fractal value noise (fBm, 4 octaves). The new piece of a cut is its smaller side.
@@ -39,6 +40,9 @@ typedef struct fracture_params {
     double wavelength_mm; /* of the coarsest noise octave */
     double threshold;     /* bone threshold (HU), unless threshold_auto */
     int threshold_auto;   /* seg_params' meaning: 1 Otsu, 2 Otsu over the brighter class */
+    int whole_bone;       /* 1: the bone is bone_find's (segment --whole-bone: on a CT that holds
+                           * only the bone, its cancellous interior too), not the threshold's;
+                           * on such a CT, fill is then 0 (its outside) */
     double fill;          /* value written where bone was removed or left (soft tissue, HU) */
     double tau_min, tau_max; /* the case's hierarchy thresholds */
     int touching;         /* 1: each moved piece is turned and then pushed out only as far as it

@@ -3,6 +3,7 @@
 #include "fracture.h"
 #include "fracture_impl.h"
 
+#include "bone.h"
 #include "case.h"
 #include "err.h"
 #include "seg.h"
@@ -15,7 +16,10 @@
 
 int fracture_make(const vol *ct, const fracture_params *p, fracture_result *out)
 {
-    return p->model == 2 ? fracture_model2(ct, p, out) : fracture__model1(ct, p, out);
+    fracture_params q = *p;
+    if (q.whole_bone && bone_kind_of(ct) == BONE_ONLY_CT)
+        q.fill = 0; /* such a CT's outside: a gap that is not bone to segment --whole-bone */
+    return q.model == 2 ? fracture_model2(ct, &q, out) : fracture__model1(ct, &q, out);
 }
 
 planning_case *fracture_make_case(const vol *ct, const fracture_params *p, const char *dir)

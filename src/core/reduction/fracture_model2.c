@@ -297,14 +297,8 @@ int fracture_model2(const vol *ct, const fracture_params *p, fracture_result *ou
         return fn_err_set(FN_EINVAL, "fracture model 2 makes two pieces, apart, with no bone lost "
                           "(not --pieces %d%s%s)", p->pieces, p->touching ? ", --touching" : "",
                           p->bone_loss_mm > 0 ? ", --bone-loss" : "");
-    seg_params sp;
-    seg_defaults(&sp);
-    sp.threshold = p->threshold;
-    sp.threshold_auto = p->threshold_auto;
-    sp.min_volume_ml = 0;
-    sp.keep = 1;
     seg_result seg;
-    if ((rc = seg_run(ct, &sp, &seg)) < 0)
+    if ((rc = fracture__bone(ct, p, &seg)) < 0)
         return rc;
     out->threshold = seg.threshold;
     out->cut = seg.labels;
