@@ -6,6 +6,7 @@
 #include <stdint.h>
 #include <cmocka.h>
 
+#include "bone.h"
 #include "case.h"
 #include "err.h"
 #include "frag.h"
@@ -539,6 +540,18 @@ static void test_cli_whole_bone(void **st)
         fail_msg("%s", fn_err_msg());
     assert_int_equal(c->nfrag, 1);
     assert_int_equal(c->frag[0].voxels, solid);
+    assert_true(c->seg.min_volume_ml == 0);
+    case_free(c);
+    /* Without --min-volume, case.json records the bone-only floor that was used, not the full CT's. */
+    rc = tu_run_cli(&out, "segment '%s' -o '%s' --force --whole-bone", ct, out_dir);
+    if (rc != 0)
+        fail_msg("rc %d: %s", rc, out);
+    free(out);
+    if (!(c = case_load(out_dir)))
+        fail_msg("%s", fn_err_msg());
+    assert_int_equal(c->nfrag, 1);
+    if (c->seg.min_volume_ml != BONE_ONLY_MIN_ML)
+        fail_msg("case.json says min_volume_ml %g, the floor used was %g", c->seg.min_volume_ml, BONE_ONLY_MIN_ML);
     case_free(c);
     vol_free(v);
     tu_rmtree(dir);

@@ -313,6 +313,8 @@ int cmd_segment(int argc, char **argv)
     }
     if (!err && !x.labels)
         err = (x.whole_bone ? bone_segment(ct, &p, &r) : seg_run(ct, &p, &r)) < 0;
+    if (!err && !x.labels && x.whole_bone && bone_kind_of(ct) == BONE_ONLY_CT)
+        p.min_volume_ml = p.min_volume_bone_only_ml; /* the floor used there, as case.json records it */
     if (!err)
         err = cmd_seg_found(ct, &p, &r, x.labels) < 0;
     if (err) {
