@@ -6,6 +6,7 @@
 #include "case.h"
 #include "durable.h"
 #include "err.h"
+#include "frag.h"
 
 #include <setjmp.h>
 #include <stdarg.h>
@@ -291,6 +292,47 @@ static void test_preview_matches_the_separation(void **st)
     blocks_free(&k);
 }
 
+/* What colours the seed mode's marks (navseed_marks): frag_holds tells the previewed piece that
+ * holds a seed. Each of the two seeds in block B is held by its own piece of the preview and by
+ * no other; a point far off is held by none; a piece moved by its pose holds the point moved
+ * with it. */
+static void test_each_seed_is_held_by_its_piece(void **st)
+{
+    (void)st;
+    blocks k;
+    blocks_make(&k, "navseed-holds");
+    planning_case *c = case_load(k.case_dir);
+    assert_non_null(c);
+    case_seed seeds[2] = {{{k.b[0] - 3, k.b[1], k.b[2]}, 1}, {{k.b[0] + 3, k.b[1], k.b[2]}, 2}};
+    case_preview *p = case_preview_new(c);
+    assert_non_null(p);
+    const frag *shown;
+    int n = case_preview_update(p, NULL, seeds, 2, &shown);
+    assert_int_equal(n, 3);
+    int holder[2] = {-1, -1};
+    for (int m = 0; m < 2; m++)
+        for (int i = 0; i < n; i++)
+            if (frag_holds(&shown[i], seeds[m].at)) {
+                if (holder[m] >= 0)
+                    fail_msg("seed %d held by pieces %d and %d", m + 1, holder[m], i);
+                holder[m] = i;
+            }
+    if (holder[0] < 0 || holder[1] < 0 || holder[0] == holder[1])
+        fail_msg("the two seeds are held by pieces %d and %d", holder[0], holder[1]);
+    const double far[3] = {k.b[0], k.b[1], k.b[2] + 500};
+    for (int i = 0; i < n; i++)
+        assert_false(frag_holds(&shown[i], far));
+    frag moved = shown[holder[1]];
+    moved.pose = POSE_IDENTITY;
+    moved.pose.t[2] = 40;
+    const double up[3] = {seeds[1].at[0], seeds[1].at[1], seeds[1].at[2] + 40};
+    assert_true(frag_holds(&moved, up));
+    assert_false(frag_holds(&moved, seeds[1].at));
+    case_preview_free(p);
+    case_free(c);
+    blocks_free(&k);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -302,6 +344,7 @@ int main(void)
         cmocka_unit_test(test_force_replaces_a_case_with_undo_steps),
         cmocka_unit_test(test_navigate_opens_one_fragment),
         cmocka_unit_test(test_preview_matches_the_separation),
+        cmocka_unit_test(test_each_seed_is_held_by_its_piece),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

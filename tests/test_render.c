@@ -265,6 +265,72 @@ static void test_four_up_with_overlays_matches(void **st)
     check_golden(s->rgb, "surface_superior_axes");
 }
 
+/* The seed mode's marks on the four-up slices: a mark on the slices' point shows on all three, a
+ * square of its colour ringed in black at the pixel that render_slice_point_at maps to it; a mark
+ * 10 mm above the axial plane shows on the coronal and sagittal slices only where they pass it,
+ * never on the axial one; none are drawn without marks. */
+static void test_four_up_marks_the_seeds(void **st)
+{
+    scene *s = *st;
+    render_options o;
+    options(s, &o, RENDER_SURFACE);
+    o.layout = RENDER_LAYOUT_FOUR_UP;
+    memcpy(o.slice_point, s->f[1].centroid, sizeof o.slice_point);
+    draw(s, NULL, &o);
+    uint8_t *plain = malloc(sizeof s->rgb);
+    assert_non_null(plain);
+    memcpy(plain, s->rgb, sizeof s->rgb);
+    o.nmarks = 2;
+    memcpy(o.marks[0], o.slice_point, sizeof o.marks[0]);
+    memcpy(o.marks[1], o.slice_point, sizeof o.marks[1]);
+    o.marks[1][2] += 10;
+    const uint8_t rgb[2][3] = {{20, 230, 40}, {240, 20, 200}};
+    memcpy(o.mark_rgb, rgb, sizeof rgb);
+    draw(s, NULL, &o);
+    int rect[4][4];
+    render_four_up_panes(W, H, 0, rect);
+    for (int pane = 0; pane < 3; pane++)
+        for (int m = 0; m < 2; m++) {
+            const int *q = rect[pane];
+            long seen = 0, ring = 0;
+            int x0 = W, x1 = -1, y0 = H, y1 = -1;
+            for (int y = q[1]; y < q[1] + q[3]; y++)
+                for (int x = q[0]; x < q[0] + q[2]; x++) {
+                    const uint8_t *p = s->rgb + (y * W + x) * 3;
+                    if (p[0] != rgb[m][0] || p[1] != rgb[m][1] || p[2] != rgb[m][2])
+                        continue;
+                    seen++;
+                    double w[3];
+                    assert_int_equal(render_slice_point_at(s->r, &o, x + 0.5, y + 0.5, w), pane);
+                    double d = 0;
+                    for (int a = 0; a < 3; a++)
+                        if (a != (pane == RENDER_PANE_AXIAL ? 2 : pane == RENDER_PANE_CORONAL ? 1 : 0))
+                            d = fmax(d, fabs(w[a] - o.marks[m][a]));
+                    double px_mm = 2 * o.camera.half_height / q[3];
+                    if (d > (RENDER_MARK_PX / 2 + 1) * px_mm)
+                        fail_msg("pane %d: mark %d's colour at (%d, %d), %.2f mm from it", pane, m, x, y, d);
+                    x0 = x < x0 ? x : x0, x1 = x > x1 ? x : x1, y0 = y < y0 ? y : y0, y1 = y > y1 ? y : y1;
+                }
+            int want = m == 0 || pane != RENDER_PANE_AXIAL;
+            if (want ? seen != RENDER_MARK_PX * RENDER_MARK_PX || x1 - x0 + 1 != RENDER_MARK_PX ||
+                           y1 - y0 + 1 != RENDER_MARK_PX
+                     : seen != 0)
+                fail_msg("pane %d: mark %d drawn over %ld pixels", pane, m, seen);
+            for (int y = y0 - 1; want && y <= y1 + 1; y++) /* the ring around the square: black */
+                for (int x = x0 - 1; x <= x1 + 1; x++) {
+                    const uint8_t *p = s->rgb + (y * W + x) * 3;
+                    ring += (x < x0 || x > x1 || y < y0 || y > y1) && !p[0] && !p[1] && !p[2];
+                }
+            print_message("pane %d mark %d: %ld pixels, a ring of %ld black ones\n", pane, m, seen, ring);
+            if (want && ring != 4 * (RENDER_MARK_PX + 1))
+                fail_msg("pane %d: mark %d's black ring has %ld pixels", pane, m, ring);
+        }
+    /* the 3D view is as before */
+    for (int y = rect[RENDER_PANE_3D][1]; y < rect[RENDER_PANE_3D][1] + rect[RENDER_PANE_3D][3]; y++)
+        assert_memory_equal(s->rgb + (size_t)y * W * 3, plain + (size_t)y * W * 3, (size_t)W * 3);
+    free(plain);
+}
+
 /* Four-up as 3D Slicer's "3D and three slices": the 3D view over the top two thirds, the slices
  * below. A pixel of the axial slice maps back to the world point it shows: the box's outline,
  * drawn there, centres where render_slice_point_at puts the box's centroid (a click there moves
@@ -2088,6 +2154,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_prepared_fragments_draw_the_same, setup, teardown),
         cmocka_unit_test_setup_teardown(test_four_up_with_overlays_matches, setup, teardown),
         cmocka_unit_test_setup_teardown(test_four_up_pixel_to_world, setup, teardown),
+        cmocka_unit_test_setup_teardown(test_four_up_marks_the_seeds, setup, teardown),
         cmocka_unit_test_setup_teardown(test_cutaway_shows_the_piece_in_hand, setup, teardown),
         cmocka_unit_test_setup_teardown(test_cutaway_in_iso_shows_the_piece_in_hand, setup, teardown),
         cmocka_unit_test_setup_teardown(test_interpenetrating_fragments_both_show, setup, teardown),

@@ -463,6 +463,10 @@ static void window_frame(view *v, const loop_scene *sc)
         fprintf(stderr, "fracnav navigate: the window: %s\n", fn_err_msg());
         quit = 1;
     }
+    double marks[RENDER_MAX_MARKS][3];
+    unsigned char mark_rgb[RENDER_MAX_MARKS][3];
+    int nmarks = navseed_marks(&v->seed, marks, mark_rgb, RENDER_MAX_MARKS);
+    navwin_set_marks(v->win, nmarks, (const double(*)[3])marks, (const unsigned char(*)[3])mark_rgb);
     if (closed)
         quit = 1;
 }

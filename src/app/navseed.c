@@ -171,6 +171,21 @@ int navseed_preview(navseed *s, const planning_case *c, const pose *poses, int n
     return shown;
 }
 
+int navseed_marks(const navseed *s, double (*at)[3], unsigned char (*rgb)[3], int cap)
+{
+    int n = s->on ? (s->n < cap ? s->n : cap) : 0;
+    for (int i = 0; i < n; i++) {
+        memcpy(at[i], s->seed[i].at, sizeof at[i]);
+        memset(rgb[i], 255, sizeof rgb[i]);
+        for (int k = 0; k < s->npieces; k++)
+            if (frag_holds(&s->pieces[k], s->seed[i].at)) {
+                memcpy(rgb[i], s->pieces[k].rgb, sizeof rgb[i]);
+                break;
+            }
+    }
+    return n;
+}
+
 const char *navseed_status(const navseed *s)
 {
     return s->on ? s->status : NULL;
@@ -179,8 +194,9 @@ const char *navseed_status(const navseed *s)
 const char *navseed_help(void)
 {
     return "  F10 seed mode (separates fragments): then 1-9 the piece, a click on a slice or on\n"
-           "  a fragment in 3D drops its seed, Backspace takes the last seed back (the split is\n"
-           "  previewed in colour after each), Enter separates (saves it; undo takes it back)\n";
+           "  a fragment in 3D drops its seed (marked on the slices in its piece's colour),\n"
+           "  Backspace takes the last seed back (the split is previewed in colour after each),\n"
+           "  Enter separates (saves it; undo takes it back)\n";
 }
 
 int navseed_apply(navseed *s, planning_case *c)

@@ -71,6 +71,10 @@ void navseed_click(navseed *s, const double world[3]);
  * navseed_free, and only its labels, CT and fragments' voxels are read off the caller's thread.
  * Returns 1 when s->pieces changed, 0 when not. */
 int navseed_preview(navseed *s, const planning_case *c, const pose *poses, int nposes);
+/* The seeds as marks for the window's slices (at most cap): each at its point, in the colour of
+ * the previewed piece that holds it, white where none does (no preview yet, or a seed the
+ * preview left out). The count; 0 while seed mode is off. */
+int navseed_marks(const navseed *s, double (*at)[3], unsigned char (*rgb)[3], int cap);
 /* One line for the HUD while seed mode is on (the piece, the seeds and the keys); NULL when off. */
 const char *navseed_status(const navseed *s);
 /* The seed mode's keys, for a help text (lines ending in '\n'). */

@@ -218,6 +218,21 @@ int navwin_set_pieces(navwin *w, const frag *pieces, int n, const render_prep *p
     return rc ? rc : n > 0 ? 0 : need_trees(w);
 }
 
+void navwin_set_marks(navwin *w, int n, const double (*at)[3], const unsigned char (*rgb)[3])
+{
+    render_options *o = &w->o;
+    n = n < 0 ? 0 : n > RENDER_MAX_MARKS ? RENDER_MAX_MARKS : n;
+    size_t pts = (size_t)n * sizeof o->marks[0], cols = (size_t)n * sizeof o->mark_rgb[0];
+    if (n == o->nmarks && (!n || (!memcmp(o->marks, at, pts) && !memcmp(o->mark_rgb, rgb, cols))))
+        return;
+    o->nmarks = n;
+    if (n) {
+        memcpy(o->marks, at, pts);
+        memcpy(o->mark_rgb, rgb, cols);
+    }
+    w->dirty = 1;
+}
+
 void navwin_close(navwin *w)
 {
     if (!w)

@@ -90,6 +90,9 @@ int navwin_click_at(navwin *w, double world[3]);
  * called again; n 0 draws the case's again. prep: their crops and meshes made off this thread
  * (render_prepare at the case's level; NULL: made here). 0 or FN_E*. */
 int navwin_set_pieces(navwin *w, const frag *pieces, int n, const render_prep *prep);
+/* The marks on the four-up slices (the seed mode's seeds; render_options' marks): n of them (at
+ * most RENDER_MAX_MARKS; 0 none), drawn from the next frame. */
+void navwin_set_marks(navwin *w, int n, const double (*at)[3], const unsigned char (*rgb)[3]);
 /* The last frame drawn (HUD included) at the loop's newest scene, as a PNG file. 0 or FN_E*. */
 int navwin_screenshot(navwin *w, const char *png);
 /* navwin_screenshot, its failure said on stderr as "fracnav CMD: --screenshot PNG: WHY". */

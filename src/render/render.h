@@ -39,6 +39,7 @@
 #include <stdint.h>
 
 #define RENDER_MAX_FRAGS 16
+#define RENDER_MAX_MARKS 64
 
 typedef struct render render;
 
@@ -92,7 +93,14 @@ typedef struct render_options {
     pose ghost_pose;
     double four_up_split;   /* four-up: the 3D view's share of the height, RENDER_SPLIT_MIN..MAX
                              * (0: two thirds) */
+    int nmarks;             /* four-up: points marked on the slices (the seed mode's seeds), each
+                             * a square of RENDER_MARK_PX pixels in mark_rgb ringed in black, on
+                             * every slice whose plane passes within RENDER_MARK_MM of it */
+    double marks[RENDER_MAX_MARKS][3]; /* world mm */
+    unsigned char mark_rgb[RENDER_MAX_MARKS][3];
 } render_options;
+#define RENDER_MARK_PX 7
+#define RENDER_MARK_MM 2.0
 #define RENDER_SPLIT_MIN 0.25
 #define RENDER_SPLIT_MAX 0.9
 

@@ -844,6 +844,44 @@ static void draw_slice(render *r, const pose *poses, const render_options *o, in
     r->gl.DrawArrays(GL_TRIANGLES, 0, 3);
 }
 
+/* The marks near slice `which` (o->marks within RENDER_MARK_MM of its plane), each a square of
+ * RENDER_MARK_PX pixels in its colour ringed in black, drawn by clearing scissor boxes inside the
+ * pane's viewport vp (the inverse of render_slice_point_at). */
+static void draw_marks(render *r, const render_options *o, int which, const int vp[4])
+{
+    double hh = o->camera.half_height, hw = hh * vp[2] / vp[3];
+    double off = dot3(planes[which].n, o->slice_point) - dot3(planes[which].n, o->camera.centre);
+    for (int m = 0; m < o->nmarks && m < RENDER_MAX_MARKS; m++) {
+        const double *x = o->marks[m];
+        if (!(fabs(dot3(planes[which].n, x) - dot3(planes[which].n, o->slice_point)) <= RENDER_MARK_MM))
+            continue;
+        double d[3];
+        for (int a = 0; a < 3; a++)
+            d[a] = x[a] - (o->camera.centre[a] + off * planes[which].n[a]);
+        double sx = dot3(d, planes[which].u) / hw, sy = dot3(d, planes[which].v) / hh;
+        if (!(fabs(sx) <= 1 && fabs(sy) <= 1))
+            continue;
+        int cx = vp[0] + (int)floor((sx + 1) / 2 * vp[2]), cy = vp[1] + (int)floor((sy + 1) / 2 * vp[3]);
+        for (int ring = 1; ring >= 0; ring--) {
+            int half = RENDER_MARK_PX / 2 + ring, box[4] = {cx - half, cy - half, 2 * half + 1, 2 * half + 1};
+            for (int a = 0; a < 2; a++) { /* inside the pane */
+                int lo = box[a] > vp[a] ? box[a] : vp[a], hi = box[a] + box[a + 2];
+                hi = hi < vp[a] + vp[a + 2] ? hi : vp[a] + vp[a + 2];
+                box[a] = lo;
+                box[a + 2] = hi - lo;
+            }
+            if (box[2] <= 0 || box[3] <= 0)
+                break;
+            r->gl.Scissor(box[0], box[1], box[2], box[3]);
+            const unsigned char *c = o->mark_rgb[m];
+            r->gl.ClearColor(ring ? 0 : c[0] / 255.0f, ring ? 0 : c[1] / 255.0f, ring ? 0 : c[2] / 255.0f, 1);
+            r->gl.Clear(GL_COLOR_BUFFER_BIT);
+        }
+    }
+    r->gl.Scissor(vp[0], vp[1], vp[2], vp[3]);
+    r->gl.ClearColor(BG[0], BG[1], BG[2], 1);
+}
+
 /* ---- frames ---- */
 
 static void set_viewport(render *r, const int vp[4])
@@ -935,6 +973,7 @@ int render_frame(render *r, const pose *poses, const render_options *o)
             pane_viewport(r, o, s, vp);
             set_viewport(r, vp);
             draw_slice(r, poses, o, s, vp);
+            draw_marks(r, o, s, vp);
         }
         pane_viewport(r, o, RENDER_PANE_3D, vp);
         set_viewport(r, vp);

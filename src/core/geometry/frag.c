@@ -245,3 +245,17 @@ void frag_stats(frag *f)
             w[a][b] = rc[a][0] * r[b][0] + rc[a][1] * r[b][1] + rc[a][2] * r[b][2];
     frag_eigen_sym3(w, f->axes, f->eigval);
 }
+
+int frag_holds(const frag *f, const double x[3])
+{
+    pose to_local = pose_inverse(pose_compose(f->pose, f->home));
+    double l[3];
+    pose_apply(&to_local, x, l);
+    long v[3];
+    for (int a = 0; a < 3; a++) {
+        v[a] = lround(l[a] / f->spacing[a]);
+        if (!(v[a] >= 0 && v[a] < f->dim[a]))
+            return 0;
+    }
+    return f->prob[((size_t)v[2] * (size_t)f->dim[1] + (size_t)v[1]) * (size_t)f->dim[0] + (size_t)v[0]] > 0;
+}

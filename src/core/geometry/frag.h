@@ -47,6 +47,9 @@ int frag_from_labels(frag *f, const struct vol *labels, const struct vol *ct, in
 /* Recomputes voxels, volume_ml, centroid, axes and eigval from prob (every voxel with prob > 0
  * counts once; centres in home world). */
 void frag_stats(frag *f);
+/* Whether world point x (LPS mm, the fragment at its pose) lies in a voxel of f (nearest crop
+ * voxel, prob > 0). */
+int frag_holds(const frag *f, const double x[3]);
 /* Source voxel index of crop voxel l (undoing any flip). */
 void frag_local_to_source(const frag *f, const int l[3], int s[3]);
 /* Home-world position (LPS mm) of crop voxel l's centre. */
