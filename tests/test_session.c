@@ -1015,6 +1015,53 @@ static void test_redo_of_a_fit(void **st)
     free(fdir);
 }
 
+/* Near contact, the preview runs by itself for a piece to put back, not for the one that stays:
+ * with no fragment fixed, the largest (as reduce keeps it), whose fit against a smaller piece
+ * would move the bone to the piece. Asked (v), it runs for it too; the smaller piece, selected,
+ * is previewed by itself. */
+static void test_preview_leaves_the_piece_that_stays(void **st)
+{
+    (void)st;
+    char *fdir = tu_tmpdir("session_preview_stays");
+    planning_case *c = tu_ellipsoid_fracture(fdir, 2, 3, 0);
+    assert_true(c->frag[0].voxels > c->frag[1].voxels);
+    c->fixed = -1; /* a case as segment makes it: nothing fixed */
+    c->nfixed_also = 0;
+    c->frag[1].pose = c->truth[1]; /* in contact */
+    assert_int_equal(case_save(c), 0);
+    session *s = open_case_at(fdir, 0);
+    session_set_preview(s, SESSION_PREVIEW_NEAR);
+    sem_init(&Q.tick, 0, 0);
+    atomic_init(&Q.end, 0);
+    assert_int_equal(session_start(s, (loop_source){quiet_next, &Q}), 0);
+    session_event *e = act(s, LOOP_ACT_COLLISION); /* off and on: scenes published near contact */
+    e = act(s, LOOP_ACT_COLLISION);
+    assert_int_equal(e->scene.selected, 0);
+    assert_true(e->scene.collision_on && e->scene.separation_mm <= SESSION_PREVIEW_NEAR_MM);
+    session_preview p;
+    session_preview_status(s, &p);
+    assert_int_equal(p.updates, 0);
+    assert_false(p.shown);
+    /* asked: the largest is previewed */
+    act(s, LOOP_ACT_PREVIEW);
+    for (session_preview_status(s, &p); !(p.asked && p.shown && p.frag == 0); session_preview_status(s, &p))
+        next_event(s, SESSION_EV_PREVIEW | SESSION_EV_ACTION);
+    act(s, LOOP_ACT_PREVIEW); /* off again: near contact only */
+    for (session_preview_status(s, &p); p.asked; session_preview_status(s, &p))
+        next_event(s, SESSION_EV_PREVIEW | SESSION_EV_ACTION);
+    /* the smaller piece, selected: previewed by itself, near contact */
+    e = act(s, LOOP_ACT_NEXT);
+    assert_int_equal(e->scene.selected, 1);
+    for (session_preview_status(s, &p); !(p.shown && p.frag == 1); session_preview_status(s, &p))
+        next_event(s, SESSION_EV_PREVIEW | SESSION_EV_ACTION);
+    assert_false(p.asked);
+    stop_quiet(s);
+    session_close(s);
+    case_free(c);
+    tu_rmtree(fdir);
+    free(fdir);
+}
+
 /* The live preview (session.h): a recording steers the rough fracture's piece 2 most of the way to
  * its truth, at the hand's pace, then holds still. Near the contact the worker keeps fitting it
  * from where the hand holds it: its ghost converges within 1 mm and 1 degree of the truth while
@@ -1234,6 +1281,7 @@ int main(void)
         cmocka_unit_test_setup(test_open_errors, fresh_case),
         cmocka_unit_test(test_fragments_without_case),
         cmocka_unit_test(test_preview_follows_and_accepts),
+        cmocka_unit_test(test_preview_leaves_the_piece_that_stays),
         cmocka_unit_test_setup(test_preview_off_refuses, fresh_case),
         cmocka_unit_test_setup(test_preview_worker_leaves_the_loops_cpu, fresh_case),
     };

@@ -281,7 +281,8 @@ void session_fit_status(session *s, session_fit *out);
 /* ---- the live preview ---- */
 
 /* While the selected movable fragment is near another (a gap of at most SESSION_PREVIEW_NEAR_MM,
- * collision checking on) or the preview is asked on (LOOP_ACT_PREVIEW: the key v, loop button
+ * collision checking on; not the largest when no fragment is fixed: the one reduce keeps) or the
+ * preview is asked on (LOOP_ACT_PREVIEW: the key v, loop button
  * 13), a worker thread of its own, at the lowest normal priority (nice 19), keeps fitting it
  * (reduce_fit_one, a cheap fit: one start, no hops, SESSION_PREVIEW_EVALS evaluations) from where
  * the hand holds it, then again from its own result while the hand holds still, until a fit no
