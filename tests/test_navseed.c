@@ -287,6 +287,16 @@ static void test_preview_matches_the_separation(void **st)
     case_seed off[2] = {seeds[0], seeds[2]};
     assert_int_equal(case_preview_update(p, NULL, off, 2, &shown), FN_EINVAL);
     assert_non_null(strstr(fn_err_msg(), "on no fragment"));
+    /* off the bone (air): the preview says why in Enter's words, not that Enter would grow it */
+    char said[1024];
+    snprintf(said, sizeof said, "%s", fn_err_msg());
+    assert_non_null(strstr(said, "under the case's bone threshold"));
+    assert_null(strstr(said, "Enter grows"));
+    planning_case *enter = case_load(k.case_dir);
+    assert_non_null(enter);
+    assert_int_equal(case_separate_all(enter, off, 2), FN_EINVAL);
+    assert_non_null(strstr(fn_err_msg(), strstr(said, "and the CT there")));
+    case_free(enter);
     case_preview_free(p);
     case_free(c);
     blocks_free(&k);

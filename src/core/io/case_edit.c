@@ -456,23 +456,38 @@ static int seed_voxel(const planning_case *c, const case_seed *s, int v[3])
 /* A seed of a piece on an unlabelled voxel: the bone mask is short there, so the bone connected to
  * it (non-zero voxels on a bone-only CT, voxels >= the case's threshold on a full CT) joins
  * fragment id; FN_EINVAL saying why not when the voxel is not bone, or lies in another fragment. */
+/* 0 when the unlabelled voxel `at` of seed s is bone the mask missed (non-zero on a bone-only CT,
+ * >= the case's threshold on a full CT), else FN_EINVAL saying why it is not bone. */
+static int seed_on_bone(const planning_case *c, const case_seed *s, size_t at, bone_kind kind, int id)
+{
+    float hu = c->ct->data[at];
+    double thr = c->seg.threshold;
+    if (kind == BONE_ONLY_CT && !(isfinite(hu) && hu != 0))
+        return fn_err_set(FN_EINVAL, "separate: the seed (%.1f, %.1f, %.1f) mm is outside the bone: the CT holds "
+                          "only the bone, and is %g there", s->at[0], s->at[1], s->at[2], (double)hu);
+    if (kind == BONE_FULL_CT && !(hu >= thr)) {
+        char where[64] = "on no fragment";
+        if (id > 0)
+            snprintf(where, sizeof where, "outside fragment %d", id);
+        return fn_err_set(FN_EINVAL, "separate: the seed (%.1f, %.1f, %.1f) mm is %s, and the CT there (%g) is "
+                          "under the case's bone threshold %g: not bone to grow from", s->at[0], s->at[1],
+                          s->at[2], where, (double)hu, thr);
+    }
+    return 0;
+}
+
 static int take_seed_bone(planning_case *c, int id, const case_seed *s, size_t at, bone_kind kind)
 {
-    float here = c->labels->data[at], hu = c->ct->data[at];
+    float here = c->labels->data[at];
     if (here == (float)id || s->piece == 0)
         return 0;
     if (here != 0)
         return fn_err_set(FN_EINVAL, "separate: the seed (%.1f, %.1f, %.1f) mm lies in fragment %g, not in "
                           "fragment %d", s->at[0], s->at[1], s->at[2], (double)here, id);
-    double thr = c->seg.threshold;
-    if (kind == BONE_ONLY_CT && !(isfinite(hu) && hu != 0))
-        return fn_err_set(FN_EINVAL, "separate: the seed (%.1f, %.1f, %.1f) mm is outside the bone: the CT holds "
-                          "only the bone, and is %g there", s->at[0], s->at[1], s->at[2], (double)hu);
-    if (kind == BONE_FULL_CT && !(hu >= thr))
-        return fn_err_set(FN_EINVAL, "separate: the seed (%.1f, %.1f, %.1f) mm is outside fragment %d, and the "
-                          "CT there (%g) is under the case's bone threshold %g: not bone to grow from",
-                          s->at[0], s->at[1], s->at[2], id, (double)hu, thr);
-    long n = kind == BONE_ONLY_CT ? flood(c, at, -INFINITY, 1, id) : flood(c, at, thr, 0, id);
+    int rc = seed_on_bone(c, s, at, kind, id);
+    if (rc < 0)
+        return rc;
+    long n = kind == BONE_ONLY_CT ? flood(c, at, -INFINITY, 1, id) : flood(c, at, c->seg.threshold, 0, id);
     return n < 0 ? (int)n : 0;
 }
 
@@ -748,6 +763,7 @@ typedef struct preview_part {
 
 struct case_preview {
     const planning_case *c;
+    bone_kind kind;     /* c's CT's (bone_kind_of): what a seed off every fragment lies on */
     preview_part *part; /* per fragment index; part[i].m NULL: no seed there yet */
     case_seed *seeds;   /* those grown so far */
     int nseeds, cap;
@@ -759,6 +775,7 @@ case_preview *case_preview_new(const planning_case *c)
     case_preview *p = calloc(1, sizeof *p);
     if (p) {
         p->c = c;
+        p->kind = bone_kind_of(c->ct);
         p->part = calloc((size_t)c->nfrag + 1, sizeof *p->part);
         p->out = malloc(((size_t)c->nfrag * GROW_MAX_LABEL + 1) * sizeof *p->out);
     }
@@ -890,10 +907,14 @@ int case_preview_update(case_preview *p, const pose *poses, const case_seed *see
             break;
         float l = c->labels->data[vol_idx(c->labels, v[0], v[1], v[2])];
         int f = l > 0 ? case_find(c, (int)l) : -1;
+        if (f < 0 && seeds[s].piece >= 1 && (rc = seed_on_bone(c, &seeds[s], vol_idx(c->labels, v[0], v[1], v[2]),
+                                                              p->kind, 0)) < 0)
+            break; /* not bone: Enter refuses it so too */
         if (f < 0 || seeds[s].piece < 1 || seeds[s].piece >= GROW_MAX_LABEL) {
             rc = fn_err_set(FN_EINVAL, "separate: the seed (%.1f, %.1f, %.1f) mm is %s", seeds[s].at[0],
-                            seeds[s].at[1], seeds[s].at[2], f < 0 ? "on no fragment (Enter grows the bone to it)"
-                                                                   : "of no piece 1..254");
+                            seeds[s].at[1], seeds[s].at[2],
+                            f < 0 ? "on no fragment, on bone the mask missed (Enter grows the fragment to it)"
+                                  : "of no piece 1..254");
             break;
         }
         preview_part *t = &p->part[f];
