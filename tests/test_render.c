@@ -265,17 +265,23 @@ static void test_four_up_with_overlays_matches(void **st)
     check_golden(s->rgb, "surface_superior_axes");
 }
 
+/* Surface mode, four-up, the slices through fragment 2's centroid. */
+static void four_up_through_b(scene *s, render_options *o)
+{
+    options(s, o, RENDER_SURFACE);
+    o->layout = RENDER_LAYOUT_FOUR_UP;
+    memcpy(o->slice_point, s->f[1].centroid, sizeof o->slice_point);
+}
+
 /* The seed mode's marks on the four-up slices: a mark on the slices' point shows on all three, a
  * square of its colour ringed in black at the pixel that render_slice_point_at maps to it; a mark
  * 10 mm above the axial plane shows on the coronal and sagittal slices only where they pass it,
- * never on the axial one; none are drawn without marks. */
+ * never on the axial one; the 3D view is as without marks. */
 static void test_four_up_marks_the_seeds(void **st)
 {
     scene *s = *st;
     render_options o;
-    options(s, &o, RENDER_SURFACE);
-    o.layout = RENDER_LAYOUT_FOUR_UP;
-    memcpy(o.slice_point, s->f[1].centroid, sizeof o.slice_point);
+    four_up_through_b(s, &o);
     draw(s, NULL, &o);
     uint8_t *plain = malloc(sizeof s->rgb);
     assert_non_null(plain);
@@ -339,9 +345,7 @@ static void test_four_up_pixel_to_world(void **st)
 {
     scene *s = *st;
     render_options o;
-    options(s, &o, RENDER_SURFACE);
-    o.layout = RENDER_LAYOUT_FOUR_UP;
-    memcpy(o.slice_point, s->f[1].centroid, sizeof o.slice_point);
+    four_up_through_b(s, &o);
     draw(s, NULL, &o);
     int rect[4][4];
     render_four_up_panes(W, H, 0, rect);
