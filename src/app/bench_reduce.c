@@ -485,7 +485,8 @@ static int usage(FILE *out, int rc)
             "  --verbose-truth  that, and the same fit started at the true pose (where the\n"
             "                   metric's own basin ends; for the analysis of failures)\n"
             "  --json           one JSON object on stdout: command, ct, seeds, starts, max_mm,\n"
-            "                   max_deg, pieces, model, bone_loss_mm, gap_mm, touching, separated_dice_min,\n"
+            "                   max_deg, pieces, model, bone_loss_mm, gap_mm, touching, whole_bone,\n"
+            "                   separated_dice_min,\n"
             "                   separate_mean_s (null unless --touching), default_method, methods (one per\n"
             "                   configuration)\n");
     return rc;
@@ -735,6 +736,7 @@ static json_t *run_workload(const opts *op, config_stats *pool)
         jsonw_set(root, "max_deg", jsonw_exact(o.max_deg));
         jsonw_set(root, "pieces", json_integer(o.pieces));
         jsonw_set(root, "touching", json_boolean(o.touching));
+        jsonw_set(root, "whole_bone", json_boolean(o.whole_bone));
         jsonw_set(root, "model", json_integer(o.model));
         jsonw_set(root, "separated_dice_min", o.touching ? jsonw_measure(cs[0].separate_dice) : json_null());
         jsonw_set(root, "separate_mean_s", o.touching ? jsonw_measure(cs[0].separate_s / o.seeds) : json_null());
