@@ -237,6 +237,17 @@ static int labels_on_disk(const planning_case *c, const char *lfin)
     return sum[0] == c->labels_sum[0] && sum[1] == c->labels_sum[1];
 }
 
+/* c's labels written aside of lfin (durable_create, sealed) into *lt, their sha256 into lsha. */
+static int labels_aside(const planning_case *c, durable_file *lt, const char *lfin, char lsha[65])
+{
+    int rc = durable_create(lt, lfin);
+    if (rc == 0)
+        rc = volio_write(c->labels, lt->tmp, VOL_U16);
+    if (rc == 0)
+        rc = durable_seal(lt);
+    return rc == 0 ? durable_file_sha256(lt->tmp, lsha) : rc;
+}
+
 /* Writes both files aside (durable.h), then renames labels then case.json; the previous labels stay
  * linked until both are in place. Labels unchanged since the folder's file was read or written are
  * not written again: case.json alone is, naming that file. */
@@ -249,15 +260,9 @@ int case_save(planning_case *c)
     join(lfin, sizeof lfin, c->dir, LABELS_FILE);
     join(jfin, sizeof jfin, c->dir, JSON_FILE);
     durable_file lt = {.fd = -1}, jt = {.fd = -1};
-    int keep = labels_on_disk(c, lfin), rc = 0;
+    int keep = labels_on_disk(c, lfin), rc = keep ? 0 : labels_aside(c, &lt, lfin, lsha);
     if (keep)
         memcpy(lsha, c->labels_sha256, sizeof lsha);
-    else if ((rc = durable_create(&lt, lfin)) == 0)
-        rc = volio_write(c->labels, lt.tmp, VOL_U16);
-    if (rc == 0 && !keep)
-        rc = durable_seal(&lt);
-    if (rc == 0 && !keep)
-        rc = durable_file_sha256(lt.tmp, lsha);
     if (rc == 0)
         rc = durable_create(&jt, jfin);
     if (rc == 0) {
@@ -269,9 +274,7 @@ int case_save(planning_case *c)
     }
     if (rc == 0)
         rc = durable_seal(&jt);
-    if (rc == 0 && !keep)
-        rc = keep_previous_labels(lfin, lprev, c->dir);
-    if (rc == 0 && !keep)
+    if (rc == 0 && !keep && (rc = keep_previous_labels(lfin, lprev, c->dir)) == 0)
         rc = durable_rename(&lt, lfin);
     if (rc == 0)
         rc = durable_rename(&jt, jfin);
