@@ -19,12 +19,13 @@ core=$here/../src/core
 # The C library's headers, which every core folder may include.
 C_HEADERS="assert.h errno.h float.h limits.h math.h stdarg.h stdatomic.h stdbool.h stddef.h stdint.h
            stdio.h stdlib.h string.h strings.h time.h"
-# What each folder adds: the OS only in platform (and POSIX files and threads where the folder
-# writes files or runs threads), third-party libraries only where their target links them.
+# What each folder adds: the OS and the processor (cpuid.h, immintrin.h: the SHA extensions) only in
+# platform (and POSIX files and threads where the folder writes files or runs threads), third-party
+# libraries only where their target links them.
 allowed() {
     case $1 in
     base | segment | geometry) ;;
-    platform) echo "dirent.h fcntl.h link.h pthread.h sched.h signal.h spawn.h sys/mman.h sys/prctl.h sys/resource.h sys/stat.h sys/syscall.h sys/types.h sys/wait.h unistd.h" ;;
+    platform) echo "cpuid.h dirent.h fcntl.h immintrin.h link.h pthread.h sched.h signal.h spawn.h sys/mman.h sys/prctl.h sys/resource.h sys/stat.h sys/syscall.h sys/types.h sys/wait.h unistd.h" ;;
     navigation) echo "fcntl.h pthread.h semaphore.h sys/stat.h unistd.h zlib.h" ;;
     json) echo "jansson.h" ;;
     io) echo "dirent.h fcntl.h signal.h sys/file.h sys/stat.h unistd.h jansson.h png.h nifti1_io.h teem/nrrd.h zlib.h" ;;

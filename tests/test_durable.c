@@ -72,6 +72,55 @@ static void test_replace_writes_and_leaves_no_temporary(void **st)
     free(dir);
 }
 
+/* The sha256 that binds a case to its files: FIPS 180-4's examples, and the processor's SHA
+ * extensions (where it has them) against the portable rounds at every length around a block's
+ * edges, in one call and read from a file in pieces. */
+static void test_sha256_known_answers(void **st)
+{
+    (void)st;
+    static const struct {
+        const char *msg;
+        const char *hex;
+    } kat[] = {
+        {"", "e3b0c44298fc1c149afbf4c8996fb92427ae41e4649b934ca495991b7852b855"},
+        {"abc", "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad"},
+        {"abcdbcdecdefdefgefghfghighijhijkijkljklmklmnlmnomnopnopq",
+         "248d6a61d20638b8e5c026930c3e6039a33ce45964ff2167f6ecedd419db06c1"},
+    };
+    char hex[65], ref[65];
+    for (size_t i = 0; i < sizeof kat / sizeof kat[0]; i++) {
+        durable_sha256(kat[i].msg, strlen(kat[i].msg), hex);
+        assert_string_equal(hex, kat[i].hex);
+        durable__sha256_portable(kat[i].msg, strlen(kat[i].msg), hex);
+        assert_string_equal(hex, kat[i].hex);
+    }
+    size_t big = 1000000;
+    unsigned char *a = malloc(big);
+    assert_non_null(a);
+    memset(a, 'a', big);
+    durable_sha256(a, big, hex); /* a million 'a's */
+    assert_string_equal(hex, "cdc76e5c9914fb9281a1c7e284d73e67f1809a48a497200e046d39ccc7112cd0");
+    uint32_t x = 12345;
+    for (size_t i = 0; i < big; i++) {
+        x = x * 1664525u + 1013904223u;
+        a[i] = (unsigned char)(x >> 24);
+    }
+    char *dir = tu_tmpdir("durable"), path[4200];
+    snprintf(path, sizeof path, "%s/bytes", dir);
+    size_t lens[] = {1, 55, 56, 63, 64, 65, 119, 120, 127, 128, 129, 4095, 65536, 65537, 200003, 1000000};
+    for (size_t i = 0; i < sizeof lens / sizeof lens[0]; i++) {
+        durable_sha256(a, lens[i], hex);
+        durable__sha256_portable(a, lens[i], ref);
+        assert_string_equal(hex, ref);
+        tu_write_file(path, (const char *)a, lens[i]);
+        assert_int_equal(durable_file_sha256(path, hex), 0);
+        assert_string_equal(hex, ref);
+    }
+    tu_rmtree(dir);
+    free(dir);
+    free(a);
+}
+
 /* A target that is a link, or not a regular file, is refused by name; the link's file is untouched. */
 static void test_link_target_refused(void **st)
 {
@@ -265,6 +314,7 @@ static void test_recording_not_written_through_link(void **st)
 int main(void)
 {
     const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_sha256_known_answers),
         cmocka_unit_test(test_replace_writes_and_leaves_no_temporary),
         cmocka_unit_test(test_link_target_refused),
         cmocka_unit_test(test_planted_temporaries_never_written),

@@ -122,20 +122,23 @@ int frag_from_labels(frag *f, const vol *labels, const vol *ct, int id, const in
     frag_colour(id, f->rgb);
     f->pose = POSE_IDENTITY;
     set_home(f, labels);
-    size_t li = 0;
+    /* row by row: along i the source index steps by one, backwards where axis 0 is flipped */
+    int step = f->flip[0] ? -1 : 1;
     for (int k = 0; k < f->dim[2]; k++)
-        for (int j = 0; j < f->dim[1]; j++)
-            for (int i = 0; i < f->dim[0]; i++, li++) {
-                int l[3] = {i, j, k}, s[3];
-                frag_local_to_source(f, l, s);
-                if (s[0] < 0 || s[1] < 0 || s[2] < 0 || s[0] >= labels->dim[0] ||
-                    s[1] >= labels->dim[1] || s[2] >= labels->dim[2])
+        for (int j = 0; j < f->dim[1]; j++) {
+            int l[3] = {0, j, k}, s[3];
+            frag_local_to_source(f, l, s);
+            if (s[1] < 0 || s[2] < 0 || s[1] >= labels->dim[1] || s[2] >= labels->dim[2])
+                continue;
+            uint8_t *row = f->prob + ((size_t)k * f->dim[1] + j) * f->dim[0];
+            for (int i = 0, x = s[0]; i < f->dim[0]; i++, x += step) {
+                if (x < 0 || x >= labels->dim[0])
                     continue;
-                size_t si = vol_idx(labels, s[0], s[1], s[2]);
-                if (labels->data[si] != (float)id)
-                    continue;
-                f->prob[li] = ct ? seg_prob(ct->data[si], threshold, ramp) : 255;
+                size_t si = vol_idx(labels, x, s[1], s[2]);
+                if (labels->data[si] == (float)id)
+                    row[i] = ct ? seg_prob(ct->data[si], threshold, ramp) : 255;
             }
+        }
     frag_stats(f);
     return 0;
 }

@@ -78,12 +78,15 @@ double case_overlap_ml(const planning_case *c, int a, int b)
         lo[i] = lo[i] < 0 ? 0 : lo[i];
         hi[i] = hi[i] > A->dim[i] - 1 ? A->dim[i] - 1 : hi[i];
     }
+    uint8_t solid[256]; /* obb_effective_prob(p) != 0, by table */
+    for (int v = 0; v < 256; v++)
+        solid[v] = obb_effective_prob((uint8_t)v, &op) != 0;
     long hits = 0;
     for (int k = lo[2]; k <= hi[2]; k++)
         for (int j = lo[1]; j <= hi[1]; j++)
             for (int i = lo[0]; i <= hi[0]; i++) {
                 uint8_t p = A->prob[((size_t)k * (size_t)A->dim[1] + (size_t)j) * (size_t)A->dim[0] + (size_t)i];
-                if (!obb_effective_prob(p, &op))
+                if (!solid[p])
                     continue;
                 double ctr[3];
                 int near = 1;
@@ -101,7 +104,7 @@ double case_overlap_ml(const planning_case *c, int a, int b)
                     for (int r = 0; r < 3; r++)
                         x[r] = ctr[r] + G[r][0] * o[0] + G[r][1] * o[1] + G[r][2] * o[2];
                     long v = voxel_at(B, x);
-                    hits += v >= 0 && obb_effective_prob(B->prob[v], &op) != 0;
+                    hits += v >= 0 && solid[B->prob[v]];
                 }
             }
     double voxel_ml = A->spacing[0] * A->spacing[1] * A->spacing[2] * 1e-3;

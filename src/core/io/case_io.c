@@ -201,27 +201,41 @@ static char *case_text(const planning_case *c, const char *lsha, const char *jfi
     return text;
 }
 
-/* A checksum of the labelmap's values (two independent 64-bit lanes of multiply-xorshift mixing
- * over its bytes): what case_save compares to know the labels unchanged since the file was made. */
+/* A checksum of the labelmap's values: two independent multiply-xorshift mixes over its 8-byte
+ * words, each in four lanes (word 4q + r into lane r, so the lanes' chains run side by side), the
+ * lanes folded in order at the end. What case_save compares to know the labels unchanged since
+ * the file was made; kept in memory only. */
 static void labels_checksum(const vol *l, uint64_t sum[2])
 {
     const unsigned char *b = (const unsigned char *)l->data;
-    size_t n = vol_count(l) * sizeof *l->data, words = n / 8;
-    uint64_t h0 = 0x243f6a8885a308d3ull ^ n, h1 = 0x13198a2e03707344ull ^ (n * 31);
-    for (size_t i = 0; i < words; i++) {
-        uint64_t w;
-        memcpy(&w, b + 8 * i, 8);
-        h0 = (h0 ^ w) * 0x9e3779b97f4a7c15ull;
-        h0 ^= h0 >> 29;
-        h1 = (h1 + w) * 0xc2b2ae3d27d4eb4full;
-        h1 ^= h1 >> 31;
+    size_t n = vol_count(l) * sizeof *l->data, words = n / 8, q = 0;
+    uint64_t h0[4], h1[4];
+    for (int r = 0; r < 4; r++) {
+        h0[r] = (0x243f6a8885a308d3ull + 0x9e3779b97f4a7c15ull * (uint64_t)r) ^ n;
+        h1[r] = (0x13198a2e03707344ull + 0xc2b2ae3d27d4eb4full * (uint64_t)r) ^ (n * 31);
     }
-    for (size_t i = 8 * words; i < n; i++) {
-        h0 = (h0 ^ b[i]) * 0x9e3779b97f4a7c15ull;
-        h1 = (h1 + b[i]) * 0xc2b2ae3d27d4eb4full;
+    for (; q + 4 <= words; q += 4)
+        for (int r = 0; r < 4; r++) {
+            uint64_t w;
+            memcpy(&w, b + 8 * (q + (size_t)r), 8);
+            h0[r] = (h0[r] ^ w) * 0x9e3779b97f4a7c15ull;
+            h0[r] ^= h0[r] >> 29;
+            h1[r] = (h1[r] + w) * 0xc2b2ae3d27d4eb4full;
+            h1[r] ^= h1[r] >> 31;
+        }
+    uint64_t g0 = h0[0], g1 = h1[0];
+    for (int r = 1; r < 4; r++) {
+        g0 = (g0 ^ h0[r]) * 0x9e3779b97f4a7c15ull;
+        g0 ^= g0 >> 29;
+        g1 = (g1 + h1[r]) * 0xc2b2ae3d27d4eb4full;
+        g1 ^= g1 >> 31;
     }
-    sum[0] = h0 ^ (h0 >> 32);
-    sum[1] = h1 ^ (h1 >> 33);
+    for (size_t i = 8 * q; i < n; i++) {
+        g0 = (g0 ^ b[i]) * 0x9e3779b97f4a7c15ull;
+        g1 = (g1 + b[i]) * 0xc2b2ae3d27d4eb4full;
+    }
+    sum[0] = g0 ^ (g0 >> 32);
+    sum[1] = g1 ^ (g1 >> 33);
 }
 
 /* Whether c's labels are those of the labels file in the case folder: c->labels_sha256 is that

@@ -144,34 +144,47 @@ void reduce_errors(const frag *f, const frag *m, const pose *want, double *rot_d
     pose_apply(&m->pose, m->centroid, a);
     pose_apply(want, m->centroid, b);
     *trans_mm = sqrt((a[0] - b[0]) * (a[0] - b[0]) + (a[1] - b[1]) * (a[1] - b[1]) + (a[2] - b[2]) * (a[2] - b[2]));
-    /* fracture-surface voxels: in the true pose, within 1.5 voxels of the fixed fragment's bone */
-    pose to_f = pose_inverse(pose_compose(f->pose, f->home));
+    /* fracture-surface voxels: in the true pose, within 1.5 voxels of the fixed fragment's bone.
+     * Affine maps from m's crop index: D to the displacement between the two poses (mm), F to f's
+     * crop index at the true pose. */
+    pose at = pose_compose(m->pose, m->home), tw = pose_compose(*want, m->home);
+    pose to_f = pose_compose(pose_inverse(pose_compose(f->pose, f->home)), tw);
+    double Ra[3][3], Rw[3][3], Rf[3][3], D[3][3], dT[3], F[3][3], fT[3];
+    pose_to_matrix(&at, Ra);
+    pose_to_matrix(&tw, Rw);
+    pose_to_matrix(&to_f, Rf);
+    for (int r = 0; r < 3; r++) {
+        for (int c = 0; c < 3; c++) {
+            D[r][c] = (Ra[r][c] - Rw[r][c]) * m->spacing[c];
+            F[r][c] = Rf[r][c] * m->spacing[c] / f->spacing[r];
+        }
+        dT[r] = at.t[r] - tw.t[r];
+        fT[r] = to_f.t[r] / f->spacing[r] + 0.5; /* + 0.5: nearest voxel by floor */
+    }
     double s_all = 0, s_surf = 0;
     size_t n_all = 0, n_surf = 0, idx = 0;
+    const size_t sy = (size_t)f->dim[0], sz = (size_t)f->dim[0] * f->dim[1];
     for (int k = 0; k < m->dim[2]; k++)
         for (int j = 0; j < m->dim[1]; j++)
             for (int i = 0; i < m->dim[0]; i++, idx++) {
                 if (!m->prob[idx])
                     continue;
-                int l[3] = {i, j, k};
-                double h[3], x[3], y[3], fl[3];
-                frag_voxel_world(m, l, h);
-                pose_apply(&m->pose, h, x);
-                pose_apply(want, h, y);
-                double d2 = (x[0] - y[0]) * (x[0] - y[0]) + (x[1] - y[1]) * (x[1] - y[1]) + (x[2] - y[2]) * (x[2] - y[2]);
+                double d2 = 0;
+                int q[3];
+                for (int r = 0; r < 3; r++) {
+                    double e = D[r][0] * i + D[r][1] * j + D[r][2] * k + dT[r];
+                    d2 += e * e;
+                    q[r] = (int)floor(F[r][0] * i + F[r][1] * j + F[r][2] * k + fT[r]);
+                }
                 s_all += d2;
                 n_all++;
-                pose_apply(&to_f, y, fl);
                 int near = 0;
                 for (int dz = -1; dz <= 1 && !near; dz++)
                     for (int dy = -1; dy <= 1 && !near; dy++)
                         for (int dx = -1; dx <= 1 && !near; dx++) {
-                            int q[3] = {(int)floor(fl[0] / f->spacing[0] + 0.5) + dx,
-                                        (int)floor(fl[1] / f->spacing[1] + 0.5) + dy,
-                                        (int)floor(fl[2] / f->spacing[2] + 0.5) + dz};
-                            if (q[0] >= 0 && q[1] >= 0 && q[2] >= 0 && q[0] < f->dim[0] && q[1] < f->dim[1] &&
-                                q[2] < f->dim[2])
-                                near = f->prob[((size_t)q[2] * f->dim[1] + q[1]) * f->dim[0] + q[0]] != 0;
+                            int x = q[0] + dx, y = q[1] + dy, z = q[2] + dz;
+                            if (x >= 0 && y >= 0 && z >= 0 && x < f->dim[0] && y < f->dim[1] && z < f->dim[2])
+                                near = f->prob[(size_t)z * sz + (size_t)y * sy + (size_t)x] != 0;
                         }
                 if (near) {
                     s_surf += d2;
