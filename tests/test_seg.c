@@ -10,6 +10,7 @@
 #include "case.h"
 #include "err.h"
 #include "frag.h"
+#include "obb.h"
 #include "seg.h"
 #include "testutil.h"
 #include "vol.h"
@@ -742,6 +743,63 @@ static void test_eigen(void **st)
     assert_true(fabs(det - 1) < 1e-9);
 }
 
+/* A bone as a CT that holds only the bone shows it: a 2-voxel cortex at 1000 HU around a cancellous
+ * interior at 50 HU, far under the 300 HU threshold, all of it labelled. Every labelled voxel is
+ * solid for the collision test at the case's default tau (a probability of at least one half), so
+ * a piece pushed into the interior collides: before, the interior was dropped, and a fit or the
+ * hand could sink a piece 0.3 ml into another's cancellous bone (005_RI, issue 25). */
+static void test_labelled_interior_is_solid(void **st)
+{
+    (void)st;
+    vol *lab = vol_new(24, 24, 24), *ct = vol_new(24, 24, 24);
+    for (int k = 2; k < 22; k++)
+        for (int j = 2; j < 22; j++)
+            for (int i = 2; i < 22; i++) {
+                int shell = i < 4 || j < 4 || k < 4 || i > 19 || j > 19 || k > 19;
+                lab->data[vol_idx(lab, i, j, k)] = 1;
+                ct->data[vol_idx(ct, i, j, k)] = shell ? 1000 : 50;
+            }
+    int lo[3] = {2, 2, 2}, hi[3] = {21, 21, 21};
+    frag bone, chip;
+    assert_int_equal(frag_from_labels(&bone, lab, ct, 1, lo, hi, 300, 200), 0);
+    size_t n = (size_t)bone.dim[0] * bone.dim[1] * bone.dim[2], low = 0;
+    for (size_t i = 0; i < n; i++)
+        if (bone.prob[i]) {
+            assert_true(bone.prob[i] >= FRAG_PROB_LABELLED);
+            low += bone.prob[i] == FRAG_PROB_LABELLED;
+        }
+    assert_int_equal((int)bone.voxels, 20 * 20 * 20);
+    assert_int_equal((int)low, 16 * 16 * 16); /* the interior, at the floor; the cortex at 255 */
+    /* a solid 4^3 chip of its own, moved into the middle of the interior (4 voxels from the cortex) */
+    vol_free(lab);
+    lab = vol_new(24, 24, 24);
+    for (int k = 2; k < 6; k++)
+        for (int j = 2; j < 6; j++)
+            for (int i = 2; i < 6; i++)
+                lab->data[vol_idx(lab, i, j, k)] = 2;
+    int clo[3] = {2, 2, 2}, chi[3] = {5, 5, 5};
+    assert_int_equal(frag_from_labels(&chip, lab, NULL, 2, clo, chi, 300, 200), 0);
+    pose in = POSE_IDENTITY, apart = POSE_IDENTITY;
+    in.t[0] = in.t[1] = in.t[2] = 8;     /* voxels 10..13: inside the interior (4..19) */
+    apart.t[0] = 30;                      /* beyond the bone */
+    obb_params op = {CASE_TAU_MIN, CASE_TAU_MAX};
+    obb_tree *tb = obb_tree_build(&bone, &op), *tc = obb_tree_build(&chip, &op);
+    assert_non_null(tb);
+    assert_non_null(tc);
+    pose wb = pose_compose(bone.pose, bone.home), wi = pose_compose(in, chip.home), wa = pose_compose(apart, chip.home);
+    obb_result r;
+    assert_int_equal(obb_collide(tb, &wb, tc, &wi, NULL, NULL, &r), 0);
+    assert_true(r.collides);
+    assert_int_equal(obb_collide(tb, &wb, tc, &wa, NULL, NULL, &r), 0);
+    assert_false(r.collides);
+    obb_tree_free(tb);
+    obb_tree_free(tc);
+    frag_free(&bone);
+    frag_free(&chip);
+    vol_free(lab);
+    vol_free(ct);
+}
+
 /* A fragment from a left-handed, oblique grid: home is a proper rotation, crop voxels land on their
  * source voxels, and the principal axis follows the bar's long side. */
 static void test_fragment_geometry(void **st)
@@ -854,6 +912,7 @@ int main(void)
         cmocka_unit_test(test_prob_ramp),
         cmocka_unit_test(test_eigen),
         cmocka_unit_test(test_fragment_geometry),
+        cmocka_unit_test(test_labelled_interior_is_solid),
         cmocka_unit_test(test_example_ct_fragments),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

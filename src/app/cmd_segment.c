@@ -60,7 +60,10 @@ static void usage(FILE *out)
             "  --fill-slices              the same, also slice-wise along each axis (long bones,\n"
             "                             pieces; not a whole skull: its slices enclose the brain)\n"
             "  --ramp W                   probability map: 0.5 at the threshold rising to 1 at\n"
-            "                             threshold + W/2 (default 200; 0 = 1 inside the mask)\n"
+            "                             threshold + W/2 (default 200; 0 = 1 inside the mask);\n"
+            "                             a voxel under the threshold that a fragment holds (its\n"
+            "                             cancellous interior: --whole-bone, --fill, --labels)\n"
+            "                             is 0.5, solid for the collision tests at tau_min 0.5\n"
             CMD_TAU_HELP
             "  --json                     one JSON object on stdout instead of the text: command,\n"
             "                             case, source, threshold, components (before filtering),\n"

@@ -135,8 +135,10 @@ int frag_from_labels(frag *f, const vol *labels, const vol *ct, int id, const in
                 if (x < 0 || x >= labels->dim[0])
                     continue;
                 size_t si = vol_idx(labels, x, s[1], s[2]);
-                if (labels->data[si] == (float)id)
-                    row[i] = ct ? seg_prob(ct->data[si], threshold, ramp) : 255;
+                if (labels->data[si] == (float)id) {
+                    uint8_t p = ct ? seg_prob(ct->data[si], threshold, ramp) : 255;
+                    row[i] = p < FRAG_PROB_LABELLED ? FRAG_PROB_LABELLED : p;
+                }
             }
         }
     frag_stats(f);
