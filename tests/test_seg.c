@@ -746,8 +746,9 @@ static void test_eigen(void **st)
 /* A bone as a CT that holds only the bone shows it: a 2-voxel cortex at 1000 HU around a cancellous
  * interior at 50 HU, far under the 300 HU threshold, all of it labelled. Every labelled voxel is
  * solid for the collision test at the case's default tau (a probability of at least one half), so
- * a piece pushed into the interior collides: before, the interior was dropped, and a fit or the
- * hand could sink a piece 0.3 ml into another's cancellous bone (005_RI, issue 25). */
+ * a piece pushed into the interior collides. Before, the interior was dropped: the collision test
+ * saw the cortex alone, and on a real pelvic piece (005_RI, issue 25) a fit ended overlapping the
+ * fixed piece's cancellous bone beyond its tolerance. */
 static void test_labelled_interior_is_solid(void **st)
 {
     (void)st;
