@@ -136,6 +136,10 @@ static void test_case_errors(void **st)
     tu_expect_cli(1, "--point 1e+06,0,0 lies outside the CT (24x24x24 voxels)",
                   "render '%s' -o '%s/p.png' --point 1e6,0,0 --layout four-up", f->cdir, f->tmp);
     tu_expect_cli(1, "fracnav navigate: /nonexistent is not a case", "navigate /nonexistent </dev/null");
+    /* a case folder where a volume is wanted: named as such, not "no DICOM series found" */
+    tu_expect_cli(1, "a fracnav case folder (it holds case.json), not a volume or a DICOM folder", "info '%s'",
+                  f->cdir);
+    tu_expect_cli(1, "case.json (usually", "segment '%s' -o '%s/again'", f->cdir, f->tmp);
     tu_expect_cli(0, "pre-alignment, then PRAXIS (or Powell)", "--help");
 }
 

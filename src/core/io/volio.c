@@ -59,8 +59,16 @@ static int source_kind(const char *path)
         return fn_err_set(FN_EINVAL, "volio: no file name given");
     if (stat(path, &st) != 0)
         return fn_err_set(FN_EIO, "%s: cannot open: %s", path, strerror(errno));
-    if (S_ISDIR(st.st_mode))
+    if (S_ISDIR(st.st_mode)) {
+        /* a case folder handed where a volume is wanted: say so, not "no DICOM series found" */
+        char cj[4200];
+        struct stat cs;
+        snprintf(cj, sizeof cj, "%s/case.json", path);
+        if (stat(cj, &cs) == 0 && S_ISREG(cs.st_mode))
+            return fn_err_set(FN_EINVAL, "%s: a fracnav case folder (it holds case.json), not a volume or a DICOM "
+                              "folder: its CT is the source named in case.json (usually %s/source.nii.gz)", path, path);
         return 1;
+    }
     if (!S_ISREG(st.st_mode)) /* a FIFO would block the open, /dev/zero would never end */
         return fn_err_set(FN_EINVAL, "%s: not a regular file (a device, FIFO or socket): give a volume "
                           "file", path);
