@@ -607,6 +607,46 @@ static void test_overlap_counts_every_voxel(void **st)
     free(dir);
 }
 
+/* The penetration check after a fit builds hierarchies of the parts of each fragment that can reach
+ * the other: it answers as hierarchies of the whole fragments do, pose by pose (apart, touching,
+ * inside each other), turned about four axes. */
+static void test_penetrating_as_whole_trees(void **st)
+{
+    (void)st;
+    char *dir = tu_tmpdir("case_pen"), src[4200], cdir[4200];
+    snprintf(src, sizeof src, "%s/ct.nii.gz", dir);
+    snprintf(cdir, sizeof cdir, "%s/case", dir);
+    write_ct(src, 700);
+    planning_case *c = make_case(cdir, src);
+    obb_params op = {c->tau_min, c->tau_max};
+    obb_tree *t0 = obb_tree_build(&c->frag[0], &op), *t1 = obb_tree_build(&c->frag[1], &op);
+    assert_non_null(t0);
+    assert_non_null(t1);
+    const double axes[4][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}, {0.6, -0.48, 0.64}};
+    int hits = 0, misses = 0;
+    for (int p = 0; p < 40; p++) {
+        c->frag[1].pose = pose_from_axis_angle(axes[p % 4], (p % 9 - 4) * 0.07);
+        double f = 0.05 * p - 0.5; /* from inside block 1 to well apart */
+        for (int a = 0; a < 3; a++)
+            c->frag[1].pose.t[a] = -(c->frag[1].centroid[a] - c->frag[0].centroid[a]) * f;
+        pose w0 = pose_compose(c->frag[0].pose, c->frag[0].home), w1 = pose_compose(c->frag[1].pose, c->frag[1].home);
+        obb_result r;
+        assert_int_equal(obb_collide(t0, &w0, t1, &w1, NULL, NULL, &r), 0);
+        int got = case_penetrating(c, NULL, NULL, 0);
+        assert_true(got >= 0);
+        if (got != r.collides)
+            fail_msg("pose %d: the parts' hierarchies say %d, the whole fragments' %d", p, got, r.collides);
+        hits += r.collides != 0;
+        misses += !r.collides;
+    }
+    assert_true(hits >= 5 && misses >= 5);
+    obb_tree_free(t0);
+    obb_tree_free(t1);
+    case_free(c);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -619,6 +659,7 @@ int main(void)
         cmocka_unit_test(test_interrupted_save_recovers),
         cmocka_unit_test(test_unchanged_labels_are_not_written),
         cmocka_unit_test(test_overlap_counts_every_voxel),
+        cmocka_unit_test(test_penetrating_as_whole_trees),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

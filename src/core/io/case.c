@@ -41,28 +41,38 @@ static long voxel_at(const frag *b, const double x[3])
     return (l[2] * b->dim[1] + l[1]) * (long)b->dim[0] + l[0];
 }
 
-double case_overlap_ml(const planning_case *c, int a, int b)
+/* A's voxel index -> B's continuous voxel index at their poses (G, 3x4), and how far (in B's voxels)
+ * a point of one of A's voxels can lie from its centre's image (*reach, at least 1). */
+static void index_map(const frag *A, const frag *B, double G[3][4], double *reach)
 {
-    const frag *A = &c->frag[a], *B = &c->frag[b];
-    obb_params op = {c->tau_min, c->tau_max};
     pose wa = pose_compose(A->pose, A->home), wb = pose_compose(B->pose, B->home);
     pose rel = pose_compose(pose_inverse(wb), wa); /* a's local mm -> b's local mm */
-    double R[3][3], G[3][4]; /* a's voxel index -> b's continuous voxel index */
+    double R[3][3];
     pose_to_matrix(&rel, R);
     for (int i = 0; i < 3; i++) {
         for (int k = 0; k < 3; k++)
             G[i][k] = R[i][k] * A->spacing[k] / B->spacing[i];
         G[i][3] = rel.t[i] / B->spacing[i];
     }
-    double reach = 1; /* a voxel's samples lie within this many of b's voxels of its centre */
+    *reach = 1;
     for (int i = 0; i < 3; i++)
-        reach = fmax(reach, 0.5 * (fabs(G[i][0]) + fabs(G[i][1]) + fabs(G[i][2])) + 1);
-    /* Only a's voxels whose centres land in b's box widened by reach can count: the corners of
-     * that box taken back into a's voxel indices bound them. */
-    pose back = pose_inverse(rel);
+        *reach = fmax(*reach, 0.5 * (fabs(G[i][0]) + fabs(G[i][1]) + fabs(G[i][2])) + 1);
+}
+
+/* The box [lo, hi] of A's voxel indices whose voxels can reach into B's crop at their poses: B's box
+ * widened by reach, its corners taken back into A's indices, clipped to A's crop. 0 when empty. */
+static int reach_box(const frag *A, const frag *B, int lo[3], int hi[3])
+{
+    double G[3][4], reach;
+    index_map(A, B, G, &reach);
+    pose wa = pose_compose(A->pose, A->home), wb = pose_compose(B->pose, B->home);
+    pose back = pose_compose(pose_inverse(wa), wb); /* b's local mm -> a's local mm */
     double Ri[3][3];
     pose_to_matrix(&back, Ri);
-    int lo[3] = {A->dim[0], A->dim[1], A->dim[2]}, hi[3] = {-1, -1, -1};
+    for (int i = 0; i < 3; i++) {
+        lo[i] = A->dim[i];
+        hi[i] = -1;
+    }
     for (int corner = 0; corner < 8; corner++) {
         double bmm[3];
         for (int r = 0; r < 3; r++)
@@ -74,10 +84,25 @@ double case_overlap_ml(const planning_case *c, int a, int b)
             hi[i] = e > hi[i] ? e : hi[i];
         }
     }
+    int some = 1;
     for (int i = 0; i < 3; i++) {
         lo[i] = lo[i] < 0 ? 0 : lo[i];
         hi[i] = hi[i] > A->dim[i] - 1 ? A->dim[i] - 1 : hi[i];
+        some &= lo[i] <= hi[i];
     }
+    return some;
+}
+
+double case_overlap_ml(const planning_case *c, int a, int b)
+{
+    const frag *A = &c->frag[a], *B = &c->frag[b];
+    obb_params op = {c->tau_min, c->tau_max};
+    double G[3][4], reach; /* a's voxel index -> b's continuous voxel index */
+    index_map(A, B, G, &reach);
+    /* Only a's voxels whose centres land in b's box widened by reach can count (reach_box). */
+    int lo[3], hi[3];
+    if (!reach_box(A, B, lo, hi))
+        return 0;
     uint8_t solid[256]; /* obb_effective_prob(p) != 0, by table */
     for (int v = 0; v < 256; v++)
         solid[v] = obb_effective_prob((uint8_t)v, &op) != 0;
@@ -111,28 +136,79 @@ double case_overlap_ml(const planning_case *c, int a, int b)
     return (double)hits * voxel_ml / (OVERLAP_SAMPLES * OVERLAP_SAMPLES * OVERLAP_SAMPLES);
 }
 
+/* The part of f in its index box [lo, hi] as a fragment of its own (dim, spacing, name and prob: what
+ * a hierarchy is built from) into *s, and its local mm -> world pose (f's shifted by lo) into *w.
+ * 0 or FN_ENOMEM. */
+static int sub_crop(const frag *f, const int lo[3], const int hi[3], frag *s, pose *w)
+{
+    memset(s, 0, sizeof *s);
+    s->id = f->id;
+    snprintf(s->name, sizeof s->name, "%s", f->name);
+    size_t n = 1;
+    for (int a = 0; a < 3; a++) {
+        s->dim[a] = hi[a] - lo[a] + 1;
+        s->spacing[a] = f->spacing[a];
+        n *= (size_t)s->dim[a];
+    }
+    if (!(s->prob = malloc(n)))
+        return fn_err_set(FN_ENOMEM, "out of memory for the overlap check of fragment %d", f->id);
+    for (int k = 0; k < s->dim[2]; k++)
+        for (int j = 0; j < s->dim[1]; j++)
+            memcpy(s->prob + ((size_t)k * s->dim[1] + j) * s->dim[0],
+                   f->prob + ((size_t)(k + lo[2]) * f->dim[1] + (size_t)(j + lo[1])) * f->dim[0] + lo[0],
+                   (size_t)s->dim[0]);
+    pose shift = POSE_IDENTITY;
+    for (int a = 0; a < 3; a++)
+        shift.t[a] = lo[a] * f->spacing[a];
+    *w = pose_compose(pose_compose(f->pose, f->home), shift);
+    return 0;
+}
+
+/* Whether fragments a and b interpenetrate at their poses (obb_collide at tolerance 0), over the
+ * parts of each that can reach into the other's crop (reach_box): after a fit the pieces touch
+ * along a fracture, and hierarchies of those parts cost a fraction of the whole fragments'. 1, 0
+ * or FN_E*. */
+static int pair_collides(const planning_case *c, int a, int b)
+{
+    const frag *A = &c->frag[a], *B = &c->frag[b];
+    int la[3], ha[3], lb[3], hb[3];
+    if (!reach_box(A, B, la, ha) || !reach_box(B, A, lb, hb))
+        return 0;
+    obb_params op = {c->tau_min, c->tau_max};
+    frag sa, sb;
+    pose wa, wb;
+    int rc = sub_crop(A, la, ha, &sa, &wa);
+    if (rc == 0 && (rc = sub_crop(B, lb, hb, &sb, &wb)) < 0)
+        free(sa.prob);
+    if (rc < 0)
+        return rc;
+    obb_tree *ta = obb_tree_build(&sa, &op), *tb = ta ? obb_tree_build(&sb, &op) : NULL;
+    obb_result r;
+    if (!ta || !tb)
+        rc = fn_err_wrap(FN_EFORMAT, "fragments %d and %d", A->id, B->id);
+    else if ((rc = obb_collide(ta, &wa, tb, &wb, NULL, NULL, &r)) == 0)
+        rc = r.collides != 0;
+    obb_tree_free(ta);
+    obb_tree_free(tb);
+    free(sa.prob);
+    free(sb.prob);
+    return rc;
+}
+
 int case_penetrating(const planning_case *c, const uint8_t *fitted, case_overlap *out, int max)
 {
-    obb_params op = {c->tau_min, c->tau_max};
-    obb_tree **t = calloc((size_t)(c->nfrag ? c->nfrag : 1), sizeof *t);
-    int rc = t ? 0 : fn_err_set(FN_ENOMEM, "out of memory for the overlap check"), n = 0;
-    for (int i = 0; i < c->nfrag && rc == 0; i++)
-        if (!(t[i] = obb_tree_build(&c->frag[i], &op)))
-            rc = fn_err_wrap(FN_EFORMAT, "fragment %d", c->frag[i].id);
+    int rc = 0, n = 0;
     for (int a = 0; rc == 0 && a < c->nfrag; a++)
         for (int b = a + 1; rc == 0 && b < c->nfrag; b++) {
-            pose wa = pose_compose(c->frag[a].pose, c->frag[a].home);
-            pose wb = pose_compose(c->frag[b].pose, c->frag[b].home);
-            obb_result r;
-            if ((rc = obb_collide(t[a], &wa, t[b], &wb, NULL, NULL, &r)) < 0 || !r.collides)
+            int hit = pair_collides(c, a, b);
+            if (hit <= 0) {
+                rc = hit;
                 continue;
+            }
             if (out && n < max)
                 out[n] = (case_overlap){a, b, case_overlap_ml(c, a, b), fitted && (fitted[a] || fitted[b])};
             n++;
         }
-    for (int i = 0; t && i < c->nfrag; i++)
-        obb_tree_free(t[i]);
-    free(t);
     return rc < 0 ? rc : n;
 }
 
