@@ -93,6 +93,44 @@ static int reach_box(const frag *A, const frag *B, int lo[3], int hi[3])
     return some;
 }
 
+/* Per voxel of f: 1 when a voxel that solid[] counts lies within rad cells along every axis (a box
+ * dilation, one axis at a time by running counts). malloc'd; NULL when out of memory. */
+static uint8_t *solid_near(const frag *f, const uint8_t solid[256], int rad)
+{
+    const int *d = f->dim;
+    size_t n = (size_t)d[0] * d[1] * d[2];
+    uint8_t *v = malloc(n), *t = malloc(n);
+    if (!v || !t) {
+        free(v);
+        free(t);
+        return NULL;
+    }
+    for (size_t q = 0; q < n; q++)
+        v[q] = solid[f->prob[q]];
+    size_t stride = 1;
+    for (int a = 0; a < 3; a++) { /* along axis a: t[x] = any v within rad of x on its line */
+        size_t len = (size_t)d[a], lines = n / len;
+        for (size_t l = 0; l < lines; l++) {
+            size_t base = l % stride + l / stride * stride * len; /* the line's first element */
+            int count = 0;
+            for (size_t x = 0; x < len + (size_t)rad; x++) {
+                if (x < len)
+                    count += v[base + x * stride];
+                if (x >= (size_t)(2 * rad + 1))
+                    count -= v[base + (x - 2 * (size_t)rad - 1) * stride];
+                if (x >= (size_t)rad)
+                    t[base + (x - (size_t)rad) * stride] = count > 0;
+            }
+        }
+        uint8_t *sw = v;
+        v = t;
+        t = sw;
+        stride *= len;
+    }
+    free(t);
+    return v;
+}
+
 double case_overlap_ml(const planning_case *c, int a, int b)
 {
     const frag *A = &c->frag[a], *B = &c->frag[b];
@@ -106,6 +144,12 @@ double case_overlap_ml(const planning_case *c, int a, int b)
     uint8_t solid[256]; /* obb_effective_prob(p) != 0, by table */
     for (int v = 0; v < 256; v++)
         solid[v] = obb_effective_prob((uint8_t)v, &op) != 0;
+    /* near[q]: some solid voxel of b within rad cells (a box) of b's cell q. A sample lies within
+     * reach of its voxel centre's image, and lands in the b voxel nearest it: within reach + 1 cells
+     * of the b cell nearest that centre. An a voxel whose nearest cell has none is skipped (NULL
+     * near, out of memory: none is). */
+    int rad = (int)ceil(reach) + 1;
+    uint8_t *near_b = solid_near(B, solid, rad);
     long hits = 0;
     for (int k = lo[2]; k <= hi[2]; k++)
         for (int j = lo[1]; j <= hi[1]; j++)
@@ -121,6 +165,11 @@ double case_overlap_ml(const planning_case *c, int a, int b)
                 }
                 if (!near)
                     continue;
+                if (near_b) {
+                    long q = voxel_at(B, ctr);
+                    if (q >= 0 && !near_b[q])
+                        continue;
+                }
                 for (int s = 0; s < OVERLAP_SAMPLES * OVERLAP_SAMPLES * OVERLAP_SAMPLES; s++) {
                     double o[3] = {s % OVERLAP_SAMPLES, s / OVERLAP_SAMPLES % OVERLAP_SAMPLES,
                                    s / (OVERLAP_SAMPLES * OVERLAP_SAMPLES)}, x[3];
@@ -132,6 +181,7 @@ double case_overlap_ml(const planning_case *c, int a, int b)
                     hits += v >= 0 && solid[B->prob[v]];
                 }
             }
+    free(near_b);
     double voxel_ml = A->spacing[0] * A->spacing[1] * A->spacing[2] * 1e-3;
     return (double)hits * voxel_ml / (OVERLAP_SAMPLES * OVERLAP_SAMPLES * OVERLAP_SAMPLES);
 }
