@@ -577,20 +577,31 @@ static double overlap_every_voxel(const planning_case *c, int a, int b)
     return hits * A->spacing[0] * A->spacing[1] * A->spacing[2] * 1e-3 / 27;
 }
 
+/* The two blocks' case (write_ct at 700 HU, make_case) in a new tu_tmpdir tagged tag (*dir, to
+ * remove and free). */
+static planning_case *blocks_case(const char *tag, char **dir)
+{
+    char src[4200], cdir[4200];
+    *dir = tu_tmpdir(tag);
+    snprintf(src, sizeof src, "%s/ct.nii.gz", *dir);
+    snprintf(cdir, sizeof cdir, "%s/case", *dir);
+    write_ct(src, 700);
+    return make_case(cdir, src);
+}
+
+/* The axes the overlap tests turn block 2 about. */
+static const double turn_axes[4][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}, {0.6, -0.48, 0.64}};
+
 /* case_overlap_ml looks only where b can be: at poses that push one block into the other, turned
  * about each axis, it counts what a count over every voxel counts. */
 static void test_overlap_counts_every_voxel(void **st)
 {
     (void)st;
-    char *dir = tu_tmpdir("case_overlap"), src[4200], cdir[4200];
-    snprintf(src, sizeof src, "%s/ct.nii.gz", dir);
-    snprintf(cdir, sizeof cdir, "%s/case", dir);
-    write_ct(src, 700);
-    planning_case *c = make_case(cdir, src);
-    const double axes[4][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}, {0.6, -0.48, 0.64}};
+    char *dir;
+    planning_case *c = blocks_case("case_overlap", &dir);
     int some = 0;
     for (int p = 0; p < 12; p++) {
-        c->frag[1].pose = pose_from_axis_angle(axes[p % 4], (p - 6) * 0.11);
+        c->frag[1].pose = pose_from_axis_angle(turn_axes[p % 4], (p - 6) * 0.11);
         /* block 2 lies 4.5 mm along the CT's i axis from block 1 (13-10 voxels apart, 1.5 mm) */
         c->frag[1].pose.t[0] = -(c->frag[1].centroid[0] - c->frag[0].centroid[0]) * (0.3 + 0.1 * p);
         c->frag[1].pose.t[1] = -(c->frag[1].centroid[1] - c->frag[0].centroid[1]) * (0.3 + 0.1 * p);
@@ -613,19 +624,15 @@ static void test_overlap_counts_every_voxel(void **st)
 static void test_penetrating_as_whole_trees(void **st)
 {
     (void)st;
-    char *dir = tu_tmpdir("case_pen"), src[4200], cdir[4200];
-    snprintf(src, sizeof src, "%s/ct.nii.gz", dir);
-    snprintf(cdir, sizeof cdir, "%s/case", dir);
-    write_ct(src, 700);
-    planning_case *c = make_case(cdir, src);
+    char *dir;
+    planning_case *c = blocks_case("case_pen", &dir);
     obb_params op = {c->tau_min, c->tau_max};
     obb_tree *t0 = obb_tree_build(&c->frag[0], &op), *t1 = obb_tree_build(&c->frag[1], &op);
     assert_non_null(t0);
     assert_non_null(t1);
-    const double axes[4][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}, {0.6, -0.48, 0.64}};
     int hits = 0, misses = 0;
     for (int p = 0; p < 40; p++) {
-        c->frag[1].pose = pose_from_axis_angle(axes[p % 4], (p % 9 - 4) * 0.07);
+        c->frag[1].pose = pose_from_axis_angle(turn_axes[p % 4], (p % 9 - 4) * 0.07);
         double f = 0.05 * p - 0.5; /* from inside block 1 to well apart */
         for (int a = 0; a < 3; a++)
             c->frag[1].pose.t[a] = -(c->frag[1].centroid[a] - c->frag[0].centroid[a]) * f;
