@@ -39,11 +39,12 @@ int frag_label_box(const struct vol *labels, int id, int lo[3], int hi[3]);
 
 /* Builds fragment `id` from a labelmap: the crop is the source-index box [lo, hi] (inclusive,
  * usually the label's bounding box) padded by one voxel on every side (it may reach outside the
- * grid; those voxels are 0). prob = seg_prob(ct value) where labels == id, at least FRAG_PROB_LABELLED
- * (a voxel labelled bone is bone at least as surely as one at the threshold: the cancellous
- * interior of a whole bone, a fill or an annotation, under the threshold, stays solid for the
- * collision tests at the default tau_min), 0 elsewhere; ct may be NULL (then 255 inside). Fills stats (frag_stats), colour and name, pose = identity. 0 or FN_E*;
- * on failure *f holds nothing to free. */
+ * grid; those voxels are 0). prob = seg_prob(ct value) where labels == id, at least
+ * FRAG_PROB_LABELLED (a voxel labelled bone is bone at least as surely as one at the threshold: the
+ * cancellous interior of a whole bone, a fill or an annotation, under the threshold, stays solid
+ * for the collision tests at the default tau_min), 0 elsewhere; ct may be NULL (then 255 inside).
+ * Fills stats (frag_stats), colour and name, pose = identity. 0 or FN_E*; on failure *f holds
+ * nothing to free. */
 #define FRAG_PROB_LABELLED 128 /* seg_prob at the threshold */
 int frag_from_labels(frag *f, const struct vol *labels, const struct vol *ct, int id, const int lo[3],
                      const int hi[3], double threshold, double ramp);

@@ -25,6 +25,7 @@ typedef struct sha256_ctx {
     uint8_t buf[64];
     size_t fill;
     uint64_t bytes;
+    int portable; /* 1: the portable rounds even where the SHA extensions are (durable__sha256_portable) */
 } sha256_ctx;
 
 static const uint32_t sha_k[64] = {
@@ -76,6 +77,7 @@ static void sha_init(sha256_ctx *s)
     memcpy(s->h, h0, sizeof h0);
     s->fill = 0;
     s->bytes = 0;
+    s->portable = 0;
 }
 
 /* The x86 SHA extensions: the same rounds, four at a time (two sha256rnds2 per four), with the
@@ -129,19 +131,17 @@ static int sha_x86(void)
 }
 #endif
 
-static int sha_portable_only; /* durable__sha256_portable's switch (single-threaded tests) */
-
-/* n whole 64-byte blocks. */
-static void sha_blocks(uint32_t h[8], const uint8_t *p, size_t n)
+/* n whole 64-byte blocks into s's state. */
+static void sha_blocks(sha256_ctx *s, const uint8_t *p, size_t n)
 {
 #if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
-    if (!sha_portable_only && sha_x86()) {
-        sha_blocks_x86(h, p, n);
+    if (!s->portable && sha_x86()) {
+        sha_blocks_x86(s->h, p, n);
         return;
     }
 #endif
     for (; n; n--, p += 64)
-        sha_block(h, p);
+        sha_block(s->h, p);
 }
 
 static void sha_update(sha256_ctx *s, const uint8_t *p, size_t n)
@@ -155,10 +155,10 @@ static void sha_update(sha256_ctx *s, const uint8_t *p, size_t n)
         n -= take;
         if (s->fill < 64)
             return;
-        sha_blocks(s->h, s->buf, 1);
+        sha_blocks(s, s->buf, 1);
         s->fill = 0;
     }
-    sha_blocks(s->h, p, n / 64);
+    sha_blocks(s, p, n / 64);
     memcpy(s->buf, p + n / 64 * 64, n % 64);
     s->fill = n % 64;
 }
@@ -187,9 +187,11 @@ void durable_sha256(const void *data, size_t len, char hex[65])
 
 void durable__sha256_portable(const void *data, size_t len, char hex[65])
 {
-    sha_portable_only = 1;
-    durable_sha256(data, len, hex);
-    sha_portable_only = 0;
+    sha256_ctx s;
+    sha_init(&s);
+    s.portable = 1;
+    sha_update(&s, data, len);
+    sha_final(&s, hex);
 }
 
 int durable_open_regular(const char *path, const char *what)

@@ -101,7 +101,7 @@ int durable_open_regular(const char *path, const char *what);
 void durable_sha256(const void *data, size_t len, char hex[65]);
 int durable_file_sha256(const char *path, char hex[65]);
 /* For tests: durable_sha256 by the portable rounds alone, where the processor's SHA extensions would
- * otherwise be used (not thread-safe with other hashing). */
+ * otherwise be used. */
 void durable__sha256_portable(const void *data, size_t len, char hex[65]);
 
 #endif
