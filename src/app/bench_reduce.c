@@ -25,7 +25,7 @@
 typedef struct opts {
     int seeds, starts, json, verbose;
     double max_mm, max_deg, band_mm, voi_max_mm, tolerance_mm, settle_mm, trust_mm, trust_deg;
-    int fit_starts, coarse, axis_scale;
+    int fit_starts, coarse, axis_scale, no_polish;
     int pieces, threshold_auto, touching, suite, whole_bone;
     int model;            /* fracture_params.model */
     int labels, intact;   /* --labels DIR, --intact DIR: workloads of the real bones in data_dir */
@@ -217,6 +217,8 @@ static void fit_opts(const opts *o, int k, reduce_opts *ro)
     ro->gap_mm = o->gap_mm;
     if (o->axis_scale)
         ro->axis_scale = o->axis_scale > 0;
+    if (o->no_polish)
+        ro->polish = 0;
 }
 
 /* --verbose: a fit's details on stderr (level 2: and the same fit started at the truth). m's pose
@@ -435,6 +437,8 @@ static int usage(FILE *out, int rc)
             "  --coarse         the first stage on coarse copies (reduce_opts.coarse; default off)\n"
             "  --axis-scale, --no-axis-scale  the rotation scaled per principal axis, or by one\n"
             "                   radius (reduce_opts.axis_scale; default: reduce's)\n"
+            "  --no-polish      no polish on the nearest count after the fit (reduce_opts.polish;\n"
+            "                   default on)\n"
             "  --pieces K       pieces per fracture (default 2): piece 2 is fitted against piece 1\n"
             "                   and the others, all at their true poses\n"
             "  --touching       the pieces left in contact (fracture --touching): the fractured CT\n"
@@ -505,6 +509,7 @@ static const struct flag_opt {
     {"--suite", offsetof(opts, suite), 1},
     {"--axis-scale", offsetof(opts, axis_scale), 1},
     {"--no-axis-scale", offsetof(opts, axis_scale), -1},
+    {"--no-polish", offsetof(opts, no_polish), 1},
     {"--touching", offsetof(opts, touching), 1},
     {"--whole-bone", offsetof(opts, whole_bone), 1},
 };

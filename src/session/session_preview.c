@@ -147,6 +147,7 @@ static int fit_once(session *s, preview_fit *pf, const loop_scene *sc)
     o.gap_mm = s->fit_gap_mm; /* tolerance: reduce's, as the fit action's (session_fit.c) */
     o.starts = 1;
     o.hops = 0;
+    o.polish = 0; /* a ghost at the hand's pace: the polish's tenths of a millimetre wait for the fit action */
     o.max_eval = SESSION_PREVIEW_EVALS;
     o.progress = on_progress;
     o.progress_ctx = pf;

@@ -70,6 +70,10 @@ const reduce_tuning reduce__tune = {
     /* a strict margin for pieces that are not long: CT_pitch success 0.90 -> 0.95 */
     .hop_margin = 1e-4,
     .long_margin = 1e-7,
+    /* the polish's steps (parameter units: about a millimetre of the fracture surface's motion)
+     * and its sweeps at most per step */
+    .polish_step = {0.4, 0.2, 0.1, 0.05, 0.025},
+    .polish_sweeps = 4,
     .order_delta_mm = 3,
     .order_margin_mm = 6,
     /* the example CT's head holder lies 18 mm and more from the skull; the pieces of a fracture
@@ -112,6 +116,7 @@ void reduce_defaults(reduce_opts *o)
     o->coarse = 0;
     o->axis_scale = 1;
     o->hops = 3;
+    o->polish = 1;
     o->threads = 2;
 }
 

@@ -136,6 +136,7 @@ typedef struct reduce_opts {
                           * about a cross axis (bench reduce, long bone: success 0.30 -> 0.55, skull
                           * unchanged); 0: one radius for all three (the RMS distance from the
                           * centroid) */
+    int polish;          /* 1: the result polished on the nearest count (the fit's last stage) */
     int hops;            /* up to this many rounds of hops after the fit, the best kept while a
                           * round gains. A long piece (largest principal variance over 4 times the
                           * next): the fit again from the result turned 3 degrees either way about

@@ -100,6 +100,8 @@ int reduce__coarse_frag(const frag *f, frag *c);
 #define REDUCE_STARTS_SEEN REDUCE_CANDIDATES_MAX
 /* The global stage's candidates refined, at most (the size of an array; part of the table). */
 #define REDUCE_GLOBAL_KEEP_MAX 3
+/* The polish's steps (the size of an array; part of the table). */
+#define REDUCE_POLISH_STEPS 5
 
 /* Every number the reduction's stages are tuned by, in one place (reduce.c holds the values, with
  * the measurement that chose each where one did). What a user may set is in reduce_opts instead. */
@@ -153,6 +155,9 @@ typedef struct reduce_tuning {
     int hop_evals;           /* a strict hop's fit stops after this many evaluations */
     double hop_margin;       /* a hop of a piece that is not long must gain this much metric */
     double long_margin;      /* and one of a long piece this much */
+    /* the polish (stage_polish) */
+    double polish_step[REDUCE_POLISH_STEPS]; /* its compass steps, largest first */
+    int polish_sweeps;       /* sweeps at most per step */
     /* the order of several fragments */
     double order_delta_mm, order_margin_mm; /* contact zone that measures a piece's contact */
     double touch_mm;         /* a piece with no bone this near another's in the CT touches nothing;
