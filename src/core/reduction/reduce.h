@@ -142,10 +142,11 @@ typedef struct reduce_opts {
                           * next): the fit again from the result turned 3 degrees either way about
                           * each of its principal axes, colliding poses costed (bench reduce --ct
                           * long-bone: success 0.55 -> 0.75). Any other piece, strictly: from the
-                          * result moved 1.5 mm either way along each axis, short fits (40
+                          * result moved 1.5 mm either way along each axis, short fits (60
                           * evaluations each), the best refined, kept only free of collision and
                           * better in metric alone by 1e-4 (the real pelvic pieces of bench reduce
-                          * --labels: back_rate 0.77 -> 0.90); 0: none */
+                          * --labels: back_rate 0.77 -> 0.90; 60 evaluations, not 40: 0.93 ->
+                          * 0.97); 0: none */
     int coarse;          /* 1: the first stage (automatic VOI) fits coarse copies of the fragments
                           * (2 voxels a cell per axis where the spacing is finest). Off by default:
                           * in `bench reduce` its flatter metric led fits astray (success 0.25
@@ -167,7 +168,7 @@ typedef struct reduce_opts {
 /* PRAXIS (the most successful in `fracnav bench reduce`), trilinear, a 1 mm band, pre-alignment on
  * (a global candidate),
  * no gap, automatic VOI of any size, 3 first-stage starts, rotation scaled per principal axis, 3
- * rounds of hops, no coarse stage, trust 12 mm / 18 degrees, tau 0.5/0.95,
+ * rounds of hops, the polish, no coarse stage, trust 12 mm / 18 degrees, tau 0.5/0.95,
  * tolerance 0.5 mm, xtol 0.01 mm, 4000 evaluations (all stages, attempts and hops together). */
 void reduce_defaults(reduce_opts *o);
 

@@ -955,16 +955,20 @@ static int stage_hops(fit_state *s)
  * (bench reduce --intact: 001_SA's fourth fracture, fits from the truth ended 1.2 degrees off).
  * The nearest count has no blur (at the true pose the two pieces share no cell) but is piecewise
  * constant, which stalls the line searches; from the fit's end, a compass search suffices. Not for
- * a long piece: a cut through a tube is nearly symmetric under a turn about its axis, and there the
- * nearest count's steps, where the two grids line up, lead the turn (bench reduce --ct long-bone:
- * success 0.55 -> 0.40 with it). Measured (docs/benchmarks.md): the skull's median errors 0.147
- * degrees / 0.120 mm -> 0.017 / 0.020, the intact pelvic bones' success 0.92 -> 1.00. */
+ * a tube: a long piece (see piece_is_long) whose cross-section is round (second principal variance
+ * under polish_round times the third) is nearly symmetric under a turn about its axis, and there
+ * the nearest count's steps, where the two grids line up, lead the turn (bench reduce --ct
+ * long-bone, variances 1.5-1.6 times: success 0.55 -> 0.40 with the polish). A flat long piece is
+ * polished (the sacrum's fracture above: 2.5 times). Measured (docs/benchmarks.md): the skull's
+ * median errors 0.147 degrees / 0.120 mm -> 0.017 / 0.020, the intact pelvic bones' success 0.92
+ * -> 1.00. */
 static int stage_polish(fit_state *s)
 {
     const reduce_opts *o = s->o;
     const reduce_tuning *T = &reduce__tune;
     objective *ob = &s->obj;
-    if (ob->cancelled || !o->polish || piece_is_long(s))
+    const double *ev = s->moving->eigval;
+    if (ob->cancelled || !o->polish || (piece_is_long(s) && ev[1] < T->polish_round * ev[2]))
         return 0;
     reduce_metric *mn = reduce__metric_with(s->asm_, s->nasm, s->moving, s->bricks, &s->r->voi, REDUCE_NEAREST,
                                             o->band_mm, o->gap_mm);

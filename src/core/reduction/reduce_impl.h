@@ -158,6 +158,8 @@ typedef struct reduce_tuning {
     /* the polish (stage_polish) */
     double polish_step[REDUCE_POLISH_STEPS]; /* its compass steps, largest first */
     int polish_sweeps;       /* sweeps at most per step */
+    double polish_round;     /* a long piece whose second principal variance is under this times
+                              * the third is a tube, not polished */
     /* the order of several fragments */
     double order_delta_mm, order_margin_mm; /* contact zone that measures a piece's contact */
     double touch_mm;         /* a piece with no bone this near another's in the CT touches nothing;
