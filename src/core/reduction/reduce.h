@@ -142,10 +142,10 @@ typedef struct reduce_opts {
                           * next): the fit again from the result turned 3 degrees either way about
                           * each of its principal axes, colliding poses costed (bench reduce --ct
                           * long-bone: success 0.55 -> 0.75). Any other piece, strictly: from the
-                          * result moved 1.5 mm either way along each axis, short fits (60
+                          * result moved 1.5 mm either way along each axis, short fits (50
                           * evaluations each), the best refined, kept only free of collision and
                           * better in metric alone by 1e-4 (the real pelvic pieces of bench reduce
-                          * --labels: back_rate 0.77 -> 0.90; 60 evaluations, not 40: 0.93 ->
+                          * --labels: back_rate 0.77 -> 0.90; 50 evaluations, not 40: 0.93 ->
                           * 0.97); 0: none */
     int coarse;          /* 1: the first stage (automatic VOI) fits coarse copies of the fragments
                           * (2 voxels a cell per axis where the spacing is finest). Off by default:

@@ -970,11 +970,10 @@ static int stage_polish(fit_state *s)
     const double *ev = s->moving->eigval;
     if (ob->cancelled || !o->polish || (piece_is_long(s) && ev[1] < T->polish_round * ev[2]))
         return 0;
-    reduce_metric *mn = reduce__metric_with(s->asm_, s->nasm, s->moving, s->bricks, &s->r->voi, REDUCE_NEAREST,
-                                            o->band_mm, o->gap_mm);
-    if (!mn)
-        return FN_EINVAL;
-    reduce_metric *fit_metric = ob->metric;
+    if (!s->metric)
+        return 0;
+    reduce_metric *mn = s->metric; /* the final VOI's, counted nearest for the polish */
+    reduce_count fit_count = reduce__metric_count(mn, REDUCE_NEAREST);
     ob->metric = mn;
     ob->pc = &s->col;
     ob->start = s->moving->pose;
@@ -1004,8 +1003,7 @@ static int stage_polish(fit_state *s)
         s->moving->pose = pose_of(ob, x);
         pose_normalize(&s->moving->pose);
     }
-    ob->metric = fit_metric;
-    reduce_metric_free(mn);
+    reduce__metric_count(mn, fit_count);
     return rc;
 }
 

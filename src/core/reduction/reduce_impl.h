@@ -82,6 +82,10 @@ void reduce__bricks_free(reduce_bricks *b);
  * evaluations will be: they cost the band's voxels near it, and stay exact anywhere. 0 or FN_ENOMEM
  * (the metric then counts every run, exact and slower). Not thread-safe with evaluations of m. */
 int reduce__metric_rebase(reduce_metric *m, const pose *ref);
+/* The metric counted by mode from now on (its VOI and band stay: the trilinear band holds every
+ * voxel a nearest count reaches); the mode it counted by before. Not thread-safe with evaluations
+ * of m. */
+reduce_count reduce__metric_count(reduce_metric *m, reduce_count mode);
 /* 1 when some brick of the band moved halfway to where it would count all its runs, from the band's
  * reference pose to p: time to rebase there. */
 int reduce__metric_drifted(const reduce_metric *m, const pose *p);
@@ -101,7 +105,7 @@ int reduce__coarse_frag(const frag *f, frag *c);
 /* The global stage's candidates refined, at most (the size of an array; part of the table). */
 #define REDUCE_GLOBAL_KEEP_MAX 3
 /* The polish's steps (the size of an array; part of the table). */
-#define REDUCE_POLISH_STEPS 5
+#define REDUCE_POLISH_STEPS 4
 
 /* Every number the reduction's stages are tuned by, in one place (reduce.c holds the values, with
  * the measurement that chose each where one did). What a user may set is in reduce_opts instead. */

@@ -12,6 +12,13 @@
 
 #define BRICK 8
 
+reduce_count reduce__metric_count(reduce_metric *m, reduce_count mode)
+{
+    reduce_count was = m->mode;
+    m->mode = mode;
+    return was;
+}
+
 int reduce_voi_cells(const frag *grid, const reduce_voi *voi, int c0[3], int c1[3])
 {
     pose inv = pose_inverse(pose_compose(grid->pose, grid->home));
