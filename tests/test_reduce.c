@@ -883,6 +883,13 @@ static void test_polish_keeps_a_resampled_piece_nearer(void **st)
             reduce_result r;
             assert_int_equal(reduce_fit_one(others, 1, &c->frag[1], &start, &o, &out, &r), 0);
             assert_int_equal(r.collides, 0);
+            /* the result's metric is the fit's own count (trilinear) again, not the polish's */
+            reduce_metric *tm = reduce_metric_new(others, 1, &c->frag[1], &r.voi, REDUCE_TRILINEAR, o.band_mm);
+            assert_non_null(tm);
+            double want_end = reduce_metric_eval(tm, &out, NULL);
+            if (!(fabs(want_end - r.metric_end) < 1e-9))
+                fail_msg("seed %d: metric_end %.9f, the trilinear count there %.9f", (int)seed, r.metric_end, want_end);
+            reduce_metric_free(tm);
             reduce_result_free(&r);
             frag mo = c->frag[1];
             mo.pose = out;
