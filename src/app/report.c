@@ -413,7 +413,8 @@ static int draw_plot(durable_file *df, void *vctx)
         free(y);
     }
     plcol0(1);
-    plmtex("rv", 1.0, 0.14, 0, "dot: the final metric;");
+    plmtex("rv", 1.0, 0.19, 0, "dot: the final metric, after");
+    plmtex("rv", 1.0, 0.14, 0, "the polish (nearest count);");
     plmtex("rv", 1.0, 0.09, 0, "a dashed line: a later run;");
     plmtex("rv", 1.0, 0.04, 0, "runs above the start: cut");
     plend();
