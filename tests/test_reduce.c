@@ -867,10 +867,10 @@ static void test_polish_keeps_a_resampled_piece_nearer(void **st)
         planning_case *c = fractured(dir, 2, seed);
         const frag *f = &c->frag[0];
         pose want = pose_compose(f->pose, pose_compose(pose_inverse(c->truth[0]), c->truth[1]));
-        double axis[3] = {0.6, 0.0, 0.8}, cm[3], to[3];
+        double axis[3] = {0.6, 0.0, 0.8}, move[3] = {0.8, 0.0, 0.6}, cm[3], to[3];
         pose_apply(&want, c->frag[1].centroid, cm);
         for (int a = 0; a < 3; a++)
-            to[a] = cm[a] + 1.5 * axis[2 - a];
+            to[a] = cm[a] + 1.5 * move[a];
         pose turn = pose_from_axis_angle(axis, 3 * M_PI / 180), start = reduce__turned(&want, &turn, cm, to);
         double rot[2], trans[2], tre[2];
         for (int polish = 0; polish < 2; polish++) {

@@ -968,9 +968,7 @@ static int stage_polish(fit_state *s)
     const reduce_tuning *T = &reduce__tune;
     objective *ob = &s->obj;
     const double *ev = s->moving->eigval;
-    if (ob->cancelled || !o->polish || (piece_is_long(s) && ev[1] < T->polish_round * ev[2]))
-        return 0;
-    if (!s->metric)
+    if (ob->cancelled || !o->polish || !s->metric || (piece_is_long(s) && ev[1] < T->polish_round * ev[2]))
         return 0;
     reduce_metric *mn = s->metric; /* the final VOI's, counted nearest for the polish */
     reduce_count fit_count = reduce__metric_count(mn, REDUCE_NEAREST);
@@ -978,9 +976,8 @@ static int stage_polish(fit_state *s)
     ob->pc = &s->col;
     ob->start = s->moving->pose;
     ob->best = INFINITY;
-    double c[3], x[6] = {0};
-    reduce__centroid_world(s->moving, c);
-    memcpy(ob->c, c, sizeof c);
+    double x[6] = {0};
+    reduce__centroid_world(s->moving, ob->c);
     int rc = reduce__metric_rebase(mn, &ob->start) < 0 ? FN_ENOMEM : 0;
     if (rc == 0) {
         set_scale(ob, mn);
