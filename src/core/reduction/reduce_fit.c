@@ -30,6 +30,7 @@
 #define ATTEMPTS 3 /* the start; turns about the other axes; wider turns about all three */
 #define GLOBAL_CANDIDATES 14 /* the placed pose, six turns of it, six shifts, the pre-aligned pose */
 #define ENDS (ATTEMPTS * REDUCE_GLOBAL_KEEP_MAX)
+#define FROM_LOCAL (-2) /* attempt_from of the local fit's ends (keep_pa is -1 or a kept index) */
 #define HOP_TURNS 6 /* a hop round: either way about each of the three principal axes */
 
 static double now_s(void)
@@ -308,6 +309,8 @@ typedef struct fit_state {
     int nstart_ends;
     int rival_of[REDUCE_STARTS_SEEN]; /* the best of them, then the rivals (indices) */
     int nrival_of;
+    int retry_evals; /* the local retries' evaluations where the global stage took over: not counted
+                      * against o->max_eval (as the global stage's are not) */
 } fit_state;
 
 static int stage_open(fit_state *s, const frag *const *asm_, int nasm, frag *moving, const reduce_opts *o,
@@ -710,25 +713,28 @@ static int stage_attempts(fit_state *s)
     return rc;
 }
 
-/* The local fit: attempts from where the hand left the piece, within the trust region. When the
- * first ends on the trust wall, the piece has left the basin the hand put it in: 1 (it is dropped,
- * and the global stage takes over). Else, after one that ended colliding, another from the start
- * turned otherwise (up to three; the winner: stage_winner); 0, or <0 on error. Measured (bench
- * reduce --suite, 20 fits a workload): handing over after a colliding first attempt too lost fits
- * that those retries find (CT_pitch 0.90 -> 0.70, 3 pieces 1.00 -> 0.85); handing over only
- * where all three ended on the wall or colliding kept retries that stood in wrong basins (starts
- * up to 20 mm: 0.25, against 0.55 with this rule). */
+/* The local fit: attempts from where the hand left the piece, within the trust region; another
+ * after one that ended colliding or on the trust wall (up to three; the winner: stage_winner).
+ * When the first ends on the wall, the piece has left the basin the hand put it in: 1, and the
+ * global stage takes over, its refined candidates ranked with the retries' ends that stayed off
+ * the wall (the ends on it are dropped). Else 0, or <0 on error. Measured (bench reduce --suite,
+ * 20 fits a workload): handing over after a colliding first attempt too lost fits that those
+ * retries find (CT_pitch 0.90 -> 0.70, 3 pieces 1.00 -> 0.85); handing over only where all three
+ * ended on the wall or colliding kept retries that stood in wrong basins (starts up to 20 mm:
+ * 0.25, against 0.55 with this rule). Handing over with no retries lost real pieces that they
+ * bring back (bench reduce --labels, 005_RI alone, 20 starts: 0.75, 0.85 with them; the retries'
+ * evaluations must not eat the global stage's budget: with them counted, the far starts fell from
+ * 0.55 to 0.40). */
 static int stage_local(fit_state *s)
 {
-    int rc = 0;
+    int rc = 0, walled = 0, evals1 = 0;
     for (int attempt = 0; attempt < ATTEMPTS && rc == 0 && !s->obj.cancelled; attempt++) {
+        evals1 = attempt == 1 ? s->obj.evals : evals1;
         if (attempt) {
-            int c = at_wall(&s->obj, &s->moving->pose) ? 2 : reduce__collides(&s->col, &s->moving->pose, NULL);
-            if (c == 2 && attempt == 1) {
-                s->attempts = 0;
-                s->moving->pose = s->r->start;
-                return 1;
-            }
+            int wall = at_wall(&s->obj, &s->moving->pose);
+            int c = wall ? 1 : reduce__collides(&s->col, &s->moving->pose, NULL);
+            walled |= wall && attempt == 1;
+            s->attempts -= wall && walled; /* an end on the wall left the basin: no answer */
             if (c <= 0) {
                 rc = c;
                 break;
@@ -738,9 +744,16 @@ static int stage_local(fit_state *s)
         rc = attempt_stages(s, attempt);
         if (rc == 0) {
             s->attempt_end[s->attempts] = s->moving->pose;
-            s->attempt_from[s->attempts] = 0;
+            s->attempt_from[s->attempts] = FROM_LOCAL;
             s->attempt_voi[s->attempts++] = s->r->voi;
         }
+    }
+    if (rc == 0 && walled) {
+        s->attempts -= s->attempts > 0 && at_wall(&s->obj, &s->attempt_end[s->attempts - 1]);
+        s->retry_evals = s->obj.evals - evals1;
+        s->obj.evals = evals1;
+        s->moving->pose = s->r->start;
+        return 1;
     }
     return rc;
 }
@@ -1030,7 +1043,7 @@ static int stage_finish(fit_state *s, int rc)
     if (rc == 0) {
         s->moving->pose = r->end;
         keep_candidates(s);
-        r->evaluations = s->obj.evals + s->global_evals;
+        r->evaluations = s->obj.evals + s->global_evals + s->retry_evals;
         r->eval_cpu_s = (double)s->obj.eval_ns * 1e-9;
         r->history = s->obj.hist;
         r->nhistory = s->obj.nhist;
