@@ -1,7 +1,8 @@
 /* bench reduce --labels on a tiny labelled CT made here (no shared data): a bone of two annotated
  * fragments, interlocked by a wavy cut, and an intact bone. The starts stay in their ranges (3-10
  * mm, 5-15 degrees off the CT pose), the intact bone is named and left alone (and is the one
- * --intact fractures), bad folders are refused with their name. */
+ * --intact fractures), a bone's starts do not depend on what else the folder holds, bad folders are
+ * refused with their name. */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -19,12 +20,13 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 
 static char *dir;
 
 /* A block of bone (1000 HU, 0 outside as in the development set's CTs) on a 1 mm grid; label 1
  * below a wavy cut across x, label 2 beyond it (about 5 ml), or label 1 everywhere (intact). */
-static void write_bone(const char *name, int fractured)
+static void write_bone_in(const char *folder, const char *name, int fractured)
 {
     const int nx = 48, ny = 32, nz = 32;
     vol *ct = vol_new(nx, ny, nz), *lab = vol_new(nx, ny, nz);
@@ -39,12 +41,17 @@ static void write_bone(const char *name, int fractured)
                 lab->data[vol_idx(lab, i, j, k)] = !in ? 0.f : fractured && i >= cut ? 2.f : 1.f;
             }
     char path[4300];
-    snprintf(path, sizeof path, "%s/%s.nii.gz", dir, name);
+    snprintf(path, sizeof path, "%s/%s.nii.gz", folder, name);
     assert_int_equal(volio_write(ct, path, VOL_I16), 0);
-    snprintf(path, sizeof path, "%s/%s_mask.nii.gz", dir, name);
+    snprintf(path, sizeof path, "%s/%s_mask.nii.gz", folder, name);
     assert_int_equal(volio_write(lab, path, VOL_I16), 0);
     vol_free(ct);
     vol_free(lab);
+}
+
+static void write_bone(const char *name, int fractured)
+{
+    write_bone_in(dir, name, fractured);
 }
 
 static int setup(void **st)
@@ -131,6 +138,48 @@ static void test_intact_bones_fractured(void **st)
     json_decref(j);
 }
 
+/* The figures of one bone in a folder of several, and in a folder of its own. */
+static json_t *bone_in(const char *folder, const char *name)
+{
+    char *out = NULL, json_path[4300];
+    snprintf(json_path, sizeof json_path, "%s/out.json", folder);
+    int rc = tu_run_cli(&out, "bench reduce --labels '%s' --starts 2 --json > '%s'", folder, json_path);
+    if (rc != 0)
+        fail_msg("bench reduce --labels %s: exit %d\n%s", folder, rc, out);
+    free(out);
+    json_t *j = json_load_file(json_path, 0, NULL), *bones = json_object_get(j, "bones"), *b = NULL;
+    assert_non_null(j);
+    for (size_t i = 0; i < json_array_size(bones); i++)
+        if (!strcmp(json_string_value(json_object_get(json_array_get(bones, i), "bone")), name))
+            b = json_incref(json_array_get(bones, i));
+    json_decref(j);
+    if (!b)
+        fail_msg("no bone %s in the figures of %s", name, folder);
+    return b;
+}
+
+/* A bone's starts are its own: the same whatever else the folder holds (they were drawn from one
+ * sequence over the folder, so a bone's figures depended on the bones before it). */
+static void test_starts_do_not_depend_on_the_folder(void **st)
+{
+    char alone[4300], two[4300];
+    snprintf(alone, sizeof alone, "%s/alone", dir);
+    snprintf(two, sizeof two, "%s/two", dir);
+    assert_int_equal(mkdir(alone, 0755), 0);
+    assert_int_equal(mkdir(two, 0755), 0);
+    write_bone_in(alone, "001_XB", 1);
+    write_bone_in(two, "000_XA", 1); /* listed first: its starts are drawn first */
+    write_bone_in(two, "001_XB", 1);
+    json_t *a = bone_in(alone, "001_XB"), *b = bone_in(two, "001_XB");
+    const char *keys[] = {"start_rot_min_deg", "start_rot_max_deg", "start_trans_min_mm", "start_trans_max_mm",
+                          "back_rate"};
+    for (size_t k = 0; k < sizeof keys / sizeof *keys; k++)
+        if (num(a, keys[k]) != num(b, keys[k]))
+            fail_msg("001_XB's %s: %g alone, %g beside 000_XA", keys[k], num(a, keys[k]), num(b, keys[k]));
+    json_decref(a);
+    json_decref(b);
+}
+
 static void test_bad_folder(void **st)
 {
     char *out = NULL;
@@ -149,6 +198,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_starts_in_range),
         cmocka_unit_test(test_intact_bones_fractured),
+        cmocka_unit_test(test_starts_do_not_depend_on_the_folder),
         cmocka_unit_test(test_bad_folder),
     };
     return cmocka_run_group_tests(tests, setup, teardown);

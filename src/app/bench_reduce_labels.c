@@ -160,15 +160,30 @@ static int piece(const bone *b, int label, frag *f)
     return rc < 0 ? rc : frag_from_labels(f, b->seg.labels, b->ct, label, lo, hi, b->seg.threshold, b->p.ramp);
 }
 
+/* The starts' sequence of one piece: from its bone's name and its label alone, so that a bone's
+ * starts are the same whatever else the folder holds (a folder of one bone reproduces its figures
+ * in the whole set's), and --starts N begins with the starts of any smaller N. */
+static uint64_t piece_seed(const char *name, int label)
+{
+    uint64_t h = 0xcbf29ce484222325ull; /* FNV-1a */
+    for (const unsigned char *c = (const unsigned char *)name; *c; c++)
+        h = (h ^ *c) * 0x100000001b3ull;
+    h ^= (uint64_t)label * 0x9e3779b97f4a7c15ull;
+    h = (h ^ (h >> 30)) * 0xbf58476d1ce4e5b9ull; /* a splitmix64 finish */
+    h = (h ^ (h >> 27)) * 0x94d049bb133111ebull;
+    return h ^ (h >> 31);
+}
+
 /* Fits moving (at its CT pose) back from `starts` hand-like starts against fixed; into out. */
-static int fit_piece(const frag *fixed, frag *moving, int starts, const reduce_opts *ro, uint64_t *rng,
-                     const char *name, int verbose, fits *out)
+static int fit_piece(const frag *fixed, frag *moving, int starts, const reduce_opts *ro, const char *name,
+                     int verbose, fits *out)
 {
     obb_params op = {ro->tau_min, ro->tau_max};
     obb_tree *tf = obb_tree_build(fixed, &op), *tm = tf ? obb_tree_build(moving, &op) : NULL;
     int rc = tf && tm ? 0 : fn_err_set(FN_ENOMEM, "bench reduce: out of memory");
     const frag *asm_[1] = {fixed};
     const pose ct = POSE_IDENTITY;
+    uint64_t seed = piece_seed(name, moving->id), *rng = &seed;
     for (int s = 0; s < starts && rc == 0; s++) {
         fit x;
         pose start = bench_reduce_start(fixed, tf, moving, tm, &ct, START_MM, START_DEG, rng);
@@ -203,8 +218,8 @@ static int fit_piece(const frag *fixed, frag *moving, int starts, const reduce_o
 }
 
 /* One bone: its pieces fitted (fits joined to all), its JSON object into *obj (NULL: intact). */
-static int run_bone(const char *dir, const char *name, int starts, const reduce_opts *ro, uint64_t *rng,
-                    int verbose, fits *all, json_t **obj)
+static int run_bone(const char *dir, const char *name, int starts, const reduce_opts *ro, int verbose, fits *all,
+                    json_t **obj)
 {
     bone b;
     *obj = NULL;
@@ -232,7 +247,7 @@ static int run_bone(const char *dir, const char *name, int starts, const reduce_
         }
         frag m = {0};
         if ((rc = piece(&b, k->label, &m)) == 0)
-            rc = fit_piece(&fixed, &m, starts, ro, rng, name, verbose, &mine);
+            rc = fit_piece(&fixed, &m, starts, ro, name, verbose, &mine);
         frag_free(&m);
         json_t *one = json_object();
         jsonw_set(one, "label", json_integer(k->label));
@@ -267,11 +282,10 @@ json_t *bench_reduce_labels(const char *dir, int starts, const reduce_opts *ro, 
         rc = fn_err_set(FN_EINVAL, "bench reduce: no NNN_BONE_mask.nii.gz in %s", dir);
     json_t *bones = json_array(), *intact = json_array();
     fits all = {0};
-    uint64_t rng = 0x9e3779b97f4a7c15ull;
     for (int i = 0; i < n; i++) {
         json_t *one = NULL;
         if (rc >= 0) {
-            rc = run_bone(dir, names[i], starts, ro, &rng, verbose, &all, &one);
+            rc = run_bone(dir, names[i], starts, ro, verbose, &all, &one);
             if (rc < 0)
                 fn_err_wrap(rc, "bench reduce --labels: %s", names[i]);
         }
