@@ -729,12 +729,13 @@ static int stage_local(fit_state *s)
 {
     int rc = 0, walled = 0, evals1 = 0;
     for (int attempt = 0; attempt < ATTEMPTS && rc == 0 && !s->obj.cancelled; attempt++) {
-        evals1 = attempt == 1 ? s->obj.evals : evals1;
         if (attempt) {
             int wall = at_wall(&s->obj, &s->moving->pose);
             int c = wall ? 1 : reduce__collides(&s->col, &s->moving->pose, NULL);
-            walled |= wall && attempt == 1;
-            s->attempts -= wall && walled; /* an end on the wall left the basin: no answer */
+            if (attempt == 1) {
+                walled = wall;
+                evals1 = s->obj.evals;
+            }
             if (c <= 0) {
                 rc = c;
                 break;
@@ -749,7 +750,14 @@ static int stage_local(fit_state *s)
         }
     }
     if (rc == 0 && walled) {
-        s->attempts -= s->attempts > 0 && at_wall(&s->obj, &s->attempt_end[s->attempts - 1]);
+        int n = 0; /* an end on the wall left the basin: no answer */
+        for (int i = 0; i < s->attempts; i++)
+            if (!at_wall(&s->obj, &s->attempt_end[i])) {
+                s->attempt_end[n] = s->attempt_end[i];
+                s->attempt_from[n] = s->attempt_from[i];
+                s->attempt_voi[n++] = s->attempt_voi[i];
+            }
+        s->attempts = n;
         s->retry_evals = s->obj.evals - evals1;
         s->obj.evals = evals1;
         s->moving->pose = s->r->start;
