@@ -6,6 +6,7 @@
 
 #include "case.h"
 #include "err.h"
+#include "fracture.h"
 #include "jsonw.h"
 #include "obb.h"
 #include "reduce.h"
@@ -168,10 +169,8 @@ static uint64_t piece_seed(const char *name, int label)
     uint64_t h = 0xcbf29ce484222325ull; /* FNV-1a */
     for (const unsigned char *c = (const unsigned char *)name; *c; c++)
         h = (h ^ *c) * 0x100000001b3ull;
-    h ^= (uint64_t)label * 0x9e3779b97f4a7c15ull;
-    h = (h ^ (h >> 30)) * 0xbf58476d1ce4e5b9ull; /* a splitmix64 finish */
-    h = (h ^ (h >> 27)) * 0x94d049bb133111ebull;
-    return h ^ (h >> 31);
+    h ^= (uint64_t)label;
+    return fracture_rng_next(&h); /* splitmix64: nearby names and labels far apart */
 }
 
 /* Fits moving (at its CT pose) back from `starts` hand-like starts against fixed; into out. */
