@@ -1,8 +1,6 @@
 /* The window's seed mode saves its separation as an undoable edit that survives a crash (issue
  * 25): case_save_undoable / case_undo, and navigate's recovery of a separation that a crash
  * interrupted (CASE/separation, the seeds written before the separation, see navseed.h). */
-#include "testutil.h"
-
 #include "case.h"
 #include "durable.h"
 #include "err.h"
@@ -17,6 +15,8 @@
 #include <unistd.h>
 
 #include <cmocka.h>
+
+#include "testutil.h"
 
 /* A two-blocks case (tu_two_blocks_case) and its labels as made, to compare with after an undo. */
 typedef struct blocks {

@@ -1,5 +1,4 @@
 #define _GNU_SOURCE /* program_invocation_short_name */
-#include "testutil.h"
 #include "case.h"
 #include "err.h"
 #include "frag.h"
@@ -19,6 +18,8 @@
 #include <setjmp.h>
 #include <stdint.h>
 #include <cmocka.h>
+
+#include "testutil.h" /* after cmocka.h: its fail_msg (see there) */
 #include <fcntl.h>
 #include <signal.h>
 #include <stdio.h>
@@ -113,6 +114,17 @@ const char *tu_test_data(const char *name)
     if (access(path, R_OK) != 0)
         fail_msg("test data %s is missing (it ships in the repository's tests/data/)", path);
     return path;
+}
+
+void tu_print_failure(const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    fputs("ERROR: ", stderr);
+    vfprintf(stderr, fmt, ap);
+    fputc('\n', stderr);
+    fflush(stderr);
+    va_end(ap);
 }
 
 /* Runs `'prog' ARGS 2>&1` through /bin/sh; the exit status, the output in *out (or dropped). */

@@ -131,4 +131,17 @@ struct vol *tu_ellipsoid_ct(void);
 struct planning_case;
 struct planning_case *tu_ellipsoid_fracture(const char *dir, int pieces, unsigned long long seed, double loss_mm);
 
+/* cmocka cuts a failure's message at about 1,000 characters, so a command's output shown in a
+ * fail_msg lost its end (the error it ended with). Where this header comes after <cmocka.h>,
+ * fail_msg prints its whole message (tu_print_failure, to stderr as cmocka does) and then fails. */
+void tu_print_failure(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
+#ifdef fail_msg
+#undef fail_msg
+#define fail_msg(...)                                                                                                 \
+    do {                                                                                                              \
+        tu_print_failure(__VA_ARGS__);                                                                                \
+        fail();                                                                                                       \
+    } while (0)
+#endif
+
 #endif
