@@ -29,7 +29,7 @@
 #define PI 3.14159265358979323846
 #define ATTEMPTS 3 /* the start; turns about the other axes; wider turns about all three */
 #define GLOBAL_CANDIDATES 14 /* the placed pose, six turns of it, six shifts, the pre-aligned pose */
-#define ENDS (ATTEMPTS * REDUCE_GLOBAL_KEEP_MAX)
+#define ENDS (ATTEMPTS - 1 + ATTEMPTS * REDUCE_GLOBAL_KEEP_MAX) /* the local retries' and the refinements' */
 #define FROM_LOCAL (-2) /* attempt_from of the local fit's ends (keep_pa is -1 or a kept index) */
 #define HOP_TURNS 6 /* a hop round: either way about each of the three principal axes */
 
