@@ -1,4 +1,4 @@
-/* Shared helpers for the cmocka tests. Include after <cmocka.h>'s prerequisites. */
+/* Shared helpers for the cmocka tests. Include after <cmocka.h> (its fail_msg is replaced below). */
 #ifndef FN_TESTUTIL_H
 #define FN_TESTUTIL_H
 
@@ -132,10 +132,13 @@ struct planning_case;
 struct planning_case *tu_ellipsoid_fracture(const char *dir, int pieces, unsigned long long seed, double loss_mm);
 
 /* cmocka cuts a failure's message at about 1,000 characters, so a command's output shown in a
- * fail_msg lost its end (the error it ended with). Where this header comes after <cmocka.h>,
- * fail_msg prints its whole message (tu_print_failure, to stderr as cmocka does) and then fails. */
+ * fail_msg lost its end (the error it ended with). This header comes after <cmocka.h>, and its
+ * fail_msg prints the whole message (tu_print_failure, to stderr as cmocka does) and then fails
+ * (tests/fail_msg_probe.c checks it). */
 void tu_print_failure(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
-#ifdef fail_msg
+#ifndef fail_msg
+#error "include testutil.h after <cmocka.h>: its fail_msg replaces cmocka's"
+#else
 #undef fail_msg
 #define fail_msg(...)                                                                                                 \
     do {                                                                                                              \
