@@ -27,6 +27,8 @@ double bench_now_us(void);
 /* fnclock's CPU time of the calling thread in microseconds: immune to being descheduled on a busy
  * machine. */
 double bench_cpu_us(void);
+/* fnclock's CPU time of the whole process (every thread) in microseconds. */
+double bench_process_cpu_us(void);
 /* Peak resident set size of this process in KiB (0 when unknown). */
 long bench_peak_rss_kib(void);
 /* CT_pitch ships in the repository's tests/data/: under $FRACNAV_SRC when set, else in the source

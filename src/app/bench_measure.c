@@ -18,6 +18,11 @@ double bench_cpu_us(void)
     return (double)fnclock_thread_cpu_ns() * 1e-3;
 }
 
+double bench_process_cpu_us(void)
+{
+    return (double)fnclock_process_cpu_ns() * 1e-3;
+}
+
 long bench_peak_rss_kib(void)
 {
     struct rusage ru;

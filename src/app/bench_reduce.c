@@ -26,7 +26,7 @@ typedef struct opts {
     int seeds, starts, json, verbose;
     double max_mm, max_deg, band_mm, voi_max_mm, tolerance_mm, settle_mm, trust_mm, trust_deg;
     int fit_starts, coarse, axis_scale, no_polish;
-    int pieces, threshold_auto, touching, suite, whole_bone;
+    int pieces, threshold_auto, touching, suite, whole_bone, whole_case;
     int model;            /* fracture_params.model */
     int labels, intact;   /* --labels DIR, --intact DIR: workloads of the real bones in data_dir */
     const char *data_dir; /* NULL: $FRACNAV_DATA/pelvis-dev (the suite's) */
@@ -124,6 +124,8 @@ typedef struct config_stats {
     int n;
     double eval_us;
     double separate_dice, separate_s; /* the touching workload's separation (in cs[0]) */
+    double *case_cpu_s, *case_wall_s;  /* --whole-case: per case, every thread's CPU and the wall */
+    int ncase, nskipped, ncase_back;   /* --whole-case: cases, pieces left out, cases all back */
 } config_stats;
 
 /* Touching pieces as a user meets them: the fractured CT thresholded (the component that holds
@@ -278,18 +280,24 @@ static void verbose_fit(const frag *f, frag *m, const frag *const *asm_, int nas
             r->end.q[1], r->end.q[2], r->end.q[3], r->end.t[0], r->end.t[1], r->end.t[2]);
 }
 
+/* The fracture of seed as o's workload asks for it. */
+static void fracture_opts(const opts *o, uint64_t seed, fracture_params *fp)
+{
+    fracture_defaults(fp);
+    fp->seed = seed;
+    fp->pieces = o->pieces;
+    fp->bone_loss_mm = o->bone_loss_mm;
+    fp->threshold = o->threshold;
+    fp->threshold_auto = o->threshold_auto;
+    fp->touching = o->touching;
+    fp->whole_bone = o->whole_bone;
+    fp->model = o->model;
+}
+
 static int run_case(const vol *ct, uint64_t seed, const opts *o, config_stats *cs, uint64_t *rng)
 {
     fracture_params fp;
-    fracture_defaults(&fp);
-    fp.seed = seed;
-    fp.pieces = o->pieces;
-    fp.bone_loss_mm = o->bone_loss_mm;
-    fp.threshold = o->threshold;
-    fp.threshold_auto = o->threshold_auto;
-    fp.touching = o->touching;
-    fp.whole_bone = o->whole_bone;
-    fp.model = o->model;
+    fracture_opts(o, seed, &fp);
     fracture_result fr;
     int rc = fracture_make(ct, &fp, &fr);
     if (rc)
@@ -363,6 +371,86 @@ static int run_case(const vol *ct, uint64_t seed, const opts *o, config_stats *c
     return rc;
 }
 
+/* --whole-case: the fracture as `fracture` leaves it (every piece where its displacement left it),
+ * reduced as `reduce CASE` reduces it: the case's fixed piece (else the largest) fixed, the pieces that touch another
+ * moving (reduce_pick_moving), reduce_case on o's fit options. A sample per moving piece (its
+ * errors from the truth, its evaluations; its seconds the case's, shared evenly); the case's CPU
+ * (all threads) and wall seconds in cs. The case is made in a staging folder under $TMPDIR (else
+ * /tmp), loaded from there as reduce loads it, and removed. */
+static int run_whole_case(const vol *ct, uint64_t seed, const opts *o, config_stats *cs)
+{
+    fracture_params fp;
+    fracture_opts(o, seed, &fp);
+    const char *t = getenv("TMPDIR");
+    char dir[4200], tmp[4300];
+    snprintf(dir, sizeof dir, "%s/fracnav-bench-whole-%ld", t && *t ? t : "/tmp", (long)getpid());
+    int rc = case_stage_begin(dir, 0, NULL, tmp, sizeof tmp);
+    if (rc < 0)
+        return rc;
+    planning_case *c = fracture_make_case(ct, &fp, tmp);
+    if (c) { /* the case as reduce CASE finds it: loaded from its folder */
+        case_free(c);
+        c = case_load(tmp);
+    }
+    int *mv = c ? calloc((size_t)c->nfrag, sizeof *mv) : NULL, *skipped = c ? calloc((size_t)c->nfrag, sizeof *skipped) : NULL;
+    reduce_result *res = c ? calloc((size_t)c->nfrag, sizeof *res) : NULL;
+    rc = !c ? -1 : mv && skipped && res ? 0 : fn_err_set(FN_ENOMEM, "out of memory");
+    for (int k = 0; k < o->nconf && rc == 0; k++) {
+        int fixed = c->fixed >= 0 ? c->fixed : 0, nskipped = 0;
+        for (int i = 0; i < c->nfrag; i++) {
+            c->frag[i].pose = POSE_IDENTITY; /* where the fracture left it */
+            if (c->fixed < 0 && c->frag[i].voxels > c->frag[fixed].voxels)
+                fixed = i;
+        }
+        int nmv = reduce_pick_moving(c, fixed, mv, skipped, &nskipped);
+        if (nmv < 1) {
+            rc = nmv < 0 ? nmv : fn_err_set(FN_EINVAL, "bench reduce: seed %llu: no piece touches another",
+                                             (unsigned long long)seed);
+            break;
+        }
+        reduce_opts ro, def;
+        fit_opts(o, k, &ro);
+        reduce_defaults(&def);
+        ro.prealign = def.prealign; /* as reduce CASE: a piece far from the others pre-aligned */
+        ro.tau_min = c->tau_min;
+        ro.tau_max = c->tau_max;
+        memset(res, 0, (size_t)c->nfrag * sizeof *res);
+        double c0 = bench_process_cpu_us(), w0 = bench_now_us();
+        rc = reduce_case(c, fixed, mv, nmv, &ro, res);
+        double c1 = bench_process_cpu_us(), w1 = bench_now_us();
+        int back = 0;
+        for (int i = 0; i < nmv && rc == 0; i++) {
+            sample *x = &cs[k].s[cs[k].n++];
+            rc = reduce_truth_errors(c, fixed, case_find(c, res[i].id), &x->rot, &x->trans, &x->tre);
+            x->cpu_s = (c1 - c0) * 1e-6 / nmv;
+            x->wall_s = (w1 - w0) * 1e-6 / nmv;
+            x->evals = res[i].evaluations;
+            x->eval_cpu_s = res[i].eval_cpu_s;
+            x->metric_end = res[i].metric_end;
+            back += x->rot <= 1 && x->trans <= 1;
+            if (o->verbose)
+                fprintf(stderr, "seed %llu piece %d: %.3f deg %.3f mm (tre %.3f), %d evals\n", (unsigned long long)seed,
+                        res[i].id, x->rot, x->trans, x->tre, res[i].evaluations);
+        }
+        for (int i = 0; i < nmv; i++)
+            reduce_result_free(&res[i]);
+        cs[k].case_cpu_s[cs[k].ncase] = (c1 - c0) * 1e-6;
+        cs[k].case_wall_s[cs[k].ncase] = (w1 - w0) * 1e-6;
+        cs[k].ncase++;
+        cs[k].nskipped += nskipped;
+        cs[k].ncase_back += back == nmv;
+        if (o->verbose)
+            fprintf(stderr, "seed %llu: %d of %d pieces back, %.2f s cpu, %.2f s wall\n", (unsigned long long)seed, back,
+                    nmv, (c1 - c0) * 1e-6, (w1 - w0) * 1e-6);
+    }
+    free(mv);
+    free(skipped);
+    free(res);
+    case_free(c);
+    case_stage_abort(tmp);
+    return rc;
+}
+
 static json_t *config_json(const opts *o, int k, config_stats *cs)
 {
     int n = cs->n, ok = 0;
@@ -402,6 +490,14 @@ static json_t *config_json(const opts *o, int k, config_stats *cs)
         nevals += cs->s[i].evals;
     }
     jsonw_set(j, "fit_eval_mean_us", jsonw_measure(nevals > 0 ? eval_s / nevals * 1e6 : NAN));
+    if (cs->ncase) { /* --whole-case: the runs are pieces; the seconds of whole cases */
+        jsonw_set(j, "cases", json_integer(cs->ncase));
+        jsonw_set(j, "cases_all_back", json_integer(cs->ncase_back));
+        jsonw_set(j, "pieces_skipped", json_integer(cs->nskipped));
+        jsonw_set(j, "median_case_seconds", jsonw_measure(bench_quantile(cs->case_cpu_s, cs->ncase, 0.5)));
+        jsonw_set(j, "max_case_seconds", jsonw_measure(bench_quantile(cs->case_cpu_s, cs->ncase, 1)));
+        jsonw_set(j, "median_case_wall_seconds", jsonw_measure(bench_quantile(cs->case_wall_s, cs->ncase, 0.5)));
+    }
     free(v);
     return j;
 }
@@ -441,6 +537,12 @@ static int usage(FILE *out, int rc)
             "                   default on)\n"
             "  --pieces K       pieces per fracture (default 2): piece 2 is fitted against piece 1\n"
             "                   and the others, all at their true poses\n"
+            "  --whole-case     every piece left where the fracture left it, all reduced together as\n"
+            "                   reduce CASE does (the case's fixed piece; a piece that touches nothing\n"
+            "                   left out); --starts unused. The runs are pieces; beside them cases,\n"
+            "                   cases_all_back, pieces_skipped, median_case_seconds and\n"
+            "                   max_case_seconds (the process's CPU, every thread), and\n"
+            "                   median_case_wall_seconds; median_seconds is a case's share per piece\n"
             "  --touching       the pieces left in contact (fracture --touching): the fractured CT\n"
             "                   is thresholded and separated (edit separate) first, and the fits\n"
             "                   use the separated pieces; separated_dice_min, separate_mean_s\n"
@@ -473,7 +575,8 @@ static int usage(FILE *out, int rc)
             "  --intact DIR     the intact bones of DIR (a mask of one label) fractured as above,\n"
             "                   --seeds fractures each\n"
             "  --suite          the workloads of docs/benchmarks.md in one run (the skull; the skull\n"
-            "                   from starts up to 20 mm and 25 degrees; 3 pieces; 6 pieces;\n"
+            "                   from starts up to 20 mm and 25 degrees; 3 pieces; 6 pieces; 3 and 6\n"
+            "                   pieces as whole cases (--whole-case);\n"
             "                   touching; 1 mm lost with --gap 1; CT_pitch; the long bone; the\n"
             "                   skull fractured by the second model; the pelvic development set's\n"
             "                   intact bones fractured whole (--intact --whole-bone) and its real\n"
@@ -490,6 +593,7 @@ static int usage(FILE *out, int rc)
             "                   metric's own basin ends; for the analysis of failures)\n"
             "  --json           one JSON object on stdout: command, ct, seeds, starts, max_mm,\n"
             "                   max_deg, pieces, model, bone_loss_mm, gap_mm, touching, whole_bone,\n"
+            "                   whole_case,\n"
             "                   separated_dice_min,\n"
             "                   separate_mean_s (null unless --touching), default_method, methods (one per\n"
             "                   configuration)\n");
@@ -512,6 +616,7 @@ static const struct flag_opt {
     {"--no-polish", offsetof(opts, no_polish), 1},
     {"--touching", offsetof(opts, touching), 1},
     {"--whole-bone", offsetof(opts, whole_bone), 1},
+    {"--whole-case", offsetof(opts, whole_case), 1},
 };
 
 /* The options that take a number in lo..hi: a whole one into an int field, else into a double. */
@@ -709,16 +814,24 @@ static json_t *run_workload(const opts *op, config_stats *pool)
     int rc = 0;
     config_stats cs[MAX_CONFIGS] = {0};
     cs[0].separate_dice = 1;
-    for (int k = 0; k < o.nconf; k++)
-        if (!(cs[k].s = calloc((size_t)o.seeds * o.starts * ncts, sizeof *cs[k].s)))
+    for (int k = 0; k < o.nconf && o.whole_case; k++)
+        cs[k].eval_us = NAN; /* no 64^3 figure: the fits of whole cases alone */
+    for (int k = 0; k < o.nconf; k++) {
+        /* --whole-case: a sample per piece, up to o.pieces - 1 a case */
+        size_t n = (size_t)o.seeds * ncts * (o.whole_case ? (size_t)o.pieces : (size_t)o.starts);
+        cs[k].s = calloc(n, sizeof *cs[k].s);
+        cs[k].case_cpu_s = calloc((size_t)o.seeds * ncts, sizeof *cs[k].case_cpu_s);
+        cs[k].case_wall_s = calloc((size_t)o.seeds * ncts, sizeof *cs[k].case_wall_s);
+        if (!cs[k].s || !cs[k].case_cpu_s || !cs[k].case_wall_s)
             rc = fn_err_set(FN_ENOMEM, "out of memory");
+    }
     uint64_t rng = 0x9e3779b97f4a7c15ull;
     for (int c = 0; c < ncts && rc == 0; c++) {
         const char *one = o.intact ? cts[c] : path;
         vol *ct = o.ct && !strcmp(o.ct, "long-bone") ? long_bone() : volio_read(one);
         rc = ct ? 0 : -1;
         for (int s = 0; s < o.seeds && rc == 0; s++) {
-            rc = run_case(ct, (uint64_t)s + 1, &o, cs, &rng);
+            rc = o.whole_case ? run_whole_case(ct, (uint64_t)s + 1, &o, cs) : run_case(ct, (uint64_t)s + 1, &o, cs, &rng);
             if (rc)
                 fn_err_wrap(rc, "%s, seed %d", one, s + 1);
         }
@@ -736,12 +849,13 @@ static json_t *run_workload(const opts *op, config_stats *pool)
             json_array_append_new(rows, config_json(&o, k, &cs[k]));
         jsonw_set(root, "ct", jsonw_string(path));
         jsonw_set(root, "seeds", json_integer(o.seeds));
-        jsonw_set(root, "starts", json_integer(o.starts));
+        jsonw_set(root, "starts", o.whole_case ? json_null() : json_integer(o.starts));
         jsonw_set(root, "max_mm", jsonw_exact(o.max_mm));
         jsonw_set(root, "max_deg", jsonw_exact(o.max_deg));
         jsonw_set(root, "pieces", json_integer(o.pieces));
         jsonw_set(root, "touching", json_boolean(o.touching));
         jsonw_set(root, "whole_bone", json_boolean(o.whole_bone));
+        jsonw_set(root, "whole_case", json_boolean(o.whole_case));
         jsonw_set(root, "model", json_integer(o.model));
         jsonw_set(root, "separated_dice_min", o.touching ? jsonw_measure(cs[0].separate_dice) : json_null());
         jsonw_set(root, "separate_mean_s", o.touching ? jsonw_measure(cs[0].separate_s / o.seeds) : json_null());
@@ -752,8 +866,11 @@ static json_t *run_workload(const opts *op, config_stats *pool)
         jsonw_set(root, "default_method", jsonw_string(reduce_method_name(def.method)));
         jsonw_set(root, "methods", rows);
     }
-    for (int k = 0; k < o.nconf; k++)
+    for (int k = 0; k < o.nconf; k++) {
         free(cs[k].s);
+        free(cs[k].case_cpu_s);
+        free(cs[k].case_wall_s);
+    }
     return root;
 }
 
@@ -771,6 +888,8 @@ static const struct {
     {"skull, starts up to 20 mm and 25 degrees", {"--max-mm", "20", "--max-deg", "25", NULL}, 0},
     {"skull, 3 pieces", {"--pieces", "3", NULL}, 0},
     {"skull, 6 pieces", {"--pieces", "6", NULL}, 0},
+    {"skull, 3 pieces, whole case (every piece moved, reduce CASE)", {"--pieces", "3", "--whole-case", NULL}, 0},
+    {"skull, 6 pieces, whole case (every piece moved, reduce CASE)", {"--pieces", "6", "--whole-case", NULL}, 0},
     {"skull, pieces left touching, separated first", {"--touching", NULL}, 0},
     {"skull, 1 mm of bone lost, the fit told (--gap 1)", {"--bone-loss", "1", "--gap", "1", NULL}, 0},
     {"CT_pitch (8-bit, 2.4 mm slices)", {"--ct", "pitch", "--threshold", "auto-bone", NULL}, 0},

@@ -26,7 +26,7 @@ static void usage(FILE *out)
             "Fit the fragments back together: the fixed fragment stays; a moving one left more\n"
             "than 10 mm from the others is pre-aligned first (principal axes, slid to contact);\n"
             "each is then optimized on the VOI metric (2 n_I - n_1 - n_2) / n_VOI, one at a time\n"
-            "against the growing assembly, the one of largest contact first. Where that fit runs\n"
+            "against the growing assembly, the one whose fit gains most first. Where that fit runs\n"
             "into its limit (12 mm or 18 degrees from the start), a global stage fits candidate\n"
             "starts coarse (turned and moved about the start, and pre-aligned) and refines the\n"
             "best, with no such limit. The result never\n"

@@ -78,8 +78,6 @@ const reduce_tuning reduce__tune = {
     .polish_step = {0.2, 0.1, 0.05, 0.025},
     .polish_sweeps = 4,
     .polish_round = 2,
-    .order_delta_mm = 3,
-    .order_margin_mm = 6,
     /* the example CT's head holder lies 18 mm and more from the skull; the pieces of a fracture
      * (fracture, edit separate) lie within a voxel of each other somewhere */
     .touch_mm = 4,

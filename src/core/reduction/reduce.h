@@ -154,12 +154,13 @@ typedef struct reduce_opts {
     double trust_mm, trust_deg; /* the local fit stays this close to the start (centroid distance
                           * and rotation angle); one that ends on this wall hands over to the
                           * global stage, which has none (0: no wall, no hand-over) */
-    int threads;         /* reduce_case's second sweep fits fragments that do not touch (no bone
-                          * within about 4 mm of each other) at once, on up to this many threads
+    int threads;         /* reduce_case fits the pieces of a first-sweep round, and those of a
+                          * second-sweep wave (no bone within about 4 mm of each other), at
+                          * once, on up to this many threads
                           * (1 .. REDUCE_THREADS_MAX; default 2, the machine's cores); the same
                           * poses on any number */
     reduce_progress_fn progress; /* after each iteration; may be NULL. Called on the thread that
-                          * runs the fit (several at once in reduce_case's second sweep) */
+                          * runs the fit (several at once in reduce_case) */
     void *progress_ctx;
     const atomic_int *cancel; /* may be NULL; once another thread sets it non-zero, the fit stops
                           * within one metric evaluation and returns 1 with the placed pose */
@@ -263,8 +264,11 @@ int reduce_fit_one(const frag *const *others, int nothers, const frag *moving, c
 int reduce_pick_moving(const struct planning_case *c, int fixed, int *mv, int *skipped, int *nskipped);
 
 /* Reduces the case's fragments: fixed (index) stays, the moving ones (indices; NULL = all others)
- * are fitted one by one against the growing assembly, the one of largest contact first. r has
- * room for nmoving results (filled in the order done). Sets their poses. 0 or FN_E*. */
+ * are fitted one by one against the growing assembly: each round fits every piece still to place
+ * (those apart from the piece placed last keep their fit) and the one whose fit gained most joins;
+ * then each again against all the others (docs/reduction.md, step 6). r has room for nmoving
+ * results, zeroed (filled in the order placed; on a failure only those placed). Sets their poses.
+ * 0 or FN_E*. */
 int reduce_case(struct planning_case *c, int fixed, const int *moving, int nmoving, const reduce_opts *o,
                 reduce_result *r);
 

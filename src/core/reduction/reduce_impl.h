@@ -165,7 +165,6 @@ typedef struct reduce_tuning {
     double polish_round;     /* a long piece whose second principal variance is under this times
                               * the third is a tube, not polished */
     /* the order of several fragments */
-    double order_delta_mm, order_margin_mm; /* contact zone that measures a piece's contact */
     double touch_mm;         /* a piece with no bone this near another's in the CT touches nothing;
                               * in the second sweep, pieces this far apart fit at once */
 } reduce_tuning;

@@ -1,5 +1,5 @@
 /* reduce_order: several fragments of a case (reduce_case, see reduce.h): fitted one by one against
- * the growing assembly, the one of largest contact first, then each again against all the others,
+ * the growing assembly, the one whose fit gains most first, then each again against all the others,
  * those apart from each other at once on o->threads threads. */
 #include "reduce.h"
 #include "reduce_impl.h"
@@ -12,43 +12,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-
-/* The index into todo[0..left-1] of the fragment of largest contact with the assembly. */
-static int largest_contact(planning_case *c, const frag **asm_, int nasm, const int *todo, int left)
-{
-    int pick = 0;
-    double most = -1;
-    for (int i = 0; i < left; i++) {
-        reduce_voi v;
-        double ml = 0;
-        if (reduce_auto_voi(asm_, nasm, &c->frag[todo[i]], reduce__tune.order_delta_mm, reduce__tune.order_margin_mm,
-                            0, &v, &ml) < 0)
-            ml = 0;
-        if (ml > most) {
-            most = ml;
-            pick = i;
-        }
-    }
-    return pick;
-}
-
-/* The first sweep: each fragment of todo fitted against the assembly asm_ (which it then joins),
- * the one of largest contact first; *nasm grows. 0 or FN_E*. */
-static int first_sweep(planning_case *c, const frag **asm_, int *nasm, int *todo, int nmoving, const reduce_opts *o,
-                       reduce_result *r)
-{
-    int left = nmoving, rc = 0;
-    for (int done = 0; done < nmoving && rc == 0; done++) {
-        int pick = largest_contact(c, asm_, *nasm, todo, left);
-        int mi = todo[pick];
-        todo[pick] = todo[--left];
-        rc = reduce_pair(asm_, *nasm, &c->frag[mi], o, &r[done]);
-        if (rc < 0)
-            fn_err_wrap(rc, "fragment %d", c->frag[mi].id);
-        asm_[(*nasm)++] = &c->frag[mi];
-    }
-    return rc;
-}
 
 /* The second sweep's result joins the first's: the same placement, the later end, counts summed,
  * histories joined. */
@@ -82,16 +45,17 @@ static void merge_sweep(reduce_result *r, reduce_result *r2)
     reduce_result_free(r2);
 }
 
-/* A wave of the second sweep: fragments apart from each other, each fitted on a private copy (a
- * struct copy sharing the voxels) against all the others at their poses before the wave, so that
- * the fits depend on nothing another one changes and give the same poses on any number of threads. */
+/* Fits at once: fragments fi[0..n-1] of the case, each fitted on a private copy (a struct copy
+ * sharing the voxels) against the assembly asm_ less itself, so that the fits depend on nothing
+ * another one changes and give the same poses on any number of threads. A wave of the second sweep
+ * (fragments apart from each other, against all the others), or the first sweep's round (every
+ * fragment still to place, against the assembly so far). */
 typedef struct wave {
     const planning_case *c;
     const frag **asm_;
     int nasm;
     const reduce_opts *o;
-    const reduce_result *r;
-    const int *d;      /* its fragments' places in r */
+    const int *fi;     /* n: the fragments' places in c->frag */
     int n;
     frag *moving;      /* n: the private copies */
     reduce_result *r2; /* n: their fits */
@@ -105,7 +69,7 @@ static void *wave_worker(void *arg)
     wave *w = arg;
     const frag **others = calloc((size_t)w->nasm, sizeof *others);
     for (int i; (i = atomic_fetch_add(&w->next, 1)) < w->n;) {
-        const frag *f = &w->c->frag[case_find(w->c, w->r[w->d[i]].id)];
+        const frag *f = &w->c->frag[w->fi[i]];
         int n2 = 0;
         for (int k = 0; others && k < w->nasm; k++)
             if (w->asm_[k] != f)
@@ -120,12 +84,14 @@ static void *wave_worker(void *arg)
     return NULL;
 }
 
-/* Runs the wave on up to o->threads threads (this one among them; fewer when a thread cannot be
- * made), then moves its fragments and merges their fits in order. 0, 1 (cancelled) or FN_E*. */
-static int wave_run(wave *w, planning_case *c, reduce_result *r)
+/* Runs the fits on up to o->threads threads (this one among them; fewer when a thread cannot be
+ * made). 0, or the first failure's FN_E* (its message set; the failed fits' results freed), or 1
+ * when a fit was cancelled. */
+static int wave_fit(wave *w)
 {
     pthread_t th[REDUCE_THREADS_MAX];
     int nth = 0;
+    atomic_store(&w->next, 0);
     while (nth + 1 < w->o->threads && nth + 1 < w->n && nth < REDUCE_THREADS_MAX &&
            pthread_create(&th[nth], NULL, wave_worker, w) == 0)
         nth++;
@@ -138,15 +104,28 @@ static int wave_run(wave *w, planning_case *c, reduce_result *r)
             rc = fn_err_set(w->rc[i], "%s", w->msg[i]);
         else if (rc == 0)
             rc = w->rc[i];
-        if (w->rc[i] < 0) {
+        if (w->rc[i] < 0)
             reduce_result_free(&w->r2[i]);
-            continue;
-        }
-        c->frag[case_find(c, w->moving[i].id)].pose = w->moving[i].pose;
-        merge_sweep(&r[w->d[i]], &w->r2[i]);
-        r[w->d[i]].wave = w->n;
     }
     return rc;
+}
+
+/* The arrays of a wave of up to n fits. 0 or FN_ENOMEM. */
+static int wave_alloc(wave *w, int n)
+{
+    w->moving = calloc((size_t)n, sizeof *w->moving);
+    w->r2 = calloc((size_t)n, sizeof *w->r2);
+    w->rc = calloc((size_t)n, sizeof *w->rc);
+    w->msg = calloc((size_t)n, sizeof *w->msg);
+    return w->moving && w->r2 && w->rc && w->msg ? 0 : fn_err_set(FN_ENOMEM, "reduce: out of memory");
+}
+
+static void wave_free(wave *w)
+{
+    free(w->moving);
+    free(w->r2);
+    free(w->rc);
+    free(w->msg);
 }
 
 /* 1 when fragments a and b lie farther apart than the table's touch_mm, 0 when not, or FN_E*. */
@@ -155,6 +134,95 @@ static int apart(const frag *a, const frag *b)
     const frag *o[1] = {b};
     int t = reduce__touches(o, 1, a, reduce__tune.touch_mm);
     return t < 0 ? t : !t;
+}
+
+/* A fit's counts added to another's: the same piece fitted again, its earlier fit dropped. */
+static void add_spent(reduce_result *to, const reduce_result *from)
+{
+    to->iterations += from->iterations;
+    to->evaluations += from->evaluations;
+    to->eval_cpu_s += from->eval_cpu_s;
+    to->seconds += from->seconds;
+}
+
+/* The first sweep, best first. Every fragment still to place (todo[0..left-1]) is fitted against
+ * the assembly asm_, at once on o->threads threads, and the one whose fit gained most (metric at
+ * its start minus at its end) joins it at its fitted pose; *nasm grows. A fit that gains nothing
+ * is a piece that touches no piece of the assembly where it truly lies (its metric is flat there):
+ * fitted first, it stays where the hand left it and the pieces after it fit against it. The fits
+ * of the others stand, unless the piece that joined lies within touch_mm of them (where they
+ * started or were fitted): then they are made again in the next round, and what the dropped fit
+ * spent is added to the piece's result. r[k]: the k-th piece to join. 0, 1 (cancelled) or FN_E*. */
+static int first_sweep(planning_case *c, const frag **asm_, int *nasm, int *todo, int nmoving, const reduce_opts *o,
+                       reduce_result *r)
+{
+    wave w = {.c = c, .asm_ = asm_, .o = o};
+    int *fi = calloc((size_t)nmoving, sizeof *fi), *valid = calloc((size_t)nmoving, sizeof *valid);
+    frag *fitted = calloc((size_t)nmoving, sizeof *fitted);
+    reduce_result *fit = calloc((size_t)nmoving, sizeof *fit), *spent = calloc((size_t)nmoving, sizeof *spent);
+    int rc = wave_alloc(&w, nmoving);
+    if (rc == 0 && !(fi && valid && fitted && fit && spent))
+        rc = fn_err_set(FN_ENOMEM, "reduce: out of memory");
+    int left = nmoving;
+    for (int done = 0; done < nmoving && rc == 0; done++) {
+        /* the round: the pieces without a standing fit */
+        w.n = 0;
+        w.nasm = *nasm;
+        for (int i = 0; i < left; i++)
+            if (!valid[i])
+                fi[w.n++] = todo[i];
+        w.fi = fi;
+        rc = wave_fit(&w);
+        for (int i = 0, k = 0; i < left; i++) {
+            if (valid[i])
+                continue;
+            if (w.rc[k] >= 0) {
+                fitted[i] = w.moving[k];
+                fit[i] = w.r2[k];
+                valid[i] = 1;
+            }
+            k++;
+        }
+        if (rc != 0)
+            break;
+        int pick = 0;
+        for (int i = 1; i < left; i++)
+            if (fit[i].metric_start - fit[i].metric_end > fit[pick].metric_start - fit[pick].metric_end)
+                pick = i;
+        int mi = todo[pick];
+        c->frag[mi].pose = fitted[pick].pose;
+        r[done] = fit[pick];
+        add_spent(&r[done], &spent[pick]);
+        asm_[(*nasm)++] = &c->frag[mi];
+        left--;
+        todo[pick] = todo[left];
+        fitted[pick] = fitted[left];
+        fit[pick] = fit[left];
+        spent[pick] = spent[left];
+        valid[pick] = valid[left];
+        /* the fits the new piece may change are made again */
+        for (int i = 0; i < left && rc == 0; i++) {
+            int a = apart(&c->frag[mi], &fitted[i]), b = a > 0 ? apart(&c->frag[mi], &c->frag[todo[i]]) : a;
+            if (a < 0 || b < 0)
+                rc = a < 0 ? a : b;
+            else if (!(a && b)) {
+                add_spent(&spent[i], &fit[i]);
+                reduce_result_free(&fit[i]);
+                valid[i] = 0;
+            }
+        }
+    }
+    for (int i = 0; i < left; i++)
+        if (valid[i])
+            reduce_result_free(&fit[i]);
+    /* pieces not placed (a failure or a cancel) keep where the hand left them */
+    free(fi);
+    free(valid);
+    free(fitted);
+    free(fit);
+    free(spent);
+    wave_free(&w);
+    return rc;
 }
 
 /* The second sweep: each fragment again, now against all the others (no pre-alignment), so that a
@@ -166,13 +234,12 @@ static int second_sweep(planning_case *c, const frag **asm_, int nasm, int nmovi
 {
     reduce_opts again = *o;
     again.prealign = 0;
-    wave w = {.c = c, .asm_ = asm_, .nasm = nasm, .o = &again, .r = r};
+    wave w = {.c = c, .asm_ = asm_, .nasm = nasm, .o = &again};
     int *d = calloc((size_t)nmoving, sizeof *d), *done = calloc((size_t)nmoving, sizeof *done);
-    w.moving = calloc((size_t)nmoving, sizeof *w.moving);
-    w.r2 = calloc((size_t)nmoving, sizeof *w.r2);
-    w.rc = calloc((size_t)nmoving, sizeof *w.rc);
-    w.msg = calloc((size_t)nmoving, sizeof *w.msg);
-    int rc = d && done && w.moving && w.r2 && w.rc && w.msg ? 0 : fn_err_set(FN_ENOMEM, "reduce: out of memory");
+    int *fi = calloc((size_t)nmoving, sizeof *fi);
+    int rc = wave_alloc(&w, nmoving);
+    if (rc == 0 && !(d && done && fi))
+        rc = fn_err_set(FN_ENOMEM, "reduce: out of memory");
     for (int d0 = 0; d0 < nmoving && rc == 0; d0++) {
         if (done[d0])
             continue;
@@ -187,19 +254,27 @@ static int second_sweep(planning_case *c, const frag **asm_, int nasm, int nmovi
                 d[w.n++] = e;
             rc = ok < 0 ? ok : 0;
         }
-        for (int i = 0; i < w.n; i++)
+        if (rc != 0)
+            break;
+        for (int i = 0; i < w.n; i++) {
             done[d[i]] = 1;
-        w.d = d;
-        atomic_store(&w.next, 0);
-        if (rc == 0)
-            rc = wave_run(&w, c, r);
+            fi[i] = case_find(c, r[d[i]].id);
+        }
+        w.fi = fi;
+        rc = wave_fit(&w);
+        /* the wave's fragments move and their fits join the first sweep's, in order */
+        for (int i = 0; i < w.n; i++) {
+            if (w.rc[i] < 0)
+                continue;
+            c->frag[fi[i]].pose = w.moving[i].pose;
+            merge_sweep(&r[d[i]], &w.r2[i]);
+            r[d[i]].wave = w.n;
+        }
     }
     free(d);
     free(done);
-    free(w.moving);
-    free(w.r2);
-    free(w.rc);
-    free(w.msg);
+    free(fi);
+    wave_free(&w);
     return rc;
 }
 
