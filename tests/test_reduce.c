@@ -598,8 +598,8 @@ static void test_cli_three_pieces_of_the_skull(void **st)
 }
 
 /* A piece that touches nothing in the CT (as a head holder, apart from the bone) is skipped when no
- * fragment is named, with a word, and fitted when --moving names it. Two blocks 3 mm apart (a
- * fracture) and a third 30 mm beyond them. */
+ * fragment is named, with a word, and fitted when --moving names it, or when the hand has brought
+ * it next to another. Two blocks 3 mm apart (a fracture) and a third 30 mm beyond them. */
 static void test_cli_skips_what_touches_nothing(void **st)
 {
     char *dir = tu_tmpdir("reduce_skip"), *out = NULL, path[4200], cdir[4200];
@@ -650,6 +650,39 @@ static void test_cli_skips_what_touches_nothing(void **st)
         fail_msg("not JSON (%s): %s", e.text, out);
     assert_int_equal(json_integer_value(json_object_get(json_array_get(json_object_get(j, "fragments"), 0), "id")), 2);
     assert_int_equal((int)json_array_size(json_object_get(j, "skipped")), 0);
+    json_decref(j);
+    free(out);
+    /* brought by the hand to 2 mm from block 3 (a navigation session's journal), it is a piece to
+     * fit, though it touches nothing in the CT */
+    planning_case *c = case_load(cdir);
+    if (!c)
+        fail_msg("%s", fn_err_msg());
+    int i2 = case_find(c, 2), i3 = case_find(c, 3);
+    pose hand = POSE_IDENTITY;
+    double c3w[3]; /* block 3 where the fits above left it */
+    pose_apply(&c->frag[i3].pose, c->frag[i3].centroid, c3w);
+    for (int a = 0; a < 3; a++) { /* block 2's centre 13 mm beyond block 3's, along x: 2 mm apart */
+        double c2 = c->frag[i2].centroid[a];
+        hand.t[a] = c3w[a] + (a == 0 ? 13 : 0) - c2;
+    }
+    journal_bind jb;
+    case_journal_bind(c, &jb);
+    journal *jn = journal_open(cdir, &jb);
+    if (!jn)
+        fail_msg("%s", fn_err_msg());
+    assert_int_equal(journal_append(jn, JOURNAL_MOVE, i2, 1000, &hand, 1000), 0);
+    assert_int_equal(journal_close(jn), 0);
+    case_free(c);
+    rc = tu_run_cli(&out, "reduce '%s' --no-prealign --json 2>'%s/err' | cat", cdir, dir);
+    j = rc == 0 ? json_loads(out, 0, &e) : NULL;
+    if (!j)
+        fail_msg("rc %d: %s", rc, out);
+    frs = json_object_get(j, "fragments");
+    int fitted2 = 0;
+    for (size_t k = 0; k < json_array_size(frs); k++)
+        fitted2 |= json_integer_value(json_object_get(json_array_get(frs, k), "id")) == 2;
+    if (!fitted2 || json_array_size(json_object_get(j, "skipped")) != 0)
+        fail_msg("block 2, moved next to block 3, not fitted: %s", out);
     json_decref(j);
     free(out);
     tu_rmtree(dir);

@@ -256,9 +256,10 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
 int reduce_fit_one(const frag *const *others, int nothers, const frag *moving, const pose *start,
                    const reduce_opts *o, pose *out, reduce_result *r);
 
-/* The fragments to move when none is named: every one but fixed (index) that, in the CT (every
- * pose the identity, as segmented), has bone within about 4 mm of another fragment's. One that
- * touches nothing there (a CT's head holder, which lies apart from the bone) is left out. mv and
+/* The fragments to move when none is named: every one but fixed (index) that has bone within
+ * about 4 mm of another fragment's, in the CT (every pose the identity, as segmented) or where the
+ * hand left them (their poses). One that touches nothing in either (a CT's head holder, which lies
+ * apart from the bone and which no one moved there) is left out. mv and
  * skipped (indices) have room for c->nfrag. Returns the number put in mv (*nskipped: the number
  * skipped), or FN_E*. */
 int reduce_pick_moving(const struct planning_case *c, int fixed, int *mv, int *skipped, int *nskipped);
