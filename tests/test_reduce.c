@@ -714,6 +714,35 @@ static void test_cli_skips_what_touches_nothing(void **st)
         fail_msg("block 2, moved next to block 3, not fitted: %s", out);
     json_decref(j);
     free(out);
+    /* the other way round, in a fresh case: block 3 dragged next to block 2, which no one moved (a
+     * head holder a fragment was dragged to): block 2 stays out */
+    snprintf(cdir, sizeof cdir, "%s/case2", dir);
+    assert_int_equal(tu_run_cli(&out, "segment '%s' -o '%s' --min-volume 0 --ramp 0", path, cdir), 0);
+    free(out);
+    c = case_load(cdir);
+    if (!c)
+        fail_msg("%s", fn_err_msg());
+    i2 = case_find(c, 2);
+    i3 = case_find(c, 3);
+    hand = POSE_IDENTITY;
+    for (int a = 0; a < 3; a++) /* block 3's centre 13 mm before block 2's, along x: 2 mm apart */
+        hand.t[a] = c->frag[i2].centroid[a] - (a == 0 ? 13 : 0) - c->frag[i3].centroid[a];
+    case_journal_bind(c, &jb);
+    jn = journal_open(cdir, &jb);
+    if (!jn)
+        fail_msg("%s", fn_err_msg());
+    assert_int_equal(journal_append(jn, JOURNAL_MOVE, i3, 1000, &hand, 1000), 0);
+    assert_int_equal(journal_close(jn), 0);
+    case_free(c);
+    rc = tu_run_cli(&out, "reduce '%s' --no-prealign --json 2>'%s/err' | cat", cdir, dir);
+    j = rc == 0 ? json_loads(out, 0, &e) : NULL;
+    if (!j)
+        fail_msg("rc %d: %s", rc, out);
+    sk = json_object_get(j, "skipped");
+    if (json_array_size(sk) != 1 || json_integer_value(json_array_get(sk, 0)) != 2)
+        fail_msg("block 2, which no one moved, not skipped: %s", out);
+    json_decref(j);
+    free(out);
     tu_rmtree(dir);
     free(dir);
 }

@@ -38,9 +38,9 @@ static void usage(FILE *out)
             "  --fixed ID             the fragment that stays (default: the case's fixed one, else\n"
             "                         the largest)\n"
             "  --moving ID...         the fragments to fit (default: all others that touch another\n"
-            "                         in the CT or where the hand left them; one that touches\n"
-            "                         nothing in either, as a CT's head holder, is skipped with a\n"
-            "                         word, and --moving still fits it)\n"
+            "                         in the CT or that the hand moved next to one; any other, as\n"
+            "                         a CT's head holder, is skipped with a word, and --moving\n"
+            "                         still fits it)\n"
             "  --method M             powell (ours), praxis, sbplx or bobyqa (NLopt); default: praxis,\n"
             "                         the most successful in `fracnav bench reduce`\n"
             "  --voi X0 Y0 Z0 X1 Y1 Z1  the VOI box, world LPS mm (default: automatic, around the\n"
@@ -193,13 +193,14 @@ static int pick(const planning_case *c, const args *A, int *fixed, int *mv, int 
         }
         *nmv = n;
         for (int k = 0; k < *nskipped; k++)
-            fprintf(stderr, "fracnav reduce: fragment %d touches no other fragment, in the CT nor where it "
-                    "was left: skipped (--moving %d fits it)\n", c->frag[skipped[k]].id, c->frag[skipped[k]].id);
+            fprintf(stderr, "fracnav reduce: fragment %d touches no other fragment in the CT, and no one "
+                    "moved it next to one: skipped (--moving %d fits it)\n",
+                    c->frag[skipped[k]].id, c->frag[skipped[k]].id);
     }
     if (!*nmv) { /* the case's content, not the command line: a runtime error */
         if (*nskipped)
-            fprintf(stderr, "fracnav reduce: %s: no fragment touches another, in the CT nor where left; --moving ID names "
-                    "the ones to fit\n", c->dir);
+            fprintf(stderr, "fracnav reduce: %s: no fragment touches another in the CT or was moved next to "
+                    "one; --moving ID names the ones to fit\n", c->dir);
         else
             fprintf(stderr, "fracnav reduce: %s has %d fragment%s: none to fit against another\n", c->dir,
                     c->nfrag, c->nfrag == 1 ? "" : "s");

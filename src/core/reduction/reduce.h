@@ -257,9 +257,10 @@ int reduce_fit_one(const frag *const *others, int nothers, const frag *moving, c
                    const reduce_opts *o, pose *out, reduce_result *r);
 
 /* The fragments to move when none is named: every one but fixed (index) that has bone within
- * about 4 mm of another fragment's, in the CT (every pose the identity, as segmented) or where the
- * hand left them (their poses). One that touches nothing in either (a CT's head holder, which lies
- * apart from the bone and which no one moved there) is left out. mv and
+ * about 4 mm of another fragment's in the CT (every pose the identity, as segmented), or that the
+ * hand moved (its pose is not the identity) to within that of another. One that touches nothing in
+ * the CT and that no one moved next to another (a CT's head holder, which lies apart from the
+ * bone) is left out. mv and
  * skipped (indices) have room for c->nfrag. Returns the number put in mv (*nskipped: the number
  * skipped), or FN_E*. */
 int reduce_pick_moving(const struct planning_case *c, int fixed, int *mv, int *skipped, int *nskipped);

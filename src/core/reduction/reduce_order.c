@@ -316,12 +316,15 @@ int reduce_pick_moving(const planning_case *c, int fixed, int *mv, int *skipped,
             if (k != i)
                 others[n++] = &home[k];
         rc = reduce__touches(others, n, &home[i], reduce__tune.touch_mm);
-        /* where the hand left them: a piece brought next to another is one to fit, wherever the
-         * fracture had thrown it */
-        for (int k = 0, m = 0; rc == 0 && k < c->nfrag; k++)
+        /* where the hand left them: a piece the hand moved next to another is one to fit,
+         * wherever the fracture had thrown it (a piece no one moved, as a head holder, stays
+         * out though another was dragged next to it) */
+        int moved = pose_distance(c->frag[i].pose, POSE_IDENTITY) > 0 ||
+                    pose_angle_between(c->frag[i].pose, POSE_IDENTITY) > 0;
+        for (int k = 0, m = 0; rc == 0 && moved && k < c->nfrag; k++)
             if (k != i)
                 others[m++] = &c->frag[k];
-        if (rc == 0)
+        if (rc == 0 && moved)
             rc = reduce__touches(others, n, &c->frag[i], reduce__tune.touch_mm);
         if (rc > 0)
             mv[nmv++] = i;
