@@ -93,9 +93,9 @@ static void test_pitch_workload_from_the_repository(void **st)
     free(dir);
 }
 
-/* bench reduce --suite (one fit per workload, a case of 3 and of 6 pieces: a minute or so): every workload of the README's table in
- * one object, each named and with its own runs, and the runs pooled per method, with the default
- * method alone; the pooled evaluation time is null (each CT has its own). The workloads of the
+/* bench reduce --suite (one fit per workload, a whole case of 3 and of 6 pieces: a minute or so):
+ * every workload of the README's table in one object, each named and with its own runs, and the
+ * runs pooled per method, with the default method alone; the pooled evaluation time is null (each CT has its own). The workloads of the
  * pelvic development set, given a folder that is not there, are listed as skipped, with a word. */
 static void test_reduce_suite_pools_every_workload(void **st)
 {

@@ -392,7 +392,8 @@ static int run_whole_case(const vol *ct, uint64_t seed, const opts *o, config_st
         case_free(c);
         c = case_load(tmp);
     }
-    int *mv = c ? calloc((size_t)c->nfrag, sizeof *mv) : NULL, *skipped = c ? calloc((size_t)c->nfrag, sizeof *skipped) : NULL;
+    int *mv = c ? calloc((size_t)c->nfrag, sizeof *mv) : NULL;
+    int *skipped = c ? calloc((size_t)c->nfrag, sizeof *skipped) : NULL;
     reduce_result *res = c ? calloc((size_t)c->nfrag, sizeof *res) : NULL;
     rc = !c ? -1 : mv && skipped && res ? 0 : fn_err_set(FN_ENOMEM, "out of memory");
     for (int k = 0; k < o->nconf && rc == 0; k++) {
@@ -440,8 +441,8 @@ static int run_whole_case(const vol *ct, uint64_t seed, const opts *o, config_st
         cs[k].nskipped += nskipped;
         cs[k].ncase_back += back == nmv;
         if (o->verbose)
-            fprintf(stderr, "seed %llu: %d of %d pieces back, %.2f s cpu, %.2f s wall\n", (unsigned long long)seed, back,
-                    nmv, (c1 - c0) * 1e-6, (w1 - w0) * 1e-6);
+            fprintf(stderr, "seed %llu: %d of %d pieces back, %.2f s cpu, %.2f s wall\n", (unsigned long long)seed,
+                    back, nmv, (c1 - c0) * 1e-6, (w1 - w0) * 1e-6);
     }
     free(mv);
     free(skipped);
@@ -831,7 +832,8 @@ static json_t *run_workload(const opts *op, config_stats *pool)
         vol *ct = o.ct && !strcmp(o.ct, "long-bone") ? long_bone() : volio_read(one);
         rc = ct ? 0 : -1;
         for (int s = 0; s < o.seeds && rc == 0; s++) {
-            rc = o.whole_case ? run_whole_case(ct, (uint64_t)s + 1, &o, cs) : run_case(ct, (uint64_t)s + 1, &o, cs, &rng);
+            rc = o.whole_case ? run_whole_case(ct, (uint64_t)s + 1, &o, cs)
+                              : run_case(ct, (uint64_t)s + 1, &o, cs, &rng);
             if (rc)
                 fn_err_wrap(rc, "%s, seed %d", one, s + 1);
         }
