@@ -563,6 +563,36 @@ static void test_cli(void **st)
     free(dir);
 }
 
+/* A navigation session's move, as its journal keeps it: fragment id of the case at cdir to pose p
+ * (home -> world) at t_us. */
+static void move_by_journal(const char *cdir, int id, const pose *p, int64_t t_us)
+{
+    planning_case *c = case_load(cdir);
+    if (!c)
+        fail_msg("%s", fn_err_msg());
+    journal_bind jb;
+    case_journal_bind(c, &jb);
+    journal *jn = journal_open(cdir, &jb);
+    if (!jn)
+        fail_msg("%s", fn_err_msg());
+    assert_int_equal(journal_append(jn, JOURNAL_MOVE, case_find(c, id), t_us, p, t_us), 0);
+    assert_int_equal(journal_close(jn), 0);
+    case_free(c);
+}
+
+/* `reduce CASE --no-prealign --json` (stderr into DIR/err): its JSON, or the test fails. */
+static json_t *reduce_json(const char *cdir, const char *dir)
+{
+    char *out = NULL;
+    int rc = tu_run_cli(&out, "reduce '%s' --no-prealign --json 2>'%s/err' | cat", cdir, dir);
+    json_error_t e;
+    json_t *j = rc == 0 ? json_loads(out, 0, &e) : NULL;
+    if (!j)
+        fail_msg("rc %d: %s", rc, out);
+    free(out);
+    return j;
+}
+
 /* Several pieces end to end, as a surgeon meets them: the example CT's 3-piece fracture of seed 4,
  * every piece where the fracture left it, reduced by `reduce CASE`, which places first the piece
  * whose fit gains most. The fit is chaotic at this scale: a placement a micrometre off, or the
@@ -582,23 +612,11 @@ static void test_cli_three_pieces_of_the_skull(void **st)
     free(out);
     int all_back = 0;
     for (int run = 0; run < 4; run++) {
-        if (run) { /* pieces 2 and 3 placed run um off where the fracture left them */
-            planning_case *c = case_load(cdir);
-            if (!c)
-                fail_msg("%s", fn_err_msg());
-            journal_bind jb;
-            case_journal_bind(c, &jb);
-            journal *jn = journal_open(cdir, &jb);
-            if (!jn)
-                fail_msg("%s", fn_err_msg());
-            pose off = POSE_IDENTITY;
-            off.t[0] = 1e-3 * run;
-            off.t[1] = -1e-3 * run;
-            for (int id = 2; id <= 3; id++)
-                assert_int_equal(journal_append(jn, JOURNAL_MOVE, case_find(c, id), 1000 * run, &off, 1000 * run), 0);
-            assert_int_equal(journal_close(jn), 0);
-            case_free(c);
-        }
+        pose off = POSE_IDENTITY; /* pieces 2 and 3 placed run um off where the fracture left them */
+        off.t[0] = 1e-3 * run;
+        off.t[1] = -1e-3 * run;
+        for (int id = 2; run && id <= 3; id++)
+            move_by_journal(cdir, id, &off, 1000 * run);
         if (tu_run_cli(&out, "reduce %s -o %s --force --json 2>/dev/null | cat", cdir, odir) != 0)
             fail_msg("reduce, run %d: %s", run, out);
         json_error_t e;
@@ -690,30 +708,18 @@ static void test_cli_skips_what_touches_nothing(void **st)
     pose hand = POSE_IDENTITY;
     double c3w[3]; /* block 3 where the fits above left it */
     pose_apply(&c->frag[i3].pose, c->frag[i3].centroid, c3w);
-    for (int a = 0; a < 3; a++) { /* block 2's centre 13 mm beyond block 3's, along x: 2 mm apart */
-        double c2 = c->frag[i2].centroid[a];
-        hand.t[a] = c3w[a] + (a == 0 ? 13 : 0) - c2;
-    }
-    journal_bind jb;
-    case_journal_bind(c, &jb);
-    journal *jn = journal_open(cdir, &jb);
-    if (!jn)
-        fail_msg("%s", fn_err_msg());
-    assert_int_equal(journal_append(jn, JOURNAL_MOVE, i2, 1000, &hand, 1000), 0);
-    assert_int_equal(journal_close(jn), 0);
+    for (int a = 0; a < 3; a++) /* block 2's centre 13 mm beyond block 3's, along x: 2 mm apart */
+        hand.t[a] = c3w[a] + (a == 0 ? 13 : 0) - c->frag[i2].centroid[a];
     case_free(c);
-    rc = tu_run_cli(&out, "reduce '%s' --no-prealign --json 2>'%s/err' | cat", cdir, dir);
-    j = rc == 0 ? json_loads(out, 0, &e) : NULL;
-    if (!j)
-        fail_msg("rc %d: %s", rc, out);
+    move_by_journal(cdir, 2, &hand, 1000);
+    j = reduce_json(cdir, dir);
     frs = json_object_get(j, "fragments");
     int fitted2 = 0;
     for (size_t k = 0; k < json_array_size(frs); k++)
         fitted2 |= json_integer_value(json_object_get(json_array_get(frs, k), "id")) == 2;
     if (!fitted2 || json_array_size(json_object_get(j, "skipped")) != 0)
-        fail_msg("block 2, moved next to block 3, not fitted: %s", out);
+        fail_msg("block 2, moved next to block 3, not fitted: %s", json_dumps(j, 0));
     json_decref(j);
-    free(out);
     /* the other way round, in a fresh case: block 3 dragged next to block 2, which no one moved (a
      * head holder a fragment was dragged to): block 2 stays out */
     snprintf(cdir, sizeof cdir, "%s/case2", dir);
@@ -722,27 +728,16 @@ static void test_cli_skips_what_touches_nothing(void **st)
     c = case_load(cdir);
     if (!c)
         fail_msg("%s", fn_err_msg());
-    i2 = case_find(c, 2);
-    i3 = case_find(c, 3);
     hand = POSE_IDENTITY;
     for (int a = 0; a < 3; a++) /* block 3's centre 13 mm before block 2's, along x: 2 mm apart */
-        hand.t[a] = c->frag[i2].centroid[a] - (a == 0 ? 13 : 0) - c->frag[i3].centroid[a];
-    case_journal_bind(c, &jb);
-    jn = journal_open(cdir, &jb);
-    if (!jn)
-        fail_msg("%s", fn_err_msg());
-    assert_int_equal(journal_append(jn, JOURNAL_MOVE, i3, 1000, &hand, 1000), 0);
-    assert_int_equal(journal_close(jn), 0);
+        hand.t[a] = c->frag[case_find(c, 2)].centroid[a] - (a == 0 ? 13 : 0) - c->frag[case_find(c, 3)].centroid[a];
     case_free(c);
-    rc = tu_run_cli(&out, "reduce '%s' --no-prealign --json 2>'%s/err' | cat", cdir, dir);
-    j = rc == 0 ? json_loads(out, 0, &e) : NULL;
-    if (!j)
-        fail_msg("rc %d: %s", rc, out);
+    move_by_journal(cdir, 3, &hand, 1000);
+    j = reduce_json(cdir, dir);
     sk = json_object_get(j, "skipped");
     if (json_array_size(sk) != 1 || json_integer_value(json_array_get(sk, 0)) != 2)
-        fail_msg("block 2, which no one moved, not skipped: %s", out);
+        fail_msg("block 2, which no one moved, not skipped: %s", json_dumps(j, 0));
     json_decref(j);
-    free(out);
     tu_rmtree(dir);
     free(dir);
 }
