@@ -603,6 +603,13 @@ static json_t *reduce_json(const char *cdir, const char *dir)
  * contact where the hand left them) in none of the first three (one piece 17-41 degrees off). */
 static void test_cli_three_pieces_of_the_skull(void **st)
 {
+#if defined(__SANITIZE_THREAD__)
+    /* Four whole reductions of a skull in child processes: 15-20 minutes under ThreadSanitizer on
+     * two cores. reduce_case's threads are checked there by test_reduce_parallel_pairs; the plain
+     * and ASan stages run this test. */
+    print_message("skipped under ThreadSanitizer: four whole reductions of the skull\n");
+    skip();
+#endif
     const char *ct = tu_example_ct();
     char *dir = tu_tmpdir("reduce_skull3"), *out = NULL, cdir[4200], odir[4300], said[4][200];
     snprintf(cdir, sizeof cdir, "%s/case", dir);
