@@ -165,7 +165,8 @@ typedef struct reduce_tuning {
     double polish_round;     /* a long piece whose second principal variance is under this times
                               * the third is a tube, not polished */
     /* the order of several fragments */
-    double touch_mm;         /* a piece with no bone this near another's in the CT touches nothing;
+    double touch_mm;         /* a piece with no bone this near another's in the CT, nor moved by the
+                              * hand to this near another, touches nothing;
                               * in the second sweep, pieces this far apart fit at once */
 } reduce_tuning;
 

@@ -298,6 +298,17 @@ int reduce_case(planning_case *c, int fixed, const int *moving, int nmoving, con
     return rc;
 }
 
+/* Whether fragment i of the case, in set (the case's fragments, each at the pose the caller gave
+ * it), has bone within touch_mm of another's: 1, 0 or FN_E*. others has room for c->nfrag. */
+static int touches_another(const planning_case *c, const frag *set, int i, const frag **others)
+{
+    int n = 0;
+    for (int k = 0; k < c->nfrag; k++)
+        if (k != i)
+            others[n++] = &set[k];
+    return reduce__touches(others, n, &set[i], reduce__tune.touch_mm);
+}
+
 int reduce_pick_moving(const planning_case *c, int fixed, int *mv, int *skipped, int *nskipped)
 {
     frag *home = calloc((size_t)c->nfrag, sizeof *home);
@@ -311,21 +322,14 @@ int reduce_pick_moving(const planning_case *c, int fixed, int *mv, int *skipped,
     for (int i = 0; i < c->nfrag && rc == 0; i++) {
         if (i == fixed || case_is_fixed(c, i))
             continue;
-        int n = 0;
-        for (int k = 0; k < c->nfrag; k++)
-            if (k != i)
-                others[n++] = &home[k];
-        rc = reduce__touches(others, n, &home[i], reduce__tune.touch_mm);
+        rc = touches_another(c, home, i, others);
         /* where the hand left them: a piece the hand moved next to another is one to fit,
          * wherever the fracture had thrown it (a piece no one moved, as a head holder, stays
          * out though another was dragged next to it) */
         int moved = pose_distance(c->frag[i].pose, POSE_IDENTITY) > 0 ||
                     pose_angle_between(c->frag[i].pose, POSE_IDENTITY) > 0;
-        for (int k = 0, m = 0; rc == 0 && moved && k < c->nfrag; k++)
-            if (k != i)
-                others[m++] = &c->frag[k];
         if (rc == 0 && moved)
-            rc = reduce__touches(others, n, &c->frag[i], reduce__tune.touch_mm);
+            rc = touches_another(c, c->frag, i, others);
         if (rc > 0)
             mv[nmv++] = i;
         else if (rc == 0)
