@@ -4,6 +4,7 @@
 #include "volio_impl.h"
 
 #include "err.h"
+#include "platform.h"
 
 #include <errno.h>
 #include <math.h>
@@ -242,6 +243,7 @@ static int load_data(const nifti_image *nim, const char *path, vol_type t, vol *
     gzFile gz = gzopen(path, "rb");
     if (!gz)
         return fn_err_set(FN_EIO, "%s: cannot open: %s", path, strerror(errno ? errno : ENOMEM));
+    platform_huge_pages(v->data, n * sizeof(float));
     gzbuffer(gz, 1 << 17);
     _Alignas(8) unsigned char buf[1 << 16];
     int rc = gzseek(gz, nim->iname_offset, SEEK_SET) == nim->iname_offset

@@ -173,6 +173,8 @@ void reduce_metric_free(reduce_metric *m)
 {
     if (m) {
         free(m->cell);
+        free(m->score);
+        free(m->near);
         free(m->bsum);
         free(m->reach);
         free(m->band_x);
@@ -444,9 +446,18 @@ static int metric_cells(reduce_metric *m, const uint8_t *bone, uint8_t *in, doub
     for (int k = 0; k < m->d[2]; k++)
         for (int j = 0; j < m->d[1]; j++)
             for (int i = 0; i < m->d[0]; i++, idx++) {
-                m->cell[((size_t)(k + 1) * m->D[1] + j + 1) * m->D[0] + i + 1] =
-                    (uint8_t)((in[idx] ? REDUCE_CELL_V : 0) | (bone[idx] ? REDUCE_CELL_A : 0));
+                size_t c = ((size_t)(k + 1) * m->D[1] + j + 1) * m->D[0] + i + 1;
+                m->cell[c] = (uint8_t)((in[idx] ? REDUCE_CELL_V : 0) | (bone[idx] ? REDUCE_CELL_A : 0));
+                m->score[c] = (int8_t)(bone[idx] ? 1 : in[idx] ? -1 : 0);
                 m->nvoi += in[idx] != 0;
+            }
+    const size_t sy = (size_t)m->D[0], sz = sy * m->D[1];
+    for (int k = 0; k + 1 < m->D[2]; k++)
+        for (int j = 0; j + 1 < m->D[1]; j++)
+            for (int i = 0; i + 1 < m->D[0]; i++) {
+                const int8_t *g = m->score + (size_t)k * sz + (size_t)j * sy + (size_t)i;
+                m->near[g - m->score] =
+                    (g[0] | g[1] | g[sy] | g[sy + 1] | g[sz] | g[sz + 1] | g[sz + sy] | g[sz + sy + 1]) != 0;
             }
     return 0;
 }
@@ -503,10 +514,12 @@ reduce_metric *reduce__metric_with(const frag *const *asm_, int nasm, const frag
     }
     size_t nv = (size_t)m->d[0] * m->d[1] * m->d[2];
     m->cell = calloc((size_t)m->D[0] * m->D[1] * m->D[2], sizeof *m->cell);
+    m->score = calloc((size_t)m->D[0] * m->D[1] * m->D[2], sizeof *m->score);
+    m->near = calloc((size_t)m->D[0] * m->D[1] * m->D[2], sizeof *m->near);
     uint8_t *bone = calloc(nv, 1), *in = malloc(nv);
     double sum[3] = {0, 0, 0};
     int rc = 0;
-    if (!m->cell || !bone || !in)
+    if (!m->cell || !m->score || !m->near || !bone || !in)
         rc = fn_err_set(FN_ENOMEM, "reduce metric: out of memory for a %dx%dx%d VOI", m->d[0], m->d[1], m->d[2]);
     if (rc == 0)
         rc = metric_bone(m, asm_, nasm, gap_mm, bone, sum);
@@ -718,14 +731,47 @@ static void run_counts(const reduce_metric *m, const reduce_run *run, const doub
     sum[1] += si;
 }
 
+/* The numerator's sum of a run, trilinear (acc: one sum): the score field interpolated at each
+ * voxel, as run_counts' two sums would give 2 s_I - s_2, in half its work. */
+static void run_score(const reduce_metric *m, const reduce_run *run, const double x0[3], const double step[3],
+                      void *acc)
+{
+    const int len = run->len;
+    const int d0 = m->d[0], d1 = m->d[1], d2 = m->d[2];
+    const size_t sy = (size_t)m->D[0], sz = (size_t)m->D[0] * m->D[1];
+    double x = x0[0], y = x0[1], z = x0[2];
+    float s = 0;
+    for (int n = 0; n < len; n++, x += step[0], y += step[1], z += step[2]) {
+        if (!(x > -1 && y > -1 && z > -1 && x < d0 && y < d1 && z < d2))
+            continue;
+        int i = (int)(x + 1) - 1, j = (int)(y + 1) - 1, k = (int)(z + 1) - 1;
+        const size_t at = (size_t)(k + 1) * sz + (size_t)(j + 1) * sy + (size_t)(i + 1);
+        if (!m->near[at])
+            continue;
+        const int8_t *c = m->score + at;
+        int g000 = c[0], g100 = c[1], g010 = c[sy], g110 = c[sy + 1];
+        int g001 = c[sz], g101 = c[sz + 1], g011 = c[sz + sy], g111 = c[sz + sy + 1];
+        float fx = (float)(x - i), fy = (float)(y - j), fz = (float)(z - k);
+        float a00 = (float)g000 + fx * (float)(g100 - g000), a10 = (float)g010 + fx * (float)(g110 - g010);
+        float a01 = (float)g001 + fx * (float)(g101 - g001), a11 = (float)g011 + fx * (float)(g111 - g011);
+        float b0 = a00 + fy * (a10 - a00), b1 = a01 + fy * (a11 - a01);
+        s += b0 + fz * (b1 - b0);
+    }
+    *(double *)acc += s;
+}
+
 double reduce_metric_eval(const reduce_metric *m, const pose *p, reduce_counts *counts)
 {
     double sum[2] = {0, 0};
-    walk_runs(m, p, 1, run_counts, sum);
-    reduce_counts c = {m->n1, sum[0] * m->w, sum[1] * m->w, m->nvoi};
-    if (counts)
-        *counts = c;
-    return reduce_counts_metric(&c);
+    if (m->mode == REDUCE_NEAREST || counts) {
+        walk_runs(m, p, 1, run_counts, sum);
+        reduce_counts c = {m->n1, sum[0] * m->w, sum[1] * m->w, m->nvoi};
+        if (counts)
+            *counts = c;
+        return reduce_counts_metric(&c);
+    }
+    walk_runs(m, p, 1, run_score, sum);
+    return m->nvoi > 0 ? (sum[0] * m->w - m->n1) / m->nvoi : 0;
 }
 
 /* Whether a voxel at VOI cell coordinates x lies within band_k cells (per axis) of a counted cell. */
