@@ -52,9 +52,10 @@ struct reduce_metric {
     int8_t *score;      /* the same cells' part in the metric's numerator 2 n_I - n_2: +1 bone, -1 a
                          * counted cell without bone, 0 not counted (a trilinear evaluation
                          * interpolates this one field, not the two flags) */
-    uint8_t *near;      /* 1 where a cell or one after it along each axis (the eight a trilinear
-                         * weight from there reaches) has a score: most voxels an evaluation
-                         * visits have none, and one load tells */
+    uint8_t *near;      /* a bit per cell (cell c: bit c % 8 of byte c / 8), set where the cell or
+                         * one after it along each axis (the eight a trilinear weight from there
+                         * reaches) has a score: most voxels an evaluation visits have none, and
+                         * one load of a table an eighth the size tells */
     int nb[3];          /* blocks of REDUCE_BLOCK^3 padded cells per axis */
     uint32_t *bsum;     /* (nb+1)^3 summed-volume table of blocks holding a counted cell */
     double sg[3];       /* the grid's spacing */

@@ -456,8 +456,9 @@ static int metric_cells(reduce_metric *m, const uint8_t *bone, uint8_t *in, doub
         for (int j = 0; j + 1 < m->D[1]; j++)
             for (int i = 0; i + 1 < m->D[0]; i++) {
                 const int8_t *g = m->score + (size_t)k * sz + (size_t)j * sy + (size_t)i;
-                m->near[g - m->score] =
-                    (g[0] | g[1] | g[sy] | g[sy + 1] | g[sz] | g[sz + 1] | g[sz + sy] | g[sz + sy + 1]) != 0;
+                size_t at = (size_t)(g - m->score);
+                if (g[0] | g[1] | g[sy] | g[sy + 1] | g[sz] | g[sz + 1] | g[sz + sy] | g[sz + sy + 1])
+                    m->near[at >> 3] |= (uint8_t)(1u << (at & 7));
             }
     return 0;
 }
@@ -515,7 +516,7 @@ reduce_metric *reduce__metric_with(const frag *const *asm_, int nasm, const frag
     size_t nv = (size_t)m->d[0] * m->d[1] * m->d[2];
     m->cell = calloc((size_t)m->D[0] * m->D[1] * m->D[2], sizeof *m->cell);
     m->score = calloc((size_t)m->D[0] * m->D[1] * m->D[2], sizeof *m->score);
-    m->near = calloc((size_t)m->D[0] * m->D[1] * m->D[2], sizeof *m->near);
+    m->near = calloc(((size_t)m->D[0] * m->D[1] * m->D[2] + 7) / 8, sizeof *m->near);
     uint8_t *bone = calloc(nv, 1), *in = malloc(nv);
     double sum[3] = {0, 0, 0};
     int rc = 0;
@@ -653,8 +654,11 @@ int reduce__metric_drifted(const reduce_metric *m, const pose *p)
 
 /* Every run of moving voxels at pose p that can lie in the VOI, handed to fn. counted: only the
  * runs that can weigh a counted cell, and, for the bricks that moved less than the band's reach from
- * its reference pose, only their band runs (reduce__metric_rebase). */
-static void walk_runs(const reduce_metric *m, const pose *p, int counted, run_fn *fn, void *acc)
+ * its reference pose, only their band runs (reduce__metric_rebase). Inlined into each caller, so
+ * that fn, a constant there, is called directly (inlined too) for each of the ~3,000 short runs of
+ * an evaluation of the skull's fit. */
+static inline __attribute__((always_inline)) void walk_runs(const reduce_metric *m, const pose *p, int counted,
+                                                            run_fn *fn, void *acc)
 {
     double M[3][3], T[3], step[3], reach[3];
     carry(m, p, M, T);
@@ -746,7 +750,7 @@ static void run_score(const reduce_metric *m, const reduce_run *run, const doubl
             continue;
         int i = (int)(x + 1) - 1, j = (int)(y + 1) - 1, k = (int)(z + 1) - 1;
         const size_t at = (size_t)(k + 1) * sz + (size_t)(j + 1) * sy + (size_t)(i + 1);
-        if (!m->near[at])
+        if (!(m->near[at >> 3] >> (at & 7) & 1))
             continue;
         const int8_t *c = m->score + at;
         int g000 = c[0], g100 = c[1], g010 = c[sy], g110 = c[sy + 1];
