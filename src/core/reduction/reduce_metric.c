@@ -442,21 +442,28 @@ static int metric_cells(reduce_metric *m, const uint8_t *bone, uint8_t *in, doub
         memset(in, 1, nv);
     else if (dilate_box(bone, in, m->d, kb) < 0)
         return fn_err_set(FN_ENOMEM, "reduce metric: out of memory for the band");
-    size_t idx = 0;
-    for (int k = 0; k < m->d[2]; k++)
-        for (int j = 0; j < m->d[1]; j++)
-            for (int i = 0; i < m->d[0]; i++, idx++) {
-                size_t c = ((size_t)(k + 1) * m->D[1] + j + 1) * m->D[0] + i + 1;
-                m->cell[c] = (uint8_t)((in[idx] ? REDUCE_CELL_V : 0) | (bone[idx] ? REDUCE_CELL_A : 0));
-                m->score[c] = (int8_t)(bone[idx] ? 1 : in[idx] ? -1 : 0);
-                m->nvoi += in[idx] != 0;
-            }
+    const int d0 = m->d[0];
     const size_t sy = (size_t)m->D[0], sz = sy * m->D[1];
+    size_t idx = 0, nvoi = 0;
+    for (int k = 0; k < m->d[2]; k++)
+        for (int j = 0; j < m->d[1]; j++, idx += (size_t)d0) {
+            const size_t row = (size_t)(k + 1) * sz + (size_t)(j + 1) * sy + 1;
+            uint8_t *restrict cell = m->cell + row;
+            int8_t *restrict score = m->score + row;
+            const uint8_t *bo = bone + idx, *bi = in + idx;
+            for (int i = 0; i < d0; i++) {
+                int b = bo[i] != 0, v = bi[i] != 0;
+                cell[i] = (uint8_t)((v ? REDUCE_CELL_V : 0) | (b ? REDUCE_CELL_A : 0));
+                score[i] = (int8_t)(b ? 1 : v ? -1 : 0);
+                nvoi += (size_t)v;
+            }
+        }
+    m->nvoi += (double)nvoi;
     for (int k = 0; k + 1 < m->D[2]; k++)
         for (int j = 0; j + 1 < m->D[1]; j++)
             for (int i = 0; i + 1 < m->D[0]; i++) {
-                const int8_t *g = m->score + (size_t)k * sz + (size_t)j * sy + (size_t)i;
-                size_t at = (size_t)(g - m->score);
+                size_t at = (size_t)k * sz + (size_t)j * sy + (size_t)i;
+                const int8_t *g = m->score + at;
                 if (g[0] | g[1] | g[sy] | g[sy + 1] | g[sz] | g[sz + 1] | g[sz + sy] | g[sz + sy + 1])
                     m->near[at >> 3] |= (uint8_t)(1u << (at & 7));
             }
