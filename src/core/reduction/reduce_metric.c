@@ -751,7 +751,7 @@ static void run_score(const reduce_metric *m, const reduce_run *run, const doubl
     const int d0 = m->d[0], d1 = m->d[1], d2 = m->d[2];
     const size_t sy = (size_t)m->D[0], sz = (size_t)m->D[0] * m->D[1];
     double x = x0[0], y = x0[1], z = x0[2];
-    float s = 0;
+    double s = 0;
     for (int n = 0; n < len; n++, x += step[0], y += step[1], z += step[2]) {
         if (!(x > -1 && y > -1 && z > -1 && x < d0 && y < d1 && z < d2))
             continue;
