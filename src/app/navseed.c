@@ -36,8 +36,13 @@ void navseed_free(navseed *s)
     render_prep_free(s->job_prep);
     render_prep_free(s->prep);
     s->job_prep = s->prep = NULL;
+    /* a job that ended unseen is dropped with its preview: its pieces were the preview's */
+    atomic_store(&s->done, 0);
+    s->job_pieces = NULL;
+    s->job_result = 0;
     s->pieces = NULL;
     s->npieces = 0;
+    s->nmarked = 0;
 }
 
 static void describe(navseed *s, const char *what)
@@ -107,6 +112,23 @@ static void *grow_job(void *arg)
     return NULL;
 }
 
+/* The seeds' colours in the preview just taken (on the caller's thread, no job running): each
+ * seed's piece's, white where none holds it. navseed_marks reads these, never the pieces, which
+ * the next job overwrites while it runs. */
+static void colour_marks(navseed *s)
+{
+    for (int i = 0; i < s->n; i++) {
+        s->marked[i] = s->seed[i];
+        memset(s->mark_rgb[i], 255, sizeof s->mark_rgb[i]);
+        for (int k = 0; k < s->npieces; k++)
+            if (frag_holds(&s->pieces[k], s->seed[i].at)) {
+                memcpy(s->mark_rgb[i], s->pieces[k].rgb, sizeof s->mark_rgb[i]);
+                break;
+            }
+    }
+    s->nmarked = s->n;
+}
+
 /* A job for the seeds as they are, on the worker (or here when no thread can start). */
 static void start_job(navseed *s, const planning_case *c, const pose *poses, int nposes)
 {
@@ -157,9 +179,12 @@ int navseed_preview(navseed *s, const planning_case *c, const pose *poses, int n
         else
             snprintf(what, sizeof what, "no preview: %s", s->job_error);
         describe(s, what);
+        colour_marks(s);
         shown = 1;
     }
-    if (!s->changed)
+    /* the next job waits a frame: until then the caller uploads these pieces, which the worker
+     * would overwrite (case_preview_update) */
+    if (!s->changed || shown)
         return shown;
     s->changed = 0;
     if (s->on && s->n) {
@@ -176,12 +201,11 @@ int navseed_marks(const navseed *s, double (*at)[3], unsigned char (*rgb)[3], in
     int n = s->on ? (s->n < cap ? s->n : cap) : 0;
     for (int i = 0; i < n; i++) {
         memcpy(at[i], s->seed[i].at, sizeof at[i]);
-        memset(rgb[i], 255, sizeof rgb[i]);
-        for (int k = 0; k < s->npieces; k++)
-            if (frag_holds(&s->pieces[k], s->seed[i].at)) {
-                memcpy(rgb[i], s->pieces[k].rgb, sizeof rgb[i]);
-                break;
-            }
+        int same = i < s->nmarked && !memcmp(&s->marked[i], &s->seed[i], sizeof s->seed[i]);
+        if (same)
+            memcpy(rgb[i], s->mark_rgb[i], sizeof rgb[i]);
+        else
+            memset(rgb[i], 255, sizeof rgb[i]);
     }
     return n;
 }

@@ -33,8 +33,12 @@ typedef struct navseed {
     int accepted; /* Enter was pressed with seeds: the caller clears it and separates */
     int changed;  /* the seeds changed since the last navseed_preview */
     case_preview *preview;
-    const frag *pieces; /* the preview: the fragments the seeds would make (npieces, 0: none) */
+    const frag *pieces; /* the preview: the fragments the seeds would make (npieces, 0: none),
+                         * valid until the next job starts (the frame after they were shown) */
     int npieces;
+    case_seed marked[NAVSEED_MAX]; /* the seeds when the preview was taken, nmarked of them, */
+    unsigned char mark_rgb[NAVSEED_MAX][3]; /* and the colour of the piece that held each */
+    int nmarked;
     struct render_prep *prep; /* their crops and meshes, made on the worker (NULL: none made), valid
                          * until the next navseed_preview: navwin_set_pieces uploads them */
     /* The preview's growth runs on a worker thread, a job at a time: while running, the worker
@@ -55,7 +59,8 @@ typedef struct navseed {
 } navseed;
 
 void navseed_init(navseed *s);
-/* Waits for the preview's worker and frees the preview (before its case goes). */
+/* Waits for the preview's worker and frees the preview (before its case goes), with a job that
+ * ended unseen: the next navseed_preview starts from none. */
 void navseed_free(navseed *s);
 /* A key typed in the window (navwin_frame's codes). Returns 1 when it was seed mode's (F10 always;
  * digits, Backspace and Enter while it is on), 0 when it goes on as before. */
