@@ -376,7 +376,7 @@ static int run_case(const vol *ct, uint64_t seed, const opts *o, config_stats *c
  * moving (reduce_pick_moving), reduce_case on o's fit options. A sample per moving piece (its
  * errors from the truth, its evaluations; its seconds the case's, shared evenly); the case's CPU
  * (all threads) and wall seconds in cs. The case is made in a staging folder under $TMPDIR (else
- * /tmp), loaded from there as reduce loads it, and removed. */
+ * /tmp), loaded from there as reduce loads it, and removed before the fits. */
 static int run_whole_case(const vol *ct, uint64_t seed, const opts *o, config_stats *cs)
 {
     fracture_params fp;
@@ -392,6 +392,8 @@ static int run_whole_case(const vol *ct, uint64_t seed, const opts *o, config_st
         case_free(c);
         c = case_load(tmp);
     }
+    /* the folder goes before the fits, so that a run killed during them (minutes) leaves none */
+    case_stage_abort(tmp);
     int *mv = c ? calloc((size_t)c->nfrag, sizeof *mv) : NULL;
     int *skipped = c ? calloc((size_t)c->nfrag, sizeof *skipped) : NULL;
     reduce_result *res = c ? calloc((size_t)c->nfrag, sizeof *res) : NULL;
@@ -448,7 +450,6 @@ static int run_whole_case(const vol *ct, uint64_t seed, const opts *o, config_st
     free(skipped);
     free(res);
     case_free(c);
-    case_stage_abort(tmp);
     return rc;
 }
 
