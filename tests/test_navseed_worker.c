@@ -125,7 +125,9 @@ static void test_marks_keep_their_colour_while_the_next_job_runs(void **st)
 
 /* The window closes (a separation accepted, or undo) while a job runs: navseed_free waits for it
  * and drops it with the preview it was made in. The next window's first navseed_preview shows no
- * pieces (those were freed) and starts a new job, whose pieces it then shows. */
+ * pieces (those were freed) and starts a new job, whose pieces it then shows, grown at the scene's
+ * poses as given (navseed_free had kept the old job's pose count, and the new job then ran with
+ * none: the case's own poses, read off the thread that saves them). */
 static void test_a_job_unseen_at_free_is_dropped(void **st)
 {
     (void)st;
@@ -138,17 +140,23 @@ static void test_a_job_unseen_at_free_is_dropped(void **st)
     navseed_click(&s, x.left);
     navseed_key(&s, '2');
     navseed_click(&s, x.right);
-    assert_int_equal(navseed_preview(&s, x.c, NULL, 0), 0);
+    pose scene[2] = {POSE_IDENTITY, POSE_IDENTITY};
+    assert_int_equal(x.c->nfrag, 2);
+    scene[1].t[2] = 0.5; /* the scene's poses, not the case's */
+    assert_int_equal(navseed_preview(&s, x.c, scene, 2), 0);
     assert_true(tu_wait_for(job_done, &s, tu_wait_max_s()));
     navseed_free(&s); /* the job ended, never taken */
     assert_null(s.pieces);
     assert_int_equal(s.npieces, 0);
     s.changed = 1; /* as navigate does: the preview again in the next window */
-    assert_int_equal(navseed_preview(&s, x.c, NULL, 0), 0);
+    assert_int_equal(navseed_preview(&s, x.c, scene, 2), 0);
     assert_int_equal(s.npieces, 0);
     assert_true(s.running); /* a new job over the seeds kept */
     take_preview(&s, x.c);
     assert_int_equal(s.npieces, 3);
+    assert_non_null(s.job_poses);
+    assert_int_equal(s.job_nposes, 2);
+    assert_memory_equal(s.job_poses, scene, sizeof scene);
     double at[2][3];
     unsigned char rgb[2][3];
     assert_int_equal(navseed_marks(&s, at, rgb, 2), 2);

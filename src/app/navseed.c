@@ -31,6 +31,7 @@ void navseed_free(navseed *s)
     s->running = 0;
     free(s->job_poses);
     s->job_poses = NULL;
+    s->job_nposes = 0;
     case_preview_free(s->preview);
     s->preview = NULL;
     render_prep_free(s->job_prep);
@@ -134,7 +135,8 @@ static void start_job(navseed *s, const planning_case *c, const pose *poses, int
 {
     if (nposes != c->nfrag)
         poses = NULL; /* no scene of this case yet */
-    pose *p = poses && nposes != s->job_nposes ? realloc(s->job_poses, (size_t)nposes * sizeof *p) : s->job_poses;
+    pose *p = poses && (nposes != s->job_nposes || !s->job_poses) ? realloc(s->job_poses, (size_t)nposes * sizeof *p)
+                                                                    : s->job_poses;
     if (poses && p) {
         memcpy(p, poses, (size_t)nposes * sizeof *p);
         s->job_poses = p;

@@ -85,7 +85,8 @@ struct session {
     /* the live preview (session_preview.c) */
     int preview_mode;       /* SESSION_PREVIEW_* */
     pthread_t prev_th;
-    int prev_joinable;      /* owner's thread */
+    atomic_int prev_joinable; /* written on the owner's thread, read on the event thread too (which
+                               * starts before the worker) */
     sem_t prev_wake;        /* posted at every publish while the worker runs */
     atomic_int prev_run;    /* the worker runs (on_publish posts prev_wake) */
     atomic_int prev_stop, prev_cancel, prev_asked;
