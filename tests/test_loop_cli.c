@@ -241,6 +241,70 @@ static void test_crash_recovery(void **st)
  * Ctrl-C (SIGTERM here) saves the case with the moved pose and empties the journal. The recording
  * stays plugged in and silent long after. (How far the move goes depends on when the reports
  * arrive: on a starved machine the loop carries the last motion on between late reports.) */
+/* The environment of a running fracnav (/proc/PID/environ) as one string, its entries joined by
+ * '\n'; its name (/proc/PID/comm) into comm. */
+static char *running_env(pid_t pid, char *comm, size_t ncomm)
+{
+    char path[64];
+    snprintf(path, sizeof path, "/proc/%d/environ", (int)pid);
+    FILE *f = fopen(path, "r"); /* its size is 0 to stat: read to the end */
+    assert_non_null(f);
+    size_t len = 1, cap = 1 << 16;
+    char *env = malloc(cap);
+    assert_non_null(env);
+    env[0] = '\n';
+    for (size_t got; len < cap - 1 && (got = fread(env + len, 1, cap - 1 - len, f)) > 0;)
+        len += got;
+    fclose(f);
+    env[len] = '\0';
+    for (size_t i = 0; i < len; i++)
+        env[i] = env[i] ? env[i] : '\n';
+    snprintf(path, sizeof path, "/proc/%d/comm", (int)pid);
+    f = fopen(path, "r");
+    assert_non_null(f);
+    assert_non_null(fgets(comm, (int)ncomm, f));
+    fclose(f);
+    return env;
+}
+
+/* fracnav runs with glibc's malloc tuned (platform_tune_malloc: executed again at its start with
+ * GLIBC_TUNABLES, under its own name), and leaves a user's own malloc tunables alone. A replay that
+ * stays plugged in is running once it says it is stepping: its environment is read there. */
+static void test_malloc_tunables(void **st)
+{
+    (void)st;
+    const char *rec = recording("still", "wait 600 s\nunplug\n");
+    for (int own = 0; own < 2; own++) {
+        const char *was = getenv("GLIBC_TUNABLES");
+        char *saved = was ? strdup(was) : NULL;
+        if (own)
+            setenv("GLIBC_TUNABLES", "glibc.malloc.hugetlb=0", 1);
+        else
+            unsetenv("GLIBC_TUNABLES");
+        FILE *err;
+        pid_t pid = tu_spawn_cli(NULL, &err, (char *[]){"replay", case_dir, (char *)rec, "--realtime",
+                                                        "--no-journal", NULL});
+        if (saved)
+            setenv("GLIBC_TUNABLES", saved, 1);
+        else
+            unsetenv("GLIBC_TUNABLES");
+        free(saved);
+        char line[1024] = "", comm[64] = "";
+        int up = tu_wait_line(err, "stepping", line, sizeof line);
+        char *env = up ? running_env(pid, comm, sizeof comm) : NULL;
+        tu_end(pid, SIGTERM, "replay");
+        fclose(err);
+        assert_true(up);
+        /* glibc cuts the variable it parsed at its first ':' in place, so its first tunable is
+         * what /proc shows */
+        const char *want = own ? "\nGLIBC_TUNABLES=glibc.malloc.hugetlb=0\n" : "\nGLIBC_TUNABLES=glibc.malloc.hugetlb=1";
+        if (!strstr(env, want))
+            fail_msg("%s not in the environment of a running fracnav:\n%s", want + 1, env);
+        assert_string_equal(comm, "fracnav\n");
+        free(env);
+    }
+}
+
 static void test_navigate_saves_on_exit(void **st)
 {
     const char *rec = recording_as("spaceexplorer", "nav", "translate +z 1 mm over 0.3 s\nwait 100 ms\n"
@@ -503,6 +567,7 @@ int main(void)
         cmocka_unit_test(test_replay_json_rates_and_skips),
         cmocka_unit_test(test_shipped_grazing_slides_on_example),
         cmocka_unit_test(test_crash_recovery),
+        cmocka_unit_test(test_malloc_tunables),
         cmocka_unit_test(test_navigate_saves_on_exit),
         cmocka_unit_test(test_navigate_keyboard_offers_recovery),
         cmocka_unit_test(test_navigate_keyboard_save_frame_quit),

@@ -1,6 +1,7 @@
 /* fracnav: the command-line front end, a dispatcher: each subcommand lives in cmd_<name>.c, the
  * helpers they share in cmd.c. */
 #include "cmd.h"
+#include "platform.h"
 #include "sim_replay.h"
 
 #include <stdio.h>
@@ -34,6 +35,9 @@ static void usage(FILE *out)
 
 int main(int argc, char **argv)
 {
+    /* malloc kept from faulting in every large array afresh: `reduce` on the demo's case took
+     * 9,500 page faults, 1,300 with it (docs/benchmarks.md) */
+    platform_tune_malloc(argv);
     /* The virtual device and recordings are devices like any other: --device virtual:..., replay:... */
     sim_register_transports();
     if (argc < 2 || !strcmp(argv[1], "-h") || !strcmp(argv[1], "--help") || !strcmp(argv[1], "help")) {

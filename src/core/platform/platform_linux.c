@@ -13,6 +13,7 @@
 #include <spawn.h>
 #include <stdint.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 #include <sys/mman.h>
 #include <sys/prctl.h>
@@ -125,6 +126,30 @@ void platform_huge_pages(void *p, size_t bytes)
         madvise((void *)lo, hi - lo, MADV_HUGEPAGE);
 #else
     (void)p, (void)bytes;
+#endif
+}
+
+void platform_tune_malloc(char **argv)
+{
+#ifdef __GLIBC__
+    static const char tuned[] = "glibc.malloc.hugetlb=1:glibc.malloc.mmap_threshold=33554432:"
+                                "glibc.malloc.trim_threshold=4294967295";
+    const char *have = getenv("GLIBC_TUNABLES");
+    if (have && strstr(have, "glibc.malloc."))
+        return;
+    char value[4096], self[4096];
+    int n = snprintf(value, sizeof value, "%s%s%s", have && *have ? have : "", have && *have ? ":" : "", tuned);
+    /* the program's own path, so that its name stays (ps, top, pgrep), not "exe" */
+    ssize_t len = readlink("/proc/self/exe", self, sizeof self - 1);
+    if (n < 0 || (size_t)n >= sizeof value || len <= 0 || (size_t)len >= sizeof self - 1)
+        return;
+    self[len] = '\0';
+    if (setenv("GLIBC_TUNABLES", value, 1) != 0)
+        return;
+    execv(self, argv);
+    /* not executed again: on as it is; the variable stays for the programs it runs */
+#else
+    (void)argv;
 #endif
 }
 
