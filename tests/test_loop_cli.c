@@ -236,11 +236,6 @@ static void test_crash_recovery(void **st)
     unlink(cmd);
 }
 
-/* navigate with a recording played as a live device (real time): the terminal view shows the
- * state, and once it shows the frame key pressed after the move (the loop takes events in order),
- * Ctrl-C (SIGTERM here) saves the case with the moved pose and empties the journal. The recording
- * stays plugged in and silent long after. (How far the move goes depends on when the reports
- * arrive: on a starved machine the loop carries the last motion on between late reports.) */
 /* The environment of a running fracnav (/proc/PID/environ) as one string, its entries joined by
  * '\n'; its name (/proc/PID/comm) into comm. */
 static char *running_env(pid_t pid, char *comm, size_t ncomm)
@@ -305,6 +300,11 @@ static void test_malloc_tunables(void **st)
     }
 }
 
+/* navigate with a recording played as a live device (real time): the terminal view shows the
+ * state, and once it shows the frame key pressed after the move (the loop takes events in order),
+ * Ctrl-C (SIGTERM here) saves the case with the moved pose and empties the journal. The recording
+ * stays plugged in and silent long after. (How far the move goes depends on when the reports
+ * arrive: on a starved machine the loop carries the last motion on between late reports.) */
 static void test_navigate_saves_on_exit(void **st)
 {
     const char *rec = recording_as("spaceexplorer", "nav", "translate +z 1 mm over 0.3 s\nwait 100 ms\n"

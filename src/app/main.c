@@ -36,7 +36,7 @@ static void usage(FILE *out)
 int main(int argc, char **argv)
 {
     /* malloc kept from faulting in every large array afresh: `reduce` on the demo's case took
-     * 9,500 page faults, 1,300 with it (docs/benchmarks.md) */
+     * about 9,500 page faults, 1,700 with it (docs/benchmarks.md) */
     platform_tune_malloc(argv);
     /* The virtual device and recordings are devices like any other: --device virtual:..., replay:... */
     sim_register_transports();

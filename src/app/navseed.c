@@ -135,8 +135,7 @@ static void start_job(navseed *s, const planning_case *c, const pose *poses, int
 {
     if (nposes != c->nfrag)
         poses = NULL; /* no scene of this case yet */
-    pose *p = poses && (nposes != s->job_nposes || !s->job_poses) ? realloc(s->job_poses, (size_t)nposes * sizeof *p)
-                                                                    : s->job_poses;
+    pose *p = poses && nposes != s->job_nposes ? realloc(s->job_poses, (size_t)nposes * sizeof *p) : s->job_poses;
     if (poses && p) {
         memcpy(p, poses, (size_t)nposes * sizeof *p);
         s->job_poses = p;

@@ -35,9 +35,9 @@ void platform_huge_pages(void *p, size_t bytes);
  * touched), the heap is never trimmed (what a fit frees, the next metric reuses), and its memory is
  * asked for in transparent huge pages. glibc reads these tunables at a program's start only: where
  * GLIBC_TUNABLES names none of glibc.malloc's (a user's own are left alone), they are added and the
- * program executed again (its path from /proc/self/exe, the same argv; the same process). Returns when nothing was
- * done (another C library, or they are set) or the exec failed. First thing in main, before any
- * thread or open file. */
+ * program executed again (its path from /proc/self/exe, the same argv; the same process). Returns
+ * when nothing was done (another C library, or they are set) or the exec failed. First thing in
+ * main, before any thread or open file. */
 void platform_tune_malloc(char **argv);
 /* Runs the program argv[0] (found in PATH) with argv, its stdout and stderr into the file log,
  * and waits for it. Returns its exit status (128 when a signal ended it), 127 when it could not
