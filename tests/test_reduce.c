@@ -164,6 +164,7 @@ static void test_metric_trilinear_vs_brute(void **st)
     check_metric(REDUCE_TRILINEAR, 0, 1);
     check_metric(REDUCE_TRILINEAR, 2, 1);
     check_metric(REDUCE_TRILINEAR, 2, 2);
+    check_metric(REDUCE_TRILINEAR, 1.3, 1); /* a face and its edge in-plane, not the slice's edges */
 }
 
 static void test_metric_nearest_vs_brute(void **st)
@@ -171,6 +172,7 @@ static void test_metric_nearest_vs_brute(void **st)
     check_metric(REDUCE_NEAREST, 0, 1);
     check_metric(REDUCE_NEAREST, 2, 1);
     check_metric(REDUCE_NEAREST, 2, 2);
+    check_metric(REDUCE_NEAREST, 1.3, 1); /* a face and its edge in-plane, not the slice's edges */
 }
 
 /* The trilinear count changes continuously: a tiny step changes it a tiny bit. */
@@ -772,6 +774,9 @@ static void test_prealign_rods(void **st)
     b.pose = turn;
     reduce_opts o;
     reduce_defaults(&o);
+    /* pre-alignment alone: two flat-ended boxes touch more side by side than end to end, and the
+     * first stage's starts find both; the global stage for rival basins would take the side */
+    o.rival_global = 0;
     reduce_result r;
     const frag *asm_[1] = {&a};
     assert_int_equal(reduce_pair(asm_, 1, &b, &o, &r), 0);
@@ -811,9 +816,9 @@ static vol *tube(void)
 }
 
 /* The fit from a start turned deg about principal axis `axis` of piece 2 through its centroid
- * (true pose want), with o->hops = hops. */
+ * (true pose want), with o->hops = hops and o->rival_global = rival_global. */
 static void fit_turned_about(const planning_case *c, const pose *want, int axis, double deg, int hops,
-                             reduce_result *r)
+                             int rival_global, reduce_result *r)
 {
     const frag *m = &c->frag[1], *others[1] = {&c->frag[0]};
     double ax[3] = {m->axes[0][axis], m->axes[1][axis], m->axes[2][axis]}, aw[3], cw[3], rc[3];
@@ -826,6 +831,7 @@ static void fit_turned_about(const planning_case *c, const pose *want, int axis,
     reduce_opts o;
     reduce_defaults(&o);
     o.hops = hops;
+    o.rival_global = rival_global;
     pose out;
     assert_int_equal(reduce_fit_one(others, 1, m, &start, &o, &out, r), 0);
     assert_int_equal(r->collides, 0);
@@ -834,7 +840,7 @@ static void fit_turned_about(const planning_case *c, const pose *want, int axis,
 /* The same about the long axis. */
 static void fit_turned(const planning_case *c, const pose *want, double deg, int hops, reduce_result *r)
 {
-    fit_turned_about(c, want, 0, deg, hops, r);
+    fit_turned_about(c, want, 0, deg, hops, 1, r);
 }
 
 /* A piece that is not long hops strictly: the ellipsoid's piece of seed 8 has a rival basin, and
@@ -857,20 +863,34 @@ static void test_reduce_rival_hops(void **st)
     int found = 0;
     for (size_t t = 0; t < sizeof turn / sizeof *turn && !found; t++) {
         reduce_result r0, r3;
-        fit_turned_about(c, &want, turn[t].axis, turn[t].deg, 0, &r0);
-        fit_turned_about(c, &want, turn[t].axis, turn[t].deg, 3, &r3);
+        fit_turned_about(c, &want, turn[t].axis, turn[t].deg, 0, 0, &r0);
+        fit_turned_about(c, &want, turn[t].axis, turn[t].deg, 3, 0, &r3);
         assert_int_equal(r0.hops, 0);
         if (!(r3.evaluations > r0.evaluations && r3.metric_end <= r0.metric_end + 1e-12))
             fail_msg("rival hops: metric %.6f (without %.6f), %d evaluations (without %d)", r3.metric_end,
                      r0.metric_end, r3.evaluations, r0.evaluations);
-        if (r3.hops == 0)
-            assert_true(pose_distance(r3.end, r0.end) < 1e-12 && pose_angle_between(r3.end, r0.end) < 1e-12);
+        if (r3.hops == 0) { /* the same pose (its quaternion compared as numbers: the angle between two
+                             * equal ones, by acos near 1, can read 3e-8) */
+            assert_true(pose_distance(r3.end, r0.end) < 1e-12);
+            for (int k = 0; k < 4; k++)
+                assert_true(fabs(r3.end.q[k] - r0.end.q[k]) < 1e-12);
+        }
         if (r3.rival) {
             found = 1;
             /* no single answer: the candidates are kept, the best first, each with a metric */
             assert_true(r3.ncandidates >= 2);
             for (int i = 0; i < r3.ncandidates; i++)
                 assert_true(isfinite(r3.candidate[i].metric) && r3.candidate[i].metric < 0);
+            /* reduce's default: the rival basins send the fit through the global stage (more
+             * evaluations), which ends free and no worse than where it started */
+            reduce_result rg;
+            fit_turned_about(c, &want, turn[t].axis, turn[t].deg, 3, 1, &rg);
+            assert_true(rg.evaluations > r3.evaluations);
+            assert_int_equal(rg.collides, 0);
+            if (!(rg.metric_end <= rg.metric_start))
+                fail_msg("rival basins, the global stage: metric %.6f, at the start %.6f", rg.metric_end,
+                         rg.metric_start);
+            reduce_result_free(&rg);
         }
         reduce_result_free(&r0);
         reduce_result_free(&r3);

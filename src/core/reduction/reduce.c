@@ -21,6 +21,7 @@ const reduce_tuning reduce__tune = {
     .zone_grow = 1.25,
     .zone_grow_stages = 2,
     .band_reach_mm = 1.5,
+    .band_corner = 1.45,
     .tolerance_voxels = 0.45,
     .collide_cost = 1.0,
     .push_step_mm = 0.05,
@@ -119,6 +120,7 @@ void reduce_defaults(reduce_opts *o)
     o->axis_scale = 1;
     o->hops = 3;
     o->polish = 1;
+    o->rival_global = 1;
     o->threads = 2;
 }
 

@@ -12,7 +12,8 @@
  *  - trilinear (partial volume): with the trilinear weights of the eight cells around it, so
  *    n_2 and n_I change continuously with the pose and line searches do not stall on plateaus.
  * The band (band_mm > 0): only the VOI cells within band_mm of the assembly's bone (per axis, a
- * box of whole cells) count, for n_VOI and n_2 alike. A box VOI around a thin bone (a skull) is
+ * box of whole cells, less those farther than 1.45 band_mm: the box's corners on 1 mm slices)
+ * count, for n_VOI and n_2 alike. A box VOI around a thin bone (a skull) is
  * mostly empty, and the paper's count then prefers any pose that crams more of the moving
  * fragment into that space over the fit; the band keeps the count to where the fragments meet.
  * band_mm = 0 is the paper's box.
@@ -125,7 +126,7 @@ typedef struct reduce_opts {
                           * that in the first of two stages) */
     int max_eval;        /* evaluations per fragment (every stage and attempt together) */
     double voi_max_mm;   /* automatic VOI: the longest side (reduce_auto_voi's max_mm) */
-    double band_mm;      /* the metric's band (0: the whole box) */
+    double band_mm;      /* the metric's band (default 1 mm; 0: the whole box) */
     double gap_mm;       /* bone lost at the cut (0: none): the fit leaves this gap (see above);
                           * bench reduce --bone-loss 1 --gap 1: success 0.55 -> 0.95 */
     int starts;          /* the first stage's starts: the start, then turned +-8 degrees about
@@ -137,6 +138,13 @@ typedef struct reduce_opts {
                           * unchanged); 0: one radius for all three (the RMS distance from the
                           * centroid) */
     int polish;          /* 1: the result polished on the nearest count (the fit's last stage) */
+    int rival_global;    /* 1: where the first stage's starts end in rival basins (within 0.002
+                          * in metric, over 1 mm or 1 degree apart), the global stage runs as
+                          * after a fit that ran into the trust wall, its refined candidates
+                          * ranked with the local fit's ends (see docs/reduction.md). Not for a
+                          * long piece (see hops): a cut through a tube is nearly symmetric under
+                          * a turn about its axis, its starts often end apart, and the global
+                          * stage's candidates stray (bench reduce --ct long-bone: 0.70 -> 0.50) */
     int hops;            /* up to this many rounds of hops after the fit, the best kept while a
                           * round gains. A long piece (largest principal variance over 4 times the
                           * next): the fit again from the result turned 3 degrees either way about

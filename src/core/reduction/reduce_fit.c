@@ -4,7 +4,8 @@
  *  2. local:    attempts from where the hand left the piece, each a sequence of stages over a
  *               contact zone (the approach, then the starts), within the trust region; another
  *               only after one that ended colliding (or a retry on the trust wall);
- *  3. global:   where the first attempt ended on the wall: candidate starts (the placed pose,
+ *  3. global:   where the first attempt ended on the wall, or (reduce_opts.rival_global, a piece
+ *               not long) the first stage's starts ended in rival basins: candidate starts (the placed pose,
  *               it turned and moved about its principal axes, the pre-alignment) each fitted
  *               coarse, ranked by their metric over one VOI, the best kept (and a second where
  *               about as good), each refined as above but without the wall;
@@ -403,11 +404,11 @@ static int stage_metric(fit_state *s, int stage, int coarse)
         const level *L = &s->coarse;
         double cs = fmax(L->frag[0].spacing[0], fmax(L->frag[0].spacing[1], L->frag[0].spacing[2]));
         double band = o->band_mm > 0 ? fmax(o->band_mm, cs) : 0;
-        s->metric = reduce__metric_with(L->asm_, s->nasm, &L->frag[s->nasm], L->bricks, &s->r->voi, o->count, band,
+        s->metric = reduce__metric_with(L->asm_, s->nasm, &L->frag[s->nasm], L->bricks, &s->r->voi, o->count, band, 0,
                                         o->gap_mm);
     } else if (rc == 0)
         s->metric = reduce__metric_with(s->asm_, s->nasm, s->moving, s->bricks, &s->r->voi, o->count, o->band_mm,
-                                        o->gap_mm);
+                                        reduce__band_cut(o->band_mm), o->gap_mm);
     return rc == 0 && !s->metric ? FN_EINVAL : rc;
 }
 
@@ -562,7 +563,7 @@ static int stage_global(fit_state *s)
         return rc;
     }
     reduce_metric *mu = reduce__metric_with(s->asm_, s->nasm, s->moving, s->bricks, s->o->has_voi ? &s->o->voi : &u,
-                                            s->o->count, s->o->band_mm, s->o->gap_mm);
+                                            s->o->count, s->o->band_mm, reduce__band_cut(s->o->band_mm), s->o->gap_mm);
     if (!mu)
         return FN_EINVAL;
     for (int i = 0; i < n; i++)
@@ -780,7 +781,8 @@ static int stage_winner(fit_state *s)
     reduce_voi u = s->attempt_voi[0];
     for (int i = 1; i < s->attempts; i++)
         voi_join(&u, &s->attempt_voi[i]);
-    reduce_metric *mu = reduce__metric_with(s->asm_, s->nasm, s->moving, s->bricks, &u, o->count, o->band_mm, o->gap_mm);
+    reduce_metric *mu = reduce__metric_with(s->asm_, s->nasm, s->moving, s->bricks, &u, o->count, o->band_mm,
+                                            reduce__band_cut(o->band_mm), o->gap_mm);
     int rc = mu ? 0 : FN_EINVAL, w = s->attempts - 1;
     double fbest = INFINITY, fu[ENDS];
     for (int i = 0; i < s->attempts && rc == 0; i++) {
@@ -809,7 +811,7 @@ static int stage_winner(fit_state *s)
     if (rc == 0 && w != s->attempts - 1) {
         reduce_metric_free(s->metric);
         if (!(s->metric = reduce__metric_with(s->asm_, s->nasm, s->moving, s->bricks, &s->r->voi, o->count,
-                                              o->band_mm, o->gap_mm)))
+                                              o->band_mm, reduce__band_cut(o->band_mm), o->gap_mm)))
             rc = FN_EINVAL;
     }
     return rc;
@@ -1081,7 +1083,15 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
     int rc = stage_open(&s, asm_, nasm, moving, o, r);
     if (rc == 0)
         rc = stage_start(&s);
-    if (rc == 0 && (rc = stage_local(&s)) == 1) {
+    if (rc == 0 && (rc = stage_local(&s)) == 0 && o->rival_global && !piece_is_long(&s)) {
+        stage_rivals(&s); /* rival basins among the first stage's starts: the global stage looks wider
+                           * (not for a long piece: see reduce_opts.rival_global) */
+        if (s.r->rival) {
+            s.moving->pose = s.r->start;
+            rc = 1;
+        }
+    }
+    if (rc == 1) {
         s.obj.nowall = 1;
         rc = stage_global(&s);
         if (rc == 0)

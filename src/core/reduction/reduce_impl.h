@@ -96,10 +96,15 @@ reduce_count reduce__metric_count(reduce_metric *m, reduce_count mode);
 /* 1 when some brick of the band moved halfway to where it would count all its runs, from the band's
  * reference pose to p: time to rebase there. */
 int reduce__metric_drifted(const reduce_metric *m, const pose *p);
-/* A metric over shared bricks (not freed with it). gap_mm > 0: the VOI cells within gap_mm
- * (Euclidean) of the assembly's bone count as its bone (reduce_opts.gap_mm); 0: none. */
+/* A metric over shared bricks (not freed with it). cut_mm > 0: of the band's box, only the cells
+ * within cut_mm (Euclidean) count (reduce__band_cut; 0: the whole box, as on the coarse level).
+ * gap_mm > 0: the VOI cells within gap_mm (Euclidean) of the assembly's bone count as its bone
+ * (reduce_opts.gap_mm); 0: none. */
 reduce_metric *reduce__metric_with(const frag *const *asm_, int nasm, const frag *moving, reduce_bricks *b,
-                                   const reduce_voi *voi, reduce_count mode, double band_mm, double gap_mm);
+                                   const reduce_voi *voi, reduce_count mode, double band_mm, double cut_mm,
+                                   double gap_mm);
+/* The band's Euclidean cut on the fine grid: band_corner * band_mm. */
+double reduce__band_cut(double band_mm);
 /* A coarse copy of f (the first stage's level): 2 voxels a cell along each axis whose spacing is
  * within 1.5 times the finest, bone where at least half of a cell's voxels are; same id, pose,
  * centroid and axes, home moved to the cell centres. 0 or FN_ENOMEM (*c then holds nothing to free). */
@@ -124,6 +129,9 @@ typedef struct reduce_tuning {
     double zone_margin_mm;   /* the fit's zone grown by this */
     double zone_grow;        /* a zone at the end this much larger (volume) than the VOI fitted: again */
     double band_reach_mm;    /* the metric's band holds the moving voxels this near its counted cells */
+    double band_corner;      /* the counted cells: those within band_mm on each axis (whole cells) and
+                              * within band_corner * band_mm (Euclidean): on 1 mm slices, not the
+                              * box's corners (the coarse level keeps the box) */
     int zone_grow_stages;    /* at most this many stages more for it */
     /* collision */
     double tolerance_voxels; /* the query's tolerance: at most this times the smallest spacing

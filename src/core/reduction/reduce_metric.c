@@ -193,28 +193,73 @@ static void band_cells(const double sg[3], double band_mm, int k[3])
         k[a] = band_mm > 0 ? (int)floor(band_mm / sg[a] + 1e-9) : -1;
 }
 
-/* v[cell] = 1 where some bone cell of bone[] lies within r mm (Euclidean, on the grid's spacing
- * sg); v and bone span d[0]*d[1]*d[2] cells. Brute force over the ball's offsets: r is a gap of a
- * few voxels. */
-static void dilate_ball(const uint8_t *bone, uint8_t *v, const int d[3], const double sg[3], double r)
+double reduce__band_cut(double band_mm)
 {
-    int k[3];
-    band_cells(sg, r, k);
-    memcpy(v, bone, (size_t)d[0] * d[1] * d[2]);
-    for (int z = 0; z < d[2]; z++)
-        for (int y = 0; y < d[1]; y++)
-            for (int x = 0; x < d[0]; x++) {
-                size_t i = ((size_t)z * d[1] + y) * d[0] + x;
-                for (int c = -k[2]; c <= k[2] && !v[i]; c++)
-                    for (int b = -k[1]; b <= k[1] && !v[i]; b++)
-                        for (int a = -k[0]; a <= k[0] && !v[i]; a++) {
-                            int X = x + a, Y = y + b, Z = z + c;
-                            double q = (a * sg[0]) * (a * sg[0]) + (b * sg[1]) * (b * sg[1]) + (c * sg[2]) * (c * sg[2]);
-                            if (X >= 0 && Y >= 0 && Z >= 0 && X < d[0] && Y < d[1] && Z < d[2] && q <= r * r + 1e-9 &&
-                                bone[((size_t)Z * d[1] + Y) * d[0] + X])
-                                v[i] = 1;
-                        }
-            }
+    return reduce__tune.band_corner * band_mm;
+}
+
+/* The largest whole number of cells a, spacing s, with (a s)^2 <= q (q >= 0; 1e-9 of slack, so a
+ * ball's surface cells count as the brute force's test does). */
+static int ball_reach(double q, double s)
+{
+    if (q < 0)
+        return -1;
+    int a = (int)floor(sqrt(q) / s);
+    while ((a + 1) * s * (a + 1) * s <= q + 1e-9)
+        a++;
+    while (a > 0 && a * s * a * s > q + 1e-9)
+        a--;
+    return a;
+}
+
+static void or_bytes(uint8_t *dst, const uint8_t *src, size_t n);
+
+static int imin(int a, int b)
+{
+    return a < b ? a : b;
+}
+
+/* v[cell] = 1 where some bone cell of bone[] lies within r mm (Euclidean, on the grid's spacing
+ * sg: |(a sg0, b sg1, c sg2)| <= r for the offset a, b, c in cells) and, with cap, within cap[]
+ * cells on each axis; v and bone span d[0]*d[1]*d[2] cells. Separable: each row dilated along i
+ * by every reach that occurs (x[a], radius a), then for each offset (b, c) of the ball's disc in j
+ * and k the row of reach a(b, c) ORed in, shifted, whole rows at a time. FN_ENOMEM or 0. */
+static int dilate_ball(const uint8_t *bone, uint8_t *v, const int d[3], const double sg[3], double r, const int *cap)
+{
+    const size_t n = (size_t)d[0] * d[1] * d[2], row = (size_t)d[0];
+    const double r2 = r * r;
+    const int big = 1 << 20, c0 = cap ? cap[0] : big, c1 = cap ? cap[1] : big, c2 = cap ? cap[2] : big;
+    const int kx = imin(ball_reach(r2, sg[0]), c0), kz = imin(ball_reach(r2, sg[2]), c2);
+    uint8_t *x = malloc(n * (size_t)(kx + 1));
+    if (!x)
+        return FN_ENOMEM;
+    for (size_t q = 0; q < n; q++)
+        x[q] = bone[q] != 0;
+    for (int a = 1; a <= kx; a++) { /* x[a]: x[a - 1] grown by one cell either way along i */
+        const uint8_t *p = x + (size_t)(a - 1) * n;
+        uint8_t *o = x + (size_t)a * n;
+        memcpy(o, p, n);
+        for (size_t q = 0; q < n; q += row) {
+            or_bytes(o + q + 1, p + q, row - 1);
+            or_bytes(o + q, p + q + 1, row - 1);
+        }
+    }
+    memset(v, 0, n);
+    for (int c = -kz; c <= kz; c++) {
+        double qz = r2 - (c * sg[2]) * (c * sg[2]);
+        int ky = imin(ball_reach(qz, sg[1]), c1);
+        for (int b = -ky; b <= ky; b++) {
+            int a = imin(ball_reach(qz - (b * sg[1]) * (b * sg[1]), sg[0]), c0);
+            if (a < 0)
+                continue;
+            const uint8_t *src = x + (size_t)a * n;
+            for (int z = c < 0 ? -c : 0; z < d[2] && z + c < d[2]; z++)
+                for (int y = b < 0 ? -b : 0; y < d[1] && y + b < d[1]; y++)
+                    or_bytes(v + ((size_t)z * d[1] + y) * row, src + ((size_t)(z + c) * d[1] + y + b) * row, row);
+        }
+    }
+    free(x);
+    return 0;
 }
 
 /* dst |= src over n bytes, eight at a time. */
@@ -420,7 +465,10 @@ static int metric_bone(reduce_metric *m, const frag *const *asm_, int nasm, doub
         uint8_t *gb = malloc(nv);
         if (!gb)
             return fn_err_set(FN_ENOMEM, "reduce metric: out of memory for the gap");
-        dilate_ball(bone, gb, m->d, m->sg, gap_mm);
+        if (dilate_ball(bone, gb, m->d, m->sg, gap_mm, NULL) < 0) {
+            free(gb);
+            return fn_err_set(FN_ENOMEM, "reduce metric: out of memory for the gap");
+        }
         memcpy(bone, gb, nv);
         free(gb);
         m->n1 = 0;
@@ -433,14 +481,14 @@ static int metric_bone(reduce_metric *m, const frag *const *asm_, int nasm, doub
 /* The band around the bone (in: every cell when there is none), then each cell's flags (in the
  * band, bone) into m->cell inside its border, and the band's cells counted (m->nvoi). 0 or
  * FN_ENOMEM. */
-static int metric_cells(reduce_metric *m, const uint8_t *bone, uint8_t *in, double band_mm)
+static int metric_cells(reduce_metric *m, const uint8_t *bone, uint8_t *in, double band_mm, double cut_mm)
 {
     size_t nv = (size_t)m->d[0] * m->d[1] * m->d[2];
     int kb[3];
     band_cells(m->sg, band_mm, kb);
     if (kb[0] < 0)
         memset(in, 1, nv);
-    else if (dilate_box(bone, in, m->d, kb) < 0)
+    else if (cut_mm > 0 ? dilate_ball(bone, in, m->d, m->sg, cut_mm, kb) < 0 : dilate_box(bone, in, m->d, kb) < 0)
         return fn_err_set(FN_ENOMEM, "reduce metric: out of memory for the band");
     const int d0 = m->d[0];
     const size_t sy = (size_t)m->D[0], sz = sy * m->D[1];
@@ -502,7 +550,8 @@ static void metric_place(reduce_metric *m, const frag *g, const frag *moving, co
 }
 
 reduce_metric *reduce__metric_with(const frag *const *asm_, int nasm, const frag *moving, reduce_bricks *b,
-                                   const reduce_voi *voi, reduce_count mode, double band_mm, double gap_mm)
+                                   const reduce_voi *voi, reduce_count mode, double band_mm, double cut_mm,
+                                   double gap_mm)
 {
     if (!asm_ || nasm < 1 || !moving || !voi) {
         fn_err_set(FN_EINVAL, "reduce metric: no fragment or VOI");
@@ -532,7 +581,7 @@ reduce_metric *reduce__metric_with(const frag *const *asm_, int nasm, const frag
     if (rc == 0)
         rc = metric_bone(m, asm_, nasm, gap_mm, bone, sum);
     if (rc == 0)
-        rc = metric_cells(m, bone, in, band_mm);
+        rc = metric_cells(m, bone, in, band_mm, cut_mm);
     if (rc == 0)
         rc = metric_reach(m, b, in);
     free(bone);
@@ -559,7 +608,7 @@ reduce_metric *reduce_metric_new(const frag *const *asm_, int nasm, const frag *
     reduce_bricks *b = reduce__bricks_new(moving);
     if (!b)
         return NULL;
-    reduce_metric *m = reduce__metric_with(asm_, nasm, moving, b, voi, mode, band_mm, 0);
+    reduce_metric *m = reduce__metric_with(asm_, nasm, moving, b, voi, mode, band_mm, reduce__band_cut(band_mm), 0);
     if (!m)
         reduce__bricks_free(b);
     else
@@ -896,18 +945,23 @@ void reduce_metric_spread(const reduce_metric *m, const pose *p, const double c[
             S[a][b] = sp.n ? sp.s[a][b] / (double)sp.n : 0;
 }
 
-/* Brute force's band: a bone cell within k cells on every axis, looked for cell by cell. */
+/* Brute force's band: a bone cell within k cells on every axis (k[0] < 0: no band) and within
+ * band_corner * band_mm (Euclidean, on the spacing sg), looked for cell by cell. */
 static int in_band(const frag *const *asm_, int nasm, const pose *inv, const int c0[3], const int d[3], const int k[3],
-                   int i, int j, int l)
+                   const double sg[3], double band_mm, int i, int j, int l)
 {
     if (k[0] < 0)
         return 1;
+    const double r = reduce__band_cut(band_mm);
     for (int z = l - k[2]; z <= l + k[2]; z++)
         for (int y = j - k[1]; y <= j + k[1]; y++)
-            for (int x = i - k[0]; x <= i + k[0]; x++)
-                if (x >= 0 && y >= 0 && z >= 0 && x < d[0] && y < d[1] && z < d[2] &&
+            for (int x = i - k[0]; x <= i + k[0]; x++) {
+                double q = ((x - i) * sg[0]) * ((x - i) * sg[0]) + ((y - j) * sg[1]) * ((y - j) * sg[1]) +
+                           ((z - l) * sg[2]) * ((z - l) * sg[2]);
+                if (x >= 0 && y >= 0 && z >= 0 && x < d[0] && y < d[1] && z < d[2] && q <= r * r + 1e-9 &&
                     cell_bone(asm_, nasm, inv, c0, x, y, z))
                     return 1;
+            }
     return 0;
 }
 
@@ -930,7 +984,7 @@ double reduce_metric_brute(const frag *const *asm_, int nasm, const frag *moving
         for (int j = 0; j < d[1]; j++)
             for (int i = 0; i < d[0]; i++) {
                 n1 += cell_bone(asm_, nasm, inv, c0, i, j, k);
-                nvoi += in_band(asm_, nasm, inv, c0, d, kb, i, j, k);
+                nvoi += in_band(asm_, nasm, inv, c0, d, kb, g->spacing, band_mm, i, j, k);
             }
     pose ginv_pose = pose_inverse(g->pose), ginv_home = pose_inverse(g->home);
     for (int k = 0; k < moving->dim[2]; k++)
@@ -952,7 +1006,7 @@ double reduce_metric_brute(const frag *const *asm_, int nasm, const frag *moving
                         c[a] = (int)floor(x[a] + 0.5);
                         in &= c[a] >= 0 && c[a] < d[a];
                     }
-                    if (in && in_band(asm_, nasm, inv, c0, d, kb, c[0], c[1], c[2])) {
+                    if (in && in_band(asm_, nasm, inv, c0, d, kb, g->spacing, band_mm, c[0], c[1], c[2])) {
                         n2 += 1;
                         ni += cell_bone(asm_, nasm, inv, c0, c[0], c[1], c[2]);
                     }
@@ -970,7 +1024,7 @@ double reduce_metric_brute(const frag *const *asm_, int nasm, const frag *moving
                         wgt *= corner >> a & 1 ? x[a] - b[a] : 1 - (x[a] - b[a]);
                         in &= c[a] >= 0 && c[a] < d[a];
                     }
-                    if (!in || !in_band(asm_, nasm, inv, c0, d, kb, c[0], c[1], c[2]))
+                    if (!in || !in_band(asm_, nasm, inv, c0, d, kb, g->spacing, band_mm, c[0], c[1], c[2]))
                         continue;
                     n2 += wgt;
                     ni += wgt * cell_bone(asm_, nasm, inv, c0, c[0], c[1], c[2]);

@@ -282,6 +282,11 @@ int reduce_case(planning_case *c, int fixed, const int *moving, int nmoving, con
 {
     if (!c || fixed < 0 || fixed >= c->nfrag || nmoving < 1 || !r)
         return fn_err_set(FN_EINVAL, "reduce: bad fixed fragment or nothing to move");
+    /* several pieces: no global stage for rival basins, in either sweep (bench reduce --suite, the
+     * whole cases: no piece more back, and twice the CPU; see docs/reduction.md) */
+    reduce_opts several = *o;
+    several.rival_global &= nmoving == 1;
+    o = &several;
     const frag **asm_ = calloc((size_t)c->nfrag, sizeof *asm_);
     int *todo = calloc((size_t)c->nfrag, sizeof *todo);
     int nasm = 1, rc = asm_ && todo ? 0 : fn_err_set(FN_ENOMEM, "reduce: out of memory");

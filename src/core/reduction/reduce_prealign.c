@@ -85,7 +85,7 @@ static double candidate_score(const reduce_collider *pc, reduce_bricks *b, const
         if (v.lo[a] >= v.hi[a])
             return INFINITY;
     }
-    reduce_metric *m = reduce__metric_with(pc->asm_, pc->nasm, pc->moving, b, &v, mode, band, gap);
+    reduce_metric *m = reduce__metric_with(pc->asm_, pc->nasm, pc->moving, b, &v, mode, band, reduce__band_cut(band), gap);
     if (!m)
         return INFINITY;
     double f = reduce_metric_eval(m, p, NULL);
