@@ -775,8 +775,8 @@ static void test_prealign_rods(void **st)
     reduce_opts o;
     reduce_defaults(&o);
     /* pre-alignment alone: two flat-ended boxes touch more side by side than end to end, and the
-     * first stage's starts find both; the global stage for rival basins would take the side */
-    o.rival_global = 0;
+     * first stage's starts find both; the global check would take the side */
+    o.global_check = 0;
     reduce_result r;
     const frag *asm_[1] = {&a};
     assert_int_equal(reduce_pair(asm_, 1, &b, &o, &r), 0);
@@ -816,9 +816,9 @@ static vol *tube(void)
 }
 
 /* The fit from a start turned deg about principal axis `axis` of piece 2 through its centroid
- * (true pose want), with o->hops = hops and o->rival_global = rival_global. */
+ * (true pose want), with o->hops = hops and o->global_check = global_check. */
 static void fit_turned_about(const planning_case *c, const pose *want, int axis, double deg, int hops,
-                             int rival_global, reduce_result *r)
+                             int global_check, reduce_result *r)
 {
     const frag *m = &c->frag[1], *others[1] = {&c->frag[0]};
     double ax[3] = {m->axes[0][axis], m->axes[1][axis], m->axes[2][axis]}, aw[3], cw[3], rc[3];
@@ -831,7 +831,7 @@ static void fit_turned_about(const planning_case *c, const pose *want, int axis,
     reduce_opts o;
     reduce_defaults(&o);
     o.hops = hops;
-    o.rival_global = rival_global;
+    o.global_check = global_check;
     pose out;
     assert_int_equal(reduce_fit_one(others, 1, m, &start, &o, &out, r), 0);
     assert_int_equal(r->collides, 0);
@@ -881,14 +881,14 @@ static void test_reduce_rival_hops(void **st)
             assert_true(r3.ncandidates >= 2);
             for (int i = 0; i < r3.ncandidates; i++)
                 assert_true(isfinite(r3.candidate[i].metric) && r3.candidate[i].metric < 0);
-            /* reduce's default: the rival basins send the fit through the global stage (more
-             * evaluations), which ends free and no worse than where it started */
+            /* reduce's default: the global check after the local fit (more evaluations), which
+             * ends free and no worse than where it started */
             reduce_result rg;
             fit_turned_about(c, &want, turn[t].axis, turn[t].deg, 3, 1, &rg);
             assert_true(rg.evaluations > r3.evaluations);
             assert_int_equal(rg.collides, 0);
             if (!(rg.metric_end <= rg.metric_start))
-                fail_msg("rival basins, the global stage: metric %.6f, at the start %.6f", rg.metric_end,
+                fail_msg("rival basins, the global check: metric %.6f, at the start %.6f", rg.metric_end,
                          rg.metric_start);
             reduce_result_free(&rg);
         }
@@ -897,6 +897,48 @@ static void test_reduce_rival_hops(void **st)
     }
     if (!found)
         fail_msg("no start of the ellipsoid's seed 8 ended in its rival basin");
+    case_free(c);
+    tu_rmtree(dir);
+    free(dir);
+}
+
+/* The global check (reduce_opts.global_check): after a local fit that comes back, the candidates
+ * are fitted (more evaluations) but none beats its end, so it stands: the same pose to the last
+ * bit as without the check. From the ellipsoid's piece of seed 5 turned 10 degrees about each
+ * principal axis (the fits of 25 degrees and 20 mm run into the trust wall, where the global stage
+ * runs either way). */
+static void test_reduce_global_check_keeps_a_good_fit(void **st)
+{
+    char *dir = tu_tmpdir("reduce_check");
+    planning_case *c = fractured(dir, 2, 5);
+    const frag *f = &c->frag[0];
+    pose want = pose_compose(f->pose, pose_compose(pose_inverse(c->truth[0]), c->truth[1]));
+    int back = 0;
+    for (int axis = 0; axis < 3; axis++) {
+        reduce_result r0, r1;
+        fit_turned_about(c, &want, axis, axis == 1 ? -10 : 10, 3, 0, &r0);
+        fit_turned_about(c, &want, axis, axis == 1 ? -10 : 10, 3, 1, &r1);
+        if (!(r1.evaluations > r0.evaluations))
+            fail_msg("about axis %d: %d evaluations with the check, %d without", axis, r1.evaluations,
+                     r0.evaluations);
+        if (!(r1.metric_end <= r1.metric_start))
+            fail_msg("about axis %d: the check's fit ended at metric %.6f, worse than its start's %.6f", axis,
+                     r1.metric_end, r1.metric_start);
+        frag moved = c->frag[1];
+        moved.pose = r0.end;
+        double rot_deg, trans_mm, tre_mm;
+        reduce_errors(f, &moved, &want, &rot_deg, &trans_mm, &tre_mm);
+        if (rot_deg <= 1 && trans_mm <= 1) {
+            back++;
+            assert_true(pose_distance(r1.end, r0.end) < 1e-12);
+            for (int k = 0; k < 4; k++)
+                assert_true(fabs(r1.end.q[k] - r0.end.q[k]) < 1e-12);
+        }
+        reduce_result_free(&r0);
+        reduce_result_free(&r1);
+    }
+    if (!back)
+        fail_msg("no fit of the ellipsoid's seed 5 from 10 degrees came back without the check");
     case_free(c);
     tu_rmtree(dir);
     free(dir);
@@ -1225,6 +1267,7 @@ int main(void)
         cmocka_unit_test(test_prealign_rods),
         cmocka_unit_test(test_reduce_long_piece_hops),
         cmocka_unit_test(test_reduce_rival_hops),
+        cmocka_unit_test(test_reduce_global_check_keeps_a_good_fit),
         cmocka_unit_test(test_reduce_stays_at_the_truth_on_one_grid),
         cmocka_unit_test(test_polish_keeps_a_resampled_piece_nearer),
         cmocka_unit_test(test_same_fit_with_or_without_prealign),

@@ -25,7 +25,7 @@
 typedef struct opts {
     int seeds, starts, json, verbose;
     double max_mm, max_deg, band_mm, voi_max_mm, tolerance_mm, settle_mm, trust_mm, trust_deg;
-    int fit_starts, coarse, axis_scale, no_polish, no_rival_global;
+    int fit_starts, coarse, axis_scale, no_polish, no_global_check;
     int pieces, threshold_auto, touching, suite, whole_bone, whole_case;
     int model;            /* fracture_params.model */
     int labels, intact;   /* --labels DIR, --intact DIR: workloads of the real bones in data_dir */
@@ -221,8 +221,8 @@ static void fit_opts(const opts *o, int k, reduce_opts *ro)
         ro->axis_scale = o->axis_scale > 0;
     if (o->no_polish)
         ro->polish = 0;
-    if (o->no_rival_global)
-        ro->rival_global = 0;
+    if (o->no_global_check)
+        ro->global_check = 0;
 }
 
 /* --verbose: a fit's details on stderr (level 2: and the same fit started at the truth). m's pose
@@ -539,8 +539,9 @@ static int usage(FILE *out, int rc)
             "                   radius (reduce_opts.axis_scale; default: reduce's)\n"
             "  --no-polish      no polish on the nearest count after the fit (reduce_opts.polish;\n"
             "                   default on)\n"
-            "  --no-rival-global  no global stage where the first stage's starts end in rival\n"
-            "                   basins (reduce_opts.rival_global; default on)\n"
+            "  --no-global-check  the global stage only where the local fit runs into its\n"
+            "                   trust wall, not after every fit (reduce_opts.global_check;\n"
+            "                   default on)\n"
             "  --pieces K       pieces per fracture (default 2): piece 2 is fitted against piece 1\n"
             "                   and the others, all at their true poses\n"
             "  --whole-case     every piece left where the fracture left it, all reduced together as\n"
@@ -620,7 +621,7 @@ static const struct flag_opt {
     {"--axis-scale", offsetof(opts, axis_scale), 1},
     {"--no-axis-scale", offsetof(opts, axis_scale), -1},
     {"--no-polish", offsetof(opts, no_polish), 1},
-    {"--no-rival-global", offsetof(opts, no_rival_global), 1},
+    {"--no-global-check", offsetof(opts, no_global_check), 1},
     {"--touching", offsetof(opts, touching), 1},
     {"--whole-bone", offsetof(opts, whole_bone), 1},
     {"--whole-case", offsetof(opts, whole_case), 1},

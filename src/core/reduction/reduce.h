@@ -138,13 +138,15 @@ typedef struct reduce_opts {
                           * unchanged); 0: one radius for all three (the RMS distance from the
                           * centroid) */
     int polish;          /* 1: the result polished on the nearest count (the fit's last stage) */
-    int rival_global;    /* 1: where the first stage's starts end in rival basins (within 0.002
-                          * in metric, over 1 mm or 1 degree apart), the global stage runs as
-                          * after a fit that ran into the trust wall, its refined candidates
-                          * ranked with the local fit's ends (see docs/reduction.md). Not for a
+    int global_check;    /* 1: after the local fit, the global stage's candidates are fitted too
+                          * (as after a fit that ran into the trust wall), and refined only where
+                          * one beats the local fit's end over the union of their contact zones;
+                          * else the local fit stands as it was. On a broad fracture surface the
+                          * metric has a plateau of sliding contact around a narrow basin at the
+                          * truth, and a local fit stops on it (see docs/reduction.md). Not for a
                           * long piece (see hops): a cut through a tube is nearly symmetric under
-                          * a turn about its axis, its starts often end apart, and the global
-                          * stage's candidates stray (bench reduce --ct long-bone: 0.70 -> 0.50) */
+                          * a turn about its axis, and the candidates stray (bench reduce --ct
+                          * long-bone: 0.70 -> 0.50). 0: the global stage only after the wall */
     int hops;            /* up to this many rounds of hops after the fit, the best kept while a
                           * round gains. A long piece (largest principal variance over 4 times the
                           * next): the fit again from the result turned 3 degrees either way about

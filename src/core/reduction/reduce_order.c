@@ -282,10 +282,11 @@ int reduce_case(planning_case *c, int fixed, const int *moving, int nmoving, con
 {
     if (!c || fixed < 0 || fixed >= c->nfrag || nmoving < 1 || !r)
         return fn_err_set(FN_EINVAL, "reduce: bad fixed fragment or nothing to move");
-    /* several pieces: no global stage for rival basins, in either sweep (bench reduce --suite, the
-     * whole cases: no piece more back, and twice the CPU; see docs/reduction.md) */
+    /* several pieces: no global check after each local fit, in either sweep (bench reduce
+     * --suite, the whole cases: with it for rival basins, no piece more back, and twice the CPU;
+     * see docs/reduction.md) */
     reduce_opts several = *o;
-    several.rival_global &= nmoving == 1;
+    several.global_check &= nmoving == 1;
     o = &several;
     const frag **asm_ = calloc((size_t)c->nfrag, sizeof *asm_);
     int *todo = calloc((size_t)c->nfrag, sizeof *todo);
