@@ -190,9 +190,13 @@ extern const reduce_tuning reduce__tune;
 /* ---- the contact zone (reduce_voi.c) ----------------------------------------------------------- */
 
 /* Bone voxels as world points (float xyz), at their fragments' poses. */
+typedef struct reduce_cloud_grid reduce_cloud_grid;
 typedef struct reduce_cloud {
     float *p;
     size_t n;
+    double lo[3], hi[3];     /* the points' box (reduce__cloud_new) */
+    reduce_cloud_grid *grid; /* the last contact grid's cells of these points, for the next zone on
+                              * the same grid (reduce_voi.c; made and freed with the cloud) */
 } reduce_cloud;
 
 /* The assembly's bone voxels at its poses: made once per fit, for every contact zone of it. 0 or
@@ -200,7 +204,7 @@ typedef struct reduce_cloud {
 int reduce__cloud_new(reduce_cloud *c, const frag *const *asm_, int nasm);
 void reduce__cloud_free(reduce_cloud *c);
 /* reduce_auto_voi over an assembly's points A (made by reduce__cloud_new at the same poses). */
-int reduce__zone_voi(const reduce_cloud *A, const frag *moving, double delta_mm, double margin_mm, double max_mm,
+int reduce__zone_voi(reduce_cloud *A, const frag *moving, double delta_mm, double margin_mm, double max_mm,
                      reduce_voi *voi, double *contact_ml);
 /* 1 when some bone voxel of moving lies within about mm of the others' bone at their poses (on the
  * contact zone's grid: boxes of whole zone_cell_mm cells, so a cell or two farther may count as

@@ -32,18 +32,50 @@ static int cloud_add(reduce_cloud *c, const frag *f)
     return 0;
 }
 
+/* The box of points p[0..n-1] joined to lo, hi (finite points: plain comparisons do fmin's work). */
+static void box_add(const float *p, size_t n, double lo[3], double hi[3])
+{
+    for (size_t i = 0; i < n; i++)
+        for (int a = 0; a < 3; a++) {
+            double x = p[3 * i + a];
+            lo[a] = x < lo[a] ? x : lo[a];
+            hi[a] = x > hi[a] ? x : hi[a];
+        }
+}
+
+/* The assembly's points on the last contact grid: a fit makes many zones, and while the moving
+ * piece stays inside the assembly's box the grid (its corner and size) is the same each time. */
+struct reduce_cloud_grid {
+    double lo[3];
+    int dim[3];
+    uint32_t *cell; /* each point's cell */
+    uint8_t *occ;   /* 1 where a point lies */
+};
+
+static void grid_free(reduce_cloud_grid *g)
+{
+    if (g) {
+        free(g->cell);
+        free(g->occ);
+        free(g);
+    }
+}
+
 int reduce__cloud_new(reduce_cloud *c, const frag *const *asm_, int nasm)
 {
-    *c = (reduce_cloud){0};
+    *c = (reduce_cloud){.lo = {INFINITY, INFINITY, INFINITY}, .hi = {-INFINITY, -INFINITY, -INFINITY}};
     int rc = 0;
     for (int f = 0; f < nasm && rc == 0; f++)
         rc = cloud_add(c, asm_[f]);
+    if (rc == 0)
+        box_add(c->p, c->n, c->lo, c->hi);
     return rc;
 }
 
 void reduce__cloud_free(reduce_cloud *c)
 {
     free(c->p);
+    grid_free(c->grid);
     *c = (reduce_cloud){0};
 }
 
@@ -51,10 +83,12 @@ void reduce__cloud_free(reduce_cloud *c)
 typedef struct zone {
     const reduce_cloud *A; /* the assembly's bone (borrowed) */
     reduce_cloud M;        /* the moving fragment's */
-    uint32_t *cell_a, *cell_m; /* each point's cell */
+    const uint32_t *cell_a; /* each point's cell (A's: A->grid's) */
+    uint32_t *cell_m;
     double lo[3];
     int dim[3];
-    uint8_t *occa, *occm, *dil, *tmp;
+    const uint8_t *occa; /* A->grid's */
+    uint8_t *occm, *dil, *tmp;
     uint8_t *mnear;   /* per moving point: 1 when near the assembly at the delta tried */
 } zone;
 
@@ -71,29 +105,16 @@ static size_t cell_of(const zone *g, const float *x)
 static void zone_free(zone *g)
 {
     free(g->M.p);
-    free(g->cell_a);
     free(g->cell_m);
-    free(g->occa);
     free(g->occm);
     free(g->dil);
     free(g->tmp);
     free(g->mnear);
 }
 
-/* The box of points p[0..n-1] joined to lo, hi (finite points: plain comparisons do fmin's work). */
-static void box_add(const float *p, size_t n, double lo[3], double hi[3])
-{
-    for (size_t i = 0; i < n; i++)
-        for (int a = 0; a < 3; a++) {
-            double x = p[3 * i + a];
-            lo[a] = x < lo[a] ? x : lo[a];
-            hi[a] = x > hi[a] ? x : hi[a];
-        }
-}
-
 /* The moving side's points and the grid around both sides, a cell beyond the points. 0 or FN_E*
  * (free g either way). */
-static int zone_open(zone *g, const reduce_cloud *A, const frag *moving)
+static int zone_open(zone *g, reduce_cloud *A, const frag *moving)
 {
     const double cell = reduce__tune.zone_cell_mm;
     g->A = A;
@@ -102,22 +123,42 @@ static int zone_open(zone *g, const reduce_cloud *A, const frag *moving)
         rc = fn_err_set(FN_EINVAL, "reduce: a fragment has no voxel");
     if (rc)
         return rc;
-    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-    box_add(A->p, A->n, lo, hi);
+    double lo[3] = {A->lo[0], A->lo[1], A->lo[2]}, hi[3] = {A->hi[0], A->hi[1], A->hi[2]};
     box_add(g->M.p, g->M.n, lo, hi);
     size_t n = 1;
+    int same = A->grid != NULL;
     for (int a = 0; a < 3; a++) {
         g->lo[a] = lo[a] - cell;
         g->dim[a] = (int)((hi[a] - lo[a]) / cell) + 3;
         n *= (size_t)g->dim[a];
+        same = same && A->grid->lo[a] == g->lo[a] && A->grid->dim[a] == g->dim[a];
     }
-    g->occa = calloc(n, 1), g->occm = calloc(n, 1), g->dil = malloc(n), g->tmp = malloc(n);
-    g->mnear = malloc(g->M.n);
-    g->cell_a = malloc(A->n * sizeof *g->cell_a), g->cell_m = malloc(g->M.n * sizeof *g->cell_m);
-    if (n > ((size_t)1 << 28) || !g->occa || !g->occm || !g->dil || !g->tmp || !g->mnear || !g->cell_a || !g->cell_m)
+    if (n > ((size_t)1 << 28))
         return fn_err_set(FN_ENOMEM, "reduce: out of memory for the contact grid (%zu cells)", n);
-    for (size_t i = 0; i < A->n; i++)
-        g->occa[g->cell_a[i] = (uint32_t)cell_of(g, A->p + 3 * i)] = 1;
+    if (!same) { /* the assembly's points on this grid, kept for the next zone */
+        reduce_cloud_grid *ag = calloc(1, sizeof *ag);
+        if (ag) {
+            ag->occ = calloc(n, 1);
+            ag->cell = malloc(A->n * sizeof *ag->cell);
+        }
+        if (!ag || !ag->occ || !ag->cell) {
+            grid_free(ag);
+            return fn_err_set(FN_ENOMEM, "reduce: out of memory for the contact grid (%zu cells)", n);
+        }
+        memcpy(ag->lo, g->lo, sizeof ag->lo);
+        memcpy(ag->dim, g->dim, sizeof ag->dim);
+        for (size_t i = 0; i < A->n; i++)
+            ag->occ[ag->cell[i] = (uint32_t)cell_of(g, A->p + 3 * i)] = 1;
+        grid_free(A->grid);
+        A->grid = ag;
+    }
+    g->occa = A->grid->occ;
+    g->cell_a = A->grid->cell;
+    g->occm = calloc(n, 1), g->dil = malloc(n), g->tmp = malloc(n);
+    g->mnear = malloc(g->M.n);
+    g->cell_m = malloc(g->M.n * sizeof *g->cell_m);
+    if (!g->occm || !g->dil || !g->tmp || !g->mnear || !g->cell_m)
+        return fn_err_set(FN_ENOMEM, "reduce: out of memory for the contact grid (%zu cells)", n);
     for (size_t i = 0; i < g->M.n; i++)
         g->occm[g->cell_m[i] = (uint32_t)cell_of(g, g->M.p + 3 * i)] = 1;
     return 0;
@@ -194,7 +235,7 @@ int reduce_auto_voi(const frag *const *asm_, int nasm, const frag *moving, doubl
     return rc;
 }
 
-int reduce__zone_voi(const reduce_cloud *A, const frag *moving, double delta_mm, double margin_mm, double max_mm,
+int reduce__zone_voi(reduce_cloud *A, const frag *moving, double delta_mm, double margin_mm, double max_mm,
                      reduce_voi *voi, double *contact_ml)
 {
     zone g = {0};
