@@ -44,7 +44,11 @@ static void box_add(const float *p, size_t n, double lo[3], double hi[3])
 }
 
 /* The assembly's points on the last contact grid: a fit makes many zones, and while the moving
- * piece stays inside the assembly's box the grid (its corner and size) is the same each time. */
+ * piece lies above the assembly's lower corner the grid's corner is the same each time. The grid is
+ * made GRID_SLACK cells longer on each axis than that zone needed, and a later zone with that corner
+ * that fits in it takes it as it is: the cells beyond the points are empty, so the zone is the same
+ * bit for bit. */
+#define GRID_SLACK 16
 struct reduce_cloud_grid {
     double lo[3];
     int dim[3];
@@ -130,8 +134,11 @@ static int zone_open(zone *g, reduce_cloud *A, const frag *moving)
     for (int a = 0; a < 3; a++) {
         g->lo[a] = lo[a] - cell;
         g->dim[a] = (int)((hi[a] - lo[a]) / cell) + 3;
+        same = same && A->grid->lo[a] == g->lo[a] && A->grid->dim[a] >= g->dim[a];
+    }
+    for (int a = 0; a < 3; a++) {
+        g->dim[a] = same ? A->grid->dim[a] : g->dim[a] + GRID_SLACK;
         n *= (size_t)g->dim[a];
-        same = same && A->grid->lo[a] == g->lo[a] && A->grid->dim[a] == g->dim[a];
     }
     if (n > ((size_t)1 << 28))
         return fn_err_set(FN_ENOMEM, "reduce: out of memory for the contact grid (%zu cells)", n);
