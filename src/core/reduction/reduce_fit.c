@@ -385,6 +385,15 @@ static int zone_voi(fit_state *s, double delta_mm, reduce_voi *voi)
                                       voi, NULL);
 }
 
+/* The fit's metric over voi on the voxel grid itself (the options' count, band and gap): NULL with
+ * fn_err. */
+static reduce_metric *fine_metric(const fit_state *s, const reduce_voi *voi)
+{
+    const reduce_opts *o = s->o;
+    return reduce__metric_with(s->asm_, s->nasm, s->moving, s->bricks, voi, o->count, o->band_mm,
+                               reduce__band_cut(o->band_mm), o->gap_mm);
+}
+
 /* A stage's VOI (given, or the contact zone where the piece is now) and its metric, on the coarse
  * level in the first stage when coarse (and the VOI is automatic). */
 static int stage_metric(fit_state *s, int stage, int coarse)
@@ -408,8 +417,7 @@ static int stage_metric(fit_state *s, int stage, int coarse)
         s->metric = reduce__metric_with(L->asm_, s->nasm, &L->frag[s->nasm], L->bricks, &s->r->voi, o->count, band, 0,
                                         o->gap_mm);
     } else if (rc == 0)
-        s->metric = reduce__metric_with(s->asm_, s->nasm, s->moving, s->bricks, &s->r->voi, o->count, o->band_mm,
-                                        reduce__band_cut(o->band_mm), o->gap_mm);
+        s->metric = fine_metric(s, &s->r->voi);
     return rc == 0 && !s->metric ? FN_EINVAL : rc;
 }
 
@@ -535,8 +543,7 @@ static int local_stands(fit_state *s)
     s->moving->pose = s->attempt_end[last];
     s->r->voi = s->attempt_voi[last];
     reduce_metric_free(s->metric);
-    s->metric = reduce__metric_with(s->asm_, s->nasm, s->moving, s->bricks, &s->r->voi, s->o->count, s->o->band_mm,
-                                    reduce__band_cut(s->o->band_mm), s->o->gap_mm);
+    s->metric = fine_metric(s, &s->r->voi);
     return s->metric ? 0 : FN_EINVAL;
 }
 
@@ -584,8 +591,7 @@ static int stage_global(fit_state *s)
         s->keep_pa = -1;
         return rc;
     }
-    reduce_metric *mu = reduce__metric_with(s->asm_, s->nasm, s->moving, s->bricks, s->o->has_voi ? &s->o->voi : &u,
-                                            s->o->count, s->o->band_mm, reduce__band_cut(s->o->band_mm), s->o->gap_mm);
+    reduce_metric *mu = fine_metric(s, s->o->has_voi ? &s->o->voi : &u);
     if (!mu)
         return FN_EINVAL;
     for (int i = 0; i < n; i++)
@@ -804,12 +810,10 @@ static int stage_winner(fit_state *s)
         s->r->prealigned |= s->attempts == 1 && s->keep_pa == 0;
         return 0;
     }
-    const reduce_opts *o = s->o;
     reduce_voi u = s->attempt_voi[0];
     for (int i = 1; i < s->attempts; i++)
         voi_join(&u, &s->attempt_voi[i]);
-    reduce_metric *mu = reduce__metric_with(s->asm_, s->nasm, s->moving, s->bricks, &u, o->count, o->band_mm,
-                                            reduce__band_cut(o->band_mm), o->gap_mm);
+    reduce_metric *mu = fine_metric(s, &u);
     int rc = mu ? 0 : FN_EINVAL, w = s->attempts - 1;
     double fbest = INFINITY, fu[ENDS];
     for (int i = 0; i < s->attempts && rc == 0; i++) {
@@ -837,8 +841,7 @@ static int stage_winner(fit_state *s)
     s->nrival_ends -= s->nrival_ends == 1; /* the winner alone: no rival */
     if (rc == 0 && w != s->attempts - 1) {
         reduce_metric_free(s->metric);
-        if (!(s->metric = reduce__metric_with(s->asm_, s->nasm, s->moving, s->bricks, &s->r->voi, o->count,
-                                              o->band_mm, reduce__band_cut(o->band_mm), o->gap_mm)))
+        if (!(s->metric = fine_metric(s, &s->r->voi)))
             rc = FN_EINVAL;
     }
     return rc;
