@@ -231,7 +231,8 @@ void reduce_result_free(reduce_result *r);
 /* Pre-alignment (paper Fig. 5), a candidate of reduce_pair's global stage: the moving fragment's
  * long axis onto the assembly's first fragment's (both signs), its centroid on that axis, slid along
  * it (from either end) to contact by the collision query and turned about it in 30 degree steps; the
- * candidate of best metric over the overlap of the two boxes, unless the placed pose beats them. */
+ * candidate of best metric, unless the placed pose beats them, all scored over one VOI: the union
+ * of each one's overlap of the two boxes. */
 
 /* Fits moving (from its current pose, pre-aligned first when o->prealign and it lies more than
  * 10 mm from the assembly) to the assembly. The local fit: with an automatic VOI, two

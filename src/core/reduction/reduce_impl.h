@@ -142,7 +142,7 @@ typedef struct reduce_tuning {
     double placed_mm;        /* nearer than this to the assembly, a piece counts as placed by hand */
     double prealign_turn_deg; /* the candidates' turn about the fixed long axis (a divisor of 180) */
     double prealign_span_mm; /* the slide starts this much beyond the two pieces' lengths */
-    double prealign_box_mm;  /* a candidate is scored over the two boxes' overlap grown by this */
+    double prealign_box_mm;  /* a candidate's box: the two boxes' overlap grown by this */
     double approach_mm;      /* the farthest a piece slides into contact before the fit */
     double slide_step_mm;    /* the slide's smallest step (it advances by the separation bound) */
     int slide_halvings;      /* bisections of the last step to contact */
