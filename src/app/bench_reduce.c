@@ -347,9 +347,9 @@ static int run_case(const vol *ct, uint64_t seed, const opts *o, config_stats *c
             fit_opts(o, k, &ro);
             m.pose = start;
             reduce_result r;
-            double c0 = bench_cpu_us();
+            double c0 = bench_process_cpu_us();
             rc = reduce_pair(asm_, nasm, &m, &ro, &r);
-            double c1 = bench_cpu_us();
+            double c1 = bench_process_cpu_us();
             if (rc)
                 break;
             sample *x = &cs[k].s[cs[k].n++];
@@ -514,8 +514,9 @@ static int usage(FILE *out, int rc)
             "made by fracture_make with its defaults), each from N starts: the true pose turned by up\n"
             "to --max-deg about the centroid and moved by up to --max-mm (collision-free, as a hand\n"
             "leaves it); no pre-alignment. Per method: success_rate (within 1 mm and 1 degree),\n"
-            "median and p90 errors, median_seconds and p90_seconds (CPU time of the fit, immune to\n"
-            "a busy machine; median_wall_seconds beside it), metric_eval_us (one evaluation over a\n"
+            "median and p90 errors, median_seconds and p90_seconds (CPU time of the fit, every\n"
+            "thread's: the global check's candidates run on reduce's threads; immune to a busy\n"
+            "machine; median_wall_seconds beside it), metric_eval_us (one evaluation over a\n"
             "64^3 VOI at the fracture, one core) and fit_eval_mean_us beside it (the mean over the\n"
             "fits' own evaluations, over their VOIs; pooled too).\n\n"
             "  --seeds N        fractures (default 4)\n"
@@ -574,7 +575,7 @@ static int usage(FILE *out, int rc)
             "                   (default 10; a piece's starts follow from its bone's name and\n"
             "                   label alone, whatever else DIR holds). JSON per bone and pooled:\n"
             "                   back_rate (within 1 mm and 1 degree of the CT pose), median/p90\n"
-            "                   errors, median_seconds and p90_seconds (thread CPU), the starts'\n"
+            "                   errors, median_seconds and p90_seconds (the fit's CPU), the starts'\n"
             "                   ranges, and, for the fits not back, whether the metric is better\n"
             "                   at the CT pose than at their end (failed_ct_better_count,\n"
             "                   failed_end_better_count), and how many ended farther off than they\n"

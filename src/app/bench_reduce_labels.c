@@ -27,7 +27,7 @@ static const double START_MM[2] = {3, 10}, START_DEG[2] = {5, 15};
 #define TARGET_MEDIAN_S 0.5
 
 typedef struct fit {
-    double rot, trans, tre, cpu_s; /* from the CT pose at the end; thread CPU seconds */
+    double rot, trans, tre, cpu_s; /* from the CT pose at the end; the fit's CPU seconds (every thread) */
     double start_rot, start_trans; /* the start's offset from the CT pose */
     double metric_ct, metric_end;  /* over the fit's final VOI, at the CT pose and at the end */
 } fit;
@@ -189,9 +189,9 @@ static int fit_piece(const frag *fixed, frag *moving, int starts, const reduce_o
         moving->pose = start;
         reduce_errors(fixed, moving, &ct, &x.start_rot, &x.start_trans, &x.tre);
         reduce_result r;
-        double c0 = bench_cpu_us();
+        double c0 = bench_process_cpu_us();
         rc = reduce_pair(asm_, 1, moving, ro, &r);
-        x.cpu_s = (bench_cpu_us() - c0) * 1e-6;
+        x.cpu_s = (bench_process_cpu_us() - c0) * 1e-6;
         if (rc < 0)
             break;
         reduce_errors(fixed, moving, &ct, &x.rot, &x.trans, &x.tre);

@@ -54,6 +54,8 @@ static void *fit_thread(void *arg)
      * surfaces of a fit near the truth interlock, and the result would be pushed off it by
      * millimetres (the skull: 3.4 mm); the loop takes the result within it (session__propose) */
     o.gap_mm = s->fit_gap_mm;
+    o.threads = 1; /* the fit runs beside the real-time loop: the global check's candidates on this
+                    * worker alone, the other core the loop's */
     o.progress = on_progress;
     o.progress_ctx = s;
     o.cancel = &s->fit_cancel;

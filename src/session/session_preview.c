@@ -149,6 +149,7 @@ static int fit_once(session *s, preview_fit *pf, const loop_scene *sc)
     o.hops = 0;
     o.polish = 0; /* a ghost at the hand's pace: the polish's tenths of a millimetre wait for the fit action */
     o.global_check = 0; /* and so does the global check (it doubles a fit's CPU) */
+    o.threads = 1; /* beside the real-time loop: one worker, at its lower priority */
     o.max_eval = SESSION_PREVIEW_EVALS;
     o.progress = on_progress;
     o.progress_ctx = pf;

@@ -166,11 +166,12 @@ typedef struct reduce_opts {
                           * global stage, which has none (0: no wall, no hand-over) */
     int threads;         /* reduce_case fits the pieces of a first-sweep round, and those of a
                           * second-sweep wave (no bone within about 4 mm of each other), at
-                          * once, on up to this many threads
-                          * (1 .. REDUCE_THREADS_MAX; default 2, the machine's cores); the same
-                          * poses on any number */
+                          * once, and reduce_pair the global stage's candidates, on up to this
+                          * many threads (1 .. REDUCE_THREADS_MAX; default 2, the machine's
+                          * cores); the same poses on any number */
     reduce_progress_fn progress; /* after each iteration; may be NULL. Called on the thread that
-                          * runs the fit (several at once in reduce_case) */
+                          * runs the fit (several at once in reduce_case), never on the threads
+                          * of the global stage's candidates (they report none) */
     void *progress_ctx;
     const atomic_int *cancel; /* may be NULL; once another thread sets it non-zero, the fit stops
                           * within one metric evaluation and returns 1 with the placed pose */
@@ -243,8 +244,8 @@ void reduce_result_free(reduce_result *r);
  * 1 mm or 1 degree) or colliding is tried again from the start turned 8 degrees about the other
  * two principal axes, then 12 degrees about all three; but when the first ends on the wall, the
  * global stage instead: candidate starts (the start, it turned 15 degrees and moved 8 mm either
- * way about and along each principal axis, and the pre-alignment when o->prealign) fitted coarse,
- * the best one or two refined as above without the wall, the end of best metric over the union of
+ * way about and along each principal axis, and the pre-alignment when o->prealign) fitted briefly
+ * (at once, on o->threads threads), the best one or two refined as above without the wall, the end of best metric over the union of
  * their VOIs the result (rivals: see reduce_result). The piece then hops (o->hops). A result that still collides beyond the tolerance is
  * pushed out along the contact normal (up to 5 mm), else the start is kept; a free one is settled
  * (o->settle_mm). A result whose metric is worse than the start's (over the final VOI) is not

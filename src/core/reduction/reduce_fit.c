@@ -7,7 +7,7 @@
  *  3. global:   where the first attempt ended on the wall, or after every local fit
  *               (reduce_opts.global_check, a piece not long): candidate starts (the placed pose,
  *               it turned and moved about its principal axes, the pre-alignment) each fitted
- *               briefly, ranked by their metric over one VOI, the best kept (and a second where
+ *               briefly (at once, on o->threads threads: cand_fit_all), ranked by their metric over one VOI, the best kept (and a second where
  *               about as good), each refined as above but without the wall; after a local fit
  *               that did not end on the wall, only those that beat its end there;
  *  4. winner:   the attempts' ends compared over the union of their VOIs (rivals among them kept);
@@ -24,6 +24,7 @@
 
 #include <math.h>
 #include <nlopt.h>
+#include <pthread.h>
 #include <stdatomic.h>
 #include <stdlib.h>
 #include <string.h>
@@ -533,6 +534,107 @@ static int global_fit(fit_state *s, const pose *cand, pose *end)
     return rc;
 }
 
+/* One global candidate's fit, on a private copy of the fit's state (the moving piece's pose, the
+ * candidate's metric and contact grid, the objective, collision queries without the caches), so
+ * that the candidates run at once on o->threads threads and each ends exactly where it would alone
+ * (the caches change no answer of a query, only its speed). */
+typedef struct cand_fit {
+    pose start, end;
+    reduce_voi v;   /* the contact zone where it ended */
+    int rc;         /* 0; <0: no contact zone (dropped), or FN_ENOMEM */
+    double *hist;   /* its history (joined to the fit's in the candidates' order) */
+    int nhist, evals, iterations, cancelled;
+    int64_t eval_ns;
+} cand_fit;
+
+typedef struct cand_wave {
+    const fit_state *s;
+    cand_fit *c;
+    int n;
+    atomic_int next;
+} cand_wave;
+
+static void *cand_worker(void *arg)
+{
+    cand_wave *w = arg;
+    fit_state t = *w->s;
+    reduce_opts o = *w->s->o;
+    o.progress = NULL; /* called on the fit's own thread alone (reduce.h) */
+    t.o = &o;
+    frag mv = *w->s->moving; /* a struct copy sharing the voxels: only its pose changes */
+    reduce_result r = *w->s->r;
+    t.moving = t.col.moving = &mv;
+    t.col.cache = NULL;
+    t.asm_pts.grid = NULL;
+    t.metric = NULL;
+    t.r = &r;
+    t.coarse = (level){0};
+    for (int i; (i = atomic_fetch_add(&w->next, 1)) < w->n;) {
+        cand_fit *c = &w->c[i];
+        t.obj = w->s->obj;
+        t.obj.o = &o;
+        t.obj.hist = NULL;
+        t.obj.nhist = t.obj.caphist = t.obj.evals = 0;
+        t.obj.eval_ns = 0;
+        t.obj.opt = NULL;
+        r.iterations = 0;
+        if (t.o->cancel && atomic_load(t.o->cancel)) { /* cancelled: the rest dropped */
+            c->rc = -1;
+            c->cancelled = 1;
+            continue;
+        }
+        c->rc = global_fit(&t, &c->start, &c->end);
+        if (c->rc == 0 && !t.o->has_voi) {
+            mv.pose = c->end;
+            c->rc = zone_voi(&t, reduce__tune.zone_delta_mm[1], &c->v);
+        }
+        c->hist = t.obj.hist;
+        c->nhist = t.obj.nhist;
+        c->evals = t.obj.evals;
+        c->eval_ns = t.obj.eval_ns;
+        c->iterations = r.iterations;
+        c->cancelled = t.obj.cancelled;
+    }
+    reduce_metric_free(t.metric);
+    reduce__cloud_grid_free(&t.asm_pts);
+    level_close(&t.coarse);
+    return NULL;
+}
+
+/* The candidates c[0..n-1] fitted (cand_worker) on up to o->threads threads, this one among them;
+ * their evaluations, iterations and histories then added to the fit's, in their order. 0 or
+ * FN_ENOMEM. */
+static int cand_fit_all(fit_state *s, cand_fit *c, int n)
+{
+    if (!s->asm_pts.p && reduce__cloud_new(&s->asm_pts, s->asm_, s->nasm) < 0) /* shared, read-only */
+        return FN_ENOMEM;
+    cand_wave w = {.s = s, .c = c, .n = n};
+    atomic_store(&w.next, 0);
+    pthread_t th[REDUCE_THREADS_MAX];
+    int nth = 0;
+    while (nth + 1 < s->o->threads && nth + 1 < n && nth < REDUCE_THREADS_MAX &&
+           pthread_create(&th[nth], NULL, cand_worker, &w) == 0)
+        nth++;
+    cand_worker(&w);
+    for (int t = 0; t < nth; t++)
+        pthread_join(th[t], NULL);
+    int rc = 0;
+    objective *ob = &s->obj;
+    for (int i = 0; i < n; i++) {
+        for (int k = 0; k < c[i].nhist; k++)
+            hist_add(ob, c[i].hist[k]);
+        free(c[i].hist);
+        c[i].hist = NULL;
+        s->global_evals += c[i].evals;
+        ob->eval_ns += c[i].eval_ns;
+        s->r->iterations += c[i].iterations;
+        ob->cancelled |= c[i].cancelled;
+        if (c[i].rc == FN_ENOMEM && rc == 0)
+            rc = fn_err_set(FN_ENOMEM, "reduce: out of memory for the global stage");
+    }
+    return rc;
+}
+
 /* The local fit stands (the global check found nothing better): the piece back at the last local
  * attempt's end, over that attempt's VOI and metric, as stage_winner expects them. */
 static int local_stands(fit_state *s)
@@ -560,28 +662,24 @@ static int stage_global(fit_state *s)
     const reduce_tuning *T = &reduce__tune;
     objective *ob = &s->obj;
     pose cand[GLOBAL_CANDIDATES], end[GLOBAL_CANDIDATES], base = s->moving->pose;
+    cand_fit cf[GLOBAL_CANDIDATES] = {0};
     double score[GLOBAL_CANDIDATES];
-    int pa, n = global_candidates(s, cand, &pa), evals0 = ob->evals, rc = 0, nok = 0;
+    int pa, n = global_candidates(s, cand, &pa), rc = 0, nok = 0;
     reduce_voi u = {{INFINITY, INFINITY, INFINITY}, {-INFINITY, -INFINITY, -INFINITY}};
-    for (int i = 0; i < n && rc == 0 && !ob->cancelled; i++) {
-        reduce_voi v;
-        int ci = global_fit(s, &cand[i], &end[i]);
+    for (int i = 0; i < n; i++)
+        cf[i].start = cand[i];
+    s->global_evals = 0;
+    rc = cand_fit_all(s, cf, n);
+    for (int i = 0; i < n && rc == 0; i++) {
+        end[i] = cf[i].end;
         score[i] = INFINITY;
-        if (ci == 0 && !s->o->has_voi) {
-            s->moving->pose = end[i];
-            ci = zone_voi(s, T->zone_delta_mm[1], &v);
-        }
-        if (ci == FN_ENOMEM)
-            rc = ci;
-        else if (ci == 0) {
+        if (cf[i].rc == 0) {
             score[i] = 0;
             nok++;
             if (!s->o->has_voi)
-                voi_join(&u, &v);
+                voi_join(&u, &cf[i].v);
         }
     }
-    s->global_evals = ob->evals - evals0;
-    ob->evals = evals0;
     s->moving->pose = base;
     if (rc == 0 && !ob->cancelled && nok == 0 && s->attempts > 0)
         return local_stands(s);

@@ -203,6 +203,8 @@ typedef struct reduce_cloud {
  * FN_ENOMEM (free it either way). */
 int reduce__cloud_new(reduce_cloud *c, const frag *const *asm_, int nasm);
 void reduce__cloud_free(reduce_cloud *c);
+/* Frees the cloud's contact grid alone (a copy of a cloud that shares its points frees its own). */
+void reduce__cloud_grid_free(reduce_cloud *c);
 /* reduce_auto_voi over an assembly's points A (made by reduce__cloud_new at the same poses). */
 int reduce__zone_voi(reduce_cloud *A, const frag *moving, double delta_mm, double margin_mm, double max_mm,
                      reduce_voi *voi, double *contact_ml);

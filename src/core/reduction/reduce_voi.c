@@ -76,6 +76,12 @@ int reduce__cloud_new(reduce_cloud *c, const frag *const *asm_, int nasm)
     return rc;
 }
 
+void reduce__cloud_grid_free(reduce_cloud *c)
+{
+    grid_free(c->grid);
+    c->grid = NULL;
+}
+
 void reduce__cloud_free(reduce_cloud *c)
 {
     free(c->p);
