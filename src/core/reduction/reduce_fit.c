@@ -7,8 +7,9 @@
  *  3. global:   where the first attempt ended on the wall, or after every local fit
  *               (reduce_opts.global_check, a piece not long): candidate starts (the placed pose,
  *               it turned and moved about its principal axes, the pre-alignment) each fitted
- *               briefly (at once, on o->threads threads: cand_fit_all), ranked by their metric over one VOI, the best kept (and a second where
- *               about as good), each refined as above but without the wall; after a local fit
+ *               briefly (on o->threads threads, beside the local fit under the check:
+ *               cand_launch, cand_collect), ranked by their metric over one VOI, the best kept
+ *               (and a second where about as good), each refined as above but without the wall; after a local fit
  *               that did not end on the wall, only those that beat its end there;
  *  4. winner:   the attempts' ends compared over the union of their VOIs (rivals among them kept);
  *  5. rivals:   whether the first stage's starts ended in rival basins;
@@ -536,55 +537,58 @@ static int global_fit(fit_state *s, const pose *cand, pose *end)
 
 /* One global candidate's fit, on a private copy of the fit's state (the moving piece's pose, the
  * candidate's metric and contact grid, the objective, collision queries without the caches), so
- * that the candidates run at once on o->threads threads and each ends exactly where it would alone
- * (the caches change no answer of a query, only its speed). */
+ * that the candidates run on o->threads threads, beside the local fit when the global check is
+ * on, and each ends exactly where it would alone (the caches change no answer of a query, only
+ * its speed). */
 typedef struct cand_fit {
     pose start, end;
     reduce_voi v;   /* the contact zone where it ended */
-    int rc;         /* 0; <0: no contact zone (dropped), or FN_ENOMEM */
+    int rc;         /* 0; <0: no contact zone or not fitted (dropped), or FN_ENOMEM */
     double *hist;   /* its history (joined to the fit's in the candidates' order) */
     int nhist, evals, iterations, cancelled;
     int64_t eval_ns;
 } cand_fit;
 
+/* The global stage's candidates and their fits: the state they start from (taken when they were
+ * made; the workers copy it, never the fit's own, which the local fit goes on changing), the
+ * threads. */
 typedef struct cand_wave {
-    const fit_state *s;
-    cand_fit *c;
-    int n;
-    atomic_int next;
+    fit_state tmpl;
+    frag mv;           /* the moving piece at the placed pose (tmpl.moving) */
+    reduce_result r;   /* tmpl.r */
+    pose cand[GLOBAL_CANDIDATES];
+    cand_fit c[GLOBAL_CANDIDATES];
+    int n, pa;         /* pa: the pre-aligned candidate's index, or -1 */
+    atomic_int next, stop;
+    pthread_t th[REDUCE_THREADS_MAX];
+    int nth;
 } cand_wave;
 
 static void *cand_worker(void *arg)
 {
     cand_wave *w = arg;
-    fit_state t = *w->s;
-    reduce_opts o = *w->s->o;
+    fit_state t = w->tmpl;
+    reduce_opts o = *w->tmpl.o;
     o.progress = NULL; /* called on the fit's own thread alone (reduce.h) */
     t.o = &o;
-    frag mv = *w->s->moving; /* a struct copy sharing the voxels: only its pose changes */
-    reduce_result r = *w->s->r;
+    frag mv = w->mv; /* a struct copy sharing the voxels: only its pose changes */
+    reduce_result r = w->r;
     t.moving = t.col.moving = &mv;
-    t.col.cache = NULL;
-    t.asm_pts.grid = NULL;
-    t.metric = NULL;
     t.r = &r;
-    t.coarse = (level){0};
     for (int i; (i = atomic_fetch_add(&w->next, 1)) < w->n;) {
         cand_fit *c = &w->c[i];
-        t.obj = w->s->obj;
-        t.obj.o = &o;
-        t.obj.hist = NULL;
-        t.obj.nhist = t.obj.caphist = t.obj.evals = 0;
-        t.obj.eval_ns = 0;
-        t.obj.opt = NULL;
-        r.iterations = 0;
-        if (t.o->cancel && atomic_load(t.o->cancel)) { /* cancelled: the rest dropped */
-            c->rc = -1;
+        c->rc = -1;
+        if (atomic_load(&w->stop))
+            continue; /* the fit failed: the rest dropped */
+        if (o.cancel && atomic_load(o.cancel)) { /* cancelled: the rest dropped */
             c->cancelled = 1;
             continue;
         }
+        t.obj = w->tmpl.obj;
+        t.obj.o = &o;
+        r.iterations = 0;
         c->rc = global_fit(&t, &c->start, &c->end);
-        if (c->rc == 0 && !t.o->has_voi) {
+        if (c->rc == 0 && !o.has_voi) {
             mv.pose = c->end;
             c->rc = zone_voi(&t, reduce__tune.zone_delta_mm[1], &c->v);
         }
@@ -601,35 +605,66 @@ static void *cand_worker(void *arg)
     return NULL;
 }
 
-/* The candidates c[0..n-1] fitted (cand_worker) on up to o->threads threads, this one among them;
- * their evaluations, iterations and histories then added to the fit's, in their order. 0 or
- * FN_ENOMEM. */
-static int cand_fit_all(fit_state *s, cand_fit *c, int n)
+/* The candidates made where the piece is now (global_candidates) and handed to o->threads - 1
+ * worker threads (cand_worker), which start on them at once; cand_collect joins them. 0 or
+ * FN_ENOMEM (no thread started then). */
+static int cand_launch(fit_state *s, cand_wave *w)
 {
     if (!s->asm_pts.p && reduce__cloud_new(&s->asm_pts, s->asm_, s->nasm) < 0) /* shared, read-only */
         return FN_ENOMEM;
-    cand_wave w = {.s = s, .c = c, .n = n};
-    atomic_store(&w.next, 0);
-    pthread_t th[REDUCE_THREADS_MAX];
-    int nth = 0;
-    while (nth + 1 < s->o->threads && nth + 1 < n && nth < REDUCE_THREADS_MAX &&
-           pthread_create(&th[nth], NULL, cand_worker, &w) == 0)
-        nth++;
-    cand_worker(&w);
-    for (int t = 0; t < nth; t++)
-        pthread_join(th[t], NULL);
+    w->n = global_candidates(s, w->cand, &w->pa);
+    memset(w->c, 0, sizeof w->c);
+    for (int i = 0; i < w->n; i++)
+        w->c[i].start = w->cand[i];
+    w->tmpl = *s;
+    w->mv = *s->moving;
+    w->r = *s->r;
+    fit_state *t = &w->tmpl;
+    t->moving = t->col.moving = &w->mv;
+    t->r = &w->r;
+    t->col.cache = NULL;
+    t->asm_pts.grid = NULL;
+    t->metric = NULL;
+    t->coarse = (level){0};
+    t->obj.nowall = 1;
+    t->obj.hist = NULL;
+    t->obj.nhist = t->obj.caphist = t->obj.evals = 0;
+    t->obj.eval_ns = 0;
+    t->obj.opt = NULL;
+    t->obj.cancelled = 0;
+    atomic_store(&w->next, 0);
+    atomic_store(&w->stop, 0);
+    w->nth = 0;
+    while (w->nth + 1 < s->o->threads && w->nth + 1 < w->n && w->nth < REDUCE_THREADS_MAX &&
+           pthread_create(&w->th[w->nth], NULL, cand_worker, w) == 0)
+        w->nth++;
+    return 0;
+}
+
+/* This thread fits the candidates left (none when stop: the fit failed), the workers are joined,
+ * and the candidates' evaluations, iterations and histories are added to the fit's, in their
+ * order. 0 or FN_ENOMEM. */
+static int cand_collect(fit_state *s, cand_wave *w, int stop)
+{
+    if (stop)
+        atomic_store(&w->stop, 1);
+    cand_worker(w);
+    for (int t = 0; t < w->nth; t++)
+        pthread_join(w->th[t], NULL);
     int rc = 0;
     objective *ob = &s->obj;
-    for (int i = 0; i < n; i++) {
-        for (int k = 0; k < c[i].nhist; k++)
-            hist_add(ob, c[i].hist[k]);
-        free(c[i].hist);
-        c[i].hist = NULL;
-        s->global_evals += c[i].evals;
-        ob->eval_ns += c[i].eval_ns;
-        s->r->iterations += c[i].iterations;
-        ob->cancelled |= c[i].cancelled;
-        if (c[i].rc == FN_ENOMEM && rc == 0)
+    s->global_evals = 0;
+    for (int i = 0; i < w->n; i++) {
+        cand_fit *c = &w->c[i];
+        for (int k = 0; k < c->nhist; k++)
+            hist_add(ob, c->hist[k]);
+        free(c->hist);
+        c->hist = NULL;
+        s->global_evals += c->evals;
+        ob->eval_ns += c->eval_ns;
+        s->r->iterations += c->iterations;
+        ob->cancelled |= c->cancelled;
+        if (c->rc == FN_ENOMEM && rc == 0)
             rc = fn_err_set(FN_ENOMEM, "reduce: out of memory for the global stage");
     }
     return rc;
@@ -657,30 +692,24 @@ static int local_stands(fit_state *s)
  * reduce --labels --starts 40, every candidate refined): 94 of 120 checks found none better, and in
  * none of those did the refinement bring back a fit that the local fit had missed. Its
  * evaluations do not count against o->max_eval (they are reported with the others). */
-static int stage_global(fit_state *s)
+static int stage_global(fit_state *s, const cand_wave *w)
 {
     const reduce_tuning *T = &reduce__tune;
     objective *ob = &s->obj;
-    pose cand[GLOBAL_CANDIDATES], end[GLOBAL_CANDIDATES], base = s->moving->pose;
-    cand_fit cf[GLOBAL_CANDIDATES] = {0};
+    pose end[GLOBAL_CANDIDATES], base = s->moving->pose;
     double score[GLOBAL_CANDIDATES];
-    int pa, n = global_candidates(s, cand, &pa), rc = 0, nok = 0;
+    int pa = w->pa, n = w->n, rc = 0, nok = 0;
     reduce_voi u = {{INFINITY, INFINITY, INFINITY}, {-INFINITY, -INFINITY, -INFINITY}};
-    for (int i = 0; i < n; i++)
-        cf[i].start = cand[i];
-    s->global_evals = 0;
-    rc = cand_fit_all(s, cf, n);
-    for (int i = 0; i < n && rc == 0; i++) {
-        end[i] = cf[i].end;
+    for (int i = 0; i < n; i++) {
+        end[i] = w->c[i].end;
         score[i] = INFINITY;
-        if (cf[i].rc == 0) {
+        if (w->c[i].rc == 0) {
             score[i] = 0;
             nok++;
             if (!s->o->has_voi)
-                voi_join(&u, &cf[i].v);
+                voi_join(&u, &w->c[i].v);
         }
     }
-    s->moving->pose = base;
     if (rc == 0 && !ob->cancelled && nok == 0 && s->attempts > 0)
         return local_stands(s);
     if (rc || ob->cancelled || nok == 0) {
@@ -1208,17 +1237,31 @@ int reduce_pair(const frag *const *asm_, int nasm, frag *moving, const reduce_op
     if (!asm_ || nasm < 1 || !moving || !o || !r)
         return fn_err_set(FN_EINVAL, "reduce: no fragments");
     fit_state s;
-    int rc = stage_open(&s, asm_, nasm, moving, o, r);
+    cand_wave w;
+    int rc = stage_open(&s, asm_, nasm, moving, o, r), launched = 0;
     if (rc == 0)
         rc = stage_start(&s);
-    if (rc == 0 && (rc = stage_local(&s)) == 0 && o->global_check && !piece_is_long(&s) && !s.obj.cancelled) {
-        s.moving->pose = s.r->start; /* the global check, around where the hand left the piece (not
-                                      * for a long piece: see reduce_opts.global_check) */
+    /* the global check, around where the hand left the piece (not for a long piece: see
+     * reduce_opts.global_check): its candidates start on the other threads beside the local fit */
+    int check = rc == 0 && o->global_check && !piece_is_long(&s);
+    if (check && (rc = cand_launch(&s, &w)) == 0)
+        launched = 1;
+    if (rc == 0)
+        rc = stage_local(&s);
+    if (rc == 0 && check && !s.obj.cancelled)
+        rc = 1;
+    if (rc == 1 && !launched && (rc = cand_launch(&s, &w)) == 0) { /* the wall, without the check */
+        launched = 1;
         rc = 1;
     }
+    if (launched) {
+        int rc2 = cand_collect(&s, &w, rc < 0);
+        rc = rc < 0 ? rc : rc2 < 0 ? rc2 : rc;
+    }
     if (rc == 1) {
+        s.moving->pose = s.r->start;
         s.obj.nowall = 1;
-        rc = stage_global(&s);
+        rc = stage_global(&s, &w);
         if (rc == 0)
             rc = stage_attempts(&s);
     }
