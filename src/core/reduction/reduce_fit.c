@@ -671,13 +671,16 @@ static int cand_collect(fit_state *s, cand_wave *w, int stop)
 }
 
 /* The local fit stands (the global check found nothing better): the piece back at the last local
- * attempt's end, over that attempt's VOI and metric, as stage_winner expects them. */
+ * attempt's end, over that attempt's VOI and metric, as stage_winner expects them (the metric the
+ * local fit ended with when it is over that VOI: the candidates ran on copies). */
 static int local_stands(fit_state *s)
 {
     int last = s->attempts - 1;
     s->nkeep = 0;
     s->keep_pa = -1;
     s->moving->pose = s->attempt_end[last];
+    if (s->metric && !memcmp(&s->r->voi, &s->attempt_voi[last], sizeof s->r->voi))
+        return 0;
     s->r->voi = s->attempt_voi[last];
     reduce_metric_free(s->metric);
     s->metric = fine_metric(s, &s->r->voi);
