@@ -944,6 +944,53 @@ static void test_reduce_global_check_keeps_a_good_fit(void **st)
     free(dir);
 }
 
+/* The global stage's candidates run on o->threads threads, each on a copy of the fit's state as it
+ * was when they were made (under the global check, beside the local fit): the same fit, pose,
+ * evaluations and history to the last bit, on 1, 2 or 3 threads; under the check (a start turned
+ * 10 degrees) and without it, from a start 20 mm off (past the local fit's 12 mm wall). */
+static void test_reduce_global_stage_same_on_any_threads(void **st)
+{
+    char *dir = tu_tmpdir("reduce_threads");
+    planning_case *c = fractured(dir, 2, 5);
+    const frag *m = &c->frag[1], *others[1] = {&c->frag[0]};
+    pose want = pose_compose(c->frag[0].pose, pose_compose(pose_inverse(c->truth[0]), c->truth[1]));
+    double ax[3] = {m->axes[0][0], m->axes[1][0], m->axes[2][0]}, aw[3], cw[3], rc[3];
+    pose_rotate(&want, ax, aw);
+    pose_apply(&want, m->centroid, cw);
+    pose turn = pose_from_axis_angle(aw, 10 * 3.14159265358979 / 180), starts[2] = {pose_compose(turn, want), want};
+    pose_rotate(&turn, cw, rc);
+    for (int a = 0; a < 3; a++) {
+        starts[0].t[a] += cw[a] - rc[a];
+        starts[1].t[a] += 20 * aw[a];
+    }
+    for (int k = 0; k < 2; k++) {
+        reduce_result r[3];
+        for (int t = 0; t < 3; t++) {
+            reduce_opts o;
+            reduce_defaults(&o);
+            o.threads = t + 1;
+            o.global_check = k == 0;
+            pose out;
+            if (reduce_fit_one(others, 1, m, &starts[k], &o, &out, &r[t]) != 0)
+                fail_msg("start %d, %d threads: %s", k, t + 1, fn_err_msg());
+        }
+        for (int t = 1; t < 3; t++) {
+            if (memcmp(&r[t].end, &r[0].end, sizeof r[0].end) || r[t].evaluations != r[0].evaluations ||
+                r[t].iterations != r[0].iterations || r[t].nhistory != r[0].nhistory ||
+                memcmp(r[t].history, r[0].history, (size_t)r[0].nhistory * sizeof *r[0].history))
+                fail_msg("start %d: on %d threads the fit differs from one thread's (%d against %d evaluations, "
+                         "%d against %d iterations, the end %g mm and %g degrees apart)",
+                         k, t + 1, r[t].evaluations, r[0].evaluations, r[t].iterations, r[0].iterations,
+                         pose_distance(r[t].end, r[0].end), pose_angle_between(r[t].end, r[0].end) * 57.29578);
+        }
+        for (int t = 0; t < 3; t++)
+            reduce_result_free(&r[t]);
+    }
+    case_free(c);
+    tu_rmtree(dir);
+    free(dir);
+}
+
 /* A long piece hops (reduce_opts.hops): a fit of a tube's piece from 6-10 degrees about its axis
  * stops in a ripple of the metric; the hops go on from there to a better metric over the same
  * VOI (more evaluations). A piece that is not long hops too, strictly (test_reduce_rival_hops):
@@ -1268,6 +1315,7 @@ int main(void)
         cmocka_unit_test(test_reduce_long_piece_hops),
         cmocka_unit_test(test_reduce_rival_hops),
         cmocka_unit_test(test_reduce_global_check_keeps_a_good_fit),
+        cmocka_unit_test(test_reduce_global_stage_same_on_any_threads),
         cmocka_unit_test(test_reduce_stays_at_the_truth_on_one_grid),
         cmocka_unit_test(test_polish_keeps_a_resampled_piece_nearer),
         cmocka_unit_test(test_same_fit_with_or_without_prealign),
