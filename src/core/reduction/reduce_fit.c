@@ -9,8 +9,9 @@
  *               it turned and moved about its principal axes, the pre-alignment) each fitted
  *               briefly (on o->threads threads, beside the local fit under the check:
  *               cand_launch, cand_collect), ranked by their metric over one VOI, the best kept
- *               (and a second where about as good), each refined as above but without the wall; after a local fit
- *               that did not end on the wall, only those that beat its end there;
+ *               (and a second where about as good), each refined as above but without the wall;
+ *               after a local fit that did not end on the wall, only those that beat its end
+ *               there;
  *  4. winner:   the attempts' ends compared over the union of their VOIs (rivals among them kept);
  *  5. rivals:   whether the first stage's starts ended in rival basins;
  *  6. hops:     the fit again from turns (a long piece) or moves of the result, the best kept;
