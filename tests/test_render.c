@@ -1994,7 +1994,11 @@ static void test_navigate_window_seed_mode_previews(void **st)
  * window took letters a keyboard user steers with (l its layout, a its axes). Typed in the window
  * (xdotool), d pushes the selected fragment right on screen as it does in the terminal (the camera
  * frame follows the anterior view), and q quits and saves: the screenshot matches `fracnav render`
- * of the saved case, in the 3D layout (--preview off: render draws no ghost). */
+ * of the saved case, in the 3D layout (--preview off: render draws no ghost). l and a come first,
+ * with x (stop all motion) between them: a key holds its axis until 150 ms after the last key
+ * typed, so on a loaded machine, where the keys reach the window bunched, an a typed after the d's
+ * had the last word on the x axis, and l's turn ran beside them (0.28 mm right and 0.26 degrees,
+ * the picture 1.5 pixels left, beside two busy loops). Typed before them, the last word is d's. */
 static void test_navigate_window_keyboard_steers(void **st)
 {
     (void)st;
@@ -2012,7 +2016,7 @@ static void test_navigate_window_keyboard_steers(void **st)
              "--preview off --screenshot "
              "'%s/shot.png' </dev/null & nav=$!; "
              "if timeout 300 xdotool search --sync --onlyvisible --name '^fracnav$' >/dev/null; then "
-             "xdotool key --delay 40 d d d d d d d d d d d d d d d d d d d d l a q; "
+             "xdotool key --delay 40 l x a d d d d d d d d d d d d d d d d d d d d q; "
              "else echo 'no fracnav window appeared'; kill $nav; fi; wait $nav",
              case_dir, dir);
     int rc = run_in_window(xvfb, display, &out, cmd);
