@@ -817,17 +817,28 @@ static vol *tube(void)
 
 /* The fit from a start turned deg about principal axis `axis` of piece 2 through its centroid
  * (true pose want), with o->hops = hops and o->global_check = global_check. */
-static void fit_turned_about(const planning_case *c, const pose *want, int axis, double deg, int hops,
-                             int global_check, reduce_result *r)
+/* m's pose want turned deg about its principal axis turn_axis (through its centroid) and moved mm
+ * along its principal axis move_axis. */
+static pose turned_moved(const frag *m, const pose *want, int turn_axis, double deg, int move_axis, double mm)
 {
-    const frag *m = &c->frag[1], *others[1] = {&c->frag[0]};
-    double ax[3] = {m->axes[0][axis], m->axes[1][axis], m->axes[2][axis]}, aw[3], cw[3], rc[3];
+    double ax[3] = {m->axes[0][turn_axis], m->axes[1][turn_axis], m->axes[2][turn_axis]};
+    double sx[3] = {m->axes[0][move_axis], m->axes[1][move_axis], m->axes[2][move_axis]};
+    double aw[3], sw[3], cw[3], rc[3];
     pose_rotate(want, ax, aw);
+    pose_rotate(want, sx, sw);
     pose_apply(want, m->centroid, cw);
     pose turn = pose_from_axis_angle(aw, deg * 3.14159265358979 / 180), start = pose_compose(turn, *want);
     pose_rotate(&turn, cw, rc);
     for (int a = 0; a < 3; a++)
-        start.t[a] += cw[a] - rc[a];
+        start.t[a] += cw[a] - rc[a] + mm * sw[a];
+    return start;
+}
+
+static void fit_turned_about(const planning_case *c, const pose *want, int axis, double deg, int hops,
+                             int global_check, reduce_result *r)
+{
+    const frag *m = &c->frag[1], *others[1] = {&c->frag[0]};
+    pose start = turned_moved(m, want, axis, deg, axis, 0);
     reduce_opts o;
     reduce_defaults(&o);
     o.hops = hops;
@@ -962,17 +973,8 @@ static void test_reduce_global_check_brings_back_a_missed_fit(void **st)
     } t[] = {{2, 18}, {0, 25}};
     int missed = 0;
     for (size_t i = 0; i < sizeof t / sizeof *t; i++) {
-        int turn_axis = t[i].axis, move_axis = (t[i].axis + 1) % 3;
-        double ax[3] = {m->axes[0][turn_axis], m->axes[1][turn_axis], m->axes[2][turn_axis]};
-        double sx[3] = {m->axes[0][move_axis], m->axes[1][move_axis], m->axes[2][move_axis]};
-        double aw[3], sw[3], cw[3], rc[3];
-        pose_rotate(&want, ax, aw);
-        pose_rotate(&want, sx, sw);
-        pose_apply(&want, m->centroid, cw);
-        pose turn = pose_from_axis_angle(aw, t[i].deg * 3.14159265358979 / 180), start = pose_compose(turn, want);
-        pose_rotate(&turn, cw, rc);
-        for (int a = 0; a < 3; a++)
-            start.t[a] += cw[a] - rc[a] + 15 * sw[a];
+        int turn_axis = t[i].axis;
+        pose start = turned_moved(m, &want, turn_axis, t[i].deg, (turn_axis + 1) % 3, 15);
         double rot[2], trans[2];
         for (int check = 0; check < 2; check++) {
             reduce_opts o;
@@ -1014,15 +1016,7 @@ static void test_reduce_global_stage_same_on_any_threads(void **st)
     planning_case *c = fractured(dir, 2, 5);
     const frag *m = &c->frag[1], *others[1] = {&c->frag[0]};
     pose want = pose_compose(c->frag[0].pose, pose_compose(pose_inverse(c->truth[0]), c->truth[1]));
-    double ax[3] = {m->axes[0][0], m->axes[1][0], m->axes[2][0]}, aw[3], cw[3], rc[3];
-    pose_rotate(&want, ax, aw);
-    pose_apply(&want, m->centroid, cw);
-    pose turn = pose_from_axis_angle(aw, 10 * 3.14159265358979 / 180), starts[2] = {pose_compose(turn, want), want};
-    pose_rotate(&turn, cw, rc);
-    for (int a = 0; a < 3; a++) {
-        starts[0].t[a] += cw[a] - rc[a];
-        starts[1].t[a] += 20 * aw[a];
-    }
+    pose starts[2] = {turned_moved(m, &want, 0, 10, 0, 0), turned_moved(m, &want, 0, 0, 0, 20)};
     for (int k = 0; k < 2; k++) {
         reduce_result r[3];
         for (int t = 0; t < 3; t++) {
