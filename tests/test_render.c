@@ -1416,7 +1416,7 @@ static void test_navigate_window_matches_render(void **st)
         fail_msg("the window's screenshot shows no fragments (%ld content pixels)", r.content);
     if (r.differ > 768L * (768 - WINDOW_HUD_ROWS) / 100)
         fail_msg("the window's screenshot differs from the OSMesa render in %ld pixels", r.differ);
-    if (!(r.c1 > r.c0 + 3))
+    if (!(r.c1 > r.c0 + 1))
         fail_msg("pushing right moved the picture from column %.1f to %.1f", r.c0, r.c1);
     tu_rmtree(dir);
     free(dir);
@@ -1998,7 +1998,9 @@ static void test_navigate_window_seed_mode_previews(void **st)
  * with x (stop all motion) between them: a key holds its axis until 150 ms after the last key
  * typed, so on a loaded machine, where the keys reach the window bunched, an a typed after the d's
  * had the last word on the x axis, and l's turn ran beside them (0.28 mm right and 0.26 degrees,
- * the picture 1.5 pixels left, beside two busy loops). Typed before them, the last word is d's. */
+ * the picture 1.5 pixels left, beside two busy loops). Typed before them, the last word is d's;
+ * bunched, the d's give one hold, 0.28 mm and 1.7 pixels right (beside a busy loop and ASan), not
+ * twenty: the picture must move right by more than a pixel. */
 static void test_navigate_window_keyboard_steers(void **st)
 {
     (void)st;
