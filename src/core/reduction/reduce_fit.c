@@ -702,7 +702,7 @@ static int stage_global(fit_state *s, const cand_wave *w)
     objective *ob = &s->obj;
     pose end[GLOBAL_CANDIDATES], base = s->moving->pose;
     double score[GLOBAL_CANDIDATES];
-    int pa = w->pa, n = w->n, rc = 0, nok = 0;
+    int pa = w->pa, n = w->n, nok = 0;
     reduce_voi u = {{INFINITY, INFINITY, INFINITY}, {-INFINITY, -INFINITY, -INFINITY}};
     for (int i = 0; i < n; i++) {
         end[i] = w->c[i].end;
@@ -714,13 +714,13 @@ static int stage_global(fit_state *s, const cand_wave *w)
                 voi_join(&u, &w->c[i].v);
         }
     }
-    if (rc == 0 && !ob->cancelled && nok == 0 && s->attempts > 0)
+    if (!ob->cancelled && nok == 0 && s->attempts > 0)
         return local_stands(s);
-    if (rc || ob->cancelled || nok == 0) {
+    if (ob->cancelled || nok == 0) {
         s->keep[0] = base; /* nothing ranked: the fit goes on from the placed pose */
         s->nkeep = 1;
         s->keep_pa = -1;
-        return rc;
+        return 0;
     }
     reduce_metric *mu = fine_metric(s, s->o->has_voi ? &s->o->voi : &u);
     if (!mu)
