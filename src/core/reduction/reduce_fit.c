@@ -384,8 +384,8 @@ static int zone_voi(fit_state *s, double delta_mm, reduce_voi *voi)
     int rc = 0;
     if (!s->asm_pts.p)
         rc = reduce__cloud_new(&s->asm_pts, s->asm_, s->nasm);
-    return rc ? rc : reduce__zone_voi(&s->asm_pts, s->moving, delta_mm, reduce__tune.zone_margin_mm, s->o->voi_max_mm,
-                                      voi, NULL);
+    return rc ? rc : reduce__zone_voi(&s->asm_pts, s->moving, s->bricks, delta_mm, reduce__tune.zone_margin_mm,
+                                      s->o->voi_max_mm, voi, NULL);
 }
 
 /* The fit's metric over voi on the voxel grid itself (the options' count, band and gap): NULL with
@@ -601,18 +601,20 @@ static void *cand_worker(void *arg)
         c->cancelled = t.obj.cancelled;
     }
     reduce_metric_free(t.metric);
-    reduce__cloud_grid_free(&t.asm_pts);
     level_close(&t.coarse);
     return NULL;
 }
 
 /* The candidates made where the piece is now (global_candidates) and handed to o->threads - 1
  * worker threads (cand_worker), which start on them at once; cand_collect joins them. 0 or
- * FN_ENOMEM (no thread started then). */
+ * FN_E* (no thread started then). */
 static int cand_launch(fit_state *s, cand_wave *w)
 {
-    if (!s->asm_pts.p && reduce__cloud_new(&s->asm_pts, s->asm_, s->nasm) < 0) /* shared, read-only */
-        return FN_ENOMEM;
+    int rc = s->asm_pts.p ? 0 : reduce__cloud_new(&s->asm_pts, s->asm_, s->nasm);
+    if (rc == 0 && !s->o->has_voi)
+        rc = reduce__cloud_grid(&s->asm_pts); /* shared, read-only */
+    if (rc)
+        return rc;
     w->n = global_candidates(s, w->cand, &w->pa);
     memset(w->c, 0, sizeof w->c);
     for (int i = 0; i < w->n; i++)
@@ -624,7 +626,6 @@ static int cand_launch(fit_state *s, cand_wave *w)
     t->moving = t->col.moving = &w->mv;
     t->r = &w->r;
     t->col.cache = NULL;
-    t->asm_pts.grid = NULL;
     t->metric = NULL;
     t->coarse = (level){0};
     t->obj.nowall = 1;

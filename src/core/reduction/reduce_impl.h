@@ -195,19 +195,21 @@ typedef struct reduce_cloud {
     float *p;
     size_t n;
     double lo[3], hi[3];     /* the points' box (reduce__cloud_new) */
-    reduce_cloud_grid *grid; /* the last contact grid's cells of these points, for the next zone on
-                              * the same grid (reduce_voi.c; made and freed with the cloud) */
+    reduce_cloud_grid *grid; /* the contact grid of these points (reduce__cloud_grid; freed with
+                              * the cloud) */
 } reduce_cloud;
 
 /* The assembly's bone voxels at its poses: made once per fit, for every contact zone of it. 0 or
  * FN_ENOMEM (free it either way). */
 int reduce__cloud_new(reduce_cloud *c, const frag *const *asm_, int nasm);
 void reduce__cloud_free(reduce_cloud *c);
-/* Frees the cloud's contact grid alone (a copy of a cloud that shares its points frees its own). */
-void reduce__cloud_grid_free(reduce_cloud *c);
-/* reduce_auto_voi over an assembly's points A (made by reduce__cloud_new at the same poses). */
-int reduce__zone_voi(reduce_cloud *A, const frag *moving, double delta_mm, double margin_mm, double max_mm,
-                     reduce_voi *voi, double *contact_ml);
+/* The cloud's contact grid, made once (reduce_voi.c); after it, zones only read the cloud, and
+ * threads may share it. 0 or FN_E*. */
+int reduce__cloud_grid(reduce_cloud *c);
+/* reduce_auto_voi over an assembly's points A (made by reduce__cloud_new at the same poses); b:
+ * the moving fragment's bricks (reduce__bricks_new), or NULL (made for the call). */
+int reduce__zone_voi(reduce_cloud *A, const frag *moving, const reduce_bricks *b, double delta_mm, double margin_mm,
+                     double max_mm, reduce_voi *voi, double *contact_ml);
 /* 1 when some bone voxel of moving lies within about mm of the others' bone at their poses (on the
  * contact zone's grid: boxes of whole zone_cell_mm cells, so a cell or two farther may count as
  * near), 0 when none does, or FN_E*. */

@@ -418,14 +418,19 @@ static void sample_into(const frag *g, const frag *f, const int c0[3], const int
 static void voi_bone(const frag *const *asm_, int nasm, const int c0[3], const int d[3], uint8_t *bone)
 {
     const frag *g = asm_[0];
-    size_t idx = 0;
+    /* the cells along i inside g's crop, [i0, i1) */
+    int i0 = c0[0] < 0 ? -c0[0] : 0, i1 = g->dim[0] - c0[0] < d[0] ? g->dim[0] - c0[0] : d[0];
     for (int k = 0; k < d[2]; k++)
-        for (int j = 0; j < d[1]; j++)
-            for (int i = 0; i < d[0]; i++, idx++) {
-                int l[3] = {c0[0] + i, c0[1] + j, c0[2] + k};
-                bone[idx] = l[0] >= 0 && l[1] >= 0 && l[2] >= 0 && l[0] < g->dim[0] && l[1] < g->dim[1] &&
-                            l[2] < g->dim[2] && g->prob[((size_t)l[2] * g->dim[1] + l[1]) * g->dim[0] + l[0]];
-            }
+        for (int j = 0; j < d[1]; j++) {
+            uint8_t *row = bone + ((size_t)k * d[1] + j) * d[0];
+            int l1 = c0[1] + j, l2 = c0[2] + k;
+            memset(row, 0, (size_t)d[0]);
+            if (l1 < 0 || l2 < 0 || l1 >= g->dim[1] || l2 >= g->dim[2])
+                continue;
+            const uint8_t *src = g->prob + ((size_t)l2 * g->dim[1] + l1) * g->dim[0] + c0[0];
+            for (int i = i0; i < i1; i++)
+                row[i] = src[i] != 0;
+        }
     for (int f = 1; f < nasm; f++)
         sample_into(g, asm_[f], c0, d, bone);
 }
@@ -453,14 +458,20 @@ static int metric_bone(reduce_metric *m, const frag *const *asm_, int nasm, doub
 {
     size_t nv = (size_t)m->d[0] * m->d[1] * m->d[2];
     voi_bone(asm_, nasm, m->c0, m->d, bone);
-    size_t idx = 0;
+    /* whole numbers, exact in any order */
+    int64_t n1 = 0, si = 0, sj = 0, sk = 0;
+    const uint8_t *row = bone;
     for (int k = 0; k < m->d[2]; k++)
-        for (int j = 0; j < m->d[1]; j++)
-            for (int i = 0; i < m->d[0]; i++, idx++)
-                if (bone[idx]) {
-                    m->n1 += 1;
-                    sum[0] += i, sum[1] += j, sum[2] += k;
-                }
+        for (int j = 0; j < m->d[1]; j++, row += m->d[0]) {
+            int64_t n = 0, s = 0;
+            for (int i = 0; i < m->d[0]; i++) {
+                n += row[i];
+                s += row[i] ? i : 0;
+            }
+            n1 += n, si += s, sj += n * j, sk += n * k;
+        }
+    m->n1 += (double)n1;
+    sum[0] += (double)si, sum[1] += (double)sj, sum[2] += (double)sk;
     if (gap_mm > 0) { /* the gap left where bone was lost counts as the assembly's */
         uint8_t *gb = malloc(nv);
         if (!gb)
@@ -507,14 +518,25 @@ static int metric_cells(reduce_metric *m, const uint8_t *bone, uint8_t *in, doub
             }
         }
     m->nvoi += (double)nvoi;
-    for (int k = 0; k + 1 < m->D[2]; k++)
-        for (int j = 0; j + 1 < m->D[1]; j++)
-            for (int i = 0; i + 1 < m->D[0]; i++) {
-                size_t at = (size_t)k * sz + (size_t)j * sy + (size_t)i;
-                const int8_t *g = m->score + at;
-                if (g[0] | g[1] | g[sy] | g[sy + 1] | g[sz] | g[sz + 1] | g[sz + sy] | g[sz + sy + 1])
-                    m->near[at >> 3] |= (uint8_t)(1u << (at & 7));
-            }
+    /* near: a score among the cell and its next along each axis, by three shifted ORs over the
+     * whole raster (the bits of a last cell on an axis, which wrap, are never read: an evaluation
+     * reads the cell before a voxel, never the last of the border) */
+    size_t N = sz * m->D[2];
+    uint8_t *t = malloc(N + 8);
+    if (!t)
+        return fn_err_set(FN_ENOMEM, "reduce metric: out of memory for the band");
+    for (size_t q = 0; q < N; q++)
+        t[q] = m->score[q] != 0;
+    memset(t + N, 0, 8);
+    or_bytes(t, t + 1, N - 1);
+    or_bytes(t, t + sy, N - sy);
+    or_bytes(t, t + sz, N - sz);
+    for (size_t q = 0; q < N; q += 8) {
+        uint64_t x;
+        memcpy(&x, t + q, 8);
+        m->near[q >> 3] = (uint8_t)((x * 0x0102040810204080ull) >> 56);
+    }
+    free(t);
     return 0;
 }
 
