@@ -483,15 +483,16 @@ static void voi_join(reduce_voi *u, const reduce_voi *v)
 }
 
 /* The global stage's candidate starts: the placed pose, it turned global_deg either way about each
- * of the piece's principal axes and moved global_mm either way along each, and the paper's
- * pre-alignment when o->prealign and it chose another pose (*pa: its index, else -1). Returns
- * their number. */
+ * of the piece's principal axes and moved global_mm either way along each, and, when o->prealign,
+ * the last (*pa: its index, else -1) stands for the paper's pre-alignment: a worker makes it
+ * (cand_prealign), first of all, so that its 48 slides do not hold up the others. Returns their
+ * number. */
 static int global_candidates(fit_state *s, pose *cand, int *pa)
 {
     pose base = s->moving->pose;
     double cm[3];
     reduce__centroid_world(s->moving, cm);
-    int n = 0, changed = 0;
+    int n = 0;
     cand[n++] = base;
     for (int h = 0; h < 6; h++) {
         double axis[3];
@@ -504,11 +505,10 @@ static int global_candidates(fit_state *s, pose *cand, int *pa)
         n++;
     }
     *pa = -1;
-    if (s->o->prealign && reduce__prealign(&s->col, s->bricks, s->o, &changed) == 0 && changed) {
+    if (s->o->prealign) {
         *pa = n;
-        cand[n++] = s->moving->pose;
+        cand[n++] = base;
     }
-    s->moving->pose = base;
     return n;
 }
 
@@ -565,6 +565,18 @@ typedef struct cand_wave {
     int nth;
 } cand_wave;
 
+/* The pre-aligned candidate (reduce__prealign from the placed pose, on the worker's copy): 0 and
+ * *start set, or -1 where the pre-alignment kept the placed pose or failed (the candidate is
+ * dropped, as if it had never been made). */
+static int cand_prealign(fit_state *t, const pose *placed, pose *start)
+{
+    t->moving->pose = *placed;
+    int changed = 0, rc = reduce__prealign(&t->col, t->bricks, t->o, &changed);
+    *start = t->moving->pose;
+    t->moving->pose = *placed;
+    return rc == 0 && changed ? 0 : -1;
+}
+
 static void *cand_worker(void *arg)
 {
     cand_wave *w = arg;
@@ -576,7 +588,8 @@ static void *cand_worker(void *arg)
     reduce_result r = w->r;
     t.moving = t.col.moving = &mv;
     t.r = &r;
-    for (int i; (i = atomic_fetch_add(&w->next, 1)) < w->n;) {
+    for (int k; (k = atomic_fetch_add(&w->next, 1)) < w->n;) {
+        int i = w->pa < 0 ? k : k == 0 ? w->pa : k - 1; /* the pre-alignment first */
         cand_fit *c = &w->c[i];
         c->rc = -1;
         if (atomic_load(&w->stop))
@@ -588,6 +601,8 @@ static void *cand_worker(void *arg)
         t.obj = w->tmpl.obj;
         t.obj.o = &o;
         r.iterations = 0;
+        if (i == w->pa && (c->rc = cand_prealign(&t, &w->mv.pose, &c->start)) != 0)
+            continue;
         c->rc = global_fit(&t, &c->start, &c->end);
         if (c->rc == 0 && !o.has_voi) {
             mv.pose = c->end;
