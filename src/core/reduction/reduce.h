@@ -166,12 +166,12 @@ typedef struct reduce_opts {
                           * global stage, which has none (0: no wall, no hand-over) */
     int threads;         /* reduce_case fits the pieces of a first-sweep round, and those of a
                           * second-sweep wave (no bone within about 4 mm of each other), at
-                          * once, and reduce_pair the global stage's candidates, on up to this
-                          * many threads (1 .. REDUCE_THREADS_MAX; default 2, the machine's
-                          * cores); the same poses on any number */
+                          * once, and reduce_pair the global stage's candidates and a hop
+                          * round's moves, on up to this many threads (1 .. REDUCE_THREADS_MAX;
+                          * default 2, the machine's cores); the same poses on any number */
     reduce_progress_fn progress; /* after each iteration; may be NULL. Called on the thread that
-                          * runs the fit (several at once in reduce_case), never on the threads
-                          * of the global stage's candidates (they report none) */
+                          * runs the fit (several at once in reduce_case), never for the global
+                          * stage's candidates or the hops' moves (they report none) */
     void *progress_ctx;
     const atomic_int *cancel; /* may be NULL; once another thread sets it non-zero, the fit stops
                           * within one metric evaluation and returns 1 with the placed pose */

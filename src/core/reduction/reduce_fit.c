@@ -14,7 +14,8 @@
  *               there;
  *  4. winner:   the attempts' ends compared over the union of their VOIs (rivals among them kept);
  *  5. rivals:   whether the first stage's starts ended in rival basins;
- *  6. hops:     the fit again from turns (a long piece) or moves of the result, the best kept;
+ *  6. hops:     the fit again from turns (a long piece) or moves (on o->threads threads:
+ *               hop_moves) of the result, the best kept;
  *  7. finish:   the result pushed out of collision, its metrics and history.
  * Every number they are tuned by is in the table reduce__tune (reduce_impl.h, reduce.c). */
 #include "reduce.h"
@@ -1041,6 +1042,147 @@ static int piece_is_long(const fit_state *s)
  * way along each, each hop a short fit (the first stage's coarser step, first_xtol, and at most
  * hop_evals evaluations), the best one then fitted to the full step from where it stopped; an end
  * counts only free of collision, by its metric alone. */
+/* Hop h's start: the pose cur turned hop_deg either way about a principal axis (h < HOP_TURNS), or
+ * moved hop_mm either way along one; *c its centroid (world). s->moving->pose is left there. */
+static pose hop_start(fit_state *s, const pose *cur, int h, double c[3])
+{
+    const reduce_tuning *T = &reduce__tune;
+    double axis[3], cm[3], sign = h % 2 ? 1 : -1;
+    pose start = *cur;
+    s->moving->pose = *cur;
+    reduce__axis_world(s->moving, h % HOP_TURNS / 2, axis);
+    reduce__centroid_world(s->moving, cm);
+    if (h < HOP_TURNS) { /* a turn */
+        pose turn = pose_from_axis_angle(axis, sign * T->hop_deg * PI / 180);
+        start = reduce__turned(cur, &turn, cm, cm);
+    } else /* a move */
+        for (int a = 0; a < 3; a++)
+            start.t[a] += sign * T->hop_mm * axis[a];
+    s->moving->pose = start;
+    reduce__centroid_world(s->moving, c);
+    return start;
+}
+
+/* One strict hop's fit (hop_moves), on a private copy of the fit's state as the global stage's
+ * candidates run: where it ended, and its metric there (a colliding end: INFINITY). */
+typedef struct hop_fit {
+    pose start, end;
+    double c[3], f;
+    int rc, evals, iterations, nhist, cancelled;
+    double *hist;
+    int64_t eval_ns;
+} hop_fit;
+
+typedef struct hop_wave {
+    fit_state tmpl;  /* the fit's state at the round's start (its metric shared, read-only) */
+    frag mv;
+    reduce_result r;
+    hop_fit h[HOP_TURNS];
+    atomic_int next;
+    pthread_t th[REDUCE_THREADS_MAX];
+    int nth;
+} hop_wave;
+
+static void *hop_worker(void *arg)
+{
+    hop_wave *w = arg;
+    fit_state t = w->tmpl;
+    reduce_opts o = *w->tmpl.o;
+    o.progress = NULL; /* the hops are short: none reports */
+    t.o = &o;
+    frag mv = w->mv;
+    reduce_result r = w->r;
+    t.moving = t.col.moving = &mv;
+    t.r = &r;
+    t.metric = reduce__metric_share(w->tmpl.metric); /* a band of its own */
+    for (int i; (i = atomic_fetch_add(&w->next, 1)) < HOP_TURNS;) {
+        hop_fit *h = &w->h[i];
+        if (!t.metric) {
+            h->rc = FN_ENOMEM;
+            continue;
+        }
+        if (o.cancel && atomic_load(o.cancel)) {
+            h->cancelled = 1;
+            continue;
+        }
+        t.obj = w->tmpl.obj;
+        t.obj.o = &o;
+        t.obj.metric = t.metric;
+        t.obj.pc = &t.col;
+        t.obj.start = h->start;
+        mv.pose = h->start;
+        r.iterations = 0;
+        h->rc = fit_from(&t, h->c, 0, &h->end, &h->f);
+        if (h->rc == 0) {
+            int hit = reduce__collides(&t.col, &h->end, NULL);
+            h->rc = hit < 0 ? hit : 0;
+            h->f = hit ? INFINITY : reduce_metric_eval(t.metric, &h->end, NULL);
+        }
+        h->hist = t.obj.hist;
+        h->nhist = t.obj.nhist;
+        h->evals = t.obj.evals;
+        h->eval_ns = t.obj.eval_ns;
+        h->iterations = r.iterations;
+        h->cancelled = t.obj.cancelled;
+    }
+    reduce_metric_free(t.metric);
+    return NULL;
+}
+
+/* A strict round's six moves, each fitted briefly (s->obj's step and cap), on o->threads threads
+ * (hop_worker: each move on its own copy of the state, with a band of its own and collision
+ * queries without the caches, so each ends where it would alone); their evaluations, iterations
+ * and histories are added to the fit's in their order, and the best that beats *fbest by margin
+ * (colliding ends never) goes into *best, *fbest. 0 or <0. */
+static int hop_moves(fit_state *s, const pose *cur, double margin, pose *best, double *fbest)
+{
+    hop_wave *w = calloc(1, sizeof *w);
+    if (!w)
+        return fn_err_set(FN_ENOMEM, "reduce: out of memory for the hops");
+    for (int i = 0; i < HOP_TURNS; i++)
+        w->h[i].start = hop_start(s, cur, HOP_TURNS + i, w->h[i].c);
+    s->moving->pose = *cur;
+    w->tmpl = *s;
+    w->mv = *s->moving;
+    w->r = *s->r;
+    fit_state *t = &w->tmpl;
+    t->moving = t->col.moving = &w->mv;
+    t->r = &w->r;
+    t->col.cache = NULL;
+    t->coarse = (level){0};
+    t->obj.hist = NULL;
+    t->obj.nhist = t->obj.caphist = t->obj.evals = 0;
+    t->obj.eval_ns = 0;
+    t->obj.opt = NULL;
+    atomic_store(&w->next, 0);
+    while (w->nth + 1 < s->o->threads && w->nth + 1 < HOP_TURNS && w->nth < REDUCE_THREADS_MAX &&
+           pthread_create(&w->th[w->nth], NULL, hop_worker, w) == 0)
+        w->nth++;
+    hop_worker(w);
+    for (int i = 0; i < w->nth; i++)
+        pthread_join(w->th[i], NULL);
+    objective *ob = &s->obj;
+    int rc = 0;
+    for (int i = 0; i < HOP_TURNS; i++) {
+        hop_fit *h = &w->h[i];
+        for (int k = 0; k < h->nhist; k++)
+            hist_add(ob, h->hist[k]);
+        free(h->hist);
+        ob->evals += h->evals;
+        ob->eval_ns += h->eval_ns;
+        s->r->iterations += h->iterations;
+        ob->cancelled |= h->cancelled;
+        if (rc == 0 && h->rc < 0)
+            rc = h->rc;
+        if (rc == 0 && !h->cancelled && h->f < *fbest - margin) {
+            *fbest = h->f;
+            *best = h->end;
+        }
+    }
+    free(w);
+    return rc;
+}
+
 static int hop_round(fit_state *s, const pose *cur, int strict, double margin, pose *next, double *fnext)
 {
     const reduce_tuning *T = &reduce__tune;
@@ -1048,32 +1190,16 @@ static int hop_round(fit_state *s, const pose *cur, int strict, double margin, p
     double xtol = ob->xtol, fbest = *fnext;
     pose best = *cur;
     int rc = 0;
-    if (strict) {
+    if (strict) { /* moves */
         ob->xtol = T->first_xtol * xtol;
         ob->cap = T->hop_evals;
+        rc = hop_moves(s, cur, margin, &best, &fbest);
     }
-    for (int h = strict ? HOP_TURNS : 0; h < (strict ? 2 * HOP_TURNS : HOP_TURNS) && rc == 0 && !ob->cancelled; h++) {
-        double axis[3], cm[3], c[3], fb, sign = h % 2 ? 1 : -1;
+    for (int h = 0; !strict && h < HOP_TURNS && rc == 0 && !ob->cancelled; h++) { /* turns */
+        double c[3], fb;
         pose hp;
-        s->moving->pose = *cur;
-        reduce__axis_world(s->moving, h % HOP_TURNS / 2, axis);
-        reduce__centroid_world(s->moving, cm);
-        ob->start = *cur;
-        if (h < HOP_TURNS) { /* a turn */
-            pose turn = pose_from_axis_angle(axis, sign * T->hop_deg * PI / 180);
-            ob->start = reduce__turned(cur, &turn, cm, cm);
-        } else /* a move */
-            for (int a = 0; a < 3; a++)
-                ob->start.t[a] += sign * T->hop_mm * axis[a];
-        s->moving->pose = ob->start;
-        reduce__centroid_world(s->moving, c);
+        ob->start = hop_start(s, cur, h, c);
         rc = fit_from(s, c, 0, &hp, &fb);
-        if (rc == 0 && strict) {
-            int hit = reduce__collides(&s->col, &hp, NULL);
-            if (hit < 0)
-                rc = hit;
-            fb = hit ? INFINITY : reduce_metric_eval(s->metric, &hp, NULL);
-        }
         if (rc == 0 && fb < fbest - margin) {
             fbest = fb;
             best = hp;

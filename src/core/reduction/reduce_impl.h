@@ -76,6 +76,7 @@ struct reduce_metric {
     size_t *band_first; /* per brick: its band runs band[band_first[bi] .. band_first[bi + 1] - 1] */
     reduce_run *band;
     size_t nband, capband;
+    int shared;         /* 1: a copy of another's band (reduce__metric_share): its cells are that one's */
 };
 
 #define REDUCE_BLOCK 4
@@ -89,6 +90,10 @@ void reduce__bricks_free(reduce_bricks *b);
  * evaluations will be: they cost the band's voxels near it, and stay exact anywhere. 0 or FN_ENOMEM
  * (the metric then counts every run, exact and slower). Not thread-safe with evaluations of m. */
 int reduce__metric_rebase(reduce_metric *m, const pose *ref);
+/* A metric that shares m's cells (read-only) and has a band of its own, not made yet (every run
+ * counts until reduce__metric_rebase): threads may each rebase their own copy and evaluate it
+ * while m lives. Freed by reduce_metric_free (the cells stay m's). NULL with fn_err. */
+reduce_metric *reduce__metric_share(const reduce_metric *m);
 /* The metric counted by mode from now on (its VOI and band stay: the trilinear band holds every
  * voxel a nearest count reaches); the mode it counted by before. Not thread-safe with evaluations
  * of m. */

@@ -169,14 +169,37 @@ reduce_bricks *reduce__bricks_new(const frag *m)
     return b;
 }
 
+reduce_metric *reduce__metric_share(const reduce_metric *m)
+{
+    reduce_metric *c = malloc(sizeof *c);
+    if (c) {
+        *c = *m;
+        c->shared = 1;
+        c->own_bricks = 0;
+        c->band_ref = 0;
+        c->band = NULL;
+        c->nband = c->capband = 0;
+        c->band_x = malloc((size_t)m->b->nbrick * sizeof *c->band_x + 1);
+        c->band_first = malloc(((size_t)m->b->nbrick + 1) * sizeof *c->band_first);
+    }
+    if (!c || !c->band_x || !c->band_first) {
+        reduce_metric_free(c);
+        fn_err_set(FN_ENOMEM, "reduce metric: out of memory for a copy of the band");
+        return NULL;
+    }
+    return c;
+}
+
 void reduce_metric_free(reduce_metric *m)
 {
     if (m) {
-        free(m->cell);
-        free(m->score);
-        free(m->near);
-        free(m->bsum);
-        free(m->reach);
+        if (!m->shared) {
+            free(m->cell);
+            free(m->score);
+            free(m->near);
+            free(m->bsum);
+            free(m->reach);
+        }
         free(m->band_x);
         free(m->band_first);
         free(m->band);
