@@ -175,6 +175,130 @@ static void test_metric_nearest_vs_brute(void **st)
     check_metric(REDUCE_NEAREST, 1.3, 1); /* a face and its edge in-plane, not the slice's edges */
 }
 
+/* ---- the contact zone ---- */
+
+/* Every bone voxel of f at its pose, as float points, appended to p (n of them so far). */
+static float *zone_points(const frag *f, float *p, size_t *n)
+{
+    p = realloc(p, (*n + f->voxels) * 3 * sizeof *p);
+    assert_non_null(p);
+    pose w = pose_compose(f->pose, f->home);
+    for (int k = 0; k < f->dim[2]; k++)
+        for (int j = 0; j < f->dim[1]; j++)
+            for (int i = 0; i < f->dim[0]; i++)
+                if (f->prob[((size_t)k * f->dim[1] + j) * f->dim[0] + i]) {
+                    double l[3] = {i * f->spacing[0], j * f->spacing[1], k * f->spacing[2]}, x[3];
+                    pose_apply(&w, l, x);
+                    for (int a = 0; a < 3; a++)
+                        p[3 * *n + a] = (float)x[a];
+                    ++*n;
+                }
+    return p;
+}
+
+/* reduce_auto_voi as reduce.h defines it, by brute force: on a grid of zone_cell_mm cells whose
+ * corner lies a cell below both sides' points, a point is near the other side when one of its
+ * points lies within ceil(delta / cell) cells along each axis; delta doubles from delta0 until some
+ * are; the VOI is the box of the near points of both sides, grown by margin. 0, or -1 when no
+ * delta up to zone_reach_mm finds any. */
+static int brute_zone(const frag *const *asm_, int nasm, const frag *mv, double delta0, double margin,
+                      reduce_voi *voi)
+{
+    size_t na = 0, nm = 0;
+    float *A = NULL, *M = zone_points(mv, NULL, &nm);
+    for (int f = 0; f < nasm; f++)
+        A = zone_points(asm_[f], A, &na);
+    const double cs = reduce__tune.zone_cell_mm;
+    double lo[3] = {INFINITY, INFINITY, INFINITY};
+    for (size_t i = 0; i < na + nm; i++)
+        for (int a = 0; a < 3; a++) {
+            double x = i < na ? A[3 * i + a] : M[3 * (i - na) + a];
+            lo[a] = x < lo[a] ? x : lo[a];
+        }
+    int (*ca)[3] = malloc(na * sizeof *ca), (*cm)[3] = malloc(nm * sizeof *cm), rc = -1;
+    assert_true(ca && cm);
+    for (int a = 0; a < 3; a++)
+        lo[a] -= cs; /* the grid's corner */
+    for (size_t i = 0; i < na; i++)
+        for (int a = 0; a < 3; a++)
+            ca[i][a] = (int)((A[3 * i + a] - lo[a]) / cs);
+    for (size_t i = 0; i < nm; i++)
+        for (int a = 0; a < 3; a++)
+            cm[i][a] = (int)((M[3 * i + a] - lo[a]) / cs);
+    for (double delta = delta0; rc < 0 && delta <= reduce__tune.zone_reach_mm; delta *= 2) {
+        int k = (int)ceil(delta / cs);
+        double blo[3] = {INFINITY, INFINITY, INFINITY}, bhi[3] = {-INFINITY, -INFINITY, -INFINITY};
+        for (int side = 0; side < 2; side++) { /* side 0: the moving points near the assembly */
+            size_t n = side ? na : nm, no = side ? nm : na;
+            int(*c)[3] = side ? ca : cm, (*co)[3] = side ? cm : ca;
+            const float *P = side ? A : M;
+            for (size_t i = 0; i < n; i++) {
+                int near = 0;
+                for (size_t q = 0; q < no && !near; q++)
+                    near = abs(c[i][0] - co[q][0]) <= k && abs(c[i][1] - co[q][1]) <= k && abs(c[i][2] - co[q][2]) <= k;
+                for (int a = 0; near && a < 3; a++) {
+                    blo[a] = fmin(blo[a], P[3 * i + a]);
+                    bhi[a] = fmax(bhi[a], P[3 * i + a]);
+                }
+                rc = near && side == 0 ? 0 : rc;
+            }
+        }
+        for (int a = 0; rc == 0 && a < 3; a++) {
+            voi->lo[a] = blo[a] - margin;
+            voi->hi[a] = bhi[a] + margin;
+        }
+    }
+    free(A), free(M), free(ca), free(cm);
+    return rc;
+}
+
+/* The contact zone (reduce_auto_voi, what every stage of a fit works over) against brute force,
+ * bit for bit: the moving ball near the assembly, apart from it (the distance doubles), beyond
+ * the assembly's lower corner (the grid's corner follows the moving piece), and turned; with one
+ * and two pieces in the assembly. The zone looks only near the moving piece, brick by brick
+ * (reduce_voi.c); this checks that it finds what a look at everything finds. */
+static void test_auto_voi_vs_brute(void **st)
+{
+    frag a, b, e;
+    double at_a[3] = {0, 0, 0}, at_b[3] = {14, 2, -1}, at_e[3] = {8, 10, 6}, turn[3] = {0.3, -0.2, 0.5};
+    ball_frag(&a, 1, 20, 9, at_a);
+    ball_frag(&b, 2, 18, 8, at_b);
+    ball_frag(&e, 3, 16, 7, at_e);
+    e.pose = pose_from_rotvec(turn, (double[3]){0.4, -1.3, 0.7});
+    const frag *asm_[2] = {&a, &e};
+    static const double moves[][6] = {
+        {0, 0, 0, 0, 0, 0},          {0.2, -0.3, 0.1, 1.5, -0.5, 0.8}, /* touching */
+        {0, 0, 0, 9, 4, -3},         {0.5, 0.1, -0.4, 21, -6, 2},      /* apart: 3 mm, then more */
+        {0, 0, 0, -40, -30, -25},    {-0.3, 0.6, 0.2, -30, -4, -12},   /* below the corner */
+        {1.2, -0.7, 0.4, -6, 3, 2},  {0, 0, 0, 55, 0, 0},              /* turned; far */
+    };
+    int found = 0;
+    for (int nasm = 1; nasm <= 2; nasm++)
+        for (size_t t = 0; t < sizeof moves / sizeof moves[0]; t++) {
+            b.pose = pose_from_rotvec(moves[t], moves[t] + 3);
+            for (int d = 0; d < 2; d++) {
+                double delta = d ? 2 : 3, margin = d ? 0 : 6;
+                reduce_voi want, got;
+                int rw = brute_zone(asm_, nasm, &b, delta, margin, &want);
+                int rg = reduce_auto_voi(asm_, nasm, &b, delta, margin, 0, &got, NULL);
+                if (rw < 0) {
+                    assert_int_equal(rg, FN_EINVAL);
+                    continue;
+                }
+                assert_int_equal(rg, 0);
+                found++;
+                for (int k = 0; k < 3; k++)
+                    if (got.lo[k] != want.lo[k] || got.hi[k] != want.hi[k])
+                        fail_msg("move %zu, %d piece(s), delta %g: axis %d [%.9g, %.9g], brute force [%.9g, %.9g]", t,
+                                 nasm, delta, k, got.lo[k], got.hi[k], want.lo[k], want.hi[k]);
+            }
+        }
+    assert_true(found >= 24); /* most moves find a zone; the far one may not */
+    frag_free(&a);
+    frag_free(&b);
+    frag_free(&e);
+}
+
 /* The trilinear count changes continuously: a tiny step changes it a tiny bit. */
 static void test_metric_trilinear_is_continuous(void **st)
 {
@@ -1350,6 +1474,7 @@ int main(void)
         cmocka_unit_test(test_pca_diagonal_rod),
         cmocka_unit_test(test_metric_trilinear_vs_brute),
         cmocka_unit_test(test_metric_nearest_vs_brute),
+        cmocka_unit_test(test_auto_voi_vs_brute),
         cmocka_unit_test(test_metric_trilinear_is_continuous),
         cmocka_unit_test(test_powell_rosenbrock),
         cmocka_unit_test(test_powell_quadratic),
