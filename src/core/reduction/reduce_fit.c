@@ -483,6 +483,83 @@ static void voi_join(reduce_voi *u, const reduce_voi *v)
     }
 }
 
+/* ---- fits on the side: copies of the fit's state for other threads ------------------------- */
+
+/* What a fit on a copy spent, added to the fit's in order once the threads are joined. */
+typedef struct side_spent {
+    double *hist;
+    int nhist, evals, iterations, cancelled;
+    int64_t eval_ns;
+} side_spent;
+
+/* *tmpl a copy of s for other threads, with copies of its moving piece (mv, sharing the voxels:
+ * only its pose changes) and result (r): collision queries without the caches (which change no
+ * answer), no metric, coarse level or history of its own. */
+static void side_template(fit_state *tmpl, const fit_state *s, frag *mv, reduce_result *r)
+{
+    *tmpl = *s;
+    *mv = *s->moving;
+    *r = *s->r;
+    tmpl->moving = tmpl->col.moving = mv;
+    tmpl->r = r;
+    tmpl->col.cache = NULL;
+    tmpl->metric = NULL;
+    tmpl->coarse = (level){0};
+    tmpl->obj.hist = NULL;
+    tmpl->obj.nhist = tmpl->obj.caphist = tmpl->obj.evals = 0;
+    tmpl->obj.eval_ns = 0;
+    tmpl->obj.opt = NULL;
+    tmpl->obj.cancelled = 0;
+}
+
+/* A thread's own state *t from tmpl, over its own options (*o: tmpl's, without progress, which is
+ * called on the fit's own thread alone: reduce.h), moving piece and result. */
+static void side_state(fit_state *t, const fit_state *tmpl, reduce_opts *o, frag *mv, reduce_result *r)
+{
+    *t = *tmpl;
+    *o = *tmpl->o;
+    o->progress = NULL;
+    t->o = o;
+    *mv = *tmpl->moving;
+    *r = *tmpl->r;
+    t->moving = t->col.moving = mv;
+    t->r = r;
+}
+
+/* What the last fit on t spent (its history now sp's). */
+static void side_take(side_spent *sp, const fit_state *t)
+{
+    sp->hist = t->obj.hist;
+    sp->nhist = t->obj.nhist;
+    sp->evals = t->obj.evals;
+    sp->eval_ns = t->obj.eval_ns;
+    sp->iterations = t->r->iterations;
+    sp->cancelled = t->obj.cancelled;
+}
+
+/* sp added to the fit s (its evaluations to *evals), its history freed. */
+static void side_merge(fit_state *s, side_spent *sp, int *evals)
+{
+    for (int k = 0; k < sp->nhist; k++)
+        hist_add(&s->obj, sp->hist[k]);
+    free(sp->hist);
+    sp->hist = NULL;
+    *evals += sp->evals;
+    s->obj.eval_ns += sp->eval_ns;
+    s->r->iterations += sp->iterations;
+    s->obj.cancelled |= sp->cancelled;
+}
+
+/* Up to o->threads - 1 threads (and fewer than n) started on fn(arg): their number. */
+static int side_threads(pthread_t *th, int n, const reduce_opts *o, void *(*fn)(void *), void *arg)
+{
+    int nth = 0;
+    while (nth + 1 < o->threads && nth + 1 < n && nth < REDUCE_THREADS_MAX &&
+           pthread_create(&th[nth], NULL, fn, arg) == 0)
+        nth++;
+    return nth;
+}
+
 /* The global stage's candidate starts: the placed pose, it turned global_deg either way about each
  * of the piece's principal axes and moved global_mm either way along each, and, when o->prealign,
  * the last (*pa: its index, else -1) stands for the paper's pre-alignment: a worker makes it
@@ -546,9 +623,7 @@ typedef struct cand_fit {
     pose start, end;
     reduce_voi v;   /* the contact zone where it ended */
     int rc;         /* 0; <0: no contact zone or not fitted (dropped), or FN_ENOMEM */
-    double *hist;   /* its history (joined to the fit's in the candidates' order) */
-    int nhist, evals, iterations, cancelled;
-    int64_t eval_ns;
+    side_spent sp;
 } cand_fit;
 
 /* The global stage's candidates and their fits: the state they start from (taken when they were
@@ -581,14 +656,11 @@ static int cand_prealign(fit_state *t, const pose *placed, pose *start)
 static void *cand_worker(void *arg)
 {
     cand_wave *w = arg;
-    fit_state t = w->tmpl;
-    reduce_opts o = *w->tmpl.o;
-    o.progress = NULL; /* called on the fit's own thread alone (reduce.h) */
-    t.o = &o;
-    frag mv = w->mv; /* a struct copy sharing the voxels: only its pose changes */
-    reduce_result r = w->r;
-    t.moving = t.col.moving = &mv;
-    t.r = &r;
+    fit_state t;
+    reduce_opts o;
+    frag mv;
+    reduce_result r;
+    side_state(&t, &w->tmpl, &o, &mv, &r);
     for (int k; (k = atomic_fetch_add(&w->next, 1)) < w->n;) {
         int i = w->pa < 0 ? k : k == 0 ? w->pa : k - 1; /* the pre-alignment first */
         cand_fit *c = &w->c[i];
@@ -596,7 +668,7 @@ static void *cand_worker(void *arg)
         if (atomic_load(&w->stop))
             continue; /* the fit failed: the rest dropped */
         if (o.cancel && atomic_load(o.cancel)) { /* cancelled: the rest dropped */
-            c->cancelled = 1;
+            c->sp.cancelled = 1;
             continue;
         }
         t.obj = w->tmpl.obj;
@@ -609,12 +681,7 @@ static void *cand_worker(void *arg)
             mv.pose = c->end;
             c->rc = zone_voi(&t, reduce__tune.zone_delta_mm[1], &c->v);
         }
-        c->hist = t.obj.hist;
-        c->nhist = t.obj.nhist;
-        c->evals = t.obj.evals;
-        c->eval_ns = t.obj.eval_ns;
-        c->iterations = r.iterations;
-        c->cancelled = t.obj.cancelled;
+        side_take(&c->sp, &t);
     }
     reduce_metric_free(t.metric);
     level_close(&t.coarse);
@@ -635,27 +702,11 @@ static int cand_launch(fit_state *s, cand_wave *w)
     memset(w->c, 0, sizeof w->c);
     for (int i = 0; i < w->n; i++)
         w->c[i].start = w->cand[i];
-    w->tmpl = *s;
-    w->mv = *s->moving;
-    w->r = *s->r;
-    fit_state *t = &w->tmpl;
-    t->moving = t->col.moving = &w->mv;
-    t->r = &w->r;
-    t->col.cache = NULL;
-    t->metric = NULL;
-    t->coarse = (level){0};
-    t->obj.nowall = 1;
-    t->obj.hist = NULL;
-    t->obj.nhist = t->obj.caphist = t->obj.evals = 0;
-    t->obj.eval_ns = 0;
-    t->obj.opt = NULL;
-    t->obj.cancelled = 0;
+    side_template(&w->tmpl, s, &w->mv, &w->r);
+    w->tmpl.obj.nowall = 1;
     atomic_store(&w->next, 0);
     atomic_store(&w->stop, 0);
-    w->nth = 0;
-    while (w->nth + 1 < s->o->threads && w->nth + 1 < w->n && w->nth < REDUCE_THREADS_MAX &&
-           pthread_create(&w->th[w->nth], NULL, cand_worker, w) == 0)
-        w->nth++;
+    w->nth = side_threads(w->th, w->n, s->o, cand_worker, w);
     return 0;
 }
 
@@ -670,18 +721,10 @@ static int cand_collect(fit_state *s, cand_wave *w, int stop)
     for (int t = 0; t < w->nth; t++)
         pthread_join(w->th[t], NULL);
     int rc = 0;
-    objective *ob = &s->obj;
     s->global_evals = 0;
     for (int i = 0; i < w->n; i++) {
         cand_fit *c = &w->c[i];
-        for (int k = 0; k < c->nhist; k++)
-            hist_add(ob, c->hist[k]);
-        free(c->hist);
-        c->hist = NULL;
-        s->global_evals += c->evals;
-        ob->eval_ns += c->eval_ns;
-        s->r->iterations += c->iterations;
-        ob->cancelled |= c->cancelled;
+        side_merge(s, &c->sp, &s->global_evals);
         if (c->rc == FN_ENOMEM && rc == 0)
             rc = fn_err_set(FN_ENOMEM, "reduce: out of memory for the global stage");
     }
@@ -1068,13 +1111,13 @@ static pose hop_start(fit_state *s, const pose *cur, int h, double c[3])
 typedef struct hop_fit {
     pose start, end;
     double c[3], f;
-    int rc, evals, iterations, nhist, cancelled;
-    double *hist;
-    int64_t eval_ns;
+    int rc;
+    side_spent sp;
 } hop_fit;
 
 typedef struct hop_wave {
-    fit_state tmpl;  /* the fit's state at the round's start (its metric shared, read-only) */
+    fit_state tmpl;  /* the fit's state at the round's start */
+    const reduce_metric *shared; /* its metric, read-only while the moves run */
     frag mv;
     reduce_result r;
     hop_fit h[HOP_TURNS];
@@ -1086,15 +1129,12 @@ typedef struct hop_wave {
 static void *hop_worker(void *arg)
 {
     hop_wave *w = arg;
-    fit_state t = w->tmpl;
-    reduce_opts o = *w->tmpl.o;
-    o.progress = NULL; /* the hops are short: none reports */
-    t.o = &o;
-    frag mv = w->mv;
-    reduce_result r = w->r;
-    t.moving = t.col.moving = &mv;
-    t.r = &r;
-    t.metric = reduce__metric_share(w->tmpl.metric); /* a band of its own */
+    fit_state t;
+    reduce_opts o;
+    frag mv;
+    reduce_result r;
+    side_state(&t, &w->tmpl, &o, &mv, &r);
+    t.metric = reduce__metric_share(w->shared); /* a band of its own */
     for (int i; (i = atomic_fetch_add(&w->next, 1)) < HOP_TURNS;) {
         hop_fit *h = &w->h[i];
         if (!t.metric) {
@@ -1102,7 +1142,7 @@ static void *hop_worker(void *arg)
             continue;
         }
         if (o.cancel && atomic_load(o.cancel)) {
-            h->cancelled = 1;
+            h->sp.cancelled = 1;
             continue;
         }
         t.obj = w->tmpl.obj;
@@ -1118,12 +1158,7 @@ static void *hop_worker(void *arg)
             h->rc = hit < 0 ? hit : 0;
             h->f = hit ? INFINITY : reduce_metric_eval(t.metric, &h->end, NULL);
         }
-        h->hist = t.obj.hist;
-        h->nhist = t.obj.nhist;
-        h->evals = t.obj.evals;
-        h->eval_ns = t.obj.eval_ns;
-        h->iterations = r.iterations;
-        h->cancelled = t.obj.cancelled;
+        side_take(&h->sp, &t);
     }
     reduce_metric_free(t.metric);
     return NULL;
@@ -1142,39 +1177,21 @@ static int hop_moves(fit_state *s, const pose *cur, double margin, pose *best, d
     for (int i = 0; i < HOP_TURNS; i++)
         w->h[i].start = hop_start(s, cur, HOP_TURNS + i, w->h[i].c);
     s->moving->pose = *cur;
-    w->tmpl = *s;
-    w->mv = *s->moving;
-    w->r = *s->r;
-    fit_state *t = &w->tmpl;
-    t->moving = t->col.moving = &w->mv;
-    t->r = &w->r;
-    t->col.cache = NULL;
-    t->coarse = (level){0};
-    t->obj.hist = NULL;
-    t->obj.nhist = t->obj.caphist = t->obj.evals = 0;
-    t->obj.eval_ns = 0;
-    t->obj.opt = NULL;
+    side_template(&w->tmpl, s, &w->mv, &w->r);
+    w->shared = s->metric;
     atomic_store(&w->next, 0);
-    while (w->nth + 1 < s->o->threads && w->nth + 1 < HOP_TURNS && w->nth < REDUCE_THREADS_MAX &&
-           pthread_create(&w->th[w->nth], NULL, hop_worker, w) == 0)
-        w->nth++;
+    w->nth = side_threads(w->th, HOP_TURNS, s->o, hop_worker, w);
     hop_worker(w);
     for (int i = 0; i < w->nth; i++)
         pthread_join(w->th[i], NULL);
-    objective *ob = &s->obj;
     int rc = 0;
     for (int i = 0; i < HOP_TURNS; i++) {
         hop_fit *h = &w->h[i];
-        for (int k = 0; k < h->nhist; k++)
-            hist_add(ob, h->hist[k]);
-        free(h->hist);
-        ob->evals += h->evals;
-        ob->eval_ns += h->eval_ns;
-        s->r->iterations += h->iterations;
-        ob->cancelled |= h->cancelled;
+        int cancelled = h->sp.cancelled;
+        side_merge(s, &h->sp, &s->obj.evals);
         if (rc == 0 && h->rc < 0)
             rc = h->rc;
-        if (rc == 0 && !h->cancelled && h->f < *fbest - margin) {
+        if (rc == 0 && !cancelled && h->f < *fbest - margin) {
             *fbest = h->f;
             *best = h->end;
         }

@@ -147,7 +147,8 @@ int reduce__cloud_grid(reduce_cloud *A)
         xs[i] = (uint16_t)c[0];
         next[c[0] + 1]++;
         ag->row[row[i] + 1]++;
-        ag->bsat[(size_t)(c[2] / GRID_BLOCK + 1) * sz + (size_t)(c[1] / GRID_BLOCK + 1) * sy + c[0] / GRID_BLOCK + 1] = 1;
+        size_t blk = (size_t)(c[2] / GRID_BLOCK + 1) * sz + (size_t)(c[1] / GRID_BLOCK + 1) * sy;
+        ag->bsat[blk + (size_t)(c[0] / GRID_BLOCK) + 1] = 1;
     }
     for (size_t x = 0; x < nx; x++)
         next[x + 1] += next[x];
