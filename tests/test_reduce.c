@@ -196,6 +196,22 @@ static float *zone_points(const frag *f, float *p, size_t *n)
     return p;
 }
 
+/* The distinct cells among c[0..n-1] (malloc'd, *nu of them). */
+static int (*distinct_cells(int (*c)[3], size_t n, size_t *nu))[3]
+{
+    int(*u)[3] = malloc((n + 1) * sizeof *u);
+    assert_non_null(u);
+    *nu = 0;
+    for (size_t i = 0; i < n; i++) {
+        size_t q = 0;
+        while (q < *nu && memcmp(u[q], c[i], sizeof u[q]))
+            q++;
+        if (q == *nu)
+            memcpy(u[(*nu)++], c[i], sizeof u[0]);
+    }
+    return u;
+}
+
 /* reduce_auto_voi as reduce.h defines it, by brute force: on a grid of zone_cell_mm cells whose
  * corner lies a cell below both sides' points, a point is near the other side when one of its
  * points lies within ceil(delta / cell) cells along each axis; delta doubles from delta0 until some
@@ -225,12 +241,14 @@ static int brute_zone(const frag *const *asm_, int nasm, const frag *mv, double 
     for (size_t i = 0; i < nm; i++)
         for (int a = 0; a < 3; a++)
             cm[i][a] = (int)((M[3 * i + a] - lo[a]) / cs);
+    size_t nua, num;
+    int(*ua)[3] = distinct_cells(ca, na, &nua), (*um)[3] = distinct_cells(cm, nm, &num);
     for (double delta = delta0; rc < 0 && delta <= reduce__tune.zone_reach_mm; delta *= 2) {
         int k = (int)ceil(delta / cs);
         double blo[3] = {INFINITY, INFINITY, INFINITY}, bhi[3] = {-INFINITY, -INFINITY, -INFINITY};
         for (int side = 0; side < 2; side++) { /* side 0: the moving points near the assembly */
-            size_t n = side ? na : nm, no = side ? nm : na;
-            int(*c)[3] = side ? ca : cm, (*co)[3] = side ? cm : ca;
+            size_t n = side ? na : nm, no = side ? num : nua;
+            int(*c)[3] = side ? ca : cm, (*co)[3] = side ? um : ua; /* near one of the other's cells */
             const float *P = side ? A : M;
             for (size_t i = 0; i < n; i++) {
                 int near = 0;
@@ -248,7 +266,7 @@ static int brute_zone(const frag *const *asm_, int nasm, const frag *mv, double 
             voi->hi[a] = bhi[a] + margin;
         }
     }
-    free(A), free(M), free(ca), free(cm);
+    free(A), free(M), free(ca), free(cm), free(ua), free(um);
     return rc;
 }
 
