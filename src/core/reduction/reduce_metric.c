@@ -450,9 +450,9 @@ static void voi_bone(const frag *const *asm_, int nasm, const int c0[3], const i
             memset(row, 0, (size_t)d[0]);
             if (l1 < 0 || l2 < 0 || l1 >= g->dim[1] || l2 >= g->dim[2])
                 continue;
-            const uint8_t *src = g->prob + ((size_t)l2 * g->dim[1] + l1) * g->dim[0] + c0[0];
+            const uint8_t *src = g->prob + ((size_t)l2 * g->dim[1] + l1) * g->dim[0];
             for (int i = i0; i < i1; i++)
-                row[i] = src[i] != 0;
+                row[i] = src[c0[0] + i] != 0;
         }
     for (int f = 1; f < nasm; f++)
         sample_into(g, asm_[f], c0, d, bone);
