@@ -103,8 +103,8 @@ void reduce__cloud_free(reduce_cloud *c)
 /* The index's cell of world point x along axis a (clamped). */
 static int index_cell(const reduce_cloud_grid *ag, double x, int a)
 {
-    int c = (int)floor((x - ag->lo[a]) / reduce__tune.zone_cell_mm);
-    return c < 0 ? 0 : c >= ag->dim[a] ? ag->dim[a] - 1 : c;
+    double c = floor((x - ag->lo[a]) / reduce__tune.zone_cell_mm); /* clamped before it is an int */
+    return c < 0 ? 0 : c >= ag->dim[a] ? ag->dim[a] - 1 : (int)c;
 }
 
 int reduce__cloud_grid(reduce_cloud *A)
