@@ -512,18 +512,35 @@ static void side_template(fit_state *tmpl, const fit_state *s, frag *mv, reduce_
     tmpl->obj.cancelled = 0;
 }
 
-/* A thread's own state *t from tmpl, over its own options (*o: tmpl's, without progress, which is
- * called on the fit's own thread alone: reduce.h), moving piece and result. */
-static void side_state(fit_state *t, const fit_state *tmpl, reduce_opts *o, frag *mv, reduce_result *r)
+/* A thread's own copy of the fit's state, over its own options, moving piece and result (t points
+ * into the struct: made in place, never copied). */
+typedef struct side {
+    fit_state t;
+    reduce_opts o;
+    frag mv;
+    reduce_result r;
+} side;
+
+/* sd made from tmpl; its options are tmpl's without progress, which is called on the fit's own
+ * thread alone (reduce.h). */
+static void side_state(side *sd, const fit_state *tmpl)
 {
-    *t = *tmpl;
-    *o = *tmpl->o;
-    o->progress = NULL;
-    t->o = o;
-    *mv = *tmpl->moving;
-    *r = *tmpl->r;
-    t->moving = t->col.moving = mv;
-    t->r = r;
+    sd->t = *tmpl;
+    sd->o = *tmpl->o;
+    sd->o.progress = NULL;
+    sd->t.o = &sd->o;
+    sd->mv = *tmpl->moving;
+    sd->r = *tmpl->r;
+    sd->t.moving = sd->t.col.moving = &sd->mv;
+    sd->t.r = &sd->r;
+}
+
+/* A new fit on sd: the template's objective, no iterations yet. */
+static void side_begin(side *sd, const fit_state *tmpl)
+{
+    sd->t.obj = tmpl->obj;
+    sd->t.obj.o = &sd->o;
+    sd->r.iterations = 0;
 }
 
 /* What the last fit on t spent (its history now sp's). */
@@ -656,35 +673,31 @@ static int cand_prealign(fit_state *t, const pose *placed, pose *start)
 static void *cand_worker(void *arg)
 {
     cand_wave *w = arg;
-    fit_state t;
-    reduce_opts o;
-    frag mv;
-    reduce_result r;
-    side_state(&t, &w->tmpl, &o, &mv, &r);
+    side sd;
+    fit_state *t = &sd.t;
+    side_state(&sd, &w->tmpl);
     for (int k; (k = atomic_fetch_add(&w->next, 1)) < w->n;) {
         int i = w->pa < 0 ? k : k == 0 ? w->pa : k - 1; /* the pre-alignment first */
         cand_fit *c = &w->c[i];
         c->rc = -1;
         if (atomic_load(&w->stop))
             continue; /* the fit failed: the rest dropped */
-        if (o.cancel && atomic_load(o.cancel)) { /* cancelled: the rest dropped */
+        if (sd.o.cancel && atomic_load(sd.o.cancel)) { /* cancelled: the rest dropped */
             c->sp.cancelled = 1;
             continue;
         }
-        t.obj = w->tmpl.obj;
-        t.obj.o = &o;
-        r.iterations = 0;
-        if (i == w->pa && (c->rc = cand_prealign(&t, &w->mv.pose, &c->start)) != 0)
+        side_begin(&sd, &w->tmpl);
+        if (i == w->pa && (c->rc = cand_prealign(t, &w->mv.pose, &c->start)) != 0)
             continue;
-        c->rc = global_fit(&t, &c->start, &c->end);
-        if (c->rc == 0 && !o.has_voi) {
-            mv.pose = c->end;
-            c->rc = zone_voi(&t, reduce__tune.zone_delta_mm[1], &c->v);
+        c->rc = global_fit(t, &c->start, &c->end);
+        if (c->rc == 0 && !sd.o.has_voi) {
+            sd.mv.pose = c->end;
+            c->rc = zone_voi(t, reduce__tune.zone_delta_mm[1], &c->v);
         }
-        side_take(&c->sp, &t);
+        side_take(&c->sp, t);
     }
-    reduce_metric_free(t.metric);
-    level_close(&t.coarse);
+    reduce_metric_free(t->metric);
+    level_close(&t->coarse);
     return NULL;
 }
 
@@ -1129,38 +1142,34 @@ typedef struct hop_wave {
 static void *hop_worker(void *arg)
 {
     hop_wave *w = arg;
-    fit_state t;
-    reduce_opts o;
-    frag mv;
-    reduce_result r;
-    side_state(&t, &w->tmpl, &o, &mv, &r);
-    t.metric = reduce__metric_share(w->shared); /* a band of its own */
+    side sd;
+    fit_state *t = &sd.t;
+    side_state(&sd, &w->tmpl);
+    t->metric = reduce__metric_share(w->shared); /* a band of its own */
     for (int i; (i = atomic_fetch_add(&w->next, 1)) < HOP_TURNS;) {
         hop_fit *h = &w->h[i];
-        if (!t.metric) {
+        if (!t->metric) {
             h->rc = FN_ENOMEM;
             continue;
         }
-        if (o.cancel && atomic_load(o.cancel)) {
+        if (sd.o.cancel && atomic_load(sd.o.cancel)) {
             h->sp.cancelled = 1;
             continue;
         }
-        t.obj = w->tmpl.obj;
-        t.obj.o = &o;
-        t.obj.metric = t.metric;
-        t.obj.pc = &t.col;
-        t.obj.start = h->start;
-        mv.pose = h->start;
-        r.iterations = 0;
-        h->rc = fit_from(&t, h->c, 0, &h->end, &h->f);
+        side_begin(&sd, &w->tmpl);
+        t->obj.metric = t->metric;
+        t->obj.pc = &t->col;
+        t->obj.start = h->start;
+        sd.mv.pose = h->start;
+        h->rc = fit_from(t, h->c, 0, &h->end, &h->f);
         if (h->rc == 0) {
-            int hit = reduce__collides(&t.col, &h->end, NULL);
+            int hit = reduce__collides(&t->col, &h->end, NULL);
             h->rc = hit < 0 ? hit : 0;
-            h->f = hit ? INFINITY : reduce_metric_eval(t.metric, &h->end, NULL);
+            h->f = hit ? INFINITY : reduce_metric_eval(t->metric, &h->end, NULL);
         }
-        side_take(&h->sp, &t);
+        side_take(&h->sp, t);
     }
-    reduce_metric_free(t.metric);
+    reduce_metric_free(t->metric);
     return NULL;
 }
 
