@@ -84,6 +84,11 @@ struct reduce_metric {
 /* out = in dilated by k[a] cells along each axis a (a box), by ORs of whole shifted lines;
  * in, out and tmp (scratch) span d[0]*d[1]*d[2] cells. */
 void reduce__dilate_box(const uint8_t *in, uint8_t *out, uint8_t *tmp, const int d[3], const int k[3]);
+/* A summed-volume table t of (nb[0] + 1) x (nb[1] + 1) x (nb[2] + 1) counts, the first plane of each
+ * axis 0 and block (i, j, k) at t[i + 1, j + 1, k + 1]: sums in place, and the sum over blocks
+ * [lo, hi] (inclusive) of the summed table. */
+void reduce__sat_sum(uint32_t *t, const int nb[3]);
+uint32_t reduce__sat_count(const uint32_t *t, const int nb[3], const int lo[3], const int hi[3]);
 reduce_bricks *reduce__bricks_new(const frag *m);
 void reduce__bricks_free(reduce_bricks *b);
 /* The metric's band made again at pose ref (the moving fragment's world pose), where the next

@@ -169,6 +169,14 @@ reduce_bricks *reduce__bricks_new(const frag *m)
     return b;
 }
 
+/* The band's per-brick arrays (reduce__metric_rebase fills them). 0 or FN_ENOMEM. */
+static int band_arrays(reduce_metric *m, const reduce_bricks *b)
+{
+    m->band_x = malloc((size_t)b->nbrick * sizeof *m->band_x + 1);
+    m->band_first = malloc(((size_t)b->nbrick + 1) * sizeof *m->band_first);
+    return m->band_x && m->band_first ? 0 : FN_ENOMEM;
+}
+
 reduce_metric *reduce__metric_share(const reduce_metric *m)
 {
     reduce_metric *c = malloc(sizeof *c);
@@ -179,10 +187,8 @@ reduce_metric *reduce__metric_share(const reduce_metric *m)
         c->band_ref = 0;
         c->band = NULL;
         c->nband = c->capband = 0;
-        c->band_x = malloc((size_t)m->b->nbrick * sizeof *c->band_x + 1);
-        c->band_first = malloc(((size_t)m->b->nbrick + 1) * sizeof *c->band_first);
     }
-    if (!c || !c->band_x || !c->band_first) {
+    if (!c || band_arrays(c, m->b) < 0) {
         reduce_metric_free(c);
         fn_err_set(FN_ENOMEM, "reduce metric: out of memory for a copy of the band");
         return NULL;
@@ -359,32 +365,43 @@ static int block_table(reduce_metric *m)
             for (int i = 0; i < m->D[0]; i++)
                 if (m->cell[((size_t)k * m->D[1] + j) * m->D[0] + i] & REDUCE_CELL_V)
                     m->bsum[((size_t)(k / B + 1) * s1 + (size_t)(j / B + 1)) * s0 + (size_t)(i / B + 1)] = 1;
-    for (int k = 1; k <= m->nb[2]; k++) /* prefix sums along each axis in turn */
-        for (int j = 1; j <= m->nb[1]; j++)
-            for (int i = 1; i <= m->nb[0]; i++) {
-                uint32_t *c = &m->bsum[((size_t)k * s1 + (size_t)j) * s0 + (size_t)i];
+    reduce__sat_sum(m->bsum, m->nb);
+    return 0;
+}
+
+void reduce__sat_sum(uint32_t *t, const int nb[3])
+{
+    size_t s0 = (size_t)nb[0] + 1, s1 = (size_t)nb[1] + 1;
+    for (int k = 1; k <= nb[2]; k++) /* prefix sums along each axis in turn */
+        for (int j = 1; j <= nb[1]; j++)
+            for (int i = 1; i <= nb[0]; i++) {
+                uint32_t *c = &t[((size_t)k * s1 + (size_t)j) * s0 + (size_t)i];
                 *c += c[-1];
             }
-    for (int k = 1; k <= m->nb[2]; k++)
-        for (int j = 1; j <= m->nb[1]; j++)
-            for (int i = 1; i <= m->nb[0]; i++)
-                m->bsum[((size_t)k * s1 + (size_t)j) * s0 + (size_t)i] += m->bsum[((size_t)k * s1 + (size_t)(j - 1)) * s0 + (size_t)i];
-    for (int k = 1; k <= m->nb[2]; k++)
-        for (int j = 1; j <= m->nb[1]; j++)
-            for (int i = 1; i <= m->nb[0]; i++)
-                m->bsum[((size_t)k * s1 + (size_t)j) * s0 + (size_t)i] += m->bsum[((size_t)(k - 1) * s1 + (size_t)j) * s0 + (size_t)i];
-    return 0;
+    for (int k = 1; k <= nb[2]; k++)
+        for (int j = 1; j <= nb[1]; j++)
+            for (int i = 1; i <= nb[0]; i++)
+                t[((size_t)k * s1 + (size_t)j) * s0 + (size_t)i] += t[((size_t)k * s1 + (size_t)(j - 1)) * s0 + (size_t)i];
+    for (int k = 1; k <= nb[2]; k++)
+        for (int j = 1; j <= nb[1]; j++)
+            for (int i = 1; i <= nb[0]; i++)
+                t[((size_t)k * s1 + (size_t)j) * s0 + (size_t)i] += t[((size_t)(k - 1) * s1 + (size_t)j) * s0 + (size_t)i];
+}
+
+uint32_t reduce__sat_count(const uint32_t *t, const int nb[3], const int lo[3], const int hi[3])
+{
+    size_t s0 = (size_t)nb[0] + 1, s1 = (size_t)nb[1] + 1;
+#define S(i, j, k) t[((size_t)(k) * s1 + (size_t)(j)) * s0 + (size_t)(i)]
+    int a0 = lo[0], a1 = hi[0] + 1, b0 = lo[1], b1 = hi[1] + 1, c0 = lo[2], c1 = hi[2] + 1;
+    return S(a1, b1, c1) - S(a0, b1, c1) - S(a1, b0, c1) - S(a1, b1, c0) + S(a0, b0, c1) + S(a0, b1, c0) +
+           S(a1, b0, c0) - S(a0, b0, c0);
+#undef S
 }
 
 /* Counted blocks among blocks [lo, hi] (inclusive). */
 static uint32_t blocks_counted(const reduce_metric *m, const int lo[3], const int hi[3])
 {
-    size_t s0 = (size_t)m->nb[0] + 1, s1 = (size_t)m->nb[1] + 1;
-#define S(i, j, k) m->bsum[((size_t)(k) * s1 + (size_t)(j)) * s0 + (size_t)(i)]
-    int a0 = lo[0], a1 = hi[0] + 1, b0 = lo[1], b1 = hi[1] + 1, c0 = lo[2], c1 = hi[2] + 1;
-    return S(a1, b1, c1) - S(a0, b1, c1) - S(a1, b0, c1) - S(a1, b1, c0) + S(a0, b0, c1) + S(a0, b1, c0) +
-           S(a1, b0, c0) - S(a0, b0, c0);
-#undef S
+    return reduce__sat_count(m->bsum, m->nb, lo, hi);
 }
 
 /* bone[] |= fragment f's bone sampled (nearest) at the VOI cells (c0: the first, d per axis, in
@@ -573,9 +590,7 @@ static int metric_reach(reduce_metric *m, const reduce_bricks *b, const uint8_t 
         m->band_slack[a] = m->band_k[a] - 1.5;
     }
     m->reach = malloc(nv);
-    m->band_x = malloc((size_t)b->nbrick * sizeof *m->band_x + 1);
-    m->band_first = malloc(((size_t)b->nbrick + 1) * sizeof *m->band_first);
-    int rc = m->reach && m->band_x && m->band_first ? dilate_box(in, m->reach, m->d, m->band_k) : FN_ENOMEM;
+    int rc = m->reach && band_arrays(m, b) == 0 ? dilate_box(in, m->reach, m->d, m->band_k) : FN_ENOMEM;
     if (rc < 0 || block_table(m) < 0)
         return fn_err_set(FN_ENOMEM, "reduce metric: out of memory for the band");
     return 0;

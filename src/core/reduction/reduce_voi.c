@@ -163,14 +163,7 @@ int reduce__cloud_grid(reduce_cloud *A)
         ag->x[at] = xs[i];
     }
     free(row), free(byx), free(xs), free(next);
-    for (size_t q = 0; q < nb; q++) /* summed along x, then y, then z */
-        if (q % sy)
-            ag->bsat[q] += ag->bsat[q - 1];
-    for (size_t q = 0; q < nb; q++)
-        if (q / sy % ((size_t)ag->bdim[1] + 1))
-            ag->bsat[q] += ag->bsat[q - sy];
-    for (size_t q = sz; q < nb; q++)
-        ag->bsat[q] += ag->bsat[q - sz];
+    reduce__sat_sum(ag->bsat, ag->bdim);
     A->grid = ag;
     return 0;
 }
@@ -183,13 +176,7 @@ static uint32_t index_points_near(const reduce_cloud_grid *ag, const double w0[3
         lo[a] = index_cell(ag, w0[a], a) / GRID_BLOCK;
         hi[a] = index_cell(ag, w1[a], a) / GRID_BLOCK;
     }
-    const size_t sy = (size_t)ag->bdim[0] + 1, sz = sy * ((size_t)ag->bdim[1] + 1);
-#define S(x, y, z) (int64_t) ag->bsat[(size_t)(z) * sz + (size_t)(y) * sy + (size_t)(x)]
-    int64_t v = S(hi[0] + 1, hi[1] + 1, hi[2] + 1) - S(lo[0], hi[1] + 1, hi[2] + 1) - S(hi[0] + 1, lo[1], hi[2] + 1) -
-                S(hi[0] + 1, hi[1] + 1, lo[2]) + S(lo[0], lo[1], hi[2] + 1) + S(lo[0], hi[1] + 1, lo[2]) +
-                S(hi[0] + 1, lo[1], lo[2]) - S(lo[0], lo[1], lo[2]);
-#undef S
-    return (uint32_t)v;
+    return reduce__sat_count(ag->bsat, ag->bdim, lo, hi);
 }
 
 /* One contact zone's work: the moving piece (its bricks) at its pose, the grid's corner, and the
@@ -337,7 +324,7 @@ static int zone_moving(zone *g, int k)
     return 0;
 }
 
-/* The assembly's points in the cells r0 .. r0 + rd - 1 (g->ap, their cells g->ac), from the rows of
+/* The assembly's points in the cells r0 .. r0 + rd - 1 (g->ai, their cells g->ac), from the rows of
  * the index that those cells touch, and their occupancy over those cells (g->occ). 0 or FN_ENOMEM. */
 static int zone_assembly(zone *g, const int r0[3], const int rd[3])
 {
